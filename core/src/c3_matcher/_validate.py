@@ -1,0 +1,63 @@
+"""Validation helpers shared by the DTOs: each failure names the field and says why."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.errors import InvalidInputError
+
+
+def require(condition: bool, field: str, reason: str) -> None:
+    if not condition:
+        raise InvalidInputError(field, reason)
+
+
+def finite_float(value: object, field: str, *, low: float | None = None,
+                 high: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise InvalidInputError(field, f"expected a number, got {type(value).__name__}")
+    number = float(value)
+    require(math.isfinite(number), field, f"must be finite, got {number}")
+    if low is not None:
+        require(number >= low, field, f"must be >= {low}, got {number}")
+    if high is not None:
+        require(number <= high, field, f"must be <= {high}, got {number}")
+    return number
+
+
+def non_negative_int(value: object, field: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise InvalidInputError(field, f"expected an int, got {type(value).__name__}")
+    require(int(value) >= 0, field, f"must be >= 0, got {value}")
+    return int(value)
+
+
+def array(value: object, field: str, *, dtype: Any, ndim: int | None = None,
+          shape: tuple[int | None, ...] | None = None, finite: bool = True) -> NDArray[Any]:
+    """Check an ndarray's dtype and shape (``None`` in ``shape`` means any size) exactly."""
+    if not isinstance(value, np.ndarray):
+        raise InvalidInputError(field, f"expected numpy.ndarray, got {type(value).__name__}")
+    require(value.dtype == np.dtype(dtype), field,
+            f"expected dtype {np.dtype(dtype)}, got {value.dtype}")
+    if shape is not None:
+        ok = value.ndim == len(shape) and all(
+            want is None or want == got for want, got in zip(shape, value.shape, strict=True)
+        )
+        want_text = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+        require(ok, field, f"expected shape {want_text}, got {value.shape}")
+    elif ndim is not None:
+        require(value.ndim == ndim, field, f"expected {ndim} dimensions, got {value.shape}")
+    if finite and value.dtype.kind == "f":
+        require(bool(np.isfinite(value).all()), field, "contains NaN or infinite values")
+    return value
+
+
+def frozen_copy(value: NDArray[Any]) -> NDArray[Any]:
+    """A read-only array: DTOs are immutable, so their arrays are too."""
+    out = np.array(value, copy=True)
+    out.setflags(write=False)
+    return out

@@ -1,0 +1,170 @@
+"""The matcher's errors: one base class, each error carrying the facts a caller needs to act.
+
+``MatcherBackboneError`` and ``InsufficientInliersError`` are the two errors of the
+``CrossDomainMatcher.match`` contract (seed 001 section 2). The others are start-up and
+configuration errors raised before the first frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+__all__ = [
+    "AirborneBootstrapError",
+    "C3Error",
+    "ConfigurationError",
+    "DuplicateStrategyError",
+    "EngineError",
+    "InsufficientInliersError",
+    "InvalidInputError",
+    "MatcherBackboneError",
+    "PluginLoadError",
+    "ProfileError",
+    "StrategyNotLinkedError",
+    "UnknownStrategyError",
+]
+
+
+class C3Error(Exception):
+    """Base class of every error raised by c3-matcher."""
+
+
+class InvalidInputError(C3Error, ValueError):
+    """A DTO or argument failed validation; ``field`` names it, ``reason`` says why."""
+
+    def __init__(self, field: str, reason: str) -> None:
+        self.field = field
+        self.reason = reason
+        super().__init__(f"{field}: {reason}")
+
+
+class MatcherBackboneError(C3Error):
+    """A backbone stage (decode, preprocess, extract, match) failed.
+
+    Per candidate it is caught by the pipeline (drop-and-continue, INV-4); for the query frame
+    itself (``phase="query_extract"``) it propagates to the caller (DECISIONS 3).
+    """
+
+    def __init__(self, phase: str, tile_id: object | None, cause: BaseException | str) -> None:
+        self.phase = phase
+        self.tile_id = tile_id
+        self.cause = cause
+        where = "query frame" if tile_id is None else f"tile {tile_id}"
+        detail = cause if isinstance(cause, str) else f"{type(cause).__name__}: {cause}"
+        super().__init__(f"backbone failure in phase {phase!r} on {where}: {detail}")
+
+
+class InsufficientInliersError(C3Error):
+    """No candidate reached ``min_inliers_threshold`` RANSAC inliers (or every one was dropped).
+
+    The caller (C5) falls back to VIO-only with provenance ``visual_propagated``.
+    """
+
+    def __init__(
+        self,
+        frame_id: object,
+        best_inlier_count: int,
+        threshold: int,
+        candidates_input: int,
+        candidates_dropped: int,
+        matcher_label: str,
+    ) -> None:
+        self.frame_id = frame_id
+        self.best_inlier_count = best_inlier_count
+        self.threshold = threshold
+        self.candidates_input = candidates_input
+        self.candidates_dropped = candidates_dropped
+        self.matcher_label = matcher_label
+        super().__init__(
+            f"frame {frame_id}: best inlier count {best_inlier_count} < threshold {threshold} "
+            f"({candidates_dropped} of {candidates_input} candidates dropped; "
+            f"backbone={matcher_label})"
+        )
+
+
+class StrategyNotLinkedError(C3Error):
+    """The selected strategy is not linked into the running build (profile)."""
+
+    def __init__(self, strategy: str, flag: str | None, profile: str, fix: str) -> None:
+        self.strategy = strategy
+        self.flag = flag
+        self.profile = profile
+        self.fix = fix
+        flag_text = f"{flag} is OFF" if flag else "it has no BUILD_MATCHER_* flag"
+        super().__init__(
+            f"strategy {strategy!r} is not linked in profile {profile!r} ({flag_text} or its "
+            f"plugin is not installed); fix: {fix}"
+        )
+
+
+class UnknownStrategyError(C3Error):
+    """A strategy name matches no flag and no installed plugin."""
+
+    def __init__(self, strategy: str, known: Sequence[str]) -> None:
+        self.strategy = strategy
+        self.known = tuple(known)
+        super().__init__(
+            f"strategy {strategy!r} is not recognized, choose one of: {', '.join(self.known)}"
+        )
+
+
+class AirborneBootstrapError(C3Error):
+    """``compose_root`` is missing a required pre-constructed key for a consumer slot."""
+
+    def __init__(self, consumer: str, key: str, detail: str = "") -> None:
+        self.consumer = consumer
+        self.key = key
+        extra = f": {detail}" if detail else ""
+        super().__init__(
+            f"consumer {consumer!r} requires pre-constructed key {key!r}{extra} "
+            "(build the defaults with c3_matcher.build_default_helpers(settings))"
+        )
+
+
+class PluginLoadError(C3Error):
+    """A plugin entry point failed to import or to register."""
+
+    def __init__(self, plugin: str, distribution: str, cause: BaseException | str) -> None:
+        self.plugin = plugin
+        self.distribution = distribution
+        self.cause = cause
+        detail = cause if isinstance(cause, str) else f"{type(cause).__name__}: {cause}"
+        super().__init__(
+            f'Error importing plugin "{plugin}" (distribution {distribution}): {detail}'
+        )
+
+
+class DuplicateStrategyError(C3Error):
+    """Two plugins claim one strategy name."""
+
+    def __init__(self, strategy: str, distributions: Sequence[str]) -> None:
+        self.strategy = strategy
+        self.distributions = tuple(distributions)
+        super().__init__(
+            f"strategy {strategy!r} is claimed by more than one distribution: "
+            f"{', '.join(self.distributions)}"
+        )
+
+
+class ProfileError(C3Error):
+    """The installed build profile is missing, ambiguous or inconsistent."""
+
+
+class ConfigurationError(C3Error):
+    """The configuration was refused; ``problems`` lists (field, reason) pairs."""
+
+    def __init__(self, source: str, problems: Sequence[tuple[str, str]]) -> None:
+        self.source = source
+        self.problems = tuple(problems)
+        lines = "; ".join(f"{field}: {reason}" for field, reason in self.problems)
+        super().__init__(f"invalid configuration ({source}): {lines}")
+
+
+class EngineError(C3Error):
+    """An engine is missing, unreadable or does not match its manifest (a start-up error)."""
+
+    def __init__(self, path: object, reason: str, command: str = "c3-matcher engines build") -> None:
+        self.path = path
+        self.reason = reason
+        self.command = command
+        super().__init__(f"engine {path}: {reason}; build it with `{command}`")

@@ -1,0 +1,55 @@
+"""What a strategy's model I/O produces: keypoint features of one image, raw matches of a pair.
+
+Names follow LightGlue's (``keypoints``, ``descriptors``, ``keypoint_scores``, ``matches``,
+``scores``). Keypoints are (x, y) in the pixels of the image the extractor saw (the prepared,
+resized image), origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher import _validate as v
+
+__all__ = ["Features", "RawMatches"]
+
+
+@dataclass(frozen=True, slots=True)
+class Features:
+    """Keypoints float32 (K, 2) (x, y) px; descriptors float32 (K, D); keypoint_scores float32 (K,);
+    image_size (width, height) of the image the extractor saw."""
+
+    keypoints: NDArray[np.float32]
+    descriptors: NDArray[np.float32]
+    keypoint_scores: NDArray[np.float32]
+    image_size: tuple[int, int]
+
+    def __post_init__(self) -> None:
+        kp = v.array(self.keypoints, "features.keypoints", dtype=np.float32, shape=(None, 2))
+        n = kp.shape[0]
+        v.array(self.descriptors, "features.descriptors", dtype=np.float32, shape=(n, None))
+        v.array(self.keypoint_scores, "features.keypoint_scores", dtype=np.float32, shape=(n,))
+        w, h = self.image_size
+        v.require(w > 0 and h > 0, "features.image_size", f"must be > 0, got {self.image_size}")
+
+    def __len__(self) -> int:
+        return int(self.keypoints.shape[0])
+
+
+@dataclass(frozen=True, slots=True)
+class RawMatches:
+    """Matches before RANSAC: ``matches`` int64 (M, 2) indices (query, tile) into the two
+    keypoint arrays; ``scores`` float32 (M,) match confidences in [0, 1]."""
+
+    matches: NDArray[np.int64]
+    scores: NDArray[np.float32]
+
+    def __post_init__(self) -> None:
+        m = v.array(self.matches, "raw_matches.matches", dtype=np.int64, shape=(None, 2))
+        v.array(self.scores, "raw_matches.scores", dtype=np.float32, shape=(m.shape[0],))
+
+    def __len__(self) -> int:
+        return int(self.matches.shape[0])

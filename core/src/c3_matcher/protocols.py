@@ -1,0 +1,114 @@
+"""The interfaces of C3 and of the helpers it consumes (seed 001 sections 1-2, 6).
+
+Everything here is a ``typing.Protocol``: concrete classes live elsewhere in the core, in the
+strategy plugins, or in a caller's own code (test doubles included).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.dto import (
+    CameraCalibration,
+    MatcherHealth,
+    MatchResult,
+    NavCameraFrame,
+    RansacResult,
+    RerankResult,
+)
+from c3_matcher.features import RawMatches
+
+__all__ = [
+    "Clock",
+    "CrossDomainMatcher",
+    "FdrClient",
+    "InferenceRuntime",
+    "LightGlueRuntime",
+    "RansacFilter",
+    "TilePixelsHandle",
+]
+
+
+@runtime_checkable
+class CrossDomainMatcher(Protocol):
+    """C3's strategy interface. Single-threaded use (INV-1)."""
+
+    def match(
+        self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
+    ) -> MatchResult:
+        """Match ``frame`` against every candidate; raise ``MatcherBackboneError`` (query frame
+        failed) or ``InsufficientInliersError`` (no candidate reached the threshold)."""
+        ...
+
+    def health_snapshot(self) -> MatcherHealth: ...
+
+
+@runtime_checkable
+class TilePixelsHandle(Protocol):
+    """A reference to one tile's encoded bytes (PNG/JPEG/TIFF...) that decodes on demand.
+
+    ``encoded()`` returns a zero-copy view of the bytes (page-cache backed where the store allows);
+    ``decode()`` returns uint8 RGB (H, W, 3) pixels and raises on undecodable data.
+    """
+
+    def encoded(self) -> memoryview: ...
+
+    def decode(self) -> NDArray[np.uint8]: ...
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """Monotonic time source (injected so tests control time)."""
+
+    def monotonic_ns(self) -> int: ...
+
+
+@runtime_checkable
+class FdrClient(Protocol):
+    """C13 flight-data recorder: ``record`` returns only once the record is durable."""
+
+    def record(self, kind: str, payload: Mapping[str, Any]) -> None: ...
+
+
+@runtime_checkable
+class RansacFilter(Protocol):
+    """AZ-282: RANSAC homography + median residual over (M, 4) correspondences."""
+
+    def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult: ...
+
+
+@runtime_checkable
+class InferenceRuntime(Protocol):
+    """C7: loads engines at start-up and runs them."""
+
+    @property
+    def provider(self) -> str: ...
+
+    def load_engine(self, path: Any) -> str: ...
+
+    def run(self, engine_id: str, feeds: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[Any]]: ...
+
+
+@runtime_checkable
+class LightGlueRuntime(Protocol):
+    """AZ-278: the shared LightGlue handle, one engine per feature type (DECISIONS 9).
+
+    Keypoints are (x, y) px of images of ``size`` (width, height); LightGlue normalises them by
+    those sizes exactly as the PyTorch model does.
+    """
+
+    def match_pair(
+        self,
+        kpts0: NDArray[np.float32],
+        desc0: NDArray[np.float32],
+        size0: tuple[int, int],
+        kpts1: NDArray[np.float32],
+        desc1: NDArray[np.float32],
+        size1: tuple[int, int],
+        *,
+        feature_type: str,
+    ) -> RawMatches: ...
