@@ -1,0 +1,173 @@
+"""The composition root (seed 001 section 1, ADR-009; DECISIONS 7-8).
+
+``compose_root(config, pre_constructed)`` wires the ``c3_matcher`` slot: it checks the required
+pre-constructed shared helpers, builds what may be defaulted (clock, durable FDR recorder),
+configures logging once, discovers the plugins the installed profile allows, selects the
+configured strategy and creates it (engines load now, at start-up). It never silently builds a
+required helper: ``build_default_helpers(settings)`` does that, explicitly, for callers that do
+not bring their own (the CLI, tests, integrators).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from c3_matcher.config import C3Settings
+from c3_matcher.errors import AirborneBootstrapError, ConfigurationError
+from c3_matcher.fdr import JsonlFdrRecorder
+from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.logs import LoggingHandle, configure_logging, log_event
+from c3_matcher.plugins.manager import PluginHost, discover
+from c3_matcher.profiles import installed_profile
+from c3_matcher.protocols import (
+    Clock,
+    CrossDomainMatcher,
+    FdrClient,
+    InferenceRuntime,
+    LightGlueRuntime,
+    RansacFilter,
+)
+from c3_matcher.ransac import OpenCvRansacFilter
+
+__all__ = [
+    "AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS",
+    "OPTIONAL_PRE_CONSTRUCTED_KEYS",
+    "ComposedRoot",
+    "build_default_helpers",
+    "build_plugin_host",
+    "compose_root",
+]
+
+CONSUMER = "c3_matcher"
+AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS: Mapping[str, tuple[str, ...]] = {
+    CONSUMER: ("c3_lightglue_runtime", "c282_ransac_filter", "c7_inference"),
+}
+OPTIONAL_PRE_CONSTRUCTED_KEYS = ("clock", "c13_fdr")
+_KEY_TYPES: Mapping[str, type] = {
+    "c3_lightglue_runtime": LightGlueRuntime,
+    "c282_ransac_filter": RansacFilter,
+    "c7_inference": InferenceRuntime,
+    "clock": Clock,
+    "c13_fdr": FdrClient,
+}
+
+
+@dataclass(frozen=True)
+class ComposedRoot:
+    """What ``compose_root`` wired. ``close()`` releases the logging sinks and the recorder."""
+
+    matcher: CrossDomainMatcher
+    strategy: str
+    health_window: RollingHealthWindow
+    fdr: FdrClient
+    clock: Clock
+    plugin_host: PluginHost
+    helpers: Mapping[str, Any]
+    logging: LoggingHandle | None
+
+    def close(self) -> None:
+        if self.logging is not None:
+            self.logging.close()
+        close = getattr(self.fdr, "close", None)
+        if callable(close) and "c13_fdr" not in self.helpers:
+            close()
+
+
+def build_plugin_host() -> PluginHost:
+    """The plugin host of this environment: its installed profile and plugin entry points."""
+    return PluginHost(installed_profile(), discover())
+
+
+def build_default_helpers(settings: C3Settings,
+                          providers_available: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """The default shared helpers (``c3_lightglue_runtime``, ``c282_ransac_filter``,
+    ``c7_inference``) built from configuration: ONNX Runtime and OpenCV USAC."""
+    from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
+    from c3_matcher.engines.runtime import OnnxInferenceRuntime
+
+    providers = providers_available
+    if providers is None and settings.engines.providers is not None:
+        providers = tuple(settings.engines.providers)
+    inference = OnnxInferenceRuntime(providers_available=providers,
+                                     tensorrt_cache_dir=settings.engines.tensorrt_cache_dir)
+    return {
+        "c7_inference": inference,
+        "c3_lightglue_runtime": OnnxLightGlueRuntime(inference),
+        "c282_ransac_filter": OpenCvRansacFilter(seed=settings.matcher.ransac_seed),
+    }
+
+
+def compose_root(
+    config: C3Settings,
+    pre_constructed: Mapping[str, Any] | None = None,
+    *,
+    plugin_host: PluginHost | None = None,
+    configure_logs: bool = True,
+) -> ComposedRoot:
+    """Wire the ``c3_matcher`` slot; raise ``AirborneBootstrapError`` for a missing key,
+    ``StrategyNotLinkedError`` for a strategy the build does not link."""
+    helpers = dict(pre_constructed or {})
+    for key in AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS[CONSUMER]:
+        if key not in helpers:
+            raise AirborneBootstrapError(CONSUMER, key)
+    for key, value in helpers.items():
+        expected = _KEY_TYPES.get(key)
+        if expected is not None and not isinstance(value, expected):
+            raise AirborneBootstrapError(
+                CONSUMER, key, f"expected a {expected.__name__}, got {type(value).__name__}")
+    clock: Clock = helpers.get("clock") or MonotonicClock()
+    fdr: FdrClient = helpers.get("c13_fdr") or JsonlFdrRecorder(
+        config.fdr.path, clock, max_bytes=config.fdr.max_bytes)
+    handle = configure_logging(fdr, level=config.logging.level) if configure_logs else None
+    try:
+        host = plugin_host if plugin_host is not None else build_plugin_host()
+        for error in host.errors:
+            log_event("ERROR", "c3.plugins.load_error", str(error), error=str(error))
+        name = config.matcher.strategy
+        spec = host.resolve(name)
+        options = _strategy_options(config, name, spec.options_model)
+        health = RollingHealthWindow(clock, config.matcher.min_inliers_threshold)
+        matcher = spec.factory(
+            config=config,
+            options=options,
+            inference_runtime=helpers["c7_inference"],
+            lightglue_runtime=helpers["c3_lightglue_runtime"],
+            ransac_filter=helpers["c282_ransac_filter"],
+            health_window=health,
+            fdr_client=fdr,
+            clock=clock,
+        )
+        if not isinstance(matcher, CrossDomainMatcher):
+            raise AirborneBootstrapError(CONSUMER, name,
+                                         f"factory returned {type(matcher).__name__}, "
+                                         "not a CrossDomainMatcher")
+        provider = getattr(helpers["c7_inference"], "provider", "unknown")
+        log_event("INFO", "c3.matcher.ready", f"C3 ready: matcher={name}",
+                  strategy=name, min_inliers_threshold=config.matcher.min_inliers_threshold,
+                  residual_warn_threshold_px=config.matcher.residual_warn_threshold_px,
+                  profile=host.profile.name, provider=provider)
+    except Exception:
+        if handle is not None:
+            handle.close()
+        raise
+    return ComposedRoot(matcher, name, health, fdr, clock, host, helpers, handle)
+
+
+def _strategy_options(config: C3Settings, name: str, model: type | None) -> Any:
+    raw = config.matcher.options.get(name, {})
+    if model is None:
+        if raw:
+            raise ConfigurationError(
+                "matcher.options", [(f"matcher.options.{name}",
+                                     f"strategy {name!r} takes no options, got {sorted(raw)}")])
+        return None
+    from pydantic import ValidationError
+
+    try:
+        return model.model_validate(raw)
+    except ValidationError as exc:
+        raise ConfigurationError("matcher.options", [
+            (f"matcher.options.{name}.{'.'.join(str(p) for p in e['loc'])}", e["msg"])
+            for e in exc.errors()]) from None

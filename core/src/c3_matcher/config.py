@@ -1,0 +1,153 @@
+"""Configuration (AZ-269) with pydantic-settings: defaults < TOML file < environment variables.
+
+Environment variables use the prefix ``C3_MATCHER_`` and ``__`` between levels, e.g.
+``C3_MATCHER_MATCHER__MIN_INLIERS_THRESHOLD=80``. Unknown keys are refused (a typo in a flight
+configuration must not pass silently), and so are bad values, naming the field and why.
+Defaults follow DECISIONS 14 (upstream LightGlue conventions).
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Literal
+
+from platformdirs import user_cache_dir, user_data_dir
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+
+from c3_matcher.errors import ConfigurationError
+
+__all__ = [
+    "C3Settings",
+    "EngineSettings",
+    "FdrSettings",
+    "LoggingSettings",
+    "MatcherSettings",
+    "ENV_PREFIX",
+    "load_settings",
+]
+
+ENV_PREFIX = "C3_MATCHER_"
+APP_NAME = "c3-matcher"
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class MatcherSettings(_Section):
+    """The ``[matcher]`` table."""
+
+    strategy: str = Field("disk_lightglue", min_length=1,
+                          description="strategy name (a linked plugin's), default disk_lightglue")
+    min_inliers_threshold: int = Field(60, ge=4, description="RANSAC inliers needed (AC-5)")
+    residual_warn_threshold_px: float = Field(2.5, gt=0, description="WARN above this (AC-7)")
+    ransac_threshold_px: float = Field(3.0, gt=0, description="RANSAC inlier threshold, tile px")
+    max_long_side: int = Field(1024, ge=64, le=8192,
+                               description="images are downscaled so their long side <= this")
+    max_keypoints: int = Field(2048, ge=16, le=8192, description="keypoint budget per image")
+    ransac_seed: int = Field(0, ge=0, description="RANSAC generator seed (determinism)")
+    options: dict[str, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="per-strategy options, [matcher.options.<strategy>], validated by the plugin",
+    )
+
+
+class EngineSettings(_Section):
+    """The ``[engines]`` table."""
+
+    directory: Path = Field(Path(user_cache_dir(APP_NAME)) / "engines",
+                            description="where engines and manifests live")
+    tensorrt_cache_dir: Path = Field(Path(user_cache_dir(APP_NAME)) / "trt-cache",
+                                     description="ONNX Runtime TensorRT engine cache")
+    providers: tuple[str, ...] | None = Field(
+        None, description="execution providers to allow, in order; default: all available")
+
+
+class FdrSettings(_Section):
+    """The ``[fdr]`` table."""
+
+    path: Path = Field(Path(user_data_dir(APP_NAME)) / "fdr" / "c3_fdr.jsonl",
+                       description="live FDR segment (JSON Lines)")
+    max_bytes: int = Field(64 * 1024 * 1024, ge=1024, description="rotate above this size")
+
+
+class LoggingSettings(_Section):
+    """The ``[logging]`` table."""
+
+    level: Literal["TRACE", "DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+
+
+class C3Settings(BaseSettings):
+    """The whole configuration."""
+
+    model_config = SettingsConfigDict(
+        env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid", frozen=True,
+    )
+
+    matcher: MatcherSettings = Field(default_factory=MatcherSettings)
+    engines: EngineSettings = Field(default_factory=EngineSettings)
+    fdr: FdrSettings = Field(default_factory=FdrSettings)
+    logging: LoggingSettings = Field(default_factory=LoggingSettings)
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        # init (TOML contents, passed by load_settings) < environment.
+        return (env_settings, init_settings)
+
+
+def _unknown_env_keys(env: Mapping[str, str]) -> list[tuple[str, str]]:
+    sections = {name: model for name, model in C3Settings.model_fields.items()}
+    problems = []
+    for key in env:
+        if not key.upper().startswith(ENV_PREFIX):
+            continue
+        parts = key[len(ENV_PREFIX):].lower().split("__")
+        section = sections.get(parts[0])
+        annotation = section.annotation if section else None
+        fields = getattr(annotation, "model_fields", {})
+        if section is None or (len(parts) > 1 and parts[1] not in fields):
+            problems.append((key, "unknown setting (check the spelling)"))
+    return problems
+
+
+def load_settings(toml_path: Path | None = None,
+                  env: Mapping[str, str] | None = None) -> C3Settings:
+    """Load and validate the configuration; raise ``ConfigurationError`` naming every bad field."""
+    environ = dict(os.environ if env is None else env)
+    source = f"{toml_path} + environment" if toml_path else "environment"
+    data: dict[str, Any] = {}
+    if toml_path is not None:
+        try:
+            data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ConfigurationError(source, [("--config", "file not found")]) from None
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            raise ConfigurationError(source, [("--config", f"unreadable TOML: {exc}")]) from exc
+    unknown = _unknown_env_keys(environ)
+    if unknown:
+        raise ConfigurationError("environment", unknown)
+    saved = dict(os.environ)
+    try:
+        if env is not None:
+            os.environ.clear()
+            os.environ.update(environ)
+        return C3Settings(**data)
+    except ValidationError as exc:
+        problems = [(".".join(str(p) for p in err["loc"]) or "(root)", err["msg"])
+                    for err in exc.errors()]
+        raise ConfigurationError(source, problems) from None
+    finally:
+        if env is not None:
+            os.environ.clear()
+            os.environ.update(saved)

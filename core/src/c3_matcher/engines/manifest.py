@@ -1,0 +1,187 @@
+"""The manifest written beside each engine, and the checks that tie an engine file to it.
+
+The manifest is JSON (``<engine stem>.manifest.json``) and records: the file's sha256 and size,
+model/variant/precision/input rule/opset, the build key, the weights (distribution, version, path,
+sha256), the graph's inputs and outputs (names, dtypes, shapes; a string dimension is a dynamic
+axis), the exporter and library versions, the exporter options and the verification figures.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from c3_matcher.engines.naming import EngineName, manifest_path_for
+from c3_matcher.engines.spec import TensorSpec, file_sha256
+from c3_matcher.errors import EngineError
+
+__all__ = ["MANIFEST_SCHEMA", "EngineManifest", "check_engine_file", "read_manifest"]
+
+MANIFEST_SCHEMA = 1
+
+
+@dataclass(frozen=True, slots=True)
+class EngineManifest:
+    """The parsed manifest of one engine (see the module docstring for the fields' meaning).
+
+    ``verification`` holds the build-time comparison against the PyTorch reference:
+    ``{"passed": bool, "tolerances": {...}, "checks": [{...figures per input...}]}``.
+    """
+
+    file: str
+    file_sha256: str
+    file_bytes: int
+    model: str
+    variant: str
+    kind: str
+    precision: str
+    input_rule: str
+    opset: int
+    build_key: str
+    weights: Mapping[str, str]
+    inputs: tuple[TensorSpec, ...]
+    outputs: tuple[TensorSpec, ...]
+    exporter: Mapping[str, str]
+    options: Mapping[str, Any]
+    verification: Mapping[str, Any]
+    build_seconds: float
+    built_at: str
+    feature_type: str | None = None
+    size_multiple: int | None = None
+    description: str = ""
+    schema: int = MANIFEST_SCHEMA
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def weights_sha256(self) -> str:
+        return str(self.weights["sha256"])
+
+    @property
+    def verification_passed(self) -> bool:
+        return bool(self.verification.get("passed", False))
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready dict (dynamic axes spelled out per tensor for readers)."""
+        return {
+            "schema": self.schema,
+            "file": self.file,
+            "file_sha256": self.file_sha256,
+            "file_bytes": self.file_bytes,
+            "model": self.model,
+            "variant": self.variant,
+            "kind": self.kind,
+            "feature_type": self.feature_type,
+            "size_multiple": self.size_multiple,
+            "description": self.description,
+            "precision": self.precision,
+            "input_rule": self.input_rule,
+            "opset": self.opset,
+            "build_key": self.build_key,
+            "weights": dict(self.weights),
+            "inputs": [t.to_json() for t in self.inputs],
+            "outputs": [t.to_json() for t in self.outputs],
+            "dynamic_axes": {
+                t.name: {str(i): n for i, n in t.dynamic_axes().items()}
+                for t in (*self.inputs, *self.outputs)
+                if t.dynamic_axes()
+            },
+            "exporter": dict(self.exporter),
+            "options": dict(self.options),
+            "verification": dict(self.verification),
+            "build_seconds": self.build_seconds,
+            "built_at": self.built_at,
+            "extra": dict(self.extra),
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> EngineManifest:
+        """Parse; ``KeyError``/``ValueError``/``TypeError`` on a malformed manifest."""
+        if int(data["schema"]) != MANIFEST_SCHEMA:
+            raise ValueError(f"manifest schema {data['schema']} != {MANIFEST_SCHEMA}")
+        return cls(
+            file=str(data["file"]),
+            file_sha256=str(data["file_sha256"]),
+            file_bytes=int(data["file_bytes"]),
+            model=str(data["model"]),
+            variant=str(data["variant"]),
+            kind=str(data["kind"]),
+            precision=str(data["precision"]),
+            input_rule=str(data["input_rule"]),
+            opset=int(data["opset"]),
+            build_key=str(data["build_key"]),
+            weights={str(k): str(v) for k, v in dict(data["weights"]).items()},
+            inputs=tuple(TensorSpec.from_json(t) for t in data["inputs"]),
+            outputs=tuple(TensorSpec.from_json(t) for t in data["outputs"]),
+            exporter={str(k): str(v) for k, v in dict(data["exporter"]).items()},
+            options=dict(data["options"]),
+            verification=dict(data["verification"]),
+            build_seconds=float(data["build_seconds"]),
+            built_at=str(data["built_at"]),
+            feature_type=None if data.get("feature_type") is None else str(data["feature_type"]),
+            size_multiple=(
+                None if data.get("size_multiple") is None else int(data["size_multiple"])
+            ),
+            description=str(data.get("description", "")),
+            extra=dict(data.get("extra", {})),
+        )
+
+    def write(self, path: Path) -> None:
+        path.write_text(json.dumps(self.to_json(), indent=2, sort_keys=False) + "\n")
+
+
+def read_manifest(engine_path: Path) -> EngineManifest:
+    """Read the manifest beside ``engine_path``; ``EngineError`` if missing or malformed."""
+    manifest_path = manifest_path_for(engine_path)
+    if not manifest_path.is_file():
+        raise EngineError(engine_path, f"its manifest {manifest_path.name} is missing")
+    try:
+        return EngineManifest.from_json(json.loads(manifest_path.read_text()))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise EngineError(
+            engine_path, f"its manifest {manifest_path.name} is unreadable ({exc})"
+        ) from exc
+
+
+def check_engine_file(engine_path: Path, *, check_hash: bool = True) -> EngineManifest:
+    """Check an engine file against the name schema and its manifest.
+
+    Checks: the file exists; its name follows the schema; the manifest names this file and agrees
+    with the name's model/variant/precision/rule/opset/hash; the verification passed; and (with
+    ``check_hash``) the file's size and sha256 equal the manifest's. Returns the manifest; raises
+    ``EngineError`` naming the file and the build command otherwise.
+    """
+    path = Path(engine_path)
+    if not path.is_file():
+        raise EngineError(path, "file not found")
+    try:
+        name = EngineName.parse(path.name)
+    except ValueError as exc:
+        raise EngineError(path, str(exc)) from exc
+    manifest = read_manifest(path)
+    if manifest.file != path.name:
+        raise EngineError(path, f"manifest describes {manifest.file!r}, not this file")
+    expected = (name.model, name.variant, name.precision, name.input_rule, name.opset)
+    declared = (
+        manifest.model,
+        manifest.variant,
+        manifest.precision,
+        manifest.input_rule,
+        manifest.opset,
+    )
+    if expected != declared or not manifest.build_key.startswith(name.short_hash):
+        raise EngineError(path, f"file name {expected} disagrees with its manifest {declared}")
+    if not manifest.verification_passed:
+        raise EngineError(path, "its manifest records a failed verification")
+    if check_hash:
+        size = path.stat().st_size
+        if size != manifest.file_bytes:
+            raise EngineError(path, f"size {size} B != manifest {manifest.file_bytes} B")
+        digest = file_sha256(path)
+        if digest != manifest.file_sha256:
+            raise EngineError(
+                path, f"sha256 {digest[:16]}... != manifest {manifest.file_sha256[:16]}..."
+            )
+    return manifest

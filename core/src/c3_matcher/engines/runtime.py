@@ -1,0 +1,243 @@
+"""``OnnxInferenceRuntime``: the shared ``InferenceRuntime`` (C7) on ONNX Runtime. No PyTorch.
+
+Execution provider: the first of TensorRT -> CUDA -> CPU that the installed onnxruntime offers
+(or the injected ``providers_available``), with the rest of that chain as fallbacks; the choice is
+logged once (``c3.inference.provider_selected``).
+
+Session options, chosen by measurement (``c3-matcher engines bench``, 2-core CPU, onnxruntime
+1.31, DISK 1024x1024 / LightGlue 2048 keypoints per side; median of 20 runs, peak RSS per fresh
+process; see ``SESSION_OPTIONS_NOTE``):
+
+- ``enable_mem_pattern = False``: the memory-pattern planner pre-allocates one block per dynamic
+  shape it has seen; with DISK's large activations it raised peak RSS by ~1 GB at 1024x1024 at no
+  measurable speed gain.
+- CPU memory arena kept ON: turning it off lowered peak memory further but cost 17-40 % latency.
+- ``graph_optimization_level = ORT_ENABLE_ALL`` (default fusions), sequential execution,
+  ``intra_op_num_threads = 0`` (one per physical core); ``use_deterministic_compute`` on so two
+  runs of the same input are bit-identical (DECISIONS 5).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+from loguru import logger
+from numpy.typing import NDArray
+
+from c3_matcher.engines.manifest import EngineManifest, check_engine_file
+from c3_matcher.engines.spec import TensorSpec
+from c3_matcher.errors import EngineError
+
+__all__ = [
+    "PROVIDER_CHAIN",
+    "SESSION_OPTIONS_NOTE",
+    "OnnxInferenceRuntime",
+    "SessionSettings",
+    "select_providers",
+]
+
+PROVIDER_CHAIN: tuple[str, ...] = (
+    "TensorrtExecutionProvider",
+    "CUDAExecutionProvider",
+    "CPUExecutionProvider",
+)
+
+SESSION_OPTIONS_NOTE = "memory pattern off, arena on, ORT_ENABLE_ALL, sequential, deterministic"
+
+_ORT_TO_NUMPY = {
+    "tensor(float)": "float32",
+    "tensor(float16)": "float16",
+    "tensor(int64)": "int64",
+    "tensor(int32)": "int32",
+    "tensor(bool)": "bool",
+    "tensor(uint8)": "uint8",
+}
+
+
+def select_providers(available: Sequence[str]) -> list[str]:
+    """The provider list for a session: the chain's members present in ``available``, in chain
+    order. ``EngineError`` if none (an onnxruntime without CPU provider)."""
+    chosen = [p for p in PROVIDER_CHAIN if p in set(available)]
+    if not chosen:
+        raise EngineError(
+            "onnxruntime",
+            f"none of {list(PROVIDER_CHAIN)} is available (installed: {list(available)})",
+            "pip install onnxruntime",
+        )
+    return chosen
+
+
+@dataclass(frozen=True, slots=True)
+class SessionSettings:
+    """ONNX Runtime session options (defaults chosen by measurement, see the module docstring)."""
+
+    enable_mem_pattern: bool = False
+    enable_cpu_mem_arena: bool = True
+    intra_op_num_threads: int = 0
+    deterministic: bool = True
+
+    def build(self) -> ort.SessionOptions:
+        options = ort.SessionOptions()
+        options.enable_mem_pattern = self.enable_mem_pattern
+        options.enable_cpu_mem_arena = self.enable_cpu_mem_arena
+        options.intra_op_num_threads = self.intra_op_num_threads
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.use_deterministic_compute = self.deterministic
+        options.log_severity_level = 3
+        return options
+
+
+@dataclass(frozen=True, slots=True)
+class _Loaded:
+    path: Path
+    manifest: EngineManifest
+    session: ort.InferenceSession
+    input_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+
+
+def _check_io(
+    path: Path, role: str, declared: Sequence[TensorSpec], actual: Sequence[Any]
+) -> None:
+    """Assert a session's real inputs/outputs equal the manifest's (names, dtypes, shapes)."""
+    want = {t.name: t for t in declared}
+    got = {a.name: a for a in actual}
+    if set(want) != set(got):
+        raise EngineError(
+            path,
+            f"graph {role} {sorted(got)} differ from the manifest's {sorted(want)}",
+        )
+    for name, spec in want.items():
+        arg = got[name]
+        dtype = _ORT_TO_NUMPY.get(arg.type, arg.type)
+        if dtype != spec.dtype:
+            raise EngineError(path, f"{role[:-1]} {name}: dtype {dtype} != manifest {spec.dtype}")
+        shape = list(arg.shape)
+        ok = len(shape) == len(spec.shape) and all(
+            (isinstance(s, str) and not isinstance(g, int)) or (isinstance(s, int) and g == s)
+            for s, g in zip(spec.shape, shape, strict=True)
+        )
+        if not ok:
+            raise EngineError(
+                path, f"{role[:-1]} {name}: shape {shape} != manifest {list(spec.shape)}"
+            )
+
+
+class OnnxInferenceRuntime:
+    """Loads engines (checked against their manifests) and runs them; satisfies
+    ``c3_matcher.protocols.InferenceRuntime``. Single-threaded use (INV-1).
+
+    ``providers_available`` injects the provider list (tests); ``None`` asks onnxruntime.
+    """
+
+    def __init__(
+        self,
+        providers_available: Sequence[str] | None = None,
+        *,
+        settings: SessionSettings | None = None,
+    ) -> None:
+        available = (
+            list(ort.get_available_providers())
+            if providers_available is None
+            else list(providers_available)
+        )
+        self._providers = select_providers(available)
+        self._settings = settings or SessionSettings()
+        self._engines: dict[str, _Loaded] = {}
+        logger.bind(
+            kind="c3.inference.provider_selected",
+            provider=self._providers[0],
+            chain=self._providers,
+            available=available,
+            onnxruntime=ort.__version__,
+        ).info("inference provider {}", self._providers[0])
+
+    @property
+    def provider(self) -> str:
+        """The preferred execution provider (first of the session provider list)."""
+        return self._providers[0]
+
+    @property
+    def providers(self) -> tuple[str, ...]:
+        """The session provider list, preferred first."""
+        return tuple(self._providers)
+
+    def load_engine(self, path: Any) -> str:
+        """Check and load ``path``; return its engine id (the file stem). Idempotent per path.
+
+        Raises ``EngineError`` (naming the file and the build command) when the file is missing,
+        its name breaks the schema, its manifest is missing or disagrees, its sha256 differs, or
+        the graph's real inputs/outputs differ from the manifest's.
+        """
+        engine_path = Path(path).expanduser().resolve()
+        for engine_id, loaded in self._engines.items():
+            if loaded.path == engine_path:
+                return engine_id
+        manifest = check_engine_file(engine_path, check_hash=True)
+        start = time.perf_counter()
+        try:
+            session = ort.InferenceSession(
+                str(engine_path),
+                sess_options=self._settings.build(),
+                providers=list(self._providers),
+            )
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise EngineError(engine_path, f"onnxruntime cannot load it ({exc})") from exc
+        _check_io(engine_path, "inputs", manifest.inputs, session.get_inputs())
+        _check_io(engine_path, "outputs", manifest.outputs, session.get_outputs())
+        engine_id = engine_path.name.removesuffix(".onnx")
+        self._engines[engine_id] = _Loaded(
+            engine_path,
+            manifest,
+            session,
+            tuple(i.name for i in session.get_inputs()),
+            tuple(o.name for o in session.get_outputs()),
+        )
+        logger.bind(
+            kind="c3.inference.engine_loaded",
+            engine_id=engine_id,
+            path=str(engine_path),
+            sha256=manifest.file_sha256,
+            weights_sha256=manifest.weights_sha256,
+            providers=session.get_providers(),
+            load_ms=round((time.perf_counter() - start) * 1e3, 1),
+        ).info("engine {} loaded", engine_id)
+        return engine_id
+
+    def _get(self, engine_id: str) -> _Loaded:
+        try:
+            return self._engines[engine_id]
+        except KeyError:
+            raise KeyError(
+                f"engine {engine_id!r} is not loaded (loaded: {sorted(self._engines)}); "
+                "call load_engine(path) at start-up"
+            ) from None
+
+    def manifest(self, engine_id: str) -> EngineManifest:
+        """The manifest of a loaded engine (weights sha256, I/O, verification figures...)."""
+        return self._get(engine_id).manifest
+
+    def engine_path(self, engine_id: str) -> Path:
+        return self._get(engine_id).path
+
+    def run(self, engine_id: str, feeds: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
+        """Run a loaded engine; ``feeds`` must name exactly the graph's inputs.
+
+        Returns ``{output name: array}``. ``KeyError`` for an unknown engine id, ``ValueError``
+        for wrong feed names; onnxruntime's own errors propagate (the caller maps them to
+        ``MatcherBackboneError``).
+        """
+        loaded = self._get(engine_id)
+        if set(feeds) != set(loaded.input_names):
+            raise ValueError(
+                f"engine {engine_id}: feeds {sorted(feeds)} != inputs {sorted(loaded.input_names)}"
+            )
+        values = loaded.session.run(list(loaded.output_names), {k: feeds[k] for k in feeds})
+        return {name: np.asarray(v) for name, v in zip(loaded.output_names, values, strict=True)}

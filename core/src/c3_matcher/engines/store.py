@@ -1,0 +1,128 @@
+"""The engine directory: find the engine of a model/variant, list and verify what is there.
+
+Imports without PyTorch (run time). The compiler keeps one engine per model/variant in a
+directory (it removes superseded builds); should several remain, the newest valid one wins.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from c3_matcher.engines.manifest import EngineManifest, check_engine_file, read_manifest
+from c3_matcher.engines.naming import ENGINE_SUFFIX, EngineName
+from c3_matcher.errors import EngineError
+
+__all__ = ["BUILD_COMMAND", "EngineRecord", "EngineStore", "VerifyOutcome"]
+
+BUILD_COMMAND = "c3-matcher engines build"
+
+
+@dataclass(frozen=True, slots=True)
+class EngineRecord:
+    """One ``*.onnx`` file in the directory: its manifest, or the problem that prevents reading
+    it (``problem`` is ``None`` when the name and manifest check out; the hash is checked only by
+    ``EngineStore.verify`` and at load time)."""
+
+    path: Path
+    manifest: EngineManifest | None
+    problem: str | None
+
+    @property
+    def ok(self) -> bool:
+        return self.problem is None
+
+
+@dataclass(frozen=True, slots=True)
+class VerifyOutcome:
+    """Result of re-hashing one engine against its manifest."""
+
+    path: Path
+    ok: bool
+    detail: str
+
+
+class EngineStore:
+    """Engines in ``directory`` (which need not exist yet)."""
+
+    def __init__(self, directory: Path) -> None:
+        self._directory = Path(directory)
+
+    @property
+    def directory(self) -> Path:
+        return self._directory
+
+    def _files(self, pattern: str = f"*{ENGINE_SUFFIX}") -> list[Path]:
+        if not self._directory.is_dir():
+            return []
+        return sorted(p for p in self._directory.glob(pattern) if p.is_file())
+
+    def require(self, model: str, variant: str, *, weights_sha256: str | None = None) -> Path:
+        """The engine file of ``model``/``variant`` (newest valid build; with ``weights_sha256``,
+        only one built from those weights).
+
+        Raises ``EngineError`` naming the expected file pattern and ``c3-matcher engines build``
+        when there is none. The file hash is not checked here; ``load_engine`` checks it.
+        """
+        pattern = EngineName.glob_for(model, variant)
+        expected = self._directory / pattern
+        problems: list[str] = []
+        valid: list[tuple[str, Path]] = []
+        for path in self._files(pattern):
+            try:
+                name = EngineName.parse(path.name)
+            except ValueError:
+                continue
+            if (name.model, name.variant) != (model, variant):
+                continue
+            try:
+                manifest = check_engine_file(path, check_hash=False)
+            except EngineError as exc:
+                problems.append(f"{path.name}: {exc.reason}")
+                continue
+            if weights_sha256 is not None and manifest.weights_sha256 != weights_sha256:
+                problems.append(
+                    f"{path.name}: built from weights {manifest.weights_sha256[:12]}..., "
+                    f"installed weights are {weights_sha256[:12]}..."
+                )
+                continue
+            valid.append((manifest.built_at, path))
+        if not valid:
+            detail = f" ({'; '.join(problems)})" if problems else ""
+            raise EngineError(
+                expected,
+                f"no valid {model}/{variant} engine in {self._directory}{detail}",
+                f"{BUILD_COMMAND} --only {model}/{variant}",
+            )
+        return max(valid)[1]
+
+    def list(self) -> list[EngineRecord]:
+        """Every ``*.onnx`` file in the directory, with its manifest or its problem."""
+        records: list[EngineRecord] = []
+        for path in self._files():
+            try:
+                EngineName.parse(path.name)
+                manifest = read_manifest(path)
+                check_engine_file(path, check_hash=False)
+            except (ValueError, EngineError) as exc:
+                reason = exc.reason if isinstance(exc, EngineError) else str(exc)
+                try:
+                    partial: EngineManifest | None = read_manifest(path)
+                except EngineError:
+                    partial = None
+                records.append(EngineRecord(path, partial, reason))
+                continue
+            records.append(EngineRecord(path, manifest, None))
+        return records
+
+    def verify(self) -> list[VerifyOutcome]:
+        """Re-hash every engine and compare with its manifest."""
+        outcomes: list[VerifyOutcome] = []
+        for path in self._files():
+            try:
+                manifest = check_engine_file(path, check_hash=True)
+            except EngineError as exc:
+                outcomes.append(VerifyOutcome(path, False, exc.reason))
+                continue
+            outcomes.append(VerifyOutcome(path, True, f"sha256 {manifest.file_sha256[:16]}... ok"))
+        return outcomes

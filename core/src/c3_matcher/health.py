@@ -1,0 +1,84 @@
+"""``RollingHealthWindow``: the matcher's health signal for C5 (cache-poisoning safety, AC-NEW-7)."""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+
+from c3_matcher.dto import MatcherHealth
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.protocols import Clock
+
+__all__ = ["HealthUpdate", "MonotonicClock", "RollingHealthWindow"]
+
+NS_PER_S = 1_000_000_000
+
+
+class MonotonicClock:
+    """The production clock: ``time.monotonic_ns``."""
+
+    def monotonic_ns(self) -> int:
+        return time.monotonic_ns()
+
+
+@dataclass(frozen=True, slots=True)
+class HealthUpdate:
+    """One ``update`` call, as recorded (kept for the window and for inspection)."""
+
+    at_ns: int
+    best_inlier_count: int
+    had_backbone_error: bool
+
+
+class RollingHealthWindow:
+    """Counts consecutive low-inlier frames and the mean best-inlier count over a time window.
+
+    A frame is "low" when its best inlier count is below ``low_inlier_threshold`` (the matcher's
+    ``min_inliers_threshold``; an InsufficientInliersError frame reports 0). ``mean_inliers_60s``
+    averages the best inlier counts of the updates within the last ``window_s`` seconds of the
+    injected clock (0.0 when there are none). Single-threaded (INV-1).
+    """
+
+    def __init__(self, clock: Clock, low_inlier_threshold: int, window_s: float = 60.0) -> None:
+        if low_inlier_threshold < 0:
+            raise InvalidInputError("low_inlier_threshold", "must be >= 0")
+        if window_s <= 0:
+            raise InvalidInputError("window_s", "must be > 0")
+        self._clock = clock
+        self._threshold = low_inlier_threshold
+        self._window_ns = int(window_s * NS_PER_S)
+        self._updates: deque[HealthUpdate] = deque()
+        self._consecutive_low = 0
+        self._update_count = 0
+
+    @property
+    def update_count(self) -> int:
+        """How many times ``update`` was called (INV-7 checks it)."""
+        return self._update_count
+
+    @property
+    def last_update(self) -> HealthUpdate | None:
+        return self._updates[-1] if self._updates else None
+
+    def update(self, now_ns: int, best_inlier_count: int, had_backbone_error: bool) -> None:
+        if best_inlier_count < 0:
+            raise InvalidInputError("best_inlier_count", f"must be >= 0, got {best_inlier_count}")
+        self._update_count += 1
+        self._updates.append(HealthUpdate(now_ns, best_inlier_count, had_backbone_error))
+        if best_inlier_count < self._threshold:
+            self._consecutive_low += 1
+        else:
+            self._consecutive_low = 0
+        self._evict(now_ns)
+
+    def snapshot(self) -> MatcherHealth:
+        self._evict(self._clock.monotonic_ns())
+        counts = [u.best_inlier_count for u in self._updates]
+        mean = float(sum(counts) / len(counts)) if counts else 0.0
+        return MatcherHealth(consecutive_low_inlier=self._consecutive_low, mean_inliers_60s=mean)
+
+    def _evict(self, now_ns: int) -> None:
+        horizon = now_ns - self._window_ns
+        while self._updates and self._updates[0].at_ns <= horizon:
+            self._updates.popleft()

@@ -1,0 +1,101 @@
+"""Structured logging (AZ-266): loguru, configured once by the composition root.
+
+Every record carries a ``kind`` (``logger.bind(kind=...)``); the stderr sink writes one JSON
+object per line. ERROR and WARNING records are also forwarded to the FDR as records of their own
+kinds, ``log.error`` and ``log.warning`` (DECISIONS 15), so the matcher's own FDR kinds keep
+exactly one record per event.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, TextIO
+
+from loguru import logger
+
+from c3_matcher.fdr import to_jsonable
+from c3_matcher.protocols import FdrClient
+
+if TYPE_CHECKING:
+    from loguru import Message, Record
+
+__all__ = ["LoggingHandle", "configure_logging", "log_event"]
+
+FORWARDED_LEVELS = {"WARNING": "log.warning", "ERROR": "log.error", "CRITICAL": "log.error"}
+
+
+def log_event(level: str, kind: str, message: str, **fields: Any) -> None:
+    """Emit one structured log record: ``kind`` plus JSON-able ``fields``."""
+    logger.bind(kind=kind, **fields).opt(depth=1).log(level, message)
+
+
+def _record_to_dict(record: Record) -> dict[str, Any]:
+    extra = dict(record["extra"])
+    kind = extra.pop("kind", "c3.log")
+    return {
+        "time": record["time"].isoformat(),
+        "level": record["level"].name,
+        "kind": kind,
+        "message": record["message"],
+        "module": record["name"],
+        **{k: to_jsonable(v) for k, v in extra.items()},
+    }
+
+
+@dataclass
+class LoggingHandle:
+    """What ``configure_logging`` installed; ``close()`` removes its sinks."""
+
+    sink_ids: list[int]
+
+    def close(self) -> None:
+        for sink_id in self.sink_ids:
+            try:
+                logger.remove(sink_id)
+            except ValueError:
+                pass
+        self.sink_ids.clear()
+
+
+def configure_logging(
+    fdr: FdrClient | None,
+    *,
+    level: str = "INFO",
+    stream: TextIO | None = None,
+    replace_existing: bool = True,
+) -> LoggingHandle:
+    """Install the JSON stderr sink (at ``level``) and the ERROR/WARN forwarder to ``fdr``."""
+    if replace_existing:
+        logger.remove()
+    out = stream if stream is not None else sys.stderr
+
+    def json_sink(message: Message) -> None:
+        out.write(json.dumps(_record_to_dict(message.record), separators=(",", ":")) + "\n")
+        out.flush()
+
+    ids = [logger.add(json_sink, level=level.upper(), format="{message}")]
+    if fdr is not None:
+        ids.append(logger.add(_fdr_forwarder(fdr), level="WARNING", format="{message}",
+                              catch=True))
+    return LoggingHandle(ids)
+
+
+def _fdr_forwarder(fdr: FdrClient) -> Callable[[Message], None]:
+    busy = False
+
+    def forward(message: Message) -> None:
+        nonlocal busy
+        record = message.record
+        kind = FORWARDED_LEVELS.get(record["level"].name)
+        if kind is None or busy:
+            return
+        busy = True  # a failing FDR logs an error; never forward that error back into it
+        try:
+            fdr.record(kind, _record_to_dict(record))
+        finally:
+            busy = False
+
+    return forward

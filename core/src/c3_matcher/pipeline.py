@@ -1,0 +1,373 @@
+"""The shared per-frame pipeline every strategy runs (AZ-345 steps 1-11, written once).
+
+A strategy supplies only its model I/O as a ``FeatureBackend`` (extract features of a prepared
+image, match two feature sets); this module does the rest: preprocessing, the per-candidate loop
+with drop-and-continue (INV-4), RANSAC through the shared ``RansacFilter``, the deterministic
+ranking (INV-3), the single health update (INV-7), the logs and the FDR records.
+
+Terminal FDR record per ``match`` call, exactly one of: ``matcher.frame_done`` (success),
+``matcher.insufficient_inliers`` (raised InsufficientInliersError), or ``matcher.backbone_error``
+with ``phase="query_extract"`` (the query frame itself failed, DECISIONS 3). Per dropped
+candidate, one ``matcher.backbone_error`` record with its ``tile_id`` and ``phase``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.dto import (
+    CameraCalibration,
+    CandidateMatchSet,
+    MatcherHealth,
+    MatchResult,
+    NavCameraFrame,
+    RerankCandidate,
+    RerankResult,
+    ranking_key,
+)
+from c3_matcher.errors import (
+    InsufficientInliersError,
+    InvalidInputError,
+    MatcherBackboneError,
+)
+from c3_matcher.features import Features, RawMatches
+from c3_matcher.health import RollingHealthWindow
+from c3_matcher.logs import log_event
+from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
+from c3_matcher.protocols import Clock, FdrClient, RansacFilter
+
+__all__ = ["FeatureBackend", "MatchPipeline", "PipelineSettings"]
+
+class FeatureBackend(Protocol):
+    """A strategy's model I/O. Exceptions raised here become per-candidate drops (or, for the
+    query frame, a MatcherBackboneError); they never escape ``match`` otherwise."""
+
+    @property
+    def label(self) -> str:
+        """``matcher_label`` of the results, e.g. ``"disk_lightglue"``."""
+        ...
+
+    @property
+    def input_rule(self) -> InputRule: ...
+
+    @property
+    def extract_phase(self) -> str:
+        """Phase name of an extraction failure, e.g. ``"disk_forward"``."""
+        ...
+
+    @property
+    def match_phase(self) -> str:
+        """Phase name of a matching failure, e.g. ``"lightglue_match"``."""
+        ...
+
+    def extract(self, image: PreparedImage) -> Features: ...
+
+    def match(self, query: Features, tile: Features) -> RawMatches: ...
+
+    def provenance(self) -> Mapping[str, Any]:
+        """What an investigator needs after a flight: execution provider, engines' sha256."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
+class PipelineSettings:
+    """The thresholds of AZ-345 (from ``MatcherSettings``)."""
+
+    min_inliers_threshold: int = 60
+    residual_warn_threshold_px: float = 2.5
+    ransac_threshold_px: float = 3.0
+
+
+@dataclass
+class _Survivor:
+    match_set: CandidateMatchSet
+    input_index: int
+    homography: NDArray[np.float64] | None
+
+
+@dataclass
+class _FrameState:
+    frame_id: Any
+    candidates_input: int
+    dropped: int = 0
+    backbone_errors: int = 0
+    health_updated: bool = False
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    per_candidate_ms: list[dict[str, float]] = field(default_factory=list)
+
+
+class MatchPipeline:
+    """``CrossDomainMatcher.match`` for any ``FeatureBackend``. Single-threaded (INV-1)."""
+
+    def __init__(
+        self,
+        backend: FeatureBackend,
+        ransac_filter: RansacFilter,
+        fdr_client: FdrClient,
+        health_window: RollingHealthWindow,
+        clock: Clock,
+        settings: PipelineSettings,
+        preprocessor: FramePreprocessor | None = None,
+    ) -> None:
+        self._backend = backend
+        self._ransac = ransac_filter
+        self._fdr = fdr_client
+        self._health = health_window
+        self._clock = clock
+        self._settings = settings
+        self._pre = preprocessor or FramePreprocessor(backend.input_rule)
+
+    @property
+    def settings(self) -> PipelineSettings:
+        return self._settings
+
+    def health_snapshot(self) -> MatcherHealth:
+        return self._health.snapshot()
+
+    # -- the contract -----------------------------------------------------------------------
+    def match(
+        self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
+    ) -> MatchResult:
+        state = _FrameState(getattr(rerank_result, "frame_id", None),
+                            len(getattr(rerank_result, "candidates", ()) or ()))
+        try:
+            _check_inputs(frame, rerank_result, calibration)
+            return self._match(frame, rerank_result, calibration, state)
+        except (MatcherBackboneError, InsufficientInliersError):
+            raise
+        except InvalidInputError:
+            self._update_health(state, 0)
+            raise
+        except Exception as exc:  # a bug must not take the vehicle down: contract error instead
+            self._update_health(state, 0, force_backbone_error=True)
+            self._record_backbone_error(state, None, "internal", exc)
+            raise MatcherBackboneError("internal", None, exc) from exc
+
+    # -- steps ------------------------------------------------------------------------------
+    def _match(self, frame: NavCameraFrame, rerank: RerankResult, calibration: CameraCalibration,
+               state: _FrameState) -> MatchResult:
+        started = time.perf_counter()
+        try:  # steps 1-2: the query frame, once (DECISIONS 3 on failure)
+            with _timed(state.timings_ms, "query_preprocess"):
+                query_image = self._pre.prepare_query(frame, calibration,
+                                                      _tile_gsd(rerank.candidates))
+            with _timed(state.timings_ms, "query_extract"):
+                query = self._backend.extract(query_image)
+        except Exception as exc:
+            self._update_health(state, 0, force_backbone_error=True)
+            self._record_backbone_error(state, None, "query_extract", exc)
+            raise MatcherBackboneError("query_extract", None, exc) from exc
+
+        survivors: list[_Survivor] = []
+        for index, candidate in enumerate(rerank.candidates):  # steps 3-4
+            timings: dict[str, float] = {}
+            state.per_candidate_ms.append(timings)
+            survivor = self._match_candidate(index, candidate, query_image, query, state, timings)
+            if survivor is not None:
+                survivors.append(survivor)
+
+        best_count = max((s.match_set.inlier_count for s in survivors), default=0)  # step 5
+        candidates_summary = [(s.match_set.inlier_count, s.match_set.per_candidate_residual_px)
+                              for s in survivors]
+        log_event("DEBUG", "c3.matcher.candidates",
+                  f"C3 frame={state.frame_id} candidates={candidates_summary}",
+                  frame_id=state.frame_id, candidates=candidates_summary)
+        if not survivors or best_count < self._settings.min_inliers_threshold:  # step 6
+            return self._insufficient(state, best_count, survivors)
+
+        survivors.sort(key=lambda s: ranking_key(s.match_set))  # step 7, stable: INV-3
+        best = survivors[0].match_set
+        if best.per_candidate_residual_px > self._settings.residual_warn_threshold_px:  # step 8
+            log_event("WARNING", "c3.matcher.residual_above_threshold",
+                      f"C3 residual={best.per_candidate_residual_px:.2f}px > threshold="
+                      f"{self._settings.residual_warn_threshold_px}px; frame={state.frame_id}; "
+                      "will refine",
+                      residual_px=best.per_candidate_residual_px,
+                      threshold_px=self._settings.residual_warn_threshold_px,
+                      frame_id=state.frame_id, tile_id=best.tile_id)
+        self._update_health(state, best.inlier_count)  # step 9
+        state.timings_ms["total"] = (time.perf_counter() - started) * 1e3
+        diagnostics = {
+            "timings_ms": dict(state.timings_ms),
+            "per_candidate_timings_ms": list(state.per_candidate_ms),
+            "input_index": [s.input_index for s in survivors],
+            "homographies": [s.homography for s in survivors],
+        }
+        self._record("matcher.frame_done", {  # step 10 (+ DECISIONS 16)
+            "frame_id": state.frame_id,
+            "candidates_input": state.candidates_input,
+            "candidates_dropped": state.dropped,
+            "best_inlier_count": best.inlier_count,
+            "best_residual_px": best.per_candidate_residual_px,
+            "best_tile_id": best.tile_id,
+            "best_homography": survivors[0].homography,
+            "per_candidate": [{"tile_id": s.match_set.tile_id,
+                               "inlier_count": s.match_set.inlier_count,
+                               "residual_px": s.match_set.per_candidate_residual_px}
+                              for s in survivors],
+            "timings_ms": state.timings_ms,
+            **self._backend.provenance(),
+        })
+        return MatchResult(  # step 11
+            frame_id=rerank.frame_id,
+            per_candidate=tuple(s.match_set for s in survivors),
+            best_candidate_idx=0,
+            reprojection_residual_px=best.per_candidate_residual_px,
+            matched_at=self._clock.monotonic_ns(),
+            matcher_label=self._backend.label,
+            candidates_input=state.candidates_input,
+            candidates_dropped=state.dropped,
+            diagnostics=diagnostics,
+        )
+
+    def _match_candidate(self, index: int, candidate: RerankCandidate, query_image: PreparedImage,
+                         query: Features, state: _FrameState,
+                         timings: dict[str, float]) -> _Survivor | None:
+        tile_id = candidate.tile_id
+        phase = "tile_decode"
+        try:
+            with _timed(timings, "decode"):
+                pixels = candidate.tile_pixels_handle.decode()
+            with _timed(timings, "preprocess"):
+                tile_image = self._pre.prepare_tile(pixels)
+            phase = self._backend.extract_phase
+            with _timed(timings, "extract"):
+                tile = self._backend.extract(tile_image)
+            phase = self._backend.match_phase
+            with _timed(timings, "match"):
+                raw = self._backend.match(query, tile)
+                correspondences = _correspondences(query_image, query, tile_image, tile, raw)
+            phase = "ransac"
+            with _timed(timings, "ransac"):
+                ransac = self._ransac.filter(correspondences, self._settings.ransac_threshold_px)
+                inliers = ransac.inlier_correspondences
+                if inliers.shape[0] > 0:
+                    original = query_image.working_to_original(inliers[:, 0:2].astype(np.float64))
+                    inliers = np.hstack([original, inliers[:, 2:4]]).astype(np.float32)
+        except Exception as exc:  # INV-4: drop and continue
+            state.dropped += 1
+            state.backbone_errors += 1
+            self._record_backbone_error(state, tile_id, phase, exc, candidate_index=index)
+            return None
+        if inliers.shape[0] == 0:  # step 4e
+            state.dropped += 1
+            log_event("DEBUG", "c3.matcher.zero_inliers",
+                      f"C3 zero inliers; frame={state.frame_id}; tile={tile_id}",
+                      frame_id=state.frame_id, tile_id=tile_id, raw_matches=len(raw))
+            return None
+        match_set = CandidateMatchSet(
+            tile_id=tile_id,
+            inlier_count=int(inliers.shape[0]),
+            inlier_correspondences=inliers,
+            ransac_outlier_count=ransac.ransac_outlier_count,
+            per_candidate_residual_px=ransac.per_candidate_residual_px,
+        )
+        return _Survivor(match_set, index, ransac.homography)
+
+    def _insufficient(self, state: _FrameState, best_count: int,
+                      survivors: list[_Survivor]) -> MatchResult:
+        threshold = self._settings.min_inliers_threshold
+        label = self._backend.label
+        self._update_health(state, 0)  # AZ-345 step 6 / AC-5: best_inlier_count=0
+        log_event("ERROR", "c3.matcher.insufficient_inliers",
+                  f"C3 insufficient inliers on all candidates; frame={state.frame_id}; "
+                  f"backbone={label}; best={best_count} < {threshold}",
+                  frame_id=state.frame_id, backbone=label, best_inlier_count=best_count,
+                  threshold=threshold, candidates_input=state.candidates_input,
+                  candidates_dropped=state.dropped)
+        self._record("matcher.insufficient_inliers", {
+            "frame_id": state.frame_id,
+            "candidates_input": state.candidates_input,
+            "candidates_dropped": state.dropped,
+            "best_inlier_count": best_count,
+            "threshold": threshold,
+            "per_candidate": [{"tile_id": s.match_set.tile_id,
+                               "inlier_count": s.match_set.inlier_count,
+                               "residual_px": s.match_set.per_candidate_residual_px}
+                              for s in survivors],
+            **self._backend.provenance(),
+        })
+        raise InsufficientInliersError(state.frame_id, best_count, threshold,
+                                       state.candidates_input, state.dropped, label)
+
+    # -- helpers ----------------------------------------------------------------------------
+    def _update_health(self, state: _FrameState, best_inlier_count: int, *,
+                       force_backbone_error: bool = False) -> None:
+        if state.health_updated:  # INV-7: exactly once per match call
+            return
+        state.health_updated = True
+        self._health.update(self._clock.monotonic_ns(), best_inlier_count=best_inlier_count,
+                            had_backbone_error=force_backbone_error or state.backbone_errors > 0)
+
+    def _record(self, kind: str, payload: Mapping[str, Any]) -> None:
+        """Write an FDR record; a recorder failure is logged, never fails the frame (the durable
+        recorder keeps the record pending and writes it with the next one)."""
+        try:
+            self._fdr.record(kind, payload)
+        except Exception as exc:
+            log_event("ERROR", "c3.fdr.write_failed", f"FDR write failed for {kind}: {exc}",
+                      record_kind=kind, error=f"{type(exc).__name__}: {exc}")
+
+    def _record_backbone_error(self, state: _FrameState, tile_id: Any, phase: str,
+                               exc: BaseException, candidate_index: int | None = None) -> None:
+        error = f"{type(exc).__name__}: {exc}"
+        log_event("ERROR", "c3.matcher.backbone_error",
+                  f"C3 backbone error; frame={state.frame_id}; tile={tile_id}; phase={phase}; "
+                  f"backbone={self._backend.label}; {error}",
+                  frame_id=state.frame_id, tile_id=tile_id, phase=phase, error=error,
+                  backbone=self._backend.label)
+        self._record("matcher.backbone_error", {
+            "frame_id": state.frame_id,
+            "tile_id": tile_id,
+            "candidate_index": candidate_index,
+            "phase": phase,
+            "error": error,
+            "backbone": self._backend.label,
+        })
+
+
+def _check_inputs(frame: object, rerank: object, calibration: object) -> None:
+    if not isinstance(frame, NavCameraFrame):
+        raise InvalidInputError("frame", f"expected NavCameraFrame, got {type(frame).__name__}")
+    if not isinstance(rerank, RerankResult):
+        raise InvalidInputError("rerank_result",
+                                f"expected RerankResult, got {type(rerank).__name__}")
+    if not isinstance(calibration, CameraCalibration):
+        raise InvalidInputError("calibration",
+                                f"expected CameraCalibration, got {type(calibration).__name__}")
+    if rerank.frame_id != frame.frame_id:
+        raise InvalidInputError("rerank_result.frame_id",
+                                f"{rerank.frame_id} does not match frame.frame_id {frame.frame_id}")
+
+
+def _tile_gsd(candidates: tuple[RerankCandidate, ...]) -> float | None:
+    """The GSD the query is scaled to: the median of the candidates' (they share a zoom)."""
+    values = [c.ground_sample_distance_m() for c in candidates]
+    return float(np.median(values)) if values else None
+
+
+def _correspondences(query_image: PreparedImage, query: Features, tile_image: PreparedImage,
+                     tile: Features, raw: RawMatches) -> NDArray[np.float32]:
+    """(M, 4) rows (x_query, y_query, x_tile, y_tile) in working px (rectified query, full tile)."""
+    if len(raw) == 0:
+        return np.zeros((0, 4), dtype=np.float32)
+    q = query_image.to_working(query.keypoints[raw.matches[:, 0]].astype(np.float64))
+    t = tile_image.to_working(tile.keypoints[raw.matches[:, 1]].astype(np.float64))
+    return np.hstack([q, t]).astype(np.float32)
+
+
+@contextmanager
+def _timed(into: dict[str, float], name: str) -> Iterator[None]:
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        into[name] = into.get(name, 0.0) + (time.perf_counter() - start) * 1e3
+

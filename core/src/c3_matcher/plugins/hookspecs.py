@@ -1,0 +1,41 @@
+"""The hook specifications of c3-matcher (one marker pair named after the project).
+
+Every hook is prefixed ``c3_matcher_`` and documented; a test fails when one is not.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import pluggy
+
+if TYPE_CHECKING:
+    from c3_matcher.engines.spec import EngineSpec
+    from c3_matcher.plugins.types import StrategySpec
+
+__all__ = ["PROJECT_NAME", "hookimpl", "hookspec"]
+
+PROJECT_NAME = "c3_matcher"
+hookspec = pluggy.HookspecMarker(PROJECT_NAME)
+hookimpl = pluggy.HookimplMarker(PROJECT_NAME)
+
+
+@hookspec
+def c3_matcher_strategies() -> list[StrategySpec]:  # type: ignore[empty-body]
+    """Return the matcher strategies this plugin offers.
+
+    Each ``StrategySpec`` names the strategy (what ``[matcher] strategy`` selects), its
+    BUILD_MATCHER_* flag, its factory and its options model. Two distributions offering one name
+    are both rejected (DuplicateStrategyError naming both).
+    """
+
+
+@hookspec
+def c3_matcher_engine_specs() -> list[EngineSpec]:  # type: ignore[empty-body]
+    """Return the networks this plugin needs as ONNX engines.
+
+    Each ``EngineSpec`` names a model and variant, the pretrained weights file (inside an
+    installed distribution) and the build-time exporter that ``c3-matcher engines build`` runs
+    (PyTorch is needed then, never at run time). A strategy's factory loads the built engines
+    from the engine directory at start-up.
+    """

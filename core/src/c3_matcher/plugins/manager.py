@@ -1,0 +1,215 @@
+"""``PluginHost``: owns the pluggy PluginManager; nothing else calls ``pm.hook.*``.
+
+Built by the composition root (no module-level manager) from the installed profile and the
+entry points of the group ``c3_matcher.plugins``.
+"""
+
+from __future__ import annotations
+
+import types
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import importlib_metadata
+import pluggy
+
+from c3_matcher.errors import (
+    DuplicateStrategyError,
+    PluginLoadError,
+    StrategyNotLinkedError,
+    UnknownStrategyError,
+)
+from c3_matcher.plugins import hookspecs
+from c3_matcher.plugins.types import StrategySpec
+from c3_matcher.profiles import BuildProfile, FlagState
+
+if TYPE_CHECKING:
+    from c3_matcher.engines.spec import EngineSpec
+
+__all__ = ["ENTRY_POINT_GROUP", "IgnoredPlugin", "LoadedPlugin", "PluginHost", "PluginSource"]
+
+ENTRY_POINT_GROUP = "c3_matcher.plugins"
+
+
+@dataclass(frozen=True, slots=True)
+class PluginSource:
+    """An entry point and the distribution that ships it."""
+
+    name: str
+    distribution: str
+    version: str
+    entry_point: importlib_metadata.EntryPoint | None = None
+    module: types.ModuleType | object | None = None  # pre-imported (tests, in-tree registration)
+
+
+@dataclass(frozen=True, slots=True)
+class LoadedPlugin:
+    name: str
+    distribution: str
+    version: str
+    strategies: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class IgnoredPlugin:
+    name: str
+    distribution: str
+    reason: str
+
+
+@dataclass
+class _Registry:
+    strategies: dict[str, tuple[StrategySpec, LoadedPlugin]] = field(default_factory=dict)
+    duplicates: dict[str, DuplicateStrategyError] = field(default_factory=dict)
+
+
+def discover(distributions: Iterable[importlib_metadata.Distribution] | None = None,
+             ) -> list[PluginSource]:
+    """Entry points of the plugin group, one per (distribution, name), in a stable order."""
+    dists = importlib_metadata.distributions() if distributions is None else distributions
+    sources: dict[tuple[str, str], PluginSource] = {}
+    for dist in dists:
+        dist_name = dist.metadata["Name"]
+        if dist_name is None:
+            continue
+        for ep in dist.entry_points:
+            if ep.group == ENTRY_POINT_GROUP:
+                sources.setdefault((dist_name.lower(), ep.name),
+                                   PluginSource(ep.name, dist_name, dist.version or "?", ep))
+    return [sources[key] for key in sorted(sources)]
+
+
+class PluginHost:
+    """Loads the plugins the profile allows and offers typed access to their hooks."""
+
+    def __init__(self, profile: BuildProfile, sources: Sequence[PluginSource]) -> None:
+        self._profile = profile
+        self._pm = pluggy.PluginManager(hookspecs.PROJECT_NAME)
+        self._pm.add_hookspecs(hookspecs)
+        self._loaded: list[LoadedPlugin] = []
+        self._ignored: list[IgnoredPlugin] = []
+        self._errors: list[PluginLoadError] = []
+        self._registry = _Registry()
+        for source in sources:
+            self._load(source)
+
+    # -- loading ------------------------------------------------------------------------------
+    def _load(self, source: PluginSource) -> None:
+        if not self._profile.allows_distribution(source.distribution):
+            self._ignored.append(IgnoredPlugin(
+                source.name, source.distribution,
+                f"not linked by profile {self._profile.name!r} (strict profile)"))
+            return
+        try:
+            module = source.module if source.module is not None else _load_entry_point(source)
+            self._pm.register(module, name=f"{source.distribution}:{source.name}")
+            self._pm.check_pending()
+            specs = self._strategies_of(module)
+        except Exception as exc:
+            plugin_name = f"{source.distribution}:{source.name}"
+            if self._pm.has_plugin(plugin_name):
+                self._pm.unregister(name=plugin_name)
+            self._errors.append(PluginLoadError(source.name, source.distribution, exc))
+            return
+        loaded = LoadedPlugin(source.name, source.distribution, source.version,
+                              tuple(spec.name for spec in specs))
+        self._loaded.append(loaded)
+        for spec in specs:
+            self._add_strategy(spec, loaded)
+
+    def _strategies_of(self, module: object) -> list[StrategySpec]:
+        impl = getattr(module, "c3_matcher_strategies", None)
+        specs = list(impl()) if callable(impl) else []
+        for spec in specs:
+            if not isinstance(spec, StrategySpec):
+                raise TypeError(f"c3_matcher_strategies returned {type(spec).__name__}, "
+                                "expected StrategySpec")
+        return specs
+
+    def _add_strategy(self, spec: StrategySpec, plugin: LoadedPlugin) -> None:
+        if spec.name in self._registry.duplicates:
+            dup = self._registry.duplicates[spec.name]
+            self._registry.duplicates[spec.name] = DuplicateStrategyError(
+                spec.name, [*dup.distributions, plugin.distribution])
+            return
+        if spec.name in self._registry.strategies:
+            _, first = self._registry.strategies.pop(spec.name)
+            self._registry.duplicates[spec.name] = DuplicateStrategyError(
+                spec.name, [first.distribution, plugin.distribution])
+            return
+        self._registry.strategies[spec.name] = (spec, plugin)
+
+    # -- typed access -------------------------------------------------------------------------
+    @property
+    def profile(self) -> BuildProfile:
+        return self._profile
+
+    @property
+    def loaded(self) -> tuple[LoadedPlugin, ...]:
+        return tuple(self._loaded)
+
+    @property
+    def ignored(self) -> tuple[IgnoredPlugin, ...]:
+        return tuple(self._ignored)
+
+    @property
+    def errors(self) -> tuple[PluginLoadError | DuplicateStrategyError, ...]:
+        return (*self._errors, *self._registry.duplicates.values())
+
+    def strategies(self) -> dict[str, StrategySpec]:
+        """Selectable strategies (loaded, not duplicated), by name, sorted."""
+        return {name: self._registry.strategies[name][0]
+                for name in sorted(self._registry.strategies)}
+
+    def strategy_plugin(self, name: str) -> LoadedPlugin:
+        return self._registry.strategies[name][1]
+
+    def engine_specs(self) -> list[EngineSpec]:
+        """Every engine the loaded plugins declare (plugin registration order)."""
+        specs: list[EngineSpec] = []
+        for batch in reversed(self._pm.hook.c3_matcher_engine_specs()):
+            specs.extend(batch)
+        return specs
+
+    def resolve(self, strategy: str) -> StrategySpec:
+        """The spec of ``strategy``, or the error that says why it cannot be used here."""
+        if strategy in self._registry.duplicates:
+            raise self._registry.duplicates[strategy]
+        row = self._profile.flag_for_strategy(strategy)
+        found = self._registry.strategies.get(strategy)
+        profile = self._profile.name
+        if row is not None and row.state is not FlagState.ON:
+            if row.state is FlagState.WIRED:
+                fix = (f"{strategy} has its flag wired but is not linked in the {profile} build "
+                       "(Tier-2 follow-up); use a research or replay-cli build: "
+                       "pip install 'c3-matcher[research]'")
+            else:
+                fix = ("install a profile that links it: pip install 'c3-matcher[research]' "
+                       "(or [replay-cli])")
+            raise StrategyNotLinkedError(strategy, row.flag, profile, fix)
+        if found is not None:
+            return found[0]
+        if row is not None:  # ON in the profile but its plugin is missing or failed to load
+            failed = [e for e in self._errors if _norm(e.distribution) == _norm(row.distribution)]
+            detail = f" (it failed to load: {failed[0]})" if failed else ""
+            raise StrategyNotLinkedError(
+                strategy, row.flag, profile,
+                f"install {row.distribution}{detail}, or reinstall 'c3-matcher[{profile}]'")
+        if self._ignored:
+            ignored = ", ".join(sorted({p.distribution for p in self._ignored}))
+            raise StrategyNotLinkedError(
+                strategy, None, profile,
+                f"profile {profile!r} loads only the plugins it links (ignored: {ignored}); "
+                "a third-party strategy runs in a research or replay-cli build")
+        raise UnknownStrategyError(strategy, sorted(self._registry.strategies))
+
+
+def _norm(name: str) -> str:
+    return name.lower().replace("_", "-")
+
+
+def _load_entry_point(source: PluginSource) -> object:
+    if source.entry_point is None:
+        raise ValueError("no entry point and no module")
+    return source.entry_point.load()

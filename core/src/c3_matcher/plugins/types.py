@@ -1,0 +1,48 @@
+"""Frozen records that plugins hand to the core through the hooks."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from pydantic import BaseModel
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.protocols import CrossDomainMatcher
+
+__all__ = ["StrategyFactory", "StrategySpec"]
+
+_NAME = re.compile(r"^[a-z][a-z0-9_]{1,63}$")
+
+
+class StrategyFactory(Protocol):
+    """``create(...)`` of a strategy: called once by ``compose_root`` (keyword arguments only)."""
+
+    def __call__(self, **kwargs: Any) -> CrossDomainMatcher: ...
+
+
+@dataclass(frozen=True, slots=True)
+class StrategySpec:
+    """One strategy a plugin offers.
+
+    ``name`` is what ``[matcher] strategy`` selects; ``build_flag`` its BUILD_MATCHER_* flag
+    (None for a third-party strategy outside the matrix); ``options_model`` validates
+    ``[matcher.options.<name>]`` (unknown keys refused) or is None when it has no options.
+    """
+
+    name: str
+    factory: StrategyFactory
+    build_flag: str | None = None
+    options_model: type[BaseModel] | None = None
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not _NAME.match(self.name):
+            raise InvalidInputError("strategy.name",
+                                    f"{self.name!r} must match {_NAME.pattern}")
+        if self.build_flag is not None and not self.build_flag.startswith("BUILD_MATCHER_"):
+            raise InvalidInputError("strategy.build_flag",
+                                    f"{self.build_flag!r} must start with BUILD_MATCHER_")
+        if not callable(self.factory):
+            raise InvalidInputError("strategy.factory", "must be callable")

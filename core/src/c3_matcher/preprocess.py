@@ -1,0 +1,415 @@
+"""Frame and tile preprocessing shared by every strategy (DECISIONS 12-13).
+
+Query (nav-camera frame), in order: undistort with the calibration; if the attitude is known,
+ONE rotation homography to a virtual nadir north-up camera about the camera centre; if the
+height above ground and the candidate's GSD are known, scale to that GSD; resize to the
+engine's :class:`InputRule`. All four steps are composed into one ``cv2.remap`` whose map comes
+from ``cv2.initUndistortRectifyMap`` (exact forward lens model per output pixel), so the frame is
+resampled once. Tiles are resized (area averaging) and padded.
+
+Coordinate frames (pixels 0-based, origin at the centre of the top-left pixel, points (x, y)):
+
+- ORIGINAL: the raw, distorted frame as captured.
+- UNDISTORTED: ``K @ (x/z, y/z, 1)`` of the ray, with the calibration's own K.
+- WORKING (DECISIONS 13): for the query, the undistorted, rectified (north-up nadir) frame at
+  the GSD-scaled resolution, before the engine resize; RANSAC runs here. For a tile, the tile's
+  full-resolution pixels.
+- ENGINE: the pixels of :attr:`PreparedImage.image`, the extractor's input.
+
+Rectifying homography (UNDISTORTED -> WORKING) when the attitude is known::
+
+    R_vc = R_world_from_virtual.T @ R_world_from_body(attitude) @ R_body_from_camera
+    H_w  = T @ diag(f_w, f_w, 1) @ R_vc @ K^-1
+
+with ``f_w = height / tile_gsd`` when both are known (working GSD = tile GSD), else
+``f_w = sqrt(fx * fy)``; ``T`` translates the bounding box of the rectified footprint (the
+image boundary's rays, clipped to ``max_off_nadir_deg`` from nadir) to the canvas origin. The
+canvas is bounded: if the footprint's box is longer than ``max_canvas_factor`` times the
+frame's long side (at the working scale), a window of that size centred on the optical axis's
+ground point is kept. The nadir point (vehicle position on the ground) lies at working pixel
+``(T[0, 2], T[1, 2])``. Without attitude, ``H_w = T @ diag(s, s, 1) @ K_sq @ K^-1`` (``K_sq``
+= K with square pixels ``sqrt(fx * fy)``, ``s = (height / sqrt(fx * fy)) / tile_gsd`` or 1), the
+identity for a distortion-free square-pixel camera.
+
+ENGINE -> WORKING is ``x_w = (x_e + 0.5) * sx - 0.5`` (same for y), ``sx = working_w /
+content_w``: the area-aligned convention of ``cv2.resize``. The final size is padded (masked) up
+to a multiple of ``rule.multiple``, or cropped down when padding would exceed
+``rule.max_long_side``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from c3_matcher import camera as cam
+from c3_matcher.dto import CameraCalibration, NavCameraFrame
+from c3_matcher.errors import InvalidInputError
+
+__all__ = ["FramePreprocessor", "InputRule", "PreparedImage"]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class InputRule:
+    """An engine's input rule: downscale so the long side <= ``max_long_side`` px (never
+    upscale); make the final width and height multiples of ``multiple`` (padding is masked)."""
+
+    max_long_side: int
+    multiple: int
+
+    def __post_init__(self) -> None:
+        for name in ("max_long_side", "multiple"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+                raise InvalidInputError(f"input_rule.{name}", f"expected an int > 0, got {value!r}")
+        if self.max_long_side < self.multiple:
+            raise InvalidInputError("input_rule.max_long_side",
+                                    f"{self.max_long_side} < multiple {self.multiple}")
+
+    def content_size(self, width: int, height: int) -> tuple[int, int]:
+        """(w, h) px of a width x height image after the downscale (before pad/crop)."""
+        r = min(1.0, self.max_long_side / max(width, height))
+        return max(1, round(width * r)), max(1, round(height * r))
+
+    def final_size(self, width: int, height: int) -> tuple[int, int]:
+        """(w, h) px of the engine input for a width x height image: each side of the content
+        size rounded up to ``multiple`` (padding), or down when up would exceed the limit."""
+        def snap(n: int) -> int:
+            up = -(-n // self.multiple) * self.multiple
+            if up <= self.max_long_side:
+                return up
+            return max(self.multiple, (n // self.multiple) * self.multiple)
+
+        cw, ch = self.content_size(width, height)
+        return snap(cw), snap(ch)
+
+
+def _engine_to_working(working_size: tuple[int, int], content_size: tuple[int, int]) -> F64:
+    sx = working_size[0] / content_size[0]
+    sy = working_size[1] / content_size[1]
+    return np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class PreparedImage:
+    """An image ready for the extractor, and the maps back to the pixels RANSAC and C5 use.
+
+    ``image`` uint8 (H, W, 3) RGB, H and W multiples of the rule's ``multiple``; ``valid`` bool
+    (H, W), True where keypoints may be kept (not padding, warp border or nodata, eroded).
+    ``working_from_engine`` 3x3 affine (ENGINE -> WORKING px); ``working_size`` (w, h) of the
+    working image; for a query, ``working_from_undistorted`` is the 3x3 homography H_w
+    (UNDISTORTED -> WORKING px) and ``calibration`` the frame's calibration (both None for a
+    tile). ``working_gsd_m`` is the working image's ground sample distance at nadir (m/px) when
+    known; ``nadir_working_px`` the working pixel straight below the camera (rectified queries).
+    """
+
+    image: NDArray[np.uint8]
+    valid: NDArray[np.bool_]
+    working_from_engine: F64
+    working_size: tuple[int, int]
+    working_from_undistorted: F64 | None = None
+    calibration: CameraCalibration | None = None
+    working_gsd_m: float | None = None
+    nadir_working_px: tuple[float, float] | None = None
+    _undistorted_from_working: F64 | None = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.working_from_undistorted is not None:
+            inv = np.linalg.inv(self.working_from_undistorted)
+            object.__setattr__(self, "_undistorted_from_working", inv)
+
+    @property
+    def engine_size(self) -> tuple[int, int]:
+        """(w, h) px of :attr:`image`."""
+        return int(self.image.shape[1]), int(self.image.shape[0])
+
+    def to_working(self, pts: ArrayLike) -> F64:
+        """(N, 2) ENGINE px -> (N, 2) WORKING px."""
+        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+        a = self.working_from_engine
+        return np.stack([p[:, 0] * a[0, 0] + a[0, 2], p[:, 1] * a[1, 1] + a[1, 2]], axis=1)
+
+    def to_engine(self, pts: ArrayLike) -> F64:
+        """(N, 2) WORKING px -> (N, 2) ENGINE px (inverse of :meth:`to_working`)."""
+        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+        a = self.working_from_engine
+        return np.stack([(p[:, 0] - a[0, 2]) / a[0, 0], (p[:, 1] - a[1, 2]) / a[1, 1]], axis=1)
+
+    def working_to_original(self, pts: ArrayLike) -> F64:
+        """(N, 2) WORKING px -> (N, 2) ORIGINAL (distorted) frame px; the identity for tiles.
+
+        Inverts the rectification homography and re-applies the exact lens model. A working
+        point whose ray lies behind the real camera maps to NaN.
+        """
+        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+        if self._undistorted_from_working is None or self.calibration is None:
+            return p.copy()
+        hinv = self._undistorted_from_working
+        q = p @ hinv[:, :2].T + hinv[:, 2]
+        in_front = q[:, 2] > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            und = q[:, :2] / q[:, 2:3]
+        out = np.full_like(p, np.nan)
+        if np.any(in_front):
+            out[in_front] = cam.distort_points(und[in_front], self.calibration)
+        return out
+
+    def original_to_working(self, pts: ArrayLike) -> F64:
+        """(N, 2) ORIGINAL (distorted) frame px -> (N, 2) WORKING px; the identity for tiles."""
+        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+        if self.working_from_undistorted is None or self.calibration is None:
+            return p.copy()
+        und = cam.undistort_points(p, self.calibration)
+        return cam.apply_homography(self.working_from_undistorted, und)
+
+    def engine_to_original(self, pts: ArrayLike) -> F64:
+        """(N, 2) ENGINE px -> (N, 2) ORIGINAL px (:meth:`to_working` then
+        :meth:`working_to_original`)."""
+        return self.working_to_original(self.to_working(pts))
+
+
+def _to_rgb(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    if image.ndim == 2:
+        return np.asarray(cv2.cvtColor(image, cv2.COLOR_GRAY2RGB), dtype=np.uint8)
+    return image
+
+
+def _check_pixels(image: object, field_name: str) -> NDArray[np.uint8]:
+    if not isinstance(image, np.ndarray):
+        raise InvalidInputError(field_name, f"expected numpy.ndarray, got {type(image).__name__}")
+    if image.dtype != np.uint8:
+        raise InvalidInputError(field_name, f"expected dtype uint8, got {image.dtype}")
+    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
+        raise InvalidInputError(field_name, f"expected (H, W) or (H, W, 3), got {image.shape}")
+    if image.shape[0] < 2 or image.shape[1] < 2:
+        raise InvalidInputError(field_name, f"image too small: {image.shape}")
+    return image
+
+
+@dataclass(frozen=True)
+class _LensCache:
+    key: tuple[bytes, bytes, tuple[int, int]]
+    boundary_rays: F64  # (N, 2) normalised undistorted rays of the image boundary
+
+
+class FramePreprocessor:
+    """Prepares query frames and candidate tiles for one engine's :class:`InputRule`.
+
+    Single-threaded (INV-1): it caches the undistorted image boundary of the last few
+    calibrations. ``border_erode_px`` (engine px) erodes the valid mask so no keypoint sits on
+    a warp, padding or nodata edge; ``max_off_nadir_deg`` clips the rectified footprint to rays
+    at most that far from nadir; ``max_canvas_factor`` bounds the working canvas (see the module
+    docstring); the source frame is area-downscaled first when the composed warp shrinks it by
+    more than ``area_downscale_threshold``.
+    """
+
+    def __init__(
+        self,
+        rule: InputRule,
+        *,
+        border_erode_px: int = 4,
+        max_off_nadir_deg: float = 75.0,
+        max_canvas_factor: float = 3.0,
+        boundary_samples_per_side: int = 64,
+        area_downscale_threshold: float = 2.0,
+    ) -> None:
+        if not isinstance(rule, InputRule):
+            raise InvalidInputError("rule", f"expected InputRule, got {type(rule).__name__}")
+        if border_erode_px < 0:
+            raise InvalidInputError("border_erode_px", f"must be >= 0, got {border_erode_px}")
+        if not 0.0 < max_off_nadir_deg < 90.0:
+            raise InvalidInputError("max_off_nadir_deg", f"must be in (0, 90), got "
+                                    f"{max_off_nadir_deg}")
+        if max_canvas_factor < 1.0:
+            raise InvalidInputError("max_canvas_factor", f"must be >= 1, got {max_canvas_factor}")
+        self.rule = rule
+        self.border_erode_px = int(border_erode_px)
+        self.max_off_nadir_deg = float(max_off_nadir_deg)
+        self.max_canvas_factor = float(max_canvas_factor)
+        self.boundary_samples_per_side = int(boundary_samples_per_side)
+        self.area_downscale_threshold = float(area_downscale_threshold)
+        self._lens_cache: list[_LensCache] = []
+
+    # ------------------------------------------------------------------ query
+    def prepare_query(
+        self, frame: NavCameraFrame, calibration: CameraCalibration, tile_gsd_m: float | None
+    ) -> PreparedImage:
+        """Undistort, rectify to north-up nadir (if attitude), scale to ``tile_gsd_m`` m/px (if
+        height and GSD) and resize the nav frame to the rule, in one resampling."""
+        image = _check_pixels(frame.image, "frame.image")
+        h, w = image.shape[:2]
+        if tuple(calibration.image_size) != (w, h):
+            raise InvalidInputError(
+                "calibration.image_size",
+                f"calibration is for {calibration.image_size[0]}x{calibration.image_size[1]} px "
+                f"but the frame is {w}x{h} px",
+            )
+        if tile_gsd_m is not None:
+            g = float(tile_gsd_m)
+            if not math.isfinite(g) or g <= 0:
+                raise InvalidInputError("tile_gsd_m", f"must be finite and > 0, got {tile_gsd_m}")
+        k = calibration.K
+        f_ref = math.sqrt(k[0, 0] * k[1, 1])
+        height = frame.height_above_ground_m
+        f_w = height / float(tile_gsd_m) if (height is not None and tile_gsd_m) else f_ref
+        working_gsd = height / f_w if height is not None else None
+
+        # H0: UNDISTORTED px -> working px before the canvas translation.
+        if frame.attitude is not None:
+            r_vc = cam.virtual_from_camera(frame.attitude, calibration)
+            h0 = np.diag([f_w, f_w, 1.0]) @ r_vc @ np.linalg.inv(k)
+        else:
+            k_sq = np.array([[f_ref, 0.0, k[0, 2]], [0.0, f_ref, k[1, 2]], [0.0, 0.0, 1.0]])
+            s = f_w / f_ref
+            h0 = np.diag([s, s, 1.0]) @ k_sq @ np.linalg.inv(k)
+
+        poly, centre = self._footprint(calibration, h0, f_w, frame.attitude is not None)
+        t, working_size = self._canvas(poly, centre, max(w, h) * f_w / f_ref)
+        h_w = t @ h0
+        nadir = (float(t[0, 2]), float(t[1, 2])) if frame.attitude is not None else None
+
+        content = self.rule.content_size(*working_size)
+        final = self.rule.final_size(*working_size)
+        a_e = _engine_to_working(working_size, content)
+
+        # Source anti-aliasing: area-downscale first if the warp shrinks the frame a lot.
+        shrink = (working_size[0] / content[0]) * (f_ref / f_w)
+        src = image
+        k_map = k.copy()
+        if shrink >= self.area_downscale_threshold:
+            sw, sh = max(2, round(w / shrink)), max(2, round(h / shrink))
+            src = cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA)
+            ax, ay = sw / w, sh / h
+            k_map = np.array([[ax, 0.0, 0.5 * ax - 0.5], [0.0, ay, 0.5 * ay - 0.5],
+                              [0.0, 0.0, 1.0]]) @ k
+        # initUndistortRectifyMap: ray = inv(newK @ R) @ p_engine; map = k_map @ distort(ray).
+        r_arg = np.linalg.inv(a_e) @ h_w @ k
+        dist = calibration.distortion if calibration.distortion.size else None
+        map1, map2 = cv2.initUndistortRectifyMap(k_map, dist, r_arg, np.eye(3), final,
+                                                 cv2.CV_16SC2)
+        warped = cv2.remap(src, map1, map2, cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+        inside = self._polygon_mask(cam.apply_homography(np.linalg.inv(a_e) @ t, poly), final)
+        warped[inside == 0] = 0
+        valid = self._erode(inside)
+        return PreparedImage(
+            image=np.ascontiguousarray(_to_rgb(warped)),
+            valid=valid,
+            working_from_engine=a_e,
+            working_size=working_size,
+            working_from_undistorted=h_w,
+            calibration=calibration,
+            working_gsd_m=working_gsd,
+            nadir_working_px=nadir,
+        )
+
+    def _boundary_rays(self, calibration: CameraCalibration) -> F64:
+        key = (calibration.K.tobytes(), calibration.distortion.tobytes(),
+               tuple(calibration.image_size))
+        for entry in self._lens_cache:
+            if entry.key == key:
+                return entry.boundary_rays
+        w, h = calibration.image_size
+        rays = cam.undistort_normalized(
+            cam.image_boundary(w, h, self.boundary_samples_per_side), calibration
+        )
+        self._lens_cache = [_LensCache(key, rays), *self._lens_cache[:3]]
+        return rays
+
+    def _footprint(self, calibration: CameraCalibration, h0: F64, f_w: float,
+                   rectified: bool) -> tuple[F64, F64]:
+        """The frame's boundary in pre-translation working px (clipped to the off-nadir cone
+        when rectified) and the working position of the optical axis (canvas centre hint)."""
+        rays = self._boundary_rays(calibration)
+        g = h0 @ calibration.K  # normalised ray (x, y, 1) -> homogeneous working px
+        q = np.concatenate([rays, np.ones((rays.shape[0], 1))], axis=1) @ g.T
+        axis = g[:, 2]
+        if rectified:
+            cos_max = math.cos(math.radians(self.max_off_nadir_deg))
+
+            def cone(v: F64) -> F64:
+                d = np.stack([v[:, 0] / f_w, v[:, 1] / f_w, v[:, 2]], axis=1)
+                return np.asarray(v[:, 2] / np.linalg.norm(d, axis=1) - cos_max)
+
+            q = cam.clip_polygon(q, cone)
+            if q.shape[0] < 3:
+                raise InvalidInputError(
+                    "frame.attitude",
+                    f"the camera sees no ground within {self.max_off_nadir_deg} deg of nadir",
+                )
+            axis_ok = bool(cone(axis[None, :])[0] >= 0)
+        else:
+            axis_ok = True
+        poly = q[:, :2] / q[:, 2:3]
+        centre = axis[:2] / axis[2] if axis_ok else poly.mean(axis=0)
+        return poly, centre
+
+    def _canvas(self, poly: F64, centre: F64, long_side_working: float
+                ) -> tuple[F64, tuple[int, int]]:
+        lo = np.floor(poly.min(axis=0) + 1e-6)
+        hi = np.ceil(poly.max(axis=0) - 1e-6)
+        limit = math.floor(self.max_canvas_factor * long_side_working)
+        origin = [0, 0]
+        size = [0, 0]
+        for i in range(2):
+            extent = int(hi[i] - lo[i]) + 1
+            if extent <= limit:
+                origin[i], size[i] = int(lo[i]), extent
+            else:
+                start = math.floor(centre[i] - limit / 2)
+                start = min(max(start, int(lo[i])), int(hi[i]) + 1 - limit)
+                origin[i], size[i] = start, limit
+        t = np.array([[1.0, 0.0, -origin[0]], [0.0, 1.0, -origin[1]], [0.0, 0.0, 1.0]])
+        return t, (max(1, size[0]), max(1, size[1]))
+
+    @staticmethod
+    def _polygon_mask(poly_engine: F64, size: tuple[int, int]) -> NDArray[np.uint8]:
+        mask = np.zeros((size[1], size[0]), dtype=np.uint8)
+        shift = 4
+        pts = np.clip(poly_engine, -1e6, 1e6) * (1 << shift)
+        cv2.fillPoly(mask, [np.round(pts).astype(np.int32).reshape(-1, 1, 2)], 255,
+                     lineType=cv2.LINE_8, shift=shift)
+        return mask
+
+    def _erode(self, mask: NDArray[np.uint8]) -> NDArray[np.bool_]:
+        if self.border_erode_px > 0:
+            ksize = 2 * self.border_erode_px + 1
+            kernel = np.ones((ksize, ksize), dtype=np.uint8)
+            mask = cv2.erode(mask, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        return np.asarray(mask > 0)
+
+    # ------------------------------------------------------------------ tiles
+    def prepare_tile(self, tile_rgb: NDArray[np.uint8]) -> PreparedImage:
+        """Resize a north-up tile (uint8 RGB (H, W, 3) or grey (H, W)) to the rule (area
+        averaging, never upscaling) and pad it; nodata (all channels 0) is masked. WORKING px are
+        the tile's full-resolution px."""
+        tile = _to_rgb(_check_pixels(tile_rgb, "tile"))
+        h, w = tile.shape[:2]
+        content = self.rule.content_size(w, h)
+        final = self.rule.final_size(w, h)
+        nodata = np.all(tile == 0, axis=2).astype(np.uint8) * 255
+        if content != (w, h):
+            small = cv2.resize(tile, content, interpolation=cv2.INTER_AREA)
+            nodata = cv2.resize(nodata, content, interpolation=cv2.INTER_AREA)
+        else:
+            small = tile
+        cw, ch = content
+        fw, fh = final
+        image = np.zeros((fh, fw, 3), dtype=np.uint8)
+        inside = np.zeros((fh, fw), dtype=np.uint8)
+        uw, uh = min(cw, fw), min(ch, fh)
+        image[:uh, :uw] = small[:uh, :uw]
+        inside[:uh, :uw] = np.where(nodata[:uh, :uw] > 0, 0, 255).astype(np.uint8)
+        return PreparedImage(
+            image=image,
+            valid=self._erode(inside),
+            working_from_engine=_engine_to_working((w, h), content),
+            working_size=(w, h),
+        )

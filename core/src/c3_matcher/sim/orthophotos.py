@@ -1,0 +1,199 @@
+"""Load a north-up orthophoto as uint8 RGB plus its ground sample distance (m/px).
+
+Pixels: TIFFs are read with ``tifffile`` when it is importable and can decode them (raw bands;
+JPEG-compressed TIFFs need the optional ``imagecodecs``), otherwise, and for every other
+format, with ``cv2.imread(IMREAD_UNCHANGED)``. Bands: grey -> RGB; 3 bands -> RGB;
+4 bands -> the first three as RGB (NAIP's R, G, B, NIR; an RGBA PNG's alpha == 0 becomes nodata
+0). 16-bit or float data is stretched linearly to 8 bits (0 stays 0, the 99.9th percentile of
+the non-zero pixels becomes 255).
+
+Caveat: OpenCV's TIFF reader (libtiff RGBA interface) PREMULTIPLIES the colour bands by the
+fourth band when it is tagged as unassociated alpha, which NAIP's NIR band is; a 4-band TIFF is
+therefore refused without ``tifffile`` rather than silently corrupted.
+
+GSD: from the GeoTIFF tags (ModelPixelScaleTag 33550, ModelTiepointTag 33922,
+GeoKeyDirectoryTag 34735) when ``tifffile`` is importable. Projected CRSs in metres (UTM, RD New,
+LV95, ...) give the pixel scale directly (their scale error, < 0.1 %, is ignored). Mercator
+pixel scales are not ground metres: EPSG:3395 (ellipsoidal World Mercator) and EPSG:3857 (web
+mercator) are corrected at the image centre's latitude, read from the tie point. Geographic
+CRSs (degrees) are converted at the centre's latitude. Without ``tifffile`` or tags, the
+:data:`KNOWN_GSD_M` table of the fixtures (data/imagery/ATTRIBUTION.md) is used, by file name.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.errors import InvalidInputError
+
+__all__ = ["KNOWN_GSD_M", "Orthophoto", "geotiff_gsd_m", "load_orthophoto"]
+
+#: Fallback GSDs (m/px) of the fixture orthophotos, from data/imagery/ATTRIBUTION.md. The two
+#: OpenAerialMap images are EPSG:3395 with a ~0.10 m pixel scale; their ground GSD is ~0.097 m
+#: (Manila, 14.6 N) and ~0.096 m (Brazil, 15.6 S), which the GeoTIFF path computes exactly.
+KNOWN_GSD_M: dict[str, float] = {
+    "m_4709963_se_14_1_20100629.tif": 5.0,
+    "m_4709963_se_14_1_20150926.tif": 5.0,
+    "m_4709963_se_14_1_20200831.tif": 5.0,
+    "test_tiled.tif": 0.25,
+    "5b90f92da0d7280005fab355_4310.tif": 0.10,
+    "5dded5bc0140b80006d2e565_23.tif": 0.10,
+    "swissimage_zurich_1091-322_00_0p5m.tif": 0.5,
+    "swissimage_ref-img_0p5m.tif": 0.5,
+}
+
+_WGS84_A = 6378137.0
+_WGS84_E2 = 0.0066943799901413165
+
+
+@dataclass(frozen=True)
+class Orthophoto:
+    """A north-up orthophoto: ``rgb`` uint8 (H, W, 3) (nodata = all channels 0), ``gsd_m``
+    ground metres per pixel (None when unknown), ``gsd_source`` one of "geotiff", "table",
+    "given", "unknown"."""
+
+    rgb: NDArray[np.uint8]
+    gsd_m: float | None
+    path: Path
+    gsd_source: str
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(w, h) px."""
+        return int(self.rgb.shape[1]), int(self.rgb.shape[0])
+
+
+def _to_uint8(arr: NDArray[Any]) -> NDArray[np.uint8]:
+    if arr.dtype == np.uint8:
+        return arr
+    data = arr.astype(np.float64)
+    nonzero = data[data > 0]
+    top = float(np.percentile(nonzero, 99.9)) if nonzero.size else 1.0
+    return np.asarray(np.clip(np.rint(data * (255.0 / max(top, 1e-12))), 0, 255), dtype=np.uint8)
+
+
+def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any]]:
+    """(pixels or None when tifffile cannot decode them, GeoTIFF tags); ({}, None) without
+    tifffile. JPEG-compressed TIFFs need imagecodecs, which is optional: cv2 reads those."""
+    try:
+        import tifffile
+    except ImportError:
+        return None, {}
+    with tifffile.TiffFile(str(path)) as tif:
+        page = tif.pages[0]
+        tags = {code: page.tags[code].value for code in (33550, 33922, 34735)
+                if code in page.tags}
+        try:
+            arr = np.asarray(page.asarray())
+        except (ValueError, NotImplementedError, ImportError):
+            return None, tags
+    if arr.ndim == 3 and arr.shape[0] in (3, 4) and arr.shape[2] not in (3, 4):
+        arr = np.moveaxis(arr, 0, -1)  # planar (bands, H, W)
+    return arr, tags
+
+
+def _geokeys(directory: Any) -> dict[int, Any]:
+    values = [int(v) for v in directory]
+    keys: dict[int, Any] = {}
+    for i in range(values[3]):
+        key_id, location, _count, value = values[4 + 4 * i: 8 + 4 * i]
+        if location == 0:
+            keys[key_id] = value
+    return keys
+
+
+def _mercator_lat(y: float, ellipsoidal: bool) -> float:
+    """Latitude (rad) of Mercator northing ``y`` (m) on WGS84 (ellipsoidal) or the sphere."""
+    t = math.exp(-y / _WGS84_A)
+    phi = math.pi / 2 - 2 * math.atan(t)
+    if ellipsoidal:
+        e = math.sqrt(_WGS84_E2)
+        for _ in range(20):
+            es = e * math.sin(phi)
+            phi = math.pi / 2 - 2 * math.atan(t * ((1 - es) / (1 + es)) ** (e / 2))
+    return phi
+
+
+def geotiff_gsd_m(tags: dict[int, Any], height_px: int) -> float | None:
+    """Ground GSD (m/px, geometric mean of x and y) from raw GeoTIFF tags, or None."""
+    scale = tags.get(33550)
+    if scale is None:
+        return None
+    sx, sy = float(scale[0]), float(scale[1])
+    keys = _geokeys(tags[34735]) if 34735 in tags else {}
+    tie = tags.get(33922)
+    centre_y = None
+    if tie is not None and len(tie) >= 6:
+        centre_y = float(tie[4]) - sy * (height_px / 2.0 - float(tie[1]))
+    model = keys.get(1024)
+    if model == 2:  # geographic: degrees
+        if centre_y is None:
+            return None
+        lat = math.radians(centre_y)
+        s2 = math.sin(lat) ** 2
+        m_per_deg_lat = math.radians(1) * _WGS84_A * (1 - _WGS84_E2) / (1 - _WGS84_E2 * s2) ** 1.5
+        m_per_deg_lon = math.radians(1) * _WGS84_A * math.cos(lat) / math.sqrt(1 - _WGS84_E2 * s2)
+        return math.sqrt(sx * m_per_deg_lon * sy * m_per_deg_lat)
+    epsg = keys.get(3072)
+    gsd = math.sqrt(sx * sy)
+    if epsg in (3395, 3857, 900913, 3785) and centre_y is not None:
+        ellipsoidal = epsg == 3395
+        lat = _mercator_lat(centre_y, ellipsoidal)
+        if ellipsoidal:
+            k = math.sqrt(1 - _WGS84_E2 * math.sin(lat) ** 2) / math.cos(lat)
+        else:
+            k = 1.0 / math.cos(lat)
+        gsd /= k
+    return gsd
+
+
+def load_orthophoto(path: str | Path, *, gsd_m: float | None = None) -> Orthophoto:
+    """Load ``path`` as uint8 RGB with its GSD (``gsd_m`` overrides the file's)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError("path", f"no such file: {p}")
+    is_tiff = p.suffix.lower() in (".tif", ".tiff")
+    raw, tags = _read_tifffile(p) if is_tiff else (None, {})
+    if raw is not None:
+        arr = raw
+        rgb_order = True
+    else:
+        read = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if read is None:
+            raise InvalidInputError("path", f"cannot decode {p}")
+        arr = np.asarray(read)
+        if is_tiff and arr.ndim == 3 and arr.shape[2] == 4:
+            raise InvalidInputError("path", f"{p}: 4-band TIFF needs tifffile (OpenCV "
+                                    "premultiplies the colour bands by the 4th); pip install "
+                                    "tifffile")
+        rgb_order = False
+    alpha = None
+    if arr.ndim == 3 and arr.shape[2] >= 4:
+        if not is_tiff:
+            alpha = arr[..., 3]
+        arr = arr[..., :3]
+    arr = _to_uint8(arr)
+    if arr.ndim == 2:
+        rgb = cv2.cvtColor(arr, cv2.COLOR_GRAY2RGB)
+    elif arr.ndim == 3 and arr.shape[2] == 3:
+        rgb = np.ascontiguousarray(arr if rgb_order else cv2.cvtColor(arr, cv2.COLOR_BGR2RGB))
+    else:
+        raise InvalidInputError("path", f"{p}: unsupported band layout {arr.shape}")
+    if alpha is not None:
+        rgb[alpha == 0] = 0
+    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
+    if gsd_m is not None:
+        return Orthophoto(rgb, float(gsd_m), p, "given")
+    from_tags = geotiff_gsd_m(tags, rgb.shape[0]) if tags else None
+    if from_tags is not None:
+        return Orthophoto(rgb, from_tags, p, "geotiff")
+    if p.name in KNOWN_GSD_M:
+        return Orthophoto(rgb, KNOWN_GSD_M[p.name], p, "table")
+    return Orthophoto(rgb, None, p, "unknown")

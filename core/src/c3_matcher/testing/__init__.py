@@ -1,0 +1,31 @@
+"""Test kit for c3-matcher and its plugins: the seeds' allowed test doubles and fixture makers.
+
+``FakeInferenceRuntime``, ``FakeLightGlueRuntime``, ``FakeRansacFilter``, ``InMemoryFdr`` (the
+FakeFdrClient) and ``FakeClock`` are the doubles AZ-345 allows for unit tests of control flow.
+"""
+
+from __future__ import annotations
+
+from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.testing.fakes import (
+    FakeBackend,
+    FakeClock,
+    FakeInferenceRuntime,
+    FakeLightGlueRuntime,
+    FakeRansacFilter,
+    ScriptedCandidate,
+    make_frame,
+    make_rerank,
+)
+
+__all__ = [
+    "FakeBackend",
+    "FakeClock",
+    "FakeInferenceRuntime",
+    "FakeLightGlueRuntime",
+    "FakeRansacFilter",
+    "InMemoryFdr",
+    "ScriptedCandidate",
+    "make_frame",
+    "make_rerank",
+]

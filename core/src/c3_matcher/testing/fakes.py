@@ -1,0 +1,198 @@
+"""Test doubles for control-flow tests (AZ-345 "Allowed external stubs").
+
+The scripted doubles let a test say, per candidate, how many inliers and which median residual
+RANSAC "finds", and which call raises: ``ScriptedCandidate(inliers=120, residual=1.1)``.
+Candidate ``i``'s tile image is the constant value ``i + 1`` (0 would read as nodata) and the
+fake extractor puts that mark in its keypoints' y coordinate, so each double knows which
+candidate it is looking at without any shared counter.
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.dto import (
+    CameraCalibration,
+    NavCameraFrame,
+    RansacResult,
+    RerankCandidate,
+    RerankResult,
+    TileId,
+)
+from c3_matcher.features import Features, RawMatches
+from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.tiles import BytesTileHandle
+
+__all__ = [
+    "FakeBackend",
+    "FakeClock",
+    "FakeInferenceRuntime",
+    "FakeLightGlueRuntime",
+    "FakeRansacFilter",
+    "ScriptedCandidate",
+    "make_frame",
+    "make_rerank",
+]
+
+QUERY_MARK = 255  # pixel value of the query frame; tile i has the value i + 1
+
+
+@dataclass(frozen=True, slots=True)
+class ScriptedCandidate:
+    """What the doubles do for one candidate: RANSAC outcome, and which stage raises."""
+
+    inliers: int = 100
+    residual: float = 1.0
+    outliers: int = 10
+    fail_extract: bool = False
+    fail_match: bool = False
+    fail_decode: bool = False
+
+
+class FakeClock:
+    """A settable monotonic clock; ``advance`` moves it forward."""
+
+    def __init__(self, start_ns: int = 1_000_000_000) -> None:
+        self.now_ns = start_ns
+
+    def monotonic_ns(self) -> int:
+        return self.now_ns
+
+    def advance(self, seconds: float) -> None:
+        self.now_ns += int(seconds * 1e9)
+
+
+class FakeInferenceRuntime:
+    """An InferenceRuntime double: engines are names, ``run`` returns keypoints that encode the
+    image's mark; raises on the scripted candidates (``fail_extract``)."""
+
+    provider = "FakeExecutionProvider"
+
+    def __init__(self, script: Sequence[ScriptedCandidate] = ()) -> None:
+        self.script = list(script)
+        self.loaded: list[str] = []
+        self.calls: list[int] = []
+
+    def load_engine(self, path: Any) -> str:
+        self.loaded.append(str(path))
+        return str(path)
+
+    def run(self, engine_id: str, feeds: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
+        image = next(iter(feeds.values()))
+        mark = int(np.asarray(image).reshape(-1)[0])
+        self.calls.append(mark - 1)
+        if 0 <= mark - 1 < len(self.script) and self.script[mark - 1].fail_extract:
+            raise RuntimeError(f"scripted extractor failure on candidate {mark - 1}")
+        n = 8
+        kpts = np.stack([np.arange(n, dtype=np.float32), np.full(n, mark, np.float32)], axis=1)
+        return {"keypoints": kpts, "keypoint_scores": np.ones(n, np.float32),
+                "descriptors": np.zeros((n, 4), np.float32)}
+
+
+class FakeLightGlueRuntime:
+    """A LightGlueRuntime double: matches every keypoint to itself; raises when scripted."""
+
+    def __init__(self, script: Sequence[ScriptedCandidate] = ()) -> None:
+        self.script = list(script)
+        self.calls: list[int] = []
+
+    def match_pair(self, kpts0: NDArray[np.float32], desc0: NDArray[np.float32],
+                   size0: tuple[int, int], kpts1: NDArray[np.float32],
+                   desc1: NDArray[np.float32], size1: tuple[int, int], *,
+                   feature_type: str) -> RawMatches:
+        mark = int(kpts1[0, 1]) - 1 if len(kpts1) else -1
+        self.calls.append(mark)
+        if 0 <= mark < len(self.script) and self.script[mark].fail_match:
+            raise RuntimeError(f"scripted LightGlue failure on candidate {mark}")
+        n = min(len(kpts0), len(kpts1))
+        idx = np.arange(n, dtype=np.int64)
+        return RawMatches(np.stack([idx, idx], axis=1), np.ones(n, np.float32))
+
+
+class FakeRansacFilter:
+    """A RansacFilter double: returns the scripted inlier count and residual for the candidate
+    whose tile keypoints it sees (the tile mark is the y coordinate of the tile points)."""
+
+    def __init__(self, script: Sequence[ScriptedCandidate]) -> None:
+        self.script = list(script)
+        self.calls: list[int] = []
+
+    def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult:
+        mark = int(round(float(correspondences[0, 3]))) - 1 if len(correspondences) else -1
+        self.calls.append(mark)
+        s = self.script[mark] if 0 <= mark < len(self.script) else ScriptedCandidate(inliers=0)
+        rows = np.tile(np.array([[1.0, 2.0, 3.0, float(mark + 1)]], np.float32), (s.inliers, 1))
+        rows[:, 0] += np.arange(s.inliers, dtype=np.float32)
+        return RansacResult(rows, s.outliers, float(s.residual) if s.inliers else 0.0,
+                            np.eye(3) if s.inliers else None,
+                            np.ones(s.inliers + s.outliers, bool))
+
+
+class FakeBackend:
+    """A FeatureBackend double over the fake runtimes (the shape a real strategy has)."""
+
+    label = "fake_backend"
+    extract_phase = "disk_forward"
+    match_phase = "lightglue_match"
+
+    def __init__(self, inference: FakeInferenceRuntime, lightglue: FakeLightGlueRuntime,
+                 rule: InputRule = InputRule(max_long_side=64, multiple=16)) -> None:
+        self.inference = inference
+        self.lightglue = lightglue
+        self.input_rule = rule
+        self.engine_id = inference.load_engine("fake-engine")
+
+    def extract(self, image: PreparedImage) -> Features:
+        out = self.inference.run(self.engine_id, {"image": image.image})
+        return Features(out["keypoints"], out["descriptors"], out["keypoint_scores"],
+                        (image.image.shape[1], image.image.shape[0]))
+
+    def match(self, query: Features, tile: Features) -> RawMatches:
+        return self.lightglue.match_pair(query.keypoints, query.descriptors, query.image_size,
+                                         tile.keypoints, tile.descriptors, tile.image_size,
+                                         feature_type="fake")
+
+    def provenance(self) -> Mapping[str, Any]:
+        return {"provider": self.inference.provider, "engines": {"fake": "0" * 64}}
+
+
+class _FailingHandle:
+    def encoded(self) -> memoryview:
+        return memoryview(b"")
+
+    def decode(self) -> NDArray[np.uint8]:
+        raise ValueError("scripted tile decode failure")
+
+
+def _marked_png(mark: int, size: int = 64) -> bytes:
+    """A constant image whose every pixel equals ``mark``: survives resize and preprocessing."""
+    image = np.full((size, size, 3), mark, np.uint8)
+    ok, buf = cv2.imencode(".png", image)
+    assert ok
+    return buf.tobytes()
+
+
+def make_frame(frame_id: uuid.UUID | None = None, size: int = 64) -> tuple[NavCameraFrame,
+                                                                          CameraCalibration]:
+    """A marked query frame (no attitude) and a matching distortion-free calibration."""
+    image = np.full((size, size, 3), QUERY_MARK, np.uint8)
+    frame = NavCameraFrame(frame_id or uuid.uuid4(), image, captured_at_ns=1)
+    return frame, CameraCalibration.pinhole(size, size, focal_px=float(size))
+
+
+def make_rerank(frame_id: uuid.UUID, script: Sequence[ScriptedCandidate]) -> RerankResult:
+    """One candidate per script entry, tile ids (18, 47.0 + i/1000, 8.5)."""
+    candidates = []
+    for i, s in enumerate(script):
+        handle = (_FailingHandle() if s.fail_decode
+                  else BytesTileHandle(_marked_png(i + 1), f"tile{i}"))
+        candidates.append(RerankCandidate(TileId(18, 47.0 + i / 1000, 8.5), 1.0 - i / 10, handle,
+                                          gsd_m_per_px=0.3))
+    return RerankResult(frame_id, tuple(candidates))

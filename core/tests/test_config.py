@@ -1,0 +1,57 @@
+"""Configuration: defaults, TOML, environment, and refusals that name the field."""
+
+from __future__ import annotations
+
+import pytest
+
+from c3_matcher.config import load_settings
+from c3_matcher.errors import ConfigurationError
+
+
+def test_defaults_follow_decisions_14():
+    s = load_settings(env={})
+    m = s.matcher
+    assert (m.strategy, m.min_inliers_threshold, m.residual_warn_threshold_px,
+            m.ransac_threshold_px, m.max_long_side, m.max_keypoints) == (
+        "disk_lightglue", 60, 2.5, 3.0, 1024, 2048)
+
+
+def test_toml_then_environment_override(tmp_path):
+    toml = tmp_path / "c3.toml"
+    toml.write_text('[matcher]\nmin_inliers_threshold = 80\nstrategy = "xfeat"\n'
+                    '[engines]\ndirectory = "/opt/engines"\n')
+    s = load_settings(toml, env={"C3_MATCHER_MATCHER__STRATEGY": "aliked_lightglue"})
+    assert s.matcher.min_inliers_threshold == 80
+    assert s.matcher.strategy == "aliked_lightglue"
+    assert str(s.engines.directory) == "/opt/engines"
+
+
+@pytest.mark.parametrize(("text", "field"), [
+    ("[matcher]\nmin_inliers_threshold = 2\n", "matcher.min_inliers_threshold"),
+    ("[matcher]\nmin_inlier_threshold = 80\n", "matcher.min_inlier_threshold"),
+    ("[matchr]\nstrategy = 'x'\n", "matchr"),
+    ("[matcher]\nresidual_warn_threshold_px = -1\n", "matcher.residual_warn_threshold_px"),
+    ("[logging]\nlevel = 'LOUD'\n", "logging.level"),
+])
+def test_bad_or_unknown_values_are_refused_naming_the_field(tmp_path, text, field):
+    toml = tmp_path / "c3.toml"
+    toml.write_text(text)
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(toml, env={})
+    assert field in [f for f, _ in info.value.problems]
+
+
+def test_unknown_environment_variable_is_refused():
+    with pytest.raises(ConfigurationError, match="C3_MATCHER_MATCHER__MIN_INLIER_THRESHOLD"):
+        load_settings(env={"C3_MATCHER_MATCHER__MIN_INLIER_THRESHOLD": "80"})
+    with pytest.raises(ConfigurationError, match="matcher.min_inliers_threshold"):
+        load_settings(env={"C3_MATCHER_MATCHER__MIN_INLIERS_THRESHOLD": "many"})
+
+
+def test_unreadable_file_is_named(tmp_path):
+    with pytest.raises(ConfigurationError, match="file not found"):
+        load_settings(tmp_path / "missing.toml", env={})
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[matcher\n")
+    with pytest.raises(ConfigurationError, match="unreadable TOML"):
+        load_settings(bad, env={})

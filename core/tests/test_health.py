@@ -1,0 +1,43 @@
+"""RollingHealthWindow: consecutive low-inlier frames and the 60 s mean, on an injected clock."""
+
+from __future__ import annotations
+
+import pytest
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.health import RollingHealthWindow
+from c3_matcher.testing import FakeClock
+
+
+def test_consecutive_low_inlier_counts_and_resets():
+    clock = FakeClock()
+    window = RollingHealthWindow(clock, low_inlier_threshold=60)
+    for count in (10, 0, 59):
+        window.update(clock.monotonic_ns(), count, False)
+        clock.advance(0.33)
+    assert window.snapshot().consecutive_low_inlier == 3
+    window.update(clock.monotonic_ns(), 60, False)
+    assert window.snapshot().consecutive_low_inlier == 0
+
+
+def test_mean_over_sixty_seconds_evicts_old_updates():
+    clock = FakeClock()
+    window = RollingHealthWindow(clock, low_inlier_threshold=60)
+    window.update(clock.monotonic_ns(), 300, False)
+    clock.advance(30)
+    window.update(clock.monotonic_ns(), 100, True)
+    assert window.snapshot().mean_inliers_60s == pytest.approx(200.0)
+    clock.advance(31)  # the first update is now 61 s old
+    assert window.snapshot().mean_inliers_60s == pytest.approx(100.0)
+    clock.advance(60)
+    assert window.snapshot().mean_inliers_60s == 0.0
+
+
+def test_update_count_and_validation():
+    clock = FakeClock()
+    window = RollingHealthWindow(clock, 60)
+    window.update(clock.monotonic_ns(), 5, True)
+    assert window.update_count == 1 and window.last_update is not None
+    assert window.last_update.had_backbone_error is True
+    with pytest.raises(InvalidInputError, match="best_inlier_count"):
+        window.update(clock.monotonic_ns(), -1, False)

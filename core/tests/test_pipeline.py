@@ -1,0 +1,227 @@
+"""The shared per-frame pipeline: AZ-345 AC-2 to AC-10 and AC-12 with the allowed test doubles."""
+
+from __future__ import annotations
+
+import uuid
+
+import pytest
+
+from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
+from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.health import RollingHealthWindow
+from c3_matcher.pipeline import MatchPipeline, PipelineSettings
+from c3_matcher.testing import (
+    FakeBackend,
+    FakeClock,
+    FakeInferenceRuntime,
+    FakeLightGlueRuntime,
+    FakeRansacFilter,
+    ScriptedCandidate,
+    make_frame,
+    make_rerank,
+)
+
+S = ScriptedCandidate
+
+
+class Rig:
+    """A pipeline over scripted doubles, and everything a test inspects."""
+
+    def __init__(self, script: list[ScriptedCandidate], fdr: InMemoryFdr,
+                 settings: PipelineSettings | None = None) -> None:
+        self.script = script
+        self.clock = FakeClock()
+        self.fdr = fdr
+        self.settings = settings or PipelineSettings()
+        self.health = RollingHealthWindow(self.clock, self.settings.min_inliers_threshold)
+        self.inference = FakeInferenceRuntime(script)
+        self.lightglue = FakeLightGlueRuntime(script)
+        self.ransac = FakeRansacFilter(script)
+        self.pipeline = MatchPipeline(FakeBackend(self.inference, self.lightglue), self.ransac,
+                                      fdr, self.health, self.clock, self.settings)
+        self.frame, self.calibration = make_frame(uuid.UUID(int=7))
+        self.rerank = make_rerank(self.frame.frame_id, script)
+
+    def match(self):  # type: ignore[no-untyped-def]
+        return self.pipeline.match(self.frame, self.rerank, self.calibration)
+
+
+def test_ac2_best_candidate_argmax_with_residual_tie_break(fdr, logs):
+    rig = Rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
+    result = rig.match()
+    assert result.best_candidate_idx == 0
+    got = [(c.inlier_count, c.per_candidate_residual_px) for c in result.per_candidate]
+    assert got == [(120, 1.1), (120, 1.4), (80, 1.0)]
+    assert [c.tile_id for c in result.per_candidate] == [
+        rig.rerank.candidates[i].tile_id for i in (2, 0, 1)]
+    assert result.reprojection_residual_px == 1.1
+
+
+def test_inv3_full_tie_keeps_input_order(fdr, logs):
+    rig = Rig([S(90, 1.0), S(90, 1.0), S(90, 1.0)], fdr)
+    result = rig.match()
+    assert [c.tile_id for c in result.per_candidate] == [c.tile_id for c in rig.rerank.candidates]
+
+
+def test_ac3_extractor_failure_on_second_candidate_is_dropped(fdr, logs):
+    rig = Rig([S(100), S(100, fail_extract=True), S(90)], fdr)
+    result = rig.match()
+    assert len(result.per_candidate) == 2
+    assert result.candidates_dropped == 1 and result.candidates_input == 3
+    errors = logs.of_kind("c3.matcher.backbone_error")
+    assert len(errors) == 1 and errors[0]["level"] == "ERROR"
+    assert errors[0]["phase"] == "disk_forward"
+    assert errors[0]["tile_id"] == rig.rerank.candidates[1].tile_id.as_list()
+    records = fdr.of_kind("matcher.backbone_error")
+    assert len(records) == 1 and records[0]["phase"] == "disk_forward"
+    assert rig.health.last_update is not None and rig.health.last_update.had_backbone_error
+
+
+def test_ac4_lightglue_failure_on_first_candidate_is_dropped(fdr, logs):
+    rig = Rig([S(100, fail_match=True), S(100), S(90)], fdr)
+    result = rig.match()
+    assert [c.tile_id for c in result.per_candidate] == [
+        rig.rerank.candidates[1].tile_id, rig.rerank.candidates[2].tile_id]
+    assert [e["phase"] for e in logs.of_kind("c3.matcher.backbone_error")] == ["lightglue_match"]
+    assert [r["phase"] for r in fdr.of_kind("matcher.backbone_error")] == ["lightglue_match"]
+    assert rig.lightglue.calls == [0, 1, 2]  # the remaining candidates were processed
+
+
+def test_tile_decode_failure_is_a_backbone_drop(fdr, logs):
+    rig = Rig([S(100), S(100), S(100, fail_decode=True)], fdr)
+    result = rig.match()
+    assert result.candidates_dropped == 1
+    assert fdr.of_kind("matcher.backbone_error")[0]["phase"] == "tile_decode"
+
+
+def test_ac5_all_below_threshold_raises_insufficient(fdr, logs):
+    rig = Rig([S(59), S(10), S(30)], fdr)
+    with pytest.raises(InsufficientInliersError) as info:
+        rig.match()
+    assert info.value.best_inlier_count == 59 and info.value.threshold == 60
+    assert len(logs.of_kind("c3.matcher.insufficient_inliers")) == 1
+    assert logs.of_kind("c3.matcher.insufficient_inliers")[0]["level"] == "ERROR"
+    assert len(fdr.of_kind("matcher.insufficient_inliers")) == 1
+    assert rig.health.update_count == 1
+    last = rig.health.last_update
+    assert last is not None and last.best_inlier_count == 0 and last.had_backbone_error is False
+    assert fdr.of_kind("matcher.frame_done") == []
+
+
+def test_ac6_all_extractors_fail(fdr, logs):
+    rig = Rig([S(fail_extract=True)] * 3, fdr)
+    with pytest.raises(InsufficientInliersError):
+        rig.match()
+    assert len(logs.of_kind("c3.matcher.backbone_error")) == 3
+    assert len(logs.of_kind("c3.matcher.insufficient_inliers")) == 1
+    assert len(fdr.of_kind("matcher.backbone_error")) == 3
+    last = rig.health.last_update
+    assert rig.health.update_count == 1
+    assert last is not None and last.best_inlier_count == 0 and last.had_backbone_error is True
+
+
+def test_zero_inliers_is_dropped_without_backbone_error(fdr, logs):
+    rig = Rig([S(100), S(0), S(70)], fdr)
+    result = rig.match()
+    assert result.candidates_dropped == 1 and len(result.per_candidate) == 2
+    assert len(logs.of_kind("c3.matcher.zero_inliers")) == 1
+    assert logs.of_kind("c3.matcher.backbone_error") == []
+    last = rig.health.last_update
+    assert last is not None and last.had_backbone_error is False and last.best_inlier_count == 100
+
+
+def test_ac7_warn_when_best_residual_above_threshold(fdr, logs):
+    rig = Rig([S(100, 4.2), S(80, 1.0), S(70, 1.0)], fdr)
+    rig.match()
+    warns = logs.of_kind("c3.matcher.residual_above_threshold")
+    assert len(warns) == 1 and warns[0]["level"] == "WARNING"
+    assert warns[0]["residual_px"] == 4.2 and warns[0]["threshold_px"] == 2.5
+    # WARN is forwarded to the FDR as its own kind
+    assert len(fdr.of_kind("log.warning")) == 1
+
+
+def test_no_warn_at_or_below_threshold(fdr, logs):
+    rig = Rig([S(100, 2.5)], fdr)
+    rig.match()
+    assert logs.of_kind("c3.matcher.residual_above_threshold") == []
+
+
+@pytest.mark.parametrize("script", [
+    [S(100), S(90), S(80)],
+    [S(100), S(90, fail_extract=True), S(80)],
+    [S(10), S(20), S(30)],
+    [S(fail_match=True)] * 3,
+])
+def test_ac8_health_updated_exactly_once_per_call(fdr, logs, script):
+    rig = Rig(script, fdr)
+    for expected in (1, 2):
+        try:
+            result = rig.match()
+            best = result.per_candidate[0].inlier_count
+        except InsufficientInliersError:
+            best = 0
+        assert rig.health.update_count == expected
+        last = rig.health.last_update
+        assert last is not None and last.best_inlier_count == best
+        assert last.had_backbone_error == any(s.fail_extract or s.fail_match for s in script)
+
+
+def test_ac9_correspondence_shape(fdr, logs):
+    result = Rig([S(120), S(75), S(64)], fdr).match()
+    for c in result.per_candidate:
+        assert c.inlier_correspondences.shape == (c.inlier_count, 4)
+        assert c.inlier_correspondences.dtype.name == "float32"
+
+
+def test_ac10_deterministic_three_calls(fdr, logs):
+    rig = Rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
+    results = [rig.match() for _ in range(3)]
+    for other in results[1:]:
+        assert other.best_candidate_idx == results[0].best_candidate_idx
+        assert other.reprojection_residual_px == results[0].reprojection_residual_px
+        assert all(a.same_content(b) for a, b in zip(results[0].per_candidate,
+                                                       other.per_candidate, strict=True))
+
+
+def test_ac12_frame_done_record(fdr, logs):
+    rig = Rig([S(120, 1.1), S(fail_extract=True), S(80, 1.5)], fdr)
+    result = rig.match()
+    done = fdr.of_kind("matcher.frame_done")
+    assert len(done) == 1
+    record = done[0]
+    assert record["frame_id"] == str(rig.frame.frame_id)
+    assert record["candidates_input"] == 3 and record["candidates_dropped"] == 1
+    assert record["best_inlier_count"] == 120 and record["best_residual_px"] == 1.1
+    assert record["best_tile_id"] == result.per_candidate[0].tile_id.as_list()
+    assert record["provider"] == "FakeExecutionProvider"
+    assert "timings_ms" in record and record["best_homography"] is not None
+
+
+def test_query_failure_raises_backbone_error_and_updates_health(fdr, logs):
+    rig = Rig([S(100)], fdr)
+    rig.inference.script = [S()] * 255  # mark 255 (the query) -> index 254 fails
+    rig.inference.script[254] = S(fail_extract=True)
+    with pytest.raises(MatcherBackboneError) as info:
+        rig.match()
+    assert info.value.phase == "query_extract"
+    assert [r["phase"] for r in fdr.of_kind("matcher.backbone_error")] == ["query_extract"]
+    last = rig.health.last_update
+    assert rig.health.update_count == 1 and last is not None and last.had_backbone_error
+
+
+def test_mismatched_frame_id_is_refused_naming_the_field(fdr, logs):
+    rig = Rig([S(100)], fdr)
+    other = make_rerank(uuid.UUID(int=8), rig.script)
+    with pytest.raises(InvalidInputError, match="rerank_result.frame_id"):
+        rig.pipeline.match(rig.frame, other, rig.calibration)
+    assert rig.health.update_count == 1
+
+
+def test_fdr_failure_never_fails_the_frame(logs):
+    class BrokenFdr(InMemoryFdr):
+        def record(self, kind, payload):  # type: ignore[no-untyped-def]
+            raise OSError("disk full")
+
+    rig = Rig([S(100)], BrokenFdr())
+    assert rig.match().per_candidate[0].inlier_count == 100
+    assert len(logs.of_kind("c3.fdr.write_failed")) == 1

@@ -1,0 +1,123 @@
+"""Plugin discovery through entry points, with fake installed distributions."""
+
+from __future__ import annotations
+
+import inspect
+
+import pytest
+
+from c3_matcher.errors import (
+    DuplicateStrategyError,
+    StrategyNotLinkedError,
+    UnknownStrategyError,
+)
+from c3_matcher.plugins import PluginHost, hookspecs
+from c3_matcher.plugins.manager import discover
+from c3_matcher.profiles import UNPROFILED, BuildProfile, installed_profile
+
+from .fake_dists import BROKEN_PLUGIN, WORKING_PLUGIN, dists, make_dist
+
+AIRBORNE_DATA = {
+    "name": "airborne", "strict": True,
+    "flags": {
+        "BUILD_MATCHER_DISK_LIGHTGLUE": {"state": "ON", "strategy": "disk_lightglue",
+                                         "distribution": "c3-matcher-disk-lightglue"},
+        "BUILD_MATCHER_XFEAT": {"state": "WIRED", "strategy": "xfeat",
+                                "distribution": "c3-matcher-xfeat"},
+    },
+}
+RESEARCH_DATA = {**AIRBORNE_DATA, "name": "research", "strict": False}
+
+
+@pytest.fixture
+def site(tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return tmp_path
+
+
+def host_for(site, data=RESEARCH_DATA):  # type: ignore[no-untyped-def]
+    return PluginHost(BuildProfile.from_data(data, "profile-dist"), discover(dists(site)))
+
+
+def test_working_plugin_is_discovered(site):
+    make_dist(site, "c3-matcher-disk-lightglue", "fake_disk",
+              WORKING_PLUGIN.format(strategy="disk_lightglue", flag="BUILD_MATCHER_DISK_LIGHTGLUE"))
+    host = host_for(site)
+    assert list(host.strategies()) == ["disk_lightglue"]
+    assert host.resolve("disk_lightglue").build_flag == "BUILD_MATCHER_DISK_LIGHTGLUE"
+    plugin = host.strategy_plugin("disk_lightglue")
+    assert (plugin.distribution, plugin.version) == ("c3-matcher-disk-lightglue", "1.0")
+    assert host.errors == ()
+
+
+def test_broken_plugin_is_reported_naming_plugin_and_distribution(site):
+    make_dist(site, "acme-broken", "acme_broken", BROKEN_PLUGIN)
+    host = host_for(site)
+    (error,) = host.errors
+    assert 'Error importing plugin "acme_broken"' in str(error)
+    assert "acme-broken" in str(error) and "module_that_does_not_exist" in str(error)
+    assert host.strategies() == {}
+
+
+def test_duplicate_strategy_rejected_naming_both_distributions(site):
+    for dist, mod in (("acme-one", "acme_one"), ("acme-two", "acme_two")):
+        make_dist(site, dist, mod, WORKING_PLUGIN.format(strategy="acme_match", flag=None))
+    host = host_for(site)
+    assert "acme_match" not in host.strategies()
+    with pytest.raises(DuplicateStrategyError) as info:
+        host.resolve("acme_match")
+    assert info.value.distributions == ("acme-one", "acme-two")
+    assert any(isinstance(e, DuplicateStrategyError) for e in host.errors)
+
+
+def test_strict_profile_ignores_unlinked_third_party_plugin(site):
+    make_dist(site, "acme-matcher", "acme_matcher",
+              WORKING_PLUGIN.format(strategy="acme_match", flag=None))
+    airborne = host_for(site, AIRBORNE_DATA)
+    assert airborne.strategies() == {}
+    assert [(p.distribution, "strict" in p.reason) for p in airborne.ignored] == [
+        ("acme-matcher", True)]
+    with pytest.raises(StrategyNotLinkedError, match="acme-matcher"):
+        airborne.resolve("acme_match")
+    research = host_for(site, RESEARCH_DATA)
+    assert list(research.strategies()) == ["acme_match"]
+
+
+def test_not_linked_errors_name_strategy_flag_profile_and_fix(site):
+    host = host_for(site, AIRBORNE_DATA)
+    with pytest.raises(StrategyNotLinkedError) as info:
+        host.resolve("xfeat")
+    err = info.value
+    assert (err.strategy, err.flag, err.profile) == ("xfeat", "BUILD_MATCHER_XFEAT", "airborne")
+    assert "c3-matcher[research]" in err.fix
+    with pytest.raises(StrategyNotLinkedError, match="install c3-matcher-disk-lightglue"):
+        host.resolve("disk_lightglue")  # ON, but its plugin is not installed here
+    research = host_for(site, RESEARCH_DATA)
+    with pytest.raises(UnknownStrategyError, match="not recognized, choose one of"):
+        research.resolve("dsik_lightglue")
+
+
+def test_profile_from_entry_points(site):
+    assert installed_profile(dists(site)) is UNPROFILED
+    make_dist(site, "c3-matcher-profile-airborne", "prof_air",
+              f"PROFILE = {AIRBORNE_DATA!r}\n", group="c3_matcher.profile",
+              ep_name="airborne", ep_value="prof_air:PROFILE")
+    profile = installed_profile(dists(site))
+    assert profile.name == "airborne" and profile.strict
+    assert profile.flag_report() == {"BUILD_MATCHER_DISK_LIGHTGLUE": "ON",
+                                     "BUILD_MATCHER_XFEAT": "WIRED"}
+    make_dist(site, "c3-matcher-profile-research", "prof_res",
+              f"PROFILE = {RESEARCH_DATA!r}\n", group="c3_matcher.profile",
+              ep_name="research", ep_value="prof_res:PROFILE")
+    with pytest.raises(Exception, match="more than one build profile"):
+        installed_profile(dists(site))
+
+
+def test_every_hookspec_is_documented_and_prefixed():
+    specs = [obj for name, obj in inspect.getmembers(hookspecs, inspect.isfunction)
+             if hasattr(obj, "c3_matcher_spec")]
+    assert {s.__name__ for s in specs} == {"c3_matcher_strategies", "c3_matcher_engine_specs"}
+    for spec in specs:
+        assert spec.__name__.startswith("c3_matcher_")
+        doc = inspect.getdoc(spec) or ""
+        assert len(doc.split()) >= 15, f"hook {spec.__name__} is not documented"

@@ -1,0 +1,74 @@
+"""OpenCvRansacFilter on real correspondences (SIFT on a real orthophoto warped by a known
+homography), plus the degenerate cases."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.ransac import OpenCvRansacFilter, homography_residuals
+
+REPO = Path(__file__).resolve().parents[2]
+ORTHO = REPO / "data" / "imagery" / "open_orthophotos" / "test_tiled.tif"
+H_TRUE = np.array([[0.92, 0.18, 30.0], [-0.15, 0.95, 60.0], [2e-5, -1e-5, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def real_correspondences() -> np.ndarray:
+    """SIFT + ratio test between the orthophoto and its warp: real, noisy, with outliers."""
+    image = cv2.cvtColor(cv2.imread(str(ORTHO), cv2.IMREAD_COLOR), cv2.COLOR_BGR2GRAY)
+    warped = cv2.warpPerspective(image, H_TRUE, (image.shape[1], image.shape[0]))
+    sift = cv2.SIFT_create(nfeatures=3000)
+    k0, d0 = sift.detectAndCompute(image, None)
+    k1, d1 = sift.detectAndCompute(warped, None)
+    pairs = cv2.BFMatcher().knnMatch(d0, d1, k=2)
+    good = [m for m, n in pairs if m.distance < 0.9 * n.distance]
+    rows = [(*k0[m.queryIdx].pt, *k1[m.trainIdx].pt) for m in good]
+    return np.asarray(rows, dtype=np.float32)
+
+
+def test_inliers_agree_with_ground_truth(real_correspondences):
+    corr = real_correspondences
+    gt_error = homography_residuals(H_TRUE, corr)
+    assert (gt_error > 10).sum() > 20, "the fixture must contain real outliers"
+    result = OpenCvRansacFilter().filter(corr, threshold_px=3.0)
+    assert result.inlier_count >= 200
+    assert result.inlier_count + result.ransac_outlier_count == len(corr)
+    inlier_gt = homography_residuals(H_TRUE, result.inlier_correspondences)
+    assert np.percentile(inlier_gt, 95) < 3.0
+    assert result.per_candidate_residual_px < 1.0
+    assert result.per_candidate_residual_px == pytest.approx(
+        float(np.median(homography_residuals(result.homography, result.inlier_correspondences))))
+    assert result.inlier_correspondences.dtype == np.float32
+    assert result.inlier_correspondences.shape == (result.inlier_count, 4)
+
+
+def test_seeded_and_deterministic(real_correspondences):
+    a = OpenCvRansacFilter(seed=3).filter(real_correspondences, 3.0)
+    b = OpenCvRansacFilter(seed=3).filter(real_correspondences, 3.0)
+    assert a.inlier_correspondences.tobytes() == b.inlier_correspondences.tobytes()
+    assert a.per_candidate_residual_px == b.per_candidate_residual_px
+
+
+def test_fewer_than_four_and_degenerate_give_zero_inliers():
+    f = OpenCvRansacFilter()
+    three = np.array([[0, 0, 1, 1], [5, 5, 6, 6], [9, 1, 10, 2]], np.float32)
+    r = f.filter(three, 3.0)
+    assert r.inlier_count == 0 and r.ransac_outlier_count == 3 and r.homography is None
+    line = np.array([[i, i, 2 * i, 2 * i] for i in range(20)], np.float32)  # collinear
+    assert f.filter(line, 3.0).inlier_count == 0
+    same = np.tile(np.array([[4, 4, 8, 8]], np.float32), (10, 1))  # one repeated point
+    assert f.filter(same, 3.0).inlier_count == 0
+    assert f.filter(np.zeros((0, 4), np.float32), 3.0).inlier_count == 0
+
+
+def test_bad_arguments_are_named():
+    f = OpenCvRansacFilter()
+    with pytest.raises(InvalidInputError, match="correspondences"):
+        f.filter(np.zeros((5, 3), np.float32), 3.0)
+    with pytest.raises(InvalidInputError, match="threshold_px"):
+        f.filter(np.zeros((5, 4), np.float32), 0.0)

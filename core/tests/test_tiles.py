@@ -1,0 +1,53 @@
+"""Tile handles: page-cache backed, zero-copy until decode, clear errors."""
+
+from __future__ import annotations
+
+import mmap
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tiles import MmapTileHandle, decode_image, read_image
+
+REPO = Path(__file__).resolve().parents[2]
+ORTHO = REPO / "data" / "imagery" / "open_orthophotos" / "test_tiled.tif"
+
+
+def test_mmap_handle_is_zero_copy_until_decode(tmp_path):
+    image = cv2.imread(str(ORTHO), cv2.IMREAD_COLOR)[:256, :256]
+    path = tmp_path / "tile.png"
+    cv2.imwrite(str(path), image)
+    handle = MmapTileHandle(path)
+    view = handle.encoded()
+    assert isinstance(view.obj, mmap.mmap)  # a view of the mapping, not a bytes copy
+    assert view.readonly and view.nbytes == path.stat().st_size
+    raw = np.frombuffer(view, np.uint8)
+    assert np.shares_memory(raw, np.frombuffer(handle.encoded(), np.uint8))
+    assert not raw.flags.owndata
+    rgb = handle.decode()
+    assert rgb.shape == (256, 256, 3) and rgb.flags.owndata
+    np.testing.assert_array_equal(rgb, image[:, :, ::-1])
+
+
+def test_four_band_geotiff_decodes_to_rgb():
+    rgb = read_image(REPO / "data" / "imagery" / "naip_timeseries" /
+                     "m_4709963_se_14_1_20200831.tif")
+    assert rgb.dtype == np.uint8 and rgb.shape == (723, 934, 3)
+
+
+def test_bad_inputs_are_named(tmp_path):
+    with pytest.raises(InvalidInputError, match="no such image file"):
+        read_image(tmp_path / "missing.png")
+    empty = tmp_path / "empty.png"
+    empty.write_bytes(b"")
+    with pytest.raises(InvalidInputError, match="empty.png"):
+        MmapTileHandle(empty)
+    junk = tmp_path / "junk.jpg"
+    junk.write_bytes(b"not an image at all")
+    with pytest.raises(InvalidInputError, match="junk.jpg.*not a decodable image"):
+        MmapTileHandle(junk).decode()
+    with pytest.raises(InvalidInputError, match="no bytes"):
+        decode_image(b"", "x")
