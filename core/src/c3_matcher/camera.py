@@ -37,11 +37,11 @@ __all__ = [
     "distort_normalized",
     "distort_points",
     "image_boundary",
-    "rotation_world_from_body",
-    "rotation_world_from_camera",
     "rot_x",
     "rot_y",
     "rot_z",
+    "rotation_world_from_body",
+    "rotation_world_from_camera",
     "undistort_normalized",
     "undistort_points",
     "virtual_from_camera",
@@ -182,9 +182,9 @@ def undistort_normalized(original_px: ArrayLike, calibration: CameraCalibration,
     if calibration.distortion.size == 0 or not np.any(calibration.distortion):
         return np.stack([(p[:, 0] - k[0, 2]) / k[0, 0], (p[:, 1] - k[1, 2]) / k[1, 1]], axis=1)
     criteria = (cv2.TERM_CRITERIA_COUNT, 20, 0.0)
-    rays = cv2.undistortPointsIter(
-        p.reshape(-1, 1, 2), k, calibration.distortion, None, None, criteria
-    ).reshape(-1, 2).astype(np.float64)
+    rays = np.asarray(cv2.undistortPointsIter(
+        p.reshape(-1, 1, 2), k, calibration.distortion, np.eye(3), np.eye(3), criteria
+    ), dtype=np.float64).reshape(-1, 2)
     eps = 1e-7
     for _ in range(iterations):
         f0 = _project_rays(rays, calibration)
@@ -193,8 +193,8 @@ def undistort_normalized(original_px: ArrayLike, calibration: CameraCalibration,
         if not np.any(bad):
             break
         rb, fb, eb = rays[bad], f0[bad], resid[bad]
-        fx = (_project_rays(rb + [eps, 0.0], calibration) - fb) / eps
-        fy = (_project_rays(rb + [0.0, eps], calibration) - fb) / eps
+        fx = (_project_rays(rb + np.array([eps, 0.0]), calibration) - fb) / eps
+        fy = (_project_rays(rb + np.array([0.0, eps]), calibration) - fb) / eps
         a, b, c, d = fx[:, 0], fy[:, 0], fx[:, 1], fy[:, 1]
         det = a * d - b * c
         ok = np.abs(det) > 1e-12

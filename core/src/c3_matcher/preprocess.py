@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -50,7 +51,7 @@ from c3_matcher import camera as cam
 from c3_matcher.dto import CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
 
-__all__ = ["FramePreprocessor", "InputRule", "PreparedImage"]
+__all__ = ["FramePreprocessor", "InputRule", "PreparedImage", "QueryGeometry"]
 
 F64 = NDArray[np.float64]
 
@@ -193,6 +194,52 @@ def _check_pixels(image: object, field_name: str) -> NDArray[np.uint8]:
 
 
 @dataclass(frozen=True)
+class QueryGeometry:
+    """Where every engine pixel of a prepared query comes from (no pixels involved).
+
+    ``working_from_undistorted`` H_w (3x3); ``working_size``, ``content_size`` (engine size
+    before pad/crop) and ``final_size`` (engine image) as (w, h) px; ``working_from_engine`` 3x3
+    affine; ``footprint_working`` the frame's (clipped) boundary polygon (N, 2) in WORKING px;
+    ``nadir_working_px`` (rectified only); ``working_gsd_m`` m/px at nadir when the height is
+    known; ``nadir_shrink`` ORIGINAL px per engine px near the optical axis.
+    """
+
+    working_from_undistorted: F64
+    working_size: tuple[int, int]
+    content_size: tuple[int, int]
+    final_size: tuple[int, int]
+    working_from_engine: F64
+    footprint_working: F64
+    nadir_working_px: tuple[float, float] | None
+    working_gsd_m: float | None
+    nadir_shrink: float
+
+    def footprint_engine(self) -> F64:
+        """The footprint polygon (N, 2) in ENGINE px."""
+        return cam.apply_homography(np.linalg.inv(self.working_from_engine),
+                                    self.footprint_working)
+
+    def remap_maps(self, calibration: CameraCalibration,
+                   source_scale: tuple[float, float] = (1.0, 1.0),
+                   m1type: int = cv2.CV_32FC1) -> tuple[NDArray[Any], NDArray[Any]]:
+        """``cv2.remap`` maps ENGINE px -> ORIGINAL px (exact lens model per pixel), or -> px of
+        the ORIGINAL frame resized by ``source_scale`` (sx, sy) (area-aligned convention).
+
+        ``cv2.initUndistortRectifyMap`` computes ``ray = inv(newK @ R) @ p_engine`` and maps it
+        through the lens and ``cameraMatrix``: with ``newK = I`` and ``R = A_e^-1 @ H_w @ K``
+        the ray is ``K^-1 @ H_w^-1 @ A_e @ p_engine``, the engine pixel's camera ray.
+        """
+        k = calibration.K
+        ax, ay = source_scale
+        k_map = np.array([[ax, 0.0, 0.5 * ax - 0.5], [0.0, ay, 0.5 * ay - 0.5],
+                          [0.0, 0.0, 1.0]]) @ k
+        r_arg = np.linalg.inv(self.working_from_engine) @ self.working_from_undistorted @ k
+        map1, map2 = cv2.initUndistortRectifyMap(k_map, calibration.distortion, r_arg, np.eye(3),
+                                                 self.final_size, m1type)
+        return np.asarray(map1), np.asarray(map2)
+
+
+@dataclass(frozen=True)
 class _LensCache:
     key: tuple[bytes, bytes, tuple[int, int]]
     boundary_rays: F64  # (N, 2) normalised undistorted rays of the image boundary
@@ -242,6 +289,40 @@ class FramePreprocessor:
     ) -> PreparedImage:
         """Undistort, rectify to north-up nadir (if attitude), scale to ``tile_gsd_m`` m/px (if
         height and GSD) and resize the nav frame to the rule, in one resampling."""
+        geometry = self.query_geometry(frame, calibration, tile_gsd_m)
+        image = frame.image
+        h, w = image.shape[:2]
+        # Source anti-aliasing: area-downscale first if the warp shrinks the frame a lot.
+        src: NDArray[np.uint8] = image
+        source_scale = (1.0, 1.0)
+        shrink = geometry.nadir_shrink
+        if shrink >= self.area_downscale_threshold:
+            sw, sh = max(2, round(w / shrink)), max(2, round(h / shrink))
+            src = np.asarray(cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA),
+                             dtype=np.uint8)
+            source_scale = (sw / w, sh / h)
+        map1, map2 = geometry.remap_maps(calibration, source_scale, cv2.CV_16SC2)
+        warped = np.asarray(cv2.remap(src, map1, map2, cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0)),
+                            dtype=np.uint8)
+        inside = self._polygon_mask(geometry.footprint_engine(), geometry.final_size)
+        warped[inside == 0] = 0
+        return PreparedImage(
+            image=np.ascontiguousarray(_to_rgb(warped)),
+            valid=self._erode(inside),
+            working_from_engine=geometry.working_from_engine,
+            working_size=geometry.working_size,
+            working_from_undistorted=geometry.working_from_undistorted,
+            calibration=calibration,
+            working_gsd_m=geometry.working_gsd_m,
+            nadir_working_px=geometry.nadir_working_px,
+        )
+
+    def query_geometry(
+        self, frame: NavCameraFrame, calibration: CameraCalibration, tile_gsd_m: float | None
+    ) -> QueryGeometry:
+        """The geometry :meth:`prepare_query` uses (no pixels touched): the rectifying
+        homography, the canvas, the engine sizes and the footprint."""
         image = _check_pixels(frame.image, "frame.image")
         h, w = image.shape[:2]
         if tuple(calibration.image_size) != (w, h):
@@ -258,7 +339,6 @@ class FramePreprocessor:
         f_ref = math.sqrt(k[0, 0] * k[1, 1])
         height = frame.height_above_ground_m
         f_w = height / float(tile_gsd_m) if (height is not None and tile_gsd_m) else f_ref
-        working_gsd = height / f_w if height is not None else None
 
         # H0: UNDISTORTED px -> working px before the canvas translation.
         if frame.attitude is not None:
@@ -271,52 +351,26 @@ class FramePreprocessor:
 
         poly, centre = self._footprint(calibration, h0, f_w, frame.attitude is not None)
         t, working_size = self._canvas(poly, centre, max(w, h) * f_w / f_ref)
-        h_w = t @ h0
-        nadir = (float(t[0, 2]), float(t[1, 2])) if frame.attitude is not None else None
-
         content = self.rule.content_size(*working_size)
-        final = self.rule.final_size(*working_size)
-        a_e = _engine_to_working(working_size, content)
-
-        # Source anti-aliasing: area-downscale first if the warp shrinks the frame a lot.
-        shrink = (working_size[0] / content[0]) * (f_ref / f_w)
-        src = image
-        k_map = k.copy()
-        if shrink >= self.area_downscale_threshold:
-            sw, sh = max(2, round(w / shrink)), max(2, round(h / shrink))
-            src = cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA)
-            ax, ay = sw / w, sh / h
-            k_map = np.array([[ax, 0.0, 0.5 * ax - 0.5], [0.0, ay, 0.5 * ay - 0.5],
-                              [0.0, 0.0, 1.0]]) @ k
-        # initUndistortRectifyMap: ray = inv(newK @ R) @ p_engine; map = k_map @ distort(ray).
-        r_arg = np.linalg.inv(a_e) @ h_w @ k
-        dist = calibration.distortion if calibration.distortion.size else None
-        map1, map2 = cv2.initUndistortRectifyMap(k_map, dist, r_arg, np.eye(3), final,
-                                                 cv2.CV_16SC2)
-        warped = cv2.remap(src, map1, map2, cv2.INTER_LINEAR,
-                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-
-        inside = self._polygon_mask(cam.apply_homography(np.linalg.inv(a_e) @ t, poly), final)
-        warped[inside == 0] = 0
-        valid = self._erode(inside)
-        return PreparedImage(
-            image=np.ascontiguousarray(_to_rgb(warped)),
-            valid=valid,
-            working_from_engine=a_e,
+        return QueryGeometry(
+            working_from_undistorted=t @ h0,
             working_size=working_size,
-            working_from_undistorted=h_w,
-            calibration=calibration,
-            working_gsd_m=working_gsd,
-            nadir_working_px=nadir,
+            content_size=content,
+            final_size=self.rule.final_size(*working_size),
+            working_from_engine=_engine_to_working(working_size, content),
+            footprint_working=cam.apply_homography(t, poly),
+            nadir_working_px=((float(t[0, 2]), float(t[1, 2]))
+                              if frame.attitude is not None else None),
+            working_gsd_m=height / f_w if height is not None else None,
+            nadir_shrink=(working_size[0] / content[0]) * (f_ref / f_w),
         )
 
     def _boundary_rays(self, calibration: CameraCalibration) -> F64:
-        key = (calibration.K.tobytes(), calibration.distortion.tobytes(),
-               tuple(calibration.image_size))
+        w, h = calibration.image_size
+        key = (calibration.K.tobytes(), calibration.distortion.tobytes(), (int(w), int(h)))
         for entry in self._lens_cache:
             if entry.key == key:
                 return entry.boundary_rays
-        w, h = calibration.image_size
         rays = cam.undistort_normalized(
             cam.image_boundary(w, h, self.boundary_samples_per_side), calibration
         )
@@ -374,7 +428,7 @@ class FramePreprocessor:
         mask = np.zeros((size[1], size[0]), dtype=np.uint8)
         shift = 4
         pts = np.clip(poly_engine, -1e6, 1e6) * (1 << shift)
-        cv2.fillPoly(mask, [np.round(pts).astype(np.int32).reshape(-1, 1, 2)], 255,
+        cv2.fillPoly(mask, [np.round(pts).astype(np.int32).reshape(-1, 1, 2)], (255,),
                      lineType=cv2.LINE_8, shift=shift)
         return mask
 
@@ -382,7 +436,8 @@ class FramePreprocessor:
         if self.border_erode_px > 0:
             ksize = 2 * self.border_erode_px + 1
             kernel = np.ones((ksize, ksize), dtype=np.uint8)
-            mask = cv2.erode(mask, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+            mask = np.asarray(cv2.erode(mask, kernel, borderType=cv2.BORDER_CONSTANT,
+                                        borderValue=(0,)), dtype=np.uint8)
         return np.asarray(mask > 0)
 
     # ------------------------------------------------------------------ tiles
@@ -396,8 +451,10 @@ class FramePreprocessor:
         final = self.rule.final_size(w, h)
         nodata = np.all(tile == 0, axis=2).astype(np.uint8) * 255
         if content != (w, h):
-            small = cv2.resize(tile, content, interpolation=cv2.INTER_AREA)
-            nodata = cv2.resize(nodata, content, interpolation=cv2.INTER_AREA)
+            small = np.asarray(cv2.resize(tile, content, interpolation=cv2.INTER_AREA),
+                               dtype=np.uint8)
+            nodata = np.asarray(cv2.resize(nodata, content, interpolation=cv2.INTER_AREA),
+                                dtype=np.uint8)
         else:
             small = tile
         cw, ch = content

@@ -87,7 +87,7 @@ def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any]]:
     except ImportError:
         return None, {}
     with tifffile.TiffFile(str(path)) as tif:
-        page = tif.pages[0]
+        page = tif.pages.first
         tags = {code: page.tags[code].value for code in (33550, 33922, 34735)
                 if code in page.tags}
         try:
@@ -181,14 +181,14 @@ def load_orthophoto(path: str | Path, *, gsd_m: float | None = None) -> Orthopho
         arr = arr[..., :3]
     arr = _to_uint8(arr)
     if arr.ndim == 2:
-        rgb = cv2.cvtColor(arr, cv2.COLOR_GRAY2RGB)
+        converted = cv2.cvtColor(arr, cv2.COLOR_GRAY2RGB)
     elif arr.ndim == 3 and arr.shape[2] == 3:
-        rgb = np.ascontiguousarray(arr if rgb_order else cv2.cvtColor(arr, cv2.COLOR_BGR2RGB))
+        converted = arr if rgb_order else cv2.cvtColor(arr, cv2.COLOR_BGR2RGB)
     else:
         raise InvalidInputError("path", f"{p}: unsupported band layout {arr.shape}")
+    rgb: NDArray[np.uint8] = np.ascontiguousarray(converted, dtype=np.uint8)
     if alpha is not None:
         rgb[alpha == 0] = 0
-    rgb = np.ascontiguousarray(rgb, dtype=np.uint8)
     if gsd_m is not None:
         return Orthophoto(rgb, float(gsd_m), p, "given")
     from_tags = geotiff_gsd_m(tags, rgb.shape[0]) if tags else None

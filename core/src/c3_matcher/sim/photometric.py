@@ -85,8 +85,10 @@ class PhotometricShift:
             x = x * (1.0 - np.float32(self.vignetting) * r2)[..., None]
         x = x * 255.0
         if sigma > 0.05:
-            x = cv2.GaussianBlur(x, (0, 0), sigmaX=float(sigma), borderType=cv2.BORDER_REFLECT)
-            x = x.reshape(image.shape[0], image.shape[1], channels)
+            blurred = cv2.GaussianBlur(x, (0, 0), sigmaX=float(sigma),
+                                       borderType=cv2.BORDER_REFLECT)
+            x = np.asarray(blurred, dtype=np.float32).reshape(image.shape[0], image.shape[1],
+                                                              channels)
         if self.noise_sigma > 0:
             x = x + rng.normal(0.0, self.noise_sigma, size=x.shape).astype(np.float32)
         out = np.clip(np.rint(x), 0, 255).astype(np.uint8)

@@ -92,7 +92,7 @@ def cut_tile(ortho: NDArray[np.uint8], top_left: tuple[int, int], size: tuple[in
     if w <= 0 or h <= 0:
         raise InvalidInputError("size", f"must be > 0, got {size}")
     oh, ow = ortho.shape[:2]
-    out = np.zeros((h, w) + ortho.shape[2:], dtype=np.uint8)
+    out = np.zeros((h, w, *ortho.shape[2:]), dtype=np.uint8)
     sx0, sy0 = max(x0, 0), max(y0, 0)
     sx1, sy1 = min(x0 + w, ow), min(y0 + h, oh)
     if sx1 > sx0 and sy1 > sy0:
@@ -194,8 +194,8 @@ class RenderedFrame:
         ``shift_px`` (ORTHO px), cut from ``ortho`` (the orthophoto this frame was rendered on)."""
         fp = self.footprint_ortho()
         cx, cy = fp.mean(axis=0) if fp.shape[0] else self.nadir_px
-        x0 = int(round(cx - (size[0] - 1) / 2)) + int(shift_px[0])
-        y0 = int(round(cy - (size[1] - 1) / 2)) + int(shift_px[1])
+        x0 = round(cx - (size[0] - 1) / 2) + int(shift_px[0])
+        y0 = round(cy - (size[1] - 1) / 2) + int(shift_px[1])
         return cut_tile(ortho, (x0, y0), size, self.ortho_gsd_m)
 
     def _hits_ground(self, undistorted_px: F64) -> NDArray[np.bool_]:
@@ -234,7 +234,7 @@ def render_nav_frame(
     if not (gsd_m > 0 and height_m > 0):
         raise InvalidInputError("gsd_m/height_m", f"must be > 0, got {gsd_m}, {height_m}")
     h_o2u = ortho_to_undistorted_homography(calibration, attitude, nadir_px, height_m, gsd_m)
-    h_u2o = np.linalg.inv(h_o2u)
+    h_u2o: F64 = np.asarray(np.linalg.inv(h_o2u), dtype=np.float64)
     w, h = calibration.image_size
     rays = _ground_rays(calibration)
     r_wc = cam.rotation_world_from_camera(attitude, calibration)
@@ -246,7 +246,7 @@ def render_nav_frame(
     oh, ow = ortho.shape[:2]
     inside = hits & (uv[:, 0] >= -0.5) & (uv[:, 0] <= ow - 0.5) & (uv[:, 1] >= -0.5) & (
         uv[:, 1] <= oh - 0.5)
-    src = ortho
+    src: NDArray[np.uint8] = ortho
     offset = np.zeros(2)
     scale = np.ones(2)
     if np.any(inside):
@@ -258,16 +258,18 @@ def render_nav_frame(
         if antialias and ratio >= 1.5:
             cw, ch = src.shape[1], src.shape[0]
             sw, sh = max(2, round(cw / ratio)), max(2, round(ch / ratio))
-            src = cv2.resize(src, (sw, sh), interpolation=cv2.INTER_AREA)
+            src = np.asarray(cv2.resize(src, (sw, sh), interpolation=cv2.INTER_AREA),
+                             dtype=np.uint8)
             scale = np.array([sw / cw, sh / ch])
     local = (uv - offset + 0.5) * scale - 0.5
     local[~inside] = -10.0
     map_x = local[:, 0].reshape(h, w).astype(np.float32)
     map_y = local[:, 1].reshape(h, w).astype(np.float32)
-    img = cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                    borderValue=0)
+    img = np.asarray(cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0)),
+                     dtype=np.uint8)
     if img.ndim == 2:
-        img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+        img = np.asarray(cv2.cvtColor(img, cv2.COLOR_GRAY2RGB), dtype=np.uint8)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     if photometric is not None:
         img = photometric.apply(img, rng)
@@ -312,18 +314,18 @@ def pick_distractor_tiles(
     occupied = np.zeros((oh, ow), dtype=np.uint8)
     if fp.shape[0] >= 3:
         pts = np.round(np.clip(fp, -1e6, 1e6) * 16).astype(np.int32).reshape(-1, 1, 2)
-        cv2.fillPoly(occupied, [pts], 1, lineType=cv2.LINE_8, shift=4)
+        cv2.fillPoly(occupied, [pts], (1,), lineType=cv2.LINE_8, shift=4)
         if margin_px > 0:
             k = np.ones((2 * margin_px + 1, 2 * margin_px + 1), dtype=np.uint8)
-            occupied = cv2.dilate(occupied, k)
+            occupied = np.asarray(cv2.dilate(occupied, k), dtype=np.uint8)
     nodata = np.all(ortho == 0, axis=2) if ortho.ndim == 3 else ortho == 0
-    occ_int = cv2.integral(occupied)
-    nod_int = cv2.integral(nodata.astype(np.uint8))
+    occ_int = np.asarray(cv2.integral(occupied), dtype=np.int64)
+    nod_int = np.asarray(cv2.integral(nodata.astype(np.uint8)), dtype=np.int64)
     stride = stride_px or max(1, min(tw, th) // 8)
     ys, xs = np.mgrid[0:max(oh - th + 1, 0):stride, 0:max(ow - tw + 1, 0):stride]
     xs, ys = xs.ravel(), ys.ravel()
 
-    def window_sum(integral: NDArray[np.int32], x: NDArray[np.int64], y: NDArray[np.int64]
+    def window_sum(integral: NDArray[np.int64], x: NDArray[np.int64], y: NDArray[np.int64]
                    ) -> NDArray[np.int64]:
         return np.asarray(integral[y + th, x + tw] - integral[y, x + tw] - integral[y + th, x]
                           + integral[y, x], dtype=np.int64)

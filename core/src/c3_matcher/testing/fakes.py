@@ -85,8 +85,9 @@ class FakeInferenceRuntime:
         return str(path)
 
     def run(self, engine_id: str, feeds: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
-        image = next(iter(feeds.values()))
-        mark = int(np.asarray(image).reshape(-1)[0])
+        image = np.asarray(feeds["image"] if "image" in feeds else next(iter(feeds.values())))
+        first = float(image.reshape(-1)[0])
+        mark = round(first * 255) if image.dtype.kind == "f" else int(first)
         self.calls.append(mark - 1)
         if 0 <= mark - 1 < len(self.script) and self.script[mark - 1].fail_extract:
             raise RuntimeError(f"scripted extractor failure on candidate {mark - 1}")

@@ -17,6 +17,7 @@ export arithmetic on symbolic sizes).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -43,6 +44,8 @@ __all__ = [
     "load_lightglue_reference",
     "verification_pairs",
 ]
+
+_UNUSED_KEY = re.compile(r"^log_assignment\.\d+\.r$")
 
 FeaturesFn = Callable[[NDArray[np.uint8], int], tuple[NDArray[np.float32], NDArray[np.float32]]]
 """``(rgb uint8 (H, W, 3), max keypoints) -> (keypoints float32 (K, 2) px, descriptors (K, D))``
@@ -84,10 +87,11 @@ def load_lightglue_reference(
     incompatible = model.load_state_dict(state, strict=False)
     params = dict(model.named_parameters())
     missing = [k for k in incompatible.missing_keys if k in params]
-    if missing or incompatible.unexpected_keys:
+    # Upstream checkpoints carry an unused ``log_assignment.<i>.r`` entry per layer.
+    unexpected = [k for k in incompatible.unexpected_keys if not _UNUSED_KEY.match(k)]
+    if missing or unexpected:
         raise RuntimeError(
-            f"LightGlue weights {weights_path}: missing {missing}, "
-            f"unexpected {incompatible.unexpected_keys}"
+            f"LightGlue weights {weights_path}: missing {missing}, unexpected {unexpected}"
         )
     return model.eval()
 

@@ -1,0 +1,30 @@
+"""Fixtures shared by every test directory of the workspace.
+
+``engine_dir``: the real ONNX engines the installed plugins declare, built once per machine by
+the real engine compiler (``c3-matcher engines build``'s code path) and cached in
+``$C3_MATCHER_ENGINE_DIR`` or ``<repo>/.engines/``; valid engines are reused, so only a fresh
+clone pays the build (about two minutes on two cores). Nothing is skipped: a test that needs
+engines gets them built.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent
+
+
+@pytest.fixture(scope="session")
+def engine_dir() -> Path:
+    from c3_matcher.compose import build_plugin_host
+    from c3_matcher.engines.compiler import ensure_engines
+
+    directory = Path(os.environ.get("C3_MATCHER_ENGINE_DIR", REPO / ".engines"))
+    specs = build_plugin_host().engine_specs()
+    assert specs, "no installed plugin declares an engine: run scripts/setup"
+    ensure_engines(specs, directory, log=lambda line: print(line, file=sys.stderr))
+    return directory

@@ -1,0 +1,16 @@
+"""DISK + LightGlue, the default c3-matcher strategy (D-C3-1 = (a), task AZ-345).
+
+Only what is DISK-specific lives here: its engines (``engines.py``), its input rule (H and W
+multiples of 16) and its ``create``; the per-frame work is the core's shared pipeline.
+"""
+
+from __future__ import annotations
+
+from c3_matcher_disk_lightglue.matcher import (
+    DISK_SIZE_MULTIPLE,
+    DiskLightGlueConfig,
+    DiskLightGlueMatcher,
+    create,
+)
+
+__all__ = ["DISK_SIZE_MULTIPLE", "DiskLightGlueConfig", "DiskLightGlueMatcher", "create"]

@@ -1,0 +1,90 @@
+"""``DiskLightGlueMatcher`` and ``create`` exactly per AZ-345 Outcome (with DECISIONS 7).
+
+DISK keypoints and descriptors come from the DISK engine run by the C7 ``InferenceRuntime``;
+LightGlue (DISK weights) runs in the shared ``LightGlueRuntime``; RANSAC in the shared
+``RansacFilter``. Engines load in the constructor, called by ``create`` at start-up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from c3_matcher.config import C3Settings
+from c3_matcher.engines.store import EngineStore
+from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.protocols import (
+    Clock,
+    CrossDomainMatcher,
+    FdrClient,
+    InferenceRuntime,
+    LightGlueRuntime,
+    RansacFilter,
+)
+from c3_matcher.strategy import (
+    ExtractorLightGlueBackend,
+    ExtractorLightGlueConfig,
+    PipelineMatcher,
+    engine_startup_probe,
+)
+
+__all__ = ["DISK_SIZE_MULTIPLE", "STRATEGY", "DiskLightGlueConfig", "DiskLightGlueMatcher",
+           "create"]
+
+STRATEGY = "disk_lightglue"
+DISK_SIZE_MULTIPLE = 16  # DISK's U-Net: H and W multiples of 16
+DISK_ENGINE = ("disk", "depth")
+LIGHTGLUE_ENGINE = ("lightglue", "disk")
+
+
+@dataclass(frozen=True, slots=True)
+class DiskLightGlueConfig(ExtractorLightGlueConfig):
+    """``MatcherConfig`` of AZ-345 for DISK + LightGlue."""
+
+    @classmethod
+    def from_c3_settings(cls, settings: C3Settings,
+                         store: EngineStore | None = None) -> DiskLightGlueConfig:
+        """Engine paths from the engine directory (``EngineError`` naming the build command if
+        one is missing), thresholds and image rules from ``[matcher]``."""
+        engines = store or EngineStore(settings.engines.directory)
+        return cls.from_settings(
+            settings, label=STRATEGY, feature_type="disk", extract_phase="disk_forward",
+            extractor_engine_path=engines.require(*DISK_ENGINE),
+            lightglue_engine_path=engines.require(*LIGHTGLUE_ENGINE),
+            size_multiple=DISK_SIZE_MULTIPLE)
+
+
+class DiskLightGlueMatcher(PipelineMatcher):
+    """The production-default ``CrossDomainMatcher``. Single-threaded (INV-1)."""
+
+    def __init__(self, runtime: InferenceRuntime, lightglue_runtime: LightGlueRuntime,
+                 ransac_filter: RansacFilter, fdr_client: FdrClient,
+                 health_window: RollingHealthWindow, config: DiskLightGlueConfig,
+                 clock: Clock | None = None) -> None:
+        self._runtime = runtime
+        self._lightglue_runtime = lightglue_runtime
+        self._config = config
+        backend = ExtractorLightGlueBackend(runtime, lightglue_runtime, config)
+        self._disk_engine_id = backend.engine_id
+        engine_startup_probe(backend)
+        super().__init__(backend, ransac_filter, fdr_client, health_window,
+                         clock or MonotonicClock(), config.pipeline_settings)
+
+    @property
+    def config(self) -> DiskLightGlueConfig:
+        return self._config
+
+    @property
+    def disk_engine_id(self) -> str:
+        return self._disk_engine_id
+
+
+def create(config: C3Settings, *, lightglue_runtime: LightGlueRuntime,
+           ransac_filter: RansacFilter, inference_runtime: InferenceRuntime,
+           health_window: RollingHealthWindow, fdr_client: FdrClient, clock: Clock,
+           options: Any = None) -> CrossDomainMatcher:
+    """AZ-345 ``create``: resolve the DISK and LightGlue engines, load them now (start-up) and
+    return the wired ``DiskLightGlueMatcher``."""
+    return DiskLightGlueMatcher(inference_runtime, lightglue_runtime, ransac_filter, fdr_client,
+                                health_window, DiskLightGlueConfig.from_c3_settings(config),
+                                clock)
