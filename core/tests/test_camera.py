@@ -7,7 +7,6 @@ import math
 import cv2
 import numpy as np
 import pytest
-
 from c3_matcher import camera as cam
 from c3_matcher.dto import Attitude, CameraCalibration
 

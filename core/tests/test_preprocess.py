@@ -8,7 +8,6 @@ import uuid
 import cv2
 import numpy as np
 import pytest
-
 from c3_matcher import camera as cam
 from c3_matcher.dto import Attitude, CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
@@ -110,11 +109,11 @@ def test_yaw_90_rotates_image_top_to_the_east() -> None:
     nadir = np.array(prep.nadir_working_px)
     np.testing.assert_allclose(prep.original_to_working([[CX, CY]])[0], nadir, atol=1e-9)
     np.testing.assert_allclose(prep.original_to_working([[CX, CY - 100]])[0],
-                               nadir + [100, 0], atol=1e-9)
+                               nadir + np.array([100, 0]), atol=1e-9)
     np.testing.assert_allclose(prep.original_to_working([[CX + 50, CY]])[0],
-                               nadir + [0, 50], atol=1e-9)  # right wing -> south
+                               nadir + np.array([0, 50]), atol=1e-9)  # right wing -> south
     # pixel content: the dot is where the hand calculation says
-    np.testing.assert_allclose(prep.to_working([_peak(prep.image)])[0], nadir + [100, 0],
+    np.testing.assert_allclose(prep.to_working([_peak(prep.image)])[0], nadir + np.array([100, 0]),
                                atol=0.15)
 
 
@@ -247,7 +246,7 @@ def test_behind_camera_points_map_to_nan() -> None:
     prep = FramePreprocessor(InputRule(1024, 16)).prepare_query(
         _frame(_texture(), Attitude(0, math.radians(60), 0)), cal, None)
     # a working point far south of nadir is behind a camera pitched 60 deg up
-    far = np.array(prep.nadir_working_px) + [0.0, 50 * F]
+    far = np.array(prep.nadir_working_px) + np.array([0.0, 50 * F])
     assert np.isnan(prep.working_to_original([far])).all()
 
 

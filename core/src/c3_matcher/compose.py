@@ -90,8 +90,7 @@ def build_default_helpers(settings: C3Settings,
     providers = providers_available
     if providers is None and settings.engines.providers is not None:
         providers = tuple(settings.engines.providers)
-    inference = OnnxInferenceRuntime(providers_available=providers,
-                                     tensorrt_cache_dir=settings.engines.tensorrt_cache_dir)
+    inference = OnnxInferenceRuntime(providers_available=providers)
     return {
         "c7_inference": inference,
         "c3_lightglue_runtime": OnnxLightGlueRuntime(inference),

@@ -61,8 +61,6 @@ class EngineSettings(_Section):
 
     directory: Path = Field(Path(user_cache_dir(APP_NAME)) / "engines",
                             description="where engines and manifests live")
-    tensorrt_cache_dir: Path = Field(Path(user_cache_dir(APP_NAME)) / "trt-cache",
-                                     description="ONNX Runtime TensorRT engine cache")
     providers: tuple[str, ...] | None = Field(
         None, description="execution providers to allow, in order; default: all available")
 

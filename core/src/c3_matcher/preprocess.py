@@ -306,7 +306,7 @@ class FramePreprocessor:
                                       borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0)),
                             dtype=np.uint8)
         inside = self._polygon_mask(geometry.footprint_engine(), geometry.final_size)
-        warped[inside == 0] = 0
+        warped = np.asarray(cv2.bitwise_and(warped, warped, mask=inside), dtype=np.uint8)
         return PreparedImage(
             image=np.ascontiguousarray(_to_rgb(warped)),
             valid=self._erode(inside),
@@ -449,7 +449,8 @@ class FramePreprocessor:
         h, w = tile.shape[:2]
         content = self.rule.content_size(w, h)
         final = self.rule.final_size(w, h)
-        nodata = np.all(tile == 0, axis=2).astype(np.uint8) * 255
+        # 255 where all channels are 0 (nodata)
+        nodata = np.asarray(cv2.inRange(tile, np.zeros(3), np.zeros(3)), dtype=np.uint8)
         if content != (w, h):
             small = np.asarray(cv2.resize(tile, content, interpolation=cv2.INTER_AREA),
                                dtype=np.uint8)
@@ -463,7 +464,7 @@ class FramePreprocessor:
         inside = np.zeros((fh, fw), dtype=np.uint8)
         uw, uh = min(cw, fw), min(ch, fh)
         image[:uh, :uw] = small[:uh, :uw]
-        inside[:uh, :uw] = np.where(nodata[:uh, :uw] > 0, 0, 255).astype(np.uint8)
+        inside[:uh, :uw] = np.where(nodata[:uh, :uw] == 0, np.uint8(255), np.uint8(0))
         return PreparedImage(
             image=image,
             valid=self._erode(inside),

@@ -169,7 +169,9 @@ def _existing(path: Path, key: str) -> EngineManifest | None:
     return manifest if manifest.build_key == key else None
 
 
-def _remove_superseded(directory: Path, spec: EngineSpec, keep: Path, log: Callable[[str], None]) -> None:
+def _remove_superseded(
+    directory: Path, spec: EngineSpec, keep: Path, log: Callable[[str], None]
+) -> None:
     for other in directory.glob(EngineName.glob_for(spec.model, spec.variant)):
         if other.name == keep.name:
             continue
@@ -269,8 +271,8 @@ def _build_one(
         )
         manifest_tmp = scratch / name.manifest_filename
         manifest.write(manifest_tmp)
-        os.replace(candidate, target)
-        os.replace(manifest_tmp, directory / name.manifest_filename)
+        candidate.replace(target)
+        manifest_tmp.replace(directory / name.manifest_filename)
     _remove_superseded(directory, spec, target, log)
     log(f"{spec.key}: built {target.name} in {seconds:.1f} s")
     logger.bind(

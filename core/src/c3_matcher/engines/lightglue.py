@@ -41,11 +41,19 @@ def normalize_keypoints(kpts: NDArray[np.float32], size: tuple[int, int]) -> NDA
 def _check_pair(
     kpts: NDArray[np.float32], desc: NDArray[np.float32], size: tuple[int, int], side: int
 ) -> None:
-    if not (isinstance(kpts, np.ndarray) and kpts.dtype == np.float32 and kpts.ndim == 2
-            and kpts.shape[1] == 2):
+    if not (
+        isinstance(kpts, np.ndarray)
+        and kpts.dtype == np.float32
+        and kpts.ndim == 2
+        and kpts.shape[1] == 2
+    ):
         raise ValueError(f"kpts{side} must be float32 (K, 2), got {getattr(kpts, 'shape', kpts)}")
-    if not (isinstance(desc, np.ndarray) and desc.dtype == np.float32 and desc.ndim == 2
-            and desc.shape[0] == kpts.shape[0]):
+    if not (
+        isinstance(desc, np.ndarray)
+        and desc.dtype == np.float32
+        and desc.ndim == 2
+        and desc.shape[0] == kpts.shape[0]
+    ):
         raise ValueError(
             f"desc{side} must be float32 ({kpts.shape[0]}, D), got {getattr(desc, 'shape', desc)}"
         )

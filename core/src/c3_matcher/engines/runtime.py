@@ -103,9 +103,7 @@ class _Loaded:
     output_names: tuple[str, ...]
 
 
-def _check_io(
-    path: Path, role: str, declared: Sequence[TensorSpec], actual: Sequence[Any]
-) -> None:
+def _check_io(path: Path, role: str, declared: Sequence[TensorSpec], actual: Sequence[Any]) -> None:
     """Assert a session's real inputs/outputs equal the manifest's (names, dtypes, shapes)."""
     want = {t.name: t for t in declared}
     got = {a.name: a for a in actual}

@@ -6,6 +6,7 @@ from __future__ import annotations
 from c3_matcher.sim.orthophotos import Orthophoto, load_orthophoto
 from c3_matcher.sim.photometric import PhotometricShift
 from c3_matcher.sim.render import (
+    NavCameraRenderer,
     OrthoTile,
     RenderedFrame,
     cut_tile,
@@ -15,6 +16,7 @@ from c3_matcher.sim.render import (
 )
 
 __all__ = [
+    "NavCameraRenderer",
     "OrthoTile",
     "Orthophoto",
     "PhotometricShift",

@@ -27,12 +27,12 @@ if TYPE_CHECKING:
     from c3_matcher.engines.export import ExportReport, ExportRequest
 
 __all__ = [
+    "DISK_SPEC",
     "DISK_TOLERANCES",
     "DISK_TOP_K",
     "DISK_VERIFICATION_SIZES",
     "ENGINE_SPECS",
     "LIGHTGLUE_DISK_SPEC",
-    "DISK_SPEC",
     "build_disk_export_module",
     "export_disk",
     "export_lightglue_disk",
@@ -107,7 +107,7 @@ def load_disk_reference(weights_path: Any) -> Any:
 
     state = torch.load(str(weights_path), map_location="cpu", weights_only=True)
     model = DISK(desc_dim=DISK_DESCRIPTOR_DIM)
-    model.load_state_dict(state["extractor"] if "extractor" in state else state)
+    model.load_state_dict(state.get("extractor", state))
     return model.eval()
 
 
@@ -117,8 +117,8 @@ def build_disk_export_module(reference: Any, top_k: int = DISK_TOP_K) -> Any:
     import copy
 
     import torch
-    import torch.nn.functional as F
     from torch import nn
+    from torch.nn import functional as nnf
 
     class TwoStageInstanceNorm(nn.Module):
         """InstanceNorm2d (no affine) with the mean and variance reduced over W, then H."""
@@ -165,7 +165,7 @@ def build_disk_export_module(reference: Any, top_k: int = DISK_TOP_K) -> Any:
                     greater = centre > heat[:, rows, cols]
                     strict = greater if strict is None else strict & greater
             assert strict is not None
-            is_max = F.pad(strict.to(heat.dtype), (2, 2, 2, 2)) > 0.5  # border never a maximum
+            is_max = nnf.pad(strict.to(heat.dtype), (2, 2, 2, 2)) > 0.5  # border never a maximum
             candidates = torch.where(is_max & (heat > 0), heat, torch.zeros_like(heat))
             ones = torch.ones_like(heat[0])
             xs = torch.cumsum(ones, 1) - 1
@@ -177,7 +177,7 @@ def build_disk_export_module(reference: Any, top_k: int = DISK_TOP_K) -> Any:
             x = torch.cat([xs.reshape(-1), pad]).gather(0, index)
             y = torch.cat([ys.reshape(-1), pad]).gather(0, index)
             dense = torch.cat([desc.reshape(self.dim, -1), torch.zeros(self.dim, self.k)], 1)
-            descriptors = F.normalize(dense.index_select(1, index).transpose(0, 1), dim=-1)
+            descriptors = nnf.normalize(dense.index_select(1, index).transpose(0, 1), dim=-1)
             return torch.stack([x, y], -1), scores, descriptors
 
     unet = copy.deepcopy(reference.unet)
@@ -195,7 +195,8 @@ def _verification_inputs(rgb: NDArray[np.uint8]) -> list[tuple[str, NDArray[np.u
     for w, h in DISK_VERIFICATION_SIZES:
         if w <= width and h <= height:
             top, left = (height - h) // 2, (width - w) // 2
-            inputs.append((f"crop {w}x{h}", np.ascontiguousarray(rgb[top : top + h, left : left + w])))
+            crop = rgb[top : top + h, left : left + w]
+            inputs.append((f"crop {w}x{h}", np.ascontiguousarray(crop)))
         else:
             resized = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR)
             inputs.append((f"resize {w}x{h}", np.ascontiguousarray(resized)))
@@ -255,8 +256,8 @@ def export_disk(request: ExportRequest) -> ExportReport:
             mismatch = len(mine ^ theirs)
             check: dict[str, Any] = {
                 "input": f"{image.name}:{label}",
-                "keypoints": int(len(kp)),
-                "reference_keypoints": int(len(rk)),
+                "keypoints": len(kp),
+                "reference_keypoints": len(rk),
                 "keypoints_mismatch": mismatch,
             }
             if mismatch == 0 and len(kp) == len(rk):
@@ -293,7 +294,6 @@ def disk_reference_features(
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Keypoints (K, 2) px and descriptors (K, 128) of kornia's DISK (``n=max_keypoints``)."""
     import torch
-
     from c3_matcher.engines.extract import image_to_feeds
 
     feeds = image_to_feeds(rgb, np.ones(rgb.shape[:2], dtype=bool))

@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 import torch
-import torch.nn.functional as F
 from kornia.feature import LightGlue
 from numpy.typing import NDArray
 from torch import nn
+from torch.nn import functional as nnf
 
 from c3_matcher.engines.export import ExportReport, ExportRequest
 from c3_matcher.engines.export.onnx_export import export_module
@@ -59,7 +59,11 @@ LIGHTGLUE_TOLERANCES: Mapping[str, float] = {
 
 
 def load_lightglue_reference(
-    weights_path: Path, *, input_dim: int, descriptor_dim: int = 256, n_layers: int = 9,
+    weights_path: Path,
+    *,
+    input_dim: int,
+    descriptor_dim: int = 256,
+    n_layers: int = 9,
     num_heads: int = 4,
 ) -> LightGlue:
     """kornia ``LightGlue`` with ``weights_path`` loaded (upstream key renames applied), pruning
@@ -119,10 +123,10 @@ class LightGlueForExport(nn.Module):
         sim = torch.einsum("bmd,bnd->bmn", md0, md1)
         z0, z1 = assignment.matchability(d0), assignment.matchability(d1)
         scores = (
-            F.log_softmax(sim, 2)
-            + F.log_softmax(sim, 1)
-            + F.logsigmoid(z0)
-            + F.logsigmoid(z1).transpose(1, 2)
+            nnf.log_softmax(sim, 2)
+            + nnf.log_softmax(sim, 1)
+            + nnf.logsigmoid(z0)
+            + nnf.logsigmoid(z1).transpose(1, 2)
         )
         max0, max1 = scores.max(2), scores.max(1)
         m0, m1 = max0.indices, max1.indices
@@ -200,8 +204,8 @@ def export_lightglue(
     example = (
         torch.rand(1, 300, 2, generator=generator) * 2 - 1,
         torch.rand(1, 280, 2, generator=generator) * 2 - 1,
-        F.normalize(torch.rand(1, 300, input_dim, generator=generator), dim=-1),
-        F.normalize(torch.rand(1, 280, input_dim, generator=generator), dim=-1),
+        nnf.normalize(torch.rand(1, 300, input_dim, generator=generator), dim=-1),
+        nnf.normalize(torch.rand(1, 280, input_dim, generator=generator), dim=-1),
     )
     export_module(
         LightGlueForExport(reference),
@@ -251,25 +255,23 @@ def export_lightglue(
                 same = got.matches.shape == ref_matches.shape and bool(
                     np.array_equal(got.matches, ref_matches)
                 )
-                mismatch = int(
-                    len(
-                        set(map(tuple, got.matches.tolist()))
-                        ^ set(map(tuple, ref_matches.tolist()))
-                    )
+                mismatch = len(
+                    set(map(tuple, got.matches.tolist())) ^ set(map(tuple, ref_matches.tolist()))
                 )
-                score_err = (
-                    float(np.abs(got.scores - ref_scores).max()) if same and len(ref_scores) else 0.0
-                )
+                score_err = 0.0
+                if same and len(ref_scores):
+                    score_err = float(np.abs(got.scores - ref_scores).max())
                 check = {
                     "pair": f"{image.name}:{label}",
                     "keypoints": [len(k0), len(k1)],
-                    "matches": int(len(got)),
-                    "reference_matches": int(len(ref_matches)),
+                    "matches": len(got),
+                    "reference_matches": len(ref_matches),
                     "matches_identical": same,
                     "matches_mismatch": mismatch,
                     "match_score_max_abs": score_err,
-                    "mscores0_max_abs": _mscores_error(session, k0, d0, size0, k1, d1, size1,
-                                                      ref_ms0),
+                    "mscores0_max_abs": _mscores_error(
+                        session, k0, d0, size0, k1, d1, size1, ref_ms0
+                    ),
                 }
                 checks.append(check)
                 request.log(f"  {check}")

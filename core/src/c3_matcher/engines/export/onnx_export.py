@@ -84,4 +84,6 @@ def check_onnx_io(path: Path, inputs: Sequence[TensorSpec], outputs: Sequence[Te
                 if isinstance(want_dim, int) and got_dim != want_dim:
                     raise ValueError(f"{role} {name}: dim {axis} is {got_dim}, declared {want_dim}")
                 if isinstance(want_dim, str) and got_dim is not None:
-                    raise ValueError(f"{role} {name}: dim {axis} is fixed {got_dim}, declared dynamic")
+                    raise ValueError(
+                        f"{role} {name}: dim {axis} is fixed {got_dim}, declared dynamic"
+                    )

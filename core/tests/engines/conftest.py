@@ -1,0 +1,153 @@
+"""Fixtures of the engine tests: real engines built (or reused) once per session, real imagery,
+PyTorch references, and a tiny synthetic engine for the manifest checks.
+
+The engine cache is ``$C3_MATCHER_ENGINE_DIR`` or ``<repo>/.engines/`` (git-ignored); a clean
+clone builds DISK and LightGlue there in about 1.5 minutes on 2 CPU cores.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import onnx
+import pytest
+from c3_matcher.engines.compiler import ensure_engines
+from c3_matcher.engines.manifest import EngineManifest
+from c3_matcher.engines.naming import EngineName
+from c3_matcher.engines.runtime import OnnxInferenceRuntime
+from c3_matcher.engines.spec import TensorSpec, file_sha256
+from numpy.typing import NDArray
+
+REPO = Path(__file__).resolve().parents[3]
+IMAGERY = REPO / "data" / "imagery"
+
+
+def read_rgb(relative: str) -> NDArray[np.uint8]:
+    """A fixture image under ``data/imagery`` as RGB uint8 (H, W, 3)."""
+    bgr = cv2.imread(str(IMAGERY / relative), cv2.IMREAD_COLOR)
+    assert bgr is not None, f"fixture image {IMAGERY / relative} is missing"
+    return np.ascontiguousarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+
+
+@pytest.fixture(scope="session")
+def engine_dir() -> Path:
+    configured = os.environ.get("C3_MATCHER_ENGINE_DIR")
+    return Path(configured) if configured else REPO / ".engines"
+
+
+@pytest.fixture(scope="session")
+def built_engines(engine_dir: Path) -> dict[tuple[str, str], Path]:
+    from c3_matcher_disk_lightglue.engines import ENGINE_SPECS
+
+    return ensure_engines(
+        ENGINE_SPECS, engine_dir, log=lambda line: print(line, file=sys.stderr, flush=True)
+    )
+
+
+@pytest.fixture(scope="session")
+def disk_engine(built_engines: dict[tuple[str, str], Path]) -> Path:
+    return built_engines[("disk", "depth")]
+
+
+@pytest.fixture(scope="session")
+def lightglue_engine(built_engines: dict[tuple[str, str], Path]) -> Path:
+    return built_engines[("lightglue", "disk")]
+
+
+@pytest.fixture(scope="session")
+def runtime() -> OnnxInferenceRuntime:
+    return OnnxInferenceRuntime(["CPUExecutionProvider"])
+
+
+@pytest.fixture(scope="session")
+def gorinchem() -> NDArray[np.uint8]:
+    return read_rgb("open_orthophotos/test_tiled.tif")
+
+
+@pytest.fixture(scope="session")
+def disk_reference() -> Any:
+    from c3_matcher_disk_lightglue.engines import DISK_SPEC, load_disk_reference
+
+    return load_disk_reference(DISK_SPEC.weights.resolve())
+
+
+@pytest.fixture(scope="session")
+def lightglue_reference() -> Any:
+    from c3_matcher.engines.export.lightglue import load_lightglue_reference
+    from c3_matcher_disk_lightglue.engines import LIGHTGLUE_DISK_SPEC
+
+    return load_lightglue_reference(LIGHTGLUE_DISK_SPEC.weights.resolve(), input_dim=128)
+
+
+TINY_INPUTS = (TensorSpec("x", "float32", (1, "n")),)
+TINY_OUTPUTS = (TensorSpec("y", "float32", (1, "n")),)
+
+
+def write_tiny_onnx(path: Path, input_name: str = "x", output_name: str = "y") -> None:
+    """An Identity graph ``y = x`` with x float32 (1, n)."""
+    x = onnx.helper.make_tensor_value_info(input_name, onnx.TensorProto.FLOAT, [1, "n"])
+    y = onnx.helper.make_tensor_value_info(output_name, onnx.TensorProto.FLOAT, [1, "n"])
+    node = onnx.helper.make_node("Identity", [input_name], [output_name])
+    graph = onnx.helper.make_graph([node], "tiny", [x], [y])
+    model = onnx.helper.make_model(graph, opset_imports=[onnx.helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    onnx.save(model, str(path))
+
+
+def write_tiny_engine(
+    directory: Path,
+    *,
+    variant: str = "tiny",
+    inputs: tuple[TensorSpec, ...] = TINY_INPUTS,
+    outputs: tuple[TensorSpec, ...] = TINY_OUTPUTS,
+    build_key: str = "ab" * 32,
+    passed: bool = True,
+) -> Path:
+    """A tiny engine plus a consistent manifest (declaring ``inputs``/``outputs``)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    name = EngineName.from_build_key("toy", variant, "fp32", "any", 18, build_key)
+    path = directory / name.filename
+    write_tiny_onnx(path)
+    EngineManifest(
+        file=name.filename,
+        file_sha256=file_sha256(path),
+        file_bytes=path.stat().st_size,
+        model="toy",
+        variant=variant,
+        kind="extractor",
+        precision="fp32",
+        input_rule="any",
+        opset=18,
+        build_key=build_key,
+        weights={"distribution": "none", "version": "0", "path": "none", "sha256": "cd" * 32},
+        inputs=inputs,
+        outputs=outputs,
+        exporter={"callable": "tests:none"},
+        options={},
+        verification={"passed": passed, "checks": []},
+        build_seconds=0.0,
+        built_at="2026-01-01T00:00:00+00:00",
+    ).write(directory / name.manifest_filename)
+    return path
+
+
+@pytest.fixture()
+def tiny_engine(tmp_path: Path) -> Path:
+    return write_tiny_engine(tmp_path / "engines")
+
+
+@pytest.fixture()
+def make_tiny_engine() -> Callable[..., Path]:
+    return write_tiny_engine
+
+
+@pytest.fixture(scope="session")
+def read_image() -> Callable[[str], NDArray[np.uint8]]:
+    """``read_image("naip_timeseries/....tif")``: a fixture image as RGB uint8."""
+    return read_rgb

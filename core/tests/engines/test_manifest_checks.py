@@ -1,0 +1,125 @@
+"""Start-up checks of an engine against its manifest (tiny synthetic engines, no PyTorch)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from c3_matcher.engines.naming import manifest_path_for
+from c3_matcher.engines.runtime import OnnxInferenceRuntime
+from c3_matcher.engines.spec import TensorSpec
+from c3_matcher.engines.store import EngineStore
+from c3_matcher.errors import EngineError
+
+BUILD = "c3-matcher engines build"
+
+
+def _assert_names_file_and_command(exc: EngineError, path: Path) -> None:
+    text = str(exc)
+    assert path.name in text
+    assert BUILD in text
+
+
+def test_valid_engine_loads_and_runs(tiny_engine: Path) -> None:
+    runtime = OnnxInferenceRuntime(["CPUExecutionProvider"])
+    engine_id = runtime.load_engine(tiny_engine)
+    assert runtime.load_engine(tiny_engine) == engine_id  # idempotent
+    x = np.arange(5, dtype=np.float32)[None]
+    out = runtime.run(engine_id, {"x": x})
+    np.testing.assert_array_equal(out["y"], x)
+    assert runtime.manifest(engine_id).weights_sha256 == "cd" * 32
+
+
+def test_tampered_file_is_a_startup_error(tiny_engine: Path) -> None:
+    data = bytearray(tiny_engine.read_bytes())
+    data[-1] ^= 0xFF
+    tiny_engine.write_bytes(bytes(data))
+    with pytest.raises(EngineError, match="sha256") as info:
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(tiny_engine)
+    _assert_names_file_and_command(info.value, tiny_engine)
+
+
+def test_wrong_io_names_are_a_startup_error(
+    tmp_path: Path, make_tiny_engine: Callable[..., Path]
+) -> None:
+    path = make_tiny_engine(tmp_path, inputs=(TensorSpec("image", "float32", (1, "n")),))
+    with pytest.raises(EngineError, match="graph inputs") as info:
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(path)
+    _assert_names_file_and_command(info.value, path)
+
+
+def test_wrong_io_dtype_and_shape_are_startup_errors(
+    tmp_path: Path, make_tiny_engine: Callable[..., Path]
+) -> None:
+    bad_dtype = make_tiny_engine(tmp_path / "a", outputs=(TensorSpec("y", "int64", (1, "n")),))
+    with pytest.raises(EngineError, match="dtype"):
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(bad_dtype)
+    bad_shape = make_tiny_engine(tmp_path / "b", inputs=(TensorSpec("x", "float32", (1, 7)),))
+    with pytest.raises(EngineError, match="shape"):
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(bad_shape)
+
+
+def test_missing_manifest_and_missing_file(tiny_engine: Path) -> None:
+    manifest_path_for(tiny_engine).unlink()
+    with pytest.raises(EngineError, match="manifest") as info:
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(tiny_engine)
+    _assert_names_file_and_command(info.value, tiny_engine)
+    missing = tiny_engine.with_name("toy_tiny_fp32_any_op18_0000000000.onnx")
+    with pytest.raises(EngineError, match="not found"):
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(missing)
+
+
+def test_name_off_schema_is_refused(tiny_engine: Path) -> None:
+    renamed = tiny_engine.with_name("toy.onnx")
+    tiny_engine.rename(renamed)
+    with pytest.raises(EngineError, match="schema"):
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(renamed)
+
+
+def test_manifest_disagreeing_with_name_is_refused(tiny_engine: Path) -> None:
+    path = manifest_path_for(tiny_engine)
+    data = json.loads(path.read_text())
+    data["variant"] = "other"
+    path.write_text(json.dumps(data))
+    with pytest.raises(EngineError, match="disagrees"):
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(tiny_engine)
+
+
+def test_failed_verification_is_refused(
+    tmp_path: Path, make_tiny_engine: Callable[..., Path]
+) -> None:
+    path = make_tiny_engine(tmp_path, passed=False)
+    with pytest.raises(EngineError, match="failed verification"):
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(path)
+
+
+def test_store_require_missing_names_pattern_and_command(tmp_path: Path) -> None:
+    with pytest.raises(EngineError) as info:
+        EngineStore(tmp_path / "nothing").require("disk", "depth")
+    text = str(info.value)
+    assert "disk_depth_*" in text and BUILD in text and "--only disk/depth" in text
+
+
+def test_store_require_list_verify(tiny_engine: Path) -> None:
+    store = EngineStore(tiny_engine.parent)
+    assert store.require("toy", "tiny") == tiny_engine
+    with pytest.raises(EngineError, match="installed weights"):
+        store.require("toy", "tiny", weights_sha256="ef" * 32)
+    records = store.list()
+    assert [r.path for r in records] == [tiny_engine] and records[0].ok
+    assert all(o.ok for o in store.verify())
+    tiny_engine.write_bytes(tiny_engine.read_bytes() + b"\0")
+    outcome = store.verify()[0]
+    assert not outcome.ok and "size" in outcome.detail
+
+
+def test_run_errors(tiny_engine: Path) -> None:
+    runtime = OnnxInferenceRuntime(["CPUExecutionProvider"])
+    engine_id = runtime.load_engine(tiny_engine)
+    with pytest.raises(KeyError, match="not loaded"):
+        runtime.run("nope", {"x": np.zeros((1, 1), np.float32)})
+    with pytest.raises(ValueError, match="feeds"):
+        runtime.run(engine_id, {"z": np.zeros((1, 1), np.float32)})

@@ -1,0 +1,47 @@
+"""Provider selection with the provider list injected (DECISIONS 18)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from c3_matcher.engines.runtime import OnnxInferenceRuntime, select_providers
+from c3_matcher.errors import EngineError
+from loguru import logger
+
+TRT = "TensorrtExecutionProvider"
+CUDA = "CUDAExecutionProvider"
+CPU = "CPUExecutionProvider"
+
+
+@pytest.mark.parametrize(
+    ("available", "chain"),
+    [
+        ([CPU, CUDA, TRT], [TRT, CUDA, CPU]),
+        ([CUDA, CPU], [CUDA, CPU]),
+        ([CPU], [CPU]),
+        (["AzureExecutionProvider", CPU], [CPU]),
+        ([TRT, CPU], [TRT, CPU]),
+    ],
+)
+def test_chain_order(available: list[str], chain: list[str]) -> None:
+    assert select_providers(available) == chain
+    runtime = OnnxInferenceRuntime(available)
+    assert runtime.provider == chain[0]
+    assert list(runtime.providers) == chain
+
+
+def test_no_usable_provider() -> None:
+    with pytest.raises(EngineError, match="none of"):
+        OnnxInferenceRuntime(["AzureExecutionProvider"])
+
+
+def test_choice_is_logged_with_a_kind() -> None:
+    records: list[dict[str, Any]] = []
+    sink = logger.add(lambda message: records.append(message.record["extra"]), level="INFO")
+    try:
+        OnnxInferenceRuntime([CUDA, CPU])
+    finally:
+        logger.remove(sink)
+    selected = [r for r in records if r.get("kind") == "c3.inference.provider_selected"]
+    assert selected and selected[0]["provider"] == CUDA
