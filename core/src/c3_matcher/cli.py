@@ -74,6 +74,14 @@ def _cmd_config(args: argparse.Namespace, settings: C3Settings) -> int:
     return EXIT_OK
 
 
+def _cmd_engines(args: argparse.Namespace, settings: C3Settings) -> int:
+    from c3_matcher.compose import build_plugin_host
+    from c3_matcher.engines.cli import EnginesCliContext, dispatch
+
+    context = EnginesCliContext(settings.engines.directory, build_plugin_host().engine_specs())
+    return dispatch(args, context)
+
+
 def _build_parser() -> tuple[argparse.ArgumentParser, dict[str, Handler]]:
     parser = _Parser(prog="c3-matcher", description="C3 cross-domain matcher")
     parser.add_argument("--config", type=Path, default=None,
@@ -92,6 +100,7 @@ def _build_parser() -> tuple[argparse.ArgumentParser, dict[str, Handler]]:
     from c3_matcher.engines.cli import add_engines_commands
 
     add_engines_commands(sub)
+    handlers["engines"] = _cmd_engines
     from c3_matcher.match_cli import add_match_command
 
     handlers["match"] = add_match_command(sub)
@@ -107,10 +116,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"c3-matcher: {exc}", file=sys.stderr)
         return EXIT_USAGE
     try:
-        if args.command == "engines":
-            from c3_matcher.engines.cli import run_engines_command
-
-            return run_engines_command(args, settings)
         return handlers[args.command](args, settings)
     except (InvalidInputError, ConfigurationError) as exc:
         print(f"c3-matcher: {exc}", file=sys.stderr)
