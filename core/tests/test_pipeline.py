@@ -225,3 +225,31 @@ def test_fdr_failure_never_fails_the_frame(logs):
     rig = Rig([S(100)], BrokenFdr())
     assert rig.match().per_candidate[0].inlier_count == 100
     assert len(logs.of_kind("c3.fdr.write_failed")) == 1
+
+
+def test_tile_cache_reuses_features_and_gives_identical_results(fdr, logs):
+    from c3_matcher.tile_cache import TileFeatureCache
+
+    rig = Rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
+    rig.pipeline = MatchPipeline(FakeBackend(rig.inference, rig.lightglue), rig.ransac, fdr,
+                                 rig.health, rig.clock, rig.settings,
+                                 tile_cache=TileFeatureCache(3))
+    first = rig.match()
+    calls_after_first = len(rig.inference.calls)
+    second = rig.match()
+    assert len(rig.inference.calls) - calls_after_first == 1  # only the query is extracted
+    assert second.diagnostics["tile_cache"] == {"hits": 3, "misses": 3}
+    assert all(a.same_content(b) for a, b in zip(first.per_candidate, second.per_candidate,
+                                                   strict=True))
+
+
+def test_tile_cache_key_changes_with_the_bytes():
+    from c3_matcher.dto import TileId
+    from c3_matcher.tile_cache import tile_cache_key
+    from c3_matcher.tiles import BytesTileHandle
+
+    tile = TileId(18, 47.0, 8.0)
+    assert tile_cache_key(tile, BytesTileHandle(b"abc")) == tile_cache_key(
+        tile, BytesTileHandle(b"abc"))
+    assert tile_cache_key(tile, BytesTileHandle(b"abc")) != tile_cache_key(
+        tile, BytesTileHandle(b"abd"))

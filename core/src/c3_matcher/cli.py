@@ -104,6 +104,9 @@ def _build_parser() -> tuple[argparse.ArgumentParser, dict[str, Handler]]:
     from c3_matcher.match_cli import add_match_command
 
     handlers["match"] = add_match_command(sub)
+    from c3_matcher.bench import add_bench_command
+
+    handlers["bench"] = add_bench_command(sub)
     return parser, handlers
 
 

@@ -50,6 +50,9 @@ class MatcherSettings(_Section):
                                description="images are downscaled so their long side <= this")
     max_keypoints: int = Field(2048, ge=16, le=8192, description="keypoint budget per image")
     ransac_seed: int = Field(0, ge=0, description="RANSAC generator seed (determinism)")
+    tile_cache_size: int = Field(16, ge=0, le=1024,
+                                 description="tiles whose features are kept between frames "
+                                             "(0: re-extract every tile every frame)")
     options: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
         description="per-strategy options, [matcher.options.<strategy>], validated by the plugin",

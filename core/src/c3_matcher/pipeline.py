@@ -42,6 +42,7 @@ from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import log_event
 from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
 from c3_matcher.protocols import Clock, FdrClient, RansacFilter
+from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 
 __all__ = ["FeatureBackend", "MatchPipeline", "PipelineSettings"]
 
@@ -115,6 +116,7 @@ class MatchPipeline:
         clock: Clock,
         settings: PipelineSettings,
         preprocessor: FramePreprocessor | None = None,
+        tile_cache: TileFeatureCache | None = None,
     ) -> None:
         self._backend = backend
         self._ransac = ransac_filter
@@ -123,6 +125,7 @@ class MatchPipeline:
         self._clock = clock
         self._settings = settings
         self._pre = preprocessor or FramePreprocessor(backend.input_rule)
+        self._cache = tile_cache if tile_cache is not None else TileFeatureCache(0)
 
     @property
     def settings(self) -> PipelineSettings:
@@ -199,6 +202,7 @@ class MatchPipeline:
             "per_candidate_timings_ms": list(state.per_candidate_ms),
             "input_index": [s.input_index for s in survivors],
             "homographies": [s.homography for s in survivors],
+            "tile_cache": {"hits": self._cache.hits, "misses": self._cache.misses},
         }
         self._record("matcher.frame_done", {  # step 10 (+ DECISIONS 16)
             "frame_id": state.frame_id,
@@ -233,13 +237,21 @@ class MatchPipeline:
         tile_id = candidate.tile_id
         phase = "tile_decode"
         try:
-            with _timed(timings, "decode"):
-                pixels = candidate.tile_pixels_handle.decode()
-            with _timed(timings, "preprocess"):
-                tile_image = self._pre.prepare_tile(pixels)
-            phase = self._backend.extract_phase
-            with _timed(timings, "extract"):
-                tile = self._backend.extract(tile_image)
+            key = (tile_cache_key(tile_id, candidate.tile_pixels_handle)
+                   if self._cache.enabled else None)
+            cached = self._cache.get(key) if key is not None else None
+            if cached is not None:
+                tile_image, tile = cached.prepared, cached.features
+            else:
+                with _timed(timings, "decode"):
+                    pixels = candidate.tile_pixels_handle.decode()
+                with _timed(timings, "preprocess"):
+                    tile_image = self._pre.prepare_tile(pixels)
+                phase = self._backend.extract_phase
+                with _timed(timings, "extract"):
+                    tile = self._backend.extract(tile_image)
+                if key is not None:
+                    self._cache.put(key, CachedTile(tile_image, tile))
             phase = self._backend.match_phase
             with _timed(timings, "match"):
                 raw = self._backend.match(query, tile)

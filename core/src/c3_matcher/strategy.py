@@ -26,6 +26,7 @@ from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import FeatureBackend, MatchPipeline, PipelineSettings
 from c3_matcher.preprocess import InputRule, PreparedImage
 from c3_matcher.protocols import Clock, FdrClient, InferenceRuntime, LightGlueRuntime, RansacFilter
+from c3_matcher.tile_cache import TileFeatureCache
 
 __all__ = [
     "ExtractorLightGlueBackend",
@@ -53,6 +54,7 @@ class ExtractorLightGlueConfig:
     min_inliers_threshold: int = 60
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
+    tile_cache_size: int = 16
 
     @property
     def pipeline_settings(self) -> PipelineSettings:
@@ -70,7 +72,8 @@ class ExtractorLightGlueConfig:
         m = settings.matcher
         return cls(label, feature_type, extract_phase, extractor_engine_path,
                    lightglue_engine_path, size_multiple, m.max_long_side, m.max_keypoints,
-                   m.min_inliers_threshold, m.residual_warn_threshold_px, m.ransac_threshold_px)
+                   m.min_inliers_threshold, m.residual_warn_threshold_px, m.ransac_threshold_px,
+                   m.tile_cache_size)
 
 
 class ExtractorLightGlueBackend:
@@ -158,10 +161,10 @@ class PipelineMatcher:
 
     def __init__(self, backend: FeatureBackend, ransac_filter: RansacFilter,
                  fdr_client: FdrClient, health_window: RollingHealthWindow, clock: Clock,
-                 settings: PipelineSettings) -> None:
+                 settings: PipelineSettings, tile_cache_size: int = 0) -> None:
         self._backend = backend
         self._pipeline = MatchPipeline(backend, ransac_filter, fdr_client, health_window, clock,
-                                       settings)
+                                       settings, tile_cache=TileFeatureCache(tile_cache_size))
         self._ransac_filter = ransac_filter
         self._fdr_client = fdr_client
         self._health_window = health_window

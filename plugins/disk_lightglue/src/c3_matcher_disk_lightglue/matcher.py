@@ -68,7 +68,8 @@ class DiskLightGlueMatcher(PipelineMatcher):
         self._disk_engine_id = backend.engine_id
         engine_startup_probe(backend)
         super().__init__(backend, ransac_filter, fdr_client, health_window,
-                         clock or MonotonicClock(), config.pipeline_settings)
+                         clock or MonotonicClock(), config.pipeline_settings,
+                         config.tile_cache_size)
 
     @property
     def config(self) -> DiskLightGlueConfig:
