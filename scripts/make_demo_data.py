@@ -24,38 +24,72 @@ ORDER = (2, 0, 1)  # the true tile is the 2nd candidate on the command line
 
 
 def main() -> None:
-    spec = ScenarioSpec(REPO / "data/imagery/open_orthophotos/5b90f92da0d7280005fab355_4310.tif",
-                        yaw_deg=120, pitch_deg=0, roll_deg=18, frame_gsd_ratio=0.5,
-                        tile_size=512, image_size=(640, 480), focal_px=560, seed=7)
+    spec = ScenarioSpec(
+        REPO / "data/imagery/open_orthophotos/5b90f92da0d7280005fab355_4310.tif",
+        yaw_deg=120,
+        pitch_deg=0,
+        roll_deg=18,
+        frame_gsd_ratio=0.5,
+        tile_size=512,
+        image_size=(640, 480),
+        focal_px=560,
+        seed=7,
+    )
     sc = build_scenario(spec)
     OUT.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(OUT / "frame.jpg"), sc.frame.image[:, :, ::-1],
-                [cv2.IMWRITE_JPEG_QUALITY, 92])
+    cv2.imwrite(str(OUT / "frame.jpg"), sc.frame.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 92])
     tiles = []
     for n, i in enumerate(ORDER):
         name = f"tile_{'abc'[n]}.png"
         cv2.imwrite(str(OUT / name), sc.tiles[i].image[:, :, ::-1])
-        tiles.append({"file": name, "tile_id": sc.tile_ids[i].as_list(),
-                      "true": i == 0, "ortho_offset_px": list(sc.tiles[i].offset_px)})
+        tiles.append(
+            {
+                "file": name,
+                "tile_id": sc.tile_ids[i].as_list(),
+                "true": i == 0,
+                "ortho_offset_px": list(sc.tiles[i].offset_px),
+            }
+        )
     cal = sc.calibration
-    (OUT / "calibration.json").write_text(json.dumps({
-        "K": cal.K.tolist(), "distortion": cal.distortion.tolist(),
-        "image_size": list(cal.image_size)}, indent=2) + "\n")
-    (OUT / "demo.json").write_text(json.dumps({
-        "orthophoto": str(spec.orthophoto.relative_to(REPO)),
-        "attitude_deg": {"roll": spec.roll_deg, "pitch": spec.pitch_deg, "yaw": spec.yaw_deg},
-        "height_m": round(sc.frame.height_m, 6),
-        "tile_gsd_m": sc.tile_gsd_m,
-        "tiles": tiles,
-        "gt_homography_undistorted_frame_to_ortho":
-            sc.frame.gt_homography_undistorted_to_ortho.tolist(),
-        "credit": "Imagery: (c) OpenAerialMap contributors, CC BY 4.0 (image "
-                  "5b90f92da0d7280005fab355, via OAM-TCD); see data/imagery/ATTRIBUTION.md",
-    }, indent=2) + "\n")
-    print(f"wrote {OUT}: height {sc.frame.height_m:.2f} m, tile GSD {sc.tile_gsd_m:.4f} m, "
-          f"tilt {math.degrees(math.acos(math.cos(math.radians(spec.roll_deg)))):.1f} deg, "
-          f"true tile {tiles[ORDER.index(0)]['file']}; tile ids "
-          f"{[t['tile_id'] for t in tiles]} {np.round(sc.frame.nadir_px, 1)}")
+    (OUT / "calibration.json").write_text(
+        json.dumps(
+            {
+                "K": cal.K.tolist(),
+                "distortion": cal.distortion.tolist(),
+                "image_size": list(cal.image_size),
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+    (OUT / "demo.json").write_text(
+        json.dumps(
+            {
+                "orthophoto": str(spec.orthophoto.relative_to(REPO)),
+                "attitude_deg": {
+                    "roll": spec.roll_deg,
+                    "pitch": spec.pitch_deg,
+                    "yaw": spec.yaw_deg,
+                },
+                "height_m": round(sc.frame.height_m, 6),
+                "tile_gsd_m": sc.tile_gsd_m,
+                "tiles": tiles,
+                "gt_homography_undistorted_frame_to_ortho": (
+                    sc.frame.gt_homography_undistorted_to_ortho.tolist()
+                ),
+                "credit": "Imagery: (c) OpenAerialMap contributors, CC BY 4.0 (image "
+                "5b90f92da0d7280005fab355, via OAM-TCD); see data/imagery/ATTRIBUTION.md",
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+    print(
+        f"wrote {OUT}: height {sc.frame.height_m:.2f} m, tile GSD {sc.tile_gsd_m:.4f} m, "
+        f"tilt {math.degrees(math.acos(math.cos(math.radians(spec.roll_deg)))):.1f} deg, "
+        f"true tile {tiles[ORDER.index(0)]['file']}; tile ids "
+        f"{[t['tile_id'] for t in tiles]} {np.round(sc.frame.nadir_px, 1)}"
+    )
 
 
 if __name__ == "__main__":

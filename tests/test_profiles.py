@@ -33,15 +33,26 @@ ROWS = GEN.profile_rows(MATRIX)
 def test_matrix_is_the_design_table():
     table = {p: {f: r["flags"][f]["state"] for f in r["flags"]} for p, r in ROWS.items()}
     assert table == {
-        "airborne": {"BUILD_MATCHER_DISK_LIGHTGLUE": "ON", "BUILD_MATCHER_ALIKED_LIGHTGLUE": "ON",
-                     "BUILD_MATCHER_XFEAT": "WIRED"},
-        "research": {"BUILD_MATCHER_DISK_LIGHTGLUE": "ON", "BUILD_MATCHER_ALIKED_LIGHTGLUE": "ON",
-                     "BUILD_MATCHER_XFEAT": "ON"},
-        "replay-cli": {"BUILD_MATCHER_DISK_LIGHTGLUE": "ON",
-                       "BUILD_MATCHER_ALIKED_LIGHTGLUE": "ON", "BUILD_MATCHER_XFEAT": "ON"},
-        "operator-tooling": {"BUILD_MATCHER_DISK_LIGHTGLUE": "OFF",
-                             "BUILD_MATCHER_ALIKED_LIGHTGLUE": "OFF",
-                             "BUILD_MATCHER_XFEAT": "OFF"},
+        "airborne": {
+            "BUILD_MATCHER_DISK_LIGHTGLUE": "ON",
+            "BUILD_MATCHER_ALIKED_LIGHTGLUE": "ON",
+            "BUILD_MATCHER_XFEAT": "WIRED",
+        },
+        "research": {
+            "BUILD_MATCHER_DISK_LIGHTGLUE": "ON",
+            "BUILD_MATCHER_ALIKED_LIGHTGLUE": "ON",
+            "BUILD_MATCHER_XFEAT": "ON",
+        },
+        "replay-cli": {
+            "BUILD_MATCHER_DISK_LIGHTGLUE": "ON",
+            "BUILD_MATCHER_ALIKED_LIGHTGLUE": "ON",
+            "BUILD_MATCHER_XFEAT": "ON",
+        },
+        "operator-tooling": {
+            "BUILD_MATCHER_DISK_LIGHTGLUE": "OFF",
+            "BUILD_MATCHER_ALIKED_LIGHTGLUE": "OFF",
+            "BUILD_MATCHER_XFEAT": "OFF",
+        },
     }
     assert ROWS["airborne"]["strict"] and ROWS["operator-tooling"]["strict"]
     assert not ROWS["research"]["strict"]
@@ -64,8 +75,11 @@ def test_core_extras_pull_exactly_one_profile_each():
 def test_profile_dependencies_are_the_linked_plugins(profile):
     pyproject = tomllib.loads((REPO / "buildflags" / profile / "pyproject.toml").read_text())
     deps = sorted(d.split("==")[0] for d in pyproject["project"]["dependencies"])
-    linked = sorted(f["distribution"] for f in ROWS[profile]["flags"].values()
-                    if f["state"] == "ON" and f["available"])
+    linked = sorted(
+        f["distribution"]
+        for f in ROWS[profile]["flags"].values()
+        if f["state"] == "ON" and f["available"]
+    )
     assert deps == linked
     for flag in MATRIX["flags"].values():  # every plugin that exists is a real distribution
         plugin = REPO / flag["plugin_dir"] / "pyproject.toml"
@@ -79,10 +93,18 @@ def test_runtime_reports_the_installed_profile():
     assert profile.name == "research"
     want = {f: r["state"] for f, r in ROWS["research"]["flags"].items()}
     assert profile.flag_report() == want
-    report = json.loads(subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", "plugins", "--json"], check=True,
-        capture_output=True, text=True).stdout)
+    report = json.loads(
+        subprocess.run(
+            [sys.executable, "-m", "c3_matcher.cli", "plugins", "--json"],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+    )
     assert report["profile"] == "research" and report["flags"] == want
-    linked_here = {f["strategy"] for f in ROWS["research"]["flags"].values()
-                   if f["state"] == "ON" and f["available"]}
+    linked_here = {
+        f["strategy"]
+        for f in ROWS["research"]["flags"].values()
+        if f["state"] == "ON" and f["available"]
+    }
     assert {s["name"] for s in report["strategies"]} >= linked_here

@@ -7,12 +7,12 @@ import math
 import cv2
 import numpy as np
 import pytest
+
 from c3_matcher import camera as cam
 from c3_matcher.dto import Attitude, CameraCalibration
 
 BARREL = (-0.12, 0.03, 0.0008, -0.0005, 0.002)
-RATIONAL = (-0.12, 0.03, 0.0008, -0.0005, 0.002, 0.01, 0.003, 0.001,
-            0.001, 0.002, 0.0005, 0.0003)
+RATIONAL = (-0.12, 0.03, 0.0008, -0.0005, 0.002, 0.01, 0.003, 0.001, 0.001, 0.002, 0.0005, 0.0003)
 TILTED = (*RATIONAL, 0.01, -0.02)
 
 
@@ -47,11 +47,15 @@ def test_default_mount_looks_down_with_image_top_to_the_nose() -> None:
 
 def test_camera_to_body_from_the_calibration_is_used() -> None:
     mount = cam.rot_z(0.5) @ cam.DEFAULT_BODY_FROM_CAMERA
-    cal = CameraCalibration(CameraCalibration.pinhole(64, 48, 50.0).K, np.zeros(0), (64, 48),
-                            camera_to_body=mount)
+    cal = CameraCalibration(
+        CameraCalibration.pinhole(64, 48, 50.0).K, np.zeros(0), (64, 48), camera_to_body=mount
+    )
     np.testing.assert_allclose(cam.body_from_camera(cal), mount)
-    np.testing.assert_allclose(cam.virtual_from_camera(Attitude(0, 0, 0), cal),
-                               cam.DEFAULT_BODY_FROM_CAMERA.T @ mount, atol=1e-15)
+    np.testing.assert_allclose(
+        cam.virtual_from_camera(Attitude(0, 0, 0), cal),
+        cam.DEFAULT_BODY_FROM_CAMERA.T @ mount,
+        atol=1e-15,
+    )
 
 
 def test_virtual_camera_is_north_up() -> None:
@@ -93,8 +97,9 @@ def test_no_distortion_is_the_pinhole() -> None:
 
 def test_apply_homography() -> None:
     h = np.array([[2.0, 0.0, 1.0], [0.0, 3.0, -1.0], [0.0, 0.0, 1.0]])
-    np.testing.assert_allclose(cam.apply_homography(h, [[1.0, 1.0], [0.0, 2.0]]),
-                               [[3.0, 2.0], [1.0, 5.0]])
+    np.testing.assert_allclose(
+        cam.apply_homography(h, [[1.0, 1.0], [0.0, 2.0]]), [[3.0, 2.0], [1.0, 5.0]]
+    )
     persp = np.array([[1.0, 0, 0], [0, 1.0, 0], [0.5, 0, 1.0]])
     np.testing.assert_allclose(cam.apply_homography(persp, [[2.0, 4.0]]), [[1.0, 2.0]])
 
@@ -110,8 +115,10 @@ def test_image_boundary_walks_the_outer_pixel_centres() -> None:
 def test_clip_polygon_by_half_plane() -> None:
     square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
     clipped = cam.clip_polygon(square, lambda v: v[:, 0] - 0.5)
-    area = 0.5 * abs(np.dot(clipped[:, 0], np.roll(clipped[:, 1], 1))
-                     - np.dot(clipped[:, 1], np.roll(clipped[:, 0], 1)))
+    area = 0.5 * abs(
+        np.dot(clipped[:, 0], np.roll(clipped[:, 1], 1))
+        - np.dot(clipped[:, 1], np.roll(clipped[:, 0], 1))
+    )
     assert area == pytest.approx(3.0)
     assert clipped[:, 0].min() == pytest.approx(0.5)
     assert cam.clip_polygon(square, lambda v: v[:, 0] - 5).shape[0] == 0

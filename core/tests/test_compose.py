@@ -23,43 +23,61 @@ from c3_matcher.testing import (
     FakeRansacFilter,
 )
 
-PROFILE = BuildProfile.from_data({"name": "research", "strict": False, "flags": {
-    "BUILD_MATCHER_XFEAT": {"state": "OFF", "strategy": "xfeat",
-                            "distribution": "c3-matcher-xfeat"}}}, "test")
+PROFILE = BuildProfile.from_data(
+    {
+        "name": "research",
+        "strict": False,
+        "flags": {
+            "BUILD_MATCHER_XFEAT": {
+                "state": "OFF",
+                "strategy": "xfeat",
+                "distribution": "c3-matcher-xfeat",
+            }
+        },
+    },
+    "test",
+)
 
 
 class FakeStrategy(MatchPipeline):
     def __init__(self, **kw):  # type: ignore[no-untyped-def]
         self.kwargs = kw
         self._lightglue_runtime = kw["lightglue_runtime"]
-        super().__init__(FakeBackend(kw["inference_runtime"], kw["lightglue_runtime"]),
-                         kw["ransac_filter"], kw["fdr_client"], kw["health_window"],
-                         kw["clock"], PipelineSettings())
+        super().__init__(
+            FakeBackend(kw["inference_runtime"], kw["lightglue_runtime"]),
+            kw["ransac_filter"],
+            kw["fdr_client"],
+            kw["health_window"],
+            kw["clock"],
+            PipelineSettings(),
+        )
 
 
 def fake_plugin_host() -> PluginHost:
     module = types.SimpleNamespace(
-        c3_matcher_strategies=hookimpl(lambda: [StrategySpec("fake_match", FakeStrategy)]))
+        c3_matcher_strategies=hookimpl(lambda: [StrategySpec("fake_match", FakeStrategy)])
+    )
     return PluginHost(PROFILE, [PluginSource("fake", "fake-dist", "1.0", module=module)])
 
 
 def helpers():  # type: ignore[no-untyped-def]
-    return {"c3_lightglue_runtime": FakeLightGlueRuntime(), "c282_ransac_filter":
-            FakeRansacFilter([]), "c7_inference": FakeInferenceRuntime()}
+    return {
+        "c3_lightglue_runtime": FakeLightGlueRuntime(),
+        "c282_ransac_filter": FakeRansacFilter([]),
+        "c7_inference": FakeInferenceRuntime(),
+    }
 
 
 def settings(tmp_path, strategy: str = "fake_match") -> C3Settings:
     return C3Settings(matcher={"strategy": strategy}, fdr={"path": tmp_path / "fdr.jsonl"})
 
 
-@pytest.mark.parametrize("missing", ["c3_lightglue_runtime", "c282_ransac_filter",
-                                     "c7_inference"])
+@pytest.mark.parametrize("missing", ["c3_lightglue_runtime", "c282_ransac_filter", "c7_inference"])
 def test_missing_required_key_names_consumer_and_key(tmp_path, missing):
     pre = helpers()
     del pre[missing]
     with pytest.raises(AirborneBootstrapError) as info:
-        compose_root(settings(tmp_path), pre, plugin_host=fake_plugin_host(),
-                     configure_logs=False)
+        compose_root(settings(tmp_path), pre, plugin_host=fake_plugin_host(), configure_logs=False)
     assert (info.value.consumer, info.value.key) == ("c3_matcher", missing)
 
 
@@ -67,26 +85,30 @@ def test_wrong_helper_type_is_refused(tmp_path):
     pre = helpers()
     pre["c282_ransac_filter"] = object()
     with pytest.raises(AirborneBootstrapError, match="expected a RansacFilter"):
-        compose_root(settings(tmp_path), pre, plugin_host=fake_plugin_host(),
-                     configure_logs=False)
+        compose_root(settings(tmp_path), pre, plugin_host=fake_plugin_host(), configure_logs=False)
 
 
 def test_wires_strategy_shares_helpers_and_logs_ready(tmp_path, fdr, logs):
     pre = {**helpers(), "c13_fdr": fdr, "clock": FakeClock()}
-    root = compose_root(settings(tmp_path), pre, plugin_host=fake_plugin_host(),
-                        configure_logs=False)
+    root = compose_root(
+        settings(tmp_path), pre, plugin_host=fake_plugin_host(), configure_logs=False
+    )
     assert isinstance(root.matcher, CrossDomainMatcher)
     assert root.matcher._lightglue_runtime is pre["c3_lightglue_runtime"]  # type: ignore[attr-defined]
     assert root.matcher.kwargs["fdr_client"] is fdr  # type: ignore[attr-defined]
     ready = logs.of_kind("c3.matcher.ready")
     assert len(ready) == 1
-    assert (ready[0]["strategy"], ready[0]["min_inliers_threshold"],
-            ready[0]["residual_warn_threshold_px"]) == ("fake_match", 60, 2.5)
+    assert (
+        ready[0]["strategy"],
+        ready[0]["min_inliers_threshold"],
+        ready[0]["residual_warn_threshold_px"],
+    ) == ("fake_match", 60, 2.5)
 
 
 def test_builds_the_durable_recorder_when_no_fdr_is_given(tmp_path):
-    root = compose_root(settings(tmp_path), helpers(), plugin_host=fake_plugin_host(),
-                        configure_logs=False)
+    root = compose_root(
+        settings(tmp_path), helpers(), plugin_host=fake_plugin_host(), configure_logs=False
+    )
     try:
         assert isinstance(root.fdr, JsonlFdrRecorder)
         assert root.fdr.path == tmp_path / "fdr.jsonl"
@@ -96,5 +118,9 @@ def test_builds_the_durable_recorder_when_no_fdr_is_given(tmp_path):
 
 def test_strategy_not_linked(tmp_path):
     with pytest.raises(StrategyNotLinkedError, match="xfeat.*research"):
-        compose_root(settings(tmp_path, "xfeat"), helpers(), plugin_host=fake_plugin_host(),
-                     configure_logs=False)
+        compose_root(
+            settings(tmp_path, "xfeat"),
+            helpers(),
+            plugin_host=fake_plugin_host(),
+            configure_logs=False,
+        )

@@ -11,28 +11,38 @@ from c3_matcher.errors import ConfigurationError
 def test_defaults_follow_decisions_14():
     s = load_settings(env={})
     m = s.matcher
-    assert (m.strategy, m.min_inliers_threshold, m.residual_warn_threshold_px,
-            m.ransac_threshold_px, m.max_long_side, m.max_keypoints) == (
-        "disk_lightglue", 60, 2.5, 3.0, 1024, 2048)
+    assert (
+        m.strategy,
+        m.min_inliers_threshold,
+        m.residual_warn_threshold_px,
+        m.ransac_threshold_px,
+        m.max_long_side,
+        m.max_keypoints,
+    ) == ("disk_lightglue", 60, 2.5, 3.0, 1024, 2048)
 
 
 def test_toml_then_environment_override(tmp_path):
     toml = tmp_path / "c3.toml"
-    toml.write_text('[matcher]\nmin_inliers_threshold = 80\nstrategy = "xfeat"\n'
-                    '[engines]\ndirectory = "/opt/engines"\n')
+    toml.write_text(
+        '[matcher]\nmin_inliers_threshold = 80\nstrategy = "xfeat"\n'
+        '[engines]\ndirectory = "/opt/engines"\n'
+    )
     s = load_settings(toml, env={"C3_MATCHER_MATCHER__STRATEGY": "aliked_lightglue"})
     assert s.matcher.min_inliers_threshold == 80
     assert s.matcher.strategy == "aliked_lightglue"
     assert str(s.engines.directory) == "/opt/engines"
 
 
-@pytest.mark.parametrize(("text", "field"), [
-    ("[matcher]\nmin_inliers_threshold = 2\n", "matcher.min_inliers_threshold"),
-    ("[matcher]\nmin_inlier_threshold = 80\n", "matcher.min_inlier_threshold"),
-    ("[matchr]\nstrategy = 'x'\n", "matchr"),
-    ("[matcher]\nresidual_warn_threshold_px = -1\n", "matcher.residual_warn_threshold_px"),
-    ("[logging]\nlevel = 'LOUD'\n", "logging.level"),
-])
+@pytest.mark.parametrize(
+    ("text", "field"),
+    [
+        ("[matcher]\nmin_inliers_threshold = 2\n", "matcher.min_inliers_threshold"),
+        ("[matcher]\nmin_inlier_threshold = 80\n", "matcher.min_inlier_threshold"),
+        ("[matchr]\nstrategy = 'x'\n", "matchr"),
+        ("[matcher]\nresidual_warn_threshold_px = -1\n", "matcher.residual_warn_threshold_px"),
+        ("[logging]\nlevel = 'LOUD'\n", "logging.level"),
+    ],
+)
 def test_bad_or_unknown_values_are_refused_naming_the_field(tmp_path, text, field):
     toml = tmp_path / "c3.toml"
     toml.write_text(text)

@@ -29,11 +29,14 @@ def cms(n: int, residual: float = 1.0, tile: TileId = TILE) -> CandidateMatchSet
     return CandidateMatchSet(tile, n, np.zeros((n, 4), np.float32), 3, residual)
 
 
-@pytest.mark.parametrize(("kwargs", "field"), [
-    ({"zoom": 31, "lat": 0.0, "lon": 0.0}, "tile_id.zoom"),
-    ({"zoom": 5, "lat": 91.0, "lon": 0.0}, "tile_id.lat"),
-    ({"zoom": 5, "lat": 0.0, "lon": float("nan")}, "tile_id.lon"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"zoom": 31, "lat": 0.0, "lon": 0.0}, "tile_id.zoom"),
+        ({"zoom": 5, "lat": 91.0, "lon": 0.0}, "tile_id.lat"),
+        ({"zoom": 5, "lat": 0.0, "lon": float("nan")}, "tile_id.lon"),
+    ],
+)
 def test_tile_id_validation_names_field(kwargs, field):
     with pytest.raises(InvalidInputError, match=field):
         TileId(**kwargs)
@@ -42,8 +45,9 @@ def test_tile_id_validation_names_field(kwargs, field):
 def test_tile_id_parse_and_gsd():
     tile = TileId.parse("18,47.3769,8.5417")
     assert tile == TILE
-    assert tile.web_mercator_gsd_m() == pytest.approx(0.5972 * math.cos(math.radians(47.3769)),
-                                                      rel=1e-3)
+    assert tile.web_mercator_gsd_m() == pytest.approx(
+        0.5972 * math.cos(math.radians(47.3769)), rel=1e-3
+    )
     with pytest.raises(InvalidInputError, match="ZOOM,LAT,LON"):
         TileId.parse("18,47")
 
@@ -99,9 +103,16 @@ def test_candidate_match_set_inv5():
 
 
 def _result(per, **overrides):  # type: ignore[no-untyped-def]
-    fields = dict(frame_id=uuid.uuid4(), per_candidate=per, best_candidate_idx=0,
-                  reprojection_residual_px=per[0].per_candidate_residual_px, matched_at=1,
-                  matcher_label="x", candidates_input=3, candidates_dropped=3 - len(per))
+    fields = dict(
+        frame_id=uuid.uuid4(),
+        per_candidate=per,
+        best_candidate_idx=0,
+        reprojection_residual_px=per[0].per_candidate_residual_px,
+        matched_at=1,
+        matcher_label="x",
+        candidates_input=3,
+        candidates_dropped=3 - len(per),
+    )
     fields.update(overrides)
     return MatchResult(**fields)
 

@@ -25,14 +25,20 @@ CORE_SRC = Path(__file__).resolve().parents[1] / "src"
 def test_records_are_json_lines_with_schema(tmp_path):
     rec = JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock())
     fid = uuid.uuid4()
-    rec.record("matcher.frame_done", {"frame_id": fid, "best_tile_id": TileId(18, 1.0, 2.0),
-                                      "h": np.eye(3), "n": np.int64(3)})
+    rec.record(
+        "matcher.frame_done",
+        {"frame_id": fid, "best_tile_id": TileId(18, 1.0, 2.0), "h": np.eye(3), "n": np.int64(3)},
+    )
     rec.record("log.error", {"message": "x"})
     rows = list(read_fdr(rec.path))
     assert [r["seq"] for r in rows] == [1, 2]
     assert rows[0]["kind"] == "matcher.frame_done"
-    assert rows[0]["payload"] == {"frame_id": str(fid), "best_tile_id": [18, 1.0, 2.0],
-                                  "h": np.eye(3).tolist(), "n": 3}
+    assert rows[0]["payload"] == {
+        "frame_id": str(fid),
+        "best_tile_id": [18, 1.0, 2.0],
+        "h": np.eye(3).tolist(),
+        "n": 3,
+    }
     rec.close()
     again = JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock())  # sequence continues
     again.record("x", {})
@@ -88,7 +94,7 @@ def test_sigkill_loses_no_acknowledged_record(tmp_path):
     proc.wait()
     acknowledged = [int(x) for x in acks.read_text().splitlines() if x.strip()]
     assert len(acknowledged) > 200
-    segments = sorted(tmp_path.glob("fdr.[0-9]*.jsonl")) + [path]
+    segments = [*sorted(tmp_path.glob("fdr.[0-9]*.jsonl")), path]
     found = []
     for seg in segments:
         raw = seg.read_bytes()

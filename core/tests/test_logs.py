@@ -24,7 +24,8 @@ def test_json_records_with_kind_and_fields():
     assert [(r["level"], r["kind"]) for r in lines] == [
         ("INFO", "c3.matcher.ready"),
         ("WARNING", "c3.matcher.residual_above_threshold"),
-        ("ERROR", "c3.matcher.insufficient_inliers")]
+        ("ERROR", "c3.matcher.insufficient_inliers"),
+    ]
     assert lines[0]["strategy"] == "x" and lines[1]["residual_px"] == 4.2
     assert [k for k, _ in fdr.records] == ["log.warning", "log.error"]
     assert fdr.records[1][1]["kind"] == "c3.matcher.insufficient_inliers"

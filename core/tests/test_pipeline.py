@@ -27,8 +27,12 @@ S = ScriptedCandidate
 class Rig:
     """A pipeline over scripted doubles, and everything a test inspects."""
 
-    def __init__(self, script: list[ScriptedCandidate], fdr: InMemoryFdr,
-                 settings: PipelineSettings | None = None) -> None:
+    def __init__(
+        self,
+        script: list[ScriptedCandidate],
+        fdr: InMemoryFdr,
+        settings: PipelineSettings | None = None,
+    ) -> None:
         self.script = script
         self.clock = FakeClock()
         self.fdr = fdr
@@ -37,8 +41,14 @@ class Rig:
         self.inference = FakeInferenceRuntime(script)
         self.lightglue = FakeLightGlueRuntime(script)
         self.ransac = FakeRansacFilter(script)
-        self.pipeline = MatchPipeline(FakeBackend(self.inference, self.lightglue), self.ransac,
-                                      fdr, self.health, self.clock, self.settings)
+        self.pipeline = MatchPipeline(
+            FakeBackend(self.inference, self.lightglue),
+            self.ransac,
+            fdr,
+            self.health,
+            self.clock,
+            self.settings,
+        )
         self.frame, self.calibration = make_frame(uuid.UUID(int=7))
         self.rerank = make_rerank(self.frame.frame_id, script)
 
@@ -53,7 +63,8 @@ def test_ac2_best_candidate_argmax_with_residual_tie_break(fdr, logs):
     got = [(c.inlier_count, c.per_candidate_residual_px) for c in result.per_candidate]
     assert got == [(120, 1.1), (120, 1.4), (80, 1.0)]
     assert [c.tile_id for c in result.per_candidate] == [
-        rig.rerank.candidates[i].tile_id for i in (2, 0, 1)]
+        rig.rerank.candidates[i].tile_id for i in (2, 0, 1)
+    ]
     assert result.reprojection_residual_px == 1.1
 
 
@@ -81,7 +92,9 @@ def test_ac4_lightglue_failure_on_first_candidate_is_dropped(fdr, logs):
     rig = Rig([S(100, fail_match=True), S(100), S(90)], fdr)
     result = rig.match()
     assert [c.tile_id for c in result.per_candidate] == [
-        rig.rerank.candidates[1].tile_id, rig.rerank.candidates[2].tile_id]
+        rig.rerank.candidates[1].tile_id,
+        rig.rerank.candidates[2].tile_id,
+    ]
     assert [e["phase"] for e in logs.of_kind("c3.matcher.backbone_error")] == ["lightglue_match"]
     assert [r["phase"] for r in fdr.of_kind("matcher.backbone_error")] == ["lightglue_match"]
     assert rig.lightglue.calls == [0, 1, 2]  # the remaining candidates were processed
@@ -146,12 +159,15 @@ def test_no_warn_at_or_below_threshold(fdr, logs):
     assert logs.of_kind("c3.matcher.residual_above_threshold") == []
 
 
-@pytest.mark.parametrize("script", [
-    [S(100), S(90), S(80)],
-    [S(100), S(90, fail_extract=True), S(80)],
-    [S(10), S(20), S(30)],
-    [S(fail_match=True)] * 3,
-])
+@pytest.mark.parametrize(
+    "script",
+    [
+        [S(100), S(90), S(80)],
+        [S(100), S(90, fail_extract=True), S(80)],
+        [S(10), S(20), S(30)],
+        [S(fail_match=True)] * 3,
+    ],
+)
 def test_ac8_health_updated_exactly_once_per_call(fdr, logs, script):
     rig = Rig(script, fdr)
     for expected in (1, 2):
@@ -179,8 +195,10 @@ def test_ac10_deterministic_three_calls(fdr, logs):
     for other in results[1:]:
         assert other.best_candidate_idx == results[0].best_candidate_idx
         assert other.reprojection_residual_px == results[0].reprojection_residual_px
-        assert all(a.same_content(b) for a, b in zip(results[0].per_candidate,
-                                                       other.per_candidate, strict=True))
+        assert all(
+            a.same_content(b)
+            for a, b in zip(results[0].per_candidate, other.per_candidate, strict=True)
+        )
 
 
 def test_ac12_frame_done_record(fdr, logs):
@@ -231,16 +249,23 @@ def test_tile_cache_reuses_features_and_gives_identical_results(fdr, logs):
     from c3_matcher.tile_cache import TileFeatureCache
 
     rig = Rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
-    rig.pipeline = MatchPipeline(FakeBackend(rig.inference, rig.lightglue), rig.ransac, fdr,
-                                 rig.health, rig.clock, rig.settings,
-                                 tile_cache=TileFeatureCache(3))
+    rig.pipeline = MatchPipeline(
+        FakeBackend(rig.inference, rig.lightglue),
+        rig.ransac,
+        fdr,
+        rig.health,
+        rig.clock,
+        rig.settings,
+        tile_cache=TileFeatureCache(3),
+    )
     first = rig.match()
     calls_after_first = len(rig.inference.calls)
     second = rig.match()
     assert len(rig.inference.calls) - calls_after_first == 1  # only the query is extracted
     assert second.diagnostics["tile_cache"] == {"hits": 3, "misses": 3}
-    assert all(a.same_content(b) for a, b in zip(first.per_candidate, second.per_candidate,
-                                                   strict=True))
+    assert all(
+        a.same_content(b) for a, b in zip(first.per_candidate, second.per_candidate, strict=True)
+    )
 
 
 def test_tile_cache_key_changes_with_the_bytes():
@@ -250,6 +275,8 @@ def test_tile_cache_key_changes_with_the_bytes():
 
     tile = TileId(18, 47.0, 8.0)
     assert tile_cache_key(tile, BytesTileHandle(b"abc")) == tile_cache_key(
-        tile, BytesTileHandle(b"abc"))
+        tile, BytesTileHandle(b"abc")
+    )
     assert tile_cache_key(tile, BytesTileHandle(b"abc")) != tile_cache_key(
-        tile, BytesTileHandle(b"abd"))
+        tile, BytesTileHandle(b"abd")
+    )

@@ -18,12 +18,19 @@ from c3_matcher.profiles import UNPROFILED, BuildProfile, installed_profile
 from .fake_dists import BROKEN_PLUGIN, WORKING_PLUGIN, dists, make_dist
 
 AIRBORNE_DATA = {
-    "name": "airborne", "strict": True,
+    "name": "airborne",
+    "strict": True,
     "flags": {
-        "BUILD_MATCHER_DISK_LIGHTGLUE": {"state": "ON", "strategy": "disk_lightglue",
-                                         "distribution": "c3-matcher-disk-lightglue"},
-        "BUILD_MATCHER_XFEAT": {"state": "WIRED", "strategy": "xfeat",
-                                "distribution": "c3-matcher-xfeat"},
+        "BUILD_MATCHER_DISK_LIGHTGLUE": {
+            "state": "ON",
+            "strategy": "disk_lightglue",
+            "distribution": "c3-matcher-disk-lightglue",
+        },
+        "BUILD_MATCHER_XFEAT": {
+            "state": "WIRED",
+            "strategy": "xfeat",
+            "distribution": "c3-matcher-xfeat",
+        },
     },
 }
 RESEARCH_DATA = {**AIRBORNE_DATA, "name": "research", "strict": False}
@@ -40,8 +47,12 @@ def host_for(site, data=RESEARCH_DATA):  # type: ignore[no-untyped-def]
 
 
 def test_working_plugin_is_discovered(site):
-    make_dist(site, "c3-matcher-disk-lightglue", "fake_disk",
-              WORKING_PLUGIN.format(strategy="disk_lightglue", flag="BUILD_MATCHER_DISK_LIGHTGLUE"))
+    make_dist(
+        site,
+        "c3-matcher-disk-lightglue",
+        "fake_disk",
+        WORKING_PLUGIN.format(strategy="disk_lightglue", flag="BUILD_MATCHER_DISK_LIGHTGLUE"),
+    )
     host = host_for(site)
     assert list(host.strategies()) == ["disk_lightglue"]
     assert host.resolve("disk_lightglue").build_flag == "BUILD_MATCHER_DISK_LIGHTGLUE"
@@ -71,12 +82,17 @@ def test_duplicate_strategy_rejected_naming_both_distributions(site):
 
 
 def test_strict_profile_ignores_unlinked_third_party_plugin(site):
-    make_dist(site, "acme-matcher", "acme_matcher",
-              WORKING_PLUGIN.format(strategy="acme_match", flag=None))
+    make_dist(
+        site,
+        "acme-matcher",
+        "acme_matcher",
+        WORKING_PLUGIN.format(strategy="acme_match", flag=None),
+    )
     airborne = host_for(site, AIRBORNE_DATA)
     assert airborne.strategies() == {}
     assert [(p.distribution, "strict" in p.reason) for p in airborne.ignored] == [
-        ("acme-matcher", True)]
+        ("acme-matcher", True)
+    ]
     with pytest.raises(StrategyNotLinkedError, match="acme-matcher"):
         airborne.resolve("acme_match")
     research = host_for(site, RESEARCH_DATA)
@@ -99,23 +115,40 @@ def test_not_linked_errors_name_strategy_flag_profile_and_fix(site):
 
 def test_profile_from_entry_points(site):
     assert installed_profile(dists(site)) is UNPROFILED
-    make_dist(site, "c3-matcher-profile-airborne", "prof_air",
-              f"PROFILE = {AIRBORNE_DATA!r}\n", group="c3_matcher.profile",
-              ep_name="airborne", ep_value="prof_air:PROFILE")
+    make_dist(
+        site,
+        "c3-matcher-profile-airborne",
+        "prof_air",
+        f"PROFILE = {AIRBORNE_DATA!r}\n",
+        group="c3_matcher.profile",
+        ep_name="airborne",
+        ep_value="prof_air:PROFILE",
+    )
     profile = installed_profile(dists(site))
     assert profile.name == "airborne" and profile.strict
-    assert profile.flag_report() == {"BUILD_MATCHER_DISK_LIGHTGLUE": "ON",
-                                     "BUILD_MATCHER_XFEAT": "WIRED"}
-    make_dist(site, "c3-matcher-profile-research", "prof_res",
-              f"PROFILE = {RESEARCH_DATA!r}\n", group="c3_matcher.profile",
-              ep_name="research", ep_value="prof_res:PROFILE")
+    assert profile.flag_report() == {
+        "BUILD_MATCHER_DISK_LIGHTGLUE": "ON",
+        "BUILD_MATCHER_XFEAT": "WIRED",
+    }
+    make_dist(
+        site,
+        "c3-matcher-profile-research",
+        "prof_res",
+        f"PROFILE = {RESEARCH_DATA!r}\n",
+        group="c3_matcher.profile",
+        ep_name="research",
+        ep_value="prof_res:PROFILE",
+    )
     with pytest.raises(Exception, match="more than one build profile"):
         installed_profile(dists(site))
 
 
 def test_every_hookspec_is_documented_and_prefixed():
-    specs = [obj for name, obj in inspect.getmembers(hookspecs, inspect.isfunction)
-             if hasattr(obj, "c3_matcher_spec")]
+    specs = [
+        obj
+        for name, obj in inspect.getmembers(hookspecs, inspect.isfunction)
+        if hasattr(obj, "c3_matcher_spec")
+    ]
     assert {s.__name__ for s in specs} == {"c3_matcher_strategies", "c3_matcher_engine_specs"}
     for spec in specs:
         assert spec.__name__.startswith("c3_matcher_")

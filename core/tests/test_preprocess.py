@@ -8,6 +8,7 @@ import uuid
 import cv2
 import numpy as np
 import pytest
+
 from c3_matcher import camera as cam
 from c3_matcher.dto import Attitude, CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
@@ -25,8 +26,9 @@ def _texture(w: int = W, h: int = H, seed: int = 0) -> np.ndarray:
     return np.clip(20 + 215 * smooth, 20, 235).astype(np.uint8)
 
 
-def _frame(image: np.ndarray, attitude: Attitude | None = None,
-           height: float | None = None) -> NavCameraFrame:
+def _frame(
+    image: np.ndarray, attitude: Attitude | None = None, height: float | None = None
+) -> NavCameraFrame:
     return NavCameraFrame(uuid.uuid4(), image, 0, attitude, height)
 
 
@@ -34,9 +36,9 @@ def _peak(image: np.ndarray) -> np.ndarray:
     """Intensity-weighted centroid (x, y) of the bright blob around the brightest pixel."""
     grey = image.astype(np.float64).sum(axis=2) if image.ndim == 3 else image.astype(np.float64)
     y, x = np.unravel_index(np.argmax(grey), grey.shape)
-    win = grey[y - 4:y + 5, x - 4:x + 5]
+    win = grey[y - 4 : y + 5, x - 4 : x + 5]
     win = np.clip(win - np.median(grey), 0, None)
-    yy, xx = np.mgrid[y - 4:y + 5, x - 4:x + 5]
+    yy, xx = np.mgrid[y - 4 : y + 5, x - 4 : x + 5]
     return np.array([(xx * win).sum() / win.sum(), (yy * win).sum() / win.sum()])
 
 
@@ -57,8 +59,9 @@ def _dot_image(x: float, y: float, w: int = W, h: int = H) -> np.ndarray:
         (InputRule(1000, 16), (1000, 500), (1000, 500), (992, 512)),  # crop, not > limit
     ],
 )
-def test_input_rule_sizes(rule: InputRule, size: tuple[int, int], content: tuple[int, int],
-                          final: tuple[int, int]) -> None:
+def test_input_rule_sizes(
+    rule: InputRule, size: tuple[int, int], content: tuple[int, int], final: tuple[int, int]
+) -> None:
     assert rule.content_size(*size) == content
     assert rule.final_size(*size) == final
     assert final[0] % rule.multiple == 0 and final[1] % rule.multiple == 0
@@ -105,16 +108,20 @@ def test_yaw_90_rotates_image_top_to_the_east() -> None:
     cal = CameraCalibration.pinhole(W, H, F)
     img = _dot_image(CX, CY - 100)
     prep = FramePreprocessor(InputRule(1024, 16), border_erode_px=0).prepare_query(
-        _frame(img, Attitude(0, 0, math.pi / 2)), cal, None)
+        _frame(img, Attitude(0, 0, math.pi / 2)), cal, None
+    )
     nadir = np.array(prep.nadir_working_px)
     np.testing.assert_allclose(prep.original_to_working([[CX, CY]])[0], nadir, atol=1e-9)
-    np.testing.assert_allclose(prep.original_to_working([[CX, CY - 100]])[0],
-                               nadir + np.array([100, 0]), atol=1e-9)
-    np.testing.assert_allclose(prep.original_to_working([[CX + 50, CY]])[0],
-                               nadir + np.array([0, 50]), atol=1e-9)  # right wing -> south
+    np.testing.assert_allclose(
+        prep.original_to_working([[CX, CY - 100]])[0], nadir + np.array([100, 0]), atol=1e-9
+    )
+    np.testing.assert_allclose(
+        prep.original_to_working([[CX + 50, CY]])[0], nadir + np.array([0, 50]), atol=1e-9
+    )  # right wing -> south
     # pixel content: the dot is where the hand calculation says
-    np.testing.assert_allclose(prep.to_working([_peak(prep.image)])[0], nadir + np.array([100, 0]),
-                               atol=0.15)
+    np.testing.assert_allclose(
+        prep.to_working([_peak(prep.image)])[0], nadir + np.array([100, 0]), atol=0.15
+    )
 
 
 def test_pitch_20_moves_the_principal_point_by_f_tan() -> None:
@@ -122,13 +129,15 @@ def test_pitch_20_moves_the_principal_point_by_f_tan() -> None:
     nadir in the virtual camera (same focal)."""
     cal = CameraCalibration.pinhole(W, H, F)
     prep = FramePreprocessor(InputRule(2048, 16)).prepare_query(
-        _frame(_texture(), Attitude(0, math.radians(20), 0)), cal, None)
+        _frame(_texture(), Attitude(0, math.radians(20), 0)), cal, None
+    )
     nadir = np.array(prep.nadir_working_px)
     pp = prep.original_to_working([[CX, CY]])[0]
     np.testing.assert_allclose(pp - nadir, [0.0, -F * math.tan(math.radians(20))], atol=1e-9)
     # roll 20 deg (right wing down) tilts the camera to the west: image left of nadir
     prep_r = FramePreprocessor(InputRule(2048, 16)).prepare_query(
-        _frame(_texture(), Attitude(math.radians(20), 0, 0)), cal, None)
+        _frame(_texture(), Attitude(math.radians(20), 0, 0)), cal, None
+    )
     pp_r = prep_r.original_to_working([[CX, CY]])[0] - np.array(prep_r.nadir_working_px)
     np.testing.assert_allclose(pp_r, [-F * math.tan(math.radians(20)), 0.0], atol=1e-9)
 
@@ -168,8 +177,9 @@ def test_round_trip_and_forward_path_with_distortion(rule: InputRule) -> None:
     prep = pre.prepare_query(frame, cal, 0.3)
     # round trip ORIGINAL -> WORKING -> ORIGINAL
     pts = np.random.default_rng(2).uniform([0, 0], [w - 1, h - 1], (500, 2))
-    np.testing.assert_allclose(prep.working_to_original(prep.original_to_working(pts)), pts,
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        prep.working_to_original(prep.original_to_working(pts)), pts, atol=1e-6
+    )
     # engine px -> ORIGINAL by the point functions == the remap the pixels went through
     geometry = pre.query_geometry(frame, cal, 0.3)
     mx, my = geometry.remap_maps(cal)
@@ -185,8 +195,12 @@ def test_round_trip_and_forward_path_with_distortion(rule: InputRule) -> None:
     ex, ey = np.meshgrid(np.arange(prep.image.shape[1]), np.arange(prep.image.shape[0]))
     orig = prep.engine_to_original(np.stack([ex.ravel(), ey.ravel()], axis=1).astype(float))
     if geometry.nadir_shrink < 2.0:
-        ref = cv2.remap(img, orig[:, 0].reshape(ex.shape).astype(np.float32),
-                        orig[:, 1].reshape(ex.shape).astype(np.float32), cv2.INTER_LINEAR)
+        ref = cv2.remap(
+            img,
+            orig[:, 0].reshape(ex.shape).astype(np.float32),
+            orig[:, 1].reshape(ex.shape).astype(np.float32),
+            cv2.INTER_LINEAR,
+        )
         diff = np.abs(ref.astype(int) - prep.image.astype(int))[prep.valid]
         assert diff.mean() < 1.0
 
@@ -244,7 +258,8 @@ def test_canvas_is_bounded_and_sky_is_refused() -> None:
 def test_behind_camera_points_map_to_nan() -> None:
     cal = CameraCalibration.pinhole(W, H, 300.0)
     prep = FramePreprocessor(InputRule(1024, 16)).prepare_query(
-        _frame(_texture(), Attitude(0, math.radians(60), 0)), cal, None)
+        _frame(_texture(), Attitude(0, math.radians(60), 0)), cal, None
+    )
     # a working point far south of nadir is behind a camera pitched 60 deg up
     far = np.array(prep.nadir_working_px) + np.array([0.0, 50 * F])
     assert np.isnan(prep.working_to_original([far])).all()
@@ -284,11 +299,13 @@ def test_tile_resize_mask_nodata_and_coordinates() -> None:
     prep = FramePreprocessor(InputRule(1024, 16), border_erode_px=2).prepare_tile(tile)
     assert isinstance(prep, PreparedImage)
     assert prep.image.shape == (624, 1024, 3)  # content 1024x614 padded to 624
-    assert not prep.valid[614 - 2:].any()
+    assert not prep.valid[614 - 2 :].any()
     sx, sy = 1500 / 1024, 900 / 614  # area-aligned: x_w = (x_e + 0.5) * s - 0.5
-    np.testing.assert_allclose(prep.to_working([[0.0, 0.0], [10.0, 20.0]]),
-                               [[0.5 * sx - 0.5, 0.5 * sy - 0.5],
-                                [10.5 * sx - 0.5, 20.5 * sy - 0.5]], atol=1e-12)
+    np.testing.assert_allclose(
+        prep.to_working([[0.0, 0.0], [10.0, 20.0]]),
+        [[0.5 * sx - 0.5, 0.5 * sy - 0.5], [10.5 * sx - 0.5, 20.5 * sy - 0.5]],
+        atol=1e-12,
+    )
     pts = np.array([[3.0, 4.0], [1000.0, 800.0]])
     np.testing.assert_array_equal(prep.working_to_original(pts), pts)
     np.testing.assert_allclose(prep.to_engine(prep.to_working(pts)), pts)

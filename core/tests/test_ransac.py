@@ -42,7 +42,8 @@ def test_inliers_agree_with_ground_truth(real_correspondences):
     assert np.percentile(inlier_gt, 95) < 3.0
     assert result.per_candidate_residual_px < 1.0
     assert result.per_candidate_residual_px == pytest.approx(
-        float(np.median(homography_residuals(result.homography, result.inlier_correspondences))))
+        float(np.median(homography_residuals(result.homography, result.inlier_correspondences)))
+    )
     assert result.inlier_correspondences.dtype == np.float32
     assert result.inlier_correspondences.shape == (result.inlier_count, 4)
 

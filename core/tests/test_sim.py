@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 import tifffile
+
 from c3_matcher.dto import Attitude, CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.preprocess import FramePreprocessor, InputRule
@@ -105,12 +106,14 @@ def test_nadir_render_ground_truth_by_hand(gorinchem: np.ndarray) -> None:
     assert r.nadir_gsd_m == pytest.approx(h / F)
     # yaw 90 (heading east): east of nadir appears at the image top
     r90 = render_nav_frame(gorinchem, g, (x0, y0), h, Attitude(0, 0, math.pi / 2), cal)
-    np.testing.assert_allclose(r90.ortho_to_undistorted([[x0 + 10 / g, y0]])[0],
-                               [cx, cy - F * 10 / h], atol=1e-9)
+    np.testing.assert_allclose(
+        r90.ortho_to_undistorted([[x0 + 10 / g, y0]])[0], [cx, cy - F * 10 / h], atol=1e-9
+    )
 
 
 def test_rendered_pixels_sample_the_ortho_where_the_ground_truth_says(
-        gorinchem: np.ndarray) -> None:
+    gorinchem: np.ndarray,
+) -> None:
     cal = CameraCalibration.pinhole(W, H, F, BARREL)
     att = Attitude(math.radians(4), math.radians(-9), math.radians(63))
     r = render_nav_frame(gorinchem, 0.25, (480.0, 520.0), 45.0, att, cal)  # 0.11 m/px
@@ -128,8 +131,9 @@ def test_rendered_pixels_sample_the_ortho_where_the_ground_truth_says(
 
 def test_projected_ortho_points_land_on_their_dots() -> None:
     ortho = np.full((800, 800, 3), 40, np.uint8)
-    dots = np.array([[400.0, 400.0], [330.0, 360.0], [470.0, 430.0], [380.0, 470.0],
-                     [455.0, 345.0]])
+    dots = np.array(
+        [[400.0, 400.0], [330.0, 360.0], [470.0, 430.0], [380.0, 470.0], [455.0, 345.0]]
+    )
     yy, xx = np.mgrid[0:800, 0:800]
     for x, y in dots:
         blob = 200 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 2.0**2))
@@ -140,8 +144,8 @@ def test_projected_ortho_points_land_on_their_dots() -> None:
     grey = r.image[..., 0].astype(np.float64) - 40
     for expected in r.ortho_to_original(dots):
         ex, ey = np.rint(expected).astype(int)
-        win = np.clip(grey[ey - 5:ey + 6, ex - 5:ex + 6], 0, None)
-        wy, wx = np.mgrid[ey - 5:ey + 6, ex - 5:ex + 6]
+        win = np.clip(grey[ey - 5 : ey + 6, ex - 5 : ex + 6], 0, None)
+        wy, wx = np.mgrid[ey - 5 : ey + 6, ex - 5 : ex + 6]
         centroid = np.array([(wx * win).sum(), (wy * win).sum()]) / win.sum()
         np.testing.assert_allclose(centroid, expected, atol=0.3)
     # ORIGINAL -> ORTHO -> ORIGINAL is exact
@@ -151,12 +155,17 @@ def test_projected_ortho_points_land_on_their_dots() -> None:
 
 def test_footprint_maps_onto_the_frame_boundary(gorinchem: np.ndarray) -> None:
     cal = CameraCalibration.pinhole(W, H, F, BARREL)
-    r = render_nav_frame(gorinchem, 0.25, (500.0, 500.0), 60.0,
-                         Attitude(0.1, -0.15, 2.5), cal)
+    r = render_nav_frame(gorinchem, 0.25, (500.0, 500.0), 60.0, Attitude(0.1, -0.15, 2.5), cal)
     fp = r.footprint_ortho(samples_per_side=16)
     back = r.ortho_to_original(fp)
-    on_edge = np.minimum.reduce([np.abs(back[:, 0]), np.abs(back[:, 0] - (W - 1)),
-                                 np.abs(back[:, 1]), np.abs(back[:, 1] - (H - 1))])
+    on_edge = np.minimum.reduce(
+        [
+            np.abs(back[:, 0]),
+            np.abs(back[:, 0] - (W - 1)),
+            np.abs(back[:, 1]),
+            np.abs(back[:, 1] - (H - 1)),
+        ]
+    )
     assert on_edge.max() < 1e-6
 
 
@@ -166,8 +175,9 @@ def test_rectified_render_is_a_similarity_of_the_ortho(gorinchem: np.ndarray) ->
     g = 0.25
     cal = CameraCalibration.pinhole(W, H, F, BARREL)
     att = Attitude(math.radians(7), math.radians(-15), math.radians(118))
-    r = render_nav_frame(gorinchem, g, (520.0, 470.0), 70.0, att, cal,
-                         photometric=PhotometricShift(), seed=5)
+    r = render_nav_frame(
+        gorinchem, g, (520.0, 470.0), 70.0, att, cal, photometric=PhotometricShift(), seed=5
+    )
     prep = FramePreprocessor(InputRule(1024, 16)).prepare_query(r.nav_frame(), cal, g)
     # ground truth: WORKING px -> ORTHO px is x_o = x_w + t
     work = np.random.default_rng(2).uniform([0, 0], prep.working_size, (300, 2))
@@ -195,12 +205,15 @@ def test_render_is_deterministic(gorinchem: np.ndarray) -> None:
     cal = CameraCalibration.pinhole(W, H, F, BARREL)
     att = Attitude(0.05, -0.1, 1.2)
     shift = PhotometricShift(vignetting=0.3)
-    a = render_nav_frame(gorinchem, 0.25, (500.0, 500.0), 60.0, att, cal, photometric=shift,
-                         seed=11)
-    b = render_nav_frame(gorinchem, 0.25, (500.0, 500.0), 60.0, att, cal, photometric=shift,
-                         seed=11)
-    c = render_nav_frame(gorinchem, 0.25, (500.0, 500.0), 60.0, att, cal, photometric=shift,
-                         seed=12)
+    a = render_nav_frame(
+        gorinchem, 0.25, (500.0, 500.0), 60.0, att, cal, photometric=shift, seed=11
+    )
+    b = render_nav_frame(
+        gorinchem, 0.25, (500.0, 500.0), 60.0, att, cal, photometric=shift, seed=11
+    )
+    c = render_nav_frame(
+        gorinchem, 0.25, (500.0, 500.0), 60.0, att, cal, photometric=shift, seed=12
+    )
     assert a.image.tobytes() == b.image.tobytes()
     assert a.image.tobytes() != c.image.tobytes()
 
@@ -242,8 +255,7 @@ def test_cut_tile_offsets_and_nodata(gorinchem: np.ndarray) -> None:
     np.testing.assert_array_equal(tile.image[50:, :100], gorinchem[:100, 900:1000])
     assert not tile.image[:50].any() and not tile.image[:, 100:].any()
     np.testing.assert_allclose(tile.ortho_to_tile([[950.0, 20.0]]), [[50.0, 70.0]])
-    np.testing.assert_allclose(tile.tile_to_ortho(tile.ortho_to_tile([[1.5, 2.5]])),
-                               [[1.5, 2.5]])
+    np.testing.assert_allclose(tile.tile_to_ortho(tile.ortho_to_tile([[1.5, 2.5]])), [[1.5, 2.5]])
 
 
 def test_tile_around_and_distractors(gorinchem: np.ndarray) -> None:
@@ -253,22 +265,38 @@ def test_tile_around_and_distractors(gorinchem: np.ndarray) -> None:
     tile = r.tile_around(gorinchem, (256, 256))
     inside = tile.ortho_to_tile(fp.mean(axis=0)[None])[0]
     np.testing.assert_allclose(inside, [127.5, 127.5], atol=0.5)
-    tiles = pick_distractor_tiles(gorinchem, fp, (200, 200), 3, np.random.default_rng(4),
-                                  0.25, margin_px=10, min_distance_px=300)
+    tiles = pick_distractor_tiles(
+        gorinchem,
+        fp,
+        (200, 200),
+        3,
+        np.random.default_rng(4),
+        0.25,
+        margin_px=10,
+        min_distance_px=300,
+    )
     assert len(tiles) == 3
     fp_cv = fp.astype(np.float32).reshape(-1, 1, 2)
     for t in tiles:
         x0, y0 = t.offset_px
         assert 0 <= x0 <= 800 and 0 <= y0 <= 800
-        np.testing.assert_array_equal(t.image, gorinchem[y0:y0 + 200, x0:x0 + 200])
+        np.testing.assert_array_equal(t.image, gorinchem[y0 : y0 + 200, x0 : x0 + 200])
         gx, gy = np.meshgrid(np.arange(x0, x0 + 200, 5.0), np.arange(y0, y0 + 200, 5.0))
         for p in zip(gx.ravel(), gy.ravel(), strict=True):
             assert cv2.pointPolygonTest(fp_cv, (float(p[0]), float(p[1])), True) < -10
         assert np.hypot(x0 + 99.5 - fp[:, 0].mean(), y0 + 99.5 - fp[:, 1].mean()) >= 300
     offsets = {t.offset_px for t in tiles}
     assert len(offsets) == 3
-    again = pick_distractor_tiles(gorinchem, fp, (200, 200), 3, np.random.default_rng(4),
-                                  0.25, margin_px=10, min_distance_px=300)
+    again = pick_distractor_tiles(
+        gorinchem,
+        fp,
+        (200, 200),
+        3,
+        np.random.default_rng(4),
+        0.25,
+        margin_px=10,
+        min_distance_px=300,
+    )
     assert [t.offset_px for t in again] == [t.offset_px for t in tiles]
     with pytest.raises(InvalidInputError):
         pick_distractor_tiles(gorinchem, fp, (600, 600), 3, np.random.default_rng(0), 0.25)

@@ -33,8 +33,9 @@ def test_mmap_handle_is_zero_copy_until_decode(tmp_path):
 
 
 def test_four_band_geotiff_decodes_to_rgb():
-    rgb = read_image(REPO / "data" / "imagery" / "naip_timeseries" /
-                     "m_4709963_se_14_1_20200831.tif")
+    rgb = read_image(
+        REPO / "data" / "imagery" / "naip_timeseries" / "m_4709963_se_14_1_20200831.tif"
+    )
     assert rgb.dtype == np.uint8 and rgb.shape == (723, 934, 3)
 
 

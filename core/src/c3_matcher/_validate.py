@@ -16,8 +16,9 @@ def require(condition: bool, field: str, reason: str) -> None:
         raise InvalidInputError(field, reason)
 
 
-def finite_float(value: object, field: str, *, low: float | None = None,
-                 high: float | None = None) -> float:
+def finite_float(
+    value: object, field: str, *, low: float | None = None, high: float | None = None
+) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
         raise InvalidInputError(field, f"expected a number, got {type(value).__name__}")
     number = float(value)
@@ -36,13 +37,23 @@ def non_negative_int(value: object, field: str) -> int:
     return int(value)
 
 
-def array(value: object, field: str, *, dtype: Any, ndim: int | None = None,
-          shape: tuple[int | None, ...] | None = None, finite: bool = True) -> NDArray[Any]:
+def array(
+    value: object,
+    field: str,
+    *,
+    dtype: Any,
+    ndim: int | None = None,
+    shape: tuple[int | None, ...] | None = None,
+    finite: bool = True,
+) -> NDArray[Any]:
     """Check an ndarray's dtype and shape (``None`` in ``shape`` means any size) exactly."""
     if not isinstance(value, np.ndarray):
         raise InvalidInputError(field, f"expected numpy.ndarray, got {type(value).__name__}")
-    require(value.dtype == np.dtype(dtype), field,
-            f"expected dtype {np.dtype(dtype)}, got {value.dtype}")
+    require(
+        value.dtype == np.dtype(dtype),
+        field,
+        f"expected dtype {np.dtype(dtype)}, got {value.dtype}",
+    )
     if shape is not None:
         ok = value.ndim == len(shape) and all(
             want is None or want == got for want, got in zip(shape, value.shape, strict=True)

@@ -28,7 +28,7 @@ class SiftBackend:
 
     def __init__(self, rule: InputRule, max_keypoints: int = 2048, ratio: float = 0.85) -> None:
         self.input_rule = rule
-        self._sift = cv2.SIFT_create(nfeatures=max_keypoints)
+        self._sift = cv2.SIFT.create(nfeatures=max_keypoints)
         self._matcher = cv2.BFMatcher(cv2.NORM_L2)
         self._ratio = ratio
 
@@ -39,27 +39,32 @@ class SiftBackend:
         n = len(keypoints)
         pts = np.array([k.pt for k in keypoints], np.float32).reshape(n, 2)
         scores = np.array([k.response for k in keypoints], np.float32).reshape(n)
-        desc = (np.zeros((0, 128), np.float32) if descriptors is None
-                else descriptors.astype(np.float32))
+        desc = (
+            np.zeros((0, 128), np.float32)
+            if descriptors is None
+            else descriptors.astype(np.float32)
+        )
         return Features(pts, desc, scores, image.engine_size)
 
     def match(self, query: Features, tile: Features) -> RawMatches:
         if len(query) < 2 or len(tile) < 2:
             return RawMatches(np.zeros((0, 2), np.int64), np.zeros(0, np.float32))
         forward = self._matcher.knnMatch(query.descriptors, tile.descriptors, k=2)
-        backward = {m.queryIdx: m.trainIdx
-                    for m in self._matcher.match(tile.descriptors, query.descriptors)}
+        backward = {
+            m.queryIdx: m.trainIdx for m in self._matcher.match(tile.descriptors, query.descriptors)
+        }
         rows, scores = [], []
         for pair in forward:
             if len(pair) < 2:
                 continue
             best, second = pair
-            if (best.distance < self._ratio * second.distance
-                    and backward.get(best.trainIdx) == best.queryIdx):
+            if (
+                best.distance < self._ratio * second.distance
+                and backward.get(best.trainIdx) == best.queryIdx
+            ):
                 rows.append((best.queryIdx, best.trainIdx))
                 scores.append(1.0 - best.distance / max(second.distance, 1e-9))
-        return RawMatches(np.array(rows, np.int64).reshape(-1, 2),
-                          np.array(scores, np.float32))
+        return RawMatches(np.array(rows, np.int64).reshape(-1, 2), np.array(scores, np.float32))
 
     def provenance(self) -> Mapping[str, Any]:
         return {"provider": "opencv", "engines": {"sift": cv2.__version__}}

@@ -39,14 +39,24 @@ def _demo_inputs(data_dir: Path) -> tuple[Any, Any, Any]:
 
     meta = json.loads((data_dir / "demo.json").read_text())
     att = meta["attitude_deg"]
-    frame = NavCameraFrame(uuid.UUID(int=1), read_image(data_dir / "frame.jpg"),
-                           1, Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
-                           meta["height_m"])
+    frame = NavCameraFrame(
+        uuid.UUID(int=1),
+        read_image(data_dir / "frame.jpg"),
+        1,
+        Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
+        meta["height_m"],
+    )
     candidates = tuple(
-        RerankCandidate(TileId(*t["tile_id"]), 1.0, MmapTileHandle(data_dir / t["file"]),
-                        meta["tile_gsd_m"]) for t in meta["tiles"])
-    return frame, RerankResult(frame.frame_id, candidates), load_calibration(
-        data_dir / "calibration.json")
+        RerankCandidate(
+            TileId(*t["tile_id"]), 1.0, MmapTileHandle(data_dir / t["file"]), meta["tile_gsd_m"]
+        )
+        for t in meta["tiles"]
+    )
+    return (
+        frame,
+        RerankResult(frame.frame_id, candidates),
+        load_calibration(data_dir / "calibration.json"),
+    )
 
 
 def _percentiles(values: list[float]) -> dict[str, float]:
@@ -54,8 +64,9 @@ def _percentiles(values: list[float]) -> dict[str, float]:
     return {"p50": float(np.percentile(arr, 50)), "p95": float(np.percentile(arr, 95))}
 
 
-def run_worker(strategy: str, runs: int, data_dir: Path, settings: C3Settings,
-               tile_cache_size: int) -> dict[str, Any]:
+def run_worker(
+    strategy: str, runs: int, data_dir: Path, settings: C3Settings, tile_cache_size: int
+) -> dict[str, Any]:
     """Time ``runs`` matches of the demo frame (after 2 warm-up runs) in this process.
 
     ``tile_cache_size`` 0 re-extracts every tile every frame (all candidates new); > 0 is the
@@ -78,22 +89,29 @@ def run_worker(strategy: str, runs: int, data_dir: Path, settings: C3Settings,
         m = settings.matcher
         matcher: Any = MatchPipeline(
             SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints),
-            OpenCvRansacFilter(seed=m.ransac_seed), fdr,
-            RollingHealthWindow(clock, m.min_inliers_threshold), clock,
-            PipelineSettings(m.min_inliers_threshold, m.residual_warn_threshold_px,
-                             m.ransac_threshold_px))
+            OpenCvRansacFilter(seed=m.ransac_seed),
+            fdr,
+            RollingHealthWindow(clock, m.min_inliers_threshold),
+            clock,
+            PipelineSettings(
+                m.min_inliers_threshold, m.residual_warn_threshold_px, m.ransac_threshold_px
+            ),
+        )
     else:
-        settings = settings.model_copy(update={"matcher": settings.matcher.model_copy(
-            update={"strategy": strategy, "tile_cache_size": tile_cache_size})})
+        settings = settings.model_copy(
+            update={
+                "matcher": settings.matcher.model_copy(
+                    update={"strategy": strategy, "tile_cache_size": tile_cache_size}
+                )
+            }
+        )
         helpers = build_default_helpers(settings)
         provider = helpers["c7_inference"].provider
-        matcher = compose_root(settings, {**helpers, "c13_fdr": fdr},
-                               configure_logs=False).matcher
+        matcher = compose_root(settings, {**helpers, "c13_fdr": fdr}, configure_logs=False).matcher
     startup_s = time.perf_counter() - started
     frame_ms: list[float] = []
     per_candidate_ms: list[float] = []
-    stages: dict[str, list[float]] = {s: [] for s in ("query_preprocess", "query_extract",
-                                                      *STAGES)}
+    stages: dict[str, list[float]] = {s: [] for s in ("query_preprocess", "query_extract", *STAGES)}
     inliers = 0
     for i in range(runs + 2):
         t0 = time.perf_counter()
@@ -127,20 +145,35 @@ def run_worker(strategy: str, runs: int, data_dir: Path, settings: C3Settings,
 def _machine() -> dict[str, Any]:
     import onnxruntime as ort
 
-    return {"platform": platform.platform(), "python": platform.python_version(),
-            "cpus": os.cpu_count(), "onnxruntime": ort.__version__,
-            "available_providers": ort.get_available_providers()}
+    return {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "onnxruntime": ort.__version__,
+        "available_providers": ort.get_available_providers(),
+    }
 
 
 def add_bench_command(sub: Any) -> Any:
-    p = sub.add_parser("bench", help="latency (per frame, per candidate, per stage) and peak "
-                                     "memory beside the SIFT + MAGSAC baseline")
+    p = sub.add_parser(
+        "bench",
+        help="latency (per frame, per candidate, per stage) and peak "
+        "memory beside the SIFT + MAGSAC baseline",
+    )
     p.add_argument("--runs", type=int, default=20, help="timed runs per strategy (default 20)")
-    p.add_argument("--strategy", action="append", default=None,
-                   help="strategy to bench (repeatable; default: the configured one)")
+    p.add_argument(
+        "--strategy",
+        action="append",
+        default=None,
+        help="strategy to bench (repeatable; default: the configured one)",
+    )
     p.add_argument("--no-baseline", action="store_true", help="skip the SIFT baseline")
-    p.add_argument("--data", type=Path, default=REPO / "data" / "demo",
-                   help="demo-format data directory (default: the built-in demo)")
+    p.add_argument(
+        "--data",
+        type=Path,
+        default=REPO / "data" / "demo",
+        help="demo-format data directory (default: the built-in demo)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
     return run_bench
 
@@ -148,22 +181,37 @@ def add_bench_command(sub: Any) -> Any:
 def run_bench(args: argparse.Namespace, settings: C3Settings) -> int:
     from c3_matcher.baselines import SIFT_LABEL
 
-    cases = [(name, cache) for name in (args.strategy or [settings.matcher.strategy])
-             for cache in (0, max(settings.matcher.tile_cache_size, 3))]
+    cases = [
+        (name, cache)
+        for name in (args.strategy or [settings.matcher.strategy])
+        for cache in (0, max(settings.matcher.tile_cache_size, 3))
+    ]
     if not args.no_baseline:
         cases.append((SIFT_LABEL, 0))
     results = []
     for name, cache in cases:
-        print(f"bench: {name}, tile cache {cache} ({args.runs} runs)...", file=sys.stderr,
-              flush=True)
-        cmd = [sys.executable, "-m", "c3_matcher.bench", name, str(args.runs), str(args.data),
-               "--tile-cache", str(cache)]
+        print(
+            f"bench: {name}, tile cache {cache} ({args.runs} runs)...", file=sys.stderr, flush=True
+        )
+        cmd = [
+            sys.executable,
+            "-m",
+            "c3_matcher.bench",
+            name,
+            str(args.runs),
+            str(args.data),
+            "--tile-cache",
+            str(cache),
+        ]
         if args.config:
             cmd += ["--config", str(args.config)]
         out = subprocess.run(cmd, check=True, capture_output=True, text=True)
         results.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    report = {"machine": _machine(), "settings": settings.matcher.model_dump(mode="json"),
-              "results": results}
+    report: dict[str, Any] = {
+        "machine": _machine(),
+        "settings": settings.matcher.model_dump(mode="json"),
+        "results": results,
+    }
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -171,18 +219,26 @@ def run_bench(args: argparse.Namespace, settings: C3Settings) -> int:
     results.sort(key=lambda r: (r["strategy"] == SIFT_LABEL, r["tiles"] != "new"))
     m = report["machine"]
     print(f"machine: {m['platform']}, {m['cpus']} CPUs, onnxruntime {m['onnxruntime']}")
-    print(f"settings: long side {settings.matcher.max_long_side}, "
-          f"{settings.matcher.max_keypoints} keypoints, 3 candidates, {args.runs} runs")
-    print("tiles: 'new' = every candidate decoded and extracted (first sight); 'cached' = "
-          "candidates seen in earlier frames (tile feature cache)")
-    header = (f"{'strategy':16} {'tiles':7} {'provider':22} {'frame p50':>10} {'frame p95':>10} "
-              f"{'cand p95':>9} {'peak MB':>8} {'inliers':>8}" + ("  p95 vs SIFT" if base else ""))
+    print(
+        f"settings: long side {settings.matcher.max_long_side}, "
+        f"{settings.matcher.max_keypoints} keypoints, 3 candidates, {args.runs} runs"
+    )
+    print(
+        "tiles: 'new' = every candidate decoded and extracted (first sight); 'cached' = "
+        "candidates seen in earlier frames (tile feature cache)"
+    )
+    header = (
+        f"{'strategy':16} {'tiles':7} {'provider':22} {'frame p50':>10} {'frame p95':>10} "
+        f"{'cand p95':>9} {'peak MB':>8} {'inliers':>8}" + ("  p95 vs SIFT" if base else "")
+    )
     print(header)
     for r in results:
         ratio = f"  {r['frame_ms']['p95'] / base['frame_ms']['p95']:.2f}x" if base else ""
-        print(f"{r['strategy']:16} {r['tiles']:7} {r['provider']:22} {r['frame_ms']['p50']:10.1f} "
-              f"{r['frame_ms']['p95']:10.1f} {r['per_candidate_ms']['p95']:9.1f} "
-              f"{r['peak_rss_mb']:8.0f} {r['best_inliers']:8d}{ratio}")
+        print(
+            f"{r['strategy']:16} {r['tiles']:7} {r['provider']:22} {r['frame_ms']['p50']:10.1f} "
+            f"{r['frame_ms']['p95']:10.1f} {r['per_candidate_ms']['p95']:9.1f} "
+            f"{r['peak_rss_mb']:8.0f} {r['best_inliers']:8d}{ratio}"
+        )
     print("per stage, ms (p50 / p95):")
     for r in results:
         parts = [f"{k} {v['p50']:.1f}/{v['p95']:.1f}" for k, v in r["stages_ms"].items()]
@@ -201,8 +257,13 @@ def _worker_main(argv: list[str]) -> int:
     from loguru import logger
 
     logger.remove()
-    print(json.dumps(run_worker(args.strategy, args.runs, args.data,
-                                load_settings(args.config), args.tile_cache)))
+    print(
+        json.dumps(
+            run_worker(
+                args.strategy, args.runs, args.data, load_settings(args.config), args.tile_cache
+            )
+        )
+    )
     return 0
 
 

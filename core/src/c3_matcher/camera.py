@@ -163,12 +163,14 @@ def _pixels_to_rays(px: F64, k: F64) -> F64:
 
 def distort_points(undistorted_px: ArrayLike, calibration: CameraCalibration) -> F64:
     """Undistorted pixels (N, 2) (``K @ ray``) -> ORIGINAL (distorted) pixels (N, 2)."""
-    return distort_normalized(_pixels_to_rays(_as_points(undistorted_px), calibration.K),
-                              calibration)
+    return distort_normalized(
+        _pixels_to_rays(_as_points(undistorted_px), calibration.K), calibration
+    )
 
 
-def undistort_normalized(original_px: ArrayLike, calibration: CameraCalibration,
-                         iterations: int = 3) -> F64:
+def undistort_normalized(
+    original_px: ArrayLike, calibration: CameraCalibration, iterations: int = 3
+) -> F64:
     """ORIGINAL (distorted) pixels (N, 2) -> normalised undistorted rays (x/z, y/z) (N, 2).
 
     OpenCV's fixed-point iteration (``cv2.undistortPointsIter``, 20 iterations) followed by up
@@ -182,9 +184,12 @@ def undistort_normalized(original_px: ArrayLike, calibration: CameraCalibration,
     if calibration.distortion.size == 0 or not np.any(calibration.distortion):
         return np.stack([(p[:, 0] - k[0, 2]) / k[0, 0], (p[:, 1] - k[1, 2]) / k[1, 1]], axis=1)
     criteria = (cv2.TERM_CRITERIA_COUNT, 20, 0.0)
-    rays = np.asarray(cv2.undistortPointsIter(
-        p.reshape(-1, 1, 2), k, calibration.distortion, np.eye(3), np.eye(3), criteria
-    ), dtype=np.float64).reshape(-1, 2)
+    rays = np.asarray(
+        cv2.undistortPointsIter(
+            p.reshape(-1, 1, 2), k, calibration.distortion, np.eye(3), np.eye(3), criteria
+        ),
+        dtype=np.float64,
+    ).reshape(-1, 2)
     eps = 1e-7
     for _ in range(iterations):
         f0 = _project_rays(rays, calibration)
@@ -209,8 +214,10 @@ def undistort_points(original_px: ArrayLike, calibration: CameraCalibration) -> 
     """ORIGINAL (distorted) pixels (N, 2) -> undistorted pixels (N, 2), ``K @ ray``."""
     rays = undistort_normalized(original_px, calibration)
     k = calibration.K
-    return np.stack([k[0, 0] * rays[:, 0] + k[0, 1] * rays[:, 1] + k[0, 2],
-                     k[1, 1] * rays[:, 1] + k[1, 2]], axis=1)
+    return np.stack(
+        [k[0, 0] * rays[:, 0] + k[0, 1] * rays[:, 1] + k[0, 2], k[1, 1] * rays[:, 1] + k[1, 2]],
+        axis=1,
+    )
 
 
 def image_boundary(width: int, height: int, samples_per_side: int = 64) -> F64:
@@ -226,8 +233,9 @@ def image_boundary(width: int, height: int, samples_per_side: int = 64) -> F64:
     return np.concatenate([top, right, bottom, left], axis=0)
 
 
-def clip_polygon(vertices: NDArray[np.float64],
-                 value: Callable[[NDArray[np.float64]], NDArray[np.float64]]) -> F64:
+def clip_polygon(
+    vertices: NDArray[np.float64], value: Callable[[NDArray[np.float64]], NDArray[np.float64]]
+) -> F64:
     """Sutherland-Hodgman clip of a closed polygon (N, D) to the region ``value(v) >= 0``.
 
     ``value`` maps (M, D) vertices to (M,) signed values; crossings are placed by linear

@@ -39,29 +39,38 @@ def _cmd_plugins(args: argparse.Namespace, settings: C3Settings) -> int:
         "strict": host.profile.strict,
         "flags": host.profile.flag_report(),
         "strategies": [
-            {"name": name, "build_flag": spec.build_flag,
-             "distribution": host.strategy_plugin(name).distribution,
-             "version": host.strategy_plugin(name).version,
-             "description": spec.description}
+            {
+                "name": name,
+                "build_flag": spec.build_flag,
+                "distribution": host.strategy_plugin(name).distribution,
+                "version": host.strategy_plugin(name).version,
+                "description": spec.description,
+            }
             for name, spec in host.strategies().items()
         ],
-        "ignored": [{"plugin": p.name, "distribution": p.distribution, "reason": p.reason}
-                    for p in host.ignored],
+        "ignored": [
+            {"plugin": p.name, "distribution": p.distribution, "reason": p.reason}
+            for p in host.ignored
+        ],
         "errors": [str(e) for e in host.errors],
         "selected": settings.matcher.strategy,
     }
     if args.json:
         print(json.dumps(report, indent=2))
         return EXIT_OK
-    print(f"profile: {report['profile']} ({report['profile_distribution'] or 'no profile installed'}"
-          f"{', strict' if report['strict'] else ''})")
+    print(
+        f"profile: {report['profile']} ({report['profile_distribution'] or 'no profile installed'}"
+        f"{', strict' if report['strict'] else ''})"
+    )
     for flag, state in report["flags"].items():
         print(f"  {flag} = {state}")
     print("strategies:" if report["strategies"] else "strategies: none linked")
     for s in report["strategies"]:
         mark = " (selected)" if s["name"] == settings.matcher.strategy else ""
-        print(f"  {s['name']}{mark}: {s['distribution']} {s['version']} "
-              f"[{s['build_flag'] or 'no flag'}] {s['description']}")
+        print(
+            f"  {s['name']}{mark}: {s['distribution']} {s['version']} "
+            f"[{s['build_flag'] or 'no flag'}] {s['description']}"
+        )
     for p in report["ignored"]:
         print(f"ignored: {p['plugin']} ({p['distribution']}): {p['reason']}")
     for e in report["errors"]:
@@ -84,9 +93,12 @@ def _cmd_engines(args: argparse.Namespace, settings: C3Settings) -> int:
 
 def _build_parser() -> tuple[argparse.ArgumentParser, dict[str, Handler]]:
     parser = _Parser(prog="c3-matcher", description="C3 cross-domain matcher")
-    parser.add_argument("--config", type=Path, default=None,
-                        help="TOML configuration file (environment variables C3_MATCHER_* "
-                             "override it)")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="TOML configuration file (environment variables C3_MATCHER_* override it)",
+    )
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     handlers: dict[str, Handler] = {}
 

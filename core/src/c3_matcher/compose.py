@@ -14,6 +14,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from pydantic import BaseModel, ValidationError
+
 from c3_matcher.config import C3Settings
 from c3_matcher.errors import AirborneBootstrapError, ConfigurationError
 from c3_matcher.fdr import JsonlFdrRecorder
@@ -80,8 +82,9 @@ def build_plugin_host() -> PluginHost:
     return PluginHost(installed_profile(), discover())
 
 
-def build_default_helpers(settings: C3Settings,
-                          providers_available: tuple[str, ...] | None = None) -> dict[str, Any]:
+def build_default_helpers(
+    settings: C3Settings, providers_available: tuple[str, ...] | None = None
+) -> dict[str, Any]:
     """The default shared helpers (``c3_lightglue_runtime``, ``c282_ransac_filter``,
     ``c7_inference``) built from configuration: ONNX Runtime and OpenCV USAC."""
     from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
@@ -115,10 +118,12 @@ def compose_root(
         expected = _KEY_TYPES.get(key)
         if expected is not None and not isinstance(value, expected):
             raise AirborneBootstrapError(
-                CONSUMER, key, f"expected a {expected.__name__}, got {type(value).__name__}")
+                CONSUMER, key, f"expected a {expected.__name__}, got {type(value).__name__}"
+            )
     clock: Clock = helpers.get("clock") or MonotonicClock()
     fdr: FdrClient = helpers.get("c13_fdr") or JsonlFdrRecorder(
-        config.fdr.path, clock, max_bytes=config.fdr.max_bytes)
+        config.fdr.path, clock, max_bytes=config.fdr.max_bytes
+    )
     handle = configure_logging(fdr, level=config.logging.level) if configure_logs else None
     try:
         host = plugin_host if plugin_host is not None else build_plugin_host()
@@ -139,14 +144,22 @@ def compose_root(
             clock=clock,
         )
         if not isinstance(matcher, CrossDomainMatcher):
-            raise AirborneBootstrapError(CONSUMER, name,
-                                         f"factory returned {type(matcher).__name__}, "
-                                         "not a CrossDomainMatcher")
+            raise AirborneBootstrapError(
+                CONSUMER,
+                name,
+                f"factory returned {type(matcher).__name__}, not a CrossDomainMatcher",
+            )
         provider = getattr(helpers["c7_inference"], "provider", "unknown")
-        log_event("INFO", "c3.matcher.ready", f"C3 ready: matcher={name}",
-                  strategy=name, min_inliers_threshold=config.matcher.min_inliers_threshold,
-                  residual_warn_threshold_px=config.matcher.residual_warn_threshold_px,
-                  profile=host.profile.name, provider=provider)
+        log_event(
+            "INFO",
+            "c3.matcher.ready",
+            f"C3 ready: matcher={name}",
+            strategy=name,
+            min_inliers_threshold=config.matcher.min_inliers_threshold,
+            residual_warn_threshold_px=config.matcher.residual_warn_threshold_px,
+            profile=host.profile.name,
+            provider=provider,
+        )
     except Exception:
         if handle is not None:
             handle.close()
@@ -154,19 +167,27 @@ def compose_root(
     return ComposedRoot(matcher, name, health, fdr, clock, host, helpers, handle)
 
 
-def _strategy_options(config: C3Settings, name: str, model: type | None) -> Any:
+def _strategy_options(config: C3Settings, name: str, model: type[BaseModel] | None) -> Any:
     raw = config.matcher.options.get(name, {})
     if model is None:
         if raw:
             raise ConfigurationError(
-                "matcher.options", [(f"matcher.options.{name}",
-                                     f"strategy {name!r} takes no options, got {sorted(raw)}")])
+                "matcher.options",
+                [
+                    (
+                        f"matcher.options.{name}",
+                        f"strategy {name!r} takes no options, got {sorted(raw)}",
+                    )
+                ],
+            )
         return None
-    from pydantic import ValidationError
-
     try:
         return model.model_validate(raw)
     except ValidationError as exc:
-        raise ConfigurationError("matcher.options", [
-            (f"matcher.options.{name}.{'.'.join(str(p) for p in e['loc'])}", e["msg"])
-            for e in exc.errors()]) from None
+        raise ConfigurationError(
+            "matcher.options",
+            [
+                (f"matcher.options.{name}.{'.'.join(str(p) for p in e['loc'])}", e["msg"])
+                for e in exc.errors()
+            ],
+        ) from None

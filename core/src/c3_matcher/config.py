@@ -21,12 +21,12 @@ from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, Settings
 from c3_matcher.errors import ConfigurationError
 
 __all__ = [
+    "ENV_PREFIX",
     "C3Settings",
     "EngineSettings",
     "FdrSettings",
     "LoggingSettings",
     "MatcherSettings",
-    "ENV_PREFIX",
     "load_settings",
 ]
 
@@ -41,18 +41,26 @@ class _Section(BaseModel):
 class MatcherSettings(_Section):
     """The ``[matcher]`` table."""
 
-    strategy: str = Field("disk_lightglue", min_length=1,
-                          description="strategy name (a linked plugin's), default disk_lightglue")
+    strategy: str = Field(
+        "disk_lightglue",
+        min_length=1,
+        description="strategy name (a linked plugin's), default disk_lightglue",
+    )
     min_inliers_threshold: int = Field(60, ge=4, description="RANSAC inliers needed (AC-5)")
     residual_warn_threshold_px: float = Field(2.5, gt=0, description="WARN above this (AC-7)")
     ransac_threshold_px: float = Field(3.0, gt=0, description="RANSAC inlier threshold, tile px")
-    max_long_side: int = Field(1024, ge=64, le=8192,
-                               description="images are downscaled so their long side <= this")
+    max_long_side: int = Field(
+        1024, ge=64, le=8192, description="images are downscaled so their long side <= this"
+    )
     max_keypoints: int = Field(2048, ge=16, le=8192, description="keypoint budget per image")
     ransac_seed: int = Field(0, ge=0, description="RANSAC generator seed (determinism)")
-    tile_cache_size: int = Field(16, ge=0, le=1024,
-                                 description="tiles whose features are kept between frames "
-                                             "(0: re-extract every tile every frame)")
+    tile_cache_size: int = Field(
+        16,
+        ge=0,
+        le=1024,
+        description="tiles whose features are kept between frames "
+        "(0: re-extract every tile every frame)",
+    )
     options: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
         description="per-strategy options, [matcher.options.<strategy>], validated by the plugin",
@@ -62,17 +70,21 @@ class MatcherSettings(_Section):
 class EngineSettings(_Section):
     """The ``[engines]`` table."""
 
-    directory: Path = Field(Path(user_cache_dir(APP_NAME)) / "engines",
-                            description="where engines and manifests live")
+    directory: Path = Field(
+        Path(user_cache_dir(APP_NAME)) / "engines", description="where engines and manifests live"
+    )
     providers: tuple[str, ...] | None = Field(
-        None, description="execution providers to allow, in order; default: all available")
+        None, description="execution providers to allow, in order; default: all available"
+    )
 
 
 class FdrSettings(_Section):
     """The ``[fdr]`` table."""
 
-    path: Path = Field(Path(user_data_dir(APP_NAME)) / "fdr" / "c3_fdr.jsonl",
-                       description="live FDR segment (JSON Lines)")
+    path: Path = Field(
+        Path(user_data_dir(APP_NAME)) / "fdr" / "c3_fdr.jsonl",
+        description="live FDR segment (JSON Lines)",
+    )
     max_bytes: int = Field(64 * 1024 * 1024, ge=1024, description="rotate above this size")
 
 
@@ -86,13 +98,16 @@ class C3Settings(BaseSettings):
     """The whole configuration."""
 
     model_config = SettingsConfigDict(
-        env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid", frozen=True,
+        env_prefix=ENV_PREFIX,
+        env_nested_delimiter="__",
+        extra="forbid",
+        frozen=True,
     )
 
-    matcher: MatcherSettings = Field(default_factory=MatcherSettings)
-    engines: EngineSettings = Field(default_factory=EngineSettings)
-    fdr: FdrSettings = Field(default_factory=FdrSettings)
-    logging: LoggingSettings = Field(default_factory=LoggingSettings)
+    matcher: MatcherSettings = MatcherSettings()
+    engines: EngineSettings = EngineSettings()
+    fdr: FdrSettings = FdrSettings()
+    logging: LoggingSettings = LoggingSettings()
 
     @classmethod
     def settings_customise_sources(
@@ -113,7 +128,7 @@ def _unknown_env_keys(env: Mapping[str, str]) -> list[tuple[str, str]]:
     for key in env:
         if not key.upper().startswith(ENV_PREFIX):
             continue
-        parts = key[len(ENV_PREFIX):].lower().split("__")
+        parts = key[len(ENV_PREFIX) :].lower().split("__")
         section = sections.get(parts[0])
         annotation = section.annotation if section else None
         fields = getattr(annotation, "model_fields", {})
@@ -122,8 +137,9 @@ def _unknown_env_keys(env: Mapping[str, str]) -> list[tuple[str, str]]:
     return problems
 
 
-def load_settings(toml_path: Path | None = None,
-                  env: Mapping[str, str] | None = None) -> C3Settings:
+def load_settings(
+    toml_path: Path | None = None, env: Mapping[str, str] | None = None
+) -> C3Settings:
     """Load and validate the configuration; raise ``ConfigurationError`` naming every bad field."""
     environ = dict(os.environ if env is None else env)
     source = f"{toml_path} + environment" if toml_path else "environment"
@@ -145,8 +161,9 @@ def load_settings(toml_path: Path | None = None,
             os.environ.update(environ)
         return C3Settings(**data)
     except ValidationError as exc:
-        problems = [(".".join(str(p) for p in err["loc"]) or "(root)", err["msg"])
-                    for err in exc.errors()]
+        problems = [
+            (".".join(str(p) for p in err["loc"]) or "(root)", err["msg"]) for err in exc.errors()
+        ]
         raise ConfigurationError(source, problems) from None
     finally:
         if env is not None:

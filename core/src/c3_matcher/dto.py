@@ -50,9 +50,7 @@ class TileId:
             raise InvalidInputError("tile_id.zoom", f"expected an int, got {self.zoom!r}")
         v.require(0 <= self.zoom <= 30, "tile_id.zoom", f"must be in [0, 30], got {self.zoom}")
         object.__setattr__(self, "lat", v.finite_float(self.lat, "tile_id.lat", low=-90, high=90))
-        object.__setattr__(
-            self, "lon", v.finite_float(self.lon, "tile_id.lon", low=-180, high=180)
-        )
+        object.__setattr__(self, "lon", v.finite_float(self.lon, "tile_id.lon", low=-180, high=180))
 
     @classmethod
     def parse(cls, text: str) -> TileId:
@@ -68,8 +66,11 @@ class TileId:
     def web_mercator_gsd_m(self, tile_size_px: int = 256) -> float:
         """Ground sample distance (m/px) of a web-mercator tile of this zoom at this latitude."""
         scale = 256.0 / tile_size_px
-        return WEB_MERCATOR_EQUATOR_M_PER_PX * scale * math.cos(math.radians(self.lat)) / (
-            2**self.zoom
+        return (
+            WEB_MERCATOR_EQUATOR_M_PER_PX
+            * scale
+            * math.cos(math.radians(self.lat))
+            / (2**self.zoom)
         )
 
     def as_list(self) -> list[float | int]:
@@ -96,7 +97,9 @@ class Attitude:
             self, "pitch", v.finite_float(self.pitch, "attitude.pitch", low=-half_pi, high=half_pi)
         )
         object.__setattr__(
-            self, "yaw", v.finite_float(self.yaw, "attitude.yaw", low=-2 * math.pi, high=2 * math.pi)
+            self,
+            "yaw",
+            v.finite_float(self.yaw, "attitude.yaw", low=-2 * math.pi, high=2 * math.pi),
         )
 
     @classmethod
@@ -106,10 +109,16 @@ class Attitude:
 
 def _check_image(image: object, field_name: str) -> NDArray[np.uint8]:
     arr = v.array(image, field_name, dtype=np.uint8)
-    v.require(arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] == 3), field_name,
-              f"expected (H, W) or (H, W, 3), got {arr.shape}")
-    v.require(arr.shape[0] >= 16 and arr.shape[1] >= 16, field_name,
-              f"image too small: {arr.shape[1]}x{arr.shape[0]} px (minimum 16x16)")
+    v.require(
+        arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] == 3),
+        field_name,
+        f"expected (H, W) or (H, W, 3), got {arr.shape}",
+    )
+    v.require(
+        arr.shape[0] >= 16 and arr.shape[1] >= 16,
+        field_name,
+        f"image too small: {arr.shape[1]}x{arr.shape[0]} px (minimum 16x16)",
+    )
     return arr
 
 
@@ -129,12 +138,18 @@ class NavCameraFrame:
     height_above_ground_m: float | None = None
 
     def __post_init__(self) -> None:
-        v.require(isinstance(self.frame_id, uuid.UUID), "frame.frame_id",
-                  f"expected uuid.UUID, got {type(self.frame_id).__name__}")
+        v.require(
+            isinstance(self.frame_id, uuid.UUID),
+            "frame.frame_id",
+            f"expected uuid.UUID, got {type(self.frame_id).__name__}",
+        )
         _check_image(self.image, "frame.image")
         v.non_negative_int(self.captured_at_ns, "frame.captured_at_ns")
-        v.require(self.attitude is None or isinstance(self.attitude, Attitude), "frame.attitude",
-                  f"expected Attitude or None, got {type(self.attitude).__name__}")
+        v.require(
+            self.attitude is None or isinstance(self.attitude, Attitude),
+            "frame.attitude",
+            f"expected Attitude or None, got {type(self.attitude).__name__}",
+        )
         if self.height_above_ground_m is not None:
             h = v.finite_float(self.height_above_ground_m, "frame.height_above_ground_m")
             v.require(h > 0, "frame.height_above_ground_m", f"must be > 0, got {h}")
@@ -158,31 +173,51 @@ class CameraCalibration:
     def __post_init__(self) -> None:
         k = v.frozen_copy(v.array(self.K, "calibration.K", dtype=np.float64, shape=(3, 3)))
         v.require(k[0, 0] > 0 and k[1, 1] > 0, "calibration.K", "focal lengths must be > 0")
-        v.require(bool(np.allclose(k[2], [0.0, 0.0, 1.0])), "calibration.K",
-                  "last row must be [0, 0, 1]")
+        v.require(
+            bool(np.allclose(k[2], [0.0, 0.0, 1.0])), "calibration.K", "last row must be [0, 0, 1]"
+        )
         object.__setattr__(self, "K", k)
-        dist = v.frozen_copy(v.array(self.distortion, "calibration.distortion",
-                                     dtype=np.float64, ndim=1))
-        v.require(dist.shape[0] in (0, 4, 5, 8, 12, 14), "calibration.distortion",
-                  f"expected 0, 4, 5, 8, 12 or 14 coefficients, got {dist.shape[0]}")
+        dist = v.frozen_copy(
+            v.array(self.distortion, "calibration.distortion", dtype=np.float64, ndim=1)
+        )
+        v.require(
+            dist.shape[0] in (0, 4, 5, 8, 12, 14),
+            "calibration.distortion",
+            f"expected 0, 4, 5, 8, 12 or 14 coefficients, got {dist.shape[0]}",
+        )
         object.__setattr__(self, "distortion", dist)
         size = tuple(self.image_size)
-        v.require(len(size) == 2 and all(isinstance(s, int) and s > 0 for s in size),
-                  "calibration.image_size", f"expected (width, height) > 0, got {self.image_size}")
+        v.require(
+            len(size) == 2 and all(isinstance(s, int) and s > 0 for s in size),
+            "calibration.image_size",
+            f"expected (width, height) > 0, got {self.image_size}",
+        )
         object.__setattr__(self, "image_size", size)
         if self.camera_to_body is not None:
-            r = v.frozen_copy(v.array(self.camera_to_body, "calibration.camera_to_body",
-                                      dtype=np.float64, shape=(3, 3)))
-            v.require(bool(np.allclose(r @ r.T, np.eye(3), atol=1e-6))
-                      and bool(np.isclose(np.linalg.det(r), 1.0, atol=1e-6)),
-                      "calibration.camera_to_body", "must be a rotation matrix")
+            r = v.frozen_copy(
+                v.array(
+                    self.camera_to_body,
+                    "calibration.camera_to_body",
+                    dtype=np.float64,
+                    shape=(3, 3),
+                )
+            )
+            v.require(
+                bool(np.allclose(r @ r.T, np.eye(3), atol=1e-6))
+                and bool(np.isclose(np.linalg.det(r), 1.0, atol=1e-6)),
+                "calibration.camera_to_body",
+                "must be a rotation matrix",
+            )
             object.__setattr__(self, "camera_to_body", r)
 
     @classmethod
-    def pinhole(cls, width: int, height: int, focal_px: float,
-                distortion: tuple[float, ...] = ()) -> CameraCalibration:
-        k = np.array([[focal_px, 0, (width - 1) / 2], [0, focal_px, (height - 1) / 2], [0, 0, 1]],
-                     dtype=np.float64)
+    def pinhole(
+        cls, width: int, height: int, focal_px: float, distortion: tuple[float, ...] = ()
+    ) -> CameraCalibration:
+        k = np.array(
+            [[focal_px, 0, (width - 1) / 2], [0, focal_px, (height - 1) / 2], [0, 0, 1]],
+            dtype=np.float64,
+        )
         return cls(k, np.array(distortion, dtype=np.float64), (width, height))
 
 
@@ -201,11 +236,17 @@ class RerankCandidate:
     gsd_m_per_px: float | None = None
 
     def __post_init__(self) -> None:
-        v.require(isinstance(self.tile_id, TileId), "candidate.tile_id",
-                  f"expected TileId, got {type(self.tile_id).__name__}")
+        v.require(
+            isinstance(self.tile_id, TileId),
+            "candidate.tile_id",
+            f"expected TileId, got {type(self.tile_id).__name__}",
+        )
         object.__setattr__(self, "score", v.finite_float(self.score, "candidate.score"))
-        v.require(hasattr(self.tile_pixels_handle, "decode"), "candidate.tile_pixels_handle",
-                  "expected a TilePixelsHandle (an object with decode())")
+        v.require(
+            hasattr(self.tile_pixels_handle, "decode"),
+            "candidate.tile_pixels_handle",
+            "expected a TilePixelsHandle (an object with decode())",
+        )
         if self.gsd_m_per_px is not None:
             g = v.finite_float(self.gsd_m_per_px, "candidate.gsd_m_per_px")
             v.require(g > 0, "candidate.gsd_m_per_px", f"must be > 0, got {g}")
@@ -224,13 +265,19 @@ class RerankResult:
     candidates: tuple[RerankCandidate, ...]
 
     def __post_init__(self) -> None:
-        v.require(isinstance(self.frame_id, uuid.UUID), "rerank_result.frame_id",
-                  f"expected uuid.UUID, got {type(self.frame_id).__name__}")
+        v.require(
+            isinstance(self.frame_id, uuid.UUID),
+            "rerank_result.frame_id",
+            f"expected uuid.UUID, got {type(self.frame_id).__name__}",
+        )
         cands = tuple(self.candidates)
         v.require(len(cands) >= 1, "rerank_result.candidates", "must hold at least one candidate")
         for i, c in enumerate(cands):
-            v.require(isinstance(c, RerankCandidate), f"rerank_result.candidates[{i}]",
-                      f"expected RerankCandidate, got {type(c).__name__}")
+            v.require(
+                isinstance(c, RerankCandidate),
+                f"rerank_result.candidates[{i}]",
+                f"expected RerankCandidate, got {type(c).__name__}",
+            )
         object.__setattr__(self, "candidates", cands)
 
 
@@ -251,8 +298,12 @@ class RansacResult:
     inlier_mask: NDArray[np.bool_]
 
     def __post_init__(self) -> None:
-        v.array(self.inlier_correspondences, "ransac.inlier_correspondences",
-                dtype=np.float32, shape=(None, 4))
+        v.array(
+            self.inlier_correspondences,
+            "ransac.inlier_correspondences",
+            dtype=np.float32,
+            shape=(None, 4),
+        )
         v.non_negative_int(self.ransac_outlier_count, "ransac.ransac_outlier_count")
         v.finite_float(self.per_candidate_residual_px, "ransac.per_candidate_residual_px", low=0)
         if self.homography is not None:
@@ -281,15 +332,23 @@ class CandidateMatchSet:
     per_candidate_residual_px: float
 
     def __post_init__(self) -> None:
-        v.require(isinstance(self.tile_id, TileId), "candidate_match_set.tile_id",
-                  f"expected TileId, got {type(self.tile_id).__name__}")
+        v.require(
+            isinstance(self.tile_id, TileId),
+            "candidate_match_set.tile_id",
+            f"expected TileId, got {type(self.tile_id).__name__}",
+        )
         n = v.non_negative_int(self.inlier_count, "candidate_match_set.inlier_count")
-        corr = v.array(self.inlier_correspondences, "candidate_match_set.inlier_correspondences",
-                       dtype=np.float32, shape=(n, 4))
+        corr = v.array(
+            self.inlier_correspondences,
+            "candidate_match_set.inlier_correspondences",
+            dtype=np.float32,
+            shape=(n, 4),
+        )
         object.__setattr__(self, "inlier_correspondences", v.frozen_copy(corr))
         v.non_negative_int(self.ransac_outlier_count, "candidate_match_set.ransac_outlier_count")
-        v.finite_float(self.per_candidate_residual_px,
-                       "candidate_match_set.per_candidate_residual_px", low=0)
+        v.finite_float(
+            self.per_candidate_residual_px, "candidate_match_set.per_candidate_residual_px", low=0
+        )
 
     def same_content(self, other: CandidateMatchSet) -> bool:
         """Bit-for-bit equality of every field (AC-10)."""
@@ -303,7 +362,8 @@ class CandidateMatchSet:
 
 
 def ranking_key(candidate: CandidateMatchSet) -> tuple[int, float]:
-    """INV-3: inlier count descending, then median residual ascending (stable sort keeps input order)."""
+    """INV-3: inlier count descending, then median residual ascending (a stable sort keeps
+    the input order on ties)."""
     return (-candidate.inlier_count, candidate.per_candidate_residual_px)
 
 
@@ -326,21 +386,38 @@ class MatchResult:
         object.__setattr__(self, "per_candidate", per)
         v.require(len(per) >= 1, "match_result.per_candidate", "must hold at least one survivor")
         n_in = v.non_negative_int(self.candidates_input, "match_result.candidates_input")
-        v.require(len(per) <= n_in, "match_result.per_candidate",
-                  f"{len(per)} survivors > {n_in} input candidates (INV-2)")
-        v.require(self.candidates_dropped == n_in - len(per), "match_result.candidates_dropped",
-                  f"must equal candidates_input - len(per_candidate) = {n_in - len(per)} (INV-9)")
-        v.require(self.best_candidate_idx == 0, "match_result.best_candidate_idx",
-                  "must be 0: per_candidate is sorted best first (INV-6)")
-        v.require(self.reprojection_residual_px == per[0].per_candidate_residual_px,
-                  "match_result.reprojection_residual_px",
-                  "must equal per_candidate[0].per_candidate_residual_px (INV-6)")
+        v.require(
+            len(per) <= n_in,
+            "match_result.per_candidate",
+            f"{len(per)} survivors > {n_in} input candidates (INV-2)",
+        )
+        v.require(
+            self.candidates_dropped == n_in - len(per),
+            "match_result.candidates_dropped",
+            f"must equal candidates_input - len(per_candidate) = {n_in - len(per)} (INV-9)",
+        )
+        v.require(
+            self.best_candidate_idx == 0,
+            "match_result.best_candidate_idx",
+            "must be 0: per_candidate is sorted best first (INV-6)",
+        )
+        v.require(
+            self.reprojection_residual_px == per[0].per_candidate_residual_px,
+            "match_result.reprojection_residual_px",
+            "must equal per_candidate[0].per_candidate_residual_px (INV-6)",
+        )
         keys = [ranking_key(c) for c in per]
-        v.require(keys == sorted(keys), "match_result.per_candidate",
-                  "must be sorted by inlier_count desc, residual asc (INV-3)")
+        v.require(
+            keys == sorted(keys),
+            "match_result.per_candidate",
+            "must be sorted by inlier_count desc, residual asc (INV-3)",
+        )
         v.non_negative_int(self.matched_at, "match_result.matched_at")
-        v.require(isinstance(self.matcher_label, str) and bool(self.matcher_label),
-                  "match_result.matcher_label", "must be a non-empty string")
+        v.require(
+            isinstance(self.matcher_label, str) and bool(self.matcher_label),
+            "match_result.matcher_label",
+            "must be a non-empty string",
+        )
 
     @property
     def best(self) -> CandidateMatchSet:

@@ -163,7 +163,9 @@ class ConfigurationError(C3Error):
 class EngineError(C3Error):
     """An engine is missing, unreadable or does not match its manifest (a start-up error)."""
 
-    def __init__(self, path: object, reason: str, command: str = "c3-matcher engines build") -> None:
+    def __init__(
+        self, path: object, reason: str, command: str = "c3-matcher engines build"
+    ) -> None:
         self.path = path
         self.reason = reason
         self.command = command

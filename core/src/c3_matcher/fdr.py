@@ -27,7 +27,14 @@ import numpy as np
 from c3_matcher.errors import C3Error, InvalidInputError
 from c3_matcher.protocols import Clock
 
-__all__ = ["FdrRecord", "FdrWriteError", "InMemoryFdr", "JsonlFdrRecorder", "read_fdr", "to_jsonable"]
+__all__ = [
+    "FdrRecord",
+    "FdrWriteError",
+    "InMemoryFdr",
+    "JsonlFdrRecorder",
+    "read_fdr",
+    "to_jsonable",
+]
 
 FdrRecord = dict[str, Any]
 

@@ -1,4 +1,4 @@
-"""``RollingHealthWindow``: the matcher's health signal for C5 (cache-poisoning safety, AC-NEW-7)."""
+"""``RollingHealthWindow``: the matcher's health signal for C5 (AC-NEW-7 cache-poisoning safety)."""
 
 from __future__ import annotations
 

@@ -8,6 +8,7 @@ exactly one record per event.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 from collections.abc import Callable
@@ -53,10 +54,8 @@ class LoggingHandle:
 
     def close(self) -> None:
         for sink_id in self.sink_ids:
-            try:
+            with contextlib.suppress(ValueError):
                 logger.remove(sink_id)
-            except ValueError:
-                pass
         self.sink_ids.clear()
 
 
@@ -78,8 +77,7 @@ def configure_logging(
 
     ids = [logger.add(json_sink, level=level.upper(), format="{message}")]
     if fdr is not None:
-        ids.append(logger.add(_fdr_forwarder(fdr), level="WARNING", format="{message}",
-                              catch=True))
+        ids.append(logger.add(_fdr_forwarder(fdr), level="WARNING", format="{message}", catch=True))
     return LoggingHandle(ids)
 
 

@@ -36,8 +36,9 @@ def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
     try:
         values = tuple(float(x) for x in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{what}: expected {n} comma-separated numbers, "
-                                         f"got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"{what}: expected {n} comma-separated numbers, got {text!r}"
+        ) from None
     if len(values) != n or not all(math.isfinite(v) for v in values):
         raise argparse.ArgumentTypeError(f"{what}: expected {n} finite numbers, got {text!r}")
     return values
@@ -102,8 +103,11 @@ def result_to_json(result: MatchResult, with_correspondences: bool = True) -> di
                 "inlier_count": c.inlier_count,
                 "ransac_outlier_count": c.ransac_outlier_count,
                 "per_candidate_residual_px": c.per_candidate_residual_px,
-                **({"inlier_correspondences": c.inlier_correspondences.tolist()}
-                   if with_correspondences else {}),
+                **(
+                    {"inlier_correspondences": c.inlier_correspondences.tolist()}
+                    if with_correspondences
+                    else {}
+                ),
             }
             for c, index in zip(result.per_candidate, indices, strict=True)
         ],
@@ -112,30 +116,65 @@ def result_to_json(result: MatchResult, with_correspondences: bool = True) -> di
 
 def add_match_command(sub: Any) -> Callable[[argparse.Namespace, C3Settings], int]:
     p = sub.add_parser(
-        "match", help="match a nav-camera image against candidate tiles (JSON on stdout)",
+        "match",
+        help="match a nav-camera image against candidate tiles (JSON on stdout)",
         description="Match one nav-camera image against 1..N candidate tile images. Exit 0 with "
-                    "the MatchResult as JSON; 3 with a JSON error object on "
-                    "InsufficientInliersError; 2 on a bad argument or unreadable image.")
+        "the MatchResult as JSON; 3 with a JSON error object on "
+        "InsufficientInliersError; 2 on a bad argument or unreadable image.",
+    )
     p.add_argument("--query", type=Path, required=True, help="nav-camera image (as captured)")
-    p.add_argument("--tile", type=Path, action="append", required=True,
-                   help="candidate tile image (north-up); repeat per candidate")
-    p.add_argument("--tile-id", type=_tile_id, action="append", default=[],
-                   help="ZOOM,LAT,LON of the matching --tile, in order (default: 0,0,INDEX)")
-    p.add_argument("--tile-gsd", type=_positive, default=None,
-                   help="tiles' ground sample distance, m/px (default: from the tile id's zoom)")
-    p.add_argument("--calibration", type=Path, default=None,
-                   help="camera calibration JSON (K, distortion, image_size[, camera_to_body]);"
-                        " default: a distortion-free pinhole with focal = image width")
-    p.add_argument("--attitude", type=_attitude, default=None,
-                   help="ROLL,PITCH,YAW of the vehicle in DEGREES (Z-Y-X, NED, yaw from north)")
+    p.add_argument(
+        "--tile",
+        type=Path,
+        action="append",
+        required=True,
+        help="candidate tile image (north-up); repeat per candidate",
+    )
+    p.add_argument(
+        "--tile-id",
+        type=_tile_id,
+        action="append",
+        default=[],
+        help="ZOOM,LAT,LON of the matching --tile, in order (default: 0,0,INDEX)",
+    )
+    p.add_argument(
+        "--tile-gsd",
+        type=_positive,
+        default=None,
+        help="tiles' ground sample distance, m/px (default: from the tile id's zoom)",
+    )
+    p.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        help="camera calibration JSON (K, distortion, image_size[, camera_to_body]);"
+        " default: a distortion-free pinhole with focal = image width",
+    )
+    p.add_argument(
+        "--attitude",
+        type=_attitude,
+        default=None,
+        help="ROLL,PITCH,YAW of the vehicle in DEGREES (Z-Y-X, NED, yaw from north)",
+    )
     p.add_argument("--height", type=_positive, default=None, help="height above ground, m")
     p.add_argument("--strategy", default=None, help="strategy to use (default: configuration)")
-    p.add_argument("--viz", type=Path, default=None,
-                   help="write a picture of query, best tile and inlier lines (PNG)")
-    p.add_argument("--fdr", type=Path, default=None,
-                   help="flight-data record file (default: the configuration's [fdr] path)")
-    p.add_argument("--no-correspondences", action="store_true",
-                   help="omit inlier_correspondences from the JSON")
+    p.add_argument(
+        "--viz",
+        type=Path,
+        default=None,
+        help="write a picture of query, best tile and inlier lines (PNG)",
+    )
+    p.add_argument(
+        "--fdr",
+        type=Path,
+        default=None,
+        help="flight-data record file (default: the configuration's [fdr] path)",
+    )
+    p.add_argument(
+        "--no-correspondences",
+        action="store_true",
+        help="omit inlier_correspondences from the JSON",
+    )
     return run_match
 
 
@@ -143,8 +182,10 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
     from c3_matcher.compose import build_default_helpers, compose_root
 
     if args.tile_id and len(args.tile_id) != len(args.tile):
-        raise InvalidInputError("--tile-id", f"{len(args.tile_id)} given for "
-                                             f"{len(args.tile)} --tile; give one per tile or none")
+        raise InvalidInputError(
+            "--tile-id",
+            f"{len(args.tile_id)} given for {len(args.tile)} --tile; give one per tile or none",
+        )
     update: dict[str, Any] = {}
     if args.strategy:
         update["matcher"] = settings.matcher.model_copy(update={"strategy": args.strategy})
@@ -154,8 +195,11 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
 
     image = read_image(args.query)
     height, width = image.shape[:2]
-    calibration = (load_calibration(args.calibration) if args.calibration else
-                   CameraCalibration.pinhole(width, height, focal_px=float(width)))
+    calibration = (
+        load_calibration(args.calibration)
+        if args.calibration
+        else CameraCalibration.pinhole(width, height, focal_px=float(width))
+    )
     frame = NavCameraFrame(uuid.uuid4(), image, time.monotonic_ns(), args.attitude, args.height)
     candidates = []
     for i, path in enumerate(args.tile):
@@ -170,27 +214,37 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
         try:
             result = root.matcher.match(frame, rerank, calibration)
         except InsufficientInliersError as exc:
-            print(json.dumps({"error": "InsufficientInliersError", "message": str(exc),
-                              "frame_id": str(exc.frame_id),
-                              "best_inlier_count": exc.best_inlier_count,
-                              "threshold": exc.threshold,
-                              "candidates_input": exc.candidates_input,
-                              "candidates_dropped": exc.candidates_dropped,
-                              "matcher_label": exc.matcher_label}))
+            print(
+                json.dumps(
+                    {
+                        "error": "InsufficientInliersError",
+                        "message": str(exc),
+                        "frame_id": str(exc.frame_id),
+                        "best_inlier_count": exc.best_inlier_count,
+                        "threshold": exc.threshold,
+                        "candidates_input": exc.candidates_input,
+                        "candidates_dropped": exc.candidates_dropped,
+                        "matcher_label": exc.matcher_label,
+                    }
+                )
+            )
             return EXIT_INSUFFICIENT
         out = result_to_json(result, with_correspondences=not args.no_correspondences)
         if args.viz:
             from c3_matcher.viz import draw_matches
 
             best_index = out["per_candidate"][0]["tile_index"]
-            draw_matches(image, read_image(args.tile[best_index]),
-                         result.per_candidate[0].inlier_correspondences, args.viz,
-                         title=f"{result.matcher_label}: {result.per_candidate[0].inlier_count} "
-                               f"inliers, median residual "
-                               f"{result.reprojection_residual_px:.2f} px")
+            draw_matches(
+                image,
+                read_image(args.tile[best_index]),
+                result.per_candidate[0].inlier_correspondences,
+                args.viz,
+                title=f"{result.matcher_label}: {result.per_candidate[0].inlier_count} "
+                f"inliers, median residual "
+                f"{result.reprojection_residual_px:.2f} px",
+            )
             out["viz"] = str(args.viz)
         print(json.dumps(out))
         return 0
     finally:
         root.close()
-

@@ -46,6 +46,7 @@ from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 
 __all__ = ["FeatureBackend", "MatchPipeline", "PipelineSettings"]
 
+
 class FeatureBackend(Protocol):
     """A strategy's model I/O. Exceptions raised here become per-candidate drops (or, for the
     query frame, a MatcherBackboneError); they never escape ``match`` otherwise."""
@@ -138,8 +139,10 @@ class MatchPipeline:
     def match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
     ) -> MatchResult:
-        state = _FrameState(getattr(rerank_result, "frame_id", None),
-                            len(getattr(rerank_result, "candidates", ()) or ()))
+        state = _FrameState(
+            getattr(rerank_result, "frame_id", None),
+            len(getattr(rerank_result, "candidates", ()) or ()),
+        )
         try:
             _check_inputs(frame, rerank_result, calibration)
             return self._match(frame, rerank_result, calibration, state)
@@ -154,13 +157,19 @@ class MatchPipeline:
             raise MatcherBackboneError("internal", None, exc) from exc
 
     # -- steps ------------------------------------------------------------------------------
-    def _match(self, frame: NavCameraFrame, rerank: RerankResult, calibration: CameraCalibration,
-               state: _FrameState) -> MatchResult:
+    def _match(
+        self,
+        frame: NavCameraFrame,
+        rerank: RerankResult,
+        calibration: CameraCalibration,
+        state: _FrameState,
+    ) -> MatchResult:
         started = time.perf_counter()
         try:  # steps 1-2: the query frame, once (DECISIONS 3 on failure)
             with _timed(state.timings_ms, "query_preprocess"):
-                query_image = self._pre.prepare_query(frame, calibration,
-                                                      _tile_gsd(rerank.candidates))
+                query_image = self._pre.prepare_query(
+                    frame, calibration, _tile_gsd(rerank.candidates)
+                )
             with _timed(state.timings_ms, "query_extract"):
                 query = self._backend.extract(query_image)
         except Exception as exc:
@@ -177,24 +186,33 @@ class MatchPipeline:
                 survivors.append(survivor)
 
         best_count = max((s.match_set.inlier_count for s in survivors), default=0)  # step 5
-        candidates_summary = [(s.match_set.inlier_count, s.match_set.per_candidate_residual_px)
-                              for s in survivors]
-        log_event("DEBUG", "c3.matcher.candidates",
-                  f"C3 frame={state.frame_id} candidates={candidates_summary}",
-                  frame_id=state.frame_id, candidates=candidates_summary)
+        candidates_summary = [
+            (s.match_set.inlier_count, s.match_set.per_candidate_residual_px) for s in survivors
+        ]
+        log_event(
+            "DEBUG",
+            "c3.matcher.candidates",
+            f"C3 frame={state.frame_id} candidates={candidates_summary}",
+            frame_id=state.frame_id,
+            candidates=candidates_summary,
+        )
         if not survivors or best_count < self._settings.min_inliers_threshold:  # step 6
             return self._insufficient(state, best_count, survivors)
 
         survivors.sort(key=lambda s: ranking_key(s.match_set))  # step 7, stable: INV-3
         best = survivors[0].match_set
         if best.per_candidate_residual_px > self._settings.residual_warn_threshold_px:  # step 8
-            log_event("WARNING", "c3.matcher.residual_above_threshold",
-                      f"C3 residual={best.per_candidate_residual_px:.2f}px > threshold="
-                      f"{self._settings.residual_warn_threshold_px}px; frame={state.frame_id}; "
-                      "will refine",
-                      residual_px=best.per_candidate_residual_px,
-                      threshold_px=self._settings.residual_warn_threshold_px,
-                      frame_id=state.frame_id, tile_id=best.tile_id)
+            log_event(
+                "WARNING",
+                "c3.matcher.residual_above_threshold",
+                f"C3 residual={best.per_candidate_residual_px:.2f}px > threshold="
+                f"{self._settings.residual_warn_threshold_px}px; frame={state.frame_id}; "
+                "will refine",
+                residual_px=best.per_candidate_residual_px,
+                threshold_px=self._settings.residual_warn_threshold_px,
+                frame_id=state.frame_id,
+                tile_id=best.tile_id,
+            )
         self._update_health(state, best.inlier_count)  # step 9
         state.timings_ms["total"] = (time.perf_counter() - started) * 1e3
         diagnostics = {
@@ -204,21 +222,28 @@ class MatchPipeline:
             "homographies": [s.homography for s in survivors],
             "tile_cache": {"hits": self._cache.hits, "misses": self._cache.misses},
         }
-        self._record("matcher.frame_done", {  # step 10 (+ DECISIONS 16)
-            "frame_id": state.frame_id,
-            "candidates_input": state.candidates_input,
-            "candidates_dropped": state.dropped,
-            "best_inlier_count": best.inlier_count,
-            "best_residual_px": best.per_candidate_residual_px,
-            "best_tile_id": best.tile_id,
-            "best_homography": survivors[0].homography,
-            "per_candidate": [{"tile_id": s.match_set.tile_id,
-                               "inlier_count": s.match_set.inlier_count,
-                               "residual_px": s.match_set.per_candidate_residual_px}
-                              for s in survivors],
-            "timings_ms": state.timings_ms,
-            **self._backend.provenance(),
-        })
+        self._record(
+            "matcher.frame_done",
+            {  # step 10 (+ DECISIONS 16)
+                "frame_id": state.frame_id,
+                "candidates_input": state.candidates_input,
+                "candidates_dropped": state.dropped,
+                "best_inlier_count": best.inlier_count,
+                "best_residual_px": best.per_candidate_residual_px,
+                "best_tile_id": best.tile_id,
+                "best_homography": survivors[0].homography,
+                "per_candidate": [
+                    {
+                        "tile_id": s.match_set.tile_id,
+                        "inlier_count": s.match_set.inlier_count,
+                        "residual_px": s.match_set.per_candidate_residual_px,
+                    }
+                    for s in survivors
+                ],
+                "timings_ms": state.timings_ms,
+                **self._backend.provenance(),
+            },
+        )
         return MatchResult(  # step 11
             frame_id=rerank.frame_id,
             per_candidate=tuple(s.match_set for s in survivors),
@@ -231,14 +256,23 @@ class MatchPipeline:
             diagnostics=diagnostics,
         )
 
-    def _match_candidate(self, index: int, candidate: RerankCandidate, query_image: PreparedImage,
-                         query: Features, state: _FrameState,
-                         timings: dict[str, float]) -> _Survivor | None:
+    def _match_candidate(
+        self,
+        index: int,
+        candidate: RerankCandidate,
+        query_image: PreparedImage,
+        query: Features,
+        state: _FrameState,
+        timings: dict[str, float],
+    ) -> _Survivor | None:
         tile_id = candidate.tile_id
         phase = "tile_decode"
         try:
-            key = (tile_cache_key(tile_id, candidate.tile_pixels_handle)
-                   if self._cache.enabled else None)
+            key = (
+                tile_cache_key(tile_id, candidate.tile_pixels_handle)
+                if self._cache.enabled
+                else None
+            )
             cached = self._cache.get(key) if key is not None else None
             if cached is not None:
                 tile_image, tile = cached.prepared, cached.features
@@ -270,9 +304,14 @@ class MatchPipeline:
             return None
         if inliers.shape[0] == 0:  # step 4e
             state.dropped += 1
-            log_event("DEBUG", "c3.matcher.zero_inliers",
-                      f"C3 zero inliers; frame={state.frame_id}; tile={tile_id}",
-                      frame_id=state.frame_id, tile_id=tile_id, raw_matches=len(raw))
+            log_event(
+                "DEBUG",
+                "c3.matcher.zero_inliers",
+                f"C3 zero inliers; frame={state.frame_id}; tile={tile_id}",
+                frame_id=state.frame_id,
+                tile_id=tile_id,
+                raw_matches=len(raw),
+            )
             return None
         match_set = CandidateMatchSet(
             tile_id=tile_id,
@@ -283,40 +322,59 @@ class MatchPipeline:
         )
         return _Survivor(match_set, index, ransac.homography)
 
-    def _insufficient(self, state: _FrameState, best_count: int,
-                      survivors: list[_Survivor]) -> MatchResult:
+    def _insufficient(
+        self, state: _FrameState, best_count: int, survivors: list[_Survivor]
+    ) -> MatchResult:
         threshold = self._settings.min_inliers_threshold
         label = self._backend.label
         self._update_health(state, 0)  # AZ-345 step 6 / AC-5: best_inlier_count=0
-        log_event("ERROR", "c3.matcher.insufficient_inliers",
-                  f"C3 insufficient inliers on all candidates; frame={state.frame_id}; "
-                  f"backbone={label}; best={best_count} < {threshold}",
-                  frame_id=state.frame_id, backbone=label, best_inlier_count=best_count,
-                  threshold=threshold, candidates_input=state.candidates_input,
-                  candidates_dropped=state.dropped)
-        self._record("matcher.insufficient_inliers", {
-            "frame_id": state.frame_id,
-            "candidates_input": state.candidates_input,
-            "candidates_dropped": state.dropped,
-            "best_inlier_count": best_count,
-            "threshold": threshold,
-            "per_candidate": [{"tile_id": s.match_set.tile_id,
-                               "inlier_count": s.match_set.inlier_count,
-                               "residual_px": s.match_set.per_candidate_residual_px}
-                              for s in survivors],
-            **self._backend.provenance(),
-        })
-        raise InsufficientInliersError(state.frame_id, best_count, threshold,
-                                       state.candidates_input, state.dropped, label)
+        log_event(
+            "ERROR",
+            "c3.matcher.insufficient_inliers",
+            f"C3 insufficient inliers on all candidates; frame={state.frame_id}; "
+            f"backbone={label}; best={best_count} < {threshold}",
+            frame_id=state.frame_id,
+            backbone=label,
+            best_inlier_count=best_count,
+            threshold=threshold,
+            candidates_input=state.candidates_input,
+            candidates_dropped=state.dropped,
+        )
+        self._record(
+            "matcher.insufficient_inliers",
+            {
+                "frame_id": state.frame_id,
+                "candidates_input": state.candidates_input,
+                "candidates_dropped": state.dropped,
+                "best_inlier_count": best_count,
+                "threshold": threshold,
+                "per_candidate": [
+                    {
+                        "tile_id": s.match_set.tile_id,
+                        "inlier_count": s.match_set.inlier_count,
+                        "residual_px": s.match_set.per_candidate_residual_px,
+                    }
+                    for s in survivors
+                ],
+                **self._backend.provenance(),
+            },
+        )
+        raise InsufficientInliersError(
+            state.frame_id, best_count, threshold, state.candidates_input, state.dropped, label
+        )
 
     # -- helpers ----------------------------------------------------------------------------
-    def _update_health(self, state: _FrameState, best_inlier_count: int, *,
-                       force_backbone_error: bool = False) -> None:
+    def _update_health(
+        self, state: _FrameState, best_inlier_count: int, *, force_backbone_error: bool = False
+    ) -> None:
         if state.health_updated:  # INV-7: exactly once per match call
             return
         state.health_updated = True
-        self._health.update(self._clock.monotonic_ns(), best_inlier_count=best_inlier_count,
-                            had_backbone_error=force_backbone_error or state.backbone_errors > 0)
+        self._health.update(
+            self._clock.monotonic_ns(),
+            best_inlier_count=best_inlier_count,
+            had_backbone_error=force_backbone_error or state.backbone_errors > 0,
+        )
 
     def _record(self, kind: str, payload: Mapping[str, Any]) -> None:
         """Write an FDR record; a recorder failure is logged, never fails the frame (the durable
@@ -324,39 +382,63 @@ class MatchPipeline:
         try:
             self._fdr.record(kind, payload)
         except Exception as exc:
-            log_event("ERROR", "c3.fdr.write_failed", f"FDR write failed for {kind}: {exc}",
-                      record_kind=kind, error=f"{type(exc).__name__}: {exc}")
+            log_event(
+                "ERROR",
+                "c3.fdr.write_failed",
+                f"FDR write failed for {kind}: {exc}",
+                record_kind=kind,
+                error=f"{type(exc).__name__}: {exc}",
+            )
 
-    def _record_backbone_error(self, state: _FrameState, tile_id: Any, phase: str,
-                               exc: BaseException, candidate_index: int | None = None) -> None:
+    def _record_backbone_error(
+        self,
+        state: _FrameState,
+        tile_id: Any,
+        phase: str,
+        exc: BaseException,
+        candidate_index: int | None = None,
+    ) -> None:
         error = f"{type(exc).__name__}: {exc}"
-        log_event("ERROR", "c3.matcher.backbone_error",
-                  f"C3 backbone error; frame={state.frame_id}; tile={tile_id}; phase={phase}; "
-                  f"backbone={self._backend.label}; {error}",
-                  frame_id=state.frame_id, tile_id=tile_id, phase=phase, error=error,
-                  backbone=self._backend.label)
-        self._record("matcher.backbone_error", {
-            "frame_id": state.frame_id,
-            "tile_id": tile_id,
-            "candidate_index": candidate_index,
-            "phase": phase,
-            "error": error,
-            "backbone": self._backend.label,
-        })
+        log_event(
+            "ERROR",
+            "c3.matcher.backbone_error",
+            f"C3 backbone error; frame={state.frame_id}; tile={tile_id}; phase={phase}; "
+            f"backbone={self._backend.label}; {error}",
+            frame_id=state.frame_id,
+            tile_id=tile_id,
+            phase=phase,
+            error=error,
+            backbone=self._backend.label,
+        )
+        self._record(
+            "matcher.backbone_error",
+            {
+                "frame_id": state.frame_id,
+                "tile_id": tile_id,
+                "candidate_index": candidate_index,
+                "phase": phase,
+                "error": error,
+                "backbone": self._backend.label,
+            },
+        )
 
 
 def _check_inputs(frame: object, rerank: object, calibration: object) -> None:
     if not isinstance(frame, NavCameraFrame):
         raise InvalidInputError("frame", f"expected NavCameraFrame, got {type(frame).__name__}")
     if not isinstance(rerank, RerankResult):
-        raise InvalidInputError("rerank_result",
-                                f"expected RerankResult, got {type(rerank).__name__}")
+        raise InvalidInputError(
+            "rerank_result", f"expected RerankResult, got {type(rerank).__name__}"
+        )
     if not isinstance(calibration, CameraCalibration):
-        raise InvalidInputError("calibration",
-                                f"expected CameraCalibration, got {type(calibration).__name__}")
+        raise InvalidInputError(
+            "calibration", f"expected CameraCalibration, got {type(calibration).__name__}"
+        )
     if rerank.frame_id != frame.frame_id:
-        raise InvalidInputError("rerank_result.frame_id",
-                                f"{rerank.frame_id} does not match frame.frame_id {frame.frame_id}")
+        raise InvalidInputError(
+            "rerank_result.frame_id",
+            f"{rerank.frame_id} does not match frame.frame_id {frame.frame_id}",
+        )
 
 
 def _tile_gsd(candidates: tuple[RerankCandidate, ...]) -> float | None:
@@ -365,8 +447,13 @@ def _tile_gsd(candidates: tuple[RerankCandidate, ...]) -> float | None:
     return float(np.median(values)) if values else None
 
 
-def _correspondences(query_image: PreparedImage, query: Features, tile_image: PreparedImage,
-                     tile: Features, raw: RawMatches) -> NDArray[np.float32]:
+def _correspondences(
+    query_image: PreparedImage,
+    query: Features,
+    tile_image: PreparedImage,
+    tile: Features,
+    raw: RawMatches,
+) -> NDArray[np.float32]:
     """(M, 4) rows (x_query, y_query, x_tile, y_tile) in working px (rectified query, full tile)."""
     if len(raw) == 0:
         return np.zeros((0, 4), dtype=np.float32)
@@ -382,4 +469,3 @@ def _timed(into: dict[str, float], name: str) -> Iterator[None]:
         yield
     finally:
         into[name] = into.get(name, 0.0) + (time.perf_counter() - start) * 1e3
-

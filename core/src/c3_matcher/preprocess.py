@@ -70,8 +70,9 @@ class InputRule:
             if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
                 raise InvalidInputError(f"input_rule.{name}", f"expected an int > 0, got {value!r}")
         if self.max_long_side < self.multiple:
-            raise InvalidInputError("input_rule.max_long_side",
-                                    f"{self.max_long_side} < multiple {self.multiple}")
+            raise InvalidInputError(
+                "input_rule.max_long_side", f"{self.max_long_side} < multiple {self.multiple}"
+            )
 
     def content_size(self, width: int, height: int) -> tuple[int, int]:
         """(w, h) px of a width x height image after the downscale (before pad/crop)."""
@@ -81,6 +82,7 @@ class InputRule:
     def final_size(self, width: int, height: int) -> tuple[int, int]:
         """(w, h) px of the engine input for a width x height image: each side of the content
         size rounded up to ``multiple`` (padding), or down when up would exceed the limit."""
+
         def snap(n: int) -> int:
             up = -(-n // self.multiple) * self.multiple
             if up <= self.max_long_side:
@@ -216,12 +218,14 @@ class QueryGeometry:
 
     def footprint_engine(self) -> F64:
         """The footprint polygon (N, 2) in ENGINE px."""
-        return cam.apply_homography(np.linalg.inv(self.working_from_engine),
-                                    self.footprint_working)
+        return cam.apply_homography(np.linalg.inv(self.working_from_engine), self.footprint_working)
 
-    def remap_maps(self, calibration: CameraCalibration,
-                   source_scale: tuple[float, float] = (1.0, 1.0),
-                   m1type: int = cv2.CV_32FC1) -> tuple[NDArray[Any], NDArray[Any]]:
+    def remap_maps(
+        self,
+        calibration: CameraCalibration,
+        source_scale: tuple[float, float] = (1.0, 1.0),
+        m1type: int = cv2.CV_32FC1,
+    ) -> tuple[NDArray[Any], NDArray[Any]]:
         """``cv2.remap`` maps ENGINE px -> ORIGINAL px (exact lens model per pixel), or -> px of
         the ORIGINAL frame resized by ``source_scale`` (sx, sy) (area-aligned convention).
 
@@ -231,11 +235,13 @@ class QueryGeometry:
         """
         k = calibration.K
         ax, ay = source_scale
-        k_map = np.array([[ax, 0.0, 0.5 * ax - 0.5], [0.0, ay, 0.5 * ay - 0.5],
-                          [0.0, 0.0, 1.0]]) @ k
+        k_map = (
+            np.array([[ax, 0.0, 0.5 * ax - 0.5], [0.0, ay, 0.5 * ay - 0.5], [0.0, 0.0, 1.0]]) @ k
+        )
         r_arg = np.linalg.inv(self.working_from_engine) @ self.working_from_undistorted @ k
-        map1, map2 = cv2.initUndistortRectifyMap(k_map, calibration.distortion, r_arg, np.eye(3),
-                                                 self.final_size, m1type)
+        map1, map2 = cv2.initUndistortRectifyMap(
+            k_map, calibration.distortion, r_arg, np.eye(3), self.final_size, m1type
+        )
         return np.asarray(map1), np.asarray(map2)
 
 
@@ -271,8 +277,9 @@ class FramePreprocessor:
         if border_erode_px < 0:
             raise InvalidInputError("border_erode_px", f"must be >= 0, got {border_erode_px}")
         if not 0.0 < max_off_nadir_deg < 90.0:
-            raise InvalidInputError("max_off_nadir_deg", f"must be in (0, 90), got "
-                                    f"{max_off_nadir_deg}")
+            raise InvalidInputError(
+                "max_off_nadir_deg", f"must be in (0, 90), got {max_off_nadir_deg}"
+            )
         if max_canvas_factor < 1.0:
             raise InvalidInputError("max_canvas_factor", f"must be >= 1, got {max_canvas_factor}")
         self.rule = rule
@@ -298,13 +305,22 @@ class FramePreprocessor:
         shrink = geometry.nadir_shrink
         if shrink >= self.area_downscale_threshold:
             sw, sh = max(2, round(w / shrink)), max(2, round(h / shrink))
-            src = np.asarray(cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA),
-                             dtype=np.uint8)
+            src = np.asarray(
+                cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA), dtype=np.uint8
+            )
             source_scale = (sw / w, sh / h)
         map1, map2 = geometry.remap_maps(calibration, source_scale, cv2.CV_16SC2)
-        warped = np.asarray(cv2.remap(src, map1, map2, cv2.INTER_LINEAR,
-                                      borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0)),
-                            dtype=np.uint8)
+        warped = np.asarray(
+            cv2.remap(
+                src,
+                map1,
+                map2,
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT,
+                borderValue=(0, 0, 0, 0),
+            ),
+            dtype=np.uint8,
+        )
         inside = self._polygon_mask(geometry.footprint_engine(), geometry.final_size)
         warped = np.asarray(cv2.bitwise_and(warped, warped, mask=inside), dtype=np.uint8)
         return PreparedImage(
@@ -359,8 +375,9 @@ class FramePreprocessor:
             final_size=self.rule.final_size(*working_size),
             working_from_engine=_engine_to_working(working_size, content),
             footprint_working=cam.apply_homography(t, poly),
-            nadir_working_px=((float(t[0, 2]), float(t[1, 2]))
-                              if frame.attitude is not None else None),
+            nadir_working_px=(
+                (float(t[0, 2]), float(t[1, 2])) if frame.attitude is not None else None
+            ),
             working_gsd_m=height / f_w if height is not None else None,
             nadir_shrink=(working_size[0] / content[0]) * (f_ref / f_w),
         )
@@ -377,8 +394,9 @@ class FramePreprocessor:
         self._lens_cache = [_LensCache(key, rays), *self._lens_cache[:3]]
         return rays
 
-    def _footprint(self, calibration: CameraCalibration, h0: F64, f_w: float,
-                   rectified: bool) -> tuple[F64, F64]:
+    def _footprint(
+        self, calibration: CameraCalibration, h0: F64, f_w: float, rectified: bool
+    ) -> tuple[F64, F64]:
         """The frame's boundary in pre-translation working px (clipped to the off-nadir cone
         when rectified) and the working position of the optical axis (canvas centre hint)."""
         rays = self._boundary_rays(calibration)
@@ -405,8 +423,9 @@ class FramePreprocessor:
         centre = axis[:2] / axis[2] if axis_ok else poly.mean(axis=0)
         return poly, centre
 
-    def _canvas(self, poly: F64, centre: F64, long_side_working: float
-                ) -> tuple[F64, tuple[int, int]]:
+    def _canvas(
+        self, poly: F64, centre: F64, long_side_working: float
+    ) -> tuple[F64, tuple[int, int]]:
         lo = np.floor(poly.min(axis=0) + 1e-6)
         hi = np.ceil(poly.max(axis=0) - 1e-6)
         limit = math.floor(self.max_canvas_factor * long_side_working)
@@ -428,16 +447,23 @@ class FramePreprocessor:
         mask = np.zeros((size[1], size[0]), dtype=np.uint8)
         shift = 4
         pts = np.clip(poly_engine, -1e6, 1e6) * (1 << shift)
-        cv2.fillPoly(mask, [np.round(pts).astype(np.int32).reshape(-1, 1, 2)], (255,),
-                     lineType=cv2.LINE_8, shift=shift)
+        cv2.fillPoly(
+            mask,
+            [np.round(pts).astype(np.int32).reshape(-1, 1, 2)],
+            (255,),
+            lineType=cv2.LINE_8,
+            shift=shift,
+        )
         return mask
 
     def _erode(self, mask: NDArray[np.uint8]) -> NDArray[np.bool_]:
         if self.border_erode_px > 0:
             ksize = 2 * self.border_erode_px + 1
             kernel = np.ones((ksize, ksize), dtype=np.uint8)
-            mask = np.asarray(cv2.erode(mask, kernel, borderType=cv2.BORDER_CONSTANT,
-                                        borderValue=(0,)), dtype=np.uint8)
+            mask = np.asarray(
+                cv2.erode(mask, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=(0,)),
+                dtype=np.uint8,
+            )
         return np.asarray(mask > 0)
 
     # ------------------------------------------------------------------ tiles
@@ -452,10 +478,12 @@ class FramePreprocessor:
         # 255 where all channels are 0 (nodata)
         nodata = np.asarray(cv2.inRange(tile, np.zeros(3), np.zeros(3)), dtype=np.uint8)
         if content != (w, h):
-            small = np.asarray(cv2.resize(tile, content, interpolation=cv2.INTER_AREA),
-                               dtype=np.uint8)
-            nodata = np.asarray(cv2.resize(nodata, content, interpolation=cv2.INTER_AREA),
-                                dtype=np.uint8)
+            small = np.asarray(
+                cv2.resize(tile, content, interpolation=cv2.INTER_AREA), dtype=np.uint8
+            )
+            nodata = np.asarray(
+                cv2.resize(nodata, content, interpolation=cv2.INTER_AREA), dtype=np.uint8
+            )
         else:
             small = tile
         cw, ch = content

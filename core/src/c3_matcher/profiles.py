@@ -122,5 +122,7 @@ def installed_profile(
     try:
         data = entry_point.load()
     except Exception as exc:
-        raise ProfileError(f"profile {entry_point.name} ({dist_name}) failed to load: {exc}") from exc
+        raise ProfileError(
+            f"profile {entry_point.name} ({dist_name}) failed to load: {exc}"
+        ) from exc
     return BuildProfile.from_data(data, dist_name)

@@ -18,9 +18,10 @@ __all__ = ["OpenCvRansacFilter", "homography_residuals"]
 MIN_CORRESPONDENCES = 4
 
 
-def homography_residuals(homography: NDArray[np.float64], correspondences: NDArray[np.floating]
-                         ) -> NDArray[np.float64]:
-    """Reprojection error (px, in the second image) of (x0, y0, x1, y1) rows under ``homography``."""
+def homography_residuals(
+    homography: NDArray[np.float64], correspondences: NDArray[np.floating]
+) -> NDArray[np.float64]:
+    """Reprojection error (px, second image) of (x0, y0, x1, y1) rows under ``homography``."""
     src = correspondences[:, 0:2].astype(np.float64)
     dst = correspondences[:, 2:4].astype(np.float64)
     projected = cv2.perspectiveTransform(src.reshape(-1, 1, 2), homography).reshape(-1, 2)
@@ -35,8 +36,14 @@ class OpenCvRansacFilter:
     OpenCV's USAC parameters; ``seed`` fixes its random generator (determinism, AC-10).
     """
 
-    def __init__(self, *, confidence: float = 0.9999, max_iters: int = 10_000, seed: int = 0,
-                 refine: bool = True) -> None:
+    def __init__(
+        self,
+        *,
+        confidence: float = 0.9999,
+        max_iters: int = 10_000,
+        seed: int = 0,
+        refine: bool = True,
+    ) -> None:
         v.require(0 < confidence < 1, "ransac.confidence", f"must be in (0, 1), got {confidence}")
         v.require(max_iters > 0, "ransac.max_iters", f"must be > 0, got {max_iters}")
         self._params = cv2.UsacParams()
@@ -63,12 +70,12 @@ class OpenCvRansacFilter:
         src = np.ascontiguousarray(corr[:, 0:2], dtype=np.float64)
         dst = np.ascontiguousarray(corr[:, 2:4], dtype=np.float64)
         try:
-            homography, mask = cv2.findHomography(src, dst, self._params)
+            found, mask = cv2.findHomography(src, dst, self._params)
         except cv2.error:
             return _empty(m)
-        if homography is None or mask is None or not np.isfinite(homography).all():
+        if found is None or mask is None or not np.isfinite(found).all():
             return _empty(m)
-        homography = np.asarray(homography, dtype=np.float64)
+        homography: NDArray[np.float64] = np.asarray(found, dtype=np.float64)
         inlier_mask = mask.reshape(-1).astype(bool)
         if int(inlier_mask.sum()) < MIN_CORRESPONDENCES:
             return _empty(m)

@@ -17,7 +17,13 @@ from typing import Any, Self
 import numpy as np
 
 from c3_matcher.config import C3Settings
-from c3_matcher.dto import CameraCalibration, MatcherHealth, MatchResult, NavCameraFrame, RerankResult
+from c3_matcher.dto import (
+    CameraCalibration,
+    MatcherHealth,
+    MatchResult,
+    NavCameraFrame,
+    RerankResult,
+)
 from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.errors import EngineError
@@ -58,22 +64,41 @@ class ExtractorLightGlueConfig:
 
     @property
     def pipeline_settings(self) -> PipelineSettings:
-        return PipelineSettings(self.min_inliers_threshold, self.residual_warn_threshold_px,
-                                self.ransac_threshold_px)
+        return PipelineSettings(
+            self.min_inliers_threshold, self.residual_warn_threshold_px, self.ransac_threshold_px
+        )
 
     @property
     def input_rule(self) -> InputRule:
         return InputRule(max_long_side=self.max_long_side, multiple=self.size_multiple)
 
     @classmethod
-    def from_settings(cls, settings: C3Settings, *, label: str, feature_type: str,
-                      extract_phase: str, extractor_engine_path: Path,
-                      lightglue_engine_path: Path, size_multiple: int) -> Self:
+    def from_settings(
+        cls,
+        settings: C3Settings,
+        *,
+        label: str,
+        feature_type: str,
+        extract_phase: str,
+        extractor_engine_path: Path,
+        lightglue_engine_path: Path,
+        size_multiple: int,
+    ) -> Self:
         m = settings.matcher
-        return cls(label, feature_type, extract_phase, extractor_engine_path,
-                   lightglue_engine_path, size_multiple, m.max_long_side, m.max_keypoints,
-                   m.min_inliers_threshold, m.residual_warn_threshold_px, m.ransac_threshold_px,
-                   m.tile_cache_size)
+        return cls(
+            label,
+            feature_type,
+            extract_phase,
+            extractor_engine_path,
+            lightglue_engine_path,
+            size_multiple,
+            m.max_long_side,
+            m.max_keypoints,
+            m.min_inliers_threshold,
+            m.residual_warn_threshold_px,
+            m.ransac_threshold_px,
+            m.tile_cache_size,
+        )
 
 
 class ExtractorLightGlueBackend:
@@ -81,8 +106,12 @@ class ExtractorLightGlueBackend:
 
     match_phase = "lightglue_match"
 
-    def __init__(self, runtime: InferenceRuntime, lightglue_runtime: LightGlueRuntime,
-                 config: ExtractorLightGlueConfig) -> None:
+    def __init__(
+        self,
+        runtime: InferenceRuntime,
+        lightglue_runtime: LightGlueRuntime,
+        config: ExtractorLightGlueConfig,
+    ) -> None:
         self._runtime = runtime
         self._lightglue = lightglue_runtime
         self._config = config
@@ -93,8 +122,7 @@ class ExtractorLightGlueBackend:
         self._provenance = {
             "provider": runtime.provider,
             "engines": {
-                "extractor": _engine_facts(runtime, self.engine_id,
-                                           config.extractor_engine_path),
+                "extractor": _engine_facts(runtime, self.engine_id, config.extractor_engine_path),
                 "lightglue": _engine_facts(None, None, config.lightglue_engine_path),
             },
         }
@@ -112,28 +140,38 @@ class ExtractorLightGlueBackend:
         return self._config.extract_phase
 
     def extract(self, image: PreparedImage) -> Features:
-        return run_extractor(self._runtime, self.engine_id, image.image, image.valid,
-                             self._config.max_keypoints)
+        return run_extractor(
+            self._runtime, self.engine_id, image.image, image.valid, self._config.max_keypoints
+        )
 
     def match(self, query: Features, tile: Features) -> RawMatches:
         return self._lightglue.match_pair(
-            query.keypoints, query.descriptors, query.image_size,
-            tile.keypoints, tile.descriptors, tile.image_size,
-            feature_type=self._config.feature_type)
+            query.keypoints,
+            query.descriptors,
+            query.image_size,
+            tile.keypoints,
+            tile.descriptors,
+            tile.image_size,
+            feature_type=self._config.feature_type,
+        )
 
     def provenance(self) -> Mapping[str, Any]:
         return self._provenance
 
 
-def _engine_facts(runtime: InferenceRuntime | None, engine_id: str | None,
-                  path: Path) -> dict[str, Any]:
+def _engine_facts(
+    runtime: InferenceRuntime | None, engine_id: str | None, path: Path
+) -> dict[str, Any]:
     manifest_of = getattr(runtime, "manifest", None)
     try:
         manifest = manifest_of(engine_id) if callable(manifest_of) else read_manifest(Path(path))
     except EngineError:
         return {"file": str(path)}
-    return {"file": manifest.file, "file_sha256": manifest.file_sha256,
-            "weights_sha256": manifest.weights_sha256}
+    return {
+        "file": manifest.file,
+        "file_sha256": manifest.file_sha256,
+        "weights_sha256": manifest.weights_sha256,
+    }
 
 
 def engine_startup_probe(backend: FeatureBackend, size: int = 128) -> None:
@@ -142,8 +180,12 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128) -> None:
     rng = np.random.default_rng(0)
     noise = rng.integers(0, 256, (size // 8, size // 8, 3), dtype=np.uint8)
     image = np.ascontiguousarray(np.kron(noise, np.ones((8, 8, 1), np.uint8)))
-    probe = PreparedImage(image=image, valid=np.ones((size, size), bool),
-                          working_from_engine=np.eye(3), working_size=(size, size))
+    probe = PreparedImage(
+        image=image,
+        valid=np.ones((size, size), bool),
+        working_from_engine=np.eye(3),
+        working_size=(size, size),
+    )
     try:
         features = backend.extract(probe)
         if len(features) == 0:
@@ -152,19 +194,35 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128) -> None:
         if len(matches) == 0:
             raise ValueError("matching the probe image with itself gave no match")
     except Exception as exc:
-        raise EngineError(getattr(backend, "label", "engine"),
-                          f"start-up probe failed: {type(exc).__name__}: {exc}") from exc
+        raise EngineError(
+            getattr(backend, "label", "engine"),
+            f"start-up probe failed: {type(exc).__name__}: {exc}",
+        ) from exc
 
 
 class PipelineMatcher:
     """``CrossDomainMatcher`` over the shared pipeline; strategies subclass it."""
 
-    def __init__(self, backend: FeatureBackend, ransac_filter: RansacFilter,
-                 fdr_client: FdrClient, health_window: RollingHealthWindow, clock: Clock,
-                 settings: PipelineSettings, tile_cache_size: int = 0) -> None:
+    def __init__(
+        self,
+        backend: FeatureBackend,
+        ransac_filter: RansacFilter,
+        fdr_client: FdrClient,
+        health_window: RollingHealthWindow,
+        clock: Clock,
+        settings: PipelineSettings,
+        tile_cache_size: int = 0,
+    ) -> None:
         self._backend = backend
-        self._pipeline = MatchPipeline(backend, ransac_filter, fdr_client, health_window, clock,
-                                       settings, tile_cache=TileFeatureCache(tile_cache_size))
+        self._pipeline = MatchPipeline(
+            backend,
+            ransac_filter,
+            fdr_client,
+            health_window,
+            clock,
+            settings,
+            tile_cache=TileFeatureCache(tile_cache_size),
+        )
         self._ransac_filter = ransac_filter
         self._fdr_client = fdr_client
         self._health_window = health_window
@@ -173,8 +231,9 @@ class PipelineMatcher:
     def backend(self) -> FeatureBackend:
         return self._backend
 
-    def match(self, frame: NavCameraFrame, rerank_result: RerankResult,
-              calibration: CameraCalibration) -> MatchResult:
+    def match(
+        self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
+    ) -> MatchResult:
         return self._pipeline.match(frame, rerank_result, calibration)
 
     def health_snapshot(self) -> MatcherHealth:

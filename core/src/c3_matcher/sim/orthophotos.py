@@ -88,8 +88,7 @@ def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any]]:
         return None, {}
     with tifffile.TiffFile(str(path)) as tif:
         page = tif.pages.first
-        tags = {code: page.tags[code].value for code in (33550, 33922, 34735)
-                if code in page.tags}
+        tags = {code: page.tags[code].value for code in (33550, 33922, 34735) if code in page.tags}
         try:
             arr = np.asarray(page.asarray())
         except (ValueError, NotImplementedError, ImportError):
@@ -103,7 +102,7 @@ def _geokeys(directory: Any) -> dict[int, Any]:
     values = [int(v) for v in directory]
     keys: dict[int, Any] = {}
     for i in range(values[3]):
-        key_id, location, _count, value = values[4 + 4 * i: 8 + 4 * i]
+        key_id, location, _count, value = values[4 + 4 * i : 8 + 4 * i]
         if location == 0:
             keys[key_id] = value
     return keys
@@ -170,9 +169,12 @@ def load_orthophoto(path: str | Path, *, gsd_m: float | None = None) -> Orthopho
             raise InvalidInputError("path", f"cannot decode {p}")
         arr = np.asarray(read)
         if is_tiff and arr.ndim == 3 and arr.shape[2] == 4:
-            raise InvalidInputError("path", f"{p}: 4-band TIFF needs tifffile (OpenCV "
-                                    "premultiplies the colour bands by the 4th); pip install "
-                                    "tifffile")
+            raise InvalidInputError(
+                "path",
+                f"{p}: 4-band TIFF needs tifffile (OpenCV "
+                "premultiplies the colour bands by the 4th); pip install "
+                "tifffile",
+            )
         rgb_order = False
     alpha = None
     if arr.ndim == 3 and arr.shape[2] >= 4:

@@ -50,14 +50,17 @@ class PhotometricShift:
         _check_range("gamma_range", self.gamma_range, 1e-3)
         _check_range("blur_sigma_range", self.blur_sigma_range, 0.0)
         if not 0.0 <= self.vignetting < 1.0:
-            raise InvalidInputError("photometric.vignetting", f"must be in [0, 1), got "
-                                    f"{self.vignetting}")
+            raise InvalidInputError(
+                "photometric.vignetting", f"must be in [0, 1), got {self.vignetting}"
+            )
         if self.noise_sigma < 0:
-            raise InvalidInputError("photometric.noise_sigma", f"must be >= 0, got "
-                                    f"{self.noise_sigma}")
+            raise InvalidInputError(
+                "photometric.noise_sigma", f"must be >= 0, got {self.noise_sigma}"
+            )
         if self.jpeg_quality is not None and not 1 <= self.jpeg_quality <= 100:
-            raise InvalidInputError("photometric.jpeg_quality", f"must be in [1, 100], got "
-                                    f"{self.jpeg_quality}")
+            raise InvalidInputError(
+                "photometric.jpeg_quality", f"must be in [1, 100], got {self.jpeg_quality}"
+            )
 
     @classmethod
     def identity(cls) -> PhotometricShift:
@@ -81,14 +84,17 @@ class PhotometricShift:
             h, w = x.shape[:2]
             yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
             r2 = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) / (
-                ((w - 1) / 2) ** 2 + ((h - 1) / 2) ** 2)
+                ((w - 1) / 2) ** 2 + ((h - 1) / 2) ** 2
+            )
             x = x * (1.0 - np.float32(self.vignetting) * r2)[..., None]
         x = x * 255.0
         if sigma > 0.05:
-            blurred = cv2.GaussianBlur(x, (0, 0), sigmaX=float(sigma),
-                                       borderType=cv2.BORDER_REFLECT)
-            x = np.asarray(blurred, dtype=np.float32).reshape(image.shape[0], image.shape[1],
-                                                              channels)
+            blurred = cv2.GaussianBlur(
+                x, (0, 0), sigmaX=float(sigma), borderType=cv2.BORDER_REFLECT
+            )
+            x = np.asarray(blurred, dtype=np.float32).reshape(
+                image.shape[0], image.shape[1], channels
+            )
         if self.noise_sigma > 0:
             x = x + rng.normal(0.0, self.noise_sigma, size=x.shape).astype(np.float32)
         out = np.clip(np.rint(x), 0, 255).astype(np.uint8)

@@ -48,8 +48,11 @@ F64 = NDArray[np.float64]
 
 
 def ortho_to_undistorted_homography(
-    calibration: CameraCalibration, attitude: Attitude, nadir_px: tuple[float, float],
-    height_m: float, gsd_m: float,
+    calibration: CameraCalibration,
+    attitude: Attitude,
+    nadir_px: tuple[float, float],
+    height_m: float,
+    gsd_m: float,
 ) -> F64:
     """3x3 homography ORTHO px -> UNDISTORTED frame px for a flat ground (module docstring)."""
     x0, y0 = float(nadir_px[0]), float(nadir_px[1])
@@ -84,8 +87,9 @@ class OrthoTile:
         return int(self.image.shape[1]), int(self.image.shape[0])
 
 
-def cut_tile(ortho: NDArray[np.uint8], top_left: tuple[int, int], size: tuple[int, int],
-             gsd_m: float) -> OrthoTile:
+def cut_tile(
+    ortho: NDArray[np.uint8], top_left: tuple[int, int], size: tuple[int, int], gsd_m: float
+) -> OrthoTile:
     """Crop ``size`` (w, h) px of ``ortho`` whose top-left pixel is ORTHO px ``top_left``;
     what falls outside the orthophoto is 0 (nodata)."""
     x0, y0 = int(top_left[0]), int(top_left[1])
@@ -97,7 +101,7 @@ def cut_tile(ortho: NDArray[np.uint8], top_left: tuple[int, int], size: tuple[in
     sx0, sy0 = max(x0, 0), max(y0, 0)
     sx1, sy1 = min(x0 + w, ow), min(y0 + h, oh)
     if sx1 > sx0 and sy1 > sy0:
-        out[sy0 - y0:sy1 - y0, sx0 - x0:sx1 - x0] = ortho[sy0:sy1, sx0:sx1]
+        out[sy0 - y0 : sy1 - y0, sx0 - x0 : sx1 - x0] = ortho[sy0:sy1, sx0:sx1]
     return OrthoTile(out, (x0, y0), float(gsd_m))
 
 
@@ -165,8 +169,9 @@ class RenderedFrame:
         """The frame boundary on the ground, as a closed polygon (N, 2) of ORTHO px (the part of
         the boundary above the horizon is clipped at ~89 deg from nadir)."""
         w, h = self.calibration.image_size
-        rays = cam.undistort_normalized(cam.image_boundary(w, h, samples_per_side),
-                                        self.calibration)
+        rays = cam.undistort_normalized(
+            cam.image_boundary(w, h, samples_per_side), self.calibration
+        )
         r_wc = cam.rotation_world_from_camera(self.attitude, self.calibration)
         d = np.concatenate([rays, np.ones((rays.shape[0], 1))], axis=1) @ r_wc.T
         cos_max = math.cos(math.radians(89.0))
@@ -178,8 +183,14 @@ class RenderedFrame:
         g = self.ortho_gsd_m
         return np.stack([self.nadir_px[0] + east / g, self.nadir_px[1] - north / g], axis=1)
 
-    def nav_frame(self, frame_id: uuid.UUID | None = None, captured_at_ns: int = 0, *,
-                  with_attitude: bool = True, with_height: bool = True) -> NavCameraFrame:
+    def nav_frame(
+        self,
+        frame_id: uuid.UUID | None = None,
+        captured_at_ns: int = 0,
+        *,
+        with_attitude: bool = True,
+        with_height: bool = True,
+    ) -> NavCameraFrame:
         """The :class:`NavCameraFrame` a matcher would receive for this render."""
         return NavCameraFrame(
             frame_id=frame_id if frame_id is not None else uuid.UUID(int=0),
@@ -189,8 +200,9 @@ class RenderedFrame:
             height_above_ground_m=self.height_m if with_height else None,
         )
 
-    def tile_around(self, ortho: NDArray[np.uint8], size: tuple[int, int],
-                    shift_px: tuple[int, int] = (0, 0)) -> OrthoTile:
+    def tile_around(
+        self, ortho: NDArray[np.uint8], size: tuple[int, int], shift_px: tuple[int, int] = (0, 0)
+    ) -> OrthoTile:
         """A north-up tile of ``size`` (w, h) px centred on the footprint's centroid plus
         ``shift_px`` (ORTHO px), cut from ``ortho`` (the orthophoto this frame was rendered on)."""
         fp = self.footprint_ortho()
@@ -224,10 +236,13 @@ class NavCameraRenderer:
         if self._rays is None:
             w, h = self.calibration.image_size
             xs, ys = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-            rays = cam.undistort_normalized(np.stack([xs.ravel(), ys.ravel()], axis=1),
-                                            self.calibration)
-            self._rays = (np.ascontiguousarray(rays[:, 0].reshape(h, w)),
-                          np.ascontiguousarray(rays[:, 1].reshape(h, w)))
+            rays = cam.undistort_normalized(
+                np.stack([xs.ravel(), ys.ravel()], axis=1), self.calibration
+            )
+            self._rays = (
+                np.ascontiguousarray(rays[:, 0].reshape(h, w)),
+                np.ascontiguousarray(rays[:, 1].reshape(h, w)),
+            )
         return self._rays
 
     def render(
@@ -266,22 +281,31 @@ class NavCameraRenderer:
             ui, vi = u[inside], v[inside]
             lo = np.maximum(np.floor([ui.min(), vi.min()]) - 2, 0).astype(int)
             hi = np.minimum(np.ceil([ui.max(), vi.max()]) + 3, [ow, oh]).astype(int)
-            src = ortho[lo[1]:hi[1], lo[0]:hi[0]]
+            src = ortho[lo[1] : hi[1], lo[0] : hi[0]]
             offset = lo.astype(np.float64)
             ratio = (height_m / math.sqrt(calibration.K[0, 0] * calibration.K[1, 1])) / gsd_m
             if self.antialias and ratio >= 1.5:
                 cw, ch = src.shape[1], src.shape[0]
                 sw, sh = max(2, round(cw / ratio)), max(2, round(ch / ratio))
-                src = np.asarray(cv2.resize(src, (sw, sh), interpolation=cv2.INTER_AREA),
-                                 dtype=np.uint8)
+                src = np.asarray(
+                    cv2.resize(src, (sw, sh), interpolation=cv2.INTER_AREA), dtype=np.uint8
+                )
                 scale = np.array([sw / cw, sh / ch])
         map_x = ((u - (offset[0] - 0.5)) * scale[0] - 0.5).astype(np.float32)
         map_y = ((v - (offset[1] - 0.5)) * scale[1] - 0.5).astype(np.float32)
         map_x[~inside] = -10.0
         map_y[~inside] = -10.0
-        img = np.asarray(cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR,
-                                   borderMode=cv2.BORDER_CONSTANT, borderValue=(0, 0, 0, 0)),
-                         dtype=np.uint8)
+        img = np.asarray(
+            cv2.remap(
+                src,
+                map_x,
+                map_y,
+                cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT,
+                borderValue=(0, 0, 0, 0),
+            ),
+            dtype=np.uint8,
+        )
         if img.ndim == 2:
             img = np.asarray(cv2.cvtColor(img, cv2.COLOR_GRAY2RGB), dtype=np.uint8)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
@@ -320,7 +344,8 @@ def render_nav_frame(
     ``photometric`` with a generator seeded by ``seed`` (an int or a Generator, advanced).
     Deterministic for a given seed. For many frames, reuse one :class:`NavCameraRenderer`."""
     return NavCameraRenderer(calibration, antialias=antialias).render(
-        ortho, gsd_m, nadir_px, height_m, attitude, photometric=photometric, seed=seed)
+        ortho, gsd_m, nadir_px, height_m, attitude, photometric=photometric, seed=seed
+    )
 
 
 def pick_distractor_tiles(
@@ -356,13 +381,16 @@ def pick_distractor_tiles(
     occ_int = np.asarray(cv2.integral(occupied), dtype=np.int64)
     nod_int = np.asarray(cv2.integral(nodata.astype(np.uint8)), dtype=np.int64)
     stride = stride_px or max(1, min(tw, th) // 8)
-    ys, xs = np.mgrid[0:max(oh - th + 1, 0):stride, 0:max(ow - tw + 1, 0):stride]
+    ys, xs = np.mgrid[0 : max(oh - th + 1, 0) : stride, 0 : max(ow - tw + 1, 0) : stride]
     xs, ys = xs.ravel(), ys.ravel()
 
-    def window_sum(integral: NDArray[np.int64], x: NDArray[np.int64], y: NDArray[np.int64]
-                   ) -> NDArray[np.int64]:
-        return np.asarray(integral[y + th, x + tw] - integral[y, x + tw] - integral[y + th, x]
-                          + integral[y, x], dtype=np.int64)
+    def window_sum(
+        integral: NDArray[np.int64], x: NDArray[np.int64], y: NDArray[np.int64]
+    ) -> NDArray[np.int64]:
+        return np.asarray(
+            integral[y + th, x + tw] - integral[y, x + tw] - integral[y + th, x] + integral[y, x],
+            dtype=np.int64,
+        )
 
     centre = fp.mean(axis=0) if fp.shape[0] else np.array([-1e9, -1e9])
     ok = window_sum(occ_int, xs, ys) == 0
@@ -379,6 +407,9 @@ def pick_distractor_tiles(
             if len(chosen) == count:
                 break
     if len(chosen) < count:
-        raise InvalidInputError("count", f"only {len(chosen)} non-overlapping {tw}x{th} px "
-                                f"distractor tiles fit, {count} requested")
+        raise InvalidInputError(
+            "count",
+            f"only {len(chosen)} non-overlapping {tw}x{th} px "
+            f"distractor tiles fit, {count} requested",
+        )
     return [cut_tile(ortho, c, (tw, th), gsd_m) for c in chosen]

@@ -55,8 +55,10 @@ class ScenarioSpec:
 
     @property
     def name(self) -> str:
-        return (f"{Path(self.orthophoto).stem}-yaw{self.yaw_deg:g}-p{self.pitch_deg:g}"
-                f"-r{self.roll_deg:g}")
+        return (
+            f"{Path(self.orthophoto).stem}-yaw{self.yaw_deg:g}-p{self.pitch_deg:g}"
+            f"-r{self.roll_deg:g}"
+        )
 
 
 @dataclass(frozen=True)
@@ -85,14 +87,20 @@ def _tile_id(ortho: Orthophoto, tile: OrthoTile, ref: tuple[float, float]) -> Ti
     return TileId(max(0, min(30, zoom)), lat, lon)
 
 
-def _distractors(ortho: Orthophoto, footprint: NDArray[np.float64], size: int, count: int,
-                 rng: np.random.Generator) -> list[OrthoTile]:
+def _distractors(
+    ortho: Orthophoto,
+    footprint: NDArray[np.float64],
+    size: int,
+    count: int,
+    rng: np.random.Generator,
+) -> list[OrthoTile]:
     """Distinct tiles that avoid the footprint; unlike each other's, their areas may overlap."""
     assert ortho.gsd_m is not None
     picked: list[OrthoTile] = []
     for _ in range(20 * count):
-        (tile,) = pick_distractor_tiles(ortho.rgb, footprint, (size, size), 1, rng,
-                                        ortho.gsd_m, margin_px=8)
+        (tile,) = pick_distractor_tiles(
+            ortho.rgb, footprint, (size, size), 1, rng, ortho.gsd_m, margin_px=8
+        )
         if all(tile.offset_px != p.offset_px for p in picked):
             picked.append(tile)
         if len(picked) == count:
@@ -108,18 +116,30 @@ def build_scenario(spec: ScenarioSpec) -> Scenario:
         raise ValueError(f"{spec.orthophoto}: ground sample distance unknown")
     rng = np.random.default_rng(spec.seed)
     w, h = spec.image_size
-    k = np.array([[spec.focal_px, 0, (w - 1) / 2 + 3.5], [0, spec.focal_px, (h - 1) / 2 - 2.0],
-                  [0, 0, 1]], dtype=np.float64)
+    k = np.array(
+        [[spec.focal_px, 0, (w - 1) / 2 + 3.5], [0, spec.focal_px, (h - 1) / 2 - 2.0], [0, 0, 1]],
+        dtype=np.float64,
+    )
     calibration = CameraCalibration(k, np.asarray(spec.distortion, dtype=np.float64), (w, h))
     attitude = Attitude.from_degrees(spec.roll_deg, spec.pitch_deg, spec.yaw_deg)
     height = spec.frame_gsd_ratio * ortho.gsd_m * spec.focal_px
     size = spec.tile_size
     ow, oh = ortho.size
     for _ in range(200):
-        nadir = (float(rng.uniform(size / 2, ow - size / 2)),
-                 float(rng.uniform(size / 2, oh - size / 2)))
-        frame = render_nav_frame(ortho.rgb, ortho.gsd_m, nadir, height, attitude, calibration,
-                                 photometric=spec.photometric, seed=spec.seed)
+        nadir = (
+            float(rng.uniform(size / 2, ow - size / 2)),
+            float(rng.uniform(size / 2, oh - size / 2)),
+        )
+        frame = render_nav_frame(
+            ortho.rgb,
+            ortho.gsd_m,
+            nadir,
+            height,
+            attitude,
+            calibration,
+            photometric=spec.photometric,
+            seed=spec.seed,
+        )
         if frame.coverage.mean() < 0.995:
             continue  # the frame must see only orthophoto (no nodata border)
         fp = frame.footprint_ortho()
@@ -127,8 +147,8 @@ def build_scenario(spec: ScenarioSpec) -> Scenario:
         slack = size - (hi - lo)
         if np.any(slack < 16):
             raise ValueError(f"{spec.name}: footprint {hi - lo} px does not fit a {size} px tile")
-        x0 = int(round(lo[0] - rng.uniform(8, slack[0] - 8)))
-        y0 = int(round(lo[1] - rng.uniform(8, slack[1] - 8)))
+        x0 = round(lo[0] - rng.uniform(8, slack[0] - 8))
+        y0 = round(lo[1] - rng.uniform(8, slack[1] - 8))
         if x0 < 0 or y0 < 0 or x0 + size > ow or y0 + size > oh:
             continue
         true_tile = cut_tile(ortho.rgb, (x0, y0), (size, size), ortho.gsd_m)
@@ -144,8 +164,9 @@ def build_scenario(spec: ScenarioSpec) -> Scenario:
     raise ValueError(f"{spec.name}: no placement found (orthophoto too small for the tiles?)")
 
 
-def inlier_errors_px(scenario: Scenario, tile_index: int,
-                     correspondences: NDArray[np.float32]) -> NDArray[np.float64]:
+def inlier_errors_px(
+    scenario: Scenario, tile_index: int, correspondences: NDArray[np.float32]
+) -> NDArray[np.float64]:
     """Per inlier, the distance in ORIGINAL (distorted) frame px between the reported query point
     and where the ground truth puts the reported tile point in the frame."""
     tile = scenario.tiles[tile_index]

@@ -85,9 +85,16 @@ class MatcherContract:
 
         def build(script: list[ScriptedCandidate]) -> tuple[Doubles, Any]:
             clock = FakeClock()
-            doubles = Doubles(script, FakeInferenceRuntime(script), FakeLightGlueRuntime(script),
-                              FakeRansacFilter(script), fdr,
-                              RollingHealthWindow(clock, MIN_INLIERS), clock, stream)
+            doubles = Doubles(
+                script,
+                FakeInferenceRuntime(script),
+                FakeLightGlueRuntime(script),
+                FakeRansacFilter(script),
+                fdr,
+                RollingHealthWindow(clock, MIN_INLIERS),
+                clock,
+                stream,
+            )
             matcher = self.make_matcher(doubles)
             frame, calibration = make_frame(uuid.UUID(int=11))
             rerank = make_rerank(frame.frame_id, script)
@@ -111,7 +118,10 @@ class MatcherContract:
         result = match()
         assert result.best_candidate_idx == 0
         assert [(c.inlier_count, c.per_candidate_residual_px) for c in result.per_candidate] == [
-            (120, 1.1), (120, 1.4), (80, 1.0)]
+            (120, 1.1),
+            (120, 1.4),
+            (80, 1.0),
+        ]
 
     # -- AC-3 / AC-4 ----------------------------------------------------------------------------
     def test_ac3_extractor_failure_dropped(self, rig: Any) -> None:
@@ -122,14 +132,14 @@ class MatcherContract:
         assert log["level"] == "ERROR" and log["phase"] == self.extract_phase
         assert log["tile_id"] is not None
         assert [r["phase"] for r in doubles.fdr.of_kind("matcher.backbone_error")] == [
-            self.extract_phase]
+            self.extract_phase
+        ]
 
     def test_ac4_matcher_failure_dropped(self, rig: Any) -> None:
         doubles, match = rig([S(100, fail_match=True), S(100), S(90)])
         result = match()
         assert len(result.per_candidate) == 2
-        assert [r["phase"] for r in doubles.logs("c3.matcher.backbone_error")] == [
-            self.match_phase]
+        assert [r["phase"] for r in doubles.logs("c3.matcher.backbone_error")] == [self.match_phase]
         assert len(doubles.fdr.of_kind("matcher.backbone_error")) == 1
 
     # -- AC-5 / AC-6 ----------------------------------------------------------------------------
@@ -167,8 +177,7 @@ class MatcherContract:
         match()
         assert doubles.health.update_count == 2
         last = doubles.health.last_update
-        assert last is not None and (last.best_inlier_count, last.had_backbone_error) == (100,
-                                                                                          True)
+        assert last is not None and (last.best_inlier_count, last.had_backbone_error) == (100, True)
 
     # -- AC-9 / AC-10 ---------------------------------------------------------------------------
     def test_ac9_correspondence_shape(self, rig: Any) -> None:
@@ -182,15 +191,21 @@ class MatcherContract:
         first, *others = [match() for _ in range(3)]
         for other in others:
             assert other.best_candidate_idx == first.best_candidate_idx
-            assert all(a.same_content(b) for a, b in zip(first.per_candidate,
-                                                           other.per_candidate, strict=True))
+            assert all(
+                a.same_content(b)
+                for a, b in zip(first.per_candidate, other.per_candidate, strict=True)
+            )
 
     # -- AC-12 ----------------------------------------------------------------------------------
     def test_ac12_frame_done(self, rig: Any) -> None:
         doubles, match = rig([S(120, 1.1), S(fail_extract=True), S(80, 1.5)])
         result = match()
         (done,) = doubles.fdr.of_kind("matcher.frame_done")
-        assert (done["candidates_input"], done["candidates_dropped"], done["best_inlier_count"],
-                done["best_residual_px"]) == (3, 1, 120, 1.1)
+        assert (
+            done["candidates_input"],
+            done["candidates_dropped"],
+            done["best_inlier_count"],
+            done["best_residual_px"],
+        ) == (3, 1, 120, 1.1)
         assert done["frame_id"] == str(result.frame_id)
         assert done["best_tile_id"] == result.per_candidate[0].tile_id.as_list()

@@ -93,8 +93,11 @@ class FakeInferenceRuntime:
             raise RuntimeError(f"scripted extractor failure on candidate {mark - 1}")
         n = 8
         kpts = np.stack([np.arange(n, dtype=np.float32), np.full(n, mark, np.float32)], axis=1)
-        return {"keypoints": kpts, "keypoint_scores": np.ones(n, np.float32),
-                "descriptors": np.zeros((n, 4), np.float32)}
+        return {
+            "keypoints": kpts,
+            "keypoint_scores": np.ones(n, np.float32),
+            "descriptors": np.zeros((n, 4), np.float32),
+        }
 
 
 class FakeLightGlueRuntime:
@@ -104,10 +107,17 @@ class FakeLightGlueRuntime:
         self.script = list(script)
         self.calls: list[int] = []
 
-    def match_pair(self, kpts0: NDArray[np.float32], desc0: NDArray[np.float32],
-                   size0: tuple[int, int], kpts1: NDArray[np.float32],
-                   desc1: NDArray[np.float32], size1: tuple[int, int], *,
-                   feature_type: str) -> RawMatches:
+    def match_pair(
+        self,
+        kpts0: NDArray[np.float32],
+        desc0: NDArray[np.float32],
+        size0: tuple[int, int],
+        kpts1: NDArray[np.float32],
+        desc1: NDArray[np.float32],
+        size1: tuple[int, int],
+        *,
+        feature_type: str,
+    ) -> RawMatches:
         mark = int(kpts1[0, 1]) - 1 if len(kpts1) else -1
         self.calls.append(mark)
         if 0 <= mark < len(self.script) and self.script[mark].fail_match:
@@ -126,14 +136,18 @@ class FakeRansacFilter:
         self.calls: list[int] = []
 
     def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult:
-        mark = int(round(float(correspondences[0, 3]))) - 1 if len(correspondences) else -1
+        mark = round(float(correspondences[0, 3])) - 1 if len(correspondences) else -1
         self.calls.append(mark)
         s = self.script[mark] if 0 <= mark < len(self.script) else ScriptedCandidate(inliers=0)
         rows = np.tile(np.array([[1.0, 2.0, 3.0, float(mark + 1)]], np.float32), (s.inliers, 1))
         rows[:, 0] += np.arange(s.inliers, dtype=np.float32)
-        return RansacResult(rows, s.outliers, float(s.residual) if s.inliers else 0.0,
-                            np.eye(3) if s.inliers else None,
-                            np.ones(s.inliers + s.outliers, bool))
+        return RansacResult(
+            rows,
+            s.outliers,
+            float(s.residual) if s.inliers else 0.0,
+            np.eye(3) if s.inliers else None,
+            np.ones(s.inliers + s.outliers, bool),
+        )
 
 
 class FakeBackend:
@@ -143,22 +157,36 @@ class FakeBackend:
     extract_phase = "disk_forward"
     match_phase = "lightglue_match"
 
-    def __init__(self, inference: FakeInferenceRuntime, lightglue: FakeLightGlueRuntime,
-                 rule: InputRule = InputRule(max_long_side=64, multiple=16)) -> None:
+    def __init__(
+        self,
+        inference: FakeInferenceRuntime,
+        lightglue: FakeLightGlueRuntime,
+        rule: InputRule | None = None,
+    ) -> None:
         self.inference = inference
         self.lightglue = lightglue
-        self.input_rule = rule
+        self.input_rule = rule or InputRule(max_long_side=64, multiple=16)
         self.engine_id = inference.load_engine("fake-engine")
 
     def extract(self, image: PreparedImage) -> Features:
         out = self.inference.run(self.engine_id, {"image": image.image})
-        return Features(out["keypoints"], out["descriptors"], out["keypoint_scores"],
-                        (image.image.shape[1], image.image.shape[0]))
+        return Features(
+            out["keypoints"],
+            out["descriptors"],
+            out["keypoint_scores"],
+            (image.image.shape[1], image.image.shape[0]),
+        )
 
     def match(self, query: Features, tile: Features) -> RawMatches:
-        return self.lightglue.match_pair(query.keypoints, query.descriptors, query.image_size,
-                                         tile.keypoints, tile.descriptors, tile.image_size,
-                                         feature_type="fake")
+        return self.lightglue.match_pair(
+            query.keypoints,
+            query.descriptors,
+            query.image_size,
+            tile.keypoints,
+            tile.descriptors,
+            tile.image_size,
+            feature_type="fake",
+        )
 
     def provenance(self) -> Mapping[str, Any]:
         return {"provider": self.inference.provider, "engines": {"fake": "0" * 64}}
@@ -180,8 +208,9 @@ def _marked_png(mark: int, size: int = 64) -> bytes:
     return buf.tobytes()
 
 
-def make_frame(frame_id: uuid.UUID | None = None, size: int = 64) -> tuple[NavCameraFrame,
-                                                                          CameraCalibration]:
+def make_frame(
+    frame_id: uuid.UUID | None = None, size: int = 64
+) -> tuple[NavCameraFrame, CameraCalibration]:
     """A marked query frame (no attitude) and a matching distortion-free calibration."""
     image = np.full((size, size, 3), QUERY_MARK, np.uint8)
     frame = NavCameraFrame(frame_id or uuid.uuid4(), image, captured_at_ns=1)
@@ -192,8 +221,12 @@ def make_rerank(frame_id: uuid.UUID, script: Sequence[ScriptedCandidate]) -> Rer
     """One candidate per script entry, tile ids (18, 47.0 + i/1000, 8.5)."""
     candidates = []
     for i, s in enumerate(script):
-        handle = (_FailingHandle() if s.fail_decode
-                  else BytesTileHandle(_marked_png(i + 1), f"tile{i}"))
-        candidates.append(RerankCandidate(TileId(18, 47.0 + i / 1000, 8.5), 1.0 - i / 10, handle,
-                                          gsd_m_per_px=0.3))
+        handle = (
+            _FailingHandle() if s.fail_decode else BytesTileHandle(_marked_png(i + 1), f"tile{i}")
+        )
+        candidates.append(
+            RerankCandidate(
+                TileId(18, 47.0 + i / 1000, 8.5), 1.0 - i / 10, handle, gsd_m_per_px=0.3
+            )
+        )
     return RerankResult(frame_id, tuple(candidates))

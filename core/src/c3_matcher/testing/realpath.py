@@ -20,11 +20,19 @@ import numpy as np
 from c3_matcher.dto import RerankCandidate, RerankResult
 from c3_matcher.errors import InsufficientInliersError
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.sim.scenario import Scenario, ScenarioSpec, build_scenario, inlier_errors_px
+from c3_matcher.sim.scenario import Scenario, ScenarioSpec, inlier_errors_px
 from c3_matcher.tiles import BytesTileHandle
 
-__all__ = ["MAX_MEAN_ERROR_PX", "MIN_INLIERS", "SCENARIOS", "Outcome", "imagery_dir", "rerank_for",
-           "run_scenario", "scenario_specs"]
+__all__ = [
+    "MAX_MEAN_ERROR_PX",
+    "MIN_INLIERS",
+    "SCENARIOS",
+    "Outcome",
+    "imagery_dir",
+    "rerank_for",
+    "run_scenario",
+    "scenario_specs",
+]
 
 MIN_INLIERS = 80
 MAX_MEAN_ERROR_PX = 2.5
@@ -37,22 +45,48 @@ def imagery_dir() -> Path:
 
 
 # (orthophoto, yaw, pitch, roll, tile px, image size, focal px, candidate order)
-SCENARIOS: tuple[tuple[str, float, float, float, int, tuple[int, int], float,
-                       tuple[int, int, int]], ...] = (
+SCENARIOS: tuple[
+    tuple[str, float, float, float, int, tuple[int, int], float, tuple[int, int, int]], ...
+] = (
     ("open_orthophotos/test_tiled.tif", 30, 15, 0, 512, (640, 480), 560, (1, 0, 2)),
     ("open_orthophotos/test_tiled.tif", 90, -10, 14, 512, (640, 480), 560, (2, 1, 0)),
-    ("open_orthophotos/5b90f92da0d7280005fab355_4310.tif", 120, 0, 18, 512, (640, 480), 560,
-     (0, 2, 1)),
-    ("open_orthophotos/swissimage_zurich_1091-322_00_0p5m.tif", 180, -12, 12, 384, (480, 360),
-     420, (1, 2, 0)),
+    (
+        "open_orthophotos/5b90f92da0d7280005fab355_4310.tif",
+        120,
+        0,
+        18,
+        512,
+        (640, 480),
+        560,
+        (0, 2, 1),
+    ),
+    (
+        "open_orthophotos/swissimage_zurich_1091-322_00_0p5m.tif",
+        180,
+        -12,
+        12,
+        384,
+        (480, 360),
+        420,
+        (1, 2, 0),
+    ),
 )
 
 
 def scenario_specs() -> list[tuple[ScenarioSpec, tuple[int, int, int]]]:
     out = []
     for i, (path, yaw, pitch, roll, tile, size, focal, order) in enumerate(SCENARIOS):
-        spec = ScenarioSpec(imagery_dir() / path, yaw, pitch, roll, frame_gsd_ratio=0.5,
-                            tile_size=tile, image_size=size, focal_px=focal, seed=i)
+        spec = ScenarioSpec(
+            imagery_dir() / path,
+            yaw,
+            pitch,
+            roll,
+            frame_gsd_ratio=0.5,
+            tile_size=tile,
+            image_size=size,
+            focal_px=focal,
+            seed=i,
+        )
         out.append((spec, order))
     return out
 
@@ -77,37 +111,54 @@ class Outcome:
 
     @property
     def passed(self) -> bool:
-        return (not self.insufficient and self.true_tile_best and self.inliers >= MIN_INLIERS
-                and self.mean_error_px < MAX_MEAN_ERROR_PX)
+        return (
+            not self.insufficient
+            and self.true_tile_best
+            and self.inliers >= MIN_INLIERS
+            and self.mean_error_px < MAX_MEAN_ERROR_PX
+        )
 
 
 def rerank_for(scenario: Scenario, order: tuple[int, ...], frame_id: uuid.UUID) -> RerankResult:
     """The candidates in ``order`` (indices into ``scenario.tiles``; 0 is the true tile), PNG-
     encoded like a tile store's."""
-    candidates = []
+    candidates: list[RerankCandidate] = []
     for i in order:
         ok, buf = cv2.imencode(".png", np.ascontiguousarray(scenario.tiles[i].image[:, :, ::-1]))
         assert ok
-        candidates.append(RerankCandidate(scenario.tile_ids[i], 1.0 - 0.1 * len(candidates),
-                                          BytesTileHandle(buf.tobytes(), f"tile{i}"),
-                                          scenario.tile_gsd_m))
+        candidates.append(
+            RerankCandidate(
+                scenario.tile_ids[i],
+                1.0 - 0.1 * len(candidates),
+                BytesTileHandle(buf.tobytes(), f"tile{i}"),
+                scenario.tile_gsd_m,
+            )
+        )
     return RerankResult(frame_id, tuple(candidates))
 
 
-def run_scenario(matcher: CrossDomainMatcher, scenario: Scenario, order: tuple[int, ...],
-                 with_attitude: bool = True) -> Outcome:
+def run_scenario(
+    matcher: CrossDomainMatcher,
+    scenario: Scenario,
+    order: tuple[int, ...],
+    with_attitude: bool = True,
+) -> Outcome:
     frame = scenario.frame.nav_frame(uuid.UUID(int=len(order) + 1), with_attitude=with_attitude)
     rerank = rerank_for(scenario, order, frame.frame_id)
     name = scenario.spec.name
     try:
         result = matcher.match(frame, rerank, scenario.calibration)
     except InsufficientInliersError as exc:
-        return Outcome(name, with_attitude, True, False, exc.best_inlier_count, math.inf,
-                       math.inf)
+        return Outcome(name, with_attitude, True, False, exc.best_inlier_count, math.inf, math.inf)
     best_input = result.diagnostics["input_index"][0]
     best = result.per_candidate[0]
     errors = inlier_errors_px(scenario, order[best_input], best.inlier_correspondences)
-    return Outcome(name, with_attitude, False, order[best_input] == 0, best.inlier_count,
-                   float(np.mean(errors)), result.reprojection_residual_px)
-
-
+    return Outcome(
+        name,
+        with_attitude,
+        False,
+        order[best_input] == 0,
+        best.inlier_count,
+        float(np.mean(errors)),
+        result.reprojection_residual_px,
+    )

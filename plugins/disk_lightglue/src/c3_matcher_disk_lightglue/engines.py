@@ -20,8 +20,9 @@ import importlib.metadata
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef
 from numpy.typing import NDArray
+
+from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef
 
 if TYPE_CHECKING:
     from c3_matcher.engines.export import ExportReport, ExportRequest
@@ -209,6 +210,7 @@ def export_disk(request: ExportRequest) -> ExportReport:
     ``DISK_TOLERANCES``."""
     import onnxruntime as ort
     import torch
+
     from c3_matcher.engines.export import ExportReport
     from c3_matcher.engines.export.onnx_export import export_module
     from c3_matcher.engines.extract import image_to_feeds
@@ -294,6 +296,7 @@ def disk_reference_features(
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Keypoints (K, 2) px and descriptors (K, 128) of kornia's DISK (``n=max_keypoints``)."""
     import torch
+
     from c3_matcher.engines.extract import image_to_feeds
 
     feeds = image_to_feeds(rgb, np.ones(rgb.shape[:2], dtype=bool))

@@ -28,8 +28,13 @@ from c3_matcher.strategy import (
     engine_startup_probe,
 )
 
-__all__ = ["DISK_SIZE_MULTIPLE", "STRATEGY", "DiskLightGlueConfig", "DiskLightGlueMatcher",
-           "create"]
+__all__ = [
+    "DISK_SIZE_MULTIPLE",
+    "STRATEGY",
+    "DiskLightGlueConfig",
+    "DiskLightGlueMatcher",
+    "create",
+]
 
 STRATEGY = "disk_lightglue"
 DISK_SIZE_MULTIPLE = 16  # DISK's U-Net: H and W multiples of 16
@@ -42,34 +47,51 @@ class DiskLightGlueConfig(ExtractorLightGlueConfig):
     """``MatcherConfig`` of AZ-345 for DISK + LightGlue."""
 
     @classmethod
-    def from_c3_settings(cls, settings: C3Settings,
-                         store: EngineStore | None = None) -> DiskLightGlueConfig:
+    def from_c3_settings(
+        cls, settings: C3Settings, store: EngineStore | None = None
+    ) -> DiskLightGlueConfig:
         """Engine paths from the engine directory (``EngineError`` naming the build command if
         one is missing), thresholds and image rules from ``[matcher]``."""
         engines = store or EngineStore(settings.engines.directory)
         return cls.from_settings(
-            settings, label=STRATEGY, feature_type="disk", extract_phase="disk_forward",
+            settings,
+            label=STRATEGY,
+            feature_type="disk",
+            extract_phase="disk_forward",
             extractor_engine_path=engines.require(*DISK_ENGINE),
             lightglue_engine_path=engines.require(*LIGHTGLUE_ENGINE),
-            size_multiple=DISK_SIZE_MULTIPLE)
+            size_multiple=DISK_SIZE_MULTIPLE,
+        )
 
 
 class DiskLightGlueMatcher(PipelineMatcher):
     """The production-default ``CrossDomainMatcher``. Single-threaded (INV-1)."""
 
-    def __init__(self, runtime: InferenceRuntime, lightglue_runtime: LightGlueRuntime,
-                 ransac_filter: RansacFilter, fdr_client: FdrClient,
-                 health_window: RollingHealthWindow, config: DiskLightGlueConfig,
-                 clock: Clock | None = None) -> None:
+    def __init__(
+        self,
+        runtime: InferenceRuntime,
+        lightglue_runtime: LightGlueRuntime,
+        ransac_filter: RansacFilter,
+        fdr_client: FdrClient,
+        health_window: RollingHealthWindow,
+        config: DiskLightGlueConfig,
+        clock: Clock | None = None,
+    ) -> None:
         self._runtime = runtime
         self._lightglue_runtime = lightglue_runtime
         self._config = config
         backend = ExtractorLightGlueBackend(runtime, lightglue_runtime, config)
         self._disk_engine_id = backend.engine_id
         engine_startup_probe(backend)
-        super().__init__(backend, ransac_filter, fdr_client, health_window,
-                         clock or MonotonicClock(), config.pipeline_settings,
-                         config.tile_cache_size)
+        super().__init__(
+            backend,
+            ransac_filter,
+            fdr_client,
+            health_window,
+            clock or MonotonicClock(),
+            config.pipeline_settings,
+            config.tile_cache_size,
+        )
 
     @property
     def config(self) -> DiskLightGlueConfig:
@@ -80,12 +102,25 @@ class DiskLightGlueMatcher(PipelineMatcher):
         return self._disk_engine_id
 
 
-def create(config: C3Settings, *, lightglue_runtime: LightGlueRuntime,
-           ransac_filter: RansacFilter, inference_runtime: InferenceRuntime,
-           health_window: RollingHealthWindow, fdr_client: FdrClient, clock: Clock,
-           options: Any = None) -> CrossDomainMatcher:
+def create(
+    config: C3Settings,
+    *,
+    lightglue_runtime: LightGlueRuntime,
+    ransac_filter: RansacFilter,
+    inference_runtime: InferenceRuntime,
+    health_window: RollingHealthWindow,
+    fdr_client: FdrClient,
+    clock: Clock,
+    options: Any = None,
+) -> CrossDomainMatcher:
     """AZ-345 ``create``: resolve the DISK and LightGlue engines, load them now (start-up) and
     return the wired ``DiskLightGlueMatcher``."""
-    return DiskLightGlueMatcher(inference_runtime, lightglue_runtime, ransac_filter, fdr_client,
-                                health_window, DiskLightGlueConfig.from_c3_settings(config),
-                                clock)
+    return DiskLightGlueMatcher(
+        inference_runtime,
+        lightglue_runtime,
+        ransac_filter,
+        fdr_client,
+        health_window,
+        DiskLightGlueConfig.from_c3_settings(config),
+        clock,
+    )

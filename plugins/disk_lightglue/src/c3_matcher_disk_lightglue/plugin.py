@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.plugins import StrategySpec, hookimpl
-
 from c3_matcher_disk_lightglue.matcher import STRATEGY, create
 
 __all__ = ["c3_matcher_engine_specs", "c3_matcher_strategies"]
@@ -12,9 +11,14 @@ __all__ = ["c3_matcher_engine_specs", "c3_matcher_strategies"]
 
 @hookimpl
 def c3_matcher_strategies() -> list[StrategySpec]:
-    return [StrategySpec(
-        name=STRATEGY, factory=create, build_flag="BUILD_MATCHER_DISK_LIGHTGLUE",
-        description="DISK features + LightGlue (default, D-C3-1 = (a))")]
+    return [
+        StrategySpec(
+            name=STRATEGY,
+            factory=create,
+            build_flag="BUILD_MATCHER_DISK_LIGHTGLUE",
+            description="DISK features + LightGlue (default, D-C3-1 = (a))",
+        )
+    ]
 
 
 @hookimpl
