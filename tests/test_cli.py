@@ -1,0 +1,131 @@
+"""The command line end to end, in subprocesses, with the real engines: stdout carries exactly
+one JSON object, logs go to stderr, exit statuses 0 / 2 / 3 as documented."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+DEMO = REPO / "data" / "demo"
+META = json.loads((DEMO / "demo.json").read_text())
+
+
+def c3(args: list[str], env_extra: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
+    env.update(env_extra)
+    return subprocess.run(
+        [sys.executable, "-m", "c3_matcher.cli", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=REPO,
+        timeout=600,
+    )
+
+
+@pytest.fixture
+def env(engine_dir, tmp_path) -> dict[str, str]:  # type: ignore[no-untyped-def]
+    return {
+        "C3_MATCHER_ENGINES__DIRECTORY": str(engine_dir),
+        "C3_MATCHER_FDR__PATH": str(tmp_path / "fdr.jsonl"),
+    }
+
+
+def demo_args(tiles: list[int]) -> list[str]:
+    att = META["attitude_deg"]
+    args = [
+        "match",
+        "--query",
+        str(DEMO / "frame.jpg"),
+        "--calibration",
+        str(DEMO / "calibration.json"),
+        "--attitude",
+        f"{att['roll']},{att['pitch']},{att['yaw']}",
+        "--height",
+        str(META["height_m"]),
+        "--tile-gsd",
+        str(META["tile_gsd_m"]),
+    ]
+    for i in tiles:
+        t = META["tiles"][i]
+        args += ["--tile", str(DEMO / t["file"]), "--tile-id", ",".join(map(str, t["tile_id"]))]
+    return args
+
+
+def test_match_demo_prints_one_json_object_and_a_picture(env, tmp_path):
+    viz = tmp_path / "matches.png"
+    proc = c3([*demo_args([0, 1, 2]), "--viz", str(viz)], env)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    out = json.loads(proc.stdout)  # exactly one JSON document on stdout
+    assert proc.stdout.count("\n") == 1
+    best = out["per_candidate"][0]
+    assert META["tiles"][best["tile_index"]]["true"]
+    assert best["inlier_count"] >= 80 and out["best_candidate_idx"] == 0
+    assert len(best["inlier_correspondences"]) == best["inlier_count"]
+    assert out["matcher_label"] == "disk_lightglue" and out["candidates_input"] == 3
+    assert viz.stat().st_size > 10_000
+    kinds = {json.loads(line)["kind"] for line in proc.stderr.splitlines() if line.startswith("{")}
+    assert "c3.matcher.ready" in kinds
+    records = [json.loads(x) for x in Path(env["C3_MATCHER_FDR__PATH"]).read_text().splitlines()]
+    assert [r["kind"] for r in records].count("matcher.frame_done") == 1
+
+
+def test_match_without_the_true_tile_exits_3_with_a_json_error(env):
+    distractors = [i for i, t in enumerate(META["tiles"]) if not t["true"]]
+    proc = c3(demo_args(distractors), env)
+    assert proc.returncode == 3, proc.stderr[-2000:]
+    error = json.loads(proc.stdout)
+    assert error["error"] == "InsufficientInliersError" and error["candidates_input"] == 2
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["match", "--query", "missing.jpg", "--tile", "x.png"], "missing.jpg"),
+        (
+            [
+                "match",
+                "--query",
+                str(DEMO / "frame.jpg"),
+                "--tile",
+                str(DEMO / "tile_a.png"),
+                "--attitude",
+                "1,2",
+            ],
+            "--attitude",
+        ),
+        (
+            [
+                "match",
+                "--query",
+                str(DEMO / "frame.jpg"),
+                "--tile",
+                str(DEMO / "tile_a.png"),
+                "--tile-id",
+                "18,47",
+            ],
+            "--tile-id",
+        ),
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line(args, needle, tmp_path):
+    proc = c3(args, {"C3_MATCHER_ENGINES__DIRECTORY": str(tmp_path)})
+    assert proc.returncode == 2
+    assert proc.stdout == ""
+    assert needle in proc.stderr and len(proc.stderr.strip().splitlines()) <= 2
+
+
+def test_config_refuses_a_bad_file_naming_the_field(tmp_path):
+    bad = tmp_path / "c3.toml"
+    bad.write_text("[matcher]\nmin_inliers_threshold = 1\n")
+    proc = c3(["--config", str(bad), "config"], {})
+    assert proc.returncode == 2 and "matcher.min_inliers_threshold" in proc.stderr
+    good = c3(["config"], {"C3_MATCHER_MATCHER__MAX_KEYPOINTS": "1024"})
+    assert good.returncode == 0
+    assert json.loads(good.stdout)["matcher"]["max_keypoints"] == 1024
