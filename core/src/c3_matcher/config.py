@@ -14,10 +14,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from platformdirs import user_cache_dir, user_data_dir
+from platformdirs import user_data_dir
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
+from c3_matcher.engines.store import default_engine_dir
 from c3_matcher.errors import ConfigurationError
 
 __all__ = [
@@ -71,7 +72,7 @@ class EngineSettings(_Section):
     """The ``[engines]`` table."""
 
     directory: Path = Field(
-        Path(user_cache_dir(APP_NAME)) / "engines", description="where engines and manifests live"
+        default_factory=default_engine_dir, description="where engines and manifests live"
     )
     providers: tuple[str, ...] | None = Field(
         None, description="execution providers to allow, in order; default: all available"

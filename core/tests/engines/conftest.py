@@ -7,7 +7,6 @@ clone builds DISK and LightGlue there in about 1.5 minutes on 2 CPU cores.
 
 from __future__ import annotations
 
-import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -17,12 +16,13 @@ import cv2
 import numpy as np
 import onnx
 import pytest
+from numpy.typing import NDArray
+
 from c3_matcher.engines.compiler import ensure_engines
 from c3_matcher.engines.manifest import EngineManifest
 from c3_matcher.engines.naming import EngineName
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.spec import TensorSpec, file_sha256
-from numpy.typing import NDArray
 
 REPO = Path(__file__).resolve().parents[3]
 IMAGERY = REPO / "data" / "imagery"
@@ -33,12 +33,6 @@ def read_rgb(relative: str) -> NDArray[np.uint8]:
     bgr = cv2.imread(str(IMAGERY / relative), cv2.IMREAD_COLOR)
     assert bgr is not None, f"fixture image {IMAGERY / relative} is missing"
     return np.ascontiguousarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
-
-
-@pytest.fixture(scope="session")
-def engine_dir() -> Path:
-    configured = os.environ.get("C3_MATCHER_ENGINE_DIR")
-    return Path(configured) if configured else REPO / ".engines"
 
 
 @pytest.fixture(scope="session")

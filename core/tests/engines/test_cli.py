@@ -8,6 +8,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+
 from c3_matcher.engines.bench import run_bench
 from c3_matcher.engines.cli import EnginesCliContext, add_engines_commands, dispatch
 
@@ -86,6 +87,6 @@ def test_bench_machinery_smoke(
         disk_sizes=((256, 256),),
         lightglue_counts=(128,),
     )
-    assert [r.case for r in results] == ["disk 256x256", "lightglue 128x128 kpts"]
+    assert [r.case for r in results] == ["disk 256x256", "disk lightglue 128x128 kpts"]
     for r in results:
         assert r.median_ms > 0 and r.peak_rss_mib > r.baseline_rss_mib > 0

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
 from c3_matcher.engines.compiler import EngineBuildError, build_engines, select_specs
 from c3_matcher.engines.export import ExportReport, ExportRequest
 from c3_matcher.engines.manifest import check_engine_file
@@ -119,7 +120,7 @@ def test_failed_build_keeps_no_engine(
 
 
 def test_missing_exporter_module_names_the_extra(tmp_path: Path) -> None:
-    spec = make_spec("passing", exporter="no_such_module_xyz:export")
+    spec = dataclasses.replace(make_spec("passing"), exporter="no_such_module_xyz:export")
     with pytest.raises(EngineBuildError, match=r"c3-matcher\[engine-build\]"):
         build_engines([spec], tmp_path)
 

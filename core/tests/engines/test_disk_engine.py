@@ -9,9 +9,10 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from numpy.typing import NDArray
+
 from c3_matcher.engines.extract import image_to_feeds, run_extractor
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
-from numpy.typing import NDArray
 
 
 def _kornia(reference: Any, rgb: NDArray[np.uint8], n: int) -> Any:

@@ -9,13 +9,14 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from kornia.feature.lightglue import normalize_keypoints as kornia_normalize
+from numpy.typing import NDArray
+
 from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, normalize_keypoints
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.errors import EngineError
 from c3_matcher.features import Features
-from kornia.feature.lightglue import normalize_keypoints as kornia_normalize
-from numpy.typing import NDArray
 
 
 @pytest.fixture(scope="module")

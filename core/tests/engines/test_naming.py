@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import pytest
+
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
+from loguru import logger
+
 from c3_matcher.engines.runtime import OnnxInferenceRuntime, select_providers
 from c3_matcher.errors import EngineError
-from loguru import logger
 
 TRT = "TensorrtExecutionProvider"
 CUDA = "CUDAExecutionProvider"

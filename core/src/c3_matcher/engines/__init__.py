@@ -11,7 +11,12 @@ from __future__ import annotations
 from c3_matcher.engines.manifest import EngineManifest
 from c3_matcher.engines.naming import EngineName
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef
-from c3_matcher.engines.store import BUILD_COMMAND, EngineRecord, EngineStore
+from c3_matcher.engines.store import (
+    BUILD_COMMAND,
+    EngineRecord,
+    EngineStore,
+    default_engine_dir,
+)
 
 __all__ = [
     "BUILD_COMMAND",
@@ -22,4 +27,5 @@ __all__ = [
     "EngineStore",
     "TensorSpec",
     "WeightsRef",
+    "default_engine_dir",
 ]

@@ -131,13 +131,14 @@ def _child(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     detail: dict[str, Any] = {}
     fn: Callable[[], object]
-    if args.kind == "disk":
+    if args.kind == "extractor":
         engine_id = runtime.load_engine(args.engine)
         load_ms = (time.perf_counter() - start) * 1e3
         width, height = args.size
         rgb = _read_rgb(Path(args.image), (width, height))
         mask = np.ones((height, width), dtype=bool)
-        case = f"disk {width}x{height}"
+        model = Path(args.engine).name.split("_", 1)[0]
+        case = f"{model} {width}x{height}"
 
         def fn() -> object:
             return run_extractor(runtime, engine_id, rgb, mask, 2048)
@@ -152,7 +153,7 @@ def _child(args: argparse.Namespace) -> int:
         k0, d0, k1, d1 = data["k0"][:n], data["d0"][:n], data["k1"][:n], data["d1"][:n]
         s0 = tuple(int(v) for v in data["size0"])
         s1 = tuple(int(v) for v in data["size1"])
-        case = f"lightglue {len(k0)}x{len(k1)} kpts"
+        case = f"{args.feature_type} lightglue {len(k0)}x{len(k1)} kpts"
 
         def fn() -> object:
             return matcher.match_pair(
@@ -254,7 +255,7 @@ def run_bench(
                 results.append(
                     _run_child(
                         [
-                            "disk",
+                            "extractor",
                             "--engine",
                             str(disk_engine),
                             "--image",
@@ -271,7 +272,7 @@ def run_bench(
                 results.append(
                     _run_child(
                         [
-                            "lightglue",
+                            "matcher",
                             "--engine",
                             str(lightglue_engine),
                             "--features",
@@ -306,7 +307,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m c3_matcher.engines.bench")
     sub = parser.add_subparsers(dest="mode", required=True)
     child = sub.add_parser("child", help="one measurement (internal)")
-    child.add_argument("kind", choices=["disk", "lightglue"])
+    child.add_argument("kind", choices=["extractor", "matcher"])
     child.add_argument("--engine", required=True)
     child.add_argument("--image")
     child.add_argument("--size", nargs=2, type=int)

@@ -160,7 +160,7 @@ def _bench(args: argparse.Namespace, ctx: EnginesCliContext) -> int:
         from c3_matcher.engines.export import default_verification_imagery
 
         image = default_verification_imagery()[0]
-    settings = ((False, True),)
+    settings: tuple[tuple[bool, bool], ...] = ((False, True),)
     if args.sweep_session_options:
         settings = ((True, True), (False, True), (False, False))
     results = []

@@ -129,7 +129,7 @@ def _load_exporter(spec: EngineSpec) -> Callable[[Any], Any]:
         ) from exc
     if not callable(exporter):
         raise EngineBuildError(spec.key, f"exporter {spec.exporter} is not callable")
-    return exporter  # type: ignore[no-any-return]
+    return exporter
 
 
 def _name_dynamic_axes(path: Path, spec: EngineSpec) -> None:

@@ -4,17 +4,23 @@ Execution provider: the first of TensorRT -> CUDA -> CPU that the installed onnx
 (or the injected ``providers_available``), with the rest of that chain as fallbacks; the choice is
 logged once (``c3.inference.provider_selected``).
 
-Session options, chosen by measurement (``c3-matcher engines bench``, 2-core CPU, onnxruntime
-1.31, DISK 1024x1024 / LightGlue 2048 keypoints per side; median of 20 runs, peak RSS per fresh
-process; see ``SESSION_OPTIONS_NOTE``):
+Session options, chosen by measurement (``c3-matcher engines bench --sweep-session-options``;
+2-core CPU, onnxruntime 1.31, fresh process per case, 20 runs; peak RSS = VmHWM):
 
-- ``enable_mem_pattern = False``: the memory-pattern planner pre-allocates one block per dynamic
-  shape it has seen; with DISK's large activations it raised peak RSS by ~1 GB at 1024x1024 at no
-  measurable speed gain.
-- CPU memory arena kept ON: turning it off lowered peak memory further but cost 17-40 % latency.
-- ``graph_optimization_level = ORT_ENABLE_ALL`` (default fusions), sequential execution,
-  ``intra_op_num_threads = 0`` (one per physical core); ``use_deterministic_compute`` on so two
-  runs of the same input are bit-identical (DECISIONS 5).
+    case                  mem pattern on + arena   off + arena (chosen)   off + no arena
+    DISK 512x512          978 MiB                  752 MiB                570 MiB
+    DISK 1024x1024        4115 MiB                 3018 MiB               1398 MiB
+    LightGlue 2048/side   977 MiB                  600 MiB                683 MiB
+
+- ``enable_mem_pattern = False``: the planner's per-shape pre-allocation cost ~1.1 GB at DISK
+  1024x1024 and ~380 MB at LightGlue 2048 for no speed gain (median latencies equal within the
+  noise of that sweep). Quiet-machine medians with the chosen options: DISK 512x512 982 ms,
+  1024x1024 3810 ms; LightGlue 512/side 312 ms, 2048/side 3286 ms.
+- CPU memory arena kept ON: off halves DISK 1024x1024's peak but made it markedly slower
+  (2.7x in the sweep; the feasibility study measured 17-40 %), and did not help LightGlue.
+- ``graph_optimization_level = ORT_ENABLE_ALL``, sequential execution, ``intra_op_num_threads =
+  0`` (one per physical core), ``use_deterministic_compute`` on (bit-identical reruns,
+  DECISIONS 5).
 """
 
 from __future__ import annotations
@@ -168,7 +174,8 @@ class OnnxInferenceRuntime:
         return tuple(self._providers)
 
     def load_engine(self, path: Any) -> str:
-        """Check and load ``path``; return its engine id (the file stem). Idempotent per path.
+        """Check and load ``path``; return its engine id (the file stem, made unique). Idempotent
+        per path.
 
         Raises ``EngineError`` (naming the file and the build command) when the file is missing,
         its name breaks the schema, its manifest is missing or disagrees, its sha256 differs, or
@@ -191,6 +198,8 @@ class OnnxInferenceRuntime:
         _check_io(engine_path, "inputs", manifest.inputs, session.get_inputs())
         _check_io(engine_path, "outputs", manifest.outputs, session.get_outputs())
         engine_id = engine_path.name.removesuffix(".onnx")
+        if engine_id in self._engines:  # same file name in another directory
+            engine_id = f"{engine_id}#{len(self._engines)}"
         self._engines[engine_id] = _Loaded(
             engine_path,
             manifest,

@@ -6,6 +6,7 @@ directory (it removes superseded builds); should several remain, the newest vali
 
 from __future__ import annotations
 
+import builtins
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,9 +14,23 @@ from c3_matcher.engines.manifest import EngineManifest, check_engine_file, read_
 from c3_matcher.engines.naming import ENGINE_SUFFIX, EngineName
 from c3_matcher.errors import EngineError
 
-__all__ = ["BUILD_COMMAND", "EngineRecord", "EngineStore", "VerifyOutcome"]
+__all__ = [
+    "BUILD_COMMAND",
+    "EngineRecord",
+    "EngineStore",
+    "VerifyOutcome",
+    "default_engine_dir",
+]
 
 BUILD_COMMAND = "c3-matcher engines build"
+
+
+def default_engine_dir() -> Path:
+    """The default engine directory: the user cache directory of c3-matcher (e.g.
+    ``~/.cache/c3-matcher/engines`` on Linux), from ``platformdirs``."""
+    from platformdirs import user_cache_dir
+
+    return Path(user_cache_dir("c3-matcher")) / "engines"
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,9 +130,9 @@ class EngineStore:
             records.append(EngineRecord(path, manifest, None))
         return records
 
-    def verify(self) -> list[VerifyOutcome]:
+    def verify(self) -> builtins.list[VerifyOutcome]:
         """Re-hash every engine and compare with its manifest."""
-        outcomes: list[VerifyOutcome] = []
+        outcomes: builtins.list[VerifyOutcome] = []
         for path in self._files():
             try:
                 manifest = check_engine_file(path, check_hash=True)

@@ -91,6 +91,8 @@ def load_verification_images(paths: Sequence[Path]) -> tuple[VerificationImage, 
         bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if bgr is None:
             raise FileNotFoundError(f"verification image {path} is missing or unreadable")
-        rgb = np.ascontiguousarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+        rgb: NDArray[np.uint8] = np.ascontiguousarray(
+            cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8
+        )
         images.append(VerificationImage(Path(path).name, rgb))
     return tuple(images)

@@ -69,7 +69,7 @@ def load_lightglue_reference(
     """kornia ``LightGlue`` with ``weights_path`` loaded (upstream key renames applied), pruning
     off, flash off, eval mode. ``RuntimeError`` if a learned parameter is missing."""
     model = LightGlue(
-        features=None,
+        features=None,  # type: ignore[arg-type]
         input_dim=input_dim,
         descriptor_dim=descriptor_dim,
         n_layers=n_layers,
@@ -111,7 +111,7 @@ class LightGlueForExport(nn.Module):
     def forward(
         self, kpts0: torch.Tensor, kpts1: torch.Tensor, desc0: torch.Tensor, desc1: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        lg = self.lg
+        lg: Any = self.lg
         d0, d1 = lg.input_proj(desc0), lg.input_proj(desc1)
         enc0, enc1 = lg.posenc(kpts0), lg.posenc(kpts1)
         for layer in lg.transformers:
@@ -261,7 +261,7 @@ def export_lightglue(
                 score_err = 0.0
                 if same and len(ref_scores):
                     score_err = float(np.abs(got.scores - ref_scores).max())
-                check = {
+                check: dict[str, Any] = {
                     "pair": f"{image.name}:{label}",
                     "keypoints": [len(k0), len(k1)],
                     "matches": len(got),
