@@ -93,7 +93,9 @@ def build_default_helpers(
     providers = providers_available
     if providers is None and settings.engines.providers is not None:
         providers = tuple(settings.engines.providers)
-    inference = OnnxInferenceRuntime(providers_available=providers)
+    inference = OnnxInferenceRuntime(
+        providers_available=providers, tensorrt_cache_dir=settings.engines.tensorrt_cache_dir
+    )
     return {
         "c7_inference": inference,
         "c3_lightglue_runtime": OnnxLightGlueRuntime(inference),

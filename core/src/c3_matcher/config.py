@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
-from platformdirs import user_data_dir
+from platformdirs import user_cache_dir, user_data_dir
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
@@ -73,6 +73,10 @@ class EngineSettings(_Section):
 
     directory: Path = Field(
         default_factory=default_engine_dir, description="where engines and manifests live"
+    )
+    tensorrt_cache_dir: Path = Field(
+        default_factory=lambda: Path(user_cache_dir(APP_NAME)) / "tensorrt",
+        description="ONNX Runtime TensorRT engine cache (filled on the ground, reused in flight)",
     )
     providers: tuple[str, ...] | None = Field(
         None, description="execution providers to allow, in order; default: all available"

@@ -46,3 +46,16 @@ def test_choice_is_logged_with_a_kind() -> None:
         logger.remove(sink)
     selected = [r for r in records if r.get("kind") == "c3.inference.provider_selected"]
     assert selected and selected[0]["provider"] == CUDA
+
+
+def test_tensorrt_engine_cache_directory_is_passed_to_the_provider(tmp_path):
+    from c3_matcher.engines.runtime import provider_options
+
+    opts = provider_options(
+        ["TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"], tmp_path
+    )
+    name, trt = opts[0]
+    assert name == "TensorrtExecutionProvider"
+    assert trt["trt_engine_cache_enable"] is True
+    assert trt["trt_engine_cache_path"] == str(tmp_path)
+    assert opts[1:] == ["CUDAExecutionProvider", "CPUExecutionProvider"]

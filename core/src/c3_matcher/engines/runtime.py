@@ -45,6 +45,7 @@ __all__ = [
     "SESSION_OPTIONS_NOTE",
     "OnnxInferenceRuntime",
     "SessionSettings",
+    "provider_options",
     "select_providers",
 ]
 
@@ -77,6 +78,32 @@ def select_providers(available: Sequence[str]) -> list[str]:
             "pip install onnxruntime",
         )
     return chosen
+
+
+def provider_options(
+    providers: Sequence[str], tensorrt_cache_dir: Path | None
+) -> list[str | tuple[str, dict[str, Any]]]:
+    """The session's provider list with options: TensorRT caches the engines it compiles (FP16)
+    in ``tensorrt_cache_dir``, so a flight computer whose cache was filled on the ground never
+    recompiles in flight. Other providers keep their defaults."""
+    out: list[str | tuple[str, dict[str, Any]]] = []
+    for name in providers:
+        if name == "TensorrtExecutionProvider" and tensorrt_cache_dir is not None:
+            out.append(
+                (
+                    name,
+                    {
+                        "trt_fp16_enable": True,
+                        "trt_engine_cache_enable": True,
+                        "trt_engine_cache_path": str(tensorrt_cache_dir),
+                        "trt_timing_cache_enable": True,
+                        "trt_timing_cache_path": str(tensorrt_cache_dir),
+                    },
+                )
+            )
+        else:
+            out.append(name)
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,6 +173,7 @@ class OnnxInferenceRuntime:
         providers_available: Sequence[str] | None = None,
         *,
         settings: SessionSettings | None = None,
+        tensorrt_cache_dir: Path | None = None,
     ) -> None:
         available = (
             list(ort.get_available_providers())
@@ -154,6 +182,7 @@ class OnnxInferenceRuntime:
         )
         self._providers = select_providers(available)
         self._settings = settings or SessionSettings()
+        self._tensorrt_cache_dir = tensorrt_cache_dir
         self._engines: dict[str, _Loaded] = {}
         logger.bind(
             kind="c3.inference.provider_selected",
@@ -191,7 +220,7 @@ class OnnxInferenceRuntime:
             session = ort.InferenceSession(
                 str(engine_path),
                 sess_options=self._settings.build(),
-                providers=list(self._providers),
+                providers=provider_options(self._providers, self._tensorrt_cache_dir),
             )
         except Exception as exc:  # onnxruntime raises its own exception types
             raise EngineError(engine_path, f"onnxruntime cannot load it ({exc})") from exc

@@ -1,0 +1,36 @@
+"""The example plugin's own tests: the core's contract kit, for free."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from c3_matcher.protocols import CrossDomainMatcher
+from c3_matcher.strategy import ExtractorLightGlueBackend, ExtractorLightGlueConfig, PipelineMatcher
+from c3_matcher.testing.contract import Doubles, MatcherContract
+
+CONFIG = ExtractorLightGlueConfig(
+    label="example_fast_disk",
+    feature_type="disk",
+    extract_phase="disk_forward",
+    extractor_engine_path=Path("disk.onnx"),
+    lightglue_engine_path=Path("lg.onnx"),
+    size_multiple=16,
+    max_long_side=64,
+    max_keypoints=512,
+)
+
+
+class TestExampleContract(MatcherContract):
+    extract_phase = "disk_forward"
+    match_phase = "lightglue_match"
+
+    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
+        backend = ExtractorLightGlueBackend(doubles.inference, doubles.lightglue, CONFIG)
+        return PipelineMatcher(
+            backend,
+            doubles.ransac,
+            doubles.fdr,
+            doubles.health,
+            doubles.clock,
+            CONFIG.pipeline_settings,
+        )
