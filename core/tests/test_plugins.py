@@ -149,7 +149,11 @@ def test_every_hookspec_is_documented_and_prefixed():
         for name, obj in inspect.getmembers(hookspecs, inspect.isfunction)
         if hasattr(obj, "c3_matcher_spec")
     ]
-    assert {s.__name__ for s in specs} == {"c3_matcher_strategies", "c3_matcher_engine_specs"}
+    assert {s.__name__ for s in specs} == {
+        "c3_matcher_strategies",
+        "c3_matcher_engine_specs",
+        "c3_matcher_reference_backend",
+    }
     for spec in specs:
         assert spec.__name__.startswith("c3_matcher_")
         doc = inspect.getdoc(spec) or ""

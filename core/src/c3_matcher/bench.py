@@ -1,10 +1,16 @@
-"""``c3-matcher bench``: per-frame and per-candidate latency (p50/p95 per stage) and peak memory
-of the matcher at the configured settings, on the built-in demo data (one frame, 3 candidates),
-beside the classical OpenCV SIFT + MAGSAC pipeline doing the same work, in the same run.
+"""``c3-matcher bench`` (C3-PT-01): per-frame and per-candidate latency (p50/p95, per stage) and
+peak memory of each strategy on a demo-format frame with 3 candidates, beside, in the same run:
 
-Each configuration runs in a fresh worker process (``python -m c3_matcher.bench``) so that
-its peak memory (``ru_maxrss``) is its own. Wall-clock figures on a shared machine are noisy:
-compare ratios within one run.
+- the strategy's PyTorch reference (the upstream models through kornia, LightGlue with its
+  adaptive depth and width ON, tiles re-extracted every frame), when the engine-build
+  environment is installed and the strategy's plugin offers one (``c3_matcher_reference_backend``);
+- the classical OpenCV SIFT + MAGSAC pipeline doing the same work;
+
+as ratios. Engine runs are timed twice: with every tile new (decoded and extracted every frame)
+and with the tiles cached (the steady state of a flight whose candidates were seen before).
+``--sweep`` adds image-size x keypoint-budget variants. Every case runs in a fresh worker
+process (``python -m c3_matcher.bench``) so that its peak memory (``ru_maxrss``) is its own.
+Wall-clock figures on a shared machine are noisy: compare ratios within one run.
 """
 
 from __future__ import annotations
@@ -19,17 +25,42 @@ import sys
 import tempfile
 import time
 import uuid
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from c3_matcher.config import C3Settings, load_settings
 
-__all__ = ["add_bench_command", "run_worker"]
+__all__ = ["BenchCase", "add_bench_command", "run_worker"]
 
 REPO = Path(__file__).resolve().parents[3]
 STAGES = ("decode", "preprocess", "extract", "match", "ransac")
+Kind = Literal["engine", "pytorch", "sift"]
+SWEEP_LONG_SIDES = (512, 1024)
+SWEEP_KEYPOINTS = (512, 1024, 2048)
+
+
+@dataclass(frozen=True)
+class BenchCase:
+    """One timed configuration: a strategy, how it runs, its tile cache and image rules."""
+
+    strategy: str
+    kind: Kind
+    tile_cache_size: int
+    max_long_side: int
+    max_keypoints: int
+
+    @property
+    def label(self) -> str:
+        name = {
+            "engine": self.strategy,
+            "pytorch": f"{self.strategy}[pytorch]",
+            "sift": "sift_magsac",
+        }[self.kind]
+        tiles = "cached" if self.tile_cache_size else "new"
+        return f"{name} ({tiles} tiles, {self.max_long_side}px, {self.max_keypoints} kp)"
 
 
 def _demo_inputs(data_dir: Path) -> tuple[Any, Any, Any]:
@@ -52,11 +83,8 @@ def _demo_inputs(data_dir: Path) -> tuple[Any, Any, Any]:
         )
         for t in meta["tiles"]
     )
-    return (
-        frame,
-        RerankResult(frame.frame_id, candidates),
-        load_calibration(data_dir / "calibration.json"),
-    )
+    calibration = load_calibration(data_dir / "calibration.json")
+    return frame, RerankResult(frame.frame_id, candidates), calibration
 
 
 def _percentiles(values: list[float]) -> dict[str, float]:
@@ -64,53 +92,65 @@ def _percentiles(values: list[float]) -> dict[str, float]:
     return {"p50": float(np.percentile(arr, 50)), "p95": float(np.percentile(arr, 95))}
 
 
-def run_worker(
-    strategy: str, runs: int, data_dir: Path, settings: C3Settings, tile_cache_size: int
-) -> dict[str, Any]:
-    """Time ``runs`` matches of the demo frame (after 2 warm-up runs) in this process.
-
-    ``tile_cache_size`` 0 re-extracts every tile every frame (all candidates new); > 0 is the
-    steady state of a flight where the candidates were seen in earlier frames."""
-    from c3_matcher.baselines import SIFT_LABEL, SiftBackend
-    from c3_matcher.compose import build_default_helpers, compose_root
-    from c3_matcher.fdr import JsonlFdrRecorder
-    from c3_matcher.health import MonotonicClock, RollingHealthWindow
+def _matcher(case: BenchCase, settings: C3Settings, fdr: Any, clock: Any) -> tuple[Any, str]:
+    from c3_matcher.baselines import SiftBackend
+    from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
+    from c3_matcher.health import RollingHealthWindow
     from c3_matcher.pipeline import MatchPipeline, PipelineSettings
     from c3_matcher.preprocess import InputRule
     from c3_matcher.ransac import OpenCvRansacFilter
 
-    frame, rerank, calibration = _demo_inputs(data_dir)
-    tmp = Path(tempfile.mkdtemp(prefix="c3-bench-"))
-    clock = MonotonicClock()
-    fdr = JsonlFdrRecorder(tmp / "fdr.jsonl", clock)
-    started = time.perf_counter()
-    provider = "opencv"
-    if strategy == SIFT_LABEL:
-        m = settings.matcher
-        matcher: Any = MatchPipeline(
-            SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints),
-            OpenCvRansacFilter(seed=m.ransac_seed),
-            fdr,
-            RollingHealthWindow(clock, m.min_inliers_threshold),
-            clock,
-            PipelineSettings(
-                m.min_inliers_threshold, m.residual_warn_threshold_px, m.ransac_threshold_px
-            ),
-        )
-    else:
-        settings = settings.model_copy(
-            update={
-                "matcher": settings.matcher.model_copy(
-                    update={"strategy": strategy, "tile_cache_size": tile_cache_size}
-                )
-            }
-        )
+    m = settings.matcher
+    if case.kind == "engine":
         helpers = build_default_helpers(settings)
-        provider = helpers["c7_inference"].provider
-        matcher = compose_root(settings, {**helpers, "c13_fdr": fdr}, configure_logs=False).matcher
+        root = compose_root(
+            settings, {**helpers, "c13_fdr": fdr, "clock": clock}, configure_logs=False
+        )
+        return root.matcher, helpers["c7_inference"].provider
+    if case.kind == "pytorch":
+        backend = build_plugin_host().reference_backend(case.strategy, settings)
+        if backend is None:
+            raise SystemExit(f"no PyTorch reference for {case.strategy}")
+    else:
+        backend = SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints)
+    pipeline = MatchPipeline(
+        backend,
+        OpenCvRansacFilter(seed=m.ransac_seed),
+        fdr,
+        RollingHealthWindow(clock, m.min_inliers_threshold),
+        clock,
+        PipelineSettings(
+            m.min_inliers_threshold, m.residual_warn_threshold_px, m.ransac_threshold_px
+        ),
+    )
+    return pipeline, str(backend.provenance()["provider"])
+
+
+def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings) -> dict[str, Any]:
+    """Time ``runs`` matches of the demo frame (after 2 warm-up runs) in this process."""
+    from c3_matcher.fdr import JsonlFdrRecorder
+    from c3_matcher.health import MonotonicClock
+
+    settings = settings.model_copy(
+        update={
+            "matcher": settings.matcher.model_copy(
+                update={
+                    "strategy": case.strategy,
+                    "tile_cache_size": case.tile_cache_size,
+                    "max_long_side": case.max_long_side,
+                    "max_keypoints": case.max_keypoints,
+                }
+            )
+        }
+    )
+    frame, rerank, calibration = _demo_inputs(data_dir)
+    clock = MonotonicClock()
+    fdr = JsonlFdrRecorder(Path(tempfile.mkdtemp(prefix="c3-bench-")) / "fdr.jsonl", clock)
+    started = time.perf_counter()
+    matcher, provider = _matcher(case, settings, fdr, clock)
     startup_s = time.perf_counter() - started
     frame_ms: list[float] = []
-    per_candidate_ms: list[float] = []
+    candidate_ms: list[float] = []
     stages: dict[str, list[float]] = {s: [] for s in ("query_preprocess", "query_extract", *STAGES)}
     inliers = 0
     for i in range(runs + 2):
@@ -125,18 +165,18 @@ def run_worker(
         for key in ("query_preprocess", "query_extract"):
             stages[key].append(diag["timings_ms"][key])
         for cand in diag["per_candidate_timings_ms"]:
-            per_candidate_ms.append(sum(cand.get(s, 0.0) for s in STAGES))
+            candidate_ms.append(sum(cand.get(s, 0.0) for s in STAGES))
             for s in STAGES:
                 stages[s].append(cand.get(s, 0.0))
     return {
-        "strategy": strategy,
-        "tiles": "cached" if tile_cache_size and strategy != SIFT_LABEL else "new",
+        "case": asdict(case),
+        "label": case.label,
         "provider": provider,
         "runs": runs,
         "startup_s": startup_s,
         "best_inliers": inliers,
         "frame_ms": _percentiles(frame_ms),
-        "per_candidate_ms": _percentiles(per_candidate_ms),
+        "per_candidate_ms": _percentiles(candidate_ms),
         "stages_ms": {k: _percentiles(v) for k, v in stages.items() if v},
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
@@ -147,6 +187,7 @@ def _machine() -> dict[str, Any]:
 
     return {
         "platform": platform.platform(),
+        "processor": platform.processor(),
         "python": platform.python_version(),
         "cpus": os.cpu_count(),
         "onnxruntime": ort.__version__,
@@ -154,20 +195,55 @@ def _machine() -> dict[str, Any]:
     }
 
 
+def _has_torch() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("torch") is not None
+
+
+def cases_for(args: argparse.Namespace, settings: C3Settings) -> list[BenchCase]:
+    m = settings.matcher
+    cached = max(m.tile_cache_size, 3)
+    cases: list[BenchCase] = []
+    for name in args.strategy or [m.strategy]:
+        cases += [
+            BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints),
+            BenchCase(name, "engine", cached, m.max_long_side, m.max_keypoints),
+        ]
+        if not args.no_reference and _has_torch():
+            cases.append(BenchCase(name, "pytorch", 0, m.max_long_side, m.max_keypoints))
+        if args.sweep:
+            cases += [
+                BenchCase(name, "engine", 0, side, kp)
+                for side in SWEEP_LONG_SIDES
+                for kp in SWEEP_KEYPOINTS
+                if (side, kp) != (m.max_long_side, m.max_keypoints)
+            ]
+    if not args.no_baseline:
+        cases.append(BenchCase(m.strategy, "sift", 0, m.max_long_side, m.max_keypoints))
+    return cases
+
+
 def add_bench_command(sub: Any) -> Any:
     p = sub.add_parser(
         "bench",
-        help="latency (per frame, per candidate, per stage) and peak "
-        "memory beside the SIFT + MAGSAC baseline",
+        help="C3-PT-01: latency and peak memory beside the PyTorch "
+        "reference and the SIFT + MAGSAC baseline",
     )
-    p.add_argument("--runs", type=int, default=20, help="timed runs per strategy (default 20)")
+    p.add_argument("--runs", type=int, default=20, help="timed runs per case (default 20)")
     p.add_argument(
         "--strategy",
         action="append",
         default=None,
         help="strategy to bench (repeatable; default: the configured one)",
     )
-    p.add_argument("--no-baseline", action="store_true", help="skip the SIFT baseline")
+    p.add_argument("--no-baseline", action="store_true", help="skip SIFT + MAGSAC")
+    p.add_argument("--no-reference", action="store_true", help="skip the PyTorch reference")
+    p.add_argument(
+        "--sweep",
+        action="store_true",
+        help=f"also image long side {SWEEP_LONG_SIDES} x keypoints {SWEEP_KEYPOINTS}",
+    )
     p.add_argument(
         "--data",
         type=Path,
@@ -179,91 +255,74 @@ def add_bench_command(sub: Any) -> Any:
 
 
 def run_bench(args: argparse.Namespace, settings: C3Settings) -> int:
-    from c3_matcher.baselines import SIFT_LABEL
-
-    cases = [
-        (name, cache)
-        for name in (args.strategy or [settings.matcher.strategy])
-        for cache in (0, max(settings.matcher.tile_cache_size, 3))
-    ]
-    if not args.no_baseline:
-        cases.append((SIFT_LABEL, 0))
     results = []
-    for name, cache in cases:
-        print(
-            f"bench: {name}, tile cache {cache} ({args.runs} runs)...", file=sys.stderr, flush=True
-        )
+    for case in cases_for(args, settings):
+        print(f"bench: {case.label}, {args.runs} runs...", file=sys.stderr, flush=True)
         cmd = [
             sys.executable,
             "-m",
             "c3_matcher.bench",
-            name,
+            json.dumps(asdict(case)),
             str(args.runs),
             str(args.data),
-            "--tile-cache",
-            str(cache),
         ]
         if args.config:
             cmd += ["--config", str(args.config)]
         out = subprocess.run(cmd, check=True, capture_output=True, text=True)
         results.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    report: dict[str, Any] = {
-        "machine": _machine(),
-        "settings": settings.matcher.model_dump(mode="json"),
-        "results": results,
-    }
+    report: dict[str, Any] = {"machine": _machine(), "runs": args.runs, "results": results}
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
-    base = next((r for r in results if r["strategy"] == SIFT_LABEL), None)
-    results.sort(key=lambda r: (r["strategy"] == SIFT_LABEL, r["tiles"] != "new"))
-    m = report["machine"]
-    print(f"machine: {m['platform']}, {m['cpus']} CPUs, onnxruntime {m['onnxruntime']}")
-    print(
-        f"settings: long side {settings.matcher.max_long_side}, "
-        f"{settings.matcher.max_keypoints} keypoints, 3 candidates, {args.runs} runs"
-    )
-    print(
-        "tiles: 'new' = every candidate decoded and extracted (first sight); 'cached' = "
-        "candidates seen in earlier frames (tile feature cache)"
-    )
-    header = (
-        f"{'strategy':16} {'tiles':7} {'provider':22} {'frame p50':>10} {'frame p95':>10} "
-        f"{'cand p95':>9} {'peak MB':>8} {'inliers':>8}" + ("  p95 vs SIFT" if base else "")
-    )
-    print(header)
-    for r in results:
-        ratio = f"  {r['frame_ms']['p95'] / base['frame_ms']['p95']:.2f}x" if base else ""
-        print(
-            f"{r['strategy']:16} {r['tiles']:7} {r['provider']:22} {r['frame_ms']['p50']:10.1f} "
-            f"{r['frame_ms']['p95']:10.1f} {r['per_candidate_ms']['p95']:9.1f} "
-            f"{r['peak_rss_mb']:8.0f} {r['best_inliers']:8d}{ratio}"
-        )
-    print("per stage, ms (p50 / p95):")
-    for r in results:
-        parts = [f"{k} {v['p50']:.1f}/{v['p95']:.1f}" for k, v in r["stages_ms"].items()]
-        print(f"  {r['strategy']} ({r['tiles']} tiles): " + ", ".join(parts))
+    print(format_report(report))
     return 0
+
+
+def format_report(report: dict[str, Any]) -> str:
+    results = report["results"]
+    sift = next((r for r in results if r["case"]["kind"] == "sift"), None)
+    torch_ref = {r["case"]["strategy"]: r for r in results if r["case"]["kind"] == "pytorch"}
+    m = report["machine"]
+    lines = [
+        f"machine: {m['platform']}, {m['cpus']} CPUs, onnxruntime {m['onnxruntime']} "
+        f"(providers {', '.join(m['available_providers'])}); {report['runs']} runs per "
+        "case; frame = 1 query + 3 candidate tiles",
+        f"{'case':58} {'provider':22} {'frame p50':>9} {'frame p95':>9} {'cand p95':>8} "
+        f"{'peak MB':>7} {'inliers':>7} {'vs torch':>8} {'vs SIFT':>7}",
+    ]
+    for r in results:
+        ref = torch_ref.get(r["case"]["strategy"])
+        vs_torch = (
+            f"{r['frame_ms']['p95'] / ref['frame_ms']['p95']:.2f}x"
+            if ref and r["case"]["kind"] == "engine"
+            else ""
+        )
+        vs_sift = f"{r['frame_ms']['p95'] / sift['frame_ms']['p95']:.2f}x" if sift else ""
+        lines.append(
+            f"{r['label']:58} {r['provider'][:22]:22} {r['frame_ms']['p50']:9.0f} "
+            f"{r['frame_ms']['p95']:9.0f} {r['per_candidate_ms']['p95']:8.0f} "
+            f"{r['peak_rss_mb']:7.0f} {r['best_inliers']:7d} {vs_torch:>8} "
+            f"{vs_sift:>7}"
+        )
+    lines.append("per stage, ms (p50/p95):")
+    for r in results:
+        parts = [f"{k} {v['p50']:.0f}/{v['p95']:.0f}" for k, v in r["stages_ms"].items()]
+        lines.append(f"  {r['label']}: " + ", ".join(parts))
+    return "\n".join(lines)
 
 
 def _worker_main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m c3_matcher.bench")
-    parser.add_argument("strategy")
+    parser.add_argument("case", help="BenchCase as JSON")
     parser.add_argument("runs", type=int)
     parser.add_argument("data", type=Path)
     parser.add_argument("--config", type=Path, default=None)
-    parser.add_argument("--tile-cache", type=int, default=0)
     args = parser.parse_args(argv)
     from loguru import logger
 
     logger.remove()
-    print(
-        json.dumps(
-            run_worker(
-                args.strategy, args.runs, args.data, load_settings(args.config), args.tile_cache
-            )
-        )
-    )
+    case = BenchCase(**json.loads(args.case))
+    print(json.dumps(run_worker(case, args.runs, args.data, load_settings(args.config))))
     return 0
 
 

@@ -10,7 +10,9 @@ from typing import TYPE_CHECKING
 import pluggy
 
 if TYPE_CHECKING:
+    from c3_matcher.config import C3Settings
     from c3_matcher.engines.spec import EngineSpec
+    from c3_matcher.pipeline import FeatureBackend
     from c3_matcher.plugins.types import StrategySpec
 
 __all__ = ["PROJECT_NAME", "hookimpl", "hookspec"]
@@ -27,6 +29,16 @@ def c3_matcher_strategies() -> list[StrategySpec]:  # type: ignore[empty-body]
     Each ``StrategySpec`` names the strategy (what ``[matcher] strategy`` selects), its
     BUILD_MATCHER_* flag, its factory and its options model. Two distributions offering one name
     are both rejected (DuplicateStrategyError naming both).
+    """
+
+
+@hookspec(firstresult=True)
+def c3_matcher_reference_backend(strategy: str, settings: C3Settings) -> FeatureBackend | None:
+    """Return the PyTorch reference implementation of ``strategy``'s model I/O, or None.
+
+    Used only by ``c3-matcher bench`` in the engine-build environment (PyTorch installed) to time
+    the upstream models doing the same work beside the engines; import torch inside the hook.
+    Return None for strategies this plugin does not own.
     """
 
 

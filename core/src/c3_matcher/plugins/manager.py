@@ -25,7 +25,9 @@ from c3_matcher.plugins.types import StrategySpec
 from c3_matcher.profiles import BuildProfile, FlagState
 
 if TYPE_CHECKING:
+    from c3_matcher.config import C3Settings
     from c3_matcher.engines.spec import EngineSpec
+    from c3_matcher.pipeline import FeatureBackend
 
 __all__ = ["ENTRY_POINT_GROUP", "IgnoredPlugin", "LoadedPlugin", "PluginHost", "PluginSource"]
 
@@ -183,6 +185,13 @@ class PluginHost:
         for batch in reversed(self._pm.hook.c3_matcher_engine_specs()):
             specs.extend(batch)
         return specs
+
+    def reference_backend(self, strategy: str, settings: C3Settings) -> FeatureBackend | None:
+        """The PyTorch reference of ``strategy`` from its plugin (build environment only)."""
+        result: FeatureBackend | None = self._pm.hook.c3_matcher_reference_backend(
+            strategy=strategy, settings=settings
+        )
+        return result
 
     def resolve(self, strategy: str) -> StrategySpec:
         """The spec of ``strategy``, or the error that says why it cannot be used here."""

@@ -1,0 +1,172 @@
+"""Tile pixel handles served by a slippy tile store (:class:`SlippyTileSource`).
+
+A candidate's ``TileId(zoom, lat, lon)`` names the centre of the image the matcher receives.
+When that image is exactly one stored tile (the requested size is the store's 256 px and the
+centre is that tile's centre) :class:`StoredTileHandle` serves the stored bytes as they are:
+``encoded()`` is a view of the blob (for an XYZ folder a read-only memory map of the file:
+zero-copy from the page cache; for MBTiles the one copy SQLite hands to Python out of its
+memory-mapped database), ``decode()`` decodes it. Otherwise :class:`MosaicTileHandle` stitches
+the ``size_px`` x ``size_px`` window of WORLD px centred on the id's centre from the stored
+tiles, lazily: nothing is read before the first ``encoded()`` / ``decode()``, the mosaic is
+decoded once and kept, and ``encoded()`` is a lossless PNG of it made once.
+
+Failures are the candidate's: a corrupt or undecodable stored tile, or a window with no stored
+tile at all, raise from ``encoded()`` / ``decode()``, which the pipeline turns into that
+candidate's drop (drop-and-continue, INV-4). Stored tiles missing at the edge of the coverage
+are nodata (0), which the matcher masks.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.dto import TileId
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tiles import decode_image
+from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px
+
+__all__ = [
+    "MosaicTileHandle",
+    "SlippyTileSource",
+    "StoredTileHandle",
+    "TileNotFoundError",
+    "mosaic_origin",
+    "stitch",
+]
+
+
+class TileNotFoundError(InvalidInputError):
+    """The store holds no tile for the requested id / window."""
+
+
+class SlippyTileSource(Protocol):
+    """A store of 256-px web-mercator tiles addressed (zoom, x, y), XYZ (y grows south)."""
+
+    @property
+    def name(self) -> str: ...
+
+    def tile_bytes(self, zoom: int, x: int, y: int) -> memoryview | None:
+        """The encoded tile, or None when the store has no such tile."""
+        ...
+
+
+def mosaic_origin(tile_id: TileId, size_px: int) -> tuple[int, int]:
+    """WORLD px index of the top-left pixel of the ``size_px`` window centred on ``tile_id``:
+    TILE px (u, v) of the served image is WORLD px (X0 + u + 0.5, Y0 + v + 0.5)."""
+    (cx, cy) = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0]
+    return math.floor(cx - size_px / 2 + 0.5), math.floor(cy - size_px / 2 + 0.5)
+
+
+class StoredTileHandle:
+    """One stored tile's bytes, served as they are (see the module docstring)."""
+
+    def __init__(self, source: SlippyTileSource, zoom: int, x: int, y: int) -> None:
+        self._source, self._key = source, (zoom, x, y)
+        self._blob: memoryview | None = None
+        self._pixels: NDArray[np.uint8] | None = None
+
+    def encoded(self) -> memoryview:
+        if self._blob is None:
+            blob = self._source.tile_bytes(*self._key)
+            if blob is None:
+                raise TileNotFoundError(self._what(), "no such tile in the store")
+            self._blob = blob
+        return self._blob
+
+    def decode(self) -> NDArray[np.uint8]:
+        if self._pixels is None:
+            self._pixels = decode_image(self.encoded(), self._what())
+        return self._pixels.copy()
+
+    def _what(self) -> str:
+        z, x, y = self._key
+        return f"{self._source.name} tile {z}/{x}/{y}"
+
+    def __repr__(self) -> str:
+        return f"StoredTileHandle({self._what()!r})"
+
+
+class MosaicTileHandle:
+    """A ``size_px`` square window of WORLD px centred on a tile id, stitched from stored tiles
+    (see the module docstring)."""
+
+    def __init__(self, source: SlippyTileSource, tile_id: TileId, size_px: int) -> None:
+        if size_px < 16:
+            raise InvalidInputError("size_px", f"must be >= 16, got {size_px}")
+        self._source, self._tile_id, self._size = source, tile_id, int(size_px)
+        self._pixels: NDArray[np.uint8] | None = None
+        self._png: bytes | None = None
+
+    @property
+    def origin_world_px(self) -> tuple[int, int]:
+        return mosaic_origin(self._tile_id, self._size)
+
+    def encoded(self) -> memoryview:
+        if self._png is None:
+            ok, buf = cv2.imencode(".png", self._mosaic()[:, :, ::-1])
+            if not ok:
+                raise InvalidInputError(self._what(), "PNG encoding of the mosaic failed")
+            self._png = buf.tobytes()
+        return memoryview(self._png)
+
+    def decode(self) -> NDArray[np.uint8]:
+        return self._mosaic().copy()
+
+    def _mosaic(self) -> NDArray[np.uint8]:
+        if self._pixels is None:
+            x0, y0 = self.origin_world_px
+            self._pixels = stitch(
+                self._source, self._tile_id.zoom, (x0, y0), (self._size, self._size), self._what()
+            )
+        return self._pixels
+
+    def _what(self) -> str:
+        return f"{self._source.name} mosaic {self._size}px at {self._tile_id}"
+
+    def __repr__(self) -> str:
+        return f"MosaicTileHandle({self._what()!r})"
+
+
+def stitch(
+    source: SlippyTileSource,
+    zoom: int,
+    origin: tuple[int, int],
+    size: tuple[int, int],
+    what: str,
+) -> NDArray[np.uint8]:
+    """The (w, h) = ``size`` window of WORLD px whose top-left pixel index is ``origin`` at
+    ``zoom``, uint8 RGB; missing tiles are 0 (nodata). Raises TileNotFoundError when no stored
+    tile overlaps the window, ImageDecodeError for an undecodable one."""
+    x0, y0 = int(origin[0]), int(origin[1])
+    w, h = int(size[0]), int(size[1])
+    out = np.zeros((h, w, 3), dtype=np.uint8)
+    found = 0
+    n = 2**zoom
+    for ty in range(y0 // TILE_PX, (y0 + h - 1) // TILE_PX + 1):
+        for tx in range(x0 // TILE_PX, (x0 + w - 1) // TILE_PX + 1):
+            if not 0 <= ty < n:
+                continue
+            blob = source.tile_bytes(zoom, tx % n, ty)
+            if blob is None:
+                continue
+            name = f"{source.name} tile {zoom}/{tx % n}/{ty}"
+            tile = decode_image(blob, name)
+            if tile.shape[:2] != (TILE_PX, TILE_PX):
+                raise InvalidInputError(
+                    name, f"expected {TILE_PX}x{TILE_PX} px, got {tile.shape[1]}x{tile.shape[0]}"
+                )
+            found += 1
+            ax, ay = tx * TILE_PX, ty * TILE_PX
+            sx0, sy0 = max(x0, ax), max(y0, ay)
+            sx1, sy1 = min(x0 + w, ax + TILE_PX), min(y0 + h, ay + TILE_PX)
+            out[sy0 - y0 : sy1 - y0, sx0 - x0 : sx1 - x0] = tile[
+                sy0 - ay : sy1 - ay, sx0 - ax : sx1 - ax
+            ]
+    if found == 0:
+        raise TileNotFoundError(what, "no stored tile overlaps this window")
+    return out

