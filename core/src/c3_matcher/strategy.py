@@ -174,12 +174,17 @@ def _engine_facts(
     }
 
 
-def engine_startup_probe(backend: FeatureBackend, size: int = 128) -> None:
+def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 6) -> None:
     """Run the backend once on a deterministic textured probe image and assert its outputs
-    (the engine-output assertion that fires at start-up, not on the first frame)."""
+    (the engine-output assertion that fires at start-up, not on the first frame).
+
+    The probe is ``block`` px squares of random colour (seed 0); 6 px blocks do not line up with
+    the 8x8 cells some detectors (XFeat) score, so every cell sees texture."""
     rng = np.random.default_rng(0)
-    noise = rng.integers(0, 256, (size // 8, size // 8, 3), dtype=np.uint8)
-    image = np.ascontiguousarray(np.kron(noise, np.ones((8, 8, 1), np.uint8)))
+    cells = -(-size // block)
+    noise = rng.integers(0, 256, (cells, cells, 3), dtype=np.uint8)
+    blocks = np.kron(noise, np.ones((block, block, 1), np.uint8))[:size, :size]
+    image = np.ascontiguousarray(blocks)
     probe = PreparedImage(
         image=image,
         valid=np.ones((size, size), bool),

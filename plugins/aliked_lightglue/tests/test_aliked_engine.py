@@ -149,3 +149,32 @@ def test_manifest_records_a_passed_verification_at_three_sizes(engine_dir, varia
     assert len(report["checks"]) >= 3
     assert all(c["keypoints_mismatch"] == 0 for c in report["checks"])
     assert manifest.weights_sha256 == ALIKED_SPECS[variant].weights.sha256()
+
+
+def test_pytorch_reference_backend_agrees_with_the_engine(engine_dir, runtime, zurich):
+    """The bench's PyTorch reference (``c3_matcher_reference_backend``) extracts what the engine
+    extracts on a masked real image."""
+    from c3_matcher.compose import build_plugin_host
+    from c3_matcher.config import C3Settings
+    from c3_matcher.preprocess import PreparedImage
+
+    settings = C3Settings(matcher={"strategy": "aliked_lightglue"})
+    backend = build_plugin_host().reference_backend("aliked_lightglue", settings)
+    assert backend is not None and backend.extract_phase == "aliked_forward"
+    assert backend.input_rule.multiple == 32
+    rgb = np.ascontiguousarray(zurich[:320, :448])
+    valid = np.ones((320, 448), dtype=bool)
+    valid[:, :64] = False
+    prepared = PreparedImage(
+        image=rgb, valid=valid, working_from_engine=np.eye(3), working_size=(448, 320)
+    )
+    ref = backend.extract(prepared)
+    engine_id = runtime.load_engine(_engine(engine_dir, "n16"))
+    got = run_extractor(runtime, engine_id, rgb, valid, 2048)
+    _assert_agree(
+        compare_features(
+            (got.keypoints, got.keypoint_scores, got.descriptors),
+            (ref.keypoints, ref.keypoint_scores, ref.descriptors),
+        )
+    )
+    assert len(backend.match(ref, ref)) > 0.9 * len(ref)

@@ -13,13 +13,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from c3_matcher_xfeat import (
-    MutualNearestNeighbourMatcher,
-    XFeatConfig,
-    XFeatMatcher,
-    XFeatOptions,
-    mutual_nearest_neighbours,
-)
 from numpy.typing import NDArray
 
 from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
@@ -33,6 +26,13 @@ from c3_matcher.logs import configure_logging
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.testing.contract import Doubles, MatcherContract
 from c3_matcher.testing.fakes import FakeInferenceRuntime, ScriptedCandidate
+from c3_matcher_xfeat import (
+    MutualNearestNeighbourMatcher,
+    XFeatConfig,
+    XFeatMatcher,
+    XFeatOptions,
+    mutual_nearest_neighbours,
+)
 
 LIGHTERGLUE_CONFIG = XFeatConfig(
     extractor_engine_path=Path("xfeat.onnx"),

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from c3_matcher.config import C3Settings
 from c3_matcher.engines.spec import EngineSpec
+from c3_matcher.pipeline import FeatureBackend
 from c3_matcher.plugins import StrategySpec, hookimpl
 from c3_matcher_aliked_lightglue.matcher import STRATEGY, AlikedLightGlueOptions, create
 
-__all__ = ["c3_matcher_engine_specs", "c3_matcher_strategies"]
+__all__ = ["c3_matcher_engine_specs", "c3_matcher_reference_backend", "c3_matcher_strategies"]
 
 
 @hookimpl
@@ -20,6 +22,15 @@ def c3_matcher_strategies() -> list[StrategySpec]:
             description="ALIKED features (n16, or n16rot by option) + LightGlue",
         )
     ]
+
+
+@hookimpl
+def c3_matcher_reference_backend(strategy: str, settings: C3Settings) -> FeatureBackend | None:
+    if strategy != STRATEGY:
+        return None
+    from c3_matcher_aliked_lightglue.reference import AlikedLightGlueReference
+
+    return AlikedLightGlueReference(settings)
 
 
 @hookimpl

@@ -26,12 +26,11 @@ from c3_matcher.protocols import (
     LightGlueRuntime,
     RansacFilter,
 )
-from c3_matcher.strategy import PipelineMatcher
+from c3_matcher.strategy import PipelineMatcher, engine_startup_probe
 from c3_matcher_xfeat.backend import LightGluePairMatcher, PairMatcher, XFeatBackend
 from c3_matcher_xfeat.engines import XFEAT_SIZE_MULTIPLE, XFEAT_TOP_K
 from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher
 from c3_matcher_xfeat.options import DEFAULT_MIN_COSSIM, XFeatMatcherKind, XFeatOptions
-from c3_matcher_xfeat.probe import xfeat_startup_probe
 
 __all__ = [
     "EXTRACT_PHASE",
@@ -177,7 +176,7 @@ class XFeatMatcher(PipelineMatcher):
             engines=engines,
         )
         self._xfeat_engine_id = backend.engine_id
-        xfeat_startup_probe(backend)
+        engine_startup_probe(backend)
         super().__init__(
             backend,
             ransac_filter,

