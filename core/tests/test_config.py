@@ -18,7 +18,7 @@ def test_defaults_follow_decisions_14():
         m.ransac_threshold_px,
         m.max_long_side,
         m.max_keypoints,
-    ) == ("disk_lightglue", 60, 2.5, 3.0, 1024, 2048)
+    ) == ("disk_lightglue", 60, 2.5, 3.0, 1024, None)
 
 
 def test_toml_then_environment_override(tmp_path):

@@ -50,7 +50,7 @@ class BenchCase:
     kind: Kind
     tile_cache_size: int
     max_long_side: int
-    max_keypoints: int
+    max_keypoints: int | None
 
     @property
     def label(self) -> str:
@@ -60,7 +60,8 @@ class BenchCase:
             "sift": "sift_magsac",
         }[self.kind]
         tiles = "cached" if self.tile_cache_size else "new"
-        return f"{name} ({tiles} tiles, {self.max_long_side}px, {self.max_keypoints} kp)"
+        budget = f"{self.max_keypoints} kp" if self.max_keypoints else "default kp"
+        return f"{name} ({tiles} tiles, {self.max_long_side}px, {budget})"
 
 
 def _demo_inputs(data_dir: Path) -> tuple[Any, Any, Any]:
@@ -112,7 +113,7 @@ def _matcher(case: BenchCase, settings: C3Settings, fdr: Any, clock: Any) -> tup
         if backend is None:
             raise SystemExit(f"no PyTorch reference for {case.strategy}")
     else:
-        backend = SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints)
+        backend = SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints or 2048)
     pipeline = MatchPipeline(
         backend,
         OpenCvRansacFilter(seed=m.ransac_seed),

@@ -53,7 +53,13 @@ class MatcherSettings(_Section):
     max_long_side: int = Field(
         1024, ge=64, le=8192, description="images are downscaled so their long side <= this"
     )
-    max_keypoints: int = Field(2048, ge=16, le=8192, description="keypoint budget per image")
+    max_keypoints: int | None = Field(
+        None,
+        ge=16,
+        le=8192,
+        description="keypoints per image; None: the strategy's default (2048 for DISK or ALIKED "
+        "+ LightGlue, 4096 for XFeat with mutual nearest neighbours)",
+    )
     ransac_seed: int = Field(0, ge=0, description="RANSAC generator seed (determinism)")
     tile_cache_size: int = Field(
         16,

@@ -42,6 +42,9 @@ __all__ = [
 ]
 
 
+DEFAULT_MAX_KEYPOINTS = 2048  # upstream LightGlue convention (DECISIONS 14)
+
+
 @dataclass(frozen=True, slots=True)
 class ExtractorLightGlueConfig:
     """What an extractor + LightGlue strategy needs (built from ``C3Settings`` by ``create``).
@@ -56,7 +59,7 @@ class ExtractorLightGlueConfig:
     lightglue_engine_path: Path
     size_multiple: int
     max_long_side: int = 1024
-    max_keypoints: int = 2048
+    max_keypoints: int = DEFAULT_MAX_KEYPOINTS
     min_inliers_threshold: int = 60
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
@@ -93,7 +96,7 @@ class ExtractorLightGlueConfig:
             lightglue_engine_path,
             size_multiple,
             m.max_long_side,
-            m.max_keypoints,
+            m.max_keypoints or DEFAULT_MAX_KEYPOINTS,
             m.min_inliers_threshold,
             m.residual_warn_threshold_px,
             m.ransac_threshold_px,

@@ -15,6 +15,7 @@ from c3_matcher.config import C3Settings
 from c3_matcher.engines.extract import image_to_feeds
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS
 from c3_matcher_disk_lightglue.engines import DISK_SPEC, LIGHTGLUE_DISK_SPEC, load_disk_reference
 
 __all__ = ["DiskLightGlueReference"]
@@ -37,7 +38,7 @@ class DiskLightGlueReference:
 
         self._torch = torch
         self.input_rule = InputRule(settings.matcher.max_long_side, 16)
-        self._max_keypoints = settings.matcher.max_keypoints
+        self._max_keypoints = settings.matcher.max_keypoints or DEFAULT_MAX_KEYPOINTS
         self._disk = load_disk_reference(DISK_SPEC.weights.resolve())
         self._lightglue = load_lightglue_reference(
             LIGHTGLUE_DISK_SPEC.weights.resolve(), input_dim=128

@@ -114,7 +114,7 @@ class XFeatConfig:
         opts = options or XFeatOptions()
         engines = store or EngineStore(settings.engines.directory)
         m = settings.matcher
-        explicit = m.max_keypoints if "max_keypoints" in m.model_fields_set else None
+        explicit = m.max_keypoints
         return cls(
             extractor_engine_path=engines.require(*XFEAT_ENGINE),
             matcher=opts.matcher,

@@ -41,7 +41,7 @@ class XFeatReference:
         self._torch = torch
         m = settings.matcher
         self._options = XFeatOptions.model_validate(m.options.get(STRATEGY, {}))
-        explicit = m.max_keypoints if "max_keypoints" in m.model_fields_set else None
+        explicit = m.max_keypoints
         self._max_keypoints = self._options.keypoint_budget(explicit)
         self.input_rule = InputRule(m.max_long_side, XFEAT_SIZE_MULTIPLE)
         self.match_phase = MATCH_PHASES[self._options.matcher]
