@@ -11,16 +11,22 @@ from __future__ import annotations
 
 import math
 import uuid
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
+import pytest
 
+from c3_matcher.compose import build_default_helpers, compose_root
+from c3_matcher.config import C3Settings
 from c3_matcher.dto import RerankCandidate, RerankResult
 from c3_matcher.errors import InsufficientInliersError
+from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.sim.scenario import Scenario, ScenarioSpec, inlier_errors_px
+from c3_matcher.sim.scenario import Scenario, ScenarioSpec, build_scenario, inlier_errors_px
 from c3_matcher.tiles import BytesTileHandle
 
 __all__ = [
@@ -28,6 +34,7 @@ __all__ = [
     "MIN_INLIERS",
     "SCENARIOS",
     "Outcome",
+    "RealPathSuite",
     "imagery_dir",
     "rerank_for",
     "run_scenario",
@@ -162,3 +169,63 @@ def run_scenario(
         float(np.mean(errors)),
         result.reprojection_residual_px,
     )
+
+
+_SPECS = scenario_specs()
+_LARGE_YAW = [(s, o) for s, o in _SPECS if s.yaw_deg >= 90]
+
+
+class RealPathSuite:
+    """The real-path acceptance tests for any strategy: subclass, set ``strategy`` (and
+    ``options`` for ``[matcher.options.<strategy>]``). Needs an ``engine_dir`` fixture that
+    yields a directory holding the strategy's built engines (this repository's conftest.py
+    builds them with the real engine compiler)::
+
+        class TestMyRealPath(RealPathSuite):
+            strategy = "my_matcher"
+    """
+
+    strategy: str = "disk_lightglue"
+    options: ClassVar[dict[str, object]] = {}
+
+    @pytest.fixture(scope="class")
+    def matcher(self, engine_dir: Path, tmp_path_factory: Any) -> Iterator[CrossDomainMatcher]:
+        settings = C3Settings(
+            matcher={"strategy": self.strategy, "options": {self.strategy: self.options}},
+            engines={"directory": engine_dir},
+            fdr={"path": tmp_path_factory.mktemp("fdr") / "fdr.jsonl"},
+        )
+        helpers = {**build_default_helpers(settings), "c13_fdr": InMemoryFdr()}
+        root = compose_root(settings, helpers, configure_logs=False)
+        yield root.matcher
+        root.close()
+
+    def test_scenarios_cover_the_required_conditions(self) -> None:
+        specs = [s for s, _ in _SPECS]
+        assert len({s.orthophoto for s in specs}) >= 3
+        assert min(s.yaw_deg for s in specs) <= 30 and max(s.yaw_deg for s in specs) >= 180
+        assert all(15 - 1e-6 <= tilt_deg(s) <= 20 + 1e-6 for s in specs)
+        assert all(s.distortion[0] != 0 and s.frame_gsd_ratio != 1 for s in specs)
+        assert {order.index(0) for _, order in _SPECS} == {0, 1, 2}  # true tile everywhere
+
+    @pytest.mark.slow
+    @pytest.mark.parametrize(("spec", "order"), _SPECS, ids=[s.name for s, _ in _SPECS])
+    def test_true_tile_best_with_enough_accurate_inliers(
+        self, matcher: CrossDomainMatcher, spec: ScenarioSpec, order: tuple[int, int, int]
+    ) -> None:
+        outcome = run_scenario(matcher, build_scenario(spec), order, with_attitude=True)
+        print(self.strategy, self.options, outcome)
+        assert not outcome.insufficient, outcome
+        assert outcome.true_tile_best, outcome
+        assert outcome.inliers >= MIN_INLIERS, outcome
+        assert outcome.mean_error_px < MAX_MEAN_ERROR_PX, outcome
+
+    @pytest.mark.slow
+    @pytest.mark.parametrize(("spec", "order"), _LARGE_YAW, ids=[s.name for s, _ in _LARGE_YAW])
+    def test_large_yaw_fails_without_attitude(
+        self, matcher: CrossDomainMatcher, spec: ScenarioSpec, order: tuple[int, int, int]
+    ) -> None:
+        """Withholding the attitude (height kept) breaks the match: rectification does the work."""
+        outcome = run_scenario(matcher, build_scenario(spec), order, with_attitude=False)
+        print(self.strategy, self.options, outcome)
+        assert not outcome.passed, outcome
