@@ -189,9 +189,10 @@ class RealPathSuite:
     options: ClassVar[dict[str, object]] = {}
 
     @pytest.fixture(scope="class")
-    def matcher(self, engine_dir: Path, tmp_path_factory: Any) -> Iterator[CrossDomainMatcher]:
+    @classmethod
+    def matcher(cls, engine_dir: Path, tmp_path_factory: Any) -> Iterator[CrossDomainMatcher]:
         settings = C3Settings(
-            matcher={"strategy": self.strategy, "options": {self.strategy: self.options}},
+            matcher={"strategy": cls.strategy, "options": {cls.strategy: cls.options}},
             engines={"directory": engine_dir},
             fdr={"path": tmp_path_factory.mktemp("fdr") / "fdr.jsonl"},
         )
