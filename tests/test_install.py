@@ -83,7 +83,9 @@ class Env:
             {
                 "C3_MATCHER_ENGINES__DIRECTORY": str(self.wheelhouse / "engines"),
                 "C3_MATCHER_FDR__PATH": str(self.root / "fdr.jsonl"),
+                # a small budget keeps LightGlue fast; XFeat's mutual-NN needs its own 4096
                 "C3_MATCHER_MATCHER__MAX_KEYPOINTS": "512",
+                "C3_MATCHER_MATCHER__OPTIONS__XFEAT__MAX_KEYPOINTS": "4096",
                 **env_extra,
             }
         )

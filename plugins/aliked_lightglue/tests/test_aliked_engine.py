@@ -10,13 +10,6 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from c3_matcher_aliked_lightglue.aliked_export import load_aliked_reference
-from c3_matcher_aliked_lightglue.engines import (
-    ALIKED_SPECS,
-    ALIKED_TOLERANCES,
-    aliked_reference_features,
-    compare_features,
-)
 from numpy.typing import NDArray
 
 from c3_matcher.engines.extract import run_extractor
@@ -24,6 +17,13 @@ from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.testing.realpath import imagery_dir
+from c3_matcher_aliked_lightglue.aliked_export import load_aliked_reference
+from c3_matcher_aliked_lightglue.engines import (
+    ALIKED_SPECS,
+    ALIKED_TOLERANCES,
+    aliked_reference_features,
+    compare_features,
+)
 
 
 def read_rgb(relative: str) -> NDArray[np.uint8]:

@@ -10,11 +10,6 @@ import json
 from pathlib import Path
 
 import pytest
-from c3_matcher_aliked_lightglue import (
-    AlikedLightGlueConfig,
-    AlikedLightGlueMatcher,
-    AlikedLightGlueOptions,
-)
 
 from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
 from c3_matcher.config import C3Settings
@@ -25,6 +20,11 @@ from c3_matcher.health import MonotonicClock, RollingHealthWindow
 from c3_matcher.logs import configure_logging
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.testing.contract import Doubles, MatcherContract
+from c3_matcher_aliked_lightglue import (
+    AlikedLightGlueConfig,
+    AlikedLightGlueMatcher,
+    AlikedLightGlueOptions,
+)
 
 FAKE_CONFIG = AlikedLightGlueConfig(
     label="aliked_lightglue",

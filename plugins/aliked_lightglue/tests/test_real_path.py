@@ -4,7 +4,6 @@ rendered frames over three real orthophotos, the same acceptance bar as DISK (is
 from __future__ import annotations
 
 import pytest
-from c3_matcher_aliked_lightglue import AlikedLightGlueMatcher
 
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
@@ -17,6 +16,7 @@ from c3_matcher.testing.realpath import (
     scenario_specs,
     tilt_deg,
 )
+from c3_matcher_aliked_lightglue import AlikedLightGlueMatcher
 
 SPECS = scenario_specs()
 

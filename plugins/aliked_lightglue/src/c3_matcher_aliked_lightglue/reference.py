@@ -20,6 +20,7 @@ from c3_matcher_aliked_lightglue.engines import (
     ALIKED_DESCRIPTOR_DIM,
     ALIKED_SIZE_MULTIPLE,
     ALIKED_SPECS,
+    ALIKED_TOP_K,
     LIGHTGLUE_ALIKED_SPEC,
     aliked_reference_features,
 )
@@ -51,7 +52,7 @@ class AlikedLightGlueReference:
         self._aliked = load_aliked_reference(
             ALIKED_SPECS[variant].weights.resolve(),
             f"aliked-{variant}",
-            settings.matcher.max_keypoints,
+            settings.matcher.max_keypoints or ALIKED_TOP_K,  # None: the strategy's default
         )
         self._lightglue = load_lightglue_reference(
             LIGHTGLUE_ALIKED_SPEC.weights.resolve(), input_dim=ALIKED_DESCRIPTOR_DIM
