@@ -28,7 +28,7 @@ from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.errors import EngineError
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.health import RollingHealthWindow
+from c3_matcher.health import MonotonicClock, RollingHealthWindow
 from c3_matcher.pipeline import FeatureBackend, MatchPipeline, PipelineSettings
 from c3_matcher.preprocess import InputRule, PreparedImage
 from c3_matcher.protocols import Clock, FdrClient, InferenceRuntime, LightGlueRuntime, RansacFilter
@@ -37,6 +37,7 @@ from c3_matcher.tile_cache import TileFeatureCache
 __all__ = [
     "ExtractorLightGlueBackend",
     "ExtractorLightGlueConfig",
+    "ExtractorLightGlueMatcher",
     "PipelineMatcher",
     "engine_startup_probe",
 ]
@@ -246,3 +247,44 @@ class PipelineMatcher:
 
     def health_snapshot(self) -> MatcherHealth:
         return self._health_window.snapshot()
+
+
+class ExtractorLightGlueMatcher(PipelineMatcher):
+    """The ``CrossDomainMatcher`` of every "extractor engine + shared LightGlue" strategy, with
+    AZ-345's constructor. The engines load here (start-up), then the probe asserts their
+    outputs. ``_lightglue_runtime`` is the shared helper itself (AC-11 identity)."""
+
+    def __init__(
+        self,
+        runtime: InferenceRuntime,
+        lightglue_runtime: LightGlueRuntime,
+        ransac_filter: RansacFilter,
+        fdr_client: FdrClient,
+        health_window: RollingHealthWindow,
+        config: ExtractorLightGlueConfig,
+        clock: Clock | None = None,
+    ) -> None:
+        self._runtime = runtime
+        self._lightglue_runtime = lightglue_runtime
+        self._config = config
+        backend = ExtractorLightGlueBackend(runtime, lightglue_runtime, config)
+        self._extractor_engine_id = backend.engine_id
+        engine_startup_probe(backend)
+        super().__init__(
+            backend,
+            ransac_filter,
+            fdr_client,
+            health_window,
+            clock or MonotonicClock(),
+            config.pipeline_settings,
+            config.tile_cache_size,
+        )
+
+    @property
+    def config(self) -> ExtractorLightGlueConfig:
+        return self._config
+
+    @property
+    def extractor_engine_id(self) -> str:
+        """The engine id ``InferenceRuntime.load_engine`` returned for the extractor."""
+        return self._extractor_engine_id

@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict
 
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.store import EngineStore
-from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.health import RollingHealthWindow
 from c3_matcher.protocols import (
     Clock,
     CrossDomainMatcher,
@@ -25,12 +25,7 @@ from c3_matcher.protocols import (
     LightGlueRuntime,
     RansacFilter,
 )
-from c3_matcher.strategy import (
-    ExtractorLightGlueBackend,
-    ExtractorLightGlueConfig,
-    PipelineMatcher,
-    engine_startup_probe,
-)
+from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorLightGlueMatcher
 
 __all__ = [
     "ALIKED_SIZE_MULTIPLE",
@@ -88,42 +83,12 @@ class AlikedLightGlueConfig(ExtractorLightGlueConfig):
         )
 
 
-class AlikedLightGlueMatcher(PipelineMatcher):
+class AlikedLightGlueMatcher(ExtractorLightGlueMatcher):
     """ALIKED + LightGlue ``CrossDomainMatcher``. Single-threaded (INV-1)."""
-
-    def __init__(
-        self,
-        runtime: InferenceRuntime,
-        lightglue_runtime: LightGlueRuntime,
-        ransac_filter: RansacFilter,
-        fdr_client: FdrClient,
-        health_window: RollingHealthWindow,
-        config: AlikedLightGlueConfig,
-        clock: Clock | None = None,
-    ) -> None:
-        self._runtime = runtime
-        self._lightglue_runtime = lightglue_runtime
-        self._config = config
-        backend = ExtractorLightGlueBackend(runtime, lightglue_runtime, config)
-        self._aliked_engine_id = backend.engine_id
-        engine_startup_probe(backend)
-        super().__init__(
-            backend,
-            ransac_filter,
-            fdr_client,
-            health_window,
-            clock or MonotonicClock(),
-            config.pipeline_settings,
-            config.tile_cache_size,
-        )
-
-    @property
-    def config(self) -> AlikedLightGlueConfig:
-        return self._config
 
     @property
     def aliked_engine_id(self) -> str:
-        return self._aliked_engine_id
+        return self.extractor_engine_id
 
 
 def create(

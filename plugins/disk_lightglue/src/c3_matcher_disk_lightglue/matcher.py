@@ -12,7 +12,7 @@ from typing import Any
 
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.store import EngineStore
-from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.health import RollingHealthWindow
 from c3_matcher.protocols import (
     Clock,
     CrossDomainMatcher,
@@ -21,12 +21,7 @@ from c3_matcher.protocols import (
     LightGlueRuntime,
     RansacFilter,
 )
-from c3_matcher.strategy import (
-    ExtractorLightGlueBackend,
-    ExtractorLightGlueConfig,
-    PipelineMatcher,
-    engine_startup_probe,
-)
+from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorLightGlueMatcher
 
 __all__ = [
     "DISK_SIZE_MULTIPLE",
@@ -64,42 +59,12 @@ class DiskLightGlueConfig(ExtractorLightGlueConfig):
         )
 
 
-class DiskLightGlueMatcher(PipelineMatcher):
+class DiskLightGlueMatcher(ExtractorLightGlueMatcher):
     """The production-default ``CrossDomainMatcher``. Single-threaded (INV-1)."""
-
-    def __init__(
-        self,
-        runtime: InferenceRuntime,
-        lightglue_runtime: LightGlueRuntime,
-        ransac_filter: RansacFilter,
-        fdr_client: FdrClient,
-        health_window: RollingHealthWindow,
-        config: DiskLightGlueConfig,
-        clock: Clock | None = None,
-    ) -> None:
-        self._runtime = runtime
-        self._lightglue_runtime = lightglue_runtime
-        self._config = config
-        backend = ExtractorLightGlueBackend(runtime, lightglue_runtime, config)
-        self._disk_engine_id = backend.engine_id
-        engine_startup_probe(backend)
-        super().__init__(
-            backend,
-            ransac_filter,
-            fdr_client,
-            health_window,
-            clock or MonotonicClock(),
-            config.pipeline_settings,
-            config.tile_cache_size,
-        )
-
-    @property
-    def config(self) -> DiskLightGlueConfig:
-        return self._config
 
     @property
     def disk_engine_id(self) -> str:
-        return self._disk_engine_id
+        return self.extractor_engine_id
 
 
 def create(
