@@ -119,6 +119,18 @@ def _build_parser() -> tuple[argparse.ArgumentParser, dict[str, Handler]]:
     from c3_matcher.bench import add_bench_command
 
     handlers["bench"] = add_bench_command(sub)
+    from c3_matcher.tilestore.cli import add_tiles_command
+
+    handlers["tiles"] = add_tiles_command(sub)
+    from c3_matcher.dataset.cli import add_dataset_command
+
+    handlers["dataset"] = add_dataset_command(sub)
+    from c3_matcher.replay import add_replay_command
+
+    handlers["replay"] = add_replay_command(sub)
+    from c3_matcher.evaluate import add_eval_command
+
+    handlers["eval"] = add_eval_command(sub)
     return parser, handlers
 
 

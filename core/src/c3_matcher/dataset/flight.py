@@ -15,13 +15,16 @@ uniform jitter, and a tilt drawn uniformly in [0, ``max_tilt_deg``] in a random 
 from the frames orthophoto's grid north (UTM grid convergence: 0.11 deg for the NAIP tile).
 
 Candidates: the true tile is the ``candidate_size_px`` window of the store centred on the
-footprint's centre snapped to a ``grid_px`` grid of WORLD px (so consecutive frames share tiles
-and the tile feature cache works); distractors are windows of the same size on the same grid
-that do not overlap the footprint (dilated by 8 px) and whose centres are at least
-``min_distractor_distance_m`` from the footprint's centre (:func:`pick_distractor_tiles` on the
-store's coverage, at most ``max_distractor_nodata`` of nodata). A share ``absent_share`` of
-the frames (chosen at random) gets three distractors and no true tile: those must yield
-InsufficientInliersError. Candidate order is shuffled; scores are C2.5-like (0.9, 0.8, 0.7).
+footprint's bounding box snapped to a ``grid_px`` grid of WORLD px (so consecutive frames share
+tiles and the tile feature cache works) and holds the whole footprint; distractors are windows
+of the same size on the same grid (:func:`pick_distractor_tiles` on the store's coverage) whose
+centres are at least ``min_distractor_distance_m`` from the footprint's centre, that do not
+contain that centre (dilated by 8 px) and hold at most ``max_distractor_nodata`` of nodata: they
+may overlap part of the footprint (the hard case of C3-IT-04). A share ``absent_share`` of the
+frames (chosen at random) gets three distractors that do not overlap the footprint at all (at
+most 50 % nodata) and no true tile: those must yield InsufficientInliersError. Candidate
+order is shuffled; scores are C2.5-like (0.9, 0.8, 0.7). Distractors are drawn from a generator
+seeded by the true window's position: frames sharing a true tile share their distractors.
 """
 
 from __future__ import annotations
@@ -82,17 +85,17 @@ class FlightSpec:
     store: Path
     n_frames: int = 36
     pattern: str = "orbit"
-    height_m: float = 900.0
+    height_m: float = 780.0
     speed_mps: float = 30.0
     frame_interval_s: float = 2.0
     heading_deg: float = 0.0
-    orbit_radius_m: float = 500.0
+    orbit_radius_m: float = 450.0
     max_tilt_deg: float = 20.0
     yaw_jitter_deg: float = 15.0
     image_size: tuple[int, int] = (320, 240)
-    focal_px: float = 280.0
+    focal_px: float = 300.0
     distortion: tuple[float, ...] = (-0.12, 0.03, 0.0005, -0.0004, 0.0)
-    candidate_size_px: int = 256
+    candidate_size_px: int = 448
     grid_px: int = 32
     absent_share: float = 0.1
     min_distractor_distance_m: float = 350.0
@@ -225,6 +228,19 @@ def _candidate(
     return CandidateTruth(tile_id, 0.0, is_true, distance, np.asarray(h / h[2, 2])), fit
 
 
+def _flight_centre(store: MBTilesStore, grid: GeoGrid) -> tuple[float, float]:
+    """Projected metres (frames grid) of the store's ``center`` (a fixed ground point, so
+    flights rendered from different dates of the same ground fly the same path), else of the
+    frames orthophoto's centre."""
+    centre = store.metadata.get("center", "")
+    try:
+        lon, lat = (float(v) for v in centre.split(",")[:2])
+    except ValueError:
+        lon, lat = grid.centre_lonlat()
+    e, n = grid.projection.from_lonlat([lon], [lat])
+    return float(e[0]), float(n[0])
+
+
 def _true_origin(fp_world: F64, size: int, grid_px: int) -> tuple[int, int] | None:
     """Top-left WORLD px of the grid-aligned window (centre on the grid) nearest the
     footprint's bounding-box centre that contains the whole footprint, or None."""
@@ -291,8 +307,7 @@ def _render(
     rng = np.random.default_rng(spec.seed)
     n_absent = round(spec.absent_share * spec.n_frames)
     absent = set(rng.choice(spec.n_frames, size=n_absent, replace=False).tolist())
-    w, h = grid.size
-    centre_en = (grid.origin_e + w / 2 * grid.scale_x, grid.origin_n - h / 2 * grid.scale_y)
+    centre_en = _flight_centre(store, grid)
     frames: list[FrameRecord] = []
     worst_fit = 0.0
     for i, (east, north, heading) in enumerate(_trajectory(spec, centre_en)):
@@ -326,17 +341,22 @@ def _render(
         is_absent = i in absent
         count = 3 if is_absent else 2
         fp_cov = fp_world - np.asarray(cov.origin, dtype=np.float64)
+        if not is_absent:  # present: distractors may overlap the footprint, not its centre
+            fp_cov = np.repeat((centre_world - cov.origin)[None, :], 3, axis=0)
+        # Distractors are drawn from a generator seeded by the true window's position, so
+        # frames that share their true tile share their distractors (tile feature cache hits).
+        drng = np.random.default_rng([spec.seed, int(is_absent), *true_origin])
         try:
             picked = pick_distractor_tiles(
                 cov.image,
                 fp_cov,
                 (size, size),
                 count,
-                frng,
+                drng,
                 m_per_px,
                 margin_px=8,
                 min_distance_px=spec.min_distractor_distance_m / m_per_px,
-                max_nodata_fraction=spec.max_distractor_nodata,
+                max_nodata_fraction=spec.max_distractor_nodata if not is_absent else 0.5,
                 stride_px=spec.grid_px,
             )
         except InvalidInputError as exc:

@@ -1,0 +1,91 @@
+"""Plots drawn with OpenCV (matplotlib is not a dependency): per-frame line charts."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = ["line_chart"]
+
+_COLOURS = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189))
+
+
+def line_chart(
+    out: Path,
+    series: Mapping[str, Sequence[float]],
+    *,
+    title: str,
+    ylabel: str,
+    bar: float | None = None,
+    size: tuple[int, int] = (900, 420),
+) -> Path:
+    """Write a PNG line chart: one polyline per series over the frame index (x), NaN values
+    leave gaps (drawn as an 'x' on the axis); ``bar`` draws a dashed horizontal reference."""
+    w, h = size
+    left, right, top, bottom = 70, 170, 40, 40
+    canvas = np.full((h, w, 3), 255, dtype=np.uint8)
+    finite = [v for s in series.values() for v in s if math.isfinite(v)]
+    if bar is not None:
+        finite.append(bar)
+    y_max = max(finite) * 1.1 if finite and max(finite) > 0 else 1.0
+    n = max((len(s) for s in series.values()), default=1)
+
+    def px(i: float, v: float) -> tuple[int, int]:
+        x = left + (w - left - right) * (i / max(n - 1, 1))
+        y = h - bottom - (h - top - bottom) * (v / y_max)
+        return round(x), round(y)
+
+    cv2.rectangle(canvas, (left, top), (w - right, h - bottom), (0, 0, 0), 1)
+    for k in range(5):
+        v = y_max * k / 4
+        _, y = px(0, v)
+        cv2.line(canvas, (left - 4, y), (w - right, y), (225, 225, 225), 1)
+        cv2.putText(canvas, f"{v:.3g}", (5, y + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1)
+    if bar is not None:
+        _, y = px(0, bar)
+        for x in range(left, w - right, 12):
+            cv2.line(canvas, (x, y), (min(x + 6, w - right), y), (0, 0, 200), 1)
+    for idx, (label, values) in enumerate(series.items()):
+        colour = _COLOURS[idx % len(_COLOURS)][::-1]
+        previous = None
+        for i, v in enumerate(values):
+            if not math.isfinite(v):
+                x, y = px(i, 0)
+                cv2.drawMarker(canvas, (x, y), colour, cv2.MARKER_TILTED_CROSS, 7, 1)
+                previous = None
+                continue
+            p = px(i, v)
+            if previous is not None:
+                cv2.line(canvas, previous, p, colour, 2, cv2.LINE_AA)
+            cv2.circle(canvas, p, 2, colour, -1)
+            previous = p
+        ly = top + 18 * idx + 10
+        cv2.line(canvas, (w - right + 10, ly), (w - right + 30, ly), colour, 2)
+        cv2.putText(
+            canvas,
+            label[:18],
+            (w - right + 35, ly + 4),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.4,
+            (0, 0, 0),
+            1,
+        )
+    cv2.putText(canvas, title, (left, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1)
+    cv2.putText(
+        canvas,
+        f"{ylabel} / frame index",
+        (left, h - 10),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.45,
+        (0, 0, 0),
+        1,
+    )
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out), canvas):
+        raise OSError(f"cannot write {out}")
+    return out
