@@ -15,7 +15,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-__all__ = ["EngineKind", "EngineSpec", "TensorSpec", "WeightsRef", "file_sha256"]
+__all__ = [
+    "EngineKind",
+    "EngineSpec",
+    "TensorSpec",
+    "WeightsRef",
+    "file_sha256",
+    "lightglue_io",
+]
 
 EngineKind = Literal["extractor", "matcher"]
 
@@ -158,3 +165,20 @@ class EngineSpec:
             if key == name:
                 return value
         raise KeyError(f"engine spec {self.key} has no option {name!r}")
+
+
+def lightglue_io(descriptor_dim: int) -> tuple[tuple[TensorSpec, ...], tuple[TensorSpec, ...]]:
+    """The declared (inputs, outputs) of every LightGlue-family matcher engine: keypoints
+    (1, N, 2) normalised as upstream, descriptors (1, N, ``descriptor_dim``); ``matches0``
+    (N,) index into set 1 or -1, ``mscores0`` (N,)."""
+    inputs = (
+        TensorSpec("kpts0", "float32", (1, "num_keypoints0", 2)),
+        TensorSpec("kpts1", "float32", (1, "num_keypoints1", 2)),
+        TensorSpec("desc0", "float32", (1, "num_keypoints0", descriptor_dim)),
+        TensorSpec("desc1", "float32", (1, "num_keypoints1", descriptor_dim)),
+    )
+    outputs = (
+        TensorSpec("matches0", "int64", ("num_keypoints0",)),
+        TensorSpec("mscores0", "float32", ("num_keypoints0",)),
+    )
+    return inputs, outputs

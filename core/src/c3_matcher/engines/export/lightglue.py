@@ -40,7 +40,6 @@ __all__ = [
     "FeaturesFn",
     "LightGlueForExport",
     "export_lightglue",
-    "lightglue_io",
     "load_lightglue_reference",
     "verification_pairs",
 ]
@@ -135,23 +134,6 @@ class LightGlueForExport(nn.Module):
         mscores0 = torch.where(mutual0, max0.values.exp(), torch.zeros_like(max0.values))
         matches0 = torch.where(mutual0, m0, torch.full_like(m0, -1))
         return matches0[0], mscores0[0]
-
-
-def lightglue_io(descriptor_dim: int) -> tuple[tuple[Any, ...], tuple[Any, ...]]:
-    """The declared (inputs, outputs) ``TensorSpec`` tuples of a LightGlue engine."""
-    from c3_matcher.engines.spec import TensorSpec
-
-    inputs = (
-        TensorSpec("kpts0", "float32", (1, "num_keypoints0", 2)),
-        TensorSpec("kpts1", "float32", (1, "num_keypoints1", 2)),
-        TensorSpec("desc0", "float32", (1, "num_keypoints0", descriptor_dim)),
-        TensorSpec("desc1", "float32", (1, "num_keypoints1", descriptor_dim)),
-    )
-    outputs = (
-        TensorSpec("matches0", "int64", ("num_keypoints0",)),
-        TensorSpec("mscores0", "float32", ("num_keypoints0",)),
-    )
-    return inputs, outputs
 
 
 def verification_pairs(
