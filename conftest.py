@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parent
 @pytest.fixture(scope="session")
 def engine_dir() -> Path:
     from c3_matcher.compose import build_plugin_host
-    from c3_matcher.engines.compiler import ensure_engines
+    from c3_matcher_tools.engines.compiler import ensure_engines
 
     directory = Path(os.environ.get("C3_MATCHER_ENGINE_DIR", REPO / ".engines"))
     specs = build_plugin_host().engine_specs()

@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from c3_matcher.sim.scenario import ScenarioSpec, build_scenario
+from c3_matcher_tools.sim.scenario import ScenarioSpec, build_scenario
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "data" / "demo"

@@ -25,9 +25,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from c3_matcher.dataset.flight import FlightSpec, render_flight
-from c3_matcher.dataset.progress import ProgressBar
-from c3_matcher.tilestore.build import build_mbtiles
+from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
+from c3_matcher_tools.dataset.progress import ProgressBar
+from c3_matcher_tools.tilestore.build import build_mbtiles
 
 REPO = Path(__file__).resolve().parents[1]
 NAIP = REPO / "data" / "imagery" / "naip_timeseries"

@@ -15,8 +15,8 @@ from loguru import logger
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
 from c3_matcher.fdr import InMemoryFdr
-from c3_matcher.sim.scenario import build_scenario
-from c3_matcher.testing.realpath import run_scenario, scenario_specs
+from c3_matcher_tools.sim.scenario import build_scenario
+from c3_matcher_tools.testing.realpath import run_scenario, scenario_specs
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -56,12 +56,28 @@ def test_matrix_is_the_design_table():
     }
     assert ROWS["airborne"]["strict"] and ROWS["operator-tooling"]["strict"]
     assert not ROWS["research"]["strict"]
+    # the flight computer never gets the ground tools; every ground profile does
+    assert {p: r["tools"] for p, r in ROWS.items()} == {
+        "airborne": None,
+        "research": "c3-matcher-tools",
+        "replay-cli": "c3-matcher-tools",
+        "operator-tooling": "c3-matcher-tools",
+    }
 
 
 def test_generated_profile_distributions_are_current():
     for profile, data in ROWS.items():
         for path, text in GEN.render(profile, data).items():
             assert path.read_text(encoding="utf-8") == text, f"{path} is stale: run generate.py"
+
+
+def test_one_version_for_every_member():
+    """The matrix's version is every member's version and every pin between members."""
+    for path in GEN.member_pyprojects():
+        text = path.read_text(encoding="utf-8")
+        assert GEN.with_version(text) == text, f"{path}: run buildflags/generate.py"
+        project = tomllib.loads(text)["project"]
+        assert project["version"] == GEN.VERSION
 
 
 def test_core_extras_pull_exactly_one_profile_each():
@@ -75,10 +91,9 @@ def test_core_extras_pull_exactly_one_profile_each():
 def test_profile_dependencies_are_the_linked_plugins(profile):
     pyproject = tomllib.loads((REPO / "buildflags" / profile / "pyproject.toml").read_text())
     deps = sorted(d.split("==")[0] for d in pyproject["project"]["dependencies"])
-    linked = sorted(
-        f["distribution"] for f in ROWS[profile]["flags"].values() if f["state"] == "ON"
-    )
-    assert deps == linked
+    linked = [f["distribution"] for f in ROWS[profile]["flags"].values() if f["state"] == "ON"]
+    tools = [ROWS[profile]["tools"]] if ROWS[profile]["tools"] else []
+    assert deps == sorted(linked + tools)
     for flag in MATRIX["flags"].values():  # every flag's plugin is a real distribution here
         plugin = REPO / flag["plugin_dir"] / "pyproject.toml"
         assert tomllib.loads(plugin.read_text())["project"]["name"] == flag["distribution"]

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from c3_matcher.dataset.format import load_dataset
 from c3_matcher.fdr import read_fdr
+from c3_matcher_tools.dataset.format import load_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "data" / "flights" / "naip_demo"

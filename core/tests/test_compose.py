@@ -10,7 +10,7 @@ from c3_matcher.compose import compose_root
 from c3_matcher.config import C3Settings
 from c3_matcher.errors import AirborneBootstrapError, StrategyNotLinkedError
 from c3_matcher.fdr import JsonlFdrRecorder
-from c3_matcher.pipeline import MatchPipeline, PipelineSettings
+from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.plugins import PluginHost, StrategySpec, hookimpl
 from c3_matcher.plugins.manager import PluginSource
 from c3_matcher.profiles import BuildProfile
@@ -39,7 +39,7 @@ PROFILE = BuildProfile.from_data(
 )
 
 
-class FakeStrategy(MatchPipeline):
+class FakeStrategy(PipelineMatcher):
     def __init__(self, **kw):  # type: ignore[no-untyped-def]
         self.kwargs = kw
         self._lightglue_runtime = kw["lightglue_runtime"]

@@ -9,7 +9,7 @@ import pytest
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.health import RollingHealthWindow
-from c3_matcher.pipeline import MatchPipeline, PipelineSettings
+from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.testing import (
     FakeBackend,
     FakeClock,
@@ -41,7 +41,7 @@ class Rig:
         self.inference = FakeInferenceRuntime(script)
         self.lightglue = FakeLightGlueRuntime(script)
         self.ransac = FakeRansacFilter(script)
-        self.pipeline = MatchPipeline(
+        self.pipeline = PipelineMatcher(
             FakeBackend(self.inference, self.lightglue),
             self.ransac,
             fdr,
@@ -246,17 +246,16 @@ def test_fdr_failure_never_fails_the_frame(logs):
 
 
 def test_tile_cache_reuses_features_and_gives_identical_results(fdr, logs):
-    from c3_matcher.tile_cache import TileFeatureCache
 
     rig = Rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
-    rig.pipeline = MatchPipeline(
+    rig.pipeline = PipelineMatcher(
         FakeBackend(rig.inference, rig.lightglue),
         rig.ransac,
         fdr,
         rig.health,
         rig.clock,
         rig.settings,
-        tile_cache=TileFeatureCache(3),
+        tile_cache_size=3,
     )
     first = rig.match()
     calls_after_first = len(rig.inference.calls)

@@ -153,6 +153,7 @@ def test_every_hookspec_is_documented_and_prefixed():
         "c3_matcher_strategies",
         "c3_matcher_engine_specs",
         "c3_matcher_reference_backend",
+        "c3_matcher_register_commands",
     }
     for spec in specs:
         assert spec.__name__.startswith("c3_matcher_")

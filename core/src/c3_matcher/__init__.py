@@ -7,92 +7,72 @@ RANSAC-filtered; the best candidate's inlier correspondences go downstream. Star
 
 from __future__ import annotations
 
-from c3_matcher.compose import (
-    AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS,
-    ComposedRoot,
-    build_default_helpers,
-    build_plugin_host,
-    compose_root,
-)
-from c3_matcher.config import C3Settings, MatcherSettings, load_settings
-from c3_matcher.dto import (
-    Attitude,
-    CameraCalibration,
-    CandidateMatchSet,
-    MatcherHealth,
-    MatchResult,
-    NavCameraFrame,
-    RansacResult,
-    RerankCandidate,
-    RerankResult,
-    TileId,
-)
-from c3_matcher.errors import (
-    AirborneBootstrapError,
-    C3Error,
-    ConfigurationError,
-    EngineError,
-    InsufficientInliersError,
-    InvalidInputError,
-    MatcherBackboneError,
-    StrategyNotLinkedError,
-)
-from c3_matcher.fdr import InMemoryFdr, JsonlFdrRecorder, read_fdr
-from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.protocols import (
-    Clock,
-    CrossDomainMatcher,
-    FdrClient,
-    InferenceRuntime,
-    LightGlueRuntime,
-    RansacFilter,
-    TilePixelsHandle,
-)
-from c3_matcher.ransac import OpenCvRansacFilter
-from c3_matcher.tiles import BytesTileHandle, MmapTileHandle
+import importlib
+from importlib.metadata import PackageNotFoundError, version
+from typing import Any
 
-__version__ = "0.1.0"
+try:
+    __version__ = version("c3-matcher")  # the one version: buildflags/matrix.toml
+except PackageNotFoundError:  # pragma: no cover - running from a source tree without install
+    __version__ = "0+unknown"
 
-__all__ = [
-    "AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS",
-    "AirborneBootstrapError",
-    "Attitude",
-    "BytesTileHandle",
-    "C3Error",
-    "C3Settings",
-    "CameraCalibration",
-    "CandidateMatchSet",
-    "Clock",
-    "ComposedRoot",
-    "ConfigurationError",
-    "CrossDomainMatcher",
-    "EngineError",
-    "FdrClient",
-    "InMemoryFdr",
-    "InferenceRuntime",
-    "InsufficientInliersError",
-    "InvalidInputError",
-    "JsonlFdrRecorder",
-    "LightGlueRuntime",
-    "MatchResult",
-    "MatcherBackboneError",
-    "MatcherHealth",
-    "MatcherSettings",
-    "MmapTileHandle",
-    "MonotonicClock",
-    "NavCameraFrame",
-    "OpenCvRansacFilter",
-    "RansacFilter",
-    "RansacResult",
-    "RerankCandidate",
-    "RerankResult",
-    "RollingHealthWindow",
-    "StrategyNotLinkedError",
-    "TileId",
-    "TilePixelsHandle",
-    "build_default_helpers",
-    "build_plugin_host",
-    "compose_root",
-    "load_settings",
-    "read_fdr",
-]
+# Public names, imported on first use (PEP 562): ``import c3_matcher.dto`` loads the DTOs only,
+# not OpenCV, ONNX Runtime, pluggy or pydantic-settings.
+_EXPORTS: dict[str, str] = {
+    "AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS": "c3_matcher.compose",
+    "AirborneBootstrapError": "c3_matcher.errors",
+    "Attitude": "c3_matcher.dto",
+    "build_default_helpers": "c3_matcher.compose",
+    "build_plugin_host": "c3_matcher.compose",
+    "BytesTileHandle": "c3_matcher.tiles",
+    "C3Error": "c3_matcher.errors",
+    "C3Settings": "c3_matcher.config",
+    "CameraCalibration": "c3_matcher.dto",
+    "CandidateMatchSet": "c3_matcher.dto",
+    "Clock": "c3_matcher.protocols",
+    "compose_root": "c3_matcher.compose",
+    "ComposedRoot": "c3_matcher.compose",
+    "ConfigurationError": "c3_matcher.errors",
+    "CrossDomainMatcher": "c3_matcher.protocols",
+    "EngineError": "c3_matcher.errors",
+    "FdrClient": "c3_matcher.protocols",
+    "InferenceRuntime": "c3_matcher.protocols",
+    "InMemoryFdr": "c3_matcher.fdr",
+    "InsufficientInliersError": "c3_matcher.errors",
+    "InvalidInputError": "c3_matcher.errors",
+    "JsonlFdrRecorder": "c3_matcher.fdr",
+    "LightGlueRuntime": "c3_matcher.protocols",
+    "load_settings": "c3_matcher.config",
+    "MatcherBackboneError": "c3_matcher.errors",
+    "MatcherHealth": "c3_matcher.dto",
+    "MatcherSettings": "c3_matcher.config",
+    "MatchResult": "c3_matcher.dto",
+    "MmapTileHandle": "c3_matcher.tiles",
+    "MonotonicClock": "c3_matcher.health",
+    "NavCameraFrame": "c3_matcher.dto",
+    "OpenCvRansacFilter": "c3_matcher.ransac",
+    "RansacFilter": "c3_matcher.protocols",
+    "RansacResult": "c3_matcher.dto",
+    "read_fdr": "c3_matcher.fdr",
+    "RerankCandidate": "c3_matcher.dto",
+    "RerankResult": "c3_matcher.dto",
+    "RollingHealthWindow": "c3_matcher.health",
+    "StrategyNotLinkedError": "c3_matcher.errors",
+    "TileId": "c3_matcher.dto",
+    "TilePixelsHandle": "c3_matcher.protocols",
+}
+
+__all__ = [*sorted(_EXPORTS), "__version__"]
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'c3_matcher' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

@@ -9,24 +9,25 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from c3_matcher.commands import (
+    EXIT_FAILURE,
+    EXIT_OK,
+    EXIT_USAGE,
+    CommandRegistry,
+    Handler,
+    UsageParser,
+)
 from c3_matcher.config import C3Settings, load_settings
 from c3_matcher.errors import C3Error, ConfigurationError, InvalidInputError
 
+if TYPE_CHECKING:
+    from c3_matcher.plugins.manager import PluginHost
+
 __all__ = ["main"]
-
-EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_INSUFFICIENT = 0, 1, 2, 3
-
-Handler = Callable[[argparse.Namespace, C3Settings], int]
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # type: ignore[override]
-        print(f"{self.prog}: error: {message}", file=sys.stderr)
-        raise SystemExit(EXIT_USAGE)
 
 
 def _cmd_plugins(args: argparse.Namespace, settings: C3Settings) -> int:
@@ -83,67 +84,53 @@ def _cmd_config(args: argparse.Namespace, settings: C3Settings) -> int:
     return EXIT_OK
 
 
-def _cmd_engines(args: argparse.Namespace, settings: C3Settings) -> int:
-    from c3_matcher.compose import build_plugin_host
-    from c3_matcher.engines.cli import EnginesCliContext, dispatch
+def _register_builtin(commands: CommandRegistry) -> None:
+    """The flight commands: plugins, config, engines list|verify, match."""
+    from c3_matcher.engines.cli import register_engines_commands
+    from c3_matcher.match_cli import register_match_command
 
-    context = EnginesCliContext(settings.engines.directory, build_plugin_host().engine_specs())
-    return dispatch(args, context)
+    p = commands.add("plugins", help="list strategies, distributions, profile and flags")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(handler=_cmd_plugins)
+    commands.add(
+        "config", help="print the effective configuration (or refuse a bad one)"
+    ).set_defaults(handler=_cmd_config)
+    register_engines_commands(commands)
+    register_match_command(commands)
 
 
-def _build_parser() -> tuple[argparse.ArgumentParser, dict[str, Handler]]:
-    parser = _Parser(prog="c3-matcher", description="C3 cross-domain matcher")
+def _build_parser(host: PluginHost) -> argparse.ArgumentParser:
+    parser = UsageParser(prog="c3-matcher", description="C3 cross-domain matcher")
     parser.add_argument(
         "--config",
         type=Path,
         default=None,
         help="TOML configuration file (environment variables C3_MATCHER_* override it)",
     )
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    handlers: dict[str, Handler] = {}
-
-    p = sub.add_parser("plugins", help="list strategies, distributions, profile and flags")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
-    handlers["plugins"] = _cmd_plugins
-
-    sub.add_parser("config", help="print the effective configuration (or refuse a bad one)")
-    handlers["config"] = _cmd_config
-
-    from c3_matcher.engines.cli import add_engines_commands
-
-    add_engines_commands(sub)
-    handlers["engines"] = _cmd_engines
-    from c3_matcher.match_cli import add_match_command
-
-    handlers["match"] = add_match_command(sub)
-    from c3_matcher.bench import add_bench_command
-
-    handlers["bench"] = add_bench_command(sub)
-    from c3_matcher.tilestore.cli import add_tiles_command
-
-    handlers["tiles"] = add_tiles_command(sub)
-    from c3_matcher.dataset.cli import add_dataset_command
-
-    handlers["dataset"] = add_dataset_command(sub)
-    from c3_matcher.replay import add_replay_command
-
-    handlers["replay"] = add_replay_command(sub)
-    from c3_matcher.evaluate import add_eval_command
-
-    handlers["eval"] = add_eval_command(sub)
-    return parser, handlers
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
+    commands = CommandRegistry(sub)
+    _register_builtin(commands)
+    host.register_commands(commands)
+    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser, handlers = _build_parser()
-    args = parser.parse_args(argv)
+    from c3_matcher.compose import build_plugin_host
+
+    try:
+        host = build_plugin_host()
+    except C3Error as exc:
+        print(f"c3-matcher: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    args = _build_parser(host).parse_args(argv)
     try:
         settings = load_settings(args.config)
     except ConfigurationError as exc:
         print(f"c3-matcher: {exc}", file=sys.stderr)
         return EXIT_USAGE
     try:
-        return handlers[args.command](args, settings)
+        handler: Handler = args.handler
+        return handler(args, settings)
     except (InvalidInputError, ConfigurationError) as exc:
         print(f"c3-matcher: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -8,28 +8,24 @@ import json
 import math
 import time
 import uuid
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from c3_matcher.commands import EXIT_INSUFFICIENT, CommandRegistry
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import (
     Attitude,
     CameraCalibration,
-    MatchResult,
     NavCameraFrame,
     RerankCandidate,
     RerankResult,
     TileId,
 )
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError
+from c3_matcher.serialize import load_calibration, result_to_json
 from c3_matcher.tiles import MmapTileHandle, read_image
 
-__all__ = ["add_match_command", "load_calibration", "result_to_json"]
-
-EXIT_INSUFFICIENT = 3
+__all__ = ["register_match_command"]
 
 
 def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
@@ -66,56 +62,8 @@ def _positive(text: str) -> float:
     return value
 
 
-def load_calibration(path: Path) -> CameraCalibration:
-    """Read a calibration JSON: ``{"K": 3x3, "distortion": [k1, k2, p1, p2, k3...],
-    "image_size": [width, height], "camera_to_body": 3x3 (optional)}``."""
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InvalidInputError(f"--calibration {path}", f"unreadable: {exc}") from exc
-    try:
-        c2b = data.get("camera_to_body")
-        return CameraCalibration(
-            K=np.asarray(data["K"], dtype=np.float64),
-            distortion=np.asarray(data.get("distortion", []), dtype=np.float64),
-            image_size=(int(data["image_size"][0]), int(data["image_size"][1])),
-            camera_to_body=None if c2b is None else np.asarray(c2b, dtype=np.float64),
-        )
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise InvalidInputError(f"--calibration {path}", f"malformed: {exc!r}") from exc
-
-
-def result_to_json(result: MatchResult, with_correspondences: bool = True) -> dict[str, Any]:
-    """The MatchResult as the CLI prints it; ``tile_index`` is the candidate's input position."""
-    indices = result.diagnostics.get("input_index", list(range(len(result.per_candidate))))
-    return {
-        "frame_id": str(result.frame_id),
-        "best_candidate_idx": result.best_candidate_idx,
-        "reprojection_residual_px": result.reprojection_residual_px,
-        "matcher_label": result.matcher_label,
-        "candidates_input": result.candidates_input,
-        "candidates_dropped": result.candidates_dropped,
-        "matched_at": result.matched_at,
-        "per_candidate": [
-            {
-                "tile_id": c.tile_id.as_list(),
-                "tile_index": int(index),
-                "inlier_count": c.inlier_count,
-                "ransac_outlier_count": c.ransac_outlier_count,
-                "per_candidate_residual_px": c.per_candidate_residual_px,
-                **(
-                    {"inlier_correspondences": c.inlier_correspondences.tolist()}
-                    if with_correspondences
-                    else {}
-                ),
-            }
-            for c, index in zip(result.per_candidate, indices, strict=True)
-        ],
-    }
-
-
-def add_match_command(sub: Any) -> Callable[[argparse.Namespace, C3Settings], int]:
-    p = sub.add_parser(
+def register_match_command(commands: CommandRegistry) -> None:
+    p = commands.add(
         "match",
         help="match a nav-camera image against candidate tiles (JSON on stdout)",
         description="Match one nav-camera image against 1..N candidate tile images. Exit 0 with "
@@ -175,7 +123,7 @@ def add_match_command(sub: Any) -> Callable[[argparse.Namespace, C3Settings], in
         action="store_true",
         help="omit inlier_correspondences from the JSON",
     )
-    return run_match
+    p.set_defaults(handler=run_match)
 
 
 def run_match(args: argparse.Namespace, settings: C3Settings) -> int:

@@ -22,6 +22,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.config import MatcherSettings
 from c3_matcher.dto import (
     CameraCalibration,
     CandidateMatchSet,
@@ -44,7 +45,7 @@ from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
 from c3_matcher.protocols import Clock, FdrClient, RansacFilter
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 
-__all__ = ["FeatureBackend", "MatchPipeline", "PipelineSettings"]
+__all__ = ["FeatureBackend", "PipelineMatcher", "PipelineSettings"]
 
 
 class FeatureBackend(Protocol):
@@ -86,6 +87,14 @@ class PipelineSettings:
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
 
+    @classmethod
+    def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
+        return cls(
+            matcher.min_inliers_threshold,
+            matcher.residual_warn_threshold_px,
+            matcher.ransac_threshold_px,
+        )
+
 
 @dataclass
 class _Survivor:
@@ -105,8 +114,10 @@ class _FrameState:
     per_candidate_ms: list[dict[str, float]] = field(default_factory=list)
 
 
-class MatchPipeline:
-    """``CrossDomainMatcher.match`` for any ``FeatureBackend``. Single-threaded (INV-1)."""
+class PipelineMatcher:
+    """The one ``CrossDomainMatcher`` of every strategy: the per-frame loop over a strategy's
+    ``FeatureBackend``. Single-threaded (INV-1). ``tile_cache_size`` tiles keep their features
+    between frames (0: off)."""
 
     def __init__(
         self,
@@ -116,8 +127,9 @@ class MatchPipeline:
         health_window: RollingHealthWindow,
         clock: Clock,
         settings: PipelineSettings,
+        *,
+        tile_cache_size: int = 0,
         preprocessor: FramePreprocessor | None = None,
-        tile_cache: TileFeatureCache | None = None,
     ) -> None:
         self._backend = backend
         self._ransac = ransac_filter
@@ -126,7 +138,11 @@ class MatchPipeline:
         self._clock = clock
         self._settings = settings
         self._pre = preprocessor or FramePreprocessor(backend.input_rule)
-        self._cache = tile_cache if tile_cache is not None else TileFeatureCache(0)
+        self._cache = TileFeatureCache(tile_cache_size)
+
+    @property
+    def backend(self) -> FeatureBackend:
+        return self._backend
 
     @property
     def settings(self) -> PipelineSettings:

@@ -58,6 +58,7 @@ class BuildProfile:
     flags: tuple[FlagRow, ...]
     strict: bool
     distribution: str | None
+    tools: str | None = None
 
     @classmethod
     def from_data(cls, data: Mapping[str, Any], distribution: str | None) -> BuildProfile:
@@ -66,7 +67,14 @@ class BuildProfile:
                 FlagRow(flag, FlagState(row["state"]), row["strategy"], row["distribution"])
                 for flag, row in data["flags"].items()
             )
-            return cls(str(data["name"]), rows, bool(data["strict"]), distribution)
+            tools = data.get("tools")
+            return cls(
+                str(data["name"]),
+                rows,
+                bool(data["strict"]),
+                distribution,
+                None if tools is None else str(tools),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise ProfileError(
                 f"profile data of {distribution} is malformed: {exc!r}; reinstall the profile"
@@ -76,7 +84,9 @@ class BuildProfile:
         return next((row for row in self.flags if row.strategy == strategy), None)
 
     def linked_distributions(self) -> frozenset[str]:
-        return frozenset(r.distribution for r in self.flags if r.state is FlagState.ON)
+        """The plugin distributions this build links, the ground tools included if it has them."""
+        linked = {r.distribution for r in self.flags if r.state is FlagState.ON}
+        return frozenset(linked | ({self.tools} if self.tools else set()))
 
     def linked_strategies(self) -> tuple[str, ...]:
         return tuple(r.strategy for r in self.flags if r.state is FlagState.ON)

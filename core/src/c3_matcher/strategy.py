@@ -1,6 +1,6 @@
 """Building blocks for strategies, so a plugin adds only its model I/O and config.
 
-``PipelineMatcher`` implements ``CrossDomainMatcher`` over the shared ``MatchPipeline``;
+``c3_matcher.pipeline.PipelineMatcher`` is the one ``CrossDomainMatcher`` (the per-frame loop);
 ``ExtractorLightGlueBackend`` is the ``FeatureBackend`` of every "extractor engine + shared
 LightGlue" strategy (DISK, ALIKED): it runs the extractor engine through the ``InferenceRuntime``
 and matches through the shared ``LightGlueRuntime``. ``engine_startup_probe`` is the
@@ -17,28 +17,19 @@ from typing import Any, Self
 import numpy as np
 
 from c3_matcher.config import C3Settings
-from c3_matcher.dto import (
-    CameraCalibration,
-    MatcherHealth,
-    MatchResult,
-    NavCameraFrame,
-    RerankResult,
-)
 from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.errors import EngineError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.pipeline import FeatureBackend, MatchPipeline, PipelineSettings
+from c3_matcher.pipeline import FeatureBackend, PipelineMatcher, PipelineSettings
 from c3_matcher.preprocess import InputRule, PreparedImage
 from c3_matcher.protocols import Clock, FdrClient, InferenceRuntime, LightGlueRuntime, RansacFilter
-from c3_matcher.tile_cache import TileFeatureCache
 
 __all__ = [
     "ExtractorLightGlueBackend",
     "ExtractorLightGlueConfig",
     "ExtractorLightGlueMatcher",
-    "PipelineMatcher",
     "engine_startup_probe",
 ]
 
@@ -209,46 +200,6 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
         ) from exc
 
 
-class PipelineMatcher:
-    """``CrossDomainMatcher`` over the shared pipeline; strategies subclass it."""
-
-    def __init__(
-        self,
-        backend: FeatureBackend,
-        ransac_filter: RansacFilter,
-        fdr_client: FdrClient,
-        health_window: RollingHealthWindow,
-        clock: Clock,
-        settings: PipelineSettings,
-        tile_cache_size: int = 0,
-    ) -> None:
-        self._backend = backend
-        self._pipeline = MatchPipeline(
-            backend,
-            ransac_filter,
-            fdr_client,
-            health_window,
-            clock,
-            settings,
-            tile_cache=TileFeatureCache(tile_cache_size),
-        )
-        self._ransac_filter = ransac_filter
-        self._fdr_client = fdr_client
-        self._health_window = health_window
-
-    @property
-    def backend(self) -> FeatureBackend:
-        return self._backend
-
-    def match(
-        self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
-    ) -> MatchResult:
-        return self._pipeline.match(frame, rerank_result, calibration)
-
-    def health_snapshot(self) -> MatcherHealth:
-        return self._health_window.snapshot()
-
-
 class ExtractorLightGlueMatcher(PipelineMatcher):
     """The ``CrossDomainMatcher`` of every "extractor engine + shared LightGlue" strategy, with
     AZ-345's constructor. The engines load here (start-up), then the probe asserts their
@@ -277,7 +228,7 @@ class ExtractorLightGlueMatcher(PipelineMatcher):
             health_window,
             clock or MonotonicClock(),
             config.pipeline_settings,
-            config.tile_cache_size,
+            tile_cache_size=config.tile_cache_size,
         )
 
     @property

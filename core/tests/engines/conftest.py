@@ -18,11 +18,11 @@ import onnx
 import pytest
 from numpy.typing import NDArray
 
-from c3_matcher.engines.compiler import ensure_engines
 from c3_matcher.engines.manifest import EngineManifest
 from c3_matcher.engines.naming import EngineName
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.spec import TensorSpec, file_sha256
+from c3_matcher_tools.engines.compiler import ensure_engines
 
 REPO = Path(__file__).resolve().parents[3]
 IMAGERY = REPO / "data" / "imagery"
@@ -73,8 +73,8 @@ def disk_reference() -> Any:
 
 @pytest.fixture(scope="session")
 def lightglue_reference() -> Any:
-    from c3_matcher.engines.export.lightglue import load_lightglue_reference
     from c3_matcher_disk_lightglue.engines import LIGHTGLUE_DISK_SPEC
+    from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
 
     return load_lightglue_reference(LIGHTGLUE_DISK_SPEC.weights.resolve(), input_dim=128)
 

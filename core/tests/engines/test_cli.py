@@ -1,74 +1,84 @@
-"""``c3-matcher engines build|list|verify|bench`` through ``add_engines_commands``."""
+"""``c3-matcher engines list|verify`` (and the tools' ``engines build|bench``) through the real
+command line, ``c3_matcher.cli.main``, with the engine directory set by environment."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 from pathlib import Path
 
 import pytest
 
-from c3_matcher.engines.bench import run_bench
-from c3_matcher.engines.cli import EnginesCliContext, add_engines_commands, dispatch
-
-
-def _run(argv: list[str], ctx: EnginesCliContext) -> int:
-    parser = argparse.ArgumentParser(prog="c3-matcher")
-    add_engines_commands(parser.add_subparsers(dest="command", required=True))
-    return dispatch(parser.parse_args(argv), ctx)
+from c3_matcher.cli import main
+from c3_matcher_tools.engines.bench import run_bench
 
 
 @pytest.fixture()
-def ctx(engine_dir: Path, built_engines: dict[tuple[str, str], Path]) -> EnginesCliContext:
-    from c3_matcher_disk_lightglue.engines import ENGINE_SPECS
+def engines_at(monkeypatch: pytest.MonkeyPatch) -> object:
+    def point(directory: Path) -> Path:
+        monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(directory))
+        return directory
 
-    return EnginesCliContext(engine_dir, ENGINE_SPECS)
+    return point
+
+
+@pytest.fixture()
+def engines(engine_dir: Path, engines_at) -> Path:  # type: ignore[no-untyped-def]
+    return engines_at(engine_dir)
 
 
 def test_build_reuses_and_prints_result_on_stdout(
-    ctx: EnginesCliContext, capsys: pytest.CaptureFixture[str]
+    engines: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert _run(["engines", "build"], ctx) == 0
+    assert main(["engines", "build", "--only", "disk/depth", "--only", "lightglue/disk"]) == 0
     out, err = capsys.readouterr()
     assert "disk/depth" in out and "lightglue/disk" in out and "0 built, 2 reused" in out
     assert "reused" in err  # progress on stderr
 
 
-def test_build_unknown_only(ctx: EnginesCliContext, capsys: pytest.CaptureFixture[str]) -> None:
-    assert _run(["engines", "build", "--only", "sift/x"], ctx) == 1
-    assert "choose one of disk/depth, lightglue/disk" in capsys.readouterr().err
+def test_build_unknown_only(engines: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["engines", "build", "--only", "sift/x"]) == 1
+    assert "disk/depth" in capsys.readouterr().err
 
 
 def test_list_shows_manifests_and_figures(
-    ctx: EnginesCliContext, capsys: pytest.CaptureFixture[str]
+    engines: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert _run(["engines", "list"], ctx) == 0
+    assert main(["engines", "list"]) == 0
     out = capsys.readouterr().out
     assert "keypoints_mismatch=0" in out and "matches_identical=True" in out
-    assert _run(["engines", "list", "--json"], ctx) == 0
+    assert main(["engines", "list", "--json"]) == 0
     records = json.loads(capsys.readouterr().out)
     models = {r["manifest"]["model"] for r in records if r["manifest"]}
     assert {"disk", "lightglue"} <= models
 
 
 def test_verify_ok_then_tampered(
-    ctx: EnginesCliContext, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    engines: Path,
+    engines_at,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],  # type: ignore[no-untyped-def]
 ) -> None:
-    assert _run(["engines", "verify"], ctx) == 0
+    assert main(["engines", "verify"]) == 0
     assert capsys.readouterr().out.count("OK") >= 2
     copy = tmp_path / "engines"
-    shutil.copytree(ctx.engine_dir, copy, ignore=shutil.ignore_patterns(".build-*"))
+    shutil.copytree(engines, copy, ignore=shutil.ignore_patterns(".build-*"))
     victim = next(copy.glob("disk_depth_*.onnx"))
     data = bytearray(victim.read_bytes())
     data[len(data) // 2] ^= 0x01
     victim.write_bytes(bytes(data))
-    assert _run(["engines", "verify"], EnginesCliContext(copy, ctx.specs)) == 1
+    engines_at(copy)
+    assert main(["engines", "verify"]) == 1
     assert f"FAIL {victim.name}: sha256" in capsys.readouterr().out
 
 
-def test_verify_empty_directory(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert _run(["engines", "verify"], EnginesCliContext(tmp_path, ())) == 1
+def test_verify_empty_directory(
+    engines_at,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],  # type: ignore[no-untyped-def]
+) -> None:
+    engines_at(tmp_path)
+    assert main(["engines", "verify"]) == 1
     assert "c3-matcher engines build" in capsys.readouterr().err
 
 
@@ -77,7 +87,7 @@ def test_bench_machinery_smoke(
 ) -> None:
     """The bench runs end to end on real imagery (a smoke test: one run, small cases, no timing
     assertions; the real measurement is ``c3-matcher engines bench``)."""
-    from c3_matcher.engines.export import default_verification_imagery
+    from c3_matcher_tools.engines.export import default_verification_imagery
 
     results = run_bench(
         disk_engine,

@@ -11,10 +11,10 @@ from typing import Any
 
 import pytest
 
-from c3_matcher.engines.compiler import EngineBuildError, build_engines, select_specs
-from c3_matcher.engines.export import ExportReport, ExportRequest
 from c3_matcher.engines.manifest import check_engine_file
 from c3_matcher.engines.spec import EngineSpec, WeightsRef
+from c3_matcher_tools.engines.compiler import EngineBuildError, build_engines, select_specs
+from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 FAKE_MODULE = "c3_test_fake_exporters"
 

@@ -14,10 +14,10 @@ RUNTIME_MODULES = [
     "c3_matcher.engines.runtime",
     "c3_matcher.engines.lightglue",
     "c3_matcher.engines.extract",
-    "c3_matcher.engines.compiler",
+    "c3_matcher_tools.engines.compiler",
     "c3_matcher.engines.cli",
-    "c3_matcher.engines.bench",
-    "c3_matcher.engines.export",
+    "c3_matcher_tools.engines.bench",
+    "c3_matcher_tools.engines.export",
     "c3_matcher_disk_lightglue.engines",
 ]
 

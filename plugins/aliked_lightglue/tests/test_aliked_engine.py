@@ -16,7 +16,6 @@ from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.store import EngineStore
-from c3_matcher.testing.realpath import imagery_dir
 from c3_matcher_aliked_lightglue.aliked_export import load_aliked_reference
 from c3_matcher_aliked_lightglue.engines import (
     ALIKED_SPECS,
@@ -24,6 +23,7 @@ from c3_matcher_aliked_lightglue.engines import (
     aliked_reference_features,
     compare_features,
 )
+from c3_matcher_tools.testing.realpath import imagery_dir
 
 
 def read_rgb(relative: str) -> NDArray[np.uint8]:

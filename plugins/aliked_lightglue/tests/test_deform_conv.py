@@ -11,12 +11,12 @@ import torch
 from kornia.feature.aliked.aliked import DeformableConv2d
 from kornia.feature.aliked.deform_conv2d import deform_conv2d as kornia_deform_conv2d
 
-from c3_matcher.engines.export.onnx_export import export_module
 from c3_matcher_aliked_lightglue.deform_conv import (
     GridSampleDeformConv2d,
     deform_conv2d_gridsample,
     deform_conv2d_reference,
 )
+from c3_matcher_tools.engines.export.onnx_export import export_module
 
 TOL = 2e-5  # float32 vs the float64 direct reference, O(1) inputs and weights
 

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from c3_matcher.testing.realpath import RealPathSuite
+from c3_matcher_tools.testing.realpath import RealPathSuite
 
 
 class TestDiskLightGlueRealPath(RealPathSuite):

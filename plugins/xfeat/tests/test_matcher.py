@@ -239,8 +239,8 @@ def test_masked_pixels_give_no_keypoint(engine_dir, tmp_path):
     """The mask input reaches the engine's heat map: no keypoint from a masked pixel."""
     from c3_matcher.engines.extract import run_extractor
     from c3_matcher.engines.store import EngineStore
-    from c3_matcher.sim.scenario import build_scenario
-    from c3_matcher.testing.realpath import scenario_specs
+    from c3_matcher_tools.sim.scenario import build_scenario
+    from c3_matcher_tools.testing.realpath import scenario_specs
 
     helpers = build_default_helpers(settings_for(engine_dir, tmp_path))
     runtime = helpers["c7_inference"]

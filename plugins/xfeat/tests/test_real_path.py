@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from c3_matcher.testing.realpath import RealPathSuite
+from c3_matcher_tools.testing.realpath import RealPathSuite
 
 
 class TestXFeatMnnRealPath(RealPathSuite):

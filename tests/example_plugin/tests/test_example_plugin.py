@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from c3_matcher.pipeline import PipelineMatcher
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.strategy import ExtractorLightGlueBackend, ExtractorLightGlueConfig, PipelineMatcher
+from c3_matcher.strategy import ExtractorLightGlueBackend, ExtractorLightGlueConfig
 from c3_matcher.testing.contract import Doubles, MatcherContract
 
 CONFIG = ExtractorLightGlueConfig(

@@ -12,4 +12,5 @@ PROFILE: dict[str, Any] = {'flags': {'BUILD_MATCHER_ALIKED_LIGHTGLUE': {'distrib
                                    'state': 'WIRED',
                                    'strategy': 'xfeat'}},
  'name': 'airborne',
- 'strict': True}
+ 'strict': True,
+ 'tools': None}

@@ -12,4 +12,5 @@ PROFILE: dict[str, Any] = {'flags': {'BUILD_MATCHER_ALIKED_LIGHTGLUE': {'distrib
                                    'state': 'OFF',
                                    'strategy': 'xfeat'}},
  'name': 'operator-tooling',
- 'strict': True}
+ 'strict': True,
+ 'tools': 'c3-matcher-tools'}

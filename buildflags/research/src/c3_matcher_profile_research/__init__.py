@@ -12,4 +12,5 @@ PROFILE: dict[str, Any] = {'flags': {'BUILD_MATCHER_ALIKED_LIGHTGLUE': {'distrib
                                    'state': 'ON',
                                    'strategy': 'xfeat'}},
  'name': 'research',
- 'strict': False}
+ 'strict': False,
+ 'tools': 'c3-matcher-tools'}

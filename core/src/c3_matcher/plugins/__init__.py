@@ -30,17 +30,27 @@ plugins its build allows are loaded; a third-party plugin runs under research an
 
 from __future__ import annotations
 
-from c3_matcher.plugins.hookspecs import PROJECT_NAME, hookimpl, hookspec
-from c3_matcher.plugins.manager import ENTRY_POINT_GROUP, LoadedPlugin, PluginHost
-from c3_matcher.plugins.types import StrategyFactory, StrategySpec
+import importlib
+from typing import Any
 
-__all__ = [
-    "ENTRY_POINT_GROUP",
-    "PROJECT_NAME",
-    "LoadedPlugin",
-    "PluginHost",
-    "StrategyFactory",
-    "StrategySpec",
-    "hookimpl",
-    "hookspec",
-]
+_EXPORTS: dict[str, str] = {
+    "ENTRY_POINT_GROUP": "c3_matcher.plugins.manager",
+    "PROJECT_NAME": "c3_matcher.plugins.hookspecs",
+    "LoadedPlugin": "c3_matcher.plugins.manager",
+    "PluginHost": "c3_matcher.plugins.manager",
+    "StrategyFactory": "c3_matcher.plugins.types",
+    "StrategySpec": "c3_matcher.plugins.types",
+    "hookimpl": "c3_matcher.plugins.hookspecs",
+    "hookspec": "c3_matcher.plugins.hookspecs",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:  # PEP 562: the record types load without pluggy
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'c3_matcher.plugins' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value

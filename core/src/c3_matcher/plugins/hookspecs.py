@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import pluggy
 
 if TYPE_CHECKING:
+    from c3_matcher.commands import CommandRegistry
     from c3_matcher.config import C3Settings
     from c3_matcher.engines.spec import EngineSpec
     from c3_matcher.pipeline import FeatureBackend
@@ -50,4 +51,15 @@ def c3_matcher_engine_specs() -> list[EngineSpec]:  # type: ignore[empty-body]
     installed distribution) and the build-time exporter that ``c3-matcher engines build`` runs
     (PyTorch is needed then, never at run time). A strategy's factory loads the built engines
     from the engine directory at start-up.
+    """
+
+
+@hookspec
+def c3_matcher_register_commands(commands: CommandRegistry) -> None:
+    """Add commands to the ``c3-matcher`` command line.
+
+    ``commands.add(name, help=...)`` returns a new command's argparse parser (add arguments and
+    ``set_defaults(handler=run)``, ``run(args, settings) -> exit status``);
+    ``commands.group(name)`` returns the registry of a command group (``engines``) to add
+    subcommands to. The core's flight commands come first; ground tooling adds its own here.
     """

@@ -25,6 +25,7 @@ from c3_matcher.plugins.types import StrategySpec
 from c3_matcher.profiles import BuildProfile, FlagState
 
 if TYPE_CHECKING:
+    from c3_matcher.commands import CommandRegistry
     from c3_matcher.config import C3Settings
     from c3_matcher.engines.spec import EngineSpec
     from c3_matcher.pipeline import FeatureBackend
@@ -185,6 +186,11 @@ class PluginHost:
         for batch in reversed(self._pm.hook.c3_matcher_engine_specs()):
             specs.extend(batch)
         return specs
+
+    def register_commands(self, commands: CommandRegistry) -> None:
+        """Let every loaded plugin add its commands (registration order)."""
+        for impl in reversed(self._pm.hook.c3_matcher_register_commands.get_hookimpls()):
+            impl.function(commands=commands)
 
     def reference_backend(self, strategy: str, settings: C3Settings) -> FeatureBackend | None:
         """The PyTorch reference of ``strategy`` from its plugin (build environment only)."""

@@ -5,11 +5,13 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
-
-from pydantic import BaseModel
+from typing import TYPE_CHECKING
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.protocols import CrossDomainMatcher
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
 
 __all__ = ["StrategyFactory", "StrategySpec"]
 
@@ -27,6 +29,8 @@ class StrategySpec:
     ``name`` is what ``[matcher] strategy`` selects; ``build_flag`` its BUILD_MATCHER_* flag
     (None for a third-party strategy outside the matrix); ``options_model`` validates
     ``[matcher.options.<name>]`` (unknown keys refused) or is None when it has no options.
+    ``baseline`` marks a classical reference (SIFT + MAGSAC) that replay, eval and bench run
+    beside the learned strategies; it is never a flight strategy.
     """
 
     name: str
@@ -34,6 +38,7 @@ class StrategySpec:
     build_flag: str | None = None
     options_model: type[BaseModel] | None = None
     description: str = ""
+    baseline: bool = False
 
     def __post_init__(self) -> None:
         if not _NAME.match(self.name):

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
 
 if TYPE_CHECKING:
-    from c3_matcher.engines.export import ExportReport, ExportRequest
+    from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 __all__ = [
     "ALIKED_DESCRIPTOR_DIM",
@@ -232,14 +232,14 @@ def export_aliked(request: ExportRequest) -> ExportReport:
     import onnxruntime as ort
     import torch
 
-    from c3_matcher.engines.export import ExportReport
-    from c3_matcher.engines.export.onnx_export import export_module
     from c3_matcher.engines.extract import image_to_feeds
     from c3_matcher.engines.runtime import SessionSettings
     from c3_matcher_aliked_lightglue.aliked_export import (
         build_aliked_export_module,
         load_aliked_reference,
     )
+    from c3_matcher_tools.engines.export import ExportReport
+    from c3_matcher_tools.engines.export.onnx_export import export_module
 
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))
@@ -312,8 +312,8 @@ def export_aliked(request: ExportRequest) -> ExportReport:
 def export_lightglue_aliked(request: ExportRequest) -> ExportReport:
     """Export LightGlue for ALIKED and verify it on real kornia-ALIKED (n16) features (core's
     shared ``export_lightglue``)."""
-    from c3_matcher.engines.export.lightglue import export_lightglue
     from c3_matcher_aliked_lightglue.aliked_export import load_aliked_reference
+    from c3_matcher_tools.engines.export.lightglue import export_lightglue
 
     references: dict[int, Any] = {}
 

@@ -42,8 +42,8 @@ class AlikedLightGlueReference:
     def __init__(self, settings: C3Settings) -> None:
         import torch
 
-        from c3_matcher.engines.export.lightglue import load_lightglue_reference
         from c3_matcher_aliked_lightglue.aliked_export import load_aliked_reference
+        from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
 
         raw = settings.matcher.options.get("aliked_lightglue", {})
         variant = AlikedLightGlueOptions.model_validate(raw).variant

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
 
 if TYPE_CHECKING:
-    from c3_matcher.engines.export import ExportReport, ExportRequest
+    from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 __all__ = [
     "DISK_SPEC",
@@ -205,10 +205,10 @@ def export_disk(request: ExportRequest) -> ExportReport:
     import onnxruntime as ort
     import torch
 
-    from c3_matcher.engines.export import ExportReport
-    from c3_matcher.engines.export.onnx_export import export_module
     from c3_matcher.engines.extract import image_to_feeds
     from c3_matcher.engines.runtime import SessionSettings
+    from c3_matcher_tools.engines.export import ExportReport
+    from c3_matcher_tools.engines.export.onnx_export import export_module
 
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))
@@ -305,7 +305,7 @@ def disk_reference_features(
 def export_lightglue_disk(request: ExportRequest) -> ExportReport:
     """Export LightGlue for DISK and verify it on real kornia-DISK features (core's shared
     ``export_lightglue``)."""
-    from c3_matcher.engines.export.lightglue import export_lightglue
+    from c3_matcher_tools.engines.export.lightglue import export_lightglue
 
     disk = load_disk_reference(DISK_SPEC.weights.resolve())
     return export_lightglue(

@@ -34,7 +34,7 @@ class DiskLightGlueReference:
     def __init__(self, settings: C3Settings) -> None:
         import torch
 
-        from c3_matcher.engines.export.lightglue import load_lightglue_reference
+        from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
 
         self._torch = torch
         self.input_rule = InputRule(settings.matcher.max_long_side, 16)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from c3_matcher_xfeat.engines import LIGHTERGLUE_ARCH, LIGHTERGLUE_TOLERANCES, XFEAT_SPEC
 
 if TYPE_CHECKING:
-    from c3_matcher.engines.export import ExportReport, ExportRequest
+    from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 __all__ = ["export_lighterglue", "load_lighterglue_reference", "verify_lighterglue"]
 
@@ -71,9 +71,9 @@ def export_lighterglue(request: ExportRequest) -> ExportReport:
     import torch
     from torch.nn import functional as nnf
 
-    from c3_matcher.engines.export import ExportReport
-    from c3_matcher.engines.export.lightglue import LightGlueForExport
-    from c3_matcher.engines.export.onnx_export import export_module
+    from c3_matcher_tools.engines.export import ExportReport
+    from c3_matcher_tools.engines.export.lightglue import LightGlueForExport
+    from c3_matcher_tools.engines.export.onnx_export import export_module
     from c3_matcher_xfeat.export_xfeat import load_xfeat_reference, xfeat_reference_features
 
     torch.set_grad_enabled(False)
@@ -130,9 +130,9 @@ def verify_lighterglue(
     import onnxruntime as ort
     import torch
 
-    from c3_matcher.engines.export.lightglue import verification_pairs
     from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, normalize_keypoints
     from c3_matcher.engines.runtime import SessionSettings
+    from c3_matcher_tools.engines.export.lightglue import verification_pairs
 
     session = ort.InferenceSession(
         str(request.output_path),

@@ -29,7 +29,7 @@ from c3_matcher_xfeat.engines import (
 )
 
 if TYPE_CHECKING:
-    from c3_matcher.engines.export import ExportReport, ExportRequest
+    from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 __all__ = [
     "build_xfeat_export_module",
@@ -229,10 +229,10 @@ def export_xfeat(request: ExportRequest) -> ExportReport:
     import onnxruntime as ort
     import torch
 
-    from c3_matcher.engines.export import ExportReport
-    from c3_matcher.engines.export.onnx_export import export_module
     from c3_matcher.engines.extract import image_to_feeds
     from c3_matcher.engines.runtime import SessionSettings
+    from c3_matcher_tools.engines.export import ExportReport
+    from c3_matcher_tools.engines.export.onnx_export import export_module
 
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))

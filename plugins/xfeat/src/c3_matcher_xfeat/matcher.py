@@ -16,7 +16,7 @@ from typing import Any
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.pipeline import PipelineSettings
+from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.preprocess import InputRule
 from c3_matcher.protocols import (
     Clock,
@@ -26,7 +26,7 @@ from c3_matcher.protocols import (
     LightGlueRuntime,
     RansacFilter,
 )
-from c3_matcher.strategy import PipelineMatcher, engine_startup_probe
+from c3_matcher.strategy import engine_startup_probe
 from c3_matcher_xfeat.backend import LightGluePairMatcher, PairMatcher, XFeatBackend
 from c3_matcher_xfeat.engines import XFEAT_SIZE_MULTIPLE, XFEAT_TOP_K
 from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher
@@ -184,7 +184,7 @@ class XFeatMatcher(PipelineMatcher):
             health_window,
             clock or MonotonicClock(),
             config.pipeline_settings,
-            config.tile_cache_size,
+            tile_cache_size=config.tile_cache_size,
         )
 
     @property

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.health import RollingHealthWindow
+from c3_matcher.pipeline import PipelineMatcher
 from c3_matcher.plugins import StrategySpec, hookimpl
 from c3_matcher.protocols import (
     Clock,
@@ -23,11 +24,7 @@ from c3_matcher.protocols import (
     LightGlueRuntime,
     RansacFilter,
 )
-from c3_matcher.strategy import (
-    ExtractorLightGlueBackend,
-    ExtractorLightGlueConfig,
-    PipelineMatcher,
-)
+from c3_matcher.strategy import ExtractorLightGlueBackend, ExtractorLightGlueConfig
 
 NAME = "example_fast_disk"
 
@@ -74,7 +71,7 @@ def create(
         health_window,
         clock,
         cfg.pipeline_settings,
-        cfg.tile_cache_size,
+        tile_cache_size=cfg.tile_cache_size,
     )
 
 

@@ -1,0 +1,67 @@
+"""The command line's extension point: ``CommandRegistry``, handed to every plugin's
+``c3_matcher_register_commands`` hook (datasette's ``register_commands``, tox's ``tox_add_option``).
+
+The core registers its flight commands (``plugins``, ``config``, ``match``,
+``engines list|verify``) through the same registry; ground tooling (``c3-matcher-tools``) and
+third parties add theirs, or subcommands of a group such as ``engines``. A leaf command sets its
+handler with ``parser.set_defaults(handler=run)``; ``run(args, settings) -> exit status``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from c3_matcher.config import C3Settings
+
+__all__ = [
+    "EXIT_FAILURE",
+    "EXIT_INSUFFICIENT",
+    "EXIT_OK",
+    "EXIT_USAGE",
+    "CommandRegistry",
+    "Handler",
+]
+
+EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_INSUFFICIENT = 0, 1, 2, 3
+
+Handler = Callable[[argparse.Namespace, "C3Settings"], int]
+
+
+class UsageParser(argparse.ArgumentParser):
+    """An argument parser whose usage errors exit 2 with one line on stderr."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        print(f"{self.prog}: error: {message}", file=sys.stderr)
+        raise SystemExit(EXIT_USAGE)
+
+
+class CommandRegistry:
+    """Commands (and groups of subcommands) of ``c3-matcher``, on argparse subparsers."""
+
+    def __init__(self, subparsers: Any, dest: str = "command") -> None:
+        self._sub = subparsers
+        self._dest = dest
+        self._groups: dict[str, CommandRegistry] = {}
+        self._names: set[str] = set()
+
+    def add(self, name: str, *, help: str, **kwargs: Any) -> argparse.ArgumentParser:
+        """A new command's parser; the caller adds arguments and ``set_defaults(handler=...)``."""
+        if name in self._names:
+            raise ValueError(f"command {name!r} is registered twice")
+        self._names.add(name)
+        kwargs.setdefault("formatter_class", argparse.ArgumentDefaultsHelpFormatter)
+        parser: argparse.ArgumentParser = self._sub.add_parser(name, help=help, **kwargs)
+        return parser
+
+    def group(self, name: str, *, help: str = "") -> CommandRegistry:
+        """The registry of the subcommands of group ``name`` (created on first use)."""
+        if name not in self._groups:
+            parser = self.add(name, help=help)
+            dest = f"{name}_command"
+            sub = parser.add_subparsers(dest=dest, required=True, parser_class=UsageParser)
+            self._groups[name] = CommandRegistry(sub, dest)
+        return self._groups[name]

@@ -1,0 +1,97 @@
+"""The classical reference: OpenCV SIFT + ratio-test matching, run through the SAME pipeline
+(preprocessing, MAGSAC RANSAC, ranking) as the learned strategies, so benchmarks and evaluations
+compare like with like."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import cv2
+import numpy as np
+
+from c3_matcher.config import C3Settings
+from c3_matcher.features import Features, RawMatches
+from c3_matcher.health import RollingHealthWindow
+from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
+from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.protocols import Clock, FdrClient, RansacFilter
+
+__all__ = ["SIFT_LABEL", "SiftBackend", "create"]
+
+SIFT_LABEL = "sift_magsac"
+
+
+class SiftBackend:
+    """FeatureBackend: SIFT keypoints (OpenCV) inside the valid mask, Lowe ratio test + mutual
+    check on L2 distances. Deterministic (OpenCV SIFT and brute force are)."""
+
+    label = SIFT_LABEL
+    extract_phase = "sift_extract"
+    match_phase = "sift_match"
+
+    def __init__(self, rule: InputRule, max_keypoints: int = 2048, ratio: float = 0.85) -> None:
+        self.input_rule = rule
+        self._sift = cv2.SIFT.create(nfeatures=max_keypoints)
+        self._matcher = cv2.BFMatcher(cv2.NORM_L2)
+        self._ratio = ratio
+
+    def extract(self, image: PreparedImage) -> Features:
+        grey = cv2.cvtColor(image.image, cv2.COLOR_RGB2GRAY)
+        mask = image.valid.astype(np.uint8) * 255
+        keypoints, descriptors = self._sift.detectAndCompute(grey, mask)
+        n = len(keypoints)
+        pts = np.array([k.pt for k in keypoints], np.float32).reshape(n, 2)
+        scores = np.array([k.response for k in keypoints], np.float32).reshape(n)
+        desc = (
+            np.zeros((0, 128), np.float32)
+            if descriptors is None
+            else descriptors.astype(np.float32)
+        )
+        return Features(pts, desc, scores, image.engine_size)
+
+    def match(self, query: Features, tile: Features) -> RawMatches:
+        if len(query) < 2 or len(tile) < 2:
+            return RawMatches(np.zeros((0, 2), np.int64), np.zeros(0, np.float32))
+        forward = self._matcher.knnMatch(query.descriptors, tile.descriptors, k=2)
+        backward = {
+            m.queryIdx: m.trainIdx for m in self._matcher.match(tile.descriptors, query.descriptors)
+        }
+        rows, scores = [], []
+        for pair in forward:
+            if len(pair) < 2:
+                continue
+            best, second = pair
+            if (
+                best.distance < self._ratio * second.distance
+                and backward.get(best.trainIdx) == best.queryIdx
+            ):
+                rows.append((best.queryIdx, best.trainIdx))
+                scores.append(1.0 - best.distance / max(second.distance, 1e-9))
+        return RawMatches(np.array(rows, np.int64).reshape(-1, 2), np.array(scores, np.float32))
+
+    def provenance(self) -> Mapping[str, Any]:
+        return {"provider": "opencv", "engines": {"sift": cv2.__version__}}
+
+
+def create(
+    config: C3Settings,
+    *,
+    ransac_filter: RansacFilter,
+    health_window: RollingHealthWindow,
+    fdr_client: FdrClient,
+    clock: Clock,
+    **_: Any,
+) -> PipelineMatcher:
+    """Strategy factory of the ``sift_magsac`` baseline (the same pipeline as every strategy;
+    long side and keypoint budget from ``[matcher]``, 2048 keypoints by default)."""
+    m = config.matcher
+    return PipelineMatcher(
+        SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints or 2048),
+        ransac_filter,
+        fdr_client,
+        health_window,
+        clock,
+        PipelineSettings.from_settings(m),
+        tile_cache_size=m.tile_cache_size,
+    )

@@ -1,0 +1,112 @@
+"""``c3-matcher dataset render``: a simulated flight over a real orthophoto (see
+:mod:`c3_matcher_tools.dataset.flight`); ``c3-matcher dataset info``: a dataset's summary (JSON)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from c3_matcher.commands import CommandRegistry
+from c3_matcher.config import C3Settings
+from c3_matcher_tools.dataset.progress import ProgressBar
+
+__all__ = ["register_dataset_command"]
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    return w, h
+
+
+def register_dataset_command(commands: CommandRegistry) -> None:
+    from c3_matcher_tools.tilestore.cli import parse_latlon
+
+    p = commands.add("dataset", help="flight datasets: render a simulated flight, inspect one")
+    ds = p.add_subparsers(dest="dataset_command", required=True, parser_class=type(p))
+    r = ds.add_parser(
+        "render",
+        help="render a flight over a GeoTIFF against an MBTiles store (c3-matcher tiles build)",
+    )
+    r.add_argument("frames_geotiff", type=Path, help="orthophoto the frames are rendered from")
+    r.add_argument("store", type=Path, help="MBTiles store of the candidate tiles")
+    r.add_argument("out", type=Path, help="dataset directory to write")
+    r.add_argument("--frames", type=int, default=36, help="number of frames (default 36)")
+    r.add_argument("--pattern", choices=("orbit", "line"), default="orbit")
+    r.add_argument("--height", type=float, default=780.0, help="height above ground, m")
+    r.add_argument("--speed", type=float, default=30.0, help="ground speed, m/s")
+    r.add_argument("--interval", type=float, default=2.0, help="seconds between frames")
+    r.add_argument("--heading", type=float, default=0.0, help="line heading / orbit start, deg")
+    r.add_argument("--radius", type=float, default=450.0, help="orbit radius, m")
+    r.add_argument("--max-tilt", type=float, default=20.0, help="max attitude tilt, deg")
+    r.add_argument("--image-size", type=_size, default=(320, 240), help="WxH px (default 320x240)")
+    r.add_argument("--focal", type=float, default=300.0, help="focal length, px")
+    r.add_argument("--candidate-size", type=int, default=448, help="candidate image side, px")
+    r.add_argument(
+        "--absent-share",
+        type=float,
+        default=0.1,
+        help="share of frames without their true tile (default 0.1)",
+    )
+    r.add_argument("--min-distractor-distance", type=float, default=350.0, help="m (default 350)")
+    r.add_argument(
+        "--ref-latlon",
+        type=parse_latlon,
+        default=None,
+        help="LAT,LON reference for local-tangent-plane grids",
+    )
+    r.add_argument("--attribution", default="", help="imagery credit stored in dataset.json")
+    r.add_argument("--seed", type=int, default=0)
+    i = ds.add_parser("info", help="summary of a dataset (JSON)")
+    i.add_argument("dataset", type=Path)
+    p.set_defaults(handler=run_dataset)
+
+
+def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
+    from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
+    from c3_matcher_tools.dataset.format import load_dataset
+
+    if args.dataset_command == "info":
+        d = load_dataset(args.dataset)
+        print(
+            json.dumps(
+                {
+                    "path": str(d.root),
+                    "name": d.name,
+                    "frames": len(d.frames),
+                    "absent_frames": sum(not f.true_tile_present for f in d.frames),
+                    "candidate_size_px": d.candidate_size_px,
+                    "calibration_image_size": list(d.calibration.image_size),
+                    **{k: d.meta[k] for k in ("tiles_source", "frames_source") if k in d.meta},
+                },
+                indent=2,
+            )
+        )
+        return 0
+    spec = FlightSpec(
+        frames_geotiff=args.frames_geotiff,
+        store=args.store,
+        n_frames=args.frames,
+        pattern=args.pattern,
+        height_m=args.height,
+        speed_mps=args.speed,
+        frame_interval_s=args.interval,
+        heading_deg=args.heading,
+        orbit_radius_m=args.radius,
+        max_tilt_deg=args.max_tilt,
+        image_size=args.image_size,
+        focal_px=args.focal,
+        candidate_size_px=args.candidate_size,
+        absent_share=args.absent_share,
+        min_distractor_distance_m=args.min_distractor_distance,
+        reference_latlon=args.ref_latlon,
+        seed=args.seed,
+    )
+    out = render_flight(
+        spec, args.out, attribution=args.attribution, progress=ProgressBar("dataset render")
+    )
+    print(json.dumps({"dataset": str(out), "frames": spec.n_frames}))
+    return 0

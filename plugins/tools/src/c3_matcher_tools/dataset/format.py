@@ -1,0 +1,262 @@
+"""The flight dataset format (``c3-flight/1``): simulated or recorded frames, their attitude and
+calibration, per frame a RerankResult of candidate tile ids in a tile store, and ground truth.
+
+Layout of a dataset directory::
+
+    dataset.json       {"format": "c3-flight/1", "name", "store": "tiles.mbtiles",
+                        "candidate_size_px", "calibration": "calibration.json",
+                        "frames": "frames.jsonl", "spec": {how it was made}, "attribution"}
+    calibration.json   {"K", "distortion", "image_size"} (the ``c3-matcher match`` format)
+    frames.jsonl       one JSON object per frame, see :class:`FrameRecord`
+    frames/*.jpg       the nav-camera frames as captured (distorted), RGB JPEG
+    tiles.mbtiles      the tile store the candidates' ids refer to (MBTiles, web mercator)
+
+A frame record: ``index``, ``frame_id`` (UUID), ``image`` (path relative to the dataset),
+``captured_at_ns``, ``attitude_deg`` [roll, pitch, yaw] (Z-Y-X, NED, yaw from north),
+``height_m`` above ground, ``true_tile_present``, ``candidates`` in C2.5's order, each
+``{"tile_id": [zoom, lat, lon], "score", "is_true", "distance_m" (candidate centre to the
+footprint centre), "h_tile_to_undistorted": 3x3}``: the ground-truth homography from the
+candidate image's pixels (``candidate_size_px`` square, centred on the id, see
+:mod:`c3_matcher.tilestore.handles`) to UNDISTORTED frame pixels (apply the calibration's
+distortion to get ORIGINAL frame pixels), and ``pose`` (nadir lat/lon, ground centre, ...).
+"""
+
+from __future__ import annotations
+
+import json
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.dto import (
+    Attitude,
+    CameraCalibration,
+    NavCameraFrame,
+    RerankCandidate,
+    RerankResult,
+    TileId,
+)
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.serialize import load_calibration
+from c3_matcher.tiles import read_image
+from c3_matcher.tilestore.mbtiles import MBTilesStore
+
+__all__ = [
+    "FORMAT",
+    "CandidateTruth",
+    "FlightDataset",
+    "FrameRecord",
+    "load_dataset",
+    "write_dataset",
+]
+
+FORMAT = "c3-flight/1"
+
+
+@dataclass(frozen=True)
+class CandidateTruth:
+    """One candidate of a frame and its ground truth (see the module docstring)."""
+
+    tile_id: TileId
+    score: float
+    is_true: bool
+    distance_m: float
+    h_tile_to_undistorted: NDArray[np.float64]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "tile_id": self.tile_id.as_list(),
+            "score": self.score,
+            "is_true": self.is_true,
+            "distance_m": round(self.distance_m, 3),
+            "h_tile_to_undistorted": self.h_tile_to_undistorted.tolist(),
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> CandidateTruth:
+        z, lat, lon = data["tile_id"]
+        return cls(
+            TileId(int(z), float(lat), float(lon)),
+            float(data["score"]),
+            bool(data["is_true"]),
+            float(data["distance_m"]),
+            np.asarray(data["h_tile_to_undistorted"], dtype=np.float64).reshape(3, 3),
+        )
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One frame of a flight (see the module docstring); angles in degrees."""
+
+    index: int
+    frame_id: uuid.UUID
+    image: str
+    captured_at_ns: int
+    attitude_deg: tuple[float, float, float]
+    height_m: float
+    candidates: tuple[CandidateTruth, ...]
+    pose: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def true_tile_present(self) -> bool:
+        return any(c.is_true for c in self.candidates)
+
+    @property
+    def true_index(self) -> int | None:
+        """Input position of the true candidate, None when it is absent."""
+        return next((i for i, c in enumerate(self.candidates) if c.is_true), None)
+
+    @property
+    def attitude(self) -> Attitude:
+        return Attitude.from_degrees(*self.attitude_deg)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "index": self.index,
+            "frame_id": str(self.frame_id),
+            "image": self.image,
+            "captured_at_ns": self.captured_at_ns,
+            "attitude_deg": [round(a, 6) for a in self.attitude_deg],
+            "height_m": self.height_m,
+            "true_tile_present": self.true_tile_present,
+            "candidates": [c.to_json() for c in self.candidates],
+            "pose": self.pose,
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> FrameRecord:
+        r, p, y = (float(a) for a in data["attitude_deg"])
+        return cls(
+            int(data["index"]),
+            uuid.UUID(str(data["frame_id"])),
+            str(data["image"]),
+            int(data["captured_at_ns"]),
+            (r, p, y),
+            float(data["height_m"]),
+            tuple(CandidateTruth.from_json(c) for c in data["candidates"]),
+            dict(data.get("pose", {})),
+        )
+
+
+@dataclass(frozen=True)
+class FlightDataset:
+    """A loaded dataset: its directory, metadata, calibration and frame records."""
+
+    root: Path
+    meta: dict[str, Any]
+    calibration: CameraCalibration
+    frames: tuple[FrameRecord, ...]
+
+    @property
+    def name(self) -> str:
+        return str(self.meta.get("name", self.root.name))
+
+    @property
+    def candidate_size_px(self) -> int:
+        return int(self.meta["candidate_size_px"])
+
+    @property
+    def store_path(self) -> Path:
+        return self.root / str(self.meta["store"])
+
+    def open_store(self) -> MBTilesStore:
+        return MBTilesStore(self.store_path)
+
+    def nav_frame(self, frame: FrameRecord) -> NavCameraFrame:
+        """The frame as C1 delivers it: pixels read from the dataset, attitude and height."""
+        return NavCameraFrame(
+            frame.frame_id,
+            read_image(self.root / frame.image),
+            frame.captured_at_ns,
+            frame.attitude,
+            frame.height_m,
+        )
+
+    def rerank(self, frame: FrameRecord, store: MBTilesStore) -> RerankResult:
+        """The frame's RerankResult: lazy handles on ``store`` in the recorded order."""
+        return RerankResult(
+            frame.frame_id,
+            tuple(
+                RerankCandidate(
+                    c.tile_id,
+                    c.score,
+                    store.handle(c.tile_id, self.candidate_size_px),
+                    c.tile_id.web_mercator_gsd_m(),
+                )
+                for c in frame.candidates
+            ),
+        )
+
+
+def calibration_to_json(calibration: CameraCalibration) -> dict[str, Any]:
+    return {
+        "K": calibration.K.tolist(),
+        "distortion": calibration.distortion.tolist(),
+        "image_size": list(calibration.image_size),
+    }
+
+
+def write_dataset(
+    root: Path,
+    meta: dict[str, Any],
+    calibration: CameraCalibration,
+    frames: Sequence[FrameRecord],
+) -> Path:
+    """Write ``dataset.json``, ``calibration.json`` and ``frames.jsonl`` under ``root`` (the
+    frame images and the store must already be there)."""
+    root.mkdir(parents=True, exist_ok=True)
+    full = {
+        "format": FORMAT,
+        "calibration": "calibration.json",
+        "frames": "frames.jsonl",
+        **meta,
+    }
+    (root / "calibration.json").write_text(json.dumps(calibration_to_json(calibration), indent=1))
+    with (root / "frames.jsonl").open("w", encoding="utf-8") as fh:
+        for f in frames:
+            fh.write(json.dumps(f.to_json()) + "\n")
+    (root / "dataset.json").write_text(json.dumps(full, indent=2) + "\n")
+    return root
+
+
+def load_dataset(root: str | Path) -> FlightDataset:
+    """Read a dataset directory, naming what is missing or malformed."""
+    base = Path(root)
+    meta_path = base / "dataset.json"
+    if not meta_path.is_file():
+        raise InvalidInputError("dataset", f"{base}: no dataset.json (not a {FORMAT} dataset)")
+    try:
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InvalidInputError("dataset", f"{meta_path}: unreadable: {exc}") from exc
+    if meta.get("format") != FORMAT:
+        raise InvalidInputError(
+            "dataset", f"{meta_path}: format {meta.get('format')!r}, expected {FORMAT!r}"
+        )
+    for key in ("store", "candidate_size_px", "frames", "calibration"):
+        if key not in meta:
+            raise InvalidInputError("dataset", f"{meta_path}: missing key {key!r}")
+    calibration = load_calibration(base / str(meta["calibration"]))
+    frames = []
+    frames_path = base / str(meta["frames"])
+    try:
+        lines = frames_path.read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise InvalidInputError("dataset", f"{frames_path}: unreadable: {exc}") from exc
+    for n, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            frames.append(FrameRecord.from_json(json.loads(line)))
+        except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
+            raise InvalidInputError(
+                "dataset", f"{frames_path}:{n}: bad frame record: {exc!r}"
+            ) from exc
+    if not (base / str(meta["store"])).is_file():
+        raise InvalidInputError("dataset", f"{base / str(meta['store'])}: tile store missing")
+    return FlightDataset(base, meta, calibration, tuple(frames))

@@ -1,0 +1,325 @@
+"""``c3-matcher engines bench``: latency and peak memory of the engines on real imagery.
+
+Each measurement runs in a fresh subprocess (``python -m c3_matcher_tools.engines.bench child ...``)
+so that its peak RSS (``VmHWM`` from ``/proc/self/status``, else ``ru_maxrss``) belongs to that
+case alone: interpreter + onnxruntime + one session + its runs. Latency: one warm-up run, then
+``runs`` timed runs of ``InferenceRuntime.run`` (DISK: ``run_extractor``, LightGlue:
+``match_pair``, pre- and post-processing included); median and p95 in ms.
+
+Cases: DISK at two input sizes (512x512, 1024x1024 px, resized from the real orthophoto) and
+LightGlue at two keypoint counts per side (512, 2048), on DISK features of two overlapping real
+views (1024x1024). No PyTorch.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["BenchResult", "format_table", "run_bench"]
+
+DISK_SIZES: tuple[tuple[int, int], ...] = ((512, 512), (1024, 1024))
+LIGHTGLUE_COUNTS: tuple[int, ...] = (512, 2048)
+
+
+@dataclass(frozen=True, slots=True)
+class BenchResult:
+    """One case: ``engine`` file, ``case`` label, latency (ms) and memory (MiB)."""
+
+    engine: str
+    case: str
+    runs: int
+    median_ms: float
+    p95_ms: float
+    min_ms: float
+    first_run_ms: float
+    load_ms: float
+    peak_rss_mib: float
+    baseline_rss_mib: float
+    settings: str
+    detail: dict[str, Any]
+
+
+def _peak_rss_mib() -> float:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _current_rss_mib() -> float:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+def _read_rgb(path: Path, size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
+    import cv2
+
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise FileNotFoundError(f"bench image {path} is missing or unreadable")
+    rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    if size is not None:
+        rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_LINEAR)
+    return np.ascontiguousarray(rgb)
+
+
+def _pair_views(path: Path, side: int = 1024) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """Two overlapping real views (the top-left and bottom-right 80 % of the image), resized to
+    ``side`` x ``side`` px."""
+    import cv2
+
+    full = _read_rgb(path)
+    h, w = full.shape[:2]
+    a = full[: int(h * 0.8), : int(w * 0.8)]
+    b = full[h - int(h * 0.8) :, w - int(w * 0.8) :]
+    return (
+        np.ascontiguousarray(cv2.resize(a, (side, side), interpolation=cv2.INTER_LINEAR)),
+        np.ascontiguousarray(cv2.resize(b, (side, side), interpolation=cv2.INTER_LINEAR)),
+    )
+
+
+def _settings(mem_pattern: bool, arena: bool) -> Any:
+    from c3_matcher.engines.runtime import SessionSettings
+
+    return SessionSettings(enable_mem_pattern=mem_pattern, enable_cpu_mem_arena=arena)
+
+
+def _time_runs(fn: Callable[[], object], runs: int) -> tuple[float, list[float]]:
+    start = time.perf_counter()
+    fn()
+    first = (time.perf_counter() - start) * 1e3
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - start) * 1e3)
+    return first, times
+
+
+def _child(args: argparse.Namespace) -> int:
+    from c3_matcher.engines.extract import run_extractor
+    from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
+    from c3_matcher.engines.runtime import OnnxInferenceRuntime
+
+    baseline = _current_rss_mib()
+    runtime = OnnxInferenceRuntime(
+        ["CPUExecutionProvider"], settings=_settings(args.mem_pattern == "on", args.arena == "on")
+    )
+    start = time.perf_counter()
+    detail: dict[str, Any] = {}
+    fn: Callable[[], object]
+    if args.kind == "extractor":
+        engine_id = runtime.load_engine(args.engine)
+        load_ms = (time.perf_counter() - start) * 1e3
+        width, height = args.size
+        rgb = _read_rgb(Path(args.image), (width, height))
+        mask = np.ones((height, width), dtype=bool)
+        model = Path(args.engine).name.split("_", 1)[0]
+        case = f"{model} {width}x{height}"
+
+        def fn() -> object:
+            return run_extractor(runtime, engine_id, rgb, mask, 2048)
+
+        detail["keypoints"] = len(run_extractor(runtime, engine_id, rgb, mask, 2048))
+    else:
+        matcher = OnnxLightGlueRuntime(runtime)
+        matcher.load(args.feature_type, Path(args.engine))
+        load_ms = (time.perf_counter() - start) * 1e3
+        data = np.load(args.features)
+        n = args.keypoints
+        k0, d0, k1, d1 = data["k0"][:n], data["d0"][:n], data["k1"][:n], data["d1"][:n]
+        s0 = tuple(int(v) for v in data["size0"])
+        s1 = tuple(int(v) for v in data["size1"])
+        case = f"{args.feature_type} lightglue {len(k0)}x{len(k1)} kpts"
+
+        def fn() -> object:
+            return matcher.match_pair(
+                k0, d0, (s0[0], s0[1]), k1, d1, (s1[0], s1[1]), feature_type=args.feature_type
+            )
+
+        detail["matches"] = len(
+            matcher.match_pair(
+                k0, d0, (s0[0], s0[1]), k1, d1, (s1[0], s1[1]), feature_type=args.feature_type
+            )
+        )
+    first, times = _time_runs(fn, args.runs)
+    ordered = sorted(times)
+    p95 = ordered[min(len(ordered) - 1, int(np.ceil(0.95 * len(ordered))) - 1)]
+    result = BenchResult(
+        engine=Path(args.engine).name,
+        case=case,
+        runs=len(times),
+        median_ms=round(statistics.median(times), 1),
+        p95_ms=round(p95, 1),
+        min_ms=round(ordered[0], 1),
+        first_run_ms=round(first, 1),
+        load_ms=round(load_ms, 1),
+        peak_rss_mib=round(_peak_rss_mib(), 1),
+        baseline_rss_mib=round(baseline, 1),
+        settings=f"mem_pattern={args.mem_pattern} arena={args.arena}",
+        detail=detail,
+    )
+    print(json.dumps(asdict(result)))
+    return 0
+
+
+def _run_child(argv: list[str]) -> BenchResult:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+    proc = subprocess.run(
+        [sys.executable, "-m", "c3_matcher_tools.engines.bench", "child", *argv],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=False,
+    )
+    if proc.returncode != 0:
+        raise RuntimeError(f"bench child {argv} failed:\n{proc.stderr[-2000:]}")
+    return BenchResult(**json.loads(proc.stdout.strip().splitlines()[-1]))
+
+
+def _prepare_features(disk_engine: Path, image: Path, out: Path, max_keypoints: int) -> None:
+    from c3_matcher.engines.extract import run_extractor
+    from c3_matcher.engines.runtime import OnnxInferenceRuntime
+
+    runtime = OnnxInferenceRuntime(["CPUExecutionProvider"])
+    engine_id = runtime.load_engine(disk_engine)
+    a, b = _pair_views(image)
+    fa = run_extractor(runtime, engine_id, a, np.ones(a.shape[:2], bool), max_keypoints)
+    fb = run_extractor(runtime, engine_id, b, np.ones(b.shape[:2], bool), max_keypoints)
+    np.savez(
+        out,
+        k0=fa.keypoints,
+        d0=fa.descriptors,
+        k1=fb.keypoints,
+        d1=fb.descriptors,
+        size0=np.array(fa.image_size),
+        size1=np.array(fb.image_size),
+    )
+
+
+def run_bench(
+    disk_engine: Path,
+    lightglue_engine: Path,
+    image: Path,
+    *,
+    runs: int = 20,
+    disk_sizes: Sequence[tuple[int, int]] = DISK_SIZES,
+    lightglue_counts: Sequence[int] = LIGHTGLUE_COUNTS,
+    feature_type: str = "disk",
+    settings: Sequence[tuple[bool, bool]] = ((False, True),),
+    log: Callable[[str], None] | None = None,
+) -> list[BenchResult]:
+    """Measure every case, each in a fresh process; ``settings`` lists (memory pattern, arena)
+    combinations to compare (default: the runtime's chosen options)."""
+    say = log or (lambda _line: None)
+    results: list[BenchResult] = []
+    with tempfile.TemporaryDirectory(prefix="c3-bench-") as tmp:
+        features = Path(tmp) / "features.npz"
+        say("extracting real DISK features for the LightGlue cases")
+        _prepare_features(disk_engine, image, features, max(lightglue_counts))
+        for mem_pattern, arena in settings:
+            flags = [
+                "--mem-pattern",
+                "on" if mem_pattern else "off",
+                "--arena",
+                "on" if arena else "off",
+                "--runs",
+                str(runs),
+            ]
+            for width, height in disk_sizes:
+                say(f"disk {width}x{height} ({flags[1]} mem pattern, {flags[3]} arena)")
+                results.append(
+                    _run_child(
+                        [
+                            "extractor",
+                            "--engine",
+                            str(disk_engine),
+                            "--image",
+                            str(image),
+                            "--size",
+                            str(width),
+                            str(height),
+                            *flags,
+                        ]
+                    )
+                )
+            for count in lightglue_counts:
+                say(f"lightglue {count} keypoints/side ({flags[1]} mem pattern, {flags[3]} arena)")
+                results.append(
+                    _run_child(
+                        [
+                            "matcher",
+                            "--engine",
+                            str(lightglue_engine),
+                            "--features",
+                            str(features),
+                            "--keypoints",
+                            str(count),
+                            "--feature-type",
+                            feature_type,
+                            *flags,
+                        ]
+                    )
+                )
+    return results
+
+
+def format_table(results: Sequence[BenchResult]) -> str:
+    """A fixed-width text table of ``results``."""
+    header = (
+        f"{'case':<28} {'median ms':>10} {'p95 ms':>8} {'min ms':>8} {'peak MiB':>9} "
+        f"{'base MiB':>9} {'load ms':>8}  settings"
+    )
+    lines = [header, "-" * len(header)]
+    for r in results:
+        lines.append(
+            f"{r.case:<28} {r.median_ms:>10.1f} {r.p95_ms:>8.1f} {r.min_ms:>8.1f} "
+            f"{r.peak_rss_mib:>9.0f} {r.baseline_rss_mib:>9.0f} {r.load_ms:>8.0f}  {r.settings}"
+        )
+    return "\n".join(lines)
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m c3_matcher_tools.engines.bench")
+    sub = parser.add_subparsers(dest="mode", required=True)
+    child = sub.add_parser("child", help="one measurement (internal)")
+    child.add_argument("kind", choices=["extractor", "matcher"])
+    child.add_argument("--engine", required=True)
+    child.add_argument("--image")
+    child.add_argument("--size", nargs=2, type=int)
+    child.add_argument("--features")
+    child.add_argument("--keypoints", type=int)
+    child.add_argument("--feature-type", default="disk")
+    child.add_argument("--runs", type=int, default=20)
+    child.add_argument("--mem-pattern", choices=["on", "off"], default="off")
+    child.add_argument("--arena", choices=["on", "off"], default="on")
+    args = parser.parse_args(argv)
+    return _child(args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(_main())

@@ -1,0 +1,138 @@
+"""``c3-matcher engines build|bench`` (ground tooling; build needs the ``engine-build`` extra).
+
+stdout carries only the result; progress goes to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+
+from c3_matcher.commands import CommandRegistry
+from c3_matcher.config import C3Settings
+from c3_matcher.engines.cli import EnginesCliContext, engines_context, figures
+from c3_matcher.engines.spec import EngineSpec
+from c3_matcher.engines.store import EngineStore
+from c3_matcher.errors import C3Error
+
+__all__ = ["register_engines_build_commands"]
+
+
+def _err(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def _build(args: argparse.Namespace, settings: C3Settings) -> int:
+    ctx = engines_context(settings)
+    from c3_matcher_tools.engines.compiler import EngineBuildError, build_engines
+
+    start = time.perf_counter()
+    try:
+        outcomes = build_engines(
+            ctx.specs,
+            ctx.engine_dir,
+            force=args.force,
+            only=args.only or None,
+            imagery=ctx.imagery or None,
+            log=_err,
+        )
+    except (EngineBuildError, ValueError) as exc:
+        _err(f"error: {exc}")
+        return 1
+    total = time.perf_counter() - start
+    for o in outcomes:
+        state = "reused" if o.reused else f"built in {o.seconds:.1f} s"
+        print(f"{o.spec.key:<18} {state:<16} {o.path}")
+        if not o.reused:
+            print("\n".join(figures(dict(o.manifest.verification))))
+    built = [o for o in outcomes if not o.reused]
+    print(
+        f"{len(built)} built, {len(outcomes) - len(built)} reused in {total:.1f} s "
+        f"({ctx.engine_dir})"
+    )
+    return 0
+
+
+def _bench_pairs(specs: Sequence[EngineSpec]) -> list[tuple[EngineSpec, EngineSpec]]:
+    """(extractor, matcher) pairs: each matcher spec with the extractor whose model is its
+    feature type (DISK with LightGlue-for-DISK)."""
+    extractors = {s.model: s for s in specs if s.kind == "extractor"}
+    return [
+        (extractors[m.feature_type], m)
+        for m in specs
+        if m.kind == "matcher" and m.feature_type in extractors
+    ]
+
+
+def _bench(args: argparse.Namespace, settings: C3Settings) -> int:
+    ctx: EnginesCliContext = engines_context(settings)
+    from c3_matcher_tools.engines.bench import format_table, run_bench
+
+    pairs = _bench_pairs(ctx.specs)
+    if not pairs:
+        _err("error: no installed plugin declares an extractor + matcher pair to bench")
+        return 1
+    store = EngineStore(ctx.engine_dir)
+    if args.image:
+        image = Path(args.image)
+    elif ctx.imagery:
+        image = ctx.imagery[0]
+    else:
+        from c3_matcher_tools.engines.export import default_verification_imagery
+
+        image = default_verification_imagery()[0]
+    session_options: tuple[tuple[bool, bool], ...] = ((False, True),)
+    if args.sweep_session_options:
+        session_options = ((True, True), (False, True), (False, False))
+    results = []
+    for extractor, matcher in pairs:
+        try:
+            extractor_path = store.require(extractor.model, extractor.variant)
+            matcher_path = store.require(matcher.model, matcher.variant)
+        except C3Error as exc:
+            _err(f"error: {exc}")
+            return 1
+        results += run_bench(
+            extractor_path,
+            matcher_path,
+            image,
+            runs=args.runs,
+            feature_type=str(matcher.feature_type),
+            settings=session_options,
+            log=_err,
+        )
+    if args.json:
+        print(json.dumps([asdict(r) for r in results], indent=2))
+    else:
+        print(format_table(results))
+    return 0
+
+
+def register_engines_build_commands(commands: CommandRegistry) -> None:
+    """``engines build`` and ``engines bench`` in the core's ``engines`` group."""
+    engines = commands.group("engines")
+    build = engines.add("build", help="export + verify the engines the plugins declare")
+    build.add_argument("--force", action="store_true", help="rebuild even valid engines")
+    build.add_argument(
+        "--only",
+        action="append",
+        metavar="MODEL/VARIANT",
+        help="build only this engine (repeatable), e.g. disk/depth",
+    )
+    build.set_defaults(handler=_build)
+
+    bench = engines.add("bench", help="latency (median, p95) and peak memory per engine")
+    bench.add_argument("--runs", type=int, default=20, help="timed runs per case")
+    bench.add_argument("--image", help="real image to use (default: packaged orthophoto)")
+    bench.add_argument("--json", action="store_true", help="machine-readable output")
+    bench.add_argument(
+        "--sweep-session-options",
+        action="store_true",
+        help="also compare memory pattern / arena settings",
+    )
+    bench.set_defaults(handler=_bench)

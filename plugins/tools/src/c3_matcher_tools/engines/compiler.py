@@ -1,0 +1,334 @@
+"""The engine compiler: export, verify and store the engines that plugins declare.
+
+``build_engines(specs, directory)`` builds each ``EngineSpec`` whose valid engine is not already
+in ``directory`` (same build key: weights sha256, export parameters, export revision, exporter and
+library versions), or every one with ``force=True``. Per engine: resolve the weights, call the
+spec's exporter (export + verification against the PyTorch reference on real imagery), check the
+graph's I/O against the spec, name the dynamic axes as declared, hash, write the manifest, move
+both into place atomically, and remove superseded builds of the same model/variant. A failed
+verification or check raises ``EngineBuildError`` and keeps no file.
+
+PyTorch is imported only through the exporters (build time); this module itself imports without
+it, so ``ensure_engines`` can be called from any test or tool.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import hashlib
+import importlib
+import importlib.metadata
+import json
+import os
+import platform
+import shutil
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from loguru import logger
+
+from c3_matcher.engines.manifest import EngineManifest, check_engine_file
+from c3_matcher.engines.naming import EngineName, manifest_path_for
+from c3_matcher.engines.spec import EngineSpec, file_sha256
+from c3_matcher.errors import C3Error, EngineError
+
+__all__ = [
+    "BuildOutcome",
+    "EngineBuildError",
+    "build_engines",
+    "build_key",
+    "ensure_engines",
+    "library_versions",
+    "select_specs",
+]
+
+_VERSIONED = ("torch", "onnx", "onnxscript", "onnxruntime", "kornia", "numpy")
+
+
+class EngineBuildError(C3Error):
+    """Building ``spec_key`` failed (export error, failed verification or I/O check)."""
+
+    def __init__(self, spec_key: str, reason: str) -> None:
+        self.spec_key = spec_key
+        self.reason = reason
+        super().__init__(f"engine build {spec_key} failed: {reason}; no engine was kept")
+
+
+@dataclass(frozen=True, slots=True)
+class BuildOutcome:
+    """One engine after ``build_engines``: ``reused`` when a valid build was already there."""
+
+    spec: EngineSpec
+    path: Path
+    manifest: EngineManifest
+    reused: bool
+    seconds: float
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of the libraries that shape an exported graph (read from metadata, no import)."""
+    versions = {"python": platform.python_version()}
+    for name in _VERSIONED:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = "not-installed"
+    return versions
+
+
+def build_key(spec: EngineSpec, weights_sha256: str, versions: dict[str, str]) -> str:
+    """Hex sha256 identifying a build: equal keys mean an equal graph may be reused."""
+    payload = {
+        "model": spec.model,
+        "variant": spec.variant,
+        "precision": spec.precision,
+        "input_rule": spec.input_rule,
+        "opset": spec.opset,
+        "options": [list(o) for o in spec.options],
+        "export_revision": spec.export_revision,
+        "exporter": spec.exporter,
+        "weights_sha256": weights_sha256,
+        "inputs": [t.to_json() for t in spec.inputs],
+        "outputs": [t.to_json() for t in spec.outputs],
+        "versions": {k: v for k, v in versions.items() if k != "python"},
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+
+def select_specs(specs: Sequence[EngineSpec], only: Sequence[str] | None) -> list[EngineSpec]:
+    """The specs named by ``only`` (``"model/variant"``), or all; ``ValueError`` lists the known
+    names for an unknown one, and for duplicate declarations."""
+    keys = [s.key for s in specs]
+    duplicates = sorted({k for k in keys if keys.count(k) > 1})
+    if duplicates:
+        raise ValueError(f"engine specs declared more than once: {', '.join(duplicates)}")
+    if not only:
+        return list(specs)
+    unknown = [o for o in only if o not in keys]
+    if unknown:
+        raise ValueError(
+            f"unknown engine {', '.join(unknown)}: choose one of {', '.join(keys) or '(none)'}"
+        )
+    return [s for s in specs if s.key in set(only)]
+
+
+def _load_exporter(spec: EngineSpec) -> Callable[[Any], Any]:
+    module_name, _, attr = spec.exporter.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+        exporter = getattr(module, attr)
+    except (ImportError, AttributeError) as exc:
+        raise EngineBuildError(
+            spec.key,
+            f"cannot import exporter {spec.exporter} ({exc}); engine builds need the build-time "
+            "extra: pip install 'c3-matcher[engine-build]'",
+        ) from exc
+    if not callable(exporter):
+        raise EngineBuildError(spec.key, f"exporter {spec.exporter} is not callable")
+    return exporter
+
+
+def _name_dynamic_axes(path: Path, spec: EngineSpec) -> None:
+    """Give the graph's dynamic input/output axes the spec's names (e.g. ``height``)."""
+    import onnx
+
+    model = onnx.load(str(path))
+    declared = {t.name: t for t in (*spec.inputs, *spec.outputs)}
+    for value in (*model.graph.input, *model.graph.output):
+        tensor = declared.get(value.name)
+        if tensor is None:
+            continue
+        for axis, dim in enumerate(value.type.tensor_type.shape.dim):
+            if axis < len(tensor.shape) and isinstance(tensor.shape[axis], str):
+                dim.dim_param = str(tensor.shape[axis])
+    onnx.save(model, str(path))
+
+
+@contextlib.contextmanager
+def _scratch(directory: Path, stem: str) -> Iterator[Path]:
+    scratch = directory / f".build-{stem}-{os.getpid()}"
+    shutil.rmtree(scratch, ignore_errors=True)
+    scratch.mkdir(parents=True)
+    try:
+        yield scratch
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _existing(path: Path, key: str) -> EngineManifest | None:
+    if not path.is_file():
+        return None
+    try:
+        manifest = check_engine_file(path, check_hash=True)
+    except EngineError:
+        return None
+    return manifest if manifest.build_key == key else None
+
+
+def _remove_superseded(
+    directory: Path, spec: EngineSpec, keep: Path, log: Callable[[str], None]
+) -> None:
+    for other in directory.glob(EngineName.glob_for(spec.model, spec.variant)):
+        if other.name == keep.name:
+            continue
+        try:
+            parsed = EngineName.parse(other.name)
+        except ValueError:
+            continue
+        if (parsed.model, parsed.variant) != (spec.model, spec.variant):
+            continue
+        other.unlink(missing_ok=True)
+        manifest_path_for(other).unlink(missing_ok=True)
+        log(f"removed superseded engine {other.name}")
+
+
+def _build_one(
+    spec: EngineSpec,
+    directory: Path,
+    *,
+    force: bool,
+    images: Callable[[], tuple[Any, ...]],
+    versions: dict[str, str],
+    log: Callable[[str], None],
+) -> BuildOutcome:
+    start = time.perf_counter()
+    try:
+        weights_path = spec.weights.resolve()
+    except FileNotFoundError as exc:
+        raise EngineBuildError(spec.key, str(exc)) from exc
+    weights_sha = file_sha256(weights_path)
+    key = build_key(spec, weights_sha, versions)
+    name = EngineName.from_build_key(
+        spec.model, spec.variant, spec.precision, spec.input_rule, spec.opset, key
+    )
+    target = directory / name.filename
+    if not force:
+        manifest = _existing(target, key)
+        if manifest is not None:
+            log(f"{spec.key}: valid engine {target.name} reused")
+            return BuildOutcome(spec, target, manifest, True, time.perf_counter() - start)
+    from c3_matcher_tools.engines.export import ExportRequest
+
+    exporter = _load_exporter(spec)
+    log(f"{spec.key}: building {target.name}")
+    with _scratch(directory, name.stem) as scratch:
+        candidate = scratch / name.filename
+        request = ExportRequest(spec, weights_path, candidate, images(), log)
+        try:
+            report = exporter(request)
+        except EngineBuildError:
+            raise
+        except Exception as exc:
+            raise EngineBuildError(spec.key, f"export failed: {type(exc).__name__}: {exc}") from exc
+        if not report.passed:
+            raise EngineBuildError(
+                spec.key, "verification failed: " + "; ".join(report.failures or ("no figures",))
+            )
+        try:
+            from c3_matcher_tools.engines.export.onnx_export import check_onnx_io
+
+            _name_dynamic_axes(candidate, spec)
+            check_onnx_io(candidate, spec.inputs, spec.outputs)
+        except Exception as exc:
+            raise EngineBuildError(spec.key, f"graph I/O check failed: {exc}") from exc
+        seconds = time.perf_counter() - start
+        manifest = EngineManifest(
+            file=name.filename,
+            file_sha256=file_sha256(candidate),
+            file_bytes=candidate.stat().st_size,
+            model=spec.model,
+            variant=spec.variant,
+            kind=spec.kind,
+            precision=spec.precision,
+            input_rule=spec.input_rule,
+            opset=spec.opset,
+            build_key=key,
+            weights={
+                "distribution": spec.weights.distribution,
+                "version": spec.weights.version(),
+                "path": spec.weights.path,
+                "sha256": weights_sha,
+            },
+            inputs=spec.inputs,
+            outputs=spec.outputs,
+            exporter={
+                "callable": spec.exporter,
+                "method": "torch.onnx.export(dynamo=True, external_data=False)",
+                "export_revision": str(spec.export_revision),
+                **versions,
+            },
+            options=dict(spec.options),
+            verification=report.to_json(),
+            build_seconds=round(seconds, 2),
+            built_at=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            feature_type=spec.feature_type,
+            size_multiple=spec.size_multiple,
+            description=spec.description,
+        )
+        manifest_tmp = scratch / name.manifest_filename
+        manifest.write(manifest_tmp)
+        candidate.replace(target)
+        manifest_tmp.replace(directory / name.manifest_filename)
+    _remove_superseded(directory, spec, target, log)
+    log(f"{spec.key}: built {target.name} in {seconds:.1f} s")
+    logger.bind(
+        kind="c3.engines.built", engine=spec.key, file=str(target), seconds=round(seconds, 2)
+    ).info("engine {} built", spec.key)
+    return BuildOutcome(spec, target, manifest, False, seconds)
+
+
+def build_engines(
+    specs: Sequence[EngineSpec],
+    directory: Path,
+    *,
+    force: bool = False,
+    only: Sequence[str] | None = None,
+    imagery: Sequence[Path] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> list[BuildOutcome]:
+    """Build (or reuse) the engines of ``specs`` (``only``: a subset by ``"model/variant"``) in
+    ``directory``, verifying each on ``imagery`` (default: the packaged real orthophoto).
+
+    Raises ``EngineBuildError`` at the first failed engine (engines built before it are kept).
+    """
+    say = log or (lambda _line: None)
+    selected = select_specs(specs, only)
+    directory = Path(directory).expanduser()
+    directory.mkdir(parents=True, exist_ok=True)
+    versions = library_versions()
+    cache: list[tuple[Any, ...]] = []
+
+    def images() -> tuple[Any, ...]:
+        if not cache:
+            from c3_matcher_tools.engines.export import (
+                default_verification_imagery,
+                load_verification_images,
+            )
+
+            paths = tuple(imagery) if imagery else default_verification_imagery()
+            cache.append(load_verification_images(paths))
+        return cache[0]
+
+    outcomes = []
+    for index, spec in enumerate(selected, start=1):
+        say(f"[{index}/{len(selected)}] {spec.key}")
+        outcomes.append(
+            _build_one(spec, directory, force=force, images=images, versions=versions, log=say)
+        )
+    return outcomes
+
+
+def ensure_engines(
+    specs: Sequence[EngineSpec],
+    directory: Path,
+    *,
+    imagery: Sequence[Path] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> dict[tuple[str, str], Path]:
+    """Build what is missing, reuse what is valid; ``{(model, variant): engine path}``."""
+    outcomes = build_engines(specs, directory, imagery=imagery, log=log)
+    return {(o.spec.model, o.spec.variant): o.path for o in outcomes}

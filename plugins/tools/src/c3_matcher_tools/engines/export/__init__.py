@@ -1,0 +1,98 @@
+"""Engine export (build time): the request/report types every exporter shares.
+
+This module imports without PyTorch; the exporter implementations (``export.onnx_export``,
+``export.lightglue`` and the plugins' ``engines`` modules) import torch and run only inside
+``c3-matcher engines build`` (extra ``c3-matcher[engine-build]``).
+
+An exporter is a callable ``exporter(request: ExportRequest) -> ExportReport``: it loads the
+weights at ``request.weights_path``, writes one self-contained ONNX file (no external data) to
+``request.output_path``, checks it with ONNX Runtime against an independent PyTorch reference on
+the real images of ``request.images``, and reports the figures. The compiler refuses the engine
+unless ``report.passed``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.engines.spec import EngineSpec
+
+__all__ = [
+    "ExportReport",
+    "ExportRequest",
+    "VerificationImage",
+    "default_verification_imagery",
+    "load_verification_images",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class VerificationImage:
+    """A real image for verification: ``name`` (file name) and ``rgb`` uint8 (H, W, 3)."""
+
+    name: str
+    rgb: NDArray[np.uint8]
+
+
+@dataclass(frozen=True, slots=True)
+class ExportRequest:
+    """What the compiler hands an exporter. ``log`` prints one progress line (stderr)."""
+
+    spec: EngineSpec
+    weights_path: Path
+    output_path: Path
+    images: tuple[VerificationImage, ...]
+    log: Callable[[str], None]
+
+
+@dataclass(frozen=True, slots=True)
+class ExportReport:
+    """The exporter's verification: ``checks`` holds one dict of figures per compared input
+    (sizes, counts, max abs errors...); ``failures`` says what failed (empty when passed)."""
+
+    passed: bool
+    reference: str
+    tolerances: Mapping[str, float]
+    checks: Sequence[Mapping[str, Any]]
+    failures: tuple[str, ...] = ()
+    notes: Mapping[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "passed": self.passed,
+            "reference": self.reference,
+            "tolerances": dict(self.tolerances),
+            "checks": [dict(c) for c in self.checks],
+            "failures": list(self.failures),
+            "notes": dict(self.notes),
+        }
+
+
+def default_verification_imagery() -> tuple[Path, ...]:
+    """The real image shipped with the package for verification (Gorinchem orthophoto, 1000x1000
+    px, CC BY 4.0 Beeldmateriaal Nederland; see ``data/ATTRIBUTION.md``)."""
+    root = resources.files("c3_matcher_tools.engines.export") / "data" / "gorinchem_test_tiled.tif"
+    return (Path(str(root)),)
+
+
+def load_verification_images(paths: Sequence[Path]) -> tuple[VerificationImage, ...]:
+    """Read images as RGB uint8 with OpenCV; ``FileNotFoundError`` for an unreadable path."""
+    import cv2  # opencv-python-headless is a run-time dependency already
+
+    images: list[VerificationImage] = []
+    for path in paths:
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise FileNotFoundError(f"verification image {path} is missing or unreadable")
+        rgb: NDArray[np.uint8] = np.ascontiguousarray(
+            cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8
+        )
+        images.append(VerificationImage(Path(path).name, rgb))
+    return tuple(images)

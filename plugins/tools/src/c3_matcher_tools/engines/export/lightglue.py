@@ -1,0 +1,304 @@
+"""LightGlue export and verification, shared by every feature type (build time: imports torch).
+
+The reference is kornia's ``LightGlue`` loaded with the same state dict, adaptive depth and
+width pruning off (``depth_confidence = width_confidence = -1``: the pruning does not survive a
+single-graph export). The exported graph runs the same layers, then the last layer's assignment
+and upstream's ``filter_matches`` up to the threshold, which ``OnnxLightGlueRuntime`` applies:
+
+    inputs  kpts0 (1, M, 2), kpts1 (1, N, 2)  float32, normalised (``normalize_keypoints``)
+            desc0 (1, M, D), desc1 (1, N, D)  float32
+    outputs matches0 (M,) int64 (mutual nearest neighbour in image 1, or -1)
+            mscores0 (M,) float32 (its confidence, 0 where not mutual)
+
+Only the inner (M, N) block of the log-assignment matters for ``filter_matches``, so the dustbin
+row/column are not built. Index grids come from ``cumsum`` of ones (the dynamo exporter cannot
+export arithmetic on symbolic sizes).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+import torch
+from kornia.feature import LightGlue
+from numpy.typing import NDArray
+from torch import nn
+from torch.nn import functional as nnf
+
+from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, OnnxLightGlueRuntime
+from c3_matcher.engines.runtime import SessionSettings
+from c3_matcher_tools.engines.export import ExportReport, ExportRequest
+from c3_matcher_tools.engines.export.onnx_export import export_module
+
+__all__ = [
+    "LIGHTGLUE_TOLERANCES",
+    "FeaturesFn",
+    "LightGlueForExport",
+    "export_lightglue",
+    "load_lightglue_reference",
+    "verification_pairs",
+]
+
+_UNUSED_KEY = re.compile(r"^log_assignment\.\d+\.r$")
+
+FeaturesFn = Callable[[NDArray[np.uint8], int], tuple[NDArray[np.float32], NDArray[np.float32]]]
+"""``(rgb uint8 (H, W, 3), max keypoints) -> (keypoints float32 (K, 2) px, descriptors (K, D))``
+from the feature type's PyTorch reference extractor."""
+
+LIGHTGLUE_TOLERANCES: Mapping[str, float] = {
+    "matches_mismatch": 0.0,  # identical (index0, index1) pairs
+    "match_score_max_abs": 1e-4,  # confidences of the kept matches
+    "mscores0_max_abs": 1e-4,  # every keypoint's mutual-NN confidence
+}
+
+
+def load_lightglue_reference(
+    weights_path: Path,
+    *,
+    input_dim: int,
+    descriptor_dim: int = 256,
+    n_layers: int = 9,
+    num_heads: int = 4,
+) -> LightGlue:
+    """kornia ``LightGlue`` with ``weights_path`` loaded (upstream key renames applied), pruning
+    off, flash off, eval mode. ``RuntimeError`` if a learned parameter is missing."""
+    model = LightGlue(
+        features=None,  # type: ignore[arg-type]
+        input_dim=input_dim,
+        descriptor_dim=descriptor_dim,
+        n_layers=n_layers,
+        num_heads=num_heads,
+        depth_confidence=-1,
+        width_confidence=-1,
+        flash=False,
+        filter_threshold=DEFAULT_FILTER_THRESHOLD,
+    )
+    state = torch.load(str(weights_path), map_location="cpu", weights_only=True)
+    state = {k.removeprefix("matcher."): v for k, v in state.items()}
+    for i in range(n_layers):
+        state = {
+            k.replace(f"self_attn.{i}.", f"transformers.{i}.self_attn.").replace(
+                f"cross_attn.{i}.", f"transformers.{i}.cross_attn."
+            ): v
+            for k, v in state.items()
+        }
+    incompatible = model.load_state_dict(state, strict=False)
+    params = dict(model.named_parameters())
+    missing = [k for k in incompatible.missing_keys if k in params]
+    # Upstream checkpoints carry an unused ``log_assignment.<i>.r`` entry per layer.
+    unexpected = [k for k in incompatible.unexpected_keys if not _UNUSED_KEY.match(k)]
+    if missing or unexpected:
+        raise RuntimeError(
+            f"LightGlue weights {weights_path}: missing {missing}, unexpected {unexpected}"
+        )
+    return model.eval()
+
+
+class LightGlueForExport(nn.Module):
+    """The reference's layers without pruning, ending in ``filter_matches`` before the
+    threshold (see the module docstring for I/O)."""
+
+    def __init__(self, reference: LightGlue) -> None:
+        super().__init__()
+        self.lg = reference
+
+    def forward(
+        self, kpts0: torch.Tensor, kpts1: torch.Tensor, desc0: torch.Tensor, desc1: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        lg: Any = self.lg
+        d0, d1 = lg.input_proj(desc0), lg.input_proj(desc1)
+        enc0, enc1 = lg.posenc(kpts0), lg.posenc(kpts1)
+        for layer in lg.transformers:
+            d0, d1 = layer(d0, d1, enc0, enc1)
+        assignment = lg.log_assignment[-1]
+        md0, md1 = assignment.final_proj(d0), assignment.final_proj(d1)
+        dim = md0.shape[-1]
+        md0, md1 = md0 / dim**0.25, md1 / dim**0.25
+        sim = torch.einsum("bmd,bnd->bmn", md0, md1)
+        z0, z1 = assignment.matchability(d0), assignment.matchability(d1)
+        scores = (
+            nnf.log_softmax(sim, 2)
+            + nnf.log_softmax(sim, 1)
+            + nnf.logsigmoid(z0)
+            + nnf.logsigmoid(z1).transpose(1, 2)
+        )
+        max0, max1 = scores.max(2), scores.max(1)
+        m0, m1 = max0.indices, max1.indices
+        index0 = torch.cumsum(torch.ones_like(m0), 1) - 1
+        mutual0 = index0 == m1.gather(1, m0)
+        mscores0 = torch.where(mutual0, max0.values.exp(), torch.zeros_like(max0.values))
+        matches0 = torch.where(mutual0, m0, torch.full_like(m0, -1))
+        return matches0[0], mscores0[0]
+
+
+def verification_pairs(
+    rgb: NDArray[np.uint8],
+) -> list[tuple[str, NDArray[np.uint8], NDArray[np.uint8]]]:
+    """Overlapping crops of one real image at two sizes (640x480 vs 512x512 px): the keypoint
+    normalisation of non-square images is exercised. Needs an image of at least 712x762."""
+    a = np.ascontiguousarray(rgb[0:480, 0:640])
+    b = np.ascontiguousarray(rgb[200:712, 250:762])
+    return [("640x480|512x512", a, b)]
+
+
+class _SessionRuntime:
+    """A minimal ``InferenceRuntime`` over a raw session (the manifest does not exist yet)."""
+
+    def __init__(self, path: Path) -> None:
+        self._session = ort.InferenceSession(
+            str(path), sess_options=SessionSettings().build(), providers=["CPUExecutionProvider"]
+        )
+
+    @property
+    def provider(self) -> str:
+        return "CPUExecutionProvider"
+
+    def load_engine(self, path: Any) -> str:
+        return "candidate"
+
+    def run(self, engine_id: str, feeds: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
+        names = [o.name for o in self._session.get_outputs()]
+        return dict(zip(names, self._session.run(names, dict(feeds)), strict=True))
+
+
+def export_lightglue(
+    request: ExportRequest,
+    *,
+    features_fn: FeaturesFn,
+    input_dim: int,
+    feature_type: str,
+    keypoint_counts: tuple[int, ...] = (512, 1024),
+) -> ExportReport:
+    """Export LightGlue for ``feature_type`` and verify it on real features of every
+    ``verification_pairs`` pair at each of ``keypoint_counts``: identical matches, scores within
+    ``LIGHTGLUE_TOLERANCES``."""
+    torch.set_grad_enabled(False)
+    reference = load_lightglue_reference(request.weights_path, input_dim=input_dim)
+    request.log(f"exporting LightGlue for {feature_type} (opset {request.spec.opset})")
+    num0 = torch.export.Dim("num_keypoints0", min=1, max=65536)
+    num1 = torch.export.Dim("num_keypoints1", min=1, max=65536)
+    generator = torch.Generator().manual_seed(0)
+    example = (
+        torch.rand(1, 300, 2, generator=generator) * 2 - 1,
+        torch.rand(1, 280, 2, generator=generator) * 2 - 1,
+        nnf.normalize(torch.rand(1, 300, input_dim, generator=generator), dim=-1),
+        nnf.normalize(torch.rand(1, 280, input_dim, generator=generator), dim=-1),
+    )
+    export_module(
+        LightGlueForExport(reference),
+        example,
+        request.output_path,
+        input_names=["kpts0", "kpts1", "desc0", "desc1"],
+        output_names=["matches0", "mscores0"],
+        dynamic_shapes={
+            "kpts0": {1: num0},
+            "kpts1": {1: num1},
+            "desc0": {1: num0},
+            "desc1": {1: num1},
+        },
+        opset=request.spec.opset,
+    )
+    request.log("verifying LightGlue against kornia on real features")
+    session = _SessionRuntime(request.output_path)
+    runtime = OnnxLightGlueRuntime(session)
+    runtime.load(feature_type, request.output_path)
+    checks: list[dict[str, Any]] = []
+    failures: list[str] = []
+    for image in request.images:
+        for label, rgb0, rgb1 in verification_pairs(image.rgb):
+            size0 = (rgb0.shape[1], rgb0.shape[0])
+            size1 = (rgb1.shape[1], rgb1.shape[0])
+            for count in keypoint_counts:
+                k0, d0 = features_fn(rgb0, count)
+                k1, d1 = features_fn(rgb1, count)
+                ref = reference(
+                    {
+                        "image0": {
+                            "keypoints": torch.from_numpy(k0)[None],
+                            "descriptors": torch.from_numpy(d0)[None],
+                            "image_size": torch.tensor([size0], dtype=torch.float32),
+                        },
+                        "image1": {
+                            "keypoints": torch.from_numpy(k1)[None],
+                            "descriptors": torch.from_numpy(d1)[None],
+                            "image_size": torch.tensor([size1], dtype=torch.float32),
+                        },
+                    }
+                )
+                ref_matches = ref["matches"][0].numpy().astype(np.int64)
+                ref_scores = ref["scores"][0].numpy()
+                ref_ms0 = ref["matching_scores0"][0].numpy()
+                got = runtime.match_pair(k0, d0, size0, k1, d1, size1, feature_type=feature_type)
+                same = got.matches.shape == ref_matches.shape and bool(
+                    np.array_equal(got.matches, ref_matches)
+                )
+                mismatch = len(
+                    set(map(tuple, got.matches.tolist())) ^ set(map(tuple, ref_matches.tolist()))
+                )
+                score_err = 0.0
+                if same and len(ref_scores):
+                    score_err = float(np.abs(got.scores - ref_scores).max())
+                check: dict[str, Any] = {
+                    "pair": f"{image.name}:{label}",
+                    "keypoints": [len(k0), len(k1)],
+                    "matches": len(got),
+                    "reference_matches": len(ref_matches),
+                    "matches_identical": same,
+                    "matches_mismatch": mismatch,
+                    "match_score_max_abs": score_err,
+                    "mscores0_max_abs": _mscores_error(
+                        session, k0, d0, size0, k1, d1, size1, ref_ms0
+                    ),
+                }
+                checks.append(check)
+                request.log(f"  {check}")
+                if not same:
+                    failures.append(f"{check['pair']} @ {count}: {mismatch} matches differ")
+                for key in ("match_score_max_abs", "mscores0_max_abs"):
+                    if float(check[key]) > LIGHTGLUE_TOLERANCES[key]:
+                        failures.append(
+                            f"{check['pair']} @ {count}: {key} {check[key]:.3g} > "
+                            f"{LIGHTGLUE_TOLERANCES[key]:.3g}"
+                        )
+    return ExportReport(
+        passed=not failures and bool(checks),
+        reference=f"kornia {_version('kornia')} LightGlue (pruning off) on {feature_type} features",
+        tolerances=LIGHTGLUE_TOLERANCES,
+        checks=checks,
+        failures=tuple(failures) if checks else ("no verification pair was run",),
+    )
+
+
+def _mscores_error(
+    session: _SessionRuntime,
+    k0: NDArray[np.float32],
+    d0: NDArray[np.float32],
+    size0: tuple[int, int],
+    k1: NDArray[np.float32],
+    d1: NDArray[np.float32],
+    size1: tuple[int, int],
+    ref_ms0: NDArray[np.float32],
+) -> float:
+    from c3_matcher.engines.lightglue import normalize_keypoints
+
+    out = session.run(
+        "candidate",
+        {
+            "kpts0": normalize_keypoints(k0, size0)[None],
+            "kpts1": normalize_keypoints(k1, size1)[None],
+            "desc0": d0[None],
+            "desc1": d1[None],
+        },
+    )
+    return float(np.abs(out["mscores0"] - ref_ms0).max())
+
+
+def _version(distribution: str) -> str:
+    import importlib.metadata
+
+    return importlib.metadata.version(distribution)

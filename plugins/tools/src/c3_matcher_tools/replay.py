@@ -1,0 +1,323 @@
+"""``c3-matcher replay DATASET``: every frame of a ``c3-flight/1`` dataset through the
+composition root's matcher (or the SIFT + MAGSAC baseline), with a progress bar on stderr.
+
+Writes under ``--out`` (default ``out/replay/<dataset>-<strategy>``): ``results.jsonl`` (one line
+per frame: status ``ok`` | ``insufficient`` | ``backbone_error``, elapsed ms, the scoring against
+ground truth and, for ``ok``, the MatchResult as ``c3-matcher match`` prints it), ``fdr.jsonl``
+(the flight-data records), ``matcher.log`` (the JSON logs) and ``report.json``; stdout carries
+the report (a table, or JSON with ``--json``).
+
+:func:`run_flight` and :func:`build_matcher` are shared with ``c3-matcher eval``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from c3_matcher.commands import CommandRegistry
+from c3_matcher.config import C3Settings
+from c3_matcher.dto import MatchResult
+from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
+from c3_matcher.protocols import CrossDomainMatcher
+from c3_matcher.serialize import result_to_json
+from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord, load_dataset
+from c3_matcher_tools.dataset.progress import ProgressBar
+from c3_matcher_tools.dataset.truth import inlier_errors_px
+
+__all__ = [
+    "FrameOutcome",
+    "build_matcher",
+    "register_replay_command",
+    "result_fingerprint",
+    "run_flight",
+    "summarize",
+]
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class FrameOutcome:
+    """One frame's outcome. ``best_input_index``: input position of the best candidate;
+    ``correct``: the best is the true tile; ``mean_error_px``: mean inlier error of the best
+    candidate against ground truth (ORIGINAL frame px), NaN when not matched; ``fingerprint``:
+    blake2b of the per-frame result content (C3-IT-02), excluding ``matched_at``."""
+
+    index: int
+    frame_id: str
+    status: str
+    elapsed_ms: float
+    true_present: bool
+    best_inliers: int
+    best_input_index: int | None
+    correct: bool
+    mean_error_px: float
+    residual_px: float
+    fingerprint: str
+    error: str | None
+    result: dict[str, Any] | None
+
+    def to_json(self) -> dict[str, Any]:
+        out = asdict(self)
+        for key in ("mean_error_px", "residual_px"):
+            if not math.isfinite(out[key]):
+                out[key] = None
+        return out
+
+
+def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -> str:
+    """Bit-for-bit digest of ``per_candidate`` (tile ids, counts, residual float bits,
+    correspondence bytes), ``best_candidate_idx`` and the input order; for an
+    InsufficientInliersError, of its best inlier count."""
+    h = hashlib.blake2b(digest_size=16)
+    if result is None:
+        h.update(f"insufficient:{insufficient_best}".encode())
+        return h.hexdigest()
+    h.update(str(result.best_candidate_idx).encode())
+    h.update(repr(result.diagnostics.get("input_index")).encode())
+    for c in result.per_candidate:
+        h.update(repr((c.tile_id.as_list(), c.inlier_count, c.ransac_outlier_count)).encode())
+        h.update(np.float64(c.per_candidate_residual_px).tobytes())
+        h.update(c.inlier_correspondences.tobytes())
+    return h.hexdigest()
+
+
+def _score(dataset: FlightDataset, frame: FrameRecord, result: MatchResult) -> tuple[int, float]:
+    best_input = int(result.diagnostics["input_index"][0])
+    cand = frame.candidates[best_input]
+    errors = inlier_errors_px(
+        cand.h_tile_to_undistorted,
+        dataset.calibration,
+        result.per_candidate[0].inlier_correspondences,
+    )
+    return best_input, float(np.mean(errors)) if errors.size else math.nan
+
+
+def run_flight(
+    matcher: CrossDomainMatcher,
+    dataset: FlightDataset,
+    *,
+    frames: list[FrameRecord] | None = None,
+    progress: Progress | None = None,
+    with_correspondences: bool = True,
+) -> list[FrameOutcome]:
+    """Match every frame (or ``frames``) in order; tiles are read lazily from the store."""
+    todo = list(dataset.frames if frames is None else frames)
+    outcomes: list[FrameOutcome] = []
+    with dataset.open_store() as store:
+        for n, frame in enumerate(todo, start=1):
+            nav = dataset.nav_frame(frame)
+            rerank = dataset.rerank(frame, store)
+            t0 = time.perf_counter()
+            error: str | None = None
+            result: MatchResult | None = None
+            best_count = 0
+            try:
+                result = matcher.match(nav, rerank, dataset.calibration)
+                status = "ok"
+            except InsufficientInliersError as exc:
+                status, best_count, error = "insufficient", exc.best_inlier_count, str(exc)
+            except MatcherBackboneError as exc:
+                status, error = "backbone_error", str(exc)
+            elapsed = (time.perf_counter() - t0) * 1e3
+            if result is not None:
+                best_input, mean_err = _score(dataset, frame, result)
+                outcome = FrameOutcome(
+                    frame.index,
+                    str(frame.frame_id),
+                    status,
+                    elapsed,
+                    frame.true_tile_present,
+                    result.per_candidate[0].inlier_count,
+                    best_input,
+                    best_input == frame.true_index,
+                    mean_err,
+                    result.reprojection_residual_px,
+                    result_fingerprint(result),
+                    None,
+                    result_to_json(result, with_correspondences=with_correspondences),
+                )
+            else:
+                outcome = FrameOutcome(
+                    frame.index,
+                    str(frame.frame_id),
+                    status,
+                    elapsed,
+                    frame.true_tile_present,
+                    0,
+                    None,
+                    False,
+                    math.nan,
+                    math.nan,
+                    result_fingerprint(None, best_count) if status == "insufficient" else "",
+                    error,
+                    None,
+                )
+            outcomes.append(outcome)
+            if progress is not None:
+                progress(n, len(todo))
+    return outcomes
+
+
+@contextmanager
+def build_matcher(
+    settings: C3Settings, strategy: str, out_dir: Path, log_level: str | None = None
+) -> Iterator[CrossDomainMatcher]:
+    """A matcher for ``strategy`` (a linked strategy through ``compose_root``, or
+    the ``sift_magsac`` baseline, also a strategy) whose FDR records go to
+    ``out_dir/fdr.jsonl`` and JSON logs to ``out_dir/matcher.log``."""
+    from c3_matcher.compose import build_default_helpers, compose_root
+    from c3_matcher.fdr import JsonlFdrRecorder
+    from c3_matcher.health import MonotonicClock
+    from c3_matcher.logs import configure_logging
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for name in ("fdr.jsonl", "matcher.log"):
+        (out_dir / name).unlink(missing_ok=True)
+    clock = MonotonicClock()
+    fdr = JsonlFdrRecorder(out_dir / "fdr.jsonl", clock, max_bytes=settings.fdr.max_bytes)
+    log_stream = (out_dir / "matcher.log").open("w", encoding="utf-8")
+    logs = configure_logging(fdr, level=log_level or settings.logging.level, stream=log_stream)
+    root = None
+    try:
+        chosen = settings.model_copy(
+            update={"matcher": settings.matcher.model_copy(update={"strategy": strategy})}
+        )
+        helpers = build_default_helpers(chosen)
+        root = compose_root(
+            chosen, {**helpers, "c13_fdr": fdr, "clock": clock}, configure_logs=False
+        )
+        matcher = root.matcher
+        yield matcher
+    finally:
+        if root is not None:
+            root.close()
+        logs.close()
+        fdr.close()
+        log_stream.close()
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.percentile(np.asarray(finite), q)) if finite else None
+
+
+def summarize(outcomes: list[FrameOutcome]) -> dict[str, Any]:
+    """Counts and timing (ms) of a run."""
+    times = [o.elapsed_ms for o in outcomes]
+    present = [o for o in outcomes if o.true_present]
+    return {
+        "frames": len(outcomes),
+        "ok": sum(o.status == "ok" for o in outcomes),
+        "insufficient": sum(o.status == "insufficient" for o in outcomes),
+        "backbone_error": sum(o.status == "backbone_error" for o in outcomes),
+        "true_present": len(present),
+        "correct_candidate": sum(o.correct for o in present),
+        "frame_ms_p50": _percentile(times, 50),
+        "frame_ms_p95": _percentile(times, 95),
+        "frame_ms_mean": float(np.mean(times)) if times else None,
+        "total_s": float(np.sum(times)) / 1e3,
+    }
+
+
+def register_replay_command(commands: CommandRegistry) -> None:
+    p = commands.add(
+        "replay",
+        help="run every frame of a flight dataset through the matcher (results, FDR, report)",
+        description="Replay a c3-flight/1 dataset (see c3_matcher_tools.dataset.format) "
+        "through the configured matcher. Progress on stderr; the report on stdout.",
+    )
+    p.add_argument("dataset", type=Path, help="dataset directory (holds dataset.json)")
+    p.add_argument(
+        "--strategy",
+        default=None,
+        help="strategy (default: configuration); sift_magsac for the classical baseline",
+    )
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output directory (default out/replay/<dataset>-<strategy>)",
+    )
+    p.add_argument("--limit", type=int, default=None, help="only the first N frames")
+    p.add_argument(
+        "--max-keypoints", type=int, default=None, help="override [matcher] max_keypoints"
+    )
+    p.add_argument(
+        "--no-correspondences",
+        action="store_true",
+        help="omit inlier correspondences from results.jsonl",
+    )
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(handler=run_replay)
+
+
+def with_overrides(settings: C3Settings, max_keypoints: int | None) -> C3Settings:
+    if max_keypoints is None:
+        return settings
+    return settings.model_copy(
+        update={"matcher": settings.matcher.model_copy(update={"max_keypoints": max_keypoints})}
+    )
+
+
+def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
+    dataset = load_dataset(args.dataset)
+    settings = with_overrides(settings, args.max_keypoints)
+    strategy = args.strategy or settings.matcher.strategy
+    out = args.out or Path("out") / "replay" / f"{dataset.name}-{strategy}"
+    frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
+    started = time.perf_counter()
+    with build_matcher(settings, strategy, out) as matcher:
+        startup_s = time.perf_counter() - started
+        outcomes = run_flight(
+            matcher,
+            dataset,
+            frames=frames,
+            progress=ProgressBar(f"replay {dataset.name} {strategy}"),
+            with_correspondences=not args.no_correspondences,
+        )
+    wall_s = time.perf_counter() - started
+    with (out / "results.jsonl").open("w", encoding="utf-8") as fh:
+        for o in outcomes:
+            fh.write(json.dumps(o.to_json()) + "\n")
+    report = {
+        "dataset": str(dataset.root),
+        "strategy": strategy,
+        "settings": settings.matcher.model_dump(mode="json"),
+        "startup_s": startup_s,
+        "wall_s": wall_s,
+        **summarize(outcomes),
+        "results": str(out / "results.jsonl"),
+        "fdr": str(out / "fdr.jsonl"),
+        "log": str(out / "matcher.log"),
+    }
+    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(
+        f"replay {dataset.name} with {strategy}: {report['frames']} frames in {wall_s:.1f} s "
+        f"(startup {startup_s:.1f} s)"
+    )
+    print(
+        f"  ok {report['ok']}, insufficient inliers {report['insufficient']}, "
+        f"backbone errors {report['backbone_error']}"
+    )
+    print(
+        f"  correct candidate {report['correct_candidate']}/{report['true_present']} "
+        "frames with the true tile present"
+    )
+    print(f"  frame ms p50 {report['frame_ms_p50']:.0f}, p95 {report['frame_ms_p95']:.0f}")
+    print(f"  results {report['results']}, FDR {report['fdr']}, report {out / 'report.json'}")
+    return 0

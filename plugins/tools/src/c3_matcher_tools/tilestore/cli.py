@@ -1,0 +1,89 @@
+"""``c3-matcher tiles build GEOTIFF OUT.mbtiles`` and ``c3-matcher tiles info STORE``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from c3_matcher.commands import CommandRegistry
+from c3_matcher.config import C3Settings
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.progress import ProgressBar
+
+__all__ = ["parse_latlon", "register_tiles_command"]
+
+
+def parse_latlon(text: str) -> tuple[float, float]:
+    try:
+        lat, lon = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LAT,LON in degrees, got {text!r}") from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise argparse.ArgumentTypeError(f"LAT,LON out of range: {text!r}")
+    return lat, lon
+
+
+def register_tiles_command(commands: CommandRegistry) -> None:
+    p = commands.add("tiles", help="tile stores: build an MBTiles store from a GeoTIFF, inspect")
+    tiles = p.add_subparsers(dest="tiles_command", required=True, parser_class=type(p))
+    b = tiles.add_parser(
+        "build",
+        help="build an MBTiles store (256-px web-mercator tiles) from a north-up GeoTIFF",
+    )
+    b.add_argument("geotiff", type=Path)
+    b.add_argument("out", type=Path, help="the .mbtiles file to write")
+    b.add_argument("--zoom", type=int, default=None, help="zoom (default: nearest the GSD)")
+    b.add_argument("--format", choices=("png", "jpg"), default="png", help="tile encoding")
+    b.add_argument("--quality", type=int, default=90, help="JPEG quality (default 90)")
+    b.add_argument(
+        "--ref-latlon",
+        type=parse_latlon,
+        default=None,
+        help="LAT,LON of the image centre, for grids other than UTM / mercator / EPSG:4326 "
+        "(local tangent plane)",
+    )
+    b.add_argument("--attribution", default="", help="metadata attribution text")
+    b.add_argument("--force", action="store_true", help="overwrite OUT")
+    b.add_argument("--json", action="store_true", help="print the report as JSON")
+    i = tiles.add_parser("info", help="print an MBTiles store's metadata and tile counts (JSON)")
+    i.add_argument("store", type=Path)
+    p.set_defaults(handler=run_tiles)
+
+
+def run_tiles(args: argparse.Namespace, settings: C3Settings) -> int:
+    from c3_matcher.tilestore.mbtiles import MBTilesStore
+    from c3_matcher_tools.tilestore.build import build_mbtiles
+
+    if args.tiles_command == "info":
+        with MBTilesStore(args.store) as store:
+            info = {
+                "path": str(store.path),
+                "metadata": dict(store.metadata),
+                "tiles": {str(z): len(list(store.tiles(z))) for z in store.zooms()},
+            }
+        print(json.dumps(info, indent=2))
+        return 0
+    if not 1 <= args.quality <= 100:
+        raise InvalidInputError("--quality", f"must be in [1, 100], got {args.quality}")
+    report = build_mbtiles(
+        args.geotiff,
+        args.out,
+        zoom=args.zoom,
+        tile_format=args.format,
+        jpeg_quality=args.quality,
+        reference=args.ref_latlon,
+        attribution=args.attribution,
+        overwrite=args.force,
+        progress=ProgressBar(f"tiles build {Path(args.out).name}"),
+    )
+    data = {k: str(v) if isinstance(v, Path) else v for k, v in vars(report).items()}
+    if args.json:
+        print(json.dumps(data, indent=2))
+    else:
+        print(
+            f"{report.path}: {report.tiles} tiles at zoom {report.zoom} "
+            f"({report.tile_gsd_m:.2f} m/px; source {report.source_gsd_m:.2f} m/px), "
+            f"{report.bytes / 1e6:.2f} MB; georeference {report.georeference}"
+        )
+    return 0

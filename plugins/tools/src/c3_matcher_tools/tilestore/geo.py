@@ -1,0 +1,318 @@
+"""Georeferencing without pyproj: GeoTIFF grids, projected metres <-> WGS84 (ground tooling).
+
+Conventions. ORTHO px (u, v) are 0-based with the origin at the centre of the top-left pixel
+(DECISIONS 10). A GeoTIFF's grid maps them to projected metres (E, N) through its pixel scale
+and tie point (``PixelIsArea``: the tie point is the top-left pixel's CORNER; ``PixelIsPoint``:
+its centre). WORLD px (X, Y) are web-mercator pixels of 256-px slippy tiles at a zoom ``z``
+(corner convention: the world spans [0, 256 * 2**z) and pixel index i has its centre at
+X = i + 0.5; tile (x, y) covers X in [256 x, 256 (x + 1))).
+
+Projections (:class:`Projection`), all vectorised over numpy arrays, degrees in and out:
+
+- ``utm``: EPSG 326zz / 327zz (WGS84 UTM) and 269zz (NAD83 UTM, treated as WGS84: the datums
+  differ by ~1-2 m in North America), exact Kruger series (Karney 2011, n^3 terms: < 1 mm);
+- ``web_mercator`` (EPSG 3857/900913) and ``world_mercator`` (EPSG 3395, ellipsoidal), exact;
+- ``geographic`` (EPSG 4326): identity;
+- ``local_tangent_plane``: any other projected CRS in metres (RD New 28992, LV95 2056, ...):
+  the grid is treated as a local plane around a REFERENCE lat/lon given by the user (grid metres
+  east/north of the image centre = metres east/north of the reference, equirectangular at the
+  reference latitude). It ignores the CRS's scale error and grid convergence (< 0.1 % and < 1
+  deg over a few km); it keeps ids, tiles and ground truth mutually consistent, which is all
+  the matcher needs, but the lat/lon are only as good as the reference.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
+
+__all__ = [
+    "TILE_PX",
+    "GeoGrid",
+    "Projection",
+    "lonlat_to_world_px",
+    "read_geotiff_grid",
+    "world_px_to_lonlat",
+    "zoom_for_gsd",
+]
+
+F64 = NDArray[np.float64]
+_A = 6378137.0
+_F = 1 / 298.257223563
+_E2 = _F * (2 - _F)
+_M_PER_DEG = math.pi * _A / 180.0
+
+
+def _kruger() -> tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+    n = _F / (2 - _F)
+    big_a = _A / (1 + n) * (1 + n**2 / 4 + n**4 / 64)
+    alpha = (n / 2 - 2 * n**2 / 3 + 5 * n**3 / 16, 13 * n**2 / 48 - 3 * n**3 / 5, 61 * n**3 / 240)
+    beta = (n / 2 - 2 * n**2 / 3 + 37 * n**3 / 96, n**2 / 48 + n**3 / 15, 17 * n**3 / 480)
+    delta = (2 * n - 2 * n**2 / 3 - 2 * n**3, 7 * n**2 / 3 - 8 * n**3 / 5, 56 * n**3 / 15)
+    return big_a, alpha, beta, delta
+
+
+_KA, _ALPHA, _BETA, _DELTA = _kruger()
+
+
+@dataclass(frozen=True)
+class Projection:
+    """A map projection from projected metres (E, N) to WGS84 (lon, lat) degrees and back.
+
+    ``kind``: ``utm`` (``zone``, ``south``), ``web_mercator``, ``world_mercator``,
+    ``geographic`` or ``local_tangent_plane`` (``ref_lat``/``ref_lon`` degrees at the grid point
+    ``ref_en`` metres)."""
+
+    kind: str
+    zone: int = 0
+    south: bool = False
+    ref_lat: float = 0.0
+    ref_lon: float = 0.0
+    ref_en: tuple[float, float] = (0.0, 0.0)
+
+    @classmethod
+    def from_epsg(
+        cls,
+        epsg: int | None,
+        *,
+        reference: tuple[float, float] | None = None,
+        ref_en: tuple[float, float] = (0.0, 0.0),
+    ) -> Projection:
+        """The projection of ``epsg``; CRSs other than UTM, mercator and 4326 need
+        ``reference`` (lat, lon) degrees of the grid point ``ref_en`` (local tangent plane)."""
+        if epsg is not None and (32601 <= epsg <= 32660 or 32701 <= epsg <= 32760):
+            return cls("utm", zone=epsg % 100, south=epsg >= 32701)
+        if epsg is not None and 26901 <= epsg <= 26923:
+            return cls("utm", zone=epsg - 26900)
+        if epsg in (3857, 900913, 3785):
+            return cls("web_mercator")
+        if epsg == 3395:
+            return cls("world_mercator")
+        if epsg == 4326:
+            return cls("geographic")
+        if reference is None:
+            raise InvalidInputError(
+                "reference",
+                f"EPSG:{epsg} cannot be converted to WGS84 without pyproj: give a reference "
+                "latitude/longitude of the image centre (--ref-latlon LAT,LON); the grid is then "
+                "treated as a local tangent plane around it",
+            )
+        return cls(
+            "local_tangent_plane",
+            ref_lat=float(reference[0]),
+            ref_lon=float(reference[1]),
+            ref_en=(float(ref_en[0]), float(ref_en[1])),
+        )
+
+    def describe(self) -> str:
+        if self.kind == "utm":
+            return f"utm zone {self.zone}{'S' if self.south else 'N'} (exact, Kruger series)"
+        if self.kind == "local_tangent_plane":
+            return (
+                f"local tangent plane at lat {self.ref_lat:.7f}, lon {self.ref_lon:.7f} "
+                f"(grid E {self.ref_en[0]:.2f}, N {self.ref_en[1]:.2f})"
+            )
+        return f"{self.kind} (exact)"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "zone": self.zone,
+            "south": self.south,
+            "ref_lat": self.ref_lat,
+            "ref_lon": self.ref_lon,
+            "ref_en": list(self.ref_en),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Projection:
+        return cls(
+            str(data["kind"]),
+            int(data.get("zone", 0)),
+            bool(data.get("south", False)),
+            float(data.get("ref_lat", 0.0)),
+            float(data.get("ref_lon", 0.0)),
+            (float(data.get("ref_en", (0, 0))[0]), float(data.get("ref_en", (0, 0))[1])),
+        )
+
+    # -- conversions -----------------------------------------------------------------------
+    def to_lonlat(self, e: ArrayLike, n: ArrayLike) -> tuple[F64, F64]:
+        """Projected metres -> (lon, lat) degrees."""
+        e_a, n_a = np.asarray(e, dtype=np.float64), np.asarray(n, dtype=np.float64)
+        if self.kind == "utm":
+            return self._utm_inverse(e_a, n_a)
+        if self.kind in ("web_mercator", "world_mercator"):
+            lon = np.degrees(e_a / _A)
+            t = np.exp(-n_a / _A)
+            phi = np.pi / 2 - 2 * np.arctan(t)
+            if self.kind == "world_mercator":
+                e1 = math.sqrt(_E2)
+                for _ in range(12):
+                    es = e1 * np.sin(phi)
+                    phi = np.pi / 2 - 2 * np.arctan(t * ((1 - es) / (1 + es)) ** (e1 / 2))
+            return lon, np.degrees(phi)
+        if self.kind == "geographic":
+            return e_a.copy(), n_a.copy()
+        if self.kind == "local_tangent_plane":
+            lat = self.ref_lat + (n_a - self.ref_en[1]) / _M_PER_DEG
+            lon = self.ref_lon + (e_a - self.ref_en[0]) / (
+                _M_PER_DEG * math.cos(math.radians(self.ref_lat))
+            )
+            return lon, lat
+        raise InvalidInputError("projection.kind", f"unknown projection {self.kind!r}")
+
+    def from_lonlat(self, lon: ArrayLike, lat: ArrayLike) -> tuple[F64, F64]:
+        """(lon, lat) degrees -> projected metres."""
+        lo, la = np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)
+        if self.kind == "utm":
+            return self._utm_forward(lo, la)
+        if self.kind in ("web_mercator", "world_mercator"):
+            phi = np.radians(la)
+            y = np.log(np.tan(np.pi / 4 + phi / 2))
+            if self.kind == "world_mercator":
+                e1 = math.sqrt(_E2)
+                es = e1 * np.sin(phi)
+                y = y + (e1 / 2) * np.log((1 - es) / (1 + es))
+            return _A * np.radians(lo), _A * y
+        if self.kind == "geographic":
+            return lo.copy(), la.copy()
+        if self.kind == "local_tangent_plane":
+            n = self.ref_en[1] + (la - self.ref_lat) * _M_PER_DEG
+            e = self.ref_en[0] + (lo - self.ref_lon) * (
+                _M_PER_DEG * math.cos(math.radians(self.ref_lat))
+            )
+            return e, n
+        raise InvalidInputError("projection.kind", f"unknown projection {self.kind!r}")
+
+    def _lon0(self) -> float:
+        return math.radians(-183.0 + 6.0 * self.zone)
+
+    def _utm_forward(self, lon: F64, lat: F64) -> tuple[F64, F64]:
+        k0, n = 0.9996, _F / (2 - _F)
+        phi, lam = np.radians(lat), np.radians(lon) - self._lon0()
+        c = 2 * math.sqrt(n) / (1 + n)
+        t = np.sinh(np.arctanh(np.sin(phi)) - c * np.arctanh(c * np.sin(phi)))
+        xi_p = np.arctan2(t, np.cos(lam))
+        eta_p = np.arctanh(np.sin(lam) / np.sqrt(1 + t * t))
+        xi, eta = xi_p.copy(), eta_p.copy()
+        for j, a in enumerate(_ALPHA, start=1):
+            xi += a * np.sin(2 * j * xi_p) * np.cosh(2 * j * eta_p)
+            eta += a * np.cos(2 * j * xi_p) * np.sinh(2 * j * eta_p)
+        e = 500_000.0 + k0 * _KA * eta
+        north = k0 * _KA * xi + (10_000_000.0 if self.south else 0.0)
+        return e, north
+
+    def _utm_inverse(self, e: F64, north: F64) -> tuple[F64, F64]:
+        k0 = 0.9996
+        xi = (north - (10_000_000.0 if self.south else 0.0)) / (k0 * _KA)
+        eta = (e - 500_000.0) / (k0 * _KA)
+        xi_p, eta_p = xi.copy(), eta.copy()
+        for j, b in enumerate(_BETA, start=1):
+            xi_p -= b * np.sin(2 * j * xi) * np.cosh(2 * j * eta)
+            eta_p -= b * np.cos(2 * j * xi) * np.sinh(2 * j * eta)
+        chi = np.arcsin(np.sin(xi_p) / np.cosh(eta_p))
+        phi = chi.copy()
+        for j, d in enumerate(_DELTA, start=1):
+            phi += d * np.sin(2 * j * chi)
+        lam = np.arctan2(np.sinh(eta_p), np.cos(xi_p))
+        return np.degrees(self._lon0() + lam), np.degrees(phi)
+
+
+@dataclass(frozen=True)
+class GeoGrid:
+    """A north-up GeoTIFF grid: ORTHO px (u, v) -> projected metres
+    ``E = origin_e + (u + 0.5) * scale_x``, ``N = origin_n - (v + 0.5) * scale_y`` where
+    (origin_e, origin_n) is the top-left pixel's corner; ``projection`` converts to WGS84;
+    ``size`` (w, h) px; ``epsg`` the file's projected/geographic CRS code (None if absent)."""
+
+    origin_e: float
+    origin_n: float
+    scale_x: float
+    scale_y: float
+    size: tuple[int, int]
+    epsg: int | None
+    projection: Projection
+
+    def px_to_lonlat(self, pts: ArrayLike) -> F64:
+        """(N, 2) ORTHO px -> (N, 2) (lon, lat) degrees."""
+        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+        e = self.origin_e + (p[:, 0] + 0.5) * self.scale_x
+        n = self.origin_n - (p[:, 1] + 0.5) * self.scale_y
+        lon, lat = self.projection.to_lonlat(e, n)
+        return np.stack([lon, lat], axis=1)
+
+    def lonlat_to_px(self, lonlat: ArrayLike) -> F64:
+        """(N, 2) (lon, lat) degrees -> (N, 2) ORTHO px."""
+        q = np.asarray(lonlat, dtype=np.float64).reshape(-1, 2)
+        e, n = self.projection.from_lonlat(q[:, 0], q[:, 1])
+        return np.stack(
+            [(e - self.origin_e) / self.scale_x - 0.5, (self.origin_n - n) / self.scale_y - 0.5],
+            axis=1,
+        )
+
+    def centre_lonlat(self) -> tuple[float, float]:
+        w, h = self.size
+        lon, lat = self.px_to_lonlat([[(w - 1) / 2, (h - 1) / 2]])[0]
+        return float(lon), float(lat)
+
+
+def _geokeys(directory: Any) -> dict[int, Any]:
+    values = [int(v) for v in directory]
+    keys: dict[int, Any] = {}
+    for i in range(values[3]):
+        key_id, location, _count, value = values[4 + 4 * i : 8 + 4 * i]
+        if location == 0:
+            keys[key_id] = value
+    return keys
+
+
+def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None = None) -> GeoGrid:
+    """Read the north-up grid of a GeoTIFF (ModelPixelScale + ModelTiepoint + GeoKeys) with
+    ``tifffile``; ``reference`` (lat, lon) of the image centre is needed for CRSs other than
+    UTM / mercator / 4326 (see the module docstring). Rotated grids (ModelTransformation) are
+    refused."""
+    import tifffile
+
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError("geotiff", f"no such file: {p}")
+    try:
+        with tifffile.TiffFile(str(p)) as tif:
+            page = tif.pages.first
+            tags = {c: page.tags[c].value for c in (33550, 33922, 34735) if c in page.tags}
+            w, h = int(page.imagewidth), int(page.imagelength)
+    except Exception as exc:  # tifffile raises many kinds on a non-TIFF
+        raise InvalidInputError("geotiff", f"{p}: not a readable TIFF: {exc}") from exc
+    if 33550 not in tags or 33922 not in tags:
+        raise InvalidInputError(
+            "geotiff", f"{p}: no ModelPixelScale/ModelTiepoint tags (not a north-up GeoTIFF)"
+        )
+    sx, sy = float(tags[33550][0]), float(tags[33550][1])
+    tie = [float(t) for t in tags[33922][:6]]
+    keys = _geokeys(tags[34735]) if 34735 in tags else {}
+    point = keys.get(1025) == 2  # RasterPixelIsPoint: the tie point is a pixel centre
+    i0, j0, e0, n0 = tie[0], tie[1], tie[3], tie[4]
+    shift = 0.5 if point else 0.0
+    origin_e = e0 - (i0 + shift) * sx
+    origin_n = n0 + (j0 + shift) * sy
+    epsg = keys.get(3072) or keys.get(2048)
+    centre_en = (origin_e + w / 2 * sx, origin_n - h / 2 * sy)
+    projection = Projection.from_epsg(
+        None if epsg is None else int(epsg), reference=reference, ref_en=centre_en
+    )
+    return GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
+
+
+def zoom_for_gsd(gsd_m: float, lat_deg: float) -> int:
+    """The web-mercator zoom whose ground GSD at ``lat_deg`` is nearest ``gsd_m`` (log scale),
+    never finer than the source by more than sqrt(2)."""
+    z0 = 2 * math.pi * _A / TILE_PX * math.cos(math.radians(lat_deg))
+    return max(0, min(30, round(math.log2(z0 / gsd_m))))

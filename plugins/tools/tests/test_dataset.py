@@ -1,0 +1,173 @@
+"""Flight datasets: rendering over real NAIP imagery, the format, ground truth, cross-date."""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
+from c3_matcher_tools.dataset.format import FORMAT, load_dataset
+from c3_matcher_tools.dataset.progress import ProgressBar
+from c3_matcher_tools.dataset.truth import inlier_errors_px
+from c3_matcher_tools.tilestore.build import build_mbtiles
+
+REPO = Path(__file__).resolve().parents[3]
+NAIP = REPO / "data" / "imagery" / "naip_timeseries"
+NAIP_2020 = NAIP / "m_4709963_se_14_1_20200831.tif"
+NAIP_2010 = NAIP / "m_4709963_se_14_1_20100629.tif"
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("store") / "naip2020.mbtiles"
+    build_mbtiles(NAIP_2020, path, zoom=15, tile_format="jpg")
+    return path
+
+
+def _render(store: Path, out: Path, frames_tif: Path, **kw: object) -> Path:
+    spec = FlightSpec(frames_tif, store, n_frames=6, absent_share=1 / 3, seed=3, **kw)  # type: ignore[arg-type]
+    return render_flight(spec, out, name="t")
+
+
+def _ncc(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
+    x = a[mask].astype(np.float64)
+    y = b[mask].astype(np.float64)
+    x, y = x - x.mean(), y - y.mean()
+    return float((x * y).sum() / math.sqrt((x * x).sum() * (y * y).sum()))
+
+
+def _gt_correlation(root: Path) -> list[float]:
+    """NCC between each frame (undistorted) and its true tile warped by the GT homography."""
+    ds = load_dataset(root)
+    k, dist = ds.calibration.K, ds.calibration.distortion
+    out = []
+    with ds.open_store() as st:
+        for f in ds.frames:
+            if f.true_index is None:
+                continue
+            c = f.candidates[f.true_index]
+            tile = cv2.cvtColor(
+                st.handle(c.tile_id, ds.candidate_size_px).decode(), cv2.COLOR_RGB2GRAY
+            )
+            frame = cv2.cvtColor(ds.nav_frame(f).image, cv2.COLOR_RGB2GRAY)
+            und = cv2.undistort(frame, k, dist)
+            size = ds.calibration.image_size
+            warped = cv2.warpPerspective(tile, c.h_tile_to_undistorted, size)
+            valid = cv2.warpPerspective(np.full_like(tile, 255), c.h_tile_to_undistorted, size)
+            mask = (cv2.erode(valid, np.ones((9, 9), np.uint8)) > 0) & (und > 0)
+            blur = (3, 3)
+            out.append(
+                _ncc(cv2.GaussianBlur(und, blur, 0), cv2.GaussianBlur(warped, blur, 0), mask)
+            )
+    return out
+
+
+def test_flight_format_candidates_and_truth(store: Path, tmp_path: Path) -> None:
+    root = _render(store, tmp_path / "flight", NAIP_2020)
+    ds = load_dataset(root)
+    assert ds.meta["format"] == FORMAT and len(ds.frames) == 6
+    assert ds.meta["gt_fit_max_residual_px"] < 0.05
+    absent = [f for f in ds.frames if not f.true_tile_present]
+    assert len(absent) == 2 and sorted(f.index for f in absent) == ds.meta["absent_frames"]
+    positions = set()
+    for f in ds.frames:
+        assert len(f.candidates) == 3 and sum(c.is_true for c in f.candidates) <= 1
+        for c in f.candidates:
+            if not c.is_true:
+                assert c.distance_m >= 350.0
+        tilt = math.degrees(
+            math.acos(
+                math.cos(math.radians(f.attitude_deg[0]))
+                * math.cos(math.radians(f.attitude_deg[1]))
+            )
+        )
+        assert tilt <= 20.0 + 1e-6
+        positions.add(f.true_index)
+        assert ds.nav_frame(f).image.shape == (240, 320, 3)
+    assert len(positions - {None}) >= 2  # the true tile is not always in the same slot
+    with ds.open_store() as st:
+        rerank = ds.rerank(ds.frames[0], st)
+        assert [c.tile_id for c in rerank.candidates] == [
+            c.tile_id for c in ds.frames[0].candidates
+        ]
+    assert min(_gt_correlation(root)) > 0.8
+
+
+def test_cross_date_ground_truth_from_the_geotiff_grids(store: Path, tmp_path: Path) -> None:
+    # The 2010 and 2020 grids' origins differ by 1 m east and north (0.4 frame px). The flight
+    # is flown in metres, so the same seed flies over the same ground: the ground truth of a
+    # candidate must be the same homography whichever date the frames were rendered from.
+    same = load_dataset(_render(store, tmp_path / "same", NAIP_2020))
+    cross = load_dataset(_render(store, tmp_path / "xdate", NAIP_2010))
+    assert cross.meta["frames_source"] == NAIP_2010.name
+    assert cross.meta["tiles_source"] == NAIP_2020.name
+    grid = np.array([[0.0, 0.0], [447.0, 0.0], [0.0, 447.0], [447.0, 447.0], [224.0, 224.0]])
+    compared = 0
+    for a, b in zip(same.frames, cross.frames, strict=True):
+        assert a.true_tile_present == b.true_tile_present
+        by_id = {c.tile_id: c for c in a.candidates}
+        for cb in b.candidates:
+            ca = by_id.get(cb.tile_id)
+            if ca is None:  # distractor draws may differ (footprints differ by sub-pixels)
+                continue
+            assert ca.is_true == cb.is_true
+            pa = cv2.perspectiveTransform(grid[None], ca.h_tile_to_undistorted)[0]
+            pb = cv2.perspectiveTransform(grid[None], cb.h_tile_to_undistorted)[0]
+            assert np.max(np.linalg.norm(pa - pb, axis=1)) < 0.05
+            compared += 1
+    assert compared >= sum(f.true_tile_present for f in same.frames)
+    assert min(_gt_correlation(same.root)) > 0.8
+
+
+def test_inlier_errors_are_zero_on_exact_correspondences(store: Path, tmp_path: Path) -> None:
+    ds = load_dataset(_render(store, tmp_path / "f", NAIP_2020))
+    f = next(f for f in ds.frames if f.true_index is not None)
+    h = f.candidates[f.true_index].h_tile_to_undistorted
+    tile_pts = np.array([[100.0, 120.0], [200.0, 210.0], [300.0, 150.0]])
+    und = cv2.perspectiveTransform(tile_pts[None], h)[0]
+    from c3_matcher import camera as cam
+
+    query = cam.distort_points(und, ds.calibration)
+    corr = np.hstack([query, tile_pts]).astype(np.float32)
+    assert np.max(inlier_errors_px(h, ds.calibration, corr)) < 0.01
+    corr[:, 0] += 3.0
+    assert np.allclose(inlier_errors_px(h, ds.calibration, corr), 3.0, atol=0.01)
+
+
+def test_impossible_flights_are_refused_with_the_parameter(store: Path, tmp_path: Path) -> None:
+    with pytest.raises(InvalidInputError, match="candidate_size_px"):
+        _render(store, tmp_path / "a", NAIP_2020, candidate_size_px=128)
+    with pytest.raises(InvalidInputError, match="trajectory"):
+        _render(store, tmp_path / "b", NAIP_2020, orbit_radius_m=3000.0)
+    with pytest.raises(InvalidInputError, match="pattern"):
+        FlightSpec(NAIP_2020, store, pattern="zigzag")
+
+
+def test_load_dataset_names_what_is_wrong(tmp_path: Path) -> None:
+    with pytest.raises(InvalidInputError, match="dataset.json"):
+        load_dataset(tmp_path)
+    (tmp_path / "dataset.json").write_text('{"format": "other"}')
+    with pytest.raises(InvalidInputError, match="format"):
+        load_dataset(tmp_path)
+
+
+def test_store_copy_is_self_contained(store: Path, tmp_path: Path) -> None:
+    root = _render(store, tmp_path / "copy", NAIP_2020)
+    with MBTilesStore(root / "tiles.mbtiles") as st:
+        assert st.metadata["c3_source"] == NAIP_2020.name
+
+
+def test_progress_bar_reports_to_its_stream() -> None:
+    stream = io.StringIO()
+    bar = ProgressBar("job", stream=stream, every=2)
+    for i in range(1, 6):
+        bar(i, 5)
+    lines = stream.getvalue().splitlines()
+    assert lines[0].startswith("job [") and "1/5" in lines[0] and "5/5" in lines[-1]
