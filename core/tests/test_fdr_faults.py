@@ -1,0 +1,198 @@
+"""Fault injection on the durable FDR (issue 11, defects 1-3): torn tails, ENOSPC and short
+writes, rotation with offloaded segments, crashes around rotation, threads, two writers."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+import threading
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.fdr import FdrOpenError, FdrWriteError, JsonlFdrRecorder, read_fdr
+from c3_matcher.testing import FakeClock
+
+CORE_SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def _all_records(rec: JsonlFdrRecorder) -> list[dict]:
+    out: list[dict] = []
+    for seg in rec.segments():
+        if seg.exists():
+            result = read_fdr(seg)
+            assert result.corrupt == [], seg
+            out.extend(result)
+    return out
+
+
+def test_torn_tail_is_cut_on_open_and_kept_aside(tmp_path):
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    rec.record("k", {"i": 0})
+    rec.close()
+    with path.open("ab") as fh:  # power cut mid-write: half a record, no newline
+        fh.write(b'{"seq":2,"kind":"k","payl')
+    torn = read_fdr(path)
+    assert torn.torn_tail == b'{"seq":2,"kind":"k","payl' and len(torn.corrupt) == 1
+    again = JsonlFdrRecorder(path, FakeClock())
+    again.record("k", {"i": 1})
+    result = read_fdr(path)
+    assert result.corrupt == []
+    assert [r["kind"] for r in result] == ["k", "fdr.torn_tail_cut", "k"]
+    assert [r["seq"] for r in result] == [1, 2, 3]
+    assert result[-1]["payload"] == {"i": 1}
+    side = again.torn_path.read_text()
+    assert '{\\"seq\\":2,\\"kind\\":\\"k\\",\\"payl' in side
+    again.close()
+
+
+def test_read_fdr_reports_corrupt_lines(tmp_path):
+    path = tmp_path / "x.jsonl"
+    path.write_bytes(b'{"seq":1}\nGARBAGE\n[1,2]\n{"seq":4}\n{"seq":')
+    result = read_fdr(path)
+    assert [r["seq"] for r in result] == [1, 4]
+    assert [n for n, _, _ in result.corrupt] == [2, 3, 5]
+    assert result.torn_tail == b'{"seq":'
+
+
+def test_enospc_after_partial_write_is_rolled_back(tmp_path, monkeypatch):
+    rec = JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock())
+    rec.record("k", {"i": 0})
+    real_write = os.write
+    calls = {"n": 0}
+
+    def half_then_enospc(fd, data):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            return real_write(fd, bytes(data[: len(data) // 2]))
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "write", half_then_enospc)
+    with pytest.raises(FdrWriteError, match="1 record"):
+        rec.record("k", {"i": 1})
+    monkeypatch.setattr(os, "write", real_write)
+    rec.record("k", {"i": 2})
+    result = read_fdr(rec.path)
+    assert result.corrupt == []
+    assert [r["payload"]["i"] for r in result] == [0, 1, 2]
+    assert [r["seq"] for r in result] == [1, 2, 3]
+
+
+def test_short_writes_are_completed(tmp_path, monkeypatch):
+    rec = JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock())
+    real_write = os.write
+    monkeypatch.setattr(os, "write", lambda fd, data: real_write(fd, bytes(data[:7])))
+    for i in range(3):
+        rec.record("k", {"i": i})
+    monkeypatch.setattr(os, "write", real_write)
+    assert [r["payload"]["i"] for r in read_fdr(rec.path)] == [0, 1, 2]
+
+
+def test_rotation_after_offload_never_overwrites(tmp_path):
+    rec = JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock(), max_bytes=1024)
+    acknowledged = []
+    for i in range(200):
+        rec.record("k", {"i": i, "pad": "x" * 60})
+        acknowledged.append(i)
+        if i % 40 == 39:  # the ground procedure: offload (move away) the oldest segment
+            oldest = rec.segments()[0]
+            if oldest != rec.path:
+                oldest.rename(tmp_path / f"offloaded-{i}-{oldest.name}")
+    seen = []
+    for p in sorted(tmp_path.glob("offloaded-*")) + rec.segments():
+        seen.extend(r["payload"]["i"] for r in read_fdr(p))
+    assert sorted(seen) == acknowledged
+    numbers = [int(p.name.split(".")[1]) for p in rec.segments()[:-1]]
+    assert numbers == sorted(numbers) and len(set(numbers)) == len(numbers)
+    rec.close()
+
+
+def test_seq_and_segment_numbers_survive_restart_after_rotation(tmp_path):
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock(), max_bytes=1024)
+    for i in range(30):
+        rec.record("k", {"i": i, "pad": "x" * 60})
+    rec._rotate()  # crash right after a rotation: the live segment is empty
+    rec.close()
+    assert path.stat().st_size == 0
+    for p in rec.segments()[:-1]:  # and every rotated segment was offloaded
+        p.rename(tmp_path / ("away-" + p.name))
+    again = JsonlFdrRecorder(path, FakeClock(), max_bytes=1024)
+    again.record("k", {"i": 30})
+    assert read_fdr(path)[0]["seq"] == 31
+    for i in range(31, 60):
+        again.record("k", {"i": i, "pad": "x" * 60})
+    away = {int(p.name.split(".")[1]) for p in tmp_path.glob("away-*")}
+    new = {int(p.name.split(".")[1]) for p in again.segments()[:-1]}
+    assert new and min(new) > max(away)
+    again.close()
+
+
+def test_crash_between_link_and_unlink_does_not_duplicate(tmp_path):
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    for i in range(3):
+        rec.record("k", {"i": i})
+    rec.close()
+    os.link(path, tmp_path / "fdr.000001.jsonl")  # rotation interrupted after the link
+    again = JsonlFdrRecorder(path, FakeClock())
+    again.record("k", {"i": 3})
+    assert [r["seq"] for r in _all_records(again)] == [1, 2, 3, 4]
+    again.close()
+
+
+def test_threads_get_unique_contiguous_seq(tmp_path):
+    rec = JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock(), max_bytes=4096)
+
+    def work(t: int) -> None:
+        for i in range(50):
+            rec.record("k", {"t": t, "i": i})
+
+    threads = [threading.Thread(target=work, args=(t,)) for t in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    seqs = [r["seq"] for r in _all_records(rec)]
+    assert seqs == list(range(1, 401))
+    rec.close()
+
+
+def test_second_writer_is_refused(tmp_path):
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(CORE_SRC)!r})
+        from c3_matcher.fdr import JsonlFdrRecorder, FdrOpenError
+        from c3_matcher.testing import FakeClock
+        try:
+            JsonlFdrRecorder(__import__("pathlib").Path({str(path)!r}), FakeClock())
+        except FdrOpenError as exc:
+            print("REFUSED", exc)
+            sys.exit(0)
+        sys.exit(1)
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "another process" in out.stdout and str(os.getpid()) in out.stdout
+    rec.close()
+    JsonlFdrRecorder(path, FakeClock()).close()  # released on close
+
+
+def test_path_that_is_a_directory_or_unwritable_is_named(tmp_path):
+    with pytest.raises(FdrOpenError, match="is a directory"):
+        JsonlFdrRecorder(tmp_path, FakeClock())
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        if os.access(ro, os.W_OK):
+            pytest.skip("running as root: permissions are not enforced")
+        with pytest.raises(FdrOpenError, match="fdr.path"):
+            JsonlFdrRecorder(ro / "fdr.jsonl", FakeClock())
+    finally:
+        ro.chmod(0o700)
