@@ -68,6 +68,11 @@ class MatcherSettings(_Section):
         description="tiles whose features are kept between frames "
         "(0: re-extract every tile every frame)",
     )
+    stored_features: bool = Field(
+        False,
+        description="use a tile store's precomputed map features (c3-matcher features build) "
+        "when they match the extractor engine; False: always extract tiles in flight",
+    )
     options: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
         description="per-strategy options, [matcher.options.<strategy>], validated by the plugin",

@@ -44,6 +44,7 @@ from c3_matcher.logs import log_event
 from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
 from c3_matcher.protocols import Clock, FdrClient, RansacFilter
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
+from c3_matcher.tilestore.features import FeatureRequest
 
 __all__ = ["FeatureBackend", "PipelineMatcher", "PipelineSettings"]
 
@@ -86,6 +87,7 @@ class PipelineSettings:
     min_inliers_threshold: int = 60
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
+    use_stored_features: bool = False  # opt-in until assembly matches extraction (README)
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
@@ -93,6 +95,7 @@ class PipelineSettings:
             matcher.min_inliers_threshold,
             matcher.residual_warn_threshold_px,
             matcher.ransac_threshold_px,
+            bool(getattr(matcher, "stored_features", False)),
         )
 
 
@@ -112,6 +115,7 @@ class _FrameState:
     health_updated: bool = False
     timings_ms: dict[str, float] = field(default_factory=dict)
     per_candidate_ms: list[dict[str, float]] = field(default_factory=list)
+    feature_sources: list[str] = field(default_factory=list)
 
 
 class PipelineMatcher:
@@ -139,6 +143,18 @@ class PipelineMatcher:
         self._settings = settings
         self._pre = preprocessor or FramePreprocessor(backend.input_rule)
         self._cache = TileFeatureCache(tile_cache_size)
+        self._feature_request = _feature_request(backend, self._pre)
+        self._use_stored = settings.use_stored_features and self._feature_request is not None
+
+    @property
+    def stored_features(self) -> bool:
+        """Whether candidate features come from precomputed map features when the tile store
+        has them (``features build``); False: always extract (the bench's comparison)."""
+        return self._use_stored
+
+    @stored_features.setter
+    def stored_features(self, enabled: bool) -> None:
+        self._use_stored = bool(enabled) and self._feature_request is not None
 
     @property
     def backend(self) -> FeatureBackend:
@@ -237,6 +253,7 @@ class PipelineMatcher:
             "input_index": [s.input_index for s in survivors],
             "homographies": [s.homography for s in survivors],
             "tile_cache": {"hits": self._cache.hits, "misses": self._cache.misses},
+            "candidate_features": list(state.feature_sources),
         }
         self._record(
             "matcher.frame_done",
@@ -253,9 +270,11 @@ class PipelineMatcher:
                         "tile_id": s.match_set.tile_id,
                         "inlier_count": s.match_set.inlier_count,
                         "residual_px": s.match_set.per_candidate_residual_px,
+                        "features": _source_of(state, s.input_index),
                     }
                     for s in survivors
                 ],
+                "candidate_features": list(state.feature_sources),
                 "timings_ms": state.timings_ms,
                 **self._backend.provenance(),
             },
@@ -283,16 +302,26 @@ class PipelineMatcher:
     ) -> _Survivor | None:
         tile_id = candidate.tile_id
         phase = "tile_decode"
+        state.feature_sources.append("none")
         try:
+            stored = None
+            if self._use_stored:
+                with _timed(timings, "assemble"):
+                    stored = self._stored(candidate, state)
             key = (
                 tile_cache_key(tile_id, candidate.tile_pixels_handle)
-                if self._cache.enabled
+                if self._cache.enabled and stored is None
                 else None
             )
             cached = self._cache.get(key) if key is not None else None
-            if cached is not None:
+            if stored is not None:
+                tile_image, tile = stored
+                state.feature_sources[-1] = "stored"
+            elif cached is not None:
                 tile_image, tile = cached.prepared, cached.features
+                state.feature_sources[-1] = "cached"
             else:
+                state.feature_sources[-1] = "extracted"
                 with _timed(timings, "decode"):
                     pixels = candidate.tile_pixels_handle.decode()
                 with _timed(timings, "preprocess"):
@@ -338,6 +367,32 @@ class PipelineMatcher:
         )
         return _Survivor(match_set, index, ransac.homography)
 
+    def _stored(
+        self, candidate: RerankCandidate, state: _FrameState
+    ) -> tuple[PreparedImage, Features] | None:
+        """The candidate's precomputed map features, or None (extract): a handle without
+        ``stored_features``, no or stale stored features, a window the rule would resize. A
+        failure here never drops the candidate: it falls back to extraction."""
+        serve = getattr(candidate.tile_pixels_handle, "stored_features", None)
+        if not callable(serve) or self._feature_request is None:
+            return None
+        try:
+            features = serve(self._feature_request)
+            if not isinstance(features, Features):
+                return None
+            geometry = self._pre.tile_geometry(*features.image_size)
+        except Exception as exc:
+            log_event(
+                "WARNING",
+                "c3.matcher.stored_features_failed",
+                f"C3 stored features unusable; frame={state.frame_id}; "
+                f"tile={candidate.tile_id}; extracting instead: {type(exc).__name__}: {exc}",
+                frame_id=state.frame_id,
+                tile_id=candidate.tile_id,
+            )
+            return None
+        return None if geometry is None else (geometry, features)
+
     def _insufficient(
         self, state: _FrameState, best_count: int, survivors: list[_Survivor]
     ) -> MatchResult:
@@ -369,9 +424,11 @@ class PipelineMatcher:
                         "tile_id": s.match_set.tile_id,
                         "inlier_count": s.match_set.inlier_count,
                         "residual_px": s.match_set.per_candidate_residual_px,
+                        "features": _source_of(state, s.input_index),
                     }
                     for s in survivors
                 ],
+                "candidate_features": list(state.feature_sources),
                 **self._backend.provenance(),
             },
         )
@@ -437,6 +494,29 @@ class PipelineMatcher:
                 "backbone": self._backend.label,
             },
         )
+
+
+def _source_of(state: _FrameState, index: int) -> str:
+    return state.feature_sources[index] if index < len(state.feature_sources) else "none"
+
+
+def _feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureRequest | None:
+    """What to ask a tile store's precomputed features for: the backend's extractor engine
+    (file sha256 from its provenance), input rule and keypoint budget; None when the backend
+    does not say (its tiles are then always extracted)."""
+    try:
+        engines = backend.provenance().get("engines") or {}
+        sha = (engines.get("extractor") or {}).get("file_sha256")
+        rule = backend.input_rule
+    except Exception:
+        return None
+    budget = getattr(backend, "max_keypoints", None)
+    if budget is None:  # the current backends keep it private
+        config = getattr(backend, "_config", None)
+        budget = getattr(config, "max_keypoints", None) or getattr(backend, "_max_keypoints", None)
+    if not isinstance(sha, str) or not sha or not isinstance(budget, int) or budget < 1:
+        return None
+    return FeatureRequest(sha, rule.multiple, rule.max_long_side, budget, pre.border_erode_px)
 
 
 def _check_inputs(frame: object, rerank: object, calibration: object) -> None:

@@ -467,6 +467,24 @@ class FramePreprocessor:
         return np.asarray(mask > 0)
 
     # ------------------------------------------------------------------ tiles
+    def tile_geometry(self, width: int, height: int) -> PreparedImage | None:
+        """The :class:`PreparedImage` geometry of a ``width`` x ``height`` tile served with
+        precomputed features (no pixels: ``image`` and ``valid`` are read-only zero-stride
+        views), or None when the rule would resize or pad it (its features then come from
+        extraction)."""
+        if self.rule.content_size(width, height) != (width, height) or self.rule.final_size(
+            width, height
+        ) != (width, height):
+            return None
+        image = np.broadcast_to(np.zeros((1, 1, 3), dtype=np.uint8), (height, width, 3))
+        valid = np.broadcast_to(np.ones((1, 1), dtype=np.bool_), (height, width))
+        return PreparedImage(
+            image=image,
+            valid=valid,
+            working_from_engine=_engine_to_working((width, height), (width, height)),
+            working_size=(width, height),
+        )
+
     def prepare_tile(self, tile_rgb: NDArray[np.uint8]) -> PreparedImage:
         """Resize a north-up tile (uint8 RGB (H, W, 3) or grey (H, W)) to the rule (area
         averaging, never upscaling) and pad it; nodata (all channels 0) is masked. WORKING px are

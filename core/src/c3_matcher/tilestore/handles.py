@@ -19,7 +19,7 @@ are nodata (0), which the matcher masks.
 from __future__ import annotations
 
 import math
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import cv2
 import numpy as np
@@ -29,6 +29,10 @@ from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tiles import decode_image
 from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px
+
+if TYPE_CHECKING:
+    from c3_matcher.features import Features
+    from c3_matcher.tilestore.features import FeatureRequest
 
 __all__ = [
     "MosaicTileHandle",
@@ -83,6 +87,12 @@ class StoredTileHandle:
             self._pixels = decode_image(self.encoded(), self._what())
         return self._pixels.copy()
 
+    def stored_features(self, request: FeatureRequest) -> Features | None:
+        """This tile's features from the store's precomputed map features (tile px), or None:
+        see :func:`c3_matcher.tilestore.features.assemble_window`."""
+        z, x, y = self._key
+        return _stored_window(self._source, request, z, (x * TILE_PX, y * TILE_PX), TILE_PX)
+
     def _what(self) -> str:
         z, x, y = self._key
         return f"{self._source.name} tile {z}/{x}/{y}"
@@ -117,6 +127,13 @@ class MosaicTileHandle:
     def decode(self) -> NDArray[np.uint8]:
         return self._mosaic().copy()
 
+    def stored_features(self, request: FeatureRequest) -> Features | None:
+        """The window's features assembled from the store's precomputed map features (window
+        px), or None: see :func:`c3_matcher.tilestore.features.assemble_window`."""
+        return _stored_window(
+            self._source, request, self._tile_id.zoom, self.origin_world_px, self._size
+        )
+
     def _mosaic(self) -> NDArray[np.uint8]:
         if self._pixels is None:
             x0, y0 = self.origin_world_px
@@ -130,6 +147,20 @@ class MosaicTileHandle:
 
     def __repr__(self) -> str:
         return f"MosaicTileHandle({self._what()!r})"
+
+
+def _stored_window(
+    source: SlippyTileSource,
+    request: FeatureRequest,
+    zoom: int,
+    origin: tuple[int, int],
+    size_px: int,
+) -> Features | None:
+    if not callable(getattr(source, "feature_store", None)):
+        return None  # a store without precomputed features (optional method)
+    from c3_matcher.tilestore.features import assemble_window
+
+    return assemble_window(source, request, zoom, origin, (size_px, size_px))  # type: ignore[arg-type]
 
 
 def stitch(

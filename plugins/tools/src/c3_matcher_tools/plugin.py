@@ -1,6 +1,7 @@
 """Entry point of the ground tools (group ``c3_matcher.plugins``): they plug into the core the
 way a third party does, through its hooks: the ground commands (``engines build|bench``,
-``tiles``, ``dataset``, ``replay``, ``eval``, ``bench``) and the SIFT + MAGSAC baseline."""
+``tiles``, ``dataset``, ``replay``, ``eval``, ``bench``, ``features``) and the SIFT + MAGSAC
+baseline."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ def c3_matcher_register_commands(commands: CommandRegistry) -> None:
     from c3_matcher_tools.dataset.cli import register_dataset_command
     from c3_matcher_tools.engines.cli import register_engines_build_commands
     from c3_matcher_tools.evaluate import register_eval_command
+    from c3_matcher_tools.features.cli import register_features_command
     from c3_matcher_tools.replay import register_replay_command
     from c3_matcher_tools.tilestore.cli import register_tiles_command
 
@@ -25,6 +27,7 @@ def c3_matcher_register_commands(commands: CommandRegistry) -> None:
     register_replay_command(commands)
     register_eval_command(commands)
     register_bench_command(commands)
+    register_features_command(commands)
 
 
 @hookimpl
