@@ -66,7 +66,8 @@ def gorinchem() -> NDArray[np.uint8]:
 
 @pytest.fixture(scope="session")
 def disk_reference() -> Any:
-    from c3_matcher_disk_lightglue.engines import DISK_SPEC, load_disk_reference
+    from c3_matcher_disk_lightglue.engines import DISK_SPEC
+    from c3_matcher_disk_lightglue.export import load_disk_reference
 
     return load_disk_reference(DISK_SPEC.weights.resolve())
 

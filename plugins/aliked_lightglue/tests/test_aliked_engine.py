@@ -16,12 +16,11 @@ from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.store import EngineStore
-from c3_matcher_aliked_lightglue.aliked_export import load_aliked_reference
-from c3_matcher_aliked_lightglue.engines import (
-    ALIKED_SPECS,
-    ALIKED_TOLERANCES,
+from c3_matcher_aliked_lightglue.engines import ALIKED_SPECS, ALIKED_TOLERANCES
+from c3_matcher_aliked_lightglue.export import (
     aliked_reference_features,
     compare_features,
+    load_aliked_reference,
 )
 from c3_matcher_tools.testing.realpath import imagery_dir
 

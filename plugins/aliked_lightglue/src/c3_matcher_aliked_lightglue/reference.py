@@ -22,8 +22,8 @@ from c3_matcher_aliked_lightglue.engines import (
     ALIKED_SPECS,
     ALIKED_TOP_K,
     LIGHTGLUE_ALIKED_SPEC,
-    aliked_reference_features,
 )
+from c3_matcher_aliked_lightglue.export import aliked_reference_features, load_aliked_reference
 from c3_matcher_aliked_lightglue.matcher import EXTRACT_PHASE, AlikedLightGlueOptions
 
 __all__ = ["AlikedLightGlueReference"]
@@ -42,7 +42,6 @@ class AlikedLightGlueReference:
     def __init__(self, settings: C3Settings) -> None:
         import torch
 
-        from c3_matcher_aliked_lightglue.aliked_export import load_aliked_reference
         from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
 
         raw = settings.matcher.options.get("aliked_lightglue", {})

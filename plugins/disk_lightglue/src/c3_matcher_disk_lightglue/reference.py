@@ -16,7 +16,8 @@ from c3_matcher.engines.extract import image_to_feeds
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.preprocess import InputRule, PreparedImage
 from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS
-from c3_matcher_disk_lightglue.engines import DISK_SPEC, LIGHTGLUE_DISK_SPEC, load_disk_reference
+from c3_matcher_disk_lightglue.engines import DISK_SPEC, LIGHTGLUE_DISK_SPEC
+from c3_matcher_disk_lightglue.export import load_disk_reference
 
 __all__ = ["DiskLightGlueReference"]
 

