@@ -4,14 +4,16 @@ composition root. stdout carries exactly one JSON object; logs go to stderr."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import sys
 import time
 import uuid
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import EXIT_INSUFFICIENT, CommandRegistry
+from c3_matcher.commands import EXIT_INSUFFICIENT, EXIT_USAGE, CommandRegistry
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import (
     Attitude,
@@ -21,7 +23,7 @@ from c3_matcher.dto import (
     RerankResult,
     TileId,
 )
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError
+from c3_matcher.errors import C3Error, InsufficientInliersError, InvalidInputError
 from c3_matcher.serialize import load_calibration, result_to_json
 from c3_matcher.tiles import MmapTileHandle, read_image
 
@@ -149,19 +151,26 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
         else CameraCalibration.pinhole(width, height, focal_px=float(width))
     )
     frame = NavCameraFrame(uuid.uuid4(), image, time.monotonic_ns(), args.attitude, args.height)
+    _warn_missing(args)
     candidates = []
     for i, path in enumerate(args.tile):
-        if not Path(path).is_file():
-            raise InvalidInputError(f"--tile {path}", "no such image file")
         tile_id = args.tile_id[i] if args.tile_id else TileId(0, 0.0, float(i))
-        candidates.append(RerankCandidate(tile_id, 1.0, MmapTileHandle(path), args.tile_gsd))
+        candidates.append(RerankCandidate(tile_id, 1.0, _readable_tile(path), args.tile_gsd))
     rerank = RerankResult(frame.frame_id, tuple(candidates))
 
-    root = compose_root(settings, build_default_helpers(settings))
+    helpers: dict[str, Any] = dict(build_default_helpers(settings))
+    problems: list[str] = []  # output that could not be written: reported after the result
+    own_fdr = _open_fdr(settings, problems)
+    helpers["c13_fdr"] = own_fdr
+    root = compose_root(settings, helpers)
+    reasons: dict[str, str] = {}
+    sink = _collect_drop_reasons(reasons)
     try:
         try:
             result = root.matcher.match(frame, rerank, calibration)
         except InsufficientInliersError as exc:
+            if args.viz:
+                _draw_or_report(problems, args, image, calibration, rerank, None, f"FAILED: {exc}")
             print(
                 json.dumps(
                     {
@@ -173,26 +182,173 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
                         "candidates_input": exc.candidates_input,
                         "candidates_dropped": exc.candidates_dropped,
                         "matcher_label": exc.matcher_label,
+                        **({"viz": str(args.viz)} if args.viz and not problems else {}),
                     }
                 )
             )
+            _report(problems)
             return EXIT_INSUFFICIENT
-        out = result_to_json(result, with_correspondences=not args.no_correspondences)
-        if args.viz:
-            from c3_matcher.viz import draw_matches
-
-            best_index = out["per_candidate"][0]["tile_index"]
-            draw_matches(
-                image,
-                read_image(args.tile[best_index]),
-                result.per_candidate[0].inlier_correspondences,
-                args.viz,
-                title=f"{result.matcher_label}: {result.per_candidate[0].inlier_count} "
-                f"inliers, median residual "
-                f"{result.reprojection_residual_px:.2f} px",
-            )
+        sizes = [_image_size(path) for path in args.tile]
+        out = result_to_json(
+            result,
+            with_correspondences=not args.no_correspondences,
+            calibration=calibration,
+            tile_sizes=sizes,
+            tile_gsd_m=args.tile_gsd,
+        )
+        kept = {int(c["tile_index"]) for c in out["per_candidate"]}
+        out["dropped"] = [
+            {
+                "tile_index": i,
+                "tile_id": c.tile_id.as_list(),
+                "reason": reasons.get(str(c.tile_id), "no inliers after RANSAC"),
+            }
+            for i, c in enumerate(rerank.candidates)
+            if i not in kept
+        ]
+        if args.viz and _draw_or_report(
+            problems,
+            args,
+            image,
+            calibration,
+            rerank,
+            result,
+            f"{result.matcher_label}: {result.per_candidate[0].inlier_count} inliers, "
+            f"median residual {result.reprojection_residual_px:.2f} px",
+        ):
             out["viz"] = str(args.viz)
-        print(json.dumps(out))
-        return 0
+        print(json.dumps(out), flush=True)
+        return EXIT_USAGE if _report(problems) else 0
     finally:
+        _remove_sink(sink)
         root.close()
+        close = getattr(own_fdr, "close", None)
+        if callable(close):
+            close()
+
+
+def _readable_tile(path: Path) -> MmapTileHandle:
+    """A handle on a ``--tile`` file that exists and decodes (exit 2 otherwise, naming it)."""
+    from c3_matcher.tiles import decode_image
+
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"--tile {p}", "no such image file")
+    handle = MmapTileHandle(p)
+    decode_image(handle.encoded(), f"--tile {p}")
+    return handle
+
+
+def _open_fdr(settings: C3Settings, problems: list[str]) -> Any:
+    """The durable recorder at the configured path; if it cannot be opened, the frame is still
+    matched and printed (its records kept in memory) and the failure is reported (exit 2)."""
+    from c3_matcher.fdr import FdrOpenError, InMemoryFdr, JsonlFdrRecorder
+    from c3_matcher.health import MonotonicClock
+
+    try:
+        return JsonlFdrRecorder(
+            settings.fdr.path, MonotonicClock(), max_bytes=settings.fdr.max_bytes
+        )
+    except FdrOpenError as exc:
+        problems.append(f"{exc}; the result was printed but NOT recorded in the FDR")
+        return InMemoryFdr()
+
+
+def _draw_or_report(problems: list[str], *args: Any) -> bool:
+    try:
+        _draw(*args)
+    except (OSError, C3Error) as exc:
+        problems.append(f"--viz {args[0].viz}: cannot write the picture: {exc}")
+        return False
+    return True
+
+
+def _report(problems: list[str]) -> bool:
+    for line in problems:
+        print(f"c3-matcher: {' '.join(line.split())}", file=sys.stderr)
+    return bool(problems)
+
+
+def _warn_missing(args: argparse.Namespace) -> None:
+    """Say on stderr what the matcher will have to do without (it fails silently otherwise)."""
+    missing = []
+    if args.attitude is None:
+        missing.append("--attitude (the query is not rotated north-up: yaw >= ~60 deg fails)")
+    if args.height is None:
+        missing.append("--height (the query's scale is not matched to the tiles')")
+    if args.tile_gsd is None and not args.tile_id:
+        missing.append("--tile-gsd or --tile-id (the tiles' ground sample distance is unknown)")
+    for what in missing:
+        print(f"c3-matcher match: warning: no {what}", file=sys.stderr)
+
+
+def _collect_drop_reasons(reasons: dict[str, str]) -> int:
+    from loguru import logger
+
+    def sink(message: Any) -> None:
+        extra = message.record["extra"]
+        kind = extra.get("kind")
+        if kind == "c3.matcher.backbone_error":
+            reasons[str(extra.get("tile_id"))] = (
+                f"backbone error in {extra.get('phase')}: {extra.get('error')}"
+            )
+        elif kind == "c3.matcher.zero_inliers":
+            reasons[str(extra.get("tile_id"))] = (
+                f"no inliers after RANSAC ({extra.get('raw_matches')} raw matches)"
+            )
+
+    return int(logger.add(sink, level="DEBUG", format="{message}"))
+
+
+def _remove_sink(sink: int) -> None:
+    from loguru import logger
+
+    with contextlib.suppress(ValueError):
+        logger.remove(sink)
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    h, w = read_image(path).shape[:2]
+    return w, h
+
+
+def _draw(
+    args: argparse.Namespace,
+    image: Any,
+    calibration: CameraCalibration,
+    rerank: RerankResult,
+    result: Any,
+    title: str,
+) -> None:
+    """The --viz picture: rectified query beside the best tile, every candidate in a strip;
+    the query beside the candidates for a failed frame."""
+    from c3_matcher.georef import fit_query_to_tile
+    from c3_matcher.viz import CandidateView, render_match, write_png
+
+    counts: dict[int, int] = {}
+    best_index = hom = corr = None
+    if result is not None:
+        indices = result.diagnostics.get("input_index", range(len(result.per_candidate)))
+        counts = {int(i): c.inlier_count for i, c in zip(indices, result.per_candidate)}
+        best_index = int(next(iter(indices)))
+        corr = result.per_candidate[0].inlier_correspondences
+        hom = fit_query_to_tile(corr, calibration)
+    views = [
+        CandidateView(
+            read_image(path),
+            str(c.tile_id) if c.tile_id.zoom else path.name,
+            counts.get(i),
+            best=i == best_index,
+        )
+        for i, (path, c) in enumerate(zip(args.tile, rerank.candidates, strict=True))
+    ]
+    picture = render_match(
+        image,
+        views,
+        best_index=best_index if hom is not None else None,
+        h_query_to_tile=hom,
+        correspondences=corr,
+        calibration=calibration,
+        title=title,
+    )
+    write_png(picture, args.viz)

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,13 @@ def load_calibration(path: Path) -> CameraCalibration:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
         raise InvalidInputError(f"--calibration {path}", f"unreadable: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise InvalidInputError(f"--calibration {path}", f"not UTF-8 text: {exc}") from None
+    if not isinstance(data, dict):
+        raise InvalidInputError(
+            f"--calibration {path}",
+            f"expected a JSON object with K, distortion, image_size; got {type(data).__name__}",
+        )
     try:
         c2b = data.get("camera_to_body")
         return CameraCalibration(
@@ -30,13 +38,31 @@ def load_calibration(path: Path) -> CameraCalibration:
             image_size=(int(data["image_size"][0]), int(data["image_size"][1])),
             camera_to_body=None if c2b is None else np.asarray(c2b, dtype=np.float64),
         )
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise InvalidInputError(f"--calibration {path}", f"malformed: {exc!r}") from exc
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"--calibration {path}", str(exc)) from None
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as exc:
+        raise InvalidInputError(f"--calibration {path}", f"malformed: {exc!r}") from None
 
 
-def result_to_json(result: MatchResult, with_correspondences: bool = True) -> dict[str, Any]:
-    """The MatchResult as the CLI prints it; ``tile_index`` is the candidate's input position."""
+def result_to_json(
+    result: MatchResult,
+    with_correspondences: bool = True,
+    *,
+    calibration: CameraCalibration | None = None,
+    tile_sizes: Sequence[tuple[int, int]] | None = None,
+    tile_gsd_m: float | None = None,
+) -> dict[str, Any]:
+    """The MatchResult as the CLI prints it; ``tile_index`` is the candidate's input position.
+    With ``calibration`` it carries ``best_homography`` (UNDISTORTED query px -> best tile px)
+    and, when the best tile id is georeferenced and ``tile_sizes`` (width, height per input
+    position) are given, ``centre_lat``, ``centre_lon`` and ``footprint`` (closed [lon, lat]
+    ring), see :func:`c3_matcher.georef.georeference_result`."""
     indices = result.diagnostics.get("input_index", list(range(len(result.per_candidate))))
+    geo: dict[str, Any] = {}
+    if calibration is not None:
+        from c3_matcher.georef import georeference_result
+
+        geo = georeference_result(result, calibration, tile_sizes, tile_gsd_m)
     return {
         "frame_id": str(result.frame_id),
         "best_candidate_idx": result.best_candidate_idx,
@@ -60,4 +86,5 @@ def result_to_json(result: MatchResult, with_correspondences: bool = True) -> di
             }
             for c, index in zip(result.per_candidate, indices, strict=True)
         ],
+        **geo,
     }

@@ -1,14 +1,184 @@
-"""Pictures of matches: query and tile side by side with inlier lines."""
+"""Pictures of matches (``c3-matcher match --viz`` and the flight report), OpenCV only.
+
+:func:`render_match` lays out, top: the query RECTIFIED onto the best tile's grid (undistorted,
+then warped by the query -> tile homography, so it reads north-up at the tile's scale) beside
+that tile with the query's footprint drawn on it, and at most ``max_lines`` (100) evenly chosen
+correspondence lines between the two: green where the point agrees with the fitted homography
+(within ``good_px`` tile px, or with the ground truth when ``errors_px`` is given), red where it
+does not; bottom: a strip of every candidate (in input order) with its inlier count, ``BEST``,
+``TRUE``/``dropped`` marks. A failed frame (no homography) shows the original query beside the
+candidates with the reason in the title.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["draw_matches"]
+from c3_matcher.dto import CameraCalibration
+
+__all__ = ["CandidateView", "draw_matches", "render_match", "write_png"]
+
+GOOD = (60, 200, 60)  # RGB
+BAD = (230, 40, 40)
+FOOT = (255, 210, 0)
+
+
+@dataclass(frozen=True)
+class CandidateView:
+    """One candidate in the strip: its image (RGB), a short label, its inlier count (None:
+    dropped / not matched) and marks."""
+
+    image: NDArray[np.uint8]
+    label: str
+    inliers: int | None = None
+    best: bool = False
+    is_true: bool | None = None
+
+
+def _text(img: NDArray[np.uint8], text: str, org: tuple[int, int], scale: float = 0.5) -> None:
+    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1, cv2.LINE_AA)
+
+
+def _fit(img: NDArray[np.uint8], size: int) -> tuple[NDArray[np.uint8], float]:
+    s = size / max(img.shape[:2])
+    dsize = (max(1, round(img.shape[1] * s)), max(1, round(img.shape[0] * s)))
+    out = np.asarray(cv2.resize(img, dsize, interpolation=cv2.INTER_AREA), np.uint8)
+    pad = np.full((size, size, 3), 40, np.uint8)
+    pad[: out.shape[0], : out.shape[1]] = out
+    return pad, s
+
+
+def _rectify(
+    query: NDArray[np.uint8],
+    calibration: CameraCalibration | None,
+    h_query_to_tile: NDArray[np.float64],
+    tile_shape: tuple[int, int],
+) -> NDArray[np.uint8]:
+    src = query
+    if calibration is not None and calibration.distortion.size:
+        src = np.asarray(cv2.undistort(query, calibration.K, calibration.distortion), np.uint8)
+    th, tw = tile_shape
+    return np.asarray(
+        cv2.warpPerspective(src, h_query_to_tile, (tw, th), borderValue=(40, 40, 40)), np.uint8
+    )
+
+
+def _footprint(
+    calibration: CameraCalibration | None, query_shape: tuple[int, int], h: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    from c3_matcher import camera as cam
+
+    qh, qw = query_shape
+    ring = cam.image_boundary(qw, qh, 16)
+    if calibration is not None and calibration.distortion.size:
+        ring = cam.undistort_points(ring, calibration)
+    return cam.apply_homography(h, ring)
+
+
+def _strip(candidates: Sequence[CandidateView], width: int, cell: int) -> NDArray[np.uint8]:
+    n = max(1, len(candidates))
+    cell = min(cell, width // n)
+    strip = np.full((cell + 8, width, 3), 255, np.uint8)
+    for i, c in enumerate(candidates):
+        thumb, _ = _fit(c.image, cell - 8)
+        x = i * cell + 4
+        strip[4 : 4 + thumb.shape[0], x : x + thumb.shape[1]] = thumb
+        colour = GOOD if c.best else (150, 150, 150)
+        if c.best and c.is_true is False:
+            colour = BAD
+        cv2.rectangle(strip, (x, 4), (x + thumb.shape[1] - 1, 4 + thumb.shape[0] - 1), colour, 3)
+        count = "dropped" if c.inliers is None else f"{c.inliers} inl"
+        marks = (" BEST" if c.best else "") + (" TRUE" if c.is_true else "")
+        _text(strip, f"#{i} {count}{marks}", (x + 6, 22))
+        _text(strip, c.label, (x + 6, thumb.shape[0] - 4), 0.4)
+    return strip
+
+
+def render_match(
+    query: NDArray[np.uint8],
+    candidates: Sequence[CandidateView],
+    *,
+    best_index: int | None = None,
+    h_query_to_tile: NDArray[np.float64] | None = None,
+    correspondences: NDArray[np.floating] | None = None,
+    calibration: CameraCalibration | None = None,
+    errors_px: NDArray[np.floating] | None = None,
+    title: str = "",
+    panel: int = 420,
+    max_lines: int = 100,
+    good_px: float = 3.0,
+) -> NDArray[np.uint8]:
+    """The picture as an RGB array (see the module docstring). ``correspondences`` (x_query,
+    y_query, x_tile, y_tile) in ORIGINAL query px and best-tile px; ``h_query_to_tile`` maps
+    UNDISTORTED query px to best-tile px; ``errors_px`` (one per correspondence, e.g. against
+    ground truth) decides the colours when given."""
+    matched = best_index is not None and h_query_to_tile is not None
+    tile = candidates[best_index].image if matched and best_index is not None else None
+    if matched and tile is not None and h_query_to_tile is not None:
+        left_src = _rectify(query, calibration, h_query_to_tile, tile.shape[:2])
+    else:
+        left_src = query
+    left, sl = _fit(left_src, panel)
+    right_src = tile if tile is not None else (candidates[0].image if candidates else query)
+    right, sr = _fit(right_src, panel)
+    top = np.concatenate([left, np.full((panel, 8, 3), 255, np.uint8), right], axis=1)
+    offset = panel + 8
+    n_good = n_bad = 0
+    if matched and h_query_to_tile is not None and correspondences is not None:
+        from c3_matcher import camera as cam
+
+        corr = np.asarray(correspondences, np.float64).reshape(-1, 4)
+        ring = _footprint(calibration, query.shape[:2], h_query_to_tile)
+        pts = np.round(ring * sr).astype(np.int32) + np.array([offset, 0], np.int32)
+        cv2.polylines(top, [pts.reshape(-1, 1, 2)], True, FOOT, 2, cv2.LINE_AA)
+        if len(corr):
+            q = corr[:, 0:2]
+            if calibration is not None and calibration.distortion.size:
+                q = cam.undistort_points(q, calibration)
+            qt = cam.apply_homography(h_query_to_tile, q)  # the query point on the rectified grid
+            if errors_px is not None:
+                good = np.asarray(errors_px, np.float64).reshape(-1) <= good_px
+            else:
+                good = np.linalg.norm(qt - corr[:, 2:4], axis=1) <= good_px
+            n_good, n_bad = int(good.sum()), int((~good).sum())
+            step = max(1, int(np.ceil(len(corr) / max_lines)))
+            for i in range(0, len(corr), step):
+                colour = GOOD if good[i] else BAD
+                p0 = (round(qt[i, 0] * sl), round(qt[i, 1] * sl))
+                p1 = (round(corr[i, 2] * sr) + offset, round(corr[i, 3] * sr))
+                cv2.line(top, p0, p1, colour, 1, cv2.LINE_AA)
+                cv2.circle(top, p0, 3, colour, -1, cv2.LINE_AA)
+                cv2.circle(top, p1, 3, colour, -1, cv2.LINE_AA)
+    _text(top, "query, rectified onto the tile" if matched else "query (as captured)", (8, 18))
+    _text(top, "best tile + footprint" if matched else "no match", (offset + 8, 18))
+    if matched:
+        _text(
+            top,
+            f"lines: green {n_good} agree, red {n_bad} off by > {good_px:g} px"
+            f" (<= {max_lines} drawn)",
+            (8, panel - 10),
+            0.45,
+        )
+    width = top.shape[1]
+    strip = _strip(candidates, width, 200)
+    head = np.full((34, width, 3), 255, np.uint8)
+    cv2.putText(head, title[:110], (8, 23), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, 16)
+    return np.concatenate([head, top, strip], axis=0)
+
+
+def write_png(image_rgb: NDArray[np.uint8], out: Path) -> Path:
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out), np.ascontiguousarray(image_rgb[:, :, ::-1])):
+        raise OSError(f"cannot write {out}")
+    return out
 
 
 def draw_matches(
@@ -18,36 +188,25 @@ def draw_matches(
     out: Path,
     *,
     title: str = "",
-    max_lines: int = 300,
-    height: int = 600,
+    max_lines: int = 100,
+    height: int = 420,
+    calibration: CameraCalibration | None = None,
 ) -> Path:
-    """Write a PNG: ``query`` (RGB) left, ``tile`` (RGB) right, one line per correspondence
-    (x_query, y_query, x_tile, y_tile) in each image's own pixels; at most ``max_lines``, evenly
-    subsampled (deterministic)."""
-    sq, st = height / query.shape[0], height / tile.shape[0]
-    left = cv2.resize(query, (round(query.shape[1] * sq), height), interpolation=cv2.INTER_AREA)
-    right = cv2.resize(tile, (round(tile.shape[1] * st), height), interpolation=cv2.INTER_AREA)
-    canvas = np.concatenate([left, right], axis=1)[:, :, ::-1].copy()  # BGR for OpenCV
-    offset = left.shape[1]
-    step = max(1, len(correspondences) // max_lines)
-    for i, (xq, yq, xt, yt) in enumerate(correspondences[::step]):
-        hue = int(179 * i / max(1, len(correspondences[::step])))
-        hsv = np.array([[[hue, 255, 255]]], dtype=np.uint8)
-        color = [int(c) for c in cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]]
-        p0 = (round(xq * sq), round(yq * sq))
-        p1 = (round(xt * st) + offset, round(yt * st))
-        cv2.line(canvas, p0, p1, color, 1, cv2.LINE_AA)
-        cv2.circle(canvas, p0, 3, color, -1, cv2.LINE_AA)
-        cv2.circle(canvas, p1, 3, color, -1, cv2.LINE_AA)
-    if title:
-        cv2.putText(
-            canvas, title, (10, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 0, 0), 4, cv2.LINE_AA
-        )
-        cv2.putText(
-            canvas, title, (10, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA
-        )
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(out), canvas):
-        raise OSError(f"cannot write {out}")
-    return out
+    """Write the :func:`render_match` picture of one query and one tile (PNG)."""
+    from c3_matcher.georef import fit_query_to_tile
+
+    corr = np.asarray(correspondences, np.float64).reshape(-1, 4)
+    hom = fit_query_to_tile(corr, calibration)
+    view = CandidateView(tile, "tile", len(corr) if hom is not None else None, hom is not None)
+    picture = render_match(
+        query,
+        [view],
+        best_index=0 if hom is not None else None,
+        h_query_to_tile=hom,
+        correspondences=corr,
+        calibration=calibration,
+        title=title,
+        panel=height,
+        max_lines=max_lines,
+    )
+    return write_png(picture, out)

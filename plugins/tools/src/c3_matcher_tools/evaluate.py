@@ -55,8 +55,10 @@ BARS = {
 
 def metrics(run1: list[FrameOutcome], run2: list[FrameOutcome]) -> dict[str, Any]:
     """The C3-IT figures and pass flags of one strategy (see the module docstring)."""
-    present = [o for o in run1 if o.true_present]
-    absent = [o for o in run1 if not o.true_present]
+    present = [o for o in run1 if o.has_truth and o.true_present]
+    absent = [o for o in run1 if o.has_truth and not o.true_present]
+    positions = [o.position_error_m for o in present if o.status == "ok"]
+    positions = [p for p in positions if math.isfinite(p)]
     inliers = [float(o.best_inliers) for o in present]
     p5 = float(np.percentile(inliers, 5)) if inliers else math.nan
     errors = [
@@ -84,6 +86,8 @@ def metrics(run1: list[FrameOutcome], run2: list[FrameOutcome]) -> dict[str, Any
             "p95_mean_error_px": p95,
             "frames_scored": len(errors),
             "median_mean_error_px": float(np.median(errors)) if errors else math.nan,
+            "p95_position_error_m": float(np.percentile(positions, 95)) if positions else math.nan,
+            "median_position_error_m": float(np.median(positions)) if positions else math.nan,
             "pass": bool(errors) and p95 < 2.5,
         },
         "C3-IT-04": {

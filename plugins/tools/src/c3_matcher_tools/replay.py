@@ -4,8 +4,12 @@ composition root's matcher (or the SIFT + MAGSAC baseline), with a progress bar 
 Writes under ``--out`` (default ``out/replay/<dataset>-<strategy>``): ``results.jsonl`` (one line
 per frame: status ``ok`` | ``insufficient`` | ``backbone_error``, elapsed ms, the scoring against
 ground truth and, for ``ok``, the MatchResult as ``c3-matcher match`` prints it), ``fdr.jsonl``
-(the flight-data records), ``matcher.log`` (the JSON logs) and ``report.json``; stdout carries
-the report (a table, or JSON with ``--json``).
+(the flight-data records), ``matcher.log`` (the JSON logs), ``report.json``, ``flight.geojson``
+(truth and estimate: centres, tracks, footprints; QGIS opens it) and ``report.html`` (the
+self-contained flight report, with the ``report`` extra: matplotlib); stdout carries the report
+(a table, or JSON with ``--json``). Each ``ok`` result carries the best homography and, the tile
+ids being georeferenced, the frame centre's lat/lon and its footprint; frames with ground truth
+also carry ``truth_lat``/``truth_lon`` and ``position_error_m``.
 
 :func:`run_flight` and :func:`build_matcher` are shared with ``c3-matcher eval``.
 """
@@ -25,10 +29,12 @@ from typing import Any
 
 import numpy as np
 
+from c3_matcher import camera as cam
 from c3_matcher.commands import CommandRegistry
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import MatchResult
 from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
+from c3_matcher.georef import haversine_m
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import result_to_json
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord, load_dataset
@@ -67,10 +73,17 @@ class FrameOutcome:
     fingerprint: str
     error: str | None
     result: dict[str, Any] | None
+    has_truth: bool = True
+    est_lat: float | None = None
+    est_lon: float | None = None
+    truth_lat: float | None = None
+    truth_lon: float | None = None
+    position_error_m: float = math.nan
+    insufficient_best: int = 0
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
-        for key in ("mean_error_px", "residual_px"):
+        for key in ("mean_error_px", "residual_px", "position_error_m"):
             if not math.isfinite(out[key]):
                 out[key] = None
         return out
@@ -93,9 +106,31 @@ def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -
     return h.hexdigest()
 
 
+def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, float] | None:
+    """(lat, lon) where the frame's principal point truly looks: through the true candidate's
+    ground-truth homography, else the record's ``pose`` footprint centre; None without truth."""
+    from c3_matcher.georef import tile_px_to_lonlat
+
+    k = dataset.calibration.K
+    for cand in frame.candidates:
+        if cand.is_true and cand.h_tile_to_undistorted is not None:
+            size = dataset.candidate_size_px
+            tile_px = cam.apply_homography(
+                np.linalg.inv(cand.h_tile_to_undistorted), [[k[0, 2], k[1, 2]]]
+            )
+            lon, lat = tile_px_to_lonlat(cand.tile_id, (size, size), tile_px)[0]
+            return float(lat), float(lon)
+    pose = frame.pose
+    if frame.has_truth and "footprint_centre_lat" in pose and "footprint_centre_lon" in pose:
+        return float(pose["footprint_centre_lat"]), float(pose["footprint_centre_lon"])
+    return None
+
+
 def _score(dataset: FlightDataset, frame: FrameRecord, result: MatchResult) -> tuple[int, float]:
     best_input = int(result.diagnostics["input_index"][0])
     cand = frame.candidates[best_input]
+    if cand.h_tile_to_undistorted is None:
+        return best_input, math.nan
     errors = inlier_errors_px(
         cand.h_tile_to_undistorted,
         dataset.calibration,
@@ -131,8 +166,28 @@ def run_flight(
             except MatcherBackboneError as exc:
                 status, error = "backbone_error", str(exc)
             elapsed = (time.perf_counter() - t0) * 1e3
+            truth = truth_position(dataset, frame)
+            geo_truth: dict[str, Any] = {"has_truth": frame.has_truth}
+            if truth is not None:
+                geo_truth.update(truth_lat=truth[0], truth_lon=truth[1])
             if result is not None:
                 best_input, mean_err = _score(dataset, frame, result)
+                size = dataset.candidate_size_px
+                as_json = result_to_json(
+                    result,
+                    with_correspondences=with_correspondences,
+                    calibration=dataset.calibration,
+                    tile_sizes=[(size, size)] * len(frame.candidates),
+                )
+                if "centre_lat" in as_json:
+                    geo_truth.update(est_lat=as_json["centre_lat"], est_lon=as_json["centre_lon"])
+                    if truth is not None:
+                        geo_truth["position_error_m"] = float(
+                            haversine_m(
+                                [[as_json["centre_lon"], as_json["centre_lat"]]],
+                                [[truth[1], truth[0]]],
+                            )[0]
+                        )
                 outcome = FrameOutcome(
                     frame.index,
                     str(frame.frame_id),
@@ -146,7 +201,8 @@ def run_flight(
                     result.reprojection_residual_px,
                     result_fingerprint(result),
                     None,
-                    result_to_json(result, with_correspondences=with_correspondences),
+                    as_json,
+                    **geo_truth,
                 )
             else:
                 outcome = FrameOutcome(
@@ -163,6 +219,8 @@ def run_flight(
                     result_fingerprint(None, best_count) if status == "insufficient" else "",
                     error,
                     None,
+                    insufficient_best=best_count,
+                    **geo_truth,
                 )
             outcomes.append(outcome)
             if progress is not None:
@@ -217,13 +275,18 @@ def summarize(outcomes: list[FrameOutcome]) -> dict[str, Any]:
     """Counts and timing (ms) of a run."""
     times = [o.elapsed_ms for o in outcomes]
     present = [o for o in outcomes if o.true_present]
+    pos = [o.position_error_m for o in outcomes if o.status == "ok"]
     return {
         "frames": len(outcomes),
         "ok": sum(o.status == "ok" for o in outcomes),
         "insufficient": sum(o.status == "insufficient" for o in outcomes),
         "backbone_error": sum(o.status == "backbone_error" for o in outcomes),
+        "with_truth": sum(o.has_truth for o in outcomes),
         "true_present": len(present),
         "correct_candidate": sum(o.correct for o in present),
+        "georeferenced": sum(o.est_lat is not None for o in outcomes),
+        "position_error_m_p50": _percentile(pos, 50),
+        "position_error_m_p95": _percentile(pos, 95),
         "frame_ms_p50": _percentile(times, 50),
         "frame_ms_p95": _percentile(times, 95),
         "frame_ms_mean": float(np.mean(times)) if times else None,
@@ -250,9 +313,14 @@ def register_replay_command(commands: CommandRegistry) -> None:
         default=None,
         help="output directory (default out/replay/<dataset>-<strategy>)",
     )
-    p.add_argument("--limit", type=int, default=None, help="only the first N frames")
     p.add_argument(
-        "--max-keypoints", type=int, default=None, help="override [matcher] max_keypoints"
+        "--limit", type=positive_int("--limit"), default=None, help="only the first N frames (>= 1)"
+    )
+    p.add_argument(
+        "--max-keypoints",
+        type=positive_int("--max-keypoints", low=16, high=8192),
+        default=None,
+        help="override [matcher] max_keypoints (16..8192)",
     )
     p.add_argument(
         "--no-correspondences",
@@ -261,6 +329,22 @@ def register_replay_command(commands: CommandRegistry) -> None:
     )
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(handler=run_replay)
+
+
+def positive_int(what: str, low: int = 1, high: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an int in [low, high], else a usage error (exit 2) naming ``what``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what}: expected an integer, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            bound = f">= {low}" if high is None else f"in [{low}, {high}]"
+            raise argparse.ArgumentTypeError(f"{what}: must be {bound}, got {value}")
+        return value
+
+    return parse
 
 
 def with_overrides(settings: C3Settings, max_keypoints: int | None) -> C3Settings:
@@ -291,10 +375,13 @@ def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
     with (out / "results.jsonl").open("w", encoding="utf-8") as fh:
         for o in outcomes:
             fh.write(json.dumps(o.to_json()) + "\n")
+    labels = sorted({str(o.result["matcher_label"]) for o in outcomes if o.result})
+    replayed = settings.matcher.model_copy(update={"strategy": strategy})
     report = {
         "dataset": str(dataset.root),
         "strategy": strategy,
-        "settings": settings.matcher.model_dump(mode="json"),
+        "matcher_labels": labels,
+        "settings": replayed.model_dump(mode="json"),
         "startup_s": startup_s,
         "wall_s": wall_s,
         **summarize(outcomes),
@@ -302,6 +389,10 @@ def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
         "fdr": str(out / "fdr.jsonl"),
         "log": str(out / "matcher.log"),
     }
+    from c3_matcher_tools.geojson import write_geojson
+
+    report["geojson"] = str(write_geojson(out / "flight.geojson", outcomes, strategy))
+    report["html"] = write_html_report(out, dataset, outcomes, strategy, report)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     if args.json:
         print(json.dumps(report, indent=2))
@@ -319,5 +410,62 @@ def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
         "frames with the true tile present"
     )
     print(f"  frame ms p50 {report['frame_ms_p50']:.0f}, p95 {report['frame_ms_p95']:.0f}")
+    if report["georeferenced"]:
+        print(
+            f"  position error m p50 {_fmt(report['position_error_m_p50'])}, "
+            f"p95 {_fmt(report['position_error_m_p95'])} ({report['georeferenced']} frames located)"
+        )
     print(f"  results {report['results']}, FDR {report['fdr']}, report {out / 'report.json'}")
+    print(f"  map {report['geojson']}, flight report {report['html'] or '(not written)'}")
     return 0
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.1f}"
+
+
+def write_html_report(
+    out: Path,
+    dataset: FlightDataset,
+    outcomes: list[FrameOutcome],
+    strategy: str,
+    report: dict[str, Any],
+) -> str | None:
+    """``out/report.html`` (None, with the reason on stderr, when matplotlib is missing)."""
+    import sys
+
+    try:
+        from c3_matcher_tools.report import write_report
+    except ImportError as exc:
+        print(f"c3-matcher: no report.html ({exc})", file=sys.stderr)
+        return None
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        print(
+            "c3-matcher: no report.html: install the report extra "
+            "(pip install 'c3-matcher-tools[report]')",
+            file=sys.stderr,
+        )
+        return None
+    from importlib.metadata import version
+
+    summary = {k: v for k, v in report.items() if k not in ("settings",)}
+    provenance = {
+        "dataset": str(dataset.root),
+        "dataset format": dataset.meta.get("format"),
+        "tile store": str(dataset.store_path),
+        "matcher labels (from the results)": ", ".join(report.get("matcher_labels", [])),
+        "c3-matcher": version("c3-matcher"),
+        "made by": json.dumps(dataset.meta.get("spec", dataset.meta.get("import", {})))[:400],
+    }
+    path = write_report(
+        out / "report.html",
+        dataset,
+        outcomes,
+        strategy=strategy,
+        summary=summary,
+        settings=report["settings"],
+        provenance=provenance,
+    )
+    return str(path)

@@ -19,6 +19,11 @@ footprint centre), "h_tile_to_undistorted": 3x3}``: the ground-truth homography 
 candidate image's pixels (``candidate_size_px`` square, centred on the id, see
 :mod:`c3_matcher.tilestore.handles`) to UNDISTORTED frame pixels (apply the calibration's
 distortion to get ORIGINAL frame pixels), and ``pose`` (nadir lat/lon, ground centre, ...).
+
+Ground truth is optional (a recorded flight has none): a candidate may carry only ``tile_id``
+and ``score``; a frame whose candidates all lack ``is_true`` has no truth (``has_truth``
+False) and is replayed without scoring. ``telemetry`` (optional) holds what the vehicle
+reported: ``lat``, ``lon``, ``altitude_m``, the candidates' search radius ``uncertainty_m``.
 """
 
 from __future__ import annotations
@@ -64,28 +69,36 @@ class CandidateTruth:
 
     tile_id: TileId
     score: float
-    is_true: bool
-    distance_m: float
-    h_tile_to_undistorted: NDArray[np.float64]
+    is_true: bool | None = None
+    distance_m: float | None = None
+    h_tile_to_undistorted: NDArray[np.float64] | None = None
+
+    @property
+    def has_truth(self) -> bool:
+        return self.is_true is not None
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            "tile_id": self.tile_id.as_list(),
-            "score": self.score,
-            "is_true": self.is_true,
-            "distance_m": round(self.distance_m, 3),
-            "h_tile_to_undistorted": self.h_tile_to_undistorted.tolist(),
-        }
+        out: dict[str, Any] = {"tile_id": self.tile_id.as_list(), "score": self.score}
+        if self.is_true is not None:
+            out["is_true"] = self.is_true
+        if self.distance_m is not None:
+            out["distance_m"] = round(self.distance_m, 3)
+        if self.h_tile_to_undistorted is not None:
+            out["h_tile_to_undistorted"] = self.h_tile_to_undistorted.tolist()
+        return out
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> CandidateTruth:
         z, lat, lon = data["tile_id"]
+        h = data.get("h_tile_to_undistorted")
+        is_true = data.get("is_true")
+        distance = data.get("distance_m")
         return cls(
             TileId(int(z), float(lat), float(lon)),
-            float(data["score"]),
-            bool(data["is_true"]),
-            float(data["distance_m"]),
-            np.asarray(data["h_tile_to_undistorted"], dtype=np.float64).reshape(3, 3),
+            float(data.get("score", 1.0)),
+            None if is_true is None else bool(is_true),
+            None if distance is None else float(distance),
+            None if h is None else np.asarray(h, dtype=np.float64).reshape(3, 3),
         )
 
 
@@ -101,10 +114,17 @@ class FrameRecord:
     height_m: float
     candidates: tuple[CandidateTruth, ...]
     pose: dict[str, Any] = field(default_factory=dict)
+    telemetry: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def has_truth(self) -> bool:
+        """The record says which candidate is the true tile (a simulated flight)."""
+        return bool(self.candidates) and all(c.has_truth for c in self.candidates)
 
     @property
     def true_tile_present(self) -> bool:
-        return any(c.is_true for c in self.candidates)
+        """The true tile is among the candidates (False as well when there is no truth)."""
+        return any(bool(c.is_true) for c in self.candidates)
 
     @property
     def true_index(self) -> int | None:
@@ -116,17 +136,21 @@ class FrameRecord:
         return Attitude.from_degrees(*self.attitude_deg)
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "index": self.index,
             "frame_id": str(self.frame_id),
             "image": self.image,
             "captured_at_ns": self.captured_at_ns,
             "attitude_deg": [round(a, 6) for a in self.attitude_deg],
             "height_m": self.height_m,
-            "true_tile_present": self.true_tile_present,
-            "candidates": [c.to_json() for c in self.candidates],
-            "pose": self.pose,
         }
+        if self.has_truth:
+            out["true_tile_present"] = self.true_tile_present
+        out["candidates"] = [c.to_json() for c in self.candidates]
+        out["pose"] = self.pose
+        if self.telemetry:
+            out["telemetry"] = self.telemetry
+        return out
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> FrameRecord:
@@ -140,6 +164,7 @@ class FrameRecord:
             float(data["height_m"]),
             tuple(CandidateTruth.from_json(c) for c in data["candidates"]),
             dict(data.get("pose", {})),
+            dict(data.get("telemetry", {})),
         )
 
 

@@ -23,6 +23,7 @@ Projections (:class:`Projection`), all vectorised over numpy arrays, degrees in 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -77,6 +78,7 @@ class Projection:
     ref_lat: float = 0.0
     ref_lon: float = 0.0
     ref_en: tuple[float, float] = (0.0, 0.0)
+    epsg: int = 0
 
     @classmethod
     def from_epsg(
@@ -91,6 +93,8 @@ class Projection:
         if epsg is not None and (32601 <= epsg <= 32660 or 32701 <= epsg <= 32760):
             return cls("utm", zone=epsg % 100, south=epsg >= 32701)
         if epsg is not None and 26901 <= epsg <= 26923:
+            if pyproj_available():  # NAD83 is not WGS84: the datum shift is pyproj's
+                return cls("pyproj", epsg=epsg)
             return cls("utm", zone=epsg - 26900)
         if epsg in (3857, 900913, 3785):
             return cls("web_mercator")
@@ -98,6 +102,8 @@ class Projection:
             return cls("world_mercator")
         if epsg == 4326:
             return cls("geographic")
+        if epsg is not None and pyproj_available():
+            return cls("pyproj", epsg=int(epsg))
         if reference is None:
             raise InvalidInputError(
                 "reference",
@@ -120,6 +126,8 @@ class Projection:
                 f"local tangent plane at lat {self.ref_lat:.7f}, lon {self.ref_lon:.7f} "
                 f"(grid E {self.ref_en[0]:.2f}, N {self.ref_en[1]:.2f})"
             )
+        if self.kind == "pyproj":
+            return f"EPSG:{self.epsg} (exact, pyproj)"
         return f"{self.kind} (exact)"
 
     def to_dict(self) -> dict[str, Any]:
@@ -130,6 +138,7 @@ class Projection:
             "ref_lat": self.ref_lat,
             "ref_lon": self.ref_lon,
             "ref_en": list(self.ref_en),
+            **({"epsg": self.epsg} if self.epsg else {}),
         }
 
     @classmethod
@@ -141,6 +150,7 @@ class Projection:
             float(data.get("ref_lat", 0.0)),
             float(data.get("ref_lon", 0.0)),
             (float(data.get("ref_en", (0, 0))[0]), float(data.get("ref_en", (0, 0))[1])),
+            int(data.get("epsg", 0)),
         )
 
     # -- conversions -----------------------------------------------------------------------
@@ -161,6 +171,9 @@ class Projection:
             return lon, np.degrees(phi)
         if self.kind == "geographic":
             return e_a.copy(), n_a.copy()
+        if self.kind == "pyproj":
+            lon, lat = _transformer(self.epsg, inverse=True).transform(e_a, n_a)
+            return np.asarray(lon, np.float64), np.asarray(lat, np.float64)
         if self.kind == "local_tangent_plane":
             lat = self.ref_lat + (n_a - self.ref_en[1]) / _M_PER_DEG
             lon = self.ref_lon + (e_a - self.ref_en[0]) / (
@@ -184,6 +197,9 @@ class Projection:
             return _A * np.radians(lo), _A * y
         if self.kind == "geographic":
             return lo.copy(), la.copy()
+        if self.kind == "pyproj":
+            e, n = _transformer(self.epsg, inverse=False).transform(lo, la)
+            return np.asarray(e, np.float64), np.asarray(n, np.float64)
         if self.kind == "local_tangent_plane":
             n = self.ref_en[1] + (la - self.ref_lat) * _M_PER_DEG
             e = self.ref_en[0] + (lo - self.ref_lon) * (
@@ -262,6 +278,26 @@ class GeoGrid:
         w, h = self.size
         lon, lat = self.px_to_lonlat([[(w - 1) / 2, (h - 1) / 2]])[0]
         return float(lon), float(lat)
+
+
+def pyproj_available() -> bool:
+    """The ``geo`` extra is installed (pyproj: any EPSG grid, exact) and not switched off by
+    ``C3_MATCHER_TOOLS_NO_PYPROJ=1`` (the hand-written fallback, for comparison)."""
+    import importlib.util
+    import os
+
+    if os.environ.get("C3_MATCHER_TOOLS_NO_PYPROJ") == "1":
+        return False
+    return importlib.util.find_spec("pyproj") is not None
+
+
+@functools.lru_cache(maxsize=32)
+def _transformer(epsg: int, *, inverse: bool) -> Any:
+    from pyproj import Transformer
+
+    if inverse:
+        return Transformer.from_crs(f"EPSG:{epsg}", "EPSG:4326", always_xy=True)
+    return Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
 
 
 def _geokeys(directory: Any) -> dict[int, Any]:

@@ -1,0 +1,159 @@
+"""Georeferencing a match: where the frame looked, in WGS84.
+
+A candidate's ``TileId(zoom, lat, lon)`` names the centre of its image; when the image is a
+web-mercator window of that zoom (what the tile stores serve, see
+:mod:`c3_matcher.tilestore.handles`) or has a known ground sample distance, a TILE px maps to
+WORLD px and so to lon/lat (:func:`tile_px_to_lonlat`). The best candidate's inliers give the
+homography from UNDISTORTED query px to tile px (:func:`fit_query_to_tile`, least squares over
+every inlier: the ground is a plane at this scale), through which the frame's principal point
+(the centre) and its image boundary (the footprint) land on the map.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from c3_matcher import camera as cam
+from c3_matcher.dto import CameraCalibration, MatchResult, TileId
+from c3_matcher.tilestore.geo import lonlat_to_world_px, world_px_to_lonlat
+
+__all__ = [
+    "EARTH_RADIUS_M",
+    "fit_query_to_tile",
+    "footprint_lonlat",
+    "georeference_result",
+    "haversine_m",
+    "is_georeferenced",
+    "lonlat_to_tile_px",
+    "tile_px_to_lonlat",
+]
+
+F64 = NDArray[np.float64]
+EARTH_RADIUS_M = 6_371_008.8
+
+
+def is_georeferenced(tile_id: TileId) -> bool:
+    """False for the placeholder ids ``c3-matcher match`` gives tiles without ``--tile-id``
+    (zoom 0 at 0 N): they name an input position, not a place."""
+    return tile_id.zoom > 0
+
+
+def _scale(tile_id: TileId, tile_gsd_m: float | None) -> float:
+    """WORLD px per tile px: 1 for a web-mercator window of the id's zoom."""
+    if tile_gsd_m is None:
+        return 1.0
+    return float(tile_gsd_m) / tile_id.web_mercator_gsd_m()
+
+
+def _origin(tile_id: TileId, size: tuple[int, int], scale: float) -> tuple[float, float]:
+    """WORLD px of tile px (0, 0)'s centre (the store's window convention when scale is 1)."""
+    (cx, cy) = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0]
+    w, h = size
+    if scale == 1.0:
+        return math.floor(cx - w / 2 + 0.5) + 0.5, math.floor(cy - h / 2 + 0.5) + 0.5
+    return cx - (w / 2 - 0.5) * scale, cy - (h / 2 - 0.5) * scale
+
+
+def tile_px_to_lonlat(
+    tile_id: TileId, size: tuple[int, int], pts: ArrayLike, tile_gsd_m: float | None = None
+) -> F64:
+    """(N, 2) TILE px (u, v) of a ``size`` = (width, height) image centred on ``tile_id`` ->
+    (N, 2) (lon, lat) degrees."""
+    p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+    s = _scale(tile_id, tile_gsd_m)
+    x0, y0 = _origin(tile_id, size, s)
+    world = np.stack([x0 + p[:, 0] * s, y0 + p[:, 1] * s], axis=1)
+    return world_px_to_lonlat(world, tile_id.zoom)
+
+
+def lonlat_to_tile_px(
+    tile_id: TileId, size: tuple[int, int], lonlat: ArrayLike, tile_gsd_m: float | None = None
+) -> F64:
+    """Inverse of :func:`tile_px_to_lonlat`."""
+    s = _scale(tile_id, tile_gsd_m)
+    x0, y0 = _origin(tile_id, size, s)
+    world = lonlat_to_world_px(lonlat, tile_id.zoom)
+    return np.stack([(world[:, 0] - x0) / s, (world[:, 1] - y0) / s], axis=1)
+
+
+def fit_query_to_tile(
+    correspondences: ArrayLike, calibration: CameraCalibration | None
+) -> F64 | None:
+    """Least-squares homography UNDISTORTED query px -> tile px over inlier rows (x_query,
+    y_query, x_tile, y_tile) in ORIGINAL pixels; None with fewer than 4 rows or degenerate."""
+    corr = np.asarray(correspondences, dtype=np.float64).reshape(-1, 4)
+    if corr.shape[0] < 4:
+        return None
+    q = corr[:, 0:2] if calibration is None else cam.undistort_points(corr[:, 0:2], calibration)
+    found, _ = cv2.findHomography(q, corr[:, 2:4], 0)
+    if found is None or not np.all(np.isfinite(found)):
+        return None
+    return np.asarray(found / found[2, 2], dtype=np.float64)
+
+
+def footprint_lonlat(
+    h_query_to_tile: ArrayLike,
+    tile_id: TileId,
+    tile_size: tuple[int, int],
+    calibration: CameraCalibration,
+    tile_gsd_m: float | None = None,
+    samples_per_side: int = 8,
+) -> tuple[tuple[float, float], F64]:
+    """(centre (lon, lat), closed footprint polygon (N + 1, 2) lon/lat) of a frame whose
+    UNDISTORTED px map to ``tile_id``'s image by ``h_query_to_tile``. The centre is the principal
+    point; the footprint follows the image boundary (undistorted)."""
+    w, h = calibration.image_size
+    k = calibration.K
+    centre_px = np.array([[k[0, 2], k[1, 2]]])
+    boundary = cam.image_boundary(w, h, samples_per_side)
+    if calibration.distortion.size and np.any(calibration.distortion != 0):
+        boundary = cam.undistort_points(boundary, calibration)
+    pts = cam.apply_homography(h_query_to_tile, np.concatenate([centre_px, boundary]))
+    lonlat = tile_px_to_lonlat(tile_id, tile_size, pts, tile_gsd_m)
+    ring = np.concatenate([lonlat[1:], lonlat[1:2]])
+    return (float(lonlat[0, 0]), float(lonlat[0, 1])), ring
+
+
+def haversine_m(lonlat_a: ArrayLike, lonlat_b: ArrayLike) -> F64:
+    """Great-circle distance (m) between (N, 2) lon/lat arrays (mean Earth radius)."""
+    a = np.radians(np.asarray(lonlat_a, dtype=np.float64).reshape(-1, 2))
+    b = np.radians(np.asarray(lonlat_b, dtype=np.float64).reshape(-1, 2))
+    dlat, dlon = b[:, 1] - a[:, 1], b[:, 0] - a[:, 0]
+    s = np.sin(dlat / 2) ** 2 + np.cos(a[:, 1]) * np.cos(b[:, 1]) * np.sin(dlon / 2) ** 2
+    return np.asarray(2 * EARTH_RADIUS_M * np.arcsin(np.sqrt(np.clip(s, 0, 1))), np.float64)
+
+
+def georeference_result(
+    result: MatchResult,
+    calibration: CameraCalibration | None,
+    tile_sizes: Sequence[tuple[int, int]] | None,
+    tile_gsd_m: float | None = None,
+) -> dict[str, Any]:
+    """The JSON fields of the best candidate's georeference: ``best_homography`` (UNDISTORTED
+    query px -> best tile px, row-major 3x3) and, when its tile id is georeferenced and the
+    tiles' sizes (per INPUT position) are known, ``centre_lat``, ``centre_lon`` and
+    ``footprint`` (a closed GeoJSON ring of [lon, lat]). Empty when no homography fits."""
+    best = result.per_candidate[0]
+    hom = fit_query_to_tile(best.inlier_correspondences, calibration)
+    if hom is None:
+        return {}
+    out: dict[str, Any] = {"best_homography": hom.tolist()}
+    if calibration is None or tile_sizes is None or not is_georeferenced(best.tile_id):
+        return out
+    index = int(result.diagnostics.get("input_index", [0])[0])
+    tw, th = tile_sizes[index]
+    (lon, lat), ring = footprint_lonlat(
+        hom, best.tile_id, (int(tw), int(th)), calibration, tile_gsd_m
+    )
+    out.update(
+        centre_lat=lat,
+        centre_lon=lon,
+        footprint=[[float(x), float(y)] for x, y in ring],
+    )
+    return out

@@ -1,0 +1,112 @@
+"""A replayed flight as GeoJSON (RFC 7946: WGS84 lon/lat, what QGIS opens as it is).
+
+Features, each with ``properties.kind``:
+
+- ``truth_track`` / ``estimate_track``: LineStrings through the frames' true and estimated
+  centres, in frame order (frames without one are skipped);
+- ``truth`` / ``estimate``: one Point per frame with ``frame``, ``status``, ``inliers``,
+  ``correct``, ``position_error_m``;
+- ``footprint``: the estimated footprint Polygon of each matched frame;
+- ``error``: a LineString from each frame's true to its estimated centre.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from c3_matcher_tools.replay import FrameOutcome
+
+__all__ = ["flight_geojson", "write_geojson"]
+
+
+def _props(o: FrameOutcome, kind: str, strategy: str) -> dict[str, Any]:
+    return {
+        "kind": kind,
+        "strategy": strategy,
+        "frame": o.index,
+        "frame_id": o.frame_id,
+        "status": o.status,
+        "inliers": o.best_inliers,
+        "correct": o.correct if o.has_truth else None,
+        "true_tile_present": o.true_present if o.has_truth else None,
+        "position_error_m": (
+            round(o.position_error_m, 3) if math.isfinite(o.position_error_m) else None
+        ),
+    }
+
+
+def _point(lat: float, lon: float) -> dict[str, Any]:
+    return {"type": "Point", "coordinates": [lon, lat]}
+
+
+def flight_geojson(outcomes: Sequence[FrameOutcome], strategy: str) -> dict[str, Any]:
+    """The FeatureCollection of one run (see the module docstring)."""
+    feats: list[dict[str, Any]] = []
+    truth = [
+        (o.truth_lon, o.truth_lat)
+        for o in outcomes
+        if o.truth_lat is not None and o.truth_lon is not None
+    ]
+    est = [
+        (o.est_lon, o.est_lat) for o in outcomes if o.est_lat is not None and o.est_lon is not None
+    ]
+    for kind, pts in (("truth_track", truth), ("estimate_track", est)):
+        if len(pts) >= 2:
+            feats.append(
+                {
+                    "type": "Feature",
+                    "geometry": {"type": "LineString", "coordinates": [list(p) for p in pts]},
+                    "properties": {"kind": kind, "strategy": strategy, "frames": len(pts)},
+                }
+            )
+    for o in outcomes:
+        if o.truth_lat is not None and o.truth_lon is not None:
+            feats.append(
+                {
+                    "type": "Feature",
+                    "geometry": _point(o.truth_lat, o.truth_lon),
+                    "properties": _props(o, "truth", strategy),
+                }
+            )
+        if o.est_lat is not None and o.est_lon is not None:
+            feats.append(
+                {
+                    "type": "Feature",
+                    "geometry": _point(o.est_lat, o.est_lon),
+                    "properties": _props(o, "estimate", strategy),
+                }
+            )
+            ring = (o.result or {}).get("footprint")
+            if ring:
+                feats.append(
+                    {
+                        "type": "Feature",
+                        "geometry": {"type": "Polygon", "coordinates": [ring]},
+                        "properties": _props(o, "footprint", strategy),
+                    }
+                )
+            if o.truth_lat is not None and o.truth_lon is not None:
+                feats.append(
+                    {
+                        "type": "Feature",
+                        "geometry": {
+                            "type": "LineString",
+                            "coordinates": [[o.truth_lon, o.truth_lat], [o.est_lon, o.est_lat]],
+                        },
+                        "properties": _props(o, "error", strategy),
+                    }
+                )
+    return {"type": "FeatureCollection", "name": f"c3-flight {strategy}", "features": feats}
+
+
+def write_geojson(path: Path, outcomes: Sequence[FrameOutcome], strategy: str) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(flight_geojson(outcomes, strategy)) + "\n", encoding="utf-8")
+    tmp.replace(path)
+    return path

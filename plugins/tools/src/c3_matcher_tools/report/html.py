@@ -1,0 +1,456 @@
+# ruff: noqa: E501  (HTML templates and plot calls read better unwrapped)
+"""A self-contained HTML flight report: one file, every image embedded as a data URI, no script,
+no network. Plots are drawn with matplotlib (the tools' ``report`` extra).
+
+Sections: summary figures; the trajectory on the map mosaic of the flight's tile store (truth
+vs estimate, error segments, failed frames marked); inliers, error (m and px) and latency per
+frame with absent-tile, wrong-tile and failed frames marked; a gallery of the worst and best
+frames (:func:`c3_matcher.viz.render_match`); the run's settings and provenance.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.dto import TileId
+from c3_matcher.georef import fit_query_to_tile, lonlat_to_tile_px
+from c3_matcher.viz import CandidateView, render_match
+from c3_matcher_tools.dataset.format import FlightDataset
+from c3_matcher_tools.dataset.truth import inlier_errors_px
+from c3_matcher_tools.replay import FrameOutcome
+
+__all__ = ["frame_picture", "write_report"]
+
+MAX_MOSAIC_PX = 2048
+STATUS_COLOUR = {"ok": "#2c9f2c", "insufficient": "#d62728", "backbone_error": "#222222"}
+
+
+def _plt() -> Any:
+    try:
+        import matplotlib
+    except ImportError as exc:  # pragma: no cover - the extra is documented
+        raise RuntimeError(
+            "report.html needs matplotlib: pip install 'c3-matcher-tools[report]'"
+        ) from exc
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png_uri(fig: Any) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    _plt().close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
+
+
+def _jpeg_uri(rgb: NDArray[np.uint8], quality: int = 85) -> str:
+    ok, enc = cv2.imencode(
+        ".jpg", np.ascontiguousarray(rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, quality]
+    )
+    if not ok:
+        raise OSError("cannot encode a JPEG")
+    return "data:image/jpeg;base64," + base64.b64encode(enc.tobytes()).decode()
+
+
+def _points(outcomes: Sequence[FrameOutcome]) -> list[tuple[float, float]]:
+    pts: list[tuple[float, float]] = []
+    for o in outcomes:
+        if o.truth_lat is not None and o.truth_lon is not None:
+            pts.append((o.truth_lon, o.truth_lat))
+        if o.est_lat is not None and o.est_lon is not None:
+            pts.append((o.est_lon, o.est_lat))
+    return pts
+
+
+def _mosaic(
+    dataset: FlightDataset, outcomes: Sequence[FrameOutcome]
+) -> tuple[NDArray[np.uint8], TileId, int] | None:
+    """The store's imagery around every position (a square window at the flight's zoom)."""
+    pts = _points(outcomes)
+    zooms = [c.tile_id.zoom for f in dataset.frames for c in f.candidates]
+    if not pts or not zooms:
+        return None
+    zoom = max(set(zooms), key=zooms.count)
+    lon = np.array([p[0] for p in pts])
+    lat = np.array([p[1] for p in pts])
+    centre = TileId(zoom, float((lat.min() + lat.max()) / 2), float((lon.min() + lon.max()) / 2))
+    probe = lonlat_to_tile_px(centre, (0, 0), np.stack([lon, lat], axis=1))
+    span = float(np.max(np.abs(probe))) * 2 + dataset.candidate_size_px
+    size = int(min(MAX_MOSAIC_PX, max(256, math.ceil(span))))
+    try:
+        with dataset.open_store() as store:
+            image = store.handle(centre, size).decode()
+    except Exception:
+        return None
+    return image, centre, size
+
+
+def _trajectory(dataset: FlightDataset, outcomes: Sequence[FrameOutcome], title: str) -> str:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(8, 8))
+    mosaic = _mosaic(dataset, outcomes)
+
+    def to_xy(lon: float, lat: float) -> tuple[float, float]:
+        if mosaic is None:
+            return lon, lat
+        x, y = lonlat_to_tile_px(mosaic[1], (mosaic[2], mosaic[2]), [[lon, lat]])[0]
+        return float(x), float(y)
+
+    if mosaic is not None:
+        ax.imshow(mosaic[0], interpolation="bilinear")
+    truth = [
+        (o, *to_xy(o.truth_lon, o.truth_lat))
+        for o in outcomes
+        if o.truth_lat is not None and o.truth_lon is not None
+    ]
+    est = [
+        (o, *to_xy(o.est_lon, o.est_lat))
+        for o in outcomes
+        if o.est_lat is not None and o.est_lon is not None
+    ]
+    if truth:
+        ax.plot(
+            [t[1] for t in truth],
+            [t[2] for t in truth],
+            "-o",
+            color="#1f77b4",
+            ms=4,
+            lw=1.5,
+            label="truth",
+        )
+        failed = [t for t in truth if t[0].status != "ok"]
+        if failed:
+            ax.scatter(
+                [t[1] for t in failed],
+                [t[2] for t in failed],
+                marker="x",
+                s=70,
+                color="#d62728",
+                zorder=5,
+                label="failed frame (truth)",
+            )
+    if est:
+        ax.plot(
+            [e[1] for e in est],
+            [e[2] for e in est],
+            "-s",
+            color="#ff7f0e",
+            ms=4,
+            lw=1.2,
+            label="estimate",
+        )
+        wrong = [e for e in est if e[0].has_truth and not e[0].correct]
+        if wrong:
+            ax.scatter(
+                [e[1] for e in wrong],
+                [e[2] for e in wrong],
+                marker="D",
+                s=60,
+                facecolors="none",
+                edgecolors="#d62728",
+                zorder=6,
+                label="wrong tile",
+            )
+    by_index = {t[0].index: t for t in truth}
+    for e in est:
+        t = by_index.get(e[0].index)
+        if t is not None:
+            ax.plot([t[1], e[1]], [t[2], e[2]], color="#d62728", lw=0.8)
+    for o, x, y in (truth or est)[:: max(1, len(truth or est) // 10)]:
+        ax.annotate(
+            str(o.index),
+            (x, y),
+            textcoords="offset points",
+            xytext=(4, 4),
+            fontsize=8,
+            color="white",
+            bbox={"boxstyle": "round,pad=0.1", "fc": "black", "alpha": 0.5},
+        )
+    ax.set_title(title)
+    if mosaic is None:
+        ax.set_xlabel("lon (deg)")
+        ax.set_ylabel("lat (deg)")
+    else:
+        ax.set_xticks([])
+        ax.set_yticks([])
+        m_per_px = mosaic[1].web_mercator_gsd_m()
+        bar = 10 ** math.floor(math.log10(mosaic[2] * m_per_px / 4))
+        x0, y0 = mosaic[2] * 0.05, mosaic[2] * 0.95
+        ax.plot([x0, x0 + bar / m_per_px], [y0, y0], color="white", lw=4)
+        ax.text(x0, y0 - mosaic[2] * 0.02, f"{bar:g} m", color="white", fontsize=9)
+    if truth or est:
+        ax.legend(loc="upper right", fontsize=8)
+    return _png_uri(fig)
+
+
+def _per_frame(outcomes: Sequence[FrameOutcome], min_inliers: int) -> str:
+    plt = _plt()
+    idx = np.array([o.index for o in outcomes])
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
+    inl = np.array([o.best_inliers if o.status == "ok" else o.insufficient_best for o in outcomes])
+    colours = [STATUS_COLOUR.get(o.status, "#888") for o in outcomes]
+    axes[0].bar(idx, inl, color=colours, width=0.8)
+    axes[0].axhline(min_inliers, ls="--", color="#555", lw=1, label=f"threshold {min_inliers}")
+    axes[0].set_ylabel("best inliers")
+    err_m = np.array([o.position_error_m for o in outcomes], dtype=float)
+    err_px = np.array([o.mean_error_px for o in outcomes], dtype=float)
+    if np.isfinite(err_m).any():
+        axes[1].plot(idx, err_m, "o-", color="#ff7f0e", ms=4, label="position error (m)")
+    axes[1].set_ylabel("position error (m)")
+    if np.isfinite(err_px).any():
+        twin = axes[1].twinx()
+        twin.plot(idx, err_px, "s:", color="#9467bd", ms=3, label="mean inlier error (px)")
+        twin.set_ylabel("inlier error (px)", color="#9467bd")
+    axes[2].bar(idx, [o.elapsed_ms for o in outcomes], color="#7f7f7f", width=0.8)
+    axes[2].set_ylabel("latency (ms)")
+    axes[2].set_xlabel("frame")
+    for ax in axes:
+        for o in outcomes:
+            if o.has_truth and not o.true_present:
+                ax.axvspan(o.index - 0.5, o.index + 0.5, color="#bbbbbb", alpha=0.45, lw=0)
+        ax.grid(axis="y", alpha=0.3)
+    top = max(1.0, float(inl.max()) if inl.size else 1.0)
+    for o in outcomes:
+        if o.status == "ok" and o.has_truth and o.true_present and not o.correct:
+            axes[0].text(
+                o.index, top * 1.02, "W", color="#d62728", ha="center", fontsize=9, weight="bold"
+            )
+        elif o.status != "ok":
+            axes[0].text(
+                o.index, top * 1.02, "F", color="#d62728", ha="center", fontsize=9, weight="bold"
+            )
+    axes[0].set_ylim(0, top * 1.12)
+    from matplotlib.patches import Patch
+
+    handles = [
+        Patch(color=STATUS_COLOUR["ok"], label="matched"),
+        Patch(color=STATUS_COLOUR["insufficient"], label="failed (insufficient, F)"),
+        Patch(color="#bbbbbb", label="true tile absent"),
+        Patch(color="white", label="W: wrong tile"),
+    ]
+    axes[0].legend(handles=handles, loc="lower right", fontsize=8, ncol=4)
+    axes[2].xaxis.get_major_locator().set_params(integer=True)
+    fig.suptitle("per frame: inliers, error, latency")
+    return _png_uri(fig)
+
+
+def frame_picture(
+    dataset: FlightDataset, outcome: FrameOutcome, store: Any, panel: int = 360
+) -> NDArray[np.uint8]:
+    """The :func:`c3_matcher.viz.render_match` picture of one replayed frame."""
+    frame = next(f for f in dataset.frames if f.index == outcome.index)
+    query = dataset.nav_frame(frame).image
+    size = dataset.candidate_size_px
+    counts: dict[int, int] = {}
+    corr = None
+    if outcome.result is not None:
+        for c in outcome.result["per_candidate"]:
+            counts[int(c["tile_index"])] = int(c["inlier_count"])
+        corr = np.asarray(
+            outcome.result["per_candidate"][0].get("inlier_correspondences", []), np.float64
+        ).reshape(-1, 4)
+    views = []
+    for i, cand in enumerate(frame.candidates):
+        try:
+            image = store.handle(cand.tile_id, size).decode()
+        except Exception:
+            image = np.full((size, size, 3), 60, np.uint8)
+        views.append(
+            CandidateView(
+                image,
+                f"{cand.tile_id.lat:.4f},{cand.tile_id.lon:.4f}",
+                counts.get(i),
+                i == outcome.best_input_index,
+                cand.is_true,
+            )
+        )
+    hom = fit_query_to_tile(corr, dataset.calibration) if corr is not None and len(corr) else None
+    errors = None
+    if hom is not None and outcome.best_input_index is not None and corr is not None:
+        h_true = frame.candidates[outcome.best_input_index].h_tile_to_undistorted
+        if h_true is not None:
+            errors = inlier_errors_px(h_true, dataset.calibration, corr.astype(np.float32))
+    if outcome.status == "ok":
+        pos = (
+            ""
+            if not math.isfinite(outcome.position_error_m)
+            else f", {outcome.position_error_m:.1f} m off"
+        )
+        verdict = (
+            "" if not outcome.has_truth else (" true tile" if outcome.correct else " WRONG tile")
+        )
+        title = f"frame {outcome.index}: {outcome.best_inliers} inliers,{verdict}{pos}"
+    else:
+        title = f"frame {outcome.index}: FAILED ({outcome.status}, best {outcome.insufficient_best} inliers)"
+        if outcome.has_truth and not outcome.true_present:
+            title += ", true tile absent"
+    return render_match(
+        query,
+        views,
+        best_index=outcome.best_input_index if hom is not None else None,
+        h_query_to_tile=hom,
+        correspondences=corr,
+        calibration=dataset.calibration,
+        errors_px=errors,
+        title=title,
+        panel=panel,
+    )
+
+
+def _gallery(
+    dataset: FlightDataset, outcomes: Sequence[FrameOutcome], n: int
+) -> list[tuple[str, str]]:
+    """(caption, data URI) of the ``n`` worst and ``n`` best frames."""
+
+    def badness(o: FrameOutcome) -> tuple[float, float]:
+        if o.status != "ok":
+            return (
+                3.0 if (o.has_truth and o.true_present) or not o.has_truth else 0.5,
+                -o.insufficient_best,
+            )
+        if o.has_truth and not o.correct:
+            return (2.0, 0.0)
+        err = o.position_error_m if math.isfinite(o.position_error_m) else 0.0
+        return (1.0, err - o.best_inliers / 1e4)
+
+    ranked = sorted(outcomes, key=badness, reverse=True)
+    worst = ranked[:n]
+    best = [o for o in reversed(ranked) if o.status == "ok" and o not in worst][:n]
+    out: list[tuple[str, str]] = []
+    with dataset.open_store() as store:
+        for label, group in (("worst", worst), ("best", best)):
+            for o in group:
+                out.append(
+                    (f"{label}: frame {o.index}", _jpeg_uri(frame_picture(dataset, o, store)))
+                )
+    return out
+
+
+def _table(rows: Sequence[tuple[str, Any]]) -> str:
+    cells = "".join(
+        f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>" for k, v in rows
+    )
+    return f"<table>{cells}</table>"
+
+
+CSS = """
+body{font-family:system-ui,sans-serif;margin:24px;color:#222;max-width:1200px}
+h1{font-size:22px}h2{font-size:18px;margin-top:28px;border-bottom:1px solid #ccc}
+table{border-collapse:collapse;font-size:13px}th,td{border:1px solid #ddd;padding:3px 8px;text-align:left}
+th{background:#f4f4f4}img{max-width:100%;border:1px solid #ddd}
+.figs{display:flex;gap:16px;flex-wrap:wrap}.gallery figure{margin:0 0 16px 0}
+.kpi{display:flex;gap:12px;flex-wrap:wrap}.kpi div{background:#f4f6fa;padding:8px 14px;border-radius:6px}
+.kpi b{display:block;font-size:20px}
+"""
+
+
+def write_report(
+    out: Path,
+    dataset: FlightDataset,
+    outcomes: Sequence[FrameOutcome],
+    *,
+    strategy: str,
+    summary: dict[str, Any],
+    settings: dict[str, Any],
+    provenance: dict[str, Any],
+    gallery: int = 3,
+) -> Path:
+    """Write ``out`` (report.html) for one replayed run; returns its path."""
+
+    def fmt(v: Any, spec: str = ".1f") -> str:
+        return (
+            "n/a"
+            if v is None or (isinstance(v, float) and not math.isfinite(v))
+            else format(v, spec)
+        )
+
+    kpis = [
+        ("frames", summary.get("frames")),
+        ("matched", summary.get("ok")),
+        ("failed", (summary.get("insufficient") or 0) + (summary.get("backbone_error") or 0)),
+        (
+            "correct tile",
+            f"{summary.get('correct_candidate')}/{summary.get('true_present')}"
+            if summary.get("with_truth")
+            else "no truth",
+        ),
+        (
+            "position error p50 / p95 (m)",
+            f"{fmt(summary.get('position_error_m_p50'))} / {fmt(summary.get('position_error_m_p95'))}",
+        ),
+        (
+            "frame ms p50 / p95",
+            f"{fmt(summary.get('frame_ms_p50'), '.0f')} / {fmt(summary.get('frame_ms_p95'), '.0f')}",
+        ),
+    ]
+    min_inliers = int(settings.get("min_inliers_threshold", 60))
+    traj = _trajectory(dataset, outcomes, f"{dataset.name}: truth vs estimate ({strategy})")
+    per_frame = _per_frame(outcomes, min_inliers)
+    pictures = _gallery(dataset, outcomes, gallery)
+    rows = "".join(
+        "<tr>"
+        + "".join(
+            f"<td>{html.escape(str(c))}</td>"
+            for c in (
+                o.index,
+                o.status,
+                o.best_inliers if o.status == "ok" else o.insufficient_best,
+                "-"
+                if not o.has_truth
+                else ("absent" if not o.true_present else ("yes" if o.correct else "WRONG")),
+                fmt(o.position_error_m),
+                fmt(o.mean_error_px, ".2f"),
+                fmt(o.elapsed_ms, ".0f"),
+                "" if o.est_lat is None else f"{o.est_lat:.6f}, {o.est_lon:.6f}",
+            )
+        )
+        + "</tr>"
+        for o in outcomes
+    )
+    body = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>c3-matcher flight report: {html.escape(dataset.name)}</title>
+<style>{CSS}</style></head><body>
+<h1>Flight report: {html.escape(dataset.name)} with {html.escape(strategy)}</h1>
+<div class="kpi">{"".join(f"<div>{html.escape(str(k))}<b>{html.escape(str(v))}</b></div>" for k, v in kpis)}</div>
+<h2>Trajectory</h2>
+<p>Frame centres on the tile store's imagery: truth (blue) and estimate (orange), red segments
+join each frame's true and estimated centre; x: a failed frame, diamond: a wrong tile.</p>
+<img id="trajectory" alt="trajectory" src="{traj}">
+<h2>Per frame</h2>
+<p>Grey bands: frames whose true tile is not among the candidates (they should fail).
+F: failed frame; W: wrong tile chosen.</p>
+<img id="per-frame" alt="per-frame plots" src="{per_frame}">
+<h2>Worst and best frames</h2>
+<p>Left: the query rectified onto the best tile; right: the tile with the query's footprint
+(yellow); green lines agree with the ground truth (or the fitted homography without truth) within
+3 px, red do not; the strip shows every candidate with its inlier count.</p>
+<div class="gallery">{"".join(f'<figure><img class="frame" alt="{html.escape(c)}" src="{u}"><figcaption>{html.escape(c)}</figcaption></figure>' for c, u in pictures)}</div>
+<h2>Frames</h2>
+<table><tr><th>frame</th><th>status</th><th>inliers</th><th>true tile</th><th>error m</th><th>error px</th><th>ms</th><th>estimate lat, lon</th></tr>{rows}</table>
+<h2>Settings and provenance</h2>
+{_table([("strategy replayed", strategy), *provenance.items()])}
+<h3>[matcher] settings</h3>
+{_table(list(settings.items()))}
+<h3>summary</h3>
+<pre>{html.escape(json.dumps(summary, indent=1, default=str))}</pre>
+</body></html>
+"""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".html.tmp")
+    tmp.write_text(body, encoding="utf-8")
+    tmp.replace(out)
+    return out
