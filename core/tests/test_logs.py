@@ -47,3 +47,22 @@ def test_failing_fdr_does_not_loop_or_raise():
         handle.close()
     assert Broken.calls == 1
     assert json.loads(stream.getvalue().splitlines()[0])["kind"] == "c3.test"
+
+
+def test_an_embedding_programs_own_sink_survives_configure_and_close() -> None:
+    import io
+
+    from loguru import logger
+
+    from c3_matcher.logs import configure_logging, log_event
+
+    mine = io.StringIO()
+    sink = logger.add(mine, format="{message}")
+    try:
+        handle = configure_logging(None, stream=io.StringIO())
+        log_event("INFO", "t.during", "during")
+        handle.close()
+        log_event("INFO", "t.after", "after")
+        assert "during" in mine.getvalue() and "after" in mine.getvalue()
+    finally:
+        logger.remove(sink)

@@ -116,6 +116,9 @@ def _build_parser(host: PluginHost) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from c3_matcher.compose import build_plugin_host
+    from c3_matcher.logs import claim_stderr
+
+    claim_stderr()  # a command owns its process: JSON log lines on stderr from the first one
 
     try:
         host = build_plugin_host()

@@ -2,10 +2,11 @@
 
 ``compose_root(config, pre_constructed)`` wires the ``c3_matcher`` slot: it checks the required
 pre-constructed shared helpers, builds what may be defaulted (clock, durable FDR recorder),
-configures logging once, discovers the plugins the installed profile allows, selects the
-configured strategy and creates it (engines load now, at start-up). It never silently builds a
-required helper: ``build_default_helpers(settings)`` does that, explicitly, for callers that do
-not bring their own (the CLI, tests, integrators).
+adds its logging sinks (and removes only those on ``close()``), discovers the plugins the
+installed profile allows, selects the configured strategy, creates it (engines load now, at
+start-up) and runs the start-up engine probe on its feature backend, whatever the plugin.
+It never silently builds a required helper: ``build_default_helpers(settings)`` does that,
+explicitly, for callers that do not bring their own (the CLI, tests, integrators).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from c3_matcher.protocols import (
     RansacFilter,
 )
 from c3_matcher.ransac import OpenCvRansacFilter
+from c3_matcher.strategy import engine_startup_probe
 
 __all__ = [
     "AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS",
@@ -151,6 +153,9 @@ def compose_root(
                 name,
                 f"factory returned {type(matcher).__name__}, not a CrossDomainMatcher",
             )
+        backend = getattr(matcher, "backend", None)
+        if backend is not None:  # every strategy on the shared pipeline (AZ-345 Constraints)
+            engine_startup_probe(backend)
         provider = getattr(helpers["c7_inference"], "provider", "unknown")
         log_event(
             "INFO",

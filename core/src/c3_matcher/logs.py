@@ -1,5 +1,10 @@
 """Structured logging (AZ-266): loguru, configured once by the composition root.
 
+A good library citizen: ``configure_logging`` only adds sinks and its handle removes only those,
+so a program that embeds the matcher keeps its own sinks, before and after ``close()``. A
+``c3-matcher`` command owns its process and calls ``claim_stderr()`` first: loguru's default
+plain-text stderr handler goes, so every stderr log line of a command is JSON.
+
 Every record carries a ``kind`` (``logger.bind(kind=...)``); the stderr sink writes one JSON
 object per line. ERROR and WARNING records are also forwarded to the FDR as records of their own
 kinds, ``log.error`` and ``log.warning`` (DECISIONS 15), so the matcher's own FDR kinds keep
@@ -23,7 +28,7 @@ from c3_matcher.protocols import FdrClient
 if TYPE_CHECKING:
     from loguru import Message, Record
 
-__all__ = ["LoggingHandle", "configure_logging", "log_event"]
+__all__ = ["LoggingHandle", "claim_stderr", "configure_logging", "log_event"]
 
 FORWARDED_LEVELS = {"WARNING": "log.warning", "ERROR": "log.error", "CRITICAL": "log.error"}
 
@@ -64,11 +69,9 @@ def configure_logging(
     *,
     level: str = "INFO",
     stream: TextIO | None = None,
-    replace_existing: bool = True,
 ) -> LoggingHandle:
-    """Install the JSON stderr sink (at ``level``) and the ERROR/WARN forwarder to ``fdr``."""
-    if replace_existing:
-        logger.remove()
+    """Add the JSON stderr sink (at ``level``) and the ERROR/WARN forwarder to ``fdr``; sinks
+    added by anyone else are left alone."""
     out = stream if stream is not None else sys.stderr
 
     def json_sink(message: Message) -> None:
@@ -79,6 +82,16 @@ def configure_logging(
     if fdr is not None:
         ids.append(logger.add(_fdr_forwarder(fdr), level="WARNING", format="{message}", catch=True))
     return LoggingHandle(ids)
+
+
+_LOGURU_DEFAULT_HANDLER = 0
+
+
+def claim_stderr() -> None:
+    """For a program that owns its process (the ``c3-matcher`` command): remove loguru's default
+    plain-text stderr handler (id 0, installed at import), and nothing else."""
+    with contextlib.suppress(ValueError):
+        logger.remove(_LOGURU_DEFAULT_HANDLER)
 
 
 def _fdr_forwarder(fdr: FdrClient) -> Callable[[Message], None]:

@@ -1,20 +1,25 @@
 """Building blocks for strategies, so a plugin adds only its model I/O and config.
 
 ``c3_matcher.pipeline.PipelineMatcher`` is the one ``CrossDomainMatcher`` (the per-frame loop);
-``ExtractorLightGlueBackend`` is the ``FeatureBackend`` of every "extractor engine + shared
-LightGlue" strategy (DISK, ALIKED): it runs the extractor engine through the ``InferenceRuntime``
-and matches through the shared ``LightGlueRuntime``. ``engine_startup_probe`` is the
-engine-output assertion that fires at start-up (AZ-345 Constraints).
+``ExtractorBackend`` is the ``FeatureBackend`` of every "extractor engine + pair matcher" strategy
+(DISK, ALIKED, XFeat): it runs the extractor engine through the ``InferenceRuntime`` and matches
+through a ``PairMatcher`` (``LightGluePairMatcher``: the shared ``LightGlueRuntime``).
+``ExtractorMatcher`` gives the pipeline AZ-345's constructor and ``strategy_factory`` writes a
+strategy's ``create`` from its matcher class and config. ``engine_startup_probe`` is the
+engine-output assertion that fires at start-up (AZ-345 Constraints); ``compose_root`` runs it on
+every strategy's backend.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import dataclasses
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Self
+from typing import Any, Protocol, Self
 
 import numpy as np
+from pydantic import BaseModel
 
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.extract import run_extractor
@@ -23,14 +28,27 @@ from c3_matcher.errors import EngineError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher, PipelineSettings
+from c3_matcher.plugins.types import StrategyFactory
 from c3_matcher.preprocess import InputRule, PreparedImage
-from c3_matcher.protocols import Clock, FdrClient, InferenceRuntime, LightGlueRuntime, RansacFilter
+from c3_matcher.protocols import (
+    Clock,
+    CrossDomainMatcher,
+    FdrClient,
+    InferenceRuntime,
+    LightGlueRuntime,
+    RansacFilter,
+)
 
 __all__ = [
-    "ExtractorLightGlueBackend",
+    "DEFAULT_MAX_KEYPOINTS",
+    "ExtractorBackend",
     "ExtractorLightGlueConfig",
-    "ExtractorLightGlueMatcher",
+    "ExtractorMatcher",
+    "ExtractorStrategyConfig",
+    "LightGluePairMatcher",
+    "PairMatcher",
     "engine_startup_probe",
+    "strategy_factory",
 ]
 
 
@@ -57,6 +75,8 @@ class ExtractorLightGlueConfig:
     ransac_threshold_px: float = 3.0
     tile_cache_size: int = 16
 
+    match_phase = "lightglue_match"
+
     @property
     def pipeline_settings(self) -> PipelineSettings:
         return PipelineSettings(
@@ -66,6 +86,14 @@ class ExtractorLightGlueConfig:
     @property
     def input_rule(self) -> InputRule:
         return InputRule(max_long_side=self.max_long_side, multiple=self.size_multiple)
+
+    def matcher_engines(self) -> Mapping[str, Path]:
+        return {"lightglue": self.lightglue_engine_path}
+
+    def pair_matcher(self, lightglue_runtime: LightGlueRuntime) -> PairMatcher:
+        return LightGluePairMatcher(
+            lightglue_runtime, self.lightglue_engine_path, self.feature_type
+        )
 
     @classmethod
     def from_settings(
@@ -78,9 +106,11 @@ class ExtractorLightGlueConfig:
         extractor_engine_path: Path,
         lightglue_engine_path: Path,
         size_multiple: int,
+        **overrides: Any,
     ) -> Self:
+        """From ``[matcher]``; ``overrides`` (e.g. a plugin's ``max_keypoints``) replace fields."""
         m = settings.matcher
-        return cls(
+        config = cls(
             label,
             feature_type,
             extract_phase,
@@ -94,33 +124,84 @@ class ExtractorLightGlueConfig:
             m.ransac_threshold_px,
             m.tile_cache_size,
         )
+        return dataclasses.replace(config, **overrides) if overrides else config
 
 
-class ExtractorLightGlueBackend:
-    """FeatureBackend: an extractor engine plus the shared LightGlue for its feature type."""
+class PairMatcher(Protocol):
+    """Matches the features of two images; an exception becomes a per-candidate drop."""
 
-    match_phase = "lightglue_match"
+    def match(self, query: Features, tile: Features) -> RawMatches: ...
+
+
+class LightGluePairMatcher:
+    """A ``PairMatcher`` over the shared ``LightGlueRuntime`` for one feature type; loads the
+    engine into it now (start-up) when the runtime has ``load`` (DECISIONS 9)."""
+
+    def __init__(self, runtime: LightGlueRuntime, engine_path: Path, feature_type: str) -> None:
+        self._runtime = runtime
+        self._feature_type = feature_type
+        load = getattr(runtime, "load", None)
+        if callable(load):
+            load(feature_type, engine_path)
+
+    def match(self, query: Features, tile: Features) -> RawMatches:
+        return self._runtime.match_pair(
+            query.keypoints,
+            query.descriptors,
+            query.image_size,
+            tile.keypoints,
+            tile.descriptors,
+            tile.image_size,
+            feature_type=self._feature_type,
+        )
+
+
+class ExtractorStrategyConfig(Protocol):
+    """What ``ExtractorMatcher`` needs from a strategy's config (``ExtractorLightGlueConfig``,
+    XFeat's config): labels, image rule, keypoint budget, engine files and thresholds."""
+
+    @property
+    def label(self) -> str: ...
+    @property
+    def extract_phase(self) -> str: ...
+    @property
+    def match_phase(self) -> str: ...
+    @property
+    def input_rule(self) -> InputRule: ...
+    @property
+    def max_keypoints(self) -> int: ...
+    @property
+    def extractor_engine_path(self) -> Path: ...
+    @property
+    def pipeline_settings(self) -> PipelineSettings: ...
+    @property
+    def tile_cache_size(self) -> int: ...
+    def matcher_engines(self) -> Mapping[str, Path]:
+        """Role -> file of the engines besides the extractor (provenance)."""
+        ...
+
+    def pair_matcher(self, lightglue_runtime: LightGlueRuntime) -> PairMatcher: ...
+
+
+class ExtractorBackend:
+    """FeatureBackend of every "extractor engine + pair matcher" strategy: the extractor engine
+    through the ``InferenceRuntime`` (``run_extractor``: fixed top-K, padding dropped, the
+    ``max_keypoints`` best kept), matching through a ``PairMatcher``."""
 
     def __init__(
         self,
         runtime: InferenceRuntime,
-        lightglue_runtime: LightGlueRuntime,
-        config: ExtractorLightGlueConfig,
+        pair_matcher: PairMatcher,
+        config: ExtractorStrategyConfig,
     ) -> None:
         self._runtime = runtime
-        self._lightglue = lightglue_runtime
+        self._pair_matcher = pair_matcher
         self._config = config
         self.engine_id = runtime.load_engine(config.extractor_engine_path)
-        load = getattr(lightglue_runtime, "load", None)
-        if callable(load):
-            load(config.feature_type, config.lightglue_engine_path)
-        self._provenance = {
-            "provider": runtime.provider,
-            "engines": {
-                "extractor": _engine_facts(runtime, self.engine_id, config.extractor_engine_path),
-                "lightglue": _engine_facts(None, None, config.lightglue_engine_path),
-            },
-        }
+        facts = {"extractor": _engine_facts(runtime, self.engine_id, config.extractor_engine_path)}
+        for role, path in config.matcher_engines().items():
+            facts[role] = _engine_facts(None, None, path)
+        self._provenance: dict[str, Any] = {"provider": runtime.provider, "engines": facts}
 
     @property
     def label(self) -> str:
@@ -134,21 +215,21 @@ class ExtractorLightGlueBackend:
     def extract_phase(self) -> str:
         return self._config.extract_phase
 
+    @property
+    def match_phase(self) -> str:
+        return self._config.match_phase
+
+    @property
+    def pair_matcher(self) -> PairMatcher:
+        return self._pair_matcher
+
     def extract(self, image: PreparedImage) -> Features:
         return run_extractor(
             self._runtime, self.engine_id, image.image, image.valid, self._config.max_keypoints
         )
 
     def match(self, query: Features, tile: Features) -> RawMatches:
-        return self._lightglue.match_pair(
-            query.keypoints,
-            query.descriptors,
-            query.image_size,
-            tile.keypoints,
-            tile.descriptors,
-            tile.image_size,
-            feature_type=self._config.feature_type,
-        )
+        return self._pair_matcher.match(query, tile)
 
     def provenance(self) -> Mapping[str, Any]:
         return self._provenance
@@ -200,10 +281,12 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
         ) from exc
 
 
-class ExtractorLightGlueMatcher(PipelineMatcher):
-    """The ``CrossDomainMatcher`` of every "extractor engine + shared LightGlue" strategy, with
-    AZ-345's constructor. The engines load here (start-up), then the probe asserts their
-    outputs. ``_lightglue_runtime`` is the shared helper itself (AC-11 identity)."""
+class ExtractorMatcher(PipelineMatcher):
+    """``PipelineMatcher`` with AZ-345's constructor, for every "extractor engine + pair matcher"
+    strategy (the seeds' ``DiskLightGlueMatcher`` and its siblings subclass it only to keep their
+    names). The engines load here (start-up); ``compose_root`` then runs the start-up probe.
+    ``_lightglue_runtime`` is the shared helper itself (AC-11 identity); ``pair_matcher``
+    replaces the configured one (tests)."""
 
     def __init__(
         self,
@@ -212,15 +295,17 @@ class ExtractorLightGlueMatcher(PipelineMatcher):
         ransac_filter: RansacFilter,
         fdr_client: FdrClient,
         health_window: RollingHealthWindow,
-        config: ExtractorLightGlueConfig,
+        config: ExtractorStrategyConfig,
         clock: Clock | None = None,
+        *,
+        pair_matcher: PairMatcher | None = None,
     ) -> None:
         self._runtime = runtime
         self._lightglue_runtime = lightglue_runtime
         self._config = config
-        backend = ExtractorLightGlueBackend(runtime, lightglue_runtime, config)
+        pairs = pair_matcher if pair_matcher is not None else config.pair_matcher(lightglue_runtime)
+        backend = ExtractorBackend(runtime, pairs, config)
         self._extractor_engine_id = backend.engine_id
-        engine_startup_probe(backend)
         super().__init__(
             backend,
             ransac_filter,
@@ -232,10 +317,48 @@ class ExtractorLightGlueMatcher(PipelineMatcher):
         )
 
     @property
-    def config(self) -> ExtractorLightGlueConfig:
+    def config(self) -> Any:
         return self._config
 
     @property
     def extractor_engine_id(self) -> str:
         """The engine id ``InferenceRuntime.load_engine`` returned for the extractor."""
         return self._extractor_engine_id
+
+
+def strategy_factory(
+    matcher_class: type[ExtractorMatcher],
+    make_config: Callable[[C3Settings, Any], ExtractorStrategyConfig],
+    options_model: type[BaseModel] | None = None,
+) -> StrategyFactory:
+    """A strategy's AZ-345 ``create(config, *, lightglue_runtime, ransac_filter,
+    inference_runtime, health_window, fdr_client, clock, options)`` from two facts: its matcher
+    class and how its config is made from ``C3Settings`` and its validated options (a mapping is
+    validated with ``options_model`` here; None means its defaults)."""
+
+    def create(
+        config: C3Settings,
+        *,
+        lightglue_runtime: LightGlueRuntime,
+        ransac_filter: RansacFilter,
+        inference_runtime: InferenceRuntime,
+        health_window: RollingHealthWindow,
+        fdr_client: FdrClient,
+        clock: Clock,
+        options: Any = None,
+    ) -> CrossDomainMatcher:
+        """AZ-345 ``create``: resolve the strategy's engines, load them now (start-up) and
+        return its wired matcher."""
+        if options_model is not None and not isinstance(options, options_model):
+            options = options_model.model_validate(options or {})
+        return matcher_class(
+            inference_runtime,
+            lightglue_runtime,
+            ransac_filter,
+            fdr_client,
+            health_window,
+            make_config(config, options),
+            clock,
+        )
+
+    return create

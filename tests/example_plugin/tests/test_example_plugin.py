@@ -4,12 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from c3_matcher.pipeline import PipelineMatcher
+from c3_matcher import plugins as c3
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.strategy import ExtractorLightGlueBackend, ExtractorLightGlueConfig
 from c3_matcher.testing.contract import Doubles, MatcherContract
 
-CONFIG = ExtractorLightGlueConfig(
+CONFIG = c3.ExtractorLightGlueConfig(
     label="example_fast_disk",
     feature_type="disk",
     extract_phase="disk_forward",
@@ -26,12 +25,12 @@ class TestExampleContract(MatcherContract):
     match_phase = "lightglue_match"
 
     def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
-        backend = ExtractorLightGlueBackend(doubles.inference, doubles.lightglue, CONFIG)
-        return PipelineMatcher(
-            backend,
+        return c3.ExtractorMatcher(
+            doubles.inference,
+            doubles.lightglue,
             doubles.ransac,
             doubles.fdr,
             doubles.health,
+            CONFIG,
             doubles.clock,
-            CONFIG.pipeline_settings,
         )

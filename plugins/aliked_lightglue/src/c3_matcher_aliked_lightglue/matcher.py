@@ -10,22 +10,13 @@ called by ``create`` at start-up.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict
 
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.store import EngineStore
-from c3_matcher.health import RollingHealthWindow
-from c3_matcher.protocols import (
-    Clock,
-    CrossDomainMatcher,
-    FdrClient,
-    InferenceRuntime,
-    LightGlueRuntime,
-    RansacFilter,
-)
-from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorLightGlueMatcher
+from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
 
 __all__ = [
     "ALIKED_SIZE_MULTIPLE",
@@ -83,7 +74,7 @@ class AlikedLightGlueConfig(ExtractorLightGlueConfig):
         )
 
 
-class AlikedLightGlueMatcher(ExtractorLightGlueMatcher):
+class AlikedLightGlueMatcher(ExtractorMatcher):
     """ALIKED + LightGlue ``CrossDomainMatcher``. Single-threaded (INV-1)."""
 
     @property
@@ -91,28 +82,9 @@ class AlikedLightGlueMatcher(ExtractorLightGlueMatcher):
         return self.extractor_engine_id
 
 
-def create(
-    config: C3Settings,
-    *,
-    lightglue_runtime: LightGlueRuntime,
-    ransac_filter: RansacFilter,
-    inference_runtime: InferenceRuntime,
-    health_window: RollingHealthWindow,
-    fdr_client: FdrClient,
-    clock: Clock,
-    options: Any = None,
-) -> CrossDomainMatcher:
-    """AZ-345 ``create``: resolve the ALIKED (``options.variant``) and LightGlue engines, load
-    them now (start-up) and return the wired ``AlikedLightGlueMatcher``. ``options`` is the
-    validated ``AlikedLightGlueOptions`` (a mapping is validated here; None = defaults)."""
-    if options is None or not isinstance(options, AlikedLightGlueOptions):
-        options = AlikedLightGlueOptions.model_validate(options or {})
-    return AlikedLightGlueMatcher(
-        inference_runtime,
-        lightglue_runtime,
-        ransac_filter,
-        fdr_client,
-        health_window,
-        AlikedLightGlueConfig.from_c3_settings(config, options),
-        clock,
-    )
+create = strategy_factory(
+    AlikedLightGlueMatcher, AlikedLightGlueConfig.from_c3_settings, AlikedLightGlueOptions
+)
+"""AZ-345 ``create``: resolve the ALIKED (``options.variant``) and LightGlue engines, load them
+now (start-up) and return the wired ``AlikedLightGlueMatcher``. ``options`` is the validated
+``AlikedLightGlueOptions`` (a mapping is validated here; None = defaults)."""

@@ -8,20 +8,10 @@ LightGlue (DISK weights) runs in the shared ``LightGlueRuntime``; RANSAC in the 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.store import EngineStore
-from c3_matcher.health import RollingHealthWindow
-from c3_matcher.protocols import (
-    Clock,
-    CrossDomainMatcher,
-    FdrClient,
-    InferenceRuntime,
-    LightGlueRuntime,
-    RansacFilter,
-)
-from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorLightGlueMatcher
+from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
 
 __all__ = [
     "DISK_SIZE_MULTIPLE",
@@ -59,33 +49,18 @@ class DiskLightGlueConfig(ExtractorLightGlueConfig):
         )
 
 
-class DiskLightGlueMatcher(ExtractorLightGlueMatcher):
-    """The production-default ``CrossDomainMatcher``. Single-threaded (INV-1)."""
+class DiskLightGlueMatcher(ExtractorMatcher):
+    """The production-default ``CrossDomainMatcher`` (AZ-345's constructor, the core's per-frame
+    pipeline). Single-threaded (INV-1)."""
 
     @property
     def disk_engine_id(self) -> str:
         return self.extractor_engine_id
 
 
-def create(
-    config: C3Settings,
-    *,
-    lightglue_runtime: LightGlueRuntime,
-    ransac_filter: RansacFilter,
-    inference_runtime: InferenceRuntime,
-    health_window: RollingHealthWindow,
-    fdr_client: FdrClient,
-    clock: Clock,
-    options: Any = None,
-) -> CrossDomainMatcher:
-    """AZ-345 ``create``: resolve the DISK and LightGlue engines, load them now (start-up) and
-    return the wired ``DiskLightGlueMatcher``."""
-    return DiskLightGlueMatcher(
-        inference_runtime,
-        lightglue_runtime,
-        ransac_filter,
-        fdr_client,
-        health_window,
-        DiskLightGlueConfig.from_c3_settings(config),
-        clock,
-    )
+create = strategy_factory(
+    DiskLightGlueMatcher, lambda settings, _options: DiskLightGlueConfig.from_c3_settings(settings)
+)
+"""AZ-345 ``create(config, *, lightglue_runtime, ransac_filter, inference_runtime, health_window,
+fdr_client, clock, options)``: resolve the DISK and LightGlue engines, load them now (start-up)
+and return the wired ``DiskLightGlueMatcher``."""

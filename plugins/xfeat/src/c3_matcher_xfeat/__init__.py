@@ -8,7 +8,6 @@ shared pipeline; only the model I/O lives here.
 
 from __future__ import annotations
 
-from c3_matcher_xfeat.backend import LightGluePairMatcher, PairMatcher, XFeatBackend
 from c3_matcher_xfeat.engines import XFEAT_SIZE_MULTIPLE, XFEAT_TOP_K
 from c3_matcher_xfeat.matcher import STRATEGY, XFeatConfig, XFeatMatcher, create
 from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher, mutual_nearest_neighbours
@@ -19,10 +18,7 @@ __all__ = [
     "STRATEGY",
     "XFEAT_SIZE_MULTIPLE",
     "XFEAT_TOP_K",
-    "LightGluePairMatcher",
     "MutualNearestNeighbourMatcher",
-    "PairMatcher",
-    "XFeatBackend",
     "XFeatConfig",
     "XFeatMatcher",
     "XFeatOptions",

@@ -9,25 +9,23 @@ the constructor, called by ``create`` at start-up; the start-up probe asserts th
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.store import EngineStore
-from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
+from c3_matcher.pipeline import PipelineSettings
 from c3_matcher.preprocess import InputRule
 from c3_matcher.protocols import (
-    Clock,
-    CrossDomainMatcher,
-    FdrClient,
-    InferenceRuntime,
     LightGlueRuntime,
-    RansacFilter,
 )
-from c3_matcher.strategy import engine_startup_probe
-from c3_matcher_xfeat.backend import LightGluePairMatcher, PairMatcher, XFeatBackend
+from c3_matcher.strategy import (
+    ExtractorMatcher,
+    LightGluePairMatcher,
+    PairMatcher,
+    strategy_factory,
+)
 from c3_matcher_xfeat.engines import XFEAT_SIZE_MULTIPLE, XFEAT_TOP_K
 from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher
 from c3_matcher_xfeat.options import DEFAULT_MIN_COSSIM, XFeatMatcherKind, XFeatOptions
@@ -100,6 +98,16 @@ class XFeatConfig:
     def input_rule(self) -> InputRule:
         return InputRule(max_long_side=self.max_long_side, multiple=XFEAT_SIZE_MULTIPLE)
 
+    def matcher_engines(self) -> Mapping[str, Path]:
+        path = self.lighterglue_engine_path
+        return {} if path is None else {"lighterglue": path}
+
+    def pair_matcher(self, lightglue_runtime: LightGlueRuntime) -> PairMatcher:
+        if self.matcher == "lighterglue":
+            assert self.lighterglue_engine_path is not None  # __post_init__
+            return LightGluePairMatcher(lightglue_runtime, self.lighterglue_engine_path, "xfeat")
+        return MutualNearestNeighbourMatcher(self.min_cossim)
+
     @classmethod
     def from_c3_settings(
         cls,
@@ -131,93 +139,16 @@ class XFeatConfig:
         )
 
 
-class XFeatMatcher(PipelineMatcher):
-    """The XFeat ``CrossDomainMatcher``. Single-threaded (INV-1).
-
-    ``pair_matcher`` replaces the configured one (tests); by default it is built from
-    ``config.matcher``.
-    """
-
-    def __init__(
-        self,
-        runtime: InferenceRuntime,
-        lightglue_runtime: LightGlueRuntime,
-        ransac_filter: RansacFilter,
-        fdr_client: FdrClient,
-        health_window: RollingHealthWindow,
-        config: XFeatConfig,
-        clock: Clock | None = None,
-        *,
-        pair_matcher: PairMatcher | None = None,
-    ) -> None:
-        self._runtime = runtime
-        self._lightglue_runtime = lightglue_runtime
-        self._config = config
-        engines: dict[str, Path] = {}
-        if pair_matcher is None:
-            if config.matcher == "lighterglue":
-                assert config.lighterglue_engine_path is not None  # __post_init__
-                pair_matcher = LightGluePairMatcher(
-                    lightglue_runtime, config.lighterglue_engine_path
-                )
-            else:
-                pair_matcher = MutualNearestNeighbourMatcher(config.min_cossim)
-        if config.lighterglue_engine_path is not None:
-            engines["lighterglue"] = config.lighterglue_engine_path
-        backend = XFeatBackend(
-            runtime,
-            pair_matcher,
-            label=config.label,
-            extract_phase=config.extract_phase,
-            match_phase=config.match_phase,
-            input_rule=config.input_rule,
-            max_keypoints=config.max_keypoints,
-            extractor_engine_path=config.extractor_engine_path,
-            engines=engines,
-        )
-        self._xfeat_engine_id = backend.engine_id
-        engine_startup_probe(backend)
-        super().__init__(
-            backend,
-            ransac_filter,
-            fdr_client,
-            health_window,
-            clock or MonotonicClock(),
-            config.pipeline_settings,
-            tile_cache_size=config.tile_cache_size,
-        )
-
-    @property
-    def config(self) -> XFeatConfig:
-        return self._config
+class XFeatMatcher(ExtractorMatcher):
+    """The XFeat ``CrossDomainMatcher`` (the core's ``ExtractorMatcher``). Single-threaded
+    (INV-1). ``pair_matcher=`` replaces the configured one (tests)."""
 
     @property
     def xfeat_engine_id(self) -> str:
-        return self._xfeat_engine_id
+        return self.extractor_engine_id
 
 
-def create(
-    config: C3Settings,
-    *,
-    lightglue_runtime: LightGlueRuntime,
-    ransac_filter: RansacFilter,
-    inference_runtime: InferenceRuntime,
-    health_window: RollingHealthWindow,
-    fdr_client: FdrClient,
-    clock: Clock,
-    options: Any = None,
-) -> CrossDomainMatcher:
-    """Strategy factory (``compose_root``): resolve the engines the chosen matcher needs, load
-    them now (start-up) and return the wired ``XFeatMatcher``. ``options`` is the validated
-    ``XFeatOptions`` (None: defaults)."""
-    if options is not None and not isinstance(options, XFeatOptions):
-        options = XFeatOptions.model_validate(options)
-    return XFeatMatcher(
-        inference_runtime,
-        lightglue_runtime,
-        ransac_filter,
-        fdr_client,
-        health_window,
-        XFeatConfig.from_c3_settings(config, options),
-        clock,
-    )
+create = strategy_factory(XFeatMatcher, XFeatConfig.from_c3_settings, XFeatOptions)
+"""Strategy factory (``compose_root``): resolve the engines the chosen matcher needs, load them
+now (start-up) and return the wired ``XFeatMatcher``. ``options`` is the validated
+``XFeatOptions`` (None: defaults)."""
