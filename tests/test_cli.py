@@ -129,3 +129,98 @@ def test_config_refuses_a_bad_file_naming_the_field(tmp_path):
     good = c3(["config"], {"C3_MATCHER_MATCHER__MAX_KEYPOINTS": "1024"})
     assert good.returncode == 0
     assert json.loads(good.stdout)["matcher"]["max_keypoints"] == 1024
+
+
+# -- issue 11 (defect 9): every bad input exits 2 with one line, never a traceback ------------
+def _one_line(proc: subprocess.CompletedProcess[str]) -> str:
+    assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    lines = [line for line in proc.stderr.strip().splitlines() if not line.startswith("{")]
+    assert len(lines) == 1, proc.stderr[-2000:]
+    return lines[0]
+
+
+def test_non_utf8_config_exits_2(tmp_path):
+    bad = tmp_path / "c3.toml"
+    bad.write_bytes(b'[matcher]\nstrategy = "\xff"\n')
+    proc = c3(["--config", str(bad), "config"], {})
+    assert proc.returncode == 2 and "UTF-8" in _one_line(proc)
+
+
+def test_config_option_after_the_subcommand_and_version(tmp_path):
+    good = tmp_path / "c3.toml"
+    good.write_text("[matcher]\nmin_inliers_threshold = 77\n")
+    proc = c3(["config", "--config", str(good)], {})
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["matcher"]["min_inliers_threshold"] == 77
+    proc = c3(["config", f"--config={good}"], {})
+    assert json.loads(proc.stdout)["matcher"]["min_inliers_threshold"] == 77
+    version = c3(["--version"], {})
+    assert version.returncode == 0 and version.stdout.startswith("c3-matcher ")
+
+
+def test_bad_json_in_env_exits_2_naming_the_variable():
+    proc = c3(["config"], {"C3_MATCHER_MATCHER__OPTIONS": "not json"})
+    assert proc.returncode == 2 and "C3_MATCHER_MATCHER__OPTIONS" in _one_line(proc)
+
+
+@pytest.mark.parametrize("content", ["[]", "null"])
+def test_calibration_that_is_not_an_object_exits_2(tmp_path, content):
+    cal = tmp_path / "cal.json"
+    cal.write_text(content)
+    args = [*demo_args([0]), "--calibration", str(cal)]
+    proc = c3(args, {"C3_MATCHER_ENGINES__DIRECTORY": str(tmp_path)})
+    assert proc.returncode == 2 and "--calibration" in _one_line(proc)
+
+
+def test_unreadable_tile_exits_2_not_3(tmp_path):
+    junk = tmp_path / "tile.png"
+    junk.write_text("not an image")
+    args = demo_args([0])
+    args[args.index("--tile") + 1] = str(junk)
+    proc = c3(args, {"C3_MATCHER_ENGINES__DIRECTORY": str(tmp_path)})
+    assert proc.returncode == 2 and "--tile" in _one_line(proc)
+
+
+def test_unknown_strategy_exits_2(env):
+    proc = c3([*demo_args([0]), "--strategy", "no_such_strategy"], env)
+    assert proc.returncode == 2 and "no_such_strategy" in _one_line(proc)
+
+
+def test_replay_refuses_negative_limit_and_keypoints(tmp_path):
+    flight = REPO / "data" / "flights" / "naip_demo"
+    for flag, value in (("--limit", "-28"), ("--max-keypoints", "-5"), ("--limit", "0")):
+        proc = c3(["replay", str(flight), flag, value, "--out", str(tmp_path / "o")], {})
+        assert proc.returncode == 2 and flag in _one_line(proc)
+
+
+def test_unwritable_fdr_and_viz_print_the_result_and_exit_2(env, tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    proc = c3(
+        [*demo_args([0, 1, 2]), "--viz", str(blocker / "viz.png"), "--fdr", str(blocker / "f")],
+        env,
+    )
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    out = json.loads(proc.stdout)  # the computed result is not thrown away
+    assert out["per_candidate"][0]["inlier_count"] > 0 and "viz" not in out
+    assert "Traceback" not in proc.stderr
+    assert "--viz" in proc.stderr and "fdr.path" in proc.stderr
+
+
+def test_fdr_path_that_is_a_directory_exits_2_for_replay(env, tmp_path):
+    flight = REPO / "data" / "flights" / "naip_demo"
+    (tmp_path / "o" / "fdr.jsonl").mkdir(parents=True)
+    proc = c3(["replay", str(flight), "--limit", "1", "--out", str(tmp_path / "o")], env)
+    assert proc.returncode == 2 and "fdr" in _one_line(proc)
+
+
+def test_engines_verify_fails_when_an_engine_file_is_missing(engine_dir, tmp_path):
+    import shutil
+
+    copy = tmp_path / "engines"
+    shutil.copytree(engine_dir, copy)
+    victim = sorted(copy.glob("disk_*.onnx"))[0]
+    victim.unlink()
+    proc = c3(["engines", "verify"], {"C3_MATCHER_ENGINES__DIRECTORY": str(copy)})
+    assert proc.returncode != 0
+    assert victim.name in proc.stdout or "disk" in proc.stdout

@@ -1,7 +1,9 @@
 """The ``c3-matcher`` command line. stdout carries only a command's result; logs go to stderr.
 
-Exit statuses: 0 success; 2 bad argument, bad configuration or unreadable input (a one-line
-reason on stderr); 3 InsufficientInliersError (``match``); 1 any other failure.
+Exit statuses: 0 success; 2 bad argument, bad configuration, unknown or unlinked strategy,
+unreadable input or unwritable output (a one-line reason on stderr, never a traceback);
+3 InsufficientInliersError (``match``); 1 any other failure (one line too). ``--config FILE``
+may come before or after the subcommand; ``--version`` prints the version.
 """
 
 from __future__ import annotations
@@ -22,7 +24,13 @@ from c3_matcher.commands import (
     UsageParser,
 )
 from c3_matcher.config import C3Settings, load_settings
-from c3_matcher.errors import C3Error, ConfigurationError, InvalidInputError
+from c3_matcher.errors import (
+    C3Error,
+    ConfigurationError,
+    InvalidInputError,
+    StrategyNotLinkedError,
+    UnknownStrategyError,
+)
 
 if TYPE_CHECKING:
     from c3_matcher.plugins.manager import PluginHost
@@ -107,11 +115,52 @@ def _build_parser(host: PluginHost) -> argparse.ArgumentParser:
         default=None,
         help="TOML configuration file (environment variables C3_MATCHER_* override it)",
     )
+    parser.add_argument("--version", action="version", version=f"c3-matcher {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
     commands = CommandRegistry(sub)
     _register_builtin(commands)
     host.register_commands(commands)
     return parser
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("c3-matcher")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def split_config(argv: Sequence[str]) -> tuple[list[str], Path | None]:
+    """Take ``--config FILE`` / ``--config=FILE`` out of ``argv`` wherever it is (before or
+    after the subcommand); the last one wins. A ``--config`` without a value is left for the
+    parser to refuse."""
+    rest: list[str] = []
+    config: Path | None = None
+    items = list(argv)
+    i = 0
+    while i < len(items):
+        arg = items[i]
+        if arg == "--":
+            rest.extend(items[i:])
+            break
+        if arg == "--config" and i + 1 < len(items) and not items[i + 1].startswith("--"):
+            config = Path(items[i + 1])
+            i += 2
+            continue
+        if arg.startswith("--config="):
+            config = Path(arg.split("=", 1)[1])
+            i += 1
+            continue
+        rest.append(arg)
+        i += 1
+    return rest, config
+
+
+def _fail(exc: BaseException | str) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return f"c3-matcher: {text}"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -122,23 +171,45 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         host = build_plugin_host()
-    except C3Error as exc:
-        print(f"c3-matcher: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    args = _build_parser(host).parse_args(argv)
+    except C3Error as exc:  # the installation itself is broken (e.g. two profiles installed)
+        print(_fail(exc), file=sys.stderr)
+        return EXIT_FAILURE
+    rest, config = split_config(sys.argv[1:] if argv is None else argv)
+    args = _build_parser(host).parse_args(rest)
+    if config is not None:
+        args.config = config
     try:
         settings = load_settings(args.config)
     except ConfigurationError as exc:
-        print(f"c3-matcher: {exc}", file=sys.stderr)
+        print(_fail(exc), file=sys.stderr)
         return EXIT_USAGE
     try:
         handler: Handler = args.handler
         return handler(args, settings)
-    except (InvalidInputError, ConfigurationError) as exc:
-        print(f"c3-matcher: {exc}", file=sys.stderr)
+    except (
+        InvalidInputError,
+        ConfigurationError,
+        UnknownStrategyError,
+        StrategyNotLinkedError,
+    ) as exc:
+        print(_fail(exc), file=sys.stderr)
         return EXIT_USAGE
     except C3Error as exc:
-        print(f"c3-matcher: {exc}", file=sys.stderr)
+        print(_fail(exc), file=sys.stderr)
+        return EXIT_FAILURE
+    except OSError as exc:  # a file we were told to read or write: the user's input
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"c3-matcher:{where} {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("c3-matcher: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a bug: one line, not a traceback (C3_MATCHER_TRACEBACK=1 shows it)
+        import os
+
+        if os.environ.get("C3_MATCHER_TRACEBACK"):
+            raise
+        print(_fail(f"internal error: {type(exc).__name__}: {exc}"), file=sys.stderr)
         return EXIT_FAILURE
 
 

@@ -9,14 +9,20 @@ Defaults follow DECISIONS 14 (upstream LightGlue conventions).
 from __future__ import annotations
 
 import os
+import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
 from platformdirs import user_cache_dir, user_data_dir
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
-from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    SettingsError,
+)
 
 from c3_matcher.engines.store import default_engine_dir
 from c3_matcher.errors import ConfigurationError
@@ -26,6 +32,7 @@ __all__ = [
     "C3Settings",
     "EngineSettings",
     "FdrSettings",
+    "LightGlueSettings",
     "LoggingSettings",
     "MatcherSettings",
     "load_settings",
@@ -48,8 +55,19 @@ class MatcherSettings(_Section):
         description="strategy name (a linked plugin's), default disk_lightglue",
     )
     min_inliers_threshold: int = Field(60, ge=4, description="RANSAC inliers needed (AC-5)")
-    residual_warn_threshold_px: float = Field(2.5, gt=0, description="WARN above this (AC-7)")
-    ransac_threshold_px: float = Field(3.0, gt=0, description="RANSAC inlier threshold, tile px")
+    residual_warn_threshold_px: float = Field(
+        2.5, gt=0, allow_inf_nan=False, description="WARN above this (AC-7)"
+    )
+    ransac_threshold_px: float = Field(
+        3.0, gt=0, le=1000, allow_inf_nan=False, description="RANSAC inlier threshold, tile px"
+    )
+    max_image_pixels: int = Field(
+        50_000_000,
+        ge=256,
+        le=2**31 - 1,
+        description="images (frames, tiles) above width x height px are refused from their "
+        "header before decoding (decompression bombs)",
+    )
     max_long_side: int = Field(
         1024, ge=64, le=8192, description="images are downscaled so their long side <= this"
     )
@@ -90,7 +108,62 @@ class EngineSettings(_Section):
         description="ONNX Runtime TensorRT engine cache (filled on the ground, reused in flight)",
     )
     providers: tuple[str, ...] | None = Field(
-        None, description="execution providers to allow, in order; default: all available"
+        None,
+        description="ONNX Runtime execution providers in order of preference, full names or "
+        "TensorRT, CUDA, ROCm, MIGraphX, OpenVINO, DirectML, CoreML, CPU; intersected with the "
+        "installed ones; default: TensorRT -> CUDA -> ... -> CPU, whichever is installed",
+    )
+    device_id: int = Field(0, ge=0, le=64, description="GPU device id (GPU providers)")
+    gpu_mem_limit_bytes: int | None = Field(
+        None, ge=1 << 20, description="GPU memory arena limit (CUDA, ROCm); None: no limit"
+    )
+    tensorrt_fp16: bool = Field(True, description="TensorRT FP16 engines")
+    intra_op_threads: int = Field(
+        0, ge=0, le=1024, description="ONNX Runtime intra-op threads (0: one per core)"
+    )
+    provider_options: dict[str, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="raw onnxruntime options per provider name, merged last",
+    )
+
+    @field_validator("providers")
+    @classmethod
+    def _known_providers(cls, value: tuple[str, ...] | None) -> tuple[str, ...] | None:
+        if value is None:
+            return None
+        from c3_matcher.engines.runtime import canonical_provider
+        from c3_matcher.errors import EngineError
+
+        if not value:
+            raise ValueError("is empty: name at least one provider, or remove the setting")
+        try:
+            return tuple(canonical_provider(v) for v in value)
+        except EngineError as exc:
+            raise ValueError(exc.reason) from None
+
+
+class LightGlueSettings(_Section):
+    """The ``[lightglue]`` table: how the LightGlue-family matchers run (issue 10, item 3)."""
+
+    mode: Literal["adaptive", "full"] = Field(
+        "adaptive",
+        description="adaptive: the transformer in steps with upstream's early exit and point "
+        "pruning (needs the <feature>-steps engine, else full); full: the single graph, every "
+        "layer on every point",
+    )
+    depth_confidence: float | None = Field(
+        None,
+        ge=-1,
+        le=1,
+        description="early exit (adaptive mode): stop when this share of tokens is confident; "
+        "-1 off; None: upstream's default for the feature type (0.95; -1 for LighterGlue)",
+    )
+    width_confidence: float | None = Field(
+        None,
+        ge=-1,
+        le=1,
+        description="point pruning (adaptive mode): drop points whose matchability is below "
+        "1 - this; -1 off; None: upstream's default (0.99; 0.95 for LighterGlue)",
     )
 
 
@@ -122,6 +195,7 @@ class C3Settings(BaseSettings):
 
     matcher: MatcherSettings = MatcherSettings()
     engines: EngineSettings = EngineSettings()
+    lightglue: LightGlueSettings = LightGlueSettings()
     fdr: FdrSettings = FdrSettings()
     logging: LoggingSettings = LoggingSettings()
 
@@ -165,8 +239,12 @@ def load_settings(
             data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
         except FileNotFoundError:
             raise ConfigurationError(source, [("--config", "file not found")]) from None
-        except (OSError, tomllib.TOMLDecodeError) as exc:
-            raise ConfigurationError(source, [("--config", f"unreadable TOML: {exc}")]) from exc
+        except UnicodeDecodeError as exc:
+            raise ConfigurationError(
+                source, [("--config", f"not UTF-8 text (byte {exc.start}): {exc.reason}")]
+            ) from None
+        except (OSError, tomllib.TOMLDecodeError, ValueError) as exc:
+            raise ConfigurationError(source, [("--config", f"unreadable TOML: {exc}")]) from None
     unknown = _unknown_env_keys(environ)
     if unknown:
         raise ConfigurationError("environment", unknown)
@@ -175,13 +253,26 @@ def load_settings(
         if env is not None:
             os.environ.clear()
             os.environ.update(environ)
-        return C3Settings(**data)
+        settings = C3Settings(**data)
     except ValidationError as exc:
         problems = [
             (".".join(str(p) for p in err["loc"]) or "(root)", err["msg"]) for err in exc.errors()
         ]
         raise ConfigurationError(source, problems) from None
+    except (SettingsError, ValueError, TypeError) as exc:
+        # e.g. C3_MATCHER_MATCHER__OPTIONS=not json: pydantic-settings fails before validation
+        text = str(exc)
+        match = re.search(r'field "([a-z_]+)"', text)
+        section = f"{ENV_PREFIX}{match.group(1).upper()}__" if match else ENV_PREFIX
+        named = sorted(k for k in environ if k.upper().startswith(section))
+        field = ", ".join(named) or "environment"
+        reason = f"not valid JSON for a table or list value ({exc.__cause__ or text})"
+        raise ConfigurationError(source, [(field or "environment", reason)]) from None
     finally:
         if env is not None:
             os.environ.clear()
             os.environ.update(saved)
+    from c3_matcher.tiles import set_max_image_pixels
+
+    set_max_image_pixels(settings.matcher.max_image_pixels)
+    return settings

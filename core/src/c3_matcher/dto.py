@@ -35,6 +35,8 @@ __all__ = [
 ]
 
 WEB_MERCATOR_EQUATOR_M_PER_PX = 156543.03392804097  # 256-px tiles, zoom 0
+MAX_HEIGHT_ABOVE_GROUND_M = 100_000.0  # above this a "height" is a units or sensor error
+MAX_K_CONDITION = 1e12  # a K this ill-conditioned cannot be inverted reliably
 
 
 @dataclass(frozen=True, slots=True)
@@ -143,7 +145,8 @@ class NavCameraFrame:
             "frame.frame_id",
             f"expected uuid.UUID, got {type(self.frame_id).__name__}",
         )
-        _check_image(self.image, "frame.image")
+        # a private read-only copy: the caller's buffer may be reused by the camera driver
+        object.__setattr__(self, "image", v.frozen_copy(_check_image(self.image, "frame.image")))
         v.non_negative_int(self.captured_at_ns, "frame.captured_at_ns")
         v.require(
             self.attitude is None or isinstance(self.attitude, Attitude),
@@ -153,6 +156,12 @@ class NavCameraFrame:
         if self.height_above_ground_m is not None:
             h = v.finite_float(self.height_above_ground_m, "frame.height_above_ground_m")
             v.require(h > 0, "frame.height_above_ground_m", f"must be > 0, got {h}")
+            v.require(
+                h <= MAX_HEIGHT_ABOVE_GROUND_M,
+                "frame.height_above_ground_m",
+                f"must be <= {MAX_HEIGHT_ABOVE_GROUND_M:g} m (a UAV's height above ground), "
+                f"got {h:g}",
+            )
 
 
 @dataclass(frozen=True, slots=True)
@@ -175,6 +184,13 @@ class CameraCalibration:
         v.require(k[0, 0] > 0 and k[1, 1] > 0, "calibration.K", "focal lengths must be > 0")
         v.require(
             bool(np.allclose(k[2], [0.0, 0.0, 1.0])), "calibration.K", "last row must be [0, 0, 1]"
+        )
+        with np.errstate(all="ignore"):
+            cond = float(np.linalg.cond(k))
+        v.require(
+            math.isfinite(cond) and cond < MAX_K_CONDITION,
+            "calibration.K",
+            f"is singular or ill-conditioned (condition number {cond:.3g})",
         )
         object.__setattr__(self, "K", k)
         dist = v.frozen_copy(
@@ -242,10 +258,16 @@ class RerankCandidate:
             f"expected TileId, got {type(self.tile_id).__name__}",
         )
         object.__setattr__(self, "score", v.finite_float(self.score, "candidate.score"))
+        missing = [
+            m
+            for m in ("encoded", "decode")
+            if not callable(getattr(self.tile_pixels_handle, m, None))
+        ]
         v.require(
-            hasattr(self.tile_pixels_handle, "decode"),
+            not missing,
             "candidate.tile_pixels_handle",
-            "expected a TilePixelsHandle (an object with decode())",
+            "expected a TilePixelsHandle (encoded() and decode()), "
+            f"{type(self.tile_pixels_handle).__name__} lacks {', '.join(missing)}()",
         )
         if self.gsd_m_per_px is not None:
             g = v.finite_float(self.gsd_m_per_px, "candidate.gsd_m_per_px")

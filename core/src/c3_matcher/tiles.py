@@ -1,13 +1,20 @@
 """Tile pixel handles (C6 side): references to encoded tile bytes that decode on demand.
 
-``MmapTileHandle`` maps an image file read-only: the bytes stay in the page cache and nothing is
-copied into the process until ``decode()`` (AZ-345 constraint: the handle is page-cache backed,
-decode is per call).
+``MmapTileHandle`` references an image file: its bytes stay in the page cache and are read
+into the process (``pread`` under a size check) only by ``encoded()`` / ``decode()`` (AZ-345
+constraint: page-cache backed, decode per call). It deliberately does NOT keep an ``mmap``
+of the file: touching a mapping whose file shrank kills the process with SIGBUS, whereas a
+read of a shrunk file is that candidate's error (issue 11, defect 4).
+
+Decompression bombs: ``decode_image`` reads the image header (PNG, JPEG, TIFF, BMP, WebP, GIF)
+and refuses an image above ``max_image_pixels()`` (``[matcher] max_image_pixels``, default
+50 Mpx) before decoding it; an image whose size cannot be read from its header is refused too.
 """
 
 from __future__ import annotations
 
-import mmap
+import os
+import struct
 from pathlib import Path
 
 import cv2
@@ -16,7 +23,32 @@ from numpy.typing import NDArray
 
 from c3_matcher.errors import InvalidInputError
 
-__all__ = ["BytesTileHandle", "ImageDecodeError", "MmapTileHandle", "decode_image", "read_image"]
+__all__ = [
+    "DEFAULT_MAX_IMAGE_PIXELS",
+    "BytesTileHandle",
+    "ImageDecodeError",
+    "MmapTileHandle",
+    "decode_image",
+    "image_header_size",
+    "max_image_pixels",
+    "read_image",
+    "set_max_image_pixels",
+]
+
+DEFAULT_MAX_IMAGE_PIXELS = 50_000_000
+_limits = {"max_image_pixels": DEFAULT_MAX_IMAGE_PIXELS}
+
+
+def max_image_pixels() -> int:
+    """The largest image (width x height) ``decode_image`` decodes."""
+    return _limits["max_image_pixels"]
+
+
+def set_max_image_pixels(value: int) -> None:
+    """Set the process-wide pixel limit (``load_settings`` applies the configured one)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 256:
+        raise InvalidInputError("matcher.max_image_pixels", f"must be an int >= 256, got {value!r}")
+    _limits["max_image_pixels"] = value
 
 
 class ImageDecodeError(InvalidInputError):
@@ -29,6 +61,17 @@ def decode_image(buffer: memoryview | bytes, what: str) -> NDArray[np.uint8]:
     raw = np.frombuffer(buffer, dtype=np.uint8)
     if raw.size == 0:
         raise ImageDecodeError(what, "no bytes to decode")
+    size = image_header_size(raw[: 1 << 20].tobytes())
+    if size is None:
+        raise ImageDecodeError(what, "not a decodable image (PNG, JPEG, TIFF, BMP, WebP, GIF)")
+    width, height = size
+    limit = max_image_pixels()
+    if width <= 0 or height <= 0 or width * height > limit:
+        raise ImageDecodeError(
+            what,
+            f"image of {width}x{height} px exceeds the limit of {limit} px "
+            "([matcher] max_image_pixels); refused before decoding",
+        )
     image = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ImageDecodeError(what, "not a decodable image (PNG, JPEG, TIFF, ...)")
@@ -56,6 +99,78 @@ def to_rgb8(image: NDArray[np.generic], what: str, *, bgr: bool) -> NDArray[np.u
     return np.ascontiguousarray(rgb, dtype=np.uint8)
 
 
+def image_header_size(head: bytes) -> tuple[int, int] | None:
+    """(width, height) from the first bytes of a PNG, JPEG, TIFF, BMP, WebP or GIF file, or None
+    when the format or its header is not recognised."""
+    try:
+        if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+            w, h = struct.unpack(">II", head[16:24])
+            return int(w), int(h)
+        if head[:2] == b"\xff\xd8":
+            return _jpeg_size(head)
+        if head[:4] in (b"II*\x00", b"MM\x00*"):
+            return _tiff_size(head)
+        if head[:2] == b"BM":
+            w, h = struct.unpack("<ii", head[18:26])
+            return abs(int(w)), abs(int(h))
+        if head[:6] in (b"GIF87a", b"GIF89a"):
+            w, h = struct.unpack("<HH", head[6:10])
+            return int(w), int(h)
+        if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+            chunk = head[12:16]
+            if chunk == b"VP8X":
+                w = int.from_bytes(head[24:27], "little") + 1
+                h = int.from_bytes(head[27:30], "little") + 1
+                return w, h
+            if chunk == b"VP8L":
+                bits = int.from_bytes(head[21:25], "little")
+                return (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1
+            if chunk == b"VP8 ":
+                w, h = struct.unpack("<HH", head[26:30])
+                return int(w & 0x3FFF), int(h & 0x3FFF)
+    except struct.error:
+        return None
+    return None
+
+
+def _jpeg_size(head: bytes) -> tuple[int, int] | None:
+    i = 2
+    while i + 9 < len(head):
+        if head[i] != 0xFF:
+            return None
+        marker = head[i + 1]
+        if marker == 0xFF:
+            i += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            i += 2
+            continue
+        (length,) = struct.unpack(">H", head[i + 2 : i + 4])
+        if marker in (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF):
+            h, w = struct.unpack(">HH", head[i + 5 : i + 9])
+            return int(w), int(h)
+        i += 2 + length
+    return None
+
+
+def _tiff_size(head: bytes) -> tuple[int, int] | None:
+    endian = "<" if head[:2] == b"II" else ">"
+    (offset,) = struct.unpack(endian + "I", head[4:8])
+    (count,) = struct.unpack(endian + "H", head[offset : offset + 2])
+    dims: dict[int, int] = {}
+    for k in range(count):
+        entry = head[offset + 2 + 12 * k : offset + 14 + 12 * k]
+        tag, typ = struct.unpack(endian + "HH", entry[:4])
+        if tag in (256, 257):
+            value = struct.unpack(
+                endian + ("H" if typ == 3 else "I"), entry[8 : 10 if typ == 3 else 12]
+            )
+            dims[tag] = int(value[0])
+    if 256 in dims and 257 in dims:
+        return dims[256], dims[257]
+    return None
+
+
 def read_image(path: Path) -> NDArray[np.uint8]:
     """Read an image file to uint8 RGB, naming the file when it is missing or undecodable."""
     p = Path(path)
@@ -65,22 +180,50 @@ def read_image(path: Path) -> NDArray[np.uint8]:
 
 
 class MmapTileHandle:
-    """A tile image file mapped read-only; ``encoded()`` is a zero-copy view of the mapping."""
+    """A tile image file; ``encoded()`` reads it (from the page cache) under a size check.
+
+    The name is kept for compatibility: no mapping is held (see the module docstring), so a file
+    that shrinks or vanishes after the handle was made is an ``InvalidInputError`` of this
+    candidate, never a SIGBUS of the process.
+    """
 
     def __init__(self, path: Path) -> None:
         self._path = Path(path)
         try:
-            with self._path.open("rb") as fh:
-                self._map = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-        except (OSError, ValueError) as exc:  # ValueError: empty file cannot be mapped
-            raise InvalidInputError(str(self._path), f"cannot map tile file: {exc}") from exc
+            size = self._path.stat().st_size
+        except OSError as exc:
+            raise InvalidInputError(str(self._path), f"cannot read tile file: {exc}") from exc
+        if size == 0:
+            raise InvalidInputError(str(self._path), "cannot read tile file: it is empty")
 
     @property
     def path(self) -> Path:
         return self._path
 
     def encoded(self) -> memoryview:
-        return memoryview(self._map)
+        try:
+            fd = os.open(self._path, os.O_RDONLY)
+        except OSError as exc:
+            raise InvalidInputError(str(self._path), f"cannot read tile file: {exc}") from exc
+        try:
+            size = os.fstat(fd).st_size
+            if size == 0:
+                raise InvalidInputError(str(self._path), "cannot read tile file: it is empty")
+            buf = bytearray(size)
+            view = memoryview(buf)
+            got = 0
+            while got < size:
+                n = os.preadv(fd, [view[got:]], got)
+                if n <= 0:
+                    raise InvalidInputError(
+                        str(self._path), f"tile file shrank while reading ({got} of {size} bytes)"
+                    )
+                got += n
+        except OSError as exc:
+            raise InvalidInputError(str(self._path), f"cannot read tile file: {exc}") from exc
+        finally:
+            os.close(fd)
+        return memoryview(buf).toreadonly()
 
     def decode(self) -> NDArray[np.uint8]:
         return decode_image(self.encoded(), str(self._path))

@@ -59,3 +59,90 @@ def test_tensorrt_engine_cache_directory_is_passed_to_the_provider(tmp_path):
     assert trt["trt_engine_cache_enable"] is True
     assert trt["trt_engine_cache_path"] == str(tmp_path)
     assert opts[1:] == ["CUDAExecutionProvider", "CPUExecutionProvider"]
+
+
+# -- issue 11 (provider honesty) and issue 12 (any provider, options, intersection) -----------
+OPENVINO = "OpenVINOExecutionProvider"
+
+
+def test_provider_reported_is_the_one_the_session_actually_uses(tiny_engine) -> None:
+    """onnxruntime falls back to CPU when CUDA cannot start: report CPU, warn, not CUDA."""
+    seen: list[dict[str, Any]] = []
+    sink = logger.add(lambda m: seen.append(dict(m.record["extra"])), level="DEBUG")
+    try:
+        runtime = OnnxInferenceRuntime([CUDA, CPU])  # says CUDA is there; it is not
+        assert runtime.requested_provider == CUDA
+        engine_id = runtime.load_engine(tiny_engine)
+    finally:
+        logger.remove(sink)
+    assert runtime.session_providers[engine_id] == (CPU,)
+    assert runtime.provider == CPU  # what the ready log and FDR provenance read
+    fallback = [e for e in seen if e.get("kind") == "c3.inference.provider_fallback"]
+    assert fallback and fallback[0]["requested"] == CUDA and fallback[0]["actual"] == [CPU]
+    loaded = [e for e in seen if e.get("kind") == "c3.inference.engine_loaded"]
+    assert loaded[0]["providers"] == [CPU]
+
+
+@pytest.mark.parametrize(
+    ("configured", "installed", "chain"),
+    [
+        (["openvino", "cpu"], [CPU, OPENVINO], [OPENVINO, CPU]),
+        (["CUDA", "TensorRT", "CPU"], [CPU, CUDA, TRT], [CUDA, TRT, CPU]),
+        (["ROCm", "cpu"], [CPU], [CPU]),
+        (
+            ["CoreML", "DirectML", "CPU"],
+            ["DmlExecutionProvider", CPU],
+            ["DmlExecutionProvider", CPU],
+        ),
+        ([CUDA, CPU], [CPU, CUDA], [CUDA, CPU]),
+    ],
+)
+def test_configured_providers_are_intersected_with_installed(configured, installed, chain):
+    from c3_matcher.engines.runtime import resolve_providers
+
+    assert resolve_providers(configured, installed) == chain
+    assert list(OnnxInferenceRuntime(installed, requested=configured).providers) == chain
+
+
+def test_unusable_provider_list_names_the_setting() -> None:
+    with pytest.raises(EngineError, match=r"\[engines\] providers") as info:
+        OnnxInferenceRuntime([CPU], requested=["CUDA", "TensorRT"])
+    assert "pip install onnxruntime" not in str(info.value)
+    with pytest.raises(EngineError, match=r"\[engines\] providers.*unknown execution provider"):
+        OnnxInferenceRuntime([CPU], requested=["Quantum"])
+
+
+def test_per_provider_options_and_threads(tmp_path) -> None:
+    from c3_matcher.config import EngineSettings
+    from c3_matcher.engines.runtime import ProviderSettings, provider_options
+
+    opts = provider_options(
+        [TRT, CUDA, CPU],
+        tmp_path,
+        ProviderSettings(
+            device_id=1,
+            gpu_mem_limit_bytes=1 << 30,
+            tensorrt_fp16=False,
+            extra={CUDA: {"cudnn_conv_algo_search": "HEURISTIC"}},
+        ),
+    )
+    assert opts[0][1]["device_id"] == 1 and opts[0][1]["trt_fp16_enable"] is False
+    assert opts[1] == (
+        CUDA,
+        {"device_id": 1, "gpu_mem_limit": 1 << 30, "cudnn_conv_algo_search": "HEURISTIC"},
+    )
+    assert opts[2] == CPU
+    engines = EngineSettings(providers=("cuda", "cpu"), intra_op_threads=2, device_id=1)
+    assert engines.providers == (CUDA, CPU)
+    runtime = OnnxInferenceRuntime.from_settings(engines, providers_available=[CPU, CUDA])
+    assert runtime.providers == (CUDA, CPU)
+
+
+def test_config_refuses_unknown_or_empty_provider_lists() -> None:
+    from c3_matcher.config import load_settings
+    from c3_matcher.errors import ConfigurationError
+
+    with pytest.raises(ConfigurationError, match="engines.providers"):
+        load_settings(env={"C3_MATCHER_ENGINES__PROVIDERS": '["Quantum"]'})
+    with pytest.raises(ConfigurationError, match="engines.providers"):
+        load_settings(env={"C3_MATCHER_ENGINES__PROVIDERS": "[]"})

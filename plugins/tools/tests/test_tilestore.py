@@ -3,7 +3,6 @@ candidate drops."""
 
 from __future__ import annotations
 
-import mmap
 import sqlite3
 import uuid
 from pathlib import Path
@@ -171,7 +170,7 @@ def test_xyz_folder_is_zero_copy(built: tuple[Path, Path, np.ndarray], tmp_path:
         x, y = keys[0]
         xyz = XyzTileStore(tmp_path)
         view = xyz.tile_bytes(ZOOM, x, y)
-        assert view is not None and isinstance(view.obj, mmap.mmap)
+        assert view is not None and view.readonly  # read under a size check: no mmap, no SIGBUS
         assert bytes(view) == bytes(store.tile_bytes(ZOOM, x, y) or b"")
         assert xyz.zooms() == [ZOOM] and xyz.tile_bytes(ZOOM, x + 1000, y) is None
         tid = tile_centre_id(ZOOM, x, y)

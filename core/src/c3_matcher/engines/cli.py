@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from c3_matcher.engines.spec import EngineSpec
-from c3_matcher.engines.store import BUILD_COMMAND, EngineStore
+from c3_matcher.engines.store import BUILD_COMMAND, EngineStore, VerifyOutcome
+from c3_matcher.errors import EngineError
 
 if TYPE_CHECKING:
     from c3_matcher.commands import CommandRegistry
@@ -101,7 +102,16 @@ def _list(args: argparse.Namespace, settings: C3Settings) -> int:
 
 def _verify(args: argparse.Namespace, settings: C3Settings) -> int:
     ctx = engines_context(settings)
-    outcomes = EngineStore(ctx.engine_dir).verify()
+    store = EngineStore(ctx.engine_dir)
+    outcomes = store.verify()
+    seen = {o.path for o in outcomes}
+    for spec in ctx.specs:  # every engine an installed plugin needs must be there
+        try:
+            store.require(spec.model, spec.variant)
+        except EngineError as exc:
+            path = Path(str(exc.path))
+            if path not in seen:
+                outcomes.append(VerifyOutcome(path, False, f"missing: {exc.reason}"))
     if not outcomes:
         _err(f"no engines in {ctx.engine_dir}; build them with `{BUILD_COMMAND}`")
         return 1

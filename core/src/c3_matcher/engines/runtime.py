@@ -1,8 +1,16 @@
 """``OnnxInferenceRuntime``: the shared ``InferenceRuntime`` (C7) on ONNX Runtime. No PyTorch.
 
-Execution provider: the first of TensorRT -> CUDA -> CPU that the installed onnxruntime offers
-(or the injected ``providers_available``), with the rest of that chain as fallbacks; the choice is
-logged once (``c3.inference.provider_selected``).
+Execution providers: ``[engines] providers`` names any ONNX Runtime provider, in order of
+preference, by its full name or a short alias (TensorRT, CUDA, ROCm, MIGraphX, OpenVINO,
+DirectML, CoreML, CPU); the list is intersected with what the installed onnxruntime offers (or
+the injected ``providers_available``), and nothing usable left is an ``EngineError`` naming the
+setting. Without the setting: the first of TensorRT -> CUDA -> ... -> CPU that is installed,
+the rest as fallbacks. Per-provider options: device id, GPU memory limit, TensorRT FP16 switch
+and cache, plus raw options per provider; ``intra_op_threads``. The request is logged once
+(``c3.inference.provider_selected``); what each session ACTUALLY uses
+(``session.get_providers()``: onnxruntime silently falls back to CPU when a provider cannot
+start) is logged per engine and is what ``provider`` reports, so the ready log and every FDR
+record name the real one; a fallback is a WARNING ``c3.inference.provider_fallback``.
 
 Session options, chosen by measurement (``c3-matcher engines bench --sweep-session-options``;
 2-core CPU, onnxruntime 1.31, fresh process per case, 20 runs; peak RSS = VmHWM):
@@ -41,6 +49,7 @@ from c3_matcher.engines.spec import TensorSpec
 from c3_matcher.errors import EngineError
 
 __all__ = [
+    "PROVIDER_ALIASES",
     "PROVIDER_CHAIN",
     "SESSION_OPTIONS_NOTE",
     "OnnxInferenceRuntime",
@@ -52,8 +61,38 @@ __all__ = [
 PROVIDER_CHAIN: tuple[str, ...] = (
     "TensorrtExecutionProvider",
     "CUDAExecutionProvider",
+    "ROCMExecutionProvider",
+    "MIGraphXExecutionProvider",
+    "OpenVINOExecutionProvider",
+    "DmlExecutionProvider",
+    "CoreMLExecutionProvider",
     "CPUExecutionProvider",
 )
+
+PROVIDER_ALIASES: dict[str, str] = {
+    "tensorrt": "TensorrtExecutionProvider",
+    "trt": "TensorrtExecutionProvider",
+    "cuda": "CUDAExecutionProvider",
+    "rocm": "ROCMExecutionProvider",
+    "migraphx": "MIGraphXExecutionProvider",
+    "openvino": "OpenVINOExecutionProvider",
+    "directml": "DmlExecutionProvider",
+    "dml": "DmlExecutionProvider",
+    "coreml": "CoreMLExecutionProvider",
+    "cpu": "CPUExecutionProvider",
+}
+
+_GPU_PROVIDERS = frozenset(
+    {
+        "TensorrtExecutionProvider",
+        "CUDAExecutionProvider",
+        "ROCMExecutionProvider",
+        "MIGraphXExecutionProvider",
+        "DmlExecutionProvider",
+    }
+)
+
+PROVIDERS_SETTING = "[engines] providers (C3_MATCHER_ENGINES__PROVIDERS)"
 
 SESSION_OPTIONS_NOTE = "memory pattern off, arena on, ORT_ENABLE_ALL, sequential, deterministic"
 
@@ -67,42 +106,109 @@ _ORT_TO_NUMPY = {
 }
 
 
-def select_providers(available: Sequence[str]) -> list[str]:
-    """The provider list for a session: the chain's members present in ``available``, in chain
-    order. ``EngineError`` if none (an onnxruntime without CPU provider)."""
-    chosen = [p for p in PROVIDER_CHAIN if p in set(available)]
+def canonical_provider(name: str) -> str:
+    """The onnxruntime name of a provider given by full name (any case) or short alias."""
+    text = str(name).strip()
+    lowered = text.lower()
+    if lowered in PROVIDER_ALIASES:
+        return PROVIDER_ALIASES[lowered]
+    for full in (*PROVIDER_CHAIN, *PROVIDER_ALIASES.values()):
+        if full.lower() == lowered or full.lower() == lowered + "executionprovider":
+            return full
+    if text.endswith("ExecutionProvider") and text[:-17].isidentifier():
+        return text  # a provider this module does not know by name: onnxruntime will tell
+    raise EngineError(
+        PROVIDERS_SETTING,
+        f"unknown execution provider {text!r}; use an onnxruntime name or one of "
+        f"{sorted(PROVIDER_ALIASES)}",
+        "set [engines] providers to installed providers",
+    )
+
+
+def resolve_providers(configured: Sequence[str] | None, installed: Sequence[str]) -> list[str]:
+    """The session provider list: ``configured`` (in its order, canonical names) intersected
+    with ``installed``; without ``configured``, the default chain's members that are installed.
+    ``EngineError`` naming the setting when nothing usable remains."""
+    have = list(dict.fromkeys(str(p) for p in installed))
+    if configured is None:
+        chosen = [p for p in PROVIDER_CHAIN if p in set(have)]
+        if not chosen:
+            raise EngineError(
+                PROVIDERS_SETTING,
+                f"none of the known providers {list(PROVIDER_CHAIN)} is installed "
+                f"(installed: {have})",
+                "pip install onnxruntime",
+            )
+        return chosen
+    wanted = list(dict.fromkeys(canonical_provider(p) for p in configured))
+    if not wanted:
+        raise EngineError(
+            PROVIDERS_SETTING,
+            "is empty: name at least one provider",
+            "set [engines] providers, or remove it for the default chain",
+        )
+    chosen = [p for p in wanted if p in set(have)]
     if not chosen:
         raise EngineError(
-            "onnxruntime",
-            f"none of {list(PROVIDER_CHAIN)} is available (installed: {list(available)})",
-            "pip install onnxruntime",
+            PROVIDERS_SETTING,
+            f"none of {wanted} is installed (installed onnxruntime providers: {have})",
+            "set [engines] providers to installed providers, or remove it for the default chain",
         )
     return chosen
 
 
+def select_providers(available: Sequence[str]) -> list[str]:
+    """The default provider list over ``available`` (see :func:`resolve_providers`)."""
+    return resolve_providers(None, available)
+
+
+@dataclass(frozen=True, slots=True)
+class ProviderSettings:
+    """Per-provider options: ``device_id`` (CUDA, TensorRT, ROCm, MIGraphX, DirectML),
+    ``gpu_mem_limit_bytes`` (CUDA, ROCm arena limit), ``tensorrt_fp16``, and raw ``extra``
+    options by provider name (merged last)."""
+
+    device_id: int = 0
+    gpu_mem_limit_bytes: int | None = None
+    tensorrt_fp16: bool = True
+    extra: Mapping[str, Mapping[str, Any]] | None = None
+
+
 def provider_options(
-    providers: Sequence[str], tensorrt_cache_dir: Path | None
+    providers: Sequence[str],
+    tensorrt_cache_dir: Path | None,
+    settings: ProviderSettings | None = None,
 ) -> list[str | tuple[str, dict[str, Any]]]:
-    """The session's provider list with options: TensorRT caches the engines it compiles (FP16)
-    in ``tensorrt_cache_dir``, so a flight computer whose cache was filled on the ground never
-    recompiles in flight. Other providers keep their defaults."""
+    """The session's provider list with options: TensorRT caches the engines it compiles (FP16
+    unless switched off) in ``tensorrt_cache_dir``, so a flight computer whose cache was filled
+    on the ground never recompiles in flight; GPU providers get the device id and memory
+    limit; ``extra`` options are merged per provider."""
+    cfg = settings or ProviderSettings()
     out: list[str | tuple[str, dict[str, Any]]] = []
     for name in providers:
-        if name == "TensorrtExecutionProvider" and tensorrt_cache_dir is not None:
-            out.append(
-                (
-                    name,
-                    {
-                        "trt_fp16_enable": True,
-                        "trt_engine_cache_enable": True,
-                        "trt_engine_cache_path": str(tensorrt_cache_dir),
-                        "trt_timing_cache_enable": True,
-                        "trt_timing_cache_path": str(tensorrt_cache_dir),
-                    },
+        opts: dict[str, Any] = {}
+        if name in _GPU_PROVIDERS and cfg.device_id != 0:
+            opts["device_id"] = cfg.device_id
+        if name == "TensorrtExecutionProvider":
+            opts["trt_fp16_enable"] = cfg.tensorrt_fp16
+            if tensorrt_cache_dir is not None:
+                opts.update(
+                    trt_engine_cache_enable=True,
+                    trt_engine_cache_path=str(tensorrt_cache_dir),
+                    trt_timing_cache_enable=True,
+                    trt_timing_cache_path=str(tensorrt_cache_dir),
                 )
-            )
-        else:
+        elif (
+            name in ("CUDAExecutionProvider", "ROCMExecutionProvider")
+            and cfg.gpu_mem_limit_bytes is not None
+        ):
+            opts["gpu_mem_limit"] = int(cfg.gpu_mem_limit_bytes)
+        if cfg.extra and name in cfg.extra:
+            opts.update(dict(cfg.extra[name]))
+        if name == "CPUExecutionProvider" or not opts:
             out.append(name)
+        else:
+            out.append((name, opts))
     return out
 
 
@@ -132,6 +238,7 @@ class _Loaded:
     path: Path
     manifest: EngineManifest
     session: ort.InferenceSession
+    session_providers: tuple[str, ...]
     input_names: tuple[str, ...]
     output_names: tuple[str, ...]
 
@@ -174,33 +281,68 @@ class OnnxInferenceRuntime:
         *,
         settings: SessionSettings | None = None,
         tensorrt_cache_dir: Path | None = None,
+        requested: Sequence[str] | None = None,
+        provider_settings: ProviderSettings | None = None,
     ) -> None:
         available = (
             list(ort.get_available_providers())
             if providers_available is None
             else list(providers_available)
         )
-        self._providers = select_providers(available)
+        self._providers = resolve_providers(requested, available)
         self._settings = settings or SessionSettings()
         self._tensorrt_cache_dir = tensorrt_cache_dir
+        self._provider_settings = provider_settings or ProviderSettings()
         self._engines: dict[str, _Loaded] = {}
         logger.bind(
             kind="c3.inference.provider_selected",
             provider=self._providers[0],
             chain=self._providers,
             available=available,
+            requested=None if requested is None else list(requested),
             onnxruntime=ort.__version__,
-        ).info("inference provider {}", self._providers[0])
+        ).info("inference provider requested: {}", self._providers[0])
+
+    @classmethod
+    def from_settings(
+        cls, engines: Any, providers_available: Sequence[str] | None = None
+    ) -> OnnxInferenceRuntime:
+        """A runtime from the ``[engines]`` settings (providers, per-provider options, threads)."""
+        return cls(
+            providers_available,
+            settings=SessionSettings(intra_op_num_threads=int(engines.intra_op_threads)),
+            tensorrt_cache_dir=engines.tensorrt_cache_dir,
+            requested=engines.providers,
+            provider_settings=ProviderSettings(
+                device_id=engines.device_id,
+                gpu_mem_limit_bytes=engines.gpu_mem_limit_bytes,
+                tensorrt_fp16=engines.tensorrt_fp16,
+                extra=engines.provider_options or None,
+            ),
+        )
 
     @property
     def provider(self) -> str:
-        """The preferred execution provider (first of the session provider list)."""
+        """The execution provider the loaded sessions ACTUALLY use (``get_providers()[0]``;
+        several joined with ``+`` if they differ); before any engine is loaded, the requested
+        one."""
+        actual = list(dict.fromkeys(e.session_providers[0] for e in self._engines.values()))
+        return "+".join(actual) if actual else self._providers[0]
+
+    @property
+    def requested_provider(self) -> str:
+        """The preferred provider requested for the sessions (first of the provider list)."""
         return self._providers[0]
 
     @property
     def providers(self) -> tuple[str, ...]:
-        """The session provider list, preferred first."""
+        """The requested session provider list, preferred first."""
         return tuple(self._providers)
+
+    @property
+    def session_providers(self) -> dict[str, tuple[str, ...]]:
+        """Per loaded engine: the providers its session actually uses (``get_providers()``)."""
+        return {k: e.session_providers for k, e in self._engines.items()}
 
     def load_engine(self, path: Any) -> str:
         """Check and load ``path``; return its engine id (the file stem, made unique). Idempotent
@@ -220,7 +362,9 @@ class OnnxInferenceRuntime:
             session = ort.InferenceSession(
                 str(engine_path),
                 sess_options=self._settings.build(),
-                providers=provider_options(self._providers, self._tensorrt_cache_dir),
+                providers=provider_options(
+                    self._providers, self._tensorrt_cache_dir, self._provider_settings
+                ),
             )
         except Exception as exc:  # onnxruntime raises its own exception types
             raise EngineError(engine_path, f"onnxruntime cannot load it ({exc})") from exc
@@ -229,10 +373,12 @@ class OnnxInferenceRuntime:
         engine_id = engine_path.name.removesuffix(".onnx")
         if engine_id in self._engines:  # same file name in another directory
             engine_id = f"{engine_id}#{len(self._engines)}"
+        actual = tuple(session.get_providers())
         self._engines[engine_id] = _Loaded(
             engine_path,
             manifest,
             session,
+            actual,
             tuple(i.name for i in session.get_inputs()),
             tuple(o.name for o in session.get_outputs()),
         )
@@ -242,9 +388,22 @@ class OnnxInferenceRuntime:
             path=str(engine_path),
             sha256=manifest.file_sha256,
             weights_sha256=manifest.weights_sha256,
-            providers=session.get_providers(),
+            providers=list(actual),
+            requested=list(self._providers),
             load_ms=round((time.perf_counter() - start) * 1e3, 1),
-        ).info("engine {} loaded", engine_id)
+        ).info("engine {} loaded on {}", engine_id, actual[0] if actual else "?")
+        if actual and actual[0] != self._providers[0]:
+            logger.bind(
+                kind="c3.inference.provider_fallback",
+                engine_id=engine_id,
+                requested=self._providers[0],
+                actual=list(actual),
+            ).warning(
+                "engine {} runs on {}, not the requested {} (onnxruntime fell back)",
+                engine_id,
+                actual[0],
+                self._providers[0],
+            )
         return engine_id
 
     def _get(self, engine_id: str) -> _Loaded:

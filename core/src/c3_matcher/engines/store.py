@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file, read_manifest
-from c3_matcher.engines.naming import ENGINE_SUFFIX, EngineName
+from c3_matcher.engines.naming import ENGINE_SUFFIX, MANIFEST_SUFFIX, EngineName
 from c3_matcher.errors import EngineError
 
 __all__ = [
@@ -131,8 +131,19 @@ class EngineStore:
         return records
 
     def verify(self) -> builtins.list[VerifyOutcome]:
-        """Re-hash every engine and compare with its manifest."""
+        """Re-hash every engine and compare with its manifest; a manifest whose engine file is
+        missing is a failure too."""
         outcomes: builtins.list[VerifyOutcome] = []
+        for manifest_file in self._files(f"*{MANIFEST_SUFFIX}"):
+            engine = manifest_file.with_name(
+                manifest_file.name.removesuffix(MANIFEST_SUFFIX) + ENGINE_SUFFIX
+            )
+            if not engine.is_file():
+                outcomes.append(
+                    VerifyOutcome(
+                        engine, False, f"engine file missing (manifest {manifest_file.name})"
+                    )
+                )
         for path in self._files():
             try:
                 manifest = check_engine_file(path, check_hash=True)

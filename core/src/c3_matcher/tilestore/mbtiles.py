@@ -18,18 +18,40 @@ database pages are served from the page cache through a mapping, not ``read()`` 
 own cache; each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way) and
 handles expose it as a ``memoryview`` without further copies. A database error while reading a
 tile (a corrupt page) is raised as that tile's error, never a crash of the caller.
+
+Threads: each thread gets its own read-only connection (SQLite objects may not cross threads),
+so a store opened on one thread serves another (issue 11, defect 5). A store-wide failure (the
+database no longer answers at all: replaced, truncated, unreadable) is reported ONCE as an
+ERROR log ``c3.tilestore.unusable`` naming the store (forwarded to the FDR as ``log.error``),
+then raised as each tile's ``TileStoreUnusableError``.
+
+Integrity: a store built by ``c3-matcher tiles build`` holds a ``c3_tile_digest`` table (sha256
+of each tile blob). When present, every blob read is verified against it; a mismatch raises
+``TileDigestError`` naming the tile, so the pipeline drops that candidate with an FDR record.
 """
 
 from __future__ import annotations
 
+import hashlib
 import sqlite3
+import threading
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.base import TileStoreBase
+from c3_matcher.tilestore.features import TileFeatureStore, sidecar_path
 
-__all__ = ["MBTilesStore"]
+__all__ = ["MBTilesStore", "TileDigestError", "TileStoreUnusableError"]
+
+
+class TileDigestError(InvalidInputError):
+    """A tile's bytes do not match the sha256 the store recorded when it was built."""
+
+
+class TileStoreUnusableError(InvalidInputError):
+    """The whole store no longer answers (not one tile's problem)."""
+
 
 MMAP_BYTES = 256 * 1024 * 1024
 
@@ -41,23 +63,56 @@ class MBTilesStore(TileStoreBase):
         self._path = Path(path)
         if not self._path.is_file():
             raise InvalidInputError("mbtiles", f"no such file: {self._path}")
+        self._mmap_bytes = int(mmap_bytes)
+        self._local = threading.local()
+        self._connections: list[sqlite3.Connection] = []
+        self._conn_lock = threading.Lock()
+        self._unusable: str | None = None
+        self._features: TileFeatureStore | None = None
         try:
-            self._db = sqlite3.connect(f"file:{self._path.resolve()}?mode=ro", uri=True)
-            self._db.execute(f"PRAGMA mmap_size={int(mmap_bytes)}")
-            tables = {r[0] for r in self._db.execute("SELECT name FROM sqlite_master")}
+            db = self._db
+            tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
         except sqlite3.DatabaseError as exc:
+            self.close()
             raise InvalidInputError(
                 "mbtiles", f"{self._path}: not an SQLite database: {exc}"
             ) from exc
         missing = {"metadata", "tiles"} - tables
         if missing:
-            self._db.close()
+            self.close()
             raise InvalidInputError(
                 "mbtiles", f"{self._path}: not an MBTiles file (missing tables {sorted(missing)})"
             )
-        self._metadata = {
-            str(k): str(v) for k, v in self._db.execute("SELECT name, value FROM metadata")
-        }
+        self._has_digests = "c3_tile_digest" in tables
+        self._metadata = {str(k): str(v) for k, v in db.execute("SELECT name, value FROM metadata")}
+
+    @property
+    def _db(self) -> sqlite3.Connection:
+        """This thread's read-only connection (made on first use)."""
+        db: sqlite3.Connection | None = getattr(self._local, "db", None)
+        if db is None:
+            # used only by this thread; check_same_thread=False lets close() run on any thread
+            db = sqlite3.connect(
+                f"file:{self._path.resolve()}?mode=ro", uri=True, check_same_thread=False
+            )
+            db.execute(f"PRAGMA mmap_size={self._mmap_bytes}")
+            self._local.db = db
+            with self._conn_lock:
+                self._connections.append(db)
+        return db
+
+    def feature_store(self) -> TileFeatureStore | None:
+        """The precomputed map features beside the store (``<store>.features.sqlite``), or None."""
+        if self._features is None:
+            side = sidecar_path(self._path)
+            if side.is_file():
+                self._features = TileFeatureStore(side)
+        return self._features
+
+    @property
+    def has_digests(self) -> bool:
+        """Whether the store carries per-tile sha256 digests (verified on every read)."""
+        return self._has_digests
 
     @property
     def name(self) -> str:
@@ -75,18 +130,55 @@ class MBTilesStore(TileStoreBase):
         """The encoded XYZ tile (zoom, x, y), or None when absent; a database error is raised
         as InvalidInputError naming the tile."""
         row = (1 << zoom) - 1 - y
+        what = f"{self.name} tile {zoom}/{x}/{y}"
+        if self._unusable is not None:
+            raise TileStoreUnusableError(what, self._unusable)
+        query = (
+            "SELECT t.tile_data, d.sha256 FROM tiles t LEFT JOIN c3_tile_digest d"
+            " ON d.zoom_level=t.zoom_level AND d.tile_column=t.tile_column"
+            " AND d.tile_row=t.tile_row"
+            if self._has_digests
+            else "SELECT t.tile_data, NULL FROM tiles t"
+        ) + " WHERE t.zoom_level=? AND t.tile_column=? AND t.tile_row=?"
         try:
-            found = self._db.execute(
-                "SELECT tile_data FROM tiles WHERE zoom_level=? AND tile_column=? AND tile_row=?",
-                (zoom, x, row),
-            ).fetchone()
-        except sqlite3.DatabaseError as exc:
-            raise InvalidInputError(
-                f"{self.name} tile {zoom}/{x}/{y}", f"read failed: {exc}"
-            ) from exc
+            found = self._db.execute(query, (zoom, x, row)).fetchone()
+        except sqlite3.Error as exc:
+            self._check_store(exc)
+            raise InvalidInputError(what, f"read failed: {exc}") from exc
         if found is None or found[0] is None:
             return None
-        return memoryview(found[0])
+        blob, digest = found
+        if digest is not None and hashlib.sha256(blob).hexdigest() != digest:
+            raise TileDigestError(
+                what, f"sha256 mismatch (stored {str(digest)[:16]}...): the tile is corrupt"
+            )
+        return memoryview(blob)
+
+    def _check_store(self, exc: BaseException) -> None:
+        """After a read error: if a fresh connection cannot read the store either, the store is
+        unusable: say so once (ERROR log, forwarded to the FDR) and fail every later tile fast."""
+        try:
+            probe = sqlite3.connect(f"file:{self._path.resolve()}?mode=ro", uri=True)
+            try:
+                probe.execute("SELECT count(*) FROM metadata").fetchone()
+                probe.execute("SELECT tile_data FROM tiles LIMIT 1").fetchone()
+            finally:
+                probe.close()
+            return  # the store answers: this was one tile's error
+        except sqlite3.Error as probe_exc:
+            reason = f"store unusable: {type(exc).__name__}: {exc} (probe: {probe_exc})"
+        if self._unusable is None:
+            self._unusable = reason
+            from c3_matcher.logs import log_event
+
+            log_event(
+                "ERROR",
+                "c3.tilestore.unusable",
+                f"tile store {self._path} is unusable: {reason}",
+                store=str(self._path),
+                error=reason,
+            )
+        raise TileStoreUnusableError(f"{self.name}", reason) from exc
 
     def zooms(self) -> list[int]:
         return [
@@ -102,7 +194,14 @@ class MBTilesStore(TileStoreBase):
             yield int(col), n - 1 - int(row)
 
     def close(self) -> None:
-        self._db.close()
+        if self._features is not None:
+            self._features.close()
+            self._features = None
+        with self._conn_lock:
+            for db in self._connections:
+                db.close()
+            self._connections.clear()
+        self._local = threading.local()
 
     def __enter__(self) -> MBTilesStore:
         return self

@@ -1,7 +1,7 @@
 """An XYZ tile folder: ``ROOT/{z}/{x}/{y}.png`` or ``.jpg`` / ``.jpeg`` (y grows south), 256 px.
 
-Each tile file is memory-mapped read-only (:class:`~c3_matcher.tiles.MmapTileHandle`), so a
-candidate that is exactly one stored tile is served zero-copy from the page cache.
+Each tile file is read from the page cache on demand (:class:`~c3_matcher.tiles.MmapTileHandle`,
+which holds no mapping: a file that shrinks while in use is that tile's error, never SIGBUS).
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ class XyzTileStore(TileStoreBase):
         return None
 
     def tile_bytes(self, zoom: int, x: int, y: int) -> memoryview | None:
-        """A read-only memory map of the tile file (zero-copy), or None when absent; an
-        unreadable or empty file raises InvalidInputError naming it."""
+        """The tile file's bytes (read-only view), or None when absent; an unreadable, empty or
+        shrinking file raises InvalidInputError naming it."""
         p = self.tile_path(zoom, x, y)
         return None if p is None else MmapTileHandle(p).encoded()
 

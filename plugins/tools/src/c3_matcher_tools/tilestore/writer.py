@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import sqlite3
 from collections.abc import Mapping
@@ -18,6 +19,11 @@ _SCHEMA = (
     " tile_data BLOB)",
     "CREATE UNIQUE INDEX tile_index ON tiles (zoom_level, tile_column, tile_row)",
     "CREATE UNIQUE INDEX name ON metadata (name)",
+    # per-tile digest (issue 11): the read path verifies it and drops a tile that fails
+    "CREATE TABLE c3_tile_digest (zoom_level INTEGER, tile_column INTEGER, tile_row INTEGER,"
+    " sha256 TEXT)",
+    "CREATE UNIQUE INDEX c3_tile_digest_index ON c3_tile_digest (zoom_level, tile_column,"
+    " tile_row)",
 )
 
 
@@ -36,10 +42,15 @@ class MBTilesWriter:
             self._db.execute(statement)
 
     def put_tile(self, zoom: int, x: int, y: int, data: bytes) -> None:
-        """Store XYZ tile (zoom, x, y) (converted to a TMS row)."""
+        """Store XYZ tile (zoom, x, y) (converted to a TMS row) and its sha256."""
+        row = (1 << zoom) - 1 - y
         self._db.execute(
             "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?)",
-            (zoom, x, (1 << zoom) - 1 - y, sqlite3.Binary(data)),
+            (zoom, x, row, sqlite3.Binary(data)),
+        )
+        self._db.execute(
+            "INSERT OR REPLACE INTO c3_tile_digest VALUES (?, ?, ?, ?)",
+            (zoom, x, row, hashlib.sha256(data).hexdigest()),
         )
 
     def put_metadata(self, values: Mapping[str, object]) -> None:
