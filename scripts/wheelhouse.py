@@ -1,6 +1,7 @@
 """Build an offline wheelhouse for build profiles: the core, the profile distribution, the
-plugins it links, every run-time dependency, and the profile's engines, so an airborne computer
-with no network installs and starts from that folder alone:
+plugins it links (and the ground tools for ground profiles), every run-time dependency, and the
+profile's engines, so an airborne computer with no network installs and starts from that folder
+alone:
 
     .venv/bin/python scripts/wheelhouse.py airborne --out dist/wheelhouse-airborne
     # on the target, offline:
@@ -32,6 +33,8 @@ def linked_plugin_dirs(profile: str) -> list[Path]:
     dirs = [
         REPO / info["plugin_dir"] for flag, info in matrix["flags"].items() if row[flag] == "ON"
     ]
+    if row.get("tools"):  # the ground tools: every profile but airborne
+        dirs.append(REPO / matrix["tools"]["plugin_dir"])
     return [d for d in dirs if (d / "pyproject.toml").is_file()]
 
 

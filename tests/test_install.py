@@ -77,6 +77,18 @@ class Env:
         env = {k: v for k, v in os.environ.items() if not k.startswith("PIP_")}
         subprocess.run(offline(cmd), check=True, env={**env, "PIP_CONFIG_FILE": os.devnull})
 
+    def packages(self) -> set[str]:
+        listing = subprocess.run(
+            [str(self.root / "bin" / "python"), "-m", "pip", "list", "--format=json"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        return {p["name"].lower().replace("_", "-") for p in json.loads(listing.stdout)}
+
+    def size_mib(self) -> float:
+        return sum(f.stat().st_size for f in self.root.rglob("*") if f.is_file()) / 2**20
+
     def c3(self, *args: str, **env_extra: str) -> subprocess.CompletedProcess[str]:
         env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
         env.update(
@@ -97,6 +109,12 @@ class Env:
             cwd=self.root,
             timeout=900,
         )
+
+
+def _commands(help_text: str) -> list[str]:
+    """The subcommand names of an argparse help text (its first ``{a,b,...}`` group)."""
+    start = help_text.index("{") + 1
+    return help_text[start : help_text.index("}", start)].split(",")
 
 
 def demo_match(env: Env, strategy: str, *extra: str) -> subprocess.CompletedProcess[str]:
@@ -146,8 +164,24 @@ def test_profile_installs_offline_and_behaves_as_the_matrix_says(profile, wheelh
     flags = {flag: MATRIX["profiles"][profile][flag] for flag in MATRIX["flags"]}
     assert report["flags"] == flags
     linked = {s for s, state in states.items() if state == "ON"}
-    assert {s["name"] for s in report["strategies"]} == linked
+    tools = bool(MATRIX["profiles"][profile]["tools"])
+    baselines = {"sift_magsac"} if tools else set()  # the ground tools' hooked baseline
+    assert {s["name"] for s in report["strategies"]} == linked | baselines
     assert report["errors"] == []
+    check = subprocess.run(
+        [str(env.root / "bin" / "python"), "-m", "pip", "check"], capture_output=True, text=True
+    )
+    assert check.returncode == 0, check.stdout + check.stderr
+    installed = env.packages()
+    print(f"{profile}: {env.size_mib():.0f} MiB, packages: {', '.join(sorted(installed))}")
+    assert ("c3-matcher-tools" in installed) == tools
+    assert ("tifffile" in installed) == tools  # a ground dependency only
+    commands = set(_commands(env.c3("--help").stdout))
+    flight = {"plugins", "config", "engines", "match"}
+    ground = {"tiles", "dataset", "replay", "eval", "bench", "features"}
+    assert commands == (flight | ground if tools else flight)
+    engines = set(_commands(env.c3("engines", "--help").stdout))
+    assert engines == ({"list", "verify", "build", "bench"} if tools else {"list", "verify"})
     for strategy, state in states.items():
         proc = demo_match(env, strategy)
         if state == "ON":
