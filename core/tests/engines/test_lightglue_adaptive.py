@@ -1,0 +1,181 @@
+"""Adaptive LightGlue (issue 10, item 3): the numpy exit/pruning driver on a fake graph, the
+torch-free import, and the real DISK steps engine against the single-graph engine."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
+from c3_matcher.engines.lightglue_adaptive import (
+    STEPS_SPECS,
+    AdaptiveLightGlue,
+    confidence_threshold,
+)
+from c3_matcher.engines.runtime import OnnxInferenceRuntime
+
+
+class FakeSteps:
+    """A steps 'graph' in numpy: state = descriptors (column 0 carries a point id); token
+    confidence and matchability per layer come from tables indexed by point id; the head matches
+    point i of set 0 to point i of set 1 (by id) with score 0.9."""
+
+    def __init__(self, conf: NDArray[np.float32], match: NDArray[np.float32]) -> None:
+        self.conf, self.match = conf, match  # (layers, points)
+        self.layers_run: list[int] = []
+
+    def __call__(self, feeds: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
+        out: dict[str, NDArray[Any]] = {}
+        out["proj0"], out["proj1"] = feeds["desc0"], feeds["desc1"]
+        s0, s1 = feeds["state0"], feeds["state1"]
+        layer = int(feeds["layer"][0])
+        if s0.shape[1] > 1 or s0[0, 0, 0] != 0:  # a real layer call (not the dummy row)
+            self.layers_run.append(layer)
+        ids0, ids1 = s0[0, :, 0].astype(int), s1[0, :, 0].astype(int)
+        out["out0"], out["out1"] = s0, s1
+        out["confidence0"] = self.conf[layer, ids0 % self.conf.shape[1]]
+        out["confidence1"] = self.conf[layer, ids1 % self.conf.shape[1]]
+        out["matchability0"] = self.match[layer, ids0 % self.match.shape[1]]
+        out["matchability1"] = self.match[layer, ids1 % self.match.shape[1]]
+        f0, f1 = feeds["final0"][0, :, 0].astype(int), feeds["final1"][0, :, 0].astype(int)
+        where = {int(v): j for j, v in enumerate(f1)}
+        out["matches0"] = np.array([where.get(int(v), -1) for v in f0], np.int64)
+        out["mscores0"] = np.where(out["matches0"] > -1, 0.9, 0.0).astype(np.float32)
+        return out
+
+
+def _points(n: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    desc = np.zeros((n, 4), np.float32)
+    desc[:, 0] = np.arange(n)
+    return np.zeros((n, 2), np.float32), desc
+
+
+def _driver(fake: FakeSteps, depth: float, width: float, layers: int = 4) -> AdaptiveLightGlue:
+    return AdaptiveLightGlue(
+        fake,
+        n_layers=layers,
+        input_dim=4,
+        descriptor_dim=4,
+        depth_confidence=depth,
+        width_confidence=width,
+    )
+
+
+def test_early_exit_when_confident() -> None:
+    n = 10
+    conf = np.full((4, n), 0.5, np.float32)
+    conf[1] = 0.99  # every token confident after layer 1
+    fake = FakeSteps(conf, np.ones((4, n), np.float32))
+    k, d = _points(n)
+    result = _driver(fake, 0.95, -1).match(k, k, d, d)
+    assert result.layers == 2 and fake.layers_run == [0, 1]
+    assert np.array_equal(result.matches0, np.arange(n))
+
+
+def test_pruning_keeps_matchable_or_unconfident_points_and_maps_back() -> None:
+    n = 10
+    conf = np.full((4, n), 0.99, np.float32)
+    conf[:, 3] = 0.1  # unconfident: never pruned, and the exit test never passes
+    match = np.ones((4, n), np.float32)
+    match[0, [2, 3, 7]] = 0.001  # unmatchable at layer 0
+    fake = FakeSteps(conf, match)
+    k, d = _points(n)
+    result = _driver(fake, 0.999, 0.99).match(k, k, d, d)
+    assert result.kept0 == [10, 8, 8, 8] and result.kept1 == [10, 8, 8, 8]
+    expected = np.arange(n)
+    expected[[2, 7]] = -1
+    assert np.array_equal(result.matches0, expected)
+    assert result.layers == 4
+    assert np.all(result.mscores0[[2, 7]] == 0)
+
+
+def test_both_rules_off_run_every_layer_on_every_point() -> None:
+    n = 6
+    fake = FakeSteps(np.ones((3, n), np.float32), np.zeros((3, n), np.float32))
+    k, d = _points(n)
+    result = _driver(fake, -1, -1, layers=3).match(k, k, d, d)
+    assert result.layers == 3 and result.kept0 == [n] and fake.layers_run == [0, 1, 2]
+
+
+def test_empty_side_and_bad_settings() -> None:
+    fake = FakeSteps(np.ones((2, 1), np.float32), np.ones((2, 1), np.float32))
+    k, d = _points(3)
+    result = _driver(fake, 0.95, 0.99, layers=2).match(k, k[:0], d, d[:0])
+    assert result.layers == 0 and np.all(result.matches0 == -1)
+    with pytest.raises(ValueError):
+        _driver(fake, 1.5, 0.99)
+
+
+def test_thresholds_are_upstreams() -> None:
+    assert confidence_threshold(0, 9) == np.float32(0.9)
+    assert abs(float(confidence_threshold(8, 9)) - (0.8 + 0.1 * np.exp(-32 / 9))) < 1e-7
+
+
+def test_adaptive_runtime_imports_without_torch() -> None:
+    code = (
+        "import sys\n"
+        "for name in ('torch', 'kornia', 'onnxscript'):\n"
+        "    sys.modules[name] = None\n"
+        "import c3_matcher.engines.lightglue_adaptive as m\n"
+        "import c3_matcher.engines.lightglue\n"
+        "assert set(m.STEPS_SPECS) == {'disk', 'aliked', 'xfeat'}\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stderr
+
+
+@pytest.fixture(scope="module")
+def disk_steps_engine(engine_dir: Path) -> Path:
+    from c3_matcher_tools.engines.compiler import ensure_engines
+
+    spec = STEPS_SPECS["disk"]
+    built = ensure_engines(
+        [spec], engine_dir, log=lambda line: print(line, file=sys.stderr, flush=True)
+    )
+    return built[(spec.model, spec.variant)]
+
+
+def test_disk_steps_engine_agrees_with_the_single_graph(
+    disk_steps_engine: Path,
+    lightglue_engine: Path,
+    disk_engine: Path,
+    gorinchem: NDArray[np.uint8],
+) -> None:
+    """Every layer on every point through the steps engine equals the single graph exactly;
+    adaptive exits early on an overlapping pair and keeps almost every match."""
+    from c3_matcher.engines.extract import run_extractor
+
+    inference = OnnxInferenceRuntime(["CPUExecutionProvider"])
+    disk_id = inference.load_engine(disk_engine)
+    rgb0 = np.ascontiguousarray(gorinchem[0:480, 0:640])
+    rgb1 = np.ascontiguousarray(gorinchem[200:712, 256:768])
+    f0, f1 = (
+        run_extractor(inference, disk_id, x, np.ones(x.shape[:2], bool), 1024) for x in (rgb0, rgb1)
+    )
+    args = (f0.keypoints, f0.descriptors, (640, 480), f1.keypoints, f1.descriptors, (512, 512))
+
+    full = OnnxLightGlueRuntime(inference, mode="full")
+    full.load("disk", lightglue_engine)
+    ref = full.match_pair(*args, feature_type="disk")
+
+    steps_full = OnnxLightGlueRuntime(inference, mode="full")
+    steps_full.load("disk", disk_steps_engine)
+    got = steps_full.match_pair(*args, feature_type="disk")
+    assert steps_full.last_run["mode"] == "steps-full" and steps_full.last_run["layers"] == 9
+    assert np.array_equal(got.matches, ref.matches)
+    assert np.abs(got.scores - ref.scores).max() < 1e-4
+
+    adaptive = OnnxLightGlueRuntime(inference)
+    adaptive.load("disk", lightglue_engine)
+    adaptive.load("disk", disk_steps_engine)
+    fast = adaptive.match_pair(*args, feature_type="disk")
+    assert adaptive.last_run["mode"] == "adaptive" and adaptive.last_run["layers"] < 9
+    a, b = set(map(tuple, fast.matches.tolist())), set(map(tuple, ref.matches.tolist()))
+    assert len(a & b) / len(b) > 0.8, (len(a), len(b), len(a & b))

@@ -1,0 +1,442 @@
+"""Adaptive (stepped) LightGlue export and verification (build time: imports torch).
+
+Writes ONE ONNX file with the three disjoint sub-graphs that
+``c3_matcher.engines.lightglue_adaptive`` drives (input projection; one transformer layer chosen
+by a ``layer`` index, with its token confidence and matchability; the match-assignment head of a
+chosen layer before the threshold). The per-layer weights are stacked ``(L, ...)`` and gathered
+by the index, so the file holds each weight once and every layer runs the same nodes.
+
+Verification (a failed check keeps no engine): on real pairs of the verification imagery, an
+overlapping pair (``verification_pairs``) and a distractor pair (two crops that share no ground),
+at 1024 and 2048 keypoints per side, the run time (numpy decisions between ONNX Runtime steps)
+is compared with kornia's ``LightGlue`` (upstream's adaptive forward) with the same weights and
+the same ``depth_confidence`` / ``width_confidence``: the share of identical matches, the layers
+run, the points kept, and the RANSAC inlier counts of both match sets (homography, 3 px).
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import cv2
+import numpy as np
+import onnxruntime as ort
+import torch
+from numpy.typing import NDArray
+from torch import nn
+from torch.func import functional_call
+from torch.nn import functional as nnf
+
+from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, normalize_keypoints
+from c3_matcher.engines.lightglue_adaptive import (
+    STEPS_INPUTS,
+    STEPS_OUTPUTS,
+    AdaptiveLightGlue,
+)
+from c3_matcher.engines.runtime import SessionSettings
+from c3_matcher_tools.engines.export import ExportReport, ExportRequest
+from c3_matcher_tools.engines.export.lightglue import FeaturesFn, verification_pairs
+from c3_matcher_tools.engines.export.onnx_export import export_module
+
+__all__ = [
+    "STEPS_TOLERANCES",
+    "LightGlueStepsForExport",
+    "export_aliked_steps",
+    "export_disk_steps",
+    "export_lightglue_steps",
+    "export_xfeat_steps",
+]
+
+STEPS_TOLERANCES: Mapping[str, float] = {
+    "min_identical_share": 0.98,  # |ours & ref| / |ours | ref| on every pair with >= 20 matches
+    "max_mismatch_distractor": 4,  # matches differing on pairs with < 20 reference matches
+    "layers_differ": 0,  # layers run, ours vs upstream
+    "inliers_rel_diff": 0.03,  # |inliers ours - ref| / max(ref, 1)
+}
+
+
+def _stack(modules: Any, names: list[str]) -> list[torch.Tensor]:
+    params = [dict(m.named_parameters()) for m in modules]
+    return [torch.stack([p[n].detach() for p in params]).contiguous() for n in names]
+
+
+class LightGlueStepsForExport(nn.Module):
+    """The steps graph of ``reference`` (kornia ``LightGlue``); I/O in
+    ``c3_matcher.engines.lightglue_adaptive``."""
+
+    def __init__(self, reference: Any) -> None:
+        super().__init__()
+        self.lg = reference
+        layers = list(reference.transformers)
+        self.n_layers = len(layers)
+        self.layer_names = [n for n, _ in layers[0].named_parameters()]
+        for j, tensor in enumerate(_stack(layers, self.layer_names)):
+            self.register_buffer(f"layer_p{j}", tensor)
+        heads = list(reference.log_assignment)
+        tokens = list(reference.token_confidence)
+        tokens = tokens + [tokens[-1]] * (self.n_layers - len(tokens))  # last layer: unused
+        self.register_buffer("ma_w", torch.stack([h.matchability.weight.detach() for h in heads]))
+        self.register_buffer("ma_b", torch.stack([h.matchability.bias.detach() for h in heads]))
+        self.register_buffer("fp_w", torch.stack([h.final_proj.weight.detach() for h in heads]))
+        self.register_buffer("fp_b", torch.stack([h.final_proj.bias.detach() for h in heads]))
+        self.register_buffer("tc_w", torch.stack([t.token[0].weight.detach() for t in tokens]))
+        self.register_buffer("tc_b", torch.stack([t.token[0].bias.detach() for t in tokens]))
+
+    @staticmethod
+    def _pick(stacked: Any, index: torch.Tensor) -> torch.Tensor:
+        return stacked.index_select(0, index).squeeze(0)
+
+    def forward(
+        self,
+        desc0: torch.Tensor,
+        desc1: torch.Tensor,
+        kpts0: torch.Tensor,
+        kpts1: torch.Tensor,
+        state0: torch.Tensor,
+        state1: torch.Tensor,
+        layer: torch.Tensor,
+        final0: torch.Tensor,
+        final1: torch.Tensor,
+        final_layer: torch.Tensor,
+    ) -> tuple[torch.Tensor, ...]:
+        lg: Any = self.lg
+        proj0, proj1 = lg.input_proj(desc0), lg.input_proj(desc1)
+        enc0, enc1 = lg.posenc(kpts0), lg.posenc(kpts1)
+        params = {
+            name: self._pick(getattr(self, f"layer_p{j}"), layer)
+            for j, name in enumerate(self.layer_names)
+        }
+        out0, out1 = functional_call(lg.transformers[0], params, (state0, state1, enc0, enc1))
+        tc_w, tc_b = self._pick(self.tc_w, layer), self._pick(self.tc_b, layer)
+        ma_w, ma_b = self._pick(self.ma_w, layer), self._pick(self.ma_b, layer)
+        conf0 = torch.sigmoid(nnf.linear(out0, tc_w, tc_b))[0, :, 0]
+        conf1 = torch.sigmoid(nnf.linear(out1, tc_w, tc_b))[0, :, 0]
+        match0 = torch.sigmoid(nnf.linear(out0, ma_w, ma_b))[0, :, 0]
+        match1 = torch.sigmoid(nnf.linear(out1, ma_w, ma_b))[0, :, 0]
+        # head: log_assignment[final_layer] + filter_matches before the threshold
+        fp_w, fp_b = self._pick(self.fp_w, final_layer), self._pick(self.fp_b, final_layer)
+        fa_w, fa_b = self._pick(self.ma_w, final_layer), self._pick(self.ma_b, final_layer)
+        md0, md1 = nnf.linear(final0, fp_w, fp_b), nnf.linear(final1, fp_w, fp_b)
+        dim = md0.shape[-1]
+        md0, md1 = md0 / dim**0.25, md1 / dim**0.25
+        sim = torch.einsum("bmd,bnd->bmn", md0, md1)
+        z0, z1 = nnf.linear(final0, fa_w, fa_b), nnf.linear(final1, fa_w, fa_b)
+        scores = (
+            nnf.log_softmax(sim, 2)
+            + nnf.log_softmax(sim, 1)
+            + nnf.logsigmoid(z0)
+            + nnf.logsigmoid(z1).transpose(1, 2)
+        )
+        max0, max1 = scores.max(2), scores.max(1)
+        m0, m1 = max0.indices, max1.indices
+        index0 = torch.cumsum(torch.ones_like(m0), 1) - 1
+        mutual0 = index0 == m1.gather(1, m0)
+        mscores0 = torch.where(mutual0, max0.values.exp(), torch.zeros_like(max0.values))
+        matches0 = torch.where(mutual0, m0, torch.full_like(m0, -1))
+        return (
+            proj0,
+            proj1,
+            out0,
+            out1,
+            conf0,
+            conf1,
+            match0,
+            match1,
+            matches0[0],
+            mscores0[0],
+        )
+
+
+def _session_run(session: ort.InferenceSession) -> Callable[[Mapping[str, Any]], dict[str, Any]]:
+    names = [o.name for o in session.get_outputs()]
+
+    def run(feeds: Mapping[str, Any]) -> dict[str, Any]:
+        return dict(zip(names, session.run(names, dict(feeds)), strict=True))
+
+    return run
+
+
+def _inliers(k0: NDArray[np.float32], k1: NDArray[np.float32], matches: NDArray[np.int64]) -> int:
+    if len(matches) < 4:
+        return 0
+    cv2.setRNGSeed(0)
+    _, mask = cv2.findHomography(
+        k0[matches[:, 0]].astype(np.float64),
+        k1[matches[:, 1]].astype(np.float64),
+        cv2.RANSAC,
+        3.0,
+        maxIters=2000,
+        confidence=0.999,
+    )
+    return 0 if mask is None else int(mask.sum())
+
+
+def _distractor_pair(
+    rgb: NDArray[np.uint8],
+) -> tuple[str, NDArray[np.uint8], NDArray[np.uint8]] | None:
+    """Two crops of one image that share no ground (640x480 top-left, 512x512 bottom-right)."""
+    height, width = rgb.shape[:2]
+    if height < 480 + 512 or width < 640:
+        return None
+    a = np.ascontiguousarray(rgb[0:480, 0:640])
+    b = np.ascontiguousarray(rgb[height - 512 : height, width - 512 : width])
+    return ("distractor 640x480|512x512", a, b)
+
+
+def _reference_run(
+    reference: Any,
+    k0: NDArray[np.float32],
+    d0: NDArray[np.float32],
+    size0: tuple[int, int],
+    k1: NDArray[np.float32],
+    d1: NDArray[np.float32],
+    size1: tuple[int, int],
+) -> dict[str, Any]:
+    return dict(
+        reference(
+            {
+                "image0": {
+                    "keypoints": torch.from_numpy(k0)[None],
+                    "descriptors": torch.from_numpy(d0)[None],
+                    "image_size": torch.tensor([size0], dtype=torch.float32),
+                },
+                "image1": {
+                    "keypoints": torch.from_numpy(k1)[None],
+                    "descriptors": torch.from_numpy(d1)[None],
+                    "image_size": torch.tensor([size1], dtype=torch.float32),
+                },
+            }
+        )
+    )
+
+
+def export_lightglue_steps(
+    request: ExportRequest,
+    *,
+    reference: Any,
+    features_fn: FeaturesFn,
+    feature_type: str,
+    keypoint_counts: tuple[int, ...] = (1024, 2048),
+) -> ExportReport:
+    """Export the steps graph of ``reference`` (kornia ``LightGlue``, any depth/width settings:
+    they are overridden by the spec's ``depth_confidence`` / ``width_confidence`` options for
+    the check) and verify it against upstream's adaptive forward (see the module docstring)."""
+    torch.set_grad_enabled(False)
+    spec = request.spec
+    depth = float(spec.option("depth_confidence"))
+    width = float(spec.option("width_confidence"))
+    conf: Any = reference.conf
+    input_dim, descriptor_dim = int(conf.input_dim), int(conf.descriptor_dim)
+    n_layers = int(conf.n_layers)
+    request.log(
+        f"exporting stepped LightGlue for {feature_type} ({n_layers} layers, opset {spec.opset})"
+    )
+    module = LightGlueStepsForExport(reference).eval()
+    sizes = (300, 280, 260, 240, 220, 200)
+    dims = [
+        torch.export.Dim(name, min=1, max=65536)
+        for name in (
+            "num_desc0",
+            "num_desc1",
+            "num_state0",
+            "num_state1",
+            "num_final0",
+            "num_final1",
+        )
+    ]
+    generator = torch.Generator().manual_seed(0)
+
+    def rand(*shape: int) -> torch.Tensor:
+        return torch.rand(*shape, generator=generator)
+
+    example = (
+        nnf.normalize(rand(1, sizes[0], input_dim), dim=-1),
+        nnf.normalize(rand(1, sizes[1], input_dim), dim=-1),
+        rand(1, sizes[2], 2) * 2 - 1,
+        rand(1, sizes[3], 2) * 2 - 1,
+        rand(1, sizes[2], descriptor_dim),
+        rand(1, sizes[3], descriptor_dim),
+        torch.tensor([1], dtype=torch.int64),
+        rand(1, sizes[4], descriptor_dim),
+        rand(1, sizes[5], descriptor_dim),
+        torch.tensor([2], dtype=torch.int64),
+    )
+    export_module(
+        module,
+        example,
+        request.output_path,
+        input_names=list(STEPS_INPUTS),
+        output_names=list(STEPS_OUTPUTS),
+        dynamic_shapes={
+            "desc0": {1: dims[0]},
+            "desc1": {1: dims[1]},
+            "kpts0": {1: dims[2]},
+            "kpts1": {1: dims[3]},
+            "state0": {1: dims[2]},
+            "state1": {1: dims[3]},
+            "layer": None,
+            "final0": {1: dims[4]},
+            "final1": {1: dims[5]},
+            "final_layer": None,
+        },
+        opset=spec.opset,
+    )
+    request.log(
+        f"verifying stepped LightGlue against upstream adaptive LightGlue "
+        f"(depth {depth}, width {width}) on real pairs"
+    )
+    session = ort.InferenceSession(
+        str(request.output_path),
+        sess_options=SessionSettings().build(),
+        providers=["CPUExecutionProvider"],
+    )
+    adaptive = AdaptiveLightGlue(
+        _session_run(session),
+        n_layers=n_layers,
+        input_dim=input_dim,
+        descriptor_dim=descriptor_dim,
+        depth_confidence=depth,
+        width_confidence=width,
+    )
+    reference.conf.depth_confidence = depth
+    reference.conf.width_confidence = width
+    reference.conf.filter_threshold = DEFAULT_FILTER_THRESHOLD
+    threshold = np.float32(DEFAULT_FILTER_THRESHOLD)
+    checks: list[dict[str, Any]] = []
+    failures: list[str] = []
+    for image in request.images:
+        pairs = list(verification_pairs(image.rgb))
+        distractor = _distractor_pair(image.rgb)
+        if distractor is not None:
+            pairs.append(distractor)
+        for label, rgb0, rgb1 in pairs:
+            size0 = (rgb0.shape[1], rgb0.shape[0])
+            size1 = (rgb1.shape[1], rgb1.shape[0])
+            for count in keypoint_counts:
+                k0, d0 = features_fn(rgb0, count)
+                k1, d1 = features_fn(rgb1, count)
+                ref = _reference_run(reference, k0, d0, size0, k1, d1, size1)
+                ref_matches = ref["matches"][0].numpy().astype(np.int64).reshape(-1, 2)
+                got = adaptive.match(
+                    normalize_keypoints(k0, size0), normalize_keypoints(k1, size1), d0, d1
+                )
+                valid = (got.matches0 > -1) & (got.mscores0 > threshold)
+                index0 = np.flatnonzero(valid)
+                matches = np.stack([index0, got.matches0[valid]], -1).astype(np.int64)
+                mine = set(map(tuple, matches.tolist()))
+                theirs = set(map(tuple, ref_matches.tolist()))
+                union = len(mine | theirs)
+                share = len(mine & theirs) / union if union else 1.0
+                inl, ref_inl = _inliers(k0, k1, matches), _inliers(k0, k1, ref_matches)
+                ref_layers = int(ref["stop"])
+                check: dict[str, Any] = {
+                    "pair": f"{image.name}:{label}",
+                    "keypoints": [len(k0), len(k1)],
+                    "matches": len(mine),
+                    "reference_matches": len(theirs),
+                    "identical_share": round(share, 5),
+                    "matches_mismatch": len(mine ^ theirs),
+                    "layers": got.layers,
+                    "reference_layers": ref_layers,
+                    "kept_last": [got.kept0[-1], got.kept1[-1]],
+                    "reference_kept_last": [
+                        int((ref["prune0"][0] == ref["prune0"][0].max()).sum()),
+                        int((ref["prune1"][0] == ref["prune1"][0].max()).sum()),
+                    ],
+                    "inliers": inl,
+                    "reference_inliers": ref_inl,
+                }
+                checks.append(check)
+                request.log(f"  {check}")
+                where = f"{check['pair']} @ {count}"
+                if len(theirs) >= 20 and share < STEPS_TOLERANCES["min_identical_share"]:
+                    failures.append(f"{where}: identical share {share:.4f}")
+                if (
+                    len(theirs) < 20
+                    and len(mine ^ theirs) > STEPS_TOLERANCES["max_mismatch_distractor"]
+                ):
+                    failures.append(f"{where}: {len(mine ^ theirs)} matches differ")
+                if abs(got.layers - ref_layers) > STEPS_TOLERANCES["layers_differ"]:
+                    failures.append(f"{where}: {got.layers} layers vs upstream {ref_layers}")
+                if abs(inl - ref_inl) > STEPS_TOLERANCES["inliers_rel_diff"] * max(ref_inl, 1):
+                    failures.append(f"{where}: {inl} inliers vs upstream {ref_inl}")
+    return ExportReport(
+        passed=not failures and bool(checks),
+        reference=(
+            f"kornia {importlib.metadata.version('kornia')} LightGlue adaptive forward "
+            f"(depth_confidence {depth}, width_confidence {width}) on {feature_type} features"
+        ),
+        tolerances=STEPS_TOLERANCES,
+        checks=checks,
+        failures=tuple(failures) if checks else ("no verification pair was run",),
+        notes={"depth_confidence": depth, "width_confidence": width, "n_layers": n_layers},
+    )
+
+
+def export_disk_steps(request: ExportRequest) -> ExportReport:
+    """``lightglue/disk-steps``: verified on real kornia-DISK features."""
+    from c3_matcher_disk_lightglue.engines import DISK_SPEC
+    from c3_matcher_disk_lightglue.export import disk_reference_features, load_disk_reference
+    from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
+
+    disk = load_disk_reference(DISK_SPEC.weights.resolve())
+    return export_lightglue_steps(
+        request,
+        reference=load_lightglue_reference(
+            request.weights_path, input_dim=int(request.spec.option("input_dim"))
+        ),
+        features_fn=lambda rgb, n: disk_reference_features(disk, rgb, n),
+        feature_type="disk",
+    )
+
+
+def export_aliked_steps(request: ExportRequest) -> ExportReport:
+    """``lightglue/aliked-steps``: verified on real kornia-ALIKED (n16) features."""
+    from c3_matcher_aliked_lightglue.engines import ALIKED_N16_SPEC
+    from c3_matcher_aliked_lightglue.export import (
+        aliked_reference_features,
+        load_aliked_reference,
+    )
+    from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
+
+    references: dict[int, Any] = {}
+
+    def features(rgb: NDArray[np.uint8], n: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        if n not in references:
+            references[n] = load_aliked_reference(
+                ALIKED_N16_SPEC.weights.resolve(), "aliked-n16", n
+            )
+        kp, _, de = aliked_reference_features(references[n], rgb)
+        return kp, de
+
+    return export_lightglue_steps(
+        request,
+        reference=load_lightglue_reference(
+            request.weights_path, input_dim=int(request.spec.option("input_dim"))
+        ),
+        features_fn=features,
+        feature_type="aliked",
+    )
+
+
+def export_xfeat_steps(request: ExportRequest) -> ExportReport:
+    """``lighterglue/xfeat-steps``: verified on real upstream-XFeat features."""
+    import importlib
+
+    from c3_matcher_xfeat.engines import XFEAT_SPEC
+
+    try:  # the plugin's export module (newer layout), else the older split modules
+        exp: Any = importlib.import_module("c3_matcher_xfeat.export")
+        glue: Any = exp
+    except ImportError:
+        exp = importlib.import_module("c3_matcher_xfeat.export_xfeat")
+        glue = importlib.import_module("c3_matcher_xfeat.export_lighterglue")
+    xfeat = exp.load_xfeat_reference(XFEAT_SPEC.weights.resolve())
+    return export_lightglue_steps(
+        request,
+        reference=glue.load_lighterglue_reference(request.weights_path),
+        features_fn=lambda rgb, n: exp.xfeat_reference_features(xfeat, rgb, n),
+        feature_type="xfeat",
+    )
