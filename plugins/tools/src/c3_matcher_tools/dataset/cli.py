@@ -22,6 +22,32 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+IMPORT_HELP = """\
+Build a c3-flight/1 dataset (no ground truth) from a recorded flight.
+
+TELEMETRY CSV: a header row, then one row per image; columns (case-insensitive, any
+order, extra columns ignored; aliases in brackets):
+  time_s [time]              capture time, seconds (any origin; rows are sorted by it)
+  image [file, filename, image_file]  image file name, relative to IMAGES_DIR
+  lat [latitude]             vehicle latitude, degrees, WGS84
+  lon [longitude]            vehicle longitude, degrees, WGS84
+  altitude_m [altitude, height_m, agl_m]  height ABOVE GROUND, metres
+  roll_deg [roll]            attitude, degrees: aerospace Z-Y-X (yaw, pitch, roll),
+  pitch_deg [pitch]          NED body frame (x forward, y right, z down),
+  yaw_deg [yaw]              yaw from TRUE north, clockwise positive
+Example:
+  time_s,image,lat,lon,altitude_m,roll_deg,pitch_deg,yaw_deg
+  0.0,IMG_0001.jpg,47.02441,-99.15483,780.0,11.73,14.96,90.35
+
+Candidates (a stand-in for the upstream re-ranker): at --zoom, the slippy tile holding
+the point where the optical axis meets the ground (from position, attitude, height
+and the calibration's camera mount), then the tiles within --uncertainty-m of that
+point, then the nearest others, --candidates in all, shuffled deterministically
+(--seed); each is a --candidate-size px window centred on its tile. Every input is
+checked before anything is written; OUT is written atomically (temp dir + rename).
+"""
+
+
 def register_dataset_command(commands: CommandRegistry) -> None:
     from c3_matcher_tools.tilestore.cli import parse_latlon
 
@@ -60,6 +86,36 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     )
     r.add_argument("--attribution", default="", help="imagery credit stored in dataset.json")
     r.add_argument("--seed", type=int, default=0)
+    m = ds.add_parser(
+        "import",
+        help="build a dataset (no ground truth) from a recorded flight: images, telemetry CSV, "
+        "calibration, candidates proposed from a tile store around the telemetry position",
+        description=IMPORT_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    m.add_argument("images_dir", type=Path, help="folder of the nav-camera images")
+    m.add_argument("telemetry", type=Path, help="telemetry CSV, one row per image (see above)")
+    m.add_argument(
+        "calibration",
+        type=Path,
+        help="calibration JSON {K, distortion, image_size[, camera_to_body]} (as for match)",
+    )
+    m.add_argument("store", type=Path, help="MBTiles store the candidates are proposed from")
+    m.add_argument("out", type=Path, help="dataset directory to write (must not exist)")
+    m.add_argument(
+        "--uncertainty-m",
+        type=float,
+        default=50.0,
+        help="position uncertainty, m: tiles within it are proposed first (default 50)",
+    )
+    m.add_argument("--candidates", type=int, default=3, help="candidates per frame (default 3)")
+    m.add_argument("--zoom", type=int, default=None, help="store zoom (default: its finest)")
+    m.add_argument(
+        "--candidate-size", type=int, default=512, help="candidate image side, px (default 512)"
+    )
+    m.add_argument("--seed", type=int, default=0, help="candidate shuffle seed (default 0)")
+    m.add_argument("--name", default=None, help="dataset name (default: OUT's name)")
+    m.add_argument("--force", action="store_true", help="replace an existing OUT")
     i = ds.add_parser("info", help="summary of a dataset (JSON)")
     i.add_argument("dataset", type=Path)
     p.set_defaults(handler=run_dataset)
@@ -85,6 +141,27 @@ def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
                 indent=2,
             )
         )
+        return 0
+    if args.dataset_command == "import":
+        from c3_matcher_tools.dataset.importer import ImportSpec, import_flight
+
+        summary = import_flight(
+            ImportSpec(
+                images_dir=args.images_dir,
+                telemetry_csv=args.telemetry,
+                calibration_json=args.calibration,
+                store=args.store,
+                uncertainty_m=args.uncertainty_m,
+                candidates=args.candidates,
+                zoom=args.zoom,
+                candidate_size_px=args.candidate_size,
+                seed=args.seed,
+            ),
+            args.out,
+            name=args.name,
+            force=args.force,
+        )
+        print(json.dumps(summary))
         return 0
     spec = FlightSpec(
         frames_geotiff=args.frames_geotiff,

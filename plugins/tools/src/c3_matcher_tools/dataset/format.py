@@ -219,11 +219,14 @@ class FlightDataset:
 
 
 def calibration_to_json(calibration: CameraCalibration) -> dict[str, Any]:
-    return {
+    out: dict[str, Any] = {
         "K": calibration.K.tolist(),
         "distortion": calibration.distortion.tolist(),
         "image_size": list(calibration.image_size),
     }
+    if calibration.camera_to_body is not None:
+        out["camera_to_body"] = np.asarray(calibration.camera_to_body).tolist()
+    return out
 
 
 def write_dataset(

@@ -1,0 +1,51 @@
+"""Write a dataset directory atomically: build it in a hidden sibling, rename it into place."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from c3_matcher.errors import InvalidInputError
+
+__all__ = ["atomic_directory", "check_output_dir"]
+
+
+def check_output_dir(out: Path, *, force: bool = False, field: str = "OUT") -> None:
+    """Refuse an ``out`` that exists (unless ``force`` and it is a directory) or whose parent
+    cannot be written; nothing is created."""
+    out = Path(out)
+    if out.exists() and not (force and out.is_dir()):
+        hint = "" if out.is_dir() else " (and is not a directory)"
+        raise InvalidInputError(field, f"{out} already exists{hint}: choose another or --force")
+    parent = out.resolve().parent
+    if not parent.is_dir():
+        raise InvalidInputError(field, f"{parent}: no such directory")
+    if not os.access(parent, os.W_OK):
+        raise InvalidInputError(field, f"{parent}: not writable")
+
+
+@contextmanager
+def atomic_directory(out: Path, *, force: bool = False) -> Iterator[Path]:
+    """Yield a temporary directory beside ``out``; on success rename it to ``out`` (replacing an
+    existing ``out`` only when ``force``), on any error remove it and leave ``out`` untouched."""
+    out = Path(out)
+    check_output_dir(out, force=force)
+    tag = uuid.uuid4().hex[:8]
+    tmp = out.parent / f".{out.name}.tmp-{tag}"
+    tmp.mkdir()
+    try:
+        yield tmp
+        if out.exists():
+            old = out.parent / f".{out.name}.old-{tag}"
+            out.rename(old)
+            tmp.rename(out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
