@@ -13,6 +13,7 @@ RUNTIME_MODULES = [
     "c3_matcher.engines.store",
     "c3_matcher.engines.runtime",
     "c3_matcher.engines.lightglue",
+    "c3_matcher.engines.lightglue_adaptive",
     "c3_matcher.engines.extract",
     "c3_matcher_tools.engines.compiler",
     "c3_matcher.engines.cli",
@@ -30,7 +31,7 @@ def test_runtime_modules_import_without_torch() -> None:
         f"for module in {RUNTIME_MODULES!r}:\n"
         "    __import__(module)\n"
         "from c3_matcher_disk_lightglue.engines import ENGINE_SPECS\n"
-        "assert len(ENGINE_SPECS) == 2\n"
+        "assert len(ENGINE_SPECS) == 3\n"
     )
     proc = subprocess.run(
         [sys.executable, "-c", code],

@@ -22,6 +22,7 @@ loaded with the same state dict, top-K mode, on the real verification image at e
 
 from __future__ import annotations
 
+from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
 
 __all__ = [
@@ -109,4 +110,12 @@ LIGHTGLUE_ALIKED_SPEC = EngineSpec(
     description="LightGlue for ALIKED, 9 layers, no adaptive pruning, threshold at run time",
 )
 
-ENGINE_SPECS: tuple[EngineSpec, ...] = (ALIKED_N16_SPEC, ALIKED_N16ROT_SPEC, LIGHTGLUE_ALIKED_SPEC)
+LIGHTGLUE_ALIKED_STEPS_SPEC = STEPS_SPECS["aliked"]
+"""``lightglue/aliked-steps``: adaptive LightGlue (early exit + point pruning) on ONNX Runtime."""
+
+ENGINE_SPECS: tuple[EngineSpec, ...] = (
+    ALIKED_N16_SPEC,
+    ALIKED_N16ROT_SPEC,
+    LIGHTGLUE_ALIKED_SPEC,
+    LIGHTGLUE_ALIKED_STEPS_SPEC,
+)

@@ -16,6 +16,7 @@ the flattened map padded with K zeros, so images with fewer than K pixels work t
 
 from __future__ import annotations
 
+from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
 
 __all__ = [
@@ -79,4 +80,7 @@ LIGHTGLUE_DISK_SPEC = EngineSpec(
     description="LightGlue for DISK, 9 layers, no adaptive pruning, threshold applied at run time",
 )
 
-ENGINE_SPECS: tuple[EngineSpec, ...] = (DISK_SPEC, LIGHTGLUE_DISK_SPEC)
+LIGHTGLUE_DISK_STEPS_SPEC = STEPS_SPECS["disk"]
+"""``lightglue/disk-steps``: adaptive LightGlue (early exit + point pruning) on ONNX Runtime."""
+
+ENGINE_SPECS: tuple[EngineSpec, ...] = (DISK_SPEC, LIGHTGLUE_DISK_SPEC, LIGHTGLUE_DISK_STEPS_SPEC)
