@@ -6,10 +6,21 @@ peak memory of each strategy on a demo-format frame with 3 candidates, beside, i
   environment is installed and the strategy's plugin offers one (``c3_matcher_reference_backend``);
 - the classical OpenCV SIFT + MAGSAC pipeline doing the same work;
 
-as ratios. Engine runs are timed twice: with every tile new (decoded and extracted every frame)
-and with the tiles cached (the steady state of a flight whose candidates were seen before).
-``--sweep`` adds image-size x keypoint-budget variants. Every case runs in a fresh worker
-process (``python -m c3_matcher_tools.bench``) so that its peak memory (``ru_maxrss``) is its own.
+as ratios. Engine runs are timed with every tile new (decoded and extracted every frame) and
+with the tiles cached (the steady state of a flight whose candidates were seen before); in the
+same run, when they apply:
+
+- stored map features (``[matcher] stored_features`` on, tiles never extracted in flight) vs
+  extraction, when ``--data`` is a flight whose store has features built
+  (``c3-matcher features build``); the FDR-style source of every candidate's features is
+  counted so a case that silently fell back to extraction shows it;
+- full vs adaptive LightGlue (``[lightglue] mode``) for the LightGlue-family strategies.
+
+Ratios are speed-ups of frame p50 (slower / faster, >1 means the case is faster).
+``--sweep`` adds image-size x keypoint-budget variants; ``--keypoints N`` and ``--threads N``
+(repeatable) add keypoint-budget and ONNX Runtime intra-op thread variants (new tiles). Every
+case runs in a fresh worker process (``python -m c3_matcher_tools.bench``) so that its peak
+memory (``ru_maxrss``) is its own.
 Wall-clock figures on a shared machine are noisy: compare ratios within one run.
 """
 
@@ -52,6 +63,9 @@ class BenchCase:
     tile_cache_size: int
     max_long_side: int
     max_keypoints: int | None
+    stored_features: bool = False
+    lightglue_mode: str | None = None  # None: as configured
+    intra_op_threads: int | None = None  # None: as configured
 
     @property
     def label(self) -> str:
@@ -61,8 +75,11 @@ class BenchCase:
             "sift": "sift_magsac",
         }[self.kind]
         tiles = "cached" if self.tile_cache_size else "new"
+        tiles = "stored" if self.stored_features else tiles
         budget = f"{self.max_keypoints} kp" if self.max_keypoints else "default kp"
-        return f"{name} ({tiles} tiles, {self.max_long_side}px, {budget})"
+        extra = f", LG {self.lightglue_mode}" if self.lightglue_mode else ""
+        extra += f", {self.intra_op_threads} thr" if self.intra_op_threads else ""
+        return f"{name} ({tiles} tiles, {self.max_long_side}px, {budget}{extra})"
 
 
 def _inputs(data_dir: Path) -> list[tuple[Any, Any, Any]]:
@@ -105,6 +122,20 @@ def _demo_inputs(data_dir: Path) -> tuple[Any, Any, Any]:
     return frame, RerankResult(frame.frame_id, candidates), calibration
 
 
+def stored_features_path(data_dir: Path) -> Path | None:
+    """The features sidecar of a flight dataset's store (``<store>.features.sqlite``), if any."""
+    meta = data_dir / "dataset.json"
+    if not meta.is_file():
+        return None
+    store = data_dir / str(json.loads(meta.read_text()).get("store", "tiles.mbtiles"))
+    sidecar = store.with_name(store.name + ".features.sqlite")
+    return sidecar if sidecar.is_file() else None
+
+
+def _uses_lightglue(strategy: str) -> bool:
+    return "glue" in strategy
+
+
 def _percentiles(values: list[float]) -> dict[str, float]:
     arr = np.asarray(values, dtype=np.float64)
     return {"p50": float(np.percentile(arr, 50)), "p95": float(np.percentile(arr, 95))}
@@ -144,23 +175,30 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
     from c3_matcher.fdr import JsonlFdrRecorder
     from c3_matcher.health import MonotonicClock
 
-    settings = settings.model_copy(
-        update={
-            "matcher": settings.matcher.model_copy(
-                update={
-                    "strategy": case.strategy,
-                    "tile_cache_size": case.tile_cache_size,
-                    "max_long_side": case.max_long_side,
-                    "max_keypoints": case.max_keypoints,
-                }
-            )
-        }
-    )
+    matcher_update: dict[str, Any] = {
+        "strategy": case.strategy,
+        "tile_cache_size": case.tile_cache_size,
+        "max_long_side": case.max_long_side,
+        "max_keypoints": case.max_keypoints,
+    }
+    if "stored_features" in type(settings.matcher).model_fields:
+        matcher_update["stored_features"] = case.stored_features
+    update: dict[str, Any] = {"matcher": settings.matcher.model_copy(update=matcher_update)}
+    lightglue = getattr(settings, "lightglue", None)
+    if case.lightglue_mode and lightglue is not None:
+        update["lightglue"] = lightglue.model_copy(update={"mode": case.lightglue_mode})
+    if case.intra_op_threads:
+        update["engines"] = settings.engines.model_copy(
+            update={"intra_op_threads": case.intra_op_threads}
+        )
+    settings = settings.model_copy(update=update)
     inputs = _inputs(data_dir)
     clock = MonotonicClock()
     fdr = JsonlFdrRecorder(Path(tempfile.mkdtemp(prefix="c3-bench-")) / "fdr.jsonl", clock)
     started = time.perf_counter()
     matcher, provider = _matcher(case, settings, fdr, clock)
+    if hasattr(matcher, "stored_features"):  # the setting, applied whatever the composition did
+        matcher.stored_features = case.stored_features
     startup_s = time.perf_counter() - started
     frame_ms: list[float] = []
     candidate_ms: list[float] = []
@@ -168,6 +206,7 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
     from c3_matcher.errors import InsufficientInliersError
 
     best: list[int] = []
+    sources: dict[str, int] = {}
     for i in range(runs + 2):
         frame, rerank, calibration = inputs[i % len(inputs)]
         t0 = time.perf_counter()
@@ -184,6 +223,8 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
             continue
         best.append(result.per_candidate[0].inlier_count)
         diag = result.diagnostics
+        for source in diag.get("candidate_features", ()):
+            sources[source] = sources.get(source, 0) + 1
         for key in ("query_preprocess", "query_extract"):
             stages[key].append(diag["timings_ms"][key])
         for cand in diag["per_candidate_timings_ms"]:
@@ -200,6 +241,7 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
         "frame_ms": _percentiles(frame_ms),
         "per_candidate_ms": _percentiles(candidate_ms),
         "stages_ms": {k: _percentiles(v) for k, v in stages.items() if v},
+        "feature_sources": sources,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
 
@@ -226,12 +268,27 @@ def _has_torch() -> bool:
 def cases_for(args: argparse.Namespace, settings: C3Settings) -> list[BenchCase]:
     m = settings.matcher
     cached = max(m.tile_cache_size, 3)
+    stored = stored_features_path(args.data) is not None
+    lightglue = getattr(settings, "lightglue", None)
+    other_mode = {"adaptive": "full", "full": "adaptive"}.get(getattr(lightglue, "mode", ""))
     cases: list[BenchCase] = []
     for name in args.strategy or [m.strategy]:
         cases += [
             BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints),
             BenchCase(name, "engine", cached, m.max_long_side, m.max_keypoints),
         ]
+        if stored and not getattr(args, "no_stored", False):
+            cases.append(BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, True))
+        if other_mode and _uses_lightglue(name) and not getattr(args, "no_modes", False):
+            cases.append(
+                BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, False, other_mode)
+            )
+        for kp in getattr(args, "keypoints", None) or ():
+            cases.append(BenchCase(name, "engine", 0, m.max_long_side, kp))
+        for threads in getattr(args, "threads", None) or ():
+            cases.append(
+                BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, False, None, threads)
+            )
         if not args.no_reference and _has_torch():
             cases.append(BenchCase(name, "pytorch", 0, m.max_long_side, m.max_keypoints))
         if args.sweep:
@@ -273,6 +330,30 @@ def register_bench_command(commands: CommandRegistry) -> None:
         help="a flight dataset (c3-flight/1, its frames in turn) or a demo-format directory "
         "(default: the built-in demo frame)",
     )
+    p.add_argument(
+        "--no-stored",
+        action="store_true",
+        help="skip the stored-features case (added when --data's store has features built)",
+    )
+    p.add_argument(
+        "--no-modes",
+        action="store_true",
+        help="skip the other [lightglue] mode (full vs adaptive) for LightGlue strategies",
+    )
+    p.add_argument(
+        "--keypoints",
+        type=int,
+        action="append",
+        default=None,
+        help="also time a keypoint budget of N per image, new tiles (repeatable)",
+    )
+    p.add_argument(
+        "--threads",
+        type=int,
+        action="append",
+        default=None,
+        help="also time ONNX Runtime intra-op threads N, new tiles (repeatable)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
     p.set_defaults(handler=run_bench)
 
@@ -293,12 +374,100 @@ def run_bench(args: argparse.Namespace, settings: C3Settings) -> int:
             cmd += ["--config", str(args.config)]
         out = subprocess.run(cmd, check=True, capture_output=True, text=True)
         results.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    report: dict[str, Any] = {"machine": _machine(), "runs": args.runs, "results": results}
+    report: dict[str, Any] = {
+        "machine": _machine(),
+        "runs": args.runs,
+        "data": str(args.data),
+        "results": results,
+        "comparisons": comparisons(results),
+    }
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
     print(format_report(report))
     return 0
+
+
+def _speedup(slow: dict[str, Any] | None, fast: dict[str, Any] | None, key: str = "p50") -> str:
+    """``slow / fast`` of frame ``key`` as ``"2.50x"`` (>1: ``fast`` is faster); '' if absent."""
+    if not slow or not fast or not fast["frame_ms"][key]:
+        return ""
+    return f"{slow['frame_ms'][key] / fast['frame_ms'][key]:.2f}x"
+
+
+def _sources(r: dict[str, Any]) -> str:
+    counts = r.get("feature_sources") or {}
+    total = sum(counts.values())
+    if not total:
+        return ""
+    return " ".join(f"{k} {v}/{total}" for k, v in sorted(counts.items()) if k != "none") or ""
+
+
+def comparisons(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The ratios a run proves, per strategy: stored vs extracted tiles, adaptive vs full
+    LightGlue, cached vs new tiles, each engine case vs the PyTorch reference (speed-ups of
+    frame p50 and p95, peak RSS of both sides)."""
+
+    def find(strategy: str, kind: str, **fields: Any) -> dict[str, Any] | None:
+        for r in results:
+            c = r["case"]
+            same = c["strategy"] == strategy and c["kind"] == kind
+            if same and all(c.get(k) == v for k, v in fields.items()):
+                return r
+        return None
+
+    out: list[dict[str, Any]] = []
+    for strategy in dict.fromkeys(r["case"]["strategy"] for r in results):
+        base = dict(stored_features=False, lightglue_mode=None, intra_op_threads=None)
+        new = find(strategy, "engine", tile_cache_size=0, **base)
+        cached = next(
+            (
+                r
+                for r in results
+                if r["case"]["strategy"] == strategy
+                and r["case"]["kind"] == "engine"
+                and r["case"]["tile_cache_size"] > 0
+            ),
+            None,
+        )
+        stored = find(strategy, "engine", stored_features=True)
+        other = next(
+            (
+                r
+                for r in results
+                if r["case"]["strategy"] == strategy
+                and r["case"]["kind"] == "engine"
+                and r["case"].get("lightglue_mode")
+            ),
+            None,
+        )
+        torch_ref = find(strategy, "pytorch")
+        pairs: list[tuple[str, dict[str, Any] | None, dict[str, Any] | None]] = [
+            ("cached vs new tiles", new, cached),
+            ("stored features vs extraction", new, stored),
+        ]
+        if other is not None:
+            mode = other["case"]["lightglue_mode"]
+            if mode == "full":
+                pairs.append(("adaptive vs full LightGlue", other, new))
+            else:
+                pairs.append(("adaptive vs full LightGlue", new, other))
+        for r in (new, cached, stored, other):
+            if r is not None:
+                pairs.append((f"{r['label']} vs PyTorch", torch_ref, r))
+        for what, slow, fast in pairs:
+            if slow is None or fast is None:
+                continue
+            out.append(
+                {
+                    "strategy": strategy,
+                    "comparison": what,
+                    "speedup_p50": slow["frame_ms"]["p50"] / fast["frame_ms"]["p50"],
+                    "speedup_p95": slow["frame_ms"]["p95"] / fast["frame_ms"]["p95"],
+                    "peak_rss_mb": (fast["peak_rss_mb"], slow["peak_rss_mb"]),
+                }
+            )
+    return out
 
 
 def format_report(report: dict[str, Any]) -> str:
@@ -309,23 +478,26 @@ def format_report(report: dict[str, Any]) -> str:
     lines = [
         f"machine: {m['platform']}, {m['cpus']} CPUs, onnxruntime {m['onnxruntime']} "
         f"(providers {', '.join(m['available_providers'])}); {report['runs']} runs per "
-        "case; frame = 1 query + 3 candidate tiles",
-        f"{'case':58} {'provider':22} {'frame p50':>9} {'frame p95':>9} {'cand p95':>8} "
-        f"{'peak MB':>7} {'inliers':>7} {'vs torch':>8} {'vs SIFT':>7}",
+        f"case; data {report.get('data', '?')}; frame = 1 query + its candidate tiles",
+        f"{'case':66} {'provider':18} {'frame p50':>9} {'frame p95':>9} {'cand p95':>8} "
+        f"{'peak MB':>7} {'inliers':>7} {'vs torch':>8} {'vs SIFT':>7}  tile features",
     ]
     for r in results:
         ref = torch_ref.get(r["case"]["strategy"])
-        vs_torch = (
-            f"{r['frame_ms']['p95'] / ref['frame_ms']['p95']:.2f}x"
-            if ref and r["case"]["kind"] == "engine"
-            else ""
-        )
-        vs_sift = f"{r['frame_ms']['p95'] / sift['frame_ms']['p95']:.2f}x" if sift else ""
+        vs_torch = _speedup(ref, r) if r["case"]["kind"] == "engine" else ""
+        vs_sift = _speedup(sift, r) if sift and r is not sift else ""
         lines.append(
-            f"{r['label']:58} {r['provider'][:22]:22} {r['frame_ms']['p50']:9.0f} "
+            f"{r['label']:66} {r['provider'][:18]:18} {r['frame_ms']['p50']:9.0f} "
             f"{r['frame_ms']['p95']:9.0f} {r['per_candidate_ms']['p95']:8.0f} "
             f"{r['peak_rss_mb']:7.0f} {r['best_inliers']:7d} {vs_torch:>8} "
-            f"{vs_sift:>7}"
+            f"{vs_sift:>7}  {_sources(r)}"
+        )
+    lines.append("speed-ups (frame p50 and p95, slower / faster; peak MB faster vs slower side):")
+    for c in report.get("comparisons") or comparisons(results):
+        fast_mb, slow_mb = c["peak_rss_mb"]
+        lines.append(
+            f"  {c['strategy']}: {c['comparison']}: {c['speedup_p50']:.2f}x p50, "
+            f"{c['speedup_p95']:.2f}x p95; peak {fast_mb:.0f} vs {slow_mb:.0f} MB"
         )
     lines.append("per stage, ms (p50/p95):")
     for r in results:

@@ -1,0 +1,94 @@
+"""``c3-matcher bench`` (issue 10, item 7): the ratios it reports (stored vs extracted tiles,
+adaptive vs full LightGlue, vs the PyTorch reference) from synthetic results, and a smoke run
+end to end (XFeat, one timed run per case) over a flight whose store has features built."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from c3_matcher_tools.bench import (
+    BenchCase,
+    comparisons,
+    format_report,
+    stored_features_path,
+)
+
+REPO = Path(__file__).resolve().parents[3]
+FLIGHT = REPO / "data" / "flights" / "naip_demo"
+ENGINES = REPO / ".engines"
+
+
+def _result(case: BenchCase, p50: float, rss: float = 100.0) -> dict[str, Any]:
+    from dataclasses import asdict
+
+    return {
+        "case": asdict(case),
+        "label": case.label,
+        "provider": "CPUExecutionProvider",
+        "runs": 1,
+        "startup_s": 0.1,
+        "best_inliers": 100,
+        "frame_ms": {"p50": p50, "p95": p50 * 1.1},
+        "per_candidate_ms": {"p50": p50 / 3, "p95": p50 / 3},
+        "stages_ms": {"extract": {"p50": 1.0, "p95": 2.0}},
+        "feature_sources": {"stored": 3} if case.stored_features else {"extracted": 3},
+        "peak_rss_mb": rss,
+    }
+
+
+def test_comparisons_are_speedups_of_the_right_pairs() -> None:
+    s = "disk_lightglue"
+    results = [
+        _result(BenchCase(s, "engine", 0, 1024, None), 1000.0),
+        _result(BenchCase(s, "engine", 16, 1024, None), 500.0),
+        _result(BenchCase(s, "engine", 0, 1024, None, True), 400.0),
+        _result(BenchCase(s, "engine", 0, 1024, None, False, "full"), 3000.0),
+        _result(BenchCase(s, "pytorch", 0, 1024, None), 5000.0, rss=900.0),
+    ]
+    got = {c["comparison"]: c for c in comparisons(results)}
+    assert got["cached vs new tiles"]["speedup_p50"] == pytest.approx(2.0)
+    assert got["stored features vs extraction"]["speedup_p50"] == pytest.approx(2.5)
+    assert got["adaptive vs full LightGlue"]["speedup_p50"] == pytest.approx(3.0)
+    vs_torch = got[f"{results[0]['label']} vs PyTorch"]
+    assert vs_torch["speedup_p50"] == pytest.approx(5.0)
+    assert vs_torch["peak_rss_mb"] == (100.0, 900.0)
+    text = format_report({"machine": _machine(), "runs": 1, "data": "x", "results": results})
+    assert "stored features vs extraction: 2.50x p50" in text
+    assert "adaptive vs full LightGlue: 3.00x p50" in text
+    assert "stored 3/3" in text and "vs torch" in text
+
+
+def _machine() -> dict[str, Any]:
+    return {
+        "platform": "test",
+        "cpus": 2,
+        "onnxruntime": "0",
+        "available_providers": ["CPUExecutionProvider"],
+    }
+
+
+@pytest.mark.skipif(not any(ENGINES.glob("xfeat_*.onnx")), reason="engines not built (.engines/)")
+def test_bench_smoke_over_a_flight_with_stored_features(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from c3_matcher.cli import main
+    from c3_matcher.config import load_settings
+    from c3_matcher_tools.features.build import build_features
+
+    flight = tmp_path / "naip_demo"
+    shutil.copytree(FLIGHT, flight)
+    monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(ENGINES))
+    build_features(flight / "tiles.mbtiles", ["xfeat"], load_settings(None), workers=0)
+    assert stored_features_path(flight) is not None
+    os.environ.setdefault("C3_MATCHER_ENGINES__DIRECTORY", str(ENGINES))
+    argv = ["bench", "--runs", "1", "--strategy", "xfeat", "--no-baseline", "--no-reference"]
+    assert main([*argv, "--data", str(flight)]) == 0
+    out = capsys.readouterr().out
+    assert "xfeat (stored tiles" in out and "xfeat (new tiles" in out
+    assert "stored features vs extraction:" in out and "cached vs new tiles:" in out
+    assert "peak MB" in out and "stored 3/3" in out  # the stored case really used the store
