@@ -13,7 +13,9 @@ baseline, side by side, against a flight's ground truth (the C3-IT acceptance me
   the seeds name the case, not a rate).
 - C3-IT-05: every frame whose true tile is absent raises InsufficientInliersError; bar: all.
 
-Writes ``eval.json``, per strategy ``<strategy>/results.jsonl`` (+ FDR and logs), and plots
+Writes ``eval.json``, per strategy ``<strategy>/results.jsonl`` (+ FDR and logs),
+``<strategy>/flight.geojson`` and ``<strategy>/report.html`` (the same as ``replay`` writes), and
+plots
 (``inliers.png``, ``error.png``, ``matches/<strategy>_<frame>.png``) under ``--out`` (default
 ``out/eval/<dataset>``); stdout carries the table (or JSON with ``--json``).
 """
@@ -40,6 +42,7 @@ from c3_matcher_tools.replay import (
     run_flight,
     summarize,
     with_overrides,
+    write_flight_outputs,
 )
 
 __all__ = ["BARS", "evaluate_strategy", "metrics", "register_eval_command"]
@@ -127,12 +130,29 @@ def evaluate_strategy(
     with (out / strategy / "results.jsonl").open("w", encoding="utf-8") as fh:
         for o in run1:
             fh.write(json.dumps(o.to_json()) + "\n")
+    timing = summarize(run1)
+    scores = metrics(run1, run2)
+    flight: dict[str, Any] = {
+        "dataset": str(dataset.root),
+        "strategy": strategy,
+        "matcher_labels": sorted({str(o.result["matcher_label"]) for o in run1 if o.result}),
+        "settings": settings.matcher.model_copy(update={"strategy": strategy}).model_dump(
+            mode="json"
+        ),
+        "startup_s": startup_s,
+        "wall_s": wall_s,
+        **timing,
+        **{f"{k} pass": v["pass"] for k, v in scores.items()},
+    }
+    write_flight_outputs(out / strategy, dataset, run1, strategy, flight)
     return {
         "strategy": strategy,
         "startup_s": startup_s,
         "wall_s": wall_s,
-        "timing": summarize(run1),
-        "metrics": metrics(run1, run2),
+        "timing": timing,
+        "metrics": scores,
+        "geojson": flight["geojson"],
+        "html": flight["html"],
         "per_frame": [
             {
                 "index": o.index,
@@ -320,6 +340,9 @@ def run_eval(args: argparse.Namespace, settings: C3Settings) -> int:
         )
     print("bars: " + "; ".join(f"{k} {v}" for k, v in BARS.items()) + " ('!' = bar missed)")
     print(f"report {out / 'eval.json'}, plots {out}")
+    for r in rows:
+        if "error" not in r:
+            print(f"  {r['strategy']}: map {r['geojson']}, flight report {r['html'] or '-'}")
     return 0
 
 

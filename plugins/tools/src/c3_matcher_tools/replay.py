@@ -389,10 +389,7 @@ def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
         "fdr": str(out / "fdr.jsonl"),
         "log": str(out / "matcher.log"),
     }
-    from c3_matcher_tools.geojson import write_geojson
-
-    report["geojson"] = str(write_geojson(out / "flight.geojson", outcomes, strategy))
-    report["html"] = write_html_report(out, dataset, outcomes, strategy, report)
+    write_flight_outputs(out, dataset, outcomes, strategy, report)
     (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
     if args.json:
         print(json.dumps(report, indent=2))
@@ -422,6 +419,22 @@ def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
 
 def _fmt(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.1f}"
+
+
+def write_flight_outputs(
+    out: Path,
+    dataset: FlightDataset,
+    outcomes: list[FrameOutcome],
+    strategy: str,
+    report: dict[str, Any],
+) -> None:
+    """``out/flight.geojson`` and ``out/report.html`` of one run (replay, and eval per
+    strategy); their paths go into ``report["geojson"]`` / ``report["html"]`` (None: no
+    matplotlib). ``report`` needs ``settings`` and :func:`summarize`'s keys."""
+    from c3_matcher_tools.geojson import write_geojson
+
+    report["geojson"] = str(write_geojson(out / "flight.geojson", outcomes, strategy))
+    report["html"] = write_html_report(out, dataset, outcomes, strategy, report)
 
 
 def write_html_report(
