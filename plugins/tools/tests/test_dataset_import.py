@@ -165,3 +165,19 @@ def test_import_then_replay_locates_frames_near_telemetry(engine_dir: Path, tmp_
     print("estimate - telemetry look point, m:", [round(e, 1) for e in errors])
     assert max(errors) < 30.0, errors
     assert (out / "report.html").is_file() and (out / "flight.geojson").is_file()
+
+
+def test_tiles_info_json_and_text() -> None:
+    def run(*extra: str) -> str:
+        return subprocess.run(
+            [sys.executable, "-m", "c3_matcher.cli", "tiles", "info", *extra],
+            capture_output=True,
+            text=True,
+            cwd=REPO,
+            timeout=120,
+            check=True,
+        ).stdout
+
+    info = json.loads(run(str(DEMO / "tiles.mbtiles"), "--json"))
+    assert info["tiles"] == {"15": 35}
+    assert "zoom 15: 35 tiles" in run(str(DEMO / "tiles.mbtiles"))

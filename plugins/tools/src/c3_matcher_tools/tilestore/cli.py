@@ -46,8 +46,9 @@ def register_tiles_command(commands: CommandRegistry) -> None:
     b.add_argument("--attribution", default="", help="metadata attribution text")
     b.add_argument("--force", action="store_true", help="overwrite OUT")
     b.add_argument("--json", action="store_true", help="print the report as JSON")
-    i = tiles.add_parser("info", help="print an MBTiles store's metadata and tile counts (JSON)")
+    i = tiles.add_parser("info", help="print an MBTiles store's metadata and tile counts")
     i.add_argument("store", type=Path)
+    i.add_argument("--json", action="store_true", help="print the info as JSON")
     p.set_defaults(handler=run_tiles)
 
 
@@ -62,7 +63,15 @@ def run_tiles(args: argparse.Namespace, settings: C3Settings) -> int:
                 "metadata": dict(store.metadata),
                 "tiles": {str(z): len(list(store.tiles(z))) for z in store.zooms()},
             }
-        print(json.dumps(info, indent=2))
+        if args.json:
+            print(json.dumps(info, indent=2))
+            return 0
+        print(
+            f"{info['path']}: "
+            + ", ".join(f"zoom {z}: {n} tiles" for z, n in info["tiles"].items())
+        )
+        for key, value in info["metadata"].items():
+            print(f"  {key}: {value if len(value) <= 120 else value[:117] + '...'}")
         return 0
     if not 1 <= args.quality <= 100:
         raise InvalidInputError("--quality", f"must be in [1, 100], got {args.quality}")
