@@ -28,6 +28,7 @@ pruning off (it does not survive a single-graph export), threshold 0.1 applied a
 
 from __future__ import annotations
 
+from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
 
 __all__ = [
@@ -109,4 +110,7 @@ LIGHTERGLUE_SPEC = EngineSpec(
     description="LighterGlue (LightGlue for XFeat, 6 layers, 1 head), no adaptive pruning",
 )
 
-ENGINE_SPECS: tuple[EngineSpec, ...] = (XFEAT_SPEC, LIGHTERGLUE_SPEC)
+LIGHTERGLUE_STEPS_SPEC = STEPS_SPECS["xfeat"]
+"""``lighterglue/xfeat-steps``: LighterGlue with upstream point pruning on ONNX Runtime."""
+
+ENGINE_SPECS: tuple[EngineSpec, ...] = (XFEAT_SPEC, LIGHTERGLUE_SPEC, LIGHTERGLUE_STEPS_SPEC)
