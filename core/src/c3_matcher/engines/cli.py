@@ -104,6 +104,9 @@ def _verify(args: argparse.Namespace, settings: C3Settings) -> int:
     ctx = engines_context(settings)
     store = EngineStore(ctx.engine_dir)
     outcomes = store.verify()
+    if not outcomes:
+        _err(f"no engines in {ctx.engine_dir}; build them with `{BUILD_COMMAND}`")
+        return 1
     seen = {o.path for o in outcomes}
     for spec in ctx.specs:  # every engine an installed plugin needs must be there
         try:
