@@ -233,6 +233,15 @@ def test_mismatched_frame_id_is_refused_naming_the_field(fdr, logs):
     with pytest.raises(InvalidInputError, match="rerank_result.frame_id"):
         rig.pipeline.match(rig.frame, other, rig.calibration)
     assert rig.health.update_count == 1
+    (record,) = fdr.of_kind("matcher.invalid_input")  # the refusal is in the flight record
+    assert record["field"] == "rerank_result.frame_id"
+
+
+def test_missing_frame_is_refused_with_an_fdr_record(fdr, logs):
+    rig = Rig([S(100)], fdr)
+    with pytest.raises(InvalidInputError, match="frame"):
+        rig.pipeline.match(None, rig.rerank, rig.calibration)  # type: ignore[arg-type]
+    assert [r["field"] for r in fdr.of_kind("matcher.invalid_input")] == ["frame"]
 
 
 def test_fdr_failure_never_fails_the_frame(logs):

@@ -92,12 +92,7 @@ def build_default_helpers(
     from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
-    providers = providers_available
-    if providers is None and settings.engines.providers is not None:
-        providers = tuple(settings.engines.providers)
-    inference = OnnxInferenceRuntime(
-        providers_available=providers, tensorrt_cache_dir=settings.engines.tensorrt_cache_dir
-    )
+    inference = OnnxInferenceRuntime.from_settings(settings.engines, providers_available)
     return {
         "c7_inference": inference,
         "c3_lightglue_runtime": OnnxLightGlueRuntime(

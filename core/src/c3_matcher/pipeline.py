@@ -180,8 +180,12 @@ class PipelineMatcher:
             return self._match(frame, rerank_result, calibration, state)
         except (MatcherBackboneError, InsufficientInliersError):
             raise
-        except InvalidInputError:
+        except InvalidInputError as exc:  # refused input still leaves its evidence in the FDR
             self._update_health(state, 0)
+            self._record(
+                "matcher.invalid_input",
+                {"frame_id": state.frame_id, "field": exc.field, "error": str(exc)},
+            )
             raise
         except Exception as exc:  # a bug must not take the vehicle down: contract error instead
             self._update_health(state, 0, force_backbone_error=True)

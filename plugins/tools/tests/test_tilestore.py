@@ -74,7 +74,8 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, np.ndar
     return tif, store, image
 
 
-def test_utm_matches_known_values_and_round_trips() -> None:
+def test_utm_matches_known_values_and_round_trips(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("C3_MATCHER_TOOLS_NO_PYPROJ", "1")  # the hand-written fallback
     utm14 = Projection.from_epsg(32614)
     e, n = utm14.from_lonlat([-99.0, -99.0], [0.0, 45.0])
     assert e[0] == pytest.approx(500_000.0, abs=1e-6) and n[0] == pytest.approx(0.0, abs=1e-6)
@@ -86,7 +87,8 @@ def test_utm_matches_known_values_and_round_trips() -> None:
     assert Projection.from_epsg(26914).kind == "utm"  # NAD83 UTM 14N
 
 
-def test_unknown_crs_needs_a_reference() -> None:
+def test_unknown_crs_needs_a_reference(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("C3_MATCHER_TOOLS_NO_PYPROJ", "1")  # pyproj knows every EPSG grid
     with pytest.raises(InvalidInputError, match="--ref-latlon"):
         Projection.from_epsg(28992)
     ltp = Projection.from_epsg(28992, reference=(51.83, 4.97), ref_en=(100.0, 200.0))

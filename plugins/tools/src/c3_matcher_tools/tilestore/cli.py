@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 from c3_matcher.commands import CommandRegistry
 from c3_matcher.config import C3Settings
@@ -58,7 +59,7 @@ def run_tiles(args: argparse.Namespace, settings: C3Settings) -> int:
 
     if args.tiles_command == "info":
         with MBTilesStore(args.store) as store:
-            info = {
+            info: dict[str, Any] = {
                 "path": str(store.path),
                 "metadata": dict(store.metadata),
                 "tiles": {str(z): len(list(store.tiles(z))) for z in store.zooms()},
