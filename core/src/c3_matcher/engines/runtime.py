@@ -24,8 +24,16 @@ Session options, chosen by measurement (``c3-matcher engines bench --sweep-sessi
   1024x1024 and ~380 MB at LightGlue 2048 for no speed gain (median latencies equal within the
   noise of that sweep). Quiet-machine medians with the chosen options: DISK 512x512 982 ms,
   1024x1024 3810 ms; LightGlue 512/side 312 ms, 2048/side 3286 ms.
-- CPU memory arena kept ON: off halves DISK 1024x1024's peak but made it markedly slower
-  (2.7x in the sweep; the feasibility study measured 17-40 %), and did not help LightGlue.
+- CPU memory arena first kept ON (superseded below): off halves DISK 1024x1024's peak but
+  made it markedly slower (2.7x in the sweep; the feasibility study measured 17-40 %), and did
+  not help LightGlue's single graph.
+- Issue 10, item 5 (peak RSS of the airborne default <= 800 MB) turned the CPU arena OFF by
+  default (``[engines] cpu_mem_arena``): disk_lightglue (adaptive LightGlue) on the first two
+  frames of ``data/flights/naip_demo``, tile cache off, one process: arena on 818 MiB, 11.7 /
+  10.7 CPU s per frame; arena off 584 MiB, 14.2 / 13.2 CPU s (+22 %); arena off for the
+  extractors only 806 MiB (+9 %); one shared env arena (kSameAsRequested) 860 MiB. Inlier
+  counts identical in all four. ``replay data/flights/naip_demo --limit 4`` peaked at 896 MiB
+  (``/usr/bin/time -v``) with the arena on.
 - ``graph_optimization_level = ORT_ENABLE_ALL``, sequential execution, ``intra_op_num_threads =
   0`` (one per physical core), ``use_deterministic_compute`` on (bit-identical reruns,
   DECISIONS 5).
@@ -94,7 +102,10 @@ _GPU_PROVIDERS = frozenset(
 
 PROVIDERS_SETTING = "[engines] providers (C3_MATCHER_ENGINES__PROVIDERS)"
 
-SESSION_OPTIONS_NOTE = "memory pattern off, arena on, ORT_ENABLE_ALL, sequential, deterministic"
+SESSION_OPTIONS_NOTE = (
+    "memory pattern off, CPU arena per [engines] cpu_mem_arena (default off), ORT_ENABLE_ALL, "
+    "sequential, deterministic"
+)
 
 _ORT_TO_NUMPY = {
     "tensor(float)": "float32",
@@ -217,7 +228,7 @@ class SessionSettings:
     """ONNX Runtime session options (defaults chosen by measurement, see the module docstring)."""
 
     enable_mem_pattern: bool = False
-    enable_cpu_mem_arena: bool = True
+    enable_cpu_mem_arena: bool = False  # issue 10 item 5: the 800 MB budget (module docstring)
     intra_op_num_threads: int = 0
     deterministic: bool = True
 
@@ -310,7 +321,10 @@ class OnnxInferenceRuntime:
         """A runtime from the ``[engines]`` settings (providers, per-provider options, threads)."""
         return cls(
             providers_available,
-            settings=SessionSettings(intra_op_num_threads=int(engines.intra_op_threads)),
+            settings=SessionSettings(
+                enable_cpu_mem_arena=bool(getattr(engines, "cpu_mem_arena", False)),
+                intra_op_num_threads=int(engines.intra_op_threads),
+            ),
             tensorrt_cache_dir=engines.tensorrt_cache_dir,
             requested=engines.providers,
             provider_settings=ProviderSettings(
