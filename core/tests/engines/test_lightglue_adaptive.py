@@ -172,7 +172,7 @@ def test_disk_steps_engine_agrees_with_the_single_graph(
     assert np.array_equal(got.matches, ref.matches)
     assert np.abs(got.scores - ref.scores).max() < 1e-4
 
-    adaptive = OnnxLightGlueRuntime(inference)
+    adaptive = OnnxLightGlueRuntime(inference, mode="adaptive")
     adaptive.load("disk", lightglue_engine)
     adaptive.load("disk", disk_steps_engine)
     fast = adaptive.match_pair(*args, feature_type="disk")

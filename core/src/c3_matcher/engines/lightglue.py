@@ -12,10 +12,12 @@ Two engine kinds per feature type, both loaded through ``load``: the single grap
 every layer on every point; adaptive depth/width does not survive a single-graph export) and the
 steps graph (manifest option ``pruning = "steps"``, ``c3_matcher.engines.lightglue_adaptive``):
 the transformer in steps with upstream's early exit and point pruning decided in numpy.
-``mode="adaptive"`` (default) runs the steps engine where one is loaded, otherwise the full one;
-``mode="full"`` runs the single graph where one is loaded (a steps engine alone then runs every
-layer on every point). ``depth_confidence`` / ``width_confidence`` ``None`` take the engine
-manifest's upstream defaults; ``-1`` disables the rule. ``last_run`` tells what the last
+``mode="adaptive"`` (the flight default, ``[lightglue] mode``, passed by ``compose``) runs the
+steps engine where one is loaded (loading a full engine also loads the ``<feature>-steps``
+engine beside it), otherwise the full one; ``mode="full"`` (the constructor's default) runs the
+single graph where one is loaded (a steps engine alone then runs every layer on every point).
+``depth_confidence`` / ``width_confidence`` ``None`` take the engine manifest's upstream
+defaults; ``-1`` disables the rule. ``last_run`` tells what the last
 ``match_pair`` did (mode, layers run, points kept).
 """
 
@@ -91,7 +93,7 @@ class OnnxLightGlueRuntime:
         inference: InferenceRuntime,
         *,
         filter_threshold: float = DEFAULT_FILTER_THRESHOLD,
-        mode: str = "adaptive",
+        mode: str = "full",
         depth_confidence: float | None = None,
         width_confidence: float | None = None,
     ) -> None:
