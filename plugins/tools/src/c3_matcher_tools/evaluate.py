@@ -12,6 +12,13 @@ baseline, side by side, against a flight's ground truth (the C3-IT acceptance me
   attitude tilt up to 20 deg and distractors >= 350 m away; bar >= 0.95 (this project's choice:
   the seeds name the case, not a rate).
 - C3-IT-05: every frame whose true tile is absent raises InsufficientInliersError; bar: all.
+- false-confident (issue 13, beside IT-05): frames that returned a best tile which is not the
+  true one (a wrong pick where the true tile is present, or any pick where it is absent), over
+  all frames with ground truth; bar: none.
+
+Several datasets (``c3-matcher eval FLIGHT1 FLIGHT2 ...``) are evaluated one after the other
+(outputs under ``--out/<dataset>``) and summarised in one strategy x flight table (correct-tile
+rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summary.json``.
 
 Writes ``eval.json``, per strategy ``<strategy>/results.jsonl`` (+ FDR and logs),
 ``<strategy>/flight.geojson`` and ``<strategy>/report.html`` (the same as ``replay`` writes), and
@@ -78,6 +85,8 @@ def metrics(run1: list[FrameOutcome], run2: list[FrameOutcome]) -> dict[str, Any
     correct = sum(o.correct for o in present)
     rate = correct / len(present) if present else math.nan
     raised = sum(o.status == "insufficient" for o in absent)
+    scored = [o for o in run1 if o.has_truth]
+    wrong = [o.index for o in scored if o.status == "ok" and not o.correct]
     return {
         "C3-IT-01": {"p5_best_inliers": p5, "frames": len(present), "pass": p5 >= 80},
         "C3-IT-02": {
@@ -103,6 +112,13 @@ def metrics(run1: list[FrameOutcome], run2: list[FrameOutcome]) -> dict[str, Any
             "insufficient": raised,
             "absent_frames": len(absent),
             "pass": raised == len(absent),
+        },
+        "false_confident": {
+            "frames": wrong,
+            "count": len(wrong),
+            "of": len(scored),
+            "rate": len(wrong) / len(scored) if scored else math.nan,
+            "pass": not wrong,
         },
     }
 
@@ -244,7 +260,12 @@ def register_eval_command(commands: CommandRegistry) -> None:
         description="Evaluate strategies side by side on a c3-flight/1 dataset against its "
         "ground truth (see c3_matcher_tools.evaluate). Table on stdout, progress on stderr.",
     )
-    p.add_argument("dataset", type=Path, help="dataset directory (holds dataset.json)")
+    p.add_argument(
+        "dataset",
+        type=Path,
+        nargs="+",
+        help="dataset directory (holds dataset.json); several: one summary table at the end",
+    )
     p.add_argument(
         "--strategy",
         action="append",
@@ -276,13 +297,36 @@ def _fmt(value: float, spec: str) -> str:
 def run_eval(args: argparse.Namespace, settings: C3Settings) -> int:
     from c3_matcher.compose import build_plugin_host
 
-    dataset = load_dataset(args.dataset)
+    datasets = [load_dataset(path) for path in args.dataset]  # every path checked first
     settings = with_overrides(settings, args.max_keypoints)
     specs = build_plugin_host().strategies()
     learned = sorted(n for n, spec in specs.items() if not spec.baseline)
     baselines = [] if args.no_baseline else sorted(n for n, s in specs.items() if s.baseline)
     names = [*(args.strategy or learned), *(b for b in baselines if b not in (args.strategy or []))]
-    out = args.out or Path("out") / "eval" / dataset.name
+    several = len(datasets) > 1
+    summary: list[dict[str, Any]] = []
+    for dataset in datasets:
+        if several:
+            out = (args.out or Path("out") / "eval") / dataset.name
+        else:
+            out = args.out or Path("out") / "eval" / dataset.name
+        rows = _eval_dataset(args, settings, dataset, names, out)
+        summary.extend(_summary_row(dataset.name, r) for r in rows)
+    if several:
+        root = args.out or Path("out") / "eval"
+        (root / "summary.json").write_text(json.dumps(_finite(summary), indent=2) + "\n")
+    if not args.json:
+        _print_summary(summary)
+    return 0
+
+
+def _eval_dataset(
+    args: argparse.Namespace,
+    settings: C3Settings,
+    dataset: FlightDataset,
+    names: list[str],
+    out: Path,
+) -> list[dict[str, Any]]:
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
     for name in names:
@@ -307,14 +351,14 @@ def run_eval(args: argparse.Namespace, settings: C3Settings) -> int:
     (out / "eval.json").write_text(json.dumps(_finite(report), indent=2) + "\n")
     if args.json:
         print(json.dumps(_finite(report), indent=2))
-        return 0
+        return rows
     print(
         f"eval {dataset.name}: {report['frames']} frames ({report['absent_frames']} without the "
         f"true tile), max_keypoints {settings.matcher.max_keypoints}"
     )
     print(
         f"{'strategy':18} {'IT-01 p5 inl':>13} {'IT-02':>7} {'IT-03 p95 px':>13} "
-        f"{'IT-04 correct':>14} {'IT-05 raised':>13} {'frame p50/p95 ms':>17}"
+        f"{'IT-04 correct':>14} {'IT-05 raised':>13} {'false-conf':>10} {'frame p50/p95 ms':>17}"
     )
     for r in rows:
         if "error" in r:
@@ -325,25 +369,63 @@ def run_eval(args: argparse.Namespace, settings: C3Settings) -> int:
         def mark(key: str, m: dict[str, Any] = m) -> str:
             return "" if m[key]["pass"] else "!"
 
-        it4, it5 = m["C3-IT-04"], m["C3-IT-05"]
+        it4, it5, fc = m["C3-IT-04"], m["C3-IT-05"], m["false_confident"]
         cells = (
             _fmt(m["C3-IT-01"]["p5_best_inliers"], ".0f") + mark("C3-IT-01"),
             "same" if m["C3-IT-02"]["pass"] else "DIFF",
             _fmt(m["C3-IT-03"]["p95_mean_error_px"], ".2f") + mark("C3-IT-03"),
             f"{it4['correct']}/{it4['frames']}" + mark("C3-IT-04"),
             f"{it5['insufficient']}/{it5['absent_frames']}" + mark("C3-IT-05"),
+            f"{fc['count']}/{fc['of']}" + mark("false_confident"),
             f"{t['frame_ms_p50']:.0f}/{t['frame_ms_p95']:.0f}",
         )
         print(
             f"{r['strategy']:18} {cells[0]:>13} {cells[1]:>7} {cells[2]:>13} {cells[3]:>14} "
-            f"{cells[4]:>13} {cells[5]:>17}"
+            f"{cells[4]:>13} {cells[5]:>10} {cells[6]:>17}"
         )
     print("bars: " + "; ".join(f"{k} {v}" for k, v in BARS.items()) + " ('!' = bar missed)")
     print(f"report {out / 'eval.json'}, plots {out}")
     for r in rows:
         if "error" not in r:
             print(f"  {r['strategy']}: map {r['geojson']}, flight report {r['html'] or '-'}")
-    return 0
+    return rows
+
+
+def _summary_row(flight: str, r: dict[str, Any]) -> dict[str, Any]:
+    if "error" in r:
+        return {"strategy": r["strategy"], "flight": flight, "error": r["error"]}
+    m = r["metrics"]
+    return {
+        "strategy": r["strategy"],
+        "flight": flight,
+        "correct": m["C3-IT-04"]["correct"],
+        "present": m["C3-IT-04"]["frames"],
+        "it03_p95_px": m["C3-IT-03"]["p95_mean_error_px"],
+        "it05_raised": m["C3-IT-05"]["insufficient"],
+        "absent": m["C3-IT-05"]["absent_frames"],
+        "false_confident": m["false_confident"]["count"],
+        "scored": m["false_confident"]["of"],
+        "frame_ms_p50": r["timing"]["frame_ms_p50"],
+    }
+
+
+def _print_summary(summary: list[dict[str, Any]]) -> None:
+    """The one strategy x flight table (issue 13)."""
+    print()
+    print(
+        f"{'strategy':18} {'flight':20} {'correct tile':>13} {'IT-03 p95':>10} {'IT-05':>7} "
+        f"{'false-conf':>10} {'ms/frame':>9}"
+    )
+    for s in sorted(summary, key=lambda s: (s["strategy"], s["flight"])):
+        if "error" in s:
+            print(f"{s['strategy']:18} {s['flight']:20} failed to run: {s['error']}")
+            continue
+        rate = f"{s['correct']}/{s['present']}" if s["present"] else "-"
+        print(
+            f"{s['strategy']:18} {s['flight']:20} {rate:>13} "
+            f"{_fmt(s['it03_p95_px'], '.2f'):>10} {s['it05_raised']}/{s['absent']:<5} "
+            f"{s['false_confident']}/{s['scored']:<7} {s['frame_ms_p50']:>9.0f}"
+        )
 
 
 def _finite(value: Any) -> Any:

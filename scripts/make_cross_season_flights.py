@@ -1,0 +1,74 @@
+"""Regenerate the cross-season flights of issue 13 in data/flights/ (committed; deterministic).
+
+Every ordered pair of the three NAIP dates of data/imagery/naip_timeseries (2010-06, 2015-09,
+2020-08): the tile store cut from one date (zoom 15, JPEG 90, as naip_demo's), the frames rendered
+from another, ground truth through both GeoTIFF grids (the renderer maps each frame pixel to the
+ground through the frames' GeoTIFF and to the tile through the store's mercator grid). 20 frames,
+320x240, the demo flight's orbit and attitude spec otherwise. ``naip_cross_date`` (frames 2010,
+store 2020, 30 frames) is the shipped pair already and is not re-rendered here.
+
+``naip_distractors``: frames 2015 against the 2020 store with ``absent_share = 1``: no frame has
+its true tile among its candidates; every frame must raise InsufficientInliersError.
+
+    .venv/bin/python scripts/make_cross_season_flights.py
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
+from c3_matcher_tools.dataset.progress import ProgressBar
+from c3_matcher_tools.tilestore.build import build_mbtiles
+
+REPO = Path(__file__).resolve().parents[1]
+NAIP = REPO / "data" / "imagery" / "naip_timeseries"
+OUT = REPO / "data" / "flights"
+CREDIT = "Imagery: USDA Farm Service Agency, National Agriculture Imagery Program (NAIP)"
+DATES = {
+    "2010": "m_4709963_se_14_1_20100629.tif",
+    "2015": "m_4709963_se_14_1_20150926.tif",
+    "2020": "m_4709963_se_14_1_20200831.tif",
+}
+# (store date, frames date); 2020 <- 2010 ships as naip_cross_date
+PAIRS = [("2020", "2015"), ("2015", "2010"), ("2015", "2020"), ("2010", "2015"), ("2010", "2020")]
+
+
+def main() -> int:
+    only = set(sys.argv[1:])
+    with tempfile.TemporaryDirectory() as tmp:
+        stores: dict[str, Path] = {}
+        for date in ("2010", "2015", "2020"):
+            stores[date] = Path(tmp) / f"naip{date}_z15.mbtiles"
+            build_mbtiles(
+                NAIP / DATES[date],
+                stores[date],
+                zoom=15,
+                tile_format="jpg",
+                jpeg_quality=90,
+                attribution=CREDIT,
+            )
+        jobs = [(f"naip_s{s}_f{f}", s, f, 0.1) for s, f in PAIRS]
+        jobs.append(("naip_distractors", "2020", "2015", 1.0))
+        for seed, (name, store_date, frames_date, absent) in enumerate(jobs, start=11):
+            if only and name not in only:
+                continue
+            target = OUT / name
+            if target.exists():
+                shutil.rmtree(target)
+            spec = FlightSpec(
+                NAIP / DATES[frames_date],
+                stores[store_date],
+                n_frames=20,
+                absent_share=absent,
+                seed=seed,
+            )
+            render_flight(spec, target, name=name, attribution=CREDIT, progress=ProgressBar(name))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
