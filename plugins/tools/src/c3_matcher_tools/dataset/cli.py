@@ -56,6 +56,9 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     r = ds.add_parser(
         "render",
         help="render a flight over a GeoTIFF against an MBTiles store (c3-matcher tiles build)",
+        description="Render a simulated flight with ground truth. Every input is checked and "
+        "every frame rendered before anything is written; OUT is written atomically (temp dir "
+        "+ rename) and an existing OUT is refused without --force.",
     )
     r.add_argument("frames_geotiff", type=Path, help="orthophoto the frames are rendered from")
     r.add_argument("store", type=Path, help="MBTiles store of the candidate tiles")
@@ -79,6 +82,12 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     )
     r.add_argument("--min-distractor-distance", type=float, default=350.0, help="m (default 350)")
     r.add_argument(
+        "--max-distractor-nodata",
+        type=float,
+        default=0.35,
+        help="largest nodata share of a distractor window (default 0.35)",
+    )
+    r.add_argument(
         "--ref-latlon",
         type=parse_latlon,
         default=None,
@@ -86,6 +95,7 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     )
     r.add_argument("--attribution", default="", help="imagery credit stored in dataset.json")
     r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--force", action="store_true", help="replace an existing OUT")
     m = ds.add_parser(
         "import",
         help="build a dataset (no ground truth) from a recorded flight: images, telemetry CSV, "
@@ -179,11 +189,16 @@ def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
         candidate_size_px=args.candidate_size,
         absent_share=args.absent_share,
         min_distractor_distance_m=args.min_distractor_distance,
+        max_distractor_nodata=args.max_distractor_nodata,
         reference_latlon=args.ref_latlon,
         seed=args.seed,
     )
     out = render_flight(
-        spec, args.out, attribution=args.attribution, progress=ProgressBar("dataset render")
+        spec,
+        args.out,
+        attribution=args.attribution,
+        progress=ProgressBar("dataset render"),
+        force=args.force,
     )
     print(json.dumps({"dataset": str(out), "frames": spec.n_frames}))
     return 0

@@ -263,33 +263,72 @@ def render_flight(
     name: str | None = None,
     attribution: str = "",
     progress: Progress | None = None,
+    force: bool = False,
 ) -> Path:
     """Render ``spec`` into the dataset directory ``out`` (the store is copied in as
-    ``tiles.mbtiles``). Raises InvalidInputError / ValueError naming the parameter that makes
-    the flight impossible (leaving the imagery, footprint larger than a candidate, too few
-    distractor positions)."""
+    ``tiles.mbtiles``). Every input is checked, and every frame rendered and its candidates
+    chosen, before anything is written (frames are held JPEG-encoded in memory); then the
+    dataset is written into a hidden sibling directory and renamed into place, so a failure
+    leaves no directory behind. An existing ``out`` is refused unless ``force``. Raises
+    InvalidInputError naming the option that makes the flight impossible (leaving the
+    imagery, footprint larger than a candidate, too few distractor positions)."""
     import shutil
 
+    from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
+
     out = Path(out)
-    (out / "frames").mkdir(parents=True, exist_ok=True)
-    store_copy = out / "tiles.mbtiles"
-    if Path(spec.store).resolve() != store_copy.resolve():
-        shutil.copyfile(spec.store, store_copy)
-    store = MBTilesStore(store_copy)
+    check_output_dir(out, force=force)
+    if not Path(spec.frames_geotiff).is_file():
+        raise InvalidInputError("FRAMES_GEOTIFF", f"no such file: {spec.frames_geotiff}")
+    if not Path(spec.store).is_file():
+        raise InvalidInputError("STORE", f"no such file: {spec.store}")
     try:
-        return _render(spec, out, store, name or out.name, attribution, progress)
+        store = MBTilesStore(spec.store)
+    except InvalidInputError as exc:
+        raise InvalidInputError("STORE", exc.reason) from exc
+    except Exception as exc:  # sqlite3 / format errors: name the argument
+        raise InvalidInputError(
+            "STORE", f"{spec.store}: not a readable MBTiles store: {exc}"
+        ) from exc
+    try:
+        plan = _plan(spec, store, name or out.name, attribution, progress)
     finally:
         store.close()
+    meta, calibration, frames, images = plan
+    with atomic_directory(out, force=force) as tmp:
+        (tmp / "frames").mkdir()
+        shutil.copyfile(spec.store, tmp / "tiles.mbtiles")
+        for rel, data in images.items():
+            (tmp / rel).write_bytes(data)
+        write_dataset(tmp, meta, calibration, frames)
+    return out
 
 
-def _render(
+def _check_coverage(spec: FlightSpec, cov: _Coverage, m_per_px: float) -> None:
+    """Refuse a store too small for a candidate window plus distractors at the requested
+    distance before any frame is rendered (names the command-line options)."""
+    h, w = cov.image.shape[:2]
+    size = spec.candidate_size_px
+    need = size + spec.min_distractor_distance_m / m_per_px
+    if w < need and h < need:
+        raise InvalidInputError(
+            "--candidate-size",
+            f"the store covers {w}x{h} px at zoom {cov.zoom} ({m_per_px:.2f} m/px), too small "
+            f"for a {size} px candidate plus distractors {spec.min_distractor_distance_m:.0f} m "
+            "away: lower --candidate-size or --min-distractor-distance, or build the store at "
+            f"a finer zoom (tiles build --zoom {cov.zoom + 1})",
+        )
+
+
+def _plan(
     spec: FlightSpec,
-    out: Path,
     store: MBTilesStore,
     name: str,
     attribution: str,
     progress: Progress | None,
-) -> Path:
+) -> tuple[dict[str, Any], CameraCalibration, list[FrameRecord], dict[str, bytes]]:
+    """Render every frame and choose its candidates, in memory: (dataset meta, calibration,
+    frame records, {relative image path: JPEG bytes})."""
     reference = spec.reference_latlon
     if reference is None and "c3_georeference" in store.metadata:
         geo = json.loads(store.metadata["c3_georeference"])
@@ -302,6 +341,7 @@ def _render(
     zoom, size = cov.zoom, spec.candidate_size_px
     centre_lon, centre_lat = grid.centre_lonlat()
     m_per_px = TileId(zoom, centre_lat, centre_lon).web_mercator_gsd_m()
+    _check_coverage(spec, cov, m_per_px)
     calibration = spec.calibration()
     renderer = NavCameraRenderer(calibration)
     rng = np.random.default_rng(spec.seed)
@@ -309,6 +349,7 @@ def _render(
     absent = set(rng.choice(spec.n_frames, size=n_absent, replace=False).tolist())
     centre_en = _flight_centre(store, grid)
     frames: list[FrameRecord] = []
+    images: dict[str, bytes] = {}
     worst_fit = 0.0
     for i, (east, north, heading) in enumerate(_trajectory(spec, centre_en)):
         frng = np.random.default_rng([spec.seed, i])
@@ -324,8 +365,8 @@ def _render(
             raise InvalidInputError(
                 "trajectory",
                 f"frame {i} (nadir E {east:.0f} N {north:.0f}) sees beyond the orthophoto "
-                f"({100 * (1 - frame.coverage.mean()):.1f}% nodata): lower height_m, "
-                "orbit_radius_m or n_frames x speed",
+                f"({100 * (1 - frame.coverage.mean()):.1f}% nodata): lower --height, "
+                "--radius or --frames x --speed x --interval",
             )
         fp_world = lonlat_to_world_px(grid.px_to_lonlat(frame.footprint_ortho()), zoom)
         centre_world = fp_world.mean(axis=0)
@@ -336,7 +377,7 @@ def _render(
                 "candidate_size_px",
                 f"frame {i}: the footprint spans {(hi - lo).round(1)} WORLD px, more than a "
                 f"{size} px candidate on a {spec.grid_px} px grid holds: raise "
-                "candidate_size_px or lower height_m / max_tilt_deg",
+                "--candidate-size or lower --height / --max-tilt",
             )
         is_absent = i in absent
         count = 3 if is_absent else 2
@@ -363,8 +404,9 @@ def _render(
             raise InvalidInputError(
                 "distractors",
                 f"frame {i}: {exc.reason if hasattr(exc, 'reason') else exc}; the store is too "
-                "small for this candidate size / distance: lower candidate_size_px or "
-                "raise max_distractor_nodata",
+                "small for this candidate size / distance: lower --candidate-size or "
+                "--min-distractor-distance, raise --max-distractor-nodata, or build the store "
+                f"at a finer zoom (tiles build --zoom {zoom + 1}) or over more ground",
             ) from exc
         origins = [] if is_absent else [(true_origin, True)]
         origins += [
@@ -385,7 +427,10 @@ def _render(
             for k, c in enumerate(cands[j] for j in order)
         )
         image_rel = f"frames/{i:06d}.jpg"
-        cv2.imwrite(str(out / image_rel), frame.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+        ok, jpeg = cv2.imencode(".jpg", frame.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+        if not ok:
+            raise InvalidInputError("frames", f"frame {i}: cannot encode the image")
+        images[image_rel] = jpeg.tobytes()
         nadir_lon, nadir_lat = grid.px_to_lonlat([nadir])[0]
         c_lon, c_lat = world_px_to_lonlat(centre_world[None, :], zoom)[0]
         frames.append(
@@ -426,4 +471,4 @@ def _render(
         "spec": spec.to_json(),
         "attribution": attribution,
     }
-    return write_dataset(out, meta, calibration, frames)
+    return meta, calibration, frames, images

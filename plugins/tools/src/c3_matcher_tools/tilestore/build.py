@@ -5,8 +5,8 @@ metres and ORTHO px (:mod:`c3_matcher.tilestore.geo`: exact for UTM / mercator /
 grids, a documented local tangent plane otherwise), and sampled bilinearly
 (``cv2.remap``; the orthophoto is first area-downscaled when the tiles are >= 1.15x coarser).
 Pixels outside the orthophoto or on its nodata (all bands 0) are 0 (nodata); tiles with no data
-are not stored. The zoom defaults to the one whose ground GSD at the image centre is nearest the
-orthophoto's.
+are not stored. The zoom defaults to the coarsest whose ground GSD at the image centre is at most
+the orthophoto's (:func:`c3_matcher_tools.tilestore.geo.zoom_for_gsd`).
 """
 
 from __future__ import annotations
