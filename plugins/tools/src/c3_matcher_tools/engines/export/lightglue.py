@@ -39,8 +39,10 @@ __all__ = [
     "LIGHTGLUE_TOLERANCES",
     "FeaturesFn",
     "LightGlueForExport",
+    "assignment_matches",
     "export_lightglue",
     "load_lightglue_reference",
+    "reference_inputs",
     "verification_pairs",
 ]
 
@@ -121,23 +123,53 @@ class LightGlueForExport(nn.Module):
             d0, d1 = layer(d0, d1, enc0, enc1)
         assignment = lg.log_assignment[-1]
         md0, md1 = assignment.final_proj(d0), assignment.final_proj(d1)
-        dim = md0.shape[-1]
-        md0, md1 = md0 / dim**0.25, md1 / dim**0.25
-        sim = torch.einsum("bmd,bnd->bmn", md0, md1)
         z0, z1 = assignment.matchability(d0), assignment.matchability(d1)
-        scores = (
-            nnf.log_softmax(sim, 2)
-            + nnf.log_softmax(sim, 1)
-            + nnf.logsigmoid(z0)
-            + nnf.logsigmoid(z1).transpose(1, 2)
-        )
-        max0, max1 = scores.max(2), scores.max(1)
-        m0, m1 = max0.indices, max1.indices
-        index0 = torch.cumsum(torch.ones_like(m0), 1) - 1
-        mutual0 = index0 == m1.gather(1, m0)
-        mscores0 = torch.where(mutual0, max0.values.exp(), torch.zeros_like(max0.values))
-        matches0 = torch.where(mutual0, m0, torch.full_like(m0, -1))
-        return matches0[0], mscores0[0]
+        return assignment_matches(md0, md1, z0, z1)
+
+
+def assignment_matches(
+    md0: torch.Tensor, md1: torch.Tensor, z0: torch.Tensor, z1: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Upstream's match assignment (inner (M, N) block) and ``filter_matches`` before the
+    threshold, from the projected descriptors ``md0``/``md1`` (1, M|N, D) and the matchability
+    logits ``z0``/``z1`` (1, M|N, 1): ``(matches0 (M,), mscores0 (M,))``."""
+    dim = md0.shape[-1]
+    md0, md1 = md0 / dim**0.25, md1 / dim**0.25
+    sim = torch.einsum("bmd,bnd->bmn", md0, md1)
+    scores = (
+        nnf.log_softmax(sim, 2)
+        + nnf.log_softmax(sim, 1)
+        + nnf.logsigmoid(z0)
+        + nnf.logsigmoid(z1).transpose(1, 2)
+    )
+    max0, max1 = scores.max(2), scores.max(1)
+    m0, m1 = max0.indices, max1.indices
+    index0 = torch.cumsum(torch.ones_like(m0), 1) - 1
+    mutual0 = index0 == m1.gather(1, m0)
+    mscores0 = torch.where(mutual0, max0.values.exp(), torch.zeros_like(max0.values))
+    matches0 = torch.where(mutual0, m0, torch.full_like(m0, -1))
+    return matches0[0], mscores0[0]
+
+
+def reference_inputs(
+    k0: NDArray[np.float32],
+    d0: NDArray[np.float32],
+    size0: tuple[int, int],
+    k1: NDArray[np.float32],
+    d1: NDArray[np.float32],
+    size1: tuple[int, int],
+) -> dict[str, dict[str, torch.Tensor]]:
+    """kornia ``LightGlue``'s input for one pair: keypoints (K, 2) px, descriptors (K, D) and
+    the (width, height) of each image."""
+
+    def side(k: NDArray[np.float32], d: NDArray[np.float32], size: tuple[int, int]) -> Any:
+        return {
+            "keypoints": torch.from_numpy(k)[None],
+            "descriptors": torch.from_numpy(d)[None],
+            "image_size": torch.tensor([size], dtype=torch.float32),
+        }
+
+    return {"image0": side(k0, d0, size0), "image1": side(k1, d1, size1)}
 
 
 def verification_pairs(
@@ -233,20 +265,7 @@ def export_lightglue(
             for count in keypoint_counts:
                 k0, d0 = features_fn(rgb0, count)
                 k1, d1 = features_fn(rgb1, count)
-                ref = reference(
-                    {
-                        "image0": {
-                            "keypoints": torch.from_numpy(k0)[None],
-                            "descriptors": torch.from_numpy(d0)[None],
-                            "image_size": torch.tensor([size0], dtype=torch.float32),
-                        },
-                        "image1": {
-                            "keypoints": torch.from_numpy(k1)[None],
-                            "descriptors": torch.from_numpy(d1)[None],
-                            "image_size": torch.tensor([size1], dtype=torch.float32),
-                        },
-                    }
-                )
+                ref = reference(reference_inputs(k0, d0, size0, k1, d1, size1))
                 ref_matches = ref["matches"][0].numpy().astype(np.int64)
                 ref_scores = ref["scores"][0].numpy()
                 ref_ms0 = ref["matching_scores0"][0].numpy()
@@ -282,13 +301,13 @@ def export_lightglue(
                             f"{check['pair']} @ {count}: {key} {check[key]:.3g} > "
                             f"{LIGHTGLUE_TOLERANCES[key]:.3g}"
                         )
-    return ExportReport(
-        passed=not failures and bool(checks),
-        reference=f"kornia {_version('kornia')} LightGlue (pruning off) with {reference_name} "
+    return ExportReport.from_checks(
+        f"kornia {_version('kornia')} LightGlue (pruning off) with {reference_name} "
         f"weights on {feature_type} features",
-        tolerances=LIGHTGLUE_TOLERANCES,
-        checks=checks,
-        failures=tuple(failures) if checks else ("no verification pair was run",),
+        LIGHTGLUE_TOLERANCES,
+        checks,
+        failures,
+        nothing_run="no verification pair was run",
     )
 
 

@@ -37,7 +37,12 @@ from c3_matcher.engines.lightglue_adaptive import (
 )
 from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
-from c3_matcher_tools.engines.export.lightglue import FeaturesFn, verification_pairs
+from c3_matcher_tools.engines.export.lightglue import (
+    FeaturesFn,
+    assignment_matches,
+    reference_inputs,
+    verification_pairs,
+)
 from c3_matcher_tools.engines.export.onnx_export import export_module
 
 __all__ = [
@@ -119,34 +124,9 @@ class LightGlueStepsForExport(nn.Module):
         fp_w, fp_b = self._pick(self.fp_w, final_layer), self._pick(self.fp_b, final_layer)
         fa_w, fa_b = self._pick(self.ma_w, final_layer), self._pick(self.ma_b, final_layer)
         md0, md1 = nnf.linear(final0, fp_w, fp_b), nnf.linear(final1, fp_w, fp_b)
-        dim = md0.shape[-1]
-        md0, md1 = md0 / dim**0.25, md1 / dim**0.25
-        sim = torch.einsum("bmd,bnd->bmn", md0, md1)
         z0, z1 = nnf.linear(final0, fa_w, fa_b), nnf.linear(final1, fa_w, fa_b)
-        scores = (
-            nnf.log_softmax(sim, 2)
-            + nnf.log_softmax(sim, 1)
-            + nnf.logsigmoid(z0)
-            + nnf.logsigmoid(z1).transpose(1, 2)
-        )
-        max0, max1 = scores.max(2), scores.max(1)
-        m0, m1 = max0.indices, max1.indices
-        index0 = torch.cumsum(torch.ones_like(m0), 1) - 1
-        mutual0 = index0 == m1.gather(1, m0)
-        mscores0 = torch.where(mutual0, max0.values.exp(), torch.zeros_like(max0.values))
-        matches0 = torch.where(mutual0, m0, torch.full_like(m0, -1))
-        return (
-            proj0,
-            proj1,
-            out0,
-            out1,
-            conf0,
-            conf1,
-            match0,
-            match1,
-            matches0[0],
-            mscores0[0],
-        )
+        matches0, mscores0 = assignment_matches(md0, md1, z0, z1)
+        return (proj0, proj1, out0, out1, conf0, conf1, match0, match1, matches0, mscores0)
 
 
 def _session_run(session: ort.InferenceSession) -> Callable[[Mapping[str, Any]], dict[str, Any]]:
@@ -183,33 +163,6 @@ def _distractor_pair(
     a = np.ascontiguousarray(rgb[0:480, 0:640])
     b = np.ascontiguousarray(rgb[height - 512 : height, width - 512 : width])
     return ("distractor 640x480|512x512", a, b)
-
-
-def _reference_run(
-    reference: Any,
-    k0: NDArray[np.float32],
-    d0: NDArray[np.float32],
-    size0: tuple[int, int],
-    k1: NDArray[np.float32],
-    d1: NDArray[np.float32],
-    size1: tuple[int, int],
-) -> dict[str, Any]:
-    return dict(
-        reference(
-            {
-                "image0": {
-                    "keypoints": torch.from_numpy(k0)[None],
-                    "descriptors": torch.from_numpy(d0)[None],
-                    "image_size": torch.tensor([size0], dtype=torch.float32),
-                },
-                "image1": {
-                    "keypoints": torch.from_numpy(k1)[None],
-                    "descriptors": torch.from_numpy(d1)[None],
-                    "image_size": torch.tensor([size1], dtype=torch.float32),
-                },
-            }
-        )
-    )
 
 
 def export_lightglue_steps(
@@ -317,7 +270,7 @@ def export_lightglue_steps(
             for count in keypoint_counts:
                 k0, d0 = features_fn(rgb0, count)
                 k1, d1 = features_fn(rgb1, count)
-                ref = _reference_run(reference, k0, d0, size0, k1, d1, size1)
+                ref = reference(reference_inputs(k0, d0, size0, k1, d1, size1))
                 ref_matches = ref["matches"][0].numpy().astype(np.int64).reshape(-1, 2)
                 got = adaptive.match(
                     normalize_keypoints(k0, size0), normalize_keypoints(k1, size1), d0, d1
@@ -362,81 +315,52 @@ def export_lightglue_steps(
                     failures.append(f"{where}: {got.layers} layers vs upstream {ref_layers}")
                 if abs(inl - ref_inl) > STEPS_TOLERANCES["inliers_rel_diff"] * max(ref_inl, 1):
                     failures.append(f"{where}: {inl} inliers vs upstream {ref_inl}")
-    return ExportReport(
-        passed=not failures and bool(checks),
-        reference=(
-            f"kornia {importlib.metadata.version('kornia')} LightGlue adaptive forward "
-            f"(depth_confidence {depth}, width_confidence {width}) on {feature_type} features"
-        ),
-        tolerances=STEPS_TOLERANCES,
-        checks=checks,
-        failures=tuple(failures) if checks else ("no verification pair was run",),
+    return ExportReport.from_checks(
+        f"kornia {importlib.metadata.version('kornia')} LightGlue adaptive forward "
+        f"(depth_confidence {depth}, width_confidence {width}) on {feature_type} features",
+        STEPS_TOLERANCES,
+        checks,
+        failures,
         notes={"depth_confidence": depth, "width_confidence": width, "n_layers": n_layers},
+        nothing_run="no verification pair was run",
+    )
+
+
+def _steps(request: ExportRequest, features_fn: FeaturesFn, feature_type: str) -> ExportReport:
+    from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
+
+    return export_lightglue_steps(
+        request,
+        reference=load_lightglue_reference(
+            request.weights_path, input_dim=int(request.spec.option("input_dim"))
+        ),
+        features_fn=features_fn,
+        feature_type=feature_type,
     )
 
 
 def export_disk_steps(request: ExportRequest) -> ExportReport:
     """``lightglue/disk-steps``: verified on real kornia-DISK features."""
-    from c3_matcher_disk_lightglue.engines import DISK_SPEC
-    from c3_matcher_disk_lightglue.export import disk_reference_features, load_disk_reference
-    from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
+    from c3_matcher_disk_lightglue.export import disk_features_fn
 
-    disk = load_disk_reference(DISK_SPEC.weights.resolve())
-    return export_lightglue_steps(
-        request,
-        reference=load_lightglue_reference(
-            request.weights_path, input_dim=int(request.spec.option("input_dim"))
-        ),
-        features_fn=lambda rgb, n: disk_reference_features(disk, rgb, n),
-        feature_type="disk",
-    )
+    return _steps(request, disk_features_fn(), "disk")
 
 
 def export_aliked_steps(request: ExportRequest) -> ExportReport:
     """``lightglue/aliked-steps``: verified on real kornia-ALIKED (n16) features."""
-    from c3_matcher_aliked_lightglue.engines import ALIKED_N16_SPEC
-    from c3_matcher_aliked_lightglue.export import (
-        aliked_reference_features,
-        load_aliked_reference,
-    )
-    from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
+    from c3_matcher_aliked_lightglue.export import aliked_features_fn
 
-    references: dict[int, Any] = {}
-
-    def features(rgb: NDArray[np.uint8], n: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        if n not in references:
-            references[n] = load_aliked_reference(
-                ALIKED_N16_SPEC.weights.resolve(), "aliked-n16", n
-            )
-        kp, _, de = aliked_reference_features(references[n], rgb)
-        return kp, de
-
-    return export_lightglue_steps(
-        request,
-        reference=load_lightglue_reference(
-            request.weights_path, input_dim=int(request.spec.option("input_dim"))
-        ),
-        features_fn=features,
-        feature_type="aliked",
-    )
+    return _steps(request, aliked_features_fn(), "aliked")
 
 
 def export_xfeat_steps(request: ExportRequest) -> ExportReport:
-    """``lighterglue/xfeat-steps``: verified on real upstream-XFeat features."""
-    import importlib
+    """``lighterglue/xfeat-steps``: verified on real upstream-XFeat features (LighterGlue's
+    architecture, ``LIGHTERGLUE_ARCH``)."""
+    from c3_matcher_xfeat.export import load_lighterglue_reference, xfeat_features_fn
 
-    from c3_matcher_xfeat.engines import XFEAT_SPEC
-
-    try:  # the plugin's export module (newer layout), else the older split modules
-        exp: Any = importlib.import_module("c3_matcher_xfeat.export")
-        glue: Any = exp
-    except ImportError:
-        exp = importlib.import_module("c3_matcher_xfeat.export_xfeat")
-        glue = importlib.import_module("c3_matcher_xfeat.export_lighterglue")
-    xfeat = exp.load_xfeat_reference(XFEAT_SPEC.weights.resolve())
     return export_lightglue_steps(
         request,
-        reference=glue.load_lighterglue_reference(request.weights_path),
-        features_fn=lambda rgb, n: exp.xfeat_reference_features(xfeat, rgb, n),
+        reference=load_lighterglue_reference(request.weights_path),
+        features_fn=xfeat_features_fn(),
         feature_type="xfeat",
     )
