@@ -91,6 +91,24 @@ class MatcherSettings(_Section):
         description="use a tile store's precomputed map features (c3-matcher features build) "
         "when they match the extractor engine; False: always extract tiles in flight",
     )
+    geometric_prior: bool = Field(
+        True,
+        description="with attitude AND height (rectified query at the tile GSD): keep only "
+        "matches voting for the dominant translation before RANSAC and refuse a candidate "
+        "whose homography is not near a translation (README, geometric prior, DECISIONS 17)",
+    )
+    prior_rotation_tol_deg: float = Field(
+        10.0, gt=0, le=90, description="heading error tolerated by the prior, deg"
+    )
+    prior_scale_tol: float = Field(
+        0.15, gt=0, le=1, description="relative scale error tolerated (height, terrain relief)"
+    )
+    prior_shear_tol: float = Field(
+        0.15, gt=0, le=1, description="anisotropy (singular-value ratio - 1) tolerated (tilt)"
+    )
+    prior_base_tol_px: float = Field(
+        12.0, gt=0, le=1000, description="translation-vote tolerance at the nadir point, tile px"
+    )
     options: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
         description="per-strategy options, [matcher.options.<strategy>], validated by the plugin",

@@ -42,6 +42,7 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import log_event
 from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
+from c3_matcher.prior import GeometricPrior, PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, RansacFilter
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 from c3_matcher.tilestore.features import FeatureRequest
@@ -88,14 +89,24 @@ class PipelineSettings:
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
     use_stored_features: bool = False  # opt-in until assembly matches extraction (README)
+    geometric_prior: bool = True  # issue 13: only acts when the frame had attitude and height
+    prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
+        default = PriorTolerances()
         return cls(
             matcher.min_inliers_threshold,
             matcher.residual_warn_threshold_px,
             matcher.ransac_threshold_px,
             bool(getattr(matcher, "stored_features", False)),
+            bool(getattr(matcher, "geometric_prior", True)),
+            PriorTolerances(
+                rotation_deg=getattr(matcher, "prior_rotation_tol_deg", default.rotation_deg),
+                scale=getattr(matcher, "prior_scale_tol", default.scale),
+                shear=getattr(matcher, "prior_shear_tol", default.shear),
+                base_px=getattr(matcher, "prior_base_tol_px", default.base_px),
+            ),
         )
 
 
@@ -116,6 +127,8 @@ class _FrameState:
     timings_ms: dict[str, float] = field(default_factory=dict)
     per_candidate_ms: list[dict[str, float]] = field(default_factory=list)
     feature_sources: list[str] = field(default_factory=list)
+    prior: GeometricPrior | None = None
+    geometry_refused: list[dict[str, Any]] = field(default_factory=list)
 
 
 class PipelineMatcher:
@@ -212,6 +225,7 @@ class PipelineMatcher:
             self._update_health(state, 0, force_backbone_error=True)
             self._record_backbone_error(state, None, "query_extract", exc)
             raise MatcherBackboneError("query_extract", None, exc) from exc
+        state.prior = self._prior(query_image)
 
         survivors: list[_Survivor] = []
         for index, candidate in enumerate(rerank.candidates):  # steps 3-4
@@ -258,6 +272,8 @@ class PipelineMatcher:
             "homographies": [s.homography for s in survivors],
             "tile_cache": {"hits": self._cache.hits, "misses": self._cache.misses},
             "candidate_features": list(state.feature_sources),
+            "geometric_prior": state.prior is not None,
+            "geometry_refused": list(state.geometry_refused),
         }
         self._record(
             "matcher.frame_done",
@@ -341,8 +357,16 @@ class PipelineMatcher:
                 correspondences = _correspondences(query_image, query, tile_image, tile, raw)
             phase = "ransac"
             with _timed(timings, "ransac"):
+                prefiltered = 0
+                if state.prior is not None:  # before RANSAC: the translation vote
+                    keep = state.prior.consistent(correspondences)
+                    prefiltered = int(correspondences.shape[0] - keep.sum())
+                    correspondences = np.ascontiguousarray(correspondences[keep])
                 ransac = self._ransac.filter(correspondences, self._settings.ransac_threshold_px)
                 inliers = ransac.inlier_correspondences
+                check = None
+                if state.prior is not None and ransac.homography is not None and len(inliers):
+                    check = state.prior.verify(ransac.homography)  # after RANSAC: geometry
                 if inliers.shape[0] > 0:
                     original = query_image.working_to_original(inliers[:, 0:2].astype(np.float64))
                     inliers = np.hstack([original, inliers[:, 2:4]]).astype(np.float32)
@@ -362,11 +386,29 @@ class PipelineMatcher:
                 raw_matches=len(raw),
             )
             return None
+        if check is not None and not check.ok:  # refused on geometry, whatever its inliers
+            state.dropped += 1
+            refused = {
+                "tile_id": tile_id,
+                "candidate_index": index,
+                "inlier_count": int(inliers.shape[0]),
+                "reason": check.reason,
+            }
+            state.geometry_refused.append(refused)
+            log_event(
+                "DEBUG",
+                "c3.matcher.geometry_refused",
+                f"C3 candidate refused on geometry; frame={state.frame_id}; tile={tile_id}; "
+                f"inliers={inliers.shape[0]}; {check.reason}",
+                frame_id=state.frame_id,
+                **refused,
+            )
+            return None
         match_set = CandidateMatchSet(
             tile_id=tile_id,
             inlier_count=int(inliers.shape[0]),
             inlier_correspondences=inliers,
-            ransac_outlier_count=ransac.ransac_outlier_count,
+            ransac_outlier_count=ransac.ransac_outlier_count + prefiltered,
             per_candidate_residual_px=ransac.per_candidate_residual_px,
         )
         return _Survivor(match_set, index, ransac.homography)
@@ -433,6 +475,7 @@ class PipelineMatcher:
                     for s in survivors
                 ],
                 "candidate_features": list(state.feature_sources),
+                "geometry_refused": list(state.geometry_refused),
                 **self._backend.provenance(),
             },
         )
@@ -441,6 +484,17 @@ class PipelineMatcher:
         )
 
     # -- helpers ----------------------------------------------------------------------------
+    def _prior(self, query: PreparedImage) -> GeometricPrior | None:
+        """The geometric prior of a query rectified with attitude AND scaled with height to the
+        tile GSD (issue 13); None without one of them, or when ``geometric_prior`` is off."""
+        if not self._settings.geometric_prior:
+            return None
+        if query.nadir_working_px is None or query.working_gsd_m is None:
+            return None
+        w, h = query.working_size
+        canvas = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
+        return GeometricPrior(self._settings.prior_tolerances, query.nadir_working_px, canvas)
+
     def _update_health(
         self, state: _FrameState, best_inlier_count: int, *, force_backbone_error: bool = False
     ) -> None:

@@ -1,0 +1,168 @@
+"""The geometric prior of a rectified query (issue 13): what the vehicle already knows.
+
+With attitude and height, :class:`~c3_matcher.preprocess.FramePreprocessor` rectifies the query
+to north-up nadir at the candidate's GSD, so the homography WORKING query px -> tile px of the
+true tile is, up to the sensors' errors, a pure translation at scale 1. Two uses:
+
+1. **Before RANSAC** (:meth:`GeometricPrior.consistent`): every putative match votes with its
+   displacement ``d = tile - query`` for the translation; the dominant translation is the
+   densest cell of a vote grid (3x3 neighbourhood sum, ``vote_cell_px``), refined by the median
+   of its supporters; a match is kept when ``|d - t| <= base_tolerance_px + r * slope`` with
+   ``r`` its distance from the query's nadir point (the rotation centre of the attitude error)
+   and ``slope = tan(rotation_tolerance) + scale_tolerance`` (how far a heading error or a
+   height error moves a point at radius ``r``).
+2. **After RANSAC** (:meth:`GeometricPrior.verify`): the homography's local affine map at the
+   nadir point must have a scale ``sqrt(det)`` within ``1 +- scale_tolerance``, a rotation within
+   ``rotation_tolerance_deg``, an anisotropy (singular-value ratio - 1, i.e. shear and
+   non-uniform stretch) within ``shear_tolerance``, and the query footprint mapped into the tile
+   an area within ``(1 +- scale_tolerance)^2`` times its own, convex and not mirrored. A candidate
+   that fails is refused on geometry whatever its inlier count.
+
+Only built when the frame had attitude AND height AND the tile GSD is known (the prepared query
+has ``nadir_working_px`` and ``working_gsd_m``); otherwise there is no prior and the pipeline
+runs as before. The tolerance rationale is in the README ("Geometric prior", DECISIONS 17).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["GeometricPrior", "HomographyCheck", "PriorTolerances"]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class PriorTolerances:
+    """How far the true homography may be from a pure translation (see the README)."""
+
+    rotation_deg: float = 10.0
+    scale: float = 0.15
+    shear: float = 0.15
+    base_px: float = 12.0
+    vote_cell_px: float = 16.0
+
+
+@dataclass(frozen=True, slots=True)
+class HomographyCheck:
+    """The verdict on one homography: its measured scale, rotation (deg), anisotropy, area
+    ratio, and ``reason`` (empty when it passed)."""
+
+    scale: float
+    rotation_deg: float
+    anisotropy: float
+    area_ratio: float
+    reason: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.reason
+
+
+class GeometricPrior:
+    """The prior of one rectified query: its nadir point (WORKING px) and footprint polygon."""
+
+    def __init__(
+        self,
+        tolerances: PriorTolerances,
+        centre_px: tuple[float, float],
+        footprint_px: F64 | None = None,
+    ) -> None:
+        self.tol = tolerances
+        self.centre = np.asarray(centre_px, dtype=np.float64)
+        self.footprint = None if footprint_px is None else np.asarray(footprint_px, np.float64)
+        self.slope = math.tan(math.radians(tolerances.rotation_deg)) + tolerances.scale
+
+    def consistent(self, correspondences: NDArray[np.floating]) -> NDArray[np.bool_]:
+        """Mask of the (M, 4) rows (x_q, y_q, x_t, y_t) consistent with the dominant
+        translation (all False when fewer than 4 rows)."""
+        m = correspondences.shape[0]
+        if m < 4:
+            return np.zeros(m, dtype=bool)
+        q = correspondences[:, 0:2].astype(np.float64)
+        d = correspondences[:, 2:4].astype(np.float64) - q
+        cell = self.tol.vote_cell_px
+        keys = np.floor(d / cell).astype(np.int64)
+        lo = keys.min(axis=0)
+        shape = keys.max(axis=0) - lo + 3
+        grid = np.zeros((int(shape[1]), int(shape[0])), dtype=np.float64)
+        np.add.at(grid, (keys[:, 1] - lo[1] + 1, keys[:, 0] - lo[0] + 1), 1.0)
+        summed = cv2.boxFilter(grid, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        row, col = np.unravel_index(int(np.argmax(summed)), summed.shape)  # first max: stable
+        centre_cell = np.array([col - 1 + lo[0], row - 1 + lo[1]], dtype=np.float64)
+        guess = (centre_cell + 0.5) * cell
+        radius = np.linalg.norm(q - self.centre, axis=1)
+        tolerance = self.tol.base_px + radius * self.slope
+        near = np.linalg.norm(d - guess, axis=1) <= tolerance + 1.5 * cell
+        if not near.any():
+            return np.zeros(m, dtype=bool)
+        translation = np.median(d[near], axis=0)
+        return np.asarray(np.linalg.norm(d - translation, axis=1) <= tolerance, dtype=bool)
+
+    def verify(self, homography: F64) -> HomographyCheck:
+        """Check ``homography`` (WORKING query px -> tile px) against the prior."""
+        h = np.asarray(homography, dtype=np.float64)
+        a = _jacobian(h, self.centre)
+        det = float(np.linalg.det(a))
+        if not math.isfinite(det) or det <= 0:
+            return HomographyCheck(math.nan, math.nan, math.nan, math.nan, "mirrored or singular")
+        scale = math.sqrt(det)
+        rotation = math.degrees(math.atan2(a[1, 0] - a[0, 1], a[0, 0] + a[1, 1]))
+        s = np.linalg.svd(a, compute_uv=False)
+        anisotropy = float(s[0] / s[1]) - 1.0
+        area_ratio = _area_ratio(h, self.footprint) if self.footprint is not None else scale**2
+        tol = self.tol
+        reason = ""
+        if abs(math.log(scale)) > math.log1p(tol.scale):
+            reason = f"scale {scale:.3f} outside 1 +- {tol.scale}"
+        elif abs(rotation) > tol.rotation_deg:
+            reason = f"rotation {rotation:.1f} deg beyond {tol.rotation_deg} deg"
+        elif anisotropy > tol.shear:
+            reason = f"shear/anisotropy {anisotropy:.3f} beyond {tol.shear}"
+        elif not math.isfinite(area_ratio) or not (
+            (1 + tol.scale) ** -2 <= area_ratio <= (1 + tol.scale) ** 2
+        ):
+            reason = f"footprint area ratio {area_ratio:.3f} outside (1 +- {tol.scale})^2"
+        return HomographyCheck(scale, rotation, anisotropy, area_ratio, reason)
+
+
+def _jacobian(h: F64, p: F64) -> F64:
+    """The 2x2 derivative of the homography ``h`` at point ``p``."""
+    x, y = float(p[0]), float(p[1])
+    w = h[2, 0] * x + h[2, 1] * y + h[2, 2]
+    u = h[0, 0] * x + h[0, 1] * y + h[0, 2]
+    v = h[1, 0] * x + h[1, 1] * y + h[1, 2]
+    if w == 0:
+        return np.full((2, 2), np.nan)
+    return np.array(
+        [
+            [(h[0, 0] * w - u * h[2, 0]) / w**2, (h[0, 1] * w - u * h[2, 1]) / w**2],
+            [(h[1, 0] * w - v * h[2, 0]) / w**2, (h[1, 1] * w - v * h[2, 1]) / w**2],
+        ]
+    )
+
+
+def _area_ratio(h: F64, polygon: F64) -> float:
+    """Area of ``polygon`` mapped by ``h`` over its own; NaN when the image is not a convex,
+    same-orientation polygon in front of the camera (a degenerate homography)."""
+    pts = np.hstack([polygon, np.ones((polygon.shape[0], 1))]) @ h.T
+    if (pts[:, 2] <= 0).any():
+        return math.nan
+    mapped = pts[:, :2] / pts[:, 2:3]
+    before = _signed_area(polygon)
+    after = _signed_area(mapped)
+    if before == 0 or after * before <= 0:
+        return math.nan
+    if not cv2.isContourConvex(mapped.astype(np.float32).reshape(-1, 1, 2)):
+        return math.nan
+    return abs(after / before)
+
+
+def _signed_area(p: F64) -> float:
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))

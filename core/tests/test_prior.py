@@ -1,0 +1,211 @@
+"""The geometric prior (issue 13): translation vote before RANSAC, homography check after.
+
+The pipeline tests run the real OpenCV RANSAC over scripted correspondences from a backend
+double: each candidate's matches follow a scripted homography (WORKING query px -> tile px), so
+the geometry, not the inlier count, decides. Each of them fails with ``geometric_prior=False``.
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+
+from c3_matcher.dto import (
+    Attitude,
+    CameraCalibration,
+    NavCameraFrame,
+    RerankCandidate,
+    RerankResult,
+    TileId,
+)
+from c3_matcher.errors import InsufficientInliersError
+from c3_matcher.features import Features, RawMatches
+from c3_matcher.health import RollingHealthWindow
+from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
+from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.prior import GeometricPrior, PriorTolerances
+from c3_matcher.ransac import OpenCvRansacFilter
+from c3_matcher.testing import FakeClock
+from c3_matcher.tiles import BytesTileHandle
+
+TILE = 448
+
+
+def _similarity(deg: float, scale: float, tx: float, ty: float) -> np.ndarray:
+    c, s = scale * math.cos(math.radians(deg)), scale * math.sin(math.radians(deg))
+    return np.array([[c, -s, tx], [s, c, ty], [0, 0, 1]], dtype=np.float64)
+
+
+def _rows(h: np.ndarray, n: int, rng: np.random.Generator, noise: float = 0.5) -> np.ndarray:
+    q = rng.uniform([20, 20], [300, 220], size=(n, 2))
+    t = cv2.perspectiveTransform(q.reshape(-1, 1, 2), h).reshape(-1, 2)
+    t += rng.normal(0, noise, t.shape)
+    return np.hstack([q, t]).astype(np.float32)
+
+
+# -- the prior alone ---------------------------------------------------------------------------
+def test_translation_vote_keeps_the_consistent_matches_and_drops_random_ones() -> None:
+    rng = np.random.default_rng(0)
+    prior = GeometricPrior(PriorTolerances(), (160.0, 120.0))
+    good = _rows(_similarity(3.0, 1.04, 90.0, 140.0), 60, rng)
+    bad = np.hstack([rng.uniform(0, 320, (240, 2)), rng.uniform(0, TILE, (240, 2))]).astype(
+        np.float32
+    )
+    keep = prior.consistent(np.vstack([good, bad]))
+    assert keep[:60].all()  # within the stated tolerance: 3 deg, 4 % scale
+    assert keep[60:].mean() < 0.1
+
+
+@pytest.mark.parametrize(
+    ("h", "reason"),
+    [
+        (_similarity(30.0, 1.0, 100, 100), "rotation"),
+        (_similarity(0.0, 1.4, 50, 50), "scale"),
+        (np.array([[1.0, 0.35, 80], [0.0, 1.0, 90], [0, 0, 1]]), "shear"),
+        (np.array([[-1.0, 0.0, 380], [0.0, 1.0, 90], [0, 0, 1]]), "mirrored"),
+    ],
+)
+def test_verify_refuses_a_homography_far_from_a_translation(h: np.ndarray, reason: str) -> None:
+    canvas = np.array([[0.0, 0.0], [320.0, 0.0], [320.0, 240.0], [0.0, 240.0]])
+    check = GeometricPrior(PriorTolerances(), (160.0, 120.0), canvas).verify(h)
+    assert not check.ok and reason in check.reason
+
+
+def test_verify_accepts_a_translation_within_the_sensor_errors() -> None:
+    canvas = np.array([[0.0, 0.0], [320.0, 0.0], [320.0, 240.0], [0.0, 240.0]])
+    check = GeometricPrior(PriorTolerances(), (160.0, 120.0), canvas).verify(
+        _similarity(-6.0, 0.93, 70.0, 120.0)
+    )
+    assert check.ok, check.reason
+    assert check.rotation_deg == pytest.approx(-6.0, abs=1e-6)
+    assert check.scale == pytest.approx(0.93, abs=1e-6)
+
+
+# -- through the pipeline ----------------------------------------------------------------------
+class GeometryBackend:
+    """A FeatureBackend double: the query's keypoints are a fixed random set; candidate ``i``
+    (tile pixels all ``i + 1``) gets, per its script entry, ``n`` keypoints placed by its
+    homography from the query's WORKING positions, plus ``noise`` random ones; ``match`` pairs
+    them in order."""
+
+    label = "geometry_backend"
+    extract_phase = "extract"
+    match_phase = "match"
+    input_rule = InputRule(max_long_side=1024, multiple=16)
+
+    def __init__(self, script: list[tuple[np.ndarray, int, int]]) -> None:
+        self.script = script
+        self.query: PreparedImage | None = None
+        self.rng = np.random.default_rng(1)
+
+    def extract(self, image: PreparedImage) -> Features:
+        if image.working_from_undistorted is not None:  # the query
+            self.query = image
+            w, h = image.engine_size
+            n = 400
+            kp = self.rng.uniform([40, 40], [w - 40, h - 40], size=(n, 2))
+        else:
+            assert self.query is not None
+            mark = int(image.image[TILE // 2, TILE // 2, 0]) - 1
+            hom, good, noise = self.script[mark]
+            qk = self.query.to_working(self._query_kp[:good])
+            tk = cv2.perspectiveTransform(qk.reshape(-1, 1, 2), hom).reshape(-1, 2)
+            tk += self.rng.normal(0, 0.4, tk.shape)
+            junk = self.rng.uniform(0, TILE, size=(noise, 2))
+            kp = np.vstack([tk, junk])
+            n = kp.shape[0]
+        feats = Features(
+            kp.astype(np.float32),
+            np.zeros((n, 4), np.float32),
+            np.ones(n, np.float32),
+            image.engine_size,
+        )
+        if image.working_from_undistorted is not None:
+            self._query_kp = kp
+        return feats
+
+    def match(self, query: Features, tile: Features) -> RawMatches:
+        n = min(len(query), len(tile))
+        idx = np.arange(n, dtype=np.int64)
+        return RawMatches(np.stack([idx, idx], axis=1), np.ones(n, np.float32))
+
+    def provenance(self) -> dict[str, Any]:
+        return {}
+
+
+class _Fdr:
+    def __init__(self) -> None:
+        self.records: list[tuple[str, Any]] = []
+
+    def record(self, kind: str, payload: Any) -> None:
+        self.records.append((kind, payload))
+
+
+def _run(script: list[tuple[np.ndarray, int, int]], *, prior: bool, attitude: bool = True) -> Any:
+    clock = FakeClock()
+    settings = PipelineSettings(geometric_prior=prior)
+    matcher = PipelineMatcher(
+        GeometryBackend(script),
+        OpenCvRansacFilter(),
+        _Fdr(),
+        RollingHealthWindow(clock, settings.min_inliers_threshold),
+        clock,
+        settings,
+    )
+    frame = NavCameraFrame(
+        uuid.UUID(int=3),
+        np.full((240, 320, 3), 128, np.uint8),
+        captured_at_ns=1,
+        attitude=Attitude(0.0, 0.0, 0.0) if attitude else None,
+        height_above_ground_m=90.0,  # focal 300 px, tile GSD 0.3 m/px: working scale 1
+    )
+    calibration = CameraCalibration.pinhole(320, 240, focal_px=300.0)
+    candidates = []
+    for i in range(len(script)):
+        ok, png = cv2.imencode(".png", np.full((TILE, TILE, 3), i + 1, np.uint8))
+        assert ok
+        handle = BytesTileHandle(png.tobytes(), f"tile{i}")
+        candidates.append(
+            RerankCandidate(TileId(18, 47.0 + i / 1000, 8.5), 1.0, handle, gsd_m_per_px=0.3)
+        )
+    return matcher.match(frame, RerankResult(frame.frame_id, tuple(candidates)), calibration)
+
+
+TRUE = _similarity(2.0, 1.02, 60.0, 100.0)  # the true tile: a translation within tolerances
+WRONG = _similarity(35.0, 1.0, 250.0, -40.0)  # a self-consistent wrong structure, rotated
+
+
+def test_a_confident_wrong_candidate_is_refused_on_geometry() -> None:
+    script = [(WRONG, 160, 40), (TRUE, 90, 150), (_similarity(0, 1, 0, 0), 0, 300)]
+    result = _run(script, prior=True)
+    assert result.per_candidate[0].tile_id.lat == pytest.approx(47.001)
+    assert result.per_candidate[0].inlier_count >= 80  # RANSAC inliers, as the contract says
+    refused = result.diagnostics["geometry_refused"]
+    assert [r["candidate_index"] for r in refused] == [0]
+    assert "rotation" in refused[0]["reason"]
+
+
+def test_without_the_prior_the_wrong_candidate_wins() -> None:
+    """The control: the same script with geometric_prior off picks the rotated structure."""
+    script = [(WRONG, 160, 40), (TRUE, 90, 150), (_similarity(0, 1, 0, 0), 0, 300)]
+    result = _run(script, prior=False)
+    assert result.per_candidate[0].tile_id.lat == pytest.approx(47.0)
+
+
+def test_only_wrong_geometry_raises_insufficient_inliers() -> None:
+    script = [(WRONG, 160, 40), (_similarity(0, 1.6, 10, 10), 120, 40)]
+    with pytest.raises(InsufficientInliersError):
+        _run(script, prior=True)
+    assert _run(script, prior=False).per_candidate[0].inlier_count >= 120
+
+
+def test_no_attitude_means_no_prior() -> None:
+    script = [(WRONG, 160, 40), (TRUE, 90, 150)]
+    result = _run(script, prior=True, attitude=False)
+    assert result.diagnostics["geometric_prior"] is False
+    assert result.diagnostics["geometry_refused"] == []
