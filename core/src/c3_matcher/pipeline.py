@@ -42,7 +42,7 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import log_event
 from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
-from c3_matcher.prior import GeometricPrior, PriorTolerances
+from c3_matcher.prior import GeometricPrior, PriorTolerances, default_prior
 from c3_matcher.protocols import Clock, FdrClient, RansacFilter
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 from c3_matcher.tilestore.features import FeatureRequest
@@ -89,8 +89,9 @@ class PipelineSettings:
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
     use_stored_features: bool = False  # opt-in until assembly matches extraction (README)
-    geometric_prior: bool = True  # issue 13: only acts when the frame had attitude and height
-    prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
+    # issue 13: only acts when the frame had attitude and height; defaults from [matcher]
+    geometric_prior: bool = field(default_factory=lambda: default_prior()[0])
+    prior_tolerances: PriorTolerances = field(default_factory=lambda: default_prior()[1])
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
