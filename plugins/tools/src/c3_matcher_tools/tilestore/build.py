@@ -4,16 +4,20 @@ Every tile pixel centre (WORLD px) is converted to (lon, lat), then to the GeoTI
 metres and ORTHO px (:mod:`c3_matcher.tilestore.geo`: exact for UTM / mercator / geographic
 grids, a documented local tangent plane otherwise), and sampled bilinearly
 (``cv2.remap``; the orthophoto is first area-downscaled when the tiles are >= 1.15x coarser).
-Pixels outside the orthophoto or on its nodata (all bands 0) are 0 (nodata); tiles with no data
-are not stored. The zoom defaults to the coarsest whose ground GSD at the image centre is at most
-the orthophoto's (:func:`c3_matcher_tools.tilestore.geo.zoom_for_gsd`).
+Pixels outside the orthophoto or on its nodata (all bands 0; with rasterio also the GeoTIFF nodata
+tag, internal mask or alpha band) are 0 (nodata); tiles with no data are not stored. With
+rasterio (the ``geo`` extra; :mod:`c3_matcher_tools.tilestore.raster`) each tile is read through
+its own window (never the whole raster) and coarser zooms read the file's overviews; without it
+(or with ``C3_MATCHER_TOOLS_NO_RASTERIO=1``) the whole raster is loaded with tifffile. Several
+zooms can be written into one store. The zoom defaults to the coarsest whose ground GSD at the
+image centre is at most the orthophoto's (:func:`c3_matcher_tools.tilestore.geo.zoom_for_gsd`).
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,16 +35,19 @@ from c3_matcher_tools.tilestore.geo import (
     world_px_to_lonlat,
     zoom_for_gsd,
 )
+from c3_matcher_tools.tilestore.raster import RasterioSource, rasterio_available
 from c3_matcher_tools.tilestore.writer import MBTilesWriter
 
-__all__ = ["BuildReport", "build_mbtiles", "render_tile"]
+__all__ = ["BuildReport", "build_mbtiles", "parse_zooms", "render_tile"]
 
 Progress = Callable[[int, int], None]
 
 
 @dataclass(frozen=True)
 class BuildReport:
-    """What ``build_mbtiles`` wrote: ``tiles`` stored (of ``candidates`` in the bounds)."""
+    """What ``build_mbtiles`` wrote: ``tiles`` stored (of ``candidates`` in the bounds) over
+    ``zooms`` (``zoom`` the finest, ``tile_gsd_m`` its GSD; ``tiles_per_zoom``), read with
+    ``reader`` (``rasterio`` or ``tifffile``)."""
 
     path: Path
     zoom: int
@@ -50,6 +57,35 @@ class BuildReport:
     source_gsd_m: float
     georeference: str
     bytes: int
+    zooms: tuple[int, ...] = ()
+    tiles_per_zoom: dict[str, int] | None = None
+    reader: str = "tifffile"
+    nodata: float | None = None
+    overview_levels: tuple[int, ...] = ()
+
+
+def _tile_uv(grid: GeoGrid, zoom: int, x: int, y: int) -> NDArray[np.float64]:
+    """ORTHO px (N, 2) of the centres of tile (zoom, x, y)'s pixels, row-major."""
+    i = np.arange(TILE_PX, dtype=np.float64) + 0.5
+    wx, wy = np.meshgrid(x * TILE_PX + i, y * TILE_PX + i)
+    lonlat = world_px_to_lonlat(np.stack([wx.ravel(), wy.ravel()], axis=1), zoom)
+    return grid.lonlat_to_px(lonlat)
+
+
+def _remap(
+    ortho: NDArray[np.uint8],
+    valid: NDArray[np.uint8],
+    map_x: NDArray[np.float64],
+    map_y: NDArray[np.float64],
+) -> NDArray[np.uint8] | None:
+    mx = map_x.reshape(TILE_PX, TILE_PX).astype(np.float32)
+    my = map_y.reshape(TILE_PX, TILE_PX).astype(np.float32)
+    mask = cv2.remap(valid, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+    if not mask.any():
+        return None
+    img = cv2.remap(ortho, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    img[mask == 0] = 0
+    return np.asarray(img, dtype=np.uint8)
 
 
 def render_tile(
@@ -63,80 +99,142 @@ def render_tile(
 ) -> NDArray[np.uint8] | None:
     """Tile (zoom, x, y) resampled from ``ortho`` (uint8 RGB, possibly pre-scaled by ``scale``
     relative to ``grid``'s pixels) with nodata 0, or None when it holds no data."""
-    i = np.arange(TILE_PX, dtype=np.float64) + 0.5
-    wx, wy = np.meshgrid(x * TILE_PX + i, y * TILE_PX + i)
-    lonlat = world_px_to_lonlat(np.stack([wx.ravel(), wy.ravel()], axis=1), zoom)
-    uv = grid.lonlat_to_px(lonlat)
-    map_x = ((uv[:, 0] + 0.5) * scale - 0.5).reshape(TILE_PX, TILE_PX).astype(np.float32)
-    map_y = ((uv[:, 1] + 0.5) * scale - 0.5).reshape(TILE_PX, TILE_PX).astype(np.float32)
-    mask = cv2.remap(valid, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
-    if not mask.any():
+    uv = _tile_uv(grid, zoom, x, y)
+    return _remap(ortho, valid, (uv[:, 0] + 0.5) * scale - 0.5, (uv[:, 1] + 0.5) * scale - 0.5)
+
+
+def parse_zooms(values: Sequence[int | str] | None) -> list[int] | None:
+    """Zoom list from ints and ``"A-B"`` ranges (sorted, unique), or None for the default."""
+    if not values:
         return None
-    img = cv2.remap(ortho, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-    img[mask == 0] = 0
-    return np.asarray(img, dtype=np.uint8)
+    out: set[int] = set()
+    for v in values:
+        text = str(v).strip()
+        try:
+            if "-" in text[1:]:
+                lo, hi = (int(t) for t in text.split("-"))
+                out.update(range(min(lo, hi), max(lo, hi) + 1))
+            else:
+                out.add(int(text))
+        except ValueError:
+            raise InvalidInputError("--zooms", f"expected Z or A-B, got {text!r}") from None
+    for z in out:
+        if not 0 <= z <= 30:
+            raise InvalidInputError("zoom", f"must be in [0, 30], got {z}")
+    return sorted(out)
 
 
 def build_mbtiles(
     geotiff: str | Path,
     out: str | Path,
     *,
-    zoom: int | None = None,
+    zoom: int | Sequence[int] | None = None,
     tile_format: str = "png",
     jpeg_quality: int = 90,
     reference: tuple[float, float] | None = None,
     attribution: str = "",
     overwrite: bool = False,
     progress: Progress | None = None,
+    use_rasterio: bool | None = None,
 ) -> BuildReport:
-    """Write ``out`` (MBTiles) from ``geotiff``; ``reference`` (lat, lon) of the image centre is
-    needed for grids that are not UTM / mercator / geographic (local tangent plane). ``progress``
-    is called with (done, total) after every tile."""
+    """Write ``out`` (MBTiles) from ``geotiff`` at ``zoom`` (one zoom, several, or None: the
+    default of :func:`zoom_for_gsd`); ``reference`` (lat, lon) of the image centre is needed
+    for grids that are not UTM / mercator / geographic without pyproj (local tangent plane).
+    With rasterio (``use_rasterio`` None: :func:`rasterio_available`) the GeoTIFF is read one
+    window per tile, its nodata tag honoured and its overviews used; otherwise the whole
+    raster is loaded with tifffile. ``progress`` is called with (done, total) after every
+    tile."""
     if tile_format not in ("png", "jpg"):
         raise InvalidInputError("format", f"expected png or jpg, got {tile_format!r}")
-    grid = read_geotiff_grid(geotiff, reference=reference)
-    photo = load_orthophoto(geotiff)
-    if photo.size != grid.size:
-        raise InvalidInputError(
-            "geotiff", f"{geotiff}: pixel size {photo.size} != grid {grid.size}"
-        )
-    gsd = math.sqrt(grid.scale_x * grid.scale_y) if photo.gsd_m is None else photo.gsd_m
+    if isinstance(zoom, (int, np.integer)):
+        zooms = parse_zooms([int(zoom)])
+    else:
+        zooms = parse_zooms(list(zoom) if zoom is not None else None)
+    if use_rasterio is None:
+        use_rasterio = rasterio_available()
+    source: RasterioSource | None = None
+    photo_rgb: NDArray[np.uint8] | None = None
+    if use_rasterio:
+        source = RasterioSource(geotiff, reference=reference)
+        grid, gsd, reader, nodata = source.grid, source.gsd_m, "rasterio", source.nodata
+    else:
+        grid = read_geotiff_grid(geotiff, reference=reference)
+        photo = load_orthophoto(geotiff)
+        if photo.size != grid.size:
+            raise InvalidInputError(
+                "geotiff", f"{geotiff}: pixel size {photo.size} != grid {grid.size}"
+            )
+        gsd = math.sqrt(grid.scale_x * grid.scale_y) if photo.gsd_m is None else photo.gsd_m
+        photo_rgb, reader, nodata = photo.rgb, "tifffile", None
+    try:
+        return _build(
+            geotiff, out, grid, gsd, source, photo_rgb, zooms, tile_format, jpeg_quality,
+            attribution, overwrite, progress, reader, nodata,
+        )  # fmt: skip
+    finally:
+        if source is not None:
+            source.close()
+
+
+def _build(
+    geotiff: str | Path,
+    out: str | Path,
+    grid: GeoGrid,
+    gsd: float,
+    source: RasterioSource | None,
+    photo_rgb: NDArray[np.uint8] | None,
+    zooms: list[int] | None,
+    tile_format: str,
+    jpeg_quality: int,
+    attribution: str,
+    overwrite: bool,
+    progress: Progress | None,
+    reader: str,
+    nodata: float | None,
+) -> BuildReport:
     lon_c, lat_c = grid.centre_lonlat()
-    z = zoom_for_gsd(gsd, lat_c) if zoom is None else int(zoom)
-    if not 0 <= z <= 30:
-        raise InvalidInputError("zoom", f"must be in [0, 30], got {z}")
-    tile_gsd = 2 * math.pi * 6378137.0 / TILE_PX * math.cos(math.radians(lat_c)) / 2**z
-    ratio = tile_gsd / gsd
-    rgb, scale = photo.rgb, 1.0
-    valid = np.any(photo.rgb > 0, axis=2).astype(np.uint8)
-    if ratio >= 1.15:
-        w, h = photo.size
-        sw, sh = max(2, round(w / ratio)), max(2, round(h / ratio))
-        rgb = np.asarray(cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA), dtype=np.uint8)
-        valid = np.asarray(cv2.resize(valid, (sw, sh), interpolation=cv2.INTER_NEAREST))
-        scale = sw / w
+    if zooms is None:
+        zooms = [zoom_for_gsd(gsd, lat_c)]
     w, h = grid.size
     corners = grid.px_to_lonlat(
         [[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]
     )
-    world = lonlat_to_world_px(corners, z)
-    x_lo, y_lo = (np.floor(world.min(axis=0)) // TILE_PX).astype(int)
-    x_hi, y_hi = (np.floor(world.max(axis=0)) // TILE_PX).astype(int)
-    keys = [(tx, ty) for ty in range(y_lo, y_hi + 1) for tx in range(x_lo, x_hi + 1)]
-    stored = 0
+    jobs: list[tuple[int, int, int]] = []
+    for z in zooms:
+        world = lonlat_to_world_px(corners, z)
+        x_lo, y_lo = (np.floor(world.min(axis=0)) // TILE_PX).astype(int)
+        x_hi, y_hi = (np.floor(world.max(axis=0)) // TILE_PX).astype(int)
+        jobs += [(z, tx, ty) for ty in range(y_lo, y_hi + 1) for tx in range(x_lo, x_hi + 1)]
+
+    def tile_gsd(z: int) -> float:
+        return 2 * math.pi * 6378137.0 / TILE_PX * math.cos(math.radians(lat_c)) / 2**z
+
+    per_zoom = {str(z): 0 for z in zooms}
+    scaled: dict[int, tuple[NDArray[np.uint8], NDArray[np.uint8], float]] = {}
     out_path = Path(out)
     with MBTilesWriter(out_path, overwrite=overwrite) as writer:
-        for done, (tx, ty) in enumerate(keys, start=1):
-            tile = render_tile(rgb, valid, grid, z, tx, ty, scale)
+        for done, (z, tx, ty) in enumerate(jobs, start=1):
+            ratio = tile_gsd(z) / gsd
+            tile: NDArray[np.uint8] | None
+            if source is not None:
+                uv = _tile_uv(grid, z, tx, ty)
+                got = source.sample(uv, ratio)
+                tile = None if got is None else _remap(*got)
+            else:
+                assert photo_rgb is not None
+                if z not in scaled:
+                    scaled[z] = _downscaled(photo_rgb, ratio)
+                rgb, valid, scale = scaled[z]
+                tile = render_tile(rgb, valid, grid, z, tx, ty, scale)
             if tile is not None:
                 params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if tile_format == "jpg" else []
                 ok, buf = cv2.imencode(f".{tile_format}", tile[:, :, ::-1], params)
                 if not ok:
                     raise InvalidInputError("format", f"cannot encode tile {z}/{tx}/{ty}")
                 writer.put_tile(z, tx, ty, buf.tobytes())
-                stored += 1
+                per_zoom[str(z)] += 1
             if progress is not None:
-                progress(done, len(keys))
+                progress(done, len(jobs))
         lons, lats = corners[:, 0], corners[:, 1]
         writer.put_metadata(
             {
@@ -147,22 +245,43 @@ def build_mbtiles(
                 "description": f"web-mercator tiles of {Path(geotiff).name} (c3-matcher)",
                 "attribution": attribution,
                 "bounds": f"{lons.min():.7f},{lats.min():.7f},{lons.max():.7f},{lats.max():.7f}",
-                "center": f"{lon_c:.7f},{lat_c:.7f},{z}",
-                "minzoom": str(z),
-                "maxzoom": str(z),
+                "center": f"{lon_c:.7f},{lat_c:.7f},{max(zooms)}",
+                "minzoom": str(min(zooms)),
+                "maxzoom": str(max(zooms)),
                 "c3_source": Path(geotiff).name,
                 "c3_source_epsg": str(grid.epsg),
                 "c3_source_gsd_m": f"{gsd:.6f}",
                 "c3_georeference": json.dumps(grid.projection.to_dict()),
+                "c3_reader": reader,
+                **({} if nodata is None else {"c3_source_nodata": repr(float(nodata))}),
             }
         )
     return BuildReport(
         out_path,
-        z,
-        stored,
-        len(keys),
-        tile_gsd,
+        max(zooms),
+        sum(per_zoom.values()),
+        len(jobs),
+        tile_gsd(max(zooms)),
         gsd,
         grid.projection.describe(),
         out_path.stat().st_size,
+        tuple(zooms),
+        per_zoom,
+        reader,
+        None if nodata is None else float(nodata),
+        tuple(sorted(source.levels_used)) if source is not None else (),
     )
+
+
+def _downscaled(
+    rgb: NDArray[np.uint8], ratio: float
+) -> tuple[NDArray[np.uint8], NDArray[np.uint8], float]:
+    """The fallback's whole-image area downscale for tiles >= 1.15x coarser than the source."""
+    valid = np.any(rgb > 0, axis=2).astype(np.uint8)
+    if ratio < 1.15:
+        return rgb, valid, 1.0
+    h, w = rgb.shape[:2]
+    sw, sh = max(2, round(w / ratio)), max(2, round(h / ratio))
+    small = np.asarray(cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA), dtype=np.uint8)
+    small_valid = np.asarray(cv2.resize(valid, (sw, sh), interpolation=cv2.INTER_NEAREST))
+    return small, small_valid, sw / w

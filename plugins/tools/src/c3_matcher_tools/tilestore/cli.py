@@ -34,7 +34,24 @@ def register_tiles_command(commands: CommandRegistry) -> None:
     )
     b.add_argument("geotiff", type=Path)
     b.add_argument("out", type=Path, help="the .mbtiles file to write")
-    b.add_argument("--zoom", type=int, default=None, help="zoom (default: nearest the GSD)")
+    b.add_argument(
+        "--zoom",
+        type=int,
+        action="append",
+        default=None,
+        help="zoom; repeat for a multi-zoom store (default: the coarsest zoom not coarser than "
+        "the orthophoto's GSD)",
+    )
+    b.add_argument(
+        "--zooms", default=None, metavar="A-B", help="a range of zooms, e.g. 14-16 (with --zoom)"
+    )
+    b.add_argument(
+        "--reader",
+        choices=("auto", "rasterio", "tifffile"),
+        default="auto",
+        help="GeoTIFF reader: rasterio (windowed, nodata tag, overviews; the geo extra) or the "
+        "tifffile fallback (whole raster); auto: rasterio when installed (default auto)",
+    )
     b.add_argument("--format", choices=("png", "jpg"), default="png", help="tile encoding")
     b.add_argument("--quality", type=int, default=90, help="JPEG quality (default 90)")
     b.add_argument(
@@ -76,24 +93,32 @@ def run_tiles(args: argparse.Namespace, settings: C3Settings) -> int:
         return 0
     if not 1 <= args.quality <= 100:
         raise InvalidInputError("--quality", f"must be in [1, 100], got {args.quality}")
+    from c3_matcher_tools.tilestore.build import parse_zooms
+
+    zooms = parse_zooms([*(args.zoom or []), *([args.zooms] if args.zooms else [])])
     report = build_mbtiles(
         args.geotiff,
         args.out,
-        zoom=args.zoom,
+        zoom=zooms,
         tile_format=args.format,
         jpeg_quality=args.quality,
         reference=args.ref_latlon,
         attribution=args.attribution,
         overwrite=args.force,
         progress=ProgressBar(f"tiles build {Path(args.out).name}"),
+        use_rasterio=None if args.reader == "auto" else args.reader == "rasterio",
     )
-    data = {k: str(v) if isinstance(v, Path) else v for k, v in vars(report).items()}
+    data = {
+        k: str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v
+        for k, v in vars(report).items()
+    }
     if args.json:
         print(json.dumps(data, indent=2))
     else:
         print(
-            f"{report.path}: {report.tiles} tiles at zoom {report.zoom} "
-            f"({report.tile_gsd_m:.2f} m/px; source {report.source_gsd_m:.2f} m/px), "
+            f"{report.path}: {report.tiles} tiles at zoom "
+            f"{'/'.join(str(z) for z in report.zooms)} (read with {report.reader}; finest "
+            f"{report.tile_gsd_m:.2f} m/px; source {report.source_gsd_m:.2f} m/px), "
             f"{report.bytes / 1e6:.2f} MB; georeference {report.georeference}"
         )
     return 0

@@ -1,0 +1,196 @@
+"""Read a GeoTIFF for ``tiles build`` through rasterio (the ``geo`` extra): windowed reads (one
+window per tile, never the whole raster), the GeoTIFF nodata tag / internal mask / alpha band
+(GDAL's dataset mask), and the file's overviews for coarser zooms.
+
+:func:`rasterio_available` says whether this path is used: rasterio importable and
+``C3_MATCHER_TOOLS_NO_RASTERIO=1`` not set (that forces the hand-written tifffile fallback,
+:func:`c3_matcher_tools.sim.orthophotos.load_orthophoto`, which reads the whole raster).
+
+Pixels follow the fallback's rules so that both give the same tiles: bands 1-3 as RGB (NAIP's
+4th band, NIR, is dropped), one band as grey; 16-bit / float data stretched to 8 bits (0 stays 0,
+the 99.9th percentile of the valid non-zero pixels becomes 255; here estimated on a decimated
+read of at most 1024 px a side); a pixel is valid where GDAL's mask says so AND some band is
+non-zero (the matcher's tile nodata convention is 0, :mod:`c3_matcher.preprocess`), and invalid
+pixels are 0. For tiles coarser than the source by >= 1.15x the window is read at the tile's
+resolution with GDAL ``average`` resampling (mask: nearest) from the finest overview not
+coarser than the tile (the fallback area-downscales the whole image instead).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.tilestore.geo import GeoGrid, Projection
+
+__all__ = ["RasterioSource", "grid_gsd_m", "rasterio_available"]
+
+F64 = NDArray[np.float64]
+_A = 6378137.0
+_E2 = 0.0066943799901413165
+_MERCATOR = (3395, 3857, 900913, 3785)
+
+
+def rasterio_available() -> bool:
+    """rasterio is importable and ``C3_MATCHER_TOOLS_NO_RASTERIO=1`` is not set."""
+    if os.environ.get("C3_MATCHER_TOOLS_NO_RASTERIO") == "1":
+        return False
+    return importlib.util.find_spec("rasterio") is not None
+
+
+def grid_gsd_m(grid: GeoGrid, *, geographic: bool) -> float:
+    """Ground GSD (m/px) at the grid centre, by the same rules as
+    :func:`c3_matcher_tools.sim.orthophotos.geotiff_gsd_m`: projected metres as they are,
+    mercator scales divided by the scale factor at the centre latitude, degrees converted."""
+    _lon, lat_deg = grid.centre_lonlat()
+    lat = math.radians(lat_deg)
+    s2 = math.sin(lat) ** 2
+    if geographic:
+        m_lat = math.radians(1) * _A * (1 - _E2) / (1 - _E2 * s2) ** 1.5
+        m_lon = math.radians(1) * _A * math.cos(lat) / math.sqrt(1 - _E2 * s2)
+        return math.sqrt(grid.scale_x * m_lon * grid.scale_y * m_lat)
+    gsd = math.sqrt(grid.scale_x * grid.scale_y)
+    if grid.epsg == 3395:
+        gsd /= math.sqrt(1 - _E2 * s2) / math.cos(lat)
+    elif grid.epsg in _MERCATOR:
+        gsd *= math.cos(lat)
+    return gsd
+
+
+class RasterioSource:
+    """An open GeoTIFF: ``grid``, ``gsd_m``, ``nodata`` (the tag, or None), ``overviews``
+    (decimation factors) and :meth:`sample` (one tile's pixels through a windowed read)."""
+
+    def __init__(self, path: str | Path, *, reference: tuple[float, float] | None = None) -> None:
+        import rasterio
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise InvalidInputError("geotiff", f"no such file: {self.path}")
+        try:
+            ds = rasterio.open(self.path)
+        except Exception as exc:  # RasterioIOError and friends
+            raise InvalidInputError(
+                "geotiff", f"{self.path}: not a readable raster: {exc}"
+            ) from exc
+        self._levels: dict[int, Any] = {-1: ds}
+        t = ds.transform
+        if t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
+            ds.close()
+            raise InvalidInputError("geotiff", f"{self.path}: not a north-up grid ({t})")
+        if ds.crs is None:
+            ds.close()
+            raise InvalidInputError("geotiff", f"{self.path}: no CRS (not a GeoTIFF)")
+        epsg = ds.crs.to_epsg()
+        w, h = int(ds.width), int(ds.height)
+        sx, sy = float(t.a), float(-t.e)
+        origin_e, origin_n = float(t.c), float(t.f)
+        projection = Projection.from_epsg(
+            None if epsg is None else int(epsg),
+            reference=reference,
+            ref_en=(origin_e + w / 2 * sx, origin_n - h / 2 * sy),
+        )
+        self.grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
+        self.gsd_m = grid_gsd_m(self.grid, geographic=bool(ds.crs.is_geographic))
+        self.bands = [1, 2, 3] if ds.count >= 3 else [1]
+        self.nodata = ds.nodata
+        self.overviews: list[int] = list(ds.overviews(1))
+        self._top = 255.0
+        if ds.dtypes[0] != "uint8":
+            side = max(w, h)
+            f = max(1, math.ceil(side / 1024))
+            probe = self._read(ds, None, (max(1, h // f), max(1, w // f)), average=True)
+            data, mask = probe
+            good = data[:, mask > 0]
+            nonzero = good[good > 0]
+            self._top = float(np.percentile(nonzero, 99.9)) if nonzero.size else 1.0
+        self.levels_used: set[int] = set()
+
+    def close(self) -> None:
+        for ds in self._levels.values():
+            ds.close()
+        self._levels.clear()
+
+    def __enter__(self) -> RasterioSource:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _level(self, ratio: float) -> tuple[Any, int]:
+        """(dataset, overview index or -1) of the finest overview not coarser than ``ratio``."""
+        import rasterio
+
+        index = -1
+        for i, f in enumerate(self.overviews):
+            if f <= ratio:
+                index = i
+        if index not in self._levels:
+            self._levels[index] = rasterio.open(self.path, overview_level=index)
+        return self._levels[index], index
+
+    def _read(
+        self, ds: Any, window: Any, out_shape: tuple[int, int] | None, *, average: bool
+    ) -> tuple[NDArray[Any], NDArray[np.uint8]]:
+        from rasterio.enums import Resampling
+
+        shape = None if out_shape is None else (len(self.bands), *out_shape)
+        data = ds.read(
+            self.bands,
+            window=window,
+            out_shape=shape,
+            resampling=Resampling.average if average else Resampling.nearest,
+        )
+        mask = ds.dataset_mask(window=window, out_shape=out_shape, resampling=Resampling.nearest)
+        return data, np.asarray(mask, dtype=np.uint8)
+
+    def sample(
+        self, uv: F64, ratio: float
+    ) -> tuple[NDArray[np.uint8], NDArray[np.uint8], F64, F64] | None:
+        """For sample points ``uv`` (N, 2) ORTHO px of the full-resolution grid and a tile
+        coarser than the source by ``ratio``: (rgb window uint8 (h, w, 3), valid (h, w) 0/1,
+        map_x, map_y (N,) in window px), or None when the points miss the raster."""
+        from rasterio.windows import Window
+
+        ds, index = self._level(ratio)
+        w, h = self.grid.size
+        fx, fy = ds.width / w, ds.height / h
+        lu = (uv[:, 0] + 0.5) * fx - 0.5
+        lv = (uv[:, 1] + 0.5) * fy - 0.5
+        eff = ratio * min(fx, fy)
+        pad = 2 + math.ceil(max(eff, 1.0))
+        c0 = max(0, math.floor(float(lu.min())) - pad)
+        r0 = max(0, math.floor(float(lv.min())) - pad)
+        c1 = min(ds.width, math.ceil(float(lu.max())) + pad + 1)
+        r1 = min(ds.height, math.ceil(float(lv.max())) + pad + 1)
+        if c1 <= c0 or r1 <= r0:
+            return None
+        self.levels_used.add(index)
+        window = Window(c0, r0, c1 - c0, r1 - r0)
+        cw, rh = c1 - c0, r1 - r0
+        if eff >= 1.15:
+            ow, oh = max(2, round(cw / eff)), max(2, round(rh / eff))
+            data, mask = self._read(ds, window, (oh, ow), average=True)
+            kx, ky = ow / cw, oh / rh
+        else:
+            data, mask = self._read(ds, window, None, average=False)
+            kx = ky = 1.0
+        if data.dtype != np.uint8:
+            data = np.clip(
+                np.rint(data.astype(np.float64) * (255.0 / max(self._top, 1e-12))), 0, 255
+            )
+        rgb = np.ascontiguousarray(np.moveaxis(np.asarray(data, dtype=np.uint8), 0, -1))
+        if rgb.shape[2] == 1:
+            rgb = np.repeat(rgb, 3, axis=2)
+        valid = ((mask > 0) & np.any(rgb > 0, axis=2)).astype(np.uint8)
+        rgb[valid == 0] = 0
+        map_x = (lu - c0 + 0.5) * kx - 0.5
+        map_y = (lv - r0 + 0.5) * ky - 0.5
+        return rgb, valid, map_x, map_y
