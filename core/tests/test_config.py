@@ -56,6 +56,15 @@ def test_unknown_environment_variable_is_refused():
         load_settings(env={"C3_MATCHER_MATCHER__MIN_INLIER_THRESHOLD": "80"})
     with pytest.raises(ConfigurationError, match="matcher.min_inliers_threshold"):
         load_settings(env={"C3_MATCHER_MATCHER__MIN_INLIERS_THRESHOLD": "many"})
+    with pytest.raises(ConfigurationError, match="C3_MATCHER_MATCHR__STRATEGY"):
+        load_settings(env={"C3_MATCHER_MATCHR__STRATEGY": "xfeat"})
+
+
+def test_process_switches_are_not_settings():
+    """Single-word C3_MATCHER_* variables that name no section are switches of tools and tests
+    (C3_MATCHER_TRACEBACK, C3_MATCHER_TOOLS_NO_PYPROJ, C3_MATCHER_ENGINE_DIR), not settings."""
+    env = {"C3_MATCHER_TOOLS_NO_RASTERIO": "1", "C3_MATCHER_TRACEBACK": "1"}
+    assert load_settings(env=env).matcher.strategy == "disk_lightglue"
 
 
 def test_unreadable_file_is_named(tmp_path):

@@ -243,6 +243,8 @@ def _unknown_env_keys(env: Mapping[str, str]) -> list[tuple[str, str]]:
         if not key.upper().startswith(ENV_PREFIX):
             continue
         parts = key[len(ENV_PREFIX) :].lower().split("__")
+        if len(parts) == 1 and parts[0] not in sections:
+            continue  # a process switch, not a setting (C3_MATCHER_TRACEBACK, C3_MATCHER_TOOLS_*)
         section = sections.get(parts[0])
         annotation = section.annotation if section else None
         fields = getattr(annotation, "model_fields", {})
