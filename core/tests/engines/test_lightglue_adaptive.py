@@ -125,7 +125,7 @@ def test_adaptive_runtime_imports_without_torch() -> None:
         "    sys.modules[name] = None\n"
         "import c3_matcher.engines.lightglue_adaptive as m\n"
         "import c3_matcher.engines.lightglue\n"
-        "assert set(m.STEPS_SPECS) == {'disk', 'aliked', 'xfeat'}\n"
+        "assert set(m.STEPS_SPECS) == {'disk', 'aliked'}\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert proc.returncode == 0, proc.stderr

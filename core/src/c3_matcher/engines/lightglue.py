@@ -30,7 +30,7 @@ import numpy as np
 from loguru import logger
 from numpy.typing import NDArray
 
-from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
+from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS, AdaptiveLightGlue
 from c3_matcher.engines.naming import EngineName
 from c3_matcher.errors import EngineError
 from c3_matcher.features import RawMatches
@@ -156,7 +156,11 @@ class OnnxLightGlueRuntime:
             self._steps[feature_type] = (path, engine_id, *self._drivers(engine_id, options))
         else:
             self._engines[feature_type] = (path, engine_id)
-            if self._mode == "adaptive" and feature_type not in self._steps:
+            if (
+                self._mode == "adaptive"
+                and feature_type not in self._steps
+                and feature_type in STEPS_SPECS  # LighterGlue has none: its full graph runs
+            ):
                 self._load_sibling_steps(feature_type, path)
         logger.bind(
             kind="c3.lightglue.engine_loaded",

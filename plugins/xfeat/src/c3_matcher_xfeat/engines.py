@@ -28,7 +28,6 @@ pruning off (it does not survive a single-graph export), threshold 0.1 applied a
 
 from __future__ import annotations
 
-from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS
 from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, matcher_spec
 
 __all__ = [
@@ -94,7 +93,5 @@ LIGHTERGLUE_SPEC = matcher_spec(
     description="LighterGlue (LightGlue for XFeat, 6 layers, 1 head), no adaptive pruning",
 )
 
-LIGHTERGLUE_STEPS_SPEC = STEPS_SPECS["xfeat"]
-"""``lighterglue/xfeat-steps``: LighterGlue with upstream point pruning on ONNX Runtime."""
-
-ENGINE_SPECS: tuple[EngineSpec, ...] = (XFEAT_SPEC, LIGHTERGLUE_SPEC, LIGHTERGLUE_STEPS_SPEC)
+ENGINE_SPECS: tuple[EngineSpec, ...] = (XFEAT_SPEC, LIGHTERGLUE_SPEC)
+"""No steps engine: LighterGlue runs its full graph (see ``STEPS_SPECS``: pruning cost accuracy)."""

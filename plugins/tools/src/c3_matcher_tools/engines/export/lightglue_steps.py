@@ -51,7 +51,6 @@ __all__ = [
     "export_aliked_steps",
     "export_disk_steps",
     "export_lightglue_steps",
-    "export_xfeat_steps",
 ]
 
 STEPS_TOLERANCES: Mapping[str, float] = {
@@ -351,16 +350,3 @@ def export_aliked_steps(request: ExportRequest) -> ExportReport:
     from c3_matcher_aliked_lightglue.export import aliked_features_fn
 
     return _steps(request, aliked_features_fn(), "aliked")
-
-
-def export_xfeat_steps(request: ExportRequest) -> ExportReport:
-    """``lighterglue/xfeat-steps``: verified on real upstream-XFeat features (LighterGlue's
-    architecture, ``LIGHTERGLUE_ARCH``)."""
-    from c3_matcher_xfeat.export import load_lighterglue_reference, xfeat_features_fn
-
-    return export_lightglue_steps(
-        request,
-        reference=load_lighterglue_reference(request.weights_path),
-        features_fn=xfeat_features_fn(),
-        feature_type="xfeat",
-    )
