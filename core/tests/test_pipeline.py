@@ -288,3 +288,33 @@ def test_tile_cache_key_changes_with_the_bytes():
     assert tile_cache_key(tile, BytesTileHandle(b"abc")) != tile_cache_key(
         tile, BytesTileHandle(b"abd")
     )
+
+
+def test_matcher_settings_reach_the_pipeline_of_every_strategy(tmp_path):
+    """[matcher] stored_features and the geometric prior travel by injection (config ->
+    strategy config -> PipelineSettings), never through process-wide state."""
+    from pathlib import Path
+
+    from c3_matcher.config import load_settings
+    from c3_matcher.strategy import ExtractorLightGlueConfig
+
+    toml = tmp_path / "c3.toml"
+    toml.write_text(
+        "[matcher]\nstored_features = true\ngeometric_prior = false\n"
+        "prior_rotation_tol_deg = 5.0\nmin_inliers_threshold = 70\n"
+    )
+    settings = load_settings(toml, env={})
+    config = ExtractorLightGlueConfig.from_settings(
+        settings,
+        label="x",
+        feature_type="disk",
+        extract_phase="disk_forward",
+        extractor_engine_path=Path("e.onnx"),
+        lightglue_engine_path=Path("l.onnx"),
+        size_multiple=16,
+    )
+    pipeline = config.pipeline_settings
+    assert pipeline.use_stored_features and not pipeline.geometric_prior
+    assert pipeline.prior_tolerances.rotation_deg == 5.0
+    assert pipeline.min_inliers_threshold == 70
+    assert load_settings(env={}) and PipelineSettings().geometric_prior  # defaults untouched

@@ -301,13 +301,4 @@ def load_settings(
     from c3_matcher.tiles import set_max_image_pixels
 
     set_max_image_pixels(settings.matcher.max_image_pixels)
-    from c3_matcher.prior import PriorTolerances, set_prior_defaults
-
-    m = settings.matcher
-    set_prior_defaults(
-        m.geometric_prior,
-        PriorTolerances(
-            m.prior_rotation_tol_deg, m.prior_scale_tol, m.prior_shear_tol, m.prior_base_tol_px
-        ),
-    )
     return settings

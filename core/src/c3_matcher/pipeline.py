@@ -13,6 +13,7 @@ candidate, one ``matcher.backbone_error`` record with its ``tile_id`` and ``phas
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -42,7 +43,7 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import log_event
 from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
-from c3_matcher.prior import GeometricPrior, PriorTolerances, default_prior
+from c3_matcher.prior import GeometricPrior, PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, RansacFilter
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 from c3_matcher.tilestore.features import FeatureRequest
@@ -90,24 +91,35 @@ class PipelineSettings:
     ransac_threshold_px: float = 3.0
     use_stored_features: bool = False  # opt-in until assembly matches extraction (README)
     # issue 13: only acts when the frame had attitude and height; defaults from [matcher]
-    geometric_prior: bool = field(default_factory=lambda: default_prior()[0])
-    prior_tolerances: PriorTolerances = field(default_factory=lambda: default_prior()[1])
+    geometric_prior: bool = True
+    prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
-        default = PriorTolerances()
+        """Every pipeline setting from ``[matcher]`` (thresholds, stored features, the prior)."""
         return cls(
             matcher.min_inliers_threshold,
             matcher.residual_warn_threshold_px,
             matcher.ransac_threshold_px,
-            bool(getattr(matcher, "stored_features", False)),
-            bool(getattr(matcher, "geometric_prior", True)),
+            matcher.stored_features,
+            matcher.geometric_prior,
             PriorTolerances(
-                rotation_deg=getattr(matcher, "prior_rotation_tol_deg", default.rotation_deg),
-                scale=getattr(matcher, "prior_scale_tol", default.scale),
-                shear=getattr(matcher, "prior_shear_tol", default.shear),
-                base_px=getattr(matcher, "prior_base_tol_px", default.base_px),
+                rotation_deg=matcher.prior_rotation_tol_deg,
+                scale=matcher.prior_scale_tol,
+                shear=matcher.prior_shear_tol,
+                base_px=matcher.prior_base_tol_px,
             ),
+        )
+
+    def with_thresholds(
+        self, min_inliers: int, residual_warn_px: float, ransac_px: float
+    ) -> PipelineSettings:
+        """These settings with a strategy config's AZ-345 thresholds."""
+        return dataclasses.replace(
+            self,
+            min_inliers_threshold=min_inliers,
+            residual_warn_threshold_px=residual_warn_px,
+            ransac_threshold_px=ransac_px,
         )
 
 

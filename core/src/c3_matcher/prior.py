@@ -36,8 +36,6 @@ __all__ = [
     "GeometricPrior",
     "HomographyCheck",
     "PriorTolerances",
-    "default_prior",
-    "set_prior_defaults",
 ]
 
 F64 = NDArray[np.float64]
@@ -52,24 +50,6 @@ class PriorTolerances:
     shear: float = 0.15
     base_px: float = 12.0
     vote_cell_px: float = 16.0
-
-
-_DEFAULTS: dict[str, object] = {"enabled": True, "tolerances": PriorTolerances()}
-
-
-def set_prior_defaults(enabled: bool, tolerances: PriorTolerances) -> None:
-    """Process-wide defaults of ``PipelineSettings.geometric_prior`` / ``prior_tolerances``, set
-    by :func:`c3_matcher.config.load_settings` from ``[matcher]`` (as ``max_image_pixels`` is):
-    the strategies build their ``PipelineSettings`` without these fields."""
-    _DEFAULTS["enabled"] = bool(enabled)
-    _DEFAULTS["tolerances"] = tolerances
-
-
-def default_prior() -> tuple[bool, PriorTolerances]:
-    """(enabled, tolerances) last set by :func:`set_prior_defaults` (True, defaults)."""
-    tolerances = _DEFAULTS["tolerances"]
-    assert isinstance(tolerances, PriorTolerances)
-    return bool(_DEFAULTS["enabled"]), tolerances
 
 
 @dataclass(frozen=True, slots=True)

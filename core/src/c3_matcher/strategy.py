@@ -74,12 +74,14 @@ class ExtractorLightGlueConfig:
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
     tile_cache_size: int = 16
+    pipeline: PipelineSettings | None = None  # [matcher]'s stored features and prior
 
     match_phase = "lightglue_match"
 
     @property
     def pipeline_settings(self) -> PipelineSettings:
-        return PipelineSettings(
+        """``[matcher]``'s pipeline settings (``pipeline``) with this config's thresholds."""
+        return (self.pipeline or PipelineSettings()).with_thresholds(
             self.min_inliers_threshold, self.residual_warn_threshold_px, self.ransac_threshold_px
         )
 
@@ -123,6 +125,7 @@ class ExtractorLightGlueConfig:
             m.residual_warn_threshold_px,
             m.ransac_threshold_px,
             m.tile_cache_size,
+            PipelineSettings.from_settings(m),
         )
         return dataclasses.replace(config, **overrides) if overrides else config
 

@@ -23,7 +23,7 @@ import importlib
 import importlib.metadata
 import sys
 import types
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -260,6 +260,28 @@ def _masked_half_check(session: Any, rgb: NDArray[np.uint8], name: str) -> dict[
 
 def _version(distribution: str) -> str:
     return importlib.metadata.version(distribution)
+
+
+def xfeat_features_fn() -> Callable[
+    [NDArray[np.uint8], int], tuple[NDArray[np.float32], NDArray[np.float32]]
+]:
+    """The LightGlue exporters' ``features_fn``: upstream XFeat (the engine's weights)."""
+    xfeat = load_xfeat_reference(XFEAT_SPEC.weights.resolve())
+    return lambda rgb, n: xfeat_reference_features(xfeat, rgb, n)
+
+
+def export_lighterglue(request: ExportRequest) -> ExportReport:
+    """Export LighterGlue and verify it on real upstream-XFeat features (the tools' shared
+    ``export_lightglue`` with ``LIGHTERGLUE_ARCH``); a failed check fails the build."""
+    from c3_matcher_tools.engines.export.lightglue import export_lightglue
+
+    return export_lightglue(
+        request,
+        features_fn=xfeat_features_fn(),
+        feature_type="xfeat",
+        architecture=LIGHTERGLUE_ARCH,
+        reference_name="LighterGlue",
+    )
 
 
 class XFeatReference(PyTorchReference):

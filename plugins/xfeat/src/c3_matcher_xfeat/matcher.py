@@ -65,6 +65,7 @@ class XFeatConfig:
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
     tile_cache_size: int = 16
+    pipeline: PipelineSettings | None = None  # [matcher]'s stored features and prior
 
     def __post_init__(self) -> None:
         if self.matcher not in MATCH_PHASES:
@@ -90,7 +91,8 @@ class XFeatConfig:
 
     @property
     def pipeline_settings(self) -> PipelineSettings:
-        return PipelineSettings(
+        """``[matcher]``'s pipeline settings (``pipeline``) with this config's thresholds."""
+        return (self.pipeline or PipelineSettings()).with_thresholds(
             self.min_inliers_threshold, self.residual_warn_threshold_px, self.ransac_threshold_px
         )
 
@@ -136,6 +138,7 @@ class XFeatConfig:
             residual_warn_threshold_px=m.residual_warn_threshold_px,
             ransac_threshold_px=m.ransac_threshold_px,
             tile_cache_size=m.tile_cache_size,
+            pipeline=PipelineSettings.from_settings(m),
         )
 
 
