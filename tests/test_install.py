@@ -190,7 +190,7 @@ def test_profile_installs_offline_and_behaves_as_the_matrix_says(profile, wheelh
             assert result["matcher_label"] == strategy
             assert result["per_candidate"][0]["tile_index"] == 1  # the demo's true tile
         else:
-            assert proc.returncode == 1, proc.stderr[-3000:]
+            assert proc.returncode == 2, proc.stderr[-3000:]
             assert "not linked" in proc.stderr and profile in proc.stderr
             assert "BUILD_MATCHER_" in proc.stderr
     config = env.c3("config")
@@ -225,7 +225,7 @@ def test_third_party_plugin_is_discovered_selected_and_run(wheelhouse, tmp_path)
     assert "example_fast_disk" not in {s["name"] for s in report["strategies"]}
     assert [p["distribution"] for p in report["ignored"]] == ["c3-matcher-example-fast-disk"]
     refused = demo_match(airborne, "example_fast_disk")
-    assert refused.returncode == 1 and "not linked" in refused.stderr
+    assert refused.returncode == 2 and "not linked" in refused.stderr
 
 
 @pytest.mark.slow
