@@ -42,6 +42,7 @@ _EXPORTS: dict[str, str] = {
     "InvalidInputError": "c3_matcher.errors",
     "JsonlFdrRecorder": "c3_matcher.fdr",
     "LightGlueRuntime": "c3_matcher.protocols",
+    "load_calibration": "c3_matcher.serialize",
     "load_settings": "c3_matcher.config",
     "MatcherBackboneError": "c3_matcher.errors",
     "MatcherHealth": "c3_matcher.dto",
