@@ -4,7 +4,6 @@ end to end (XFeat, one timed run per case) over a flight whose store has feature
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 from typing import Any
@@ -20,7 +19,6 @@ from c3_matcher_tools.bench import (
 
 REPO = Path(__file__).resolve().parents[3]
 FLIGHT = REPO / "data" / "flights" / "naip_demo"
-ENGINES = REPO / ".engines"
 
 
 def _result(case: BenchCase, p50: float, rss: float = 100.0) -> dict[str, Any]:
@@ -72,9 +70,12 @@ def _machine() -> dict[str, Any]:
     }
 
 
-@pytest.mark.skipif(not any(ENGINES.glob("xfeat_*.onnx")), reason="engines not built (.engines/)")
+@pytest.mark.slow
 def test_bench_smoke_over_a_flight_with_stored_features(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+    engine_dir: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     from c3_matcher.cli import main
     from c3_matcher.config import load_settings
@@ -82,10 +83,9 @@ def test_bench_smoke_over_a_flight_with_stored_features(
 
     flight = tmp_path / "naip_demo"
     shutil.copytree(FLIGHT, flight)
-    monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(ENGINES))
+    monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
     build_features(flight / "tiles.mbtiles", ["xfeat"], load_settings(None), workers=0)
     assert stored_features_path(flight) is not None
-    os.environ.setdefault("C3_MATCHER_ENGINES__DIRECTORY", str(ENGINES))
     argv = ["bench", "--runs", "1", "--strategy", "xfeat", "--no-baseline", "--no-reference"]
     assert main([*argv, "--data", str(flight)]) == 0
     out = capsys.readouterr().out

@@ -13,22 +13,17 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[3]
 FLIGHT = REPO / "data" / "flights" / "naip_demo"
-ENGINES = REPO / ".engines"
-
-pytestmark = pytest.mark.skipif(
-    not any(ENGINES.glob("xfeat_*.onnx")), reason="engines not built (.engines/)"
-)
+pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def built(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    pytest.importorskip("dask.distributed")
+def built(tmp_path_factory: pytest.TempPathFactory, engine_dir: Path) -> Path:
     from c3_matcher.config import load_settings
     from c3_matcher_tools.features.build import build_features
 
     flight = tmp_path_factory.mktemp("flight") / "naip_demo"
     shutil.copytree(FLIGHT, flight)
-    os.environ["C3_MATCHER_ENGINES__DIRECTORY"] = str(ENGINES)
+    os.environ["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
     settings = load_settings(None)
     lines: list[str] = []
     report = build_features(
