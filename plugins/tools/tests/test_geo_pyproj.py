@@ -14,8 +14,6 @@ import pytest
 from c3_matcher.georef import haversine_m
 from c3_matcher_tools.tilestore.geo import Projection, read_geotiff_grid
 
-pytest.importorskip("pyproj")
-
 REPO = Path(__file__).resolve().parents[3]
 ORTHO = REPO / "data" / "imagery" / "open_orthophotos"
 NAIP = REPO / "data" / "imagery" / "naip_timeseries" / "m_4709963_se_14_1_20200831.tif"

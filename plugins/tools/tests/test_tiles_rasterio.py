@@ -7,15 +7,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pyproj  # the tools' geo extra (scripts/setup installs it): never skipped
 import pytest
+import rasterio
 
-pytest.importorskip("rasterio")
-pyproj = pytest.importorskip("pyproj")
-
-from c3_matcher.tilestore.mbtiles import MBTilesStore  # noqa: E402
-from c3_matcher_tools.tilestore.build import build_mbtiles  # noqa: E402
-from c3_matcher_tools.tilestore.geo import read_geotiff_grid, world_px_to_lonlat  # noqa: E402
-from c3_matcher_tools.tilestore.raster import RasterioSource  # noqa: E402
+from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.tilestore.build import build_mbtiles
+from c3_matcher_tools.tilestore.geo import read_geotiff_grid, world_px_to_lonlat
+from c3_matcher_tools.tilestore.raster import RasterioSource
 
 REPO = Path(__file__).resolve().parents[3]
 IMAGERY = REPO / "data" / "imagery"
@@ -63,7 +62,6 @@ def test_rasterio_tiles_match_the_tifffile_fallback(sheet: Path, tmp_path: Path)
 
 @pytest.mark.parametrize("sheet", list(SHEETS), ids=lambda p: p.name)
 def test_rasterio_grid_matches_tags_and_gdal_transform(sheet: Path) -> None:
-    import rasterio
 
     tags = read_geotiff_grid(sheet)
     with RasterioSource(sheet) as src, rasterio.open(sheet) as ds:
@@ -85,7 +83,6 @@ def test_rasterio_grid_matches_tags_and_gdal_transform(sheet: Path) -> None:
 
 
 def _nodata_tif(path: Path) -> np.ndarray:
-    import rasterio
     from rasterio.transform import from_origin
 
     rng = np.random.default_rng(0)
