@@ -186,13 +186,7 @@ def test_second_writer_is_refused(tmp_path):
 def test_path_that_is_a_directory_or_unwritable_is_named(tmp_path):
     with pytest.raises(FdrOpenError, match="is a directory"):
         JsonlFdrRecorder(tmp_path, FakeClock())
-    ro = tmp_path / "ro"
-    ro.mkdir()
-    ro.chmod(0o500)
-    try:
-        if os.access(ro, os.W_OK):
-            pytest.skip("running as root: permissions are not enforced")
-        with pytest.raises(FdrOpenError, match="fdr.path"):
-            JsonlFdrRecorder(ro / "fdr.jsonl", FakeClock())
-    finally:
-        ro.chmod(0o700)
+    blocker = tmp_path / "not-a-directory"  # unwritable for root too: a file stands in the way
+    blocker.write_text("x")
+    with pytest.raises(FdrOpenError, match="fdr.path"):
+        JsonlFdrRecorder(blocker / "fdr.jsonl", FakeClock())
