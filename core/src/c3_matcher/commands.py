@@ -31,8 +31,24 @@ EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_INSUFFICIENT = 0, 1, 2, 3
 Handler = Callable[[argparse.Namespace, "C3Settings"], int]
 
 
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Help that shows each option's default, unless the text already says it or there is none
+    to show (None, False)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if "default" in text or action.default in (None, False, argparse.SUPPRESS):
+            return text
+        return super()._get_help_string(action)
+
+
 class UsageParser(argparse.ArgumentParser):
-    """An argument parser whose usage errors exit 2 with one line on stderr."""
+    """An argument parser whose usage errors exit 2 with one line on stderr and whose help shows
+    the defaults."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
         print(f"{self.prog}: error: {message}", file=sys.stderr)
@@ -53,7 +69,6 @@ class CommandRegistry:
         if name in self._names:
             raise ValueError(f"command {name!r} is registered twice")
         self._names.add(name)
-        kwargs.setdefault("formatter_class", argparse.ArgumentDefaultsHelpFormatter)
         parser: argparse.ArgumentParser = self._sub.add_parser(name, help=help, **kwargs)
         return parser
 
