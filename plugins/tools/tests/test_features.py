@@ -4,7 +4,6 @@ agreement of assembled features with extracting the window (XFeat, the fastest e
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
@@ -23,8 +22,7 @@ def built(tmp_path_factory: pytest.TempPathFactory, engine_dir: Path) -> Path:
 
     flight = tmp_path_factory.mktemp("flight") / "naip_demo"
     shutil.copytree(FLIGHT, flight)
-    os.environ["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
-    settings = load_settings(None)
+    settings = load_settings(None, env={"C3_MATCHER_ENGINES__DIRECTORY": str(engine_dir)})
     lines: list[str] = []
     report = build_features(
         flight / "tiles.mbtiles", ["xfeat"], settings, workers=2, progress=lines.append
@@ -40,12 +38,12 @@ def built(tmp_path_factory: pytest.TempPathFactory, engine_dir: Path) -> Path:
     return flight
 
 
-def _matcher(stored: bool):  # type: ignore[no-untyped-def]
+def _matcher(stored: bool, engine_dir: Path):  # type: ignore[no-untyped-def]
     from c3_matcher.compose import build_default_helpers, compose_root
     from c3_matcher.config import load_settings
     from c3_matcher.fdr import InMemoryFdr
 
-    s = load_settings(None)
+    s = load_settings(None, env={"C3_MATCHER_ENGINES__DIRECTORY": str(engine_dir)})
     s = s.model_copy(
         update={"matcher": s.matcher.model_copy(update={"strategy": "xfeat", "tile_cache_size": 0})}
     )
@@ -55,7 +53,7 @@ def _matcher(stored: bool):  # type: ignore[no-untyped-def]
     return root.matcher, fdr
 
 
-def test_assembled_features_agree_with_extraction(built: Path) -> None:
+def test_assembled_features_agree_with_extraction(built: Path, engine_dir: Path) -> None:
     from c3_matcher.errors import InsufficientInliersError
     from c3_matcher.pipeline import _feature_request
     from c3_matcher.preprocess import FramePreprocessor
@@ -63,8 +61,8 @@ def test_assembled_features_agree_with_extraction(built: Path) -> None:
 
     dataset = load_dataset(built)
     store = dataset.open_store()
-    stored_m, fdr = _matcher(True)
-    extract_m, _ = _matcher(False)
+    stored_m, fdr = _matcher(True, engine_dir)
+    extract_m, _ = _matcher(False, engine_dir)
     backend = stored_m.backend
     pre = FramePreprocessor(backend.input_rule)
     request = _feature_request(backend, pre)
