@@ -98,16 +98,6 @@ def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any]]:
     return arr, tags
 
 
-def _geokeys(directory: Any) -> dict[int, Any]:
-    values = [int(v) for v in directory]
-    keys: dict[int, Any] = {}
-    for i in range(values[3]):
-        key_id, location, _count, value = values[4 + 4 * i : 8 + 4 * i]
-        if location == 0:
-            keys[key_id] = value
-    return keys
-
-
 def _mercator_lat(y: float, ellipsoidal: bool) -> float:
     """Latitude (rad) of Mercator northing ``y`` (m) on WGS84 (ellipsoidal) or the sphere."""
     t = math.exp(-y / _WGS84_A)
@@ -126,7 +116,9 @@ def geotiff_gsd_m(tags: dict[int, Any], height_px: int) -> float | None:
     if scale is None:
         return None
     sx, sy = float(scale[0]), float(scale[1])
-    keys = _geokeys(tags[34735]) if 34735 in tags else {}
+    from c3_matcher_tools.tilestore.geo import geokeys  # here: the tilestore package imports sim
+
+    keys = geokeys(tags[34735]) if 34735 in tags else {}
     tie = tags.get(33922)
     centre_y = None
     if tie is not None and len(tie) >= 6:

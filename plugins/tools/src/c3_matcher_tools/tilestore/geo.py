@@ -39,6 +39,7 @@ __all__ = [
     "TILE_PX",
     "GeoGrid",
     "Projection",
+    "geokeys",
     "lonlat_to_world_px",
     "read_geotiff_grid",
     "world_px_to_lonlat",
@@ -300,7 +301,8 @@ def _transformer(epsg: int, *, inverse: bool) -> Any:
     return Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
 
 
-def _geokeys(directory: Any) -> dict[int, Any]:
+def geokeys(directory: Any) -> dict[int, Any]:
+    """The GeoKeyDirectory (tag 34735) of a GeoTIFF as {key id: value} (inline values)."""
     values = [int(v) for v in directory]
     keys: dict[int, Any] = {}
     for i in range(values[3]):
@@ -333,7 +335,7 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
         )
     sx, sy = float(tags[33550][0]), float(tags[33550][1])
     tie = [float(t) for t in tags[33922][:6]]
-    keys = _geokeys(tags[34735]) if 34735 in tags else {}
+    keys = geokeys(tags[34735]) if 34735 in tags else {}
     point = keys.get(1025) == 2  # RasterPixelIsPoint: the tie point is a pixel centre
     i0, j0, e0, n0 = tie[0], tie[1], tie[3], tie[4]
     shift = 0.5 if point else 0.0
