@@ -89,7 +89,7 @@ def build_default_helpers(
 ) -> dict[str, Any]:
     """The default shared helpers (``c3_lightglue_runtime``, ``c282_ransac_filter``,
     ``c7_inference``) built from configuration: ONNX Runtime and OpenCV USAC."""
-    from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
+    from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, resolve_mode
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
     inference = OnnxInferenceRuntime.from_settings(settings.engines, providers_available)
@@ -97,7 +97,7 @@ def build_default_helpers(
         "c7_inference": inference,
         "c3_lightglue_runtime": OnnxLightGlueRuntime(
             inference,
-            mode=settings.lightglue.mode,
+            mode=resolve_mode(settings.lightglue.mode, inference.provider),
             depth_confidence=settings.lightglue.depth_confidence,
             width_confidence=settings.lightglue.width_confidence,
         ),

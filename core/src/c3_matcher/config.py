@@ -169,11 +169,12 @@ class EngineSettings(_Section):
 class LightGlueSettings(_Section):
     """The ``[lightglue]`` table: how the LightGlue-family matchers run (issue 10, item 3)."""
 
-    mode: Literal["adaptive", "full"] = Field(
-        "adaptive",
+    mode: Literal["auto", "adaptive", "full"] = Field(
+        "auto",
         description="adaptive: the transformer in steps with upstream's early exit and point "
         "pruning (needs the <feature>-steps engine, else full); full: the single graph, every "
-        "layer on every point",
+        "layer on every point; auto: adaptive on the CPU provider, full on a GPU one (measured: "
+        "README, 'Choices by measurement')",
     )
     depth_confidence: float | None = Field(
         None,

@@ -58,7 +58,24 @@ def test_tensorrt_engine_cache_directory_is_passed_to_the_provider(tmp_path):
     assert name == "TensorrtExecutionProvider"
     assert trt["trt_engine_cache_enable"] is True
     assert trt["trt_engine_cache_path"] == str(tmp_path)
-    assert opts[1:] == ["CUDAExecutionProvider", "CPUExecutionProvider"]
+    assert opts[1:] == [
+        ("CUDAExecutionProvider", {"cudnn_conv_algo_search": "DEFAULT"}),
+        "CPUExecutionProvider",
+    ]
+
+
+def test_lightglue_auto_mode_is_adaptive_on_cpu_and_full_on_gpu_providers() -> None:
+    from c3_matcher.config import LightGlueSettings
+    from c3_matcher.engines.lightglue import resolve_mode
+
+    assert LightGlueSettings().mode == "auto"
+    assert resolve_mode("auto", "CPUExecutionProvider") == "adaptive"
+    assert resolve_mode("auto", "CUDAExecutionProvider") == "full"
+    assert resolve_mode("auto", "TensorrtExecutionProvider") == "full"
+    assert resolve_mode("adaptive", "CUDAExecutionProvider") == "adaptive"
+    assert resolve_mode("full", "CPUExecutionProvider") == "full"
+    with pytest.raises(ValueError, match="steps"):
+        resolve_mode("steps", "CPUExecutionProvider")
 
 
 # -- issue 11 (provider honesty) and issue 12 (any provider, options, intersection) -----------

@@ -209,11 +209,15 @@ def provider_options(
                     trt_timing_cache_enable=True,
                     trt_timing_cache_path=str(tensorrt_cache_dir),
                 )
-        elif (
-            name in ("CUDAExecutionProvider", "ROCMExecutionProvider")
-            and cfg.gpu_mem_limit_bytes is not None
-        ):
-            opts["gpu_mem_limit"] = int(cfg.gpu_mem_limit_bytes)
+        elif name in ("CUDAExecutionProvider", "ROCMExecutionProvider"):
+            if cfg.gpu_mem_limit_bytes is not None:
+                opts["gpu_mem_limit"] = int(cfg.gpu_mem_limit_bytes)
+            if name == "CUDAExecutionProvider":
+                # ONNX Runtime's EXHAUSTIVE default benchmarks every convolution algorithm for
+                # each new input shape, and query and candidate windows change shape through a
+                # flight: DISK query extraction 130 ms vs 15 ms, XFeat 450 vs 33 ms on an H100
+                # (README, 'Choices by measurement'). ``provider_options`` can set it back.
+                opts["cudnn_conv_algo_search"] = "DEFAULT"
         if cfg.extra and name in cfg.extra:
             opts.update(dict(cfg.extra[name]))
         if name == "CPUExecutionProvider" or not opts:

@@ -270,7 +270,16 @@ def cases_for(args: argparse.Namespace, settings: C3Settings) -> list[BenchCase]
     cached = max(m.tile_cache_size, 3)
     stored = stored_features_path(args.data) is not None
     lightglue = getattr(settings, "lightglue", None)
-    other_mode = {"adaptive": "full", "full": "adaptive"}.get(getattr(lightglue, "mode", ""))
+    other_mode = None
+    if lightglue is not None:  # the mode the configured provider runs, then the other one
+        import onnxruntime as ort
+
+        from c3_matcher.engines.lightglue import resolve_mode
+        from c3_matcher.engines.runtime import resolve_providers
+
+        provider = resolve_providers(settings.engines.providers, ort.get_available_providers())
+        mode = resolve_mode(lightglue.mode, provider[0])
+        other_mode = {"adaptive": "full", "full": "adaptive"}[mode]
     cases: list[BenchCase] = []
     for name in args.strategy or [m.strategy]:
         cases += [
@@ -372,7 +381,9 @@ def run_bench(args: argparse.Namespace, settings: C3Settings) -> int:
         ]
         if args.config:
             cmd += ["--config", str(args.config)]
-        out = subprocess.run(cmd, check=True, capture_output=True, text=True)
+        out = subprocess.run(cmd, check=False, capture_output=True, text=True)
+        if out.returncode != 0:
+            raise SystemExit(f"bench: {case.label} failed:\n{out.stderr.strip()}")
         results.append(json.loads(out.stdout.strip().splitlines()[-1]))
     report: dict[str, Any] = {
         "machine": _machine(),
