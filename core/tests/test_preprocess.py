@@ -327,3 +327,27 @@ def test_small_grey_tile_is_not_upscaled() -> None:
     np.testing.assert_allclose(prep.to_working([[5.0, 7.0]]), [[5.0, 7.0]])
     with pytest.raises(InvalidInputError):
         FramePreprocessor(InputRule(1024, 32)).prepare_tile(tile.astype(np.float32))
+
+
+# --------------------------------------------------------------------------- photometry (13)
+@pytest.mark.parametrize("mode", ["grey", "clahe"])
+def test_photometric_normalisation_is_grey_masked_and_applied_to_query_and_tile(mode) -> None:
+    pre = FramePreprocessor(InputRule(1024, 16), photometric=mode)
+    tile = pre.prepare_tile(_texture(300, 200, seed=1))
+    assert tile.image.shape[:2] == (208, 304)
+    assert tile.image[200:].max() == 0 and tile.image[:, 300:].max() == 0  # padding stays 0
+    query = pre.prepare_query(_frame(_texture()), CameraCalibration.pinhole(W, H, F), None)
+    for prepared in (tile, query):
+        img = prepared.image
+        assert np.array_equal(img[..., 0], img[..., 1]) and np.array_equal(img[..., 1], img[..., 2])
+    plain = FramePreprocessor(InputRule(1024, 16)).prepare_tile(_texture(300, 200, seed=1))
+    grey = cv2.cvtColor(plain.image, cv2.COLOR_RGB2GRAY)
+    if mode == "grey":
+        assert np.array_equal(tile.image[..., 0], grey)
+    else:  # local contrast stretched: a wider spread of grey levels than plain luminance
+        assert tile.image[..., 0].std() > grey.std()
+
+
+def test_photometric_mode_is_validated() -> None:
+    with pytest.raises(InvalidInputError, match="photometric"):
+        FramePreprocessor(InputRule(1024, 16), photometric="sepia")

@@ -91,6 +91,12 @@ class MatcherSettings(_Section):
         description="use a tile store's precomputed map features (c3-matcher features build) "
         "when they match the extractor engine; False: always extract tiles in flight",
     )
+    photometric: Literal["none", "grey", "clahe"] = Field(
+        "none",
+        description="photometric normalisation of query and tiles before extraction: none; "
+        "grey (luminance only); clahe (grey + local contrast equalisation in 64 px cells); "
+        "measured in README 'Cross-season flights'",
+    )
     geometric_prior: bool = Field(
         True,
         description="with attitude AND height (rectified query at the tile GSD): keep only "

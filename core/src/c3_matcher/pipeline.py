@@ -93,6 +93,7 @@ class PipelineSettings:
     # issue 13: only acts when the frame had attitude and height; defaults from [matcher]
     geometric_prior: bool = True
     prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
+    photometric: str = "none"  # issue 13: query and tiles alike (preprocess.normalise_photometry)
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
@@ -109,6 +110,7 @@ class PipelineSettings:
                 shear=matcher.prior_shear_tol,
                 base_px=matcher.prior_base_tol_px,
             ),
+            matcher.photometric,
         )
 
     def with_thresholds(
@@ -167,9 +169,14 @@ class PipelineMatcher:
         self._health = health_window
         self._clock = clock
         self._settings = settings
-        self._pre = preprocessor or FramePreprocessor(backend.input_rule)
+        self._pre = preprocessor or FramePreprocessor(
+            backend.input_rule, photometric=settings.photometric
+        )
         self._cache = TileFeatureCache(tile_cache_size)
-        self._feature_request = _feature_request(backend, self._pre)
+        # stored map features are extracted from the tiles as they are: not with a normalisation
+        self._feature_request = (
+            _feature_request(backend, self._pre) if self._pre.photometric == "none" else None
+        )
         self._use_stored = settings.use_stored_features and self._feature_request is not None
 
     @property

@@ -51,7 +51,14 @@ from c3_matcher import camera as cam
 from c3_matcher.dto import CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
 
-__all__ = ["FramePreprocessor", "InputRule", "PreparedImage", "QueryGeometry"]
+__all__ = [
+    "PHOTOMETRIC_MODES",
+    "FramePreprocessor",
+    "InputRule",
+    "PreparedImage",
+    "QueryGeometry",
+    "normalise_photometry",
+]
 
 F64 = NDArray[np.float64]
 
@@ -183,6 +190,34 @@ def _to_rgb(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
     return image
 
 
+PHOTOMETRIC_MODES = ("none", "grey", "clahe")
+CLAHE_CELL_PX = 64  # CLAHE cells of a fixed size in WORKING px: the same ground area in both
+
+
+def normalise_photometry(
+    image: NDArray[np.uint8], valid: NDArray[np.uint8], mode: str
+) -> NDArray[np.uint8]:
+    """Issue 13's photometric normalisation of an engine image (RGB uint8), the same for query
+    and tile: ``"none"`` leaves it; ``"grey"`` keeps luminance only (replicated to three
+    channels: what a season changes most is hue and saturation); ``"clahe"`` is grey plus
+    contrast-limited adaptive histogram equalisation in ``CLAHE_CELL_PX`` cells (local contrast
+    made comparable whatever the illumination, haze or the sensor's gain). Pixels outside
+    ``valid`` (255 inside) stay 0."""
+    if mode == "none":
+        return image
+    if mode not in PHOTOMETRIC_MODES:
+        raise InvalidInputError("photometric", f"must be one of {PHOTOMETRIC_MODES}, got {mode!r}")
+    grey = np.asarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), dtype=np.uint8)
+    if mode == "clahe":
+        h, w = grey.shape
+        cells = (max(1, round(w / CLAHE_CELL_PX)), max(1, round(h / CLAHE_CELL_PX)))
+        grey = np.asarray(
+            cv2.createCLAHE(clipLimit=2.0, tileGridSize=cells).apply(grey), dtype=np.uint8
+        )
+    grey = np.asarray(cv2.bitwise_and(grey, grey, mask=valid), dtype=np.uint8)
+    return _to_rgb(grey)
+
+
 def _check_pixels(image: object, field_name: str) -> NDArray[np.uint8]:
     if not isinstance(image, np.ndarray):
         raise InvalidInputError(field_name, f"expected numpy.ndarray, got {type(image).__name__}")
@@ -259,7 +294,8 @@ class FramePreprocessor:
     a warp, padding or nodata edge; ``max_off_nadir_deg`` clips the rectified footprint to rays
     at most that far from nadir; ``max_canvas_factor`` bounds the working canvas (see the module
     docstring); the source frame is area-downscaled first when the composed warp shrinks it by
-    more than ``area_downscale_threshold``.
+    more than ``area_downscale_threshold``; ``photometric`` is the normalisation applied to
+    query and tiles alike (:func:`normalise_photometry`).
     """
 
     def __init__(
@@ -271,6 +307,7 @@ class FramePreprocessor:
         max_canvas_factor: float = 3.0,
         boundary_samples_per_side: int = 64,
         area_downscale_threshold: float = 2.0,
+        photometric: str = "none",
     ) -> None:
         if not isinstance(rule, InputRule):
             raise InvalidInputError("rule", f"expected InputRule, got {type(rule).__name__}")
@@ -282,7 +319,12 @@ class FramePreprocessor:
             )
         if max_canvas_factor < 1.0:
             raise InvalidInputError("max_canvas_factor", f"must be >= 1, got {max_canvas_factor}")
+        if photometric not in PHOTOMETRIC_MODES:
+            raise InvalidInputError(
+                "photometric", f"must be one of {PHOTOMETRIC_MODES}, got {photometric!r}"
+            )
         self.rule = rule
+        self.photometric = photometric
         self.border_erode_px = int(border_erode_px)
         self.max_off_nadir_deg = float(max_off_nadir_deg)
         self.max_canvas_factor = float(max_canvas_factor)
@@ -323,8 +365,9 @@ class FramePreprocessor:
         )
         inside = self._polygon_mask(geometry.footprint_engine(), geometry.final_size)
         warped = np.asarray(cv2.bitwise_and(warped, warped, mask=inside), dtype=np.uint8)
+        rgb = normalise_photometry(_to_rgb(warped), inside, self.photometric)
         return PreparedImage(
-            image=np.ascontiguousarray(_to_rgb(warped)),
+            image=np.ascontiguousarray(rgb),
             valid=self._erode(inside),
             working_from_engine=geometry.working_from_engine,
             working_size=geometry.working_size,
@@ -512,7 +555,7 @@ class FramePreprocessor:
         image[:uh, :uw] = small[:uh, :uw]
         inside[:uh, :uw] = np.where(nodata[:uh, :uw] == 0, np.uint8(255), np.uint8(0))
         return PreparedImage(
-            image=image,
+            image=normalise_photometry(image, inside, self.photometric),
             valid=self._erode(inside),
             working_from_engine=_engine_to_working((w, h), content),
             working_size=(w, h),
