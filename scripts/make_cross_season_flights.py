@@ -7,10 +7,17 @@ ground through the frames' GeoTIFF and to the tile through the store's mercator 
 320x240, the demo flight's orbit and attitude spec otherwise. ``naip_cross_date`` (frames 2010,
 store 2020, 30 frames) is the shipped pair already and is not re-rendered here.
 
-``naip_distractors``: frames 2015 against the 2020 store with ``absent_share = 1``: no frame has
-its true tile among its candidates; every frame must raise InsufficientInliersError.
+Distractor-only flights (``absent_share = 1``: no frame has its true tile among its candidates,
+only three distractors that do not overlap its footprint; every frame must raise
+InsufficientInliersError, eval's false-confident bar is zero), one per shipped store, the frames
+from another date (a flight has one store and one frames GeoTIFF):
 
-    .venv/bin/python scripts/make_cross_season_flights.py
+- ``naip_distractors``: store 2020, frames 2015, 20 frames (the original; seed 16);
+- ``naip_distractors_s2010``: store 2010, frames 2020, 12 frames (seed 17);
+- ``naip_distractors_s2015``: store 2015, frames 2010, 12 frames (seed 18).
+
+    .venv/bin/python scripts/make_cross_season_flights.py            # every flight above
+    .venv/bin/python scripts/make_cross_season_flights.py NAME...    # only these (re-rendered)
 """
 
 from __future__ import annotations
@@ -35,10 +42,21 @@ DATES = {
 }
 # (store date, frames date); 2020 <- 2010 ships as naip_cross_date
 PAIRS = [("2020", "2015"), ("2015", "2010"), ("2015", "2020"), ("2010", "2015"), ("2010", "2020")]
+# distractor-only flights beside naip_distractors (store 2020, frames 2015): (store, frames)
+DISTRACTOR_PAIRS = [("2010", "2020"), ("2015", "2010")]
 
 
 def main() -> int:
     only = set(sys.argv[1:])
+    # (name, store date, frames date, absent share, frames); seeds 11, 12, ... in this order
+    jobs = [(f"naip_s{s}_f{f}", s, f, 0.1, 20) for s, f in PAIRS]
+    jobs.append(("naip_distractors", "2020", "2015", 1.0, 20))
+    # appended after the shipped jobs so every earlier seed (and flight) stays as it is
+    jobs += [(f"naip_distractors_s{s}", s, f, 1.0, 12) for s, f in DISTRACTOR_PAIRS]
+    unknown = only - {job[0] for job in jobs}
+    if unknown:
+        print(f"unknown flight(s): {', '.join(sorted(unknown))}", file=sys.stderr)
+        return 2
     with tempfile.TemporaryDirectory() as tmp:
         stores: dict[str, Path] = {}
         for date in ("2010", "2015", "2020"):
@@ -51,9 +69,7 @@ def main() -> int:
                 jpeg_quality=90,
                 attribution=CREDIT,
             )
-        jobs = [(f"naip_s{s}_f{f}", s, f, 0.1) for s, f in PAIRS]
-        jobs.append(("naip_distractors", "2020", "2015", 1.0))
-        for seed, (name, store_date, frames_date, absent) in enumerate(jobs, start=11):
+        for seed, (name, store_date, frames_date, absent, n_frames) in enumerate(jobs, start=11):
             if only and name not in only:
                 continue
             target = OUT / name
@@ -62,7 +78,7 @@ def main() -> int:
             spec = FlightSpec(
                 NAIP / DATES[frames_date],
                 stores[store_date],
-                n_frames=20,
+                n_frames=n_frames,
                 absent_share=absent,
                 seed=seed,
             )
