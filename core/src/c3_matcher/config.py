@@ -103,6 +103,14 @@ class MatcherSettings(_Section):
         "matches voting for the dominant translation before RANSAC and refuse a candidate "
         "whose homography is not near a translation (README, geometric prior, DECISIONS 17)",
     )
+    rotation_search: bool = Field(
+        False,
+        description="when a frame comes WITHOUT attitude (missing, or the caller does not trust "
+        "it after an IMU fault and passes attitude=None): extract the query turned by 0/90/180/"
+        "270 deg and keep, per candidate, the turn whose RANSAC result ranks best (inliers, then "
+        "residual); about 4x the query extraction and matching (README 'Rotation search'); "
+        "off: such a frame is matched as it comes, frames with attitude are never affected",
+    )
     prior_rotation_tol_deg: float = Field(
         10.0, gt=0, le=90, description="heading error tolerated by the prior, deg"
     )

@@ -9,6 +9,14 @@ Terminal FDR record per ``match`` call, exactly one of: ``matcher.frame_done`` (
 ``matcher.insufficient_inliers`` (raised InsufficientInliersError), or ``matcher.backbone_error``
 with ``phase="query_extract"`` (the query frame itself failed, DECISIONS 3). Per dropped
 candidate, one ``matcher.backbone_error`` record with its ``tile_id`` and ``phase``.
+
+Rotation search (``rotation_search``, issue 13; off by default): a frame WITHOUT attitude is not
+rectified, so its heading is unknown. With the option on, such a query is extracted turned by
+0/90/180/270 deg (``np.rot90`` of the prepared image and its valid mask, the turn composed into
+the engine -> working map, so correspondences still come back in WORKING px of the unturned
+query); every candidate is matched against each turn and keeps the turn whose result ranks best
+under ``ranking_key`` (inliers, then residual; the first turn on a tie). The kept turn is in
+``diagnostics["rotation_deg"]`` and the FDR records (``rotation_deg`` per candidate).
 """
 
 from __future__ import annotations
@@ -21,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from c3_matcher.config import MatcherSettings
 from c3_matcher.dto import (
@@ -43,12 +51,14 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import log_event
 from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
-from c3_matcher.prior import GeometricPrior, PriorTolerances
+from c3_matcher.prior import GeometricPrior, HomographyCheck, PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, RansacFilter
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 from c3_matcher.tilestore.features import FeatureRequest
 
-__all__ = ["FeatureBackend", "PipelineMatcher", "PipelineSettings"]
+__all__ = ["QUERY_ROTATIONS_DEG", "FeatureBackend", "PipelineMatcher", "PipelineSettings"]
+
+QUERY_ROTATIONS_DEG = (0, 90, 180, 270)  # rotation search: counter-clockwise turns of the query
 
 
 class FeatureBackend(Protocol):
@@ -94,6 +104,7 @@ class PipelineSettings:
     geometric_prior: bool = True
     prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
     photometric: str = "none"  # issue 13: query and tiles alike (preprocess.normalise_photometry)
+    rotation_search: bool = False  # issue 13: frames without attitude tried at 4 turns (opt-in)
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
@@ -111,6 +122,7 @@ class PipelineSettings:
                 base_px=matcher.prior_base_tol_px,
             ),
             matcher.photometric,
+            matcher.rotation_search,
         )
 
     def with_thresholds(
@@ -130,6 +142,46 @@ class _Survivor:
     match_set: CandidateMatchSet
     input_index: int
     homography: NDArray[np.float64] | None
+    rotation_deg: int = 0
+
+
+@dataclass(frozen=True)
+class _TurnedQuery(PreparedImage):
+    """A prepared query turned by a multiple of 90 deg for extraction (rotation search).
+
+    ``working_from_engine`` is then a full affine (the turn composed with the scale and shift),
+    so :meth:`to_working` and :meth:`to_engine` apply its 2x2 part whole; WORKING px, and with
+    them ``working_to_original``, are those of the unturned query."""
+
+    def to_working(self, pts: ArrayLike) -> NDArray[np.float64]:
+        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+        a = self.working_from_engine
+        return np.asarray(p @ a[:2, :2].T + a[:2, 2])
+
+    def to_engine(self, pts: ArrayLike) -> NDArray[np.float64]:
+        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+        inv = np.linalg.inv(self.working_from_engine)
+        return np.asarray(p @ inv[:2, :2].T + inv[:2, 2])
+
+
+@dataclass(frozen=True)
+class _QueryView:
+    """One extracted view of the query: its turn (deg, counter-clockwise), image, features."""
+
+    rotation_deg: int
+    image: PreparedImage
+    features: Features
+
+
+@dataclass
+class _TurnOutcome:
+    """A candidate matched against one query view: what RANSAC (and the prior) made of it."""
+
+    rotation_deg: int
+    match_set: CandidateMatchSet  # WORKING-px query points until the candidate is kept
+    homography: NDArray[np.float64] | None
+    check: HomographyCheck | None
+    raw_matches: int
 
 
 @dataclass
@@ -144,6 +196,7 @@ class _FrameState:
     feature_sources: list[str] = field(default_factory=list)
     prior: GeometricPrior | None = None
     geometry_refused: list[dict[str, Any]] = field(default_factory=list)
+    rotation_search: bool = False  # this frame's query was extracted at every turn
 
 
 class PipelineMatcher:
@@ -239,8 +292,14 @@ class PipelineMatcher:
                 query_image = self._pre.prepare_query(
                     frame, calibration, _tile_gsd(rerank.candidates)
                 )
+                # rotation search: only for a frame without attitude (unknown heading)
+                state.rotation_search = self._settings.rotation_search and frame.attitude is None
+                turns = QUERY_ROTATIONS_DEG if state.rotation_search else (0,)
+                images = [(deg, _turned(query_image, deg)) for deg in turns]
             with _timed(state.timings_ms, "query_extract"):
-                query = self._backend.extract(query_image)
+                views = [
+                    _QueryView(deg, image, self._backend.extract(image)) for deg, image in images
+                ]
         except Exception as exc:
             self._update_health(state, 0, force_backbone_error=True)
             self._record_backbone_error(state, None, "query_extract", exc)
@@ -251,7 +310,7 @@ class PipelineMatcher:
         for index, candidate in enumerate(rerank.candidates):  # steps 3-4
             timings: dict[str, float] = {}
             state.per_candidate_ms.append(timings)
-            survivor = self._match_candidate(index, candidate, query_image, query, state, timings)
+            survivor = self._match_candidate(index, candidate, query_image, views, state, timings)
             if survivor is not None:
                 survivors.append(survivor)
 
@@ -294,6 +353,8 @@ class PipelineMatcher:
             "candidate_features": list(state.feature_sources),
             "geometric_prior": state.prior is not None,
             "geometry_refused": list(state.geometry_refused),
+            "rotation_search": state.rotation_search,
+            "rotation_deg": [s.rotation_deg for s in survivors],
         }
         self._record(
             "matcher.frame_done",
@@ -305,16 +366,9 @@ class PipelineMatcher:
                 "best_residual_px": best.per_candidate_residual_px,
                 "best_tile_id": best.tile_id,
                 "best_homography": survivors[0].homography,
-                "per_candidate": [
-                    {
-                        "tile_id": s.match_set.tile_id,
-                        "inlier_count": s.match_set.inlier_count,
-                        "residual_px": s.match_set.per_candidate_residual_px,
-                        "features": _source_of(state, s.input_index),
-                    }
-                    for s in survivors
-                ],
+                "per_candidate": _per_candidate_records(state, survivors),
                 "candidate_features": list(state.feature_sources),
+                **_rotation_record(state),
                 "timings_ms": state.timings_ms,
                 **self._backend.provenance(),
             },
@@ -336,7 +390,7 @@ class PipelineMatcher:
         index: int,
         candidate: RerankCandidate,
         query_image: PreparedImage,
-        query: Features,
+        views: list[_QueryView],
         state: _FrameState,
         timings: dict[str, float],
     ) -> _Survivor | None:
@@ -371,23 +425,25 @@ class PipelineMatcher:
                     tile = self._backend.extract(tile_image)
                 if key is not None:
                     self._cache.put(key, CachedTile(tile_image, tile))
-            phase = self._backend.match_phase
-            with _timed(timings, "match"):
-                raw = self._backend.match(query, tile)
-                correspondences = _correspondences(query_image, query, tile_image, tile, raw)
-            phase = "ransac"
-            with _timed(timings, "ransac"):
-                prefiltered = 0
-                if state.prior is not None:  # before RANSAC: the translation vote
-                    keep = state.prior.consistent(correspondences)
-                    prefiltered = int(correspondences.shape[0] - keep.sum())
-                    correspondences = np.ascontiguousarray(correspondences[keep])
-                ransac = self._ransac.filter(correspondences, self._settings.ransac_threshold_px)
-                inliers = ransac.inlier_correspondences
-                check = None
-                if state.prior is not None and ransac.homography is not None and len(inliers):
-                    check = state.prior.verify(ransac.homography)  # after RANSAC: geometry
-                if inliers.shape[0] > 0:
+            chosen: _TurnOutcome | None = None
+            for view in views:  # one view, or every turn (rotation search)
+                phase = self._backend.match_phase
+                with _timed(timings, "match"):
+                    raw = self._backend.match(view.features, tile)
+                    correspondences = _correspondences(
+                        view.image, view.features, tile_image, tile, raw
+                    )
+                phase = "ransac"
+                with _timed(timings, "ransac"):
+                    outcome = self._verify(tile_id, view.rotation_deg, correspondences, state)
+                outcome.raw_matches = len(raw)
+                if chosen is None or _turn_rank(outcome) < _turn_rank(chosen):  # first on ties
+                    chosen = outcome
+            assert chosen is not None  # views is never empty
+            inliers = chosen.match_set.inlier_correspondences
+            check = chosen.check
+            if inliers.shape[0] > 0:
+                with _timed(timings, "ransac"):
                     original = query_image.working_to_original(inliers[:, 0:2].astype(np.float64))
                     inliers = np.hstack([original, inliers[:, 2:4]]).astype(np.float32)
         except Exception as exc:  # INV-4: drop and continue
@@ -403,7 +459,7 @@ class PipelineMatcher:
                 f"C3 zero inliers; frame={state.frame_id}; tile={tile_id}",
                 frame_id=state.frame_id,
                 tile_id=tile_id,
-                raw_matches=len(raw),
+                raw_matches=chosen.raw_matches,
             )
             return None
         if check is not None and not check.ok:  # refused on geometry, whatever its inliers
@@ -414,6 +470,8 @@ class PipelineMatcher:
                 "inlier_count": int(inliers.shape[0]),
                 "reason": check.reason,
             }
+            if state.rotation_search:
+                refused["rotation_deg"] = chosen.rotation_deg
             state.geometry_refused.append(refused)
             log_event(
                 "DEBUG",
@@ -424,6 +482,28 @@ class PipelineMatcher:
                 **refused,
             )
             return None
+        match_set = dataclasses.replace(chosen.match_set, inlier_correspondences=inliers)
+        return _Survivor(match_set, index, chosen.homography, chosen.rotation_deg)
+
+    def _verify(
+        self,
+        tile_id: Any,
+        rotation_deg: int,
+        correspondences: NDArray[np.float32],
+        state: _FrameState,
+    ) -> _TurnOutcome:
+        """The prior's translation vote (if any), RANSAC, and the prior's geometry check (if
+        any) of one query view's correspondences (WORKING px of the unturned query)."""
+        prefiltered = 0
+        if state.prior is not None:  # before RANSAC: the translation vote
+            keep = state.prior.consistent(correspondences)
+            prefiltered = int(correspondences.shape[0] - keep.sum())
+            correspondences = np.ascontiguousarray(correspondences[keep])
+        ransac = self._ransac.filter(correspondences, self._settings.ransac_threshold_px)
+        inliers = ransac.inlier_correspondences
+        check = None
+        if state.prior is not None and ransac.homography is not None and len(inliers):
+            check = state.prior.verify(ransac.homography)  # after RANSAC: geometry
         match_set = CandidateMatchSet(
             tile_id=tile_id,
             inlier_count=int(inliers.shape[0]),
@@ -431,7 +511,7 @@ class PipelineMatcher:
             ransac_outlier_count=ransac.ransac_outlier_count + prefiltered,
             per_candidate_residual_px=ransac.per_candidate_residual_px,
         )
-        return _Survivor(match_set, index, ransac.homography)
+        return _TurnOutcome(rotation_deg, match_set, ransac.homography, check, 0)
 
     def _stored(
         self, candidate: RerankCandidate, state: _FrameState
@@ -485,17 +565,10 @@ class PipelineMatcher:
                 "candidates_dropped": state.dropped,
                 "best_inlier_count": best_count,
                 "threshold": threshold,
-                "per_candidate": [
-                    {
-                        "tile_id": s.match_set.tile_id,
-                        "inlier_count": s.match_set.inlier_count,
-                        "residual_px": s.match_set.per_candidate_residual_px,
-                        "features": _source_of(state, s.input_index),
-                    }
-                    for s in survivors
-                ],
+                "per_candidate": _per_candidate_records(state, survivors),
                 "candidate_features": list(state.feature_sources),
                 "geometry_refused": list(state.geometry_refused),
+                **_rotation_record(state),
                 **self._backend.provenance(),
             },
         )
@@ -576,6 +649,73 @@ class PipelineMatcher:
 
 def _source_of(state: _FrameState, index: int) -> str:
     return state.feature_sources[index] if index < len(state.feature_sources) else "none"
+
+
+def _per_candidate_records(state: _FrameState, survivors: list[_Survivor]) -> list[dict[str, Any]]:
+    """The survivors as FDR rows; ``rotation_deg`` (the kept turn) only under rotation search,
+    so the records of a frame without it are as they were."""
+    rows: list[dict[str, Any]] = []
+    for s in survivors:
+        row: dict[str, Any] = {
+            "tile_id": s.match_set.tile_id,
+            "inlier_count": s.match_set.inlier_count,
+            "residual_px": s.match_set.per_candidate_residual_px,
+            "features": _source_of(state, s.input_index),
+        }
+        if state.rotation_search:
+            row["rotation_deg"] = s.rotation_deg
+        rows.append(row)
+    return rows
+
+
+def _rotation_record(state: _FrameState) -> dict[str, Any]:
+    """``rotation_search`` and the turns tried, in a terminal FDR record of a frame that ran
+    the search; nothing otherwise."""
+    if not state.rotation_search:
+        return {}
+    return {"rotation_search": True, "rotations_deg": list(QUERY_ROTATIONS_DEG)}
+
+
+def _turn_rank(outcome: _TurnOutcome) -> tuple[bool, tuple[int, float]]:
+    """Which turn of the query a candidate keeps: one the prior's geometry check does not
+    refuse first (there is no prior without attitude, so in practice never in play), then the
+    pipeline's own ranking rule (INV-3: inliers descending, residual ascending)."""
+    refused = outcome.check is not None and not outcome.check.ok
+    return refused, ranking_key(outcome.match_set)
+
+
+def rotation_from_turned(rotation_deg: int, width: int, height: int) -> NDArray[np.float64]:
+    """3x3 map of ENGINE px of an image turned ``rotation_deg`` (a multiple of 90)
+    counter-clockwise with ``np.rot90`` back to ENGINE px of the ``width`` x ``height`` image
+    (pixel centres at integers)."""
+    if rotation_deg % 90:
+        raise ValueError(f"rotation_deg must be a multiple of 90, got {rotation_deg}")
+    out = np.eye(3)
+    w, h = width, height
+    for _ in range((rotation_deg // 90) % 4):
+        # one np.rot90 of a w-wide image: turned (x', y') reads unturned (w - 1 - y', x')
+        out = out @ np.array([[0.0, -1.0, w - 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        w, h = h, w
+    return out
+
+
+def _turned(image: PreparedImage, rotation_deg: int) -> PreparedImage:
+    """``image`` turned ``rotation_deg`` counter-clockwise (pixels and valid mask), with the
+    turn composed into ``working_from_engine``; ``image`` itself for 0."""
+    if rotation_deg == 0:
+        return image
+    k = rotation_deg // 90
+    w, h = image.engine_size
+    return _TurnedQuery(
+        image=np.ascontiguousarray(np.rot90(image.image, k)),
+        valid=np.ascontiguousarray(np.rot90(image.valid, k)),
+        working_from_engine=image.working_from_engine @ rotation_from_turned(rotation_deg, w, h),
+        working_size=image.working_size,
+        working_from_undistorted=image.working_from_undistorted,
+        calibration=image.calibration,
+        working_gsd_m=image.working_gsd_m,
+        nadir_working_px=image.nadir_working_px,
+    )
 
 
 def _feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureRequest | None:
