@@ -172,6 +172,13 @@ def test_disk_steps_engine_agrees_with_the_single_graph(
     assert np.array_equal(got.matches, ref.matches)
     assert np.abs(got.scores - ref.scores).max() < 1e-4
 
+    lean = OnnxInferenceRuntime(["CPUExecutionProvider"])
+    lean_runtime = OnnxLightGlueRuntime(lean, mode="adaptive")
+    lean_runtime.load("disk", lightglue_engine)  # the strategy names the full engine...
+    loaded = [lean.engine_path(i).name for i in lean.session_providers]
+    assert loaded == [disk_steps_engine.name]  # ...and only the steps engine beside it is loaded
+    assert lean_runtime.match_pair(*args, feature_type="disk").matches.shape[0] > 0
+
     adaptive = OnnxLightGlueRuntime(inference, mode="adaptive")
     adaptive.load("disk", lightglue_engine)
     adaptive.load("disk", disk_steps_engine)

@@ -147,6 +147,14 @@ class OnnxLightGlueRuntime:
         for table in (self._engines, self._steps):
             if feature_type in table and table[feature_type][0] == path:
                 return
+        if (
+            self._mode == "adaptive"
+            and feature_type in STEPS_SPECS  # LighterGlue has none: its full graph runs
+            and feature_type not in self._steps
+            and f"_{feature_type}-steps_" not in path.name
+            and self._load_sibling_steps(feature_type, path)
+        ):
+            return  # the steps engine serves both modes: the full graph is not loaded (memory)
         engine_id = self._inference.load_engine(path)
         options: dict[str, Any] = {}
         manifest_of = getattr(self._inference, "manifest", None)
@@ -170,12 +178,6 @@ class OnnxLightGlueRuntime:
             self._steps[feature_type] = (path, engine_id, *self._drivers(engine_id, options))
         else:
             self._engines[feature_type] = (path, engine_id)
-            if (
-                self._mode == "adaptive"
-                and feature_type not in self._steps
-                and feature_type in STEPS_SPECS  # LighterGlue has none: its full graph runs
-            ):
-                self._load_sibling_steps(feature_type, path)
         logger.bind(
             kind="c3.lightglue.engine_loaded",
             feature_type=feature_type,
@@ -183,10 +185,11 @@ class OnnxLightGlueRuntime:
             engine_kind=table_name,
         ).info("LightGlue ({}) for {} loaded", table_name, feature_type)
 
-    def _load_sibling_steps(self, feature_type: str, full_path: Path) -> None:
+    def _load_sibling_steps(self, feature_type: str, full_path: Path) -> bool:
         """Adaptive mode: load the ``<model>_<feature_type>-steps`` engine beside a full one
-        (same directory), so a strategy that loads only its full engine runs adaptive; none
-        there: the full engine runs, with a warning naming the build command."""
+        (same directory) INSTEAD of it, so a strategy that names its full engine runs adaptive;
+        False when none is there or usable (the full engine then runs, with a warning naming
+        the build command)."""
         model = full_path.name.split("_", 1)[0]
         variant = f"{feature_type}-steps"
         found = sorted(full_path.parent.glob(EngineName.glob_for(model, variant)))
@@ -196,7 +199,7 @@ class OnnxLightGlueRuntime:
             except (EngineError, OSError, ValueError, KeyError) as exc:
                 logger.warning("steps engine {} not usable: {}", candidate.name, exc)
                 continue
-            return
+            return True
         logger.bind(kind="c3.lightglue.no_steps_engine", feature_type=feature_type).warning(
             "LightGlue for {}: no steps engine beside {}, running every layer on every point "
             "(build it: c3-matcher engines build --only {}/{})",
@@ -205,6 +208,7 @@ class OnnxLightGlueRuntime:
             model,
             variant,
         )
+        return False
 
     def _drivers(
         self, engine_id: str, options: dict[str, Any]
