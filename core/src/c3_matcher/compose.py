@@ -98,6 +98,7 @@ def build_default_helpers(
         "c3_lightglue_runtime": OnnxLightGlueRuntime(
             inference,
             mode=resolve_mode(settings.lightglue.mode, inference.provider),
+            filter_threshold=settings.lightglue.filter_threshold,
             depth_confidence=settings.lightglue.depth_confidence,
             width_confidence=settings.lightglue.width_confidence,
         ),

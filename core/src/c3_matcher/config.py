@@ -190,6 +190,13 @@ class LightGlueSettings(_Section):
         "layer on every point; auto: adaptive on the CPU provider, full on a GPU one (measured: "
         "README, 'Choices by measurement')",
     )
+    filter_threshold: float = Field(
+        0.1,
+        ge=0,
+        lt=1,
+        description="match confidence a LightGlue match must exceed (upstream: 0.1); lower "
+        "admits weaker matches and leaves the decision to the geometry (prior, RANSAC)",
+    )
     depth_confidence: float | None = Field(
         None,
         ge=-1,

@@ -163,3 +163,14 @@ def test_config_refuses_unknown_or_empty_provider_lists() -> None:
         load_settings(env={"C3_MATCHER_ENGINES__PROVIDERS": '["Quantum"]'})
     with pytest.raises(ConfigurationError, match="engines.providers"):
         load_settings(env={"C3_MATCHER_ENGINES__PROVIDERS": "[]"})
+
+
+def test_lightglue_filter_threshold_reaches_the_runtime() -> None:
+    from c3_matcher.compose import build_default_helpers
+    from c3_matcher.config import load_settings
+
+    settings = load_settings(env={"C3_MATCHER_LIGHTGLUE__FILTER_THRESHOLD": "0.02"})
+    assert build_default_helpers(settings)["c3_lightglue_runtime"].filter_threshold == 0.02
+    assert (
+        build_default_helpers(load_settings(env={}))["c3_lightglue_runtime"].filter_threshold == 0.1
+    )
