@@ -92,10 +92,11 @@ class MatcherSettings(_Section):
         "when they match the extractor engine; False: always extract tiles in flight",
     )
     photometric: Literal["none", "grey", "clahe"] = Field(
-        "none",
+        "clahe",
         description="photometric normalisation of query and tiles before extraction: none; "
-        "grey (luminance only); clahe (grey + local contrast equalisation in 64 px cells); "
-        "measured in README 'Cross-season flights'",
+        "grey (luminance only); clahe (grey + local contrast equalisation in 64 px cells; "
+        "chosen by measurement, README 'Measures against the seasonal gap'); stored map "
+        "features are served only with none",
     )
     geometric_prior: bool = Field(
         True,
@@ -191,11 +192,12 @@ class LightGlueSettings(_Section):
         "README, 'Choices by measurement')",
     )
     filter_threshold: float = Field(
-        0.1,
+        0.01,
         ge=0,
         lt=1,
-        description="match confidence a LightGlue match must exceed (upstream: 0.1); lower "
-        "admits weaker matches and leaves the decision to the geometry (prior, RANSAC)",
+        description="match confidence a LightGlue match must exceed (upstream: 0.1); 0.01 "
+        "admits the weaker matches of another season and leaves the decision to the geometry "
+        "(prior, RANSAC, inlier threshold): README 'Measures against the seasonal gap'",
     )
     depth_confidence: float | None = Field(
         None,

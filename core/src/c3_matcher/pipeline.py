@@ -226,10 +226,7 @@ class PipelineMatcher:
             backend.input_rule, photometric=settings.photometric
         )
         self._cache = TileFeatureCache(tile_cache_size)
-        # stored map features are extracted from the tiles as they are: not with a normalisation
-        self._feature_request = (
-            _feature_request(backend, self._pre) if self._pre.photometric == "none" else None
-        )
+        self._feature_request = _feature_request(backend, self._pre)
         self._use_stored = settings.use_stored_features and self._feature_request is not None
 
     @property
@@ -720,8 +717,8 @@ def _turned(image: PreparedImage, rotation_deg: int) -> PreparedImage:
 
 def _feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureRequest | None:
     """What to ask a tile store's precomputed features for: the backend's extractor engine
-    (file sha256 from its provenance), input rule and keypoint budget; None when the backend
-    does not say (its tiles are then always extracted)."""
+    (file sha256 from its provenance), input rule, photometric normalisation and keypoint budget;
+    None when the backend does not say (its tiles are then always extracted)."""
     try:
         engines = backend.provenance().get("engines") or {}
         sha = (engines.get("extractor") or {}).get("file_sha256")
@@ -734,7 +731,9 @@ def _feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> Feature
         budget = getattr(config, "max_keypoints", None) or getattr(backend, "_max_keypoints", None)
     if not isinstance(sha, str) or not sha or not isinstance(budget, int) or budget < 1:
         return None
-    return FeatureRequest(sha, rule.multiple, rule.max_long_side, budget, pre.border_erode_px)
+    return FeatureRequest(
+        sha, rule.multiple, rule.max_long_side, budget, pre.border_erode_px, pre.photometric
+    )
 
 
 def _check_inputs(frame: object, rerank: object, calibration: object) -> None:

@@ -172,5 +172,6 @@ def test_lightglue_filter_threshold_reaches_the_runtime() -> None:
     settings = load_settings(env={"C3_MATCHER_LIGHTGLUE__FILTER_THRESHOLD": "0.02"})
     assert build_default_helpers(settings)["c3_lightglue_runtime"].filter_threshold == 0.02
     assert (
-        build_default_helpers(load_settings(env={}))["c3_lightglue_runtime"].filter_threshold == 0.1
+        build_default_helpers(load_settings(env={}))["c3_lightglue_runtime"].filter_threshold
+        == 0.01
     )

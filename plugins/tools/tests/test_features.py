@@ -64,8 +64,9 @@ def test_assembled_features_agree_with_extraction(built: Path, engine_dir: Path)
     stored_m, fdr = _matcher(True, engine_dir)
     extract_m, _ = _matcher(False, engine_dir)
     backend = stored_m.backend
-    pre = FramePreprocessor(backend.input_rule)
+    pre = FramePreprocessor(backend.input_rule, photometric=stored_m.settings.photometric)
     request = _feature_request(backend, pre)
+    assert request is not None and request.photometric == "clahe"  # the flight default
     assert request is not None
     overlaps, counts = [], []
     frames = [f for f in dataset.frames if f.true_tile_present][:3]
@@ -94,3 +95,6 @@ def test_assembled_features_agree_with_extraction(built: Path, engine_dir: Path)
     # a different engine build never gets these features
     stale = type(request)("0" * 64, request.multiple, request.max_long_side, 4096)
     assert rerank.candidates[0].tile_pixels_handle.stored_features(stale) is None
+    # nor features extracted under another photometric normalisation
+    raw = type(request)(request.extractor_sha256, request.multiple, request.max_long_side, 4096)
+    assert rerank.candidates[0].tile_pixels_handle.stored_features(raw) is None

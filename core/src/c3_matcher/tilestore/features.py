@@ -11,9 +11,10 @@ SQLite database next to the tile store (``<store>.features.sqlite``)::
     tile_features (set_id, zoom, x, y, tile_digest, n, keypoints, scores, descriptors,
                    PRIMARY KEY (set_id, zoom, x, y))
 
-A set is keyed by the extractor engine's file sha256 and its input rule (size multiple):
-features of another engine build are never served. Each tile row holds the blake2b digest of the
-encoded tile bytes it was computed from: a tile whose bytes changed is never served stale.
+A set is keyed by the extractor engine's file sha256, its input rule (size multiple) and the
+photometric normalisation the tiles went through (``[matcher] photometric``): features of another
+engine build or another preprocessing are never served. Each tile row holds the blake2b digest
+of the encoded tile bytes it was computed from: a tile whose bytes changed is never served stale.
 Keypoints are float32 (n, 2) (x, y) in the tile's own px (origin at the centre of its top-left
 pixel), scores float32 (n,), descriptors (n, D) float32 or float16 (``descriptor_dtype``).
 
@@ -77,25 +78,30 @@ def tile_digest(blob: bytes | memoryview) -> str:
     return hashlib.blake2b(blob, digest_size=16).hexdigest()
 
 
-def set_id_for(extractor_sha256: str, multiple: int) -> str:
-    return f"{extractor_sha256}:hw{int(multiple)}"
+def set_id_for(extractor_sha256: str, multiple: int, photometric: str = "none") -> str:
+    """A feature set's key: the extractor engine, its size multiple and the photometric
+    normalisation the tiles were extracted under (``[matcher] photometric``)."""
+    base = f"{extractor_sha256}:hw{int(multiple)}"
+    return base if photometric == "none" else f"{base}:{photometric}"
 
 
 @dataclass(frozen=True, slots=True)
 class FeatureRequest:
     """What the flight read path asks for: the extractor engine (file sha256) and its input rule
-    (``multiple``, ``max_long_side``), the keypoint budget and the valid-mask erosion (px) that
-    the extraction path would apply at the window's border."""
+    (``multiple``, ``max_long_side``), the keypoint budget, the valid-mask erosion (px) that
+    the extraction path would apply at the window's border, and the photometric normalisation
+    of the flight's preprocessing (part of the set's key)."""
 
     extractor_sha256: str
     multiple: int
     max_long_side: int
     max_keypoints: int
     border_erode_px: int = 4
+    photometric: str = "none"
 
     @property
     def set_id(self) -> str:
-        return set_id_for(self.extractor_sha256, self.multiple)
+        return set_id_for(self.extractor_sha256, self.multiple, self.photometric)
 
 
 @dataclass(frozen=True, slots=True)

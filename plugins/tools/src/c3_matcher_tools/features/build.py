@@ -89,9 +89,10 @@ def extract_tile_features(
     y: int,
     margin_px: int,
     descriptor_dtype: str = "float32",
+    photometric: str = "none",
 ) -> TileFeatures | None:
-    """One tile's features (tile px) extracted with ``margin_px`` of context; None when the
-    store has no such tile."""
+    """One tile's features (tile px) extracted with ``margin_px`` of context, through the
+    flight's ``photometric`` normalisation; None when the store has no such tile."""
     from c3_matcher.preprocess import FramePreprocessor
     from c3_matcher.tilestore.handles import stitch
 
@@ -102,7 +103,7 @@ def extract_tile_features(
     image = stitch(
         source, zoom, (x * TILE_PX - margin_px, y * TILE_PX - margin_px), (size, size), "tile"
     )
-    prepared = FramePreprocessor(backend.input_rule).prepare_tile(image)
+    prepared = FramePreprocessor(backend.input_rule, photometric=photometric).prepare_tile(image)
     if prepared.working_size != prepared.engine_size:
         raise ValueError(f"input rule {backend.input_rule} resizes a {size} px tile context")
     features = backend.extract(prepared)
@@ -139,7 +140,10 @@ def _task(
     try:
         out = []
         for z, x, y in tiles:
-            t = extract_tile_features(backend, source, z, x, y, margin_px, descriptor_dtype)
+            photometric = C3Settings.model_validate_json(settings_json).matcher.photometric
+            t = extract_tile_features(
+                backend, source, z, x, y, margin_px, descriptor_dtype, photometric
+            )
             if t is not None:
                 out.append((z, x, y, t))
     finally:
@@ -211,7 +215,7 @@ def build_features(
                     ).result()
                 else:
                     sha, multiple, dim = _set_facts(strategy, settings_json)
-                set_id = set_id_for(sha, multiple)
+                set_id = set_id_for(sha, multiple, settings.matcher.photometric)
                 fset = FeatureSet(
                     set_id, sha, multiple, margin_px, dim, descriptor_dtype, strategy, False, 0
                 )
