@@ -139,8 +139,8 @@ def _task(
     source = _open_source(store_path)
     try:
         out = []
+        photometric = C3Settings.model_validate_json(settings_json).matcher.photometric
         for z, x, y in tiles:
-            photometric = C3Settings.model_validate_json(settings_json).matcher.photometric
             t = extract_tile_features(
                 backend, source, z, x, y, margin_px, descriptor_dtype, photometric
             )
