@@ -112,6 +112,13 @@ class MatcherSettings(_Section):
         "residual); about 4x the query extraction and matching (README 'Rotation search'); "
         "off: such a frame is matched as it comes, frames with attitude are never affected",
     )
+    refine: bool = Field(
+        False,
+        description="a second pass for the best-ranked candidate: re-render the query through "
+        "its first homography into the tile's pixel grid, extract and match again, and keep "
+        "that pass when it passes the same checks and ranks better (inliers, then residual); "
+        "one more query extraction and match per frame (README 'Refine pass')",
+    )
     prior_rotation_tol_deg: float = Field(
         10.0, gt=0, le=90, description="heading error tolerated by the prior, deg"
     )

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from c3_matcher.config import MatcherSettings
 from c3_matcher.dto import (
@@ -50,7 +50,7 @@ from c3_matcher.errors import (
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import log_event
-from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
+from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage, QueryGeometry
 from c3_matcher.prior import GeometricPrior, HomographyCheck, PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, RansacFilter
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
@@ -105,6 +105,7 @@ class PipelineSettings:
     prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
     photometric: str = "none"  # issue 13: query and tiles alike (preprocess.normalise_photometry)
     rotation_search: bool = False  # issue 13: frames without attitude tried at 4 turns (opt-in)
+    refine: bool = False  # issue 13: a second pass through the best candidate's homography
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
@@ -123,6 +124,7 @@ class PipelineSettings:
             ),
             matcher.photometric,
             matcher.rotation_search,
+            matcher.refine,
         )
 
     def with_thresholds(
@@ -143,25 +145,8 @@ class _Survivor:
     input_index: int
     homography: NDArray[np.float64] | None
     rotation_deg: int = 0
-
-
-@dataclass(frozen=True)
-class _TurnedQuery(PreparedImage):
-    """A prepared query turned by a multiple of 90 deg for extraction (rotation search).
-
-    ``working_from_engine`` is then a full affine (the turn composed with the scale and shift),
-    so :meth:`to_working` and :meth:`to_engine` apply its 2x2 part whole; WORKING px, and with
-    them ``working_to_original``, are those of the unturned query."""
-
-    def to_working(self, pts: ArrayLike) -> NDArray[np.float64]:
-        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
-        a = self.working_from_engine
-        return np.asarray(p @ a[:2, :2].T + a[:2, 2])
-
-    def to_engine(self, pts: ArrayLike) -> NDArray[np.float64]:
-        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
-        inv = np.linalg.inv(self.working_from_engine)
-        return np.asarray(p @ inv[:2, :2].T + inv[:2, 2])
+    tile_image: PreparedImage | None = None  # kept for the refine pass
+    tile: Features | None = None
 
 
 @dataclass(frozen=True)
@@ -197,6 +182,7 @@ class _FrameState:
     prior: GeometricPrior | None = None
     geometry_refused: list[dict[str, Any]] = field(default_factory=list)
     rotation_search: bool = False  # this frame's query was extracted at every turn
+    refine: dict[str, Any] | None = None  # the refine pass's record, when it ran
 
 
 class PipelineMatcher:
@@ -286,9 +272,10 @@ class PipelineMatcher:
         started = time.perf_counter()
         try:  # steps 1-2: the query frame, once (DECISIONS 3 on failure)
             with _timed(state.timings_ms, "query_preprocess"):
-                query_image = self._pre.prepare_query(
+                geometry = self._pre.query_geometry(
                     frame, calibration, _tile_gsd(rerank.candidates)
                 )
+                query_image = self._pre.render_query(frame, calibration, geometry)
                 # rotation search: only for a frame without attitude (unknown heading)
                 state.rotation_search = self._settings.rotation_search and frame.attitude is None
                 turns = QUERY_ROTATIONS_DEG if state.rotation_search else (0,)
@@ -310,6 +297,8 @@ class PipelineMatcher:
             survivor = self._match_candidate(index, candidate, query_image, views, state, timings)
             if survivor is not None:
                 survivors.append(survivor)
+        if self._settings.refine and survivors:
+            self._refine(frame, calibration, geometry, query_image, survivors, state)
 
         best_count = max((s.match_set.inlier_count for s in survivors), default=0)  # step 5
         candidates_summary = [
@@ -352,6 +341,7 @@ class PipelineMatcher:
             "geometry_refused": list(state.geometry_refused),
             "rotation_search": state.rotation_search,
             "rotation_deg": [s.rotation_deg for s in survivors],
+            "refine": state.refine,
         }
         self._record(
             "matcher.frame_done",
@@ -366,6 +356,7 @@ class PipelineMatcher:
                 "per_candidate": _per_candidate_records(state, survivors),
                 "candidate_features": list(state.feature_sources),
                 **_rotation_record(state),
+                **({"refine": state.refine} if state.refine is not None else {}),
                 "timings_ms": state.timings_ms,
                 **self._backend.provenance(),
             },
@@ -441,8 +432,7 @@ class PipelineMatcher:
             check = chosen.check
             if inliers.shape[0] > 0:
                 with _timed(timings, "ransac"):
-                    original = query_image.working_to_original(inliers[:, 0:2].astype(np.float64))
-                    inliers = np.hstack([original, inliers[:, 2:4]]).astype(np.float32)
+                    inliers = _in_original_px(query_image, inliers)
         except Exception as exc:  # INV-4: drop and continue
             state.dropped += 1
             state.backbone_errors += 1
@@ -480,7 +470,81 @@ class PipelineMatcher:
             )
             return None
         match_set = dataclasses.replace(chosen.match_set, inlier_correspondences=inliers)
-        return _Survivor(match_set, index, chosen.homography, chosen.rotation_deg)
+        return _Survivor(match_set, index, chosen.homography, chosen.rotation_deg, tile_image, tile)
+
+    def _refine(
+        self,
+        frame: NavCameraFrame,
+        calibration: CameraCalibration,
+        geometry: QueryGeometry,
+        query_image: PreparedImage,
+        survivors: list[_Survivor],
+        state: _FrameState,
+    ) -> None:
+        """The refine pass (issue 13), in place: the best-ranked survivor's query re-rendered
+        through its first homography into the tile's pixel grid (same scale and orientation as
+        the tile, perspective removed), extracted and matched again, then put through the same
+        prior vote, RANSAC and geometry check. The matcher never sees the first homography, so
+        the second pass's inliers are evidence of their own; it replaces the first only when it
+        passes and ranks better (``ranking_key``). Any failure leaves the first pass standing."""
+        top = min(range(len(survivors)), key=lambda i: ranking_key(survivors[i].match_set))
+        first = survivors[top]
+        if first.homography is None or first.tile_image is None or first.tile is None:
+            return
+        record: dict[str, Any] = {
+            "candidate_index": first.input_index,
+            "inliers_before": first.match_set.inlier_count,
+            "inliers_after": 0,
+            "kept": False,
+        }
+        state.refine = record
+        timings = state.per_candidate_ms[first.input_index]
+        try:
+            with _timed(timings, "refine"):
+                refined = self._pre.refined_geometry(
+                    geometry, first.homography, first.tile_image.working_size
+                )
+                if refined is None:
+                    record["reason"] = "the first homography leaves no footprint on the tile"
+                    return
+                image = self._pre.render_query(frame, calibration, refined)
+                features = self._backend.extract(image)
+                raw = self._backend.match(features, first.tile)
+                correspondences = _correspondences(
+                    image, features, first.tile_image, first.tile, raw
+                )
+                outcome = self._verify(
+                    first.match_set.tile_id, first.rotation_deg, correspondences, state
+                )
+        except Exception as exc:  # the first pass stands; the failure is on record
+            record["reason"] = f"{type(exc).__name__}: {exc}"
+            log_event(
+                "WARNING",
+                "c3.matcher.refine_failed",
+                f"C3 refine pass failed, first pass kept; frame={state.frame_id}; {exc}",
+                frame_id=state.frame_id,
+                tile_id=first.match_set.tile_id,
+            )
+            return
+        record["inliers_after"] = outcome.match_set.inlier_count
+        if outcome.check is not None and not outcome.check.ok:
+            record["reason"] = f"refused on geometry: {outcome.check.reason}"
+            return
+        if outcome.match_set.inlier_count == 0 or ranking_key(outcome.match_set) >= ranking_key(
+            first.match_set
+        ):
+            record["reason"] = "ranks no better than the first pass"
+            return
+        record["kept"] = True
+        match_set = dataclasses.replace(
+            outcome.match_set,
+            inlier_correspondences=_in_original_px(
+                query_image, outcome.match_set.inlier_correspondences
+            ),
+        )
+        survivors[top] = dataclasses.replace(
+            first, match_set=match_set, homography=outcome.homography
+        )
 
     def _verify(
         self,
@@ -703,15 +767,11 @@ def _turned(image: PreparedImage, rotation_deg: int) -> PreparedImage:
         return image
     k = rotation_deg // 90
     w, h = image.engine_size
-    return _TurnedQuery(
+    return dataclasses.replace(
+        image,
         image=np.ascontiguousarray(np.rot90(image.image, k)),
         valid=np.ascontiguousarray(np.rot90(image.valid, k)),
         working_from_engine=image.working_from_engine @ rotation_from_turned(rotation_deg, w, h),
-        working_size=image.working_size,
-        working_from_undistorted=image.working_from_undistorted,
-        calibration=image.calibration,
-        working_gsd_m=image.working_gsd_m,
-        nadir_working_px=image.nadir_working_px,
     )
 
 
@@ -758,6 +818,12 @@ def _tile_gsd(candidates: tuple[RerankCandidate, ...]) -> float | None:
     """The GSD the query is scaled to: the median of the candidates' (they share a zoom)."""
     values = [c.ground_sample_distance_m() for c in candidates]
     return float(np.median(values)) if values else None
+
+
+def _in_original_px(query_image: PreparedImage, rows: NDArray[np.float32]) -> NDArray[np.float32]:
+    """(M, 4) rows with the query point moved from WORKING to ORIGINAL frame px."""
+    original = query_image.working_to_original(rows[:, 0:2].astype(np.float64))
+    return np.hstack([original, rows[:, 2:4]]).astype(np.float32)
 
 
 def _correspondences(

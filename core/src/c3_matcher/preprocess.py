@@ -39,6 +39,7 @@ to a multiple of ``rule.multiple``, or cropped down when padding would exceed
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -112,7 +113,9 @@ class PreparedImage:
 
     ``image`` uint8 (H, W, 3) RGB, H and W multiples of the rule's ``multiple``; ``valid`` bool
     (H, W), True where keypoints may be kept (not padding, warp border or nodata, eroded).
-    ``working_from_engine`` 3x3 affine (ENGINE -> WORKING px); ``working_size`` (w, h) of the
+    ``working_from_engine`` 3x3 (ENGINE -> WORKING px): a scale and shift, a turn (rotation
+    search) or a homography (a query re-rendered through a first match, the refine pass);
+    ``working_size`` (w, h) of the
     working image; for a query, ``working_from_undistorted`` is the 3x3 homography H_w
     (UNDISTORTED -> WORKING px) and ``calibration`` the frame's calibration (both None for a
     tile). ``working_gsd_m`` is the working image's ground sample distance at nadir (m/px) when
@@ -141,15 +144,11 @@ class PreparedImage:
 
     def to_working(self, pts: ArrayLike) -> F64:
         """(N, 2) ENGINE px -> (N, 2) WORKING px."""
-        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
-        a = self.working_from_engine
-        return np.stack([p[:, 0] * a[0, 0] + a[0, 2], p[:, 1] * a[1, 1] + a[1, 2]], axis=1)
+        return cam.apply_homography(self.working_from_engine, pts)
 
     def to_engine(self, pts: ArrayLike) -> F64:
         """(N, 2) WORKING px -> (N, 2) ENGINE px (inverse of :meth:`to_working`)."""
-        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
-        a = self.working_from_engine
-        return np.stack([(p[:, 0] - a[0, 2]) / a[0, 0], (p[:, 1] - a[1, 2]) / a[1, 1]], axis=1)
+        return cam.apply_homography(np.linalg.inv(self.working_from_engine), pts)
 
     def working_to_original(self, pts: ArrayLike) -> F64:
         """(N, 2) WORKING px -> (N, 2) ORIGINAL (distorted) frame px; the identity for tiles.
@@ -338,8 +337,16 @@ class FramePreprocessor:
     ) -> PreparedImage:
         """Undistort, rectify to north-up nadir (if attitude), scale to ``tile_gsd_m`` m/px (if
         height and GSD) and resize the nav frame to the rule, in one resampling."""
-        geometry = self.query_geometry(frame, calibration, tile_gsd_m)
-        image = frame.image
+        return self.render_query(
+            frame, calibration, self.query_geometry(frame, calibration, tile_gsd_m)
+        )
+
+    def render_query(
+        self, frame: NavCameraFrame, calibration: CameraCalibration, geometry: QueryGeometry
+    ) -> PreparedImage:
+        """The frame's pixels resampled once into ``geometry``'s engine image (exact lens model
+        per pixel), masked to its footprint and normalised (:func:`normalise_photometry`)."""
+        image = _check_pixels(frame.image, "frame.image")
         h, w = image.shape[:2]
         # Source anti-aliasing: area-downscale first if the warp shrinks the frame a lot.
         src: NDArray[np.uint8] = image
@@ -423,6 +430,42 @@ class FramePreprocessor:
             ),
             working_gsd_m=height / f_w if height is not None else None,
             nadir_shrink=(working_size[0] / content[0]) * (f_ref / f_w),
+        )
+
+    def refined_geometry(
+        self, geometry: QueryGeometry, tile_from_working: F64, tile_size: tuple[int, int]
+    ) -> QueryGeometry | None:
+        """``geometry`` re-rendered into a tile's pixel grid (the refine pass, issue 13): the
+        engine image shows the query's footprint as ``tile_from_working`` (a first match's
+        homography, WORKING -> tile px) places it in the ``tile_size`` tile, at the tile's
+        scale and orientation, cropped to the tile. WORKING px stay the query's own, so
+        correspondences, the prior and ``working_to_original`` are unchanged. None when the
+        footprint lands on no tile pixel or the homography is degenerate there."""
+        h1 = np.asarray(tile_from_working, dtype=np.float64)
+        if h1.shape != (3, 3) or not np.isfinite(h1).all() or abs(np.linalg.det(h1)) < 1e-12:
+            return None
+        q = (
+            np.concatenate(
+                [geometry.footprint_working, np.ones((len(geometry.footprint_working), 1))], axis=1
+            )
+            @ h1.T
+        )
+        if not (q[:, 2] > 1e-9).all():  # the footprint crosses the homography's horizon
+            return None
+        poly = q[:, :2] / q[:, 2:3]
+        lo = np.maximum(np.floor(poly.min(axis=0)), 0.0)
+        hi = np.minimum(np.ceil(poly.max(axis=0)), np.asarray(tile_size, dtype=np.float64) - 1)
+        if (hi - lo < 2 * self.rule.multiple).any():
+            return None
+        size = (int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1)
+        content = self.rule.content_size(*size)
+        shift = np.array([[1.0, 0.0, lo[0]], [0.0, 1.0, lo[1]], [0.0, 0.0, 1.0]])
+        tile_from_engine = shift @ _engine_to_working(size, content)
+        return dataclasses.replace(
+            geometry,
+            content_size=content,
+            final_size=self.rule.final_size(*size),
+            working_from_engine=np.linalg.inv(h1) @ tile_from_engine,
         )
 
     def _boundary_rays(self, calibration: CameraCalibration) -> F64:

@@ -45,10 +45,11 @@ import numpy as np
 
 from c3_matcher.commands import CommandRegistry
 from c3_matcher.config import C3Settings
-from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
+from c3_matcher_tools.dataset.format import FlightDataset, load_dataset, with_attitude_noise
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.replay import (
     FrameOutcome,
+    add_attitude_noise_option,
     build_matcher,
     run_flight,
     summarize,
@@ -317,6 +318,7 @@ def register_eval_command(commands: CommandRegistry) -> None:
         help="frames of the second (C3-IT-02) run (default: all)",
     )
     p.add_argument("--samples", type=int, default=3, help="match pictures per strategy (default 3)")
+    add_attitude_noise_option(p)
     p.add_argument("--json", action="store_true", help="print eval.json instead of the table")
     p.set_defaults(handler=run_eval)
 
@@ -328,7 +330,9 @@ def _fmt(value: float, spec: str) -> str:
 def run_eval(args: argparse.Namespace, settings: C3Settings) -> int:
     from c3_matcher.compose import build_plugin_host
 
-    datasets = [load_dataset(path) for path in args.dataset]  # every path checked first
+    datasets = [  # every path checked first
+        with_attitude_noise(load_dataset(path), args.attitude_noise_deg) for path in args.dataset
+    ]
     settings = with_overrides(settings, args.max_keypoints)
     specs = build_plugin_host().strategies()
     learned = sorted(n for n, spec in specs.items() if not spec.baseline)
@@ -374,6 +378,7 @@ def _eval_dataset(
         "dataset": str(dataset.root),
         "frames": len(dataset.frames),
         "absent_frames": sum(not f.true_tile_present for f in dataset.frames),
+        "attitude_noise": dataset.meta.get("attitude_noise"),
         "settings": settings.matcher.model_dump(mode="json"),
         "bars": BARS,
         "strategies": [{k: v for k, v in r.items() if k != "_outcomes"} for r in rows],
@@ -386,6 +391,11 @@ def _eval_dataset(
     print(
         f"eval {dataset.name}: {report['frames']} frames ({report['absent_frames']} without the "
         f"true tile), max_keypoints {settings.matcher.max_keypoints}"
+        + (
+            f", attitude noise {args.attitude_noise_deg:g} deg (1 sigma)"
+            if args.attitude_noise_deg
+            else ""
+        )
     )
     print(
         f"{'strategy':18} {'IT-01 p5 inl':>13} {'IT-02':>7} {'IT-03 p95 px':>13} "

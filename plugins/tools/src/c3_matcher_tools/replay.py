@@ -37,7 +37,12 @@ from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
 from c3_matcher.georef import haversine_m
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import result_to_json
-from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord, load_dataset
+from c3_matcher_tools.dataset.format import (
+    FlightDataset,
+    FrameRecord,
+    load_dataset,
+    with_attitude_noise,
+)
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 
@@ -327,8 +332,35 @@ def register_replay_command(commands: CommandRegistry) -> None:
         action="store_true",
         help="omit inlier correspondences from results.jsonl",
     )
+    add_attitude_noise_option(p)
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(handler=run_replay)
+
+
+def add_attitude_noise_option(p: argparse.ArgumentParser) -> None:
+    """``--attitude-noise-deg``: replay the flight as an IMU with that much error reports it."""
+    p.add_argument(
+        "--attitude-noise-deg",
+        type=non_negative_float("--attitude-noise-deg"),
+        default=0.0,
+        help="add seeded Gaussian noise of this sigma (deg) to every frame's roll, pitch and yaw "
+        "(an IMU's error; the same per frame in every run; default 0)",
+    )
+
+
+def non_negative_float(what: str) -> Callable[[str], float]:
+    """An argparse type: a finite float >= 0, else a usage error (exit 2) naming ``what``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what}: expected a number, got {text!r}") from None
+        if not math.isfinite(value) or value < 0:
+            raise argparse.ArgumentTypeError(f"{what}: must be finite and >= 0, got {value}")
+        return value
+
+    return parse
 
 
 def positive_int(what: str, low: int = 1, high: int | None = None) -> Callable[[str], int]:
@@ -356,7 +388,7 @@ def with_overrides(settings: C3Settings, max_keypoints: int | None) -> C3Setting
 
 
 def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
-    dataset = load_dataset(args.dataset)
+    dataset = with_attitude_noise(load_dataset(args.dataset), args.attitude_noise_deg)
     settings = with_overrides(settings, args.max_keypoints)
     strategy = args.strategy or settings.matcher.strategy
     out = args.out or Path("out") / "replay" / f"{dataset.name}-{strategy}"
@@ -381,6 +413,7 @@ def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
         "dataset": str(dataset.root),
         "strategy": strategy,
         "matcher_labels": labels,
+        "attitude_noise": dataset.meta.get("attitude_noise"),
         "settings": replayed.model_dump(mode="json"),
         "startup_s": startup_s,
         "wall_s": wall_s,

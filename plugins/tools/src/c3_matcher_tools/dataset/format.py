@@ -28,7 +28,9 @@ reported: ``lat``, ``lon``, ``altitude_m``, the candidates' search radius ``unce
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -57,6 +59,7 @@ __all__ = [
     "FlightDataset",
     "FrameRecord",
     "load_dataset",
+    "with_attitude_noise",
     "write_dataset",
 ]
 
@@ -216,6 +219,25 @@ class FlightDataset:
                 for c in frame.candidates
             ),
         )
+
+
+def with_attitude_noise(dataset: FlightDataset, sigma_deg: float, seed: int = 0) -> FlightDataset:
+    """``dataset`` as an IMU with ``sigma_deg`` (1-sigma, each of roll, pitch and yaw) of
+    attitude error would report it: every frame's recorded attitude plus Gaussian noise drawn
+    from a generator seeded with (``seed``, frame index), so a frame gets the same error in
+    every run and every subset. Pixels and ground truth stay those of the true pose; the
+    dataset's ``meta`` records the noise. 0 returns ``dataset`` itself."""
+    if not math.isfinite(sigma_deg) or sigma_deg < 0:
+        raise ValueError(f"attitude noise must be finite and >= 0 deg, got {sigma_deg}")
+    if sigma_deg == 0:
+        return dataset
+    frames = []
+    for frame in dataset.frames:
+        noise = np.random.default_rng([seed, frame.index]).normal(0.0, sigma_deg, 3)
+        roll, pitch, yaw = (a + float(n) for a, n in zip(frame.attitude_deg, noise, strict=True))
+        frames.append(dataclasses.replace(frame, attitude_deg=(roll, pitch, yaw)))
+    meta = {**dataset.meta, "attitude_noise": {"sigma_deg": sigma_deg, "seed": seed}}
+    return dataclasses.replace(dataset, meta=meta, frames=tuple(frames))
 
 
 def calibration_to_json(calibration: CameraCalibration) -> dict[str, Any]:
