@@ -8,52 +8,18 @@ import pytest
 
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
 from c3_matcher.fdr import InMemoryFdr
-from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.testing import (
     FakeBackend,
-    FakeClock,
-    FakeInferenceRuntime,
-    FakeLightGlueRuntime,
-    FakeRansacFilter,
     ScriptedCandidate,
-    make_frame,
+    ScriptedRig,
     make_rerank,
 )
 
 S = ScriptedCandidate
 
 
-class Rig:
-    """A pipeline over scripted doubles, and everything a test inspects."""
-
-    def __init__(
-        self,
-        script: list[ScriptedCandidate],
-        fdr: InMemoryFdr,
-        settings: PipelineSettings | None = None,
-    ) -> None:
-        self.script = script
-        self.clock = FakeClock()
-        self.fdr = fdr
-        self.settings = settings or PipelineSettings()
-        self.health = RollingHealthWindow(self.clock, self.settings.min_inliers_threshold)
-        self.inference = FakeInferenceRuntime(script)
-        self.lightglue = FakeLightGlueRuntime(script)
-        self.ransac = FakeRansacFilter(script)
-        self.pipeline = PipelineMatcher(
-            FakeBackend(self.inference, self.lightglue),
-            self.ransac,
-            fdr,
-            self.health,
-            self.clock,
-            self.settings,
-        )
-        self.frame, self.calibration = make_frame(uuid.UUID(int=7))
-        self.rerank = make_rerank(self.frame.frame_id, script)
-
-    def match(self):  # type: ignore[no-untyped-def]
-        return self.pipeline.match(self.frame, self.rerank, self.calibration)
+Rig = ScriptedRig
 
 
 def test_ac2_best_candidate_argmax_with_residual_tie_break(fdr, logs):

@@ -30,7 +30,6 @@ from c3_matcher.dto import (
     Attitude,
     CameraCalibration,
     NavCameraFrame,
-    RansacResult,
     RerankCandidate,
     RerankResult,
     TileId,
@@ -38,7 +37,6 @@ from c3_matcher.dto import (
 from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import (
     QUERY_ROTATIONS_DEG,
     PipelineMatcher,
@@ -49,14 +47,10 @@ from c3_matcher.pipeline import (
 from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.testing import (
-    FakeBackend,
-    FakeClock,
-    FakeInferenceRuntime,
-    FakeLightGlueRuntime,
-    FakeRansacFilter,
     ScriptedCandidate,
-    make_frame,
-    make_rerank,
+    ScriptedRig,
+    SequenceRansacFilter,
+    scripted_pipeline,
 )
 from c3_matcher.tiles import BytesTileHandle
 
@@ -67,46 +61,12 @@ DEMO = REPO / "data" / "demo"
 
 
 def _pipeline(
-    fdr: InMemoryFdr,
-    backend: Any,
-    ransac: Any,
-    settings: PipelineSettings,
+    fdr: InMemoryFdr, backend: Any, ransac: Any, settings: PipelineSettings
 ) -> PipelineMatcher:
-    clock = FakeClock()
-    health = RollingHealthWindow(clock, settings.min_inliers_threshold)
-    return PipelineMatcher(backend, ransac, fdr, health, clock, settings)
+    return scripted_pipeline(backend, ransac, fdr, settings)
 
 
-class _Scripted:
-    """The scripted doubles of test_pipeline over ``script``, with or without attitude."""
-
-    def __init__(
-        self,
-        script: list[ScriptedCandidate],
-        fdr: InMemoryFdr,
-        settings: PipelineSettings,
-        *,
-        attitude: Attitude | None = None,
-        ransac: Any = None,
-    ) -> None:
-        self.inference = FakeInferenceRuntime(script)
-        self.lightglue = FakeLightGlueRuntime(script)
-        self.ransac = ransac or FakeRansacFilter(script)
-        self.pipeline = _pipeline(
-            fdr, FakeBackend(self.inference, self.lightglue), self.ransac, settings
-        )
-        frame, self.calibration = make_frame(uuid.UUID(int=7))
-        self.frame = NavCameraFrame(frame.frame_id, frame.image, 1, attitude=attitude)
-        self.rerank = make_rerank(self.frame.frame_id, script)
-
-    def match(self):  # type: ignore[no-untyped-def]
-        return self.pipeline.match(self.frame, self.rerank, self.calibration)
-
-    @property
-    def query_extractions(self) -> int:
-        """Extractions of the query: every call but one per tile (no tile cache here)."""
-        return len(self.inference.calls) - len(self.rerank.candidates)
-
+_Scripted = ScriptedRig
 
 ON = PipelineSettings(rotation_search=True)
 LEVEL = Attitude.from_degrees(0.0, 0.0, 0.0)
@@ -159,27 +119,11 @@ def test_on_without_attitude_four_query_extractions_one_per_tile(fdr, logs):
     assert [row["rotation_deg"] for row in done["per_candidate"]] == [0, 0, 0]
 
 
-class _SequenceRansac:
-    """RANSAC double that answers the n-th call with ``outcomes[n]`` (inliers, residual)."""
-
-    def __init__(self, outcomes: Sequence[tuple[int, float]]) -> None:
-        self.outcomes = list(outcomes)
-        self.calls: list[int] = []
-
-    def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult:
-        n, residual = self.outcomes[len(self.calls) % len(self.outcomes)]
-        self.calls.append(n)
-        rows = np.tile(np.array([[1.0, 2.0, 3.0, 4.0]], np.float32), (n, 1))
-        rows[:, 0] += np.arange(n, dtype=np.float32)
-        m = len(correspondences)
-        return RansacResult(rows, 5, residual if n else 0.0, np.eye(3), np.ones(m, bool))
-
-
 def test_each_candidate_keeps_the_turn_ranked_best_by_the_pipeline_rule(fdr, logs):
     # candidate 0: turns 90 and 180 tie on inliers, 180 has the lower residual -> 180;
     # candidate 1: 270 has the most inliers whatever its residual -> 270
     outcomes = [(50, 2.0), (80, 1.5), (80, 1.0), (10, 0.1), (5, 0.1), (6, 0.1), (7, 1), (99, 3)]
-    rig = _Scripted([S(), S()], fdr, ON, ransac=_SequenceRansac(outcomes))
+    rig = _Scripted([S(), S()], fdr, ON, ransac=SequenceRansacFilter(outcomes))
     result = rig.match()
     assert [c.inlier_count for c in result.per_candidate] == [99, 80]
     assert [c.per_candidate_residual_px for c in result.per_candidate] == [3.0, 1.0]

@@ -356,7 +356,7 @@ class PipelineMatcher:
                 "per_candidate": _per_candidate_records(state, survivors),
                 "candidate_features": list(state.feature_sources),
                 **_rotation_record(state),
-                **({"refine": state.refine} if state.refine is not None else {}),
+                **_refine_record(state),
                 "timings_ms": state.timings_ms,
                 **self._backend.provenance(),
             },
@@ -630,6 +630,7 @@ class PipelineMatcher:
                 "candidate_features": list(state.feature_sources),
                 "geometry_refused": list(state.geometry_refused),
                 **_rotation_record(state),
+                **_refine_record(state),
                 **self._backend.provenance(),
             },
         )
@@ -735,6 +736,11 @@ def _rotation_record(state: _FrameState) -> dict[str, Any]:
     if not state.rotation_search:
         return {}
     return {"rotation_search": True, "rotations_deg": list(QUERY_ROTATIONS_DEG)}
+
+
+def _refine_record(state: _FrameState) -> dict[str, Any]:
+    """The refine pass's record for the terminal FDR record: only when it ran."""
+    return {"refine": dict(state.refine)} if state.refine is not None else {}
 
 
 def _turn_rank(outcome: _TurnOutcome) -> tuple[bool, tuple[int, float]]:

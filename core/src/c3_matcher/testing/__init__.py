@@ -14,8 +14,11 @@ from c3_matcher.testing.fakes import (
     FakeLightGlueRuntime,
     FakeRansacFilter,
     ScriptedCandidate,
+    ScriptedRig,
+    SequenceRansacFilter,
     make_frame,
     make_rerank,
+    scripted_pipeline,
 )
 
 __all__ = [
@@ -26,6 +29,9 @@ __all__ = [
     "FakeRansacFilter",
     "InMemoryFdr",
     "ScriptedCandidate",
+    "ScriptedRig",
+    "SequenceRansacFilter",
     "make_frame",
     "make_rerank",
+    "scripted_pipeline",
 ]

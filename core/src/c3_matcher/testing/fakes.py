@@ -10,7 +10,7 @@ candidate it is looking at without any shared counter.
 from __future__ import annotations
 
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,14 +19,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.dto import (
+    Attitude,
     CameraCalibration,
+    MatchResult,
     NavCameraFrame,
     RansacResult,
     RerankCandidate,
     RerankResult,
     TileId,
 )
+from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features, RawMatches
+from c3_matcher.health import RollingHealthWindow
+from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.preprocess import InputRule, PreparedImage
 from c3_matcher.tiles import BytesTileHandle
 
@@ -37,8 +42,11 @@ __all__ = [
     "FakeLightGlueRuntime",
     "FakeRansacFilter",
     "ScriptedCandidate",
+    "ScriptedRig",
+    "SequenceRansacFilter",
     "make_frame",
     "make_rerank",
+    "scripted_pipeline",
 ]
 
 QUERY_MARK = 255  # pixel value of the query frame; tile i has the value i + 1
@@ -150,6 +158,25 @@ class FakeRansacFilter:
         )
 
 
+class SequenceRansacFilter:
+    """A RansacFilter double that answers its n-th call with ``outcomes[n]`` (inliers,
+    residual), cycling; identity homography when there are inliers."""
+
+    def __init__(self, outcomes: Sequence[tuple[int, float]]) -> None:
+        self.outcomes = list(outcomes)
+        self.calls: list[int] = []
+
+    def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult:
+        n, residual = self.outcomes[len(self.calls) % len(self.outcomes)]
+        self.calls.append(n)
+        rows = np.tile(np.array([[1.0, 2.0, 3.0, 4.0]], np.float32), (n, 1))
+        rows[:, 0] += np.arange(n, dtype=np.float32)
+        m = len(correspondences)
+        return RansacResult(
+            rows, 5, residual if n else 0.0, np.eye(3) if n else None, np.ones(m, bool)
+        )
+
+
 class FakeBackend:
     """A FeatureBackend double over the fake runtimes (the shape a real strategy has)."""
 
@@ -230,3 +257,54 @@ def make_rerank(frame_id: uuid.UUID, script: Sequence[ScriptedCandidate]) -> Rer
             )
         )
     return RerankResult(frame_id, tuple(candidates))
+
+
+def scripted_pipeline(
+    backend: Any, ransac: Any, fdr: InMemoryFdr, settings: PipelineSettings
+) -> PipelineMatcher:
+    """A :class:`PipelineMatcher` over ``backend`` and ``ransac`` with a fake clock and its own
+    health window."""
+    clock = FakeClock()
+    health = RollingHealthWindow(clock, settings.min_inliers_threshold)
+    return PipelineMatcher(backend, ransac, fdr, health, clock, settings)
+
+
+class ScriptedRig:
+    """A pipeline over the scripted doubles for ``script`` (one candidate each), the marked
+    query frame (``attitude`` or none) and everything a test inspects. ``ransac`` replaces the
+    scripted RANSAC double; ``wrap_backend`` wraps the :class:`FakeBackend`."""
+
+    def __init__(
+        self,
+        script: list[ScriptedCandidate],
+        fdr: InMemoryFdr,
+        settings: PipelineSettings | None = None,
+        *,
+        attitude: Attitude | None = None,
+        ransac: Any = None,
+        wrap_backend: Callable[[FakeBackend], Any] | None = None,
+    ) -> None:
+        self.script = script
+        self.clock = FakeClock()
+        self.fdr = fdr
+        self.settings = settings or PipelineSettings()
+        self.health = RollingHealthWindow(self.clock, self.settings.min_inliers_threshold)
+        self.inference = FakeInferenceRuntime(script)
+        self.lightglue = FakeLightGlueRuntime(script)
+        self.ransac = ransac or FakeRansacFilter(script)
+        backend = FakeBackend(self.inference, self.lightglue)
+        self.backend = wrap_backend(backend) if wrap_backend is not None else backend
+        self.pipeline = PipelineMatcher(
+            self.backend, self.ransac, fdr, self.health, self.clock, self.settings
+        )
+        frame, self.calibration = make_frame(uuid.UUID(int=7))
+        self.frame = NavCameraFrame(frame.frame_id, frame.image, 1, attitude=attitude)
+        self.rerank = make_rerank(self.frame.frame_id, script)
+
+    def match(self) -> MatchResult:
+        return self.pipeline.match(self.frame, self.rerank, self.calibration)
+
+    @property
+    def query_extractions(self) -> int:
+        """Extractions of the query: every call but one per tile (no tile cache here)."""
+        return len(self.inference.calls) - len(self.rerank.candidates)
