@@ -146,12 +146,18 @@ class _Fdr:
         self.records.append((kind, payload))
 
 
-def _run(script: list[tuple[np.ndarray, int, int]], *, prior: bool, attitude: bool = True) -> Any:
+def _run(
+    script: list[tuple[np.ndarray, int, int]],
+    *,
+    prior: bool,
+    attitude: bool = True,
+    ransac: Any = None,
+) -> Any:
     clock = FakeClock()
     settings = PipelineSettings(geometric_prior=prior)
     matcher = PipelineMatcher(
         GeometryBackend(script),
-        OpenCvRansacFilter(),
+        ransac or OpenCvRansacFilter(),
         _Fdr(),
         RollingHealthWindow(clock, settings.min_inliers_threshold),
         clock,
@@ -209,3 +215,63 @@ def test_no_attitude_means_no_prior() -> None:
     result = _run(script, prior=True, attitude=False)
     assert result.diagnostics["geometric_prior"] is False
     assert result.diagnostics["geometry_refused"] == []
+
+
+# -- the prior's own model when the free homography fails ------------------------------------
+def test_similarity_ransac_recovers_the_prior_model_among_outliers() -> None:
+    rng = np.random.default_rng(4)
+    prior = GeometricPrior(PriorTolerances(), (160.0, 120.0))
+    good = _rows(TRUE, 80, rng, noise=0.3)
+    bad = np.hstack([rng.uniform(0, 320, (120, 2)), rng.uniform(0, TILE, (120, 2))])
+    rows = np.vstack([good, bad.astype(np.float32)])
+    fit = prior.similarity_ransac(rows, 3.0)
+    assert fit is not None
+    homography, mask = fit
+    assert mask[:80].sum() >= 78 and mask[80:].sum() <= 3
+    assert np.allclose(homography, TRUE, atol=0.05 * np.abs(TRUE).max())
+    again = prior.similarity_ransac(rows, 3.0)
+    assert again is not None and np.array_equal(again[0], homography)  # deterministic
+    assert np.array_equal(again[1], mask)
+    assert prior.similarity_ransac(rows[:3], 3.0) is None
+
+
+class _SkewingRansac:
+    """The real RANSAC, but its homography is skewed at the nadir point (what a free homography
+    fitted to clustered inliers does): the prior's check then fails it."""
+
+    def __init__(self) -> None:
+        self._inner = OpenCvRansacFilter()
+
+    def filter(self, correspondences: Any, threshold_px: float) -> Any:
+        import dataclasses
+
+        out = self._inner.filter(correspondences, threshold_px)
+        if out.homography is None:
+            return out
+        skew = np.array([[1.0, 0.4, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        return dataclasses.replace(out, homography=out.homography @ skew)
+
+
+def test_a_true_tile_whose_homography_fails_is_kept_on_the_prior_similarity() -> None:
+    script = [(TRUE, 120, 60), (_similarity(0, 1, 0, 0), 0, 300)]
+    result = _run(script, prior=True, ransac=_SkewingRansac())
+    best = result.per_candidate[0]
+    assert result.diagnostics["input_index"][0] == 0
+    assert result.diagnostics["models"][0] == "similarity"
+    assert best.inlier_count >= 110  # the similarity's own RANSAC inliers
+    assert best.per_candidate_residual_px < 1.5
+    assert result.diagnostics["geometry_refused"] == []
+    hom = result.diagnostics["homographies"][0]
+    assert np.allclose(hom[2], [0, 0, 1]) and np.allclose(hom, TRUE, atol=0.05 * 100)
+
+
+def test_the_similarity_does_not_rescue_wrong_geometry() -> None:
+    script = [(WRONG, 160, 40), (_similarity(0, 1.6, 10, 10), 120, 40)]
+    with pytest.raises(InsufficientInliersError):
+        _run(script, prior=True, ransac=_SkewingRansac())
+
+
+def test_a_homography_that_passes_keeps_the_homography_model() -> None:
+    script = [(TRUE, 120, 60)]
+    result = _run(script, prior=True)
+    assert result.diagnostics["models"] == ["homography"]

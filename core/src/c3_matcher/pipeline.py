@@ -53,6 +53,7 @@ from c3_matcher.logs import log_event
 from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage, QueryGeometry
 from c3_matcher.prior import GeometricPrior, HomographyCheck, PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, RansacFilter
+from c3_matcher.ransac import MIN_CORRESPONDENCES, homography_residuals
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 from c3_matcher.tilestore.features import FeatureRequest
 
@@ -147,6 +148,7 @@ class _Survivor:
     rotation_deg: int = 0
     tile_image: PreparedImage | None = None  # kept for the refine pass
     tile: Features | None = None
+    model: str = "homography"  # or "similarity" (_TurnOutcome.model)
 
 
 @dataclass(frozen=True)
@@ -167,6 +169,7 @@ class _TurnOutcome:
     homography: NDArray[np.float64] | None
     check: HomographyCheck | None
     raw_matches: int
+    model: str = "homography"  # "similarity": the prior's model, after the homography failed
 
 
 @dataclass
@@ -341,6 +344,7 @@ class PipelineMatcher:
             "geometry_refused": list(state.geometry_refused),
             "rotation_search": state.rotation_search,
             "rotation_deg": [s.rotation_deg for s in survivors],
+            "models": [s.model for s in survivors],
             "refine": state.refine,
         }
         self._record(
@@ -470,7 +474,15 @@ class PipelineMatcher:
             )
             return None
         match_set = dataclasses.replace(chosen.match_set, inlier_correspondences=inliers)
-        return _Survivor(match_set, index, chosen.homography, chosen.rotation_deg, tile_image, tile)
+        return _Survivor(
+            match_set,
+            index,
+            chosen.homography,
+            chosen.rotation_deg,
+            tile_image,
+            tile,
+            chosen.model,
+        )
 
     def _refine(
         self,
@@ -543,7 +555,7 @@ class PipelineMatcher:
             ),
         )
         survivors[top] = dataclasses.replace(
-            first, match_set=match_set, homography=outcome.homography
+            first, match_set=match_set, homography=outcome.homography, model=outcome.model
         )
 
     def _verify(
@@ -560,19 +572,34 @@ class PipelineMatcher:
             keep = state.prior.consistent(correspondences)
             prefiltered = int(correspondences.shape[0] - keep.sum())
             correspondences = np.ascontiguousarray(correspondences[keep])
-        ransac = self._ransac.filter(correspondences, self._settings.ransac_threshold_px)
+        threshold = self._settings.ransac_threshold_px
+        ransac = self._ransac.filter(correspondences, threshold)
         inliers = ransac.inlier_correspondences
+        outliers = ransac.ransac_outlier_count
+        residual = ransac.per_candidate_residual_px
+        homography = ransac.homography
         check = None
-        if state.prior is not None and ransac.homography is not None and len(inliers):
-            check = state.prior.verify(ransac.homography)  # after RANSAC: geometry
+        model = "homography"
+        if state.prior is not None and homography is not None and len(inliers):
+            check = state.prior.verify(homography)  # after RANSAC: geometry
+            if not check.ok:  # the model the prior implies, before refusing the candidate
+                fit = state.prior.similarity_ransac(correspondences, threshold)
+                if fit is not None and int(fit[1].sum()) >= MIN_CORRESPONDENCES:
+                    similarity, mask = fit
+                    constrained = state.prior.verify(similarity)
+                    if constrained.ok:
+                        inliers = np.ascontiguousarray(correspondences[mask])
+                        outliers = int(correspondences.shape[0] - inliers.shape[0])
+                        residual = float(np.median(homography_residuals(similarity, inliers)))
+                        homography, check, model = similarity, constrained, "similarity"
         match_set = CandidateMatchSet(
             tile_id=tile_id,
             inlier_count=int(inliers.shape[0]),
             inlier_correspondences=inliers,
-            ransac_outlier_count=ransac.ransac_outlier_count + prefiltered,
-            per_candidate_residual_px=ransac.per_candidate_residual_px,
+            ransac_outlier_count=outliers + prefiltered,
+            per_candidate_residual_px=residual,
         )
-        return _TurnOutcome(rotation_deg, match_set, ransac.homography, check, 0)
+        return _TurnOutcome(rotation_deg, match_set, homography, check, 0, model)
 
     def _stored(
         self, candidate: RerankCandidate, state: _FrameState
@@ -714,8 +741,9 @@ def _source_of(state: _FrameState, index: int) -> str:
 
 
 def _per_candidate_records(state: _FrameState, survivors: list[_Survivor]) -> list[dict[str, Any]]:
-    """The survivors as FDR rows; ``rotation_deg`` (the kept turn) only under rotation search,
-    so the records of a frame without it are as they were."""
+    """The survivors as FDR rows; ``rotation_deg`` (the kept turn) only under rotation search
+    and ``model`` only for a candidate kept on the prior's similarity, so other records are as
+    they were."""
     rows: list[dict[str, Any]] = []
     for s in survivors:
         row: dict[str, Any] = {
@@ -726,6 +754,8 @@ def _per_candidate_records(state: _FrameState, survivors: list[_Survivor]) -> li
         }
         if state.rotation_search:
             row["rotation_deg"] = s.rotation_deg
+        if s.model != "homography":
+            row["model"] = s.model
         rows.append(row)
     return rows
 

@@ -134,6 +134,43 @@ class GeometricPrior:
             reason = f"footprint area ratio {area_ratio:.3f} outside (1 +- {tol.scale})^2"
         return HomographyCheck(scale, rotation, anisotropy, area_ratio, reason)
 
+    def similarity_ransac(
+        self,
+        correspondences: NDArray[np.floating],
+        threshold_px: float,
+        *,
+        max_iters: int = 10_000,
+        confidence: float = 0.9999,
+    ) -> tuple[F64, NDArray[np.bool_]] | None:
+        """The model the prior implies, fitted robustly: a 4-DOF similarity (rotation, uniform
+        scale, translation; OpenCV RANSAC + Levenberg-Marquardt refinement, deterministic) of
+        the (M, 4) rows, as a 3x3 homography, and its inlier mask; None with fewer than 4 rows
+        or no fit. Used when a free homography fails :meth:`verify`: with few or clustered
+        inliers (a shoreline, one field edge) its 4 extra degrees of freedom fit noise and
+        extrapolate a false scale or shear to the nadir point, while a rectified query and its
+        true tile differ by a similarity (exactly so with exact attitude and height)."""
+        m = correspondences.shape[0]
+        if m < 4:
+            return None
+        src = np.ascontiguousarray(correspondences[:, 0:2], dtype=np.float64)
+        dst = np.ascontiguousarray(correspondences[:, 2:4], dtype=np.float64)
+        try:
+            found, mask = cv2.estimateAffinePartial2D(
+                src,
+                dst,
+                method=cv2.RANSAC,
+                ransacReprojThreshold=threshold_px,
+                maxIters=max_iters,
+                confidence=confidence,
+                refineIters=10,
+            )
+        except cv2.error:
+            return None
+        if found is None or mask is None or not np.isfinite(found).all():
+            return None
+        homography = np.vstack([np.asarray(found, dtype=np.float64), [0.0, 0.0, 1.0]])
+        return homography, mask.reshape(-1).astype(bool)
+
 
 def _jacobian(h: F64, p: F64) -> F64:
     """The 2x2 derivative of the homography ``h`` at point ``p``."""
