@@ -117,7 +117,8 @@ class MatcherSettings(_Section):
         description="a second pass for the best-ranked candidate: re-render the query through "
         "its first homography into the tile's pixel grid, extract and match again, and keep "
         "that pass when it passes the same checks and ranks better (inliers, then residual); "
-        "one more query extraction and match per frame (README 'Refine pass')",
+        "one more query extraction and match per frame; no gain measured on the shipped "
+        "flights (README, 'Refine pass' under the seasonal-gap measures)",
     )
     prior_rotation_tol_deg: float = Field(
         10.0, gt=0, le=90, description="heading error tolerated by the prior, deg"
