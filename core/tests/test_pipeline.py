@@ -19,11 +19,8 @@ from c3_matcher.testing import (
 S = ScriptedCandidate
 
 
-Rig = ScriptedRig
-
-
 def test_ac2_best_candidate_argmax_with_residual_tie_break(fdr, logs):
-    rig = Rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
+    rig = ScriptedRig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
     result = rig.match()
     assert result.best_candidate_idx == 0
     got = [(c.inlier_count, c.per_candidate_residual_px) for c in result.per_candidate]
@@ -35,13 +32,13 @@ def test_ac2_best_candidate_argmax_with_residual_tie_break(fdr, logs):
 
 
 def test_inv3_full_tie_keeps_input_order(fdr, logs):
-    rig = Rig([S(90, 1.0), S(90, 1.0), S(90, 1.0)], fdr)
+    rig = ScriptedRig([S(90, 1.0), S(90, 1.0), S(90, 1.0)], fdr)
     result = rig.match()
     assert [c.tile_id for c in result.per_candidate] == [c.tile_id for c in rig.rerank.candidates]
 
 
 def test_ac3_extractor_failure_on_second_candidate_is_dropped(fdr, logs):
-    rig = Rig([S(100), S(100, fail_extract=True), S(90)], fdr)
+    rig = ScriptedRig([S(100), S(100, fail_extract=True), S(90)], fdr)
     result = rig.match()
     assert len(result.per_candidate) == 2
     assert result.candidates_dropped == 1 and result.candidates_input == 3
@@ -55,7 +52,7 @@ def test_ac3_extractor_failure_on_second_candidate_is_dropped(fdr, logs):
 
 
 def test_ac4_lightglue_failure_on_first_candidate_is_dropped(fdr, logs):
-    rig = Rig([S(100, fail_match=True), S(100), S(90)], fdr)
+    rig = ScriptedRig([S(100, fail_match=True), S(100), S(90)], fdr)
     result = rig.match()
     assert [c.tile_id for c in result.per_candidate] == [
         rig.rerank.candidates[1].tile_id,
@@ -67,14 +64,14 @@ def test_ac4_lightglue_failure_on_first_candidate_is_dropped(fdr, logs):
 
 
 def test_tile_decode_failure_is_a_backbone_drop(fdr, logs):
-    rig = Rig([S(100), S(100), S(100, fail_decode=True)], fdr)
+    rig = ScriptedRig([S(100), S(100), S(100, fail_decode=True)], fdr)
     result = rig.match()
     assert result.candidates_dropped == 1
     assert fdr.of_kind("matcher.backbone_error")[0]["phase"] == "tile_decode"
 
 
 def test_ac5_all_below_threshold_raises_insufficient(fdr, logs):
-    rig = Rig([S(59), S(10), S(30)], fdr)
+    rig = ScriptedRig([S(59), S(10), S(30)], fdr)
     with pytest.raises(InsufficientInliersError) as info:
         rig.match()
     assert info.value.best_inlier_count == 59 and info.value.threshold == 60
@@ -88,7 +85,7 @@ def test_ac5_all_below_threshold_raises_insufficient(fdr, logs):
 
 
 def test_ac6_all_extractors_fail(fdr, logs):
-    rig = Rig([S(fail_extract=True)] * 3, fdr)
+    rig = ScriptedRig([S(fail_extract=True)] * 3, fdr)
     with pytest.raises(InsufficientInliersError):
         rig.match()
     assert len(logs.of_kind("c3.matcher.backbone_error")) == 3
@@ -100,7 +97,7 @@ def test_ac6_all_extractors_fail(fdr, logs):
 
 
 def test_zero_inliers_is_dropped_without_backbone_error(fdr, logs):
-    rig = Rig([S(100), S(0), S(70)], fdr)
+    rig = ScriptedRig([S(100), S(0), S(70)], fdr)
     result = rig.match()
     assert result.candidates_dropped == 1 and len(result.per_candidate) == 2
     assert len(logs.of_kind("c3.matcher.zero_inliers")) == 1
@@ -110,7 +107,7 @@ def test_zero_inliers_is_dropped_without_backbone_error(fdr, logs):
 
 
 def test_ac7_warn_when_best_residual_above_threshold(fdr, logs):
-    rig = Rig([S(100, 4.2), S(80, 1.0), S(70, 1.0)], fdr)
+    rig = ScriptedRig([S(100, 4.2), S(80, 1.0), S(70, 1.0)], fdr)
     rig.match()
     warns = logs.of_kind("c3.matcher.residual_above_threshold")
     assert len(warns) == 1 and warns[0]["level"] == "WARNING"
@@ -120,7 +117,7 @@ def test_ac7_warn_when_best_residual_above_threshold(fdr, logs):
 
 
 def test_no_warn_at_or_below_threshold(fdr, logs):
-    rig = Rig([S(100, 2.5)], fdr)
+    rig = ScriptedRig([S(100, 2.5)], fdr)
     rig.match()
     assert logs.of_kind("c3.matcher.residual_above_threshold") == []
 
@@ -135,7 +132,7 @@ def test_no_warn_at_or_below_threshold(fdr, logs):
     ],
 )
 def test_ac8_health_updated_exactly_once_per_call(fdr, logs, script):
-    rig = Rig(script, fdr)
+    rig = ScriptedRig(script, fdr)
     for expected in (1, 2):
         try:
             result = rig.match()
@@ -149,14 +146,14 @@ def test_ac8_health_updated_exactly_once_per_call(fdr, logs, script):
 
 
 def test_ac9_correspondence_shape(fdr, logs):
-    result = Rig([S(120), S(75), S(64)], fdr).match()
+    result = ScriptedRig([S(120), S(75), S(64)], fdr).match()
     for c in result.per_candidate:
         assert c.inlier_correspondences.shape == (c.inlier_count, 4)
         assert c.inlier_correspondences.dtype.name == "float32"
 
 
 def test_ac10_deterministic_three_calls(fdr, logs):
-    rig = Rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
+    rig = ScriptedRig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
     results = [rig.match() for _ in range(3)]
     for other in results[1:]:
         assert other.best_candidate_idx == results[0].best_candidate_idx
@@ -168,7 +165,7 @@ def test_ac10_deterministic_three_calls(fdr, logs):
 
 
 def test_ac12_frame_done_record(fdr, logs):
-    rig = Rig([S(120, 1.1), S(fail_extract=True), S(80, 1.5)], fdr)
+    rig = ScriptedRig([S(120, 1.1), S(fail_extract=True), S(80, 1.5)], fdr)
     result = rig.match()
     done = fdr.of_kind("matcher.frame_done")
     assert len(done) == 1
@@ -182,7 +179,7 @@ def test_ac12_frame_done_record(fdr, logs):
 
 
 def test_query_failure_raises_backbone_error_and_updates_health(fdr, logs):
-    rig = Rig([S(100)], fdr)
+    rig = ScriptedRig([S(100)], fdr)
     rig.inference.script = [S()] * 255  # mark 255 (the query) -> index 254 fails
     rig.inference.script[254] = S(fail_extract=True)
     with pytest.raises(MatcherBackboneError) as info:
@@ -194,7 +191,7 @@ def test_query_failure_raises_backbone_error_and_updates_health(fdr, logs):
 
 
 def test_mismatched_frame_id_is_refused_naming_the_field(fdr, logs):
-    rig = Rig([S(100)], fdr)
+    rig = ScriptedRig([S(100)], fdr)
     other = make_rerank(uuid.UUID(int=8), rig.script)
     with pytest.raises(InvalidInputError, match="rerank_result.frame_id"):
         rig.pipeline.match(rig.frame, other, rig.calibration)
@@ -204,7 +201,7 @@ def test_mismatched_frame_id_is_refused_naming_the_field(fdr, logs):
 
 
 def test_missing_frame_is_refused_with_an_fdr_record(fdr, logs):
-    rig = Rig([S(100)], fdr)
+    rig = ScriptedRig([S(100)], fdr)
     with pytest.raises(InvalidInputError, match="frame"):
         rig.pipeline.match(None, rig.rerank, rig.calibration)  # type: ignore[arg-type]
     assert [r["field"] for r in fdr.of_kind("matcher.invalid_input")] == ["frame"]
@@ -215,14 +212,14 @@ def test_fdr_failure_never_fails_the_frame(logs):
         def record(self, kind, payload):  # type: ignore[no-untyped-def]
             raise OSError("disk full")
 
-    rig = Rig([S(100)], BrokenFdr())
+    rig = ScriptedRig([S(100)], BrokenFdr())
     assert rig.match().per_candidate[0].inlier_count == 100
     assert len(logs.of_kind("c3.fdr.write_failed")) == 1
 
 
 def test_tile_cache_reuses_features_and_gives_identical_results(fdr, logs):
 
-    rig = Rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
+    rig = ScriptedRig([S(120, 1.4), S(80, 1.0), S(120, 1.1)], fdr)
     rig.pipeline = PipelineMatcher(
         FakeBackend(rig.inference, rig.lightglue),
         rig.ransac,

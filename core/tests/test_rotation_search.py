@@ -39,7 +39,6 @@ from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.pipeline import (
     QUERY_ROTATIONS_DEG,
-    PipelineMatcher,
     PipelineSettings,
     _turned,
     rotation_from_turned,
@@ -60,14 +59,6 @@ REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "data" / "demo"
 
 
-def _pipeline(
-    fdr: InMemoryFdr, backend: Any, ransac: Any, settings: PipelineSettings
-) -> PipelineMatcher:
-    return scripted_pipeline(backend, ransac, fdr, settings)
-
-
-_Scripted = ScriptedRig
-
 ON = PipelineSettings(rotation_search=True)
 LEVEL = Attitude.from_degrees(0.0, 0.0, 0.0)
 
@@ -86,7 +77,7 @@ def test_rotation_search_is_off_by_default_and_reaches_the_pipeline(tmp_path):
 
 # -- control flow (scripted doubles) --------------------------------------------------------
 def test_off_by_default_one_query_extraction_and_records_unchanged(fdr, logs):
-    rig = _Scripted([S(120), S(80)], fdr, PipelineSettings())
+    rig = ScriptedRig([S(120), S(80)], fdr, PipelineSettings())
     result = rig.match()
     assert rig.query_extractions == 1
     assert result.diagnostics["rotation_search"] is False
@@ -97,7 +88,7 @@ def test_off_by_default_one_query_extraction_and_records_unchanged(fdr, logs):
 
 
 def test_on_with_attitude_one_query_extraction(fdr, logs):
-    rig = _Scripted([S(120), S(80)], fdr, ON, attitude=LEVEL)
+    rig = ScriptedRig([S(120), S(80)], fdr, ON, attitude=LEVEL)
     result = rig.match()
     assert rig.query_extractions == 1
     assert result.diagnostics["rotation_search"] is False
@@ -105,7 +96,7 @@ def test_on_with_attitude_one_query_extraction(fdr, logs):
 
 
 def test_on_without_attitude_four_query_extractions_one_per_tile(fdr, logs):
-    rig = _Scripted([S(120), S(80), S(70)], fdr, ON)
+    rig = ScriptedRig([S(120), S(80), S(70)], fdr, ON)
     result = rig.match()
     assert rig.query_extractions == len(QUERY_ROTATIONS_DEG) == 4
     assert sorted(c for c in rig.inference.calls if c != QUERY) == [0, 1, 2]  # tiles: once
@@ -123,7 +114,7 @@ def test_each_candidate_keeps_the_turn_ranked_best_by_the_pipeline_rule(fdr, log
     # candidate 0: turns 90 and 180 tie on inliers, 180 has the lower residual -> 180;
     # candidate 1: 270 has the most inliers whatever its residual -> 270
     outcomes = [(50, 2.0), (80, 1.5), (80, 1.0), (10, 0.1), (5, 0.1), (6, 0.1), (7, 1), (99, 3)]
-    rig = _Scripted([S(), S()], fdr, ON, ransac=SequenceRansacFilter(outcomes))
+    rig = ScriptedRig([S(), S()], fdr, ON, ransac=SequenceRansacFilter(outcomes))
     result = rig.match()
     assert [c.inlier_count for c in result.per_candidate] == [99, 80]
     assert [c.per_candidate_residual_px for c in result.per_candidate] == [3.0, 1.0]
@@ -135,7 +126,7 @@ def test_each_candidate_keeps_the_turn_ranked_best_by_the_pipeline_rule(fdr, log
 
 
 def test_query_failure_under_rotation_search_is_one_terminal_backbone_error(fdr, logs):
-    rig = _Scripted([S(100)], fdr, ON)
+    rig = ScriptedRig([S(100)], fdr, ON)
     rig.inference.script = [S()] * 255
     rig.inference.script[QUERY] = S(fail_extract=True)
     with pytest.raises(MatcherBackboneError) as info:
@@ -147,7 +138,7 @@ def test_query_failure_under_rotation_search_is_one_terminal_backbone_error(fdr,
 
 
 def test_candidate_failure_under_rotation_search_drops_it_once(fdr, logs):
-    rig = _Scripted([S(100, fail_match=True), S(90), S(30)], fdr, ON)
+    rig = ScriptedRig([S(100, fail_match=True), S(90), S(30)], fdr, ON)
     result = rig.match()
     assert result.candidates_dropped == 1
     assert [r["phase"] for r in fdr.of_kind("matcher.backbone_error")] == ["lightglue_match"]
@@ -155,7 +146,7 @@ def test_candidate_failure_under_rotation_search_drops_it_once(fdr, logs):
 
 
 def test_insufficient_under_rotation_search_records_the_turns(fdr, logs):
-    rig = _Scripted([S(20), S(10)], fdr, ON)
+    rig = ScriptedRig([S(20), S(10)], fdr, ON)
     with pytest.raises(InsufficientInliersError):
         rig.match()
     (record,) = fdr.of_kind("matcher.insufficient_inliers")
@@ -277,17 +268,17 @@ def test_the_matching_turn_wins_and_points_come_back_in_the_frame_as_given(fdr, 
     ransac = OpenCvRansacFilter()
     off = _DotBackend()
     if k == 0:  # the frame is already as the tile: no search needed
-        assert _pipeline(fdr, off, ransac, settings).match(frame, rerank, calibration)
+        assert scripted_pipeline(off, ransac, fdr, settings).match(frame, rerank, calibration)
     else:
         with pytest.raises(InsufficientInliersError):
-            _pipeline(fdr, off, ransac, settings).match(frame, rerank, calibration)
+            scripted_pipeline(off, ransac, fdr, settings).match(frame, rerank, calibration)
     assert off.extractions == 1 + 2
 
     on = _DotBackend()
     searching = PipelineSettings(
         min_inliers_threshold=6, geometric_prior=False, rotation_search=True
     )
-    result = _pipeline(fdr, on, ransac, searching).match(frame, rerank, calibration)
+    result = scripted_pipeline(on, ransac, fdr, searching).match(frame, rerank, calibration)
     assert on.extractions == 4 + 2
     assert result.diagnostics["input_index"] == [1]  # the true tile; the distractor dropped
     assert result.diagnostics["rotation_deg"] == [(360 - 90 * k) % 360]

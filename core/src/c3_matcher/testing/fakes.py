@@ -260,12 +260,18 @@ def make_rerank(frame_id: uuid.UUID, script: Sequence[ScriptedCandidate]) -> Rer
 
 
 def scripted_pipeline(
-    backend: Any, ransac: Any, fdr: InMemoryFdr, settings: PipelineSettings
+    backend: Any,
+    ransac: Any,
+    fdr: InMemoryFdr,
+    settings: PipelineSettings,
+    *,
+    clock: FakeClock | None = None,
+    health: RollingHealthWindow | None = None,
 ) -> PipelineMatcher:
-    """A :class:`PipelineMatcher` over ``backend`` and ``ransac`` with a fake clock and its own
-    health window."""
-    clock = FakeClock()
-    health = RollingHealthWindow(clock, settings.min_inliers_threshold)
+    """A :class:`PipelineMatcher` over ``backend`` and ``ransac`` with ``clock`` (a new fake
+    clock by default) and ``health`` (a new window on that clock by default)."""
+    clock = clock or FakeClock()
+    health = health or RollingHealthWindow(clock, settings.min_inliers_threshold)
     return PipelineMatcher(backend, ransac, fdr, health, clock, settings)
 
 
@@ -294,8 +300,8 @@ class ScriptedRig:
         self.ransac = ransac or FakeRansacFilter(script)
         backend = FakeBackend(self.inference, self.lightglue)
         self.backend = wrap_backend(backend) if wrap_backend is not None else backend
-        self.pipeline = PipelineMatcher(
-            self.backend, self.ransac, fdr, self.health, self.clock, self.settings
+        self.pipeline = scripted_pipeline(
+            self.backend, self.ransac, fdr, self.settings, clock=self.clock, health=self.health
         )
         frame, self.calibration = make_frame(uuid.UUID(int=7))
         self.frame = NavCameraFrame(frame.frame_id, frame.image, 1, attitude=attitude)
