@@ -3,6 +3,7 @@ writes, rotation with offloaded segments, crashes around rotation, threads, two 
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -190,3 +191,115 @@ def test_path_that_is_a_directory_or_unwritable_is_named(tmp_path):
     blocker.write_text("x")
     with pytest.raises(FdrOpenError, match="fdr.path"):
         JsonlFdrRecorder(blocker / "fdr.jsonl", FakeClock())
+
+
+def test_full_disk_at_rotation_keeps_writing_and_rotates_once_space_returns(tmp_path, monkeypatch):
+    """The next segment number cannot be reserved (ENOSPC at the os call): nothing is renamed,
+    records go on to the live segment, and the rotation happens once space returns."""
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock(), max_bytes=1024)
+    real_replace = os.replace
+
+    def enospc(src, dst):
+        raise OSError(28, "No space left on device")
+
+    for i in range(12):
+        rec.record("k", {"i": i, "pad": "x" * 60})
+    monkeypatch.setattr(os, "replace", enospc)
+    for i in range(12, 40):  # past max_bytes: every rotation attempt fails
+        rec.record("k", {"i": i, "pad": "x" * 60})
+    assert rec.pending == 0
+    assert not list(tmp_path.glob("fdr.jsonl.meta.tmp"))  # what the full disk let us take
+    monkeypatch.setattr(os, "replace", real_replace)
+    for i in range(40, 60):
+        rec.record("k", {"i": i, "pad": "x" * 60})
+    records = _all_records(rec)
+    assert [r["payload"]["i"] for r in records] == list(range(60))
+    assert [r["seq"] for r in records] == list(range(1, 61))
+    assert len(rec.segments()) >= 3 and rec.path.stat().st_size <= 1024
+    rec.close()
+
+
+def test_failed_rename_at_rotation_leaves_the_live_segment_in_place(tmp_path, monkeypatch):
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock(), max_bytes=1024)
+    for i in range(12):
+        rec.record("k", {"i": i, "pad": "x" * 60})
+    real_rename = Path.rename
+
+    def refuse(self, target):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Path, "rename", refuse)
+    before = rec.segments()
+    for i in range(12, 30):
+        rec.record("k", {"i": i, "pad": "x" * 60})
+    assert rec.segments() == before and rec.path.stat().st_size > 1024  # kept writing there
+    monkeypatch.setattr(Path, "rename", real_rename)
+    rec.record("k", {"i": 30})
+    numbers = [int(p.name.split(".")[1]) for p in rec.segments()[:-1]]
+    assert len(numbers) == len(before) and numbers == sorted(set(numbers))  # reserved: skipped
+    assert [r["payload"]["i"] for r in _all_records(rec)] == list(range(31))
+    rec.close()
+
+
+# Runs inside a private mount namespace on a 64 KiB tmpfs: a real full filesystem, no root
+# needed where user namespaces are allowed, and nothing mounted outside the child process.
+_FULL_DISK_SCRIPT = """
+import errno, json, os, sys
+from pathlib import Path
+sys.path.insert(0, {src!r})
+from c3_matcher.fdr import FdrWriteError, JsonlFdrRecorder, read_fdr
+from c3_matcher.testing import FakeClock
+mnt = Path({mnt!r})
+os.system(f"mount -t tmpfs -o size=64k tmpfs {{mnt}}")
+assert os.statvfs(mnt).f_blocks * os.statvfs(mnt).f_frsize <= 64 * 1024, "tmpfs not mounted"
+rec = JsonlFdrRecorder(mnt / "fdr.jsonl", FakeClock(), max_bytes=1024)
+rec.record("k", {{"i": 0, "pad": "x" * 60}})
+filler = mnt / "filler"
+fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
+try:  # take every free page
+    while True:
+        os.write(fd, b"\\0" * 4096)
+except OSError as exc:
+    assert exc.errno == errno.ENOSPC
+os.close(fd)
+failed = []
+for i in range(1, 60):  # rotations are due from about the 13th record on
+    try:
+        rec.record("k", {{"i": i, "pad": "x" * 60}})
+    except FdrWriteError as exc:
+        failed.append(i)
+pending_while_full = rec.pending
+filler.unlink()  # space returns
+rec.flush()
+for i in range(60, 80):
+    rec.record("k", {{"i": i, "pad": "x" * 60}})
+seen = []
+for seg in rec.segments():
+    result = read_fdr(seg)
+    assert result.corrupt == [], seg
+    seen.extend(r["payload"]["i"] for r in result)
+print(json.dumps({{"failed": failed, "pending_while_full": pending_while_full, "seen": seen,
+                  "segments": len(rec.segments()), "pending_after": rec.pending}}))
+rec.close()
+"""
+
+
+def test_real_full_filesystem_at_rotation_loses_nothing(tmp_path):
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    script = _FULL_DISK_SCRIPT.format(src=str(CORE_SRC), mnt=str(mnt))
+    out = subprocess.run(
+        ["unshare", "--mount", "--map-root-user", sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout.strip().splitlines()[-1])
+    assert report["failed"], "the filesystem never filled: the test proved nothing"
+    assert report["pending_while_full"] > 0
+    assert report["pending_after"] == 0
+    assert report["seen"] == list(range(80))  # every record, once, in order
+    assert report["segments"] >= 3

@@ -12,6 +12,7 @@ Record schema (one JSON object per line)::
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as dt
 import errno
@@ -116,9 +117,14 @@ class JsonlFdrRecorder:
     Guarantees: ``record`` returns only after the line is written and fsynced. A write failure
     (disk full, short write, I/O error) is rolled back to the last complete line, raises
     ``FdrWriteError`` and keeps the record pending; the next ``record`` writes pending records
-    first, so none is dropped. On open, a torn last line (power cut mid-write) is cut back to
-    the last complete line; the cut bytes are appended to ``<path>.torn`` (one JSON line per
-    cut: offset, length, the bytes) and a ``fdr.torn_tail_cut`` record says so. One process
+    first, so none is dropped (``flush`` retries them without a new record; ``close`` tries
+    once). A rotation is atomic with respect to failure: the next segment number is reserved in
+    ``<path>.meta`` before the live segment is renamed, and if either step fails (disk full)
+    nothing has moved: the recorder keeps appending to the live segment past ``max_bytes`` and
+    rotates at the next record that finds room. On open, a torn last line (power cut
+    mid-write) is cut back to the last complete line; the cut bytes are appended to
+    ``<path>.torn`` (one JSON line per cut: offset, length, the bytes) and a
+    ``fdr.torn_tail_cut`` record says so. One process
     writes a path: the recorder holds ``flock`` on ``<path>.lock``; a second one is refused
     with ``FdrOpenError``. ``record`` is thread-safe.
     """
@@ -201,17 +207,27 @@ class JsonlFdrRecorder:
             }
             self._seq += 1
             self._pending.append((json.dumps(line, separators=(",", ":")) + "\n").encode())
-            try:
-                while self._pending:
-                    self._write_durably(self._pending[0])
-                    self._pending.pop(0)
-            except OSError as exc:
-                raise FdrWriteError(
-                    f"FDR {self._path}: {exc}; {len(self._pending)} record(s) pending"
-                ) from exc
+            self._write_pending()
+
+    @property
+    def pending(self) -> int:
+        """How many records are accepted but not yet durable (after a write failure)."""
+        with self._lock:
+            return len(self._pending)
+
+    def flush(self) -> None:
+        """Write the pending records now (say, once space has returned); ``FdrWriteError`` if
+        they still cannot be written."""
+        with self._lock:
+            if self._pending and self._lock_fd < 0:
+                raise FdrWriteError(f"FDR {self._path}: recorder is closed")
+            self._write_pending()
 
     def close(self) -> None:
         with self._lock:
+            if self._pending and self._lock_fd >= 0:
+                with contextlib.suppress(FdrWriteError):  # a last chance after a full disk
+                    self._write_pending()
             if self._fd >= 0:
                 os.close(self._fd)
                 self._fd = -1
@@ -224,6 +240,16 @@ class JsonlFdrRecorder:
         return [p for _, p in self._rotated()] + [self._path]
 
     # -- internals ------------------------------------------------------------------------
+    def _write_pending(self) -> None:
+        try:
+            while self._pending:
+                self._write_durably(self._pending[0])
+                self._pending.pop(0)
+        except OSError as exc:
+            raise FdrWriteError(
+                f"FDR {self._path}: {exc}; {len(self._pending)} record(s) pending"
+            ) from exc
+
     def _rotated(self) -> list[tuple[int, Path]]:
         stem, suffix = self._path.stem, self._path.suffix
         out = []
@@ -240,8 +266,7 @@ class JsonlFdrRecorder:
             self._cut_torn_tail()
             self._needs_repair = False
         start = os.fstat(self._fd).st_size
-        if start > 0 and start + len(data) > self._max_bytes:
-            self._rotate()
+        if start > 0 and start + len(data) > self._max_bytes and self._rotate():
             start = 0
         try:
             view = memoryview(data)
@@ -267,18 +292,26 @@ class JsonlFdrRecorder:
         meta = _read_meta(self._meta_path)
         return max([0, *numbers, int(meta.get("last_segment", 0))]) + 1
 
-    def _rotate(self) -> None:
+    def _rotate(self) -> bool:
+        """Start a new live segment. ``False`` when nothing could be moved (the number could
+        not be reserved or the rename failed, say on a full disk): the caller keeps appending
+        to the live segment. After the rename an error propagates with ``_fd`` closed, so the
+        next write opens the new live segment: the rotation is then complete either way."""
         number = self._next_segment_number()
         target = self._path.with_name(f"{self._path.stem}.{number:06d}{self._path.suffix}")
         while target.exists():  # never overwrite (we hold the lock: no other writer races us)
             number += 1
             target = self._path.with_name(f"{self._path.stem}.{number:06d}{self._path.suffix}")
-        self._path.rename(target)  # atomic: the records are under exactly one name at all times
-        _write_meta(self._meta_path, {"last_segment": number, "last_seq": self._seq - 1})
+        try:  # reserve the number first: a failure here leaves everything as it was
+            _write_meta(self._meta_path, {"last_segment": number, "last_seq": self._seq - 1})
+            self._path.rename(target)  # atomic: the records are under exactly one name
+        except OSError:
+            return False  # at worst a reserved number stays unused: never a reused one
         os.close(self._fd)
         self._fd = -1
         self._fd = self._open()
         _fsync_dir(self._path.parent)
+        return True
 
     def _drop_half_rotated_live(self) -> None:
         """Should the live segment and the newest rotated one be one file under two names (a
@@ -363,11 +396,15 @@ def _read_meta(path: Path) -> dict[str, Any]:
 def _write_meta(path: Path, data: Mapping[str, Any]) -> None:
     """Atomically replace the small state file (never a segment)."""
     tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("wb") as fh:
-        fh.write(json.dumps(dict(data)).encode())
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with tmp.open("wb") as fh:
+            fh.write(json.dumps(dict(data)).encode())
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)  # give back what a full disk let us take
+        raise
 
 
 def _fsync_dir(directory: Path) -> None:
