@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-import uuid
-
 import pytest
 
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
+from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.testing import (
     FakeBackend,
     ScriptedCandidate,
     ScriptedRig,
-    make_rerank,
 )
 
 S = ScriptedCandidate
@@ -188,23 +185,6 @@ def test_query_failure_raises_backbone_error_and_updates_health(fdr, logs):
     assert [r["phase"] for r in fdr.of_kind("matcher.backbone_error")] == ["query_extract"]
     last = rig.health.last_update
     assert rig.health.update_count == 1 and last is not None and last.had_backbone_error
-
-
-def test_mismatched_frame_id_is_refused_naming_the_field(fdr, logs):
-    rig = ScriptedRig([S(100)], fdr)
-    other = make_rerank(uuid.UUID(int=8), rig.script)
-    with pytest.raises(InvalidInputError, match="rerank_result.frame_id"):
-        rig.pipeline.match(rig.frame, other, rig.calibration)
-    assert rig.health.update_count == 1
-    (record,) = fdr.of_kind("matcher.invalid_input")  # the refusal is in the flight record
-    assert record["field"] == "rerank_result.frame_id"
-
-
-def test_missing_frame_is_refused_with_an_fdr_record(fdr, logs):
-    rig = ScriptedRig([S(100)], fdr)
-    with pytest.raises(InvalidInputError, match="frame"):
-        rig.pipeline.match(None, rig.rerank, rig.calibration)  # type: ignore[arg-type]
-    assert [r["field"] for r in fdr.of_kind("matcher.invalid_input")] == ["frame"]
 
 
 def test_fdr_failure_never_fails_the_frame(logs):

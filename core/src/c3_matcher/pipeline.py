@@ -26,7 +26,7 @@ import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, NoReturn, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -249,6 +249,11 @@ class PipelineMatcher:
         )
         try:
             _check_inputs(frame, rerank_result, calibration)
+            if frame is None:  # no nav frame arrived: a query failure, as a decode failure is
+                self._query_failed(state, InvalidInputError("frame", "is None (no nav frame)"))
+            if rerank_result.frame_id != frame.frame_id:  # candidates of another frame
+                state.frame_id, state.dropped = frame.frame_id, state.candidates_input
+                self._insufficient(state, 0, [], stale_rerank_frame_id=rerank_result.frame_id)
             return self._match(frame, rerank_result, calibration, state)
         except (MatcherBackboneError, InsufficientInliersError):
             raise
@@ -288,9 +293,7 @@ class PipelineMatcher:
                     _QueryView(deg, image, self._backend.extract(image)) for deg, image in images
                 ]
         except Exception as exc:
-            self._update_health(state, 0, force_backbone_error=True)
-            self._record_backbone_error(state, None, "query_extract", exc)
-            raise MatcherBackboneError("query_extract", None, exc) from exc
+            self._query_failed(state, exc)
         state.prior = self._prior(query_image)
 
         survivors: list[_Survivor] = []
@@ -627,28 +630,47 @@ class PipelineMatcher:
             return None
         return None if geometry is None else (geometry, features)
 
+    def _query_failed(self, state: _FrameState, exc: Exception) -> NoReturn:
+        """The nav frame itself could not be decoded or extracted: health (0, backbone error),
+        a ``query_extract`` backbone-error record, ``MatcherBackboneError``."""
+        self._update_health(state, 0, force_backbone_error=True)
+        self._record_backbone_error(state, None, "query_extract", exc)
+        raise MatcherBackboneError("query_extract", None, exc) from exc
+
     def _insufficient(
-        self, state: _FrameState, best_count: int, survivors: list[_Survivor]
-    ) -> MatchResult:
+        self,
+        state: _FrameState,
+        best_count: int,
+        survivors: list[_Survivor],
+        *,
+        stale_rerank_frame_id: Any = None,
+    ) -> NoReturn:
+        """No fix for this frame: health 0, log, FDR record, ``InsufficientInliersError``. With
+        ``stale_rerank_frame_id`` every candidate was dropped unmatched: the re-rank was made
+        for that other frame, so its tiles say where the vehicle was, not where it is."""
         threshold = self._settings.min_inliers_threshold
         label = self._backend.label
+        stale = {} if stale_rerank_frame_id is None else {"stale_rerank": stale_rerank_frame_id}
         self._update_health(state, 0)  # AZ-345 step 6 / AC-5: best_inlier_count=0
         log_event(
             "ERROR",
             "c3.matcher.insufficient_inliers",
             f"C3 insufficient inliers on all candidates; frame={state.frame_id}; "
-            f"backbone={label}; best={best_count} < {threshold}",
+            f"backbone={label}; best={best_count} < {threshold}"
+            + ("" if not stale else f"; re-rank is for frame {stale_rerank_frame_id}"),
             frame_id=state.frame_id,
             backbone=label,
             best_inlier_count=best_count,
             threshold=threshold,
             candidates_input=state.candidates_input,
             candidates_dropped=state.dropped,
+            **stale,
         )
         self._record(
             "matcher.insufficient_inliers",
             {
                 "frame_id": state.frame_id,
+                **stale,
                 "candidates_input": state.candidates_input,
                 "candidates_dropped": state.dropped,
                 "best_inlier_count": best_count,
@@ -833,7 +855,9 @@ def _feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> Feature
 
 
 def _check_inputs(frame: object, rerank: object, calibration: object) -> None:
-    if not isinstance(frame, NavCameraFrame):
+    """Refuse wrong types (a caller's programming error). ``frame=None`` and a re-rank of
+    another frame are conditions of flight, answered with the contract's errors."""
+    if frame is not None and not isinstance(frame, NavCameraFrame):
         raise InvalidInputError("frame", f"expected NavCameraFrame, got {type(frame).__name__}")
     if not isinstance(rerank, RerankResult):
         raise InvalidInputError(
@@ -842,11 +866,6 @@ def _check_inputs(frame: object, rerank: object, calibration: object) -> None:
     if not isinstance(calibration, CameraCalibration):
         raise InvalidInputError(
             "calibration", f"expected CameraCalibration, got {type(calibration).__name__}"
-        )
-    if rerank.frame_id != frame.frame_id:
-        raise InvalidInputError(
-            "rerank_result.frame_id",
-            f"{rerank.frame_id} does not match frame.frame_id {frame.frame_id}",
         )
 
 
