@@ -150,6 +150,12 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
         if args.calibration
         else CameraCalibration.pinhole(width, height, focal_px=float(width))
     )
+    if tuple(calibration.image_size) != (width, height):  # bad input (exit 2), not a backbone
+        cw, ch = calibration.image_size
+        raise InvalidInputError(
+            f"--calibration {args.calibration}",
+            f"image_size is {cw}x{ch} px but the --query image {args.query} is {width}x{height} px",
+        )
     frame = NavCameraFrame(uuid.uuid4(), image, time.monotonic_ns(), args.attitude, args.height)
     _warn_missing(args)
     candidates = []
