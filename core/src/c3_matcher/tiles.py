@@ -14,6 +14,7 @@ and refuses an image above ``max_image_pixels()`` (``[matcher] max_image_pixels`
 from __future__ import annotations
 
 import os
+import stat
 import struct
 from pathlib import Path
 
@@ -190,10 +191,13 @@ class MmapTileHandle:
     def __init__(self, path: Path) -> None:
         self._path = Path(path)
         try:
-            size = self._path.stat().st_size
+            st = self._path.stat()
         except OSError as exc:
             raise InvalidInputError(str(self._path), f"cannot read tile file: {exc}") from exc
-        if size == 0:
+        if not stat.S_ISREG(st.st_mode):
+            kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+            raise InvalidInputError(str(self._path), f"cannot read tile file: it is {kind}")
+        if st.st_size == 0:
             raise InvalidInputError(str(self._path), "cannot read tile file: it is empty")
 
     @property
