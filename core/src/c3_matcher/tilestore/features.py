@@ -1,38 +1,52 @@
 """Map features computed once on the ground: the sidecar store and the flight read path.
 
-``c3-matcher features build STORE`` (ground tools) extracts, for every stored 256-px tile and a
-strategy's extractor, the keypoints, scores and descriptors of the tile WITH a context margin of
-``margin_px`` px taken from its neighbours (so a keypoint near the tile's edge sees the same
-surroundings as in a larger image), keeps those in the tile's core, and writes them to a sidecar
-SQLite database next to the tile store (``<store>.features.sqlite``)::
+A candidate's features are a function of the WHOLE image the extractor sees (XFeat normalises
+the whole input, DISK's U-Net sees hundreds of px, the top-K and the photometric normalisation
+are per image), so features stitched from separately extracted tiles are not the window's own.
+The store therefore holds whole candidate WINDOWS: ``c3-matcher features build`` extracts, for a
+grid of ``window_px`` square windows of WORLD px whose top-left pixel is a multiple of
+``stride_px`` (``(gx * stride_px, gy * stride_px)``), exactly what the flight extracts for a
+candidate with that window: the stitched window, the flight's ``FramePreprocessor
+.prepare_tile`` (valid mask, border erosion, photometric normalisation) and the strategy's own
+engine, keeping every keypoint the engine outputs (best score first). In flight a candidate whose
+window IS a grid window gets those features bit for bit; any keypoint budget is their prefix
+(the extractor keeps the best by a stable sort). A candidate off the grid is served the nearest
+grid window's features (at most ``stride_px / 2`` px away on each axis: the re-ranker's
+candidates are approximate anyway) shifted into its own px.
 
-    feature_sets (set_id TEXT PRIMARY KEY, extractor_sha256, multiple, margin_px,
-                  descriptor_dim, descriptor_dtype, strategy, complete, tiles, created)
-    tile_features (set_id, zoom, x, y, tile_digest, n, keypoints, scores, descriptors,
-                   PRIMARY KEY (set_id, zoom, x, y))
+Sidecar database ``<store>.features.sqlite``::
 
-A set is keyed by the extractor engine's file sha256, its input rule (size multiple) and the
-photometric normalisation the tiles went through (``[matcher] photometric``): features of another
-engine build or another preprocessing are never served. Each tile row holds the blake2b digest
-of the encoded tile bytes it was computed from: a tile whose bytes changed is never served stale.
-Keypoints are float32 (n, 2) (x, y) in the tile's own px (origin at the centre of its top-left
-pixel), scores float32 (n,), descriptors (n, D) float32 or float16 (``descriptor_dtype``).
+    window_sets (set_id TEXT PRIMARY KEY, extractor_sha256, provider, multiple, photometric,
+                 border_erode_px, window_px, stride_px, descriptor_dim, strategy, complete,
+                 windows, created)
+    window_features (set_id, zoom, gx, gy, window_digest, n, keypoints, scores, descriptors,
+                     checksum, PRIMARY KEY (set_id, zoom, gx, gy))
 
-In flight, :func:`assemble_window` builds a candidate window's features from the stored tiles it
-overlaps (shift into window px, drop what the window's eroded border would mask, keep the best
-``max_keypoints`` by score): no decode, no extraction. It returns None (the caller extracts)
-whenever a stored row is missing or stale, or the window would be resized by the input rule.
+A set is keyed by everything the extraction depends on: the extractor engine's file sha256, the
+execution provider, the input rule's size multiple, the photometric normalisation, the border
+erosion and the window size: features of another engine build, device or preprocessing are
+never served. ``window_digest`` is the blake2b of the digests of the tiles the window covers (a
+window whose tiles changed is never served stale); ``checksum`` the blake2b of the row itself
+(a row altered on disk, even into finite numbers, is refused). Keypoints are float32 (n, 2)
+(x, y) in window px (origin at the centre of its top-left pixel), scores float32 (n,),
+descriptors float32 (n, D).
+
+Reliability in flight: the read connection never waits on a lock (busy timeout 0). When the
+sidecar is locked or unreadable the store says so once (:class:`FeatureStoreUnavailableError`),
+then serves nothing for ``retry_s`` seconds (the pipeline extracts) and tries again; a corrupt
+row is refused once (:class:`StoredFeaturesCorruptError`) and never served.
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
 import sqlite3
 import time
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,27 +58,53 @@ __all__ = [
     "FEATURES_SUFFIX",
     "FeatureRequest",
     "FeatureSet",
-    "TileFeatureStore",
-    "TileFeatures",
-    "assemble_window",
+    "FeatureStoreUnavailableError",
+    "MapFeatureStore",
+    "StoredFeaturesCorruptError",
+    "WindowFeatures",
+    "covered_tiles",
+    "grid_index",
+    "serve_window",
+    "set_id_for",
     "sidecar_path",
+    "stored_sets",
     "tile_digest",
+    "window_digest",
 ]
 
 FEATURES_SUFFIX = ".features.sqlite"
+DEFAULT_RETRY_S = 30.0  # a locked or unreadable sidecar is tried again after this long
 
 _SCHEMA = """
-CREATE TABLE IF NOT EXISTS feature_sets (
-    set_id TEXT PRIMARY KEY, extractor_sha256 TEXT NOT NULL, multiple INTEGER NOT NULL,
-    margin_px INTEGER NOT NULL, descriptor_dim INTEGER NOT NULL, descriptor_dtype TEXT NOT NULL,
-    strategy TEXT NOT NULL, complete INTEGER NOT NULL DEFAULT 0, tiles INTEGER NOT NULL DEFAULT 0,
-    created TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS tile_features (
-    set_id TEXT NOT NULL, zoom INTEGER NOT NULL, x INTEGER NOT NULL, y INTEGER NOT NULL,
-    tile_digest TEXT NOT NULL, n INTEGER NOT NULL, keypoints BLOB NOT NULL,
-    scores BLOB NOT NULL, descriptors BLOB NOT NULL,
-    PRIMARY KEY (set_id, zoom, x, y)) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS window_sets (
+    set_id TEXT PRIMARY KEY, extractor_sha256 TEXT NOT NULL, provider TEXT NOT NULL,
+    multiple INTEGER NOT NULL, photometric TEXT NOT NULL, border_erode_px INTEGER NOT NULL,
+    window_px INTEGER NOT NULL, stride_px INTEGER NOT NULL, descriptor_dim INTEGER NOT NULL,
+    strategy TEXT NOT NULL, complete INTEGER NOT NULL DEFAULT 0,
+    windows INTEGER NOT NULL DEFAULT 0, created TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS window_features (
+    set_id TEXT NOT NULL, zoom INTEGER NOT NULL, gx INTEGER NOT NULL, gy INTEGER NOT NULL,
+    window_digest TEXT NOT NULL, n INTEGER NOT NULL, keypoints BLOB NOT NULL,
+    scores BLOB NOT NULL, descriptors BLOB NOT NULL, checksum TEXT NOT NULL,
+    PRIMARY KEY (set_id, zoom, gx, gy)) WITHOUT ROWID;
 """
+
+_SET_COLUMNS = (
+    "set_id, extractor_sha256, provider, multiple, photometric, border_erode_px, window_px, "
+    "stride_px, descriptor_dim, strategy, complete, windows"
+)
+
+T = TypeVar("T")
+
+
+class FeatureStoreUnavailableError(RuntimeError):
+    """The sidecar is locked by another process or unreadable: raised once per outage (the
+    store then serves nothing until it is tried again)."""
+
+
+class StoredFeaturesCorruptError(RuntimeError):
+    """A stored row does not match its checksum (or cannot be decoded): raised once per row,
+    which is never served."""
 
 
 def sidecar_path(store_path: str | Path) -> Path:
@@ -78,19 +118,55 @@ def tile_digest(blob: bytes | memoryview) -> str:
     return hashlib.blake2b(blob, digest_size=16).hexdigest()
 
 
-def set_id_for(extractor_sha256: str, multiple: int, photometric: str = "none") -> str:
-    """A feature set's key: the extractor engine, its size multiple and the photometric
-    normalisation the tiles were extracted under (``[matcher] photometric``)."""
-    base = f"{extractor_sha256}:hw{int(multiple)}"
-    return base if photometric == "none" else f"{base}:{photometric}"
+def covered_tiles(
+    zoom: int, origin: tuple[int, int], size: tuple[int, int]
+) -> list[tuple[int, int, int]]:
+    """XYZ keys (zoom, x, y) of the tiles the (w, h) = ``size`` window of WORLD px whose top-left
+    pixel is ``origin`` covers, row-major (x wraps around the antimeridian, rows off the map are
+    left out), as :func:`~c3_matcher.tilestore.handles.stitch` reads them."""
+    x0, y0 = int(origin[0]), int(origin[1])
+    w, h = int(size[0]), int(size[1])
+    n = 1 << zoom
+    return [
+        (zoom, tx % n, ty)
+        for ty in range(y0 // TILE_PX, (y0 + h - 1) // TILE_PX + 1)
+        if 0 <= ty < n
+        for tx in range(x0 // TILE_PX, (x0 + w - 1) // TILE_PX + 1)
+    ]
+
+
+def window_digest(
+    keys: Iterable[tuple[int, int, int]], digest_of: Callable[[tuple[int, int, int]], str | None]
+) -> str:
+    """blake2b (16 bytes, hex) of the digests of a window's tiles ``keys`` (``digest_of`` returns
+    None for a missing tile): the window's pixels changed iff this changed."""
+    h = hashlib.blake2b(digest_size=16)
+    for key in keys:
+        h.update(f"{key[0]}/{key[1]}/{key[2]}={digest_of(key) or '-'};".encode())
+    return h.hexdigest()
+
+
+def set_id_for(
+    extractor_sha256: str,
+    provider: str,
+    multiple: int,
+    photometric: str,
+    border_erode_px: int,
+    window_px: int,
+) -> str:
+    """A window set's key: everything a window's extraction depends on (module docstring)."""
+    return (
+        f"{extractor_sha256}:{provider}:hw{int(multiple)}:{photometric}:"
+        f"e{int(border_erode_px)}:w{int(window_px)}"
+    )
 
 
 @dataclass(frozen=True, slots=True)
 class FeatureRequest:
-    """What the flight read path asks for: the extractor engine (file sha256) and its input rule
-    (``multiple``, ``max_long_side``), the keypoint budget, the valid-mask erosion (px) that
-    the extraction path would apply at the window's border, and the photometric normalisation
-    of the flight's preprocessing (part of the set's key)."""
+    """What the flight read path asks for: the extractor engine (file sha256) and the execution
+    provider it runs on, its input rule (``multiple``, ``max_long_side``), the keypoint budget,
+    the valid-mask erosion (px) and the photometric normalisation of the flight's
+    preprocessing."""
 
     extractor_sha256: str
     multiple: int
@@ -98,118 +174,188 @@ class FeatureRequest:
     max_keypoints: int
     border_erode_px: int = 4
     photometric: str = "none"
+    provider: str = "CPUExecutionProvider"
 
-    @property
-    def set_id(self) -> str:
-        return set_id_for(self.extractor_sha256, self.multiple, self.photometric)
+    def set_id(self, window_px: int) -> str:
+        """The key of the set holding ``window_px`` windows for this request."""
+        return set_id_for(
+            self.extractor_sha256,
+            self.provider,
+            self.multiple,
+            self.photometric,
+            self.border_erode_px,
+            window_px,
+        )
 
 
 @dataclass(frozen=True, slots=True)
 class FeatureSet:
+    """One set of stored windows (module docstring); ``complete`` once a build finished."""
+
     set_id: str
     extractor_sha256: str
+    provider: str
     multiple: int
-    margin_px: int
+    photometric: str
+    border_erode_px: int
+    window_px: int
+    stride_px: int
     descriptor_dim: int
-    descriptor_dtype: str
     strategy: str
-    complete: bool
-    tiles: int
+    complete: bool = False
+    windows: int = 0
 
 
 @dataclass(frozen=True, slots=True)
-class TileFeatures:
-    """One tile's stored features (tile px) and the digest of the bytes they came from."""
+class WindowFeatures:
+    """One window's stored features (window px, best score first) and the digest of the tiles
+    they came from."""
 
-    tile_digest: str
+    window_digest: str
     keypoints: NDArray[np.float32]
     scores: NDArray[np.float32]
-    descriptors: NDArray[Any]
+    descriptors: NDArray[np.float32]
+
+    def checksum(self, set_id: str, zoom: int, gx: int, gy: int) -> str:
+        """blake2b (16 bytes, hex) of the row: its key, digest, count and the three arrays."""
+        h = hashlib.blake2b(digest_size=16)
+        h.update(f"{set_id}|{zoom}|{gx}|{gy}|{self.window_digest}|{len(self.scores)}|".encode())
+        for a in (self.keypoints, self.scores, self.descriptors):
+            h.update(np.ascontiguousarray(a, dtype=np.float32).tobytes())
+        return h.hexdigest()
 
 
-class TileFeatureStore:
-    """The sidecar database (read-only by default; ``writable=True`` for the ground command)."""
+class MapFeatureStore:
+    """The sidecar database: read-only and never waiting on a lock by default (the flight);
+    ``writable=True`` for the ground command (the single writer)."""
 
-    def __init__(self, path: str | Path, *, writable: bool = False) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        writable: bool = False,
+        retry_s: float = DEFAULT_RETRY_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.path = Path(path)
+        self._retry_s = float(retry_s)
+        self._clock = clock
         if writable:
             self._db = sqlite3.connect(str(self.path), timeout=60)
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.executescript(_SCHEMA)
             self._db.commit()
-        else:
-            self._db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True)
+        else:  # busy timeout 0: a lock held elsewhere fails at once, the frame never waits
+            self._db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True, timeout=0)
         self._sets: dict[str, FeatureSet | None] = {}
+        self._down_until: float | None = None  # unavailable: nothing served before this time
+        self._reported = False  # this outage was already raised
+        self._refused: set[tuple[str, int, int, int]] = set()
 
     # -- reading ------------------------------------------------------------------------
+    def _read(self, query: Callable[[], T]) -> T | None:
+        """``query`` unless the store is in an outage (None); the first failure of an outage
+        raises FeatureStoreUnavailableError, later ones within it return None."""
+        now = self._clock()
+        if self._down_until is not None and now < self._down_until:
+            return None
+        try:
+            result = query()
+        except sqlite3.Error as exc:
+            self._down_until = now + self._retry_s
+            self._sets.clear()
+            if self._reported:
+                return None
+            self._reported = True
+            raise FeatureStoreUnavailableError(
+                f"{self.path}: {type(exc).__name__}: {exc}; extracting instead, "
+                f"next try in {self._retry_s:g} s"
+            ) from exc
+        self._down_until, self._reported = None, False
+        return result
+
     def feature_set(self, set_id: str) -> FeatureSet | None:
         if set_id not in self._sets:
-            row = self._db.execute(
-                "SELECT set_id, extractor_sha256, multiple, margin_px, descriptor_dim, "
-                "descriptor_dtype, strategy, complete, tiles FROM feature_sets WHERE set_id=?",
-                (set_id,),
-            ).fetchone()
-            self._sets[set_id] = (
-                None
-                if row is None
-                else FeatureSet(
-                    str(row[0]),
-                    str(row[1]),
-                    int(row[2]),
-                    int(row[3]),
-                    int(row[4]),
-                    str(row[5]),
-                    str(row[6]),
-                    bool(row[7]),
-                    int(row[8]),
-                )
+            row = self._read(
+                lambda: self._db.execute(
+                    f"SELECT {_SET_COLUMNS} FROM window_sets WHERE set_id=?", (set_id,)
+                ).fetchone()
             )
+            if row is None and self._down_until is not None:
+                return None  # unavailable: not remembered as absent
+            self._sets[set_id] = None if row is None else _set_of(row)
         return self._sets[set_id]
 
     def feature_sets(self) -> list[FeatureSet]:
-        ids = [str(r[0]) for r in self._db.execute("SELECT set_id FROM feature_sets ORDER BY 1")]
-        self._sets.clear()
-        return [s for s in (self.feature_set(i) for i in ids) if s is not None]
+        rows = self._read(
+            lambda: self._db.execute(
+                f"SELECT {_SET_COLUMNS} FROM window_sets ORDER BY 1"
+            ).fetchall()
+        )
+        return [_set_of(r) for r in rows or ()]
 
-    def tile(self, fset: FeatureSet, zoom: int, x: int, y: int) -> TileFeatures | None:
-        row = self._db.execute(
-            "SELECT tile_digest, n, keypoints, scores, descriptors FROM tile_features "
-            "WHERE set_id=? AND zoom=? AND x=? AND y=?",
-            (fset.set_id, zoom, x, y),
-        ).fetchone()
+    def window(self, fset: FeatureSet, zoom: int, gx: int, gy: int) -> WindowFeatures | None:
+        """Grid window (gx, gy) of ``fset`` at ``zoom``, verified against its checksum; None when
+        not stored (or in an outage). StoredFeaturesCorruptError the first time a corrupt row is
+        read, None afterwards."""
+        key = (fset.set_id, zoom, gx, gy)
+        if key in self._refused:
+            return None
+        row = self._read(
+            lambda: self._db.execute(
+                "SELECT window_digest, n, keypoints, scores, descriptors, checksum "
+                "FROM window_features WHERE set_id=? AND zoom=? AND gx=? AND gy=?",
+                key,
+            ).fetchone()
+        )
         if row is None:
             return None
-        n = int(row[1])
-        dtype = np.float16 if fset.descriptor_dtype == "float16" else np.float32
-        return TileFeatures(
-            str(row[0]),
-            np.frombuffer(row[2], dtype=np.float32).reshape(n, 2),
-            np.frombuffer(row[3], dtype=np.float32).reshape(n),
-            np.frombuffer(row[4], dtype=dtype).reshape(n, fset.descriptor_dim),
-        )
+        try:
+            n, d = int(row[1]), fset.descriptor_dim
+            stored = WindowFeatures(
+                str(row[0]),
+                np.frombuffer(row[2], dtype=np.float32).reshape(n, 2),
+                np.frombuffer(row[3], dtype=np.float32).reshape(n),
+                np.frombuffer(row[4], dtype=np.float32).reshape(n, d),
+            )
+            ok = stored.checksum(*key) == str(row[5])
+        except (ValueError, TypeError) as exc:
+            ok, stored = False, None
+            reason = f"undecodable ({exc})"
+        else:
+            reason = "checksum mismatch"
+        if not ok or stored is None:
+            self._refused.add(key)
+            raise StoredFeaturesCorruptError(
+                f"{self.path}: window {zoom}/{gx}/{gy} of set {fset.set_id[:12]}...: {reason}; "
+                "refused, extracting instead"
+            )
+        return stored
 
-    def done_tiles(self, set_id: str) -> dict[tuple[int, int, int], str]:
-        """(zoom, x, y) -> tile digest of every tile stored in a set."""
+    def done_windows(self, set_id: str) -> dict[tuple[int, int, int], str]:
+        """(zoom, gx, gy) -> window digest of every window stored in a set."""
         return {
             (int(z), int(x), int(y)): str(d)
             for z, x, y, d in self._db.execute(
-                "SELECT zoom, x, y, tile_digest FROM tile_features WHERE set_id=?", (set_id,)
+                "SELECT zoom, gx, gy, window_digest FROM window_features WHERE set_id=?", (set_id,)
             )
         }
 
     # -- writing (ground) ---------------------------------------------------------------
     def ensure_set(self, fset: FeatureSet) -> None:
         self._db.execute(
-            "INSERT OR IGNORE INTO feature_sets (set_id, extractor_sha256, multiple, margin_px, "
-            "descriptor_dim, descriptor_dtype, strategy, complete, tiles, created) "
-            "VALUES (?, ?, ?, ?, ?, ?, ?, 0, 0, ?)",
+            f"INSERT OR IGNORE INTO window_sets ({_SET_COLUMNS}, created) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0, ?)",
             (
                 fset.set_id,
                 fset.extractor_sha256,
+                fset.provider,
                 fset.multiple,
-                fset.margin_px,
+                fset.photometric,
+                fset.border_erode_px,
+                fset.window_px,
+                fset.stride_px,
                 fset.descriptor_dim,
-                fset.descriptor_dtype,
                 fset.strategy,
                 time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             ),
@@ -217,30 +363,33 @@ class TileFeatureStore:
         self._db.commit()
         self._sets.pop(fset.set_id, None)
 
-    def put_tiles(self, set_id: str, rows: Iterable[tuple[int, int, int, TileFeatures]]) -> None:
+    def put_windows(
+        self, set_id: str, rows: Iterable[tuple[int, int, int, WindowFeatures]]
+    ) -> None:
         self._db.executemany(
-            "INSERT OR REPLACE INTO tile_features VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            "INSERT OR REPLACE INTO window_features VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             [
                 (
                     set_id,
                     z,
-                    x,
-                    y,
-                    t.tile_digest,
-                    int(t.keypoints.shape[0]),
-                    np.ascontiguousarray(t.keypoints, np.float32).tobytes(),
-                    np.ascontiguousarray(t.scores, np.float32).tobytes(),
-                    np.ascontiguousarray(t.descriptors).tobytes(),
+                    gx,
+                    gy,
+                    w.window_digest,
+                    int(w.scores.shape[0]),
+                    np.ascontiguousarray(w.keypoints, np.float32).tobytes(),
+                    np.ascontiguousarray(w.scores, np.float32).tobytes(),
+                    np.ascontiguousarray(w.descriptors, np.float32).tobytes(),
+                    w.checksum(set_id, z, gx, gy),
                 )
-                for z, x, y, t in rows
+                for z, gx, gy, w in rows
             ],
         )
         self._db.commit()
 
-    def mark(self, set_id: str, *, complete: bool, tiles: int) -> None:
+    def mark(self, set_id: str, *, complete: bool, windows: int) -> None:
         self._db.execute(
-            "UPDATE feature_sets SET complete=?, tiles=? WHERE set_id=?",
-            (int(complete), int(tiles), set_id),
+            "UPDATE window_sets SET complete=?, windows=? WHERE set_id=?",
+            (int(complete), int(windows), set_id),
         )
         self._db.commit()
         self._sets.pop(set_id, None)
@@ -248,11 +397,28 @@ class TileFeatureStore:
     def close(self) -> None:
         self._db.close()
 
-    def __enter__(self) -> TileFeatureStore:
+    def __enter__(self) -> MapFeatureStore:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _set_of(row: Sequence[Any]) -> FeatureSet:
+    return FeatureSet(
+        str(row[0]),
+        str(row[1]),
+        str(row[2]),
+        int(row[3]),
+        str(row[4]),
+        int(row[5]),
+        int(row[6]),
+        int(row[7]),
+        int(row[8]),
+        str(row[9]),
+        bool(row[10]),
+        int(row[11]),
+    )
 
 
 class FeatureSource(Protocol):
@@ -261,80 +427,74 @@ class FeatureSource(Protocol):
 
     def tile_bytes(self, zoom: int, x: int, y: int) -> memoryview | None: ...
 
-    def feature_store(self) -> TileFeatureStore | None: ...
+    def feature_store(self) -> MapFeatureStore | None: ...
 
 
-def assemble_window(
+def grid_index(origin: tuple[int, int], stride_px: int) -> tuple[int, int]:
+    """The grid window nearest to a window whose top-left pixel is ``origin`` (WORLD px): the
+    (gx, gy) with (gx, gy) * ``stride_px`` closest to it (halves round up)."""
+    return (
+        math.floor(origin[0] / stride_px + 0.5),
+        math.floor(origin[1] / stride_px + 0.5),
+    )
+
+
+def serve_window(
     source: FeatureSource,
     request: FeatureRequest,
     zoom: int,
     origin: tuple[int, int],
     size: tuple[int, int],
 ) -> Features | None:
-    """The features of the (w, h) = ``size`` window of WORLD px whose top-left pixel index is
-    ``origin``, assembled from stored tiles, in window px; None when they cannot be served
-    exactly as the extraction path would see the window (no store or set, a tile without a row
-    or with a stale one, a window the input rule would resize or pad)."""
+    """The stored features of the (w, h) = ``size`` window of WORLD px whose top-left pixel is
+    ``origin``, in its own px: those of the nearest grid window of a set matching ``request``
+    (exactly the window's when it is on the grid), the ``request.max_keypoints`` best. None (the
+    caller extracts) when the store has no such set or window, the window's tiles changed since,
+    or the input rule would resize or pad it. Raises FeatureStoreUnavailableError /
+    StoredFeaturesCorruptError once per outage / corrupt row (see :class:`MapFeatureStore`)."""
     w, h = int(size[0]), int(size[1])
-    if w > request.max_long_side or h > request.max_long_side:
-        return None
-    if w % request.multiple or h % request.multiple:
+    if w != h or w > request.max_long_side or w % request.multiple:
         return None
     store = source.feature_store()
     if store is None:
         return None
-    fset = store.feature_set(request.set_id)
+    fset = store.feature_set(request.set_id(w))
     if fset is None:
         return None
-    x0, y0 = int(origin[0]), int(origin[1])
-    n = 1 << zoom
-    e = int(request.border_erode_px)
-    kps: list[NDArray[np.float32]] = []
-    scs: list[NDArray[np.float32]] = []
-    dss: list[NDArray[Any]] = []
-    found = 0
-    for ty in range(y0 // TILE_PX, (y0 + h - 1) // TILE_PX + 1):
-        for tx in range(x0 // TILE_PX, (x0 + w - 1) // TILE_PX + 1):
-            if not 0 <= ty < n:
-                continue
-            blob = source.tile_bytes(zoom, tx % n, ty)
-            if blob is None:
-                continue  # nodata: no features, as the extraction path masks it
-            stored = store.tile(fset, zoom, tx % n, ty)
-            if stored is None or stored.tile_digest != tile_digest(blob):
-                return None
-            found += 1
-            kp = stored.keypoints + np.array(
-                [tx * TILE_PX - x0, ty * TILE_PX - y0], dtype=np.float32
-            )
-            r = np.rint(kp)
-            keep = (r[:, 0] >= e) & (r[:, 0] <= w - 1 - e) & (r[:, 1] >= e) & (r[:, 1] <= h - 1 - e)
-            kps.append(kp[keep])
-            scs.append(stored.scores[keep])
-            dss.append(stored.descriptors[keep])
-    if found == 0:
+    gx, gy = grid_index(origin, fset.stride_px)
+    stored = store.window(fset, zoom, gx, gy)
+    if stored is None:
         return None
-    keypoints = np.concatenate(kps).astype(np.float32, copy=False)
-    scores = np.concatenate(scs).astype(np.float32, copy=False)
-    descriptors = np.concatenate(dss)
-    order = np.argsort(-scores, kind="stable")[: request.max_keypoints]
+    grid_origin = (gx * fset.stride_px, gy * fset.stride_px)
+    keys = covered_tiles(zoom, grid_origin, (w, h))
+    blobs = {k: source.tile_bytes(*k) for k in keys}
+    digest = window_digest(keys, lambda k: None if blobs[k] is None else tile_digest(blobs[k]))  # type: ignore[arg-type]
+    if digest != stored.window_digest:
+        return None  # the tiles changed since the build: stale
+    n = min(int(request.max_keypoints), stored.scores.shape[0])
+    keypoints = stored.keypoints[:n]
+    dx, dy = grid_origin[0] - int(origin[0]), grid_origin[1] - int(origin[1])
+    if dx or dy:  # off the grid: the nearest window's features, in this window's px
+        keypoints = keypoints + np.array([dx, dy], dtype=np.float32)
     return Features(
-        keypoints=np.ascontiguousarray(keypoints[order]),
-        descriptors=np.ascontiguousarray(descriptors[order], dtype=np.float32),
-        keypoint_scores=np.ascontiguousarray(scores[order]),
+        keypoints=np.ascontiguousarray(keypoints, dtype=np.float32),
+        descriptors=np.ascontiguousarray(stored.descriptors[:n], dtype=np.float32),
+        keypoint_scores=np.ascontiguousarray(stored.scores[:n], dtype=np.float32),
         image_size=(w, h),
     )
 
 
-def stored_sets(store: TileFeatureStore) -> Iterator[Mapping[str, Any]]:
+def stored_sets(store: MapFeatureStore) -> Iterator[Mapping[str, Any]]:
     """The sets of a sidecar as dicts (for ``features info``)."""
     for s in store.feature_sets():
         yield {
             "set_id": s.set_id,
             "strategy": s.strategy,
-            "margin_px": s.margin_px,
+            "provider": s.provider,
+            "photometric": s.photometric,
+            "window_px": s.window_px,
+            "stride_px": s.stride_px,
             "descriptor_dim": s.descriptor_dim,
-            "descriptor_dtype": s.descriptor_dtype,
             "complete": s.complete,
-            "tiles": s.tiles,
+            "windows": s.windows,
         }

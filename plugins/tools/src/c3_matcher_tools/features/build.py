@@ -1,17 +1,18 @@
 """Precompute a tile store's map features for one or more strategies, on Dask.
 
-Each task extracts a batch of tiles in a worker process: for tile (z, x, y) the
-``256 + 2 * margin`` px square centred on it is stitched from the store (missing neighbours are
-nodata, masked), prepared exactly as the flight prepares a tile (``FramePreprocessor
-.prepare_tile``: same valid mask and erosion), run through the strategy's own
-``FeatureBackend.extract`` (the engine the flight loads) with a keypoint budget of the engine's
-full top-K, and only the keypoints in the tile's 256 px core are kept, in tile px. The client
-is the single writer of the sidecar (``<store>.features.sqlite``): idempotent and resumable,
-tiles already stored for the same set with the same bytes digest are skipped.
+The store holds candidate WINDOWS, not tiles (see :mod:`c3_matcher.tilestore.features` for why
+and for the sidecar format): every ``window_px`` square window of WORLD px on a ``stride_px``
+grid that stored tiles cover to at least ``min_coverage`` (or an explicit list of grid windows,
+e.g. those a recorded flight's candidates use) is stitched from the store, prepared exactly as
+the flight prepares a candidate (``FramePreprocessor.prepare_tile`` under the configured
+``[matcher] photometric``) and run through the strategy's own ``FeatureBackend.extract`` (the
+engine and provider the flight loads) with a budget of the engine's whole top-K. The client is
+the single writer of the sidecar (``<store>.features.sqlite``): idempotent and resumable,
+windows already stored for the same set with the same tiles are skipped.
 
 Cluster: ``dask.distributed.LocalCluster(n_workers=workers, threads_per_worker=1)`` by default,
 or ``Client(scheduler)`` for an existing cluster (its workers need this environment and read
-access to the store path). Without Dask installed, ``workers=0`` runs in this process.
+access to the store path). ``workers=0`` runs in this process, without Dask.
 """
 
 from __future__ import annotations
@@ -29,20 +30,30 @@ import numpy as np
 from c3_matcher.config import C3Settings
 from c3_matcher.tilestore.features import (
     FeatureSet,
-    TileFeatures,
-    TileFeatureStore,
+    MapFeatureStore,
+    WindowFeatures,
+    covered_tiles,
+    grid_index,
     set_id_for,
     sidecar_path,
     tile_digest,
+    window_digest,
 )
 from c3_matcher.tilestore.geo import TILE_PX
 
-__all__ = ["BuildReport", "build_features", "extract_tile_features"]
+__all__ = [
+    "BuildReport",
+    "build_features",
+    "extract_window_features",
+    "flight_windows",
+    "grid_windows",
+]
 
-DEFAULT_MARGIN_PX = 64
-EXTRACT_BUDGET = 8192  # keep the engine's whole top-K per tile (capped by the graph's K)
+DEFAULT_WINDOW_PX = TILE_PX  # the store's own tiles as the candidates
+DEFAULT_MIN_COVERAGE = 0.5
+EXTRACT_BUDGET = 8192  # keep the engine's whole top-K per window (capped by the graph's K)
 
-TileKey = tuple[int, int, int]
+WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
 
 
 @dataclass
@@ -50,6 +61,17 @@ class BuildReport:
     store: str
     sidecar: str
     strategies: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class _Facts:
+    """What keys a strategy's set, learnt from its backend in a worker."""
+
+    extractor_sha256: str
+    provider: str
+    multiple: int
+    border_erode_px: int
+    descriptor_dim: int
 
 
 _BACKENDS: dict[tuple[str, str], Any] = {}
@@ -76,46 +98,39 @@ def _backend(strategy: str, settings_json: str) -> Any:
     return _BACKENDS[key]
 
 
-def _backend_facts(backend: Any) -> tuple[str, int]:
-    sha = backend.provenance()["engines"]["extractor"]["file_sha256"]
-    return str(sha), int(backend.input_rule.multiple)
+def _preprocessor(backend: Any, photometric: str) -> Any:
+    """The flight's tile preprocessing (``PipelineMatcher``'s default preprocessor)."""
+    from c3_matcher.preprocess import FramePreprocessor
+
+    return FramePreprocessor(backend.input_rule, photometric=photometric)
 
 
-def extract_tile_features(
+def extract_window_features(
     backend: Any,
     source: Any,
     zoom: int,
-    x: int,
-    y: int,
-    margin_px: int,
-    descriptor_dtype: str = "float32",
-    photometric: str = "none",
-) -> TileFeatures | None:
-    """One tile's features (tile px) extracted with ``margin_px`` of context, through the
-    flight's ``photometric`` normalisation; None when the store has no such tile."""
-    from c3_matcher.preprocess import FramePreprocessor
+    origin: tuple[int, int],
+    window_px: int,
+    photometric: str,
+) -> WindowFeatures:
+    """The features of the ``window_px`` window of WORLD px whose top-left pixel is ``origin``,
+    exactly as the flight extracts a candidate with that window (window px); ValueError when
+    the input rule would resize or pad the window."""
     from c3_matcher.tilestore.handles import stitch
 
-    blob = source.tile_bytes(zoom, x, y)
-    if blob is None:
-        return None
-    size = TILE_PX + 2 * margin_px
-    image = stitch(
-        source, zoom, (x * TILE_PX - margin_px, y * TILE_PX - margin_px), (size, size), "tile"
-    )
-    prepared = FramePreprocessor(backend.input_rule, photometric=photometric).prepare_tile(image)
-    if prepared.working_size != prepared.engine_size:
-        raise ValueError(f"input rule {backend.input_rule} resizes a {size} px tile context")
-    features = backend.extract(prepared)
-    kp = features.keypoints - np.float32(margin_px)
-    r = np.rint(kp)
-    keep = (r[:, 0] >= 0) & (r[:, 0] < TILE_PX) & (r[:, 1] >= 0) & (r[:, 1] < TILE_PX)
-    dtype = np.float16 if descriptor_dtype == "float16" else np.float32
-    return TileFeatures(
-        tile_digest(blob),
-        np.ascontiguousarray(kp[keep], dtype=np.float32),
-        np.ascontiguousarray(features.keypoint_scores[keep], dtype=np.float32),
-        np.ascontiguousarray(features.descriptors[keep].astype(dtype)),
+    keys = covered_tiles(zoom, origin, (window_px, window_px))
+    blobs = {k: source.tile_bytes(*k) for k in keys}
+    digest = window_digest(keys, lambda k: None if blobs[k] is None else tile_digest(blobs[k]))
+    image = stitch(source, zoom, origin, (window_px, window_px), f"window {zoom}/{origin}")
+    prepared = _preprocessor(backend, photometric).prepare_tile(image)
+    if prepared.engine_size != (window_px, window_px):
+        raise ValueError(f"input rule {backend.input_rule} resizes or pads a {window_px} px window")
+    f = backend.extract(prepared)
+    return WindowFeatures(
+        digest,
+        np.ascontiguousarray(f.keypoints, dtype=np.float32),
+        np.ascontiguousarray(f.keypoint_scores, dtype=np.float32),
+        np.ascontiguousarray(f.descriptors, dtype=np.float32),
     )
 
 
@@ -129,32 +144,35 @@ def _task(
     store_path: str,
     strategy: str,
     settings_json: str,
-    margin_px: int,
-    descriptor_dtype: str,
-    tiles: Sequence[TileKey],
-) -> tuple[list[tuple[int, int, int, TileFeatures]], float]:
-    """A worker's batch: [(z, x, y, features)] and the seconds it took."""
+    window_px: int,
+    stride_px: int,
+    windows: Sequence[WindowKey],
+) -> tuple[list[tuple[int, int, int, WindowFeatures]], float]:
+    """A worker's batch: [(zoom, gx, gy, features)] and the seconds it took (a window no stored
+    tile overlaps has no features and is left out)."""
+    from c3_matcher.tilestore.handles import TileNotFoundError
+
     started = time.perf_counter()
     backend = _backend(strategy, settings_json)
+    photometric = C3Settings.model_validate_json(settings_json).matcher.photometric
     source = _open_source(store_path)
+    out: list[tuple[int, int, int, WindowFeatures]] = []
     try:
-        out = []
-        photometric = C3Settings.model_validate_json(settings_json).matcher.photometric
-        for z, x, y in tiles:
-            t = extract_tile_features(
-                backend, source, z, x, y, margin_px, descriptor_dtype, photometric
-            )
-            if t is not None:
-                out.append((z, x, y, t))
+        for z, gx, gy in windows:
+            origin = (gx * stride_px, gy * stride_px)
+            try:
+                f = extract_window_features(backend, source, z, origin, window_px, photometric)
+            except TileNotFoundError:
+                continue
+            out.append((z, gx, gy, f))
     finally:
         source.close()
     return out, time.perf_counter() - started
 
 
-def _set_facts(strategy: str, settings_json: str) -> tuple[str, int, int]:
-    """(extractor sha256, size multiple, descriptor dim) of a strategy, in a worker."""
+def _set_facts(strategy: str, settings_json: str) -> _Facts:
+    """The facts keying a strategy's set, in a worker (the descriptor size from a probe)."""
     backend = _backend(strategy, settings_json)
-    sha, multiple = _backend_facts(backend)
     from c3_matcher.preprocess import PreparedImage
 
     probe = np.kron(
@@ -164,10 +182,63 @@ def _set_facts(strategy: str, settings_json: str) -> tuple[str, int, int]:
     f = backend.extract(
         PreparedImage(np.ascontiguousarray(probe), np.ones((128, 128), bool), np.eye(3), (128, 128))
     )
-    return sha, multiple, int(f.descriptors.shape[1])
+    provenance = backend.provenance()
+    photometric = C3Settings.model_validate_json(settings_json).matcher.photometric
+    return _Facts(
+        str(provenance["engines"]["extractor"]["file_sha256"]),
+        str(provenance["provider"]),
+        int(backend.input_rule.multiple),
+        int(_preprocessor(backend, photometric).border_erode_px),
+        int(f.descriptors.shape[1]),
+    )
 
 
-def _batches(items: list[TileKey], size: int) -> Iterator[list[TileKey]]:
+def grid_windows(
+    tiles: set[tuple[int, int, int]], window_px: int, stride_px: int, min_coverage: float
+) -> list[WindowKey]:
+    """Every (zoom, gx, gy) grid window whose area stored ``tiles`` (zoom, x, y) cover to at
+    least ``min_coverage`` (0 < share <= 1), sorted."""
+    out: list[WindowKey] = []
+    for zoom in sorted({t[0] for t in tiles}):
+        xs = [t[1] for t in tiles if t[0] == zoom]
+        ys = [t[2] for t in tiles if t[0] == zoom]
+        g0x, g0y = (
+            (min(xs) * TILE_PX - window_px) // stride_px,
+            (min(ys) * TILE_PX - window_px) // stride_px,
+        )
+        g1x, g1y = (max(xs) + 1) * TILE_PX // stride_px, (max(ys) + 1) * TILE_PX // stride_px
+        for gy in range(g0y, g1y + 1):
+            for gx in range(g0x, g1x + 1):
+                x0, y0 = gx * stride_px, gy * stride_px
+                covered = 0
+                for z, tx, ty in covered_tiles(zoom, (x0, y0), (window_px, window_px)):
+                    if (z, tx, ty) in tiles:
+                        ax, ay = max(x0, tx * TILE_PX), max(y0, ty * TILE_PX)
+                        bx = min(x0 + window_px, (tx + 1) * TILE_PX)
+                        by = min(y0 + window_px, (ty + 1) * TILE_PX)
+                        covered += max(0, bx - ax) * max(0, by - ay)
+                if covered > 0 and covered >= min_coverage * window_px * window_px:
+                    out.append((zoom, gx, gy))
+    return out
+
+
+def flight_windows(dataset_dir: Path, stride_px: int) -> list[WindowKey]:
+    """The grid windows a recorded flight's candidates are served from (their nearest grid
+    window; the windows themselves when they lie on the grid), sorted."""
+    from c3_matcher.tilestore.handles import mosaic_origin
+    from c3_matcher_tools.dataset.format import load_dataset
+
+    dataset = load_dataset(dataset_dir)
+    size = dataset.candidate_size_px
+    keys = {
+        (c.tile_id.zoom, *grid_index(mosaic_origin(c.tile_id, size), stride_px))
+        for f in dataset.frames
+        for c in f.candidates
+    }
+    return sorted(keys)
+
+
+def _batches(items: list[WindowKey], size: int) -> Iterator[list[WindowKey]]:
     for i in range(0, len(items), size):
         yield items[i : i + size]
 
@@ -177,22 +248,42 @@ def build_features(
     strategies: Sequence[str],
     settings: C3Settings,
     *,
+    window_px: int = DEFAULT_WINDOW_PX,
+    stride_px: int | None = None,
+    min_coverage: float = DEFAULT_MIN_COVERAGE,
+    windows: Sequence[WindowKey] | None = None,
     workers: int = 2,
     scheduler: str | None = None,
-    margin_px: int = DEFAULT_MARGIN_PX,
-    descriptor_dtype: str = "float32",
     batch_size: int = 8,
     progress: Callable[[str], None] | None = None,
 ) -> BuildReport:
-    """Precompute ``store``'s map features for each strategy (see the module docstring)."""
+    """Precompute ``store``'s map features for each strategy (see the module docstring):
+    ``window_px`` windows on a ``stride_px`` grid (default: ``window_px``), every window the
+    store covers to ``min_coverage``, or only ``windows`` (zoom, gx, gy) when given."""
     say = progress or (lambda line: print(line, file=sys.stderr, flush=True))
-    if margin_px < 0 or (2 * margin_px) % 32:
-        raise ValueError(f"margin_px must be >= 0 with 2 * margin a multiple of 32: {margin_px}")
+    stride = int(stride_px or window_px)
+    if not 16 <= window_px <= 8192 or not 1 <= stride <= window_px:
+        raise ValueError(
+            f"window must be in [16, 8192] px and stride in [1, window]: {window_px}, {stride}"
+        )
+    if not 0.0 < min_coverage <= 1.0:
+        raise ValueError(f"min_coverage must be in (0, 1], got {min_coverage}")
     store = Path(store)
     settings_json = settings.model_dump_json()
     with _open_source(str(store)) as source:
-        all_tiles: list[TileKey] = [(z, x, y) for z in source.zooms() for x, y in source.tiles(z)]
-        digests = {k: tile_digest(source.tile_bytes(*k) or b"") for k in all_tiles}
+        tiles = {(z, x, y) for z in source.zooms() for x, y in source.tiles(z)}
+        digests = {k: tile_digest(source.tile_bytes(*k) or b"") for k in tiles}
+    todo_all = (
+        sorted(set(windows))
+        if windows is not None
+        else grid_windows(tiles, window_px, stride, min_coverage)
+    )
+    wanted = {
+        (z, gx, gy): window_digest(
+            covered_tiles(z, (gx * stride, gy * stride), (window_px, window_px)), digests.get
+        )
+        for z, gx, gy in todo_all
+    }
     report = BuildReport(str(store), str(sidecar_path(store)))
     client: Any = None
     cluster: Any = None
@@ -207,38 +298,53 @@ def build_features(
             )
             client = Client(cluster)
     try:
-        with TileFeatureStore(sidecar_path(store), writable=True) as sidecar:
+        with MapFeatureStore(sidecar_path(store), writable=True) as sidecar:
             for strategy in strategies:
                 if client is not None:
-                    sha, multiple, dim = client.submit(
-                        _set_facts, strategy, settings_json, pure=False
-                    ).result()
+                    facts = client.submit(_set_facts, strategy, settings_json, pure=False).result()
                 else:
-                    sha, multiple, dim = _set_facts(strategy, settings_json)
-                set_id = set_id_for(sha, multiple, settings.matcher.photometric)
-                fset = FeatureSet(
-                    set_id, sha, multiple, margin_px, dim, descriptor_dtype, strategy, False, 0
+                    facts = _set_facts(strategy, settings_json)
+                photometric = settings.matcher.photometric
+                set_id = set_id_for(
+                    facts.extractor_sha256,
+                    facts.provider,
+                    facts.multiple,
+                    photometric,
+                    facts.border_erode_px,
+                    window_px,
                 )
                 existing = sidecar.feature_set(set_id)
-                if existing is not None and (
-                    existing.margin_px != margin_px or existing.descriptor_dtype != descriptor_dtype
-                ):
+                if existing is not None and existing.stride_px != stride:
                     raise ValueError(
-                        f"{sidecar.path}: set {set_id} was built with margin "
-                        f"{existing.margin_px} px, {existing.descriptor_dtype}; remove it first"
+                        f"{sidecar.path}: set {set_id[:12]}... was built with a stride of "
+                        f"{existing.stride_px} px, not {stride}; remove the sidecar first"
                     )
-                sidecar.ensure_set(fset)
-                done = sidecar.done_tiles(set_id)
-                todo = [k for k in all_tiles if done.get(k) != digests[k]]
-                skipped = len(all_tiles) - len(todo)
+                sidecar.ensure_set(
+                    FeatureSet(
+                        set_id,
+                        facts.extractor_sha256,
+                        facts.provider,
+                        facts.multiple,
+                        photometric,
+                        facts.border_erode_px,
+                        window_px,
+                        stride,
+                        facts.descriptor_dim,
+                        strategy,
+                    )
+                )
+                done = sidecar.done_windows(set_id)
+                todo = [k for k in todo_all if done.get(k) != wanted[k]]
+                skipped = len(todo_all) - len(todo)
                 say(
-                    f"features {strategy}: {len(all_tiles)} tiles, {skipped} already done, "
-                    f"{len(todo)} to extract ({set_id[:12]}..., margin {margin_px} px)"
+                    f"features {strategy}: {len(todo_all)} windows of {window_px} px "
+                    f"(stride {stride} px), {skipped} already done, {len(todo)} to extract "
+                    f"({set_id[:12]}...)"
                 )
                 started = time.perf_counter()
                 busy_s = 0.0
                 written = 0
-                args = (str(store.resolve()), strategy, settings_json, margin_px, descriptor_dtype)
+                args = (str(store.resolve()), strategy, settings_json, window_px, stride)
                 batches = list(_batches(todo, batch_size))
                 if client is not None:
                     from dask.distributed import as_completed
@@ -248,27 +354,29 @@ def build_features(
                 else:
                     results = (_task(*args, b) for b in batches)
                 for rows, seconds in results:
-                    sidecar.put_tiles(set_id, rows)
+                    sidecar.put_windows(set_id, rows)
                     busy_s += seconds
                     written += len(rows)
                     elapsed = time.perf_counter() - started
                     say(
-                        f"features {strategy}: {written}/{len(todo)} tiles, "
-                        f"{written / max(elapsed, 1e-9):.2f} tiles/s"
+                        f"features {strategy}: {written}/{len(todo)} windows, "
+                        f"{written / max(elapsed, 1e-9):.2f} windows/s"
                     )
                 elapsed = time.perf_counter() - started
                 cores = _cores(client, workers)
-                sidecar.mark(set_id, complete=True, tiles=len(sidecar.done_tiles(set_id)))
+                sidecar.mark(set_id, complete=True, windows=len(sidecar.done_windows(set_id)))
                 report.strategies[strategy] = {
                     "set_id": set_id,
-                    "tiles": len(all_tiles),
+                    "window_px": window_px,
+                    "stride_px": stride,
+                    "windows": len(todo_all),
                     "skipped": skipped,
                     "extracted": written,
                     "seconds": elapsed,
                     "worker_seconds": busy_s,
                     "cores": cores,
-                    "tiles_per_s": written / elapsed if elapsed > 0 else 0.0,
-                    "tiles_per_s_per_core": (written / elapsed / cores) if elapsed > 0 else 0.0,
+                    "windows_per_s": written / elapsed if elapsed > 0 else 0.0,
+                    "windows_per_s_per_core": (written / elapsed / cores) if elapsed > 0 else 0.0,
                 }
     finally:
         if client is not None:

@@ -1,5 +1,5 @@
-"""``c3-matcher features build STORE [--strategy NAME ...] [--workers N | --scheduler ADDRESS]``
-and ``c3-matcher features info STORE``."""
+"""``c3-matcher features build STORE|FLIGHT [--strategy NAME ...] [--window PX] [--stride PX]
+[--workers N | --scheduler ADDRESS]`` and ``c3-matcher features info STORE``."""
 
 from __future__ import annotations
 
@@ -18,10 +18,15 @@ def register_features_command(commands: CommandRegistry) -> None:
     group = commands.group("features", help="map features computed once on the ground")
     b = group.add(
         "build",
-        help="precompute every tile's features for each strategy's extractor (Dask), "
-        "stored beside the store in <STORE>.features.sqlite; resumable",
+        help="precompute the features of every candidate window on a grid for each strategy's "
+        "extractor (Dask), stored beside the store in <STORE>.features.sqlite; resumable",
     )
-    b.add_argument("store", type=Path, help="an MBTiles tile store")
+    b.add_argument(
+        "store",
+        type=Path,
+        help="an MBTiles tile store, or a flight dataset directory (its store; window and "
+        "stride default to its candidates' size and grid)",
+    )
     b.add_argument(
         "--strategy",
         action="append",
@@ -36,57 +41,109 @@ def register_features_command(commands: CommandRegistry) -> None:
         help="local Dask cluster of N worker processes (0: in this process, no Dask)",
     )
     where.add_argument("--scheduler", default=None, help="an existing Dask scheduler ADDRESS")
-    b.add_argument("--margin", type=int, default=64, help="context margin px around each tile")
     b.add_argument(
-        "--descriptor-dtype",
-        choices=("float32", "float16"),
-        default="float32",
-        help="stored descriptor precision",
+        "--window",
+        type=int,
+        default=None,
+        help="candidate window size, px (default: 256, a store's own tiles; a flight's "
+        "candidate size)",
+    )
+    b.add_argument(
+        "--stride",
+        type=int,
+        default=None,
+        help="grid step between stored windows, px (default: the window; a flight's grid); a "
+        "candidate off the grid is served the nearest window's features",
+    )
+    b.add_argument(
+        "--min-coverage",
+        type=float,
+        default=0.5,
+        help="store a window when stored tiles cover at least this share of it",
+    )
+    b.add_argument(
+        "--flight-candidates",
+        action="store_true",
+        help="with a flight dataset: only the windows its recorded candidates use",
     )
     b.add_argument("--batch", type=int, default=8, help="tiles per Dask task")
     b.add_argument("--json", action="store_true", help="print the report as JSON")
     b.set_defaults(handler=_build)
     i = group.add("info", help="the feature sets stored beside a tile store")
-    i.add_argument("store", type=Path)
+    i.add_argument("store", type=Path, help="an MBTiles tile store")
+    i.add_argument("--json", action="store_true", help="print the sets as JSON")
     i.set_defaults(handler=_info)
 
 
 def _build(args: argparse.Namespace, settings: C3Settings) -> int:
-    from c3_matcher_tools.features.build import build_features
+    from c3_matcher_tools.features.build import DEFAULT_WINDOW_PX, build_features, flight_windows
 
-    if not args.store.is_file():
-        print(f"features build: no such store: {args.store}", file=sys.stderr)
+    path: Path = args.store
+    store, window, stride = path, args.window, args.stride
+    windows = None
+    if path.is_dir():
+        from c3_matcher.errors import InvalidInputError
+        from c3_matcher_tools.dataset.format import load_dataset
+
+        try:
+            dataset = load_dataset(path)
+        except InvalidInputError as exc:
+            print(f"features build: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        store = dataset.store_path
+        window = window or dataset.candidate_size_px
+        stride = stride or int(dataset.meta.get("spec", {}).get("grid_px") or window)
+        if args.flight_candidates:
+            windows = flight_windows(path, stride)
+    elif args.flight_candidates:
+        print("features build: --flight-candidates needs a flight dataset", file=sys.stderr)
         return EXIT_USAGE
-    report = build_features(
-        args.store,
-        args.strategy or [settings.matcher.strategy],
-        settings,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        margin_px=args.margin,
-        descriptor_dtype=args.descriptor_dtype,
-        batch_size=args.batch,
-    )
+    if not store.is_file():
+        print(f"features build: no such store: {store}", file=sys.stderr)
+        return EXIT_USAGE
+    window = window or DEFAULT_WINDOW_PX
+    try:
+        report = build_features(
+            store,
+            args.strategy or [settings.matcher.strategy],
+            settings,
+            window_px=window,
+            stride_px=stride,
+            min_coverage=args.min_coverage,
+            windows=windows,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            batch_size=args.batch,
+        )
+    except ValueError as exc:
+        print(f"features build: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     if args.json:
         print(json.dumps(report.__dict__, indent=2))
         return EXIT_OK
     for name, r in report.strategies.items():
         print(
-            f"{name}: {r['extracted']} extracted, {r['skipped']} already done of {r['tiles']} "
-            f"tiles in {r['seconds']:.1f} s on {r['cores']} cores: "
-            f"{r['tiles_per_s_per_core']:.2f} tiles/s/core -> {report.sidecar}"
+            f"{name}: {r['extracted']} extracted, {r['skipped']} already done of "
+            f"{r['windows']} windows ({r['window_px']} px, stride {r['stride_px']} px) in "
+            f"{r['seconds']:.1f} s on {r['cores']} cores: "
+            f"{r['windows_per_s_per_core']:.2f} windows/s/core -> {report.sidecar}"
         )
     return EXIT_OK
 
 
 def _info(args: argparse.Namespace, settings: C3Settings) -> int:
-    from c3_matcher.tilestore.features import TileFeatureStore, sidecar_path, stored_sets
+    from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path, stored_sets
 
     path = sidecar_path(args.store)
-    if not path.is_file():
-        print(f"{args.store}: no precomputed features ({path} absent)")
-        return EXIT_OK
-    with TileFeatureStore(path) as store:
-        for s in stored_sets(store):
-            print(json.dumps(s))
+    sets: list[dict[str, object]] = []
+    if path.is_file():
+        with MapFeatureStore(path) as store:
+            sets = [dict(s) for s in stored_sets(store)]
+    if args.json:
+        print(json.dumps({"store": str(args.store), "sidecar": str(path), "sets": sets}, indent=2))
+    elif not sets:
+        print(f"{args.store}: no precomputed features ({path} absent or empty)")
+    else:
+        for s in sets:
+            print(", ".join(f"{k}: {v}" for k, v in s.items()))
     return EXIT_OK
