@@ -87,16 +87,18 @@ class MatcherSettings(_Section):
         "(0: re-extract every tile every frame)",
     )
     stored_features: bool = Field(
-        False,
-        description="use a tile store's precomputed map features (c3-matcher features build) "
-        "when they match the extractor engine; False: always extract tiles in flight",
+        True,
+        description="serve a candidate's features from the tile store's precomputed map "
+        "features (c3-matcher features build) when it has the window for this extractor "
+        "engine, provider and preprocessing (the same bits extraction gives); otherwise, or "
+        "False, the candidate's window is extracted in flight",
     )
     photometric: Literal["none", "grey", "clahe"] = Field(
         "clahe",
         description="photometric normalisation of query and tiles before extraction: none; "
         "grey (luminance only); clahe (grey + local contrast equalisation in 64 px cells; "
         "chosen by measurement, README 'Measures against the seasonal gap'); stored map "
-        "features are served only with none",
+        "features are served only when built under the same one",
     )
     geometric_prior: bool = Field(
         True,

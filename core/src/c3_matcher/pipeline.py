@@ -100,7 +100,7 @@ class PipelineSettings:
     min_inliers_threshold: int = 60
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
-    use_stored_features: bool = False  # opt-in until assembly matches extraction (README)
+    use_stored_features: bool = True  # a store's map features when built (else: extract)
     # issue 13: only acts when the frame had attitude and height; defaults from [matcher]
     geometric_prior: bool = True
     prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
@@ -609,7 +609,9 @@ class PipelineMatcher:
     ) -> tuple[PreparedImage, Features] | None:
         """The candidate's precomputed map features, or None (extract): a handle without
         ``stored_features``, no or stale stored features, a window the rule would resize. A
-        failure here never drops the candidate: it falls back to extraction."""
+        failure here never drops the candidate: it falls back to extraction; the store raises
+        once per outage (locked sidecar) or corrupt row, so the WARNING (and its FDR record)
+        comes once, not every frame."""
         serve = getattr(candidate.tile_pixels_handle, "stored_features", None)
         if not callable(serve) or self._feature_request is None:
             return None
@@ -835,11 +837,13 @@ def _turned(image: PreparedImage, rotation_deg: int) -> PreparedImage:
 
 def _feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureRequest | None:
     """What to ask a tile store's precomputed features for: the backend's extractor engine
-    (file sha256 from its provenance), input rule, photometric normalisation and keypoint budget;
+    (file sha256) and execution provider from its provenance, input rule, photometric normalisation and keypoint budget;
     None when the backend does not say (its tiles are then always extracted)."""
     try:
-        engines = backend.provenance().get("engines") or {}
+        provenance = backend.provenance()
+        engines = provenance.get("engines") or {}
         sha = (engines.get("extractor") or {}).get("file_sha256")
+        provider = str(provenance.get("provider") or "")
         rule = backend.input_rule
     except Exception:
         return None
@@ -850,7 +854,13 @@ def _feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> Feature
     if not isinstance(sha, str) or not sha or not isinstance(budget, int) or budget < 1:
         return None
     return FeatureRequest(
-        sha, rule.multiple, rule.max_long_side, budget, pre.border_erode_px, pre.photometric
+        sha,
+        rule.multiple,
+        rule.max_long_side,
+        budget,
+        pre.border_erode_px,
+        pre.photometric,
+        provider,
     )
 
 

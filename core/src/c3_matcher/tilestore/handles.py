@@ -89,7 +89,7 @@ class StoredTileHandle:
 
     def stored_features(self, request: FeatureRequest) -> Features | None:
         """This tile's features from the store's precomputed map features (tile px), or None:
-        see :func:`c3_matcher.tilestore.features.assemble_window`."""
+        see :func:`c3_matcher.tilestore.features.serve_window`."""
         z, x, y = self._key
         return _stored_window(self._source, request, z, (x * TILE_PX, y * TILE_PX), TILE_PX)
 
@@ -128,8 +128,8 @@ class MosaicTileHandle:
         return self._mosaic().copy()
 
     def stored_features(self, request: FeatureRequest) -> Features | None:
-        """The window's features assembled from the store's precomputed map features (window
-        px), or None: see :func:`c3_matcher.tilestore.features.assemble_window`."""
+        """The window's features from the store's precomputed map features (window
+        px), or None: see :func:`c3_matcher.tilestore.features.serve_window`."""
         return _stored_window(
             self._source, request, self._tile_id.zoom, self.origin_world_px, self._size
         )
@@ -158,9 +158,9 @@ def _stored_window(
 ) -> Features | None:
     if not callable(getattr(source, "feature_store", None)):
         return None  # a store without precomputed features (optional method)
-    from c3_matcher.tilestore.features import assemble_window
+    from c3_matcher.tilestore.features import serve_window
 
-    return assemble_window(source, request, zoom, origin, (size_px, size_px))  # type: ignore[arg-type]
+    return serve_window(source, request, zoom, origin, (size_px, size_px))  # type: ignore[arg-type]
 
 
 def stitch(

@@ -40,7 +40,7 @@ from pathlib import Path
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.base import TileStoreBase
-from c3_matcher.tilestore.features import TileFeatureStore, sidecar_path
+from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
 
 __all__ = ["MBTilesStore", "TileDigestError", "TileStoreUnusableError"]
 
@@ -68,7 +68,7 @@ class MBTilesStore(TileStoreBase):
         self._connections: list[sqlite3.Connection] = []
         self._conn_lock = threading.Lock()
         self._unusable: str | None = None
-        self._features: TileFeatureStore | None = None
+        self._features: MapFeatureStore | None = None
         try:
             db = self._db
             tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
@@ -101,12 +101,12 @@ class MBTilesStore(TileStoreBase):
                 self._connections.append(db)
         return db
 
-    def feature_store(self) -> TileFeatureStore | None:
+    def feature_store(self) -> MapFeatureStore | None:
         """The precomputed map features beside the store (``<store>.features.sqlite``), or None."""
         if self._features is None:
             side = sidecar_path(self._path)
             if side.is_file():
-                self._features = TileFeatureStore(side)
+                self._features = MapFeatureStore(side)
         return self._features
 
     @property
