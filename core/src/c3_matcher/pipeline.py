@@ -837,8 +837,9 @@ def _turned(image: PreparedImage, rotation_deg: int) -> PreparedImage:
 
 def _feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureRequest | None:
     """What to ask a tile store's precomputed features for: the backend's extractor engine
-    (file sha256) and execution provider from its provenance, input rule, photometric normalisation and keypoint budget;
-    None when the backend does not say (its tiles are then always extracted)."""
+    (file sha256) and execution provider from its provenance, input rule, photometric
+    normalisation and keypoint budget; None when the backend does not say (its tiles are then
+    always extracted)."""
     try:
         provenance = backend.provenance()
         engines = provenance.get("engines") or {}
