@@ -2,7 +2,8 @@
 
 ``engine_dir``: the real ONNX engines the installed plugins declare, built once per machine by
 the real engine compiler (``c3-matcher engines build``'s code path) and cached in
-``$C3_MATCHER_ENGINE_DIR`` or ``<repo>/.engines/``; valid engines are reused, so only a fresh
+``$C3_MATCHER_ENGINE_DIR`` or the default engine directory (``<repo>/.engines/`` for this
+checkout, where ``c3-matcher`` itself looks); valid engines are reused, so only a fresh
 clone pays the build (about two minutes on two cores). Nothing is skipped: a test that needs
 engines gets them built.
 """
@@ -21,9 +22,10 @@ REPO = Path(__file__).resolve().parent
 @pytest.fixture(scope="session")
 def engine_dir() -> Path:
     from c3_matcher.compose import build_plugin_host
+    from c3_matcher.engines.store import default_engine_dir
     from c3_matcher_tools.engines.compiler import ensure_engines
 
-    directory = Path(os.environ.get("C3_MATCHER_ENGINE_DIR", REPO / ".engines"))
+    directory = Path(os.environ.get("C3_MATCHER_ENGINE_DIR") or default_engine_dir())
     specs = build_plugin_host().engine_specs()
     assert specs, "no installed plugin declares an engine: run scripts/setup"
     ensure_engines(specs, directory, log=lambda line: print(line, file=sys.stderr))

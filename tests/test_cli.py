@@ -126,7 +126,7 @@ def test_config_refuses_a_bad_file_naming_the_field(tmp_path):
     bad.write_text("[matcher]\nmin_inliers_threshold = 1\n")
     proc = c3(["--config", str(bad), "config"], {})
     assert proc.returncode == 2 and "matcher.min_inliers_threshold" in proc.stderr
-    good = c3(["config"], {"C3_MATCHER_MATCHER__MAX_KEYPOINTS": "1024"})
+    good = c3(["config", "--json"], {"C3_MATCHER_MATCHER__MAX_KEYPOINTS": "1024"})
     assert good.returncode == 0
     assert json.loads(good.stdout)["matcher"]["max_keypoints"] == 1024
 
@@ -149,10 +149,10 @@ def test_non_utf8_config_exits_2(tmp_path):
 def test_config_option_after_the_subcommand_and_version(tmp_path):
     good = tmp_path / "c3.toml"
     good.write_text("[matcher]\nmin_inliers_threshold = 77\n")
-    proc = c3(["config", "--config", str(good)], {})
+    proc = c3(["config", "--json", "--config", str(good)], {})
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["matcher"]["min_inliers_threshold"] == 77
-    proc = c3(["config", f"--config={good}"], {})
+    proc = c3(["config", "--json", f"--config={good}"], {})
     assert json.loads(proc.stdout)["matcher"]["min_inliers_threshold"] == 77
     version = c3(["--version"], {})
     assert version.returncode == 0 and version.stdout.startswith("c3-matcher ")

@@ -193,7 +193,7 @@ def test_profile_installs_offline_and_behaves_as_the_matrix_says(profile, wheelh
             assert proc.returncode == 2, proc.stderr[-3000:]
             assert "not linked" in proc.stderr and profile in proc.stderr
             assert "BUILD_MATCHER_" in proc.stderr
-    config = env.c3("config")
+    config = env.c3("config", "--json")
     assert config.returncode == 0 and json.loads(config.stdout)["matcher"]["strategy"]
 
 

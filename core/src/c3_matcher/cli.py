@@ -88,8 +88,40 @@ def _cmd_plugins(args: argparse.Namespace, settings: C3Settings) -> int:
 
 
 def _cmd_config(args: argparse.Namespace, settings: C3Settings) -> int:
-    print(json.dumps(settings.model_dump(mode="json"), indent=2))
+    data = settings.model_dump(mode="json")
+    print(json.dumps(data, indent=2) if args.json else to_toml(data), end="\n")
     return EXIT_OK
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)  # a JSON string is a valid TOML basic string
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"no TOML form for {type(value).__name__}")
+
+
+def to_toml(data: dict[str, Any], prefix: str = "") -> str:
+    """``data`` (JSON-able: tables of scalars, lists and tables) as a TOML document that
+    ``load_settings`` reads back; a ``None`` value (unset: the default applies) is written as a
+    comment."""
+    lines: list[str] = []
+    tables: list[tuple[str, dict[str, Any]]] = []
+    for key, value in data.items():
+        if isinstance(value, dict):
+            tables.append((f"{prefix}{key}", value))
+        elif value is None:
+            lines.append(f"# {key}: unset, the default applies")
+        else:
+            lines.append(f"{key} = {_toml_value(value)}")
+    for name, table in tables:
+        lines.append(f"\n[{name}]")
+        lines.append(to_toml(table, f"{name}.").strip("\n"))
+    return "\n".join(line for line in lines if line).strip("\n")
 
 
 def _register_builtin(commands: CommandRegistry) -> None:
@@ -100,9 +132,11 @@ def _register_builtin(commands: CommandRegistry) -> None:
     p = commands.add("plugins", help="list strategies, distributions, profile and flags")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(handler=_cmd_plugins)
-    commands.add(
-        "config", help="print the effective configuration (or refuse a bad one)"
-    ).set_defaults(handler=_cmd_config)
+    c = commands.add(
+        "config", help="print the effective configuration as TOML (or refuse a bad one)"
+    )
+    c.add_argument("--json", action="store_true", help="machine-readable output")
+    c.set_defaults(handler=_cmd_config)
     register_engines_commands(commands)
     register_match_command(commands)
 

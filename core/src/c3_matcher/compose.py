@@ -130,6 +130,14 @@ def compose_root(
         config.fdr.path, clock, max_bytes=config.fdr.max_bytes
     )
     handle = configure_logging(fdr, level=config.logging.level) if configure_logs else None
+    if "c13_fdr" not in helpers and "path" not in config.fdr.model_fields_set:
+        log_event(
+            "INFO",
+            "c3.fdr.default_path",
+            f"flight data recorder writing to {config.fdr.path} (the default [fdr] path; set "
+            "[fdr] path, C3_MATCHER_FDR__PATH or pass c13_fdr to change it)",
+            path=str(config.fdr.path),
+        )
     try:
         host = plugin_host if plugin_host is not None else build_plugin_host()
         for error in host.errors:

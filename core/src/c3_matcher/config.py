@@ -144,7 +144,9 @@ class EngineSettings(_Section):
     """The ``[engines]`` table."""
 
     directory: Path = Field(
-        default_factory=default_engine_dir, description="where engines and manifests live"
+        default_factory=default_engine_dir,
+        description="where engines and manifests live (default: <checkout>/.engines when run "
+        "from a source checkout, else ~/.cache/c3-matcher/engines)",
     )
     tensorrt_cache_dir: Path = Field(
         default_factory=lambda: Path(user_cache_dir(APP_NAME)) / "tensorrt",
@@ -229,8 +231,9 @@ class FdrSettings(_Section):
     """The ``[fdr]`` table."""
 
     path: Path = Field(
-        Path(user_data_dir(APP_NAME)) / "fdr" / "c3_fdr.jsonl",
-        description="live FDR segment (JSON Lines)",
+        default_factory=lambda: Path(user_data_dir(APP_NAME)) / "fdr" / "c3_fdr.jsonl",
+        description="live FDR segment (JSON Lines); default in the user data directory "
+        "(~/.local/share/c3-matcher/fdr on Linux)",
     )
     max_bytes: int = Field(64 * 1024 * 1024, ge=1024, description="rotate above this size")
 

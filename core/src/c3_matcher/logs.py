@@ -1,14 +1,20 @@
-"""Structured logging (AZ-266): loguru, configured once by the composition root.
+"""Structured logging: loguru, configured once by the composition root.
 
 A good library citizen: ``configure_logging`` only adds sinks and its handle removes only those,
-so a program that embeds the matcher keeps its own sinks, before and after ``close()``. A
-``c3-matcher`` command owns its process and calls ``claim_stderr()`` first: loguru's default
-plain-text stderr handler goes, so every stderr log line of a command is JSON.
+so a program that embeds the matcher keeps its own sinks, before and after ``close()``, and they
+receive the matcher's records as before. The one exception is loguru's default plain-text
+stderr handler, installed by loguru at import rather than by the program: while it is still in
+place, the matcher's JSON sink would print each of the matcher's records a second time on
+stderr, below the configured level too. ``configure_logging`` therefore swaps it for the same
+handler without the matcher's records (every other record still reaches it), and ``close()``
+puts the plain default back. A ``c3-matcher`` command owns its process and calls
+``claim_stderr()`` first: loguru's default handler goes, so every stderr log line of a command
+is JSON.
 
 Every record carries a ``kind`` (``logger.bind(kind=...)``); the stderr sink writes one JSON
 object per line. ERROR and WARNING records are also forwarded to the FDR as records of their own
-kinds, ``log.error`` and ``log.warning`` (DECISIONS 15), so the matcher's own FDR kinds keep
-exactly one record per event.
+kinds, ``log.error`` and ``log.warning``, so the matcher's own FDR kinds keep exactly one record
+per event.
 """
 
 from __future__ import annotations
@@ -28,7 +34,13 @@ from c3_matcher.protocols import FdrClient
 if TYPE_CHECKING:
     from loguru import Message, Record
 
-__all__ = ["LoggingHandle", "claim_stderr", "configure_logging", "log_event"]
+__all__ = [
+    "LoggingHandle",
+    "claim_stderr",
+    "configure_logging",
+    "is_matcher_record",
+    "log_event",
+]
 
 FORWARDED_LEVELS = {"WARNING": "log.warning", "ERROR": "log.error", "CRITICAL": "log.error"}
 
@@ -51,17 +63,30 @@ def _record_to_dict(record: Record) -> dict[str, Any]:
     }
 
 
+def is_matcher_record(record: Record) -> bool:
+    """A record of the matcher or of a plugin: it carries a ``kind`` (``log_event``) or comes
+    from a ``c3_matcher*`` module."""
+    return "kind" in record["extra"] or (record["name"] or "").startswith("c3_matcher")
+
+
 @dataclass
 class LoggingHandle:
-    """What ``configure_logging`` installed; ``close()`` removes its sinks."""
+    """What ``configure_logging`` installed; ``close()`` removes its sinks (and puts loguru's
+    plain default stderr handler back when ``configure_logging`` had swapped it)."""
 
     sink_ids: list[int]
+    swapped_default: int | None = None
 
     def close(self) -> None:
         for sink_id in self.sink_ids:
             with contextlib.suppress(ValueError):
                 logger.remove(sink_id)
         self.sink_ids.clear()
+        if self.swapped_default is not None:
+            with contextlib.suppress(ValueError):
+                logger.remove(self.swapped_default)
+                logger.add(sys.stderr)
+            self.swapped_default = None
 
 
 def configure_logging(
@@ -70,21 +95,38 @@ def configure_logging(
     level: str = "INFO",
     stream: TextIO | None = None,
 ) -> LoggingHandle:
-    """Add the JSON stderr sink (at ``level``) and the ERROR/WARN forwarder to ``fdr``; sinks
-    added by anyone else are left alone."""
+    """Add the JSON stderr sink (at ``level``) and the ERROR/WARN forwarder to ``fdr``, both
+    for the matcher's records only (``is_matcher_record``); sinks added by anyone else are left
+    alone, loguru's untouched default handler aside (module docstring)."""
     out = stream if stream is not None else sys.stderr
 
     def json_sink(message: Message) -> None:
         out.write(json.dumps(_record_to_dict(message.record), separators=(",", ":")) + "\n")
         out.flush()
 
-    ids = [logger.add(json_sink, level=level.upper(), format="{message}")]
+    swapped = _swap_default_handler()
+    ours = is_matcher_record
+    ids = [logger.add(json_sink, level=level.upper(), format="{message}", filter=ours)]
     if fdr is not None:
-        ids.append(logger.add(_fdr_forwarder(fdr), level="WARNING", format="{message}", catch=True))
-    return LoggingHandle(ids)
+        forwarder = _fdr_forwarder(fdr)
+        ids.append(
+            logger.add(forwarder, level="WARNING", format="{message}", filter=ours, catch=True)
+        )
+    return LoggingHandle(ids, swapped)
 
 
 _LOGURU_DEFAULT_HANDLER = 0
+
+
+def _swap_default_handler() -> int | None:
+    """Replace loguru's import-time stderr handler, if it is still installed, by the same
+    handler minus the matcher's records; the replacement's id, or ``None`` when there was none
+    (the program removed it or configured loguru itself)."""
+    try:
+        logger.remove(_LOGURU_DEFAULT_HANDLER)
+    except ValueError:
+        return None
+    return logger.add(sys.stderr, filter=lambda record: not is_matcher_record(record))
 
 
 def claim_stderr() -> None:

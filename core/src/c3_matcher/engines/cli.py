@@ -118,8 +118,12 @@ def _verify(args: argparse.Namespace, settings: C3Settings) -> int:
     if not outcomes:
         _err(f"no engines in {ctx.engine_dir}; build them with `{BUILD_COMMAND}`")
         return 1
-    for o in outcomes:
-        print(f"{'OK  ' if o.ok else 'FAIL'} {o.path.name}: {o.detail}")
+    if args.json:
+        rows = [{"path": str(o.path), "ok": o.ok, "detail": o.detail} for o in outcomes]
+        print(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
+    else:
+        for o in outcomes:
+            print(f"{'OK  ' if o.ok else 'FAIL'} {o.path.name}: {o.detail}")
     return 0 if all(o.ok for o in outcomes) else 1
 
 
@@ -130,4 +134,5 @@ def register_engines_commands(commands: CommandRegistry) -> None:
     listing.add_argument("--json", action="store_true", help="machine-readable output")
     listing.set_defaults(handler=_list)
     verify = engines.add("verify", help="re-check file hashes against the manifests")
+    verify.add_argument("--json", action="store_true", help="machine-readable output")
     verify.set_defaults(handler=_verify)

@@ -19,15 +19,44 @@ __all__ = [
     "EngineRecord",
     "EngineStore",
     "VerifyOutcome",
+    "checkout_root",
     "default_engine_dir",
 ]
 
 BUILD_COMMAND = "c3-matcher engines build"
 
 
+CHECKOUT_ENGINE_DIR = ".engines"
+WORKSPACE_MARKER = ("buildflags", "matrix.toml")
+
+
+def checkout_root() -> Path | None:
+    """The source checkout this package runs from, or ``None`` when it is installed from a wheel.
+
+    A checkout is recognised by the package's own location: ``<root>/core/src/c3_matcher`` (an
+    editable install, as ``scripts/setup`` makes) with ``<root>/buildflags/matrix.toml`` beside
+    it. Nothing else (the working directory, environment variables) plays a part.
+    """
+    package = Path(__file__).resolve().parents[1]
+    src = package.parent
+    if src.name != "src" or src.parent.name != "core":
+        return None
+    root = src.parent.parent
+    return root if root.joinpath(*WORKSPACE_MARKER).is_file() else None
+
+
 def default_engine_dir() -> Path:
-    """The default engine directory: the user cache directory of c3-matcher (e.g.
-    ``~/.cache/c3-matcher/engines`` on Linux), from ``platformdirs``."""
+    """The default ``[engines] directory``: one place per installation, whatever the working
+    directory.
+
+    From a source checkout (editable install): ``<checkout>/.engines``, where ``scripts/setup``,
+    ``scripts/demo``, ``scripts/test`` and ``c3-matcher engines build`` put the engines, beside
+    the checkout's ``.venv``. Installed from wheels: the user cache directory of c3-matcher
+    (``~/.cache/c3-matcher/engines`` on Linux, from ``platformdirs``).
+    """
+    root = checkout_root()
+    if root is not None:
+        return root / CHECKOUT_ENGINE_DIR
     from platformdirs import user_cache_dir
 
     return Path(user_cache_dir("c3-matcher")) / "engines"
@@ -106,7 +135,9 @@ class EngineStore:
             detail = f" ({'; '.join(problems)})" if problems else ""
             raise EngineError(
                 expected,
-                f"no valid {model}/{variant} engine in {self._directory}{detail}",
+                f"no valid {model}/{variant} engine in {self._directory}{detail} (the "
+                "[engines] directory setting, or C3_MATCHER_ENGINES__DIRECTORY, says where to "
+                "look)",
                 f"{BUILD_COMMAND} --only {model}/{variant}",
             )
         return max(valid)[1]

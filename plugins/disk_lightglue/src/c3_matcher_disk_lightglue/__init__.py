@@ -1,4 +1,4 @@
-"""DISK + LightGlue, the default c3-matcher strategy (D-C3-1 = (a), task AZ-345).
+"""DISK + LightGlue, the default c3-matcher strategy.
 
 Only what is DISK-specific lives here: its engines (``engines.py``), its input rule (H and W
 multiples of 16) and its ``create``; the per-frame work is the core's shared pipeline.

@@ -12,7 +12,7 @@ c3_matcher_strategies, c3_matcher_reference_backend, c3_matcher_engine_specs = s
         name=STRATEGY,
         factory=create,
         build_flag="BUILD_MATCHER_DISK_LIGHTGLUE",
-        description="DISK features + LightGlue (default, D-C3-1 = (a))",
+        description="DISK features + LightGlue (the default strategy)",
     ),
     engine_specs="c3_matcher_disk_lightglue.engines:ENGINE_SPECS",
     reference_backend="c3_matcher_disk_lightglue.export:DiskLightGlueReference",

@@ -17,7 +17,7 @@ same run, when they apply:
 - full vs adaptive LightGlue (``[lightglue] mode``) for the LightGlue-family strategies.
 
 Ratios are speed-ups of frame p50 (slower / faster, >1 means the case is faster).
-``--sweep`` adds image-size x keypoint-budget variants; ``--keypoints N`` and ``--threads N``
+``--sweep`` adds image-size x keypoint-budget variants; ``--max-keypoints N`` and ``--threads N``
 (repeatable) add keypoint-budget and ONNX Runtime intra-op thread variants (new tiles). Every
 case runs in a fresh worker process (``python -m c3_matcher_tools.bench``) so that its peak
 memory (``ru_maxrss``) is its own.
@@ -350,11 +350,15 @@ def register_bench_command(commands: CommandRegistry) -> None:
         help="skip the other [lightglue] mode (full vs adaptive) for LightGlue strategies",
     )
     p.add_argument(
-        "--keypoints",
+        "--max-keypoints",
+        dest="keypoints",
         type=int,
         action="append",
         default=None,
         help="also time a keypoint budget of N per image, new tiles (repeatable)",
+    )
+    p.add_argument(  # the former name, still accepted
+        "--keypoints", dest="keypoints", type=int, action="append", help=argparse.SUPPRESS
     )
     p.add_argument(
         "--threads",

@@ -51,7 +51,10 @@ checked before anything is written; OUT is written atomically (temp dir + rename
 def register_dataset_command(commands: CommandRegistry) -> None:
     from c3_matcher_tools.tilestore.cli import parse_latlon
 
-    p = commands.add("dataset", help="flight datasets: render a simulated flight, inspect one")
+    p = commands.add(
+        "dataset",
+        help="flight datasets: render a simulated flight, import a recorded one, inspect one",
+    )
     ds = p.add_subparsers(dest="dataset_command", required=True, parser_class=type(p))
     r = ds.add_parser(
         "render",
@@ -64,7 +67,9 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     r.add_argument("store", type=Path, help="MBTiles store of the candidate tiles")
     r.add_argument("out", type=Path, help="dataset directory to write")
     r.add_argument("--frames", type=int, default=36, help="number of frames (default 36)")
-    r.add_argument("--pattern", choices=("orbit", "line"), default="orbit")
+    r.add_argument(
+        "--pattern", choices=("orbit", "line"), default="orbit", help="flight path (default orbit)"
+    )
     r.add_argument("--height", type=float, default=780.0, help="height above ground, m")
     r.add_argument("--speed", type=float, default=30.0, help="ground speed, m/s")
     r.add_argument("--interval", type=float, default=2.0, help="seconds between frames")
@@ -94,7 +99,7 @@ def register_dataset_command(commands: CommandRegistry) -> None:
         help="LAT,LON reference for local-tangent-plane grids",
     )
     r.add_argument("--attribution", default="", help="imagery credit stored in dataset.json")
-    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--seed", type=int, default=0, help="random seed of the flight (default 0)")
     r.add_argument("--force", action="store_true", help="replace an existing OUT")
     m = ds.add_parser(
         "import",
@@ -126,8 +131,9 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     m.add_argument("--seed", type=int, default=0, help="candidate shuffle seed (default 0)")
     m.add_argument("--name", default=None, help="dataset name (default: OUT's name)")
     m.add_argument("--force", action="store_true", help="replace an existing OUT")
-    i = ds.add_parser("info", help="summary of a dataset (JSON)")
-    i.add_argument("dataset", type=Path)
+    i = ds.add_parser("info", help="summary of a dataset")
+    i.add_argument("dataset", type=Path, help="dataset directory (holds dataset.json)")
+    i.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(handler=run_dataset)
 
 
@@ -137,20 +143,19 @@ def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
 
     if args.dataset_command == "info":
         d = load_dataset(args.dataset)
-        print(
-            json.dumps(
-                {
-                    "path": str(d.root),
-                    "name": d.name,
-                    "frames": len(d.frames),
-                    "absent_frames": sum(not f.true_tile_present for f in d.frames),
-                    "candidate_size_px": d.candidate_size_px,
-                    "calibration_image_size": list(d.calibration.image_size),
-                    **{k: d.meta[k] for k in ("tiles_source", "frames_source") if k in d.meta},
-                },
-                indent=2,
-            )
-        )
+        info = {
+            "path": str(d.root),
+            "name": d.name,
+            "frames": len(d.frames),
+            "absent_frames": sum(not f.true_tile_present for f in d.frames),
+            "candidate_size_px": d.candidate_size_px,
+            "calibration_image_size": list(d.calibration.image_size),
+            **{k: d.meta[k] for k in ("tiles_source", "frames_source") if k in d.meta},
+        }
+        if args.json:
+            print(json.dumps(info, indent=2))
+        else:
+            print("\n".join(f"{k}: {v}" for k, v in info.items()))
         return 0
     if args.dataset_command == "import":
         from c3_matcher_tools.dataset.importer import ImportSpec, import_flight

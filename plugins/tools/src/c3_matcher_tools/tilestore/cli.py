@@ -32,7 +32,7 @@ def register_tiles_command(commands: CommandRegistry) -> None:
         "build",
         help="build an MBTiles store (256-px web-mercator tiles) from a north-up GeoTIFF",
     )
-    b.add_argument("geotiff", type=Path)
+    b.add_argument("geotiff", type=Path, help="the georeferenced orthophoto (GeoTIFF) to tile")
     b.add_argument("out", type=Path, help="the .mbtiles file to write")
     b.add_argument(
         "--zoom",
@@ -65,7 +65,7 @@ def register_tiles_command(commands: CommandRegistry) -> None:
     b.add_argument("--force", action="store_true", help="overwrite OUT")
     b.add_argument("--json", action="store_true", help="print the report as JSON")
     i = tiles.add_parser("info", help="print an MBTiles store's metadata and tile counts")
-    i.add_argument("store", type=Path)
+    i.add_argument("store", type=Path, help="an MBTiles tile store")
     i.add_argument("--json", action="store_true", help="print the info as JSON")
     p.set_defaults(handler=run_tiles)
 

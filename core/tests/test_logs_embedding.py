@@ -1,0 +1,107 @@
+"""A program embedding the matcher gets each of the matcher's records once on stderr, at the
+level it configured, and keeps its own loguru output (run in a fresh interpreter: loguru's
+import-time handler is process state)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+import types
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from c3_matcher.compose import compose_root
+from c3_matcher.config import C3Settings
+from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
+from c3_matcher.plugins import PluginHost, StrategySpec, hookimpl
+from c3_matcher.plugins.manager import PluginSource
+from c3_matcher.profiles import BuildProfile
+from c3_matcher.testing import (
+    FakeBackend,
+    FakeInferenceRuntime,
+    FakeLightGlueRuntime,
+    FakeRansacFilter,
+)
+
+PROGRAM = textwrap.dedent(
+    """
+    from loguru import logger
+    from c3_matcher.logs import configure_logging, log_event
+
+    logger.info("host before")
+    handle = configure_logging(None, level="INFO")
+    log_event("DEBUG", "c3.test.debug", "matcher debug")
+    log_event("INFO", "c3.test.info", "matcher info")
+    logger.info("host during")
+    handle.close()
+    logger.info("host after")
+    """
+)
+
+
+def test_each_matcher_record_once_at_the_configured_level() -> None:
+    proc = subprocess.run(
+        [sys.executable, "-c", PROGRAM], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stderr.splitlines()
+    ours = [line for line in lines if "matcher " in line]
+    assert len(ours) == 1, proc.stderr  # once, as JSON; the DEBUG record not at all
+    assert json.loads(ours[0])["kind"] == "c3.test.info"
+    for host in ("host before", "host during", "host after"):  # the program's own, in text
+        assert sum(host in line for line in lines) == 1, proc.stderr
+
+
+def _fake_host() -> PluginHost:
+    module = types.SimpleNamespace(
+        c3_matcher_strategies=hookimpl(lambda: [StrategySpec("fake", _Fake)])
+    )
+    profile = BuildProfile.from_data({"name": "research", "strict": False, "flags": {}}, "test")
+    return PluginHost(profile, [PluginSource("fake", "fake-dist", "1.0", module=module)])
+
+
+class _Fake(PipelineMatcher):
+    def __init__(self, **kw: Any) -> None:
+        super().__init__(
+            FakeBackend(kw["inference_runtime"], kw["lightglue_runtime"]),
+            kw["ransac_filter"],
+            kw["fdr_client"],
+            kw["health_window"],
+            kw["clock"],
+            PipelineSettings(),
+        )
+
+
+def _helpers() -> dict[str, Any]:
+    return {
+        "c3_lightglue_runtime": FakeLightGlueRuntime(),
+        "c282_ransac_filter": FakeRansacFilter([]),
+        "c7_inference": FakeInferenceRuntime(),
+    }
+
+
+@pytest.mark.parametrize("configured", [False, True])
+def test_the_default_fdr_path_is_stated_when_used(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, logs: Any, configured: bool
+) -> None:
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))  # the default lands in tmp
+    fdr = {"path": tmp_path / "mine.jsonl"} if configured else {}
+    root = compose_root(
+        C3Settings(matcher={"strategy": "fake"}, fdr=fdr),
+        _helpers(),
+        plugin_host=_fake_host(),
+        configure_logs=False,
+    )
+    try:
+        stated = logs.of_kind("c3.fdr.default_path")
+        if configured:
+            assert stated == []
+        else:
+            assert len(stated) == 1 and stated[0]["path"] == str(root.fdr.path)  # type: ignore[attr-defined]
+            assert str(tmp_path / "data") in stated[0]["path"]
+    finally:
+        root.close()
