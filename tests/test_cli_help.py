@@ -32,6 +32,7 @@ PRINTS_A_RESULT = {
     "engines bench",
     "tiles build",
     "tiles info",
+    "tiles digest",
     "dataset info",
     "replay",
     "eval",

@@ -1,9 +1,10 @@
-"""``c3-matcher tiles build GEOTIFF OUT.mbtiles`` and ``c3-matcher tiles info STORE``."""
+"""``c3-matcher tiles build GEOTIFF OUT.mbtiles``, ``tiles info STORE``, ``tiles digest STORE``."""
 
 from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +27,9 @@ def parse_latlon(text: str) -> tuple[float, float]:
 
 
 def register_tiles_command(commands: CommandRegistry) -> None:
-    p = commands.add("tiles", help="tile stores: build an MBTiles store from a GeoTIFF, inspect")
+    p = commands.add(
+        "tiles", help="tile stores: build an MBTiles store from a GeoTIFF, inspect, add digests"
+    )
     tiles = p.add_subparsers(dest="tiles_command", required=True, parser_class=type(p))
     b = tiles.add_parser(
         "build",
@@ -67,6 +70,13 @@ def register_tiles_command(commands: CommandRegistry) -> None:
     i = tiles.add_parser("info", help="print an MBTiles store's metadata and tile counts")
     i.add_argument("store", type=Path, help="an MBTiles tile store")
     i.add_argument("--json", action="store_true", help="print the info as JSON")
+    d = tiles.add_parser(
+        "digest",
+        help="record a sha256 for every tile that has none (a store made by another tool), so "
+        "the flight read path detects a tile that changes later; tile bytes are not touched",
+    )
+    d.add_argument("store", type=Path, help="an MBTiles tile store (updated in place)")
+    d.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(handler=run_tiles)
 
 
@@ -74,6 +84,18 @@ def run_tiles(args: argparse.Namespace, settings: C3Settings) -> int:
     from c3_matcher.tilestore.mbtiles import MBTilesStore
     from c3_matcher_tools.tilestore.build import build_mbtiles
 
+    if args.tiles_command == "digest":
+        from c3_matcher_tools.tilestore.writer import add_missing_digests
+
+        done = add_missing_digests(args.store)
+        if args.json:
+            print(json.dumps({**asdict(done), "path": str(done.path)}, indent=2))
+        else:
+            print(
+                f"{done.path}: {done.added} digests added, {done.kept} already there "
+                f"({done.tiles} tiles)"
+            )
+        return 0
     if args.tiles_command == "info":
         with MBTilesStore(args.store) as store:
             info: dict[str, Any] = {

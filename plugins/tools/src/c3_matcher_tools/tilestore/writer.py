@@ -7,24 +7,70 @@ import hashlib
 import json
 import sqlite3
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 from c3_matcher.errors import InvalidInputError
 
-__all__ = ["MBTilesWriter"]
+__all__ = ["DigestReport", "MBTilesWriter", "add_missing_digests"]
 
+# per-tile sha256: the flight read path verifies it and drops a tile that fails
+_DIGEST_SCHEMA = (
+    "CREATE TABLE IF NOT EXISTS c3_tile_digest (zoom_level INTEGER, tile_column INTEGER,"
+    " tile_row INTEGER, sha256 TEXT)",
+    "CREATE UNIQUE INDEX IF NOT EXISTS c3_tile_digest_index ON c3_tile_digest (zoom_level,"
+    " tile_column, tile_row)",
+)
 _SCHEMA = (
     "CREATE TABLE metadata (name TEXT, value TEXT)",
     "CREATE TABLE tiles (zoom_level INTEGER, tile_column INTEGER, tile_row INTEGER,"
     " tile_data BLOB)",
     "CREATE UNIQUE INDEX tile_index ON tiles (zoom_level, tile_column, tile_row)",
     "CREATE UNIQUE INDEX name ON metadata (name)",
-    # per-tile digest (issue 11): the read path verifies it and drops a tile that fails
-    "CREATE TABLE c3_tile_digest (zoom_level INTEGER, tile_column INTEGER, tile_row INTEGER,"
-    " sha256 TEXT)",
-    "CREATE UNIQUE INDEX c3_tile_digest_index ON c3_tile_digest (zoom_level, tile_column,"
-    " tile_row)",
+    *_DIGEST_SCHEMA,
 )
+
+
+@dataclass(frozen=True, slots=True)
+class DigestReport:
+    """What ``add_missing_digests`` did: tiles in the store, digests added, digests already
+    there (kept as they were)."""
+
+    path: Path
+    tiles: int
+    added: int
+    kept: int
+
+
+def add_missing_digests(path: str | Path) -> DigestReport:
+    """Record the sha256 of every tile of the MBTiles store at ``path`` that has none (a store
+    made by another tool, or before digests existed). Tile bytes are not touched, and an
+    existing digest is never replaced: a tile that no longer matches its digest stays detected.
+    One transaction: on any error the store is left as it was."""
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError("store", f"no such MBTiles file: {path}")
+    db = sqlite3.connect(str(path))
+    try:
+        with db:
+            for statement in _DIGEST_SCHEMA:
+                db.execute(statement)
+            missing = db.execute(
+                "SELECT t.zoom_level, t.tile_column, t.tile_row, t.tile_data FROM tiles t"
+                " LEFT JOIN c3_tile_digest d ON d.zoom_level=t.zoom_level"
+                " AND d.tile_column=t.tile_column AND d.tile_row=t.tile_row"
+                " WHERE d.sha256 IS NULL AND t.tile_data IS NOT NULL"
+            ).fetchall()
+            db.executemany(
+                "INSERT INTO c3_tile_digest VALUES (?, ?, ?, ?)",
+                [(z, x, row, hashlib.sha256(blob).hexdigest()) for z, x, row, blob in missing],
+            )
+            (tiles,) = db.execute("SELECT count(*) FROM tiles").fetchone()
+    except sqlite3.Error as exc:
+        raise InvalidInputError("store", f"{path}: {exc}") from exc
+    finally:
+        db.close()
+    return DigestReport(path, tiles, len(missing), tiles - len(missing))
 
 
 class MBTilesWriter:

@@ -1,0 +1,91 @@
+"""Every shipped tile store carries a sha256 per tile, so the flight read path's corruption
+check acts on the demo data; ``tiles digest`` adds them to a store made elsewhere without
+touching a tile's bytes and never re-blesses a tile that already fails its digest."""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.mbtiles import MBTilesStore, TileDigestError
+from c3_matcher_tools.tilestore.writer import add_missing_digests
+
+REPO = Path(__file__).resolve().parents[3]
+STORES = sorted((REPO / "data" / "flights").glob("*/tiles.mbtiles"))
+
+
+def _tiles(path: Path) -> dict[tuple[int, int, int], bytes]:
+    db = sqlite3.connect(path)
+    try:
+        rows = db.execute("SELECT zoom_level, tile_column, tile_row, tile_data FROM tiles")
+        return {(z, x, r): bytes(b) for z, x, r, b in rows}
+    finally:
+        db.close()
+
+
+def _digests(path: Path) -> dict[tuple[int, int, int], str]:
+    db = sqlite3.connect(path)
+    try:
+        rows = db.execute("SELECT zoom_level, tile_column, tile_row, sha256 FROM c3_tile_digest")
+        return {(z, x, r): d for z, x, r, d in rows}
+    finally:
+        db.close()
+
+
+def test_there_are_shipped_stores() -> None:
+    assert {p.parent.name for p in STORES} >= {"naip_demo", "naip_cross_date"}
+
+
+@pytest.mark.parametrize("store", STORES, ids=lambda p: p.parent.name)
+def test_every_shipped_tile_has_its_digest_and_passes_it(store: Path) -> None:
+    tiles = _tiles(store)
+    assert tiles
+    assert _digests(store) == {k: hashlib.sha256(b).hexdigest() for k, b in tiles.items()}
+    with MBTilesStore(store) as reader:  # the flight read path, which checks each digest
+        for zoom in reader.zooms():
+            for x, y in reader.tiles(zoom):
+                assert reader.tile_bytes(zoom, x, y) is not None
+
+
+def test_tiles_digest_adds_what_is_missing_and_keeps_tile_bytes(tmp_path: Path) -> None:
+    store = tmp_path / "tiles.mbtiles"
+    shutil.copy(REPO / "data" / "flights" / "naip_demo" / "tiles.mbtiles", store)
+    before = _tiles(store)
+    db = sqlite3.connect(store)
+    with db:
+        db.execute("DROP TABLE c3_tile_digest")  # a store made by another tool
+    db.close()
+    exe = Path(sys.executable).with_name("c3-matcher")
+    proc = subprocess.run(
+        [str(exe), "tiles", "digest", str(store)], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert f"{len(before)} digests added" in proc.stdout
+    assert _tiles(store) == before  # not one tile byte changed
+    assert _digests(store) == {k: hashlib.sha256(b).hexdigest() for k, b in before.items()}
+
+    # a tile corrupted after digesting: a second run keeps the digest, the reader refuses it
+    (z, x, row), blob = next(iter(before.items()))
+    db = sqlite3.connect(store)
+    with db:
+        db.execute(
+            "UPDATE tiles SET tile_data=? WHERE zoom_level=? AND tile_column=? AND tile_row=?",
+            (blob[:-64] + bytes(64), z, x, row),
+        )
+    db.close()
+    again = add_missing_digests(store)
+    assert (again.added, again.kept, again.tiles) == (0, len(before), len(before))
+    with MBTilesStore(store) as reader, pytest.raises(TileDigestError):
+        reader.tile_bytes(z, x, (1 << z) - 1 - row)
+
+
+def test_tiles_digest_refuses_a_missing_store(tmp_path: Path) -> None:
+    with pytest.raises(InvalidInputError, match="no such MBTiles file"):
+        add_missing_digests(tmp_path / "absent.mbtiles")
