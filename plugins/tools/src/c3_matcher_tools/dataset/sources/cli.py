@@ -1,0 +1,220 @@
+"""``c3-matcher dataset import`` from a recorded log: the source kinds beside the telemetry CSV,
+their options, and the run (see :mod:`c3_matcher_tools.dataset.sources.common`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.common import ImportOptions, ImportReport
+
+__all__ = [
+    "KINDS",
+    "LOG_HELP",
+    "add_log_import_options",
+    "detect_kind",
+    "import_log",
+    "run_log_import",
+]
+
+KINDS = ("auto", "csv", "ulog", "ardupilot", "rosbag", "exif")
+
+LOG_HELP = """\
+
+RECORDED LOGS (--source, told from TELEMETRY by default; the logs extra:
+pip install 'c3-matcher-tools[logs]'):
+  csv        TELEMETRY is the CSV above
+  ulog       TELEMETRY is a PX4 ULog (.ulg); IMAGES a folder of images or a video
+  ardupilot  TELEMETRY is an ArduPilot DataFlash log (.bin) or telemetry log (.tlog)
+  rosbag     TELEMETRY is a ROS 1/2 bag (folder with metadata.yaml, .db3, .mcap, .bag)
+             holding the images: IMAGES is '-' (or the bag again); CALIBRATION '-' takes
+             the recorded sensor_msgs/CameraInfo
+  exif       IMAGES is a folder of photos with EXIF GPS (and XMP gimbal angles and
+             RelativeAltitude, as DJI writes them); TELEMETRY is '-' (or the folder again)
+Images meet the log by camera trigger (when logged), else by their own UTC time (EXIF,
+bag stamps), else in file order (--interval, --time-offset). Height above ground:
+rangefinder when logged, else altitude minus --dem / --ground-elevation / the home
+altitude. Frames without attitude or height are imported and marked; frames that cannot
+be placed are skipped; the import says which and why. Each frame keeps its GNSS fix and
+its stated accuracy: replay reports the estimate minus that position.
+"""
+
+
+def detect_kind(telemetry: str, images: str) -> str:
+    """The source kind of ``telemetry`` (see ``LOG_HELP``); raises InvalidInputError when it
+    cannot be told."""
+    path = Path(telemetry)
+    suffix = path.suffix.lower()
+    if telemetry == "-" or (path.is_dir() and path == Path(images) and not _is_bag(path)):
+        return "exif"
+    if suffix == ".csv":
+        return "csv"
+    if suffix == ".ulg":
+        return "ulog"
+    if suffix in (".bin", ".tlog", ".log"):
+        return "ardupilot"
+    if suffix in (".mcap", ".db3", ".bag") or _is_bag(path):
+        return "rosbag"
+    raise InvalidInputError(
+        "TELEMETRY",
+        f"{telemetry}: cannot tell the log's kind from its name: give --source "
+        "(csv, ulog, ardupilot, rosbag, exif)",
+    )
+
+
+def _is_bag(path: Path) -> bool:
+    return path.is_dir() and (path / "metadata.yaml").is_file()
+
+
+def add_log_import_options(m: argparse.ArgumentParser) -> None:
+    """The recorded-log options of ``dataset import`` (and its help text)."""
+    m.description = (m.description or "") + LOG_HELP
+    g = m.add_argument_group("recorded logs")
+    g.add_argument(
+        "--source", choices=KINDS, default="auto", help="kind of TELEMETRY (default: told from it)"
+    )
+    g.add_argument(
+        "--time-source",
+        choices=("auto", "trigger", "exif", "order"),
+        default="auto",
+        help="how images meet the log: camera trigger, the images' own UTC time, or file order "
+        "(default: the first available, in that order)",
+    )
+    g.add_argument(
+        "--time-offset",
+        type=float,
+        default=0.0,
+        help="seconds added to the images' times (file order: the log time of the first image, "
+        "s since the log's clock origin); default 0",
+    )
+    g.add_argument("--interval", type=float, default=None, help="file order: s between images")
+    g.add_argument(
+        "--max-gap",
+        type=float,
+        default=1.0,
+        help="farthest a log sample may be from an image's time, s (default 1)",
+    )
+    g.add_argument(
+        "--ground-elevation",
+        type=float,
+        default=None,
+        help="the ground's altitude, m, in the log's datum: height = altitude - this",
+    )
+    g.add_argument("--dem", type=Path, default=None, help="DEM GeoTIFF of the ground's altitude")
+    g.add_argument(
+        "--gnss-degraded-m",
+        type=float,
+        default=5.0,
+        help="flag frames whose stated GNSS accuracy is worse than this, m (default 5)",
+    )
+    g.add_argument("--video-step", type=int, default=1, help="video: every N-th frame (default 1)")
+    for topic in ("image", "attitude", "navsat", "camera-info"):
+        g.add_argument(f"--{topic}-topic", default=None, help=f"bag: the {topic} topic")
+    if "--json" not in m._option_string_actions:
+        m.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def run_log_import(args: argparse.Namespace) -> int | None:
+    """Run ``dataset import`` for a recorded log; None when TELEMETRY is a CSV (the caller's
+    own path)."""
+    images, telemetry = str(args.images_dir), str(args.telemetry)
+    kind = args.source if args.source != "auto" else detect_kind(telemetry, images)
+    if kind == "csv":
+        if str(args.calibration) == "-":
+            raise InvalidInputError("CALIBRATION", "'-' (recorded intrinsics) is for ROS bags")
+        return None
+    report = import_log(kind, args)
+    if getattr(args, "json", False):
+        print(json.dumps(report.to_json(), indent=2))
+    else:
+        print("\n".join(report.lines()))
+    return 0
+
+
+def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
+    """Read the log of ``kind`` named by the parsed ``dataset import`` arguments and write the
+    dataset."""
+    from c3_matcher.serialize import load_calibration
+    from c3_matcher_tools.dataset.sources.common import write_imported_flight
+
+    for name, value in (("--time-offset", args.time_offset), ("--max-gap", args.max_gap)):
+        if not math.isfinite(value):
+            raise InvalidInputError(name, f"must be finite, got {value}")
+    telemetry, images = Path(args.telemetry), str(args.images_dir)
+    recorded = None
+    attitude_of = None
+    skipped: list[tuple[str, str]] = []
+    if kind == "rosbag":
+        from c3_matcher_tools.dataset.sources.rosbag import BagTopics, read_bag
+
+        if images not in ("-", str(telemetry)):
+            raise InvalidInputError("IMAGES", "a bag holds its images: give '-' as IMAGES")
+        track, shots, recorded = read_bag(
+            telemetry,
+            BagTopics(
+                args.image_topic, args.attitude_topic, args.navsat_topic, args.camera_info_topic
+            ),
+        )
+    elif kind == "exif":
+        from c3_matcher_tools.dataset.sources.exif import read_photo_folder
+
+        if str(args.telemetry) not in ("-", images):
+            raise InvalidInputError("TELEMETRY", "photos carry their own telemetry: give '-'")
+        given_ground = args.ground_elevation is not None or args.dem is not None
+        track, shots, skipped = read_photo_folder(Path(images), relative_height=not given_ground)
+    else:
+        from c3_matcher_tools.dataset.sources.images import image_shots
+
+        if kind == "ulog":
+            from c3_matcher_tools.dataset.sources.ulog import read_ulog
+
+            track = read_ulog(telemetry)
+        elif kind == "ardupilot":
+            from c3_matcher_tools.dataset.sources.mavlink import read_mavlink
+
+            track = read_mavlink(telemetry)
+        else:
+            raise InvalidInputError("--source", f"unknown kind {kind!r}")
+        shots = image_shots(Path(images), args.video_step)
+    if str(args.calibration) == "-":
+        if recorded is None:
+            raise InvalidInputError(
+                "CALIBRATION", "'-' takes the bag's CameraInfo, and none was recorded"
+            )
+        calibration = recorded
+    else:
+        calibration = load_calibration(Path(args.calibration))
+    if kind == "exif":
+        from c3_matcher_tools.dataset.sources.exif import photo_attitude
+
+        attitude_of = photo_attitude(calibration)
+    options = ImportOptions(
+        calibration=calibration,
+        store=Path(args.store),
+        time_source="exif" if kind == "exif" else args.time_source,
+        time_offset_s=args.time_offset,
+        interval_s=args.interval,
+        max_gap_s=args.max_gap,
+        gnss_degraded_m=args.gnss_degraded_m,
+        ground_elevation_m=args.ground_elevation,
+        dem=args.dem,
+        uncertainty_m=args.uncertainty_m,
+        candidates=args.candidates,
+        zoom=args.zoom,
+        candidate_size_px=args.candidate_size,
+        seed=args.seed,
+    )
+    return write_imported_flight(
+        track,
+        shots,
+        options,
+        args.out,
+        name=args.name,
+        force=args.force,
+        attitude_of=attitude_of,
+        spec={"source_kind": kind, "images": Path(images).name},
+        skipped=skipped,
+    )

@@ -1,0 +1,214 @@
+"""Where a recorded flight's images come from: a folder of photos (file-name order; each
+photo's EXIF/XMP metadata read with ``exifread``, the tools' ``logs`` extra) or a video
+(OpenCV; every ``step``-th frame, its time from the video's own clock).
+
+EXIF/XMP read per photo: capture time (``DateTimeOriginal`` + ``SubSecTimeOriginal``, UTC
+unless ``OffsetTimeOriginal`` says otherwise), GNSS position (``GPSLatitude``/``GPSLongitude``/
+``GPSAltitude``, the altitude above sea level), and from the XMP packet the height above the
+take-off point (``RelativeAltitude``) and the gimbal's angles (``GimbalRollDegree``,
+``GimbalPitchDegree``, ``GimbalYawDegree``: pitch -90 looks straight down) or, failing them, the
+aircraft's (``FlightRollDegree``...), as DJI and others write them.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from datetime import UTC, datetime, timedelta, timezone
+from pathlib import Path
+from typing import Any
+
+import cv2
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.common import Shot
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "folder_shots",
+    "image_shots",
+    "read_photo_metadata",
+    "video_shots",
+]
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v")
+_XMP = re.compile(rb"<x:xmpmeta.*?</x:xmpmeta>", re.DOTALL)
+XMP_KEYS = (
+    "RelativeAltitude",
+    "AbsoluteAltitude",
+    "GimbalRollDegree",
+    "GimbalPitchDegree",
+    "GimbalYawDegree",
+    "FlightRollDegree",
+    "FlightPitchDegree",
+    "FlightYawDegree",
+)
+
+
+def _reader(path: Path) -> Any:
+    try:
+        import exifread
+    except ImportError:
+        raise InvalidInputError(
+            str(path),
+            "reading photo metadata needs the logs extra: pip install 'c3-matcher-tools[logs]'",
+        ) from None
+    return exifread
+
+
+def _ratio(value: Any) -> float:
+    return float(value.num) / float(value.den) if value.den else math.nan
+
+
+def _dms(tag: Any, ref: Any) -> float | None:
+    if tag is None:
+        return None
+    d, m, s = (_ratio(v) for v in tag.values[:3])
+    value = d + m / 60.0 + s / 3600.0
+    return -value if ref is not None and str(ref.values).strip().upper() in ("S", "W") else value
+
+
+def _xmp(data: bytes) -> dict[str, float]:
+    """The XMP packet's numeric drone fields (any namespace prefix), parsed as XML."""
+    import xml.etree.ElementTree as ET
+
+    match = _XMP.search(data)
+    if match is None:
+        return {}
+    try:
+        root = ET.fromstring(match.group(0))
+    except ET.ParseError:
+        return {}
+    out: dict[str, float] = {}
+    for element in root.iter():
+        items = list(element.attrib.items())
+        if element.text and element.text.strip():
+            items.append((element.tag, element.text))
+        for key, value in items:
+            local = key.rsplit("}", 1)[-1]
+            if local in XMP_KEYS:
+                try:
+                    out[local] = float(str(value).strip())
+                except ValueError:
+                    continue
+    return out
+
+
+def read_photo_metadata(path: Path) -> dict[str, Any]:
+    """``t_s`` (UTC seconds), ``lat``, ``lon``, ``alt_m``, ``relative_alt_m`` and the XMP
+    angles of one photo, each only when the photo states it (see the module docstring)."""
+    exifread = _reader(path)
+    data = path.read_bytes()
+    import io
+
+    tags = exifread.process_file(io.BytesIO(data), details=False)
+    out: dict[str, Any] = {}
+    stamp = tags.get("EXIF DateTimeOriginal") or tags.get("Image DateTime")
+    if stamp is not None:
+        try:
+            when = datetime.strptime(str(stamp.values).strip(), "%Y:%m:%d %H:%M:%S")
+        except ValueError:
+            when = None
+        if when is not None:
+            offset = tags.get("EXIF OffsetTimeOriginal")
+            tz = UTC
+            if offset is not None:
+                m = re.fullmatch(r"([+-])(\d\d):(\d\d)", str(offset.values).strip())
+                if m:
+                    sign = -1 if m.group(1) == "-" else 1
+                    tz = _tz(sign, int(m.group(2)), int(m.group(3)))
+            t = when.replace(tzinfo=tz).timestamp()
+            sub = tags.get("EXIF SubSecTimeOriginal")
+            if sub is not None and str(sub.values).strip().isdigit():
+                digits = str(sub.values).strip()
+                t += int(digits) / 10 ** len(digits)
+            out["t_s"] = t
+    lat = _dms(tags.get("GPS GPSLatitude"), tags.get("GPS GPSLatitudeRef"))
+    lon = _dms(tags.get("GPS GPSLongitude"), tags.get("GPS GPSLongitudeRef"))
+    if lat is not None and lon is not None:
+        out["lat"], out["lon"] = lat, lon
+        alt = tags.get("GPS GPSAltitude")
+        if alt is not None:
+            ref = tags.get("GPS GPSAltitudeRef")
+            below = ref is not None and str(ref.values).strip() in ("1", "[1]")
+            out["alt_m"] = -_ratio(alt.values[0]) if below else _ratio(alt.values[0])
+    xmp = _xmp(data)
+    if "RelativeAltitude" in xmp:
+        out["relative_alt_m"] = xmp["RelativeAltitude"]
+    out.update({k: v for k, v in xmp.items() if k != "RelativeAltitude"})
+    return out
+
+
+def _tz(sign: int, hours: int, minutes: int) -> timezone:
+    return timezone(sign * timedelta(hours=hours, minutes=minutes))
+
+
+def folder_shots(folder: Path, *, metadata: bool = True) -> list[Shot]:
+    """The photos in ``folder`` (file-name order), each with its EXIF time and metadata in
+    ``own`` when ``metadata`` (and the logs extra is installed)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InvalidInputError("IMAGES", f"{folder}: not a directory")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise InvalidInputError("IMAGES", f"{folder}: no image ({', '.join(IMAGE_SUFFIXES)}) in it")
+    shots = []
+    for p in files:
+        own: dict[str, Any] = {}
+        if metadata:
+            try:
+                own = read_photo_metadata(p)
+            except InvalidInputError:
+                own = {}
+        shots.append(Shot(p.name, p.read_bytes, p.suffix.lower(), own.get("t_s"), own))
+    return shots
+
+
+def video_shots(path: Path, step: int = 1) -> list[Shot]:
+    """Every ``step``-th frame of the video ``path`` as a JPEG (quality 95), with its time on
+    the video's clock in ``own['relative_s']``."""
+    path = Path(path)
+    if step < 1:
+        raise InvalidInputError("--video-step", f"must be >= 1, got {step}")
+    capture = cv2.VideoCapture(str(path))
+    if not capture.isOpened():
+        raise InvalidInputError("IMAGES", f"{path}: not a readable video")
+    shots: list[Shot] = []
+    fps = capture.get(cv2.CAP_PROP_FPS) or 0.0
+    index = 0
+    try:
+        while True:
+            ok, frame = capture.read()
+            if not ok:
+                break
+            if index % step == 0:
+                ms = capture.get(cv2.CAP_PROP_POS_MSEC)
+                t = index / fps if fps > 0 else ms / 1e3
+                good, jpeg = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, 95])
+                if not good:
+                    raise InvalidInputError("IMAGES", f"{path}: frame {index} cannot be encoded")
+                data = jpeg.tobytes()
+                shots.append(
+                    Shot(
+                        f"{path.name}#{index}",
+                        (lambda d=data: d),
+                        ".jpg",
+                        None,
+                        {"relative_s": float(t)},
+                    )
+                )
+            index += 1
+    finally:
+        capture.release()
+    if not shots:
+        raise InvalidInputError("IMAGES", f"{path}: no frame could be read")
+    return shots
+
+
+def image_shots(source: Path, step: int = 1) -> list[Shot]:
+    """A folder of photos or a video file (by its suffix)."""
+    source = Path(source)
+    if source.is_file() and source.suffix.lower() in VIDEO_SUFFIXES:
+        return video_shots(source, step)
+    return folder_shots(source)

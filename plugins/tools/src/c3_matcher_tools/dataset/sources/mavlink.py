@@ -1,0 +1,160 @@
+"""ArduPilot logs read with ``pymavlink`` (the tools' ``logs`` extra): DataFlash logs written on
+the vehicle (``.bin``) and MAVLink telemetry logs recorded by a ground station (``.tlog``).
+
+Messages used (DataFlash / MAVLink): attitude ``ATT`` (Roll, Pitch, Yaw, deg) / ``ATTITUDE``
+(rad); position ``POS`` (Lat, Lng, Alt above sea level; ``RelHomeAlt`` gives the home altitude) /
+``GLOBAL_POSITION_INT`` (1e-7 deg, mm; ``relative_alt``); the receiver ``GPS`` (Status = fix
+type, horizontal accuracy from ``GPA.HAcc``) / ``GPS_RAW_INT`` (fix_type, ``h_acc`` mm);
+height above ground from a rangefinder ``RFND.Dist`` / ``DISTANCE_SENSOR.current_distance`` (cm);
+camera triggers ``CAM`` / ``TRIG`` / ``CAMERA_FEEDBACK`` / ``CAMERA_TRIGGER``. Times: the time
+pymavlink gives each message (UTC seconds from the GNSS week time in a DataFlash log with a
+fix, the ground station's clock in a telemetry log).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.common import LogTrack, Series
+
+__all__ = ["read_mavlink"]
+
+TYPES = [
+    "ATT",
+    "ATTITUDE",
+    "POS",
+    "GLOBAL_POSITION_INT",
+    "GPS",
+    "GPA",
+    "GPS_RAW_INT",
+    "RFND",
+    "DISTANCE_SENSOR",
+    "CAM",
+    "TRIG",
+    "CAMERA_FEEDBACK",
+    "CAMERA_TRIGGER",
+]
+
+
+def _open(path: Path) -> Any:
+    try:
+        from pymavlink import mavutil
+    except ImportError:
+        raise InvalidInputError(
+            str(path),
+            "reading an ArduPilot log needs the logs extra: pip install 'c3-matcher-tools[logs]'",
+        ) from None
+    if not path.is_file():
+        raise InvalidInputError(str(path), "no such file")
+    try:
+        return mavutil.mavlink_connection(str(path), robust_parsing=True)
+    except Exception as exc:
+        raise InvalidInputError(str(path), f"not a readable ArduPilot log: {exc}") from None
+
+
+Row = tuple[float, list[float]]
+
+
+def read_mavlink(path: Path) -> LogTrack:
+    """The track of a DataFlash ``.bin`` / ``.log`` or MAVLink ``.tlog`` (see the module
+    docstring); raises InvalidInputError naming the file and the missing messages."""
+    path = Path(path)
+    log = _open(path)
+    source = str(path)
+    kind = "MAVLink telemetry log" if path.suffix.lower() == ".tlog" else "ArduPilot DataFlash"
+    rows: dict[str, list[Row]] = {k: [] for k in ("att", "pos", "gps", "rng", "trig")}
+    home: list[float] = []
+    hacc: list[tuple[float, float]] = []
+    handlers: dict[str, Callable[[Any, float], None]] = {
+        "ATT": lambda m, t: rows["att"].append((t, [m.Roll, m.Pitch, m.Yaw])),
+        "ATTITUDE": lambda m, t: rows["att"].append(
+            (t, [math.degrees(m.roll), math.degrees(m.pitch), math.degrees(m.yaw)])
+        ),
+        "POS": lambda m, t: (
+            rows["pos"].append((t, [m.Lat, m.Lng, m.Alt])),
+            home.append(m.Alt - m.RelHomeAlt) if hasattr(m, "RelHomeAlt") else None,
+        ),
+        "GLOBAL_POSITION_INT": lambda m, t: (
+            rows["pos"].append((t, [m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3])),
+            home.append((m.alt - m.relative_alt) * 1e-3),
+        ),
+        "GPS": lambda m, t: rows["gps"].append((t, [m.Lat, m.Lng, m.Alt, math.nan, m.Status])),
+        "GPA": lambda m, t: hacc.append((t, float(m.HAcc))),
+        "GPS_RAW_INT": lambda m, t: rows["gps"].append(
+            (
+                t,
+                [
+                    m.lat * 1e-7,
+                    m.lon * 1e-7,
+                    m.alt * 1e-3,
+                    getattr(m, "h_acc", 0) * 1e-3 or math.nan,
+                    m.fix_type,
+                ],
+            )
+        ),
+        "RFND": lambda m, t: rows["rng"].append((t, [m.Dist])),
+        "DISTANCE_SENSOR": lambda m, t: rows["rng"].append((t, [m.current_distance * 1e-2])),
+        "CAM": lambda m, t: rows["trig"].append((t, [])),
+        "TRIG": lambda m, t: rows["trig"].append((t, [])),
+        "CAMERA_FEEDBACK": lambda m, t: rows["trig"].append((t, [])),
+        "CAMERA_TRIGGER": lambda m, t: rows["trig"].append((t, [])),
+    }
+    seen: set[str] = set()
+    try:
+        while True:
+            msg = log.recv_match(type=TYPES)
+            if msg is None:
+                break
+            name = msg.get_type()
+            seen.add(name)
+            handlers[name](msg, float(msg._timestamp))
+    except Exception as exc:
+        raise InvalidInputError(source, f"unreadable {kind}: {exc}") from None
+    finally:
+        log.close()
+    if not rows["att"]:
+        raise InvalidInputError(source, "no ATT / ATTITUDE message: the log holds no attitude")
+    if not rows["pos"] and not rows["gps"]:
+        raise InvalidInputError(
+            source, "no POS / GLOBAL_POSITION_INT / GPS message: the log holds no position"
+        )
+
+    def series(key: str, name: str, angles: tuple[int, ...] = ()) -> Series | None:
+        got = rows[key]
+        if not got:
+            return None
+        return Series.build(name, [t for t, _ in got], [v for _, v in got], angles, source=source)
+
+    gnss = series("gps", "GPS" if "GPS" in seen else "GPS_RAW_INT")
+    if gnss is not None and hacc:
+        values = gnss.values.copy()
+        ht = np.array([t for t, _ in hacc])
+        hv = np.array([v for _, v in hacc])
+        idx = np.clip(np.searchsorted(ht, gnss.t_s), 0, ht.size - 1)
+        values[:, 3] = hv[idx]
+        gnss = Series(gnss.name, gnss.t_s, values)
+    if gnss is not None:
+        values = gnss.values.copy()
+        no_fix = values[:, 4] < 2
+        values[no_fix, :3] = math.nan
+        gnss = Series(gnss.name, gnss.t_s, values)
+    trig = np.sort(np.array([t for t, _ in rows["trig"]], dtype=np.float64))
+    first_t = rows["att"][0][0]
+    return LogTrack(
+        source=source,
+        kind=kind,
+        attitude=series("att", "ATT" if "ATT" in seen else "ATTITUDE", (2,)),
+        position=series("pos", "POS" if "POS" in seen else "GLOBAL_POSITION_INT"),
+        gnss=gnss,
+        height=series("rng", "RFND" if "RFND" in seen else "DISTANCE_SENSOR"),
+        triggers_s=trig if trig.size else None,
+        home_alt_m=home[0] if home else None,
+        utc_offset_s=0.0 if first_t > 1e9 else None,
+        notes=(f"{trig.size} camera trigger(s)",) if trig.size else (),
+    )

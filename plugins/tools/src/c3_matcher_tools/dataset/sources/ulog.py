@@ -1,0 +1,177 @@
+"""PX4 ULog flight logs (``.ulg``), read with ``pyulog`` (the tools' ``logs`` extra).
+
+Topics used (instance 0): attitude from ``vehicle_attitude.q`` (body FRD to NED, w x y z);
+position from ``vehicle_global_position`` (lat, lon, alt AMSL) when logged, else from the
+receiver; the receiver's fix, stated horizontal accuracy ``eph`` and UTC time from
+``vehicle_gps_position`` (or ``sensor_gps``; old ``lat``/``lon`` in 1e-7 deg and ``alt`` in mm,
+or new ``latitude_deg``/``longitude_deg``/``altitude_msl_m``); height above ground from
+``vehicle_local_position.dist_bottom`` where ``dist_bottom_valid``; the ground's altitude from
+``home_position.alt`` else ``vehicle_local_position.ref_alt``; camera trigger times from
+``camera_capture`` / ``camera_trigger``. Times: the log's ``timestamp`` (microseconds since
+boot) in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.common import (
+    LogTrack,
+    Series,
+    attitude_from_matrix,
+    quaternion_matrix,
+)
+
+__all__ = ["read_ulog"]
+
+KIND = "PX4 ULog"
+TOPICS = (
+    "vehicle_attitude",
+    "vehicle_global_position",
+    "vehicle_gps_position",
+    "sensor_gps",
+    "vehicle_local_position",
+    "home_position",
+    "camera_capture",
+    "camera_trigger",
+)
+
+
+def _load(path: Path) -> Any:
+    try:
+        from pyulog import ULog
+    except ImportError:
+        raise InvalidInputError(
+            str(path), "reading a ULog needs the logs extra: pip install 'c3-matcher-tools[logs]'"
+        ) from None
+    if not path.is_file():
+        raise InvalidInputError(str(path), "no such file")
+    try:
+        return ULog(str(path), list(TOPICS))
+    except Exception as exc:  # pyulog raises several types on a damaged file
+        raise InvalidInputError(str(path), f"not a readable PX4 ULog: {exc}") from None
+
+
+def _topic(ulog: Any, name: str) -> dict[str, np.ndarray] | None:
+    try:
+        data = ulog.get_dataset(name, 0).data
+    except (KeyError, IndexError, ValueError):
+        return None
+    return data if len(data["timestamp"]) else None
+
+
+def _field(data: dict[str, np.ndarray], *names: str, scale: float = 1.0) -> np.ndarray | None:
+    for n in names:
+        if n in data:
+            return np.asarray(data[n], dtype=np.float64) * scale
+    return None
+
+
+def _new_or_old(data: dict[str, np.ndarray], new: str, old: str, scale: float) -> np.ndarray | None:
+    """A receiver field by its current name (SI units), else by its older integer one."""
+    return _field(data, new) if new in data else _field(data, old, scale=scale)
+
+
+def read_ulog(path: Path) -> LogTrack:
+    """The track of a PX4 ULog (see the module docstring); raises InvalidInputError naming
+    the file and the missing topic when it lacks attitude or position."""
+    path = Path(path)
+    ulog = _load(path)
+    source = str(path)
+    att = _topic(ulog, "vehicle_attitude")
+    if att is None:
+        raise InvalidInputError(source, "no vehicle_attitude topic: the log holds no attitude")
+    t = att["timestamp"].astype(np.float64) / 1e6
+    angles = [
+        attitude_from_matrix(quaternion_matrix(*(float(att[f"q[{k}]"][i]) for k in range(4))))
+        for i in range(t.size)
+    ]
+    attitude = Series.build("vehicle_attitude", t, angles, (2,), source=source)
+    notes: list[str] = []
+    gps = _topic(ulog, "vehicle_gps_position") or _topic(ulog, "sensor_gps")
+    gnss = None
+    utc_offset = None
+    if gps is not None:
+        lat = _new_or_old(gps, "latitude_deg", "lat", 1e-7)
+        lon = _new_or_old(gps, "longitude_deg", "lon", 1e-7)
+        alt = _new_or_old(gps, "altitude_msl_m", "alt", 1e-3)
+        eph = _field(gps, "eph")
+        fix = _field(gps, "fix_type")
+        tg = gps["timestamp"].astype(np.float64) / 1e6
+        if lat is not None and lon is not None and alt is not None:
+            n = tg.size
+            cols = np.stack(
+                [
+                    lat,
+                    lon,
+                    alt,
+                    eph if eph is not None else np.full(n, math.nan),
+                    fix if fix is not None else np.full(n, 3.0),
+                ],
+                axis=1,
+            )
+            good = (cols[:, 4] >= 2) & ((cols[:, 0] != 0) | (cols[:, 1] != 0))
+            cols[~good, :3] = np.nan  # no fix: no position, the frame is flagged degraded
+            gnss = Series.build("vehicle_gps_position", tg, cols, source=source)
+        utc = _field(gps, "time_utc_usec")
+        if utc is not None and np.any(utc > 0):
+            k = int(np.flatnonzero(utc > 0)[0])
+            utc_offset = float(utc[k] / 1e6 - tg[k])
+    glob = _topic(ulog, "vehicle_global_position")
+    position = None
+    if glob is not None:
+        tp = glob["timestamp"].astype(np.float64) / 1e6
+        position = Series.build(
+            "vehicle_global_position",
+            tp,
+            np.stack([_field(glob, "lat"), _field(glob, "lon"), _field(glob, "alt")], axis=1),
+            source=source,
+        )
+    elif gnss is not None:
+        notes.append("no vehicle_global_position: positions from vehicle_gps_position")
+    if position is None and gnss is None:
+        raise InvalidInputError(
+            source, "no vehicle_global_position nor vehicle_gps_position: the log holds no position"
+        )
+    local = _topic(ulog, "vehicle_local_position")
+    height = None
+    home_alt: float | None = None
+    if local is not None:
+        tl = local["timestamp"].astype(np.float64) / 1e6
+        dist = _field(local, "dist_bottom")
+        valid = _field(local, "dist_bottom_valid")
+        if dist is not None and valid is not None and np.any(valid > 0):
+            keep = valid > 0
+            height = Series.build(
+                "vehicle_local_position.dist_bottom", tl[keep], dist[keep, None], source=source
+            )
+        ref = _field(local, "ref_alt")
+        if ref is not None and np.any(ref != 0):
+            home_alt = float(ref[np.flatnonzero(ref != 0)[0]])
+    home = _topic(ulog, "home_position")
+    if home is not None and "alt" in home:
+        home_alt = float(home["alt"][0])
+    triggers = None
+    for topic in ("camera_capture", "camera_trigger"):
+        cam = _topic(ulog, topic)
+        if cam is not None:
+            triggers = np.sort(cam["timestamp"].astype(np.float64) / 1e6)
+            notes.append(f"{triggers.size} camera trigger(s) from {topic}")
+            break
+    return LogTrack(
+        source=source,
+        kind=KIND,
+        attitude=attitude,
+        position=position,
+        gnss=gnss,
+        height=height,
+        triggers_s=triggers,
+        home_alt_m=home_alt,
+        utc_offset_s=utc_offset,
+        notes=tuple(notes),
+    )
