@@ -20,6 +20,11 @@ baseline, side by side, against a flight's ground truth (the C3-IT acceptance me
   not a wrong fix: it is counted apart (``right_fix_other_tile``), and IT-04 still scores it as
   not correct.
 
+A recorded flight (no ground truth, ``dataset import``) is scored against its own telemetry:
+per frame the estimate minus where the telemetry says the frame looks (m), p50/p95 beside the
+GNSS accuracy the log states, and the frames whose GNSS was absent or degraded (``timing`` and
+``per_frame`` in ``eval.json``).
+
 Several datasets (``c3-matcher eval FLIGHT1 FLIGHT2 ...``) are evaluated one after the other
 (outputs under ``--out/<dataset>``) and summarised in one strategy x flight table (correct-tile
 rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summary.json``.
@@ -209,6 +214,11 @@ def evaluate_strategy(
                 "best_inliers": o.best_inliers,
                 "correct": o.correct,
                 "mean_error_px": o.mean_error_px if math.isfinite(o.mean_error_px) else None,
+                "telemetry_error_m": (
+                    o.telemetry_error_m if math.isfinite(o.telemetry_error_m) else None
+                ),
+                "gnss_accuracy_m": o.gnss_accuracy_m,
+                "gnss_degraded": o.gnss_degraded,
                 "elapsed_ms": o.elapsed_ms,
             }
             for o in run1
@@ -278,7 +288,7 @@ def _plots(
                     corr.reshape(-1, 4),
                     path,
                     title=f"{r['strategy']} frame {frame.index}: {o.best_inliers} inliers, "
-                    f"{'true' if o.correct else 'WRONG'} tile, err {o.mean_error_px:.2f}px",
+                    f"{'true tile' if o.correct else 'wrong tile'}, err {o.mean_error_px:.2f}px",
                     height=480,
                 )
                 written.append(str(path))
@@ -433,8 +443,18 @@ def _eval_dataset(
     )
     print(f"report {out / 'eval.json'}, plots {out}")
     for r in rows:
-        if "error" not in r:
-            print(f"  {r['strategy']}: map {r['geojson']}, flight report {r['html'] or '-'}")
+        if "error" in r:
+            continue
+        t = r["timing"]
+        if t["with_telemetry"]:
+            print(
+                f"  {r['strategy']}: estimate - telemetry position m p50 "
+                f"{_fmt(t['telemetry_error_m_p50'] or math.nan, '.1f')}, p95 "
+                f"{_fmt(t['telemetry_error_m_p95'] or math.nan, '.1f')} (GNSS accuracy stated "
+                f"p50 {_fmt(t['gnss_accuracy_m_p50'] or math.nan, '.1f')} m, GNSS absent or "
+                f"degraded on {len(t['gnss_degraded_frames'])} frame(s))"
+            )
+        print(f"  {r['strategy']}: map {r['geojson']}, flight report {r['html'] or '-'}")
     return rows
 
 

@@ -63,7 +63,12 @@ class FrameOutcome:
     """One frame's outcome. ``best_input_index``: input position of the best candidate;
     ``correct``: the best is the true tile; ``mean_error_px``: mean inlier error of the best
     candidate against ground truth (ORIGINAL frame px), NaN when not matched; ``fingerprint``:
-    blake2b of the per-frame result content (C3-IT-02), excluding ``matched_at``."""
+    blake2b of the per-frame result content (C3-IT-02), excluding ``matched_at``.
+    ``telemetry_lat``/``telemetry_lon``: where the flight's own telemetry (GNSS position,
+    attitude, height) says the frame's centre looks; ``telemetry_error_m``: the estimate's
+    distance from it (m, NaN when either is missing); ``gnss_accuracy_m``: the horizontal
+    accuracy the log states for that fix; ``gnss_degraded``: GNSS was absent or degraded at the
+    frame (None: no telemetry)."""
 
     index: int
     frame_id: str
@@ -85,10 +90,15 @@ class FrameOutcome:
     truth_lon: float | None = None
     position_error_m: float = math.nan
     insufficient_best: int = 0
+    telemetry_lat: float | None = None
+    telemetry_lon: float | None = None
+    telemetry_error_m: float = math.nan
+    gnss_accuracy_m: float | None = None
+    gnss_degraded: bool | None = None
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
-        for key in ("mean_error_px", "residual_px", "position_error_m"):
+        for key in ("mean_error_px", "residual_px", "position_error_m", "telemetry_error_m"):
             if not math.isfinite(out[key]):
                 out[key] = None
         return out
@@ -129,6 +139,22 @@ def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, f
     if frame.has_truth and "footprint_centre_lat" in pose and "footprint_centre_lon" in pose:
         return float(pose["footprint_centre_lat"]), float(pose["footprint_centre_lon"])
     return None
+
+
+def telemetry_reference(frame: FrameRecord) -> dict[str, Any]:
+    """The frame's telemetry reference for :class:`FrameOutcome`: where the recorded position,
+    attitude and height put the frame's centre (the import's look point), the stated GNSS
+    accuracy and the degraded flag; empty without telemetry."""
+    t = frame.telemetry
+    if "look_lat" not in t or "look_lon" not in t:
+        return {}
+    accuracy = t.get("gnss_accuracy_m")
+    return {
+        "telemetry_lat": float(t["look_lat"]),
+        "telemetry_lon": float(t["look_lon"]),
+        "gnss_accuracy_m": None if accuracy is None else float(accuracy),
+        "gnss_degraded": bool(t.get("gnss_degraded", False)),
+    }
 
 
 def _score(dataset: FlightDataset, frame: FrameRecord, result: MatchResult) -> tuple[int, float]:
@@ -175,6 +201,7 @@ def run_flight(
             geo_truth: dict[str, Any] = {"has_truth": frame.has_truth}
             if truth is not None:
                 geo_truth.update(truth_lat=truth[0], truth_lon=truth[1])
+            geo_truth.update(telemetry_reference(frame))
             if result is not None:
                 best_input, mean_err = _score(dataset, frame, result)
                 size = dataset.candidate_size_px
@@ -191,6 +218,13 @@ def run_flight(
                             haversine_m(
                                 [[as_json["centre_lon"], as_json["centre_lat"]]],
                                 [[truth[1], truth[0]]],
+                            )[0]
+                        )
+                    if "telemetry_lat" in geo_truth:
+                        geo_truth["telemetry_error_m"] = float(
+                            haversine_m(
+                                [[as_json["centre_lon"], as_json["centre_lat"]]],
+                                [[geo_truth["telemetry_lon"], geo_truth["telemetry_lat"]]],
                             )[0]
                         )
                 outcome = FrameOutcome(
@@ -277,10 +311,15 @@ def _percentile(values: list[float], q: float) -> float | None:
 
 
 def summarize(outcomes: list[FrameOutcome]) -> dict[str, Any]:
-    """Counts and timing (ms) of a run."""
+    """Counts and timing (ms) of a run; position errors (m) against ground truth and, for a
+    recorded flight, the estimate minus the telemetry's position (its stated GNSS accuracy
+    beside it, and the frames whose GNSS was absent or degraded)."""
     times = [o.elapsed_ms for o in outcomes]
     present = [o for o in outcomes if o.true_present]
     pos = [o.position_error_m for o in outcomes if o.status == "ok"]
+    tele = [o for o in outcomes if o.telemetry_lat is not None]
+    tele_err = [o.telemetry_error_m for o in tele if o.status == "ok"]
+    accuracy = [o.gnss_accuracy_m for o in tele if o.gnss_accuracy_m is not None]
     return {
         "frames": len(outcomes),
         "ok": sum(o.status == "ok" for o in outcomes),
@@ -292,6 +331,14 @@ def summarize(outcomes: list[FrameOutcome]) -> dict[str, Any]:
         "georeferenced": sum(o.est_lat is not None for o in outcomes),
         "position_error_m_p50": _percentile(pos, 50),
         "position_error_m_p95": _percentile(pos, 95),
+        "with_telemetry": len(tele),
+        "telemetry_error_m_p50": _percentile(tele_err, 50),
+        "telemetry_error_m_p95": _percentile(tele_err, 95),
+        "telemetry_error_m_p50_gnss_good": _percentile(
+            [o.telemetry_error_m for o in tele if o.status == "ok" and not o.gnss_degraded], 50
+        ),
+        "gnss_accuracy_m_p50": _percentile(accuracy, 50),
+        "gnss_degraded_frames": [o.index for o in tele if o.gnss_degraded],
         "frame_ms_p50": _percentile(times, 50),
         "frame_ms_p95": _percentile(times, 95),
         "frame_ms_mean": float(np.mean(times)) if times else None,
@@ -435,15 +482,27 @@ def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
         f"  ok {report['ok']}, insufficient inliers {report['insufficient']}, "
         f"backbone errors {report['backbone_error']}"
     )
-    print(
-        f"  correct candidate {report['correct_candidate']}/{report['true_present']} "
-        "frames with the true tile present"
-    )
+    if report["with_truth"]:
+        print(
+            f"  correct candidate {report['correct_candidate']}/{report['true_present']} "
+            "frames with the true tile present"
+        )
+    else:
+        print("  no ground truth in this flight: nothing scored against truth")
     print(f"  frame ms p50 {report['frame_ms_p50']:.0f}, p95 {report['frame_ms_p95']:.0f}")
-    if report["georeferenced"]:
+    if report["georeferenced"] and report["with_truth"]:
         print(
             f"  position error m p50 {_fmt(report['position_error_m_p50'])}, "
             f"p95 {_fmt(report['position_error_m_p95'])} ({report['georeferenced']} frames located)"
+        )
+    if report["with_telemetry"]:
+        degraded = report["gnss_degraded_frames"]
+        print(
+            f"  estimate - telemetry position m p50 {_fmt(report['telemetry_error_m_p50'])}, "
+            f"p95 {_fmt(report['telemetry_error_m_p95'])} (GNSS accuracy stated p50 "
+            f"{_fmt(report['gnss_accuracy_m_p50'])} m; GNSS absent or degraded on "
+            f"{len(degraded)} frame(s){': ' + str(degraded[:20]) if degraded else ''}; "
+            f"{report['georeferenced']} frames located)"
         )
     print(f"  results {report['results']}, FDR {report['fdr']}, report {out / 'report.json'}")
     print(f"  map {report['geojson']}, flight report {report['html'] or '(not written)'}")
@@ -503,7 +562,7 @@ def write_html_report(
         "tile store": str(dataset.store_path),
         "matcher labels (from the results)": ", ".join(report.get("matcher_labels", [])),
         "c3-matcher": version("c3-matcher"),
-        "made by": json.dumps(dataset.meta.get("spec", dataset.meta.get("import", {})))[:400],
+        "made by": json.dumps(dataset.meta.get("spec", dataset.meta.get("import", {}))),
     }
     path = write_report(
         out / "report.html",

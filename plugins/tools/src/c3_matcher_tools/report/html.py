@@ -3,8 +3,10 @@
 no network. Plots are drawn with matplotlib (the tools' ``report`` extra).
 
 Sections: summary figures; the trajectory on the map mosaic of the flight's tile store (truth
-vs estimate, error segments, failed frames marked); inliers, error (m and px) and latency per
-frame with absent-tile, wrong-tile and failed frames marked; a gallery of the worst and best
+vs estimate, error segments, failed frames marked; for a recorded flight the telemetry's track,
+frames whose GNSS was absent or degraded marked); inliers, error (m and px; a recorded flight's
+estimate minus telemetry position beside the GNSS accuracy the log states) and latency per
+frame with absent-tile, wrong-tile and failed frames marked (legends outside the plots); a gallery of the worst and best
 frames (:func:`c3_matcher.viz.render_match`); the run's settings and provenance.
 """
 
@@ -33,6 +35,9 @@ from c3_matcher_tools.replay import FrameOutcome
 __all__ = ["frame_picture", "write_report"]
 
 MAX_MOSAIC_PX = 2048
+FAILED = "failed"
+WRONG = "wrong tile"
+"""The words the chart's legend and the frames table both use (the chart marks F / W)."""
 STATUS_COLOUR = {"ok": "#2c9f2c", "insufficient": "#d62728", "backbone_error": "#222222"}
 
 
@@ -72,6 +77,8 @@ def _points(outcomes: Sequence[FrameOutcome]) -> list[tuple[float, float]]:
             pts.append((o.truth_lon, o.truth_lat))
         if o.est_lat is not None and o.est_lon is not None:
             pts.append((o.est_lon, o.est_lat))
+        if o.telemetry_lat is not None and o.telemetry_lon is not None:
+            pts.append((o.telemetry_lon, o.telemetry_lat))
     return pts
 
 
@@ -164,12 +171,68 @@ def _trajectory(dataset: FlightDataset, outcomes: Sequence[FrameOutcome], title:
                 zorder=6,
                 label="wrong tile",
             )
-    by_index = {t[0].index: t for t in truth}
+    tele = [
+        (o, *to_xy(o.telemetry_lon, o.telemetry_lat))
+        for o in outcomes
+        if o.telemetry_lat is not None and o.telemetry_lon is not None
+    ]
+    done = {o.index for o in outcomes}
+    vehicle = [
+        to_xy(float(f.telemetry["lon"]), float(f.telemetry["lat"]))
+        for f in dataset.frames
+        if f.index in done and "lat" in f.telemetry and "lon" in f.telemetry
+    ]
+    if vehicle:
+        ax.plot(
+            [v[0] for v in vehicle],
+            [v[1] for v in vehicle],
+            ":",
+            color="#98df8a",
+            lw=1.5,
+            label="vehicle GNSS track",
+        )
+    if tele:
+        ax.plot(
+            [t[1] for t in tele],
+            [t[2] for t in tele],
+            "-^",
+            color="#2ca02c",
+            ms=4,
+            lw=1.2,
+            label="telemetry: where the frame looks",
+        )
+        degraded = [t for t in tele if t[0].gnss_degraded]
+        if degraded:
+            ax.scatter(
+                [t[1] for t in degraded],
+                [t[2] for t in degraded],
+                marker="o",
+                s=90,
+                facecolors="none",
+                edgecolors="#ffbf00",
+                linewidths=1.5,
+                zorder=6,
+                label="GNSS absent or degraded",
+            )
+        if not truth:
+            failed = [t for t in tele if t[0].status != "ok"]
+            if failed:
+                ax.scatter(
+                    [t[1] for t in failed],
+                    [t[2] for t in failed],
+                    marker="x",
+                    s=70,
+                    color="#d62728",
+                    zorder=5,
+                    label="failed frame (telemetry)",
+                )
+    by_index = {t[0].index: t for t in (truth or tele)}
     for e in est:
         t = by_index.get(e[0].index)
         if t is not None:
             ax.plot([t[1], e[1]], [t[2], e[2]], color="#d62728", lw=0.8)
-    for o, x, y in (truth or est)[:: max(1, len(truth or est) // 10)]:
+    labelled = truth or tele or est
+    for o, x, y in labelled[:: max(1, len(labelled) // 10)]:
         ax.annotate(
             str(o.index),
             (x, y),
@@ -191,8 +254,8 @@ def _trajectory(dataset: FlightDataset, outcomes: Sequence[FrameOutcome], title:
         x0, y0 = mosaic[2] * 0.05, mosaic[2] * 0.95
         ax.plot([x0, x0 + bar / m_per_px], [y0, y0], color="white", lw=4)
         ax.text(x0, y0 - mosaic[2] * 0.02, f"{bar:g} m", color="white", fontsize=9)
-    if truth or est:
-        ax.legend(loc="upper right", fontsize=8)
+    if truth or est or tele:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     return _png_uri(fig)
 
 
@@ -203,17 +266,44 @@ def _per_frame(outcomes: Sequence[FrameOutcome], min_inliers: int) -> str:
     inl = np.array([o.best_inliers if o.status == "ok" else o.insufficient_best for o in outcomes])
     colours = [STATUS_COLOUR.get(o.status, "#888") for o in outcomes]
     axes[0].bar(idx, inl, color=colours, width=0.8)
-    axes[0].axhline(min_inliers, ls="--", color="#555", lw=1, label=f"threshold {min_inliers}")
+    axes[0].axhline(min_inliers, ls="--", color="#555", lw=1)
     axes[0].set_ylabel("best inliers")
     err_m = np.array([o.position_error_m for o in outcomes], dtype=float)
     err_px = np.array([o.mean_error_px for o in outcomes], dtype=float)
+    err_tele = np.array([o.telemetry_error_m for o in outcomes], dtype=float)
+    accuracy = np.array(
+        [math.nan if o.gnss_accuracy_m is None else o.gnss_accuracy_m for o in outcomes],
+        dtype=float,
+    )
+    error_lines = []
     if np.isfinite(err_m).any():
-        axes[1].plot(idx, err_m, "o-", color="#ff7f0e", ms=4, label="position error (m)")
+        error_lines += axes[1].plot(idx, err_m, "o-", color="#ff7f0e", ms=4, label="vs truth")
+    if np.isfinite(err_tele).any():
+        error_lines += axes[1].plot(
+            idx, err_tele, "^-", color="#2ca02c", ms=4, label="estimate - telemetry"
+        )
+    if np.isfinite(accuracy).any():
+        error_lines += axes[1].plot(
+            idx, accuracy, ":", color="#2ca02c", lw=1.2, label="GNSS accuracy (log)"
+        )
     axes[1].set_ylabel("position error (m)")
     if np.isfinite(err_px).any():
         twin = axes[1].twinx()
-        twin.plot(idx, err_px, "s:", color="#9467bd", ms=3, label="mean inlier error (px)")
+        error_lines += twin.plot(
+            idx, err_px, "s:", color="#9467bd", ms=3, label="mean inlier error (px)"
+        )
         twin.set_ylabel("inlier error (px)", color="#9467bd")
+    for o in outcomes:
+        if o.gnss_degraded:
+            axes[1].axvspan(o.index - 0.5, o.index + 0.5, color="#ffbf00", alpha=0.25, lw=0)
+    if error_lines:
+        axes[1].legend(
+            handles=error_lines,
+            loc="upper left",
+            bbox_to_anchor=(1.08, 1.0),
+            fontsize=8,
+            frameon=False,
+        )
     axes[2].bar(idx, [o.elapsed_ms for o in outcomes], color="#7f7f7f", width=0.8)
     axes[2].set_ylabel("latency (ms)")
     axes[2].set_xlabel("frame")
@@ -233,15 +323,22 @@ def _per_frame(outcomes: Sequence[FrameOutcome], min_inliers: int) -> str:
                 o.index, top * 1.02, "F", color="#d62728", ha="center", fontsize=9, weight="bold"
             )
     axes[0].set_ylim(0, top * 1.12)
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     handles = [
         Patch(color=STATUS_COLOUR["ok"], label="matched"),
-        Patch(color=STATUS_COLOUR["insufficient"], label="failed (insufficient, F)"),
+        Patch(color=STATUS_COLOUR["insufficient"], label=f"F: {FAILED}"),
+        Patch(color="white", label=f"W: {WRONG}"),
         Patch(color="#bbbbbb", label="true tile absent"),
-        Patch(color="white", label="W: wrong tile"),
+        Line2D([], [], ls="--", color="#555", lw=1, label=f"{min_inliers} inliers threshold"),
     ]
-    axes[0].legend(handles=handles, loc="lower right", fontsize=8, ncol=4)
+    if any(o.gnss_degraded for o in outcomes):
+        handles.append(Patch(color="#ffbf00", alpha=0.4, label="GNSS absent or degraded"))
+    # outside the axes: a legend never covers a bar or the threshold line
+    axes[0].legend(
+        handles=handles, loc="upper left", bbox_to_anchor=(1.08, 1.0), fontsize=8, frameon=False
+    )
     axes[2].xaxis.get_major_locator().set_params(integer=True)
     fig.suptitle("per frame: inliers, error, latency")
     return _png_uri(fig)
@@ -290,11 +387,11 @@ def frame_picture(
             else f", {outcome.position_error_m:.1f} m off"
         )
         verdict = (
-            "" if not outcome.has_truth else (" true tile" if outcome.correct else " WRONG tile")
+            "" if not outcome.has_truth else (" true tile" if outcome.correct else f" {WRONG}")
         )
         title = f"frame {outcome.index}: {outcome.best_inliers} inliers,{verdict}{pos}"
     else:
-        title = f"frame {outcome.index}: FAILED ({outcome.status}, best {outcome.insufficient_best} inliers)"
+        title = f"frame {outcome.index}: {FAILED} ({outcome.status}, best {outcome.insufficient_best} inliers)"
         if outcome.has_truth and not outcome.true_present:
             title += ", true tile absent"
     return render_match(
@@ -339,6 +436,24 @@ def _gallery(
     return out
 
 
+def _verdict(o: FrameOutcome) -> str:
+    """The frame's result in the chart's words: F failed, W wrong tile."""
+    if o.status != "ok":
+        return f"F {FAILED}" + (" (true tile absent)" if o.has_truth and not o.true_present else "")
+    if not o.has_truth:
+        return "matched"
+    if not o.true_present:
+        return "matched (true tile absent)"
+    return "true tile" if o.correct else f"W {WRONG}"
+
+
+def _gnss_cell(o: FrameOutcome) -> str:
+    if o.gnss_degraded is None:
+        return "-"
+    acc = "?" if o.gnss_accuracy_m is None else f"{o.gnss_accuracy_m:.1f}"
+    return ("degraded " if o.gnss_degraded else "ok ") + f"({acc})"
+
+
 def _table(rows: Sequence[tuple[str, Any]]) -> str:
     cells = "".join(
         f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>" for k, v in rows
@@ -377,6 +492,10 @@ def write_report(
             else format(v, spec)
         )
 
+    tele_kpi = (
+        "estimate - telemetry p50 / p95 (m)",
+        f"{fmt(summary.get('telemetry_error_m_p50'))} / {fmt(summary.get('telemetry_error_m_p95'))}",
+    )
     kpis = [
         ("frames", summary.get("frames")),
         ("matched", summary.get("ok")),
@@ -391,13 +510,15 @@ def write_report(
             "position error p50 / p95 (m)",
             f"{fmt(summary.get('position_error_m_p50'))} / {fmt(summary.get('position_error_m_p95'))}",
         ),
+        *([tele_kpi] if summary.get("with_telemetry") else []),
         (
             "frame ms p50 / p95",
             f"{fmt(summary.get('frame_ms_p50'), '.0f')} / {fmt(summary.get('frame_ms_p95'), '.0f')}",
         ),
     ]
     min_inliers = int(settings.get("min_inliers_threshold", 60))
-    traj = _trajectory(dataset, outcomes, f"{dataset.name}: truth vs estimate ({strategy})")
+    reference = "truth" if summary.get("with_truth") else "telemetry"
+    traj = _trajectory(dataset, outcomes, f"{dataset.name}: {reference} vs estimate ({strategy})")
     per_frame = _per_frame(outcomes, min_inliers)
     pictures = _gallery(dataset, outcomes, gallery)
     rows = "".join(
@@ -408,10 +529,10 @@ def write_report(
                 o.index,
                 o.status,
                 o.best_inliers if o.status == "ok" else o.insufficient_best,
-                "-"
-                if not o.has_truth
-                else ("absent" if not o.true_present else ("yes" if o.correct else "WRONG")),
+                _verdict(o),
                 fmt(o.position_error_m),
+                fmt(o.telemetry_error_m),
+                _gnss_cell(o),
                 fmt(o.mean_error_px, ".2f"),
                 fmt(o.elapsed_ms, ".0f"),
                 "" if o.est_lat is None else f"{o.est_lat:.6f}, {o.est_lon:.6f}",
@@ -426,12 +547,16 @@ def write_report(
 <h1>Flight report: {html.escape(dataset.name)} with {html.escape(strategy)}</h1>
 <div class="kpi">{"".join(f"<div>{html.escape(str(k))}<b>{html.escape(str(v))}</b></div>" for k, v in kpis)}</div>
 <h2>Trajectory</h2>
-<p>Frame centres on the tile store's imagery: truth (blue) and estimate (orange), red segments
-join each frame's true and estimated centre; x: a failed frame, diamond: a wrong tile.</p>
+<p>Frame centres on the tile store's imagery: truth (blue; a recorded flight: where its telemetry
+says the frame looks, green) and estimate (orange); red segments join each frame's reference and
+estimated centre; x: a failed frame, diamond: a wrong tile, yellow ring: GNSS absent or
+degraded.</p>
 <img id="trajectory" alt="trajectory" src="{traj}">
 <h2>Per frame</h2>
-<p>Grey bands: frames whose true tile is not among the candidates (they should fail).
-F: failed frame; W: wrong tile chosen.</p>
+<p>Grey bands: frames whose true tile is not among the candidates (they should fail); yellow
+bands: GNSS absent or degraded. F: {FAILED} (fewer inliers than the threshold, or an error);
+W: {WRONG} chosen. A recorded flight's error is the estimate minus the telemetry's position,
+beside the accuracy its GNSS states.</p>
 <img id="per-frame" alt="per-frame plots" src="{per_frame}">
 <h2>Worst and best frames</h2>
 <p>Left: the query rectified onto the best tile; right: the tile with the query's footprint
@@ -439,7 +564,7 @@ F: failed frame; W: wrong tile chosen.</p>
 3 px, red do not; the strip shows every candidate with its inlier count.</p>
 <div class="gallery">{"".join(f'<figure><img class="frame" alt="{html.escape(c)}" src="{u}"><figcaption>{html.escape(c)}</figcaption></figure>' for c, u in pictures)}</div>
 <h2>Frames</h2>
-<table><tr><th>frame</th><th>status</th><th>inliers</th><th>true tile</th><th>error m</th><th>error px</th><th>ms</th><th>estimate lat, lon</th></tr>{rows}</table>
+<table><tr><th>frame</th><th>status</th><th>inliers</th><th>result</th><th>error vs truth m</th><th>estimate - telemetry m</th><th>GNSS (accuracy m)</th><th>error px</th><th>ms</th><th>estimate lat, lon</th></tr>{rows}</table>
 <h2>Settings and provenance</h2>
 {_table([("strategy replayed", strategy), *provenance.items()])}
 <h3>[matcher] settings</h3>
