@@ -49,6 +49,7 @@ checked before anything is written; OUT is written atomically (temp dir + rename
 
 
 def register_dataset_command(commands: CommandRegistry) -> None:
+    from c3_matcher_tools.dataset.sources.cli import add_log_import_options
     from c3_matcher_tools.tilestore.cli import parse_latlon
 
     p = commands.add(
@@ -108,8 +109,12 @@ def register_dataset_command(commands: CommandRegistry) -> None:
         description=IMPORT_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    m.add_argument("images_dir", type=Path, help="folder of the nav-camera images")
-    m.add_argument("telemetry", type=Path, help="telemetry CSV, one row per image (see above)")
+    m.add_argument(
+        "images_dir", type=Path, help="folder of the nav-camera images (or a video, see below)"
+    )
+    m.add_argument(
+        "telemetry", type=Path, help="telemetry CSV (see above) or a recorded log (see below)"
+    )
     m.add_argument(
         "calibration",
         type=Path,
@@ -131,6 +136,7 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     m.add_argument("--seed", type=int, default=0, help="candidate shuffle seed (default 0)")
     m.add_argument("--name", default=None, help="dataset name (default: OUT's name)")
     m.add_argument("--force", action="store_true", help="replace an existing OUT")
+    add_log_import_options(m)
     i = ds.add_parser("info", help="summary of a dataset")
     i.add_argument("dataset", type=Path, help="dataset directory (holds dataset.json)")
     i.add_argument("--json", action="store_true", help="print the summary as JSON")
@@ -140,6 +146,7 @@ def register_dataset_command(commands: CommandRegistry) -> None:
 def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
     from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
     from c3_matcher_tools.dataset.format import load_dataset
+    from c3_matcher_tools.dataset.sources.cli import run_log_import
 
     if args.dataset_command == "info":
         d = load_dataset(args.dataset)
@@ -157,6 +164,8 @@ def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
         else:
             print("\n".join(f"{k}: {v}" for k, v in info.items()))
         return 0
+    if args.dataset_command == "import" and (code := run_log_import(args)) is not None:
+        return code  # a recorded log (PX4, ArduPilot, ROS bag, photo metadata)
     if args.dataset_command == "import":
         from c3_matcher_tools.dataset.importer import ImportSpec, import_flight
 
