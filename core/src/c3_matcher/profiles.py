@@ -96,6 +96,34 @@ class BuildProfile:
             _norm(d) for d in self.linked_distributions()
         }
 
+    def refuses_strategy(
+        self, strategy: str, build_flag: str | None, distribution: str, *, baseline: bool = False
+    ) -> str | None:
+        """Why this build must not offer ``strategy`` from ``distribution`` (None: it may).
+
+        Only a strict profile refuses. There a strategy is offered when a BUILD_MATCHER_* row
+        of the profile names it, its plugin declares that row's flag and ships in that row's
+        distribution, or when it is a baseline of the profile's ground tools. Being shipped in
+        a linked distribution (or one whose name normalises to it) is not enough: a strategy
+        without a flag never flies.
+        """
+        if not self.strict:
+            return None
+        row = self.flag_for_strategy(strategy)
+        if row is None:
+            if baseline and self.tools is not None and _norm(distribution) == _norm(self.tools):
+                return None
+            return (
+                f"strategy {strategy!r} has no BUILD_MATCHER_* flag in the {self.name} build "
+                "(a strict profile runs only the strategies its flags link)"
+            )
+        if _norm(row.distribution) != _norm(distribution) or build_flag != row.flag:
+            return (
+                f"strategy {strategy!r} (flag {build_flag}) is linked as {row.flag} from "
+                f"{row.distribution}, not from {distribution}"
+            )
+        return None
+
     def flag_report(self) -> dict[str, str]:
         return {row.flag: row.state.value for row in self.flags}
 

@@ -96,6 +96,7 @@ class PluginHost:
         self._loaded: list[LoadedPlugin] = []
         self._ignored: list[IgnoredPlugin] = []
         self._errors: list[PluginLoadError] = []
+        self._refused: dict[str, str] = {}  # strategy -> why the strict profile refuses it
         self._registry = _Registry()
         for source in sources:
             self._load(source)
@@ -122,12 +123,27 @@ class PluginHost:
                 self._pm.unregister(name=plugin_name)
             self._errors.append(PluginLoadError(source.name, source.distribution, exc))
             return
+        specs = [spec for spec in specs if self._offered(spec, source)]
         loaded = LoadedPlugin(
             source.name, source.distribution, source.version, tuple(spec.name for spec in specs)
         )
         self._loaded.append(loaded)
         for spec in specs:
             self._add_strategy(spec, loaded)
+
+    def _offered(self, spec: StrategySpec, source: PluginSource) -> bool:
+        """Whether the profile offers ``spec`` from ``source``; a refusal is kept for
+        ``resolve`` and listed with the ignored plugins."""
+        refusal = self._profile.refuses_strategy(
+            spec.name, spec.build_flag, source.distribution, baseline=spec.baseline
+        )
+        if refusal is None:
+            return True
+        self._refused[spec.name] = refusal
+        self._ignored.append(
+            IgnoredPlugin(f"{source.name}:{spec.name}", source.distribution, refusal)
+        )
+        return False
 
     def _strategies_of(self, module: object) -> list[StrategySpec]:
         impl = getattr(module, "c3_matcher_strategies", None)
@@ -221,6 +237,9 @@ class PluginHost:
             raise StrategyNotLinkedError(strategy, row.flag, profile, fix)
         if found is not None:
             return found[0]
+        if strategy in self._refused:
+            fix = f"{self._refused[strategy]}; it runs in a research or replay-cli build"
+            raise StrategyNotLinkedError(strategy, row.flag if row else None, profile, fix)
         if row is not None:  # ON in the profile but its plugin is missing or failed to load
             failed = [e for e in self._errors if _norm(e.distribution) == _norm(row.distribution)]
             detail = f" (it failed to load: {failed[0]})" if failed else ""
