@@ -14,13 +14,18 @@ from numpy.typing import NDArray
 
 from c3_matcher import _validate as v
 
-__all__ = ["Features", "RawMatches"]
+__all__ = ["DESCRIPTOR_DTYPES", "Features", "RawMatches"]
+
+#: descriptor dtypes a backend may return: float32 (learned descriptors, L2 distance / a learned
+#: matcher) or uint8 (packed binary descriptors such as ORB's, 8 bits a byte, Hamming distance)
+DESCRIPTOR_DTYPES = (np.dtype(np.float32), np.dtype(np.uint8))
 
 
 @dataclass(frozen=True, slots=True)
 class Features:
-    """Keypoints float32 (K, 2) (x, y) px; descriptors float32 (K, D); keypoint_scores float32 (K,);
-    image_size (width, height) of the image the extractor saw."""
+    """Keypoints float32 (K, 2) (x, y) px; descriptors (K, D) float32, or uint8 for packed
+    binary descriptors (D bytes = 8 D bits, matched by Hamming distance; never cast);
+    keypoint_scores float32 (K,); image_size (width, height) of the image the extractor saw."""
 
     keypoints: NDArray[np.float32]
     descriptors: NDArray[np.float32]
@@ -30,7 +35,13 @@ class Features:
     def __post_init__(self) -> None:
         kp = v.array(self.keypoints, "features.keypoints", dtype=np.float32, shape=(None, 2))
         n = kp.shape[0]
-        v.array(self.descriptors, "features.descriptors", dtype=np.float32, shape=(n, None))
+        desc_dtype = getattr(self.descriptors, "dtype", None)
+        v.require(
+            desc_dtype is None or desc_dtype in DESCRIPTOR_DTYPES,
+            "features.descriptors",
+            f"expected dtype float32 or uint8 (binary), got {desc_dtype}",
+        )
+        v.array(self.descriptors, "features.descriptors", dtype=desc_dtype, shape=(n, None))
         v.array(self.keypoint_scores, "features.keypoint_scores", dtype=np.float32, shape=(n,))
         w, h = self.image_size
         v.require(w > 0 and h > 0, "features.image_size", f"must be > 0, got {self.image_size}")

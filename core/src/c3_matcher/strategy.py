@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Protocol, Self
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel
 
 from c3_matcher.config import C3Settings
@@ -47,8 +48,10 @@ __all__ = [
     "ExtractorStrategyConfig",
     "LightGluePairMatcher",
     "PairMatcher",
+    "backend_strategy_factory",
     "engine_startup_probe",
     "strategy_factory",
+    "textured_probe",
 ]
 
 
@@ -253,17 +256,23 @@ def _engine_facts(
     }
 
 
+def textured_probe(width: int, height: int, block: int = 6) -> NDArray[np.uint8]:
+    """A deterministic textured RGB image (height, width, 3) uint8: ``block`` px squares of
+    random colour (seed 0), the start-up probe's and the contract kit's stand-in image."""
+    rng = np.random.default_rng(0)
+    cells = -(-max(width, height) // block)
+    noise = rng.integers(0, 256, (cells, cells, 3), dtype=np.uint8)
+    blocks = np.kron(noise, np.ones((block, block, 1), np.uint8))[:height, :width]
+    return np.ascontiguousarray(blocks)
+
+
 def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 6) -> None:
     """Run the backend once on a deterministic textured probe image and assert its outputs
     (the engine-output assertion that fires at start-up, not on the first frame).
 
     The probe is ``block`` px squares of random colour (seed 0); 6 px blocks do not line up with
     the 8x8 cells some detectors (XFeat) score, so every cell sees texture."""
-    rng = np.random.default_rng(0)
-    cells = -(-size // block)
-    noise = rng.integers(0, 256, (cells, cells, 3), dtype=np.uint8)
-    blocks = np.kron(noise, np.ones((block, block, 1), np.uint8))[:size, :size]
-    image = np.ascontiguousarray(blocks)
+    image = textured_probe(size, size, block)
     probe = PreparedImage(
         image=image,
         valid=np.ones((size, size), bool),
@@ -362,6 +371,43 @@ def strategy_factory(
             health_window,
             make_config(config, options),
             clock,
+        )
+
+    return create
+
+
+def backend_strategy_factory(
+    make_backend: Callable[[C3Settings, Any], FeatureBackend],
+    options_model: type[BaseModel] | None = None,
+) -> StrategyFactory:
+    """A strategy's ``create`` for ANY ``FeatureBackend`` (OpenCV ORB/SIFT/AKAZE, a PyTorch or
+    hand-written matcher: no ONNX engine, no ``InferenceRuntime`` needed): ``make_backend(config,
+    options)`` builds the backend at start-up (``options`` validated with ``options_model``; None
+    means its defaults) and the result is the one ``PipelineMatcher`` over it with ``[matcher]``'s
+    thresholds, stored-features and tile-cache settings and the shared RANSAC, FDR, health window
+    and clock. The runtimes it is handed (``inference_runtime``, ``lightglue_runtime``) are not
+    used. Descriptors may be float32 or packed binary uint8 (``c3_matcher.features``)."""
+
+    def create(
+        config: C3Settings,
+        *,
+        ransac_filter: RansacFilter,
+        health_window: RollingHealthWindow,
+        fdr_client: FdrClient,
+        clock: Clock,
+        options: Any = None,
+        **_runtimes: Any,
+    ) -> CrossDomainMatcher:
+        if options_model is not None and not isinstance(options, options_model):
+            options = options_model.model_validate(options or {})
+        return PipelineMatcher(
+            make_backend(config, options),
+            ransac_filter,
+            fdr_client,
+            health_window,
+            clock,
+            PipelineSettings.from_settings(config.matcher),
+            tile_cache_size=config.matcher.tile_cache_size,
         )
 
     return create

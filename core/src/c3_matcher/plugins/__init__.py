@@ -36,8 +36,15 @@ with ``c3_matcher_engine_specs`` (``EngineSpec``, ``TensorSpec``, ``WeightsRef``
 run-time module; the exporter they name lives in a build-time module. A one-strategy plugin gets
 its three hooks from ``strategy_hooks`` (``c3_matcher.plugins.strategy_hooks``).
 
+Any other ``FeatureBackend`` (OpenCV ORB/SIFT/AKAZE, a PyTorch model, hand-written code: no
+ONNX, no runtime) gets its ``create`` from ``backend_strategy_factory(make_backend,
+options_model)``; descriptors may be float32 or packed binary uint8 (Hamming distance, never
+cast). ``tests/example_orb_plugin`` in the repository is such a plugin in 50 lines.
+
 The hook specifications, each documented, are in ``c3_matcher.plugins.hookspecs``; the contract
-test kit for your own tests is ``c3_matcher.testing.contract.MatcherContract``. Under the
+test kit for your own tests is ``c3_matcher.testing.contract``: ``BackendContract`` (implement
+``make_backend``; any backend) or ``MatcherContract`` (implement ``make_matcher`` over the
+runtime doubles). Under the
 airborne profile only the plugins its build allows are loaded; a third-party plugin runs under
 research and replay-cli. ``tests/example_plugin`` in the repository is a complete plugin.
 """
@@ -76,6 +83,7 @@ if TYPE_CHECKING:
         ExtractorStrategyConfig,
         LightGluePairMatcher,
         PairMatcher,
+        backend_strategy_factory,
         engine_startup_probe,
         strategy_factory,
     )
@@ -118,6 +126,7 @@ _EXPORTS: dict[str, str] = {
     "ExtractorStrategyConfig": "c3_matcher.strategy",
     "LightGluePairMatcher": "c3_matcher.strategy",
     "PairMatcher": "c3_matcher.strategy",
+    "backend_strategy_factory": "c3_matcher.strategy",
     "engine_startup_probe": "c3_matcher.strategy",
     "strategy_factory": "c3_matcher.strategy",
 }
@@ -156,6 +165,7 @@ __all__ = [
     "StrategySpec",
     "TensorSpec",
     "WeightsRef",
+    "backend_strategy_factory",
     "engine_startup_probe",
     "hookimpl",
     "hookspec",
@@ -172,3 +182,7 @@ def __getattr__(name: str) -> Any:  # PEP 562: the record types load without plu
     value = getattr(importlib.import_module(module), name)
     globals()[name] = value
     return value
+
+
+def __dir__() -> list[str]:  # PEP 562: the lazily loaded names show in dir() and completion
+    return sorted({*globals(), *__all__})

@@ -1,7 +1,20 @@
 """The matcher contract test kit: AZ-345's AC-1 to AC-10 and AC-12, for any strategy.
 
-A plugin's test module subclasses ``MatcherContract`` and implements ``make_matcher`` to build
-its strategy over the doubles it is handed (the seeds' allowed test doubles)::
+Any ``FeatureBackend`` (ORB + brute force, SIFT, a PyTorch model, an ONNX extractor): subclass
+``BackendContract`` and implement ``make_backend``; the kit runs your real ``extract`` and
+``match`` on a textured stand-in image while the script decides which calls fail and what RANSAC
+finds, and checks your backend itself (features well formed, a blank image gives no keypoint
+rather than an exception, self-matching finds the same points, determinism, start-up probe)::
+
+    from c3_matcher.testing.contract import BackendContract
+
+    class TestOrbContract(BackendContract):
+        def make_backend(self):
+            return OrbBackend()
+
+A strategy built on the extractor kit over the runtimes (``ExtractorMatcher``) may instead
+subclass ``MatcherContract`` and implement ``make_matcher`` to build its strategy over the
+doubles it is handed (the seeds' allowed test doubles)::
 
     from c3_matcher.testing.contract import MatcherContract
 
@@ -18,6 +31,7 @@ Every strategy built on ``c3_matcher.strategy`` or ``c3_matcher.pipeline`` passe
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import uuid
@@ -25,14 +39,20 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import pytest
+from numpy.typing import NDArray
 
-from c3_matcher.dto import MatchResult
+from c3_matcher.dto import MatchResult, RansacResult
 from c3_matcher.errors import InsufficientInliersError
 from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.features import DESCRIPTOR_DTYPES, Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import configure_logging
+from c3_matcher.pipeline import FeatureBackend, PipelineSettings
+from c3_matcher.preprocess import InputRule, PreparedImage
 from c3_matcher.protocols import CrossDomainMatcher
+from c3_matcher.strategy import engine_startup_probe, textured_probe
 from c3_matcher.testing.fakes import (
     FakeClock,
     FakeInferenceRuntime,
@@ -41,9 +61,10 @@ from c3_matcher.testing.fakes import (
     ScriptedCandidate,
     make_frame,
     make_rerank,
+    scripted_pipeline,
 )
 
-__all__ = ["Doubles", "MatcherContract"]
+__all__ = ["BackendContract", "Doubles", "MatcherContract", "ScriptedBackend"]
 
 S = ScriptedCandidate
 MIN_INLIERS = 60
@@ -61,10 +82,79 @@ class Doubles:
     health: RollingHealthWindow
     clock: FakeClock
     log_stream: io.StringIO
+    backend: ScriptedBackend | None = None  # BackendContract: your backend under the script
 
     def logs(self, kind: str) -> list[dict[str, Any]]:
         lines = [json.loads(x) for x in self.log_stream.getvalue().splitlines() if x]
         return [r for r in lines if r["kind"] == kind]
+
+
+class ScriptedBackend:
+    """Your ``FeatureBackend`` under a script: it reads which candidate an image is (the kit's
+    tile ``i`` is the constant value ``i + 1``), raises where the script says
+    (``fail_extract``, ``fail_match``), and otherwise runs YOUR ``extract`` on a deterministic
+    textured stand-in of the same size and mask, and YOUR ``match``; ``last_mark`` tells the
+    scripted RANSAC which candidate it is verifying."""
+
+    def __init__(self, backend: FeatureBackend, script: list[ScriptedCandidate]) -> None:
+        self.inner = backend
+        self.script = script
+        self.last_mark = -1
+        self._marks: dict[int, tuple[Features, int]] = {}
+
+    @property
+    def label(self) -> str:
+        return self.inner.label
+
+    @property
+    def input_rule(self) -> InputRule:
+        return self.inner.input_rule
+
+    @property
+    def extract_phase(self) -> str:
+        return self.inner.extract_phase
+
+    @property
+    def match_phase(self) -> str:
+        return self.inner.match_phase
+
+    def _scripted(self, mark: int) -> ScriptedCandidate | None:
+        return self.script[mark] if 0 <= mark < len(self.script) else None
+
+    def extract(self, image: PreparedImage) -> Features:
+        pixels = image.image[image.valid] if image.valid.any() else image.image.reshape(-1, 3)
+        mark = int(np.bincount(pixels.reshape(-1)).argmax()) - 1
+        scripted = self._scripted(mark)
+        if scripted is not None and scripted.fail_extract:
+            raise RuntimeError(f"scripted extractor failure on candidate {mark}")
+        h, w = image.image.shape[:2]
+        features = self.inner.extract(dataclasses.replace(image, image=textured_probe(w, h)))
+        self._marks[id(features)] = (features, mark)
+        return features
+
+    def match(self, query: Features, tile: Features) -> RawMatches:
+        _, mark = self._marks.get(id(tile), (tile, -1))
+        scripted = self._scripted(mark)
+        if scripted is not None and scripted.fail_match:
+            raise RuntimeError(f"scripted matcher failure on candidate {mark}")
+        raw = self.inner.match(query, tile)
+        self.last_mark = mark
+        return raw
+
+    def provenance(self) -> Any:
+        return self.inner.provenance()
+
+
+class _MarkedRansac(FakeRansacFilter):
+    """The scripted RANSAC double for the candidate ``ScriptedBackend`` matched last."""
+
+    def __init__(self, script: list[ScriptedCandidate], backend: ScriptedBackend) -> None:
+        super().__init__(script)
+        self._backend = backend
+
+    def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult:
+        marked = np.array([[0.0, 0.0, 0.0, self._backend.last_mark + 1]], np.float32)
+        return super().filter(marked, threshold_px)
 
 
 class MatcherContract:
@@ -72,9 +162,19 @@ class MatcherContract:
 
     extract_phase = "disk_forward"
     match_phase = "lightglue_match"
+    frame_size = 64  # px, the square query frame
 
     def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
         raise NotImplementedError("implement make_matcher(doubles) in your test class")
+
+    def _scripted_backend(self, script: list[ScriptedCandidate]) -> ScriptedBackend | None:
+        return None
+
+    def _phases(self, doubles: Doubles) -> tuple[str, str]:
+        """(extract, match) phase names the pipeline reports for this strategy."""
+        if doubles.backend is not None:
+            return doubles.backend.extract_phase, doubles.backend.match_phase
+        return self.extract_phase, self.match_phase
 
     # -- harness --------------------------------------------------------------------------------
     @pytest.fixture
@@ -85,19 +185,21 @@ class MatcherContract:
 
         def build(script: list[ScriptedCandidate]) -> tuple[Doubles, Any]:
             clock = FakeClock()
+            backend = self._scripted_backend(script)
             doubles = Doubles(
                 script,
                 FakeInferenceRuntime(script),
                 FakeLightGlueRuntime(script),
-                FakeRansacFilter(script),
+                FakeRansacFilter(script) if backend is None else _MarkedRansac(script, backend),
                 fdr,
                 RollingHealthWindow(clock, MIN_INLIERS),
                 clock,
                 stream,
+                backend,
             )
             matcher = self.make_matcher(doubles)
-            frame, calibration = make_frame(uuid.UUID(int=11))
-            rerank = make_rerank(frame.frame_id, script)
+            frame, calibration = make_frame(uuid.UUID(int=11), self.frame_size)
+            rerank = make_rerank(frame.frame_id, script, self.frame_size)
 
             def match() -> MatchResult:
                 return matcher.match(frame, rerank, calibration)
@@ -129,17 +231,19 @@ class MatcherContract:
         result = match()
         assert len(result.per_candidate) == 2 and result.candidates_dropped == 1
         (log,) = doubles.logs("c3.matcher.backbone_error")
-        assert log["level"] == "ERROR" and log["phase"] == self.extract_phase
+        extract_phase, _ = self._phases(doubles)
+        assert log["level"] == "ERROR" and log["phase"] == extract_phase
         assert log["tile_id"] is not None
         assert [r["phase"] for r in doubles.fdr.of_kind("matcher.backbone_error")] == [
-            self.extract_phase
+            extract_phase
         ]
 
     def test_ac4_matcher_failure_dropped(self, rig: Any) -> None:
         doubles, match = rig([S(100, fail_match=True), S(100), S(90)])
         result = match()
         assert len(result.per_candidate) == 2
-        assert [r["phase"] for r in doubles.logs("c3.matcher.backbone_error")] == [self.match_phase]
+        _, match_phase = self._phases(doubles)
+        assert [r["phase"] for r in doubles.logs("c3.matcher.backbone_error")] == [match_phase]
         assert len(doubles.fdr.of_kind("matcher.backbone_error")) == 1
 
     # -- AC-5 / AC-6 ----------------------------------------------------------------------------
@@ -209,3 +313,75 @@ class MatcherContract:
         ) == (3, 1, 120, 1.1)
         assert done["frame_id"] == str(result.frame_id)
         assert done["best_tile_id"] == result.per_candidate[0].tile_id.as_list()
+
+
+class BackendContract(MatcherContract):
+    """The contract for ANY ``FeatureBackend``: implement ``make_backend`` (no runtimes, no
+    engines needed). Every matcher test above runs through ``PipelineMatcher`` over your backend
+    (see ``ScriptedBackend``); the tests below check the backend itself."""
+
+    frame_size = 256  # px: large enough for detectors with a border (ORB's is 31 px)
+    min_self_matches = 8  # matches of the textured stand-in with itself, at least
+
+    def make_backend(self) -> FeatureBackend:
+        raise NotImplementedError("implement make_backend() in your test class")
+
+    def _scripted_backend(self, script: list[ScriptedCandidate]) -> ScriptedBackend | None:
+        return ScriptedBackend(self.make_backend(), script)
+
+    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
+        backend = doubles.backend or ScriptedBackend(self.make_backend(), doubles.script)
+        return scripted_pipeline(
+            backend,
+            doubles.ransac,
+            doubles.fdr,
+            PipelineSettings(),
+            clock=doubles.clock,
+            health=doubles.health,
+        )
+
+    def _image(self, pixels: NDArray[np.uint8]) -> PreparedImage:
+        h, w = pixels.shape[:2]
+        return PreparedImage(pixels, np.ones((h, w), bool), np.eye(3), (w, h))
+
+    def _textured(self) -> Features:
+        side = self.frame_size
+        return self.make_backend().extract(self._image(textured_probe(side, side)))
+
+    def test_backend_features_well_formed(self) -> None:
+        features = self._textured()
+        assert isinstance(features, Features) and len(features) > 0
+        assert features.descriptors.dtype in DESCRIPTOR_DTYPES
+        side = self.frame_size
+        assert features.image_size == (side, side)
+        kp = features.keypoints
+        assert bool(((kp >= -0.5) & (kp <= side - 0.5)).all()), "keypoints outside the image"
+
+    def test_backend_blank_image_gives_no_error(self) -> None:
+        backend = self.make_backend()
+        side = self.frame_size
+        blank = backend.extract(self._image(np.full((side, side, 3), 128, np.uint8)))
+        assert isinstance(blank, Features)
+        raw = backend.match(blank, self._textured())
+        assert isinstance(raw, RawMatches) and len(raw) <= len(blank)
+
+    def test_backend_self_match_finds_the_same_points(self) -> None:
+        features = self._textured()
+        raw = self.make_backend().match(features, features)
+        assert isinstance(raw, RawMatches) and len(raw) >= self.min_self_matches
+        q, t = raw.matches[:, 0], raw.matches[:, 1]
+        assert bool(((q >= 0) & (q < len(features)) & (t >= 0) & (t < len(features))).all())
+        moved = np.linalg.norm(features.keypoints[q] - features.keypoints[t], axis=1)
+        assert float(np.mean(moved < 1.0)) >= 0.8
+
+    def test_backend_deterministic(self) -> None:
+        a, b = self._textured(), self._textured()
+        for name in ("keypoints", "descriptors", "keypoint_scores"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        backend = self.make_backend()
+        assert np.array_equal(backend.match(a, b).matches, backend.match(a, b).matches)
+
+    def test_backend_startup_probe_and_provenance(self) -> None:
+        backend = self.make_backend()
+        engine_startup_probe(backend)
+        json.dumps(dict(backend.provenance()))

@@ -244,12 +244,17 @@ def make_frame(
     return frame, CameraCalibration.pinhole(size, size, focal_px=float(size))
 
 
-def make_rerank(frame_id: uuid.UUID, script: Sequence[ScriptedCandidate]) -> RerankResult:
-    """One candidate per script entry, tile ids (18, 47.0 + i/1000, 8.5)."""
+def make_rerank(
+    frame_id: uuid.UUID, script: Sequence[ScriptedCandidate], size: int = 64
+) -> RerankResult:
+    """One candidate per script entry (``size`` px square tiles), tile ids
+    (18, 47.0 + i/1000, 8.5)."""
     candidates = []
     for i, s in enumerate(script):
         handle = (
-            _FailingHandle() if s.fail_decode else BytesTileHandle(_marked_png(i + 1), f"tile{i}")
+            _FailingHandle()
+            if s.fail_decode
+            else BytesTileHandle(_marked_png(i + 1, size), f"tile{i}")
         )
         candidates.append(
             RerankCandidate(

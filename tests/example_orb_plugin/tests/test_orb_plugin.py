@@ -1,0 +1,105 @@
+"""The ORB example plugin: the core's contract kit for any backend, and the real path on the
+demo's real imagery (discovered by the plugin host, created by its factory, matched with real
+OpenCV RANSAC)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import uuid
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+
+from c3_matcher.config import C3Settings
+from c3_matcher.dto import Attitude, NavCameraFrame, RerankCandidate, RerankResult, TileId
+from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.health import RollingHealthWindow
+from c3_matcher.pipeline import FeatureBackend
+from c3_matcher.plugins import PluginHost
+from c3_matcher.plugins.manager import PluginSource
+from c3_matcher.profiles import BuildProfile
+from c3_matcher.ransac import OpenCvRansacFilter
+from c3_matcher.serialize import load_calibration
+from c3_matcher.testing import FakeClock
+from c3_matcher.testing.contract import BackendContract
+from c3_matcher.tiles import MmapTileHandle, read_image
+
+HERE = Path(__file__).resolve().parents[1]
+DEMO = HERE.parents[1] / "data" / "demo"
+
+
+def load_plugin() -> ModuleType:
+    """The plugin module from its source file (the workspace does not install this example)."""
+    path = HERE / "src" / "c3_matcher_example_orb" / "plugin.py"
+    spec = importlib.util.spec_from_file_location("c3_matcher_example_orb.plugin", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+PLUGIN = load_plugin()
+
+
+def test_plugin_is_at_most_50_lines() -> None:
+    assert (
+        len((HERE / "src" / "c3_matcher_example_orb" / "plugin.py").read_text().splitlines()) <= 50
+    )
+
+
+class TestOrbContract(BackendContract):
+    def make_backend(self) -> FeatureBackend:
+        backend: FeatureBackend = PLUGIN.OrbBackend(max_keypoints=1000)
+        return backend
+
+
+def test_descriptors_stay_binary() -> None:
+    features = TestOrbContract()._textured()
+    assert features.descriptors.dtype == np.uint8 and features.descriptors.shape[1] == 32
+
+
+def test_real_demo_frame_through_the_plugin_host() -> None:
+    profile = BuildProfile.from_data({"name": "research", "strict": False, "flags": {}}, "test")
+    host = PluginHost(
+        profile, [PluginSource("example_orb", "c3-matcher-example-orb", "0.1.0", module=PLUGIN)]
+    )
+    spec = host.resolve("example_orb")
+    settings = C3Settings(matcher={"strategy": "example_orb"})
+    clock, fdr = FakeClock(), InMemoryFdr()
+    matcher = spec.factory(
+        settings,
+        ransac_filter=OpenCvRansacFilter(),
+        health_window=RollingHealthWindow(clock, 60),
+        fdr_client=fdr,
+        clock=clock,
+        options={"max_keypoints": 3000},
+        inference_runtime=None,
+        lightglue_runtime=None,
+    )
+    demo = json.loads((DEMO / "demo.json").read_text())
+    att = demo["attitude_deg"]
+    frame = NavCameraFrame(
+        uuid.UUID(int=5),
+        read_image(DEMO / "frame.jpg"),
+        1,
+        Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
+        demo["height_m"],
+    )
+    tiles = demo["tiles"]
+    rerank = RerankResult(
+        frame.frame_id,
+        tuple(
+            RerankCandidate(
+                TileId(*t["tile_id"]), 1.0, MmapTileHandle(DEMO / t["file"]), demo["tile_gsd_m"]
+            )
+            for t in tiles
+        ),
+    )
+    result = matcher.match(frame, rerank, load_calibration(DEMO / "calibration.json"))
+    best = result.per_candidate[result.best_candidate_idx]
+    truth = next(t for t in tiles if t["true"])
+    assert best.tile_id == TileId(*truth["tile_id"])
+    assert result.matcher_label == "example_orb"
+    assert fdr.of_kind("matcher.frame_done")
