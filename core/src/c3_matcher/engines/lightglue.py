@@ -31,6 +31,7 @@ from loguru import logger
 from numpy.typing import NDArray
 
 from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS, AdaptiveLightGlue
+from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file
 from c3_matcher.engines.naming import EngineName
 from c3_matcher.errors import EngineError
 from c3_matcher.features import RawMatches
@@ -154,7 +155,10 @@ class OnnxLightGlueRuntime:
             and f"_{feature_type}-steps_" not in path.name
             and self._load_sibling_steps(feature_type, path)
         ):
-            return  # the steps engine serves both modes: the full graph is not loaded (memory)
+            # the steps engine serves both modes: the full graph is not loaded (memory), but it
+            # is verified now, so a changed file is refused at start-up, not on a later switch
+            check_engine_file(path, check_hash=True)
+            return
         engine_id = self._inference.load_engine(path)
         options: dict[str, Any] = {}
         manifest_of = getattr(self._inference, "manifest", None)
@@ -178,6 +182,7 @@ class OnnxLightGlueRuntime:
             self._steps[feature_type] = (path, engine_id, *self._drivers(engine_id, options))
         else:
             self._engines[feature_type] = (path, engine_id)
+            self._verify_steps_beside(feature_type, path)
         logger.bind(
             kind="c3.lightglue.engine_loaded",
             feature_type=feature_type,
@@ -196,6 +201,8 @@ class OnnxLightGlueRuntime:
         for candidate in found:
             try:
                 self.load(feature_type, candidate)
+            except EngineIntegrityError:
+                raise  # changed after its build: refused, never replaced by the full graph
             except (EngineError, OSError, ValueError, KeyError) as exc:
                 logger.warning("steps engine {} not usable: {}", candidate.name, exc)
                 continue
@@ -209,6 +216,22 @@ class OnnxLightGlueRuntime:
             variant,
         )
         return False
+
+    def _verify_steps_beside(self, feature_type: str, full_path: Path) -> None:
+        """Full mode loads no steps engine; one beside the full graph (which adaptive mode
+        would run) is still hashed against its manifest now: a changed file is refused at
+        start-up (``EngineIntegrityError``) wherever it lies in the strategy's engines."""
+        if feature_type not in STEPS_SPECS:
+            return
+        model = full_path.name.split("_", 1)[0]
+        pattern = EngineName.glob_for(model, f"{feature_type}-steps")
+        for candidate in sorted(full_path.parent.glob(pattern)):
+            try:
+                check_engine_file(candidate, check_hash=True)
+            except EngineIntegrityError:
+                raise
+            except EngineError:
+                continue  # an unusable build, not a changed one: full mode does not run it
 
     def _drivers(
         self, engine_id: str, options: dict[str, Any]

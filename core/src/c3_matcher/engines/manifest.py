@@ -18,9 +18,20 @@ from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import TensorSpec, file_sha256
 from c3_matcher.errors import EngineError
 
-__all__ = ["MANIFEST_SCHEMA", "EngineManifest", "check_engine_file", "read_manifest"]
+__all__ = [
+    "MANIFEST_SCHEMA",
+    "EngineIntegrityError",
+    "EngineManifest",
+    "check_engine_file",
+    "read_manifest",
+]
 
 MANIFEST_SCHEMA = 1
+
+
+class EngineIntegrityError(EngineError):
+    """The engine file is not the one its manifest describes (size or sha256 differ): it was
+    changed or corrupted after the build. Never a reason to fall back to another engine."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -178,10 +189,10 @@ def check_engine_file(engine_path: Path, *, check_hash: bool = True) -> EngineMa
     if check_hash:
         size = path.stat().st_size
         if size != manifest.file_bytes:
-            raise EngineError(path, f"size {size} B != manifest {manifest.file_bytes} B")
+            raise EngineIntegrityError(path, f"size {size} B != manifest {manifest.file_bytes} B")
         digest = file_sha256(path)
         if digest != manifest.file_sha256:
-            raise EngineError(
+            raise EngineIntegrityError(
                 path, f"sha256 {digest[:16]}... != manifest {manifest.file_sha256[:16]}..."
             )
     return manifest

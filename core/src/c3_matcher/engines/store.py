@@ -105,8 +105,9 @@ class EngineStore:
         """The engine file of ``model``/``variant`` (newest valid build; with ``weights_sha256``,
         only one built from those weights).
 
-        Raises ``EngineError`` naming the expected file pattern and ``c3-matcher engines build``
-        when there is none. The file hash is not checked here; ``load_engine`` checks it.
+        Raises ``EngineError`` naming ``c3-matcher engines build`` when there is none, and the
+        missing file when a manifest there describes one (else the file pattern looked for).
+        The file hash is not checked here; ``load_engine`` checks it.
         """
         pattern = EngineName.glob_for(model, variant)
         expected = self._directory / pattern
@@ -132,6 +133,9 @@ class EngineStore:
                 continue
             valid.append((manifest.built_at, path))
         if not valid:
+            missing = self._engines_without_file(model, variant)
+            problems += [f"{p.name}: file not found (its manifest is there)" for p in missing]
+            expected = missing[-1] if missing else expected
             detail = f" ({'; '.join(problems)})" if problems else ""
             raise EngineError(
                 expected,
@@ -141,6 +145,21 @@ class EngineStore:
                 f"{BUILD_COMMAND} --only {model}/{variant}",
             )
         return max(valid)[1]
+
+    def _engines_without_file(self, model: str, variant: str) -> builtins.list[Path]:
+        """The engine files of ``model``/``variant`` whose manifest is there but not the file."""
+        missing = []
+        for manifest_file in self._files(f"{model}_{variant}_*{MANIFEST_SUFFIX}"):
+            engine = manifest_file.with_name(
+                manifest_file.name.removesuffix(MANIFEST_SUFFIX) + ENGINE_SUFFIX
+            )
+            try:
+                name = EngineName.parse(engine.name)
+            except ValueError:
+                continue
+            if (name.model, name.variant) == (model, variant) and not engine.is_file():
+                missing.append(engine)
+        return missing
 
     def list(self) -> list[EngineRecord]:
         """Every ``*.onnx`` file in the directory, with its manifest or its problem."""
