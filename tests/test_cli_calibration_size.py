@@ -1,10 +1,12 @@
-"""A calibration made for another image size is bad input: ``match`` exits 2 with one line
-naming both sizes (it used to run the matcher and fail as a backbone error, exit 1)."""
+"""A calibration made for another image size is bad input: ``match`` and ``replay`` exit 2 with
+one line naming both sizes (``match`` ran the matcher and failed as a backbone error, exit 1;
+``replay`` recorded a backbone error on every frame)."""
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -37,3 +39,26 @@ def test_calibration_for_another_image_size_exits_2_naming_both_sizes(tmp_path):
     assert proc.stdout == ""
     lines = [ln for ln in proc.stderr.splitlines() if "1280x960" in ln]
     assert len(lines) == 1 and "640x480" in lines[0] and "--calibration" in lines[0], proc.stderr
+
+
+def test_replay_of_a_dataset_whose_calibration_is_for_another_size_exits_2(tmp_path):
+    dataset = tmp_path / "flight"
+    shutil.copytree(REPO / "data" / "flights" / "naip_demo", dataset)
+    calibration = json.loads((dataset / "calibration.json").read_text())
+    w, h = calibration["image_size"]
+    calibration["image_size"] = [w * 2, h * 2]
+    (dataset / "calibration.json").write_text(json.dumps(calibration))
+    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
+    env["C3_MATCHER_ENGINES__DIRECTORY"] = str(tmp_path)  # refused before any engine loads
+    proc = subprocess.run(
+        [sys.executable, "-m", "c3_matcher.cli", "replay", str(dataset), "--limit", "1"],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=300,
+    )
+    assert proc.returncode == 2, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if f"{w * 2}x{h * 2}" in ln]
+    assert len(lines) == 1 and f"{w}x{h}" in lines[0] and "calibration.json" in lines[0]
+    assert not (tmp_path / "out").exists()  # nothing replayed

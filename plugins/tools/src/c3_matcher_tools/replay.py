@@ -33,7 +33,7 @@ from c3_matcher import camera as cam
 from c3_matcher.commands import CommandRegistry
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import MatchResult
-from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
+from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
 from c3_matcher.georef import haversine_m
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import result_to_json
@@ -426,6 +426,18 @@ def positive_int(what: str, low: int = 1, high: int | None = None) -> Callable[[
     return parse
 
 
+def check_calibration_size(dataset: FlightDataset, frame: FrameRecord) -> None:
+    """A calibration made for another image size is bad input (exit 2) naming both sizes,
+    not a backbone failure on every frame."""
+    h, w = dataset.nav_frame(frame).image.shape[:2]
+    cw, ch = dataset.calibration.image_size
+    if (cw, ch) != (w, h):
+        raise InvalidInputError(
+            str(dataset.root / str(dataset.meta["calibration"])),
+            f"image_size is {cw}x{ch} px but frame {frame.image} is {w}x{h} px",
+        )
+
+
 def with_overrides(settings: C3Settings, max_keypoints: int | None) -> C3Settings:
     if max_keypoints is None:
         return settings
@@ -440,6 +452,8 @@ def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
     strategy = args.strategy or settings.matcher.strategy
     out = args.out or Path("out") / "replay" / f"{dataset.name}-{strategy}"
     frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
+    if frames:
+        check_calibration_size(dataset, frames[0])
     started = time.perf_counter()
     with build_matcher(settings, strategy, out) as matcher:
         startup_s = time.perf_counter() - started
