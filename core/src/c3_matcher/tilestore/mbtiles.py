@@ -21,9 +21,13 @@ tile (a corrupt page) is raised as that tile's error, never a crash of the calle
 
 Threads: each thread gets its own read-only connection (SQLite objects may not cross threads),
 so a store opened on one thread serves another (issue 11, defect 5). A store-wide failure (the
-database no longer answers at all: replaced, truncated, unreadable) is reported ONCE as an
-ERROR log ``c3.tilestore.unusable`` naming the store (forwarded to the FDR as ``log.error``),
-then raised as each tile's ``TileStoreUnusableError``.
+database no longer answers at all: locked by another process, replaced, truncated,
+unreadable) is reported ONCE per outage as an ERROR log ``c3.tilestore.unusable`` naming the
+store (forwarded to the FDR as ``log.error``), then raised at once as each tile's
+``TileStoreUnusableError``; every ``retry_s`` seconds one read tries the store again (on fresh
+connections) and, when it answers, tiles are served again. A frame never waits on a lock for
+more than ``LOCK_WAIT_S`` (SQLite's busy timeout, long enough to ride through another
+process's commit).
 
 Integrity: a store built by ``c3-matcher tiles build`` holds a ``c3_tile_digest`` table (sha256
 of each tile blob). When present, every blob read is verified against it; a mismatch raises
@@ -35,7 +39,8 @@ from __future__ import annotations
 import hashlib
 import sqlite3
 import threading
-from collections.abc import Iterator, Mapping
+import time
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from c3_matcher.errors import InvalidInputError
@@ -54,16 +59,28 @@ class TileStoreUnusableError(InvalidInputError):
 
 
 MMAP_BYTES = 256 * 1024 * 1024
+LOCK_WAIT_S = 0.05  # SQLite busy timeout of a read: a commit elsewhere, never a held lock
+RETRY_S = 5.0  # an unusable store is tried again after this long
 
 
 class MBTilesStore(TileStoreBase):
     """A read-only MBTiles store (see the module docstring). ``close()`` when done."""
 
-    def __init__(self, path: str | Path, *, mmap_bytes: int = MMAP_BYTES) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        mmap_bytes: int = MMAP_BYTES,
+        retry_s: float = RETRY_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self._path = Path(path)
         if not self._path.is_file():
             raise InvalidInputError("mbtiles", f"no such file: {self._path}")
         self._mmap_bytes = int(mmap_bytes)
+        self._retry_s = float(retry_s)
+        self._clock = clock
+        self._retry_at = 0.0
         self._local = threading.local()
         self._connections: list[sqlite3.Connection] = []
         self._conn_lock = threading.Lock()
@@ -74,9 +91,8 @@ class MBTilesStore(TileStoreBase):
             tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
         except sqlite3.DatabaseError as exc:
             self.close()
-            raise InvalidInputError(
-                "mbtiles", f"{self._path}: not an SQLite database: {exc}"
-            ) from exc
+            what = "locked by another process" if _locked(exc) else "not an SQLite database"
+            raise InvalidInputError("mbtiles", f"{self._path}: {what}: {exc}") from exc
         missing = {"metadata", "tiles"} - tables
         if missing:
             self.close()
@@ -93,7 +109,10 @@ class MBTilesStore(TileStoreBase):
         if db is None:
             # used only by this thread; check_same_thread=False lets close() run on any thread
             db = sqlite3.connect(
-                f"file:{self._path.resolve()}?mode=ro", uri=True, check_same_thread=False
+                f"file:{self._path.resolve()}?mode=ro",
+                uri=True,
+                check_same_thread=False,
+                timeout=LOCK_WAIT_S,
             )
             db.execute(f"PRAGMA mmap_size={self._mmap_bytes}")
             self._local.db = db
@@ -132,7 +151,9 @@ class MBTilesStore(TileStoreBase):
         row = (1 << zoom) - 1 - y
         what = f"{self.name} tile {zoom}/{x}/{y}"
         if self._unusable is not None:
-            raise TileStoreUnusableError(what, self._unusable)
+            if self._clock() < self._retry_at:
+                raise TileStoreUnusableError(what, self._unusable)
+            self._close_connections()  # try again, on fresh connections
         query = (
             "SELECT t.tile_data, d.sha256 FROM tiles t LEFT JOIN c3_tile_digest d"
             " ON d.zoom_level=t.zoom_level AND d.tile_column=t.tile_column"
@@ -145,6 +166,16 @@ class MBTilesStore(TileStoreBase):
         except sqlite3.Error as exc:
             self._check_store(exc)
             raise InvalidInputError(what, f"read failed: {exc}") from exc
+        if self._unusable is not None:
+            self._unusable = None
+            from c3_matcher.logs import log_event
+
+            log_event(
+                "WARNING",
+                "c3.tilestore.recovered",
+                f"tile store {self._path} answers again; serving tiles",
+                store=str(self._path),
+            )
         if found is None or found[0] is None:
             return None
         blob, digest = found
@@ -158,7 +189,9 @@ class MBTilesStore(TileStoreBase):
         """After a read error: if a fresh connection cannot read the store either, the store is
         unusable: say so once (ERROR log, forwarded to the FDR) and fail every later tile fast."""
         try:
-            probe = sqlite3.connect(f"file:{self._path.resolve()}?mode=ro", uri=True)
+            probe = sqlite3.connect(
+                f"file:{self._path.resolve()}?mode=ro", uri=True, timeout=LOCK_WAIT_S
+            )
             try:
                 probe.execute("SELECT count(*) FROM metadata").fetchone()
                 probe.execute("SELECT tile_data FROM tiles LIMIT 1").fetchone()
@@ -167,6 +200,7 @@ class MBTilesStore(TileStoreBase):
             return  # the store answers: this was one tile's error
         except sqlite3.Error as probe_exc:
             reason = f"store unusable: {type(exc).__name__}: {exc} (probe: {probe_exc})"
+        self._retry_at = self._clock() + self._retry_s
         if self._unusable is None:
             self._unusable = reason
             from c3_matcher.logs import log_event
@@ -197,6 +231,9 @@ class MBTilesStore(TileStoreBase):
         if self._features is not None:
             self._features.close()
             self._features = None
+        self._close_connections()
+
+    def _close_connections(self) -> None:
         with self._conn_lock:
             for db in self._connections:
                 db.close()
@@ -211,3 +248,9 @@ class MBTilesStore(TileStoreBase):
 
     def __repr__(self) -> str:
         return f"MBTilesStore({str(self._path)!r})"
+
+
+def _locked(exc: BaseException) -> bool:
+    """Whether an SQLite error says another connection holds a lock."""
+    text = str(exc).lower()
+    return "locked" in text or "busy" in text
