@@ -15,18 +15,12 @@ REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "data" / "demo"
 
 
-def test_calibration_for_another_image_size_exits_2_naming_both_sizes(tmp_path):
-    calibration = json.loads((DEMO / "calibration.json").read_text())
-    assert calibration["image_size"] == [640, 480]  # the demo frame's size
-    calibration["image_size"] = [1280, 960]
-    cal = tmp_path / "cal.json"
-    cal.write_text(json.dumps(calibration))
-    tile = json.loads((DEMO / "demo.json").read_text())["tiles"][0]
+def _refused(args: list[str], tmp_path: Path, needle: str) -> str:
+    """Run ``c3-matcher ARGS`` (no engines: refused before any loads); assert exit 2, nothing
+    on stdout and exactly one stderr line holding ``needle``; return that line."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-    env["C3_MATCHER_ENGINES__DIRECTORY"] = str(tmp_path)  # refused before any engine loads
+    env["C3_MATCHER_ENGINES__DIRECTORY"] = str(tmp_path)
     env["C3_MATCHER_FDR__PATH"] = str(tmp_path / "fdr.jsonl")
-    args = ["match", "--query", str(DEMO / "frame.jpg"), "--calibration", str(cal)]
-    args += ["--tile", str(DEMO / tile["file"]), "--tile-id", ",".join(map(str, tile["tile_id"]))]
     proc = subprocess.run(
         [sys.executable, "-m", "c3_matcher.cli", *args],
         capture_output=True,
@@ -35,30 +29,37 @@ def test_calibration_for_another_image_size_exits_2_naming_both_sizes(tmp_path):
         cwd=tmp_path,
         timeout=300,
     )
-    assert proc.returncode == 2, proc.stderr
-    assert proc.stdout == ""
-    lines = [ln for ln in proc.stderr.splitlines() if "1280x960" in ln]
-    assert len(lines) == 1 and "640x480" in lines[0] and "--calibration" in lines[0], proc.stderr
+    assert proc.returncode == 2 and proc.stdout == "", proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if needle in ln]
+    assert len(lines) == 1, proc.stderr
+    return lines[0]
+
+
+def _calibration_for_double_size(path: Path) -> tuple[int, int]:
+    """Rewrite the calibration at ``path`` for an image twice as large; return the true size."""
+    calibration = json.loads(path.read_text())
+    w, h = calibration["image_size"]
+    calibration["image_size"] = [w * 2, h * 2]
+    path.write_text(json.dumps(calibration))
+    return w, h
+
+
+def test_match_with_a_calibration_for_another_image_size_exits_2_naming_both(tmp_path):
+    cal = tmp_path / "cal.json"
+    shutil.copy(DEMO / "calibration.json", cal)
+    w, h = _calibration_for_double_size(cal)
+    assert (w, h) == (640, 480)  # the demo frame's size
+    tile = json.loads((DEMO / "demo.json").read_text())["tiles"][0]
+    args = ["match", "--query", str(DEMO / "frame.jpg"), "--calibration", str(cal)]
+    args += ["--tile", str(DEMO / tile["file"]), "--tile-id", ",".join(map(str, tile["tile_id"]))]
+    line = _refused(args, tmp_path, "1280x960")
+    assert "640x480" in line and "--calibration" in line
 
 
 def test_replay_of_a_dataset_whose_calibration_is_for_another_size_exits_2(tmp_path):
     dataset = tmp_path / "flight"
     shutil.copytree(REPO / "data" / "flights" / "naip_demo", dataset)
-    calibration = json.loads((dataset / "calibration.json").read_text())
-    w, h = calibration["image_size"]
-    calibration["image_size"] = [w * 2, h * 2]
-    (dataset / "calibration.json").write_text(json.dumps(calibration))
-    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-    env["C3_MATCHER_ENGINES__DIRECTORY"] = str(tmp_path)  # refused before any engine loads
-    proc = subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", "replay", str(dataset), "--limit", "1"],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=tmp_path,
-        timeout=300,
-    )
-    assert proc.returncode == 2, proc.stderr
-    lines = [ln for ln in proc.stderr.splitlines() if f"{w * 2}x{h * 2}" in ln]
-    assert len(lines) == 1 and f"{w}x{h}" in lines[0] and "calibration.json" in lines[0]
+    w, h = _calibration_for_double_size(dataset / "calibration.json")
+    line = _refused(["replay", str(dataset), "--limit", "1"], tmp_path, f"{w * 2}x{h * 2}")
+    assert f"{w}x{h}" in line and "calibration.json" in line
     assert not (tmp_path / "out").exists()  # nothing replayed

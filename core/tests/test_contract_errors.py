@@ -7,7 +7,6 @@ Scripted doubles for the control flow, then the real engines on the demo frame."
 
 from __future__ import annotations
 
-import json
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,13 +15,12 @@ import pytest
 
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
-from c3_matcher.dto import Attitude, NavCameraFrame, RerankCandidate, RerankResult, TileId
+from c3_matcher.dto import RerankResult
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.serialize import load_calibration
 from c3_matcher.testing import ScriptedCandidate, ScriptedRig, make_rerank
-from c3_matcher.tiles import MmapTileHandle, read_image
+from c3_matcher_tools.bench import _demo_inputs as demo_inputs
 
 S = ScriptedCandidate
 DEMO = Path(__file__).resolve().parents[2] / "data" / "demo"
@@ -91,36 +89,16 @@ def demo_matcher(
     root.close()
 
 
-def _demo_inputs(frame_id: uuid.UUID, rerank_id: uuid.UUID) -> tuple[NavCameraFrame, RerankResult]:
-    meta = json.loads((DEMO / "demo.json").read_text())
-    att = meta["attitude_deg"]
-    frame = NavCameraFrame(
-        frame_id,
-        read_image(DEMO / "frame.jpg"),
-        1,
-        Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
-        meta["height_m"],
-    )
-    candidates = tuple(
-        RerankCandidate(
-            TileId(*t["tile_id"]), 1.0, MmapTileHandle(DEMO / t["file"]), meta["tile_gsd_m"]
-        )
-        for t in meta["tiles"]
-    )
-    return frame, RerankResult(rerank_id, candidates)
-
-
 def test_real_engines_stale_rerank_and_missing_frame_then_a_fix(demo_matcher):
     matcher, fdr = demo_matcher
-    calibration = load_calibration(DEMO / "calibration.json")
-    frame, stale = _demo_inputs(uuid.UUID(int=1), uuid.UUID(int=2))
+    frame, rerank, calibration = demo_inputs(DEMO)
+    stale = RerankResult(uuid.UUID(int=2), rerank.candidates)  # made for the frame before
     with pytest.raises(InsufficientInliersError) as info:
         matcher.match(frame, stale, calibration)
     assert info.value.candidates_dropped == len(stale.candidates)
     assert fdr.of_kind("matcher.insufficient_inliers")[-1]["stale_rerank"] == str(stale.frame_id)
     with pytest.raises(MatcherBackboneError, match="query_extract"):
         matcher.match(None, stale, calibration)  # type: ignore[arg-type]
-    good_frame, rerank = _demo_inputs(uuid.UUID(int=3), uuid.UUID(int=3))
-    result = matcher.match(good_frame, rerank, calibration)
-    assert result.frame_id == good_frame.frame_id and result.per_candidate
+    result = matcher.match(frame, rerank, calibration)  # the next consistent frame: a fix
+    assert result.frame_id == frame.frame_id and result.per_candidate
     assert result.per_candidate[0].inlier_count >= 60
