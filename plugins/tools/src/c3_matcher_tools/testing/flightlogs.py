@@ -126,8 +126,7 @@ def write_ulog(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) 
     """A PX4 ULog with ``vehicle_attitude``, ``vehicle_global_position``,
     ``vehicle_gps_position`` (eph 1.5 m, 3D fix, UTC time), ``home_position`` and
     ``camera_capture`` (one per frame). ``flaws``: ``no_attitude`` (topic left out),
-    ``no_trigger``, ``time_jump`` (the attitude clock steps back 5 s mid-log),
-    ``gnss_loss`` (the receiver reports no fix over the second frame)."""
+    ``no_trigger``, ``gnss_loss`` (the receiver reports no fix over the second frame)."""
     from pyulog import ULog
 
     ulog = ULog(None)
@@ -140,8 +139,6 @@ def write_ulog(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) 
     if "no_attitude" not in flaws:
         quats = [p.quaternion() for p in poses]
         att_us = list(us)
-        if "time_jump" in flaws and len(att_us) > 2:
-            att_us[len(att_us) // 2] = att_us[len(att_us) // 2 - 1] - 5_000_000
         topics.append(
             (
                 "vehicle_attitude",
@@ -341,7 +338,8 @@ _DF_STRUCT = {"Q": "Q", "f": "f", "L": "i", "B": "B", "I": "I", "H": "H"}
 
 def write_dataflash(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) -> Path:
     """An ArduPilot DataFlash log in the documented binary layout (FMT messages, then ATT, POS,
-    GPS with GNSS week time, GPA and CAM); ``flaws``: ``no_attitude``, ``no_trigger``."""
+    GPS with GNSS week time, GPA and CAM); ``flaws``: ``no_attitude``, ``no_trigger``,
+    ``time_jump`` (the middle frame's ATT stamped 5 s before the frame before it)."""
     out = bytearray()
 
     def fmt_message(type_id: int, name: str, fmt: str, cols: str) -> bytes:
@@ -380,7 +378,11 @@ def write_dataflash(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] =
     for i, p in enumerate(poses):
         tus = int((BOOT_S + p.t_s) * 1e6)
         if "no_attitude" not in flaws:
-            items.append(msg("ATT", tus, p.roll, p.pitch, p.yaw % 360.0))
+            att = msg("ATT", tus, p.roll, p.pitch, p.yaw % 360.0)
+            if "time_jump" in flaws and i == len(poses) // 2:
+                back = int((BOOT_S + poses[i - 1].t_s - 5.0) * 1e6)
+                att = (tus, msg("ATT", back, p.roll, p.pitch, p.yaw % 360.0)[1])
+            items.append(att)
         if "no_trigger" not in flaws:
             items.append(msg("CAM", tus, i))
     items.sort(key=lambda x: x[0])

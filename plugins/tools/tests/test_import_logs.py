@@ -1,0 +1,275 @@
+"""``c3-matcher dataset import`` from recorded logs: a PX4 ULog, an ArduPilot telemetry log and
+DataFlash log, ROS 2 bags (sqlite3 and MCAP) and a photo folder with EXIF/XMP, each written by
+the libraries' own writers (:mod:`c3_matcher_tools.testing.flightlogs`) over frames of the
+shipped demo flight, whose poses are known. Each imports, replays through xfeat and comes back
+within a few metres of where its GNSS says the frame looks; bad logs exit 2 with one line; a
+real PX4 log (tests/data/logs, see its ATTRIBUTION.md) is read with its units and topics."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from c3_matcher.serialize import load_calibration
+from c3_matcher_tools.dataset.format import load_dataset
+from c3_matcher_tools.dataset.sources.common import (
+    body_attitude_for_camera,
+    gimbal_camera_matrix,
+)
+from c3_matcher_tools.dataset.sources.ulog import read_ulog
+from c3_matcher_tools.testing import flightlogs as fl
+
+REPO = Path(__file__).resolve().parents[3]
+DEMO = REPO / "data" / "flights" / "naip_demo"
+CAL = str(DEMO / "calibration.json")
+STORE = str(DEMO / "tiles.mbtiles")
+REAL_ULOG = Path(__file__).parent / "data" / "logs" / "px4_cubeorange_sample_log_small.ulg"
+FRAMES = range(4)
+
+
+def c3(*args: str, engine_dir: Path | None = None) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
+    if engine_dir is not None:
+        env["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
+    return subprocess.run(
+        [sys.executable, "-m", "c3_matcher.cli", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=REPO,
+        timeout=900,
+    )
+
+
+def _images(root: Path, poses: list[fl.Pose]) -> Path:
+    folder = root / "images"
+    folder.mkdir()
+    for i, p in enumerate(poses):
+        shutil.copyfile(p.image, folder / f"IMG_{i:04d}.jpg")
+    return folder
+
+
+def _refused(proc: subprocess.CompletedProcess[str], *needles: str) -> None:
+    """Exit 2 with one error line naming each needle."""
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
+    lines = [x for x in proc.stderr.splitlines() if x.strip()]
+    assert len(lines) == 1, proc.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+
+
+def _replay_near_gnss(flight: Path, out: Path, engine_dir: Path, bound_m: float = 8.0) -> dict:
+    """Replay ``flight`` with xfeat; every frame matches within ``bound_m`` of its telemetry
+    look point; returns the report."""
+    proc = c3(
+        "replay", str(flight), "--strategy", "xfeat", "--out", str(out), "--json",
+        engine_dir=engine_dir,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads(proc.stdout)
+    results = [json.loads(x) for x in (out / "results.jsonl").read_text().splitlines()]
+    errors = [r["telemetry_error_m"] for r in results]
+    print(f"{flight.name}: estimate - telemetry m {[round(e or -1, 2) for e in errors]}")
+    assert all(r["status"] == "ok" for r in results), [r["status"] for r in results]
+    assert all(e is not None and e < bound_m for e in errors), errors
+    assert report["with_telemetry"] == len(results)
+    assert report["telemetry_error_m_p95"] < bound_m
+    html = (out / "report.html").read_text()
+    assert "estimate - telemetry" in html
+    return report
+
+
+@pytest.fixture(scope="module")
+def poses() -> list[fl.Pose]:
+    return fl.flight_poses(DEMO, FRAMES)
+
+
+def test_ulog_imports_replays_and_reports_error_against_gnss(
+    poses: list[fl.Pose], engine_dir: Path, tmp_path: Path
+) -> None:
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=("gnss_loss",))
+    images = _images(tmp_path, poses)
+    flight = tmp_path / "flight"
+    proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(flight))
+    assert proc.returncode == 0, proc.stderr
+    said = proc.stdout
+    assert "imported 4 frame(s) from flight.ulg (PX4 ULog)" in said
+    assert "camera trigger (4 in the log, 4 image(s)), offset +0.000 s" in said
+    assert "height above ground: altitude - home altitude (4)" in said
+    assert "GNSS absent or degraded: frames 1" in said and "skipped: none" in said
+    d = load_dataset(flight)
+    for f, p in zip(d.frames, poses, strict=True):
+        t = f.telemetry
+        assert f.height_m == pytest.approx(p.height_m, abs=0.01)
+        assert np.allclose(f.attitude_deg, (p.roll, p.pitch, p.yaw), atol=1e-3)
+        assert (t["lat"], t["lon"]) == pytest.approx((p.lat, p.lon), abs=1e-7)
+        assert t["gnss_degraded"] is (f.index == 1)
+    assert d.frames[0].telemetry["gnss_accuracy_m"] == pytest.approx(1.5)
+    report = _replay_near_gnss(flight, tmp_path / "replay", engine_dir)
+    assert report["gnss_degraded_frames"] == [1]
+    assert report["with_truth"] == 0
+
+
+def test_ulog_frames_without_attitude_are_imported_and_marked(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses)
+    images = _images(tmp_path, poses)
+    flight = tmp_path / "flight"
+    # one second after each trigger the attitude (one sample per frame) is 1 s away
+    args = ["--time-offset", "1.0", "--max-gap", "0.5", "--json"]
+    proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(flight), *args)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["frames"] == 3 and summary["attitude_assumed"] == [0, 1, 2]
+    assert summary["time_offset_s"] == 1.0
+    # the last image falls after the log ends: skipped, and said why
+    [skipped] = summary["skipped"]
+    assert skipped["image"] == "IMG_0003.jpg" and "outside the log" in skipped["reason"]
+    d = load_dataset(flight)
+    assert all("attitude_assumed" in f.telemetry["flags"] for f in d.frames)
+    assert all(f.attitude_deg[:2] == (0.0, 0.0) for f in d.frames)
+
+
+@pytest.mark.parametrize(
+    ("flaws", "extra", "needles"),
+    [
+        (("no_attitude",), (), ("flight.ulg", "no vehicle_attitude topic")),
+        (
+            ("no_trigger",),
+            ("--time-source", "order", "--interval", "2", "--time-offset", "5000"),
+            ("no image falls within the log's time span", "different flights"),
+        ),
+        (("no_trigger",), (), ("no camera trigger", "--interval")),
+    ],
+)
+def test_bad_ulog_is_refused_with_one_line(
+    poses: list[fl.Pose], tmp_path: Path, flaws: tuple[str, ...], extra: tuple[str, ...],
+    needles: tuple[str, ...],
+) -> None:  # fmt: skip
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=flaws)
+    images = _images(tmp_path, poses)
+    out = tmp_path / "flight"
+    _refused(c3("dataset", "import", str(images), str(log), CAL, STORE, str(out), *extra), *needles)
+    assert not out.exists()
+
+
+def test_real_px4_log_is_read_with_its_topics_and_units() -> None:
+    track = read_ulog(REAL_ULOG)
+    assert track.kind == "PX4 ULog" and track.position is None  # no vehicle_global_position
+    assert "positions from vehicle_gps_position" in track.notes[0]
+    assert len(track.attitude or ()) == 1298 and track.gnss is not None and len(track.gnss) == 32
+    lat, lon, alt, eph, fix = track.gnss.values[0]
+    assert (lat, lon) == pytest.approx((63.4170622, 10.4082151))  # Trondheim, 1e-7 deg ints
+    assert alt == pytest.approx(66.814) and eph == pytest.approx(3.26, abs=1e-3) and fix == 3
+    assert track.utc_offset_s is not None
+    utc = track.gnss.t_s[0] + track.utc_offset_s
+    assert 1_618_900_000 < utc < 1_619_100_000  # 2021-04-21, from time_utc_usec
+    roll, pitch, yaw = track.attitude.values[0]  # type: ignore[union-attr]
+    assert abs(roll) < 5 and abs(pitch) < 5 and -180 <= yaw <= 180  # on the ground
+    assert track.height is not None and track.triggers_s is None
+
+
+@pytest.mark.parametrize("kind", ["tlog", "bin"])
+def test_ardupilot_logs_import_and_replay(
+    kind: str, poses: list[fl.Pose], engine_dir: Path, tmp_path: Path
+) -> None:
+    writer = fl.write_tlog if kind == "tlog" else fl.write_dataflash
+    log = writer(tmp_path / f"flight.{kind}", poses)
+    images = _images(tmp_path, poses)
+    flight = tmp_path / "flight"
+    proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(flight), "--json")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["frames"] == 4 and summary["skipped"] == []
+    assert summary["time_source"].startswith("camera trigger")
+    assert summary["height_sources"] == {"altitude - home altitude": 4}
+    d = load_dataset(flight)
+    assert [f.height_m for f in d.frames] == pytest.approx([p.height_m for p in poses], abs=0.01)
+    if kind == "tlog":  # one replay per log family keeps the suite short
+        _replay_near_gnss(flight, tmp_path / "replay", engine_dir)
+    bad = writer(tmp_path / f"bad.{kind}", poses, flaws=("no_attitude",))
+    _refused(
+        c3("dataset", "import", str(images), str(bad), CAL, STORE, str(tmp_path / "b")),
+        "no ATT / ATTITUDE message",
+    )
+    if kind == "bin":  # a log cut and joined: its clock steps back
+        jump = writer(tmp_path / "jump.bin", poses, flaws=("time_jump",))
+        _refused(
+            c3("dataset", "import", str(images), str(jump), CAL, STORE, str(tmp_path / "j")),
+            "jump.bin",
+            "time jumps back 5.000 s",
+            "in ATT",
+        )
+
+
+@pytest.mark.parametrize(("storage", "compressed"), [("sqlite3", True), ("mcap", False)])
+def test_ros2_bags_import_with_recorded_intrinsics(
+    storage: str, compressed: bool, poses: list[fl.Pose], engine_dir: Path, tmp_path: Path
+) -> None:
+    calibration = load_calibration(DEMO / "calibration.json")
+    bag = fl.write_bag(tmp_path / "bag", poses, calibration, storage=storage, compressed=compressed)
+    flight = tmp_path / "flight"
+    common = ["-", str(bag), "-", STORE]
+    _refused(c3("dataset", "import", *common, str(flight)), "--ground-elevation")
+    proc = c3(
+        "dataset", "import", *common, str(flight), "--ground-elevation", str(fl.GROUND_M), "--json"
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["frames"] == 4 and summary["kind"] == "ROS bag"
+    assert summary["height_sources"] == {"altitude - ground elevation": 4}
+    d = load_dataset(flight)
+    assert np.allclose(d.calibration.K, calibration.K)
+    assert np.allclose(d.calibration.distortion, calibration.distortion)
+    for f, p in zip(d.frames, poses, strict=True):
+        assert np.allclose(f.attitude_deg, (p.roll, p.pitch, p.yaw), atol=1e-4)  # ENU -> NED
+        assert f.telemetry["gnss_accuracy_m"] == pytest.approx(1.5)
+    suffix = ".jpg" if compressed else ".png"
+    assert all(f.image.endswith(suffix) for f in d.frames)
+    if storage == "mcap":
+        _replay_near_gnss(flight, tmp_path / "replay", engine_dir)
+    no_gps = fl.write_bag(
+        tmp_path / "nogps", poses, calibration, storage=storage, flaws=("no_gps",)
+    )
+    _refused(
+        c3("dataset", "import", "-", str(no_gps), "-", STORE, str(tmp_path / "x")),
+        "no sensor_msgs/NavSatFix topic",
+    )
+
+
+def test_exif_photo_folder_imports_and_replays(
+    poses: list[fl.Pose], engine_dir: Path, tmp_path: Path
+) -> None:
+    photos = fl.write_exif_photos(tmp_path / "photos", poses)
+    shutil.copyfile(poses[0].image, photos / "ZZZ_no_gps.jpg")
+    flight = tmp_path / "flight"
+    proc = c3("dataset", "import", str(photos), "-", CAL, STORE, str(flight))
+    assert proc.returncode == 0, proc.stderr
+    assert "skipped 1 image(s):" in proc.stdout
+    assert "ZZZ_no_gps.jpg: no GPS position in its EXIF" in proc.stdout
+    assert "XMP RelativeAltitude (above the take-off point) (4)" in proc.stdout
+    d = load_dataset(flight)
+    assert len(d.frames) == 4
+    for f, p in zip(d.frames, poses, strict=True):
+        assert np.allclose(f.attitude_deg, (p.roll, p.pitch, p.yaw), atol=0.01)  # from the gimbal
+        assert f.height_m == pytest.approx(p.height_m, abs=1e-3)
+        assert (f.telemetry["lat"], f.telemetry["lon"]) == pytest.approx((p.lat, p.lon), abs=1e-6)
+    _replay_near_gnss(flight, tmp_path / "replay", engine_dir)
+
+
+def test_gimbal_straight_down_is_the_default_mount_level() -> None:
+    calibration = load_calibration(DEMO / "calibration.json")
+    r = gimbal_camera_matrix(0.0, -90.0, 30.0)
+    roll, pitch, yaw = body_attitude_for_camera(r, calibration)
+    assert (roll, pitch) == pytest.approx((0.0, 0.0), abs=1e-9)
+    assert yaw == pytest.approx(30.0)
+    assert math.isfinite(roll)
