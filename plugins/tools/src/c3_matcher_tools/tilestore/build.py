@@ -11,6 +11,13 @@ its own window (never the whole raster) and coarser zooms read the file's overvi
 (or with ``C3_MATCHER_TOOLS_NO_RASTERIO=1``) the whole raster is loaded with tifffile. Several
 zooms can be written into one store. The zoom defaults to the coarsest whose ground GSD at the
 image centre is at most the orthophoto's (:func:`c3_matcher_tools.tilestore.geo.zoom_for_gsd`).
+
+Refused before any tile is written (``InvalidInputError``): coordinates that do not fit the CRS
+(:func:`~c3_matcher_tools.tilestore.geo.check_grid_fits_crs`), an implausible ground GSD, and,
+unless ``force``, a zoom whose tiles are more than :data:`MAX_UPSAMPLE` times finer than the
+source (invented detail, and 4x the tiles per zoom step). A build that stores no tile is refused
+too. The store is written atomically (:class:`MBTilesWriter`). Non-8-bit data is mapped to 8 bits
+as the report's ``value_mapping`` says (:class:`~c3_matcher_tools.tilestore.raster.ValueMapping`).
 """
 
 from __future__ import annotations
@@ -30,24 +37,34 @@ from c3_matcher_tools.sim.orthophotos import load_orthophoto
 from c3_matcher_tools.tilestore.geo import (
     TILE_PX,
     GeoGrid,
+    check_source_gsd,
     lonlat_to_world_px,
     read_geotiff_grid,
     world_px_to_lonlat,
     zoom_for_gsd,
 )
-from c3_matcher_tools.tilestore.raster import RasterioSource, rasterio_available
+from c3_matcher_tools.tilestore.raster import (
+    RasterioSource,
+    ValueMapping,
+    ValueRange,
+    rasterio_available,
+)
 from c3_matcher_tools.tilestore.writer import MBTilesWriter
 
-__all__ = ["BuildReport", "build_mbtiles", "parse_zooms", "render_tile"]
+__all__ = ["MAX_UPSAMPLE", "BuildReport", "build_mbtiles", "parse_zooms", "render_tile"]
 
 Progress = Callable[[int, int], None]
+
+#: the finest tiles built without ``force``: this many times finer than the source's GSD
+MAX_UPSAMPLE = 4.0
 
 
 @dataclass(frozen=True)
 class BuildReport:
     """What ``build_mbtiles`` wrote: ``tiles`` stored (of ``candidates`` in the bounds) over
     ``zooms`` (``zoom`` the finest, ``tile_gsd_m`` its GSD; ``tiles_per_zoom``), read with
-    ``reader`` (``rasterio`` or ``tifffile``)."""
+    ``reader`` (``rasterio`` or ``tifffile``); ``value_mapping`` says how the source's values
+    became 8 bits."""
 
     path: Path
     zoom: int
@@ -62,6 +79,7 @@ class BuildReport:
     reader: str = "tifffile"
     nodata: float | None = None
     overview_levels: tuple[int, ...] = ()
+    value_mapping: str = "uint8 as is"
 
 
 def _tile_uv(grid: GeoGrid, zoom: int, x: int, y: int) -> NDArray[np.float64]:
@@ -136,6 +154,8 @@ def build_mbtiles(
     overwrite: bool = False,
     progress: Progress | None = None,
     use_rasterio: bool | None = None,
+    value_range: ValueRange = None,
+    force: bool = False,
 ) -> BuildReport:
     """Write ``out`` (MBTiles) from ``geotiff`` at ``zoom`` (one zoom, several, or None: the
     default of :func:`zoom_for_gsd`); ``reference`` (lat, lon) of the image centre is needed
@@ -143,7 +163,9 @@ def build_mbtiles(
     With rasterio (``use_rasterio`` None: :func:`rasterio_available`) the GeoTIFF is read one
     window per tile, its nodata tag honoured and its overviews used; otherwise the whole
     raster is loaded with tifffile. ``progress`` is called with (done, total) after every
-    tile."""
+    tile. ``value_range`` (rasterio only): None / ``"auto"`` (99.9th percentile), ``"bits"``
+    (declared bit depth) or (lo, hi), for non-8-bit data. ``force`` builds a zoom more than
+    :data:`MAX_UPSAMPLE` times finer than the source."""
     if tile_format not in ("png", "jpg"):
         raise InvalidInputError("format", f"expected png or jpg, got {tile_format!r}")
     if isinstance(zoom, (int, np.integer)):
@@ -155,9 +177,12 @@ def build_mbtiles(
     source: RasterioSource | None = None
     photo_rgb: NDArray[np.uint8] | None = None
     if use_rasterio:
-        source = RasterioSource(geotiff, reference=reference)
+        source = RasterioSource(geotiff, reference=reference, value_range=value_range)
         grid, gsd, reader, nodata = source.grid, source.gsd_m, "rasterio", source.nodata
+        mapping = source.mapping.describe()
     else:
+        if value_range not in (None, "auto"):
+            raise InvalidInputError("--value-range", "needs the rasterio reader (the geo extra)")
         grid = read_geotiff_grid(geotiff, reference=reference)
         photo = load_orthophoto(geotiff)
         if photo.size != grid.size:
@@ -166,14 +191,27 @@ def build_mbtiles(
             )
         gsd = math.sqrt(grid.scale_x * grid.scale_y) if photo.gsd_m is None else photo.gsd_m
         photo_rgb, reader, nodata = photo.rgb, "tifffile", None
+        mapping = _fallback_mapping(geotiff)
     try:
+        check_source_gsd(gsd, geotiff)
         return _build(
             geotiff, out, grid, gsd, source, photo_rgb, zooms, tile_format, jpeg_quality,
-            attribution, overwrite, progress, reader, nodata,
+            attribution, overwrite, progress, reader, nodata, mapping, force,
         )  # fmt: skip
     finally:
         if source is not None:
             source.close()
+
+
+def _fallback_mapping(geotiff: str | Path) -> str:
+    """The tifffile fallback's mapping (``load_orthophoto``: the whole raster's percentile)."""
+    import tifffile
+
+    with tifffile.TiffFile(str(geotiff)) as tif:
+        dtype = str(tif.pages.first.dtype)
+    if dtype == "uint8":
+        return ValueMapping(dtype, 0.0, 255.0, "as is").describe()
+    return f"{dtype} 0..p99.9 -> 0..255 linear (99.9th percentile of the non-zero pixels)"
 
 
 def _build(
@@ -191,23 +229,38 @@ def _build(
     progress: Progress | None,
     reader: str,
     nodata: float | None,
+    mapping: str,
+    force: bool,
 ) -> BuildReport:
     lon_c, lat_c = grid.centre_lonlat()
+    default_zoom = zoom_for_gsd(gsd, lat_c)
     if zooms is None:
-        zooms = [zoom_for_gsd(gsd, lat_c)]
+        zooms = [default_zoom]
     w, h = grid.size
     corners = grid.px_to_lonlat(
         [[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]
     )
-    jobs: list[tuple[int, int, int]] = []
+    ranges: dict[int, tuple[range, range]] = {}
     for z in zooms:
         world = lonlat_to_world_px(corners, z)
         x_lo, y_lo = (np.floor(world.min(axis=0)) // TILE_PX).astype(int)
         x_hi, y_hi = (np.floor(world.max(axis=0)) // TILE_PX).astype(int)
-        jobs += [(z, tx, ty) for ty in range(y_lo, y_hi + 1) for tx in range(x_lo, x_hi + 1)]
+        ranges[z] = (range(x_lo, x_hi + 1), range(y_lo, y_hi + 1))
+    planned = sum(len(xs) * len(ys) for xs, ys in ranges.values())
 
     def tile_gsd(z: int) -> float:
         return 2 * math.pi * 6378137.0 / TILE_PX * math.cos(math.radians(lat_c)) / 2**z
+
+    too_fine = [z for z in zooms if tile_gsd(z) * MAX_UPSAMPLE < gsd]
+    if too_fine and not force:
+        z = max(too_fine)
+        raise InvalidInputError(
+            "--zoom",
+            f"zoom {z} ({tile_gsd(z):.3g} m/px) is {gsd / tile_gsd(z):,.0f}x finer than the "
+            f"source ({gsd:.3g} m/px): {planned:,} tiles planned, of invented detail; the "
+            f"source's zoom is {default_zoom} (the default). Use --force to build it anyway",
+        )
+    jobs = [(z, tx, ty) for z, (xs, ys) in ranges.items() for ty in ys for tx in xs]
 
     per_zoom = {str(z): 0 for z in zooms}
     scaled: dict[int, tuple[NDArray[np.uint8], NDArray[np.uint8], float]] = {}
@@ -235,6 +288,12 @@ def _build(
                 per_zoom[str(z)] += 1
             if progress is not None:
                 progress(done, len(jobs))
+        if not any(per_zoom.values()):
+            raise InvalidInputError(
+                "geotiff",
+                f"{geotiff}: no tile holds data at zoom {'/'.join(map(str, zooms))} "
+                f"({len(jobs)} in the bounds): the raster is all nodata (0); nothing written",
+            )
         lons, lats = corners[:, 0], corners[:, 1]
         writer.put_metadata(
             {
@@ -253,6 +312,7 @@ def _build(
                 "c3_source_gsd_m": f"{gsd:.6f}",
                 "c3_georeference": json.dumps(grid.projection.to_dict()),
                 "c3_reader": reader,
+                "c3_source_value_mapping": mapping,
                 **({} if nodata is None else {"c3_source_nodata": repr(float(nodata))}),
             }
         )
@@ -270,6 +330,7 @@ def _build(
         reader,
         None if nodata is None else float(nodata),
         tuple(sorted(source.levels_used)) if source is not None else (),
+        mapping,
     )
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ from c3_matcher.config import C3Settings
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.progress import ProgressBar
 
-__all__ = ["parse_latlon", "register_tiles_command"]
+__all__ = ["parse_latlon", "parse_value_range", "register_tiles_command"]
 
 
 def parse_latlon(text: str) -> tuple[float, float]:
@@ -24,6 +25,19 @@ def parse_latlon(text: str) -> tuple[float, float]:
     if not (-90 <= lat <= 90 and -180 <= lon <= 180):
         raise argparse.ArgumentTypeError(f"LAT,LON out of range: {text!r}")
     return lat, lon
+
+
+def parse_value_range(text: str) -> str | tuple[float, float]:
+    """``auto``, ``bits`` or ``LO,HI`` (source values) for ``--value-range``."""
+    if text in ("auto", "bits"):
+        return text
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto, bits or LO,HI, got {text!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise argparse.ArgumentTypeError(f"expected finite LO < HI, got {text!r}")
+    return lo, hi
 
 
 def register_tiles_command(commands: CommandRegistry) -> None:
@@ -65,7 +79,20 @@ def register_tiles_command(commands: CommandRegistry) -> None:
         "(local tangent plane)",
     )
     b.add_argument("--attribution", default="", help="metadata attribution text")
-    b.add_argument("--force", action="store_true", help="overwrite OUT")
+    b.add_argument(
+        "--value-range",
+        type=parse_value_range,
+        default=None,
+        metavar="auto|bits|LO,HI",
+        help="how 16-bit / float values become 8 bits: auto (default: 0..the 99.9th percentile "
+        "of the valid pixels), bits (the declared bit depth, e.g. 0..4095 for 12-bit data in "
+        "16-bit words) or LO,HI; the build report states the mapping used",
+    )
+    b.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite OUT, and build a zoom more than 4x finer than the source",
+    )
     b.add_argument("--json", action="store_true", help="print the report as JSON")
     i = tiles.add_parser("info", help="print an MBTiles store's metadata and tile counts")
     i.add_argument("store", type=Path, help="an MBTiles tile store")
@@ -129,6 +156,8 @@ def run_tiles(args: argparse.Namespace, settings: C3Settings) -> int:
         overwrite=args.force,
         progress=ProgressBar(f"tiles build {Path(args.out).name}"),
         use_rasterio=None if args.reader == "auto" else args.reader == "rasterio",
+        value_range=args.value_range,
+        force=args.force,
     )
     data = {
         k: str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v
@@ -141,6 +170,7 @@ def run_tiles(args: argparse.Namespace, settings: C3Settings) -> int:
             f"{report.path}: {report.tiles} tiles at zoom "
             f"{'/'.join(str(z) for z in report.zooms)} (read with {report.reader}; finest "
             f"{report.tile_gsd_m:.2f} m/px; source {report.source_gsd_m:.2f} m/px), "
-            f"{report.bytes / 1e6:.2f} MB; georeference {report.georeference}"
+            f"{report.bytes / 1e6:.2f} MB; georeference {report.georeference}; "
+            f"pixel values {report.value_mapping}"
         )
     return 0

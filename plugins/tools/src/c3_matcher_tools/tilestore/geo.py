@@ -39,6 +39,8 @@ __all__ = [
     "TILE_PX",
     "GeoGrid",
     "Projection",
+    "check_grid_fits_crs",
+    "check_source_gsd",
     "geokeys",
     "lonlat_to_world_px",
     "read_geotiff_grid",
@@ -328,10 +330,13 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
             tags = {c: page.tags[c].value for c in (33550, 33922, 34735) if c in page.tags}
             w, h = int(page.imagewidth), int(page.imagelength)
     except Exception as exc:  # tifffile raises many kinds on a non-TIFF
-        raise InvalidInputError("geotiff", f"{p}: not a readable TIFF: {exc}") from exc
+        raise InvalidInputError(
+            "geotiff", f"{p}: no georeference (not a TIFF: {' '.join(str(exc).split())})"
+        ) from exc
     if 33550 not in tags or 33922 not in tags:
         raise InvalidInputError(
-            "geotiff", f"{p}: no ModelPixelScale/ModelTiepoint tags (not a north-up GeoTIFF)"
+            "geotiff",
+            f"{p}: no georeference (no ModelPixelScale/ModelTiepoint tags: not a north-up GeoTIFF)",
         )
     sx, sy = float(tags[33550][0]), float(tags[33550][1])
     tie = [float(t) for t in tags[33922][:6]]
@@ -346,7 +351,96 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
     projection = Projection.from_epsg(
         None if epsg is None else int(epsg), reference=reference, ref_en=centre_en
     )
-    return GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
+    grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
+    check_grid_fits_crs(grid, p)
+    return grid
+
+
+_MERCATOR_MAX_M = 20_048_966.2  # web-mercator northing at lat 85.06 deg (the tiles' limit)
+
+
+def _crs_bounds(projection: Projection) -> tuple[str, float, float, float, float] | None:
+    """(what the coordinates are, E min, E max, N min, N max) a grid of ``projection`` can hold,
+    or None when there is no fixed range (local tangent plane, pyproj: checked in lon/lat)."""
+    if projection.kind == "geographic":
+        return "degrees (lon -180..180, lat -90..90)", -180.0, 180.0, -90.0, 90.0
+    if projection.kind == "utm":
+        return "UTM metres (E 0..1,000,000, N 0..10,000,000)", 0.0, 1e6, 0.0, 1e7
+    if projection.kind in ("web_mercator", "world_mercator"):
+        m = _MERCATOR_MAX_M
+        return "mercator metres (|E|, |N| <= 20,048,966)", -m, m, -m, m
+    return None
+
+
+def check_grid_fits_crs(grid: GeoGrid, source: str | Path) -> None:
+    """Refuse a grid whose coordinates cannot be its CRS's (metres labelled degrees, a wrong
+    EPSG code, a missing scale): its corners must lie in the CRS's range (degrees: lon -180..180,
+    lat -90..90; UTM: E 0..1e6 m, N 0..1e7 m; mercator: within the world) and convert to finite
+    lon/lat (pyproj CRSs: within 2 degrees of the CRS's area of use)."""
+    w, h = grid.size
+    e0, e1 = grid.origin_e, grid.origin_e + w * grid.scale_x
+    n0, n1 = grid.origin_n - h * grid.scale_y, grid.origin_n
+    label = f"EPSG:{grid.epsg}" if grid.epsg else "its CRS"
+    extent = f"E {e0:,.2f}..{e1:,.2f}, N {n0:,.2f}..{n1:,.2f}"
+    bounds = _crs_bounds(grid.projection)
+    if bounds is not None:
+        what, e_lo, e_hi, n_lo, n_hi = bounds
+        if not (e_lo <= e0 and e1 <= e_hi and n_lo <= n0 and n1 <= n_hi):
+            raise InvalidInputError(
+                "geotiff",
+                f"{source}: coordinates ({extent}) do not fit {label}, whose coordinates are "
+                f"{what}: is the CRS right?",
+            )
+    with np.errstate(all="ignore"):
+        corners = grid.px_to_lonlat(
+            [[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]
+        )
+    lon, lat = corners[:, 0], corners[:, 1]
+    ok = np.isfinite(corners).all() and (np.abs(lon) <= 180).all() and (np.abs(lat) <= 90).all()
+    if ok and grid.projection.kind == "pyproj":
+        area = _area_of_use(grid.projection.epsg)
+        if area is not None:
+            west, south, east, north = area
+            ok = bool(
+                lon.min() >= west - 2 and lon.max() <= east + 2
+                and lat.min() >= south - 2 and lat.max() <= north + 2
+            )  # fmt: skip
+            if not ok:
+                raise InvalidInputError(
+                    "geotiff",
+                    f"{source}: coordinates ({extent}) fall at lon {lon.min():.3f}..{lon.max():.3f}"
+                    f", lat {lat.min():.3f}..{lat.max():.3f}, outside {label}'s area of use (lon "
+                    f"{west}..{east}, lat {south}..{north}): is the CRS right?",
+                )
+    if not ok:
+        raise InvalidInputError(
+            "geotiff",
+            f"{source}: coordinates ({extent}) do not convert to a valid latitude/longitude "
+            f"in {label}: is the CRS right?",
+        )
+
+
+#: plausible ground GSD of an orthophoto, m/px (a grid outside it has the wrong units)
+GSD_RANGE_M = (0.001, 10_000.0)
+
+
+def check_source_gsd(gsd_m: float, source: str | Path) -> None:
+    """Refuse a ground GSD outside :data:`GSD_RANGE_M` (degrees labelled metres and the like)."""
+    lo, hi = GSD_RANGE_M
+    if not (math.isfinite(gsd_m) and lo <= gsd_m <= hi):
+        raise InvalidInputError(
+            "geotiff",
+            f"{source}: a pixel of {gsd_m:.6g} m on the ground is not plausible for an "
+            f"orthophoto ({lo} to {hi:,.0f} m): are the CRS and its units right?",
+        )
+
+
+def _area_of_use(epsg: int) -> tuple[float, float, float, float] | None:
+    """(west, south, east, north) degrees where pyproj says EPSG ``epsg`` is used, or None."""
+    from pyproj import CRS
+
+    area = CRS.from_epsg(epsg).area_of_use
+    return None if area is None else (area.west, area.south, area.east, area.north)
 
 
 def zoom_for_gsd(gsd_m: float, lat_deg: float) -> int:

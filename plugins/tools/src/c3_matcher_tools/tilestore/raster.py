@@ -7,9 +7,12 @@ window per tile, never the whole raster), the GeoTIFF nodata tag / internal mask
 :func:`c3_matcher_tools.sim.orthophotos.load_orthophoto`, which reads the whole raster).
 
 Pixels follow the fallback's rules so that both give the same tiles: bands 1-3 as RGB (NAIP's
-4th band, NIR, is dropped), one band as grey; 16-bit / float data stretched to 8 bits (0 stays 0,
-the 99.9th percentile of the valid non-zero pixels becomes 255; here estimated on a decimated
-read of at most 1024 px a side); a pixel is valid where GDAL's mask says so AND some band is
+4th band, NIR, is dropped), one band as grey; 16-bit / float data mapped linearly to 8 bits
+(:class:`ValueMapping`, stated in the build report): by default 0 stays 0 and the 99.9th
+percentile of the valid non-zero pixels becomes 255 (here estimated on a decimated read of at
+most 1024 px a side); ``value_range="bits"`` maps the declared bit depth instead (the GDAL
+``NBITS`` tag, e.g. 12-bit data in 16-bit words: 0..4095, else the integer type's range), and
+``(lo, hi)`` maps lo..hi; a pixel is valid where GDAL's mask says so AND some band is
 non-zero (the matcher's tile nodata convention is 0, :mod:`c3_matcher.preprocess`), and invalid
 pixels are 0. For tiles coarser than the source by >= 1.15x the window is read at the tile's
 resolution with GDAL ``average`` resampling (mask: nearest) from the finest overview not
@@ -21,6 +24,8 @@ from __future__ import annotations
 import importlib.util
 import math
 import os
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +33,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.tilestore.geo import GeoGrid, Projection
+from c3_matcher_tools.tilestore.geo import GeoGrid, Projection, check_grid_fits_crs
 
-__all__ = ["RasterioSource", "grid_gsd_m", "rasterio_available"]
+__all__ = ["RasterioSource", "ValueMapping", "ValueRange", "grid_gsd_m", "rasterio_available"]
+
+#: how source values become 8 bits: None (the 99.9th percentile), "bits" or (lo, hi)
+ValueRange = str | tuple[float, float] | None
 
 F64 = NDArray[np.float64]
 _A = 6378137.0
@@ -64,30 +72,78 @@ def grid_gsd_m(grid: GeoGrid, *, geographic: bool) -> float:
     return gsd
 
 
+@dataclass(frozen=True)
+class ValueMapping:
+    """Source values ``lo``..``hi`` (of type ``dtype``) become 1..255 linearly (``v * 255 / hi``
+    when ``lo`` is 0, so 0 stays nodata); ``how`` says where the range comes from."""
+
+    dtype: str
+    lo: float
+    hi: float
+    how: str
+
+    def describe(self) -> str:
+        if self.dtype == "uint8" and self.how == "as is":
+            return "uint8 as is"
+        return f"{self.dtype} {self.lo:g}..{self.hi:g} -> 0..255 linear ({self.how})"
+
+    def apply(self, data: NDArray[Any]) -> NDArray[np.uint8]:
+        if self.how == "as is":
+            return np.asarray(data, dtype=np.uint8)
+        scaled = (data.astype(np.float64) - self.lo) * (255.0 / max(self.hi - self.lo, 1e-12))
+        return np.asarray(np.clip(np.rint(scaled), 0, 255), dtype=np.uint8)
+
+
+def declared_range(dtype: str, nbits: str | None, source: str | Path) -> tuple[float, str]:
+    """(top value, how) of the declared bit depth: ``NBITS`` when declared, else the integer
+    type's maximum; float data declares none."""
+    if nbits:
+        return float(2 ** int(nbits) - 1), f"declared bit depth NBITS={int(nbits)}"
+    if np.dtype(dtype).kind in "ui":
+        bits = np.iinfo(np.dtype(dtype)).bits
+        return float(np.iinfo(np.dtype(dtype)).max), f"the {bits}-bit type's range"
+    raise InvalidInputError(
+        "--value-range", f"{source}: {dtype} data has no bit depth: give LO,HI or leave it auto"
+    )
+
+
 class RasterioSource:
     """An open GeoTIFF: ``grid``, ``gsd_m``, ``nodata`` (the tag, or None), ``overviews``
     (decimation factors) and :meth:`sample` (one tile's pixels through a windowed read)."""
 
-    def __init__(self, path: str | Path, *, reference: tuple[float, float] | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        reference: tuple[float, float] | None = None,
+        value_range: ValueRange = None,
+    ) -> None:
         import rasterio
+        from rasterio.errors import NotGeoreferencedWarning
 
         self.path = Path(path)
         if not self.path.is_file():
             raise InvalidInputError("geotiff", f"no such file: {self.path}")
         try:
-            ds = rasterio.open(self.path)
+            with warnings.catch_warnings():  # a plain image: said below in one line
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                ds = rasterio.open(self.path)
         except Exception as exc:  # RasterioIOError and friends
             raise InvalidInputError(
-                "geotiff", f"{self.path}: not a readable raster: {exc}"
+                "geotiff", f"{self.path}: not a readable raster: {' '.join(str(exc).split())}"
             ) from exc
         self._levels: dict[int, Any] = {-1: ds}
         t = ds.transform
+        if ds.crs is None:
+            ds.close()
+            raise InvalidInputError(
+                "geotiff",
+                f"{self.path}: no georeference (no CRS{' or pixel grid' if t.is_identity else ''}"
+                "): tiles build needs a GeoTIFF",
+            )
         if t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
             ds.close()
             raise InvalidInputError("geotiff", f"{self.path}: not a north-up grid ({t})")
-        if ds.crs is None:
-            ds.close()
-            raise InvalidInputError("geotiff", f"{self.path}: no CRS (not a GeoTIFF)")
         epsg = ds.crs.to_epsg()
         w, h = int(ds.width), int(ds.height)
         sx, sy = float(t.a), float(-t.e)
@@ -98,20 +154,47 @@ class RasterioSource:
             ref_en=(origin_e + w / 2 * sx, origin_n - h / 2 * sy),
         )
         self.grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
+        try:
+            check_grid_fits_crs(self.grid, self.path)
+        except InvalidInputError:
+            ds.close()
+            raise
         self.gsd_m = grid_gsd_m(self.grid, geographic=bool(ds.crs.is_geographic))
         self.bands = [1, 2, 3] if ds.count >= 3 else [1]
         self.nodata = ds.nodata
         self.overviews: list[int] = list(ds.overviews(1))
-        self._top = 255.0
-        if ds.dtypes[0] != "uint8":
-            side = max(w, h)
-            f = max(1, math.ceil(side / 1024))
-            probe = self._read(ds, None, (max(1, h // f), max(1, w // f)), average=True)
-            data, mask = probe
-            good = data[:, mask > 0]
-            nonzero = good[good > 0]
-            self._top = float(np.percentile(nonzero, 99.9)) if nonzero.size else 1.0
+        try:
+            self.mapping = self._mapping(ds, value_range)
+        except InvalidInputError:
+            ds.close()
+            raise
         self.levels_used: set[int] = set()
+
+    def _mapping(self, ds: Any, value_range: ValueRange) -> ValueMapping:
+        dtype = str(ds.dtypes[0])
+        if isinstance(value_range, tuple):
+            lo, hi = (float(v) for v in value_range)
+            if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+                raise InvalidInputError("--value-range", f"expected LO < HI, got {lo},{hi}")
+            return ValueMapping(dtype, lo, hi, "given")
+        if value_range == "bits":
+            top, how = declared_range(
+                dtype, ds.tags(1, ns="IMAGE_STRUCTURE").get("NBITS"), self.path
+            )
+            return ValueMapping(dtype, 0.0, top, how)
+        if value_range not in (None, "auto"):
+            raise InvalidInputError(
+                "--value-range", f"expected auto, bits or LO,HI, got {value_range!r}"
+            )
+        if dtype == "uint8":
+            return ValueMapping(dtype, 0.0, 255.0, "as is")
+        w, h = self.grid.size
+        f = max(1, math.ceil(max(w, h) / 1024))
+        data, mask = self._read(ds, None, (max(1, h // f), max(1, w // f)), average=True)
+        good = data[:, mask > 0]
+        nonzero = good[good > 0]
+        top = float(np.percentile(nonzero, 99.9)) if nonzero.size else 1.0
+        return ValueMapping(dtype, 0.0, top, "99.9th percentile of the valid pixels")
 
     def close(self) -> None:
         for ds in self._levels.values():
@@ -182,11 +265,7 @@ class RasterioSource:
         else:
             data, mask = self._read(ds, window, None, average=False)
             kx = ky = 1.0
-        if data.dtype != np.uint8:
-            data = np.clip(
-                np.rint(data.astype(np.float64) * (255.0 / max(self._top, 1e-12))), 0, 255
-            )
-        rgb = np.ascontiguousarray(np.moveaxis(np.asarray(data, dtype=np.uint8), 0, -1))
+        rgb = np.ascontiguousarray(np.moveaxis(self.mapping.apply(data), 0, -1))
         if rgb.shape[2] == 1:
             rgb = np.repeat(rgb, 3, axis=2)
         valid = ((mask > 0) & np.any(rgb > 0, axis=2)).astype(np.uint8)

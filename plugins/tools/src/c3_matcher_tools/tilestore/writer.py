@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import sqlite3
+import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +15,8 @@ from pathlib import Path
 from c3_matcher.errors import InvalidInputError
 
 __all__ = ["DigestReport", "MBTilesWriter", "add_missing_digests"]
+
+_SIDE_FILES = ("-journal", "-wal", "-shm")  # SQLite's files beside a database
 
 # per-tile sha256: the flight read path verifies it and drops a tile that fails
 _DIGEST_SCHEMA = (
@@ -74,43 +78,82 @@ def add_missing_digests(path: str | Path) -> DigestReport:
 
 
 class MBTilesWriter:
-    """Create a new MBTiles file (refuses to overwrite an existing one unless ``overwrite``)."""
+    """Create a new MBTiles file atomically: it is written as a hidden sibling
+    (``.NAME.tmp-XXXXXXXX``) and renamed onto ``path`` by :meth:`close`; :meth:`abort` (or
+    leaving the ``with`` block on any exception, Ctrl-C included) removes it and its journal, and
+    an existing ``path`` is untouched until the rename (refused unless ``overwrite``)."""
 
     def __init__(self, path: str | Path, *, overwrite: bool = False) -> None:
         self._path = Path(path)
-        if self._path.exists():
-            if not overwrite:
-                raise InvalidInputError("mbtiles", f"{self._path} exists (use --force)")
-            self._path.unlink()
+        if self._path.exists() and not overwrite:
+            raise InvalidInputError("mbtiles", f"{self._path} exists (use --force)")
+        if self._path.is_dir():
+            raise InvalidInputError("mbtiles", f"{self._path} is a directory")
         self._path.parent.mkdir(parents=True, exist_ok=True)
-        self._db = sqlite3.connect(str(self._path))
-        for statement in _SCHEMA:
-            self._db.execute(statement)
+        self._tmp = self._path.with_name(f".{self._path.name}.tmp-{uuid.uuid4().hex[:8]}")
+        self._db: sqlite3.Connection | None = sqlite3.connect(str(self._tmp))
+        try:
+            for statement in _SCHEMA:
+                self._db.execute(statement)
+        except BaseException:
+            self.abort()
+            raise
+
+    def _open(self) -> sqlite3.Connection:
+        if self._db is None:
+            raise InvalidInputError("mbtiles", f"{self._path}: the writer is closed")
+        return self._db
+
+    @property
+    def temporary_path(self) -> Path:
+        """Where the store is written until :meth:`close` renames it."""
+        return self._tmp
 
     def put_tile(self, zoom: int, x: int, y: int, data: bytes) -> None:
         """Store XYZ tile (zoom, x, y) (converted to a TMS row) and its sha256."""
         row = (1 << zoom) - 1 - y
-        self._db.execute(
+        db = self._open()
+        db.execute(
             "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?)",
             (zoom, x, row, sqlite3.Binary(data)),
         )
-        self._db.execute(
+        db.execute(
             "INSERT OR REPLACE INTO c3_tile_digest VALUES (?, ?, ?, ?)",
             (zoom, x, row, hashlib.sha256(data).hexdigest()),
         )
 
     def put_metadata(self, values: Mapping[str, object]) -> None:
+        db = self._open()
         for key, value in values.items():
             text = value if isinstance(value, str) else json.dumps(value)
-            self._db.execute("INSERT OR REPLACE INTO metadata VALUES (?, ?)", (key, text))
+            db.execute("INSERT OR REPLACE INTO metadata VALUES (?, ?)", (key, text))
 
     def close(self) -> None:
-        self._db.commit()
-        self._db.execute("VACUUM")
-        self._db.close()
+        """Commit, compact and rename the store onto its path (the one moment it appears)."""
+        db = self._open()
+        try:
+            db.commit()
+            db.execute("VACUUM")
+            db.close()
+            self._db = None
+            os.replace(self._tmp, self._path)
+        except BaseException:
+            self.abort()
+            raise
+
+    def abort(self) -> None:
+        """Drop the unfinished store: nothing is left at the path or beside it."""
+        if self._db is not None:
+            self._db.close()
+            self._db = None
+        for leftover in (self._tmp, *(Path(f"{self._tmp}{s}") for s in _SIDE_FILES)):
+            leftover.unlink(missing_ok=True)
 
     def __enter__(self) -> MBTilesWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
