@@ -140,6 +140,7 @@ class JsonlFdrRecorder:
         self._fd = -1
         self._lock_fd = -1
         self._needs_repair = False
+        self._reserved: int | None = None  # a segment number reserved by a failed rotation
         what = f"fdr.path {self._path}"
         if self._path.is_dir():
             raise FdrOpenError(what, "is a directory (give a file path)")
@@ -297,16 +298,19 @@ class JsonlFdrRecorder:
         not be reserved or the rename failed, say on a full disk): the caller keeps appending
         to the live segment. After the rename an error propagates with ``_fd`` closed, so the
         next write opens the new live segment: the rotation is then complete either way."""
-        number = self._next_segment_number()
+        number = self._reserved or self._next_segment_number()
         target = self._path.with_name(f"{self._path.stem}.{number:06d}{self._path.suffix}")
         while target.exists():  # never overwrite (we hold the lock: no other writer races us)
             number += 1
             target = self._path.with_name(f"{self._path.stem}.{number:06d}{self._path.suffix}")
         try:  # reserve the number first: a failure here leaves everything as it was
-            _write_meta(self._meta_path, {"last_segment": number, "last_seq": self._seq - 1})
+            if number != self._reserved:
+                _write_meta(self._meta_path, {"last_segment": number, "last_seq": self._seq - 1})
+                self._reserved = number  # kept for the next try: one number per rotation
             self._path.rename(target)  # atomic: the records are under exactly one name
         except OSError:
             return False  # at worst a reserved number stays unused: never a reused one
+        self._reserved = None
         os.close(self._fd)
         self._fd = -1
         self._fd = self._open()
