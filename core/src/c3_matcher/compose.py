@@ -42,6 +42,7 @@ __all__ = [
     "build_default_helpers",
     "build_plugin_host",
     "compose_root",
+    "state_default_fdr_path",
 ]
 
 CONSUMER = "c3_matcher"
@@ -106,6 +107,20 @@ def build_default_helpers(
     }
 
 
+def state_default_fdr_path(config: C3Settings) -> None:
+    """Log (INFO ``c3.fdr.default_path``) where the recorder writes when ``[fdr] path`` was not
+    set by a file, the environment or the caller: the user's data directory, which nobody
+    chose explicitly."""
+    if "path" not in config.fdr.model_fields_set:
+        log_event(
+            "INFO",
+            "c3.fdr.default_path",
+            f"flight data recorder writing to {config.fdr.path} (the default [fdr] path; set "
+            "[fdr] path, C3_MATCHER_FDR__PATH or pass c13_fdr to change it)",
+            path=str(config.fdr.path),
+        )
+
+
 def compose_root(
     config: C3Settings,
     pre_constructed: Mapping[str, Any] | None = None,
@@ -130,14 +145,8 @@ def compose_root(
         config.fdr.path, clock, max_bytes=config.fdr.max_bytes
     )
     handle = configure_logging(fdr, level=config.logging.level) if configure_logs else None
-    if "c13_fdr" not in helpers and "path" not in config.fdr.model_fields_set:
-        log_event(
-            "INFO",
-            "c3.fdr.default_path",
-            f"flight data recorder writing to {config.fdr.path} (the default [fdr] path; set "
-            "[fdr] path, C3_MATCHER_FDR__PATH or pass c13_fdr to change it)",
-            path=str(config.fdr.path),
-        )
+    if "c13_fdr" not in helpers:
+        state_default_fdr_path(config)
     try:
         host = plugin_host if plugin_host is not None else build_plugin_host()
         for error in host.errors:

@@ -64,6 +64,16 @@ def _positive(text: str) -> float:
     return value
 
 
+def _keypoints(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not 16 <= value <= 8192:
+        raise argparse.ArgumentTypeError(f"must be in 16..8192, got {value}")
+    return value
+
+
 def register_match_command(commands: CommandRegistry) -> None:
     p = commands.add(
         "match",
@@ -109,6 +119,12 @@ def register_match_command(commands: CommandRegistry) -> None:
     p.add_argument("--height", type=_positive, default=None, help="height above ground, m")
     p.add_argument("--strategy", default=None, help="strategy to use (default: configuration)")
     p.add_argument(
+        "--max-keypoints",
+        type=_keypoints,
+        default=None,
+        help="override [matcher] max_keypoints (16..8192)",
+    )
+    p.add_argument(
         "--viz",
         type=Path,
         default=None,
@@ -129,7 +145,7 @@ def register_match_command(commands: CommandRegistry) -> None:
 
 
 def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
-    from c3_matcher.compose import build_default_helpers, compose_root
+    from c3_matcher.compose import build_default_helpers, compose_root, state_default_fdr_path
 
     if args.tile_id and len(args.tile_id) != len(args.tile):
         raise InvalidInputError(
@@ -137,8 +153,13 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
             f"{len(args.tile_id)} given for {len(args.tile)} --tile; give one per tile or none",
         )
     update: dict[str, Any] = {}
+    matcher_update: dict[str, Any] = {}
     if args.strategy:
-        update["matcher"] = settings.matcher.model_copy(update={"strategy": args.strategy})
+        matcher_update["strategy"] = args.strategy
+    if args.max_keypoints:
+        matcher_update["max_keypoints"] = args.max_keypoints
+    if matcher_update:
+        update["matcher"] = settings.matcher.model_copy(update=matcher_update)
     if args.fdr:
         update["fdr"] = settings.fdr.model_copy(update={"path": args.fdr})
     settings = settings.model_copy(update=update)
@@ -169,6 +190,7 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
     own_fdr = _open_fdr(settings, problems)
     helpers["c13_fdr"] = own_fdr
     root = compose_root(settings, helpers)
+    state_default_fdr_path(settings)
     reasons: dict[str, str] = {}
     sink = _collect_drop_reasons(reasons)
     try:
