@@ -115,7 +115,7 @@ def test_one_flag_name_per_concept() -> None:
         for old, new in SYNONYMS.items():
             assert old not in offered, f"`c3-matcher {path}` offers {old}: the flag is {new}"
     users = [p for p in LEAVES if "--max-keypoints" in _options(COMMANDS[p][0])]
-    assert {"replay", "eval", "bench"} <= set(users)
+    assert {"match", "replay", "eval", "bench"} <= set(users)
 
 
 def test_groups_list_their_subcommands() -> None:

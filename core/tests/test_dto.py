@@ -120,13 +120,13 @@ def _result(per, **overrides):  # type: ignore[no-untyped-def]
 def test_match_result_invariants():
     per = (cms(120, 1.1), cms(120, 1.4), cms(80, 1.0))
     assert _result(per).best.inlier_count == 120
-    with pytest.raises(InvalidInputError, match="INV-3"):
+    with pytest.raises(InvalidInputError, match="per_candidate: must be sorted"):
         _result((per[1], per[0], per[2]))
-    with pytest.raises(InvalidInputError, match="INV-6"):
+    with pytest.raises(InvalidInputError, match="best_candidate_idx: must be 0"):
         _result(per, best_candidate_idx=1)
-    with pytest.raises(InvalidInputError, match="INV-6"):
+    with pytest.raises(InvalidInputError, match="reprojection_residual_px: must equal"):
         _result(per, reprojection_residual_px=1.4)
-    with pytest.raises(InvalidInputError, match="INV-9"):
+    with pytest.raises(InvalidInputError, match="candidates_dropped: must equal"):
         _result(per, candidates_dropped=1)
-    with pytest.raises(InvalidInputError, match="INV-2"):
+    with pytest.raises(InvalidInputError, match="survivors > 2 input candidates"):
         _result(per, candidates_input=2, candidates_dropped=-1)

@@ -411,28 +411,28 @@ class MatchResult:
         v.require(
             len(per) <= n_in,
             "match_result.per_candidate",
-            f"{len(per)} survivors > {n_in} input candidates (INV-2)",
+            f"{len(per)} survivors > {n_in} input candidates",
         )
         v.require(
             self.candidates_dropped == n_in - len(per),
             "match_result.candidates_dropped",
-            f"must equal candidates_input - len(per_candidate) = {n_in - len(per)} (INV-9)",
+            f"must equal candidates_input - len(per_candidate) = {n_in - len(per)}",
         )
         v.require(
             self.best_candidate_idx == 0,
             "match_result.best_candidate_idx",
-            "must be 0: per_candidate is sorted best first (INV-6)",
+            "must be 0: per_candidate is sorted best first",
         )
         v.require(
             self.reprojection_residual_px == per[0].per_candidate_residual_px,
             "match_result.reprojection_residual_px",
-            "must equal per_candidate[0].per_candidate_residual_px (INV-6)",
+            "must equal per_candidate[0].per_candidate_residual_px",
         )
         keys = [ranking_key(c) for c in per]
         v.require(
             keys == sorted(keys),
             "match_result.per_candidate",
-            "must be sorted by inlier_count desc, residual asc (INV-3)",
+            "must be sorted by inlier_count desc, residual asc",
         )
         v.non_negative_int(self.matched_at, "match_result.matched_at")
         v.require(
