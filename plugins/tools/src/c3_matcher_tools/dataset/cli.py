@@ -150,7 +150,7 @@ def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
 
     if args.dataset_command == "info":
         d = load_dataset(args.dataset)
-        info = {
+        info: dict[str, object] = {
             "path": str(d.root),
             "name": d.name,
             "frames": len(d.frames),
