@@ -144,7 +144,7 @@ def main(argv: list[str]) -> int:
     helpers = {**build_default_helpers(settings), "c13_fdr": InMemoryFdr()}
     matcher: Any = compose_root(settings, helpers, configure_logs=False).matcher
     backend = matcher.backend
-    pre = FramePreprocessor(backend.input_rule, photometric=settings.matcher.photometric)
+    pre = FramePreprocessor(backend.input_rule, photometric=matcher.settings.photometric)
     budget = int(getattr(backend, "max_keypoints", None) or backend._config.max_keypoints)
     dataset = load_dataset(flight)
     store = dataset.open_store()
@@ -189,7 +189,7 @@ def main(argv: list[str]) -> int:
             row[name] = [inliers, round(share, 3), round(cos, 3)]
         rows.append(row)
         print(json.dumps(row), flush=True)
-    print(f"{strategy}, photometric {settings.matcher.photometric}, {len(rows)} frames, medians:")
+    print(f"{strategy}, photometric {matcher.settings.photometric}, {len(rows)} frames, medians:")
     for name in variants:
         a = np.array([r[name] for r in rows], dtype=float)
         print(
