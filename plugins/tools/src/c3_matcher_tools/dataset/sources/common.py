@@ -162,6 +162,11 @@ class Shot:
     own: dict[str, Any] = field(default_factory=dict)
 
 
+def constant(data: bytes) -> Callable[[], bytes]:
+    """A :attr:`Shot.read` for bytes already in memory."""
+    return lambda: data
+
+
 @dataclass(frozen=True)
 class ImportOptions:
     """How images meet the log and how candidates are proposed (lengths m, times s).
@@ -280,13 +285,14 @@ class ImportReport:
 
 
 def _ranges(values: Sequence[int]) -> str:
-    parts: list[str] = []
+    """``[1, 2, 3, 7]`` -> ``"1-3, 7"``."""
+    parts: list[list[int]] = []
     for v in sorted(values):
         if parts and parts[-1][1] == v - 1:
-            parts[-1] = (parts[-1][0], v)
+            parts[-1][1] = v
         else:
-            parts.append((v, v))  # type: ignore[arg-type]
-    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in parts)  # type: ignore[misc]
+            parts.append([v, v])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in parts)
 
 
 def attitude_from_matrix(r_world_from_body: F64) -> tuple[float, float, float]:

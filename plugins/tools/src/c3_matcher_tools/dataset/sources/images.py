@@ -21,7 +21,7 @@ from typing import Any
 import cv2
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import Shot
+from c3_matcher_tools.dataset.sources.common import Shot, constant
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -192,7 +192,7 @@ def video_shots(path: Path, step: int = 1) -> list[Shot]:
                 shots.append(
                     Shot(
                         f"{path.name}#{index}",
-                        (lambda d=data: d),
+                        constant(data),
                         ".jpg",
                         None,
                         {"relative_s": float(t)},

@@ -61,6 +61,19 @@ def _open(path: Path) -> Any:
 Row = tuple[float, list[float]]
 
 
+def _position(
+    rows: dict[str, list[Row]],
+    home: list[float],
+    t: float,
+    lat: float,
+    lon: float,
+    alt: float,
+    home_alt: float,
+) -> None:
+    rows["pos"].append((t, [lat, lon, alt]))
+    home.append(home_alt)
+
+
 def read_mavlink(path: Path) -> LogTrack:
     """The track of a DataFlash ``.bin`` / ``.log`` or MAVLink ``.tlog`` (see the module
     docstring); raises InvalidInputError naming the file and the missing messages."""
@@ -76,13 +89,11 @@ def read_mavlink(path: Path) -> LogTrack:
         "ATTITUDE": lambda m, t: rows["att"].append(
             (t, [math.degrees(m.roll), math.degrees(m.pitch), math.degrees(m.yaw)])
         ),
-        "POS": lambda m, t: (
-            rows["pos"].append((t, [m.Lat, m.Lng, m.Alt])),
-            home.append(m.Alt - m.RelHomeAlt) if hasattr(m, "RelHomeAlt") else None,
+        "POS": lambda m, t: _position(
+            rows, home, t, m.Lat, m.Lng, m.Alt, m.Alt - getattr(m, "RelHomeAlt", math.nan)
         ),
-        "GLOBAL_POSITION_INT": lambda m, t: (
-            rows["pos"].append((t, [m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3])),
-            home.append((m.alt - m.relative_alt) * 1e-3),
+        "GLOBAL_POSITION_INT": lambda m, t: _position(
+            rows, home, t, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3, (m.alt - m.relative_alt) * 1e-3
         ),
         "GPS": lambda m, t: rows["gps"].append((t, [m.Lat, m.Lng, m.Alt, math.nan, m.Status])),
         "GPA": lambda m, t: hacc.append((t, float(m.HAcc))),
@@ -154,7 +165,7 @@ def read_mavlink(path: Path) -> LogTrack:
         gnss=gnss,
         height=series("rng", "RFND" if "RFND" in seen else "DISTANCE_SENSOR"),
         triggers_s=trig if trig.size else None,
-        home_alt_m=home[0] if home else None,
+        home_alt_m=next((h for h in home if math.isfinite(h)), None),
         utc_offset_s=0.0 if first_t > 1e9 else None,
         notes=(f"{trig.size} camera trigger(s)",) if trig.size else (),
     )

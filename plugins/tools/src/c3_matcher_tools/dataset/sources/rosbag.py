@@ -23,7 +23,13 @@ import numpy as np
 
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import LogTrack, Series, Shot, attitude_from_matrix
+from c3_matcher_tools.dataset.sources.common import (
+    LogTrack,
+    Series,
+    Shot,
+    attitude_from_matrix,
+    constant,
+)
 
 __all__ = ["BagTopics", "read_bag"]
 
@@ -73,8 +79,8 @@ def _pick(reader: Any, source: str, wanted: str | None, types: Sequence[str], wh
     if wanted is not None:
         hit = [c for c in conns if c.topic == wanted]
         if not hit:
-            topics = ", ".join(sorted({c.topic for c in conns}))
-            raise InvalidInputError(source, f"no topic {wanted} in the bag (topics: {topics})")
+            names = ", ".join(sorted({c.topic for c in conns}))
+            raise InvalidInputError(source, f"no topic {wanted} in the bag (topics: {names})")
         if hit[0].msgtype not in types:
             raise InvalidInputError(
                 source, f"{wanted} is {hit[0].msgtype}, not {' or '.join(types)} ({what})"
@@ -173,7 +179,7 @@ def read_bag(
             if conn.msgtype in IMAGE_TYPES:
                 data, suffix = _image_bytes(msg, conn.msgtype)
                 shots.append(
-                    Shot(f"{conn.topic}@{t:.6f}", (lambda d=data: d), suffix, t, {"stamp_s": t})
+                    Shot(f"{conn.topic}@{t:.6f}", constant(data), suffix, t, {"stamp_s": t})
                 )
             elif conn.msgtype in ATTITUDE_TYPES:
                 att_t.append(t)

@@ -72,6 +72,13 @@ def _field(data: dict[str, np.ndarray], *names: str, scale: float = 1.0) -> np.n
     return None
 
 
+def _required(data: dict[str, np.ndarray], name: str, source: str) -> np.ndarray:
+    got = _field(data, name)
+    if got is None:
+        raise InvalidInputError(source, f"vehicle_global_position lacks its field {name!r}")
+    return got
+
+
 def _new_or_old(data: dict[str, np.ndarray], new: str, old: str, scale: float) -> np.ndarray | None:
     """A receiver field by its current name (SI units), else by its older integer one."""
     return _field(data, new) if new in data else _field(data, old, scale=scale)
@@ -129,7 +136,7 @@ def read_ulog(path: Path) -> LogTrack:
         position = Series.build(
             "vehicle_global_position",
             tp,
-            np.stack([_field(glob, "lat"), _field(glob, "lon"), _field(glob, "alt")], axis=1),
+            np.stack([_required(glob, k, source) for k in ("lat", "lon", "alt")], axis=1),
             source=source,
         )
     elif gnss is not None:
