@@ -9,9 +9,6 @@ from __future__ import annotations
 import hashlib
 import shutil
 import sqlite3
-import subprocess
-import sys
-import textwrap
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from c3_matcher.testing.locks import exclusive_lock, release
 from c3_matcher.tilestore.features import (
     FeatureRequest,
     FeatureSet,
@@ -174,21 +172,6 @@ def test_a_row_of_finite_garbage_is_refused_once_and_never_served(store, tmp_pat
     fresh.close()
 
 
-_HOLDER = textwrap.dedent(
-    """
-    import sqlite3, sys
-    db = sqlite3.connect(sys.argv[1], isolation_level=None)
-    db.execute("PRAGMA locking_mode=EXCLUSIVE")
-    db.execute("BEGIN EXCLUSIVE")
-    db.execute("UPDATE window_sets SET windows = windows")
-    print("locked", flush=True)
-    sys.stdin.readline()
-    db.execute("COMMIT")
-    db.close()
-    """
-)
-
-
 def test_a_sidecar_locked_by_another_process_costs_no_wait(
     store, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -197,14 +180,7 @@ def test_a_sidecar_locked_by_another_process_costs_no_wait(
     clock = Clock()
     side = MapFeatureStore(sidecar_path(tmp_path / "tiles.mbtiles"), retry_s=30.0, clock=clock)
     monkeypatch.setattr(source, "feature_store", lambda: side)  # the reader, on a set clock
-    holder = subprocess.Popen(
-        [sys.executable, "-c", _HOLDER, str(sidecar_path(tmp_path / "tiles.mbtiles"))],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert holder.stdout is not None and holder.stdout.readline().strip() == "locked"
+    with exclusive_lock(sidecar_path(tmp_path / "tiles.mbtiles")) as holder:
         started = time.perf_counter()
         with pytest.raises(FeatureStoreUnavailableError, match="locked.*next try in 30 s"):
             _serve(source, origin)
@@ -214,14 +190,7 @@ def test_a_sidecar_locked_by_another_process_costs_no_wait(
             assert _serve(source, origin) is None
         clock.now += 31  # tried again, still locked: quiet, back off again
         assert _serve(source, origin) is None
-        assert holder.stdin is not None
-        holder.stdin.write("\n")
-        holder.stdin.flush()
-        assert holder.wait(timeout=30) == 0
+        release(holder)
         assert _serve(source, origin) is None  # released, but not retried before its time
         clock.now += 31
         assert _serve(source, origin) is not None  # served again
-    finally:
-        if holder.poll() is None:
-            holder.kill()
-            holder.wait()

@@ -11,9 +11,6 @@ import io
 import json
 import shutil
 import sqlite3
-import subprocess
-import sys
-import textwrap
 import time
 from pathlib import Path
 from typing import Any
@@ -151,19 +148,6 @@ def test_matching_stored_features_gives_the_results_of_extraction(built: Path, e
     store.close()
 
 
-_HOLDER = textwrap.dedent(
-    """
-    import sqlite3, sys
-    db = sqlite3.connect(sys.argv[1], isolation_level=None)
-    db.execute("PRAGMA locking_mode=EXCLUSIVE")
-    db.execute("BEGIN EXCLUSIVE")
-    db.execute("UPDATE window_sets SET windows = windows")
-    print("locked", flush=True)
-    sys.stdin.readline()
-    """
-)
-
-
 def _logged(engine_dir: Path) -> tuple[Any, Any, Any, io.StringIO]:
     """A stored-features matcher whose WARNING logs go to a stream and to its FDR."""
     from c3_matcher.fdr import InMemoryFdr
@@ -182,6 +166,7 @@ def _warnings(stream: io.StringIO) -> list[dict[str, Any]]:
 
 
 def test_a_sidecar_locked_by_another_process_costs_no_frame_time(built: Path, engine_dir: Path):
+    from c3_matcher.testing.locks import exclusive_lock
     from c3_matcher.tilestore.features import sidecar_path
     from c3_matcher_tools.dataset.format import load_dataset
 
@@ -189,20 +174,12 @@ def test_a_sidecar_locked_by_another_process_costs_no_frame_time(built: Path, en
     reference, _ = _matcher(engine_dir, False)
     expected = _run(reference, dataset, dataset.open_store())
     matcher, fdr, handle, stream = _logged(engine_dir)
-    holder = subprocess.Popen(
-        [sys.executable, "-c", _HOLDER, str(sidecar_path(dataset.store_path))],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
     try:
-        assert holder.stdout is not None and holder.stdout.readline().strip() == "locked"
-        store = dataset.open_store()
-        got = _run(matcher, dataset, store)
-        store.close()
+        with exclusive_lock(sidecar_path(dataset.store_path)):
+            store = dataset.open_store()
+            got = _run(matcher, dataset, store)
+            store.close()
     finally:
-        holder.kill()
-        holder.wait()
         handle.close()
     assert all(_same(a, b) for (a, _), (b, _) in zip(got, expected, strict=True))
     # SQLite's default busy timeout waited 5 s per candidate (15 s a frame): now none
