@@ -15,15 +15,18 @@ __all__ = ["atomic_directory", "check_output_dir"]
 
 
 def check_output_dir(out: Path, *, force: bool = False, field: str = "OUT") -> None:
-    """Refuse an ``out`` that exists (unless ``force`` and it is a directory) or whose parent
-    cannot be written; nothing is created."""
+    """Refuse an ``out`` that exists (unless ``force`` and it is a directory) or whose nearest
+    existing ancestor is not a writable directory (missing parents are created on writing, as
+    ``replay`` does); nothing is created here."""
     out = Path(out)
     if out.exists() and not (force and out.is_dir()):
         hint = "" if out.is_dir() else " (and is not a directory)"
         raise InvalidInputError(field, f"{out} already exists{hint}: choose another or --force")
     parent = out.resolve().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
     if not parent.is_dir():
-        raise InvalidInputError(field, f"{parent}: no such directory")
+        raise InvalidInputError(field, f"{parent}: not a directory")
     if not os.access(parent, os.W_OK):
         raise InvalidInputError(field, f"{parent}: not writable")
 
@@ -35,6 +38,7 @@ def atomic_directory(out: Path, *, force: bool = False) -> Iterator[Path]:
     out = Path(out)
     check_output_dir(out, force=force)
     tag = uuid.uuid4().hex[:8]
+    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.parent / f".{out.name}.tmp-{tag}"
     tmp.mkdir()
     try:

@@ -31,7 +31,10 @@ order, extra columns ignored; aliases in brackets):
   image [file, filename, image_file]  image file name, relative to IMAGES_DIR
   lat [latitude]             vehicle latitude, degrees, WGS84
   lon [longitude]            vehicle longitude, degrees, WGS84
-  altitude_m [altitude, height_m, agl_m]  height ABOVE GROUND, metres
+  altitude_m [altitude, height_m, agl_m, height_agl_m]  height ABOVE GROUND, metres
+  or altitude_msl_m [alt_msl_m, altitude_amsl_m, amsl_m, msl_m]  altitude above mean
+                             sea level, metres: height above ground = this minus
+                             --ground-elevation M or the --dem GeoTIFF at (lat, lon)
   roll_deg [roll]            attitude, degrees: aerospace Z-Y-X (yaw, pitch, roll),
   pitch_deg [pitch]          NED body frame (x forward, y right, z down),
   yaw_deg [yaw]              yaw from TRUE north, clockwise positive
@@ -43,8 +46,10 @@ Candidates (a stand-in for the upstream re-ranker): at --zoom, the slippy tile h
 the point where the optical axis meets the ground (from position, attitude, height
 and the calibration's camera mount), then the tiles within --uncertainty-m of that
 point, then the nearest others, --candidates in all, shuffled deterministically
-(--seed); each is a --candidate-size px window centred on its tile. Every input is
-checked before anything is written; OUT is written atomically (temp dir + rename).
+(--seed); each is a --candidate-size px window centred on its tile. Images without
+a row and rows without an image are skipped and each is listed in the summary; a
+refused value names its CSV line. Every input is checked before anything is written;
+OUT is written atomically (temp dir + rename; a missing parent folder is created).
 """
 
 
@@ -154,7 +159,13 @@ def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
             "path": str(d.root),
             "name": d.name,
             "frames": len(d.frames),
-            "absent_frames": sum(not f.true_tile_present for f in d.frames),
+            "ground_truth_frames": sum(f.has_truth for f in d.frames),
+            # frames whose true tile is not among the candidates: only known with ground truth
+            "absent_frames": (
+                sum(not f.true_tile_present for f in d.frames if f.has_truth)
+                if any(f.has_truth for f in d.frames)
+                else None
+            ),
             "candidate_size_px": d.candidate_size_px,
             "calibration_image_size": list(d.calibration.image_size),
             **{k: d.meta[k] for k in ("tiles_source", "frames_source") if k in d.meta},
@@ -167,9 +178,9 @@ def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
     if args.dataset_command == "import" and (code := run_log_import(args)) is not None:
         return code  # a recorded log (PX4, ArduPilot, ROS bag, photo metadata)
     if args.dataset_command == "import":
-        from c3_matcher_tools.dataset.importer import ImportSpec, import_flight
+        from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
 
-        summary = import_flight(
+        report = import_csv_flight(
             ImportSpec(
                 images_dir=args.images_dir,
                 telemetry_csv=args.telemetry,
@@ -180,12 +191,14 @@ def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
                 zoom=args.zoom,
                 candidate_size_px=args.candidate_size,
                 seed=args.seed,
+                ground_elevation_m=args.ground_elevation,
+                dem=args.dem,
             ),
             args.out,
             name=args.name,
             force=args.force,
         )
-        print(json.dumps(summary))
+        print(json.dumps(report.to_json()) if args.json else "\n".join(report.lines()))
         return 0
     spec = FlightSpec(
         frames_geotiff=args.frames_geotiff,

@@ -12,9 +12,14 @@ other columns ignored):
       image_file)
     lat (latitude)      vehicle position, WGS84                                     degrees
     lon (longitude)     vehicle position, WGS84                                     degrees
-    altitude_m          height above ground (AGL, not above the ellipsoid / MSL)    metres
+    altitude_m          height ABOVE GROUND (AGL)                                   metres
       (altitude,
-      height_m, agl_m)
+      height_m, agl_m,
+      height_agl_m)
+    altitude_msl_m      or: altitude above mean sea level (the DEM's / ground         metres
+      (alt_msl_m,       elevation's datum); height above ground = this minus the
+      altitude_amsl_m,  ground elevation (``ground_elevation_m``) or the DEM at
+      amsl_m, msl_m)    (lat, lon) (``dem``), which must then be given
     roll_deg (roll)     attitude, aerospace Z-Y-X (yaw, pitch, roll), NED body      degrees
     pitch_deg (pitch)   idem                                                        degrees
     yaw_deg (yaw)       idem; yaw from TRUE north, clockwise positive               degrees
@@ -29,6 +34,8 @@ square comes within ``uncertainty_m`` of the point, nearest first, then the near
 tiles (distractors) until there are ``candidates``; only tiles the store holds. Their order is
 shuffled by a generator seeded by (``seed``, frame index), scores 0.9, 0.8, ... in that order.
 
+Rows and images: every image in IMAGES_DIR without a telemetry row and every row whose image
+is missing is skipped and reported (:class:`ImportReport`); a refused value names its CSV line.
 Everything is checked before anything is written; the dataset is written into a temporary
 sibling directory and renamed into place.
 """
@@ -48,7 +55,7 @@ import cv2
 import numpy as np
 
 from c3_matcher.camera import rotation_world_from_camera
-from c3_matcher.dto import Attitude, CameraCalibration, TileId
+from c3_matcher.dto import MAX_HEIGHT_ABOVE_GROUND_M, Attitude, CameraCalibration, TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
 from c3_matcher.tilestore.base import tile_centre_id
@@ -56,8 +63,24 @@ from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.format import CandidateTruth, FrameRecord, write_dataset
+from c3_matcher_tools.dataset.sources.common import (
+    ImportReport,
+    _ranges,
+    ground_elevation_sampler,
+)
+from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
 
-__all__ = ["COLUMNS", "ImportSpec", "TelemetryRow", "import_flight", "look_point", "read_telemetry"]
+__all__ = [
+    "COLUMNS",
+    "HEIGHT_COLUMNS",
+    "ImportSpec",
+    "Telemetry",
+    "TelemetryRow",
+    "import_csv_flight",
+    "import_flight",
+    "look_point",
+    "read_telemetry",
+]
 
 #: canonical column -> accepted header names (case-insensitive)
 COLUMNS: dict[str, tuple[str, ...]] = {
@@ -65,13 +88,19 @@ COLUMNS: dict[str, tuple[str, ...]] = {
     "image": ("image", "file", "filename", "image_file"),
     "lat": ("lat", "latitude"),
     "lon": ("lon", "longitude"),
-    "altitude_m": ("altitude_m", "altitude", "height_m", "agl_m"),
     "roll_deg": ("roll_deg", "roll"),
     "pitch_deg": ("pitch_deg", "pitch"),
     "yaw_deg": ("yaw_deg", "yaw"),
 }
+#: the height columns, one of which must be present: above ground, or above mean sea level
+HEIGHT_COLUMNS: dict[str, tuple[str, ...]] = {
+    "altitude_m": ("altitude_m", "altitude", "height_m", "agl_m", "height_agl_m"),
+    "altitude_msl_m": ("altitude_msl_m", "alt_msl_m", "altitude_amsl_m", "amsl_m", "msl_m"),
+}
 M_PER_DEG_LAT = 111_320.0
 MAX_PROBLEMS = 10
+MAX_ABS_TIME_S = 4e9  # |time_s| beyond this (126 years) is not a capture time (ns fit int64)
+AGREE_M = 30.0  # both height columns given: altitude - height must be the ground to this
 
 
 @dataclass(frozen=True)
@@ -87,6 +116,7 @@ class TelemetryRow:
     roll_deg: float
     pitch_deg: float
     yaw_deg: float
+    altitude_msl_m: float | None = None  # the row's altitude above sea level, when given
 
     @property
     def attitude(self) -> Attitude:
@@ -106,8 +136,18 @@ class ImportSpec:
     zoom: int | None = None
     candidate_size_px: int = 512
     seed: int = 0
+    ground_elevation_m: float | None = None  # the ground's altitude above sea level, m
+    dem: Path | None = None  # a DEM GeoTIFF of the ground's altitude above sea level
 
     def __post_init__(self) -> None:
+        if self.ground_elevation_m is not None and self.dem is not None:
+            raise InvalidInputError("--ground-elevation", "give it or --dem, not both")
+        if self.ground_elevation_m is not None and not (
+            math.isfinite(self.ground_elevation_m) and abs(self.ground_elevation_m) <= 9000
+        ):
+            raise InvalidInputError(
+                "--ground-elevation", f"must be in [-9000, 9000] m, got {self.ground_elevation_m}"
+            )
         if not (math.isfinite(self.uncertainty_m) and self.uncertainty_m >= 0):
             raise InvalidInputError("--uncertainty-m", f"must be >= 0, got {self.uncertainty_m}")
         if self.candidates < 1:
@@ -118,16 +158,30 @@ class ImportSpec:
             )
 
 
+def _find(lowered: dict[str, str], aliases: tuple[str, ...]) -> str | None:
+    return next((lowered[a] for a in aliases if a in lowered), None)
+
+
 def _column_map(header: list[str], path: Path) -> dict[str, str]:
+    """Canonical column -> header name; at least one of :data:`HEIGHT_COLUMNS`."""
     lowered = {h.strip().lower(): h for h in header}
     found: dict[str, str] = {}
     missing = []
     for name, aliases in COLUMNS.items():
-        hit = next((lowered[a] for a in aliases if a in lowered), None)
+        hit = _find(lowered, aliases)
         if hit is None:
             missing.append(f"{name} (or {', '.join(aliases[1:])})" if aliases[1:] else name)
         else:
             found[name] = hit
+    for name, aliases in HEIGHT_COLUMNS.items():
+        hit = _find(lowered, aliases)
+        if hit is not None:
+            found[name] = hit
+    if not any(k in found for k in HEIGHT_COLUMNS):
+        missing.append(
+            "a height: altitude_m (height above ground; or altitude, height_m, agl_m) or "
+            "altitude_msl_m (above sea level, with --ground-elevation or --dem)"
+        )
     if missing:
         raise InvalidInputError(
             str(path), f"telemetry CSV lacks column(s) {'; '.join(missing)}; header: {header}"
@@ -135,9 +189,96 @@ def _column_map(header: list[str], path: Path) -> dict[str, str]:
     return found
 
 
-def read_telemetry(path: Path) -> list[TelemetryRow]:
+@dataclass(frozen=True)
+class Telemetry:
+    """The checked rows (sorted by time) and how their heights above ground were obtained:
+    ``height_source`` in words, ``columns`` canonical -> the CSV's header names."""
+
+    rows: tuple[TelemetryRow, ...]
+    height_source: str
+    columns: dict[str, str]
+
+
+def _refuse(path: Path, problems: list[tuple[int, str]]) -> None:
+    """One line naming the first problems in full and every further line by number."""
+    if not problems:
+        return
+    shown = "; ".join(text for _, text in problems[:MAX_PROBLEMS])
+    rest = [n for n, _ in problems[MAX_PROBLEMS:]]
+    more = f" (and {len(rest)} more, on lines {_ranges(rest)})" if rest else ""
+    raise InvalidInputError(str(path), shown + more)
+
+
+def _row_problem(values: dict[str, float], col: dict[str, str]) -> str | None:
+    """Why a row's (finite) values are refused, naming the CSV's column, or None."""
+    t = values["time_s"]
+    if abs(t) > MAX_ABS_TIME_S:
+        return f"{col['time_s']} {t:g} is not a capture time (|s| <= {MAX_ABS_TIME_S:g})"
+    if not -90.0 <= values["lat"] <= 90.0:
+        return f"{col['lat']} {values['lat']:g} outside [-90, 90] deg"
+    if not -180.0 <= values["lon"] <= 180.0:
+        return f"{col['lon']} {values['lon']:g} outside [-180, 180] deg"
+    for key in ("roll_deg", "pitch_deg"):
+        if abs(values[key]) >= 90.0:
+            return f"{col[key]} {values[key]:g}: |roll| and |pitch| must be < 90 deg (radians?)"
+    if abs(values["yaw_deg"]) > 360.0:
+        return f"{col['yaw_deg']} {values['yaw_deg']:g} outside [-360, 360] deg"
+    return None
+
+
+def _height(
+    values: dict[str, float],
+    col: dict[str, str],
+    ground: Any,
+    spec_ground: float | None,
+) -> tuple[float | None, str | None]:
+    """(height above ground m, None) or (None, why refused) for one row."""
+    agl = values.get("altitude_m")
+    msl = values.get("altitude_msl_m")
+    if msl is not None:
+        g = spec_ground if ground is None else ground(values["lat"], values["lon"])
+        if g is None:
+            where = f"({values['lat']:.6f}, {values['lon']:.6f})"
+            return None, f"the DEM has no ground elevation at {where}"
+        if agl is None:
+            agl = msl - g
+            if agl <= 0:
+                return None, (
+                    f"{col['altitude_msl_m']} {msl:g} m is not above the ground ({g:g} m): "
+                    "altitude above sea level?"
+                )
+        elif abs(msl - agl - g) > AGREE_M:
+            return None, (
+                f"{col['altitude_msl_m']} {msl:g} m minus {col['altitude_m']} {agl:g} m is "
+                f"{msl - agl:g} m, but the ground is at {g:g} m"
+            )
+    assert agl is not None
+    name = col.get("altitude_m", "height above ground")
+    if agl <= 0:
+        return None, f"{name} {agl:g} must be > 0 m above ground"
+    if agl > MAX_HEIGHT_ABOVE_GROUND_M:
+        return None, f"{name} {agl:g} m above ground is not a UAV's height"
+    return agl, None
+
+
+def read_telemetry(
+    path: Path,
+    *,
+    ground_elevation_m: float | None = None,
+    dem: Path | None = None,
+) -> list[TelemetryRow]:
     """Read and check a telemetry CSV (see the module docstring), sorted by time; raises
-    InvalidInputError naming up to ten bad lines."""
+    InvalidInputError naming the CSV line of every refused value."""
+    return list(read_telemetry_table(path, ground_elevation_m=ground_elevation_m, dem=dem).rows)
+
+
+def read_telemetry_table(
+    path: Path,
+    *,
+    ground_elevation_m: float | None = None,
+    dem: Path | None = None,
+) -> Telemetry:
+    """:func:`read_telemetry` with how the heights above ground were obtained."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -147,44 +288,87 @@ def read_telemetry(path: Path) -> list[TelemetryRow]:
     if not reader.fieldnames:
         raise InvalidInputError(str(path), "empty telemetry CSV (no header)")
     cols = _column_map(list(reader.fieldnames), path)
+    has_msl, has_agl = "altitude_msl_m" in cols, "altitude_m" in cols
+    given = ground_elevation_m is not None or dem is not None
+    if given and not has_msl:
+        raise InvalidInputError(
+            "--ground-elevation" if dem is None else "--dem",
+            f"{path}: column {cols['altitude_m']!r} already is the height above ground; a ground "
+            "elevation is for an altitude above sea level column (altitude_msl_m)",
+        )
+    if has_msl and not has_agl and not given:
+        raise InvalidInputError(
+            "--ground-elevation",
+            f"{path}: column {cols['altitude_msl_m']!r} is an altitude above sea level: give "
+            "the ground's (--ground-elevation M, same datum) or a DEM (--dem DEM.tif) to get "
+            "the height above ground",
+        )
+    ground = ground_elevation_sampler(dem) if dem is not None else None
+    numeric = [k for k in (*COLUMNS, *HEIGHT_COLUMNS) if k in cols and k != "image"]
     rows: list[TelemetryRow] = []
-    problems: list[str] = []
+    problems: list[tuple[int, str]] = []
     for n, rec in enumerate(reader, start=2):
-        try:
-            values = {k: float(str(rec[cols[k]]).strip()) for k in COLUMNS if k != "image"}
-            image = str(rec[cols["image"]] or "").strip()
-        except (TypeError, ValueError) as exc:
-            problems.append(f"line {n}: {exc}")
+        values: dict[str, float] = {}
+        bad: list[str] = []
+        for k in numeric:
+            raw = str(rec.get(cols[k]) or "").strip()
+            try:
+                values[k] = float(raw)
+            except ValueError:
+                bad.append(f"{cols[k]} {raw!r} is not a number")
+                continue
+            if not math.isfinite(values[k]):
+                bad.append(f"{cols[k]} {raw} is not finite")
+        image = str(rec.get(cols["image"]) or "").strip()
+        why = "; ".join(bad) if bad else None
+        if why is None and not image:
+            why = f"{cols['image']} is empty"
+        why = why or _row_problem(values, cols)
+        height = None
+        if why is None:
+            height, why = _height(values, cols, ground, ground_elevation_m)
+        if why is not None or height is None:
+            problems.append((n, f"line {n}: {why}"))
             continue
-        bad = [k for k, v in values.items() if not math.isfinite(v)]
-        if bad:
-            problems.append(f"line {n}: not finite: {', '.join(bad)}")
-            continue
-        if not image:
-            problems.append(f"line {n}: empty image name")
-        elif not -90.0 <= values["lat"] <= 90.0 or not -180.0 <= values["lon"] <= 180.0:
-            problems.append(f"line {n}: lat/lon out of range ({values['lat']}, {values['lon']})")
-        elif values["altitude_m"] <= 0.0:
-            problems.append(f"line {n}: altitude_m must be > 0 m above ground")
-        elif abs(values["roll_deg"]) >= 90.0 or abs(values["pitch_deg"]) >= 90.0:
-            problems.append(f"line {n}: |roll| and |pitch| must be < 90 deg (degrees, not rad?)")
-        else:
-            rows.append(TelemetryRow(n, image=image, **values))
+        rows.append(
+            TelemetryRow(
+                n,
+                values["time_s"],
+                image,
+                values["lat"],
+                values["lon"],
+                height,
+                values["roll_deg"],
+                values["pitch_deg"],
+                values["yaw_deg"],
+                values.get("altitude_msl_m"),
+            )
+        )
     if not rows and not problems:
-        problems.append("no data rows")
+        problems.append((1, "no data rows"))
     seen: dict[str, int] = {}
     for r in rows:
         if r.image in seen:
-            problems.append(f"line {r.line}: image {r.image!r} already on line {seen[r.image]}")
+            problems.append(
+                (r.line, f"line {r.line}: image {r.image!r} already on line {seen[r.image]}")
+            )
         seen[r.image] = r.line
     rows.sort(key=lambda r: (r.time_s, r.line))
     for a, b in itertools.pairwise(rows):
         if b.time_s == a.time_s:
-            problems.append(f"lines {a.line} and {b.line}: same time_s {a.time_s}")
-    if problems:
-        more = f" (+{len(problems) - MAX_PROBLEMS} more)" if len(problems) > MAX_PROBLEMS else ""
-        raise InvalidInputError(str(path), "; ".join(problems[:MAX_PROBLEMS]) + more)
-    return rows
+            problems.append((b.line, f"lines {a.line} and {b.line}: same time_s {a.time_s}"))
+    _refuse(path, problems)
+    if has_agl and has_msl:
+        source = f"column {cols['altitude_m']!r} (checked against {cols['altitude_msl_m']!r})"
+    elif has_agl:
+        source = f"column {cols['altitude_m']!r} read as height above ground"
+    elif dem is not None:
+        source = f"column {cols['altitude_msl_m']!r} minus the DEM {Path(dem).name}"
+    else:
+        source = (
+            f"column {cols['altitude_msl_m']!r} minus ground elevation {ground_elevation_m:g} m"
+        )
+    return Telemetry(tuple(rows), source, cols)
 
 
 def look_point(row: TelemetryRow, calibration: CameraCalibration) -> tuple[float, float]:
@@ -246,11 +430,41 @@ def _check_image(path: Path, calibration: CameraCalibration) -> str | None:
     return None
 
 
+def _pair_images(
+    images_dir: Path, rows: list[TelemetryRow]
+) -> tuple[list[TelemetryRow], list[tuple[str, str]]]:
+    """(rows whose image exists, skipped (name, why)): every image in ``images_dir`` without a
+    row and every row without its image, in name / line order."""
+    on_disk = {
+        p.name
+        for p in images_dir.iterdir()
+        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
+    }
+    named = {r.image for r in rows}
+    kept = [r for r in rows if (images_dir / r.image).is_file()]
+    skipped = [(n, "no telemetry row") for n in sorted(on_disk - named)]
+    skipped += [
+        (r.image, f"line {r.line}: no such image")
+        for r in sorted(rows, key=lambda r: r.line)
+        if not (images_dir / r.image).is_file()
+    ]
+    return kept, skipped
+
+
 def import_flight(
     spec: ImportSpec, out: Path, *, name: str | None = None, force: bool = False
 ) -> dict[str, Any]:
-    """Check every input, then write the dataset ``out`` atomically; returns a summary.
-    Raises InvalidInputError naming the input at fault (nothing is written then)."""
+    """:func:`import_csv_flight`'s report as JSON (``dataset``, ``frames``, ``zoom``,
+    ``skipped``, ...)."""
+    return import_csv_flight(spec, out, name=name, force=force).to_json()
+
+
+def import_csv_flight(
+    spec: ImportSpec, out: Path, *, name: str | None = None, force: bool = False
+) -> ImportReport:
+    """Check every input, then write the dataset ``out`` atomically; returns what was done
+    (frames, every image or row skipped and why, where the heights came from). Raises
+    InvalidInputError naming the input at fault (nothing is written then)."""
     out = Path(out)
     check_output_dir(out, force=force)
     images_dir = Path(spec.images_dir)
@@ -259,14 +473,22 @@ def import_flight(
     if not Path(spec.store).is_file():
         raise InvalidInputError("STORE", f"{spec.store}: no such tile store")
     calibration = load_calibration(Path(spec.calibration_json))
-    rows = read_telemetry(Path(spec.telemetry_csv))
+    table = read_telemetry_table(
+        Path(spec.telemetry_csv), ground_elevation_m=spec.ground_elevation_m, dem=spec.dem
+    )
+    rows, skipped = _pair_images(images_dir, list(table.rows))
+    if not rows:
+        raise InvalidInputError(
+            "IMAGES_DIR",
+            f"{images_dir}: no telemetry row names an image there "
+            f"({len(table.rows)} row(s), e.g. {table.rows[0].image!r})",
+        )
     problems = []
     for r in rows:
         why = _check_image(images_dir / r.image, calibration)
         if why:
-            problems.append(f"line {r.line}: {r.image}: {why}")
-    if problems:
-        raise InvalidInputError("IMAGES_DIR", f"{images_dir}: " + "; ".join(problems[:10]))
+            problems.append((r.line, f"line {r.line}: {r.image}: {why}"))
+    _refuse(images_dir, problems)
     with MBTilesStore(spec.store) as store:
         zooms = store.zooms()
         if not zooms:
@@ -313,6 +535,8 @@ def import_flight(
                     "lat": r.lat,
                     "lon": r.lon,
                     "altitude_m": r.altitude_m,
+                    **({} if r.altitude_msl_m is None else {"altitude_msl_m": r.altitude_msl_m}),
+                    "height_source": table.height_source,
                     "time_s": r.time_s,
                     "source_image": r.image,
                     "look_lat": lonlat[1],
@@ -339,6 +563,12 @@ def import_flight(
             "candidate_size_px": spec.candidate_size_px,
             "zoom": zoom,
             "seed": spec.seed,
+            **(
+                {}
+                if spec.ground_elevation_m is None
+                else {"ground_elevation_m": spec.ground_elevation_m}
+            ),
+            **({} if spec.dem is None else {"dem": Path(spec.dem).name}),
         },
         "attribution": attribution,
     }
@@ -348,4 +578,22 @@ def import_flight(
             shutil.copyfile(images_dir / r.image, tmp / f.image)
         shutil.copyfile(spec.store, tmp / "tiles.mbtiles")
         write_dataset(tmp, meta, calibration, frames)
-    return {"dataset": str(out), "frames": len(frames), "zoom": zoom}
+    heights = [r.altitude_m for r in rows]
+    return ImportReport(
+        dataset=str(out),
+        source=str(spec.telemetry_csv),
+        kind="csv",
+        frames=len(frames),
+        skipped=tuple(skipped),
+        time_source=f"column {table.columns['time_s']!r}",
+        time_offset_s=0.0,
+        height_sources={table.height_source: len(frames)},
+        attitude_assumed=(),
+        height_assumed=(),
+        gnss_degraded=(),
+        zoom=zoom,
+        notes=(
+            f"heights above ground {min(heights):.1f} to {max(heights):.1f} m; altitudes above "
+            "sea level go in a column altitude_msl_m, with --ground-elevation or --dem",
+        ),
+    )

@@ -1,0 +1,156 @@
+"""``dataset import`` from a telemetry CSV drops nothing silently and refuses nonsense by line:
+every image without a row and every row without an image is reported, heights are above ground
+(an altitude above sea level needs the ground's elevation or a DEM), every refused value names
+its CSV line, and a missing output parent is created. The flight is the shipped demo's frames
+with their telemetry written out (real imagery)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+from rasterio.transform import from_origin
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.format import load_dataset
+from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight, read_telemetry
+
+REPO = Path(__file__).resolve().parents[3]
+DEMO = REPO / "data" / "flights" / "naip_demo"
+GROUND_M = 450.0  # a ground elevation for the altitude-above-sea-level cases
+
+
+def recorded(root: Path, frames: range = range(4), *, msl: bool = False) -> tuple[Path, Path]:
+    """IMG_*.jpg and telemetry.csv of the demo's frames (altitude above sea level when
+    ``msl``: height + GROUND_M in a column altitude_msl_m)."""
+    images = root / "images"
+    images.mkdir()
+    records = [json.loads(x) for x in (DEMO / "frames.jsonl").read_text().splitlines()]
+    height = "altitude_msl_m" if msl else "altitude_m"
+    rows = [f"time_s,image,lat,lon,{height},roll_deg,pitch_deg,yaw_deg"]
+    for i in frames:
+        f = records[i]
+        name = f"IMG_{i:04d}.jpg"
+        (images / name).write_bytes((DEMO / f["image"]).read_bytes())
+        p, (r, pi, y) = f["pose"], f["attitude_deg"]
+        h = f["height_m"] + (GROUND_M if msl else 0.0)
+        rows.append(
+            f"{f['captured_at_ns'] / 1e9},{name},{p['nadir_lat']},{p['nadir_lon']},{h},{r},{pi},{y}"
+        )
+    csv = root / "telemetry.csv"
+    csv.write_text("\n".join(rows) + "\n")
+    return images, csv
+
+
+def spec(images: Path, csv: Path, **kw: object) -> ImportSpec:
+    return ImportSpec(images, csv, DEMO / "calibration.json", DEMO / "tiles.mbtiles", **kw)  # type: ignore[arg-type]
+
+
+def edit_line(csv: Path, line: int, column: int, value: str) -> None:
+    lines = csv.read_text().splitlines()
+    cells = lines[line - 1].split(",")
+    cells[column] = value
+    lines[line - 1] = ",".join(cells)
+    csv.write_text("\n".join(lines) + "\n")
+
+
+def test_images_without_rows_and_rows_without_images_are_reported(tmp_path: Path) -> None:
+    images, csv = recorded(tmp_path, range(5))
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join(lines[:3] + lines[4:]) + "\n")  # IMG_0002's row gone
+    (images / "IMG_0004.jpg").unlink()  # line 5 names it (IMG_0002's row is gone)
+    (images / "extra.png").write_bytes((images / "IMG_0000.jpg").read_bytes())
+    (images / "notes.txt").write_text("not an image")
+    report = import_csv_flight(spec(images, csv), tmp_path / "flight")
+    assert report.frames == 3
+    assert report.skipped == (
+        ("IMG_0002.jpg", "no telemetry row"),
+        ("extra.png", "no telemetry row"),
+        ("IMG_0004.jpg", "line 5: no such image"),
+    )
+    text = "\n".join(report.lines())
+    assert "skipped 3 image(s)" in text and "IMG_0004.jpg: line 5: no such image" in text
+    assert "column 'altitude_m' read as height above ground" in text
+    assert len(load_dataset(tmp_path / "flight").frames) == 3
+
+
+def test_altitude_above_sea_level_needs_the_ground(tmp_path: Path) -> None:
+    images, csv = recorded(tmp_path, msl=True)
+    with pytest.raises(InvalidInputError, match=r"altitude above sea level.*--ground-elevation"):
+        import_csv_flight(spec(images, csv), tmp_path / "a")
+    report = import_csv_flight(spec(images, csv, ground_elevation_m=GROUND_M), tmp_path / "b")
+    assert list(report.height_sources) == ["column 'altitude_msl_m' minus ground elevation 450 m"]
+    agl = read_telemetry(csv, ground_elevation_m=GROUND_M)
+    (tmp_path / "plain").mkdir()
+    _, plain_csv = recorded(tmp_path / "plain", msl=False)
+    truth = read_telemetry(plain_csv)
+    assert [round(r.altitude_m, 6) for r in agl] == [round(r.altitude_m, 6) for r in truth]
+    frame = load_dataset(tmp_path / "b").frames[0]
+    assert frame.telemetry["altitude_msl_m"] == pytest.approx(truth[0].altitude_m + GROUND_M)
+    # the ground above the aircraft: refused with the line
+    with pytest.raises(InvalidInputError, match=r"line 2: altitude_msl_m .* not above the ground"):
+        read_telemetry(csv, ground_elevation_m=5000.0)
+    # a ground elevation with a column that already is height above ground: contradictory
+    with pytest.raises(InvalidInputError, match="already is the height above ground"):
+        read_telemetry(plain_csv, ground_elevation_m=GROUND_M)
+
+
+def test_altitude_above_sea_level_minus_a_dem(tmp_path: Path) -> None:
+    images, csv = recorded(tmp_path, msl=True)
+    rows = read_telemetry(csv, ground_elevation_m=GROUND_M)
+    dem = tmp_path / "dem.tif"
+    lat, lon = rows[0].lat, rows[0].lon
+    with rasterio.open(
+        dem, "w", driver="GTiff", width=40, height=40, count=1, dtype="float32",
+        crs="EPSG:4326", transform=from_origin(lon - 0.02, lat + 0.02, 0.001, 0.001),
+    ) as out:  # fmt: skip
+        out.write(np.full((1, 40, 40), GROUND_M, np.float32))
+    report = import_csv_flight(spec(images, csv, dem=dem), tmp_path / "flight")
+    assert list(report.height_sources) == ["column 'altitude_msl_m' minus the DEM dem.tif"]
+    by_dem = read_telemetry(csv, dem=dem)
+    assert [r.altitude_m for r in by_dem] == pytest.approx([r.altitude_m for r in rows])
+
+
+@pytest.mark.parametrize(
+    ("line", "column", "value", "needle"),
+    [
+        (3, 0, "1e308", r"line 3: time_s 1e\+308 is not a capture time"),
+        (2, 7, "720", r"line 2: yaw_deg 720 outside \[-360, 360\]"),
+        (4, 4, "250000", r"line 4: altitude_m 250000 m above ground is not a UAV's height"),
+        (5, 4, "-3", r"line 5: altitude_m -3 must be > 0 m"),
+        (2, 2, "91", r"line 2: lat 91 outside"),
+        (3, 5, "1.2e2", r"line 3: roll_deg 120: \|roll\| and \|pitch\| must be < 90"),
+        (4, 6, "abc", r"line 4: pitch_deg 'abc' is not a number"),
+        (5, 3, "inf", r"line 5: lon inf is not finite"),
+    ],
+)
+def test_every_refused_value_names_its_line(
+    tmp_path: Path, line: int, column: int, value: str, needle: str
+) -> None:
+    images, csv = recorded(tmp_path)
+    edit_line(csv, line, column, value)
+    with pytest.raises(InvalidInputError, match=needle):
+        import_csv_flight(spec(images, csv), tmp_path / "flight")
+    assert not (tmp_path / "flight").exists()
+
+
+def test_many_refused_lines_are_all_named(tmp_path: Path) -> None:
+    _, csv = recorded(tmp_path, range(14))
+    for line in range(2, 16):
+        edit_line(csv, line, 7, "999")
+    with pytest.raises(InvalidInputError, match=r"line 2: yaw_deg .*and 4 more, on lines 12-15\)"):
+        read_telemetry(csv)
+
+
+def test_missing_output_parent_is_created(tmp_path: Path) -> None:
+    images, csv = recorded(tmp_path, range(2))
+    out = tmp_path / "new" / "deeper" / "flight"
+    report = import_csv_flight(spec(images, csv), out)
+    assert report.frames == 2 and (out / "dataset.json").is_file()
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(InvalidInputError, match="not a directory"):
+        import_csv_flight(spec(images, csv), blocker / "flight")
