@@ -280,7 +280,7 @@ def steps_engine_spec(
             ("depth_confidence", depth_confidence),
             ("width_confidence", width_confidence),
         ),
-        export_revision=1,
+        export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
         feature_type=feature_type,
         description=description,
     )

@@ -92,6 +92,7 @@ LIGHTGLUE_ALIKED_SPEC = matcher_spec(
     descriptor_dim=ALIKED_DESCRIPTOR_DIM,
     options=(("input_dim", ALIKED_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
     description="LightGlue for ALIKED, 9 layers, no adaptive pruning, threshold at run time",
+    export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
 )
 
 LIGHTGLUE_ALIKED_STEPS_SPEC = STEPS_SPECS["aliked"]

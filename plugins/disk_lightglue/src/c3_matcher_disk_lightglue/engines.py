@@ -50,7 +50,9 @@ DISK_SPEC = extractor_spec(
     descriptor_dim=DISK_DESCRIPTOR_DIM,
     size_multiple=16,
     options=(("top_k", DISK_TOP_K), ("nms_window", 5), ("descriptor_dim", DISK_DESCRIPTOR_DIM)),
-    description="DISK (depth weights), strict 5x5 NMS on heat*mask, top-K in graph",
+    description="DISK (depth weights), strict 5x5 NMS on heat*mask, top-K in graph, "
+    "descriptors computed at the top-K keypoints only",
+    export_revision=2,  # 2: sparse descriptor head
 )
 
 LIGHTGLUE_DISK_SPEC = matcher_spec(
@@ -62,6 +64,7 @@ LIGHTGLUE_DISK_SPEC = matcher_spec(
     descriptor_dim=DISK_DESCRIPTOR_DIM,
     options=(("input_dim", DISK_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
     description="LightGlue for DISK, 9 layers, no adaptive pruning, threshold applied at run time",
+    export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
 )
 
 LIGHTGLUE_DISK_STEPS_SPEC = STEPS_SPECS["disk"]

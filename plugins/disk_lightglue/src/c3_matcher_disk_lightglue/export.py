@@ -56,8 +56,17 @@ def load_disk_reference(weights_path: Any) -> Any:
 
 
 def build_disk_export_module(reference: Any, top_k: int = DISK_TOP_K) -> Any:
-    """The export rewrite of a kornia ``DISK`` (see the module docstring); shares no state with
-    ``reference`` (its U-Net is deep-copied before the instance norms are swapped)."""
+    """The export rewrite of a kornia ``DISK``; shares no state with ``reference`` (its U-Net is
+    deep-copied before the instance norms are swapped).
+
+    Sparse descriptor head: DISK's last convolution (5x5, ``C -> 128 + 1`` channels at full
+    resolution) is most of its cost, yet only the top-K keypoints' descriptors are read. The
+    rewrite runs that convolution densely for the heat-map channel only, picks the keypoints
+    (strict 5x5 maxima, top-K), then computes the 128 descriptor channels at those K pixels
+    alone: each keypoint's 5x5 x C input patch (zero padding, as the convolution's "same"
+    padding) times the descriptor rows of the same weights. The same sums as the dense
+    convolution, so keypoints and scores are those of upstream and descriptors agree to float
+    rounding (checked at build time against kornia)."""
     import copy
 
     import torch
@@ -84,13 +93,36 @@ def build_disk_export_module(reference: Any, top_k: int = DISK_TOP_K) -> Any:
             self.unet = unet
             self.k = k
             self.dim = dim
+            head: Any = unet.path_up[-1].conv[-1]  # kornia's Conv block ends in its Conv2d
+            if not isinstance(head, nn.Conv2d) or head.kernel_size != (5, 5):
+                raise ValueError("DISK export expects a 5x5 Conv2d as the U-Net's last layer")
+            weight, bias = head.weight.detach(), head.bias.detach()  # type: ignore[union-attr]
+            self.register_buffer("heat_w", weight[dim:].clone())
+            self.register_buffer("heat_b", bias[dim:].clone())
+            self.register_buffer("desc_w", weight[:dim].reshape(dim, -1).clone())  # (D, C*25)
+            self.register_buffer("desc_b", bias[:dim].clone())
+
+        def head_input(self, image: torch.Tensor) -> torch.Tensor:
+            """The U-Net up to its last convolution's input (1, C, H, W)."""
+            unet: Any = self.unet
+            features = [image]
+            for layer in unet.path_down:
+                features.append(layer(features[-1]))
+            pairs = list(zip(unet.path_up, features[-2::-1], strict=False))
+            bottom = features[-1]
+            for layer, horizontal in pairs[:-1]:
+                bottom = layer(bottom, horizontal)
+            last, horizontal = pairs[-1]
+            x = torch.cat([last.upsample(bottom), horizontal], dim=1)
+            for module in list(last.conv)[:-1]:
+                x = module(x)
+            return x
 
         def forward(
             self, image: torch.Tensor, mask: torch.Tensor
         ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-            out = self.unet(image)
-            desc = out[0, : self.dim]  # (D, H, W)
-            heat = out[0, self.dim :] * mask[0]  # (1, H, W)
+            x = self.head_input(image)
+            heat = nnf.conv2d(x, self.heat_w, self.heat_b, padding=2)[0] * mask[0]  # (1, H, W)
             candidates = strict_maxima_candidates(heat)
             ones = torch.ones_like(heat[0])
             xs = torch.cumsum(ones, 1) - 1
@@ -99,11 +131,20 @@ def build_disk_export_module(reference: Any, top_k: int = DISK_TOP_K) -> Any:
             scores, index = torch.topk(
                 torch.cat([candidates.reshape(-1), pad]), self.k, sorted=True
             )
-            x = torch.cat([xs.reshape(-1), pad]).gather(0, index)
-            y = torch.cat([ys.reshape(-1), pad]).gather(0, index)
-            dense = torch.cat([desc.reshape(self.dim, -1), torch.zeros(self.dim, self.k)], 1)
-            descriptors = nnf.normalize(dense.index_select(1, index).transpose(0, 1), dim=-1)
-            return torch.stack([x, y], -1), scores, descriptors
+            kx = torch.cat([xs.reshape(-1), pad]).gather(0, index)
+            ky = torch.cat([ys.reshape(-1), pad]).gather(0, index)
+            # 5x5 patches around (kx, ky) of the zero-padded input, flattened as the weights
+            padded = nnf.pad(x[0], (2, 2, 2, 2))  # (C, H + 4, W + 4)
+            row = torch.ones_like(padded[0, 0]).sum()  # W + 4, as a tensor (no symbolic sizes)
+            flat = padded.reshape(padded.shape[0], -1)
+            taps = [
+                ((ky + dy) * row + (kx + dx)).to(torch.int64) for dy in range(5) for dx in range(5)
+            ]
+            patches = flat.index_select(1, torch.cat(taps))  # (C, 25 K), tap-major
+            patches = patches.reshape(flat.shape[0], 25, self.k).reshape(-1, self.k)  # (C*25, K)
+            dense = torch.matmul(self.desc_w, patches) + self.desc_b[:, None]  # (D, K)
+            descriptors = nnf.normalize(dense.transpose(0, 1), dim=-1)
+            return torch.stack([kx, ky], -1), scores, descriptors
 
     unet = copy.deepcopy(reference.unet)
     swap_norms(unet)

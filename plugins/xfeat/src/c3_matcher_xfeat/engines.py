@@ -80,6 +80,7 @@ XFEAT_SPEC = extractor_spec(
         ("descriptor_dim", XFEAT_DESCRIPTOR_DIM),
     ),
     description="XFeat sparse (upstream detectAndCompute), mask on the heat map, top-K in graph",
+    export_revision=2,  # 2: heat and reliability sampled by row/column gathers
 )
 
 LIGHTERGLUE_SPEC = matcher_spec(
@@ -91,6 +92,7 @@ LIGHTERGLUE_SPEC = matcher_spec(
     descriptor_dim=XFEAT_DESCRIPTOR_DIM,
     options=(*LIGHTERGLUE_ARCH.items(), ("pruning", "off")),
     description="LighterGlue (LightGlue for XFeat, 6 layers, 1 head), no adaptive pruning",
+    export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
 )
 
 ENGINE_SPECS: tuple[EngineSpec, ...] = (XFEAT_SPEC, LIGHTERGLUE_SPEC)

@@ -169,11 +169,13 @@ def build_xfeat_export_module(
             is_kp = (heat == local_max) & (heat > self.threshold)
             is_kp = is_kp & ((xs + ys) > 0)  # upstream's (0, 0) is its padding marker
             span = torch.stack([xs.max(), ys.max()])  # (W - 1, H - 1) as a tensor
-            grid = 2.0 * (torch.stack([xs, ys], -1) / span) - 1.0  # upstream normgrid
-            grid = grid[None]
-            near = nnf.grid_sample(heat, grid, mode="nearest", align_corners=False)
-            rel = nnf.grid_sample(reliability, grid, mode="bilinear", align_corners=False)
-            score = torch.where(is_kp, (near * rel)[0, 0], torch.zeros_like(heat[0, 0]))
+            # upstream samples heat (nearest) and reliability (bilinear) on its normgrid of
+            # every pixel; the grid is separable, so the samples are row and column gathers
+            gx = 2.0 * (xs[0] / span[0]) - 1.0  # (W,) upstream normgrid, x
+            gy = 2.0 * (ys[:, 0] / span[1]) - 1.0  # (H,) upstream normgrid, y
+            near = _sample_nearest(heat[0, 0], gy, gx)
+            rel = _sample_bilinear(reliability[0, 0], gy, gx)
+            score = torch.where(is_kp, near * rel, torch.zeros_like(heat[0, 0]))
             pad = torch.zeros(self.k, dtype=heat.dtype)
             scores, index = torch.topk(torch.cat([score.reshape(-1), pad]), self.k, sorted=True)
             x = torch.cat([xs.reshape(-1), pad]).gather(0, index)
@@ -183,6 +185,51 @@ def build_xfeat_export_module(
             desc = nnf.grid_sample(dense, sample, mode="bicubic", align_corners=False)
             descriptors = nnf.normalize(desc[0, :, :, 0].transpose(0, 1), dim=-1)
             return kpts, scores, descriptors
+
+    def _source(grid: torch.Tensor, plane: torch.Tensor, axis: int) -> torch.Tensor:
+        """``grid_sample``'s source coordinate (align_corners False) of each normalised
+        ``grid`` value along ``axis`` of ``plane`` (its size taken as a tensor)."""
+        size = torch.ones_like(plane).sum(dim=axis)[0]
+        return ((grid + 1) * size - 1) / 2
+
+    def _taps(
+        grid: torch.Tensor, plane: torch.Tensor, axis: int
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Bilinear taps along one axis: the two indices (clamped) and their weights, zero
+        for a tap outside the plane (``grid_sample``'s zero padding)."""
+        src = _source(grid, plane, axis)
+        last = torch.ones_like(plane).sum(dim=axis)[0] - 1
+        low = torch.floor(src)
+        high = low + 1
+        w_low = (high - src) * (low >= 0).to(src.dtype)
+        w_high = (src - low) * (high <= last).to(src.dtype)
+        index_low = low.clamp(min=0).to(torch.int64)
+        index_high = torch.minimum(high, last).to(torch.int64)
+        return index_low, index_high, w_low, w_high
+
+    def _sample_nearest(plane: torch.Tensor, gy: torch.Tensor, gx: torch.Tensor) -> torch.Tensor:
+        """``grid_sample(mode="nearest")`` of ``plane`` (H', W') on the outer grid (gy, gx)."""
+        result = plane
+        for axis, grid in ((0, gy), (1, gx)):
+            src = torch.round(_source(grid, plane, axis))  # half to even, as nearbyint
+            last = torch.ones_like(plane).sum(dim=axis)[0] - 1
+            inside = ((src >= 0) & (src <= last)).to(plane.dtype)
+            index = src.clamp(min=0).minimum(last).to(torch.int64)
+            picked = result.index_select(axis, index)
+            result = picked * (inside[:, None] if axis == 0 else inside[None, :])
+        return result
+
+    def _sample_bilinear(plane: torch.Tensor, gy: torch.Tensor, gx: torch.Tensor) -> torch.Tensor:
+        """``grid_sample(mode="bilinear")`` of ``plane`` (H', W') on the outer grid (gy, gx),
+        summed as upstream: nw, ne, sw, se."""
+        y0, y1, wy0, wy1 = _taps(gy, plane, 0)
+        x0, x1, wx0, wx1 = _taps(gx, plane, 1)
+        top, bottom = plane.index_select(0, y0), plane.index_select(0, y1)
+        nw, ne = top.index_select(1, x0), top.index_select(1, x1)
+        sw, se = bottom.index_select(1, x0), bottom.index_select(1, x1)
+        wy0, wy1 = wy0[:, None], wy1[:, None]
+        wx0, wx1 = wx0[None, :], wx1[None, :]
+        return nw * (wx0 * wy0) + ne * (wx1 * wy0) + sw * (wx0 * wy1) + se * (wx1 * wy1)
 
     net = copy.deepcopy(reference.net).eval()
     return XFeatForExport(net, top_k, float(detection_threshold)).eval()

@@ -33,6 +33,7 @@ from torch.nn import functional as nnf
 from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, OnnxLightGlueRuntime
 from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
+from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
 from c3_matcher_tools.engines.export.onnx_export import export_module
 
 __all__ = [
@@ -239,7 +240,7 @@ def export_lightglue(
         nnf.normalize(torch.rand(1, 280, input_dim, generator=generator), dim=-1),
     )
     export_module(
-        LightGlueForExport(reference),
+        LightGlueForExport(fused_attention_copy(reference)),
         example,
         request.output_path,
         input_names=["kpts0", "kpts1", "desc0", "desc1"],
@@ -251,6 +252,7 @@ def export_lightglue(
             "desc1": {1: num1},
         },
         opset=request.spec.opset,
+        translations=ONNX_TRANSLATIONS,
     )
     request.log(f"verifying {reference_name} against kornia LightGlue on real features")
     session = _SessionRuntime(request.output_path)

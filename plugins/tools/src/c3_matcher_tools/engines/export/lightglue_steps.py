@@ -37,6 +37,7 @@ from c3_matcher.engines.lightglue_adaptive import (
 )
 from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
+from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
 from c3_matcher_tools.engines.export.lightglue import (
     FeaturesFn,
     assignment_matches,
@@ -185,7 +186,7 @@ def export_lightglue_steps(
     request.log(
         f"exporting stepped LightGlue for {feature_type} ({n_layers} layers, opset {spec.opset})"
     )
-    module = LightGlueStepsForExport(reference).eval()
+    module = LightGlueStepsForExport(fused_attention_copy(reference)).eval()
     sizes = (300, 280, 260, 240, 220, 200)
     dims = [
         torch.export.Dim(name, min=1, max=65536)
@@ -234,6 +235,7 @@ def export_lightglue_steps(
             "final_layer": None,
         },
         opset=spec.opset,
+        translations=ONNX_TRANSLATIONS,
     )
     request.log(
         f"verifying stepped LightGlue against upstream adaptive LightGlue "

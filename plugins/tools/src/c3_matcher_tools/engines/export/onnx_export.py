@@ -39,8 +39,10 @@ def export_module(
     output_names: Sequence[str],
     dynamic_shapes: Mapping[str, Any],
     opset: int,
+    translations: Mapping[Any, Any] | None = None,
 ) -> None:
-    """Export ``module`` (eval mode, no grad) to ``path`` as one ONNX file."""
+    """Export ``module`` (eval mode, no grad) to ``path`` as one ONNX file; ``translations``
+    maps custom torch ops to their ONNX functions (e.g. ``attention.ONNX_TRANSLATIONS``)."""
     module.eval()
     with torch.no_grad(), contextlib.redirect_stdout(sys.stderr):
         program = torch.onnx.export(
@@ -53,6 +55,7 @@ def export_module(
             output_names=list(output_names),
             dynamic_shapes=dict(dynamic_shapes),
             verbose=False,
+            custom_translation_table=dict(translations or {}),
         )
         if program is None:
             raise RuntimeError("torch.onnx.export returned no program")
