@@ -387,7 +387,8 @@ def _eval_dataset(
     report = {
         "dataset": str(dataset.root),
         "frames": len(dataset.frames),
-        "absent_frames": sum(not f.true_tile_present for f in dataset.frames),
+        "absent_frames": sum(f.has_truth and not f.true_tile_present for f in dataset.frames),
+        "with_truth": sum(f.has_truth for f in dataset.frames),
         "attitude_noise": dataset.meta.get("attitude_noise"),
         "settings": settings.matcher.model_dump(mode="json"),
         "bars": BARS,
@@ -399,8 +400,13 @@ def _eval_dataset(
         print(json.dumps(_finite(report), indent=2))
         return rows
     print(
-        f"eval {dataset.name}: {report['frames']} frames ({report['absent_frames']} without the "
-        f"true tile), max_keypoints {settings.matcher.max_keypoints}"
+        f"eval {dataset.name}: {report['frames']} frames "
+        + (
+            f"({report['absent_frames']} without the true tile)"
+            if report["with_truth"]
+            else "(no ground truth: the C3-IT figures need it; scored against the telemetry below)"
+        )
+        + f", max_keypoints {settings.matcher.max_keypoints}"
         + (
             f", attitude noise {args.attitude_noise_deg:g} deg (1 sigma)"
             if args.attitude_noise_deg
