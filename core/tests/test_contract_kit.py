@@ -125,7 +125,7 @@ def test_backend_strategy_factory_builds_the_pipeline_over_any_backend() -> None
     create = c3.backend_strategy_factory(make_backend)
     clock = FakeClock()
     matcher = create(
-        C3Settings(matcher={"tile_cache_size": 4}),
+        C3Settings(matcher={"tile_cache_size": 4, "photometric": "none"}),
         ransac_filter=FakeRansacFilter([]),
         health_window=RollingHealthWindow(clock, 60),
         fdr_client=InMemoryFdr(),

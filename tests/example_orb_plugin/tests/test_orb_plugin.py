@@ -12,17 +12,17 @@ from types import ModuleType
 
 import numpy as np
 
+from c3_matcher.compose import compose_root
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import Attitude, NavCameraFrame, RerankCandidate, RerankResult, TileId
 from c3_matcher.fdr import InMemoryFdr
-from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import FeatureBackend
 from c3_matcher.plugins import PluginHost
 from c3_matcher.plugins.manager import PluginSource
 from c3_matcher.profiles import BuildProfile
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.serialize import load_calibration
-from c3_matcher.testing import FakeClock
+from c3_matcher.testing import FakeClock, FakeInferenceRuntime, FakeLightGlueRuntime
 from c3_matcher.testing.contract import BackendContract
 from c3_matcher.tiles import MmapTileHandle, read_image
 
@@ -61,23 +61,25 @@ def test_descriptors_stay_binary() -> None:
 
 
 def test_real_demo_frame_through_the_plugin_host() -> None:
+    """Composed as the flight software composes any strategy (the runtimes it is handed are
+    the allowed doubles: ORB never calls them; RANSAC is OpenCV's)."""
     profile = BuildProfile.from_data({"name": "research", "strict": False, "flags": {}}, "test")
-    host = PluginHost(
-        profile, [PluginSource("example_orb", "c3-matcher-example-orb", "0.1.0", module=PLUGIN)]
+    source = PluginSource("example_orb", "c3-matcher-example-orb", "0.1.0", module=PLUGIN)
+    settings = C3Settings(
+        matcher={"strategy": "example_orb", "options": {"example_orb": {"max_keypoints": 3000}}}
     )
-    spec = host.resolve("example_orb")
-    settings = C3Settings(matcher={"strategy": "example_orb"})
-    clock, fdr = FakeClock(), InMemoryFdr()
-    matcher = spec.factory(
-        settings,
-        ransac_filter=OpenCvRansacFilter(),
-        health_window=RollingHealthWindow(clock, 60),
-        fdr_client=fdr,
-        clock=clock,
-        options={"max_keypoints": 3000},
-        inference_runtime=None,
-        lightglue_runtime=None,
+    fdr = InMemoryFdr()
+    pre = {
+        "c7_inference": FakeInferenceRuntime(),
+        "c3_lightglue_runtime": FakeLightGlueRuntime(),
+        "c282_ransac_filter": OpenCvRansacFilter(),
+        "c13_fdr": fdr,
+        "clock": FakeClock(),
+    }
+    root = compose_root(
+        settings, pre, plugin_host=PluginHost(profile, [source]), configure_logs=False
     )
+    matcher = root.matcher
     demo = json.loads((DEMO / "demo.json").read_text())
     att = demo["attitude_deg"]
     frame = NavCameraFrame(

@@ -12,10 +12,8 @@ import numpy as np
 
 from c3_matcher.config import C3Settings
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.health import RollingHealthWindow
-from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.preprocess import InputRule, PreparedImage
-from c3_matcher.protocols import Clock, FdrClient, RansacFilter
+from c3_matcher.strategy import backend_strategy_factory
 
 __all__ = ["SIFT_LABEL", "SiftBackend", "create"]
 
@@ -74,24 +72,11 @@ class SiftBackend:
         return {"provider": "opencv", "engines": {"sift": cv2.__version__}}
 
 
-def create(
-    config: C3Settings,
-    *,
-    ransac_filter: RansacFilter,
-    health_window: RollingHealthWindow,
-    fdr_client: FdrClient,
-    clock: Clock,
-    **_: Any,
-) -> PipelineMatcher:
-    """Strategy factory of the ``sift_magsac`` baseline (the same pipeline as every strategy;
-    long side and keypoint budget from ``[matcher]``, 2048 keypoints by default)."""
+def _sift_backend(config: C3Settings, _options: Any) -> SiftBackend:
+    """Long side and keypoint budget from ``[matcher]``, 2048 keypoints by default."""
     m = config.matcher
-    return PipelineMatcher(
-        SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints or 2048),
-        ransac_filter,
-        fdr_client,
-        health_window,
-        clock,
-        PipelineSettings.from_settings(m),
-        tile_cache_size=m.tile_cache_size,
-    )
+    return SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints or 2048)
+
+
+#: strategy factory of the ``sift_magsac`` baseline (the same pipeline as every strategy)
+create = backend_strategy_factory(_sift_backend)
