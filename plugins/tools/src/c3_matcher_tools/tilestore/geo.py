@@ -396,7 +396,8 @@ def check_grid_fits_crs(grid: GeoGrid, source: str | Path) -> None:
             [[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]
         )
     lon, lat = corners[:, 0], corners[:, 1]
-    ok = np.isfinite(corners).all() and (np.abs(lon) <= 180).all() and (np.abs(lat) <= 90).all()
+    ok = bool(np.isfinite(corners).all() and (np.abs(lon) <= 180).all())
+    ok = ok and bool((np.abs(lat) <= 90).all())
     if ok and grid.projection.kind == "pyproj":
         area = _area_of_use(grid.projection.epsg)
         if area is not None:
