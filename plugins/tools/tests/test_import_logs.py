@@ -273,3 +273,85 @@ def test_gimbal_straight_down_is_the_default_mount_level() -> None:
     assert (roll, pitch) == pytest.approx((0.0, 0.0), abs=1e-9)
     assert yaw == pytest.approx(30.0)
     assert math.isfinite(roll)
+
+
+def test_ulog_with_a_video_and_a_rangefinder(poses: list[fl.Pose], tmp_path: Path) -> None:
+    import cv2
+
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",), rangefinder=True)
+    video = tmp_path / "nav.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 0.5, (320, 240))
+    for p in poses:  # one frame every 2 s, as the demo flight's frames
+        writer.write(cv2.imread(str(p.image)))
+    writer.release()
+    flight = tmp_path / "flight"
+    offset = str(fl.BOOT_S)  # the log time of the video's first frame
+    proc = c3(
+        "dataset", "import", str(video), str(log), CAL, STORE, str(flight), "--time-offset",
+        offset, "--json",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["frames"] == 4 and summary["time_source"] == "video clock"
+    # the rangefinder wins over altitude - home (which would say 20 m more)
+    assert summary["height_sources"] == {"vehicle_local_position.dist_bottom (above ground)": 4}
+    d = load_dataset(flight)
+    for f, p in zip(d.frames, poses, strict=True):
+        assert f.height_m == pytest.approx(p.height_m, abs=0.01)
+        assert (f.telemetry["lat"], f.telemetry["lon"]) == pytest.approx((p.lat, p.lon), abs=1e-7)
+        assert f.telemetry["source_image"] == f"nav.avi#{f.index}"
+
+
+def test_ulog_with_photos_matched_by_exif_time(poses: list[fl.Pose], tmp_path: Path) -> None:
+    import dataclasses
+
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",))
+    photos = fl.write_exif_photos(tmp_path / "photos", poses, xmp=False)
+    flight = tmp_path / "flight"
+    proc = c3("dataset", "import", str(photos), str(log), CAL, STORE, str(flight), "--json")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["frames"] == 4 and "own UTC time" in summary["time_source"]
+    d = load_dataset(flight)
+    for f, p in zip(d.frames, poses, strict=True):  # attitude from the log, times from EXIF
+        assert np.allclose(f.attitude_deg, (p.roll, p.pitch, p.yaw), atol=1e-3)
+        assert f.telemetry["time_s"] == pytest.approx(fl.BOOT_S + p.t_s, abs=1e-3)
+    # photos of another flight 5 km away, at the same times: refused
+    away = [dataclasses.replace(p, lat=p.lat + 0.045) for p in poses]
+    other = fl.write_exif_photos(tmp_path / "other", away, xmp=False)
+    _refused(
+        c3("dataset", "import", str(other), str(log), CAL, STORE, str(tmp_path / "x")),
+        "images and log of different flights",
+        "km",
+    )
+
+
+def test_height_from_a_dem(poses: list[fl.Pose], tmp_path: Path) -> None:
+    import rasterio
+    from affine import Affine
+
+    def dem(path: Path, west: float, north: float) -> Path:
+        with rasterio.open(
+            path, "w", driver="GTiff", width=50, height=50, count=1, dtype="float32",
+            crs="EPSG:4326", transform=Affine.translation(west, north) @ Affine.scale(0.002, -0.002), nodata=-9999.0,
+        ) as ds:  # fmt: skip
+            ds.write(np.full((1, 50, 50), fl.GROUND_M, np.float32))
+        return path
+
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses)
+    images = _images(tmp_path, poses)
+    here = dem(tmp_path / "dem.tif", poses[0].lon - 0.05, poses[0].lat + 0.05)
+    flight = tmp_path / "flight"
+    args = ["--dem", str(here), "--json"]
+    proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(flight), *args)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["height_sources"] == {"altitude - DEM": 4}
+    assert [f.height_m for f in load_dataset(flight).frames] == pytest.approx(
+        [p.height_m for p in poses], abs=0.01
+    )
+    elsewhere = dem(tmp_path / "far.tif", 10.0, 60.0)
+    _refused(
+        c3("dataset", "import", str(images), str(log), CAL, STORE, str(tmp_path / "x"),
+           "--dem", str(elsewhere)),
+        "no height above ground for any frame",
+    )  # fmt: skip

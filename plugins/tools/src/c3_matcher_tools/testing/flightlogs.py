@@ -122,11 +122,15 @@ def _dense(poses: Sequence[Pose], rate_hz: float = 5.0) -> list[tuple[float, flo
 # --- PX4 ULog (pyulog) ---------------------------------------------------------------------
 
 
-def write_ulog(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) -> Path:
+def write_ulog(
+    path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = (), rangefinder: bool = False
+) -> Path:
     """A PX4 ULog with ``vehicle_attitude``, ``vehicle_global_position``,
     ``vehicle_gps_position`` (eph 1.5 m, 3D fix, UTC time), ``home_position`` and
     ``camera_capture`` (one per frame). ``flaws``: ``no_attitude`` (topic left out),
-    ``no_trigger``, ``gnss_loss`` (the receiver reports no fix over the second frame)."""
+    ``no_trigger``, ``gnss_loss`` (the receiver reports no fix over the second frame);
+    ``rangefinder``: ``vehicle_local_position.dist_bottom`` (valid) states the height above
+    ground, the ground 20 m higher than home (``home_position.alt``)."""
     from pyulog import ULog
 
     ulog = ULog(None)
@@ -190,9 +194,27 @@ def write_ulog(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) 
         (
             "home_position",
             [("uint64_t", "timestamp"), ("float", "alt")],
-            {"timestamp": [us[0]], "alt": [GROUND_M]},
+            {"timestamp": [us[0]], "alt": [GROUND_M - (20.0 if rangefinder else 0.0)]},
         )
     )
+    if rangefinder:
+        topics.append(
+            (
+                "vehicle_local_position",
+                [
+                    ("uint64_t", "timestamp"),
+                    ("float", "dist_bottom"),
+                    ("bool", "dist_bottom_valid"),
+                    ("float", "ref_alt"),
+                ],
+                {
+                    "timestamp": us,
+                    "dist_bottom": [p.height_m for p in poses],
+                    "dist_bottom_valid": [True] * len(us),
+                    "ref_alt": [GROUND_M - 20.0] * len(us),
+                },
+            )
+        )
     if "no_trigger" not in flaws:
         topics.append(
             (

@@ -624,6 +624,7 @@ def write_imported_flight(
     skipped = [*skipped, *unmatched, *no_pos]
     if not frames:
         raise InvalidInputError(track.source, "no image could be placed: " + _why(skipped))
+    _check_same_flight(track, frames)
     if not any(math.isfinite(f.height_m) and f.height_m > 0 for f in frames):
         raise InvalidInputError(
             "--ground-elevation",
@@ -756,6 +757,33 @@ def write_imported_flight(
         shutil.copyfile(options.store, tmp / "tiles.mbtiles")
         write_dataset(tmp, meta, calibration, records)
     return report
+
+
+MAX_OWN_GPS_OFFSET_M = 500.0
+"""Images whose own GPS lies farther than this (median) from the log's position at their
+times belong to another flight (or need a time offset)."""
+
+
+def _check_same_flight(track: LogTrack, frames: Sequence[_Frame]) -> None:
+    """Refuse images whose own GPS (EXIF) disagrees with the log's position at their times."""
+    from c3_matcher.georef import haversine_m
+
+    if track.per_image:
+        return
+    own = [f for f in frames if "lat" in f.shot.own and "lon" in f.shot.own]
+    if not own:
+        return
+    d = haversine_m(
+        [[f.shot.own["lon"], f.shot.own["lat"]] for f in own], [[f.lon, f.lat] for f in own]
+    )
+    median = float(np.median(d))
+    if median > MAX_OWN_GPS_OFFSET_M:
+        raise InvalidInputError(
+            track.source,
+            f"the images' own GPS lies {median / 1000:.1f} km (median of {len(own)}) from the "
+            "log's position at their times: images and log of different flights, or a time "
+            "offset to give (--time-offset)",
+        )
 
 
 def _count(values: Any) -> dict[str, int]:
