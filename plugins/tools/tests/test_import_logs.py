@@ -331,9 +331,10 @@ def test_height_from_a_dem(poses: list[fl.Pose], tmp_path: Path) -> None:
     from affine import Affine
 
     def dem(path: Path, west: float, north: float) -> Path:
+        grid = Affine.translation(west, north) @ Affine.scale(0.002, -0.002)
         with rasterio.open(
             path, "w", driver="GTiff", width=50, height=50, count=1, dtype="float32",
-            crs="EPSG:4326", transform=Affine.translation(west, north) @ Affine.scale(0.002, -0.002), nodata=-9999.0,
+            crs="EPSG:4326", transform=grid, nodata=-9999.0,
         ) as ds:  # fmt: skip
             ds.write(np.full((1, 50, 50), fl.GROUND_M, np.float32))
         return path
