@@ -103,5 +103,6 @@ def test_real_demo_frame_through_the_plugin_host() -> None:
     best = result.per_candidate[result.best_candidate_idx]
     truth = next(t for t in tiles if t["true"])
     assert best.tile_id == TileId(*truth["tile_id"])
+    assert best.inlier_count >= 200 and best.per_candidate_residual_px < 2.0  # 1043, 0.82 px
     assert result.matcher_label == "example_orb"
     assert fdr.of_kind("matcher.frame_done")
