@@ -175,3 +175,13 @@ def test_lightglue_filter_threshold_reaches_the_runtime() -> None:
         build_default_helpers(load_settings(env={}))["c3_lightglue_runtime"].filter_threshold
         == 0.01
     )
+
+
+def test_tensorrt_fp16_is_opt_in(tmp_path) -> None:
+    """FP16 is not verified against FP32 yet: the default asks TensorRT for FP32."""
+    from c3_matcher.config import EngineSettings
+    from c3_matcher.engines.runtime import ProviderSettings, provider_options
+
+    assert EngineSettings().tensorrt_fp16 is False
+    opts = provider_options([TRT, CPU], tmp_path, ProviderSettings())
+    assert opts[0][1]["trt_fp16_enable"] is False

@@ -181,7 +181,7 @@ class ProviderSettings:
 
     device_id: int = 0
     gpu_mem_limit_bytes: int | None = None
-    tensorrt_fp16: bool = True
+    tensorrt_fp16: bool = False  # opt-in until FP16 is verified against FP32
     extra: Mapping[str, Mapping[str, Any]] | None = None
 
 
