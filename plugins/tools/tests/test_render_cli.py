@@ -42,7 +42,7 @@ def test_default_zoom_store_renders_with_defaults(tmp_path: Path) -> None:
     assert built.returncode == 0, built.stderr
     assert json.loads(built.stdout)["zoom"] == 15  # 3.26 m/px, not coarser than the 5 m source
     out = tmp_path / "ds"
-    r = _cli("dataset", "render", NAIP_2010, store, out, "--frames", "6")
+    r = _cli("dataset", "render", NAIP_2010, store, out, "--frames", "6", "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["frames"] == 6
     assert sorted(p.name for p in out.iterdir()) == [

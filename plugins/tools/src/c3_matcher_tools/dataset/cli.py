@@ -107,6 +107,7 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     r.add_argument("--attribution", default="", help="imagery credit stored in dataset.json")
     r.add_argument("--seed", type=int, default=0, help="random seed of the flight (default 0)")
     r.add_argument("--force", action="store_true", help="replace an existing OUT")
+    r.add_argument("--json", action="store_true", help="print the summary as JSON")
     m = ds.add_parser(
         "import",
         help="build a dataset (no ground truth) from a recorded flight: images, telemetry CSV, "
@@ -227,5 +228,8 @@ def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
         progress=ProgressBar("dataset render"),
         force=args.force,
     )
-    print(json.dumps({"dataset": str(out), "frames": spec.n_frames}))
+    if args.json:
+        print(json.dumps({"dataset": str(out), "frames": spec.n_frames}))
+    else:
+        print(f"{out}: {spec.n_frames} frames rendered")
     return 0

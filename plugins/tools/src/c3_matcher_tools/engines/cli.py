@@ -45,6 +45,13 @@ def _build(args: argparse.Namespace, settings: C3Settings) -> int:
         _err(f"error: {exc}")
         return 1
     total = time.perf_counter() - start
+    if args.json:
+        rows = [
+            {"engine": o.spec.key, "reused": o.reused, "seconds": o.seconds, "path": str(o.path)}
+            for o in outcomes
+        ]
+        print(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
+        return 0
     for o in outcomes:
         state = "reused" if o.reused else f"built in {o.seconds:.1f} s"
         print(f"{o.spec.key:<18} {state:<16} {o.path}")
@@ -124,6 +131,7 @@ def register_engines_build_commands(commands: CommandRegistry) -> None:
         metavar="MODEL/VARIANT",
         help="build only this engine (repeatable), e.g. disk/depth",
     )
+    build.add_argument("--json", action="store_true", help="print the outcome as JSON")
     build.set_defaults(handler=_build)
 
     bench = engines.add("bench", help="latency (median, p95) and peak memory per engine")
