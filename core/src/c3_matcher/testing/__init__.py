@@ -1,7 +1,8 @@
-"""Test kit for c3-matcher and its plugins: the seeds' allowed test doubles and fixture makers.
+"""Test kit for c3-matcher and its plugins: the allowed test doubles and fixture makers.
 
 ``FakeInferenceRuntime``, ``FakeLightGlueRuntime``, ``FakeRansacFilter``, ``InMemoryFdr`` (the
-FakeFdrClient) and ``FakeClock`` are the doubles AZ-345 allows for unit tests of control flow.
+FakeFdrClient) and ``FakeClock`` are the doubles allowed in unit tests of control flow; the
+contract kit is ``c3_matcher.testing.contract``.
 """
 
 from __future__ import annotations

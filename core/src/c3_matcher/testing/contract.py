@@ -1,4 +1,7 @@
-"""The matcher contract test kit: AZ-345's AC-1 to AC-10 and AC-12, for any strategy.
+"""The matcher contract test kit, for any strategy: protocol conformance, best candidate and
+tie-break, drop-and-continue on a failing extractor or matcher, the inlier threshold, the
+residual warning, one health update per call, correspondence shapes, determinism and the
+per-frame flight-data record.
 
 Any ``FeatureBackend`` (ORB + brute force, SIFT, a PyTorch model, an ONNX extractor): subclass
 ``BackendContract`` and implement ``make_backend``; the kit runs your real ``extract`` and
@@ -14,7 +17,7 @@ rather than an exception, self-matching finds the same points, determinism, star
 
 A strategy built on the extractor kit over the runtimes (``ExtractorMatcher``) may instead
 subclass ``MatcherContract`` and implement ``make_matcher`` to build its strategy over the
-doubles it is handed (the seeds' allowed test doubles)::
+doubles it is handed (the allowed test doubles)::
 
     from c3_matcher.testing.contract import MatcherContract
 
@@ -209,13 +212,11 @@ class MatcherContract:
         yield build
         handle.close()
 
-    # -- AC-1 -----------------------------------------------------------------------------------
-    def test_ac1_protocol_conformance(self, rig: Any) -> None:
+    def test_protocol_conformance(self, rig: Any) -> None:
         doubles, _ = rig([S()])
         assert isinstance(self.make_matcher(doubles), CrossDomainMatcher)
 
-    # -- AC-2 -----------------------------------------------------------------------------------
-    def test_ac2_best_candidate_and_tie_break(self, rig: Any) -> None:
+    def test_best_candidate_and_tie_break(self, rig: Any) -> None:
         _, match = rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)])
         result = match()
         assert result.best_candidate_idx == 0
@@ -225,8 +226,7 @@ class MatcherContract:
             (80, 1.0),
         ]
 
-    # -- AC-3 / AC-4 ----------------------------------------------------------------------------
-    def test_ac3_extractor_failure_dropped(self, rig: Any) -> None:
+    def test_extractor_failure_dropped(self, rig: Any) -> None:
         doubles, match = rig([S(100), S(100, fail_extract=True), S(90)])
         result = match()
         assert len(result.per_candidate) == 2 and result.candidates_dropped == 1
@@ -238,7 +238,7 @@ class MatcherContract:
             extract_phase
         ]
 
-    def test_ac4_matcher_failure_dropped(self, rig: Any) -> None:
+    def test_matcher_failure_dropped(self, rig: Any) -> None:
         doubles, match = rig([S(100, fail_match=True), S(100), S(90)])
         result = match()
         assert len(result.per_candidate) == 2
@@ -246,8 +246,7 @@ class MatcherContract:
         assert [r["phase"] for r in doubles.logs("c3.matcher.backbone_error")] == [match_phase]
         assert len(doubles.fdr.of_kind("matcher.backbone_error")) == 1
 
-    # -- AC-5 / AC-6 ----------------------------------------------------------------------------
-    def test_ac5_below_threshold(self, rig: Any) -> None:
+    def test_below_threshold(self, rig: Any) -> None:
         doubles, match = rig([S(59), S(20), S(1)])
         with pytest.raises(InsufficientInliersError):
             match()
@@ -257,7 +256,7 @@ class MatcherContract:
         assert doubles.health.update_count == 1 and last is not None
         assert (last.best_inlier_count, last.had_backbone_error) == (0, False)
 
-    def test_ac6_all_failed(self, rig: Any) -> None:
+    def test_all_failed(self, rig: Any) -> None:
         doubles, match = rig([S(fail_extract=True)] * 3)
         with pytest.raises(InsufficientInliersError):
             match()
@@ -267,15 +266,13 @@ class MatcherContract:
         assert doubles.health.update_count == 1 and last is not None
         assert (last.best_inlier_count, last.had_backbone_error) == (0, True)
 
-    # -- AC-7 -----------------------------------------------------------------------------------
-    def test_ac7_residual_warn(self, rig: Any) -> None:
+    def test_residual_warn(self, rig: Any) -> None:
         doubles, match = rig([S(100, 4.2)])
         match()
         (warn,) = doubles.logs("c3.matcher.residual_above_threshold")
         assert (warn["level"], warn["residual_px"], warn["threshold_px"]) == ("WARNING", 4.2, 2.5)
 
-    # -- AC-8 -----------------------------------------------------------------------------------
-    def test_ac8_health_once_per_call(self, rig: Any) -> None:
+    def test_health_once_per_call(self, rig: Any) -> None:
         doubles, match = rig([S(100), S(50, fail_match=True), S(70)])
         match()
         match()
@@ -283,14 +280,13 @@ class MatcherContract:
         last = doubles.health.last_update
         assert last is not None and (last.best_inlier_count, last.had_backbone_error) == (100, True)
 
-    # -- AC-9 / AC-10 ---------------------------------------------------------------------------
-    def test_ac9_correspondence_shape(self, rig: Any) -> None:
+    def test_correspondence_shape(self, rig: Any) -> None:
         _, match = rig([S(120), S(64)])
         for c in match().per_candidate:
             assert c.inlier_correspondences.shape == (c.inlier_count, 4)
             assert c.inlier_correspondences.dtype.name == "float32"
 
-    def test_ac10_deterministic(self, rig: Any) -> None:
+    def test_deterministic(self, rig: Any) -> None:
         _, match = rig([S(120, 1.4), S(80, 1.0), S(120, 1.1)])
         first, *others = [match() for _ in range(3)]
         for other in others:
@@ -300,8 +296,7 @@ class MatcherContract:
                 for a, b in zip(first.per_candidate, other.per_candidate, strict=True)
             )
 
-    # -- AC-12 ----------------------------------------------------------------------------------
-    def test_ac12_frame_done(self, rig: Any) -> None:
+    def test_frame_done(self, rig: Any) -> None:
         doubles, match = rig([S(120, 1.1), S(fail_extract=True), S(80, 1.5)])
         result = match()
         (done,) = doubles.fdr.of_kind("matcher.frame_done")

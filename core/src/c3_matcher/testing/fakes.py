@@ -1,4 +1,4 @@
-"""Test doubles for control-flow tests (AZ-345 "Allowed external stubs").
+"""Test doubles for control-flow tests (the external helpers a unit test may replace).
 
 The scripted doubles let a test say, per candidate, how many inliers and which median residual
 RANSAC "finds", and which call raises: ``ScriptedCandidate(inliers=120, residual=1.1)``.
