@@ -330,18 +330,22 @@ def test_height_from_a_dem(poses: list[fl.Pose], tmp_path: Path) -> None:
     import rasterio
     from affine import Affine
 
-    def dem(path: Path, west: float, north: float) -> Path:
-        grid = Affine.translation(west, north) @ Affine.scale(0.002, -0.002)
+    def dem(path: Path, west: float, north: float, nodata_from_col: int = 200) -> Path:
+        """200 x 200 px of 0.0002 deg at GROUND_M, nodata from column ``nodata_from_col``."""
+        grid = Affine.translation(west, north) @ Affine.scale(0.0002, -0.0002)
+        values = np.full((1, 200, 200), fl.GROUND_M, np.float32)
+        values[:, :, nodata_from_col:] = -9999.0
         with rasterio.open(
-            path, "w", driver="GTiff", width=50, height=50, count=1, dtype="float32",
+            path, "w", driver="GTiff", width=200, height=200, count=1, dtype="float32",
             crs="EPSG:4326", transform=grid, nodata=-9999.0,
         ) as ds:  # fmt: skip
-            ds.write(np.full((1, 50, 50), fl.GROUND_M, np.float32))
+            ds.write(values)
         return path
 
     log = fl.write_ulog(tmp_path / "flight.ulg", poses)
     images = _images(tmp_path, poses)
-    here = dem(tmp_path / "dem.tif", poses[0].lon - 0.05, poses[0].lat + 0.05)
+    west, north = poses[0].lon - 0.015, poses[0].lat + 0.02
+    here = dem(tmp_path / "dem.tif", west, north)
     flight = tmp_path / "flight"
     args = ["--dem", str(here), "--json"]
     proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(flight), *args)
@@ -350,6 +354,19 @@ def test_height_from_a_dem(poses: list[fl.Pose], tmp_path: Path) -> None:
     assert [f.height_m for f in load_dataset(flight).frames] == pytest.approx(
         [p.height_m for p in poses], abs=0.01
     )
+    # nodata over the last two frames (between frames 1 and 2 in longitude): imported, marked
+    col = round(((poses[1].lon + poses[2].lon) / 2 - west) / 0.0002)
+    part = dem(tmp_path / "part.tif", west, north, nodata_from_col=col)
+    proc = c3(
+        "dataset", "import", str(images), str(log), CAL, STORE, str(tmp_path / "p"), "--dem",
+        str(part), "--json",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["frames"] == 4 and summary["height_assumed"] == [2, 3]
+    marked = load_dataset(tmp_path / "p").frames[3]
+    assert "height_assumed" in marked.telemetry["flags"]
+    assert marked.telemetry["height_source"] == "nearest frame's height (the DEM has no value here)"
     elsewhere = dem(tmp_path / "far.tif", 10.0, 60.0)
     _refused(
         c3("dataset", "import", str(images), str(log), CAL, STORE, str(tmp_path / "x"),

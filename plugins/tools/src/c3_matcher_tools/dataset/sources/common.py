@@ -551,24 +551,24 @@ def _height(
     options: ImportOptions,
     dem: Callable[[float, float], float | None] | None,
 ) -> tuple[float, str]:
-    """(height above ground m, source); NaN when no source gives one."""
+    """(height above ground m, source); NaN and the reason when no source gives one."""
     if "height_m" in shot.own and math.isfinite(shot.own["height_m"]):
         return float(shot.own["height_m"]), str(shot.own.get("height_source", "image metadata"))
     h = track.height.at(t, options.max_gap_s) if track.height is not None else None
     if h is not None and h[0] > 0:
         return float(h[0]), f"{track.height.name} (above ground)"  # type: ignore[union-attr]
     if not math.isfinite(alt):
-        return math.nan, "none"
+        return math.nan, "no altitude"
     if dem is not None:
         ground = dem(lat, lon)
         if ground is not None:
             return alt - ground, "altitude - DEM"
-        return math.nan, "none"
+        return math.nan, "the DEM has no value here"
     if options.ground_elevation_m is not None:
         return alt - options.ground_elevation_m, "altitude - ground elevation"
     if track.home_alt_m is not None:
         return alt - track.home_alt_m, "altitude - home altitude"
-    return math.nan, "none"
+    return math.nan, "no ground elevation, DEM or home altitude"
 
 
 def _fill_heights(frames: list[_Frame]) -> None:
@@ -579,6 +579,9 @@ def _fill_heights(frames: list[_Frame]) -> None:
         if i in good:
             continue
         j = min(good, key=lambda g: (abs(g - i), g))
+        why = f.height_source
+        if math.isfinite(f.height_m):
+            why += f" gave {f.height_m:.1f} m"
         frames[i] = _Frame(
             f.shot,
             f.t_s,
@@ -587,7 +590,7 @@ def _fill_heights(frames: list[_Frame]) -> None:
             f.alt_m,
             f.attitude,
             frames[j].height_m,
-            f"nearest frame ({f.height_source} unusable)",
+            f"nearest frame's height ({why})",
             (*f.flags, "height_assumed"),
             f.gnss,
         )
