@@ -89,8 +89,9 @@ def test_readme_is_a_users_document_and_history_lives_in_docs() -> None:
     assert {p.name for p in DOCS} >= {"accuracy.md", "benchmarks.md", "decisions.md"}
     for link in re.findall(r"\]\((docs/[^)#]+)", text):
         assert (REPO / link).is_file(), link
-    for doc in DOCS:  # each measurement page is dated and says how to reproduce
-        body = doc.read_text(encoding="utf-8")
+    for name in ("accuracy.md", "benchmarks.md", "decisions.md"):  # dated, reproducible
+        body = (REPO / "docs" / name).read_text(encoding="utf-8")
+        doc = Path(name)
         assert re.search(r"\(20\d\d-\d\d-\d\d\)", body), doc.name
         assert "c3-matcher" in body, doc.name
 
