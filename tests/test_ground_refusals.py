@@ -126,3 +126,30 @@ def test_dataset_import_summary_reports_skips_and_creates_the_parent(tmp_path: P
     facts = json.loads(info.stdout)
     assert facts["frames"] == 4 and facts["absent_frames"] is None
     assert facts["ground_truth_frames"] == 0
+
+
+def test_stopped_tiles_build_leaves_nothing(tmp_path: Path) -> None:
+    """SIGTERM (or Ctrl-C) once the build has started: no store, no temporary file, no journal."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "c3_matcher.cli", "tiles", "build", str(NAIP_2020),
+         str(tmp_path / "o.mbtiles"), "--zooms", "13-16"],
+        stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=REPO,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    for line in proc.stderr:  # the first progress line: tiles are being written
+        if line.startswith("tiles build o.mbtiles"):
+            break
+    proc.terminate()
+    rest = proc.stderr.read()
+    assert proc.wait(timeout=120) == 130, rest
+    assert "c3-matcher: interrupted" in rest
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_dataset_render_creates_a_missing_output_parent(tmp_path: Path) -> None:
+    store = tmp_path / "naip.mbtiles"
+    assert c3("tiles", "build", NAIP_2020, store).returncode == 0
+    out = tmp_path / "new" / "deeper" / "flight"
+    done = c3("dataset", "render", NAIP_2020, store, out, "--frames", "2")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert (out / "dataset.json").is_file()
