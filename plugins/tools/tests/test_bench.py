@@ -79,12 +79,21 @@ def test_bench_smoke_over_a_flight_with_stored_features(
 ) -> None:
     from c3_matcher.cli import main
     from c3_matcher.config import load_settings
-    from c3_matcher_tools.features.build import build_features
+    from c3_matcher_tools.features.build import build_features, flight_windows
 
     flight = tmp_path / "naip_demo"
     shutil.copytree(FLIGHT, flight)
     monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
-    build_features(flight / "tiles.mbtiles", ["xfeat"], load_settings(None), workers=0)
+    windows = flight_windows(flight, 32)  # the windows of the flight's candidates
+    build_features(
+        flight / "tiles.mbtiles",
+        ["xfeat"],
+        load_settings(None),
+        window_px=448,
+        stride_px=32,
+        windows=windows,
+        workers=0,
+    )
     assert stored_features_path(flight) is not None
     argv = ["bench", "--runs", "1", "--strategy", "xfeat", "--no-baseline", "--no-reference"]
     assert main([*argv, "--data", str(flight)]) == 0
