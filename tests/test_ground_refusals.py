@@ -118,7 +118,7 @@ def test_dataset_import_summary_reports_skips_and_creates_the_parent(tmp_path: P
     done = c3("dataset", "import", *common, out, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-2000:]
     text = done.stdout
-    assert text.startswith(f"imported 4 frame(s) from {csv} (csv) into {out}")
+    assert text.startswith(f"imported 4 frame(s) from telemetry.csv (telemetry CSV) into {out}")
     assert "IMG_extra.jpg: no telemetry row" in text
     assert "read as height above ground" in text
     info = c3("dataset", "info", out, "--json")

@@ -581,8 +581,8 @@ def import_csv_flight(
     heights = [r.altitude_m for r in rows]
     return ImportReport(
         dataset=str(out),
-        source=str(spec.telemetry_csv),
-        kind="csv",
+        source=Path(spec.telemetry_csv).name,
+        kind="telemetry CSV",
         frames=len(frames),
         skipped=tuple(skipped),
         time_source=f"column {table.columns['time_s']!r}",
