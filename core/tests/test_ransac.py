@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.ransac import OpenCvRansacFilter, homography_residuals
+from c3_matcher.ransac import OpenCvRansacFilter, homography_residuals, refit
 
 REPO = Path(__file__).resolve().parents[2]
 ORTHO = REPO / "data" / "imagery" / "open_orthophotos" / "test_tiled.tif"
@@ -73,3 +73,44 @@ def test_bad_arguments_are_named():
         f.filter(np.zeros((5, 3), np.float32), 3.0)
     with pytest.raises(InvalidInputError, match="threshold_px"):
         f.filter(np.zeros((5, 4), np.float32), 0.0)
+
+
+def noisy(corr: np.ndarray) -> np.ndarray:
+    """The fixture with 1.5 px (sigma) Gaussian noise on the tile points of a third of the rows:
+    inliers of a 3 px threshold at several precisions, as across seasons."""
+    rng = np.random.default_rng(3)
+    out = corr.copy()
+    rows = rng.choice(len(out), size=len(out) // 3, replace=False)
+    out[rows, 2:4] += rng.normal(0.0, 1.5, size=(len(rows), 2)).astype(np.float32)
+    return out
+
+
+def test_tight_refit_keeps_the_precise_inliers_and_refits(real_correspondences):
+    corr = noisy(real_correspondences)
+    result = OpenCvRansacFilter().filter(corr, threshold_px=3.0)
+    tight = refit(result, "tight", 3.0, factor=0.5, floor=60)
+    assert 60 <= tight.inlier_count < result.inlier_count
+    assert tight.inlier_count + tight.ransac_outlier_count == len(corr)
+    assert np.array_equal(corr[tight.inlier_mask], tight.inlier_correspondences)
+    assert not (tight.inlier_mask & ~result.inlier_mask).any(), "a subset of RANSAC's inliers"
+    assert homography_residuals(result.homography, tight.inlier_correspondences).max() <= 1.5
+    before = homography_residuals(H_TRUE, result.inlier_correspondences).mean()
+    after = homography_residuals(H_TRUE, tight.inlier_correspondences).mean()
+    assert after < 0.8 * before, (before, after)
+    assert tight.per_candidate_residual_px == pytest.approx(
+        float(np.median(homography_residuals(tight.homography, tight.inlier_correspondences)))
+    )
+    again = refit(result, "tight", 3.0, factor=0.5, floor=60)
+    assert again.inlier_correspondences.tobytes() == tight.inlier_correspondences.tobytes()
+    assert again.homography.tobytes() == tight.homography.tobytes()
+
+
+def test_refit_never_goes_below_the_floor_and_none_is_identity(real_correspondences):
+    result = OpenCvRansacFilter().filter(noisy(real_correspondences), threshold_px=3.0)
+    assert refit(result, "none", 3.0) is result
+    assert refit(result, "tight", 3.0, floor=result.inlier_count) is result
+    assert refit(result, "tight", 3.0, factor=1e-6) is result  # fewer than 4 would remain
+    empty = OpenCvRansacFilter().filter(real_correspondences[:3], threshold_px=3.0)
+    assert refit(empty, "tight", 3.0) is empty
+    with pytest.raises(ValueError, match="refit mode"):
+        refit(result, "lmeds", 3.0)

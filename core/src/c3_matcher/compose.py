@@ -17,12 +17,13 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from c3_matcher.config import C3Settings
+from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.errors import AirborneBootstrapError, ConfigurationError
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
 from c3_matcher.logs import LoggingHandle, configure_logging, log_event
 from c3_matcher.plugins.manager import PluginHost, discover
+from c3_matcher.plugins.types import StrategyDefaults
 from c3_matcher.profiles import installed_profile
 from c3_matcher.protocols import (
     Clock,
@@ -43,6 +44,7 @@ __all__ = [
     "build_plugin_host",
     "compose_root",
     "state_default_fdr_path",
+    "strategy_settings",
 ]
 
 CONSUMER = "c3_matcher"
@@ -89,22 +91,47 @@ def build_default_helpers(
     settings: C3Settings, providers_available: tuple[str, ...] | None = None
 ) -> dict[str, Any]:
     """The default shared helpers (``c3_lightglue_runtime``, ``c282_ransac_filter``,
-    ``c7_inference``) built from configuration: ONNX Runtime and OpenCV USAC."""
+    ``c7_inference``) built from configuration: ONNX Runtime and OpenCV USAC. The LightGlue
+    runtime's filter threshold is ``[lightglue] filter_threshold``, or when unset the configured
+    strategy's own default (``strategy_settings``)."""
     from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, resolve_mode
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
+    threshold = settings.lightglue.filter_threshold
+    if threshold is None:
+        threshold = strategy_settings(settings).lightglue.filter_threshold
     inference = OnnxInferenceRuntime.from_settings(settings.engines, providers_available)
     return {
         "c7_inference": inference,
         "c3_lightglue_runtime": OnnxLightGlueRuntime(
             inference,
             mode=resolve_mode(settings.lightglue.mode, inference.provider),
-            filter_threshold=settings.lightglue.filter_threshold,
+            filter_threshold=threshold,
             depth_confidence=settings.lightglue.depth_confidence,
             width_confidence=settings.lightglue.width_confidence,
         ),
         "c282_ransac_filter": OpenCvRansacFilter(seed=settings.matcher.ransac_seed),
     }
+
+
+def strategy_settings(
+    settings: C3Settings, strategy: str | None = None, plugin_host: PluginHost | None = None
+) -> C3Settings:
+    """``settings`` for ``strategy`` (default: ``[matcher] strategy``, which is set to it): the
+    settings the configuration leaves unset take that strategy's own defaults
+    (``StrategySpec.defaults``); a strategy this environment does not offer gets upstream's
+    (``StrategyDefaults()``), and composing it fails later with its own error."""
+    name = strategy or settings.matcher.strategy
+    if name != settings.matcher.strategy:
+        settings = settings.model_copy(
+            update={"matcher": settings.matcher.model_copy(update={"strategy": name})}
+        )
+    host = plugin_host if plugin_host is not None else build_plugin_host()
+    try:
+        defaults = host.resolve(name).defaults
+    except Exception:  # not linked / not installed: compose_root raises its own error
+        defaults = StrategyDefaults()
+    return with_strategy_defaults(settings, defaults, name)
 
 
 def state_default_fdr_path(config: C3Settings) -> None:
@@ -153,6 +180,7 @@ def compose_root(
             log_event("ERROR", "c3.plugins.load_error", str(error), error=str(error))
         name = config.matcher.strategy
         spec = host.resolve(name)
+        config = with_strategy_defaults(config, spec.defaults, name)
         options = _strategy_options(config, name, spec.options_model)
         health = RollingHealthWindow(clock, config.matcher.min_inliers_threshold)
         matcher = spec.factory(

@@ -26,6 +26,7 @@ from pydantic_settings import (
 
 from c3_matcher.engines.store import default_engine_dir
 from c3_matcher.errors import ConfigurationError
+from c3_matcher.plugins.types import StrategyDefaults
 
 __all__ = [
     "ENV_PREFIX",
@@ -36,6 +37,7 @@ __all__ = [
     "LoggingSettings",
     "MatcherSettings",
     "load_settings",
+    "with_strategy_defaults",
 ]
 
 ENV_PREFIX = "C3_MATCHER_"
@@ -93,12 +95,12 @@ class MatcherSettings(_Section):
         "engine, provider and preprocessing (the same bits extraction gives); otherwise, or "
         "False, the candidate's window is extracted in flight",
     )
-    photometric: Literal["none", "grey", "clahe"] = Field(
-        "clahe",
+    photometric: Literal["none", "grey", "clahe"] | None = Field(
+        None,
         description="photometric normalisation of query and tiles before extraction: none; "
-        "grey (luminance only); clahe (grey + local contrast equalisation in 64 px cells; "
-        "chosen by measurement, README 'Measures against the seasonal gap'); stored map "
-        "features are served only when built under the same one",
+        "grey (luminance only); clahe (grey + local contrast equalisation in 64 px cells); "
+        "unset: the strategy's own default, chosen by measurement per strategy "
+        "(docs/precision.md); set: every strategy uses it",
     )
     geometric_prior: bool = Field(
         True,
@@ -162,7 +164,11 @@ class EngineSettings(_Section):
     gpu_mem_limit_bytes: int | None = Field(
         None, ge=1 << 20, description="GPU memory arena limit (CUDA, ROCm); None: no limit"
     )
-    tensorrt_fp16: bool = Field(True, description="TensorRT FP16 engines")
+    tensorrt_fp16: bool = Field(
+        False,
+        description="TensorRT FP16 engines (opt-in: FP16 is not yet verified against FP32 "
+        "for keypoints and matches)",
+    )
     intra_op_threads: int = Field(
         0, ge=0, le=1024, description="ONNX Runtime intra-op threads (0: one per core)"
     )
@@ -203,13 +209,13 @@ class LightGlueSettings(_Section):
         "layer on every point; auto: adaptive on the CPU provider, full on a GPU one (measured: "
         "README, 'Choices by measurement')",
     )
-    filter_threshold: float = Field(
-        0.01,
+    filter_threshold: float | None = Field(
+        None,
         ge=0,
         lt=1,
-        description="match confidence a LightGlue match must exceed (upstream: 0.1); 0.01 "
-        "admits the weaker matches of another season and leaves the decision to the geometry "
-        "(prior, RANSAC, inlier threshold): README 'Measures against the seasonal gap'",
+        description="match confidence a LightGlue match must exceed (upstream: 0.1); unset: "
+        "the strategy's own default, chosen by measurement per strategy (docs/precision.md); "
+        "set: every strategy uses it",
     )
     depth_confidence: float | None = Field(
         None,
@@ -271,6 +277,33 @@ class C3Settings(BaseSettings):
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         # init (TOML contents, passed by load_settings) < environment.
         return (env_settings, init_settings)
+
+
+def with_strategy_defaults(
+    settings: C3Settings, defaults: StrategyDefaults, strategy: str = ""
+) -> C3Settings:
+    """``settings`` with every setting the configuration left unset (None) taken from a
+    strategy's ``defaults`` (``[matcher] photometric``, ``[lightglue] filter_threshold``); a set
+    value is kept. Idempotent. ``ConfigurationError`` names the strategy when its declared
+    defaults are not valid settings."""
+    matcher, lightglue = settings.matcher, settings.lightglue
+    try:
+        if matcher.photometric is None:
+            matcher = MatcherSettings.model_validate(
+                {**dict(matcher), "photometric": defaults.photometric}
+            )
+        if lightglue.filter_threshold is None:
+            lightglue = LightGlueSettings.model_validate(
+                {**dict(lightglue), "filter_threshold": defaults.filter_threshold}
+            )
+    except ValidationError as exc:
+        where = f"strategy {strategy!r} defaults" if strategy else "strategy defaults"
+        raise ConfigurationError(
+            where, [(".".join(str(p) for p in e["loc"]), e["msg"]) for e in exc.errors()]
+        ) from None
+    if matcher is settings.matcher and lightglue is settings.lightglue:
+        return settings
+    return settings.model_copy(update={"matcher": matcher, "lightglue": lightglue})
 
 
 def _unknown_env_keys(env: Mapping[str, str]) -> list[tuple[str, str]]:

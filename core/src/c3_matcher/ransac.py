@@ -2,6 +2,9 @@
 
 Homography (the right model for nadir-ish views of terrain, DECISIONS 13) estimated with OpenCV's
 USAC MAGSAC++, seeded so that the same correspondences give the same inliers bit for bit.
+
+``refit`` is an optional final step on a filter's result (``REFIT_MODES``): the inliers handed
+downstream re-selected and the homography re-fitted on them (docs/precision.md measures it).
 """
 
 from __future__ import annotations
@@ -13,9 +16,14 @@ from numpy.typing import NDArray
 from c3_matcher import _validate as v
 from c3_matcher.dto import RansacResult
 
-__all__ = ["OpenCvRansacFilter", "homography_residuals"]
+__all__ = ["REFIT_MODES", "OpenCvRansacFilter", "homography_residuals", "refit"]
 
 MIN_CORRESPONDENCES = 4
+REFIT_MODES = ("none", "tight")
+"""Final refit of a RANSAC result's inliers (``refit``): ``none`` keeps the result as it is;
+``tight`` keeps the inliers within ``factor`` x the RANSAC threshold of the homography and
+re-fits the homography to them by least squares, unless fewer than ``floor`` would remain."""
+DEFAULT_TIGHT_FACTOR = 0.5
 
 
 def homography_residuals(
@@ -88,6 +96,47 @@ class OpenCvRansacFilter:
             homography=homography,
             inlier_mask=inlier_mask,
         )
+
+
+def refit(
+    result: RansacResult,
+    mode: str,
+    threshold_px: float,
+    *,
+    factor: float = DEFAULT_TIGHT_FACTOR,
+    floor: int = MIN_CORRESPONDENCES,
+) -> RansacResult:
+    """``result`` after the final refit ``mode`` (``REFIT_MODES``) at the filter's
+    ``threshold_px`` (tile px): for ``tight``, the inliers within ``factor * threshold_px`` of
+    the homography, and the homography re-fitted to them (least squares, deterministic). The
+    result is returned unchanged for ``none``, without a homography, or where fewer than
+    ``floor`` (at least 4) inliers would remain, so a refit never takes a candidate below the
+    caller's inlier threshold. The inliers kept are a subset of ``result``'s, in their order;
+    the mask stays over the filter's input."""
+    if mode not in REFIT_MODES:
+        raise ValueError(f"refit mode must be one of {REFIT_MODES}, got {mode!r}")
+    inliers = result.inlier_correspondences
+    if mode == "none" or result.homography is None:
+        return result
+    keep = homography_residuals(result.homography, inliers) <= factor * threshold_px
+    if int(keep.sum()) < max(floor, MIN_CORRESPONDENCES):
+        return result
+    kept = np.ascontiguousarray(inliers[keep])
+    src = np.ascontiguousarray(kept[:, 0:2], dtype=np.float64)
+    dst = np.ascontiguousarray(kept[:, 2:4], dtype=np.float64)
+    found, _ = cv2.findHomography(src, dst, 0)
+    if found is None or not np.isfinite(found).all():
+        return result
+    homography: NDArray[np.float64] = np.asarray(found, dtype=np.float64)
+    mask = result.inlier_mask.copy()
+    mask[np.flatnonzero(result.inlier_mask)[~keep]] = False
+    return RansacResult(
+        inlier_correspondences=kept,
+        ransac_outlier_count=int(mask.shape[0] - kept.shape[0]),
+        per_candidate_residual_px=float(np.median(homography_residuals(homography, kept))),
+        homography=homography,
+        inlier_mask=mask,
+    )
 
 
 def _empty(m: int) -> RansacResult:

@@ -13,13 +13,26 @@ from c3_matcher.protocols import CrossDomainMatcher
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
-__all__ = ["StrategyFactory", "StrategySpec"]
+__all__ = ["StrategyDefaults", "StrategyFactory", "StrategySpec"]
 
 _NAME = re.compile(r"^[a-z][a-z0-9_]{1,63}$")
 
 
 StrategyFactory = Callable[..., CrossDomainMatcher]
 """``create(...)`` of a strategy: called once by ``compose_root`` with keyword arguments."""
+
+
+@dataclass(frozen=True, slots=True)
+class StrategyDefaults:
+    """A strategy's own defaults for the settings that are left unset (None) in the
+    configuration: ``photometric`` (``[matcher] photometric``: ``none``, ``grey`` or ``clahe``)
+    and ``filter_threshold`` (``[lightglue] filter_threshold``, the match confidence a LightGlue
+    match must exceed, in [0, 1)). A value set in the configuration applies to every strategy
+    instead. The record's own defaults are upstream's (no normalisation, 0.1): what a strategy
+    that declares none gets. Checked when resolved (``c3_matcher.config``)."""
+
+    photometric: str = "none"
+    filter_threshold: float = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,7 +43,8 @@ class StrategySpec:
     (None for a third-party strategy outside the matrix); ``options_model`` validates
     ``[matcher.options.<name>]`` (unknown keys refused) or is None when it has no options.
     ``baseline`` marks a classical reference (SIFT + MAGSAC) that replay, eval and bench run
-    beside the learned strategies; it is never a flight strategy.
+    beside the learned strategies; it is never a flight strategy. ``defaults`` are the
+    strategy's own values for the settings the configuration leaves unset (``StrategyDefaults``).
     """
 
     name: str
@@ -39,6 +53,7 @@ class StrategySpec:
     options_model: type[BaseModel] | None = None
     description: str = ""
     baseline: bool = False
+    defaults: StrategyDefaults = StrategyDefaults()
 
     def __post_init__(self) -> None:
         if not _NAME.match(self.name):

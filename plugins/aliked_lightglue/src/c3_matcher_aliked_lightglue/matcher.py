@@ -14,9 +14,10 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict
 
-from c3_matcher.config import C3Settings
+from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
+from c3_matcher_aliked_lightglue.defaults import DEFAULTS
 
 __all__ = [
     "ALIKED_SIZE_MULTIPLE",
@@ -61,6 +62,7 @@ class AlikedLightGlueConfig(ExtractorLightGlueConfig):
         """Engine paths from the engine directory (``EngineError`` naming the build command if
         one is missing) for the options' variant, thresholds and image rules from
         ``[matcher]``."""
+        settings = with_strategy_defaults(settings, DEFAULTS, STRATEGY)
         variant = (options or AlikedLightGlueOptions()).variant
         engines = store or EngineStore(settings.engines.directory)
         return cls.from_settings(

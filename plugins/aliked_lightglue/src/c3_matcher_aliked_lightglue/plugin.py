@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from c3_matcher.plugins import StrategySpec, strategy_hooks
+from c3_matcher_aliked_lightglue.defaults import DEFAULTS
 from c3_matcher_aliked_lightglue.matcher import STRATEGY, AlikedLightGlueOptions, create
 
 __all__ = ["c3_matcher_engine_specs", "c3_matcher_reference_backend", "c3_matcher_strategies"]
@@ -11,6 +12,7 @@ c3_matcher_strategies, c3_matcher_reference_backend, c3_matcher_engine_specs = s
     StrategySpec(
         name=STRATEGY,
         factory=create,
+        defaults=DEFAULTS,
         build_flag="BUILD_MATCHER_ALIKED_LIGHTGLUE",
         options_model=AlikedLightGlueOptions,
         description="ALIKED features (n16, or n16rot by option) + LightGlue",

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from c3_matcher.config import C3Settings
+from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
+from c3_matcher_disk_lightglue.defaults import DEFAULTS
 
 __all__ = [
     "DISK_SIZE_MULTIPLE",
@@ -37,6 +38,7 @@ class DiskLightGlueConfig(ExtractorLightGlueConfig):
     ) -> DiskLightGlueConfig:
         """Engine paths from the engine directory (``EngineError`` naming the build command if
         one is missing), thresholds and image rules from ``[matcher]``."""
+        settings = with_strategy_defaults(settings, DEFAULTS, STRATEGY)
         engines = store or EngineStore(settings.engines.directory)
         return cls.from_settings(
             settings,

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from c3_matcher.config import C3Settings
+from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.pipeline import PipelineSettings
 from c3_matcher.preprocess import InputRule
@@ -26,6 +26,7 @@ from c3_matcher.strategy import (
     PairMatcher,
     strategy_factory,
 )
+from c3_matcher_xfeat.defaults import DEFAULTS
 from c3_matcher_xfeat.engines import XFEAT_SIZE_MULTIPLE, XFEAT_TOP_K
 from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher
 from c3_matcher_xfeat.options import DEFAULT_MIN_COSSIM, XFeatMatcherKind, XFeatOptions
@@ -121,6 +122,7 @@ class XFeatConfig:
         one is missing), thresholds and image rules from ``[matcher]``, the matcher choice and
         the keypoint budget from ``[matcher.options.xfeat]`` (``XFeatOptions.keypoint_budget``;
         ``[matcher] max_keypoints`` counts only when set explicitly)."""
+        settings = with_strategy_defaults(settings, DEFAULTS, STRATEGY)
         opts = options or XFeatOptions()
         engines = store or EngineStore(settings.engines.directory)
         m = settings.matcher

@@ -98,6 +98,15 @@ def _backend(strategy: str, settings_json: str) -> Any:
     return _BACKENDS[key]
 
 
+def _photometric(strategy: str, settings_json: str) -> str:
+    """The photometric normalisation ``strategy`` flies with: ``[matcher] photometric``, or when
+    unset the strategy's own default (``c3_matcher.compose.strategy_settings``)."""
+    from c3_matcher.compose import strategy_settings
+
+    settings = strategy_settings(C3Settings.model_validate_json(settings_json), strategy)
+    return str(settings.matcher.photometric)
+
+
 def _preprocessor(backend: Any, photometric: str) -> Any:
     """The flight's tile preprocessing (``PipelineMatcher``'s default preprocessor)."""
     from c3_matcher.preprocess import FramePreprocessor
@@ -154,7 +163,7 @@ def _task(
 
     started = time.perf_counter()
     backend = _backend(strategy, settings_json)
-    photometric = C3Settings.model_validate_json(settings_json).matcher.photometric
+    photometric = _photometric(strategy, settings_json)
     source = _open_source(store_path)
     out: list[tuple[int, int, int, WindowFeatures]] = []
     try:
@@ -183,7 +192,7 @@ def _set_facts(strategy: str, settings_json: str) -> _Facts:
         PreparedImage(np.ascontiguousarray(probe), np.ones((128, 128), bool), np.eye(3), (128, 128))
     )
     provenance = backend.provenance()
-    photometric = C3Settings.model_validate_json(settings_json).matcher.photometric
+    photometric = _photometric(strategy, settings_json)
     return _Facts(
         str(provenance["engines"]["extractor"]["file_sha256"]),
         str(provenance["provider"]),
@@ -304,7 +313,7 @@ def build_features(
                     facts = client.submit(_set_facts, strategy, settings_json, pure=False).result()
                 else:
                     facts = _set_facts(strategy, settings_json)
-                photometric = settings.matcher.photometric
+                photometric = _photometric(strategy, settings_json)
                 set_id = set_id_for(
                     facts.extractor_sha256,
                     facts.provider,

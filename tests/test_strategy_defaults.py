@@ -1,0 +1,77 @@
+"""Per-strategy defaults: each strategy's ``[matcher] photometric`` and ``[lightglue]
+filter_threshold`` come from its own plugin's ``defaults.DEFAULTS`` when the configuration leaves
+them unset, reach the composed matcher and the LightGlue runtime, and a configured value applies
+to every strategy instead (docs/precision.md chose the values)."""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.compose import (
+    build_default_helpers,
+    build_plugin_host,
+    compose_root,
+    strategy_settings,
+)
+from c3_matcher.config import C3Settings, load_settings
+from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.plugins.types import StrategyDefaults
+
+STRATEGIES = {
+    "disk_lightglue": "c3_matcher_disk_lightglue",
+    "aliked_lightglue": "c3_matcher_aliked_lightglue",
+    "xfeat": "c3_matcher_xfeat",
+}
+
+
+def declared(strategy: str) -> StrategyDefaults:
+    defaults = importlib.import_module(f"{STRATEGIES[strategy]}.defaults").DEFAULTS
+    assert isinstance(defaults, StrategyDefaults)
+    return defaults
+
+
+@pytest.mark.parametrize("strategy", sorted(STRATEGIES))
+def test_the_plugin_declares_its_defaults_in_one_place(strategy: str) -> None:
+    assert build_plugin_host().resolve(strategy).defaults is declared(strategy)
+
+
+@pytest.mark.parametrize("strategy", sorted(STRATEGIES))
+def test_unset_settings_resolve_to_the_strategys_own_defaults(strategy: str) -> None:
+    unset = load_settings(env={})
+    assert unset.matcher.photometric is None and unset.lightglue.filter_threshold is None
+    resolved = strategy_settings(unset, strategy)
+    assert resolved.matcher.strategy == strategy
+    assert resolved.matcher.photometric == declared(strategy).photometric
+    assert resolved.lightglue.filter_threshold == declared(strategy).filter_threshold
+
+
+@pytest.mark.parametrize("strategy", sorted(STRATEGIES))
+def test_a_configured_value_applies_to_every_strategy(strategy: str) -> None:
+    env = {
+        "C3_MATCHER_MATCHER__PHOTOMETRIC": "grey",
+        "C3_MATCHER_LIGHTGLUE__FILTER_THRESHOLD": "0.05",
+    }
+    resolved = strategy_settings(load_settings(env=env), strategy)
+    assert (resolved.matcher.photometric, resolved.lightglue.filter_threshold) == ("grey", 0.05)
+
+
+@pytest.mark.parametrize("strategy", sorted(STRATEGIES))
+def test_the_composed_matcher_and_runtime_use_the_strategys_defaults(
+    strategy: str, engine_dir: Path, tmp_path: Path
+) -> None:
+    settings = C3Settings(
+        matcher={"strategy": strategy},
+        engines={"directory": engine_dir},
+        fdr={"path": tmp_path / "fdr.jsonl"},
+    )
+    helpers = build_default_helpers(settings)
+    assert helpers["c3_lightglue_runtime"].filter_threshold == declared(strategy).filter_threshold
+    root = compose_root(settings, {**helpers, "c13_fdr": InMemoryFdr()}, configure_logs=False)
+    try:
+        pipeline = root.matcher.config.pipeline_settings  # type: ignore[attr-defined]
+        assert pipeline.photometric == declared(strategy).photometric
+    finally:
+        root.close()
