@@ -159,6 +159,9 @@ def test_config_prints_toml_that_reads_back(tmp_path: Path) -> None:
         [str(EXE), "config"], capture_output=True, text=True, env=env, timeout=120
     )
     assert text.returncode == 0, text.stderr
+    assert "# RANSAC inliers a candidate needs" in text.stdout  # each setting explained
+    found = PROCESS_WORDS.search(text.stdout)
+    assert found is None, f"`c3-matcher config` says {found.group(0)!r}"
     saved = tmp_path / "c3.toml"
     saved.write_text(text.stdout)
     env.pop("C3_MATCHER_MATCHER__MAX_KEYPOINTS")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -89,8 +89,19 @@ def _cmd_plugins(args: argparse.Namespace, settings: C3Settings) -> int:
 
 def _cmd_config(args: argparse.Namespace, settings: C3Settings) -> int:
     data = settings.model_dump(mode="json")
-    print(json.dumps(data, indent=2) if args.json else to_toml(data), end="\n")
+    print(json.dumps(data, indent=2) if args.json else to_toml(data, _notes()), end="\n")
     return EXIT_OK
+
+
+def _notes() -> dict[str, str]:
+    """Each setting's description, by dotted key (``matcher.min_inliers_threshold``)."""
+    notes: dict[str, str] = {}
+    for section, field in C3Settings.model_fields.items():
+        model = field.annotation
+        for key, sub in getattr(model, "model_fields", {}).items():
+            if sub.description:
+                notes[f"{section}.{key}"] = sub.description
+    return notes
 
 
 def _toml_value(value: Any) -> str:
@@ -105,22 +116,32 @@ def _toml_value(value: Any) -> str:
     raise TypeError(f"no TOML form for {type(value).__name__}")
 
 
-def to_toml(data: dict[str, Any], prefix: str = "") -> str:
+def to_toml(data: dict[str, Any], notes: Mapping[str, str] | None = None, prefix: str = "") -> str:
     """``data`` (JSON-able: tables of scalars, lists and tables) as a TOML document that
-    ``load_settings`` reads back; a ``None`` value (unset: the default applies) is written as a
-    comment."""
+    ``load_settings`` reads back; ``notes`` (by dotted key) become comment lines above their
+    key; a ``None`` value (unset: the default applies) is written as a comment."""
+    import textwrap
+
+    notes = notes or {}
     lines: list[str] = []
     tables: list[tuple[str, dict[str, Any]]] = []
     for key, value in data.items():
+        note = notes.get(f"{prefix}{key}")
         if isinstance(value, dict):
             tables.append((f"{prefix}{key}", value))
-        elif value is None:
+            continue
+        if note:
+            lines.extend(textwrap.wrap(note, 96, initial_indent="# ", subsequent_indent="# "))
+        if value is None:
             lines.append(f"# {key}: unset, the default applies")
         else:
             lines.append(f"{key} = {_toml_value(value)}")
     for name, table in tables:
         lines.append(f"\n[{name}]")
-        lines.append(to_toml(table, f"{name}.").strip("\n"))
+        note = notes.get(name)
+        if note:
+            lines.extend(textwrap.wrap(note, 96, initial_indent="# ", subsequent_indent="# "))
+        lines.append(to_toml(table, notes, f"{name}.").strip("\n"))
     return "\n".join(line for line in lines if line).strip("\n")
 
 

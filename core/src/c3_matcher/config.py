@@ -1,9 +1,10 @@
-"""Configuration (AZ-269) with pydantic-settings: defaults < TOML file < environment variables.
+"""Configuration with pydantic-settings: defaults < TOML file < environment variables.
 
 Environment variables use the prefix ``C3_MATCHER_`` and ``__`` between levels, e.g.
 ``C3_MATCHER_MATCHER__MIN_INLIERS_THRESHOLD=80``. Unknown keys are refused (a typo in a flight
 configuration must not pass silently), and so are bad values, naming the field and why.
-Defaults follow DECISIONS 14 (upstream LightGlue conventions).
+Defaults follow the upstream LightGlue conventions unless a measurement chose otherwise
+(docs/decisions.md).
 """
 
 from __future__ import annotations
@@ -56,9 +57,18 @@ class MatcherSettings(_Section):
         min_length=1,
         description="strategy name (a linked plugin's), default disk_lightglue",
     )
-    min_inliers_threshold: int = Field(60, ge=4, description="RANSAC inliers needed (AC-5)")
+    min_inliers_threshold: int = Field(
+        60,
+        ge=4,
+        description="RANSAC inliers a candidate needs; below it on every candidate: "
+        "InsufficientInliersError",
+    )
     residual_warn_threshold_px: float = Field(
-        2.5, gt=0, allow_inf_nan=False, description="WARN above this (AC-7)"
+        2.5,
+        gt=0,
+        allow_inf_nan=False,
+        description="median residual (tile px) above which the result is logged as a WARNING "
+        "(c3.matcher.residual_above_threshold)",
     )
     ransac_threshold_px: float = Field(
         3.0, gt=0, le=1000, allow_inf_nan=False, description="RANSAC inlier threshold, tile px"
@@ -106,14 +116,15 @@ class MatcherSettings(_Section):
         True,
         description="with attitude AND height (rectified query at the tile GSD): keep only "
         "matches voting for the dominant translation before RANSAC and refuse a candidate "
-        "whose homography is not near a translation (README, geometric prior, DECISIONS 17)",
+        "whose homography is not near a translation (docs/decisions.md, the geometric prior)",
     )
     rotation_search: bool = Field(
         False,
         description="when a frame comes WITHOUT attitude (missing, or the caller does not trust "
         "it after an IMU fault and passes attitude=None): extract the query turned by 0/90/180/"
         "270 deg and keep, per candidate, the turn whose RANSAC result ranks best (inliers, then "
-        "residual); about 4x the query extraction and matching (README 'Rotation search'); "
+        "residual); about 4x the query extraction and matching (docs/accuracy.md, rotation "
+        "search); "
         "off: such a frame is matched as it comes, frames with attitude are never affected",
     )
     refine: bool = Field(
@@ -122,7 +133,7 @@ class MatcherSettings(_Section):
         "its first homography into the tile's pixel grid, extract and match again, and keep "
         "that pass when it passes the same checks and ranks better (inliers, then residual); "
         "one more query extraction and match per frame; no gain measured on the shipped "
-        "flights (README, 'Refine pass' under the seasonal-gap measures)",
+        "flights (docs/accuracy.md, the seasonal gap)",
     )
     prior_rotation_tol_deg: float = Field(
         10.0, gt=0, le=90, description="heading error tolerated by the prior, deg"
@@ -176,7 +187,7 @@ class EngineSettings(_Section):
         False,
         description="ONNX Runtime CPU memory arena: off keeps disk_lightglue's peak RSS under "
         "800 MB (584 vs 818 MiB measured) at ~22 % more CPU time; on: faster, more memory "
-        "(README, defaults chosen by measurement)",
+        "(docs/decisions.md)",
     )
     provider_options: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
@@ -200,14 +211,14 @@ class EngineSettings(_Section):
 
 
 class LightGlueSettings(_Section):
-    """The ``[lightglue]`` table: how the LightGlue-family matchers run (issue 10, item 3)."""
+    """The ``[lightglue]`` table: how the LightGlue-family matchers run."""
 
     mode: Literal["auto", "adaptive", "full"] = Field(
         "auto",
         description="adaptive: the transformer in steps with upstream's early exit and point "
         "pruning (needs the <feature>-steps engine, else full); full: the single graph, every "
         "layer on every point; auto: adaptive on the CPU provider, full on a GPU one (measured: "
-        "README, 'Choices by measurement')",
+        "docs/decisions.md)",
     )
     filter_threshold: float | None = Field(
         None,
