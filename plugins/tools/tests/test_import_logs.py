@@ -24,6 +24,7 @@ from c3_matcher_tools.dataset.sources.common import (
     body_attitude_for_camera,
     gimbal_camera_matrix,
 )
+from c3_matcher_tools.dataset.sources.rosbag import read_bag
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.testing import flightlogs as fl
 
@@ -235,6 +236,8 @@ def test_ros2_bags_import_with_recorded_intrinsics(
         assert f.telemetry["gnss_accuracy_m"] == pytest.approx(1.5)
     suffix = ".jpg" if compressed else ".png"
     assert all(f.image.endswith(suffix) for f in d.frames)
+    _, every_other, _ = read_bag(bag, step=2)  # --frame-step: every N-th image of the topic
+    assert [s.t_s for s in every_other] == pytest.approx([fl.UTC0 + p.t_s for p in poses[::2]])
     if storage == "mcap":
         _replay_near_gnss(flight, tmp_path / "replay", engine_dir)
     no_gps = fl.write_bag(

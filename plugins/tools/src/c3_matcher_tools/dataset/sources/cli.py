@@ -110,7 +110,12 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
         default=5.0,
         help="flag frames whose stated GNSS accuracy is worse than this, m (default 5)",
     )
-    g.add_argument("--video-step", type=int, default=1, help="video: every N-th frame (default 1)")
+    g.add_argument(
+        "--frame-step",
+        type=int,
+        default=1,
+        help="take every N-th frame of a video or of a bag's image topic (default 1)",
+    )
     for topic in ("image", "attitude", "navsat", "camera-info"):
         g.add_argument(f"--{topic}-topic", default=None, help=f"bag: the {topic} topic")
     if "--json" not in m._option_string_actions:
@@ -157,6 +162,7 @@ def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
             BagTopics(
                 args.image_topic, args.attitude_topic, args.navsat_topic, args.camera_info_topic
             ),
+            args.frame_step,
         )
     elif kind == "exif":
         from c3_matcher_tools.dataset.sources.exif import read_photo_folder
@@ -178,7 +184,7 @@ def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
             track = read_mavlink(telemetry)
         else:
             raise InvalidInputError("--source", f"unknown kind {kind!r}")
-        shots = image_shots(Path(images), args.video_step)
+        shots = image_shots(Path(images), args.frame_step)
     if str(args.calibration) == "-":
         if recorded is None:
             raise InvalidInputError(

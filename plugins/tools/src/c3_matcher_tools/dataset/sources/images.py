@@ -170,7 +170,7 @@ def video_shots(path: Path, step: int = 1) -> list[Shot]:
     the video's clock in ``own['relative_s']``."""
     path = Path(path)
     if step < 1:
-        raise InvalidInputError("--video-step", f"must be >= 1, got {step}")
+        raise InvalidInputError("--frame-step", f"must be >= 1, got {step}")
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         raise InvalidInputError("IMAGES", f"{path}: not a readable video")

@@ -140,10 +140,13 @@ def _image_bytes(msg: Any, msgtype: str) -> tuple[bytes, str]:
 
 
 def read_bag(
-    path: Path, topics: BagTopics = BagTopics()
+    path: Path, topics: BagTopics = BagTopics(), step: int = 1
 ) -> tuple[LogTrack, list[Shot], CameraCalibration | None]:
-    """The track, the image frames and the recorded intrinsics (None when no CameraInfo) of a
-    bag (see the module docstring); raises InvalidInputError naming a missing topic."""
+    """The track, every ``step``-th image and the recorded intrinsics (None when no
+    CameraInfo) of a bag (see the module docstring); raises InvalidInputError naming a missing
+    topic."""
+    if step < 1:
+        raise InvalidInputError("--frame-step", f"must be >= 1, got {step}")
     path = Path(path)
     source = str(path)
     reader = _reader(path)
@@ -172,11 +175,15 @@ def read_bag(
         fix_t: list[float] = []
         fix_v: list[list[float]] = []
         calibration = None
+        seen_images = 0
         wanted = [*images, *attitude_c, *navsat_c, *(info_c or [])]
         for conn, received, raw in reader.messages(connections=wanted):
             msg = reader.deserialize(raw, conn.msgtype)
             t = _stamp(msg, received)
             if conn.msgtype in IMAGE_TYPES:
+                seen_images += 1
+                if (seen_images - 1) % step:
+                    continue
                 data, suffix = _image_bytes(msg, conn.msgtype)
                 shots.append(
                     Shot(f"{conn.topic}@{t:.6f}", constant(data), suffix, t, {"stamp_s": t})
