@@ -624,8 +624,8 @@ def write_imported_flight(
         raise InvalidInputError(track.source, "the log holds no position (GNSS or estimator)")
     matched, unmatched, how = match_shots(track, shots, options)
     frames, no_pos = assemble_frames(track, matched, options, attitude_of)
-    order = {s.name: i for i, s in enumerate(shots)}
-    skipped = [*skipped, *sorted([*unmatched, *no_pos], key=lambda x: order.get(x[0], -1))]
+    rank = {s.name: i for i, s in enumerate(shots)}
+    skipped = [*skipped, *sorted([*unmatched, *no_pos], key=lambda x: rank.get(x[0], -1))]
     if not frames:
         raise InvalidInputError(track.source, "no image could be placed: " + _why(skipped))
     _check_same_flight(track, frames)
