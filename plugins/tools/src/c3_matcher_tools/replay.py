@@ -68,7 +68,7 @@ class FrameOutcome:
     attitude, height) says the frame's centre looks; ``telemetry_error_m``: the estimate's
     distance from it (m, NaN when either is missing); ``gnss_accuracy_m``: the horizontal
     accuracy the log states for that fix; ``gnss_degraded``: GNSS was absent or degraded at the
-    frame (None: no telemetry)."""
+    frame (None: no telemetry, or it does not say)."""
 
     index: int
     frame_id: str
@@ -153,7 +153,7 @@ def telemetry_reference(frame: FrameRecord) -> dict[str, Any]:
         "telemetry_lat": float(t["look_lat"]),
         "telemetry_lon": float(t["look_lon"]),
         "gnss_accuracy_m": None if accuracy is None else float(accuracy),
-        "gnss_degraded": bool(t.get("gnss_degraded", False)),
+        "gnss_degraded": None if "gnss_degraded" not in t else bool(t["gnss_degraded"]),
     }
 
 
@@ -511,12 +511,18 @@ def run_replay(args: argparse.Namespace, settings: C3Settings) -> int:
         )
     if report["with_telemetry"]:
         degraded = report["gnss_degraded_frames"]
+        accuracy = report["gnss_accuracy_m_p50"]
         print(
             f"  estimate - telemetry position m p50 {_fmt(report['telemetry_error_m_p50'])}, "
-            f"p95 {_fmt(report['telemetry_error_m_p95'])} (GNSS accuracy stated p50 "
-            f"{_fmt(report['gnss_accuracy_m_p50'])} m; GNSS absent or degraded on "
-            f"{len(degraded)} frame(s){': ' + str(degraded[:20]) if degraded else ''}; "
-            f"{report['georeferenced']} frames located)"
+            f"p95 {_fmt(report['telemetry_error_m_p95'])} ({report['georeferenced']} frames "
+            "located; "
+            + (
+                "GNSS accuracy not stated"
+                if accuracy is None
+                else f"GNSS accuracy {accuracy:.1f} m"
+            )
+            + f"; GNSS absent or degraded on {len(degraded)} frame(s)"
+            + (f": {degraded[:20]})" if degraded else ")")
         )
     print(f"  results {report['results']}, FDR {report['fdr']}, report {out / 'report.json'}")
     print(f"  map {report['geojson']}, flight report {report['html'] or '(not written)'}")
