@@ -213,7 +213,10 @@ def _row_problem(values: dict[str, float], col: dict[str, str]) -> str | None:
     """Why a row's (finite) values are refused, naming the CSV's column, or None."""
     t = values["time_s"]
     if abs(t) > MAX_ABS_TIME_S:
-        return f"{col['time_s']} {t:g} is not a capture time (|s| <= {MAX_ABS_TIME_S:g})"
+        return (
+            f"{col['time_s']} {t:g} is not a capture time in seconds (|time_s| <= "
+            f"{MAX_ABS_TIME_S:g}; milliseconds or nanoseconds?)"
+        )
     if not -90.0 <= values["lat"] <= 90.0:
         return f"{col['lat']} {values['lat']:g} outside [-90, 90] deg"
     if not -180.0 <= values["lon"] <= 180.0:
