@@ -25,9 +25,9 @@ Sidecar database ``<store>.features.sqlite``::
 A set is keyed by everything the extraction depends on: the extractor engine's file sha256, the
 execution provider, the input rule's size multiple, the photometric normalisation, the border
 erosion and the window size: features of another engine build, device or preprocessing are
-never served. ``window_digest`` is the blake2b of the digests of the tiles the window covers (a
-window whose tiles changed is never served stale); ``checksum`` the blake2b of the row itself
-(a row altered on disk, even into finite numbers, is refused). Keypoints are float32 (n, 2)
+never served. ``window_digest`` is the sha256 of the sha256 digests of the tiles the window
+covers (a window whose tiles changed is never served stale); ``checksum`` the sha256 of the row
+itself (a row altered on disk, even into finite numbers, is refused). Keypoints are float32 (n, 2)
 (x, y) in window px (origin at the centre of its top-left pixel), scores float32 (n,),
 descriptors float32 (n, D).
 
@@ -39,6 +39,7 @@ row is refused once (:class:`StoredFeaturesCorruptError`) and never served.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import math
 import sqlite3
@@ -64,6 +65,7 @@ __all__ = [
     "WindowFeatures",
     "covered_tiles",
     "grid_index",
+    "row_checksum",
     "serve_window",
     "set_id_for",
     "sidecar_path",
@@ -74,6 +76,8 @@ __all__ = [
 
 FEATURES_SUFFIX = ".features.sqlite"
 DEFAULT_RETRY_S = 30.0  # a locked or unreadable sidecar is tried again after this long
+MMAP_BYTES = 256 * 1024 * 1024  # the read connection's memory map (as the tile store's)
+PAGE_BYTES = 65536  # SQLite page size of a new sidecar (a row is about a megabyte)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS window_sets (
@@ -114,8 +118,8 @@ def sidecar_path(store_path: str | Path) -> Path:
 
 
 def tile_digest(blob: bytes | memoryview) -> str:
-    """blake2b (16 bytes, hex) of a tile's encoded bytes."""
-    return hashlib.blake2b(blob, digest_size=16).hexdigest()
+    """sha256 (hex) of a tile's encoded bytes (as a tile store's ``c3_tile_digest`` table)."""
+    return hashlib.sha256(blob).hexdigest()
 
 
 def covered_tiles(
@@ -138,9 +142,9 @@ def covered_tiles(
 def window_digest(
     keys: Iterable[tuple[int, int, int]], digest_of: Callable[[tuple[int, int, int]], str | None]
 ) -> str:
-    """blake2b (16 bytes, hex) of the digests of a window's tiles ``keys`` (``digest_of`` returns
-    None for a missing tile): the window's pixels changed iff this changed."""
-    h = hashlib.blake2b(digest_size=16)
+    """sha256 (hex) of the digests of a window's tiles ``keys`` (``digest_of`` returns None for a
+    missing tile): the window's pixels changed iff this changed."""
+    h = hashlib.sha256()
     for key in keys:
         h.update(f"{key[0]}/{key[1]}/{key[2]}={digest_of(key) or '-'};".encode())
     return h.hexdigest()
@@ -216,13 +220,24 @@ class WindowFeatures:
     scores: NDArray[np.float32]
     descriptors: NDArray[np.float32]
 
-    def checksum(self, set_id: str, zoom: int, gx: int, gy: int) -> str:
-        """blake2b (16 bytes, hex) of the row: its key, digest, count and the three arrays."""
-        h = hashlib.blake2b(digest_size=16)
-        h.update(f"{set_id}|{zoom}|{gx}|{gy}|{self.window_digest}|{len(self.scores)}|".encode())
-        for a in (self.keypoints, self.scores, self.descriptors):
-            h.update(np.ascontiguousarray(a, dtype=np.float32).tobytes())
-        return h.hexdigest()
+    def blobs(self) -> tuple[bytes, bytes, bytes]:
+        """The three arrays as stored: float32, C order."""
+        return tuple(  # type: ignore[return-value]
+            np.ascontiguousarray(a, dtype=np.float32).tobytes()
+            for a in (self.keypoints, self.scores, self.descriptors)
+        )
+
+
+def row_checksum(
+    key: tuple[str, int, int, int], digest: str, n: int, blobs: Iterable[bytes | memoryview]
+) -> str:
+    """sha256 (hex) of a stored row: its key (set, zoom, gx, gy), window digest, count and the
+    three arrays' bytes as stored."""
+    h = hashlib.sha256()
+    h.update(f"{key[0]}|{key[1]}|{key[2]}|{key[3]}|{digest}|{n}|".encode())
+    for blob in blobs:
+        h.update(blob)
+    return h.hexdigest()
 
 
 class MapFeatureStore:
@@ -242,11 +257,14 @@ class MapFeatureStore:
         self._clock = clock
         if writable:
             self._db = sqlite3.connect(str(self.path), timeout=60)
+            self._db.execute(f"PRAGMA page_size={PAGE_BYTES}")  # a new file: fewer pages a row
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.executescript(_SCHEMA)
             self._db.commit()
         else:  # busy timeout 0: a lock held elsewhere fails at once, the frame never waits
             self._db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True, timeout=0)
+            with contextlib.suppress(sqlite3.Error):  # rows read from the page cache
+                self._db.execute(f"PRAGMA mmap_size={MMAP_BYTES}")
         self._sets: dict[str, FeatureSet | None] = {}
         self._down_until: float | None = None  # unavailable: nothing served before this time
         self._reported = False  # this outage was already raised
@@ -312,13 +330,13 @@ class MapFeatureStore:
             return None
         try:
             n, d = int(row[1]), fset.descriptor_dim
+            ok = row_checksum(key, str(row[0]), n, row[2:5]) == str(row[5])
             stored = WindowFeatures(
                 str(row[0]),
                 np.frombuffer(row[2], dtype=np.float32).reshape(n, 2),
                 np.frombuffer(row[3], dtype=np.float32).reshape(n),
                 np.frombuffer(row[4], dtype=np.float32).reshape(n, d),
             )
-            ok = stored.checksum(*key) == str(row[5])
         except (ValueError, TypeError) as exc:
             ok, stored = False, None
             reason = f"undecodable ({exc})"
@@ -375,13 +393,12 @@ class MapFeatureStore:
                     gx,
                     gy,
                     w.window_digest,
-                    int(w.scores.shape[0]),
-                    np.ascontiguousarray(w.keypoints, np.float32).tobytes(),
-                    np.ascontiguousarray(w.scores, np.float32).tobytes(),
-                    np.ascontiguousarray(w.descriptors, np.float32).tobytes(),
-                    w.checksum(set_id, z, gx, gy),
+                    len(w.scores),
+                    *blobs,
+                    row_checksum((set_id, z, gx, gy), w.window_digest, len(w.scores), blobs),
                 )
                 for z, gx, gy, w in rows
+                for blobs in (w.blobs(),)
             ],
         )
         self._db.commit()
