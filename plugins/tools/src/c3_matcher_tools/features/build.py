@@ -17,6 +17,7 @@ access to the store path). ``workers=0`` runs in this process, without Dask.
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -45,6 +46,7 @@ __all__ = [
     "BuildReport",
     "build_features",
     "extract_window_features",
+    "flight_grid",
     "flight_windows",
     "grid_windows",
 ]
@@ -229,6 +231,23 @@ def grid_windows(
                 if covered > 0 and covered >= min_coverage * window_px * window_px:
                     out.append((zoom, gx, gy))
     return out
+
+
+def flight_grid(dataset_dir: Path) -> tuple[int, int]:
+    """(window, stride) px for a recorded flight: its candidates' size, and the grid their
+    windows lie on (the greatest common divisor of their top-left WORLD px, at least 16 and at
+    most the window): a build on that grid holds every candidate's own window."""
+    from c3_matcher.tilestore.handles import mosaic_origin
+    from c3_matcher_tools.dataset.format import load_dataset
+
+    dataset = load_dataset(dataset_dir)
+    size = dataset.candidate_size_px
+    grid = 0
+    for f in dataset.frames:
+        for c in f.candidates:
+            x0, y0 = mosaic_origin(c.tile_id, size)
+            grid = math.gcd(grid, x0, y0)
+    return size, min(max(grid, 16), size) if grid else size
 
 
 def flight_windows(dataset_dir: Path, stride_px: int) -> list[WindowKey]:

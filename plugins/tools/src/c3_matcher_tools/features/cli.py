@@ -45,15 +45,16 @@ def register_features_command(commands: CommandRegistry) -> None:
         "--window",
         type=int,
         default=None,
-        help="candidate window size, px (default: 256, a store's own tiles; a flight's "
-        "candidate size)",
+        help="candidate window size, px (default: 256, a store's own tiles; for a flight, "
+        "its candidates' size)",
     )
     b.add_argument(
         "--stride",
         type=int,
         default=None,
-        help="grid step between stored windows, px (default: the window; a flight's grid); a "
-        "candidate off the grid is served the nearest window's features",
+        help="grid step between stored windows, px (default: the window; for a flight, the "
+        "grid its candidates lie on); a candidate off the grid is served the nearest "
+        "window's features, shifted",
     )
     b.add_argument(
         "--min-coverage",
@@ -76,7 +77,12 @@ def register_features_command(commands: CommandRegistry) -> None:
 
 
 def _build(args: argparse.Namespace, settings: C3Settings) -> int:
-    from c3_matcher_tools.features.build import DEFAULT_WINDOW_PX, build_features, flight_windows
+    from c3_matcher_tools.features.build import (
+        DEFAULT_WINDOW_PX,
+        build_features,
+        flight_grid,
+        flight_windows,
+    )
 
     path: Path = args.store
     store, window, stride = path, args.window, args.stride
@@ -91,8 +97,9 @@ def _build(args: argparse.Namespace, settings: C3Settings) -> int:
             print(f"features build: {exc}", file=sys.stderr)
             return EXIT_USAGE
         store = dataset.store_path
-        window = window or dataset.candidate_size_px
-        stride = stride or int(dataset.meta.get("spec", {}).get("grid_px") or window)
+        size, grid = flight_grid(path)
+        window = window or size
+        stride = stride or (grid if window == size else window)
         if args.flight_candidates:
             windows = flight_windows(path, stride)
     elif args.flight_candidates:
