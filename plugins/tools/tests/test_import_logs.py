@@ -376,3 +376,22 @@ def test_height_from_a_dem(poses: list[fl.Pose], tmp_path: Path) -> None:
            "--dem", str(elsewhere)),
         "no height above ground for any frame",
     )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("name", "needle"),
+    [
+        ("bad.ulg", "not a readable PX4 ULog"),
+        ("bad.bin", "not an ArduPilot DataFlash log"),
+        ("bad.tlog", "not a readable MAVLink telemetry log"),
+        ("bad.mcap", "not a readable ROS bag"),
+    ],
+)
+def test_damaged_logs_are_refused_with_one_line(
+    name: str, needle: str, poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    log = tmp_path / name
+    log.write_bytes(np.random.default_rng(7).integers(0, 256, 4000, dtype=np.uint8).tobytes())
+    images = "-" if name.endswith(".mcap") else str(_images(tmp_path, poses))
+    cal = "-" if name.endswith(".mcap") else CAL
+    _refused(c3("dataset", "import", images, str(log), cal, STORE, str(tmp_path / "x")), needle)

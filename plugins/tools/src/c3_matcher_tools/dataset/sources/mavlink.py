@@ -13,8 +13,10 @@ fix, the ground station's clock in a telemetry log).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +27,8 @@ from c3_matcher_tools.dataset.sources.common import LogTrack, Series
 
 __all__ = ["read_mavlink"]
 
+DATAFLASH_MAGIC = b"\xa3\x95\x80"
+"""A DataFlash log's first bytes: the message header and the FMT message's type."""
 TYPES = [
     "ATT",
     "ATTITUDE",
@@ -42,7 +46,14 @@ TYPES = [
 ]
 
 
-def _open(path: Path) -> Any:
+@contextlib.contextmanager
+def _quiet(chatter: io.StringIO) -> Iterator[None]:
+    """pymavlink's prints (stdout and stderr) into ``chatter``: an error is one line."""
+    with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+        yield
+
+
+def _open(path: Path, chatter: io.StringIO) -> Any:
     try:
         from pymavlink import mavutil
     except ImportError:
@@ -52,8 +63,16 @@ def _open(path: Path) -> Any:
         ) from None
     if not path.is_file():
         raise InvalidInputError(str(path), "no such file")
+    if path.suffix.lower() != ".tlog":
+        with path.open("rb") as fh:
+            head = fh.read(3)
+        if head != DATAFLASH_MAGIC:
+            raise InvalidInputError(
+                str(path), "not an ArduPilot DataFlash log: it does not start with a FMT message"
+            )
     try:
-        return mavutil.mavlink_connection(str(path), robust_parsing=True)
+        with _quiet(chatter):  # the DataFlash index prints damaged headers
+            return mavutil.mavlink_connection(str(path), robust_parsing=True)
     except Exception as exc:
         raise InvalidInputError(str(path), f"not a readable ArduPilot log: {exc}") from None
 
@@ -78,7 +97,8 @@ def read_mavlink(path: Path) -> LogTrack:
     """The track of a DataFlash ``.bin`` / ``.log`` or MAVLink ``.tlog`` (see the module
     docstring); raises InvalidInputError naming the file and the missing messages."""
     path = Path(path)
-    log = _open(path)
+    chatter = io.StringIO()  # pymavlink prints every damaged header it skips
+    log = _open(path, chatter)
     source = str(path)
     kind = "MAVLink telemetry log" if path.suffix.lower() == ".tlog" else "ArduPilot DataFlash"
     rows: dict[str, list[Row]] = {k: [] for k in ("att", "pos", "gps", "rng", "trig")}
@@ -118,17 +138,25 @@ def read_mavlink(path: Path) -> LogTrack:
     }
     seen: set[str] = set()
     try:
-        while True:
-            msg = log.recv_match(type=TYPES)
-            if msg is None:
-                break
-            name = msg.get_type()
-            seen.add(name)
-            handlers[name](msg, float(msg._timestamp))
+        with _quiet(chatter):
+            while True:
+                msg = log.recv_match(type=TYPES)
+                if msg is None:
+                    break
+                name = msg.get_type()
+                seen.add(name)
+                handlers[name](msg, float(msg._timestamp))
     except Exception as exc:
         raise InvalidInputError(source, f"unreadable {kind}: {exc}") from None
     finally:
         log.close()
+    if not seen:
+        damaged = chatter.getvalue().count("bad header")
+        raise InvalidInputError(
+            source,
+            f"not a readable {kind}: no ATT, POS, GPS or camera message found"
+            + (f" ({damaged} damaged headers skipped)" if damaged else ""),
+        )
     if not rows["att"]:
         raise InvalidInputError(source, "no ATT / ATTITUDE message: the log holds no attitude")
     if not rows["pos"] and not rows["gps"]:
