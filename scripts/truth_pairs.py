@@ -5,7 +5,7 @@
 FRAMES is a comma-separated list of frame indices (each must have its true tile among its
 candidates). Each row is the frame (undistorted) and the true candidate tile warped into it
 through the recorded ground-truth homography: what the matcher had to find. Used to see why a
-frame fails across seasons (README "What limits the correct rate on naip_cross_date").
+frame fails across seasons (docs/accuracy.md, "What limits the correct rate on naip_cross_date").
 """
 
 from __future__ import annotations

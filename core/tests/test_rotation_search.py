@@ -5,8 +5,8 @@ FDR records), a dot-pattern backend whose descriptors depend on orientation for 
 (coordinates come back in the frame as given), and the real path: the demo frame rectified with
 its attitude, turned by 90 deg and given WITHOUT attitude, through the real xfeat engines.
 
-``python core/tests/test_rotation_search.py`` prints the cost figures of README "Rotation
-search" (frame time on data/demo with xfeat, search off vs on).
+``python core/tests/test_rotation_search.py`` prints the cost figures of docs/accuracy.md
+"Rotation search" (frame time on data/demo with xfeat, search off vs on).
 """
 
 from __future__ import annotations
@@ -427,7 +427,7 @@ def test_real_demo_frame_with_attitude_is_untouched_by_the_search(xfeat_roots):
     assert [c.inlier_count for c in on.per_candidate] == [c.inlier_count for c in off.per_candidate]
 
 
-# -- the cost (README "Rotation search"): python core/tests/test_rotation_search.py ----------
+# -- the cost (docs/accuracy.md): python core/tests/test_rotation_search.py ----------
 def _cost(runs: int = 5) -> None:
     import os
 

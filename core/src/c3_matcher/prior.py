@@ -20,7 +20,7 @@ true tile is, up to the sensors' errors, a pure translation at scale 1. Two uses
 
 Only built when the frame had attitude AND height AND the tile GSD is known (the prepared query
 has ``nadir_working_px`` and ``working_gsd_m``); otherwise there is no prior and the pipeline
-runs as before. The tolerance rationale is in the README ("Geometric prior", DECISIONS 17).
+runs as before. The tolerance rationale is in docs/decisions.md ("The geometric prior").
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ F64 = NDArray[np.float64]
 
 @dataclass(frozen=True, slots=True)
 class PriorTolerances:
-    """How far the true homography may be from a pure translation (see the README)."""
+    """How far the true homography may be from a pure translation (see docs/decisions.md)."""
 
     rotation_deg: float = 10.0
     scale: float = 0.15

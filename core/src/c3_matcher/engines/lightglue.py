@@ -53,8 +53,8 @@ def resolve_mode(mode: str, provider: str) -> str:
     """``[lightglue] mode`` for the session's execution ``provider``: ``"auto"`` is adaptive on
     the CPU provider (early exit and pruning save 2-4x there) and full on any other (on an H100
     with CUDA, one graph took 12.5 ms per pair against 22 ms for the steps, whose per-layer
-    launches and host round trips cost more than the layers they skip: README, 'Choices by
-    measurement'); ``"adaptive"`` and ``"full"`` are kept as given."""
+    launches and host round trips cost more than the layers they skip: docs/decisions.md, GPU
+    defaults); ``"adaptive"`` and ``"full"`` are kept as given."""
     if mode == "auto":
         return "adaptive" if provider == "CPUExecutionProvider" else "full"
     if mode not in LIGHTGLUE_MODES:

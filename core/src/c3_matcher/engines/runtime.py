@@ -216,7 +216,7 @@ def provider_options(
                 # ONNX Runtime's EXHAUSTIVE default benchmarks every convolution algorithm for
                 # each new input shape, and query and candidate windows change shape through a
                 # flight: DISK query extraction 130 ms vs 15 ms, XFeat 450 vs 33 ms on an H100
-                # (README, 'Choices by measurement'). ``provider_options`` can set it back.
+                # (docs/decisions.md, GPU defaults). ``provider_options`` can set it back.
                 opts["cudnn_conv_algo_search"] = "DEFAULT"
         if cfg.extra and name in cfg.extra:
             opts.update(dict(cfg.extra[name]))
