@@ -1,0 +1,50 @@
+"""``features build`` refuses what it cannot build from, with one line and exit code 2; the grid
+of a recorded flight is the one its candidates lie on."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[3]
+FLIGHT = REPO / "data" / "flights" / "naip_demo"
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["no/such.mbtiles"], "no such store: no/such.mbtiles"),
+        ([str(FLIGHT / "tiles.mbtiles"), "--flight-candidates"], "needs a flight dataset"),
+        ([str(REPO / "data"), "--workers", "0"], "no dataset.json"),
+        ([str(FLIGHT), "--window", "8", "--workers", "0"], "window must be in [16, 8192]"),
+        ([str(FLIGHT), "--stride", "999", "--workers", "0"], "stride in [1, window]"),
+        ([str(FLIGHT), "--min-coverage", "0", "--workers", "0"], "min_coverage must be in"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c3_matcher.cli import main
+
+    flight = tmp_path / "naip_demo"  # never written: each case is refused before extracting
+    shutil.copytree(FLIGHT, flight)
+    argv = [a.replace(str(FLIGHT), str(flight)) for a in argv]
+    assert main(["features", "build", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1, err
+    assert not (flight / "tiles.mbtiles.features.sqlite").exists()
+
+
+def test_a_flight_is_built_on_the_grid_its_candidates_lie_on() -> None:
+    from c3_matcher.tilestore.handles import mosaic_origin
+    from c3_matcher_tools.dataset.format import load_dataset
+    from c3_matcher_tools.features.build import flight_grid, flight_windows
+
+    window, stride = flight_grid(FLIGHT)
+    assert (window, stride) == (448, 32)  # the demo flight's candidates: 448 px on 32 px
+    dataset = load_dataset(FLIGHT)
+    origins = {mosaic_origin(c.tile_id, window) for f in dataset.frames for c in f.candidates}
+    windows = flight_windows(FLIGHT, stride)
+    assert {(gx * stride, gy * stride) for _, gx, gy in windows} == origins  # all exact
