@@ -39,6 +39,9 @@ PROGRAM = textwrap.dedent(
     logger.info("host during")
     handle.close()
     logger.info("host after")
+    handle = configure_logging(None, level="INFO")  # composed again: still once
+    log_event("INFO", "c3.test.again", "matcher again")
+    handle.close()
     """
 )
 
@@ -50,8 +53,8 @@ def test_each_matcher_record_once_at_the_configured_level() -> None:
     assert proc.returncode == 0, proc.stderr
     lines = proc.stderr.splitlines()
     ours = [line for line in lines if "matcher " in line]
-    assert len(ours) == 1, proc.stderr  # once, as JSON; the DEBUG record not at all
-    assert json.loads(ours[0])["kind"] == "c3.test.info"
+    assert len(ours) == 2, proc.stderr  # once each, as JSON; the DEBUG record not at all
+    assert [json.loads(x)["kind"] for x in ours] == ["c3.test.info", "c3.test.again"]
     for host in ("host before", "host during", "host after"):  # the program's own, in text
         assert sum(host in line for line in lines) == 1, proc.stderr
 

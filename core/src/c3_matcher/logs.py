@@ -5,11 +5,11 @@ so a program that embeds the matcher keeps its own sinks, before and after ``clo
 receive the matcher's records as before. The one exception is loguru's default plain-text
 stderr handler, installed by loguru at import rather than by the program: while it is still in
 place, the matcher's JSON sink would print each of the matcher's records a second time on
-stderr, below the configured level too. ``configure_logging`` therefore swaps it for the same
-handler without the matcher's records (every other record still reaches it), and ``close()``
-puts the plain default back. A ``c3-matcher`` command owns its process and calls
-``claim_stderr()`` first: loguru's default handler goes, so every stderr log line of a command
-is JSON.
+stderr, below the configured level too. ``configure_logging`` therefore swaps it, once, for the
+same handler without the matcher's records (every other record still reaches it, and it stays
+so after ``close()``, so a second composition prints nothing twice either). A ``c3-matcher``
+command owns its process and calls ``claim_stderr()`` first: loguru's default handler goes, so
+every stderr log line of a command is JSON.
 
 Every record carries a ``kind`` (``logger.bind(kind=...)``); the stderr sink writes one JSON
 object per line. ERROR and WARNING records are also forwarded to the FDR as records of their own
@@ -71,22 +71,15 @@ def is_matcher_record(record: Record) -> bool:
 
 @dataclass
 class LoggingHandle:
-    """What ``configure_logging`` installed; ``close()`` removes its sinks (and puts loguru's
-    plain default stderr handler back when ``configure_logging`` had swapped it)."""
+    """What ``configure_logging`` installed; ``close()`` removes its sinks."""
 
     sink_ids: list[int]
-    swapped_default: int | None = None
 
     def close(self) -> None:
         for sink_id in self.sink_ids:
             with contextlib.suppress(ValueError):
                 logger.remove(sink_id)
         self.sink_ids.clear()
-        if self.swapped_default is not None:
-            with contextlib.suppress(ValueError):
-                logger.remove(self.swapped_default)
-                logger.add(sys.stderr)
-            self.swapped_default = None
 
 
 def configure_logging(
@@ -104,7 +97,7 @@ def configure_logging(
         out.write(json.dumps(_record_to_dict(message.record), separators=(",", ":")) + "\n")
         out.flush()
 
-    swapped = _swap_default_handler()
+    _swap_default_handler()
     ours = is_matcher_record
     ids = [logger.add(json_sink, level=level.upper(), format="{message}", filter=ours)]
     if fdr is not None:
@@ -112,21 +105,21 @@ def configure_logging(
         ids.append(
             logger.add(forwarder, level="WARNING", format="{message}", filter=ours, catch=True)
         )
-    return LoggingHandle(ids, swapped)
+    return LoggingHandle(ids)
 
 
 _LOGURU_DEFAULT_HANDLER = 0
 
 
-def _swap_default_handler() -> int | None:
+def _swap_default_handler() -> None:
     """Replace loguru's import-time stderr handler, if it is still installed, by the same
-    handler minus the matcher's records; the replacement's id, or ``None`` when there was none
-    (the program removed it or configured loguru itself)."""
+    handler minus the matcher's records (nothing happens when the program removed it or it was
+    swapped already)."""
     try:
         logger.remove(_LOGURU_DEFAULT_HANDLER)
     except ValueError:
-        return None
-    return logger.add(sys.stderr, filter=lambda record: not is_matcher_record(record))
+        return
+    logger.add(sys.stderr, filter=lambda record: not is_matcher_record(record))
 
 
 def claim_stderr() -> None:
