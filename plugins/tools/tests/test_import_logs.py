@@ -395,3 +395,28 @@ def test_damaged_logs_are_refused_with_one_line(
     images = "-" if name.endswith(".mcap") else str(_images(tmp_path, poses))
     cal = "-" if name.endswith(".mcap") else CAL
     _refused(c3("dataset", "import", images, str(log), cal, STORE, str(tmp_path / "x")), needle)
+
+
+def test_bag_attitude_from_a_chosen_pose_topic(poses: list[fl.Pose], tmp_path: Path) -> None:
+    calibration = load_calibration(DEMO / "calibration.json")
+    bag = fl.write_bag(tmp_path / "bag", poses, calibration, pose_topic=True)
+    ground = ["--ground-elevation", str(fl.GROUND_M)]
+    # an Imu and a PoseStamped: which one is the attitude must be said
+    _refused(
+        c3("dataset", "import", "-", str(bag), "-", STORE, str(tmp_path / "x"), *ground),
+        "several attitude topics (/imu/data, /vehicle/pose)",
+    )
+    flight = tmp_path / "flight"
+    proc = c3(
+        "dataset", "import", "-", str(bag), "-", STORE, str(flight), *ground,
+        "--attitude-topic", "/vehicle/pose",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "attitude /vehicle/pose" in proc.stdout
+    for f, p in zip(load_dataset(flight).frames, poses, strict=True):
+        assert np.allclose(f.attitude_deg, (p.roll, p.pitch, p.yaw), atol=1e-4)
+    _refused(
+        c3("dataset", "import", "-", str(bag), "-", STORE, str(tmp_path / "y"), *ground,
+           "--attitude-topic", "/gps/fix"),
+        "/gps/fix is sensor_msgs/msg/NavSatFix",
+    )  # fmt: skip

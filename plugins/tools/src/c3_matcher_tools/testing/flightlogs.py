@@ -426,12 +426,14 @@ def write_bag(
     storage: str = "sqlite3",
     compressed: bool = True,
     flaws: Sequence[str] = (),
+    pose_topic: bool = False,
 ) -> Path:
     """A ROS 2 bag (``storage`` sqlite3 or mcap) with ``/camera/image_raw/compressed``
     (``sensor_msgs/CompressedImage``; ``sensor_msgs/Image`` rgb8 when not ``compressed``),
     ``/camera/camera_info``, ``/imu/data`` (``sensor_msgs/Imu``, ENU / FLU as REP 103 says) and
-    ``/gps/fix`` (``sensor_msgs/NavSatFix``, covariance 1.5 m). ``flaws``: ``no_imu``,
-    ``no_gps``."""
+    ``/gps/fix`` (``sensor_msgs/NavSatFix``, covariance 1.5 m); ``pose_topic``: the same
+    orientation also on ``/vehicle/pose`` (``geometry_msgs/PoseStamped``). ``flaws``:
+    ``no_imu``, ``no_gps``."""
     import cv2
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
@@ -463,6 +465,10 @@ def write_bag(
         if "no_imu" not in flaws:
             conns["imu"] = writer.add_connection(
                 "/imu/data", "sensor_msgs/msg/Imu", typestore=store
+            )
+        if pose_topic:
+            conns["pose"] = writer.add_connection(
+                "/vehicle/pose", "geometry_msgs/msg/PoseStamped", typestore=store
             )
         if "no_gps" not in flaws:
             conns["gps"] = writer.add_connection(
@@ -507,6 +513,15 @@ def write_bag(
                     linear_acceleration_covariance=np.zeros(9),
                 )
                 msgs.append((p.t_s, "imu", imu))
+            if pose_topic:
+                pose = m["geometry_msgs/msg/PoseStamped"](
+                    header=header(p.t_s, "map"),
+                    pose=m["geometry_msgs/msg/Pose"](
+                        position=m["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=p.height_m),
+                        orientation=m["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+                    ),
+                )
+                msgs.append((p.t_s, "pose", pose))
         msgs.append(
             (
                 poses[0].t_s - 0.5,
