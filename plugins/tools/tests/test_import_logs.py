@@ -195,6 +195,11 @@ def test_ardupilot_logs_import_and_replay(
     assert summary["height_sources"] == {"altitude - home altitude": 4}
     d = load_dataset(flight)
     assert [f.height_m for f in d.frames] == pytest.approx([p.height_m for p in poses], abs=0.01)
+    again = tmp_path / "again"  # the same inputs give the same dataset, bit for bit
+    args = ("dataset", "import", str(images), str(log), CAL, STORE, str(again), "--name", "flight")
+    assert c3(*args).returncode == 0
+    for name in ("frames.jsonl", "dataset.json", "calibration.json"):
+        assert (again / name).read_bytes() == (flight / name).read_bytes(), name
     if kind == "tlog":  # one replay per log family keeps the suite short
         _replay_near_gnss(flight, tmp_path / "replay", engine_dir)
     bad = writer(tmp_path / f"bad.{kind}", poses, flaws=("no_attitude",))
