@@ -243,7 +243,7 @@ def test_matcher_settings_reach_the_pipeline_of_every_strategy(tmp_path):
 
     toml = tmp_path / "c3.toml"
     toml.write_text(
-        "[matcher]\nstored_features = true\ngeometric_prior = false\n"
+        "[matcher]\nstored_features = false\ngeometric_prior = false\n"
         "prior_rotation_tol_deg = 5.0\nmin_inliers_threshold = 70\n"
     )
     settings = load_settings(toml, env={})
@@ -257,7 +257,7 @@ def test_matcher_settings_reach_the_pipeline_of_every_strategy(tmp_path):
         size_multiple=16,
     )
     pipeline = config.pipeline_settings
-    assert pipeline.use_stored_features and not pipeline.geometric_prior
+    assert not pipeline.use_stored_features and not pipeline.geometric_prior  # both not default
     assert pipeline.prior_tolerances.rotation_deg == 5.0
     assert pipeline.min_inliers_threshold == 70
     assert load_settings(env={}) and PipelineSettings().geometric_prior  # defaults untouched
