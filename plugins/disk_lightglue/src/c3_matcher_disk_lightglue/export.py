@@ -88,12 +88,18 @@ def build_disk_export_module(reference: Any, top_k: int = DISK_TOP_K) -> Any:
                 swap_norms(child)
 
     class DiskForExport(nn.Module):
+        heat_w: torch.Tensor  # (1, C, 5, 5): the heat-map row of the last convolution
+        heat_b: torch.Tensor  # (1,)
+        desc_w: torch.Tensor  # (D, C * 25): its descriptor rows, flattened as the patches
+        desc_b: torch.Tensor  # (D,)
+
         def __init__(self, unet: nn.Module, k: int, dim: int) -> None:
             super().__init__()
             self.unet = unet
             self.k = k
             self.dim = dim
-            head: Any = unet.path_up[-1].conv[-1]  # kornia's Conv block ends in its Conv2d
+            path_up: Any = unet.path_up
+            head: Any = path_up[-1].conv[-1]  # kornia's Conv block ends in its Conv2d
             if not isinstance(head, nn.Conv2d) or head.kernel_size != (5, 5):
                 raise ValueError("DISK export expects a 5x5 Conv2d as the U-Net's last layer")
             weight, bias = head.weight.detach(), head.bias.detach()  # type: ignore[union-attr]
