@@ -194,3 +194,21 @@ def test_a_sidecar_locked_by_another_process_costs_no_wait(
         assert _serve(source, origin) is None  # released, but not retried before its time
         clock.now += 31
         assert _serve(source, origin) is not None  # served again
+
+
+def test_binary_descriptors_are_stored_and_served_in_their_own_dtype(store, tmp_path: Path):
+    source, (gx, gy) = store
+    request = FeatureRequest("ef" * 32, 32, 1024, 500, 4, "none", "CPUExecutionProvider")
+    fset = FeatureSet(
+        request.set_id(WINDOW), request.extractor_sha256, request.provider, 32, "none", 4,
+        WINDOW, STRIDE, 32, "orb", descriptor_dtype="uint8",
+    )  # fmt: skip
+    floats = _window(source, gx, gy)
+    packed = np.random.default_rng(2).integers(0, 256, (50, 32), dtype=np.uint8)
+    stored = WindowFeatures(floats.window_digest, floats.keypoints, floats.scores, packed)
+    with MapFeatureStore(sidecar_path(tmp_path / "tiles.mbtiles"), writable=True) as side:
+        side.ensure_set(fset)
+        side.put_windows(fset.set_id, [(ZOOM, gx, gy, stored)])
+    got = _serve(source, (gx * STRIDE, gy * STRIDE), request)
+    assert got is not None and got.descriptors.dtype == np.uint8
+    assert np.array_equal(got.descriptors, packed)

@@ -18,7 +18,7 @@ Sidecar database ``<store>.features.sqlite``::
 
     window_sets (set_id TEXT PRIMARY KEY, extractor_sha256, provider, multiple, photometric,
                  border_erode_px, window_px, stride_px, descriptor_dim, strategy, complete,
-                 windows, created)
+                 windows, descriptor_dtype, created)
     window_features (set_id, zoom, gx, gy, window_digest, n, keypoints, scores, descriptors,
                      checksum, PRIMARY KEY (set_id, zoom, gx, gy))
 
@@ -29,7 +29,8 @@ never served. ``window_digest`` is the sha256 of the sha256 digests of the tiles
 covers (a window whose tiles changed is never served stale); ``checksum`` the sha256 of the row
 itself (a row altered on disk, even into finite numbers, is refused). Keypoints are float32 (n, 2)
 (x, y) in window px (origin at the centre of its top-left pixel), scores float32 (n,),
-descriptors float32 (n, D).
+descriptors (n, D) of the backend's own dtype (``descriptor_dtype``: float32, or uint8 for
+packed binary descriptors), never cast.
 
 Reliability in flight: the read connection never waits on a lock (busy timeout 0). When the
 sidecar is locked or unreadable the store says so once (:class:`FeatureStoreUnavailableError`),
@@ -85,7 +86,7 @@ CREATE TABLE IF NOT EXISTS window_sets (
     multiple INTEGER NOT NULL, photometric TEXT NOT NULL, border_erode_px INTEGER NOT NULL,
     window_px INTEGER NOT NULL, stride_px INTEGER NOT NULL, descriptor_dim INTEGER NOT NULL,
     strategy TEXT NOT NULL, complete INTEGER NOT NULL DEFAULT 0,
-    windows INTEGER NOT NULL DEFAULT 0, created TEXT NOT NULL);
+    windows INTEGER NOT NULL DEFAULT 0, descriptor_dtype TEXT NOT NULL, created TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS window_features (
     set_id TEXT NOT NULL, zoom INTEGER NOT NULL, gx INTEGER NOT NULL, gy INTEGER NOT NULL,
     window_digest TEXT NOT NULL, n INTEGER NOT NULL, keypoints BLOB NOT NULL,
@@ -95,7 +96,7 @@ CREATE TABLE IF NOT EXISTS window_features (
 
 _SET_COLUMNS = (
     "set_id, extractor_sha256, provider, multiple, photometric, border_erode_px, window_px, "
-    "stride_px, descriptor_dim, strategy, complete, windows"
+    "stride_px, descriptor_dim, strategy, complete, windows, descriptor_dtype"
 )
 
 T = TypeVar("T")
@@ -208,6 +209,7 @@ class FeatureSet:
     strategy: str
     complete: bool = False
     windows: int = 0
+    descriptor_dtype: str = "float32"  # or "uint8" (packed binary descriptors)
 
 
 @dataclass(frozen=True, slots=True)
@@ -218,13 +220,15 @@ class WindowFeatures:
     window_digest: str
     keypoints: NDArray[np.float32]
     scores: NDArray[np.float32]
-    descriptors: NDArray[np.float32]
+    descriptors: NDArray[Any]  # float32, or uint8 (packed binary descriptors)
 
     def blobs(self) -> tuple[bytes, bytes, bytes]:
-        """The three arrays as stored: float32, C order."""
-        return tuple(  # type: ignore[return-value]
-            np.ascontiguousarray(a, dtype=np.float32).tobytes()
-            for a in (self.keypoints, self.scores, self.descriptors)
+        """The three arrays as stored, C order: keypoints and scores float32, descriptors in
+        their own dtype."""
+        return (
+            np.ascontiguousarray(self.keypoints, dtype=np.float32).tobytes(),
+            np.ascontiguousarray(self.scores, dtype=np.float32).tobytes(),
+            np.ascontiguousarray(self.descriptors).tobytes(),
         )
 
 
@@ -335,7 +339,7 @@ class MapFeatureStore:
                 str(row[0]),
                 np.frombuffer(row[2], dtype=np.float32).reshape(n, 2),
                 np.frombuffer(row[3], dtype=np.float32).reshape(n),
-                np.frombuffer(row[4], dtype=np.float32).reshape(n, d),
+                np.frombuffer(row[4], dtype=np.dtype(fset.descriptor_dtype)).reshape(n, d),
             )
         except (ValueError, TypeError) as exc:
             ok, stored = False, None
@@ -363,7 +367,7 @@ class MapFeatureStore:
     def ensure_set(self, fset: FeatureSet) -> None:
         self._db.execute(
             f"INSERT OR IGNORE INTO window_sets ({_SET_COLUMNS}, created) "
-            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0, ?)",
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0, ?, ?)",
             (
                 fset.set_id,
                 fset.extractor_sha256,
@@ -375,6 +379,7 @@ class MapFeatureStore:
                 fset.stride_px,
                 fset.descriptor_dim,
                 fset.strategy,
+                fset.descriptor_dtype,
                 time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             ),
         )
@@ -435,6 +440,7 @@ def _set_of(row: Sequence[Any]) -> FeatureSet:
         str(row[9]),
         bool(row[10]),
         int(row[11]),
+        str(row[12]),
     )
 
 
@@ -495,7 +501,7 @@ def serve_window(
         keypoints = keypoints + np.array([dx, dy], dtype=np.float32)
     return Features(
         keypoints=np.ascontiguousarray(keypoints, dtype=np.float32),
-        descriptors=np.ascontiguousarray(stored.descriptors[:n], dtype=np.float32),
+        descriptors=np.ascontiguousarray(stored.descriptors[:n]),
         keypoint_scores=np.ascontiguousarray(stored.scores[:n], dtype=np.float32),
         image_size=(w, h),
     )
@@ -512,6 +518,7 @@ def stored_sets(store: MapFeatureStore) -> Iterator[Mapping[str, Any]]:
             "window_px": s.window_px,
             "stride_px": s.stride_px,
             "descriptor_dim": s.descriptor_dim,
+            "descriptor_dtype": s.descriptor_dtype,
             "complete": s.complete,
             "windows": s.windows,
         }

@@ -74,6 +74,7 @@ class _Facts:
     multiple: int
     border_erode_px: int
     descriptor_dim: int
+    descriptor_dtype: str
 
 
 _BACKENDS: dict[tuple[str, str], Any] = {}
@@ -141,7 +142,7 @@ def extract_window_features(
         digest,
         np.ascontiguousarray(f.keypoints, dtype=np.float32),
         np.ascontiguousarray(f.keypoint_scores, dtype=np.float32),
-        np.ascontiguousarray(f.descriptors, dtype=np.float32),
+        np.ascontiguousarray(f.descriptors),  # the backend's dtype, never cast
     )
 
 
@@ -359,6 +360,7 @@ def build_features(
                         stride,
                         facts.descriptor_dim,
                         strategy,
+                        descriptor_dtype=facts.descriptor_dtype,
                     )
                 )
                 done = sidecar.done_windows(set_id)
