@@ -202,6 +202,7 @@ def _set_facts(strategy: str, settings_json: str) -> _Facts:
         int(backend.input_rule.multiple),
         int(_preprocessor(backend, photometric).border_erode_px),
         int(f.descriptors.shape[1]),
+        str(f.descriptors.dtype),
     )
 
 
