@@ -7,7 +7,8 @@ strategy plugins, or in a caller's own code (test doubles included).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Protocol, runtime_checkable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,12 +23,17 @@ from c3_matcher.dto import (
 )
 from c3_matcher.features import RawMatches
 
+if TYPE_CHECKING:
+    from c3_matcher.engines.manifest import EngineManifest
+
 __all__ = [
     "Clock",
     "CrossDomainMatcher",
     "FdrClient",
     "InferenceRuntime",
     "LightGlueRuntime",
+    "LoadableLightGlueRuntime",
+    "ManifestRuntime",
     "RansacFilter",
     "TilePixelsHandle",
 ]
@@ -94,6 +100,15 @@ class InferenceRuntime(Protocol):
 
 
 @runtime_checkable
+class ManifestRuntime(InferenceRuntime, Protocol):
+    """An ``InferenceRuntime`` that also tells the manifest of a loaded engine (the ONNX Runtime
+    one does): its feature type, size rule and options. Optional: a runtime without it runs
+    engines whose manifests are not consulted."""
+
+    def manifest(self, engine_id: str) -> EngineManifest: ...
+
+
+@runtime_checkable
 class LightGlueRuntime(Protocol):
     """AZ-278: the shared LightGlue handle, one engine per feature type (DECISIONS 9).
 
@@ -112,3 +127,12 @@ class LightGlueRuntime(Protocol):
         *,
         feature_type: str,
     ) -> RawMatches: ...
+
+
+@runtime_checkable
+class LoadableLightGlueRuntime(LightGlueRuntime, Protocol):
+    """A ``LightGlueRuntime`` that loads its engines at start-up (``OnnxLightGlueRuntime``):
+    ``load(feature_type, engine_path)`` is idempotent for the same file. Optional: a strategy
+    given a runtime without it expects the runtime to hold its engines already."""
+
+    def load(self, feature_type: str, engine_path: Path) -> None: ...

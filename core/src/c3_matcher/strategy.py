@@ -37,6 +37,8 @@ from c3_matcher.protocols import (
     FdrClient,
     InferenceRuntime,
     LightGlueRuntime,
+    LoadableLightGlueRuntime,
+    ManifestRuntime,
     RansacFilter,
 )
 
@@ -146,9 +148,8 @@ class LightGluePairMatcher:
     def __init__(self, runtime: LightGlueRuntime, engine_path: Path, feature_type: str) -> None:
         self._runtime = runtime
         self._feature_type = feature_type
-        load = getattr(runtime, "load", None)
-        if callable(load):
-            load(feature_type, engine_path)
+        if isinstance(runtime, LoadableLightGlueRuntime):
+            runtime.load(feature_type, engine_path)
 
     def match(self, query: Features, tile: Features) -> RawMatches:
         return self._runtime.match_pair(
@@ -244,9 +245,11 @@ class ExtractorBackend:
 def _engine_facts(
     runtime: InferenceRuntime | None, engine_id: str | None, path: Path
 ) -> dict[str, Any]:
-    manifest_of = getattr(runtime, "manifest", None)
     try:
-        manifest = manifest_of(engine_id) if callable(manifest_of) else read_manifest(Path(path))
+        if isinstance(runtime, ManifestRuntime) and engine_id is not None:
+            manifest = runtime.manifest(engine_id)
+        else:
+            manifest = read_manifest(Path(path))
     except EngineError:
         return {"file": str(path)}
     return {

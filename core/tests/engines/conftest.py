@@ -1,16 +1,14 @@
-"""Fixtures of the engine tests: real engines built (or reused) once per session, real imagery,
-PyTorch references, and a tiny synthetic engine for the manifest checks.
-
-The engine cache is ``$C3_MATCHER_ENGINE_DIR`` or ``<repo>/.engines/`` (git-ignored); a clean
-clone builds DISK and LightGlue there in about 1.5 minutes on 2 CPU cores.
+"""Fixtures of the core's engine tests: real engines found in the workspace's engine directory
+(the root ``engine_dir`` fixture builds what the installed plugins declare), real imagery, and a
+tiny synthetic engine for the manifest checks. Core only: the engines are found by the core's
+``EngineStore``, as at run time; the exporters, the compiler and the PyTorch references live
+with the ground tools and the plugins (their tests sit beside them).
 """
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -22,7 +20,7 @@ from c3_matcher.engines.manifest import EngineManifest
 from c3_matcher.engines.naming import EngineName
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.spec import TensorSpec, file_sha256
-from c3_matcher_tools.engines.compiler import ensure_engines
+from c3_matcher.engines.store import EngineStore
 
 REPO = Path(__file__).resolve().parents[3]
 IMAGERY = REPO / "data" / "imagery"
@@ -35,13 +33,15 @@ def read_rgb(relative: str) -> NDArray[np.uint8]:
     return np.ascontiguousarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
 
 
+REAL_ENGINES = (("disk", "depth"), ("lightglue", "disk"), ("lightglue", "disk-steps"))
+"""The real engines the core's tests run: the default strategy's extractor, its single-graph
+LightGlue and its steps LightGlue."""
+
+
 @pytest.fixture(scope="session")
 def built_engines(engine_dir: Path) -> dict[tuple[str, str], Path]:
-    from c3_matcher_disk_lightglue.engines import ENGINE_SPECS
-
-    return ensure_engines(
-        ENGINE_SPECS, engine_dir, log=lambda line: print(line, file=sys.stderr, flush=True)
-    )
+    store = EngineStore(engine_dir)
+    return {key: store.require(*key) for key in REAL_ENGINES}
 
 
 @pytest.fixture(scope="session")
@@ -62,22 +62,6 @@ def runtime() -> OnnxInferenceRuntime:
 @pytest.fixture(scope="session")
 def gorinchem() -> NDArray[np.uint8]:
     return read_rgb("open_orthophotos/test_tiled.tif")
-
-
-@pytest.fixture(scope="session")
-def disk_reference() -> Any:
-    from c3_matcher_disk_lightglue.engines import DISK_SPEC
-    from c3_matcher_disk_lightglue.export import load_disk_reference
-
-    return load_disk_reference(DISK_SPEC.weights.resolve())
-
-
-@pytest.fixture(scope="session")
-def lightglue_reference() -> Any:
-    from c3_matcher_disk_lightglue.engines import LIGHTGLUE_DISK_SPEC
-    from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
-
-    return load_lightglue_reference(LIGHTGLUE_DISK_SPEC.weights.resolve(), input_dim=128)
 
 
 TINY_INPUTS = (TensorSpec("x", "float32", (1, "n")),)

@@ -3,23 +3,34 @@ torch-free import, and the real DISK steps engine against the single-graph engin
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import subprocess
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from loguru import logger
 from numpy.typing import NDArray
 
-from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
+from c3_matcher.engines.lightglue import (
+    STEPS_OPTION,
+    OnnxLightGlueRuntime,
+    steps_engines_beside,
+    steps_feature_types,
+)
 from c3_matcher.engines.lightglue_adaptive import (
-    STEPS_SPECS,
     AdaptiveLightGlue,
     confidence_threshold,
+    steps_engine_spec,
+    steps_io,
 )
+from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
+from c3_matcher.engines.spec import WeightsRef
 
 
 class FakeSteps:
@@ -125,21 +136,15 @@ def test_adaptive_runtime_imports_without_torch() -> None:
         "    sys.modules[name] = None\n"
         "import c3_matcher.engines.lightglue_adaptive as m\n"
         "import c3_matcher.engines.lightglue\n"
-        "assert set(m.STEPS_SPECS) == {'disk', 'aliked'}\n"
+        "assert callable(m.steps_engine_spec)\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert proc.returncode == 0, proc.stderr
 
 
 @pytest.fixture(scope="module")
-def disk_steps_engine(engine_dir: Path) -> Path:
-    from c3_matcher_tools.engines.compiler import ensure_engines
-
-    spec = STEPS_SPECS["disk"]
-    built = ensure_engines(
-        [spec], engine_dir, log=lambda line: print(line, file=sys.stderr, flush=True)
-    )
-    return built[(spec.model, spec.variant)]
+def disk_steps_engine(built_engines: dict[tuple[str, str], Path]) -> Path:
+    return built_engines[("lightglue", "disk-steps")]
 
 
 def test_disk_steps_engine_agrees_with_the_single_graph(
@@ -186,3 +191,66 @@ def test_disk_steps_engine_agrees_with_the_single_graph(
     assert adaptive.last_run["mode"] == "adaptive" and adaptive.last_run["layers"] < 9
     a, b = set(map(tuple, fast.matches.tolist())), set(map(tuple, ref.matches.tolist()))
     assert len(a & b) / len(b) > 0.8, (len(a), len(b), len(a & b))
+
+
+def _declare(engine: Path, **fields: Any) -> None:
+    """Rewrite the manifest beside ``engine`` with ``fields`` (feature type, options)."""
+    manifest = manifest_path_for(engine)
+    data = json.loads(manifest.read_text())
+    data.update(fields)
+    manifest.write_text(json.dumps(data))
+
+
+def test_steps_engines_are_found_by_manifest_not_by_name(
+    make_tiny_engine: Callable[..., Path], tmp_path: Path
+) -> None:
+    directory = tmp_path / "engines"
+    full = make_tiny_engine(directory, variant="toy", build_key="ab" * 32)
+    named_steps = make_tiny_engine(directory, variant="toy-steps", build_key="cd" * 32)
+    declared = make_tiny_engine(directory, variant="other", build_key="ef" * 32)
+    _declare(full, feature_type="toy", options={"pruning": "off"})
+    _declare(named_steps, feature_type="toy")  # its name says steps, its manifest does not
+    _declare(declared, feature_type="toy", options=dict([STEPS_OPTION]))
+    assert steps_engines_beside(full, "toy") == [declared]
+    assert steps_engines_beside(full, "else") == []
+
+
+def test_missing_steps_engine_warned_only_where_a_plugin_declares_one(
+    make_tiny_engine: Callable[..., Path], tmp_path: Path
+) -> None:
+    full = make_tiny_engine(tmp_path / "engines", variant="toy")
+    _declare(full, feature_type="toy")
+    seen: list[dict[str, Any]] = []
+    sink = logger.add(lambda m: seen.append(dict(m.record["extra"])), level="WARNING")
+    try:
+        for declared in (None, {"other"}, {"toy"}):
+            inference = OnnxInferenceRuntime(["CPUExecutionProvider"])
+            runtime = OnnxLightGlueRuntime(inference, mode="adaptive", steps_feature_types=declared)
+            runtime.load("toy", full)
+            assert runtime.feature_types == ("toy",)
+    finally:
+        logger.remove(sink)
+    warned = [e for e in seen if e.get("kind") == "c3.lightglue.no_steps_engine"]
+    assert warned == [{"kind": "c3.lightglue.no_steps_engine", "feature_type": "toy"}]
+
+
+def test_declared_steps_feature_types() -> None:
+    lightglue_io = steps_io(4, 8)
+    weights = WeightsRef("none", "none")
+    steps = steps_engine_spec(
+        feature_type="toy",
+        model="glue",
+        weights=weights,
+        input_dim=4,
+        descriptor_dim=8,
+        n_layers=2,
+        depth_confidence=0.9,
+        width_confidence=0.9,
+        exporter="toy_plugin.export:export_steps",
+        description="",
+    )
+    assert steps.exporter == "toy_plugin.export:export_steps"
+    assert (steps.inputs, steps.outputs) == lightglue_io
+    full = dataclasses.replace(steps, variant="toy", options=(("pruning", "off"),))
+    assert steps_feature_types([steps, full]) == {"toy"}
+    assert steps_feature_types([full]) == frozenset()

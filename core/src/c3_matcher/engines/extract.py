@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.features import Features
-from c3_matcher.protocols import InferenceRuntime
+from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
 
 __all__ = ["image_to_feeds", "run_extractor", "select_keypoints"]
 
@@ -94,9 +94,8 @@ def run_extractor(
         raise ValueError(f"max_keypoints must be an int >= 1, got {max_keypoints!r}")
     feeds = image_to_feeds(image_rgb_uint8, valid_mask_bool)
     height, width = image_rgb_uint8.shape[:2]
-    manifest_of = getattr(runtime, "manifest", None)
-    if callable(manifest_of):
-        multiple = getattr(manifest_of(engine_id), "size_multiple", None)
+    if isinstance(runtime, ManifestRuntime):
+        multiple = runtime.manifest(engine_id).size_multiple
         if multiple and (height % multiple or width % multiple):
             raise ValueError(
                 f"engine {engine_id} needs H and W multiples of {multiple}, got {width}x{height}"

@@ -1,7 +1,7 @@
 """``OnnxLightGlueRuntime``: the shared LightGlue handle (AZ-278, DECISIONS 9). No PyTorch.
 
-One object, one engine per feature type (DISK and ALIKED weights differ). LightGlue graph I/O:
-inputs ``kpts0`` float32 (1, M, 2), ``kpts1`` (1, N, 2) normalised keypoints (see
+One object, one engine per feature type (each feature type has its own weights). LightGlue
+graph I/O: inputs ``kpts0`` float32 (1, M, 2), ``kpts1`` (1, N, 2) normalised keypoints (see
 ``normalize_keypoints``), ``desc0`` float32 (1, M, D), ``desc1`` (1, N, D); outputs
 ``matches0`` int64 (M,) index into image 1 of the mutual nearest neighbour or -1, and
 ``mscores0`` float32 (M,) its match confidence (0 where not mutual). The match filter threshold
@@ -13,8 +13,9 @@ every layer on every point; adaptive depth/width does not survive a single-graph
 steps graph (manifest option ``pruning = "steps"``, ``c3_matcher.engines.lightglue_adaptive``):
 the transformer in steps with upstream's early exit and point pruning decided in numpy.
 ``mode="adaptive"`` (the CPU flight default, ``[lightglue] mode``, ``resolve_mode``) runs the
-steps engine where one is loaded (loading a full engine also loads the ``<feature>-steps``
-engine beside it), otherwise the full one; ``mode="full"`` (the constructor's default) runs the
+steps engine where one is loaded (loading a full engine also loads the steps engine beside it:
+the engine in the same directory whose manifest declares the same ``feature_type`` and option
+``pruning = "steps"``), otherwise the full one; ``mode="full"`` (the constructor's default) runs the
 single graph where one is loaded (a steps engine alone then runs every layer on every point).
 ``depth_confidence`` / ``width_confidence`` ``None`` take the engine manifest's upstream
 defaults; ``-1`` disables the rule. ``last_run`` tells what the last
@@ -23,6 +24,7 @@ defaults; ``-1`` disables the rule. ``last_run`` tells what the last
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -30,19 +32,22 @@ import numpy as np
 from loguru import logger
 from numpy.typing import NDArray
 
-from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS, AdaptiveLightGlue
-from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file
-from c3_matcher.engines.naming import EngineName
+from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
+from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file, read_manifest
+from c3_matcher.engines.store import EngineStore
 from c3_matcher.errors import EngineError
 from c3_matcher.features import RawMatches
-from c3_matcher.protocols import InferenceRuntime
+from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
 
 __all__ = [
     "DEFAULT_FILTER_THRESHOLD",
     "LIGHTGLUE_MODES",
+    "STEPS_OPTION",
     "OnnxLightGlueRuntime",
     "normalize_keypoints",
     "resolve_mode",
+    "steps_engines_beside",
+    "steps_feature_types",
 ]
 
 DEFAULT_FILTER_THRESHOLD = 0.1
@@ -60,6 +65,16 @@ def resolve_mode(mode: str, provider: str) -> str:
     if mode not in LIGHTGLUE_MODES:
         raise ValueError(f"mode must be one of auto, {', '.join(LIGHTGLUE_MODES)}; got {mode!r}")
     return mode
+
+
+def steps_feature_types(specs: Collection[Any]) -> frozenset[str]:
+    """The feature types of the steps engines among ``specs`` (``EngineSpec``s the plugins
+    declare, hook ``c3_matcher_engine_specs``)."""
+    return frozenset(
+        str(spec.feature_type)
+        for spec in specs
+        if spec.feature_type and dict(spec.options).get(STEPS_OPTION[0]) == STEPS_OPTION[1]
+    )
 
 
 def normalize_keypoints(kpts: NDArray[np.float32], size: tuple[int, int]) -> NDArray[np.float32]:
@@ -98,10 +113,34 @@ def _check_pair(
         raise ValueError(f"size{side} must be (width, height) > 0, got {size}")
 
 
+STEPS_OPTION = ("pruning", "steps")
+"""The manifest option that marks a steps engine (``lightglue_adaptive.steps_engine_spec``)."""
+
+
+def steps_engines_beside(engine_path: Path, feature_type: str) -> list[Path]:
+    """The steps engines for ``feature_type`` in ``engine_path``'s directory, found by their
+    manifests (``feature_type`` and option ``pruning = "steps"``), not by their file names;
+    newest build first. An engine whose manifest is unreadable is not one."""
+    found: list[tuple[str, Path]] = []
+    for record in EngineStore(Path(engine_path).parent).list():
+        manifest = record.manifest
+        if (
+            manifest is not None
+            and manifest.feature_type == feature_type
+            and manifest.options.get(STEPS_OPTION[0]) == STEPS_OPTION[1]
+        ):
+            found.append((manifest.built_at, record.path))
+    return [path for _, path in sorted(found, reverse=True)]
+
+
 class OnnxLightGlueRuntime:
     """LightGlue on ONNX Runtime through a shared ``InferenceRuntime``; satisfies
-    ``c3_matcher.protocols.LightGlueRuntime``. ``filter_threshold`` is the match confidence a
-    match must exceed (upstream default 0.1)."""
+    ``c3_matcher.protocols.LoadableLightGlueRuntime``. ``filter_threshold`` is the match
+    confidence a match must exceed (upstream default 0.1). ``steps_feature_types`` are the
+    feature types whose plugins declare a steps engine (``STEPS_OPTION``; ``steps_feature_types``
+    of the plugin host's engine specs): a missing one is warned about in adaptive mode, naming
+    the build command. ``None`` (not known): any steps engine found beside a full one is used,
+    and none found is no warning."""
 
     def __init__(
         self,
@@ -111,6 +150,7 @@ class OnnxLightGlueRuntime:
         mode: str = "full",
         depth_confidence: float | None = None,
         width_confidence: float | None = None,
+        steps_feature_types: Collection[str] | None = None,
     ) -> None:
         if not 0.0 <= filter_threshold < 1.0:
             raise ValueError(f"filter_threshold must be in [0, 1), got {filter_threshold}")
@@ -121,6 +161,7 @@ class OnnxLightGlueRuntime:
         self._mode = mode
         self._depth = depth_confidence
         self._width = width_confidence
+        self._declared = None if steps_feature_types is None else frozenset(steps_feature_types)
         self._engines: dict[str, tuple[Path, str]] = {}
         self._steps: dict[str, tuple[Path, str, AdaptiveLightGlue, AdaptiveLightGlue]] = {}
         self.last_run: dict[str, Any] = {}
@@ -150,9 +191,8 @@ class OnnxLightGlueRuntime:
                 return
         if (
             self._mode == "adaptive"
-            and feature_type in STEPS_SPECS  # LighterGlue has none: its full graph runs
             and feature_type not in self._steps
-            and f"_{feature_type}-steps_" not in path.name
+            and self._may_have_steps(feature_type)
             and self._load_sibling_steps(feature_type, path)
         ):
             # the steps engine serves both modes: the full graph is not loaded (memory), but it
@@ -161,16 +201,15 @@ class OnnxLightGlueRuntime:
             return
         engine_id = self._inference.load_engine(path)
         options: dict[str, Any] = {}
-        manifest_of = getattr(self._inference, "manifest", None)
-        if callable(manifest_of):
-            manifest = manifest_of(engine_id)
-            declared = getattr(manifest, "feature_type", None)
+        if isinstance(self._inference, ManifestRuntime):
+            manifest = self._inference.manifest(engine_id)
+            declared = manifest.feature_type
             if declared is not None and declared != feature_type:
                 raise EngineError(
                     path, f"engine matches {declared!r} features, not {feature_type!r}"
                 )
-            options = dict(getattr(manifest, "options", None) or {})
-        steps = options.get("pruning") == "steps"
+            options = dict(manifest.options)
+        steps = options.get(STEPS_OPTION[0]) == STEPS_OPTION[1]
         table_name = "steps" if steps else "full"
         loaded = (self._steps if steps else self._engines).get(feature_type)
         if loaded is not None:
@@ -190,15 +229,18 @@ class OnnxLightGlueRuntime:
             engine_kind=table_name,
         ).info("LightGlue ({}) for {} loaded", table_name, feature_type)
 
+    def _may_have_steps(self, feature_type: str) -> bool:
+        return self._declared is None or feature_type in self._declared
+
     def _load_sibling_steps(self, feature_type: str, full_path: Path) -> bool:
-        """Adaptive mode: load the ``<model>_<feature_type>-steps`` engine beside a full one
-        (same directory) INSTEAD of it, so a strategy that names its full engine runs adaptive;
-        False when none is there or usable (the full engine then runs, with a warning naming
-        the build command)."""
-        model = full_path.name.split("_", 1)[0]
-        variant = f"{feature_type}-steps"
-        found = sorted(full_path.parent.glob(EngineName.glob_for(model, variant)))
-        for candidate in found:
+        """Adaptive mode: load the steps engine for ``feature_type`` beside a full one (same
+        directory, ``steps_engines_beside``) INSTEAD of it, so a strategy that names its full
+        engine runs adaptive; False when none is there or usable (the full engine then runs,
+        with a warning naming the build command when the plugin declares one)."""
+        siblings = steps_engines_beside(full_path, feature_type)
+        if full_path in siblings:
+            return False  # the path given is the steps engine itself
+        for candidate in siblings:
             try:
                 self.load(feature_type, candidate)
             except EngineIntegrityError:
@@ -207,25 +249,28 @@ class OnnxLightGlueRuntime:
                 logger.warning("steps engine {} not usable: {}", candidate.name, exc)
                 continue
             return True
-        logger.bind(kind="c3.lightglue.no_steps_engine", feature_type=feature_type).warning(
-            "LightGlue for {}: no steps engine beside {}, running every layer on every point "
-            "(build it: c3-matcher engines build --only {}/{})",
-            feature_type,
-            full_path.name,
-            model,
-            variant,
-        )
+        if self._declared is not None:
+            try:
+                model = read_manifest(full_path).model
+            except EngineError:
+                model = "<model>"
+            logger.bind(kind="c3.lightglue.no_steps_engine", feature_type=feature_type).warning(
+                "LightGlue for {}: no steps engine beside {}, running every layer on every "
+                "point (build it: c3-matcher engines build --only {}/{}-steps)",
+                feature_type,
+                full_path.name,
+                model,
+                feature_type,
+            )
         return False
 
     def _verify_steps_beside(self, feature_type: str, full_path: Path) -> None:
         """Full mode loads no steps engine; one beside the full graph (which adaptive mode
         would run) is still hashed against its manifest now: a changed file is refused at
         start-up (``EngineIntegrityError``) wherever it lies in the strategy's engines."""
-        if feature_type not in STEPS_SPECS:
+        if not self._may_have_steps(feature_type):
             return
-        model = full_path.name.split("_", 1)[0]
-        pattern = EngineName.glob_for(model, f"{feature_type}-steps")
-        for candidate in sorted(full_path.parent.glob(pattern)):
+        for candidate in steps_engines_beside(full_path, feature_type):
             try:
                 check_engine_file(candidate, check_hash=True)
             except EngineIntegrityError:

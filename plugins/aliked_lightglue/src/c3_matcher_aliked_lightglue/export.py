@@ -37,7 +37,7 @@ import copy
 import importlib.metadata
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -60,15 +60,17 @@ from c3_matcher_aliked_lightglue.engines import (
     LIGHTGLUE_ALIKED_SPEC,
 )
 from c3_matcher_aliked_lightglue.matcher import EXTRACT_PHASE, AlikedLightGlueOptions
+from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
 from c3_matcher_tools.engines.export.extractor import (
-    export_extractor,
+    ExtractorCase,
+    KeypointSet,
+    export_and_verify_extractor,
     strict_maxima_candidates,
     verification_inputs,
 )
+from c3_matcher_tools.engines.export.lightglue import export_lightglue
+from c3_matcher_tools.engines.export.lightglue_steps import export_lightglue_steps
 from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
-
-if TYPE_CHECKING:
-    from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 __all__ = [
     "ALIKED_INPUT_MULTIPLE",
@@ -80,11 +82,12 @@ __all__ = [
     "compare_features",
     "export_aliked",
     "export_lightglue_aliked",
+    "export_lightglue_aliked_steps",
     "load_aliked_reference",
 ]
 
-ALIKED_INPUT_MULTIPLE = 32
-"""H and W of an ALIKED input must be multiples of this (2 * 4 * 4 pooling, x32 upsampling)."""
+ALIKED_INPUT_MULTIPLE = ALIKED_SIZE_MULTIPLE
+"""H and W of an ALIKED input must be multiples of this (``engines.ALIKED_SIZE_MULTIPLE``)."""
 
 
 def load_aliked_reference(weights_path: Path, model_name: str, top_k: int) -> Any:
@@ -327,60 +330,44 @@ def _check(figures: dict[str, Any], label: str) -> list[str]:
     return failures
 
 
+def _paired_check(
+    name: str, got: KeypointSet, ref: KeypointSet, failures: list[str]
+) -> dict[str, Any]:
+    """The kit's ``compare`` for sub-pixel keypoints: ``compare_features`` pairing."""
+    figures = compare_features(got, ref)
+    failures.extend(_check(figures, name))
+    return {"input": name, **figures}
+
+
+def _cases(image: VerificationImage) -> list[ExtractorCase]:
+    """Every ``ALIKED_VERIFICATION_SIZES`` input (full mask), then the second one masked."""
+    inputs = verification_inputs(image.rgb, ALIKED_VERIFICATION_SIZES)
+    masked_label, masked_rgb = inputs[1]
+    return [
+        *(ExtractorCase(label, rgb) for label, rgb in inputs),
+        ExtractorCase(f"{masked_label} masked", masked_rgb, _partial_mask(*masked_rgb.shape[:2])),
+    ]
+
+
 def export_aliked(request: ExportRequest) -> ExportReport:
     """Export one ALIKED variant and verify it against kornia's ALIKED (same weights, top-K
     mode) on real imagery at every ``ALIKED_VERIFICATION_SIZES`` plus one masked input."""
-    from c3_matcher.engines.extract import image_to_feeds
-    from c3_matcher_tools.engines.export import ExportReport
-
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))
     model_name = str(request.spec.option("model_name"))
     reference = load_aliked_reference(request.weights_path, model_name, top_k)
-    module = build_aliked_export_module(reference, top_k)
-    session = export_extractor(
+    return export_and_verify_extractor(
         request,
-        module,
-        multiple=request.spec.size_multiple or ALIKED_SIZE_MULTIPLE,
-        max_blocks=64,
+        build_aliked_export_module(reference, top_k),
         label=f"{model_name} (top-K {top_k})",
-    )
-    request.log(f"verifying {model_name} against kornia on real imagery")
-    checks: list[dict[str, Any]] = []
-    failures: list[str] = []
-    for image in request.images:
-        inputs = verification_inputs(image.rgb, ALIKED_VERIFICATION_SIZES)
-        cases: list[tuple[str, NDArray[np.uint8], NDArray[np.bool_] | None]] = [
-            (label, rgb, None) for label, rgb in inputs
-        ]
-        masked_label, masked_rgb = inputs[1]
-        masked = _partial_mask(*masked_rgb.shape[:2])
-        cases.append((f"{masked_label} masked", masked_rgb, masked))
-        for label, rgb, mask in cases:
-            valid = np.ones(rgb.shape[:2], dtype=bool) if mask is None else mask
-            kp, sc, de = session.run(None, image_to_feeds(rgb, valid))
-            keep = sc > 0
-            figures = compare_features(
-                (kp[keep], sc[keep], de[keep]), aliked_reference_features(reference, rgb, mask)
-            )
-            check: dict[str, Any] = {"input": f"{image.name}:{label}", **figures}
-            if mask is not None:
-                check["masked_keypoints"] = int(
-                    (
-                        ~valid[
-                            kp[keep][:, 1].round().astype(int), kp[keep][:, 0].round().astype(int)
-                        ]
-                    ).sum()
-                )
-            failures.extend(_check(figures, check["input"]))
-            checks.append(check)
-            request.log(f"  {check}")
-    return ExportReport.from_checks(
-        f"kornia {importlib.metadata.version('kornia')} ALIKED {model_name} "
+        max_blocks=64,
+        reference=lambda rgb, mask: aliked_reference_features(reference, rgb, mask),
+        reference_name=f"kornia {importlib.metadata.version('kornia')} ALIKED {model_name} "
         f"(same state dict, top-K {top_k})",
-        ALIKED_TOLERANCES,
-        checks,
-        failures,
+        tolerances=ALIKED_TOLERANCES,
+        sizes=ALIKED_VERIFICATION_SIZES,
+        compare=_paired_check,
+        cases=_cases,
         notes={"deform_conv": "GridSample (bilinear, zeros, align_corners) + MatMul"},
     )
 
@@ -405,15 +392,19 @@ def aliked_features_fn() -> Callable[
 
 def export_lightglue_aliked(request: ExportRequest) -> ExportReport:
     """Export LightGlue for ALIKED and verify it on real kornia-ALIKED (n16) features (the
-    tools' shared ``export_lightglue``)."""
-    from c3_matcher_tools.engines.export.lightglue import export_lightglue
-
+    kit's ``export_lightglue``)."""
     return export_lightglue(
         request,
         features_fn=aliked_features_fn(),
         input_dim=int(request.spec.option("input_dim")),
         feature_type="aliked",
     )
+
+
+def export_lightglue_aliked_steps(request: ExportRequest) -> ExportReport:
+    """``lightglue/aliked-steps``: the steps graph, verified against upstream's adaptive
+    LightGlue on real kornia-ALIKED (n16) features (the kit's ``export_lightglue_steps``)."""
+    return export_lightglue_steps(request, features_fn=aliked_features_fn(), feature_type="aliked")
 
 
 class AlikedLightGlueReference(PyTorchReference):

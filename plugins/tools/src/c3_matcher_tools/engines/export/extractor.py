@@ -1,12 +1,17 @@
-"""Export and verification pieces every keypoint-extractor exporter shares (build time: imports
-torch). The extractors (DISK, ALIKED, XFeat) declare the same I/O (``extractor_spec``): inputs
-``image`` (1, 3, H, W) and ``mask`` (1, 1, H, W), H and W multiples of the spec's
-``size_multiple``; outputs ``keypoints``, ``keypoint_scores``, ``descriptors`` (top-K rows, score
-0 on padding rows)."""
+"""Export and verification every keypoint-extractor exporter shares (build time: imports torch).
+Extractors declare the same I/O (``extractor_spec``): inputs ``image`` (1, 3, H, W) and ``mask``
+(1, 1, H, W), H and W multiples of the spec's ``size_multiple``; outputs ``keypoints``,
+``keypoint_scores``, ``descriptors`` (top-K rows, score 0 on padding rows).
+
+``export_and_verify_extractor`` is the whole exporter loop a plugin calls with its export module
+and its PyTorch reference: export, then on every verification case (by default each real image
+at each size, full mask) run the graph, drop the padding rows, compare with the reference, and
+report."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -17,12 +22,15 @@ from torch import nn
 from torch.nn import functional as nnf
 
 from c3_matcher.engines.runtime import SessionSettings
-from c3_matcher_tools.engines.export import ExportRequest
+from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
 from c3_matcher_tools.engines.export.onnx_export import export_module
 
 __all__ = [
+    "ExtractorCase",
+    "KeypointSet",
     "TwoStageInstanceNorm",
     "compare_keypoint_sets",
+    "export_and_verify_extractor",
     "export_extractor",
     "strict_maxima_candidates",
     "verification_inputs",
@@ -145,3 +153,98 @@ def compare_keypoint_sets(
     else:
         failures.append(f"{name}: {mismatch} keypoints differ ({len(kp)} vs reference {len(rk)})")
     return check
+
+
+KeypointSet = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]
+"""(keypoints (N, 2) (x, y) px, scores (N,), descriptors (N, D))."""
+
+
+@dataclass(frozen=True, slots=True)
+class ExtractorCase:
+    """One verification input: ``rgb`` uint8 (H, W, 3) and its valid ``mask`` bool (H, W)
+    (``None``: every pixel valid); ``label`` names it in the report."""
+
+    label: str
+    rgb: NDArray[np.uint8]
+    mask: NDArray[np.bool_] | None = None
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        return np.ones(self.rgb.shape[:2], dtype=bool) if self.mask is None else self.mask
+
+
+ReferenceFn = Callable[[NDArray[np.uint8], NDArray[np.bool_] | None], KeypointSet]
+"""``(rgb, mask or None) -> KeypointSet`` of the PyTorch reference on one case."""
+
+CompareFn = Callable[[str, KeypointSet, KeypointSet, list[str]], dict[str, Any]]
+"""``(input name, graph's set, reference's set, failures) -> check figures``; appends to
+``failures`` what is out of tolerance."""
+
+ImageCheckFn = Callable[[ort.InferenceSession, VerificationImage, list[str]], dict[str, Any]]
+"""One further check per verification image on the exported session (e.g. a masked half)."""
+
+
+def export_and_verify_extractor(
+    request: ExportRequest,
+    module: nn.Module,
+    *,
+    label: str,
+    max_blocks: int,
+    reference: ReferenceFn,
+    reference_name: str,
+    tolerances: Mapping[str, float],
+    sizes: Sequence[tuple[int, int]],
+    compare: CompareFn | None = None,
+    relative_scores: bool = False,
+    cases: Callable[[VerificationImage], list[ExtractorCase]] | None = None,
+    image_check: ImageCheckFn | None = None,
+    notes: Mapping[str, Any] | None = None,
+) -> ExportReport:
+    """Export ``module`` (``export_extractor``, H and W multiples of the spec's
+        ``size_multiple``) and verify it against ``reference`` on every case of every real image of
+        ``request.images``: ``cases(image)``, by default the image at each (width, height) of
+        ``sizes`` (``verification_inputs``) with a full mask. ``compare`` defaults to
+        ``compare_keypoint_sets`` (identical whole-pixel sets) with ``tolerances`` (and
+    ``relative_scores``). A masked case
+        reports ``masked_keypoints``, the graph's keypoints on invalid pixels."""
+    from c3_matcher.engines.extract import image_to_feeds
+
+    multiple = request.spec.size_multiple
+    if multiple is None:
+        raise ValueError(f"engine spec {request.spec.key} declares no size_multiple")
+    session = export_extractor(
+        request, module, multiple=multiple, max_blocks=max_blocks, label=label
+    )
+    request.log(f"verifying {label} against {reference_name} on real imagery")
+
+    def full_mask_cases(image: VerificationImage) -> list[ExtractorCase]:
+        return [ExtractorCase(name, rgb) for name, rgb in verification_inputs(image.rgb, sizes)]
+
+    def keypoint_sets(
+        name: str, got: KeypointSet, ref: KeypointSet, failures: list[str]
+    ) -> dict[str, Any]:
+        return compare_keypoint_sets(
+            name, got, ref, tolerances, failures, relative_scores=relative_scores
+        )
+
+    checks: list[dict[str, Any]] = []
+    failures: list[str] = []
+    for image in request.images:
+        for case in (cases or full_mask_cases)(image):
+            valid = case.valid
+            kp, sc, de = session.run(None, image_to_feeds(case.rgb, valid))
+            keep = sc > 0
+            name = f"{image.name}:{case.label}"
+            got = (kp[keep], sc[keep], de[keep])
+            check = (compare or keypoint_sets)(name, got, reference(case.rgb, case.mask), failures)
+            if case.mask is not None:
+                rows = got[0][:, 1].round().astype(int)
+                cols = got[0][:, 0].round().astype(int)
+                check["masked_keypoints"] = int((~valid[rows, cols]).sum())
+            checks.append(check)
+            request.log(f"  {check}")
+        if image_check is not None:
+            check = image_check(session, image, failures)
+            checks.append(check)
+            request.log(f"  {check}")
+    return ExportReport.from_checks(reference_name, tolerances, checks, failures, notes=notes)

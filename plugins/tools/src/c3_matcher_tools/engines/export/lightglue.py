@@ -18,7 +18,8 @@ export arithmetic on symbolic sizes).
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,16 +33,18 @@ from torch.nn import functional as nnf
 
 from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, OnnxLightGlueRuntime
 from c3_matcher.engines.runtime import SessionSettings
-from c3_matcher_tools.engines.export import ExportReport, ExportRequest
+from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
 from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
 from c3_matcher_tools.engines.export.onnx_export import export_module
 
 __all__ = [
     "LIGHTGLUE_TOLERANCES",
+    "FeaturePair",
     "FeaturesFn",
     "LightGlueForExport",
     "assignment_matches",
     "export_lightglue",
+    "feature_pairs",
     "load_lightglue_reference",
     "reference_inputs",
     "verification_pairs",
@@ -183,6 +186,53 @@ def verification_pairs(
     return [("640x480|512x512", a, b)]
 
 
+PairsFn = Callable[[NDArray[np.uint8]], list[tuple[str, NDArray[np.uint8], NDArray[np.uint8]]]]
+"""``rgb -> [(label, rgb0, rgb1)]``: the image pairs cut from one verification image."""
+
+
+@dataclass(frozen=True, slots=True)
+class FeaturePair:
+    """The real features of one verification pair at one keypoint budget: keypoints (K, 2)
+    (x, y) px, descriptors (K, D) and the (width, height) px of each image."""
+
+    pair: str
+    count: int
+    k0: NDArray[np.float32]
+    d0: NDArray[np.float32]
+    size0: tuple[int, int]
+    k1: NDArray[np.float32]
+    d1: NDArray[np.float32]
+    size1: tuple[int, int]
+
+    @property
+    def where(self) -> str:
+        return f"{self.pair} @ {self.count}"
+
+    def run_reference(self, reference: Any) -> Any:
+        """kornia ``LightGlue``'s output on this pair."""
+        return reference(
+            reference_inputs(self.k0, self.d0, self.size0, self.k1, self.d1, self.size1)
+        )
+
+
+def feature_pairs(
+    images: Sequence[VerificationImage],
+    features_fn: FeaturesFn,
+    keypoint_counts: Sequence[int],
+    pairs: PairsFn = verification_pairs,
+) -> Iterator[FeaturePair]:
+    """Every pair of every image (``pairs``) at every keypoint budget, with its features from
+    ``features_fn``: the loop every LightGlue verification runs."""
+    for image in images:
+        for label, rgb0, rgb1 in pairs(image.rgb):
+            size0 = (rgb0.shape[1], rgb0.shape[0])
+            size1 = (rgb1.shape[1], rgb1.shape[0])
+            for count in keypoint_counts:
+                k0, d0 = features_fn(rgb0, count)
+                k1, d1 = features_fn(rgb1, count)
+                yield FeaturePair(f"{image.name}:{label}", count, k0, d0, size0, k1, d1, size1)
+
+
 class _SessionRuntime:
     """A minimal ``InferenceRuntime`` over a raw session (the manifest does not exist yet)."""
 
@@ -260,49 +310,42 @@ def export_lightglue(
     runtime.load(feature_type, request.output_path)
     checks: list[dict[str, Any]] = []
     failures: list[str] = []
-    for image in request.images:
-        for label, rgb0, rgb1 in verification_pairs(image.rgb):
-            size0 = (rgb0.shape[1], rgb0.shape[0])
-            size1 = (rgb1.shape[1], rgb1.shape[0])
-            for count in keypoint_counts:
-                k0, d0 = features_fn(rgb0, count)
-                k1, d1 = features_fn(rgb1, count)
-                ref = reference(reference_inputs(k0, d0, size0, k1, d1, size1))
-                ref_matches = ref["matches"][0].numpy().astype(np.int64)
-                ref_scores = ref["scores"][0].numpy()
-                ref_ms0 = ref["matching_scores0"][0].numpy()
-                got = runtime.match_pair(k0, d0, size0, k1, d1, size1, feature_type=feature_type)
-                same = got.matches.shape == ref_matches.shape and bool(
-                    np.array_equal(got.matches, ref_matches)
+    for fp in feature_pairs(request.images, features_fn, keypoint_counts):
+        ref = fp.run_reference(reference)
+        ref_matches = ref["matches"][0].numpy().astype(np.int64)
+        ref_scores = ref["scores"][0].numpy()
+        ref_ms0 = ref["matching_scores0"][0].numpy()
+        got = runtime.match_pair(
+            fp.k0, fp.d0, fp.size0, fp.k1, fp.d1, fp.size1, feature_type=feature_type
+        )
+        same = got.matches.shape == ref_matches.shape and bool(
+            np.array_equal(got.matches, ref_matches)
+        )
+        mismatch = len(
+            set(map(tuple, got.matches.tolist())) ^ set(map(tuple, ref_matches.tolist()))
+        )
+        score_err = 0.0
+        if same and len(ref_scores):
+            score_err = float(np.abs(got.scores - ref_scores).max())
+        check: dict[str, Any] = {
+            "pair": fp.pair,
+            "keypoints": [len(fp.k0), len(fp.k1)],
+            "matches": len(got),
+            "reference_matches": len(ref_matches),
+            "matches_identical": same,
+            "matches_mismatch": mismatch,
+            "match_score_max_abs": score_err,
+            "mscores0_max_abs": _mscores_error(session, fp, ref_ms0),
+        }
+        checks.append(check)
+        request.log(f"  {check}")
+        if not same:
+            failures.append(f"{fp.where}: {mismatch} matches differ")
+        for key in ("match_score_max_abs", "mscores0_max_abs"):
+            if float(check[key]) > LIGHTGLUE_TOLERANCES[key]:
+                failures.append(
+                    f"{fp.where}: {key} {check[key]:.3g} > {LIGHTGLUE_TOLERANCES[key]:.3g}"
                 )
-                mismatch = len(
-                    set(map(tuple, got.matches.tolist())) ^ set(map(tuple, ref_matches.tolist()))
-                )
-                score_err = 0.0
-                if same and len(ref_scores):
-                    score_err = float(np.abs(got.scores - ref_scores).max())
-                check: dict[str, Any] = {
-                    "pair": f"{image.name}:{label}",
-                    "keypoints": [len(k0), len(k1)],
-                    "matches": len(got),
-                    "reference_matches": len(ref_matches),
-                    "matches_identical": same,
-                    "matches_mismatch": mismatch,
-                    "match_score_max_abs": score_err,
-                    "mscores0_max_abs": _mscores_error(
-                        session, k0, d0, size0, k1, d1, size1, ref_ms0
-                    ),
-                }
-                checks.append(check)
-                request.log(f"  {check}")
-                if not same:
-                    failures.append(f"{check['pair']} @ {count}: {mismatch} matches differ")
-                for key in ("match_score_max_abs", "mscores0_max_abs"):
-                    if float(check[key]) > LIGHTGLUE_TOLERANCES[key]:
-                        failures.append(
-                            f"{check['pair']} @ {count}: {key} {check[key]:.3g} > "
-                            f"{LIGHTGLUE_TOLERANCES[key]:.3g}"
-                        )
     return ExportReport.from_checks(
         f"kornia {_version('kornia')} LightGlue (pruning off) with {reference_name} "
         f"weights on {feature_type} features",
@@ -314,24 +357,17 @@ def export_lightglue(
 
 
 def _mscores_error(
-    session: _SessionRuntime,
-    k0: NDArray[np.float32],
-    d0: NDArray[np.float32],
-    size0: tuple[int, int],
-    k1: NDArray[np.float32],
-    d1: NDArray[np.float32],
-    size1: tuple[int, int],
-    ref_ms0: NDArray[np.float32],
+    session: _SessionRuntime, fp: FeaturePair, ref_ms0: NDArray[np.float32]
 ) -> float:
     from c3_matcher.engines.lightglue import normalize_keypoints
 
     out = session.run(
         "candidate",
         {
-            "kpts0": normalize_keypoints(k0, size0)[None],
-            "kpts1": normalize_keypoints(k1, size1)[None],
-            "desc0": d0[None],
-            "desc1": d1[None],
+            "kpts0": normalize_keypoints(fp.k0, fp.size0)[None],
+            "kpts1": normalize_keypoints(fp.k1, fp.size1)[None],
+            "desc0": fp.d0[None],
+            "desc1": fp.d1[None],
         },
     )
     return float(np.abs(out["mscores0"] - ref_ms0).max())

@@ -41,7 +41,8 @@ from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_a
 from c3_matcher_tools.engines.export.lightglue import (
     FeaturesFn,
     assignment_matches,
-    reference_inputs,
+    feature_pairs,
+    load_lightglue_reference,
     verification_pairs,
 )
 from c3_matcher_tools.engines.export.onnx_export import export_module
@@ -49,8 +50,6 @@ from c3_matcher_tools.engines.export.onnx_export import export_module
 __all__ = [
     "STEPS_TOLERANCES",
     "LightGlueStepsForExport",
-    "export_aliked_steps",
-    "export_disk_steps",
     "export_lightglue_steps",
 ]
 
@@ -165,19 +164,33 @@ def _distractor_pair(
     return ("distractor 640x480|512x512", a, b)
 
 
+def _pairs_and_distractor(
+    rgb: NDArray[np.uint8],
+) -> list[tuple[str, NDArray[np.uint8], NDArray[np.uint8]]]:
+    distractor = _distractor_pair(rgb)
+    return [*verification_pairs(rgb), *([distractor] if distractor is not None else [])]
+
+
 def export_lightglue_steps(
     request: ExportRequest,
     *,
-    reference: Any,
     features_fn: FeaturesFn,
     feature_type: str,
+    reference: Any = None,
     keypoint_counts: tuple[int, ...] = (1024, 2048),
 ) -> ExportReport:
     """Export the steps graph of ``reference`` (kornia ``LightGlue``, any depth/width settings:
     they are overridden by the spec's ``depth_confidence`` / ``width_confidence`` options for
-    the check) and verify it against upstream's adaptive forward (see the module docstring)."""
+    the check; ``None``: ``load_lightglue_reference`` of the request's weights with the spec's
+    ``input_dim``) and verify it against upstream's adaptive forward on ``features_fn``'s real
+    features (see the module docstring). The plugin that declares a steps engine names a
+    one-line exporter calling this with its features."""
     torch.set_grad_enabled(False)
     spec = request.spec
+    if reference is None:
+        reference = load_lightglue_reference(
+            request.weights_path, input_dim=int(spec.option("input_dim"))
+        )
     depth = float(spec.option("depth_confidence"))
     width = float(spec.option("width_confidence"))
     conf: Any = reference.conf
@@ -260,62 +273,49 @@ def export_lightglue_steps(
     threshold = np.float32(DEFAULT_FILTER_THRESHOLD)
     checks: list[dict[str, Any]] = []
     failures: list[str] = []
-    for image in request.images:
-        pairs = list(verification_pairs(image.rgb))
-        distractor = _distractor_pair(image.rgb)
-        if distractor is not None:
-            pairs.append(distractor)
-        for label, rgb0, rgb1 in pairs:
-            size0 = (rgb0.shape[1], rgb0.shape[0])
-            size1 = (rgb1.shape[1], rgb1.shape[0])
-            for count in keypoint_counts:
-                k0, d0 = features_fn(rgb0, count)
-                k1, d1 = features_fn(rgb1, count)
-                ref = reference(reference_inputs(k0, d0, size0, k1, d1, size1))
-                ref_matches = ref["matches"][0].numpy().astype(np.int64).reshape(-1, 2)
-                got = adaptive.match(
-                    normalize_keypoints(k0, size0), normalize_keypoints(k1, size1), d0, d1
-                )
-                valid = (got.matches0 > -1) & (got.mscores0 > threshold)
-                index0 = np.flatnonzero(valid)
-                matches = np.stack([index0, got.matches0[valid]], -1).astype(np.int64)
-                mine = set(map(tuple, matches.tolist()))
-                theirs = set(map(tuple, ref_matches.tolist()))
-                union = len(mine | theirs)
-                share = len(mine & theirs) / union if union else 1.0
-                inl, ref_inl = _inliers(k0, k1, matches), _inliers(k0, k1, ref_matches)
-                ref_layers = int(ref["stop"])
-                check: dict[str, Any] = {
-                    "pair": f"{image.name}:{label}",
-                    "keypoints": [len(k0), len(k1)],
-                    "matches": len(mine),
-                    "reference_matches": len(theirs),
-                    "identical_share": round(share, 5),
-                    "matches_mismatch": len(mine ^ theirs),
-                    "layers": got.layers,
-                    "reference_layers": ref_layers,
-                    "kept_last": [got.kept0[-1], got.kept1[-1]],
-                    "reference_kept_last": [
-                        int((ref["prune0"][0] == ref["prune0"][0].max()).sum()),
-                        int((ref["prune1"][0] == ref["prune1"][0].max()).sum()),
-                    ],
-                    "inliers": inl,
-                    "reference_inliers": ref_inl,
-                }
-                checks.append(check)
-                request.log(f"  {check}")
-                where = f"{check['pair']} @ {count}"
-                if len(theirs) >= 20 and share < STEPS_TOLERANCES["min_identical_share"]:
-                    failures.append(f"{where}: identical share {share:.4f}")
-                if (
-                    len(theirs) < 20
-                    and len(mine ^ theirs) > STEPS_TOLERANCES["max_mismatch_distractor"]
-                ):
-                    failures.append(f"{where}: {len(mine ^ theirs)} matches differ")
-                if abs(got.layers - ref_layers) > STEPS_TOLERANCES["layers_differ"]:
-                    failures.append(f"{where}: {got.layers} layers vs upstream {ref_layers}")
-                if abs(inl - ref_inl) > STEPS_TOLERANCES["inliers_rel_diff"] * max(ref_inl, 1):
-                    failures.append(f"{where}: {inl} inliers vs upstream {ref_inl}")
+    for fp in feature_pairs(request.images, features_fn, keypoint_counts, _pairs_and_distractor):
+        ref = fp.run_reference(reference)
+        ref_matches = ref["matches"][0].numpy().astype(np.int64).reshape(-1, 2)
+        got = adaptive.match(
+            normalize_keypoints(fp.k0, fp.size0), normalize_keypoints(fp.k1, fp.size1), fp.d0, fp.d1
+        )
+        valid = (got.matches0 > -1) & (got.mscores0 > threshold)
+        index0 = np.flatnonzero(valid)
+        matches = np.stack([index0, got.matches0[valid]], -1).astype(np.int64)
+        mine = set(map(tuple, matches.tolist()))
+        theirs = set(map(tuple, ref_matches.tolist()))
+        union = len(mine | theirs)
+        share = len(mine & theirs) / union if union else 1.0
+        inl, ref_inl = _inliers(fp.k0, fp.k1, matches), _inliers(fp.k0, fp.k1, ref_matches)
+        ref_layers = int(ref["stop"])
+        check: dict[str, Any] = {
+            "pair": fp.pair,
+            "keypoints": [len(fp.k0), len(fp.k1)],
+            "matches": len(mine),
+            "reference_matches": len(theirs),
+            "identical_share": round(share, 5),
+            "matches_mismatch": len(mine ^ theirs),
+            "layers": got.layers,
+            "reference_layers": ref_layers,
+            "kept_last": [got.kept0[-1], got.kept1[-1]],
+            "reference_kept_last": [
+                int((ref["prune0"][0] == ref["prune0"][0].max()).sum()),
+                int((ref["prune1"][0] == ref["prune1"][0].max()).sum()),
+            ],
+            "inliers": inl,
+            "reference_inliers": ref_inl,
+        }
+        checks.append(check)
+        request.log(f"  {check}")
+        where = fp.where
+        if len(theirs) >= 20 and share < STEPS_TOLERANCES["min_identical_share"]:
+            failures.append(f"{where}: identical share {share:.4f}")
+        if len(theirs) < 20 and len(mine ^ theirs) > STEPS_TOLERANCES["max_mismatch_distractor"]:
+            failures.append(f"{where}: {len(mine ^ theirs)} matches differ")
+        if abs(got.layers - ref_layers) > STEPS_TOLERANCES["layers_differ"]:
+            failures.append(f"{where}: {got.layers} layers vs upstream {ref_layers}")
+        if abs(inl - ref_inl) > STEPS_TOLERANCES["inliers_rel_diff"] * max(ref_inl, 1):
+            failures.append(f"{where}: {inl} inliers vs upstream {ref_inl}")
     return ExportReport.from_checks(
         f"kornia {importlib.metadata.version('kornia')} LightGlue adaptive forward "
         f"(depth_confidence {depth}, width_confidence {width}) on {feature_type} features",
@@ -325,30 +325,3 @@ def export_lightglue_steps(
         notes={"depth_confidence": depth, "width_confidence": width, "n_layers": n_layers},
         nothing_run="no verification pair was run",
     )
-
-
-def _steps(request: ExportRequest, features_fn: FeaturesFn, feature_type: str) -> ExportReport:
-    from c3_matcher_tools.engines.export.lightglue import load_lightglue_reference
-
-    return export_lightglue_steps(
-        request,
-        reference=load_lightglue_reference(
-            request.weights_path, input_dim=int(request.spec.option("input_dim"))
-        ),
-        features_fn=features_fn,
-        feature_type=feature_type,
-    )
-
-
-def export_disk_steps(request: ExportRequest) -> ExportReport:
-    """``lightglue/disk-steps``: verified on real kornia-DISK features."""
-    from c3_matcher_disk_lightglue.export import disk_features_fn
-
-    return _steps(request, disk_features_fn(), "disk")
-
-
-def export_aliked_steps(request: ExportRequest) -> ExportReport:
-    """``lightglue/aliked-steps``: verified on real kornia-ALIKED (n16) features."""
-    from c3_matcher_aliked_lightglue.export import aliked_features_fn
-
-    return _steps(request, aliked_features_fn(), "aliked")

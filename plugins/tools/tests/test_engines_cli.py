@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from c3_matcher.cli import main
+from c3_matcher.engines.store import EngineStore
 from c3_matcher_tools.engines.bench import run_bench
 
 
@@ -82,16 +83,15 @@ def test_verify_empty_directory(
     assert "c3-matcher engines build" in capsys.readouterr().err
 
 
-def test_bench_machinery_smoke(
-    disk_engine: Path, lightglue_engine: Path, read_image: object
-) -> None:
+def test_bench_machinery_smoke(engine_dir: Path) -> None:
     """The bench runs end to end on real imagery (a smoke test: one run, small cases, no timing
     assertions; the real measurement is ``c3-matcher engines bench``)."""
     from c3_matcher_tools.engines.export import default_verification_imagery
 
+    store = EngineStore(engine_dir)
     results = run_bench(
-        disk_engine,
-        lightglue_engine,
+        store.require("disk", "depth"),
+        store.require("lightglue", "disk"),
         default_verification_imagery()[0],
         runs=1,
         disk_sizes=((256, 256),),

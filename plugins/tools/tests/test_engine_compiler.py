@@ -134,14 +134,17 @@ def test_select_specs() -> None:
         select_specs([a, a], None)
 
 
-def test_real_engines_are_reused(
-    built_engines: dict[tuple[str, str], Path], engine_dir: Path
-) -> None:
-    from c3_matcher_disk_lightglue.engines import ENGINE_SPECS
+def test_real_engines_are_reused(engine_dir: Path) -> None:
+    """Every engine the installed plugins declare, built once by the root ``engine_dir``
+    fixture, is reused by a second build (same build key), with its verification passed."""
+    from c3_matcher.compose import build_plugin_host
+    from c3_matcher.engines.store import EngineStore
 
-    outcomes = build_engines(ENGINE_SPECS, engine_dir)
+    specs = build_plugin_host().engine_specs()
+    outcomes = build_engines(specs, engine_dir)
     assert all(o.reused for o in outcomes)
-    assert {(o.spec.model, o.spec.variant): o.path for o in outcomes} == built_engines
+    store = EngineStore(engine_dir)
+    assert [o.path for o in outcomes] == [store.require(s.model, s.variant) for s in specs]
     for o in outcomes:
         verification = o.manifest.verification
         assert verification["passed"] and len(verification["checks"]) >= 2
