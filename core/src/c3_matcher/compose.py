@@ -93,13 +93,19 @@ def build_default_helpers(
     """The default shared helpers (``c3_lightglue_runtime``, ``c282_ransac_filter``,
     ``c7_inference``) built from configuration: ONNX Runtime and OpenCV USAC. The LightGlue
     runtime's filter threshold is ``[lightglue] filter_threshold``, or when unset the configured
-    strategy's own default (``strategy_settings``)."""
-    from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, resolve_mode
+    strategy's own default (``strategy_settings``); the feature types with a steps engine are
+    those the plugins' engine specs declare (``steps_feature_types``)."""
+    from c3_matcher.engines.lightglue import (
+        OnnxLightGlueRuntime,
+        resolve_mode,
+        steps_feature_types,
+    )
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
+    host = build_plugin_host()
     threshold = settings.lightglue.filter_threshold
     if threshold is None:
-        threshold = strategy_settings(settings).lightglue.filter_threshold
+        threshold = strategy_settings(settings, plugin_host=host).lightglue.filter_threshold
     inference = OnnxInferenceRuntime.from_settings(settings.engines, providers_available)
     return {
         "c7_inference": inference,
@@ -109,6 +115,7 @@ def build_default_helpers(
             filter_threshold=threshold,
             depth_confidence=settings.lightglue.depth_confidence,
             width_confidence=settings.lightglue.width_confidence,
+            steps_feature_types=steps_feature_types(host.engine_specs()),
         ),
         "c282_ransac_filter": OpenCvRansacFilter(seed=settings.matcher.ransac_seed),
     }
