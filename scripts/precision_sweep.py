@@ -9,7 +9,9 @@ confidence) by the bytes of the keypoints and descriptors, so a second threshold
 the cheap tail (threshold filter, prior, RANSAC, checks, ranking). Applying the threshold to
 the memoised raw output keeps exactly the matches ``OnnxLightGlueRuntime.match_pair`` keeps at
 that threshold (``mscores0 > threshold``, ascending set-0 index), so every variant's numbers
-are those ``eval`` gives with the same settings. Results: one JSON per (variant, flight) under
+are those ``eval`` gives with the same settings (``[matcher] photometric``, ``[lightglue]
+filter_threshold``, ``[matcher] refit_threshold_px`` set explicitly per variant). Results: one
+JSON per (variant, flight) under
 OUT; an existing one is read back, not re-run.
 
     C3_MATCHER_ENGINES__DIRECTORY=/work/engines-baseline nice -n 5 .venv/bin/python \\
@@ -37,7 +39,6 @@ from loguru import logger
 from c3_matcher.config import C3Settings, load_settings
 from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.ransac import REFIT_MODES, OpenCvRansacFilter, refit
 from c3_matcher.strategy import ExtractorBackend
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.evaluate import metrics
@@ -57,14 +58,11 @@ def _digest(*parts: Any) -> str:
 
 class Memo:
     """Extractor and raw-LightGlue memo, installed by patching the two classes (experiment
-    only); ``refit_mode`` is applied after every RANSAC filter call."""
+    only)."""
 
     def __init__(self) -> None:
         self.features: dict[str, Features] = {}
         self.raw: dict[str, RawMatches] = {}
-        self.refit_mode = "none"
-        self.refit_factor = 0.5
-        self.refit_floor = 4
         self.hits = 0
         self.misses = 0
 
@@ -76,7 +74,6 @@ class Memo:
     def installed(self) -> Iterator[None]:
         extract = ExtractorBackend.extract
         match_pair = OnnxLightGlueRuntime.match_pair
-        ransac = OpenCvRansacFilter.filter
         memo = self
 
         def cached_extract(self: ExtractorBackend, image: Any) -> Features:
@@ -108,20 +105,9 @@ class Memo:
                 np.ascontiguousarray(raw.matches[keep]), np.ascontiguousarray(raw.scores[keep])
             )
 
-        def refitted(self: OpenCvRansacFilter, correspondences: Any, threshold_px: float) -> Any:
-            result = ransac(self, correspondences, threshold_px)
-            return refit(
-                result,
-                memo.refit_mode,
-                threshold_px,
-                factor=memo.refit_factor,
-                floor=memo.refit_floor,
-            )
-
         patches: list[tuple[type, str, Callable[..., Any]]] = [
             (ExtractorBackend, "extract", cached_extract),
             (OnnxLightGlueRuntime, "match_pair", cached_match),
-            (OpenCvRansacFilter, "filter", refitted),
         ]
         originals = [(cls, name, getattr(cls, name)) for cls, name, _ in patches]
         try:
@@ -134,9 +120,15 @@ class Memo:
 
 
 def _variant_settings(
-    base: C3Settings, photometric: str, threshold: float, options: dict[str, Any] | None
+    base: C3Settings,
+    photometric: str,
+    threshold: float,
+    refit_px: float,
+    options: dict[str, Any] | None,
 ) -> C3Settings:
-    matcher = base.matcher.model_copy(update={"photometric": photometric})
+    matcher = base.matcher.model_copy(
+        update={"photometric": photometric, "refit_threshold_px": refit_px}
+    )
     if options is not None:
         matcher = matcher.model_copy(update={"options": options})
     lightglue = base.lightglue.model_copy(update={"filter_threshold": threshold})
@@ -175,20 +167,30 @@ def _row(flight: str, m: dict[str, Any], outcomes: list[Any], wall_s: float) -> 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("flights", type=Path, nargs="+")
+    p.add_argument("flights", type=Path, nargs="*")
     p.add_argument("--strategy", required=True)
-    p.add_argument("--photometric", required=True, choices=["none", "grey", "clahe"])
+    p.add_argument("--photometric", choices=["none", "grey", "clahe"])
+    p.add_argument(
+        "--table",
+        action="store_true",
+        help="print the markdown table of the results under OUT for --strategy (runs nothing)",
+    )
     p.add_argument("--threshold", type=float, action="append", default=None)
     p.add_argument(
         "--refit",
         action="append",
         default=None,
-        help=f"{' | '.join(REFIT_MODES)}[:FACTOR] (tight: keep inliers within FACTOR x the "
-        "RANSAC threshold, default 0.5, never below [matcher] min_inliers_threshold)",
+        help="none | tight[:FACTOR]: the final refit off, or at FACTOR (default 0.5) x [matcher] "
+        "ransac_threshold_px ([matcher] refit_threshold_px)",
     )
     p.add_argument("--options", default=None, help="[matcher] options as JSON")
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args(argv)
+    if args.table:
+        print(table(args.out / args.strategy))
+        return 0
+    if not args.flights or args.photometric is None:
+        p.error("FLIGHT... and --photometric are needed to run")
     logger.remove()  # the matchers' logs go to their own files (build_matcher), not stderr
     base = load_settings()
     thresholds = args.threshold or [base.lightglue.filter_threshold or 0.1]
@@ -207,19 +209,28 @@ def main(argv: list[str] | None = None) -> int:
                     target = args.out / args.strategy / variant / f"{dataset.name}.json"
                     if target.exists():
                         continue
-                    memo.refit_mode, _, factor = mode.partition(":")
-                    if memo.refit_mode not in REFIT_MODES:
-                        p.error(f"--refit {mode}: not one of {REFIT_MODES}")
-                    memo.refit_factor = float(factor or 0.5)
-                    memo.refit_floor = base.matcher.min_inliers_threshold
-                    settings = _variant_settings(base, args.photometric, threshold, options)
+                    kind, _, factor = mode.partition(":")
+                    if kind not in ("none", "tight"):
+                        p.error(f"--refit {mode}: not none or tight[:FACTOR]")
+                    refit_px = 0.0
+                    if kind == "tight":
+                        refit_px = float(factor or 0.5) * base.matcher.ransac_threshold_px
+                    settings = _variant_settings(
+                        base, args.photometric, threshold, refit_px, options
+                    )
                     started = time.perf_counter()
                     scratch = Path(f"/tmp/precision_sweep_{os.getpid()}")
                     with build_matcher(settings, args.strategy, scratch) as m:
                         outcomes = run_flight(m, dataset)
+                        engines = _engine_files(m)
                     wall = time.perf_counter() - started
                     row = _row(dataset.name, metrics(outcomes, []), outcomes, wall)
-                    row.update(strategy=args.strategy, variant=variant, options=args.options)
+                    row.update(
+                        strategy=args.strategy,
+                        variant=variant,
+                        options=args.options,
+                        engines=engines,
+                    )
                     target.parent.mkdir(parents=True, exist_ok=True)
                     target.write_text(json.dumps(row, indent=1, default=_nan_none) + "\n")
                     print(
@@ -230,6 +241,38 @@ def main(argv: list[str] | None = None) -> int:
                         flush=True,
                     )
     return 0
+
+
+def _cell(row: dict[str, Any]) -> str:
+    it01, it03 = row["it01_p5"], row["it03_p95_px"]
+    p5 = "-" if it01 is None or not math.isfinite(it01) else f"{it01:.0f}"
+    p95 = "-" if it03 is None or not math.isfinite(it03) else f"{it03:.2f}"
+    rate = f"{row['correct']}/{row['present']}" if row["present"] else "-"
+    wrong = f", **{row['false_confident']} wrong**" if row["false_confident"] else ""
+    return f"{rate}, {p5}, {p95}{wrong}"
+
+
+def table(root: Path) -> str:
+    """Flight x variant: correct tile, IT-01 p5, IT-03 p95 (false-confident when any)."""
+    rows: dict[str, dict[str, dict[str, Any]]] = {}
+    for path in sorted(root.glob("*/*.json")):
+        rows.setdefault(path.stem, {})[path.parent.name] = json.loads(path.read_text())
+    variants = sorted({v for by in rows.values() for v in by})
+    lines = [
+        "| flight | " + " | ".join(variants) + " |",
+        "|---|" + "---|" * len(variants),
+    ]
+    for flight, by in rows.items():
+        cells = [_cell(by[v]) if v in by else "" for v in variants]
+        lines.append(f"| {flight} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _engine_files(matcher: Any) -> dict[str, str]:
+    """Engine file names the matcher loaded, by role (compare settings within one engine set)."""
+    backend = getattr(matcher, "backend", None)
+    facts = backend.provenance().get("engines", {}) if backend is not None else {}
+    return {role: str(f.get("file", "")) for role, f in facts.items()}
 
 
 def _nan_none(value: Any) -> Any:

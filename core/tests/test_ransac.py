@@ -85,10 +85,10 @@ def noisy(corr: np.ndarray) -> np.ndarray:
     return out
 
 
-def test_tight_refit_keeps_the_precise_inliers_and_refits(real_correspondences):
+def test_refit_keeps_the_precise_inliers_and_refits(real_correspondences):
     corr = noisy(real_correspondences)
     result = OpenCvRansacFilter().filter(corr, threshold_px=3.0)
-    tight = refit(result, "tight", 3.0, factor=0.5, floor=60)
+    tight = refit(result, 1.5, floor=60)
     assert 60 <= tight.inlier_count < result.inlier_count
     assert tight.inlier_count + tight.ransac_outlier_count == len(corr)
     assert np.array_equal(corr[tight.inlier_mask], tight.inlier_correspondences)
@@ -100,17 +100,27 @@ def test_tight_refit_keeps_the_precise_inliers_and_refits(real_correspondences):
     assert tight.per_candidate_residual_px == pytest.approx(
         float(np.median(homography_residuals(tight.homography, tight.inlier_correspondences)))
     )
-    again = refit(result, "tight", 3.0, factor=0.5, floor=60)
+    again = refit(result, 1.5, floor=60)
     assert again.inlier_correspondences.tobytes() == tight.inlier_correspondences.tobytes()
     assert again.homography.tobytes() == tight.homography.tobytes()
 
 
 def test_refit_never_goes_below_the_floor_and_none_is_identity(real_correspondences):
     result = OpenCvRansacFilter().filter(noisy(real_correspondences), threshold_px=3.0)
-    assert refit(result, "none", 3.0) is result
-    assert refit(result, "tight", 3.0, floor=result.inlier_count) is result
-    assert refit(result, "tight", 3.0, factor=1e-6) is result  # fewer than 4 would remain
+    assert refit(result, 0.0) is result
+    assert refit(result, 1.5, floor=result.inlier_count) is result
+    assert refit(result, 1e-6) is result  # fewer than 4 would remain
     empty = OpenCvRansacFilter().filter(real_correspondences[:3], threshold_px=3.0)
-    assert refit(empty, "tight", 3.0) is empty
-    with pytest.raises(ValueError, match="refit mode"):
-        refit(result, "lmeds", 3.0)
+    assert refit(empty, 1.5) is empty
+
+
+def test_the_filter_applies_its_configured_refit(real_correspondences):
+    corr = noisy(real_correspondences)
+    plain = OpenCvRansacFilter().filter(corr, threshold_px=3.0)
+    refitting = OpenCvRansacFilter(refit_px=1.5, refit_floor=60)
+    got = refitting.filter(corr, threshold_px=3.0)
+    want = refit(plain, 1.5, floor=60)
+    assert got.inlier_correspondences.tobytes() == want.inlier_correspondences.tobytes()
+    assert got.inlier_count < plain.inlier_count
+    with pytest.raises(InvalidInputError, match="refit_px"):
+        OpenCvRansacFilter(refit_px=-1.0)

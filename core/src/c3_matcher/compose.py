@@ -92,9 +92,12 @@ def build_default_helpers(
 ) -> dict[str, Any]:
     """The default shared helpers (``c3_lightglue_runtime``, ``c282_ransac_filter``,
     ``c7_inference``) built from configuration: ONNX Runtime and OpenCV USAC. The LightGlue
-    runtime's filter threshold is ``[lightglue] filter_threshold``, or when unset the configured
-    strategy's own default (``strategy_settings``); the feature types with a steps engine are
-    those the plugins' engine specs declare (``steps_feature_types``)."""
+    runtime's filter threshold (``[lightglue] filter_threshold``) and the RANSAC filter's final
+    refit (``[matcher] refit_threshold_px``, never below ``min_inliers_threshold``) are the
+    configured strategy's own defaults where the configuration leaves them unset
+    (``strategy_settings``: the helpers serve the one strategy ``compose_root`` wires); the
+    feature types with a steps engine are those the plugins' engine specs declare
+    (``steps_feature_types``)."""
     from c3_matcher.engines.lightglue import (
         OnnxLightGlueRuntime,
         resolve_mode,
@@ -103,9 +106,8 @@ def build_default_helpers(
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
     host = build_plugin_host()
-    threshold = settings.lightglue.filter_threshold
-    if threshold is None:
-        threshold = strategy_settings(settings, plugin_host=host).lightglue.filter_threshold
+    resolved = strategy_settings(settings, plugin_host=host)
+    threshold = resolved.lightglue.filter_threshold
     inference = OnnxInferenceRuntime.from_settings(settings.engines, providers_available)
     return {
         "c7_inference": inference,
@@ -117,7 +119,11 @@ def build_default_helpers(
             width_confidence=settings.lightglue.width_confidence,
             steps_feature_types=steps_feature_types(host.engine_specs()),
         ),
-        "c282_ransac_filter": OpenCvRansacFilter(seed=settings.matcher.ransac_seed),
+        "c282_ransac_filter": OpenCvRansacFilter(
+            seed=settings.matcher.ransac_seed,
+            refit_px=resolved.matcher.refit_threshold_px or 0.0,
+            refit_floor=settings.matcher.min_inliers_threshold,
+        ),
     }
 
 

@@ -105,6 +105,16 @@ class MatcherSettings(_Section):
         "engine, provider and preprocessing (the same bits extraction gives); otherwise, or "
         "False, the candidate's window is extracted in flight",
     )
+    refit_threshold_px: float | None = Field(
+        None,
+        ge=0,
+        le=1000,
+        allow_inf_nan=False,
+        description="final refit after RANSAC, tile px: keep only the inliers within this "
+        "distance of the homography and re-fit it to them, unless fewer than "
+        "min_inliers_threshold would remain (never drops a candidate); 0: off; unset: the "
+        "strategy's own default (docs/precision.md); set: every strategy uses it",
+    )
     photometric: Literal["none", "grey", "clahe"] | None = Field(
         None,
         description="photometric normalisation of query and tiles before extraction: none; "
@@ -294,15 +304,18 @@ def with_strategy_defaults(
     settings: C3Settings, defaults: StrategyDefaults, strategy: str = ""
 ) -> C3Settings:
     """``settings`` with every setting the configuration left unset (None) taken from a
-    strategy's ``defaults`` (``[matcher] photometric``, ``[lightglue] filter_threshold``); a set
-    value is kept. Idempotent. ``ConfigurationError`` names the strategy when its declared
-    defaults are not valid settings."""
+    strategy's ``defaults`` (``[matcher] photometric`` and ``refit_threshold_px``, ``[lightglue]
+    filter_threshold``); a set value is kept. Idempotent. ``ConfigurationError`` names the
+    strategy when its declared defaults are not valid settings."""
     matcher, lightglue = settings.matcher, settings.lightglue
     try:
-        if matcher.photometric is None:
-            matcher = MatcherSettings.model_validate(
-                {**dict(matcher), "photometric": defaults.photometric}
-            )
+        unset = {
+            key: getattr(defaults, key)
+            for key in ("photometric", "refit_threshold_px")
+            if getattr(matcher, key) is None
+        }
+        if unset:
+            matcher = MatcherSettings.model_validate({**dict(matcher), **unset})
         if lightglue.filter_threshold is None:
             lightglue = LightGlueSettings.model_validate(
                 {**dict(lightglue), "filter_threshold": defaults.filter_threshold}

@@ -3,11 +3,16 @@
 Homography (the right model for nadir-ish views of terrain, DECISIONS 13) estimated with OpenCV's
 USAC MAGSAC++, seeded so that the same correspondences give the same inliers bit for bit.
 
-``refit`` is an optional final step on a filter's result (``REFIT_MODES``): the inliers handed
-downstream re-selected and the homography re-fitted on them (docs/precision.md measures it).
+Optional final refit (``refit_px`` > 0, ``refit``): the inliers within ``refit_px`` of the
+homography are kept and the homography is re-fitted to them by least squares, unless that would
+leave fewer than ``refit_floor`` inliers (the pipeline's ``min_inliers_threshold``, so a refit
+never drops a candidate below it). It narrows the inliers handed downstream to the precise ones;
+docs/precision.md measures it per strategy.
 """
 
 from __future__ import annotations
+
+import math
 
 import cv2
 import numpy as np
@@ -16,14 +21,9 @@ from numpy.typing import NDArray
 from c3_matcher import _validate as v
 from c3_matcher.dto import RansacResult
 
-__all__ = ["REFIT_MODES", "OpenCvRansacFilter", "homography_residuals", "refit"]
+__all__ = ["OpenCvRansacFilter", "homography_residuals", "refit"]
 
 MIN_CORRESPONDENCES = 4
-REFIT_MODES = ("none", "tight")
-"""Final refit of a RANSAC result's inliers (``refit``): ``none`` keeps the result as it is;
-``tight`` keeps the inliers within ``factor`` x the RANSAC threshold of the homography and
-re-fits the homography to them by least squares, unless fewer than ``floor`` would remain."""
-DEFAULT_TIGHT_FACTOR = 0.5
 
 
 def homography_residuals(
@@ -51,9 +51,18 @@ class OpenCvRansacFilter:
         max_iters: int = 10_000,
         seed: int = 0,
         refine: bool = True,
+        refit_px: float = 0.0,
+        refit_floor: int = MIN_CORRESPONDENCES,
     ) -> None:
         v.require(0 < confidence < 1, "ransac.confidence", f"must be in (0, 1), got {confidence}")
         v.require(max_iters > 0, "ransac.max_iters", f"must be > 0, got {max_iters}")
+        v.require(
+            math.isfinite(refit_px) and refit_px >= 0,
+            "ransac.refit_px",
+            f"must be finite and >= 0, got {refit_px}",
+        )
+        self.refit_px = float(refit_px)
+        self.refit_floor = int(refit_floor)
         self._params = cv2.UsacParams()
         self._params.confidence = confidence
         self._params.maxIterations = max_iters
@@ -89,36 +98,29 @@ class OpenCvRansacFilter:
             return _empty(m)
         inliers = np.ascontiguousarray(corr[inlier_mask])
         residuals = homography_residuals(homography, inliers)
-        return RansacResult(
+        result = RansacResult(
             inlier_correspondences=inliers,
             ransac_outlier_count=int(m - inliers.shape[0]),
             per_candidate_residual_px=float(np.median(residuals)),
             homography=homography,
             inlier_mask=inlier_mask,
         )
+        return refit(result, self.refit_px, floor=self.refit_floor)
 
 
 def refit(
-    result: RansacResult,
-    mode: str,
-    threshold_px: float,
-    *,
-    factor: float = DEFAULT_TIGHT_FACTOR,
-    floor: int = MIN_CORRESPONDENCES,
+    result: RansacResult, refit_px: float, *, floor: int = MIN_CORRESPONDENCES
 ) -> RansacResult:
-    """``result`` after the final refit ``mode`` (``REFIT_MODES``) at the filter's
-    ``threshold_px`` (tile px): for ``tight``, the inliers within ``factor * threshold_px`` of
-    the homography, and the homography re-fitted to them (least squares, deterministic). The
-    result is returned unchanged for ``none``, without a homography, or where fewer than
-    ``floor`` (at least 4) inliers would remain, so a refit never takes a candidate below the
-    caller's inlier threshold. The inliers kept are a subset of ``result``'s, in their order;
-    the mask stays over the filter's input."""
-    if mode not in REFIT_MODES:
-        raise ValueError(f"refit mode must be one of {REFIT_MODES}, got {mode!r}")
+    """``result`` with only the inliers within ``refit_px`` (px, second image) of its homography
+    and the homography re-fitted to them (least squares, deterministic). Returned unchanged for
+    ``refit_px`` <= 0, without a homography, or where fewer than ``floor`` (at least 4) inliers
+    would remain, so a refit never takes a candidate below the caller's inlier threshold. The
+    inliers kept are a subset of ``result``'s, in their order; the mask stays over the filter's
+    input."""
     inliers = result.inlier_correspondences
-    if mode == "none" or result.homography is None:
+    if refit_px <= 0 or result.homography is None:
         return result
-    keep = homography_residuals(result.homography, inliers) <= factor * threshold_px
+    keep = homography_residuals(result.homography, inliers) <= refit_px
     if int(keep.sum()) < max(floor, MIN_CORRESPONDENCES):
         return result
     kept = np.ascontiguousarray(inliers[keep])

@@ -25,14 +25,16 @@ StrategyFactory = Callable[..., CrossDomainMatcher]
 @dataclass(frozen=True, slots=True)
 class StrategyDefaults:
     """A strategy's own defaults for the settings that are left unset (None) in the
-    configuration: ``photometric`` (``[matcher] photometric``: ``none``, ``grey`` or ``clahe``)
-    and ``filter_threshold`` (``[lightglue] filter_threshold``, the match confidence a LightGlue
-    match must exceed, in [0, 1)). A value set in the configuration applies to every strategy
-    instead. The record's own defaults are upstream's (no normalisation, 0.1): what a strategy
-    that declares none gets. Checked when resolved (``c3_matcher.config``)."""
+    configuration: ``photometric`` (``[matcher] photometric``: ``none``, ``grey`` or ``clahe``),
+    ``filter_threshold`` (``[lightglue] filter_threshold``, the match confidence a LightGlue
+    match must exceed, in [0, 1)) and ``refit_threshold_px`` (``[matcher] refit_threshold_px``,
+    tile px, 0 = no final refit). A value set in the configuration applies to every strategy
+    instead. The record's own defaults are upstream's (no normalisation, 0.1, no refit): what a
+    strategy that declares none gets. Checked when resolved (``c3_matcher.config``)."""
 
     photometric: str = "none"
     filter_threshold: float = 0.1
+    refit_threshold_px: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
