@@ -142,15 +142,22 @@ def _percentiles(values: list[float]) -> dict[str, float]:
 
 
 def _matcher(case: BenchCase, settings: C3Settings, fdr: Any, clock: Any) -> tuple[Any, str]:
-    from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
+    from c3_matcher.compose import (
+        build_default_helpers,
+        build_plugin_host,
+        compose_root,
+        strategy_settings,
+    )
     from c3_matcher.health import RollingHealthWindow
     from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
     from c3_matcher.ransac import OpenCvRansacFilter
     from c3_matcher_tools.baselines import SIFT_LABEL
 
-    m = settings.matcher
     if case.kind == "pytorch":
-        backend = build_plugin_host().reference_backend(case.strategy, settings)
+        host = build_plugin_host()
+        settings = strategy_settings(settings, case.strategy, host)  # the strategy's defaults
+        m = settings.matcher
+        backend = host.reference_backend(case.strategy, settings)
         if backend is None:
             raise SystemExit(f"no PyTorch reference for {case.strategy}")
         pipeline = PipelineMatcher(
@@ -163,6 +170,7 @@ def _matcher(case: BenchCase, settings: C3Settings, fdr: Any, clock: Any) -> tup
         )
         return pipeline, str(backend.provenance()["provider"])
     strategy = SIFT_LABEL if case.kind == "sift" else case.strategy
+    m = settings.matcher
     chosen = settings.model_copy(update={"matcher": m.model_copy(update={"strategy": strategy})})
     helpers = build_default_helpers(chosen)
     root = compose_root(chosen, {**helpers, "c13_fdr": fdr, "clock": clock}, configure_logs=False)
