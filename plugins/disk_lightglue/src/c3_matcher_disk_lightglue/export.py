@@ -10,7 +10,7 @@ weights as the engines."""
 from __future__ import annotations
 
 import importlib.metadata
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -166,14 +166,11 @@ def export_disk(request: ExportRequest) -> ExportReport:
     ``DISK_TOLERANCES``."""
     import torch
 
-    from c3_matcher.engines.extract import image_to_feeds
-
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))
     reference = load_disk_reference(request.weights_path)
 
-    def reference_set(rgb: NDArray[np.uint8], _mask: Any) -> KeypointSet:
-        feeds = image_to_feeds(rgb, np.ones(rgb.shape[:2], dtype=bool))
+    def reference_set(feeds: Mapping[str, Any], _case: Any) -> KeypointSet:
         ref = reference(torch.from_numpy(feeds["image"]), n=top_k)[0]
         return (ref.keypoints.numpy(), ref.detection_scores.numpy(), ref.descriptors.numpy())
 

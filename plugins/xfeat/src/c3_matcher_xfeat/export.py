@@ -23,7 +23,7 @@ import importlib
 import importlib.metadata
 import sys
 import types
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -241,18 +241,15 @@ def export_xfeat(request: ExportRequest) -> ExportReport:
     descriptors within ``XFEAT_TOLERANCES``. Also checks that a masked half yields no keypoint."""
     import torch
 
-    from c3_matcher.engines.extract import image_to_feeds
-
     torch.set_grad_enabled(False)
     top_k = int(request.spec.option("top_k"))
-    threshold = float(request.spec.option("detection_threshold"))
     reference = load_xfeat_reference(request.weights_path, top_k)
 
-    def reference_set(rgb: NDArray[np.uint8], _mask: Any) -> KeypointSet:
-        feeds = image_to_feeds(rgb, np.ones(rgb.shape[:2], dtype=bool))
-        ref = reference.detectAndCompute(torch.from_numpy(feeds["image"]), top_k=top_k)[0]
-        return (ref["keypoints"].numpy(), ref["scores"].numpy(), ref["descriptors"].numpy())
+    def reference_set(feeds: Mapping[str, Any], _case: Any) -> KeypointSet:
+        out = reference.detectAndCompute(torch.from_numpy(feeds["image"]), top_k=top_k)[0]
+        return (out["keypoints"].numpy(), out["scores"].numpy(), out["descriptors"].numpy())
 
+    threshold = float(request.spec.option("detection_threshold"))
     return export_and_verify_extractor(
         request,
         build_xfeat_export_module(reference, top_k, threshold),

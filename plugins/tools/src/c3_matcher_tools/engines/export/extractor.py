@@ -173,8 +173,9 @@ class ExtractorCase:
         return np.ones(self.rgb.shape[:2], dtype=bool) if self.mask is None else self.mask
 
 
-ReferenceFn = Callable[[NDArray[np.uint8], NDArray[np.bool_] | None], KeypointSet]
-"""``(rgb, mask or None) -> KeypointSet`` of the PyTorch reference on one case."""
+ReferenceFn = Callable[[Mapping[str, NDArray[Any]], ExtractorCase], KeypointSet]
+"""``(feeds, case) -> KeypointSet`` of the PyTorch reference on one case; ``feeds`` are the
+graph's (``image`` float32 (1, 3, H, W), ``mask`` (1, 1, H, W), ``image_to_feeds``)."""
 
 CompareFn = Callable[[str, KeypointSet, KeypointSet, list[str]], dict[str, Any]]
 """``(input name, graph's set, reference's set, failures) -> check figures``; appends to
@@ -232,11 +233,12 @@ def export_and_verify_extractor(
     for image in request.images:
         for case in (cases or full_mask_cases)(image):
             valid = case.valid
-            kp, sc, de = session.run(None, image_to_feeds(case.rgb, valid))
+            feeds = image_to_feeds(case.rgb, valid)
+            kp, sc, de = session.run(None, feeds)
             keep = sc > 0
             name = f"{image.name}:{case.label}"
             got = (kp[keep], sc[keep], de[keep])
-            check = (compare or keypoint_sets)(name, got, reference(case.rgb, case.mask), failures)
+            check = (compare or keypoint_sets)(name, got, reference(feeds, case), failures)
             if case.mask is not None:
                 rows = got[0][:, 1].round().astype(int)
                 cols = got[0][:, 0].round().astype(int)
