@@ -25,6 +25,8 @@ from c3_matcher.features import RawMatches
 
 if TYPE_CHECKING:
     from c3_matcher.engines.manifest import EngineManifest
+    from c3_matcher.features import Features
+    from c3_matcher.tilestore.features import FeatureRequest
 
 __all__ = [
     "Clock",
@@ -35,6 +37,7 @@ __all__ = [
     "LoadableLightGlueRuntime",
     "ManifestRuntime",
     "RansacFilter",
+    "StoredFeaturesHandle",
     "TilePixelsHandle",
 ]
 
@@ -64,6 +67,16 @@ class TilePixelsHandle(Protocol):
     def encoded(self) -> memoryview: ...
 
     def decode(self) -> NDArray[np.uint8]: ...
+
+
+@runtime_checkable
+class StoredFeaturesHandle(TilePixelsHandle, Protocol):
+    """A tile handle whose store may hold precomputed map features (``features build``; the
+    MBTiles handles do): ``stored_features(request)`` returns this tile's features in its own px
+    for the backend ``request`` describes, or ``None`` when the store has none that fit.
+    Optional: the pipeline extracts from the pixels of any other handle."""
+
+    def stored_features(self, request: FeatureRequest) -> Features | None: ...
 
 
 @runtime_checkable

@@ -291,7 +291,7 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
             raise ValueError("matching the probe image with itself gave no match")
     except Exception as exc:
         raise EngineError(
-            getattr(backend, "label", "engine"),
+            backend.label,
             f"start-up probe failed: {type(exc).__name__}: {exc}",
         ) from exc
 

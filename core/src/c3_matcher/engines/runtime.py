@@ -45,7 +45,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import onnxruntime as ort
@@ -55,6 +55,9 @@ from numpy.typing import NDArray
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file
 from c3_matcher.engines.spec import TensorSpec
 from c3_matcher.errors import EngineError
+
+if TYPE_CHECKING:
+    from c3_matcher.config import EngineSettings
 
 __all__ = [
     "PROVIDER_ALIASES",
@@ -320,13 +323,13 @@ class OnnxInferenceRuntime:
 
     @classmethod
     def from_settings(
-        cls, engines: Any, providers_available: Sequence[str] | None = None
+        cls, engines: EngineSettings, providers_available: Sequence[str] | None = None
     ) -> OnnxInferenceRuntime:
         """A runtime from the ``[engines]`` settings (providers, per-provider options, threads)."""
         return cls(
             providers_available,
             settings=SessionSettings(
-                enable_cpu_mem_arena=bool(getattr(engines, "cpu_mem_arena", False)),
+                enable_cpu_mem_arena=engines.cpu_mem_arena,
                 intra_op_num_threads=int(engines.intra_op_threads),
             ),
             tensorrt_cache_dir=engines.tensorrt_cache_dir,
