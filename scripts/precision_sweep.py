@@ -247,9 +247,10 @@ def _cell(row: dict[str, Any]) -> str:
     it01, it03 = row["it01_p5"], row["it03_p95_px"]
     p5 = "-" if it01 is None or not math.isfinite(it01) else f"{it01:.0f}"
     p95 = "-" if it03 is None or not math.isfinite(it03) else f"{it03:.2f}"
-    rate = f"{row['correct']}/{row['present']}" if row["present"] else "-"
     wrong = f", **{row['false_confident']} wrong**" if row["false_confident"] else ""
-    return f"{rate}, {p5}, {p95}{wrong}"
+    if not row["present"]:
+        return f"IT-05 {row['it05_raised']}/{row['absent']}{wrong}"
+    return f"{row['correct']}/{row['present']}, {p5}, {p95}{wrong}"
 
 
 def table(root: Path) -> str:

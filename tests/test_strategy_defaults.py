@@ -63,6 +63,12 @@ def test_a_configured_value_applies_to_every_strategy(strategy: str) -> None:
     assert resolved.matcher.refit_threshold_px == 0.0
 
 
+def test_the_strategies_differ_where_measured() -> None:
+    """The point of per-strategy defaults: the measured choices are not one for all."""
+    values = {declared(s) for s in STRATEGIES}
+    assert len(values) > 1
+
+
 @pytest.mark.parametrize("strategy", sorted(STRATEGIES))
 def test_the_composed_matcher_and_runtime_use_the_strategys_defaults(
     strategy: str, engine_dir: Path, tmp_path: Path
