@@ -10,28 +10,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-import cv2
-import numpy as np
 import onnx
 import pytest
-from numpy.typing import NDArray
 
 from c3_matcher.engines.manifest import EngineManifest
 from c3_matcher.engines.naming import EngineName
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.spec import TensorSpec, file_sha256
 from c3_matcher.engines.store import EngineStore
-
-REPO = Path(__file__).resolve().parents[3]
-IMAGERY = REPO / "data" / "imagery"
-
-
-def read_rgb(relative: str) -> NDArray[np.uint8]:
-    """A fixture image under ``data/imagery`` as RGB uint8 (H, W, 3)."""
-    bgr = cv2.imread(str(IMAGERY / relative), cv2.IMREAD_COLOR)
-    assert bgr is not None, f"fixture image {IMAGERY / relative} is missing"
-    return np.ascontiguousarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
-
 
 REAL_ENGINES = (("disk", "depth"), ("lightglue", "disk"), ("lightglue", "disk-steps"))
 """The real engines the core's tests run: the default strategy's extractor, its single-graph
@@ -57,11 +43,6 @@ def lightglue_engine(built_engines: dict[tuple[str, str], Path]) -> Path:
 @pytest.fixture(scope="session")
 def runtime() -> OnnxInferenceRuntime:
     return OnnxInferenceRuntime(["CPUExecutionProvider"])
-
-
-@pytest.fixture(scope="session")
-def gorinchem() -> NDArray[np.uint8]:
-    return read_rgb("open_orthophotos/test_tiled.tif")
 
 
 TINY_INPUTS = (TensorSpec("x", "float32", (1, "n")),)
@@ -124,9 +105,3 @@ def tiny_engine(tmp_path: Path) -> Path:
 @pytest.fixture()
 def make_tiny_engine() -> Callable[..., Path]:
     return write_tiny_engine
-
-
-@pytest.fixture(scope="session")
-def read_image() -> Callable[[str], NDArray[np.uint8]]:
-    """``read_image("naip_timeseries/....tif")``: a fixture image as RGB uint8."""
-    return read_rgb
