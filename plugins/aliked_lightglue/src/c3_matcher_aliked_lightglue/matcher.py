@@ -18,7 +18,11 @@ from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
 from c3_matcher_aliked_lightglue.defaults import DEFAULTS
-from c3_matcher_aliked_lightglue.engines import ALIKED_SIZE_MULTIPLE
+from c3_matcher_aliked_lightglue.engines import (
+    ALIKED_SIZE_MULTIPLE,
+    ALIKED_SPECS,
+    LIGHTGLUE_ALIKED_SPEC,
+)
 
 __all__ = [
     "ALIKED_SIZE_MULTIPLE",
@@ -32,10 +36,9 @@ __all__ = [
 ]
 
 STRATEGY = "aliked_lightglue"
-FEATURE_TYPE = "aliked"
+FEATURE_TYPE = str(LIGHTGLUE_ALIKED_SPEC.feature_type)
 EXTRACT_PHASE = "aliked_forward"
-ALIKED_MODEL = "aliked"
-LIGHTGLUE_ENGINE = ("lightglue", FEATURE_TYPE)
+LIGHTGLUE_ENGINE = (LIGHTGLUE_ALIKED_SPEC.model, LIGHTGLUE_ALIKED_SPEC.variant)
 
 
 class AlikedLightGlueOptions(BaseModel):
@@ -70,7 +73,9 @@ class AlikedLightGlueConfig(ExtractorLightGlueConfig):
             label=STRATEGY,
             feature_type=FEATURE_TYPE,
             extract_phase=EXTRACT_PHASE,
-            extractor_engine_path=engines.require(ALIKED_MODEL, variant),
+            extractor_engine_path=engines.require(
+                ALIKED_SPECS[variant].model, ALIKED_SPECS[variant].variant
+            ),
             lightglue_engine_path=engines.require(*LIGHTGLUE_ENGINE),
             size_multiple=ALIKED_SIZE_MULTIPLE,
         )

@@ -13,7 +13,7 @@ from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
 from c3_matcher_disk_lightglue.defaults import DEFAULTS
-from c3_matcher_disk_lightglue.engines import DISK_SIZE_MULTIPLE
+from c3_matcher_disk_lightglue.engines import DISK_SIZE_MULTIPLE, DISK_SPEC, LIGHTGLUE_DISK_SPEC
 
 __all__ = [
     "DISK_SIZE_MULTIPLE",
@@ -24,8 +24,8 @@ __all__ = [
 ]
 
 STRATEGY = "disk_lightglue"
-DISK_ENGINE = ("disk", "depth")
-LIGHTGLUE_ENGINE = ("lightglue", "disk")
+DISK_ENGINE = (DISK_SPEC.model, DISK_SPEC.variant)
+LIGHTGLUE_ENGINE = (LIGHTGLUE_DISK_SPEC.model, LIGHTGLUE_DISK_SPEC.variant)
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,7 +43,7 @@ class DiskLightGlueConfig(ExtractorLightGlueConfig):
         return cls.from_settings(
             settings,
             label=STRATEGY,
-            feature_type="disk",
+            feature_type=str(LIGHTGLUE_DISK_SPEC.feature_type),
             extract_phase="disk_forward",
             extractor_engine_path=engines.require(*DISK_ENGINE),
             lightglue_engine_path=engines.require(*LIGHTGLUE_ENGINE),

@@ -27,7 +27,12 @@ from c3_matcher.strategy import (
     strategy_factory,
 )
 from c3_matcher_xfeat.defaults import DEFAULTS
-from c3_matcher_xfeat.engines import XFEAT_SIZE_MULTIPLE, XFEAT_TOP_K
+from c3_matcher_xfeat.engines import (
+    LIGHTERGLUE_SPEC,
+    XFEAT_SIZE_MULTIPLE,
+    XFEAT_SPEC,
+    XFEAT_TOP_K,
+)
 from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher
 from c3_matcher_xfeat.options import DEFAULT_MIN_COSSIM, XFeatMatcherKind, XFeatOptions
 
@@ -43,8 +48,8 @@ __all__ = [
 STRATEGY = "xfeat"
 EXTRACT_PHASE = "xfeat_forward"
 MATCH_PHASES: dict[str, str] = {"mnn": "xfeat_match", "lighterglue": "lighterglue_match"}
-XFEAT_ENGINE = ("xfeat", "default")
-LIGHTERGLUE_ENGINE = ("lighterglue", "xfeat")
+XFEAT_ENGINE = (XFEAT_SPEC.model, XFEAT_SPEC.variant)
+LIGHTERGLUE_ENGINE = (LIGHTERGLUE_SPEC.model, LIGHTERGLUE_SPEC.variant)
 
 
 @dataclass(frozen=True, slots=True)
