@@ -108,6 +108,7 @@ def build_default_helpers(
     host = build_plugin_host()
     resolved = strategy_settings(settings, plugin_host=host)
     threshold = resolved.lightglue.filter_threshold
+    assert threshold is not None  # resolved: the configuration's or the strategy's own
     inference = OnnxInferenceRuntime.from_settings(settings.engines, providers_available)
     return {
         "c7_inference": inference,
