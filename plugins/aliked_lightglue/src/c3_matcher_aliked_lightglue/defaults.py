@@ -1,7 +1,15 @@
-"""The ``aliked_lightglue`` strategy's own defaults for the settings a configuration leaves unset
-(``[matcher] photometric``, ``[lightglue] filter_threshold``), chosen by measurement on every
-shipped flight (docs/precision.md). The one place they are declared: the plugin's
-``StrategySpec`` and its config builder both read ``DEFAULTS``."""
+"""The ``aliked_lightglue`` strategy's own defaults for the settings a configuration leaves unset,
+chosen by measurement (docs/precision.md, "ALIKED + LightGlue"). The one place they are declared:
+the plugin's ``StrategySpec`` and its config builder both read ``DEFAULTS``.
+
+- ``filter_threshold = 0.1`` (upstream): 0.01 gained cross-season frames (naip_cross_date
+  9 -> 11/27) and lost precision on every flight measured (naip_demo IT-03 p95 1.13 -> 1.16 px;
+  on the frames both get, naip_cross_date 3.20 -> 3.47, gorinchem_z18 1.79 -> 2.03).
+- ``photometric = "none"``: CLAHE at 0.1 gained no fix (naip_cross_date 9 -> 8/27, naip_demo
+  27/27 and 1.13 px either way).
+- ``refit_threshold_px = 2.0``: the final refit lowers IT-03 or leaves it on every frame
+  (naip_demo 1.13 -> 0.95 px) and never takes a candidate below ``min_inliers_threshold``.
+"""
 
 from __future__ import annotations
 
@@ -9,4 +17,4 @@ from c3_matcher.plugins.types import StrategyDefaults
 
 __all__ = ["DEFAULTS"]
 
-DEFAULTS = StrategyDefaults(photometric="clahe", filter_threshold=0.01)
+DEFAULTS = StrategyDefaults(photometric="none", filter_threshold=0.1, refit_threshold_px=2.0)
