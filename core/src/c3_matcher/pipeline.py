@@ -123,7 +123,7 @@ class PipelineSettings:
                 shear=matcher.prior_shear_tol,
                 base_px=matcher.prior_base_tol_px,
             ),
-            matcher.photometric,
+            matcher.photometric or "none",  # unset: resolved per strategy before (upstream here)
             matcher.rotation_search,
             matcher.refine,
         )
