@@ -48,3 +48,19 @@ def test_a_flight_is_built_on_the_grid_its_candidates_lie_on() -> None:
     origins = {mosaic_origin(c.tile_id, window) for f in dataset.frames for c in f.candidates}
     windows = flight_windows(FLIGHT, stride)
     assert {(gx * stride, gy * stride) for _, gx, gy in windows} == origins  # all exact
+
+
+def test_info_on_an_unreadable_sidecar_says_rebuild_and_exits_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import sqlite3
+
+    from c3_matcher.cli import main
+
+    store = tmp_path / "tiles.mbtiles"
+    shutil.copy(FLIGHT / "tiles.mbtiles", store)
+    with sqlite3.connect(tmp_path / "tiles.mbtiles.features.sqlite") as db:  # an older layout
+        db.execute("CREATE TABLE feature_sets (set_id INTEGER PRIMARY KEY, engine TEXT)")
+    assert main(["features", "info", str(store)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "features build" in err and len(err.splitlines()) == 1, err

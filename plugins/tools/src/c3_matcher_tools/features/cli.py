@@ -139,13 +139,26 @@ def _build(args: argparse.Namespace, settings: C3Settings) -> int:
 
 
 def _info(args: argparse.Namespace, settings: C3Settings) -> int:
-    from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path, stored_sets
+    from c3_matcher.tilestore.features import (
+        FeatureStoreUnavailableError,
+        MapFeatureStore,
+        sidecar_path,
+        stored_sets,
+    )
 
     path = sidecar_path(args.store)
     sets: list[dict[str, object]] = []
     if path.is_file():
-        with MapFeatureStore(path) as store:
-            sets = [dict(s) for s in stored_sets(store)]
+        try:
+            with MapFeatureStore(path) as store:
+                sets = [dict(s) for s in stored_sets(store)]
+        except FeatureStoreUnavailableError as exc:
+            print(
+                f"c3-matcher: {path}: unreadable ({exc.__cause__ or exc}); the flight "
+                f"extracts instead. Rebuild it: c3-matcher features build {args.store}",
+                file=sys.stderr,
+            )
+            return EXIT_USAGE
     if args.json:
         print(json.dumps({"store": str(args.store), "sidecar": str(path), "sets": sets}, indent=2))
     elif not sets:
