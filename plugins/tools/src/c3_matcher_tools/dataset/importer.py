@@ -387,6 +387,18 @@ def look_point(row: TelemetryRow, calibration: CameraCalibration) -> tuple[float
     return lon, lat
 
 
+def store_zoom(store: MBTilesStore, path: object, zoom: int | None) -> int:
+    """The zoom candidates are proposed at: ``zoom`` if the store holds it, else its finest;
+    ``InvalidInputError`` for an empty store or a zoom it does not hold."""
+    zooms = store.zooms()
+    if not zooms:
+        raise InvalidInputError("STORE", f"{path}: holds no tiles")
+    chosen = zooms[-1] if zoom is None else zoom
+    if chosen not in zooms:
+        raise InvalidInputError("--zoom", f"{chosen} not in the store's zooms {zooms}")
+    return chosen
+
+
 def _propose(
     store: MBTilesStore, zoom: int, lonlat: tuple[float, float], spec: ImportSpec
 ) -> list[tuple[TileId, float]] | None:
@@ -493,12 +505,7 @@ def import_csv_flight(
             problems.append((r.line, f"line {r.line}: {r.image}: {why}"))
     _refuse(images_dir, problems)
     with MBTilesStore(spec.store) as store:
-        zooms = store.zooms()
-        if not zooms:
-            raise InvalidInputError("STORE", f"{spec.store}: holds no tiles")
-        zoom = zooms[-1] if spec.zoom is None else spec.zoom
-        if zoom not in zooms:
-            raise InvalidInputError("--zoom", f"{zoom} not in the store's zooms {zooms}")
+        zoom = store_zoom(store, spec.store, spec.zoom)
         proposals = []
         outside = []
         for r in rows:

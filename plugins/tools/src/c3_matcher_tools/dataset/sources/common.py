@@ -612,7 +612,13 @@ def write_imported_flight(
     point and write the ``c3-flight/1`` dataset ``out`` atomically (everything is checked
     first); returns what was done (``skipped``: images the caller already set aside, with the
     reason). Raises InvalidInputError naming the input at fault."""
-    from c3_matcher_tools.dataset.importer import ImportSpec, TelemetryRow, _propose, look_point
+    from c3_matcher_tools.dataset.importer import (
+        ImportSpec,
+        TelemetryRow,
+        _propose,
+        look_point,
+        store_zoom,
+    )
 
     out = Path(out)
     check_output_dir(out, force=force)
@@ -657,12 +663,7 @@ def write_imported_flight(
         seed=options.seed,
     )
     with MBTilesStore(options.store) as store:
-        zooms = store.zooms()
-        if not zooms:
-            raise InvalidInputError("STORE", f"{options.store}: holds no tiles")
-        zoom = zooms[-1] if options.zoom is None else options.zoom
-        if zoom not in zooms:
-            raise InvalidInputError("--zoom", f"{zoom} not in the store's zooms {zooms}")
+        zoom = store_zoom(store, options.store, options.zoom)
         proposals = []
         outside = []
         for i, f in enumerate(frames):
