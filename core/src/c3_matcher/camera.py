@@ -1,6 +1,6 @@
 """Camera geometry shared by preprocessing and simulation: rotations, lens model, homographies.
 
-Conventions (DECISIONS 10-11):
+Conventions:
 
 - Pixels are 0-based, origin at the centre of the top-left pixel (OpenCV), points are (x, y).
 - World and body frames are NED (x north / forward, y east / right, z down). Attitude is

@@ -1,4 +1,4 @@
-"""The composition root (seed 001 section 1, ADR-009; DECISIONS 7-8).
+"""The composition root (ADR-009).
 
 ``compose_root(config, pre_constructed)`` wires the ``c3_matcher`` slot: it checks the required
 pre-constructed shared helpers, builds what may be defaulted (clock, durable FDR recorder),
@@ -214,7 +214,7 @@ def compose_root(
                 f"factory returned {type(matcher).__name__}, not a CrossDomainMatcher",
             )
         backend = getattr(matcher, "backend", None)
-        if backend is not None:  # every strategy on the shared pipeline (AZ-345 Constraints)
+        if backend is not None:  # every strategy on the shared pipeline
             engine_startup_probe(backend)
         provider = getattr(helpers["c7_inference"], "provider", "unknown")
         log_event(

@@ -1,6 +1,6 @@
-"""The matcher's data transfer objects (seed 001 section 2), frozen and validated at construction.
+"""The matcher's data transfer objects, frozen and validated at construction.
 
-Conventions (DECISIONS 10-11): pixels are 0-based, origin at the centre of the top-left pixel,
+Conventions: pixels are 0-based, origin at the centre of the top-left pixel,
 points in (x, y) order; angles in radians; attitude is aerospace Z-Y-X (yaw, pitch, roll) of the
 NED body frame, yaw from true north. Images are ``uint8`` RGB ``(H, W, 3)`` or grey ``(H, W)``.
 """
@@ -41,7 +41,7 @@ MAX_K_CONDITION = 1e12  # a K this ill-conditioned cannot be inverted reliably
 
 @dataclass(frozen=True, slots=True)
 class TileId:
-    """Composite tile id (zoomLevel, lat, lon) of seed 001: the tile centre in WGS84 degrees."""
+    """Composite tile id (zoomLevel, lat, lon): the tile centre, WGS84 degrees."""
 
     zoom: int
     lat: float
@@ -171,7 +171,7 @@ class CameraCalibration:
     ``K`` float64 (3, 3) in pixels; ``distortion`` float64 (N,) OpenCV coefficients
     (k1, k2, p1, p2[, k3[, ...]]), N in {0, 4, 5, 8, 12, 14}; ``image_size`` (width, height) px;
     ``camera_to_body`` float64 (3, 3) rotation taking camera-frame vectors to the NED body frame,
-    or None for the default mount (straight down, image top towards the nose; DECISIONS 11).
+    or None for the default mount (straight down, image top towards the nose).
     """
 
     K: NDArray[np.float64]
@@ -309,7 +309,7 @@ class RansacResult:
 
     ``inlier_correspondences`` float32 (I, 4) = (x_query, y_query, x_tile, y_tile) in the
     coordinates that were filtered; ``per_candidate_residual_px`` is the MEDIAN reprojection
-    error of the inliers in tile pixels (INV-8), 0.0 when there are none; ``homography`` maps
+    error of the inliers in tile pixels, 0.0 when there are none; ``homography`` maps
     query to tile points (float64 (3, 3)) or is None; ``inlier_mask`` bool (M,) over the input.
     """
 
@@ -343,8 +343,8 @@ class CandidateMatchSet:
 
     ``inlier_correspondences`` float32 (I, 4) = (x_query, y_query, x_tile, y_tile): the query
     point in the ORIGINAL frame's pixels (distortion included), the tile point in the tile's
-    pixels (DECISIONS 13); I == ``inlier_count`` (INV-5). ``per_candidate_residual_px`` is the
-    median inlier residual in tile pixels (INV-8).
+    pixels; I == ``inlier_count``. ``per_candidate_residual_px`` is the
+    median inlier residual in tile pixels.
     """
 
     tile_id: TileId
@@ -384,14 +384,14 @@ class CandidateMatchSet:
 
 
 def ranking_key(candidate: CandidateMatchSet) -> tuple[int, float]:
-    """INV-3: inlier count descending, then median residual ascending (a stable sort keeps
+    """inlier count descending, then median residual ascending (a stable sort keeps
     the input order on ties)."""
     return (-candidate.inlier_count, candidate.per_candidate_residual_px)
 
 
 @dataclass(frozen=True, slots=True)
 class MatchResult:
-    """The matcher's output for one frame; invariants INV-2, 3, 5, 6, 9 are checked here."""
+    """The matcher's output for one frame; the result contract's invariants are checked here."""
 
     frame_id: uuid.UUID
     per_candidate: tuple[CandidateMatchSet, ...]

@@ -1,7 +1,7 @@
 """The matcher's errors: one base class, each error carrying the facts a caller needs to act.
 
 ``MatcherBackboneError`` and ``InsufficientInliersError`` are the two errors of the
-``CrossDomainMatcher.match`` contract (seed 001 section 2). The others are start-up and
+``CrossDomainMatcher.match`` contract. The others are start-up and
 configuration errors raised before the first frame.
 """
 
@@ -41,8 +41,8 @@ class InvalidInputError(C3Error, ValueError):
 class MatcherBackboneError(C3Error):
     """A backbone stage (decode, preprocess, extract, match) failed.
 
-    Per candidate it is caught by the pipeline (drop-and-continue, INV-4); for the query frame
-    itself (``phase="query_extract"``) it propagates to the caller (DECISIONS 3).
+    Per candidate it is caught by the pipeline (drop-and-continue); for the query frame
+    itself (``phase="query_extract"``) it propagates to the caller.
     """
 
     def __init__(self, phase: str, tile_id: object | None, cause: BaseException | str) -> None:

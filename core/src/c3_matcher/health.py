@@ -37,7 +37,7 @@ class RollingHealthWindow:
     A frame is "low" when its best inlier count is below ``low_inlier_threshold`` (the matcher's
     ``min_inliers_threshold``; an InsufficientInliersError frame reports 0). ``mean_inliers_60s``
     averages the best inlier counts of the updates within the last ``window_s`` seconds of the
-    injected clock (0.0 when there are none). Single-threaded (INV-1).
+    injected clock (0.0 when there are none). Single-threaded.
     """
 
     def __init__(self, clock: Clock, low_inlier_threshold: int, window_s: float = 60.0) -> None:
@@ -54,7 +54,7 @@ class RollingHealthWindow:
 
     @property
     def update_count(self) -> int:
-        """How many times ``update`` was called (INV-7 checks it)."""
+        """How many times ``update`` was called."""
         return self._update_count
 
     @property

@@ -1,16 +1,16 @@
-"""The shared per-frame pipeline every strategy runs (AZ-345 steps 1-11, written once).
+"""The shared per-frame pipeline every strategy runs (the specification's steps 1-11, written once).
 
 A strategy supplies only its model I/O as a ``FeatureBackend`` (extract features of a prepared
 image, match two feature sets); this module does the rest: preprocessing, the per-candidate loop
-with drop-and-continue (INV-4), RANSAC through the shared ``RansacFilter``, the deterministic
-ranking (INV-3), the single health update (INV-7), the logs and the FDR records.
+with drop-and-continue, RANSAC through the shared ``RansacFilter``, the deterministic
+ranking, the single health update, the logs and the FDR records.
 
 Terminal FDR record per ``match`` call, exactly one of: ``matcher.frame_done`` (success),
 ``matcher.insufficient_inliers`` (raised InsufficientInliersError), or ``matcher.backbone_error``
-with ``phase="query_extract"`` (the query frame itself failed, DECISIONS 3). Per dropped
+with ``phase="query_extract"`` (the query frame itself failed). Per dropped
 candidate, one ``matcher.backbone_error`` record with its ``tile_id`` and ``phase``.
 
-Rotation search (``rotation_search``, issue 13; off by default): a frame WITHOUT attitude is not
+Rotation search (``rotation_search``; off by default): a frame WITHOUT attitude is not
 rectified, so its heading is unknown. With the option on, such a query is extracted turned by
 0/90/180/270 deg (``np.rot90`` of the prepared image and its valid mask, the turn composed into
 the engine -> working map, so correspondences still come back in WORKING px of the unturned
@@ -95,18 +95,18 @@ class FeatureBackend(Protocol):
 
 @dataclass(frozen=True, slots=True)
 class PipelineSettings:
-    """The thresholds of AZ-345 (from ``MatcherSettings``)."""
+    """The specified thresholds (from ``MatcherSettings``)."""
 
     min_inliers_threshold: int = 60
     residual_warn_threshold_px: float = 2.5
     ransac_threshold_px: float = 3.0
     use_stored_features: bool = True  # a store's map features when built (else: extract)
-    # issue 13: only acts when the frame had attitude and height; defaults from [matcher]
+    # only acts when the frame had attitude and height; defaults from [matcher]
     geometric_prior: bool = True
     prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
-    photometric: str = "none"  # issue 13: query and tiles alike (preprocess.normalise_photometry)
-    rotation_search: bool = False  # issue 13: frames without attitude tried at 4 turns (opt-in)
-    refine: bool = False  # issue 13: a second pass through the best candidate's homography
+    photometric: str = "none"  # query and tiles alike (preprocess.normalise_photometry)
+    rotation_search: bool = False  # frames without attitude tried at 4 turns (opt-in)
+    refine: bool = False  # a second pass through the best candidate's homography
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
@@ -131,7 +131,7 @@ class PipelineSettings:
     def with_thresholds(
         self, min_inliers: int, residual_warn_px: float, ransac_px: float
     ) -> PipelineSettings:
-        """These settings with a strategy config's AZ-345 thresholds."""
+        """These settings with a strategy config's thresholds."""
         return dataclasses.replace(
             self,
             min_inliers_threshold=min_inliers,
@@ -190,7 +190,7 @@ class _FrameState:
 
 class PipelineMatcher:
     """The one ``CrossDomainMatcher`` of every strategy: the per-frame loop over a strategy's
-    ``FeatureBackend``. Single-threaded (INV-1). ``tile_cache_size`` tiles keep their features
+    ``FeatureBackend``. Single-threaded. ``tile_cache_size`` tiles keep their features
     between frames (0: off)."""
 
     def __init__(
@@ -278,7 +278,7 @@ class PipelineMatcher:
         state: _FrameState,
     ) -> MatchResult:
         started = time.perf_counter()
-        try:  # steps 1-2: the query frame, once (DECISIONS 3 on failure)
+        try:  # steps 1-2: the query frame, once (a failure is a query failure)
             with _timed(state.timings_ms, "query_preprocess"):
                 geometry = self._pre.query_geometry(
                     frame, calibration, _tile_gsd(rerank.candidates)
@@ -320,7 +320,7 @@ class PipelineMatcher:
         if not survivors or best_count < self._settings.min_inliers_threshold:  # step 6
             return self._insufficient(state, best_count, survivors)
 
-        survivors.sort(key=lambda s: ranking_key(s.match_set))  # step 7, stable: INV-3
+        survivors.sort(key=lambda s: ranking_key(s.match_set))  # step 7, stable
         best = survivors[0].match_set
         if best.per_candidate_residual_px > self._settings.residual_warn_threshold_px:  # step 8
             log_event(
@@ -352,7 +352,7 @@ class PipelineMatcher:
         }
         self._record(
             "matcher.frame_done",
-            {  # step 10 (+ DECISIONS 16)
+            {  # step 10 (+ homography, timings, provider, engines)
                 "frame_id": state.frame_id,
                 "candidates_input": state.candidates_input,
                 "candidates_dropped": state.dropped,
@@ -440,7 +440,7 @@ class PipelineMatcher:
             if inliers.shape[0] > 0:
                 with _timed(timings, "ransac"):
                     inliers = _in_original_px(query_image, inliers)
-        except Exception as exc:  # INV-4: drop and continue
+        except Exception as exc:  # drop and continue
             state.dropped += 1
             state.backbone_errors += 1
             self._record_backbone_error(state, tile_id, phase, exc, candidate_index=index)
@@ -496,7 +496,7 @@ class PipelineMatcher:
         survivors: list[_Survivor],
         state: _FrameState,
     ) -> None:
-        """The refine pass (issue 13), in place: the best-ranked survivor's query re-rendered
+        """The refine pass, in place: the best-ranked survivor's query re-rendered
         through its first homography into the tile's pixel grid (same scale and orientation as
         the tile, perspective removed), extracted and matched again, then put through the same
         prior vote, RANSAC and geometry check. The matcher never sees the first homography, so
@@ -653,7 +653,7 @@ class PipelineMatcher:
         threshold = self._settings.min_inliers_threshold
         label = self._backend.label
         stale = {} if stale_rerank_frame_id is None else {"stale_rerank": stale_rerank_frame_id}
-        self._update_health(state, 0)  # AZ-345 step 6 / AC-5: best_inlier_count=0
+        self._update_health(state, 0)  # best_inlier_count=0
         log_event(
             "ERROR",
             "c3.matcher.insufficient_inliers",
@@ -692,7 +692,7 @@ class PipelineMatcher:
     # -- helpers ----------------------------------------------------------------------------
     def _prior(self, query: PreparedImage) -> GeometricPrior | None:
         """The geometric prior of a query rectified with attitude AND scaled with height to the
-        tile GSD (issue 13); None without one of them, or when ``geometric_prior`` is off."""
+        tile GSD; None without one of them, or when ``geometric_prior`` is off."""
         if not self._settings.geometric_prior:
             return None
         if query.nadir_working_px is None or query.working_gsd_m is None:
@@ -704,7 +704,7 @@ class PipelineMatcher:
     def _update_health(
         self, state: _FrameState, best_inlier_count: int, *, force_backbone_error: bool = False
     ) -> None:
-        if state.health_updated:  # INV-7: exactly once per match call
+        if state.health_updated:  # exactly once per match call
             return
         state.health_updated = True
         self._health.update(
@@ -800,7 +800,7 @@ def _refine_record(state: _FrameState) -> dict[str, Any]:
 def _turn_rank(outcome: _TurnOutcome) -> tuple[bool, tuple[int, float]]:
     """Which turn of the query a candidate keeps: one the prior's geometry check does not
     refuse first (there is no prior without attitude, so in practice never in play), then the
-    pipeline's own ranking rule (INV-3: inliers descending, residual ascending)."""
+    pipeline's own ranking rule (inliers descending, residual ascending)."""
     refused = outcome.check is not None and not outcome.check.ok
     return refused, ranking_key(outcome.match_set)
 

@@ -1,4 +1,4 @@
-"""Frame and tile preprocessing shared by every strategy (DECISIONS 12-13).
+"""Frame and tile preprocessing shared by every strategy.
 
 Query (nav-camera frame), in order: undistort with the calibration; if the attitude is known,
 ONE rotation homography to a virtual nadir north-up camera about the camera centre; if the
@@ -11,7 +11,7 @@ Coordinate frames (pixels 0-based, origin at the centre of the top-left pixel, p
 
 - ORIGINAL: the raw, distorted frame as captured.
 - UNDISTORTED: ``K @ (x/z, y/z, 1)`` of the ray, with the calibration's own K.
-- WORKING (DECISIONS 13): for the query, the undistorted, rectified (north-up nadir) frame at
+- WORKING: for the query, the undistorted, rectified (north-up nadir) frame at
   the GSD-scaled resolution, before the engine resize; RANSAC runs here. For a tile, the tile's
   full-resolution pixels.
 - ENGINE: the pixels of :attr:`PreparedImage.image`, the extractor's input.
@@ -288,7 +288,7 @@ class _LensCache:
 class FramePreprocessor:
     """Prepares query frames and candidate tiles for one engine's :class:`InputRule`.
 
-    Single-threaded (INV-1): it caches the undistorted image boundary of the last few
+    Single-threaded: it caches the undistorted image boundary of the last few
     calibrations. ``border_erode_px`` (engine px) erodes the valid mask so no keypoint sits on
     a warp, padding or nodata edge; ``max_off_nadir_deg`` clips the rectified footprint to rays
     at most that far from nadir; ``max_canvas_factor`` bounds the working canvas (see the module
@@ -435,7 +435,7 @@ class FramePreprocessor:
     def refined_geometry(
         self, geometry: QueryGeometry, tile_from_working: F64, tile_size: tuple[int, int]
     ) -> QueryGeometry | None:
-        """``geometry`` re-rendered into a tile's pixel grid (the refine pass, issue 13): the
+        """``geometry`` re-rendered into a tile's pixel grid (the refine pass): the
         engine image shows the query's footprint as ``tile_from_working`` (a first match's
         homography, WORKING -> tile px) places it in the ``tile_size`` tile, at the tile's
         scale and orientation, cropped to the tile. WORKING px stay the query's own, so

@@ -1,4 +1,4 @@
-"""The geometric prior of a rectified query (issue 13): what the vehicle already knows.
+"""The geometric prior of a rectified query: what the vehicle already knows.
 
 With attitude and height, :class:`~c3_matcher.preprocess.FramePreprocessor` rectifies the query
 to north-up nadir at the candidate's GSD, so the homography WORKING query px -> tile px of the

@@ -1,4 +1,4 @@
-"""Build profiles: which BUILD_MATCHER_* flags the installed build has (DECISIONS 17).
+"""Build profiles: which BUILD_MATCHER_* flags the installed build has.
 
 A profile is a build-time fact. Each profile is a tiny distribution generated from
 ``buildflags/matrix.toml`` (``c3-matcher-profile-<name>``) that depends on the plugin
@@ -32,7 +32,7 @@ PROFILE_GROUP = "c3_matcher.profile"
 
 class FlagState(StrEnum):
     ON = "ON"  # strategy linked
-    WIRED = "WIRED"  # flag wired, strategy not linked (airborne xfeat, seed 001 section 7)
+    WIRED = "WIRED"  # flag wired, strategy not linked (airborne xfeat)
     OFF = "OFF"
 
 

@@ -1,4 +1,4 @@
-"""The interfaces of C3 and of the helpers it consumes (seed 001 sections 1-2, 6).
+"""The interfaces of C3 and of the helpers it consumes (the matcher specification).
 
 Everything here is a ``typing.Protocol``: concrete classes live elsewhere in the core, in the
 strategy plugins, or in a caller's own code (test doubles included).
@@ -44,7 +44,7 @@ __all__ = [
 
 @runtime_checkable
 class CrossDomainMatcher(Protocol):
-    """C3's strategy interface. Single-threaded use (INV-1)."""
+    """C3's strategy interface. Single-threaded use."""
 
     def match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
@@ -123,7 +123,7 @@ class ManifestRuntime(InferenceRuntime, Protocol):
 
 @runtime_checkable
 class LightGlueRuntime(Protocol):
-    """AZ-278: the shared LightGlue handle, one engine per feature type (DECISIONS 9).
+    """AZ-278: the shared LightGlue handle, one engine per feature type.
 
     Keypoints are (x, y) px of images of ``size`` (width, height); LightGlue normalises them by
     those sizes exactly as the PyTorch model does.

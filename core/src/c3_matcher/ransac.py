@@ -1,6 +1,6 @@
 """``OpenCvRansacFilter`` (AZ-282): the one RANSAC + median-residual helper shared by C3, C3.5, C4.
 
-Homography (the right model for nadir-ish views of terrain, DECISIONS 13) estimated with OpenCV's
+Homography (the right model for nadir-ish views of terrain) estimated with OpenCV's
 USAC MAGSAC++, seeded so that the same correspondences give the same inliers bit for bit.
 
 Optional final refit (``refit_px`` > 0, ``refit``): the inliers within ``refit_px`` of the

@@ -4,9 +4,9 @@
 ``ExtractorBackend`` is the ``FeatureBackend`` of every "extractor engine + pair matcher" strategy
 (DISK, ALIKED, XFeat): it runs the extractor engine through the ``InferenceRuntime`` and matches
 through a ``PairMatcher`` (``LightGluePairMatcher``: the shared ``LightGlueRuntime``).
-``ExtractorMatcher`` gives the pipeline AZ-345's constructor and ``strategy_factory`` writes a
+``ExtractorMatcher`` gives the pipeline the specified constructor and ``strategy_factory`` writes a
 strategy's ``create`` from its matcher class and config. ``engine_startup_probe`` is the
-engine-output assertion that fires at start-up (AZ-345 Constraints); ``compose_root`` runs it on
+engine-output assertion that fires at start-up; ``compose_root`` runs it on
 every strategy's backend.
 """
 
@@ -57,7 +57,7 @@ __all__ = [
 ]
 
 
-DEFAULT_MAX_KEYPOINTS = 2048  # upstream LightGlue convention (DECISIONS 14)
+DEFAULT_MAX_KEYPOINTS = 2048  # upstream LightGlue convention
 
 
 @dataclass(frozen=True, slots=True)
@@ -143,7 +143,7 @@ class PairMatcher(Protocol):
 
 class LightGluePairMatcher:
     """A ``PairMatcher`` over the shared ``LightGlueRuntime`` for one feature type; loads the
-    engine into it now (start-up) when the runtime has ``load`` (DECISIONS 9)."""
+    engine into it now (start-up) when the runtime has ``load``."""
 
     def __init__(self, runtime: LightGlueRuntime, engine_path: Path, feature_type: str) -> None:
         self._runtime = runtime
@@ -297,9 +297,9 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
 
 
 class ExtractorMatcher(PipelineMatcher):
-    """``PipelineMatcher`` with AZ-345's constructor, for every "extractor engine + pair matcher"
-    strategy (the seeds' ``DiskLightGlueMatcher`` and its siblings subclass it only to keep their
-    names). The engines load here (start-up); ``compose_root`` then runs the start-up probe.
+    """``PipelineMatcher`` with the specified constructor, for each "extractor engine + pair
+    matcher" strategy (``DiskLightGlueMatcher`` and its siblings subclass it only to keep
+    their names). The engines load here (start-up); ``compose_root`` then runs the start-up probe.
     ``_lightglue_runtime`` is the shared helper itself (AC-11 identity); ``pair_matcher``
     replaces the configured one (tests)."""
 
@@ -346,7 +346,7 @@ def strategy_factory(
     make_config: Callable[[C3Settings, Any], ExtractorStrategyConfig],
     options_model: type[BaseModel] | None = None,
 ) -> StrategyFactory:
-    """A strategy's AZ-345 ``create(config, *, lightglue_runtime, ransac_filter,
+    """A strategy's ``create(config, *, lightglue_runtime, ransac_filter,
     inference_runtime, health_window, fdr_client, clock, options)`` from two facts: its matcher
     class and how its config is made from ``C3Settings`` and its validated options (a mapping is
     validated with ``options_model`` here; None means its defaults)."""
@@ -362,7 +362,7 @@ def strategy_factory(
         clock: Clock,
         options: Any = None,
     ) -> CrossDomainMatcher:
-        """AZ-345 ``create``: resolve the strategy's engines, load them now (start-up) and
+        """``create``: resolve the strategy's engines, load them now (start-up) and
         return its wired matcher."""
         if options_model is not None and not isinstance(options, options_model):
             options = options_model.model_validate(options or {})

@@ -3,7 +3,7 @@ candidates over consecutive frames (the usual case at 3 Hz) is decoded and extra
 
 Keyed by the tile id AND a digest of the tile's encoded bytes: a tile whose pixels change (a
 store update) is never served stale. Extraction is deterministic, so a hit gives exactly the
-features a fresh extraction would (DECISIONS 5). Least recently used entries are evicted.
+features a fresh extraction would. Least recently used entries are evicted.
 """
 
 from __future__ import annotations

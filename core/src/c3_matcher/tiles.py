@@ -1,10 +1,10 @@
 """Tile pixel handles (C6 side): references to encoded tile bytes that decode on demand.
 
 ``MmapTileHandle`` references an image file: its bytes stay in the page cache and are read
-into the process (``pread`` under a size check) only by ``encoded()`` / ``decode()`` (AZ-345
-constraint: page-cache backed, decode per call). It deliberately does NOT keep an ``mmap``
+into the process (``pread`` under a size check) only by ``encoded()`` / ``decode()``
+(constraint: page-cache backed, decode per call). It deliberately does NOT keep an ``mmap``
 of the file: touching a mapping whose file shrank kills the process with SIGBUS, whereas a
-read of a shrunk file is that candidate's error (issue 11, defect 4).
+read of a shrunk file is that candidate's error.
 
 Decompression bombs: ``decode_image`` reads the image header (PNG, JPEG, TIFF, BMP, WebP, GIF)
 and refuses an image above ``max_image_pixels()`` (``[matcher] max_image_pixels``, default

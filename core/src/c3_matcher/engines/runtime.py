@@ -36,7 +36,7 @@ Session options, chosen by measurement (``c3-matcher engines bench --sweep-sessi
   (``/usr/bin/time -v``) with the arena on.
 - ``graph_optimization_level = ORT_ENABLE_ALL``, sequential execution, ``intra_op_num_threads =
   0`` (one per physical core), ``use_deterministic_compute`` on (bit-identical reruns,
-  DECISIONS 5).
+  identical inputs give identical results).
 """
 
 from __future__ import annotations
@@ -235,7 +235,7 @@ class SessionSettings:
     """ONNX Runtime session options (defaults chosen by measurement, see the module docstring)."""
 
     enable_mem_pattern: bool = False
-    enable_cpu_mem_arena: bool = False  # issue 10 item 5: the 800 MB budget (module docstring)
+    enable_cpu_mem_arena: bool = False  # the 800 MB budget (module docstring)
     intra_op_num_threads: int = 0
     deterministic: bool = True
 
@@ -288,7 +288,7 @@ def _check_io(path: Path, role: str, declared: Sequence[TensorSpec], actual: Seq
 
 class OnnxInferenceRuntime:
     """Loads engines (checked against their manifests) and runs them; satisfies
-    ``c3_matcher.protocols.InferenceRuntime``. Single-threaded use (INV-1).
+    ``c3_matcher.protocols.InferenceRuntime``. Single-threaded use.
 
     ``providers_available`` injects the provider list (tests); ``None`` asks onnxruntime.
     """

@@ -12,7 +12,7 @@ decoded once and kept, and ``encoded()`` is a lossless PNG of it made once.
 
 Failures are the candidate's: a corrupt or undecodable stored tile, or a window with no stored
 tile at all, raise from ``encoded()`` / ``decode()``, which the pipeline turns into that
-candidate's drop (drop-and-continue, INV-4). Stored tiles missing at the edge of the coverage
+candidate's drop (drop-and-continue). Stored tiles missing at the edge of the coverage
 are nodata (0), which the matcher masks.
 """
 

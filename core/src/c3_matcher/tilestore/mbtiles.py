@@ -20,7 +20,7 @@ handles expose it as a ``memoryview`` without further copies. A database error w
 tile (a corrupt page) is raised as that tile's error, never a crash of the caller.
 
 Threads: each thread gets its own read-only connection (SQLite objects may not cross threads),
-so a store opened on one thread serves another (issue 11, defect 5). A store-wide failure (the
+so a store opened on one thread serves another. A store-wide failure (the
 database no longer answers at all: locked by another process, replaced, truncated,
 unreadable) is reported ONCE per outage as an ERROR log ``c3.tilestore.unusable`` naming the
 store (forwarded to the FDR as ``log.error``), then raised at once as each tile's

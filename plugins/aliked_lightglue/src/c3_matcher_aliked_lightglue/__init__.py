@@ -1,4 +1,4 @@
-"""ALIKED + LightGlue strategy for c3-matcher (issue 5).
+"""ALIKED + LightGlue strategy for c3-matcher.
 
 Only what is ALIKED-specific lives here: its engines (``engines.py``, run time), its build time
 (``export.py``: the export rewrite, with the deformable convolution as GridSample + MatMul in

@@ -1,4 +1,4 @@
-"""``AlikedLightGlueMatcher`` and ``create`` (AZ-345 Outcome with DECISIONS 7, issue 5).
+"""``AlikedLightGlueMatcher`` and ``create`` (the strategy's create, with the FDR and clock).
 
 ALIKED keypoints and descriptors come from the ALIKED engine (variant ``n16`` by default,
 ``n16rot`` by ``[matcher.options.aliked_lightglue] variant = "n16rot"``) run by the C7
@@ -53,7 +53,7 @@ class AlikedLightGlueOptions(BaseModel):
 
 @dataclass(frozen=True, slots=True)
 class AlikedLightGlueConfig(ExtractorLightGlueConfig):
-    """``MatcherConfig`` of AZ-345 for ALIKED + LightGlue."""
+    """``MatcherConfig`` for ALIKED + LightGlue."""
 
     @classmethod
     def from_c3_settings(
@@ -82,7 +82,7 @@ class AlikedLightGlueConfig(ExtractorLightGlueConfig):
 
 
 class AlikedLightGlueMatcher(ExtractorMatcher):
-    """ALIKED + LightGlue ``CrossDomainMatcher``. Single-threaded (INV-1)."""
+    """ALIKED + LightGlue ``CrossDomainMatcher``. Single-threaded."""
 
     @property
     def aliked_engine_id(self) -> str:
@@ -92,6 +92,6 @@ class AlikedLightGlueMatcher(ExtractorMatcher):
 create = strategy_factory(
     AlikedLightGlueMatcher, AlikedLightGlueConfig.from_c3_settings, AlikedLightGlueOptions
 )
-"""AZ-345 ``create``: resolve the ALIKED (``options.variant``) and LightGlue engines, load them
+"""``create``: resolve the ALIKED (``options.variant``) and LightGlue engines, load them
 now (start-up) and return the wired ``AlikedLightGlueMatcher``. ``options`` is the validated
 ``AlikedLightGlueOptions`` (a mapping is validated here; None = defaults)."""

@@ -1,4 +1,4 @@
-"""``DiskLightGlueMatcher`` and ``create`` exactly per AZ-345 Outcome (with DECISIONS 7).
+"""``DiskLightGlueMatcher`` and ``create`` as the matcher specification defines them.
 
 DISK keypoints and descriptors come from the DISK engine run by the C7 ``InferenceRuntime``;
 LightGlue (DISK weights) runs in the shared ``LightGlueRuntime``; RANSAC in the shared
@@ -30,7 +30,7 @@ LIGHTGLUE_ENGINE = (LIGHTGLUE_DISK_SPEC.model, LIGHTGLUE_DISK_SPEC.variant)
 
 @dataclass(frozen=True, slots=True)
 class DiskLightGlueConfig(ExtractorLightGlueConfig):
-    """``MatcherConfig`` of AZ-345 for DISK + LightGlue."""
+    """``MatcherConfig`` for DISK + LightGlue."""
 
     @classmethod
     def from_c3_settings(
@@ -52,8 +52,8 @@ class DiskLightGlueConfig(ExtractorLightGlueConfig):
 
 
 class DiskLightGlueMatcher(ExtractorMatcher):
-    """The production-default ``CrossDomainMatcher`` (AZ-345's constructor, the core's per-frame
-    pipeline). Single-threaded (INV-1)."""
+    """The production-default ``CrossDomainMatcher`` (specified constructor, the core's per-frame
+    pipeline). Single-threaded."""
 
     @property
     def disk_engine_id(self) -> str:
@@ -63,6 +63,6 @@ class DiskLightGlueMatcher(ExtractorMatcher):
 create = strategy_factory(
     DiskLightGlueMatcher, lambda settings, _options: DiskLightGlueConfig.from_c3_settings(settings)
 )
-"""AZ-345 ``create(config, *, lightglue_runtime, ransac_filter, inference_runtime, health_window,
+"""``create(config, *, lightglue_runtime, ransac_filter, inference_runtime, health_window,
 fdr_client, clock, options)``: resolve the DISK and LightGlue engines, load them now (start-up)
 and return the wired ``DiskLightGlueMatcher``."""

@@ -12,7 +12,7 @@ baseline, side by side, against a flight's ground truth (the C3-IT acceptance me
   attitude tilt up to 20 deg and distractors >= 350 m away; bar >= 0.95 (this project's choice:
   the seeds name the case, not a rate).
 - C3-IT-05: every frame whose true tile is absent raises InsufficientInliersError; bar: all.
-- false-confident (issue 13, beside IT-05): frames that returned a best candidate whose inliers
+- false-confident (beside IT-05): frames that returned a best candidate whose inliers
   put the frame in the wrong place: their mean error against ground truth (the same measure as
   IT-03, through the picked candidate's own ground-truth homography) is over
   ``WRONG_FIX_PX`` = 4x the IT-03 bar, or unknown; over all frames with ground truth; bar: none.
@@ -484,7 +484,7 @@ def _summary_row(flight: str, r: dict[str, Any]) -> dict[str, Any]:
 
 
 def _print_summary(summary: list[dict[str, Any]]) -> None:
-    """The one strategy x flight table (issue 13)."""
+    """The one strategy x flight table."""
     print()
     print(
         f"{'strategy':18} {'flight':20} {'correct tile':>13} {'IT-03 p95':>10} {'IT-05':>7} "

@@ -151,7 +151,7 @@ class XFeatConfig:
 
 class XFeatMatcher(ExtractorMatcher):
     """The XFeat ``CrossDomainMatcher`` (the core's ``ExtractorMatcher``). Single-threaded
-    (INV-1). ``pair_matcher=`` replaces the configured one (tests)."""
+    . ``pair_matcher=`` replaces the configured one (tests)."""
 
     @property
     def xfeat_engine_id(self) -> str:

@@ -1,8 +1,8 @@
 """Georeferencing without pyproj: GeoTIFF grids, projected metres <-> WGS84 (ground tooling).
 
-Conventions. ORTHO px (u, v) are 0-based with the origin at the centre of the top-left pixel
-(DECISIONS 10). A GeoTIFF's grid maps them to projected metres (E, N) through its pixel scale
-and tie point (``PixelIsArea``: the tie point is the top-left pixel's CORNER; ``PixelIsPoint``:
+Conventions. ORTHO px (u, v) are 0-based with the origin at the centre of the top-left pixel,
+(x, y) order. A GeoTIFF's grid maps them to projected metres (E, N) through its pixel scale and
+tie point (``PixelIsArea``: the tie point is the top-left pixel's CORNER; ``PixelIsPoint``:
 its centre). WORLD px (X, Y) are web-mercator pixels of 256-px slippy tiles at a zoom ``z``
 (corner convention: the world spans [0, 256 * 2**z) and pixel index i has its centre at
 X = i + 0.5; tile (x, y) covers X in [256 x, 256 (x + 1))).
