@@ -1,4 +1,4 @@
-"""The composition root (ADR-009).
+"""The composition root.
 
 ``compose_root(config, pre_constructed)`` wires the ``c3_matcher`` slot: it checks the required
 pre-constructed shared helpers, builds what may be defaulted (clock, durable FDR recorder),

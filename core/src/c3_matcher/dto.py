@@ -373,7 +373,7 @@ class CandidateMatchSet:
         )
 
     def same_content(self, other: CandidateMatchSet) -> bool:
-        """Bit-for-bit equality of every field (AC-10)."""
+        """Bit-for-bit equality of every field."""
         return (
             self.tile_id == other.tile_id
             and self.inlier_count == other.inlier_count

@@ -1,4 +1,4 @@
-"""Flight-data recorder clients (C13, AZ-272 record schema).
+"""Flight-data recorder clients (C13, the shared record schema).
 
 ``JsonlFdrRecorder`` is the durable one: every record is one JSON line, flushed and fsynced
 before ``record`` returns, in an append-only file rotated by size (rotated segments are kept:

@@ -95,7 +95,7 @@ class FdrClient(Protocol):
 
 @runtime_checkable
 class RansacFilter(Protocol):
-    """AZ-282: RANSAC homography + median residual over (M, 4) correspondences."""
+    """RANSAC homography + median residual over (M, 4) correspondences."""
 
     def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult: ...
 
@@ -123,7 +123,7 @@ class ManifestRuntime(InferenceRuntime, Protocol):
 
 @runtime_checkable
 class LightGlueRuntime(Protocol):
-    """AZ-278: the shared LightGlue handle, one engine per feature type.
+    """The shared LightGlue handle, one engine per feature type.
 
     Keypoints are (x, y) px of images of ``size`` (width, height); LightGlue normalises them by
     those sizes exactly as the PyTorch model does.

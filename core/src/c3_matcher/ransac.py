@@ -1,4 +1,4 @@
-"""``OpenCvRansacFilter`` (AZ-282): the one RANSAC + median-residual helper shared by C3, C3.5, C4.
+"""``OpenCvRansacFilter``: the one RANSAC + median-residual helper shared by C3, C3.5, C4.
 
 Homography (the right model for nadir-ish views of terrain) estimated with OpenCV's
 USAC MAGSAC++, seeded so that the same correspondences give the same inliers bit for bit.
@@ -41,7 +41,7 @@ class OpenCvRansacFilter:
 
     Threshold and residuals are in tile pixels. Fewer than 4 correspondences, degenerate input or a
     failed estimate give zero inliers (no exception). ``confidence`` and ``max_iters`` follow
-    OpenCV's USAC parameters; ``seed`` fixes its random generator (determinism, AC-10).
+    OpenCV's USAC parameters; ``seed`` fixes its random generator (determinism).
     """
 
     def __init__(

@@ -300,7 +300,7 @@ class ExtractorMatcher(PipelineMatcher):
     """``PipelineMatcher`` with the specified constructor, for each "extractor engine + pair
     matcher" strategy (``DiskLightGlueMatcher`` and its siblings subclass it only to keep
     their names). The engines load here (start-up); ``compose_root`` then runs the start-up probe.
-    ``_lightglue_runtime`` is the shared helper itself (AC-11 identity); ``pair_matcher``
+    ``_lightglue_runtime`` is the shared helper itself (by identity); ``pair_matcher``
     replaces the configured one (tests)."""
 
     def __init__(

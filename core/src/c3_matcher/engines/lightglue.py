@@ -1,4 +1,4 @@
-"""``OnnxLightGlueRuntime``: the shared LightGlue handle (AZ-278). No PyTorch.
+"""``OnnxLightGlueRuntime``: the shared LightGlue handle. No PyTorch.
 
 One object, one engine per feature type (each feature type has its own weights). LightGlue
 graph I/O: inputs ``kpts0`` float32 (1, M, 2), ``kpts1`` (1, N, 2) normalised keypoints (see
