@@ -1,108 +1,29 @@
-"""Flight-data recorder clients (C13, the shared record schema).
-
-``JsonlFdrRecorder`` is the durable one: every record is one JSON line, flushed and fsynced
-before ``record`` returns, in an append-only file rotated by size (rotated segments are kept:
-nothing is ever deleted). ``InMemoryFdr`` is the test double.
-
-Record schema (one JSON object per line)::
-
-    {"seq": 17, "kind": "matcher.frame_done", "recorded_at_ns": 123, "wall_time": "...Z",
-     "payload": {...}}
-"""
+"""``JsonlFdrRecorder``: the durable flight-data recorder, one fsynced JSON line a record."""
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import datetime as dt
 import errno
 import fcntl
 import json
-import math
 import os
 import threading
-import uuid
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from c3_matcher.errors import C3Error, InvalidInputError
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.fdr.files import (
+    cut_torn_tail,
+    fsync_dir,
+    read_meta,
+    read_small,
+    rotated_segments,
+    write_meta,
+)
+from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, read_fdr, to_jsonable
 from c3_matcher.protocols import Clock
-
-__all__ = [
-    "FdrOpenError",
-    "FdrReadResult",
-    "FdrRecord",
-    "FdrWriteError",
-    "InMemoryFdr",
-    "JsonlFdrRecorder",
-    "read_fdr",
-    "to_jsonable",
-]
-
-FdrRecord = dict[str, Any]
-
-
-class FdrWriteError(C3Error):
-    """A record could not be made durable; it is kept pending and retried on the next record."""
-
-
-class FdrOpenError(InvalidInputError):
-    """The FDR cannot be opened: the path is a directory or unwritable, or another process
-    already writes it (the live segment is locked with ``flock``)."""
-
-
-class FdrReadResult(list[FdrRecord]):
-    """The records of a segment (a list, as before) plus what could not be read: ``corrupt``
-    holds ``(line_number, raw_bytes, reason)`` for every line that is not a JSON object, the
-    torn last line included (``torn_tail``). Nothing is skipped silently."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.corrupt: list[tuple[int, bytes, str]] = []
-        self.torn_tail: bytes | None = None
-
-    @property
-    def ok(self) -> bool:
-        return not self.corrupt
-
-
-def to_jsonable(value: Any) -> Any:
-    """Convert DTO field values (numpy, UUID, dataclasses, paths) into JSON-native values."""
-    if isinstance(value, Mapping):
-        return {str(k): to_jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [to_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return to_jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return to_jsonable(value.item())
-    if isinstance(value, float) and not math.isfinite(value):
-        return str(value)
-    if isinstance(value, (uuid.UUID, Path)):
-        return str(value)
-    if hasattr(value, "as_list"):
-        return value.as_list()
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: to_jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if value is None or isinstance(value, (str, int, float, bool)):
-        return value
-    return repr(value)
-
-
-class InMemoryFdr:
-    """Test double: keeps records in a list, in order."""
-
-    def __init__(self) -> None:
-        self.records: list[tuple[str, dict[str, Any]]] = []
-
-    def record(self, kind: str, payload: Mapping[str, Any]) -> None:
-        self.records.append((kind, to_jsonable(payload)))
-
-    def of_kind(self, kind: str) -> list[dict[str, Any]]:
-        return [p for k, p in self.records if k == kind]
 
 
 class JsonlFdrRecorder:
@@ -152,7 +73,7 @@ class JsonlFdrRecorder:
         try:
             fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
-            holder = _read_small(self._lock_path).strip() or "?"
+            holder = read_small(self._lock_path).strip() or "?"
             os.close(self._lock_fd)
             self._lock_fd = -1
             raise FdrOpenError(
@@ -252,13 +173,7 @@ class JsonlFdrRecorder:
             ) from exc
 
     def _rotated(self) -> list[tuple[int, Path]]:
-        stem, suffix = self._path.stem, self._path.suffix
-        out = []
-        for p in self._path.parent.glob(f"{stem}.[0-9]*{suffix}"):
-            number = p.name[len(stem) + 1 : len(p.name) - len(suffix)]
-            if number.isdigit():
-                out.append((int(number), p))
-        return sorted(out)
+        return rotated_segments(self._path)
 
     def _write_durably(self, data: bytes) -> None:
         if self._fd < 0:
@@ -290,7 +205,7 @@ class JsonlFdrRecorder:
 
     def _next_segment_number(self) -> int:
         numbers = [n for n, _ in self._rotated()]
-        meta = _read_meta(self._meta_path)
+        meta = read_meta(self._meta_path)
         return max([0, *numbers, int(meta.get("last_segment", 0))]) + 1
 
     def _rotate(self) -> bool:
@@ -305,7 +220,7 @@ class JsonlFdrRecorder:
             target = self._path.with_name(f"{self._path.stem}.{number:06d}{self._path.suffix}")
         try:  # reserve the number first: a failure here leaves everything as it was
             if number != self._reserved:
-                _write_meta(self._meta_path, {"last_segment": number, "last_seq": self._seq - 1})
+                write_meta(self._meta_path, {"last_segment": number, "last_seq": self._seq - 1})
                 self._reserved = number  # kept for the next try: one number per rotation
             self._path.rename(target)  # atomic: the records are under exactly one name
         except OSError:
@@ -314,7 +229,7 @@ class JsonlFdrRecorder:
         os.close(self._fd)
         self._fd = -1
         self._fd = self._open()
-        _fsync_dir(self._path.parent)
+        fsync_dir(self._path.parent)
         return True
 
     def _drop_half_rotated_live(self) -> None:
@@ -327,51 +242,14 @@ class JsonlFdrRecorder:
             st = p.stat()
             if (st.st_dev, st.st_ino) == (live.st_dev, live.st_ino):
                 self._path.unlink()
-                _fsync_dir(self._path.parent)
+                fsync_dir(self._path.parent)
 
     def _cut_torn_tail(self) -> tuple[int, int] | None:
         """Cut the live segment back to its last complete line; keep the cut bytes aside."""
-        if not self._path.exists():
-            return None
-        with self._path.open("r+b") as fh:
-            size = os.fstat(fh.fileno()).st_size
-            if size == 0:
-                return None
-            fh.seek(max(0, size - 1))
-            if fh.read(1) == b"\n":
-                return None
-            keep = 0
-            block = 1 << 16
-            pos = size
-            while pos > 0:  # find the last newline, reading backwards
-                lo = max(0, pos - block)
-                fh.seek(lo)
-                chunk = fh.read(pos - lo)
-                i = chunk.rfind(b"\n")
-                if i >= 0:
-                    keep = lo + i + 1
-                    break
-                pos = lo
-            fh.seek(keep)
-            cut = fh.read()
-            side = {
-                "segment": self._path.name,
-                "offset": keep,
-                "length": len(cut),
-                "cut_at_wall_time": dt.datetime.now(dt.UTC).isoformat(timespec="microseconds"),
-                "bytes": cut.decode("utf-8", "backslashreplace"),
-            }
-            with self.torn_path.open("ab") as side_fh:
-                side_fh.write((json.dumps(side) + "\n").encode())
-                side_fh.flush()
-                os.fsync(side_fh.fileno())
-            fh.truncate(keep)
-            fh.flush()
-            os.fsync(fh.fileno())
-        return keep, len(cut)
+        return cut_torn_tail(self._path, self.torn_path)
 
     def _last_seq(self) -> int:
-        last = int(_read_meta(self._meta_path).get("last_seq", 0))
+        last = int(read_meta(self._meta_path).get("last_seq", 0))
         rotated = self._rotated()
         for p in [*(q for _, q in rotated[-1:]), self._path]:
             if p.exists():
@@ -380,63 +258,3 @@ class JsonlFdrRecorder:
                     if isinstance(seq, int):
                         last = max(last, seq)
         return last
-
-
-def _read_small(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8", errors="replace")[:64]
-    except OSError:
-        return ""
-
-
-def _read_meta(path: Path) -> dict[str, Any]:
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    return data if isinstance(data, dict) else {}
-
-
-def _write_meta(path: Path, data: Mapping[str, Any]) -> None:
-    """Atomically replace the small state file (never a segment)."""
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with tmp.open("wb") as fh:
-            fh.write(json.dumps(dict(data)).encode())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except OSError:
-        tmp.unlink(missing_ok=True)  # give back what a full disk let us take
-        raise
-
-
-def _fsync_dir(directory: Path) -> None:
-    dir_fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
-
-
-def read_fdr(path: Path) -> FdrReadResult:
-    """Read every record of an FDR segment. The result is a list of the records; lines that
-    are not complete JSON objects are reported in ``.corrupt`` (a torn last line also in
-    ``.torn_tail``), never skipped silently."""
-    result = FdrReadResult()
-    with Path(path).open("rb") as fh:
-        for number, raw in enumerate(fh, start=1):
-            if not raw.endswith(b"\n"):
-                result.torn_tail = raw
-                result.corrupt.append((number, raw, "torn last line (no newline)"))
-                break
-            try:
-                value = json.loads(raw)
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                result.corrupt.append((number, raw, f"not JSON: {exc}"))
-                continue
-            if not isinstance(value, dict):
-                result.corrupt.append((number, raw, "not a JSON object"))
-                continue
-            result.append(value)
-    return result

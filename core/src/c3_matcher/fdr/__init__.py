@@ -1,0 +1,35 @@
+"""Flight-data recorder clients (C13, the shared record schema).
+
+``JsonlFdrRecorder`` is the durable one: every record is one JSON line, flushed and fsynced
+before ``record`` returns, in an append-only file rotated by size (rotated segments are kept:
+nothing is ever deleted). ``InMemoryFdr`` is the test double.
+
+Record schema (one JSON object per line)::
+
+    {"seq": 17, "kind": "matcher.frame_done", "recorded_at_ns": 123, "wall_time": "...Z",
+     "payload": {...}}
+"""
+
+from __future__ import annotations
+
+from c3_matcher.fdr.jsonl import JsonlFdrRecorder
+from c3_matcher.fdr.records import (
+    FdrOpenError,
+    FdrReadResult,
+    FdrRecord,
+    FdrWriteError,
+    InMemoryFdr,
+    read_fdr,
+    to_jsonable,
+)
+
+__all__ = [
+    "FdrOpenError",
+    "FdrReadResult",
+    "FdrRecord",
+    "FdrWriteError",
+    "InMemoryFdr",
+    "JsonlFdrRecorder",
+    "read_fdr",
+    "to_jsonable",
+]

@@ -1,0 +1,108 @@
+"""The files beside an FDR segment and the durable ways of writing them: the numbered
+rotated segments, the small ``.meta`` state file (replaced atomically), directory fsync and the
+cut of a torn last line (kept in ``.torn``)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+
+def rotated_segments(path: Path) -> list[tuple[int, Path]]:
+    """``(number, path)`` of the rotated segments ``<stem>.<NNNNNN><suffix>`` of the live
+    segment ``path``, by number."""
+    stem, suffix = path.stem, path.suffix
+    out = []
+    for p in path.parent.glob(f"{stem}.[0-9]*{suffix}"):
+        number = p.name[len(stem) + 1 : len(p.name) - len(suffix)]
+        if number.isdigit():
+            out.append((int(number), p))
+    return sorted(out)
+
+
+def read_small(path: Path) -> str:
+    """The first 64 characters of a small text file (a lock holder's pid), "" if unreadable."""
+    try:
+        return path.read_text(encoding="utf-8", errors="replace")[:64]
+    except OSError:
+        return ""
+
+
+def read_meta(path: Path) -> dict[str, Any]:
+    """The ``.meta`` state (last segment number, last seq); {} when absent or unreadable."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def write_meta(path: Path, data: Mapping[str, Any]) -> None:
+    """Atomically replace the small state file (never a segment)."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with tmp.open("wb") as fh:
+            fh.write(json.dumps(dict(data)).encode())
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)  # give back what a full disk let us take
+        raise
+
+
+def fsync_dir(directory: Path) -> None:
+    """Make a rename or unlink in ``directory`` durable."""
+    dir_fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+
+
+def cut_torn_tail(path: Path, torn_path: Path) -> tuple[int, int] | None:
+    """Cut the segment ``path`` back to its last complete line; append the cut bytes to
+    ``torn_path`` (one JSON line per cut: segment, offset, length, wall time, the bytes).
+    Returns ``(offset, length)`` of the cut, None when there was nothing to cut."""
+    if not path.exists():
+        return None
+    with path.open("r+b") as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if size == 0:
+            return None
+        fh.seek(max(0, size - 1))
+        if fh.read(1) == b"\n":
+            return None
+        keep = 0
+        block = 1 << 16
+        pos = size
+        while pos > 0:  # find the last newline, reading backwards
+            lo = max(0, pos - block)
+            fh.seek(lo)
+            chunk = fh.read(pos - lo)
+            i = chunk.rfind(b"\n")
+            if i >= 0:
+                keep = lo + i + 1
+                break
+            pos = lo
+        fh.seek(keep)
+        cut = fh.read()
+        side = {
+            "segment": path.name,
+            "offset": keep,
+            "length": len(cut),
+            "cut_at_wall_time": dt.datetime.now(dt.UTC).isoformat(timespec="microseconds"),
+            "bytes": cut.decode("utf-8", "backslashreplace"),
+        }
+        with torn_path.open("ab") as side_fh:
+            side_fh.write((json.dumps(side) + "\n").encode())
+            side_fh.flush()
+            os.fsync(side_fh.fileno())
+        fh.truncate(keep)
+        fh.flush()
+        os.fsync(fh.fileno())
+    return keep, len(cut)
