@@ -1,13 +1,8 @@
 """``OnnxInferenceRuntime``: the shared ``InferenceRuntime`` (C7) on ONNX Runtime. No PyTorch.
 
-Execution providers: ``[engines] providers`` names any ONNX Runtime provider, in order of
-preference, by its full name or a short alias (TensorRT, CUDA, ROCm, MIGraphX, OpenVINO,
-DirectML, CoreML, CPU); the list is intersected with what the installed onnxruntime offers (or
-the injected ``providers_available``), and nothing usable left is an ``EngineError`` naming the
-setting. Without the setting: the first of TensorRT -> CUDA -> ... -> CPU that is installed,
-the rest as fallbacks. Per-provider options: device id, GPU memory limit, TensorRT FP16 switch
-and cache, plus raw options per provider; ``intra_op_threads``. The request is logged once
-(``c3.inference.provider_selected``); what each session ACTUALLY uses
+Which execution providers the sessions ask for, and with what options, is
+``c3_matcher.engines.providers``; ``intra_op_threads`` sets the session threads. The request is
+logged once (``c3.inference.provider_selected``); what each session ACTUALLY uses
 (``session.get_providers()``: onnxruntime silently falls back to CPU when a provider cannot
 start) is logged per engine and is what ``provider`` reports, so the ready log and every FDR
 record name the real one; a fallback is a WARNING ``c3.inference.provider_fallback``.
@@ -27,7 +22,7 @@ Session options, chosen by measurement (``c3-matcher engines bench --sweep-sessi
 - CPU memory arena first kept ON (superseded below): off halves DISK 1024x1024's peak but
   made it markedly slower (2.7x in the sweep; the feasibility study measured 17-40 %), and did
   not help LightGlue's single graph.
-- Issue 10, item 5 (peak RSS of the airborne default <= 800 MB) turned the CPU arena OFF by
+- The peak-RSS budget of the airborne default (<= 800 MB) turned the CPU arena OFF by
   default (``[engines] cpu_mem_arena``): disk_lightglue (adaptive LightGlue) on the first two
   frames of ``data/flights/naip_demo``, tile cache off, one process: arena on 818 MiB, 11.7 /
   10.7 CPU s per frame; arena off 584 MiB, 14.2 / 13.2 CPU s (+22 %); arena off for the
@@ -53,6 +48,15 @@ from loguru import logger
 from numpy.typing import NDArray
 
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file
+from c3_matcher.engines.providers import (
+    PROVIDER_ALIASES,
+    PROVIDER_CHAIN,
+    ProviderSettings,
+    canonical_provider,
+    provider_options,
+    resolve_providers,
+    select_providers,
+)
 from c3_matcher.engines.spec import TensorSpec
 from c3_matcher.errors import EngineError
 
@@ -64,46 +68,13 @@ __all__ = [
     "PROVIDER_CHAIN",
     "SESSION_OPTIONS_NOTE",
     "OnnxInferenceRuntime",
+    "ProviderSettings",
     "SessionSettings",
+    "canonical_provider",
     "provider_options",
+    "resolve_providers",
     "select_providers",
 ]
-
-PROVIDER_CHAIN: tuple[str, ...] = (
-    "TensorrtExecutionProvider",
-    "CUDAExecutionProvider",
-    "ROCMExecutionProvider",
-    "MIGraphXExecutionProvider",
-    "OpenVINOExecutionProvider",
-    "DmlExecutionProvider",
-    "CoreMLExecutionProvider",
-    "CPUExecutionProvider",
-)
-
-PROVIDER_ALIASES: dict[str, str] = {
-    "tensorrt": "TensorrtExecutionProvider",
-    "trt": "TensorrtExecutionProvider",
-    "cuda": "CUDAExecutionProvider",
-    "rocm": "ROCMExecutionProvider",
-    "migraphx": "MIGraphXExecutionProvider",
-    "openvino": "OpenVINOExecutionProvider",
-    "directml": "DmlExecutionProvider",
-    "dml": "DmlExecutionProvider",
-    "coreml": "CoreMLExecutionProvider",
-    "cpu": "CPUExecutionProvider",
-}
-
-_GPU_PROVIDERS = frozenset(
-    {
-        "TensorrtExecutionProvider",
-        "CUDAExecutionProvider",
-        "ROCMExecutionProvider",
-        "MIGraphXExecutionProvider",
-        "DmlExecutionProvider",
-    }
-)
-
-PROVIDERS_SETTING = "[engines] providers (C3_MATCHER_ENGINES__PROVIDERS)"
 
 SESSION_OPTIONS_NOTE = (
     "memory pattern off, CPU arena per [engines] cpu_mem_arena (default off), ORT_ENABLE_ALL, "
@@ -118,116 +89,6 @@ _ORT_TO_NUMPY = {
     "tensor(bool)": "bool",
     "tensor(uint8)": "uint8",
 }
-
-
-def canonical_provider(name: str) -> str:
-    """The onnxruntime name of a provider given by full name (any case) or short alias."""
-    text = str(name).strip()
-    lowered = text.lower()
-    if lowered in PROVIDER_ALIASES:
-        return PROVIDER_ALIASES[lowered]
-    for full in (*PROVIDER_CHAIN, *PROVIDER_ALIASES.values()):
-        if full.lower() == lowered or full.lower() == lowered + "executionprovider":
-            return full
-    if text.endswith("ExecutionProvider") and text[:-17].isidentifier():
-        return text  # a provider this module does not know by name: onnxruntime will tell
-    raise EngineError(
-        PROVIDERS_SETTING,
-        f"unknown execution provider {text!r}; use an onnxruntime name or one of "
-        f"{sorted(PROVIDER_ALIASES)}",
-        "set [engines] providers to installed providers",
-    )
-
-
-def resolve_providers(configured: Sequence[str] | None, installed: Sequence[str]) -> list[str]:
-    """The session provider list: ``configured`` (in its order, canonical names) intersected
-    with ``installed``; without ``configured``, the default chain's members that are installed.
-    ``EngineError`` naming the setting when nothing usable remains."""
-    have = list(dict.fromkeys(str(p) for p in installed))
-    if configured is None:
-        chosen = [p for p in PROVIDER_CHAIN if p in set(have)]
-        if not chosen:
-            raise EngineError(
-                PROVIDERS_SETTING,
-                f"none of the known providers {list(PROVIDER_CHAIN)} is installed "
-                f"(installed: {have})",
-                "pip install onnxruntime",
-            )
-        return chosen
-    wanted = list(dict.fromkeys(canonical_provider(p) for p in configured))
-    if not wanted:
-        raise EngineError(
-            PROVIDERS_SETTING,
-            "is empty: name at least one provider",
-            "set [engines] providers, or remove it for the default chain",
-        )
-    chosen = [p for p in wanted if p in set(have)]
-    if not chosen:
-        raise EngineError(
-            PROVIDERS_SETTING,
-            f"none of {wanted} is installed (installed onnxruntime providers: {have})",
-            "set [engines] providers to installed providers, or remove it for the default chain",
-        )
-    return chosen
-
-
-def select_providers(available: Sequence[str]) -> list[str]:
-    """The default provider list over ``available`` (see :func:`resolve_providers`)."""
-    return resolve_providers(None, available)
-
-
-@dataclass(frozen=True, slots=True)
-class ProviderSettings:
-    """Per-provider options: ``device_id`` (CUDA, TensorRT, ROCm, MIGraphX, DirectML),
-    ``gpu_mem_limit_bytes`` (CUDA, ROCm arena limit), ``tensorrt_fp16``, and raw ``extra``
-    options by provider name (merged last)."""
-
-    device_id: int = 0
-    gpu_mem_limit_bytes: int | None = None
-    tensorrt_fp16: bool = False  # opt-in until FP16 is verified against FP32
-    extra: Mapping[str, Mapping[str, Any]] | None = None
-
-
-def provider_options(
-    providers: Sequence[str],
-    tensorrt_cache_dir: Path | None,
-    settings: ProviderSettings | None = None,
-) -> list[str | tuple[str, dict[str, Any]]]:
-    """The session's provider list with options: TensorRT caches the engines it compiles (FP16
-    unless switched off) in ``tensorrt_cache_dir``, so a flight computer whose cache was filled
-    on the ground never recompiles in flight; GPU providers get the device id and memory
-    limit; ``extra`` options are merged per provider."""
-    cfg = settings or ProviderSettings()
-    out: list[str | tuple[str, dict[str, Any]]] = []
-    for name in providers:
-        opts: dict[str, Any] = {}
-        if name in _GPU_PROVIDERS and cfg.device_id != 0:
-            opts["device_id"] = cfg.device_id
-        if name == "TensorrtExecutionProvider":
-            opts["trt_fp16_enable"] = cfg.tensorrt_fp16
-            if tensorrt_cache_dir is not None:
-                opts.update(
-                    trt_engine_cache_enable=True,
-                    trt_engine_cache_path=str(tensorrt_cache_dir),
-                    trt_timing_cache_enable=True,
-                    trt_timing_cache_path=str(tensorrt_cache_dir),
-                )
-        elif name in ("CUDAExecutionProvider", "ROCMExecutionProvider"):
-            if cfg.gpu_mem_limit_bytes is not None:
-                opts["gpu_mem_limit"] = int(cfg.gpu_mem_limit_bytes)
-            if name == "CUDAExecutionProvider":
-                # ONNX Runtime's EXHAUSTIVE default benchmarks every convolution algorithm for
-                # each new input shape, and query and candidate windows change shape through a
-                # flight: DISK query extraction 130 ms vs 15 ms, XFeat 450 vs 33 ms on an H100
-                # (docs/decisions.md, GPU defaults). ``provider_options`` can set it back.
-                opts["cudnn_conv_algo_search"] = "DEFAULT"
-        if cfg.extra and name in cfg.extra:
-            opts.update(dict(cfg.extra[name]))
-        if name == "CPUExecutionProvider" or not opts:
-            out.append(name)
-        else:
-            out.append((name, opts))
-    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -379,6 +240,25 @@ class OnnxInferenceRuntime:
                 return engine_id
         manifest = check_engine_file(engine_path, check_hash=True)
         start = time.perf_counter()
+        session = self._open_session(engine_path, manifest)
+        engine_id = engine_path.name.removesuffix(".onnx")
+        if engine_id in self._engines:  # same file name in another directory
+            engine_id = f"{engine_id}#{len(self._engines)}"
+        loaded = _Loaded(
+            engine_path,
+            manifest,
+            session,
+            tuple(session.get_providers()),
+            tuple(i.name for i in session.get_inputs()),
+            tuple(o.name for o in session.get_outputs()),
+        )
+        self._engines[engine_id] = loaded
+        self._log_loaded(engine_id, loaded, load_ms=(time.perf_counter() - start) * 1e3)
+        return engine_id
+
+    def _open_session(self, engine_path: Path, manifest: EngineManifest) -> ort.InferenceSession:
+        """A session over the engine file with this runtime's options and providers, its real
+        inputs and outputs checked against the manifest's."""
         try:
             session = ort.InferenceSession(
                 str(engine_path),
@@ -391,27 +271,21 @@ class OnnxInferenceRuntime:
             raise EngineError(engine_path, f"onnxruntime cannot load it ({exc})") from exc
         _check_io(engine_path, "inputs", manifest.inputs, session.get_inputs())
         _check_io(engine_path, "outputs", manifest.outputs, session.get_outputs())
-        engine_id = engine_path.name.removesuffix(".onnx")
-        if engine_id in self._engines:  # same file name in another directory
-            engine_id = f"{engine_id}#{len(self._engines)}"
-        actual = tuple(session.get_providers())
-        self._engines[engine_id] = _Loaded(
-            engine_path,
-            manifest,
-            session,
-            actual,
-            tuple(i.name for i in session.get_inputs()),
-            tuple(o.name for o in session.get_outputs()),
-        )
+        return session
+
+    def _log_loaded(self, engine_id: str, loaded: _Loaded, *, load_ms: float) -> None:
+        """``c3.inference.engine_loaded``, and ``c3.inference.provider_fallback`` (WARNING) when
+        the session does not run on the requested provider."""
+        actual = loaded.session_providers
         logger.bind(
             kind="c3.inference.engine_loaded",
             engine_id=engine_id,
-            path=str(engine_path),
-            sha256=manifest.file_sha256,
-            weights_sha256=manifest.weights_sha256,
+            path=str(loaded.path),
+            sha256=loaded.manifest.file_sha256,
+            weights_sha256=loaded.manifest.weights_sha256,
             providers=list(actual),
             requested=list(self._providers),
-            load_ms=round((time.perf_counter() - start) * 1e3, 1),
+            load_ms=round(load_ms, 1),
         ).info("engine {} loaded on {}", engine_id, actual[0] if actual else "?")
         if actual and actual[0] != self._providers[0]:
             logger.bind(
@@ -425,7 +299,6 @@ class OnnxInferenceRuntime:
                 actual[0],
                 self._providers[0],
             )
-        return engine_id
 
     def _get(self, engine_id: str) -> _Loaded:
         try:
