@@ -106,6 +106,34 @@ def test_pruning_keeps_matchable_or_unconfident_points_and_maps_back() -> None:
     assert np.all(result.mscores0[[2, 7]] == 0)
 
 
+def test_a_pair_with_too_few_matchable_points_stops_with_no_matches() -> None:
+    n = 10
+    match = np.full((4, n), 0.9, np.float32)
+    match[:, 5:] = 0.05  # half the points are unmatchable at the 0.1 threshold
+    match[1:, :3] = 0.05  # from layer 1 on only 2 of 10 are matchable
+    fake = FakeSteps(np.full((4, n), 0.5, np.float32), match)
+    k, d = _points(n)
+    exiting = AdaptiveLightGlue(
+        fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matchable=3, exit_after=1
+    )
+    result = exiting.match(k, k, d, d)
+    assert result.unmatchable and result.layers == 2 and fake.layers_run == [0, 1]
+    assert result.matchable0 == [5, 2] and result.matchable1 == [5, 2]
+    assert np.all(result.matches0 == -1) and np.all(result.mscores0 == 0)
+
+    fake.layers_run.clear()  # at or above the count, or before exit_after: it runs on
+    kept = AdaptiveLightGlue(
+        fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matchable=2, exit_after=1
+    ).match(k, k, d, d)
+    assert not kept.unmatchable and kept.layers == 4 and np.sum(kept.matches0 > -1) == 10
+    late = AdaptiveLightGlue(
+        fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matchable=6, exit_after=0
+    ).match(k, k, d, d)
+    assert late.unmatchable and late.layers == 1  # 5 < 6 already after layer 0
+    with pytest.raises(ValueError, match="exit_matchable"):
+        AdaptiveLightGlue(fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matchable=-1)
+
+
 def test_both_rules_off_run_every_layer_on_every_point() -> None:
     n = 6
     fake = FakeSteps(np.ones((3, n), np.float32), np.zeros((3, n), np.float32))

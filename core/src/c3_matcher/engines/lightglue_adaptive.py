@@ -113,13 +113,19 @@ def confidence_threshold(layer_index: int, n_layers: int) -> np.float32:
 @dataclass(slots=True)
 class AdaptiveResult:
     """One adaptive match: ``matches0`` (M,) index into set 1 or -1 and ``mscores0`` (M,) over
-    the ORIGINAL set 0 (upstream's scatter back), ``layers`` run, points kept per layer."""
+    the ORIGINAL set 0 (upstream's scatter back), ``layers`` run, points kept per layer,
+    ``matchable0`` / ``matchable1`` the points per layer (before the last) whose matchability
+    exceeds the match threshold, and ``unmatchable`` True when the pair was stopped as one with
+    too few matchable points (no matches then)."""
 
     matches0: NDArray[np.int64]
     mscores0: NDArray[np.float32]
     layers: int
     kept0: list[int] = field(default_factory=list)
     kept1: list[int] = field(default_factory=list)
+    matchable0: list[int] = field(default_factory=list)
+    matchable1: list[int] = field(default_factory=list)
+    unmatchable: bool = False
 
 
 class AdaptiveLightGlue:
@@ -134,6 +140,9 @@ class AdaptiveLightGlue:
         descriptor_dim: int,
         depth_confidence: float = 0.95,
         width_confidence: float = 0.99,
+        match_threshold: float = 0.1,
+        exit_matchable: int = 0,
+        exit_after: int = 1,
     ) -> None:
         if n_layers < 1:
             raise ValueError(f"n_layers must be >= 1, got {n_layers}")
@@ -146,6 +155,13 @@ class AdaptiveLightGlue:
         self.descriptor_dim = int(descriptor_dim)
         self.depth_confidence = float(depth_confidence)
         self.width_confidence = float(width_confidence)
+        if exit_matchable < 0 or exit_after < 0:
+            raise ValueError(
+                f"exit_matchable and exit_after must be >= 0, got {exit_matchable}, {exit_after}"
+            )
+        self.match_threshold = np.float32(match_threshold)
+        self.exit_matchable = int(exit_matchable)
+        self.exit_after = int(exit_after)
         self._thresholds = [confidence_threshold(i, n_layers) for i in range(n_layers)]
 
     def _dummy(self, dim: int) -> NDArray[np.float32]:
@@ -187,62 +203,112 @@ class AdaptiveLightGlue:
                 desc1=np.ascontiguousarray(desc1, np.float32)[None],
             )
         )
-        s0, s1 = np.asarray(out["proj0"]), np.asarray(out["proj1"])
-        k0 = np.ascontiguousarray(kpts0, np.float32)[None]
-        k1 = np.ascontiguousarray(kpts1, np.float32)[None]
-        ind0, ind1 = np.arange(m), np.arange(n)
-        kept0, kept1 = [m], [n]
-        depth_on = self.depth_confidence > 0
-        width_on = self.width_confidence > 0
-        min_match = np.float32(1.0 - self.width_confidence)
-        depth = np.float32(self.depth_confidence)
+        side0 = _Side(kpts0, np.asarray(out["proj0"]))
+        side1 = _Side(kpts1, np.asarray(out["proj1"]))
         layer = 0
         for layer in range(self.n_layers):
             out = self._run(
                 self._feeds(
-                    kpts0=k0,
-                    kpts1=k1,
-                    state0=s0,
-                    state1=s1,
+                    kpts0=side0.kpts,
+                    kpts1=side1.kpts,
+                    state0=side0.state,
+                    state1=side1.state,
                     layer=np.array([layer], np.int64),
                 )
             )
-            s0, s1 = np.asarray(out["out0"]), np.asarray(out["out1"])
+            side0.state, side1.state = np.asarray(out["out0"]), np.asarray(out["out1"])
             if layer == self.n_layers - 1:
                 break  # no exit test or pruning after the last layer (upstream)
-            conf0 = np.asarray(out["confidence0"]).reshape(-1)
-            conf1 = np.asarray(out["confidence1"]).reshape(-1)
-            threshold = self._thresholds[layer]
-            if depth_on:
-                unconfident = np.float32((conf0 < threshold).sum() + (conf1 < threshold).sum())
-                ratio = np.float32(1.0) - unconfident / np.float32(m + n)
-                if ratio > depth:
-                    break
-            if width_on:
-                keep0 = np.asarray(out["matchability0"]).reshape(-1) > min_match
-                keep1 = np.asarray(out["matchability1"]).reshape(-1) > min_match
-                if depth_on:  # upstream: low-confidence points are never pruned
-                    keep0 |= conf0 <= threshold
-                    keep1 |= conf1 <= threshold
-                ind0, ind1 = ind0[keep0], ind1[keep1]
-                s0 = np.ascontiguousarray(s0[:, keep0])
-                s1 = np.ascontiguousarray(s1[:, keep1])
-                k0 = np.ascontiguousarray(k0[:, keep0])
-                k1 = np.ascontiguousarray(k1[:, keep1])
-                kept0.append(len(ind0))
-                kept1.append(len(ind1))
-        layers = layer + 1
-        matches0 = np.full((m,), -1, np.int64)
-        mscores0 = np.zeros((m,), np.float32)
-        if len(ind0) == 0 or len(ind1) == 0:
-            return AdaptiveResult(matches0, mscores0, layers, kept0, kept1)
-        out = self._run(self._feeds(final0=s0, final1=s1, final_layer=np.array([layer], np.int64)))
-        sub_m0 = np.asarray(out["matches0"]).reshape(-1).astype(np.int64, copy=False)
-        sub_s0 = np.asarray(out["mscores0"]).reshape(-1).astype(np.float32, copy=False)
-        valid = sub_m0 > -1
-        matches0[ind0[valid]] = ind1[sub_m0[valid]]
-        mscores0[ind0] = sub_s0
-        return AdaptiveResult(matches0, mscores0, layers, kept0, kept1)
+            verdict = self._after_layer(layer, out, side0, side1)
+            if verdict == "unmatchable":
+                return _result(m, side0, side1, layer + 1, unmatchable=True)
+            if verdict == "confident":
+                break
+        result = _result(m, side0, side1, layer + 1)
+        if len(side0.index) and len(side1.index):
+            out = self._run(
+                self._feeds(
+                    final0=side0.state,
+                    final1=side1.state,
+                    final_layer=np.array([layer], np.int64),
+                )
+            )
+            sub_m0 = np.asarray(out["matches0"]).reshape(-1).astype(np.int64, copy=False)
+            valid = sub_m0 > -1
+            result.matches0[side0.index[valid]] = side1.index[sub_m0[valid]]
+            result.mscores0[side0.index] = np.asarray(out["mscores0"], np.float32).reshape(-1)
+        return result
+
+    def _after_layer(
+        self, layer: int, out: Mapping[str, NDArray[Any]], side0: _Side, side1: _Side
+    ) -> str:
+        """The tests after ``layer`` (not the last): ``"unmatchable"`` (fewer than
+        ``exit_matchable`` points of either image matchable, from ``exit_after`` on),
+        ``"confident"`` (upstream's early exit) or ``"go"``, having pruned both sides."""
+        conf0 = np.asarray(out["confidence0"]).reshape(-1)
+        conf1 = np.asarray(out["confidence1"]).reshape(-1)
+        match0 = np.asarray(out["matchability0"]).reshape(-1)
+        match1 = np.asarray(out["matchability1"]).reshape(-1)
+        fewest = min(
+            side0.count_matchable(match0, self.match_threshold),
+            side1.count_matchable(match1, self.match_threshold),
+        )
+        if layer >= self.exit_after and fewest < self.exit_matchable:
+            return "unmatchable"
+        threshold = self._thresholds[layer]
+        depth_on = self.depth_confidence > 0
+        if depth_on:
+            unconfident = np.float32((conf0 < threshold).sum() + (conf1 < threshold).sum())
+            total = np.float32(side0.kept[0] + side1.kept[0])
+            if np.float32(1.0) - unconfident / total > np.float32(self.depth_confidence):
+                return "confident"
+        if self.width_confidence > 0:
+            min_match = np.float32(1.0 - self.width_confidence)
+            keep0, keep1 = match0 > min_match, match1 > min_match
+            if depth_on:  # upstream: low-confidence points are never pruned
+                keep0 |= conf0 <= threshold
+                keep1 |= conf1 <= threshold
+            side0.prune(keep0)
+            side1.prune(keep1)
+        return "go"
+
+
+class _Side:
+    """One image's working set during an adaptive match: its kept points' keypoints (1, K, 2),
+    transformer state (1, K, C) and original indices, points kept and matchable per layer."""
+
+    def __init__(self, kpts: NDArray[np.float32], state: NDArray[np.float32]) -> None:
+        self.kpts = np.ascontiguousarray(kpts, np.float32)[None]
+        self.state = state
+        self.index = np.arange(len(kpts))
+        self.kept = [len(kpts)]
+        self.matchable: list[int] = []
+
+    def count_matchable(self, matchability: NDArray[np.float32], threshold: np.float32) -> int:
+        self.matchable.append(int((matchability > threshold).sum()))
+        return self.matchable[-1]
+
+    def prune(self, keep: NDArray[np.bool_]) -> None:
+        self.index = self.index[keep]
+        self.state = np.ascontiguousarray(self.state[:, keep])
+        self.kpts = np.ascontiguousarray(self.kpts[:, keep])
+        self.kept.append(len(self.index))
+
+
+def _result(
+    m: int, side0: _Side, side1: _Side, layers: int, *, unmatchable: bool = False
+) -> AdaptiveResult:
+    """A result with no matches yet over the ``m`` points of image 0."""
+    return AdaptiveResult(
+        np.full((m,), -1, np.int64),
+        np.zeros((m,), np.float32),
+        layers,
+        side0.kept,
+        side1.kept,
+        side0.matchable,
+        side1.matchable,
+        unmatchable,
+    )
 
 
 def steps_engine_spec(

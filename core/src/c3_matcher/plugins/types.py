@@ -28,13 +28,15 @@ class StrategyDefaults:
     configuration: ``photometric`` (``[matcher] photometric``: ``none``, ``grey`` or ``clahe``),
     ``filter_threshold`` (``[lightglue] filter_threshold``, the match confidence a LightGlue
     match must exceed, in [0, 1)) and ``refit_threshold_px`` (``[matcher] refit_threshold_px``,
-    tile px, 0 = no final refit). A value set in the configuration applies to every strategy
-    instead. The record's own defaults are upstream's (no normalisation, 0.1, no refit): what a
+    tile px, 0 = no final refit) and ``exit_matchable`` (``[lightglue] exit_matchable``, the
+    unmatchable-pair exit of adaptive LightGlue, 0 = off). A value set in the configuration
+    applies to every strategy instead. The record's own defaults are upstream's (no normalisation, 0.1, no refit): what a
     strategy that declares none gets. Checked when resolved (``c3_matcher.config``)."""
 
     photometric: str = "none"
     filter_threshold: float = 0.1
     refit_threshold_px: float = 0.0
+    exit_matchable: int = 0
 
 
 @dataclass(frozen=True, slots=True)
