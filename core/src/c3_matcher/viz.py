@@ -101,6 +101,48 @@ def _strip(candidates: Sequence[CandidateView], width: int, cell: int) -> NDArra
     return strip
 
 
+def _draw_correspondences(
+    top: NDArray[np.uint8],
+    corr: NDArray[np.float64],
+    h_query_to_tile: NDArray[np.float64],
+    calibration: CameraCalibration | None,
+    query_shape: tuple[int, int],
+    placement: tuple[float, float, int],
+    errors_px: NDArray[np.floating] | None,
+    good_px: float,
+    max_lines: int,
+) -> tuple[int, int]:
+    """Draw the best tile's footprint and at most ``max_lines`` correspondences onto ``top``
+    (``placement``: the left and right panels' scales and the right panel's x offset, px);
+    returns (agreeing, off) counts: within ``good_px`` of the rectified query point, or of
+    ``errors_px`` when given."""
+    from c3_matcher import camera as cam
+
+    sl, sr, offset = placement
+    ring = _footprint(calibration, query_shape, h_query_to_tile)
+    pts = np.round(ring * sr).astype(np.int32) + np.array([offset, 0], np.int32)
+    cv2.polylines(top, [pts.reshape(-1, 1, 2)], True, FOOT, 2, cv2.LINE_AA)
+    if not len(corr):
+        return 0, 0
+    q = corr[:, 0:2]
+    if calibration is not None and calibration.distortion.size:
+        q = cam.undistort_points(q, calibration)
+    qt = cam.apply_homography(h_query_to_tile, q)  # the query point on the rectified grid
+    if errors_px is not None:
+        good = np.asarray(errors_px, np.float64).reshape(-1) <= good_px
+    else:
+        good = np.linalg.norm(qt - corr[:, 2:4], axis=1) <= good_px
+    step = max(1, int(np.ceil(len(corr) / max_lines)))
+    for i in range(0, len(corr), step):
+        colour = GOOD if good[i] else BAD
+        p0 = (round(qt[i, 0] * sl), round(qt[i, 1] * sl))
+        p1 = (round(corr[i, 2] * sr) + offset, round(corr[i, 3] * sr))
+        cv2.line(top, p0, p1, colour, 1, cv2.LINE_AA)
+        cv2.circle(top, p0, 3, colour, -1, cv2.LINE_AA)
+        cv2.circle(top, p1, 3, colour, -1, cv2.LINE_AA)
+    return int(good.sum()), int((~good).sum())
+
+
 def render_match(
     query: NDArray[np.uint8],
     candidates: Sequence[CandidateView],
@@ -132,30 +174,17 @@ def render_match(
     offset = panel + 8
     n_good = n_bad = 0
     if matched and h_query_to_tile is not None and correspondences is not None:
-        from c3_matcher import camera as cam
-
-        corr = np.asarray(correspondences, np.float64).reshape(-1, 4)
-        ring = _footprint(calibration, query.shape[:2], h_query_to_tile)
-        pts = np.round(ring * sr).astype(np.int32) + np.array([offset, 0], np.int32)
-        cv2.polylines(top, [pts.reshape(-1, 1, 2)], True, FOOT, 2, cv2.LINE_AA)
-        if len(corr):
-            q = corr[:, 0:2]
-            if calibration is not None and calibration.distortion.size:
-                q = cam.undistort_points(q, calibration)
-            qt = cam.apply_homography(h_query_to_tile, q)  # the query point on the rectified grid
-            if errors_px is not None:
-                good = np.asarray(errors_px, np.float64).reshape(-1) <= good_px
-            else:
-                good = np.linalg.norm(qt - corr[:, 2:4], axis=1) <= good_px
-            n_good, n_bad = int(good.sum()), int((~good).sum())
-            step = max(1, int(np.ceil(len(corr) / max_lines)))
-            for i in range(0, len(corr), step):
-                colour = GOOD if good[i] else BAD
-                p0 = (round(qt[i, 0] * sl), round(qt[i, 1] * sl))
-                p1 = (round(corr[i, 2] * sr) + offset, round(corr[i, 3] * sr))
-                cv2.line(top, p0, p1, colour, 1, cv2.LINE_AA)
-                cv2.circle(top, p0, 3, colour, -1, cv2.LINE_AA)
-                cv2.circle(top, p1, 3, colour, -1, cv2.LINE_AA)
+        n_good, n_bad = _draw_correspondences(
+            top,
+            np.asarray(correspondences, np.float64).reshape(-1, 4),
+            h_query_to_tile,
+            calibration,
+            query.shape[:2],
+            (sl, sr, offset),
+            errors_px,
+            good_px,
+            max_lines,
+        )
     _text(top, "query, rectified onto the tile" if matched else "query (as captured)", (8, 18))
     _text(top, "best tile + footprint" if matched else "no match", (offset + 8, 18))
     if matched:
