@@ -1,4 +1,4 @@
-"""Regenerate the cross-season flights of issue 13 in data/flights/ (committed; deterministic).
+"""Regenerate the cross-season flights in data/flights/ (committed; deterministic).
 
 Every ordered pair of the three NAIP dates of data/imagery/naip_timeseries (2010-06, 2015-09,
 2020-08): the tile store cut from one date (zoom 15, JPEG 90, as naip_demo's), the frames rendered
@@ -22,19 +22,14 @@ from another date (a flight has one store and one frames GeoTIFF):
 
 from __future__ import annotations
 
-import shutil
 import sys
 import tempfile
 from pathlib import Path
 
-from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
-from c3_matcher_tools.dataset.progress import ProgressBar
-from c3_matcher_tools.tilestore.build import build_mbtiles
+from flight_kit import NAIP, NAIP_CREDIT, build_store, render, unknown_flights
 
-REPO = Path(__file__).resolve().parents[1]
-NAIP = REPO / "data" / "imagery" / "naip_timeseries"
-OUT = REPO / "data" / "flights"
-CREDIT = "Imagery: USDA Farm Service Agency, National Agriculture Imagery Program (NAIP)"
+from c3_matcher_tools.dataset.flight import FlightSpec
+
 DATES = {
     "2010": "m_4709963_se_14_1_20100629.tif",
     "2015": "m_4709963_se_14_1_20150926.tif",
@@ -53,28 +48,16 @@ def main() -> int:
     jobs.append(("naip_distractors", "2020", "2015", 1.0, 20))
     # appended after the shipped jobs so every earlier seed (and flight) stays as it is
     jobs += [(f"naip_distractors_s{s}", s, f, 1.0, 12) for s, f in DISTRACTOR_PAIRS]
-    unknown = only - {job[0] for job in jobs}
-    if unknown:
-        print(f"unknown flight(s): {', '.join(sorted(unknown))}", file=sys.stderr)
+    if unknown_flights(only, (job[0] for job in jobs)):
         return 2
     with tempfile.TemporaryDirectory() as tmp:
         stores: dict[str, Path] = {}
         for date in ("2010", "2015", "2020"):
             stores[date] = Path(tmp) / f"naip{date}_z15.mbtiles"
-            build_mbtiles(
-                NAIP / DATES[date],
-                stores[date],
-                zoom=15,
-                tile_format="jpg",
-                jpeg_quality=90,
-                attribution=CREDIT,
-            )
+            build_store(NAIP / DATES[date], stores[date], 15, NAIP_CREDIT)
         for seed, (name, store_date, frames_date, absent, n_frames) in enumerate(jobs, start=11):
             if only and name not in only:
                 continue
-            target = OUT / name
-            if target.exists():
-                shutil.rmtree(target)
             spec = FlightSpec(
                 NAIP / DATES[frames_date],
                 stores[store_date],
@@ -82,7 +65,7 @@ def main() -> int:
                 absent_share=absent,
                 seed=seed,
             )
-            render_flight(spec, target, name=name, attribution=CREDIT, progress=ProgressBar(name))
+            render(spec, name, NAIP_CREDIT)
     return 0
 
 

@@ -20,43 +20,28 @@ The same through the command line::
 
 from __future__ import annotations
 
-import shutil
 import sys
 import tempfile
 from pathlib import Path
 
-from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
-from c3_matcher_tools.dataset.progress import ProgressBar
-from c3_matcher_tools.tilestore.build import build_mbtiles
+from flight_kit import NAIP, NAIP_CREDIT, build_store, render
 
-REPO = Path(__file__).resolve().parents[1]
-NAIP = REPO / "data" / "imagery" / "naip_timeseries"
-OUT = REPO / "data" / "flights"
-CREDIT = "Imagery: USDA Farm Service Agency, National Agriculture Imagery Program (NAIP)"
+from c3_matcher_tools.dataset.flight import FlightSpec
+from c3_matcher_tools.dataset.progress import ProgressBar
 
 
 def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp) / "naip2020_z15.mbtiles"
-        report = build_mbtiles(
-            NAIP / "m_4709963_se_14_1_20200831.tif",
-            store,
-            zoom=15,
-            tile_format="jpg",
-            jpeg_quality=90,
-            attribution=CREDIT,
-            progress=ProgressBar("tiles"),
-        )
+        tiles = NAIP / "m_4709963_se_14_1_20200831.tif"
+        report = build_store(tiles, store, 15, NAIP_CREDIT, progress=ProgressBar("tiles"))
         print(report, file=sys.stderr)
         for name, frames_tif in (
             ("naip_demo", "m_4709963_se_14_1_20200831.tif"),
             ("naip_cross_date", "m_4709963_se_14_1_20100629.tif"),
         ):
-            target = OUT / name
-            if target.exists():
-                shutil.rmtree(target)
             spec = FlightSpec(NAIP / frames_tif, store, n_frames=30, absent_share=0.1, seed=1)
-            render_flight(spec, target, name=name, attribution=CREDIT, progress=ProgressBar(name))
+            render(spec, name, NAIP_CREDIT)
     return 0
 
 

@@ -27,27 +27,23 @@ miss the footprint). 12 frames each, 320x240; seeds 31, 32, ... in the order abo
 
 from __future__ import annotations
 
-import shutil
+import dataclasses
 import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rasterio
+from flight_kit import IMAGERY, NAIP, NAIP_CREDIT, build_store, render, unknown_flights
 
-from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
-from c3_matcher_tools.dataset.progress import ProgressBar
-from c3_matcher_tools.tilestore.build import build_mbtiles
+from c3_matcher_tools.dataset.flight import FlightSpec
 
-REPO = Path(__file__).resolve().parents[1]
-IMAGERY = REPO / "data" / "imagery"
-OUT = REPO / "data" / "flights"
-NAIP_2020 = IMAGERY / "naip_timeseries" / "m_4709963_se_14_1_20200831.tif"
+NAIP_2020 = NAIP / "m_4709963_se_14_1_20200831.tif"
 GORINCHEM = IMAGERY / "open_orthophotos" / "test_tiled.tif"
 ZURICH = IMAGERY / "open_orthophotos" / "swissimage_zurich_1091-322_00_0p5m.tif"
 MANILA = IMAGERY / "open_orthophotos" / "5b90f92da0d7280005fab355_4310.tif"
-NAIP_CREDIT = "Imagery: USDA Farm Service Agency, National Agriculture Imagery Program (NAIP)"
 CREDITS = {
     NAIP_2020: NAIP_CREDIT,
     GORINCHEM: "Luchtfoto: Beeldmateriaal Nederland (beeldmateriaal.nl), CC BY 4.0",
@@ -55,81 +51,67 @@ CREDITS = {
     MANILA: "(c) OpenAerialMap contributors, CC BY 4.0",
 }
 LUMA = (0.299, 0.587, 0.114)
+N_FRAMES = 12
 
 
 @dataclass(frozen=True)
 class SensorFlight:
-    """One flight: the frames' orthophoto, how its store is made (``band``: ``rgb``, ``luma``
-    or a 1-based band index rendered as grey; ``zoom``) and the flight geometry (metres,
-    degrees, px; see ``FlightSpec``)."""
+    """One flight: how its store is made (``band``: ``rgb``, ``luma`` or a 1-based band index
+    rendered as grey; ``zoom``) and its ``spec``: the frames' orthophoto and the flight geometry
+    (``FlightSpec``; the store and the seed are set when it is rendered)."""
 
     name: str
-    source: Path
     band: str | int
     zoom: int
-    height_m: float = 780.0
-    orbit_radius_m: float = 450.0
-    speed_mps: float = 30.0
-    max_tilt_deg: float = 20.0
-    candidate_size_px: int = 448
-    min_distractor_distance_m: float = 350.0
-    max_distractor_nodata: float = 0.35
-    absent_share: float = 0.1
+    spec: FlightSpec
+
+    @property
+    def source(self) -> Path:
+        return self.spec.frames_geotiff
+
+
+def _naip(name: str, band: str | int, zoom: int, **geometry: Any) -> SensorFlight:
+    """A flight over NAIP 2020 on the demo flight's orbit, ``geometry`` overriding it."""
+    spec = FlightSpec(NAIP_2020, Path(), n_frames=N_FRAMES, speed_mps=60.0, **geometry)
+    return SensorFlight(name, band, zoom, spec)
+
+
+def _small_orbit(
+    name: str,
+    source: Path,
+    band: str,
+    zoom: int,
+    flight: tuple[float, float, float],
+    candidate_size_px: int,
+    max_distractor_nodata: float = 0.35,
+) -> SensorFlight:
+    """A flight over a small orthophoto: ``flight`` = (height, orbit radius in m, speed in m/s),
+    tilt up to 10 deg, distractors 40 m away, every frame with its true tile."""
+    height_m, orbit_radius_m, speed_mps = flight
+    spec = FlightSpec(
+        source,
+        Path(),
+        n_frames=N_FRAMES,
+        height_m=height_m,
+        orbit_radius_m=orbit_radius_m,
+        speed_mps=speed_mps,
+        max_tilt_deg=10.0,
+        candidate_size_px=candidate_size_px,
+        min_distractor_distance_m=40.0,
+        max_distractor_nodata=max_distractor_nodata,
+        absent_share=0.0,
+    )
+    return SensorFlight(name, band, zoom, spec)
 
 
 FLIGHTS = (
-    SensorFlight("naip_nir_tiles", NAIP_2020, 4, 15, speed_mps=60.0),
-    SensorFlight(
-        "naip_grey_z14",
-        NAIP_2020,
-        "luma",
-        14,
-        orbit_radius_m=300.0,
-        speed_mps=60.0,
-        candidate_size_px=320,
-        absent_share=0.0,
+    _naip("naip_nir_tiles", 4, 15),
+    _naip(
+        "naip_grey_z14", "luma", 14, orbit_radius_m=300.0, candidate_size_px=320, absent_share=0.0
     ),
-    SensorFlight(
-        "gorinchem_z18",
-        GORINCHEM,
-        "rgb",
-        18,
-        height_m=45.0,
-        orbit_radius_m=40.0,
-        speed_mps=10.5,
-        max_tilt_deg=10.0,
-        candidate_size_px=224,
-        min_distractor_distance_m=40.0,
-        absent_share=0.0,
-    ),
-    SensorFlight(
-        "zurich_z16",
-        ZURICH,
-        "rgb",
-        16,
-        height_m=150.0,
-        orbit_radius_m=25.0,
-        speed_mps=6.5,
-        max_tilt_deg=10.0,
-        candidate_size_px=160,
-        min_distractor_distance_m=40.0,
-        max_distractor_nodata=0.6,
-        absent_share=0.0,
-    ),
-    SensorFlight(
-        "manila_grey_z19",
-        MANILA,
-        "luma",
-        19,
-        height_m=36.0,
-        orbit_radius_m=20.0,
-        speed_mps=5.2,
-        max_tilt_deg=10.0,
-        candidate_size_px=224,
-        min_distractor_distance_m=40.0,
-        max_distractor_nodata=0.5,
-        absent_share=0.0,
-    ),
+    _small_orbit("gorinchem_z18", GORINCHEM, "rgb", 18, (45.0, 40.0, 10.5), 224),
+    _small_orbit("zurich_z16", ZURICH, "rgb", 16, (150.0, 25.0, 6.5), 160, 0.6),
+    _small_orbit("manila_grey_z19", MANILA, "luma", 19, (36.0, 20.0, 5.2), 224, 0.5),
 )
 
 
@@ -153,9 +135,7 @@ def grey_geotiff(source: Path, band: str | int, out: Path) -> Path:
 
 def main() -> int:
     only = set(sys.argv[1:])
-    unknown = only - {f.name for f in FLIGHTS}
-    if unknown:
-        print(f"unknown flight(s): {', '.join(sorted(unknown))}", file=sys.stderr)
+    if unknown_flights(only, (f.name for f in FLIGHTS)):
         return 2
     with tempfile.TemporaryDirectory() as tmp:
         for seed, flight in enumerate(FLIGHTS, start=31):
@@ -168,38 +148,9 @@ def main() -> int:
                     flight.source, flight.band, Path(tmp) / f"{flight.source.stem}_{kind}.tif"
                 )
             store = Path(tmp) / f"{flight.name}.mbtiles"
-            build_mbtiles(
-                source,
-                store,
-                zoom=flight.zoom,
-                tile_format="jpg",
-                jpeg_quality=90,
-                attribution=CREDITS[flight.source],
-            )
-            target = OUT / flight.name
-            if target.exists():
-                shutil.rmtree(target)
-            spec = FlightSpec(
-                flight.source,
-                store,
-                n_frames=12,
-                height_m=flight.height_m,
-                orbit_radius_m=flight.orbit_radius_m,
-                speed_mps=flight.speed_mps,
-                max_tilt_deg=flight.max_tilt_deg,
-                candidate_size_px=flight.candidate_size_px,
-                min_distractor_distance_m=flight.min_distractor_distance_m,
-                max_distractor_nodata=flight.max_distractor_nodata,
-                absent_share=flight.absent_share,
-                seed=seed,
-            )
-            render_flight(
-                spec,
-                target,
-                name=flight.name,
-                attribution=CREDITS[flight.source],
-                progress=ProgressBar(flight.name),
-            )
+            build_store(source, store, flight.zoom, CREDITS[flight.source])
+            spec = dataclasses.replace(flight.spec, store=store, seed=seed)
+            render(spec, flight.name, CREDITS[flight.source])
     return 0
 
 
