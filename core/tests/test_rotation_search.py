@@ -37,12 +37,7 @@ from c3_matcher.dto import (
 from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.pipeline import (
-    QUERY_ROTATIONS_DEG,
-    PipelineSettings,
-    _turned,
-    rotation_from_turned,
-)
+from c3_matcher.pipeline import QUERY_ROTATIONS_DEG, PipelineSettings
 from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.testing import (
@@ -153,33 +148,6 @@ def test_insufficient_under_rotation_search_records_the_turns(fdr, logs):
     assert record["rotation_search"] is True
     assert [r["rotation_deg"] for r in record["per_candidate"]] == [0, 0]
     assert fdr.of_kind("matcher.frame_done") == []
-
-
-# -- geometry -------------------------------------------------------------------------------
-def test_turned_query_maps_engine_px_back_to_the_unturned_working_frame():
-    rng = np.random.default_rng(3)
-    image = rng.integers(0, 256, (32, 48, 3), dtype=np.uint8)  # (h, w) = (32, 48): not square
-    valid = rng.random((32, 48)) > 0.5
-    a = np.array([[2.5, 0.0, 0.75], [0.0, 2.0, 0.5], [0.0, 0.0, 1.0]])  # engine -> working
-    prepared = PreparedImage(image, valid, a, (120, 64))
-    ys, xs = np.mgrid[0:32, 0:48]
-    pts = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(np.float64)
-    working = prepared.to_working(pts)
-    for deg in QUERY_ROTATIONS_DEG:
-        turned = _turned(prepared, deg)
-        assert turned.working_size == prepared.working_size
-        expected_size = (48, 32) if deg % 180 == 0 else (32, 48)
-        assert turned.engine_size == expected_size
-        # a working point lands on the turned engine pixel holding the same value, and back
-        back = np.rint(turned.to_engine(working)).astype(int)
-        assert np.allclose(turned.to_engine(working), back, atol=1e-9)
-        assert np.array_equal(turned.image[back[:, 1], back[:, 0]], image[ys.ravel(), xs.ravel()])
-        assert np.array_equal(turned.valid[back[:, 1], back[:, 0]], valid.ravel())
-        assert np.allclose(turned.to_working(back), working, atol=1e-9)
-    point = np.array([[47.0, 0.0]])  # top-right engine pixel of the unturned image
-    m90 = rotation_from_turned(90, 48, 32)  # np.rot90 (counter-clockwise): it goes top-left
-    assert np.allclose(m90 @ np.array([0.0, 0.0, 1.0]), [47.0, 0.0, 1.0])
-    assert np.allclose(_turned(prepared, 90).to_engine(prepared.to_working(point)), [[0.0, 0.0]])
 
 
 class _DotBackend:

@@ -7,14 +7,8 @@ engine's :class:`InputRule`. All four steps are composed into one ``cv2.remap`` 
 from ``cv2.initUndistortRectifyMap`` (exact forward lens model per output pixel), so the frame is
 resampled once. Tiles are resized (area averaging) and padded.
 
-Coordinate frames (pixels 0-based, origin at the centre of the top-left pixel, points (x, y)):
-
-- ORIGINAL: the raw, distorted frame as captured.
-- UNDISTORTED: ``K @ (x/z, y/z, 1)`` of the ray, with the calibration's own K.
-- WORKING: for the query, the undistorted, rectified (north-up nadir) frame at
-  the GSD-scaled resolution, before the engine resize; RANSAC runs here. For a tile, the tile's
-  full-resolution pixels.
-- ENGINE: the pixels of :attr:`PreparedImage.image`, the extractor's input.
+The coordinate frames (ORIGINAL, UNDISTORTED, WORKING, ENGINE) are defined in
+:mod:`c3_matcher.prepared`.
 
 Rectifying homography (UNDISTORTED -> WORKING) when the attitude is known::
 
@@ -41,16 +35,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from c3_matcher import camera as cam
 from c3_matcher.dto import CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.photometry import PHOTOMETRIC_MODES, normalise_photometry, to_rgb
+from c3_matcher.prepared import InputRule, PreparedImage, engine_to_working
+from c3_matcher.query_geometry import QueryGeometry
 
 __all__ = [
     "PHOTOMETRIC_MODES",
@@ -64,159 +60,6 @@ __all__ = [
 F64 = NDArray[np.float64]
 
 
-@dataclass(frozen=True)
-class InputRule:
-    """An engine's input rule: downscale so the long side <= ``max_long_side`` px (never
-    upscale); make the final width and height multiples of ``multiple`` (padding is masked)."""
-
-    max_long_side: int
-    multiple: int
-
-    def __post_init__(self) -> None:
-        for name in ("max_long_side", "multiple"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-                raise InvalidInputError(f"input_rule.{name}", f"expected an int > 0, got {value!r}")
-        if self.max_long_side < self.multiple:
-            raise InvalidInputError(
-                "input_rule.max_long_side", f"{self.max_long_side} < multiple {self.multiple}"
-            )
-
-    def content_size(self, width: int, height: int) -> tuple[int, int]:
-        """(w, h) px of a width x height image after the downscale (before pad/crop)."""
-        r = min(1.0, self.max_long_side / max(width, height))
-        return max(1, round(width * r)), max(1, round(height * r))
-
-    def final_size(self, width: int, height: int) -> tuple[int, int]:
-        """(w, h) px of the engine input for a width x height image: each side of the content
-        size rounded up to ``multiple`` (padding), or down when up would exceed the limit."""
-
-        def snap(n: int) -> int:
-            up = -(-n // self.multiple) * self.multiple
-            if up <= self.max_long_side:
-                return up
-            return max(self.multiple, (n // self.multiple) * self.multiple)
-
-        cw, ch = self.content_size(width, height)
-        return snap(cw), snap(ch)
-
-
-def _engine_to_working(working_size: tuple[int, int], content_size: tuple[int, int]) -> F64:
-    sx = working_size[0] / content_size[0]
-    sy = working_size[1] / content_size[1]
-    return np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
-
-
-@dataclass(frozen=True)
-class PreparedImage:
-    """An image ready for the extractor, and the maps back to the pixels RANSAC and C5 use.
-
-    ``image`` uint8 (H, W, 3) RGB, H and W multiples of the rule's ``multiple``; ``valid`` bool
-    (H, W), True where keypoints may be kept (not padding, warp border or nodata, eroded).
-    ``working_from_engine`` 3x3 (ENGINE -> WORKING px): a scale and shift, a turn (rotation
-    search) or a homography (a query re-rendered through a first match, the refine pass);
-    ``working_size`` (w, h) of the
-    working image; for a query, ``working_from_undistorted`` is the 3x3 homography H_w
-    (UNDISTORTED -> WORKING px) and ``calibration`` the frame's calibration (both None for a
-    tile). ``working_gsd_m`` is the working image's ground sample distance at nadir (m/px) when
-    known; ``nadir_working_px`` the working pixel straight below the camera (rectified queries).
-    """
-
-    image: NDArray[np.uint8]
-    valid: NDArray[np.bool_]
-    working_from_engine: F64
-    working_size: tuple[int, int]
-    working_from_undistorted: F64 | None = None
-    calibration: CameraCalibration | None = None
-    working_gsd_m: float | None = None
-    nadir_working_px: tuple[float, float] | None = None
-    _undistorted_from_working: F64 | None = field(default=None, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        if self.working_from_undistorted is not None:
-            inv = np.linalg.inv(self.working_from_undistorted)
-            object.__setattr__(self, "_undistorted_from_working", inv)
-
-    @property
-    def engine_size(self) -> tuple[int, int]:
-        """(w, h) px of :attr:`image`."""
-        return int(self.image.shape[1]), int(self.image.shape[0])
-
-    def to_working(self, pts: ArrayLike) -> F64:
-        """(N, 2) ENGINE px -> (N, 2) WORKING px."""
-        return cam.apply_homography(self.working_from_engine, pts)
-
-    def to_engine(self, pts: ArrayLike) -> F64:
-        """(N, 2) WORKING px -> (N, 2) ENGINE px (inverse of :meth:`to_working`)."""
-        return cam.apply_homography(np.linalg.inv(self.working_from_engine), pts)
-
-    def working_to_original(self, pts: ArrayLike) -> F64:
-        """(N, 2) WORKING px -> (N, 2) ORIGINAL (distorted) frame px; the identity for tiles.
-
-        Inverts the rectification homography and re-applies the exact lens model. A working
-        point whose ray lies behind the real camera maps to NaN.
-        """
-        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
-        if self._undistorted_from_working is None or self.calibration is None:
-            return p.copy()
-        hinv = self._undistorted_from_working
-        q = p @ hinv[:, :2].T + hinv[:, 2]
-        in_front = q[:, 2] > 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            und = q[:, :2] / q[:, 2:3]
-        out = np.full_like(p, np.nan)
-        if np.any(in_front):
-            out[in_front] = cam.distort_points(und[in_front], self.calibration)
-        return out
-
-    def original_to_working(self, pts: ArrayLike) -> F64:
-        """(N, 2) ORIGINAL (distorted) frame px -> (N, 2) WORKING px; the identity for tiles."""
-        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
-        if self.working_from_undistorted is None or self.calibration is None:
-            return p.copy()
-        und = cam.undistort_points(p, self.calibration)
-        return cam.apply_homography(self.working_from_undistorted, und)
-
-    def engine_to_original(self, pts: ArrayLike) -> F64:
-        """(N, 2) ENGINE px -> (N, 2) ORIGINAL px (:meth:`to_working` then
-        :meth:`working_to_original`)."""
-        return self.working_to_original(self.to_working(pts))
-
-
-def _to_rgb(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
-    if image.ndim == 2:
-        return np.asarray(cv2.cvtColor(image, cv2.COLOR_GRAY2RGB), dtype=np.uint8)
-    return image
-
-
-PHOTOMETRIC_MODES = ("none", "grey", "clahe")
-CLAHE_CELL_PX = 64  # CLAHE cells of a fixed size in WORKING px: the same ground area in both
-
-
-def normalise_photometry(
-    image: NDArray[np.uint8], valid: NDArray[np.uint8], mode: str
-) -> NDArray[np.uint8]:
-    """Issue 13's photometric normalisation of an engine image (RGB uint8), the same for query
-    and tile: ``"none"`` leaves it; ``"grey"`` keeps luminance only (replicated to three
-    channels: what a season changes most is hue and saturation); ``"clahe"`` is grey plus
-    contrast-limited adaptive histogram equalisation in ``CLAHE_CELL_PX`` cells (local contrast
-    made comparable whatever the illumination, haze or the sensor's gain). Pixels outside
-    ``valid`` (255 inside) stay 0."""
-    if mode == "none":
-        return image
-    if mode not in PHOTOMETRIC_MODES:
-        raise InvalidInputError("photometric", f"must be one of {PHOTOMETRIC_MODES}, got {mode!r}")
-    grey = np.asarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), dtype=np.uint8)
-    if mode == "clahe":
-        h, w = grey.shape
-        cells = (max(1, round(w / CLAHE_CELL_PX)), max(1, round(h / CLAHE_CELL_PX)))
-        grey = np.asarray(
-            cv2.createCLAHE(clipLimit=2.0, tileGridSize=cells).apply(grey), dtype=np.uint8
-        )
-    grey = np.asarray(cv2.bitwise_and(grey, grey, mask=valid), dtype=np.uint8)
-    return _to_rgb(grey)
-
-
 def _check_pixels(image: object, field_name: str) -> NDArray[np.uint8]:
     if not isinstance(image, np.ndarray):
         raise InvalidInputError(field_name, f"expected numpy.ndarray, got {type(image).__name__}")
@@ -227,56 +70,6 @@ def _check_pixels(image: object, field_name: str) -> NDArray[np.uint8]:
     if image.shape[0] < 2 or image.shape[1] < 2:
         raise InvalidInputError(field_name, f"image too small: {image.shape}")
     return image
-
-
-@dataclass(frozen=True)
-class QueryGeometry:
-    """Where every engine pixel of a prepared query comes from (no pixels involved).
-
-    ``working_from_undistorted`` H_w (3x3); ``working_size``, ``content_size`` (engine size
-    before pad/crop) and ``final_size`` (engine image) as (w, h) px; ``working_from_engine`` 3x3
-    affine; ``footprint_working`` the frame's (clipped) boundary polygon (N, 2) in WORKING px;
-    ``nadir_working_px`` (rectified only); ``working_gsd_m`` m/px at nadir when the height is
-    known; ``nadir_shrink`` ORIGINAL px per engine px near the optical axis.
-    """
-
-    working_from_undistorted: F64
-    working_size: tuple[int, int]
-    content_size: tuple[int, int]
-    final_size: tuple[int, int]
-    working_from_engine: F64
-    footprint_working: F64
-    nadir_working_px: tuple[float, float] | None
-    working_gsd_m: float | None
-    nadir_shrink: float
-
-    def footprint_engine(self) -> F64:
-        """The footprint polygon (N, 2) in ENGINE px."""
-        return cam.apply_homography(np.linalg.inv(self.working_from_engine), self.footprint_working)
-
-    def remap_maps(
-        self,
-        calibration: CameraCalibration,
-        source_scale: tuple[float, float] = (1.0, 1.0),
-        m1type: int = cv2.CV_32FC1,
-    ) -> tuple[NDArray[Any], NDArray[Any]]:
-        """``cv2.remap`` maps ENGINE px -> ORIGINAL px (exact lens model per pixel), or -> px of
-        the ORIGINAL frame resized by ``source_scale`` (sx, sy) (area-aligned convention).
-
-        ``cv2.initUndistortRectifyMap`` computes ``ray = inv(newK @ R) @ p_engine`` and maps it
-        through the lens and ``cameraMatrix``: with ``newK = I`` and ``R = A_e^-1 @ H_w @ K``
-        the ray is ``K^-1 @ H_w^-1 @ A_e @ p_engine``, the engine pixel's camera ray.
-        """
-        k = calibration.K
-        ax, ay = source_scale
-        k_map = (
-            np.array([[ax, 0.0, 0.5 * ax - 0.5], [0.0, ay, 0.5 * ay - 0.5], [0.0, 0.0, 1.0]]) @ k
-        )
-        r_arg = np.linalg.inv(self.working_from_engine) @ self.working_from_undistorted @ k
-        map1, map2 = cv2.initUndistortRectifyMap(
-            k_map, calibration.distortion, r_arg, np.eye(3), self.final_size, m1type
-        )
-        return np.asarray(map1), np.asarray(map2)
 
 
 @dataclass(frozen=True)
@@ -372,7 +165,7 @@ class FramePreprocessor:
         )
         inside = self._polygon_mask(geometry.footprint_engine(), geometry.final_size)
         warped = np.asarray(cv2.bitwise_and(warped, warped, mask=inside), dtype=np.uint8)
-        rgb = normalise_photometry(_to_rgb(warped), inside, self.photometric)
+        rgb = normalise_photometry(to_rgb(warped), inside, self.photometric)
         return PreparedImage(
             image=np.ascontiguousarray(rgb),
             valid=self._erode(inside),
@@ -423,7 +216,7 @@ class FramePreprocessor:
             working_size=working_size,
             content_size=content,
             final_size=self.rule.final_size(*working_size),
-            working_from_engine=_engine_to_working(working_size, content),
+            working_from_engine=engine_to_working(working_size, content),
             footprint_working=cam.apply_homography(t, poly),
             nadir_working_px=(
                 (float(t[0, 2]), float(t[1, 2])) if frame.attitude is not None else None
@@ -460,7 +253,7 @@ class FramePreprocessor:
         size = (int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1)
         content = self.rule.content_size(*size)
         shift = np.array([[1.0, 0.0, lo[0]], [0.0, 1.0, lo[1]], [0.0, 0.0, 1.0]])
-        tile_from_engine = shift @ _engine_to_working(size, content)
+        tile_from_engine = shift @ engine_to_working(size, content)
         return dataclasses.replace(
             geometry,
             content_size=content,
@@ -567,7 +360,7 @@ class FramePreprocessor:
         return PreparedImage(
             image=image,
             valid=valid,
-            working_from_engine=_engine_to_working((width, height), (width, height)),
+            working_from_engine=engine_to_working((width, height), (width, height)),
             working_size=(width, height),
         )
 
@@ -575,7 +368,7 @@ class FramePreprocessor:
         """Resize a north-up tile (uint8 RGB (H, W, 3) or grey (H, W)) to the rule (area
         averaging, never upscaling) and pad it; nodata (all channels 0) is masked. WORKING px are
         the tile's full-resolution px."""
-        tile = _to_rgb(_check_pixels(tile_rgb, "tile"))
+        tile = to_rgb(_check_pixels(tile_rgb, "tile"))
         h, w = tile.shape[:2]
         content = self.rule.content_size(w, h)
         final = self.rule.final_size(w, h)
@@ -600,6 +393,6 @@ class FramePreprocessor:
         return PreparedImage(
             image=normalise_photometry(image, inside, self.photometric),
             valid=self._erode(inside),
-            working_from_engine=_engine_to_working((w, h), content),
+            working_from_engine=engine_to_working((w, h), content),
             working_size=(w, h),
         )

@@ -26,17 +26,20 @@ from c3_matcher.features import RawMatches
 if TYPE_CHECKING:
     from c3_matcher.engines.manifest import EngineManifest
     from c3_matcher.features import Features
+    from c3_matcher.prepared import InputRule, PreparedImage
     from c3_matcher.tilestore.features import FeatureRequest
 
 __all__ = [
     "Clock",
     "CrossDomainMatcher",
     "FdrClient",
+    "FeatureBackend",
     "InferenceRuntime",
     "LightGlueRuntime",
     "LoadableLightGlueRuntime",
     "ManifestRuntime",
     "RansacFilter",
+    "StoredFeaturesBackend",
     "StoredFeaturesHandle",
     "TilePixelsHandle",
 ]
@@ -54,6 +57,51 @@ class CrossDomainMatcher(Protocol):
         ...
 
     def health_snapshot(self) -> MatcherHealth: ...
+
+
+@runtime_checkable
+class FeatureBackend(Protocol):
+    """A strategy's model I/O, the one thing a strategy adds to the per-frame pipeline.
+    Exceptions raised here become per-candidate drops (or, for the query frame, a
+    ``MatcherBackboneError``); they never escape ``match`` otherwise."""
+
+    @property
+    def label(self) -> str:
+        """``matcher_label`` of the results, e.g. ``"disk_lightglue"``."""
+        ...
+
+    @property
+    def input_rule(self) -> InputRule: ...
+
+    @property
+    def extract_phase(self) -> str:
+        """Phase name of an extraction failure, e.g. ``"disk_forward"``."""
+        ...
+
+    @property
+    def match_phase(self) -> str:
+        """Phase name of a matching failure, e.g. ``"lightglue_match"``."""
+        ...
+
+    def extract(self, image: PreparedImage) -> Features: ...
+
+    def match(self, query: Features, tile: Features) -> RawMatches: ...
+
+    def provenance(self) -> Mapping[str, Any]:
+        """What an investigator needs after a flight: execution provider, engines' sha256
+        (``{"provider": ..., "engines": {"extractor": {"file_sha256": ...}, ...}}``)."""
+        ...
+
+
+@runtime_checkable
+class StoredFeaturesBackend(FeatureBackend, Protocol):
+    """A ``FeatureBackend`` whose tile features a store may hold precomputed (``features
+    build``): it declares its keypoint budget ``max_keypoints`` (the stored features are cut to
+    it) and names its extractor engine's ``file_sha256`` in ``provenance()["engines"]``.
+    Optional: the pipeline extracts every tile of any other backend."""
+
+    @property
+    def max_keypoints(self) -> int: ...
 
 
 @runtime_checkable

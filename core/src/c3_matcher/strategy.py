@@ -18,8 +18,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, Self
 
-import numpy as np
-from numpy.typing import NDArray
 from pydantic import BaseModel
 
 from c3_matcher.config import C3Settings
@@ -31,6 +29,7 @@ from c3_matcher.health import MonotonicClock, RollingHealthWindow
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher, PipelineSettings
 from c3_matcher.plugins.types import StrategyFactory
 from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.probe import engine_startup_probe, textured_probe
 from c3_matcher.protocols import (
     Clock,
     CrossDomainMatcher,
@@ -238,6 +237,11 @@ class ExtractorBackend:
     def match(self, query: Features, tile: Features) -> RawMatches:
         return self._pair_matcher.match(query, tile)
 
+    @property
+    def max_keypoints(self) -> int:
+        """The keypoint budget (``StoredFeaturesBackend``): at most this many per image."""
+        return self._config.max_keypoints
+
     def provenance(self) -> Mapping[str, Any]:
         return self._provenance
 
@@ -257,43 +261,6 @@ def _engine_facts(
         "file_sha256": manifest.file_sha256,
         "weights_sha256": manifest.weights_sha256,
     }
-
-
-def textured_probe(width: int, height: int, block: int = 6) -> NDArray[np.uint8]:
-    """A deterministic textured RGB image (height, width, 3) uint8: ``block`` px squares of
-    random colour (seed 0), the start-up probe's and the contract kit's stand-in image."""
-    rng = np.random.default_rng(0)
-    cells = -(-max(width, height) // block)
-    noise = rng.integers(0, 256, (cells, cells, 3), dtype=np.uint8)
-    blocks = np.kron(noise, np.ones((block, block, 1), np.uint8))[:height, :width]
-    return np.ascontiguousarray(blocks)
-
-
-def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 6) -> None:
-    """Run the backend once on a deterministic textured probe image and assert its outputs
-    (the engine-output assertion that fires at start-up, not on the first frame).
-
-    The probe is ``block`` px squares of random colour (seed 0); 6 px blocks do not line up with
-    the 8x8 cells some detectors (XFeat) score, so every cell sees texture."""
-    image = textured_probe(size, size, block)
-    probe = PreparedImage(
-        image=image,
-        valid=np.ones((size, size), bool),
-        working_from_engine=np.eye(3),
-        working_size=(size, size),
-    )
-    try:
-        features = backend.extract(probe)
-        if len(features) == 0:
-            raise ValueError("the extractor found no keypoint on the textured probe image")
-        matches = backend.match(features, features)
-        if len(matches) == 0:
-            raise ValueError("matching the probe image with itself gave no match")
-    except Exception as exc:
-        raise EngineError(
-            backend.label,
-            f"start-up probe failed: {type(exc).__name__}: {exc}",
-        ) from exc
 
 
 class ExtractorMatcher(PipelineMatcher):

@@ -1,0 +1,127 @@
+"""Steps 4a-4b: a candidate's tile features, from the first source that has them: the tile
+store's precomputed map features (``stored``, when the backend declares them possible and the
+store holds them for this backend), the tile cache (``cached``) or the tile's pixels
+(``extracted``: decode, prepare, extract; the cache keeps the result)."""
+
+from __future__ import annotations
+
+from c3_matcher.dto import RerankCandidate
+from c3_matcher.features import Features
+from c3_matcher.preprocess import FramePreprocessor
+from c3_matcher.protocols import FeatureBackend, StoredFeaturesBackend, StoredFeaturesHandle
+from c3_matcher.stages.failure import failing_as, timed
+from c3_matcher.stages.outcomes import TileFeatures
+from c3_matcher.stages.recorder import FrameRecorder
+from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
+from c3_matcher.tilestore.features import FeatureRequest
+
+__all__ = ["CandidateFeatures", "feature_request"]
+
+
+def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureRequest | None:
+    """What to ask a tile store's precomputed features for: the backend's extractor engine
+    (file sha256) and execution provider from its provenance, input rule, photometric
+    normalisation and keypoint budget; None for a backend that is no ``StoredFeaturesBackend``
+    or does not name its extractor (its tiles are then always extracted)."""
+    if not isinstance(backend, StoredFeaturesBackend):
+        return None
+    try:
+        provenance = backend.provenance()
+        engines = provenance.get("engines") or {}
+        sha = (engines.get("extractor") or {}).get("file_sha256")
+        provider = str(provenance.get("provider") or "")
+        rule = backend.input_rule
+        budget = backend.max_keypoints
+    except Exception:
+        return None
+    if not isinstance(sha, str) or not sha or not isinstance(budget, int) or budget < 1:
+        return None
+    return FeatureRequest(
+        sha,
+        rule.multiple,
+        rule.max_long_side,
+        budget,
+        pre.border_erode_px,
+        pre.photometric,
+        provider,
+    )
+
+
+class CandidateFeatures:
+    """The candidate-features source of one matcher: stored, cached or extracted features.
+    ``use_stored`` False: never the store's (the bench's comparison). Single-threaded."""
+
+    def __init__(
+        self,
+        backend: FeatureBackend,
+        pre: FramePreprocessor,
+        cache: TileFeatureCache,
+        request: FeatureRequest | None,
+        use_stored: bool,
+    ) -> None:
+        self._backend = backend
+        self._pre = pre
+        self._cache = cache
+        self._request = request
+        self.use_stored = bool(use_stored) and request is not None
+
+    @property
+    def cache(self) -> TileFeatureCache:
+        return self._cache
+
+    @property
+    def request(self) -> FeatureRequest | None:
+        """What the tile store is asked for; None: this backend's tiles are always extracted."""
+        return self._request
+
+    def with_stored(self, enabled: bool) -> CandidateFeatures:
+        """This source (same cache) with stored features on or off."""
+        return CandidateFeatures(self._backend, self._pre, self._cache, self._request, enabled)
+
+    def fetch(
+        self, candidate: RerankCandidate, recorder: FrameRecorder, timings: dict[str, float]
+    ) -> TileFeatures:
+        """The candidate's tile features; raises ``CandidateStepError`` (``tile_decode`` or the
+        backend's extract phase) when they can be had from none of the sources."""
+        with failing_as("tile_decode", "none"):
+            stored = None
+            if self.use_stored:
+                with timed(timings, "assemble"):
+                    stored = self._stored(candidate, recorder)
+            if stored is not None:
+                return stored
+            handle = candidate.tile_pixels_handle
+            key = tile_cache_key(candidate.tile_id, handle) if self._cache.enabled else None
+            cached = self._cache.get(key) if key is not None else None
+        if cached is not None:
+            return TileFeatures("cached", cached.prepared, cached.features)
+        with failing_as("tile_decode", "extracted"):
+            with timed(timings, "decode"):
+                pixels = handle.decode()
+            with timed(timings, "preprocess"):
+                image = self._pre.prepare_tile(pixels)
+        with failing_as(self._backend.extract_phase, "extracted"):
+            with timed(timings, "extract"):
+                features = self._backend.extract(image)
+            if key is not None:
+                self._cache.put(key, CachedTile(image, features))
+        return TileFeatures("extracted", image, features)
+
+    def _stored(self, candidate: RerankCandidate, recorder: FrameRecorder) -> TileFeatures | None:
+        """The candidate's precomputed map features, or None (extract): a handle without
+        stored features, no or stale stored features, a window the rule would resize. A
+        failure here never drops the candidate: it falls back to extraction; the store raises
+        once per outage (locked sidecar) or corrupt row, so the WARNING (and its FDR record)
+        comes once, not every frame."""
+        handle = candidate.tile_pixels_handle
+        if not isinstance(handle, StoredFeaturesHandle) or self._request is None:
+            return None
+        try:
+            features = handle.stored_features(self._request)
+            if not isinstance(features, Features):
+                return None
+            geometry = self._pre.tile_geometry(*features.image_size)
+        except Exception as exc:
+            recorder.stored_features_failed(candidate.tile_id, exc)
+            return None
+        return None if geometry is None else TileFeatures("stored", geometry, features)

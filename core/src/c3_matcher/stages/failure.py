@@ -1,0 +1,45 @@
+"""The typed failure of a candidate's backbone step and the timing of a step."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+__all__ = ["CandidateStepError", "failing_as", "timed"]
+
+
+class CandidateStepError(Exception):
+    """A candidate's backbone step failed, so the candidate is dropped (drop and continue).
+
+    ``phase`` names the step (``tile_decode``, the backend's extract or match phase,
+    ``ransac``); ``source`` is where the candidate's features came or were to come from
+    (``none`` before that was known, else ``stored``, ``cached`` or ``extracted``); ``cause``
+    is the exception the step raised."""
+
+    def __init__(self, phase: str, source: str, cause: Exception) -> None:
+        super().__init__(f"{phase}: {type(cause).__name__}: {cause}")
+        self.phase = phase
+        self.source = source
+        self.cause = cause
+
+
+@contextmanager
+def failing_as(phase: str, source: str) -> Iterator[None]:
+    """Run a step of a candidate: any exception it raises leaves as a ``CandidateStepError`` of
+    ``phase`` (features from ``source``)."""
+    try:
+        yield
+    except Exception as exc:
+        raise CandidateStepError(phase, source, exc) from exc
+
+
+@contextmanager
+def timed(into: dict[str, float], name: str) -> Iterator[None]:
+    """Add the wall time of the block (ms, ``time.perf_counter``) to ``into[name]``, also when
+    it raises."""
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        into[name] = into.get(name, 0.0) + (time.perf_counter() - start) * 1e3

@@ -1,0 +1,306 @@
+"""Steps 6 and 8-10: what a frame leaves behind: the one health update, the logs and the FDR
+records.
+
+Terminal FDR record per ``match`` call, exactly one of: ``matcher.frame_done`` (success),
+``matcher.insufficient_inliers`` (raised InsufficientInliersError), ``matcher.backbone_error``
+with ``phase="query_extract"`` (the query frame itself failed) or ``phase="internal"`` (a bug,
+answered with the contract's error), or ``matcher.invalid_input``. Per dropped candidate, one
+``matcher.backbone_error`` record with its ``tile_id`` and ``phase``. A recorder failure is
+logged, never fails the frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from c3_matcher.dto import CandidateMatchSet
+from c3_matcher.errors import InsufficientInliersError, InvalidInputError
+from c3_matcher.health import RollingHealthWindow
+from c3_matcher.logs import log_event
+from c3_matcher.protocols import Clock, FdrClient, FeatureBackend
+from c3_matcher.stages.outcomes import FrameEvidence, GeometryRefusal, Survivor
+from c3_matcher.stages.query import QUERY_ROTATIONS_DEG
+
+__all__ = ["FrameRecorder", "RecorderSinks", "per_candidate_records"]
+
+
+@dataclass(frozen=True)
+class RecorderSinks:
+    """Where a matcher's frames are recorded: the FDR, the health window (read with the clock)
+    and the backend (its label and provenance)."""
+
+    fdr: FdrClient
+    health: RollingHealthWindow
+    clock: Clock
+    backend: FeatureBackend
+
+
+class FrameRecorder:
+    """The records of one ``match`` call about ``frame_id``. It updates the health window
+    exactly once (the first update wins) and counts the backbone errors it records, which the
+    health update reports."""
+
+    def __init__(self, sinks: RecorderSinks, frame_id: Any) -> None:
+        self._sinks = sinks
+        self.frame_id = frame_id
+        self._health_updated = False
+        self._backbone_errors = 0
+
+    # -- health and the FDR -------------------------------------------------------------
+    def update_health(self, best_inlier_count: int, *, force_backbone_error: bool = False) -> None:
+        """Step 9 (and its failure paths): the one health update of this frame."""
+        if self._health_updated:
+            return
+        self._health_updated = True
+        self._sinks.health.update(
+            self._sinks.clock.monotonic_ns(),
+            best_inlier_count=best_inlier_count,
+            had_backbone_error=force_backbone_error or self._backbone_errors > 0,
+        )
+
+    def record(self, kind: str, payload: Mapping[str, Any]) -> None:
+        """Write an FDR record; a recorder failure is logged, never fails the frame (the durable
+        recorder keeps the record pending and writes it with the next one)."""
+        try:
+            self._sinks.fdr.record(kind, payload)
+        except Exception as exc:
+            log_event(
+                "ERROR",
+                "c3.fdr.write_failed",
+                f"FDR write failed for {kind}: {exc}",
+                record_kind=kind,
+                error=f"{type(exc).__name__}: {exc}",
+            )
+
+    # -- per candidate --------------------------------------------------------------------
+    def backbone_error(
+        self, tile_id: Any, phase: str, exc: BaseException, candidate_index: int | None = None
+    ) -> None:
+        """A backbone failure: of a candidate (dropped), of the query or of the matcher."""
+        self._backbone_errors += 1
+        label = self._sinks.backend.label
+        error = f"{type(exc).__name__}: {exc}"
+        log_event(
+            "ERROR",
+            "c3.matcher.backbone_error",
+            f"C3 backbone error; frame={self.frame_id}; tile={tile_id}; phase={phase}; "
+            f"backbone={label}; {error}",
+            frame_id=self.frame_id,
+            tile_id=tile_id,
+            phase=phase,
+            error=error,
+            backbone=label,
+        )
+        self.record(
+            "matcher.backbone_error",
+            {
+                "frame_id": self.frame_id,
+                "tile_id": tile_id,
+                "candidate_index": candidate_index,
+                "phase": phase,
+                "error": error,
+                "backbone": label,
+            },
+        )
+
+    def stored_features_failed(self, tile_id: Any, exc: Exception) -> None:
+        log_event(
+            "WARNING",
+            "c3.matcher.stored_features_failed",
+            f"C3 stored features unusable; frame={self.frame_id}; "
+            f"tile={tile_id}; extracting instead: {type(exc).__name__}: {exc}",
+            frame_id=self.frame_id,
+            tile_id=tile_id,
+        )
+
+    def zero_inliers(self, tile_id: Any, raw_matches: int) -> None:
+        """Step 4e: a candidate without an inlier, dropped."""
+        log_event(
+            "DEBUG",
+            "c3.matcher.zero_inliers",
+            f"C3 zero inliers; frame={self.frame_id}; tile={tile_id}",
+            frame_id=self.frame_id,
+            tile_id=tile_id,
+            raw_matches=raw_matches,
+        )
+
+    def geometry_refused(self, refusal: GeometryRefusal) -> None:
+        log_event(
+            "DEBUG",
+            "c3.matcher.geometry_refused",
+            f"C3 candidate refused on geometry; frame={self.frame_id}; tile={refusal.tile_id}; "
+            f"inliers={refusal.inlier_count}; {refusal.reason}",
+            frame_id=self.frame_id,
+            **refusal.as_record(),
+        )
+
+    def refine_failed(self, tile_id: Any, exc: Exception) -> None:
+        log_event(
+            "WARNING",
+            "c3.matcher.refine_failed",
+            f"C3 refine pass failed, first pass kept; frame={self.frame_id}; {exc}",
+            frame_id=self.frame_id,
+            tile_id=tile_id,
+        )
+
+    # -- the frame ------------------------------------------------------------------------
+    def candidates(self, survivors: Sequence[Survivor]) -> None:
+        """The survivors' (inliers, residual) in input order (DEBUG)."""
+        summary = [
+            (s.match_set.inlier_count, s.match_set.per_candidate_residual_px) for s in survivors
+        ]
+        log_event(
+            "DEBUG",
+            "c3.matcher.candidates",
+            f"C3 frame={self.frame_id} candidates={summary}",
+            frame_id=self.frame_id,
+            candidates=summary,
+        )
+
+    def residual_above_threshold(self, best: CandidateMatchSet, threshold_px: float) -> None:
+        """Step 8: the best candidate's residual is above the warning threshold."""
+        log_event(
+            "WARNING",
+            "c3.matcher.residual_above_threshold",
+            f"C3 residual={best.per_candidate_residual_px:.2f}px > threshold="
+            f"{threshold_px}px; frame={self.frame_id}; will refine",
+            residual_px=best.per_candidate_residual_px,
+            threshold_px=threshold_px,
+            frame_id=self.frame_id,
+            tile_id=best.tile_id,
+        )
+
+    def frame_done(
+        self, evidence: FrameEvidence, ranked: Sequence[Survivor], timings: dict[str, float]
+    ) -> None:
+        """Step 10: the success record (+ homography, timings, provider, engines)."""
+        best = ranked[0].match_set
+        self.record(
+            "matcher.frame_done",
+            {
+                "frame_id": self.frame_id,
+                "candidates_input": evidence.candidates_input,
+                "candidates_dropped": evidence.dropped,
+                "best_inlier_count": best.inlier_count,
+                "best_residual_px": best.per_candidate_residual_px,
+                "best_tile_id": best.tile_id,
+                "best_homography": ranked[0].homography,
+                "per_candidate": per_candidate_records(evidence, ranked),
+                "candidate_features": list(evidence.sources),
+                **_rotation_record(evidence),
+                **_refine_record(evidence),
+                "timings_ms": timings,
+                **self._sinks.backend.provenance(),
+            },
+        )
+
+    def insufficient(
+        self,
+        evidence: FrameEvidence,
+        best_count: int,
+        survivors: Sequence[Survivor],
+        threshold: int,
+        *,
+        stale_rerank_frame_id: Any = None,
+    ) -> InsufficientInliersError:
+        """Step 6, no fix for this frame: health 0, log, FDR record; returns the error to raise.
+        With ``stale_rerank_frame_id`` every candidate was dropped unmatched: the re-rank was
+        made for that other frame, so its tiles say where the vehicle was, not where it is."""
+        label = self._sinks.backend.label
+        stale = {} if stale_rerank_frame_id is None else {"stale_rerank": stale_rerank_frame_id}
+        self.update_health(0)  # best_inlier_count=0
+        log_event(
+            "ERROR",
+            "c3.matcher.insufficient_inliers",
+            f"C3 insufficient inliers on all candidates; frame={self.frame_id}; "
+            f"backbone={label}; best={best_count} < {threshold}"
+            + ("" if not stale else f"; re-rank is for frame {stale_rerank_frame_id}"),
+            frame_id=self.frame_id,
+            backbone=label,
+            best_inlier_count=best_count,
+            threshold=threshold,
+            candidates_input=evidence.candidates_input,
+            candidates_dropped=evidence.dropped,
+            **stale,
+        )
+        self.record(
+            "matcher.insufficient_inliers",
+            {
+                "frame_id": self.frame_id,
+                **stale,
+                "candidates_input": evidence.candidates_input,
+                "candidates_dropped": evidence.dropped,
+                "best_inlier_count": best_count,
+                "threshold": threshold,
+                "per_candidate": per_candidate_records(evidence, survivors),
+                "candidate_features": list(evidence.sources),
+                "geometry_refused": [r.as_record() for r in evidence.refused],
+                **_rotation_record(evidence),
+                **_refine_record(evidence),
+                **self._sinks.backend.provenance(),
+            },
+        )
+        return InsufficientInliersError(
+            self.frame_id,
+            best_count,
+            threshold,
+            evidence.candidates_input,
+            evidence.dropped,
+            label,
+        )
+
+    def query_failed(self, exc: Exception) -> None:
+        """The nav frame itself could not be decoded or extracted: health (0, backbone error)
+        and a ``query_extract`` backbone-error record."""
+        self.update_health(0, force_backbone_error=True)
+        self.backbone_error(None, "query_extract", exc)
+
+    def invalid_input(self, exc: InvalidInputError) -> None:
+        """Refused input still leaves its evidence in the FDR."""
+        self.update_health(0)
+        self.record(
+            "matcher.invalid_input",
+            {"frame_id": self.frame_id, "field": exc.field, "error": str(exc)},
+        )
+
+    def internal_error(self, exc: Exception) -> None:
+        """A bug must not take the vehicle down: health, an ``internal`` backbone-error record."""
+        self.update_health(0, force_backbone_error=True)
+        self.backbone_error(None, "internal", exc)
+
+
+def per_candidate_records(
+    evidence: FrameEvidence, survivors: Sequence[Survivor]
+) -> list[dict[str, Any]]:
+    """The survivors as FDR rows; ``rotation_deg`` (the kept turn) only under rotation search
+    and ``model`` only for a candidate kept on the prior's similarity, so other records are as
+    they were."""
+    rows: list[dict[str, Any]] = []
+    for s in survivors:
+        row: dict[str, Any] = {
+            "tile_id": s.match_set.tile_id,
+            "inlier_count": s.match_set.inlier_count,
+            "residual_px": s.match_set.per_candidate_residual_px,
+            "features": evidence.source_of(s.input_index),
+        }
+        if evidence.rotation_search:
+            row["rotation_deg"] = s.rotation_deg
+        if s.model != "homography":
+            row["model"] = s.model
+        rows.append(row)
+    return rows
+
+
+def _rotation_record(evidence: FrameEvidence) -> dict[str, Any]:
+    """``rotation_search`` and the turns tried, in a terminal FDR record of a frame that ran
+    the search; nothing otherwise."""
+    if not evidence.rotation_search:
+        return {}
+    return {"rotation_search": True, "rotations_deg": list(QUERY_ROTATIONS_DEG)}
+
+
+def _refine_record(evidence: FrameEvidence) -> dict[str, Any]:
+    """The refine pass's record for the terminal FDR record: only when it ran."""
+    return {"refine": evidence.refine.as_record()} if evidence.refine is not None else {}

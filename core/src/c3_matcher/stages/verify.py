@@ -1,0 +1,159 @@
+"""Steps 4c-4d: a candidate matched against the query and verified.
+
+With a geometric prior (a query rectified with attitude AND scaled with height to the tile
+GSD): the prior's translation vote before RANSAC, RANSAC through the shared ``RansacFilter``,
+then the prior's geometry check of the homography; a homography the check refuses is replaced
+by the similarity the prior implies when that one passes (``model`` ``"similarity"``), else
+the candidate is refused on geometry. Without a prior: RANSAC alone. Under rotation search the
+candidate keeps the query turn whose result ranks best (first turn on a tie)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.dto import CandidateMatchSet, ranking_key
+from c3_matcher.prepared import PreparedImage, correspondences
+from c3_matcher.prior import GeometricPrior, HomographyCheck, PriorTolerances
+from c3_matcher.protocols import FeatureBackend, RansacFilter
+from c3_matcher.ransac import MIN_CORRESPONDENCES, homography_residuals
+from c3_matcher.stages.failure import failing_as, timed
+from c3_matcher.stages.outcomes import TileFeatures
+from c3_matcher.stages.query import QueryView
+
+__all__ = ["Verdict", "Verifier", "best_turn", "frame_prior"]
+
+F32 = NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """A candidate matched against one query view: what RANSAC (and the prior) made of it.
+    ``match_set`` query points are WORKING px of the unturned query; ``homography`` maps them
+    to tile px (the prior's similarity when ``model`` is ``"similarity"``); ``check`` is the
+    prior's geometry check (None without a prior); ``raw_matches`` the matches before RANSAC."""
+
+    rotation_deg: int
+    match_set: CandidateMatchSet
+    homography: NDArray[np.float64] | None
+    check: HomographyCheck | None
+    raw_matches: int = 0
+    model: str = "homography"
+
+    @property
+    def refused(self) -> bool:
+        """Refused on geometry by the prior, whatever its inliers."""
+        return self.check is not None and not self.check.ok
+
+    def turn_rank(self) -> tuple[bool, tuple[int, float]]:
+        """Which turn of the query a candidate keeps: one the prior's geometry check does not
+        refuse first (there is no prior without attitude, so in practice never in play), then
+        the pipeline's own ranking rule (inliers descending, residual ascending)."""
+        return self.refused, ranking_key(self.match_set)
+
+
+@dataclass(frozen=True)
+class _Fit:
+    inliers: F32
+    outliers: int
+    residual_px: float
+    model_matrix: NDArray[np.float64] | None
+    check: HomographyCheck | None = None
+    model: str = "homography"
+
+
+def frame_prior(
+    query: PreparedImage, enabled: bool, tolerances: PriorTolerances
+) -> GeometricPrior | None:
+    """The geometric prior of a query rectified with attitude AND scaled with height to the
+    tile GSD; None without one of them, or when the prior is not ``enabled``."""
+    if not enabled:
+        return None
+    if query.nadir_working_px is None or query.working_gsd_m is None:
+        return None
+    w, h = query.working_size
+    canvas = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
+    return GeometricPrior(tolerances, query.nadir_working_px, canvas)
+
+
+@dataclass(frozen=True)
+class Verifier:
+    """The verification of one frame's candidates: RANSAC at ``threshold_px`` through
+    ``ransac`` and the frame's geometric ``prior`` (None: none)."""
+
+    ransac: RansacFilter
+    threshold_px: float
+    prior: GeometricPrior | None
+
+    def verify(self, tile_id: Any, rotation_deg: int, rows: F32, raw_matches: int = 0) -> Verdict:
+        """The prior's translation vote (if any), RANSAC, and the prior's geometry check (if
+        any) of one query view's correspondence ``rows`` (WORKING px of the unturned query)."""
+        prefiltered = 0
+        if self.prior is not None:  # before RANSAC: the translation vote
+            keep = self.prior.consistent(rows)
+            prefiltered = int(rows.shape[0] - keep.sum())
+            rows = np.ascontiguousarray(rows[keep])
+        ransac = self.ransac.filter(rows, self.threshold_px)
+        fit = _Fit(
+            ransac.inlier_correspondences,
+            ransac.ransac_outlier_count,
+            ransac.per_candidate_residual_px,
+            ransac.homography,
+        )
+        if self.prior is not None and fit.model_matrix is not None and len(fit.inliers):
+            fit = self._checked(self.prior, fit, rows)  # after RANSAC: geometry
+        match_set = CandidateMatchSet(
+            tile_id=tile_id,
+            inlier_count=int(fit.inliers.shape[0]),
+            inlier_correspondences=fit.inliers,
+            ransac_outlier_count=fit.outliers + prefiltered,
+            per_candidate_residual_px=fit.residual_px,
+        )
+        return Verdict(rotation_deg, match_set, fit.model_matrix, fit.check, raw_matches, fit.model)
+
+    def _checked(self, prior: GeometricPrior, fit: _Fit, rows: F32) -> _Fit:
+        """``fit`` with the prior's geometry check; a refused homography gives way to the
+        similarity the prior implies when that one has enough inliers and passes."""
+        assert fit.model_matrix is not None
+        check = prior.verify(fit.model_matrix)
+        if check.ok:
+            return replace(fit, check=check)
+        similarity_fit = prior.similarity_ransac(rows, self.threshold_px)
+        if similarity_fit is None or int(similarity_fit[1].sum()) < MIN_CORRESPONDENCES:
+            return replace(fit, check=check)
+        similarity, mask = similarity_fit
+        constrained = prior.verify(similarity)
+        if not constrained.ok:
+            return replace(fit, check=check)
+        inliers = np.ascontiguousarray(rows[mask])
+        residual = float(np.median(homography_residuals(similarity, inliers)))
+        outliers = int(rows.shape[0] - inliers.shape[0])
+        return _Fit(inliers, outliers, residual, similarity, constrained, "similarity")
+
+
+def best_turn(
+    backend: FeatureBackend,
+    verifier: Verifier,
+    views: Sequence[QueryView],
+    tile_id: Any,
+    tile: TileFeatures,
+    timings: dict[str, float],
+) -> Verdict:
+    """The candidate matched against every query view (``match``, the backend's match phase)
+    and verified (``ransac``); the verdict of the best-ranked view (``Verdict.turn_rank``, the
+    first on a tie). Raises ``CandidateStepError`` naming the failed phase."""
+    chosen: Verdict | None = None
+    for view in views:  # one view, or every turn (rotation search)
+        with failing_as(backend.match_phase, tile.source), timed(timings, "match"):
+            raw = backend.match(view.features, tile.features)
+            rows = correspondences(view.image, view.features, tile.image, tile.features, raw)
+        with failing_as("ransac", tile.source), timed(timings, "ransac"):
+            verdict = verifier.verify(tile_id, view.rotation_deg, rows, len(raw))
+        if chosen is None or verdict.turn_rank() < chosen.turn_rank():  # first on ties
+            chosen = verdict
+    assert chosen is not None  # views is never empty
+    return chosen
