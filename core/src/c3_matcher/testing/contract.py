@@ -29,6 +29,9 @@ doubles it is handed (the allowed test doubles)::
             return MyMatcher(doubles.inference, doubles.lightglue, doubles.ransac,
                              doubles.fdr, doubles.health, my_config, doubles.clock)
 
+For an ``ExtractorMatcher`` subclass, ``c3_matcher.testing.strategy_kit.ExtractorMatcherContract``
+writes that ``make_matcher`` from the matcher class and its config.
+
 Every strategy built on ``c3_matcher.strategy`` or ``c3_matcher.pipeline`` passes it.
 """
 

@@ -1,0 +1,97 @@
+"""Test helpers for a strategy plugin built on the extractor kit (``ExtractorMatcher``).
+
+``ExtractorMatcherContract`` is the contract kit over the allowed doubles, set up from two facts
+(the matcher class and a config)::
+
+    from c3_matcher.testing.strategy_kit import ExtractorMatcherContract
+
+    class TestMyMatcherContract(ExtractorMatcherContract):
+        matcher_class = MyMatcher
+        config = MyConfig(label="mine", ...)
+
+On the real path, ``matcher_over_helpers`` builds the matcher over the real runtimes of
+``build_default_helpers`` and ``compose_ready`` runs ``compose_root`` and returns its one
+``c3.matcher.ready`` log record.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
+
+from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.logs import configure_logging
+from c3_matcher.protocols import CrossDomainMatcher
+from c3_matcher.strategy import ExtractorMatcher, ExtractorStrategyConfig
+from c3_matcher.testing.contract import Doubles, MatcherContract
+
+if TYPE_CHECKING:
+    from c3_matcher.compose import ComposedRoot
+    from c3_matcher.config import C3Settings
+
+__all__ = ["ExtractorMatcherContract", "compose_ready", "matcher_over_helpers"]
+
+M = TypeVar("M", bound=ExtractorMatcher)
+HEALTH_MIN_INLIERS = 60  # the health window's threshold in the real-path helper
+
+
+class ExtractorMatcherContract(MatcherContract):
+    """``MatcherContract`` for an ``ExtractorMatcher`` subclass: set ``matcher_class`` and
+    ``config``; the phase names are the config's."""
+
+    matcher_class: ClassVar[type[ExtractorMatcher]]
+    config: ClassVar[ExtractorStrategyConfig]
+
+    def _phases(self, doubles: Doubles) -> tuple[str, str]:
+        if doubles.backend is not None:
+            return super()._phases(doubles)
+        return self.config.extract_phase, self.config.match_phase
+
+    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
+        return self.matcher_class(
+            doubles.inference,
+            doubles.lightglue,
+            doubles.ransac,
+            doubles.fdr,
+            doubles.health,
+            self.config,
+            doubles.clock,
+        )
+
+
+def matcher_over_helpers(
+    matcher_class: type[M], config: ExtractorStrategyConfig, helpers: Mapping[str, Any]
+) -> M:
+    """``matcher_class`` over the real inference runtime, LightGlue runtime and RANSAC of
+    ``build_default_helpers``, an in-memory FDR and a 60-inlier health window."""
+    return matcher_class(
+        helpers["c7_inference"],
+        helpers["c3_lightglue_runtime"],
+        helpers["c282_ransac_filter"],
+        InMemoryFdr(),
+        RollingHealthWindow(MonotonicClock(), HEALTH_MIN_INLIERS),
+        config,
+    )
+
+
+def compose_ready(
+    settings: C3Settings, helpers: Mapping[str, Any]
+) -> tuple[ComposedRoot, dict[str, Any]]:
+    """``compose_root(settings)`` over ``helpers`` with an in-memory FDR, its logs captured;
+    returns the root and its ``c3.matcher.ready`` record (AssertionError unless exactly one)."""
+    from c3_matcher.compose import compose_root
+
+    fdr = InMemoryFdr()
+    stream = io.StringIO()
+    handle = configure_logging(fdr, stream=stream)
+    try:
+        root = compose_root(settings, {**helpers, "c13_fdr": fdr}, configure_logs=False)
+    finally:
+        handle.close()
+    records = [json.loads(line) for line in stream.getvalue().splitlines()]
+    ready = [r for r in records if r["kind"] == "c3.matcher.ready"]
+    assert len(ready) == 1, f"{len(ready)} c3.matcher.ready records"
+    return root, ready[0]
