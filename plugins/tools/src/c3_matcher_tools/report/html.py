@@ -25,16 +25,15 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from c3_matcher.dto import TileId
-from c3_matcher.georef import fit_query_to_tile, lonlat_to_tile_px
+from c3_matcher.georef import fit_query_to_tile
 from c3_matcher.viz import CandidateView, render_match
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.dataset.truth import inlier_errors_px
+from c3_matcher_tools.report.trajectory import draw_trajectory
 from c3_matcher_tools.replay import FrameOutcome
 
 __all__ = ["frame_picture", "write_report"]
 
-MAX_MOSAIC_PX = 2048
 FAILED = "failed"
 WRONG = "wrong tile"
 """The words the chart's legend and the frames table both use (the chart marks F / W)."""
@@ -70,192 +69,9 @@ def _jpeg_uri(rgb: NDArray[np.uint8], quality: int = 85) -> str:
     return "data:image/jpeg;base64," + base64.b64encode(enc.tobytes()).decode()
 
 
-def _points(outcomes: Sequence[FrameOutcome]) -> list[tuple[float, float]]:
-    pts: list[tuple[float, float]] = []
-    for o in outcomes:
-        if o.truth_lat is not None and o.truth_lon is not None:
-            pts.append((o.truth_lon, o.truth_lat))
-        if o.est_lat is not None and o.est_lon is not None:
-            pts.append((o.est_lon, o.est_lat))
-        if o.telemetry_lat is not None and o.telemetry_lon is not None:
-            pts.append((o.telemetry_lon, o.telemetry_lat))
-    return pts
-
-
-def _mosaic(
-    dataset: FlightDataset, outcomes: Sequence[FrameOutcome]
-) -> tuple[NDArray[np.uint8], TileId, int] | None:
-    """The store's imagery around every position (a square window at the flight's zoom)."""
-    pts = _points(outcomes)
-    zooms = [c.tile_id.zoom for f in dataset.frames for c in f.candidates]
-    if not pts or not zooms:
-        return None
-    zoom = max(set(zooms), key=zooms.count)
-    lon = np.array([p[0] for p in pts])
-    lat = np.array([p[1] for p in pts])
-    centre = TileId(zoom, float((lat.min() + lat.max()) / 2), float((lon.min() + lon.max()) / 2))
-    probe = lonlat_to_tile_px(centre, (0, 0), np.stack([lon, lat], axis=1))
-    span = float(np.max(np.abs(probe))) * 2 + dataset.candidate_size_px
-    size = int(min(MAX_MOSAIC_PX, max(256, math.ceil(span))))
-    try:
-        with dataset.open_store() as store:
-            image = store.handle(centre, size).decode()
-    except Exception:
-        return None
-    return image, centre, size
-
-
 def _trajectory(dataset: FlightDataset, outcomes: Sequence[FrameOutcome], title: str) -> str:
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(8, 8))
-    mosaic = _mosaic(dataset, outcomes)
-
-    def to_xy(lon: float, lat: float) -> tuple[float, float]:
-        if mosaic is None:
-            return lon, lat
-        x, y = lonlat_to_tile_px(mosaic[1], (mosaic[2], mosaic[2]), [[lon, lat]])[0]
-        return float(x), float(y)
-
-    if mosaic is not None:
-        ax.imshow(mosaic[0], interpolation="bilinear")
-    truth = [
-        (o, *to_xy(o.truth_lon, o.truth_lat))
-        for o in outcomes
-        if o.truth_lat is not None and o.truth_lon is not None
-    ]
-    est = [
-        (o, *to_xy(o.est_lon, o.est_lat))
-        for o in outcomes
-        if o.est_lat is not None and o.est_lon is not None
-    ]
-    if truth:
-        ax.plot(
-            [t[1] for t in truth],
-            [t[2] for t in truth],
-            "-o",
-            color="#1f77b4",
-            ms=4,
-            lw=1.5,
-            label="truth",
-        )
-        failed = [t for t in truth if t[0].status != "ok"]
-        if failed:
-            ax.scatter(
-                [t[1] for t in failed],
-                [t[2] for t in failed],
-                marker="x",
-                s=70,
-                color="#d62728",
-                zorder=5,
-                label="failed frame (truth)",
-            )
-    if est:
-        ax.plot(
-            [e[1] for e in est],
-            [e[2] for e in est],
-            "-s",
-            color="#ff7f0e",
-            ms=4,
-            lw=1.2,
-            label="estimate",
-        )
-        wrong = [e for e in est if e[0].has_truth and not e[0].correct]
-        if wrong:
-            ax.scatter(
-                [e[1] for e in wrong],
-                [e[2] for e in wrong],
-                marker="D",
-                s=60,
-                facecolors="none",
-                edgecolors="#d62728",
-                zorder=6,
-                label="wrong tile",
-            )
-    tele = [
-        (o, *to_xy(o.telemetry_lon, o.telemetry_lat))
-        for o in outcomes
-        if o.telemetry_lat is not None and o.telemetry_lon is not None
-    ]
-    done = {o.index for o in outcomes}
-    vehicle = [
-        to_xy(float(f.telemetry["lon"]), float(f.telemetry["lat"]))
-        for f in dataset.frames
-        if f.index in done and "lat" in f.telemetry and "lon" in f.telemetry
-    ]
-    if vehicle:
-        ax.plot(
-            [v[0] for v in vehicle],
-            [v[1] for v in vehicle],
-            ":",
-            color="#98df8a",
-            lw=1.5,
-            label="vehicle GNSS track",
-        )
-    if tele:
-        ax.plot(
-            [t[1] for t in tele],
-            [t[2] for t in tele],
-            "-^",
-            color="#2ca02c",
-            ms=4,
-            lw=1.2,
-            label="telemetry: where the frame looks",
-        )
-        degraded = [t for t in tele if t[0].gnss_degraded]
-        if degraded:
-            ax.scatter(
-                [t[1] for t in degraded],
-                [t[2] for t in degraded],
-                marker="o",
-                s=90,
-                facecolors="none",
-                edgecolors="#ffbf00",
-                linewidths=1.5,
-                zorder=6,
-                label="GNSS absent or degraded",
-            )
-        if not truth:
-            failed = [t for t in tele if t[0].status != "ok"]
-            if failed:
-                ax.scatter(
-                    [t[1] for t in failed],
-                    [t[2] for t in failed],
-                    marker="x",
-                    s=70,
-                    color="#d62728",
-                    zorder=5,
-                    label="failed frame (telemetry)",
-                )
-    by_index = {t[0].index: t for t in (truth or tele)}
-    for e in est:
-        t = by_index.get(e[0].index)
-        if t is not None:
-            ax.plot([t[1], e[1]], [t[2], e[2]], color="#d62728", lw=0.8)
-    labelled = truth or tele or est
-    for o, x, y in labelled[:: max(1, len(labelled) // 10)]:
-        ax.annotate(
-            str(o.index),
-            (x, y),
-            textcoords="offset points",
-            xytext=(4, 4),
-            fontsize=8,
-            color="white",
-            bbox={"boxstyle": "round,pad=0.1", "fc": "black", "alpha": 0.5},
-        )
-    ax.set_title(title)
-    if mosaic is None:
-        ax.set_xlabel("lon (deg)")
-        ax.set_ylabel("lat (deg)")
-    else:
-        ax.set_xticks([])
-        ax.set_yticks([])
-        m_per_px = mosaic[1].web_mercator_gsd_m()
-        bar = 10 ** math.floor(math.log10(mosaic[2] * m_per_px / 4))
-        x0, y0 = mosaic[2] * 0.05, mosaic[2] * 0.95
-        ax.plot([x0, x0 + bar / m_per_px], [y0, y0], color="white", lw=4)
-        ax.text(x0, y0 - mosaic[2] * 0.02, f"{bar:g} m", color="white", fontsize=9)
-    if truth or est or tele:
-        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    fig, ax = _plt().subplots(figsize=(8, 8))
+    draw_trajectory(ax, dataset, outcomes, title)
     return _png_uri(fig)
 
 

@@ -1,0 +1,201 @@
+"""The flight report's trajectory: frame centres on the map mosaic of the flight's tile store.
+
+Truth (blue) and estimate (orange) with a red segment from each frame's reference to its
+estimate, failed frames (x) and wrong tiles (diamonds) marked; for a recorded flight the
+vehicle's GNSS track and where the telemetry says each frame looks (green), frames whose GNSS was
+absent or degraded ringed. Drawn onto a matplotlib ``Axes`` the caller owns; positions are
+WGS84 degrees, drawn in mosaic px (degrees when the store has no imagery there).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.dto import TileId
+from c3_matcher.georef import lonlat_to_tile_px
+from c3_matcher_tools.dataset.format import FlightDataset
+
+if TYPE_CHECKING:
+    from c3_matcher_tools.run.records import FrameOutcome
+
+__all__ = ["MAX_MOSAIC_PX", "draw_trajectory"]
+
+MAX_MOSAIC_PX = 2048
+RED = "#d62728"
+
+Mosaic = tuple[NDArray[np.uint8], TileId, int]
+"""The mosaic image, the tile id at its centre and its side (px)."""
+Point = tuple["FrameOutcome", float, float]
+"""A frame and where it is drawn (x, y)."""
+ToXY = Callable[[float, float], tuple[float, float]]
+
+
+def _points(outcomes: Sequence[FrameOutcome]) -> list[tuple[float, float]]:
+    pts: list[tuple[float, float]] = []
+    for o in outcomes:
+        if o.truth_lat is not None and o.truth_lon is not None:
+            pts.append((o.truth_lon, o.truth_lat))
+        if o.est_lat is not None and o.est_lon is not None:
+            pts.append((o.est_lon, o.est_lat))
+        if o.telemetry_lat is not None and o.telemetry_lon is not None:
+            pts.append((o.telemetry_lon, o.telemetry_lat))
+    return pts
+
+
+def _mosaic(
+    dataset: FlightDataset, outcomes: Sequence[FrameOutcome]
+) -> tuple[NDArray[np.uint8], TileId, int] | None:
+    """The store's imagery around every position (a square window at the flight's zoom)."""
+    pts = _points(outcomes)
+    zooms = [c.tile_id.zoom for f in dataset.frames for c in f.candidates]
+    if not pts or not zooms:
+        return None
+    zoom = max(set(zooms), key=zooms.count)
+    lon = np.array([p[0] for p in pts])
+    lat = np.array([p[1] for p in pts])
+    centre = TileId(zoom, float((lat.min() + lat.max()) / 2), float((lon.min() + lon.max()) / 2))
+    probe = lonlat_to_tile_px(centre, (0, 0), np.stack([lon, lat], axis=1))
+    span = float(np.max(np.abs(probe))) * 2 + dataset.candidate_size_px
+    size = int(min(MAX_MOSAIC_PX, max(256, math.ceil(span))))
+    try:
+        with dataset.open_store() as store:
+            image = store.handle(centre, size).decode()
+    except Exception:
+        return None
+    return image, centre, size
+
+
+def _projection(mosaic: Mosaic | None) -> ToXY:
+    """(lon, lat) degrees -> drawn (x, y): mosaic px, or the degrees without a mosaic."""
+
+    def to_xy(lon: float, lat: float) -> tuple[float, float]:
+        if mosaic is None:
+            return lon, lat
+        x, y = lonlat_to_tile_px(mosaic[1], (mosaic[2], mosaic[2]), [[lon, lat]])[0]
+        return float(x), float(y)
+
+    return to_xy
+
+
+def _located(
+    outcomes: Sequence[FrameOutcome],
+    where: Callable[[FrameOutcome], tuple[float | None, float | None]],
+    to_xy: ToXY,
+) -> list[Point]:
+    """The frames whose ``where`` (lon, lat) is known, with their drawn position."""
+    out: list[Point] = []
+    for o in outcomes:
+        lon, lat = where(o)
+        if lat is not None and lon is not None:
+            out.append((o, *to_xy(lon, lat)))
+    return out
+
+
+def _line(ax: Any, points: Sequence[Point], fmt: str, **style: Any) -> None:
+    ax.plot([p[1] for p in points], [p[2] for p in points], fmt, **style)
+
+
+def _mark(ax: Any, points: Sequence[Point], **style: Any) -> None:
+    """Scatter ``points`` (nothing, and no legend entry, when there are none)."""
+    if points:
+        ax.scatter([p[1] for p in points], [p[2] for p in points], **style)
+
+
+def _vehicle_track(
+    ax: Any, dataset: FlightDataset, outcomes: Sequence[FrameOutcome], to_xy: ToXY
+) -> None:
+    """The vehicle's own GNSS positions over the frames replayed (a recorded flight)."""
+    done = {o.index for o in outcomes}
+    vehicle = [
+        to_xy(float(f.telemetry["lon"]), float(f.telemetry["lat"]))
+        for f in dataset.frames
+        if f.index in done and "lat" in f.telemetry and "lon" in f.telemetry
+    ]
+    if vehicle:
+        ax.plot(
+            [v[0] for v in vehicle],
+            [v[1] for v in vehicle],
+            ":",
+            color="#98df8a",
+            lw=1.5,
+            label="vehicle GNSS track",
+        )
+
+
+def _references(ax: Any, truth: list[Point], tele: list[Point], est: list[Point]) -> None:
+    """Red segments from each frame's reference (truth, else telemetry) to its estimate, and
+    every tenth reference (or estimate) labelled with its frame index."""
+    by_index = {t[0].index: t for t in (truth or tele)}
+    for e in est:
+        t = by_index.get(e[0].index)
+        if t is not None:
+            ax.plot([t[1], e[1]], [t[2], e[2]], color=RED, lw=0.8)
+    labelled = truth or tele or est
+    for o, x, y in labelled[:: max(1, len(labelled) // 10)]:
+        ax.annotate(
+            str(o.index),
+            (x, y),
+            textcoords="offset points",
+            xytext=(4, 4),
+            fontsize=8,
+            color="white",
+            bbox={"boxstyle": "round,pad=0.1", "fc": "black", "alpha": 0.5},
+        )
+
+
+def _axes_and_scale(ax: Any, title: str, mosaic: Mosaic | None) -> None:
+    """The title; degree labels without a mosaic, else no ticks and a metric scale bar."""
+    ax.set_title(title)
+    if mosaic is None:
+        ax.set_xlabel("lon (deg)")
+        ax.set_ylabel("lat (deg)")
+        return
+    ax.set_xticks([])
+    ax.set_yticks([])
+    m_per_px = mosaic[1].web_mercator_gsd_m()
+    bar = 10 ** math.floor(math.log10(mosaic[2] * m_per_px / 4))
+    x0, y0 = mosaic[2] * 0.05, mosaic[2] * 0.95
+    ax.plot([x0, x0 + bar / m_per_px], [y0, y0], color="white", lw=4)
+    ax.text(x0, y0 - mosaic[2] * 0.02, f"{bar:g} m", color="white", fontsize=9)
+
+
+def draw_trajectory(
+    ax: Any, dataset: FlightDataset, outcomes: Sequence[FrameOutcome], title: str
+) -> None:
+    """Draw the flight's trajectory (module docstring) onto the matplotlib ``ax``."""
+    mosaic = _mosaic(dataset, outcomes)
+    to_xy = _projection(mosaic)
+    if mosaic is not None:
+        ax.imshow(mosaic[0], interpolation="bilinear")
+    truth = _located(outcomes, lambda o: (o.truth_lon, o.truth_lat), to_xy)
+    est = _located(outcomes, lambda o: (o.est_lon, o.est_lat), to_xy)
+    failed = {"marker": "x", "s": 70, "color": RED, "zorder": 5}
+    if truth:
+        _line(ax, truth, "-o", color="#1f77b4", ms=4, lw=1.5, label="truth")
+        not_ok = [t for t in truth if t[0].status != "ok"]
+        _mark(ax, not_ok, **failed, label="failed frame (truth)")
+    if est:
+        _line(ax, est, "-s", color="#ff7f0e", ms=4, lw=1.2, label="estimate")
+        wrong = [e for e in est if e[0].has_truth and not e[0].correct]
+        ring = {"facecolors": "none", "edgecolors": RED, "zorder": 6}
+        _mark(ax, wrong, marker="D", s=60, **ring, label="wrong tile")
+    tele = _located(outcomes, lambda o: (o.telemetry_lon, o.telemetry_lat), to_xy)
+    _vehicle_track(ax, dataset, outcomes, to_xy)
+    if tele:
+        label = "telemetry: where the frame looks"
+        _line(ax, tele, "-^", color="#2ca02c", ms=4, lw=1.2, label=label)
+        degraded = [t for t in tele if t[0].gnss_degraded]
+        ring = {"facecolors": "none", "edgecolors": "#ffbf00", "linewidths": 1.5, "zorder": 6}
+        _mark(ax, degraded, marker="o", s=90, **ring, label="GNSS absent or degraded")
+        if not truth:
+            not_ok = [t for t in tele if t[0].status != "ok"]
+            _mark(ax, not_ok, **failed, label="failed frame (telemetry)")
+    _references(ax, truth, tele, est)
+    _axes_and_scale(ax, title, mosaic)
+    if truth or est or tele:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
