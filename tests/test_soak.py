@@ -32,7 +32,7 @@ def _rss_mib() -> float:
 
 def test_soak_xfeat_flat_memory_contiguous_fdr(engine_dir, tmp_path):
     from c3_matcher_tools.dataset.format import load_dataset
-    from c3_matcher_tools.replay import build_matcher
+    from c3_matcher_tools.run import open_matcher
 
     dataset = load_dataset(FLIGHT)
     settings = C3Settings().model_copy(
@@ -50,7 +50,7 @@ def test_soak_xfeat_flat_memory_contiguous_fdr(engine_dir, tmp_path):
     ok = insufficient = 0
     rss_after_warmup = 0.0
     started = time.perf_counter()
-    with build_matcher(settings, "xfeat", out, log_level="WARNING") as matcher:
+    with open_matcher(settings, "xfeat", out, log_level="WARNING") as matcher:
         store = dataset.open_store()
         try:
             for i, record in enumerate(itertools.islice(itertools.cycle(dataset.frames), FRAMES)):

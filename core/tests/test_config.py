@@ -74,3 +74,17 @@ def test_unreadable_file_is_named(tmp_path):
     bad.write_text("[matcher\n")
     with pytest.raises(ConfigurationError, match="unreadable TOML"):
         load_settings(bad, env={})
+
+
+def test_a_given_environment_is_read_alone_and_the_process_environment_left_untouched(
+    monkeypatch,
+):
+    import os
+
+    monkeypatch.setenv("C3_MATCHER_MATCHER__MIN_INLIERS_THRESHOLD", "99")
+    before = dict(os.environ)
+    given = load_settings(env={"C3_MATCHER_MATCHER__RANSAC_SEED": "7"})
+    assert given.matcher.min_inliers_threshold == 60  # os.environ's value not read
+    assert given.matcher.ransac_seed == 7
+    assert dict(os.environ) == before
+    assert load_settings().matcher.min_inliers_threshold == 99  # default: os.environ

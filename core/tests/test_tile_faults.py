@@ -27,8 +27,6 @@ from c3_matcher.tiles import (
     ImageDecodeError,
     decode_image,
     image_header_size,
-    max_image_pixels,
-    set_max_image_pixels,
 )
 from c3_matcher.tilestore.mbtiles import MBTilesStore, TileDigestError, TileStoreUnusableError
 from c3_matcher.tilestore.xyz import XyzTileStore
@@ -178,25 +176,36 @@ def test_pixel_limit_is_configurable_and_headers_are_read():
     assert image_header_size(_jpeg(size=96)) == (96, 96)
     _, tif = cv2.imencode(".tiff", np.zeros((40, 50, 3), np.uint8))
     assert image_header_size(tif.tobytes()) == (50, 40)
-    old = max_image_pixels()
-    try:
-        set_max_image_pixels(64 * 64 - 1)
-        with pytest.raises(ImageDecodeError, match="exceeds"):
-            decode_image(_png(size=64), "t")
-    finally:
-        set_max_image_pixels(old)
+    with pytest.raises(ImageDecodeError, match="exceeds"):
+        decode_image(_png(size=64), "t", max_pixels=64 * 64 - 1)
     assert decode_image(_png(size=64), "t").shape == (64, 64, 3)
+    assert decode_image(_png(size=64), "t", max_pixels=64 * 64).shape == (64, 64, 3)
 
 
-def test_config_applies_the_pixel_limit():
+def test_the_configured_pixel_limit_reaches_the_handles_given_it(tmp_path):
     from c3_matcher.config import load_settings
+    from c3_matcher.tiles import BytesTileHandle, MmapTileHandle, read_image
 
-    old = max_image_pixels()
-    try:
-        load_settings(env={"C3_MATCHER_MATCHER__MAX_IMAGE_PIXELS": "1000"})
-        assert max_image_pixels() == 1000
-    finally:
-        set_max_image_pixels(old)
+    limit = load_settings(env={"C3_MATCHER_MATCHER__MAX_IMAGE_PIXELS": "1000"}).matcher
+    assert limit.max_image_pixels == 1000
+    path = tmp_path / "t.png"
+    path.write_bytes(_png(size=64))
+    for decode in (
+        lambda: read_image(path, limit.max_image_pixels),
+        MmapTileHandle(path, max_pixels=limit.max_image_pixels).decode,
+        BytesTileHandle(_png(size=64), "t", max_pixels=limit.max_image_pixels).decode,
+    ):
+        with pytest.raises(ImageDecodeError, match="64x64 px exceeds the limit of 1000"):
+            decode()
+    assert read_image(path).shape == (64, 64, 3)  # no process-wide limit was set
+
+
+def test_a_pixel_limit_below_256_is_refused():
+    from c3_matcher.errors import InvalidInputError
+    from c3_matcher.tiles import BytesTileHandle
+
+    with pytest.raises(InvalidInputError, match="max_image_pixels"):
+        BytesTileHandle(b"x", max_pixels=255)
 
 
 # -- 8: per-tile digest ------------------------------------------------------------------------

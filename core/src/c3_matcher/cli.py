@@ -19,6 +19,7 @@ from c3_matcher.commands import (
     EXIT_FAILURE,
     EXIT_OK,
     EXIT_USAGE,
+    CommandContext,
     CommandRegistry,
     Handler,
     UsageParser,
@@ -38,10 +39,8 @@ if TYPE_CHECKING:
 __all__ = ["main"]
 
 
-def _cmd_plugins(args: argparse.Namespace, settings: C3Settings) -> int:
-    from c3_matcher.compose import build_plugin_host
-
-    host = build_plugin_host()
+def _cmd_plugins(args: argparse.Namespace, ctx: CommandContext) -> int:
+    host, settings, out = ctx.plugin_host, ctx.settings, ctx.out
     report: dict[str, Any] = {
         "profile": host.profile.name,
         "profile_distribution": host.profile.distribution,
@@ -65,31 +64,31 @@ def _cmd_plugins(args: argparse.Namespace, settings: C3Settings) -> int:
         "selected": settings.matcher.strategy,
     }
     if args.json:
-        print(json.dumps(report, indent=2))
+        out(json.dumps(report, indent=2))
         return EXIT_OK
-    print(
+    out(
         f"profile: {report['profile']} ({report['profile_distribution'] or 'no profile installed'}"
         f"{', strict' if report['strict'] else ''})"
     )
     for flag, state in report["flags"].items():
-        print(f"  {flag} = {state}")
-    print("strategies:" if report["strategies"] else "strategies: none linked")
+        out(f"  {flag} = {state}")
+    out("strategies:" if report["strategies"] else "strategies: none linked")
     for s in report["strategies"]:
         mark = " (selected)" if s["name"] == settings.matcher.strategy else ""
-        print(
+        out(
             f"  {s['name']}{mark}: {s['distribution']} {s['version']} "
             f"[{s['build_flag'] or 'no flag'}] {s['description']}"
         )
     for p in report["ignored"]:
-        print(f"ignored: {p['plugin']} ({p['distribution']}): {p['reason']}")
+        out(f"ignored: {p['plugin']} ({p['distribution']}): {p['reason']}")
     for e in report["errors"]:
-        print(f"error: {e}")
+        out(f"error: {e}")
     return EXIT_OK
 
 
-def _cmd_config(args: argparse.Namespace, settings: C3Settings) -> int:
-    data = settings.model_dump(mode="json")
-    print(json.dumps(data, indent=2) if args.json else to_toml(data, _notes()), end="\n")
+def _cmd_config(args: argparse.Namespace, ctx: CommandContext) -> int:
+    data = ctx.settings.model_dump(mode="json")
+    ctx.out(json.dumps(data, indent=2) if args.json else to_toml(data, _notes()))
     return EXIT_OK
 
 
@@ -238,9 +237,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigurationError as exc:
         print(_fail(exc), file=sys.stderr)
         return EXIT_USAGE
+    context = CommandContext(settings, host, sys.stdout, sys.stderr)
     try:
         handler: Handler = args.handler
-        return handler(args, settings)
+        return handler(args, context)
     except (
         InvalidInputError,
         ConfigurationError,

@@ -88,7 +88,10 @@ def build_plugin_host() -> PluginHost:
 
 
 def build_default_helpers(
-    settings: C3Settings, providers_available: tuple[str, ...] | None = None
+    settings: C3Settings,
+    providers_available: tuple[str, ...] | None = None,
+    *,
+    plugin_host: PluginHost | None = None,
 ) -> dict[str, Any]:
     """The default shared helpers (``c3_lightglue_runtime``, ``c282_ransac_filter``,
     ``c7_inference``) built from configuration: ONNX Runtime and OpenCV USAC. The LightGlue
@@ -97,7 +100,7 @@ def build_default_helpers(
     configured strategy's own defaults where the configuration leaves them unset
     (``strategy_settings``: the helpers serve the one strategy ``compose_root`` wires); the
     feature types with a steps engine are those the plugins' engine specs declare
-    (``steps_feature_types``)."""
+    (``steps_feature_types``). ``plugin_host``: the process's (default: discovered now)."""
     from c3_matcher.engines.lightglue import (
         OnnxLightGlueRuntime,
         resolve_mode,
@@ -105,7 +108,7 @@ def build_default_helpers(
     )
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
-    host = build_plugin_host()
+    host = plugin_host if plugin_host is not None else build_plugin_host()
     resolved = strategy_settings(settings, plugin_host=host)
     threshold = resolved.lightglue.filter_threshold
     assert threshold is not None  # resolved: the configuration's or the strategy's own
@@ -118,6 +121,7 @@ def build_default_helpers(
             filter_threshold=threshold,
             depth_confidence=settings.lightglue.depth_confidence,
             width_confidence=settings.lightglue.width_confidence,
+            exit_matchable=resolved.lightglue.exit_matchable or 0,
             steps_feature_types=steps_feature_types(host.engine_specs()),
         ),
         "c282_ransac_filter": OpenCvRansacFilter(

@@ -20,10 +20,13 @@ from platformdirs import user_cache_dir, user_data_dir
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from pydantic_settings import (
     BaseSettings,
+    EnvSettingsSource,
+    InitSettingsSource,
     PydanticBaseSettingsSource,
     SettingsConfigDict,
     SettingsError,
 )
+from pydantic_settings.sources.utils import parse_env_vars
 
 from c3_matcher.engines.store import default_engine_dir
 from c3_matcher.errors import ConfigurationError
@@ -252,6 +255,14 @@ class LightGlueSettings(_Section):
         description="point pruning (adaptive mode): drop points whose matchability is below "
         "1 - this; -1 off; None: upstream's default (0.99; 0.95 for LighterGlue)",
     )
+    exit_matchable: int | None = Field(
+        None,
+        ge=0,
+        description="unmatchable-pair exit (adaptive mode): stop a pair, with no matches, after "
+        "a layer at which fewer than this many points of either image are matchable "
+        "(matchability above filter_threshold); 0 off; unset: the strategy's own default, "
+        "chosen by measurement (docs/decisions.md)",
+    )
 
 
 class FdrSettings(_Section):
@@ -305,8 +316,8 @@ def with_strategy_defaults(
 ) -> C3Settings:
     """``settings`` with every setting the configuration left unset (None) taken from a
     strategy's ``defaults`` (``[matcher] photometric`` and ``refit_threshold_px``, ``[lightglue]
-    filter_threshold``); a set value is kept. Idempotent. ``ConfigurationError`` names the
-    strategy when its declared defaults are not valid settings."""
+    filter_threshold`` and ``exit_matchable``); a set value is kept. Idempotent.
+    ``ConfigurationError`` names the strategy when its declared defaults are not valid settings."""
     matcher, lightglue = settings.matcher, settings.lightglue
     try:
         unset = {
@@ -316,10 +327,13 @@ def with_strategy_defaults(
         }
         if unset:
             matcher = MatcherSettings.model_validate({**dict(matcher), **unset})
-        if lightglue.filter_threshold is None:
-            lightglue = LightGlueSettings.model_validate(
-                {**dict(lightglue), "filter_threshold": defaults.filter_threshold}
-            )
+        unset_lightglue = {
+            key: getattr(defaults, key)
+            for key in ("filter_threshold", "exit_matchable")
+            if getattr(lightglue, key) is None
+        }
+        if unset_lightglue:
+            lightglue = LightGlueSettings.model_validate({**dict(lightglue), **unset_lightglue})
     except ValidationError as exc:
         where = f"strategy {strategy!r} defaults" if strategy else "strategy defaults"
         raise ConfigurationError(
@@ -347,33 +361,47 @@ def _unknown_env_keys(env: Mapping[str, str]) -> list[tuple[str, str]]:
     return problems
 
 
+class _MappingEnvSource(EnvSettingsSource):
+    """``C3Settings``' environment source reading a given mapping instead of ``os.environ``."""
+
+    def __init__(self, env: Mapping[str, str]) -> None:
+        self._given = dict(env)
+        super().__init__(C3Settings)
+
+    def _load_env_vars(self) -> Mapping[str, str | None]:
+        return parse_env_vars(
+            self._given, self.case_sensitive, self.env_ignore_empty, self.env_parse_none_str
+        )
+
+
+def _read_toml(toml_path: Path, source: str) -> dict[str, Any]:
+    try:
+        return tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigurationError(source, [("--config", "file not found")]) from None
+    except UnicodeDecodeError as exc:
+        raise ConfigurationError(
+            source, [("--config", f"not UTF-8 text (byte {exc.start}): {exc.reason}")]
+        ) from None
+    except (OSError, tomllib.TOMLDecodeError, ValueError) as exc:
+        raise ConfigurationError(source, [("--config", f"unreadable TOML: {exc}")]) from None
+
+
 def load_settings(
     toml_path: Path | None = None, env: Mapping[str, str] | None = None
 ) -> C3Settings:
-    """Load and validate the configuration; raise ``ConfigurationError`` naming every bad field."""
+    """Load and validate the configuration: defaults < the TOML file < the environment
+    (``env``, default ``os.environ``, only read); raise ``ConfigurationError`` naming every bad
+    field."""
     environ = dict(os.environ if env is None else env)
     source = f"{toml_path} + environment" if toml_path else "environment"
-    data: dict[str, Any] = {}
-    if toml_path is not None:
-        try:
-            data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigurationError(source, [("--config", "file not found")]) from None
-        except UnicodeDecodeError as exc:
-            raise ConfigurationError(
-                source, [("--config", f"not UTF-8 text (byte {exc.start}): {exc.reason}")]
-            ) from None
-        except (OSError, tomllib.TOMLDecodeError, ValueError) as exc:
-            raise ConfigurationError(source, [("--config", f"unreadable TOML: {exc}")]) from None
+    data = _read_toml(toml_path, source) if toml_path is not None else {}
     unknown = _unknown_env_keys(environ)
     if unknown:
         raise ConfigurationError("environment", unknown)
-    saved = dict(os.environ)
     try:
-        if env is not None:
-            os.environ.clear()
-            os.environ.update(environ)
-        settings = C3Settings(**data)
+        sources = (_MappingEnvSource(environ), InitSettingsSource(C3Settings, data))
+        return C3Settings(_build_sources=(sources, data))  # environment > TOML > defaults
     except ValidationError as exc:
         problems = [
             (".".join(str(p) for p in err["loc"]) or "(root)", err["msg"]) for err in exc.errors()
@@ -388,11 +416,3 @@ def load_settings(
         field = ", ".join(named) or "environment"
         reason = f"not valid JSON for a table or list value ({exc.__cause__ or text})"
         raise ConfigurationError(source, [(field or "environment", reason)]) from None
-    finally:
-        if env is not None:
-            os.environ.clear()
-            os.environ.update(saved)
-    from c3_matcher.tiles import set_max_image_pixels
-
-    set_max_image_pixels(settings.matcher.max_image_pixels)
-    return settings

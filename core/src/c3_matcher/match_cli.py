@@ -13,7 +13,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import EXIT_INSUFFICIENT, EXIT_USAGE, CommandRegistry
+from c3_matcher.commands import EXIT_INSUFFICIENT, EXIT_USAGE, CommandContext, CommandRegistry
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import (
     Attitude,
@@ -24,6 +24,7 @@ from c3_matcher.dto import (
     TileId,
 )
 from c3_matcher.errors import C3Error, InsufficientInliersError, InvalidInputError
+from c3_matcher.protocols import TilePixelsHandle
 from c3_matcher.serialize import load_calibration, result_to_json
 from c3_matcher.tiles import MmapTileHandle, read_image
 
@@ -144,9 +145,10 @@ def register_match_command(commands: CommandRegistry) -> None:
     p.set_defaults(handler=run_match)
 
 
-def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
+def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher.compose import build_default_helpers, compose_root, state_default_fdr_path
 
+    settings, host = ctx.settings, ctx.plugin_host
     if args.tile_id and len(args.tile_id) != len(args.tile):
         raise InvalidInputError(
             "--tile-id",
@@ -164,7 +166,8 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
         update["fdr"] = settings.fdr.model_copy(update={"path": args.fdr})
     settings = settings.model_copy(update=update)
 
-    image = read_image(args.query)
+    limit = settings.matcher.max_image_pixels
+    image = read_image(args.query, limit)
     height, width = image.shape[:2]
     calibration = (
         load_calibration(args.calibration)
@@ -182,14 +185,14 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
     candidates = []
     for i, path in enumerate(args.tile):
         tile_id = args.tile_id[i] if args.tile_id else TileId(0, 0.0, float(i))
-        candidates.append(RerankCandidate(tile_id, 1.0, _readable_tile(path), args.tile_gsd))
+        candidates.append(RerankCandidate(tile_id, 1.0, _readable_tile(path, limit), args.tile_gsd))
     rerank = RerankResult(frame.frame_id, tuple(candidates))
 
-    helpers: dict[str, Any] = dict(build_default_helpers(settings))
+    helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
     problems: list[str] = []  # output that could not be written: reported after the result
     own_fdr = _open_fdr(settings, problems)
     helpers["c13_fdr"] = own_fdr
-    root = compose_root(settings, helpers)
+    root = compose_root(settings, helpers, plugin_host=host)
     state_default_fdr_path(settings)
     reasons: dict[str, str] = {}
     sink = _collect_drop_reasons(reasons)
@@ -199,7 +202,7 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
         except InsufficientInliersError as exc:
             if args.viz:
                 _draw_or_report(problems, args, image, calibration, rerank, None, f"FAILED: {exc}")
-            print(
+            ctx.out(
                 json.dumps(
                     {
                         "error": "InsufficientInliersError",
@@ -216,7 +219,7 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
             )
             _report(problems)
             return EXIT_INSUFFICIENT
-        sizes = [_image_size(path) for path in args.tile]
+        sizes = [_image_size(c.tile_pixels_handle) for c in rerank.candidates]
         out = result_to_json(
             result,
             with_correspondences=not args.no_correspondences,
@@ -245,7 +248,8 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
             f"median residual {result.reprojection_residual_px:.2f} px",
         ):
             out["viz"] = str(args.viz)
-        print(json.dumps(out), flush=True)
+        ctx.out(json.dumps(out))
+        ctx.stdout.flush()
         return EXIT_USAGE if _report(problems) else 0
     finally:
         _remove_sink(sink)
@@ -255,15 +259,16 @@ def run_match(args: argparse.Namespace, settings: C3Settings) -> int:
             close()
 
 
-def _readable_tile(path: Path) -> MmapTileHandle:
-    """A handle on a ``--tile`` file that exists and decodes (exit 2 otherwise, naming it)."""
+def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
+    """A handle on a ``--tile`` file that exists and decodes within ``max_pixels`` (exit 2
+    otherwise, naming it)."""
     from c3_matcher.tiles import decode_image
 
     p = Path(path)
     if not p.is_file():
         raise InvalidInputError(f"--tile {p}", "no such image file")
-    handle = MmapTileHandle(p)
-    decode_image(handle.encoded(), f"--tile {p}")
+    handle = MmapTileHandle(p, max_pixels=max_pixels)
+    decode_image(handle.encoded(), f"--tile {p}", max_pixels)
     return handle
 
 
@@ -335,8 +340,8 @@ def _remove_sink(sink: int) -> None:
         logger.remove(sink)
 
 
-def _image_size(path: Path) -> tuple[int, int]:
-    h, w = read_image(path).shape[:2]
+def _image_size(handle: TilePixelsHandle) -> tuple[int, int]:
+    h, w = handle.decode().shape[:2]
     return w, h
 
 
@@ -363,7 +368,7 @@ def _draw(
         hom = fit_query_to_tile(corr, calibration)
     views = [
         CandidateView(
-            read_image(path),
+            c.tile_pixels_handle.decode(),
             str(c.tile_id) if c.tile_id.zoom else path.name,
             counts.get(i),
             best=i == best_index,

@@ -7,8 +7,11 @@ of the file: touching a mapping whose file shrank kills the process with SIGBUS,
 read of a shrunk file is that candidate's error.
 
 Decompression bombs: ``decode_image`` reads the image header (PNG, JPEG, TIFF, BMP, WebP, GIF)
-and refuses an image above ``max_image_pixels()`` (``[matcher] max_image_pixels``, default
-50 Mpx) before decoding it; an image whose size cannot be read from its header is refused too.
+and refuses an image above its ``max_pixels`` argument (width x height; the configured
+``[matcher] max_image_pixels`` where the caller has a configuration, else
+``DEFAULT_MAX_IMAGE_PIXELS``, 50 Mpx) before decoding it; an image whose size cannot be read
+from its header is refused too. The limit is a value each reader is given, never process state:
+``read_image``, ``MmapTileHandle`` and ``BytesTileHandle`` take it too.
 """
 
 from __future__ import annotations
@@ -31,34 +34,28 @@ __all__ = [
     "MmapTileHandle",
     "decode_image",
     "image_header_size",
-    "max_image_pixels",
     "read_image",
-    "set_max_image_pixels",
 ]
 
-DEFAULT_MAX_IMAGE_PIXELS = 50_000_000
-_limits = {"max_image_pixels": DEFAULT_MAX_IMAGE_PIXELS}
+DEFAULT_MAX_IMAGE_PIXELS = 50_000_000  # the default of [matcher] max_image_pixels
 
 
-def max_image_pixels() -> int:
-    """The largest image (width x height) ``decode_image`` decodes."""
-    return _limits["max_image_pixels"]
-
-
-def set_max_image_pixels(value: int) -> None:
-    """Set the process-wide pixel limit (``load_settings`` applies the configured one)."""
+def _checked_limit(value: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 256:
         raise InvalidInputError("matcher.max_image_pixels", f"must be an int >= 256, got {value!r}")
-    _limits["max_image_pixels"] = value
+    return value
 
 
 class ImageDecodeError(InvalidInputError):
     """Encoded image bytes could not be decoded."""
 
 
-def decode_image(buffer: memoryview | bytes, what: str) -> NDArray[np.uint8]:
+def decode_image(
+    buffer: memoryview | bytes, what: str, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+) -> NDArray[np.uint8]:
     """Decode PNG/JPEG/TIFF/... bytes to uint8 RGB (H, W, 3); 16-bit is scaled, alpha dropped,
-    4-band (e.g. R,G,B,NIR GeoTIFF) keeps its first three bands in file order."""
+    4-band (e.g. R,G,B,NIR GeoTIFF) keeps its first three bands in file order. An image above
+    ``max_pixels`` (width x height, read from its header) is refused before decoding."""
     raw = np.frombuffer(buffer, dtype=np.uint8)
     if raw.size == 0:
         raise ImageDecodeError(what, "no bytes to decode")
@@ -66,7 +63,7 @@ def decode_image(buffer: memoryview | bytes, what: str) -> NDArray[np.uint8]:
     if size is None:
         raise ImageDecodeError(what, "not a decodable image (PNG, JPEG, TIFF, BMP, WebP, GIF)")
     width, height = size
-    limit = max_image_pixels()
+    limit = _checked_limit(max_pixels)
     if width <= 0 or height <= 0 or width * height > limit:
         raise ImageDecodeError(
             what,
@@ -172,12 +169,13 @@ def _tiff_size(head: bytes) -> tuple[int, int] | None:
     return None
 
 
-def read_image(path: Path) -> NDArray[np.uint8]:
-    """Read an image file to uint8 RGB, naming the file when it is missing or undecodable."""
+def read_image(path: Path, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> NDArray[np.uint8]:
+    """Read an image file to uint8 RGB, naming the file when it is missing or undecodable
+    (or above ``max_pixels``, width x height)."""
     p = Path(path)
     if not p.is_file():
         raise InvalidInputError(str(p), "no such image file")
-    return MmapTileHandle(p).decode()
+    return MmapTileHandle(p, max_pixels=max_pixels).decode()
 
 
 class MmapTileHandle:
@@ -188,8 +186,9 @@ class MmapTileHandle:
     candidate, never a SIGBUS of the process.
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> None:
         self._path = Path(path)
+        self._max_pixels = _checked_limit(max_pixels)
         try:
             st = self._path.stat()
         except OSError as exc:
@@ -230,7 +229,7 @@ class MmapTileHandle:
         return memoryview(buf).toreadonly()
 
     def decode(self) -> NDArray[np.uint8]:
-        return decode_image(self.encoded(), str(self._path))
+        return decode_image(self.encoded(), str(self._path), self._max_pixels)
 
     def __repr__(self) -> str:
         return f"MmapTileHandle({str(self._path)!r})"
@@ -239,15 +238,18 @@ class MmapTileHandle:
 class BytesTileHandle:
     """A tile held as bytes in memory (tests, tiles received over a bus)."""
 
-    def __init__(self, data: bytes, name: str = "<bytes>") -> None:
+    def __init__(
+        self, data: bytes, name: str = "<bytes>", *, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+    ) -> None:
         self._data = data
         self._name = name
+        self._max_pixels = _checked_limit(max_pixels)
 
     def encoded(self) -> memoryview:
         return memoryview(self._data)
 
     def decode(self) -> NDArray[np.uint8]:
-        return decode_image(self.encoded(), self._name)
+        return decode_image(self.encoded(), self._name, self._max_pixels)
 
     def __repr__(self) -> str:
         return f"BytesTileHandle({self._name!r}, {len(self._data)} bytes)"

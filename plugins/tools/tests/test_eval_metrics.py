@@ -9,7 +9,7 @@ import math
 import pytest
 
 from c3_matcher_tools.evaluate import WRONG_FIX_PX, is_wrong_fix, metrics
-from c3_matcher_tools.replay import FrameOutcome
+from c3_matcher_tools.run import FrameOutcome
 
 
 def _outcome(

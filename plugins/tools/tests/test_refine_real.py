@@ -10,7 +10,7 @@ from pathlib import Path
 
 from c3_matcher.config import C3Settings
 from c3_matcher_tools.dataset.format import load_dataset, with_attitude_noise
-from c3_matcher_tools.replay import build_matcher, run_flight
+from c3_matcher_tools.run import open_matcher, run_flight
 
 DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
 
@@ -23,7 +23,7 @@ def test_refine_on_real_frames_with_attitude_error(engine_dir: Path, tmp_path: P
     )
     runs = []
     for n in range(2):
-        with build_matcher(settings, "xfeat", tmp_path / f"run{n}", log_level="WARNING") as m:
+        with open_matcher(settings, "xfeat", tmp_path / f"run{n}", log_level="WARNING") as m:
             runs.append(run_flight(m, flight))
     first, second = runs
     assert [o.fingerprint for o in first] == [o.fingerprint for o in second]

@@ -23,13 +23,13 @@ from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.sources.common import ImportOptions, write_imported_flight
 from c3_matcher_tools.dataset.sources.images import folder_shots
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
-from c3_matcher_tools.replay import (
+from c3_matcher_tools.report import html as report_html
+from c3_matcher_tools.run import (
     FrameOutcome,
     summarize,
     telemetry_reference,
     write_html_report,
 )
-from c3_matcher_tools.report import html as report_html
 from c3_matcher_tools.testing import flightlogs as fl
 
 REPO = Path(__file__).resolve().parents[3]

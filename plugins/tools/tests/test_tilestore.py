@@ -26,7 +26,7 @@ from c3_matcher.tilestore.handles import (
 )
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher.tilestore.xyz import XyzTileStore
-from c3_matcher_tools.replay import build_matcher
+from c3_matcher_tools.run import open_matcher
 from c3_matcher_tools.tilestore.build import build_mbtiles
 from c3_matcher_tools.tilestore.geo import (
     Projection,
@@ -218,7 +218,7 @@ def test_bad_tiles_are_candidate_drops_not_crashes(tmp_path: Path) -> None:
             ),
         )
         with (
-            build_matcher(C3Settings(), "sift_magsac", tmp_path / "run") as matcher,
+            open_matcher(C3Settings(), "sift_magsac", tmp_path / "run") as matcher,
             pytest.raises(InsufficientInliersError) as info,
         ):
             matcher.match(frame, rerank, calibration)

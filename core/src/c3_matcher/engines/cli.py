@@ -19,8 +19,9 @@ from c3_matcher.engines.store import BUILD_COMMAND, EngineStore, VerifyOutcome
 from c3_matcher.errors import EngineError
 
 if TYPE_CHECKING:
-    from c3_matcher.commands import CommandRegistry
+    from c3_matcher.commands import CommandContext, CommandRegistry
     from c3_matcher.config import C3Settings
+    from c3_matcher.plugins.manager import PluginHost
 
 __all__ = ["EnginesCliContext", "engines_context", "figures", "register_engines_commands"]
 
@@ -35,11 +36,15 @@ class EnginesCliContext:
     imagery: tuple[Path, ...] = ()
 
 
-def engines_context(settings: C3Settings) -> EnginesCliContext:
-    """The engine directory of ``settings`` and the engine specs of the installed plugins."""
+def engines_context(
+    settings: C3Settings, plugin_host: PluginHost | None = None
+) -> EnginesCliContext:
+    """The engine directory of ``settings`` and the engine specs of the installed plugins
+    (``plugin_host``'s: the command line's; default: discovered now)."""
     from c3_matcher.compose import build_plugin_host
 
-    return EnginesCliContext(settings.engines.directory, build_plugin_host().engine_specs())
+    host = plugin_host if plugin_host is not None else build_plugin_host()
+    return EnginesCliContext(settings.engines.directory, host.engine_specs())
 
 
 def _err(line: str) -> None:
@@ -59,8 +64,8 @@ def figures(verification: dict[str, Any] | Any) -> list[str]:
     return lines
 
 
-def _list(args: argparse.Namespace, settings: C3Settings) -> int:
-    ctx = engines_context(settings)
+def _list(args: argparse.Namespace, command: CommandContext) -> int:
+    ctx = engines_context(command.settings, command.plugin_host)
     records = EngineStore(ctx.engine_dir).list()
     if args.json:
         print(
@@ -100,8 +105,8 @@ def _list(args: argparse.Namespace, settings: C3Settings) -> int:
     return 0
 
 
-def _verify(args: argparse.Namespace, settings: C3Settings) -> int:
-    ctx = engines_context(settings)
+def _verify(args: argparse.Namespace, command: CommandContext) -> int:
+    ctx = engines_context(command.settings, command.plugin_host)
     store = EngineStore(ctx.engine_dir)
     outcomes = store.verify()
     if not outcomes:

@@ -1,15 +1,21 @@
-"""Plots drawn with OpenCV (matplotlib is not a dependency): per-frame line charts."""
+"""Plots drawn with OpenCV (matplotlib is not a dependency): per-frame line charts, and the
+pictures ``eval`` draws of its runs (:func:`eval_plots`)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
-__all__ = ["line_chart"]
+if TYPE_CHECKING:
+    from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
+    from c3_matcher_tools.run.records import FlightRun
+
+__all__ = ["eval_plots", "line_chart"]
 
 _COLOURS = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189))
 
@@ -89,3 +95,77 @@ def line_chart(
     if not cv2.imwrite(str(out), canvas):
         raise OSError(f"cannot write {out}")
     return out
+
+
+def eval_plots(
+    dataset: FlightDataset, runs: Sequence[FlightRun], out: Path, samples: int
+) -> list[str]:
+    """``out/inliers.png`` and ``out/error.png`` (best-candidate inliers and mean inlier error
+    against ground truth per frame, one line per run) and, for ``samples`` frames with the true
+    tile spread over the flight, ``out/matches/<strategy>_<frame>.png``; the paths written."""
+    written = [
+        str(
+            line_chart(
+                out / "inliers.png",
+                {r.strategy: [float(o.best_inliers) for o in r.outcomes] for r in runs},
+                title=f"{dataset.name}: best-candidate inliers per frame",
+                ylabel="inliers",
+                bar=80,
+            )
+        ),
+        str(
+            line_chart(
+                out / "error.png",
+                {r.strategy: [_finite_or_nan(o.mean_error_px) for o in r.outcomes] for r in runs},
+                title=f"{dataset.name}: mean inlier error vs ground truth per frame",
+                ylabel="px",
+                bar=2.5,
+            )
+        ),
+    ]
+    if samples > 0:
+        written += _match_pictures(dataset, runs, out, _sample_frames(dataset, samples))
+    return written
+
+
+def _finite_or_nan(value: float) -> float:
+    return value if math.isfinite(value) else math.nan
+
+
+def _sample_frames(dataset: FlightDataset, samples: int) -> list[FrameRecord]:
+    present = [f for f in dataset.frames if f.true_tile_present]
+    positions = sorted(
+        {round(k * (len(present) - 1) / max(samples - 1, 1)) for k in range(samples)}
+    )
+    return [present[p] for p in positions] if present else []
+
+
+def _match_pictures(
+    dataset: FlightDataset, runs: Sequence[FlightRun], out: Path, picks: Sequence[FrameRecord]
+) -> list[str]:
+    from c3_matcher.viz import draw_matches
+
+    written: list[str] = []
+    with dataset.open_store() as store:
+        for r in runs:
+            by_index = {o.index: o for o in r.outcomes}
+            for frame in picks:
+                o = by_index.get(frame.index)
+                if o is None or o.result is None or o.best_input_index is None:
+                    continue
+                best = o.result["per_candidate"][0]
+                corr = np.asarray(best.get("inlier_correspondences", []), dtype=np.float32)
+                cand = frame.candidates[o.best_input_index]
+                tile = store.handle(cand.tile_id, dataset.candidate_size_px).decode()
+                path = out / "matches" / f"{r.strategy}_{frame.index:04d}.png"
+                draw_matches(
+                    dataset.nav_frame(frame).image,
+                    tile,
+                    corr.reshape(-1, 4),
+                    path,
+                    title=f"{r.strategy} frame {frame.index}: {o.best_inliers} inliers, "
+                    f"{'true tile' if o.correct else 'wrong tile'}, err {o.mean_error_px:.2f}px",
+                    height=480,
+                )
+                written.append(str(path))
+    return written

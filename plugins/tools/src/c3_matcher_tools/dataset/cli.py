@@ -7,8 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from c3_matcher.commands import CommandRegistry
-from c3_matcher.config import C3Settings
+from c3_matcher.commands import CommandContext, CommandRegistry
 from c3_matcher_tools.dataset.progress import ProgressBar
 
 __all__ = ["register_dataset_command"]
@@ -149,7 +148,7 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     p.set_defaults(handler=run_dataset)
 
 
-def run_dataset(args: argparse.Namespace, settings: C3Settings) -> int:
+def run_dataset(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
     from c3_matcher_tools.dataset.format import load_dataset
     from c3_matcher_tools.dataset.sources.cli import run_log_import

@@ -50,7 +50,7 @@ from c3_matcher.dto import (
 )
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
-from c3_matcher.tiles import read_image
+from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 
 __all__ = [
@@ -173,12 +173,15 @@ class FrameRecord:
 
 @dataclass(frozen=True)
 class FlightDataset:
-    """A loaded dataset: its directory, metadata, calibration and frame records."""
+    """A loaded dataset: its directory, metadata, calibration and frame records;
+    ``max_image_pixels``: the largest frame (width x height) ``nav_frame`` decodes
+    (``[matcher] max_image_pixels``)."""
 
     root: Path
     meta: dict[str, Any]
     calibration: CameraCalibration
     frames: tuple[FrameRecord, ...]
+    max_image_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
 
     @property
     def name(self) -> str:
@@ -199,7 +202,7 @@ class FlightDataset:
         """The frame as C1 delivers it: pixels read from the dataset, attitude and height."""
         return NavCameraFrame(
             frame.frame_id,
-            read_image(self.root / frame.image),
+            read_image(self.root / frame.image, self.max_image_pixels),
             frame.captured_at_ns,
             frame.attitude,
             frame.height_m,
@@ -274,8 +277,11 @@ def write_dataset(
     return root
 
 
-def load_dataset(root: str | Path) -> FlightDataset:
-    """Read a dataset directory, naming what is missing or malformed."""
+def load_dataset(
+    root: str | Path, max_image_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+) -> FlightDataset:
+    """Read a dataset directory, naming what is missing or malformed; its frames are decoded
+    up to ``max_image_pixels`` (width x height)."""
     base = Path(root)
     meta_path = base / "dataset.json"
     if not meta_path.is_file():
@@ -309,4 +315,4 @@ def load_dataset(root: str | Path) -> FlightDataset:
             ) from exc
     if not (base / str(meta["store"])).is_file():
         raise InvalidInputError("dataset", f"{base / str(meta['store'])}: tile store missing")
-    return FlightDataset(base, meta, calibration, tuple(frames))
+    return FlightDataset(base, meta, calibration, tuple(frames), max_image_pixels)

@@ -13,8 +13,7 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
-from c3_matcher.commands import CommandRegistry
-from c3_matcher.config import C3Settings
+from c3_matcher.commands import CommandContext, CommandRegistry
 from c3_matcher.engines.cli import EnginesCliContext, engines_context, figures
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.engines.store import EngineStore
@@ -27,8 +26,8 @@ def _err(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-def _build(args: argparse.Namespace, settings: C3Settings) -> int:
-    ctx = engines_context(settings)
+def _build(args: argparse.Namespace, command: CommandContext) -> int:
+    ctx = engines_context(command.settings, command.plugin_host)
     from c3_matcher_tools.engines.compiler import EngineBuildError, build_engines
 
     start = time.perf_counter()
@@ -76,8 +75,8 @@ def _bench_pairs(specs: Sequence[EngineSpec]) -> list[tuple[EngineSpec, EngineSp
     ]
 
 
-def _bench(args: argparse.Namespace, settings: C3Settings) -> int:
-    ctx: EnginesCliContext = engines_context(settings)
+def _bench(args: argparse.Namespace, command: CommandContext) -> int:
+    ctx: EnginesCliContext = engines_context(command.settings, command.plugin_host)
     from c3_matcher_tools.engines.bench import format_table, run_bench
 
     pairs = _bench_pairs(ctx.specs)

@@ -77,28 +77,35 @@ class _Facts:
     descriptor_dtype: str
 
 
-_BACKENDS: dict[tuple[str, str], Any] = {}
+BackendCache = dict[tuple[str, str], Any]
 
 
-def _backend(strategy: str, settings_json: str) -> Any:
-    """The strategy's FeatureBackend, built once per worker process."""
+def _backend(strategy: str, settings_json: str, cache: BackendCache | None = None) -> Any:
+    """The strategy's FeatureBackend with the whole top-K and no tile cache, built once per
+    process: held in ``cache`` (the caller's, when it runs the tasks itself) or by the Dask
+    worker running the task."""
+    cache = _worker_cache() if cache is None else cache
     key = (strategy, settings_json)
-    if key not in _BACKENDS:
+    if key not in cache:
         from loguru import logger
 
-        from c3_matcher.compose import build_default_helpers, compose_root
-        from c3_matcher.fdr import InMemoryFdr
+        from c3_matcher_tools.run.matcher import Overrides, open_backend
 
         logger.remove()
-        settings = C3Settings.model_validate_json(settings_json)
-        m = settings.matcher.model_copy(
-            update={"strategy": strategy, "max_keypoints": EXTRACT_BUDGET, "tile_cache_size": 0}
+        cache[key] = open_backend(
+            C3Settings.model_validate_json(settings_json),
+            strategy,
+            overrides=Overrides(max_keypoints=EXTRACT_BUDGET, tile_cache_size=0),
         )
-        chosen = settings.model_copy(update={"matcher": m})
-        helpers = build_default_helpers(chosen)
-        root = compose_root(chosen, {**helpers, "c13_fdr": InMemoryFdr()}, configure_logs=False)
-        _BACKENDS[key] = root.matcher.backend  # type: ignore[attr-defined]
-    return _BACKENDS[key]
+    return cache[key]
+
+
+def _worker_cache() -> BackendCache:
+    """The backends held by the Dask worker this task runs on (one per worker process)."""
+    from dask.distributed import get_worker
+
+    cache: BackendCache = get_worker().extensions.setdefault("c3_feature_backends", {})
+    return cache
 
 
 def _photometric(strategy: str, settings_json: str) -> str:
@@ -159,13 +166,14 @@ def _task(
     window_px: int,
     stride_px: int,
     windows: Sequence[WindowKey],
+    cache: BackendCache | None = None,
 ) -> tuple[list[tuple[int, int, int, WindowFeatures]], float]:
     """A worker's batch: [(zoom, gx, gy, features)] and the seconds it took (a window no stored
     tile overlaps has no features and is left out)."""
     from c3_matcher.tilestore.handles import TileNotFoundError
 
     started = time.perf_counter()
-    backend = _backend(strategy, settings_json)
+    backend = _backend(strategy, settings_json, cache)
     photometric = _photometric(strategy, settings_json)
     source = _open_source(store_path)
     out: list[tuple[int, int, int, WindowFeatures]] = []
@@ -182,9 +190,9 @@ def _task(
     return out, time.perf_counter() - started
 
 
-def _set_facts(strategy: str, settings_json: str) -> _Facts:
+def _set_facts(strategy: str, settings_json: str, cache: BackendCache | None = None) -> _Facts:
     """The facts keying a strategy's set, in a worker (the descriptor size from a probe)."""
-    backend = _backend(strategy, settings_json)
+    backend = _backend(strategy, settings_json, cache)
     from c3_matcher.preprocess import PreparedImage
 
     probe = np.kron(
@@ -315,6 +323,7 @@ def build_features(
         for z, gx, gy in todo_all
     }
     report = BuildReport(str(store), str(sidecar_path(store)))
+    local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
     client: Any = None
     cluster: Any = None
     if workers > 0 or scheduler:
@@ -333,7 +342,7 @@ def build_features(
                 if client is not None:
                     facts = client.submit(_set_facts, strategy, settings_json, pure=False).result()
                 else:
-                    facts = _set_facts(strategy, settings_json)
+                    facts = _set_facts(strategy, settings_json, local)
                 photometric = _photometric(strategy, settings_json)
                 set_id = set_id_for(
                     facts.extractor_sha256,
@@ -383,7 +392,7 @@ def build_features(
                     futures = [client.submit(_task, *args, b, pure=False) for b in batches]
                     results: Iterator[Any] = (f.result() for f in as_completed(futures))
                 else:
-                    results = (_task(*args, b) for b in batches)
+                    results = (_task(*args, b, local) for b in batches)
                 for rows, seconds in results:
                     sidecar.put_windows(set_id, rows)
                     busy_s += seconds

@@ -8,8 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from c3_matcher.commands import EXIT_OK, EXIT_USAGE, CommandRegistry
-from c3_matcher.config import C3Settings
+from c3_matcher.commands import EXIT_OK, EXIT_USAGE, CommandContext, CommandRegistry
 
 __all__ = ["register_features_command"]
 
@@ -76,7 +75,7 @@ def register_features_command(commands: CommandRegistry) -> None:
     i.set_defaults(handler=_info)
 
 
-def _build(args: argparse.Namespace, settings: C3Settings) -> int:
+def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher_tools.features.build import (
         DEFAULT_WINDOW_PX,
         build_features,
@@ -112,8 +111,8 @@ def _build(args: argparse.Namespace, settings: C3Settings) -> int:
     try:
         report = build_features(
             store,
-            args.strategy or [settings.matcher.strategy],
-            settings,
+            args.strategy or [ctx.settings.matcher.strategy],
+            ctx.settings,
             window_px=window,
             stride_px=stride,
             min_coverage=args.min_coverage,
@@ -138,7 +137,7 @@ def _build(args: argparse.Namespace, settings: C3Settings) -> int:
     return EXIT_OK
 
 
-def _info(args: argparse.Namespace, settings: C3Settings) -> int:
+def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher.tilestore.features import (
         FeatureStoreUnavailableError,
         MapFeatureStore,

@@ -30,7 +30,7 @@ from c3_matcher.viz import CandidateView, render_match
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.report.trajectory import draw_trajectory
-from c3_matcher_tools.replay import FrameOutcome
+from c3_matcher_tools.run.records import FrameOutcome
 
 __all__ = ["frame_picture", "write_report"]
 

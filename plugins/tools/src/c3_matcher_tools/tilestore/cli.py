@@ -12,8 +12,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import CommandRegistry
-from c3_matcher.config import C3Settings
+from c3_matcher.commands import CommandContext, CommandRegistry
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.progress import ProgressBar
 
@@ -128,7 +127,7 @@ def register_tiles_command(commands: CommandRegistry) -> None:
     p.set_defaults(handler=run_tiles)
 
 
-def run_tiles(args: argparse.Namespace, settings: C3Settings) -> int:
+def run_tiles(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher.tilestore.mbtiles import MBTilesStore
     from c3_matcher_tools.tilestore.build import build_mbtiles
 

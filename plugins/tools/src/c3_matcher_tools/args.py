@@ -1,0 +1,52 @@
+"""Argument types and options the ground commands share (a bad value is a usage error, exit 2,
+naming the option)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+__all__ = ["add_attitude_noise_option", "non_negative_float", "positive_int"]
+
+
+def add_attitude_noise_option(p: argparse.ArgumentParser) -> None:
+    """``--attitude-noise-deg``: replay the flight as an IMU with that much error reports it."""
+    p.add_argument(
+        "--attitude-noise-deg",
+        type=non_negative_float("--attitude-noise-deg"),
+        default=0.0,
+        help="add seeded Gaussian noise of this sigma (deg) to every frame's roll, pitch and yaw "
+        "(an IMU's error; the same per frame in every run; default 0)",
+    )
+
+
+def non_negative_float(what: str) -> Callable[[str], float]:
+    """An argparse type: a finite float >= 0, else a usage error (exit 2) naming ``what``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what}: expected a number, got {text!r}") from None
+        if not math.isfinite(value) or value < 0:
+            raise argparse.ArgumentTypeError(f"{what}: must be finite and >= 0, got {value}")
+        return value
+
+    return parse
+
+
+def positive_int(what: str, low: int = 1, high: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an int in [low, high], else a usage error (exit 2) naming ``what``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what}: expected an integer, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            bound = f">= {low}" if high is None else f"in [{low}, {high}]"
+            raise argparse.ArgumentTypeError(f"{what}: must be {bound}, got {value}")
+        return value
+
+    return parse

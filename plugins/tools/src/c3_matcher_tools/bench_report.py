@@ -1,0 +1,127 @@
+"""The figures ``c3-matcher bench`` reports from its cases' results: the ratios a run proves
+(speed-ups of frame p50 and p95, slower / faster, >1 means the second case is faster; peak RSS
+of both sides) and the table."""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["comparisons", "format_report"]
+
+
+def _speedup(slow: dict[str, Any] | None, fast: dict[str, Any] | None, key: str = "p50") -> str:
+    """``slow / fast`` of frame ``key`` as ``"2.50x"`` (>1: ``fast`` is faster); '' if absent."""
+    if not slow or not fast or not fast["frame_ms"][key]:
+        return ""
+    return f"{slow['frame_ms'][key] / fast['frame_ms'][key]:.2f}x"
+
+
+def _sources(r: dict[str, Any]) -> str:
+    counts = r.get("feature_sources") or {}
+    total = sum(counts.values())
+    if not total:
+        return ""
+    return " ".join(f"{k} {v}/{total}" for k, v in sorted(counts.items()) if k != "none") or ""
+
+
+def comparisons(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The ratios a run proves, per strategy: stored vs extracted tiles, adaptive vs full
+    LightGlue, cached vs new tiles, each engine case vs the PyTorch reference (speed-ups of
+    frame p50 and p95, peak RSS of both sides)."""
+
+    def find(strategy: str, kind: str, **fields: Any) -> dict[str, Any] | None:
+        for r in results:
+            c = r["case"]
+            same = c["strategy"] == strategy and c["kind"] == kind
+            if same and all(c.get(k) == v for k, v in fields.items()):
+                return r
+        return None
+
+    out: list[dict[str, Any]] = []
+    for strategy in dict.fromkeys(r["case"]["strategy"] for r in results):
+        base = dict(stored_features=False, lightglue_mode=None, intra_op_threads=None)
+        new = find(strategy, "engine", tile_cache_size=0, **base)
+        cached = next(
+            (
+                r
+                for r in results
+                if r["case"]["strategy"] == strategy
+                and r["case"]["kind"] == "engine"
+                and r["case"]["tile_cache_size"] > 0
+            ),
+            None,
+        )
+        stored = find(strategy, "engine", stored_features=True)
+        other = next(
+            (
+                r
+                for r in results
+                if r["case"]["strategy"] == strategy
+                and r["case"]["kind"] == "engine"
+                and r["case"].get("lightglue_mode")
+            ),
+            None,
+        )
+        torch_ref = find(strategy, "pytorch")
+        pairs: list[tuple[str, dict[str, Any] | None, dict[str, Any] | None]] = [
+            ("cached vs new tiles", new, cached),
+            ("stored features vs extraction", new, stored),
+        ]
+        if other is not None:
+            mode = other["case"]["lightglue_mode"]
+            if mode == "full":
+                pairs.append(("adaptive vs full LightGlue", other, new))
+            else:
+                pairs.append(("adaptive vs full LightGlue", new, other))
+        for r in (new, cached, stored, other):
+            if r is not None:
+                pairs.append((f"{r['label']} vs PyTorch", torch_ref, r))
+        for what, slow, fast in pairs:
+            if slow is None or fast is None:
+                continue
+            out.append(
+                {
+                    "strategy": strategy,
+                    "comparison": what,
+                    "speedup_p50": slow["frame_ms"]["p50"] / fast["frame_ms"]["p50"],
+                    "speedup_p95": slow["frame_ms"]["p95"] / fast["frame_ms"]["p95"],
+                    "peak_rss_mb": (fast["peak_rss_mb"], slow["peak_rss_mb"]),
+                }
+            )
+    return out
+
+
+def format_report(report: dict[str, Any]) -> str:
+    results = report["results"]
+    sift = next((r for r in results if r["case"]["kind"] == "sift"), None)
+    torch_ref = {r["case"]["strategy"]: r for r in results if r["case"]["kind"] == "pytorch"}
+    m = report["machine"]
+    lines = [
+        f"machine: {m['platform']}, {m['cpus']} CPUs, onnxruntime {m['onnxruntime']} "
+        f"(providers {', '.join(m['available_providers'])}); {report['runs']} runs per "
+        f"case; data {report.get('data', '?')}; frame = 1 query + its candidate tiles",
+        f"{'case':66} {'provider':18} {'frame p50':>9} {'frame p95':>9} {'cand p95':>8} "
+        f"{'peak MB':>7} {'inliers':>7} {'vs torch':>8} {'vs SIFT':>7}  tile features",
+    ]
+    for r in results:
+        ref = torch_ref.get(r["case"]["strategy"])
+        vs_torch = _speedup(ref, r) if r["case"]["kind"] == "engine" else ""
+        vs_sift = _speedup(sift, r) if sift and r is not sift else ""
+        lines.append(
+            f"{r['label']:66} {r['provider'][:18]:18} {r['frame_ms']['p50']:9.0f} "
+            f"{r['frame_ms']['p95']:9.0f} {r['per_candidate_ms']['p95']:8.0f} "
+            f"{r['peak_rss_mb']:7.0f} {r['best_inliers']:7d} {vs_torch:>8} "
+            f"{vs_sift:>7}  {_sources(r)}"
+        )
+    lines.append("speed-ups (frame p50 and p95, slower / faster; peak MB faster vs slower side):")
+    for c in report.get("comparisons") or comparisons(results):
+        fast_mb, slow_mb = c["peak_rss_mb"]
+        lines.append(
+            f"  {c['strategy']}: {c['comparison']}: {c['speedup_p50']:.2f}x p50, "
+            f"{c['speedup_p95']:.2f}x p95; peak {fast_mb:.0f} vs {slow_mb:.0f} MB"
+        )
+    lines.append("per stage, ms (p50/p95):")
+    for r in results:
+        parts = [f"{k} {v['p50']:.0f}/{v['p95']:.0f}" for k, v in r["stages_ms"].items()]
+        lines.append(f"  {r['label']}: " + ", ".join(parts))
+    return "\n".join(lines)

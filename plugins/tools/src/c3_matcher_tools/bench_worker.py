@@ -1,0 +1,179 @@
+"""One ``c3-matcher bench`` case, timed in its own process (``python -m
+c3_matcher_tools.bench_worker CASE RUNS DATA [--config FILE]``, one JSON line on stdout) so that
+its peak memory (``ru_maxrss``) is its own: the matcher opened through the run layer with the
+case's overrides, 2 warm-up runs, then ``RUNS`` timed matches (ms) of the data's frames."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import sys
+import tempfile
+import time
+import uuid
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from c3_matcher.config import C3Settings, load_settings
+from c3_matcher_tools.bench import BenchCase
+from c3_matcher_tools.run.matcher import Overrides, compose_matcher
+
+__all__ = ["demo_inputs", "flight_inputs", "run_worker"]
+
+STAGES = ("decode", "preprocess", "extract", "match", "ransac")
+
+
+def flight_inputs(data_dir: Path) -> list[tuple[Any, Any, Any]]:
+    """(frame, rerank, calibration) per frame: a flight dataset's frames whose true tile is
+    present (``dataset.json``), or the single frame of a demo-format directory."""
+    if (data_dir / "dataset.json").is_file():
+        from c3_matcher_tools.dataset.format import load_dataset
+
+        dataset = load_dataset(data_dir)
+        store = dataset.open_store()
+        return [
+            (dataset.nav_frame(f), dataset.rerank(f, store), dataset.calibration)
+            for f in dataset.frames
+            if f.true_tile_present
+        ]
+    return [demo_inputs(data_dir)]
+
+
+def demo_inputs(data_dir: Path) -> tuple[Any, Any, Any]:
+    from c3_matcher.dto import Attitude, NavCameraFrame, RerankCandidate, RerankResult, TileId
+    from c3_matcher.serialize import load_calibration
+    from c3_matcher.tiles import MmapTileHandle, read_image
+
+    meta = json.loads((data_dir / "demo.json").read_text())
+    att = meta["attitude_deg"]
+    frame = NavCameraFrame(
+        uuid.UUID(int=1),
+        read_image(data_dir / "frame.jpg"),
+        1,
+        Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
+        meta["height_m"],
+    )
+    candidates = tuple(
+        RerankCandidate(
+            TileId(*t["tile_id"]), 1.0, MmapTileHandle(data_dir / t["file"]), meta["tile_gsd_m"]
+        )
+        for t in meta["tiles"]
+    )
+    calibration = load_calibration(data_dir / "calibration.json")
+    return frame, RerankResult(frame.frame_id, candidates), calibration
+
+
+def _percentiles(values: list[float]) -> dict[str, float]:
+    arr = np.asarray(values, dtype=np.float64)
+    return {"p50": float(np.percentile(arr, 50)), "p95": float(np.percentile(arr, 95))}
+
+
+def _overrides(case: BenchCase) -> Overrides:
+    """The case's settings over the configuration (the keypoint budget as the case has it)."""
+    return Overrides(
+        tile_cache_size=case.tile_cache_size,
+        max_long_side=case.max_long_side,
+        max_keypoints=case.max_keypoints,
+        stored_features=case.stored_features,
+        lightglue_mode=case.lightglue_mode,
+        intra_op_threads=case.intra_op_threads,
+    )
+
+
+def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings) -> dict[str, Any]:
+    """Time ``runs`` matches of the demo frame (after 2 warm-up runs) in this process."""
+    from c3_matcher.fdr import JsonlFdrRecorder
+    from c3_matcher.health import MonotonicClock
+    from c3_matcher_tools.baselines import SIFT_LABEL
+
+    strategy = SIFT_LABEL if case.kind == "sift" else case.strategy
+    settings = _overrides(case).apply(settings, strategy)
+    if case.max_keypoints is None:  # the case's budget: the configured one
+        settings = settings.model_copy(
+            update={"matcher": settings.matcher.model_copy(update={"max_keypoints": None})}
+        )
+    inputs = flight_inputs(data_dir)
+    clock = MonotonicClock()
+    fdr = JsonlFdrRecorder(Path(tempfile.mkdtemp(prefix="c3-bench-")) / "fdr.jsonl", clock)
+    started = time.perf_counter()
+    try:
+        composed = compose_matcher(settings, fdr=fdr, clock=clock, reference=case.kind == "pytorch")
+    except LookupError as exc:
+        raise SystemExit(str(exc)) from None
+    startup_s = time.perf_counter() - started
+    timed = _time_matches(composed.matcher, inputs, runs)
+    return {
+        "case": asdict(case),
+        "label": case.label,
+        "provider": composed.provider,
+        "runs": runs,
+        "startup_s": startup_s,
+        **timed,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def _time_matches(matcher: Any, inputs: list[tuple[Any, Any, Any]], runs: int) -> dict[str, Any]:
+    """Frame, candidate and stage times (ms) of ``runs`` matches after 2 warm-up runs, the
+    median best inlier count and where the candidates' features came from."""
+    from c3_matcher.errors import InsufficientInliersError
+
+    frame_ms: list[float] = []
+    candidate_ms: list[float] = []
+    stages: dict[str, list[float]] = {s: [] for s in ("query_preprocess", "query_extract", *STAGES)}
+    best: list[int] = []
+    sources: dict[str, int] = {}
+    for i in range(runs + 2):
+        frame, rerank, calibration = inputs[i % len(inputs)]
+        t0 = time.perf_counter()
+        try:
+            result = matcher.match(frame, rerank, calibration)
+        except InsufficientInliersError:
+            result = None
+        elapsed = (time.perf_counter() - t0) * 1e3
+        if i < 2:
+            continue
+        frame_ms.append(elapsed)
+        if result is None:
+            best.append(0)
+            continue
+        best.append(result.per_candidate[0].inlier_count)
+        diag = result.diagnostics
+        for source in diag.get("candidate_features", ()):
+            sources[source] = sources.get(source, 0) + 1
+        for key in ("query_preprocess", "query_extract"):
+            stages[key].append(diag["timings_ms"][key])
+        for cand in diag["per_candidate_timings_ms"]:
+            candidate_ms.append(sum(cand.get(s, 0.0) for s in STAGES))
+            for s in STAGES:
+                stages[s].append(cand.get(s, 0.0))
+    return {
+        "best_inliers": int(np.median(best)),
+        "frame_ms": _percentiles(frame_ms),
+        "per_candidate_ms": _percentiles(candidate_ms),
+        "stages_ms": {k: _percentiles(v) for k, v in stages.items() if v},
+        "feature_sources": sources,
+    }
+
+
+def _worker_main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m c3_matcher_tools.bench_worker")
+    parser.add_argument("case", help="BenchCase as JSON")
+    parser.add_argument("runs", type=int)
+    parser.add_argument("data", type=Path)
+    parser.add_argument("--config", type=Path, default=None)
+    args = parser.parse_args(argv)
+    from loguru import logger
+
+    logger.remove()
+    case = BenchCase(**json.loads(args.case))
+    print(json.dumps(run_worker(case, args.runs, args.data, load_settings(args.config))))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_worker_main(sys.argv[1:]))

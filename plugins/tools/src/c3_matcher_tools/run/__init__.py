@@ -1,0 +1,59 @@
+"""The tools' run layer, which replay, eval, bench, features, the reports and the GeoJSON
+export build on: typed run records (:class:`FrameOutcome`, :class:`FlightRun`), opening a
+matcher for a strategy with :class:`Overrides` (:func:`open_matcher`, :func:`compose_matcher`,
+:func:`open_backend`), flying a flight (:func:`run_flight`, :func:`fly`), scoring it against
+ground truth and telemetry (:func:`summarize`, :func:`result_fingerprint`) and writing a run's
+files. Commands live beside it (``replay``, ``evaluate``, ``bench``); nothing here is one."""
+
+from c3_matcher_tools.run.flight import Progress, check_calibration_size, fly, run_flight
+from c3_matcher_tools.run.matcher import (
+    NO_OVERRIDES,
+    ComposedMatcher,
+    Overrides,
+    compose_matcher,
+    open_backend,
+    open_matcher,
+    run_settings,
+)
+from c3_matcher_tools.run.outputs import write_flight_outputs, write_html_report, write_results
+from c3_matcher_tools.run.records import (
+    FlightRun,
+    FrameOutcome,
+    StrategyEval,
+    StrategyFailure,
+    StrategyRow,
+)
+from c3_matcher_tools.run.scoring import (
+    best_candidate_error,
+    result_fingerprint,
+    summarize,
+    telemetry_reference,
+    truth_position,
+)
+
+__all__ = [
+    "NO_OVERRIDES",
+    "ComposedMatcher",
+    "FlightRun",
+    "FrameOutcome",
+    "Overrides",
+    "Progress",
+    "StrategyEval",
+    "StrategyFailure",
+    "StrategyRow",
+    "best_candidate_error",
+    "check_calibration_size",
+    "compose_matcher",
+    "fly",
+    "open_backend",
+    "open_matcher",
+    "result_fingerprint",
+    "run_flight",
+    "run_settings",
+    "summarize",
+    "telemetry_reference",
+    "truth_position",
+    "write_flight_outputs",
+    "write_html_report",
+    "write_results",
+]

@@ -1,0 +1,192 @@
+"""Flying a flight: every frame (or some) of a ``c3-flight/1`` dataset through a matcher, each
+scored against the flight's ground truth and telemetry (:func:`run_flight`), and one strategy
+opened, flown and timed (:func:`fly`)."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from c3_matcher.config import C3Settings
+from c3_matcher.dto import MatchResult
+from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
+from c3_matcher.georef import haversine_m
+from c3_matcher.plugins.manager import PluginHost
+from c3_matcher.protocols import CrossDomainMatcher
+from c3_matcher.serialize import result_to_json
+from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
+from c3_matcher_tools.run.matcher import NO_OVERRIDES, Overrides, open_matcher, run_settings
+from c3_matcher_tools.run.records import FlightRun, FrameOutcome
+from c3_matcher_tools.run.scoring import (
+    best_candidate_error,
+    result_fingerprint,
+    telemetry_reference,
+    truth_position,
+)
+
+__all__ = ["Progress", "check_calibration_size", "fly", "run_flight"]
+
+Progress = Callable[[int, int], None]
+
+
+def run_flight(
+    matcher: CrossDomainMatcher,
+    dataset: FlightDataset,
+    *,
+    frames: Sequence[FrameRecord] | None = None,
+    progress: Progress | None = None,
+    with_correspondences: bool = True,
+) -> list[FrameOutcome]:
+    """Match every frame (or ``frames``) in order; tiles are read lazily from the store."""
+    todo = list(dataset.frames if frames is None else frames)
+    outcomes: list[FrameOutcome] = []
+    with dataset.open_store() as store:
+        for n, frame in enumerate(todo, start=1):
+            outcomes.append(_fly_frame(matcher, dataset, frame, store, with_correspondences))
+            if progress is not None:
+                progress(n, len(todo))
+    return outcomes
+
+
+def _fly_frame(
+    matcher: CrossDomainMatcher,
+    dataset: FlightDataset,
+    frame: FrameRecord,
+    store: MBTilesStore,
+    with_correspondences: bool,
+) -> FrameOutcome:
+    nav = dataset.nav_frame(frame)
+    rerank = dataset.rerank(frame, store)
+    t0 = time.perf_counter()
+    error: str | None = None
+    result: MatchResult | None = None
+    best_count = 0
+    try:
+        result = matcher.match(nav, rerank, dataset.calibration)
+        status = "ok"
+    except InsufficientInliersError as exc:
+        status, best_count, error = "insufficient", exc.best_inlier_count, str(exc)
+    except MatcherBackboneError as exc:
+        status, error = "backbone_error", str(exc)
+    elapsed = (time.perf_counter() - t0) * 1e3
+    truth = truth_position(dataset, frame)
+    geo: dict[str, Any] = {"has_truth": frame.has_truth}
+    if truth is not None:
+        geo.update(truth_lat=truth[0], truth_lon=truth[1])
+    geo.update(telemetry_reference(frame))
+    if result is not None:
+        return _matched(dataset, frame, result, elapsed, geo, with_correspondences)
+    return FrameOutcome(
+        frame.index,
+        str(frame.frame_id),
+        status,
+        elapsed,
+        frame.true_tile_present,
+        0,
+        None,
+        False,
+        math.nan,
+        math.nan,
+        result_fingerprint(None, best_count) if status == "insufficient" else "",
+        error,
+        None,
+        insufficient_best=best_count,
+        **geo,
+    )
+
+
+def _distance_m(lat: float, lon: float, to_lat: float, to_lon: float) -> float:
+    return float(haversine_m([[lon, lat]], [[to_lon, to_lat]])[0])
+
+
+def _matched(
+    dataset: FlightDataset,
+    frame: FrameRecord,
+    result: MatchResult,
+    elapsed_ms: float,
+    geo: dict[str, Any],
+    with_correspondences: bool,
+) -> FrameOutcome:
+    best_input, mean_err = best_candidate_error(dataset, frame, result)
+    size = dataset.candidate_size_px
+    as_json = result_to_json(
+        result,
+        with_correspondences=with_correspondences,
+        calibration=dataset.calibration,
+        tile_sizes=[(size, size)] * len(frame.candidates),
+    )
+    if "centre_lat" in as_json:
+        lat, lon = as_json["centre_lat"], as_json["centre_lon"]
+        geo.update(est_lat=lat, est_lon=lon)
+        if "truth_lat" in geo:
+            geo["position_error_m"] = _distance_m(lat, lon, geo["truth_lat"], geo["truth_lon"])
+        if "telemetry_lat" in geo:
+            geo["telemetry_error_m"] = _distance_m(
+                lat, lon, geo["telemetry_lat"], geo["telemetry_lon"]
+            )
+    return FrameOutcome(
+        frame.index,
+        str(frame.frame_id),
+        "ok",
+        elapsed_ms,
+        frame.true_tile_present,
+        result.per_candidate[0].inlier_count,
+        best_input,
+        best_input == frame.true_index,
+        mean_err,
+        result.reprojection_residual_px,
+        result_fingerprint(result),
+        None,
+        as_json,
+        **geo,
+    )
+
+
+def fly(
+    settings: C3Settings,
+    strategy: str,
+    dataset: FlightDataset,
+    out_dir: Path,
+    *,
+    plugin_host: PluginHost,
+    overrides: Overrides = NO_OVERRIDES,
+    frames: Sequence[FrameRecord] | None = None,
+    progress: Progress | None = None,
+    with_correspondences: bool = True,
+) -> FlightRun:
+    """Open ``strategy`` (:func:`~c3_matcher_tools.run.matcher.open_matcher`, FDR and logs
+    under ``out_dir``), fly ``frames`` (default: all) and time it: start-up is opening the
+    matcher, wall time opening it and flying (s)."""
+    started = time.perf_counter()
+    with open_matcher(
+        settings, strategy, out_dir, plugin_host=plugin_host, overrides=overrides
+    ) as matcher:
+        startup_s = time.perf_counter() - started
+        outcomes = run_flight(
+            matcher,
+            dataset,
+            frames=frames,
+            progress=progress,
+            with_correspondences=with_correspondences,
+        )
+    wall_s = time.perf_counter() - started
+    ran = run_settings(overrides.apply(settings, strategy), strategy, plugin_host)
+    return FlightRun(
+        strategy, ran.matcher.model_dump(mode="json"), tuple(outcomes), startup_s, wall_s
+    )
+
+
+def check_calibration_size(dataset: FlightDataset, frame: FrameRecord) -> None:
+    """A calibration made for another image size is bad input (exit 2) naming both sizes,
+    not a backbone failure on every frame."""
+    h, w = dataset.nav_frame(frame).image.shape[:2]
+    cw, ch = dataset.calibration.image_size
+    if (cw, ch) != (w, h):
+        raise InvalidInputError(
+            str(dataset.root / str(dataset.meta["calibration"])),
+            f"image_size is {cw}x{ch} px but frame {frame.image} is {w}x{h} px",
+        )

@@ -1,0 +1,140 @@
+"""The run records: what one frame (:class:`FrameOutcome`) and one strategy over one flight
+(:class:`FlightRun`) came to, and one strategy evaluated on a flight (:class:`StrategyEval`,
+or :class:`StrategyFailure` when it could not run). Frozen values; ``to_json`` gives their
+JSON forms."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+__all__ = ["FlightRun", "FrameOutcome", "StrategyEval", "StrategyFailure", "StrategyRow"]
+
+
+@dataclass(frozen=True)
+class FrameOutcome:
+    """One frame's outcome. ``best_input_index``: input position of the best candidate;
+    ``correct``: the best is the true tile; ``mean_error_px``: mean inlier error of the best
+    candidate against ground truth (ORIGINAL frame px), NaN when not matched; ``fingerprint``:
+    blake2b of the per-frame result content (C3-IT-02), excluding ``matched_at``.
+    ``telemetry_lat``/``telemetry_lon``: where the flight's own telemetry (GNSS position,
+    attitude, height) says the frame's centre looks; ``telemetry_error_m``: the estimate's
+    distance from it (m, NaN when either is missing); ``gnss_accuracy_m``: the horizontal
+    accuracy the log states for that fix; ``gnss_degraded``: GNSS was absent or degraded at the
+    frame (None: no telemetry, or it does not say)."""
+
+    index: int
+    frame_id: str
+    status: str
+    elapsed_ms: float
+    true_present: bool
+    best_inliers: int
+    best_input_index: int | None
+    correct: bool
+    mean_error_px: float
+    residual_px: float
+    fingerprint: str
+    error: str | None
+    result: dict[str, Any] | None
+    has_truth: bool = True
+    est_lat: float | None = None
+    est_lon: float | None = None
+    truth_lat: float | None = None
+    truth_lon: float | None = None
+    position_error_m: float = math.nan
+    insufficient_best: int = 0
+    telemetry_lat: float | None = None
+    telemetry_lon: float | None = None
+    telemetry_error_m: float = math.nan
+    gnss_accuracy_m: float | None = None
+    gnss_degraded: bool | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out = asdict(self)
+        for key in ("mean_error_px", "residual_px", "position_error_m", "telemetry_error_m"):
+            if not math.isfinite(out[key]):
+                out[key] = None
+        return out
+
+
+@dataclass(frozen=True)
+class FlightRun:
+    """One strategy flown over one flight: its frames' outcomes in order, the matcher settings
+    it ran with (``[matcher]`` resolved for that strategy: its own defaults where the
+    configuration leaves a setting unset, as JSON), start-up and wall time (s)."""
+
+    strategy: str
+    settings: dict[str, Any]
+    outcomes: tuple[FrameOutcome, ...]
+    startup_s: float
+    wall_s: float
+
+    @property
+    def matcher_labels(self) -> list[str]:
+        """The results' ``matcher_label`` values, sorted (one for a strategy)."""
+        return sorted({str(o.result["matcher_label"]) for o in self.outcomes if o.result})
+
+
+@dataclass(frozen=True)
+class StrategyEval:
+    """One strategy evaluated on one flight: its first run, its C3-IT measures, the run's
+    timing summary (:func:`~c3_matcher_tools.run.summarize`) and the map and flight report
+    written for it (``html`` None: no matplotlib)."""
+
+    run: FlightRun
+    metrics: dict[str, Any]
+    timing: dict[str, Any]
+    geojson: str
+    html: str | None
+
+    @property
+    def strategy(self) -> str:
+        return self.run.strategy
+
+    def to_json(self) -> dict[str, Any]:
+        """Its ``eval.json`` entry (NaN left for the caller to make strict)."""
+        return {
+            "strategy": self.strategy,
+            "settings": self.run.settings,
+            "startup_s": self.run.startup_s,
+            "wall_s": self.run.wall_s,
+            "timing": self.timing,
+            "metrics": self.metrics,
+            "geojson": self.geojson,
+            "html": self.html,
+            "per_frame": [
+                {
+                    "index": o.index,
+                    "status": o.status,
+                    "true_present": o.true_present,
+                    "best_inliers": o.best_inliers,
+                    "correct": o.correct,
+                    "mean_error_px": _or_none(o.mean_error_px),
+                    "telemetry_error_m": _or_none(o.telemetry_error_m),
+                    "gnss_accuracy_m": o.gnss_accuracy_m,
+                    "gnss_degraded": o.gnss_degraded,
+                    "elapsed_ms": o.elapsed_ms,
+                }
+                for o in self.run.outcomes
+            ],
+        }
+
+
+@dataclass(frozen=True)
+class StrategyFailure:
+    """A strategy that could not be evaluated (it failed to start or to run): a row of the
+    table, not the end of the evaluation."""
+
+    strategy: str
+    error: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"strategy": self.strategy, "error": self.error}
+
+
+StrategyRow = StrategyEval | StrategyFailure
+
+
+def _or_none(value: float) -> float | None:
+    return value if math.isfinite(value) else None

@@ -1,0 +1,137 @@
+"""Scoring a run against a flight's ground truth and telemetry: the per-frame fingerprint
+(C3-IT-02), where the frame truly looks, the best candidate's inlier error (ORIGINAL frame px)
+and the summary of a run (counts, timing in ms, position errors in m)."""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from c3_matcher import camera as cam
+from c3_matcher.dto import MatchResult
+from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
+from c3_matcher_tools.dataset.truth import inlier_errors_px
+from c3_matcher_tools.run.records import FrameOutcome
+
+__all__ = [
+    "best_candidate_error",
+    "result_fingerprint",
+    "summarize",
+    "telemetry_reference",
+    "truth_position",
+]
+
+
+def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -> str:
+    """Bit-for-bit digest of ``per_candidate`` (tile ids, counts, residual float bits,
+    correspondence bytes), ``best_candidate_idx`` and the input order; for an
+    InsufficientInliersError, of its best inlier count."""
+    h = hashlib.blake2b(digest_size=16)
+    if result is None:
+        h.update(f"insufficient:{insufficient_best}".encode())
+        return h.hexdigest()
+    h.update(str(result.best_candidate_idx).encode())
+    h.update(repr(result.diagnostics.get("input_index")).encode())
+    for c in result.per_candidate:
+        h.update(repr((c.tile_id.as_list(), c.inlier_count, c.ransac_outlier_count)).encode())
+        h.update(np.float64(c.per_candidate_residual_px).tobytes())
+        h.update(c.inlier_correspondences.tobytes())
+    return h.hexdigest()
+
+
+def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, float] | None:
+    """(lat, lon) where the frame's principal point truly looks: through the true candidate's
+    ground-truth homography, else the record's ``pose`` footprint centre; None without truth."""
+    from c3_matcher.georef import tile_px_to_lonlat
+
+    k = dataset.calibration.K
+    for cand in frame.candidates:
+        if cand.is_true and cand.h_tile_to_undistorted is not None:
+            size = dataset.candidate_size_px
+            tile_px = cam.apply_homography(
+                np.linalg.inv(cand.h_tile_to_undistorted), [[k[0, 2], k[1, 2]]]
+            )
+            lon, lat = tile_px_to_lonlat(cand.tile_id, (size, size), tile_px)[0]
+            return float(lat), float(lon)
+    pose = frame.pose
+    if frame.has_truth and "footprint_centre_lat" in pose and "footprint_centre_lon" in pose:
+        return float(pose["footprint_centre_lat"]), float(pose["footprint_centre_lon"])
+    return None
+
+
+def telemetry_reference(frame: FrameRecord) -> dict[str, Any]:
+    """The frame's telemetry reference for :class:`FrameOutcome`: where the recorded position,
+    attitude and height put the frame's centre (the import's look point), the stated GNSS
+    accuracy and the degraded flag; empty without telemetry."""
+    t = frame.telemetry
+    if "look_lat" not in t or "look_lon" not in t:
+        return {}
+    accuracy = t.get("gnss_accuracy_m")
+    return {
+        "telemetry_lat": float(t["look_lat"]),
+        "telemetry_lon": float(t["look_lon"]),
+        "gnss_accuracy_m": None if accuracy is None else float(accuracy),
+        "gnss_degraded": None if "gnss_degraded" not in t else bool(t["gnss_degraded"]),
+    }
+
+
+def best_candidate_error(
+    dataset: FlightDataset, frame: FrameRecord, result: MatchResult
+) -> tuple[int, float]:
+    """(input index of the best candidate, mean error of its inliers against that candidate's
+    ground-truth homography in ORIGINAL frame px; NaN without truth or inliers)."""
+    best_input = int(result.diagnostics["input_index"][0])
+    cand = frame.candidates[best_input]
+    if cand.h_tile_to_undistorted is None:
+        return best_input, math.nan
+    errors = inlier_errors_px(
+        cand.h_tile_to_undistorted,
+        dataset.calibration,
+        result.per_candidate[0].inlier_correspondences,
+    )
+    return best_input, float(np.mean(errors)) if errors.size else math.nan
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.percentile(np.asarray(finite), q)) if finite else None
+
+
+def summarize(outcomes: Sequence[FrameOutcome]) -> dict[str, Any]:
+    """Counts and timing (ms) of a run; position errors (m) against ground truth and, for a
+    recorded flight, the estimate minus the telemetry's position (its stated GNSS accuracy
+    beside it, and the frames whose GNSS was absent or degraded)."""
+    times = [o.elapsed_ms for o in outcomes]
+    present = [o for o in outcomes if o.true_present]
+    pos = [o.position_error_m for o in outcomes if o.status == "ok"]
+    tele = [o for o in outcomes if o.telemetry_lat is not None]
+    tele_err = [o.telemetry_error_m for o in tele if o.status == "ok"]
+    accuracy = [o.gnss_accuracy_m for o in tele if o.gnss_accuracy_m is not None]
+    return {
+        "frames": len(outcomes),
+        "ok": sum(o.status == "ok" for o in outcomes),
+        "insufficient": sum(o.status == "insufficient" for o in outcomes),
+        "backbone_error": sum(o.status == "backbone_error" for o in outcomes),
+        "with_truth": sum(o.has_truth for o in outcomes),
+        "true_present": len(present),
+        "correct_candidate": sum(o.correct for o in present),
+        "georeferenced": sum(o.est_lat is not None for o in outcomes),
+        "position_error_m_p50": _percentile(pos, 50),
+        "position_error_m_p95": _percentile(pos, 95),
+        "with_telemetry": len(tele),
+        "telemetry_error_m_p50": _percentile(tele_err, 50),
+        "telemetry_error_m_p95": _percentile(tele_err, 95),
+        "telemetry_error_m_p50_gnss_good": _percentile(
+            [o.telemetry_error_m for o in tele if o.status == "ok" and not o.gnss_degraded], 50
+        ),
+        "gnss_accuracy_m_p50": _percentile(accuracy, 50),
+        "gnss_degraded_frames": [o.index for o in tele if o.gnss_degraded],
+        "frame_ms_p50": _percentile(times, 50),
+        "frame_ms_p95": _percentile(times, 95),
+        "frame_ms_mean": float(np.mean(times)) if times else None,
+        "total_s": float(np.sum(times)) / 1e3,
+    }
