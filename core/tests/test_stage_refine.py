@@ -1,0 +1,116 @@
+"""The refine pass as a stage: kept only when the second pass ranks better; a failure, a
+homography with no footprint on the tile, or no homography leave the first pass standing."""
+
+from __future__ import annotations
+
+import uuid
+from typing import Any
+
+import numpy as np
+
+from c3_matcher.dto import CandidateMatchSet, TileId
+from c3_matcher.preprocess import FramePreprocessor
+from c3_matcher.stages.outcomes import Survivor, TileFeatures
+from c3_matcher.stages.query import Query, prepare_query
+from c3_matcher.stages.refine import NO_FOOTPRINT, RefinePass
+from c3_matcher.stages.verify import Verifier
+from c3_matcher.testing import (
+    FakeBackend,
+    FakeInferenceRuntime,
+    FakeLightGlueRuntime,
+    ScriptedCandidate,
+    SequenceRansacFilter,
+    make_frame,
+    make_rerank,
+)
+
+FRAME, CALIBRATION = make_frame(uuid.UUID(int=5))
+
+
+class Reports:
+    frame_id = FRAME.frame_id
+
+    def __init__(self) -> None:
+        self.failed: list[str] = []
+
+    def refine_failed(self, tile_id: Any, exc: Exception) -> None:
+        self.failed.append(str(exc))
+
+
+def _setup(fail_extract: bool = False) -> tuple[FakeBackend, FramePreprocessor, Query]:
+    backend = FakeBackend(FakeInferenceRuntime(), FakeLightGlueRuntime())
+    pre = FramePreprocessor(backend.input_rule)
+    rerank = make_rerank(FRAME.frame_id, [ScriptedCandidate()])
+    query = prepare_query(
+        pre, backend, FRAME, CALIBRATION, rerank.candidates, rotation_search=False, timings={}
+    )
+    if fail_extract:
+
+        def broken(image: Any) -> Any:
+            raise RuntimeError("extractor down")
+
+        backend.extract = broken  # type: ignore[method-assign]
+    return backend, pre, query
+
+
+def _first(backend: FakeBackend, pre: FramePreprocessor, homography: Any) -> Survivor:
+    tile_image = pre.prepare_tile(np.full((64, 64, 3), 1, np.uint8))
+    tile = TileFeatures("extracted", tile_image, backend.extract(tile_image))
+    rows = np.zeros((80, 4), np.float32)
+    match_set = CandidateMatchSet(TileId(18, 47.0, 8.5), 80, rows, 5, 1.0)
+    return Survivor(match_set, 0, homography, 0, tile, timings={"match": 1.0})
+
+
+def _run(backend, pre, query, first, ransac=((90, 0.5),)) -> tuple[list[Survivor], Any, Reports]:
+    reports = Reports()
+    verifier = Verifier(SequenceRansacFilter(list(ransac)), 3.0, None)
+    survivors, record = RefinePass(pre, backend).run(
+        FRAME,
+        CALIBRATION,
+        query,
+        verifier,
+        [first],
+        reports,  # type: ignore[arg-type]
+    )
+    return survivors, record, reports
+
+
+def test_a_second_pass_that_ranks_better_replaces_the_first():
+    backend, pre, query = _setup()
+    first = _first(backend, pre, np.eye(3))
+    survivors, record, _ = _run(backend, pre, query, first)
+    assert record.as_record() == {
+        "candidate_index": 0,
+        "inliers_before": 80,
+        "inliers_after": 90,
+        "kept": True,
+    }
+    assert survivors[0].match_set.inlier_count == 90 and survivors[0].tile is first.tile
+    assert "refine" in first.timings
+
+
+def test_a_second_pass_that_ranks_no_better_is_dropped():
+    backend, pre, query = _setup()
+    first = _first(backend, pre, np.eye(3))
+    survivors, record, _ = _run(backend, pre, query, first, ransac=((80, 1.0),))
+    assert survivors == [first] and not record.kept
+    assert record.reason == "ranks no better than the first pass" and record.inliers_after == 80
+
+
+def test_a_failure_or_no_footprint_leaves_the_first_pass():
+    backend, pre, query = _setup(fail_extract=True)
+    working = FakeBackend(FakeInferenceRuntime(), FakeLightGlueRuntime())
+    first = _first(working, pre, np.eye(3))
+    survivors, record, reports = _run(backend, pre, query, first)
+    assert survivors == [first] and record.reason == "RuntimeError: extractor down"
+    assert reports.failed == ["extractor down"] and "refine" in first.timings
+    away = np.array([[1.0, 0.0, 1e6], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    _, record, _ = _run(*_setup(), _first(working, pre, away))
+    assert record.reason == NO_FOOTPRINT and record.inliers_after == 0
+
+
+def test_without_a_homography_there_is_no_pass():
+    backend, pre, query = _setup()
+    first = _first(backend, pre, None)
+    survivors, record, _ = _run(backend, pre, query, first)
+    assert survivors == [first] and record is None
