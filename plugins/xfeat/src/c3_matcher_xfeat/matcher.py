@@ -24,6 +24,7 @@ from c3_matcher.strategy import (
     ExtractorMatcher,
     LightGluePairMatcher,
     PairMatcher,
+    pipeline_with_thresholds,
     strategy_factory,
 )
 from c3_matcher_xfeat.defaults import DEFAULTS
@@ -97,10 +98,7 @@ class XFeatConfig:
 
     @property
     def pipeline_settings(self) -> PipelineSettings:
-        """``[matcher]``'s pipeline settings (``pipeline``) with this config's thresholds."""
-        return (self.pipeline or PipelineSettings()).with_thresholds(
-            self.min_inliers_threshold, self.residual_warn_threshold_px, self.ransac_threshold_px
-        )
+        return pipeline_with_thresholds(self)
 
     @property
     def input_rule(self) -> InputRule:

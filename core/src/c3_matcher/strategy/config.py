@@ -1,0 +1,140 @@
+"""What an "extractor engine + pair matcher" strategy is configured with: the config protocol
+``ExtractorMatcher`` reads (``ExtractorStrategyConfig``) and the config of every extractor +
+LightGlue strategy (``ExtractorLightGlueConfig``). Engine paths are files in the engine
+directory; image and keypoint rules are in px."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol, Self
+
+from c3_matcher.config import C3Settings
+from c3_matcher.pipeline import PipelineSettings
+from c3_matcher.preprocess import InputRule
+from c3_matcher.protocols import LightGlueRuntime
+from c3_matcher.strategy.pairs import LightGluePairMatcher, PairMatcher
+
+DEFAULT_MAX_KEYPOINTS = 2048  # upstream LightGlue convention
+
+
+@dataclass(frozen=True, slots=True)
+class ExtractorLightGlueConfig:
+    """What an extractor + LightGlue strategy needs (built from ``C3Settings`` by ``create``).
+
+    Engine paths are files in the engine directory; image and keypoint rules are in px.
+    """
+
+    label: str
+    feature_type: str
+    extract_phase: str
+    extractor_engine_path: Path
+    lightglue_engine_path: Path
+    size_multiple: int
+    max_long_side: int = 1024
+    max_keypoints: int = DEFAULT_MAX_KEYPOINTS
+    min_inliers_threshold: int = 60
+    residual_warn_threshold_px: float = 2.5
+    ransac_threshold_px: float = 3.0
+    tile_cache_size: int = 16
+    pipeline: PipelineSettings | None = None  # [matcher]'s stored features and prior
+
+    match_phase = "lightglue_match"
+
+    @property
+    def pipeline_settings(self) -> PipelineSettings:
+        return pipeline_with_thresholds(self)
+
+    @property
+    def input_rule(self) -> InputRule:
+        return InputRule(max_long_side=self.max_long_side, multiple=self.size_multiple)
+
+    def matcher_engines(self) -> Mapping[str, Path]:
+        return {"lightglue": self.lightglue_engine_path}
+
+    def pair_matcher(self, lightglue_runtime: LightGlueRuntime) -> PairMatcher:
+        return LightGluePairMatcher(
+            lightglue_runtime, self.lightglue_engine_path, self.feature_type
+        )
+
+    @classmethod
+    def from_settings(
+        cls,
+        settings: C3Settings,
+        *,
+        label: str,
+        feature_type: str,
+        extract_phase: str,
+        extractor_engine_path: Path,
+        lightglue_engine_path: Path,
+        size_multiple: int,
+        **overrides: Any,
+    ) -> Self:
+        """From ``[matcher]``; ``overrides`` (e.g. a plugin's ``max_keypoints``) replace fields."""
+        m = settings.matcher
+        config = cls(
+            label,
+            feature_type,
+            extract_phase,
+            extractor_engine_path,
+            lightglue_engine_path,
+            size_multiple,
+            m.max_long_side,
+            m.max_keypoints or DEFAULT_MAX_KEYPOINTS,
+            m.min_inliers_threshold,
+            m.residual_warn_threshold_px,
+            m.ransac_threshold_px,
+            m.tile_cache_size,
+            PipelineSettings.from_settings(m),
+        )
+        return dataclasses.replace(config, **overrides) if overrides else config
+
+
+class ExtractorStrategyConfig(Protocol):
+    """What ``ExtractorMatcher`` needs from a strategy's config (``ExtractorLightGlueConfig``,
+    XFeat's config): labels, image rule, keypoint budget, engine files and thresholds."""
+
+    @property
+    def label(self) -> str: ...
+    @property
+    def extract_phase(self) -> str: ...
+    @property
+    def match_phase(self) -> str: ...
+    @property
+    def input_rule(self) -> InputRule: ...
+    @property
+    def max_keypoints(self) -> int: ...
+    @property
+    def extractor_engine_path(self) -> Path: ...
+    @property
+    def pipeline_settings(self) -> PipelineSettings: ...
+    @property
+    def tile_cache_size(self) -> int: ...
+    def matcher_engines(self) -> Mapping[str, Path]:
+        """Role -> file of the engines besides the extractor (provenance)."""
+        ...
+
+    def pair_matcher(self, lightglue_runtime: LightGlueRuntime) -> PairMatcher: ...
+
+
+class ThresholdedConfig(Protocol):
+    """A config carrying ``[matcher]``'s pipeline settings and its own thresholds."""
+
+    @property
+    def pipeline(self) -> PipelineSettings | None: ...
+    @property
+    def min_inliers_threshold(self) -> int: ...
+    @property
+    def residual_warn_threshold_px(self) -> float: ...
+    @property
+    def ransac_threshold_px(self) -> float: ...
+
+
+def pipeline_with_thresholds(config: ThresholdedConfig) -> PipelineSettings:
+    """``[matcher]``'s pipeline settings (``config.pipeline``, else the defaults) with the
+    config's inlier, residual-warning and RANSAC thresholds."""
+    return (config.pipeline or PipelineSettings()).with_thresholds(
+        config.min_inliers_threshold, config.residual_warn_threshold_px, config.ransac_threshold_px
+    )
