@@ -16,6 +16,7 @@ from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.store import EngineStore
+from c3_matcher.testing.strategy_kit import assert_features_identical
 from c3_matcher_aliked_lightglue.engines import ALIKED_SPECS, ALIKED_TOLERANCES
 from c3_matcher_aliked_lightglue.export import (
     aliked_reference_features,
@@ -124,12 +125,7 @@ def test_same_input_twice_is_bit_identical(engine_dir, runtime, zurich):
     mask = np.ones((480, 640), dtype=bool)
     a = run_extractor(runtime, engine_id, rgb, mask, 2048)
     b = run_extractor(runtime, engine_id, rgb, mask, 2048)
-    for first, second in (
-        (a.keypoints, b.keypoints),
-        (a.descriptors, b.descriptors),
-        (a.keypoint_scores, b.keypoint_scores),
-    ):
-        assert first.tobytes() == second.tobytes()
+    assert_features_identical(a, b)
 
 
 def test_size_rule_is_multiples_of_32(engine_dir, runtime, zurich):

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from c3_matcher.engines.extract import image_to_feeds, run_extractor
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
+from c3_matcher.testing.strategy_kit import assert_features_identical
 
 
 def _kornia(reference: Any, rgb: NDArray[np.uint8], n: int) -> Any:
@@ -62,12 +63,7 @@ def test_same_input_twice_is_bit_identical(
     mask = np.ones((512, 512), dtype=bool)
     a = run_extractor(runtime, engine_id, rgb, mask, 2048)
     b = run_extractor(runtime, engine_id, rgb, mask, 2048)
-    for first, second in (
-        (a.keypoints, b.keypoints),
-        (a.descriptors, b.descriptors),
-        (a.keypoint_scores, b.keypoint_scores),
-    ):
-        assert first.tobytes() == second.tobytes()
+    assert_features_identical(a, b)
 
 
 def test_masked_pixels_yield_no_keypoints(
@@ -106,21 +102,26 @@ def test_helper_budget_order_and_padding(
     )
 
 
-def test_helper_rejects_bad_inputs(runtime: OnnxInferenceRuntime, disk_engine: Path) -> None:
+@pytest.mark.parametrize(
+    ("shape", "dtype", "mask_shape", "max_keypoints", "message"),
+    [
+        ((100, 128, 3), np.uint8, (100, 128), 10, "multiples of 16"),
+        ((64, 64, 3), np.float32, (64, 64), 10, "uint8"),
+        ((64, 64, 3), np.uint8, (64, 32), 10, "mask"),
+        ((64, 64, 3), np.uint8, (64, 64), 0, "max_keypoints"),
+    ],
+)
+def test_helper_rejects_bad_inputs(
+    runtime: OnnxInferenceRuntime,
+    disk_engine: Path,
+    shape: tuple[int, ...],
+    dtype: Any,
+    mask_shape: tuple[int, int],
+    max_keypoints: int,
+    message: str,
+) -> None:
     engine_id = runtime.load_engine(disk_engine)
-    with pytest.raises(ValueError, match="multiples of 16"):
+    with pytest.raises(ValueError, match=message):
         run_extractor(
-            runtime, engine_id, np.zeros((100, 128, 3), np.uint8), np.ones((100, 128), bool), 10
-        )
-    with pytest.raises(ValueError, match="uint8"):
-        run_extractor(
-            runtime, engine_id, np.zeros((64, 64, 3), np.float32), np.ones((64, 64), bool), 10
-        )
-    with pytest.raises(ValueError, match="mask"):
-        run_extractor(
-            runtime, engine_id, np.zeros((64, 64, 3), np.uint8), np.ones((64, 32), bool), 10
-        )
-    with pytest.raises(ValueError, match="max_keypoints"):
-        run_extractor(
-            runtime, engine_id, np.zeros((64, 64, 3), np.uint8), np.ones((64, 64), bool), 0
+            runtime, engine_id, np.zeros(shape, dtype), np.ones(mask_shape, bool), max_keypoints
         )

@@ -17,6 +17,7 @@ from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, normalize_keypoin
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.errors import EngineError
 from c3_matcher.features import Features
+from c3_matcher.strategy import LightGluePairMatcher
 
 
 @pytest.fixture(scope="module")
@@ -80,30 +81,13 @@ def test_matches_identical_to_reference_on_real_features(
     naip_pair: tuple[Features, Features],
 ) -> None:
     fa, fb = naip_pair
-    matcher = OnnxLightGlueRuntime(runtime)
-    matcher.load("disk", lightglue_engine)
-    got = matcher.match_pair(
-        fa.keypoints,
-        fa.descriptors,
-        fa.image_size,
-        fb.keypoints,
-        fb.descriptors,
-        fb.image_size,
-        feature_type="disk",
-    )
+    pairs = LightGluePairMatcher(OnnxLightGlueRuntime(runtime), lightglue_engine, "disk")
+    got = pairs.match(fa, fb)
     ref_matches, ref_scores = _reference_matches(lightglue_reference, fa, fb)
     assert len(ref_matches) > 20
     np.testing.assert_array_equal(got.matches, ref_matches)
     np.testing.assert_allclose(got.scores, ref_scores, atol=1e-4, rtol=0)
-    again = matcher.match_pair(
-        fa.keypoints,
-        fa.descriptors,
-        fa.image_size,
-        fb.keypoints,
-        fb.descriptors,
-        fb.image_size,
-        feature_type="disk",
-    )
+    again = pairs.match(fa, fb)
     assert again.matches.tobytes() == got.matches.tobytes()
     assert again.scores.tobytes() == got.scores.tobytes()
 

@@ -11,7 +11,7 @@
 
 On the real path, ``matcher_over_helpers`` builds the matcher over the real runtimes of
 ``build_default_helpers`` and ``compose_ready`` runs ``compose_root`` and returns its one
-``c3.matcher.ready`` log record.
+``c3.matcher.ready`` log record; ``assert_features_identical`` checks two extractions bit for bit.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.features import Features
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
 from c3_matcher.logs import configure_logging
 from c3_matcher.protocols import CrossDomainMatcher
@@ -32,7 +33,12 @@ if TYPE_CHECKING:
     from c3_matcher.compose import ComposedRoot
     from c3_matcher.config import C3Settings
 
-__all__ = ["ExtractorMatcherContract", "compose_ready", "matcher_over_helpers"]
+__all__ = [
+    "ExtractorMatcherContract",
+    "assert_features_identical",
+    "compose_ready",
+    "matcher_over_helpers",
+]
 
 M = TypeVar("M", bound=ExtractorMatcher)
 HEALTH_MIN_INLIERS = 60  # the health window's threshold in the real-path helper
@@ -95,3 +101,9 @@ def compose_ready(
     ready = [r for r in records if r["kind"] == "c3.matcher.ready"]
     assert len(ready) == 1, f"{len(ready)} c3.matcher.ready records"
     return root, ready[0]
+
+
+def assert_features_identical(a: Features, b: Features) -> None:
+    """Keypoints, descriptors and scores of two extractions equal bit for bit."""
+    for name in ("keypoints", "descriptors", "keypoint_scores"):
+        assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), name
