@@ -26,12 +26,19 @@ class LightGluePairMatcher:
             runtime.load(feature_type, engine_path)
 
     def match(self, query: Features, tile: Features) -> RawMatches:
-        return self._runtime.match_pair(
-            query.keypoints,
-            query.descriptors,
-            query.image_size,
-            tile.keypoints,
-            tile.descriptors,
-            tile.image_size,
-            feature_type=self._feature_type,
-        )
+        return match_features(self._runtime, query, tile, self._feature_type)
+
+
+def match_features(
+    runtime: LightGlueRuntime, query: Features, tile: Features, feature_type: str
+) -> RawMatches:
+    """``runtime.match_pair`` on two images' features (``feature_type``: the loaded engine's)."""
+    return runtime.match_pair(
+        query.keypoints,
+        query.descriptors,
+        query.image_size,
+        tile.keypoints,
+        tile.descriptors,
+        tile.image_size,
+        feature_type=feature_type,
+    )

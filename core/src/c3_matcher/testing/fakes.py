@@ -33,6 +33,7 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.strategy.pairs import match_features
 from c3_matcher.tiles import BytesTileHandle
 
 __all__ = [
@@ -205,15 +206,7 @@ class FakeBackend:
         )
 
     def match(self, query: Features, tile: Features) -> RawMatches:
-        return self.lightglue.match_pair(
-            query.keypoints,
-            query.descriptors,
-            query.image_size,
-            tile.keypoints,
-            tile.descriptors,
-            tile.image_size,
-            feature_type="fake",
-        )
+        return match_features(self.lightglue, query, tile, "fake")
 
     def provenance(self) -> Mapping[str, Any]:
         return {"provider": self.inference.provider, "engines": {"fake": "0" * 64}}
