@@ -41,8 +41,8 @@ from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.strategy import ExtractorBackend
 from c3_matcher_tools.dataset.format import load_dataset
-from c3_matcher_tools.evaluate import metrics
-from c3_matcher_tools.replay import build_matcher, run_flight
+from c3_matcher_tools.run import open_matcher, run_flight
+from c3_matcher_tools.run.acceptance import headline, metrics
 
 
 def _digest(*parts: Any) -> str:
@@ -140,15 +140,9 @@ def _row(flight: str, m: dict[str, Any], outcomes: list[Any], wall_s: float) -> 
     correct_inliers = [o.best_inliers for o in present if o.correct]
     return {
         "flight": flight,
-        "correct": m["C3-IT-04"]["correct"],
-        "present": m["C3-IT-04"]["frames"],
+        **headline(m),
         "it01_p5": m["C3-IT-01"]["p5_best_inliers"],
-        "it03_p95_px": m["C3-IT-03"]["p95_mean_error_px"],
         "it03_median_px": m["C3-IT-03"]["median_mean_error_px"],
-        "it05_raised": m["C3-IT-05"]["insufficient"],
-        "absent": m["C3-IT-05"]["absent_frames"],
-        "false_confident": m["false_confident"]["count"],
-        "scored": m["false_confident"]["of"],
         "other_tile": len(m["false_confident"]["right_fix_other_tile"]),
         "min_correct_inliers": min(correct_inliers) if correct_inliers else None,
         "per_frame": [
@@ -191,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if not args.flights or args.photometric is None:
         p.error("FLIGHT... and --photometric are needed to run")
-    logger.remove()  # the matchers' logs go to their own files (build_matcher), not stderr
+    logger.remove()  # the matchers' logs go to their own files (open_matcher), not stderr
     base = load_settings()
     thresholds = args.threshold or [base.lightglue.filter_threshold or 0.1]
     refits = args.refit or ["none"]
@@ -220,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
                     )
                     started = time.perf_counter()
                     scratch = Path(f"/tmp/precision_sweep_{os.getpid()}")
-                    with build_matcher(settings, args.strategy, scratch) as m:
+                    with open_matcher(settings, args.strategy, scratch) as m:
                         outcomes = run_flight(m, dataset)
                         engines = _engine_files(m)
                     wall = time.perf_counter() - started

@@ -65,7 +65,7 @@ from c3_matcher_tools.run import (
     write_flight_outputs,
     write_results,
 )
-from c3_matcher_tools.run.acceptance import BARS, WRONG_FIX_PX, is_wrong_fix, metrics
+from c3_matcher_tools.run.acceptance import BARS, WRONG_FIX_PX, headline, is_wrong_fix, metrics
 from c3_matcher_tools.run.records import StrategyEval, StrategyFailure, StrategyRow
 
 __all__ = [
@@ -338,13 +338,7 @@ def _summary_row(flight: str, r: StrategyRow) -> dict[str, Any]:
     return {
         "strategy": r.strategy,
         "flight": flight,
-        "correct": m["C3-IT-04"]["correct"],
-        "present": m["C3-IT-04"]["frames"],
-        "it03_p95_px": m["C3-IT-03"]["p95_mean_error_px"],
-        "it05_raised": m["C3-IT-05"]["insufficient"],
-        "absent": m["C3-IT-05"]["absent_frames"],
-        "false_confident": m["false_confident"]["count"],
-        "scored": m["false_confident"]["of"],
+        **headline(m),
         "right_fix_other_tile": len(m["false_confident"]["right_fix_other_tile"]),
         "frame_ms_p50": r.timing["frame_ms_p50"],
     }

@@ -11,7 +11,7 @@ import numpy as np
 
 from c3_matcher_tools.run.records import FrameOutcome
 
-__all__ = ["BARS", "IT03_BAR_PX", "WRONG_FIX_PX", "is_wrong_fix", "metrics"]
+__all__ = ["BARS", "IT03_BAR_PX", "WRONG_FIX_PX", "headline", "is_wrong_fix", "metrics"]
 
 BARS = {
     "C3-IT-01": ">= 80 inliers (p5)",
@@ -99,4 +99,19 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[
             "right_fix_other_tile": right_elsewhere,
             "pass": not wrong,
         },
+    }
+
+
+def headline(m: dict[str, Any]) -> dict[str, Any]:
+    """The figures of :func:`metrics` a strategy x flight summary row shows: correct tile of
+    the frames whose true tile is present, IT-03 p95 (px), absent frames raised, and returned
+    picks that are wrong fixes (false-confident) of those scored."""
+    return {
+        "correct": m["C3-IT-04"]["correct"],
+        "present": m["C3-IT-04"]["frames"],
+        "it03_p95_px": m["C3-IT-03"]["p95_mean_error_px"],
+        "it05_raised": m["C3-IT-05"]["insufficient"],
+        "absent": m["C3-IT-05"]["absent_frames"],
+        "false_confident": m["false_confident"]["count"],
+        "scored": m["false_confident"]["of"],
     }
