@@ -5,6 +5,7 @@ single writer on the ground."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import sqlite3
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -38,6 +39,8 @@ _SET_COLUMNS = (
     "set_id, extractor_sha256, provider, multiple, photometric, border_erode_px, window_px, "
     "stride_px, descriptor_dim, strategy, complete, windows, descriptor_dtype"
 )
+_CASTS: dict[str, Callable[[Any], Any]] = {"str": str, "int": int, "bool": bool}
+"""A ``FeatureSet`` field's annotation -> how a stored value becomes it."""
 
 T = TypeVar("T")
 
@@ -241,21 +244,9 @@ class MapFeatureStore:
 
 
 def _set_of(row: Sequence[Any]) -> FeatureSet:
-    return FeatureSet(
-        str(row[0]),
-        str(row[1]),
-        str(row[2]),
-        int(row[3]),
-        str(row[4]),
-        int(row[5]),
-        int(row[6]),
-        int(row[7]),
-        int(row[8]),
-        str(row[9]),
-        bool(row[10]),
-        int(row[11]),
-        str(row[12]),
-    )
+    """A ``window_sets`` row (``_SET_COLUMNS``: ``FeatureSet``'s fields, in order)."""
+    fields = dataclasses.fields(FeatureSet)
+    return FeatureSet(*(_CASTS[str(f.type)](v) for f, v in zip(fields, row, strict=True)))
 
 
 def stored_sets(store: MapFeatureStore) -> Iterator[Mapping[str, Any]]:
