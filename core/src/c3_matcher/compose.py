@@ -175,16 +175,7 @@ def compose_root(
 ) -> ComposedRoot:
     """Wire the ``c3_matcher`` slot; raise ``AirborneBootstrapError`` for a missing key,
     ``StrategyNotLinkedError`` for a strategy the build does not link."""
-    helpers = dict(pre_constructed or {})
-    for key in AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS[CONSUMER]:
-        if key not in helpers:
-            raise AirborneBootstrapError(CONSUMER, key)
-    for key, value in helpers.items():
-        expected = _KEY_TYPES.get(key)
-        if expected is not None and not isinstance(value, expected):
-            raise AirborneBootstrapError(
-                CONSUMER, key, f"expected a {expected.__name__}, got {type(value).__name__}"
-            )
+    helpers = _checked_helpers(pre_constructed)
     clock: Clock = helpers.get("clock") or MonotonicClock()
     fdr: FdrClient = helpers.get("c13_fdr") or JsonlFdrRecorder(
         config.fdr.path, clock, max_bytes=config.fdr.max_bytes
@@ -220,22 +211,42 @@ def compose_root(
         backend = getattr(matcher, "backend", None)
         if backend is not None:  # every strategy on the shared pipeline
             engine_startup_probe(backend)
-        provider = getattr(helpers["c7_inference"], "provider", "unknown")
-        log_event(
-            "INFO",
-            "c3.matcher.ready",
-            f"C3 ready: matcher={name}",
-            strategy=name,
-            min_inliers_threshold=config.matcher.min_inliers_threshold,
-            residual_warn_threshold_px=config.matcher.residual_warn_threshold_px,
-            profile=host.profile.name,
-            provider=provider,
-        )
+        _log_ready(config, host, helpers)
     except Exception:
         if handle is not None:
             handle.close()
         raise
     return ComposedRoot(matcher, name, health, fdr, clock, host, helpers, handle)
+
+
+def _checked_helpers(pre_constructed: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The pre-constructed helpers, every required key present and every known key of its
+    protocol (``AirborneBootstrapError`` naming the key otherwise)."""
+    helpers = dict(pre_constructed or {})
+    for key in AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS[CONSUMER]:
+        if key not in helpers:
+            raise AirborneBootstrapError(CONSUMER, key)
+    for key, value in helpers.items():
+        expected = _KEY_TYPES.get(key)
+        if expected is not None and not isinstance(value, expected):
+            raise AirborneBootstrapError(
+                CONSUMER, key, f"expected a {expected.__name__}, got {type(value).__name__}"
+            )
+    return helpers
+
+
+def _log_ready(config: C3Settings, host: PluginHost, helpers: Mapping[str, Any]) -> None:
+    name = config.matcher.strategy
+    log_event(
+        "INFO",
+        "c3.matcher.ready",
+        f"C3 ready: matcher={name}",
+        strategy=name,
+        min_inliers_threshold=config.matcher.min_inliers_threshold,
+        residual_warn_threshold_px=config.matcher.residual_warn_threshold_px,
+        profile=host.profile.name,
+        provider=getattr(helpers["c7_inference"], "provider", "unknown"),
+    )
 
 
 def _strategy_options(config: C3Settings, name: str, model: type[BaseModel] | None) -> Any:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import json
 import math
 import sys
@@ -23,7 +24,8 @@ from c3_matcher.dto import (
     RerankResult,
     TileId,
 )
-from c3_matcher.errors import C3Error, InsufficientInliersError, InvalidInputError
+from c3_matcher.errors import InsufficientInliersError, InvalidInputError
+from c3_matcher.match_viz import draw_or_report
 from c3_matcher.protocols import TilePixelsHandle
 from c3_matcher.serialize import load_calibration, result_to_json
 from c3_matcher.tiles import MmapTileHandle, read_image
@@ -118,6 +120,12 @@ def register_match_command(commands: CommandRegistry) -> None:
         help="ROLL,PITCH,YAW of the vehicle in DEGREES (Z-Y-X, NED, yaw from north)",
     )
     p.add_argument("--height", type=_positive, default=None, help="height above ground, m")
+    _add_output_options(p)
+    p.set_defaults(handler=run_match)
+
+
+def _add_output_options(p: argparse.ArgumentParser) -> None:
+    """The strategy, keypoint budget and where the picture and the records go."""
     p.add_argument("--strategy", default=None, help="strategy to use (default: configuration)")
     p.add_argument(
         "--max-keypoints",
@@ -142,52 +150,21 @@ def register_match_command(commands: CommandRegistry) -> None:
         action="store_true",
         help="omit inlier_correspondences from the JSON",
     )
-    p.set_defaults(handler=run_match)
 
 
 def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher.compose import build_default_helpers, compose_root, state_default_fdr_path
 
-    settings, host = ctx.settings, ctx.plugin_host
     if args.tile_id and len(args.tile_id) != len(args.tile):
         raise InvalidInputError(
             "--tile-id",
             f"{len(args.tile_id)} given for {len(args.tile)} --tile; give one per tile or none",
         )
-    update: dict[str, Any] = {}
-    matcher_update: dict[str, Any] = {}
-    if args.strategy:
-        matcher_update["strategy"] = args.strategy
-    if args.max_keypoints:
-        matcher_update["max_keypoints"] = args.max_keypoints
-    if matcher_update:
-        update["matcher"] = settings.matcher.model_copy(update=matcher_update)
-    if args.fdr:
-        update["fdr"] = settings.fdr.model_copy(update={"path": args.fdr})
-    settings = settings.model_copy(update=update)
-
-    limit = settings.matcher.max_image_pixels
-    image = read_image(args.query, limit)
-    height, width = image.shape[:2]
-    calibration = (
-        load_calibration(args.calibration)
-        if args.calibration
-        else CameraCalibration.pinhole(width, height, focal_px=float(width))
-    )
-    if tuple(calibration.image_size) != (width, height):  # bad input (exit 2), not a backbone
-        cw, ch = calibration.image_size
-        raise InvalidInputError(
-            f"--calibration {args.calibration}",
-            f"image_size is {cw}x{ch} px but the --query image {args.query} is {width}x{height} px",
-        )
+    settings, host = _match_settings(args, ctx.settings), ctx.plugin_host
+    image, calibration = _query(args, settings.matcher.max_image_pixels)
     frame = NavCameraFrame(uuid.uuid4(), image, time.monotonic_ns(), args.attitude, args.height)
     _warn_missing(args)
-    candidates = []
-    for i, path in enumerate(args.tile):
-        tile_id = args.tile_id[i] if args.tile_id else TileId(0, 0.0, float(i))
-        candidates.append(RerankCandidate(tile_id, 1.0, _readable_tile(path, limit), args.tile_gsd))
-    rerank = RerankResult(frame.frame_id, tuple(candidates))
-
+    rerank = _candidates(args, frame, settings.matcher.max_image_pixels)
     helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
     problems: list[str] = []  # output that could not be written: reported after the result
     own_fdr = _open_fdr(settings, problems)
@@ -196,53 +173,18 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     state_default_fdr_path(settings)
     reasons: dict[str, str] = {}
     sink = _collect_drop_reasons(reasons)
+    draw = functools.partial(draw_or_report, problems, args, image, calibration, rerank)
     try:
         try:
             result = root.matcher.match(frame, rerank, calibration)
         except InsufficientInliersError as exc:
             if args.viz:
-                _draw_or_report(problems, args, image, calibration, rerank, None, f"FAILED: {exc}")
-            ctx.out(
-                json.dumps(
-                    {
-                        "error": "InsufficientInliersError",
-                        "message": str(exc),
-                        "frame_id": str(exc.frame_id),
-                        "best_inlier_count": exc.best_inlier_count,
-                        "threshold": exc.threshold,
-                        "candidates_input": exc.candidates_input,
-                        "candidates_dropped": exc.candidates_dropped,
-                        "matcher_label": exc.matcher_label,
-                        **({"viz": str(args.viz)} if args.viz and not problems else {}),
-                    }
-                )
-            )
+                draw(None, f"FAILED: {exc}")
+            ctx.out(json.dumps(_insufficient_json(exc, args, problems)))
             _report(problems)
             return EXIT_INSUFFICIENT
-        sizes = [_image_size(c.tile_pixels_handle) for c in rerank.candidates]
-        out = result_to_json(
-            result,
-            with_correspondences=not args.no_correspondences,
-            calibration=calibration,
-            tile_sizes=sizes,
-            tile_gsd_m=args.tile_gsd,
-        )
-        kept = {int(c["tile_index"]) for c in out["per_candidate"]}
-        out["dropped"] = [
-            {
-                "tile_index": i,
-                "tile_id": c.tile_id.as_list(),
-                "reason": reasons.get(str(c.tile_id), "no inliers after RANSAC"),
-            }
-            for i, c in enumerate(rerank.candidates)
-            if i not in kept
-        ]
-        if args.viz and _draw_or_report(
-            problems,
-            args,
-            image,
-            calibration,
-            rerank,
+        out = _result_json(args, result, rerank, calibration, reasons)
+        if args.viz and draw(
             result,
             f"{result.matcher_label}: {result.per_candidate[0].inlier_count} inliers, "
             f"median residual {result.reprojection_residual_px:.2f} px",
@@ -257,6 +199,94 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
         close = getattr(own_fdr, "close", None)
         if callable(close):
             close()
+
+
+def _match_settings(args: argparse.Namespace, settings: C3Settings) -> C3Settings:
+    """The configuration with the command's ``--strategy``, ``--max-keypoints`` and ``--fdr``."""
+    update: dict[str, Any] = {}
+    matcher_update: dict[str, Any] = {}
+    if args.strategy:
+        matcher_update["strategy"] = args.strategy
+    if args.max_keypoints:
+        matcher_update["max_keypoints"] = args.max_keypoints
+    if matcher_update:
+        update["matcher"] = settings.matcher.model_copy(update=matcher_update)
+    if args.fdr:
+        update["fdr"] = settings.fdr.model_copy(update={"path": args.fdr})
+    return settings.model_copy(update=update)
+
+
+def _query(args: argparse.Namespace, max_pixels: int) -> tuple[Any, CameraCalibration]:
+    """The ``--query`` image and its calibration (``--calibration``, else a pinhole with the
+    focal length = the image width, px); a calibration for another image size is bad input."""
+    image = read_image(args.query, max_pixels)
+    height, width = image.shape[:2]
+    calibration = (
+        load_calibration(args.calibration)
+        if args.calibration
+        else CameraCalibration.pinhole(width, height, focal_px=float(width))
+    )
+    if tuple(calibration.image_size) != (width, height):  # bad input (exit 2), not a backbone
+        cw, ch = calibration.image_size
+        raise InvalidInputError(
+            f"--calibration {args.calibration}",
+            f"image_size is {cw}x{ch} px but the --query image {args.query} is {width}x{height} px",
+        )
+    return image, calibration
+
+
+def _candidates(args: argparse.Namespace, frame: NavCameraFrame, max_pixels: int) -> RerankResult:
+    """The ``--tile`` files as the frame's candidates, in order (``--tile-id``: one per tile)."""
+    candidates = []
+    for i, path in enumerate(args.tile):
+        tile_id = args.tile_id[i] if args.tile_id else TileId(0, 0.0, float(i))
+        handle = _readable_tile(path, max_pixels)
+        candidates.append(RerankCandidate(tile_id, 1.0, handle, args.tile_gsd))
+    return RerankResult(frame.frame_id, tuple(candidates))
+
+
+def _insufficient_json(
+    exc: InsufficientInliersError, args: argparse.Namespace, problems: list[str]
+) -> dict[str, Any]:
+    return {
+        "error": "InsufficientInliersError",
+        "message": str(exc),
+        "frame_id": str(exc.frame_id),
+        "best_inlier_count": exc.best_inlier_count,
+        "threshold": exc.threshold,
+        "candidates_input": exc.candidates_input,
+        "candidates_dropped": exc.candidates_dropped,
+        "matcher_label": exc.matcher_label,
+        **({"viz": str(args.viz)} if args.viz and not problems else {}),
+    }
+
+
+def _result_json(
+    args: argparse.Namespace,
+    result: Any,
+    rerank: RerankResult,
+    calibration: CameraCalibration,
+    reasons: dict[str, str],
+) -> dict[str, Any]:
+    """The result as ``match`` prints it, with the dropped candidates and why."""
+    out = result_to_json(
+        result,
+        with_correspondences=not args.no_correspondences,
+        calibration=calibration,
+        tile_sizes=[_image_size(c.tile_pixels_handle) for c in rerank.candidates],
+        tile_gsd_m=args.tile_gsd,
+    )
+    kept = {int(c["tile_index"]) for c in out["per_candidate"]}
+    out["dropped"] = [
+        {
+            "tile_index": i,
+            "tile_id": c.tile_id.as_list(),
+            "reason": reasons.get(str(c.tile_id), "no inliers after RANSAC"),
+        }
+        for i, c in enumerate(rerank.candidates)
+        if i not in kept
+    ]
+    return out
 
 
 def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
@@ -285,15 +315,6 @@ def _open_fdr(settings: C3Settings, problems: list[str]) -> Any:
     except FdrOpenError as exc:
         problems.append(f"{exc}; the result was printed but NOT recorded in the FDR")
         return InMemoryFdr()
-
-
-def _draw_or_report(problems: list[str], *args: Any) -> bool:
-    try:
-        _draw(*args)
-    except (OSError, C3Error) as exc:
-        problems.append(f"--viz {args[0].viz}: cannot write the picture: {exc}")
-        return False
-    return True
 
 
 def _report(problems: list[str]) -> bool:
@@ -343,45 +364,3 @@ def _remove_sink(sink: int) -> None:
 def _image_size(handle: TilePixelsHandle) -> tuple[int, int]:
     h, w = handle.decode().shape[:2]
     return w, h
-
-
-def _draw(
-    args: argparse.Namespace,
-    image: Any,
-    calibration: CameraCalibration,
-    rerank: RerankResult,
-    result: Any,
-    title: str,
-) -> None:
-    """The --viz picture: rectified query beside the best tile, every candidate in a strip;
-    the query beside the candidates for a failed frame."""
-    from c3_matcher.georef import fit_query_to_tile
-    from c3_matcher.viz import CandidateView, render_match, write_png
-
-    counts: dict[int, int] = {}
-    best_index = hom = corr = None
-    if result is not None:
-        indices = result.diagnostics.get("input_index", range(len(result.per_candidate)))
-        counts = {int(i): c.inlier_count for i, c in zip(indices, result.per_candidate)}
-        best_index = int(next(iter(indices)))
-        corr = result.per_candidate[0].inlier_correspondences
-        hom = fit_query_to_tile(corr, calibration)
-    views = [
-        CandidateView(
-            c.tile_pixels_handle.decode(),
-            str(c.tile_id) if c.tile_id.zoom else path.name,
-            counts.get(i),
-            best=i == best_index,
-        )
-        for i, (path, c) in enumerate(zip(args.tile, rerank.candidates, strict=True))
-    ]
-    picture = render_match(
-        image,
-        views,
-        best_index=best_index if hom is not None else None,
-        h_query_to_tile=hom,
-        correspondences=corr,
-        calibration=calibration,
-        title=title,
-    )
-    write_png(picture, args.viz)

@@ -135,12 +135,9 @@ class PipelineMatcher:
     @property
     def stored_features(self) -> bool:
         """Whether candidate features come from precomputed map features when the tile store
-        has them (``features build``); False: always extract (the bench's comparison)."""
+        has them (``features build``); False: always extract. A composition input
+        (``[matcher] stored_features``), fixed for the matcher's life."""
         return self._tiles.use_stored
-
-    @stored_features.setter
-    def stored_features(self, enabled: bool) -> None:
-        self._tiles = self._tiles.with_stored(enabled)
 
     @property
     def backend(self) -> FeatureBackend:

@@ -17,30 +17,40 @@ access to the store path). ``workers=0`` runs in this process, without Dask.
 
 from __future__ import annotations
 
-import math
 import os
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from c3_matcher.config import C3Settings
 from c3_matcher.tilestore.features import (
     FeatureSet,
     MapFeatureStore,
-    WindowFeatures,
     covered_tiles,
-    grid_index,
     set_id_for,
     sidecar_path,
     tile_digest,
     window_digest,
 )
 from c3_matcher.tilestore.geo import TILE_PX
+from c3_matcher_tools.features.windows import (
+    WindowKey,
+    flight_grid,
+    flight_windows,
+    grid_windows,
+)
+from c3_matcher_tools.features.worker import (
+    BackendCache,
+    extract_window_features,
+    open_source,
+    photometric_of,
+    set_facts,
+    task,
+)
 
 __all__ = [
     "BuildReport",
@@ -53,9 +63,6 @@ __all__ = [
 
 DEFAULT_WINDOW_PX = TILE_PX  # the store's own tiles as the candidates
 DEFAULT_MIN_COVERAGE = 0.5
-EXTRACT_BUDGET = 8192  # keep the engine's whole top-K per window (capped by the graph's K)
-
-WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
 
 
 @dataclass
@@ -63,217 +70,6 @@ class BuildReport:
     store: str
     sidecar: str
     strategies: dict[str, dict[str, Any]] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class _Facts:
-    """What keys a strategy's set, learnt from its backend in a worker."""
-
-    extractor_sha256: str
-    provider: str
-    multiple: int
-    border_erode_px: int
-    descriptor_dim: int
-    descriptor_dtype: str
-
-
-BackendCache = dict[tuple[str, str], Any]
-
-
-def _backend(strategy: str, settings_json: str, cache: BackendCache | None = None) -> Any:
-    """The strategy's FeatureBackend with the whole top-K and no tile cache, built once per
-    process: held in ``cache`` (the caller's, when it runs the tasks itself) or by the Dask
-    worker running the task."""
-    cache = _worker_cache() if cache is None else cache
-    key = (strategy, settings_json)
-    if key not in cache:
-        from loguru import logger
-
-        from c3_matcher_tools.run.matcher import Overrides, open_backend
-
-        logger.remove()
-        cache[key] = open_backend(
-            C3Settings.model_validate_json(settings_json),
-            strategy,
-            overrides=Overrides(max_keypoints=EXTRACT_BUDGET, tile_cache_size=0),
-        )
-    return cache[key]
-
-
-def _worker_cache() -> BackendCache:
-    """The backends held by the Dask worker this task runs on (one per worker process)."""
-    from dask.distributed import get_worker
-
-    cache: BackendCache = get_worker().extensions.setdefault("c3_feature_backends", {})
-    return cache
-
-
-def _photometric(strategy: str, settings_json: str) -> str:
-    """The photometric normalisation ``strategy`` flies with: ``[matcher] photometric``, or when
-    unset the strategy's own default (``c3_matcher.compose.strategy_settings``)."""
-    from c3_matcher.compose import strategy_settings
-
-    settings = strategy_settings(C3Settings.model_validate_json(settings_json), strategy)
-    return str(settings.matcher.photometric)
-
-
-def _preprocessor(backend: Any, photometric: str) -> Any:
-    """The flight's tile preprocessing (``PipelineMatcher``'s default preprocessor)."""
-    from c3_matcher.preprocess import FramePreprocessor
-
-    return FramePreprocessor(backend.input_rule, photometric=photometric)
-
-
-def extract_window_features(
-    backend: Any,
-    source: Any,
-    zoom: int,
-    origin: tuple[int, int],
-    window_px: int,
-    photometric: str,
-) -> WindowFeatures:
-    """The features of the ``window_px`` window of WORLD px whose top-left pixel is ``origin``,
-    exactly as the flight extracts a candidate with that window (window px); ValueError when
-    the input rule would resize or pad the window."""
-    from c3_matcher.tilestore.handles import stitch
-
-    keys = covered_tiles(zoom, origin, (window_px, window_px))
-    blobs = {k: source.tile_bytes(*k) for k in keys}
-    digest = window_digest(keys, lambda k: None if blobs[k] is None else tile_digest(blobs[k]))
-    image = stitch(source, zoom, origin, (window_px, window_px), f"window {zoom}/{origin}")
-    prepared = _preprocessor(backend, photometric).prepare_tile(image)
-    if prepared.engine_size != (window_px, window_px):
-        raise ValueError(f"input rule {backend.input_rule} resizes or pads a {window_px} px window")
-    f = backend.extract(prepared)
-    return WindowFeatures(
-        digest,
-        np.ascontiguousarray(f.keypoints, dtype=np.float32),
-        np.ascontiguousarray(f.keypoint_scores, dtype=np.float32),
-        np.ascontiguousarray(f.descriptors),  # the backend's dtype, never cast
-    )
-
-
-def _open_source(store_path: str) -> Any:
-    from c3_matcher.tilestore.mbtiles import MBTilesStore
-
-    return MBTilesStore(store_path)
-
-
-def _task(
-    store_path: str,
-    strategy: str,
-    settings_json: str,
-    window_px: int,
-    stride_px: int,
-    windows: Sequence[WindowKey],
-    cache: BackendCache | None = None,
-) -> tuple[list[tuple[int, int, int, WindowFeatures]], float]:
-    """A worker's batch: [(zoom, gx, gy, features)] and the seconds it took (a window no stored
-    tile overlaps has no features and is left out)."""
-    from c3_matcher.tilestore.handles import TileNotFoundError
-
-    started = time.perf_counter()
-    backend = _backend(strategy, settings_json, cache)
-    photometric = _photometric(strategy, settings_json)
-    source = _open_source(store_path)
-    out: list[tuple[int, int, int, WindowFeatures]] = []
-    try:
-        for z, gx, gy in windows:
-            origin = (gx * stride_px, gy * stride_px)
-            try:
-                f = extract_window_features(backend, source, z, origin, window_px, photometric)
-            except TileNotFoundError:
-                continue
-            out.append((z, gx, gy, f))
-    finally:
-        source.close()
-    return out, time.perf_counter() - started
-
-
-def _set_facts(strategy: str, settings_json: str, cache: BackendCache | None = None) -> _Facts:
-    """The facts keying a strategy's set, in a worker (the descriptor size from a probe)."""
-    backend = _backend(strategy, settings_json, cache)
-    from c3_matcher.preprocess import PreparedImage
-
-    probe = np.kron(
-        np.random.default_rng(0).integers(0, 256, (22, 22, 3), dtype=np.uint8),
-        np.ones((6, 6, 1), np.uint8),
-    )[:128, :128]
-    f = backend.extract(
-        PreparedImage(np.ascontiguousarray(probe), np.ones((128, 128), bool), np.eye(3), (128, 128))
-    )
-    provenance = backend.provenance()
-    photometric = _photometric(strategy, settings_json)
-    return _Facts(
-        str(provenance["engines"]["extractor"]["file_sha256"]),
-        str(provenance["provider"]),
-        int(backend.input_rule.multiple),
-        int(_preprocessor(backend, photometric).border_erode_px),
-        int(f.descriptors.shape[1]),
-        str(f.descriptors.dtype),
-    )
-
-
-def grid_windows(
-    tiles: set[tuple[int, int, int]], window_px: int, stride_px: int, min_coverage: float
-) -> list[WindowKey]:
-    """Every (zoom, gx, gy) grid window whose area stored ``tiles`` (zoom, x, y) cover to at
-    least ``min_coverage`` (0 < share <= 1), sorted."""
-    out: list[WindowKey] = []
-    for zoom in sorted({t[0] for t in tiles}):
-        xs = [t[1] for t in tiles if t[0] == zoom]
-        ys = [t[2] for t in tiles if t[0] == zoom]
-        g0x, g0y = (
-            (min(xs) * TILE_PX - window_px) // stride_px,
-            (min(ys) * TILE_PX - window_px) // stride_px,
-        )
-        g1x, g1y = (max(xs) + 1) * TILE_PX // stride_px, (max(ys) + 1) * TILE_PX // stride_px
-        for gy in range(g0y, g1y + 1):
-            for gx in range(g0x, g1x + 1):
-                x0, y0 = gx * stride_px, gy * stride_px
-                covered = 0
-                for z, tx, ty in covered_tiles(zoom, (x0, y0), (window_px, window_px)):
-                    if (z, tx, ty) in tiles:
-                        ax, ay = max(x0, tx * TILE_PX), max(y0, ty * TILE_PX)
-                        bx = min(x0 + window_px, (tx + 1) * TILE_PX)
-                        by = min(y0 + window_px, (ty + 1) * TILE_PX)
-                        covered += max(0, bx - ax) * max(0, by - ay)
-                if covered > 0 and covered >= min_coverage * window_px * window_px:
-                    out.append((zoom, gx, gy))
-    return out
-
-
-def flight_grid(dataset_dir: Path) -> tuple[int, int]:
-    """(window, stride) px for a recorded flight: its candidates' size, and the grid their
-    windows lie on (the greatest common divisor of their top-left WORLD px, at least 16 and at
-    most the window): a build on that grid holds every candidate's own window."""
-    from c3_matcher.tilestore.handles import mosaic_origin
-    from c3_matcher_tools.dataset.format import load_dataset
-
-    dataset = load_dataset(dataset_dir)
-    size = dataset.candidate_size_px
-    grid = 0
-    for f in dataset.frames:
-        for c in f.candidates:
-            x0, y0 = mosaic_origin(c.tile_id, size)
-            grid = math.gcd(grid, x0, y0)
-    return size, min(max(grid, 16), size) if grid else size
-
-
-def flight_windows(dataset_dir: Path, stride_px: int) -> list[WindowKey]:
-    """The grid windows a recorded flight's candidates are served from (their nearest grid
-    window; the windows themselves when they lie on the grid), sorted."""
-    from c3_matcher.tilestore.handles import mosaic_origin
-    from c3_matcher_tools.dataset.format import load_dataset
-
-    dataset = load_dataset(dataset_dir)
-    size = dataset.candidate_size_px
-    keys = {
-        (c.tile_id.zoom, *grid_index(mosaic_origin(c.tile_id, size), stride_px))
-        for f in dataset.frames
-        for c in f.candidates
-    }
-    return sorted(keys)
 
 
 def _batches(items: list[WindowKey], size: int) -> Iterator[list[WindowKey]]:
@@ -307,8 +103,40 @@ def build_features(
     if not 0.0 < min_coverage <= 1.0:
         raise ValueError(f"min_coverage must be in (0, 1], got {min_coverage}")
     store = Path(store)
-    settings_json = settings.model_dump_json()
-    with _open_source(str(store)) as source:
+    plan = _plan(store, windows, window_px, stride, min_coverage)
+    job = _Job(store, settings.model_dump_json(), window_px, stride, batch_size, say)
+    report = BuildReport(str(store), str(sidecar_path(store)))
+    with (
+        _dask_client(workers, scheduler) as client,
+        MapFeatureStore(sidecar_path(store), writable=True) as sidecar,
+    ):
+        for strategy in strategies:
+            report.strategies[strategy] = _build_set(job, strategy, plan, sidecar, client, workers)
+    return report
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One build: the store, the settings (JSON, for the workers), window and stride (px),
+    windows per task and where progress lines go."""
+
+    store: Path
+    settings_json: str
+    window_px: int
+    stride_px: int
+    batch_size: int
+    say: Callable[[str], None]
+
+
+def _plan(
+    store: Path,
+    windows: Sequence[WindowKey] | None,
+    window_px: int,
+    stride: int,
+    min_coverage: float,
+) -> dict[WindowKey, str | None]:
+    """Every window to build (sorted), each with the digest of the stored tiles it covers."""
+    with open_source(str(store)) as source:
         tiles = {(z, x, y) for z in source.zooms() for x, y in source.tiles(z)}
         digests = {k: tile_digest(source.tile_bytes(*k) or b"") for k in tiles}
     todo_all = (
@@ -316,114 +144,137 @@ def build_features(
         if windows is not None
         else grid_windows(tiles, window_px, stride, min_coverage)
     )
-    wanted = {
+    return {
         (z, gx, gy): window_digest(
             covered_tiles(z, (gx * stride, gy * stride), (window_px, window_px)), digests.get
         )
         for z, gx, gy in todo_all
     }
-    report = BuildReport(str(store), str(sidecar_path(store)))
-    local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
-    client: Any = None
+
+
+@contextmanager
+def _dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
+    """A Dask client (``scheduler``'s, or a local cluster of ``workers`` processes with one
+    thread each), or None to run the tasks in this process; closed on exit."""
+    if not (workers > 0 or scheduler):
+        yield None
+        return
+    from dask.distributed import Client, LocalCluster
+
     cluster: Any = None
-    if workers > 0 or scheduler:
-        from dask.distributed import Client, LocalCluster
-
-        if scheduler:
-            client = Client(scheduler)
-        else:
-            cluster = LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
-            )
-            client = Client(cluster)
+    if scheduler:
+        client = Client(scheduler)
+    else:
+        cluster = LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+        )
+        client = Client(cluster)
     try:
-        with MapFeatureStore(sidecar_path(store), writable=True) as sidecar:
-            for strategy in strategies:
-                if client is not None:
-                    facts = client.submit(_set_facts, strategy, settings_json, pure=False).result()
-                else:
-                    facts = _set_facts(strategy, settings_json, local)
-                photometric = _photometric(strategy, settings_json)
-                set_id = set_id_for(
-                    facts.extractor_sha256,
-                    facts.provider,
-                    facts.multiple,
-                    photometric,
-                    facts.border_erode_px,
-                    window_px,
-                )
-                existing = sidecar.feature_set(set_id)
-                if existing is not None and existing.stride_px != stride:
-                    raise ValueError(
-                        f"{sidecar.path}: set {set_id[:12]}... was built with a stride of "
-                        f"{existing.stride_px} px, not {stride}; remove the sidecar first"
-                    )
-                sidecar.ensure_set(
-                    FeatureSet(
-                        set_id,
-                        facts.extractor_sha256,
-                        facts.provider,
-                        facts.multiple,
-                        photometric,
-                        facts.border_erode_px,
-                        window_px,
-                        stride,
-                        facts.descriptor_dim,
-                        strategy,
-                        descriptor_dtype=facts.descriptor_dtype,
-                    )
-                )
-                done = sidecar.done_windows(set_id)
-                todo = [k for k in todo_all if done.get(k) != wanted[k]]
-                skipped = len(todo_all) - len(todo)
-                say(
-                    f"features {strategy}: {len(todo_all)} windows of {window_px} px "
-                    f"(stride {stride} px), {skipped} already done, {len(todo)} to extract "
-                    f"({set_id[:12]}...)"
-                )
-                started = time.perf_counter()
-                busy_s = 0.0
-                written = 0
-                args = (str(store.resolve()), strategy, settings_json, window_px, stride)
-                batches = list(_batches(todo, batch_size))
-                if client is not None:
-                    from dask.distributed import as_completed
-
-                    futures = [client.submit(_task, *args, b, pure=False) for b in batches]
-                    results: Iterator[Any] = (f.result() for f in as_completed(futures))
-                else:
-                    results = (_task(*args, b, local) for b in batches)
-                for rows, seconds in results:
-                    sidecar.put_windows(set_id, rows)
-                    busy_s += seconds
-                    written += len(rows)
-                    elapsed = time.perf_counter() - started
-                    say(
-                        f"features {strategy}: {written}/{len(todo)} windows, "
-                        f"{written / max(elapsed, 1e-9):.2f} windows/s"
-                    )
-                elapsed = time.perf_counter() - started
-                cores = _cores(client, workers)
-                sidecar.mark(set_id, complete=True, windows=len(sidecar.done_windows(set_id)))
-                report.strategies[strategy] = {
-                    "set_id": set_id,
-                    "window_px": window_px,
-                    "stride_px": stride,
-                    "windows": len(todo_all),
-                    "skipped": skipped,
-                    "extracted": written,
-                    "seconds": elapsed,
-                    "worker_seconds": busy_s,
-                    "cores": cores,
-                    "windows_per_s": written / elapsed if elapsed > 0 else 0.0,
-                    "windows_per_s_per_core": (written / elapsed / cores) if elapsed > 0 else 0.0,
-                }
+        yield client
     finally:
-        if client is not None:
-            client.close()
+        client.close()
         if cluster is not None:
             cluster.close()
-    return report
+
+
+def _feature_set(
+    job: _Job, strategy: str, sidecar: MapFeatureStore, client: Any, local: BackendCache
+) -> str:
+    """The id of ``strategy``'s set in the sidecar (created when new; a set built with another
+    stride is refused)."""
+    if client is not None:
+        facts = client.submit(set_facts, strategy, job.settings_json, pure=False).result()
+    else:
+        facts = set_facts(strategy, job.settings_json, local)
+    photometric = photometric_of(strategy, job.settings_json)
+    set_id = set_id_for(
+        facts.extractor_sha256,
+        facts.provider,
+        facts.multiple,
+        photometric,
+        facts.border_erode_px,
+        job.window_px,
+    )
+    existing = sidecar.feature_set(set_id)
+    if existing is not None and existing.stride_px != job.stride_px:
+        raise ValueError(
+            f"{sidecar.path}: set {set_id[:12]}... was built with a stride of "
+            f"{existing.stride_px} px, not {job.stride_px}; remove the sidecar first"
+        )
+    sidecar.ensure_set(
+        FeatureSet(
+            set_id,
+            facts.extractor_sha256,
+            facts.provider,
+            facts.multiple,
+            photometric,
+            facts.border_erode_px,
+            job.window_px,
+            job.stride_px,
+            facts.descriptor_dim,
+            strategy,
+            descriptor_dtype=facts.descriptor_dtype,
+        )
+    )
+    return set_id
+
+
+def _build_set(
+    job: _Job,
+    strategy: str,
+    plan: dict[WindowKey, str | None],
+    sidecar: MapFeatureStore,
+    client: Any,
+    workers: int,
+) -> dict[str, Any]:
+    """Extract and store the windows of ``plan`` not yet done for ``strategy``; its report."""
+    local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
+    set_id = _feature_set(job, strategy, sidecar, client, local)
+    done = sidecar.done_windows(set_id)
+    todo = [k for k in plan if done.get(k) != plan[k]]
+    skipped = len(plan) - len(todo)
+    job.say(
+        f"features {strategy}: {len(plan)} windows of {job.window_px} px "
+        f"(stride {job.stride_px} px), {skipped} already done, {len(todo)} to extract "
+        f"({set_id[:12]}...)"
+    )
+    started = time.perf_counter()
+    busy_s = 0.0
+    written = 0
+    args = (str(job.store.resolve()), strategy, job.settings_json, job.window_px, job.stride_px)
+    batches = list(_batches(todo, job.batch_size))
+    if client is not None:
+        from dask.distributed import as_completed
+
+        futures = [client.submit(task, *args, b, pure=False) for b in batches]
+        results: Iterator[Any] = (f.result() for f in as_completed(futures))
+    else:
+        results = (task(*args, b, local) for b in batches)
+    for rows, seconds in results:
+        sidecar.put_windows(set_id, rows)
+        busy_s += seconds
+        written += len(rows)
+        elapsed = time.perf_counter() - started
+        job.say(
+            f"features {strategy}: {written}/{len(todo)} windows, "
+            f"{written / max(elapsed, 1e-9):.2f} windows/s"
+        )
+    elapsed = time.perf_counter() - started
+    cores = _cores(client, workers)
+    sidecar.mark(set_id, complete=True, windows=len(sidecar.done_windows(set_id)))
+    return {
+        "set_id": set_id,
+        "window_px": job.window_px,
+        "stride_px": job.stride_px,
+        "windows": len(plan),
+        "skipped": skipped,
+        "extracted": written,
+        "seconds": elapsed,
+        "worker_seconds": busy_s,
+        "cores": cores,
+        "windows_per_s": written / elapsed if elapsed > 0 else 0.0,
+        "windows_per_s_per_core": (written / elapsed / cores) if elapsed > 0 else 0.0,
+    }
 
 
 def _cores(client: Any, workers: int) -> int:

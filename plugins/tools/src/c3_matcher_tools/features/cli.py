@@ -32,6 +32,16 @@ def register_features_command(commands: CommandRegistry) -> None:
         default=None,
         help="strategy whose extractor to run (repeatable; default: the configured one)",
     )
+    _add_build_options(b)
+    b.set_defaults(handler=_build)
+    i = group.add("info", help="the feature sets stored beside a tile store")
+    i.add_argument("store", type=Path, help="an MBTiles tile store")
+    i.add_argument("--json", action="store_true", help="print the sets as JSON")
+    i.set_defaults(handler=_info)
+
+
+def _add_build_options(b: argparse.ArgumentParser) -> None:
+    """Where ``features build`` runs, which windows and how many per task."""
     where = b.add_mutually_exclusive_group()
     where.add_argument(
         "--workers",
@@ -68,20 +78,10 @@ def register_features_command(commands: CommandRegistry) -> None:
     )
     b.add_argument("--batch", type=int, default=8, help="tiles per Dask task")
     b.add_argument("--json", action="store_true", help="print the report as JSON")
-    b.set_defaults(handler=_build)
-    i = group.add("info", help="the feature sets stored beside a tile store")
-    i.add_argument("store", type=Path, help="an MBTiles tile store")
-    i.add_argument("--json", action="store_true", help="print the sets as JSON")
-    i.set_defaults(handler=_info)
 
 
 def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
-    from c3_matcher_tools.features.build import (
-        DEFAULT_WINDOW_PX,
-        build_features,
-        flight_grid,
-        flight_windows,
-    )
+    from c3_matcher_tools.features import build as fb
 
     path: Path = args.store
     store, window, stride = path, args.window, args.stride
@@ -93,23 +93,23 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
         try:
             dataset = load_dataset(path)
         except InvalidInputError as exc:
-            print(f"features build: {exc}", file=sys.stderr)
+            ctx.err(f"features build: {exc}")
             return EXIT_USAGE
         store = dataset.store_path
-        size, grid = flight_grid(path)
+        size, grid = fb.flight_grid(path)
         window = window or size
         stride = stride or (grid if window == size else window)
         if args.flight_candidates:
-            windows = flight_windows(path, stride)
+            windows = fb.flight_windows(path, stride)
     elif args.flight_candidates:
-        print("features build: --flight-candidates needs a flight dataset", file=sys.stderr)
+        ctx.err("features build: --flight-candidates needs a flight dataset")
         return EXIT_USAGE
     if not store.is_file():
-        print(f"features build: no such store: {store}", file=sys.stderr)
+        ctx.err(f"features build: no such store: {store}")
         return EXIT_USAGE
-    window = window or DEFAULT_WINDOW_PX
+    window = window or fb.DEFAULT_WINDOW_PX
     try:
-        report = build_features(
+        report = fb.build_features(
             store,
             args.strategy or [ctx.settings.matcher.strategy],
             ctx.settings,
@@ -122,13 +122,13 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
             batch_size=args.batch,
         )
     except ValueError as exc:
-        print(f"features build: {exc}", file=sys.stderr)
+        ctx.err(f"features build: {exc}")
         return EXIT_USAGE
     if args.json:
-        print(json.dumps(report.__dict__, indent=2))
+        ctx.out(json.dumps(report.__dict__, indent=2))
         return EXIT_OK
     for name, r in report.strategies.items():
-        print(
+        ctx.out(
             f"{name}: {r['extracted']} extracted, {r['skipped']} already done of "
             f"{r['windows']} windows ({r['window_px']} px, stride {r['stride_px']} px) in "
             f"{r['seconds']:.1f} s on {r['cores']} cores: "

@@ -1,0 +1,184 @@
+"""What a map-feature build runs in a worker (a Dask worker process, or the building process
+itself): the strategy's feature backend, built once per process with the engine's whole top-K
+(``EXTRACT_BUDGET``) and no tile cache; the facts that key its feature set; a batch of windows
+extracted exactly as the flight extracts a candidate with that window (window px)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from c3_matcher.config import C3Settings
+from c3_matcher.tilestore.features import (
+    WindowFeatures,
+    covered_tiles,
+    tile_digest,
+    window_digest,
+)
+from c3_matcher_tools.features.windows import WindowKey
+
+__all__ = [
+    "EXTRACT_BUDGET",
+    "BackendCache",
+    "SetFacts",
+    "extract_window_features",
+    "open_source",
+    "photometric_of",
+    "set_facts",
+    "task",
+]
+
+EXTRACT_BUDGET = 8192  # keep the engine's whole top-K per window (capped by the graph's K)
+
+
+@dataclass(frozen=True)
+class SetFacts:
+    """What keys a strategy's set, learnt from its backend in a worker."""
+
+    extractor_sha256: str
+    provider: str
+    multiple: int
+    border_erode_px: int
+    descriptor_dim: int
+    descriptor_dtype: str
+
+
+BackendCache = dict[tuple[str, str], Any]
+
+
+def _backend(strategy: str, settings_json: str, cache: BackendCache | None = None) -> Any:
+    """The strategy's FeatureBackend with the whole top-K and no tile cache, built once per
+    process: held in ``cache`` (the caller's, when it runs the tasks itself) or by the Dask
+    worker running the task."""
+    cache = _worker_cache() if cache is None else cache
+    key = (strategy, settings_json)
+    if key not in cache:
+        from loguru import logger
+
+        from c3_matcher_tools.run.matcher import Overrides, open_backend
+
+        logger.remove()
+        cache[key] = open_backend(
+            C3Settings.model_validate_json(settings_json),
+            strategy,
+            overrides=Overrides(max_keypoints=EXTRACT_BUDGET, tile_cache_size=0),
+        )
+    return cache[key]
+
+
+def _worker_cache() -> BackendCache:
+    """The backends held by the Dask worker this task runs on (one per worker process)."""
+    from dask.distributed import get_worker
+
+    cache: BackendCache = get_worker().extensions.setdefault("c3_feature_backends", {})
+    return cache
+
+
+def photometric_of(strategy: str, settings_json: str) -> str:
+    """The photometric normalisation ``strategy`` flies with: ``[matcher] photometric``, or when
+    unset the strategy's own default (``c3_matcher.compose.strategy_settings``)."""
+    from c3_matcher.compose import strategy_settings
+
+    settings = strategy_settings(C3Settings.model_validate_json(settings_json), strategy)
+    return str(settings.matcher.photometric)
+
+
+def _preprocessor(backend: Any, photometric: str) -> Any:
+    """The flight's tile preprocessing (``PipelineMatcher``'s default preprocessor)."""
+    from c3_matcher.preprocess import FramePreprocessor
+
+    return FramePreprocessor(backend.input_rule, photometric=photometric)
+
+
+def extract_window_features(
+    backend: Any,
+    source: Any,
+    zoom: int,
+    origin: tuple[int, int],
+    window_px: int,
+    photometric: str,
+) -> WindowFeatures:
+    """The features of the ``window_px`` window of WORLD px whose top-left pixel is ``origin``,
+    exactly as the flight extracts a candidate with that window (window px); ValueError when
+    the input rule would resize or pad the window."""
+    from c3_matcher.tilestore.handles import stitch
+
+    keys = covered_tiles(zoom, origin, (window_px, window_px))
+    blobs = {k: source.tile_bytes(*k) for k in keys}
+    digest = window_digest(keys, lambda k: None if blobs[k] is None else tile_digest(blobs[k]))
+    image = stitch(source, zoom, origin, (window_px, window_px), f"window {zoom}/{origin}")
+    prepared = _preprocessor(backend, photometric).prepare_tile(image)
+    if prepared.engine_size != (window_px, window_px):
+        raise ValueError(f"input rule {backend.input_rule} resizes or pads a {window_px} px window")
+    f = backend.extract(prepared)
+    return WindowFeatures(
+        digest,
+        np.ascontiguousarray(f.keypoints, dtype=np.float32),
+        np.ascontiguousarray(f.keypoint_scores, dtype=np.float32),
+        np.ascontiguousarray(f.descriptors),  # the backend's dtype, never cast
+    )
+
+
+def open_source(store_path: str) -> Any:
+    from c3_matcher.tilestore.mbtiles import MBTilesStore
+
+    return MBTilesStore(store_path)
+
+
+def task(
+    store_path: str,
+    strategy: str,
+    settings_json: str,
+    window_px: int,
+    stride_px: int,
+    windows: Sequence[WindowKey],
+    cache: BackendCache | None = None,
+) -> tuple[list[tuple[int, int, int, WindowFeatures]], float]:
+    """A worker's batch: [(zoom, gx, gy, features)] and the seconds it took (a window no stored
+    tile overlaps has no features and is left out)."""
+    from c3_matcher.tilestore.handles import TileNotFoundError
+
+    started = time.perf_counter()
+    backend = _backend(strategy, settings_json, cache)
+    photometric = photometric_of(strategy, settings_json)
+    source = open_source(store_path)
+    out: list[tuple[int, int, int, WindowFeatures]] = []
+    try:
+        for z, gx, gy in windows:
+            origin = (gx * stride_px, gy * stride_px)
+            try:
+                f = extract_window_features(backend, source, z, origin, window_px, photometric)
+            except TileNotFoundError:
+                continue
+            out.append((z, gx, gy, f))
+    finally:
+        source.close()
+    return out, time.perf_counter() - started
+
+
+def set_facts(strategy: str, settings_json: str, cache: BackendCache | None = None) -> SetFacts:
+    """The facts keying a strategy's set, in a worker (the descriptor size from a probe)."""
+    backend = _backend(strategy, settings_json, cache)
+    from c3_matcher.preprocess import PreparedImage
+
+    probe = np.kron(
+        np.random.default_rng(0).integers(0, 256, (22, 22, 3), dtype=np.uint8),
+        np.ones((6, 6, 1), np.uint8),
+    )[:128, :128]
+    f = backend.extract(
+        PreparedImage(np.ascontiguousarray(probe), np.ones((128, 128), bool), np.eye(3), (128, 128))
+    )
+    provenance = backend.provenance()
+    photometric = photometric_of(strategy, settings_json)
+    return SetFacts(
+        str(provenance["engines"]["extractor"]["file_sha256"]),
+        str(provenance["provider"]),
+        int(backend.input_rule.multiple),
+        int(_preprocessor(backend, photometric).border_erode_px),
+        int(f.descriptors.shape[1]),
+        str(f.descriptors.dtype),
+    )

@@ -1,0 +1,69 @@
+"""The run layer: a run's overrides over the configuration, the settings a strategy actually
+ran with (its own defaults where the configuration leaves a setting unset), the same flight
+flown twice giving the same frames bit for bit, and the feature backend a strategy flies with,
+on the real path (xfeat, the first frames of the shipped demo flight)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.config import C3Settings
+from c3_matcher.errors import UnknownStrategyError
+from c3_matcher_tools.dataset.format import load_dataset
+from c3_matcher_tools.run import Overrides, fly, open_backend, write_results
+
+DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
+
+
+def test_overrides_set_only_what_they_name() -> None:
+    settings = C3Settings(matcher={"max_keypoints": 1024, "tile_cache_size": 4})
+    assert Overrides().apply(settings) is settings
+    got = Overrides(max_keypoints=512, lightglue_mode="full", intra_op_threads=2).apply(
+        settings, "xfeat"
+    )
+    assert (got.matcher.strategy, got.matcher.max_keypoints) == ("xfeat", 512)
+    assert got.matcher.tile_cache_size == 4  # not named: as configured
+    assert (got.lightglue.mode, got.engines.intra_op_threads) == ("full", 2)
+    assert settings.matcher.max_keypoints == 1024  # the configuration itself is left alone
+
+
+def test_a_flight_run_records_the_settings_it_ran_with_and_repeats_bit_for_bit(
+    engine_dir: Path, tmp_path: Path
+) -> None:
+    from c3_matcher.compose import build_plugin_host
+
+    host = build_plugin_host()
+    defaults = host.resolve("xfeat").defaults
+    flight = load_dataset(DEMO)
+    flight = dataclasses.replace(flight, frames=flight.frames[:2])
+    settings = C3Settings(engines={"directory": engine_dir})  # photometric, refit: unset
+    runs = [
+        fly(settings, "xfeat", flight, tmp_path / f"run{n}", plugin_host=host) for n in range(2)
+    ]
+    first, second = runs
+    assert first.settings["strategy"] == "xfeat"
+    assert first.settings["photometric"] == defaults.photometric
+    assert first.settings["refit_threshold_px"] == defaults.refit_threshold_px
+    assert first.matcher_labels == ["xfeat"]
+    assert [o.index for o in first.outcomes] == [f.index for f in flight.frames]
+    assert [o.fingerprint for o in first.outcomes] == [o.fingerprint for o in second.outcomes]
+    assert first.startup_s < first.wall_s
+    lines = write_results(tmp_path / "results.jsonl", first.outcomes).read_text().splitlines()
+    assert [json.loads(line)["fingerprint"] for line in lines] == [
+        o.fingerprint for o in first.outcomes
+    ]
+    assert (tmp_path / "run0" / "fdr.jsonl").stat().st_size > 0
+
+
+def test_the_backend_a_strategy_flies_with(engine_dir: Path) -> None:
+    settings = C3Settings(engines={"directory": engine_dir})
+    backend = open_backend(settings, "xfeat", overrides=Overrides(max_keypoints=256))
+    assert backend.label == "xfeat"
+    assert backend.provenance()["engines"]["extractor"]["file_sha256"]
+    assert open_backend(settings, "sift_magsac").label == "sift_magsac"  # the baseline too
+    with pytest.raises(UnknownStrategyError, match="no_such_strategy"):
+        open_backend(settings, "no_such_strategy")
