@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import re
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
@@ -20,14 +19,13 @@ from platformdirs import user_cache_dir, user_data_dir
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from pydantic_settings import (
     BaseSettings,
-    EnvSettingsSource,
     InitSettingsSource,
     PydanticBaseSettingsSource,
     SettingsConfigDict,
     SettingsError,
 )
-from pydantic_settings.sources.utils import parse_env_vars
 
+from c3_matcher.config_sources import ENV_PREFIX, MappingEnvSource, read_toml, unknown_env_keys
 from c3_matcher.engines.store import default_engine_dir
 from c3_matcher.errors import ConfigurationError
 from c3_matcher.plugins.types import StrategyDefaults
@@ -44,7 +42,6 @@ __all__ = [
     "with_strategy_defaults",
 ]
 
-ENV_PREFIX = "C3_MATCHER_"
 APP_NAME = "c3-matcher"
 
 
@@ -344,49 +341,6 @@ def with_strategy_defaults(
     return settings.model_copy(update={"matcher": matcher, "lightglue": lightglue})
 
 
-def _unknown_env_keys(env: Mapping[str, str]) -> list[tuple[str, str]]:
-    sections = {name: model for name, model in C3Settings.model_fields.items()}
-    problems = []
-    for key in env:
-        if not key.upper().startswith(ENV_PREFIX):
-            continue
-        parts = key[len(ENV_PREFIX) :].lower().split("__")
-        if len(parts) == 1 and parts[0] not in sections:
-            continue  # a process switch, not a setting (C3_MATCHER_TRACEBACK, C3_MATCHER_TOOLS_*)
-        section = sections.get(parts[0])
-        annotation = section.annotation if section else None
-        fields = getattr(annotation, "model_fields", {})
-        if section is None or (len(parts) > 1 and parts[1] not in fields):
-            problems.append((key, "unknown setting (check the spelling)"))
-    return problems
-
-
-class _MappingEnvSource(EnvSettingsSource):
-    """``C3Settings``' environment source reading a given mapping instead of ``os.environ``."""
-
-    def __init__(self, env: Mapping[str, str]) -> None:
-        self._given = dict(env)
-        super().__init__(C3Settings)
-
-    def _load_env_vars(self) -> Mapping[str, str | None]:
-        return parse_env_vars(
-            self._given, self.case_sensitive, self.env_ignore_empty, self.env_parse_none_str
-        )
-
-
-def _read_toml(toml_path: Path, source: str) -> dict[str, Any]:
-    try:
-        return tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigurationError(source, [("--config", "file not found")]) from None
-    except UnicodeDecodeError as exc:
-        raise ConfigurationError(
-            source, [("--config", f"not UTF-8 text (byte {exc.start}): {exc.reason}")]
-        ) from None
-    except (OSError, tomllib.TOMLDecodeError, ValueError) as exc:
-        raise ConfigurationError(source, [("--config", f"unreadable TOML: {exc}")]) from None
-
-
 def load_settings(
     toml_path: Path | None = None, env: Mapping[str, str] | None = None
 ) -> C3Settings:
@@ -395,12 +349,12 @@ def load_settings(
     field."""
     environ = dict(os.environ if env is None else env)
     source = f"{toml_path} + environment" if toml_path else "environment"
-    data = _read_toml(toml_path, source) if toml_path is not None else {}
-    unknown = _unknown_env_keys(environ)
+    data = read_toml(toml_path, source) if toml_path is not None else {}
+    unknown = unknown_env_keys(C3Settings, environ)
     if unknown:
         raise ConfigurationError("environment", unknown)
     try:
-        sources = (_MappingEnvSource(environ), InitSettingsSource(C3Settings, data))
+        sources = (MappingEnvSource(C3Settings, environ), InitSettingsSource(C3Settings, data))
         return C3Settings(_build_sources=(sources, data))  # environment > TOML > defaults
     except ValidationError as exc:
         problems = [

@@ -24,59 +24,17 @@ def _sources(r: dict[str, Any]) -> str:
     return " ".join(f"{k} {v}/{total}" for k, v in sorted(counts.items()) if k != "none") or ""
 
 
-def comparisons(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+Result = dict[str, Any]
+Pair = tuple[str, Result | None, Result | None]  # (what, slower side, faster side)
+
+
+def comparisons(results: list[Result]) -> list[Result]:
     """The ratios a run proves, per strategy: stored vs extracted tiles, adaptive vs full
     LightGlue, cached vs new tiles, each engine case vs the PyTorch reference (speed-ups of
     frame p50 and p95, peak RSS of both sides)."""
-
-    def find(strategy: str, kind: str, **fields: Any) -> dict[str, Any] | None:
-        for r in results:
-            c = r["case"]
-            same = c["strategy"] == strategy and c["kind"] == kind
-            if same and all(c.get(k) == v for k, v in fields.items()):
-                return r
-        return None
-
-    out: list[dict[str, Any]] = []
+    out: list[Result] = []
     for strategy in dict.fromkeys(r["case"]["strategy"] for r in results):
-        base = dict(stored_features=False, lightglue_mode=None, intra_op_threads=None)
-        new = find(strategy, "engine", tile_cache_size=0, **base)
-        cached = next(
-            (
-                r
-                for r in results
-                if r["case"]["strategy"] == strategy
-                and r["case"]["kind"] == "engine"
-                and r["case"]["tile_cache_size"] > 0
-            ),
-            None,
-        )
-        stored = find(strategy, "engine", stored_features=True)
-        other = next(
-            (
-                r
-                for r in results
-                if r["case"]["strategy"] == strategy
-                and r["case"]["kind"] == "engine"
-                and r["case"].get("lightglue_mode")
-            ),
-            None,
-        )
-        torch_ref = find(strategy, "pytorch")
-        pairs: list[tuple[str, dict[str, Any] | None, dict[str, Any] | None]] = [
-            ("cached vs new tiles", new, cached),
-            ("stored features vs extraction", new, stored),
-        ]
-        if other is not None:
-            mode = other["case"]["lightglue_mode"]
-            if mode == "full":
-                pairs.append(("adaptive vs full LightGlue", other, new))
-            else:
-                pairs.append(("adaptive vs full LightGlue", new, other))
-        for r in (new, cached, stored, other):
-            if r is not None:
-                pairs.append((f"{r['label']} vs PyTorch", torch_ref, r))
-        for what, slow, fast in pairs:
+        for what, slow, fast in _pairs(results, strategy):
             if slow is None or fast is None:
                 continue
             out.append(
@@ -89,6 +47,38 @@ def comparisons(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 }
             )
     return out
+
+
+def _first(results: list[Result], strategy: str, kind: str, **fields: Any) -> Result | None:
+    """The first result of ``strategy``'s ``kind`` case whose fields are ``fields`` (a
+    callable value: a test of the field)."""
+    for r in results:
+        c = r["case"]
+        if c["strategy"] != strategy or c["kind"] != kind:
+            continue
+        if all(v(c.get(k)) if callable(v) else c.get(k) == v for k, v in fields.items()):
+            return r
+    return None
+
+
+def _pairs(results: list[Result], strategy: str) -> list[Pair]:
+    base = dict(stored_features=False, lightglue_mode=None, intra_op_threads=None)
+    new = _first(results, strategy, "engine", tile_cache_size=0, **base)
+    cached = _first(results, strategy, "engine", tile_cache_size=lambda n: n > 0)
+    stored = _first(results, strategy, "engine", stored_features=True)
+    other = _first(results, strategy, "engine", lightglue_mode=bool)
+    torch_ref = _first(results, strategy, "pytorch")
+    pairs: list[Pair] = [
+        ("cached vs new tiles", new, cached),
+        ("stored features vs extraction", new, stored),
+    ]
+    if other is not None:
+        full = other["case"]["lightglue_mode"] == "full"
+        pairs.append(("adaptive vs full LightGlue", *((other, new) if full else (new, other))))
+    for r in (new, cached, stored, other):
+        if r is not None:
+            pairs.append((f"{r['label']} vs PyTorch", torch_ref, r))
+    return pairs
 
 
 def format_report(report: dict[str, Any]) -> str:

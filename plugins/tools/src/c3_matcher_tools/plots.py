@@ -4,12 +4,13 @@ pictures ``eval`` draws of its runs (:func:`eval_plots`)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 if TYPE_CHECKING:
     from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
@@ -57,44 +58,40 @@ def line_chart(
             cv2.line(canvas, (x, y), (min(x + 6, w - right), y), (0, 0, 200), 1)
     for idx, (label, values) in enumerate(series.items()):
         colour = _COLOURS[idx % len(_COLOURS)][::-1]
-        previous = None
-        for i, v in enumerate(values):
-            if not math.isfinite(v):
-                x, y = px(i, 0)
-                cv2.drawMarker(canvas, (x, y), colour, cv2.MARKER_TILTED_CROSS, 7, 1)
-                previous = None
-                continue
-            p = px(i, v)
-            if previous is not None:
-                cv2.line(canvas, previous, p, colour, 2, cv2.LINE_AA)
-            cv2.circle(canvas, p, 2, colour, -1)
-            previous = p
+        _polyline(canvas, values, colour, px)
         ly = top + 18 * idx + 10
         cv2.line(canvas, (w - right + 10, ly), (w - right + 30, ly), colour, 2)
-        cv2.putText(
-            canvas,
-            label[:18],
-            (w - right + 35, ly + 4),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.4,
-            (0, 0, 0),
-            1,
-        )
+        font = cv2.FONT_HERSHEY_SIMPLEX
+        cv2.putText(canvas, label[:18], (w - right + 35, ly + 4), font, 0.4, (0, 0, 0), 1)
     cv2.putText(canvas, title, (left, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1)
-    cv2.putText(
-        canvas,
-        f"{ylabel} / frame index",
-        (left, h - 10),
-        cv2.FONT_HERSHEY_SIMPLEX,
-        0.45,
-        (0, 0, 0),
-        1,
-    )
+    axis = f"{ylabel} / frame index"
+    cv2.putText(canvas, axis, (left, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out), canvas):
         raise OSError(f"cannot write {out}")
     return out
+
+
+def _polyline(
+    canvas: NDArray[np.uint8],
+    values: Sequence[float],
+    colour: tuple[int, int, int],
+    px: Callable[[float, float], tuple[int, int]],
+) -> None:
+    """One series: a line through its finite values, an 'x' on the axis for each NaN."""
+    previous = None
+    for i, v in enumerate(values):
+        if not math.isfinite(v):
+            x, y = px(i, 0)
+            cv2.drawMarker(canvas, (x, y), colour, cv2.MARKER_TILTED_CROSS, 7, 1)
+            previous = None
+            continue
+        p = px(i, v)
+        if previous is not None:
+            cv2.line(canvas, previous, p, colour, 2, cv2.LINE_AA)
+        cv2.circle(canvas, p, 2, colour, -1)
+        previous = p
 
 
 def eval_plots(
@@ -103,25 +100,22 @@ def eval_plots(
     """``out/inliers.png`` and ``out/error.png`` (best-candidate inliers and mean inlier error
     against ground truth per frame, one line per run) and, for ``samples`` frames with the true
     tile spread over the flight, ``out/matches/<strategy>_<frame>.png``; the paths written."""
+    charts = (
+        ("inliers", [[float(o.best_inliers) for o in r.outcomes] for r in runs], 80.0),
+        ("error", [[_finite_or_nan(o.mean_error_px) for o in r.outcomes] for r in runs], 2.5),
+    )
+    titles = {"inliers": "best-candidate inliers", "error": "mean inlier error vs ground truth"}
     written = [
         str(
             line_chart(
-                out / "inliers.png",
-                {r.strategy: [float(o.best_inliers) for o in r.outcomes] for r in runs},
-                title=f"{dataset.name}: best-candidate inliers per frame",
-                ylabel="inliers",
-                bar=80,
+                out / f"{name}.png",
+                dict(zip((r.strategy for r in runs), series, strict=True)),
+                title=f"{dataset.name}: {titles[name]} per frame",
+                ylabel={"inliers": "inliers", "error": "px"}[name],
+                bar=bar,
             )
-        ),
-        str(
-            line_chart(
-                out / "error.png",
-                {r.strategy: [_finite_or_nan(o.mean_error_px) for o in r.outcomes] for r in runs},
-                title=f"{dataset.name}: mean inlier error vs ground truth per frame",
-                ylabel="px",
-                bar=2.5,
-            )
-        ),
+        )
+        for name, series, bar in charts
     ]
     if samples > 0:
         written += _match_pictures(dataset, runs, out, _sample_frames(dataset, samples))

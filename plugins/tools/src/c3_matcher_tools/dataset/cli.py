@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 from c3_matcher.commands import CommandContext, CommandRegistry
 from c3_matcher_tools.dataset.progress import ProgressBar
@@ -53,14 +54,22 @@ OUT is written atomically (temp dir + rename; a missing parent folder is created
 
 
 def register_dataset_command(commands: CommandRegistry) -> None:
-    from c3_matcher_tools.dataset.sources.cli import add_log_import_options
-    from c3_matcher_tools.tilestore.cli import parse_latlon
-
     p = commands.add(
         "dataset",
         help="flight datasets: render a simulated flight, import a recorded one, inspect one",
     )
     ds = p.add_subparsers(dest="dataset_command", required=True, parser_class=type(p))
+    _add_render(ds)
+    _add_import(ds)
+    i = ds.add_parser("info", help="summary of a dataset")
+    i.add_argument("dataset", type=Path, help="dataset directory (holds dataset.json)")
+    i.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(handler=run_dataset)
+
+
+def _add_render(ds: Any) -> None:
+    from c3_matcher_tools.tilestore.cli import parse_latlon
+
     r = ds.add_parser(
         "render",
         help="render a flight over a GeoTIFF against an MBTiles store (c3-matcher tiles build)",
@@ -107,6 +116,11 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     r.add_argument("--seed", type=int, default=0, help="random seed of the flight (default 0)")
     r.add_argument("--force", action="store_true", help="replace an existing OUT")
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def _add_import(ds: Any) -> None:
+    from c3_matcher_tools.dataset.sources.cli import add_log_import_options
+
     m = ds.add_parser(
         "import",
         help="build a dataset (no ground truth) from a recorded flight: images, telemetry CSV, "
@@ -142,64 +156,74 @@ def register_dataset_command(commands: CommandRegistry) -> None:
     m.add_argument("--name", default=None, help="dataset name (default: OUT's name)")
     m.add_argument("--force", action="store_true", help="replace an existing OUT")
     add_log_import_options(m)
-    i = ds.add_parser("info", help="summary of a dataset")
-    i.add_argument("dataset", type=Path, help="dataset directory (holds dataset.json)")
-    i.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.set_defaults(handler=run_dataset)
 
 
 def run_dataset(args: argparse.Namespace, ctx: CommandContext) -> int:
-    from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
-    from c3_matcher_tools.dataset.format import load_dataset
     from c3_matcher_tools.dataset.sources.cli import run_log_import
 
     if args.dataset_command == "info":
-        d = load_dataset(args.dataset)
-        info: dict[str, object] = {
-            "path": str(d.root),
-            "name": d.name,
-            "frames": len(d.frames),
-            "ground_truth_frames": sum(f.has_truth for f in d.frames),
-            # frames whose true tile is not among the candidates: only known with ground truth
-            "absent_frames": (
-                sum(not f.true_tile_present for f in d.frames if f.has_truth)
-                if any(f.has_truth for f in d.frames)
-                else None
-            ),
-            "candidate_size_px": d.candidate_size_px,
-            "calibration_image_size": list(d.calibration.image_size),
-            **{k: d.meta[k] for k in ("tiles_source", "frames_source") if k in d.meta},
-        }
-        if args.json:
-            print(json.dumps(info, indent=2))
-        else:
-            print("\n".join(f"{k}: {v}" for k, v in info.items()))
-        return 0
+        return _info(args, ctx)
     if args.dataset_command == "import" and (code := run_log_import(args)) is not None:
         return code  # a recorded log (PX4, ArduPilot, ROS bag, photo metadata)
     if args.dataset_command == "import":
-        from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
+        return _import_csv(args, ctx)
+    return _render(args, ctx)
 
-        report = import_csv_flight(
-            ImportSpec(
-                images_dir=args.images_dir,
-                telemetry_csv=args.telemetry,
-                calibration_json=args.calibration,
-                store=args.store,
-                uncertainty_m=args.uncertainty_m,
-                candidates=args.candidates,
-                zoom=args.zoom,
-                candidate_size_px=args.candidate_size,
-                seed=args.seed,
-                ground_elevation_m=args.ground_elevation,
-                dem=args.dem,
-            ),
-            args.out,
-            name=args.name,
-            force=args.force,
-        )
-        print(json.dumps(report.to_json()) if args.json else "\n".join(report.lines()))
-        return 0
+
+def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
+    from c3_matcher_tools.dataset.format import load_dataset
+
+    d = load_dataset(args.dataset)
+    info: dict[str, object] = {
+        "path": str(d.root),
+        "name": d.name,
+        "frames": len(d.frames),
+        "ground_truth_frames": sum(f.has_truth for f in d.frames),
+        # frames whose true tile is not among the candidates: only known with ground truth
+        "absent_frames": (
+            sum(not f.true_tile_present for f in d.frames if f.has_truth)
+            if any(f.has_truth for f in d.frames)
+            else None
+        ),
+        "candidate_size_px": d.candidate_size_px,
+        "calibration_image_size": list(d.calibration.image_size),
+        **{k: d.meta[k] for k in ("tiles_source", "frames_source") if k in d.meta},
+    }
+    if args.json:
+        ctx.out(json.dumps(info, indent=2))
+    else:
+        ctx.out("\n".join(f"{k}: {v}" for k, v in info.items()))
+    return 0
+
+
+def _import_csv(args: argparse.Namespace, ctx: CommandContext) -> int:
+    from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
+
+    report = import_csv_flight(
+        ImportSpec(
+            images_dir=args.images_dir,
+            telemetry_csv=args.telemetry,
+            calibration_json=args.calibration,
+            store=args.store,
+            uncertainty_m=args.uncertainty_m,
+            candidates=args.candidates,
+            zoom=args.zoom,
+            candidate_size_px=args.candidate_size,
+            seed=args.seed,
+            ground_elevation_m=args.ground_elevation,
+            dem=args.dem,
+        ),
+        args.out,
+        name=args.name,
+        force=args.force,
+    )
+    ctx.out(json.dumps(report.to_json()) if args.json else "\n".join(report.lines()))
+    return 0
+
+
+def _render(args: argparse.Namespace, ctx: CommandContext) -> int:
+    from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
+
     spec = FlightSpec(
         frames_geotiff=args.frames_geotiff,
         store=args.store,
@@ -228,7 +252,7 @@ def run_dataset(args: argparse.Namespace, ctx: CommandContext) -> int:
         force=args.force,
     )
     if args.json:
-        print(json.dumps({"dataset": str(out), "frames": spec.n_frames}))
+        ctx.out(json.dumps({"dataset": str(out), "frames": spec.n_frames}))
     else:
-        print(f"{out}: {spec.n_frames} frames rendered")
+        ctx.out(f"{out}: {spec.n_frames} frames rendered")
     return 0

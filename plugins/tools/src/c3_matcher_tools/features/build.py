@@ -187,7 +187,7 @@ def _feature_set(
     else:
         facts = set_facts(strategy, job.settings_json, local)
     photometric = photometric_of(strategy, job.settings_json)
-    set_id = set_id_for(
+    keyed = (  # what the set's id digests, in FeatureSet's order
         facts.extractor_sha256,
         facts.provider,
         facts.multiple,
@@ -195,6 +195,7 @@ def _feature_set(
         facts.border_erode_px,
         job.window_px,
     )
+    set_id = set_id_for(*keyed)
     existing = sidecar.feature_set(set_id)
     if existing is not None and existing.stride_px != job.stride_px:
         raise ValueError(
@@ -204,12 +205,7 @@ def _feature_set(
     sidecar.ensure_set(
         FeatureSet(
             set_id,
-            facts.extractor_sha256,
-            facts.provider,
-            facts.multiple,
-            photometric,
-            facts.border_erode_px,
-            job.window_px,
+            *keyed,
             job.stride_px,
             facts.descriptor_dim,
             strategy,

@@ -41,44 +41,15 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[
     """The C3-IT figures and pass flags of one strategy (see the module docstring)."""
     present = [o for o in run1 if o.has_truth and o.true_present]
     absent = [o for o in run1 if o.has_truth and not o.true_present]
-    positions = [o.position_error_m for o in present if o.status == "ok"]
-    positions = [p for p in positions if math.isfinite(p)]
     inliers = [float(o.best_inliers) for o in present]
     p5 = float(np.percentile(inliers, 5)) if inliers else math.nan
-    errors = [
-        o.mean_error_px for o in present if o.status == "ok" and math.isfinite(o.mean_error_px)
-    ]
-    p95 = float(np.percentile(errors, 95)) if errors else math.nan
-    first = {o.index: o for o in run1}
-    compared = [o for o in run2 if o.index in first]
-    differing = [
-        o.index
-        for o in compared
-        if (o.status, o.fingerprint) != (first[o.index].status, first[o.index].fingerprint)
-    ]
     correct = sum(o.correct for o in present)
     rate = correct / len(present) if present else math.nan
     raised = sum(o.status == "insufficient" for o in absent)
-    scored = [o for o in run1 if o.has_truth]
-    wrong = [o.index for o in scored if is_wrong_fix(o)]
-    right_elsewhere = [
-        o.index for o in scored if o.status == "ok" and not o.correct and not is_wrong_fix(o)
-    ]
     return {
         "C3-IT-01": {"p5_best_inliers": p5, "frames": len(present), "pass": p5 >= 80},
-        "C3-IT-02": {
-            "frames_compared": len(compared),
-            "differing_frames": differing,
-            "pass": bool(compared) and not differing,
-        },
-        "C3-IT-03": {
-            "p95_mean_error_px": p95,
-            "frames_scored": len(errors),
-            "median_mean_error_px": float(np.median(errors)) if errors else math.nan,
-            "p95_position_error_m": float(np.percentile(positions, 95)) if positions else math.nan,
-            "median_position_error_m": float(np.median(positions)) if positions else math.nan,
-            "pass": bool(errors) and p95 < IT03_BAR_PX,
-        },
+        "C3-IT-02": _it02(run1, run2),
+        "C3-IT-03": _it03(present),
         "C3-IT-04": {
             "correct_rate": rate,
             "correct": correct,
@@ -90,15 +61,55 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[
             "absent_frames": len(absent),
             "pass": raised == len(absent),
         },
-        "false_confident": {
-            "frames": wrong,
-            "count": len(wrong),
-            "of": len(scored),
-            "rate": len(wrong) / len(scored) if scored else math.nan,
-            "bound_px": WRONG_FIX_PX,
-            "right_fix_other_tile": right_elsewhere,
-            "pass": not wrong,
-        },
+        "false_confident": _false_confident([o for o in run1 if o.has_truth]),
+    }
+
+
+def _it02(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[str, Any]:
+    first = {o.index: o for o in run1}
+    compared = [o for o in run2 if o.index in first]
+    differing = [
+        o.index
+        for o in compared
+        if (o.status, o.fingerprint) != (first[o.index].status, first[o.index].fingerprint)
+    ]
+    return {
+        "frames_compared": len(compared),
+        "differing_frames": differing,
+        "pass": bool(compared) and not differing,
+    }
+
+
+def _it03(present: Sequence[FrameOutcome]) -> dict[str, Any]:
+    positions = [o.position_error_m for o in present if o.status == "ok"]
+    positions = [p for p in positions if math.isfinite(p)]
+    errors = [
+        o.mean_error_px for o in present if o.status == "ok" and math.isfinite(o.mean_error_px)
+    ]
+    p95 = float(np.percentile(errors, 95)) if errors else math.nan
+    return {
+        "p95_mean_error_px": p95,
+        "frames_scored": len(errors),
+        "median_mean_error_px": float(np.median(errors)) if errors else math.nan,
+        "p95_position_error_m": float(np.percentile(positions, 95)) if positions else math.nan,
+        "median_position_error_m": float(np.median(positions)) if positions else math.nan,
+        "pass": bool(errors) and p95 < IT03_BAR_PX,
+    }
+
+
+def _false_confident(scored: Sequence[FrameOutcome]) -> dict[str, Any]:
+    wrong = [o.index for o in scored if is_wrong_fix(o)]
+    right_elsewhere = [
+        o.index for o in scored if o.status == "ok" and not o.correct and not is_wrong_fix(o)
+    ]
+    return {
+        "frames": wrong,
+        "count": len(wrong),
+        "of": len(scored),
+        "rate": len(wrong) / len(scored) if scored else math.nan,
+        "bound_px": WRONG_FIX_PX,
+        "right_fix_other_tile": right_elsewhere,
+        "pass": not wrong,
     }
 
 

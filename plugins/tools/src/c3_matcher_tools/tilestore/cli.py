@@ -65,6 +65,21 @@ def register_tiles_command(commands: CommandRegistry) -> None:
         "tiles", help="tile stores: build an MBTiles store from a GeoTIFF, inspect, add digests"
     )
     tiles = p.add_subparsers(dest="tiles_command", required=True, parser_class=type(p))
+    _add_build(tiles)
+    i = tiles.add_parser("info", help="print an MBTiles store's metadata and tile counts")
+    i.add_argument("store", type=Path, help="an MBTiles tile store")
+    i.add_argument("--json", action="store_true", help="print the info as JSON")
+    d = tiles.add_parser(
+        "digest",
+        help="record a sha256 for every tile that has none (a store made by another tool), so "
+        "the flight read path detects a tile that changes later; tile bytes are not touched",
+    )
+    d.add_argument("store", type=Path, help="an MBTiles tile store (updated in place)")
+    d.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(handler=run_tiles)
+
+
+def _add_build(tiles: Any) -> None:
     b = tiles.add_parser(
         "build",
         help="build an MBTiles store (256-px web-mercator tiles) from a north-up GeoTIFF",
@@ -114,56 +129,55 @@ def register_tiles_command(commands: CommandRegistry) -> None:
         help="overwrite OUT, and build a zoom more than 4x finer than the source",
     )
     b.add_argument("--json", action="store_true", help="print the report as JSON")
-    i = tiles.add_parser("info", help="print an MBTiles store's metadata and tile counts")
-    i.add_argument("store", type=Path, help="an MBTiles tile store")
-    i.add_argument("--json", action="store_true", help="print the info as JSON")
-    d = tiles.add_parser(
-        "digest",
-        help="record a sha256 for every tile that has none (a store made by another tool), so "
-        "the flight read path detects a tile that changes later; tile bytes are not touched",
-    )
-    d.add_argument("store", type=Path, help="an MBTiles tile store (updated in place)")
-    d.add_argument("--json", action="store_true", help="print the report as JSON")
-    p.set_defaults(handler=run_tiles)
 
 
 def run_tiles(args: argparse.Namespace, ctx: CommandContext) -> int:
-    from c3_matcher.tilestore.mbtiles import MBTilesStore
-    from c3_matcher_tools.tilestore.build import build_mbtiles
-
     if args.tiles_command == "digest":
-        from c3_matcher_tools.tilestore.writer import add_missing_digests
-
-        done = add_missing_digests(args.store)
-        if args.json:
-            print(json.dumps({**asdict(done), "path": str(done.path)}, indent=2))
-        else:
-            print(
-                f"{done.path}: {done.added} digests added, {done.kept} already there "
-                f"({done.tiles} tiles)"
-            )
-        return 0
+        return _digest(args, ctx)
     if args.tiles_command == "info":
-        with MBTilesStore(args.store) as store:
-            info: dict[str, Any] = {
-                "path": str(store.path),
-                "metadata": dict(store.metadata),
-                "tiles": {str(z): len(list(store.tiles(z))) for z in store.zooms()},
-            }
-        if args.json:
-            print(json.dumps(info, indent=2))
-            return 0
-        print(
-            f"{info['path']}: "
-            + ", ".join(f"zoom {z}: {n} tiles" for z, n in info["tiles"].items())
+        return _info(args, ctx)
+    return _build(args, ctx)
+
+
+def _digest(args: argparse.Namespace, ctx: CommandContext) -> int:
+    from c3_matcher_tools.tilestore.writer import add_missing_digests
+
+    done = add_missing_digests(args.store)
+    if args.json:
+        ctx.out(json.dumps({**asdict(done), "path": str(done.path)}, indent=2))
+    else:
+        ctx.out(
+            f"{done.path}: {done.added} digests added, {done.kept} already there "
+            f"({done.tiles} tiles)"
         )
-        for key, value in info["metadata"].items():
-            print(f"  {key}: {value if len(value) <= 120 else value[:117] + '...'}")
+    return 0
+
+
+def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
+    from c3_matcher.tilestore.mbtiles import MBTilesStore
+
+    with MBTilesStore(args.store) as store:
+        info: dict[str, Any] = {
+            "path": str(store.path),
+            "metadata": dict(store.metadata),
+            "tiles": {str(z): len(list(store.tiles(z))) for z in store.zooms()},
+        }
+    if args.json:
+        ctx.out(json.dumps(info, indent=2))
         return 0
+    ctx.out(
+        f"{info['path']}: " + ", ".join(f"zoom {z}: {n} tiles" for z, n in info["tiles"].items())
+    )
+    for key, value in info["metadata"].items():
+        ctx.out(f"  {key}: {value if len(value) <= 120 else value[:117] + '...'}")
+    return 0
+
+
+def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
+    from c3_matcher_tools.tilestore.build import build_mbtiles, parse_zooms
+
     if not 1 <= args.quality <= 100:
         raise InvalidInputError("--quality", f"must be in [1, 100], got {args.quality}")
-    from c3_matcher_tools.tilestore.build import parse_zooms
-
     zooms = parse_zooms([*(args.zoom or []), *([args.zooms] if args.zooms else [])])
     with _terminate_as_interrupt():  # a stopped build leaves no partial store behind
         report = build_mbtiles(
@@ -185,9 +199,9 @@ def run_tiles(args: argparse.Namespace, ctx: CommandContext) -> int:
         for k, v in vars(report).items()
     }
     if args.json:
-        print(json.dumps(data, indent=2))
+        ctx.out(json.dumps(data, indent=2))
     else:
-        print(
+        ctx.out(
             f"{report.path}: {report.tiles} tiles at zoom "
             f"{'/'.join(str(z) for z in report.zooms)} (read with {report.reader}; finest "
             f"{report.tile_gsd_m:.2f} m/px; source {report.source_gsd_m:.2f} m/px), "

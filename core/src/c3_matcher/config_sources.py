@@ -1,0 +1,69 @@
+"""Where the configuration comes from, read without side effects: the TOML file and the
+environment variables (``C3_MATCHER_``, ``__`` between levels) of a given mapping, never
+``os.environ`` changed; unknown keys named so that a typo does not pass silently."""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from pydantic_settings import BaseSettings, EnvSettingsSource
+from pydantic_settings.sources.utils import parse_env_vars
+
+from c3_matcher.errors import ConfigurationError
+
+__all__ = ["ENV_PREFIX", "MappingEnvSource", "read_toml", "unknown_env_keys"]
+
+ENV_PREFIX = "C3_MATCHER_"
+
+
+class MappingEnvSource(EnvSettingsSource):
+    """A settings class's environment source reading ``env`` instead of ``os.environ``."""
+
+    def __init__(self, settings_cls: type[BaseSettings], env: Mapping[str, str]) -> None:
+        self._given = dict(env)
+        super().__init__(settings_cls)
+
+    def _load_env_vars(self) -> Mapping[str, str | None]:
+        return parse_env_vars(
+            self._given, self.case_sensitive, self.env_ignore_empty, self.env_parse_none_str
+        )
+
+
+def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
+    """The TOML file's tables; ``ConfigurationError`` (naming ``--config``) when it is missing,
+    not UTF-8 or not TOML."""
+    try:
+        return tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigurationError(source, [("--config", "file not found")]) from None
+    except UnicodeDecodeError as exc:
+        raise ConfigurationError(
+            source, [("--config", f"not UTF-8 text (byte {exc.start}): {exc.reason}")]
+        ) from None
+    except (OSError, tomllib.TOMLDecodeError, ValueError) as exc:
+        raise ConfigurationError(source, [("--config", f"unreadable TOML: {exc}")]) from None
+
+
+def unknown_env_keys(
+    settings_cls: type[BaseSettings], env: Mapping[str, str]
+) -> list[tuple[str, str]]:
+    """(variable, reason) for each ``C3_MATCHER_<SECTION>[__<KEY>]`` that names no setting of
+    ``settings_cls``; a variable without ``__`` naming no section is a process switch
+    (``C3_MATCHER_TRACEBACK``), not a setting."""
+    sections = dict(settings_cls.model_fields)
+    problems = []
+    for key in env:
+        if not key.upper().startswith(ENV_PREFIX):
+            continue
+        parts = key[len(ENV_PREFIX) :].lower().split("__")
+        if len(parts) == 1 and parts[0] not in sections:
+            continue  # a process switch, not a setting (C3_MATCHER_TRACEBACK, C3_MATCHER_TOOLS_*)
+        section = sections.get(parts[0])
+        annotation = section.annotation if section else None
+        fields = getattr(annotation, "model_fields", {})
+        if section is None or (len(parts) > 1 and parts[1] not in fields):
+            problems.append((key, "unknown setting (check the spelling)"))
+    return problems
