@@ -223,7 +223,7 @@ def register_bench_command(commands: CommandRegistry) -> None:
 def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
     results = []
     for case in cases_for(args, ctx.settings):
-        print(f"bench: {case.label}, {args.runs} runs...", file=sys.stderr, flush=True)
+        ctx.err(f"bench: {case.label}, {args.runs} runs...")
         cmd = [
             sys.executable,
             "-m",
@@ -246,7 +246,7 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
         "comparisons": comparisons(results),
     }
     if args.json:
-        print(json.dumps(report, indent=2))
+        ctx.out(json.dumps(report, indent=2))
         return 0
-    print(format_report(report))
+    ctx.out(format_report(report))
     return 0

@@ -46,7 +46,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -231,7 +230,7 @@ def _eval_dataset(
     try:
         plots = eval_plots(dataset, ran, out, args.samples)
     except Exception as exc:  # the figures matter more than the pictures
-        print(f"c3-matcher eval: plots failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        ctx.err(f"c3-matcher eval: plots failed: {type(exc).__name__}: {exc}")
         plots = []
     report = {
         "dataset": str(dataset.root),

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -22,10 +21,6 @@ from c3_matcher.errors import C3Error
 __all__ = ["register_engines_build_commands"]
 
 
-def _err(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
-
-
 def _build(args: argparse.Namespace, command: CommandContext) -> int:
     ctx = engines_context(command.settings, command.plugin_host)
     from c3_matcher_tools.engines.compiler import EngineBuildError, build_engines
@@ -38,10 +33,10 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
             force=args.force,
             only=args.only or None,
             imagery=ctx.imagery or None,
-            log=_err,
+            log=command.err,
         )
     except (EngineBuildError, ValueError) as exc:
-        _err(f"error: {exc}")
+        command.err(f"error: {exc}")
         return 1
     total = time.perf_counter() - start
     if args.json:
@@ -49,15 +44,15 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
             {"engine": o.spec.key, "reused": o.reused, "seconds": o.seconds, "path": str(o.path)}
             for o in outcomes
         ]
-        print(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
+        command.out(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
         return 0
     for o in outcomes:
         state = "reused" if o.reused else f"built in {o.seconds:.1f} s"
-        print(f"{o.spec.key:<18} {state:<16} {o.path}")
+        command.out(f"{o.spec.key:<18} {state:<16} {o.path}")
         if not o.reused:
-            print("\n".join(figures(dict(o.manifest.verification))))
+            command.out("\n".join(figures(dict(o.manifest.verification))))
     built = [o for o in outcomes if not o.reused]
-    print(
+    command.out(
         f"{len(built)} built, {len(outcomes) - len(built)} reused in {total:.1f} s "
         f"({ctx.engine_dir})"
     )
@@ -81,7 +76,7 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
 
     pairs = _bench_pairs(ctx.specs)
     if not pairs:
-        _err("error: no installed plugin declares an extractor + matcher pair to bench")
+        command.err("error: no installed plugin declares an extractor + matcher pair to bench")
         return 1
     store = EngineStore(ctx.engine_dir)
     if args.image:
@@ -101,7 +96,7 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
             extractor_path = store.require(extractor.model, extractor.variant)
             matcher_path = store.require(matcher.model, matcher.variant)
         except C3Error as exc:
-            _err(f"error: {exc}")
+            command.err(f"error: {exc}")
             return 1
         results += run_bench(
             extractor_path,
@@ -110,12 +105,12 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
             runs=args.runs,
             feature_type=str(matcher.feature_type),
             settings=session_options,
-            log=_err,
+            log=command.err,
         )
     if args.json:
-        print(json.dumps([asdict(r) for r in results], indent=2))
+        command.out(json.dumps([asdict(r) for r in results], indent=2))
     else:
-        print(format_table(results))
+        command.out(format_table(results))
     return 0
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,7 +104,7 @@ def build_features(
         raise ValueError(f"min_coverage must be in (0, 1], got {min_coverage}")
     store = Path(store)
     plan = _plan(store, windows, window_px, stride, min_coverage)
-    job = _Job(store, settings.model_dump_json(), window_px, stride, batch_size, say)
+    job = _Job(store, _resolved(settings, strategies), window_px, stride, batch_size, say)
     report = BuildReport(str(store), str(sidecar_path(store)))
     with (
         _dask_client(workers, scheduler) as client,
@@ -117,15 +117,25 @@ def build_features(
 
 @dataclass(frozen=True)
 class _Job:
-    """One build: the store, the settings (JSON, for the workers), window and stride (px),
-    windows per task and where progress lines go."""
+    """One build: the store, each strategy's settings (resolved for it, as JSON for the
+    workers), window and stride (px), windows per task and where progress lines go."""
 
     store: Path
-    settings_json: str
+    settings_json: Mapping[str, str]
     window_px: int
     stride_px: int
     batch_size: int
     say: Callable[[str], None]
+
+
+def _resolved(settings: C3Settings, strategies: Sequence[str]) -> dict[str, str]:
+    """Each strategy's settings as it flies them (its own defaults where the configuration
+    leaves a setting unset), as JSON; the plugins discovered once, here."""
+    from c3_matcher.compose import build_plugin_host
+    from c3_matcher_tools.run.matcher import run_settings
+
+    host = build_plugin_host()
+    return {s: run_settings(settings, s, host).model_dump_json() for s in strategies}
 
 
 def _plan(
@@ -183,10 +193,11 @@ def _feature_set(
     """The id of ``strategy``'s set in the sidecar (created when new; a set built with another
     stride is refused)."""
     if client is not None:
-        facts = client.submit(set_facts, strategy, job.settings_json, pure=False).result()
+        facts = client.submit(set_facts, strategy, job.settings_json[strategy], pure=False)
+        facts = facts.result()
     else:
-        facts = set_facts(strategy, job.settings_json, local)
-    photometric = photometric_of(strategy, job.settings_json)
+        facts = set_facts(strategy, job.settings_json[strategy], local)
+    photometric = photometric_of(job.settings_json[strategy])
     keyed = (  # what the set's id digests, in FeatureSet's order
         facts.extractor_sha256,
         facts.provider,
@@ -237,7 +248,8 @@ def _build_set(
     started = time.perf_counter()
     busy_s = 0.0
     written = 0
-    args = (str(job.store.resolve()), strategy, job.settings_json, job.window_px, job.stride_px)
+    settings_json = job.settings_json[strategy]
+    args = (str(job.store.resolve()), strategy, settings_json, job.window_px, job.stride_px)
     batches = list(_batches(todo, job.batch_size))
     if client is not None:
         from dask.distributed import as_completed

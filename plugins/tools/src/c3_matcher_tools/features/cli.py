@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from c3_matcher.commands import EXIT_OK, EXIT_USAGE, CommandContext, CommandRegistry
@@ -152,17 +151,18 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
             with MapFeatureStore(path) as store:
                 sets = [dict(s) for s in stored_sets(store)]
         except FeatureStoreUnavailableError as exc:
-            print(
+            ctx.err(
                 f"c3-matcher: {path}: unreadable ({exc.__cause__ or exc}); the flight "
-                f"extracts instead. Rebuild it: c3-matcher features build {args.store}",
-                file=sys.stderr,
+                f"extracts instead. Rebuild it: c3-matcher features build {args.store}"
             )
             return EXIT_USAGE
     if args.json:
-        print(json.dumps({"store": str(args.store), "sidecar": str(path), "sets": sets}, indent=2))
+        ctx.out(
+            json.dumps({"store": str(args.store), "sidecar": str(path), "sets": sets}, indent=2)
+        )
     elif not sets:
-        print(f"{args.store}: no precomputed features ({path} absent or empty)")
+        ctx.out(f"{args.store}: no precomputed features ({path} absent or empty)")
     else:
         for s in sets:
-            print(", ".join(f"{k}: {v}" for k, v in s.items()))
+            ctx.out(", ".join(f"{k}: {v}" for k, v in s.items()))
     return EXIT_OK

@@ -78,13 +78,11 @@ def _worker_cache() -> BackendCache:
     return cache
 
 
-def photometric_of(strategy: str, settings_json: str) -> str:
-    """The photometric normalisation ``strategy`` flies with: ``[matcher] photometric``, or when
-    unset the strategy's own default (``c3_matcher.compose.strategy_settings``)."""
-    from c3_matcher.compose import strategy_settings
-
-    settings = strategy_settings(C3Settings.model_validate_json(settings_json), strategy)
-    return str(settings.matcher.photometric)
+def photometric_of(settings_json: str) -> str:
+    """The photometric normalisation of settings resolved for a strategy
+    (``c3_matcher_tools.run.run_settings``: ``[matcher] photometric``, or when unset the
+    strategy's own default)."""
+    return str(C3Settings.model_validate_json(settings_json).matcher.photometric)
 
 
 def _preprocessor(backend: Any, photometric: str) -> Any:
@@ -144,7 +142,7 @@ def task(
 
     started = time.perf_counter()
     backend = _backend(strategy, settings_json, cache)
-    photometric = photometric_of(strategy, settings_json)
+    photometric = photometric_of(settings_json)
     source = open_source(store_path)
     out: list[tuple[int, int, int, WindowFeatures]] = []
     try:
@@ -173,7 +171,7 @@ def set_facts(strategy: str, settings_json: str, cache: BackendCache | None = No
         PreparedImage(np.ascontiguousarray(probe), np.ones((128, 128), bool), np.eye(3), (128, 128))
     )
     provenance = backend.provenance()
-    photometric = photometric_of(strategy, settings_json)
+    photometric = photometric_of(settings_json)
     return SetFacts(
         str(provenance["engines"]["extractor"]["file_sha256"]),
         str(provenance["provider"]),
