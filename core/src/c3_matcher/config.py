@@ -13,7 +13,7 @@ import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from platformdirs import user_cache_dir, user_data_dir
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -315,22 +315,9 @@ def with_strategy_defaults(
     strategy's ``defaults`` (``[matcher] photometric`` and ``refit_threshold_px``, ``[lightglue]
     filter_threshold`` and ``exit_matchable``); a set value is kept. Idempotent.
     ``ConfigurationError`` names the strategy when its declared defaults are not valid settings."""
-    matcher, lightglue = settings.matcher, settings.lightglue
     try:
-        unset = {
-            key: getattr(defaults, key)
-            for key in ("photometric", "refit_threshold_px")
-            if getattr(matcher, key) is None
-        }
-        if unset:
-            matcher = MatcherSettings.model_validate({**dict(matcher), **unset})
-        unset_lightglue = {
-            key: getattr(defaults, key)
-            for key in ("filter_threshold", "exit_matchable")
-            if getattr(lightglue, key) is None
-        }
-        if unset_lightglue:
-            lightglue = LightGlueSettings.model_validate({**dict(lightglue), **unset_lightglue})
+        matcher = _defaulted(settings.matcher, defaults, ("photometric", "refit_threshold_px"))
+        lightglue = _defaulted(settings.lightglue, defaults, ("filter_threshold", "exit_matchable"))
     except ValidationError as exc:
         where = f"strategy {strategy!r} defaults" if strategy else "strategy defaults"
         raise ConfigurationError(
@@ -339,6 +326,16 @@ def with_strategy_defaults(
     if matcher is settings.matcher and lightglue is settings.lightglue:
         return settings
     return settings.model_copy(update={"matcher": matcher, "lightglue": lightglue})
+
+
+_S = TypeVar("_S", bound=BaseModel)
+
+
+def _defaulted(section: _S, defaults: StrategyDefaults, keys: tuple[str, ...]) -> _S:
+    """``section`` with its unset (None) ``keys`` taken from ``defaults``, validated; itself
+    when none is unset."""
+    unset = {key: getattr(defaults, key) for key in keys if getattr(section, key) is None}
+    return type(section).model_validate({**dict(section), **unset}) if unset else section
 
 
 def load_settings(
