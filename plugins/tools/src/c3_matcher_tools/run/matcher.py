@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.compose import build_plugin_host, strategy_settings
+from c3_matcher.compose import ComposedRoot, build_plugin_host, strategy_settings
 from c3_matcher.config import C3Settings
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost
@@ -82,7 +82,7 @@ class ComposedMatcher:
 
     matcher: CrossDomainMatcher
     provider: str
-    root: Any = None
+    root: ComposedRoot | None = None
 
     def close(self) -> None:
         if self.root is not None:
