@@ -2,11 +2,14 @@
 chosen by measurement (docs/precision.md, "DISK + LightGlue"). The one place they are declared:
 the plugin's ``StrategySpec`` and its config builder both read ``DEFAULTS``.
 
-- ``photometric = "clahe"`` and ``filter_threshold = 0.01``: across seasons they add correct
-  fixes (naip_cross_date 11 -> 14/27) and, with the refit below, no precision on the frames the
-  upstream settings also get (naip_cross_date, those 11 frames: IT-03 p95 3.20 -> 3.06 px).
-- ``refit_threshold_px = 2.0``: the final refit brings the same-date control back below its
-  upstream precision (naip_demo IT-03 p95 1.24 -> 1.05 px, upstream 1.13) and never takes a
+- ``photometric = "none"`` and ``filter_threshold = 0.1`` (upstream): CLAHE with threshold 0.01
+  added cross-season fixes (naip_cross_date 11 -> 14/27, naip_s2010_f2020 9 -> 13/18) and lost
+  precision where the frames are older than the map (naip_s2015_f2010: same 17/18 fixes, IT-03
+  p95 2.82 -> 4.04 px; naip_s2010_f2020, the 9 frames both get: 2.37 -> 2.66 px), refit or not.
+  Threshold 0.01 without CLAHE gained one fix (gorinchem_z18) and lost a little precision on the
+  same-date flights (naip_s2020_f2015 1.81 -> 1.86 px, worse on 16 of 18 frames).
+- ``refit_threshold_px = 2.0``: the final refit lowers IT-03 on every flight with fixes, worse
+  on no frame (naip_demo 1.13 -> 1.02 px, naip_s2010_f2020 2.37 -> 1.87 px), and never takes a
   candidate below ``min_inliers_threshold``.
 """
 
@@ -16,4 +19,4 @@ from c3_matcher.plugins.types import StrategyDefaults
 
 __all__ = ["DEFAULTS"]
 
-DEFAULTS = StrategyDefaults(photometric="clahe", filter_threshold=0.01, refit_threshold_px=2.0)
+DEFAULTS = StrategyDefaults(photometric="none", filter_threshold=0.1, refit_threshold_px=2.0)
