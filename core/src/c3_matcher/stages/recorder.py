@@ -44,9 +44,14 @@ class FrameRecorder:
 
     def __init__(self, sinks: RecorderSinks, frame_id: Any) -> None:
         self._sinks = sinks
-        self.frame_id = frame_id
+        self._frame_id = frame_id
         self._health_updated = False
         self._backbone_errors = 0
+
+    @property
+    def frame_id(self) -> Any:
+        """The frame this call's records are about."""
+        return self._frame_id
 
     # -- health and the FDR -------------------------------------------------------------
     def update_health(self, best_inlier_count: int, *, force_backbone_error: bool = False) -> None:
