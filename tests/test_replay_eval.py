@@ -72,6 +72,8 @@ def test_replay_writes_results_fdr_and_report(engine_dir: Path, tmp_path: Path) 
     kinds = {rec["kind"] for rec in read_fdr(out / "fdr.jsonl")}
     assert "matcher.frame_done" in kinds
     assert json.loads((out / "report.json").read_text())["ok"] == report["ok"]
+    assert report["settings"]["strategy"] == "disk_lightglue"
+    assert report["settings"]["photometric"] is not None  # resolved: the strategy's own
 
 
 def test_eval_meets_the_c3_it_bars_for_the_default_strategy(
@@ -108,6 +110,14 @@ def test_eval_meets_the_c3_it_bars_for_the_default_strategy(
     assert m["C3-IT-05"]["pass"] and m["C3-IT-05"]["absent_frames"] >= 1
     assert all(m[k]["pass"] for k in m)
     assert "metrics" in rows["sift_magsac"]  # the baseline ran through the same pipeline
+    from c3_matcher.compose import build_plugin_host
+
+    host = build_plugin_host()
+    for name, row in rows.items():  # the settings each strategy ran with, its defaults resolved
+        ran, defaults = row["settings"], host.resolve(name).defaults
+        assert ran["strategy"] == name and ran["max_keypoints"] == 1024
+        assert ran["photometric"] == defaults.photometric
+        assert ran["refit_threshold_px"] == defaults.refit_threshold_px
     for name in ("inliers.png", "error.png"):
         assert (out / name).stat().st_size > 1000
     assert list((out / "matches").glob("disk_lightglue_*.png"))
