@@ -49,7 +49,7 @@ def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureR
 
 class CandidateFeatures:
     """The candidate-features source of one matcher: stored, cached or extracted features.
-    ``use_stored`` False: never the store's (the bench's comparison). Single-threaded."""
+    ``use_stored`` False (``[matcher] stored_features``): never the store's. Single-threaded."""
 
     def __init__(
         self,
@@ -63,7 +63,12 @@ class CandidateFeatures:
         self._pre = pre
         self._cache = cache
         self._request = request
-        self.use_stored = bool(use_stored) and request is not None
+        self._use_stored = bool(use_stored) and request is not None
+
+    @property
+    def use_stored(self) -> bool:
+        """Whether the tile store's features are asked for (this backend can have them)."""
+        return self._use_stored
 
     @property
     def cache(self) -> TileFeatureCache:
@@ -73,10 +78,6 @@ class CandidateFeatures:
     def request(self) -> FeatureRequest | None:
         """What the tile store is asked for; None: this backend's tiles are always extracted."""
         return self._request
-
-    def with_stored(self, enabled: bool) -> CandidateFeatures:
-        """This source (same cache) with stored features on or off."""
-        return CandidateFeatures(self._backend, self._pre, self._cache, self._request, enabled)
 
     def fetch(
         self, candidate: RerankCandidate, recorder: FrameRecorder, timings: dict[str, float]
