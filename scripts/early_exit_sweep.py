@@ -28,32 +28,58 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from loguru import logger
 
 from c3_matcher.config import load_settings
 from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
+from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
 from c3_matcher_tools.dataset.format import load_dataset
-from c3_matcher_tools.replay import build_matcher, run_flight
+from c3_matcher_tools.run import open_matcher, run_flight
 
-RULES_AFTER = (1, 2, 3)
-RULES_MATCHABLE = (8, 16, 24, 32, 48, 64)
+LEVELS = (0.01, 0.05, 0.1, 0.2, 0.3, 0.5, 0.7, 0.9)
+"""Matchability levels at which each layer's matchable points are counted."""
+RULES_AFTER = (0, 1, 2, 3)
+RULES_BELOW = (8, 16, 24, 32, 48, 64, 96, 128)
 
 
 @contextmanager
 def recording(pairs: list[dict[str, Any]]) -> Iterator[None]:
-    """Record ``last_run`` and the kept match count of every LightGlue pair (experiment only)."""
-    original = OnnxLightGlueRuntime.match_pair
+    """Record ``last_run``, the kept match count and, per layer, the points of each image whose
+    matchability exceeds each of ``LEVELS`` for every LightGlue pair (experiment only)."""
+    match_pair, after_layer = OnnxLightGlueRuntime.match_pair, AdaptiveLightGlue._after_layer
+    levels: list[list[list[int]]] = []
 
     def recorded(self: OnnxLightGlueRuntime, *args: Any, feature_type: str) -> Any:
-        raw = original(self, *args, feature_type=feature_type)
-        pairs.append({**self.last_run, "matches": len(raw.matches)})
+        levels.clear()
+        raw = match_pair(self, *args, feature_type=feature_type)
+        pairs.append({**self.last_run, "matches": len(raw.matches), "levels": list(levels)})
         return raw
 
+    def observed(self: AdaptiveLightGlue, layer: int, out: Any, side0: Any, side1: Any) -> str:
+        head = self._run(
+            self._feeds(
+                final0=side0.state, final1=side1.state, final_layer=np.array([layer], np.int64)
+            )
+        )
+        matched = np.asarray(head["matches0"]).reshape(-1) > -1
+        scores = np.asarray(head["mscores0"]).reshape(-1)[matched]
+        levels.append(
+            [
+                [int((np.asarray(out[f"matchability{i}"]) > level).sum()) for level in LEVELS]
+                for i in (0, 1)
+            ]
+            + [[int((scores > level).sum()) for level in LEVELS]]
+        )
+        return after_layer(self, layer, out, side0, side1)
+
     OnnxLightGlueRuntime.match_pair = recorded  # type: ignore[method-assign]
+    AdaptiveLightGlue._after_layer = observed  # type: ignore[method-assign]
     try:
         yield
     finally:
-        OnnxLightGlueRuntime.match_pair = original  # type: ignore[method-assign]
+        OnnxLightGlueRuntime.match_pair = match_pair  # type: ignore[method-assign]
+        AdaptiveLightGlue._after_layer = after_layer  # type: ignore[method-assign]
 
 
 class _FrameMarker:
@@ -81,7 +107,7 @@ def record_flight(strategy: str, flight: Path) -> dict[str, Any]:
     starts: list[int] = []
     scratch = Path(f"/tmp/early_exit_sweep_{os.getpid()}")
     started = time.perf_counter()
-    with recording(pairs), build_matcher(settings, strategy, scratch) as matcher:
+    with recording(pairs), open_matcher(settings, strategy, scratch) as matcher:
         outcomes = run_flight(_FrameMarker(matcher, pairs, starts), dataset)
     frames = []
     for n, outcome in enumerate(outcomes):
@@ -97,6 +123,7 @@ def record_flight(strategy: str, flight: Path) -> dict[str, Any]:
                     {"tile_index": c["tile_index"], "inliers": c["inlier_count"]}
                     for c in sorted(result.get("per_candidate", []), key=lambda c: c["tile_index"])
                 ],
+                "candidates_input": len(dataset.frames[n].candidates),
                 "best_tile_index": outcome.best_input_index,
                 "insufficient_best": outcome.insufficient_best,
                 "pairs": pairs[starts[n] : end],
@@ -111,80 +138,98 @@ def record_flight(strategy: str, flight: Path) -> dict[str, Any]:
     }
 
 
-def fires(pair: dict[str, Any], after: int, matchable: int) -> int | None:
-    """The layer count at which the rule stops ``pair`` (None: it runs as recorded)."""
-    for layer, (a, b) in enumerate(zip(pair["matchable0"], pair["matchable1"], strict=True)):
-        if layer >= after and min(a, b) < matchable:
-            return layer + 1
+SIGNALS = ("matchable", "matched")
+"""matchable: the fewer of the two images' points above the matchability level; matched: the
+mutual matches the assignment head gives at that layer above the confidence level."""
+
+
+def count(step: list[list[int]], signal: str, level: int) -> int:
+    """One layer's count for ``signal`` at ``LEVELS[level]``."""
+    if signal == "matchable":
+        return min(step[0][level], step[1][level])
+    return step[2][level]
+
+
+def fires(pair: dict[str, Any], rule: tuple[str, int, int, int]) -> int | None:
+    """The layer count at which ``rule`` (signal, level, after, fewer-than) stops ``pair``:
+    tested once, after layer ``after``, as ``AdaptiveLightGlue`` does (None: it runs as
+    recorded)."""
+    signal, level, after, below = rule
+    steps = pair["levels"]
+    if after < len(steps) and count(steps[after], signal, level) < below:
+        return after + 1
     return None
 
 
-def _pair_inliers(frame: dict[str, Any]) -> list[int | None]:
-    """Each pair's candidate inlier count, in order (None where pairs and candidates differ in
-    number: rotation search or a dropped candidate; such a pair counts as accepted)."""
-    pairs, candidates = frame["pairs"], frame["candidates"]
-    if len(pairs) == len(candidates):
-        return [c["inliers"] for c in candidates]
-    if not candidates and frame["status"] == "insufficient":
-        return [frame["insufficient_best"]] * len(pairs)  # an upper bound for every pair
-    return [None] * len(pairs)
+def pair_inliers(frame: dict[str, Any]) -> list[int | None]:
+    """Each pair's candidate inlier count, pairs in candidate order (0: rejected, so not in the
+    result); None where the pairs are not one per candidate (such a pair counts as accepted)."""
+    pairs = frame["pairs"]
+    if len(pairs) != frame["candidates_input"]:
+        return [None] * len(pairs)
+    inliers = {c["tile_index"]: c["inliers"] for c in frame["candidates"]}
+    return [inliers.get(k, 0) for k in range(len(pairs))]
 
 
 def replay_rules(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Every rule replayed on every recorded pair of ``runs``."""
-    rows = []
-    for after in RULES_AFTER:
-        for matchable in RULES_MATCHABLE:
-            stopped = saved = layers = harmful = 0
-            margin: int | None = None
-            for run in runs:
-                need = run["min_inliers_threshold"]
-                for frame in run["frames"]:
-                    for pair, inliers in zip(frame["pairs"], _pair_inliers(frame), strict=True):
-                        layers += pair["layers"] or 0
-                        stop = fires(pair, after, matchable)
-                        accepted = inliers is None or inliers >= need
-                        if accepted:
-                            lowest = min(min(a, b) for a, b in zip(*_after(pair, after)))
-                            margin = lowest if margin is None else min(margin, lowest)
-                        if stop is None:
-                            continue
-                        stopped += 1
-                        saved += pair["layers"] - stop
-                        harmful += int(accepted)
-            rows.append(
-                {
-                    "after": after,
-                    "matchable": matchable,
-                    "stopped": stopped,
-                    "layers_saved": saved,
-                    "layers": layers,
-                    "stopped_accepted": harmful,
-                    "accepted_min_matchable": margin,
-                }
-            )
-    return rows
+    """Every rule replayed on every recorded pair of ``runs``, safe ones (no accepted pair
+    stopped) first, most layers saved first."""
+    rows = [
+        _replay(runs, (signal, level, after, below))
+        for signal in SIGNALS
+        for level in range(len(LEVELS))
+        for after in RULES_AFTER
+        for below in RULES_BELOW
+    ]
+    return sorted(rows, key=lambda r: (r["stopped_accepted"] > 0, -r["layers_saved"]))
 
 
-def _after(pair: dict[str, Any], after: int) -> tuple[list[int], list[int]]:
-    m0, m1 = pair["matchable0"][after:], pair["matchable1"][after:]
-    return (m0, m1) if m0 else ([10**9], [10**9])
+def _replay(runs: list[dict[str, Any]], rule: tuple[str, int, int, int]) -> dict[str, Any]:
+    signal, level, after, below = rule
+    stopped = saved = layers = harmful = 0
+    margin: int | None = None
+    for run in runs:
+        need = run["min_inliers_threshold"]
+        for frame in run["frames"]:
+            for pair, inliers in zip(frame["pairs"], pair_inliers(frame), strict=True):
+                layers += pair["layers"] or 0
+                accepted = inliers is None or inliers >= need
+                counts = [count(step, signal, level) for step in pair["levels"][after : after + 1]]
+                if accepted and counts:
+                    margin = min(counts) if margin is None else min(margin, *counts)
+                stop = fires(pair, rule)
+                if stop is not None:
+                    stopped += 1
+                    saved += pair["layers"] - stop
+                    harmful += int(accepted)
+    return {
+        "signal": signal,
+        "level": LEVELS[level],
+        "after": after,
+        "below": below,
+        "stopped": stopped,
+        "layers_saved": saved,
+        "layers": layers,
+        "stopped_accepted": harmful,
+        "accepted_min": margin,
+    }
 
 
-def table(runs: list[dict[str, Any]]) -> str:
+def table(runs: list[dict[str, Any]], top: int = 25) -> str:
+    """The ``top`` rules (safe ones first, most layers saved first) as a markdown table."""
     pairs = sum(len(f["pairs"]) for r in runs for f in r["frames"])
     lines = [
         f"{len(runs)} flights, {pairs} pairs: "
         + ", ".join(f"{r['flight']} ({len(r['frames'])})" for r in runs),
-        "| exit after layer | matchable < | pairs stopped | layers saved / run | stopped "
-        "accepted | fewest matchable on an accepted pair |",
-        "|---|---|---|---|---|---|",
+        "| signal | level | after layer | fewer than | pairs stopped | layers saved / run "
+        "| accepted pairs stopped | lowest count on an accepted pair |",
+        "|---|---|---|---|---|---|---|---|",
     ]
-    for row in replay_rules(runs):
+    for row in replay_rules(runs)[:top]:
         lines.append(
-            f"| {row['after']} | {row['matchable']} | {row['stopped']} | "
-            f"{row['layers_saved']} / {row['layers']} | {row['stopped_accepted']} | "
-            f"{row['accepted_min_matchable']} |"
+            f"| {row['signal']} | {row['level']} | {row['after']} | {row['below']} | "
+            f"{row['stopped']} | {row['layers_saved']} / {row['layers']} | "
+            f"{row['stopped_accepted']} | {row['accepted_min']} |"
         )
     return "\n".join(lines)
 

@@ -121,7 +121,7 @@ def build_default_helpers(
             filter_threshold=threshold,
             depth_confidence=settings.lightglue.depth_confidence,
             width_confidence=settings.lightglue.width_confidence,
-            exit_matchable=resolved.lightglue.exit_matchable or 0,
+            exit_matches=resolved.lightglue.exit_matches or 0,
             steps_feature_types=steps_feature_types(host.engine_specs()),
         ),
         "c282_ransac_filter": OpenCvRansacFilter(

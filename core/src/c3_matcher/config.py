@@ -252,13 +252,12 @@ class LightGlueSettings(_Section):
         description="point pruning (adaptive mode): drop points whose matchability is below "
         "1 - this; -1 off; None: upstream's default (0.99; 0.95 for LighterGlue)",
     )
-    exit_matchable: int | None = Field(
+    exit_matches: int | None = Field(
         None,
         ge=0,
-        description="unmatchable-pair exit (adaptive mode): stop a pair, with no matches, after "
-        "a layer at which fewer than this many points of either image are matchable "
-        "(matchability above filter_threshold); 0 off; unset: the strategy's own default, "
-        "chosen by measurement (docs/decisions.md)",
+        description="unmatchable-pair exit (adaptive mode): after the second layer, stop a pair "
+        "with no matches when fewer than this many mutual matches have confidence above 0.5; "
+        "0 off; unset: the strategy's own default, chosen by measurement (docs/decisions.md)",
     )
 
 
@@ -313,11 +312,11 @@ def with_strategy_defaults(
 ) -> C3Settings:
     """``settings`` with every setting the configuration left unset (None) taken from a
     strategy's ``defaults`` (``[matcher] photometric`` and ``refit_threshold_px``, ``[lightglue]
-    filter_threshold`` and ``exit_matchable``); a set value is kept. Idempotent.
+    filter_threshold`` and ``exit_matches``); a set value is kept. Idempotent.
     ``ConfigurationError`` names the strategy when its declared defaults are not valid settings."""
     try:
         matcher = _defaulted(settings.matcher, defaults, ("photometric", "refit_threshold_px"))
-        lightglue = _defaulted(settings.lightglue, defaults, ("filter_threshold", "exit_matchable"))
+        lightglue = _defaulted(settings.lightglue, defaults, ("filter_threshold", "exit_matches"))
     except ValidationError as exc:
         where = f"strategy {strategy!r} defaults" if strategy else "strategy defaults"
         raise ConfigurationError(

@@ -106,32 +106,36 @@ def test_pruning_keeps_matchable_or_unconfident_points_and_maps_back() -> None:
     assert np.all(result.mscores0[[2, 7]] == 0)
 
 
-def test_a_pair_with_too_few_matchable_points_stops_with_no_matches() -> None:
+def test_a_pair_with_too_few_confident_matches_stops_with_no_matches() -> None:
+    """The fake head matches every kept point with score 0.9: the test after layer 1 counts
+    them; a pair with fewer than ``exit_matches`` stops there with no matches."""
     n = 10
-    match = np.full((4, n), 0.9, np.float32)
-    match[:, 5:] = 0.05  # half the points are unmatchable at the 0.1 threshold
-    match[1:, :3] = 0.05  # from layer 1 on only 2 of 10 are matchable
-    fake = FakeSteps(np.full((4, n), 0.5, np.float32), match)
+    fake = FakeSteps(np.full((4, n), 0.5, np.float32), np.ones((4, n), np.float32))
     k, d = _points(n)
-    exiting = AdaptiveLightGlue(
-        fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matchable=3, exit_after=1
-    )
-    result = exiting.match(k, k, d, d)
-    assert result.unmatchable and result.layers == 2 and fake.layers_run == [0, 1]
-    assert result.matchable0 == [5, 2] and result.matchable1 == [5, 2]
-    assert np.all(result.matches0 == -1) and np.all(result.mscores0 == 0)
 
-    fake.layers_run.clear()  # at or above the count, or before exit_after: it runs on
-    kept = AdaptiveLightGlue(
-        fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matchable=2, exit_after=1
-    ).match(k, k, d, d)
-    assert not kept.unmatchable and kept.layers == 4 and np.sum(kept.matches0 > -1) == 10
-    late = AdaptiveLightGlue(
-        fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matchable=6, exit_after=0
-    ).match(k, k, d, d)
-    assert late.unmatchable and late.layers == 1  # 5 < 6 already after layer 0
-    with pytest.raises(ValueError, match="exit_matchable"):
-        AdaptiveLightGlue(fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matchable=-1)
+    def driver(exit_matches: int, confidence: float = 0.5) -> AdaptiveLightGlue:
+        return AdaptiveLightGlue(
+            fake,
+            n_layers=4,
+            input_dim=4,
+            descriptor_dim=4,
+            exit_matches=exit_matches,
+            exit_after=1,
+            exit_confidence=confidence,
+        )
+
+    stopped = driver(11).match(k, k, d, d)
+    assert stopped.unmatchable and stopped.layers == 2 and stopped.matched == 10
+    assert fake.layers_run == [0, 1]
+    assert np.all(stopped.matches0 == -1) and np.all(stopped.mscores0 == 0)
+    kept = driver(10).match(k, k, d, d)  # at the count: it runs on, as without the test
+    assert not kept.unmatchable and kept.layers == 4 and kept.matched == 10
+    assert np.array_equal(kept.matches0, np.arange(n))
+    unsure = driver(1, confidence=0.95).match(k, k, d, d)  # 0.9 is not above 0.95
+    assert unsure.unmatchable and unsure.matched == 0
+    assert driver(0).match(k, k, d, d).matched is None  # off: no test, no head call
+    with pytest.raises(ValueError, match="exit_matches"):
+        AdaptiveLightGlue(fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matches=-1)
 
 
 def test_both_rules_off_run_every_layer_on_every_point() -> None:
@@ -284,3 +288,55 @@ def test_steps_spec_of_a_full_spec_and_the_declared_feature_types() -> None:
     assert (steps.option("n_layers"), steps.option("pruning")) == (2, "steps")
     assert steps_feature_types([steps, full]) == {"toy"}
     assert steps_feature_types([full]) == frozenset()
+
+
+def test_unmatchable_exit_on_real_pairs(
+    disk_steps_engine: Path,
+    lightglue_engine: Path,
+    disk_engine: Path,
+    gorinchem: NDArray[np.uint8],
+) -> None:
+    """DISK steps engine on real imagery: a pair of two different places (Gorinchem against
+    Zurich) stops after two layers with no matches; an overlapping pair passes the test and
+    gives exactly the matches it gives without it."""
+    from c3_matcher.engines.extract import run_extractor
+    from conftest import read_rgb
+
+    inference = OnnxInferenceRuntime(["CPUExecutionProvider"])
+    disk_id = inference.load_engine(disk_engine)
+    zurich = read_rgb("open_orthophotos/swissimage_zurich_1091-322_00_0p5m.tif")
+    images = {
+        "frame": np.ascontiguousarray(gorinchem[0:480, 0:640]),
+        "tile": np.ascontiguousarray(gorinchem[200:712, 256:768]),
+        "elsewhere": np.ascontiguousarray(zurich[0:512, 256:768]),
+    }
+    feats = {
+        name: run_extractor(inference, disk_id, rgb, np.ones(rgb.shape[:2], bool), 1024)
+        for name, rgb in images.items()
+    }
+
+    def pair(other: str, exit_matches: int) -> tuple[Any, dict[str, Any]]:
+        runtime = OnnxLightGlueRuntime(inference, mode="adaptive", exit_matches=exit_matches)
+        runtime.load("disk", lightglue_engine)
+        f0, f1 = feats["frame"], feats[other]
+        raw = runtime.match_pair(
+            f0.keypoints,
+            f0.descriptors,
+            (640, 480),
+            f1.keypoints,
+            f1.descriptors,
+            (512, 512),
+            feature_type="disk",
+        )
+        return raw, runtime.last_run
+
+    same, same_run = pair("tile", 24)
+    plain, plain_run = pair("tile", 0)
+    assert not same_run["unmatchable"] and same_run["matched"] >= 24
+    assert plain_run["matched"] is None and same_run["layers"] == plain_run["layers"]
+    assert np.array_equal(same.matches, plain.matches) and len(same.matches) > 100
+    assert np.array_equal(same.scores, plain.scores)
+
+    other, other_run = pair("elsewhere", 24)
+    assert other_run["unmatchable"] and other_run["layers"] == 2 and other_run["matched"] < 24
+    assert other.matches.shape == (0, 2)

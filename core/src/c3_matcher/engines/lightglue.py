@@ -18,10 +18,10 @@ the engine in the same directory whose manifest declares the same ``feature_type
 ``pruning = "steps"``), otherwise the full one; ``mode="full"`` (the constructor's default) runs the
 single graph where one is loaded (a steps engine alone then runs every layer on every point).
 ``depth_confidence`` / ``width_confidence`` ``None`` take the engine manifest's upstream
-defaults; ``-1`` disables the rule. ``exit_matchable`` (0: off) stops an adaptive pair with no
-matches once fewer than that many points of either image are matchable (above the filter
-threshold; ``AdaptiveLightGlue``). ``last_run`` tells what the last ``match_pair`` did (mode,
-layers run, points kept and matchable per layer, whether the pair was stopped as unmatchable).
+defaults; ``-1`` disables the rule. ``exit_matches`` (0: off) stops an adaptive pair with no
+matches when, after its second layer, fewer than that many mutual matches are confident
+(``AdaptiveLightGlue``). ``last_run`` tells what the last ``match_pair`` did (mode, layers run,
+points kept per layer, the confident matches at that test, whether it stopped the pair).
 """
 
 from __future__ import annotations
@@ -152,7 +152,7 @@ class OnnxLightGlueRuntime:
         mode: str = "full",
         depth_confidence: float | None = None,
         width_confidence: float | None = None,
-        exit_matchable: int = 0,
+        exit_matches: int = 0,
         steps_feature_types: Collection[str] | None = None,
     ) -> None:
         if not 0.0 <= filter_threshold < 1.0:
@@ -164,7 +164,7 @@ class OnnxLightGlueRuntime:
         self._mode = mode
         self._depth = depth_confidence
         self._width = width_confidence
-        self._exit_matchable = int(exit_matchable)
+        self._exit_matches = int(exit_matches)
         self._declared = None if steps_feature_types is None else frozenset(steps_feature_types)
         self._engines: dict[str, tuple[Path, str]] = {}
         self._steps: dict[str, tuple[Path, str, AdaptiveLightGlue, AdaptiveLightGlue]] = {}
@@ -301,8 +301,7 @@ class OnnxLightGlueRuntime:
             run,
             depth_confidence=float(depth),
             width_confidence=float(width),
-            match_threshold=self._threshold,
-            exit_matchable=self._exit_matchable,
+            exit_matches=self._exit_matches,
             **common,
         )
         every_layer = AdaptiveLightGlue(run, depth_confidence=-1, width_confidence=-1, **common)
@@ -348,8 +347,7 @@ class OnnxLightGlueRuntime:
                 "layers": result.layers,
                 "kept0": result.kept0,
                 "kept1": result.kept1,
-                "matchable0": result.matchable0,
-                "matchable1": result.matchable1,
+                "matched": result.matched,
                 "unmatchable": result.unmatchable,
             }
         else:

@@ -21,6 +21,13 @@ of confident tokens over the ``M + N`` input points exceeds ``depth_confidence``
 the points whose matchability exceeds ``1 - width_confidence`` or whose confidence is at most the
 layer's threshold (points upstream would still refine), gather their rows and go on with smaller
 tensors. ``-1`` disables either rule. Comparisons run in float32 as upstream's do.
+
+One test of our own, the unmatchable-pair exit (``exit_matches`` > 0; off by default): after
+layer ``exit_after`` the assignment head runs once on the kept points, and a pair with fewer than
+``exit_matches`` mutual matches of confidence above ``exit_confidence`` stops there with no
+matches: a candidate tile that shows another place (a distractor) no longer runs the layers
+upstream's confidence exit would give it. Chosen per strategy by measurement over every shipped
+flight (``scripts/early_exit_sweep.py``, docs/decisions.md).
 """
 
 from __future__ import annotations
@@ -114,17 +121,15 @@ def confidence_threshold(layer_index: int, n_layers: int) -> np.float32:
 class AdaptiveResult:
     """One adaptive match: ``matches0`` (M,) index into set 1 or -1 and ``mscores0`` (M,) over
     the ORIGINAL set 0 (upstream's scatter back), ``layers`` run, points kept per layer,
-    ``matchable0`` / ``matchable1`` the points per layer (before the last) whose matchability
-    exceeds the match threshold, and ``unmatchable`` True when the pair was stopped as one with
-    too few matchable points (no matches then)."""
+    ``matched`` the confident mutual matches at the unmatchable-pair test (None: not tested)
+    and ``unmatchable`` True when that test stopped the pair (no matches then)."""
 
     matches0: NDArray[np.int64]
     mscores0: NDArray[np.float32]
     layers: int
     kept0: list[int] = field(default_factory=list)
     kept1: list[int] = field(default_factory=list)
-    matchable0: list[int] = field(default_factory=list)
-    matchable1: list[int] = field(default_factory=list)
+    matched: int | None = None
     unmatchable: bool = False
 
 
@@ -140,9 +145,9 @@ class AdaptiveLightGlue:
         descriptor_dim: int,
         depth_confidence: float = 0.95,
         width_confidence: float = 0.99,
-        match_threshold: float = 0.1,
-        exit_matchable: int = 0,
+        exit_matches: int = 0,
         exit_after: int = 1,
+        exit_confidence: float = 0.5,
     ) -> None:
         if n_layers < 1:
             raise ValueError(f"n_layers must be >= 1, got {n_layers}")
@@ -155,13 +160,14 @@ class AdaptiveLightGlue:
         self.descriptor_dim = int(descriptor_dim)
         self.depth_confidence = float(depth_confidence)
         self.width_confidence = float(width_confidence)
-        if exit_matchable < 0 or exit_after < 0:
+        if exit_matches < 0 or exit_after < 0 or not 0.0 <= exit_confidence < 1.0:
             raise ValueError(
-                f"exit_matchable and exit_after must be >= 0, got {exit_matchable}, {exit_after}"
+                "exit_matches and exit_after must be >= 0 and exit_confidence in [0, 1), got "
+                f"{exit_matches}, {exit_after}, {exit_confidence}"
             )
-        self.match_threshold = np.float32(match_threshold)
-        self.exit_matchable = int(exit_matchable)
+        self.exit_matches = int(exit_matches)
         self.exit_after = int(exit_after)
+        self.exit_confidence = np.float32(exit_confidence)
         self._thresholds = [confidence_threshold(i, n_layers) for i in range(n_layers)]
 
     def _dummy(self, dim: int) -> NDArray[np.float32]:
@@ -205,7 +211,7 @@ class AdaptiveLightGlue:
         )
         side0 = _Side(kpts0, np.asarray(out["proj0"]))
         side1 = _Side(kpts1, np.asarray(out["proj1"]))
-        layer = 0
+        layer, matched = 0, None
         for layer in range(self.n_layers):
             out = self._run(
                 self._feeds(
@@ -219,12 +225,13 @@ class AdaptiveLightGlue:
             side0.state, side1.state = np.asarray(out["out0"]), np.asarray(out["out1"])
             if layer == self.n_layers - 1:
                 break  # no exit test or pruning after the last layer (upstream)
-            verdict = self._after_layer(layer, out, side0, side1)
-            if verdict == "unmatchable":
-                return _result(m, side0, side1, layer + 1, unmatchable=True)
-            if verdict == "confident":
+            if self.exit_matches and layer == self.exit_after:
+                matched = self._confident_matches(layer, side0, side1)
+                if matched < self.exit_matches:
+                    return _result(m, side0, side1, layer + 1, matched, unmatchable=True)
+            if self._after_layer(layer, out, side0, side1) == "confident":
                 break
-        result = _result(m, side0, side1, layer + 1)
+        result = _result(m, side0, side1, layer + 1, matched)
         if len(side0.index) and len(side1.index):
             out = self._run(
                 self._feeds(
@@ -239,22 +246,25 @@ class AdaptiveLightGlue:
             result.mscores0[side0.index] = np.asarray(out["mscores0"], np.float32).reshape(-1)
         return result
 
+    def _confident_matches(self, layer: int, side0: _Side, side1: _Side) -> int:
+        """The mutual matches the assignment head gives after ``layer`` whose confidence
+        exceeds ``exit_confidence`` (one head call on the kept points)."""
+        out = self._run(
+            self._feeds(
+                final0=side0.state, final1=side1.state, final_layer=np.array([layer], np.int64)
+            )
+        )
+        matched = np.asarray(out["matches0"]).reshape(-1) > -1
+        scores = np.asarray(out["mscores0"]).reshape(-1)
+        return int((scores[matched] > self.exit_confidence).sum())
+
     def _after_layer(
         self, layer: int, out: Mapping[str, NDArray[Any]], side0: _Side, side1: _Side
     ) -> str:
-        """The tests after ``layer`` (not the last): ``"unmatchable"`` (fewer than
-        ``exit_matchable`` points of either image matchable, from ``exit_after`` on),
-        ``"confident"`` (upstream's early exit) or ``"go"``, having pruned both sides."""
+        """Upstream's tests after ``layer`` (not the last): ``"confident"`` (early exit) or
+        ``"go"``, having pruned both sides."""
         conf0 = np.asarray(out["confidence0"]).reshape(-1)
         conf1 = np.asarray(out["confidence1"]).reshape(-1)
-        match0 = np.asarray(out["matchability0"]).reshape(-1)
-        match1 = np.asarray(out["matchability1"]).reshape(-1)
-        fewest = min(
-            side0.count_matchable(match0, self.match_threshold),
-            side1.count_matchable(match1, self.match_threshold),
-        )
-        if layer >= self.exit_after and fewest < self.exit_matchable:
-            return "unmatchable"
         threshold = self._thresholds[layer]
         depth_on = self.depth_confidence > 0
         if depth_on:
@@ -264,7 +274,8 @@ class AdaptiveLightGlue:
                 return "confident"
         if self.width_confidence > 0:
             min_match = np.float32(1.0 - self.width_confidence)
-            keep0, keep1 = match0 > min_match, match1 > min_match
+            keep0 = np.asarray(out["matchability0"]).reshape(-1) > min_match
+            keep1 = np.asarray(out["matchability1"]).reshape(-1) > min_match
             if depth_on:  # upstream: low-confidence points are never pruned
                 keep0 |= conf0 <= threshold
                 keep1 |= conf1 <= threshold
@@ -275,18 +286,13 @@ class AdaptiveLightGlue:
 
 class _Side:
     """One image's working set during an adaptive match: its kept points' keypoints (1, K, 2),
-    transformer state (1, K, C) and original indices, points kept and matchable per layer."""
+    transformer state (1, K, C) and original indices, points kept per layer."""
 
     def __init__(self, kpts: NDArray[np.float32], state: NDArray[np.float32]) -> None:
         self.kpts = np.ascontiguousarray(kpts, np.float32)[None]
         self.state = state
         self.index = np.arange(len(kpts))
         self.kept = [len(kpts)]
-        self.matchable: list[int] = []
-
-    def count_matchable(self, matchability: NDArray[np.float32], threshold: np.float32) -> int:
-        self.matchable.append(int((matchability > threshold).sum()))
-        return self.matchable[-1]
 
     def prune(self, keep: NDArray[np.bool_]) -> None:
         self.index = self.index[keep]
@@ -296,7 +302,13 @@ class _Side:
 
 
 def _result(
-    m: int, side0: _Side, side1: _Side, layers: int, *, unmatchable: bool = False
+    m: int,
+    side0: _Side,
+    side1: _Side,
+    layers: int,
+    matched: int | None = None,
+    *,
+    unmatchable: bool = False,
 ) -> AdaptiveResult:
     """A result with no matches yet over the ``m`` points of image 0."""
     return AdaptiveResult(
@@ -305,8 +317,7 @@ def _result(
         layers,
         side0.kept,
         side1.kept,
-        side0.matchable,
-        side1.matchable,
+        matched,
         unmatchable,
     )
 

@@ -27,16 +27,17 @@ class StrategyDefaults:
     """A strategy's own defaults for the settings that are left unset (None) in the
     configuration: ``photometric`` (``[matcher] photometric``: ``none``, ``grey`` or ``clahe``),
     ``filter_threshold`` (``[lightglue] filter_threshold``, the match confidence a LightGlue
-    match must exceed, in [0, 1)) and ``refit_threshold_px`` (``[matcher] refit_threshold_px``,
-    tile px, 0 = no final refit) and ``exit_matchable`` (``[lightglue] exit_matchable``, the
+    match must exceed, in [0, 1)), ``refit_threshold_px`` (``[matcher] refit_threshold_px``,
+    tile px, 0 = no final refit) and ``exit_matches`` (``[lightglue] exit_matches``, the
     unmatchable-pair exit of adaptive LightGlue, 0 = off). A value set in the configuration
-    applies to every strategy instead. The record's own defaults are upstream's (no normalisation, 0.1, no refit): what a
-    strategy that declares none gets. Checked when resolved (``c3_matcher.config``)."""
+    applies to every strategy instead. The record's own defaults are upstream's (no
+    normalisation, 0.1, no refit, no unmatchable-pair exit): what a strategy that declares none
+    gets. Checked when resolved (``c3_matcher.config``)."""
 
     photometric: str = "none"
     filter_threshold: float = 0.1
     refit_threshold_px: float = 0.0
-    exit_matchable: int = 0
+    exit_matches: int = 0
 
 
 @dataclass(frozen=True, slots=True)
