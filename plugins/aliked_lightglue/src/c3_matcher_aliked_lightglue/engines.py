@@ -76,6 +76,7 @@ def _aliked_spec(variant: str) -> EngineSpec:
             f"ALIKED {variant}: top-K strict 5x5 maxima of score*mask with soft-argmax "
             "refinement, SDDH descriptors, deformable conv as GridSample + MatMul"
         ),
+        export_revision=2,  # 2: SDDH reads and normalises only the keypoints' pixels (gathers)
     )
 
 

@@ -16,8 +16,12 @@ run without custom ops:
   each maximum's 5x5 window (temperature 0.1) gathered by flat index; the score is the masked map
   read bilinearly at the refined position (``align_corners=True``);
 - SDDH: the 3x3 feature patch at each keypoint (the reference's truncation and clamping of the
-  patch corner), its offset network, 16 deformable samples by GridSample, ``sf_conv`` + SELU and
-  the aggregation ``einsum('ncp,pcd->nd')`` as one MatMul, L2-normalised.
+  patch corner), its offset network, 16 deformable bilinear samples, ``sf_conv`` + SELU and the
+  aggregation ``einsum('ncp,pcd->nd')`` as one MatMul, L2-normalised. The feature map is not
+  normalised densely: the pixels the patches and samples read are gathered (rows of the
+  pixel-major map) and normalised alone, and each bilinear sample is its four taps weighted as
+  ``grid_sample`` weights them (ONNX Runtime's GridSample kernel is scalar, and the dense
+  normalisation of a 128-channel full-resolution map is work no descriptor reads).
 
 Outputs: ``keypoints`` (K, 2) (x, y) px (``wh * (k + 1) / 2`` of the normalised position, as the
 reference), ``keypoint_scores`` (K,) in (0, 1), 0 on padding rows, best NMS score first,
@@ -141,7 +145,9 @@ class AlikedForExport(nn.Module):
         self.register_buffer("hw_grid", net.dkd.hw_grid.clone(), persistent=False)
 
     def dense_maps(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(feature_map (1, D, H, W) L2-normalised, score_map (1, 1, H, W))``."""
+        """``(feature_map (1, D, H, W) before its L2 normalisation, score_map (1, 1, H, W))``:
+        only the keypoints' samples of the feature map are read, so they alone are normalised
+        (``describe``)."""
         n = self.net
         x1 = n.block1(image)
         x2 = n.block2(n.pool2(x1))
@@ -153,7 +159,7 @@ class AlikedForExport(nn.Module):
         x4 = n.gate(n.conv4(x4))
         x1234 = torch.cat([x1, n.upsample2(x2), n.upsample8(x3), n.upsample32(x4)], dim=1)
         score_map = torch.sigmoid(n.score_head(x1234))
-        return nnf.normalize(x1234, p=2, dim=1), score_map
+        return x1234, score_map
 
     def forward(
         self, image: torch.Tensor, mask: torch.Tensor
@@ -207,7 +213,12 @@ class AlikedForExport(nn.Module):
         height: torch.Tensor,
     ) -> torch.Tensor:
         """SDDH descriptors (K, D) of the keypoints ``kp_norm`` (K, 2) in [-1, 1] on the feature
-        map ``fmap`` (D, H, W); ``wh`` = (W - 1, H - 1), ``width``/``height`` 0-d tensors."""
+        map ``fmap`` (D, H, W) before normalisation; ``wh`` = (W - 1, H - 1), ``width``/``height``
+        0-d tensors. The reference normalises every pixel of the map, then reads 3x3 patches and
+        16 bilinear samples per keypoint; here the pixels those read are gathered and normalised
+        alone (the same values: normalisation is per pixel), and the bilinear samples are four
+        gathered taps weighted as ``grid_sample`` weights them (ONNX Runtime's GridSample kernel
+        is scalar)."""
         head = self.net.desc_head
         dim = fmap.shape[0]
         n_pos = int(head.n_pos)
@@ -223,8 +234,8 @@ class AlikedForExport(nn.Module):
         rows = (cy[:, None, None] + offs[None, :, None]) * w_long  # (K, 3, 1)
         cols = cx[:, None, None] + offs[None, None, :]  # (K, 1, 3)
         flat = (rows + cols).reshape(-1)  # (K * 9,) row-major 3x3 patches
-        patches = fmap.reshape(dim, -1).index_select(1, flat).reshape(dim, -1, 3, 3)
-        patches = patches.permute(1, 0, 2, 3)  # (K, D, 3, 3)
+        pixels = fmap.reshape(dim, -1).transpose(0, 1)  # (H * W, D): a pixel is one row
+        patches = _unit_pixels(pixels, flat).reshape(-1, 3, 3, dim).permute(0, 3, 1, 2)
 
         limit = torch.maximum(width, height) / 4.0
         offset = head.offset_conv(patches)  # (K, 2 * n_pos, 1, 1)
@@ -232,15 +243,43 @@ class AlikedForExport(nn.Module):
         offset = offset[:, :, 0, 0].reshape(-1, 2, n_pos).permute(0, 2, 1)  # (K, n_pos, 2)
         pos = kp_wh.unsqueeze(1) + offset
         pos = 2.0 * pos / wh[None] - 1
-        features = nnf.grid_sample(
-            fmap.unsqueeze(0), pos.reshape(1, -1, 1, 2), mode="bilinear", align_corners=True
-        )  # (1, D, K * n_pos, 1)
-        features = features.reshape(dim, -1, n_pos, 1).permute(1, 0, 2, 3)  # (K, D, n_pos, 1)
+        features = _bilinear(pixels, pos.reshape(-1, 2), width, height)  # (K * n_pos, D)
+        features = features.reshape(-1, n_pos, dim, 1).permute(0, 2, 1, 3)  # (K, D, n_pos, 1)
         features = nnf.selu(head.sf_conv(features)).squeeze(-1)  # (K, D, n_pos)
         agg = head.agg_weights  # (n_pos, D, D_out)
         flat_features = features.permute(0, 2, 1).reshape(features.shape[0], -1)
         descs = flat_features @ agg.reshape(-1, agg.shape[-1])
         return nnf.normalize(descs, p=2.0, dim=1)
+
+
+def _unit_pixels(pixels: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """Rows ``index`` (N,) of ``pixels`` (H * W, D), each L2-normalised -> (N, D)."""
+    return nnf.normalize(pixels.index_select(0, index), p=2.0, dim=1)
+
+
+def _bilinear(
+    pixels: torch.Tensor, grid: torch.Tensor, width: torch.Tensor, height: torch.Tensor
+) -> torch.Tensor:
+    """``grid_sample(normalised map, grid, "bilinear", align_corners=True)`` (zero padding) at
+    the N points ``grid`` (N, 2) in [-1, 1] of the (H * W, D) map ``pixels`` (normalised per
+    pixel as read) -> (N, D); taps summed nw, ne, sw, se with ``grid_sample``'s weights."""
+    x = (grid[:, 0] + 1) / 2 * (width - 1)
+    y = (grid[:, 1] + 1) / 2 * (height - 1)
+    x0, y0 = torch.floor(x), torch.floor(y)
+    x1, y1 = x0 + 1, y0 + 1
+    total = torch.zeros_like(pixels[:1]) * x[:, None]  # (N, D) zeros
+    for tx, ty, weight in (
+        (x0, y0, (x1 - x) * (y1 - y)),
+        (x1, y0, (x - x0) * (y1 - y)),
+        (x0, y1, (x1 - x) * (y - y0)),
+        (x1, y1, (x - x0) * (y - y0)),
+    ):
+        inside = (tx >= 0) & (tx <= width - 1) & (ty >= 0) & (ty <= height - 1)
+        cx = torch.minimum(torch.maximum(tx, torch.zeros_like(tx)), width - 1)
+        cy = torch.minimum(torch.maximum(ty, torch.zeros_like(ty)), height - 1)
+        index = (cy * width + cx).to(torch.int64)
+        total = total + _unit_pixels(pixels, index) * (weight * inside.to(weight.dtype))[:, None]
+    return total
 
 
 def build_aliked_export_module(reference: Any, top_k: int) -> AlikedForExport:
