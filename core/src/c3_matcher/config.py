@@ -256,7 +256,7 @@ class LightGlueSettings(_Section):
         None,
         ge=0,
         description="unmatchable-pair exit (adaptive mode): after the second layer, stop a pair "
-        "with no matches when fewer than this many mutual matches have confidence above 0.5; "
+        "with no matches when fewer than this many mutual matches have confidence above 0.3; "
         "0 off; unset: the strategy's own default, chosen by measurement (docs/decisions.md)",
     )
 

@@ -147,7 +147,7 @@ class AdaptiveLightGlue:
         width_confidence: float = 0.99,
         exit_matches: int = 0,
         exit_after: int = 1,
-        exit_confidence: float = 0.5,
+        exit_confidence: float = 0.3,
     ) -> None:
         if n_layers < 1:
             raise ValueError(f"n_layers must be >= 1, got {n_layers}")
