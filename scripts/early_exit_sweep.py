@@ -1,15 +1,16 @@
-"""Measure the unmatchable-pair exit of adaptive LightGlue (``[lightglue] exit_matchable``) on
-flights: one run per (strategy, flight) with the exit off records every pair's per-layer
-trace (points kept, points whose matchability exceeds the match threshold, layers run) beside
-the frame's outcome; every exit rule is then replayed on the traces, exactly, because an exit
-returns no matches and a candidate with no matches is rejected (docs/decisions.md, "Pairs that
-cannot match stop early").
+"""Measure the unmatchable-pair exit of adaptive LightGlue (``[lightglue] exit_matches``) on
+flights: one run per (strategy, flight) with the exit off records, for every LightGlue pair and
+every layer before its last, the points of each image above each matchability level and the
+mutual matches the assignment head gives above each confidence level, beside the frame's
+outcome. Every rule is then replayed on the traces, exactly, because an exit returns no matches
+and a candidate with no matches is rejected (docs/decisions.md, "Pairs that cannot match").
 
-A rule (``exit_after`` L, ``exit_matchable`` K) stops a pair after the first layer ``l >= L``
-at which fewer than K points of either image are matchable. It changes a frame's outcome only
-if it stops a pair whose candidate was accepted (``inlier_count >= min_inliers_threshold``);
-the table gives, per rule, the pairs it stops, the layers it saves, and the accepted pairs it
-would have stopped (must be 0 on every flight for a default), with the smallest margin.
+A rule (signal, level, after layer L, fewer than K) stops a pair after layer L when fewer than K
+counts of the signal exceed the level, as ``AdaptiveLightGlue`` tests once (``exit_after``,
+``exit_confidence``, ``exit_matches``). It changes a frame's outcome only if it stops a pair
+whose candidate was accepted (``inlier_count >= min_inliers_threshold``); the table gives, per
+rule, the pairs it stops, the layers it saves, the accepted pairs it would have stopped (must be
+0 on every flight for a default) and the lowest count on an accepted pair (the margin).
 
     nice -n 5 .venv/bin/python scripts/early_exit_sweep.py --strategy disk_lightglue \\
         --out RUNS data/flights/naip_demo data/flights/naip_distractors ...
@@ -100,7 +101,7 @@ def record_flight(strategy: str, flight: Path) -> dict[str, Any]:
     """Run one flight with the exit off; every frame's pairs and candidates."""
     settings = load_settings()
     settings = settings.model_copy(
-        update={"lightglue": settings.lightglue.model_copy(update={"exit_matchable": 0})}
+        update={"lightglue": settings.lightglue.model_copy(update={"exit_matches": 0})}
     )
     dataset = load_dataset(flight)
     pairs: list[dict[str, Any]] = []

@@ -22,12 +22,13 @@ the points whose matchability exceeds ``1 - width_confidence`` or whose confiden
 layer's threshold (points upstream would still refine), gather their rows and go on with smaller
 tensors. ``-1`` disables either rule. Comparisons run in float32 as upstream's do.
 
-One test of our own, the unmatchable-pair exit (``exit_matches`` > 0; off by default): after
-layer ``exit_after`` the assignment head runs once on the kept points, and a pair with fewer than
-``exit_matches`` mutual matches of confidence above ``exit_confidence`` stops there with no
-matches: a candidate tile that shows another place (a distractor) no longer runs the layers
-upstream's confidence exit would give it. Chosen per strategy by measurement over every shipped
-flight (``scripts/early_exit_sweep.py``, docs/decisions.md).
+One test of our own, the unmatchable-pair exit (``exit_matches`` > 0; off unless a strategy or
+the configuration sets it): after layer ``exit_after`` the assignment head runs once on the kept
+points, and a pair with fewer than ``exit_matches`` mutual matches of confidence above
+``exit_confidence`` stops there with no matches: a candidate tile that shows another place (a
+distractor) no longer runs the layers upstream's confidence exit would give it. A strategy turns
+it on only after a measurement over every shipped flight (``scripts/early_exit_sweep.py``,
+docs/decisions.md).
 """
 
 from __future__ import annotations
