@@ -307,6 +307,53 @@ class OnnxLightGlueRuntime:
         every_layer = AdaptiveLightGlue(run, depth_confidence=-1, width_confidence=-1, **common)
         return adaptive, every_layer
 
+    def _run_steps(
+        self,
+        feature_type: str,
+        n0: NDArray[np.float32],
+        n1: NDArray[np.float32],
+        desc0: NDArray[np.float32],
+        desc1: NDArray[np.float32],
+    ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+        """(matches0, mscores0) of the steps engine: adaptive, or every layer in full mode."""
+        _, _, adaptive, every_layer = self._steps[feature_type]
+        driver = adaptive if self._mode == "adaptive" else every_layer
+        result = driver.match(n0, n1, desc0, desc1)
+        self.last_run = {
+            "mode": "adaptive" if driver is adaptive else "steps-full",
+            "layers": result.layers,
+            "kept0": result.kept0,
+            "kept1": result.kept1,
+            "matched": result.matched,
+            "unmatchable": result.unmatchable,
+        }
+        return result.matches0, result.mscores0
+
+    def _run_full(
+        self,
+        feature_type: str,
+        n0: NDArray[np.float32],
+        n1: NDArray[np.float32],
+        desc0: NDArray[np.float32],
+        desc1: NDArray[np.float32],
+    ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+        """(matches0, mscores0) of the single graph: every layer on every point."""
+        _, engine_id = self._engines[feature_type]
+        out = self._inference.run(
+            engine_id,
+            {
+                "kpts0": n0[None],
+                "kpts1": n1[None],
+                "desc0": np.ascontiguousarray(desc0)[None],
+                "desc1": np.ascontiguousarray(desc1)[None],
+            },
+        )
+        self.last_run = {"mode": "full", "layers": None, "kept0": [len(n0)], "kept1": [len(n1)]}
+        return (
+            np.asarray(out["matches0"]).reshape(-1).astype(np.int64, copy=False),
+            np.asarray(out["mscores0"]).reshape(-1).astype(np.float32, copy=False),
+        )
+
     def match_pair(
         self,
         kpts0: NDArray[np.float32],
@@ -333,37 +380,13 @@ class OnnxLightGlueRuntime:
         _check_pair(kpts1, desc1, size1, 1)
         if len(kpts0) == 0 or len(kpts1) == 0:
             return RawMatches(np.zeros((0, 2), np.int64), np.zeros((0,), np.float32))
-        use_steps = feature_type in self._steps and (
-            self._mode == "adaptive" or feature_type not in self._engines
-        )
         n0, n1 = normalize_keypoints(kpts0, size0), normalize_keypoints(kpts1, size1)
-        if use_steps:
-            _, _, adaptive, every_layer = self._steps[feature_type]
-            driver = adaptive if self._mode == "adaptive" else every_layer
-            result = driver.match(n0, n1, desc0, desc1)
-            matches0, mscores0 = result.matches0, result.mscores0
-            self.last_run = {
-                "mode": "adaptive" if driver is adaptive else "steps-full",
-                "layers": result.layers,
-                "kept0": result.kept0,
-                "kept1": result.kept1,
-                "matched": result.matched,
-                "unmatchable": result.unmatchable,
-            }
+        if feature_type in self._steps and (
+            self._mode == "adaptive" or feature_type not in self._engines
+        ):
+            matches0, mscores0 = self._run_steps(feature_type, n0, n1, desc0, desc1)
         else:
-            _, engine_id = self._engines[feature_type]
-            out = self._inference.run(
-                engine_id,
-                {
-                    "kpts0": n0[None],
-                    "kpts1": n1[None],
-                    "desc0": np.ascontiguousarray(desc0)[None],
-                    "desc1": np.ascontiguousarray(desc1)[None],
-                },
-            )
-            matches0 = np.asarray(out["matches0"]).reshape(-1).astype(np.int64, copy=False)
-            mscores0 = np.asarray(out["mscores0"]).reshape(-1).astype(np.float32, copy=False)
-            self.last_run = {"mode": "full", "layers": None, "kept0": [len(n0)], "kept1": [len(n1)]}
+            matches0, mscores0 = self._run_full(feature_type, n0, n1, desc0, desc1)
         valid = (matches0 > -1) & (mscores0 > np.float32(self._threshold))
         index0 = np.flatnonzero(valid).astype(np.int64)
         matches = np.stack([index0, matches0[valid]], axis=-1).astype(np.int64, copy=False)
