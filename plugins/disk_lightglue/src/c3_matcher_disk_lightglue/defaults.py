@@ -4,8 +4,9 @@ the plugin's ``StrategySpec`` and its config builder both read ``DEFAULTS``.
 
 - ``photometric = "none"`` and ``filter_threshold = 0.1`` (upstream): CLAHE with threshold 0.01
   added cross-season fixes (naip_cross_date 11 -> 14/27, naip_s2010_f2020 9 -> 13/18) and lost
-  precision where the frames are older than the map (naip_s2015_f2010: same 17/18 fixes, IT-03
-  p95 2.82 -> 4.04 px; naip_s2010_f2020, the 9 frames both get: 2.37 -> 2.66 px), refit or not.
+  precision where frames and map are years apart (naip_s2015_f2010: same 17/18 fixes, IT-03 p95
+  2.82 -> 4.04 px; naip_s2010_f2015: same 16/18, 3.27 -> 3.60 px; naip_s2010_f2020, the 9
+  frames both get: 2.37 -> 2.66 px), refit or not.
   Threshold 0.01 without CLAHE gained one fix (gorinchem_z18) and lost a little precision on the
   same-date flights (naip_s2020_f2015 1.81 -> 1.86 px, worse on 16 of 18 frames).
 - ``refit_threshold_px = 2.0``: the final refit lowers IT-03 on every flight with fixes, worse
