@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from loguru import logger
@@ -133,6 +133,15 @@ def steps_engines_beside(engine_path: Path, feature_type: str) -> list[Path]:
         ):
             found.append((manifest.built_at, record.path))
     return [path for _, path in sorted(found, reverse=True)]
+
+
+class _Pair(NamedTuple):
+    """One pair's normalised keypoints and descriptors, in the steps driver's argument order."""
+
+    kpts0: NDArray[np.float32]
+    kpts1: NDArray[np.float32]
+    desc0: NDArray[np.float32]
+    desc1: NDArray[np.float32]
 
 
 class OnnxLightGlueRuntime:
@@ -308,17 +317,12 @@ class OnnxLightGlueRuntime:
         return adaptive, every_layer
 
     def _run_steps(
-        self,
-        feature_type: str,
-        n0: NDArray[np.float32],
-        n1: NDArray[np.float32],
-        desc0: NDArray[np.float32],
-        desc1: NDArray[np.float32],
+        self, feature_type: str, pair: _Pair
     ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
         """(matches0, mscores0) of the steps engine: adaptive, or every layer in full mode."""
         _, _, adaptive, every_layer = self._steps[feature_type]
         driver = adaptive if self._mode == "adaptive" else every_layer
-        result = driver.match(n0, n1, desc0, desc1)
+        result = driver.match(*pair)
         self.last_run = {
             "mode": "adaptive" if driver is adaptive else "steps-full",
             "layers": result.layers,
@@ -330,25 +334,16 @@ class OnnxLightGlueRuntime:
         return result.matches0, result.mscores0
 
     def _run_full(
-        self,
-        feature_type: str,
-        n0: NDArray[np.float32],
-        n1: NDArray[np.float32],
-        desc0: NDArray[np.float32],
-        desc1: NDArray[np.float32],
+        self, feature_type: str, pair: _Pair
     ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
         """(matches0, mscores0) of the single graph: every layer on every point."""
         _, engine_id = self._engines[feature_type]
+        feeds = dict(zip(("kpts0", "kpts1", "desc0", "desc1"), pair, strict=True))
         out = self._inference.run(
-            engine_id,
-            {
-                "kpts0": n0[None],
-                "kpts1": n1[None],
-                "desc0": np.ascontiguousarray(desc0)[None],
-                "desc1": np.ascontiguousarray(desc1)[None],
-            },
+            engine_id, {name: np.ascontiguousarray(x)[None] for name, x in feeds.items()}
         )
-        self.last_run = {"mode": "full", "layers": None, "kept0": [len(n0)], "kept1": [len(n1)]}
+        m, n = len(pair.kpts0), len(pair.kpts1)
+        self.last_run = {"mode": "full", "layers": None, "kept0": [m], "kept1": [n]}
         return (
             np.asarray(out["matches0"]).reshape(-1).astype(np.int64, copy=False),
             np.asarray(out["mscores0"]).reshape(-1).astype(np.float32, copy=False),
@@ -384,9 +379,9 @@ class OnnxLightGlueRuntime:
         if feature_type in self._steps and (
             self._mode == "adaptive" or feature_type not in self._engines
         ):
-            matches0, mscores0 = self._run_steps(feature_type, n0, n1, desc0, desc1)
+            matches0, mscores0 = self._run_steps(feature_type, _Pair(n0, n1, desc0, desc1))
         else:
-            matches0, mscores0 = self._run_full(feature_type, n0, n1, desc0, desc1)
+            matches0, mscores0 = self._run_full(feature_type, _Pair(n0, n1, desc0, desc1))
         valid = (matches0 > -1) & (mscores0 > np.float32(self._threshold))
         index0 = np.flatnonzero(valid).astype(np.int64)
         matches = np.stack([index0, matches0[valid]], axis=-1).astype(np.int64, copy=False)
