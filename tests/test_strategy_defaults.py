@@ -1,8 +1,8 @@
 """Per-strategy defaults: each strategy's ``[matcher] photometric``, ``[matcher]
-refit_threshold_px`` and ``[lightglue] filter_threshold`` come from its own plugin's
-``defaults.DEFAULTS`` when the configuration leaves them unset, reach the composed matcher, the
-LightGlue runtime and the RANSAC filter, and a configured value applies to every strategy instead
-(docs/precision.md chose the values)."""
+refit_threshold_px``, ``[lightglue] filter_threshold`` and ``exit_matches`` come from its own
+plugin's ``defaults.DEFAULTS`` when the configuration leaves them unset, reach the composed
+matcher, the LightGlue runtime and the RANSAC filter, and a configured value applies to every
+strategy instead (docs/precision.md chose the values)."""
 
 from __future__ import annotations
 
@@ -49,6 +49,7 @@ def test_unset_settings_resolve_to_the_strategys_own_defaults(strategy: str) -> 
     assert resolved.matcher.photometric == declared(strategy).photometric
     assert resolved.lightglue.filter_threshold == declared(strategy).filter_threshold
     assert resolved.matcher.refit_threshold_px == declared(strategy).refit_threshold_px
+    assert resolved.lightglue.exit_matches == declared(strategy).exit_matches
 
 
 @pytest.mark.parametrize("strategy", sorted(STRATEGIES))
@@ -57,10 +58,12 @@ def test_a_configured_value_applies_to_every_strategy(strategy: str) -> None:
         "C3_MATCHER_MATCHER__PHOTOMETRIC": "grey",
         "C3_MATCHER_LIGHTGLUE__FILTER_THRESHOLD": "0.05",
         "C3_MATCHER_MATCHER__REFIT_THRESHOLD_PX": "0",
+        "C3_MATCHER_LIGHTGLUE__EXIT_MATCHES": "12",
     }
     resolved = strategy_settings(load_settings(env=env), strategy)
     assert (resolved.matcher.photometric, resolved.lightglue.filter_threshold) == ("grey", 0.05)
     assert resolved.matcher.refit_threshold_px == 0.0
+    assert resolved.lightglue.exit_matches == 12
 
 
 @pytest.mark.parametrize("strategy", sorted(STRATEGIES))
@@ -82,6 +85,7 @@ def test_the_composed_matcher_and_runtime_use_the_strategys_defaults(
     )
     helpers = build_default_helpers(settings)
     assert helpers["c3_lightglue_runtime"].filter_threshold == declared(strategy).filter_threshold
+    assert helpers["c3_lightglue_runtime"].exit_matches == declared(strategy).exit_matches
     ransac = helpers["c282_ransac_filter"]
     assert (ransac.refit_px, ransac.refit_floor) == (declared(strategy).refit_threshold_px, 60)
     root = compose_root(settings, {**helpers, "c13_fdr": InMemoryFdr()}, configure_logs=False)

@@ -188,6 +188,11 @@ class OnnxLightGlueRuntime:
         return self._threshold
 
     @property
+    def exit_matches(self) -> int:
+        """The unmatchable-pair exit's count (0: off)."""
+        return self._exit_matches
+
+    @property
     def feature_types(self) -> tuple[str, ...]:
         """Feature types with a loaded engine."""
         return tuple(sorted(set(self._engines) | set(self._steps)))
