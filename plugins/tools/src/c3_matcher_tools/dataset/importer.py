@@ -47,6 +47,7 @@ import itertools
 import math
 import shutil
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,12 +75,15 @@ __all__ = [
     "COLUMNS",
     "HEIGHT_COLUMNS",
     "ImportSpec",
+    "StoreProposals",
     "Telemetry",
     "TelemetryRow",
     "import_csv_flight",
     "import_flight",
     "look_point",
+    "propose_from_store",
     "read_telemetry",
+    "shuffled_candidates",
 ]
 
 #: canonical column -> accepted header names (case-insensitive)
@@ -431,6 +435,55 @@ def _propose(
     return picked
 
 
+@dataclass(frozen=True)
+class StoreProposals:
+    """The candidates proposed from a store for each telemetry row, in row order.
+
+    ``looks``: (look point (lon, lat) deg, candidates as (tile id, distance m) or None where
+    the store lacks the tile under the look point); ``outside``: the rows whose look point the
+    store does not cover; ``attribution`` and ``tiles_source``: the store's metadata.
+    """
+
+    zoom: int
+    looks: list[tuple[tuple[float, float], list[tuple[TileId, float]] | None]]
+    outside: list[TelemetryRow]
+    attribution: str
+    tiles_source: str
+
+
+def propose_from_store(
+    rows: Sequence[TelemetryRow], calibration: CameraCalibration, spec: ImportSpec
+) -> StoreProposals:
+    """Propose ``spec.candidates`` tiles of ``spec.store`` around each row's look point."""
+    with MBTilesStore(spec.store) as store:
+        zoom = store_zoom(store, spec.store, spec.zoom)
+        looks: list[tuple[tuple[float, float], list[tuple[TileId, float]] | None]] = []
+        outside: list[TelemetryRow] = []
+        for r in rows:
+            lonlat = look_point(r, calibration)
+            cands = _propose(store, zoom, lonlat, spec)
+            if cands is None:
+                outside.append(r)
+            looks.append((lonlat, cands))
+        return StoreProposals(
+            zoom,
+            looks,
+            outside,
+            store.metadata.get("attribution", ""),
+            store.metadata.get("c3_source", ""),
+        )
+
+
+def shuffled_candidates(
+    cands: list[tuple[TileId, float]] | None, seed: int, index: int
+) -> tuple[CandidateTruth, ...]:
+    """Frame ``index``'s candidates in a seeded order, priors 0.9, 0.8, ... (the truth tile is
+    not always first); ``cands`` is never None once the coverage check passed."""
+    assert cands is not None
+    order = np.random.default_rng([seed, index]).permutation(len(cands))
+    return tuple(CandidateTruth(cands[j][0], round(0.9 - 0.1 * k, 3)) for k, j in enumerate(order))
+
+
 def _check_image(path: Path, calibration: CameraCalibration) -> str | None:
     if not path.is_file():
         return "no such file"
@@ -504,19 +557,11 @@ def import_csv_flight(
         if why:
             problems.append((r.line, f"line {r.line}: {r.image}: {why}"))
     _refuse(images_dir, problems)
-    with MBTilesStore(spec.store) as store:
-        zoom = store_zoom(store, spec.store, spec.zoom)
-        proposals = []
-        outside = []
-        for r in rows:
-            lonlat = look_point(r, calibration)
-            cands = _propose(store, zoom, lonlat, spec)
-            if cands is None:
-                outside.append(f"line {r.line} ({r.lat:.6f}, {r.lon:.6f})")
-            proposals.append((lonlat, cands))
-        attribution = store.metadata.get("attribution", "")
-        tiles_source = store.metadata.get("c3_source", "")
-    if outside:
+    proposed = propose_from_store(rows, calibration, spec)
+    zoom, proposals = proposed.zoom, proposed.looks
+    attribution, tiles_source = proposed.attribution, proposed.tiles_source
+    if proposed.outside:
+        outside = [f"line {r.line} ({r.lat:.6f}, {r.lon:.6f})" for r in proposed.outside]
         raise InvalidInputError(
             "TELEMETRY",
             f"{len(outside)} frame(s) look outside the store's coverage at zoom {zoom}: "
@@ -526,8 +571,6 @@ def import_csv_flight(
     t0 = rows[0].time_s
     base = uuid.uuid5(uuid.NAMESPACE_URL, f"c3-flight-import:{name or out.name}")
     for i, (r, (lonlat, cands)) in enumerate(zip(rows, proposals, strict=True)):
-        assert cands is not None
-        order = np.random.default_rng([spec.seed, i]).permutation(len(cands))
         ext = Path(r.image).suffix.lower() or ".jpg"
         frames.append(
             FrameRecord(
@@ -537,10 +580,7 @@ def import_csv_flight(
                 captured_at_ns=round((r.time_s - t0) * 1e9),
                 attitude_deg=(r.roll_deg, r.pitch_deg, r.yaw_deg),
                 height_m=r.altitude_m,
-                candidates=tuple(
-                    CandidateTruth(cands[j][0], round(0.9 - 0.1 * k, 3))
-                    for k, j in enumerate(order)
-                ),
+                candidates=shuffled_candidates(cands, spec.seed, i),
                 telemetry={
                     "lat": r.lat,
                     "lon": r.lon,

@@ -32,9 +32,8 @@ from numpy.typing import NDArray
 from c3_matcher.camera import body_from_camera
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
-from c3_matcher_tools.dataset.format import CandidateTruth, FrameRecord, write_dataset
+from c3_matcher_tools.dataset.format import FrameRecord, write_dataset
 
 __all__ = [
     "ImportOptions",
@@ -615,9 +614,8 @@ def write_imported_flight(
     from c3_matcher_tools.dataset.importer import (
         ImportSpec,
         TelemetryRow,
-        _propose,
-        look_point,
-        store_zoom,
+        propose_from_store,
+        shuffled_candidates,
     )
 
     out = Path(out)
@@ -662,20 +660,15 @@ def write_imported_flight(
         candidate_size_px=options.candidate_size_px,
         seed=options.seed,
     )
-    with MBTilesStore(options.store) as store:
-        zoom = store_zoom(store, options.store, options.zoom)
-        proposals = []
-        outside = []
-        for i, f in enumerate(frames):
-            row = TelemetryRow(i, f.t_s, f.shot.name, f.lat, f.lon, f.height_m, *f.attitude)
-            lonlat = look_point(row, calibration)
-            cands = _propose(store, zoom, lonlat, proposer)
-            if cands is None:
-                outside.append(f"{f.shot.name} ({f.lat:.6f}, {f.lon:.6f})")
-            proposals.append((lonlat, cands))
-        attribution = store.metadata.get("attribution", "")
-        tiles_source = store.metadata.get("c3_source", "")
-    if outside:
+    rows = [
+        TelemetryRow(i, f.t_s, f.shot.name, f.lat, f.lon, f.height_m, *f.attitude)
+        for i, f in enumerate(frames)
+    ]
+    proposed = propose_from_store(rows, calibration, proposer)
+    zoom, proposals = proposed.zoom, proposed.looks
+    attribution, tiles_source = proposed.attribution, proposed.tiles_source
+    if proposed.outside:
+        outside = [f"{r.image} ({r.lat:.6f}, {r.lon:.6f})" for r in proposed.outside]
         raise InvalidInputError(
             track.source,
             f"{len(outside)} frame(s) look outside the store's coverage at zoom {zoom} (log and "
@@ -686,8 +679,6 @@ def write_imported_flight(
     t0 = frames[0].t_s
     records = []
     for i, (f, (lonlat, cands)) in enumerate(zip(frames, proposals, strict=True)):
-        assert cands is not None
-        order = np.random.default_rng([options.seed, i]).permutation(len(cands))
         records.append(
             FrameRecord(
                 index=i,
@@ -696,10 +687,7 @@ def write_imported_flight(
                 captured_at_ns=round((f.t_s - t0) * 1e9),
                 attitude_deg=f.attitude,
                 height_m=f.height_m,
-                candidates=tuple(
-                    CandidateTruth(cands[j][0], round(0.9 - 0.1 * k, 3))
-                    for k, j in enumerate(order)
-                ),
+                candidates=shuffled_candidates(cands, options.seed, i),
                 telemetry={
                     "lat": f.lat,
                     "lon": f.lon,
