@@ -7,7 +7,12 @@ import argparse
 import math
 from collections.abc import Callable
 
-__all__ = ["add_attitude_noise_option", "non_negative_float", "positive_int"]
+__all__ = [
+    "add_attitude_noise_option",
+    "add_strategies_option",
+    "non_negative_float",
+    "positive_int",
+]
 
 
 def add_attitude_noise_option(p: argparse.ArgumentParser) -> None:
@@ -19,6 +24,11 @@ def add_attitude_noise_option(p: argparse.ArgumentParser) -> None:
         help="add seeded Gaussian noise of this sigma (deg) to every frame's roll, pitch and yaw "
         "(an IMU's error; the same per frame in every run; default 0)",
     )
+
+
+def add_strategies_option(p: argparse.ArgumentParser, help: str) -> None:
+    """``--strategy``, repeatable: the strategies a command runs (``None`` when not given)."""
+    p.add_argument("--strategy", action="append", default=None, help=help)
 
 
 def non_negative_float(what: str) -> Callable[[str], float]:

@@ -38,6 +38,7 @@ from typing import Any, Literal
 
 from c3_matcher.commands import CommandContext, CommandRegistry
 from c3_matcher.config import C3Settings
+from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.bench_report import comparisons, format_report
 
 __all__ = [
@@ -168,12 +169,7 @@ def register_bench_command(commands: CommandRegistry) -> None:
         "reference and the SIFT + MAGSAC baseline",
     )
     p.add_argument("--runs", type=int, default=20, help="timed runs per case (default 20)")
-    p.add_argument(
-        "--strategy",
-        action="append",
-        default=None,
-        help="strategy to bench (repeatable; default: the configured one)",
-    )
+    add_strategies_option(p, "strategy to bench (repeatable; default: the configured one)")
     p.add_argument("--no-baseline", action="store_true", help="skip SIFT + MAGSAC")
     p.add_argument("--no-reference", action="store_true", help="skip the PyTorch reference")
     p.add_argument(

@@ -53,7 +53,7 @@ from typing import Any
 from c3_matcher.commands import CommandContext, CommandRegistry
 from c3_matcher.config import C3Settings
 from c3_matcher.plugins.manager import PluginHost
-from c3_matcher_tools.args import add_attitude_noise_option
+from c3_matcher_tools.args import add_attitude_noise_option, add_strategies_option
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset, with_attitude_noise
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
@@ -142,12 +142,7 @@ def register_eval_command(commands: CommandRegistry) -> None:
         nargs="+",
         help="dataset directory (holds dataset.json); several: one summary table at the end",
     )
-    p.add_argument(
-        "--strategy",
-        action="append",
-        default=None,
-        help="strategy to evaluate (repeatable; default: every linked strategy)",
-    )
+    add_strategies_option(p, "strategy to evaluate (repeatable; default: every linked strategy)")
     p.add_argument("--no-baseline", action="store_true", help="skip the SIFT + MAGSAC baseline")
     p.add_argument(
         "--out", type=Path, default=None, help="output directory (default out/eval/<dataset>)"

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from c3_matcher.commands import EXIT_OK, EXIT_USAGE, CommandContext, CommandRegistry
+from c3_matcher_tools.args import add_strategies_option
 
 __all__ = ["register_features_command"]
 
@@ -25,11 +26,8 @@ def register_features_command(commands: CommandRegistry) -> None:
         help="an MBTiles tile store, or a flight dataset directory (its store; window and "
         "stride default to its candidates' size and grid)",
     )
-    b.add_argument(
-        "--strategy",
-        action="append",
-        default=None,
-        help="strategy whose extractor to run (repeatable; default: the configured one)",
+    add_strategies_option(
+        b, "strategy whose extractor to run (repeatable; default: the configured one)"
     )
     _add_build_options(b)
     b.set_defaults(handler=_build)
