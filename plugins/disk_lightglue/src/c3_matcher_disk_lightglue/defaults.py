@@ -9,7 +9,7 @@ the plugin's ``StrategySpec`` and its config builder both read ``DEFAULTS``.
   frames both get: 2.37 -> 2.66 px), refit or not.
   Threshold 0.01 without CLAHE gained one fix (gorinchem_z18) and lost a little precision on the
   same-date flights (naip_s2020_f2015 1.81 -> 1.86 px, worse on 16 of 18 frames).
-- ``refit_threshold_px = 2.0``: the final refit lowers IT-03 on every flight with fixes, worse
+- ``refit_threshold_px = 2.0``: the final refit lowers IT-03 or leaves it on every flight, worse
   on no frame (naip_demo 1.13 -> 1.02 px, naip_s2010_f2020 2.37 -> 1.87 px), and never takes a
   candidate below ``min_inliers_threshold``.
 """
