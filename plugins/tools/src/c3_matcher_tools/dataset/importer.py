@@ -67,6 +67,7 @@ from c3_matcher_tools.dataset.format import CandidateTruth, FrameRecord, write_d
 from c3_matcher_tools.dataset.sources.common import (
     ImportReport,
     _ranges,
+    check_proposal_options,
     ground_elevation_sampler,
 )
 from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
@@ -152,14 +153,7 @@ class ImportSpec:
             raise InvalidInputError(
                 "--ground-elevation", f"must be in [-9000, 9000] m, got {self.ground_elevation_m}"
             )
-        if not (math.isfinite(self.uncertainty_m) and self.uncertainty_m >= 0):
-            raise InvalidInputError("--uncertainty-m", f"must be >= 0, got {self.uncertainty_m}")
-        if self.candidates < 1:
-            raise InvalidInputError("--candidates", f"must be >= 1, got {self.candidates}")
-        if not 64 <= self.candidate_size_px <= 4096:
-            raise InvalidInputError(
-                "--candidate-size", f"must be in [64, 4096], got {self.candidate_size_px}"
-            )
+        check_proposal_options(self.uncertainty_m, self.candidates, self.candidate_size_px)
 
 
 def _find(lowered: dict[str, str], aliases: tuple[str, ...]) -> str | None:

@@ -44,6 +44,7 @@ __all__ = [
     "assemble_frames",
     "attitude_from_matrix",
     "body_attitude_for_camera",
+    "check_proposal_options",
     "ground_elevation_sampler",
     "match_shots",
     "write_imported_flight",
@@ -166,6 +167,19 @@ def constant(data: bytes) -> Callable[[], bytes]:
     return lambda: data
 
 
+def check_proposal_options(uncertainty_m: float, candidates: int, candidate_size_px: int) -> None:
+    """``InvalidInputError`` naming the option unless the look-point uncertainty (m) is finite
+    and >= 0, at least one candidate is asked for and the candidate size is in [64, 4096] px."""
+    if not (math.isfinite(uncertainty_m) and uncertainty_m >= 0):
+        raise InvalidInputError("--uncertainty-m", f"must be >= 0, got {uncertainty_m}")
+    if candidates < 1:
+        raise InvalidInputError("--candidates", f"must be >= 1, got {candidates}")
+    if not 64 <= candidate_size_px <= 4096:
+        raise InvalidInputError(
+            "--candidate-size", f"must be in [64, 4096], got {candidate_size_px}"
+        )
+
+
 @dataclass(frozen=True)
 class ImportOptions:
     """How images meet the log and how candidates are proposed (lengths m, times s).
@@ -212,14 +226,7 @@ class ImportOptions:
             )
         if self.ground_elevation_m is not None and not math.isfinite(self.ground_elevation_m):
             raise InvalidInputError("--ground-elevation", "must be finite")
-        if not (math.isfinite(self.uncertainty_m) and self.uncertainty_m >= 0):
-            raise InvalidInputError("--uncertainty-m", f"must be >= 0, got {self.uncertainty_m}")
-        if self.candidates < 1:
-            raise InvalidInputError("--candidates", f"must be >= 1, got {self.candidates}")
-        if not 64 <= self.candidate_size_px <= 4096:
-            raise InvalidInputError(
-                "--candidate-size", f"must be in [64, 4096], got {self.candidate_size_px}"
-            )
+        check_proposal_options(self.uncertainty_m, self.candidates, self.candidate_size_px)
 
 
 @dataclass(frozen=True)
