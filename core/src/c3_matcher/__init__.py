@@ -7,9 +7,10 @@ RANSAC-filtered; the best candidate's inlier correspondences go downstream. Star
 
 from __future__ import annotations
 
-import importlib
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
+
+from c3_matcher._lazy import load_export
 
 try:
     __version__ = version("c3-matcher")  # the one version: buildflags/matrix.toml
@@ -67,12 +68,7 @@ __all__ = [*sorted(_EXPORTS), "__version__"]
 
 
 def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'c3_matcher' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+    return load_export(__name__, _EXPORTS, globals(), name)
 
 
 def __dir__() -> list[str]:

@@ -51,8 +51,9 @@ research and replay-cli. ``tests/example_plugin`` in the repository is a complet
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING, Any
+
+from c3_matcher._lazy import load_export
 
 if TYPE_CHECKING:
     from c3_matcher.config import C3Settings
@@ -176,12 +177,7 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:  # PEP 562: the record types load without pluggy
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'c3_matcher.plugins' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
-    globals()[name] = value
-    return value
+    return load_export(__name__, _EXPORTS, globals(), name)
 
 
 def __dir__() -> list[str]:  # PEP 562: the lazily loaded names show in dir() and completion
