@@ -49,6 +49,12 @@ class Features:
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
 
+    @property
+    def pair_side(self) -> tuple[NDArray[np.float32], NDArray[np.float32], tuple[int, int]]:
+        """(keypoints, descriptors, image_size): this image's three arguments of a
+        ``LightGlueRuntime.match_pair`` call (set 0 or set 1)."""
+        return self.keypoints, self.descriptors, self.image_size
+
 
 @dataclass(frozen=True, slots=True)
 class RawMatches:
