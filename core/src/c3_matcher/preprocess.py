@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -54,10 +55,41 @@ __all__ = [
     "InputRule",
     "PreparedImage",
     "QueryGeometry",
+    "area_downscale",
     "normalise_photometry",
+    "remap_linear",
 ]
 
 F64 = NDArray[np.float64]
+
+
+def area_downscale(
+    image: NDArray[np.uint8], factor: float
+) -> tuple[NDArray[np.uint8], tuple[float, float]]:
+    """``image`` shrunk ``factor`` times by area averaging (anti-aliasing before a warp that
+    shrinks it), at least 2x2 px; and the (x, y) scale from its pixels to the result's."""
+    h, w = image.shape[:2]
+    sw, sh = max(2, round(w / factor)), max(2, round(h / factor))
+    small = np.asarray(cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA), dtype=np.uint8)
+    return small, (sw / w, sh / h)
+
+
+def remap_linear(
+    src: NDArray[np.uint8], map1: NDArray[Any], map2: NDArray[Any]
+) -> NDArray[np.uint8]:
+    """``cv2.remap`` of ``src`` by ``map1``/``map2`` (either OpenCV map form), bilinear, black
+    (all channels 0) where a map points outside ``src``."""
+    return np.asarray(
+        cv2.remap(
+            src,
+            map1,
+            map2,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=(0, 0, 0, 0),
+        ),
+        dtype=np.uint8,
+    )
 
 
 def _check_pixels(image: object, field_name: str) -> NDArray[np.uint8]:
@@ -140,29 +172,14 @@ class FramePreprocessor:
         """The frame's pixels resampled once into ``geometry``'s engine image (exact lens model
         per pixel), masked to its footprint and normalised (:func:`normalise_photometry`)."""
         image = _check_pixels(frame.image, "frame.image")
-        h, w = image.shape[:2]
         # Source anti-aliasing: area-downscale first if the warp shrinks the frame a lot.
         src: NDArray[np.uint8] = image
         source_scale = (1.0, 1.0)
         shrink = geometry.nadir_shrink
         if shrink >= self.area_downscale_threshold:
-            sw, sh = max(2, round(w / shrink)), max(2, round(h / shrink))
-            src = np.asarray(
-                cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA), dtype=np.uint8
-            )
-            source_scale = (sw / w, sh / h)
+            src, source_scale = area_downscale(image, shrink)
         map1, map2 = geometry.remap_maps(calibration, source_scale, cv2.CV_16SC2)
-        warped = np.asarray(
-            cv2.remap(
-                src,
-                map1,
-                map2,
-                cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_CONSTANT,
-                borderValue=(0, 0, 0, 0),
-            ),
-            dtype=np.uint8,
-        )
+        warped = remap_linear(src, map1, map2)
         inside = self._polygon_mask(geometry.footprint_engine(), geometry.final_size)
         warped = np.asarray(cv2.bitwise_and(warped, warped, mask=inside), dtype=np.uint8)
         rgb = normalise_photometry(to_rgb(warped), inside, self.photometric)

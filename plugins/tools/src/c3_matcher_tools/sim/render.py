@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from c3_matcher import camera as cam
 from c3_matcher.dto import Attitude, CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.preprocess import area_downscale, remap_linear
 from c3_matcher_tools.sim.photometric import PhotometricShift
 
 __all__ = [
@@ -285,27 +286,13 @@ class NavCameraRenderer:
             offset = lo.astype(np.float64)
             ratio = (height_m / math.sqrt(calibration.K[0, 0] * calibration.K[1, 1])) / gsd_m
             if self.antialias and ratio >= 1.5:
-                cw, ch = src.shape[1], src.shape[0]
-                sw, sh = max(2, round(cw / ratio)), max(2, round(ch / ratio))
-                src = np.asarray(
-                    cv2.resize(src, (sw, sh), interpolation=cv2.INTER_AREA), dtype=np.uint8
-                )
-                scale = np.array([sw / cw, sh / ch])
+                src, src_scale = area_downscale(src, ratio)
+                scale = np.array(src_scale)
         map_x = ((u - (offset[0] - 0.5)) * scale[0] - 0.5).astype(np.float32)
         map_y = ((v - (offset[1] - 0.5)) * scale[1] - 0.5).astype(np.float32)
         map_x[~inside] = -10.0
         map_y[~inside] = -10.0
-        img = np.asarray(
-            cv2.remap(
-                src,
-                map_x,
-                map_y,
-                cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_CONSTANT,
-                borderValue=(0, 0, 0, 0),
-            ),
-            dtype=np.uint8,
-        )
+        img = remap_linear(src, map_x, map_y)
         if img.ndim == 2:
             img = np.asarray(cv2.cvtColor(img, cv2.COLOR_GRAY2RGB), dtype=np.uint8)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
