@@ -47,7 +47,7 @@ import itertools
 import math
 import shutil
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -444,6 +444,20 @@ class StoreProposals:
     attribution: str
     tiles_source: str
 
+    def refuse_outside(
+        self, where: str, label: Callable[[TelemetryRow], str], *, hint: str = "", shown: int = 10
+    ) -> None:
+        """``InvalidInputError`` naming ``where`` when any row looks outside the store: how many,
+        then the first ``shown`` as ``label(row)`` and their (lat, lon); ``hint`` follows the
+        zoom."""
+        if self.outside:
+            names = [f"{label(r)} ({r.lat:.6f}, {r.lon:.6f})" for r in self.outside]
+            raise InvalidInputError(
+                where,
+                f"{len(names)} frame(s) look outside the store's coverage at zoom {self.zoom}"
+                f"{hint}: " + ", ".join(names[:shown]),
+            )
+
 
 def propose_from_store(
     rows: Sequence[TelemetryRow], calibration: CameraCalibration, spec: ImportSpec
@@ -554,13 +568,7 @@ def import_csv_flight(
     proposed = propose_from_store(rows, calibration, spec)
     zoom, proposals = proposed.zoom, proposed.looks
     attribution, tiles_source = proposed.attribution, proposed.tiles_source
-    if proposed.outside:
-        outside = [f"line {r.line} ({r.lat:.6f}, {r.lon:.6f})" for r in proposed.outside]
-        raise InvalidInputError(
-            "TELEMETRY",
-            f"{len(outside)} frame(s) look outside the store's coverage at zoom {zoom}: "
-            + ", ".join(outside[:10]),
-        )
+    proposed.refuse_outside("TELEMETRY", lambda r: f"line {r.line}")
     frames: list[FrameRecord] = []
     t0 = rows[0].time_s
     base = uuid.uuid5(uuid.NAMESPACE_URL, f"c3-flight-import:{name or out.name}")

@@ -674,13 +674,9 @@ def write_imported_flight(
     proposed = propose_from_store(rows, calibration, proposer)
     zoom, proposals = proposed.zoom, proposed.looks
     attribution, tiles_source = proposed.attribution, proposed.tiles_source
-    if proposed.outside:
-        outside = [f"{r.image} ({r.lat:.6f}, {r.lon:.6f})" for r in proposed.outside]
-        raise InvalidInputError(
-            track.source,
-            f"{len(outside)} frame(s) look outside the store's coverage at zoom {zoom} (log and "
-            f"store of different places?): {', '.join(outside[:5])}",
-        )
+    proposed.refuse_outside(
+        track.source, lambda r: r.image, hint=" (log and store of different places?)", shown=5
+    )
     label = name or out.name
     base = uuid.uuid5(uuid.NAMESPACE_URL, f"c3-flight-import:{label}")
     t0 = frames[0].t_s
