@@ -81,6 +81,7 @@ __all__ = [
     "TelemetryRow",
     "import_csv_flight",
     "import_flight",
+    "imported_frame",
     "look_point",
     "propose_from_store",
     "read_telemetry",
@@ -492,6 +493,47 @@ def shuffled_candidates(
     return tuple(CandidateTruth(cands[j][0], round(0.9 - 0.1 * k, 3)) for k, j in enumerate(order))
 
 
+def imported_frame(
+    index: int,
+    row: TelemetryRow,
+    t0_s: float,
+    base: uuid.UUID,
+    suffix: str,
+    proposal: tuple[tuple[float, float], list[tuple[TileId, float]] | None],
+    spec: ImportSpec,
+    *,
+    heights: dict[str, Any],
+    extra: dict[str, Any] | None = None,
+) -> FrameRecord:
+    """The dataset record of imported frame ``index`` (image ``frames/<index><suffix>``, id from
+    ``base`` and the source image name, time from ``t0_s``, the first row's time in s) with its
+    ``proposal`` (look point (lon, lat) deg, candidates) in seeded order. Telemetry: position,
+    ``heights`` (the height keys a source knows), time, source image, look point, uncertainty
+    m, then ``extra``."""
+    look, cands = proposal
+    return FrameRecord(
+        index=index,
+        frame_id=uuid.uuid5(base, row.image),
+        image=f"frames/{index:06d}{suffix}",
+        captured_at_ns=round((row.time_s - t0_s) * 1e9),
+        attitude_deg=(row.roll_deg, row.pitch_deg, row.yaw_deg),
+        height_m=row.altitude_m,
+        candidates=shuffled_candidates(cands, spec.seed, index),
+        telemetry={
+            "lat": row.lat,
+            "lon": row.lon,
+            "altitude_m": row.altitude_m,
+            **heights,
+            "time_s": row.time_s,
+            "source_image": row.image,
+            "look_lat": look[1],
+            "look_lon": look[0],
+            "uncertainty_m": spec.uncertainty_m,
+            **(extra or {}),
+        },
+    )
+
+
 def _check_image(path: Path, calibration: CameraCalibration) -> str | None:
     if not path.is_file():
         return "no such file"
@@ -572,31 +614,13 @@ def import_csv_flight(
     frames: list[FrameRecord] = []
     t0 = rows[0].time_s
     base = uuid.uuid5(uuid.NAMESPACE_URL, f"c3-flight-import:{name or out.name}")
-    for i, (r, (lonlat, cands)) in enumerate(zip(rows, proposals, strict=True)):
+    for i, (r, proposal) in enumerate(zip(rows, proposals, strict=True)):
         ext = Path(r.image).suffix.lower() or ".jpg"
-        frames.append(
-            FrameRecord(
-                index=i,
-                frame_id=uuid.uuid5(base, r.image),
-                image=f"frames/{i:06d}{ext}",
-                captured_at_ns=round((r.time_s - t0) * 1e9),
-                attitude_deg=(r.roll_deg, r.pitch_deg, r.yaw_deg),
-                height_m=r.altitude_m,
-                candidates=shuffled_candidates(cands, spec.seed, i),
-                telemetry={
-                    "lat": r.lat,
-                    "lon": r.lon,
-                    "altitude_m": r.altitude_m,
-                    **({} if r.altitude_msl_m is None else {"altitude_msl_m": r.altitude_msl_m}),
-                    "height_source": table.height_source,
-                    "time_s": r.time_s,
-                    "source_image": r.image,
-                    "look_lat": lonlat[1],
-                    "look_lon": lonlat[0],
-                    "uncertainty_m": spec.uncertainty_m,
-                },
-            )
-        )
+        known: dict[str, Any] = {}
+        if r.altitude_msl_m is not None:
+            known["altitude_msl_m"] = r.altitude_msl_m
+        known["height_source"] = table.height_source
+        frames.append(imported_frame(i, r, t0, base, ext, proposal, spec, heights=known))
     meta = {
         "name": name or out.name,
         "store": "tiles.mbtiles",

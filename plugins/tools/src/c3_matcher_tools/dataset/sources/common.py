@@ -33,7 +33,7 @@ from c3_matcher.camera import body_from_camera
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
-from c3_matcher_tools.dataset.format import FrameRecord, write_dataset
+from c3_matcher_tools.dataset.format import write_dataset
 
 __all__ = [
     "ImportOptions",
@@ -621,8 +621,8 @@ def write_imported_flight(
     from c3_matcher_tools.dataset.importer import (
         ImportSpec,
         TelemetryRow,
+        imported_frame,
         propose_from_store,
-        shuffled_candidates,
     )
 
     out = Path(out)
@@ -681,30 +681,12 @@ def write_imported_flight(
     base = uuid.uuid5(uuid.NAMESPACE_URL, f"c3-flight-import:{label}")
     t0 = frames[0].t_s
     records = []
-    for i, (f, (lonlat, cands)) in enumerate(zip(frames, proposals, strict=True)):
+    for i, (f, row, proposal) in enumerate(zip(frames, rows, proposals, strict=True)):
+        heights = {"alt_m": None if not math.isfinite(f.alt_m) else f.alt_m}
+        extra = {"height_source": f.height_source, "flags": list(f.flags), **f.gnss}
         records.append(
-            FrameRecord(
-                index=i,
-                frame_id=uuid.uuid5(base, f.shot.name),
-                image=f"frames/{i:06d}{f.shot.suffix}",
-                captured_at_ns=round((f.t_s - t0) * 1e9),
-                attitude_deg=f.attitude,
-                height_m=f.height_m,
-                candidates=shuffled_candidates(cands, options.seed, i),
-                telemetry={
-                    "lat": f.lat,
-                    "lon": f.lon,
-                    "altitude_m": f.height_m,
-                    "alt_m": None if not math.isfinite(f.alt_m) else f.alt_m,
-                    "time_s": f.t_s,
-                    "source_image": f.shot.name,
-                    "look_lat": lonlat[1],
-                    "look_lon": lonlat[0],
-                    "uncertainty_m": options.uncertainty_m,
-                    "height_source": f.height_source,
-                    "flags": list(f.flags),
-                    **f.gnss,
-                },
+            imported_frame(
+                i, row, t0, base, f.shot.suffix, proposal, proposer, heights=heights, extra=extra
             )
         )
     report = ImportReport(
