@@ -80,7 +80,7 @@ XFEAT_SPEC = extractor_spec(
         ("descriptor_dim", XFEAT_DESCRIPTOR_DIM),
     ),
     description="XFeat sparse (upstream detectAndCompute), mask on the heat map, top-K in graph",
-    export_revision=3,  # 2: heat and reliability by row/column gathers; 3: bicubic by gathers
+    export_revision=2,  # 2: heat and reliability sampled by row/column gathers
 )
 
 LIGHTERGLUE_SPEC = matcher_spec(

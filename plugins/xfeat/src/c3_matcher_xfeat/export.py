@@ -181,8 +181,9 @@ def build_xfeat_export_module(
             x = torch.cat([xs.reshape(-1), pad]).gather(0, index)
             y = torch.cat([ys.reshape(-1), pad]).gather(0, index)
             kpts = torch.stack([x, y], -1)
-            grid = 2.0 * (kpts / span) - 1.0  # (K, 2) upstream normgrid, x and y
-            descriptors = nnf.normalize(_sample_bicubic(dense[0], grid), dim=-1)
+            sample = (2.0 * (kpts / span) - 1.0)[None, :, None, :]  # (1, K, 1, 2)
+            desc = nnf.grid_sample(dense, sample, mode="bicubic", align_corners=False)
+            descriptors = nnf.normalize(desc[0, :, :, 0].transpose(0, 1), dim=-1)
             return kpts, scores, descriptors
 
     def _source(grid: torch.Tensor, plane: torch.Tensor, axis: int) -> torch.Tensor:
@@ -229,41 +230,6 @@ def build_xfeat_export_module(
         wy0, wy1 = wy0[:, None], wy1[:, None]
         wx0, wx1 = wx0[None, :], wx1[None, :]
         return nw * (wx0 * wy0) + ne * (wx1 * wy0) + sw * (wx0 * wy1) + se * (wx1 * wy1)
-
-    def _cubic_weights(t: torch.Tensor) -> torch.Tensor:
-        """Bicubic convolution weights (A = -0.75, as ``grid_sample``) of the four taps
-        floor - 1 .. floor + 2 at fractional offset ``t`` (K,) -> (K, 4)."""
-        a = -0.75
-
-        def near(x: torch.Tensor) -> torch.Tensor:
-            return ((a + 2) * x - (a + 3)) * x * x + 1
-
-        def far(x: torch.Tensor) -> torch.Tensor:
-            return ((a * x - 5 * a) * x + 8 * a) * x - 4 * a
-
-        return torch.stack([far(t + 1), near(t), near(1 - t), far(2 - t)], -1)
-
-    def _sample_bicubic(plane: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
-        """``grid_sample(mode="bicubic", align_corners=False)`` (zero padding) of ``plane``
-        (C, H', W') at the normalised points ``grid`` (K, 2) -> (K, C): 16 taps per point
-        gathered as rows of the (H' W', C) plane and weighted (ONNX Runtime's GridSample
-        kernel is scalar; the same samples as gathers run several times faster)."""
-        c = plane.shape[0]
-        rows = plane.reshape(c, -1).transpose(0, 1)  # (H' W', C)
-        ones = torch.ones_like(plane[0])
-        size = torch.stack([ones.sum(dim=1)[0], ones.sum(dim=0)[0]])  # (W', H')
-        src = ((grid + 1) * size - 1) / 2  # (K, 2)
-        base = torch.floor(src)
-        offsets = torch.arange(-1, 3, dtype=src.dtype)  # (4,)
-        taps = base[:, :, None] + offsets  # (K, 2, 4)
-        inside = ((taps >= 0) & (taps <= (size - 1)[None, :, None])).to(src.dtype)
-        wx = _cubic_weights(src[:, 0] - base[:, 0]) * inside[:, 0]  # (K, 4)
-        wy = _cubic_weights(src[:, 1] - base[:, 1]) * inside[:, 1]
-        index = taps.clamp(min=0).minimum((size - 1)[None, :, None]).to(torch.int64)
-        flat = index[:, 1, :, None] * size[0].to(torch.int64) + index[:, 0, None, :]  # (K,4,4)
-        values = rows.index_select(0, flat.reshape(-1)).reshape(-1, 4, 4, c)
-        across = (values * wx[:, None, :, None]).sum(dim=2)  # (K, 4 rows, C)
-        return (across * wy[:, :, None]).sum(dim=1)
 
     net = copy.deepcopy(reference.net).eval()
     return XFeatForExport(net, top_k, float(detection_threshold)).eval()
