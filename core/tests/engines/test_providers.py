@@ -166,15 +166,14 @@ def test_config_refuses_unknown_or_empty_provider_lists() -> None:
 
 
 def test_lightglue_filter_threshold_reaches_the_runtime() -> None:
-    from c3_matcher.compose import build_default_helpers
+    from c3_matcher.compose import build_default_helpers, strategy_settings
     from c3_matcher.config import load_settings
 
     settings = load_settings(env={"C3_MATCHER_LIGHTGLUE__FILTER_THRESHOLD": "0.02"})
     assert build_default_helpers(settings)["c3_lightglue_runtime"].filter_threshold == 0.02
-    assert (
-        build_default_helpers(load_settings(env={}))["c3_lightglue_runtime"].filter_threshold
-        == 0.01
-    )
+    unset = load_settings(env={})
+    own = strategy_settings(unset).lightglue.filter_threshold  # the strategy's own default
+    assert build_default_helpers(unset)["c3_lightglue_runtime"].filter_threshold == own
 
 
 def test_tensorrt_fp16_is_opt_in(tmp_path) -> None:
