@@ -58,13 +58,7 @@ def recording(pairs: list[dict[str, Any]]) -> Iterator[None]:
         return raw
 
     def observed(self: AdaptiveLightGlue, layer: int, out: Any, side0: Any, side1: Any) -> str:
-        head = self._run(
-            self._feeds(
-                final0=side0.state, final1=side1.state, final_layer=np.array([layer], np.int64)
-            )
-        )
-        matched = np.asarray(head["matches0"]).reshape(-1) > -1
-        scores = np.asarray(head["mscores0"]).reshape(-1)[matched]
+        scores = self.mutual_scores(layer, side0, side1)
         levels.append(
             [
                 [int((np.asarray(out[f"matchability{i}"]) > level).sum()) for level in LEVELS]

@@ -249,15 +249,19 @@ class AdaptiveLightGlue:
 
     def _confident_matches(self, layer: int, side0: _Side, side1: _Side) -> int:
         """The mutual matches the assignment head gives after ``layer`` whose confidence
-        exceeds ``exit_confidence`` (one head call on the kept points)."""
+        exceeds ``exit_confidence``."""
+        return int((self.mutual_scores(layer, side0, side1) > self.exit_confidence).sum())
+
+    def mutual_scores(self, layer: int, side0: _Side, side1: _Side) -> NDArray[np.float32]:
+        """The confidences of the mutual matches the assignment head gives after ``layer`` (one
+        head call on the kept points)."""
         out = self._run(
             self._feeds(
                 final0=side0.state, final1=side1.state, final_layer=np.array([layer], np.int64)
             )
         )
         matched = np.asarray(out["matches0"]).reshape(-1) > -1
-        scores = np.asarray(out["mscores0"]).reshape(-1)
-        return int((scores[matched] > self.exit_confidence).sum())
+        return np.asarray(out["mscores0"], np.float32).reshape(-1)[matched]
 
     def _after_layer(
         self, layer: int, out: Mapping[str, NDArray[Any]], side0: _Side, side1: _Side
