@@ -103,10 +103,11 @@ where = ["src"]
         "flags": data["flags"],
         "tools": data["tools"],
     }
+    # The row as one line of data: matrix.toml is where it is read and edited.
     module = (
         '"""Build profile ' + profile + ' (GENERATED from buildflags/matrix.toml)."""\n\n'
         "from typing import Any\n\n"
-        f"PROFILE: dict[str, Any] = {pprint.pformat(row, sort_dicts=True)}\n"
+        f"PROFILE: dict[str, Any] = {pprint.pformat(row, width=sys.maxsize)}\n"
     )
     base = ROOT / profile
     return {base / "pyproject.toml": pyproject, base / "src" / pkg / "__init__.py": module}
