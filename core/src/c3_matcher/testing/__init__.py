@@ -8,31 +8,7 @@ contract kit is ``c3_matcher.testing.contract``.
 from __future__ import annotations
 
 from c3_matcher.fdr import InMemoryFdr
-from c3_matcher.testing.fakes import (
-    FakeBackend,
-    FakeClock,
-    FakeInferenceRuntime,
-    FakeLightGlueRuntime,
-    FakeRansacFilter,
-    ScriptedCandidate,
-    ScriptedRig,
-    SequenceRansacFilter,
-    make_frame,
-    make_rerank,
-    scripted_pipeline,
-)
+from c3_matcher.testing import fakes
+from c3_matcher.testing.fakes import *  # noqa: F403 (the doubles: fakes.__all__)
 
-__all__ = [
-    "FakeBackend",
-    "FakeClock",
-    "FakeInferenceRuntime",
-    "FakeLightGlueRuntime",
-    "FakeRansacFilter",
-    "InMemoryFdr",
-    "ScriptedCandidate",
-    "ScriptedRig",
-    "SequenceRansacFilter",
-    "make_frame",
-    "make_rerank",
-    "scripted_pipeline",
-]
+__all__ = ["InMemoryFdr", *fakes.__all__]

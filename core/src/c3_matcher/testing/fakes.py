@@ -116,17 +116,10 @@ class FakeLightGlueRuntime:
         self.script = list(script)
         self.calls: list[int] = []
 
-    def match_pair(
-        self,
-        kpts0: NDArray[np.float32],
-        desc0: NDArray[np.float32],
-        size0: tuple[int, int],
-        kpts1: NDArray[np.float32],
-        desc1: NDArray[np.float32],
-        size1: tuple[int, int],
-        *,
-        feature_type: str,
-    ) -> RawMatches:
+    def match_pair(self, *pair: Any, feature_type: str) -> RawMatches:
+        """``LightGlueRuntime.match_pair``; ``pair`` is (kpts0, desc0, size0, kpts1, desc1,
+        size1), as the protocol states it."""
+        kpts0, _, _, kpts1, _, _ = pair
         mark = int(kpts1[0, 1]) - 1 if len(kpts1) else -1
         self.calls.append(mark)
         if 0 <= mark < len(self.script) and self.script[mark].fail_match:
