@@ -17,6 +17,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from c3_matcher import protocols
 from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.errors import AirborneBootstrapError, ConfigurationError
 from c3_matcher.fdr import JsonlFdrRecorder
@@ -25,14 +26,7 @@ from c3_matcher.logs import LoggingHandle, configure_logging, log_event
 from c3_matcher.plugins.manager import PluginHost, discover
 from c3_matcher.plugins.types import StrategyDefaults
 from c3_matcher.profiles import installed_profile
-from c3_matcher.protocols import (
-    Clock,
-    CrossDomainMatcher,
-    FdrClient,
-    InferenceRuntime,
-    LightGlueRuntime,
-    RansacFilter,
-)
+from c3_matcher.protocols import Clock, CrossDomainMatcher, FdrClient
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.strategy import engine_startup_probe
 
@@ -53,9 +47,9 @@ AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS: Mapping[str, tuple[str, ...]] = {
 }
 OPTIONAL_PRE_CONSTRUCTED_KEYS = ("clock", "c13_fdr")
 _KEY_TYPES: Mapping[str, type] = {
-    "c3_lightglue_runtime": LightGlueRuntime,
-    "c282_ransac_filter": RansacFilter,
-    "c7_inference": InferenceRuntime,
+    "c3_lightglue_runtime": protocols.LightGlueRuntime,
+    "c282_ransac_filter": protocols.RansacFilter,
+    "c7_inference": protocols.InferenceRuntime,
     "clock": Clock,
     "c13_fdr": FdrClient,
 }

@@ -220,6 +220,18 @@ class EngineSettings(_Section):
             raise ValueError(exc.reason) from None
 
 
+def _adaptive_share(description: str, *, upstream: str) -> Any:
+    """A share in [-1, 1] of LightGlue's adaptive mode: -1 switches it off, None (the default)
+    takes upstream's value for the feature type (``upstream`` states it)."""
+    return Field(
+        None,
+        ge=-1,
+        le=1,
+        description=f"{description}; -1 off; None: upstream's default for the feature type "
+        f"({upstream})",
+    )
+
+
 class LightGlueSettings(_Section):
     """The ``[lightglue]`` table: how the LightGlue-family matchers run."""
 
@@ -238,19 +250,13 @@ class LightGlueSettings(_Section):
         "the strategy's own default, chosen by measurement per strategy (docs/precision.md); "
         "set: every strategy uses it",
     )
-    depth_confidence: float | None = Field(
-        None,
-        ge=-1,
-        le=1,
-        description="early exit (adaptive mode): stop when this share of tokens is confident; "
-        "-1 off; None: upstream's default for the feature type (0.95; -1 for LighterGlue)",
+    depth_confidence: float | None = _adaptive_share(
+        "early exit (adaptive mode): stop when this share of tokens is confident",
+        upstream="0.95; -1 for LighterGlue",
     )
-    width_confidence: float | None = Field(
-        None,
-        ge=-1,
-        le=1,
-        description="point pruning (adaptive mode): drop points whose matchability is below "
-        "1 - this; -1 off; None: upstream's default (0.99; 0.95 for LighterGlue)",
+    width_confidence: float | None = _adaptive_share(
+        "point pruning (adaptive mode): drop points whose matchability is below 1 - this",
+        upstream="0.99; 0.95 for LighterGlue",
     )
     exit_matches: int | None = Field(
         None,

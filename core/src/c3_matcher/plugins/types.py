@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypedDict
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.protocols import CrossDomainMatcher
@@ -13,13 +13,35 @@ from c3_matcher.protocols import CrossDomainMatcher
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
-__all__ = ["StrategyDefaults", "StrategyFactory", "StrategySpec"]
+    from c3_matcher.health import RollingHealthWindow
+    from c3_matcher.protocols import (
+        Clock,
+        FdrClient,
+        InferenceRuntime,
+        LightGlueRuntime,
+        RansacFilter,
+    )
+
+__all__ = ["StrategyDefaults", "StrategyFactory", "StrategyHelpers", "StrategySpec"]
 
 _NAME = re.compile(r"^[a-z][a-z0-9_]{1,63}$")
 
 
 StrategyFactory = Callable[..., CrossDomainMatcher]
-"""``create(...)`` of a strategy: called once by ``compose_root`` with keyword arguments."""
+"""``create(...)`` of a strategy: called once by ``compose_root`` with keyword arguments
+``config`` (``C3Settings``), ``options`` and the ``StrategyHelpers``."""
+
+
+class StrategyHelpers(TypedDict):
+    """The shared helpers ``compose_root`` hands a strategy's ``create`` (keyword arguments):
+    the runtimes, RANSAC, the FDR client and clock, and the matcher's health window."""
+
+    inference_runtime: InferenceRuntime
+    lightglue_runtime: LightGlueRuntime
+    ransac_filter: RansacFilter
+    health_window: RollingHealthWindow
+    fdr_client: FdrClient
+    clock: Clock
 
 
 @dataclass(frozen=True, slots=True)

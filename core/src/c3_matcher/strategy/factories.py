@@ -5,24 +5,24 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Unpack
 
 from pydantic import BaseModel
 
 from c3_matcher.config import C3Settings
-from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher, PipelineSettings
-from c3_matcher.plugins.types import StrategyFactory
-from c3_matcher.protocols import (
-    Clock,
-    CrossDomainMatcher,
-    FdrClient,
-    InferenceRuntime,
-    LightGlueRuntime,
-    RansacFilter,
-)
+from c3_matcher.plugins.types import StrategyFactory, StrategyHelpers
+from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.strategy.config import ExtractorStrategyConfig
 from c3_matcher.strategy.matcher import ExtractorMatcher
+
+
+def _validated(options_model: type[BaseModel] | None, options: Any) -> Any:
+    """``options`` validated with ``options_model`` (a mapping, or None for its defaults);
+    options already of that model, or of a strategy without one, as they are."""
+    if options_model is not None and not isinstance(options, options_model):
+        return options_model.model_validate(options or {})
+    return options
 
 
 def strategy_factory(
@@ -30,34 +30,23 @@ def strategy_factory(
     make_config: Callable[[C3Settings, Any], ExtractorStrategyConfig],
     options_model: type[BaseModel] | None = None,
 ) -> StrategyFactory:
-    """A strategy's ``create(config, *, lightglue_runtime, ransac_filter,
-    inference_runtime, health_window, fdr_client, clock, options)`` from two facts: its matcher
-    class and how its config is made from ``C3Settings`` and its validated options (a mapping is
-    validated with ``options_model`` here; None means its defaults)."""
+    """A strategy's ``create(config, *, options, **helpers)`` (``StrategyHelpers``) from two
+    facts: its matcher class and how its config is made from ``C3Settings`` and its validated
+    options (a mapping is validated with ``options_model`` here; None means its defaults)."""
 
     def create(
-        config: C3Settings,
-        *,
-        lightglue_runtime: LightGlueRuntime,
-        ransac_filter: RansacFilter,
-        inference_runtime: InferenceRuntime,
-        health_window: RollingHealthWindow,
-        fdr_client: FdrClient,
-        clock: Clock,
-        options: Any = None,
+        config: C3Settings, *, options: Any = None, **helpers: Unpack[StrategyHelpers]
     ) -> CrossDomainMatcher:
         """``create``: resolve the strategy's engines, load them now (start-up) and
         return its wired matcher."""
-        if options_model is not None and not isinstance(options, options_model):
-            options = options_model.model_validate(options or {})
         return matcher_class(
-            inference_runtime,
-            lightglue_runtime,
-            ransac_filter,
-            fdr_client,
-            health_window,
-            make_config(config, options),
-            clock,
+            helpers["inference_runtime"],
+            helpers["lightglue_runtime"],
+            helpers["ransac_filter"],
+            helpers["fdr_client"],
+            helpers["health_window"],
+            make_config(config, _validated(options_model, options)),
+            helpers["clock"],
         )
 
     return create
@@ -76,23 +65,14 @@ def backend_strategy_factory(
     used. Descriptors may be float32 or packed binary uint8 (``c3_matcher.features``)."""
 
     def create(
-        config: C3Settings,
-        *,
-        ransac_filter: RansacFilter,
-        health_window: RollingHealthWindow,
-        fdr_client: FdrClient,
-        clock: Clock,
-        options: Any = None,
-        **_runtimes: Any,
+        config: C3Settings, *, options: Any = None, **helpers: Unpack[StrategyHelpers]
     ) -> CrossDomainMatcher:
-        if options_model is not None and not isinstance(options, options_model):
-            options = options_model.model_validate(options or {})
         return PipelineMatcher(
-            make_backend(config, options),
-            ransac_filter,
-            fdr_client,
-            health_window,
-            clock,
+            make_backend(config, _validated(options_model, options)),
+            helpers["ransac_filter"],
+            helpers["fdr_client"],
+            helpers["health_window"],
+            helpers["clock"],
             PipelineSettings.from_settings(config.matcher),
             tile_cache_size=config.matcher.tile_cache_size,
         )
