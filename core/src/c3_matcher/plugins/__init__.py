@@ -21,9 +21,10 @@ Everything a plugin needs is importable from here (names load lazily, PEP 562: i
 record types in ``c3_matcher.plugins.types`` loads no pluggy, OpenCV or ONNX Runtime).
 
 ``factory`` is called once at start-up by ``compose_root`` with keyword arguments ``config``
-(``C3Settings``), ``inference_runtime``, ``lightglue_runtime``, ``ransac_filter``,
-``health_window``, ``fdr_client``, ``clock`` and ``options`` (your validated ``options_model`` or
-None) and returns a ``CrossDomainMatcher``; load your engines there (start-up, not first frame).
+(``C3Settings``), ``options`` (your validated ``options_model`` or None) and the shared helpers
+(``StrategyHelpers``: ``inference_runtime``, ``lightglue_runtime``, ``ransac_filter``,
+``health_window``, ``fdr_client``, ``clock``) and returns a ``CrossDomainMatcher``; load your
+engines there (start-up, not first frame).
 There is one matcher class, ``PipelineMatcher``: it runs the per-frame loop and implements the
 whole matcher contract; a strategy supplies its ``FeatureBackend`` (extract + match). An
 "extractor engine + pair matcher" strategy writes no class at all: its config
@@ -66,7 +67,7 @@ if TYPE_CHECKING:
     from c3_matcher.plugins.hookspecs import PROJECT_NAME, hookimpl, hookspec
     from c3_matcher.plugins.manager import ENTRY_POINT_GROUP, LoadedPlugin, PluginHost
     from c3_matcher.plugins.strategy_hooks import strategy_hooks
-    from c3_matcher.plugins.types import StrategyFactory, StrategySpec
+    from c3_matcher.plugins.types import StrategyFactory, StrategyHelpers, StrategySpec
     from c3_matcher.preprocess import InputRule, PreparedImage
     from c3_matcher.protocols import (
         Clock,
@@ -98,6 +99,7 @@ _EXPORTS: dict[str, str] = {
     "hookspec": "c3_matcher.plugins.hookspecs",
     "strategy_hooks": "c3_matcher.plugins.strategy_hooks",
     "StrategyFactory": "c3_matcher.plugins.types",
+    "StrategyHelpers": "c3_matcher.plugins.types",
     "StrategySpec": "c3_matcher.plugins.types",
     "EngineSpec": "c3_matcher.engines.spec",
     "TensorSpec": "c3_matcher.engines.spec",
@@ -163,6 +165,7 @@ __all__ = [
     "RawMatches",
     "RollingHealthWindow",
     "StrategyFactory",
+    "StrategyHelpers",
     "StrategySpec",
     "TensorSpec",
     "WeightsRef",
