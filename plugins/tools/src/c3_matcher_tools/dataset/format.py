@@ -40,14 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from c3_matcher.dto import (
-    Attitude,
-    CameraCalibration,
-    NavCameraFrame,
-    RerankCandidate,
-    RerankResult,
-    TileId,
-)
+from c3_matcher import dto
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
@@ -70,7 +63,7 @@ FORMAT = "c3-flight/1"
 class CandidateTruth:
     """One candidate of a frame and its ground truth (see the module docstring)."""
 
-    tile_id: TileId
+    tile_id: dto.TileId
     score: float
     is_true: bool | None = None
     distance_m: float | None = None
@@ -97,7 +90,7 @@ class CandidateTruth:
         is_true = data.get("is_true")
         distance = data.get("distance_m")
         return cls(
-            TileId(int(z), float(lat), float(lon)),
+            dto.TileId(int(z), float(lat), float(lon)),
             float(data.get("score", 1.0)),
             None if is_true is None else bool(is_true),
             None if distance is None else float(distance),
@@ -135,8 +128,8 @@ class FrameRecord:
         return next((i for i, c in enumerate(self.candidates) if c.is_true), None)
 
     @property
-    def attitude(self) -> Attitude:
-        return Attitude.from_degrees(*self.attitude_deg)
+    def attitude(self) -> dto.Attitude:
+        return dto.Attitude.from_degrees(*self.attitude_deg)
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {
@@ -179,7 +172,7 @@ class FlightDataset:
 
     root: Path
     meta: dict[str, Any]
-    calibration: CameraCalibration
+    calibration: dto.CameraCalibration
     frames: tuple[FrameRecord, ...]
     max_image_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
 
@@ -198,9 +191,9 @@ class FlightDataset:
     def open_store(self) -> MBTilesStore:
         return MBTilesStore(self.store_path)
 
-    def nav_frame(self, frame: FrameRecord) -> NavCameraFrame:
+    def nav_frame(self, frame: FrameRecord) -> dto.NavCameraFrame:
         """The frame as C1 delivers it: pixels read from the dataset, attitude and height."""
-        return NavCameraFrame(
+        return dto.NavCameraFrame(
             frame.frame_id,
             read_image(self.root / frame.image, self.max_image_pixels),
             frame.captured_at_ns,
@@ -208,12 +201,12 @@ class FlightDataset:
             frame.height_m,
         )
 
-    def rerank(self, frame: FrameRecord, store: MBTilesStore) -> RerankResult:
+    def rerank(self, frame: FrameRecord, store: MBTilesStore) -> dto.RerankResult:
         """The frame's RerankResult: lazy handles on ``store`` in the recorded order."""
-        return RerankResult(
+        return dto.RerankResult(
             frame.frame_id,
             tuple(
-                RerankCandidate(
+                dto.RerankCandidate(
                     c.tile_id,
                     c.score,
                     store.handle(c.tile_id, self.candidate_size_px),
@@ -243,7 +236,7 @@ def with_attitude_noise(dataset: FlightDataset, sigma_deg: float, seed: int = 0)
     return dataclasses.replace(dataset, meta=meta, frames=tuple(frames))
 
 
-def calibration_to_json(calibration: CameraCalibration) -> dict[str, Any]:
+def calibration_to_json(calibration: dto.CameraCalibration) -> dict[str, Any]:
     out: dict[str, Any] = {
         "K": calibration.K.tolist(),
         "distortion": calibration.distortion.tolist(),
@@ -257,7 +250,7 @@ def calibration_to_json(calibration: CameraCalibration) -> dict[str, Any]:
 def write_dataset(
     root: Path,
     meta: dict[str, Any],
-    calibration: CameraCalibration,
+    calibration: dto.CameraCalibration,
     frames: Sequence[FrameRecord],
 ) -> Path:
     """Write ``dataset.json``, ``calibration.json`` and ``frames.jsonl`` under ``root`` (the
