@@ -22,6 +22,7 @@ __all__ = [
     "WeightsRef",
     "extractor_spec",
     "file_sha256",
+    "lightglue_engine_specs",
     "lightglue_io",
     "lightglue_spec",
     "matcher_spec",
@@ -196,8 +197,6 @@ def extractor_spec(
     variant: str,
     weights: WeightsRef,
     exporter: str,
-    top_k: int,
-    descriptor_dim: int,
     size_multiple: int,
     options: EngineOptions,
     description: str,
@@ -206,7 +205,9 @@ def extractor_spec(
     """The ``EngineSpec`` of a keypoint extractor with the shared extractor I/O: inputs ``image``
     (1, 3, H, W) RGB in [0, 1] and ``mask`` (1, 1, H, W), H and W multiples of ``size_multiple``;
     outputs the top ``top_k`` ``keypoints`` (K, 2) px, ``keypoint_scores`` (K,) and
-    ``descriptors`` (K, ``descriptor_dim``); input rule ``hw<multiple>-k<top_k>``."""
+    ``descriptors`` (K, ``descriptor_dim``); input rule ``hw<multiple>-k<top_k>``. ``top_k`` and
+    ``descriptor_dim`` are read from ``options`` (the exporter's parameters state them)."""
+    top_k, descriptor_dim = (int(dict(options)[name]) for name in ("top_k", "descriptor_dim"))
     return EngineSpec(
         model=model,
         variant=variant,
@@ -293,3 +294,31 @@ def lightglue_spec(
         description=description,
         export_revision=export_revision,
     )
+
+
+def lightglue_engine_specs(
+    feature_type: str, *, weights: WeightsRef, exporters: str, descriptor_dim: int
+) -> tuple[EngineSpec, EngineSpec]:
+    """Upstream LightGlue for the features ``feature_type`` as its two engines: the single graph
+    ``lightglue/<feature_type>`` (``lightglue_spec``) and its steps engine
+    ``lightglue/<feature_type>-steps`` (early exit and point pruning, on ONNX Runtime).
+    ``exporters`` is the plugin's build-time module holding ``export_lightglue_<feature_type>``
+    and ``export_lightglue_<feature_type>_steps``."""
+    from c3_matcher.engines.lightglue_adaptive import steps_engine_spec
+
+    exporter = f"{exporters}:export_lightglue_{feature_type}"
+    label = feature_type.upper()
+    full = lightglue_spec(
+        feature_type,
+        weights=weights,
+        exporter=exporter,
+        descriptor_dim=descriptor_dim,
+        description=f"LightGlue for {label}, {LIGHTGLUE_LAYERS} layers, no adaptive pruning, "
+        "threshold applied at run time",
+    )
+    steps = steps_engine_spec(
+        full,
+        exporter=f"{exporter}_steps",
+        description=f"LightGlue for {label} in steps: upstream early exit and point pruning",
+    )
+    return full, steps

