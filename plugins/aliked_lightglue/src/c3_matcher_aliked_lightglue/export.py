@@ -72,8 +72,7 @@ from c3_matcher_tools.engines.export.extractor import (
     strict_maxima_candidates,
     verification_inputs,
 )
-from c3_matcher_tools.engines.export.lightglue import export_lightglue
-from c3_matcher_tools.engines.export.lightglue_steps import export_lightglue_steps
+from c3_matcher_tools.engines.export.lightglue_steps import lightglue_exporters
 from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
 
 __all__ = [
@@ -429,21 +428,11 @@ def aliked_features_fn() -> Callable[
     return features
 
 
-def export_lightglue_aliked(request: ExportRequest) -> ExportReport:
-    """Export LightGlue for ALIKED and verify it on real kornia-ALIKED (n16) features (the
-    kit's ``export_lightglue``)."""
-    return export_lightglue(
-        request,
-        features_fn=aliked_features_fn(),
-        input_dim=int(request.spec.option("input_dim")),
-        feature_type="aliked",
-    )
-
-
-def export_lightglue_aliked_steps(request: ExportRequest) -> ExportReport:
-    """``lightglue/aliked-steps``: the steps graph, verified against upstream's adaptive
-    LightGlue on real kornia-ALIKED (n16) features (the kit's ``export_lightglue_steps``)."""
-    return export_lightglue_steps(request, features_fn=aliked_features_fn(), feature_type="aliked")
+export_lightglue_aliked, export_lightglue_aliked_steps = lightglue_exporters(
+    "aliked", aliked_features_fn
+)
+"""The exporters of ``lightglue/aliked`` and ``lightglue/aliked-steps`` (the kit's, verified on
+real kornia-ALIKED n16 features)."""
 
 
 class AlikedLightGlueReference(PyTorchReference):

@@ -31,8 +31,7 @@ from c3_matcher_disk_lightglue.engines import (
 )
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 from c3_matcher_tools.engines.export.extractor import KeypointSet, export_and_verify_extractor
-from c3_matcher_tools.engines.export.lightglue import export_lightglue
-from c3_matcher_tools.engines.export.lightglue_steps import export_lightglue_steps
+from c3_matcher_tools.engines.export.lightglue_steps import lightglue_exporters
 from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
 
 __all__ = [
@@ -212,21 +211,9 @@ def disk_features_fn() -> Callable[
     return lambda rgb, n: disk_reference_features(disk, rgb, n)
 
 
-def export_lightglue_disk(request: ExportRequest) -> ExportReport:
-    """Export LightGlue for DISK and verify it on real kornia-DISK features (the kit's
-    ``export_lightglue``)."""
-    return export_lightglue(
-        request,
-        features_fn=disk_features_fn(),
-        input_dim=int(request.spec.option("input_dim")),
-        feature_type="disk",
-    )
-
-
-def export_lightglue_disk_steps(request: ExportRequest) -> ExportReport:
-    """``lightglue/disk-steps``: the steps graph, verified against upstream's adaptive LightGlue
-    on real kornia-DISK features (the kit's ``export_lightglue_steps``)."""
-    return export_lightglue_steps(request, features_fn=disk_features_fn(), feature_type="disk")
+export_lightglue_disk, export_lightglue_disk_steps = lightglue_exporters("disk", disk_features_fn)
+"""The exporters of ``lightglue/disk`` and ``lightglue/disk-steps`` (the kit's, verified on real
+kornia-DISK features)."""
 
 
 class DiskLightGlueReference(PyTorchReference):

@@ -41,6 +41,7 @@ from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_a
 from c3_matcher_tools.engines.export.lightglue import (
     FeaturesFn,
     assignment_matches,
+    export_lightglue,
     feature_pairs,
     load_lightglue_reference,
     verification_pairs,
@@ -51,7 +52,10 @@ __all__ = [
     "STEPS_TOLERANCES",
     "LightGlueStepsForExport",
     "export_lightglue_steps",
+    "lightglue_exporters",
 ]
+
+Exporter = Callable[[ExportRequest], ExportReport]
 
 STEPS_TOLERANCES: Mapping[str, float] = {
     "min_identical_share": 0.98,  # |ours & ref| / |ours | ref| on every pair with >= 20 matches
@@ -325,3 +329,25 @@ def export_lightglue_steps(
         notes={"depth_confidence": depth, "width_confidence": width, "n_layers": n_layers},
         nothing_run="no verification pair was run",
     )
+
+
+def lightglue_exporters(
+    feature_type: str, features_fn: Callable[[], FeaturesFn]
+) -> tuple[Exporter, Exporter]:
+    """The two exporters of upstream LightGlue for ``feature_type`` that a plugin's engine specs
+    name (``lightglue_engine_specs``): the single graph (``export_lightglue``, ``input_dim`` from
+    the spec) and the steps graph (``export_lightglue_steps``), each verified on real features of
+    the reference extractor ``features_fn()`` makes when the exporter runs."""
+
+    def export_full(request: ExportRequest) -> ExportReport:
+        return export_lightglue(
+            request,
+            features_fn=features_fn(),
+            input_dim=int(request.spec.option("input_dim")),
+            feature_type=feature_type,
+        )
+
+    def export_steps(request: ExportRequest) -> ExportReport:
+        return export_lightglue_steps(request, features_fn=features_fn(), feature_type=feature_type)
+
+    return export_full, export_steps
