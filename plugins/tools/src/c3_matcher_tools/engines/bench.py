@@ -54,24 +54,25 @@ class BenchResult:
     detail: dict[str, Any]
 
 
-def _peak_rss_mib() -> float:
+def _proc_status_mib(field: str) -> float | None:
+    """``field`` (``VmHWM``, ``VmRSS``: kB) of /proc/self/status in MiB; None where it is not."""
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
+            if line.startswith(f"{field}:"):
                 return int(line.split()[1]) / 1024.0
     except OSError:
         pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return None
+
+
+def _peak_rss_mib() -> float:
+    peak = _proc_status_mib("VmHWM")
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 if peak is None else peak
 
 
 def _current_rss_mib() -> float:
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return float("nan")
+    current = _proc_status_mib("VmRSS")
+    return float("nan") if current is None else current
 
 
 def _read_rgb(path: Path, size: tuple[int, int] | None = None) -> NDArray[np.uint8]:

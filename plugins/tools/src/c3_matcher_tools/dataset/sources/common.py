@@ -47,8 +47,17 @@ __all__ = [
     "check_proposal_options",
     "ground_elevation_sampler",
     "match_shots",
+    "needs_logs_extra",
     "write_imported_flight",
 ]
+
+
+def needs_logs_extra(path: Path, reading: str) -> InvalidInputError:
+    """The refusal when the library reading ``path`` (``reading``: what it is) is missing."""
+    return InvalidInputError(
+        str(path), f"reading {reading} needs the logs extra: pip install 'c3-matcher-tools[logs]'"
+    )
+
 
 F64 = NDArray[np.float64]
 

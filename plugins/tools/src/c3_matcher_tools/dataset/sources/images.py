@@ -21,7 +21,7 @@ from typing import Any
 import cv2
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import Shot, constant
+from c3_matcher_tools.dataset.sources.common import Shot, constant, needs_logs_extra
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -50,10 +50,7 @@ def _reader(path: Path) -> Any:
     try:
         import exifread
     except ImportError:
-        raise InvalidInputError(
-            str(path),
-            "reading photo metadata needs the logs extra: pip install 'c3-matcher-tools[logs]'",
-        ) from None
+        raise needs_logs_extra(path, "photo metadata") from None
     return exifread
 
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import LogTrack, Series
+from c3_matcher_tools.dataset.sources.common import LogTrack, Series, needs_logs_extra
 
 __all__ = ["read_mavlink"]
 
@@ -57,10 +57,7 @@ def _open(path: Path, chatter: io.StringIO) -> Any:
     try:
         from pymavlink import mavutil
     except ImportError:
-        raise InvalidInputError(
-            str(path),
-            "reading an ArduPilot log needs the logs extra: pip install 'c3-matcher-tools[logs]'",
-        ) from None
+        raise needs_logs_extra(path, "an ArduPilot log") from None
     if not path.is_file():
         raise InvalidInputError(str(path), "no such file")
     if path.suffix.lower() != ".tlog":

@@ -29,6 +29,7 @@ from c3_matcher_tools.dataset.sources.common import (
     Shot,
     attitude_from_matrix,
     constant,
+    needs_logs_extra,
 )
 
 __all__ = ["BagTopics", "read_bag"]
@@ -57,10 +58,7 @@ def _reader(path: Path) -> Any:
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
     except ImportError:
-        raise InvalidInputError(
-            str(path),
-            "reading a ROS bag needs the logs extra: pip install 'c3-matcher-tools[logs]'",
-        ) from None
+        raise needs_logs_extra(path, "a ROS bag") from None
     if not path.exists():
         raise InvalidInputError(str(path), "no such bag")
     bag = path.parent if path.is_file() and path.suffix in (".db3", ".mcap") else path

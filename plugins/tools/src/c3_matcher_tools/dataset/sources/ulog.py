@@ -24,6 +24,7 @@ from c3_matcher_tools.dataset.sources.common import (
     LogTrack,
     Series,
     attitude_from_matrix,
+    needs_logs_extra,
     quaternion_matrix,
 )
 
@@ -46,9 +47,7 @@ def _load(path: Path) -> Any:
     try:
         from pyulog import ULog
     except ImportError:
-        raise InvalidInputError(
-            str(path), "reading a ULog needs the logs extra: pip install 'c3-matcher-tools[logs]'"
-        ) from None
+        raise needs_logs_extra(path, "a ULog") from None
     if not path.is_file():
         raise InvalidInputError(str(path), "no such file")
     try:
