@@ -6,7 +6,7 @@ record and what a frame's terminal records report (:class:`FrameEvidence`). Quer
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -69,15 +69,7 @@ class GeometryRefusal:
 
     def as_record(self) -> dict[str, Any]:
         """The refusal as it appears in logs, FDR records and diagnostics."""
-        row: dict[str, Any] = {
-            "tile_id": self.tile_id,
-            "candidate_index": self.candidate_index,
-            "inlier_count": self.inlier_count,
-            "reason": self.reason,
-        }
-        if self.rotation_deg is not None:
-            row["rotation_deg"] = self.rotation_deg
-        return row
+        return _record(self)
 
 
 @dataclass(frozen=True)
@@ -102,15 +94,8 @@ class RefineRecord:
     reason: str | None = None
 
     def as_record(self) -> dict[str, Any]:
-        row: dict[str, Any] = {
-            "candidate_index": self.candidate_index,
-            "inliers_before": self.inliers_before,
-            "inliers_after": self.inliers_after,
-            "kept": self.kept,
-        }
-        if self.reason is not None:
-            row["reason"] = self.reason
-        return row
+        """The refine pass as it appears in logs and FDR records."""
+        return _record(self)
 
 
 @dataclass(frozen=True)
@@ -151,3 +136,9 @@ class FrameEvidence:
     def source_of(self, index: int) -> str:
         """Where candidate ``index``'s features came from (``none`` if it never got that far)."""
         return self.sources[index] if index < len(self.sources) else "none"
+
+
+def _record(outcome: Any) -> dict[str, Any]:
+    """A frozen outcome's fields in declaration order as a log / FDR row; an optional field
+    (None: not set) is left out."""
+    return {f.name: v for f in fields(outcome) if (v := getattr(outcome, f.name)) is not None}
