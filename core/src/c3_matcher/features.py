@@ -14,11 +14,15 @@ from numpy.typing import NDArray
 
 from c3_matcher import _validate as v
 
-__all__ = ["DESCRIPTOR_DTYPES", "Features", "RawMatches"]
+__all__ = ["DESCRIPTOR_DTYPES", "Features", "PairSide", "RawMatches"]
 
 #: descriptor dtypes a backend may return: float32 (learned descriptors, L2 distance / a learned
 #: matcher) or uint8 (packed binary descriptors such as ORB's, 8 bits a byte, Hamming distance)
 DESCRIPTOR_DTYPES = (np.dtype(np.float32), np.dtype(np.uint8))
+
+PairSide = tuple[NDArray[np.float32], NDArray[np.float32], tuple[int, int]]
+"""One image's side of a pair to match: keypoints (K, 2) (x, y) px, descriptors (K, D) and the
+(width, height) px of the image the extractor saw."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,7 +54,7 @@ class Features:
         return int(self.keypoints.shape[0])
 
     @property
-    def pair_side(self) -> tuple[NDArray[np.float32], NDArray[np.float32], tuple[int, int]]:
+    def pair_side(self) -> PairSide:
         """(keypoints, descriptors, image_size): this image's three arguments of a
         ``LightGlueRuntime.match_pair`` call (set 0 or set 1)."""
         return self.keypoints, self.descriptors, self.image_size

@@ -25,10 +25,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from c3_matcher.features import PairSide
 
 __all__ = ["BenchResult", "format_table", "run_bench"]
 
@@ -151,21 +154,18 @@ def _child(args: argparse.Namespace) -> int:
         load_ms = (time.perf_counter() - start) * 1e3
         data = np.load(args.features)
         n = args.keypoints
-        k0, d0, k1, d1 = data["k0"][:n], data["d0"][:n], data["k1"][:n], data["d1"][:n]
-        s0 = tuple(int(v) for v in data["size0"])
-        s1 = tuple(int(v) for v in data["size1"])
-        case = f"{args.feature_type} lightglue {len(k0)}x{len(k1)} kpts"
+
+        def side(i: int) -> PairSide:  # keypoints, descriptors and (width, height) of image i
+            width, height = (int(v) for v in data[f"size{i}"])
+            return data[f"k{i}"][:n], data[f"d{i}"][:n], (width, height)
+
+        side0, side1 = side(0), side(1)
+        case = f"{args.feature_type} lightglue {len(side0[0])}x{len(side1[0])} kpts"
 
         def fn() -> object:
-            return matcher.match_pair(
-                k0, d0, (s0[0], s0[1]), k1, d1, (s1[0], s1[1]), feature_type=args.feature_type
-            )
+            return matcher.match_pair(*side0, *side1, feature_type=args.feature_type)
 
-        detail["matches"] = len(
-            matcher.match_pair(
-                k0, d0, (s0[0], s0[1]), k1, d1, (s1[0], s1[1]), feature_type=args.feature_type
-            )
-        )
+        detail["matches"] = len(matcher.match_pair(*side0, *side1, feature_type=args.feature_type))
     first, times = _time_runs(fn, args.runs)
     ordered = sorted(times)
     p95 = ordered[min(len(ordered) - 1, int(np.ceil(0.95 * len(ordered))) - 1)]

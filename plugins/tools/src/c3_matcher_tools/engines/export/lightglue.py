@@ -33,6 +33,7 @@ from torch.nn import functional as nnf
 
 from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, OnnxLightGlueRuntime
 from c3_matcher.engines.runtime import SessionSettings
+from c3_matcher.features import PairSide
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
 from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
 from c3_matcher_tools.engines.export.onnx_export import export_module
@@ -155,16 +156,9 @@ def assignment_matches(
     return matches0[0], mscores0[0]
 
 
-def reference_inputs(
-    k0: NDArray[np.float32],
-    d0: NDArray[np.float32],
-    size0: tuple[int, int],
-    k1: NDArray[np.float32],
-    d1: NDArray[np.float32],
-    size1: tuple[int, int],
-) -> dict[str, dict[str, torch.Tensor]]:
-    """kornia ``LightGlue``'s input for one pair: keypoints (K, 2) px, descriptors (K, D) and
-    the (width, height) of each image."""
+def reference_inputs(side0: PairSide, side1: PairSide) -> dict[str, dict[str, torch.Tensor]]:
+    """kornia ``LightGlue``'s input for one pair; each side is (keypoints (K, 2) px,
+    descriptors (K, D), (width, height)) as ``Features.pair_side`` gives it."""
 
     def side(k: NDArray[np.float32], d: NDArray[np.float32], size: tuple[int, int]) -> Any:
         return {
@@ -173,7 +167,7 @@ def reference_inputs(
             "image_size": torch.tensor([size], dtype=torch.float32),
         }
 
-    return {"image0": side(k0, d0, size0), "image1": side(k1, d1, size1)}
+    return {"image0": side(*side0), "image1": side(*side1)}
 
 
 def verification_pairs(
@@ -208,11 +202,17 @@ class FeaturePair:
     def where(self) -> str:
         return f"{self.pair} @ {self.count}"
 
+    @property
+    def side0(self) -> PairSide:
+        return self.k0, self.d0, self.size0
+
+    @property
+    def side1(self) -> PairSide:
+        return self.k1, self.d1, self.size1
+
     def run_reference(self, reference: Any) -> Any:
         """kornia ``LightGlue``'s output on this pair."""
-        return reference(
-            reference_inputs(self.k0, self.d0, self.size0, self.k1, self.d1, self.size1)
-        )
+        return reference(reference_inputs(self.side0, self.side1))
 
 
 def feature_pairs(
@@ -315,9 +315,7 @@ def export_lightglue(
         ref_matches = ref["matches"][0].numpy().astype(np.int64)
         ref_scores = ref["scores"][0].numpy()
         ref_ms0 = ref["matching_scores0"][0].numpy()
-        got = runtime.match_pair(
-            fp.k0, fp.d0, fp.size0, fp.k1, fp.d1, fp.size1, feature_type=feature_type
-        )
+        got = runtime.match_pair(*fp.side0, *fp.side1, feature_type=feature_type)
         same = got.matches.shape == ref_matches.shape and bool(
             np.array_equal(got.matches, ref_matches)
         )

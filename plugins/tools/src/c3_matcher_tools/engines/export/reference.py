@@ -70,7 +70,7 @@ class PyTorchReference:
     def match(self, query: Features, tile: Features) -> RawMatches:
         from c3_matcher_tools.engines.export.lightglue import reference_inputs
 
-        inputs = reference_inputs(*query.pair_side, *tile.pair_side)
+        inputs = reference_inputs(query.pair_side, tile.pair_side)
         with self._torch.no_grad():
             out = self._lightglue(inputs)
         return RawMatches(
