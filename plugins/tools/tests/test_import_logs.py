@@ -18,11 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.sources.common import (
     body_attitude_for_camera,
     gimbal_camera_matrix,
+    logs_library,
 )
 from c3_matcher_tools.dataset.sources.rosbag import read_bag
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
@@ -425,3 +427,22 @@ def test_bag_attitude_from_a_chosen_pose_topic(poses: list[fl.Pose], tmp_path: P
            "--attitude-topic", "/gps/fix"),
         "/gps/fix is sensor_msgs/msg/NavSatFix",
     )  # fmt: skip
+
+
+@pytest.mark.parametrize("module", ["pyulog", "rosbags.highlevel", "pymavlink.mavutil", "exifread"])
+def test_a_missing_logs_library_names_the_extra(
+    module: str, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setitem(sys.modules, module, None)  # as if not installed: importing it fails
+    with pytest.raises(InvalidInputError) as refused:
+        logs_library(module, tmp_path / "flight.log", "a recorded log")
+    assert str(tmp_path / "flight.log") in str(refused.value)
+    assert "pip install 'c3-matcher-tools[logs]'" in str(refused.value)
+
+
+def test_ulog_reader_without_its_library_is_refused_naming_the_extra(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setitem(sys.modules, "pyulog", None)
+    with pytest.raises(InvalidInputError, match=r"reading a ULog needs the logs extra"):
+        read_ulog(tmp_path / "flight.ulg")

@@ -18,6 +18,7 @@ proposed for them.
 
 from __future__ import annotations
 
+import importlib
 import math
 import shutil
 import uuid
@@ -46,17 +47,22 @@ __all__ = [
     "body_attitude_for_camera",
     "check_proposal_options",
     "ground_elevation_sampler",
+    "logs_library",
     "match_shots",
-    "needs_logs_extra",
     "write_imported_flight",
 ]
 
 
-def needs_logs_extra(path: Path, reading: str) -> InvalidInputError:
-    """The refusal when the library reading ``path`` (``reading``: what it is) is missing."""
-    return InvalidInputError(
-        str(path), f"reading {reading} needs the logs extra: pip install 'c3-matcher-tools[logs]'"
-    )
+def logs_library(module: str, path: Path, reading: str) -> Any:
+    """``module``, a library of the logs extra, imported to read ``path`` (``reading``: what it
+    is); refused naming the extra when it is not installed."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise InvalidInputError(
+            str(path),
+            f"reading {reading} needs the logs extra: pip install 'c3-matcher-tools[logs]'",
+        ) from None
 
 
 F64 = NDArray[np.float64]

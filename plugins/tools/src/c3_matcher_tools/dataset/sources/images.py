@@ -21,7 +21,7 @@ from typing import Any
 import cv2
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import Shot, constant, needs_logs_extra
+from c3_matcher_tools.dataset.sources.common import Shot, constant, logs_library
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -44,14 +44,6 @@ XMP_KEYS = (
     "FlightPitchDegree",
     "FlightYawDegree",
 )
-
-
-def _reader(path: Path) -> Any:
-    try:
-        import exifread
-    except ImportError:
-        raise needs_logs_extra(path, "photo metadata") from None
-    return exifread
 
 
 def _ratio(value: Any) -> float:
@@ -95,7 +87,7 @@ def _xmp(data: bytes) -> dict[str, float]:
 def read_photo_metadata(path: Path) -> dict[str, Any]:
     """``t_s`` (UTC seconds), ``lat``, ``lon``, ``alt_m``, ``relative_alt_m`` and the XMP
     angles of one photo, each only when the photo states it (see the module docstring)."""
-    exifread = _reader(path)
+    exifread = logs_library("exifread", path, "photo metadata")
     data = path.read_bytes()
     import io
 

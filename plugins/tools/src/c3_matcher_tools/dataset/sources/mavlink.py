@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import LogTrack, Series, needs_logs_extra
+from c3_matcher_tools.dataset.sources.common import LogTrack, Series, logs_library
 
 __all__ = ["read_mavlink"]
 
@@ -54,10 +54,7 @@ def _quiet(chatter: io.StringIO) -> Iterator[None]:
 
 
 def _open(path: Path, chatter: io.StringIO) -> Any:
-    try:
-        from pymavlink import mavutil
-    except ImportError:
-        raise needs_logs_extra(path, "an ArduPilot log") from None
+    mavutil = logs_library("pymavlink.mavutil", path, "an ArduPilot log")
     if not path.is_file():
         raise InvalidInputError(str(path), "no such file")
     if path.suffix.lower() != ".tlog":

@@ -29,7 +29,7 @@ from c3_matcher_tools.dataset.sources.common import (
     Shot,
     attitude_from_matrix,
     constant,
-    needs_logs_extra,
+    logs_library,
 )
 
 __all__ = ["BagTopics", "read_bag"]
@@ -54,18 +54,17 @@ class BagTopics:
 
 
 def _reader(path: Path) -> Any:
-    try:
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-    except ImportError:
-        raise needs_logs_extra(path, "a ROS bag") from None
+    highlevel = logs_library("rosbags.highlevel", path, "a ROS bag")
+    typesys = logs_library("rosbags.typesys", path, "a ROS bag")
     if not path.exists():
         raise InvalidInputError(str(path), "no such bag")
     bag = path.parent if path.is_file() and path.suffix in (".db3", ".mcap") else path
     if path.is_file() and not (bag / "metadata.yaml").is_file() and path.suffix != ".bag":
         bag = path  # a bare MCAP file: rosbags reads it through its directory-less path
     try:
-        reader = AnyReader([bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader = highlevel.AnyReader(
+            [bag], default_typestore=typesys.get_typestore(typesys.Stores.ROS2_HUMBLE)
+        )
         reader.open()
     except Exception as exc:
         raise InvalidInputError(str(path), f"not a readable ROS bag: {exc}") from None

@@ -24,7 +24,7 @@ from c3_matcher_tools.dataset.sources.common import (
     LogTrack,
     Series,
     attitude_from_matrix,
-    needs_logs_extra,
+    logs_library,
     quaternion_matrix,
 )
 
@@ -44,14 +44,11 @@ TOPICS = (
 
 
 def _load(path: Path) -> Any:
-    try:
-        from pyulog import ULog
-    except ImportError:
-        raise needs_logs_extra(path, "a ULog") from None
+    pyulog = logs_library("pyulog", path, "a ULog")
     if not path.is_file():
         raise InvalidInputError(str(path), "no such file")
     try:
-        return ULog(str(path), list(TOPICS))
+        return pyulog.ULog(str(path), list(TOPICS))
     except Exception as exc:  # pyulog raises several types on a damaged file
         raise InvalidInputError(str(path), f"not a readable PX4 ULog: {exc}") from None
 
