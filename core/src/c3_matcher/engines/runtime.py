@@ -99,6 +99,10 @@ class SessionSettings:
     enable_cpu_mem_arena: bool = False  # the 800 MB budget (module docstring)
     intra_op_num_threads: int = 0
     deterministic: bool = True
+    allow_spinning: bool = True
+    """Whether the session's idle threads spin waiting for work (ONNX Runtime's default). Off for
+    a short graph run between two runs of another session, so its threads leave the cores to the
+    other session at once (see ``c3_matcher_xfeat.mnn``)."""
 
     def build(self) -> ort.SessionOptions:
         options = ort.SessionOptions()
@@ -109,6 +113,8 @@ class SessionSettings:
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         options.use_deterministic_compute = self.deterministic
         options.log_severity_level = 3
+        if not self.allow_spinning:
+            options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         return options
 
 
