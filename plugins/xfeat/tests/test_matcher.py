@@ -33,6 +33,8 @@ from c3_matcher_xfeat import (
     XFeatOptions,
     mutual_nearest_neighbours,
 )
+from c3_matcher_xfeat.export import similarity_graph
+from c3_matcher_xfeat.mnn import SIMILARITY_GRAPH, OnnxSimilarity, numpy_similarity
 
 LIGHTERGLUE_CONFIG = XFeatConfig(
     extractor_engine_path=Path("xfeat.onnx"),
@@ -114,6 +116,30 @@ def test_mnn_keeps_mutual_pairs_above_the_threshold_deterministically():
     unfiltered = mutual_nearest_neighbours(d0, d1, -1)  # <= 0: no minimum, as upstream
     assert {tuple(p) for p in expected} <= set(map(tuple, unfiltered.matches.tolist()))
     assert len(mutual_nearest_neighbours(d0[:0], d1, 0.82)) == 0
+
+
+def test_shipped_similarity_graph_is_the_one_the_exporter_writes():
+    assert SIMILARITY_GRAPH.read_bytes() == similarity_graph()
+
+
+def test_onnx_similarity_equals_numpy_and_gives_the_same_matches():
+    """Full XFeat sets (4096 and 3000 unit descriptors): ONNX Runtime's Gemm and numpy's
+    product give the same matrix bit for bit, so the flight matcher's matches are numpy's."""
+    rng = np.random.default_rng(11)
+    d0 = rng.normal(size=(4096, 64)).astype(np.float32)
+    d1 = rng.normal(size=(3000, 64)).astype(np.float32)
+    d0 /= np.linalg.norm(d0, axis=1, keepdims=True)
+    d1 /= np.linalg.norm(d1, axis=1, keepdims=True)
+    onnx = OnnxSimilarity(threads=2)
+    assert np.array_equal(onnx(d0, d1), numpy_similarity(d0, d1))
+    ours = MutualNearestNeighbourMatcher(0.5, threads=2).match(
+        Features(np.zeros((4096, 2), np.float32), d0, np.ones(4096, np.float32), (640, 480)),
+        Features(np.zeros((3000, 2), np.float32), d1, np.ones(3000, np.float32), (640, 480)),
+    )
+    reference = mutual_nearest_neighbours(d0, d1, 0.5)
+    assert len(reference) > 0
+    assert np.array_equal(ours.matches, reference.matches)
+    assert np.array_equal(ours.scores, reference.scores)
 
 
 def test_entry_point_wiring_through_the_public_lookup():

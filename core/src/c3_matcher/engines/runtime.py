@@ -29,6 +29,10 @@ Session options, chosen by measurement (``c3-matcher engines bench --sweep-sessi
   extractors only 806 MiB (+9 %); one shared env arena (kSameAsRequested) 860 MiB. Inlier
   counts identical in all four. ``replay data/flights/naip_demo --limit 4`` peaked at 896 MiB
   (``/usr/bin/time -v``) with the arena on.
+- Once DISK's sparse descriptor head removed its 135 MB dense tensor, the arena went back ON
+  by default (2026-11-23, ``c3-matcher bench --strategy disk_lightglue``, demo frame, quiet
+  machine): new tiles frame p50 3746 -> 3024 ms, peak RSS 494 -> 559 MB (under the 600 MB
+  budget); ``replay data/flights/naip_demo --limit 4`` peak 458 -> 468 MB.
 - ``graph_optimization_level = ORT_ENABLE_ALL``, sequential execution, ``intra_op_num_threads =
   0`` (one per physical core), ``use_deterministic_compute`` on (bit-identical reruns,
   identical inputs give identical results).
@@ -77,7 +81,7 @@ __all__ = [
 ]
 
 SESSION_OPTIONS_NOTE = (
-    "memory pattern off, CPU arena per [engines] cpu_mem_arena (default off), ORT_ENABLE_ALL, "
+    "memory pattern off, CPU arena per [engines] cpu_mem_arena (default on), ORT_ENABLE_ALL, "
     "sequential, deterministic"
 )
 
@@ -96,9 +100,13 @@ class SessionSettings:
     """ONNX Runtime session options (defaults chosen by measurement, see the module docstring)."""
 
     enable_mem_pattern: bool = False
-    enable_cpu_mem_arena: bool = False  # the 800 MB budget (module docstring)
+    enable_cpu_mem_arena: bool = True  # [engines] cpu_mem_arena (module docstring)
     intra_op_num_threads: int = 0
     deterministic: bool = True
+    allow_spinning: bool = True
+    """Whether the session's idle threads spin waiting for work (ONNX Runtime's default). Off for
+    a short graph run between two runs of another session, so its threads leave the cores to the
+    other session at once (see ``c3_matcher_xfeat.mnn``)."""
 
     def build(self) -> ort.SessionOptions:
         options = ort.SessionOptions()
@@ -109,6 +117,8 @@ class SessionSettings:
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         options.use_deterministic_compute = self.deterministic
         options.log_severity_level = 3
+        if not self.allow_spinning:
+            options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         return options
 
 

@@ -352,3 +352,25 @@ class XFeatReference(PyTorchReference):
         sims = (d0[idx0] * d1[idx1]).sum(-1).clamp(0, 1)
         matches = t.stack([idx0, idx1], -1).numpy().astype(np.int64).reshape(-1, 2)
         return RawMatches(matches, sims.numpy().astype(np.float32))
+
+
+def similarity_graph() -> bytes:
+    """The bytes of ``c3_matcher_xfeat.mnn.SIMILARITY_GRAPH``: ``similarity = Gemm(desc0,
+    desc1, transB=1)``, float32, M, N and D dynamic, opset 18. Rewrite the shipped file with
+    ``Path(SIMILARITY_GRAPH).write_bytes(similarity_graph())``."""
+    from onnx import TensorProto, helper
+
+    graph = helper.make_graph(
+        [helper.make_node("Gemm", ["desc0", "desc1"], ["similarity"], transB=1)],
+        "descriptor_similarity",
+        [
+            helper.make_tensor_value_info("desc0", TensorProto.FLOAT, ["M", "D"]),
+            helper.make_tensor_value_info("desc1", TensorProto.FLOAT, ["N", "D"]),
+        ],
+        [helper.make_tensor_value_info("similarity", TensorProto.FLOAT, ["M", "N"])],
+    )
+    model = helper.make_model(
+        graph, opset_imports=[helper.make_opsetid("", 18)], producer_name="c3-matcher-xfeat"
+    )
+    model.ir_version = 9
+    return bytes(model.SerializeToString())

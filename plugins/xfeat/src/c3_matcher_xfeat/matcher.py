@@ -73,6 +73,7 @@ class XFeatConfig:
     ransac_threshold_px: float = 3.0
     tile_cache_size: int = 16
     pipeline: PipelineSettings | None = None  # [matcher]'s stored features and prior
+    similarity_threads: int = 0  # [engines] intra_op_threads, for the mutual-NN similarity
 
     def __post_init__(self) -> None:
         if self.matcher not in MATCH_PHASES:
@@ -112,7 +113,7 @@ class XFeatConfig:
         if self.matcher == "lighterglue":
             assert self.lighterglue_engine_path is not None  # __post_init__
             return LightGluePairMatcher(lightglue_runtime, self.lighterglue_engine_path, "xfeat")
-        return MutualNearestNeighbourMatcher(self.min_cossim)
+        return MutualNearestNeighbourMatcher(self.min_cossim, self.similarity_threads)
 
     @classmethod
     def from_c3_settings(
@@ -144,6 +145,7 @@ class XFeatConfig:
             ransac_threshold_px=m.ransac_threshold_px,
             tile_cache_size=m.tile_cache_size,
             pipeline=PipelineSettings.from_settings(m),
+            similarity_threads=int(settings.engines.intra_op_threads),
         )
 
 
