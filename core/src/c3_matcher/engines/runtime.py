@@ -106,7 +106,7 @@ class SessionSettings:
     allow_spinning: bool = True
     """Whether the session's idle threads spin waiting for work (ONNX Runtime's default). Off for
     a short graph run between two runs of another session, so its threads leave the cores to the
-    other session at once (see ``c3_matcher_xfeat.mnn``)."""
+    other session at once (e.g. a matcher's small product between two extractions)."""
 
     def build(self) -> ort.SessionOptions:
         options = ort.SessionOptions()
