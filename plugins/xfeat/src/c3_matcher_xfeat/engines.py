@@ -15,10 +15,11 @@ The grey conversion (mean of R, G, B) and instance norm are inside the graph, as
 Export rewrites of upstream (same arithmetic, exportable): the instance norm reduces over W then
 H (ONNX Runtime's single reduction over the flattened H*W axis loses float32 precision, see
 DESIGN "Engines"); the 8x8 unfold and the heat-map reshape are ``pixel_unshuffle`` /
-``pixel_shuffle`` (pure permutations); the scores are sampled densely with upstream's own grid
+``pixel_shuffle`` (pure permutations); the scores are sampled with upstream's own grid
 convention (``2 x / (W - 1) - 1`` fed to ``grid_sample(align_corners=False)``, a quirk kept on
-purpose) so the top-K runs in the graph; upstream drops a keypoint at (0, 0) (its padding marker),
-so does the graph; the top-K runs on the flattened map padded with K zeros.
+purpose) at the NMS survivors only (a row and a column tap each, in raster order) so the top-K
+runs in the graph; upstream drops a keypoint at (0, 0) (its padding marker), so does the graph;
+the top-K runs on the survivors' scores padded with K zeros (padding rows: score 0 at (0, 0)).
 
 LighterGlue graph (``lighterglue/xfeat``): the shared LightGlue I/O (``kpts0``/``kpts1``
 normalised, ``desc0``/``desc1`` (1, N, 64); ``matches0``/``mscores0``), so it runs in the shared
@@ -78,7 +79,7 @@ XFEAT_SPEC = extractor_spec(
         ("descriptor_dim", XFEAT_DESCRIPTOR_DIM),
     ),
     description="XFeat sparse (upstream detectAndCompute), mask on the heat map, top-K in graph",
-    export_revision=2,  # 2: heat and reliability sampled by row/column gathers
+    export_revision=4,  # 2: heat and reliability by row/column gathers; 4: at NMS survivors only
 )
 
 LIGHTERGLUE_SPEC = matcher_spec(

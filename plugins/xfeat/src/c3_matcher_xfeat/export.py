@@ -169,17 +169,20 @@ def build_xfeat_export_module(
             is_kp = (heat == local_max) & (heat > self.threshold)
             is_kp = is_kp & ((xs + ys) > 0)  # upstream's (0, 0) is its padding marker
             span = torch.stack([xs.max(), ys.max()])  # (W - 1, H - 1) as a tensor
-            # upstream samples heat (nearest) and reliability (bilinear) on its normgrid of
-            # every pixel; the grid is separable, so the samples are row and column gathers
+            # upstream samples heat (nearest) and reliability (bilinear) on its normgrid at its
+            # keypoints; the grid is separable, so each sample is a row tap and a column tap,
+            # read only at the NMS survivors (raster order, as the dense map's)
             gx = 2.0 * (xs[0] / span[0]) - 1.0  # (W,) upstream normgrid, x
             gy = 2.0 * (ys[:, 0] / span[1]) - 1.0  # (H,) upstream normgrid, y
-            near = _sample_nearest(heat[0, 0], gy, gx)
-            rel = _sample_bilinear(reliability[0, 0], gy, gx)
-            score = torch.where(is_kp, near * rel, torch.zeros_like(heat[0, 0]))
+            found = torch.nonzero(is_kp.reshape(-1))[:, 0]  # (P,) flat indices
+            cx = xs.reshape(-1)[found].to(torch.int64)
+            cy = ys.reshape(-1)[found].to(torch.int64)
+            near = _nearest_at(heat[0, 0], gy, gx, cy, cx)
+            rel = _bilinear_at(reliability[0, 0], gy, gx, cy, cx)
             pad = torch.zeros(self.k, dtype=heat.dtype)
-            scores, index = torch.topk(torch.cat([score.reshape(-1), pad]), self.k, sorted=True)
-            x = torch.cat([xs.reshape(-1), pad]).gather(0, index)
-            y = torch.cat([ys.reshape(-1), pad]).gather(0, index)
+            scores, index = torch.topk(torch.cat([near * rel, pad]), self.k, sorted=True)
+            x = torch.cat([xs.reshape(-1)[found], pad]).gather(0, index)
+            y = torch.cat([ys.reshape(-1)[found], pad]).gather(0, index)
             kpts = torch.stack([x, y], -1)
             sample = (2.0 * (kpts / span) - 1.0)[None, :, None, :]  # (1, K, 1, 2)
             desc = nnf.grid_sample(dense, sample, mode="bicubic", align_corners=False)
@@ -207,28 +210,42 @@ def build_xfeat_export_module(
         index_high = torch.minimum(high, last).to(torch.int64)
         return index_low, index_high, w_low, w_high
 
-    def _sample_nearest(plane: torch.Tensor, gy: torch.Tensor, gx: torch.Tensor) -> torch.Tensor:
-        """``grid_sample(mode="nearest")`` of ``plane`` (H', W') on the outer grid (gy, gx)."""
-        result = plane
+    def _nearest_at(
+        plane: torch.Tensor,
+        gy: torch.Tensor,
+        gx: torch.Tensor,
+        rows: torch.Tensor,
+        cols: torch.Tensor,
+    ) -> torch.Tensor:
+        """``grid_sample(mode="nearest")`` of ``plane`` (H', W') on the outer grid (gy, gx),
+        read at the grid points (``rows``, ``cols``) only (the same products, in the same
+        order, as sampling every point)."""
+        taps = []
         for axis, grid in ((0, gy), (1, gx)):
             src = torch.round(_source(grid, plane, axis))  # half to even, as nearbyint
             last = torch.ones_like(plane).sum(dim=axis)[0] - 1
             inside = ((src >= 0) & (src <= last)).to(plane.dtype)
-            index = src.clamp(min=0).minimum(last).to(torch.int64)
-            picked = result.index_select(axis, index)
-            result = picked * (inside[:, None] if axis == 0 else inside[None, :])
-        return result
+            taps.append((src.clamp(min=0).minimum(last).to(torch.int64), inside))
+        (iy, in_y), (ix, in_x) = taps
+        width = torch.ones_like(plane).sum(dim=1)[0].to(torch.int64)
+        value = plane.reshape(-1)[iy[rows] * width + ix[cols]]
+        return (value * in_y[rows]) * in_x[cols]
 
-    def _sample_bilinear(plane: torch.Tensor, gy: torch.Tensor, gx: torch.Tensor) -> torch.Tensor:
-        """``grid_sample(mode="bilinear")`` of ``plane`` (H', W') on the outer grid (gy, gx),
-        summed as upstream: nw, ne, sw, se."""
-        y0, y1, wy0, wy1 = _taps(gy, plane, 0)
-        x0, x1, wx0, wx1 = _taps(gx, plane, 1)
-        top, bottom = plane.index_select(0, y0), plane.index_select(0, y1)
-        nw, ne = top.index_select(1, x0), top.index_select(1, x1)
-        sw, se = bottom.index_select(1, x0), bottom.index_select(1, x1)
-        wy0, wy1 = wy0[:, None], wy1[:, None]
-        wx0, wx1 = wx0[None, :], wx1[None, :]
+    def _bilinear_at(
+        plane: torch.Tensor,
+        gy: torch.Tensor,
+        gx: torch.Tensor,
+        rows: torch.Tensor,
+        cols: torch.Tensor,
+    ) -> torch.Tensor:
+        """``grid_sample(mode="bilinear")`` of ``plane`` (H', W') on the outer grid (gy, gx) at
+        the grid points (``rows``, ``cols``), summed as upstream: nw, ne, sw, se."""
+        y0, y1, wy0, wy1 = (t[rows] for t in _taps(gy, plane, 0))
+        x0, x1, wx0, wx1 = (t[cols] for t in _taps(gx, plane, 1))
+        width = torch.ones_like(plane).sum(dim=1)[0].to(torch.int64)
+        flat = plane.reshape(-1)
+        nw, ne = flat[y0 * width + x0], flat[y0 * width + x1]
+        sw, se = flat[y1 * width + x0], flat[y1 * width + x1]
         return nw * (wx0 * wy0) + ne * (wx1 * wy0) + sw * (wx0 * wy1) + se * (wx1 * wy1)
 
     net = copy.deepcopy(reference.net).eval()
