@@ -1,4 +1,4 @@
-"""``c3-matcher bench`` (issue 10, item 7): the ratios it reports (stored vs extracted tiles,
+"""``c3-matcher bench``: the ratios it reports (stored vs extracted tiles,
 adaptive vs full LightGlue, vs the PyTorch reference) from synthetic results, and a smoke run
 end to end (XFeat, one timed run per case) over a flight whose store has features built."""
 
@@ -101,3 +101,17 @@ def test_bench_smoke_over_a_flight_with_stored_features(
     assert "xfeat (stored tiles" in out and "xfeat (new tiles" in out
     assert "stored features vs extraction:" in out and "cached vs new tiles:" in out
     assert "peak MB" in out and "stored 3/3" in out  # the stored case really used the store
+
+
+def test_bench_data_defaults_to_the_checkouts_demo_frame_and_is_required_from_wheels(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from c3_matcher.engines import store
+    from c3_matcher_tools.bench import demo_data
+
+    assert demo_data(FLIGHT) == FLIGHT
+    assert demo_data(None) == REPO / "data" / "demo"
+    assert (demo_data(None) / "demo.json").is_file()
+    monkeypatch.setattr(store, "checkout_root", lambda: None)  # as installed from wheels
+    with pytest.raises(SystemExit, match="--data is required"):
+        demo_data(None)

@@ -48,7 +48,6 @@ __all__ = [
     "register_bench_command",
 ]
 
-REPO = Path(__file__).resolve().parents[4]
 Kind = Literal["engine", "pytorch", "sift"]
 SWEEP_LONG_SIDES = (512, 1024)
 SWEEP_KEYPOINTS = (512, 1024, 2048)
@@ -180,9 +179,9 @@ def register_bench_command(commands: CommandRegistry) -> None:
     p.add_argument(
         "--data",
         type=Path,
-        default=REPO / "data" / "demo",
+        default=None,
         help="a flight dataset (c3-flight/1, its frames in turn) or a demo-format directory "
-        "(default: the built-in demo frame)",
+        "(default: the built-in demo frame of a source checkout)",
     )
     p.add_argument(
         "--no-stored",
@@ -216,7 +215,24 @@ def register_bench_command(commands: CommandRegistry) -> None:
     p.set_defaults(handler=run_bench)
 
 
+def demo_data(data: Path | None) -> Path:
+    """``--data``, or the built-in demo frame (``data/demo`` of the source checkout this runs
+    from); installed from wheels there is none, and ``--data`` must name one."""
+    if data is not None:
+        return data
+    from c3_matcher.engines.store import checkout_root
+
+    root = checkout_root()
+    if root is None:
+        raise SystemExit(
+            "c3-matcher bench: --data is required: the built-in demo frame ships with the source "
+            "checkout (data/demo), and this c3-matcher is installed from wheels"
+        )
+    return root / "data" / "demo"
+
+
 def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
+    args.data = demo_data(args.data)
     results = []
     for case in cases_for(args, ctx.settings):
         ctx.err(f"bench: {case.label}, {args.runs} runs...")
