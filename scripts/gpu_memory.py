@@ -71,7 +71,7 @@ def child(data: Path, strategy: str) -> dict[str, int]:
     from c3_matcher.config import load_settings
     from c3_matcher.fdr import JsonlFdrRecorder
     from c3_matcher.health import MonotonicClock
-    from c3_matcher_tools.bench_worker import flight_inputs
+    from c3_matcher_tools.run.inputs import flight_inputs
     from c3_matcher_tools.run.matcher import Overrides, compose_matcher
     from c3_matcher_xfeat.mnn import SIMILARITY_GRAPH
 

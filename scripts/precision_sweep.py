@@ -91,7 +91,7 @@ class Memo:
             return memo.features[key]
 
         def cached_match(self: OnnxLightGlueRuntime, *args: Any, feature_type: str) -> RawMatches:
-            key = _digest(feature_type, *args)
+            key = _digest(feature_type, *(part for side in args for part in side))
             if key not in memo.raw:
                 kept = self._threshold
                 self._threshold = 0.0

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from c3_matcher.features import Features, RawMatches
+from c3_matcher.features import Features, PairSide, RawMatches
 from c3_matcher.strategy.pairs import match_features
 
 
@@ -25,22 +25,23 @@ class _Recorder:
         self.args: tuple[Any, ...] = ()
         self.feature_type = ""
 
-    def match_pair(self, *args: Any, feature_type: str) -> RawMatches:
-        self.args, self.feature_type = args, feature_type
+    def match_pair(self, side0: PairSide, side1: PairSide, *, feature_type: str) -> RawMatches:
+        self.args, self.feature_type = (side0, side1), feature_type
         return RawMatches(np.zeros((0, 2), np.int64), np.zeros(0, np.float32))
 
 
 def test_pair_side_is_keypoints_descriptors_size() -> None:
     f = _features(5, (640, 480))
-    kpts, desc, size = f.pair_side
-    assert kpts is f.keypoints and desc is f.descriptors and size == (640, 480)
+    side = f.pair_side
+    assert side.keypoints is f.keypoints and side.descriptors is f.descriptors
+    assert side.size == (640, 480) and tuple(side) == (f.keypoints, f.descriptors, (640, 480))
 
 
 def test_match_features_passes_query_then_tile() -> None:
     query, tile = _features(5, (640, 480)), _features(7, (512, 512))
     runtime = _Recorder()
     match_features(runtime, query, tile, "disk")
-    k0, d0, s0, k1, d1, s1 = runtime.args
+    (k0, d0, s0), (k1, d1, s1) = runtime.args
     assert (k0 is query.keypoints, d0 is query.descriptors, s0) == (True, True, (640, 480))
     assert (k1 is tile.keypoints, d1 is tile.descriptors, s1) == (True, True, (512, 512))
     assert runtime.feature_type == "disk"

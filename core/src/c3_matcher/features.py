@@ -8,6 +8,7 @@ resized image), origin at the centre of the top-left pixel.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,9 +21,14 @@ __all__ = ["DESCRIPTOR_DTYPES", "Features", "PairSide", "RawMatches"]
 #: matcher) or uint8 (packed binary descriptors such as ORB's, 8 bits a byte, Hamming distance)
 DESCRIPTOR_DTYPES = (np.dtype(np.float32), np.dtype(np.uint8))
 
-PairSide = tuple[NDArray[np.float32], NDArray[np.float32], tuple[int, int]]
-"""One image's side of a pair to match: keypoints (K, 2) (x, y) px, descriptors (K, D) and the
-(width, height) px of the image the extractor saw."""
+
+class PairSide(NamedTuple):
+    """One image's side of a pair to match: keypoints (K, 2) (x, y) px, descriptors (K, D) and
+    the (width, height) px of the image the extractor saw."""
+
+    keypoints: NDArray[np.float32]
+    descriptors: NDArray[np.float32]
+    size: tuple[int, int]
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,9 +61,8 @@ class Features:
 
     @property
     def pair_side(self) -> PairSide:
-        """(keypoints, descriptors, image_size): this image's three arguments of a
-        ``LightGlueRuntime.match_pair`` call (set 0 or set 1)."""
-        return self.keypoints, self.descriptors, self.image_size
+        """This image's side of a ``LightGlueRuntime.match_pair`` call (set 0 or set 1)."""
+        return PairSide(self.keypoints, self.descriptors, self.image_size)
 
 
 @dataclass(frozen=True, slots=True)

@@ -16,14 +16,9 @@ from typing import Any
 
 from c3_matcher.commands import EXIT_INSUFFICIENT, EXIT_USAGE, CommandContext, CommandRegistry
 from c3_matcher.config import C3Settings
-from c3_matcher.dto import (
-    Attitude,
-    CameraCalibration,
-    NavCameraFrame,
-    RerankCandidate,
-    RerankResult,
-    TileId,
-)
+from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
+from c3_matcher.dto.candidates import RerankCandidate, RerankResult
+from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError
 from c3_matcher.match_viz import draw_or_report
 from c3_matcher.protocols import TilePixelsHandle

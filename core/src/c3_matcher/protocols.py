@@ -21,7 +21,7 @@ from c3_matcher.dto import (
     RansacResult,
     RerankResult,
 )
-from c3_matcher.features import RawMatches
+from c3_matcher.features import PairSide, RawMatches
 
 if TYPE_CHECKING:
     from c3_matcher.engines.manifest import EngineManifest
@@ -177,17 +177,7 @@ class LightGlueRuntime(Protocol):
     those sizes exactly as the PyTorch model does.
     """
 
-    def match_pair(
-        self,
-        kpts0: NDArray[np.float32],
-        desc0: NDArray[np.float32],
-        size0: tuple[int, int],
-        kpts1: NDArray[np.float32],
-        desc1: NDArray[np.float32],
-        size1: tuple[int, int],
-        *,
-        feature_type: str,
-    ) -> RawMatches: ...
+    def match_pair(self, side0: PairSide, side1: PairSide, *, feature_type: str) -> RawMatches: ...
 
 
 @runtime_checkable

@@ -30,6 +30,7 @@ from c3_matcher.engines.lightglue_adaptive import (
 from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.spec import WeightsRef, matcher_spec
+from c3_matcher.features import PairSide
 
 
 class FakeSteps:
@@ -195,7 +196,10 @@ def test_disk_steps_engine_agrees_with_the_single_graph(
     f0, f1 = (
         run_extractor(inference, disk_id, x, np.ones(x.shape[:2], bool), 1024) for x in (rgb0, rgb1)
     )
-    args = (f0.keypoints, f0.descriptors, (640, 480), f1.keypoints, f1.descriptors, (512, 512))
+    args = (
+        PairSide(f0.keypoints, f0.descriptors, (640, 480)),
+        PairSide(f1.keypoints, f1.descriptors, (512, 512)),
+    )
 
     full = OnnxLightGlueRuntime(inference, mode="full")
     full.load("disk", lightglue_engine)
@@ -320,12 +324,8 @@ def test_unmatchable_exit_on_real_pairs(
         runtime.load("disk", lightglue_engine)
         f0, f1 = feats["frame"], feats[other]
         raw = runtime.match_pair(
-            f0.keypoints,
-            f0.descriptors,
-            (640, 480),
-            f1.keypoints,
-            f1.descriptors,
-            (512, 512),
+            PairSide(f0.keypoints, f0.descriptors, (640, 480)),
+            PairSide(f1.keypoints, f1.descriptors, (512, 512)),
             feature_type="disk",
         )
         return raw, runtime.last_run

@@ -16,7 +16,7 @@ from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, normalize_keypoints
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.errors import EngineError
-from c3_matcher.features import Features
+from c3_matcher.features import Features, PairSide
 from c3_matcher.strategy import LightGluePairMatcher
 
 
@@ -96,14 +96,7 @@ def test_threshold_is_configurable(
     runtime: OnnxInferenceRuntime, lightglue_engine: Path, naip_pair: tuple[Features, Features]
 ) -> None:
     fa, fb = naip_pair
-    args = (
-        fa.keypoints,
-        fa.descriptors,
-        fa.image_size,
-        fb.keypoints,
-        fb.descriptors,
-        fb.image_size,
-    )
+    args = (fa.pair_side, fb.pair_side)
     loose = OnnxLightGlueRuntime(runtime, filter_threshold=0.0)
     strict = OnnxLightGlueRuntime(runtime, filter_threshold=0.9)
     loose.load("disk", lightglue_engine)
@@ -120,8 +113,9 @@ def test_load_rules_and_errors(
     matcher = OnnxLightGlueRuntime(runtime)
     kp = np.zeros((3, 2), np.float32)
     desc = np.zeros((3, 128), np.float32)
+    side = PairSide(kp, desc, (64, 64))
     with pytest.raises(KeyError, match="no LightGlue engine loaded for feature type 'disk'"):
-        matcher.match_pair(kp, desc, (64, 64), kp, desc, (64, 64), feature_type="disk")
+        matcher.match_pair(side, side, feature_type="disk")
     matcher.load("disk", lightglue_engine)
     matcher.load("disk", lightglue_engine)  # idempotent
     assert matcher.feature_types == ("disk",)
@@ -129,7 +123,7 @@ def test_load_rules_and_errors(
         matcher.load("disk", disk_engine)  # another engine for the same feature type
     with pytest.raises(EngineError, match="matches 'disk' features"):
         matcher.load("aliked", lightglue_engine)
-    empty = matcher.match_pair(kp[:0], desc[:0], (64, 64), kp, desc, (64, 64), feature_type="disk")
+    empty = matcher.match_pair(PairSide(kp[:0], desc[:0], (64, 64)), side, feature_type="disk")
     assert empty.matches.shape == (0, 2) and empty.scores.shape == (0,)
     with pytest.raises(ValueError, match="desc1"):
-        matcher.match_pair(kp, desc, (64, 64), kp, desc[:2], (64, 64), feature_type="disk")
+        matcher.match_pair(side, PairSide(kp, desc[:2], (64, 64)), feature_type="disk")

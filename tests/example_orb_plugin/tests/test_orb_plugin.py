@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import uuid
 from pathlib import Path
 from types import ModuleType
 
@@ -14,17 +13,16 @@ import numpy as np
 
 from c3_matcher.compose import compose_root
 from c3_matcher.config import C3Settings
-from c3_matcher.dto import Attitude, NavCameraFrame, RerankCandidate, RerankResult, TileId
+from c3_matcher.dto import TileId
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.pipeline import FeatureBackend
 from c3_matcher.plugins import PluginHost
 from c3_matcher.plugins.manager import PluginSource
 from c3_matcher.profiles import BuildProfile
 from c3_matcher.ransac import OpenCvRansacFilter
-from c3_matcher.serialize import load_calibration
 from c3_matcher.testing import FakeClock, FakeInferenceRuntime, FakeLightGlueRuntime
 from c3_matcher.testing.contract import BackendContract
-from c3_matcher.tiles import MmapTileHandle, read_image
+from c3_matcher_tools.run.inputs import demo_inputs
 
 HERE = Path(__file__).resolve().parents[1]
 DEMO = HERE.parents[1] / "data" / "demo"
@@ -80,28 +78,10 @@ def test_real_demo_frame_through_the_plugin_host() -> None:
         settings, pre, plugin_host=PluginHost(profile, [source]), configure_logs=False
     )
     matcher = root.matcher
-    demo = json.loads((DEMO / "demo.json").read_text())
-    att = demo["attitude_deg"]
-    frame = NavCameraFrame(
-        uuid.UUID(int=5),
-        read_image(DEMO / "frame.jpg"),
-        1,
-        Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
-        demo["height_m"],
-    )
-    tiles = demo["tiles"]
-    rerank = RerankResult(
-        frame.frame_id,
-        tuple(
-            RerankCandidate(
-                TileId(*t["tile_id"]), 1.0, MmapTileHandle(DEMO / t["file"]), demo["tile_gsd_m"]
-            )
-            for t in tiles
-        ),
-    )
-    result = matcher.match(frame, rerank, load_calibration(DEMO / "calibration.json"))
+    frame, rerank, calibration = demo_inputs(DEMO)
+    result = matcher.match(frame, rerank, calibration)
     best = result.per_candidate[result.best_candidate_idx]
-    truth = next(t for t in tiles if t["true"])
+    truth = next(t for t in json.loads((DEMO / "demo.json").read_text())["tiles"] if t["true"])
     assert best.tile_id == TileId(*truth["tile_id"])
     assert best.inlier_count >= 200 and best.per_candidate_residual_px < 2.0  # 1043, 0.82 px
     assert result.matcher_label == "example_orb"

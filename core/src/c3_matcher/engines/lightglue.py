@@ -38,7 +38,7 @@ from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
 from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file, read_manifest
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.errors import EngineError
-from c3_matcher.features import RawMatches
+from c3_matcher.features import PairSide, RawMatches
 from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
 
 __all__ = [
@@ -354,18 +354,9 @@ class OnnxLightGlueRuntime:
             np.asarray(out["mscores0"]).reshape(-1).astype(np.float32, copy=False),
         )
 
-    def match_pair(
-        self,
-        kpts0: NDArray[np.float32],
-        desc0: NDArray[np.float32],
-        size0: tuple[int, int],
-        kpts1: NDArray[np.float32],
-        desc1: NDArray[np.float32],
-        size1: tuple[int, int],
-        *,
-        feature_type: str,
-    ) -> RawMatches:
-        """Match two keypoint sets; keypoints (x, y) px of images of ``size`` (width, height).
+    def match_pair(self, side0: PairSide, side1: PairSide, *, feature_type: str) -> RawMatches:
+        """Match two images' keypoint sets; keypoints (x, y) px of images of ``size`` (width,
+        height).
 
         Returns ``RawMatches``: ``matches`` int64 (M, 2) (index into set 0, index into set 1) in
         ascending order of the set-0 index, ``scores`` float32 (M,). ``KeyError`` if no engine is
@@ -376,6 +367,8 @@ class OnnxLightGlueRuntime:
                 f"no LightGlue engine loaded for feature type {feature_type!r} "
                 f"(loaded: {list(self.feature_types)}); call load(feature_type, path) first"
             )
+        kpts0, desc0, size0 = side0
+        kpts1, desc1, size1 = side1
         _check_pair(kpts0, desc0, size0, 0)
         _check_pair(kpts1, desc1, size1, 1)
         if len(kpts0) == 0 or len(kpts1) == 0:

@@ -33,4 +33,4 @@ def match_features(
     runtime: LightGlueRuntime, query: Features, tile: Features, feature_type: str
 ) -> RawMatches:
     """``runtime.match_pair`` on two images' features (``feature_type``: the loaded engine's)."""
-    return runtime.match_pair(*query.pair_side, *tile.pair_side, feature_type=feature_type)
+    return runtime.match_pair(query.pair_side, tile.pair_side, feature_type=feature_type)

@@ -29,7 +29,7 @@ from c3_matcher.dto import (
     TileId,
 )
 from c3_matcher.fdr import InMemoryFdr
-from c3_matcher.features import Features, RawMatches
+from c3_matcher.features import Features, PairSide, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.preprocess import InputRule, PreparedImage
@@ -116,10 +116,9 @@ class FakeLightGlueRuntime:
         self.script = list(script)
         self.calls: list[int] = []
 
-    def match_pair(self, *pair: Any, feature_type: str) -> RawMatches:
-        """``LightGlueRuntime.match_pair``; ``pair`` is (kpts0, desc0, size0, kpts1, desc1,
-        size1), as the protocol states it."""
-        kpts0, _, _, kpts1, _, _ = pair
+    def match_pair(self, side0: PairSide, side1: PairSide, *, feature_type: str) -> RawMatches:
+        """``LightGlueRuntime.match_pair``."""
+        kpts0, kpts1 = side0.keypoints, side1.keypoints
         mark = int(kpts1[0, 1]) - 1 if len(kpts1) else -1
         self.calls.append(mark)
         if 0 <= mark < len(self.script) and self.script[mark].fail_match:

@@ -11,7 +11,6 @@ import resource
 import sys
 import tempfile
 import time
-import uuid
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -20,51 +19,12 @@ import numpy as np
 
 from c3_matcher.config import C3Settings, load_settings
 from c3_matcher_tools.bench import BenchCase
+from c3_matcher_tools.run.inputs import flight_inputs
 from c3_matcher_tools.run.matcher import Overrides, compose_matcher
 
-__all__ = ["demo_inputs", "flight_inputs", "run_worker"]
+__all__ = ["run_worker"]
 
 STAGES = ("decode", "preprocess", "extract", "match", "ransac")
-
-
-def flight_inputs(data_dir: Path) -> list[tuple[Any, Any, Any]]:
-    """(frame, rerank, calibration) per frame: a flight dataset's frames whose true tile is
-    present (``dataset.json``), or the single frame of a demo-format directory."""
-    if (data_dir / "dataset.json").is_file():
-        from c3_matcher_tools.dataset.format import load_dataset
-
-        dataset = load_dataset(data_dir)
-        store = dataset.open_store()
-        return [
-            (dataset.nav_frame(f), dataset.rerank(f, store), dataset.calibration)
-            for f in dataset.frames
-            if f.true_tile_present
-        ]
-    return [demo_inputs(data_dir)]
-
-
-def demo_inputs(data_dir: Path) -> tuple[Any, Any, Any]:
-    from c3_matcher.dto import Attitude, NavCameraFrame, RerankCandidate, RerankResult, TileId
-    from c3_matcher.serialize import load_calibration
-    from c3_matcher.tiles import MmapTileHandle, read_image
-
-    meta = json.loads((data_dir / "demo.json").read_text())
-    att = meta["attitude_deg"]
-    frame = NavCameraFrame(
-        uuid.UUID(int=1),
-        read_image(data_dir / "frame.jpg"),
-        1,
-        Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
-        meta["height_m"],
-    )
-    candidates = tuple(
-        RerankCandidate(
-            TileId(*t["tile_id"]), 1.0, MmapTileHandle(data_dir / t["file"]), meta["tile_gsd_m"]
-        )
-        for t in meta["tiles"]
-    )
-    calibration = load_calibration(data_dir / "calibration.json")
-    return frame, RerankResult(frame.frame_id, candidates), calibration
 
 
 def _percentiles(values: list[float]) -> dict[str, float]:

@@ -157,15 +157,15 @@ def _child(args: argparse.Namespace) -> int:
 
         def side(i: int) -> PairSide:  # keypoints, descriptors and (width, height) of image i
             width, height = (int(v) for v in data[f"size{i}"])
-            return data[f"k{i}"][:n], data[f"d{i}"][:n], (width, height)
+            return PairSide(data[f"k{i}"][:n], data[f"d{i}"][:n], (width, height))
 
         side0, side1 = side(0), side(1)
         case = f"{args.feature_type} lightglue {len(side0[0])}x{len(side1[0])} kpts"
 
         def fn() -> object:
-            return matcher.match_pair(*side0, *side1, feature_type=args.feature_type)
+            return matcher.match_pair(side0, side1, feature_type=args.feature_type)
 
-        detail["matches"] = len(matcher.match_pair(*side0, *side1, feature_type=args.feature_type))
+        detail["matches"] = len(matcher.match_pair(side0, side1, feature_type=args.feature_type))
     first, times = _time_runs(fn, args.runs)
     ordered = sorted(times)
     p95 = ordered[min(len(ordered) - 1, int(np.ceil(0.95 * len(ordered))) - 1)]

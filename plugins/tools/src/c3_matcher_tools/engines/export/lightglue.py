@@ -157,17 +157,16 @@ def assignment_matches(
 
 
 def reference_inputs(side0: PairSide, side1: PairSide) -> dict[str, dict[str, torch.Tensor]]:
-    """kornia ``LightGlue``'s input for one pair; each side is (keypoints (K, 2) px,
-    descriptors (K, D), (width, height)) as ``Features.pair_side`` gives it."""
+    """kornia ``LightGlue``'s input for one pair (``Features.pair_side`` of each image)."""
 
-    def side(k: NDArray[np.float32], d: NDArray[np.float32], size: tuple[int, int]) -> Any:
+    def side(s: PairSide) -> Any:
         return {
-            "keypoints": torch.from_numpy(k)[None],
-            "descriptors": torch.from_numpy(d)[None],
-            "image_size": torch.tensor([size], dtype=torch.float32),
+            "keypoints": torch.from_numpy(s.keypoints)[None],
+            "descriptors": torch.from_numpy(s.descriptors)[None],
+            "image_size": torch.tensor([s.size], dtype=torch.float32),
         }
 
-    return {"image0": side(*side0), "image1": side(*side1)}
+    return {"image0": side(side0), "image1": side(side1)}
 
 
 def verification_pairs(
@@ -186,29 +185,16 @@ PairsFn = Callable[[NDArray[np.uint8]], list[tuple[str, NDArray[np.uint8], NDArr
 
 @dataclass(frozen=True, slots=True)
 class FeaturePair:
-    """The real features of one verification pair at one keypoint budget: keypoints (K, 2)
-    (x, y) px, descriptors (K, D) and the (width, height) px of each image."""
+    """The real features of one verification pair at one keypoint budget, a side each image."""
 
     pair: str
     count: int
-    k0: NDArray[np.float32]
-    d0: NDArray[np.float32]
-    size0: tuple[int, int]
-    k1: NDArray[np.float32]
-    d1: NDArray[np.float32]
-    size1: tuple[int, int]
+    side0: PairSide
+    side1: PairSide
 
     @property
     def where(self) -> str:
         return f"{self.pair} @ {self.count}"
-
-    @property
-    def side0(self) -> PairSide:
-        return self.k0, self.d0, self.size0
-
-    @property
-    def side1(self) -> PairSide:
-        return self.k1, self.d1, self.size1
 
     def run_reference(self, reference: Any) -> Any:
         """kornia ``LightGlue``'s output on this pair."""
@@ -225,12 +211,14 @@ def feature_pairs(
     ``features_fn``: the loop every LightGlue verification runs."""
     for image in images:
         for label, rgb0, rgb1 in pairs(image.rgb):
-            size0 = (rgb0.shape[1], rgb0.shape[0])
-            size1 = (rgb1.shape[1], rgb1.shape[0])
             for count in keypoint_counts:
-                k0, d0 = features_fn(rgb0, count)
-                k1, d1 = features_fn(rgb1, count)
-                yield FeaturePair(f"{image.name}:{label}", count, k0, d0, size0, k1, d1, size1)
+                side0, side1 = (_side(features_fn, rgb, count) for rgb in (rgb0, rgb1))
+                yield FeaturePair(f"{image.name}:{label}", count, side0, side1)
+
+
+def _side(features_fn: FeaturesFn, rgb: NDArray[np.uint8], count: int) -> PairSide:
+    keypoints, descriptors = features_fn(rgb, count)
+    return PairSide(keypoints, descriptors, (rgb.shape[1], rgb.shape[0]))
 
 
 class _SessionRuntime:
@@ -315,7 +303,7 @@ def export_lightglue(
         ref_matches = ref["matches"][0].numpy().astype(np.int64)
         ref_scores = ref["scores"][0].numpy()
         ref_ms0 = ref["matching_scores0"][0].numpy()
-        got = runtime.match_pair(*fp.side0, *fp.side1, feature_type=feature_type)
+        got = runtime.match_pair(fp.side0, fp.side1, feature_type=feature_type)
         same = got.matches.shape == ref_matches.shape and bool(
             np.array_equal(got.matches, ref_matches)
         )
@@ -327,7 +315,7 @@ def export_lightglue(
             score_err = float(np.abs(got.scores - ref_scores).max())
         check: dict[str, Any] = {
             "pair": fp.pair,
-            "keypoints": [len(fp.k0), len(fp.k1)],
+            "keypoints": [len(fp.side0.keypoints), len(fp.side1.keypoints)],
             "matches": len(got),
             "reference_matches": len(ref_matches),
             "matches_identical": same,
@@ -362,10 +350,10 @@ def _mscores_error(
     out = session.run(
         "candidate",
         {
-            "kpts0": normalize_keypoints(fp.k0, fp.size0)[None],
-            "kpts1": normalize_keypoints(fp.k1, fp.size1)[None],
-            "desc0": fp.d0[None],
-            "desc1": fp.d1[None],
+            "kpts0": normalize_keypoints(fp.side0.keypoints, fp.side0.size)[None],
+            "kpts1": normalize_keypoints(fp.side1.keypoints, fp.side1.size)[None],
+            "desc0": fp.side0.descriptors[None],
+            "desc1": fp.side1.descriptors[None],
         },
     )
     return float(np.abs(out["mscores0"] - ref_ms0).max())

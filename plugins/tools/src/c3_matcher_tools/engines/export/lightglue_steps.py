@@ -280,8 +280,12 @@ def export_lightglue_steps(
     for fp in feature_pairs(request.images, features_fn, keypoint_counts, _pairs_and_distractor):
         ref = fp.run_reference(reference)
         ref_matches = ref["matches"][0].numpy().astype(np.int64).reshape(-1, 2)
+        s0, s1 = fp.side0, fp.side1
         got = adaptive.match(
-            normalize_keypoints(fp.k0, fp.size0), normalize_keypoints(fp.k1, fp.size1), fp.d0, fp.d1
+            normalize_keypoints(s0.keypoints, s0.size),
+            normalize_keypoints(s1.keypoints, s1.size),
+            s0.descriptors,
+            s1.descriptors,
         )
         valid = (got.matches0 > -1) & (got.mscores0 > threshold)
         index0 = np.flatnonzero(valid)
@@ -290,11 +294,12 @@ def export_lightglue_steps(
         theirs = set(map(tuple, ref_matches.tolist()))
         union = len(mine | theirs)
         share = len(mine & theirs) / union if union else 1.0
-        inl, ref_inl = _inliers(fp.k0, fp.k1, matches), _inliers(fp.k0, fp.k1, ref_matches)
+        inl = _inliers(s0.keypoints, s1.keypoints, matches)
+        ref_inl = _inliers(s0.keypoints, s1.keypoints, ref_matches)
         ref_layers = int(ref["stop"])
         check: dict[str, Any] = {
             "pair": fp.pair,
-            "keypoints": [len(fp.k0), len(fp.k1)],
+            "keypoints": [len(s0.keypoints), len(s1.keypoints)],
             "matches": len(mine),
             "reference_matches": len(theirs),
             "identical_share": round(share, 5),

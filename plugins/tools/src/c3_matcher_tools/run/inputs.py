@@ -1,0 +1,57 @@
+"""What a run feeds the matcher: (frame, rerank, calibration) per frame, read from a flight
+dataset (``dataset.json``) or from a demo-format directory (``demo.json``: one frame, its
+candidate tiles, the camera's calibration)."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from pathlib import Path
+
+from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
+from c3_matcher.dto.candidates import RerankCandidate, RerankResult
+from c3_matcher.dto.geo import Attitude, TileId
+from c3_matcher.serialize import load_calibration
+from c3_matcher.tiles import MmapTileHandle, read_image
+
+__all__ = ["MatchInputs", "demo_inputs", "flight_inputs"]
+
+MatchInputs = tuple[NavCameraFrame, RerankResult, CameraCalibration]
+"""One ``match`` call's arguments."""
+
+
+def flight_inputs(data_dir: Path) -> list[MatchInputs]:
+    """One ``MatchInputs`` per frame: a flight dataset's frames whose true tile is present, or
+    the single frame of a demo-format directory."""
+    if (data_dir / "dataset.json").is_file():
+        from c3_matcher_tools.dataset.format import load_dataset
+
+        dataset = load_dataset(data_dir)
+        store = dataset.open_store()
+        return [
+            (dataset.nav_frame(f), dataset.rerank(f, store), dataset.calibration)
+            for f in dataset.frames
+            if f.true_tile_present
+        ]
+    return [demo_inputs(data_dir)]
+
+
+def demo_inputs(data_dir: Path) -> MatchInputs:
+    """The frame of a demo-format directory with its candidate tiles (``demo.json``'s order)."""
+    meta = json.loads((data_dir / "demo.json").read_text())
+    att = meta["attitude_deg"]
+    frame = NavCameraFrame(
+        uuid.UUID(int=1),
+        read_image(data_dir / "frame.jpg"),
+        1,
+        Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
+        meta["height_m"],
+    )
+    candidates = tuple(
+        RerankCandidate(
+            TileId(*t["tile_id"]), 1.0, MmapTileHandle(data_dir / t["file"]), meta["tile_gsd_m"]
+        )
+        for t in meta["tiles"]
+    )
+    calibration = load_calibration(data_dir / "calibration.json")
+    return frame, RerankResult(frame.frame_id, candidates), calibration
