@@ -93,14 +93,14 @@ class Memo:
         def cached_match(self: OnnxLightGlueRuntime, *args: Any, feature_type: str) -> RawMatches:
             key = _digest(feature_type, *(part for side in args for part in side))
             if key not in memo.raw:
-                kept = self._threshold
-                self._threshold = 0.0
+                kept = self.filter_threshold
+                self.filter_threshold = 0.0
                 try:
                     memo.raw[key] = match_pair(self, *args, feature_type=feature_type)
                 finally:
-                    self._threshold = kept
+                    self.filter_threshold = kept
             raw = memo.raw[key]
-            keep = raw.scores > np.float32(self._threshold)
+            keep = raw.scores > np.float32(self.filter_threshold)
             return RawMatches(
                 np.ascontiguousarray(raw.matches[keep]), np.ascontiguousarray(raw.scores[keep])
             )

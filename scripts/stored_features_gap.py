@@ -145,7 +145,7 @@ def main(argv: list[str]) -> int:
     matcher: Any = compose_root(settings, helpers, configure_logs=False).matcher
     backend = matcher.backend
     pre = FramePreprocessor(backend.input_rule, photometric=matcher.settings.photometric)
-    budget = int(getattr(backend, "max_keypoints", None) or backend._config.max_keypoints)
+    budget = int(backend.max_keypoints)
     dataset = load_dataset(flight)
     store = dataset.open_store()
     size = dataset.candidate_size_px

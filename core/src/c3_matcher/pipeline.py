@@ -24,7 +24,7 @@ import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Final
 
 from c3_matcher.config import MatcherSettings
 from c3_matcher.dto import (
@@ -118,10 +118,10 @@ class PipelineMatcher:
         tile_cache_size: int = 0,
         preprocessor: FramePreprocessor | None = None,
     ) -> None:
-        self._backend = backend
+        self.backend: Final = backend
         self._ransac = ransac_filter
         self._sinks = RecorderSinks(fdr_client, health_window, clock, backend)
-        self._settings = settings
+        self.settings: Final = settings
         self._pre = preprocessor or FramePreprocessor(
             backend.input_rule, photometric=settings.photometric
         )
@@ -138,14 +138,6 @@ class PipelineMatcher:
         has them (``features build``); False: always extract. A composition input
         (``[matcher] stored_features``), fixed for the matcher's life."""
         return self._tiles.use_stored
-
-    @property
-    def backend(self) -> FeatureBackend:
-        return self._backend
-
-    @property
-    def settings(self) -> PipelineSettings:
-        return self._settings
 
     def health_snapshot(self) -> MatcherHealth:
         return self._sinks.health.snapshot()
@@ -167,7 +159,7 @@ class PipelineMatcher:
                     FrameEvidence(unmatched, dropped=unmatched),
                     0,
                     [],
-                    self._settings.min_inliers_threshold,
+                    self.settings.min_inliers_threshold,
                     stale_rerank_frame_id=rerank_result.frame_id,
                 )
             return self._match(frame, rerank_result, calibration, recorder)
@@ -192,16 +184,16 @@ class PipelineMatcher:
         timings: dict[str, float] = {}
         query = self._query(frame, calibration, rerank.candidates, recorder, timings)  # 1-2
         prior = frame_prior(
-            query.image, self._settings.geometric_prior, self._settings.prior_tolerances
+            query.image, self.settings.geometric_prior, self.settings.prior_tolerances
         )
-        verifier = Verifier(self._ransac, self._settings.ransac_threshold_px, prior)
+        verifier = Verifier(self._ransac, self.settings.ransac_threshold_px, prior)
         candidates = [  # steps 3-4
             self._candidate(index, candidate, query, verifier, recorder)
             for index, candidate in enumerate(rerank.candidates)
         ]
         survivors = [c for c in candidates if isinstance(c, Survivor)]
         refine = None
-        if self._settings.refine and survivors:
+        if self.settings.refine and survivors:
             survivors, refine = self._refine.run(
                 frame, calibration, query, verifier, survivors, recorder
             )
@@ -210,13 +202,13 @@ class PipelineMatcher:
         )
         best_count = best_inlier_count(survivors)  # step 5
         recorder.candidates(survivors)
-        threshold = self._settings.min_inliers_threshold
+        threshold = self.settings.min_inliers_threshold
         if not survivors or best_count < threshold:  # step 6
             raise recorder.insufficient(evidence, best_count, survivors, threshold)
         survivors = ranked(survivors)  # step 7
         best = survivors[0].match_set
-        if best.per_candidate_residual_px > self._settings.residual_warn_threshold_px:  # step 8
-            recorder.residual_above_threshold(best, self._settings.residual_warn_threshold_px)
+        if best.per_candidate_residual_px > self.settings.residual_warn_threshold_px:  # step 8
+            recorder.residual_above_threshold(best, self.settings.residual_warn_threshold_px)
         recorder.update_health(best.inlier_count)  # step 9
         timings["total"] = (time.perf_counter() - started) * 1e3
         diagnostics = self._diagnostics(evidence, survivors, prior is not None, timings)
@@ -227,7 +219,7 @@ class PipelineMatcher:
             best_candidate_idx=0,
             reprojection_residual_px=best.per_candidate_residual_px,
             matched_at=self._sinks.clock.monotonic_ns(),
-            matcher_label=self._backend.label,
+            matcher_label=self.backend.label,
             candidates_input=evidence.candidates_input,
             candidates_dropped=evidence.dropped,
             diagnostics=diagnostics,
@@ -245,11 +237,11 @@ class PipelineMatcher:
         try:
             return prepare_query(
                 self._pre,
-                self._backend,
+                self.backend,
                 frame,
                 calibration,
                 candidates,
-                rotation_search=self._settings.rotation_search,
+                rotation_search=self.settings.rotation_search,
                 timings=timings,
             )
         except Exception as exc:
@@ -271,7 +263,7 @@ class PipelineMatcher:
         try:
             tile = self._tiles.fetch(candidate, recorder, timings)
             verdict = best_turn(
-                self._backend, verifier, query.views, candidate.tile_id, tile, timings
+                self.backend, verifier, query.views, candidate.tile_id, tile, timings
             )
             inliers = verdict.match_set.inlier_correspondences
             if inliers.shape[0] > 0:

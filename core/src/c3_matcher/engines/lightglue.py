@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 from loguru import logger
@@ -169,28 +169,16 @@ class OnnxLightGlueRuntime:
         if mode not in LIGHTGLUE_MODES:
             raise ValueError(f"mode must be one of {LIGHTGLUE_MODES}, got {mode!r}")
         self._inference = inference
-        self._threshold = float(filter_threshold)
-        self._mode = mode
+        self.filter_threshold: Final = float(filter_threshold)
+        self.mode: Final = mode
         self._depth = depth_confidence
         self._width = width_confidence
-        self._exit_matches = int(exit_matches)
+        self.exit_matches: Final = int(exit_matches)
+        """The unmatchable-pair exit's count (0: off)."""
         self._declared = None if steps_feature_types is None else frozenset(steps_feature_types)
         self._engines: dict[str, tuple[Path, str]] = {}
         self._steps: dict[str, tuple[Path, str, AdaptiveLightGlue, AdaptiveLightGlue]] = {}
         self.last_run: dict[str, Any] = {}
-
-    @property
-    def mode(self) -> str:
-        return self._mode
-
-    @property
-    def filter_threshold(self) -> float:
-        return self._threshold
-
-    @property
-    def exit_matches(self) -> int:
-        """The unmatchable-pair exit's count (0: off)."""
-        return self._exit_matches
 
     @property
     def feature_types(self) -> tuple[str, ...]:
@@ -208,7 +196,7 @@ class OnnxLightGlueRuntime:
             if feature_type in table and table[feature_type][0] == path:
                 return
         if (
-            self._mode == "adaptive"
+            self.mode == "adaptive"
             and feature_type not in self._steps
             and self._may_have_steps(feature_type)
             and self._load_sibling_steps(feature_type, path)
@@ -315,7 +303,7 @@ class OnnxLightGlueRuntime:
             run,
             depth_confidence=float(depth),
             width_confidence=float(width),
-            exit_matches=self._exit_matches,
+            exit_matches=self.exit_matches,
             **common,
         )
         every_layer = AdaptiveLightGlue(run, depth_confidence=-1, width_confidence=-1, **common)
@@ -326,7 +314,7 @@ class OnnxLightGlueRuntime:
     ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
         """(matches0, mscores0) of the steps engine: adaptive, or every layer in full mode."""
         _, _, adaptive, every_layer = self._steps[feature_type]
-        driver = adaptive if self._mode == "adaptive" else every_layer
+        driver = adaptive if self.mode == "adaptive" else every_layer
         result = driver.match(*pair)
         self.last_run = {
             "mode": "adaptive" if driver is adaptive else "steps-full",
@@ -375,12 +363,12 @@ class OnnxLightGlueRuntime:
             return RawMatches(np.zeros((0, 2), np.int64), np.zeros((0,), np.float32))
         n0, n1 = normalize_keypoints(kpts0, size0), normalize_keypoints(kpts1, size1)
         if feature_type in self._steps and (
-            self._mode == "adaptive" or feature_type not in self._engines
+            self.mode == "adaptive" or feature_type not in self._engines
         ):
             matches0, mscores0 = self._run_steps(feature_type, _Pair(n0, n1, desc0, desc1))
         else:
             matches0, mscores0 = self._run_full(feature_type, _Pair(n0, n1, desc0, desc1))
-        valid = (matches0 > -1) & (mscores0 > np.float32(self._threshold))
+        valid = (matches0 > -1) & (mscores0 > np.float32(self.filter_threshold))
         index0 = np.flatnonzero(valid).astype(np.int64)
         matches = np.stack([index0, matches0[valid]], axis=-1).astype(np.int64, copy=False)
         return RawMatches(

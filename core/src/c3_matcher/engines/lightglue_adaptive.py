@@ -44,12 +44,19 @@ from numpy.typing import NDArray
 __all__ = [
     "STEPS_INPUTS",
     "STEPS_OUTPUTS",
+    "UPSTREAM_DEPTH_CONFIDENCE",
+    "UPSTREAM_WIDTH_CONFIDENCE",
     "AdaptiveLightGlue",
     "AdaptiveResult",
     "confidence_threshold",
     "steps_engine_spec",
     "steps_io",
 ]
+
+UPSTREAM_DEPTH_CONFIDENCE = 0.95
+"""Upstream LightGlue's early-exit confidence (``depth_confidence``), its default."""
+UPSTREAM_WIDTH_CONFIDENCE = 0.99
+"""Upstream LightGlue's point-pruning confidence (``width_confidence``), its default."""
 
 RunFn = Callable[[Mapping[str, NDArray[Any]]], Mapping[str, NDArray[Any]]]
 """Runs the steps graph on a full feed dict and returns its outputs by name."""
@@ -144,8 +151,8 @@ class AdaptiveLightGlue:
         n_layers: int,
         input_dim: int,
         descriptor_dim: int,
-        depth_confidence: float = 0.95,
-        width_confidence: float = 0.99,
+        depth_confidence: float = UPSTREAM_DEPTH_CONFIDENCE,
+        width_confidence: float = UPSTREAM_WIDTH_CONFIDENCE,
         exit_matches: int = 0,
         exit_after: int = 1,
         exit_confidence: float = 0.3,
@@ -328,19 +335,13 @@ def _result(
 
 
 def steps_engine_spec(
-    full: Any,
-    *,
-    exporter: str,
-    description: str,
-    descriptor_dim: int = 256,
-    depth_confidence: float = 0.95,
-    width_confidence: float = 0.99,
+    full: Any, *, exporter: str, description: str, descriptor_dim: int = 256
 ) -> Any:
     """The ``EngineSpec`` of the steps engine of the single-graph LightGlue ``full`` (same model,
     weights, feature type, ``input_dim`` and ``n_layers``; variant ``"<feature_type>-steps"``,
     option ``("pruning", "steps")``, by which ``OnnxLightGlueRuntime`` finds it among the
-    manifests). ``descriptor_dim`` is the transformer's width and ``depth_confidence`` /
-    ``width_confidence`` the early-exit and pruning settings, upstream LightGlue's defaults. The
+    manifests). ``descriptor_dim`` is the transformer's width; the early-exit and pruning
+    settings are upstream LightGlue's defaults (``UPSTREAM_*_CONFIDENCE``). The
     plugin that declares it names its own ``exporter`` (``"module:callable"``); a feature type
     whose plugin declares none runs its full graph."""
     from c3_matcher.engines.spec import EngineSpec
@@ -363,8 +364,8 @@ def steps_engine_spec(
             ("descriptor_dim", descriptor_dim),
             ("n_layers", n_layers),
             ("pruning", "steps"),
-            ("depth_confidence", depth_confidence),
-            ("width_confidence", width_confidence),
+            ("depth_confidence", UPSTREAM_DEPTH_CONFIDENCE),
+            ("width_confidence", UPSTREAM_WIDTH_CONFIDENCE),
         ),
         export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
         feature_type=feature_type,

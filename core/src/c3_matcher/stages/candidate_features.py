@@ -5,6 +5,8 @@ store holds them for this backend), the tile cache (``cached``) or the tile's pi
 
 from __future__ import annotations
 
+from typing import Final
+
 from c3_matcher.dto import RerankCandidate
 from c3_matcher.features import Features
 from c3_matcher.preprocess import FramePreprocessor
@@ -49,7 +51,9 @@ def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureR
 
 class CandidateFeatures:
     """The candidate-features source of one matcher: stored, cached or extracted features.
-    ``use_stored`` False (``[matcher] stored_features``): never the store's. Single-threaded."""
+    ``use_stored`` False (``[matcher] stored_features``): never the store's; True: the store's
+    when it has them for ``request`` (None: this backend's tiles are always extracted).
+    Single-threaded."""
 
     def __init__(
         self,
@@ -61,23 +65,9 @@ class CandidateFeatures:
     ) -> None:
         self._backend = backend
         self._pre = pre
-        self._cache = cache
-        self._request = request
-        self._use_stored = bool(use_stored) and request is not None
-
-    @property
-    def use_stored(self) -> bool:
-        """Whether the tile store's features are asked for (this backend can have them)."""
-        return self._use_stored
-
-    @property
-    def cache(self) -> TileFeatureCache:
-        return self._cache
-
-    @property
-    def request(self) -> FeatureRequest | None:
-        """What the tile store is asked for; None: this backend's tiles are always extracted."""
-        return self._request
+        self.cache: Final = cache
+        self.request: Final = request
+        self.use_stored: Final = bool(use_stored) and request is not None
 
     def fetch(
         self, candidate: RerankCandidate, recorder: FrameRecorder, timings: dict[str, float]
@@ -92,8 +82,8 @@ class CandidateFeatures:
             if stored is not None:
                 return stored
             handle = candidate.tile_pixels_handle
-            key = tile_cache_key(candidate.tile_id, handle) if self._cache.enabled else None
-            cached = self._cache.get(key) if key is not None else None
+            key = tile_cache_key(candidate.tile_id, handle) if self.cache.enabled else None
+            cached = self.cache.get(key) if key is not None else None
         if cached is not None:
             return TileFeatures("cached", cached.prepared, cached.features)
         with failing_as("tile_decode", "extracted"):
@@ -105,7 +95,7 @@ class CandidateFeatures:
             with timed(timings, "extract"):
                 features = self._backend.extract(image)
             if key is not None:
-                self._cache.put(key, CachedTile(image, features))
+                self.cache.put(key, CachedTile(image, features))
         return TileFeatures("extracted", image, features)
 
     def _stored(self, candidate: RerankCandidate, recorder: FrameRecorder) -> TileFeatures | None:
@@ -115,10 +105,10 @@ class CandidateFeatures:
         once per outage (locked sidecar) or corrupt row, so the WARNING (and its FDR record)
         comes once, not every frame."""
         handle = candidate.tile_pixels_handle
-        if not isinstance(handle, StoredFeaturesHandle) or self._request is None:
+        if not isinstance(handle, StoredFeaturesHandle) or self.request is None:
             return None
         try:
-            features = handle.stored_features(self._request)
+            features = handle.stored_features(self.request)
             if not isinstance(features, Features):
                 return None
             geometry = self._pre.tile_geometry(*features.image_size)

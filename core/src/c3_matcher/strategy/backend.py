@@ -5,13 +5,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.errors import EngineError
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.preprocess import PreparedImage
 from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
 from c3_matcher.strategy.config import ExtractorStrategyConfig
 from c3_matcher.strategy.pairs import PairMatcher
@@ -29,46 +29,26 @@ class ExtractorBackend:
         config: ExtractorStrategyConfig,
     ) -> None:
         self._runtime = runtime
-        self._pair_matcher = pair_matcher
-        self._config = config
+        self.label: Final = config.label
+        self.input_rule: Final = config.input_rule
+        self.extract_phase: Final = config.extract_phase
+        self.match_phase: Final = config.match_phase
+        self.max_keypoints: Final = config.max_keypoints
+        """The keypoint budget (``StoredFeaturesBackend``): at most this many per image."""
+        self.pair_matcher: Final = pair_matcher
         self.engine_id = runtime.load_engine(config.extractor_engine_path)
         facts = {"extractor": _engine_facts(runtime, self.engine_id, config.extractor_engine_path)}
         for role, path in config.matcher_engines().items():
             facts[role] = _engine_facts(None, None, path)
         self._provenance: dict[str, Any] = {"provider": runtime.provider, "engines": facts}
 
-    @property
-    def label(self) -> str:
-        return self._config.label
-
-    @property
-    def input_rule(self) -> InputRule:
-        return self._config.input_rule
-
-    @property
-    def extract_phase(self) -> str:
-        return self._config.extract_phase
-
-    @property
-    def match_phase(self) -> str:
-        return self._config.match_phase
-
-    @property
-    def pair_matcher(self) -> PairMatcher:
-        return self._pair_matcher
-
     def extract(self, image: PreparedImage) -> Features:
         return run_extractor(
-            self._runtime, self.engine_id, image.image, image.valid, self._config.max_keypoints
+            self._runtime, self.engine_id, image.image, image.valid, self.max_keypoints
         )
 
     def match(self, query: Features, tile: Features) -> RawMatches:
-        return self._pair_matcher.match(query, tile)
-
-    @property
-    def max_keypoints(self) -> int:
-        """The keypoint budget (``StoredFeaturesBackend``): at most this many per image."""
-        return self._config.max_keypoints
+        return self.pair_matcher.match(query, tile)
 
     def provenance(self) -> Mapping[str, Any]:
         return self._provenance

@@ -3,7 +3,7 @@ matcher" strategy is built with."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Final
 
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher
@@ -34,10 +34,11 @@ class ExtractorMatcher(PipelineMatcher):
     ) -> None:
         self._runtime = runtime
         self._lightglue_runtime = lightglue_runtime
-        self._config = config
+        self.config: Final = config
         pairs = pair_matcher if pair_matcher is not None else config.pair_matcher(lightglue_runtime)
         backend = ExtractorBackend(runtime, pairs, config)
-        self._extractor_engine_id = backend.engine_id
+        self.extractor_engine_id: Final = backend.engine_id
+        """The engine id ``InferenceRuntime.load_engine`` returned for the extractor."""
         super().__init__(
             backend,
             ransac_filter,
@@ -47,12 +48,3 @@ class ExtractorMatcher(PipelineMatcher):
             config.pipeline_settings,
             tile_cache_size=config.tile_cache_size,
         )
-
-    @property
-    def config(self) -> Any:
-        return self._config
-
-    @property
-    def extractor_engine_id(self) -> str:
-        """The engine id ``InferenceRuntime.load_engine`` returned for the extractor."""
-        return self._extractor_engine_id

@@ -43,7 +43,7 @@ import json
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import pytest
@@ -56,7 +56,7 @@ from c3_matcher.features import DESCRIPTOR_DTYPES, Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import configure_logging
 from c3_matcher.pipeline import FeatureBackend, PipelineSettings
-from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.preprocess import PreparedImage
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.strategy import engine_startup_probe, textured_probe
 from c3_matcher.testing.fakes import (
@@ -104,25 +104,13 @@ class ScriptedBackend:
 
     def __init__(self, backend: FeatureBackend, script: list[ScriptedCandidate]) -> None:
         self.inner = backend
+        self.label: Final = backend.label
+        self.input_rule: Final = backend.input_rule
+        self.extract_phase: Final = backend.extract_phase
+        self.match_phase: Final = backend.match_phase
         self.script = script
         self.last_mark = -1
         self._marks: dict[int, tuple[Features, int]] = {}
-
-    @property
-    def label(self) -> str:
-        return self.inner.label
-
-    @property
-    def input_rule(self) -> InputRule:
-        return self.inner.input_rule
-
-    @property
-    def extract_phase(self) -> str:
-        return self.inner.extract_phase
-
-    @property
-    def match_phase(self) -> str:
-        return self.inner.match_phase
 
     def _scripted(self, mark: int) -> ScriptedCandidate | None:
         return self.script[mark] if 0 <= mark < len(self.script) else None

@@ -42,6 +42,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
+from typing import Final
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.base import TileStoreBase
@@ -74,9 +75,10 @@ class MBTilesStore(TileStoreBase):
         retry_s: float = RETRY_S,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        self._path = Path(path)
-        if not self._path.is_file():
-            raise InvalidInputError("mbtiles", f"no such file: {self._path}")
+        self.path: Final = Path(path)
+        self.name: Final = self.path.name
+        if not self.path.is_file():
+            raise InvalidInputError("mbtiles", f"no such file: {self.path}")
         self._mmap_bytes = int(mmap_bytes)
         self._retry_s = float(retry_s)
         self._clock = clock
@@ -92,14 +94,15 @@ class MBTilesStore(TileStoreBase):
         except sqlite3.DatabaseError as exc:
             self.close()
             what = "locked by another process" if _locked(exc) else "not an SQLite database"
-            raise InvalidInputError("mbtiles", f"{self._path}: {what}: {exc}") from exc
+            raise InvalidInputError("mbtiles", f"{self.path}: {what}: {exc}") from exc
         missing = {"metadata", "tiles"} - tables
         if missing:
             self.close()
             raise InvalidInputError(
-                "mbtiles", f"{self._path}: not an MBTiles file (missing tables {sorted(missing)})"
+                "mbtiles", f"{self.path}: not an MBTiles file (missing tables {sorted(missing)})"
             )
-        self._has_digests = "c3_tile_digest" in tables
+        self.has_digests: Final = "c3_tile_digest" in tables
+        """Whether the store carries per-tile sha256 digests (verified on every read)."""
         self._metadata = {str(k): str(v) for k, v in db.execute("SELECT name, value FROM metadata")}
 
     @property
@@ -109,7 +112,7 @@ class MBTilesStore(TileStoreBase):
         if db is None:
             # used only by this thread; check_same_thread=False lets close() run on any thread
             db = sqlite3.connect(
-                f"file:{self._path.resolve()}?mode=ro",
+                f"file:{self.path.resolve()}?mode=ro",
                 uri=True,
                 check_same_thread=False,
                 timeout=LOCK_WAIT_S,
@@ -123,23 +126,10 @@ class MBTilesStore(TileStoreBase):
     def feature_store(self) -> MapFeatureStore | None:
         """The precomputed map features beside the store (``<store>.features.sqlite``), or None."""
         if self._features is None:
-            side = sidecar_path(self._path)
+            side = sidecar_path(self.path)
             if side.is_file():
                 self._features = MapFeatureStore(side)
         return self._features
-
-    @property
-    def has_digests(self) -> bool:
-        """Whether the store carries per-tile sha256 digests (verified on every read)."""
-        return self._has_digests
-
-    @property
-    def name(self) -> str:
-        return self._path.name
-
-    @property
-    def path(self) -> Path:
-        return self._path
 
     @property
     def metadata(self) -> Mapping[str, str]:
@@ -158,7 +148,7 @@ class MBTilesStore(TileStoreBase):
             "SELECT t.tile_data, d.sha256 FROM tiles t LEFT JOIN c3_tile_digest d"
             " ON d.zoom_level=t.zoom_level AND d.tile_column=t.tile_column"
             " AND d.tile_row=t.tile_row"
-            if self._has_digests
+            if self.has_digests
             else "SELECT t.tile_data, NULL FROM tiles t"
         ) + " WHERE t.zoom_level=? AND t.tile_column=? AND t.tile_row=?"
         try:
@@ -173,8 +163,8 @@ class MBTilesStore(TileStoreBase):
             log_event(
                 "WARNING",
                 "c3.tilestore.recovered",
-                f"tile store {self._path} answers again; serving tiles",
-                store=str(self._path),
+                f"tile store {self.path} answers again; serving tiles",
+                store=str(self.path),
             )
         if found is None or found[0] is None:
             return None
@@ -190,7 +180,7 @@ class MBTilesStore(TileStoreBase):
         unusable: say so once (ERROR log, forwarded to the FDR) and fail every later tile fast."""
         try:
             probe = sqlite3.connect(
-                f"file:{self._path.resolve()}?mode=ro", uri=True, timeout=LOCK_WAIT_S
+                f"file:{self.path.resolve()}?mode=ro", uri=True, timeout=LOCK_WAIT_S
             )
             try:
                 probe.execute("SELECT count(*) FROM metadata").fetchone()
@@ -208,8 +198,8 @@ class MBTilesStore(TileStoreBase):
             log_event(
                 "ERROR",
                 "c3.tilestore.unusable",
-                f"tile store {self._path} is unusable: {reason}",
-                store=str(self._path),
+                f"tile store {self.path} is unusable: {reason}",
+                store=str(self.path),
                 error=reason,
             )
         raise TileStoreUnusableError(f"{self.name}", reason) from exc
@@ -247,7 +237,7 @@ class MBTilesStore(TileStoreBase):
         self.close()
 
     def __repr__(self) -> str:
-        return f"MBTilesStore({str(self._path)!r})"
+        return f"MBTilesStore({str(self.path)!r})"
 
 
 def _locked(exc: BaseException) -> bool:

@@ -24,7 +24,7 @@ import importlib.metadata
 import sys
 import types
 from collections.abc import Callable, Iterator, Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -113,6 +113,16 @@ def xfeat_reference_features(
 
 
 # -- the export rewrite ------------------------------------------------------------------------
+class _GridPoints(NamedTuple):
+    """Points of a separable normalised grid: the grid's y values ``gy`` (H',) and x values
+    ``gx`` (W',), and the (``rows``, ``cols``) index pairs (P,) of the points to read."""
+
+    gy: Any
+    gx: Any
+    rows: Any
+    cols: Any
+
+
 def build_xfeat_export_module(
     reference: Any,
     top_k: int = XFEAT_TOP_K,
@@ -177,8 +187,9 @@ def build_xfeat_export_module(
             found = torch.nonzero(is_kp.reshape(-1))[:, 0]  # (P,) flat indices
             cx = xs.reshape(-1)[found].to(torch.int64)
             cy = ys.reshape(-1)[found].to(torch.int64)
-            near = _nearest_at(heat[0, 0], gy, gx, cy, cx)
-            rel = _bilinear_at(reliability[0, 0], gy, gx, cy, cx)
+            survivors = _GridPoints(gy, gx, cy, cx)
+            near = _nearest_at(heat[0, 0], survivors)
+            rel = _bilinear_at(reliability[0, 0], survivors)
             pad = torch.zeros(self.k, dtype=heat.dtype)
             scores, index = torch.topk(torch.cat([near * rel, pad]), self.k, sorted=True)
             x = torch.cat([xs.reshape(-1)[found], pad]).gather(0, index)
@@ -210,38 +221,26 @@ def build_xfeat_export_module(
         index_high = torch.minimum(high, last).to(torch.int64)
         return index_low, index_high, w_low, w_high
 
-    def _nearest_at(
-        plane: torch.Tensor,
-        gy: torch.Tensor,
-        gx: torch.Tensor,
-        rows: torch.Tensor,
-        cols: torch.Tensor,
-    ) -> torch.Tensor:
-        """``grid_sample(mode="nearest")`` of ``plane`` (H', W') on the outer grid (gy, gx),
-        read at the grid points (``rows``, ``cols``) only (the same products, in the same
-        order, as sampling every point)."""
+    def _nearest_at(plane: torch.Tensor, at: _GridPoints) -> torch.Tensor:
+        """``grid_sample(mode="nearest")`` of ``plane`` (H', W') on the outer grid, read at
+        the grid points ``at`` only (the same products, in the same order, as sampling every
+        point)."""
         taps = []
-        for axis, grid in ((0, gy), (1, gx)):
+        for axis, grid in ((0, at.gy), (1, at.gx)):
             src = torch.round(_source(grid, plane, axis))  # half to even, as nearbyint
             last = torch.ones_like(plane).sum(dim=axis)[0] - 1
             inside = ((src >= 0) & (src <= last)).to(plane.dtype)
             taps.append((src.clamp(min=0).minimum(last).to(torch.int64), inside))
         (iy, in_y), (ix, in_x) = taps
         width = torch.ones_like(plane).sum(dim=1)[0].to(torch.int64)
-        value = plane.reshape(-1)[iy[rows] * width + ix[cols]]
-        return (value * in_y[rows]) * in_x[cols]
+        value = plane.reshape(-1)[iy[at.rows] * width + ix[at.cols]]
+        return (value * in_y[at.rows]) * in_x[at.cols]
 
-    def _bilinear_at(
-        plane: torch.Tensor,
-        gy: torch.Tensor,
-        gx: torch.Tensor,
-        rows: torch.Tensor,
-        cols: torch.Tensor,
-    ) -> torch.Tensor:
-        """``grid_sample(mode="bilinear")`` of ``plane`` (H', W') on the outer grid (gy, gx) at
-        the grid points (``rows``, ``cols``), summed as upstream: nw, ne, sw, se."""
-        y0, y1, wy0, wy1 = (t[rows] for t in _taps(gy, plane, 0))
-        x0, x1, wx0, wx1 = (t[cols] for t in _taps(gx, plane, 1))
+    def _bilinear_at(plane: torch.Tensor, at: _GridPoints) -> torch.Tensor:
+        """``grid_sample(mode="bilinear")`` of ``plane`` (H', W') on the outer grid at the
+        grid points ``at``, summed as upstream: nw, ne, sw, se."""
+        y0, y1, wy0, wy1 = (t[at.rows] for t in _taps(at.gy, plane, 0))
+        x0, x1, wx0, wx1 = (t[at.cols] for t in _taps(at.gx, plane, 1))
         width = torch.ones_like(plane).sum(dim=1)[0].to(torch.int64)
         flat = plane.reshape(-1)
         nw, ne = flat[y0 * width + x0], flat[y0 * width + x1]

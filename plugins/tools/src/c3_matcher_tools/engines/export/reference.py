@@ -18,18 +18,17 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.config import C3Settings
+from c3_matcher.engines.lightglue_adaptive import (
+    UPSTREAM_DEPTH_CONFIDENCE,
+    UPSTREAM_WIDTH_CONFIDENCE,
+)
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.preprocess import InputRule
 
 __all__ = [
-    "UPSTREAM_DEPTH_CONFIDENCE",
-    "UPSTREAM_WIDTH_CONFIDENCE",
     "PyTorchReference",
     "load_upstream_lightglue",
 ]
-
-UPSTREAM_DEPTH_CONFIDENCE = 0.95
-UPSTREAM_WIDTH_CONFIDENCE = 0.99
 
 
 def load_upstream_lightglue(
