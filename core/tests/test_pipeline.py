@@ -256,7 +256,7 @@ def test_matcher_settings_reach_the_pipeline_of_every_strategy(tmp_path):
         lightglue_engine_path=Path("l.onnx"),
         size_multiple=16,
     )
-    pipeline = config.pipeline_settings
+    pipeline = config.pipeline
     assert not pipeline.use_stored_features and not pipeline.geometric_prior  # both not default
     assert pipeline.prior_tolerances.rotation_deg == 5.0
     assert pipeline.min_inliers_threshold == 70

@@ -89,17 +89,6 @@ class PipelineSettings:
             matcher.refine,
         )
 
-    def with_thresholds(
-        self, min_inliers: int, residual_warn_px: float, ransac_px: float
-    ) -> PipelineSettings:
-        """These settings with a strategy config's thresholds."""
-        return dataclasses.replace(
-            self,
-            min_inliers_threshold=min_inliers,
-            residual_warn_threshold_px=residual_warn_px,
-            ransac_threshold_px=ransac_px,
-        )
-
 
 class PipelineMatcher:
     """The one ``CrossDomainMatcher`` of every strategy: the per-frame loop over a strategy's

@@ -22,7 +22,6 @@ from c3_matcher.strategy.config import (
     DEFAULT_MAX_KEYPOINTS,
     ExtractorLightGlueConfig,
     ExtractorStrategyConfig,
-    pipeline_with_thresholds,
 )
 from c3_matcher.strategy.factories import backend_strategy_factory, strategy_factory
 from c3_matcher.strategy.matcher import ExtractorMatcher
@@ -39,7 +38,6 @@ __all__ = [
     "backend_strategy_factory",
     "engine_startup_probe",
     "match_features",
-    "pipeline_with_thresholds",
     "strategy_factory",
     "textured_probe",
 ]

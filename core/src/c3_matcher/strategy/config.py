@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, Self
 
@@ -35,17 +35,10 @@ class ExtractorLightGlueConfig:
     size_multiple: int
     max_long_side: int = 1024
     max_keypoints: int = DEFAULT_MAX_KEYPOINTS
-    min_inliers_threshold: int = 60
-    residual_warn_threshold_px: float = 2.5
-    ransac_threshold_px: float = 3.0
     tile_cache_size: int = 16
-    pipeline: PipelineSettings | None = None  # [matcher]'s stored features and prior
+    pipeline: PipelineSettings = field(default_factory=PipelineSettings)  # from [matcher]
 
     match_phase = "lightglue_match"
-
-    @property
-    def pipeline_settings(self) -> PipelineSettings:
-        return pipeline_with_thresholds(self)
 
     @property
     def input_rule(self) -> InputRule:
@@ -83,9 +76,6 @@ class ExtractorLightGlueConfig:
             size_multiple,
             m.max_long_side,
             m.max_keypoints or DEFAULT_MAX_KEYPOINTS,
-            m.min_inliers_threshold,
-            m.residual_warn_threshold_px,
-            m.ransac_threshold_px,
             m.tile_cache_size,
             PipelineSettings.from_settings(m),
         )
@@ -94,7 +84,8 @@ class ExtractorLightGlueConfig:
 
 class ExtractorStrategyConfig(Protocol):
     """What ``ExtractorMatcher`` needs from a strategy's config (``ExtractorLightGlueConfig``,
-    XFeat's config): labels, image rule, keypoint budget, engine files and thresholds."""
+    XFeat's config): labels, image rule, keypoint budget, engine files and the per-frame
+    settings (``pipeline``: thresholds, stored features, the prior; from ``[matcher]``)."""
 
     @property
     def label(self) -> str: ...
@@ -109,7 +100,7 @@ class ExtractorStrategyConfig(Protocol):
     @property
     def extractor_engine_path(self) -> Path: ...
     @property
-    def pipeline_settings(self) -> PipelineSettings: ...
+    def pipeline(self) -> PipelineSettings: ...
     @property
     def tile_cache_size(self) -> int: ...
     def matcher_engines(self) -> Mapping[str, Path]:
@@ -117,24 +108,3 @@ class ExtractorStrategyConfig(Protocol):
         ...
 
     def pair_matcher(self, lightglue_runtime: LightGlueRuntime) -> PairMatcher: ...
-
-
-class ThresholdedConfig(Protocol):
-    """A config carrying ``[matcher]``'s pipeline settings and its own thresholds."""
-
-    @property
-    def pipeline(self) -> PipelineSettings | None: ...
-    @property
-    def min_inliers_threshold(self) -> int: ...
-    @property
-    def residual_warn_threshold_px(self) -> float: ...
-    @property
-    def ransac_threshold_px(self) -> float: ...
-
-
-def pipeline_with_thresholds(config: ThresholdedConfig) -> PipelineSettings:
-    """``[matcher]``'s pipeline settings (``config.pipeline``, else the defaults) with the
-    config's inlier, residual-warning and RANSAC thresholds."""
-    return (config.pipeline or PipelineSettings()).with_thresholds(
-        config.min_inliers_threshold, config.residual_warn_threshold_px, config.ransac_threshold_px
-    )

@@ -45,6 +45,6 @@ class ExtractorMatcher(PipelineMatcher):
             fdr_client,
             health_window,
             clock or MonotonicClock(),
-            config.pipeline_settings,
+            config.pipeline,
             tile_cache_size=config.tile_cache_size,
         )

@@ -10,7 +10,7 @@ the constructor, called by ``create`` at start-up; the start-up probe asserts th
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from c3_matcher.config import C3Settings, with_strategy_defaults
@@ -24,7 +24,6 @@ from c3_matcher.strategy import (
     ExtractorMatcher,
     LightGluePairMatcher,
     PairMatcher,
-    pipeline_with_thresholds,
     strategy_factory,
 )
 from c3_matcher_xfeat.defaults import DEFAULTS
@@ -68,11 +67,8 @@ class XFeatConfig:
     min_cossim: float = DEFAULT_MIN_COSSIM
     max_long_side: int = 1024
     max_keypoints: int = 4096
-    min_inliers_threshold: int = 60
-    residual_warn_threshold_px: float = 2.5
-    ransac_threshold_px: float = 3.0
     tile_cache_size: int = 16
-    pipeline: PipelineSettings | None = None  # [matcher]'s stored features and prior
+    pipeline: PipelineSettings = field(default_factory=PipelineSettings)  # from [matcher]
     similarity_threads: int = 0  # [engines] intra_op_threads, for the mutual-NN similarity
 
     def __post_init__(self) -> None:
@@ -96,10 +92,6 @@ class XFeatConfig:
     @property
     def match_phase(self) -> str:
         return MATCH_PHASES[self.matcher]
-
-    @property
-    def pipeline_settings(self) -> PipelineSettings:
-        return pipeline_with_thresholds(self)
 
     @property
     def input_rule(self) -> InputRule:
@@ -140,9 +132,6 @@ class XFeatConfig:
             min_cossim=opts.min_cossim,
             max_long_side=m.max_long_side,
             max_keypoints=opts.keypoint_budget(explicit),
-            min_inliers_threshold=m.min_inliers_threshold,
-            residual_warn_threshold_px=m.residual_warn_threshold_px,
-            ransac_threshold_px=m.ransac_threshold_px,
             tile_cache_size=m.tile_cache_size,
             pipeline=PipelineSettings.from_settings(m),
             similarity_threads=int(settings.engines.intra_op_threads),

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -134,15 +134,11 @@ class Projection:
         return f"{self.kind} (exact)"
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "kind": self.kind,
-            "zone": self.zone,
-            "south": self.south,
-            "ref_lat": self.ref_lat,
-            "ref_lon": self.ref_lon,
-            "ref_en": list(self.ref_en),
-            **({"epsg": self.epsg} if self.epsg else {}),
-        }
+        """Every field, in order; ``epsg`` only when set."""
+        data = {**asdict(self), "ref_en": list(self.ref_en)}
+        if not self.epsg:
+            del data["epsg"]
+        return data
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Projection:

@@ -23,7 +23,7 @@ import math
 import shutil
 import uuid
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -264,21 +264,8 @@ class ImportReport:
     notes: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            "dataset": self.dataset,
-            "source": self.source,
-            "kind": self.kind,
-            "frames": self.frames,
-            "skipped": [{"image": n, "reason": r} for n, r in self.skipped],
-            "time_source": self.time_source,
-            "time_offset_s": self.time_offset_s,
-            "height_sources": self.height_sources,
-            "attitude_assumed": list(self.attitude_assumed),
-            "height_assumed": list(self.height_assumed),
-            "gnss_degraded": list(self.gnss_degraded),
-            "zoom": self.zoom,
-            "notes": list(self.notes),
-        }
+        """Every field, in order, JSON-ready: a skipped image as {"image", "reason"}."""
+        return {**asdict(self), "skipped": [{"image": n, "reason": r} for n, r in self.skipped]}
 
     def lines(self) -> list[str]:
         heights = ", ".join(f"{k} ({v})" for k, v in sorted(self.height_sources.items()))
