@@ -36,7 +36,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
@@ -48,6 +47,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.photometry import PHOTOMETRIC_MODES, normalise_photometry, to_rgb
 from c3_matcher.prepared import InputRule, PreparedImage, engine_to_working
 from c3_matcher.query_geometry import QueryGeometry
+from c3_matcher.resample import area_downscale, check_pixels, remap_linear
 
 __all__ = [
     "PHOTOMETRIC_MODES",
@@ -55,53 +55,10 @@ __all__ = [
     "InputRule",
     "PreparedImage",
     "QueryGeometry",
-    "area_downscale",
     "normalise_photometry",
-    "remap_linear",
 ]
 
 F64 = NDArray[np.float64]
-
-
-def area_downscale(
-    image: NDArray[np.uint8], factor: float
-) -> tuple[NDArray[np.uint8], tuple[float, float]]:
-    """``image`` shrunk ``factor`` times by area averaging (anti-aliasing before a warp that
-    shrinks it), at least 2x2 px; and the (x, y) scale from its pixels to the result's."""
-    h, w = image.shape[:2]
-    sw, sh = max(2, round(w / factor)), max(2, round(h / factor))
-    small = np.asarray(cv2.resize(image, (sw, sh), interpolation=cv2.INTER_AREA), dtype=np.uint8)
-    return small, (sw / w, sh / h)
-
-
-def remap_linear(
-    src: NDArray[np.uint8], map1: NDArray[Any], map2: NDArray[Any]
-) -> NDArray[np.uint8]:
-    """``cv2.remap`` of ``src`` by ``map1``/``map2`` (either OpenCV map form), bilinear, black
-    (all channels 0) where a map points outside ``src``."""
-    return np.asarray(
-        cv2.remap(
-            src,
-            map1,
-            map2,
-            cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT,
-            borderValue=(0, 0, 0, 0),
-        ),
-        dtype=np.uint8,
-    )
-
-
-def _check_pixels(image: object, field_name: str) -> NDArray[np.uint8]:
-    if not isinstance(image, np.ndarray):
-        raise InvalidInputError(field_name, f"expected numpy.ndarray, got {type(image).__name__}")
-    if image.dtype != np.uint8:
-        raise InvalidInputError(field_name, f"expected dtype uint8, got {image.dtype}")
-    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
-        raise InvalidInputError(field_name, f"expected (H, W) or (H, W, 3), got {image.shape}")
-    if image.shape[0] < 2 or image.shape[1] < 2:
-        raise InvalidInputError(field_name, f"image too small: {image.shape}")
-    return image
 
 
 @dataclass(frozen=True)
@@ -171,7 +128,7 @@ class FramePreprocessor:
     ) -> PreparedImage:
         """The frame's pixels resampled once into ``geometry``'s engine image (exact lens model
         per pixel), masked to its footprint and normalised (:func:`normalise_photometry`)."""
-        image = _check_pixels(frame.image, "frame.image")
+        image = check_pixels(frame.image, "frame.image")
         # Source anti-aliasing: area-downscale first if the warp shrinks the frame a lot.
         src: NDArray[np.uint8] = image
         source_scale = (1.0, 1.0)
@@ -199,7 +156,7 @@ class FramePreprocessor:
     ) -> QueryGeometry:
         """The geometry :meth:`prepare_query` uses (no pixels touched): the rectifying
         homography, the canvas, the engine sizes and the footprint."""
-        image = _check_pixels(frame.image, "frame.image")
+        image = check_pixels(frame.image, "frame.image")
         h, w = image.shape[:2]
         if tuple(calibration.image_size) != (w, h):
             raise InvalidInputError(
@@ -385,7 +342,7 @@ class FramePreprocessor:
         """Resize a north-up tile (uint8 RGB (H, W, 3) or grey (H, W)) to the rule (area
         averaging, never upscaling) and pad it; nodata (all channels 0) is masked. WORKING px are
         the tile's full-resolution px."""
-        tile = to_rgb(_check_pixels(tile_rgb, "tile"))
+        tile = to_rgb(check_pixels(tile_rgb, "tile"))
         h, w = tile.shape[:2]
         content = self.rule.content_size(w, h)
         final = self.rule.final_size(w, h)

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from c3_matcher import camera as cam
 from c3_matcher.dto import Attitude, CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.preprocess import area_downscale, remap_linear
+from c3_matcher.resample import area_downscale, remap_linear
 from c3_matcher_tools.sim.photometric import PhotometricShift
 
 __all__ = [
