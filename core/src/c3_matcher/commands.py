@@ -29,6 +29,8 @@ __all__ = [
     "CommandContext",
     "CommandRegistry",
     "Handler",
+    "add_max_keypoints_option",
+    "bounded_int",
 ]
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_INSUFFICIENT = 0, 1, 2, 3
@@ -107,3 +109,37 @@ class CommandRegistry:
             sub = parser.add_subparsers(dest=dest, required=True, parser_class=UsageParser)
             self._groups[name] = CommandRegistry(sub, dest)
         return self._groups[name]
+
+
+def bounded_int(what: str, low: int = 1, high: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an int in [low, high], else a usage error (exit 2) naming ``what``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{what}: expected an integer, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            bound = f">= {low}" if high is None else f"in [{low}, {high}]"
+            raise argparse.ArgumentTypeError(f"{what}: must be {bound}, got {value}")
+        return value
+
+    return parse
+
+
+def add_max_keypoints_option(
+    p: argparse.ArgumentParser,
+    help: str = "override [matcher] max_keypoints",
+    **kwargs: Any,
+) -> None:
+    """``--max-keypoints N``: a keypoint budget per image, in ``KEYPOINT_BUDGET_RANGE``."""
+    from c3_matcher.config import KEYPOINT_BUDGET_RANGE
+
+    low, high = KEYPOINT_BUDGET_RANGE
+    p.add_argument(
+        "--max-keypoints",
+        type=bounded_int("--max-keypoints", low, high),
+        default=None,
+        help=f"{help} ({low}..{high})",
+        **kwargs,
+    )

@@ -32,6 +32,7 @@ from c3_matcher.plugins.types import StrategyDefaults
 
 __all__ = [
     "ENV_PREFIX",
+    "KEYPOINT_BUDGET_RANGE",
     "C3Settings",
     "EngineSettings",
     "FdrSettings",
@@ -43,6 +44,9 @@ __all__ = [
 ]
 
 APP_NAME = "c3-matcher"
+
+KEYPOINT_BUDGET_RANGE = (16, 8192)
+"""The keypoints per image ``[matcher] max_keypoints`` and ``--max-keypoints`` accept."""
 
 
 class _Section(BaseModel):
@@ -85,8 +89,8 @@ class MatcherSettings(_Section):
     )
     max_keypoints: int | None = Field(
         None,
-        ge=16,
-        le=8192,
+        ge=KEYPOINT_BUDGET_RANGE[0],
+        le=KEYPOINT_BUDGET_RANGE[1],
         description="keypoints per image; None: the strategy's default (2048 for DISK or ALIKED "
         "+ LightGlue, 4096 for XFeat with mutual nearest neighbours)",
     )

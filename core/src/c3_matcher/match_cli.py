@@ -14,7 +14,13 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import EXIT_INSUFFICIENT, EXIT_USAGE, CommandContext, CommandRegistry
+from c3_matcher.commands import (
+    EXIT_INSUFFICIENT,
+    EXIT_USAGE,
+    CommandContext,
+    CommandRegistry,
+    add_max_keypoints_option,
+)
 from c3_matcher.config import C3Settings
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
 from c3_matcher.dto.candidates import RerankCandidate, RerankResult
@@ -59,16 +65,6 @@ def _positive(text: str) -> float:
     (value,) = _floats(text, 1, "value")
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def _keypoints(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if not 16 <= value <= 8192:
-        raise argparse.ArgumentTypeError(f"must be in 16..8192, got {value}")
     return value
 
 
@@ -122,12 +118,7 @@ def register_match_command(commands: CommandRegistry) -> None:
 def _add_output_options(p: argparse.ArgumentParser) -> None:
     """The strategy, keypoint budget and where the picture and the records go."""
     p.add_argument("--strategy", default=None, help="strategy to use (default: configuration)")
-    p.add_argument(
-        "--max-keypoints",
-        type=_keypoints,
-        default=None,
-        help="override [matcher] max_keypoints (16..8192)",
-    )
+    add_max_keypoints_option(p)
     p.add_argument(
         "--viz",
         type=Path,

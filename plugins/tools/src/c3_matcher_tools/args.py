@@ -11,7 +11,6 @@ __all__ = [
     "add_attitude_noise_option",
     "add_strategies_option",
     "non_negative_float",
-    "positive_int",
 ]
 
 
@@ -41,22 +40,6 @@ def non_negative_float(what: str) -> Callable[[str], float]:
             raise argparse.ArgumentTypeError(f"{what}: expected a number, got {text!r}") from None
         if not math.isfinite(value) or value < 0:
             raise argparse.ArgumentTypeError(f"{what}: must be finite and >= 0, got {value}")
-        return value
-
-    return parse
-
-
-def positive_int(what: str, low: int = 1, high: int | None = None) -> Callable[[str], int]:
-    """An argparse type: an int in [low, high], else a usage error (exit 2) naming ``what``."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{what}: expected an integer, got {text!r}") from None
-        if value < low or (high is not None and value > high):
-            bound = f">= {low}" if high is None else f"in [{low}, {high}]"
-            raise argparse.ArgumentTypeError(f"{what}: must be {bound}, got {value}")
         return value
 
     return parse

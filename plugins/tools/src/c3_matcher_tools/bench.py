@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from c3_matcher.commands import CommandContext, CommandRegistry
+from c3_matcher.commands import CommandContext, CommandRegistry, add_max_keypoints_option
 from c3_matcher.config import C3Settings
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.bench_report import comparisons, format_report
@@ -193,13 +193,11 @@ def register_bench_command(commands: CommandRegistry) -> None:
         action="store_true",
         help="skip the other [lightglue] mode (full vs adaptive) for LightGlue strategies",
     )
-    p.add_argument(
-        "--max-keypoints",
+    add_max_keypoints_option(
+        p,
+        "also time a keypoint budget of N per image, new tiles (repeatable)",
         dest="keypoints",
-        type=int,
         action="append",
-        default=None,
-        help="also time a keypoint budget of N per image, new tiles (repeatable)",
     )
     p.add_argument(  # the former name, still accepted
         "--keypoints", dest="keypoints", type=int, action="append", help=argparse.SUPPRESS

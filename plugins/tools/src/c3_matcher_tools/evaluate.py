@@ -50,7 +50,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import CommandContext, CommandRegistry
+from c3_matcher.commands import CommandContext, CommandRegistry, add_max_keypoints_option
 from c3_matcher.config import C3Settings
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher_tools.args import add_attitude_noise_option, add_strategies_option
@@ -147,9 +147,7 @@ def register_eval_command(commands: CommandRegistry) -> None:
     p.add_argument(
         "--out", type=Path, default=None, help="output directory (default out/eval/<dataset>)"
     )
-    p.add_argument(
-        "--max-keypoints", type=int, default=None, help="override [matcher] max_keypoints"
-    )
+    add_max_keypoints_option(p)
     p.add_argument(
         "--determinism-frames",
         type=int,

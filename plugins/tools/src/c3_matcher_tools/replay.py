@@ -23,8 +23,13 @@ import json
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import CommandContext, CommandRegistry
-from c3_matcher_tools.args import add_attitude_noise_option, positive_int
+from c3_matcher.commands import (
+    CommandContext,
+    CommandRegistry,
+    add_max_keypoints_option,
+    bounded_int,
+)
+from c3_matcher_tools.args import add_attitude_noise_option
 from c3_matcher_tools.dataset.format import load_dataset, with_attitude_noise
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
@@ -60,14 +65,9 @@ def register_replay_command(commands: CommandRegistry) -> None:
         help="output directory (default out/replay/<dataset>-<strategy>)",
     )
     p.add_argument(
-        "--limit", type=positive_int("--limit"), default=None, help="only the first N frames (>= 1)"
+        "--limit", type=bounded_int("--limit"), default=None, help="only the first N frames (>= 1)"
     )
-    p.add_argument(
-        "--max-keypoints",
-        type=positive_int("--max-keypoints", low=16, high=8192),
-        default=None,
-        help="override [matcher] max_keypoints (16..8192)",
-    )
+    add_max_keypoints_option(p)
     p.add_argument(
         "--no-correspondences",
         action="store_true",
