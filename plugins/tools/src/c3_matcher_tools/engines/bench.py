@@ -25,13 +25,12 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-if TYPE_CHECKING:
-    from c3_matcher.features import PairSide
+from c3_matcher.features import PairSide
 
 __all__ = ["BenchResult", "format_table", "run_bench"]
 
