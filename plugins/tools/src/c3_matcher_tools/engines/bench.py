@@ -159,7 +159,7 @@ def _child(args: argparse.Namespace) -> int:
             return PairSide(data[f"k{i}"][:n], data[f"d{i}"][:n], (width, height))
 
         side0, side1 = side(0), side(1)
-        case = f"{args.feature_type} lightglue {len(side0[0])}x{len(side1[0])} kpts"
+        case = f"{args.feature_type} lightglue {len(side0.keypoints)}x{len(side1.keypoints)} kpts"
 
         def fn() -> object:
             return matcher.match_pair(side0, side1, feature_type=args.feature_type)
