@@ -193,6 +193,21 @@ def test_replay_refuses_negative_limit_and_keypoints(tmp_path):
         assert proc.returncode == 2 and flag in _one_line(proc)
 
 
+@pytest.mark.parametrize(
+    ("command", "flag", "value"),
+    [
+        ("eval", "--max-keypoints", "8193"),
+        ("bench", "--max-keypoints", "15"),
+        ("bench", "--keypoints", "0"),  # the option's former name, still accepted
+    ],
+)
+def test_eval_and_bench_refuse_a_keypoint_budget_out_of_range(command, flag, value, tmp_path):
+    flight = REPO / "data" / "flights" / "naip_demo"
+    where = [str(flight)] if command == "eval" else ["--data", str(flight)]
+    proc = c3([command, *where, flag, value], {})
+    assert proc.returncode == 2 and flag in _one_line(proc) and "16, 8192" in _one_line(proc)
+
+
 def test_unwritable_fdr_and_viz_print_the_result_and_exit_2(env, tmp_path):
     blocker = tmp_path / "a_file"
     blocker.write_text("x")

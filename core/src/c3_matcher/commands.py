@@ -31,6 +31,7 @@ __all__ = [
     "Handler",
     "add_max_keypoints_option",
     "bounded_int",
+    "keypoint_budget",
 ]
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_INSUFFICIENT = 0, 1, 2, 3
@@ -138,8 +139,15 @@ def add_max_keypoints_option(
     low, high = KEYPOINT_BUDGET_RANGE
     p.add_argument(
         "--max-keypoints",
-        type=bounded_int("--max-keypoints", low, high),
+        type=keypoint_budget("--max-keypoints"),
         default=None,
         help=f"{help} ({low}..{high})",
         **kwargs,
     )
+
+
+def keypoint_budget(flag: str) -> Callable[[str], int]:
+    """An argparse type: a keypoint budget in ``KEYPOINT_BUDGET_RANGE``, errors naming ``flag``."""
+    from c3_matcher.config import KEYPOINT_BUDGET_RANGE
+
+    return bounded_int(flag, *KEYPOINT_BUDGET_RANGE)

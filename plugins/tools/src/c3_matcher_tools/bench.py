@@ -36,7 +36,12 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from c3_matcher.commands import CommandContext, CommandRegistry, add_max_keypoints_option
+from c3_matcher.commands import (
+    CommandContext,
+    CommandRegistry,
+    add_max_keypoints_option,
+    keypoint_budget,
+)
 from c3_matcher.config import C3Settings
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.bench_report import comparisons, format_report
@@ -200,7 +205,11 @@ def register_bench_command(commands: CommandRegistry) -> None:
         action="append",
     )
     p.add_argument(  # the former name, still accepted
-        "--keypoints", dest="keypoints", type=int, action="append", help=argparse.SUPPRESS
+        "--keypoints",
+        dest="keypoints",
+        type=keypoint_budget("--keypoints"),
+        action="append",
+        help=argparse.SUPPRESS,
     )
     p.add_argument(
         "--threads",
