@@ -131,11 +131,10 @@ class _Job:
 def _resolved(settings: C3Settings, strategies: Sequence[str]) -> dict[str, str]:
     """Each strategy's settings as it flies them (its own defaults where the configuration
     leaves a setting unset), as JSON; the plugins discovered once, here."""
-    from c3_matcher.compose import build_plugin_host
-    from c3_matcher_tools.run.matcher import run_settings
+    from c3_matcher.compose import build_plugin_host, strategy_settings
 
     host = build_plugin_host()
-    return {s: run_settings(settings, s, host).model_dump_json() for s in strategies}
+    return {s: strategy_settings(settings, s, host).model_dump_json() for s in strategies}
 
 
 def _plan(

@@ -80,7 +80,7 @@ def _worker_cache() -> BackendCache:
 
 def photometric_of(settings_json: str) -> str:
     """The photometric normalisation of settings resolved for a strategy
-    (``c3_matcher_tools.run.run_settings``: ``[matcher] photometric``, or when unset the
+    (``c3_matcher.compose.strategy_settings``: ``[matcher] photometric``, or when unset the
     strategy's own default)."""
     return str(C3Settings.model_validate_json(settings_json).matcher.photometric)
 

@@ -13,7 +13,6 @@ from c3_matcher_tools.run.matcher import (
     compose_matcher,
     open_backend,
     open_matcher,
-    run_settings,
 )
 from c3_matcher_tools.run.outputs import write_flight_outputs, write_html_report, write_results
 from c3_matcher_tools.run.records import (
@@ -49,7 +48,6 @@ __all__ = [
     "open_matcher",
     "result_fingerprint",
     "run_flight",
-    "run_settings",
     "summarize",
     "telemetry_reference",
     "truth_position",

@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from c3_matcher.compose import strategy_settings
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import MatchResult
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
@@ -19,7 +20,7 @@ from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import result_to_json
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
-from c3_matcher_tools.run.matcher import NO_OVERRIDES, Overrides, open_matcher, run_settings
+from c3_matcher_tools.run.matcher import NO_OVERRIDES, Overrides, open_matcher
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.scoring import (
     best_candidate_error,
@@ -174,7 +175,7 @@ def fly(
             with_correspondences=with_correspondences,
         )
     wall_s = time.perf_counter() - started
-    ran = run_settings(overrides.apply(settings, strategy), strategy, plugin_host)
+    ran = strategy_settings(overrides.apply(settings, strategy), strategy, plugin_host)
     return FlightRun(
         strategy, ran.matcher.model_dump(mode="json"), tuple(outcomes), startup_s, wall_s
     )

@@ -24,7 +24,6 @@ __all__ = [
     "compose_matcher",
     "open_backend",
     "open_matcher",
-    "run_settings",
 ]
 
 _MATCHER_KEYS = ("max_keypoints", "tile_cache_size", "max_long_side", "stored_features")
@@ -64,15 +63,6 @@ class Overrides:
 
 
 NO_OVERRIDES = Overrides()
-
-
-def run_settings(
-    settings: C3Settings, strategy: str, plugin_host: PluginHost | None = None
-) -> C3Settings:
-    """The settings ``strategy`` runs with: ``[matcher] strategy`` set to it and every setting
-    the configuration leaves unset taken from the strategy's own defaults
-    (``c3_matcher.compose.strategy_settings``)."""
-    return strategy_settings(settings, strategy, plugin_host)
 
 
 @dataclass(frozen=True)
@@ -125,7 +115,7 @@ def _reference_matcher(
     from c3_matcher.ransac import OpenCvRansacFilter
 
     strategy = settings.matcher.strategy
-    settings = run_settings(settings, strategy, host)
+    settings = strategy_settings(settings, strategy, host)
     m = settings.matcher
     backend = host.reference_backend(strategy, settings)
     if backend is None:
