@@ -85,15 +85,15 @@ def child(data: Path, strategy: str) -> dict[str, int]:
     fdr = JsonlFdrRecorder(Path(tempfile.mkdtemp(prefix="c3-gpu-")) / "fdr.jsonl", clock)
     matcher = compose_matcher(settings, fdr=fdr, clock=clock).matcher
     marks["composed"] = gpu_mib()
-    inputs = flight_inputs(data)
-    match(matcher, *inputs[0])
-    marks["first match"] = gpu_mib()
-    peak, times = marks["first match"], []
-    for frame, rerank, calibration in inputs[1:]:
-        started = time.perf_counter()
-        match(matcher, frame, rerank, calibration)
-        times.append(time.perf_counter() - started)
-        peak = max(peak, gpu_mib())
+    with flight_inputs(data) as inputs:
+        match(matcher, *inputs[0])
+        marks["first match"] = gpu_mib()
+        peak, times = marks["first match"], []
+        for frame, rerank, calibration in inputs[1:]:
+            started = time.perf_counter()
+            match(matcher, frame, rerank, calibration)
+            times.append(time.perf_counter() - started)
+            peak = max(peak, gpu_mib())
     marks[f"peak over {len(inputs)} frames"] = peak
     if times:
         marks["frame p50 ms"] = round(float(np.median(times)) * 1000)

@@ -67,3 +67,24 @@ def test_the_backend_a_strategy_flies_with(engine_dir: Path) -> None:
     assert open_backend(settings, "sift_magsac").label == "sift_magsac"  # the baseline too
     with pytest.raises(UnknownStrategyError, match="no_such_strategy"):
         open_backend(settings, "no_such_strategy")
+
+
+def test_flight_inputs_read_tiles_inside_the_block_and_close_the_store_after(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from c3_matcher.tilestore.mbtiles import MBTilesStore
+    from c3_matcher_tools.run.inputs import flight_inputs
+
+    closed: list[Path] = []
+    close = MBTilesStore.close
+    monkeypatch.setattr(MBTilesStore, "close", lambda s: (closed.append(s.path), close(s))[1])
+    flight = load_dataset(DEMO)
+    with flight_inputs(DEMO) as inputs:
+        assert len(inputs) == sum(f.true_tile_present for f in flight.frames)
+        frame, rerank, _ = inputs[0]
+        assert rerank.frame_id == frame.frame_id
+        assert rerank.candidates[0].tile_pixels_handle.decode().ndim == 3
+        assert closed == []
+    assert len(closed) == 1
+    with flight_inputs(DEMO.parents[1] / "demo") as (demo,):  # a demo-format directory
+        assert len(demo[1].candidates) == 3

@@ -119,36 +119,35 @@ def _has_torch() -> bool:
     return importlib.util.find_spec("torch") is not None
 
 
-def cases_for(args: argparse.Namespace, settings: C3Settings) -> list[BenchCase]:
+def cases_for(args: argparse.Namespace, settings: C3Settings, data: Path) -> list[BenchCase]:
+    """The cases ``bench`` runs on ``data`` for the parsed command line ``args``."""
+    import onnxruntime as ort
+
+    from c3_matcher.engines.lightglue import resolve_mode
+    from c3_matcher.engines.runtime import resolve_providers
+
     m = settings.matcher
     cached = max(m.tile_cache_size, 3)
-    stored = stored_features_path(args.data) is not None
-    lightglue = getattr(settings, "lightglue", None)
-    other_mode = None
-    if lightglue is not None:  # the mode the configured provider runs, then the other one
-        import onnxruntime as ort
-
-        from c3_matcher.engines.lightglue import resolve_mode
-        from c3_matcher.engines.runtime import resolve_providers
-
-        provider = resolve_providers(settings.engines.providers, ort.get_available_providers())
-        mode = resolve_mode(lightglue.mode, provider[0])
-        other_mode = {"adaptive": "full", "full": "adaptive"}[mode]
+    stored = stored_features_path(data) is not None
+    # the [lightglue] mode the configured provider runs, then the other one
+    provider = resolve_providers(settings.engines.providers, ort.get_available_providers())
+    mode = resolve_mode(settings.lightglue.mode, provider[0])
+    other_mode = {"adaptive": "full", "full": "adaptive"}[mode]
     cases: list[BenchCase] = []
     for name in args.strategy or [m.strategy]:
         cases += [
             BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints),
             BenchCase(name, "engine", cached, m.max_long_side, m.max_keypoints),
         ]
-        if stored and not getattr(args, "no_stored", False):
+        if stored and not args.no_stored:
             cases.append(BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, True))
-        if other_mode and _uses_lightglue(name) and not getattr(args, "no_modes", False):
+        if _uses_lightglue(name) and not args.no_modes:
             cases.append(
                 BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, False, other_mode)
             )
-        for kp in getattr(args, "keypoints", None) or ():
+        for kp in args.keypoints or ():
             cases.append(BenchCase(name, "engine", 0, m.max_long_side, kp))
-        for threads in getattr(args, "threads", None) or ():
+        for threads in args.threads or ():
             cases.append(
                 BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, False, None, threads)
             )
@@ -239,9 +238,9 @@ def demo_data(data: Path | None) -> Path:
 
 
 def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
-    args.data = demo_data(args.data)
+    data = demo_data(args.data)
     results = []
-    for case in cases_for(args, ctx.settings):
+    for case in cases_for(args, ctx.settings, data):
         ctx.err(f"bench: {case.label}, {args.runs} runs...")
         cmd = [
             sys.executable,
@@ -249,7 +248,7 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
             "c3_matcher_tools.bench_worker",
             json.dumps(asdict(case)),
             str(args.runs),
-            str(args.data),
+            str(data),
         ]
         if args.config:
             cmd += ["--config", str(args.config)]
@@ -260,7 +259,7 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
     report: dict[str, Any] = {
         "machine": _machine(),
         "runs": args.runs,
-        "data": str(args.data),
+        "data": str(data),
         "results": results,
         "comparisons": comparisons(results),
     }

@@ -56,16 +56,19 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
         settings = settings.model_copy(
             update={"matcher": settings.matcher.model_copy(update={"max_keypoints": None})}
         )
-    inputs = flight_inputs(data_dir)
     clock = MonotonicClock()
-    fdr = JsonlFdrRecorder(Path(tempfile.mkdtemp(prefix="c3-bench-")) / "fdr.jsonl", clock)
-    started = time.perf_counter()
-    try:
-        composed = compose_matcher(settings, fdr=fdr, clock=clock, reference=case.kind == "pytorch")
-    except LookupError as exc:
-        raise SystemExit(str(exc)) from None
-    startup_s = time.perf_counter() - started
-    timed = _time_matches(composed.matcher, inputs, runs)
+    with flight_inputs(data_dir) as inputs, tempfile.TemporaryDirectory(prefix="c3-bench-") as tmp:
+        fdr = JsonlFdrRecorder(Path(tmp) / "fdr.jsonl", clock)
+        started = time.perf_counter()
+        try:
+            composed = compose_matcher(
+                settings, fdr=fdr, clock=clock, reference=case.kind == "pytorch"
+            )
+        except LookupError as exc:
+            raise SystemExit(str(exc)) from None
+        startup_s = time.perf_counter() - started
+        timed = _time_matches(composed.matcher, inputs, runs)
+        fdr.close()
     return {
         "case": asdict(case),
         "label": case.label,

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
@@ -20,20 +22,23 @@ MatchInputs = tuple[NavCameraFrame, RerankResult, CameraCalibration]
 """One ``match`` call's arguments."""
 
 
-def flight_inputs(data_dir: Path) -> list[MatchInputs]:
+@contextmanager
+def flight_inputs(data_dir: Path) -> Iterator[list[MatchInputs]]:
     """One ``MatchInputs`` per frame: a flight dataset's frames whose true tile is present, or
-    the single frame of a demo-format directory."""
-    if (data_dir / "dataset.json").is_file():
-        from c3_matcher_tools.dataset.format import load_dataset
+    the single frame of a demo-format directory. A dataset's tile store, which the candidates'
+    tile handles read from, stays open until the ``with`` block ends."""
+    if not (data_dir / "dataset.json").is_file():
+        yield [demo_inputs(data_dir)]
+        return
+    from c3_matcher_tools.dataset.format import load_dataset
 
-        dataset = load_dataset(data_dir)
-        store = dataset.open_store()
-        return [
+    dataset = load_dataset(data_dir)
+    with dataset.open_store() as store:
+        yield [
             (dataset.nav_frame(f), dataset.rerank(f, store), dataset.calibration)
             for f in dataset.frames
             if f.true_tile_present
         ]
-    return [demo_inputs(data_dir)]
 
 
 def demo_inputs(data_dir: Path) -> MatchInputs:
