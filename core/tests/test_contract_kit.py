@@ -19,7 +19,7 @@ from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher
-from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.testing import FakeClock, FakeRansacFilter
 from c3_matcher.testing.contract import BackendContract
 

@@ -12,7 +12,8 @@ import pytest
 from c3_matcher import camera as cam
 from c3_matcher.dto import Attitude, CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
+from c3_matcher.prepared import InputRule, PreparedImage
+from c3_matcher.preprocess import FramePreprocessor
 
 W, H, F = 640, 480, 500.0
 CX, CY = (W - 1) / 2, (H - 1) / 2

@@ -27,7 +27,7 @@ from c3_matcher.errors import InsufficientInliersError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
-from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.prior import GeometricPrior, PriorTolerances
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.testing import FakeClock

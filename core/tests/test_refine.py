@@ -20,7 +20,8 @@ from c3_matcher.config import load_settings
 from c3_matcher.dto import Attitude, CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InsufficientInliersError
 from c3_matcher.pipeline import PipelineSettings
-from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
+from c3_matcher.prepared import InputRule, PreparedImage
+from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.testing import (
     FakeBackend,
     ScriptedCandidate,

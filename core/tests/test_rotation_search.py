@@ -38,7 +38,8 @@ from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.pipeline import QUERY_ROTATIONS_DEG, PipelineSettings
-from c3_matcher.preprocess import FramePreprocessor, InputRule, PreparedImage
+from c3_matcher.prepared import InputRule, PreparedImage
+from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.testing import (
     ScriptedCandidate,

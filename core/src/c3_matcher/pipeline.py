@@ -65,7 +65,7 @@ class PipelineSettings:
     # only acts when the frame had attitude and height; defaults from [matcher]
     geometric_prior: bool = True
     prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
-    photometric: str = "none"  # query and tiles alike (preprocess.normalise_photometry)
+    photometric: str = "none"  # query and tiles alike (photometry.normalise_photometry)
     rotation_search: bool = False  # frames without attitude tried at 4 turns (opt-in)
     refine: bool = False  # a second pass through the best candidate's homography
 

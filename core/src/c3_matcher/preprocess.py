@@ -49,14 +49,7 @@ from c3_matcher.prepared import InputRule, PreparedImage, engine_to_working
 from c3_matcher.query_geometry import QueryGeometry
 from c3_matcher.resample import area_downscale, check_pixels, remap_linear
 
-__all__ = [
-    "PHOTOMETRIC_MODES",
-    "FramePreprocessor",
-    "InputRule",
-    "PreparedImage",
-    "QueryGeometry",
-    "normalise_photometry",
-]
+__all__ = ["FramePreprocessor"]
 
 F64 = NDArray[np.float64]
 

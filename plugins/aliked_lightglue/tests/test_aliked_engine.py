@@ -151,7 +151,7 @@ def test_pytorch_reference_backend_agrees_with_the_engine(engine_dir, runtime, z
     extracts on a masked real image."""
     from c3_matcher.compose import build_plugin_host
     from c3_matcher.config import C3Settings
-    from c3_matcher.preprocess import PreparedImage
+    from c3_matcher.prepared import PreparedImage
 
     settings = C3Settings(matcher={"strategy": "aliked_lightglue"})
     backend = build_plugin_host().reference_backend("aliked_lightglue", settings)

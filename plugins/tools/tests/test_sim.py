@@ -12,7 +12,8 @@ import tifffile
 
 from c3_matcher.dto import Attitude, CameraCalibration
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.preprocess import FramePreprocessor, InputRule
+from c3_matcher.prepared import InputRule
+from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher_tools.sim import (
     PhotometricShift,
     cut_tile,

@@ -68,7 +68,7 @@ if TYPE_CHECKING:
     from c3_matcher.plugins.manager import ENTRY_POINT_GROUP, LoadedPlugin, PluginHost
     from c3_matcher.plugins.strategy_hooks import strategy_hooks
     from c3_matcher.plugins.types import StrategyFactory, StrategyHelpers, StrategySpec
-    from c3_matcher.preprocess import InputRule, PreparedImage
+    from c3_matcher.prepared import InputRule, PreparedImage
     from c3_matcher.protocols import (
         Clock,
         CrossDomainMatcher,

@@ -11,7 +11,7 @@ from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.errors import EngineError
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.preprocess import PreparedImage
+from c3_matcher.prepared import PreparedImage
 from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
 from c3_matcher.strategy.config import ExtractorStrategyConfig
 from c3_matcher.strategy.pairs import PairMatcher

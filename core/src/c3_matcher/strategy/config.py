@@ -13,7 +13,7 @@ from typing import Any, Protocol, Self
 
 from c3_matcher.config import C3Settings
 from c3_matcher.pipeline import PipelineSettings
-from c3_matcher.preprocess import InputRule
+from c3_matcher.prepared import InputRule
 from c3_matcher.protocols import LightGlueRuntime
 from c3_matcher.strategy.pairs import LightGluePairMatcher, PairMatcher
 

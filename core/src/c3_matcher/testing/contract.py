@@ -56,7 +56,7 @@ from c3_matcher.features import DESCRIPTOR_DTYPES, Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import configure_logging
 from c3_matcher.pipeline import FeatureBackend, PipelineSettings
-from c3_matcher.preprocess import PreparedImage
+from c3_matcher.prepared import PreparedImage
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.strategy import engine_startup_probe, textured_probe
 from c3_matcher.testing.fakes import (

@@ -32,7 +32,7 @@ from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features, PairSide, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
-from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.strategy.pairs import match_features
 from c3_matcher.tiles import BytesTileHandle
 

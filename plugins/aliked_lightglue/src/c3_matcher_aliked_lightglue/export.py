@@ -51,7 +51,7 @@ from torch.nn import functional as nnf
 
 from c3_matcher.config import C3Settings
 from c3_matcher.features import Features
-from c3_matcher.preprocess import PreparedImage
+from c3_matcher.prepared import PreparedImage
 from c3_matcher_aliked_lightglue.deform_conv import GridSampleDeformConv2d
 from c3_matcher_aliked_lightglue.engines import (
     ALIKED_DESCRIPTOR_DIM,

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from c3_matcher.config import C3Settings
 from c3_matcher.features import Features
-from c3_matcher.preprocess import PreparedImage
+from c3_matcher.prepared import PreparedImage
 from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS
 from c3_matcher_disk_lightglue.engines import (
     DISK_DESCRIPTOR_DIM,

@@ -12,7 +12,7 @@ import numpy as np
 
 from c3_matcher.config import C3Settings
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.preprocess import InputRule, PreparedImage
+from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.strategy import backend_strategy_factory
 
 __all__ = ["SIFT_LABEL", "SiftBackend", "create"]

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from c3_matcher.config import C3Settings
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.preprocess import PreparedImage
+from c3_matcher.prepared import PreparedImage
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
 from c3_matcher_tools.engines.export.extractor import KeypointSet, export_and_verify_extractor
 from c3_matcher_tools.engines.export.lightglue import export_lightglue

@@ -16,7 +16,7 @@ from pathlib import Path
 from c3_matcher.config import C3Settings, with_strategy_defaults
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.pipeline import PipelineSettings
-from c3_matcher.preprocess import InputRule
+from c3_matcher.prepared import InputRule
 from c3_matcher.protocols import (
     LightGlueRuntime,
 )

@@ -161,7 +161,7 @@ def task(
 def set_facts(strategy: str, settings_json: str, cache: BackendCache | None = None) -> SetFacts:
     """The facts keying a strategy's set, in a worker (the descriptor size from a probe)."""
     backend = _backend(strategy, settings_json, cache)
-    from c3_matcher.preprocess import PreparedImage
+    from c3_matcher.prepared import PreparedImage
 
     probe = np.kron(
         np.random.default_rng(0).integers(0, 256, (22, 22, 3), dtype=np.uint8),

@@ -23,7 +23,7 @@ from c3_matcher.engines.lightglue_adaptive import (
     UPSTREAM_WIDTH_CONFIDENCE,
 )
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.preprocess import InputRule
+from c3_matcher.prepared import InputRule
 
 __all__ = [
     "PyTorchReference",
