@@ -96,6 +96,27 @@ def test_unknown_crs_needs_a_reference(monkeypatch: pytest.MonkeyPatch) -> None:
     assert lat[0] == pytest.approx(52.83, abs=1e-3) and lon[0] == pytest.approx(4.97)
 
 
+@pytest.mark.parametrize(
+    ("epsg", "centre"),
+    [(32614, (-99.0, 47.0)), (32733, (15.0, -12.0)), (3857, (8.5, 47.4)), (3395, (121.0, 14.6)),
+     (4326, (-70.0, -33.0)), (28992, (4.97, 51.83))],
+)  # fmt: skip
+def test_every_projection_round_trips_and_survives_its_dict(
+    monkeypatch: pytest.MonkeyPatch, epsg: int, centre: tuple[float, float]
+) -> None:
+    monkeypatch.setenv("C3_MATCHER_TOOLS_NO_PYPROJ", "1")  # the hand-written formulas
+    projection = Projection.from_epsg(epsg, reference=(centre[1], centre[0]))
+    assert Projection.from_dict(projection.to_dict()) == projection
+    lon, lat = centre[0] + np.array([-1.5, 0.0, 1.2]), centre[1] + np.array([0.7, 0.0, -1.1])
+    back = projection.to_lonlat(*projection.from_lonlat(lon, lat))
+    np.testing.assert_allclose(back, [lon, lat], atol=1e-8)
+
+
+def test_an_unknown_projection_kind_is_refused_when_read() -> None:
+    with pytest.raises(InvalidInputError, match="unknown projection 'lambert'.*utm"):
+        Projection.from_dict({"kind": "lambert"})
+
+
 def test_world_px_round_trip() -> None:
     np.testing.assert_allclose(lonlat_to_world_px([[0.0, 0.0]], 0), [[128.0, 128.0]])
     pts = np.array([[8.55, 47.37], [-99.15, 47.02], [120.98, 14.59]])

@@ -25,9 +25,10 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -152,93 +153,127 @@ class Projection:
             int(data.get("epsg", 0)),
         )
 
-    # -- conversions -----------------------------------------------------------------------
+    def __post_init__(self) -> None:
+        if self.kind not in _FORMULAS:
+            raise InvalidInputError(
+                "projection.kind",
+                f"unknown projection {self.kind!r}, expected one of: {', '.join(_FORMULAS)}",
+            )
+
     def to_lonlat(self, e: ArrayLike, n: ArrayLike) -> tuple[F64, F64]:
         """Projected metres -> (lon, lat) degrees."""
         e_a, n_a = np.asarray(e, dtype=np.float64), np.asarray(n, dtype=np.float64)
-        if self.kind == "utm":
-            return self._utm_inverse(e_a, n_a)
-        if self.kind in ("web_mercator", "world_mercator"):
-            lon = np.degrees(e_a / _A)
-            t = np.exp(-n_a / _A)
-            phi = np.pi / 2 - 2 * np.arctan(t)
-            if self.kind == "world_mercator":
-                e1 = math.sqrt(_E2)
-                for _ in range(12):
-                    es = e1 * np.sin(phi)
-                    phi = np.pi / 2 - 2 * np.arctan(t * ((1 - es) / (1 + es)) ** (e1 / 2))
-            return lon, np.degrees(phi)
-        if self.kind == "geographic":
-            return e_a.copy(), n_a.copy()
-        if self.kind == "pyproj":
-            lon, lat = _transformer(self.epsg, inverse=True).transform(e_a, n_a)
-            return np.asarray(lon, np.float64), np.asarray(lat, np.float64)
-        if self.kind == "local_tangent_plane":
-            lat = self.ref_lat + (n_a - self.ref_en[1]) / _M_PER_DEG
-            lon = self.ref_lon + (e_a - self.ref_en[0]) / (
-                _M_PER_DEG * math.cos(math.radians(self.ref_lat))
-            )
-            return lon, lat
-        raise InvalidInputError("projection.kind", f"unknown projection {self.kind!r}")
+        return _FORMULAS[self.kind].inverse(self, e_a, n_a)
 
     def from_lonlat(self, lon: ArrayLike, lat: ArrayLike) -> tuple[F64, F64]:
         """(lon, lat) degrees -> projected metres."""
         lo, la = np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)
-        if self.kind == "utm":
-            return self._utm_forward(lo, la)
-        if self.kind in ("web_mercator", "world_mercator"):
-            phi = np.radians(la)
-            y = np.log(np.tan(np.pi / 4 + phi / 2))
-            if self.kind == "world_mercator":
-                e1 = math.sqrt(_E2)
-                es = e1 * np.sin(phi)
-                y = y + (e1 / 2) * np.log((1 - es) / (1 + es))
-            return _A * np.radians(lo), _A * y
-        if self.kind == "geographic":
-            return lo.copy(), la.copy()
-        if self.kind == "pyproj":
-            e, n = _transformer(self.epsg, inverse=False).transform(lo, la)
-            return np.asarray(e, np.float64), np.asarray(n, np.float64)
-        if self.kind == "local_tangent_plane":
-            n = self.ref_en[1] + (la - self.ref_lat) * _M_PER_DEG
-            e = self.ref_en[0] + (lo - self.ref_lon) * (
-                _M_PER_DEG * math.cos(math.radians(self.ref_lat))
-            )
-            return e, n
-        raise InvalidInputError("projection.kind", f"unknown projection {self.kind!r}")
+        return _FORMULAS[self.kind].forward(self, lo, la)
 
-    def _lon0(self) -> float:
-        return math.radians(-183.0 + 6.0 * self.zone)
 
-    def _utm_forward(self, lon: F64, lat: F64) -> tuple[F64, F64]:
-        k0, n = 0.9996, _F / (2 - _F)
-        phi, lam = np.radians(lat), np.radians(lon) - self._lon0()
-        c = 2 * math.sqrt(n) / (1 + n)
-        t = np.sinh(np.arctanh(np.sin(phi)) - c * np.arctanh(c * np.sin(phi)))
-        xi_p = np.arctan2(t, np.cos(lam))
-        eta_p = np.arctanh(np.sin(lam) / np.sqrt(1 + t * t))
-        xi, eta = xi_p.copy(), eta_p.copy()
-        for j, a in enumerate(_ALPHA, start=1):
-            xi += a * np.sin(2 * j * xi_p) * np.cosh(2 * j * eta_p)
-            eta += a * np.cos(2 * j * xi_p) * np.sinh(2 * j * eta_p)
-        e = 500_000.0 + k0 * _KA * eta
-        north = k0 * _KA * xi + (10_000_000.0 if self.south else 0.0)
-        return e, north
+_Formula = Callable[[Projection, F64, F64], tuple[F64, F64]]
 
-    def _utm_inverse(self, e: F64, north: F64) -> tuple[F64, F64]:
-        k0 = 0.9996
-        xi = (north - (10_000_000.0 if self.south else 0.0)) / (k0 * _KA)
-        eta = (e - 500_000.0) / (k0 * _KA)
-        xi_p, eta_p = xi.copy(), eta.copy()
-        for j, b in enumerate(_BETA, start=1):
-            xi_p -= b * np.sin(2 * j * xi) * np.cosh(2 * j * eta)
-            eta_p -= b * np.cos(2 * j * xi) * np.sinh(2 * j * eta)
-        chi = np.arcsin(np.sin(xi_p) / np.cosh(eta_p))
-        phi = chi.copy()
-        for j, d in enumerate(_DELTA, start=1):
-            phi += d * np.sin(2 * j * chi)
-        lam = np.arctan2(np.sinh(eta_p), np.cos(xi_p))
-        return np.degrees(self._lon0() + lam), np.degrees(phi)
+
+class _Formulas(NamedTuple):
+    """One projection kind's pair: ``forward`` (lon, lat) degrees -> metres, ``inverse``."""
+
+    forward: _Formula
+    inverse: _Formula
+
+
+def _utm_lon0(p: Projection) -> float:
+    return math.radians(-183.0 + 6.0 * p.zone)
+
+
+def _utm_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
+    k0, n = 0.9996, _F / (2 - _F)
+    phi, lam = np.radians(lat), np.radians(lon) - _utm_lon0(p)
+    c = 2 * math.sqrt(n) / (1 + n)
+    t = np.sinh(np.arctanh(np.sin(phi)) - c * np.arctanh(c * np.sin(phi)))
+    xi_p = np.arctan2(t, np.cos(lam))
+    eta_p = np.arctanh(np.sin(lam) / np.sqrt(1 + t * t))
+    xi, eta = xi_p.copy(), eta_p.copy()
+    for j, a in enumerate(_ALPHA, start=1):
+        xi += a * np.sin(2 * j * xi_p) * np.cosh(2 * j * eta_p)
+        eta += a * np.cos(2 * j * xi_p) * np.sinh(2 * j * eta_p)
+    e = 500_000.0 + k0 * _KA * eta
+    north = k0 * _KA * xi + (10_000_000.0 if p.south else 0.0)
+    return e, north
+
+
+def _utm_inverse(p: Projection, e: F64, north: F64) -> tuple[F64, F64]:
+    k0 = 0.9996
+    xi = (north - (10_000_000.0 if p.south else 0.0)) / (k0 * _KA)
+    eta = (e - 500_000.0) / (k0 * _KA)
+    xi_p, eta_p = xi.copy(), eta.copy()
+    for j, b in enumerate(_BETA, start=1):
+        xi_p -= b * np.sin(2 * j * xi) * np.cosh(2 * j * eta)
+        eta_p -= b * np.cos(2 * j * xi) * np.sinh(2 * j * eta)
+    chi = np.arcsin(np.sin(xi_p) / np.cosh(eta_p))
+    phi = chi.copy()
+    for j, d in enumerate(_DELTA, start=1):
+        phi += d * np.sin(2 * j * chi)
+    lam = np.arctan2(np.sinh(eta_p), np.cos(xi_p))
+    return np.degrees(_utm_lon0(p) + lam), np.degrees(phi)
+
+
+def _mercator_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
+    phi = np.radians(lat)
+    y = np.log(np.tan(np.pi / 4 + phi / 2))
+    if p.kind == "world_mercator":  # ellipsoidal
+        e1 = math.sqrt(_E2)
+        es = e1 * np.sin(phi)
+        y = y + (e1 / 2) * np.log((1 - es) / (1 + es))
+    return _A * np.radians(lon), _A * y
+
+
+def _mercator_inverse(p: Projection, e: F64, n: F64) -> tuple[F64, F64]:
+    lon = np.degrees(e / _A)
+    t = np.exp(-n / _A)
+    phi = np.pi / 2 - 2 * np.arctan(t)
+    if p.kind == "world_mercator":  # ellipsoidal: fixed-point iteration on the latitude
+        e1 = math.sqrt(_E2)
+        for _ in range(12):
+            es = e1 * np.sin(phi)
+            phi = np.pi / 2 - 2 * np.arctan(t * ((1 - es) / (1 + es)) ** (e1 / 2))
+    return lon, np.degrees(phi)
+
+
+def _identity(_p: Projection, a: F64, b: F64) -> tuple[F64, F64]:
+    return a.copy(), b.copy()
+
+
+def _pyproj_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
+    e, n = _transformer(p.epsg, inverse=False).transform(lon, lat)
+    return np.asarray(e, np.float64), np.asarray(n, np.float64)
+
+
+def _pyproj_inverse(p: Projection, e: F64, n: F64) -> tuple[F64, F64]:
+    lon, lat = _transformer(p.epsg, inverse=True).transform(e, n)
+    return np.asarray(lon, np.float64), np.asarray(lat, np.float64)
+
+
+def _tangent_plane_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
+    n = p.ref_en[1] + (lat - p.ref_lat) * _M_PER_DEG
+    e = p.ref_en[0] + (lon - p.ref_lon) * (_M_PER_DEG * math.cos(math.radians(p.ref_lat)))
+    return e, n
+
+
+def _tangent_plane_inverse(p: Projection, e: F64, n: F64) -> tuple[F64, F64]:
+    lat = p.ref_lat + (n - p.ref_en[1]) / _M_PER_DEG
+    lon = p.ref_lon + (e - p.ref_en[0]) / (_M_PER_DEG * math.cos(math.radians(p.ref_lat)))
+    return lon, lat
+
+
+_FORMULAS: Final[Mapping[str, _Formulas]] = {
+    "utm": _Formulas(_utm_forward, _utm_inverse),
+    "web_mercator": _Formulas(_mercator_forward, _mercator_inverse),
+    "world_mercator": _Formulas(_mercator_forward, _mercator_inverse),
+    "geographic": _Formulas(_identity, _identity),
+    "pyproj": _Formulas(_pyproj_forward, _pyproj_inverse),
+    "local_tangent_plane": _Formulas(_tangent_plane_forward, _tangent_plane_inverse),
+}
+"""Each projection kind's formulas (the module docstring): one place that names the kinds."""
 
 
 @dataclass(frozen=True)
