@@ -68,7 +68,6 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
             raise SystemExit(str(exc)) from None
         startup_s = time.perf_counter() - started
         timed = _time_matches(composed.matcher, inputs, runs)
-        fdr.close()
     return {
         "case": asdict(case),
         "label": case.label,
