@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import json
 import math
 from pathlib import Path
 
@@ -12,11 +13,12 @@ import pytest
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.mbtiles import MBTilesStore
-from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
+from c3_matcher_tools.dataset.flight import FlightSpec, render_flight, store_reference
 from c3_matcher_tools.dataset.format import FORMAT, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.tilestore.build import build_mbtiles
+from c3_matcher_tools.tilestore.geo import Projection
 
 REPO = Path(__file__).resolve().parents[3]
 NAIP = REPO / "data" / "imagery" / "naip_timeseries"
@@ -171,3 +173,18 @@ def test_progress_bar_reports_to_its_stream() -> None:
         bar(i, 5)
     lines = stream.getvalue().splitlines()
     assert lines[0].startswith("job [") and "1/5" in lines[0] and "5/5" in lines[-1]
+
+
+def test_a_tangent_plane_stores_reference_is_reused_and_bad_metadata_named(store: Path) -> None:
+    def georeference(projection: Projection) -> dict[str, str]:
+        return {"c3_georeference": json.dumps(projection.to_dict())}
+
+    plane = Projection("local_tangent_plane", ref_lat=51.83, ref_lon=4.97, ref_en=(1.0, 2.0))
+    assert store_reference(georeference(plane), store) == (51.83, 4.97)
+    assert store_reference(georeference(Projection("utm", zone=14)), store) is None
+    assert store_reference({}, store) is None  # a store another tool built
+    with MBTilesStore(store) as built:  # a UTM GeoTIFF's store
+        assert store_reference(built.metadata, store) is None
+    bad = {"c3_georeference": '{"kind": "lambert"}'}
+    with pytest.raises(InvalidInputError, match=r"naip2020\.mbtiles.*unknown projection 'lambert'"):
+        store_reference(bad, store)

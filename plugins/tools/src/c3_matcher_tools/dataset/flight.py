@@ -32,7 +32,7 @@ from __future__ import annotations
 import json
 import math
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,12 +52,13 @@ from c3_matcher_tools.sim.render import NavCameraRenderer, RenderedFrame, pick_d
 from c3_matcher_tools.tilestore.geo import (
     TILE_PX,
     GeoGrid,
+    Projection,
     lonlat_to_world_px,
     read_geotiff_grid,
     world_px_to_lonlat,
 )
 
-__all__ = ["FlightSpec", "render_flight"]
+__all__ = ["FlightSpec", "render_flight", "store_reference"]
 
 F64 = NDArray[np.float64]
 Progress = Callable[[int, int], None]
@@ -320,6 +321,23 @@ def _check_coverage(spec: FlightSpec, cov: _Coverage, m_per_px: float) -> None:
         )
 
 
+def store_reference(metadata: Mapping[str, str], store: Path) -> tuple[float, float] | None:
+    """The (lat, lon) reference a tile store was built around when its GeoTIFF's grid was
+    treated as a local tangent plane (``c3_georeference``, written by ``tiles build``), so
+    frames rendered from the same grid land on its tiles; None for any other store.
+    ``InvalidInputError`` naming the store when that metadata cannot be read."""
+    text = metadata.get("c3_georeference")
+    if text is None:
+        return None
+    try:
+        built = Projection.from_dict(json.loads(text))
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        raise InvalidInputError(
+            str(store), f"unreadable c3_georeference metadata ({exc}): rebuild the store"
+        ) from None
+    return (built.ref_lat, built.ref_lon) if built.kind == "local_tangent_plane" else None
+
+
 def _plan(
     spec: FlightSpec,
     store: MBTilesStore,
@@ -329,11 +347,7 @@ def _plan(
 ) -> tuple[dict[str, Any], CameraCalibration, list[FrameRecord], dict[str, bytes]]:
     """Render every frame and choose its candidates, in memory: (dataset meta, calibration,
     frame records, {relative image path: JPEG bytes})."""
-    reference = spec.reference_latlon
-    if reference is None and "c3_georeference" in store.metadata:
-        geo = json.loads(store.metadata["c3_georeference"])
-        if geo.get("kind") == "local_tangent_plane":
-            reference = (float(geo["ref_lat"]), float(geo["ref_lon"]))
+    reference = spec.reference_latlon or store_reference(store.metadata, store.path)
     grid = read_geotiff_grid(spec.frames_geotiff, reference=reference)
     photo = load_orthophoto(spec.frames_geotiff)
     gsd = photo.gsd_m or math.sqrt(grid.scale_x * grid.scale_y)
