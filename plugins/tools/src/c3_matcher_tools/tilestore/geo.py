@@ -273,7 +273,8 @@ _FORMULAS: Final[Mapping[str, _Formulas]] = {
     "pyproj": _Formulas(_pyproj_forward, _pyproj_inverse),
     "local_tangent_plane": _Formulas(_tangent_plane_forward, _tangent_plane_inverse),
 }
-"""Each projection kind's formulas (the module docstring): one place that names the kinds."""
+"""Each projection kind's formulas (the module docstring); a ``Projection`` of a kind not here is
+refused. ``describe`` and the grid range check add what a kind needs beyond its formulas."""
 
 
 @dataclass(frozen=True)
