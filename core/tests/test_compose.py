@@ -124,3 +124,25 @@ def test_strategy_not_linked(tmp_path):
             plugin_host=fake_plugin_host(),
             configure_logs=False,
         )
+    # the recorder it built for the failed composition was closed (one writer per path)
+    JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock()).close()
+
+
+def test_closes_the_recorder_it_built_and_never_a_given_one(tmp_path):
+    root = compose_root(
+        settings(tmp_path), helpers(), plugin_host=fake_plugin_host(), configure_logs=False
+    )
+    root.close()
+    given = JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock())  # the path is free again
+    try:
+        root = compose_root(
+            settings(tmp_path),
+            {**helpers(), "c13_fdr": given},
+            plugin_host=fake_plugin_host(),
+            configure_logs=False,
+        )
+        root.close()
+        given.record("after.close", {})  # still open: the caller's to close
+    finally:
+        given.close()
+    assert "after.close" in (tmp_path / "fdr.jsonl").read_text()

@@ -23,6 +23,7 @@ from c3_matcher.errors import AirborneBootstrapError, ConfigurationError
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
 from c3_matcher.logs import LoggingHandle, configure_logging, log_event
+from c3_matcher.pipeline import PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost, discover
 from c3_matcher.plugins.types import StrategyDefaults
 from c3_matcher.profiles import installed_profile
@@ -67,13 +68,13 @@ class ComposedRoot:
     plugin_host: PluginHost
     helpers: Mapping[str, Any]
     logging: LoggingHandle | None
+    owned_fdr: JsonlFdrRecorder | None = None  # the recorder it built (no ``c13_fdr`` given)
 
     def close(self) -> None:
         if self.logging is not None:
             self.logging.close()
-        close = getattr(self.fdr, "close", None)
-        if callable(close) and "c13_fdr" not in self.helpers:
-            close()
+        if self.owned_fdr is not None:
+            self.owned_fdr.close()
 
 
 def build_plugin_host() -> PluginHost:
@@ -171,11 +172,12 @@ def compose_root(
     ``StrategyNotLinkedError`` for a strategy the build does not link."""
     helpers = _checked_helpers(pre_constructed)
     clock: Clock = helpers.get("clock") or MonotonicClock()
-    fdr: FdrClient = helpers.get("c13_fdr") or JsonlFdrRecorder(
-        config.fdr.path, clock, max_bytes=config.fdr.max_bytes
-    )
-    handle = configure_logging(fdr, level=config.logging.level) if configure_logs else None
+    owned_fdr: JsonlFdrRecorder | None = None  # closed with the root; a given one is the caller's
     if "c13_fdr" not in helpers:
+        owned_fdr = JsonlFdrRecorder(config.fdr.path, clock, max_bytes=config.fdr.max_bytes)
+    fdr: FdrClient = helpers["c13_fdr"] if owned_fdr is None else owned_fdr
+    handle = configure_logging(fdr, level=config.logging.level) if configure_logs else None
+    if owned_fdr is not None:
         state_default_fdr_path(config)
     try:
         host = plugin_host if plugin_host is not None else build_plugin_host()
@@ -202,15 +204,16 @@ def compose_root(
                 name,
                 f"factory returned {type(matcher).__name__}, not a CrossDomainMatcher",
             )
-        backend = getattr(matcher, "backend", None)
-        if backend is not None:  # every strategy on the shared pipeline
-            engine_startup_probe(backend)
+        if isinstance(matcher, PipelineMatcher):  # every strategy on the shared pipeline
+            engine_startup_probe(matcher.backend)
         _log_ready(config, host, helpers)
     except Exception:
         if handle is not None:
             handle.close()
+        if owned_fdr is not None:
+            owned_fdr.close()
         raise
-    return ComposedRoot(matcher, name, health, fdr, clock, host, helpers, handle)
+    return ComposedRoot(matcher, name, health, fdr, clock, host, helpers, handle, owned_fdr)
 
 
 def _checked_helpers(pre_constructed: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -239,7 +242,7 @@ def _log_ready(config: C3Settings, host: PluginHost, helpers: Mapping[str, Any])
         min_inliers_threshold=config.matcher.min_inliers_threshold,
         residual_warn_threshold_px=config.matcher.residual_warn_threshold_px,
         profile=host.profile.name,
-        provider=getattr(helpers["c7_inference"], "provider", "unknown"),
+        provider=helpers["c7_inference"].provider,
     )
 
 

@@ -26,6 +26,7 @@ from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
 from c3_matcher.dto.candidates import RerankCandidate, RerankResult
 from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError
+from c3_matcher.fdr import FdrOpenError, InMemoryFdr, JsonlFdrRecorder
 from c3_matcher.match_viz import draw_or_report
 from c3_matcher.protocols import TilePixelsHandle
 from c3_matcher.serialize import load_calibration, result_to_json
@@ -154,7 +155,7 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
     problems: list[str] = []  # output that could not be written: reported after the result
     own_fdr = _open_fdr(settings, problems)
-    helpers["c13_fdr"] = own_fdr
+    helpers["c13_fdr"] = InMemoryFdr() if own_fdr is None else own_fdr
     root = compose_root(settings, helpers, plugin_host=host)
     state_default_fdr_path(settings)
     reasons: dict[str, str] = {}
@@ -182,9 +183,8 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     finally:
         _remove_sink(sink)
         root.close()
-        close = getattr(own_fdr, "close", None)
-        if callable(close):
-            close()
+        if own_fdr is not None:
+            own_fdr.close()
 
 
 def _match_settings(args: argparse.Namespace, settings: C3Settings) -> C3Settings:
@@ -288,10 +288,10 @@ def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
     return handle
 
 
-def _open_fdr(settings: C3Settings, problems: list[str]) -> Any:
-    """The durable recorder at the configured path; if it cannot be opened, the frame is still
-    matched and printed (its records kept in memory) and the failure is reported (exit 2)."""
-    from c3_matcher.fdr import FdrOpenError, InMemoryFdr, JsonlFdrRecorder
+def _open_fdr(settings: C3Settings, problems: list[str]) -> JsonlFdrRecorder | None:
+    """The durable recorder at the configured path; None if it cannot be opened: the frame is
+    still matched and printed (its records kept in memory) and the failure is reported
+    (exit 2)."""
     from c3_matcher.health import MonotonicClock
 
     try:
@@ -300,7 +300,7 @@ def _open_fdr(settings: C3Settings, problems: list[str]) -> Any:
         )
     except FdrOpenError as exc:
         problems.append(f"{exc}; the result was printed but NOT recorded in the FDR")
-        return InMemoryFdr()
+        return None
 
 
 def _report(problems: list[str]) -> bool:

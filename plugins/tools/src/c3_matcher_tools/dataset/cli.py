@@ -155,6 +155,7 @@ def _add_import(ds: Any) -> None:
     m.add_argument("--seed", type=int, default=0, help="candidate shuffle seed (default 0)")
     m.add_argument("--name", default=None, help="dataset name (default: OUT's name)")
     m.add_argument("--force", action="store_true", help="replace an existing OUT")
+    m.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_log_import_options(m)
 
 
@@ -163,7 +164,7 @@ def run_dataset(args: argparse.Namespace, ctx: CommandContext) -> int:
 
     if args.dataset_command == "info":
         return _info(args, ctx)
-    if args.dataset_command == "import" and (code := run_log_import(args)) is not None:
+    if args.dataset_command == "import" and (code := run_log_import(args, ctx)) is not None:
         return code  # a recorded log (PX4, ArduPilot, ROS bag, photo metadata)
     if args.dataset_command == "import":
         return _import_csv(args, ctx)

@@ -417,7 +417,7 @@ def _plan(
         except InvalidInputError as exc:
             raise InvalidInputError(
                 "distractors",
-                f"frame {i}: {exc.reason if hasattr(exc, 'reason') else exc}; the store is too "
+                f"frame {i}: {exc.reason}; the store is too "
                 "small for this candidate size / distance: lower --candidate-size or "
                 "--min-distractor-distance, raise --max-distractor-nodata, or build the store "
                 f"at a finer zoom (tiles build --zoom {zoom + 1}) or over more ground",

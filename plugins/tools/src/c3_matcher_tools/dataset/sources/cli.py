@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+from c3_matcher.commands import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.common import ImportOptions, ImportReport
 
@@ -118,11 +119,9 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     )
     for topic in ("image", "attitude", "navsat", "camera-info"):
         g.add_argument(f"--{topic}-topic", default=None, help=f"bag: the {topic} topic")
-    if "--json" not in m._option_string_actions:
-        m.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
-def run_log_import(args: argparse.Namespace) -> int | None:
+def run_log_import(args: argparse.Namespace, ctx: CommandContext) -> int | None:
     """Run ``dataset import`` for a recorded log; None when TELEMETRY is a CSV (the caller's
     own path)."""
     images, telemetry = str(args.images_dir), str(args.telemetry)
@@ -132,10 +131,7 @@ def run_log_import(args: argparse.Namespace) -> int | None:
             raise InvalidInputError("CALIBRATION", "'-' (recorded intrinsics) is for ROS bags")
         return None
     report = import_log(kind, args)
-    if getattr(args, "json", False):
-        print(json.dumps(report.to_json(), indent=2))
-    else:
-        print("\n".join(report.lines()))
+    ctx.out(json.dumps(report.to_json(), indent=2) if args.json else "\n".join(report.lines()))
     return 0
 
 
