@@ -88,3 +88,21 @@ def test_flight_inputs_read_tiles_inside_the_block_and_close_the_store_after(
     assert len(closed) == 1
     with flight_inputs(DEMO.parents[1] / "demo") as (demo,):  # a demo-format directory
         assert len(demo[1].candidates) == 3
+
+
+def test_open_matcher_gives_back_its_recorder_and_log_when_composing_fails(
+    tmp_path: Path,
+) -> None:
+    from c3_matcher.fdr import JsonlFdrRecorder
+    from c3_matcher.health import MonotonicClock
+    from c3_matcher_tools.run import open_matcher
+
+    with (
+        pytest.raises(UnknownStrategyError, match="no_such_strategy"),
+        open_matcher(C3Settings(), "no_such_strategy", tmp_path),
+    ):
+        pass
+    JsonlFdrRecorder(tmp_path / "fdr.jsonl", MonotonicClock()).close()  # the path is free
+    with open_matcher(C3Settings(), "sift_magsac", tmp_path) as matcher:
+        assert matcher.health_snapshot() is not None
+    assert "c3.matcher.ready" in (tmp_path / "matcher.log").read_text()  # the run that composed

@@ -6,7 +6,7 @@ backend), its FDR records and JSON logs in a run directory when it has one."""
 from __future__ import annotations
 
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -152,20 +152,16 @@ def open_matcher(
     for name in ("fdr.jsonl", "matcher.log"):
         (out_dir / name).unlink(missing_ok=True)
     clock = MonotonicClock()
-    fdr = JsonlFdrRecorder(out_dir / "fdr.jsonl", clock, max_bytes=settings.fdr.max_bytes)
-    log_stream = (out_dir / "matcher.log").open("w", encoding="utf-8")
-    logs = configure_logging(fdr, level=log_level or settings.logging.level, stream=log_stream)
-    composed = None
-    try:
+    with ExitStack() as opened:  # closed in reverse, also when opening fails part-way
+        fdr = JsonlFdrRecorder(out_dir / "fdr.jsonl", clock, max_bytes=settings.fdr.max_bytes)
+        opened.callback(fdr.close)
+        log_stream = opened.enter_context((out_dir / "matcher.log").open("w", encoding="utf-8"))
+        logs = configure_logging(fdr, level=log_level or settings.logging.level, stream=log_stream)
+        opened.callback(logs.close)
         chosen = overrides.apply(settings, strategy)
         composed = compose_matcher(chosen, fdr=fdr, clock=clock, plugin_host=plugin_host)
+        opened.callback(composed.close)
         yield composed.matcher
-    finally:
-        if composed is not None:
-            composed.close()
-        logs.close()
-        fdr.close()
-        log_stream.close()
 
 
 def open_backend(
