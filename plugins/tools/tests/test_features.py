@@ -108,8 +108,8 @@ def _sources(fdr: Any) -> list[list[str]]:
 
 
 def test_stored_features_are_the_extracted_window_bit_for_bit(built: Path, engine_dir: Path):
-    from c3_matcher.pipeline import _feature_request
     from c3_matcher.preprocess import FramePreprocessor
+    from c3_matcher.stages.candidate_features import feature_request
     from c3_matcher_tools.dataset.format import load_dataset
 
     dataset = load_dataset(built)
@@ -117,7 +117,7 @@ def test_stored_features_are_the_extracted_window_bit_for_bit(built: Path, engin
     matcher, _ = _matcher(engine_dir, True)
     backend = matcher.backend
     pre = FramePreprocessor(backend.input_rule, photometric=matcher.settings.photometric)
-    request = _feature_request(backend, pre)
+    request = feature_request(backend, pre)
     assert request is not None and request.photometric == matcher.settings.photometric
     checked = 0
     for f in dataset.frames[:FRAMES]:
@@ -172,13 +172,12 @@ def test_a_sidecar_locked_by_another_process_costs_no_frame_time(built: Path, en
 
     dataset = load_dataset(built)
     reference, _ = _matcher(engine_dir, False)
-    expected = _run(reference, dataset, dataset.open_store())
+    with dataset.open_store() as store:
+        expected = _run(reference, dataset, store)
     matcher, fdr, handle, stream = _logged(engine_dir)
     try:
-        with exclusive_lock(sidecar_path(dataset.store_path)):
-            store = dataset.open_store()
+        with exclusive_lock(sidecar_path(dataset.store_path)), dataset.open_store() as store:
             got = _run(matcher, dataset, store)
-            store.close()
     finally:
         handle.close()
     assert all(_same(a, b) for (a, _), (b, _) in zip(got, expected, strict=True))
@@ -214,12 +213,12 @@ def test_a_row_of_finite_garbage_is_refused_and_extracted(built: Path, engine_di
         )
     garbled = load_dataset(copy)
     reference, _ = _matcher(engine_dir, False)
-    expected = _run(reference, garbled, garbled.open_store())
+    with garbled.open_store() as store:
+        expected = _run(reference, garbled, store)
     matcher, fdr, handle, stream = _logged(engine_dir)
     try:
-        store = garbled.open_store()
-        got = _run(matcher, garbled, store)
-        store.close()
+        with garbled.open_store() as store:
+            got = _run(matcher, garbled, store)
     finally:
         handle.close()
     assert all(_same(a, b) for (a, _), (b, _) in zip(got, expected, strict=True))
