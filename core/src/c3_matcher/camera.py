@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from c3_matcher.arrays import F64
 from c3_matcher.dto import Attitude, CameraCalibration
 
 __all__ = [
@@ -47,8 +48,6 @@ __all__ = [
     "virtual_from_camera",
     "world_from_virtual",
 ]
-
-F64 = NDArray[np.float64]
 
 #: R_body_from_camera of the default mount: looking down, image top towards the nose.
 DEFAULT_BODY_FROM_CAMERA: F64 = np.array(

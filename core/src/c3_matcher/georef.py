@@ -17,9 +17,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from c3_matcher import camera as cam
+from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration, MatchResult, TileId
 from c3_matcher.tilestore.geo import lonlat_to_world_px, world_px_to_lonlat
 
@@ -34,7 +35,6 @@ __all__ = [
     "tile_px_to_lonlat",
 ]
 
-F64 = NDArray[np.float64]
 EARTH_RADIUS_M = 6_371_008.8
 
 

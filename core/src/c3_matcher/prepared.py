@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from c3_matcher import camera as cam
+from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.features import Features, RawMatches
@@ -35,8 +36,6 @@ __all__ = [
     "engine_to_working",
     "rotation_from_turned",
 ]
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher import camera as cam
+from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.photometry import PHOTOMETRIC_MODES, normalise_photometry, to_rgb
@@ -50,8 +51,6 @@ from c3_matcher.query_geometry import QueryGeometry
 from c3_matcher.resample import area_downscale, check_pixels, remap_linear
 
 __all__ = ["FramePreprocessor"]
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

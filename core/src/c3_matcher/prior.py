@@ -32,13 +32,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.arrays import F64
+
 __all__ = [
     "GeometricPrior",
     "HomographyCheck",
     "PriorTolerances",
 ]
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True, slots=True)

@@ -12,11 +12,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher import camera as cam
+from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration
 
 __all__ = ["QueryGeometry"]
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.arrays import F32
 from c3_matcher.dto import CandidateMatchSet, ranking_key
 from c3_matcher.prepared import PreparedImage, correspondences
 from c3_matcher.prior import GeometricPrior, HomographyCheck, PriorTolerances
@@ -26,8 +27,6 @@ from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.query import QueryView
 
 __all__ = ["Verdict", "Verifier", "best_turn", "frame_prior"]
-
-F32 = NDArray[np.float32]
 
 
 @dataclass(frozen=True)

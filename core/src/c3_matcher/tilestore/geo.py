@@ -9,11 +9,12 @@ GeoTIFF grids and projections are ground tooling (the ground tools' ``tilestore.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from c3_matcher.arrays import F64
 
 __all__ = ["TILE_PX", "lonlat_to_world_px", "world_px_to_lonlat"]
 
-F64 = NDArray[np.float64]
 TILE_PX = 256
 
 

@@ -202,7 +202,7 @@ class MBTilesStore(TileStoreBase):
                 store=str(self.path),
                 error=reason,
             )
-        raise TileStoreUnusableError(f"{self.name}", reason) from exc
+        raise TileStoreUnusableError(self.name, reason) from exc
 
     def zooms(self) -> list[int]:
         return [

@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.arrays import F64
 from c3_matcher.dto import Attitude, CameraCalibration, TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.handles import mosaic_origin, stitch
@@ -60,7 +61,6 @@ from c3_matcher_tools.tilestore.geo import (
 
 __all__ = ["FlightSpec", "render_flight", "store_reference"]
 
-F64 = NDArray[np.float64]
 Progress = Callable[[int, int], None]
 M_PER_DEG_LAT = 111_320.0
 

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from c3_matcher import camera as cam
+from c3_matcher.arrays import F64
 from c3_matcher.dto import Attitude, CameraCalibration, NavCameraFrame
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.resample import area_downscale, remap_linear
@@ -44,8 +45,6 @@ __all__ = [
     "pick_distractor_tiles",
     "render_nav_frame",
 ]
-
-F64 = NDArray[np.float64]
 
 
 def ortho_to_undistorted_homography(

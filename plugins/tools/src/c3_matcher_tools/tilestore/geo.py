@@ -31,8 +31,9 @@ from pathlib import Path
 from typing import Any, Final, NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
 
@@ -49,7 +50,6 @@ __all__ = [
     "zoom_for_gsd",
 ]
 
-F64 = NDArray[np.float64]
 _A = 6378137.0
 _F = 1 / 298.257223563
 _E2 = _F * (2 - _F)

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.tilestore.geo import GeoGrid, Projection, check_grid_fits_crs
 
@@ -40,7 +41,6 @@ __all__ = ["RasterioSource", "ValueMapping", "ValueRange", "grid_gsd_m", "raster
 #: how source values become 8 bits: None (the 99.9th percentile), "bits" or (lo, hi)
 ValueRange = str | tuple[float, float] | None
 
-F64 = NDArray[np.float64]
 _A = 6378137.0
 _E2 = 0.0066943799901413165
 _MERCATOR = (3395, 3857, 900913, 3785)

@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from c3_matcher.arrays import F64
 from c3_matcher.camera import body_from_camera
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
@@ -63,9 +63,6 @@ def logs_library(module: str, path: Path, reading: str) -> Any:
             str(path),
             f"reading {reading} needs the logs extra: pip install 'c3-matcher-tools[logs]'",
         ) from None
-
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
