@@ -82,3 +82,18 @@ def test_the_configured_pixel_limit_refuses_a_larger_query(
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "frame.jpg" in err and "exceeds the limit of 1000 px" in err
     assert read_image(DEMO / "frame.jpg").ndim == 3  # the limit stayed with that command
+
+
+def test_match_gives_back_its_flight_data_record_when_the_strategy_cannot_be_composed(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c3_matcher.cli import main
+    from c3_matcher.fdr import JsonlFdrRecorder
+    from c3_matcher.health import MonotonicClock
+
+    fdr = tmp_path / "fdr.jsonl"
+    query, tile = str(DEMO / "frame.jpg"), str(DEMO / "tile_a.png")
+    argv = ["match", "--query", query, "--tile", tile, "--strategy", "no_such_strategy"]
+    assert main([*argv, "--fdr", str(fdr)]) == 2
+    assert "no_such_strategy" in capsys.readouterr().err
+    JsonlFdrRecorder(fdr, MonotonicClock()).close()  # one writer per path: it was closed

@@ -154,14 +154,17 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     rerank = _candidates(args, frame, settings.matcher.max_image_pixels)
     helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
     problems: list[str] = []  # output that could not be written: reported after the result
-    own_fdr = _open_fdr(settings, problems)
-    helpers["c13_fdr"] = InMemoryFdr() if own_fdr is None else own_fdr
-    root = compose_root(settings, helpers, plugin_host=host)
-    state_default_fdr_path(settings)
-    reasons: dict[str, str] = {}
-    sink = _collect_drop_reasons(reasons)
-    draw = functools.partial(draw_or_report, problems, args, image, calibration, rerank)
-    try:
+    with contextlib.ExitStack() as opened:  # given back in reverse, also when composing fails
+        own_fdr = _open_fdr(settings, problems)
+        if own_fdr is not None:
+            opened.callback(own_fdr.close)
+        helpers["c13_fdr"] = InMemoryFdr() if own_fdr is None else own_fdr
+        root = compose_root(settings, helpers, plugin_host=host)
+        opened.callback(root.close)
+        state_default_fdr_path(settings)
+        reasons: dict[str, str] = {}
+        opened.callback(_remove_sink, _collect_drop_reasons(reasons))
+        draw = functools.partial(draw_or_report, problems, args, image, calibration, rerank)
         try:
             result = root.matcher.match(frame, rerank, calibration)
         except InsufficientInliersError as exc:
@@ -180,11 +183,6 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
         ctx.out(json.dumps(out))
         ctx.stdout.flush()
         return EXIT_USAGE if _report(problems) else 0
-    finally:
-        _remove_sink(sink)
-        root.close()
-        if own_fdr is not None:
-            own_fdr.close()
 
 
 def _match_settings(args: argparse.Namespace, settings: C3Settings) -> C3Settings:
