@@ -12,6 +12,7 @@ explicitly, for callers that do not bring their own (the CLI, tests, integrators
 from __future__ import annotations
 
 from collections.abc import Mapping
+from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Any
 
@@ -172,48 +173,58 @@ def compose_root(
     ``StrategyNotLinkedError`` for a strategy the build does not link."""
     helpers = _checked_helpers(pre_constructed)
     clock: Clock = helpers.get("clock") or MonotonicClock()
-    owned_fdr: JsonlFdrRecorder | None = None  # closed with the root; a given one is the caller's
-    if "c13_fdr" not in helpers:
-        owned_fdr = JsonlFdrRecorder(config.fdr.path, clock, max_bytes=config.fdr.max_bytes)
-    fdr: FdrClient = helpers["c13_fdr"] if owned_fdr is None else owned_fdr
-    handle = configure_logging(fdr, level=config.logging.level) if configure_logs else None
-    if owned_fdr is not None:
-        state_default_fdr_path(config)
-    try:
-        host = plugin_host if plugin_host is not None else build_plugin_host()
-        for error in host.errors:
-            log_event("ERROR", "c3.plugins.load_error", str(error), error=str(error))
-        name = config.matcher.strategy
-        spec = host.resolve(name)
-        config = with_strategy_defaults(config, spec.defaults, name)
-        options = _strategy_options(config, name, spec.options_model)
-        health = RollingHealthWindow(clock, config.matcher.min_inliers_threshold)
-        matcher = spec.factory(
-            config=config,
-            options=options,
-            inference_runtime=helpers["c7_inference"],
-            lightglue_runtime=helpers["c3_lightglue_runtime"],
-            ransac_filter=helpers["c282_ransac_filter"],
-            health_window=health,
-            fdr_client=fdr,
-            clock=clock,
-        )
-        if not isinstance(matcher, CrossDomainMatcher):
-            raise AirborneBootstrapError(
-                CONSUMER,
-                name,
-                f"factory returned {type(matcher).__name__}, not a CrossDomainMatcher",
-            )
-        if isinstance(matcher, PipelineMatcher):  # every strategy on the shared pipeline
-            engine_startup_probe(matcher.backend)
-        _log_ready(config, host, helpers)
-    except Exception:
-        if handle is not None:
-            handle.close()
+    with ExitStack() as opened:  # given back at once if composition fails, else by close()
+        owned_fdr: JsonlFdrRecorder | None = None  # a given c13_fdr stays the caller's
+        if "c13_fdr" not in helpers:
+            owned_fdr = JsonlFdrRecorder(config.fdr.path, clock, max_bytes=config.fdr.max_bytes)
+            opened.callback(owned_fdr.close)
+        fdr: FdrClient = helpers["c13_fdr"] if owned_fdr is None else owned_fdr
+        handle = None
+        if configure_logs:
+            handle = configure_logging(fdr, level=config.logging.level)
+            opened.callback(handle.close)
         if owned_fdr is not None:
-            owned_fdr.close()
-        raise
+            state_default_fdr_path(config)
+        host = plugin_host if plugin_host is not None else build_plugin_host()
+        matcher, health = _create_strategy(config, helpers, host, fdr, clock)
+        opened.pop_all()
+    name = config.matcher.strategy
     return ComposedRoot(matcher, name, health, fdr, clock, host, helpers, handle, owned_fdr)
+
+
+def _create_strategy(
+    config: C3Settings,
+    helpers: Mapping[str, Any],
+    host: PluginHost,
+    fdr: FdrClient,
+    clock: Clock,
+) -> tuple[CrossDomainMatcher, RollingHealthWindow]:
+    """The configured strategy created from its plugin (its engines load now) and probed."""
+    for error in host.errors:
+        log_event("ERROR", "c3.plugins.load_error", str(error), error=str(error))
+    name = config.matcher.strategy
+    spec = host.resolve(name)
+    config = with_strategy_defaults(config, spec.defaults, name)
+    options = _strategy_options(config, name, spec.options_model)
+    health = RollingHealthWindow(clock, config.matcher.min_inliers_threshold)
+    matcher = spec.factory(
+        config=config,
+        options=options,
+        inference_runtime=helpers["c7_inference"],
+        lightglue_runtime=helpers["c3_lightglue_runtime"],
+        ransac_filter=helpers["c282_ransac_filter"],
+        health_window=health,
+        fdr_client=fdr,
+        clock=clock,
+    )
+    if not isinstance(matcher, CrossDomainMatcher):
+        raise AirborneBootstrapError(
+            CONSUMER, name, f"factory returned {type(matcher).__name__}, not a CrossDomainMatcher"
+        )
+    if isinstance(matcher, PipelineMatcher):  # every strategy on the shared pipeline
+        engine_startup_probe(matcher.backend)
+    _log_ready(config, host, helpers)
+    return matcher, health
 
 
 def _checked_helpers(pre_constructed: Mapping[str, Any] | None) -> dict[str, Any]:
