@@ -146,3 +146,18 @@ def test_closes_the_recorder_it_built_and_never_a_given_one(tmp_path):
     finally:
         given.close()
     assert "after.close" in (tmp_path / "fdr.jsonl").read_text()
+
+
+def test_a_failed_composition_takes_its_log_sinks_away_again(tmp_path):
+    from c3_matcher.fdr import InMemoryFdr
+    from c3_matcher.logs import log_event
+
+    fdr = InMemoryFdr()
+    with pytest.raises(StrategyNotLinkedError):
+        compose_root(
+            settings(tmp_path, "xfeat"),
+            {**helpers(), "c13_fdr": fdr},
+            plugin_host=fake_plugin_host(),
+        )
+    log_event("WARNING", "c3.test.after", "after the failed composition")
+    assert fdr.of_kind("log.warning") == []  # its sink forwarded nothing more
