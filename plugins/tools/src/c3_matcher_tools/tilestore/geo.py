@@ -217,21 +217,21 @@ def _utm_inverse(p: Projection, e: F64, north: F64) -> tuple[F64, F64]:
     return np.degrees(_utm_lon0(p) + lam), np.degrees(phi)
 
 
-def _mercator_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
+def _mercator_forward(_p: Projection, lon: F64, lat: F64, *, ellipsoidal: bool) -> tuple[F64, F64]:
     phi = np.radians(lat)
     y = np.log(np.tan(np.pi / 4 + phi / 2))
-    if p.kind == "world_mercator":  # ellipsoidal
+    if ellipsoidal:  # world mercator
         e1 = math.sqrt(_E2)
         es = e1 * np.sin(phi)
         y = y + (e1 / 2) * np.log((1 - es) / (1 + es))
     return _A * np.radians(lon), _A * y
 
 
-def _mercator_inverse(p: Projection, e: F64, n: F64) -> tuple[F64, F64]:
+def _mercator_inverse(_p: Projection, e: F64, n: F64, *, ellipsoidal: bool) -> tuple[F64, F64]:
     lon = np.degrees(e / _A)
     t = np.exp(-n / _A)
     phi = np.pi / 2 - 2 * np.arctan(t)
-    if p.kind == "world_mercator":  # ellipsoidal: fixed-point iteration on the latitude
+    if ellipsoidal:  # world mercator: fixed-point iteration on the latitude
         e1 = math.sqrt(_E2)
         for _ in range(12):
             es = e1 * np.sin(phi)
@@ -267,8 +267,14 @@ def _tangent_plane_inverse(p: Projection, e: F64, n: F64) -> tuple[F64, F64]:
 
 _FORMULAS: Final[Mapping[str, _Formulas]] = {
     "utm": _Formulas(_utm_forward, _utm_inverse),
-    "web_mercator": _Formulas(_mercator_forward, _mercator_inverse),
-    "world_mercator": _Formulas(_mercator_forward, _mercator_inverse),
+    "web_mercator": _Formulas(
+        functools.partial(_mercator_forward, ellipsoidal=False),
+        functools.partial(_mercator_inverse, ellipsoidal=False),
+    ),
+    "world_mercator": _Formulas(
+        functools.partial(_mercator_forward, ellipsoidal=True),
+        functools.partial(_mercator_inverse, ellipsoidal=True),
+    ),
     "geographic": _Formulas(_identity, _identity),
     "pyproj": _Formulas(_pyproj_forward, _pyproj_inverse),
     "local_tangent_plane": _Formulas(_tangent_plane_forward, _tangent_plane_inverse),
