@@ -14,6 +14,8 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from c3_matcher.dto import (
     Attitude,
@@ -28,7 +30,7 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.prepared import InputRule, PreparedImage
-from c3_matcher.prior import GeometricPrior, PriorTolerances
+from c3_matcher.prior import GeometricPrior, PriorTolerances, _densest_cell
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.testing import FakeClock
 from c3_matcher.tiles import BytesTileHandle
@@ -59,6 +61,31 @@ def test_translation_vote_keeps_the_consistent_matches_and_drops_random_ones() -
     keep = prior.consistent(np.vstack([good, bad]))
     assert keep[:60].all()  # within the stated tolerance: 3 deg, 4 % scale
     assert keep[60:].mean() < 0.1
+
+
+def test_the_vote_costs_the_same_however_far_apart_the_matches_fall() -> None:
+    """A few matches millions of px away (a large height, a mistyped tile GSD) neither fill
+    memory nor outvote the consistent ones: a dense vote grid over that range would not fit."""
+    rng = np.random.default_rng(1)
+    prior = GeometricPrior(PriorTolerances(), (160.0, 120.0))
+    good = _rows(_similarity(2.0, 1.02, 40.0, 60.0), 30, rng)
+    far = np.array([[10, 10, 5e6, -5e6], [20, 20, -5e6, 5e6], [30, 30, 5e6, 5e6]], np.float32)
+    keep = prior.consistent(np.vstack([good, far]))
+    assert keep[:30].all() and not keep[30:].any()
+
+
+@given(st.lists(st.tuples(st.integers(-6, 6), st.integers(-6, 6)), min_size=4, max_size=40))
+@settings(max_examples=200, deadline=None)
+def test_the_densest_cell_is_the_dense_grids_first_maximum(votes: list[tuple[int, int]]) -> None:
+    """Against the dense 3x3 box sum over every cell of the votes' range (row-major first max)."""
+    keys = np.array(votes, dtype=np.int64)
+    lo = keys.min(axis=0) - 1
+    size = keys.max(axis=0) - lo + 2
+    grid = np.zeros((int(size[1]), int(size[0])))
+    np.add.at(grid, (keys[:, 1] - lo[1], keys[:, 0] - lo[0]), 1.0)
+    summed = cv2.boxFilter(grid, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    row, col = np.unravel_index(int(np.argmax(summed)), summed.shape)
+    assert _densest_cell(keys).tolist() == [col + lo[0], row + lo[1]]
 
 
 @pytest.mark.parametrize(

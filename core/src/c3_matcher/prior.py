@@ -91,15 +91,7 @@ class GeometricPrior:
         q = correspondences[:, 0:2].astype(np.float64)
         d = correspondences[:, 2:4].astype(np.float64) - q
         cell = self.tol.vote_cell_px
-        keys = np.floor(d / cell).astype(np.int64)
-        lo = keys.min(axis=0)
-        shape = keys.max(axis=0) - lo + 3
-        grid = np.zeros((int(shape[1]), int(shape[0])), dtype=np.float64)
-        np.add.at(grid, (keys[:, 1] - lo[1] + 1, keys[:, 0] - lo[0] + 1), 1.0)
-        summed = cv2.boxFilter(grid, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
-        row, col = np.unravel_index(int(np.argmax(summed)), summed.shape)  # first max: stable
-        centre_cell = np.array([col - 1 + lo[0], row - 1 + lo[1]], dtype=np.float64)
-        guess = (centre_cell + 0.5) * cell
+        guess = (_densest_cell(np.floor(d / cell).astype(np.int64)) + 0.5) * cell
         radius = np.linalg.norm(q - self.centre, axis=1)
         tolerance = self.tol.base_px + radius * self.slope
         near = np.linalg.norm(d - guess, axis=1) <= tolerance + 1.5 * cell
@@ -170,6 +162,25 @@ class GeometricPrior:
             return None
         homography = np.vstack([np.asarray(found, dtype=np.float64), [0.0, 0.0, 1.0]])
         return homography, mask.reshape(-1).astype(bool)
+
+
+def _densest_cell(keys: NDArray[np.int64]) -> F64:
+    """The (x, y) vote cell whose 3x3 neighbourhood holds the most of ``keys`` (N, 2), the first
+    in row-major order on a tie. Only the cells next to a vote are scored, so the cost grows with
+    the number of votes, never with how far apart they fall (a frame's height or a tile's GSD
+    can spread them over a range no dense grid fits in memory)."""
+    x, y = keys[:, 0], keys[:, 1]
+    width = int(x.max() - x.min()) + 3  # a free column each side: x +- 1 never wraps a row
+    codes = (y - y.min() + 1) * width + (x - x.min() + 1)  # row-major: ascending = (y, x) order
+    voted, counts = np.unique(codes, return_counts=True)
+    steps = (np.arange(-1, 2)[:, None] * width + np.arange(-1, 2)[None, :]).ravel()
+    scored = np.unique((voted[:, None] + steps[None, :]).ravel())
+    sums = np.zeros(scored.size, dtype=np.int64)
+    for step in steps:
+        at = np.searchsorted(voted, scored + step).clip(max=voted.size - 1)
+        sums += np.where(voted[at] == scored + step, counts[at], 0)
+    row, col = divmod(int(scored[int(np.argmax(sums))]), width)  # first max: stable
+    return np.array([col - 1 + x.min(), row - 1 + y.min()], dtype=np.float64)
 
 
 def _jacobian(h: F64, p: F64) -> F64:
