@@ -303,3 +303,65 @@ def test_real_full_filesystem_at_rotation_loses_nothing(tmp_path):
     assert report["pending_after"] == 0
     assert report["seen"] == list(range(80))  # every record, once, in order
     assert report["segments"] >= 3
+
+
+def test_a_torn_tail_note_that_cannot_be_written_yet_is_kept_pending(tmp_path, monkeypatch):
+    """A full disk just as the recorder opens over a torn tail: it opens, the
+    ``fdr.torn_tail_cut`` record waits, and the next record writes it first."""
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    rec.record("k", {"i": 0})
+    rec.close()
+    with path.open("ab") as fh:
+        fh.write(b'{"seq":2,"kind":"k","payl')
+    real_write = os.write
+
+    def full_for_records(fd, data):
+        if bytes(data[:7]) == b'{"seq":':  # the records; the cut bytes' side file has room
+            raise OSError(28, "No space left on device")
+        return real_write(fd, data)
+
+    monkeypatch.setattr(os, "write", full_for_records)
+    again = JsonlFdrRecorder(path, FakeClock())
+    assert again.pending == 1
+    monkeypatch.setattr(os, "write", real_write)
+    again.record("k", {"i": 1})
+    again.close()
+    assert [(r["seq"], r["kind"]) for r in read_fdr(path)] == [
+        (1, "k"),
+        (2, "fdr.torn_tail_cut"),
+        (3, "k"),
+    ]
+
+
+def test_a_new_segment_and_the_directories_made_for_it_are_fsynced(tmp_path, monkeypatch):
+    """A power cut after the first acknowledged record must not take the file's (or its new
+    directories') entries away: each directory that gained an entry is fsynced."""
+    synced: list[str] = []
+    real_fsync = os.fsync
+
+    def spy(fd):
+        synced.append(str(Path(f"/proc/self/fd/{fd}").readlink()))
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", spy)
+    path = tmp_path / "a" / "b" / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    rec.record("k", {"i": 0})
+    rec.close()
+    assert {str(tmp_path), str(tmp_path / "a"), str(tmp_path / "a" / "b")} <= set(synced)
+    assert synced.index(str(tmp_path / "a" / "b")) < synced.index(str(path))
+
+
+def test_a_file_name_with_glob_characters_keeps_its_rotated_segments(tmp_path):
+    path = tmp_path / "fdr[1]*.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock(), max_bytes=1024)
+    for i in range(40):
+        rec.record("k", {"i": i, "pad": "x" * 60})
+    assert len(rec.segments()) >= 3
+    rec.close()
+    again = JsonlFdrRecorder(path, FakeClock(), max_bytes=1024)
+    again.record("k", {"i": 40})
+    assert [r["payload"]["i"] for r in _all_records(again)] == list(range(41))
+    assert [r["seq"] for r in _all_records(again)] == list(range(1, 42))
+    again.close()

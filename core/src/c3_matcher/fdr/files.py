@@ -5,6 +5,7 @@ cut of a torn last line (kept in ``.torn``)."""
 from __future__ import annotations
 
 import datetime as dt
+import glob
 import json
 import os
 from collections.abc import Mapping
@@ -17,7 +18,7 @@ def rotated_segments(path: Path) -> list[tuple[int, Path]]:
     segment ``path``, by number."""
     stem, suffix = path.stem, path.suffix
     out = []
-    for p in path.parent.glob(f"{stem}.[0-9]*{suffix}"):
+    for p in path.parent.glob(f"{glob.escape(stem)}.[0-9]*{glob.escape(suffix)}"):
         number = p.name[len(stem) + 1 : len(p.name) - len(suffix)]
         if number.isdigit():
             out.append((int(number), p))
@@ -56,12 +57,34 @@ def write_meta(path: Path, data: Mapping[str, Any]) -> None:
 
 
 def fsync_dir(directory: Path) -> None:
-    """Make a rename or unlink in ``directory`` durable."""
+    """Make a rename, unlink or new file in ``directory`` durable."""
     dir_fd = os.open(directory, os.O_RDONLY)
     try:
         os.fsync(dir_fd)
     finally:
         os.close(dir_fd)
+
+
+def make_dirs_durably(directory: Path) -> None:
+    """``mkdir -p`` whose new directories survive a power cut (each one's parent fsynced)."""
+    missing = [d for d in (directory, *directory.parents) if not d.exists()]
+    directory.mkdir(parents=True, exist_ok=True)
+    for made in reversed(missing):
+        fsync_dir(made.parent)
+
+
+def open_for_append(path: Path) -> int:
+    """``path`` opened to append; a file this creates is made durable in its directory, so
+    that the records fsynced into it survive a power cut with it."""
+    created = not path.exists()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    if created:
+        try:
+            fsync_dir(path.parent)
+        except OSError:
+            os.close(fd)
+            raise
+    return fd
 
 
 def cut_torn_tail(path: Path, torn_path: Path) -> tuple[int, int] | None:
@@ -98,10 +121,12 @@ def cut_torn_tail(path: Path, torn_path: Path) -> tuple[int, int] | None:
             "cut_at_wall_time": dt.datetime.now(dt.UTC).isoformat(timespec="microseconds"),
             "bytes": cut.decode("utf-8", "backslashreplace"),
         }
-        with torn_path.open("ab") as side_fh:
-            side_fh.write((json.dumps(side) + "\n").encode())
-            side_fh.flush()
-            os.fsync(side_fh.fileno())
+        side_fd = open_for_append(torn_path)
+        try:
+            os.write(side_fd, (json.dumps(side) + "\n").encode())
+            os.fsync(side_fd)
+        finally:
+            os.close(side_fd)
         fh.truncate(keep)
         fh.flush()
         os.fsync(fh.fileno())

@@ -17,6 +17,8 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import (
     cut_torn_tail,
     fsync_dir,
+    make_dirs_durably,
+    open_for_append,
     read_meta,
     read_small,
     rotated_segments,
@@ -35,7 +37,8 @@ class JsonlFdrRecorder:
     never overwritten) and a new live segment starts. ``seq`` continues across restarts,
     rotations and offloads.
 
-    Guarantees: ``record`` returns only after the line is written and fsynced. A write failure
+    Guarantees: ``record`` returns only after the line is written and fsynced (and, for a
+    segment or directory it created, their directory entries). A write failure
     (disk full, short write, I/O error) is rolled back to the last complete line, raises
     ``FdrWriteError`` and keeps the record pending; the next ``record`` writes pending records
     first, so none is dropped (``flush`` retries them without a new record; ``close`` tries
@@ -45,7 +48,8 @@ class JsonlFdrRecorder:
     rotates at the next record that finds room. On open, a torn last line (power cut
     mid-write) is cut back to the last complete line; the cut bytes are appended to
     ``<path>.torn`` (one JSON line per cut: offset, length, the bytes) and a
-    ``fdr.torn_tail_cut`` record says so. One process
+    ``fdr.torn_tail_cut`` record says so (kept pending, like any record, when it cannot be
+    written yet). One process
     writes a path: the recorder holds ``flock`` on ``<path>.lock``; a second one is refused
     with ``FdrOpenError``. ``record`` is thread-safe.
     """
@@ -66,7 +70,7 @@ class JsonlFdrRecorder:
         if self._path.is_dir():
             raise FdrOpenError(what, "is a directory (give a file path)")
         try:
-            self._path.parent.mkdir(parents=True, exist_ok=True)
+            make_dirs_durably(self._path.parent)
             self._lock_fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:
             raise FdrOpenError(what, f"cannot create: {exc.strerror or exc}") from exc
@@ -85,16 +89,17 @@ class JsonlFdrRecorder:
             self._drop_half_rotated_live()
             torn = self._cut_torn_tail()
             self._seq = self._last_seq() + 1
-            self._fd = self._open()
+            self._fd = open_for_append(self._path)
         except OSError as exc:
             self.close()
             raise FdrOpenError(what, f"cannot open: {exc.strerror or exc}") from exc
         if torn is not None:
             offset, length = torn
-            self.record(
-                "fdr.torn_tail_cut",
-                {"offset": offset, "length": length, "kept_in": str(self.torn_path)},
-            )
+            with contextlib.suppress(FdrWriteError):  # kept pending: the next record writes it
+                self.record(
+                    "fdr.torn_tail_cut",
+                    {"offset": offset, "length": length, "kept_in": str(self.torn_path)},
+                )
 
     @property
     def path(self) -> Path:
@@ -177,7 +182,7 @@ class JsonlFdrRecorder:
 
     def _write_durably(self, data: bytes) -> None:
         if self._fd < 0:
-            self._fd = self._open()
+            self._fd = open_for_append(self._path)
         if self._needs_repair:
             self._cut_torn_tail()
             self._needs_repair = False
@@ -199,9 +204,6 @@ class JsonlFdrRecorder:
             except OSError:
                 self._needs_repair = True
             raise
-
-    def _open(self) -> int:
-        return os.open(self._path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
 
     def _next_segment_number(self) -> int:
         numbers = [n for n, _ in self._rotated()]
@@ -228,8 +230,7 @@ class JsonlFdrRecorder:
         self._reserved = None
         os.close(self._fd)
         self._fd = -1
-        self._fd = self._open()
-        fsync_dir(self._path.parent)
+        self._fd = open_for_append(self._path)  # fsyncs the directory: the rename too
         return True
 
     def _drop_half_rotated_live(self) -> None:
