@@ -77,7 +77,8 @@ def test_the_vote_costs_the_same_however_far_apart_the_matches_fall() -> None:
 @given(st.lists(st.tuples(st.integers(-6, 6), st.integers(-6, 6)), min_size=4, max_size=40))
 @settings(max_examples=200, deadline=None)
 def test_the_densest_cell_is_the_dense_grids_first_maximum(votes: list[tuple[int, int]]) -> None:
-    """Against the dense 3x3 box sum over every cell of the votes' range (row-major first max)."""
+    """Both ways of scoring agree with the dense 3x3 box sum over every cell of the votes' range
+    (row-major first maximum)."""
     keys = np.array(votes, dtype=np.int64)
     lo = keys.min(axis=0) - 1
     size = keys.max(axis=0) - lo + 2
@@ -85,7 +86,9 @@ def test_the_densest_cell_is_the_dense_grids_first_maximum(votes: list[tuple[int
     np.add.at(grid, (keys[:, 1] - lo[1], keys[:, 0] - lo[0]), 1.0)
     summed = cv2.boxFilter(grid, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
     row, col = np.unravel_index(int(np.argmax(summed)), summed.shape)
-    assert _densest_cell(keys).tolist() == [col + lo[0], row + lo[1]]
+    expected = [col + lo[0], row + lo[1]]
+    assert _densest_cell(keys).tolist() == expected  # on a dense grid (small spread)
+    assert _densest_cell(keys, dense_cells=0).tolist() == expected  # scored sparsely
 
 
 @pytest.mark.parametrize(

@@ -164,23 +164,32 @@ class GeometricPrior:
         return homography, mask.reshape(-1).astype(bool)
 
 
-def _densest_cell(keys: NDArray[np.int64]) -> F64:
+DENSE_VOTE_CELLS = 1 << 20  # a grid up to 8 MB is box-filtered whole; a wider spread, sparsely
+
+
+def _densest_cell(keys: NDArray[np.int64], dense_cells: int = DENSE_VOTE_CELLS) -> F64:
     """The (x, y) vote cell whose 3x3 neighbourhood holds the most of ``keys`` (N, 2), the first
-    in row-major order on a tie. Only the cells next to a vote are scored, so the cost grows with
-    the number of votes, never with how far apart they fall (a frame's height or a tile's GSD
-    can spread them over a range no dense grid fits in memory)."""
-    x, y = keys[:, 0], keys[:, 1]
-    width = int(x.max() - x.min()) + 3  # a free column each side: x +- 1 never wraps a row
-    codes = (y - y.min() + 1) * width + (x - x.min() + 1)  # row-major: ascending = (y, x) order
-    voted, counts = np.unique(codes, return_counts=True)
-    steps = (np.arange(-1, 2)[:, None] * width + np.arange(-1, 2)[None, :]).ravel()
-    scored = np.unique((voted[:, None] + steps[None, :]).ravel())
-    sums = np.zeros(scored.size, dtype=np.int64)
-    for step in steps:
-        at = np.searchsorted(voted, scored + step).clip(max=voted.size - 1)
-        sums += np.where(voted[at] == scored + step, counts[at], 0)
-    row, col = divmod(int(scored[int(np.argmax(sums))]), width)  # first max: stable
-    return np.array([col - 1 + x.min(), row - 1 + y.min()], dtype=np.float64)
+    in row-major order on a tie. Votes that fit a grid of ``dense_cells`` are box-filtered on it
+    (the fast common case); votes spread wider (a large height, a mistyped tile GSD) are scored
+    only at the cells next to a vote, so memory and time grow with the votes, not the spread."""
+    lo = keys.min(axis=0) - 1  # a free cell each side: x +- 1 never leaves its row
+    width, rows = (int(n) for n in keys.max(axis=0) - lo + 2)
+    codes = (keys[:, 1] - lo[1]) * width + (keys[:, 0] - lo[0])  # ascending = row-major order
+    if width * rows <= dense_cells:
+        grid = np.bincount(codes, minlength=width * rows).astype(np.float64).reshape(rows, width)
+        summed = cv2.boxFilter(grid, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        best = int(np.argmax(summed))  # first max: stable
+    else:
+        voted, counts = np.unique(codes, return_counts=True)
+        steps = (np.arange(-1, 2)[:, None] * width + np.arange(-1, 2)[None, :]).ravel()
+        scored = np.unique((voted[:, None] + steps[None, :]).ravel())
+        sums = np.zeros(scored.size, dtype=np.int64)
+        for step in steps:
+            at = np.searchsorted(voted, scored + step).clip(max=voted.size - 1)
+            sums += np.where(voted[at] == scored + step, counts[at], 0)
+        best = int(scored[int(np.argmax(sums))])  # first max: stable
+    row, col = divmod(best, width)
+    return np.array([col + lo[0], row + lo[1]], dtype=np.float64)
 
 
 def _jacobian(h: F64, p: F64) -> F64:
