@@ -240,6 +240,9 @@ def test_failed_rename_at_rotation_leaves_the_live_segment_in_place(tmp_path, mo
     numbers = [int(p.name.split(".")[1]) for p in rec.segments()[:-1]]
     assert numbers == list(range(1, len(before) + 1))  # the failed tries reserved one number
     assert [r["payload"]["i"] for r in _all_records(rec)] == list(range(31))
+    newest = read_fdr(rec.segments()[-2])
+    meta = json.loads(path.with_name(path.name + ".meta").read_text())
+    assert meta["last_seq"] >= newest[-1]["seq"]  # so seq never goes back once all is offloaded
     rec.close()
 
 
@@ -365,3 +368,15 @@ def test_a_file_name_with_glob_characters_keeps_its_rotated_segments(tmp_path):
     assert [r["payload"]["i"] for r in _all_records(again)] == list(range(41))
     assert [r["seq"] for r in _all_records(again)] == list(range(1, 42))
     again.close()
+
+
+def test_closing_with_records_the_disk_still_refuses_says_they_are_lost(tmp_path, monkeypatch):
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    rec.record("k", {"i": 0})
+    monkeypatch.setattr(os, "write", lambda fd, data: (_ for _ in ()).throw(OSError(28, "full")))
+    with pytest.raises(FdrWriteError):
+        rec.record("k", {"i": 1})
+    with pytest.raises(FdrWriteError, match="1 record.* lost"):
+        rec.close()
+    JsonlFdrRecorder(path, FakeClock()).close()  # the lock was given back all the same

@@ -2,7 +2,8 @@
 
 ``JsonlFdrRecorder`` is the durable one: every record is one JSON line, flushed and fsynced
 before ``record`` returns, in an append-only file rotated by size (rotated segments are kept:
-nothing is ever deleted). ``InMemoryFdr`` is the test double.
+nothing is ever deleted, unless a recorder is opened with ``fresh=True``, as a ground run's is,
+to start a new log under its lock). ``InMemoryFdr`` is the test double.
 
 Record schema (one JSON object per line)::
 

@@ -38,23 +38,34 @@ class JsonlFdrRecorder:
     rotations and offloads.
 
     Guarantees: ``record`` returns only after the line is written and fsynced (and, for a
-    segment or directory it created, their directory entries). A write failure
-    (disk full, short write, I/O error) is rolled back to the last complete line, raises
-    ``FdrWriteError`` and keeps the record pending; the next ``record`` writes pending records
-    first, so none is dropped (``flush`` retries them without a new record; ``close`` tries
-    once). A rotation is atomic with respect to failure: the next segment number is reserved in
-    ``<path>.meta`` before the live segment is renamed, and if either step fails (disk full)
-    nothing has moved: the recorder keeps appending to the live segment past ``max_bytes`` and
-    rotates at the next record that finds room. On open, a torn last line (power cut
-    mid-write) is cut back to the last complete line; the cut bytes are appended to
-    ``<path>.torn`` (one JSON line per cut: offset, length, the bytes) and a
-    ``fdr.torn_tail_cut`` record says so (kept pending, like any record, when it cannot be
-    written yet). One process
-    writes a path: the recorder holds ``flock`` on ``<path>.lock``; a second one is refused
-    with ``FdrOpenError``. ``record`` is thread-safe.
+    segment or directory it created, their directory entries). A write failure (disk full,
+    short write, I/O error) is rolled back to the last complete line, raises ``FdrWriteError``
+    and keeps the record pending; the next ``record`` writes pending records first, so none is
+    dropped (``flush`` retries them without a new record; ``close`` tries once more and raises
+    ``FdrWriteError`` for what it could not write). A rotation is atomic with respect to
+    failure: the next segment number is reserved in ``<path>.meta`` before the live segment is
+    renamed, and if either step fails (disk full) nothing has moved: the recorder keeps
+    appending to the live segment past ``max_bytes`` and rotates at the next record that finds
+    room. On open, a torn last line (power cut mid-write) is cut back to the last complete
+    line; the cut bytes are appended to ``<path>.torn`` (one JSON line per cut: offset, length,
+    the bytes) and a ``fdr.torn_tail_cut`` record says so (kept pending, like any record, when
+    it cannot be written yet). One process writes a path: the recorder holds ``flock`` on
+    ``<path>.lock``; a second one is refused with ``FdrOpenError``. ``record`` is thread-safe.
+
+    ``fresh``: start a new log at ``path`` (a ground run's FDR, started anew with each run):
+    only once the lock is held are the previous live segment, its rotated segments, ``.meta``
+    and ``.torn`` removed, so a recorder refused by the lock leaves another writer's files as
+    they are; ``seq`` then starts at 1.
     """
 
-    def __init__(self, path: Path, clock: Clock, max_bytes: int = 64 * 1024 * 1024) -> None:
+    def __init__(
+        self,
+        path: Path,
+        clock: Clock,
+        max_bytes: int = 64 * 1024 * 1024,
+        *,
+        fresh: bool = False,
+    ) -> None:
         if max_bytes < 1024:
             raise InvalidInputError("fdr.max_bytes", f"must be >= 1024, got {max_bytes}")
         self._path = Path(path).expanduser()
@@ -86,6 +97,8 @@ class JsonlFdrRecorder:
         try:
             os.ftruncate(self._lock_fd, 0)
             os.pwrite(self._lock_fd, f"{os.getpid()}\n".encode(), 0)
+            if fresh:
+                self._remove_previous_log()
             self._drop_half_rotated_live()
             torn = self._cut_torn_tail()
             self._seq = self._last_seq() + 1
@@ -151,16 +164,24 @@ class JsonlFdrRecorder:
             self._write_pending()
 
     def close(self) -> None:
+        """Write what is pending (a last chance after a full disk) and give the path back;
+        ``FdrWriteError`` naming how many records were lost when that last write failed (the
+        files are closed and the lock released all the same)."""
         with self._lock:
+            lost: FdrWriteError | None = None
             if self._pending and self._lock_fd >= 0:
-                with contextlib.suppress(FdrWriteError):  # a last chance after a full disk
+                try:
                     self._write_pending()
+                except FdrWriteError as exc:
+                    lost = exc
             if self._fd >= 0:
                 os.close(self._fd)
                 self._fd = -1
             if self._lock_fd >= 0:
                 os.close(self._lock_fd)  # releases the flock
                 self._lock_fd = -1
+        if lost is not None:
+            raise FdrWriteError(f"{lost}: lost, the recorder is closed") from lost
 
     def segments(self) -> list[Path]:
         """Rotated segments oldest first (by number), then the live one."""
@@ -221,9 +242,8 @@ class JsonlFdrRecorder:
             number += 1
             target = self._path.with_name(f"{self._path.stem}.{number:06d}{self._path.suffix}")
         try:  # reserve the number first: a failure here leaves everything as it was
-            if number != self._reserved:
-                write_meta(self._meta_path, {"last_segment": number, "last_seq": self._seq - 1})
-                self._reserved = number  # kept for the next try: one number per rotation
+            write_meta(self._meta_path, {"last_segment": number, "last_seq": self._seq - 1})
+            self._reserved = number  # kept for the next try: one number per rotation
             self._path.rename(target)  # atomic: the records are under exactly one name
         except OSError:
             return False  # at worst a reserved number stays unused: never a reused one
@@ -232,6 +252,13 @@ class JsonlFdrRecorder:
         self._fd = -1
         self._fd = open_for_append(self._path)  # fsyncs the directory: the rename too
         return True
+
+    def _remove_previous_log(self) -> None:
+        """Remove every file of the log at this path but the lock (held by us), durably."""
+        previous = [self._path, *(p for _, p in self._rotated()), self._meta_path, self.torn_path]
+        for p in previous:
+            p.unlink(missing_ok=True)
+        fsync_dir(self._path.parent)
 
     def _drop_half_rotated_live(self) -> None:
         """Should the live segment and the newest rotated one be one file under two names (a
