@@ -106,3 +106,62 @@ def test_open_matcher_gives_back_its_recorder_and_log_when_composing_fails(
     with open_matcher(C3Settings(), "sift_magsac", tmp_path) as matcher:
         assert matcher.health_snapshot() is not None
     assert "c3.matcher.ready" in (tmp_path / "matcher.log").read_text()  # the run that composed
+
+
+def test_open_matcher_refused_by_another_runs_lock_leaves_that_runs_fdr_and_log(
+    tmp_path: Path,
+) -> None:
+    from c3_matcher.fdr import FdrOpenError, JsonlFdrRecorder, read_fdr
+    from c3_matcher.health import MonotonicClock
+    from c3_matcher_tools.run import open_matcher
+
+    (tmp_path / "matcher.log").write_text("the running run's log\n")
+    running = JsonlFdrRecorder(tmp_path / "fdr.jsonl", MonotonicClock())
+    try:
+        running.record("matcher.frame_done", {"frame": 0})
+        with (
+            pytest.raises(FdrOpenError, match="another process"),
+            open_matcher(C3Settings(), "sift_magsac", tmp_path),
+        ):
+            pass
+        assert [r["seq"] for r in read_fdr(tmp_path / "fdr.jsonl")] == [1]
+        assert (tmp_path / "matcher.log").read_text() == "the running run's log\n"
+    finally:
+        running.close()
+
+
+def test_open_matcher_refuses_an_unknown_strategy_before_touching_any_file(
+    tmp_path: Path,
+) -> None:
+    from c3_matcher_tools.run import open_matcher
+
+    previous = tmp_path / "previous"
+    previous.mkdir()
+    for name in ("fdr.jsonl", "matcher.log"):
+        (previous / name).write_text(f"the previous run's {name}\n")
+    for out in (previous, tmp_path / "new"):
+        with (
+            pytest.raises(UnknownStrategyError, match="no_such_strategy"),
+            open_matcher(C3Settings(), "no_such_strategy", out),
+        ):
+            pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["previous"]
+    assert sorted(p.name for p in previous.iterdir()) == ["fdr.jsonl", "matcher.log"]
+    assert (previous / "fdr.jsonl").read_text() == "the previous run's fdr.jsonl\n"
+
+
+def test_open_matcher_starts_the_fdr_afresh_rotated_segments_included(tmp_path: Path) -> None:
+    from c3_matcher.fdr import JsonlFdrRecorder, read_fdr
+    from c3_matcher.health import MonotonicClock
+    from c3_matcher_tools.run import open_matcher
+
+    previous = JsonlFdrRecorder(tmp_path / "fdr.jsonl", MonotonicClock(), max_bytes=1024)
+    for i in range(40):
+        previous.record("k", {"i": i, "pad": "x" * 40})
+    assert len(previous.segments()) > 2
+    previous.close()
+    settings = C3Settings(fdr={"max_bytes": 1024})
+    with open_matcher(settings, "sift_magsac", tmp_path) as matcher:
+        assert matcher.health_snapshot() is not None
+    assert sorted(p.name for p in tmp_path.glob("fdr*")) == ["fdr.jsonl", "fdr.jsonl.lock"]
+    assert list(read_fdr(tmp_path / "fdr.jsonl")) == []  # this run recorded no frame

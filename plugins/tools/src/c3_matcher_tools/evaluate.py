@@ -27,11 +27,19 @@ GNSS accuracy the log states, and the frames whose GNSS was absent or degraded (
 
 Several datasets (``c3-matcher eval FLIGHT1 FLIGHT2 ...``) are evaluated one after the other
 (outputs under ``--out/<dataset>``) and summarised in one strategy x flight table (correct-tile
-rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summary.json``.
+rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summary.json``. A
+dataset name that names an output directory must be one plain path component, and several
+datasets need as many names (refused before anything runs, exit 2, as is a strategy this build
+cannot run).
+
+A strategy that fails to run on a dataset (it cannot start, a frame cannot be read) is a table
+row and an ``error`` entry, the others go on, and the command exits 1 once every table and
+report is written. An output directory another process is writing (its FDR lock held) stops the
+command at once: nothing more is written into it.
 
 Writes ``eval.json``, per strategy ``<strategy>/results.jsonl`` (+ FDR and logs),
-``<strategy>/flight.geojson`` and ``<strategy>/report.html`` (the same as ``replay`` writes), and
-plots
+``<strategy>/flight.geojson`` and ``<strategy>/report.html`` (the same as ``replay`` writes, each
+replaced atomically), and plots
 (``inliers.png``, ``error.png``, ``matches/<strategy>_<frame>.png``) under ``--out`` (default
 ``out/eval/<dataset>``); stdout carries the table (or JSON with ``--json``). Each strategy's
 entry in ``eval.json`` records the ``[matcher]`` settings it ran with (its own defaults where
@@ -50,8 +58,17 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import CommandContext, CommandRegistry, add_max_keypoints_option
+from c3_matcher.commands import (
+    EXIT_FAILURE,
+    EXIT_OK,
+    CommandContext,
+    CommandRegistry,
+    add_max_keypoints_option,
+    bounded_int,
+)
 from c3_matcher.config import C3Settings
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.fdr import FdrOpenError
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher_tools.args import add_attitude_noise_option, add_strategies_option
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset, with_attitude_noise
@@ -60,9 +77,11 @@ from c3_matcher_tools.run import (
     NO_OVERRIDES,
     Overrides,
     fly,
+    output_dir_name,
     summarize,
     write_flight_outputs,
     write_results,
+    write_text_atomically,
 )
 from c3_matcher_tools.run.acceptance import BARS, WRONG_FIX_PX, headline, is_wrong_fix, metrics
 from c3_matcher_tools.run.records import StrategyEval, StrategyFailure, StrategyRow
@@ -150,9 +169,9 @@ def register_eval_command(commands: CommandRegistry) -> None:
     add_max_keypoints_option(p)
     p.add_argument(
         "--determinism-frames",
-        type=int,
+        type=bounded_int("--determinism-frames"),
         default=None,
-        help="frames of the second (C3-IT-02) run (default: all)",
+        help="the first N frames (>= 1) in the second (C3-IT-02) run (default: all)",
     )
     p.add_argument("--samples", type=int, default=3, help="match pictures per strategy (default 3)")
     add_attitude_noise_option(p)
@@ -165,31 +184,59 @@ def _fmt(value: float, spec: str) -> str:
 
 
 def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
-    settings = ctx.settings
-    limit = settings.matcher.max_image_pixels
-    datasets = [  # every path checked first
+    """Every dataset through every strategy; ``EXIT_FAILURE`` (the tables and reports still
+    written) when a strategy failed to run on a dataset."""
+    limit = ctx.settings.matcher.max_image_pixels
+    datasets = [  # every input checked before anything runs
         with_attitude_noise(load_dataset(path, limit), args.attitude_noise_deg)
         for path in args.dataset
     ]
-    specs = ctx.plugin_host.strategies()
-    learned = sorted(n for n, spec in specs.items() if not spec.baseline)
-    baselines = [] if args.no_baseline else sorted(n for n, s in specs.items() if s.baseline)
-    names = [*(args.strategy or learned), *(b for b in baselines if b not in (args.strategy or []))]
-    several = len(datasets) > 1
+    names = _strategies(args, ctx.plugin_host)
+    outs = _output_dirs(args.out, datasets)
     summary: list[dict[str, Any]] = []
-    for dataset in datasets:
-        if several:
-            out = (args.out or Path("out") / "eval") / dataset.name
-        else:
-            out = args.out or Path("out") / "eval" / dataset.name
+    for dataset, out in zip(datasets, outs, strict=True):
         rows = _eval_dataset(args, ctx, dataset, names, out)
         summary.extend(_summary_row(dataset.name, r) for r in rows)
-    if several:
+    if len(datasets) > 1:
         root = args.out or Path("out") / "eval"
-        (root / "summary.json").write_text(json.dumps(_finite(summary), indent=2) + "\n")
+        write_text_atomically(root / "summary.json", json.dumps(_finite(summary), indent=2) + "\n")
     if not args.json:
         _print_summary(ctx, summary)
-    return 0
+    failed = [f"{s['strategy']} on {s['flight']}" for s in summary if "error" in s]
+    if failed:
+        ctx.err(f"c3-matcher eval: failed to run: {', '.join(failed)}")
+        return EXIT_FAILURE
+    return EXIT_OK
+
+
+def _strategies(args: argparse.Namespace, host: PluginHost) -> list[str]:
+    """The strategies to run, in order: those ``--strategy`` names (each resolved first, so
+    one this build cannot run is refused before anything runs), else every linked one; then
+    the baseline unless ``--no-baseline``."""
+    for name in args.strategy or []:
+        host.resolve(name)
+    specs = host.strategies()
+    learned = sorted(n for n, spec in specs.items() if not spec.baseline)
+    baselines = [] if args.no_baseline else sorted(n for n, s in specs.items() if s.baseline)
+    return list(dict.fromkeys([*(args.strategy or learned), *baselines]))
+
+
+def _output_dirs(out: Path | None, datasets: Sequence[FlightDataset]) -> list[Path]:
+    """Each dataset's output directory: ``--out`` itself for a single dataset, else
+    ``<--out or out/eval>/<dataset name>``; a name that is not one plain path component, or
+    two datasets of one name (one would overwrite the other), are refused."""
+    if len(datasets) == 1 and out is not None:
+        return [out]
+    names = [output_dir_name(d) for d in datasets]
+    for n, name in enumerate(names):
+        if name in names[:n]:
+            first = datasets[names.index(name)].root
+            raise InvalidInputError(
+                "dataset",
+                f"{first} and {datasets[n].root} are both named {name!r} (dataset.json "
+                '"name"); their outputs would share one directory: give each its own name',
+            )
+    return [(out or Path("out") / "eval") / name for name in names]
 
 
 def _eval_dataset(
@@ -217,6 +264,8 @@ def _eval_dataset(
                     overrides=overrides,
                 )
             )
+        except FdrOpenError:  # another process writes this directory: leave it to that run
+            raise
         except Exception as exc:  # a strategy that cannot start is a row, not the end
             rows.append(StrategyFailure(name, f"{type(exc).__name__}: {exc}"))
     ran = [r.run for r in rows if isinstance(r, StrategyEval)]
@@ -235,7 +284,7 @@ def _eval_dataset(
         "strategies": [r.to_json() for r in rows],
         "plots": plots,
     }
-    (out / "eval.json").write_text(json.dumps(_finite(report), indent=2) + "\n")
+    write_text_atomically(out / "eval.json", json.dumps(_finite(report), indent=2) + "\n")
     if args.json:
         ctx.out(json.dumps(_finite(report), indent=2))
         return rows

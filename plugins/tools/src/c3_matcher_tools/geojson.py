@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from c3_matcher_tools.run.outputs import write_text_atomically
 from c3_matcher_tools.run.records import FrameOutcome
 
 __all__ = ["flight_geojson", "write_geojson"]
@@ -104,9 +105,7 @@ def flight_geojson(outcomes: Sequence[FrameOutcome], strategy: str) -> dict[str,
 
 
 def write_geojson(path: Path, outcomes: Sequence[FrameOutcome], strategy: str) -> Path:
+    """``path`` holding :func:`flight_geojson` of the run, written atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(flight_geojson(outcomes, strategy)) + "\n", encoding="utf-8")
-    tmp.replace(path)
-    return path
+    return write_text_atomically(path, json.dumps(flight_geojson(outcomes, strategy)) + "\n")

@@ -1,17 +1,20 @@
 """``c3-matcher replay DATASET``: every frame of a ``c3-flight/1`` dataset through the
 composition root's matcher (or the SIFT + MAGSAC baseline), with a progress bar on stderr.
 
-Writes under ``--out`` (default ``out/replay/<dataset>-<strategy>``): ``results.jsonl`` (one line
-per frame: status ``ok`` | ``insufficient`` | ``backbone_error``, elapsed ms, the scoring against
-ground truth and, for ``ok``, the MatchResult as ``c3-matcher match`` prints it), ``fdr.jsonl``
-(the flight-data records), ``matcher.log`` (the JSON logs), ``report.json``, ``flight.geojson``
-(truth and estimate: centres, tracks, footprints; QGIS opens it) and ``report.html`` (the
-self-contained flight report, with the ``report`` extra: matplotlib); stdout carries the report
-(a table, or JSON with ``--json``). Each ``ok`` result carries the best homography and, the tile
-ids being georeferenced, the frame centre's lat/lon and its footprint; frames with ground truth
-also carry ``truth_lat``/``truth_lon`` and ``position_error_m``. The report's ``settings`` are
-the ``[matcher]`` settings the strategy ran with (its own defaults where the configuration
-leaves a setting unset).
+Writes under ``--out`` (default ``out/replay/<dataset>-<strategy>``; a dataset name that is not
+one plain path component is refused): ``results.jsonl`` (one line per frame: status ``ok`` |
+``insufficient`` | ``backbone_error``, elapsed ms, the scoring against ground truth and, for
+``ok``, the MatchResult as ``c3-matcher match`` prints it), ``fdr.jsonl`` (the flight-data
+records), ``matcher.log`` (the JSON logs), ``report.json``, ``flight.geojson`` (truth and
+estimate: centres, tracks, footprints; QGIS opens it) and ``report.html`` (the self-contained
+flight report, with the ``report`` extra: matplotlib). The results and reports are each
+replaced atomically; the FDR and log are started afresh only once this run holds the FDR's
+lock, so a replay into a directory another one is writing is refused with its files untouched.
+stdout carries the report (a table, or JSON with ``--json``). Each ``ok`` result carries the
+best homography and, the tile ids being georeferenced, the frame centre's lat/lon and its
+footprint; frames with ground truth also carry ``truth_lat``/``truth_lon`` and
+``position_error_m``. The report's ``settings`` are the ``[matcher]`` settings the strategy ran
+with (its own defaults where the configuration leaves a setting unset).
 
 The command only: flying and scoring are the run layer's (:mod:`c3_matcher_tools.run`).
 """
@@ -37,9 +40,11 @@ from c3_matcher_tools.run import (
     Overrides,
     check_calibration_size,
     fly,
+    output_dir_name,
     summarize,
     write_flight_outputs,
     write_results,
+    write_text_atomically,
 )
 
 __all__ = ["register_replay_command", "run_replay"]
@@ -84,7 +89,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
         load_dataset(args.dataset, settings.matcher.max_image_pixels), args.attitude_noise_deg
     )
     strategy = args.strategy or settings.matcher.strategy
-    out = args.out or Path("out") / "replay" / f"{dataset.name}-{strategy}"
+    out = args.out or Path("out") / "replay" / f"{output_dir_name(dataset)}-{strategy}"
     frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
     if frames:
         check_calibration_size(dataset, frames[0])
@@ -102,7 +107,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     write_results(out / "results.jsonl", run.outcomes)
     report = _report(dataset.root, dataset.meta.get("attitude_noise"), run, out)
     write_flight_outputs(out, dataset, run.outcomes, strategy, report)
-    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    write_text_atomically(out / "report.json", json.dumps(report, indent=2) + "\n")
     if args.json:
         ctx.out(json.dumps(report, indent=2))
         return 0

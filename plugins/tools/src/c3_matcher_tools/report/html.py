@@ -30,6 +30,7 @@ from c3_matcher.viz import CandidateView, render_match
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.report.trajectory import draw_trajectory
+from c3_matcher_tools.run.outputs import write_text_atomically
 from c3_matcher_tools.run.records import FrameOutcome
 
 __all__ = ["frame_picture", "write_report"]
@@ -391,7 +392,4 @@ beside the accuracy its GNSS states.</p>
 """
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".html.tmp")
-    tmp.write_text(body, encoding="utf-8")
-    tmp.replace(out)
-    return out
+    return write_text_atomically(out, body)

@@ -3,7 +3,8 @@ export build on: typed run records (:class:`FrameOutcome`, :class:`FlightRun`), 
 matcher for a strategy with :class:`Overrides` (:func:`open_matcher`, :func:`compose_matcher`,
 :func:`open_backend`), flying a flight (:func:`run_flight`, :func:`fly`), scoring it against
 ground truth and telemetry (:func:`summarize`, :func:`result_fingerprint`) and writing a run's
-files. Commands live beside it (``replay``, ``evaluate``, ``bench``); nothing here is one."""
+files, each one atomically (:func:`atomic_writer`). Commands live beside it (``replay``,
+``evaluate``, ``bench``); nothing here is one."""
 
 from c3_matcher_tools.run.flight import Progress, check_calibration_size, fly, run_flight
 from c3_matcher_tools.run.matcher import (
@@ -14,7 +15,14 @@ from c3_matcher_tools.run.matcher import (
     open_backend,
     open_matcher,
 )
-from c3_matcher_tools.run.outputs import write_flight_outputs, write_html_report, write_results
+from c3_matcher_tools.run.outputs import (
+    atomic_writer,
+    output_dir_name,
+    write_flight_outputs,
+    write_html_report,
+    write_results,
+    write_text_atomically,
+)
 from c3_matcher_tools.run.records import (
     FlightRun,
     FrameOutcome,
@@ -40,12 +48,14 @@ __all__ = [
     "StrategyEval",
     "StrategyFailure",
     "StrategyRow",
+    "atomic_writer",
     "best_candidate_error",
     "check_calibration_size",
     "compose_matcher",
     "fly",
     "open_backend",
     "open_matcher",
+    "output_dir_name",
     "result_fingerprint",
     "run_flight",
     "summarize",
@@ -54,4 +64,5 @@ __all__ = [
     "write_flight_outputs",
     "write_html_report",
     "write_results",
+    "write_text_atomically",
 ]

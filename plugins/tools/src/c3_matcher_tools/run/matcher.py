@@ -143,23 +143,28 @@ def open_matcher(
 ) -> Iterator[CrossDomainMatcher]:
     """A matcher for ``strategy`` (a linked strategy, or the ``sift_magsac`` baseline, also a
     strategy) with ``overrides``, whose FDR records go to ``out_dir/fdr.jsonl`` and JSON logs
-    to ``out_dir/matcher.log`` (both started afresh); closed on exit."""
+    to ``out_dir/matcher.log``; closed on exit. A strategy this build cannot run is refused
+    before any file is touched; both files are started afresh only once this process holds
+    the FDR's lock, so a run refused by it (another process writing ``out_dir``) leaves that
+    run's files as they are."""
     from c3_matcher.fdr import JsonlFdrRecorder
     from c3_matcher.health import MonotonicClock
     from c3_matcher.logs import configure_logging
 
+    host = plugin_host if plugin_host is not None else build_plugin_host()
+    host.resolve(strategy)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for name in ("fdr.jsonl", "matcher.log"):
-        (out_dir / name).unlink(missing_ok=True)
     clock = MonotonicClock()
     with ExitStack() as opened:  # closed in reverse, also when opening fails part-way
-        fdr = JsonlFdrRecorder(out_dir / "fdr.jsonl", clock, max_bytes=settings.fdr.max_bytes)
+        fdr = JsonlFdrRecorder(
+            out_dir / "fdr.jsonl", clock, max_bytes=settings.fdr.max_bytes, fresh=True
+        )
         opened.callback(fdr.close)
         log_stream = opened.enter_context((out_dir / "matcher.log").open("w", encoding="utf-8"))
         logs = configure_logging(fdr, level=log_level or settings.logging.level, stream=log_stream)
         opened.callback(logs.close)
         chosen = overrides.apply(settings, strategy)
-        composed = compose_matcher(chosen, fdr=fdr, clock=clock, plugin_host=plugin_host)
+        composed = compose_matcher(chosen, fdr=fdr, clock=clock, plugin_host=host)
         opened.callback(composed.close)
         yield composed.matcher
 

@@ -1,23 +1,78 @@
 """A run's files: ``results.jsonl`` (one :class:`FrameOutcome` a line), ``flight.geojson`` and
-``report.html`` (the same for ``replay`` and for each strategy ``eval`` runs)."""
+``report.html`` (the same for ``replay`` and for each strategy ``eval`` runs), every one written
+through :func:`atomic_writer`: a run that fails part-way leaves the previous file whole."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import secrets
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.fdr.files import fsync_dir
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run.records import FrameOutcome
 
-__all__ = ["write_flight_outputs", "write_html_report", "write_results"]
+__all__ = [
+    "atomic_writer",
+    "output_dir_name",
+    "write_flight_outputs",
+    "write_html_report",
+    "write_results",
+    "write_text_atomically",
+]
+
+
+@contextlib.contextmanager
+def atomic_writer(path: Path) -> Iterator[TextIO]:
+    """A text file to write ``path`` through: a temporary file of its own in the same
+    directory, fsynced and renamed over ``path`` (the rename then fsynced in the directory)
+    when the block ends; on any exception (a full disk, a file size limit, Ctrl-C) it is
+    removed and ``path`` keeps what it held before."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    fsync_dir(path.parent)
+
+
+def output_dir_name(dataset: FlightDataset) -> str:
+    """``dataset``'s name as the one path component of an output directory named after it;
+    ``InvalidInputError`` naming its ``dataset.json`` when the name is not a single plain
+    component (empty, ``.``, ``..``, a path separator or a NUL in it), so that a name never
+    puts a run's files outside the directory they are meant for."""
+    name = dataset.name
+    if name in ("", ".", "..") or any(c in name for c in "/\\\0"):
+        raise InvalidInputError(
+            "dataset",
+            f"{dataset.root / 'dataset.json'}: name {name!r} cannot name an output directory: "
+            "it must be one path component (not empty, '.' or '..'; no '/', '\\' or NUL)",
+        )
+    return name
+
+
+def write_text_atomically(path: Path, text: str) -> Path:
+    """``path`` holding ``text`` (UTF-8), written through :func:`atomic_writer`."""
+    with atomic_writer(path) as fh:
+        fh.write(text)
+    return path
 
 
 def write_results(path: Path, outcomes: Sequence[FrameOutcome]) -> Path:
     """``path`` (JSON Lines): each outcome's ``to_json()``, in order."""
-    with path.open("w", encoding="utf-8") as fh:
+    with atomic_writer(path) as fh:
         for o in outcomes:
             fh.write(json.dumps(o.to_json()) + "\n")
     return path

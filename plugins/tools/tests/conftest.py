@@ -1,0 +1,81 @@
+"""Fixtures the tools' command tests share: ``small_flight``, a two-frame cut of the shipped demo
+flight under a name of the test's choosing, and ``c3``, the command line in a subprocess run from
+a directory of the test's choosing (the classical ``sift_magsac`` baseline needs no engines)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
+
+SmallFlight = Callable[..., Path]
+C3 = Callable[..., subprocess.CompletedProcess[str]]
+
+
+def _small_flight(where: Path, name: str, *, without_image: int | None = None) -> Path:
+    """The first two frames of the demo flight at ``where``, named ``name`` in its
+    dataset.json; ``without_image``: that frame's image left out."""
+    where.mkdir(parents=True)
+    for file in ("calibration.json", "tiles.mbtiles"):
+        shutil.copyfile(DEMO / file, where / file)
+    meta = json.loads((DEMO / "dataset.json").read_text())
+    (where / "dataset.json").write_text(json.dumps({**meta, "name": name}))
+    lines = (DEMO / "frames.jsonl").read_text().splitlines()[:2]
+    (where / "frames.jsonl").write_text("\n".join(lines) + "\n")
+    (where / "frames").mkdir()
+    for n, line in enumerate(lines):
+        image = json.loads(line)["image"]
+        if n != without_image:
+            shutil.copyfile(DEMO / image, where / image)
+    return where
+
+
+@pytest.fixture()
+def small_flight(tmp_path: Path) -> SmallFlight:
+    """``small_flight(name, *, where="flight", without_image=None)``: a two-frame dataset."""
+
+    def make(name: str, *, where: str = "flight", without_image: int | None = None) -> Path:
+        return _small_flight(tmp_path / where, name, without_image=without_image)
+
+    return make
+
+
+@pytest.fixture()
+def c3(tmp_path: Path) -> C3:
+    """``c3(*args, cwd=tmp_path)``: ``c3-matcher ARGS`` in a subprocess, without the caller's
+    ``C3_MATCHER_*`` settings; ``limit_file_bytes`` caps the size of any file it writes."""
+
+    def run(
+        *args: str, cwd: Path = tmp_path, limit_file_bytes: int | None = None
+    ) -> subprocess.CompletedProcess[str]:
+        env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
+        return subprocess.run(
+            [sys.executable, "-m", "c3_matcher.cli", *args],
+            capture_output=True,
+            text=True,
+            env=env,
+            cwd=cwd,
+            timeout=600,
+            preexec_fn=None if limit_file_bytes is None else _file_size_limit(limit_file_bytes),
+        )
+
+    return run
+
+
+def _file_size_limit(size: int) -> Callable[[], None]:
+    """A ``preexec_fn`` capping every file the child writes at ``size`` bytes (``ulimit -f``)."""
+
+    def limit() -> None:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+
+    return limit

@@ -1,0 +1,98 @@
+"""What ``c3-matcher eval`` refuses before anything runs (a strategy this build cannot run,
+datasets whose names cannot each name their own output directory, a determinism subset below
+one frame, an output directory another run is writing) and how it ends when a strategy fails to
+run: every table and report written, exit status 1 (two-frame flights, the ``sift_magsac``
+baseline)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.fdr import JsonlFdrRecorder
+from c3_matcher.health import MonotonicClock
+
+SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
+C3 = Callable[..., subprocess.CompletedProcess[str]]
+QUICK = ("--determinism-frames", "1", "--samples", "0")
+
+
+def test_an_unknown_strategy_is_refused_before_anything_runs(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    proc = c3("eval", str(flight), "--strategy", "no_such_strategy", "--out", str(out), *QUICK)
+    assert proc.returncode == 2, proc.stderr
+    assert "no_such_strategy" in proc.stderr and "not recognized" in proc.stderr
+    assert proc.stdout == "" and not out.exists()
+
+
+def test_a_strategy_that_failed_to_run_is_reported_and_the_exit_status_is_1(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames", without_image=0)
+    out = tmp_path / "out"
+    proc = c3("eval", str(flight), "--strategy", "sift_magsac", "--out", str(out), *QUICK)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert "sift_magsac" in proc.stdout and "failed to run" in proc.stdout  # the table
+    assert "failed to run: sift_magsac on two_frames" in proc.stderr
+    (row,) = json.loads((out / "eval.json").read_text())["strategies"]
+    assert row["strategy"] == "sift_magsac" and "000000.jpg" in row["error"]
+
+
+def test_several_datasets_of_one_name_are_refused_before_anything_runs(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    first = small_flight("two_frames", where="first")
+    second = small_flight("two_frames", where="second")
+    out = tmp_path / "out"
+    proc = c3("eval", str(first), str(second), "--strategy", "sift_magsac", "--out", str(out))
+    assert proc.returncode == 2 and "both named 'two_frames'" in proc.stderr, proc.stderr
+    assert str(first) in proc.stderr and str(second) in proc.stderr
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("name", ["../escaped", "/ABSOLUTE/escaped", ".."])
+def test_a_dataset_name_that_is_not_one_path_component_is_refused_before_anything_runs(
+    name: str, small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    plain = small_flight("plain", where="plain")
+    odd = small_flight(name.replace("/ABSOLUTE", str(tmp_path)), where="odd")
+    work = tmp_path / "work"
+    work.mkdir()
+    for datasets in ([str(odd)], [str(plain), str(odd)]):  # out/eval/<name>, <--out>/<name>
+        proc = c3("eval", *datasets, "--strategy", "sift_magsac", *QUICK, cwd=work)
+        assert proc.returncode == 2 and "one path component" in proc.stderr, proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["odd", "plain", "work"]
+    assert list(work.iterdir()) == []
+
+
+@pytest.mark.parametrize("frames", ["-1", "0"])
+def test_a_determinism_subset_below_one_frame_is_a_usage_error(
+    frames: str, small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    proc = c3("eval", str(flight), "--determinism-frames", frames, "--out", str(out))
+    assert proc.returncode == 2 and "--determinism-frames: must be >= 1" in proc.stderr
+    assert not out.exists()
+
+
+def test_an_eval_into_a_directory_another_run_is_writing_is_refused_and_writes_nothing(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    (out / "sift_magsac").mkdir(parents=True)
+    running = JsonlFdrRecorder(out / "sift_magsac" / "fdr.jsonl", MonotonicClock())
+    try:
+        proc = c3("eval", str(flight), "--strategy", "sift_magsac", "--out", str(out), *QUICK)
+        assert proc.returncode == 2 and "another process" in proc.stderr, proc.stderr
+        assert sorted(p.name for p in out.iterdir()) == ["sift_magsac"]
+    finally:
+        running.close()

@@ -1,0 +1,92 @@
+"""What ``c3-matcher replay`` leaves in an output directory when it cannot run or cannot finish:
+another run's files untouched when that run holds the directory or the strategy is unknown, the
+previous results whole when writing fails part-way, and nothing outside the default output
+directory whatever the dataset's name (two-frame flights, the ``sift_magsac`` baseline)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.fdr import JsonlFdrRecorder, read_fdr
+from c3_matcher.health import MonotonicClock
+
+SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
+C3 = Callable[..., subprocess.CompletedProcess[str]]
+
+
+def _files(directory: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(directory.iterdir()) if p.is_file()}
+
+
+def test_a_replay_into_a_directory_another_run_is_writing_is_refused_leaving_its_files(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "matcher.log").write_text('{"kind": "c3.matcher.ready"}\n')
+    running = JsonlFdrRecorder(out / "fdr.jsonl", MonotonicClock())  # the first run, still going
+    try:
+        running.record("matcher.frame_done", {"frame": 0})
+        proc = c3("replay", str(flight), "--strategy", "sift_magsac", "--out", str(out))
+        assert proc.returncode == 2 and "another process" in proc.stderr, proc.stderr
+        assert [r["kind"] for r in read_fdr(out / "fdr.jsonl")] == ["matcher.frame_done"]
+        assert (out / "matcher.log").read_text() == '{"kind": "c3.matcher.ready"}\n'
+    finally:
+        running.close()
+
+
+def test_a_replay_with_an_unknown_strategy_leaves_an_existing_output_directory_alone(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    first = c3("replay", str(flight), "--strategy", "sift_magsac", "--out", str(out))
+    assert first.returncode == 0, first.stderr[-2000:]
+    before = _files(out)
+    proc = c3("replay", str(flight), "--strategy", "no_such_strategy", "--out", str(out))
+    assert proc.returncode == 2 and "no_such_strategy" in proc.stderr, proc.stderr
+    assert _files(out) == before
+
+
+def test_a_replay_that_cannot_finish_writing_keeps_the_previous_results_whole(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    first = c3("replay", str(flight), "--strategy", "sift_magsac", "--out", str(out))
+    assert first.returncode == 0, first.stderr[-2000:]
+    results = (out / "results.jsonl").read_bytes()
+    assert len(results) > 4096  # the limit below cuts it, not the FDR or the log
+    again = c3(
+        "replay",
+        str(flight),
+        "--strategy",
+        "sift_magsac",
+        "--out",
+        str(out),
+        limit_file_bytes=4096,
+    )
+    assert again.returncode != 0 and "File too large" in again.stderr, again.stderr
+    assert (out / "results.jsonl").read_bytes() == results
+    assert [json.loads(line)["index"] for line in results.splitlines()] == [0, 1]
+    assert not [p.name for p in out.iterdir() if p.name.endswith(".tmp")]
+
+
+@pytest.mark.parametrize("name", ["../escaped", "/ABSOLUTE/escaped", "..", ""])
+def test_a_dataset_name_that_is_not_one_path_component_cannot_name_the_default_output(
+    name: str, small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    name = name.replace("/ABSOLUTE", str(tmp_path))
+    flight = small_flight(name)
+    work = tmp_path / "work"
+    work.mkdir()
+    proc = c3("replay", str(flight), "--strategy", "sift_magsac", cwd=work)
+    assert proc.returncode == 2 and "one path component" in proc.stderr, proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flight", "work"]
+    assert list(work.iterdir()) == []
