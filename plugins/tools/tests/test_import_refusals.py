@@ -7,6 +7,7 @@ with their telemetry written out (real imagery)."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ from rasterio.transform import from_origin
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight, read_telemetry
+from c3_matcher_tools.dataset.sources.common import MAX_SEARCH_TILES, max_uncertainty_m
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -154,3 +156,21 @@ def test_missing_output_parent_is_created(tmp_path: Path) -> None:
     blocker.write_text("x")
     with pytest.raises(InvalidInputError, match="not a directory"):
         import_csv_flight(spec(images, csv), blocker / "flight")
+
+
+@pytest.mark.parametrize("uncertainty_m", [30_000.0, 1e300])
+def test_an_uncertainty_beyond_the_tiles_searched_is_refused_naming_the_reach(
+    tmp_path: Path, uncertainty_m: float
+) -> None:
+    images, csv = recorded(tmp_path, range(2))
+    needle = (
+        rf"--uncertainty-m: .* beyond {MAX_SEARCH_TILES} tiles of the store's zoom 15 \((\d+) m"
+    )
+    with pytest.raises(InvalidInputError, match=needle) as refused:
+        import_csv_flight(spec(images, csv, uncertainty_m=uncertainty_m), tmp_path / "flight")
+    reach = re.search(needle, str(refused.value))
+    assert reach is not None  # the reach at the demo's latitude
+    assert float(reach.group(1)) == pytest.approx(max_uncertainty_m(15, 47.0), rel=0.01)
+    assert not (tmp_path / "flight").exists()
+    within = import_csv_flight(spec(images, csv, uncertainty_m=20_000.0), tmp_path / "flight")
+    assert within.frames == 2

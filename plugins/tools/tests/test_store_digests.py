@@ -9,6 +9,7 @@ import shutil
 import sqlite3
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -89,3 +90,27 @@ def test_tiles_digest_adds_what_is_missing_and_keeps_tile_bytes(tmp_path: Path) 
 def test_tiles_digest_refuses_a_missing_store(tmp_path: Path) -> None:
     with pytest.raises(InvalidInputError, match="no such MBTiles file"):
         add_missing_digests(tmp_path / "absent.mbtiles")
+
+
+def _empty_file(path: Path) -> None:
+    path.write_bytes(b"")
+
+
+def _other_database(path: Path) -> None:
+    db = sqlite3.connect(path)
+    with db:
+        db.execute("CREATE TABLE notes (text TEXT)")
+    db.close()
+
+
+@pytest.mark.parametrize("make", [_empty_file, _other_database], ids=["empty", "other-sqlite"])
+def test_tiles_digest_refuses_a_file_that_is_not_an_mbtiles_store_and_leaves_it_as_it_was(
+    make: Callable[[Path], None], tmp_path: Path
+) -> None:
+    path = tmp_path / "store.mbtiles"
+    make(path)
+    before = path.read_bytes()
+    with pytest.raises(InvalidInputError, match="not an MBTiles store"):
+        add_missing_digests(path)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["store.mbtiles"]  # no journal left

@@ -7,11 +7,19 @@ import argparse
 import math
 from collections.abc import Callable
 
+from c3_matcher.commands import bounded_int
+
 __all__ = [
+    "SEED_RANGE",
     "add_attitude_noise_option",
+    "add_seed_option",
     "add_strategies_option",
+    "bounded_float",
     "non_negative_float",
 ]
+
+SEED_RANGE = (0, 2**32 - 1)
+"""The seeds a command's ``--seed`` takes (a generator's seed is never negative)."""
 
 
 def add_attitude_noise_option(p: argparse.ArgumentParser) -> None:
@@ -25,21 +33,52 @@ def add_attitude_noise_option(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_seed_option(p: argparse.ArgumentParser, help: str) -> None:
+    """``--seed``: the seed of a command's random choices, in :data:`SEED_RANGE` (default 0);
+    ``help`` says what it seeds."""
+    low, high = SEED_RANGE
+    p.add_argument(
+        "--seed",
+        type=bounded_int("--seed", low, high),
+        default=0,
+        help=f"{help} ({low}..{high}; default 0)",
+    )
+
+
 def add_strategies_option(p: argparse.ArgumentParser, help: str) -> None:
     """``--strategy``, repeatable: the strategies a command runs (``None`` when not given)."""
     p.add_argument("--strategy", action="append", default=None, help=help)
 
 
-def non_negative_float(what: str) -> Callable[[str], float]:
-    """An argparse type: a finite float >= 0, else a usage error (exit 2) naming ``what``."""
+def bounded_float(
+    what: str, low: float = -math.inf, high: float = math.inf, *, above: bool = False
+) -> Callable[[str], float]:
+    """An argparse type: a finite float in [low, high] (in (low, high] when ``above``), else a
+    usage error (exit 2) naming ``what``."""
+    bounds = _bounds_text(low, high, above)
 
     def parse(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{what}: expected a number, got {text!r}") from None
-        if not math.isfinite(value) or value < 0:
-            raise argparse.ArgumentTypeError(f"{what}: must be finite and >= 0, got {value}")
+        inside = (value > low if above else value >= low) and value <= high
+        if not (math.isfinite(value) and inside):
+            raise argparse.ArgumentTypeError(f"{what}: must be finite{bounds}, got {value}")
         return value
 
     return parse
+
+
+def _bounds_text(low: float, high: float, above: bool) -> str:
+    """`` and >= 0``, `` and in (0, 1]``, ... for :func:`bounded_float`'s message."""
+    if high == math.inf:
+        return "" if low == -math.inf else f" and {'>' if above else '>='} {low:g}"
+    if low == -math.inf:
+        return f" and <= {high:g}"
+    return f" and in {'(' if above else '['}{low:g}, {high:g}]"
+
+
+def non_negative_float(what: str) -> Callable[[str], float]:
+    """An argparse type: a finite float >= 0, else a usage error (exit 2) naming ``what``."""
+    return bounded_float(what, 0.0)

@@ -8,7 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import CommandContext, CommandRegistry
+from c3_matcher.commands import CommandContext, CommandRegistry, bounded_int
+from c3_matcher_tools.args import add_seed_option, bounded_float, non_negative_float
 from c3_matcher_tools.dataset.progress import ProgressBar
 
 __all__ = ["register_dataset_command"]
@@ -68,6 +69,7 @@ def register_dataset_command(commands: CommandRegistry) -> None:
 
 
 def _add_render(ds: Any) -> None:
+    from c3_matcher.dto import MAX_HEIGHT_ABOVE_GROUND_M
     from c3_matcher_tools.tilestore.cli import parse_latlon
 
     r = ds.add_parser(
@@ -80,29 +82,63 @@ def _add_render(ds: Any) -> None:
     r.add_argument("frames_geotiff", type=Path, help="orthophoto the frames are rendered from")
     r.add_argument("store", type=Path, help="MBTiles store of the candidate tiles")
     r.add_argument("out", type=Path, help="dataset directory to write")
-    r.add_argument("--frames", type=int, default=36, help="number of frames (default 36)")
+    r.add_argument(
+        "--frames", type=bounded_int("--frames"), default=36, help="number of frames (default 36)"
+    )
     r.add_argument(
         "--pattern", choices=("orbit", "line"), default="orbit", help="flight path (default orbit)"
     )
-    r.add_argument("--height", type=float, default=780.0, help="height above ground, m")
-    r.add_argument("--speed", type=float, default=30.0, help="ground speed, m/s")
-    r.add_argument("--interval", type=float, default=2.0, help="seconds between frames")
-    r.add_argument("--heading", type=float, default=0.0, help="line heading / orbit start, deg")
-    r.add_argument("--radius", type=float, default=450.0, help="orbit radius, m")
+    r.add_argument(
+        "--height",
+        type=bounded_float("--height", 0.0, MAX_HEIGHT_ABOVE_GROUND_M, above=True),
+        default=780.0,
+        help="height above ground, m",
+    )
+    r.add_argument(
+        "--speed", type=non_negative_float("--speed"), default=30.0, help="ground speed, m/s"
+    )
+    r.add_argument(
+        "--interval",
+        type=bounded_float("--interval", 0.0, above=True),
+        default=2.0,
+        help="seconds between frames",
+    )
+    r.add_argument(
+        "--heading",
+        type=bounded_float("--heading"),
+        default=0.0,
+        help="line heading / orbit start, deg",
+    )
+    r.add_argument(
+        "--radius",
+        type=bounded_float("--radius", 0.0, above=True),
+        default=450.0,
+        help="orbit radius, m",
+    )
     r.add_argument("--max-tilt", type=float, default=20.0, help="max attitude tilt, deg")
     r.add_argument("--image-size", type=_size, default=(320, 240), help="WxH px (default 320x240)")
-    r.add_argument("--focal", type=float, default=300.0, help="focal length, px")
+    r.add_argument(
+        "--focal",
+        type=bounded_float("--focal", 0.0, above=True),
+        default=300.0,
+        help="focal length, px",
+    )
     r.add_argument("--candidate-size", type=int, default=448, help="candidate image side, px")
     r.add_argument(
         "--absent-share",
-        type=float,
+        type=bounded_float("--absent-share", 0.0, 1.0),
         default=0.1,
         help="share of frames without their true tile (default 0.1)",
     )
-    r.add_argument("--min-distractor-distance", type=float, default=350.0, help="m (default 350)")
+    r.add_argument(
+        "--min-distractor-distance",
+        type=non_negative_float("--min-distractor-distance"),
+        default=350.0,
+        help="m (default 350)",
+    )
     r.add_argument(
         "--max-distractor-nodata",
-        type=float,
+        type=bounded_float("--max-distractor-nodata", 0.0, 1.0),
         default=0.35,
         help="largest nodata share of a distractor window (default 0.35)",
     )
@@ -113,13 +149,16 @@ def _add_render(ds: Any) -> None:
         help="LAT,LON reference for local-tangent-plane grids",
     )
     r.add_argument("--attribution", default="", help="imagery credit stored in dataset.json")
-    r.add_argument("--seed", type=int, default=0, help="random seed of the flight (default 0)")
-    r.add_argument("--force", action="store_true", help="replace an existing OUT")
+    add_seed_option(r, "random seed of the flight")
+    r.add_argument(
+        "--force", action="store_true", help="replace an existing OUT (never one holding an input)"
+    )
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
 def _add_import(ds: Any) -> None:
     from c3_matcher_tools.dataset.sources.cli import add_log_import_options
+    from c3_matcher_tools.dataset.sources.common import MAX_SEARCH_TILES, max_uncertainty_m
 
     m = ds.add_parser(
         "import",
@@ -143,18 +182,24 @@ def _add_import(ds: Any) -> None:
     m.add_argument("out", type=Path, help="dataset directory to write (must not exist)")
     m.add_argument(
         "--uncertainty-m",
-        type=float,
+        type=non_negative_float("--uncertainty-m"),
         default=50.0,
-        help="position uncertainty, m: tiles within it are proposed first (default 50)",
+        help="position uncertainty, m: tiles within it are proposed first (default 50); at most "
+        f"{MAX_SEARCH_TILES} tiles of the store's zoom from the look point, as the tiles searched "
+        f"per frame grow with its square (about {max_uncertainty_m(15) / 1000:.0f} km at zoom "
+        f"15, {max_uncertainty_m(18) / 1000:.1f} km at zoom 18 on the equator, less towards "
+        "the poles)",
     )
     m.add_argument("--candidates", type=int, default=3, help="candidates per frame (default 3)")
     m.add_argument("--zoom", type=int, default=None, help="store zoom (default: its finest)")
     m.add_argument(
         "--candidate-size", type=int, default=512, help="candidate image side, px (default 512)"
     )
-    m.add_argument("--seed", type=int, default=0, help="candidate shuffle seed (default 0)")
+    add_seed_option(m, "candidate shuffle seed")
     m.add_argument("--name", default=None, help="dataset name (default: OUT's name)")
-    m.add_argument("--force", action="store_true", help="replace an existing OUT")
+    m.add_argument(
+        "--force", action="store_true", help="replace an existing OUT (never one holding an input)"
+    )
     m.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_log_import_options(m)
 

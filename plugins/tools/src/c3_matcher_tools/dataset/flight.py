@@ -46,7 +46,12 @@ from c3_matcher.dto import Attitude, CameraCalibration, TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.handles import mosaic_origin, stitch
 from c3_matcher.tilestore.mbtiles import MBTilesStore
-from c3_matcher_tools.dataset.format import CandidateTruth, FrameRecord, write_dataset
+from c3_matcher_tools.dataset.format import (
+    CandidateTruth,
+    FrameRecord,
+    check_candidate_size,
+    write_dataset,
+)
 from c3_matcher_tools.sim.orthophotos import load_orthophoto
 from c3_matcher_tools.sim.photometric import PhotometricShift
 from c3_matcher_tools.sim.render import NavCameraRenderer, RenderedFrame, pick_distractor_tiles
@@ -114,6 +119,7 @@ class FlightSpec:
             raise InvalidInputError("absent_share", f"must be in [0, 1], got {self.absent_share}")
         if not 0.0 <= self.max_tilt_deg <= 45.0:
             raise InvalidInputError("max_tilt_deg", f"must be in [0, 45], got {self.max_tilt_deg}")
+        check_candidate_size(self.candidate_size_px)
         if self.candidate_size_px % self.grid_px or self.grid_px <= 0:
             raise InvalidInputError(
                 "grid_px", f"{self.grid_px} must be > 0 and divide {self.candidate_size_px}"
@@ -270,15 +276,16 @@ def render_flight(
     ``tiles.mbtiles``). Every input is checked, and every frame rendered and its candidates
     chosen, before anything is written (frames are held JPEG-encoded in memory); then the
     dataset is written into a hidden sibling directory and renamed into place, so a failure
-    leaves no directory behind. An existing ``out`` is refused unless ``force``. Raises
-    InvalidInputError naming the option that makes the flight impossible (leaving the
-    imagery, footprint larger than a candidate, too few distractor positions)."""
+    leaves no directory behind. An existing ``out`` is refused unless ``force``, one that is or
+    holds the GeoTIFF or the store always. Raises InvalidInputError naming the option that
+    makes the flight impossible (leaving the imagery, footprint larger than a candidate, too
+    few distractor positions)."""
     import shutil
 
     from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 
     out = Path(out)
-    check_output_dir(out, force=force)
+    check_output_dir(out, force=force, inputs=(spec.frames_geotiff, spec.store))
     if not Path(spec.frames_geotiff).is_file():
         raise InvalidInputError("FRAMES_GEOTIFF", f"no such file: {spec.frames_geotiff}")
     if not Path(spec.store).is_file():

@@ -47,16 +47,99 @@ from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 
 __all__ = [
+    "CANDIDATE_SIZE_PX",
     "FORMAT",
     "CandidateTruth",
     "FlightDataset",
     "FrameRecord",
+    "check_candidate_size",
     "load_dataset",
     "with_attitude_noise",
     "write_dataset",
 ]
 
 FORMAT = "c3-flight/1"
+CANDIDATE_SIZE_PX = (64, 4096)
+"""The side (px) of a dataset's candidate windows: import and render write, and a load accepts,
+only sizes in this range."""
+_INT64_MAX = 2**63 - 1  # frame indices and capture times are recorded as int64
+
+
+def check_candidate_size(size_px: int, field: str = "--candidate-size") -> None:
+    """InvalidInputError naming ``field`` unless ``size_px`` is in :data:`CANDIDATE_SIZE_PX`."""
+    low, high = CANDIDATE_SIZE_PX
+    if not low <= size_px <= high:
+        raise InvalidInputError(field, f"must be in [{low}, {high}] px, got {size_px}")
+
+
+def _object(value: object, field: str) -> dict[str, Any]:
+    """``value`` when it is a JSON object, else InvalidInputError naming ``field``."""
+    if not isinstance(value, dict):
+        raise InvalidInputError(field, f"expected a JSON object, got {type(value).__name__}")
+    return value
+
+
+def _number(value: object, field: str, low: float = -math.inf, high: float = math.inf) -> float:
+    """``value`` when it is a finite JSON number in [low, high], as a float, else
+    InvalidInputError naming ``field``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidInputError(field, f"expected a number, got {value!r}")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer beyond a float's range
+        number = math.inf
+    if not math.isfinite(number):
+        raise InvalidInputError(field, f"must be finite, got {value!r}")
+    if not low <= number <= high:
+        raise InvalidInputError(field, f"must be in [{low:g}, {high:g}], got {value!r}")
+    return number
+
+
+def _integer(value: object, field: str, low: int, high: int) -> int:
+    """``value`` when it is a JSON integer in [low, high], else InvalidInputError naming
+    ``field``."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InvalidInputError(field, f"expected an integer, got {value!r}")
+    if not low <= value <= high:
+        raise InvalidInputError(field, f"must be in [{low}, {high}], got {value}")
+    return value
+
+
+def _text(value: object, field: str) -> str:
+    """``value`` when it is a non-empty JSON string, else InvalidInputError naming ``field``."""
+    if not isinstance(value, str) or not value:
+        raise InvalidInputError(field, f"expected a non-empty string, got {value!r}")
+    return value
+
+
+def _degrees(
+    values: dict[str, Any], field: str, pairs: tuple[tuple[str, str], ...]
+) -> dict[str, Any]:
+    """A copy of ``values`` whose (latitude, longitude) keys of ``pairs``, where present, are
+    checked as WGS84 degrees; InvalidInputError names ``field`` and the key."""
+    for lat, lon in pairs:
+        if lat in values:
+            _number(values[lat], f"{field}.{lat}", -90.0, 90.0)
+        if lon in values:
+            _number(values[lon], f"{field}.{lon}", -180.0, 180.0)
+    return dict(values)
+
+
+def _telemetry(value: object) -> dict[str, Any]:
+    """A record's ``telemetry``, the values replay and its report read checked: the vehicle's
+    position, where the frame looks and the stated GNSS accuracy (m)."""
+    telemetry = _degrees(
+        _object(value, "telemetry"), "telemetry", (("lat", "lon"), ("look_lat", "look_lon"))
+    )
+    if telemetry.get("gnss_accuracy_m") is not None:
+        _number(telemetry["gnss_accuracy_m"], "telemetry.gnss_accuracy_m", low=0.0)
+    return telemetry
+
+
+def _pose(value: object) -> dict[str, Any]:
+    """A record's ``pose``, its positions checked (scoring reads the footprint centre)."""
+    pairs = (("nadir_lat", "nadir_lon"), ("footprint_centre_lat", "footprint_centre_lon"))
+    return _degrees(_object(value, "pose"), "pose", pairs)
 
 
 @dataclass(frozen=True)
@@ -84,17 +167,27 @@ class CandidateTruth:
         return out
 
     @classmethod
-    def from_json(cls, data: dict[str, Any]) -> CandidateTruth:
-        z, lat, lon = data["tile_id"]
-        h = data.get("h_tile_to_undistorted")
-        is_true = data.get("is_true")
-        distance = data.get("distance_m")
+    def from_json(cls, data: object) -> CandidateTruth:
+        """A candidate as ``frames.jsonl`` holds it, every value checked (InvalidInputError
+        naming the key)."""
+        cand = _object(data, "candidate")
+        tile = cand["tile_id"]
+        if not isinstance(tile, list) or len(tile) != 3:
+            raise InvalidInputError("candidate.tile_id", f"expected [zoom, lat, lon], got {tile!r}")
+        is_true = cand.get("is_true")
+        if is_true is not None and not isinstance(is_true, bool):
+            raise InvalidInputError("candidate.is_true", f"expected true or false, got {is_true!r}")
+        distance = cand.get("distance_m")
+        h = cand.get("h_tile_to_undistorted")
+        homography = None if h is None else np.asarray(h, dtype=np.float64).reshape(3, 3)
+        if homography is not None and not np.isfinite(homography).all():
+            raise InvalidInputError("candidate.h_tile_to_undistorted", "not finite")
         return cls(
-            dto.TileId(int(z), float(lat), float(lon)),
-            float(data.get("score", 1.0)),
-            None if is_true is None else bool(is_true),
-            None if distance is None else float(distance),
-            None if h is None else np.asarray(h, dtype=np.float64).reshape(3, 3),
+            dto.TileId(*tile),
+            _number(cand.get("score", 1.0), "candidate.score"),
+            is_true,
+            None if distance is None else _number(distance, "candidate.distance_m", low=0.0),
+            homography,
         )
 
 
@@ -149,18 +242,37 @@ class FrameRecord:
         return out
 
     @classmethod
-    def from_json(cls, data: dict[str, Any]) -> FrameRecord:
-        r, p, y = (float(a) for a in data["attitude_deg"])
+    def from_json(cls, data: object) -> FrameRecord:
+        """A record as ``frames.jsonl`` holds it, every value replay uses checked as the
+        matcher would check it (InvalidInputError naming the key)."""
+        record = _object(data, "record")
+        angles = record["attitude_deg"]
+        if not isinstance(angles, list) or len(angles) != 3:
+            raise InvalidInputError("attitude_deg", f"expected [roll, pitch, yaw], got {angles!r}")
+        roll, pitch, yaw = (_number(a, "attitude_deg") for a in angles)
+        try:  # the matcher's bounds on each angle
+            dto.Attitude.from_degrees(roll, pitch, yaw)
+        except InvalidInputError as exc:
+            raise InvalidInputError(
+                "attitude_deg", f"{angles} out of range ({exc}, in rad)"
+            ) from exc
+        height, highest = _number(record["height_m"], "height_m"), dto.MAX_HEIGHT_ABOVE_GROUND_M
+        if not 0.0 < height <= highest:
+            why = f"must be > 0 and <= {highest:g} m above ground, got {height:g}"
+            raise InvalidInputError("height_m", why)
+        candidates = record["candidates"]
+        if not isinstance(candidates, list) or not candidates:
+            raise InvalidInputError("candidates", f"expected a non-empty list, got {candidates!r}")
         return cls(
-            int(data["index"]),
-            uuid.UUID(str(data["frame_id"])),
-            str(data["image"]),
-            int(data["captured_at_ns"]),
-            (r, p, y),
-            float(data["height_m"]),
-            tuple(CandidateTruth.from_json(c) for c in data["candidates"]),
-            dict(data.get("pose", {})),
-            dict(data.get("telemetry", {})),
+            _integer(record["index"], "index", 0, _INT64_MAX),
+            uuid.UUID(_text(record["frame_id"], "frame_id")),
+            _text(record["image"], "image"),
+            _integer(record["captured_at_ns"], "captured_at_ns", 0, _INT64_MAX),
+            (roll, pitch, yaw),
+            height,
+            tuple(CandidateTruth.from_json(c) for c in candidates),
+            _pose(record.get("pose", {})),
+            _telemetry(record.get("telemetry", {})),
         )
 
 
@@ -270,42 +382,65 @@ def write_dataset(
     return root
 
 
-def load_dataset(
-    root: str | Path, max_image_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
-) -> FlightDataset:
-    """Read a dataset directory, naming what is missing or malformed; its frames are decoded
-    up to ``max_image_pixels`` (width x height)."""
-    base = Path(root)
-    meta_path = base / "dataset.json"
-    if not meta_path.is_file():
-        raise InvalidInputError("dataset", f"{base}: no dataset.json (not a {FORMAT} dataset)")
+def _meta(path: Path) -> dict[str, Any]:
+    """``dataset.json`` read and checked: a ``c3-flight/1`` object with its keys, the files it
+    names as strings and a candidate size in :data:`CANDIDATE_SIZE_PX`."""
     try:
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InvalidInputError("dataset", f"{meta_path}: unreadable: {exc}") from exc
-    if meta.get("format") != FORMAT:
-        raise InvalidInputError(
-            "dataset", f"{meta_path}: format {meta.get('format')!r}, expected {FORMAT!r}"
-        )
-    for key in ("store", "candidate_size_px", "frames", "calibration"):
-        if key not in meta:
-            raise InvalidInputError("dataset", f"{meta_path}: missing key {key!r}")
-    calibration = load_calibration(base / str(meta["calibration"]))
-    frames = []
-    frames_path = base / str(meta["frames"])
+        meta = _object(json.loads(path.read_text(encoding="utf-8")), "top level")
+        if meta.get("format") != FORMAT:
+            raise InvalidInputError("format", f"{meta.get('format')!r}, expected {FORMAT!r}")
+        for key in ("store", "frames", "calibration"):
+            _text(meta[key], key)
+        _integer(meta["candidate_size_px"], "candidate_size_px", *CANDIDATE_SIZE_PX)
+    except (KeyError, OSError, ValueError) as exc:  # JSON and UTF-8 errors among them
+        raise InvalidInputError("dataset", f"{path}: {_why(exc)}") from exc
+    return meta
+
+
+def _why(exc: Exception) -> str:
+    """What a read or check error says, in one line."""
+    if isinstance(exc, KeyError):
+        return f"missing key {exc}"
+    if isinstance(exc, InvalidInputError):
+        return str(exc)
+    return f"{type(exc).__name__}: {exc}"
+
+
+def _frames(path: Path) -> tuple[FrameRecord, ...]:
+    """``frames.jsonl`` read and checked, naming the line of the first bad record; at least
+    one frame."""
     try:
-        lines = frames_path.read_text(encoding="utf-8").splitlines()
+        lines = path.read_bytes().splitlines()
     except OSError as exc:
-        raise InvalidInputError("dataset", f"{frames_path}: unreadable: {exc}") from exc
+        raise InvalidInputError("dataset", f"{path}: unreadable: {exc}") from exc
+    frames = []
     for n, line in enumerate(lines, start=1):
         if not line.strip():
             continue
         try:
-            frames.append(FrameRecord.from_json(json.loads(line)))
-        except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
+            frames.append(FrameRecord.from_json(json.loads(line.decode("utf-8"))))
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:  # JSON, UTF-8 among them
             raise InvalidInputError(
-                "dataset", f"{frames_path}:{n}: bad frame record: {exc!r}"
+                "dataset", f"{path}:{n}: bad frame record: {_why(exc)}"
             ) from exc
-    if not (base / str(meta["store"])).is_file():
-        raise InvalidInputError("dataset", f"{base / str(meta['store'])}: tile store missing")
-    return FlightDataset(base, meta, calibration, tuple(frames), max_image_pixels)
+    if not frames:
+        raise InvalidInputError("dataset", f"{path}: no frames")
+    return tuple(frames)
+
+
+def load_dataset(
+    root: str | Path, max_image_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+) -> FlightDataset:
+    """Read a dataset directory, naming what is missing or malformed (the file, and the line of
+    ``frames.jsonl``) before any frame is used; its frames are decoded up to
+    ``max_image_pixels`` (width x height)."""
+    base = Path(root)
+    meta_path = base / "dataset.json"
+    if not meta_path.is_file():
+        raise InvalidInputError("dataset", f"{base}: no dataset.json (not a {FORMAT} dataset)")
+    meta = _meta(meta_path)
+    calibration = load_calibration(base / meta["calibration"])
+    frames = _frames(base / meta["frames"])
+    if not (base / meta["store"]).is_file():
+        raise InvalidInputError("dataset", f"{base / meta['store']}: tile store missing")
+    return FlightDataset(base, meta, calibration, frames, max_image_pixels)

@@ -65,10 +65,12 @@ from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.format import CandidateTruth, FrameRecord, write_dataset
 from c3_matcher_tools.dataset.sources.common import (
+    MAX_SEARCH_TILES,
     ImportReport,
     _ranges,
     check_proposal_options,
     ground_elevation_sampler,
+    max_uncertainty_m,
 )
 from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
 
@@ -155,6 +157,11 @@ class ImportSpec:
                 "--ground-elevation", f"must be in [-9000, 9000] m, got {self.ground_elevation_m}"
             )
         check_proposal_options(self.uncertainty_m, self.candidates, self.candidate_size_px)
+
+    @property
+    def inputs(self) -> tuple[Path | None, ...]:
+        """The files and folders the import reads (``None``: no DEM)."""
+        return (self.images_dir, self.telemetry_csv, self.calibration_json, self.store, self.dem)
 
 
 def _find(lowered: dict[str, str], aliases: tuple[str, ...]) -> str | None:
@@ -402,7 +409,15 @@ def _propose(
     store: MBTilesStore, zoom: int, lonlat: tuple[float, float], spec: ImportSpec
 ) -> list[tuple[TileId, float]] | None:
     """(tile id, distance m from the point to the tile square) of the candidates, the tile
-    holding the point first; None when the store lacks that tile."""
+    holding the point first; None when the store lacks that tile. Refuses an uncertainty
+    beyond :func:`max_uncertainty_m` there."""
+    reach_m = max_uncertainty_m(zoom, lonlat[1])
+    if spec.uncertainty_m > reach_m:
+        raise InvalidInputError(
+            "--uncertainty-m",
+            f"{spec.uncertainty_m:g} m reaches beyond {MAX_SEARCH_TILES} tiles of the store's "
+            f"zoom {zoom} ({reach_m:.0f} m at latitude {lonlat[1]:.2f}): give at most that",
+        )
     p = lonlat_to_world_px([lonlat], zoom)[0]
     m_per_px = TileId(zoom, lonlat[1], lonlat[0]).web_mercator_gsd_m()
     tx, ty = int(p[0] // TILE_PX), int(p[1] // TILE_PX)
@@ -580,11 +595,12 @@ def import_flight(
 def import_csv_flight(
     spec: ImportSpec, out: Path, *, name: str | None = None, force: bool = False
 ) -> ImportReport:
-    """Check every input, then write the dataset ``out`` atomically; returns what was done
-    (frames, every image or row skipped and why, where the heights came from). Raises
-    InvalidInputError naming the input at fault (nothing is written then)."""
+    """Check every input (``out`` must not be or hold one, ``force`` or not), then write the
+    dataset ``out`` atomically; returns what was done (frames, every image or row skipped and
+    why, where the heights came from). Raises InvalidInputError naming the input at fault
+    (nothing is written then)."""
     out = Path(out)
-    check_output_dir(out, force=force)
+    check_output_dir(out, force=force, inputs=spec.inputs)
     images_dir = Path(spec.images_dir)
     if not images_dir.is_dir():
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: not a directory")

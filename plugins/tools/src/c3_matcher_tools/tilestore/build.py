@@ -165,7 +165,11 @@ def build_mbtiles(
     raster is loaded with tifffile. ``progress`` is called with (done, total) after every
     tile. ``value_range`` (rasterio only): None / ``"auto"`` (99.9th percentile), ``"bits"``
     (declared bit depth) or (lo, hi), for non-8-bit data. ``force`` builds a zoom more than
-    :data:`MAX_UPSAMPLE` times finer than the source."""
+    :data:`MAX_UPSAMPLE` times finer than the source. ``out`` is never ``geotiff`` itself
+    (refused, ``overwrite`` or not)."""
+    from c3_matcher_tools.dataset.atomic import refuse_output_over_inputs
+
+    refuse_output_over_inputs(Path(out), [geotiff])
     if tile_format not in ("png", "jpg"):
         raise InvalidInputError("format", f"expected png or jpg, got {tile_format!r}")
     if isinstance(zoom, (int, np.integer)):

@@ -50,31 +50,51 @@ def add_missing_digests(path: str | Path) -> DigestReport:
     """Record the sha256 of every tile of the MBTiles store at ``path`` that has none (a store
     made by another tool, or before digests existed). Tile bytes are not touched, and an
     existing digest is never replaced: a tile that no longer matches its digest stays detected.
-    One transaction: on any error the store is left as it was."""
+    One transaction, the digest table's creation included: on any error (a file that is not an
+    MBTiles store among them) the store is left as it was."""
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError("store", f"no such MBTiles file: {path}")
-    db = sqlite3.connect(str(path))
+    db = sqlite3.connect(str(path), isolation_level=None)  # transactions are ours: DDL included
     try:
-        with db:
-            for statement in _DIGEST_SCHEMA:
-                db.execute(statement)
-            missing = db.execute(
-                "SELECT t.zoom_level, t.tile_column, t.tile_row, t.tile_data FROM tiles t"
-                " LEFT JOIN c3_tile_digest d ON d.zoom_level=t.zoom_level"
-                " AND d.tile_column=t.tile_column AND d.tile_row=t.tile_row"
-                " WHERE d.sha256 IS NULL AND t.tile_data IS NOT NULL"
-            ).fetchall()
-            db.executemany(
-                "INSERT INTO c3_tile_digest VALUES (?, ?, ?, ?)",
-                [(z, x, row, hashlib.sha256(blob).hexdigest()) for z, x, row, blob in missing],
-            )
-            (tiles,) = db.execute("SELECT count(*) FROM tiles").fetchone()
+        db.execute("BEGIN IMMEDIATE")
+        try:
+            missing, tiles = _digest_missing(db, path)
+        except BaseException:
+            if db.in_transaction:  # SQLite may have rolled it back itself
+                db.execute("ROLLBACK")
+            raise
+        db.execute("COMMIT")
     except sqlite3.Error as exc:
         raise InvalidInputError("store", f"{path}: {exc}") from exc
     finally:
         db.close()
-    return DigestReport(path, tiles, len(missing), tiles - len(missing))
+    return DigestReport(path, tiles, missing, tiles - missing)
+
+
+def _digest_missing(db: sqlite3.Connection, path: Path) -> tuple[int, int]:
+    """Inside the caller's transaction: add the missing digests of the MBTiles store open as
+    ``db``; (digests added, tiles). Refuses a database without a ``tiles`` table before any
+    change."""
+    has_tiles = db.execute(
+        "SELECT 1 FROM sqlite_master WHERE type IN ('table', 'view') AND name = 'tiles'"
+    ).fetchone()
+    if has_tiles is None:
+        raise InvalidInputError("store", f"{path}: not an MBTiles store (no table 'tiles')")
+    for statement in _DIGEST_SCHEMA:
+        db.execute(statement)
+    missing = db.execute(
+        "SELECT t.zoom_level, t.tile_column, t.tile_row, t.tile_data FROM tiles t"
+        " LEFT JOIN c3_tile_digest d ON d.zoom_level=t.zoom_level"
+        " AND d.tile_column=t.tile_column AND d.tile_row=t.tile_row"
+        " WHERE d.sha256 IS NULL AND t.tile_data IS NOT NULL"
+    ).fetchall()
+    db.executemany(
+        "INSERT INTO c3_tile_digest VALUES (?, ?, ?, ?)",
+        [(z, x, row, hashlib.sha256(blob).hexdigest()) for z, x, row, blob in missing],
+    )
+    (tiles,) = db.execute("SELECT count(*) FROM tiles").fetchone()
+    return len(missing), int(tiles)
 
 
 class MBTilesWriter:

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from pathlib import Path
 
 from c3_matcher.commands import CommandContext
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.args import bounded_float
 from c3_matcher_tools.dataset.sources.common import ImportOptions, ImportReport
 
 __all__ = [
@@ -86,28 +86,33 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--time-offset",
-        type=float,
+        type=bounded_float("--time-offset"),
         default=0.0,
         help="seconds added to the images' times (file order: the log time of the first image, "
         "s since the log's clock origin); default 0",
     )
-    g.add_argument("--interval", type=float, default=None, help="file order: s between images")
+    g.add_argument(
+        "--interval",
+        type=bounded_float("--interval", 0.0, above=True),
+        default=None,
+        help="file order: s between images",
+    )
     g.add_argument(
         "--max-gap",
-        type=float,
+        type=bounded_float("--max-gap", 0.0, above=True),
         default=1.0,
         help="farthest a log sample may be from an image's time, s (default 1)",
     )
     g.add_argument(
         "--ground-elevation",
-        type=float,
+        type=bounded_float("--ground-elevation"),
         default=None,
         help="the ground's altitude, m, in the log's datum: height = altitude - this",
     )
     g.add_argument("--dem", type=Path, default=None, help="DEM GeoTIFF of the ground's altitude")
     g.add_argument(
         "--gnss-degraded-m",
-        type=float,
+        type=bounded_float("--gnss-degraded-m", 0.0, above=True),
         default=5.0,
         help="flag frames whose stated GNSS accuracy is worse than this, m (default 5)",
     )
@@ -139,11 +144,11 @@ def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
     """Read the log of ``kind`` named by the parsed ``dataset import`` arguments and write the
     dataset."""
     from c3_matcher.serialize import load_calibration
+    from c3_matcher_tools.dataset.atomic import check_output_dir
     from c3_matcher_tools.dataset.sources.common import write_imported_flight
 
-    for name, value in (("--time-offset", args.time_offset), ("--max-gap", args.max_gap)):
-        if not math.isfinite(value):
-            raise InvalidInputError(name, f"must be finite, got {value}")
+    given = (args.images_dir, args.telemetry, args.calibration, args.store, args.dem)
+    check_output_dir(args.out, force=args.force, inputs=given)  # before the log is read
     telemetry, images = Path(args.telemetry), str(args.images_dir)
     recorded = None
     attitude_of = None

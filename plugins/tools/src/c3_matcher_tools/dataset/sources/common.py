@@ -31,12 +31,14 @@ import numpy as np
 
 from c3_matcher.arrays import F64
 from c3_matcher.camera import body_from_camera
-from c3_matcher.dto import CameraCalibration
+from c3_matcher.dto import CameraCalibration, TileId
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.geo import TILE_PX
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
-from c3_matcher_tools.dataset.format import write_dataset
+from c3_matcher_tools.dataset.format import check_candidate_size, write_dataset
 
 __all__ = [
+    "MAX_SEARCH_TILES",
     "ImportOptions",
     "ImportReport",
     "LogTrack",
@@ -49,6 +51,7 @@ __all__ = [
     "ground_elevation_sampler",
     "logs_library",
     "match_shots",
+    "max_uncertainty_m",
     "write_imported_flight",
 ]
 
@@ -179,17 +182,27 @@ def constant(data: bytes) -> Callable[[], bytes]:
     return lambda: data
 
 
+MAX_SEARCH_TILES = 32
+"""``--uncertainty-m`` reaches at most this many tiles of the store's zoom from the look point:
+the tiles looked up per frame grow with its square (65 x 65 at most), and a few candidates never
+cover more ground than that anyway."""
+
+
+def max_uncertainty_m(zoom: int, lat_deg: float = 0.0) -> float:
+    """The largest ``--uncertainty-m`` at ``zoom`` and latitude ``lat_deg``: the side of
+    :data:`MAX_SEARCH_TILES` web-mercator tiles there, m."""
+    return MAX_SEARCH_TILES * TILE_PX * TileId(zoom, lat_deg, 0.0).web_mercator_gsd_m()
+
+
 def check_proposal_options(uncertainty_m: float, candidates: int, candidate_size_px: int) -> None:
     """``InvalidInputError`` naming the option unless the look-point uncertainty (m) is finite
-    and >= 0, at least one candidate is asked for and the candidate size is in [64, 4096] px."""
+    and >= 0, at least one candidate is asked for and the candidate size is in
+    :data:`~c3_matcher_tools.dataset.format.CANDIDATE_SIZE_PX`."""
     if not (math.isfinite(uncertainty_m) and uncertainty_m >= 0):
         raise InvalidInputError("--uncertainty-m", f"must be >= 0, got {uncertainty_m}")
     if candidates < 1:
         raise InvalidInputError("--candidates", f"must be >= 1, got {candidates}")
-    if not 64 <= candidate_size_px <= 4096:
-        raise InvalidInputError(
-            "--candidate-size", f"must be in [64, 4096], got {candidate_size_px}"
-        )
+    check_candidate_size(candidate_size_px)
 
 
 @dataclass(frozen=True)
@@ -625,7 +638,7 @@ def write_imported_flight(
     )
 
     out = Path(out)
-    check_output_dir(out, force=force)
+    check_output_dir(out, force=force, inputs=(track.source, options.store, options.dem))
     if not Path(options.store).is_file():
         raise InvalidInputError("STORE", f"{options.store}: no such tile store")
     if not shots:
