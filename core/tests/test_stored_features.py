@@ -7,10 +7,11 @@ store's own writer; the real engine's bit-for-bit agreement is in the tools' tes
 from __future__ import annotations
 
 import hashlib
+import re
 import shutil
 import sqlite3
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ from c3_matcher.tilestore.features import (
     window_digest,
 )
 from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher.tilestore.sidecar import PAGE_BYTES, SidecarDamagedError, set_aside
 
 REPO = Path(__file__).resolve().parents[2]
 STORE = REPO / "data" / "flights" / "naip_demo" / "tiles.mbtiles"
@@ -212,3 +214,42 @@ def test_binary_descriptors_are_stored_and_served_in_their_own_dtype(store, tmp_
     got = _serve(source, (gx * STRIDE, gy * STRIDE), request)
     assert got is not None and got.descriptors.dtype == np.uint8
     assert np.array_equal(got.descriptors, packed)
+
+
+def _not_a_database(path: Path) -> None:
+    path.write_text("garbage\n")
+
+
+def _pages_overwritten(path: Path) -> None:
+    """A sidecar whose table pages (all but the first, the schema) are overwritten."""
+    MapFeatureStore(path, writable=True).close()
+    data = bytearray(path.read_bytes())
+    for start in range(PAGE_BYTES, len(data), PAGE_BYTES):
+        data[start : start + 100] = b"\xff" * 100
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("damage", [_not_a_database, _pages_overwritten])
+def test_a_damaged_sidecar_is_refused_for_writing_and_left_as_it_is(
+    tmp_path: Path, damage: Callable[[Path], None]
+) -> None:
+    path = sidecar_path(tmp_path / "tiles.mbtiles")
+    damage(path)
+    before = path.read_bytes()
+    with pytest.raises(SidecarDamagedError, match=re.escape(str(path))):
+        MapFeatureStore(path, writable=True)
+    assert path.read_bytes() == before
+
+
+def test_setting_a_sidecar_aside_renames_it_with_its_companions(tmp_path: Path) -> None:
+    path = sidecar_path(tmp_path / "tiles.mbtiles")
+    for suffix, text in (("", "garbage"), ("-wal", "old pages")):
+        Path(f"{path}{suffix}").write_text(text)
+    aside = set_aside(path)
+    assert aside.name == f"{path.name}.damaged" and aside.read_text() == "garbage"
+    assert Path(f"{aside}-wal").read_text() == "old pages"
+    assert not path.exists() and not Path(f"{path}-wal").exists()
+    path.write_text("garbage again")
+    assert set_aside(path).name == f"{path.name}.damaged.1"  # the first one is kept
+    with MapFeatureStore(path, writable=True) as fresh:  # a new sidecar in its place
+        assert fresh.feature_sets() == []

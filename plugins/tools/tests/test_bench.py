@@ -5,6 +5,7 @@ end to end (XFeat, one timed run per case) over a flight whose store has feature
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -115,3 +116,49 @@ def test_bench_data_defaults_to_the_checkouts_demo_frame_and_is_required_from_wh
     monkeypatch.setattr(store, "checkout_root", lambda: None)  # as installed from wheels
     with pytest.raises(SystemExit, match="--data is required"):
         demo_data(None)
+
+
+@pytest.mark.parametrize("argv", [["--runs", "0"], ["--runs", "-3"], ["--threads", "0"]])
+def test_a_count_below_one_is_a_usage_error_naming_the_option(
+    argv: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c3_matcher.cli import main
+
+    with pytest.raises(SystemExit) as stop:  # refused while parsing: no case runs
+        main(["bench", *argv, "--data", str(FLIGHT)])
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and len(err.splitlines()) == 1, err
+    assert f"{argv[0]}: must be >= 1, got {argv[1]}" in err
+
+
+def _garbage_store(flight: Path) -> Path:
+    (flight / "tiles.mbtiles").write_text("garbage\n")
+    return flight
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        (lambda root: root / "missing", "--data: no such directory: "),
+        (lambda root: root, "neither a flight dataset (dataset.json) nor a demo-format"),
+        (lambda root: _garbage_store(shutil.copytree(FLIGHT, root / "f")), "not an SQLite"),
+    ],
+    ids=["missing", "neither", "garbage-store"],
+)
+def test_data_that_cannot_be_benched_is_refused_before_any_case_runs(
+    data: Callable[[Path], Path], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c3_matcher.cli import main
+
+    path = data(tmp_path)
+    assert main(["bench", "--runs", "1", "--data", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and str(path) in err and len(err.splitlines()) == 1, err
+
+
+def test_the_worker_refuses_fewer_than_one_run() -> None:
+    from c3_matcher_tools.bench_worker import _worker_main
+
+    with pytest.raises(SystemExit) as stop:
+        _worker_main(["{}", "0", str(FLIGHT)])
+    assert stop.value.code == 2

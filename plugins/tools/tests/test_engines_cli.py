@@ -100,3 +100,31 @@ def test_bench_machinery_smoke(engine_dir: Path) -> None:
     assert [r.case for r in results] == ["disk 256x256", "disk lightglue 128x128 kpts"]
     for r in results:
         assert r.median_ms > 0 and r.peak_rss_mib > r.baseline_rss_mib > 0
+
+
+@pytest.mark.parametrize("runs", ["0", "-3"])
+def test_bench_runs_below_one_is_a_usage_error(
+    runs: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as stop:  # refused while parsing: no engine is loaded
+        main(["engines", "bench", "--runs", runs])
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and len(err.splitlines()) == 1, err
+    assert f"--runs: must be >= 1, got {runs}" in err
+
+
+def test_bench_child_refuses_fewer_than_one_run() -> None:
+    from c3_matcher_tools.engines.bench import _main
+
+    with pytest.raises(SystemExit) as stop:
+        _main(["child", "extractor", "--engine", "none.onnx", "--runs", "0"])
+    assert stop.value.code == 2
+
+
+def test_bench_missing_image_is_refused_naming_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "none.png"
+    assert main(["engines", "bench", "--image", str(missing), "--runs", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"c3-matcher: --image: no such file: {missing}"

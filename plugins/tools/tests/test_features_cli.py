@@ -1,9 +1,12 @@
-"""``features build`` refuses what it cannot build from, with one line and exit code 2; the grid
-of a recorded flight is the one its candidates lie on."""
+"""``features build`` refuses what it cannot build from, with one line and exit code 2, and
+replaces a damaged sidecar (kept aside); the grid of a recorded flight is the one its candidates
+lie on."""
 
 from __future__ import annotations
 
+import json
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -18,7 +21,6 @@ FLIGHT = REPO / "data" / "flights" / "naip_demo"
         (["no/such.mbtiles"], "no such store: no/such.mbtiles"),
         ([str(FLIGHT / "tiles.mbtiles"), "--flight-candidates"], "needs a flight dataset"),
         ([str(REPO / "data"), "--workers", "0"], "no dataset.json"),
-        ([str(FLIGHT), "--window", "8", "--workers", "0"], "window must be in [16, 8192]"),
         ([str(FLIGHT), "--stride", "999", "--workers", "0"], "stride in [1, window]"),
         ([str(FLIGHT), "--min-coverage", "0", "--workers", "0"], "min_coverage must be in"),
     ],
@@ -35,6 +37,66 @@ def test_bad_input_is_one_line_and_exit_2(
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1, err
     assert not (flight / "tiles.mbtiles.features.sqlite").exists()
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "bound"),
+    [
+        ("--batch", "0", ">= 1"),
+        ("--batch", "-1", ">= 1"),
+        ("--workers", "-1", ">= 0"),
+        ("--window", "8", "in [16, 8192]"),
+        ("--window", "0", "in [16, 8192]"),
+        ("--stride", "0", ">= 1"),
+    ],
+)
+def test_a_count_out_of_its_bounds_is_a_usage_error_naming_the_option(
+    option: str, value: str, bound: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c3_matcher.cli import main
+
+    with pytest.raises(SystemExit) as stop:  # refused while parsing, before the store is read
+        main(["features", "build", "no/such.mbtiles", option, value])
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and len(err.splitlines()) == 1, err
+    assert f"{option}: must be {bound}, got {value}" in err
+
+
+@pytest.mark.slow
+def test_build_over_a_damaged_sidecar_moves_it_aside_and_builds_a_new_one(
+    small_flight: Callable[..., Path],
+    engine_dir: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from c3_matcher.cli import main
+
+    flight = small_flight("damaged")
+    sidecar = flight / "tiles.mbtiles.features.sqlite"
+    sidecar.write_text("garbage\n")
+    monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
+    argv = ["features", "build", str(flight), "--strategy", "xfeat", "--workers", "0"]
+    assert main([*argv, "--flight-candidates"]) == 0
+    assert f"moved aside to {sidecar}.damaged" in capsys.readouterr().err
+    assert Path(f"{sidecar}.damaged").read_text() == "garbage\n"  # kept, not deleted
+    assert main(["features", "info", str(flight / "tiles.mbtiles"), "--json"]) == 0
+    sets = json.loads(capsys.readouterr().out)["sets"]
+    assert [(s["strategy"], s["complete"]) for s in sets] == [("xfeat", True)]
+
+
+def test_a_sidecar_path_that_cannot_be_opened_is_one_line_and_exit_2(
+    small_flight: Callable[..., Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c3_matcher.cli import main
+
+    flight = small_flight("blocked")
+    sidecar = flight / "tiles.mbtiles.features.sqlite"
+    sidecar.mkdir()  # refused before any engine is loaded
+    argv = ["features", "build", str(flight), "--workers", "0", "--flight-candidates"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"{sidecar}: cannot be opened for writing" in err and len(err.splitlines()) == 1, err
+    assert sidecar.is_dir() and not list(sidecar.iterdir())
 
 
 def test_a_flight_is_built_on_the_grid_its_candidates_lie_on() -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -90,6 +91,42 @@ def test_load_png_with_alpha_and_table_fallback(tmp_path: Path) -> None:
     assert load_orthophoto(plain, gsd_m=0.3).gsd_m == pytest.approx(0.3)
     with pytest.raises(InvalidInputError):
         load_orthophoto(tmp_path / "missing.tif")
+
+
+def _noise_tiff(path: Path, **kwargs: Any) -> Path:
+    """A 32 x 32 px RGB TIFF of noise, written by tifffile with ``kwargs``."""
+    noise = np.random.default_rng(0).integers(1, 255, (32, 32, 3), dtype=np.uint8)
+    tifffile.imwrite(path, noise, photometric="rgb", **kwargs)
+    return path
+
+
+def test_truncated_tiff_is_refused_naming_the_file(tmp_path: Path) -> None:
+    tif = _noise_tiff(tmp_path / "cut.tif", compression="zlib")
+    tif.write_bytes(tif.read_bytes()[: tif.stat().st_size // 2])  # the pixel data cut short
+    with pytest.raises(InvalidInputError, match=r"cut\.tif: damaged TIFF.*decompress"):
+        load_orthophoto(tif)
+
+
+def test_text_named_tif_says_why_it_cannot_be_decoded(tmp_path: Path) -> None:
+    text = tmp_path / "notes.tif"
+    text.write_text("hello")
+    with pytest.raises(InvalidInputError, match=r"cannot decode .*notes\.tif \(not a TIFF"):
+        load_orthophoto(text)
+
+
+def test_negative_pixel_scale_is_refused_naming_the_file(tmp_path: Path) -> None:
+    keys = (1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326)  # WGS84 lon/lat
+    tif = _noise_tiff(
+        tmp_path / "flipped.tif",
+        extratags=[
+            (33550, "d", 3, (-1e-5, 1e-5, 0.0), True),
+            (33922, "d", 6, (0.0, 0.0, 0.0, 10.0, 50.0, 0.0), True),
+            (34735, "H", len(keys), keys, True),
+        ],
+    )
+    with pytest.raises(InvalidInputError, match=r"flipped\.tif: not a north-up grid"):
+        load_orthophoto(tif)
+    assert load_orthophoto(tif, gsd_m=0.5).gsd_m == 0.5  # a given GSD needs no grid
 
 
 # --------------------------------------------------------------------------- geometry

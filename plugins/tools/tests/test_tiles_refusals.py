@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 import rasterio
+import tifffile
 from rasterio.transform import from_origin
 
 from c3_matcher.errors import InvalidInputError
@@ -170,3 +171,66 @@ def test_interrupted_build_leaves_nothing_and_keeps_the_old_store(tmp_path: Path
         build_mbtiles(NAIP_2020, out, overwrite=True, progress=stop)
     assert out.read_bytes() == before and not leftovers(tmp_path)
     assert first.tiles == len(_tiles(out))
+
+
+GEOGRAPHIC_KEYS = (1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326)
+"""GeoKeys of a WGS84 lon/lat grid (PixelIsArea)."""
+
+
+def tiny_geotiff(
+    path: Path,
+    *,
+    scale: tuple[float, float] = (1e-5, 1e-5),
+    tie: tuple[float, float] = (10.0, 50.0),
+    keys: tuple[int, ...] = GEOGRAPHIC_KEYS,
+    compression: str | None = None,
+) -> Path:
+    """A 64 x 64 px RGB GeoTIFF of noise written tag by tag with tifffile (any pixel scale or
+    EPSG code, which GDAL would not write): its top-left corner at ``tie`` in the CRS of
+    ``keys``, ``scale`` CRS units per pixel."""
+    image = np.random.default_rng(0).integers(1, 255, (64, 64, 3), dtype=np.uint8)
+    tifffile.imwrite(
+        path,
+        image,
+        photometric="rgb",
+        compression=compression,
+        extratags=[
+            (33550, "d", 3, (*scale, 0.0), True),
+            (33922, "d", 6, (0.0, 0.0, 0.0, *tie, 0.0), True),
+            (34735, "H", len(keys), keys, True),
+        ],
+    )
+    return path
+
+
+def truncated(path: Path) -> Path:
+    """``path`` cut to half its length: its header and tags whole, its pixel data not."""
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    return path
+
+
+@READERS
+def test_truncated_geotiff_is_refused_naming_the_file(tmp_path: Path, use_rasterio: bool) -> None:
+    tif = truncated(tiny_geotiff(tmp_path / "cut.tif", compression="zlib"))
+    with pytest.raises(InvalidInputError, match=r"cut\.tif: damaged .*(decompress|Read error)"):
+        build_mbtiles(tif, tmp_path / "o.mbtiles", use_rasterio=use_rasterio)
+    assert not (tmp_path / "o.mbtiles").exists() and not leftovers(tmp_path)
+
+
+@READERS
+def test_epsg_code_proj_does_not_know_needs_a_reference(tmp_path: Path, use_rasterio: bool) -> None:
+    keys = (1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 9999)
+    tif = tiny_geotiff(tmp_path / "local.tif", scale=(0.5, 0.5), tie=(5e5, 5.2e6), keys=keys)
+    with pytest.raises(InvalidInputError, match=r"local\.tif: .*PROJ.*--ref-latlon"):
+        build_mbtiles(tif, tmp_path / "o.mbtiles", use_rasterio=use_rasterio)
+    report = build_mbtiles(
+        tif, tmp_path / "o.mbtiles", use_rasterio=use_rasterio, reference=(47.0, -99.0)
+    )
+    assert report.tiles > 0 and report.georeference.startswith("local tangent plane")
+
+
+@READERS
+def test_negative_pixel_scale_is_not_a_north_up_grid(tmp_path: Path, use_rasterio: bool) -> None:
+    tif = tiny_geotiff(tmp_path / "flipped.tif", scale=(-1e-5, 1e-5))
+    with pytest.raises(InvalidInputError, match=r"flipped\.tif: not a north-up grid"):
+        build_mbtiles(tif, tmp_path / "o.mbtiles", use_rasterio=use_rasterio)

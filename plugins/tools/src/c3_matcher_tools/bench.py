@@ -40,9 +40,11 @@ from c3_matcher.commands import (
     CommandContext,
     CommandRegistry,
     add_max_keypoints_option,
+    bounded_int,
     keypoint_budget,
 )
 from c3_matcher.config import C3Settings
+from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.bench_report import comparisons, format_report
 
@@ -171,7 +173,9 @@ def register_bench_command(commands: CommandRegistry) -> None:
         help="C3-PT-01: latency and peak memory beside the PyTorch "
         "reference and the SIFT + MAGSAC baseline",
     )
-    p.add_argument("--runs", type=int, default=20, help="timed runs per case (default 20)")
+    p.add_argument(
+        "--runs", type=bounded_int("--runs"), default=20, help="timed runs per case (default 20)"
+    )
     add_strategies_option(p, "strategy to bench (repeatable; default: the configured one)")
     p.add_argument("--no-baseline", action="store_true", help="skip SIFT + MAGSAC")
     p.add_argument("--no-reference", action="store_true", help="skip the PyTorch reference")
@@ -212,7 +216,7 @@ def register_bench_command(commands: CommandRegistry) -> None:
     )
     p.add_argument(
         "--threads",
-        type=int,
+        type=bounded_int("--threads"),
         action="append",
         default=None,
         help="also time ONNX Runtime intra-op threads N, new tiles (repeatable)",
@@ -222,10 +226,12 @@ def register_bench_command(commands: CommandRegistry) -> None:
 
 
 def demo_data(data: Path | None) -> Path:
-    """``--data``, or the built-in demo frame (``data/demo`` of the source checkout this runs
-    from); installed from wheels there is none, and ``--data`` must name one."""
+    """``--data``, checked before any case runs (a flight dataset, read as the cases will read
+    it, or a demo-format directory), or the built-in demo frame (``data/demo`` of the source
+    checkout this runs from); installed from wheels there is none, and ``--data`` must name
+    one."""
     if data is not None:
-        return data
+        return _checked_data(data)
     from c3_matcher.engines.store import checkout_root
 
     root = checkout_root()
@@ -235,6 +241,25 @@ def demo_data(data: Path | None) -> Path:
             "checkout (data/demo), and this c3-matcher is installed from wheels"
         )
     return root / "data" / "demo"
+
+
+def _checked_data(data: Path) -> Path:
+    """``data`` when it is a flight dataset that loads, tile store included (``dataset.json``),
+    or a demo-format directory (``demo.json``); else InvalidInputError naming it (exit 2)."""
+    from c3_matcher_tools.dataset.format import load_dataset
+
+    if not data.is_dir():
+        raise InvalidInputError("--data", f"no such directory: {data}")
+    if (data / "dataset.json").is_file():
+        with load_dataset(data).open_store():  # its frames, calibration and tile store
+            pass
+    elif not (data / "demo.json").is_file():
+        raise InvalidInputError(
+            "--data",
+            f"{data}: neither a flight dataset (dataset.json) nor a demo-format directory "
+            "(demo.json)",
+        )
+    return data
 
 
 def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from c3_matcher.commands import bounded_int
 from c3_matcher.config import C3Settings, load_settings
 from c3_matcher_tools.bench import BenchCase
 from c3_matcher_tools.run.inputs import flight_inputs
@@ -125,7 +126,7 @@ def _time_matches(matcher: Any, inputs: list[tuple[Any, Any, Any]], runs: int) -
 def _worker_main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m c3_matcher_tools.bench_worker")
     parser.add_argument("case", help="BenchCase as JSON")
-    parser.add_argument("runs", type=int)
+    parser.add_argument("runs", type=bounded_int("runs"))
     parser.add_argument("data", type=Path)
     parser.add_argument("--config", type=Path, default=None)
     args = parser.parse_args(argv)

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.commands import bounded_int
 from c3_matcher.features import PairSide
 
 __all__ = ["BenchResult", "format_table", "run_bench"]
@@ -314,7 +315,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
     child.add_argument("--features")
     child.add_argument("--keypoints", type=int)
     child.add_argument("--feature-type", default="disk")
-    child.add_argument("--runs", type=int, default=20)
+    child.add_argument("--runs", type=bounded_int("--runs"), default=20)
     child.add_argument("--mem-pattern", choices=["on", "off"], default="off")
     child.add_argument("--arena", choices=["on", "off"], default="on")
     args = parser.parse_args(argv)

@@ -12,11 +12,11 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
-from c3_matcher.commands import CommandContext, CommandRegistry
+from c3_matcher.commands import CommandContext, CommandRegistry, bounded_int
 from c3_matcher.engines.cli import EnginesCliContext, engines_context, figures
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.engines.store import EngineStore
-from c3_matcher.errors import C3Error
+from c3_matcher.errors import C3Error, InvalidInputError
 
 __all__ = ["register_engines_build_commands"]
 
@@ -71,6 +71,8 @@ def _bench_pairs(specs: Sequence[EngineSpec]) -> list[tuple[EngineSpec, EngineSp
 
 
 def _bench(args: argparse.Namespace, command: CommandContext) -> int:
+    if args.image and not args.image.is_file():
+        raise InvalidInputError("--image", f"no such file: {args.image}")
     ctx: EnginesCliContext = engines_context(command.settings, command.plugin_host)
     from c3_matcher_tools.engines.bench import format_table, run_bench
 
@@ -80,7 +82,7 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
         return 1
     store = EngineStore(ctx.engine_dir)
     if args.image:
-        image = Path(args.image)
+        image = args.image
     elif ctx.imagery:
         image = ctx.imagery[0]
     else:
@@ -129,8 +131,12 @@ def register_engines_build_commands(commands: CommandRegistry) -> None:
     build.set_defaults(handler=_build)
 
     bench = engines.add("bench", help="latency (median, p95) and peak memory per engine")
-    bench.add_argument("--runs", type=int, default=20, help="timed runs per case")
-    bench.add_argument("--image", help="real image to use (default: packaged orthophoto)")
+    bench.add_argument(
+        "--runs", type=bounded_int("--runs"), default=20, help="timed runs per case (>= 1)"
+    )
+    bench.add_argument(
+        "--image", type=Path, help="real image to use (default: packaged orthophoto)"
+    )
     bench.add_argument("--json", action="store_true", help="machine-readable output")
     bench.add_argument(
         "--sweep-session-options",

@@ -18,6 +18,7 @@ access to the store path). ``workers=0`` runs in this process, without Dask.
 from __future__ import annotations
 
 import os
+import sqlite3
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -37,6 +38,7 @@ from c3_matcher.tilestore.features import (
     window_digest,
 )
 from c3_matcher.tilestore.geo import TILE_PX
+from c3_matcher.tilestore.sidecar import SidecarDamagedError, set_aside
 from c3_matcher_tools.features.windows import (
     WindowKey,
     flight_grid,
@@ -53,6 +55,7 @@ from c3_matcher_tools.features.worker import (
 )
 
 __all__ = [
+    "WINDOW_PX_RANGE",
     "BuildReport",
     "build_features",
     "extract_window_features",
@@ -62,6 +65,7 @@ __all__ = [
 ]
 
 DEFAULT_WINDOW_PX = TILE_PX  # the store's own tiles as the candidates
+WINDOW_PX_RANGE = (16, 8192)  # the window sizes a set can be built with, px
 DEFAULT_MIN_COVERAGE = 0.5
 
 
@@ -96,23 +100,45 @@ def build_features(
     store covers to ``min_coverage``, or only ``windows`` (zoom, gx, gy) when given."""
     say = progress or (lambda line: print(line, file=sys.stderr, flush=True))
     stride = int(stride_px or window_px)
-    if not 16 <= window_px <= 8192 or not 1 <= stride <= window_px:
+    low, high = WINDOW_PX_RANGE
+    if not low <= window_px <= high or not 1 <= stride <= window_px:
         raise ValueError(
-            f"window must be in [16, 8192] px and stride in [1, window]: {window_px}, {stride}"
+            f"window must be in [{low}, {high}] px and stride in [1, window]: {window_px}, {stride}"
         )
     if not 0.0 < min_coverage <= 1.0:
         raise ValueError(f"min_coverage must be in (0, 1], got {min_coverage}")
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     store = Path(store)
     plan = _plan(store, windows, window_px, stride, min_coverage)
     job = _Job(store, _resolved(settings, strategies), window_px, stride, batch_size, say)
     report = BuildReport(str(store), str(sidecar_path(store)))
     with (
+        _open_sidecar(sidecar_path(store), say) as sidecar,
         _dask_client(workers, scheduler) as client,
-        MapFeatureStore(sidecar_path(store), writable=True) as sidecar,
     ):
         for strategy in strategies:
             report.strategies[strategy] = _build_set(job, strategy, plan, sidecar, client, workers)
     return report
+
+
+def _open_sidecar(path: Path, say: Callable[[str], None]) -> MapFeatureStore:
+    """The sidecar ``path`` open for writing. One that is not an SQLite database, or a damaged
+    one, is moved aside (renamed, never deleted: :func:`set_aside`) and a new one started: its
+    features are a cache of what this build computes again, which no reader can use as it is.
+    A path that cannot be opened (a directory, no permission, a lock held past the timeout) is
+    a ValueError naming it."""
+    try:
+        return MapFeatureStore(path, writable=True)
+    except sqlite3.OperationalError as exc:
+        raise ValueError(f"{path}: cannot be opened for writing: {exc}") from exc
+    except SidecarDamagedError as exc:
+        aside = set_aside(path)
+        say(
+            f"features: {exc}: moved aside to {aside} (delete it when it is not needed) and "
+            "building a new sidecar"
+        )
+        return MapFeatureStore(path, writable=True)
 
 
 @dataclass(frozen=True)

@@ -7,8 +7,15 @@ import argparse
 import json
 from pathlib import Path
 
-from c3_matcher.commands import EXIT_OK, EXIT_USAGE, CommandContext, CommandRegistry
+from c3_matcher.commands import (
+    EXIT_OK,
+    EXIT_USAGE,
+    CommandContext,
+    CommandRegistry,
+    bounded_int,
+)
 from c3_matcher_tools.args import add_strategies_option
+from c3_matcher_tools.features.build import WINDOW_PX_RANGE
 
 __all__ = ["register_features_command"]
 
@@ -38,25 +45,26 @@ def register_features_command(commands: CommandRegistry) -> None:
 
 
 def _add_build_options(b: argparse.ArgumentParser) -> None:
-    """Where ``features build`` runs, which windows and how many per task."""
+    """Where ``features build`` runs, which windows and how many per task (each count bounded
+    when parsed: a bad one is a usage error naming the option)."""
     where = b.add_mutually_exclusive_group()
     where.add_argument(
         "--workers",
-        type=int,
+        type=bounded_int("--workers", 0),
         default=2,
         help="local Dask cluster of N worker processes (0: in this process, no Dask)",
     )
     where.add_argument("--scheduler", default=None, help="an existing Dask scheduler ADDRESS")
     b.add_argument(
         "--window",
-        type=int,
+        type=bounded_int("--window", *WINDOW_PX_RANGE),
         default=None,
         help="candidate window size, px (default: 256, a store's own tiles; for a flight, "
         "its candidates' size)",
     )
     b.add_argument(
         "--stride",
-        type=int,
+        type=bounded_int("--stride"),
         default=None,
         help="grid step between stored windows, px (default: the window; for a flight, the "
         "grid its candidates lie on); a candidate off the grid is served the nearest "
@@ -73,7 +81,9 @@ def _add_build_options(b: argparse.ArgumentParser) -> None:
         action="store_true",
         help="with a flight dataset: only the windows its recorded candidates use",
     )
-    b.add_argument("--batch", type=int, default=8, help="tiles per Dask task")
+    b.add_argument(
+        "--batch", type=bounded_int("--batch"), default=8, help="candidate windows per task"
+    )
     b.add_argument("--json", action="store_true", help="print the report as JSON")
 
 

@@ -79,23 +79,34 @@ def _to_uint8(arr: NDArray[Any]) -> NDArray[np.uint8]:
     return np.asarray(np.clip(np.rint(data * (255.0 / max(top, 1e-12))), 0, 255), dtype=np.uint8)
 
 
-def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any]]:
-    """(pixels or None when tifffile cannot decode them, GeoTIFF tags); ({}, None) without
-    tifffile. JPEG-compressed TIFFs need imagecodecs, which is optional: cv2 reads those."""
+def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any], str]:
+    """(pixels, GeoTIFF tags, why the pixels are None) read with tifffile; (None, {}, "")
+    without it. Pixels are None when tifffile cannot handle the file (not a TIFF to it, a codec
+    it lacks: JPEG-compressed TIFFs need the optional imagecodecs; cv2 reads those); a TIFF
+    whose compressed data is damaged (a truncated file) is refused naming it."""
     try:
         import tifffile
     except ImportError:
-        return None, {}
-    with tifffile.TiffFile(str(path)) as tif:
-        page = tif.pages.first
-        tags = {code: page.tags[code].value for code in (33550, 33922, 34735) if code in page.tags}
-        try:
+        return None, {}, ""
+    tags: dict[int, Any] = {}
+    try:
+        with tifffile.TiffFile(str(path)) as tif:
+            page = tif.pages.first
+            tags = {
+                code: page.tags[code].value for code in (33550, 33922, 34735) if code in page.tags
+            }
             arr = np.asarray(page.asarray())
-        except (ValueError, NotImplementedError, ImportError):
-            return None, tags
+    except (ValueError, NotImplementedError, ImportError) as exc:  # TiffFileError is a ValueError
+        return None, tags, " ".join(str(exc).split())
+    except Exception as exc:  # the codecs' own errors: zlib.error, LZMAError, imagecodecs'
+        raise InvalidInputError(
+            "path",
+            f"{path}: damaged TIFF, its pixel data cannot be decoded "
+            f"({type(exc).__name__}: {' '.join(str(exc).split())})",
+        ) from exc
     if arr.ndim == 3 and arr.shape[0] in (3, 4) and arr.shape[2] not in (3, 4):
         arr = np.moveaxis(arr, 0, -1)  # planar (bands, H, W)
-    return arr, tags
+    return arr, tags, ""
 
 
 def _mercator_lat(y: float, ellipsoidal: bool) -> float:
@@ -110,13 +121,19 @@ def _mercator_lat(y: float, ellipsoidal: bool) -> float:
     return phi
 
 
-def geotiff_gsd_m(tags: dict[int, Any], height_px: int) -> float | None:
-    """Ground GSD (m/px, geometric mean of x and y) from raw GeoTIFF tags, or None."""
+def geotiff_gsd_m(
+    tags: dict[int, Any], height_px: int, *, source: str | Path = "the GeoTIFF"
+) -> float | None:
+    """Ground GSD (m/px, geometric mean of x and y) from raw GeoTIFF tags, or None; a pixel
+    scale that is not a north-up grid's is refused naming ``source``."""
     scale = tags.get(33550)
     if scale is None:
         return None
     sx, sy = float(scale[0]), float(scale[1])
-    from c3_matcher_tools.tilestore.geo import geokeys  # here: the tilestore package imports sim
+    # imported here: the tilestore package imports sim
+    from c3_matcher_tools.tilestore.geo import check_pixel_scale, geokeys
+
+    check_pixel_scale(sx, sy, source)
 
     keys = geokeys(tags[34735]) if 34735 in tags else {}
     tie = tags.get(33922)
@@ -151,14 +168,14 @@ def load_orthophoto(path: str | Path, *, gsd_m: float | None = None) -> Orthopho
     if not p.is_file():
         raise InvalidInputError("path", f"no such file: {p}")
     is_tiff = p.suffix.lower() in (".tif", ".tiff")
-    raw, tags = _read_tifffile(p) if is_tiff else (None, {})
+    raw, tags, why = _read_tifffile(p) if is_tiff else (None, {}, "")
     if raw is not None:
         arr = raw
         rgb_order = True
     else:
         read = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
         if read is None:
-            raise InvalidInputError("path", f"cannot decode {p}")
+            raise InvalidInputError("path", f"cannot decode {p}" + (f" ({why})" if why else ""))
         arr = np.asarray(read)
         if is_tiff and arr.ndim == 3 and arr.shape[2] == 4:
             raise InvalidInputError(
@@ -185,7 +202,7 @@ def load_orthophoto(path: str | Path, *, gsd_m: float | None = None) -> Orthopho
         rgb[alpha == 0] = 0
     if gsd_m is not None:
         return Orthophoto(rgb, float(gsd_m), p, "given")
-    from_tags = geotiff_gsd_m(tags, rgb.shape[0]) if tags else None
+    from_tags = geotiff_gsd_m(tags, rgb.shape[0], source=p) if tags else None
     if from_tags is not None:
         return Orthophoto(rgb, from_tags, p, "geotiff")
     if p.name in KNOWN_GSD_M:

@@ -42,6 +42,7 @@ __all__ = [
     "GeoGrid",
     "Projection",
     "check_grid_fits_crs",
+    "check_pixel_scale",
     "check_source_gsd",
     "geokeys",
     "lonlat_to_world_px",
@@ -91,9 +92,12 @@ class Projection:
         *,
         reference: tuple[float, float] | None = None,
         ref_en: tuple[float, float] = (0.0, 0.0),
+        source: str | Path = "the grid",
     ) -> Projection:
-        """The projection of ``epsg``; CRSs other than UTM, mercator and 4326 need
-        ``reference`` (lat, lon) degrees of the grid point ``ref_en`` (local tangent plane)."""
+        """The projection of ``epsg`` (None: a CRS without an EPSG code); a CRS that is not UTM,
+        mercator or 4326 and that pyproj cannot convert (no pyproj, no code, a code PROJ does not
+        know) needs ``reference`` (lat, lon) degrees of the grid point ``ref_en`` (local tangent
+        plane), else it is refused naming ``source``."""
         if epsg is not None and (32601 <= epsg <= 32660 or 32701 <= epsg <= 32760):
             return cls("utm", zone=epsg % 100, south=epsg >= 32701)
         if epsg is not None and 26901 <= epsg <= 26923:
@@ -106,14 +110,14 @@ class Projection:
             return cls("world_mercator")
         if epsg == 4326:
             return cls("geographic")
-        if epsg is not None and pyproj_available():
+        if epsg is not None and _pyproj_knows(epsg):
             return cls("pyproj", epsg=int(epsg))
         if reference is None:
             raise InvalidInputError(
-                "reference",
-                f"EPSG:{epsg} cannot be converted to WGS84 without pyproj: give a reference "
-                "latitude/longitude of the image centre (--ref-latlon LAT,LON); the grid is then "
-                "treated as a local tangent plane around it",
+                "geotiff",
+                f"{source}: {_unconvertible(epsg)}: give a reference latitude/longitude of the "
+                "image centre (--ref-latlon LAT,LON); the grid is then treated as a local tangent "
+                "plane around it",
             )
         return cls(
             "local_tangent_plane",
@@ -332,6 +336,34 @@ def pyproj_available() -> bool:
     return importlib.util.find_spec("pyproj") is not None
 
 
+def _pyproj_knows(epsg: int) -> bool:
+    """pyproj is available (:func:`pyproj_available`) and its PROJ database holds ``epsg``."""
+    return pyproj_available() and _proj_database_has(epsg)
+
+
+@functools.lru_cache(maxsize=32)
+def _proj_database_has(epsg: int) -> bool:
+    """PROJ's database holds EPSG ``epsg`` (asked once per code)."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        CRS.from_epsg(epsg)
+    except CRSError:
+        return False
+    return True
+
+
+def _unconvertible(epsg: int | None) -> str:
+    """Why pyproj cannot convert the CRS ``epsg`` (None: no EPSG code, or one GDAL could not
+    resolve) to WGS84."""
+    if epsg is None:
+        return "its CRS has no EPSG code that PROJ knows, so it cannot be converted to WGS84"
+    if not pyproj_available():
+        return f"EPSG:{epsg} cannot be converted to WGS84 without pyproj"
+    return f"EPSG:{epsg} is not a CRS that PROJ knows, so it cannot be converted to WGS84"
+
+
 @functools.lru_cache(maxsize=32)
 def _transformer(epsg: int, *, inverse: bool) -> Any:
     from pyproj import Transformer
@@ -377,6 +409,7 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
             f"{p}: no georeference (no ModelPixelScale/ModelTiepoint tags: not a north-up GeoTIFF)",
         )
     sx, sy = float(tags[33550][0]), float(tags[33550][1])
+    check_pixel_scale(sx, sy, p)
     tie = [float(t) for t in tags[33922][:6]]
     keys = geokeys(tags[34735]) if 34735 in tags else {}
     point = keys.get(1025) == 2  # RasterPixelIsPoint: the tie point is a pixel centre
@@ -387,11 +420,22 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
     epsg = keys.get(3072) or keys.get(2048)
     centre_en = (origin_e + w / 2 * sx, origin_n - h / 2 * sy)
     projection = Projection.from_epsg(
-        None if epsg is None else int(epsg), reference=reference, ref_en=centre_en
+        None if epsg is None else int(epsg), reference=reference, ref_en=centre_en, source=p
     )
     grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
     check_grid_fits_crs(grid, p)
     return grid
+
+
+def check_pixel_scale(scale_x: float, scale_y: float, source: str | Path) -> None:
+    """Refuse a pixel size that is not finite and > 0 on both axes (E to the right, N up): a
+    negative one flips the grid (not north-up), zero or NaN is no grid at all."""
+    if not all(math.isfinite(s) and s > 0 for s in (scale_x, scale_y)):
+        raise InvalidInputError(
+            "geotiff",
+            f"{source}: not a north-up grid: its pixel size {scale_x:g} x {scale_y:g} (E x N) "
+            "must be finite and > 0 on both axes",
+        )
 
 
 _MERCATOR_MAX_M = 20_048_966.2  # web-mercator northing at lat 85.06 deg (the tiles' limit)

@@ -34,7 +34,12 @@ from numpy.typing import NDArray
 
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.tilestore.geo import GeoGrid, Projection, check_grid_fits_crs
+from c3_matcher_tools.tilestore.geo import (
+    GeoGrid,
+    Projection,
+    check_grid_fits_crs,
+    check_pixel_scale,
+)
 
 __all__ = ["RasterioSource", "ValueMapping", "ValueRange", "grid_gsd_m", "rasterio_available"]
 
@@ -107,6 +112,14 @@ def declared_range(dtype: str, nbits: str | None, source: str | Path) -> tuple[f
     )
 
 
+def _gdal_why(exc: BaseException) -> str:
+    """GDAL's own words for a failed read: the innermost cause of rasterio's exception (whose
+    message only says "see previous exception"), on one line."""
+    while exc.__cause__ is not None:
+        exc = exc.__cause__
+    return " ".join(str(exc).split())
+
+
 class RasterioSource:
     """An open GeoTIFF: ``grid``, ``gsd_m``, ``nodata`` (the tag, or None), ``overviews``
     (decimation factors) and :meth:`sample` (one tile's pixels through a windowed read)."""
@@ -133,42 +146,45 @@ class RasterioSource:
                 "geotiff", f"{self.path}: not a readable raster: {' '.join(str(exc).split())}"
             ) from exc
         self._levels: dict[int, Any] = {-1: ds}
+        try:
+            self._describe(ds, reference, value_range)
+        except BaseException:
+            ds.close()
+            raise
+        self.levels_used: set[int] = set()
+
+    def _describe(
+        self, ds: Any, reference: tuple[float, float] | None, value_range: ValueRange
+    ) -> None:
+        """The open dataset's grid, GSD, bands, nodata, overviews and value mapping; refuses a
+        raster without a north-up georeference or whose coordinates do not fit its CRS."""
         t = ds.transform
         if ds.crs is None:
-            ds.close()
             raise InvalidInputError(
                 "geotiff",
                 f"{self.path}: no georeference (no CRS{' or pixel grid' if t.is_identity else ''}"
                 "): tiles build needs a GeoTIFF",
             )
-        if t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
-            ds.close()
+        if t.b != 0 or t.d != 0:
             raise InvalidInputError("geotiff", f"{self.path}: not a north-up grid ({t})")
+        sx, sy = float(t.a), float(-t.e)
+        check_pixel_scale(sx, sy, self.path)
         epsg = ds.crs.to_epsg()
         w, h = int(ds.width), int(ds.height)
-        sx, sy = float(t.a), float(-t.e)
         origin_e, origin_n = float(t.c), float(t.f)
         projection = Projection.from_epsg(
             None if epsg is None else int(epsg),
             reference=reference,
             ref_en=(origin_e + w / 2 * sx, origin_n - h / 2 * sy),
+            source=self.path,
         )
         self.grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
-        try:
-            check_grid_fits_crs(self.grid, self.path)
-        except InvalidInputError:
-            ds.close()
-            raise
+        check_grid_fits_crs(self.grid, self.path)
         self.gsd_m = grid_gsd_m(self.grid, geographic=bool(ds.crs.is_geographic))
         self.bands = [1, 2, 3] if ds.count >= 3 else [1]
         self.nodata = ds.nodata
         self.overviews: list[int] = list(ds.overviews(1))
-        try:
-            self.mapping = self._mapping(ds, value_range)
-        except InvalidInputError:
-            ds.close()
-            raise
-        self.levels_used: set[int] = set()
+        self.mapping = self._mapping(ds, value_range)
 
     def _mapping(self, ds: Any, value_range: ValueRange) -> ValueMapping:
         dtype = str(ds.dtypes[0])
@@ -223,15 +239,24 @@ class RasterioSource:
         self, ds: Any, window: Any, out_shape: tuple[int, int] | None, *, average: bool
     ) -> tuple[NDArray[Any], NDArray[np.uint8]]:
         from rasterio.enums import Resampling
+        from rasterio.errors import RasterioError
 
         shape = None if out_shape is None else (len(self.bands), *out_shape)
-        data = ds.read(
-            self.bands,
-            window=window,
-            out_shape=shape,
-            resampling=Resampling.average if average else Resampling.nearest,
-        )
-        mask = ds.dataset_mask(window=window, out_shape=out_shape, resampling=Resampling.nearest)
+        try:
+            data = ds.read(
+                self.bands,
+                window=window,
+                out_shape=shape,
+                resampling=Resampling.average if average else Resampling.nearest,
+            )
+            mask = ds.dataset_mask(
+                window=window, out_shape=out_shape, resampling=Resampling.nearest
+            )
+        except RasterioError as exc:
+            raise InvalidInputError(
+                "geotiff",
+                f"{self.path}: damaged raster, its pixels cannot be read ({_gdal_why(exc)})",
+            ) from exc
         return data, np.asarray(mask, dtype=np.uint8)
 
     def sample(
