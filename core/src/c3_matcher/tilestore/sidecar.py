@@ -20,6 +20,7 @@ FEATURES_SUFFIX = ".features.sqlite"
 DEFAULT_RETRY_S = 30.0  # a locked or unreadable sidecar is tried again after this long
 MMAP_BYTES = 256 * 1024 * 1024  # the read connection's memory map (as the tile store's)
 PAGE_BYTES = 65536  # SQLite page size of a new sidecar (a row is about a megabyte)
+_COMPANIONS = ("-wal", "-shm", "-journal")  # SQLite's files beside a database, by suffix
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS window_sets (
@@ -50,6 +51,15 @@ class FeatureStoreUnavailableError(RuntimeError):
     store then serves nothing until it is tried again)."""
 
 
+class SidecarDamagedError(RuntimeError):
+    """The sidecar opened for writing is not an SQLite database, or a damaged one: nothing in it
+    can be kept (``path``; the cause is SQLite's error)."""
+
+    def __init__(self, path: Path, cause: sqlite3.DatabaseError) -> None:
+        self.path = path
+        super().__init__(f"{path}: {' '.join(str(cause).split())}")
+
+
 class StoredFeaturesCorruptError(RuntimeError):
     """A stored row does not match its checksum (or cannot be decoded): raised once per row,
     which is never served."""
@@ -77,11 +87,7 @@ class MapFeatureStore:
         self._retry_s = float(retry_s)
         self._clock = clock
         if writable:
-            self._db = sqlite3.connect(str(self.path), timeout=60)
-            self._db.execute(f"PRAGMA page_size={PAGE_BYTES}")  # a new file: fewer pages a row
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.executescript(_SCHEMA)
-            self._db.commit()
+            self._db = _open_writable(self.path)
         else:  # busy timeout 0: a lock held elsewhere fails at once, the frame never waits
             self._db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True, timeout=0)
             with contextlib.suppress(sqlite3.Error):  # rows read from the page cache
@@ -241,6 +247,41 @@ class MapFeatureStore:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _open_writable(path: Path) -> sqlite3.Connection:
+    """The writer's connection to the sidecar ``path`` (created when absent), its tables read
+    once; SidecarDamagedError when the file is not an SQLite database or a damaged one (a lock
+    held elsewhere is waited for, and any other error raised as it is)."""
+    db = sqlite3.connect(str(path), timeout=60)
+    try:
+        db.execute(f"PRAGMA page_size={PAGE_BYTES}")  # a new file: fewer pages a row
+        db.execute("PRAGMA journal_mode=WAL")
+        db.executescript(_SCHEMA)
+        db.execute("SELECT count(*) FROM window_sets").fetchone()  # what `features info` reads
+        db.commit()
+    except sqlite3.DatabaseError as exc:
+        db.close()
+        if exc.sqlite_errorcode & 0xFF in (sqlite3.SQLITE_NOTADB, sqlite3.SQLITE_CORRUPT):
+            raise SidecarDamagedError(path, exc) from exc
+        raise
+    return db
+
+
+def set_aside(path: str | Path) -> Path:
+    """Rename the sidecar ``path`` and its SQLite companions (``-wal``, ``-shm``, ``-journal``,
+    whose pages would otherwise be replayed into a new file) to the first free
+    ``<name>.damaged[.N]``, which is returned; nothing is deleted."""
+    p = Path(path)
+    names = ("", *_COMPANIONS)
+    aside, n = p.with_name(f"{p.name}.damaged"), 0
+    while any(Path(f"{aside}{s}").exists() for s in names):
+        n += 1
+        aside = p.with_name(f"{p.name}.damaged.{n}")
+    for s in names:
+        if Path(f"{p}{s}").exists():
+            Path(f"{p}{s}").rename(f"{aside}{s}")
+    return aside
 
 
 def _set_of(row: Sequence[Any]) -> FeatureSet:
