@@ -19,6 +19,7 @@ from c3_matcher_tools.dataset.format import load_dataset
 DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
 
 Record = dict[str, Any]
+DEMO_FIRST = (DEMO / "frames.jsonl").read_text().splitlines()[0]
 
 
 def _dataset(root: Path) -> Path:
@@ -66,6 +67,12 @@ def _edit_meta(root: Path, edit: Callable[[Record], None]) -> None:
         (2, lambda r: r.update(candidates=[]), "candidates: expected a non-empty list"),
         (1, lambda r: r["candidates"][0].update(score=float("nan")), "candidate.score"),
         (2, lambda r: r.update(captured_at_ns=-5), "captured_at_ns"),
+        (2, lambda r: r.update(index=0), "index: 0 is line 1's too"),
+        (
+            2,
+            lambda r: r.update(frame_id=json.loads(DEMO_FIRST)["frame_id"]),
+            "frame_id: ",
+        ),
     ],
 )
 def test_a_bad_frame_record_is_refused_naming_its_line(

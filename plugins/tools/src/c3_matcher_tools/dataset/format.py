@@ -407,22 +407,29 @@ def _why(exc: Exception) -> str:
 
 
 def _frames(path: Path) -> tuple[FrameRecord, ...]:
-    """``frames.jsonl`` read and checked, naming the line of the first bad record; at least
-    one frame."""
+    """``frames.jsonl`` read and checked, naming the line of the first bad record (a frame id
+    or index a line before already holds among them: results, records and reports are keyed by
+    them); at least one frame."""
     try:
         lines = path.read_bytes().splitlines()
     except OSError as exc:
         raise InvalidInputError("dataset", f"{path}: unreadable: {exc}") from exc
     frames = []
+    first_line: dict[object, int] = {}  # frame id and index -> the line that holds it
     for n, line in enumerate(lines, start=1):
         if not line.strip():
             continue
         try:
-            frames.append(FrameRecord.from_json(json.loads(line.decode("utf-8"))))
+            frame = FrameRecord.from_json(json.loads(line.decode("utf-8")))
+            for key, value in (("frame_id", frame.frame_id), ("index", frame.index)):
+                if (key, value) in first_line:
+                    raise InvalidInputError(key, f"{value} is line {first_line[key, value]}'s too")
+                first_line[key, value] = n
         except (KeyError, TypeError, ValueError, OverflowError) as exc:  # JSON, UTF-8 among them
             raise InvalidInputError(
                 "dataset", f"{path}:{n}: bad frame record: {_why(exc)}"
             ) from exc
+        frames.append(frame)
     if not frames:
         raise InvalidInputError("dataset", f"{path}: no frames")
     return tuple(frames)
