@@ -380,3 +380,31 @@ def test_closing_with_records_the_disk_still_refuses_says_they_are_lost(tmp_path
     with pytest.raises(FdrWriteError, match="1 record.* lost"):
         rec.close()
     JsonlFdrRecorder(path, FakeClock()).close()  # the lock was given back all the same
+
+
+def test_a_torn_tail_is_cut_even_when_the_disk_has_no_room_to_keep_it(tmp_path, monkeypatch):
+    """The recorder must still open (the vehicle's matcher starts): the cut bytes belong to no
+    acknowledged record, and the note says they could not be kept."""
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    rec.record("k", {"i": 0})
+    rec.close()
+    with path.open("ab") as fh:
+        fh.write(b'{"seq":2,"kind":"k","payl')
+    real_write = os.write
+
+    def full_for_the_side_file(fd, data):
+        if bytes(data[:11]) == b'{"segment":':
+            raise OSError(28, "No space left on device")
+        return real_write(fd, data)
+
+    monkeypatch.setattr(os, "write", full_for_the_side_file)
+    again = JsonlFdrRecorder(path, FakeClock())
+    again.record("k", {"i": 1})
+    again.close()
+    result = read_fdr(path)
+    assert result.corrupt == []
+    note = result[1]
+    assert note["kind"] == "fdr.torn_tail_cut" and note["payload"]["kept_in"] is None
+    assert "No space left" in note["payload"]["not_kept"]
+    assert [r["seq"] for r in result] == [1, 2, 3]

@@ -5,10 +5,12 @@ cut of a torn last line (kept in ``.torn``)."""
 from __future__ import annotations
 
 import datetime as dt
+import errno
 import glob
 import json
 import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -87,10 +89,21 @@ def open_for_append(path: Path) -> int:
     return fd
 
 
-def cut_torn_tail(path: Path, torn_path: Path) -> tuple[int, int] | None:
+@dataclass(frozen=True, slots=True)
+class TornCut:
+    """A torn tail cut from a segment: where, how many bytes, and why they could not be kept
+    aside ("" when they were)."""
+
+    offset: int
+    length: int
+    not_kept: str = ""
+
+
+def cut_torn_tail(path: Path, torn_path: Path) -> TornCut | None:
     """Cut the segment ``path`` back to its last complete line; append the cut bytes to
-    ``torn_path`` (one JSON line per cut: segment, offset, length, wall time, the bytes).
-    Returns ``(offset, length)`` of the cut, None when there was nothing to cut."""
+    ``torn_path`` (one JSON line per cut: segment, offset, length, wall time, the bytes). The
+    cut is made even when they cannot be kept (a full disk): they are part of a record never
+    acknowledged, and appending after them would spoil the next. None when nothing was cut."""
     if not path.exists():
         return None
     with path.open("r+b") as fh:
@@ -121,13 +134,23 @@ def cut_torn_tail(path: Path, torn_path: Path) -> tuple[int, int] | None:
             "cut_at_wall_time": dt.datetime.now(dt.UTC).isoformat(timespec="microseconds"),
             "bytes": cut.decode("utf-8", "backslashreplace"),
         }
-        side_fd = open_for_append(torn_path)
-        try:
-            os.write(side_fd, (json.dumps(side) + "\n").encode())
-            os.fsync(side_fd)
-        finally:
-            os.close(side_fd)
+        not_kept = _keep_aside(torn_path, (json.dumps(side) + "\n").encode())
         fh.truncate(keep)
         fh.flush()
         os.fsync(fh.fileno())
-    return keep, len(cut)
+    return TornCut(keep, len(cut), not_kept)
+
+
+def _keep_aside(torn_path: Path, line: bytes) -> str:
+    """Append ``line`` to ``torn_path`` durably; "" when done, else why not."""
+    try:
+        side_fd = open_for_append(torn_path)
+        try:
+            if os.write(side_fd, line) != len(line):
+                raise OSError(errno.EIO, "short write")
+            os.fsync(side_fd)
+        finally:
+            os.close(side_fd)
+    except OSError as exc:
+        return f"{torn_path}: {exc.strerror or exc}"
+    return ""

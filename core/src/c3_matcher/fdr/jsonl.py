@@ -15,6 +15,7 @@ from typing import Any
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import (
+    TornCut,
     cut_torn_tail,
     fsync_dir,
     make_dirs_durably,
@@ -49,8 +50,10 @@ class JsonlFdrRecorder:
     room. On open, a torn last line (power cut mid-write) is cut back to the last complete
     line; the cut bytes are appended to ``<path>.torn`` (one JSON line per cut: offset, length,
     the bytes) and a ``fdr.torn_tail_cut`` record says so (kept pending, like any record, when
-    it cannot be written yet). One process writes a path: the recorder holds ``flock`` on
-    ``<path>.lock``; a second one is refused with ``FdrOpenError``. ``record`` is thread-safe.
+    it cannot be written yet). On a full disk the cut bytes are dropped, being part of no
+    acknowledged record, and that record says why. One process writes a path: the recorder
+    holds ``flock`` on ``<path>.lock``; a second one is refused with ``FdrOpenError``.
+    ``record`` is thread-safe.
 
     ``fresh``: start a new log at ``path`` (a ground run's FDR, started anew with each run):
     only once the lock is held are the previous live segment, its rotated segments, ``.meta``
@@ -107,11 +110,16 @@ class JsonlFdrRecorder:
             self.close()
             raise FdrOpenError(what, f"cannot open: {exc.strerror or exc}") from exc
         if torn is not None:
-            offset, length = torn
+            kept = {"kept_in": None, "not_kept": torn.not_kept} if torn.not_kept else {}
             with contextlib.suppress(FdrWriteError):  # kept pending: the next record writes it
                 self.record(
                     "fdr.torn_tail_cut",
-                    {"offset": offset, "length": length, "kept_in": str(self.torn_path)},
+                    {
+                        "offset": torn.offset,
+                        "length": torn.length,
+                        "kept_in": str(self.torn_path),
+                        **kept,
+                    },
                 )
 
     @property
@@ -272,7 +280,7 @@ class JsonlFdrRecorder:
                 self._path.unlink()
                 fsync_dir(self._path.parent)
 
-    def _cut_torn_tail(self) -> tuple[int, int] | None:
+    def _cut_torn_tail(self) -> TornCut | None:
         """Cut the live segment back to its last complete line; keep the cut bytes aside."""
         return cut_torn_tail(self._path, self.torn_path)
 
