@@ -174,3 +174,21 @@ def test_an_uncertainty_beyond_the_tiles_searched_is_refused_naming_the_reach(
     assert not (tmp_path / "flight").exists()
     within = import_csv_flight(spec(images, csv, uncertainty_m=20_000.0), tmp_path / "flight")
     assert within.frames == 2
+
+
+@pytest.mark.parametrize(
+    ("header", "needle"),
+    [
+        ("time_s,image,lat,lon,altitude_m,roll_deg,pitch_deg,yaw_deg,LAT", "'lat' twice"),
+        ("time_s,image,lat,lon,altitude_m,roll_deg,pitch_deg,yaw_deg,altitude", "'altitude_m' and"),
+    ],
+)
+def test_a_column_given_twice_is_refused_rather_than_guessed(
+    tmp_path: Path, header: str, needle: str
+) -> None:
+    _, csv = recorded(tmp_path, range(2))
+    lines = csv.read_text().splitlines()
+    rows = [header] + [f"{row},0" for row in lines[1:]]
+    csv.write_text("\n".join(rows) + "\n")
+    with pytest.raises(InvalidInputError, match=f"gives a column more than once \\({needle}"):
+        read_telemetry(csv)

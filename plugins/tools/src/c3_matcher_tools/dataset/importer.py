@@ -168,8 +168,27 @@ def _find(lowered: dict[str, str], aliases: tuple[str, ...]) -> str | None:
     return next((lowered[a] for a in aliases if a in lowered), None)
 
 
+def _repeated_columns(header: list[str]) -> list[str]:
+    """The columns ``header`` gives more than once: a name repeated, or two aliases of one."""
+    names = [h.strip().lower() for h in header]
+    repeated = [f"{n!r} twice" for n in dict.fromkeys(names) if names.count(n) > 1]
+    for aliases in (*COLUMNS.values(), *HEIGHT_COLUMNS.values()):
+        given = [a for a in aliases if a in names]
+        if len(given) > 1:
+            repeated.append(" and ".join(repr(a) for a in given))
+    return repeated
+
+
 def _column_map(header: list[str], path: Path) -> dict[str, str]:
-    """Canonical column -> header name; at least one of :data:`HEIGHT_COLUMNS`."""
+    """Canonical column -> header name; at least one of :data:`HEIGHT_COLUMNS`. A column given
+    more than once is refused: which one holds the values would be a guess."""
+    repeated = _repeated_columns(header)
+    if repeated:
+        raise InvalidInputError(
+            str(path),
+            f"telemetry CSV gives a column more than once ({'; '.join(repeated)}); "
+            f"header: {header}",
+        )
     lowered = {h.strip().lower(): h for h in header}
     found: dict[str, str] = {}
     missing = []
