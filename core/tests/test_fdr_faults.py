@@ -29,13 +29,31 @@ def _all_records(rec: JsonlFdrRecorder) -> list[dict]:
     return out
 
 
-def test_torn_tail_is_cut_on_open_and_kept_aside(tmp_path):
-    path = tmp_path / "fdr.jsonl"
+def _one_record_then_a_torn_tail(path: Path) -> None:
+    """An FDR at ``path`` with one record, then half a record without its newline (a power
+    cut mid-write)."""
     rec = JsonlFdrRecorder(path, FakeClock())
     rec.record("k", {"i": 0})
     rec.close()
-    with path.open("ab") as fh:  # power cut mid-write: half a record, no newline
+    with path.open("ab") as fh:
         fh.write(b'{"seq":2,"kind":"k","payl')
+
+
+def _full_for(prefix: bytes):
+    """An ``os.write`` for which the disk is full for data starting with ``prefix`` alone."""
+    real_write = os.write
+
+    def write(fd, data):
+        if bytes(data[: len(prefix)]) == prefix:
+            raise OSError(28, "No space left on device")
+        return real_write(fd, data)
+
+    return write
+
+
+def test_torn_tail_is_cut_on_open_and_kept_aside(tmp_path):
+    path = tmp_path / "fdr.jsonl"
+    _one_record_then_a_torn_tail(path)
     torn = read_fdr(path)
     assert torn.torn_tail == b'{"seq":2,"kind":"k","payl' and len(torn.corrupt) == 1
     again = JsonlFdrRecorder(path, FakeClock())
@@ -312,19 +330,9 @@ def test_a_torn_tail_note_that_cannot_be_written_yet_is_kept_pending(tmp_path, m
     """A full disk just as the recorder opens over a torn tail: it opens, the
     ``fdr.torn_tail_cut`` record waits, and the next record writes it first."""
     path = tmp_path / "fdr.jsonl"
-    rec = JsonlFdrRecorder(path, FakeClock())
-    rec.record("k", {"i": 0})
-    rec.close()
-    with path.open("ab") as fh:
-        fh.write(b'{"seq":2,"kind":"k","payl')
+    _one_record_then_a_torn_tail(path)
     real_write = os.write
-
-    def full_for_records(fd, data):
-        if bytes(data[:7]) == b'{"seq":':  # the records; the cut bytes' side file has room
-            raise OSError(28, "No space left on device")
-        return real_write(fd, data)
-
-    monkeypatch.setattr(os, "write", full_for_records)
+    monkeypatch.setattr(os, "write", _full_for(b'{"seq":'))  # the side file still has room
     again = JsonlFdrRecorder(path, FakeClock())
     assert again.pending == 1
     monkeypatch.setattr(os, "write", real_write)
@@ -386,19 +394,8 @@ def test_a_torn_tail_is_cut_even_when_the_disk_has_no_room_to_keep_it(tmp_path, 
     """The recorder must still open (the vehicle's matcher starts): the cut bytes belong to no
     acknowledged record, and the note says they could not be kept."""
     path = tmp_path / "fdr.jsonl"
-    rec = JsonlFdrRecorder(path, FakeClock())
-    rec.record("k", {"i": 0})
-    rec.close()
-    with path.open("ab") as fh:
-        fh.write(b'{"seq":2,"kind":"k","payl')
-    real_write = os.write
-
-    def full_for_the_side_file(fd, data):
-        if bytes(data[:11]) == b'{"segment":':
-            raise OSError(28, "No space left on device")
-        return real_write(fd, data)
-
-    monkeypatch.setattr(os, "write", full_for_the_side_file)
+    _one_record_then_a_torn_tail(path)
+    monkeypatch.setattr(os, "write", _full_for(b'{"segment":'))  # the records still have room
     again = JsonlFdrRecorder(path, FakeClock())
     again.record("k", {"i": 1})
     again.close()

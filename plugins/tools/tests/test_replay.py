@@ -41,13 +41,19 @@ def test_a_replay_into_a_directory_another_run_is_writing_is_refused_leaving_its
         running.close()
 
 
-def test_a_replay_with_an_unknown_strategy_leaves_an_existing_output_directory_alone(
-    small_flight: SmallFlight, c3: C3, tmp_path: Path
-) -> None:
+def _replayed_once(small_flight: SmallFlight, c3: C3, tmp_path: Path) -> tuple[Path, Path]:
+    """A two-frame flight and the output directory of one replay of it that went well."""
     flight = small_flight("two_frames")
     out = tmp_path / "out"
     first = c3("replay", str(flight), "--strategy", "sift_magsac", "--out", str(out))
     assert first.returncode == 0, first.stderr[-2000:]
+    return flight, out
+
+
+def test_a_replay_with_an_unknown_strategy_leaves_an_existing_output_directory_alone(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight, out = _replayed_once(small_flight, c3, tmp_path)
     before = _files(out)
     proc = c3("replay", str(flight), "--strategy", "no_such_strategy", "--out", str(out))
     assert proc.returncode == 2 and "no_such_strategy" in proc.stderr, proc.stderr
@@ -57,10 +63,7 @@ def test_a_replay_with_an_unknown_strategy_leaves_an_existing_output_directory_a
 def test_a_replay_that_cannot_finish_writing_keeps_the_previous_results_whole(
     small_flight: SmallFlight, c3: C3, tmp_path: Path
 ) -> None:
-    flight = small_flight("two_frames")
-    out = tmp_path / "out"
-    first = c3("replay", str(flight), "--strategy", "sift_magsac", "--out", str(out))
-    assert first.returncode == 0, first.stderr[-2000:]
+    flight, out = _replayed_once(small_flight, c3, tmp_path)
     results = (out / "results.jsonl").read_bytes()
     assert len(results) > 4096  # the limit below cuts it, not the FDR or the log
     again = c3(
