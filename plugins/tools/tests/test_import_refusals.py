@@ -18,7 +18,11 @@ from rasterio.transform import from_origin
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight, read_telemetry
-from c3_matcher_tools.dataset.sources.common import MAX_SEARCH_TILES, max_uncertainty_m
+from c3_matcher_tools.dataset.sources.common import (
+    MAX_CANDIDATES,
+    MAX_SEARCH_TILES,
+    max_uncertainty_m,
+)
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -192,3 +196,12 @@ def test_a_column_given_twice_is_refused_rather_than_guessed(
     csv.write_text("\n".join(rows) + "\n")
     with pytest.raises(InvalidInputError, match=f"gives a column more than once \\({needle}"):
         read_telemetry(csv)
+
+
+@pytest.mark.parametrize("candidates", [0, MAX_CANDIDATES + 1])
+def test_candidates_beyond_what_the_search_reaches_are_refused(
+    tmp_path: Path, candidates: int
+) -> None:
+    images, csv = recorded(tmp_path, range(2))
+    with pytest.raises(InvalidInputError, match=rf"--candidates.*\[1, {MAX_CANDIDATES}\]"):
+        spec(images, csv, candidates=candidates)

@@ -158,7 +158,11 @@ def _add_render(ds: Any) -> None:
 
 def _add_import(ds: Any) -> None:
     from c3_matcher_tools.dataset.sources.cli import add_log_import_options
-    from c3_matcher_tools.dataset.sources.common import MAX_SEARCH_TILES, max_uncertainty_m
+    from c3_matcher_tools.dataset.sources.common import (
+        MAX_CANDIDATES,
+        MAX_SEARCH_TILES,
+        max_uncertainty_m,
+    )
 
     m = ds.add_parser(
         "import",
@@ -190,7 +194,12 @@ def _add_import(ds: Any) -> None:
         f"15, {max_uncertainty_m(18) / 1000:.1f} km at zoom 18 on the equator, less towards "
         "the poles)",
     )
-    m.add_argument("--candidates", type=int, default=3, help="candidates per frame (default 3)")
+    m.add_argument(
+        "--candidates",
+        type=bounded_int("--candidates", 1, MAX_CANDIDATES),
+        default=3,
+        help=f"candidates per frame (1..{MAX_CANDIDATES}; default 3)",
+    )
     m.add_argument("--zoom", type=int, default=None, help="store zoom (default: its finest)")
     m.add_argument(
         "--candidate-size", type=int, default=512, help="candidate image side, px (default 512)"

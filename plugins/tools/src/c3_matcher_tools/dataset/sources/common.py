@@ -38,6 +38,7 @@ from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.format import check_candidate_size, write_dataset
 
 __all__ = [
+    "MAX_CANDIDATES",
     "MAX_SEARCH_TILES",
     "ImportOptions",
     "ImportReport",
@@ -188,6 +189,11 @@ the tiles looked up per frame grow with its square (65 x 65 at most), and a few 
 cover more ground than that anyway."""
 
 
+MAX_CANDIDATES = MAX_SEARCH_TILES**2
+"""``--candidates`` proposes at most this many tiles a frame: more would not fit the square the
+search reaches (:data:`MAX_SEARCH_TILES` tiles from the look point), which would widen it."""
+
+
 def max_uncertainty_m(zoom: int, lat_deg: float = 0.0) -> float:
     """The largest ``--uncertainty-m`` at ``zoom`` and latitude ``lat_deg``: the side of
     :data:`MAX_SEARCH_TILES` web-mercator tiles there, m."""
@@ -196,12 +202,14 @@ def max_uncertainty_m(zoom: int, lat_deg: float = 0.0) -> float:
 
 def check_proposal_options(uncertainty_m: float, candidates: int, candidate_size_px: int) -> None:
     """``InvalidInputError`` naming the option unless the look-point uncertainty (m) is finite
-    and >= 0, at least one candidate is asked for and the candidate size is in
+    and >= 0, 1 to :data:`MAX_CANDIDATES` candidates are asked for and the candidate size is in
     :data:`~c3_matcher_tools.dataset.format.CANDIDATE_SIZE_PX`."""
     if not (math.isfinite(uncertainty_m) and uncertainty_m >= 0):
         raise InvalidInputError("--uncertainty-m", f"must be >= 0, got {uncertainty_m}")
-    if candidates < 1:
-        raise InvalidInputError("--candidates", f"must be >= 1, got {candidates}")
+    if not 1 <= candidates <= MAX_CANDIDATES:
+        raise InvalidInputError(
+            "--candidates", f"must be in [1, {MAX_CANDIDATES}], got {candidates}"
+        )
     check_candidate_size(candidate_size_px)
 
 
