@@ -5,14 +5,14 @@ a directory of the test's choosing (the classical ``sift_magsac`` baseline needs
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+
+from c3_matcher_tools.testing.cli import run_cli
 
 DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
 
@@ -56,26 +56,6 @@ def c3(tmp_path: Path) -> C3:
     def run(
         *args: str, cwd: Path = tmp_path, limit_file_bytes: int | None = None
     ) -> subprocess.CompletedProcess[str]:
-        env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-        return subprocess.run(
-            [sys.executable, "-m", "c3_matcher.cli", *args],
-            capture_output=True,
-            text=True,
-            env=env,
-            cwd=cwd,
-            timeout=600,
-            preexec_fn=None if limit_file_bytes is None else _file_size_limit(limit_file_bytes),
-        )
+        return run_cli(*args, cwd=cwd, timeout=600, limit_file_bytes=limit_file_bytes)
 
     return run
-
-
-def _file_size_limit(size: int) -> Callable[[], None]:
-    """A ``preexec_fn`` capping every file the child writes at ``size`` bytes (``ulimit -f``)."""
-
-    def limit() -> None:
-        import resource
-
-        resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
-
-    return limit

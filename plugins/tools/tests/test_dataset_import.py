@@ -7,7 +7,6 @@ metres of where the telemetry says the camera looks."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -19,6 +18,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.georef import haversine_m
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.importer import ImportSpec, import_flight
+from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -124,18 +124,9 @@ def test_import_refuses_existing_out_and_bad_zoom(tmp_path: Path) -> None:
 
 def test_import_then_replay_locates_frames_near_telemetry(engine_dir: Path, tmp_path: Path) -> None:
     images, csv = _recorded(tmp_path, range(6))
-    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-    env["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
 
     def c3(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [sys.executable, "-m", "c3_matcher.cli", *args],
-            capture_output=True,
-            text=True,
-            env=env,
-            cwd=REPO,
-            timeout=900,
-        )
+        return run_cli(*args, cwd=REPO, engine_dir=engine_dir)
 
     flight = tmp_path / "flight"
     cal = str(DEMO / "calibration.json")

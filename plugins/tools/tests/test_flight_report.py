@@ -8,16 +8,16 @@ from __future__ import annotations
 
 import base64
 import json
-import os
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+
+from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -34,16 +34,7 @@ FLAGS = [
 
 
 def c3(args: list[str], engine_dir: Path) -> subprocess.CompletedProcess[str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-    env["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
-    return subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=REPO,
-        timeout=1200,
-    )
+    return run_cli(*args, cwd=REPO, engine_dir=engine_dir, timeout=1200)
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
 import subprocess
 import sys
@@ -29,6 +28,7 @@ from c3_matcher_tools.dataset.sources.common import (
 from c3_matcher_tools.dataset.sources.rosbag import read_bag
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.testing import flightlogs as fl
+from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -39,17 +39,7 @@ FRAMES = range(4)
 
 
 def c3(*args: str, engine_dir: Path | None = None) -> subprocess.CompletedProcess[str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-    if engine_dir is not None:
-        env["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
-    return subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=REPO,
-        timeout=900,
-    )
+    return run_cli(*args, cwd=REPO, engine_dir=engine_dir)
 
 
 def _images(root: Path, poses: list[fl.Pose]) -> Path:
