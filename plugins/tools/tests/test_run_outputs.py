@@ -18,9 +18,9 @@ from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.run import (
     FlightRun,
     atomic_writer,
+    flight_report,
     fly,
     output_dir_name,
-    summarize,
     write_flight_outputs,
     write_text_atomically,
 )
@@ -88,13 +88,13 @@ def test_the_geojson_and_the_report_leave_another_writers_temporary_files_alone(
     others = {"flight.geojson.tmp": "another writer's", "report.html.tmp": "another writer's"}
     for name, text in others.items():
         (tmp_path / name).write_text(text)
-    report = {"settings": flown.settings, **summarize(flown.outcomes)}
-    write_flight_outputs(tmp_path, load_dataset(DEMO), flown.outcomes, "sift_magsac", report)
+    dataset = load_dataset(DEMO)
+    write_flight_outputs(tmp_path, dataset, flown, flight_report(dataset, flown))
     assert json.loads((tmp_path / "flight.geojson").read_text())["type"] == "FeatureCollection"
     assert (tmp_path / "report.html").read_text().startswith("<!DOCTYPE html>")
     assert {name: (tmp_path / name).read_text() for name in others} == others
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        ["flight.geojson", "report.html", *others]
+        ["flight.geojson", "report.html", "results.jsonl", *others]
     )
 
 

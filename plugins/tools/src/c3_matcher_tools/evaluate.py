@@ -76,11 +76,11 @@ from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     NO_OVERRIDES,
     Overrides,
+    flight_report,
     fly,
     output_dir_name,
     summarize,
     write_flight_outputs,
-    write_results,
     write_text_atomically,
 )
 from c3_matcher_tools.run.acceptance import BARS, WRONG_FIX_PX, headline, is_wrong_fix, metrics
@@ -131,20 +131,13 @@ def evaluate_strategy(
         frames=subset,
         progress=ProgressBar(f"eval {strategy} run 2"),
     )
-    write_results(out / strategy / "results.jsonl", run1.outcomes)
     timing = summarize(run1.outcomes)
     scores = metrics(run1.outcomes, run2.outcomes)
     flight: dict[str, Any] = {
-        "dataset": str(dataset.root),
-        "strategy": strategy,
-        "matcher_labels": run1.matcher_labels,
-        "settings": run1.settings,
-        "startup_s": run1.startup_s,
-        "wall_s": run1.wall_s,
-        **timing,
+        **flight_report(dataset, run1, timing),
         **{f"{k} pass": v["pass"] for k, v in scores.items()},
     }
-    write_flight_outputs(out / strategy, dataset, run1.outcomes, strategy, flight)
+    write_flight_outputs(out / strategy, dataset, run1, flight)
     return StrategyEval(run1, scores, timing, flight["geojson"], flight["html"])
 
 

@@ -36,14 +36,12 @@ from c3_matcher_tools.args import add_attitude_noise_option
 from c3_matcher_tools.dataset.format import load_dataset, with_attitude_noise
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
-    FlightRun,
     Overrides,
     check_calibration_size,
+    flight_report,
     fly,
     output_dir_name,
-    summarize,
     write_flight_outputs,
-    write_results,
     write_text_atomically,
 )
 
@@ -104,9 +102,14 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
         progress=ProgressBar(f"replay {dataset.name} {strategy}"),
         with_correspondences=not args.no_correspondences,
     )
-    write_results(out / "results.jsonl", run.outcomes)
-    report = _report(dataset.root, dataset.meta.get("attitude_noise"), run, out)
-    write_flight_outputs(out, dataset, run.outcomes, strategy, report)
+    report = {
+        **flight_report(dataset, run),
+        "attitude_noise": dataset.meta.get("attitude_noise"),
+        "results": str(out / "results.jsonl"),
+        "fdr": str(out / "fdr.jsonl"),
+        "log": str(out / "matcher.log"),
+    }
+    write_flight_outputs(out, dataset, run, report)
     write_text_atomically(out / "report.json", json.dumps(report, indent=2) + "\n")
     if args.json:
         ctx.out(json.dumps(report, indent=2))
@@ -114,22 +117,6 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     for line in _report_lines(dataset.name, report, out):
         ctx.out(line)
     return 0
-
-
-def _report(root: Path, noise: Any, run: FlightRun, out: Path) -> dict[str, Any]:
-    return {
-        "dataset": str(root),
-        "strategy": run.strategy,
-        "matcher_labels": run.matcher_labels,
-        "attitude_noise": noise,
-        "settings": run.settings,
-        "startup_s": run.startup_s,
-        "wall_s": run.wall_s,
-        **summarize(run.outcomes),
-        "results": str(out / "results.jsonl"),
-        "fdr": str(out / "fdr.jsonl"),
-        "log": str(out / "matcher.log"),
-    }
 
 
 def _report_lines(name: str, report: dict[str, Any], out: Path) -> list[str]:

@@ -17,6 +17,7 @@ from c3_matcher_tools.run.matcher import (
 )
 from c3_matcher_tools.run.outputs import (
     atomic_writer,
+    flight_report,
     output_dir_name,
     write_flight_outputs,
     write_html_report,
@@ -52,6 +53,7 @@ __all__ = [
     "best_candidate_error",
     "check_calibration_size",
     "compose_matcher",
+    "flight_report",
     "fly",
     "open_backend",
     "open_matcher",

@@ -1,6 +1,7 @@
-"""A run's files: ``results.jsonl`` (one :class:`FrameOutcome` a line), ``flight.geojson`` and
-``report.html`` (the same for ``replay`` and for each strategy ``eval`` runs), every one written
-through :func:`atomic_writer`: a run that fails part-way leaves the previous file whole."""
+"""A run's report (:func:`flight_report`) and files: ``results.jsonl`` (one
+:class:`FrameOutcome` a line), ``flight.geojson`` and ``report.html`` (the same for ``replay`` and
+for each strategy ``eval`` runs, :func:`write_flight_outputs`), every one written through
+:func:`atomic_writer`: a run that fails part-way leaves the previous file whole."""
 
 from __future__ import annotations
 
@@ -9,17 +10,19 @@ import json
 import os
 import secrets
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import fsync_dir
 from c3_matcher_tools.dataset.format import FlightDataset
-from c3_matcher_tools.run.records import FrameOutcome
+from c3_matcher_tools.run.records import FlightRun, FrameOutcome
+from c3_matcher_tools.run.scoring import summarize
 
 __all__ = [
     "atomic_writer",
+    "flight_report",
     "output_dir_name",
     "write_flight_outputs",
     "write_html_report",
@@ -78,21 +81,37 @@ def write_results(path: Path, outcomes: Sequence[FrameOutcome]) -> Path:
     return path
 
 
+def flight_report(
+    dataset: FlightDataset, run: FlightRun, summary: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """What every run's report starts with (``replay``'s ``report.json``, each strategy's entry
+    in ``eval.json``): the dataset, the strategy, its matcher labels, the ``[matcher]`` settings
+    it ran with, start-up and wall time, then ``summary`` (:func:`summarize` of the run's
+    outcomes when None)."""
+    return {
+        "dataset": str(dataset.root),
+        "strategy": run.strategy,
+        "matcher_labels": run.matcher_labels,
+        "settings": run.settings,
+        "startup_s": run.startup_s,
+        "wall_s": run.wall_s,
+        **(summarize(run.outcomes) if summary is None else summary),
+    }
+
+
 def write_flight_outputs(
-    out: Path,
-    dataset: FlightDataset,
-    outcomes: Sequence[FrameOutcome],
-    strategy: str,
-    report: dict[str, Any],
+    out: Path, dataset: FlightDataset, run: FlightRun, report: dict[str, Any]
 ) -> None:
-    """``out/flight.geojson`` and ``out/report.html`` of one run (replay, and eval per
-    strategy); their paths go into ``report["geojson"]`` / ``report["html"]`` (None: no
-    matplotlib). ``report`` needs ``settings`` and :func:`~c3_matcher_tools.run.summarize`'s
+    """A run's files in ``out`` (replay, and eval per strategy): ``results.jsonl``,
+    ``flight.geojson`` and ``report.html``; the last two's paths go into ``report["geojson"]``
+    / ``report["html"]`` (None: no matplotlib). ``report`` needs :func:`flight_report`'s
     keys."""
     from c3_matcher_tools.geojson import write_geojson
 
-    report["geojson"] = str(write_geojson(out / "flight.geojson", list(outcomes), strategy))
-    report["html"] = write_html_report(out, dataset, outcomes, strategy, report)
+    write_results(out / "results.jsonl", run.outcomes)
+    outcomes = list(run.outcomes)
+    report["geojson"] = str(write_geojson(out / "flight.geojson", outcomes, run.strategy))
+    report["html"] = write_html_report(out, dataset, outcomes, run.strategy, report)
 
 
 def write_html_report(
