@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.atomic import write_bytes_atomically
 from c3_matcher.dto import CameraCalibration
 
 __all__ = ["CandidateView", "draw_matches", "render_match", "write_png"]
@@ -203,11 +204,14 @@ def render_match(
 
 
 def write_png(image_rgb: NDArray[np.uint8], out: Path) -> Path:
+    """``out`` holding ``image_rgb`` as a PNG, replaced whole (:mod:`c3_matcher.atomic`): a
+    picture that cannot be written leaves the previous one as it was."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(out), np.ascontiguousarray(image_rgb[:, :, ::-1])):
-        raise OSError(f"cannot write {out}")
-    return out
+    ok, png = cv2.imencode(".png", np.ascontiguousarray(image_rgb[:, :, ::-1]))
+    if not ok:
+        raise OSError(f"cannot encode {out} as PNG")
+    return write_bytes_atomically(out, png.tobytes())
 
 
 def draw_matches(

@@ -15,6 +15,7 @@ import pytest
 
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock
+from c3_matcher_tools.run import exclusive_output_dir
 
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
 C3 = Callable[..., subprocess.CompletedProcess[str]]
@@ -81,6 +82,20 @@ def test_a_determinism_subset_below_one_frame_is_a_usage_error(
     proc = c3("eval", str(flight), "--determinism-frames", frames, "--out", str(out))
     assert proc.returncode == 2 and "--determinism-frames: must be >= 1" in proc.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("datasets", [1, 2])
+def test_an_eval_into_a_directory_another_replay_or_eval_holds_is_refused_and_writes_nothing(
+    datasets: int, small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flights = [str(small_flight(f"f{n}", where=f"f{n}")) for n in range(datasets)]
+    out = tmp_path / "out"
+    held = out / "f0" if datasets > 1 else out  # a dataset's own directory, or --out itself
+    with exclusive_output_dir(held):
+        proc = c3("eval", *flights, "--strategy", "sift_magsac", "--out", str(out), *QUICK)
+    assert proc.returncode == 2 and "another replay or eval" in proc.stderr, proc.stderr
+    assert f"{held}:" in proc.stderr
+    assert not [p for p in out.rglob("*") if p.is_file()]
 
 
 def test_an_eval_into_a_directory_another_run_is_writing_is_refused_and_writes_nothing(

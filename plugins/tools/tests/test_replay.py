@@ -14,6 +14,7 @@ import pytest
 
 from c3_matcher.fdr import JsonlFdrRecorder, read_fdr
 from c3_matcher.health import MonotonicClock
+from c3_matcher_tools.run import exclusive_output_dir
 
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
 C3 = Callable[..., subprocess.CompletedProcess[str]]
@@ -39,6 +40,19 @@ def test_a_replay_into_a_directory_another_run_is_writing_is_refused_leaving_its
         assert (out / "matcher.log").read_text() == '{"kind": "c3.matcher.ready"}\n'
     finally:
         running.close()
+
+
+def test_a_replay_into_a_directory_another_replay_or_eval_holds_is_refused_leaving_its_files(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    """Between its FDR's close and its reports' writing, a run holds its directory still."""
+    flight, out = _replayed_once(small_flight, c3, tmp_path)
+    before = _files(out)
+    with exclusive_output_dir(out):
+        proc = c3("replay", str(flight), "--strategy", "sift_magsac", "--out", str(out))
+    assert proc.returncode == 2 and "another replay or eval" in proc.stderr, proc.stderr
+    assert str(out) in proc.stderr
+    assert _files(out) == before
 
 
 def _replayed_once(small_flight: SmallFlight, c3: C3, tmp_path: Path) -> tuple[Path, Path]:

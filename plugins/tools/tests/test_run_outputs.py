@@ -1,13 +1,10 @@
-"""A run's files are replaced atomically: a write that fails part-way (an error, a file size
-limit) leaves the previous file whole and no temporary file behind, and two writers of one file
-never share a temporary file (the GeoJSON and the HTML report included)."""
+"""A run's files (the results, the GeoJSON and the HTML report) are written through
+``c3_matcher.atomic`` (its own tests: core/tests/test_atomic.py), leaving other writers'
+temporary files alone; a dataset's name names one output directory."""
 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import pytest
@@ -17,52 +14,14 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.run import (
     FlightRun,
-    atomic_writer,
+    exclusive_output_dir,
     flight_report,
     fly,
     output_dir_name,
     write_flight_outputs,
-    write_text_atomically,
 )
 
 DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
-
-
-def test_a_write_that_fails_part_way_leaves_the_previous_file_whole(tmp_path: Path) -> None:
-    path = write_text_atomically(tmp_path / "results.jsonl", "the previous run\n")
-    with pytest.raises(RuntimeError), atomic_writer(path) as fh:
-        fh.write("half of this run")
-        raise RuntimeError("interrupted")
-    assert path.read_text() == "the previous run\n"
-    assert [p.name for p in tmp_path.iterdir()] == ["results.jsonl"]
-
-
-def test_a_write_past_the_file_size_limit_leaves_the_previous_file_whole(tmp_path: Path) -> None:
-    path = write_text_atomically(tmp_path / "eval.json", "{}\n")
-    script = textwrap.dedent(f"""
-        import resource
-        from pathlib import Path
-        from c3_matcher_tools.run import write_text_atomically
-        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
-        try:
-            write_text_atomically(Path({str(path)!r}), "x" * 100_000)
-        except OSError as exc:
-            print("REFUSED", exc)
-    """)
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
-    assert "REFUSED" in proc.stdout, proc.stderr
-    assert path.read_text() == "{}\n"
-    assert [p.name for p in tmp_path.iterdir()] == ["eval.json"]
-
-
-def test_nested_writers_of_one_file_each_have_their_own_temporary_file(tmp_path: Path) -> None:
-    path = tmp_path / "report.json"
-    with atomic_writer(path) as outer:
-        outer.write("outer")
-        with atomic_writer(path) as inner:
-            inner.write("inner")
-        assert path.read_text() == "inner"
-    assert path.read_text() == "outer"
 
 
 @pytest.fixture(scope="module")
@@ -109,3 +68,19 @@ def test_a_dataset_name_that_is_not_one_path_component_names_no_directory(name: 
 
 def test_a_plain_dataset_name_names_its_directory() -> None:
     assert output_dir_name(load_dataset(DEMO)) == "naip_demo"
+
+
+def test_an_output_directory_is_held_by_one_run_at_a_time_and_leaves_no_lock_file(
+    tmp_path: Path,
+) -> None:
+    first, second = tmp_path / "first", tmp_path / "second"
+    with exclusive_output_dir(first):
+        refusal = pytest.raises(InvalidInputError, match="another replay or eval")
+        with refusal as refused, exclusive_output_dir(second, first):
+            pass
+        assert str(first) in str(refused.value)
+        with exclusive_output_dir(second):  # the refused claim let go of what it had taken
+            pass
+    with exclusive_output_dir(first, second):  # released when the block ends
+        pass
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["first", "second"]

@@ -35,7 +35,8 @@ cannot run).
 A strategy that fails to run on a dataset (it cannot start, a frame cannot be read) is a table
 row and an ``error`` entry, the others go on, and the command exits 1 once every table and
 report is written. An output directory another process is writing (its FDR lock held) stops the
-command at once: nothing more is written into it.
+command at once: nothing more is written into it; so does an output directory another ``eval``
+or ``replay`` holds (each holds its directories, ``--out`` and each dataset's, while it runs).
 
 Writes ``eval.json``, per strategy ``<strategy>/results.jsonl`` (+ FDR and logs),
 ``<strategy>/flight.geojson`` and ``<strategy>/report.html`` (the same as ``replay`` writes, each
@@ -58,6 +59,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from c3_matcher.atomic import write_text_atomically
 from c3_matcher.commands import (
     EXIT_FAILURE,
     EXIT_OK,
@@ -76,12 +78,12 @@ from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     NO_OVERRIDES,
     Overrides,
+    exclusive_output_dir,
     flight_report,
     fly,
     output_dir_name,
     summarize,
     write_flight_outputs,
-    write_text_atomically,
 )
 from c3_matcher_tools.run.acceptance import BARS, WRONG_FIX_PX, headline, is_wrong_fix, metrics
 from c3_matcher_tools.run.records import StrategyEval, StrategyFailure, StrategyRow
@@ -186,13 +188,15 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     ]
     names = _strategies(args, ctx.plugin_host)
     outs = _output_dirs(args.out, datasets)
+    root = args.out or Path("out") / "eval"
     summary: list[dict[str, Any]] = []
-    for dataset, out in zip(datasets, outs, strict=True):
-        rows = _eval_dataset(args, ctx, dataset, names, out)
-        summary.extend(_summary_row(dataset.name, r) for r in rows)
-    if len(datasets) > 1:
-        root = args.out or Path("out") / "eval"
-        write_text_atomically(root / "summary.json", json.dumps(_finite(summary), indent=2) + "\n")
+    with exclusive_output_dir(*([root] if len(datasets) > 1 else []), *outs):
+        for dataset, out in zip(datasets, outs, strict=True):
+            rows = _eval_dataset(args, ctx, dataset, names, out)
+            summary.extend(_summary_row(dataset.name, r) for r in rows)
+        if len(datasets) > 1:
+            summary_json = json.dumps(_finite(summary), indent=2) + "\n"
+            write_text_atomically(root / "summary.json", summary_json)
     if not args.json:
         _print_summary(ctx, summary)
     failed = [f"{s['strategy']} on {s['flight']}" for s in summary if "error" in s]

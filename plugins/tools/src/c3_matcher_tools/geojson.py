@@ -18,7 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher_tools.run.outputs import write_text_atomically
+from c3_matcher.atomic import write_text_atomically
 from c3_matcher_tools.run.records import FrameOutcome
 
 __all__ = ["flight_geojson", "write_geojson"]

@@ -12,6 +12,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.viz import draw_matches, write_png
+
 if TYPE_CHECKING:
     from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
     from c3_matcher_tools.run.records import FlightRun
@@ -66,11 +68,7 @@ def line_chart(
     cv2.putText(canvas, title, (left, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1)
     axis = f"{ylabel} / frame index"
     cv2.putText(canvas, axis, (left, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(out), canvas):
-        raise OSError(f"cannot write {out}")
-    return out
+    return write_png(canvas[:, :, ::-1], out)
 
 
 def _polyline(
@@ -137,8 +135,6 @@ def _sample_frames(dataset: FlightDataset, samples: int) -> list[FrameRecord]:
 def _match_pictures(
     dataset: FlightDataset, runs: Sequence[FlightRun], out: Path, picks: Sequence[FrameRecord]
 ) -> list[str]:
-    from c3_matcher.viz import draw_matches
-
     written: list[str] = []
     with dataset.open_store() as store:
         for r in runs:

@@ -26,6 +26,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from c3_matcher.atomic import write_text_atomically
 from c3_matcher.commands import (
     CommandContext,
     CommandRegistry,
@@ -38,11 +39,11 @@ from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     Overrides,
     check_calibration_size,
+    exclusive_output_dir,
     flight_report,
     fly,
     output_dir_name,
     write_flight_outputs,
-    write_text_atomically,
 )
 
 __all__ = ["register_replay_command", "run_replay"]
@@ -91,26 +92,28 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
     if frames:
         check_calibration_size(dataset, frames[0])
-    run = fly(
-        settings,
-        strategy,
-        dataset,
-        out,
-        plugin_host=ctx.plugin_host,
-        overrides=Overrides(max_keypoints=args.max_keypoints),
-        frames=frames,
-        progress=ProgressBar(f"replay {dataset.name} {strategy}"),
-        with_correspondences=not args.no_correspondences,
-    )
-    report = {
-        **flight_report(dataset, run),
-        "attitude_noise": dataset.meta.get("attitude_noise"),
-        "results": str(out / "results.jsonl"),
-        "fdr": str(out / "fdr.jsonl"),
-        "log": str(out / "matcher.log"),
-    }
-    write_flight_outputs(out, dataset, run, report)
-    write_text_atomically(out / "report.json", json.dumps(report, indent=2) + "\n")
+    ctx.plugin_host.resolve(strategy)  # a strategy this build cannot run touches no file
+    with exclusive_output_dir(out):
+        run = fly(
+            settings,
+            strategy,
+            dataset,
+            out,
+            plugin_host=ctx.plugin_host,
+            overrides=Overrides(max_keypoints=args.max_keypoints),
+            frames=frames,
+            progress=ProgressBar(f"replay {dataset.name} {strategy}"),
+            with_correspondences=not args.no_correspondences,
+        )
+        report = {
+            **flight_report(dataset, run),
+            "attitude_noise": dataset.meta.get("attitude_noise"),
+            "results": str(out / "results.jsonl"),
+            "fdr": str(out / "fdr.jsonl"),
+            "log": str(out / "matcher.log"),
+        }
+        write_flight_outputs(out, dataset, run, report)
+        write_text_atomically(out / "report.json", json.dumps(report, indent=2) + "\n")
     if args.json:
         ctx.out(json.dumps(report, indent=2))
         return 0

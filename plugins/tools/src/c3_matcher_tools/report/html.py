@@ -25,12 +25,12 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.atomic import write_text_atomically
 from c3_matcher.georef import fit_query_to_tile
 from c3_matcher.viz import CandidateView, render_match
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.report.trajectory import draw_trajectory
-from c3_matcher_tools.run.outputs import write_text_atomically
 from c3_matcher_tools.run.records import FrameOutcome
 
 __all__ = ["frame_picture", "write_report"]

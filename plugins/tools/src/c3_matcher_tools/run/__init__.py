@@ -3,7 +3,7 @@ export build on: typed run records (:class:`FrameOutcome`, :class:`FlightRun`), 
 matcher for a strategy with :class:`Overrides` (:func:`open_matcher`, :func:`compose_matcher`,
 :func:`open_backend`), flying a flight (:func:`run_flight`, :func:`fly`), scoring it against
 ground truth and telemetry (:func:`summarize`, :func:`result_fingerprint`) and writing a run's
-files, each one atomically (:func:`atomic_writer`). Commands live beside it (``replay``,
+files, each one atomically (:mod:`c3_matcher.atomic`). Commands live beside it (``replay``,
 ``evaluate``, ``bench``); nothing here is one."""
 
 from c3_matcher_tools.run.flight import Progress, check_calibration_size, fly, run_flight
@@ -16,13 +16,12 @@ from c3_matcher_tools.run.matcher import (
     open_matcher,
 )
 from c3_matcher_tools.run.outputs import (
-    atomic_writer,
+    exclusive_output_dir,
     flight_report,
     output_dir_name,
     write_flight_outputs,
     write_html_report,
     write_results,
-    write_text_atomically,
 )
 from c3_matcher_tools.run.records import (
     FlightRun,
@@ -49,10 +48,10 @@ __all__ = [
     "StrategyEval",
     "StrategyFailure",
     "StrategyRow",
-    "atomic_writer",
     "best_candidate_error",
     "check_calibration_size",
     "compose_matcher",
+    "exclusive_output_dir",
     "flight_report",
     "fly",
     "open_backend",
@@ -66,5 +65,4 @@ __all__ = [
     "write_flight_outputs",
     "write_html_report",
     "write_results",
-    "write_text_atomically",
 ]

@@ -1,54 +1,56 @@
 """A run's report (:func:`flight_report`) and files: ``results.jsonl`` (one
 :class:`FrameOutcome` a line), ``flight.geojson`` and ``report.html`` (the same for ``replay`` and
 for each strategy ``eval`` runs, :func:`write_flight_outputs`), every one written through
-:func:`atomic_writer`: a run that fails part-way leaves the previous file whole."""
+:func:`~c3_matcher.atomic.atomic_writer`: a run that fails part-way leaves the previous file
+whole."""
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
-import secrets
 import sys
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
+from c3_matcher.atomic import atomic_writer
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.fdr.files import fsync_dir
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.scoring import summarize
 
 __all__ = [
-    "atomic_writer",
+    "exclusive_output_dir",
     "flight_report",
     "output_dir_name",
     "write_flight_outputs",
     "write_html_report",
     "write_results",
-    "write_text_atomically",
 ]
 
 
 @contextlib.contextmanager
-def atomic_writer(path: Path) -> Iterator[TextIO]:
-    """A text file to write ``path`` through: a temporary file of its own in the same
-    directory, fsynced and renamed over ``path`` (the rename then fsynced in the directory)
-    when the block ends; on any exception (a full disk, a file size limit, Ctrl-C) it is
-    removed and ``path`` keeps what it held before."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            yield fh
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    fsync_dir(path.parent)
+def exclusive_output_dir(*directories: Path) -> Iterator[None]:
+    """``directories`` (made if missing) for this run alone while the block runs: ``flock`` on
+    each directory itself (no lock file is left behind), so that a second ``replay`` or
+    ``eval`` into one of them is refused, ``InvalidInputError`` naming it, before it writes
+    anything there. Taken in the order given; all released when the block ends."""
+    with contextlib.ExitStack() as held:
+        for directory in directories:
+            directory.mkdir(parents=True, exist_ok=True)
+            fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+            held.callback(os.close, fd)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise InvalidInputError(
+                    "--out",
+                    f"{directory}: another replay or eval is writing this directory; "
+                    "one run per output directory (wait for it, or choose another --out)",
+                ) from None
+        yield
 
 
 def output_dir_name(dataset: FlightDataset) -> str:
@@ -64,13 +66,6 @@ def output_dir_name(dataset: FlightDataset) -> str:
             "it must be one path component (not empty, '.' or '..'; no '/', '\\' or NUL)",
         )
     return name
-
-
-def write_text_atomically(path: Path, text: str) -> Path:
-    """``path`` holding ``text`` (UTF-8), written through :func:`atomic_writer`."""
-    with atomic_writer(path) as fh:
-        fh.write(text)
-    return path
 
 
 def write_results(path: Path, outcomes: Sequence[FrameOutcome]) -> Path:

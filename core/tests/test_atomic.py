@@ -1,0 +1,78 @@
+"""Files replaced whole or not at all: a write that fails part-way (an error, a file size limit)
+leaves the previous file whole and no temporary file behind, two writers of one file never share
+a temporary file, and pictures are written the same way."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from c3_matcher.atomic import atomic_writer, write_bytes_atomically, write_text_atomically
+from c3_matcher.viz import write_png
+
+
+def test_a_write_that_fails_part_way_leaves_the_previous_file_whole(tmp_path: Path) -> None:
+    path = write_text_atomically(tmp_path / "results.jsonl", "the previous run\n")
+    with pytest.raises(RuntimeError), atomic_writer(path) as fh:
+        fh.write("half of this run")
+        raise RuntimeError("interrupted")
+    assert path.read_text() == "the previous run\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["results.jsonl"]
+
+
+_WRITES = {
+    "text": "write_text_atomically(path, 'x' * 100_000)",
+    "picture": "write_png(np.random.default_rng(0).integers(0, 256, (200, 200, 3), 'u1'), path)",
+}
+
+
+@pytest.mark.parametrize("kind", sorted(_WRITES))
+def test_a_write_past_the_file_size_limit_leaves_the_previous_file_whole(
+    tmp_path: Path, kind: str
+) -> None:
+    path = write_bytes_atomically(tmp_path / "previous.png", b"the previous run")
+    script = textwrap.dedent(f"""
+        import resource
+        from pathlib import Path
+        import numpy as np
+        from c3_matcher.atomic import write_text_atomically
+        from c3_matcher.viz import write_png
+        path = Path({str(path)!r})
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+        try:
+            {_WRITES[kind]}
+        except OSError as exc:
+            print("REFUSED", exc)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert "REFUSED" in proc.stdout, proc.stderr
+    assert path.read_bytes() == b"the previous run"
+    assert [p.name for p in tmp_path.iterdir()] == ["previous.png"]
+
+
+def test_nested_writers_of_one_file_each_have_their_own_temporary_file(tmp_path: Path) -> None:
+    path = tmp_path / "report.json"
+    with atomic_writer(path) as outer:
+        outer.write("outer")
+        with atomic_writer(path) as inner:
+            inner.write("inner")
+        assert path.read_text() == "inner"
+    assert path.read_text() == "outer"
+
+
+def test_a_picture_replaces_the_previous_one_whole(tmp_path: Path) -> None:
+    import cv2
+
+    path = write_png(np.zeros((8, 8, 3), np.uint8), tmp_path / "inliers.png")
+    red = np.zeros((8, 8, 3), np.uint8)
+    red[..., 0] = 255
+    write_png(red, path)
+    read = cv2.imread(str(path))
+    assert read is not None and read.shape == (8, 8, 3)
+    assert (read[..., 2] == 255).all() and (read[..., :2] == 0).all()  # BGR on disk
+    assert [p.name for p in tmp_path.iterdir()] == ["inliers.png"]
