@@ -4,29 +4,20 @@ one JSON object, logs go to stderr, exit statuses 0 / 2 / 3 as documented."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+
+from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "data" / "demo"
 META = json.loads((DEMO / "demo.json").read_text())
 
 
-def c3(args: list[str], env_extra: dict[str, str]) -> subprocess.CompletedProcess[str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-    env.update(env_extra)
-    return subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=REPO,
-        timeout=600,
-    )
+def c3(args: list[str], settings: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    return run_cli(*args, cwd=REPO, settings=settings, timeout=600)
 
 
 @pytest.fixture

@@ -5,11 +5,10 @@ one line naming both sizes (``match`` ran the matcher and failed as a backbone e
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
+
+from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "data" / "demo"
@@ -18,15 +17,11 @@ DEMO = REPO / "data" / "demo"
 def _refused(args: list[str], tmp_path: Path, needle: str) -> str:
     """Run ``c3-matcher ARGS`` (no engines: refused before any loads); assert exit 2, nothing
     on stdout and exactly one stderr line holding ``needle``; return that line."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-    env["C3_MATCHER_ENGINES__DIRECTORY"] = str(tmp_path)
-    env["C3_MATCHER_FDR__PATH"] = str(tmp_path / "fdr.jsonl")
-    proc = subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", *args],
-        capture_output=True,
-        text=True,
-        env=env,
+    proc = run_cli(
+        *args,
         cwd=tmp_path,
+        engine_dir=tmp_path,
+        settings={"C3_MATCHER_FDR__PATH": str(tmp_path / "fdr.jsonl")},
         timeout=300,
     )
     assert proc.returncode == 2 and proc.stdout == "", proc.stderr

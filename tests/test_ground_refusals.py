@@ -14,19 +14,15 @@ import cv2
 import numpy as np
 import rasterio
 
+from c3_matcher_tools.testing.cli import run_cli
+
 REPO = Path(__file__).resolve().parents[1]
 NAIP_2020 = REPO / "data" / "imagery" / "naip_timeseries" / "m_4709963_se_14_1_20200831.tif"
 FLIGHT = REPO / "data" / "flights" / "naip_demo"
 
 
 def c3(*args: str | Path, cwd: Path = REPO) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        timeout=300,
-    )
+    return run_cli(*args, cwd=cwd, timeout=300)
 
 
 def refused(proc: subprocess.CompletedProcess[str], needle: str) -> str:

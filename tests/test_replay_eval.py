@@ -5,31 +5,21 @@ strategy, the outputs' shape, and stdout carrying only results."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from c3_matcher.fdr import read_fdr
 from c3_matcher_tools.dataset.format import load_dataset
+from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "data" / "flights" / "naip_demo"
 
 
 def c3(args: list[str], engine_dir: Path) -> subprocess.CompletedProcess[str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-    env["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
-    return subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=REPO,
-        timeout=1200,
-    )
+    return run_cli(*args, cwd=REPO, engine_dir=engine_dir, timeout=1200)
 
 
 def test_demo_flight_is_in_the_project() -> None:

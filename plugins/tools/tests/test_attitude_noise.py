@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from c3_matcher_tools.dataset.format import load_dataset, with_attitude_noise
+from c3_matcher_tools.testing.cli import run_cli
 
 DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
 
@@ -52,12 +51,6 @@ def test_a_bad_sigma_is_refused(sigma: float) -> None:
 
 
 def test_the_cli_refuses_a_negative_sigma(tmp_path: Path) -> None:
-    proc = subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", "eval", str(DEMO), "--attitude-noise-deg", "-2"],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        check=False,
-    )
+    proc = run_cli("eval", DEMO, "--attitude-noise-deg", "-2", cwd=tmp_path, timeout=300)
     assert proc.returncode == 2
     assert "--attitude-noise-deg: must be finite and >= 0" in proc.stderr

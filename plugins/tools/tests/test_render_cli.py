@@ -6,10 +6,11 @@ from __future__ import annotations
 import json
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+
+from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[3]
 NAIP = REPO / "data" / "imagery" / "naip_timeseries"
@@ -18,13 +19,7 @@ NAIP_2010 = NAIP / "m_4709963_se_14_1_20100629.tif"
 
 
 def _cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "c3_matcher.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=300,
-    )
+    return run_cli(*args, cwd=REPO, timeout=300)
 
 
 def _render_options() -> set[str]:

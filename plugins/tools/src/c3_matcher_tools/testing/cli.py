@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 __all__ = ["run_cli"]
@@ -16,13 +16,15 @@ def run_cli(
     *args: str | Path,
     cwd: Path,
     engine_dir: Path | None = None,
+    settings: Mapping[str, str] | None = None,
     timeout: float = 900,
     limit_file_bytes: int | None = None,
 ) -> subprocess.CompletedProcess[str]:
     """``c3-matcher ARGS`` run in ``cwd`` (its output captured as text); ``engine_dir``: the
-    engines it reads (``C3_MATCHER_ENGINES__DIRECTORY``); ``limit_file_bytes`` caps every file
-    it writes (``ulimit -f``)."""
+    engines it reads (``C3_MATCHER_ENGINES__DIRECTORY``); ``settings``: the ``C3_MATCHER_*``
+    environment it is given; ``limit_file_bytes`` caps every file it writes (``ulimit -f``)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
+    env.update(settings or {})
     if engine_dir is not None:
         env["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
     return subprocess.run(
