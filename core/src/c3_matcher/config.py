@@ -13,10 +13,17 @@ import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal, TypeVar, get_args
 
 from platformdirs import user_cache_dir, user_data_dir
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+)
 from pydantic_settings import (
     BaseSettings,
     InitSettingsSource,
@@ -51,6 +58,28 @@ KEYPOINT_BUDGET_RANGE = (16, 8192)
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_boolean_numbers(cls, value: Any, info: ValidationInfo) -> Any:
+        """``true``/``false`` for a number is a wrong type, not 1/0 (``tile_cache_size = true``
+        must not mean one tile)."""
+        if isinstance(value, bool) and info.field_name in cls.model_fields:
+            annotation = cls.model_fields[info.field_name].annotation
+            if {int, float} & {annotation, *get_args(annotation)}:
+                raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
+        return value
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_empty_paths(cls, value: Any, info: ValidationInfo) -> Any:
+        """An empty path is refused, not taken as the working directory (``Path("")`` is
+        ``.``): ``C3_MATCHER_FDR__PATH=$UNSET_VARIABLE`` must not pass silently."""
+        if value == "" and info.field_name in cls.model_fields:
+            annotation = cls.model_fields[info.field_name].annotation
+            if Path in {annotation, *get_args(annotation)}:
+                raise ValueError("is empty: give a path, or remove the setting")
+        return value
 
 
 class MatcherSettings(_Section):
@@ -94,7 +123,9 @@ class MatcherSettings(_Section):
         description="keypoints per image; None: the strategy's default (2048 for DISK or ALIKED "
         "+ LightGlue, 4096 for XFeat with mutual nearest neighbours)",
     )
-    ransac_seed: int = Field(0, ge=0, description="RANSAC generator seed (determinism)")
+    ransac_seed: int = Field(
+        0, ge=0, le=2**31 - 1, description="RANSAC generator seed (determinism; OpenCV's C int)"
+    )
     tile_cache_size: int = Field(
         16,
         ge=0,
@@ -371,8 +402,10 @@ def load_settings(
         # e.g. C3_MATCHER_MATCHER__OPTIONS=not json: pydantic-settings fails before validation
         text = str(exc)
         match = re.search(r'field "([a-z_]+)"', text)
-        section = f"{ENV_PREFIX}{match.group(1).upper()}__" if match else ENV_PREFIX
-        named = sorted(k for k in environ if k.upper().startswith(section))
+        section = f"{ENV_PREFIX}{match.group(1).upper()}" if match else ENV_PREFIX
+        named = sorted(  # the section's variable (C3_MATCHER_MATCHER) or its keys' (..._MATCHER__X)
+            k for k in environ if k.upper() == section or k.upper().startswith(f"{section}__")
+        )
         field = ", ".join(named) or "environment"
         reason = f"not valid JSON for a table or list value ({exc.__cause__ or text})"
         raise ConfigurationError(source, [(field or "environment", reason)]) from None

@@ -32,11 +32,22 @@ class MappingEnvSource(EnvSettingsSource):
         )
 
 
+MAX_TOML_BYTES = 1 << 20
+"""A configuration file larger than this is refused unread (``--config`` naming an image, a
+disk, ``/dev/zero``), not read into memory whole."""
+
+
 def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
     """The TOML file's tables; ``ConfigurationError`` (naming ``--config``) when it is missing,
-    not UTF-8 or not TOML."""
+    larger than ``MAX_TOML_BYTES``, not UTF-8 or not TOML."""
     try:
-        return tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+        with Path(toml_path).open("rb") as file:
+            data = file.read(MAX_TOML_BYTES + 1)
+        if len(data) > MAX_TOML_BYTES:
+            raise ConfigurationError(
+                source, [("--config", f"larger than {MAX_TOML_BYTES} bytes: not a configuration")]
+            )
+        return tomllib.loads(data.decode("utf-8"))
     except FileNotFoundError:
         raise ConfigurationError(source, [("--config", "file not found")]) from None
     except UnicodeDecodeError as exc:

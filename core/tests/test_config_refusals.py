@@ -1,0 +1,152 @@
+"""Configuration values that used to pass silently or crash later, and ``c3-matcher config``
+output that used to be invalid TOML or an internal error: each now refused naming the key, or
+printed so that it reads back as it was."""
+
+from __future__ import annotations
+
+import json
+import os
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.config import load_settings
+from c3_matcher.config_sources import MAX_TOML_BYTES
+from c3_matcher.errors import ConfigurationError
+
+
+@pytest.fixture
+def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
+    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
+        monkeypatch.delenv(key)
+    return monkeypatch
+
+
+def _fields(exc: ConfigurationError) -> list[str]:
+    return [field for field, _ in exc.problems]
+
+
+def test_a_ransac_seed_beyond_opencvs_c_int_is_refused_at_load() -> None:
+    """It used to pass and fail at ``match`` as ``internal error: ValueError: integer won't fit
+    into a C int`` (OpenCV's USAC generator state)."""
+    assert load_settings(env={"C3_MATCHER_MATCHER__RANSAC_SEED": "2147483647"}).matcher
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(env={"C3_MATCHER_MATCHER__RANSAC_SEED": "2147483648"})
+    assert _fields(info.value) == ["matcher.ransac_seed"]
+
+
+@pytest.mark.parametrize(
+    ("text", "field"),
+    [
+        ("[matcher]\ntile_cache_size = true\n", "matcher.tile_cache_size"),
+        ("[matcher]\nransac_seed = true\n", "matcher.ransac_seed"),
+        ("[matcher]\nmax_keypoints = true\n", "matcher.max_keypoints"),
+        ("[lightglue]\nfilter_threshold = false\n", "lightglue.filter_threshold"),
+        ("[lightglue]\nexit_matches = true\n", "lightglue.exit_matches"),
+        ("[engines]\ndevice_id = true\n", "engines.device_id"),
+    ],
+)
+def test_a_boolean_is_not_a_number(tmp_path: Path, text: str, field: str) -> None:
+    """``true`` used to be taken as 1 and ``false`` as 0.0."""
+    toml = tmp_path / "c3.toml"
+    toml.write_text(text)
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(toml, env={})
+    ((named, reason),) = info.value.problems
+    assert named == field and "got the boolean" in reason
+
+
+def test_booleans_still_set_switches(tmp_path: Path) -> None:
+    toml = tmp_path / "c3.toml"
+    toml.write_text("[matcher]\nrefine = true\nstored_features = false\n")
+    settings = load_settings(toml, env={"C3_MATCHER_ENGINES__TENSORRT_FP16": "1"})
+    assert (settings.matcher.refine, settings.matcher.stored_features) == (True, False)
+    assert settings.engines.tensorrt_fp16 is True
+
+
+@pytest.mark.parametrize(
+    ("variable", "field"),
+    [
+        ("C3_MATCHER_ENGINES__DIRECTORY", "engines.directory"),
+        ("C3_MATCHER_ENGINES__TENSORRT_CACHE_DIR", "engines.tensorrt_cache_dir"),
+        ("C3_MATCHER_FDR__PATH", "fdr.path"),
+    ],
+)
+def test_an_empty_path_is_refused_not_taken_as_the_working_directory(
+    tmp_path: Path, variable: str, field: str
+) -> None:
+    """``C3_MATCHER_FDR__PATH=$UNSET`` used to become ``.``."""
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(env={variable: ""})
+    assert [(f, "is empty" in r) for f, r in info.value.problems] == [(field, True)]
+    section, key = field.split(".")
+    toml = tmp_path / "c3.toml"
+    toml.write_text(f'[{section}]\n{key} = ""\n')
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(toml, env={})
+    assert [(f, "is empty" in r) for f, r in info.value.problems] == [(field, True)]
+
+
+def test_a_config_file_too_large_to_be_one_is_refused_unread(tmp_path: Path) -> None:
+    """``--config`` naming a disk image or ``/dev/zero`` used to be read whole (MemoryError)."""
+    big = tmp_path / "big.toml"
+    big.write_bytes(b"# " + b"x" * MAX_TOML_BYTES + b"\n")
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(big, env={})
+    ((named, reason),) = info.value.problems
+    assert named == "--config" and reason.startswith(f"larger than {MAX_TOML_BYTES} bytes")
+
+
+def test_bad_json_for_a_whole_section_names_its_variable() -> None:
+    """``C3_MATCHER_MATCHER=nan`` used to be blamed on "environment"."""
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(env={"C3_MATCHER_MATCHER": "nan"})
+    assert _fields(info.value) == ["C3_MATCHER_MATCHER"]
+
+
+ODD_OPTIONS = {
+    "xfeat": {
+        "a b": 1,
+        "a.b": 2,
+        "": {"inner key": "x"},
+        "tables": [{"b": 1, "c d": [1.5, "y"]}],
+        "text": 'tab\tline\nquote" backslash\\ del\x7f emoji \U0001f600 e-acute \u00e9',
+    },
+    "my strategy": {"k": True},
+}
+
+
+def test_config_prints_toml_that_reads_back_whatever_the_option_keys(
+    clean_env: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Keys with spaces, dots or nothing, tables inside lists and characters beyond the BMP
+    used to give invalid TOML (or another value: ``a.b = 2`` reads back as a table), or an
+    internal error (a table in a list)."""
+    from c3_matcher.cli import main
+
+    clean_env.setenv("C3_MATCHER_MATCHER__OPTIONS", json.dumps(ODD_OPTIONS))
+    assert main(["config"]) == 0
+    text = capsys.readouterr().out
+    assert text.isascii()
+    assert tomllib.loads(text)["matcher"]["options"] == ODD_OPTIONS
+    saved = tmp_path / "c3.toml"
+    saved.write_text(text)
+    clean_env.delenv("C3_MATCHER_MATCHER__OPTIONS")
+    assert load_settings(saved).matcher.options == ODD_OPTIONS
+
+
+def test_config_names_a_value_toml_cannot_express(
+    clean_env: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A null inside a list (JSON from the environment) used to be ``internal error:
+    TypeError: no TOML form for NoneType``; ``--json`` prints it."""
+    from c3_matcher.cli import main
+
+    clean_env.setenv("C3_MATCHER_MATCHER__OPTIONS", '{"xfeat": {"a": [1, null]}}')
+    assert main(["config"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "internal error" not in err
+    assert "matcher.options.xfeat.a[1]" in err and "--json" in err
+    assert main(["config", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["matcher"]["options"] == {"xfeat": {"a": [1, None]}}
