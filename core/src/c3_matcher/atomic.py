@@ -1,20 +1,61 @@
-"""Files replaced whole or not at all: a writer gets a temporary file of its own beside the
-target, fsynced and renamed over it (the rename then fsynced in the directory) when the block
-ends; on any exception (a full disk, a file size limit, Ctrl-C) the temporary file is removed
-and the target keeps what it held before. Results, reports and pictures are written this way."""
+"""How the commands write what they make: never over their own inputs
+(:func:`refuse_output_over_inputs`), and replaced whole or not at all: a writer gets a temporary
+file of its own beside the target, fsynced and renamed over it (the rename then fsynced in the
+directory) when the block ends; on any exception (a full disk, a file size limit, Ctrl-C) the
+temporary file is removed and the target keeps what it held before. Results, reports and
+pictures are written this way."""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import secrets
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any, TextIO, cast
 
+from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import fsync_dir
 
-__all__ = ["atomic_writer", "write_bytes_atomically", "write_text_atomically"]
+__all__ = [
+    "atomic_writer",
+    "refuse_output_over_inputs",
+    "write_bytes_atomically",
+    "write_text_atomically",
+]
+
+_NO_FILE = "-"  # what a command takes in place of an input file it does not need
+
+
+def refuse_output_over_inputs(
+    out: Path, inputs: Iterable[str | Path | None], *, field: str = "OUT"
+) -> None:
+    """Refuse an ``out`` that is one of ``inputs`` (the same path once links are followed, or a
+    hard link to the same file) or a folder above one: writing it, ``--force`` or not, would
+    replace or delete that input (``InvalidInputError`` naming ``field``). ``None`` and ``-``
+    stand for no file and are skipped."""
+    target = Path(out).expanduser().resolve()
+    for given in inputs:
+        if given is None or str(given) == _NO_FILE:
+            continue
+        source = Path(given).expanduser().resolve()
+        if source == target or _one_file(source, target):
+            raise InvalidInputError(
+                field, f"{out} is the input {given}, which writing it would replace: choose another"
+            )
+        if target in source.parents:
+            raise InvalidInputError(
+                field,
+                f"{out} holds the input {given}, which replacing it would delete: choose another",
+            )
+
+
+def _one_file(a: Path, b: Path) -> bool:
+    """Both exist and are one file (a hard link)."""
+    try:
+        return a.samefile(b)
+    except OSError:
+        return False
 
 
 @contextlib.contextmanager

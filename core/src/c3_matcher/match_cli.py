@@ -14,6 +14,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+from c3_matcher.atomic import refuse_output_over_inputs
 from c3_matcher.commands import (
     EXIT_INSUFFICIENT,
     EXIT_USAGE,
@@ -148,6 +149,7 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
             f"{len(args.tile_id)} given for {len(args.tile)} --tile; give one per tile or none",
         )
     settings, host = _match_settings(args, ctx.settings), ctx.plugin_host
+    _refuse_output_over_input(args, settings.fdr.path)
     image, calibration = _query(args, settings.matcher.max_image_pixels)
     frame = NavCameraFrame(uuid.uuid4(), image, time.monotonic_ns(), args.attitude, args.height)
     _warn_missing(args)
@@ -198,6 +200,17 @@ def _match_settings(args: argparse.Namespace, settings: C3Settings) -> C3Setting
     if args.fdr:
         update["fdr"] = settings.fdr.model_copy(update={"path": args.fdr})
     return settings.model_copy(update=update)
+
+
+def _refuse_output_over_input(args: argparse.Namespace, fdr_path: Path) -> None:
+    """Neither file the command writes (the flight-data record, ``--viz``) may be one of the
+    files it reads, nor ``--viz`` the record: the recorder would cut an image's tail as a torn
+    line and append its records to it, ``--viz`` would replace it (bad input, exit 2, nothing
+    written)."""
+    inputs = [args.query, *args.tile, args.calibration]
+    refuse_output_over_inputs(fdr_path, inputs, field="--fdr" if args.fdr else "[fdr] path")
+    if args.viz:
+        refuse_output_over_inputs(args.viz, [*inputs, fdr_path], field="--viz")
 
 
 def _query(args: argparse.Namespace, max_pixels: int) -> tuple[Any, CameraCalibration]:

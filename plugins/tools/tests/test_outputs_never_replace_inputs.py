@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from c3_matcher.atomic import refuse_output_over_inputs
 from c3_matcher.cli import main
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.atomic import refuse_output_over_inputs
 
 INPUTS = ("images/IMG_0000.jpg", "tele.csv", "flight.ulg", "calib.json", "tiles.mbtiles", "o.tif")
 

@@ -9,33 +9,10 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from c3_matcher.atomic import refuse_output_over_inputs
 from c3_matcher.errors import InvalidInputError
 
-__all__ = ["atomic_directory", "check_output_dir", "refuse_output_over_inputs"]
-
-_NO_FILE = "-"  # what a command takes in place of an input file it does not need
-
-
-def refuse_output_over_inputs(
-    out: Path, inputs: Iterable[str | Path | None], *, field: str = "OUT"
-) -> None:
-    """Refuse an ``out`` that is, or is a folder above, one of ``inputs`` (both resolved, links
-    followed): writing it, ``--force`` or not, would replace or delete that input. ``None`` and
-    ``-`` stand for no file and are skipped."""
-    target = Path(out).resolve()
-    for given in inputs:
-        if given is None or str(given) == _NO_FILE:
-            continue
-        source = Path(given).resolve()
-        if source == target:
-            raise InvalidInputError(
-                field, f"{out} is the input {given}, which writing it would replace: choose another"
-            )
-        if target in source.parents:
-            raise InvalidInputError(
-                field,
-                f"{out} holds the input {given}, which replacing it would delete: choose another",
-            )
+__all__ = ["atomic_directory", "check_output_dir"]
 
 
 def check_output_dir(
@@ -45,10 +22,10 @@ def check_output_dir(
     field: str = "OUT",
     inputs: Iterable[str | Path | None] = (),
 ) -> None:
-    """Refuse an ``out`` that is or holds one of ``inputs`` (:func:`refuse_output_over_inputs`),
-    that exists (unless ``force`` and it is a directory) or whose nearest existing ancestor is
-    not a writable directory (missing parents are created on writing, as ``replay`` does);
-    nothing is created here."""
+    """Refuse an ``out`` that is or holds one of ``inputs``
+    (:func:`~c3_matcher.atomic.refuse_output_over_inputs`), that exists (unless ``force`` and it
+    is a directory) or whose nearest existing ancestor is not a writable directory (missing
+    parents are created on writing, as ``replay`` does); nothing is created here."""
     out = Path(out)
     refuse_output_over_inputs(out, inputs, field=field)
     if out.exists() and not (force and out.is_dir()):

@@ -167,7 +167,7 @@ def build_mbtiles(
     (declared bit depth) or (lo, hi), for non-8-bit data. ``force`` builds a zoom more than
     :data:`MAX_UPSAMPLE` times finer than the source. ``out`` is never ``geotiff`` itself
     (refused, ``overwrite`` or not)."""
-    from c3_matcher_tools.dataset.atomic import refuse_output_over_inputs
+    from c3_matcher.atomic import refuse_output_over_inputs
 
     refuse_output_over_inputs(Path(out), [geotiff])
     if tile_format not in ("png", "jpg"):
