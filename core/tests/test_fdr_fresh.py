@@ -1,6 +1,7 @@
 """A recorder that starts a new log at its path (``fresh=True``, a ground run's FDR): the
 previous log (live and rotated segments, ``.meta``, ``.torn``) is removed only once the lock is
-held, so a recorder the lock refuses leaves another writer's files as they are."""
+held, so a recorder the lock refuses leaves another writer's files as they are; and no recorder,
+fresh or not, touches a path that holds something other than a log of records."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ import pytest
 
 from c3_matcher.fdr import FdrOpenError, JsonlFdrRecorder, read_fdr
 from c3_matcher.testing import FakeClock
+
+REAL_PNG = (Path(__file__).resolve().parents[2] / "data" / "demo" / "tile_a.png").read_bytes()
 
 
 def _previous_log(path: Path) -> JsonlFdrRecorder:
@@ -51,3 +54,25 @@ def test_a_fresh_recorder_refused_by_the_lock_removes_nothing(tmp_path: Path) ->
         assert _files(tmp_path) == before
     finally:
         writer.close()
+
+
+@pytest.mark.parametrize("fresh", [False, True])
+def test_a_path_holding_another_file_is_refused_and_left_as_it_was(
+    tmp_path: Path, fresh: bool
+) -> None:
+    """An image given as the FDR path by mistake: its bytes stay, and nothing is made beside it
+    (the recorder used to cut its tail as a torn line and append records to it)."""
+    image = tmp_path / "tile.png"
+    image.write_bytes(REAL_PNG)
+    with pytest.raises(FdrOpenError, match="something other than flight-data records"):
+        JsonlFdrRecorder(image, FakeClock(), fresh=fresh)
+    assert image.read_bytes() == REAL_PNG
+    assert [p.name for p in tmp_path.iterdir()] == ["tile.png"]
+
+
+def test_a_log_whose_only_line_is_torn_is_still_a_log(tmp_path: Path) -> None:
+    path = tmp_path / "fdr.jsonl"
+    path.write_bytes(b'{"seq": 1, "kind": "matcher.fra')  # power cut in the first record
+    recorder = JsonlFdrRecorder(path, FakeClock())
+    recorder.close()
+    assert [r["kind"] for r in read_fdr(path)] == ["fdr.torn_tail_cut"]

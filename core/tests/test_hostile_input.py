@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import uuid
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -64,6 +65,12 @@ def test_calibration_not_utf8_is_named(tmp_path):
     path.write_bytes(b"\xff\xfe{")
     with pytest.raises(InvalidInputError, match="--calibration"):
         load_calibration(path)
+
+
+def test_an_endless_calibration_is_refused_unread():
+    """``--calibration /dev/zero`` (or a disk, an image): refused, not read into memory whole."""
+    with pytest.raises(InvalidInputError, match="--calibration /dev/zero.*not a calibration"):
+        load_calibration(Path("/dev/zero"))
 
 
 def test_non_utf8_config_is_a_configuration_error(tmp_path):

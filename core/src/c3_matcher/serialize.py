@@ -16,11 +16,23 @@ from c3_matcher.errors import InvalidInputError
 __all__ = ["load_calibration", "result_to_json"]
 
 
+MAX_CALIBRATION_BYTES = 1 << 20
+"""A calibration file larger than this is refused unread (``--calibration`` naming an image, a
+disk, ``/dev/zero``), not read into memory whole."""
+
+
 def load_calibration(path: Path) -> CameraCalibration:
     """Read a calibration JSON: ``{"K": 3x3, "distortion": [k1, k2, p1, p2, k3...],
     "image_size": [width, height], "camera_to_body": 3x3 (optional)}``."""
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        with Path(path).open("rb") as file:
+            raw = file.read(MAX_CALIBRATION_BYTES + 1)
+        if len(raw) > MAX_CALIBRATION_BYTES:
+            raise InvalidInputError(
+                f"--calibration {path}",
+                f"larger than {MAX_CALIBRATION_BYTES} bytes: not a calibration (refused unread)",
+            )
+        data = json.loads(raw.decode("utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
         raise InvalidInputError(f"--calibration {path}", f"unreadable: {exc}") from exc
     except UnicodeDecodeError as exc:

@@ -35,6 +35,18 @@ def read_small(path: Path) -> str:
         return ""
 
 
+def is_foreign(path: Path) -> bool:
+    """Whether ``path`` holds something other than a log of records: it is not empty and does
+    not begin with ``{`` as every record line does (an image, a document). A file that cannot
+    be read is not judged here (opening it reports that)."""
+    try:
+        with path.open("rb") as fh:
+            first = fh.read(1)
+    except OSError:
+        return False
+    return first not in (b"", b"{")
+
+
 def read_meta(path: Path) -> dict[str, Any]:
     """The ``.meta`` state (last segment number, last seq); {} when absent or unreadable."""
     try:

@@ -18,6 +18,7 @@ from c3_matcher.fdr.files import (
     TornCut,
     cut_torn_tail,
     fsync_dir,
+    is_foreign,
     make_dirs_durably,
     open_for_append,
     read_meta,
@@ -52,8 +53,9 @@ class JsonlFdrRecorder:
     the bytes) and a ``fdr.torn_tail_cut`` record says so (kept pending, like any record, when
     it cannot be written yet). On a full disk the cut bytes are dropped, being part of no
     acknowledged record, and that record says why. One process writes a path: the recorder
-    holds ``flock`` on ``<path>.lock``; a second one is refused with ``FdrOpenError``.
-    ``record`` is thread-safe.
+    holds ``flock`` on ``<path>.lock``; a second one is refused with ``FdrOpenError``, as is a
+    ``path`` holding something else (not empty, not beginning with a record's ``{``: an image
+    named by mistake), which is never cut, appended to or removed. ``record`` is thread-safe.
 
     ``fresh``: start a new log at ``path`` (a ground run's FDR, started anew with each run):
     only once the lock is held are the previous live segment, its rotated segments, ``.meta``
@@ -83,6 +85,10 @@ class JsonlFdrRecorder:
         what = f"fdr.path {self._path}"
         if self._path.is_dir():
             raise FdrOpenError(what, "is a directory (give a file path)")
+        if is_foreign(self._path):  # never cut, append to or (fresh) remove another file
+            raise FdrOpenError(
+                what, "holds something other than flight-data records: give another path"
+            )
         try:
             make_dirs_durably(self._path.parent)
             self._lock_fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
