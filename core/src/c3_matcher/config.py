@@ -16,14 +16,7 @@ from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args
 
 from platformdirs import user_cache_dir, user_data_dir
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    ValidationError,
-    ValidationInfo,
-    field_validator,
-)
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
 from pydantic_settings import (
     BaseSettings,
     InitSettingsSource,
@@ -61,24 +54,15 @@ class _Section(BaseModel):
 
     @field_validator("*", mode="before")
     @classmethod
-    def _no_boolean_numbers(cls, value: Any, info: ValidationInfo) -> Any:
-        """``true``/``false`` for a number is a wrong type, not 1/0 (``tile_cache_size = true``
-        must not mean one tile)."""
-        if isinstance(value, bool) and info.field_name in cls.model_fields:
-            annotation = cls.model_fields[info.field_name].annotation
-            if {int, float} & {annotation, *get_args(annotation)}:
-                raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
-        return value
-
-    @field_validator("*", mode="before")
-    @classmethod
-    def _no_empty_paths(cls, value: Any, info: ValidationInfo) -> Any:
-        """An empty path is refused, not taken as the working directory (``Path("")`` is
-        ``.``): ``C3_MATCHER_FDR__PATH=$UNSET_VARIABLE`` must not pass silently."""
-        if value == "" and info.field_name in cls.model_fields:
-            annotation = cls.model_fields[info.field_name].annotation
-            if Path in {annotation, *get_args(annotation)}:
-                raise ValueError("is empty: give a path, or remove the setting")
+    def _no_stand_ins(cls, value: Any, info: ValidationInfo) -> Any:
+        """Refuse a boolean for a number (``tile_cache_size = true`` must not mean one tile) and
+        an empty path (``Path("")`` is ``.``: ``C3_MATCHER_FDR__PATH=$UNSET`` must not pass)."""
+        field = cls.model_fields.get(info.field_name or "")
+        types = set() if field is None else {field.annotation, *get_args(field.annotation)}
+        if isinstance(value, bool) and {int, float} & types:
+            raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
+        if value == "" and Path in types:
+            raise ValueError("is empty: give a path, or remove the setting")
         return value
 
 

@@ -83,26 +83,7 @@ class JsonlFdrRecorder:
         self._needs_repair = False
         self._reserved: int | None = None  # a segment number reserved by a failed rotation
         what = f"fdr.path {self._path}"
-        if self._path.is_dir():
-            raise FdrOpenError(what, "is a directory (give a file path)")
-        if is_foreign(self._path):  # never cut, append to or (fresh) remove another file
-            raise FdrOpenError(
-                what, "holds something other than flight-data records: give another path"
-            )
-        try:
-            make_dirs_durably(self._path.parent)
-            self._lock_fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise FdrOpenError(what, f"cannot create: {exc.strerror or exc}") from exc
-        try:
-            fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
-            holder = read_small(self._lock_path).strip() or "?"
-            os.close(self._lock_fd)
-            self._lock_fd = -1
-            raise FdrOpenError(
-                what, f"another process (pid {holder}) is writing this FDR; one writer per path"
-            ) from exc
+        self._take_lock(what)
         try:
             os.ftruncate(self._lock_fd, 0)
             os.pwrite(self._lock_fd, f"{os.getpid()}\n".encode(), 0)
@@ -127,6 +108,31 @@ class JsonlFdrRecorder:
                         **kept,
                     },
                 )
+
+    def _take_lock(self, what: str) -> None:
+        """Hold ``<path>.lock`` (``FdrOpenError`` when another process does, or when ``path`` is
+        a directory or holds something other than records: never cut, appended to or, fresh,
+        removed)."""
+        if self._path.is_dir():
+            raise FdrOpenError(what, "is a directory (give a file path)")
+        if is_foreign(self._path):
+            raise FdrOpenError(
+                what, "holds something other than flight-data records: give another path"
+            )
+        try:
+            make_dirs_durably(self._path.parent)
+            self._lock_fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise FdrOpenError(what, f"cannot create: {exc.strerror or exc}") from exc
+        try:
+            fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            holder = read_small(self._lock_path).strip() or "?"
+            os.close(self._lock_fd)
+            self._lock_fd = -1
+            raise FdrOpenError(
+                what, f"another process (pid {holder}) is writing this FDR; one writer per path"
+            ) from exc
 
     @property
     def path(self) -> Path:
