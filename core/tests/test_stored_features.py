@@ -1,7 +1,10 @@
 """The stored map features' read path over a real tile store: grid windows served as stored
 (budget = prefix, off-grid candidates shifted into their own px), stale windows never served,
 a row altered into finite garbage refused once, and a sidecar locked by another process costing
-no wait (said once, tried again rarely). The features here are arrays written through the
+no wait (said once, tried again rarely). Damage: a window whose pages SQLite finds malformed is
+refused once naming it while the other windows are still served; the writer sorts intact rows
+from damaged ones and reports damaged pages as a damaged sidecar; a closed sidecar is one file
+(no WAL) read without write access. The features here are arrays written through the
 store's own writer; the real engine's bit-for-bit agreement is in the tools' test_features.py."""
 
 from __future__ import annotations
@@ -38,6 +41,10 @@ REPO = Path(__file__).resolve().parents[2]
 STORE = REPO / "data" / "flights" / "naip_demo" / "tiles.mbtiles"
 ZOOM, WINDOW, STRIDE = 15, 448, 32
 REQUEST = FeatureRequest("ab" * 32, 32, 1024, 4096, 4, "clahe", "CPUExecutionProvider")
+FSET = FeatureSet(
+    REQUEST.set_id(WINDOW), REQUEST.extractor_sha256, REQUEST.provider, 32, "clahe", 4,
+    WINDOW, STRIDE, 64, "xfeat",
+)  # fmt: skip
 
 
 class Clock:
@@ -76,14 +83,10 @@ def store(tmp_path: Path) -> Iterator[tuple[MBTilesStore, tuple[int, int]]]:
     source = MBTilesStore(path)
     (x, y) = min(source.tiles(ZOOM))
     cell = (x * 256 // STRIDE + 2, y * 256 // STRIDE + 2)
-    fset = FeatureSet(
-        REQUEST.set_id(WINDOW), REQUEST.extractor_sha256, REQUEST.provider, 32, "clahe", 4,
-        WINDOW, STRIDE, 64, "xfeat",
-    )  # fmt: skip
     with MapFeatureStore(sidecar_path(path), writable=True) as side:
-        side.ensure_set(fset)
-        side.put_windows(fset.set_id, [(ZOOM, *cell, _window(source, *cell))])
-        side.mark(fset.set_id, complete=True, windows=1)
+        side.ensure_set(FSET)
+        side.put_windows(FSET.set_id, [(ZOOM, *cell, _window(source, *cell))])
+        side.mark(FSET.set_id, complete=True, windows=1)
     yield source, cell
     source.close()
 
@@ -253,3 +256,109 @@ def test_setting_a_sidecar_aside_renames_it_with_its_companions(tmp_path: Path) 
     assert set_aside(path).name == f"{path.name}.damaged.1"  # the first one is kept
     with MapFeatureStore(path, writable=True) as fresh:  # a new sidecar in its place
         assert fresh.feature_sets() == []
+
+
+N = 4096  # keypoints of a window below
+Cell = tuple[int, int]
+
+
+@pytest.fixture
+def three_rows(tmp_path: Path) -> Iterator[tuple[MBTilesStore, list[Cell]]]:
+    """A copy of the demo flight's store with three stored windows of ``N`` keypoints (rows of
+    about 1 MB: chains of overflow pages) in its coverage, written in key order in one
+    transaction (the last one's overflow pages end the file)."""
+    path = tmp_path / "tiles.mbtiles"
+    shutil.copy(STORE, path)
+    source = MBTilesStore(path)
+    (x, y) = min(source.tiles(ZOOM))
+    cells = [(x * 256 // STRIDE + 2 + i, y * 256 // STRIDE + 2) for i in range(3)]
+    with MapFeatureStore(sidecar_path(path), writable=True) as side:
+        side.ensure_set(FSET)
+        side.put_windows(
+            FSET.set_id, [(ZOOM, *c, _window(source, *c, N, seed)) for seed, c in enumerate(cells)]
+        )
+        side.mark(FSET.set_id, complete=True, windows=len(cells))
+    yield source, cells
+    source.close()
+
+
+def _origin(cell: Cell) -> tuple[int, int]:
+    return cell[0] * STRIDE, cell[1] * STRIDE
+
+
+def _break_last_chain(path: Path) -> None:
+    """Point an overflow page of the last row's chain past the end of the file: SQLite reads
+    that row as malformed, and the others as they are."""
+    data = bytearray(path.read_bytes())
+    start = (len(data) // PAGE_BYTES - 3) * PAGE_BYTES
+    data[start : start + 4] = b"\xff" * 4  # the next page's number
+    path.write_bytes(bytes(data))
+
+
+def test_a_window_on_damaged_pages_is_refused_naming_it_and_the_others_are_served(three_rows):
+    source, cells = three_rows
+    side = sidecar_path(source.path)
+    _break_last_chain(side)
+    db = sqlite3.connect(f"file:{side}?mode=ro", uri=True)  # the damage is SQLite's
+    try:
+        with pytest.raises(sqlite3.DatabaseError, match="malformed"):
+            db.execute(
+                "SELECT descriptors FROM window_features WHERE set_id=? AND zoom=? AND gx=? "
+                "AND gy=?",
+                (FSET.set_id, ZOOM, *cells[2]),
+            ).fetchone()
+    finally:
+        db.close()
+    gx, gy = cells[2]
+    where = re.escape(f"{side}: window {ZOOM}/{gx}/{gy} of set {FSET.set_id[:12]}...")
+    with pytest.raises(StoredFeaturesCorruptError, match=f"{where}: unreadable .*malformed"):
+        _serve(source, _origin(cells[2]))
+    assert _serve(source, _origin(cells[2])) is None  # said once, never served
+    for seed, cell in enumerate(cells[:2]):  # not an outage of the whole store
+        got = _serve(source, _origin(cell))
+        assert got is not None
+        assert np.array_equal(got.descriptors, _window(source, *cell, N, seed).descriptors)
+
+
+def test_the_writer_sorts_intact_rows_from_damaged_ones(three_rows) -> None:
+    source, cells = three_rows
+    side = sidecar_path(source.path)
+    with sqlite3.connect(side) as db:
+        db.execute("UPDATE window_features SET n=n+1 WHERE gx=?", (cells[0][0],))
+        db.execute(
+            "UPDATE window_features SET descriptors=substr(descriptors, 1, 1000) WHERE gx=?",
+            (cells[1][0],),
+        )
+    with MapFeatureStore(side, writable=True) as writer:
+        intact, damaged = writer.checked_windows(FSET)
+    assert set(intact) == {(ZOOM, *cells[2])}
+    assert intact[(ZOOM, *cells[2])] == _window(source, *cells[2], N, 2).window_digest
+    assert set(damaged) == {(ZOOM, *cells[0]), (ZOOM, *cells[1])}
+    assert all(why.startswith("undecodable") for why in damaged.values()), damaged
+
+
+def test_the_writer_reports_damaged_pages_as_a_damaged_sidecar(three_rows) -> None:
+    source, _ = three_rows
+    side = sidecar_path(source.path)
+    _break_last_chain(side)
+    with MapFeatureStore(side, writable=True) as writer:  # the header and the sets are fine
+        assert writer.feature_set(FSET.set_id) is not None
+        with pytest.raises(SidecarDamagedError, match=re.escape(f"{side}: ") + ".*malformed"):
+            writer.checked_windows(FSET)
+
+
+def test_a_closed_sidecar_is_one_file_read_without_write_access(three_rows) -> None:
+    source, cells = three_rows
+    side = sidecar_path(source.path)
+    header = side.read_bytes()[:100]
+    assert header[18:20] == b"\x01\x01"  # rollback journal: WAL would need a -shm to read it
+    assert not Path(f"{side}-wal").exists() and not Path(f"{side}-shm").exists()
+    with MapFeatureStore(side, writable=True) as writer:  # a resumed build: WAL while open
+        assert writer.feature_set(FSET.set_id) is not None
+        assert side.read_bytes()[18:20] == b"\x02\x02"
+    assert side.read_bytes()[18:20] == b"\x01\x01"
+    reader = MapFeatureStore(side)
+    try:
+        assert reader.window(FSET, ZOOM, *cells[0]) is not None
+    finally:
+        reader.close()

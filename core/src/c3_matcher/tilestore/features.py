@@ -35,7 +35,9 @@ packed binary descriptors), never cast.
 Reliability in flight: the read connection never waits on a lock (busy timeout 0). When the
 sidecar is locked or unreadable the store says so once (:class:`FeatureStoreUnavailableError`),
 then serves nothing for ``retry_s`` seconds (the pipeline extracts) and tries again; a corrupt
-row is refused once (:class:`StoredFeaturesCorruptError`) and never served.
+row (checksum, shapes, or database pages SQLite finds malformed) is refused once
+(:class:`StoredFeaturesCorruptError`, naming the window) and never served. The ground writer
+leaves the sidecar one self-contained file (no WAL), readable from read-only media.
 """
 
 from __future__ import annotations

@@ -16,11 +16,15 @@ import numpy as np
 
 from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, row_checksum
 
+WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
+
 FEATURES_SUFFIX = ".features.sqlite"
 DEFAULT_RETRY_S = 30.0  # a locked or unreadable sidecar is tried again after this long
 MMAP_BYTES = 256 * 1024 * 1024  # the read connection's memory map (as the tile store's)
 PAGE_BYTES = 65536  # SQLite page size of a new sidecar (a row is about a megabyte)
 _COMPANIONS = ("-wal", "-shm", "-journal")  # SQLite's files beside a database, by suffix
+_DAMAGE = (sqlite3.SQLITE_NOTADB, sqlite3.SQLITE_CORRUPT)  # SQLite's "the file is damaged"
+_ROW_COLUMNS = "window_digest, n, keypoints, scores, descriptors, checksum"
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS window_sets (
@@ -52,8 +56,9 @@ class FeatureStoreUnavailableError(RuntimeError):
 
 
 class SidecarDamagedError(RuntimeError):
-    """The sidecar opened for writing is not an SQLite database, or a damaged one: nothing in it
-    can be kept (``path``; the cause is SQLite's error)."""
+    """The sidecar opened for writing is not an SQLite database, or a damaged one (found when
+    opened, or by a later read or write of the writer): nothing in it can be kept (``path``;
+    the cause is SQLite's error)."""
 
     def __init__(self, path: Path, cause: sqlite3.DatabaseError) -> None:
         self.path = path
@@ -84,6 +89,7 @@ class MapFeatureStore:
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.path = Path(path)
+        self._writable = writable
         self._retry_s = float(retry_s)
         self._clock = clock
         if writable:
@@ -100,7 +106,11 @@ class MapFeatureStore:
     # -- reading ------------------------------------------------------------------------
     def _read(self, query: Callable[[], T]) -> T | None:
         """``query`` unless the store is in an outage (None); the first failure of an outage
-        raises FeatureStoreUnavailableError, later ones within it return None."""
+        raises FeatureStoreUnavailableError, later ones within it return None. The writer has
+        no outages: its errors are raised (damage as SidecarDamagedError)."""
+        if self._writable:
+            with self._damage_refused():
+                return query()
         now = self._clock()
         if self._down_until is not None and now < self._down_until:
             return None
@@ -140,54 +150,91 @@ class MapFeatureStore:
         return [_set_of(r) for r in rows or ()]
 
     def window(self, fset: FeatureSet, zoom: int, gx: int, gy: int) -> WindowFeatures | None:
-        """Grid window (gx, gy) of ``fset`` at ``zoom``, verified against its checksum; None when
-        not stored (or in an outage). StoredFeaturesCorruptError the first time a corrupt row is
-        read, None afterwards."""
+        """Grid window (gx, gy) of ``fset`` at ``zoom``, verified against its checksum and shapes;
+        None when not stored (or in an outage). StoredFeaturesCorruptError the first time a
+        corrupt row (or one whose database pages SQLite finds damaged) is read, None
+        afterwards."""
         key = (fset.set_id, zoom, gx, gy)
         if key in self._refused:
             return None
-        row = self._read(
-            lambda: self._db.execute(
-                "SELECT window_digest, n, keypoints, scores, descriptors, checksum "
-                "FROM window_features WHERE set_id=? AND zoom=? AND gx=? AND gy=?",
-                key,
-            ).fetchone()
-        )
+        row = self._read(lambda: self._row(key))
         if row is None:
             return None
         try:
-            n, d = int(row[1]), fset.descriptor_dim
-            ok = row_checksum(key, str(row[0]), n, row[2:5]) == str(row[5])
-            stored = WindowFeatures(
-                str(row[0]),
-                np.frombuffer(row[2], dtype=np.float32).reshape(n, 2),
-                np.frombuffer(row[3], dtype=np.float32).reshape(n),
-                np.frombuffer(row[4], dtype=np.dtype(fset.descriptor_dtype)).reshape(n, d),
-            )
-        except (ValueError, TypeError) as exc:
-            ok, stored = False, None
-            reason = f"undecodable ({exc})"
-        else:
-            reason = "checksum mismatch"
-        if not ok or stored is None:
+            if isinstance(row, sqlite3.DatabaseError):
+                raise ValueError(f"unreadable ({' '.join(str(row).split())})")
+            return decode_row(fset, key, row)
+        except ValueError as exc:
             self._refused.add(key)
             raise StoredFeaturesCorruptError(
-                f"{self.path}: window {zoom}/{gx}/{gy} of set {fset.set_id[:12]}...: {reason}; "
+                f"{self.path}: window {zoom}/{gx}/{gy} of set {fset.set_id[:12]}...: {exc}; "
                 "refused, extracting instead"
-            )
-        return stored
+            ) from None
 
-    def done_windows(self, set_id: str) -> dict[tuple[int, int, int], str]:
-        """(zoom, gx, gy) -> window digest of every window stored in a set."""
-        return {
-            (int(z), int(x), int(y)): str(d)
-            for z, x, y, d in self._db.execute(
-                "SELECT zoom, gx, gy, window_digest FROM window_features WHERE set_id=?", (set_id,)
-            )
-        }
+    def _row(self, key: tuple[str, int, int, int]) -> Sequence[Any] | sqlite3.DatabaseError | None:
+        """The stored row of ``key``; SQLite's error when the pages holding it are damaged (that
+        row's fault, not the store's: other rows are still served)."""
+        try:
+            row: Sequence[Any] | None = self._db.execute(
+                f"SELECT {_ROW_COLUMNS} FROM window_features "
+                "WHERE set_id=? AND zoom=? AND gx=? AND gy=?",
+                key,
+            ).fetchone()
+        except sqlite3.DatabaseError as exc:
+            if exc.sqlite_errorcode & 0xFF == sqlite3.SQLITE_CORRUPT:
+                return exc
+            raise
+        return row
+
+    def done_windows(self, set_id: str) -> dict[WindowKey, str]:
+        """(zoom, gx, gy) -> window digest of every window stored in a set (as stored: see
+        :meth:`checked_windows`)."""
+        with self._damage_refused():
+            return {
+                (int(z), int(x), int(y)): str(d)
+                for z, x, y, d in self._db.execute(
+                    "SELECT zoom, gx, gy, window_digest FROM window_features WHERE set_id=?",
+                    (set_id,),
+                )
+            }
+
+    def checked_windows(
+        self, fset: FeatureSet
+    ) -> tuple[dict[WindowKey, str], dict[WindowKey, str]]:
+        """Every window stored in ``fset``, each row read and verified as :meth:`window` verifies
+        it: (zoom, gx, gy) -> window digest of the intact ones, and -> why of the damaged ones
+        (checksum mismatch, undecodable). SidecarDamagedError when SQLite finds the database
+        itself damaged."""
+        intact: dict[WindowKey, str] = {}
+        damaged: dict[WindowKey, str] = {}
+        with self._damage_refused():
+            for z, x, y, *row in self._db.execute(
+                f"SELECT zoom, gx, gy, {_ROW_COLUMNS} FROM window_features WHERE set_id=?",
+                (fset.set_id,),
+            ):
+                key = (int(z), int(x), int(y))
+                try:
+                    intact[key] = decode_row(fset, (fset.set_id, *key), row).window_digest
+                except ValueError as exc:
+                    damaged[key] = str(exc)
+        return intact, damaged
+
+    @contextlib.contextmanager
+    def _damage_refused(self) -> Iterator[None]:
+        """SQLite's errors saying the database is damaged raised as SidecarDamagedError."""
+        try:
+            yield
+        except sqlite3.DatabaseError as exc:
+            if exc.sqlite_errorcode & 0xFF in _DAMAGE:
+                raise SidecarDamagedError(self.path, exc) from exc
+            raise
 
     # -- writing (ground) ---------------------------------------------------------------
     def ensure_set(self, fset: FeatureSet) -> None:
+        with self._damage_refused():
+            self._ensure_set(fset)
+
+    def _ensure_set(self, fset: FeatureSet) -> None:
         self._db.execute(
             f"INSERT OR IGNORE INTO window_sets ({_SET_COLUMNS}, created) "
             "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0, ?, ?)",
@@ -212,6 +259,12 @@ class MapFeatureStore:
     def put_windows(
         self, set_id: str, rows: Iterable[tuple[int, int, int, WindowFeatures]]
     ) -> None:
+        with self._damage_refused():
+            self._put_windows(set_id, rows)
+
+    def _put_windows(
+        self, set_id: str, rows: Iterable[tuple[int, int, int, WindowFeatures]]
+    ) -> None:
         self._db.executemany(
             "INSERT OR REPLACE INTO window_features VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             [
@@ -231,15 +284,30 @@ class MapFeatureStore:
         )
         self._db.commit()
 
+    def drop_windows(self, set_id: str, keys: Iterable[WindowKey]) -> None:
+        """Delete the windows (zoom, gx, gy) ``keys`` of a set."""
+        with self._damage_refused():
+            self._db.executemany(
+                "DELETE FROM window_features WHERE set_id=? AND zoom=? AND gx=? AND gy=?",
+                [(set_id, *k) for k in keys],
+            )
+            self._db.commit()
+
     def mark(self, set_id: str, *, complete: bool, windows: int) -> None:
-        self._db.execute(
-            "UPDATE window_sets SET complete=?, windows=? WHERE set_id=?",
-            (int(complete), int(windows), set_id),
-        )
-        self._db.commit()
+        with self._damage_refused():
+            self._db.execute(
+                "UPDATE window_sets SET complete=?, windows=? WHERE set_id=?",
+                (int(complete), int(windows), set_id),
+            )
+            self._db.commit()
         self._sets.pop(set_id, None)
 
     def close(self) -> None:
+        """Close; the writer first leaves WAL (when no reader is attached), so the sidecar is
+        one self-contained file that a reader on read-only media can open."""
+        if self._writable:
+            with contextlib.suppress(sqlite3.Error):
+                self._db.execute("PRAGMA journal_mode=DELETE")
         self._db.close()
 
     def __enter__(self) -> MapFeatureStore:
@@ -256,16 +324,40 @@ def _open_writable(path: Path) -> sqlite3.Connection:
     db = sqlite3.connect(str(path), timeout=60)
     try:
         db.execute(f"PRAGMA page_size={PAGE_BYTES}")  # a new file: fewer pages a row
-        db.execute("PRAGMA journal_mode=WAL")
         db.executescript(_SCHEMA)
         db.execute("SELECT count(*) FROM window_sets").fetchone()  # what `features info` reads
         db.commit()
+        db.execute("PRAGMA journal_mode=WAL")  # once readable: a damaged file is left as it is
     except sqlite3.DatabaseError as exc:
         db.close()
-        if exc.sqlite_errorcode & 0xFF in (sqlite3.SQLITE_NOTADB, sqlite3.SQLITE_CORRUPT):
+        if exc.sqlite_errorcode & 0xFF in _DAMAGE:
             raise SidecarDamagedError(path, exc) from exc
         raise
     return db
+
+
+def decode_row(
+    fset: FeatureSet, key: tuple[str, int, int, int], row: Sequence[Any]
+) -> WindowFeatures:
+    """The window a ``window_features`` row (``window_digest, n, keypoints, scores,
+    descriptors, checksum``) of ``fset`` holds under ``key`` (set, zoom, gx, gy), verified: a
+    ValueError saying why it is refused (``checksum mismatch``, ``undecodable (...)``)."""
+    try:
+        n, d = int(row[1]), fset.descriptor_dim
+        if n < 0:
+            raise ValueError(f"negative count {n}")
+        ok = row_checksum(key, str(row[0]), n, row[2:5]) == str(row[5])
+        stored = WindowFeatures(
+            str(row[0]),
+            np.frombuffer(row[2], dtype=np.float32).reshape(n, 2),
+            np.frombuffer(row[3], dtype=np.float32).reshape(n),
+            np.frombuffer(row[4], dtype=np.dtype(fset.descriptor_dtype)).reshape(n, d),
+        )
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"undecodable ({exc})") from None
+    if not ok:
+        raise ValueError("checksum mismatch")
+    return stored
 
 
 def set_aside(path: str | Path) -> Path:

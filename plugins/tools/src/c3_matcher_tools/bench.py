@@ -263,6 +263,8 @@ def _checked_data(data: Path) -> Path:
 
 
 def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
+    for name in args.strategy or [ctx.settings.matcher.strategy]:
+        ctx.plugin_host.resolve(name)  # one this build cannot run: refused before any case
     data = demo_data(args.data)
     results = []
     for case in cases_for(args, ctx.settings, data):

@@ -13,6 +13,12 @@ windows already stored for the same set with the same tiles are skipped.
 Cluster: ``dask.distributed.LocalCluster(n_workers=workers, threads_per_worker=1)`` by default,
 or ``Client(scheduler)`` for an existing cluster (its workers need this environment and read
 access to the store path). ``workers=0`` runs in this process, without Dask.
+
+Damage: every row already stored for a set is read and verified (checksum, shapes) before it
+counts as done; a damaged row is said (naming the sidecar and the window) and extracted again
+(or dropped when this build does not cover its window). A sidecar SQLite itself finds damaged,
+when opened or later, is moved aside (never deleted) and the build starts again on a new one.
+A set is marked complete only when a build of it finished: incomplete while one runs.
 """
 
 from __future__ import annotations
@@ -113,32 +119,51 @@ def build_features(
     plan = _plan(store, windows, window_px, stride, min_coverage)
     job = _Job(store, _resolved(settings, strategies), window_px, stride, batch_size, say)
     report = BuildReport(str(store), str(sidecar_path(store)))
-    with (
-        _open_sidecar(sidecar_path(store), say) as sidecar,
-        _dask_client(workers, scheduler) as client,
-    ):
-        for strategy in strategies:
-            report.strategies[strategy] = _build_set(job, strategy, plan, sidecar, client, workers)
-    return report
+    path, new = sidecar_path(store), False
+    while True:
+        try:
+            with (
+                _open_sidecar(path, say, new) as sidecar,
+                _dask_client(workers, scheduler) as client,
+            ):
+                for strategy in strategies:
+                    built = _build_set(job, strategy, plan, sidecar, client, workers)
+                    report.strategies[strategy] = built
+            return report
+        except SidecarDamagedError as exc:  # found while building: it is closed now
+            if new:
+                raise ValueError(f"{exc}: damaged while it was built (check the disk)") from exc
+            _move_aside(path, exc, say)
+            new = True
+        except sqlite3.OperationalError as exc:  # a lock held past the timeout, a full disk
+            raise ValueError(f"{path}: cannot be written: {exc}") from exc
 
 
-def _open_sidecar(path: Path, say: Callable[[str], None]) -> MapFeatureStore:
+def _open_sidecar(path: Path, say: Callable[[str], None], new: bool = False) -> MapFeatureStore:
     """The sidecar ``path`` open for writing. One that is not an SQLite database, or a damaged
-    one, is moved aside (renamed, never deleted: :func:`set_aside`) and a new one started: its
-    features are a cache of what this build computes again, which no reader can use as it is.
-    A path that cannot be opened (a directory, no permission, a lock held past the timeout) is
-    a ValueError naming it."""
+    one, is moved aside (:func:`_move_aside`) and a new one started (``new``: the sidecar is one
+    this build started; damage is then an error). A path that cannot be opened (a directory, no
+    permission, a lock held past the timeout) is a ValueError naming it."""
     try:
         return MapFeatureStore(path, writable=True)
     except sqlite3.OperationalError as exc:
         raise ValueError(f"{path}: cannot be opened for writing: {exc}") from exc
     except SidecarDamagedError as exc:
-        aside = set_aside(path)
-        say(
-            f"features: {exc}: moved aside to {aside} (delete it when it is not needed) and "
-            "building a new sidecar"
-        )
+        if new:
+            raise ValueError(f"{exc}: damaged while it was built (check the disk)") from exc
+        _move_aside(path, exc, say)
         return MapFeatureStore(path, writable=True)
+
+
+def _move_aside(path: Path, exc: SidecarDamagedError, say: Callable[[str], None]) -> None:
+    """Move the damaged sidecar ``path`` aside (renamed, never deleted: :func:`set_aside`),
+    saying so: its features are a cache of what this build computes again, which no reader can
+    use as it is."""
+    aside = set_aside(path)
+    say(
+        f"features: {exc}: moved aside to {aside} (delete it when it is not needed) and "
+        "building a new sidecar"
+    )
 
 
 @dataclass(frozen=True)
@@ -174,11 +199,20 @@ def _plan(
     with open_source(str(store)) as source:
         tiles = {(z, x, y) for z in source.zooms() for x, y in source.tiles(z)}
         digests = {k: tile_digest(source.tile_bytes(*k) or b"") for k in tiles}
+    if not tiles:
+        raise ValueError(f"{store}: the store holds no tiles: nothing to build")
     todo_all = (
         sorted(set(windows))
         if windows is not None
         else grid_windows(tiles, window_px, stride, min_coverage)
     )
+    if not todo_all:
+        raise ValueError(
+            f"{store}: no {window_px} px window to build (none on the {stride} px grid is "
+            f"covered to {min_coverage:g} by its {len(tiles)} tiles)"
+            if windows is None
+            else f"{store}: no window to build"
+        )
     return {
         (z, gx, gy): window_digest(
             covered_tiles(z, (gx * stride, gy * stride), (window_px, window_px)), digests.get
@@ -214,9 +248,9 @@ def _dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
 
 def _feature_set(
     job: _Job, strategy: str, sidecar: MapFeatureStore, client: Any, local: BackendCache
-) -> str:
-    """The id of ``strategy``'s set in the sidecar (created when new; a set built with another
-    stride is refused)."""
+) -> FeatureSet:
+    """``strategy``'s set in the sidecar (created when new; a set built with another stride is
+    refused; nothing is written to a sidecar holding it before its rows are verified)."""
     if client is not None:
         facts = client.submit(set_facts, strategy, job.settings_json[strategy], pure=False)
         facts = facts.result()
@@ -233,22 +267,23 @@ def _feature_set(
     )
     set_id = set_id_for(*keyed)
     existing = sidecar.feature_set(set_id)
-    if existing is not None and existing.stride_px != job.stride_px:
-        raise ValueError(
-            f"{sidecar.path}: set {set_id[:12]}... was built with a stride of "
-            f"{existing.stride_px} px, not {job.stride_px}; remove the sidecar first"
-        )
-    sidecar.ensure_set(
-        FeatureSet(
-            set_id,
-            *keyed,
-            job.stride_px,
-            facts.descriptor_dim,
-            strategy,
-            descriptor_dtype=facts.descriptor_dtype,
-        )
+    if existing is not None:
+        if existing.stride_px != job.stride_px:
+            raise ValueError(
+                f"{sidecar.path}: set {set_id[:12]}... was built with a stride of "
+                f"{existing.stride_px} px, not {job.stride_px}; remove the sidecar first"
+            )
+        return existing
+    new = FeatureSet(
+        set_id,
+        *keyed,
+        job.stride_px,
+        facts.descriptor_dim,
+        strategy,
+        descriptor_dtype=facts.descriptor_dtype,
     )
-    return set_id
+    sidecar.ensure_set(new)
+    return new
 
 
 def _build_set(
@@ -261,10 +296,15 @@ def _build_set(
 ) -> dict[str, Any]:
     """Extract and store the windows of ``plan`` not yet done for ``strategy``; its report."""
     local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
-    set_id = _feature_set(job, strategy, sidecar, client, local)
-    done = sidecar.done_windows(set_id)
+    fset = _feature_set(job, strategy, sidecar, client, local)
+    set_id = fset.set_id
+    done, damaged = sidecar.checked_windows(fset)
+    if damaged:
+        _refuse_damaged(job, strategy, sidecar, set_id, damaged, plan)
     todo = [k for k in plan if done.get(k) != plan[k]]
     skipped = len(plan) - len(todo)
+    if todo:  # not complete until this build is
+        sidecar.mark(set_id, complete=False, windows=len(done))
     job.say(
         f"features {strategy}: {len(plan)} windows of {job.window_px} px "
         f"(stride {job.stride_px} px), {skipped} already done, {len(todo)} to extract "
@@ -308,6 +348,28 @@ def _build_set(
         "windows_per_s": written / elapsed if elapsed > 0 else 0.0,
         "windows_per_s_per_core": (written / elapsed / cores) if elapsed > 0 else 0.0,
     }
+
+
+def _refuse_damaged(
+    job: _Job,
+    strategy: str,
+    sidecar: MapFeatureStore,
+    set_id: str,
+    damaged: Mapping[WindowKey, str],
+    plan: Mapping[WindowKey, str | None],
+) -> None:
+    """Say which stored windows of a set are damaged: extracted again when ``plan`` holds
+    them, else dropped (never left to be served)."""
+    listed = sorted(damaged.items())
+    shown = "; ".join(f"{z}/{gx}/{gy}: {why}" for (z, gx, gy), why in listed[:5])
+    more = f"; and {len(listed) - 5} more" if len(listed) > 5 else ""
+    dropped = [k for k in damaged if k not in plan]
+    job.say(
+        f"features {strategy}: {sidecar.path}: {len(listed)} stored windows of set "
+        f"{set_id[:12]}... damaged ({len(listed) - len(dropped)} extracted again, "
+        f"{len(dropped)} dropped): {shown}{more}"
+    )
+    sidecar.drop_windows(set_id, dropped)
 
 
 def _cores(client: Any, workers: int) -> int:

@@ -145,22 +145,39 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
 
 
 def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
+    import sqlite3
+
+    from c3_matcher.errors import InvalidInputError
     from c3_matcher.tilestore.features import (
         FeatureStoreUnavailableError,
         MapFeatureStore,
         sidecar_path,
         stored_sets,
     )
+    from c3_matcher.tilestore.mbtiles import MBTilesStore
 
+    if not args.store.is_file():
+        raise InvalidInputError("STORE", f"no such store: {args.store}")
+    MBTilesStore(args.store).close()  # an MBTiles store (InvalidInputError naming it), not any file
     path = sidecar_path(args.store)
     sets: list[dict[str, object]] = []
+    if path.exists() and not path.is_file():
+        raise InvalidInputError(str(path), "not a file (the flight ignores it)")
     if path.is_file():
         try:
             with MapFeatureStore(path) as store:
                 sets = [dict(s) for s in stored_sets(store)]
         except FeatureStoreUnavailableError as exc:
+            cause = exc.__cause__
+            code = getattr(cause, "sqlite_errorcode", 0) & 0xFF
+            if code in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
+                ctx.err(
+                    f"c3-matcher: {path}: locked by another process ({cause}); the flight "
+                    "extracts instead while it is. Try again when it is released"
+                )
+                return EXIT_USAGE
             ctx.err(
-                f"c3-matcher: {path}: unreadable ({exc.__cause__ or exc}); the flight "
+                f"c3-matcher: {path}: unreadable ({cause or exc}); the flight "
                 f"extracts instead. Rebuild it: c3-matcher features build {args.store}"
             )
             return EXIT_USAGE
