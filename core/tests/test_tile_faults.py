@@ -200,6 +200,19 @@ def test_the_configured_pixel_limit_reaches_the_handles_given_it(tmp_path):
     assert read_image(path).shape == (64, 64, 3)  # no process-wide limit was set
 
 
+def test_an_image_header_declaring_no_pixels_is_not_an_image_and_an_empty_file_is_empty(tmp_path):
+    from c3_matcher.tiles import BytesTileHandle, read_image
+
+    png = bytearray(_png(size=64))
+    png[16:24] = struct.pack(">II", 0, 0)  # IHDR width and height (its CRC no longer matters)
+    with pytest.raises(ImageDecodeError, match="header declares 0x0 px: not an image"):
+        BytesTileHandle(bytes(png), "frame.png").decode()
+    empty = tmp_path / "frame.jpg"
+    empty.touch()
+    with pytest.raises(InvalidInputError, match="frame.jpg: cannot read image file: it is empty"):
+        read_image(empty)
+
+
 def test_a_pixel_limit_below_256_is_refused():
     from c3_matcher.errors import InvalidInputError
     from c3_matcher.tiles import BytesTileHandle

@@ -64,7 +64,9 @@ def decode_image(
         raise ImageDecodeError(what, "not a decodable image (PNG, JPEG, TIFF, BMP, WebP, GIF)")
     width, height = size
     limit = _checked_limit(max_pixels)
-    if width <= 0 or height <= 0 or width * height > limit:
+    if width <= 0 or height <= 0:
+        raise ImageDecodeError(what, f"its header declares {width}x{height} px: not an image")
+    if width * height > limit:
         raise ImageDecodeError(
             what,
             f"image of {width}x{height} px exceeds the limit of {limit} px "
@@ -192,12 +194,12 @@ class MmapTileHandle:
         try:
             st = self._path.stat()
         except OSError as exc:
-            raise InvalidInputError(str(self._path), f"cannot read tile file: {exc}") from exc
+            raise InvalidInputError(str(self._path), f"cannot read image file: {exc}") from exc
         if not stat.S_ISREG(st.st_mode):
             kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
-            raise InvalidInputError(str(self._path), f"cannot read tile file: it is {kind}")
+            raise InvalidInputError(str(self._path), f"cannot read image file: it is {kind}")
         if st.st_size == 0:
-            raise InvalidInputError(str(self._path), "cannot read tile file: it is empty")
+            raise InvalidInputError(str(self._path), "cannot read image file: it is empty")
 
     @property
     def path(self) -> Path:
@@ -207,11 +209,11 @@ class MmapTileHandle:
         try:
             fd = os.open(self._path, os.O_RDONLY)
         except OSError as exc:
-            raise InvalidInputError(str(self._path), f"cannot read tile file: {exc}") from exc
+            raise InvalidInputError(str(self._path), f"cannot read image file: {exc}") from exc
         try:
             size = os.fstat(fd).st_size
             if size == 0:
-                raise InvalidInputError(str(self._path), "cannot read tile file: it is empty")
+                raise InvalidInputError(str(self._path), "cannot read image file: it is empty")
             buf = bytearray(size)
             view = memoryview(buf)
             got = 0
@@ -219,11 +221,11 @@ class MmapTileHandle:
                 n = os.preadv(fd, [view[got:]], got)
                 if n <= 0:
                     raise InvalidInputError(
-                        str(self._path), f"tile file shrank while reading ({got} of {size} bytes)"
+                        str(self._path), f"image file shrank while reading ({got} of {size} bytes)"
                     )
                 got += n
         except OSError as exc:
-            raise InvalidInputError(str(self._path), f"cannot read tile file: {exc}") from exc
+            raise InvalidInputError(str(self._path), f"cannot read image file: {exc}") from exc
         finally:
             os.close(fd)
         return memoryview(buf).toreadonly()
