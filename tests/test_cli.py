@@ -177,6 +177,15 @@ def test_unknown_strategy_exits_2(env):
     assert proc.returncode == 2 and "no_such_strategy" in _one_line(proc)
 
 
+def test_a_setting_that_stops_every_pair_fails_the_start_up_probe_naming_it(env):
+    """An unmatchable-pair exit above what any pair reaches: the start-up probe (the frame
+    matched with itself) finds no match; the error names the setting, not only the engines."""
+    proc = c3(demo_args([0]), {**env, "C3_MATCHER_LIGHTGLUE__EXIT_MATCHES": "5000"})
+    assert proc.returncode == 1 and proc.stdout == ""
+    line = _one_line(proc)
+    assert "start-up probe failed" in line and "[lightglue] exit_matches" in line, line
+
+
 def test_replay_refuses_negative_limit_and_keypoints(tmp_path):
     flight = REPO / "data" / "flights" / "naip_demo"
     for flag, value in (("--limit", "-28"), ("--max-keypoints", "-5"), ("--limit", "0")):

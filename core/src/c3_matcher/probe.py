@@ -43,7 +43,10 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
             raise ValueError("the extractor found no keypoint on the textured probe image")
         matches = backend.match(features, features)
         if len(matches) == 0:
-            raise ValueError("matching the probe image with itself gave no match")
+            raise ValueError(
+                "matching the probe image with itself gave no match (an engine fault, or a "
+                "setting that stops every pair early: [lightglue] exit_matches)"
+            )
     except Exception as exc:
         raise EngineError(
             backend.label,
