@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import subprocess
-import sys
 import tomllib
 from pathlib import Path
 
 import pytest
 
 from c3_matcher.profiles import installed_profile
+from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -105,14 +104,9 @@ def test_runtime_reports_the_installed_profile():
     assert profile.name == "research"
     want = {f: r["state"] for f, r in ROWS["research"]["flags"].items()}
     assert profile.flag_report() == want
-    report = json.loads(
-        subprocess.run(
-            [sys.executable, "-m", "c3_matcher.cli", "plugins", "--json"],
-            check=True,
-            capture_output=True,
-            text=True,
-        ).stdout
-    )
+    proc = run_cli("plugins", "--json", cwd=REPO, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
     assert report["profile"] == "research" and report["flags"] == want
     linked_here = {f["strategy"] for f in ROWS["research"]["flags"].values() if f["state"] == "ON"}
     assert {s["name"] for s in report["strategies"]} >= linked_here

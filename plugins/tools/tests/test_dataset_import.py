@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -166,14 +165,9 @@ def test_import_then_replay_locates_frames_near_telemetry(engine_dir: Path, tmp_
 
 def test_tiles_info_json_and_text() -> None:
     def run(*extra: str) -> str:
-        return subprocess.run(
-            [sys.executable, "-m", "c3_matcher.cli", "tiles", "info", *extra],
-            capture_output=True,
-            text=True,
-            cwd=REPO,
-            timeout=120,
-            check=True,
-        ).stdout
+        proc = run_cli("tiles", "info", *extra, cwd=REPO, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout
 
     info = json.loads(run(str(DEMO / "tiles.mbtiles"), "--json"))
     assert info["tiles"] == {"15": 35}

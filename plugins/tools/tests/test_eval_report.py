@@ -4,11 +4,10 @@
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
+
+from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -21,33 +20,10 @@ def test_eval_writes_flight_report_and_geojson_per_strategy(
     shutil.copytree(DEMO, flight)
     lines = (flight / "frames.jsonl").read_text().splitlines()[:4]
     (flight / "frames.jsonl").write_text("\n".join(lines) + "\n")
-    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
-    env["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
     out = tmp_path / "eval"
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "c3_matcher.cli",
-            "eval",
-            str(flight),
-            "--strategy",
-            "xfeat",
-            "--no-baseline",
-            "--determinism-frames",
-            "1",
-            "--samples",
-            "0",
-            "--out",
-            str(out),
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
-        env=env,
-        cwd=REPO,
-        timeout=900,
-    )
+    quick = ("--no-baseline", "--determinism-frames", "1", "--samples", "0")
+    argv = ("eval", flight, "--strategy", "xfeat", *quick, "--out", out, "--json")
+    proc = run_cli(*argv, cwd=REPO, engine_dir=engine_dir)
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = json.loads(proc.stdout)
     (row,) = report["strategies"]
