@@ -1,5 +1,6 @@
 """How the commands write what they make: never over their own inputs
-(:func:`refuse_output_over_inputs`), and replaced whole or not at all: a writer gets a temporary
+(:func:`refuse_output_over_inputs`), one writer of a directory at a time
+(:func:`held_directory`), and replaced whole or not at all: a writer gets a temporary
 file of its own beside the target, fsynced and renamed over it (the rename then fsynced in the
 directory) when the block ends; on any exception (a full disk, a file size limit, Ctrl-C) the
 temporary file is removed and the target keeps what it held before. Results, reports and
@@ -8,9 +9,10 @@ pictures are written this way."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import secrets
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any, TextIO, cast
 
@@ -19,6 +21,7 @@ from c3_matcher.fdr.files import fsync_dir
 
 __all__ = [
     "atomic_writer",
+    "held_directory",
     "refuse_output_over_inputs",
     "write_bytes_atomically",
     "write_text_atomically",
@@ -48,6 +51,25 @@ def refuse_output_over_inputs(
                 field,
                 f"{out} holds the input {given}, which replacing it would delete: choose another",
             )
+
+
+@contextlib.contextmanager
+def held_directory(directory: Path, *, when_busy: Callable[[], None]) -> Iterator[None]:
+    """``directory`` (made if missing) held by this process while the block runs: ``flock`` on
+    the directory itself, so nothing is left in it and the kernel lets go when the process
+    dies. When another process holds it, ``when_busy`` is called: it raises to refuse, or
+    returns to wait until the holder is done."""
+    directory.mkdir(parents=True, exist_ok=True)
+    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            when_busy()
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
 
 
 def _one_file(a: Path, b: Path) -> bool:

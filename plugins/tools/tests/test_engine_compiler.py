@@ -96,6 +96,36 @@ def test_build_then_reuse_then_force(tmp_path: Path, fake_exporters: None) -> No
     assert len(_engine_files(tmp_path)) == 2  # engine + manifest, no scratch left
 
 
+def test_a_second_build_of_a_directory_waits_for_the_first_and_reuses_its_engines(
+    tmp_path: Path, fake_exporters: None
+) -> None:
+    import threading
+    import time
+
+    from c3_matcher.atomic import held_directory
+
+    spec = make_spec("passing")
+    first = build_engines([spec], tmp_path / "first")[0]  # what the other build will leave
+    lines: list[str] = []
+    done: list[Any] = []
+    with held_directory(tmp_path, when_busy=lambda: None):  # another build, still running
+        second = threading.Thread(
+            target=lambda: done.append(build_engines([spec], tmp_path, log=lines.append))
+        )
+        second.start()
+        deadline = time.monotonic() + 30
+        while not lines and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert lines == [f"waiting for another engines build in {tmp_path} to finish"]
+        assert second.is_alive() and not done
+        for name in _engine_files(tmp_path / "first"):  # the other build finishes its engine
+            (tmp_path / name).write_bytes((tmp_path / "first" / name).read_bytes())
+    second.join(60)
+    assert not second.is_alive()
+    (outcome,) = done[0]
+    assert outcome.reused and outcome.path.name == first.path.name
+
+
 def test_changed_export_supersedes_old_engine(tmp_path: Path, fake_exporters: None) -> None:
     old = build_engines([make_spec("passing")], tmp_path)[0]
     new = build_engines([make_spec("passing", export_revision=2)], tmp_path)[0]

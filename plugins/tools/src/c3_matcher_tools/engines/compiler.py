@@ -6,7 +6,9 @@ library versions), or every one with ``force=True``. Per engine: resolve the wei
 spec's exporter (export + verification against the PyTorch reference on real imagery), check the
 graph's I/O against the spec, name the dynamic axes as declared, hash, write the manifest, move
 both into place atomically, and remove superseded builds of the same model/variant. A failed
-verification or check raises ``EngineBuildError`` and keeps no file.
+verification or check raises ``EngineBuildError`` and keeps no file. One build at a time writes
+a directory: a second one (a demo and the tests started together) waits, saying so, and then
+reuses what the first built.
 
 PyTorch is imported only through the exporters (build time); this module itself imports without
 it, so ``ensure_engines`` can be called from any test or tool.
@@ -31,6 +33,7 @@ from typing import Any
 
 from loguru import logger
 
+from c3_matcher.atomic import held_directory
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, file_sha256
@@ -314,11 +317,13 @@ def build_engines(
         return cache[0]
 
     outcomes = []
-    for index, spec in enumerate(selected, start=1):
-        say(f"[{index}/{len(selected)}] {spec.key}")
-        outcomes.append(
-            _build_one(spec, directory, force=force, images=images, versions=versions, log=say)
-        )
+    waiting = f"waiting for another engines build in {directory} to finish"
+    with held_directory(directory, when_busy=lambda: say(waiting)):  # then reuses its engines
+        for index, spec in enumerate(selected, start=1):
+            say(f"[{index}/{len(selected)}] {spec.key}")
+            outcomes.append(
+                _build_one(spec, directory, force=force, images=images, versions=versions, log=say)
+            )
     return outcomes
 
 

@@ -7,15 +7,13 @@ whole."""
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
-import os
 import sys
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.atomic import atomic_writer
+from c3_matcher.atomic import atomic_writer, held_directory
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
@@ -33,24 +31,25 @@ __all__ = [
 
 @contextlib.contextmanager
 def exclusive_output_dir(*directories: Path) -> Iterator[None]:
-    """``directories`` (made if missing) for this run alone while the block runs: ``flock`` on
-    each directory itself (no lock file is left behind), so that a second ``replay`` or
-    ``eval`` into one of them is refused, ``InvalidInputError`` naming it, before it writes
-    anything there. Taken in the order given; all released when the block ends."""
+    """``directories`` (made if missing) for this run alone while the block runs
+    (:func:`~c3_matcher.atomic.held_directory`, no lock file left behind), so that a second
+    ``replay`` or ``eval`` into one of them is refused, ``InvalidInputError`` naming it, before
+    it writes anything there. Taken in the order given; all released when the block ends."""
     with contextlib.ExitStack() as held:
         for directory in directories:
-            directory.mkdir(parents=True, exist_ok=True)
-            fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
-            held.callback(os.close, fd)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                raise InvalidInputError(
-                    "--out",
-                    f"{directory}: another replay or eval is writing this directory; "
-                    "one run per output directory (wait for it, or choose another --out)",
-                ) from None
+            held.enter_context(held_directory(directory, when_busy=_refused(directory)))
         yield
+
+
+def _refused(directory: Path) -> Callable[[], None]:
+    def refuse() -> None:
+        raise InvalidInputError(
+            "--out",
+            f"{directory}: another replay or eval is writing this directory; "
+            "one run per output directory (wait for it, or choose another --out)",
+        )
+
+    return refuse
 
 
 def output_dir_name(dataset: FlightDataset) -> str:
