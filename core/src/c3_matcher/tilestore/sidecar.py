@@ -231,41 +231,32 @@ class MapFeatureStore:
 
     # -- writing (ground) ---------------------------------------------------------------
     def ensure_set(self, fset: FeatureSet) -> None:
-        with self._damage_refused():
-            self._ensure_set(fset)
-
-    def _ensure_set(self, fset: FeatureSet) -> None:
-        self._db.execute(
+        self._write(
             f"INSERT OR IGNORE INTO window_sets ({_SET_COLUMNS}, created) "
             "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 0, 0, ?, ?)",
-            (
-                fset.set_id,
-                fset.extractor_sha256,
-                fset.provider,
-                fset.multiple,
-                fset.photometric,
-                fset.border_erode_px,
-                fset.window_px,
-                fset.stride_px,
-                fset.descriptor_dim,
-                fset.strategy,
-                fset.descriptor_dtype,
-                time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            ),
+            [
+                (
+                    fset.set_id,
+                    fset.extractor_sha256,
+                    fset.provider,
+                    fset.multiple,
+                    fset.photometric,
+                    fset.border_erode_px,
+                    fset.window_px,
+                    fset.stride_px,
+                    fset.descriptor_dim,
+                    fset.strategy,
+                    fset.descriptor_dtype,
+                    time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                )
+            ],
         )
-        self._db.commit()
         self._sets.pop(fset.set_id, None)
 
     def put_windows(
         self, set_id: str, rows: Iterable[tuple[int, int, int, WindowFeatures]]
     ) -> None:
-        with self._damage_refused():
-            self._put_windows(set_id, rows)
-
-    def _put_windows(
-        self, set_id: str, rows: Iterable[tuple[int, int, int, WindowFeatures]]
-    ) -> None:
-        self._db.executemany(
+        self._write(
             "INSERT OR REPLACE INTO window_features VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             [
                 (
@@ -282,25 +273,27 @@ class MapFeatureStore:
                 for blobs in (w.blobs(),)
             ],
         )
-        self._db.commit()
 
     def drop_windows(self, set_id: str, keys: Iterable[WindowKey]) -> None:
         """Delete the windows (zoom, gx, gy) ``keys`` of a set."""
-        with self._damage_refused():
-            self._db.executemany(
-                "DELETE FROM window_features WHERE set_id=? AND zoom=? AND gx=? AND gy=?",
-                [(set_id, *k) for k in keys],
-            )
-            self._db.commit()
+        self._write(
+            "DELETE FROM window_features WHERE set_id=? AND zoom=? AND gx=? AND gy=?",
+            [(set_id, *k) for k in keys],
+        )
 
     def mark(self, set_id: str, *, complete: bool, windows: int) -> None:
-        with self._damage_refused():
-            self._db.execute(
-                "UPDATE window_sets SET complete=?, windows=? WHERE set_id=?",
-                (int(complete), int(windows), set_id),
-            )
-            self._db.commit()
+        self._write(
+            "UPDATE window_sets SET complete=?, windows=? WHERE set_id=?",
+            [(int(complete), int(windows), set_id)],
+        )
         self._sets.pop(set_id, None)
+
+    def _write(self, sql: str, rows: Sequence[Sequence[Any]]) -> None:
+        """``sql`` once per row of parameters, committed; SQLite finding the database damaged
+        raised as SidecarDamagedError."""
+        with self._damage_refused():
+            self._db.executemany(sql, rows)
+            self._db.commit()
 
     def close(self) -> None:
         """Close; the writer first leaves WAL (when no reader is attached), so the sidecar is

@@ -123,14 +123,14 @@ def build_features(
     while True:
         try:
             with (
-                _open_sidecar(path, say, new) as sidecar,
+                _open_sidecar(path) as sidecar,
                 _dask_client(workers, scheduler) as client,
             ):
                 for strategy in strategies:
                     built = _build_set(job, strategy, plan, sidecar, client, workers)
                     report.strategies[strategy] = built
             return report
-        except SidecarDamagedError as exc:  # found while building: it is closed now
+        except SidecarDamagedError as exc:  # when opened or while building: it is closed now
             if new:
                 raise ValueError(f"{exc}: damaged while it was built (check the disk)") from exc
             _move_aside(path, exc, say)
@@ -139,20 +139,15 @@ def build_features(
             raise ValueError(f"{path}: cannot be written: {exc}") from exc
 
 
-def _open_sidecar(path: Path, say: Callable[[str], None], new: bool = False) -> MapFeatureStore:
-    """The sidecar ``path`` open for writing. One that is not an SQLite database, or a damaged
-    one, is moved aside (:func:`_move_aside`) and a new one started (``new``: the sidecar is one
-    this build started; damage is then an error). A path that cannot be opened (a directory, no
-    permission, a lock held past the timeout) is a ValueError naming it."""
+def _open_sidecar(path: Path) -> MapFeatureStore:
+    """The sidecar ``path`` open for writing (``SidecarDamagedError`` when it is not an SQLite
+    database, or a damaged one: :func:`build_features` moves it aside and starts a new one). A
+    path that cannot be opened (a directory, no permission, a lock held past the timeout) is a
+    ValueError naming it."""
     try:
         return MapFeatureStore(path, writable=True)
     except sqlite3.OperationalError as exc:
         raise ValueError(f"{path}: cannot be opened for writing: {exc}") from exc
-    except SidecarDamagedError as exc:
-        if new:
-            raise ValueError(f"{exc}: damaged while it was built (check the disk)") from exc
-        _move_aside(path, exc, say)
-        return MapFeatureStore(path, writable=True)
 
 
 def _move_aside(path: Path, exc: SidecarDamagedError, say: Callable[[str], None]) -> None:
