@@ -5,6 +5,7 @@ temporary files alone; a dataset's name names one output directory."""
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -84,3 +85,18 @@ def test_an_output_directory_is_held_by_one_run_at_a_time_and_leaves_no_lock_fil
     with exclusive_output_dir(first, second):  # released when the block ends
         pass
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["first", "second"]
+
+
+def test_a_run_without_matplotlib_removes_the_report_an_earlier_run_left(
+    flown: FlightRun, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The airborne install has no matplotlib: the report of an earlier run in the directory
+    would sit beside results it does not describe."""
+    dataset = load_dataset(DEMO)
+    write_flight_outputs(tmp_path, dataset, flown, flight_report(dataset, flown))
+    assert (tmp_path / "report.html").exists()
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib: ImportError
+    report = flight_report(dataset, flown)
+    write_flight_outputs(tmp_path, dataset, flown, report)
+    assert report["html"] is None
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.geojson", "results.jsonl"]

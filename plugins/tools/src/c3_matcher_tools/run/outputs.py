@@ -115,17 +115,17 @@ def write_html_report(
     strategy: str,
     report: dict[str, Any],
 ) -> str | None:
-    """``out/report.html`` (None, with the reason on stderr, when matplotlib is missing)."""
+    """``out/report.html`` (None, with the reason on stderr, when matplotlib is missing: then a
+    ``report.html`` an earlier run left there is removed, as it reports another run's
+    results)."""
     try:
         from c3_matcher_tools.report import write_report
-    except ImportError as exc:
-        print(f"c3-matcher: no report.html ({exc})", file=sys.stderr)
-        return None
-    try:
+
         import matplotlib  # noqa: F401
-    except ImportError:
+    except ImportError as exc:
+        (out / "report.html").unlink(missing_ok=True)
         print(
-            "c3-matcher: no report.html: install the report extra "
+            f"c3-matcher: no report.html ({exc}): install the report extra "
             "(pip install 'c3-matcher-tools[report]')",
             file=sys.stderr,
         )
