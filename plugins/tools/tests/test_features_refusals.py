@@ -29,11 +29,13 @@ def _build(flight: Path, engine_dir: Path, monkeypatch: pytest.MonkeyPatch) -> i
     return main([*argv, "--flight-candidates"])
 
 
-def _sets(store: Path, capsys: pytest.CaptureFixture[str]) -> list[dict[str, Any]]:
+def _sets(
+    store: Path, capsys: pytest.CaptureFixture[str], *verify: str, code: int = 0
+) -> list[dict[str, Any]]:
     from c3_matcher.cli import main
 
     capsys.readouterr()
-    assert main(["features", "info", str(store), "--json"]) == 0
+    assert main(["features", "info", str(store), "--json", *verify]) == code
     sets: list[dict[str, Any]] = json.loads(capsys.readouterr().out)["sets"]
     return sets
 
@@ -56,6 +58,8 @@ def test_a_damaged_row_is_named_and_extracted_again(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
+    from c3_matcher.cli import main
+
     flight = small_flight("rows")
     sidecar = flight / "tiles.mbtiles.features.sqlite"
     assert _build(flight, engine_dir, monkeypatch) == 0
@@ -67,14 +71,20 @@ def test_a_damaged_row_is_named_and_extracted_again(
             "WHERE zoom=? AND gx=? AND gy=?",
             (z, gx, gy),
         )
-    capsys.readouterr()
+    (found,) = _sets(flight / "tiles.mbtiles", capsys, "--verify", code=1)
+    assert (found["intact"], found["damaged"]) == (windows - 1, 1)
+    assert list(found["damage"]) == [f"{z}/{gx}/{gy}"]
+    assert "undecodable" in found["damage"][f"{z}/{gx}/{gy}"]
+    assert main(["features", "info", str(flight / "tiles.mbtiles"), "--verify"]) == 1
+    assert f"{sidecar}: 1 damaged windows" in capsys.readouterr().err
     assert _build(flight, engine_dir, monkeypatch) == 0
     err = capsys.readouterr().err
     assert f"{sidecar}: 1 stored windows of set" in err
     assert f"damaged (1 extracted again, 0 dropped): {z}/{gx}/{gy}: undecodable" in err
     assert f"{windows - 1} already done, 1 to extract" in err
     assert _all_intact(sidecar) == windows
-    assert [s["complete"] for s in _sets(flight / "tiles.mbtiles", capsys)] == [True]
+    (rebuilt,) = _sets(flight / "tiles.mbtiles", capsys, "--verify")
+    assert (rebuilt["complete"], rebuilt["intact"], rebuilt["damaged"]) == (True, windows, 0)
 
 
 @pytest.mark.slow
@@ -84,6 +94,8 @@ def test_a_sidecar_with_malformed_pages_is_moved_aside_and_built_anew(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
+    from c3_matcher.cli import main
+
     flight = small_flight("pages")
     sidecar = flight / "tiles.mbtiles.features.sqlite"
     assert _build(flight, engine_dir, monkeypatch) == 0
@@ -93,6 +105,10 @@ def test_a_sidecar_with_malformed_pages_is_moved_aside_and_built_anew(
     data[start : start + 4] = b"\xff" * 4
     sidecar.write_bytes(bytes(data))
     capsys.readouterr()
+    assert main(["features", "info", str(flight / "tiles.mbtiles"), "--verify"]) == 1
+    said = capsys.readouterr().err
+    assert f"{sidecar}: database disk image is malformed" in said
+    assert "Rebuild it: c3-matcher features build" in said
     assert _build(flight, engine_dir, monkeypatch) == 0
     err = capsys.readouterr().err
     assert f"{sidecar}: database disk image is malformed: moved aside to {sidecar}.damaged" in err

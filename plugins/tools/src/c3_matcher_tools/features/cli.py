@@ -1,13 +1,15 @@
 """``c3-matcher features build STORE|FLIGHT [--strategy NAME ...] [--window PX] [--stride PX]
-[--workers N | --scheduler ADDRESS]`` and ``c3-matcher features info STORE``."""
+[--workers N | --scheduler ADDRESS]`` and ``c3-matcher features info STORE [--verify]``."""
 
 from __future__ import annotations
 
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from c3_matcher.commands import (
+    EXIT_FAILURE,
     EXIT_OK,
     EXIT_USAGE,
     CommandContext,
@@ -16,6 +18,9 @@ from c3_matcher.commands import (
 )
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.features.build import WINDOW_PX_RANGE
+
+if TYPE_CHECKING:
+    from c3_matcher.tilestore.features import MapFeatureStore
 
 __all__ = ["register_features_command"]
 
@@ -41,6 +46,12 @@ def register_features_command(commands: CommandRegistry) -> None:
     i = group.add("info", help="the feature sets stored beside a tile store")
     i.add_argument("store", type=Path, help="an MBTiles tile store")
     i.add_argument("--json", action="store_true", help="print the sets as JSON")
+    i.add_argument(
+        "--verify",
+        action="store_true",
+        help="read every stored window and check it as the flight does (exit 1 when one is "
+        "damaged; features build extracts those again)",
+    )
     i.set_defaults(handler=_info)
 
 
@@ -155,18 +166,27 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
         stored_sets,
     )
     from c3_matcher.tilestore.mbtiles import MBTilesStore
+    from c3_matcher.tilestore.sidecar import SidecarDamagedError
 
     if not args.store.is_file():
         raise InvalidInputError("STORE", f"no such store: {args.store}")
     MBTilesStore(args.store).close()  # an MBTiles store (InvalidInputError naming it), not any file
     path = sidecar_path(args.store)
     sets: list[dict[str, object]] = []
+    damaged = 0
     if path.exists() and not path.is_file():
         raise InvalidInputError(str(path), "not a file (the flight ignores it)")
     if path.is_file():
         try:
             with MapFeatureStore(path) as store:
                 sets = [dict(s) for s in stored_sets(store)]
+                damaged = _verified(store, sets) if args.verify else 0
+        except SidecarDamagedError as exc:
+            ctx.err(
+                f"c3-matcher: {exc}; the flight extracts instead where it is. "
+                f"Rebuild it: c3-matcher features build {args.store}"
+            )
+            return EXIT_FAILURE
         except FeatureStoreUnavailableError as exc:
             cause = exc.__cause__
             code = getattr(cause, "sqlite_errorcode", 0) & 0xFF
@@ -190,4 +210,24 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     else:
         for s in sets:
             ctx.out(", ".join(f"{k}: {v}" for k, v in s.items()))
+    if damaged:
+        ctx.err(
+            f"c3-matcher: {path}: {damaged} damaged windows (the flight extracts those instead); "
+            f"extract them again: c3-matcher features build {args.store}"
+        )
+        return EXIT_FAILURE
     return EXIT_OK
+
+
+def _verified(store: MapFeatureStore, sets: list[dict[str, object]]) -> int:
+    """Each set's windows read and checked (:meth:`MapFeatureStore.checked_windows`): its
+    ``intact`` and ``damaged`` counts, the damaged ones' reasons under ``damage``; the number
+    damaged in all."""
+    damaged = 0
+    for s in sets:
+        fset = store.feature_set(str(s["set_id"]))
+        intact, bad = store.checked_windows(fset) if fset else ({}, {})
+        s.update(intact=len(intact), damaged=len(bad))
+        s["damage"] = {f"{z}/{x}/{y}": why for (z, x, y), why in sorted(bad.items())}
+        damaged += len(bad)
+    return damaged

@@ -119,9 +119,9 @@ def write_html_report(
     ``report.html`` an earlier run left there is removed, as it reports another run's
     results)."""
     try:
-        from c3_matcher_tools.report import write_report
-
         import matplotlib  # noqa: F401
+
+        from c3_matcher_tools.report import write_report
     except ImportError as exc:
         (out / "report.html").unlink(missing_ok=True)
         print(
