@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from c3_matcher_tools.sim.scenario import ScenarioSpec, build_scenario
+from c3_matcher_tools.tilestore.geo import read_geotiff_grid
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "data" / "demo"
@@ -24,8 +25,10 @@ ORDER = (2, 0, 1)  # the true tile is the 2nd candidate on the command line
 
 
 def main() -> None:
+    ortho = REPO / "data/imagery/open_orthophotos/5b90f92da0d7280005fab355_4310.tif"
+    lon, lat = read_geotiff_grid(ortho).centre_lonlat()  # the tile ids: where it really is
     spec = ScenarioSpec(
-        REPO / "data/imagery/open_orthophotos/5b90f92da0d7280005fab355_4310.tif",
+        ortho,
         yaw_deg=120,
         pitch_deg=0,
         roll_deg=18,
@@ -34,6 +37,7 @@ def main() -> None:
         image_size=(640, 480),
         focal_px=560,
         seed=7,
+        reference_latlon=(lat, lon),
     )
     sc = build_scenario(spec)
     OUT.mkdir(parents=True, exist_ok=True)

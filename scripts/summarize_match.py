@@ -29,6 +29,8 @@ def main(argv: list[str]) -> int:
             f"{c['ransac_outlier_count']} outliers, median residual "
             f"{c['per_candidate_residual_px']:.2f} px{mark}"
         )
+    if "centre_lat" in result:
+        print(f"frame centre: lat {result['centre_lat']:.6f}, lon {result['centre_lon']:.6f}")
     if "viz" in result:
         print(f"picture: {result['viz']}")
     return 0

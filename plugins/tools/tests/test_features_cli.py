@@ -79,9 +79,10 @@ def test_build_over_a_damaged_sidecar_moves_it_aside_and_builds_a_new_one(
     assert main([*argv, "--flight-candidates"]) == 0
     assert f"moved aside to {sidecar}.damaged" in capsys.readouterr().err
     assert Path(f"{sidecar}.damaged").read_text() == "garbage\n"  # kept, not deleted
-    assert main(["features", "info", str(flight / "tiles.mbtiles"), "--json"]) == 0
-    sets = json.loads(capsys.readouterr().out)["sets"]
-    assert [(s["strategy"], s["complete"]) for s in sets] == [("xfeat", True)]
+    assert main(["features", "info", str(flight), "--json"]) == 0  # a dataset: its store
+    info = json.loads(capsys.readouterr().out)
+    assert Path(info["store"]).resolve() == (flight / "tiles.mbtiles").resolve()
+    assert [(s["strategy"], s["complete"]) for s in info["sets"]] == [("xfeat", True)]
 
 
 def test_a_sidecar_path_that_cannot_be_opened_is_one_line_and_exit_2(

@@ -177,7 +177,7 @@ def test_a_store_without_tiles_is_refused_and_no_sidecar_is_made(
     ("make", "message"),
     [
         (lambda p: None, "no such store: {store}"),
-        (lambda p: p.mkdir(), "no such store: {store}"),
+        (lambda p: p.mkdir(), "{store}: a directory without dataset.json: no store, no dataset"),
         (lambda p: p.write_text("not tiles\n"), "{store}: not an SQLite database"),
     ],
     ids=["missing", "directory", "text"],

@@ -44,7 +44,9 @@ def register_features_command(commands: CommandRegistry) -> None:
     _add_build_options(b)
     b.set_defaults(handler=_build)
     i = group.add("info", help="the feature sets stored beside a tile store")
-    i.add_argument("store", type=Path, help="an MBTiles tile store")
+    i.add_argument(
+        "store", type=Path, help="an MBTiles tile store, or a flight dataset directory (its store)"
+    )
     i.add_argument("--json", action="store_true", help="print the sets as JSON")
     i.add_argument(
         "--verify",
@@ -168,23 +170,32 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher.tilestore.mbtiles import MBTilesStore
     from c3_matcher.tilestore.sidecar import SidecarDamagedError
 
-    if not args.store.is_file():
-        raise InvalidInputError("STORE", f"no such store: {args.store}")
-    MBTilesStore(args.store).close()  # an MBTiles store (InvalidInputError naming it), not any file
-    path = sidecar_path(args.store)
+    store = args.store
+    if store.is_dir():
+        from c3_matcher_tools.dataset.format import load_dataset
+
+        if not (store / "dataset.json").is_file():
+            raise InvalidInputError(
+                "STORE", f"{store}: a directory without dataset.json: no store, no dataset"
+            )
+        store = load_dataset(store).store_path
+    if not store.is_file():
+        raise InvalidInputError("STORE", f"no such store: {store}")
+    MBTilesStore(store).close()  # an MBTiles store (InvalidInputError naming it), not any file
+    path = sidecar_path(store)
     sets: list[dict[str, object]] = []
     damaged = 0
     if path.exists() and not path.is_file():
         raise InvalidInputError(str(path), "not a file (the flight ignores it)")
     if path.is_file():
         try:
-            with MapFeatureStore(path) as store:
-                sets = [dict(s) for s in stored_sets(store)]
-                damaged = _verified(store, sets) if args.verify else 0
+            with MapFeatureStore(path) as side:
+                sets = [dict(s) for s in stored_sets(side)]
+                damaged = _verified(side, sets) if args.verify else 0
         except SidecarDamagedError as exc:
             ctx.err(
                 f"c3-matcher: {exc}; the flight extracts instead where it is. "
-                f"Rebuild it: c3-matcher features build {args.store}"
+                f"Rebuild it: c3-matcher features build {store}"
             )
             return EXIT_FAILURE
         except FeatureStoreUnavailableError as exc:
@@ -198,35 +209,33 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
                 return EXIT_USAGE
             ctx.err(
                 f"c3-matcher: {path}: unreadable ({cause or exc}); the flight "
-                f"extracts instead. Rebuild it: c3-matcher features build {args.store}"
+                f"extracts instead. Rebuild it: c3-matcher features build {store}"
             )
             return EXIT_USAGE
     if args.json:
-        ctx.out(
-            json.dumps({"store": str(args.store), "sidecar": str(path), "sets": sets}, indent=2)
-        )
+        ctx.out(json.dumps({"store": str(store), "sidecar": str(path), "sets": sets}, indent=2))
     elif not sets:
-        ctx.out(f"{args.store}: no precomputed features ({path} absent or empty)")
+        ctx.out(f"{store}: no precomputed features ({path} absent or empty)")
     else:
         for s in sets:
             ctx.out(", ".join(f"{k}: {v}" for k, v in s.items()))
     if damaged:
         ctx.err(
             f"c3-matcher: {path}: {damaged} damaged windows (the flight extracts those instead); "
-            f"extract them again: c3-matcher features build {args.store}"
+            f"extract them again: c3-matcher features build {store}"
         )
         return EXIT_FAILURE
     return EXIT_OK
 
 
-def _verified(store: MapFeatureStore, sets: list[dict[str, object]]) -> int:
+def _verified(side: MapFeatureStore, sets: list[dict[str, object]]) -> int:
     """Each set's windows read and checked (:meth:`MapFeatureStore.checked_windows`): its
     ``intact`` and ``damaged`` counts, the damaged ones' reasons under ``damage``; the number
     damaged in all."""
     damaged = 0
     for s in sets:
-        fset = store.feature_set(str(s["set_id"]))
-        intact, bad = store.checked_windows(fset) if fset else ({}, {})
+        fset = side.feature_set(str(s["set_id"]))
+        intact, bad = side.checked_windows(fset) if fset else ({}, {})
         s.update(intact=len(intact), damaged=len(bad))
         s["damage"] = {f"{z}/{x}/{y}": why for (z, x, y), why in sorted(bad.items())}
         damaged += len(bad)
