@@ -88,3 +88,13 @@ def test_bounded_float_reads_finite_numbers_within_its_bounds() -> None:
             share(text)
     with pytest.raises(argparse.ArgumentTypeError, match=r"must be finite and > 0, got 0.0"):
         bounded_float("--gap", 0.0, above=True)("0")
+
+
+@pytest.mark.parametrize("name", ["a/b", "..", ".", "", "a\\b"])
+@pytest.mark.parametrize("command", [IMPORT_CSV, IMPORT_ULOG], ids=["csv", "ulog"])
+def test_a_name_replay_could_not_name_a_directory_after_is_a_usage_error(
+    command: list[str], name: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Accepted, it would make a dataset that ``replay`` and ``eval`` then refuse."""
+    err = _usage_error([*command, "--name", name], capsys)
+    assert f"argument --name: {name!r} cannot name an output directory" in err

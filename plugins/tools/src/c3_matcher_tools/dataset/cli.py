@@ -54,6 +54,16 @@ OUT is written atomically (temp dir + rename; a missing parent folder is created
 """
 
 
+def _dataset_name(text: str) -> str:
+    """An argparse type: a name ``replay`` and ``eval`` can name a directory after."""
+    from c3_matcher_tools.dataset.format import name_problem
+
+    why = name_problem(text)
+    if why:
+        raise argparse.ArgumentTypeError(f"{text!r} {why}")
+    return text
+
+
 def register_dataset_command(commands: CommandRegistry) -> None:
     p = commands.add(
         "dataset",
@@ -205,7 +215,12 @@ def _add_import(ds: Any) -> None:
         "--candidate-size", type=int, default=512, help="candidate image side, px (default 512)"
     )
     add_seed_option(m, "candidate shuffle seed")
-    m.add_argument("--name", default=None, help="dataset name (default: OUT's name)")
+    m.add_argument(
+        "--name",
+        type=_dataset_name,
+        default=None,
+        help="dataset name, one path component (default: OUT's name)",
+    )
     m.add_argument(
         "--force", action="store_true", help="replace an existing OUT (never one holding an input)"
     )

@@ -54,6 +54,7 @@ __all__ = [
     "FrameRecord",
     "check_candidate_size",
     "load_dataset",
+    "name_problem",
     "with_attitude_noise",
     "write_dataset",
 ]
@@ -63,6 +64,18 @@ CANDIDATE_SIZE_PX = (64, 4096)
 """The side (px) of a dataset's candidate windows: import and render write, and a load accepts,
 only sizes in this range."""
 _INT64_MAX = 2**63 - 1  # frame indices and capture times are recorded as int64
+
+
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot name a dataset (it names the dataset's default output directory), or
+    None: it must be one plain path component, so that it never puts a run's files outside the
+    directory they are meant for."""
+    if name in ("", ".", "..") or any(c in name for c in "/\\\0"):
+        return (
+            "cannot name an output directory: it must be one path component "
+            "(not empty, '.' or '..'; no '/', '\\' or NUL)"
+        )
+    return None
 
 
 def check_candidate_size(size_px: int, field: str = "--candidate-size") -> None:

@@ -15,7 +15,7 @@ from typing import Any
 
 from c3_matcher.atomic import atomic_writer, held_directory
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.format import FlightDataset
+from c3_matcher_tools.dataset.format import FlightDataset, name_problem
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.scoring import summarize
 
@@ -54,17 +54,14 @@ def _refused(directory: Path) -> Callable[[], None]:
 
 def output_dir_name(dataset: FlightDataset) -> str:
     """``dataset``'s name as the one path component of an output directory named after it;
-    ``InvalidInputError`` naming its ``dataset.json`` when the name is not a single plain
-    component (empty, ``.``, ``..``, a path separator or a NUL in it), so that a name never
-    puts a run's files outside the directory they are meant for."""
-    name = dataset.name
-    if name in ("", ".", "..") or any(c in name for c in "/\\\0"):
+    ``InvalidInputError`` naming its ``dataset.json`` when it has a
+    :func:`~c3_matcher_tools.dataset.format.name_problem`."""
+    why = name_problem(dataset.name)
+    if why:
         raise InvalidInputError(
-            "dataset",
-            f"{dataset.root / 'dataset.json'}: name {name!r} cannot name an output directory: "
-            "it must be one path component (not empty, '.' or '..'; no '/', '\\' or NUL)",
+            "dataset", f"{dataset.root / 'dataset.json'}: name {dataset.name!r} {why}"
         )
-    return name
+    return dataset.name
 
 
 def write_results(path: Path, outcomes: Sequence[FrameOutcome]) -> Path:
