@@ -48,7 +48,7 @@ def test_match_with_a_calibration_for_another_image_size_exits_2_naming_both(tmp
     args = ["match", "--query", str(DEMO / "frame.jpg"), "--calibration", str(cal)]
     args += ["--tile", str(DEMO / tile["file"]), "--tile-id", ",".join(map(str, tile["tile_id"]))]
     line = _refused(args, tmp_path, "1280x960")
-    assert "640x480" in line and "--calibration" in line
+    assert "640x480" in line and "--calibration" in line and "scale K and image_size" in line
 
 
 def test_replay_of_a_dataset_whose_calibration_is_for_another_size_exits_2(tmp_path):
@@ -56,5 +56,5 @@ def test_replay_of_a_dataset_whose_calibration_is_for_another_size_exits_2(tmp_p
     shutil.copytree(REPO / "data" / "flights" / "naip_demo", dataset)
     w, h = _calibration_for_double_size(dataset / "calibration.json")
     line = _refused(["replay", str(dataset), "--limit", "1"], tmp_path, f"{w * 2}x{h * 2}")
-    assert f"{w}x{h}" in line and "calibration.json" in line
+    assert f"{w}x{h}" in line and "calibration.json" in line and "scale K and image_size" in line
     assert not (tmp_path / "out").exists()  # nothing replayed

@@ -60,6 +60,19 @@ def test_calibration_json_of_the_wrong_shape_is_named(tmp_path, content):
         load_calibration(path)
 
 
+@pytest.mark.parametrize(
+    ("content", "missing"),
+    [('{"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}', "image_size"), ('{"image_size": [4, 3]}', "K")],
+)
+def test_a_calibration_without_a_required_key_names_the_key_and_what_it_holds(
+    tmp_path, content, missing
+):
+    path = tmp_path / "cal.json"
+    path.write_text(content)
+    with pytest.raises(InvalidInputError, match=f'missing key "{missing}" \\(.+px'):
+        load_calibration(path)
+
+
 def test_calibration_not_utf8_is_named(tmp_path):
     path = tmp_path / "cal.json"
     path.write_bytes(b"\xff\xfe{")

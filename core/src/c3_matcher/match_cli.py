@@ -30,7 +30,7 @@ from c3_matcher.errors import InsufficientInliersError, InvalidInputError
 from c3_matcher.fdr import FdrOpenError, InMemoryFdr, JsonlFdrRecorder
 from c3_matcher.match_viz import draw_or_report
 from c3_matcher.protocols import TilePixelsHandle
-from c3_matcher.serialize import load_calibration, result_to_json
+from c3_matcher.serialize import CALIBRATION_SIZE_FIX, load_calibration, result_to_json
 from c3_matcher.tiles import MmapTileHandle, read_image
 
 __all__ = ["register_match_command"]
@@ -227,7 +227,8 @@ def _query(args: argparse.Namespace, max_pixels: int) -> tuple[Any, CameraCalibr
         cw, ch = calibration.image_size
         raise InvalidInputError(
             f"--calibration {args.calibration}",
-            f"image_size is {cw}x{ch} px but the --query image {args.query} is {width}x{height} px",
+            f"image_size is {cw}x{ch} px but the --query image {args.query} is {width}x{height} px "
+            f"({CALIBRATION_SIZE_FIX})",
         )
     return image, calibration
 

@@ -21,6 +21,17 @@ MAX_CALIBRATION_BYTES = 1 << 20
 disk, ``/dev/zero``), not read into memory whole."""
 
 
+CALIBRATION_SIZE_FIX = (
+    "a calibration is for one image size: scale K and image_size by the ratio of the sizes, "
+    "or calibrate at this size"
+)
+"""What to do about a calibration whose ``image_size`` is not the images' size."""
+_REQUIRED_CALIBRATION_KEYS = {
+    "K": "the 3x3 intrinsic matrix, px",
+    "image_size": "[width, height] px of the images K was calibrated for",
+}
+
+
 def load_calibration(path: Path) -> CameraCalibration:
     """Read a calibration JSON: ``{"K": 3x3, "distortion": [k1, k2, p1, p2, k3...],
     "image_size": [width, height], "camera_to_body": 3x3 (optional)}``."""
@@ -42,6 +53,9 @@ def load_calibration(path: Path) -> CameraCalibration:
             f"--calibration {path}",
             f"expected a JSON object with K, distortion, image_size; got {type(data).__name__}",
         )
+    for key, what in _REQUIRED_CALIBRATION_KEYS.items():
+        if key not in data:
+            raise InvalidInputError(f"--calibration {path}", f'missing key "{key}" ({what})')
     try:
         c2b = data.get("camera_to_body")
         return CameraCalibration(

@@ -17,7 +17,7 @@ from c3_matcher.errors import InsufficientInliersError, InvalidInputError, Match
 from c3_matcher.georef import haversine_m
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.serialize import result_to_json
+from c3_matcher.serialize import CALIBRATION_SIZE_FIX, result_to_json
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.run.matcher import NO_OVERRIDES, Overrides, open_matcher
@@ -189,5 +189,6 @@ def check_calibration_size(dataset: FlightDataset, frame: FrameRecord) -> None:
     if (cw, ch) != (w, h):
         raise InvalidInputError(
             str(dataset.root / str(dataset.meta["calibration"])),
-            f"image_size is {cw}x{ch} px but frame {frame.image} is {w}x{h} px",
+            f"image_size is {cw}x{ch} px but frame {frame.image} is {w}x{h} px "
+            f"({CALIBRATION_SIZE_FIX})",
         )
