@@ -67,6 +67,26 @@ def test_match_demo_prints_one_json_object_and_a_picture(env, tmp_path):
     assert [r["kind"] for r in records].count("matcher.frame_done") == 1
 
 
+def test_match_twice_on_the_same_inputs_prints_the_same_result_matched_at_aside(env, tmp_path):
+    """The frame id too: it is derived from the query image, not drawn at random."""
+    runs = []
+    for n in range(2):
+        settings = {**env, "C3_MATCHER_FDR__PATH": str(tmp_path / f"fdr{n}.jsonl")}
+        proc = c3([*demo_args([1]), "--no-correspondences"], settings)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        out = json.loads(proc.stdout)
+        del out["matched_at"]
+        (done,) = (
+            r["payload"]
+            for r in map(json.loads, Path(settings["C3_MATCHER_FDR__PATH"]).open())
+            if r["kind"] == "matcher.frame_done"
+        )
+        del done["timings_ms"]  # what the frame cost, by nature not the same twice
+        runs.append((out, done))
+    assert runs[0] == runs[1]
+    assert runs[0][1]["frame_id"] == runs[0][0]["frame_id"]
+
+
 def test_match_without_the_true_tile_exits_3_with_a_json_error(env):
     distractors = [i for i, t in enumerate(META["tiles"]) if not t["true"]]
     proc = c3(demo_args(distractors), env)

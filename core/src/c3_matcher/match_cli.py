@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import functools
+import hashlib
 import json
 import math
 import sys
@@ -13,6 +14,8 @@ import time
 import uuid
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from c3_matcher.atomic import refuse_output_over_inputs
 from c3_matcher.commands import (
@@ -140,6 +143,15 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
     )
 
 
+_FRAME_IDS = uuid.UUID("6c3d1e0a-5b7e-4f0e-9a51-3c3a7d0f2b11")  # the namespace of frame_id_of
+
+
+def frame_id_of(image: np.ndarray) -> uuid.UUID:
+    """The id of a frame given as an image file: a name-based UUID (RFC 4122 version 5) of its
+    pixels, so that the same inputs give the same output, ``frame_id`` included."""
+    return uuid.uuid5(_FRAME_IDS, hashlib.sha256(np.ascontiguousarray(image).data).hexdigest())
+
+
 def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher.compose import build_default_helpers, compose_root, state_default_fdr_path
 
@@ -151,7 +163,9 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     settings, host = _match_settings(args, ctx.settings), ctx.plugin_host
     _refuse_output_over_input(args, settings.fdr.path)
     image, calibration = _query(args, settings.matcher.max_image_pixels)
-    frame = NavCameraFrame(uuid.uuid4(), image, time.monotonic_ns(), args.attitude, args.height)
+    frame = NavCameraFrame(
+        frame_id_of(image), image, time.monotonic_ns(), args.attitude, args.height
+    )
     _warn_missing(args)
     rerank = _candidates(args, frame, settings.matcher.max_image_pixels)
     helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
