@@ -78,7 +78,9 @@ def test_match_twice_on_the_same_inputs_prints_the_same_result_matched_at_aside(
         del out["matched_at"]
         (done,) = (
             r["payload"]
-            for r in map(json.loads, Path(settings["C3_MATCHER_FDR__PATH"]).open())
+            for r in map(
+                json.loads, Path(settings["C3_MATCHER_FDR__PATH"]).read_text().splitlines()
+            )
             if r["kind"] == "matcher.frame_done"
         )
         del done["timings_ms"]  # what the frame cost, by nature not the same twice
