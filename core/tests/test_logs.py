@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import io
 import json
+import os
 
-from c3_matcher.fdr import InMemoryFdr
-from c3_matcher.logs import configure_logging, log_event
+import pytest
+
+from c3_matcher.fdr import InMemoryFdr, JsonlFdrRecorder, read_fdr
+from c3_matcher.logs import FDR_WRITE_FAILED, configure_logging, log_event
+from c3_matcher.testing import FakeClock
 
 
 def test_json_records_with_kind_and_fields():
@@ -47,6 +51,39 @@ def test_failing_fdr_does_not_loop_or_raise():
         handle.close()
     assert Broken.calls == 1
     assert json.loads(stream.getvalue().splitlines()[0])["kind"] == "c3.test"
+
+
+def test_a_full_disk_keeps_forwards_pending_says_nothing_on_stderr_and_no_more_about_itself(
+    tmp_path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Every stderr line stays JSON while the disk is full (loguru would print a traceback for a
+    sink that raises), and the FDR's own write failures are not queued into it: one more pending
+    record per failure, for as long as the disk stays full."""
+    real_write = os.write
+
+    def full(fd: int, data: bytes) -> int:
+        raise OSError(28, "No space left on device")
+
+    recorder = JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock())
+    stream = io.StringIO()
+    handle = configure_logging(recorder, stream=stream)
+    try:
+        monkeypatch.setattr(os, "write", full)
+        log_event("WARNING", "c3.matcher.residual_above_threshold", "w", residual_px=4.2)
+        log_event("ERROR", FDR_WRITE_FAILED, "FDR write failed for matcher.frame_done")
+        assert recorder.pending == 1  # the warning, kept for when space returns
+        monkeypatch.setattr(os, "write", real_write)
+        recorder.flush()
+    finally:
+        handle.close()
+        recorder.close()
+    assert capsys.readouterr().err == ""
+    kinds = [json.loads(x)["kind"] for x in stream.getvalue().splitlines()]
+    assert kinds == ["c3.matcher.residual_above_threshold", FDR_WRITE_FAILED]
+    landed = list(read_fdr(tmp_path / "fdr.jsonl"))
+    assert [(r["kind"], r["payload"]["kind"]) for r in landed] == [
+        ("log.warning", "c3.matcher.residual_above_threshold")
+    ]
 
 
 def test_an_embedding_programs_own_sink_survives_configure_and_close() -> None:

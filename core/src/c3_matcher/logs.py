@@ -14,7 +14,8 @@ every stderr log line of a command is JSON.
 Every record carries a ``kind`` (``logger.bind(kind=...)``); the stderr sink writes one JSON
 object per line. ERROR and WARNING records are also forwarded to the FDR as records of their own
 kinds, ``log.error`` and ``log.warning``, so the matcher's own FDR kinds keep exactly one record
-per event.
+per event; a forward the FDR cannot write yet stays pending in the recorder (nothing on stderr),
+and the FDR's own write failures (``FDR_WRITE_FAILED``) stay in the log stream.
 """
 
 from __future__ import annotations
@@ -28,13 +29,14 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from loguru import logger
 
-from c3_matcher.fdr import to_jsonable
+from c3_matcher.fdr import FdrWriteError, to_jsonable
 from c3_matcher.protocols import FdrClient
 
 if TYPE_CHECKING:
     from loguru import Message, Record
 
 __all__ = [
+    "FDR_WRITE_FAILED",
     "LoggingHandle",
     "claim_stderr",
     "configure_logging",
@@ -43,6 +45,10 @@ __all__ = [
 ]
 
 FORWARDED_LEVELS = {"WARNING": "log.warning", "ERROR": "log.error", "CRITICAL": "log.error"}
+FDR_WRITE_FAILED = "c3.fdr.write_failed"
+"""The kind of the ERROR a failed FDR write logs: never forwarded into that FDR (the record it
+concerns is kept pending and lands with its own time once the FDR can write again; one more
+record per failure would only grow what is pending while the disk stays full)."""
 
 
 def log_event(level: str, kind: str, message: str, **fields: Any) -> None:
@@ -136,11 +142,13 @@ def _fdr_forwarder(fdr: FdrClient) -> Callable[[Message], None]:
         nonlocal busy
         record = message.record
         kind = FORWARDED_LEVELS.get(record["level"].name)
-        if kind is None or busy:
+        if kind is None or busy or record["extra"].get("kind") == FDR_WRITE_FAILED:
             return
         busy = True  # a failing FDR logs an error; never forward that error back into it
         try:
             fdr.record(kind, _record_to_dict(record))
+        except FdrWriteError:
+            pass  # kept pending by the recorder, written with the next record (no stderr noise)
         finally:
             busy = False
 

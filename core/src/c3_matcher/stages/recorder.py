@@ -18,7 +18,7 @@ from typing import Any
 from c3_matcher.dto import CandidateMatchSet
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError
 from c3_matcher.health import RollingHealthWindow
-from c3_matcher.logs import log_event
+from c3_matcher.logs import FDR_WRITE_FAILED, log_event
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend
 from c3_matcher.stages.outcomes import FrameEvidence, GeometryRefusal, Survivor
 from c3_matcher.stages.query import QUERY_ROTATIONS_DEG
@@ -73,7 +73,7 @@ class FrameRecorder:
         except Exception as exc:
             log_event(
                 "ERROR",
-                "c3.fdr.write_failed",
+                FDR_WRITE_FAILED,
                 f"FDR write failed for {kind}: {exc}",
                 record_kind=kind,
                 error=f"{type(exc).__name__}: {exc}",
