@@ -161,3 +161,28 @@ def test_a_failure_names_its_phase_and_source(scripted, phase):
         _source(backend).fetch(_candidate([scripted]), Recorder(), {})  # type: ignore[arg-type]
     assert (failed.value.phase, failed.value.source) == (phase, "extracted")
     assert isinstance(failed.value.cause, (ValueError, RuntimeError))
+
+
+class RewrittenWhileDecoded(BytesTileHandle):
+    """A tile file rewritten between the read its cache key comes from and the read decoded."""
+
+    def __init__(self, first: bytes, then: bytes) -> None:
+        super().__init__(first, "rewritten")
+        self.then = then
+
+    def decode(self) -> np.ndarray:
+        self._data = self.then
+        return super().decode()
+
+
+def test_a_tile_rewritten_while_decoded_is_not_cached_under_its_old_bytes():
+    import dataclasses
+
+    two = make_rerank(uuid.UUID(int=2), [ScriptedCandidate(), ScriptedCandidate()]).candidates
+    first, then = (bytes(c.tile_pixels_handle.encoded()) for c in two)
+    source = _source(_backend(), cache=4)
+    rewritten = dataclasses.replace(two[0], tile_pixels_handle=RewrittenWhileDecoded(first, then))
+    assert source.fetch(rewritten, Recorder(), {}).source == "extracted"  # type: ignore[arg-type]
+    again = dataclasses.replace(two[0], tile_pixels_handle=BytesTileHandle(first))
+    assert source.fetch(again, Recorder(), {}).source == "extracted"  # type: ignore[arg-type]
+    assert source.fetch(again, Recorder(), {}).source == "cached"  # type: ignore[arg-type]

@@ -1,7 +1,8 @@
 """Steps 4a-4b: a candidate's tile features, from the first source that has them: the tile
 store's precomputed map features (``stored``, when the backend declares them possible and the
 store holds them for this backend), the tile cache (``cached``) or the tile's pixels
-(``extracted``: decode, prepare, extract; the cache keeps the result)."""
+(``extracted``: decode, prepare, extract; the cache keeps the result, keyed by the bytes decoded:
+read again once extracted, a tile rewritten meanwhile is not cached)."""
 
 from __future__ import annotations
 
@@ -91,11 +92,10 @@ class CandidateFeatures:
                 pixels = handle.decode()
             with timed(timings, "preprocess"):
                 image = self._pre.prepare_tile(pixels)
-        with failing_as(self._backend.extract_phase, "extracted"):
-            with timed(timings, "extract"):
-                features = self._backend.extract(image)
-            if key is not None:
-                self.cache.put(key, CachedTile(image, features))
+        with failing_as(self._backend.extract_phase, "extracted"), timed(timings, "extract"):
+            features = self._backend.extract(image)
+        if key is not None and _unchanged(candidate, key):
+            self.cache.put(key, CachedTile(image, features))
         return TileFeatures("extracted", image, features)
 
     def _stored(self, candidate: RerankCandidate, recorder: FrameRecorder) -> TileFeatures | None:
@@ -116,3 +116,13 @@ class CandidateFeatures:
             recorder.stored_features_failed(candidate.tile_id, exc)
             return None
         return None if geometry is None else TileFeatures("stored", geometry, features)
+
+
+def _unchanged(candidate: RerankCandidate, key: tuple[object, str]) -> bool:
+    """The candidate's tile bytes, read again, still have ``key``'s digest: the pixels just
+    decoded are those the key names (a tile file rewritten between the two reads is not cached
+    under the old bytes' key; a handle that fails now is simply not cached)."""
+    try:
+        return tile_cache_key(candidate.tile_id, candidate.tile_pixels_handle) == key
+    except Exception:  # any handle's failure: the features were had, only caching is skipped
+        return False
