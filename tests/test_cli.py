@@ -261,3 +261,21 @@ def test_engines_verify_fails_when_an_engine_file_is_missing(engine_dir, tmp_pat
     proc = c3(["engines", "verify"], {"C3_MATCHER_ENGINES__DIRECTORY": str(copy)})
     assert proc.returncode != 0
     assert victim.name in proc.stdout or "disk" in proc.stdout
+
+
+def test_a_reader_that_stops_reading_stdout_ends_the_command_quietly(monkeypatch, capsys):
+    """``c3-matcher config | head``: exit 141 as for SIGPIPE, nothing on stderr."""
+    import sys
+
+    from c3_matcher.cli import main
+
+    class GoneReader:
+        def write(self, text: str) -> int:
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self) -> None:
+            raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(sys, "stdout", GoneReader())
+    assert main(["config"]) == 141
+    assert capsys.readouterr().err == ""

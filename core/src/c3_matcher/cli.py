@@ -9,6 +9,7 @@ may come before or after the subcommand; ``--version`` prints the version.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import re
 import sys
@@ -270,6 +271,19 @@ def _fail(exc: BaseException | str) -> str:
     return f"c3-matcher: {text}"
 
 
+EXIT_BROKEN_PIPE = 128 + 13  # as a shell reports a command SIGPIPE ended
+
+
+def _drop_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's last flush finds no broken pipe to
+    complain about on stderr."""
+    import os
+
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from c3_matcher.compose import build_plugin_host
     from c3_matcher.logs import claim_stderr
@@ -305,6 +319,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except C3Error as exc:
         print(_fail(exc), file=sys.stderr)
         return EXIT_FAILURE
+    except BrokenPipeError:  # whoever read stdout stopped (`c3-matcher config | head`)
+        _drop_stdout()
+        return EXIT_BROKEN_PIPE
     except OSError as exc:  # a file we were told to read or write: the user's input
         where = f" {exc.filename}" if exc.filename else ""
         print(f"c3-matcher:{where} {exc.strerror or exc}", file=sys.stderr)
