@@ -41,6 +41,7 @@ def test_a_strategy_that_failed_to_run_is_reported_and_the_exit_status_is_1(
     proc = c3("eval", str(flight), "--strategy", "sift_magsac", "--out", str(out), *QUICK)
     assert proc.returncode == 1, proc.stderr[-2000:]
     assert "sift_magsac" in proc.stdout and "failed to run" in proc.stdout  # the table
+    assert ", max_keypoints each strategy its own" in proc.stdout  # no --max-keypoints given
     assert "failed to run: sift_magsac on two_frames" in proc.stderr
     (row,) = json.loads((out / "eval.json").read_text())["strategies"]
     assert row["strategy"] == "sift_magsac" and "000000.jpg" in row["error"]

@@ -306,7 +306,7 @@ def _print_table(
             if report["with_truth"]
             else "(no ground truth: the C3-IT figures need it; scored against the telemetry below)"
         )
-        + f", max_keypoints {max_keypoints}"
+        + f", max_keypoints {max_keypoints or 'each strategy its own'}"
         + (
             f", attitude noise {args.attitude_noise_deg:g} deg (1 sigma)"
             if args.attitude_noise_deg
