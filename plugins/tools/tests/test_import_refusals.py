@@ -205,3 +205,16 @@ def test_candidates_beyond_what_the_search_reaches_are_refused(
     images, csv = recorded(tmp_path, range(2))
     with pytest.raises(InvalidInputError, match=rf"--candidates.*\[1, {MAX_CANDIDATES}\]"):
         spec(images, csv, candidates=candidates)
+
+
+def test_frames_outside_the_store_beyond_those_shown_are_counted_not_hidden() -> None:
+    from c3_matcher_tools.dataset.importer import StoreProposals, TelemetryRow
+
+    rows = [TelemetryRow(i, float(i), f"IMG_{i}.jpg", 63.4, 10.4, 80.0, 0, 0, 0) for i in range(6)]
+    proposals = StoreProposals(18, [], rows, "", "")
+    with pytest.raises(InvalidInputError) as refused:
+        proposals.refuse_outside("flight.ulg", lambda r: r.image, shown=5)
+    message = str(refused.value)
+    assert message.startswith("flight.ulg: 6 frame(s) look outside")
+    assert "IMG_4.jpg" in message and "IMG_5.jpg" not in message
+    assert message.endswith(" and 1 more")

@@ -487,10 +487,11 @@ class StoreProposals:
         zoom."""
         if self.outside:
             names = [f"{label(r)} ({r.lat:.6f}, {r.lon:.6f})" for r in self.outside]
+            more = f" and {len(names) - shown} more" if len(names) > shown else ""
             raise InvalidInputError(
                 where,
                 f"{len(names)} frame(s) look outside the store's coverage at zoom {self.zoom}"
-                f"{hint}: " + ", ".join(names[:shown]),
+                f"{hint}: " + ", ".join(names[:shown]) + more,
             )
 
 
