@@ -60,6 +60,8 @@ def test_comparisons_are_speedups_of_the_right_pairs() -> None:
     assert "stored features vs extraction: 2.50x p50" in text
     assert "adaptive vs full LightGlue: 3.00x p50" in text
     assert "stored 3/3" in text and "vs torch" in text
+    row = next(line for line in text.splitlines() if line.startswith(results[0]["label"]))
+    assert row.split()[len(results[0]["label"].split())] == "CPU"  # not cut to CPUExecutionProvid
 
 
 def _machine() -> dict[str, Any]:

@@ -90,7 +90,7 @@ def format_report(report: dict[str, Any]) -> str:
         f"machine: {m['platform']}, {m['cpus']} CPUs, onnxruntime {m['onnxruntime']} "
         f"(providers {', '.join(m['available_providers'])}); {report['runs']} runs per "
         f"case; data {report.get('data', '?')}; frame = 1 query + its candidate tiles",
-        f"{'case':66} {'provider':18} {'frame p50':>9} {'frame p95':>9} {'cand p95':>8} "
+        f"{'case':66} {'provider (EP)':18} {'frame p50':>9} {'frame p95':>9} {'cand p95':>8} "
         f"{'peak MB':>7} {'inliers':>7} {'vs torch':>8} {'vs SIFT':>7}  tile features",
     ]
     for r in results:
@@ -98,7 +98,8 @@ def format_report(report: dict[str, Any]) -> str:
         vs_torch = _speedup(ref, r) if r["case"]["kind"] == "engine" else ""
         vs_sift = _speedup(sift, r) if sift and r is not sift else ""
         lines.append(
-            f"{r['label']:66} {r['provider'][:18]:18} {r['frame_ms']['p50']:9.0f} "
+            f"{r['label']:66} {r['provider'].removesuffix('ExecutionProvider'):18} "
+            f"{r['frame_ms']['p50']:9.0f} "
             f"{r['frame_ms']['p95']:9.0f} {r['per_candidate_ms']['p95']:8.0f} "
             f"{r['peak_rss_mb']:7.0f} {r['best_inliers']:7d} {vs_torch:>8} "
             f"{vs_sift:>7}  {_sources(r)}"
