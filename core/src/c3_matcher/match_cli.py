@@ -6,16 +6,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import functools
-import hashlib
 import json
 import math
 import sys
 import time
-import uuid
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from c3_matcher.atomic import refuse_output_over_inputs
 from c3_matcher.commands import (
@@ -24,17 +20,24 @@ from c3_matcher.commands import (
     CommandContext,
     CommandRegistry,
     add_max_keypoints_option,
+    bounded_int,
 )
 from c3_matcher.config import C3Settings
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
-from c3_matcher.dto.candidates import RerankCandidate, RerankResult
+from c3_matcher.dto.candidates import RerankResult
 from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError
 from c3_matcher.fdr import FdrOpenError, InMemoryFdr, JsonlFdrRecorder
+from c3_matcher.match_inputs import (
+    file_candidates,
+    frame_id_of,
+    open_store,
+    read_query,
+    store_candidates,
+)
 from c3_matcher.match_viz import draw_or_report
 from c3_matcher.protocols import TilePixelsHandle
-from c3_matcher.serialize import CALIBRATION_SIZE_FIX, load_calibration, result_to_json
-from c3_matcher.tiles import MmapTileHandle, read_image
+from c3_matcher.serialize import result_to_json
 
 __all__ = ["register_match_command"]
 
@@ -82,19 +85,33 @@ def register_match_command(commands: CommandRegistry) -> None:
         "InsufficientInliersError; 2 on a bad argument or unreadable image.",
     )
     p.add_argument("--query", type=Path, required=True, help="nav-camera image (as captured)")
-    p.add_argument(
+    tiles = p.add_mutually_exclusive_group(required=True)
+    tiles.add_argument(
         "--tile",
         type=Path,
         action="append",
-        required=True,
+        default=[],
         help="candidate tile image (north-up); repeat per candidate",
+    )
+    tiles.add_argument(
+        "--store",
+        type=Path,
+        default=None,
+        help="an MBTiles store: each --tile-id is a candidate, the --window px square around it",
     )
     p.add_argument(
         "--tile-id",
         type=_tile_id,
         action="append",
         default=[],
-        help="ZOOM,LAT,LON of the matching --tile, in order (default: 0,0,INDEX)",
+        help="ZOOM,LAT,LON of the matching --tile, in order (default: 0,0,INDEX), or of a "
+        "--store window's centre",
+    )
+    p.add_argument(
+        "--window",
+        type=bounded_int("--window", 64, 4096),
+        default=512,
+        help="side of a --store candidate window, px (default 512)",
     )
     p.add_argument(
         "--tile-gsd",
@@ -143,34 +160,29 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-_FRAME_IDS = uuid.UUID("6c3d1e0a-5b7e-4f0e-9a51-3c3a7d0f2b11")  # the namespace of frame_id_of
-
-
-def frame_id_of(image: np.ndarray) -> uuid.UUID:
-    """The id of a frame given as an image file: a name-based UUID (RFC 4122 version 5) of its
-    pixels, so that the same inputs give the same output, ``frame_id`` included."""
-    return uuid.uuid5(_FRAME_IDS, hashlib.sha256(np.ascontiguousarray(image).data).hexdigest())
-
-
 def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher.compose import build_default_helpers, compose_root, state_default_fdr_path
 
-    if args.tile_id and len(args.tile_id) != len(args.tile):
-        raise InvalidInputError(
-            "--tile-id",
-            f"{len(args.tile_id)} given for {len(args.tile)} --tile; give one per tile or none",
-        )
     settings, host = _match_settings(args, ctx.settings), ctx.plugin_host
     _refuse_output_over_input(args, settings.fdr.path)
-    image, calibration = _query(args, settings.matcher.max_image_pixels)
+    max_pixels = settings.matcher.max_image_pixels
+    image, calibration = read_query(args.query, args.calibration, max_pixels)
     frame = NavCameraFrame(
         frame_id_of(image), image, time.monotonic_ns(), args.attitude, args.height
     )
-    _warn_missing(args)
-    rerank = _candidates(args, frame, settings.matcher.max_image_pixels)
-    helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
     problems: list[str] = []  # output that could not be written: reported after the result
     with contextlib.ExitStack() as opened:  # given back in reverse, also when composing fails
+        if args.store:
+            store = opened.enter_context(contextlib.closing(open_store(args.store)))
+            rerank = store_candidates(
+                frame.frame_id, store, args.tile_id, args.window, args.tile_gsd
+            )
+        else:
+            rerank = file_candidates(
+                frame.frame_id, args.tile, args.tile_id, args.tile_gsd, max_pixels
+            )
+        _warn_missing(args)
+        helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
         own_fdr = _open_fdr(settings, problems)
         if own_fdr is not None:
             opened.callback(own_fdr.close)
@@ -221,40 +233,10 @@ def _refuse_output_over_input(args: argparse.Namespace, fdr_path: Path) -> None:
     files it reads, nor ``--viz`` the record: the recorder would cut an image's tail as a torn
     line and append its records to it, ``--viz`` would replace it (bad input, exit 2, nothing
     written)."""
-    inputs = [args.query, *args.tile, args.calibration]
+    inputs = [args.query, *args.tile, args.store, args.calibration]
     refuse_output_over_inputs(fdr_path, inputs, field="--fdr" if args.fdr else "[fdr] path")
     if args.viz:
         refuse_output_over_inputs(args.viz, [*inputs, fdr_path], field="--viz")
-
-
-def _query(args: argparse.Namespace, max_pixels: int) -> tuple[Any, CameraCalibration]:
-    """The ``--query`` image and its calibration (``--calibration``, else a pinhole with the
-    focal length = the image width, px); a calibration for another image size is bad input."""
-    image = read_image(args.query, max_pixels)
-    height, width = image.shape[:2]
-    calibration = (
-        load_calibration(args.calibration)
-        if args.calibration
-        else CameraCalibration.pinhole(width, height, focal_px=float(width))
-    )
-    if tuple(calibration.image_size) != (width, height):  # bad input (exit 2), not a backbone
-        cw, ch = calibration.image_size
-        raise InvalidInputError(
-            f"--calibration {args.calibration}",
-            f"image_size is {cw}x{ch} px but the --query image {args.query} is {width}x{height} px "
-            f"({CALIBRATION_SIZE_FIX})",
-        )
-    return image, calibration
-
-
-def _candidates(args: argparse.Namespace, frame: NavCameraFrame, max_pixels: int) -> RerankResult:
-    """The ``--tile`` files as the frame's candidates, in order (``--tile-id``: one per tile)."""
-    candidates = []
-    for i, path in enumerate(args.tile):
-        tile_id = args.tile_id[i] if args.tile_id else TileId(0, 0.0, float(i))
-        handle = _readable_tile(path, max_pixels)
-        candidates.append(RerankCandidate(tile_id, 1.0, handle, args.tile_gsd))
-    return RerankResult(frame.frame_id, tuple(candidates))
 
 
 def _insufficient_json(
@@ -299,19 +281,6 @@ def _result_json(
         if i not in kept
     ]
     return out
-
-
-def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
-    """A handle on a ``--tile`` file that exists and decodes within ``max_pixels`` (exit 2
-    otherwise, naming it)."""
-    from c3_matcher.tiles import decode_image
-
-    p = Path(path)
-    if not p.is_file():
-        raise InvalidInputError(f"--tile {p}", "no such image file")
-    handle = MmapTileHandle(p, max_pixels=max_pixels)
-    decode_image(handle.encoded(), f"--tile {p}", max_pixels)
-    return handle
 
 
 def _open_fdr(settings: C3Settings, problems: list[str]) -> JsonlFdrRecorder | None:

@@ -44,14 +44,15 @@ def _draw(
         best_index = int(next(iter(indices)))
         corr = result.per_candidate[0].inlier_correspondences
         hom = fit_query_to_tile(corr, calibration)
+    names = [p.name for p in args.tile] or [str(c.tile_id) for c in rerank.candidates]
     views = [
         CandidateView(
             c.tile_pixels_handle.decode(),
-            str(c.tile_id) if c.tile_id.zoom else path.name,
+            str(c.tile_id) if c.tile_id.zoom else name,
             counts.get(i),
             best=i == best_index,
         )
-        for i, (path, c) in enumerate(zip(args.tile, rerank.candidates, strict=True))
+        for i, (name, c) in enumerate(zip(names, rerank.candidates, strict=True))
     ]
     picture = render_match(
         image,

@@ -1,0 +1,127 @@
+"""What ``c3-matcher match`` reads: the query image and its calibration, and the candidates,
+either tile image files (``--tile``) or windows of an MBTiles store centred on tile ids
+(``--store``). Every input is checked here, before anything is composed: a bad one is an
+``InvalidInputError`` naming it (exit 2)."""
+
+from __future__ import annotations
+
+import hashlib
+import uuid
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.dto.camera import CameraCalibration
+from c3_matcher.dto.candidates import RerankCandidate, RerankResult
+from c3_matcher.dto.geo import TileId
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.serialize import CALIBRATION_SIZE_FIX, load_calibration
+from c3_matcher.tiles import MmapTileHandle, decode_image, read_image
+from c3_matcher.tilestore.mbtiles import MBTilesStore
+
+__all__ = ["file_candidates", "frame_id_of", "open_store", "read_query", "store_candidates"]
+
+_FRAME_IDS = uuid.UUID("6c3d1e0a-5b7e-4f0e-9a51-3c3a7d0f2b11")  # the namespace of frame_id_of
+
+
+def frame_id_of(image: NDArray[np.uint8]) -> uuid.UUID:
+    """The id of a frame given as an image file: a name-based UUID (RFC 4122 version 5) of its
+    pixels, so that the same inputs give the same output, ``frame_id`` included."""
+    return uuid.uuid5(_FRAME_IDS, hashlib.sha256(np.ascontiguousarray(image).data).hexdigest())
+
+
+def read_query(
+    query: Path, calibration_path: Path | None, max_pixels: int
+) -> tuple[NDArray[np.uint8], CameraCalibration]:
+    """The query image and its calibration (the file, else a pinhole with the focal length =
+    the image width, px); a calibration for another image size is bad input."""
+    image = read_image(query, max_pixels)
+    height, width = image.shape[:2]
+    calibration = (
+        load_calibration(calibration_path)
+        if calibration_path
+        else CameraCalibration.pinhole(width, height, focal_px=float(width))
+    )
+    if tuple(calibration.image_size) != (width, height):  # bad input (exit 2), not a backbone
+        cw, ch = calibration.image_size
+        raise InvalidInputError(
+            f"--calibration {calibration_path}",
+            f"image_size is {cw}x{ch} px but the --query image {query} is {width}x{height} px "
+            f"({CALIBRATION_SIZE_FIX})",
+        )
+    return image, calibration
+
+
+def file_candidates(
+    frame_id: uuid.UUID,
+    tiles: Sequence[Path],
+    tile_ids: Sequence[TileId],
+    tile_gsd_m: float | None,
+    max_pixels: int,
+) -> RerankResult:
+    """The tile files as the frame's candidates, in order; ``tile_ids`` one per tile, or none
+    (then ``0,0,INDEX``)."""
+    if tile_ids and len(tile_ids) != len(tiles):
+        raise InvalidInputError(
+            "--tile-id",
+            f"{len(tile_ids)} given for {len(tiles)} --tile; give one per tile or none",
+        )
+    candidates = []
+    for i, path in enumerate(tiles):
+        tile_id = tile_ids[i] if tile_ids else TileId(0, 0.0, float(i))
+        candidates.append(
+            RerankCandidate(tile_id, 1.0, _readable_tile(path, max_pixels), tile_gsd_m)
+        )
+    return RerankResult(frame_id, tuple(candidates))
+
+
+def open_store(path: Path) -> MBTilesStore:
+    """The ``--store`` MBTiles store (``close()`` it when done); ``InvalidInputError`` naming
+    ``--store`` for a missing file or one that is no MBTiles store."""
+    try:
+        return MBTilesStore(path)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"--store {path}", exc.reason) from None
+
+
+def store_candidates(
+    frame_id: uuid.UUID,
+    store: MBTilesStore,
+    tile_ids: Sequence[TileId],
+    window_px: int,
+    tile_gsd_m: float | None,
+) -> RerankResult:
+    """One candidate per tile id: the ``window_px`` square of ``store`` centred on it, at its
+    zoom (a zoom the store lacks is bad input; a window over no stored tile is a candidate
+    dropped, as in flight), its GSD the web-mercator one at its latitude unless given."""
+    if not tile_ids:
+        raise InvalidInputError("--tile-id", "--store needs one --tile-id per candidate window")
+    zooms = store.zooms()
+    for tile_id in tile_ids:
+        if tile_id.zoom not in zooms:
+            raise InvalidInputError(
+                f"--tile-id {tile_id.zoom},{tile_id.lat},{tile_id.lon}",
+                f"{store.path} has no tiles at zoom {tile_id.zoom} (it has {zooms})",
+            )
+    return RerankResult(
+        frame_id,
+        tuple(
+            RerankCandidate(
+                t, 1.0, store.handle(t, window_px), tile_gsd_m or t.web_mercator_gsd_m()
+            )
+            for t in tile_ids
+        ),
+    )
+
+
+def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
+    """A handle on a ``--tile`` file that exists and decodes within ``max_pixels`` (exit 2
+    otherwise, naming it)."""
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"--tile {p}", "no such image file")
+    handle = MmapTileHandle(p, max_pixels=max_pixels)
+    decode_image(handle.encoded(), f"--tile {p}", max_pixels)
+    return handle

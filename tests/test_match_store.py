@@ -1,0 +1,76 @@
+"""``c3-matcher match --store``: a frame against windows of the user's own MBTiles map, read
+through the flight's tile-store path (real engines, the shipped demo flight's frame and store);
+a store, tile id or output that cannot serve is one line and exit 2."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from c3_matcher_tools.testing.cli import run_cli
+
+REPO = Path(__file__).resolve().parents[1]
+FLIGHT = REPO / "data" / "flights" / "naip_demo"
+FRAME = json.loads((FLIGHT / "frames.jsonl").read_text().splitlines()[0])
+STORE = FLIGHT / "tiles.mbtiles"
+
+
+def _match(tmp_path: Path, engine_dir: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    settings = {"C3_MATCHER_FDR__PATH": str(tmp_path / "fdr.jsonl")}
+    query = ["match", "--query", str(FLIGHT / FRAME["image"])]
+    return run_cli(*query, *args, cwd=tmp_path, engine_dir=engine_dir, settings=settings)
+
+
+def _tile_id(candidate: dict[str, object]) -> str:
+    return ",".join(map(str, candidate["tile_id"]))  # type: ignore[call-overload]
+
+
+def test_a_frame_against_windows_of_a_store_finds_its_own(engine_dir, tmp_path):
+    true, other = sorted(FRAME["candidates"], key=lambda c: not c["is_true"])[:2]
+    roll, pitch, yaw = FRAME["attitude_deg"]
+    proc = _match(
+        tmp_path,
+        engine_dir,
+        *("--calibration", str(FLIGHT / "calibration.json")),
+        *("--attitude", f"{roll},{pitch},{yaw}", "--height", str(FRAME["height_m"])),
+        *("--store", str(STORE), "--window", "448"),
+        *("--tile-id", _tile_id(other), "--tile-id", _tile_id(true)),
+        *("--viz", str(tmp_path / "match.png"), "--no-correspondences"),
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    out = json.loads(proc.stdout)
+    best = out["per_candidate"][0]
+    assert best["tile_index"] == 1 and best["tile_id"] == true["tile_id"]
+    assert best["inlier_count"] >= 80
+    truth = FRAME["pose"]
+    assert abs(out["centre_lat"] - truth["footprint_centre_lat"]) < 0.001  # about 100 m
+    assert abs(out["centre_lon"] - truth["footprint_centre_lon"]) < 0.0015
+    assert (tmp_path / "match.png").stat().st_size > 10_000
+    records = [json.loads(x) for x in (tmp_path / "fdr.jsonl").read_text().splitlines()]
+    (done,) = (r["payload"] for r in records if r["kind"] == "matcher.frame_done")
+    assert done["candidates_input"] == 2
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--store", str(STORE)], "--tile-id: --store needs one --tile-id per candidate window"),
+        (["--store", str(STORE), "--tile-id", "14,47.02,-99.15"], "has no tiles at zoom 14"),
+        (["--store", str(REPO / "README.md"), "--tile-id", "15,47,-99"], "--store"),
+        (["--store", "missing.mbtiles", "--tile-id", "15,47,-99"], "--store missing.mbtiles"),
+        (["--store", str(STORE), "--tile", str(STORE)], "not allowed with argument --store"),
+        (["--store", str(STORE), "--tile-id", "15,47,-99", "--fdr", str(STORE)], "--fdr"),
+        (["--store", str(STORE), "--tile-id", "15,47,-99", "--window", "8"], "--window"),
+    ],
+    ids=["no-tile-id", "zoom", "not-mbtiles", "missing", "with-tile", "fdr-over-it", "window"],
+)
+def test_what_a_store_cannot_serve_is_one_line_and_exit_2(engine_dir, tmp_path, args, needle):
+    before = STORE.read_bytes()
+    proc = _match(tmp_path, engine_dir, *args)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    said = [line for line in proc.stderr.splitlines() if not line.startswith("{")]
+    assert needle in said[-1], said
+    assert proc.stdout == "" and STORE.read_bytes() == before
