@@ -25,7 +25,8 @@ def main(argv: list[str]) -> int:
         if truth is not None:
             mark = "  <- true tile" if truth["tiles"][c["tile_index"]]["true"] else ""
         print(
-            f"  #{rank} --tile {c['tile_index']} {c['tile_id']}: {c['inlier_count']} inliers, "
+            f"  #{rank} --tile {c['tile_index']} {c['tile_id'] or ''}: "
+            f"{c['inlier_count']} inliers, "
             f"{c['ransac_outlier_count']} outliers, median residual "
             f"{c['per_candidate_residual_px']:.2f} px{mark}"
         )

@@ -83,6 +83,7 @@ def test_quick_start_as_a_new_user(user: tuple[Path, dict[str, str]]) -> None:
     true_index = next(i for i, t in enumerate(meta["tiles"]) if t["true"])
     assert result["per_candidate"][0]["tile_index"] == true_index
     assert result["per_candidate"][0]["inlier_count"] >= 60
+    assert result["per_candidate"][0]["tile_id"] is None  # no --tile-id: no place made up
     assert (work / "match.png").stat().st_size > 0
     fdr = Path(env["HOME"]) / ".local" / "share" / "c3-matcher" / "fdr" / "c3_fdr.jsonl"
     assert fdr.is_file()  # the default recorder, in the user's data directory ...

@@ -104,8 +104,8 @@ def register_match_command(commands: CommandRegistry) -> None:
         type=_tile_id,
         action="append",
         default=[],
-        help="ZOOM,LAT,LON of the matching --tile, in order (default: 0,0,INDEX), or of a "
-        "--store window's centre",
+        help="ZOOM,LAT,LON of the matching --tile, in order, or of a --store window's centre "
+        "(default for --tile: none, null in the JSON, 0,0,INDEX in the FDR)",
     )
     p.add_argument(
         "--window",
@@ -280,6 +280,9 @@ def _result_json(
         for i, c in enumerate(rerank.candidates)
         if i not in kept
     ]
+    if not args.tile_id:  # the placeholder ids 0,0,INDEX are no place: the JSON says none
+        for entry in (*out["per_candidate"], *out["dropped"]):
+            entry["tile_id"] = None
     return out
 
 
