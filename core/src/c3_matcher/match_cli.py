@@ -80,17 +80,38 @@ def register_match_command(commands: CommandRegistry) -> None:
     p = commands.add(
         "match",
         help="match a nav-camera image against candidate tiles (JSON on stdout)",
-        description="Match one nav-camera image against 1..N candidate tile images. Exit 0 with "
+        description="Match one nav-camera image against 1..N candidate tile images (or windows "
+        "of an MBTiles store). Exit 0 with "
         "the MatchResult as JSON; 3 with a JSON error object on "
         "InsufficientInliersError; 2 on a bad argument or unreadable image.",
     )
     p.add_argument("--query", type=Path, required=True, help="nav-camera image (as captured)")
+    _add_candidate_options(p)
+    p.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        help="camera calibration JSON (K, distortion, image_size[, camera_to_body]);"
+        " default: a distortion-free pinhole with focal = image width",
+    )
+    p.add_argument(
+        "--attitude",
+        type=_attitude,
+        default=None,
+        help="ROLL,PITCH,YAW of the vehicle in DEGREES (Z-Y-X, NED, yaw from north)",
+    )
+    p.add_argument("--height", type=_positive, default=None, help="height above ground, m")
+    _add_output_options(p)
+    p.set_defaults(handler=run_match)
+
+
+def _add_candidate_options(p: argparse.ArgumentParser) -> None:
+    """The candidates: tile files or windows of a store, their ids and GSD."""
     tiles = p.add_mutually_exclusive_group(required=True)
     tiles.add_argument(
         "--tile",
         type=Path,
         action="append",
-        default=[],
         help="candidate tile image (north-up); repeat per candidate",
     )
     tiles.add_argument(
@@ -119,22 +140,6 @@ def register_match_command(commands: CommandRegistry) -> None:
         default=None,
         help="tiles' ground sample distance, m/px (default: from the tile id's zoom)",
     )
-    p.add_argument(
-        "--calibration",
-        type=Path,
-        default=None,
-        help="camera calibration JSON (K, distortion, image_size[, camera_to_body]);"
-        " default: a distortion-free pinhole with focal = image width",
-    )
-    p.add_argument(
-        "--attitude",
-        type=_attitude,
-        default=None,
-        help="ROLL,PITCH,YAW of the vehicle in DEGREES (Z-Y-X, NED, yaw from north)",
-    )
-    p.add_argument("--height", type=_positive, default=None, help="height above ground, m")
-    _add_output_options(p)
-    p.set_defaults(handler=run_match)
 
 
 def _add_output_options(p: argparse.ArgumentParser) -> None:
@@ -179,7 +184,7 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
             )
         else:
             rerank = file_candidates(
-                frame.frame_id, args.tile, args.tile_id, args.tile_gsd, max_pixels
+                frame.frame_id, args.tile or [], args.tile_id, args.tile_gsd, max_pixels
             )
         _warn_missing(args)
         helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
@@ -233,7 +238,7 @@ def _refuse_output_over_input(args: argparse.Namespace, fdr_path: Path) -> None:
     files it reads, nor ``--viz`` the record: the recorder would cut an image's tail as a torn
     line and append its records to it, ``--viz`` would replace it (bad input, exit 2, nothing
     written)."""
-    inputs = [args.query, *args.tile, args.store, args.calibration]
+    inputs = [args.query, *(args.tile or ()), args.store, args.calibration]
     refuse_output_over_inputs(fdr_path, inputs, field="--fdr" if args.fdr else "[fdr] path")
     if args.viz:
         refuse_output_over_inputs(args.viz, [*inputs, fdr_path], field="--viz")

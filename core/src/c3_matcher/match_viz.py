@@ -44,7 +44,7 @@ def _draw(
         best_index = int(next(iter(indices)))
         corr = result.per_candidate[0].inlier_correspondences
         hom = fit_query_to_tile(corr, calibration)
-    names = [p.name for p in args.tile] or [str(c.tile_id) for c in rerank.candidates]
+    names = [p.name for p in args.tile or ()] or [str(c.tile_id) for c in rerank.candidates]
     views = [
         CandidateView(
             c.tile_pixels_handle.decode(),
