@@ -129,6 +129,11 @@ def _report_lines(name: str, report: dict[str, Any], out: Path) -> list[str]:
         f"  ok {report['ok']}, insufficient inliers {report['insufficient']}, "
         f"backbone errors {report['backbone_error']}",
     ]
+    if report["frames"] and not report["ok"]:
+        lines.append(
+            "  no frame matched: check that the store covers the flight and that heights and "
+            "attitudes are right; `c3-matcher eval` compares the strategies on it"
+        )
     if report["with_truth"]:
         lines.append(
             f"  correct candidate {report['correct_candidate']}/{report['true_present']} "
