@@ -108,3 +108,27 @@ def test_the_default_fdr_path_is_stated_when_used(
             assert str(tmp_path / "data") in stated[0]["path"]
     finally:
         root.close()
+
+
+HELPERS_FIRST = textwrap.dedent(
+    """
+    from loguru import logger
+    from c3_matcher.compose import build_default_helpers
+    from c3_matcher.config import C3Settings
+
+    logger.info("host before")
+    build_default_helpers(C3Settings())  # logs the inference provider it picks
+    logger.info("host after")
+    """
+)
+
+
+def test_building_the_helpers_before_compose_root_prints_no_plain_text_matcher_line() -> None:
+    """The README's order (helpers, then ``compose_root``): the matcher's records stay off
+    loguru's plain-text default handler, the program's own still reach it."""
+    proc = subprocess.run(
+        [sys.executable, "-c", HELPERS_FIRST], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "inference provider" not in proc.stderr, proc.stderr
+    assert "host before" in proc.stderr and "host after" in proc.stderr

@@ -103,7 +103,9 @@ def build_default_helpers(
         steps_feature_types,
     )
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
+    from c3_matcher.logs import swap_default_handler
 
+    swap_default_handler()  # the helpers log before compose_root sets the JSON sink up
     host = plugin_host if plugin_host is not None else build_plugin_host()
     resolved = strategy_settings(settings, plugin_host=host)
     threshold = resolved.lightglue.filter_threshold

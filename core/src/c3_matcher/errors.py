@@ -164,9 +164,10 @@ class EngineError(C3Error):
     """An engine is missing, unreadable or does not match its manifest (a start-up error)."""
 
     def __init__(
-        self, path: object, reason: str, command: str = "c3-matcher engines build"
+        self, path: object, reason: str, command: str | None = "c3-matcher engines build"
     ) -> None:
         self.path = path
         self.reason = reason
-        self.command = command
-        super().__init__(f"engine {path}: {reason}; build it with `{command}`")
+        self.command = command  # None: no build fixes it (a backend that runs no engine)
+        fix = f"; build it with `{command}`" if command else ""
+        super().__init__(f"engine {path}: {reason}{fix}")

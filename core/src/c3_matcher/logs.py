@@ -42,6 +42,7 @@ __all__ = [
     "configure_logging",
     "is_matcher_record",
     "log_event",
+    "swap_default_handler",
 ]
 
 FORWARDED_LEVELS = {"WARNING": "log.warning", "ERROR": "log.error", "CRITICAL": "log.error"}
@@ -103,7 +104,7 @@ def configure_logging(
         out.write(json.dumps(_record_to_dict(message.record), separators=(",", ":")) + "\n")
         out.flush()
 
-    _swap_default_handler()
+    swap_default_handler()
     ours = is_matcher_record
     ids = [logger.add(json_sink, level=level.upper(), format="{message}", filter=ours)]
     if fdr is not None:
@@ -117,10 +118,12 @@ def configure_logging(
 _LOGURU_DEFAULT_HANDLER = 0
 
 
-def _swap_default_handler() -> None:
+def swap_default_handler() -> None:
     """Replace loguru's import-time stderr handler, if it is still installed, by the same
     handler minus the matcher's records (nothing happens when the program removed it or it was
-    swapped already)."""
+    swapped already): ``configure_logging`` does, and so does ``build_default_helpers``, whose
+    helpers log before ``compose_root`` configures the JSON sink (a plain-text line on stderr
+    otherwise, at any configured level)."""
     try:
         logger.remove(_LOGURU_DEFAULT_HANDLER)
     except ValueError:

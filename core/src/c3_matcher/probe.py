@@ -48,7 +48,21 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
                 "setting that stops every pair early: [lightglue] exit_matches)"
             )
     except Exception as exc:
+        failed = f"start-up probe failed: {type(exc).__name__}: {exc}"
+        if _runs_engines(backend):
+            raise EngineError(backend.label, failed) from exc
         raise EngineError(
             backend.label,
-            f"start-up probe failed: {type(exc).__name__}: {exc}",
+            f"{failed}; the backend runs no engine: test its extract and match with the "
+            "contract kit (c3_matcher.testing.contract.BackendContract, docs/plugins.md)",
+            command=None,
         ) from exc
+
+
+def _runs_engines(backend: FeatureBackend) -> bool:
+    """Whether the backend names engines in its provenance (then ``engines build`` is the fix
+    for a failing probe); a backend whose provenance cannot be read is taken to run them."""
+    try:
+        return bool(backend.provenance().get("engines", True))
+    except Exception:
+        return True
