@@ -5,6 +5,7 @@ either tile image files (``--tile``) or windows of an MBTiles store centred on t
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import uuid
 from collections.abc import Sequence
@@ -105,15 +106,10 @@ def store_candidates(
                 f"--tile-id {tile_id.zoom},{tile_id.lat},{tile_id.lon}",
                 f"{store.path} has no tiles at zoom {tile_id.zoom} (it has {zooms})",
             )
-    return RerankResult(
-        frame_id,
-        tuple(
-            RerankCandidate(
-                t, 1.0, store.handle(t, window_px), tile_gsd_m or t.web_mercator_gsd_m()
-            )
-            for t in tile_ids
-        ),
-    )
+    candidates = [store.candidate(t, size_px=window_px) for t in tile_ids]
+    if tile_gsd_m is not None:
+        candidates = [dataclasses.replace(c, gsd_m_per_px=tile_gsd_m) for c in candidates]
+    return RerankResult(frame_id, tuple(candidates))
 
 
 def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
