@@ -16,6 +16,7 @@ REPO = Path(__file__).resolve().parents[1]
 FLIGHT = REPO / "data" / "flights" / "naip_demo"
 FRAME = json.loads((FLIGHT / "frames.jsonl").read_text().splitlines()[0])
 STORE = FLIGHT / "tiles.mbtiles"
+TILE = REPO / "data" / "demo" / "tile_a.png"
 
 
 def _match(tmp_path: Path, engine_dir: Path, *args: str) -> subprocess.CompletedProcess[str]:
@@ -64,8 +65,18 @@ def test_a_frame_against_windows_of_a_store_finds_its_own(engine_dir, tmp_path):
         (["--store", str(STORE), "--tile", str(STORE)], "not allowed with argument --store"),
         (["--store", str(STORE), "--tile-id", "15,47,-99", "--fdr", str(STORE)], "--fdr"),
         (["--store", str(STORE), "--tile-id", "15,47,-99", "--window", "8"], "--window"),
+        (["--tile", str(TILE), "--window", "256"], "--window: sizes --store windows"),
     ],
-    ids=["no-tile-id", "zoom", "not-mbtiles", "missing", "with-tile", "fdr-over-it", "window"],
+    ids=[
+        "no-tile-id",
+        "zoom",
+        "not-mbtiles",
+        "missing",
+        "with-tile",
+        "fdr-over-it",
+        "window",
+        "window-without-store",
+    ],
 )
 def test_what_a_store_cannot_serve_is_one_line_and_exit_2(engine_dir, tmp_path, args, needle):
     before = STORE.read_bytes()

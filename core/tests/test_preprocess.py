@@ -167,6 +167,19 @@ def test_gsd_scaling_factor_is_h_over_f_over_g() -> None:
     assert prep.working_gsd_m == pytest.approx(h / F)
 
 
+@pytest.mark.parametrize("tile_gsd", [1e-100, 1e300])
+@pytest.mark.parametrize("attitude", [None, Attitude(0.0, 0.0, 1.0)])
+def test_a_scale_no_camera_and_map_pair_can_have_is_named(tile_gsd, attitude) -> None:
+    """A million times or more between the frame's GSD and the tiles' is a height or GSD in
+    the wrong units: named, instead of overflowing inside OpenCV."""
+    pre = FramePreprocessor(InputRule(1024, 16))
+    frame = _frame(_texture(), attitude, 150.0)
+    with pytest.raises(InvalidInputError, match="check the height and the tiles' GSD") as err:
+        pre.prepare_query(frame, CameraCalibration.pinhole(W, H, F), tile_gsd)
+    assert err.value.field == "tile_gsd_m"
+    assert max(pre.prepare_query(frame, CameraCalibration.pinhole(W, H, F), 3e-4).working_size)
+
+
 @pytest.mark.parametrize("rule", [InputRule(1024, 16), InputRule(512, 32)])
 def test_round_trip_and_forward_path_with_distortion(rule: InputRule) -> None:
     w, h = 1000, 750

@@ -41,6 +41,8 @@ from c3_matcher.serialize import result_to_json
 
 __all__ = ["register_match_command"]
 
+DEFAULT_WINDOW_PX = 512  # a --store candidate window's side without --window
+
 
 def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
     try:
@@ -131,8 +133,8 @@ def _add_candidate_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--window",
         type=bounded_int("--window", 64, 4096),
-        default=512,
-        help="side of a --store candidate window, px (default 512)",
+        default=None,
+        help=f"side of a --store candidate window, px (default {DEFAULT_WINDOW_PX})",
     )
     p.add_argument(
         "--tile-gsd",
@@ -179,9 +181,10 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     with contextlib.ExitStack() as opened:  # given back in reverse, also when composing fails
         if args.store:
             store = opened.enter_context(contextlib.closing(open_store(args.store)))
-            rerank = store_candidates(
-                frame.frame_id, store, args.tile_id, args.window, args.tile_gsd
-            )
+            window = DEFAULT_WINDOW_PX if args.window is None else args.window
+            rerank = store_candidates(frame.frame_id, store, args.tile_id, window, args.tile_gsd)
+        elif args.window is not None:
+            raise InvalidInputError("--window", "sizes --store windows; a --tile is matched whole")
         else:
             rerank = file_candidates(
                 frame.frame_id, args.tile or [], args.tile_id, args.tile_gsd, max_pixels

@@ -50,7 +50,13 @@ from c3_matcher.prepared import InputRule, PreparedImage, engine_to_working
 from c3_matcher.query_geometry import QueryGeometry
 from c3_matcher.resample import area_downscale, check_pixels, remap_linear
 
-__all__ = ["FramePreprocessor"]
+__all__ = ["MAX_QUERY_SCALE", "FramePreprocessor"]
+
+# The farthest the frame's scale may be from the tiles' (``f_w / sqrt(fx * fy)``, either way):
+# a million times means a height or a tile GSD in the wrong units or a sensor glitch, never a
+# pairing of camera and map (a frame shrunk that far is under a pixel), and it keeps the
+# rectifying homography's products inside floating point.
+MAX_QUERY_SCALE = 1e6
 
 
 @dataclass(frozen=True)
@@ -163,7 +169,16 @@ class FramePreprocessor:
         k = calibration.K
         f_ref = math.sqrt(k[0, 0] * k[1, 1])
         height = frame.height_above_ground_m
-        f_w = height / float(tile_gsd_m) if (height is not None and tile_gsd_m) else f_ref
+        f_w = f_ref
+        if height is not None and tile_gsd_m:
+            f_w = height / float(tile_gsd_m)
+            if not 1 / MAX_QUERY_SCALE <= f_w / f_ref <= MAX_QUERY_SCALE:
+                raise InvalidInputError(
+                    "tile_gsd_m",
+                    f"{tile_gsd_m:g} m/px would scale the frame by {f_w / f_ref:.3g} (height "
+                    f"{height:g} m, focal {f_ref:.1f} px, its own GSD {height / f_ref:.3g} m/px):"
+                    " check the height and the tiles' GSD",
+                )
 
         # H0: UNDISTORTED px -> working px before the canvas translation.
         if frame.attitude is not None:
