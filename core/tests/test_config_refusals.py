@@ -37,6 +37,23 @@ def test_a_ransac_seed_beyond_opencvs_c_int_is_refused_at_load() -> None:
 
 
 @pytest.mark.parametrize(
+    ("key", "largest"),
+    [
+        ("MATCHER__MIN_INLIERS_THRESHOLD", 8192),
+        ("LIGHTGLUE__EXIT_MATCHES", 8192),
+    ],
+)
+def test_a_count_no_frame_can_reach_is_refused_at_load(key: str, largest: int) -> None:
+    """Inliers and mutual matches never exceed the largest keypoint budget: a threshold above
+    it used to load and then fail every frame (or the start-up probe, blaming the engine)."""
+    section, name = key.lower().split("__")
+    assert getattr(getattr(load_settings(env={f"C3_MATCHER_{key}": str(largest)}), section), name)
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(env={f"C3_MATCHER_{key}": str(largest + 1)})
+    assert _fields(info.value) == [f"{section}.{name}"]
+
+
+@pytest.mark.parametrize(
     ("text", "field"),
     [
         ("[matcher]\ntile_cache_size = true\n", "matcher.tile_cache_size"),

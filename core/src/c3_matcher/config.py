@@ -77,6 +77,7 @@ class MatcherSettings(_Section):
     min_inliers_threshold: int = Field(
         60,
         ge=4,
+        le=KEYPOINT_BUDGET_RANGE[1],  # inliers <= keypoints: a larger one fails every frame
         description="RANSAC inliers a candidate needs; below it on every candidate: "
         "InsufficientInliersError",
     )
@@ -280,6 +281,7 @@ class LightGlueSettings(_Section):
     exit_matches: int | None = Field(
         None,
         ge=0,
+        le=KEYPOINT_BUDGET_RANGE[1],  # mutual matches <= keypoints: a larger one stops every pair
         description="unmatchable-pair exit (adaptive mode): after the second layer, stop a pair "
         "with no matches when fewer than this many mutual matches have confidence above 0.3; "
         "0 off; unset: the strategy's own default, chosen by measurement (docs/decisions.md)",
