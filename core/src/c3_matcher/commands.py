@@ -12,6 +12,7 @@ the plugins are discovered once per process, by the command line, and every hand
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -72,6 +73,10 @@ class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
+_NUMBER = r"-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?"
+_NEGATIVE_NUMBERS = re.compile(rf"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,{_NUMBER})*$")
+
+
 class UsageParser(argparse.ArgumentParser):
     """An argument parser whose usage errors exit 2 with one line on stderr and whose help shows
     the defaults."""
@@ -79,6 +84,9 @@ class UsageParser(argparse.ArgumentParser):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
         super().__init__(*args, **kwargs)
+        # argparse's own rule (a word that looks like a negative number is a value, while no
+        # option looks like one), extended to lists: ``--attitude -3,1,90`` is a negative roll
+        self._negative_number_matcher = _NEGATIVE_NUMBERS
 
     def error(self, message: str) -> None:  # type: ignore[override]
         print(f"{self.prog}: error: {message}", file=sys.stderr)
