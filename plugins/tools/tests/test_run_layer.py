@@ -165,3 +165,25 @@ def test_open_matcher_starts_the_fdr_afresh_rotated_segments_included(tmp_path: 
         assert matcher.health_snapshot() is not None
     assert sorted(p.name for p in tmp_path.glob("fdr*")) == ["fdr.jsonl", "fdr.jsonl.lock"]
     assert list(read_fdr(tmp_path / "fdr.jsonl")) == []  # this run recorded no frame
+
+
+def test_a_frame_without_its_true_tile_has_its_truth_through_the_distractors() -> None:
+    """Every candidate's ground-truth homography maps the same ground plane: dropping the true
+    tile (as a frame without it) leaves the principal point's truth where it was, not at the
+    footprint polygon's centre."""
+    from c3_matcher.georef import haversine_m
+    from c3_matcher_tools.run import truth_position
+
+    dataset = load_dataset(Path(__file__).resolve().parents[3] / "data/flights/naip_demo")
+    checked = 0
+    for frame in dataset.frames:
+        truth = truth_position(dataset, frame)
+        if not any(c.is_true for c in frame.candidates) or truth is None:
+            continue
+        others = tuple(c for c in frame.candidates if not c.is_true)
+        blind = truth_position(dataset, dataclasses.replace(frame, candidates=others))
+        assert blind is not None, frame.index
+        (lat, lon), (blat, blon) = truth, blind
+        assert haversine_m([lon, lat], [blon, blat])[0] < 1.0, frame.index
+        checked += 1
+    assert checked >= 20

@@ -44,13 +44,15 @@ def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -
 
 
 def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, float] | None:
-    """(lat, lon) where the frame's principal point truly looks: through the true candidate's
-    ground-truth homography, else the record's ``pose`` footprint centre; None without truth."""
+    """(lat, lon) where the frame's principal point truly looks: through a candidate's
+    ground-truth homography (the true one first; a distractor's maps the same ground plane, so a
+    frame without its true tile has its truth too), else the record's ``pose`` footprint centre;
+    None without truth."""
     from c3_matcher.georef import tile_px_to_lonlat
 
     k = dataset.calibration.K
-    for cand in frame.candidates:
-        if cand.is_true and cand.h_tile_to_undistorted is not None:
+    for cand in sorted(frame.candidates, key=lambda c: not c.is_true):
+        if cand.h_tile_to_undistorted is not None:
             size = dataset.candidate_size_px
             tile_px = cam.apply_homography(
                 np.linalg.inv(cand.h_tile_to_undistorted), [[k[0, 2], k[1, 2]]]
