@@ -91,6 +91,10 @@ def test_geojson_holds_truth_and_estimate(replayed: Path) -> None:
         ).reshape(-1, 2)
         assert np.all(np.abs(coords[:, 0] + 99.15) < 0.1)  # lon first (RFC 7946)
         assert np.all(np.abs(coords[:, 1] - 47.0) < 0.1)
+        if f["geometry"]["type"] == "Polygon":  # an exterior ring: closed, counterclockwise
+            x, y = coords[:, 0], coords[:, 1]
+            assert (coords[0] == coords[-1]).all()
+            assert np.sum(x[:-1] * y[1:] - x[1:] * y[:-1]) > 0
 
 
 def _data_images(html: str) -> list[np.ndarray]:
