@@ -36,7 +36,7 @@ def _result(case: BenchCase, p50: float, rss: float = 100.0) -> dict[str, Any]:
         "per_candidate_ms": {"p50": p50 / 3, "p95": p50 / 3},
         "stages_ms": {"extract": {"p50": 1.0, "p95": 2.0}},
         "feature_sources": {"stored": 3} if case.stored_features else {"extracted": 3},
-        "peak_rss_mb": rss,
+        "peak_rss_mib": rss,
     }
 
 
@@ -55,7 +55,7 @@ def test_comparisons_are_speedups_of_the_right_pairs() -> None:
     assert got["adaptive vs full LightGlue"]["speedup_p50"] == pytest.approx(3.0)
     vs_torch = got[f"{results[0]['label']} vs PyTorch"]
     assert vs_torch["speedup_p50"] == pytest.approx(5.0)
-    assert vs_torch["peak_rss_mb"] == (100.0, 900.0)
+    assert vs_torch["peak_rss_mib"] == (100.0, 900.0)
     text = format_report({"machine": _machine(), "runs": 1, "data": "x", "results": results})
     assert "stored features vs extraction: 2.50x p50" in text
     assert "adaptive vs full LightGlue: 3.00x p50" in text
@@ -103,7 +103,7 @@ def test_bench_smoke_over_a_flight_with_stored_features(
     out = capsys.readouterr().out
     assert "xfeat (stored tiles" in out and "xfeat (new tiles" in out
     assert "stored features vs extraction:" in out and "cached vs new tiles:" in out
-    assert "peak MB" in out and "stored 3/3" in out  # the stored case really used the store
+    assert "peak MiB" in out and "stored 3/3" in out  # the stored case really used the store
 
 
 def test_bench_data_defaults_to_the_checkouts_demo_frame_and_is_required_from_wheels(

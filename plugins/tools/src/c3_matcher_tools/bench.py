@@ -245,14 +245,17 @@ def demo_data(data: Path | None) -> Path:
 
 def _checked_data(data: Path) -> Path:
     """``data`` when it is a flight dataset that loads, tile store included (``dataset.json``),
-    or a demo-format directory (``demo.json``); else InvalidInputError naming it (exit 2)."""
+    with a frame to time (``timed_frames``), or a demo-format directory (``demo.json``); else
+    InvalidInputError naming it (exit 2)."""
     from c3_matcher_tools.dataset.format import load_dataset
+    from c3_matcher_tools.run.inputs import timed_frames
 
     if not data.is_dir():
         raise InvalidInputError("--data", f"no such directory: {data}")
     if (data / "dataset.json").is_file():
-        with load_dataset(data).open_store():  # its frames, calibration and tile store
-            pass
+        dataset = load_dataset(data)
+        with dataset.open_store():  # its frames, calibration and tile store
+            timed_frames(dataset)
     elif not (data / "demo.json").is_file():
         raise InvalidInputError(
             "--data",
@@ -293,5 +296,24 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
     if args.json:
         ctx.out(json.dumps(report, indent=2))
         return 0
-    ctx.out(format_report(report))
+    ctx.out(_text_report(report))
     return 0
+
+
+def _text_report(report: dict[str, Any]) -> str:
+    """``format_report``'s table, then a note for each case whose timed frames raised
+    InsufficientInliersError: their times count in the frame columns, but candidate and stage
+    times come only from frames that matched, so a case where none did has no candidate time
+    (n/a)."""
+    lines = [format_report(report)]
+    for r in report["results"]:
+        raised = r.get("frames_raised", 0)
+        if not raised:
+            continue
+        matched = r["runs"] - raised
+        lines.append(
+            f"note: {r['label']}: {raised}/{r['runs']} timed frames raised "
+            "InsufficientInliersError (in frame p50/p95, inliers 0); cand p95 and stage times: "
+            + (f"the {matched} that matched" if matched else "n/a (none matched)")
+        )
+    return "\n".join(lines)

@@ -1,6 +1,6 @@
 """The figures ``c3-matcher bench`` reports from its cases' results: the ratios a run proves
 (speed-ups of frame p50 and p95, slower / faster, >1 means the second case is faster; peak RSS
-of both sides) and the table."""
+of both sides, MiB) and the table."""
 
 from __future__ import annotations
 
@@ -14,6 +14,11 @@ def _speedup(slow: dict[str, Any] | None, fast: dict[str, Any] | None, key: str 
     if not slow or not fast or not fast["frame_ms"][key]:
         return ""
     return f"{slow['frame_ms'][key] / fast['frame_ms'][key]:.2f}x"
+
+
+def _p95(ms: dict[str, float] | None) -> str:
+    """A p95 in ms as the table prints it; n/a when there is none (no frame matched)."""
+    return "n/a" if ms is None else f"{ms['p95']:.0f}"
 
 
 def _sources(r: dict[str, Any]) -> str:
@@ -43,7 +48,7 @@ def comparisons(results: list[Result]) -> list[Result]:
                     "comparison": what,
                     "speedup_p50": slow["frame_ms"]["p50"] / fast["frame_ms"]["p50"],
                     "speedup_p95": slow["frame_ms"]["p95"] / fast["frame_ms"]["p95"],
-                    "peak_rss_mb": (fast["peak_rss_mb"], slow["peak_rss_mb"]),
+                    "peak_rss_mib": (fast["peak_rss_mib"], slow["peak_rss_mib"]),
                 }
             )
     return out
@@ -91,7 +96,7 @@ def format_report(report: dict[str, Any]) -> str:
         f"(providers {', '.join(m['available_providers'])}); {report['runs']} runs per "
         f"case; data {report.get('data', '?')}; frame = 1 query + its candidate tiles",
         f"{'case':66} {'provider (EP)':18} {'frame p50':>9} {'frame p95':>9} {'cand p95':>8} "
-        f"{'peak MB':>7} {'inliers':>7} {'vs torch':>8} {'vs SIFT':>7}  tile features",
+        f"{'peak MiB':>8} {'inliers':>7} {'vs torch':>8} {'vs SIFT':>7}  tile features",
     ]
     for r in results:
         ref = torch_ref.get(r["case"]["strategy"])
@@ -100,16 +105,16 @@ def format_report(report: dict[str, Any]) -> str:
         lines.append(
             f"{r['label']:66} {r['provider'].removesuffix('ExecutionProvider'):18} "
             f"{r['frame_ms']['p50']:9.0f} "
-            f"{r['frame_ms']['p95']:9.0f} {r['per_candidate_ms']['p95']:8.0f} "
-            f"{r['peak_rss_mb']:7.0f} {r['best_inliers']:7d} {vs_torch:>8} "
+            f"{r['frame_ms']['p95']:9.0f} {_p95(r['per_candidate_ms']):>8} "
+            f"{r['peak_rss_mib']:8.0f} {r['best_inliers']:7d} {vs_torch:>8} "
             f"{vs_sift:>7}  {_sources(r)}"
         )
-    lines.append("speed-ups (frame p50 and p95, slower / faster; peak MB faster vs slower side):")
+    lines.append("speed-ups (frame p50 and p95, slower / faster; peak MiB faster vs slower side):")
     for c in report.get("comparisons") or comparisons(results):
-        fast_mb, slow_mb = c["peak_rss_mb"]
+        fast_mib, slow_mib = c["peak_rss_mib"]
         lines.append(
             f"  {c['strategy']}: {c['comparison']}: {c['speedup_p50']:.2f}x p50, "
-            f"{c['speedup_p95']:.2f}x p95; peak {fast_mb:.0f} vs {slow_mb:.0f} MB"
+            f"{c['speedup_p95']:.2f}x p95; peak {fast_mib:.0f} vs {slow_mib:.0f} MiB"
         )
     lines.append("per stage, ms (p50/p95):")
     for r in results:

@@ -1,7 +1,12 @@
 """One ``c3-matcher bench`` case, timed in its own process (``python -m
 c3_matcher_tools.bench_worker CASE RUNS DATA [--config FILE]``, one JSON line on stdout) so that
 its peak memory (``ru_maxrss``) is its own: the matcher opened through the run layer with the
-case's overrides, 2 warm-up runs, then ``RUNS`` timed matches (ms) of the data's frames."""
+case's overrides, 2 warm-up runs, then ``RUNS`` timed matches (ms) of the data's frames.
+
+A frame whose match raised InsufficientInliersError is still timed (the matcher ran): its time
+counts in ``frame_ms`` and its best inlier count as 0, and ``frames_raised`` counts it. Candidate
+and stage times come from the diagnostics of a result, so only from frames that matched:
+``per_candidate_ms`` is None when none did. ``peak_rss_mib`` is ``ru_maxrss`` in MiB."""
 
 from __future__ import annotations
 
@@ -28,7 +33,10 @@ __all__ = ["run_worker"]
 STAGES = ("decode", "preprocess", "extract", "match", "ransac")
 
 
-def _percentiles(values: list[float]) -> dict[str, float]:
+def _percentiles(values: list[float]) -> dict[str, float] | None:
+    """p50 and p95 of ``values``; None when there is none."""
+    if not values:
+        return None
     arr = np.asarray(values, dtype=np.float64)
     return {"p50": float(np.percentile(arr, 50)), "p95": float(np.percentile(arr, 95))}
 
@@ -69,6 +77,7 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
             raise SystemExit(str(exc)) from None
         startup_s = time.perf_counter() - started
         timed = _time_matches(composed.matcher, inputs, runs)
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
     return {
         "case": asdict(case),
         "label": case.label,
@@ -76,19 +85,21 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
         "runs": runs,
         "startup_s": startup_s,
         **timed,
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_rss_mib": peak_mib,
     }
 
 
 def _time_matches(matcher: Any, inputs: list[tuple[Any, Any, Any]], runs: int) -> dict[str, Any]:
     """Frame, candidate and stage times (ms) of ``runs`` matches after 2 warm-up runs, the
-    median best inlier count and where the candidates' features came from."""
+    median best inlier count, how many timed frames raised InsufficientInliersError and where
+    the candidates' features came from (see the module docstring)."""
     from c3_matcher.errors import InsufficientInliersError
 
     frame_ms: list[float] = []
     candidate_ms: list[float] = []
     stages: dict[str, list[float]] = {s: [] for s in ("query_preprocess", "query_extract", *STAGES)}
     best: list[int] = []
+    raised = 0
     sources: dict[str, int] = {}
     for i in range(runs + 2):
         frame, rerank, calibration = inputs[i % len(inputs)]
@@ -103,6 +114,7 @@ def _time_matches(matcher: Any, inputs: list[tuple[Any, Any, Any]], runs: int) -
         frame_ms.append(elapsed)
         if result is None:
             best.append(0)
+            raised += 1
             continue
         best.append(result.per_candidate[0].inlier_count)
         diag = result.diagnostics
@@ -116,8 +128,9 @@ def _time_matches(matcher: Any, inputs: list[tuple[Any, Any, Any]], runs: int) -
                 stages[s].append(cand.get(s, 0.0))
     return {
         "best_inliers": int(np.median(best)),
+        "frames_raised": raised,
         "frame_ms": _percentiles(frame_ms),
-        "per_candidate_ms": _percentiles(candidate_ms),
+        "per_candidate_ms": _percentiles(candidate_ms),  # None: no frame matched
         "stages_ms": {k: _percentiles(v) for k, v in stages.items() if v},
         "feature_sources": sources,
     }

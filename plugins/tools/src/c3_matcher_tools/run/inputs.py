@@ -9,14 +9,19 @@ import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
 from c3_matcher.dto.candidates import RerankCandidate, RerankResult
 from c3_matcher.dto.geo import Attitude, TileId
+from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
 from c3_matcher.tiles import MmapTileHandle, read_image
 
-__all__ = ["MatchInputs", "demo_inputs", "flight_inputs"]
+if TYPE_CHECKING:
+    from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
+
+__all__ = ["MatchInputs", "demo_inputs", "flight_inputs", "timed_frames"]
 
 MatchInputs = tuple[NavCameraFrame, RerankResult, CameraCalibration]
 """One ``match`` call's arguments."""
@@ -24,9 +29,9 @@ MatchInputs = tuple[NavCameraFrame, RerankResult, CameraCalibration]
 
 @contextmanager
 def flight_inputs(data_dir: Path) -> Iterator[list[MatchInputs]]:
-    """One ``MatchInputs`` per frame: a flight dataset's frames whose true tile is present, or
-    the single frame of a demo-format directory. A dataset's tile store, which the candidates'
-    tile handles read from, stays open until the ``with`` block ends."""
+    """One ``MatchInputs`` per frame: a flight dataset's :func:`timed_frames`, or the single
+    frame of a demo-format directory. A dataset's tile store, which the candidates' tile handles
+    read from, stays open until the ``with`` block ends."""
     if not (data_dir / "dataset.json").is_file():
         yield [demo_inputs(data_dir)]
         return
@@ -36,9 +41,26 @@ def flight_inputs(data_dir: Path) -> Iterator[list[MatchInputs]]:
     with dataset.open_store() as store:
         yield [
             (dataset.nav_frame(f), dataset.rerank(f, store), dataset.calibration)
-            for f in dataset.frames
-            if f.true_tile_present
+            for f in timed_frames(dataset)
         ]
+
+
+def timed_frames(dataset: FlightDataset) -> tuple[FrameRecord, ...]:
+    """The frames of ``dataset`` a run times: with ground truth, those whose true tile is among
+    their candidates (each ``match`` has a right answer to find); a recorded flight without
+    ground truth, every frame (as it flew). A simulated flight without such a frame (every
+    frame a distractor-only one): InvalidInputError (``--data``) naming it and why."""
+    if not any(f.has_truth for f in dataset.frames):
+        return dataset.frames
+    frames = tuple(f for f in dataset.frames if f.true_tile_present)
+    if frames:
+        return frames
+    raise InvalidInputError(
+        "--data",
+        f"{dataset.root}: flight {dataset.name!r}: none of its {len(dataset.frames)} frames has "
+        "its true tile among its candidates, so there is no match to time (a flight with ground "
+        "truth times the frames whose true tile is present)",
+    )
 
 
 def demo_inputs(data_dir: Path) -> MatchInputs:
