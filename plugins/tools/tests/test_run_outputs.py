@@ -100,3 +100,25 @@ def test_a_run_without_matplotlib_removes_the_report_an_earlier_run_left(
     write_flight_outputs(tmp_path, dataset, flown, report)
     assert report["html"] is None
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.geojson", "results.jsonl"]
+
+
+def test_a_frame_that_raised_shows_its_best_candidates_inliers_in_every_output(
+    flown: FlightRun, tmp_path: Path
+) -> None:
+    """The GeoJSON, the report and the eval chart read one count (``candidate_inliers``): a
+    frame below the threshold shows the count it fell short with, not 0."""
+    import dataclasses
+
+    from c3_matcher_tools.geojson import flight_geojson
+
+    short = dataclasses.replace(
+        flown.outcomes[0], status="insufficient", best_inliers=0, insufficient_best=59
+    )
+    assert short.candidate_inliers == 59 and short.best_inliers == 0
+    points = [
+        f["properties"]
+        for f in flight_geojson([short, *flown.outcomes[1:]], "sift_magsac")["features"]
+        if f["properties"]["kind"] == "truth"
+    ]
+    assert points[0]["inliers"] == 59 and points[0]["status"] == "insufficient"
+    assert points[1]["inliers"] == flown.outcomes[1].candidate_inliers

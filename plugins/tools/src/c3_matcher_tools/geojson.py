@@ -32,7 +32,7 @@ def _props(o: FrameOutcome, kind: str, strategy: str) -> dict[str, Any]:
         "frame": o.index,
         "frame_id": o.frame_id,
         "status": o.status,
-        "inliers": o.best_inliers,
+        "inliers": o.candidate_inliers,
         "correct": o.correct if o.has_truth else None,
         "true_tile_present": o.true_present if o.has_truth else None,
         "position_error_m": (

@@ -99,7 +99,7 @@ def eval_plots(
     against ground truth per frame, one line per run) and, for ``samples`` frames with the true
     tile spread over the flight, ``out/matches/<strategy>_<frame>.png``; the paths written."""
     charts = (
-        ("inliers", [[float(o.best_inliers) for o in r.outcomes] for r in runs], 80.0),
+        ("inliers", [[float(o.candidate_inliers) for o in r.outcomes] for r in runs], 80.0),
         ("error", [[_finite_or_nan(o.mean_error_px) for o in r.outcomes] for r in runs], 2.5),
     )
     titles = {"inliers": "best-candidate inliers", "error": "mean inlier error vs ground truth"}

@@ -80,7 +80,7 @@ def _per_frame(outcomes: Sequence[FrameOutcome], min_inliers: int) -> str:
     plt = _plt()
     idx = np.array([o.index for o in outcomes])
     fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
-    inl = np.array([o.best_inliers if o.status == "ok" else o.insufficient_best for o in outcomes])
+    inl = np.array([o.candidate_inliers for o in outcomes])
     colours = [STATUS_COLOUR.get(o.status, "#888") for o in outcomes]
     axes[0].bar(idx, inl, color=colours, width=0.8)
     axes[0].axhline(min_inliers, ls="--", color="#555", lw=1)
@@ -345,7 +345,7 @@ def write_report(
             for c in (
                 o.index,
                 o.status,
-                o.best_inliers if o.status == "ok" else o.insufficient_best,
+                o.candidate_inliers,
                 _verdict(o),
                 fmt(o.position_error_m),
                 fmt(o.telemetry_error_m),

@@ -50,6 +50,12 @@ class FrameOutcome:
     gnss_accuracy_m: float | None = None
     gnss_degraded: bool | None = None
 
+    @property
+    def candidate_inliers(self) -> int:
+        """The best candidate's inlier count, whether the frame matched or raised (the count
+        below the threshold); ``best_inliers`` is the matched result's, 0 when it raised."""
+        return self.best_inliers if self.status == "ok" else self.insufficient_best
+
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
         for key in ("mean_error_px", "residual_px", "position_error_m", "telemetry_error_m"):
