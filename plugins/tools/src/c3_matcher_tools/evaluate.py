@@ -25,9 +25,16 @@ per frame the estimate minus where the telemetry says the frame looks (m), p50/p
 GNSS accuracy the log states, and the frames whose GNSS was absent or degraded (``timing`` and
 ``per_frame`` in ``eval.json``).
 
+Each measure's ``pass`` is true (bar met), false (bar missed, '!' in the table) or null: nothing
+to measure (no true-tile frame, no matched one, no absent frame, no ground truth), neither
+passed nor missed. A figure judged against a bar is printed so that it never contradicts the
+bar (:meth:`~c3_matcher_tools.run.acceptance.Bar.figure`).
+
 Several datasets (``c3-matcher eval FLIGHT1 FLIGHT2 ...``) are evaluated one after the other
 (outputs under ``--out/<dataset>``) and summarised in one strategy x flight table (correct-tile
-rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summary.json``. A
+rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summary.json``. With
+``--json`` stdout carries one JSON document: a single dataset's ``eval.json``; for several,
+``{"flights": [each dataset's eval.json, in order], "summary": summary.json's rows}``. A
 dataset name that names an output directory must be one plain path component, and several
 datasets need as many names (refused before anything runs, exit 2, as is a strategy this build
 cannot run).
@@ -85,7 +92,16 @@ from c3_matcher_tools.run import (
     summarize,
     write_flight_outputs,
 )
-from c3_matcher_tools.run.acceptance import BARS, WRONG_FIX_PX, headline, is_wrong_fix, metrics
+from c3_matcher_tools.run.acceptance import (
+    BARS,
+    IT01_BAR,
+    IT03_BAR,
+    IT04_BAR,
+    WRONG_FIX_PX,
+    headline,
+    is_wrong_fix,
+    metrics,
+)
 from c3_matcher_tools.run.records import StrategyEval, StrategyFailure, StrategyRow
 
 __all__ = [
@@ -170,7 +186,12 @@ def register_eval_command(commands: CommandRegistry) -> None:
     )
     p.add_argument("--samples", type=int, default=3, help="match pictures per strategy (default 3)")
     add_attitude_noise_option(p)
-    p.add_argument("--json", action="store_true", help="print eval.json instead of the table")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON document instead of the tables: eval.json for one dataset; for "
+        'several, {"flights": [each dataset\'s eval.json], "summary": summary.json\'s rows}',
+    )
     p.set_defaults(handler=run_eval)
 
 
@@ -190,20 +211,34 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     outs = _output_dirs(args.out, datasets)
     root = args.out or Path("out") / "eval"
     summary: list[dict[str, Any]] = []
+    reports: list[dict[str, Any]] = []
     with exclusive_output_dir(*([root] if len(datasets) > 1 else []), *outs):
         for dataset, out in zip(datasets, outs, strict=True):
-            rows = _eval_dataset(args, ctx, dataset, names, out)
+            rows, report = _eval_dataset(args, ctx, dataset, names, out)
+            reports.append(report)
             summary.extend(_summary_row(dataset.name, r) for r in rows)
         if len(datasets) > 1:
             summary_json = json.dumps(_finite(summary), indent=2) + "\n"
             write_text_atomically(root / "summary.json", summary_json)
-    if not args.json:
+    if args.json:
+        ctx.out(json.dumps(_finite(_json_document(reports, summary)), indent=2))
+    else:
         _print_summary(ctx, summary)
     failed = [f"{s['strategy']} on {s['flight']}" for s in summary if "error" in s]
     if failed:
         ctx.err(f"c3-matcher eval: failed to run: {', '.join(failed)}")
         return EXIT_FAILURE
     return EXIT_OK
+
+
+def _json_document(
+    reports: Sequence[dict[str, Any]], summary: Sequence[dict[str, Any]]
+) -> dict[str, Any]:
+    """What ``--json`` prints, one document: the one dataset's ``eval.json``, or for several
+    ``{"flights": [each one's eval.json, in order], "summary": summary.json's rows}``."""
+    if len(reports) == 1:
+        return reports[0]
+    return {"flights": list(reports), "summary": list(summary)}
 
 
 def _strategies(args: argparse.Namespace, host: PluginHost) -> list[str]:
@@ -242,7 +277,9 @@ def _eval_dataset(
     dataset: FlightDataset,
     names: list[str],
     out: Path,
-) -> list[StrategyRow]:
+) -> tuple[list[StrategyRow], dict[str, Any]]:
+    """``dataset`` through every strategy: the rows and the report written as ``eval.json``
+    (its table printed unless ``--json``)."""
     from c3_matcher_tools.plots import eval_plots
 
     out.mkdir(parents=True, exist_ok=True)
@@ -282,12 +319,10 @@ def _eval_dataset(
         "plots": plots,
     }
     write_text_atomically(out / "eval.json", json.dumps(_finite(report), indent=2) + "\n")
-    if args.json:
-        ctx.out(json.dumps(_finite(report), indent=2))
-        return rows
-    max_keypoints = overrides.apply(ctx.settings).matcher.max_keypoints
-    _print_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
-    return rows
+    if not args.json:
+        max_keypoints = overrides.apply(ctx.settings).matcher.max_keypoints
+        _print_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
+    return rows, report
 
 
 def _print_table(
@@ -320,7 +355,11 @@ def _print_table(
     )
     for r in rows:
         ctx.out(_table_row(r))
-    ctx.out("bars: " + "; ".join(f"{k} {v}" for k, v in BARS.items()) + " ('!' = bar missed)")
+    ctx.out(
+        "bars: "
+        + "; ".join(f"{k} {v}" for k, v in BARS.items())
+        + " ('!' = bar missed; n/a or x/0 = nothing to measure: neither passed nor missed)"
+    )
     ctx.out(
         f"false-conf: picks whose inliers miss ground truth by > {WRONG_FIX_PX:g} px (bar: none); "
         "other tile: picks of a candidate other than the true tile that still place the frame right"
@@ -336,14 +375,15 @@ def _table_row(r: StrategyRow) -> str:
         return f"{r.strategy:18} failed to run: {r.error}"
     m, t = r.metrics, r.timing
 
-    def mark(key: str) -> str:
-        return "" if m[key]["pass"] else "!"
+    def mark(key: str) -> str:  # passed or nothing to measure (None): no mark
+        return "!" if m[key]["pass"] is False else ""
 
+    it2 = m["C3-IT-02"]["pass"]
     it4, it5, fc = m["C3-IT-04"], m["C3-IT-05"], m["false_confident"]
     cells = (
-        _fmt(m["C3-IT-01"]["p5_best_inliers"], ".0f") + mark("C3-IT-01"),
-        "same" if m["C3-IT-02"]["pass"] else "DIFF",
-        _fmt(m["C3-IT-03"]["p95_mean_error_px"], ".2f") + mark("C3-IT-03"),
+        IT01_BAR.figure(m["C3-IT-01"]["p5_best_inliers"]) + mark("C3-IT-01"),
+        "n/a" if it2 is None else "same" if it2 else "DIFF",
+        IT03_BAR.figure(m["C3-IT-03"]["p95_mean_error_px"], 2) + mark("C3-IT-03"),
         f"{it4['correct']}/{it4['frames']}" + mark("C3-IT-04"),
         f"{it5['insufficient']}/{it5['absent_frames']}" + mark("C3-IT-05"),
         f"{fc['count']}/{fc['of']}" + mark("false_confident"),
@@ -384,30 +424,32 @@ def _summary_row(flight: str, r: StrategyRow) -> dict[str, Any]:
 
 def _print_summary(ctx: CommandContext, summary: list[dict[str, Any]]) -> None:
     """The one strategy x flight table."""
+    rows = sorted(summary, key=lambda s: (s["strategy"], s["flight"]))
+    w = max([20, *(len(s["flight"]) for s in rows)])  # the flight column fits every name
     ctx.out()
     ctx.out(
-        f"{'strategy':18} {'flight':20} {'correct tile':>13} {'IT-03 p95':>10} {'IT-05':>7} "
+        f"{'strategy':18} {'flight':{w}} {'correct tile':>13} {'IT-03 p95':>10} {'IT-05':>7} "
         f"{'false-conf':>10} {'other tile':>10} {'ms/frame':>9}"
     )
-    rows = sorted(summary, key=lambda s: (s["strategy"], s["flight"]))
     for s in rows:
         if "error" in s:
-            ctx.out(f"{s['strategy']:18} {s['flight']:20} failed to run: {s['error']}")
+            ctx.out(f"{s['strategy']:18} {s['flight']:{w}} failed to run: {s['error']}")
             continue
         rate = f"{s['correct']}/{s['present']}" if s["present"] else "-"
+        it05 = f"{s['it05_raised']}/{s['absent']}"
+        fc = f"{s['false_confident']}/{s['scored']}"
         ctx.out(
-            f"{s['strategy']:18} {s['flight']:20} {rate:>13} "
-            f"{_fmt(s['it03_p95_px'], '.2f'):>10} {s['it05_raised']}/{s['absent']:<5} "
-            f"{s['false_confident']}/{s['scored']:<7} {s['right_fix_other_tile']:>10} "
-            f"{s['frame_ms_p50']:>9.0f}"
+            f"{s['strategy']:18} {s['flight']:{w}} {rate:>13} "
+            f"{IT03_BAR.figure(s['it03_p95_px'], 2):>10} {it05:>7} "
+            f"{fc:>10} {s['right_fix_other_tile']:>10} {s['frame_ms_p50']:>9.0f}"
         )
     for strategy in sorted({s["strategy"] for s in rows if "error" not in s}):
         mine = [s for s in rows if s["strategy"] == strategy and "error" not in s]
         correct, present = sum(s["correct"] for s in mine), sum(s["present"] for s in mine)
         wrong, scored = sum(s["false_confident"] for s in mine), sum(s["scored"] for s in mine)
-        share = f" ({correct / present:.0%})" if present else ""
+        share = f" ({IT04_BAR.figure(correct / present, percent=True)})" if present else ""
         ctx.out(
-            f"{strategy:18} {'all flights':20} {correct}/{present}{share} correct tile, "
+            f"{strategy:18} {'all flights':{w}} {correct}/{present}{share} correct tile, "
             f"{wrong}/{scored} false-confident"
         )
 

@@ -1,17 +1,36 @@
 """The C3-IT acceptance measures of one strategy's run over a flight with ground truth (see
-:mod:`c3_matcher_tools.evaluate` for what each measures and its bar)."""
+:mod:`c3_matcher_tools.evaluate` for what each measures and its bar).
+
+Every measure's ``"pass"`` is True (bar met), False (bar missed) or None: nothing to measure
+(its figure is n/a or 0 of 0: no true-tile frame, no matched one, no absent frame, no frame
+with ground truth, no frame run twice), neither passed nor missed. A figure judged against a
+bar is printed through :meth:`Bar.figure`, rounded so that the printed figure meets the bar
+exactly when the measured one does."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from dataclasses import dataclass
+from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
+from typing import Any, Literal
 
 import numpy as np
 
 from c3_matcher_tools.run.records import FrameOutcome
 
-__all__ = ["BARS", "IT03_BAR_PX", "WRONG_FIX_PX", "headline", "is_wrong_fix", "metrics"]
+__all__ = [
+    "BARS",
+    "IT01_BAR",
+    "IT03_BAR",
+    "IT03_BAR_PX",
+    "IT04_BAR",
+    "WRONG_FIX_PX",
+    "Bar",
+    "headline",
+    "is_wrong_fix",
+    "metrics",
+]
 
 BARS = {
     "C3-IT-01": ">= 80 inliers (p5)",
@@ -21,7 +40,57 @@ BARS = {
     "C3-IT-05": "all absent frames",
 }
 
+
+@dataclass(frozen=True)
+class Bar:
+    """A numeric bar: a figure passes when ``figure <op> limit``."""
+
+    op: Literal[">=", ">", "<=", "<"]
+    limit: float
+
+    def judge(self, value: float) -> bool | None:
+        """Whether ``value`` meets the bar; None when there is no figure (NaN: nothing to
+        measure)."""
+        if not math.isfinite(value):
+            return None
+        return _compare(self.op, Decimal(repr(value)), Decimal(repr(self.limit)))
+
+    def figure(self, value: float, decimals: int = 0, *, percent: bool = False) -> str:
+        """``value`` printed with ``decimals`` decimals (as a percentage: ``percent``), never
+        contradicting the bar: rounded as usual where the printed figure is judged as
+        ``value`` is, else with as many more decimals as it takes, rounded toward the side the
+        bar's limit itself is judged on (down for ``>=`` and ``<``, up for ``<=`` and ``>``):
+        79.95 prints "79.9" against ``>= 80`` (not "80"), 0.946 "94.6%" against ``>= 0.95``
+        (not "95%"), 2.4999 "2.499" against ``< 2.5``. "n/a" without a figure."""
+        if not math.isfinite(value):
+            return "n/a"
+        scale = Decimal(100) if percent else Decimal(1)
+        exact, limit = Decimal(repr(value)) * scale, Decimal(repr(self.limit)) * scale
+        verdict = _compare(self.op, exact, limit)
+        shown = Decimal(format(value * (100 if percent else 1), f".{decimals}f"))
+        rounding = ROUND_FLOOR if self.op in (">=", "<") else ROUND_CEILING
+        while _compare(self.op, shown, limit) != verdict and shown != exact:
+            decimals += 1
+            shown = exact.quantize(Decimal(1).scaleb(-decimals), rounding=rounding)
+        return f"{shown:f}" + ("%" if percent else "")
+
+
+def _compare(op: str, value: Decimal, limit: Decimal) -> bool:
+    return {
+        ">=": value >= limit,
+        ">": value > limit,
+        "<=": value <= limit,
+        "<": value < limit,
+    }[op]
+
+
 IT03_BAR_PX = 2.5
+IT01_BAR = Bar(">=", 80)
+"""C3-IT-01: the p5 of the best candidate's inlier count."""
+IT03_BAR = Bar("<", IT03_BAR_PX)
+"""C3-IT-03: the p95 of the mean inlier error against ground truth (px)."""
+IT04_BAR = Bar(">=", 0.95)
+"""C3-IT-04: the correct-candidate rate."""
 WRONG_FIX_PX = 4 * IT03_BAR_PX
 """A returned pick is a wrong fix when its inliers' mean error against ground truth exceeds
 this (ORIGINAL frame px): four times the IT-03 bar, a scale-free bound far below any
@@ -38,7 +107,8 @@ def is_wrong_fix(outcome: FrameOutcome) -> bool:
 
 
 def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[str, Any]:
-    """The C3-IT figures and pass flags of one strategy (see the module docstring)."""
+    """The C3-IT figures and pass flags of one strategy (see the module docstring): a flag is
+    None where its measure had nothing to measure."""
     present = [o for o in run1 if o.has_truth and o.true_present]
     absent = [o for o in run1 if o.has_truth and not o.true_present]
     inliers = [float(o.best_inliers) for o in present]
@@ -47,19 +117,19 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[
     rate = correct / len(present) if present else math.nan
     raised = sum(o.status == "insufficient" for o in absent)
     return {
-        "C3-IT-01": {"p5_best_inliers": p5, "frames": len(present), "pass": p5 >= 80},
+        "C3-IT-01": {"p5_best_inliers": p5, "frames": len(present), "pass": IT01_BAR.judge(p5)},
         "C3-IT-02": _it02(run1, run2),
         "C3-IT-03": _it03(present),
         "C3-IT-04": {
             "correct_rate": rate,
             "correct": correct,
             "frames": len(present),
-            "pass": bool(present) and rate >= 0.95,
+            "pass": IT04_BAR.judge(rate),
         },
         "C3-IT-05": {
             "insufficient": raised,
             "absent_frames": len(absent),
-            "pass": raised == len(absent),
+            "pass": raised == len(absent) if absent else None,
         },
         "false_confident": _false_confident([o for o in run1 if o.has_truth]),
     }
@@ -76,7 +146,7 @@ def _it02(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[st
     return {
         "frames_compared": len(compared),
         "differing_frames": differing,
-        "pass": bool(compared) and not differing,
+        "pass": not differing if compared else None,
     }
 
 
@@ -93,7 +163,7 @@ def _it03(present: Sequence[FrameOutcome]) -> dict[str, Any]:
         "median_mean_error_px": float(np.median(errors)) if errors else math.nan,
         "p95_position_error_m": float(np.percentile(positions, 95)) if positions else math.nan,
         "median_position_error_m": float(np.median(positions)) if positions else math.nan,
-        "pass": bool(errors) and p95 < IT03_BAR_PX,
+        "pass": IT03_BAR.judge(p95),
     }
 
 
@@ -109,7 +179,7 @@ def _false_confident(scored: Sequence[FrameOutcome]) -> dict[str, Any]:
         "rate": len(wrong) / len(scored) if scored else math.nan,
         "bound_px": WRONG_FIX_PX,
         "right_fix_other_tile": right_elsewhere,
-        "pass": not wrong,
+        "pass": not wrong if scored else None,
     }
 
 
