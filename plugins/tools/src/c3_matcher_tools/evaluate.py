@@ -400,7 +400,7 @@ def _print_links(ctx: CommandContext, r: StrategyEval) -> None:
     t = r.timing
     if t["with_telemetry"]:
         ctx.out(
-            f"  {r.strategy}: estimate - telemetry position m p50 "
+            f"  {r.strategy}: estimate - telemetry look point m p50 "
             f"{_fmt(t['telemetry_error_m_p50'] or math.nan, '.1f')}, p95 "
             f"{_fmt(t['telemetry_error_m_p95'] or math.nan, '.1f')} (GNSS accuracy stated "
             f"p50 {_fmt(t['gnss_accuracy_m_p50'] or math.nan, '.1f')} m, GNSS absent or "

@@ -160,7 +160,7 @@ def _telemetry_line(report: dict[str, Any]) -> str:
     degraded = report["gnss_degraded_frames"]
     accuracy = report["gnss_accuracy_m_p50"]
     return (
-        f"  estimate - telemetry position m p50 {_fmt(report['telemetry_error_m_p50'])}, "
+        f"  estimate - telemetry look point m p50 {_fmt(report['telemetry_error_m_p50'])}, "
         f"p95 {_fmt(report['telemetry_error_m_p95'])} ({report['georeferenced']} frames "
         "located; "
         + ("GNSS accuracy not stated" if accuracy is None else f"GNSS accuracy {accuracy:.1f} m")

@@ -5,7 +5,7 @@ no network. Plots are drawn with matplotlib (the tools' ``report`` extra).
 Sections: summary figures; the trajectory on the map mosaic of the flight's tile store (truth
 vs estimate, error segments, failed frames marked; for a recorded flight the telemetry's track,
 frames whose GNSS was absent or degraded marked); inliers, error (m and px; a recorded flight's
-estimate minus telemetry position beside the GNSS accuracy the log states) and latency per
+estimate minus the telemetry's look point beside the GNSS accuracy the log states) and latency per
 frame with absent-tile, wrong-tile and failed frames marked (legends outside the plots); a gallery of the worst and best
 frames (:func:`c3_matcher.viz.render_match`); the run's settings and provenance.
 """
