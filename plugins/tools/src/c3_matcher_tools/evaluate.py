@@ -15,7 +15,7 @@ baseline, side by side, against a flight's ground truth (the C3-IT acceptance me
 - false-confident (beside IT-05): frames that returned a best candidate whose inliers
   put the frame in the wrong place: their mean error against ground truth (the same measure as
   IT-03, through the picked candidate's own ground-truth homography) is over
-  ``WRONG_FIX_PX`` = 4x the IT-03 bar, or unknown; over all frames with ground truth; bar: none.
+  ``WRONG_FIX_PX`` = 4x the IT-03 bar, or unknown; over all frames with ground truth; bar: zero.
   A pick of an overlapping candidate that is not the true tile but places the frame right is
   not a wrong fix: it is counted apart (``right_fix_other_tile``), and IT-04 still scores it as
   not correct.
@@ -361,7 +361,7 @@ def _print_table(
         + " ('!' = bar missed; n/a or x/0 = nothing to measure: neither passed nor missed)"
     )
     ctx.out(
-        f"false-conf: picks whose inliers miss ground truth by > {WRONG_FIX_PX:g} px (bar: none); "
+        f"false-conf: picks whose inliers miss ground truth by > {WRONG_FIX_PX:g} px (bar: zero); "
         "other tile: picks of a candidate other than the true tile that still place the frame right"
     )
     ctx.out(f"report {out / 'eval.json'}, plots {out}")
