@@ -85,3 +85,41 @@ def test_what_a_store_cannot_serve_is_one_line_and_exit_2(engine_dir, tmp_path, 
     said = [line for line in proc.stderr.splitlines() if not line.startswith("{")]
     assert needle in said[-1], said
     assert proc.stdout == "" and STORE.read_bytes() == before
+
+
+def test_stored_map_features_serve_the_store_windows_as_extraction_would(engine_dir, tmp_path):
+    """With the flight's windows built (``features build --flight-candidates``), ``match
+    --store`` reads each window's features from the sidecar, and the match is the one that
+    extracting them gives, bit for bit."""
+    import shutil
+
+    flight = shutil.copytree(FLIGHT, tmp_path / "flight")
+    built = run_cli(
+        *("features", "build", flight, "--strategy", "xfeat", "--workers", "0"),
+        "--flight-candidates",
+        cwd=tmp_path,
+        engine_dir=engine_dir,
+    )
+    assert built.returncode == 0, built.stderr[-2000:]
+    roll, pitch, yaw = FRAME["attitude_deg"]
+    args = (
+        *("--strategy", "xfeat", "--calibration", str(FLIGHT / "calibration.json")),
+        *("--attitude", f"{roll},{pitch},{yaw}", "--height", str(FRAME["height_m"])),
+        *("--store", str(flight / "tiles.mbtiles"), "--window", "448"),
+        *(a for c in FRAME["candidates"] for a in ("--tile-id", _tile_id(c))),
+    )
+    outs, sources = [], []
+    for stored in ("true", "false"):
+        fdr = tmp_path / f"fdr_{stored}.jsonl"
+        settings = {"C3_MATCHER_FDR__PATH": str(fdr), "C3_MATCHER_MATCHER__STORED_FEATURES": stored}
+        query = ["match", "--query", str(FLIGHT / FRAME["image"]), *args]
+        proc = run_cli(*query, cwd=tmp_path, engine_dir=engine_dir, settings=settings)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        out = json.loads(proc.stdout)
+        out.pop("matched_at"), out.pop("timings_ms", None)
+        outs.append(out)
+        records = [json.loads(x) for x in fdr.read_text().splitlines()]
+        (done,) = (r["payload"] for r in records if r["kind"] == "matcher.frame_done")
+        sources.append(done["candidate_features"])
+    assert sources == [["stored"] * 3, ["extracted"] * 3]
+    assert outs[0] == outs[1] and outs[0]["per_candidate"][0]["inlier_count"] >= 80
