@@ -20,7 +20,7 @@ FLIGHT = REPO / "data" / "flights" / "naip_demo"
     [
         (["no/such.mbtiles"], "no such store: no/such.mbtiles"),
         ([str(FLIGHT / "tiles.mbtiles"), "--flight-candidates"], "needs a flight dataset"),
-        ([str(REPO / "data"), "--workers", "0"], "no dataset.json"),
+        ([str(REPO / "data"), "--workers", "0"], "a directory without dataset.json"),
         ([str(FLIGHT), "--stride", "999", "--workers", "0"], "stride in [1, window]"),
         ([str(FLIGHT), "--min-coverage", "0", "--workers", "0"], "min_coverage must be in"),
     ],

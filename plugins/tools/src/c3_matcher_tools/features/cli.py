@@ -104,18 +104,9 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher_tools.features import build as fb
 
     path: Path = args.store
-    store, window, stride = path, args.window, args.stride
+    store, window, stride = _store_of(path), args.window, args.stride
     windows = None
     if path.is_dir():
-        from c3_matcher.errors import InvalidInputError
-        from c3_matcher_tools.dataset.format import load_dataset
-
-        try:
-            dataset = load_dataset(path)
-        except InvalidInputError as exc:
-            ctx.err(f"features build: {exc}")
-            return EXIT_USAGE
-        store = dataset.store_path
         size, grid = fb.flight_grid(path)
         window = window or size
         stride = stride or (grid if window == size else window)
@@ -123,9 +114,6 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
             windows = fb.flight_windows(path, stride)
     elif args.flight_candidates:
         ctx.err("features build: --flight-candidates needs a flight dataset")
-        return EXIT_USAGE
-    if not store.is_file():
-        ctx.err(f"features build: no such store: {store}")
         return EXIT_USAGE
     window = window or fb.DEFAULT_WINDOW_PX
     try:
@@ -157,6 +145,23 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
     return EXIT_OK
 
 
+def _store_of(path: Path) -> Path:
+    """The MBTiles store ``path`` names: itself, or a flight dataset directory's store;
+    InvalidInputError (exit 2) naming what it is not."""
+    from c3_matcher.errors import InvalidInputError
+    from c3_matcher_tools.dataset.format import load_dataset
+
+    if path.is_dir():
+        if not (path / "dataset.json").is_file():
+            raise InvalidInputError(
+                "STORE", f"{path}: a directory without dataset.json: no store, no dataset"
+            )
+        path = load_dataset(path).store_path
+    if not path.is_file():
+        raise InvalidInputError("STORE", f"no such store: {path}")
+    return path
+
+
 def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     import sqlite3
 
@@ -170,17 +175,7 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher.tilestore.mbtiles import MBTilesStore
     from c3_matcher.tilestore.sidecar import SidecarDamagedError
 
-    store = args.store
-    if store.is_dir():
-        from c3_matcher_tools.dataset.format import load_dataset
-
-        if not (store / "dataset.json").is_file():
-            raise InvalidInputError(
-                "STORE", f"{store}: a directory without dataset.json: no store, no dataset"
-            )
-        store = load_dataset(store).store_path
-    if not store.is_file():
-        raise InvalidInputError("STORE", f"no such store: {store}")
+    store = _store_of(args.store)
     MBTilesStore(store).close()  # an MBTiles store (InvalidInputError naming it), not any file
     path = sidecar_path(store)
     sets: list[dict[str, object]] = []
