@@ -137,9 +137,29 @@ def test_stopped_tiles_build_leaves_nothing(tmp_path: Path) -> None:
             break
     proc.terminate()
     rest = proc.stderr.read()
-    assert proc.wait(timeout=120) == 130, rest
-    assert "c3-matcher: interrupted" in rest
+    assert proc.wait(timeout=120) == 143, rest
+    assert rest.strip().splitlines()[-1] == "c3-matcher: terminated"
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_terminated_render_leaves_no_temporary_flight(tmp_path: Path) -> None:
+    """SIGTERM is Ctrl-C for every command: the render's temporary directory is given back."""
+    store = tmp_path / "naip.mbtiles"
+    assert c3("tiles", "build", NAIP_2020, store).returncode == 0
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "c3_matcher.cli", "dataset", "render", str(NAIP_2020), str(store),
+         str(tmp_path / "flight"), "--frames", "400"],
+        stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=REPO,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    for line in proc.stderr:  # the first progress line: frames are being rendered
+        if "render" in line:
+            break
+    proc.terminate()
+    rest = proc.stderr.read()
+    assert proc.wait(timeout=120) == 143, rest
+    assert rest.strip().splitlines()[-1] == "c3-matcher: terminated"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["naip.mbtiles"]
 
 
 def test_dataset_render_creates_a_missing_output_parent(tmp_path: Path) -> None:

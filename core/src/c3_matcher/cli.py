@@ -12,8 +12,9 @@ import argparse
 import contextlib
 import json
 import re
+import signal
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -272,6 +273,30 @@ def _fail(exc: BaseException | str) -> str:
 
 
 EXIT_BROKEN_PIPE = 128 + 13  # as a shell reports a command SIGPIPE ended
+EXIT_INTERRUPTED, EXIT_TERMINATED = 128 + 2, 128 + 15  # SIGINT, SIGTERM: as a shell reports them
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the command is, so that it cleans up as on Ctrl-C."""
+
+
+@contextlib.contextmanager
+def _terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises :class:`_Terminated` in here (a command's temporary files and store
+    journals are given back as on Ctrl-C); the previous handler afterwards."""
+
+    def terminate(signum: int, frame: object) -> None:
+        raise _Terminated
+
+    try:
+        previous = signal.signal(signal.SIGTERM, terminate)
+    except ValueError:  # not the main thread (main called from a thread): leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _drop_stdout() -> None:
@@ -285,6 +310,20 @@ def _drop_stdout() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """``c3-matcher ARGV``: the exit status. Ctrl-C or SIGTERM at any point, start-up included,
+    is one line and 130 or 143."""
+    with _terminate_as_interrupt():
+        try:
+            return _command(argv)
+        except _Terminated:
+            print("c3-matcher: terminated", file=sys.stderr)
+            return EXIT_TERMINATED
+        except KeyboardInterrupt:
+            print("c3-matcher: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+
+
+def _command(argv: Sequence[str] | None) -> int:
     from c3_matcher.compose import build_plugin_host
     from c3_matcher.logs import claim_stderr
 
@@ -326,9 +365,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = f" {exc.filename}" if exc.filename else ""
         print(f"c3-matcher:{where} {exc.strerror or exc}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print("c3-matcher: interrupted", file=sys.stderr)
-        return 130
     except Exception as exc:  # a bug: one line, not a traceback (C3_MATCHER_TRACEBACK=1 shows it)
         import os
 

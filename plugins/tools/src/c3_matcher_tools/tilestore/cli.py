@@ -5,9 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import signal
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -40,24 +37,6 @@ def parse_value_range(text: str) -> str | tuple[float, float]:
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise argparse.ArgumentTypeError(f"expected finite LO < HI, got {text!r}")
     return lo, hi
-
-
-@contextmanager
-def _terminate_as_interrupt() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt in here (as Ctrl-C does), so the writer cleans up."""
-
-    def interrupt(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    try:
-        previous = signal.signal(signal.SIGTERM, interrupt)
-    except ValueError:  # not the main thread: leave signals alone
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def register_tiles_command(commands: CommandRegistry) -> None:
@@ -180,21 +159,20 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
     if not 1 <= args.quality <= 100:
         raise InvalidInputError("--quality", f"must be in [1, 100], got {args.quality}")
     zooms = parse_zooms([*(args.zoom or []), *([args.zooms] if args.zooms else [])])
-    with _terminate_as_interrupt():  # a stopped build leaves no partial store behind
-        report = build_mbtiles(
-            args.geotiff,
-            args.out,
-            zoom=zooms,
-            tile_format=args.format,
-            jpeg_quality=args.quality,
-            reference=args.ref_latlon,
-            attribution=args.attribution,
-            overwrite=args.force,
-            progress=ProgressBar(f"tiles build {Path(args.out).name}"),
-            use_rasterio=None if args.reader == "auto" else args.reader == "rasterio",
-            value_range=args.value_range,
-            force=args.force,
-        )
+    report = build_mbtiles(
+        args.geotiff,
+        args.out,
+        zoom=zooms,
+        tile_format=args.format,
+        jpeg_quality=args.quality,
+        reference=args.ref_latlon,
+        attribution=args.attribution,
+        overwrite=args.force,
+        progress=ProgressBar(f"tiles build {Path(args.out).name}"),
+        use_rasterio=None if args.reader == "auto" else args.reader == "rasterio",
+        value_range=args.value_range,
+        force=args.force,
+    )
     data = {
         k: str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v
         for k, v in vars(report).items()
