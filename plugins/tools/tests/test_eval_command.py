@@ -112,3 +112,27 @@ def test_an_eval_into_a_directory_another_run_is_writing_is_refused_and_writes_n
         assert sorted(p.name for p in out.iterdir()) == ["sift_magsac"]
     finally:
         running.close()
+
+
+def test_an_eval_stopped_part_way_leaves_no_earlier_evals_figures_as_current(
+    small_flight: SmallFlight, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A rerun into an evaluated directory, stopped before its own figures: the earlier run's
+    eval.json and charts are gone (not shown beside this run's strategy directories)."""
+    import c3_matcher_tools.evaluate
+    from c3_matcher.cli import main
+
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("eval.json", "inliers.png", "error.png", "notes.txt"):
+        (out / name).write_text("the earlier run's\n")
+
+    def stopped(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(c3_matcher_tools.evaluate, "evaluate_strategy", stopped)
+    assert (
+        main(["eval", str(flight), "--strategy", "sift_magsac", "--out", str(out), *QUICK]) == 130
+    )
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]

@@ -116,6 +116,7 @@ def test_open_matcher_refused_by_another_runs_lock_leaves_that_runs_fdr_and_log(
     from c3_matcher_tools.run import open_matcher
 
     (tmp_path / "matcher.log").write_text("the running run's log\n")
+    (tmp_path / "results.jsonl").write_text("the running run's results\n")
     running = JsonlFdrRecorder(tmp_path / "fdr.jsonl", MonotonicClock())
     try:
         running.record("matcher.frame_done", {"frame": 0})
@@ -126,6 +127,7 @@ def test_open_matcher_refused_by_another_runs_lock_leaves_that_runs_fdr_and_log(
             pass
         assert [r["seq"] for r in read_fdr(tmp_path / "fdr.jsonl")] == [1]
         assert (tmp_path / "matcher.log").read_text() == "the running run's log\n"
+        assert (tmp_path / "results.jsonl").read_text() == "the running run's results\n"
     finally:
         running.close()
 
@@ -150,7 +152,9 @@ def test_open_matcher_refuses_an_unknown_strategy_before_touching_any_file(
     assert (previous / "fdr.jsonl").read_text() == "the previous run's fdr.jsonl\n"
 
 
-def test_open_matcher_starts_the_fdr_afresh_rotated_segments_included(tmp_path: Path) -> None:
+def test_open_matcher_starts_the_fdr_afresh_and_forgets_the_previous_results(
+    tmp_path: Path,
+) -> None:
     from c3_matcher.fdr import JsonlFdrRecorder, read_fdr
     from c3_matcher.health import MonotonicClock
     from c3_matcher_tools.run import open_matcher
@@ -160,9 +164,15 @@ def test_open_matcher_starts_the_fdr_afresh_rotated_segments_included(tmp_path: 
         previous.record("k", {"i": i, "pad": "x" * 40})
     assert len(previous.segments()) > 2
     previous.close()
+    previous_results = ("results.jsonl", "report.json", "flight.geojson", "report.html")
+    for name in (*previous_results, "notes.txt"):
+        (tmp_path / name).write_text("the previous run's\n")
     settings = C3Settings(fdr={"max_bytes": 1024})
     with open_matcher(settings, "sift_magsac", tmp_path) as matcher:
         assert matcher.health_snapshot() is not None
+        # a run stopped from here on leaves its own FDR, never beside the previous results
+        assert not any((tmp_path / name).exists() for name in previous_results)
+    assert (tmp_path / "notes.txt").exists()  # what no run writes is the user's
     assert sorted(p.name for p in tmp_path.glob("fdr*")) == ["fdr.jsonl", "fdr.jsonl.lock"]
     assert list(read_fdr(tmp_path / "fdr.jsonl")) == []  # this run recorded no frame
 

@@ -88,6 +88,7 @@ from c3_matcher_tools.run import (
     exclusive_output_dir,
     flight_report,
     fly,
+    forget_previous_run,
     output_dir_name,
     summarize,
     write_flight_outputs,
@@ -213,6 +214,8 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     summary: list[dict[str, Any]] = []
     reports: list[dict[str, Any]] = []
     with exclusive_output_dir(*([root] if len(datasets) > 1 else []), *outs):
+        if len(datasets) > 1:
+            forget_previous_run(root, ("summary.json",))
         for dataset, out in zip(datasets, outs, strict=True):
             rows, report = _eval_dataset(args, ctx, dataset, names, out)
             reports.append(report)
@@ -280,9 +283,10 @@ def _eval_dataset(
 ) -> tuple[list[StrategyRow], dict[str, Any]]:
     """``dataset`` through every strategy: the rows and the report written as ``eval.json``
     (its table printed unless ``--json``)."""
-    from c3_matcher_tools.plots import eval_plots
+    from c3_matcher_tools.plots import CHARTS, eval_plots
 
     out.mkdir(parents=True, exist_ok=True)
+    forget_previous_run(out, ("eval.json", *(f"{chart}.png" for chart in CHARTS)))
     overrides = Overrides(max_keypoints=args.max_keypoints)
     rows: list[StrategyRow] = []
     for name in names:

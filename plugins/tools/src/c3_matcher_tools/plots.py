@@ -18,7 +18,10 @@ if TYPE_CHECKING:
     from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
     from c3_matcher_tools.run.records import FlightRun
 
-__all__ = ["eval_plots", "line_chart"]
+__all__ = ["CHARTS", "eval_plots", "line_chart"]
+
+CHARTS = ("inliers", "error")
+"""The charts :func:`eval_plots` writes in its output directory (``<name>.png``)."""
 
 _COLOURS = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189))
 
@@ -98,9 +101,14 @@ def eval_plots(
     """``out/inliers.png`` and ``out/error.png`` (best-candidate inliers and mean inlier error
     against ground truth per frame, one line per run) and, for ``samples`` frames with the true
     tile spread over the flight, ``out/matches/<strategy>_<frame>.png``; the paths written."""
-    charts = (
-        ("inliers", [[float(o.candidate_inliers) for o in r.outcomes] for r in runs], 80.0),
-        ("error", [[_finite_or_nan(o.mean_error_px) for o in r.outcomes] for r in runs], 2.5),
+    charts = zip(
+        CHARTS,
+        (
+            [[float(o.candidate_inliers) for o in r.outcomes] for r in runs],
+            [[_finite_or_nan(o.mean_error_px) for o in r.outcomes] for r in runs],
+        ),
+        (80.0, 2.5),
+        strict=True,
     )
     titles = {"inliers": "best-candidate inliers", "error": "mean inlier error vs ground truth"}
     written = [

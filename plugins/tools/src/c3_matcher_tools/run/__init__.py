@@ -18,6 +18,7 @@ from c3_matcher_tools.run.matcher import (
 from c3_matcher_tools.run.outputs import (
     exclusive_output_dir,
     flight_report,
+    forget_previous_run,
     output_dir_name,
     write_flight_outputs,
     write_html_report,
@@ -54,6 +55,7 @@ __all__ = [
     "exclusive_output_dir",
     "flight_report",
     "fly",
+    "forget_previous_run",
     "open_backend",
     "open_matcher",
     "output_dir_name",

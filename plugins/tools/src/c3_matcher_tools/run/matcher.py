@@ -16,6 +16,7 @@ from c3_matcher.config import C3Settings
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import Clock, CrossDomainMatcher, FdrClient
+from c3_matcher_tools.run.outputs import forget_previous_run
 
 __all__ = [
     "NO_OVERRIDES",
@@ -144,9 +145,10 @@ def open_matcher(
     """A matcher for ``strategy`` (a linked strategy, or the ``sift_magsac`` baseline, also a
     strategy) with ``overrides``, whose FDR records go to ``out_dir/fdr.jsonl`` and JSON logs
     to ``out_dir/matcher.log``; closed on exit. A strategy this build cannot run is refused
-    before any file is touched; both files are started afresh only once this process holds
-    the FDR's lock, so a run refused by it (another process writing ``out_dir``) leaves that
-    run's files as they are."""
+    before any file is touched; both files are started afresh, and an earlier run's results
+    removed (:func:`forget_previous_run`), only once this process holds the FDR's lock, so a
+    run refused by it (another process writing ``out_dir``) leaves that run's files as they
+    are."""
     from c3_matcher.fdr import JsonlFdrRecorder
     from c3_matcher.health import MonotonicClock
     from c3_matcher.logs import configure_logging
@@ -160,6 +162,7 @@ def open_matcher(
             out_dir / "fdr.jsonl", clock, max_bytes=settings.fdr.max_bytes, fresh=True
         )
         opened.callback(fdr.close)
+        forget_previous_run(out_dir)  # the FDR is this run's now: so are the results
         log_stream = opened.enter_context((out_dir / "matcher.log").open("w", encoding="utf-8"))
         logs = configure_logging(fdr, level=log_level or settings.logging.level, stream=log_stream)
         opened.callback(logs.close)

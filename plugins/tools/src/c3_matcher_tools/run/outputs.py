@@ -1,8 +1,8 @@
 """A run's report (:func:`flight_report`) and files: ``results.jsonl`` (one
 :class:`FrameOutcome` a line), ``flight.geojson`` and ``report.html`` (the same for ``replay`` and
 for each strategy ``eval`` runs, :func:`write_flight_outputs`), every one written through
-:func:`~c3_matcher.atomic.atomic_writer`: a run that fails part-way leaves the previous file
-whole."""
+:func:`~c3_matcher.atomic.atomic_writer`: a run that fails part-way leaves no torn file, and
+no earlier run's results beside its own FDR (:func:`forget_previous_run`)."""
 
 from __future__ import annotations
 
@@ -20,8 +20,10 @@ from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.scoring import summarize
 
 __all__ = [
+    "RUN_FILES",
     "exclusive_output_dir",
     "flight_report",
+    "forget_previous_run",
     "output_dir_name",
     "write_flight_outputs",
     "write_html_report",
@@ -39,6 +41,17 @@ def exclusive_output_dir(*directories: Path) -> Iterator[None]:
         for directory in directories:
             held.enter_context(held_directory(directory, when_busy=_refused(directory)))
         yield
+
+
+RUN_FILES = ("results.jsonl", "report.json", "flight.geojson", "report.html")
+"""What a finished run leaves beside its FDR and log (``report.json``: replay's)."""
+
+
+def forget_previous_run(out: Path, files: Sequence[str] = RUN_FILES) -> None:
+    """Remove the ``files`` an earlier run left in ``out``, as a new run starts there: a run
+    stopped part-way leaves its own FDR and log, never beside another run's results."""
+    for name in files:
+        (out / name).unlink(missing_ok=True)
 
 
 def _refused(directory: Path) -> Callable[[], None]:
