@@ -169,3 +169,20 @@ def test_dataset_render_creates_a_missing_output_parent(tmp_path: Path) -> None:
     done = c3("dataset", "render", NAIP_2020, store, out, "--frames", "2")
     assert done.returncode == 0, done.stderr[-2000:]
     assert (out / "dataset.json").is_file()
+
+
+def test_an_output_under_a_file_is_refused_in_one_line_naming_the_option(tmp_path: Path) -> None:
+    """``--out`` a file (replay, eval) or a store path under a file (tiles build): exit 2, the
+    option named, before anything runs (it was ``afile File exists``, or an internal error)."""
+    a_file = tmp_path / "a_file"
+    a_file.write_text("the user's\n")
+    for argv, option in [
+        (("replay", FLIGHT, "--strategy", "sift_magsac", "--out", a_file), "--out"),
+        (("eval", FLIGHT, "--strategy", "sift_magsac", "--out", a_file), "--out"),
+        (("tiles", "build", NAIP_2020, a_file / "x.mbtiles"), "mbtiles"),
+    ]:
+        proc = c3(*argv)
+        assert proc.returncode == 2, proc.stderr[-2000:]
+        (line,) = proc.stderr.strip().splitlines()
+        assert line.startswith(f"c3-matcher: {option}: ") and "a_file is not a directory" in line
+    assert a_file.read_text() == "the user's\n" and sorted(tmp_path.iterdir()) == [a_file]

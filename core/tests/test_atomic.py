@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from c3_matcher.atomic import atomic_writer, write_bytes_atomically, write_text_atomically
+from c3_matcher.errors import InvalidInputError
 from c3_matcher.viz import write_png
 
 
@@ -76,3 +77,24 @@ def test_a_picture_replaces_the_previous_one_whole(tmp_path: Path) -> None:
     assert read is not None and read.shape == (8, 8, 3)
     assert (read[..., 2] == 255).all() and (read[..., :2] == 0).all()  # BGR on disk
     assert [p.name for p in tmp_path.iterdir()] == ["inliers.png"]
+
+
+def test_an_output_that_cannot_be_written_is_refused_naming_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from c3_matcher import atomic
+    from c3_matcher.atomic import refuse_unwritable
+
+    a_file = tmp_path / "a_file"
+    a_file.write_text("not a folder\n")
+    with pytest.raises(InvalidInputError, match="a_file is not a directory") as info:
+        refuse_unwritable(a_file, field="--out", directory=True)
+    assert info.value.field == "--out"
+    with pytest.raises(InvalidInputError, match="a_file is not a directory"):
+        refuse_unwritable(a_file / "deeper" / "x.mbtiles")
+    refuse_unwritable(a_file)  # a file to replace, in a writable folder
+    refuse_unwritable(tmp_path / "new" / "deeper", directory=True)  # made on writing
+    assert not (tmp_path / "new").exists()
+    monkeypatch.setattr(atomic.os, "access", lambda path, mode: False)  # a read-only mount
+    with pytest.raises(InvalidInputError, match=f"{tmp_path} is not writable"):
+        refuse_unwritable(tmp_path / "new" / "deeper", directory=True)

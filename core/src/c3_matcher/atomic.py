@@ -23,6 +23,7 @@ __all__ = [
     "atomic_writer",
     "held_directory",
     "refuse_output_over_inputs",
+    "refuse_unwritable",
     "write_bytes_atomically",
     "write_text_atomically",
 ]
@@ -51,6 +52,21 @@ def refuse_output_over_inputs(
                 field,
                 f"{out} holds the input {given}, which replacing it would delete: choose another",
             )
+
+
+def refuse_unwritable(out: Path, *, field: str = "OUT", directory: bool = False) -> None:
+    """Refuse (``InvalidInputError`` naming ``field``) an ``out`` this process cannot write, a
+    file or, with ``directory``, a directory: the nearest existing folder it goes in (``out``
+    itself for an existing directory; missing folders are made on writing) must be a
+    directory, and writable. Nothing is created."""
+    target = Path(out).expanduser().absolute()
+    place = target if directory else target.parent
+    while not place.exists() and place != place.parent:
+        place = place.parent
+    if not place.is_dir():
+        raise InvalidInputError(field, f"{out}: {place} is not a directory")
+    if not os.access(place, os.W_OK):
+        raise InvalidInputError(field, f"{out}: {place} is not writable")
 
 
 @contextlib.contextmanager

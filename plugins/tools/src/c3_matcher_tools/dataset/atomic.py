@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import os
 import shutil
 import uuid
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from c3_matcher.atomic import refuse_output_over_inputs
+from c3_matcher.atomic import refuse_output_over_inputs, refuse_unwritable
 from c3_matcher.errors import InvalidInputError
 
 __all__ = ["atomic_directory", "check_output_dir"]
@@ -31,13 +30,7 @@ def check_output_dir(
     if out.exists() and not (force and out.is_dir()):
         hint = "" if out.is_dir() else " (and is not a directory)"
         raise InvalidInputError(field, f"{out} already exists{hint}: choose another or --force")
-    parent = out.resolve().parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir():
-        raise InvalidInputError(field, f"{parent}: not a directory")
-    if not os.access(parent, os.W_OK):
-        raise InvalidInputError(field, f"{parent}: not writable")
+    refuse_unwritable(out, field=field)
 
 
 @contextmanager

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.atomic import atomic_writer, held_directory
+from c3_matcher.atomic import atomic_writer, held_directory, refuse_unwritable
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
@@ -36,7 +36,10 @@ def exclusive_output_dir(*directories: Path) -> Iterator[None]:
     """``directories`` (made if missing) for this run alone while the block runs
     (:func:`~c3_matcher.atomic.held_directory`, no lock file left behind), so that a second
     ``replay`` or ``eval`` into one of them is refused, ``InvalidInputError`` naming it, before
-    it writes anything there. Taken in the order given; all released when the block ends."""
+    it writes anything there; one that is a file or not writable is refused before any is made.
+    Taken in the order given; all released when the block ends."""
+    for directory in directories:  # every one, before any is made
+        refuse_unwritable(directory, field="--out", directory=True)
     with contextlib.ExitStack() as held:
         for directory in directories:
             held.enter_context(held_directory(directory, when_busy=_refused(directory)))

@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from c3_matcher.atomic import refuse_unwritable
 from c3_matcher.errors import InvalidInputError
 
 __all__ = ["DigestReport", "MBTilesWriter", "add_missing_digests"]
@@ -109,6 +110,7 @@ class MBTilesWriter:
             raise InvalidInputError("mbtiles", f"{self._path} exists (use --force)")
         if self._path.is_dir():
             raise InvalidInputError("mbtiles", f"{self._path} is a directory")
+        refuse_unwritable(self._path, field="mbtiles")
         self._path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = self._path.with_name(f".{self._path.name}.tmp-{uuid.uuid4().hex[:8]}")
         self._db: sqlite3.Connection | None = sqlite3.connect(str(self._tmp))
