@@ -225,3 +225,22 @@ def test_a_row_of_finite_garbage_is_refused_and_extracted(built: Path, engine_di
     assert _sources(fdr)[0] == ["extracted", "stored", "stored"]
     (warning,) = _warnings(stream)
     assert "checksum mismatch; refused" in warning["message"]
+
+
+def test_info_counts_the_windows_a_stopped_build_left(
+    built: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A set a stopped build left incomplete shows the windows it holds (it showed 0)."""
+    from c3_matcher.cli import main
+    from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
+
+    store = tmp_path / "tiles.mbtiles"
+    shutil.copy(built / "tiles.mbtiles", store)
+    shutil.copy(sidecar_path(built / "tiles.mbtiles"), sidecar_path(store))
+    with MapFeatureStore(sidecar_path(store), writable=True) as side:
+        (fset,) = side.feature_sets()
+        stored = len(side.done_windows(fset.set_id))
+        side.mark(fset.set_id, complete=False, windows=0)  # as a build stopped at its start
+    assert main(["features", "info", str(store), "--json"]) == 0
+    (shown,) = json.loads(capsys.readouterr().out)["sets"]
+    assert shown["complete"] is False and shown["windows"] == stored > 0

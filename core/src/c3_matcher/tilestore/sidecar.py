@@ -376,7 +376,8 @@ def _set_of(row: Sequence[Any]) -> FeatureSet:
 
 
 def stored_sets(store: MapFeatureStore) -> Iterator[Mapping[str, Any]]:
-    """The sets of a sidecar as dicts (for ``features info``)."""
+    """The sets of a sidecar as dicts (for ``features info``; ``windows``: those stored, also
+    in a set a stopped build left incomplete)."""
     for s in store.feature_sets():
         yield {
             "set_id": s.set_id,
@@ -388,5 +389,5 @@ def stored_sets(store: MapFeatureStore) -> Iterator[Mapping[str, Any]]:
             "descriptor_dim": s.descriptor_dim,
             "descriptor_dtype": s.descriptor_dtype,
             "complete": s.complete,
-            "windows": s.windows,
+            "windows": len(store.done_windows(s.set_id)),
         }
