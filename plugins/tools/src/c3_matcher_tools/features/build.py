@@ -24,6 +24,7 @@ A set is marked complete only when a build of it finished: incomplete while one 
 from __future__ import annotations
 
 import os
+import signal
 import sqlite3
 import sys
 import time
@@ -217,6 +218,34 @@ def _plan(
 
 
 @contextmanager
+def _stops_deferred() -> Iterator[None]:
+    """Ctrl-C or SIGTERM while the block runs takes effect when it ends (its handler is called
+    then), so what the block starts is whole when it is stopped; signals are left alone off
+    the main thread."""
+    caught: list[signal.Signals] = []
+    try:
+        previous = {
+            s: signal.signal(s, lambda n, _: caught.append(signal.Signals(n))) for s in _STOPS
+        }
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    if caught:
+        handler = previous[caught[0]]
+        if callable(handler):
+            handler(caught[0], None)  # raises KeyboardInterrupt, as it would have
+        raise KeyboardInterrupt
+
+
+_STOPS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextmanager
 def _dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
     """A Dask client (``scheduler``'s, or a local cluster of ``workers`` processes with one
     thread each), or None to run the tasks in this process; closed on exit."""
@@ -226,17 +255,20 @@ def _dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
     from dask.distributed import Client, LocalCluster
 
     cluster: Any = None
-    if scheduler:
-        client = Client(scheduler)
-    else:
-        cluster = LocalCluster(
-            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
-        )
-        client = Client(cluster)
     try:
-        yield client
+        if scheduler:
+            client = Client(scheduler)
+        else:
+            with _stops_deferred():  # a cluster stopped half-started cannot be closed cleanly
+                cluster = LocalCluster(
+                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
+                )
+            client = Client(cluster)
+        try:
+            yield client
+        finally:
+            client.close()
     finally:
-        client.close()
         if cluster is not None:
             cluster.close()
 

@@ -1,0 +1,53 @@
+"""Ctrl-C or SIGTERM while ``features build`` starts its local Dask cluster takes effect once
+the cluster has started, which is then closed: a cluster stopped half-started left a traceback
+from Dask's exit handler."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from typing import Any
+
+import pytest
+
+from c3_matcher_tools.features.build import _dask_client
+
+
+class _Cluster:
+    """A local cluster whose start is interrupted by ``stop`` part-way."""
+
+    def __init__(self, stop: signal.Signals, **kwargs: Any) -> None:
+        os.kill(os.getpid(), stop)
+        time.sleep(0.2)  # the signal arrives here, half-way through the start
+        self.started, self.closed = True, False
+        MADE.append(self)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+MADE: list[_Cluster] = []
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_during_the_clusters_start_stops_it_whole(
+    stop: signal.Signals, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import dask.distributed
+
+    def terminate(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt  # as the command line's SIGTERM handler does
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    MADE.clear()
+    monkeypatch.setattr(dask.distributed, "LocalCluster", lambda **kw: _Cluster(stop, **kw))
+    monkeypatch.setattr(dask.distributed, "Client", lambda cluster: pytest.fail("not started"))
+    try:
+        with pytest.raises(KeyboardInterrupt), _dask_client(2, None):
+            pytest.fail("the block runs after a stop")
+        (cluster,) = MADE
+        assert cluster.started and cluster.closed
+        assert signal.getsignal(signal.SIGTERM) is terminate
+    finally:
+        signal.signal(signal.SIGTERM, previous)
