@@ -132,6 +132,11 @@ def test_the_all_flights_share_agrees_with_the_it04_bar() -> None:
     assert "35/37 (94.5%) correct tile" in lines[-1], lines[-1]
 
 
+def test_the_all_flights_line_of_distractor_only_flights_shows_no_share() -> None:
+    lines = _summary_lines([_summary("naip_distractors_s2015"), _summary("naip_distractors")])
+    assert "all flights" in lines[-1] and " - correct tile, 0/24 false-confident" in lines[-1]
+
+
 def test_every_figure_printed_beside_a_bar_is_judged_as_its_value() -> None:
     from c3_matcher_tools.run.acceptance import IT01_BAR, IT03_BAR, IT04_BAR, Bar
 

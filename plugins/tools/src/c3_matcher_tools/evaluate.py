@@ -451,9 +451,13 @@ def _print_summary(ctx: CommandContext, summary: list[dict[str, Any]]) -> None:
         mine = [s for s in rows if s["strategy"] == strategy and "error" not in s]
         correct, present = sum(s["correct"] for s in mine), sum(s["present"] for s in mine)
         wrong, scored = sum(s["false_confident"] for s in mine), sum(s["scored"] for s in mine)
-        share = f" ({IT04_BAR.figure(correct / present, percent=True)})" if present else ""
+        rate = (
+            f"{correct}/{present} ({IT04_BAR.figure(correct / present, percent=True)})"
+            if present
+            else "-"  # no frame with its true tile: as in the rows above
+        )
         ctx.out(
-            f"{strategy:18} {'all flights':{w}} {correct}/{present}{share} correct tile, "
+            f"{strategy:18} {'all flights':{w}} {rate} correct tile, "
             f"{wrong}/{scored} false-confident"
         )
 
