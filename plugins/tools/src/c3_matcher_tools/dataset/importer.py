@@ -52,7 +52,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from c3_matcher.camera import rotation_world_from_camera
@@ -70,6 +69,7 @@ from c3_matcher_tools.dataset.sources.common import (
     _ranges,
     check_proposal_options,
     ground_elevation_sampler,
+    image_problem,
     max_uncertainty_m,
 )
 from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
@@ -570,17 +570,10 @@ def imported_frame(
 
 
 def _check_image(path: Path, calibration: CameraCalibration) -> str | None:
+    """Why ``path`` cannot be a frame, as every import checks its images, or None."""
     if not path.is_file():
         return "no such file"
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        return "not a readable image"
-    h, w = image.shape[:2]
-    if (w, h) != tuple(calibration.image_size):
-        return f"is {w}x{h} px, the calibration says {calibration.image_size[0]}x" + str(
-            calibration.image_size[1]
-        )
-    return None
+    return image_problem(path.read_bytes(), calibration.image_size)
 
 
 def _pair_images(
@@ -622,6 +615,8 @@ def import_csv_flight(
     out = Path(out)
     check_output_dir(out, force=force, inputs=spec.inputs)
     images_dir = Path(spec.images_dir)
+    if not images_dir.exists():
+        raise InvalidInputError("IMAGES_DIR", f"{images_dir}: no such file or folder")
     if not images_dir.is_dir():
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: not a directory")
     if not Path(spec.store).is_file():

@@ -35,8 +35,10 @@ pip install 'c3-matcher-tools[logs]'):
              the recorded sensor_msgs/CameraInfo
   exif       IMAGES is a folder of photos with EXIF GPS (and XMP gimbal angles and
              RelativeAltitude, as DJI writes them); TELEMETRY is '-' (or the folder again)
-Images meet the log by camera trigger (when logged), else by their own UTC time (EXIF,
-bag stamps), else in file order (--interval, --time-offset). Height above ground:
+Images meet the log by camera trigger (when logged: in order when the log has as many
+triggers as there are photos, else each photo the trigger nearest its own UTC time, else
+refused; a video keeps its own clock), else by their own UTC time (EXIF, bag stamps), else
+in file order (--interval, --time-offset). Height above ground:
 rangefinder when logged, else altitude minus --dem / --ground-elevation / the home
 altitude. Frames without attitude or height are imported and marked; frames that cannot
 be placed are skipped; the import says which and why. Each frame keeps its GNSS fix and
@@ -120,7 +122,8 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
         "--frame-step",
         type=int,
         default=1,
-        help="take every N-th frame of a video or of a bag's image topic (default 1)",
+        help="take every N-th frame of a video or of a bag's image topic (default 1; a "
+        "folder's photos are all taken)",
     )
     for topic in ("image", "attitude", "navsat", "camera-info"):
         g.add_argument(f"--{topic}-topic", default=None, help=f"bag: the {topic} topic")
@@ -129,8 +132,11 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
 def run_log_import(args: argparse.Namespace, ctx: CommandContext) -> int | None:
     """Run ``dataset import`` for a recorded log; None when TELEMETRY is a CSV (the caller's
     own path)."""
+    from c3_matcher_tools.dataset.sources.images import check_frame_step
+
     images, telemetry = str(args.images_dir), str(args.telemetry)
     kind = args.source if args.source != "auto" else detect_kind(telemetry, images)
+    check_frame_step(args.frame_step, video=_frames_of_a_video(kind, images))
     if kind == "csv":
         if str(args.calibration) == "-":
             raise InvalidInputError("CALIBRATION", "'-' (recorded intrinsics) is for ROS bags")
@@ -138,6 +144,16 @@ def run_log_import(args: argparse.Namespace, ctx: CommandContext) -> int | None:
     report = import_log(kind, args)
     ctx.out(json.dumps(report.to_json(), indent=2) if args.json else "\n".join(report.lines()))
     return 0
+
+
+def _frames_of_a_video(kind: str, images: str) -> bool:
+    """Whether IMAGES of a ``kind`` import are a video's (or a bag's) frames, which
+    ``--frame-step`` thins, rather than a folder's photos."""
+    from c3_matcher_tools.dataset.sources.images import VIDEO_SUFFIXES
+
+    if kind == "rosbag":
+        return True
+    return kind in ("ulog", "ardupilot") and Path(images).suffix.lower() in VIDEO_SUFFIXES
 
 
 def import_log(kind: str, args: argparse.Namespace) -> ImportReport:

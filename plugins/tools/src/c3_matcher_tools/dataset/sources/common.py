@@ -50,6 +50,7 @@ __all__ = [
     "body_attitude_for_camera",
     "check_proposal_options",
     "ground_elevation_sampler",
+    "image_problem",
     "logs_library",
     "match_shots",
     "max_uncertainty_m",
@@ -220,7 +221,8 @@ class ImportOptions:
     ``time_source``: ``auto`` | ``trigger`` | ``exif`` (the images' own clock) | ``order`` (file
     order, one image every ``interval_s`` from ``time_offset_s`` on the log's clock; a video's
     frames at ``time_offset_s`` plus their time in the video);
-    ``time_offset_s`` is added to trigger / image times otherwise. ``max_gap_s``: the farthest a
+    ``time_offset_s`` is added to trigger / image times otherwise (to the images' own times when
+    they are paired with triggers by time: see :func:`match_shots`). ``max_gap_s``: the farthest a
     log sample may be from a frame's time to be used. ``gnss_degraded_m``: a stated horizontal
     accuracy worse than this flags the frame. ``ground_elevation_m`` / ``dem``: the ground's
     altitude (same datum as the log's altitude) when the log has no height above ground."""
@@ -396,28 +398,164 @@ def ground_elevation_sampler(dem: Path) -> Callable[[float, float], float | None
     return at
 
 
+def _names(shots: Sequence[Shot], shown: int = 3) -> str:
+    """The first ``shown`` shots' names, then how many more."""
+    more = f" and {len(shots) - shown} more" if len(shots) > shown else ""
+    return ", ".join(s.name for s in shots[:shown]) + more
+
+
+_ORDER_HINT = "--interval (s between images) and --time-offset (log time of the first image)"
+
+
+def _no_time_source(track: LogTrack, shots: Sequence[Shot], untimed: Sequence[Shot]) -> str:
+    """Why ``auto`` finds no way to put images without a camera trigger on the log's clock, and
+    the options that would."""
+    n, timed = len(shots), len(shots) - len(untimed)
+    head = f"{track.source}: no camera trigger in the log"
+    if not timed:
+        return f"{head}, and none of the {n} images states a capture time: give {_ORDER_HINT}"
+    if track.utc_offset_s is None:
+        return (
+            f"{head}, and it states no UTC time (no GNSS time) to meet the images' own times: "
+            f"give {_ORDER_HINT}"
+        )
+    return (
+        f"{head}, and {len(untimed)} of the {n} images state no capture time "
+        f"({_names(untimed)}): give --time-source exif to import the {timed} that do by their "
+        f"own time, or {_ORDER_HINT} to place all {n} in file order"
+    )
+
+
+def _trigger_count_refusal(
+    track: LogTrack, shots: Sequence[Shot], triggers: F64, untimed: Sequence[Shot]
+) -> str:
+    """Why ``auto`` will not pair ``shots`` with a different number of ``triggers``: the counts,
+    why order is wrong, why time cannot be used, and the ways out."""
+    n = len(shots)
+    if len(untimed) == n:
+        why = f"none of the {n} images states a capture time"
+    elif untimed:
+        why = f"{len(untimed)} of the {n} images state no capture time ({_names(untimed)})"
+    else:
+        why = "the log states no UTC time (no GNSS time)"
+    ways = ["remove the images without a trigger"]
+    if track.utc_offset_s is not None and len(untimed) < n:
+        those = f"the {n - len(untimed)} that state one, " if untimed else ""
+        ways.append(f"give --time-source exif ({those}each by its own time)")
+    ways.append("give --time-source trigger to pair them in order anyway")
+    return (
+        f"{track.source}: {triggers.size} camera trigger(s) in the log but {n} image(s): "
+        "pairing them in order would put every image after a missing or extra one on another "
+        f"image's pose, and they cannot be paired by time ({why}); "
+        + ", ".join(ways[:-1])
+        + ", or "
+        + ways[-1]
+    )
+
+
+def _unpaired(images: int, triggers: int) -> str:
+    """``"2 image(s) left without a trigger; 1 trigger(s) left without an image"``, the parts
+    that are not 0 ("none left unpaired" when both are)."""
+    parts = [f"{images} image(s) left without a trigger"] if images else []
+    parts += [f"{triggers} trigger(s) left without an image"] if triggers else []
+    return "; ".join(parts) or "none left unpaired"
+
+
+def _triggers_by_time(
+    track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
+) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+    """Each image paired with the camera trigger nearest its own UTC time (plus
+    ``--time-offset``), each trigger used once (by the image nearest it), at the trigger's time.
+
+    Tolerance: ``--max-gap`` (default 1 s: whole-second EXIF times and camera clocks a fraction
+    of a second off GNSS time) but at most half the median spacing of the triggers, so that an
+    image is never nearer its neighbour's trigger than its own; an image farther than that from
+    every trigger is left unpaired and reported, as are the triggers left without an image."""
+    assert track.utc_offset_s is not None
+    steps = np.diff(triggers)
+    steps = steps[steps > 0]
+    tol = min(options.max_gap_s, float(np.median(steps)) / 2 if steps.size else math.inf)
+    own = [float(s.t_s or 0.0) - track.utc_offset_s + options.time_offset_s for s in shots]
+    nearest = [int(np.argmin(np.abs(triggers - t))) for t in own]
+    gaps = [abs(float(triggers[j]) - t) for j, t in zip(nearest, own, strict=True)]
+    owner: dict[int, int] = {}  # trigger -> the image nearest it in time
+    for k, (j, d) in enumerate(zip(nearest, gaps, strict=True)):
+        if d <= tol and (j not in owner or d < gaps[owner[j]]):
+            owner[j] = k
+    taken: list[tuple[Shot, float]] = []
+    skipped: list[tuple[str, str]] = []
+    for k, (shot, t, j, d) in enumerate(zip(shots, own, nearest, gaps, strict=True)):
+        at = float(triggers[j])
+        if d > tol:
+            skipped.append(
+                (
+                    shot.name,
+                    f"no camera trigger within {tol:g} s of its own time ({t:.2f} s on the "
+                    f"log's clock; the nearest at {at:.2f} s)",
+                )
+            )
+        elif owner[j] != k:
+            skipped.append(
+                (
+                    shot.name,
+                    f"its nearest camera trigger ({at:.2f} s) is nearer the time of "
+                    f"{shots[owner[j]].name}",
+                )
+            )
+        else:
+            taken.append((shot, at))
+    if not taken:
+        raise InvalidInputError(
+            "--time-source",
+            f"{track.source}: {triggers.size} camera trigger(s) in the log but {len(shots)} "
+            f"image(s), and no image's own time lies within {tol:g} s of a trigger (images at "
+            f"{min(own):.1f} .. {max(own):.1f} s, triggers at {triggers[0]:.1f} .. "
+            f"{triggers[-1]:.1f} s on the log's clock): the camera's clock is off "
+            "(--time-offset), or give --time-source trigger to pair them in order",
+        )
+    how = (
+        f"camera trigger nearest each image's own UTC time, within {tol:g} s "
+        f"({triggers.size} in the log, {len(shots)} image(s): "
+        f"{_unpaired(len(shots) - len(taken), triggers.size - len(taken))})"
+    )
+    return taken, skipped, how
+
+
 def match_shots(
     track: LogTrack, shots: Sequence[Shot], options: ImportOptions
 ) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
     """Each shot's time on the log's clock: ([(shot, t_s)], [(name, why skipped)], how).
-    Raises InvalidInputError when no image falls within the log's time span (images of another
-    flight) or the chosen time source cannot be used."""
+
+    ``auto``: a video's frames keep the video's clock (the log's camera triggers are a stills
+    camera's). Photos take the camera triggers in order when the log has exactly as many;
+    with another count, each photo the trigger nearest its own UTC time
+    (:func:`_triggers_by_time`) when every photo states one and the log states UTC, else
+    refused: in order, one missing or extra photo would shift every later one onto another's
+    pose. Without triggers: the photos' own UTC times, else file order with ``--interval``.
+    ``trigger`` pairs in order whatever the counts, and ``how`` says how many were left
+    unpaired. Raises InvalidInputError when no image falls within the log's time span (images
+    of another flight) or the chosen time source cannot be used."""
     src = options.time_source
     triggers = track.triggers_s if track.triggers_s is not None else np.zeros(0)
+    video = bool(shots) and all("relative_s" in s.own for s in shots)
+    untimed = [s for s in shots if s.t_s is None]
     if src == "auto":
-        if triggers.size:
+        if video:
+            src = "order"
+        elif triggers.size == len(shots) and triggers.size:
             src = "trigger"
-        elif shots and all(s.t_s is not None for s in shots) and track.utc_offset_s is not None:
+        elif triggers.size:
+            if untimed or track.utc_offset_s is None:
+                raise InvalidInputError(
+                    "--time-source", _trigger_count_refusal(track, shots, triggers, untimed)
+                )
+            src = "trigger time"
+        elif shots and not untimed and track.utc_offset_s is not None:
             src = "exif"
-        elif options.interval_s is not None or all("relative_s" in s.own for s in shots):
+        elif options.interval_s is not None:
             src = "order"
         else:
-            raise InvalidInputError(
-                "--time-source",
-                f"{track.source}: no camera trigger in the log and the images carry no time the "
-                "log can be matched to: give --interval (seconds between images) and "
-                "--time-offset (log time of the first image)",
-            )
+            raise InvalidInputError("--time-source", _no_time_source(track, shots, untimed))
     taken: list[tuple[Shot, float]] = []
     skipped: list[tuple[str, str]] = []
     off = options.time_offset_s
@@ -430,6 +568,14 @@ def match_shots(
             else:
                 skipped.append((shot.name, f"no camera trigger left ({triggers.size} in the log)"))
         how = f"camera trigger ({triggers.size} in the log, {len(shots)} image(s))"
+        if triggers.size != len(shots):
+            left = _unpaired(max(len(shots) - triggers.size, 0), max(triggers.size - len(shots), 0))
+            how = (
+                f"camera trigger in file order, as asked ({triggers.size} in the log, "
+                f"{len(shots)} image(s): {left})"
+            )
+    elif src == "trigger time":
+        taken, skipped, how = _triggers_by_time(track, shots, triggers, options)
     elif src == "exif":
         if track.utc_offset_s is None:
             raise InvalidInputError(
@@ -442,12 +588,16 @@ def match_shots(
                 taken.append((shot, shot.t_s - track.utc_offset_s + off))
         how = "the images' own UTC time stamps against the log's UTC time"
     else:
-        video = bool(shots) and all("relative_s" in s.own for s in shots)
         if options.interval_s is None and not video:
             raise InvalidInputError("--interval", "file order needs --interval (s between images)")
         step = options.interval_s or 0.0
         taken = [(s, off + float(s.own.get("relative_s", i * step))) for i, s in enumerate(shots)]
         how = "video clock" if video else f"file order, one image every {step:g} s"
+        if video and triggers.size and options.time_source == "auto":
+            how += (
+                f" (the log's {triggers.size} camera trigger(s), a stills camera's, not used: "
+                "--time-source trigger to pair them in order)"
+            )
     lo, hi = track.span
     tol = options.max_gap_s
     inside = [(s, t) for s, t in taken if lo - tol <= t <= hi + tol]
@@ -672,7 +822,7 @@ def write_imported_flight(
     images: list[bytes] = []
     for f in frames:
         data = f.shot.read()
-        problem = _image_problem(data, size)
+        problem = image_problem(data, size)
         if problem:
             raise InvalidInputError("IMAGES", f"{f.shot.name}: {problem}")
         images.append(data)
@@ -796,7 +946,9 @@ def _why(skipped: Sequence[tuple[str, str]]) -> str:
     return "; ".join(f"{r} ({n})" for r, n in list(reasons.items())[:3]) or "no image"
 
 
-def _image_problem(data: bytes, size: tuple[int, int]) -> str | None:
+def image_problem(data: bytes, size: tuple[int, int]) -> str | None:
+    """Why the encoded image ``data`` cannot be a frame of a ``size`` (w, h) camera, or None:
+    every import checks its images with this (a truncated JPEG is not readable)."""
     import cv2
 
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)

@@ -12,8 +12,11 @@ aircraft's (``FlightRollDegree``...), as DJI and others write them.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 import re
+from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
@@ -25,6 +28,9 @@ from c3_matcher_tools.dataset.sources.common import Shot, constant, logs_library
 
 __all__ = [
     "IMAGE_SUFFIXES",
+    "VIDEO_SUFFIXES",
+    "check_frame_step",
+    "check_images_path",
     "folder_shots",
     "image_shots",
     "read_photo_metadata",
@@ -91,7 +97,8 @@ def read_photo_metadata(path: Path) -> dict[str, Any]:
     data = path.read_bytes()
     import io
 
-    tags = exifread.process_file(io.BytesIO(data), details=False)
+    with _quiet_logger("exifread"):  # it logs "File format not recognized." and the like
+        tags = exifread.process_file(io.BytesIO(data), details=False)
     out: dict[str, Any] = {}
     stamp = tags.get("EXIF DateTimeOriginal") or tags.get("Image DateTime")
     if stamp is not None:
@@ -129,6 +136,32 @@ def read_photo_metadata(path: Path) -> dict[str, Any]:
     return out
 
 
+@contextlib.contextmanager
+def _quiet_logger(name: str) -> Iterator[None]:
+    """The logger ``name`` silenced meanwhile: what it would say is not the import's to print
+    (an image it cannot read is refused, or imported without metadata, by the import)."""
+    logger = logging.getLogger(name)
+    was = logger.disabled
+    logger.disabled = True
+    try:
+        yield
+    finally:
+        logger.disabled = was
+
+
+def check_images_path(path: Path, *, video: bool = True) -> None:
+    """``InvalidInputError`` naming IMAGES unless ``path`` is a folder (or, when ``video``, a
+    video file by its suffix): a path that does not exist is said to be missing."""
+    if not path.exists():
+        raise InvalidInputError("IMAGES", f"{path}: no such file or folder")
+    if path.is_dir():
+        return
+    if video and path.suffix.lower() in VIDEO_SUFFIXES:
+        return
+    kinds = f"a folder of images or a video ({', '.join(VIDEO_SUFFIXES)})" if video else "a folder"
+    raise InvalidInputError("IMAGES", f"{path}: not {kinds}")
+
+
 def _tz(sign: int, hours: int, minutes: int) -> timezone:
     return timezone(sign * timedelta(hours=hours, minutes=minutes))
 
@@ -137,8 +170,7 @@ def folder_shots(folder: Path, *, metadata: bool = True) -> list[Shot]:
     """The photos in ``folder`` (file-name order), each with its EXIF time and metadata in
     ``own`` when ``metadata`` (and the logs extra is installed)."""
     folder = Path(folder)
-    if not folder.is_dir():
-        raise InvalidInputError("IMAGES", f"{folder}: not a directory")
+    check_images_path(folder, video=False)
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise InvalidInputError("IMAGES", f"{folder}: no image ({', '.join(IMAGE_SUFFIXES)}) in it")
@@ -196,8 +228,24 @@ def video_shots(path: Path, step: int = 1) -> list[Shot]:
 
 
 def image_shots(source: Path, step: int = 1) -> list[Shot]:
-    """A folder of photos or a video file (by its suffix)."""
+    """A folder of photos or a video file (by its suffix); ``step`` (``--frame-step``) takes
+    every ``step``-th frame of a video and is refused with a folder (pick the photos there)."""
     source = Path(source)
-    if source.is_file() and source.suffix.lower() in VIDEO_SUFFIXES:
+    check_images_path(source)
+    check_frame_step(step, video=source.is_file())
+    if source.is_file():
         return video_shots(source, step)
     return folder_shots(source)
+
+
+def check_frame_step(step: int, *, video: bool) -> None:
+    """``InvalidInputError`` naming ``--frame-step`` unless ``step`` >= 1, and 1 unless the
+    images are a video's (or a bag's) frames: a folder's photos are taken as they are."""
+    if step < 1:
+        raise InvalidInputError("--frame-step", f"must be >= 1, got {step}")
+    if step != 1 and not video:
+        raise InvalidInputError(
+            "--frame-step",
+            f"takes every N-th frame of a video or of a bag's image topic, not of a folder of "
+            f"images (got {step}): leave out the photos not wanted",
+        )

@@ -1,0 +1,280 @@
+"""How ``dataset import`` pairs images with a recorded log, and what it refuses: photos and
+camera triggers of different counts are never paired in order silently (each photo goes to the
+trigger nearest its own UTC time, or the import is refused saying the way out), a video keeps
+its own clock, a partly timed folder is told how many photos lack a time, ``--frame-step`` is
+for videos and bags only, a missing IMAGES is called missing, and every path reads its images
+alike (a truncated JPEG is refused, quietly). Logs and photos are written with the libraries'
+own writers (:mod:`c3_matcher_tools.testing.flightlogs`) over the shipped demo flight."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.serialize import load_calibration
+from c3_matcher_tools.dataset.format import load_dataset
+from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
+from c3_matcher_tools.dataset.sources.common import ImportOptions, match_shots
+from c3_matcher_tools.dataset.sources.images import folder_shots
+from c3_matcher_tools.dataset.sources.ulog import read_ulog
+from c3_matcher_tools.testing import flightlogs as fl
+from c3_matcher_tools.testing.cli import run_cli
+
+REPO = Path(__file__).resolve().parents[3]
+DEMO = REPO / "data" / "flights" / "naip_demo"
+CAL = str(DEMO / "calibration.json")
+STORE = str(DEMO / "tiles.mbtiles")
+
+
+def c3(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return run_cli(*args, cwd=REPO)
+
+
+def _refused(proc: subprocess.CompletedProcess[str], *needles: str) -> str:
+    """Exit 2 with one error line (nothing else on stderr) naming each needle; the line."""
+    assert proc.returncode == 2, (proc.returncode, proc.stdout[-1000:], proc.stderr[-2000:])
+    lines = [x for x in proc.stderr.splitlines() if x.strip()]
+    assert len(lines) == 1, proc.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+def _imported(proc: subprocess.CompletedProcess[str]) -> dict:
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout)
+
+
+def _plain(root: Path, poses: list[fl.Pose], name: str = "IMG_{:04d}.jpg") -> Path:
+    """The frames as they were rendered: no EXIF (no capture time)."""
+    root.mkdir(parents=True)
+    for i, p in enumerate(poses):
+        shutil.copyfile(p.image, root / name.format(i))
+    return root
+
+
+@pytest.fixture(scope="module")
+def poses() -> list[fl.Pose]:
+    return fl.flight_poses(DEMO, range(5))
+
+
+def test_a_missing_or_extra_photo_meets_its_own_trigger_by_time(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses)  # one camera trigger per frame
+    photos = fl.write_exif_photos(tmp_path / "photos", poses, xmp=False)
+    full = _imported(c3("dataset", "import", photos, log, CAL, STORE, tmp_path / "a", "--json"))
+    assert full["time_source"] == "camera trigger (5 in the log, 5 image(s))"  # as before
+    (photos / "DJI_0002.JPG").rename(tmp_path / "DJI_0002.JPG")  # the camera missed one
+    flight = tmp_path / "flight"
+    summary = _imported(c3("dataset", "import", photos, log, CAL, STORE, flight, "--json"))
+    assert summary["frames"] == 4 and summary["skipped"] == []
+    assert summary["time_source"] == (
+        "camera trigger nearest each image's own UTC time, within 1 s (5 in the log, 4 image(s):"
+        " 1 trigger(s) left without an image)"
+    )
+    frames = load_dataset(flight).frames
+    for f, k in zip(frames, (0, 1, 3, 4), strict=True):  # each photo on its own pose
+        p = poses[k]
+        assert f.telemetry["source_image"] == f"DJI_{k:04d}.JPG"
+        assert f.telemetry["time_s"] == pytest.approx(fl.BOOT_S + p.t_s, abs=1e-6)
+        assert (f.telemetry["lat"], f.telemetry["lon"]) == pytest.approx((p.lat, p.lon), abs=1e-7)
+    # back in, and a stray photo half a second after the second one: 6 photos, 5 triggers
+    (tmp_path / "DJI_0002.JPG").rename(photos / "DJI_0002.JPG")
+    stray = dataclasses.replace(poses[1], t_s=poses[1].t_s + 0.5)
+    fl.write_exif_photos(tmp_path / "stray", [stray], names="DJI_0001b.JPG", xmp=False)
+    shutil.copyfile(tmp_path / "stray" / "DJI_0001b.JPG", photos / "DJI_0001b.JPG")
+    more = _imported(c3("dataset", "import", photos, log, CAL, STORE, tmp_path / "m", "--json"))
+    assert more["frames"] == 5 and more["time_source"].endswith(
+        "(5 in the log, 6 image(s): 1 image(s) left without a trigger)"
+    )
+    assert more["skipped"] == [
+        {
+            "image": "DJI_0001b.JPG",
+            "reason": "its nearest camera trigger (102.00 s) is nearer the time of DJI_0001.JPG",
+        }
+    ]
+    times = [f.telemetry["time_s"] for f in load_dataset(tmp_path / "m").frames]
+    assert times == pytest.approx([fl.BOOT_S + p.t_s for p in poses])
+
+
+def test_untimed_images_and_a_different_trigger_count_are_refused_or_paired_as_asked(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses[:4])  # 4 triggers
+    images = _plain(tmp_path / "images", poses)  # 5 images, none with a capture time
+    common = (images, log, CAL, STORE)
+    _refused(
+        c3("dataset", "import", *common, tmp_path / "x"),
+        "--time-source: ", "4 camera trigger(s) in the log but 5 image(s)",
+        "pairing them in order would put every image after a missing or extra one on another "
+        "image's pose", "none of the 5 images states a capture time",
+        "remove the images without a trigger", "--time-source trigger to pair them in order",
+    )  # fmt: skip
+    assert not (tmp_path / "x").exists()
+    asked = _imported(
+        c3("dataset", "import", *common, tmp_path / "a", "--time-source", "trigger", "--json")
+    )
+    assert asked["frames"] == 4 and asked["time_source"] == (
+        "camera trigger in file order, as asked (4 in the log, 5 image(s): 1 image(s) left "
+        "without a trigger)"
+    )
+    assert asked["skipped"] == [
+        {"image": "IMG_0004.jpg", "reason": "no camera trigger left (4 in the log)"}
+    ]
+    (images / "IMG_0004.jpg").unlink()
+    (images / "IMG_0001.jpg").unlink()  # 3 images, 4 triggers
+    fewer = _imported(
+        c3("dataset", "import", *common, tmp_path / "b", "--time-source", "trigger", "--json")
+    )
+    assert fewer["frames"] == 3 and fewer["time_source"].endswith(
+        "(4 in the log, 3 image(s): 1 trigger(s) left without an image)"
+    )
+
+
+def test_the_refusal_names_exif_only_where_it_would_work(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    track = read_ulog(fl.write_ulog(tmp_path / "flight.ulg", poses[:4]))
+    photos = fl.write_exif_photos(tmp_path / "photos", poses, xmp=False)  # 5 timed photos
+    shutil.copyfile(poses[0].image, photos / "DJI_0001.JPG")  # its time gone
+    options = ImportOptions(load_calibration(Path(CAL)), Path(STORE))
+    shots = folder_shots(photos)
+    with pytest.raises(InvalidInputError) as partly:
+        match_shots(track, shots, options)
+    said = str(partly.value)
+    assert "1 of the 5 images state no capture time (DJI_0001.JPG)" in said
+    assert "give --time-source exif (the 4 that state one, each by its own time)" in said
+    timed = [s for s in shots if s.t_s is not None][:3]
+    no_utc = dataclasses.replace(track, utc_offset_s=None)
+    with pytest.raises(InvalidInputError) as unknown:
+        match_shots(no_utc, timed, options)
+    said = str(unknown.value)
+    assert "4 camera trigger(s) in the log but 3 image(s)" in said
+    assert "(the log states no UTC time (no GNSS time))" in said
+    assert "--time-source exif" not in said
+
+
+def test_a_video_keeps_its_own_clock_beside_camera_triggers(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    import cv2
+
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses[:4])  # 4 camera triggers
+    video = tmp_path / "nav.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"MJPG"), 1.0, (320, 240))
+    for p in poses[:4]:  # one frame a second, each frame twice (the frames are 2 s apart)
+        for _ in range(2):
+            writer.write(cv2.imread(str(p.image)))
+    writer.release()
+    flight = tmp_path / "flight"
+    offset = ("--time-offset", str(fl.BOOT_S))  # the log time of the video's first frame
+    summary = _imported(c3("dataset", "import", video, log, CAL, STORE, flight, *offset, "--json"))
+    assert summary["frames"] == 8 and summary["skipped"] == []
+    assert summary["time_source"].startswith("video clock (the log's 4 camera trigger(s)")
+    times = [f.telemetry["time_s"] for f in load_dataset(flight).frames]
+    assert times == pytest.approx([fl.BOOT_S + k for k in range(8)])
+    stepped = _imported(
+        c3("dataset", "import", video, log, CAL, STORE, tmp_path / "s", *offset,
+           "--frame-step", "2", "--json")
+    )  # fmt: skip
+    assert stepped["frames"] == 4
+    # without its offset the video starts at the log's clock origin, before the log
+    _refused(
+        c3("dataset", "import", video, log, CAL, STORE, tmp_path / "x"),
+        "no image falls within the log's time span", "--time-offset",
+    )  # fmt: skip
+
+
+def test_a_partly_timed_folder_says_how_many_lack_a_time(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",))
+    photos = fl.write_exif_photos(tmp_path / "photos", poses, xmp=False)
+    for k in (1, 3):  # two photos without EXIF
+        shutil.copyfile(poses[k].image, photos / f"DJI_{k:04d}.JPG")
+    _refused(
+        c3("dataset", "import", photos, log, CAL, STORE, tmp_path / "x"),
+        "no camera trigger in the log",
+        "2 of the 5 images state no capture time (DJI_0001.JPG, DJI_0003.JPG)",
+        "give --time-source exif to import the 3 that do", "--interval",
+    )  # fmt: skip
+    summary = _imported(
+        c3("dataset", "import", photos, log, CAL, STORE, tmp_path / "f", "--time-source", "exif",
+           "--json")
+    )  # fmt: skip
+    assert summary["frames"] == 3
+    assert [s["image"] for s in summary["skipped"]] == ["DJI_0001.JPG", "DJI_0003.JPG"]
+
+
+@pytest.mark.parametrize(
+    ("telemetry", "step", "needle"),
+    [
+        ("ulog", "5", "takes every N-th frame of a video or of a bag's image topic"),
+        ("ulog", "0", "must be >= 1, got 0"),
+        ("csv", "-1", "must be >= 1, got -1"),
+        ("csv", "5", "not of a folder of images (got 5)"),
+        ("-", "2", "not of a folder of images (got 2)"),
+    ],
+)
+def test_frame_step_with_a_folder_is_refused(
+    poses: list[fl.Pose], tmp_path: Path, telemetry: str, step: str, needle: str
+) -> None:
+    photos = fl.write_exif_photos(tmp_path / "photos", poses[:2])
+    if telemetry == "ulog":
+        telemetry = str(fl.write_ulog(tmp_path / "flight.ulg", poses[:2]))
+    elif telemetry == "csv":
+        telemetry = str(tmp_path / "t.csv")
+        Path(telemetry).write_text("time_s,image,lat,lon,altitude_m,roll,pitch,yaw\n")
+    out = tmp_path / "x"
+    _refused(
+        c3("dataset", "import", photos, telemetry, CAL, STORE, out, f"--frame-step={step}"),
+        "--frame-step: ", needle,
+    )  # fmt: skip
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("telemetry", ["ulog", "csv", "-"])
+def test_missing_images_are_called_missing(
+    poses: list[fl.Pose], tmp_path: Path, telemetry: str
+) -> None:
+    if telemetry == "ulog":
+        telemetry = str(fl.write_ulog(tmp_path / "flight.ulg", poses[:2]))
+    elif telemetry == "csv":
+        telemetry = str(tmp_path / "t.csv")
+        Path(telemetry).write_text("time_s,image,lat,lon,altitude_m,roll,pitch,yaw\n")
+    missing = tmp_path / "nothere.mp4"
+    _refused(
+        c3("dataset", "import", missing, telemetry, CAL, STORE, tmp_path / "x"),
+        f"{missing}: no such file or folder",
+    )
+
+
+def test_a_truncated_jpeg_is_refused_by_every_path_quietly(
+    poses: list[fl.Pose], tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    images = _plain(tmp_path / "images", poses[:2])
+    whole = (images / "IMG_0001.jpg").read_bytes()
+    (images / "IMG_0001.jpg").write_bytes(whole[: len(whole) // 4])  # a copy cut short
+    rows = ["time_s,image,lat,lon,altitude_m,roll_deg,pitch_deg,yaw_deg"]
+    rows += [
+        f"{p.t_s},IMG_{i:04d}.jpg,{p.lat},{p.lon},{p.height_m},{p.roll},{p.pitch},{p.yaw}"
+        for i, p in enumerate(poses[:2])
+    ]
+    csv = tmp_path / "telemetry.csv"
+    csv.write_text("\n".join(rows) + "\n")
+    with pytest.raises(InvalidInputError, match="line 3: IMG_0001.jpg: not a readable image"):
+        import_csv_flight(ImportSpec(images, csv, Path(CAL), Path(STORE)), tmp_path / "a")
+    assert capfd.readouterr().err == ""  # nothing printed beside the refusal
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses[:2])
+    (images / "IMG_0000.jpg").write_bytes(b"not a jpeg")  # exifread: "format not recognized"
+    _refused(
+        c3("dataset", "import", images, log, CAL, STORE, tmp_path / "b"),
+        "IMAGES: IMG_0000.jpg: not a readable image",
+    )
