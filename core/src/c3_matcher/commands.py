@@ -73,8 +73,8 @@ class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
-_NUMBER = r"-?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?"
-_NEGATIVE_NUMBERS = re.compile(rf"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,{_NUMBER})*$")
+_UNSIGNED = r"(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?"
+_NEGATIVE_NUMBERS = re.compile(rf"^-{_UNSIGNED}(,-?{_UNSIGNED})*$")
 
 
 class UsageParser(argparse.ArgumentParser):
