@@ -278,3 +278,30 @@ def test_a_truncated_jpeg_is_refused_by_every_path_quietly(
         c3("dataset", "import", images, log, CAL, STORE, tmp_path / "b"),
         "IMAGES: IMG_0000.jpg: not a readable image",
     )
+
+
+def test_a_photo_folder_skips_an_untimed_photo_among_timed_ones(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """A photo folder as its own telemetry: a photo without a capture time among photos with
+    one was placed at 1970 + its file index, first in the flight; it is skipped, saying why."""
+    import piexif
+
+    photos = fl.write_exif_photos(tmp_path / "photos", poses)
+    for k in (1, 3):  # their GPS kept, their capture time removed
+        path = photos / f"DJI_{k:04d}.JPG"
+        exif = piexif.load(str(path))
+        exif["Exif"].pop(piexif.ExifIFD.DateTimeOriginal)
+        piexif.insert(piexif.dump(exif), str(path))
+    summary = _imported(c3("dataset", "import", photos, "-", CAL, STORE, tmp_path / "f", "--json"))
+    assert summary["frames"] == 3
+    assert [s["image"] for s in summary["skipped"]] == ["DJI_0001.JPG", "DJI_0003.JPG"]
+    assert "no EXIF capture time" in summary["skipped"][0]["reason"]
+    frames = load_dataset(tmp_path / "f").frames
+    assert [f.image.rsplit("/", 1)[-1] for f in frames] == [
+        "000000.jpg",
+        "000001.jpg",
+        "000002.jpg",
+    ]
+    times = [f.telemetry["time_s"] for f in frames]
+    assert times == sorted(times) and times[0] > 1e9  # in flight order, on the UTC clock

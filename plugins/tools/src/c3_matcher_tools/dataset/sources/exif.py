@@ -6,7 +6,8 @@ attitude from the XMP gimbal angles (the camera's own pointing, turned into the 
 that points the calibration's camera mount the same way), else the aircraft's XMP angles, else
 marked ``attitude_assumed``; height above ground from the XMP ``RelativeAltitude`` (above the
 take-off point: right over flat ground) unless a ground elevation or DEM is given, then EXIF
-altitude minus the ground. Time: the EXIF capture time (file order, 1 s apart, without one).
+altitude minus the ground. Time: the EXIF capture time (file order, 1 s apart, when no photo
+states one; a photo without one among photos that do is skipped: its place is unknown).
 """
 
 from __future__ import annotations
@@ -42,9 +43,13 @@ def read_photo_folder(
     shots = folder_shots(folder)
     kept: list[Shot] = []
     skipped: list[tuple[str, str]] = []
+    timed = any("t_s" in s.own for s in shots if "lat" in s.own)
     for i, s in enumerate(shots):
         if "lat" not in s.own:
             skipped.append((s.name, "no GPS position in its EXIF"))
+            continue
+        if timed and "t_s" not in s.own:  # file order means nothing among timed photos
+            skipped.append((s.name, "no EXIF capture time, while the others state theirs"))
             continue
         own = dict(s.own)
         if relative_height and "relative_alt_m" in own:
@@ -61,7 +66,6 @@ def read_photo_folder(
     values = [
         [s.own["lat"], s.own["lon"], s.own.get("alt_m", math.nan), math.nan, 3.0] for s in kept
     ]
-    timed = all("t_s" in s.own for s in kept)
     track = LogTrack(
         source=str(folder),
         kind=KIND,
