@@ -19,37 +19,10 @@ from c3_matcher_tools.evaluate import _print_summary, _table_row, metrics
 from c3_matcher_tools.run import FrameOutcome
 from c3_matcher_tools.run.records import FlightRun, StrategyEval
 from c3_matcher_tools.testing.cli import run_cli
+from c3_matcher_tools.testing.outcomes import frame_outcome
 
 REPO = Path(__file__).resolve().parents[1]
 FLIGHTS = REPO / "data" / "flights"
-
-
-def _outcome(
-    index: int,
-    *,
-    inliers: int = 100,
-    error_px: float = 1.0,
-    status: str = "ok",
-    true_present: bool = True,
-    has_truth: bool = True,
-) -> FrameOutcome:
-    ok = status == "ok"
-    return FrameOutcome(
-        index=index,
-        frame_id=f"f{index}",
-        status=status,
-        elapsed_ms=10.0,
-        true_present=true_present,
-        best_inliers=inliers if ok else 0,
-        best_input_index=0 if ok else None,
-        correct=ok and true_present and has_truth,
-        mean_error_px=error_px if ok and has_truth else math.nan,
-        residual_px=1.0 if ok else math.nan,
-        fingerprint=str(index),
-        error=None,
-        result=None,
-        has_truth=has_truth,
-    )
 
 
 def _row(outcomes: list[FrameOutcome], run2: list[FrameOutcome] | None = None) -> str:
@@ -72,7 +45,7 @@ class _Lines:
 
 def test_a_flight_without_true_tile_frames_leaves_its_true_tile_bars_unjudged() -> None:
     """naip_distractors_s2015's shape: every frame's true tile absent, every one refused."""
-    run = [_outcome(i, status="insufficient", true_present=False) for i in range(12)]
+    run = [frame_outcome(i, status="insufficient", true_present=False) for i in range(12)]
     m = metrics(run, run[:1])
     assert m["C3-IT-01"]["pass"] is None and m["C3-IT-03"]["pass"] is None
     assert m["C3-IT-04"]["pass"] is None
@@ -85,7 +58,7 @@ def test_a_flight_without_ground_truth_leaves_every_truth_bar_unjudged() -> None
     """A recorded flight (``dataset import``): nothing to score against, not even IT-05's or
     false-confident's 0 of 0; only IT-02 (run twice) is measured, and an unmeasured bar
     never makes a run pass every bar."""
-    run = [_outcome(i, true_present=False, has_truth=False) for i in range(5)]
+    run = [frame_outcome(i, true_present=False, has_truth=False) for i in range(5)]
     m = metrics(run, run[:1])
     unmeasured = ("C3-IT-01", "C3-IT-03", "C3-IT-04", "C3-IT-05", "false_confident")
     assert {k: m[k]["pass"] for k in unmeasured} == dict.fromkeys(unmeasured)
@@ -96,8 +69,8 @@ def test_a_flight_without_ground_truth_leaves_every_truth_bar_unjudged() -> None
 
 
 def test_a_measured_bar_that_is_missed_is_still_marked() -> None:
-    run = [_outcome(0, inliers=60, error_px=3.0), _outcome(1, status="insufficient")]
-    run.append(_outcome(2, true_present=False, error_px=400.0))  # an absent frame matched
+    run = [frame_outcome(0, inliers=60, error_px=3.0), frame_outcome(1, status="insufficient")]
+    run.append(frame_outcome(2, true_present=False, error_px=400.0))  # an absent frame matched
     m = metrics(run, run[:1])
     assert [m[k]["pass"] for k in m] == [False, True, False, False, False, False]
     cells = _row(run).split()
@@ -113,7 +86,7 @@ def test_printed_figures_agree_with_their_bars() -> None:
     printed "80!"; errors whose p95 is 2.496 px pass IT-03, once printed "2.50"."""
     inliers = [79, 80, *[100] * 18]
     errors = [*[1.0] * 18, 2.49, 2.61]
-    run = [_outcome(i, inliers=n, error_px=e) for i, (n, e) in enumerate(zip(inliers, errors))]
+    run = [frame_outcome(i, inliers=n, error_px=e) for i, (n, e) in enumerate(zip(inliers, errors))]
     m = metrics(run, run[:1])
     assert m["C3-IT-01"]["p5_best_inliers"] == pytest.approx(79.95)
     assert m["C3-IT-03"]["p95_mean_error_px"] == pytest.approx(2.496)

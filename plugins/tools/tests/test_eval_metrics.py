@@ -10,43 +10,21 @@ import pytest
 
 from c3_matcher_tools.evaluate import WRONG_FIX_PX, is_wrong_fix, metrics
 from c3_matcher_tools.run import FrameOutcome
-
-
-def _outcome(
-    index: int,
-    *,
-    status: str = "ok",
-    correct: bool = True,
-    error_px: float = 1.0,
-    true_present: bool = True,
-) -> FrameOutcome:
-    ok = status == "ok"
-    return FrameOutcome(
-        index=index,
-        frame_id=f"f{index}",
-        status=status,
-        elapsed_ms=10.0,
-        true_present=true_present,
-        best_inliers=100 if ok else 0,
-        best_input_index=0 if ok else None,
-        correct=correct and ok,
-        mean_error_px=error_px if ok else math.nan,
-        residual_px=1.0 if ok else math.nan,
-        fingerprint=str(index),
-        error=None,
-        result=None,
-    )
+from c3_matcher_tools.testing.outcomes import frame_outcome
 
 
 @pytest.mark.parametrize(
     ("outcome", "wrong"),
     [
-        (_outcome(0), False),
-        (_outcome(0, correct=False, error_px=3.0), False),  # overlapping pick, right place
-        (_outcome(0, correct=False, error_px=WRONG_FIX_PX + 0.1), True),
-        (_outcome(0, correct=False, error_px=math.nan), True),  # unknown: never given the benefit
-        (_outcome(0, correct=True, error_px=40.0), True),  # the true tile, wrongly registered
-        (_outcome(0, status="insufficient"), False),
+        (frame_outcome(0), False),
+        (frame_outcome(0, correct=False, error_px=3.0), False),  # overlapping pick, right place
+        (frame_outcome(0, correct=False, error_px=WRONG_FIX_PX + 0.1), True),
+        (
+            frame_outcome(0, correct=False, error_px=math.nan),
+            True,
+        ),  # unknown: never given the benefit
+        (frame_outcome(0, correct=True, error_px=40.0), True),  # the true tile, wrongly registered
+        (frame_outcome(0, status="insufficient"), False),
     ],
 )
 def test_a_pick_is_wrong_when_its_inliers_miss_ground_truth(
@@ -57,12 +35,12 @@ def test_a_pick_is_wrong_when_its_inliers_miss_ground_truth(
 
 def test_metrics_count_wrong_fixes_and_right_fixes_on_another_tile_apart() -> None:
     run = [
-        _outcome(0),
-        _outcome(1, correct=False, error_px=3.0),
-        _outcome(2, correct=False, error_px=300.0),
-        _outcome(3, status="insufficient"),
-        _outcome(4, status="insufficient", true_present=False),
-        _outcome(5, correct=False, error_px=500.0, true_present=False),
+        frame_outcome(0),
+        frame_outcome(1, correct=False, error_px=3.0),
+        frame_outcome(2, correct=False, error_px=300.0),
+        frame_outcome(3, status="insufficient"),
+        frame_outcome(4, status="insufficient", true_present=False),
+        frame_outcome(5, correct=False, error_px=500.0, true_present=False),
     ]
     m = metrics(run, run[:1])
     assert m["C3-IT-04"]["correct"] == 1 and m["C3-IT-04"]["frames"] == 4

@@ -59,6 +59,18 @@ def _plain(root: Path, poses: list[fl.Pose], name: str = "IMG_{:04d}.jpg") -> Pa
     return root
 
 
+def _telemetry(kind: str, poses: list[fl.Pose], folder: Path) -> str:
+    """TELEMETRY of ``kind``: a ULog of ``poses``, a CSV with its header only, or ``-`` (the
+    photos are their own)."""
+    if kind == "ulog":
+        return str(fl.write_ulog(folder / "flight.ulg", poses))
+    if kind == "csv":
+        csv = folder / "t.csv"
+        csv.write_text("time_s,image,lat,lon,altitude_m,roll,pitch,yaw\n")
+        return str(csv)
+    return kind
+
+
 @pytest.fixture(scope="module")
 def poses() -> list[fl.Pose]:
     return fl.flight_poses(DEMO, range(5))
@@ -227,11 +239,7 @@ def test_frame_step_with_a_folder_is_refused(
     poses: list[fl.Pose], tmp_path: Path, telemetry: str, step: str, needle: str
 ) -> None:
     photos = fl.write_exif_photos(tmp_path / "photos", poses[:2])
-    if telemetry == "ulog":
-        telemetry = str(fl.write_ulog(tmp_path / "flight.ulg", poses[:2]))
-    elif telemetry == "csv":
-        telemetry = str(tmp_path / "t.csv")
-        Path(telemetry).write_text("time_s,image,lat,lon,altitude_m,roll,pitch,yaw\n")
+    telemetry = _telemetry(telemetry, poses[:2], tmp_path)
     out = tmp_path / "x"
     _refused(
         c3("dataset", "import", photos, telemetry, CAL, STORE, out, f"--frame-step={step}"),
@@ -244,11 +252,7 @@ def test_frame_step_with_a_folder_is_refused(
 def test_missing_images_are_called_missing(
     poses: list[fl.Pose], tmp_path: Path, telemetry: str
 ) -> None:
-    if telemetry == "ulog":
-        telemetry = str(fl.write_ulog(tmp_path / "flight.ulg", poses[:2]))
-    elif telemetry == "csv":
-        telemetry = str(tmp_path / "t.csv")
-        Path(telemetry).write_text("time_s,image,lat,lon,altitude_m,roll,pitch,yaw\n")
+    telemetry = _telemetry(telemetry, poses[:2], tmp_path)
     missing = tmp_path / "nothere.mp4"
     _refused(
         c3("dataset", "import", missing, telemetry, CAL, STORE, tmp_path / "x"),
