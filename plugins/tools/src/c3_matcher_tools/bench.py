@@ -20,7 +20,7 @@ Ratios are speed-ups of frame p50 (slower / faster, >1 means the case is faster)
 ``--sweep`` adds image-size x keypoint-budget variants; ``--max-keypoints N`` and ``--threads N``
 (repeatable) add keypoint-budget and ONNX Runtime intra-op thread variants (new tiles). Every
 case runs in a fresh worker process (``python -m c3_matcher_tools.bench_worker``) so that its peak
-memory (``ru_maxrss``) is its own.
+memory (its ``VmHWM``) is its own.
 Wall-clock figures on a shared machine are noisy: compare ratios within one run.
 """
 

@@ -1,18 +1,18 @@
 """One ``c3-matcher bench`` case, timed in its own process (``python -m
 c3_matcher_tools.bench_worker CASE RUNS DATA [--config FILE]``, one JSON line on stdout) so that
-its peak memory (``ru_maxrss``) is its own: the matcher opened through the run layer with the
+its peak memory is its own: the matcher opened through the run layer with the
 case's overrides, 2 warm-up runs, then ``RUNS`` timed matches (ms) of the data's frames.
 
 A frame whose match raised InsufficientInliersError is still timed (the matcher ran): its time
 counts in ``frame_ms`` and its best inlier count as 0, and ``frames_raised`` counts it. Candidate
 and stage times come from the diagnostics of a result, so only from frames that matched:
-``per_candidate_ms`` is None when none did. ``peak_rss_mib`` is ``ru_maxrss`` in MiB."""
+``per_candidate_ms`` is None when none did. ``peak_rss_mib``: the worker's own peak
+(:func:`~c3_matcher_tools.memory.peak_rss_mib`)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import resource
 import sys
 import tempfile
 import time
@@ -25,6 +25,7 @@ import numpy as np
 from c3_matcher.commands import bounded_int
 from c3_matcher.config import C3Settings, load_settings
 from c3_matcher_tools.bench import BenchCase
+from c3_matcher_tools.memory import peak_rss_mib
 from c3_matcher_tools.run.inputs import flight_inputs
 from c3_matcher_tools.run.matcher import Overrides, compose_matcher
 
@@ -77,7 +78,7 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
             raise SystemExit(str(exc)) from None
         startup_s = time.perf_counter() - started
         timed = _time_matches(composed.matcher, inputs, runs)
-    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
+    peak_mib = peak_rss_mib()
     return {
         "case": asdict(case),
         "label": case.label,

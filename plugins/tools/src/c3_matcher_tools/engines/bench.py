@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import statistics
 import subprocess
 import sys
@@ -32,6 +31,7 @@ from numpy.typing import NDArray
 
 from c3_matcher.commands import bounded_int
 from c3_matcher.features import PairSide
+from c3_matcher_tools.memory import current_rss_mib, peak_rss_mib
 
 __all__ = ["BenchResult", "format_table", "run_bench"]
 
@@ -55,27 +55,6 @@ class BenchResult:
     baseline_rss_mib: float
     settings: str
     detail: dict[str, Any]
-
-
-def _proc_status_mib(field: str) -> float | None:
-    """``field`` (``VmHWM``, ``VmRSS``: kB) of /proc/self/status in MiB; None where it is not."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith(f"{field}:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return None
-
-
-def _peak_rss_mib() -> float:
-    peak = _proc_status_mib("VmHWM")
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 if peak is None else peak
-
-
-def _current_rss_mib() -> float:
-    current = _proc_status_mib("VmRSS")
-    return float("nan") if current is None else current
 
 
 def _read_rgb(path: Path, size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
@@ -128,7 +107,7 @@ def _child(args: argparse.Namespace) -> int:
     from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
-    baseline = _current_rss_mib()
+    baseline = current_rss_mib()
     runtime = OnnxInferenceRuntime(
         ["CPUExecutionProvider"], settings=_settings(args.mem_pattern == "on", args.arena == "on")
     )
@@ -178,7 +157,7 @@ def _child(args: argparse.Namespace) -> int:
         min_ms=round(ordered[0], 1),
         first_run_ms=round(first, 1),
         load_ms=round(load_ms, 1),
-        peak_rss_mib=round(_peak_rss_mib(), 1),
+        peak_rss_mib=round(peak_rss_mib(), 1),
         baseline_rss_mib=round(baseline, 1),
         settings=f"mem_pattern={args.mem_pattern} arena={args.arena}",
         detail=detail,
