@@ -309,3 +309,18 @@ def test_a_photo_folder_skips_an_untimed_photo_among_timed_ones(
     ]
     times = [f.telemetry["time_s"] for f in frames]
     assert times == sorted(times) and times[0] > 1e9  # in flight order, on the UTC clock
+
+
+def test_a_damaged_ulog_is_named_as_damaged_and_its_reader_keeps_off_stdout(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """pyulog prints "File corruption detected ..." on stdout (where ``--json`` goes) and the
+    refusal blamed a missing topic; stdout now stays clean and the refusal says what pyulog
+    found."""
+    log = fl.write_ulog(tmp_path / "flight.ulg", poses)
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(log.read_bytes()[:100])
+    photos = _plain(tmp_path / "photos", poses)
+    proc = c3("dataset", "import", photos, cut, CAL, STORE, tmp_path / "x", "--json")
+    assert proc.stdout == ""
+    _refused(proc, f"{cut}: the log is damaged or truncated (File corruption detected")

@@ -158,6 +158,8 @@ class LogTrack:
     notes: tuple[str, ...] = ()
     per_image: bool = False
     """Each image states its own position (photo metadata): it is used as the GNSS fix."""
+    damage: str | None = None
+    """What the log's reader said of a damaged or truncated log (read up to the damage)."""
 
     @property
     def span(self) -> tuple[float, float]:
@@ -443,8 +445,9 @@ def _trigger_count_refusal(
         those = f"the {n - len(untimed)} that state one, " if untimed else ""
         ways.append(f"give --time-source exif ({those}each by its own time)")
     ways.append("give --time-source trigger to pair them in order anyway")
+    damaged = f" (the log is damaged or truncated: {track.damage})" if track.damage else ""
     return (
-        f"{track.source}: {triggers.size} camera trigger(s) in the log but {n} image(s): "
+        f"{track.source}: {triggers.size} camera trigger(s) in the log{damaged} but {n} image(s): "
         "pairing them in order would put every image after a missing or extra one on another "
         f"image's pose, and they cannot be paired by time ({why}); "
         + ", ".join(ways[:-1])

@@ -13,6 +13,8 @@ boot) in seconds.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 from pathlib import Path
 from typing import Any
@@ -43,14 +45,21 @@ TOPICS = (
 )
 
 
-def _load(path: Path) -> Any:
+def _load(path: Path) -> tuple[Any, str | None]:
+    """The parsed log and, when pyulog found it damaged or truncated (it reads up to the
+    damage), what it said; pyulog's own prints (on stdout, where ``--json`` output goes) are
+    kept from the terminal."""
     pyulog = logs_library("pyulog", path, "a ULog")
     if not path.is_file():
         raise InvalidInputError(str(path), "no such file")
+    said = io.StringIO()
     try:
-        return pyulog.ULog(str(path), list(TOPICS))
+        with contextlib.redirect_stdout(said):
+            ulog = pyulog.ULog(str(path), list(TOPICS))
     except Exception as exc:  # pyulog raises several types on a damaged file
         raise InvalidInputError(str(path), f"not a readable PX4 ULog: {exc}") from None
+    damage = " ".join(said.getvalue().split()) or "file corruption detected"
+    return ulog, damage if ulog.file_corruption else None
 
 
 def _topic(ulog: Any, name: str) -> dict[str, np.ndarray] | None:
@@ -84,18 +93,21 @@ def read_ulog(path: Path) -> LogTrack:
     """The track of a PX4 ULog (see the module docstring); raises InvalidInputError naming
     the file and the missing topic when it lacks attitude or position."""
     path = Path(path)
-    ulog = _load(path)
+    ulog, damage = _load(path)
     source = str(path)
+    damaged = f"the log is damaged or truncated ({damage}); " if damage else ""
     att = _topic(ulog, "vehicle_attitude")
     if att is None:
-        raise InvalidInputError(source, "no vehicle_attitude topic: the log holds no attitude")
+        raise InvalidInputError(
+            source, f"{damaged}no vehicle_attitude topic: the log holds no attitude"
+        )
     t = att["timestamp"].astype(np.float64) / 1e6
     angles = [
         attitude_from_matrix(quaternion_matrix(*(float(att[f"q[{k}]"][i]) for k in range(4))))
         for i in range(t.size)
     ]
     attitude = Series.build("vehicle_attitude", t, angles, (2,), source=source)
-    notes: list[str] = []
+    notes: list[str] = [f"{damaged}read up to the damage"] if damage else []
     gps = _topic(ulog, "vehicle_gps_position") or _topic(ulog, "sensor_gps")
     gnss = None
     utc_offset = None
@@ -139,7 +151,9 @@ def read_ulog(path: Path) -> LogTrack:
         notes.append("no vehicle_global_position: positions from vehicle_gps_position")
     if position is None and gnss is None:
         raise InvalidInputError(
-            source, "no vehicle_global_position nor vehicle_gps_position: the log holds no position"
+            source,
+            f"{damaged}no vehicle_global_position nor vehicle_gps_position: the log holds no "
+            "position",
         )
     local = _topic(ulog, "vehicle_local_position")
     height = None
@@ -177,4 +191,5 @@ def read_ulog(path: Path) -> LogTrack:
         home_alt_m=home_alt,
         utc_offset_s=utc_offset,
         notes=tuple(notes),
+        damage=damage,
     )
