@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.viz import draw_matches, write_png
+from c3_matcher_tools.run.acceptance import IT01_BAR, IT03_BAR
 
 if TYPE_CHECKING:
     from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
@@ -107,7 +108,7 @@ def eval_plots(
             [[float(o.candidate_inliers) for o in r.outcomes] for r in runs],
             [[_finite_or_nan(o.mean_error_px) for o in r.outcomes] for r in runs],
         ),
-        (80.0, 2.5),
+        (IT01_BAR.limit, IT03_BAR.limit),
         strict=True,
     )
     titles = {"inliers": "best-candidate inliers", "error": "mean inlier error vs ground truth"}

@@ -32,14 +32,6 @@ __all__ = [
     "metrics",
 ]
 
-BARS = {
-    "C3-IT-01": ">= 80 inliers (p5)",
-    "C3-IT-02": "identical",
-    "C3-IT-03": "< 2.5 px (p95)",
-    "C3-IT-04": ">= 0.95",
-    "C3-IT-05": "all absent frames",
-}
-
 
 @dataclass(frozen=True)
 class Bar:
@@ -47,6 +39,9 @@ class Bar:
 
     op: Literal[">=", ">", "<=", "<"]
     limit: float
+
+    def __str__(self) -> str:
+        return f"{self.op} {self.limit:g}"
 
     def judge(self, value: float) -> bool | None:
         """Whether ``value`` meets the bar; None when there is no figure (NaN: nothing to
@@ -91,6 +86,13 @@ IT03_BAR = Bar("<", IT03_BAR_PX)
 """C3-IT-03: the p95 of the mean inlier error against ground truth (px)."""
 IT04_BAR = Bar(">=", 0.95)
 """C3-IT-04: the correct-candidate rate."""
+BARS = {
+    "C3-IT-01": f"{IT01_BAR} inliers (p5)",
+    "C3-IT-02": "identical",
+    "C3-IT-03": f"{IT03_BAR} px (p95)",
+    "C3-IT-04": f"{IT04_BAR}",
+    "C3-IT-05": "all absent frames",
+}
 WRONG_FIX_PX = 4 * IT03_BAR_PX
 """A returned pick is a wrong fix when its inliers' mean error against ground truth exceeds
 this (ORIGINAL frame px): four times the IT-03 bar, a scale-free bound far below any

@@ -190,8 +190,7 @@ def video_shots(path: Path, step: int = 1) -> list[Shot]:
     """Every ``step``-th frame of the video ``path`` as a JPEG (quality 95), with its time on
     the video's clock in ``own['relative_s']``."""
     path = Path(path)
-    if step < 1:
-        raise InvalidInputError("--frame-step", f"must be >= 1, got {step}")
+    check_frame_step(step, video=True)
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         raise InvalidInputError("IMAGES", f"{path}: not a readable video")

@@ -31,6 +31,7 @@ from c3_matcher_tools.dataset.sources.common import (
     constant,
     logs_library,
 )
+from c3_matcher_tools.dataset.sources.images import check_frame_step
 
 __all__ = ["BagTopics", "read_bag"]
 
@@ -142,8 +143,7 @@ def read_bag(
     """The track, every ``step``-th image and the recorded intrinsics (None when no
     CameraInfo) of a bag (see the module docstring); raises InvalidInputError naming a missing
     topic."""
-    if step < 1:
-        raise InvalidInputError("--frame-step", f"must be >= 1, got {step}")
+    check_frame_step(step, video=True)
     path = Path(path)
     source = str(path)
     reader = _reader(path)
