@@ -144,7 +144,7 @@ def test_config_refuses_a_bad_file_naming_the_field(tmp_path):
     assert json.loads(good.stdout)["matcher"]["max_keypoints"] == 1024
 
 
-# -- issue 11 (defect 9): every bad input exits 2 with one line, never a traceback ------------
+# -- every bad input exits 2 with one line, never a traceback ----------------------------------
 def _one_line(proc: subprocess.CompletedProcess[str]) -> str:
     assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
     lines = [line for line in proc.stderr.strip().splitlines() if not line.startswith("{")]

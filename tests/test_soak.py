@@ -1,4 +1,4 @@
-"""A short but real soak (issue 11): hundreds of frames of the shipped demo flight through the
+"""A short but real soak: hundreds of frames of the shipped demo flight through the
 XFeat strategy, the durable FDR rotating underneath. Memory must stay flat and the FDR's
 sequence numbers contiguous across every segment, with no corrupt line.
 

@@ -1,4 +1,4 @@
-"""compose_root: required keys, defaults, the ready log, helper identity (AC-11 with doubles)."""
+"""compose_root: required keys, defaults, the ready log, helper identity (with test doubles)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Fault injection on the durable FDR (issue 11, defects 1-3): torn tails, ENOSPC and short
+"""Fault injection on the durable FDR: torn tails, ENOSPC and short
 writes, rotation with offloaded segments, crashes around rotation, threads, two writers."""
 
 from __future__ import annotations

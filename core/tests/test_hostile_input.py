@@ -1,4 +1,4 @@
-"""Inputs that escaped the contract in the adversarial campaign (issue 11, defect 9)."""
+"""Inputs that escaped the contract in the adversarial campaign."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""The shared per-frame pipeline: AZ-345 AC-2 to AC-10 and AC-12 with the allowed test doubles."""
+"""The shared per-frame pipeline: the matcher contract's criteria 2-10 and 12 with the allowed test
+doubles."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The geometric prior (issue 13): translation vote before RANSAC, homography check after.
+"""The geometric prior: translation vote before RANSAC, homography check after.
 
 The pipeline tests run the real OpenCV RANSAC over scripted correspondences from a backend
 double: each candidate's matches follow a scripted homography (WORKING query px -> tile px), so

@@ -1,6 +1,5 @@
 """Property-based tests (hypothesis): bad values of every type reach a contract error
-(``InvalidInputError`` / ``ConfigurationError``) or exit 2, never another exception
-(issue 11, "keep it fixed")."""
+(``InvalidInputError`` / ``ConfigurationError``) or exit 2, never another exception."""
 
 from __future__ import annotations
 

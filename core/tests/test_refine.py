@@ -1,4 +1,4 @@
-"""The refine pass (issue 13, item 3): the best-ranked candidate's query re-rendered through its
+"""The refine pass: the best-ranked candidate's query re-rendered through its
 first homography into the tile's pixel grid, extracted and matched again.
 
 Scripted doubles for the control flow (when it runs, which pass is kept, what a failure does,

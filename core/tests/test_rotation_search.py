@@ -1,4 +1,4 @@
-"""Rotation search (issue 13, item 4): a frame without attitude tried at 0/90/180/270 deg.
+"""Rotation search: a frame without attitude tried at 0/90/180/270 deg.
 
 Scripted doubles for the control flow (how many extractions, which turn a candidate keeps, the
 FDR records), a dot-pattern backend whose descriptors depend on orientation for the geometry

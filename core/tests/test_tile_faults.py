@@ -1,4 +1,4 @@
-"""Fault injection on tile handles and stores (issue 11, defects 4-8): files that shrink after
+"""Fault injection on tile handles and stores: files that shrink after
 the handle was made, a store used from another thread, a store that dies, a handle without
 ``encoded()``, decompression bombs, corrupt blobs caught by the per-tile digest."""
 

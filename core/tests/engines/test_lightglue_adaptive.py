@@ -1,4 +1,4 @@
-"""Adaptive LightGlue (issue 10, item 3): the numpy exit/pruning driver on a fake graph, the
+"""Adaptive LightGlue: the numpy exit/pruning driver on a fake graph, the
 torch-free import, and the real DISK steps engine against the single-graph engine."""
 
 from __future__ import annotations

@@ -78,7 +78,7 @@ def test_lightglue_auto_mode_is_adaptive_on_cpu_and_full_on_gpu_providers() -> N
         resolve_mode("steps", "CPUExecutionProvider")
 
 
-# -- issue 11 (provider honesty) and issue 12 (any provider, options, intersection) -----------
+# -- provider honesty, and any provider with its options and their intersection ---------------
 OPENVINO = "OpenVINOExecutionProvider"
 
 

@@ -1,6 +1,6 @@
-"""AlikedLightGlueMatcher: AZ-345 AC-1..AC-10, AC-12 through the contract kit with the allowed
-doubles; AC-11 through the real compose_root with real engines; entry-point wiring; the
-``variant`` option."""
+"""AlikedLightGlueMatcher: the matcher contract (criteria 1-10 and 12) through the contract kit with
+the allowed doubles; composition through the real compose_root with real engines; entry-point
+wiring; the ``variant`` option."""
 
 from __future__ import annotations
 

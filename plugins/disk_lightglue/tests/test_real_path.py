@@ -1,5 +1,5 @@
 """DISK+LightGlue on real imagery through the real engines: the shared real-path suite
-(rendered frames over three real orthophotos, the acceptance bar of issue 4)."""
+(rendered frames over three real orthophotos, the real-path acceptance bar)."""
 
 from __future__ import annotations
 

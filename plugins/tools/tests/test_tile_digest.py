@@ -1,4 +1,4 @@
-"""``tiles build`` writes a per-tile sha256 table; the read path verifies it (issue 11, 8)."""
+"""``tiles build`` writes a per-tile sha256 table; the read path verifies it."""
 
 from __future__ import annotations
 

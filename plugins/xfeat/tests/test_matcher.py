@@ -1,6 +1,6 @@
-"""XFeatMatcher: AZ-345 AC-1..AC-10, AC-12 through the contract kit with the allowed doubles
-(both matcher options); AC-11 through the real compose_root with real engines; entry-point
-wiring; options validation; the engines' weights provenance; the mnn matcher itself."""
+"""XFeatMatcher: the matcher contract (criteria 1-10 and 12) through the contract kit with the
+allowed doubles (both matcher options); composition through the real compose_root with real engines;
+entry-point wiring; options validation; the engines' weights provenance; the mnn matcher itself."""
 
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ baseline, side by side, against a flight's ground truth (the C3-IT acceptance me
   ground truth (ORIGINAL frame px); p95 over the matched true-present frames; bar < 2.5 px.
 - C3-IT-04: correct-candidate rate (the best is the true tile) over true-present frames, with
   attitude tilt up to 20 deg and distractors >= 350 m away; bar >= 0.95 (this project's choice:
-  the seeds name the case, not a rate).
+  the specification names the case, not a rate).
 - C3-IT-05: every frame whose true tile is absent raises InsufficientInliersError; bar: all.
 - false-confident (beside IT-05): frames that returned a best candidate whose inliers
   put the frame in the wrong place: their mean error against ground truth (the same measure as

@@ -3,7 +3,7 @@
 Frames rendered over three real orthophotos shipped in ``data/imagery/`` with yaw from 0 to 180
 deg and 15-20 deg of tilt given as attitude, lens distortion, a frame GSD half the tiles', a
 photometric domain shift, and two distractor tiles that do not overlap the frame's footprint.
-The bar (issue "The default DISK+LightGlue matcher"): the true tile is best, >= 80 inliers, and
+The bar: the true tile is best, >= 80 inliers, and
 the mean inlier error against ground truth in ORIGINAL frame pixels < 2.5 px.
 """
 
