@@ -243,3 +243,41 @@ def test_a_sidecar_that_cannot_be_written_mid_build_is_one_line_and_exit_2(
     assert f"{sidecar}: cannot be written: database or disk is full" in err, err
     monkeypatch.undo()
     assert [s["complete"] for s in _sets(flight / "tiles.mbtiles", capsys)] == [False]
+
+
+@pytest.mark.slow
+def test_a_strategy_with_no_extractor_engine_is_refused_before_the_sidecar_is_touched(
+    tmp_path: Path,
+    engine_dir: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    """SIFT extracts with OpenCV: nothing to store. Refused in one line (no worker's traceback),
+    and nothing built for the strategy before it, even on a cluster."""
+    from c3_matcher.cli import main
+
+    store = tmp_path / "tiles.mbtiles"
+    shutil.copy(FLIGHT / "tiles.mbtiles", store)
+    monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
+    argv = ["features", "build", str(store), "--strategy", "xfeat", "--strategy", "sift_magsac"]
+    assert main([*argv, "--workers", "1", "--window", "128"]) == 2
+    err = capfd.readouterr().err.strip()
+    assert "strategy 'sift_magsac' extracts its features without an extractor engine" in err, err
+    assert len(err.splitlines()) == 1, err
+    assert not (tmp_path / "tiles.mbtiles.features.sqlite").exists()
+
+
+def test_an_unknown_strategy_is_refused_before_any_worker_starts(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    import dask.distributed
+
+    from c3_matcher.cli import main
+
+    store = tmp_path / "tiles.mbtiles"
+    shutil.copy(FLIGHT / "tiles.mbtiles", store)
+    monkeypatch.setattr(dask.distributed, "LocalCluster", lambda **kw: pytest.fail("started"))
+    assert main(["features", "build", str(store), "--strategy", "nosuch", "--workers", "1"]) == 2
+    err = capfd.readouterr().err.strip()
+    assert "strategy 'nosuch' is not recognized" in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "tiles.mbtiles.features.sqlite").exists()

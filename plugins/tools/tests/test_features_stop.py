@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from c3_matcher_tools.features.build import _dask_client
+from c3_matcher_tools.features.cluster import dask_client
 
 
 class _Cluster:
@@ -44,7 +44,7 @@ def test_a_stop_during_the_clusters_start_stops_it_whole(
     monkeypatch.setattr(dask.distributed, "LocalCluster", lambda **kw: _Cluster(stop, **kw))
     monkeypatch.setattr(dask.distributed, "Client", lambda cluster: pytest.fail("not started"))
     try:
-        with pytest.raises(KeyboardInterrupt), _dask_client(2, None):
+        with pytest.raises(KeyboardInterrupt), dask_client(2, None):
             pytest.fail("the block runs after a stop")
         (cluster,) = MADE
         assert cluster.started and cluster.closed

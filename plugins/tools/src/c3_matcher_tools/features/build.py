@@ -12,7 +12,13 @@ windows already stored for the same set with the same tiles are skipped.
 
 Cluster: ``dask.distributed.LocalCluster(n_workers=workers, threads_per_worker=1)`` by default,
 or ``Client(scheduler)`` for an existing cluster (its workers need this environment and read
-access to the store path). ``workers=0`` runs in this process, without Dask.
+access to the store path). ``workers=0`` runs in this process, without Dask. The local cluster
+serves no dashboard and takes no fixed port (:mod:`.cluster`): builds of different stores run
+side by side.
+
+One build of a store at a time (:mod:`.lock`): a build holds the store's build lock while it
+runs, and a second one is refused at once (``BuildRunningError``, a ValueError) rather than
+computing the same windows again; the sidecar's readers never take it.
 
 Damage: every row already stored for a set is read and verified (checksum, shapes) before it
 counts as done; a damaged row is said (naming the sidecar and the window) and extracted again
@@ -23,13 +29,10 @@ A set is marked complete only when a build of it finished: incomplete while one 
 
 from __future__ import annotations
 
-import os
-import signal
 import sqlite3
 import sys
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,6 +49,8 @@ from c3_matcher.tilestore.features import (
 )
 from c3_matcher.tilestore.geo import TILE_PX
 from c3_matcher.tilestore.sidecar import SidecarDamagedError, set_aside
+from c3_matcher_tools.features.cluster import cores_of, dask_client
+from c3_matcher_tools.features.lock import BuildRunningError, build_lock
 from c3_matcher_tools.features.windows import (
     WindowKey,
     flight_grid,
@@ -54,16 +59,20 @@ from c3_matcher_tools.features.windows import (
 )
 from c3_matcher_tools.features.worker import (
     BackendCache,
+    NotStorableError,
+    SetFacts,
     extract_window_features,
     open_source,
     photometric_of,
     set_facts,
+    set_facts_task,
     task,
 )
 
 __all__ = [
     "WINDOW_PX_RANGE",
     "BuildReport",
+    "BuildRunningError",
     "build_features",
     "extract_window_features",
     "flight_grid",
@@ -116,28 +125,38 @@ def build_features(
         raise ValueError(f"min_coverage must be in (0, 1], got {min_coverage}")
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-    store = Path(store)
-    plan = _plan(store, windows, window_px, stride, min_coverage)
-    job = _Job(store, _resolved(settings, strategies), window_px, stride, batch_size, say)
-    report = BuildReport(str(store), str(sidecar_path(store)))
-    path, new = sidecar_path(store), False
-    while True:
-        try:
-            with (
-                _open_sidecar(path) as sidecar,
-                _dask_client(workers, scheduler) as client,
-            ):
-                for strategy in strategies:
-                    built = _build_set(job, strategy, plan, sidecar, client, workers)
-                    report.strategies[strategy] = built
-            return report
-        except SidecarDamagedError as exc:  # when opened or while building: it is closed now
-            if new:
-                raise ValueError(f"{exc}: damaged while it was built (check the disk)") from exc
-            _move_aside(path, exc, say)
-            new = True
-        except sqlite3.OperationalError as exc:  # a lock held past the timeout, a full disk
-            raise ValueError(f"{path}: cannot be written: {exc}") from exc
+    store, path = Path(store), sidecar_path(Path(store))
+    with build_lock(store, path):  # another build of the store running: refused at once
+        plan = _plan(store, windows, window_px, stride, min_coverage)
+        job = _Job(store, _resolved(settings, strategies), window_px, stride, batch_size, say)
+        return _built(job, plan, path, workers, scheduler)
+
+
+def _built(
+    job: _Job, plan: dict[WindowKey, str | None], path: Path, workers: int, scheduler: str | None
+) -> BuildReport:
+    """Build each of ``job``'s strategies' sets of ``plan`` in the sidecar ``path``, moved aside
+    and built anew once when it is found damaged. Every strategy's set facts are learnt first,
+    so a strategy refused (:class:`NotStorableError`) leaves the sidecar untouched."""
+    report, new = BuildReport(str(job.store), str(path)), False
+    with dask_client(workers, scheduler) as client:
+        local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
+        facts = {s: _set_facts(job, s, client, local) for s in job.settings_json}
+        runner = _Runner(client, local, cores_of(client, workers))
+        while True:
+            try:
+                with _open_sidecar(path) as sidecar:
+                    for strategy, known in facts.items():
+                        built = _build_set(job, strategy, known, plan, sidecar, runner)
+                        report.strategies[strategy] = built
+                return report
+            except SidecarDamagedError as exc:  # when opened or while building: closed now
+                if new:
+                    raise ValueError(f"{exc}: damaged while it was built (check the disk)") from exc
+                _move_aside(path, exc, job.say)
+                new = True
+            except sqlite3.OperationalError as exc:  # a lock held past the timeout, a full disk
+                raise ValueError(f"{path}: cannot be written: {exc}") from exc
 
 
 def _open_sidecar(path: Path) -> MapFeatureStore:
@@ -175,12 +194,24 @@ class _Job:
     say: Callable[[str], None]
 
 
+@dataclass(frozen=True)
+class _Runner:
+    """Where a build's tasks run: ``client``'s workers (None: this process, its backends held in
+    ``local``), with ``cores`` threads in all."""
+
+    client: Any
+    local: BackendCache
+    cores: int
+
+
 def _resolved(settings: C3Settings, strategies: Sequence[str]) -> dict[str, str]:
     """Each strategy's settings as it flies them (its own defaults where the configuration
     leaves a setting unset), as JSON; the plugins discovered once, here."""
     from c3_matcher.compose import build_plugin_host, strategy_settings
 
     host = build_plugin_host()
+    for s in strategies:  # one unknown or not linked here: refused before any worker starts
+        host.resolve(s)
     return {s: strategy_settings(settings, s, host).model_dump_json() for s in strategies}
 
 
@@ -217,72 +248,20 @@ def _plan(
     }
 
 
-@contextmanager
-def _stops_deferred() -> Iterator[None]:
-    """Ctrl-C or SIGTERM while the block runs takes effect when it ends (its handler is called
-    then), so what the block starts is whole when it is stopped; signals are left alone off
-    the main thread."""
-    caught: list[signal.Signals] = []
-    try:
-        previous = {
-            s: signal.signal(s, lambda n, _: caught.append(signal.Signals(n))) for s in _STOPS
-        }
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-    if caught:
-        handler = previous[caught[0]]
-        if callable(handler):
-            handler(caught[0], None)  # raises KeyboardInterrupt, as it would have
-        raise KeyboardInterrupt
+def _set_facts(job: _Job, strategy: str, client: Any, local: BackendCache) -> SetFacts:
+    """What keys ``strategy``'s set, learnt from its backend (in a worker, when there are)."""
+    if client is None:
+        return set_facts(strategy, job.settings_json[strategy], local)
+    facts = client.submit(set_facts_task, strategy, job.settings_json[strategy], pure=False)
+    known: SetFacts | str = facts.result()
+    if isinstance(known, str):
+        raise NotStorableError(known)
+    return known
 
 
-_STOPS = (signal.SIGINT, signal.SIGTERM)
-
-
-@contextmanager
-def _dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
-    """A Dask client (``scheduler``'s, or a local cluster of ``workers`` processes with one
-    thread each), or None to run the tasks in this process; closed on exit."""
-    if not (workers > 0 or scheduler):
-        yield None
-        return
-    from dask.distributed import Client, LocalCluster
-
-    cluster: Any = None
-    try:
-        if scheduler:
-            client = Client(scheduler)
-        else:
-            with _stops_deferred():  # a cluster stopped half-started cannot be closed cleanly
-                cluster = LocalCluster(
-                    n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None
-                )
-            client = Client(cluster)
-        try:
-            yield client
-        finally:
-            client.close()
-    finally:
-        if cluster is not None:
-            cluster.close()
-
-
-def _feature_set(
-    job: _Job, strategy: str, sidecar: MapFeatureStore, client: Any, local: BackendCache
-) -> FeatureSet:
+def _feature_set(job: _Job, strategy: str, facts: SetFacts, sidecar: MapFeatureStore) -> FeatureSet:
     """``strategy``'s set in the sidecar (created when new; a set built with another stride is
     refused; nothing is written to a sidecar holding it before its rows are verified)."""
-    if client is not None:
-        facts = client.submit(set_facts, strategy, job.settings_json[strategy], pure=False)
-        facts = facts.result()
-    else:
-        facts = set_facts(strategy, job.settings_json[strategy], local)
     photometric = photometric_of(job.settings_json[strategy])
     keyed = (  # what the set's id digests, in FeatureSet's order
         facts.extractor_sha256,
@@ -316,14 +295,13 @@ def _feature_set(
 def _build_set(
     job: _Job,
     strategy: str,
+    facts: SetFacts,
     plan: dict[WindowKey, str | None],
     sidecar: MapFeatureStore,
-    client: Any,
-    workers: int,
+    runner: _Runner,
 ) -> dict[str, Any]:
     """Extract and store the windows of ``plan`` not yet done for ``strategy``; its report."""
-    local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
-    fset = _feature_set(job, strategy, sidecar, client, local)
+    fset = _feature_set(job, strategy, facts, sidecar)
     set_id = fset.set_id
     done, damaged = sidecar.checked_windows(fset)
     if damaged:
@@ -342,15 +320,7 @@ def _build_set(
     written = 0
     settings_json = job.settings_json[strategy]
     args = (str(job.store.resolve()), strategy, settings_json, job.window_px, job.stride_px)
-    batches = list(_batches(todo, job.batch_size))
-    if client is not None:
-        from dask.distributed import as_completed
-
-        futures = [client.submit(task, *args, b, pure=False) for b in batches]
-        results: Iterator[Any] = (f.result() for f in as_completed(futures))
-    else:
-        results = (task(*args, b, local) for b in batches)
-    for rows, seconds in results:
+    for rows, seconds in _results(runner, args, _batches(todo, job.batch_size)):
         sidecar.put_windows(set_id, rows)
         busy_s += seconds
         written += len(rows)
@@ -360,7 +330,6 @@ def _build_set(
             f"{written / max(elapsed, 1e-9):.2f} windows/s"
         )
     elapsed = time.perf_counter() - started
-    cores = _cores(client, workers)
     sidecar.mark(set_id, complete=True, windows=len(sidecar.done_windows(set_id)))
     return {
         "set_id": set_id,
@@ -371,10 +340,23 @@ def _build_set(
         "extracted": written,
         "seconds": elapsed,
         "worker_seconds": busy_s,
-        "cores": cores,
+        "cores": runner.cores,
         "windows_per_s": written / elapsed if elapsed > 0 else 0.0,
-        "windows_per_s_per_core": (written / elapsed / cores) if elapsed > 0 else 0.0,
+        "windows_per_s_per_core": (written / elapsed / runner.cores) if elapsed > 0 else 0.0,
     }
+
+
+def _results(
+    runner: _Runner, args: tuple[str, str, str, int, int], batches: Iterator[list[WindowKey]]
+) -> Iterator[Any]:
+    """Each batch's task run (on the runner's workers, or here), its result as it finishes."""
+    client = runner.client
+    if client is None:
+        return (task(*args, b, runner.local) for b in batches)
+    from dask.distributed import as_completed
+
+    futures = [client.submit(task, *args, b, pure=False) for b in batches]
+    return (f.result() for f in as_completed(futures))
 
 
 def _refuse_damaged(
@@ -397,13 +379,3 @@ def _refuse_damaged(
         f"{len(dropped)} dropped): {shown}{more}"
     )
     sidecar.drop_windows(set_id, dropped)
-
-
-def _cores(client: Any, workers: int) -> int:
-    if client is None:
-        return 1
-    try:
-        info = client.scheduler_info()["workers"]
-        return max(1, sum(int(w.get("nthreads", 1)) for w in info.values()))
-    except Exception:
-        return max(1, workers or (os.cpu_count() or 1))

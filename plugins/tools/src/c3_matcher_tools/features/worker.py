@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.config import C3Settings
+from c3_matcher.protocols import StoredFeaturesBackend
 from c3_matcher.tilestore.features import (
     WindowFeatures,
     covered_tiles,
@@ -24,11 +25,13 @@ from c3_matcher_tools.features.windows import WindowKey
 __all__ = [
     "EXTRACT_BUDGET",
     "BackendCache",
+    "NotStorableError",
     "SetFacts",
     "extract_window_features",
     "open_source",
     "photometric_of",
     "set_facts",
+    "set_facts_task",
     "task",
 ]
 
@@ -158,9 +161,30 @@ def task(
     return out, time.perf_counter() - started
 
 
+class NotStorableError(ValueError):
+    """A strategy whose features no store can hold: none of its own extractor engine."""
+
+
+def set_facts_task(strategy: str, settings_json: str) -> SetFacts | str:
+    """:func:`set_facts` as a Dask task: a refusal comes back as its message (raised, the worker
+    would log it as a failed computation, traceback and all, before the build says it)."""
+    try:
+        return set_facts(strategy, settings_json)
+    except NotStorableError as exc:
+        return str(exc)
+
+
 def set_facts(strategy: str, settings_json: str, cache: BackendCache | None = None) -> SetFacts:
-    """The facts keying a strategy's set, in a worker (the descriptor size from a probe)."""
+    """The facts keying a strategy's set, in a worker (the descriptor size from a probe);
+    :class:`NotStorableError` for a strategy whose features come from no extractor engine."""
     backend = _backend(strategy, settings_json, cache)
+    provenance = backend.provenance()
+    if not isinstance(backend, StoredFeaturesBackend) or "extractor" not in provenance["engines"]:
+        raise NotStorableError(
+            f"strategy {strategy!r} extracts its features without an extractor engine "
+            f"({provenance['provider']}), so no stored features serve it: its tiles are "
+            "extracted in flight; build them for a strategy that has one"
+        )
     from c3_matcher.prepared import PreparedImage
 
     probe = np.kron(
@@ -170,7 +194,6 @@ def set_facts(strategy: str, settings_json: str, cache: BackendCache | None = No
     f = backend.extract(
         PreparedImage(np.ascontiguousarray(probe), np.ones((128, 128), bool), np.eye(3), (128, 128))
     )
-    provenance = backend.provenance()
     photometric = photometric_of(settings_json)
     return SetFacts(
         str(provenance["engines"]["extractor"]["file_sha256"]),
