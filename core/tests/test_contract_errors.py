@@ -16,8 +16,13 @@ import pytest
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import RerankResult
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
-from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.errors import (
+    InsufficientInliersError,
+    InvalidInputError,
+    MatcherBackboneError,
+    MatcherClosedError,
+)
+from c3_matcher.fdr import InMemoryFdr, read_fdr
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.testing import ScriptedCandidate, ScriptedRig, make_rerank
 from c3_matcher_tools.run.inputs import demo_inputs
@@ -102,3 +107,15 @@ def test_real_engines_stale_rerank_and_missing_frame_then_a_fix(demo_matcher):
     result = matcher.match(frame, rerank, calibration)  # the next consistent frame: a fix
     assert result.frame_id == frame.frame_id and result.per_candidate
     assert result.per_candidate[0].inlier_count >= 60
+
+
+def test_real_engines_a_closed_root_refuses_frames(engine_dir, tmp_path):
+    """The default strategy's matcher is closed with its root: a frame after ``close()`` is
+    refused instead of being matched with no recorder to keep its records."""
+    settings = C3Settings(engines={"directory": engine_dir}, fdr={"path": tmp_path / "fdr.jsonl"})
+    root = compose_root(settings, build_default_helpers(settings), configure_logs=False)
+    root.close()
+    frame, rerank, calibration = demo_inputs(DEMO)
+    with pytest.raises(MatcherClosedError, match="disk_lightglue"):
+        root.matcher.match(frame, rerank, calibration)
+    assert [r["kind"] for r in read_fdr(tmp_path / "fdr.jsonl")] == []

@@ -130,3 +130,33 @@ def test_match_result_invariants():
         _result(per, candidates_dropped=1)
     with pytest.raises(InvalidInputError, match="survivors > 2 input candidates"):
         _result(per, candidates_input=2, candidates_dropped=-1)
+
+
+@pytest.mark.parametrize(
+    ("size", "reason"),
+    [
+        (640, "expected (width, height), got int"),  # not a pair at all
+        ("640x480", "expected (width, height), got str"),
+        ((640, 480, 3), "expected (width, height)"),
+        ((True, True), "width must be an int, got True"),  # a bool is no size
+        ((640.0, 480), "width must be an int, got 640.0"),
+        ((640, 0), "height must be > 0, got 0"),
+    ],
+)
+def test_calibration_image_size_refusals_name_the_field(size, reason):
+    K = np.array([[800, 0, 320], [0, 800, 240], [0, 0, 1]], np.float64)
+    with pytest.raises(InvalidInputError, match="calibration.image_size") as info:
+        CameraCalibration(K, np.zeros(0), size)
+    assert reason in str(info.value)
+
+
+def test_calibration_image_size_takes_numpy_ints_as_ints():
+    K = np.array([[800, 0, 320], [0, 800, 240], [0, 0, 1]], np.float64)
+    cal = CameraCalibration(K, np.zeros(0), tuple(np.array([640, 480])))  # type: ignore[arg-type]
+    assert cal.image_size == (640, 480) and all(type(s) is int for s in cal.image_size)
+
+
+@pytest.mark.parametrize("candidates", [None, 3, "ab"])
+def test_rerank_candidates_that_are_no_sequence_are_named(candidates):
+    with pytest.raises(InvalidInputError, match="rerank_result.candidates: expected a sequence"):
+        RerankResult(uuid.uuid4(), candidates)  # type: ignore[arg-type]

@@ -46,6 +46,7 @@ _EXPORTS: dict[str, str] = {
     "load_calibration": "c3_matcher.serialize",
     "load_settings": "c3_matcher.config",
     "MatcherBackboneError": "c3_matcher.errors",
+    "MatcherClosedError": "c3_matcher.errors",
     "MatcherHealth": "c3_matcher.dto",
     "MatcherSettings": "c3_matcher.config",
     "MatchResult": "c3_matcher.dto",

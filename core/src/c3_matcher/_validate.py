@@ -37,6 +37,27 @@ def non_negative_int(value: object, field: str) -> int:
     return int(value)
 
 
+def positive_int(value: object, field: str, what: str = "") -> int:
+    """A Python or numpy int > 0 as an ``int`` (a bool is refused: ``True`` is no size);
+    ``what`` names the part of ``field`` it is, in the reason."""
+    part = f"{what} " if what else ""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise InvalidInputError(field, f"{part}must be an int, got {value!r}")
+    require(int(value) > 0, field, f"{part}must be > 0, got {value}")
+    return int(value)
+
+
+def items(value: object, field: str, expected: str) -> tuple[Any, ...]:
+    """``value``'s items as a tuple; ``InvalidInputError`` naming ``field`` when it has none
+    (not iterable, or a string)."""
+    if isinstance(value, (str, bytes)):
+        raise InvalidInputError(field, f"expected {expected}, got {type(value).__name__}")
+    try:
+        return tuple(value)  # type: ignore[arg-type]
+    except TypeError:
+        raise InvalidInputError(field, f"expected {expected}, got {type(value).__name__}") from None
+
+
 def array(
     value: object,
     field: str,

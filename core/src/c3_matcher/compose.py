@@ -28,7 +28,7 @@ from c3_matcher.pipeline import PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost, discover
 from c3_matcher.plugins.types import StrategyDefaults
 from c3_matcher.profiles import installed_profile
-from c3_matcher.protocols import Clock, CrossDomainMatcher, FdrClient
+from c3_matcher.protocols import Clock, ClosableMatcher, CrossDomainMatcher, FdrClient
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.strategy import engine_startup_probe
 
@@ -59,7 +59,9 @@ _KEY_TYPES: Mapping[str, type] = {
 
 @dataclass(frozen=True)
 class ComposedRoot:
-    """What ``compose_root`` wired. ``close()`` releases the logging sinks and the recorder."""
+    """What ``compose_root`` wired. ``close()`` closes the matcher (a frame in progress in
+    another thread finishes first; a later ``match`` raises ``MatcherClosedError``), then
+    releases the logging sinks and the recorder it built. Idempotent."""
 
     matcher: CrossDomainMatcher
     strategy: str
@@ -72,6 +74,8 @@ class ComposedRoot:
     owned_fdr: JsonlFdrRecorder | None = None  # the recorder it built (no ``c13_fdr`` given)
 
     def close(self) -> None:
+        if isinstance(self.matcher, ClosableMatcher):  # a strategy's own matcher may not be
+            self.matcher.close()
         if self.logging is not None:
             self.logging.close()
         if self.owned_fdr is not None:

@@ -1,8 +1,9 @@
 """The matcher's errors: one base class, each error carrying the facts a caller needs to act.
 
 ``MatcherBackboneError`` and ``InsufficientInliersError`` are the two errors of the
-``CrossDomainMatcher.match`` contract. The others are start-up and
-configuration errors raised before the first frame.
+``CrossDomainMatcher.match`` contract. ``InvalidInputError`` (an argument of the wrong type) and
+``MatcherClosedError`` (``match`` after ``close()``) are a caller's programming errors. The
+others are start-up and configuration errors raised before the first frame.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ __all__ = [
     "InsufficientInliersError",
     "InvalidInputError",
     "MatcherBackboneError",
+    "MatcherClosedError",
     "PluginLoadError",
     "ProfileError",
     "StrategyNotLinkedError",
@@ -79,6 +81,19 @@ class InsufficientInliersError(C3Error):
             f"frame {frame_id}: best inlier count {best_inlier_count} < threshold {threshold} "
             f"({candidates_dropped} of {candidates_input} candidates dropped; "
             f"backbone={matcher_label})"
+        )
+
+
+class MatcherClosedError(C3Error, RuntimeError):
+    """``match`` was called on a matcher after ``close()`` (``ComposedRoot.close()`` closes it):
+    its flight data recorder and log sinks are released, so a frame matched now would leave no
+    record. A caller's lifecycle error, raised before anything is touched."""
+
+    def __init__(self, matcher_label: str) -> None:
+        self.matcher_label = matcher_label
+        super().__init__(
+            f"matcher {matcher_label!r} is closed: match() was called after close() (the "
+            "recorder and log sinks it wrote to are released); compose a new root to match again"
         )
 
 

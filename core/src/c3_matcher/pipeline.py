@@ -21,6 +21,7 @@ image, match two feature sets); ``PipelineMatcher.match`` composes the stages of
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -35,7 +36,12 @@ from c3_matcher.dto import (
     RerankCandidate,
     RerankResult,
 )
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
+from c3_matcher.errors import (
+    InsufficientInliersError,
+    InvalidInputError,
+    MatcherBackboneError,
+    MatcherClosedError,
+)
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.prior import PriorTolerances
@@ -92,8 +98,9 @@ class PipelineSettings:
 
 class PipelineMatcher:
     """The one ``CrossDomainMatcher`` of every strategy: the per-frame loop over a strategy's
-    ``FeatureBackend``. Single-threaded. ``tile_cache_size`` tiles keep their features
-    between frames (0: off)."""
+    ``FeatureBackend``. One frame at a time: calls from several threads are serialised (a
+    second caller waits), and ``close()`` waits for a frame in progress. ``tile_cache_size``
+    tiles keep their features between frames (0: off)."""
 
     def __init__(
         self,
@@ -120,6 +127,8 @@ class PipelineMatcher:
             backend, self._pre, cache, request, settings.use_stored_features
         )
         self._refine = RefinePass(self._pre, backend)
+        self._lock = threading.RLock()
+        self._closed = False
 
     @property
     def stored_features(self) -> bool:
@@ -135,9 +144,32 @@ class PipelineMatcher:
     def match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
     ) -> MatchResult:
+        with self._lock:  # one frame at a time: a second thread waits, as does close()
+            if self._closed:
+                raise MatcherClosedError(self.backend.label)
+            return self._contract_match(frame, rerank_result, calibration)
+
+    def close(self) -> None:
+        """Refuse every later ``match`` (``MatcherClosedError``); a frame in progress in another
+        thread finishes first, with its records. Idempotent. ``ComposedRoot.close()`` calls it
+        before it releases the recorder and the log sinks."""
+        with self._lock:
+            self._closed = True
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def _contract_match(
+        self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
+    ) -> MatchResult:
         recorder = FrameRecorder(self._sinks, _frame_id(frame, rerank_result, calibration))
         try:
             _check_inputs(frame, rerank_result, calibration)
+        except InvalidInputError as exc:  # refused input still leaves its evidence in the FDR
+            recorder.invalid_input(exc)
+            raise
+        try:
             if frame is None:  # no nav frame arrived: a query failure, as a decode failure is
                 exc = InvalidInputError("frame", "is None (no nav frame)")
                 recorder.query_failed(exc)
@@ -154,11 +186,8 @@ class PipelineMatcher:
             return self._match(frame, rerank_result, calibration, recorder)
         except (MatcherBackboneError, InsufficientInliersError):
             raise
-        except InvalidInputError as exc:  # refused input still leaves its evidence in the FDR
-            recorder.invalid_input(exc)
-            raise
-        except Exception as exc:  # a bug must not take the vehicle down: contract error instead
-            recorder.internal_error(exc)
+        except Exception as exc:  # a bug (an internal check included) must not take the
+            recorder.internal_error(exc)  # vehicle down: the contract's error instead
             raise MatcherBackboneError("internal", None, exc) from exc
 
     # -- steps ------------------------------------------------------------------------------
@@ -254,23 +283,23 @@ class PipelineMatcher:
             verdict = best_turn(
                 self.backend, verifier, query.views, candidate.tile_id, tile, timings
             )
-            inliers = verdict.match_set.inlier_correspondences
-            if inliers.shape[0] > 0:
+            match_set = verdict.match_set
+            if match_set.inlier_count > 0:  # query points back to ORIGINAL frame px
                 with failing_as("ransac", tile.source), timed(timings, "ransac"):
-                    inliers = query.image.in_original_px(inliers)
+                    original = query.image.in_original_px(match_set.inlier_correspondences)
+                    match_set = dataclasses.replace(match_set, inlier_correspondences=original)
         except CandidateStepError as failure:  # drop and continue
             recorder.backbone_error(
                 candidate.tile_id, failure.phase, failure.cause, candidate_index=index
             )
             return Dropped(index, failure.source, timings)
-        if inliers.shape[0] == 0:  # step 4e
+        if match_set.inlier_count == 0:  # step 4e
             recorder.zero_inliers(candidate.tile_id, verdict.raw_matches)
             return Dropped(index, tile.source, timings)
         if verdict.refused:  # refused on geometry, whatever its inliers
-            refusal = _refusal(index, verdict, int(inliers.shape[0]), query.rotation_search)
+            refusal = _refusal(index, verdict, match_set.inlier_count, query.rotation_search)
             recorder.geometry_refused(refusal)
             return Dropped(index, tile.source, timings, refusal)
-        match_set = dataclasses.replace(verdict.match_set, inlier_correspondences=inliers)
         return Survivor(
             match_set,
             index,

@@ -31,6 +31,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Clock",
+    "ClosableMatcher",
     "CrossDomainMatcher",
     "FdrClient",
     "FeatureBackend",
@@ -47,7 +48,8 @@ __all__ = [
 
 @runtime_checkable
 class CrossDomainMatcher(Protocol):
-    """C3's strategy interface. Single-threaded use."""
+    """C3's strategy interface. One frame at a time (the shared pipeline serialises calls from
+    several threads)."""
 
     def match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
@@ -57,6 +59,16 @@ class CrossDomainMatcher(Protocol):
         ...
 
     def health_snapshot(self) -> MatcherHealth: ...
+
+
+@runtime_checkable
+class ClosableMatcher(CrossDomainMatcher, Protocol):
+    """A ``CrossDomainMatcher`` that can be closed (the shared pipeline's is): a later ``match``
+    raises ``MatcherClosedError``, and a frame in progress finishes first. Optional: a
+    strategy's own matcher may have no ``close``. ``ComposedRoot.close()`` closes it before it
+    releases the recorder and the log sinks."""
+
+    def close(self) -> None: ...
 
 
 @runtime_checkable

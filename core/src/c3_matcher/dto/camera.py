@@ -113,13 +113,11 @@ class CameraCalibration:
             f"expected 0, 4, 5, 8, 12 or 14 coefficients, got {dist.shape[0]}",
         )
         object.__setattr__(self, "distortion", dist)
-        size = tuple(self.image_size)
-        v.require(
-            len(size) == 2 and all(isinstance(s, int) and s > 0 for s in size),
-            "calibration.image_size",
-            f"expected (width, height) > 0, got {self.image_size}",
-        )
-        object.__setattr__(self, "image_size", size)
+        field = "calibration.image_size"
+        size = v.items(self.image_size, field, "(width, height)")
+        v.require(len(size) == 2, field, f"expected (width, height), got {self.image_size!r}")
+        width = v.positive_int(size[0], field, "width")
+        object.__setattr__(self, "image_size", (width, v.positive_int(size[1], field, "height")))
         if self.camera_to_body is not None:
             r = v.frozen_copy(
                 v.array(

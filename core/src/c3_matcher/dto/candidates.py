@@ -68,7 +68,9 @@ class RerankResult:
             "rerank_result.frame_id",
             f"expected uuid.UUID, got {type(self.frame_id).__name__}",
         )
-        cands = tuple(self.candidates)
+        cands = v.items(
+            self.candidates, "rerank_result.candidates", "a sequence of RerankCandidate"
+        )
         v.require(len(cands) >= 1, "rerank_result.candidates", "must hold at least one candidate")
         for i, c in enumerate(cands):
             v.require(
