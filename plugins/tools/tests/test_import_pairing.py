@@ -20,8 +20,9 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
-from c3_matcher_tools.dataset.sources.common import ImportOptions, match_shots
 from c3_matcher_tools.dataset.sources.images import folder_shots
+from c3_matcher_tools.dataset.sources.options import ImportOptions
+from c3_matcher_tools.dataset.sources.pairing import match_shots
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.cli import run_cli

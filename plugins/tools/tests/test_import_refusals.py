@@ -18,7 +18,7 @@ from rasterio.transform import from_origin
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight, read_telemetry
-from c3_matcher_tools.dataset.sources.common import (
+from c3_matcher_tools.dataset.sources.options import (
     MAX_CANDIDATES,
     MAX_SEARCH_TILES,
     max_uncertainty_m,

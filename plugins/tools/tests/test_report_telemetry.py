@@ -20,9 +20,10 @@ import pytest
 
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
-from c3_matcher_tools.dataset.sources.common import ImportOptions, write_imported_flight
 from c3_matcher_tools.dataset.sources.images import folder_shots
+from c3_matcher_tools.dataset.sources.options import ImportOptions
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
+from c3_matcher_tools.dataset.sources.writer import write_imported_flight
 from c3_matcher_tools.report import html as report_html
 from c3_matcher_tools.run import (
     FrameOutcome,

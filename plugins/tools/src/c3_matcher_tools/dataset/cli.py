@@ -168,7 +168,7 @@ def _add_render(ds: Any) -> None:
 
 def _add_import(ds: Any) -> None:
     from c3_matcher_tools.dataset.sources.cli import add_log_import_options
-    from c3_matcher_tools.dataset.sources.common import (
+    from c3_matcher_tools.dataset.sources.options import (
         MAX_CANDIDATES,
         MAX_SEARCH_TILES,
         max_uncertainty_m,

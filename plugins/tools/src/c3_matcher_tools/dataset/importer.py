@@ -63,16 +63,16 @@ from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.format import CandidateTruth, FrameRecord, write_dataset
-from c3_matcher_tools.dataset.sources.common import (
+from c3_matcher_tools.dataset.sources.frames import ground_elevation_sampler
+from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
+from c3_matcher_tools.dataset.sources.options import (
     MAX_SEARCH_TILES,
     ImportReport,
-    _ranges,
     check_proposal_options,
-    ground_elevation_sampler,
-    image_problem,
     max_uncertainty_m,
+    number_ranges,
 )
-from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
+from c3_matcher_tools.dataset.sources.writer import image_problem
 
 __all__ = [
     "COLUMNS",
@@ -230,7 +230,7 @@ def _refuse(path: Path, problems: list[tuple[int, str]]) -> None:
         return
     shown = "; ".join(text for _, text in problems[:MAX_PROBLEMS])
     rest = [n for n, _ in problems[MAX_PROBLEMS:]]
-    more = f" (and {len(rest)} more, on lines {_ranges(rest)})" if rest else ""
+    more = f" (and {len(rest)} more, on lines {number_ranges(rest)})" if rest else ""
     raise InvalidInputError(str(path), shown + more)
 
 

@@ -589,7 +589,7 @@ def write_exif_photos(
     import piexif
 
     from c3_matcher.camera import DEFAULT_BODY_FROM_CAMERA
-    from c3_matcher_tools.dataset.sources.common import attitude_from_matrix
+    from c3_matcher_tools.dataset.sources.track import attitude_from_matrix
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -1,5 +1,5 @@
 """``c3-matcher dataset import`` from a recorded log: the source kinds beside the telemetry CSV,
-their options, and the run (see :mod:`c3_matcher_tools.dataset.sources.common`)."""
+their options, and the run (see :mod:`c3_matcher_tools.dataset.sources.writer`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 from c3_matcher.commands import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.args import bounded_float
-from c3_matcher_tools.dataset.sources.common import ImportOptions, ImportReport
+from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport
 
 __all__ = [
     "KINDS",
@@ -35,14 +35,15 @@ pip install 'c3-matcher-tools[logs]'):
              the recorded sensor_msgs/CameraInfo
   exif       IMAGES is a folder of photos with EXIF GPS (and XMP gimbal angles and
              RelativeAltitude, as DJI writes them); TELEMETRY is '-' (or the folder again)
-Images meet the log by camera trigger (when logged: in order when the log has as many
-triggers as there are photos, else each photo the trigger nearest its own UTC time, else
-refused; a video keeps its own clock), else by their own UTC time (EXIF, bag stamps), else
-in file order (--interval, --time-offset). Height above ground:
-rangefinder when logged, else altitude minus --dem / --ground-elevation / the home
-altitude. Frames without attitude or height are imported and marked; frames that cannot
-be placed are skipped; the import says which and why. Each frame keeps its GNSS fix and
-its stated accuracy: replay reports the estimate minus that position.
+Images meet the log by camera trigger (when logged: photos that state their capture time
+by that time, else in file order when the log has as many triggers as there are photos,
+else refused; a video keeps its own clock), else by their own UTC time (EXIF, bag stamps),
+else in file order (--interval, --time-offset). A copy of a photo is imported once.
+Height above ground: rangefinder when logged, else altitude minus --dem /
+--ground-elevation / the home altitude. Frames without attitude or height (a log without
+attitude included) are imported and marked; frames that cannot be placed are skipped; the
+import says which and why. Each frame keeps its GNSS fix and its stated accuracy: replay
+reports the estimate minus that position.
 """
 
 
@@ -90,8 +91,9 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
         "--time-offset",
         type=bounded_float("--time-offset"),
         default=0.0,
-        help="seconds added to the images' times (file order: the log time of the first image, "
-        "s since the log's clock origin); default 0",
+        help="seconds added to the images' times: to their own (EXIF) times, negative when the "
+        "camera's clock is ahead of the log's; to the trigger times when images without a time "
+        "take the triggers in order; in file order, the log time of the first image; default 0",
     )
     g.add_argument(
         "--interval",
@@ -161,7 +163,7 @@ def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
     dataset."""
     from c3_matcher.serialize import load_calibration
     from c3_matcher_tools.dataset.atomic import check_output_dir
-    from c3_matcher_tools.dataset.sources.common import write_imported_flight
+    from c3_matcher_tools.dataset.sources.writer import write_imported_flight
 
     given = (args.images_dir, args.telemetry, args.calibration, args.store, args.dem)
     check_output_dir(args.out, force=args.force, inputs=given)  # before the log is read
@@ -189,7 +191,7 @@ def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
         given_ground = args.ground_elevation is not None or args.dem is not None
         track, shots, skipped = read_photo_folder(Path(images), relative_height=not given_ground)
     else:
-        from c3_matcher_tools.dataset.sources.images import image_shots
+        from c3_matcher_tools.dataset.sources.images import read_images
 
         if kind == "ulog":
             from c3_matcher_tools.dataset.sources.ulog import read_ulog
@@ -201,7 +203,7 @@ def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
             track = read_mavlink(telemetry)
         else:
             raise InvalidInputError("--source", f"unknown kind {kind!r}")
-        shots = image_shots(Path(images), args.frame_step)
+        shots, skipped = read_images(Path(images), args.frame_step)  # step checked already
     if str(args.calibration) == "-":
         if recorded is None:
             raise InvalidInputError(

@@ -7,7 +7,8 @@ that points the calibration's camera mount the same way), else the aircraft's XM
 marked ``attitude_assumed``; height above ground from the XMP ``RelativeAltitude`` (above the
 take-off point: right over flat ground) unless a ground elevation or DEM is given, then EXIF
 altitude minus the ground. Time: the EXIF capture time (file order, 1 s apart, when no photo
-states one; a photo without one among photos that do is skipped: its place is unknown).
+states one; a photo without one among photos that do is skipped: its place is unknown). A
+byte-for-byte copy of another photo is skipped, naming it.
 """
 
 from __future__ import annotations
@@ -20,14 +21,14 @@ import numpy as np
 
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import (
+from c3_matcher_tools.dataset.sources.images import folder_shots, unique_photos
+from c3_matcher_tools.dataset.sources.track import (
     LogTrack,
     Series,
     Shot,
     body_attitude_for_camera,
     gimbal_camera_matrix,
 )
-from c3_matcher_tools.dataset.sources.images import folder_shots
 
 __all__ = ["photo_attitude", "read_photo_folder"]
 
@@ -40,9 +41,8 @@ def read_photo_folder(
     """(track, photos with a position, [(photo, why skipped)]); ``relative_height``: take the
     height above ground from ``RelativeAltitude`` (False when the ground's altitude is given)."""
     folder = Path(folder)
-    shots = folder_shots(folder)
+    shots, skipped = unique_photos(folder_shots(folder))
     kept: list[Shot] = []
-    skipped: list[tuple[str, str]] = []
     timed = any("t_s" in s.own for s in shots if "lat" in s.own)
     for i, s in enumerate(shots):
         if "lat" not in s.own:

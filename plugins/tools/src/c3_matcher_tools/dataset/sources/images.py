@@ -13,10 +13,11 @@ aircraft's (``FlightRollDegree``...), as DJI and others write them.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import logging
 import math
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,7 @@ from typing import Any
 import cv2
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import Shot, constant, logs_library
+from c3_matcher_tools.dataset.sources.track import Shot, constant, logs_library
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -33,7 +34,9 @@ __all__ = [
     "check_images_path",
     "folder_shots",
     "image_shots",
+    "read_images",
     "read_photo_metadata",
+    "unique_photos",
     "video_shots",
 ]
 
@@ -186,11 +189,33 @@ def folder_shots(folder: Path, *, metadata: bool = True) -> list[Shot]:
     return shots
 
 
+def unique_photos(shots: Sequence[Shot]) -> tuple[list[Shot], list[tuple[str, str]]]:
+    """The photos without the byte-for-byte copies of an earlier one (two files of the same
+    bytes are one capture, copied), and [(copy, why skipped)] naming the photo it copies."""
+    first: dict[bytes, str] = {}
+    kept: list[Shot] = []
+    skipped: list[tuple[str, str]] = []
+    for shot in shots:
+        digest = hashlib.sha256(shot.read()).digest()
+        if digest in first:
+            was = first[digest]
+            why = f"a copy of {was} (the same bytes): imported once, as {was}"
+            skipped.append((shot.name, why))
+            continue
+        first[digest] = shot.name
+        kept.append(shot)
+    return kept, skipped
+
+
 def video_shots(path: Path, step: int = 1) -> list[Shot]:
     """Every ``step``-th frame of the video ``path`` as a JPEG (quality 95), with its time on
     the video's clock in ``own['relative_s']``."""
-    path = Path(path)
     check_frame_step(step, video=True)
+    return _video_frames(Path(path), step)
+
+
+def _video_frames(path: Path, step: int) -> list[Shot]:
+    """:func:`video_shots` with ``step`` already checked."""
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         raise InvalidInputError("IMAGES", f"{path}: not a readable video")
@@ -233,8 +258,18 @@ def image_shots(source: Path, step: int = 1) -> list[Shot]:
     check_images_path(source)
     check_frame_step(step, video=source.is_file())
     if source.is_file():
-        return video_shots(source, step)
+        return _video_frames(source, step)
     return folder_shots(source)
+
+
+def read_images(source: Path, step: int = 1) -> tuple[list[Shot], list[tuple[str, str]]]:
+    """:func:`image_shots` for a caller that has checked ``step`` (:func:`check_frame_step`),
+    a folder's copies set aside (:func:`unique_photos`): (images, [(image, why skipped)])."""
+    source = Path(source)
+    check_images_path(source)
+    if source.is_file():
+        return _video_frames(source, step), []
+    return unique_photos(folder_shots(source))
 
 
 def check_frame_step(step: int, *, video: bool) -> None:

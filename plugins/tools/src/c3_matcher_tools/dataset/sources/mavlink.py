@@ -2,7 +2,8 @@
 the vehicle (``.bin``) and MAVLink telemetry logs recorded by a ground station (``.tlog``).
 
 Messages used (DataFlash / MAVLink): attitude ``ATT`` (Roll, Pitch, Yaw, deg) / ``ATTITUDE``
-(rad); position ``POS`` (Lat, Lng, Alt above sea level; ``RelHomeAlt`` gives the home altitude) /
+(rad; without either, each frame is imported level, its yaw from the GNSS course, and marked);
+position ``POS`` (Lat, Lng, Alt above sea level; ``RelHomeAlt`` gives the home altitude) /
 ``GLOBAL_POSITION_INT`` (1e-7 deg, mm; ``relative_alt``); the receiver ``GPS`` (Status = fix
 type, horizontal accuracy from ``GPA.HAcc``) / ``GPS_RAW_INT`` (fix_type, ``h_acc`` mm);
 height above ground from a rangefinder ``RFND.Dist`` / ``DISTANCE_SENSOR.current_distance`` (cm);
@@ -23,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import LogTrack, Series, logs_library
+from c3_matcher_tools.dataset.sources.track import LogTrack, Series, logs_library
 
 __all__ = ["read_mavlink"]
 
@@ -87,18 +88,11 @@ def _position(
     home.append(home_alt)
 
 
-def read_mavlink(path: Path) -> LogTrack:
-    """The track of a DataFlash ``.bin`` / ``.log`` or MAVLink ``.tlog`` (see the module
-    docstring); raises InvalidInputError naming the file and the missing messages."""
-    path = Path(path)
-    chatter = io.StringIO()  # pymavlink prints every damaged header it skips
-    log = _open(path, chatter)
-    source = str(path)
-    kind = "MAVLink telemetry log" if path.suffix.lower() == ".tlog" else "ArduPilot DataFlash"
-    rows: dict[str, list[Row]] = {k: [] for k in ("att", "pos", "gps", "rng", "trig")}
-    home: list[float] = []
-    hacc: list[tuple[float, float]] = []
-    handlers: dict[str, Callable[[Any, float], None]] = {
+def _handlers(
+    rows: dict[str, list[Row]], home: list[float], hacc: list[tuple[float, float]]
+) -> dict[str, Callable[[Any, float], None]]:
+    """Per message type, what its message adds to ``rows`` / ``home`` / ``hacc``."""
+    return {
         "ATT": lambda m, t: rows["att"].append((t, [m.Roll, m.Pitch, m.Yaw])),
         "ATTITUDE": lambda m, t: rows["att"].append(
             (t, [math.degrees(m.roll), math.degrees(m.pitch), math.degrees(m.yaw)])
@@ -130,6 +124,11 @@ def read_mavlink(path: Path) -> LogTrack:
         "CAMERA_FEEDBACK": lambda m, t: rows["trig"].append((t, [])),
         "CAMERA_TRIGGER": lambda m, t: rows["trig"].append((t, [])),
     }
+
+
+def _read(log: Any, source: str, kind: str, handlers: dict[str, Callable[[Any, float], None]],
+          chatter: io.StringIO) -> set[str]:  # fmt: skip
+    """Every message of :data:`TYPES` through its handler; the types seen."""
     seen: set[str] = set()
     try:
         with _quiet(chatter):
@@ -151,8 +150,36 @@ def read_mavlink(path: Path) -> LogTrack:
             f"not a readable {kind}: no ATT, POS, GPS or camera message found"
             + (f" ({damaged} damaged headers skipped)" if damaged else ""),
         )
-    if not rows["att"]:
-        raise InvalidInputError(source, "no ATT / ATTITUDE message: the log holds no attitude")
+    return seen
+
+
+def _receiver(gnss: Series | None, hacc: list[tuple[float, float]]) -> Series | None:
+    """The receiver's fixes with ``GPA.HAcc`` as their accuracy; no position without a fix."""
+    if gnss is None:
+        return None
+    values = gnss.values.copy()
+    if hacc:
+        ht = np.array([t for t, _ in hacc])
+        hv = np.array([v for _, v in hacc])
+        values[:, 3] = hv[np.clip(np.searchsorted(ht, gnss.t_s), 0, ht.size - 1)]
+    values[values[:, 4] < 2, :3] = math.nan
+    return Series(gnss.name, gnss.t_s, values)
+
+
+def read_mavlink(path: Path) -> LogTrack:
+    """The track of a DataFlash ``.bin`` / ``.log`` or MAVLink ``.tlog`` (see the module
+    docstring); raises InvalidInputError naming the file and the missing messages when it
+    holds no position. A log without attitude is read, and said so in its notes: each frame is
+    then imported level with the yaw of its GNSS course and marked ``attitude_assumed``."""
+    path = Path(path)
+    chatter = io.StringIO()  # pymavlink prints every damaged header it skips
+    log = _open(path, chatter)
+    source = str(path)
+    kind = "MAVLink telemetry log" if path.suffix.lower() == ".tlog" else "ArduPilot DataFlash"
+    rows: dict[str, list[Row]] = {k: [] for k in ("att", "pos", "gps", "rng", "trig")}
+    home: list[float] = []
+    hacc: list[tuple[float, float]] = []
+    seen = _read(log, source, kind, _handlers(rows, home, hacc), chatter)
     if not rows["pos"] and not rows["gps"]:
         raise InvalidInputError(
             source, "no POS / GLOBAL_POSITION_INT / GPS message: the log holds no position"
@@ -164,30 +191,24 @@ def read_mavlink(path: Path) -> LogTrack:
             return None
         return Series.build(name, [t for t, _ in got], [v for _, v in got], angles, source=source)
 
-    gnss = series("gps", "GPS" if "GPS" in seen else "GPS_RAW_INT")
-    if gnss is not None and hacc:
-        values = gnss.values.copy()
-        ht = np.array([t for t, _ in hacc])
-        hv = np.array([v for _, v in hacc])
-        idx = np.clip(np.searchsorted(ht, gnss.t_s), 0, ht.size - 1)
-        values[:, 3] = hv[idx]
-        gnss = Series(gnss.name, gnss.t_s, values)
-    if gnss is not None:
-        values = gnss.values.copy()
-        no_fix = values[:, 4] < 2
-        values[no_fix, :3] = math.nan
-        gnss = Series(gnss.name, gnss.t_s, values)
     trig = np.sort(np.array([t for t, _ in rows["trig"]], dtype=np.float64))
-    first_t = rows["att"][0][0]
+    notes = [f"{trig.size} camera trigger(s)"] if trig.size else []
+    if not rows["att"]:
+        notes.insert(
+            0,
+            "no ATT / ATTITUDE message: every frame's attitude assumed level, its yaw from the "
+            "GNSS course (frames marked attitude_assumed)",
+        )
+    first_t = (rows["att"] or rows["pos"] or rows["gps"])[0][0]
     return LogTrack(
         source=source,
         kind=kind,
         attitude=series("att", "ATT" if "ATT" in seen else "ATTITUDE", (2,)),
         position=series("pos", "POS" if "POS" in seen else "GLOBAL_POSITION_INT"),
-        gnss=gnss,
+        gnss=_receiver(series("gps", "GPS" if "GPS" in seen else "GPS_RAW_INT"), hacc),
         height=series("rng", "RFND" if "RFND" in seen else "DISTANCE_SENSOR"),
         triggers_s=trig if trig.size else None,
         home_alt_m=next((h for h in home if math.isfinite(h)), None),
         utc_offset_s=0.0 if first_t > 1e9 else None,
-        notes=(f"{trig.size} camera trigger(s)",) if trig.size else (),
+        notes=tuple(notes),
     )

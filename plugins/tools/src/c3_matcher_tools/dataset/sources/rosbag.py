@@ -23,7 +23,8 @@ import numpy as np
 
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import (
+from c3_matcher_tools.dataset.sources.images import check_frame_step
+from c3_matcher_tools.dataset.sources.track import (
     LogTrack,
     Series,
     Shot,
@@ -31,7 +32,6 @@ from c3_matcher_tools.dataset.sources.common import (
     constant,
     logs_library,
 )
-from c3_matcher_tools.dataset.sources.images import check_frame_step
 
 __all__ = ["BagTopics", "read_bag"]
 
@@ -107,7 +107,7 @@ def _orientation(msg: Any) -> Any:
 
 
 def _attitude_ned(q: Any) -> tuple[float, float, float]:
-    from c3_matcher_tools.dataset.sources.common import quaternion_matrix
+    from c3_matcher_tools.dataset.sources.track import quaternion_matrix
 
     r_enu_flu = quaternion_matrix(float(q.w), float(q.x), float(q.y), float(q.z))
     return attitude_from_matrix(_NED_FROM_ENU @ r_enu_flu @ _FLU_FROM_FRD)

@@ -1,6 +1,7 @@
 """PX4 ULog flight logs (``.ulg``), read with ``pyulog`` (the tools' ``logs`` extra).
 
-Topics used (instance 0): attitude from ``vehicle_attitude.q`` (body FRD to NED, w x y z);
+Topics used (instance 0): attitude from ``vehicle_attitude.q`` (body FRD to NED, w x y z;
+without it each frame is imported level, its yaw from the GNSS course, and marked);
 position from ``vehicle_global_position`` (lat, lon, alt AMSL) when logged, else from the
 receiver; the receiver's fix, stated horizontal accuracy ``eph`` and UTC time from
 ``vehicle_gps_position`` (or ``sensor_gps``; old ``lat``/``lon`` in 1e-7 deg and ``alt`` in mm,
@@ -22,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.dataset.sources.common import (
+from c3_matcher_tools.dataset.sources.track import (
     LogTrack,
     Series,
     attitude_from_matrix,
@@ -89,72 +90,69 @@ def _new_or_old(data: dict[str, np.ndarray], new: str, old: str, scale: float) -
     return _field(data, new) if new in data else _field(data, old, scale=scale)
 
 
-def read_ulog(path: Path) -> LogTrack:
-    """The track of a PX4 ULog (see the module docstring); raises InvalidInputError naming
-    the file and the missing topic when it lacks attitude or position."""
-    path = Path(path)
-    ulog, damage = _load(path)
-    source = str(path)
-    damaged = f"the log is damaged or truncated ({damage}); " if damage else ""
+def _attitude(ulog: Any, source: str) -> Series | None:
+    """``vehicle_attitude.q`` as roll, pitch, yaw (deg); None when the log has no such topic."""
     att = _topic(ulog, "vehicle_attitude")
     if att is None:
-        raise InvalidInputError(
-            source, f"{damaged}no vehicle_attitude topic: the log holds no attitude"
-        )
+        return None
     t = att["timestamp"].astype(np.float64) / 1e6
     angles = [
         attitude_from_matrix(quaternion_matrix(*(float(att[f"q[{k}]"][i]) for k in range(4))))
         for i in range(t.size)
     ]
-    attitude = Series.build("vehicle_attitude", t, angles, (2,), source=source)
-    notes: list[str] = [f"{damaged}read up to the damage"] if damage else []
+    return Series.build("vehicle_attitude", t, angles, (2,), source=source)
+
+
+def _receiver(ulog: Any, source: str) -> tuple[Series | None, float | None]:
+    """The receiver's fix (lat, lon, alt, eph, fix type; no position without a fix) and the
+    log's UTC offset, from ``vehicle_gps_position`` or ``sensor_gps``."""
     gps = _topic(ulog, "vehicle_gps_position") or _topic(ulog, "sensor_gps")
+    if gps is None:
+        return None, None
     gnss = None
-    utc_offset = None
-    if gps is not None:
-        lat = _new_or_old(gps, "latitude_deg", "lat", 1e-7)
-        lon = _new_or_old(gps, "longitude_deg", "lon", 1e-7)
-        alt = _new_or_old(gps, "altitude_msl_m", "alt", 1e-3)
-        eph = _field(gps, "eph")
-        fix = _field(gps, "fix_type")
-        tg = gps["timestamp"].astype(np.float64) / 1e6
-        if lat is not None and lon is not None and alt is not None:
-            n = tg.size
-            cols = np.stack(
-                [
-                    lat,
-                    lon,
-                    alt,
-                    eph if eph is not None else np.full(n, math.nan),
-                    fix if fix is not None else np.full(n, 3.0),
-                ],
-                axis=1,
-            )
-            good = (cols[:, 4] >= 2) & ((cols[:, 0] != 0) | (cols[:, 1] != 0))
-            cols[~good, :3] = np.nan  # no fix: no position, the frame is flagged degraded
-            gnss = Series.build("vehicle_gps_position", tg, cols, source=source)
-        utc = _field(gps, "time_utc_usec")
-        if utc is not None and np.any(utc > 0):
-            k = int(np.flatnonzero(utc > 0)[0])
-            utc_offset = float(utc[k] / 1e6 - tg[k])
+    lat = _new_or_old(gps, "latitude_deg", "lat", 1e-7)
+    lon = _new_or_old(gps, "longitude_deg", "lon", 1e-7)
+    alt = _new_or_old(gps, "altitude_msl_m", "alt", 1e-3)
+    eph = _field(gps, "eph")
+    fix = _field(gps, "fix_type")
+    tg = gps["timestamp"].astype(np.float64) / 1e6
+    if lat is not None and lon is not None and alt is not None:
+        n = tg.size
+        cols = np.stack(
+            [
+                lat,
+                lon,
+                alt,
+                eph if eph is not None else np.full(n, math.nan),
+                fix if fix is not None else np.full(n, 3.0),
+            ],
+            axis=1,
+        )
+        good = (cols[:, 4] >= 2) & ((cols[:, 0] != 0) | (cols[:, 1] != 0))
+        cols[~good, :3] = np.nan  # no fix: no position, the frame is flagged degraded
+        gnss = Series.build("vehicle_gps_position", tg, cols, source=source)
+    utc = _field(gps, "time_utc_usec")
+    if utc is None or not np.any(utc > 0):
+        return gnss, None
+    k = int(np.flatnonzero(utc > 0)[0])
+    return gnss, float(utc[k] / 1e6 - tg[k])
+
+
+def _global_position(ulog: Any, source: str) -> Series | None:
     glob = _topic(ulog, "vehicle_global_position")
-    position = None
-    if glob is not None:
-        tp = glob["timestamp"].astype(np.float64) / 1e6
-        position = Series.build(
-            "vehicle_global_position",
-            tp,
-            np.stack([_required(glob, k, source) for k in ("lat", "lon", "alt")], axis=1),
-            source=source,
-        )
-    elif gnss is not None:
-        notes.append("no vehicle_global_position: positions from vehicle_gps_position")
-    if position is None and gnss is None:
-        raise InvalidInputError(
-            source,
-            f"{damaged}no vehicle_global_position nor vehicle_gps_position: the log holds no "
-            "position",
-        )
+    if glob is None:
+        return None
+    tp = glob["timestamp"].astype(np.float64) / 1e6
+    return Series.build(
+        "vehicle_global_position",
+        tp,
+        np.stack([_required(glob, k, source) for k in ("lat", "lon", "alt")], axis=1),
+        source=source,
+    )
+
+
+def _ground(ulog: Any, source: str) -> tuple[Series | None, float | None]:
+    """The rangefinder's valid heights above ground and the home altitude."""
     local = _topic(ulog, "vehicle_local_position")
     height = None
     home_alt: float | None = None
@@ -173,13 +171,47 @@ def read_ulog(path: Path) -> LogTrack:
     home = _topic(ulog, "home_position")
     if home is not None and "alt" in home:
         home_alt = float(home["alt"][0])
-    triggers = None
+    return height, home_alt
+
+
+def _triggers(ulog: Any, notes: list[str]) -> np.ndarray | None:
     for topic in ("camera_capture", "camera_trigger"):
         cam = _topic(ulog, topic)
         if cam is not None:
             triggers = np.sort(cam["timestamp"].astype(np.float64) / 1e6)
             notes.append(f"{triggers.size} camera trigger(s) from {topic}")
-            break
+            return triggers
+    return None
+
+
+def read_ulog(path: Path) -> LogTrack:
+    """The track of a PX4 ULog (see the module docstring); raises InvalidInputError naming
+    the file and the missing topics when it holds no position. A log without
+    ``vehicle_attitude`` is read, and said so in its notes: each frame is then imported level
+    with the yaw of its GNSS course and marked ``attitude_assumed``."""
+    path = Path(path)
+    ulog, damage = _load(path)
+    source = str(path)
+    damaged = f"the log is damaged or truncated ({damage}); " if damage else ""
+    notes: list[str] = [f"{damaged}read up to the damage"] if damage else []
+    attitude = _attitude(ulog, source)
+    if attitude is None:
+        notes.append(
+            "no vehicle_attitude topic: every frame's attitude assumed level, its yaw from the "
+            "GNSS course (frames marked attitude_assumed)"
+        )
+    gnss, utc_offset = _receiver(ulog, source)
+    position = _global_position(ulog, source)
+    if position is None and gnss is not None:
+        notes.append("no vehicle_global_position: positions from vehicle_gps_position")
+    if position is None and gnss is None:
+        raise InvalidInputError(
+            source,
+            f"{damaged}no vehicle_global_position nor vehicle_gps_position: the log holds no "
+            "position",
+        )
+    height, home_alt = _ground(ulog, source)
+    triggers = _triggers(ulog, notes)
     return LogTrack(
         source=source,
         kind=KIND,

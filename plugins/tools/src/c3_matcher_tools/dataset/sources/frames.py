@@ -1,0 +1,213 @@
+"""Per-frame telemetry from a log's track at each image's time: position, attitude, height
+above ground and GNSS quality.
+
+A frame whose time finds no attitude sample is imported level with the yaw of the GNSS course
+(flag ``attitude_assumed``); one without a height above ground gets the nearest frame's height
+(flag ``height_assumed``); one whose GNSS is absent, without a 3D fix, or less accurate than the
+degraded bound is flagged ``gnss_degraded`` (its position comes from the estimator when the log
+has one). Frames without any position are skipped with their reason: no candidate can be
+proposed for them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from c3_matcher.arrays import F64
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.options import ImportOptions
+from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
+
+__all__ = ["Frame", "assemble_frames", "ground_elevation_sampler"]
+
+
+def ground_elevation_sampler(dem: Path) -> Callable[[float, float], float | None]:
+    """``(lat, lon) -> ground altitude (m)`` read from a DEM GeoTIFF (the tools' ``geo``
+    extra: rasterio); None outside the raster or on nodata."""
+    try:
+        import rasterio
+        from rasterio.warp import transform
+    except ImportError:
+        raise InvalidInputError(
+            "--dem", "reading a DEM needs the geo extra: pip install 'c3-matcher-tools[geo]'"
+        ) from None
+    if not Path(dem).is_file():
+        raise InvalidInputError("--dem", f"{dem}: no such file")
+    try:
+        ds = rasterio.open(dem)
+    except Exception as exc:
+        raise InvalidInputError("--dem", f"{dem}: not a readable raster: {exc}") from None
+    if ds.crs is None:
+        raise InvalidInputError("--dem", f"{dem}: no georeference (CRS)")
+    band = ds.read(1, masked=True)
+    nodata = np.ma.getmaskarray(band)
+
+    def at(lat: float, lon: float) -> float | None:
+        xs, ys = transform("EPSG:4326", ds.crs, [lon], [lat])
+        row, col = ds.index(xs[0], ys[0])
+        if not (0 <= row < ds.height and 0 <= col < ds.width) or bool(nodata[row, col]):
+            return None
+        return float(band[row, col])
+
+    return at
+
+
+@dataclass(frozen=True)
+class Frame:
+    shot: Shot
+    t_s: float
+    lat: float
+    lon: float
+    alt_m: float
+    attitude: tuple[float, float, float]
+    height_m: float
+    height_source: str
+    flags: tuple[str, ...]
+    gnss: dict[str, Any]
+
+
+def assemble_frames(
+    track: LogTrack,
+    matched: Sequence[tuple[Shot, float]],
+    options: ImportOptions,
+    attitude_of: Callable[[Shot, float], tuple[float, float, float] | None] | None = None,
+) -> tuple[list[Frame], list[tuple[str, str]]]:
+    """Per matched shot, the telemetry at its time (see the module docstring); frames without
+    a position are returned as skipped. ``attitude_of`` overrides the log's attitude per shot
+    (the image's own gimbal angles)."""
+    gap = options.max_gap_s
+    dem = ground_elevation_sampler(options.dem) if options.dem is not None else None
+    frames: list[Frame] = []
+    skipped: list[tuple[str, str]] = []
+    for shot, t in matched:
+        flags: list[str] = []
+        pos = _finite_position(track.position.at(t, gap) if track.position is not None else None)
+        fix = track.gnss.at(t, gap) if track.gnss is not None else None
+        if track.per_image and "lat" in shot.own:
+            own = shot.own
+            fix = np.array(
+                [own["lat"], own["lon"], own.get("alt_m", math.nan), math.nan, 3.0],
+                dtype=np.float64,
+            )
+        if pos is None and fix is not None:
+            pos = _finite_position(fix[:3])
+        if pos is None:
+            skipped.append((shot.name, f"no position within {gap:g} s of {t:.2f} s"))
+            continue
+        lat, lon, alt = (float(v) for v in pos[:3])
+        accuracy = float(fix[3]) if fix is not None and math.isfinite(fix[3]) else None
+        fix_type = int(fix[4]) if fix is not None and math.isfinite(fix[4]) else None
+        degraded = (
+            fix is None
+            or _finite_position(fix[:3]) is None
+            or (fix_type is not None and fix_type < 3)
+            or (accuracy is not None and accuracy > options.gnss_degraded_m)
+        )
+        if degraded:
+            flags.append("gnss_degraded")
+        attitude = attitude_of(shot, t) if attitude_of is not None else None
+        if attitude is None and track.attitude is not None:
+            a = track.attitude.at(t, gap)
+            attitude = None if a is None else (float(a[0]), float(a[1]), float(a[2]))
+        if attitude is None or max(abs(attitude[0]), abs(attitude[1])) >= 89.0:
+            flags.append("attitude_assumed")
+            attitude = (0.0, 0.0, _course_deg(track, t))
+        height, source = _height(track, shot, t, lat, lon, alt, options, dem)
+        frames.append(
+            Frame(
+                shot,
+                t,
+                lat,
+                lon,
+                alt,
+                attitude,
+                height,
+                source,
+                tuple(flags),
+                {
+                    "gnss_accuracy_m": accuracy,
+                    "gnss_fix": fix_type,
+                    "gnss_degraded": degraded,
+                },
+            )
+        )
+    _fill_heights(frames)
+    return frames, skipped
+
+
+def _finite_position(pos: F64 | None) -> F64 | None:
+    return pos if pos is not None and bool(np.all(np.isfinite(pos[:2]))) else None
+
+
+def _course_deg(track: LogTrack, t: float) -> float:
+    """The track's course over ground at ``t`` (deg from north), 0 when it cannot be told."""
+    series = track.position if track.position is not None else track.gnss
+    if series is None or len(series) < 2:
+        return 0.0
+    a, b = series.at(t - 1.0, 5.0), series.at(t + 1.0, 5.0)
+    if a is None or b is None or not np.all(np.isfinite([*a[:2], *b[:2]])):
+        return 0.0
+    dn = (b[0] - a[0]) * 111_320.0
+    de = (b[1] - a[1]) * 111_320.0 * math.cos(math.radians(a[0]))
+    return 0.0 if math.hypot(dn, de) < 1.0 else math.degrees(math.atan2(de, dn))
+
+
+def _height(
+    track: LogTrack,
+    shot: Shot,
+    t: float,
+    lat: float,
+    lon: float,
+    alt: float,
+    options: ImportOptions,
+    dem: Callable[[float, float], float | None] | None,
+) -> tuple[float, str]:
+    """(height above ground m, source); NaN and the reason when no source gives one."""
+    if "height_m" in shot.own and math.isfinite(shot.own["height_m"]):
+        return float(shot.own["height_m"]), str(shot.own.get("height_source", "image metadata"))
+    h = track.height.at(t, options.max_gap_s) if track.height is not None else None
+    if h is not None and h[0] > 0:
+        return float(h[0]), f"{track.height.name} (above ground)"  # type: ignore[union-attr]
+    if not math.isfinite(alt):
+        return math.nan, "no altitude"
+    if dem is not None:
+        ground = dem(lat, lon)
+        if ground is not None:
+            return alt - ground, "altitude - DEM"
+        return math.nan, "the DEM has no value here"
+    if options.ground_elevation_m is not None:
+        return alt - options.ground_elevation_m, "altitude - ground elevation"
+    if track.home_alt_m is not None:
+        return alt - track.home_alt_m, "altitude - home altitude"
+    return math.nan, "no ground elevation, DEM or home altitude"
+
+
+def _fill_heights(frames: list[Frame]) -> None:
+    good = [i for i, f in enumerate(frames) if math.isfinite(f.height_m) and f.height_m > 0]
+    if not good:
+        return
+    for i, f in enumerate(frames):
+        if i in good:
+            continue
+        j = min(good, key=lambda g: (abs(g - i), g))
+        why = f.height_source
+        if math.isfinite(f.height_m):
+            why += f" gave {f.height_m:.1f} m"
+        frames[i] = Frame(
+            f.shot,
+            f.t_s,
+            f.lat,
+            f.lon,
+            f.alt_m,
+            f.attitude,
+            frames[j].height_m,
+            f"nearest frame's height ({why})",
+            (*f.flags, "height_assumed"),
+            f.gnss,
+        )

@@ -1,0 +1,164 @@
+"""The options of an import from a recorded log (:class:`ImportOptions`), their bounds, and
+what the import reports (:class:`ImportReport`)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from c3_matcher.dto import CameraCalibration, TileId
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.geo import TILE_PX
+from c3_matcher_tools.dataset.format import check_candidate_size
+
+__all__ = [
+    "MAX_CANDIDATES",
+    "MAX_SEARCH_TILES",
+    "ImportOptions",
+    "ImportReport",
+    "check_proposal_options",
+    "max_uncertainty_m",
+    "number_ranges",
+]
+
+
+MAX_SEARCH_TILES = 32
+"""``--uncertainty-m`` reaches at most this many tiles of the store's zoom from the look point:
+the tiles looked up per frame grow with its square (65 x 65 at most), and a few candidates never
+cover more ground than that anyway."""
+
+
+MAX_CANDIDATES = MAX_SEARCH_TILES**2
+"""``--candidates`` proposes at most this many tiles a frame: more would not fit the square the
+search reaches (:data:`MAX_SEARCH_TILES` tiles from the look point), which would widen it."""
+
+
+def max_uncertainty_m(zoom: int, lat_deg: float = 0.0) -> float:
+    """The largest ``--uncertainty-m`` at ``zoom`` and latitude ``lat_deg``: the side of
+    :data:`MAX_SEARCH_TILES` web-mercator tiles there, m."""
+    return MAX_SEARCH_TILES * TILE_PX * TileId(zoom, lat_deg, 0.0).web_mercator_gsd_m()
+
+
+def check_proposal_options(uncertainty_m: float, candidates: int, candidate_size_px: int) -> None:
+    """``InvalidInputError`` naming the option unless the look-point uncertainty (m) is finite
+    and >= 0, 1 to :data:`MAX_CANDIDATES` candidates are asked for and the candidate size is in
+    :data:`~c3_matcher_tools.dataset.format.CANDIDATE_SIZE_PX`."""
+    if not (math.isfinite(uncertainty_m) and uncertainty_m >= 0):
+        raise InvalidInputError("--uncertainty-m", f"must be >= 0, got {uncertainty_m}")
+    if not 1 <= candidates <= MAX_CANDIDATES:
+        raise InvalidInputError(
+            "--candidates", f"must be in [1, {MAX_CANDIDATES}], got {candidates}"
+        )
+    check_candidate_size(candidate_size_px)
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """How images meet the log and how candidates are proposed (lengths m, times s).
+
+    ``time_source``: ``auto`` | ``trigger`` | ``exif`` (the images' own clock) | ``order`` (file
+    order, one image every ``interval_s`` from ``time_offset_s`` on the log's clock; a video's
+    frames at ``time_offset_s`` plus their time in the video);
+    ``time_offset_s`` is added to trigger / image times otherwise (to the images' own times when
+    they are paired with triggers by time: see :func:`match_shots`). ``max_gap_s``: the farthest a
+    log sample may be from a frame's time to be used. ``gnss_degraded_m``: a stated horizontal
+    accuracy worse than this flags the frame. ``ground_elevation_m`` / ``dem``: the ground's
+    altitude (same datum as the log's altitude) when the log has no height above ground."""
+
+    calibration: CameraCalibration
+    store: Path
+    time_source: str = "auto"
+    time_offset_s: float = 0.0
+    interval_s: float | None = None
+    max_gap_s: float = 1.0
+    gnss_degraded_m: float = 5.0
+    ground_elevation_m: float | None = None
+    dem: Path | None = None
+    uncertainty_m: float = 50.0
+    candidates: int = 3
+    zoom: int | None = None
+    candidate_size_px: int = 512
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.time_source not in ("auto", "trigger", "exif", "order"):
+            raise InvalidInputError(
+                "--time-source", f"one of auto, trigger, exif, order; got {self.time_source!r}"
+            )
+        if not (math.isfinite(self.time_offset_s)):
+            raise InvalidInputError("--time-offset", f"must be finite, got {self.time_offset_s}")
+        if self.interval_s is not None and not (
+            math.isfinite(self.interval_s) and self.interval_s > 0
+        ):
+            raise InvalidInputError("--interval", f"must be > 0 s, got {self.interval_s}")
+        if not (math.isfinite(self.max_gap_s) and self.max_gap_s > 0):
+            raise InvalidInputError("--max-gap", f"must be > 0 s, got {self.max_gap_s}")
+        if not (math.isfinite(self.gnss_degraded_m) and self.gnss_degraded_m > 0):
+            raise InvalidInputError(
+                "--gnss-degraded-m", f"must be > 0 m, got {self.gnss_degraded_m}"
+            )
+        if self.ground_elevation_m is not None and not math.isfinite(self.ground_elevation_m):
+            raise InvalidInputError("--ground-elevation", "must be finite")
+        check_proposal_options(self.uncertainty_m, self.candidates, self.candidate_size_px)
+
+
+@dataclass(frozen=True)
+class ImportReport:
+    """What an import did: frames taken, skipped (image, reason), how times were matched, the
+    height source per frame and the marked frames; :meth:`lines` reads it to a person."""
+
+    dataset: str
+    source: str
+    kind: str
+    frames: int
+    skipped: tuple[tuple[str, str], ...]
+    time_source: str
+    time_offset_s: float
+    height_sources: dict[str, int]
+    attitude_assumed: tuple[int, ...]
+    height_assumed: tuple[int, ...]
+    gnss_degraded: tuple[int, ...]
+    zoom: int
+    notes: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        """Every field, in order, JSON-ready: a skipped image as {"image", "reason"}."""
+        return {**asdict(self), "skipped": [{"image": n, "reason": r} for n, r in self.skipped]}
+
+    def lines(self) -> list[str]:
+        heights = ", ".join(f"{k} ({v})" for k, v in sorted(self.height_sources.items()))
+        out = [
+            f"imported {self.frames} frame(s) from {self.source} ({self.kind}) into {self.dataset}",
+            f"  times: {self.time_source}, offset {self.time_offset_s:+.3f} s",
+            f"  height above ground: {heights or 'none'}",
+        ]
+        for what, frames in (
+            ("attitude assumed level (no attitude sample)", self.attitude_assumed),
+            ("height taken from the nearest frame (no height)", self.height_assumed),
+            ("GNSS absent or degraded", self.gnss_degraded),
+        ):
+            if frames:
+                out.append(f"  {what}: frames {number_ranges(frames)}")
+        if not self.skipped:
+            out.append("  skipped: none")
+        else:
+            out.append(f"  skipped {len(self.skipped)} image(s):")
+            out.extend(f"    {n}: {r}" for n, r in self.skipped[:20])
+            if len(self.skipped) > 20:
+                out.append(f"    (+{len(self.skipped) - 20} more)")
+        out.extend(f"  note: {n}" for n in self.notes)
+        return out
+
+
+def number_ranges(values: Sequence[int]) -> str:
+    """``[1, 2, 3, 7]`` -> ``"1-3, 7"``."""
+    parts: list[list[int]] = []
+    for v in sorted(values):
+        if parts and parts[-1][1] == v - 1:
+            parts[-1][1] = v
+        else:
+            parts.append([v, v])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in parts)

@@ -1,0 +1,315 @@
+"""How images meet a log's clock: camera triggers (in order, or each photo the trigger nearest
+its own time), the images' own UTC times, or file order (:func:`match_shots`)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from c3_matcher.arrays import F64
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.options import ImportOptions
+from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
+
+__all__ = ["match_shots"]
+
+
+def _names(shots: Sequence[Shot], shown: int = 3) -> str:
+    """The first ``shown`` shots' names, then how many more."""
+    more = f" and {len(shots) - shown} more" if len(shots) > shown else ""
+    return ", ".join(s.name for s in shots[:shown]) + more
+
+
+_ORDER_HINT = "--interval (s between images) and --time-offset (log time of the first image)"
+
+
+def _no_time_source(track: LogTrack, shots: Sequence[Shot], untimed: Sequence[Shot]) -> str:
+    """Why ``auto`` finds no way to put images without a camera trigger on the log's clock, and
+    the options that would."""
+    n, timed = len(shots), len(shots) - len(untimed)
+    head = f"{track.source}: no camera trigger in the log"
+    if not timed:
+        return f"{head}, and none of the {n} images states a capture time: give {_ORDER_HINT}"
+    if track.utc_offset_s is None:
+        return (
+            f"{head}, and it states no UTC time (no GNSS time) to meet the images' own times: "
+            f"give {_ORDER_HINT}"
+        )
+    return (
+        f"{head}, and {len(untimed)} of the {n} images state no capture time "
+        f"({_names(untimed)}): give --time-source exif to import the {timed} that do by their "
+        f"own time, or {_ORDER_HINT} to place all {n} in file order"
+    )
+
+
+def _trigger_count_refusal(
+    track: LogTrack, shots: Sequence[Shot], triggers: F64, untimed: Sequence[Shot]
+) -> str:
+    """Why ``auto`` will not pair ``shots`` with a different number of ``triggers``: the counts,
+    why order is wrong, why time cannot be used, and the ways out."""
+    n = len(shots)
+    if len(untimed) == n:
+        why = f"none of the {n} images states a capture time"
+    elif untimed:
+        why = f"{len(untimed)} of the {n} images state no capture time ({_names(untimed)})"
+    else:
+        why = "the log states no UTC time (no GNSS time)"
+    ways = ["remove the images without a trigger"]
+    if track.utc_offset_s is not None and len(untimed) < n:
+        those = f"the {n - len(untimed)} that state one, " if untimed else ""
+        ways.append(f"give --time-source exif ({those}each by its own time)")
+    ways.append("give --time-source trigger to pair them in order anyway")
+    damaged = f" (the log is damaged or truncated: {track.damage})" if track.damage else ""
+    return (
+        f"{track.source}: {triggers.size} camera trigger(s) in the log{damaged} but {n} image(s): "
+        "pairing them in order would put every image after a missing or extra one on another "
+        f"image's pose, and they cannot be paired by time ({why}); "
+        + ", ".join(ways[:-1])
+        + ", or "
+        + ways[-1]
+    )
+
+
+def _unpaired(images: int, triggers: int) -> str:
+    """``"2 image(s) left without a trigger; 1 trigger(s) left without an image"``, the parts
+    that are not 0 ("none left unpaired" when both are)."""
+    parts = [f"{images} image(s) left without a trigger"] if images else []
+    parts += [f"{triggers} trigger(s) left without an image"] if triggers else []
+    return "; ".join(parts) or "none left unpaired"
+
+
+def _tolerance(triggers: F64, options: ImportOptions) -> float:
+    """How far an image's own time may be from its trigger: ``--max-gap`` (default 1 s:
+    whole-second EXIF times and camera clocks a fraction of a second off GNSS time) but at most
+    half the median spacing of the triggers, so that an image is never nearer its neighbour's
+    trigger than its own."""
+    steps = np.diff(triggers)
+    steps = steps[steps > 0]
+    return min(options.max_gap_s, float(np.median(steps)) / 2 if steps.size else math.inf)
+
+
+def _own_times(track: LogTrack, shots: Sequence[Shot], options: ImportOptions) -> list[float]:
+    """The images' own (UTC) times on the log's clock, ``--time-offset`` added."""
+    assert track.utc_offset_s is not None
+    return [float(s.t_s or 0.0) - track.utc_offset_s + options.time_offset_s for s in shots]
+
+
+def _nearest_triggers(
+    track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
+) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]]]:
+    """Each image paired with the camera trigger nearest its own time (:func:`_own_times`),
+    each trigger used once (by the image nearest it), at the trigger's time; an image farther
+    than :func:`_tolerance` from every trigger, or whose trigger is nearer another image's
+    time, is left unpaired with the reason."""
+    tol = _tolerance(triggers, options)
+    own = _own_times(track, shots, options)
+    nearest = [int(np.argmin(np.abs(triggers - t))) for t in own]
+    gaps = [abs(float(triggers[j]) - t) for j, t in zip(nearest, own, strict=True)]
+    owner: dict[int, int] = {}  # trigger -> the image nearest it in time
+    for k, (j, d) in enumerate(zip(nearest, gaps, strict=True)):
+        if d <= tol and (j not in owner or d < gaps[owner[j]]):
+            owner[j] = k
+    taken: list[tuple[Shot, float]] = []
+    skipped: list[tuple[str, str]] = []
+    for k, (shot, t, j, d) in enumerate(zip(shots, own, nearest, gaps, strict=True)):
+        at = float(triggers[j])
+        if d > tol:
+            why = (
+                f"no camera trigger within {tol:g} s of its own time ({t:.2f} s on the "
+                f"log's clock; the nearest at {at:.2f} s)"
+            )
+            skipped.append((shot.name, why))
+        elif owner[j] != k:
+            why = f"its nearest camera trigger ({at:.2f} s) is nearer the time of "
+            skipped.append((shot.name, why + shots[owner[j]].name))
+        else:
+            taken.append((shot, at))
+    return taken, skipped
+
+
+def _triggers_by_time(
+    track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
+) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+    """:func:`_nearest_triggers`, refused when no image meets a trigger; with ``how``."""
+    tol = _tolerance(triggers, options)
+    taken, skipped = _nearest_triggers(track, shots, triggers, options)
+    if not taken:
+        own = _own_times(track, shots, options)
+        raise InvalidInputError(
+            "--time-source",
+            f"{track.source}: {triggers.size} camera trigger(s) in the log but {len(shots)} "
+            f"image(s), and no image's own time lies within {tol:g} s of a trigger (images at "
+            f"{min(own):.1f} .. {max(own):.1f} s, triggers at {triggers[0]:.1f} .. "
+            f"{triggers[-1]:.1f} s on the log's clock): the camera's clock is off "
+            "(--time-offset, the seconds added to the images' own times), or give "
+            "--time-source trigger to pair them in order",
+        )
+    return taken, skipped, _nearest_how(tol, triggers.size, len(shots), len(taken))
+
+
+def _nearest_how(tol: float, triggers: int, images: int, paired: int) -> str:
+    return (
+        f"camera trigger nearest each image's own UTC time, within {tol:g} s ({triggers} in "
+        f"the log, {images} image(s): {_unpaired(images - paired, triggers - paired)})"
+    )
+
+
+def _as_many_triggers(
+    shots: Sequence[Shot], triggers: F64
+) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+    """As many photos as triggers, each stating its own time: the photos take the triggers in
+    the order of those times (ties, as whole-second EXIF times give, in file order), not by file
+    name, which need not sort in capture order; each photo at its trigger's time. Order alone:
+    a camera clock off the log's, or times truncated to the second, move no photo onto another's
+    trigger, as pairing each with the trigger nearest its time could."""
+    counts = f"{triggers.size} in the log, {len(shots)} image(s)"
+    ordered = sorted(shots, key=lambda s: float(s.t_s or 0.0))  # stable: ties keep file order
+    how = f"camera trigger ({counts})"
+    if any(a is not b for a, b in zip(ordered, shots, strict=True)):
+        how = f"camera trigger in the images' capture order, not their file order ({counts})"
+    return [(s, float(t)) for s, t in zip(ordered, triggers, strict=True)], [], how
+
+
+def _auto_source(
+    track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
+) -> str:
+    """What ``--time-source auto`` uses (see :func:`match_shots`), or refused saying why."""
+    untimed = [s for s in shots if s.t_s is None]
+    if shots and all("relative_s" in s.own for s in shots):
+        return "order"  # a video's frames keep the video's clock
+    if triggers.size == len(shots) and triggers.size:
+        return "trigger" if untimed else "as many triggers"
+    if triggers.size:
+        if untimed or track.utc_offset_s is None:
+            raise InvalidInputError(
+                "--time-source", _trigger_count_refusal(track, shots, triggers, untimed)
+            )
+        return "trigger time"
+    if shots and not untimed and track.utc_offset_s is not None:
+        return "exif"
+    if options.interval_s is not None:
+        return "order"
+    raise InvalidInputError("--time-source", _no_time_source(track, shots, untimed))
+
+
+def _in_file_order(
+    track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
+) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+    """The triggers in order, ``--time-offset`` added to their times (``--time-source
+    trigger``, or images that state no time of their own)."""
+    if not triggers.size:
+        raise InvalidInputError("--time-source", f"{track.source}: no camera trigger")
+    off = options.time_offset_s
+    taken = [(s, float(t) + off) for s, t in zip(shots, triggers, strict=False)]
+    skipped = [
+        (s.name, f"no camera trigger left ({triggers.size} in the log)")
+        for s in shots[triggers.size :]
+    ]
+    how = f"camera trigger ({triggers.size} in the log, {len(shots)} image(s))"
+    if triggers.size != len(shots):
+        left = _unpaired(max(len(shots) - triggers.size, 0), max(triggers.size - len(shots), 0))
+        how = (
+            f"camera trigger in file order, as asked ({triggers.size} in the log, "
+            f"{len(shots)} image(s): {left})"
+        )
+    return taken, skipped, how
+
+
+def _by_own_time(
+    track: LogTrack, shots: Sequence[Shot], options: ImportOptions
+) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+    """Each image at its own UTC time on the log's clock, ``--time-offset`` added."""
+    if track.utc_offset_s is None:
+        raise InvalidInputError(
+            "--time-source", f"{track.source}: the log states no UTC time (no GNSS time)"
+        )
+    taken = [
+        (s, s.t_s - track.utc_offset_s + options.time_offset_s) for s in shots if s.t_s is not None
+    ]
+    skipped = [(s.name, "the image states no capture time") for s in shots if s.t_s is None]
+    return taken, skipped, "the images' own UTC time stamps against the log's UTC time"
+
+
+def _by_file_order(
+    shots: Sequence[Shot], triggers: F64, options: ImportOptions
+) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+    """One image every ``--interval`` from ``--time-offset`` on (a video: its own clock)."""
+    video = bool(shots) and all("relative_s" in s.own for s in shots)
+    if options.interval_s is None and not video:
+        raise InvalidInputError("--interval", "file order needs --interval (s between images)")
+    step, off = options.interval_s or 0.0, options.time_offset_s
+    taken = [(s, off + float(s.own.get("relative_s", i * step))) for i, s in enumerate(shots)]
+    how = "video clock" if video else f"file order, one image every {step:g} s"
+    if video and triggers.size and options.time_source == "auto":
+        how += (
+            f" (the log's {triggers.size} camera trigger(s), a stills camera's, not used: "
+            "--time-source trigger to pair them in order)"
+        )
+    return taken, [], how
+
+
+def match_shots(
+    track: LogTrack, shots: Sequence[Shot], options: ImportOptions
+) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+    """Each shot's time on the log's clock, in time order: ([(shot, t_s)], [(name, why
+    skipped)], how).
+
+    ``auto``: a video's frames keep the video's clock (the log's camera triggers are a stills
+    camera's). Photos take the camera triggers: when the log has exactly as many and every
+    photo states its own time, by that time (:func:`_as_many_triggers`), else in file order;
+    with another count, each photo the trigger nearest its own UTC time
+    (:func:`_triggers_by_time`) when every photo states one and the log states UTC, else
+    refused: in order, one missing or extra photo would shift every later one onto another's
+    pose. Without triggers: the photos' own UTC times, else file order with ``--interval``.
+    ``trigger`` pairs in file order whatever the counts, and ``how`` says how many were left
+    unpaired. ``--time-offset`` is added to the images' own times where they are used, else to
+    the trigger times or to the file order's start. Raises InvalidInputError when no image
+    falls within the log's time span (images of another flight) or the chosen time source
+    cannot be used."""
+    triggers = track.triggers_s if track.triggers_s is not None else np.zeros(0)
+    src = options.time_source
+    if src == "auto":
+        src = _auto_source(track, shots, triggers, options)
+    if src == "trigger":
+        taken, skipped, how = _in_file_order(track, shots, triggers, options)
+    elif src == "as many triggers":
+        taken, skipped, how = _as_many_triggers(shots, triggers)
+    elif src == "trigger time":
+        taken, skipped, how = _triggers_by_time(track, shots, triggers, options)
+    elif src == "exif":
+        taken, skipped, how = _by_own_time(track, shots, options)
+    else:
+        taken, skipped, how = _by_file_order(shots, triggers, options)
+    inside, outside = _within_log(track, taken, options, src)
+    return sorted(inside, key=lambda x: x[1]), [*skipped, *outside], how
+
+
+def _within_log(
+    track: LogTrack, taken: Sequence[tuple[Shot, float]], options: ImportOptions, src: str
+) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]]]:
+    """The images within the log's time span (``--max-gap`` beyond it), and the others with
+    the reason; refused when none is, saying what ``--time-offset`` did."""
+    lo, hi = track.span
+    tol, off = options.max_gap_s, options.time_offset_s
+    inside = [(s, t) for s, t in taken if lo - tol <= t <= hi + tol]
+    on = f"s on the log's clock, --time-offset {off:+g} s added" if off else "s"
+    if taken and not inside:
+        first, last = min(t for _, t in taken), max(t for _, t in taken)
+        moved = ""
+        if off and src == "trigger":
+            moved = " (paired with camera triggers in order, the offset moves them off theirs)"
+        raise InvalidInputError(
+            track.source,
+            f"no image falls within the log's time span ({lo:.1f} .. {hi:.1f} s; the images at "
+            f"{first:.1f} .. {last:.1f} {on}){moved}: images and log of different flights, or "
+            "a time offset to give (--time-offset: the seconds added to the images' times, "
+            "negative when the camera's clock is ahead of the log's)",
+        )
+    outside = [
+        (s.name, f"at {t:.1f} {on}, outside the log ({lo:.1f} .. {hi:.1f} s)")
+        for s, t in taken
+        if not lo - tol <= t <= hi + tol
+    ]
+    return inside, outside

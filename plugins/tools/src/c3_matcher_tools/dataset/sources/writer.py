@@ -1,0 +1,249 @@
+"""The ``c3-flight/1`` dataset written from a log's track and its images
+(:func:`write_imported_flight`), with the checks every import makes of them."""
+
+from __future__ import annotations
+
+import math
+import shutil
+import uuid
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
+from c3_matcher_tools.dataset.format import write_dataset
+from c3_matcher_tools.dataset.sources.frames import Frame, assemble_frames
+from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport
+from c3_matcher_tools.dataset.sources.pairing import match_shots
+from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
+
+__all__ = ["MAX_OWN_GPS_OFFSET_M", "image_problem", "write_imported_flight"]
+
+
+def write_imported_flight(
+    track: LogTrack,
+    shots: Sequence[Shot],
+    options: ImportOptions,
+    out: Path,
+    *,
+    name: str | None = None,
+    force: bool = False,
+    attitude_of: Callable[[Shot, float], tuple[float, float, float] | None] | None = None,
+    spec: dict[str, Any] | None = None,
+    skipped: Sequence[tuple[str, str]] = (),
+) -> ImportReport:
+    """Match ``shots`` to ``track``, propose candidates from the store around each frame's look
+    point and write the ``c3-flight/1`` dataset ``out`` atomically (everything is checked
+    first); returns what was done (``skipped``: images the caller already set aside, with the
+    reason). Raises InvalidInputError naming the input at fault."""
+    from c3_matcher_tools.dataset.importer import imported_frame
+
+    out = Path(out)
+    check_output_dir(out, force=force, inputs=(track.source, options.store, options.dem))
+    frames, skipped, how = _placed(track, shots, options, attitude_of, skipped)
+    calibration = options.calibration
+    images = _images(frames, calibration.image_size)
+    proposer, rows, proposed = _propose(track, frames, options)
+    zoom, proposals = proposed.zoom, proposed.looks
+    attribution, tiles_source = proposed.attribution, proposed.tiles_source
+    label = name or out.name
+    base = uuid.uuid5(uuid.NAMESPACE_URL, f"c3-flight-import:{label}")
+    t0 = frames[0].t_s
+    records = []
+    for i, (f, row, proposal) in enumerate(zip(frames, rows, proposals, strict=True)):
+        heights = {"alt_m": None if not math.isfinite(f.alt_m) else f.alt_m}
+        extra = {"height_source": f.height_source, "flags": list(f.flags), **f.gnss}
+        records.append(
+            imported_frame(
+                i, row, t0, base, f.shot.suffix, proposal, proposer, heights=heights, extra=extra
+            )
+        )
+    report = _report(out, track, frames, skipped, how, options, zoom)
+    meta = {
+        "name": label,
+        "store": "tiles.mbtiles",
+        "candidate_size_px": options.candidate_size_px,
+        "zoom": zoom,
+        "tiles_source": tiles_source,
+        "frames_source": f"imported: {Path(track.source).name} ({track.kind})",
+        "spec": {**_spec(track, how, options, zoom), **(spec or {})},
+        "import": {k: v for k, v in report.to_json().items() if k != "dataset"},
+        "attribution": attribution,
+    }
+    with atomic_directory(out, force=force) as tmp:
+        (tmp / "frames").mkdir()
+        for rec, data in zip(records, images, strict=True):
+            (tmp / rec.image).write_bytes(data)
+        shutil.copyfile(options.store, tmp / "tiles.mbtiles")
+        write_dataset(tmp, meta, calibration, records)
+    return report
+
+
+def _propose(track: LogTrack, frames: Sequence[Frame], options: ImportOptions) -> Any:
+    """(proposer, telemetry rows, proposal) of the candidates around each frame's look point,
+    refused when a look point lies outside the store."""
+    from c3_matcher_tools.dataset.importer import ImportSpec, TelemetryRow, propose_from_store
+
+    proposer = ImportSpec(
+        Path(),
+        Path(track.source),
+        Path(),
+        Path(options.store),
+        uncertainty_m=options.uncertainty_m,
+        candidates=options.candidates,
+        zoom=options.zoom,
+        candidate_size_px=options.candidate_size_px,
+        seed=options.seed,
+    )
+    rows = [
+        TelemetryRow(i, f.t_s, f.shot.name, f.lat, f.lon, f.height_m, *f.attitude)
+        for i, f in enumerate(frames)
+    ]
+    proposed = propose_from_store(rows, options.calibration, proposer)
+    proposed.refuse_outside(
+        track.source, lambda r: r.image, hint=" (log and store of different places?)", shown=5
+    )
+    return proposer, rows, proposed
+
+
+def _placed(
+    track: LogTrack,
+    shots: Sequence[Shot],
+    options: ImportOptions,
+    attitude_of: Callable[[Shot, float], tuple[float, float, float] | None] | None,
+    skipped: Sequence[tuple[str, str]],
+) -> tuple[list[Frame], list[tuple[str, str]], str]:
+    """The frames placed on the log (refused when none is, when the images' own GPS says
+    another flight, or when no frame has a height above ground), every image skipped with its
+    reason, and how the images met the log's clock."""
+    if not Path(options.store).is_file():
+        raise InvalidInputError("STORE", f"{options.store}: no such tile store")
+    if not shots:
+        raise InvalidInputError("IMAGES", "no image found")
+    if track.position is None and track.gnss is None:
+        raise InvalidInputError(track.source, "the log holds no position (GNSS or estimator)")
+    matched, unmatched, how = match_shots(track, shots, options)
+    frames, no_pos = assemble_frames(track, matched, options, attitude_of)
+    rank = {s.name: i for i, s in enumerate(shots)}
+    every = [*skipped, *sorted([*unmatched, *no_pos], key=lambda x: rank.get(x[0], -1))]
+    if not frames:
+        raise InvalidInputError(track.source, "no image could be placed: " + _why(every))
+    _check_same_flight(track, frames)
+    if not any(math.isfinite(f.height_m) and f.height_m > 0 for f in frames):
+        raise InvalidInputError(
+            "--ground-elevation",
+            f"{track.source}: no height above ground for any frame (heights "
+            f"{', '.join(sorted({f.height_source for f in frames}))}): give --ground-elevation "
+            "(the ground's altitude, m, in the log's datum) or --dem",
+        )
+    return frames, every, how
+
+
+def _images(frames: Sequence[Frame], size: tuple[int, int]) -> list[bytes]:
+    """Each frame's encoded image, refused naming the first that is not a frame of ``size``."""
+    images: list[bytes] = []
+    for f in frames:
+        data = f.shot.read()
+        problem = image_problem(data, size)
+        if problem:
+            raise InvalidInputError("IMAGES", f"{f.shot.name}: {problem}")
+        images.append(data)
+    return images
+
+
+def _spec(track: LogTrack, how: str, options: ImportOptions, zoom: int) -> dict[str, Any]:
+    return {
+        "kind": "import",
+        "log": Path(track.source).name,
+        "log_kind": track.kind,
+        "time_source": how,
+        "time_offset_s": options.time_offset_s,
+        "store": Path(options.store).name,
+        "uncertainty_m": options.uncertainty_m,
+        "candidates": options.candidates,
+        "candidate_size_px": options.candidate_size_px,
+        "zoom": zoom,
+        "seed": options.seed,
+    }
+
+
+def _report(
+    out: Path,
+    track: LogTrack,
+    frames: Sequence[Frame],
+    skipped: Sequence[tuple[str, str]],
+    how: str,
+    options: ImportOptions,
+    zoom: int,
+) -> ImportReport:
+    return ImportReport(
+        dataset=str(out),
+        source=Path(track.source).name,
+        kind=track.kind,
+        frames=len(frames),
+        skipped=tuple(skipped),
+        time_source=how,
+        time_offset_s=options.time_offset_s,
+        height_sources=_count(f.height_source for f in frames),
+        attitude_assumed=tuple(i for i, f in enumerate(frames) if "attitude_assumed" in f.flags),
+        height_assumed=tuple(i for i, f in enumerate(frames) if "height_assumed" in f.flags),
+        gnss_degraded=tuple(i for i, f in enumerate(frames) if "gnss_degraded" in f.flags),
+        zoom=zoom,
+        notes=track.notes,
+    )
+
+
+MAX_OWN_GPS_OFFSET_M = 500.0
+"""Images whose own GPS lies farther than this (median) from the log's position at their
+times belong to another flight (or need a time offset)."""
+
+
+def _check_same_flight(track: LogTrack, frames: Sequence[Frame]) -> None:
+    """Refuse images whose own GPS (EXIF) disagrees with the log's position at their times."""
+    from c3_matcher.georef import haversine_m
+
+    if track.per_image:
+        return
+    own = [f for f in frames if "lat" in f.shot.own and "lon" in f.shot.own]
+    if not own:
+        return
+    d = haversine_m(
+        [[f.shot.own["lon"], f.shot.own["lat"]] for f in own], [[f.lon, f.lat] for f in own]
+    )
+    median = float(np.median(d))
+    if median > MAX_OWN_GPS_OFFSET_M:
+        raise InvalidInputError(
+            track.source,
+            f"the images' own GPS lies {median / 1000:.1f} km (median of {len(own)}) from the "
+            "log's position at their times: images and log of different flights, or a time "
+            "offset to give (--time-offset)",
+        )
+
+
+def _count(values: Any) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for v in values:
+        out[v] = out.get(v, 0) + 1
+    return out
+
+
+def _why(skipped: Sequence[tuple[str, str]]) -> str:
+    reasons = _count(r.split(" at ")[0] if r.startswith("no position") else r for _, r in skipped)
+    return "; ".join(f"{r} ({n})" for r, n in list(reasons.items())[:3]) or "no image"
+
+
+def image_problem(data: bytes, size: tuple[int, int]) -> str | None:
+    """Why the encoded image ``data`` cannot be a frame of a ``size`` (w, h) camera, or None:
+    every import checks its images with this (a truncated JPEG is not readable)."""
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        return "not a readable image"
+    h, w = image.shape[:2]
+    if (w, h) != tuple(size):
+        return f"is {w}x{h} px, the calibration says {size[0]}x{size[1]}"
+    return None
