@@ -1,5 +1,5 @@
 """What a recorded-log import does with a folder of photos beside the log: a log without
-attitude is imported level and marked (as the help says), ``--time-offset`` corrects the
+attitude (ULog, ArduPilot, ROS bag) is imported level and marked (as the help says), ``--time-offset`` corrects the
 camera's clock where photos meet camera triggers by their own time (and says what it was added
 to when they fall outside the log), a byte-for-byte copy of a photo is imported once, photos
 meet as many camera triggers by their capture time rather than their file names, and
@@ -74,6 +74,25 @@ def test_an_ardupilot_log_without_attitude_is_read_and_says_so(
     track = read_mavlink(fl.write_tlog(tmp_path / "f.tlog", poses[:3], flaws=("no_attitude",)))
     assert track.attitude is None and track.gnss is not None
     assert track.notes[0].startswith("no ATT / ATTITUDE message: every frame's attitude")
+
+
+def test_a_bag_without_attitude_is_read_level_and_says_so(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """As a ULog or an ArduPilot log without attitude: read, said in its notes, each frame
+    imported level and marked (a bag without an Imu, PoseStamped or Odometry topic was
+    refused)."""
+    from c3_matcher_tools.dataset.sources.rosbag import NO_ATTITUDE, read_bag
+
+    calibration = load_calibration(Path(CAL))
+    bag = fl.write_bag(tmp_path / "bag", poses[:3], calibration, flaws=("no_imu",))
+    track, shots, _ = read_bag(bag)
+    assert track.attitude is None and len(shots) == 3 and NO_ATTITUDE in track.notes
+    flight = tmp_path / "flight"
+    args = ("dataset", "import", "-", bag, "-", STORE, flight, "--ground-elevation", "0", "--json")
+    summary = _imported(c3(*args))
+    assert summary["frames"] == 3 and summary["attitude_assumed"] == [0, 1, 2]
+    assert all("attitude_assumed" in f.telemetry["flags"] for f in load_dataset(flight).frames)
 
 
 def test_time_offset_corrects_the_camera_clock_where_photos_meet_triggers_by_time(

@@ -137,12 +137,21 @@ def _image_bytes(msg: Any, msgtype: str) -> tuple[bytes, str]:
     return png.tobytes(), ".png"
 
 
+NO_ATTITUDE = (
+    "no sensor_msgs/Imu, PoseStamped or Odometry topic (--attitude-topic names one): every "
+    "frame's attitude assumed level, its yaw from the GNSS course (frames marked "
+    "attitude_assumed)"
+)
+
+
 def read_bag(
     path: Path, topics: BagTopics = BagTopics(), step: int = 1
 ) -> tuple[LogTrack, list[Shot], CameraCalibration | None]:
     """The track, every ``step``-th image and the recorded intrinsics (None when no
     CameraInfo) of a bag (see the module docstring); raises InvalidInputError naming a missing
-    topic."""
+    image or position topic. A bag without attitude is read, and said so in its notes: each
+    frame is then imported level with the yaw of its GNSS course and marked
+    ``attitude_assumed``, as from any log without attitude."""
     check_frame_step(step, video=True)
     path = Path(path)
     source = str(path)
@@ -153,13 +162,7 @@ def read_bag(
             raise InvalidInputError(
                 source, "no sensor_msgs/Image or CompressedImage topic: the bag holds no images"
             )
-        attitude_c = _pick(reader, source, topics.attitude, ATTITUDE_TYPES, "attitude")
-        if attitude_c is None:
-            raise InvalidInputError(
-                source,
-                "no sensor_msgs/Imu, PoseStamped or Odometry topic: the bag holds no "
-                "attitude (--attitude-topic)",
-            )
+        attitude_c = _pick(reader, source, topics.attitude, ATTITUDE_TYPES, "attitude") or []
         navsat_c = _pick(reader, source, topics.navsat, NAVSAT_TYPES, "NavSatFix")
         if navsat_c is None:
             raise InvalidInputError(
@@ -216,7 +219,7 @@ def read_bag(
         reader.close()
     if not shots:
         raise InvalidInputError(source, f"no message on the image topic {images[0].topic}")
-    if not att_t:
+    if attitude_c and not att_t:
         raise InvalidInputError(source, f"no message on the attitude topic {attitude_c[0].topic}")
     if not fix_t:
         raise InvalidInputError(source, f"no message on the NavSatFix topic {navsat_c[0].topic}")
@@ -232,15 +235,20 @@ def read_bag(
             np.asarray(att_v)[order],
             (2,),
             source=source,
-        ),
+        )
+        if attitude_c
+        else None,
         position=None,
         gnss=Series.build(
             navsat_c[0].topic, np.asarray(fix_t)[gorder], np.asarray(fix_v)[gorder], source=source
         ),
         utc_offset_s=0.0,
         notes=(
-            f"images {images[0].topic}, attitude {attitude_c[0].topic}, position "
-            f"{navsat_c[0].topic}, intrinsics " + (info_c[0].topic if info_c else "not recorded"),
+            f"images {images[0].topic}, attitude "
+            + (attitude_c[0].topic if attitude_c else "none")
+            + f", position {navsat_c[0].topic}, intrinsics "
+            + (info_c[0].topic if info_c else "not recorded"),
+            *([] if attitude_c else [NO_ATTITUDE]),
         ),
     )
     return track, shots, calibration
