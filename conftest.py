@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -85,8 +85,12 @@ def write_tiny_engine(
     outputs: tuple[TensorSpec, ...] = TINY_OUTPUTS,
     build_key: str = "ab" * 32,
     passed: bool = True,
+    export_revision: int = 1,
+    options: Mapping[str, int | float | str] | None = None,
+    built_at: str = "2026-01-01T00:00:00+00:00",
 ) -> Path:
-    """A tiny engine plus a consistent manifest (declaring ``inputs``/``outputs``)."""
+    """A tiny engine plus a consistent manifest (declaring ``inputs``/``outputs``, built by
+    ``export_revision`` of its exporter with ``options``, at ``built_at``)."""
     directory.mkdir(parents=True, exist_ok=True)
     name = EngineName.from_build_key("toy", variant, "fp32", "any", 18, build_key)
     path = directory / name.filename
@@ -105,11 +109,11 @@ def write_tiny_engine(
         weights={"distribution": "none", "version": "0", "path": "none", "sha256": "cd" * 32},
         inputs=inputs,
         outputs=outputs,
-        exporter={"callable": "tests:none"},
-        options={},
+        exporter={"callable": "tests:none", "export_revision": str(export_revision)},
+        options=dict(options or {}),
         verification={"passed": passed, "checks": []},
         build_seconds=0.0,
-        built_at="2026-01-01T00:00:00+00:00",
+        built_at=built_at,
     ).write(directory / name.manifest_filename)
     return path
 

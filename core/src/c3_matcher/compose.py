@@ -100,11 +100,11 @@ def build_default_helpers(
     configured strategy's own defaults where the configuration leaves them unset
     (``strategy_settings``: the helpers serve the one strategy ``compose_root`` wires); the
     feature types with a steps engine are those the plugins' engine specs declare
-    (``steps_feature_types``). ``plugin_host``: the process's (default: discovered now)."""
+    (``steps_specs``). ``plugin_host``: the process's (default: discovered now)."""
     from c3_matcher.engines.lightglue import (
         OnnxLightGlueRuntime,
         resolve_mode,
-        steps_feature_types,
+        steps_specs,
     )
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
     from c3_matcher.logs import swap_default_handler
@@ -124,7 +124,7 @@ def build_default_helpers(
             depth_confidence=settings.lightglue.depth_confidence,
             width_confidence=settings.lightglue.width_confidence,
             exit_matches=resolved.lightglue.exit_matches or 0,
-            steps_feature_types=steps_feature_types(host.engine_specs()),
+            steps_specs=steps_specs(host.engine_specs()),
         ),
         "c282_ransac_filter": OpenCvRansacFilter(
             seed=settings.matcher.ransac_seed,

@@ -3,6 +3,7 @@ torch-free import, and the real DISK steps engine against the single-graph engin
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -19,7 +20,7 @@ from c3_matcher.engines.lightglue import (
     STEPS_OPTION,
     OnnxLightGlueRuntime,
     steps_engines_beside,
-    steps_feature_types,
+    steps_specs,
 )
 from c3_matcher.engines.lightglue_adaptive import (
     AdaptiveLightGlue,
@@ -29,7 +30,7 @@ from c3_matcher.engines.lightglue_adaptive import (
 )
 from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
-from c3_matcher.engines.spec import WeightsRef, matcher_spec
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, matcher_spec
 from c3_matcher.features import PairSide
 
 
@@ -236,6 +237,45 @@ def _declare(engine: Path, **fields: Any) -> None:
     manifest.write_text(json.dumps(data))
 
 
+def _steps_of(feature_type: str, revision: int | None = None) -> EngineSpec:
+    """A plugin's declared steps engine for ``feature_type`` (its exporter at ``revision``)."""
+    full = matcher_spec(
+        model="glue",
+        variant=feature_type,
+        weights=WeightsRef("none", "none"),
+        exporter="toy_plugin.export:export_full",
+        feature_type=feature_type,
+        descriptor_dim=4,
+        options=(("input_dim", 4), ("n_layers", 2), ("pruning", "off")),
+        description="",
+    )
+    steps = steps_engine_spec(full, exporter="toy_plugin.export:steps", description="")
+    if revision is None:
+        return steps
+    return dataclasses.replace(steps, export_revision=revision)
+
+
+def test_only_a_steps_engine_of_the_declared_graph_is_run(
+    make_tiny_engine: Callable[..., Path], tmp_path: Path
+) -> None:
+    """A steps engine built by an older exporter is not run (it was, being found beside)."""
+    directory = tmp_path / "engines"
+    full = make_tiny_engine(directory, variant="toy", build_key="ab" * 32)
+    built = make_tiny_engine(directory, variant="toy-steps", build_key="cd" * 32)
+    declared = _steps_of("toy")
+    _declare(full, feature_type="toy", options={"pruning": "off"})
+    _declare(built, feature_type="toy", options=dict(declared.options))
+    manifest = manifest_path_for(built)
+    data = json.loads(manifest.read_text())
+    data["exporter"]["export_revision"] = str(declared.export_revision)
+    data.update(input_rule=declared.input_rule)
+    manifest.write_text(json.dumps(data))
+    assert steps_engines_beside(full, "toy", declared) == [built]
+    stale = _steps_of("toy", revision=declared.export_revision + 1)
+    assert steps_engines_beside(full, "toy", stale) == []
+    assert steps_engines_beside(full, "toy") == [built]  # nothing declared: any build
+
+
 def test_steps_engines_are_found_by_manifest_not_by_name(
     make_tiny_engine: Callable[..., Path], tmp_path: Path
 ) -> None:
@@ -258,9 +298,9 @@ def test_missing_steps_engine_warned_only_where_a_plugin_declares_one(
     seen: list[dict[str, Any]] = []
     sink = logger.add(lambda m: seen.append(dict(m.record["extra"])), level="WARNING")
     try:
-        for declared in (None, {"other"}, {"toy"}):
+        for declared in (None, {"other": _steps_of("other")}, {"toy": _steps_of("toy")}):
             inference = OnnxInferenceRuntime(["CPUExecutionProvider"])
-            runtime = OnnxLightGlueRuntime(inference, mode="adaptive", steps_feature_types=declared)
+            runtime = OnnxLightGlueRuntime(inference, mode="adaptive", steps_specs=declared)
             runtime.load("toy", full)
             assert runtime.feature_types == ("toy",)
     finally:
@@ -290,8 +330,8 @@ def test_steps_spec_of_a_full_spec_and_the_declared_feature_types() -> None:
     )
     assert (steps.inputs, steps.outputs) == steps_io(4, 8)
     assert (steps.option("n_layers"), steps.option("pruning")) == (2, "steps")
-    assert steps_feature_types([steps, full]) == {"toy"}
-    assert steps_feature_types([full]) == frozenset()
+    assert steps_specs([steps, full]) == {"toy": steps}
+    assert steps_specs([full]) == {}
 
 
 def test_unmatchable_exit_on_real_pairs(

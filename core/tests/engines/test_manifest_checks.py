@@ -11,7 +11,7 @@ import pytest
 
 from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
-from c3_matcher.engines.spec import TensorSpec
+from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.errors import EngineError
 
@@ -115,6 +115,51 @@ def test_store_require_list_verify(tiny_engine: Path) -> None:
     tiny_engine.write_bytes(tiny_engine.read_bytes() + b"\0")
     outcome = store.verify()[0]
     assert not outcome.ok and "size" in outcome.detail
+
+
+def _toy_spec(export_revision: int, **options: int | float | str) -> EngineSpec:
+    return EngineSpec(
+        model="toy",
+        variant="tiny",
+        weights=WeightsRef("none", "none"),
+        exporter="tests:none",
+        kind="extractor",
+        inputs=(TensorSpec("x", "float32", (1, "n")),),
+        outputs=(TensorSpec("y", "float32", (1, "n")),),
+        input_rule="any",
+        options=tuple(options.items()),
+        export_revision=export_revision,
+    )
+
+
+def test_store_require_spec_runs_only_the_graph_the_install_declares(
+    make_tiny_engine: Callable[..., Path], tmp_path: Path
+) -> None:
+    """A build by an older exporter (or with other options) is named and never run, even when
+    it is the newest: the newest build of any graph used to win."""
+    engines = tmp_path / "engines"
+    old = make_tiny_engine(engines, build_key="01" * 32, export_revision=1, options={"top_k": 8})
+    store = EngineStore(engines)
+    with pytest.raises(EngineError) as info:
+        store.require_spec(_toy_spec(2, top_k=8))
+    text = str(info.value)
+    assert f"{old.name}: built for another graph: export revision 1 (this install: 2)" in text
+    assert "--only toy/tiny" in text
+    with pytest.raises(
+        EngineError, match=r"options \{'top_k': 8\} \(this install: \{'top_k': 16\}\)"
+    ):
+        store.require_spec(_toy_spec(1, top_k=16))
+    assert store.require_spec(_toy_spec(1, top_k=8)) == old
+    new = make_tiny_engine(
+        engines,
+        build_key="02" * 32,
+        export_revision=2,
+        options={"top_k": 8},
+        built_at="2025-01-01T00:00:00+00:00",
+    )  # built before the old one
+    assert store.require_spec(_toy_spec(2, top_k=8)) == new
+    assert store.require_spec(_toy_spec(1, top_k=8)) == old
+    assert store.require("toy", "tiny") == old  # without a spec: the newest build
 
 
 def test_run_errors(tiny_engine: Path) -> None:

@@ -21,12 +21,12 @@ def test_tools_engine_modules_and_plugin_specs_import_without_torch() -> None:
         f"for module in {TOOLS_MODULES!r}:\n"
         "    __import__(module)\n"
         "from c3_matcher.compose import build_plugin_host\n"
-        "from c3_matcher.engines.lightglue import steps_feature_types\n"
+        "from c3_matcher.engines.lightglue import steps_specs\n"
         "specs = build_plugin_host().engine_specs()\n"
         "keys = {s.key for s in specs}\n"
         "assert {'disk/depth', 'lightglue/disk', 'lightglue/disk-steps'} <= keys, keys\n"
         "assert {'lightglue/aliked-steps', 'lighterglue/xfeat'} <= keys, keys\n"
-        "assert steps_feature_types(specs) == {'disk', 'aliked'}\n"
+        "assert set(steps_specs(specs)) == {'disk', 'aliked'}\n"
         "assert all(not s.exporter.startswith('c3_matcher_tools') for s in specs)\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)

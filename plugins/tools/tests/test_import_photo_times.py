@@ -1,8 +1,8 @@
-"""What a recorded-log import does with a folder of photos beside the log: a log without
-attitude (ULog, ArduPilot, ROS bag) is imported level and marked (as the help says), ``--time-offset`` corrects the
-camera's clock where photos meet camera triggers by their own time (and says what it was added
-to when they fall outside the log), a byte-for-byte copy of a photo is imported once, photos
-meet as many camera triggers by their capture time rather than their file names, and
+"""What a recorded-log import does with a folder of photos beside the log: a log without attitude
+(ULog, ArduPilot, ROS bag) is imported level and marked (as the help says), ``--time-offset``
+corrects the camera's clock where photos meet camera triggers by their own time (and says what it
+was added to when they fall outside the log), a byte-for-byte copy of a photo is imported once,
+photos meet as many camera triggers by their capture time rather than their file names, and
 ``--frame-step`` is checked once. Logs and photos are written with the libraries' own writers
 (:mod:`c3_matcher_tools.testing.flightlogs`) over the shipped demo flight."""
 

@@ -115,7 +115,7 @@ def _verify(args: argparse.Namespace, command: CommandContext) -> int:
     seen = {o.path for o in outcomes}
     for spec in ctx.specs:  # every engine an installed plugin needs must be there
         try:
-            store.require(spec.model, spec.variant)
+            store.require_spec(spec)
         except EngineError as exc:
             path = Path(str(exc.path))
             if path not in seen:

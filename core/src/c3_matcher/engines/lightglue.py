@@ -26,7 +26,7 @@ points kept per layer, the confident matches at that test, whether it stopped th
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any, Final, NamedTuple
 
@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
 from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file, read_manifest
+from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.errors import EngineError
 from c3_matcher.features import PairSide, RawMatches
@@ -49,7 +50,7 @@ __all__ = [
     "normalize_keypoints",
     "resolve_mode",
     "steps_engines_beside",
-    "steps_feature_types",
+    "steps_specs",
 ]
 
 DEFAULT_FILTER_THRESHOLD = 0.1
@@ -69,14 +70,14 @@ def resolve_mode(mode: str, provider: str) -> str:
     return mode
 
 
-def steps_feature_types(specs: Collection[Any]) -> frozenset[str]:
-    """The feature types of the steps engines among ``specs`` (``EngineSpec``s the plugins
-    declare, hook ``c3_matcher_engine_specs``)."""
-    return frozenset(
-        str(spec.feature_type)
+def steps_specs(specs: Collection[EngineSpec]) -> dict[str, EngineSpec]:
+    """The steps engines among ``specs`` (the ``EngineSpec``s the plugins declare, hook
+    ``c3_matcher_engine_specs``), by the feature type they match."""
+    return {
+        str(spec.feature_type): spec
         for spec in specs
         if spec.feature_type and dict(spec.options).get(STEPS_OPTION[0]) == STEPS_OPTION[1]
-    )
+    }
 
 
 def normalize_keypoints(kpts: NDArray[np.float32], size: tuple[int, int]) -> NDArray[np.float32]:
@@ -119,10 +120,13 @@ STEPS_OPTION = ("pruning", "steps")
 """The manifest option that marks a steps engine (``lightglue_adaptive.steps_engine_spec``)."""
 
 
-def steps_engines_beside(engine_path: Path, feature_type: str) -> list[Path]:
+def steps_engines_beside(
+    engine_path: Path, feature_type: str, graph: EngineSpec | None = None
+) -> list[Path]:
     """The steps engines for ``feature_type`` in ``engine_path``'s directory, found by their
     manifests (``feature_type`` and option ``pruning = "steps"``), not by their file names;
-    newest build first. An engine whose manifest is unreadable is not one."""
+    newest build first; with ``graph``, only builds of the graph it declares. An engine whose
+    manifest is unreadable is not one."""
     found: list[tuple[str, Path]] = []
     for record in EngineStore(Path(engine_path).parent).list():
         manifest = record.manifest
@@ -130,6 +134,7 @@ def steps_engines_beside(engine_path: Path, feature_type: str) -> list[Path]:
             manifest is not None
             and manifest.feature_type == feature_type
             and manifest.options.get(STEPS_OPTION[0]) == STEPS_OPTION[1]
+            and (graph is None or manifest.other_graph(graph) is None)
         ):
             found.append((manifest.built_at, record.path))
     return [path for _, path in sorted(found, reverse=True)]
@@ -147,11 +152,11 @@ class _Pair(NamedTuple):
 class OnnxLightGlueRuntime:
     """LightGlue on ONNX Runtime through a shared ``InferenceRuntime``; satisfies
     ``c3_matcher.protocols.LoadableLightGlueRuntime``. ``filter_threshold`` is the match
-    confidence a match must exceed (upstream default 0.1). ``steps_feature_types`` are the
-    feature types whose plugins declare a steps engine (``STEPS_OPTION``; ``steps_feature_types``
-    of the plugin host's engine specs): a missing one is warned about in adaptive mode, naming
-    the build command. ``None`` (not known): any steps engine found beside a full one is used,
-    and none found is no warning."""
+    confidence a match must exceed (upstream default 0.1). ``steps_specs`` are the steps
+    engines the plugins declare, by feature type (``steps_specs`` of the plugin host's engine
+    specs): only a build of a declared graph is run, and a missing one is warned about in
+    adaptive mode, naming the build command. ``None`` (not known): any steps engine found beside
+    a full one is used, and none found is no warning."""
 
     def __init__(
         self,
@@ -162,7 +167,7 @@ class OnnxLightGlueRuntime:
         depth_confidence: float | None = None,
         width_confidence: float | None = None,
         exit_matches: int = 0,
-        steps_feature_types: Collection[str] | None = None,
+        steps_specs: Mapping[str, EngineSpec] | None = None,
     ) -> None:
         if not 0.0 <= filter_threshold < 1.0:
             raise ValueError(f"filter_threshold must be in [0, 1), got {filter_threshold}")
@@ -175,7 +180,7 @@ class OnnxLightGlueRuntime:
         self._width = width_confidence
         self.exit_matches: Final = int(exit_matches)
         """The unmatchable-pair exit's count (0: off)."""
-        self._declared = None if steps_feature_types is None else frozenset(steps_feature_types)
+        self._declared = None if steps_specs is None else dict(steps_specs)
         self._engines: dict[str, tuple[Path, str]] = {}
         self._steps: dict[str, tuple[Path, str, AdaptiveLightGlue, AdaptiveLightGlue]] = {}
         self.last_run: dict[str, Any] = {}
@@ -238,12 +243,16 @@ class OnnxLightGlueRuntime:
     def _may_have_steps(self, feature_type: str) -> bool:
         return self._declared is None or feature_type in self._declared
 
+    def _graph(self, feature_type: str) -> EngineSpec | None:
+        """The steps graph declared for ``feature_type`` (None: any build of one)."""
+        return None if self._declared is None else self._declared.get(feature_type)
+
     def _load_sibling_steps(self, feature_type: str, full_path: Path) -> bool:
         """Adaptive mode: load the steps engine for ``feature_type`` beside a full one (same
         directory, ``steps_engines_beside``) INSTEAD of it, so a strategy that names its full
         engine runs adaptive; False when none is there or usable (the full engine then runs,
         with a warning naming the build command when the plugin declares one)."""
-        siblings = steps_engines_beside(full_path, feature_type)
+        siblings = steps_engines_beside(full_path, feature_type, self._graph(feature_type))
         if full_path in siblings:
             return False  # the path given is the steps engine itself
         for candidate in siblings:
@@ -276,7 +285,7 @@ class OnnxLightGlueRuntime:
         start-up (``EngineIntegrityError``) wherever it lies in the strategy's engines."""
         if not self._may_have_steps(feature_type):
             return
-        for candidate in steps_engines_beside(full_path, feature_type):
+        for candidate in steps_engines_beside(full_path, feature_type, self._graph(feature_type)):
             try:
                 check_engine_file(candidate, check_hash=True)
             except EngineIntegrityError:

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from c3_matcher.engines.naming import EngineName, manifest_path_for
-from c3_matcher.engines.spec import TensorSpec, file_sha256
+from c3_matcher.engines.spec import EngineSpec, TensorSpec, file_sha256
 from c3_matcher.errors import EngineError
 
 __all__ = [
@@ -73,6 +73,23 @@ class EngineManifest:
     @property
     def verification_passed(self) -> bool:
         return bool(self.verification.get("passed", False))
+
+    def other_graph(self, spec: EngineSpec) -> str | None:
+        """How this build differs from the graph ``spec`` declares (precision, input rule,
+        opset, exporter revision, options), or None when it is a build of that graph."""
+        pairs = {
+            "precision": (self.precision, spec.precision),
+            "input rule": (self.input_rule, spec.input_rule),
+            "opset": (self.opset, spec.opset),
+            "export revision": (self.exporter.get("export_revision"), str(spec.export_revision)),
+            "options": (dict(self.options), dict(spec.options)),
+        }
+        differ = [
+            f"{what} {built} (this install: {declared})"
+            for what, (built, declared) in pairs.items()
+            if built != declared
+        ]
+        return "built for another graph: " + "; ".join(differ) if differ else None
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict (dynamic axes spelled out per tensor for readers)."""

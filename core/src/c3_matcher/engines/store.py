@@ -12,6 +12,7 @@ from pathlib import Path
 
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file, read_manifest
 from c3_matcher.engines.naming import ENGINE_SUFFIX, MANIFEST_SUFFIX, EngineName
+from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.errors import EngineError
 
 __all__ = [
@@ -101,9 +102,23 @@ class EngineStore:
             return []
         return sorted(p for p in self._directory.glob(pattern) if p.is_file())
 
-    def require(self, model: str, variant: str, *, weights_sha256: str | None = None) -> Path:
+    def require_spec(self, spec: EngineSpec) -> Path:
+        """The engine an installed plugin declares as ``spec``: the newest valid build of its
+        model/variant with the same graph (precision, input rule, opset, exporter options and
+        revision). A build of another graph (an older exporter, other options) is named in the
+        error, never run: what this install measured is its own graph."""
+        return self.require(spec.model, spec.variant, graph=spec)
+
+    def require(
+        self,
+        model: str,
+        variant: str,
+        *,
+        weights_sha256: str | None = None,
+        graph: EngineSpec | None = None,
+    ) -> Path:
         """The engine file of ``model``/``variant`` (newest valid build; with ``weights_sha256``,
-        only one built from those weights).
+        only one built from those weights; with ``graph``, only a build of that graph).
 
         Raises ``EngineError`` naming ``c3-matcher engines build`` when there is none, and the
         missing file when a manifest there describes one (else the file pattern looked for).
@@ -130,6 +145,10 @@ class EngineStore:
                     f"{path.name}: built from weights {manifest.weights_sha256[:12]}..., "
                     f"installed weights are {weights_sha256[:12]}..."
                 )
+                continue
+            other = manifest.other_graph(graph) if graph is not None else None
+            if other:
+                problems.append(f"{path.name}: {other}")
                 continue
             valid.append((manifest.built_at, path))
         if not valid:

@@ -38,7 +38,6 @@ __all__ = [
 STRATEGY = "aliked_lightglue"
 FEATURE_TYPE = str(LIGHTGLUE_ALIKED_SPEC.feature_type)
 EXTRACT_PHASE = "aliked_forward"
-LIGHTGLUE_ENGINE = (LIGHTGLUE_ALIKED_SPEC.model, LIGHTGLUE_ALIKED_SPEC.variant)
 
 
 class AlikedLightGlueOptions(BaseModel):
@@ -73,10 +72,8 @@ class AlikedLightGlueConfig(ExtractorLightGlueConfig):
             label=STRATEGY,
             feature_type=FEATURE_TYPE,
             extract_phase=EXTRACT_PHASE,
-            extractor_engine_path=engines.require(
-                ALIKED_SPECS[variant].model, ALIKED_SPECS[variant].variant
-            ),
-            lightglue_engine_path=engines.require(*LIGHTGLUE_ENGINE),
+            extractor_engine_path=engines.require_spec(ALIKED_SPECS[variant]),
+            lightglue_engine_path=engines.require_spec(LIGHTGLUE_ALIKED_SPEC),
             size_multiple=ALIKED_SIZE_MULTIPLE,
         )
 

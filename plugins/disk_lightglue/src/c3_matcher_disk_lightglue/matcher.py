@@ -24,8 +24,6 @@ __all__ = [
 ]
 
 STRATEGY = "disk_lightglue"
-DISK_ENGINE = (DISK_SPEC.model, DISK_SPEC.variant)
-LIGHTGLUE_ENGINE = (LIGHTGLUE_DISK_SPEC.model, LIGHTGLUE_DISK_SPEC.variant)
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,8 +43,8 @@ class DiskLightGlueConfig(ExtractorLightGlueConfig):
             label=STRATEGY,
             feature_type=str(LIGHTGLUE_DISK_SPEC.feature_type),
             extract_phase="disk_forward",
-            extractor_engine_path=engines.require(*DISK_ENGINE),
-            lightglue_engine_path=engines.require(*LIGHTGLUE_ENGINE),
+            extractor_engine_path=engines.require_spec(DISK_SPEC),
+            lightglue_engine_path=engines.require_spec(LIGHTGLUE_DISK_SPEC),
             size_multiple=DISK_SIZE_MULTIPLE,
         )
 

@@ -48,8 +48,6 @@ __all__ = [
 STRATEGY = "xfeat"
 EXTRACT_PHASE = "xfeat_forward"
 MATCH_PHASES: dict[str, str] = {"mnn": "xfeat_match", "lighterglue": "lighterglue_match"}
-XFEAT_ENGINE = (XFEAT_SPEC.model, XFEAT_SPEC.variant)
-LIGHTERGLUE_ENGINE = (LIGHTERGLUE_SPEC.model, LIGHTERGLUE_SPEC.variant)
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,10 +122,10 @@ class XFeatConfig:
         m = settings.matcher
         explicit = m.max_keypoints
         return cls(
-            extractor_engine_path=engines.require(*XFEAT_ENGINE),
+            extractor_engine_path=engines.require_spec(XFEAT_SPEC),
             matcher=opts.matcher,
             lighterglue_engine_path=(
-                engines.require(*LIGHTERGLUE_ENGINE) if opts.matcher == "lighterglue" else None
+                engines.require_spec(LIGHTERGLUE_SPEC) if opts.matcher == "lighterglue" else None
             ),
             min_cossim=opts.min_cossim,
             max_long_side=m.max_long_side,

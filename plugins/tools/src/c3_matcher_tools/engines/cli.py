@@ -95,8 +95,8 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
     results = []
     for extractor, matcher in pairs:
         try:
-            extractor_path = store.require(extractor.model, extractor.variant)
-            matcher_path = store.require(matcher.model, matcher.variant)
+            extractor_path = store.require_spec(extractor)
+            matcher_path = store.require_spec(matcher)
         except C3Error as exc:
             command.err(f"error: {exc}")
             return 1
