@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import sys
+import threading
+
 import pytest
 
 from c3_matcher.errors import InvalidInputError
@@ -41,3 +44,39 @@ def test_update_count_and_validation():
     assert window.last_update.had_backbone_error is True
     with pytest.raises(InvalidInputError, match="best_inlier_count"):
         window.update(clock.monotonic_ns(), -1, False)
+
+
+def test_a_monitor_thread_may_read_health_while_frames_update_it():
+    """A GNC monitor polling ``health_snapshot()`` beside the matcher's thread: the window's
+    deque was read while it was appended to and evicted ("deque mutated during iteration",
+    or an IndexError from a pop on an empty deque)."""
+    clock = FakeClock()
+    window = RollingHealthWindow(clock, low_inlier_threshold=60, window_s=1.0)
+    errors: list[BaseException] = []
+    stop = threading.Event()
+
+    def monitor() -> None:
+        while not stop.is_set():
+            try:
+                window.snapshot()
+                window.last_update  # noqa: B018 - read as a monitor would
+            except Exception as exc:  # the failure under test
+                errors.append(exc)
+                return
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # switch threads as often as the interpreter allows
+    thread = threading.Thread(target=monitor)
+    thread.start()
+    try:
+        for i in range(60_000):
+            clock.now_ns = i * 1_000_000  # one frame a millisecond: 1000 in the window
+            window.update(clock.now_ns, i % 100, False)
+            if errors:
+                break
+    finally:
+        stop.set()
+        thread.join()
+        sys.setswitchinterval(interval)
+    assert errors == []
+    assert window.update_count == 60_000

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -37,7 +38,9 @@ class RollingHealthWindow:
     A frame is "low" when its best inlier count is below ``low_inlier_threshold`` (the matcher's
     ``min_inliers_threshold``; an InsufficientInliersError frame reports 0). ``mean_inliers_60s``
     averages the best inlier counts of the updates within the last ``window_s`` seconds of the
-    injected clock (0.0 when there are none). Single-threaded.
+    injected clock (0.0 when there are none). Safe across threads: a monitor may read
+    ``snapshot()`` while the matcher's thread updates (each call holds the window's own lock for
+    microseconds, never for a frame).
     """
 
     def __init__(self, clock: Clock, low_inlier_threshold: int, window_s: float = 60.0) -> None:
@@ -51,6 +54,7 @@ class RollingHealthWindow:
         self._updates: deque[HealthUpdate] = deque()
         self._consecutive_low = 0
         self._update_count = 0
+        self._lock = threading.Lock()
 
     @property
     def update_count(self) -> int:
@@ -59,24 +63,29 @@ class RollingHealthWindow:
 
     @property
     def last_update(self) -> HealthUpdate | None:
-        return self._updates[-1] if self._updates else None
+        with self._lock:
+            return self._updates[-1] if self._updates else None
 
     def update(self, now_ns: int, best_inlier_count: int, had_backbone_error: bool) -> None:
         if best_inlier_count < 0:
             raise InvalidInputError("best_inlier_count", f"must be >= 0, got {best_inlier_count}")
-        self._update_count += 1
-        self._updates.append(HealthUpdate(now_ns, best_inlier_count, had_backbone_error))
-        if best_inlier_count < self._threshold:
-            self._consecutive_low += 1
-        else:
-            self._consecutive_low = 0
-        self._evict(now_ns)
+        with self._lock:
+            self._update_count += 1
+            self._updates.append(HealthUpdate(now_ns, best_inlier_count, had_backbone_error))
+            if best_inlier_count < self._threshold:
+                self._consecutive_low += 1
+            else:
+                self._consecutive_low = 0
+            self._evict(now_ns)
 
     def snapshot(self) -> MatcherHealth:
-        self._evict(self._clock.monotonic_ns())
-        counts = [u.best_inlier_count for u in self._updates]
+        now_ns = self._clock.monotonic_ns()
+        with self._lock:
+            self._evict(now_ns)
+            counts = [u.best_inlier_count for u in self._updates]
+            consecutive_low = self._consecutive_low
         mean = float(sum(counts) / len(counts)) if counts else 0.0
-        return MatcherHealth(consecutive_low_inlier=self._consecutive_low, mean_inliers_60s=mean)
+        return MatcherHealth(consecutive_low_inlier=consecutive_low, mean_inliers_60s=mean)
 
     def _evict(self, now_ns: int) -> None:
         horizon = now_ns - self._window_ns
