@@ -51,6 +51,15 @@ def test_bad_or_unknown_values_are_refused_naming_the_field(tmp_path, text, fiel
     assert field in [f for f, _ in info.value.problems]
 
 
+@pytest.mark.parametrize("text", ["[matcher]\nmin_inlier_threshold = 80\n", "[matchr]\nx = 1\n"])
+def test_an_unknown_key_in_the_file_is_named_a_misspelling_as_in_the_environment(tmp_path, text):
+    toml = tmp_path / "c3.toml"
+    toml.write_text(text)
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(toml, env={})
+    assert [r for _, r in info.value.problems] == ["unknown setting (check the spelling)"]
+
+
 def test_unknown_environment_variable_is_refused():
     with pytest.raises(ConfigurationError, match="C3_MATCHER_MATCHER__MIN_INLIER_THRESHOLD"):
         load_settings(env={"C3_MATCHER_MATCHER__MIN_INLIER_THRESHOLD": "80"})

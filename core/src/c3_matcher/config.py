@@ -25,7 +25,13 @@ from pydantic_settings import (
     SettingsError,
 )
 
-from c3_matcher.config_sources import ENV_PREFIX, MappingEnvSource, read_toml, unknown_env_keys
+from c3_matcher.config_sources import (
+    ENV_PREFIX,
+    MappingEnvSource,
+    read_toml,
+    unknown_env_keys,
+    validation_problems,
+)
 from c3_matcher.engines.store import default_engine_dir
 from c3_matcher.errors import ConfigurationError
 from c3_matcher.plugins.types import StrategyDefaults
@@ -346,9 +352,7 @@ def with_strategy_defaults(
         lightglue = _defaulted(settings.lightglue, defaults, ("filter_threshold", "exit_matches"))
     except ValidationError as exc:
         where = f"strategy {strategy!r} defaults" if strategy else "strategy defaults"
-        raise ConfigurationError(
-            where, [(".".join(str(p) for p in e["loc"]), e["msg"]) for e in exc.errors()]
-        ) from None
+        raise ConfigurationError(where, validation_problems(exc)) from None
     if matcher is settings.matcher and lightglue is settings.lightglue:
         return settings
     return settings.model_copy(update={"matcher": matcher, "lightglue": lightglue})
@@ -380,10 +384,7 @@ def load_settings(
         sources = (MappingEnvSource(C3Settings, environ), InitSettingsSource(C3Settings, data))
         return C3Settings(_build_sources=(sources, data))  # environment > TOML > defaults
     except ValidationError as exc:
-        problems = [
-            (".".join(str(p) for p in err["loc"]) or "(root)", err["msg"]) for err in exc.errors()
-        ]
-        raise ConfigurationError(source, problems) from None
+        raise ConfigurationError(source, validation_problems(exc)) from None
     except (SettingsError, ValueError, TypeError) as exc:
         # e.g. C3_MATCHER_MATCHER__OPTIONS=not json: pydantic-settings fails before validation
         text = str(exc)

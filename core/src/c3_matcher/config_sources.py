@@ -9,14 +9,23 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
 from pydantic_settings import BaseSettings, EnvSettingsSource
 from pydantic_settings.sources.utils import parse_env_vars
 
 from c3_matcher.errors import ConfigurationError
 
-__all__ = ["ENV_PREFIX", "MappingEnvSource", "read_toml", "unknown_env_keys"]
+__all__ = [
+    "ENV_PREFIX",
+    "UNKNOWN_SETTING",
+    "MappingEnvSource",
+    "read_toml",
+    "unknown_env_keys",
+    "validation_problems",
+]
 
 ENV_PREFIX = "C3_MATCHER_"
+UNKNOWN_SETTING = "unknown setting (check the spelling)"
 
 
 class MappingEnvSource(EnvSettingsSource):
@@ -76,5 +85,17 @@ def unknown_env_keys(
         annotation = section.annotation if section else None
         fields = getattr(annotation, "model_fields", {})
         if section is None or (len(parts) > 1 and parts[1] not in fields):
-            problems.append((key, "unknown setting (check the spelling)"))
+            problems.append((key, UNKNOWN_SETTING))
     return problems
+
+
+def validation_problems(exc: ValidationError) -> list[tuple[str, str]]:
+    """(dotted field, reason) per validation error; a key no section has is named as a
+    misspelling, as an unknown environment variable is."""
+    return [
+        (
+            ".".join(str(p) for p in e["loc"]) or "(root)",
+            UNKNOWN_SETTING if e["type"] == "extra_forbidden" else e["msg"],
+        )
+        for e in exc.errors()
+    ]
