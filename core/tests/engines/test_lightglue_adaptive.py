@@ -259,17 +259,17 @@ def test_only_a_steps_engine_of_the_declared_graph_is_run(
     make_tiny_engine: Callable[..., Path], tmp_path: Path
 ) -> None:
     """A steps engine built by an older exporter is not run (it was, being found beside)."""
-    directory = tmp_path / "engines"
-    full = make_tiny_engine(directory, variant="toy", build_key="ab" * 32)
-    built = make_tiny_engine(directory, variant="toy-steps", build_key="cd" * 32)
     declared = _steps_of("toy")
+    full = make_tiny_engine(tmp_path / "engines", variant="toy", build_key="ab" * 32)
     _declare(full, feature_type="toy", options={"pruning": "off"})
-    _declare(built, feature_type="toy", options=dict(declared.options))
-    manifest = manifest_path_for(built)
-    data = json.loads(manifest.read_text())
-    data["exporter"]["export_revision"] = str(declared.export_revision)
-    data.update(input_rule=declared.input_rule)
-    manifest.write_text(json.dumps(data))
+    built = make_tiny_engine(
+        full.parent,
+        variant="toy-steps",
+        build_key="cd" * 32,
+        export_revision=declared.export_revision,
+        options=dict(declared.options),
+    )
+    _declare(built, feature_type="toy", input_rule=declared.input_rule)
     assert steps_engines_beside(full, "toy", declared) == [built]
     stale = _steps_of("toy", revision=declared.export_revision + 1)
     assert steps_engines_beside(full, "toy", stale) == []

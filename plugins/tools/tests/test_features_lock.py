@@ -53,15 +53,18 @@ def _build(store: Path, *more: str) -> list[str]:
     return ["features", "build", str(store), "--strategy", "xfeat", "--workers", "0", *more]
 
 
+@pytest.fixture()
+def built_engines(engine_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The builds below run on the test session's engines."""
+    monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
+
+
+@pytest.mark.usefixtures("built_engines")
 def test_a_second_build_of_a_store_is_refused_at_once_naming_it(
-    small_flight: Callable[..., Path],
-    engine_dir: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    small_flight: Callable[..., Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
     from c3_matcher.cli import main
 
-    monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
     store = small_flight("busy") / "tiles.mbtiles"
     lock = _lock_of(store)
     with _held_by_another_process(lock) as other:
@@ -80,15 +83,12 @@ def test_a_second_build_of_a_store_is_refused_at_once_naming_it(
 
 
 @pytest.mark.slow
+@pytest.mark.usefixtures("built_engines")
 def test_a_killed_builds_lock_stops_nothing_and_no_reader_waits_on_a_build(
-    small_flight: Callable[..., Path],
-    engine_dir: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    small_flight: Callable[..., Path], capsys: pytest.CaptureFixture[str]
 ) -> None:
     from c3_matcher.cli import main
 
-    monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
     flight = small_flight("killed")
     store = flight / "tiles.mbtiles"
     lock = _lock_of(store)
