@@ -109,7 +109,7 @@ def test_not_linked_errors_name_strategy_flag_profile_and_fix(site):
     with pytest.raises(StrategyNotLinkedError, match="install c3-matcher-disk-lightglue"):
         host.resolve("disk_lightglue")  # ON, but its plugin is not installed here
     research = host_for(site, RESEARCH_DATA)
-    with pytest.raises(UnknownStrategyError, match="not recognized, choose one of"):
+    with pytest.raises(UnknownStrategyError, match="not recognized: no strategy is installed"):
         research.resolve("dsik_lightglue")
 
 

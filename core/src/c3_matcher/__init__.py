@@ -61,6 +61,7 @@ _EXPORTS: dict[str, str] = {
     "RerankResult": "c3_matcher.dto",
     "RollingHealthWindow": "c3_matcher.health",
     "StrategyNotLinkedError": "c3_matcher.errors",
+    "StrategyStartupError": "c3_matcher.errors",
     "TileId": "c3_matcher.dto",
     "TilePixelsHandle": "c3_matcher.protocols",
 }

@@ -20,13 +20,19 @@ from pydantic import BaseModel, ValidationError
 
 from c3_matcher import protocols
 from c3_matcher.config import C3Settings, with_strategy_defaults
-from c3_matcher.errors import AirborneBootstrapError, ConfigurationError
+from c3_matcher.errors import (
+    AirborneBootstrapError,
+    C3Error,
+    ConfigurationError,
+    StrategyStartupError,
+)
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
 from c3_matcher.logs import LoggingHandle, configure_logging, log_event
 from c3_matcher.pipeline import PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost, discover
 from c3_matcher.plugins.types import StrategyDefaults
+from c3_matcher.probe import check_members
 from c3_matcher.profiles import installed_profile
 from c3_matcher.protocols import Clock, ClosableMatcher, CrossDomainMatcher, FdrClient
 from c3_matcher.ransac import OpenCvRansacFilter
@@ -213,21 +219,30 @@ def _create_strategy(
     config = with_strategy_defaults(config, spec.defaults, name)
     options = _strategy_options(config, name, spec.options_model)
     health = RollingHealthWindow(clock, config.matcher.min_inliers_threshold)
-    matcher = spec.factory(
-        config=config,
-        options=options,
-        inference_runtime=helpers["c7_inference"],
-        lightglue_runtime=helpers["c3_lightglue_runtime"],
-        ransac_filter=helpers["c282_ransac_filter"],
-        health_window=health,
-        fdr_client=fdr,
-        clock=clock,
-    )
-    if not isinstance(matcher, CrossDomainMatcher):
-        raise AirborneBootstrapError(
-            CONSUMER, name, f"factory returned {type(matcher).__name__}, not a CrossDomainMatcher"
+    plugin = host.strategy_plugin(name).distribution
+    try:
+        matcher = spec.factory(
+            config=config,
+            options=options,
+            inference_runtime=helpers["c7_inference"],
+            lightglue_runtime=helpers["c3_lightglue_runtime"],
+            ransac_filter=helpers["c282_ransac_filter"],
+            health_window=health,
+            fdr_client=fdr,
+            clock=clock,
         )
+    except C3Error:
+        raise  # says itself what is wrong (an engine, an option)
+    except Exception as exc:
+        raise StrategyStartupError(name, plugin, f"{type(exc).__name__}: {exc}") from exc
+    if not isinstance(matcher, CrossDomainMatcher):
+        kind = type(matcher).__name__
+        raise StrategyStartupError(name, plugin, f"its factory returned {kind}, not a matcher")
     if isinstance(matcher, PipelineMatcher):  # every strategy on the shared pipeline
+        try:
+            check_members(matcher.backend)
+        except TypeError as exc:  # a member forgotten fails here, not on the first frame
+            raise StrategyStartupError(name, plugin, str(exc)) from None
         engine_startup_probe(matcher.backend)
     _log_ready(config, host, helpers)
     return matcher, health

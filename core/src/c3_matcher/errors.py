@@ -23,6 +23,7 @@ __all__ = [
     "PluginLoadError",
     "ProfileError",
     "StrategyNotLinkedError",
+    "StrategyStartupError",
     "UnknownStrategyError",
 ]
 
@@ -113,13 +114,33 @@ class StrategyNotLinkedError(C3Error):
 
 
 class UnknownStrategyError(C3Error):
-    """A strategy name matches no flag and no installed plugin."""
+    """A strategy name matches no flag and no installed plugin; ``failed`` names the plugins
+    that failed to load (the strategy may be theirs)."""
 
-    def __init__(self, strategy: str, known: Sequence[str]) -> None:
+    def __init__(self, strategy: str, known: Sequence[str], failed: Sequence[str] = ()) -> None:
         self.strategy = strategy
         self.known = tuple(known)
+        choose = f", choose one of: {', '.join(self.known)}" if self.known else ""
+        none = "" if self.known else ": no strategy is installed"
+        more = ""
+        if failed:
+            more = (
+                " (a plugin failed to load, fix it and check with `c3-matcher plugins`: "
+                + "; ".join(" ".join(f.split()) for f in failed)
+                + ")"
+            )
+        super().__init__(f"strategy {strategy!r} is not recognized{choose}{none}{more}")
+
+
+class StrategyStartupError(C3Error):
+    """A strategy's plugin failed to create its matcher at start-up (its factory raised, or
+    returned something else than a matcher): the plugin's fault, named with its distribution."""
+
+    def __init__(self, strategy: str, distribution: str, detail: str) -> None:
+        self.strategy = strategy
+        self.distribution = distribution
         super().__init__(
-            f"strategy {strategy!r} is not recognized, choose one of: {', '.join(self.known)}"
+            f"strategy {strategy!r} (distribution {distribution}) failed to start: {detail}"
         )
 
 

@@ -4,6 +4,8 @@ same image)."""
 
 from __future__ import annotations
 
+from typing import Final
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -11,7 +13,13 @@ from c3_matcher.errors import EngineError
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.protocols import FeatureBackend
 
-__all__ = ["engine_startup_probe", "textured_probe"]
+__all__ = [
+    "BACKEND_MEMBERS",
+    "check_members",
+    "engine_startup_probe",
+    "missing_members",
+    "textured_probe",
+]
 
 
 def textured_probe(width: int, height: int, block: int = 6) -> NDArray[np.uint8]:
@@ -66,3 +74,36 @@ def _runs_engines(backend: FeatureBackend) -> bool:
         return bool(backend.provenance().get("engines", True))
     except Exception:
         return True
+
+
+BACKEND_MEMBERS: Final = (
+    "label",
+    "input_rule",
+    "extract_phase",
+    "match_phase",
+    "extract",
+    "match",
+    "provenance",
+)
+"""What every ``FeatureBackend`` has (``c3_matcher.protocols.FeatureBackend``)."""
+
+
+def missing_members(backend: object) -> list[str]:
+    """The ``FeatureBackend`` members ``backend`` lacks (methods must be callable)."""
+    missing = [name for name in BACKEND_MEMBERS if not hasattr(backend, name)]
+    return missing + [
+        name
+        for name in ("extract", "match", "provenance")
+        if name not in missing and not callable(getattr(backend, name))
+    ]
+
+
+def check_members(backend: object) -> None:
+    """``TypeError`` naming every member ``backend`` lacks, and where the contract is."""
+    missing = missing_members(backend)
+    if missing:
+        raise TypeError(
+            f"{type(backend).__name__} is not a FeatureBackend: it lacks "
+            f"{', '.join(missing)} (a backend has {', '.join(BACKEND_MEMBERS)}; "
+            "see 'The backend's contract' in docs/plugins.md)"
+        )

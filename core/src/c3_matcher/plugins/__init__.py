@@ -40,7 +40,11 @@ its three hooks from ``strategy_hooks`` (``c3_matcher.plugins.strategy_hooks``).
 Any other ``FeatureBackend`` (OpenCV ORB/SIFT/AKAZE, a PyTorch model, hand-written code: no
 ONNX, no runtime) gets its ``create`` from ``backend_strategy_factory(make_backend,
 options_model)``; descriptors may be float32 or packed binary uint8 (Hamming distance, never
-cast). ``tests/example_orb_plugin`` in the repository is such a plugin in 50 lines.
+cast). ``make_backend(config, options)`` applies the keypoint budget itself:
+``config.matcher.max_keypoints`` is what ``--max-keypoints`` and ``[matcher] max_keypoints`` set
+(None: your own default). ``StrategySpec(..., defaults=StrategyDefaults(photometric="clahe"))``
+declares your own values for the settings a configuration leaves unset.
+``tests/example_orb_plugin`` in the repository is such a plugin in 50 lines.
 
 The hook specifications, each documented, are in ``c3_matcher.plugins.hookspecs``; the contract
 test kit for your own tests is ``c3_matcher.testing.contract``: ``BackendContract`` (implement
@@ -67,7 +71,12 @@ if TYPE_CHECKING:
     from c3_matcher.plugins.hookspecs import PROJECT_NAME, hookimpl, hookspec
     from c3_matcher.plugins.manager import ENTRY_POINT_GROUP, LoadedPlugin, PluginHost
     from c3_matcher.plugins.strategy_hooks import strategy_hooks
-    from c3_matcher.plugins.types import StrategyFactory, StrategyHelpers, StrategySpec
+    from c3_matcher.plugins.types import (
+        StrategyDefaults,
+        StrategyFactory,
+        StrategyHelpers,
+        StrategySpec,
+    )
     from c3_matcher.prepared import InputRule, PreparedImage
     from c3_matcher.protocols import (
         Clock,
@@ -98,6 +107,7 @@ _EXPORTS: dict[str, str] = {
     "hookimpl": "c3_matcher.plugins.hookspecs",
     "hookspec": "c3_matcher.plugins.hookspecs",
     "strategy_hooks": "c3_matcher.plugins.strategy_hooks",
+    "StrategyDefaults": "c3_matcher.plugins.types",
     "StrategyFactory": "c3_matcher.plugins.types",
     "StrategyHelpers": "c3_matcher.plugins.types",
     "StrategySpec": "c3_matcher.plugins.types",
@@ -164,6 +174,7 @@ __all__ = [
     "RansacFilter",
     "RawMatches",
     "RollingHealthWindow",
+    "StrategyDefaults",
     "StrategyFactory",
     "StrategyHelpers",
     "StrategySpec",

@@ -147,13 +147,18 @@ class PluginHost:
 
     def _strategies_of(self, module: object) -> list[StrategySpec]:
         impl = getattr(module, "c3_matcher_strategies", None)
-        specs = list(impl()) if callable(impl) else []
-        for spec in specs:
+        returned = impl() if callable(impl) else []
+        if not isinstance(returned, list | tuple):
+            raise TypeError(
+                f"c3_matcher_strategies returned {type(returned).__name__}, expected a list "
+                "of StrategySpec (return [StrategySpec(...)])"
+            )
+        for spec in returned:
             if not isinstance(spec, StrategySpec):
                 raise TypeError(
                     f"c3_matcher_strategies returned {type(spec).__name__}, expected StrategySpec"
                 )
-        return specs
+        return list(returned)
 
     def _add_strategy(self, spec: StrategySpec, plugin: LoadedPlugin) -> None:
         if spec.name in self._registry.duplicates:
@@ -258,7 +263,8 @@ class PluginHost:
                 f"profile {profile!r} loads only the plugins it links (ignored: {ignored}); "
                 "a third-party strategy runs in a research or replay-cli build",
             )
-        raise UnknownStrategyError(strategy, sorted(self._registry.strategies))
+        broken = [str(e) for e in self._errors]  # the strategy may be a plugin's that failed
+        raise UnknownStrategyError(strategy, sorted(self._registry.strategies), broken)
 
 
 def _norm(name: str) -> str:

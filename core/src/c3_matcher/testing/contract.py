@@ -6,8 +6,10 @@ per-frame flight-data record.
 Any ``FeatureBackend`` (ORB + brute force, SIFT, a PyTorch model, an ONNX extractor): subclass
 ``BackendContract`` and implement ``make_backend``; the kit runs your real ``extract`` and
 ``match`` on a textured stand-in image while the script decides which calls fail and what RANSAC
-finds, and checks your backend itself (features well formed, a blank image gives no keypoint
-rather than an exception, self-matching finds the same points, determinism, start-up probe)::
+finds, and checks your backend itself (every ``FeatureBackend`` member, features well formed,
+no keypoint where ``image.valid`` is False, a blank image gives no keypoint rather than an
+exception, self-matching finds the same points with confidences in [0, 1], determinism,
+start-up probe)::
 
     from c3_matcher.testing.contract import BackendContract
 
@@ -37,19 +39,18 @@ Every strategy built on ``c3_matcher.strategy`` or ``c3_matcher.pipeline`` passe
 
 from __future__ import annotations
 
-import dataclasses
 import io
 import json
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Any
 
 import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from c3_matcher.dto import MatchResult, RansacResult
+from c3_matcher.dto import MatchResult
 from c3_matcher.errors import InsufficientInliersError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import DESCRIPTOR_DTYPES, Features, RawMatches
@@ -57,6 +58,7 @@ from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import configure_logging
 from c3_matcher.pipeline import FeatureBackend, PipelineSettings
 from c3_matcher.prepared import PreparedImage
+from c3_matcher.probe import missing_members
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.strategy import engine_startup_probe, textured_probe
 from c3_matcher.testing.fakes import (
@@ -69,6 +71,7 @@ from c3_matcher.testing.fakes import (
     make_rerank,
     scripted_pipeline,
 )
+from c3_matcher.testing.scripted import MarkedRansac, ScriptedBackend
 
 __all__ = ["BackendContract", "Doubles", "MatcherContract", "ScriptedBackend"]
 
@@ -93,62 +96,6 @@ class Doubles:
     def logs(self, kind: str) -> list[dict[str, Any]]:
         lines = [json.loads(x) for x in self.log_stream.getvalue().splitlines() if x]
         return [r for r in lines if r["kind"] == kind]
-
-
-class ScriptedBackend:
-    """Your ``FeatureBackend`` under a script: it reads which candidate an image is (the kit's
-    tile ``i`` is the constant value ``i + 1``), raises where the script says
-    (``fail_extract``, ``fail_match``), and otherwise runs YOUR ``extract`` on a deterministic
-    textured stand-in of the same size and mask, and YOUR ``match``; ``last_mark`` tells the
-    scripted RANSAC which candidate it is verifying."""
-
-    def __init__(self, backend: FeatureBackend, script: list[ScriptedCandidate]) -> None:
-        self.inner = backend
-        self.label: Final = backend.label
-        self.input_rule: Final = backend.input_rule
-        self.extract_phase: Final = backend.extract_phase
-        self.match_phase: Final = backend.match_phase
-        self.script = script
-        self.last_mark = -1
-        self._marks: dict[int, tuple[Features, int]] = {}
-
-    def _scripted(self, mark: int) -> ScriptedCandidate | None:
-        return self.script[mark] if 0 <= mark < len(self.script) else None
-
-    def extract(self, image: PreparedImage) -> Features:
-        pixels = image.image[image.valid] if image.valid.any() else image.image.reshape(-1, 3)
-        mark = int(np.bincount(pixels.reshape(-1)).argmax()) - 1
-        scripted = self._scripted(mark)
-        if scripted is not None and scripted.fail_extract:
-            raise RuntimeError(f"scripted extractor failure on candidate {mark}")
-        h, w = image.image.shape[:2]
-        features = self.inner.extract(dataclasses.replace(image, image=textured_probe(w, h)))
-        self._marks[id(features)] = (features, mark)
-        return features
-
-    def match(self, query: Features, tile: Features) -> RawMatches:
-        _, mark = self._marks.get(id(tile), (tile, -1))
-        scripted = self._scripted(mark)
-        if scripted is not None and scripted.fail_match:
-            raise RuntimeError(f"scripted matcher failure on candidate {mark}")
-        raw = self.inner.match(query, tile)
-        self.last_mark = mark
-        return raw
-
-    def provenance(self) -> Any:
-        return self.inner.provenance()
-
-
-class _MarkedRansac(FakeRansacFilter):
-    """The scripted RANSAC double for the candidate ``ScriptedBackend`` matched last."""
-
-    def __init__(self, script: list[ScriptedCandidate], backend: ScriptedBackend) -> None:
-        super().__init__(script)
-        self._backend = backend
-
-    def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult:
-        marked = np.array([[0.0, 0.0, 0.0, self._backend.last_mark + 1]], np.float32)
-        return super().filter(marked, threshold_px)
 
 
 class MatcherContract:
@@ -184,7 +131,7 @@ class MatcherContract:
                 script,
                 FakeInferenceRuntime(script),
                 FakeLightGlueRuntime(script),
-                FakeRansacFilter(script) if backend is None else _MarkedRansac(script, backend),
+                FakeRansacFilter(script) if backend is None else MarkedRansac(script, backend),
                 fdr,
                 RollingHealthWindow(clock, MIN_INLIERS),
                 clock,
@@ -326,13 +273,32 @@ class BackendContract(MatcherContract):
             health=doubles.health,
         )
 
-    def _image(self, pixels: NDArray[np.uint8]) -> PreparedImage:
+    def _image(
+        self, pixels: NDArray[np.uint8], valid: NDArray[np.bool_] | None = None
+    ) -> PreparedImage:
         h, w = pixels.shape[:2]
-        return PreparedImage(pixels, np.ones((h, w), bool), np.eye(3), (w, h))
+        mask = np.ones((h, w), bool) if valid is None else valid
+        return PreparedImage(pixels, mask, np.eye(3), (w, h))
 
     def _textured(self) -> Features:
         side = self.frame_size
         return self.make_backend().extract(self._image(textured_probe(side, side)))
+
+    def test_backend_has_every_member(self) -> None:
+        backend = self.make_backend()
+        missing = missing_members(backend)
+        assert not missing, f"{type(backend).__name__} lacks {', '.join(missing)}"
+
+    def test_backend_keeps_keypoints_on_valid_pixels(self) -> None:
+        """``image.valid`` False (nodata, padding, warp borders) keeps no keypoint: here the
+        left half, textured like the rest, is masked out."""
+        side = self.frame_size
+        valid = np.ones((side, side), bool)
+        valid[:, : side // 2] = False
+        features = self.make_backend().extract(self._image(textured_probe(side, side), valid))
+        assert len(features) > 0, "no keypoint on the valid half (is the mask 0/255?)"
+        outside = int((features.keypoints[:, 0] < side // 2 - 1.0).sum())
+        assert outside == 0, f"{outside} keypoints where image.valid is False (pass it as a mask)"
 
     def test_backend_features_well_formed(self) -> None:
         features = self._textured()
@@ -359,6 +325,8 @@ class BackendContract(MatcherContract):
         assert bool(((q >= 0) & (q < len(features)) & (t >= 0) & (t < len(features))).all())
         moved = np.linalg.norm(features.keypoints[q] - features.keypoints[t], axis=1)
         assert float(np.mean(moved < 1.0)) >= 0.8
+        scores = raw.scores
+        assert bool(((scores >= 0) & (scores <= 1)).all()), "match confidences outside [0, 1]"
 
     def test_backend_deterministic(self) -> None:
         a, b = self._textured(), self._textured()

@@ -42,7 +42,9 @@ class OrbBackend:
         return {"provider": f"opencv {cv2.__version__}", "engines": {}}
 
 
-create = c3.backend_strategy_factory(lambda _s, o: OrbBackend(o.max_keypoints), Options)
+create = c3.backend_strategy_factory(  # the configured budget (--max-keypoints), else the option
+    lambda s, o: OrbBackend(s.matcher.max_keypoints or o.max_keypoints), Options
+)
 
 
 @c3.hookimpl
