@@ -156,10 +156,6 @@ class PipelineMatcher:
         with self._lock:
             self._closed = True
 
-    @property
-    def closed(self) -> bool:
-        return self._closed
-
     def _contract_match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
     ) -> MatchResult:

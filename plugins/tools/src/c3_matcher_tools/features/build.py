@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from c3_matcher.config import C3Settings
+from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.tilestore.features import (
     FeatureSet,
     MapFeatureStore,
@@ -110,10 +111,12 @@ def build_features(
     scheduler: str | None = None,
     batch_size: int = 8,
     progress: Callable[[str], None] | None = None,
+    plugin_host: PluginHost | None = None,
 ) -> BuildReport:
     """Precompute ``store``'s map features for each strategy (see the module docstring):
     ``window_px`` windows on a ``stride_px`` grid (default: ``window_px``), every window the
-    store covers to ``min_coverage``, or only ``windows`` (zoom, gx, gy) when given."""
+    store covers to ``min_coverage``, or only ``windows`` (zoom, gx, gy) when given.
+    ``plugin_host``: the process's (default: discovered now)."""
     say = progress or (lambda line: print(line, file=sys.stderr, flush=True))
     stride = int(stride_px or window_px)
     low, high = WINDOW_PX_RANGE
@@ -128,7 +131,9 @@ def build_features(
     store, path = Path(store), sidecar_path(Path(store))
     with build_lock(store, path):  # another build of the store running: refused at once
         plan = _plan(store, windows, window_px, stride, min_coverage)
-        job = _Job(store, _resolved(settings, strategies), window_px, stride, batch_size, say)
+        job = _Job(
+            store, _resolved(settings, strategies, plugin_host), window_px, stride, batch_size, say
+        )
         return _built(job, plan, path, workers, scheduler)
 
 
@@ -204,12 +209,14 @@ class _Runner:
     cores: int
 
 
-def _resolved(settings: C3Settings, strategies: Sequence[str]) -> dict[str, str]:
+def _resolved(
+    settings: C3Settings, strategies: Sequence[str], host: PluginHost | None
+) -> dict[str, str]:
     """Each strategy's settings as it flies them (its own defaults where the configuration
-    leaves a setting unset), as JSON; the plugins discovered once, here."""
+    leaves a setting unset), as JSON, from ``host``'s plugins (discovered here when None)."""
     from c3_matcher.compose import build_plugin_host, strategy_settings
 
-    host = build_plugin_host()
+    host = host or build_plugin_host()
     for s in strategies:  # one unknown or not linked here: refused before any worker starts
         host.resolve(s)
     return {s: strategy_settings(settings, s, host).model_dump_json() for s in strategies}

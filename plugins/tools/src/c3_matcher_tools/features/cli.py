@@ -128,6 +128,7 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
             workers=args.workers,
             scheduler=args.scheduler,
             batch_size=args.batch,
+            plugin_host=ctx.plugin_host,
         )
     except ValueError as exc:
         ctx.err(f"features build: {exc}")

@@ -33,11 +33,9 @@ __all__ = [
     "check_frame_step",
     "check_images_path",
     "folder_shots",
-    "image_shots",
     "read_images",
     "read_photo_metadata",
     "unique_photos",
-    "video_shots",
 ]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
@@ -207,15 +205,9 @@ def unique_photos(shots: Sequence[Shot]) -> tuple[list[Shot], list[tuple[str, st
     return kept, skipped
 
 
-def video_shots(path: Path, step: int = 1) -> list[Shot]:
+def _video_frames(path: Path, step: int) -> list[Shot]:
     """Every ``step``-th frame of the video ``path`` as a JPEG (quality 95), with its time on
     the video's clock in ``own['relative_s']``."""
-    check_frame_step(step, video=True)
-    return _video_frames(Path(path), step)
-
-
-def _video_frames(path: Path, step: int) -> list[Shot]:
-    """:func:`video_shots` with ``step`` already checked."""
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         raise InvalidInputError("IMAGES", f"{path}: not a readable video")
@@ -251,20 +243,10 @@ def _video_frames(path: Path, step: int) -> list[Shot]:
     return shots
 
 
-def image_shots(source: Path, step: int = 1) -> list[Shot]:
-    """A folder of photos or a video file (by its suffix); ``step`` (``--frame-step``) takes
-    every ``step``-th frame of a video and is refused with a folder (pick the photos there)."""
-    source = Path(source)
-    check_images_path(source)
-    check_frame_step(step, video=source.is_file())
-    if source.is_file():
-        return _video_frames(source, step)
-    return folder_shots(source)
-
-
 def read_images(source: Path, step: int = 1) -> tuple[list[Shot], list[tuple[str, str]]]:
-    """:func:`image_shots` for a caller that has checked ``step`` (:func:`check_frame_step`),
-    a folder's copies set aside (:func:`unique_photos`): (images, [(image, why skipped)])."""
+    """A folder of photos, its copies set aside (:func:`unique_photos`), or every ``step``-th
+    frame of a video file: (images, [(image, why skipped)]). The caller has checked ``step``
+    (``--frame-step``, :func:`check_frame_step`: refused with a folder)."""
     source = Path(source)
     check_images_path(source)
     if source.is_file():

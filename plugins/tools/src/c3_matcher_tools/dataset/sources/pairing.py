@@ -97,14 +97,12 @@ def _own_times(track: LogTrack, shots: Sequence[Shot], options: ImportOptions) -
 
 
 def _nearest_triggers(
-    track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
+    shots: Sequence[Shot], own: Sequence[float], triggers: F64, tol: float
 ) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]]]:
-    """Each image paired with the camera trigger nearest its own time (:func:`_own_times`),
-    each trigger used once (by the image nearest it), at the trigger's time; an image farther
-    than :func:`_tolerance` from every trigger, or whose trigger is nearer another image's
-    time, is left unpaired with the reason."""
-    tol = _tolerance(triggers, options)
-    own = _own_times(track, shots, options)
+    """Each image paired with the camera trigger nearest its ``own`` time, each trigger used
+    once (by the image nearest it), at the trigger's time; an image farther than ``tol`` from
+    every trigger, or whose trigger is nearer another image's time, is left unpaired with the
+    reason."""
     nearest = [int(np.argmin(np.abs(triggers - t))) for t in own]
     gaps = [abs(float(triggers[j]) - t) for j, t in zip(nearest, own, strict=True)]
     owner: dict[int, int] = {}  # trigger -> the image nearest it in time
@@ -132,11 +130,12 @@ def _nearest_triggers(
 def _triggers_by_time(
     track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
 ) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
-    """:func:`_nearest_triggers`, refused when no image meets a trigger; with ``how``."""
+    """:func:`_nearest_triggers` within :func:`_tolerance` of the images' own times, refused
+    when no image meets a trigger; with ``how``."""
     tol = _tolerance(triggers, options)
-    taken, skipped = _nearest_triggers(track, shots, triggers, options)
+    own = _own_times(track, shots, options)
+    taken, skipped = _nearest_triggers(shots, own, triggers, tol)
     if not taken:
-        own = _own_times(track, shots, options)
         raise InvalidInputError(
             "--time-source",
             f"{track.source}: {triggers.size} camera trigger(s) in the log but {len(shots)} "
@@ -146,14 +145,12 @@ def _triggers_by_time(
             "(--time-offset, the seconds added to the images' own times), or give "
             "--time-source trigger to pair them in order",
         )
-    return taken, skipped, _nearest_how(tol, triggers.size, len(shots), len(taken))
-
-
-def _nearest_how(tol: float, triggers: int, images: int, paired: int) -> str:
-    return (
-        f"camera trigger nearest each image's own UTC time, within {tol:g} s ({triggers} in "
-        f"the log, {images} image(s): {_unpaired(images - paired, triggers - paired)})"
+    left = _unpaired(len(shots) - len(taken), triggers.size - len(taken))
+    how = (
+        f"camera trigger nearest each image's own UTC time, within {tol:g} s ({triggers.size} "
+        f"in the log, {len(shots)} image(s): {left})"
     )
+    return taken, skipped, how
 
 
 def _as_many_triggers(
