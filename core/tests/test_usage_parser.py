@@ -27,3 +27,29 @@ def test_anything_else_with_a_minus_is_still_an_option(word: str) -> None:
     with pytest.raises(SystemExit) as info:
         _parser().parse_args(["--attitude", word])
     assert info.value.code == 2
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "says"),
+    [
+        ("--attitude", "1,2", "expected 3 finite numbers, got '1,2'"),
+        ("--attitude", "0,95,0", "pitch"),
+        ("--tile-id", "18,1", "expected ZOOM,LAT,LON"),
+        ("--height", "-4", "must be > 0, got -4"),
+        ("--window", "8", "must be in [64, 4096], got 8"),
+        ("--max-keypoints", "0", "must be in ["),
+    ],
+)
+def test_a_bad_value_is_named_once_by_its_option(
+    option: str, value: str, says: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """argparse already prefixes ``argument OPTION:``; the value's own message does not repeat
+    it (it read ``argument --window: --window: must be ...``)."""
+    from c3_matcher.cli import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["match", "--query", "q.jpg", "--tile", "t.png", option, value])
+    err = capsys.readouterr().err
+    assert info.value.code == 2
+    assert f"argument {option}: " in err and says in err, err
+    assert err.count(option) == 1, err

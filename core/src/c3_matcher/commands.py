@@ -120,17 +120,18 @@ class CommandRegistry:
         return self._groups[name]
 
 
-def bounded_int(what: str, low: int = 1, high: int | None = None) -> Callable[[str], int]:
-    """An argparse type: an int in [low, high], else a usage error (exit 2) naming ``what``."""
+def bounded_int(low: int = 1, high: int | None = None) -> Callable[[str], int]:
+    """An argparse type: an int in [low, high], else a usage error (exit 2); argparse names the
+    option."""
 
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{what}: expected an integer, got {text!r}") from None
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
         if value < low or (high is not None and value > high):
             bound = f">= {low}" if high is None else f"in [{low}, {high}]"
-            raise argparse.ArgumentTypeError(f"{what}: must be {bound}, got {value}")
+            raise argparse.ArgumentTypeError(f"must be {bound}, got {value}")
         return value
 
     return parse
@@ -147,15 +148,15 @@ def add_max_keypoints_option(
     low, high = KEYPOINT_BUDGET_RANGE
     p.add_argument(
         "--max-keypoints",
-        type=keypoint_budget("--max-keypoints"),
+        type=keypoint_budget(),
         default=None,
         help=f"{help} ({low}..{high})",
         **kwargs,
     )
 
 
-def keypoint_budget(flag: str) -> Callable[[str], int]:
-    """An argparse type: a keypoint budget in ``KEYPOINT_BUDGET_RANGE``, errors naming ``flag``."""
+def keypoint_budget() -> Callable[[str], int]:
+    """An argparse type: a keypoint budget in ``KEYPOINT_BUDGET_RANGE``."""
     from c3_matcher.config import KEYPOINT_BUDGET_RANGE
 
-    return bounded_int(flag, *KEYPOINT_BUDGET_RANGE)
+    return bounded_int(*KEYPOINT_BUDGET_RANGE)

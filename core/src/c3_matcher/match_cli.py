@@ -44,35 +44,35 @@ __all__ = ["register_match_command"]
 DEFAULT_WINDOW_PX = 512  # a --store candidate window's side without --window
 
 
-def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
+def _floats(text: str, n: int) -> tuple[float, ...]:
     try:
         values = tuple(float(x) for x in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"{what}: expected {n} comma-separated numbers, got {text!r}"
+            f"expected {n} comma-separated numbers, got {text!r}"
         ) from None
     if len(values) != n or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"{what}: expected {n} finite numbers, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {n} finite numbers, got {text!r}")
     return values
 
 
 def _attitude(text: str) -> Attitude:
-    roll, pitch, yaw = _floats(text, 3, "--attitude")
+    roll, pitch, yaw = _floats(text, 3)
     try:
         return Attitude.from_degrees(roll, pitch, yaw)
     except InvalidInputError as exc:
-        raise argparse.ArgumentTypeError(f"--attitude: {exc}") from None
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _tile_id(text: str) -> TileId:
     try:
         return TileId.parse(text)
     except InvalidInputError as exc:
-        raise argparse.ArgumentTypeError(f"--tile-id: {exc}") from None
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _positive(text: str) -> float:
-    (value,) = _floats(text, 1, "value")
+    (value,) = _floats(text, 1)
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return value
@@ -132,7 +132,7 @@ def _add_candidate_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--window",
-        type=bounded_int("--window", 64, 4096),
+        type=bounded_int(64, 4096),
         default=None,
         help=f"side of a --store candidate window, px (default {DEFAULT_WINDOW_PX})",
     )

@@ -26,7 +26,7 @@ def add_attitude_noise_option(p: argparse.ArgumentParser) -> None:
     """``--attitude-noise-deg``: replay the flight as an IMU with that much error reports it."""
     p.add_argument(
         "--attitude-noise-deg",
-        type=non_negative_float("--attitude-noise-deg"),
+        type=non_negative_float(),
         default=0.0,
         help="add seeded Gaussian noise of this sigma (deg) to every frame's roll, pitch and yaw "
         "(an IMU's error; the same per frame in every run; default 0)",
@@ -39,7 +39,7 @@ def add_seed_option(p: argparse.ArgumentParser, help: str) -> None:
     low, high = SEED_RANGE
     p.add_argument(
         "--seed",
-        type=bounded_int("--seed", low, high),
+        type=bounded_int(low, high),
         default=0,
         help=f"{help} ({low}..{high}; default 0)",
     )
@@ -51,20 +51,20 @@ def add_strategies_option(p: argparse.ArgumentParser, help: str) -> None:
 
 
 def bounded_float(
-    what: str, low: float = -math.inf, high: float = math.inf, *, above: bool = False
+    low: float = -math.inf, high: float = math.inf, *, above: bool = False
 ) -> Callable[[str], float]:
     """An argparse type: a finite float in [low, high] (in (low, high] when ``above``), else a
-    usage error (exit 2) naming ``what``."""
+    usage error (exit 2); argparse names the option."""
     bounds = _bounds_text(low, high, above)
 
     def parse(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{what}: expected a number, got {text!r}") from None
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
         inside = (value > low if above else value >= low) and value <= high
         if not (math.isfinite(value) and inside):
-            raise argparse.ArgumentTypeError(f"{what}: must be finite{bounds}, got {value}")
+            raise argparse.ArgumentTypeError(f"must be finite{bounds}, got {value}")
         return value
 
     return parse
@@ -79,6 +79,6 @@ def _bounds_text(low: float, high: float, above: bool) -> str:
     return f" and in {'(' if above else '['}{low:g}, {high:g}]"
 
 
-def non_negative_float(what: str) -> Callable[[str], float]:
-    """An argparse type: a finite float >= 0, else a usage error (exit 2) naming ``what``."""
-    return bounded_float(what, 0.0)
+def non_negative_float() -> Callable[[str], float]:
+    """An argparse type: a finite float >= 0, else a usage error (exit 2)."""
+    return bounded_float(0.0)

@@ -174,7 +174,7 @@ def register_bench_command(commands: CommandRegistry) -> None:
         "reference and the SIFT + MAGSAC baseline",
     )
     p.add_argument(
-        "--runs", type=bounded_int("--runs"), default=20, help="timed runs per case (default 20)"
+        "--runs", type=bounded_int(), default=20, help="timed runs per case (default 20)"
     )
     add_strategies_option(p, "strategy to bench (repeatable; default: the configured one)")
     p.add_argument("--no-baseline", action="store_true", help="skip SIFT + MAGSAC")
@@ -210,13 +210,13 @@ def register_bench_command(commands: CommandRegistry) -> None:
     p.add_argument(  # the former name, still accepted
         "--keypoints",
         dest="keypoints",
-        type=keypoint_budget("--keypoints"),
+        type=keypoint_budget(),
         action="append",
         help=argparse.SUPPRESS,
     )
     p.add_argument(
         "--threads",
-        type=bounded_int("--threads"),
+        type=bounded_int(),
         action="append",
         default=None,
         help="also time ONNX Runtime intra-op threads N, new tiles (repeatable)",

@@ -140,7 +140,7 @@ def _time_matches(matcher: Any, inputs: list[tuple[Any, Any, Any]], runs: int) -
 def _worker_main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m c3_matcher_tools.bench_worker")
     parser.add_argument("case", help="BenchCase as JSON")
-    parser.add_argument("runs", type=bounded_int("runs"))
+    parser.add_argument("runs", type=bounded_int())
     parser.add_argument("data", type=Path)
     parser.add_argument("--config", type=Path, default=None)
     args = parser.parse_args(argv)

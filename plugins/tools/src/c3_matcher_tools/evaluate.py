@@ -181,7 +181,7 @@ def register_eval_command(commands: CommandRegistry) -> None:
     add_max_keypoints_option(p)
     p.add_argument(
         "--determinism-frames",
-        type=bounded_int("--determinism-frames"),
+        type=bounded_int(),
         default=None,
         help="the first N frames (>= 1) in the second (C3-IT-02) run (default: all)",
     )

@@ -69,7 +69,7 @@ def register_replay_command(commands: CommandRegistry) -> None:
         help="output directory (default out/replay/<dataset>-<strategy>)",
     )
     p.add_argument(
-        "--limit", type=bounded_int("--limit"), default=None, help="only the first N frames (>= 1)"
+        "--limit", type=bounded_int(), default=None, help="only the first N frames (>= 1)"
     )
     add_max_keypoints_option(p)
     p.add_argument(

@@ -92,36 +92,32 @@ def _add_render(ds: Any) -> None:
     r.add_argument("frames_geotiff", type=Path, help="orthophoto the frames are rendered from")
     r.add_argument("store", type=Path, help="MBTiles store of the candidate tiles")
     r.add_argument("out", type=Path, help="dataset directory to write")
-    r.add_argument(
-        "--frames", type=bounded_int("--frames"), default=36, help="number of frames (default 36)"
-    )
+    r.add_argument("--frames", type=bounded_int(), default=36, help="number of frames (default 36)")
     r.add_argument(
         "--pattern", choices=("orbit", "line"), default="orbit", help="flight path (default orbit)"
     )
     r.add_argument(
         "--height",
-        type=bounded_float("--height", 0.0, MAX_HEIGHT_ABOVE_GROUND_M, above=True),
+        type=bounded_float(0.0, MAX_HEIGHT_ABOVE_GROUND_M, above=True),
         default=780.0,
         help="height above ground, m",
     )
-    r.add_argument(
-        "--speed", type=non_negative_float("--speed"), default=30.0, help="ground speed, m/s"
-    )
+    r.add_argument("--speed", type=non_negative_float(), default=30.0, help="ground speed, m/s")
     r.add_argument(
         "--interval",
-        type=bounded_float("--interval", 0.0, above=True),
+        type=bounded_float(0.0, above=True),
         default=2.0,
         help="seconds between frames",
     )
     r.add_argument(
         "--heading",
-        type=bounded_float("--heading"),
+        type=bounded_float(),
         default=0.0,
         help="line heading / orbit start, deg",
     )
     r.add_argument(
         "--radius",
-        type=bounded_float("--radius", 0.0, above=True),
+        type=bounded_float(0.0, above=True),
         default=450.0,
         help="orbit radius, m",
     )
@@ -129,26 +125,26 @@ def _add_render(ds: Any) -> None:
     r.add_argument("--image-size", type=_size, default=(320, 240), help="WxH px (default 320x240)")
     r.add_argument(
         "--focal",
-        type=bounded_float("--focal", 0.0, above=True),
+        type=bounded_float(0.0, above=True),
         default=300.0,
         help="focal length, px",
     )
     r.add_argument("--candidate-size", type=int, default=448, help="candidate image side, px")
     r.add_argument(
         "--absent-share",
-        type=bounded_float("--absent-share", 0.0, 1.0),
+        type=bounded_float(0.0, 1.0),
         default=0.1,
         help="share of frames without their true tile (default 0.1)",
     )
     r.add_argument(
         "--min-distractor-distance",
-        type=non_negative_float("--min-distractor-distance"),
+        type=non_negative_float(),
         default=350.0,
         help="m (default 350)",
     )
     r.add_argument(
         "--max-distractor-nodata",
-        type=bounded_float("--max-distractor-nodata", 0.0, 1.0),
+        type=bounded_float(0.0, 1.0),
         default=0.35,
         help="largest nodata share of a distractor window (default 0.35)",
     )
@@ -196,7 +192,7 @@ def _add_import(ds: Any) -> None:
     m.add_argument("out", type=Path, help="dataset directory to write (must not exist)")
     m.add_argument(
         "--uncertainty-m",
-        type=non_negative_float("--uncertainty-m"),
+        type=non_negative_float(),
         default=50.0,
         help="position uncertainty, m: tiles within it are proposed first (default 50); at most "
         f"{MAX_SEARCH_TILES} tiles of the store's zoom from the look point, as the tiles searched "
@@ -206,7 +202,7 @@ def _add_import(ds: Any) -> None:
     )
     m.add_argument(
         "--candidates",
-        type=bounded_int("--candidates", 1, MAX_CANDIDATES),
+        type=bounded_int(1, MAX_CANDIDATES),
         default=3,
         help=f"candidates per frame (1..{MAX_CANDIDATES}; default 3)",
     )

@@ -294,7 +294,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
     child.add_argument("--features")
     child.add_argument("--keypoints", type=int)
     child.add_argument("--feature-type", default="disk")
-    child.add_argument("--runs", type=bounded_int("--runs"), default=20)
+    child.add_argument("--runs", type=bounded_int(), default=20)
     child.add_argument("--mem-pattern", choices=["on", "off"], default="off")
     child.add_argument("--arena", choices=["on", "off"], default="on")
     args = parser.parse_args(argv)

@@ -131,9 +131,7 @@ def register_engines_build_commands(commands: CommandRegistry) -> None:
     build.set_defaults(handler=_build)
 
     bench = engines.add("bench", help="latency (median, p95) and peak memory per engine")
-    bench.add_argument(
-        "--runs", type=bounded_int("--runs"), default=20, help="timed runs per case (>= 1)"
-    )
+    bench.add_argument("--runs", type=bounded_int(), default=20, help="timed runs per case (>= 1)")
     bench.add_argument(
         "--image", type=Path, help="real image to use (default: packaged orthophoto)"
     )

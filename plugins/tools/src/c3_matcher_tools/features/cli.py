@@ -63,21 +63,21 @@ def _add_build_options(b: argparse.ArgumentParser) -> None:
     where = b.add_mutually_exclusive_group()
     where.add_argument(
         "--workers",
-        type=bounded_int("--workers", 0),
+        type=bounded_int(0),
         default=2,
         help="local Dask cluster of N worker processes (0: in this process, no Dask)",
     )
     where.add_argument("--scheduler", default=None, help="an existing Dask scheduler ADDRESS")
     b.add_argument(
         "--window",
-        type=bounded_int("--window", *WINDOW_PX_RANGE),
+        type=bounded_int(*WINDOW_PX_RANGE),
         default=None,
         help="candidate window size, px (default: 256, a store's own tiles; for a flight, "
         "its candidates' size)",
     )
     b.add_argument(
         "--stride",
-        type=bounded_int("--stride"),
+        type=bounded_int(),
         default=None,
         help="grid step between stored windows, px (default: the window; for a flight, the "
         "grid its candidates lie on); a candidate off the grid is served the nearest "
@@ -94,9 +94,7 @@ def _add_build_options(b: argparse.ArgumentParser) -> None:
         action="store_true",
         help="with a flight dataset: only the windows its recorded candidates use",
     )
-    b.add_argument(
-        "--batch", type=bounded_int("--batch"), default=8, help="candidate windows per task"
-    )
+    b.add_argument("--batch", type=bounded_int(), default=8, help="candidate windows per task")
     b.add_argument("--json", action="store_true", help="print the report as JSON")
 
 

@@ -89,7 +89,7 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--time-offset",
-        type=bounded_float("--time-offset"),
+        type=bounded_float(),
         default=0.0,
         help="seconds added to the images' times: to their own (EXIF) times, negative when the "
         "camera's clock is ahead of the log's; to the trigger times when images without a time "
@@ -97,26 +97,26 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--interval",
-        type=bounded_float("--interval", 0.0, above=True),
+        type=bounded_float(0.0, above=True),
         default=None,
         help="file order: s between images",
     )
     g.add_argument(
         "--max-gap",
-        type=bounded_float("--max-gap", 0.0, above=True),
+        type=bounded_float(0.0, above=True),
         default=1.0,
         help="farthest a log sample may be from an image's time, s (default 1)",
     )
     g.add_argument(
         "--ground-elevation",
-        type=bounded_float("--ground-elevation"),
+        type=bounded_float(),
         default=None,
         help="the ground's altitude, m, in the log's datum: height = altitude - this",
     )
     g.add_argument("--dem", type=Path, default=None, help="DEM GeoTIFF of the ground's altitude")
     g.add_argument(
         "--gnss-degraded-m",
-        type=bounded_float("--gnss-degraded-m", 0.0, above=True),
+        type=bounded_float(0.0, above=True),
         default=5.0,
         help="flag frames whose stated GNSS accuracy is worse than this, m (default 5)",
     )
