@@ -84,8 +84,9 @@ def test_calibration_validation_and_immutability():
 
 def test_rerank_validation():
     handle = BytesTileHandle(b"x")
+    assert RerankResult(uuid.uuid4(), []).candidates == ()  # no tile proposed: see the pipeline
     with pytest.raises(InvalidInputError, match="rerank_result.candidates"):
-        RerankResult(uuid.uuid4(), ())
+        RerankResult(uuid.uuid4(), None)  # type: ignore[arg-type]
     with pytest.raises(InvalidInputError, match="candidate.tile_pixels_handle"):
         RerankCandidate(TILE, 0.5, object())  # type: ignore[arg-type]
     cand = RerankCandidate(TILE, 0.5, handle)

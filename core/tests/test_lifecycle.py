@@ -108,7 +108,7 @@ def _kinds(tmp_path: Path) -> list[str]:
     return [r["kind"] for r in read_fdr(tmp_path / "fdr.jsonl")]
 
 
-def test_match_after_close_is_refused_and_touches_nothing(tmp_path):
+def test_match_after_close_is_refused_with_its_one_health_update_and_no_record(tmp_path):
     root = _root(tmp_path)
     frame, rerank, calibration = _inputs()
     assert root.matcher.match(frame, rerank, calibration).per_candidate[0].inlier_count == 100
@@ -117,7 +117,9 @@ def test_match_after_close_is_refused_and_touches_nothing(tmp_path):
     with pytest.raises(MatcherClosedError, match="closed.*after close"):
         root.matcher.match(frame, rerank, calibration)
     assert _kinds(tmp_path) == ["matcher.frame_done"]  # the refused call left no half record
-    assert root.health_window.update_count == 1
+    assert root.health_window.update_count == 2  # once per call, whatever the outcome: no fix
+    assert root.health_window.last_update.best_inlier_count == 0
+    assert not root.health_window.last_update.had_backbone_error
 
 
 def test_close_waits_for_the_frame_in_progress_and_keeps_its_record(tmp_path):

@@ -82,6 +82,22 @@ def test_ac5_all_below_threshold_raises_insufficient(fdr, logs):
     assert fdr.of_kind("matcher.frame_done") == []
 
 
+def test_no_candidate_at_all_is_no_fix_not_a_refused_input(fdr, logs):
+    """A re-ranker with no tile to propose (none near the estimate) hands over an empty
+    re-rank: the frame ends as any frame without a fix does, which is the VIO fallback's cue."""
+    rig = ScriptedRig([], fdr)
+    assert rig.rerank.candidates == ()
+    with pytest.raises(InsufficientInliersError) as info:
+        rig.match()
+    assert (info.value.candidates_input, info.value.candidates_dropped) == (0, 0)
+    assert [kind for kind, _ in fdr.records] == ["log.error", "matcher.insufficient_inliers"]
+    assert fdr.of_kind("matcher.insufficient_inliers")[0]["candidates_input"] == 0
+    assert rig.health.update_count == 1
+    last = rig.health.last_update
+    assert last is not None and last.best_inlier_count == 0 and last.had_backbone_error is False
+    assert rig.inference.calls == []  # nothing to match: the nav frame is not even extracted
+
+
 def test_ac6_all_extractors_fail(fdr, logs):
     rig = ScriptedRig([S(fail_extract=True)] * 3, fdr)
     with pytest.raises(InsufficientInliersError):
@@ -174,6 +190,21 @@ def test_ac12_frame_done_record(fdr, logs):
     assert record["best_tile_id"] == result.per_candidate[0].tile_id.as_list()
     assert record["provider"] == "FakeExecutionProvider"
     assert "timings_ms" in record and record["best_homography"] is not None
+    per = record["per_candidate_timings_ms"]  # every candidate's stages, in input order
+    assert [sorted(t) for t in per] == [
+        sorted(t) for t in result.diagnostics["per_candidate_timings_ms"]
+    ]
+    assert {"extract", "match", "ransac"} <= set(per[0]) and "match" not in per[1]
+
+
+def test_an_insufficient_record_says_where_each_candidates_time_went(fdr, logs):
+    rig = ScriptedRig([S(59), S(10)], fdr)
+    with pytest.raises(InsufficientInliersError):
+        rig.match()
+    (record,) = fdr.of_kind("matcher.insufficient_inliers")
+    per = record["per_candidate_timings_ms"]
+    assert len(per) == 2 and all({"extract", "match", "ransac"} <= set(t) for t in per)
+    assert all(v >= 0 for t in per for v in t.values())
 
 
 def test_query_failure_raises_backbone_error_and_updates_health(fdr, logs):

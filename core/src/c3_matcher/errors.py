@@ -88,7 +88,8 @@ class InsufficientInliersError(C3Error):
 class MatcherClosedError(C3Error, RuntimeError):
     """``match`` was called on a matcher after ``close()`` (``ComposedRoot.close()`` closes it):
     its flight data recorder and log sinks are released, so a frame matched now would leave no
-    record. A caller's lifecycle error, raised before anything is touched."""
+    record. A caller's lifecycle error: the call's one health update (no fix) is its only
+    trace."""
 
     def __init__(self, matcher_label: str) -> None:
         self.matcher_label = matcher_label

@@ -145,7 +145,8 @@ class PipelineMatcher:
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
     ) -> MatchResult:
         with self._lock:  # one frame at a time: a second thread waits, as does close()
-            if self._closed:
+            if self._closed:  # no fix from this call either: the health window says so
+                FrameRecorder(self._sinks, None).update_health(0)
                 raise MatcherClosedError(self.backend.label)
             return self._contract_match(frame, rerank_result, calibration)
 
@@ -178,6 +179,10 @@ class PipelineMatcher:
                     [],
                     self.settings.min_inliers_threshold,
                     stale_rerank_frame_id=rerank_result.frame_id,
+                )
+            if not rerank_result.candidates:  # the re-ranker proposed no tile: no fix, as when
+                raise recorder.insufficient(  # every candidate fails (the VIO fallback's cue)
+                    FrameEvidence(0, dropped=0), 0, [], self.settings.min_inliers_threshold
                 )
             return self._match(frame, rerank_result, calibration, recorder)
         except (MatcherBackboneError, InsufficientInliersError):

@@ -57,7 +57,8 @@ class RerankCandidate:
 
 @dataclass(frozen=True, slots=True)
 class RerankResult:
-    """C2.5's output: the frame's top-N candidate tiles, best first."""
+    """C2.5's output: the frame's top-N candidate tiles, best first. None at all is a valid
+    proposal (no tile near the estimate): ``match`` then raises ``InsufficientInliersError``."""
 
     frame_id: uuid.UUID
     candidates: tuple[RerankCandidate, ...]
@@ -71,7 +72,6 @@ class RerankResult:
         cands = v.items(
             self.candidates, "rerank_result.candidates", "a sequence of RerankCandidate"
         )
-        v.require(len(cands) >= 1, "rerank_result.candidates", "must hold at least one candidate")
         for i, c in enumerate(cands):
             v.require(
                 isinstance(c, RerankCandidate),

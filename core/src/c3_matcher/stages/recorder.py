@@ -180,7 +180,8 @@ class FrameRecorder:
     def frame_done(
         self, evidence: FrameEvidence, ranked: Sequence[Survivor], timings: dict[str, float]
     ) -> None:
-        """Step 10: the success record (+ homography, timings, provider, engines)."""
+        """Step 10: the success record (+ homography, the frame's and each candidate's stage
+        timings in input order, provider, engines)."""
         best = ranked[0].match_set
         self.record(
             "matcher.frame_done",
@@ -197,6 +198,7 @@ class FrameRecorder:
                 **_rotation_record(evidence),
                 **_refine_record(evidence),
                 "timings_ms": timings,
+                "per_candidate_timings_ms": list(evidence.per_candidate_ms),
                 **self._sinks.backend.provenance(),
             },
         )
@@ -244,6 +246,7 @@ class FrameRecorder:
                 "geometry_refused": [r.as_record() for r in evidence.refused],
                 **_rotation_record(evidence),
                 **_refine_record(evidence),
+                "per_candidate_timings_ms": list(evidence.per_candidate_ms),
                 **self._sinks.backend.provenance(),
             },
         )
