@@ -29,7 +29,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from loguru import logger
 
@@ -38,6 +38,9 @@ from c3_matcher.engines.manifest import EngineManifest, check_engine_file
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, file_sha256
 from c3_matcher.errors import C3Error, EngineError
+
+if TYPE_CHECKING:
+    from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
 __all__ = [
     "BuildOutcome",
@@ -189,6 +192,18 @@ def _remove_superseded(
         log(f"removed superseded engine {other.name}")
 
 
+@dataclass(frozen=True, slots=True)
+class _Identity:
+    """What names one build of a spec: its resolved weights and their sha256, the build key,
+    and the engine's name and path (``target``) in the directory."""
+
+    weights_path: Path
+    weights_sha256: str
+    key: str
+    name: EngineName
+    target: Path
+
+
 def _build_one(
     spec: EngineSpec,
     directory: Path,
@@ -198,7 +213,43 @@ def _build_one(
     versions: dict[str, str],
     log: Callable[[str], None],
 ) -> BuildOutcome:
+    """Reuse ``spec``'s valid engine in ``directory`` (unless ``force``), or export it in a
+    scratch folder, verify and check it, move it and its manifest into place and remove the
+    builds it supersedes."""
     start = time.perf_counter()
+    ident = _identify(spec, directory, versions)
+    target = ident.target
+    if not force:
+        manifest = _existing(target, ident.key)
+        if manifest is not None:
+            log(f"{spec.key}: valid engine {target.name} reused")
+            return BuildOutcome(spec, target, manifest, True, time.perf_counter() - start)
+    from c3_matcher_tools.engines.export import ExportRequest
+
+    exporter = _load_exporter(spec)
+    log(f"{spec.key}: building {target.name}")
+    with _scratch(directory, ident.name.stem) as scratch:
+        candidate = scratch / ident.name.filename
+        request = ExportRequest(spec, ident.weights_path, candidate, images(), log)
+        report = _export(spec, exporter, request)
+        _check_graph(candidate, spec)
+        seconds = time.perf_counter() - start
+        manifest = _manifest(spec, ident, candidate, report, versions, seconds)
+        manifest_tmp = scratch / ident.name.manifest_filename
+        manifest.write(manifest_tmp)
+        candidate.replace(target)
+        manifest_tmp.replace(directory / ident.name.manifest_filename)
+    _remove_superseded(directory, spec, target, log)
+    log(f"{spec.key}: built {target.name} in {seconds:.1f} s")
+    logger.bind(
+        kind="c3.engines.built", engine=spec.key, file=str(target), seconds=round(seconds, 2)
+    ).info("engine {} built", spec.key)
+    return BuildOutcome(spec, target, manifest, False, seconds)
+
+
+def _identify(spec: EngineSpec, directory: Path, versions: dict[str, str]) -> _Identity:
+    """``spec``'s weights resolved and hashed (missing weights fail the build), its build key
+    and its engine's name in ``directory``."""
     try:
         weights_path = spec.weights.resolve()
     except FileNotFoundError as exc:
@@ -208,80 +259,82 @@ def _build_one(
     name = EngineName.from_build_key(
         spec.model, spec.variant, spec.precision, spec.input_rule, spec.opset, key
     )
-    target = directory / name.filename
-    if not force:
-        manifest = _existing(target, key)
-        if manifest is not None:
-            log(f"{spec.key}: valid engine {target.name} reused")
-            return BuildOutcome(spec, target, manifest, True, time.perf_counter() - start)
-    from c3_matcher_tools.engines.export import ExportRequest
+    return _Identity(weights_path, weights_sha, key, name, directory / name.filename)
 
-    exporter = _load_exporter(spec)
-    log(f"{spec.key}: building {target.name}")
-    with _scratch(directory, name.stem) as scratch:
-        candidate = scratch / name.filename
-        request = ExportRequest(spec, weights_path, candidate, images(), log)
-        try:
-            report = exporter(request)
-        except EngineBuildError:
-            raise
-        except Exception as exc:
-            raise EngineBuildError(spec.key, f"export failed: {type(exc).__name__}: {exc}") from exc
-        if not report.passed:
-            raise EngineBuildError(
-                spec.key, "verification failed: " + "; ".join(report.failures or ("no figures",))
-            )
-        try:
-            from c3_matcher_tools.engines.export.onnx_export import check_onnx_io
 
-            _name_dynamic_axes(candidate, spec)
-            check_onnx_io(candidate, spec.inputs, spec.outputs)
-        except Exception as exc:
-            raise EngineBuildError(spec.key, f"graph I/O check failed: {exc}") from exc
-        seconds = time.perf_counter() - start
-        manifest = EngineManifest(
-            file=name.filename,
-            file_sha256=file_sha256(candidate),
-            file_bytes=candidate.stat().st_size,
-            model=spec.model,
-            variant=spec.variant,
-            kind=spec.kind,
-            precision=spec.precision,
-            input_rule=spec.input_rule,
-            opset=spec.opset,
-            build_key=key,
-            weights={
-                "distribution": spec.weights.distribution,
-                "version": spec.weights.version(),
-                "path": spec.weights.path,
-                "sha256": weights_sha,
-            },
-            inputs=spec.inputs,
-            outputs=spec.outputs,
-            exporter={
-                "callable": spec.exporter,
-                "method": "torch.onnx.export(dynamo=True, external_data=False)",
-                "export_revision": str(spec.export_revision),
-                **versions,
-            },
-            options=dict(spec.options),
-            verification=report.to_json(),
-            build_seconds=round(seconds, 2),
-            built_at=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-            feature_type=spec.feature_type,
-            size_multiple=spec.size_multiple,
-            description=spec.description,
+def _export(
+    spec: EngineSpec, exporter: Callable[[Any], Any], request: ExportRequest
+) -> ExportReport:
+    """Run the spec's exporter (export and verification); any error, or a verification that
+    did not pass, fails the build."""
+    try:
+        report: ExportReport = exporter(request)
+    except EngineBuildError:
+        raise
+    except Exception as exc:
+        raise EngineBuildError(spec.key, f"export failed: {type(exc).__name__}: {exc}") from exc
+    if not report.passed:
+        raise EngineBuildError(
+            spec.key, "verification failed: " + "; ".join(report.failures or ("no figures",))
         )
-        manifest_tmp = scratch / name.manifest_filename
-        manifest.write(manifest_tmp)
-        candidate.replace(target)
-        manifest_tmp.replace(directory / name.manifest_filename)
-    _remove_superseded(directory, spec, target, log)
-    log(f"{spec.key}: built {target.name} in {seconds:.1f} s")
-    logger.bind(
-        kind="c3.engines.built", engine=spec.key, file=str(target), seconds=round(seconds, 2)
-    ).info("engine {} built", spec.key)
-    return BuildOutcome(spec, target, manifest, False, seconds)
+    return report
+
+
+def _check_graph(candidate: Path, spec: EngineSpec) -> None:
+    """Name the graph's dynamic axes as the spec declares, then check its inputs and outputs
+    against the spec; any error fails the build."""
+    try:
+        from c3_matcher_tools.engines.export.onnx_export import check_onnx_io
+
+        _name_dynamic_axes(candidate, spec)
+        check_onnx_io(candidate, spec.inputs, spec.outputs)
+    except Exception as exc:
+        raise EngineBuildError(spec.key, f"graph I/O check failed: {exc}") from exc
+
+
+def _manifest(
+    spec: EngineSpec,
+    ident: _Identity,
+    candidate: Path,
+    report: ExportReport,
+    versions: dict[str, str],
+    seconds: float,
+) -> EngineManifest:
+    """The manifest of the engine exported to ``candidate``: what it is, what it was built from
+    and with, how it verified, and when (``built_at``, now) and in how long it was built."""
+    return EngineManifest(
+        file=ident.name.filename,
+        file_sha256=file_sha256(candidate),
+        file_bytes=candidate.stat().st_size,
+        model=spec.model,
+        variant=spec.variant,
+        kind=spec.kind,
+        precision=spec.precision,
+        input_rule=spec.input_rule,
+        opset=spec.opset,
+        build_key=ident.key,
+        weights={
+            "distribution": spec.weights.distribution,
+            "version": spec.weights.version(),
+            "path": spec.weights.path,
+            "sha256": ident.weights_sha256,
+        },
+        inputs=spec.inputs,
+        outputs=spec.outputs,
+        exporter={
+            "callable": spec.exporter,
+            "method": "torch.onnx.export(dynamo=True, external_data=False)",
+            "export_revision": str(spec.export_revision),
+            **versions,
+        },
+        options=dict(spec.options),
+        verification=report.to_json(),
+        build_seconds=round(seconds, 2),
+        built_at=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        feature_type=spec.feature_type,
+        size_multiple=spec.size_multiple,
+        description=spec.description,
+    )
 
 
 def build_engines(

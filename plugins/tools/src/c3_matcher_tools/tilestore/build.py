@@ -54,6 +54,8 @@ from c3_matcher_tools.tilestore.writer import MBTilesWriter
 __all__ = ["MAX_UPSAMPLE", "BuildReport", "build_mbtiles", "parse_zooms", "render_tile"]
 
 Progress = Callable[[int, int], None]
+#: the tifffile fallback's raster for one zoom: RGB, valid mask, scale from the source's pixels
+_Scaled = tuple[NDArray[np.uint8], NDArray[np.uint8], float]
 
 #: the finest tiles built without ``force``: this many times finer than the source's GSD
 MAX_UPSAMPLE = 4.0
@@ -142,6 +144,65 @@ def parse_zooms(values: Sequence[int | str] | None) -> list[int] | None:
     return sorted(out)
 
 
+@dataclass(frozen=True)
+class _Source:
+    """The orthophoto as a build reads it: its grid and GSD, what the report says of it
+    (``reader``, ``nodata``, ``mapping``), and its pixels: ``raster`` (rasterio, one window per
+    tile) or ``photo_rgb`` (tifffile, the whole raster)."""
+
+    grid: GeoGrid
+    gsd: float
+    reader: str
+    nodata: float | None
+    mapping: str
+    raster: RasterioSource | None = None
+    photo_rgb: NDArray[np.uint8] | None = None
+
+    def close(self) -> None:
+        """Close the rasterio dataset (the tifffile raster is already in memory)."""
+        if self.raster is not None:
+            self.raster.close()
+
+
+@dataclass(frozen=True)
+class _Output:
+    """Where and how the tiles are written: the store, its tile encoding and its metadata's
+    attribution; ``overwrite`` replaces an existing store."""
+
+    path: Path
+    tile_format: str
+    jpeg_quality: int
+    attribution: str
+    overwrite: bool
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """The tiles a build covers: per zoom (``zooms``, ascending) the tile columns and rows
+    (``ranges``) around the orthophoto's ``corners`` (lon, lat); ``centre`` (lon, lat) is the
+    image centre and ``default_zoom`` the source's own zoom."""
+
+    zooms: tuple[int, ...]
+    default_zoom: int
+    centre: tuple[float, float]
+    corners: NDArray[np.float64]
+    ranges: dict[int, tuple[range, range]]
+
+    @property
+    def planned(self) -> int:
+        """How many tiles the bounds hold over every zoom."""
+        return sum(len(xs) * len(ys) for xs, ys in self.ranges.values())
+
+    def jobs(self) -> list[tuple[int, int, int]]:
+        """(zoom, x, y) of every tile in the bounds: zoom by zoom, row by row."""
+        return [(z, tx, ty) for z, (xs, ys) in self.ranges.items() for ty in ys for tx in xs]
+
+    def tile_gsd(self, z: int) -> float:
+        """The ground GSD (m/px) of zoom ``z``'s tiles at the image centre."""
+        lat_c = self.centre[1]
+        return 2 * math.pi * 6378137.0 / TILE_PX * math.cos(math.radians(lat_c)) / 2**z
+
+
 def build_mbtiles(
     geotiff: str | Path,
     out: str | Path,
@@ -178,33 +239,39 @@ def build_mbtiles(
         zooms = parse_zooms(list(zoom) if zoom is not None else None)
     if use_rasterio is None:
         use_rasterio = rasterio_available()
-    source: RasterioSource | None = None
-    photo_rgb: NDArray[np.uint8] | None = None
-    if use_rasterio:
-        source = RasterioSource(geotiff, reference=reference, value_range=value_range)
-        grid, gsd, reader, nodata = source.grid, source.gsd_m, "rasterio", source.nodata
-        mapping = source.mapping.describe()
-    else:
-        if value_range not in (None, "auto"):
-            raise InvalidInputError("--value-range", "needs the rasterio reader (the geo extra)")
-        grid = read_geotiff_grid(geotiff, reference=reference)
-        photo = load_orthophoto(geotiff)
-        if photo.size != grid.size:
-            raise InvalidInputError(
-                "geotiff", f"{geotiff}: pixel size {photo.size} != grid {grid.size}"
-            )
-        gsd = math.sqrt(grid.scale_x * grid.scale_y) if photo.gsd_m is None else photo.gsd_m
-        photo_rgb, reader, nodata = photo.rgb, "tifffile", None
-        mapping = _fallback_mapping(geotiff)
+    source = _open_source(geotiff, reference, use_rasterio, value_range)
+    output = _Output(Path(out), tile_format, jpeg_quality, attribution, overwrite)
     try:
-        check_source_gsd(gsd, geotiff)
-        return _build(
-            geotiff, out, grid, gsd, source, photo_rgb, zooms, tile_format, jpeg_quality,
-            attribution, overwrite, progress, reader, nodata, mapping, force,
-        )  # fmt: skip
+        check_source_gsd(source.gsd, geotiff)
+        return _build(geotiff, source, zooms, output, progress, force)
     finally:
-        if source is not None:
-            source.close()
+        source.close()
+
+
+def _open_source(
+    geotiff: str | Path,
+    reference: tuple[float, float] | None,
+    use_rasterio: bool,
+    value_range: ValueRange,
+) -> _Source:
+    """``geotiff`` opened with rasterio (read a window at a time), or loaded whole with
+    tifffile: then a ``value_range`` other than the default is refused (rasterio's alone), and
+    so are pixels that do not match the grid."""
+    if use_rasterio:
+        raster = RasterioSource(geotiff, reference=reference, value_range=value_range)
+        return _Source(
+            raster.grid, raster.gsd_m, "rasterio", raster.nodata, raster.mapping.describe(), raster
+        )
+    if value_range not in (None, "auto"):
+        raise InvalidInputError("--value-range", "needs the rasterio reader (the geo extra)")
+    grid = read_geotiff_grid(geotiff, reference=reference)
+    photo = load_orthophoto(geotiff)
+    if photo.size != grid.size:
+        raise InvalidInputError(
+            "geotiff", f"{geotiff}: pixel size {photo.size} != grid {grid.size}"
+        )
+    gsd = math.sqrt(grid.scale_x * grid.scale_y) if photo.gsd_m is None else photo.gsd_m
+    return _Source(grid, gsd, "tifffile", None, _fallback_mapping(geotiff), photo_rgb=photo.rgb)
 
 
 def _fallback_mapping(geotiff: str | Path) -> str:
@@ -220,24 +287,50 @@ def _fallback_mapping(geotiff: str | Path) -> str:
 
 def _build(
     geotiff: str | Path,
-    out: str | Path,
-    grid: GeoGrid,
-    gsd: float,
-    source: RasterioSource | None,
-    photo_rgb: NDArray[np.uint8] | None,
+    source: _Source,
     zooms: list[int] | None,
-    tile_format: str,
-    jpeg_quality: int,
-    attribution: str,
-    overwrite: bool,
+    output: _Output,
     progress: Progress | None,
-    reader: str,
-    nodata: float | None,
-    mapping: str,
     force: bool,
 ) -> BuildReport:
-    lon_c, lat_c = grid.centre_lonlat()
-    default_zoom = zoom_for_gsd(gsd, lat_c)
+    """Plan the tiles, refuse a zoom of invented detail (unless ``force``), write every tile
+    that holds data and the store's metadata, and report; a store with no tile is refused."""
+    plan = _plan(source, zooms)
+    _refuse_too_fine(plan, source.gsd, force)
+    jobs = plan.jobs()
+    with MBTilesWriter(output.path, overwrite=output.overwrite) as writer:
+        per_zoom = _write_tiles(writer, source, plan, jobs, output, progress)
+        if not any(per_zoom.values()):
+            raise InvalidInputError(
+                "geotiff",
+                f"{geotiff}: no tile holds data at zoom {'/'.join(map(str, plan.zooms))} "
+                f"({len(jobs)} in the bounds): the raster is all nodata (0); nothing written",
+            )
+        writer.put_metadata(_metadata(geotiff, source, plan, output))
+    finest = max(plan.zooms)
+    return BuildReport(
+        output.path,
+        finest,
+        sum(per_zoom.values()),
+        len(jobs),
+        plan.tile_gsd(finest),
+        source.gsd,
+        source.grid.projection.describe(),
+        output.path.stat().st_size,
+        plan.zooms,
+        per_zoom,
+        source.reader,
+        None if source.nodata is None else float(source.nodata),
+        tuple(sorted(source.raster.levels_used)) if source.raster is not None else (),
+        source.mapping,
+    )
+
+
+def _plan(source: _Source, zooms: list[int] | None) -> _Plan:
+    """The tiles covering the orthophoto at ``zooms`` (None: the source's own zoom)."""
+    grid = source.grid
+    centre = grid.centre_lonlat()
+    default_zoom = zoom_for_gsd(source.gsd, centre[1])
     if zooms is None:
         zooms = [default_zoom]
     w, h = grid.size
@@ -250,97 +343,98 @@ def _build(
         x_lo, y_lo = (np.floor(world.min(axis=0)) // TILE_PX).astype(int)
         x_hi, y_hi = (np.floor(world.max(axis=0)) // TILE_PX).astype(int)
         ranges[z] = (range(x_lo, x_hi + 1), range(y_lo, y_hi + 1))
-    planned = sum(len(xs) * len(ys) for xs, ys in ranges.values())
+    return _Plan(tuple(zooms), default_zoom, centre, corners, ranges)
 
-    def tile_gsd(z: int) -> float:
-        return 2 * math.pi * 6378137.0 / TILE_PX * math.cos(math.radians(lat_c)) / 2**z
 
-    too_fine = [z for z in zooms if tile_gsd(z) * MAX_UPSAMPLE < gsd]
+def _refuse_too_fine(plan: _Plan, gsd: float, force: bool) -> None:
+    """Unless ``force``, refuse a zoom more than :data:`MAX_UPSAMPLE` times finer than the
+    source's ``gsd`` (naming the finest such zoom)."""
+    too_fine = [z for z in plan.zooms if plan.tile_gsd(z) * MAX_UPSAMPLE < gsd]
     if too_fine and not force:
         z = max(too_fine)
+        tile_gsd = plan.tile_gsd(z)
         raise InvalidInputError(
             "--zoom",
-            f"zoom {z} ({tile_gsd(z):.3g} m/px) is {gsd / tile_gsd(z):,.0f}x finer than the "
-            f"source ({gsd:.3g} m/px): {planned:,} tiles planned, of invented detail; the "
-            f"source's zoom is {default_zoom} (the default). Use --force to build it anyway",
+            f"zoom {z} ({tile_gsd:.3g} m/px) is {gsd / tile_gsd:,.0f}x finer than the "
+            f"source ({gsd:.3g} m/px): {plan.planned:,} tiles planned, of invented detail; the "
+            f"source's zoom is {plan.default_zoom} (the default). Use --force to build it anyway",
         )
-    jobs = [(z, tx, ty) for z, (xs, ys) in ranges.items() for ty in ys for tx in xs]
-
-    per_zoom = {str(z): 0 for z in zooms}
-    scaled: dict[int, tuple[NDArray[np.uint8], NDArray[np.uint8], float]] = {}
-    out_path = Path(out)
-    with MBTilesWriter(out_path, overwrite=overwrite) as writer:
-        for done, (z, tx, ty) in enumerate(jobs, start=1):
-            ratio = tile_gsd(z) / gsd
-            tile: NDArray[np.uint8] | None
-            if source is not None:
-                uv = _tile_uv(grid, z, tx, ty)
-                got = source.sample(uv, ratio)
-                tile = None if got is None else _remap(*got)
-            else:
-                assert photo_rgb is not None
-                if z not in scaled:
-                    scaled[z] = _downscaled(photo_rgb, ratio)
-                rgb, valid, scale = scaled[z]
-                tile = render_tile(rgb, valid, grid, z, tx, ty, scale)
-            if tile is not None:
-                params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality] if tile_format == "jpg" else []
-                ok, buf = cv2.imencode(f".{tile_format}", tile[:, :, ::-1], params)
-                if not ok:
-                    raise InvalidInputError("format", f"cannot encode tile {z}/{tx}/{ty}")
-                writer.put_tile(z, tx, ty, buf.tobytes())
-                per_zoom[str(z)] += 1
-            if progress is not None:
-                progress(done, len(jobs))
-        if not any(per_zoom.values()):
-            raise InvalidInputError(
-                "geotiff",
-                f"{geotiff}: no tile holds data at zoom {'/'.join(map(str, zooms))} "
-                f"({len(jobs)} in the bounds): the raster is all nodata (0); nothing written",
-            )
-        lons, lats = corners[:, 0], corners[:, 1]
-        writer.put_metadata(
-            {
-                "name": Path(geotiff).stem,
-                "format": tile_format,
-                "type": "baselayer",
-                "version": "1.0",
-                "description": f"web-mercator tiles of {Path(geotiff).name} (c3-matcher)",
-                "attribution": attribution,
-                "bounds": f"{lons.min():.7f},{lats.min():.7f},{lons.max():.7f},{lats.max():.7f}",
-                "center": f"{lon_c:.7f},{lat_c:.7f},{max(zooms)}",
-                "minzoom": str(min(zooms)),
-                "maxzoom": str(max(zooms)),
-                "c3_source": Path(geotiff).name,
-                "c3_source_epsg": str(grid.epsg),
-                "c3_source_gsd_m": f"{gsd:.6f}",
-                "c3_georeference": json.dumps(grid.projection.to_dict()),
-                "c3_reader": reader,
-                "c3_source_value_mapping": mapping,
-                **({} if nodata is None else {"c3_source_nodata": repr(float(nodata))}),
-            }
-        )
-    return BuildReport(
-        out_path,
-        max(zooms),
-        sum(per_zoom.values()),
-        len(jobs),
-        tile_gsd(max(zooms)),
-        gsd,
-        grid.projection.describe(),
-        out_path.stat().st_size,
-        tuple(zooms),
-        per_zoom,
-        reader,
-        None if nodata is None else float(nodata),
-        tuple(sorted(source.levels_used)) if source is not None else (),
-        mapping,
-    )
 
 
-def _downscaled(
-    rgb: NDArray[np.uint8], ratio: float
-) -> tuple[NDArray[np.uint8], NDArray[np.uint8], float]:
+def _write_tiles(
+    writer: MBTilesWriter,
+    source: _Source,
+    plan: _Plan,
+    jobs: Sequence[tuple[int, int, int]],
+    output: _Output,
+    progress: Progress | None,
+) -> dict[str, int]:
+    """Render, encode and store each of ``jobs`` that holds data, calling ``progress`` after
+    every tile; the tiles stored per zoom (``"z"``)."""
+    per_zoom = {str(z): 0 for z in plan.zooms}
+    scaled: dict[int, _Scaled] = {}
+    for done, (z, tx, ty) in enumerate(jobs, start=1):
+        tile = _render(source, z, tx, ty, plan.tile_gsd(z) / source.gsd, scaled)
+        if tile is not None:
+            writer.put_tile(z, tx, ty, _encode(tile, output, z, tx, ty))
+            per_zoom[str(z)] += 1
+        if progress is not None:
+            progress(done, len(jobs))
+    return per_zoom
+
+
+def _render(
+    source: _Source, z: int, x: int, y: int, ratio: float, scaled: dict[int, _Scaled]
+) -> NDArray[np.uint8] | None:
+    """Tile (z, x, y), ``ratio`` times coarser than the source, or None when it holds no
+    data: read through its own window (rasterio), or resampled from the whole raster,
+    area-downscaled once per zoom into ``scaled`` (tifffile)."""
+    if source.raster is not None:
+        got = source.raster.sample(_tile_uv(source.grid, z, x, y), ratio)
+        return None if got is None else _remap(*got)
+    assert source.photo_rgb is not None
+    if z not in scaled:
+        scaled[z] = _downscaled(source.photo_rgb, ratio)
+    rgb, valid, scale = scaled[z]
+    return render_tile(rgb, valid, source.grid, z, x, y, scale)
+
+
+def _encode(tile: NDArray[np.uint8], output: _Output, z: int, x: int, y: int) -> bytes:
+    """Tile (z, x, y) (RGB) encoded as the store's PNG or JPEG."""
+    params = [cv2.IMWRITE_JPEG_QUALITY, output.jpeg_quality] if output.tile_format == "jpg" else []
+    ok, buf = cv2.imencode(f".{output.tile_format}", tile[:, :, ::-1], params)
+    if not ok:
+        raise InvalidInputError("format", f"cannot encode tile {z}/{x}/{y}")
+    return buf.tobytes()
+
+
+def _metadata(geotiff: str | Path, source: _Source, plan: _Plan, output: _Output) -> dict[str, str]:
+    """The store's MBTiles metadata, with the source's georeference, reader and mapping."""
+    lons, lats = plan.corners[:, 0], plan.corners[:, 1]
+    lon_c, lat_c = plan.centre
+    grid, nodata = source.grid, source.nodata
+    return {
+        "name": Path(geotiff).stem,
+        "format": output.tile_format,
+        "type": "baselayer",
+        "version": "1.0",
+        "description": f"web-mercator tiles of {Path(geotiff).name} (c3-matcher)",
+        "attribution": output.attribution,
+        "bounds": f"{lons.min():.7f},{lats.min():.7f},{lons.max():.7f},{lats.max():.7f}",
+        "center": f"{lon_c:.7f},{lat_c:.7f},{max(plan.zooms)}",
+        "minzoom": str(min(plan.zooms)),
+        "maxzoom": str(max(plan.zooms)),
+        "c3_source": Path(geotiff).name,
+        "c3_source_epsg": str(grid.epsg),
+        "c3_source_gsd_m": f"{source.gsd:.6f}",
+        "c3_georeference": json.dumps(grid.projection.to_dict()),
+        "c3_reader": source.reader,
+        "c3_source_value_mapping": source.mapping,
+        **({} if nodata is None else {"c3_source_nodata": repr(float(nodata))}),
+    }
+
+
+def _downscaled(rgb: NDArray[np.uint8], ratio: float) -> _Scaled:
     """The fallback's whole-image area downscale for tiles >= 1.15x coarser than the source."""
     valid = np.any(rgb > 0, axis=2).astype(np.uint8)
     if ratio < 1.15:
