@@ -308,6 +308,23 @@ def read_telemetry_table(
 ) -> Telemetry:
     """:func:`read_telemetry` with how the heights above ground were obtained."""
     path = Path(path)
+    reader, header = _csv_reader(path)
+    cols = _column_map(header, path)
+    _check_ground_given(path, cols, ground_elevation_m, dem)
+    ground = ground_elevation_sampler(dem) if dem is not None else None
+    rows, problems = _read_rows(reader, _RowRules(cols, ground, ground_elevation_m))
+    if not rows and not problems:
+        problems.append((1, "no data rows"))
+    problems += _repeated_images(rows)
+    rows.sort(key=lambda r: (r.time_s, r.line))
+    problems += _repeated_times(rows)
+    _refuse(path, problems)
+    return Telemetry(tuple(rows), _height_source(cols, ground_elevation_m, dem), cols)
+
+
+def _csv_reader(path: Path) -> tuple[csv.DictReader[str], list[str]]:
+    """A reader of the CSV's records and its header; refused when the file cannot be read as
+    UTF-8 or has no header."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
@@ -315,7 +332,14 @@ def read_telemetry_table(
     reader = csv.DictReader(text.splitlines())
     if not reader.fieldnames:
         raise InvalidInputError(str(path), "empty telemetry CSV (no header)")
-    cols = _column_map(list(reader.fieldnames), path)
+    return reader, list(reader.fieldnames)
+
+
+def _check_ground_given(
+    path: Path, cols: dict[str, str], ground_elevation_m: float | None, dem: Path | None
+) -> None:
+    """Refuse a ground elevation or DEM for a CSV without an altitude above sea level, and
+    an altitude above sea level alone without either."""
     has_msl, has_agl = "altitude_msl_m" in cols, "altitude_m" in cols
     given = ground_elevation_m is not None or dem is not None
     if given and not has_msl:
@@ -331,49 +355,89 @@ def read_telemetry_table(
             "the ground's (--ground-elevation M, same datum) or a DEM (--dem DEM.tif) to get "
             "the height above ground",
         )
-    ground = ground_elevation_sampler(dem) if dem is not None else None
-    numeric = [k for k in (*COLUMNS, *HEIGHT_COLUMNS) if k in cols and k != "image"]
+
+
+@dataclass(frozen=True)
+class _RowRules:
+    """How a CSV record becomes a :class:`TelemetryRow`: canonical column -> the header's
+    name, and the ground an altitude above sea level is measured from (the DEM's sampler, or
+    the given ground elevation)."""
+
+    cols: dict[str, str]
+    ground: Callable[[float, float], float | None] | None
+    ground_elevation_m: float | None
+
+    @property
+    def numeric(self) -> list[str]:
+        """The canonical columns given, bar the image name: each must hold a number."""
+        return [k for k in (*COLUMNS, *HEIGHT_COLUMNS) if k in self.cols and k != "image"]
+
+
+def _read_rows(
+    reader: csv.DictReader[str], rules: _RowRules
+) -> tuple[list[TelemetryRow], list[tuple[int, str]]]:
+    """The accepted rows in line order, and (line, why) of each refused one."""
     rows: list[TelemetryRow] = []
     problems: list[tuple[int, str]] = []
     for n, rec in enumerate(reader, start=2):
-        values: dict[str, float] = {}
-        bad: list[str] = []
-        for k in numeric:
-            raw = str(rec.get(cols[k]) or "").strip()
-            try:
-                values[k] = float(raw)
-            except ValueError:
-                bad.append(f"{cols[k]} {raw!r} is not a number")
-                continue
-            if not math.isfinite(values[k]):
-                bad.append(f"{cols[k]} {raw} is not finite")
-        image = str(rec.get(cols["image"]) or "").strip()
-        why = "; ".join(bad) if bad else None
-        if why is None and not image:
-            why = f"{cols['image']} is empty"
-        why = why or _row_problem(values, cols)
-        height = None
-        if why is None:
-            height, why = _height(values, cols, ground, ground_elevation_m)
-        if why is not None or height is None:
-            problems.append((n, f"line {n}: {why}"))
+        row = _row(n, rec, rules)
+        if isinstance(row, str):
+            problems.append((n, f"line {n}: {row}"))
+        else:
+            rows.append(row)
+    return rows, problems
+
+
+def _row(n: int, rec: dict[str, str], rules: _RowRules) -> TelemetryRow | str:
+    """CSV line ``n`` as a row, or why it is refused: its values that are not finite numbers,
+    else an empty image name, else the first value out of range, else its height."""
+    cols = rules.cols
+    values, bad = _numbers(rec, rules)
+    image = str(rec.get(cols["image"]) or "").strip()
+    why = "; ".join(bad) if bad else None
+    if why is None and not image:
+        why = f"{cols['image']} is empty"
+    why = why or _row_problem(values, cols)
+    if why is not None:
+        return why
+    height, why = _height(values, cols, rules.ground, rules.ground_elevation_m)
+    if height is None:
+        return str(why)
+    return TelemetryRow(
+        n,
+        values["time_s"],
+        image,
+        values["lat"],
+        values["lon"],
+        height,
+        values["roll_deg"],
+        values["pitch_deg"],
+        values["yaw_deg"],
+        values.get("altitude_msl_m"),
+    )
+
+
+def _numbers(rec: dict[str, str], rules: _RowRules) -> tuple[dict[str, float], list[str]]:
+    """The record's numeric columns as floats, and what is wrong with each that is not a
+    finite number (naming the CSV's column)."""
+    values: dict[str, float] = {}
+    bad: list[str] = []
+    for k in rules.numeric:
+        name = rules.cols[k]
+        raw = str(rec.get(name) or "").strip()
+        try:
+            values[k] = float(raw)
+        except ValueError:
+            bad.append(f"{name} {raw!r} is not a number")
             continue
-        rows.append(
-            TelemetryRow(
-                n,
-                values["time_s"],
-                image,
-                values["lat"],
-                values["lon"],
-                height,
-                values["roll_deg"],
-                values["pitch_deg"],
-                values["yaw_deg"],
-                values.get("altitude_msl_m"),
-            )
-        )
-    if not rows and not problems:
-        problems.append((1, "no data rows"))
+        if not math.isfinite(values[k]):
+            bad.append(f"{name} {raw} is not finite")
+    return values, bad
+
+
+def _repeated_images(rows: Sequence[TelemetryRow]) -> list[tuple[int, str]]:
+    """(line, why) of each row naming an image an earlier row names."""
+    problems: list[tuple[int, str]] = []
     seen: dict[str, int] = {}
     for r in rows:
         if r.image in seen:
@@ -381,22 +445,28 @@ def read_telemetry_table(
                 (r.line, f"line {r.line}: image {r.image!r} already on line {seen[r.image]}")
             )
         seen[r.image] = r.line
-    rows.sort(key=lambda r: (r.time_s, r.line))
-    for a, b in itertools.pairwise(rows):
-        if b.time_s == a.time_s:
-            problems.append((b.line, f"lines {a.line} and {b.line}: same time_s {a.time_s}"))
-    _refuse(path, problems)
+    return problems
+
+
+def _repeated_times(rows: Sequence[TelemetryRow]) -> list[tuple[int, str]]:
+    """(line, why) of each row at the time of the row before it (``rows`` sorted by time)."""
+    return [
+        (b.line, f"lines {a.line} and {b.line}: same time_s {a.time_s}")
+        for a, b in itertools.pairwise(rows)
+        if b.time_s == a.time_s
+    ]
+
+
+def _height_source(cols: dict[str, str], ground_elevation_m: float | None, dem: Path | None) -> str:
+    """How the heights above ground were obtained, in words."""
+    has_msl, has_agl = "altitude_msl_m" in cols, "altitude_m" in cols
     if has_agl and has_msl:
-        source = f"column {cols['altitude_m']!r} (checked against {cols['altitude_msl_m']!r})"
-    elif has_agl:
-        source = f"column {cols['altitude_m']!r} read as height above ground"
-    elif dem is not None:
-        source = f"column {cols['altitude_msl_m']!r} minus the DEM {Path(dem).name}"
-    else:
-        source = (
-            f"column {cols['altitude_msl_m']!r} minus ground elevation {ground_elevation_m:g} m"
-        )
-    return Telemetry(tuple(rows), source, cols)
+        return f"column {cols['altitude_m']!r} (checked against {cols['altitude_msl_m']!r})"
+    if has_agl:
+        return f"column {cols['altitude_m']!r} read as height above ground"
+    if dem is not None:
+        return f"column {cols['altitude_msl_m']!r} minus the DEM {Path(dem).name}"
+    return f"column {cols['altitude_msl_m']!r} minus ground elevation {ground_elevation_m:g} m"
 
 
 def look_point(row: TelemetryRow, calibration: CameraCalibration) -> tuple[float, float]:
@@ -614,6 +684,36 @@ def import_csv_flight(
     (nothing is written then)."""
     out = Path(out)
     check_output_dir(out, force=force, inputs=spec.inputs)
+    checked = _check_csv_inputs(spec)
+    frames = _csv_frames(checked, spec, name or out.name)
+    meta = _csv_meta(checked, spec, name or out.name)
+    with atomic_directory(out, force=force) as tmp:
+        (tmp / "frames").mkdir()
+        for r, f in zip(checked.rows, frames, strict=True):
+            shutil.copyfile(checked.images_dir / r.image, tmp / f.image)
+        shutil.copyfile(spec.store, tmp / "tiles.mbtiles")
+        write_dataset(tmp, meta, checked.calibration, frames)
+    return _csv_report(checked, spec, out, len(frames))
+
+
+@dataclass(frozen=True)
+class _CheckedCsv:
+    """A telemetry-CSV import's inputs once checked: the images folder, the calibration, the
+    telemetry, the rows whose image is there (in time order) with the images and rows
+    skipped, and the candidates proposed for each row."""
+
+    images_dir: Path
+    calibration: CameraCalibration
+    table: Telemetry
+    rows: list[TelemetryRow]
+    skipped: list[tuple[str, str]]
+    proposed: StoreProposals
+
+
+def _check_csv_inputs(spec: ImportSpec) -> _CheckedCsv:
+    """Check the images folder, store, calibration, telemetry, each image named and the
+    store's coverage of every frame, in that order; raises InvalidInputError naming the
+    input at fault."""
     images_dir = Path(spec.images_dir)
     if not images_dir.exists():
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: no such file or folder")
@@ -632,36 +732,53 @@ def import_csv_flight(
             f"{images_dir}: no telemetry row names an image there "
             f"({len(table.rows)} row(s), e.g. {table.rows[0].image!r})",
         )
+    _refuse(images_dir, _image_problems(images_dir, rows, calibration))
+    proposed = propose_from_store(rows, calibration, spec)
+    proposed.refuse_outside("TELEMETRY", lambda r: f"line {r.line}")
+    return _CheckedCsv(images_dir, calibration, table, rows, skipped, proposed)
+
+
+def _image_problems(
+    images_dir: Path, rows: Sequence[TelemetryRow], calibration: CameraCalibration
+) -> list[tuple[int, str]]:
+    """(line, why) of each row whose image cannot be a frame."""
     problems = []
     for r in rows:
         why = _check_image(images_dir / r.image, calibration)
         if why:
             problems.append((r.line, f"line {r.line}: {r.image}: {why}"))
-    _refuse(images_dir, problems)
-    proposed = propose_from_store(rows, calibration, spec)
-    zoom, proposals = proposed.zoom, proposed.looks
-    attribution, tiles_source = proposed.attribution, proposed.tiles_source
-    proposed.refuse_outside("TELEMETRY", lambda r: f"line {r.line}")
+    return problems
+
+
+def _csv_frames(checked: _CheckedCsv, spec: ImportSpec, name: str) -> list[FrameRecord]:
+    """The dataset record of each row, its frame ids derived from the dataset's ``name``."""
     frames: list[FrameRecord] = []
-    t0 = rows[0].time_s
-    base = uuid.uuid5(uuid.NAMESPACE_URL, f"c3-flight-import:{name or out.name}")
-    for i, (r, proposal) in enumerate(zip(rows, proposals, strict=True)):
+    t0 = checked.rows[0].time_s
+    base = uuid.uuid5(uuid.NAMESPACE_URL, f"c3-flight-import:{name}")
+    for i, (r, proposal) in enumerate(zip(checked.rows, checked.proposed.looks, strict=True)):
         ext = Path(r.image).suffix.lower() or ".jpg"
         known: dict[str, Any] = {}
         if r.altitude_msl_m is not None:
             known["altitude_msl_m"] = r.altitude_msl_m
-        known["height_source"] = table.height_source
+        known["height_source"] = checked.table.height_source
         frames.append(imported_frame(i, r, t0, base, ext, proposal, spec, heights=known))
-    meta = {
-        "name": name or out.name,
+    return frames
+
+
+def _csv_meta(checked: _CheckedCsv, spec: ImportSpec, name: str) -> dict[str, Any]:
+    """The dataset's ``dataset.json``: the store's zoom and sources, and the import's inputs
+    (by file name) and options in ``spec``."""
+    zoom = checked.proposed.zoom
+    return {
+        "name": name,
         "store": "tiles.mbtiles",
         "candidate_size_px": spec.candidate_size_px,
         "zoom": zoom,
-        "tiles_source": tiles_source,
+        "tiles_source": checked.proposed.tiles_source,
         "frames_source": f"imported: {Path(spec.telemetry_csv).name}",
         "spec": {
             "kind": "import",
-            "images_dir": images_dir.name,
+            "images_dir": checked.images_dir.name,
             "telemetry_csv": Path(spec.telemetry_csv).name,
             "calibration_json": Path(spec.calibration_json).name,
             "store": Path(spec.store).name,
@@ -677,28 +794,26 @@ def import_csv_flight(
             ),
             **({} if spec.dem is None else {"dem": Path(spec.dem).name}),
         },
-        "attribution": attribution,
+        "attribution": checked.proposed.attribution,
     }
-    with atomic_directory(out, force=force) as tmp:
-        (tmp / "frames").mkdir()
-        for r, f in zip(rows, frames, strict=True):
-            shutil.copyfile(images_dir / r.image, tmp / f.image)
-        shutil.copyfile(spec.store, tmp / "tiles.mbtiles")
-        write_dataset(tmp, meta, calibration, frames)
-    heights = [r.altitude_m for r in rows]
+
+
+def _csv_report(checked: _CheckedCsv, spec: ImportSpec, out: Path, frames: int) -> ImportReport:
+    """What the import of ``frames`` frames into ``out`` did."""
+    heights = [r.altitude_m for r in checked.rows]
     return ImportReport(
         dataset=str(out),
         source=Path(spec.telemetry_csv).name,
         kind="telemetry CSV",
-        frames=len(frames),
-        skipped=tuple(skipped),
-        time_source=f"column {table.columns['time_s']!r}",
+        frames=frames,
+        skipped=tuple(checked.skipped),
+        time_source=f"column {checked.table.columns['time_s']!r}",
         time_offset_s=0.0,
-        height_sources={table.height_source: len(frames)},
+        height_sources={checked.table.height_source: frames},
         attitude_assumed=(),
         height_assumed=(),
         gnss_degraded=(),
-        zoom=zoom,
+        zoom=checked.proposed.zoom,
         notes=(
             f"heights above ground {min(heights):.1f} to {max(heights):.1f} m; altitudes above "
             "sea level go in a column altitude_msl_m, with --ground-elevation or --dem",

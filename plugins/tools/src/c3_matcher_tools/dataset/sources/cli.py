@@ -5,12 +5,18 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from c3_matcher.commands import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.args import bounded_float
 from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport
+
+if TYPE_CHECKING:
+    from c3_matcher.dto import CameraCalibration
+    from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 
 __all__ = [
     "KINDS",
@@ -161,62 +167,101 @@ def _frames_of_a_video(kind: str, images: str) -> bool:
 def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
     """Read the log of ``kind`` named by the parsed ``dataset import`` arguments and write the
     dataset."""
-    from c3_matcher.serialize import load_calibration
     from c3_matcher_tools.dataset.atomic import check_output_dir
     from c3_matcher_tools.dataset.sources.writer import write_imported_flight
 
     given = (args.images_dir, args.telemetry, args.calibration, args.store, args.dem)
     check_output_dir(args.out, force=args.force, inputs=given)  # before the log is read
-    telemetry, images = Path(args.telemetry), str(args.images_dir)
-    recorded = None
+    log = _read_log(kind, args)
+    calibration = _calibration(args, log.recorded)
     attitude_of = None
-    skipped: list[tuple[str, str]] = []
+    if kind == "exif":
+        from c3_matcher_tools.dataset.sources.exif import photo_attitude
+
+        attitude_of = photo_attitude(calibration)
+    return write_imported_flight(
+        log.track,
+        log.shots,
+        _import_options(kind, args, calibration),
+        args.out,
+        name=args.name,
+        force=args.force,
+        attitude_of=attitude_of,
+        spec={"source_kind": kind, "images": Path(str(args.images_dir)).name},
+        skipped=log.skipped,
+    )
+
+
+@dataclass(frozen=True)
+class _ReadLog:
+    """What a recorded log gave: its track, its images, the images set aside (with why) and
+    the intrinsics it recorded (a bag's CameraInfo; None otherwise)."""
+
+    track: LogTrack
+    shots: list[Shot]
+    skipped: list[tuple[str, str]]
+    recorded: CameraCalibration | None = None
+
+
+def _read_log(kind: str, args: argparse.Namespace) -> _ReadLog:
+    """The log of ``kind`` and its images, as IMAGES and TELEMETRY name them."""
+    telemetry, images = Path(args.telemetry), str(args.images_dir)
     if kind == "rosbag":
         from c3_matcher_tools.dataset.sources.rosbag import BagTopics, read_bag
 
         if images not in ("-", str(telemetry)):
             raise InvalidInputError("IMAGES", "a bag holds its images: give '-' as IMAGES")
-        track, shots, recorded = read_bag(
-            telemetry,
-            BagTopics(
-                args.image_topic, args.attitude_topic, args.navsat_topic, args.camera_info_topic
-            ),
-            args.frame_step,
+        topics = BagTopics(
+            args.image_topic, args.attitude_topic, args.navsat_topic, args.camera_info_topic
         )
-    elif kind == "exif":
+        track, shots, recorded = read_bag(telemetry, topics, args.frame_step)
+        return _ReadLog(track, shots, [], recorded)
+    if kind == "exif":
         from c3_matcher_tools.dataset.sources.exif import read_photo_folder
 
         if str(args.telemetry) not in ("-", images):
             raise InvalidInputError("TELEMETRY", "photos carry their own telemetry: give '-'")
         given_ground = args.ground_elevation is not None or args.dem is not None
-        track, shots, skipped = read_photo_folder(Path(images), relative_height=not given_ground)
-    else:
-        from c3_matcher_tools.dataset.sources.images import read_images
+        return _ReadLog(*read_photo_folder(Path(images), relative_height=not given_ground))
+    from c3_matcher_tools.dataset.sources.images import read_images
 
-        if kind == "ulog":
-            from c3_matcher_tools.dataset.sources.ulog import read_ulog
+    track = _read_flight_log(kind, telemetry)
+    shots, skipped = read_images(Path(images), args.frame_step)  # step checked already
+    return _ReadLog(track, shots, skipped)
 
-            track = read_ulog(telemetry)
-        elif kind == "ardupilot":
-            from c3_matcher_tools.dataset.sources.mavlink import read_mavlink
 
-            track = read_mavlink(telemetry)
-        else:
-            raise InvalidInputError("--source", f"unknown kind {kind!r}")
-        shots, skipped = read_images(Path(images), args.frame_step)  # step checked already
+def _read_flight_log(kind: str, telemetry: Path) -> LogTrack:
+    """The track of a flight controller's log (its images come separately)."""
+    if kind == "ulog":
+        from c3_matcher_tools.dataset.sources.ulog import read_ulog
+
+        return read_ulog(telemetry)
+    if kind == "ardupilot":
+        from c3_matcher_tools.dataset.sources.mavlink import read_mavlink
+
+        return read_mavlink(telemetry)
+    raise InvalidInputError("--source", f"unknown kind {kind!r}")
+
+
+def _calibration(args: argparse.Namespace, recorded: CameraCalibration | None) -> CameraCalibration:
+    """CALIBRATION's file, or with '-' the intrinsics the log recorded (refused when none)."""
+    from c3_matcher.serialize import load_calibration
+
     if str(args.calibration) == "-":
         if recorded is None:
             raise InvalidInputError(
                 "CALIBRATION", "'-' takes the bag's CameraInfo, and none was recorded"
             )
-        calibration = recorded
-    else:
-        calibration = load_calibration(Path(args.calibration))
-    if kind == "exif":
-        from c3_matcher_tools.dataset.sources.exif import photo_attitude
+        return recorded
+    return load_calibration(Path(args.calibration))
 
-        attitude_of = photo_attitude(calibration)
-    options = ImportOptions(
+
+def _import_options(
+    kind: str, args: argparse.Namespace, calibration: CameraCalibration
+) -> ImportOptions:
+    """How the images meet the log and the candidates are proposed (a photo folder's images
+    meet it by their own time)."""
+    return ImportOptions(
         calibration=calibration,
         store=Path(args.store),
         time_source="exif" if kind == "exif" else args.time_source,
@@ -231,15 +276,4 @@ def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
         zoom=args.zoom,
         candidate_size_px=args.candidate_size,
         seed=args.seed,
-    )
-    return write_imported_flight(
-        track,
-        shots,
-        options,
-        args.out,
-        name=args.name,
-        force=args.force,
-        attitude_of=attitude_of,
-        spec={"source_kind": kind, "images": Path(images).name},
-        skipped=skipped,
     )

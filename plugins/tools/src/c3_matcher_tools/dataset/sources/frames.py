@@ -81,64 +81,112 @@ def assemble_frames(
     """Per matched shot, the telemetry at its time (see the module docstring); frames without
     a position are returned as skipped. ``attitude_of`` overrides the log's attitude per shot
     (the image's own gimbal angles)."""
-    gap = options.max_gap_s
     dem = ground_elevation_sampler(options.dem) if options.dem is not None else None
+    sources = _Sources(track, options, attitude_of, dem)
     frames: list[Frame] = []
     skipped: list[tuple[str, str]] = []
     for shot, t in matched:
-        flags: list[str] = []
-        pos = _finite_position(track.position.at(t, gap) if track.position is not None else None)
-        fix = track.gnss.at(t, gap) if track.gnss is not None else None
-        if track.per_image and "lat" in shot.own:
-            own = shot.own
-            fix = np.array(
-                [own["lat"], own["lon"], own.get("alt_m", math.nan), math.nan, 3.0],
-                dtype=np.float64,
-            )
-        if pos is None and fix is not None:
-            pos = _finite_position(fix[:3])
-        if pos is None:
-            skipped.append((shot.name, f"no position within {gap:g} s of {t:.2f} s"))
-            continue
-        lat, lon, alt = (float(v) for v in pos[:3])
+        frame = _frame(sources, shot, t)
+        if frame is None:
+            skipped.append((shot.name, f"no position within {options.max_gap_s:g} s of {t:.2f} s"))
+        else:
+            frames.append(frame)
+    _fill_heights(frames)
+    return frames, skipped
+
+
+@dataclass(frozen=True)
+class _Sources:
+    """What a frame's telemetry is read from: the log's track, the import's options, the
+    images' own attitude (when given) and the DEM's ground altitude (when given)."""
+
+    track: LogTrack
+    options: ImportOptions
+    attitude_of: Callable[[Shot, float], tuple[float, float, float] | None] | None
+    dem: Callable[[float, float], float | None] | None
+
+
+@dataclass(frozen=True)
+class _GnssQuality:
+    """A frame's GNSS fix as the dataset states it: the stated horizontal accuracy (m) and
+    fix type (None when not stated), and whether it is absent or degraded."""
+
+    accuracy_m: float | None
+    fix_type: int | None
+    degraded: bool
+
+    @classmethod
+    def of(cls, fix: F64 | None, degraded_m: float) -> _GnssQuality:
+        """Degraded: no fix, no position in it, less than a 3D fix or an accuracy worse than
+        ``degraded_m``."""
         accuracy = float(fix[3]) if fix is not None and math.isfinite(fix[3]) else None
         fix_type = int(fix[4]) if fix is not None and math.isfinite(fix[4]) else None
         degraded = (
             fix is None
             or _finite_position(fix[:3]) is None
             or (fix_type is not None and fix_type < 3)
-            or (accuracy is not None and accuracy > options.gnss_degraded_m)
+            or (accuracy is not None and accuracy > degraded_m)
         )
-        if degraded:
-            flags.append("gnss_degraded")
-        attitude = attitude_of(shot, t) if attitude_of is not None else None
-        if attitude is None and track.attitude is not None:
-            a = track.attitude.at(t, gap)
-            attitude = None if a is None else (float(a[0]), float(a[1]), float(a[2]))
-        if attitude is None or max(abs(attitude[0]), abs(attitude[1])) >= 89.0:
-            flags.append("attitude_assumed")
-            attitude = (0.0, 0.0, _course_deg(track, t))
-        height, source = _height(track, shot, t, lat, lon, alt, options, dem)
-        frames.append(
-            Frame(
-                shot,
-                t,
-                lat,
-                lon,
-                alt,
-                attitude,
-                height,
-                source,
-                tuple(flags),
-                {
-                    "gnss_accuracy_m": accuracy,
-                    "gnss_fix": fix_type,
-                    "gnss_degraded": degraded,
-                },
-            )
+        return cls(accuracy, fix_type, degraded)
+
+    def telemetry(self) -> dict[str, Any]:
+        return {
+            "gnss_accuracy_m": self.accuracy_m,
+            "gnss_fix": self.fix_type,
+            "gnss_degraded": self.degraded,
+        }
+
+
+def _frame(sources: _Sources, shot: Shot, t: float) -> Frame | None:
+    """``shot`` at log time ``t`` with its telemetry, flagged where it is degraded or assumed;
+    None when no position lies within the gap."""
+    track, options = sources.track, sources.options
+    fix = _gnss_fix(track, shot, t, options.max_gap_s)
+    pos = _position(track, t, options.max_gap_s, fix)
+    if pos is None:
+        return None
+    lat, lon, alt = (float(v) for v in pos[:3])
+    gnss = _GnssQuality.of(fix, options.gnss_degraded_m)
+    attitude, assumed = _attitude(sources, shot, t)
+    height, source = _height(track, shot, t, lat, lon, alt, options, sources.dem)
+    flags = tuple(
+        flag for flag, on in (("gnss_degraded", gnss.degraded), ("attitude_assumed", assumed)) if on
+    )
+    return Frame(shot, t, lat, lon, alt, attitude, height, source, flags, gnss.telemetry())
+
+
+def _gnss_fix(track: LogTrack, shot: Shot, t: float, gap: float) -> F64 | None:
+    """The GNSS fix (lat, lon, alt, accuracy, fix type) at ``t``: the image's own position
+    when each image states one, else the log's receiver within ``gap``."""
+    fix = track.gnss.at(t, gap) if track.gnss is not None else None
+    if track.per_image and "lat" in shot.own:
+        own = shot.own
+        fix = np.array(
+            [own["lat"], own["lon"], own.get("alt_m", math.nan), math.nan, 3.0],
+            dtype=np.float64,
         )
-    _fill_heights(frames)
-    return frames, skipped
+    return fix
+
+
+def _position(track: LogTrack, t: float, gap: float, fix: F64 | None) -> F64 | None:
+    """The vehicle's position at ``t``: the log's estimate, else the GNSS fix; None when
+    neither has a finite one within ``gap``."""
+    pos = _finite_position(track.position.at(t, gap) if track.position is not None else None)
+    if pos is None and fix is not None:
+        pos = _finite_position(fix[:3])
+    return pos
+
+
+def _attitude(sources: _Sources, shot: Shot, t: float) -> tuple[tuple[float, float, float], bool]:
+    """(attitude, whether assumed): the image's own, else the log's at ``t``; level with the
+    yaw of the course when neither gives one or it is near vertical."""
+    attitude = sources.attitude_of(shot, t) if sources.attitude_of is not None else None
+    if attitude is None and sources.track.attitude is not None:
+        a = sources.track.attitude.at(t, sources.options.max_gap_s)
+        attitude = None if a is None else (float(a[0]), float(a[1]), float(a[2]))
+    if attitude is None or max(abs(attitude[0]), abs(attitude[1])) >= 89.0:
+        return (0.0, 0.0, _course_deg(sources.track, t)), True
+    return attitude, False
 
 
 def _finite_position(pos: F64 | None) -> F64 | None:

@@ -144,6 +144,34 @@ NO_ATTITUDE = (
 )
 
 
+@dataclass(frozen=True)
+class _Connections:
+    """The bag's connections read, by kind: ``attitude`` empty when the bag has none,
+    ``camera_info`` None when no intrinsics were recorded."""
+
+    images: list[Any]
+    attitude: list[Any]
+    navsat: list[Any]
+    camera_info: list[Any] | None
+
+    @property
+    def wanted(self) -> list[Any]:
+        return [*self.images, *self.attitude, *self.navsat, *(self.camera_info or [])]
+
+
+@dataclass(frozen=True)
+class _Messages:
+    """What the chosen topics held, in the bag's order: the kept images, the attitude and
+    NavSatFix samples (times and values) and the first CameraInfo."""
+
+    shots: list[Shot]
+    att_t: list[float]
+    att_v: list[tuple[float, float, float]]
+    fix_t: list[float]
+    fix_v: list[list[float]]
+    calibration: CameraCalibration | None
+
+
 def read_bag(
     path: Path, topics: BagTopics = BagTopics(), step: int = 1
 ) -> tuple[LogTrack, list[Shot], CameraCalibration | None]:
@@ -155,100 +183,139 @@ def read_bag(
     check_frame_step(step, video=True)
     path = Path(path)
     source = str(path)
-    reader = _reader(path)
+    conns, messages = _read(_reader(path), source, topics, step)
+    _check_messages(source, conns, messages)
+    attitude = (
+        _series(conns.attitude[0].topic, messages.att_t, messages.att_v, source, angles=(2,))
+        if conns.attitude
+        else None
+    )
+    gnss = _series(conns.navsat[0].topic, messages.fix_t, messages.fix_v, source)
+    shots = sorted(messages.shots, key=lambda s: s.t_s or 0.0)
+    track = LogTrack(
+        source=source,
+        kind=KIND,
+        attitude=attitude,
+        position=None,
+        gnss=gnss,
+        utc_offset_s=0.0,
+        notes=_notes(conns),
+    )
+    return track, shots, messages.calibration
+
+
+def _read(reader: Any, source: str, topics: BagTopics, step: int) -> tuple[_Connections, _Messages]:
+    """The chosen connections and their messages; the reader is closed after. Any failure of
+    the bag's reader is refused as an unreadable bag."""
     try:
-        images = _pick(reader, source, topics.image, IMAGE_TYPES, "image")
-        if images is None:
-            raise InvalidInputError(
-                source, "no sensor_msgs/Image or CompressedImage topic: the bag holds no images"
-            )
-        attitude_c = _pick(reader, source, topics.attitude, ATTITUDE_TYPES, "attitude") or []
-        navsat_c = _pick(reader, source, topics.navsat, NAVSAT_TYPES, "NavSatFix")
-        if navsat_c is None:
-            raise InvalidInputError(
-                source, "no sensor_msgs/NavSatFix topic: the bag holds no position (--navsat-topic)"
-            )
-        info_c = _pick(reader, source, topics.camera_info, INFO_TYPES, "CameraInfo")
-        shots: list[Shot] = []
-        att_t: list[float] = []
-        att_v: list[tuple[float, float, float]] = []
-        fix_t: list[float] = []
-        fix_v: list[list[float]] = []
-        calibration = None
-        seen_images = 0
-        wanted = [*images, *attitude_c, *navsat_c, *(info_c or [])]
-        for conn, received, raw in reader.messages(connections=wanted):
-            msg = reader.deserialize(raw, conn.msgtype)
-            t = _stamp(msg, received)
-            if conn.msgtype in IMAGE_TYPES:
-                seen_images += 1
-                if (seen_images - 1) % step:
-                    continue
-                data, suffix = _image_bytes(msg, conn.msgtype)
-                shots.append(
-                    Shot(f"{conn.topic}@{t:.6f}", constant(data), suffix, t, {"stamp_s": t})
-                )
-            elif conn.msgtype in ATTITUDE_TYPES:
-                att_t.append(t)
-                att_v.append(_attitude_ned(_orientation(msg)))
-            elif conn.msgtype in NAVSAT_TYPES:
-                cov = np.asarray(msg.position_covariance, dtype=np.float64)
-                acc = (
-                    math.sqrt(max(cov[0], cov[4]))
-                    if int(msg.position_covariance_type) > 0
-                    else math.nan
-                )
-                has_fix = int(msg.status.status) >= 0
-                fix_t.append(t)
-                fix_v.append(
-                    [
-                        msg.latitude if has_fix else math.nan,
-                        msg.longitude if has_fix else math.nan,
-                        msg.altitude if has_fix else math.nan,
-                        acc,
-                        3.0 if has_fix else 0.0,
-                    ]
-                )
-            elif calibration is None:
-                calibration = _calibration(msg)
+        conns = _connections(reader, source, topics)
+        return conns, _messages(reader, conns, step)
     except InvalidInputError:
         raise
     except Exception as exc:
         raise InvalidInputError(source, f"unreadable ROS bag: {exc}") from None
     finally:
         reader.close()
-    if not shots:
-        raise InvalidInputError(source, f"no message on the image topic {images[0].topic}")
-    if attitude_c and not att_t:
-        raise InvalidInputError(source, f"no message on the attitude topic {attitude_c[0].topic}")
-    if not fix_t:
-        raise InvalidInputError(source, f"no message on the NavSatFix topic {navsat_c[0].topic}")
-    order = np.argsort(att_t, kind="stable")
-    gorder = np.argsort(fix_t, kind="stable")
-    shots.sort(key=lambda s: s.t_s or 0.0)
-    track = LogTrack(
-        source=source,
-        kind=KIND,
-        attitude=Series.build(
-            attitude_c[0].topic,
-            np.asarray(att_t)[order],
-            np.asarray(att_v)[order],
-            (2,),
-            source=source,
+
+
+def _connections(reader: Any, source: str, topics: BagTopics) -> _Connections:
+    """The topics to read, each chosen by ``topics`` or the only one of its type; refused
+    when the bag has no image or no NavSatFix topic."""
+    images = _pick(reader, source, topics.image, IMAGE_TYPES, "image")
+    if images is None:
+        raise InvalidInputError(
+            source, "no sensor_msgs/Image or CompressedImage topic: the bag holds no images"
         )
-        if attitude_c
-        else None,
-        position=None,
-        gnss=Series.build(
-            navsat_c[0].topic, np.asarray(fix_t)[gorder], np.asarray(fix_v)[gorder], source=source
-        ),
-        utc_offset_s=0.0,
-        notes=(
-            f"images {images[0].topic}, attitude "
-            + (attitude_c[0].topic if attitude_c else "none")
-            + f", position {navsat_c[0].topic}, intrinsics "
-            + (info_c[0].topic if info_c else "not recorded"),
-            *([] if attitude_c else [NO_ATTITUDE]),
-        ),
+    attitude = _pick(reader, source, topics.attitude, ATTITUDE_TYPES, "attitude") or []
+    navsat = _pick(reader, source, topics.navsat, NAVSAT_TYPES, "NavSatFix")
+    if navsat is None:
+        raise InvalidInputError(
+            source, "no sensor_msgs/NavSatFix topic: the bag holds no position (--navsat-topic)"
+        )
+    info = _pick(reader, source, topics.camera_info, INFO_TYPES, "CameraInfo")
+    return _Connections(images, attitude, navsat, info)
+
+
+def _messages(reader: Any, conns: _Connections, step: int) -> _Messages:
+    """Every message of the chosen topics: every ``step``-th image kept, each attitude and
+    NavSatFix sample at its stamp, the first CameraInfo."""
+    shots: list[Shot] = []
+    att_t: list[float] = []
+    att_v: list[tuple[float, float, float]] = []
+    fix_t: list[float] = []
+    fix_v: list[list[float]] = []
+    calibration = None
+    seen_images = 0
+    for conn, received, raw in reader.messages(connections=conns.wanted):
+        msg = reader.deserialize(raw, conn.msgtype)
+        t = _stamp(msg, received)
+        if conn.msgtype in IMAGE_TYPES:
+            seen_images += 1
+            if (seen_images - 1) % step:
+                continue
+            data, suffix = _image_bytes(msg, conn.msgtype)
+            shots.append(Shot(f"{conn.topic}@{t:.6f}", constant(data), suffix, t, {"stamp_s": t}))
+        elif conn.msgtype in ATTITUDE_TYPES:
+            att_t.append(t)
+            att_v.append(_attitude_ned(_orientation(msg)))
+        elif conn.msgtype in NAVSAT_TYPES:
+            fix_t.append(t)
+            fix_v.append(_fix(msg))
+        elif calibration is None:
+            calibration = _calibration(msg)
+    return _Messages(shots, att_t, att_v, fix_t, fix_v, calibration)
+
+
+def _fix(msg: Any) -> list[float]:
+    """A NavSatFix as lat, lon, alt, horizontal accuracy (m, NaN without a covariance) and fix
+    type (3; 0 with no position when the receiver has no fix)."""
+    cov = np.asarray(msg.position_covariance, dtype=np.float64)
+    acc = math.sqrt(max(cov[0], cov[4])) if int(msg.position_covariance_type) > 0 else math.nan
+    has_fix = int(msg.status.status) >= 0
+    return [
+        msg.latitude if has_fix else math.nan,
+        msg.longitude if has_fix else math.nan,
+        msg.altitude if has_fix else math.nan,
+        acc,
+        3.0 if has_fix else 0.0,
+    ]
+
+
+def _check_messages(source: str, conns: _Connections, messages: _Messages) -> None:
+    """Refuse a chosen image, attitude or NavSatFix topic without a message."""
+    if not messages.shots:
+        raise InvalidInputError(source, f"no message on the image topic {conns.images[0].topic}")
+    if conns.attitude and not messages.att_t:
+        raise InvalidInputError(
+            source, f"no message on the attitude topic {conns.attitude[0].topic}"
+        )
+    if not messages.fix_t:
+        raise InvalidInputError(
+            source, f"no message on the NavSatFix topic {conns.navsat[0].topic}"
+        )
+
+
+def _series(
+    name: str,
+    t: list[float],
+    values: Sequence[Sequence[float]],
+    source: str,
+    angles: tuple[int, ...] = (),
+) -> Series:
+    """The samples of one topic in time order (a stable sort: equal stamps keep the bag's
+    order)."""
+    order = np.argsort(t, kind="stable")
+    return Series.build(
+        name, np.asarray(t)[order], np.asarray(values)[order], angles, source=source
     )
-    return track, shots, calibration
+
+
+def _notes(conns: _Connections) -> tuple[str, ...]:
+    """The topics read, and :data:`NO_ATTITUDE` when the bag has no attitude topic."""
+    topics = (
+        f"images {conns.images[0].topic}, attitude "
+        + (conns.attitude[0].topic if conns.attitude else "none")
+        + f", position {conns.navsat[0].topic}, intrinsics "
+        + (conns.camera_info[0].topic if conns.camera_info else "not recorded")
+    )
+    return (topics, *([] if conns.attitude else [NO_ATTITUDE]))
