@@ -100,3 +100,24 @@ def test_a_name_replay_could_not_name_a_directory_after_is_a_usage_error(
     """Accepted, it would make a dataset that ``replay`` and ``eval`` then refuse."""
     err = _usage_error([*command, "--name", name], capsys)
     assert f"argument --name: {name!r} cannot name an output directory" in err
+
+
+@pytest.mark.parametrize(
+    ("images", "telemetry", "kind"),
+    [
+        ("images", "flight.ulg", "ulog"),
+        ("images", "flight.bin", "ardupilot"),
+        ("photos", "-", "exif"),
+    ],
+)
+def test_recorded_intrinsics_are_refused_at_once_for_a_source_that_records_none(
+    images: str, telemetry: str, kind: str, tmp_path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """CALIBRATION '-' takes a bag's CameraInfo: for any other source it is refused before the
+    log or the photos are read (it was refused after reading them all, naming a bag). The
+    inputs do not exist: reading one would fail with another message."""
+    (tmp_path / "photos").mkdir()
+    argv = ["dataset", "import", str(tmp_path / images), telemetry, "-", "t.mbtiles", "out"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"CALIBRATION: '-' takes the intrinsics a ROS bag records (CameraInfo); a {kind}" in err

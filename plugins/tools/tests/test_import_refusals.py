@@ -104,6 +104,25 @@ def test_altitude_above_sea_level_needs_the_ground(tmp_path: Path) -> None:
         read_telemetry(plain_csv, ground_elevation_m=GROUND_M)
 
 
+def test_both_altitudes_without_the_ground_take_the_height_unchecked(tmp_path: Path) -> None:
+    """A log with the height above ground and the altitude above sea level, and no ground
+    elevation to check one against the other: the height is taken as it is (every row was
+    refused with 'the DEM has no ground elevation', with no DEM given)."""
+    images, csv = recorded(tmp_path)
+    lines = csv.read_text().splitlines()
+    cells = [line.split(",") for line in lines]
+    lines = [",".join([*c, "altitude_msl_m" if i == 0 else str(float(c[4]) + GROUND_M)])
+             for i, c in enumerate(cells)]  # fmt: skip
+    csv.write_text("\n".join(lines) + "\n")
+    report = import_csv_flight(spec(images, csv), tmp_path / "flight")
+    assert report.frames == 4 and not report.skipped
+    assert list(report.height_sources) == ["column 'altitude_m' read as height above ground"]
+    checked = import_csv_flight(spec(images, csv, ground_elevation_m=GROUND_M), tmp_path / "b")
+    assert checked.frames == 4 and "checked against" in next(iter(checked.height_sources))
+    with pytest.raises(InvalidInputError, match=r"line 2: .* but the ground is at 0 m"):
+        read_telemetry(csv, ground_elevation_m=0.0)
+
+
 def test_altitude_above_sea_level_minus_a_dem(tmp_path: Path) -> None:
     images, csv = recorded(tmp_path, msl=True)
     rows = read_telemetry(csv, ground_elevation_m=GROUND_M)

@@ -260,10 +260,12 @@ def _height(
     ground: Any,
     spec_ground: float | None,
 ) -> tuple[float | None, str | None]:
-    """(height above ground m, None) or (None, why refused) for one row."""
+    """(height above ground m, None) or (None, why refused) for one row. An altitude above
+    sea level beside the height above ground is checked against the ground when one is given
+    (else the height is taken as it is: there is nothing to check it against)."""
     agl = values.get("altitude_m")
     msl = values.get("altitude_msl_m")
-    if msl is not None:
+    if msl is not None and (agl is None or ground is not None or spec_ground is not None):
         g = spec_ground if ground is None else ground(values["lat"], values["lon"])
         if g is None:
             where = f"({values['lat']:.6f}, {values['lon']:.6f})"
@@ -460,7 +462,7 @@ def _repeated_times(rows: Sequence[TelemetryRow]) -> list[tuple[int, str]]:
 def _height_source(cols: dict[str, str], ground_elevation_m: float | None, dem: Path | None) -> str:
     """How the heights above ground were obtained, in words."""
     has_msl, has_agl = "altitude_msl_m" in cols, "altitude_m" in cols
-    if has_agl and has_msl:
+    if has_agl and has_msl and (dem is not None or ground_elevation_m is not None):
         return f"column {cols['altitude_m']!r} (checked against {cols['altitude_msl_m']!r})"
     if has_agl:
         return f"column {cols['altitude_m']!r} read as height above ground"

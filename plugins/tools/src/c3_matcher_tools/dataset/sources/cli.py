@@ -145,9 +145,13 @@ def run_log_import(args: argparse.Namespace, ctx: CommandContext) -> int | None:
     images, telemetry = str(args.images_dir), str(args.telemetry)
     kind = args.source if args.source != "auto" else detect_kind(telemetry, images)
     check_frame_step(args.frame_step, video=_frames_of_a_video(kind, images))
+    if str(args.calibration) == "-" and kind != "rosbag":  # before any log is read
+        raise InvalidInputError(
+            "CALIBRATION",
+            f"'-' takes the intrinsics a ROS bag records (CameraInfo); a {kind} source records "
+            "none: give the camera's calibration JSON",
+        )
     if kind == "csv":
-        if str(args.calibration) == "-":
-            raise InvalidInputError("CALIBRATION", "'-' (recorded intrinsics) is for ROS bags")
         return None
     report = import_log(kind, args)
     ctx.out(json.dumps(report.to_json(), indent=2) if args.json else "\n".join(report.lines()))
