@@ -32,10 +32,14 @@ def _write_identity(request: ExportRequest, output: str = "y") -> None:
     onnx.save(model, str(request.output_path))
 
 
+def _report() -> ExportReport:
+    return ExportReport(True, "identity", {"max_abs": 0.0}, [{"input": "x", "max_abs": 0.0}])
+
+
 def _passing(request: ExportRequest) -> ExportReport:
     _write_identity(request)
     assert request.images and request.images[0].rgb.ndim == 3  # real imagery was handed over
-    return ExportReport(True, "identity", {"max_abs": 0.0}, [{"input": "x", "max_abs": 0.0}])
+    return _report()
 
 
 def _failing(request: ExportRequest) -> ExportReport:
@@ -52,10 +56,24 @@ def _raising(request: ExportRequest) -> ExportReport:
     raise RuntimeError("exporter exploded")
 
 
+def _with_provenance(request: ExportRequest) -> ExportReport:
+    """What torch's exporter leaves in a graph: where it ran, per node and per graph."""
+    import onnx
+
+    _write_identity(request)
+    model = onnx.load(str(request.output_path))
+    where = str(request.output_path)
+    onnx.helper.set_metadata_props(model.graph.node[0], {"pkg.torch.onnx.stack_trace": where})
+    onnx.helper.set_metadata_props(model.graph, {"range_constraints": where})
+    onnx.helper.set_metadata_props(model, {"built_in": where})
+    onnx.save(model, str(request.output_path))
+    return _report()
+
+
 @pytest.fixture()
 def fake_exporters(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     module = types.ModuleType(FAKE_MODULE)
-    for fn in (_passing, _failing, _wrong_io, _raising):
+    for fn in (_passing, _failing, _wrong_io, _raising, _with_provenance):
         setattr(module, fn.__name__.lstrip("_"), fn)
     monkeypatch.setitem(sys.modules, FAKE_MODULE, module)
     yield
@@ -94,6 +112,21 @@ def test_build_then_reuse_then_force(tmp_path: Path, fake_exporters: None) -> No
     forced = build_engines([spec], tmp_path, force=True)[0]
     assert not forced.reused and forced.path == first.path
     assert len(_engine_files(tmp_path)) == 2  # engine + manifest, no scratch left
+
+
+def test_one_graph_is_the_same_bytes_wherever_it_is_built(
+    tmp_path: Path, fake_exporters: None
+) -> None:
+    """The exporter's debugging metadata (stack traces with the build machine's paths, shape
+    constraints in hash-seed order) is dropped, so two builds of one graph are one file."""
+    import onnx
+
+    spec = make_spec("with_provenance")
+    one, two = (build_engines([spec], tmp_path / d)[0] for d in ("a", "b"))
+    assert one.manifest.file_sha256 == two.manifest.file_sha256
+    model = onnx.load(str(one.path))
+    assert not model.metadata_props and not model.graph.metadata_props
+    assert not any(node.metadata_props for node in model.graph.node)
 
 
 def test_a_second_build_of_a_directory_waits_for_the_first_and_reuses_its_engines(
@@ -167,6 +200,8 @@ def test_select_specs() -> None:
 def test_real_engines_are_reused(engine_dir: Path) -> None:
     """Every engine the installed plugins declare, built once by the root ``engine_dir``
     fixture, is reused by a second build (same build key), with its verification passed."""
+    import onnx
+
     from c3_matcher.compose import build_plugin_host
     from c3_matcher.engines.store import EngineStore
 
@@ -178,3 +213,5 @@ def test_real_engines_are_reused(engine_dir: Path) -> None:
     for o in outcomes:
         verification = o.manifest.verification
         assert verification["passed"] and len(verification["checks"]) >= 2
+        graph = onnx.load(str(o.path)).graph  # no stack trace of the machine that built it
+        assert not graph.metadata_props and not any(n.metadata_props for n in graph.node)

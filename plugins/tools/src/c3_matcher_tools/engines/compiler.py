@@ -138,8 +138,11 @@ def _load_exporter(spec: EngineSpec) -> Callable[[Any], Any]:
     return exporter
 
 
-def _name_dynamic_axes(path: Path, spec: EngineSpec) -> None:
-    """Give the graph's dynamic input/output axes the spec's names (e.g. ``height``)."""
+def _finish_graph(path: Path, spec: EngineSpec) -> None:
+    """Give the graph's dynamic input/output axes the spec's names (e.g. ``height``) and drop
+    the exporter's debugging metadata: each node's Python stack trace with the build machine's
+    source paths, and the export's shape constraints, written in hash-seed order. ONNX Runtime
+    never reads it; without it one graph is the same bytes on every machine, checkout and run."""
     import onnx
 
     model = onnx.load(str(path))
@@ -151,7 +154,32 @@ def _name_dynamic_axes(path: Path, spec: EngineSpec) -> None:
         for axis, dim in enumerate(value.type.tensor_type.shape.dim):
             if axis < len(tensor.shape) and isinstance(tensor.shape[axis], str):
                 dim.dim_param = str(tensor.shape[axis])
+    del model.metadata_props[:]
+    _drop_graph_metadata(model.graph)
+    for function in model.functions:
+        del function.metadata_props[:]
+        _drop_node_metadata(function.node)
     onnx.save(model, str(path))
+
+
+def _drop_graph_metadata(graph: Any) -> None:
+    """Clear the metadata of ``graph``, its values and its nodes (subgraphs included)."""
+    del graph.metadata_props[:]
+    for value in (*graph.input, *graph.output, *graph.value_info):
+        del value.metadata_props[:]
+    _drop_node_metadata(graph.node)
+
+
+def _drop_node_metadata(nodes: Any) -> None:
+    for node in nodes:
+        del node.metadata_props[:]
+        node.doc_string = ""
+        for attribute in node.attribute:
+            for subgraph in (
+                *([attribute.g] if attribute.HasField("g") else []),
+                *attribute.graphs,
+            ):
+                _drop_graph_metadata(subgraph)
 
 
 @contextlib.contextmanager
@@ -281,12 +309,12 @@ def _export(
 
 
 def _check_graph(candidate: Path, spec: EngineSpec) -> None:
-    """Name the graph's dynamic axes as the spec declares, then check its inputs and outputs
-    against the spec; any error fails the build."""
+    """Name the graph's dynamic axes as the spec declares and drop the exporter's debugging
+    metadata, then check its inputs and outputs against the spec; any error fails the build."""
     try:
         from c3_matcher_tools.engines.export.onnx_export import check_onnx_io
 
-        _name_dynamic_axes(candidate, spec)
+        _finish_graph(candidate, spec)
         check_onnx_io(candidate, spec.inputs, spec.outputs)
     except Exception as exc:
         raise EngineBuildError(spec.key, f"graph I/O check failed: {exc}") from exc
