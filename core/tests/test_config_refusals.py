@@ -167,3 +167,28 @@ def test_config_names_a_value_toml_cannot_express(
     assert "matcher.options.xfeat.a[1]" in err and "--json" in err
     assert main(["config", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["matcher"]["options"] == {"xfeat": {"a": [1, None]}}
+
+
+def test_config_refuses_a_strategy_this_install_does_not_link(
+    clean_env: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``config`` says whether a configuration is good: a strategy no installed plugin offers
+    is refused there (exit 2, naming the strategies there are), as ``match`` refuses it; it
+    was printed as the effective configuration, exit 0."""
+    from c3_matcher.cli import main
+
+    clean_env.setenv("C3_MATCHER_MATCHER__STRATEGY", "nope")
+    assert main(["config"]) == 2
+    err = capsys.readouterr().err
+    assert "'nope'" in err and "disk_lightglue" in err and "internal error" not in err
+
+
+def test_a_word_where_a_list_belongs_is_told_the_form_a_list_takes(
+    clean_env: pytest.MonkeyPatch,
+) -> None:
+    """``C3_MATCHER_ENGINES__PROVIDERS=cpu`` said only 'Input should be a valid tuple'."""
+    clean_env.setenv("C3_MATCHER_ENGINES__PROVIDERS", "cpu")
+    with pytest.raises(ConfigurationError) as info:
+        load_settings()
+    assert "engines.providers" in str(info.value) and "got 'cpu': give a list" in str(info.value)
+    assert "(in the environment, as JSON)" in str(info.value)

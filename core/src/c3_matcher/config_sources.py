@@ -89,13 +89,22 @@ def unknown_env_keys(
     return problems
 
 
+_COLLECTIONS = {"tuple_type": "list", "list_type": "list", "dict_type": "table"}
+
+
 def validation_problems(exc: ValidationError) -> list[tuple[str, str]]:
     """(dotted field, reason) per validation error; a key no section has is named as a
-    misspelling, as an unknown environment variable is."""
-    return [
-        (
-            ".".join(str(p) for p in e["loc"]) or "(root)",
-            UNKNOWN_SETTING if e["type"] == "extra_forbidden" else e["msg"],
-        )
-        for e in exc.errors()
-    ]
+    misspelling, as an unknown environment variable is; a word where a list or table belongs
+    (``C3_MATCHER_ENGINES__PROVIDERS=cpu``) is told the form it takes."""
+    return [(".".join(str(p) for p in e["loc"]) or "(root)", _reason(e)) for e in exc.errors()]
+
+
+def _reason(error: Any) -> str:
+    if error["type"] == "extra_forbidden":
+        return UNKNOWN_SETTING
+    kind = _COLLECTIONS.get(error["type"])
+    if kind is not None and isinstance(error.get("input"), str):
+        example = '["a", "b"]' if kind == "list" else '{"key": 1}'
+        got = f"{error['msg']}, got {error['input']!r}"
+        return f"{got}: give a {kind}, e.g. {example} (in the environment, as JSON)"
+    return str(error["msg"])

@@ -45,14 +45,14 @@ DEFAULT_WINDOW_PX = 512  # a --store candidate window's side without --window
 
 
 def _floats(text: str, n: int) -> tuple[float, ...]:
+    """``n`` finite comma-separated numbers (one: a number)."""
+    what = "a finite number" if n == 1 else f"{n} finite comma-separated numbers"
     try:
         values = tuple(float(x) for x in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected {n} comma-separated numbers, got {text!r}"
-        ) from None
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
     if len(values) != n or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected {n} finite numbers, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
     return values
 
 

@@ -117,6 +117,17 @@ def test_store_require_list_verify(tiny_engine: Path) -> None:
     assert not outcome.ok and "size" in outcome.detail
 
 
+def test_a_truncated_engine_is_not_listed_ok_nor_taken(tiny_engine: Path) -> None:
+    """The size is free to check: ``engines list`` showed a cut copy ``[ok]`` and ``require``
+    handed it to the runtime, which failed on it at load."""
+    store = EngineStore(tiny_engine.parent)
+    tiny_engine.write_bytes(tiny_engine.read_bytes()[:-10])
+    (record,) = store.list()
+    assert not record.ok and "size" in (record.problem or "")
+    with pytest.raises(EngineError, match="size"):
+        store.require("toy", "tiny")
+
+
 def _toy_spec(export_revision: int, **options: int | float | str) -> EngineSpec:
     return EngineSpec(
         model="toy",

@@ -38,8 +38,12 @@ def test_build_reuses_and_prints_result_on_stdout(
 
 
 def test_build_unknown_only(engines: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["engines", "build", "--only", "sift/x"]) == 1
-    assert "disk/depth" in capsys.readouterr().err
+    """A name no plugin declares is the caller's bad input: exit 2, one line naming --only."""
+    assert main(["engines", "build", "--only", "sift/x"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("c3-matcher: --only: unknown engine sift/x: choose one of") and (
+        "disk/depth" in err and err.count("\n") == 1
+    ), err
 
 
 def test_list_shows_manifests_and_figures(

@@ -74,4 +74,12 @@ class Attitude:
 
     @classmethod
     def from_degrees(cls, roll: float, pitch: float, yaw: float) -> Attitude:
+        """The attitude of angles in degrees, refused in degrees (the unit they were given in):
+        roll and pitch in [-90, 90], yaw in [-360, 360]."""
+        for name, value, bound in (
+            ("roll", roll, 90.0),
+            ("pitch", pitch, 90.0),
+            ("yaw", yaw, 360.0),
+        ):
+            v.finite_float(value, f"attitude.{name}_deg", low=-bound, high=bound)
         return cls(math.radians(roll), math.radians(pitch), math.radians(yaw))

@@ -177,9 +177,10 @@ def check_engine_file(engine_path: Path, *, check_hash: bool = True) -> EngineMa
     """Check an engine file against the name schema and its manifest.
 
     Checks: the file exists; its name follows the schema; the manifest names this file and agrees
-    with the name's model/variant/precision/rule/opset/hash; the verification passed; and (with
-    ``check_hash``) the file's size and sha256 equal the manifest's. Returns the manifest; raises
-    ``EngineError`` naming the file and the build command otherwise.
+    with the name's model/variant/precision/rule/opset/hash; the verification passed; the file's
+    size equals the manifest's (free: a truncated copy is caught by a listing too); and (with
+    ``check_hash``) its sha256 does. Returns the manifest; raises ``EngineError`` naming the file
+    and the build command otherwise.
     """
     path = Path(engine_path)
     if not path.is_file():
@@ -203,10 +204,10 @@ def check_engine_file(engine_path: Path, *, check_hash: bool = True) -> EngineMa
         raise EngineError(path, f"file name {expected} disagrees with its manifest {declared}")
     if not manifest.verification_passed:
         raise EngineError(path, "its manifest records a failed verification")
+    size = path.stat().st_size
+    if size != manifest.file_bytes:
+        raise EngineIntegrityError(path, f"size {size} B != manifest {manifest.file_bytes} B")
     if check_hash:
-        size = path.stat().st_size
-        if size != manifest.file_bytes:
-            raise EngineIntegrityError(path, f"size {size} B != manifest {manifest.file_bytes} B")
         digest = file_sha256(path)
         if digest != manifest.file_sha256:
             raise EngineIntegrityError(

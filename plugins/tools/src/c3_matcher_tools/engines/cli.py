@@ -35,6 +35,8 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
             imagery=ctx.imagery or None,
             log=command.err,
         )
+    except InvalidInputError:
+        raise  # a bad --only: a usage error (exit 2), said by the command line
     except (EngineBuildError, ValueError) as exc:
         command.err(f"error: {exc}")
         return 1

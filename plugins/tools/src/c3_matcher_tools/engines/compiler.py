@@ -37,7 +37,7 @@ from c3_matcher.atomic import held_directory
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, file_sha256
-from c3_matcher.errors import C3Error, EngineError
+from c3_matcher.errors import C3Error, EngineError, InvalidInputError
 
 if TYPE_CHECKING:
     from c3_matcher_tools.engines.export import ExportReport, ExportRequest
@@ -106,8 +106,9 @@ def build_key(spec: EngineSpec, weights_sha256: str, versions: dict[str, str]) -
 
 
 def select_specs(specs: Sequence[EngineSpec], only: Sequence[str] | None) -> list[EngineSpec]:
-    """The specs named by ``only`` (``"model/variant"``), or all; ``ValueError`` lists the known
-    names for an unknown one, and for duplicate declarations."""
+    """The specs named by ``only`` (``"model/variant"``), or all. An unknown name is the
+    caller's bad input (``InvalidInputError`` on ``--only``, listing the known names); a spec
+    declared twice is the plugins' fault (``ValueError``)."""
     keys = [s.key for s in specs]
     duplicates = sorted({k for k in keys if keys.count(k) > 1})
     if duplicates:
@@ -116,8 +117,9 @@ def select_specs(specs: Sequence[EngineSpec], only: Sequence[str] | None) -> lis
         return list(specs)
     unknown = [o for o in only if o not in keys]
     if unknown:
-        raise ValueError(
-            f"unknown engine {', '.join(unknown)}: choose one of {', '.join(keys) or '(none)'}"
+        raise InvalidInputError(
+            "--only",
+            f"unknown engine {', '.join(unknown)}: choose one of {', '.join(keys) or '(none)'}",
         )
     return [s for s in specs if s.key in set(only)]
 
