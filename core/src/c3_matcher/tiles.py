@@ -172,10 +172,12 @@ def _tiff_size(head: bytes) -> tuple[int, int] | None:
 
 
 def read_image(path: Path, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> NDArray[np.uint8]:
-    """Read an image file to uint8 RGB, naming the file when it is missing or undecodable
-    (or above ``max_pixels``, width x height)."""
+    """Read an image file to uint8 RGB, naming the file when it is missing, a directory or
+    undecodable (or above ``max_pixels``, width x height)."""
     p = Path(path)
-    if not p.is_file():
+    if p.is_dir():
+        raise InvalidInputError(str(p), "is a directory, not an image")
+    if not p.exists():
         raise InvalidInputError(str(p), "no such image file")
     return MmapTileHandle(p, max_pixels=max_pixels).decode()
 

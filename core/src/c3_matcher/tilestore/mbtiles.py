@@ -47,6 +47,7 @@ from typing import Final
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.base import TileStoreBase
 from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
+from c3_matcher.tilestore.files import open_failure
 
 __all__ = ["MBTilesStore", "TileDigestError", "TileStoreUnusableError"]
 
@@ -77,8 +78,10 @@ class MBTilesStore(TileStoreBase):
     ) -> None:
         self.path: Final = Path(path)
         self.name: Final = self.path.name
-        if not self.path.is_file():
-            raise InvalidInputError("mbtiles", f"no such file: {self.path}")
+        why = open_failure(self.path, "an MBTiles file")
+        if why is not None:  # a directory, a permission, not "unable to open database file"
+            where = f"no such file: {self.path}" if why == "no such file" else f"{self.path}: {why}"
+            raise InvalidInputError("mbtiles", where)
         self._mmap_bytes = int(mmap_bytes)
         self._retry_s = float(retry_s)
         self._clock = clock
@@ -93,8 +96,8 @@ class MBTilesStore(TileStoreBase):
             tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
         except sqlite3.DatabaseError as exc:
             self.close()
-            what = "locked by another process" if _locked(exc) else "not an SQLite database"
-            raise InvalidInputError("mbtiles", f"{self.path}: {what}: {exc}") from exc
+            why = _open_error(self.path, exc)
+            raise InvalidInputError("mbtiles", f"{self.path}: {why}") from exc
         missing = {"metadata", "tiles"} - tables
         if missing:
             self.close()
@@ -238,6 +241,17 @@ class MBTilesStore(TileStoreBase):
 
     def __repr__(self) -> str:
         return f"MBTilesStore({str(self.path)!r})"
+
+
+def _open_error(path: Path, exc: sqlite3.DatabaseError) -> str:
+    """What an SQLite error on opening the store ``path`` says about it: locked, not to be
+    opened (SQLite's CANTOPEN: the file's permission, a read-only folder a journal needs), or
+    not an SQLite database (a text file, a damaged one)."""
+    if _locked(exc):
+        return f"locked by another process: {exc}"
+    if getattr(exc, "sqlite_errorcode", 0) & 0xFF == sqlite3.SQLITE_CANTOPEN:
+        return open_failure(path, "an MBTiles file") or f"cannot open ({exc})"
+    return f"not an SQLite database: {exc}"
 
 
 def _locked(exc: BaseException) -> bool:

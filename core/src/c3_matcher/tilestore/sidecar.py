@@ -14,6 +14,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from c3_matcher.tilestore.files import open_failure
 from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, row_checksum
 
 WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
@@ -44,8 +45,7 @@ _SET_COLUMNS = (
     "set_id, extractor_sha256, provider, multiple, photometric, border_erode_px, window_px, "
     "stride_px, descriptor_dim, strategy, complete, windows, descriptor_dtype"
 )
-_CASTS: dict[str, Callable[[Any], Any]] = {"str": str, "int": int, "bool": bool}
-"""A ``FeatureSet`` field's annotation -> how a stored value becomes it."""
+_MAY_BE_ZERO = ("border_erode_px", "windows")  # the set's counts that may be 0 (others >= 1)
 
 T = TypeVar("T")
 
@@ -56,11 +56,13 @@ class FeatureStoreUnavailableError(RuntimeError):
 
 
 class SidecarDamagedError(RuntimeError):
-    """The sidecar opened for writing is not an SQLite database, or a damaged one (found when
-    opened, or by a later read or write of the writer): nothing in it can be kept (``path``;
-    the cause is SQLite's error)."""
+    """The sidecar is not an SQLite database, or a damaged one: SQLite says so (when the writer
+    opens it, or on a later read or write), or a stored value is malformed (a ``window_sets``
+    row that is no feature set, a window key that is no integer). Nothing in it can be kept
+    (``path``; the cause is SQLite's error or what is malformed); ``features build`` moves it
+    aside and builds anew, the flight extracts instead."""
 
-    def __init__(self, path: Path, cause: sqlite3.DatabaseError) -> None:
+    def __init__(self, path: Path, cause: sqlite3.DatabaseError | str) -> None:
         self.path = path
         super().__init__(f"{path}: {' '.join(str(cause).split())}")
 
@@ -92,16 +94,14 @@ class MapFeatureStore:
         self._writable = writable
         self._retry_s = float(retry_s)
         self._clock = clock
-        if writable:
-            self._db = _open_writable(self.path)
-        else:  # busy timeout 0: a lock held elsewhere fails at once, the frame never waits
-            self._db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True, timeout=0)
-            with contextlib.suppress(sqlite3.Error):  # rows read from the page cache
-                self._db.execute(f"PRAGMA mmap_size={MMAP_BYTES}")
         self._sets: dict[str, FeatureSet | None] = {}
         self._down_until: float | None = None  # unavailable: nothing served before this time
         self._reported = False  # this outage was already raised
         self._refused: set[tuple[str, int, int, int]] = set()
+        if writable:
+            self._db = _open_writable(self.path)
+        else:
+            self._db = _open_read_only(self.path)
 
     # -- reading ------------------------------------------------------------------------
     def _read(self, query: Callable[[], T]) -> T | None:
@@ -138,16 +138,22 @@ class MapFeatureStore:
             )
             if row is None and self._down_until is not None:
                 return None  # unavailable: not remembered as absent
-            self._sets[set_id] = None if row is None else _set_of(row)
+            try:
+                self._sets[set_id] = None if row is None else _set_of(self.path, row)
+            except SidecarDamagedError:
+                if not self._writable:  # the flight: said once, then never served
+                    self._sets[set_id] = None
+                raise
         return self._sets[set_id]
 
     def feature_sets(self) -> list[FeatureSet]:
+        """Every set stored; SidecarDamagedError naming the first malformed set row."""
         rows = self._read(
             lambda: self._db.execute(
                 f"SELECT {_SET_COLUMNS} FROM window_sets ORDER BY 1"
             ).fetchall()
         )
-        return [_set_of(r) for r in rows or ()]
+        return [_set_of(self.path, r) for r in rows or ()]
 
     def window(self, fset: FeatureSet, zoom: int, gx: int, gy: int) -> WindowFeatures | None:
         """Grid window (gx, gy) of ``fset`` at ``zoom``, verified against its checksum and shapes;
@@ -188,15 +194,27 @@ class MapFeatureStore:
 
     def done_windows(self, set_id: str) -> dict[WindowKey, str]:
         """(zoom, gx, gy) -> window digest of every window stored in a set (as stored: see
-        :meth:`checked_windows`)."""
+        :meth:`checked_windows`); SidecarDamagedError for a key that is no integer."""
         with self._damage_refused():
             return {
-                (int(z), int(x), int(y)): str(d)
+                self._window_key(set_id, z, x, y): str(d)
                 for z, x, y, d in self._db.execute(
                     "SELECT zoom, gx, gy, window_digest FROM window_features WHERE set_id=?",
                     (set_id,),
                 )
             }
+
+    def _window_key(self, set_id: str, z: object, x: object, y: object) -> WindowKey:
+        """A ``window_features`` row's (zoom, gx, gy) as stored; SidecarDamagedError naming the
+        row when one is no integer (SQLite keeps any value in an INTEGER column)."""
+        if isinstance(z, int) and isinstance(x, int) and isinstance(y, int):
+            return z, x, y
+        key = "/".join(repr(v)[:20] for v in (z, x, y))
+        raise SidecarDamagedError(
+            self.path,
+            f"damaged (window_features row of set {set_id[:12]}...: key {key} is not "
+            "zoom/gx/gy integers)",
+        )
 
     def checked_windows(
         self, fset: FeatureSet
@@ -212,7 +230,7 @@ class MapFeatureStore:
                 f"SELECT zoom, gx, gy, {_ROW_COLUMNS} FROM window_features WHERE set_id=?",
                 (fset.set_id,),
             ):
-                key = (int(z), int(x), int(y))
+                key = self._window_key(fset.set_id, z, x, y)
                 try:
                     intact[key] = decode_row(fset, (fset.set_id, *key), row).window_digest
                 except ValueError as exc:
@@ -310,21 +328,40 @@ class MapFeatureStore:
         self.close()
 
 
+def _open_read_only(path: Path) -> sqlite3.Connection:
+    """The flight's read-only connection (busy timeout 0: a lock held elsewhere fails at once,
+    the frame never waits); FeatureStoreUnavailableError saying why a sidecar cannot be opened
+    (its permission, a directory), its cause SQLite's error."""
+    try:
+        db = sqlite3.connect(f"file:{path.resolve()}?mode=ro", uri=True, timeout=0)
+    except sqlite3.Error as exc:
+        why = open_failure(path, "a features sidecar") or f"cannot open ({exc})"
+        raise FeatureStoreUnavailableError(f"{path}: {why}") from exc
+    with contextlib.suppress(sqlite3.Error):  # rows read from the page cache
+        db.execute(f"PRAGMA mmap_size={MMAP_BYTES}")
+    return db
+
+
 def _open_writable(path: Path) -> sqlite3.Connection:
     """The writer's connection to the sidecar ``path`` (created when absent), its tables read
-    once; SidecarDamagedError when the file is not an SQLite database or a damaged one (a lock
-    held elsewhere is waited for, and any other error raised as it is)."""
+    once and every set row parsed; SidecarDamagedError when the file is not an SQLite database
+    or a damaged one, or a set row is malformed (a lock held elsewhere is waited for, and any
+    other error raised as it is)."""
     db = sqlite3.connect(str(path), timeout=60)
     try:
         db.execute(f"PRAGMA page_size={PAGE_BYTES}")  # a new file: fewer pages a row
         db.executescript(_SCHEMA)
-        db.execute("SELECT count(*) FROM window_sets").fetchone()  # what `features info` reads
+        for row in db.execute(f"SELECT {_SET_COLUMNS} FROM window_sets"):  # as `features info`
+            _set_of(path, row)
         db.commit()
         db.execute("PRAGMA journal_mode=WAL")  # once readable: a damaged file is left as it is
     except sqlite3.DatabaseError as exc:
         db.close()
         if exc.sqlite_errorcode & 0xFF in _DAMAGE:
             raise SidecarDamagedError(path, exc) from exc
+        raise
+    except BaseException:  # a malformed set row: the file is left as it is (no WAL)
+        db.close()
         raise
     return db
 
@@ -369,10 +406,40 @@ def set_aside(path: str | Path) -> Path:
     return aside
 
 
-def _set_of(row: Sequence[Any]) -> FeatureSet:
-    """A ``window_sets`` row (``_SET_COLUMNS``: ``FeatureSet``'s fields, in order)."""
-    fields = dataclasses.fields(FeatureSet)
-    return FeatureSet(*(_CASTS[str(f.type)](v) for f, v in zip(fields, row, strict=True)))
+def _set_of(path: Path, row: Sequence[Any]) -> FeatureSet:
+    """A ``window_sets`` row (``_SET_COLUMNS``: ``FeatureSet``'s fields, in order) of the
+    sidecar ``path``; SidecarDamagedError naming the row and the first malformed value (of
+    another type than its column's, or out of its range)."""
+    values: list[Any] = []
+    for f, v in zip(dataclasses.fields(FeatureSet), row, strict=True):
+        why = _malformed(f.name, str(f.type), v)
+        if why is not None:
+            set_id = str(row[0])[:12]
+            raise SidecarDamagedError(
+                path, f"damaged (window_sets row {set_id}...: {f.name} {repr(v)[:40]} {why})"
+            )
+        values.append(bool(v) if f.type == "bool" else v)
+    return FeatureSet(*values)
+
+
+def _malformed(name: str, kind: str, value: object) -> str | None:
+    """Why the stored ``value`` of the FeatureSet field ``name`` (annotated ``kind``) is not
+    one, or None."""
+    if kind == "str":
+        if type(value) is not str:
+            return "is not a text"
+        if name == "descriptor_dtype":
+            try:
+                np.dtype(value)
+            except TypeError:
+                return "is not a NumPy dtype"
+        return None
+    if type(value) is not int:
+        return "is not an integer"
+    if kind == "bool":
+        return None if value in (0, 1) else "is not 0 or 1"
+    least = 0 if name in _MAY_BE_ZERO else 1
+    return None if value >= least else f"is not >= {least}"
 
 
 def stored_sets(store: MapFeatureStore) -> Iterator[Mapping[str, Any]]:

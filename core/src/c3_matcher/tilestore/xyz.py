@@ -6,6 +6,7 @@ which holds no mapping: a file that shrinks while in use is that tile's error, n
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 from c3_matcher.errors import InvalidInputError
@@ -44,6 +45,20 @@ class XyzTileStore(TileStoreBase):
 
     def zooms(self) -> list[int]:
         return sorted(int(p.name) for p in self._root.iterdir() if p.is_dir() and p.name.isdigit())
+
+    def tiles(self, zoom: int) -> Iterator[tuple[int, int]]:
+        """XYZ (x, y) of every tile file at ``zoom`` (``{zoom}/{x}/{y}.png|jpg|jpeg``; other
+        names are no tiles), by x then y, each once."""
+        level = self._root / str(zoom)
+        columns = level.iterdir() if level.is_dir() else iter(())
+        for x in sorted(int(c.name) for c in columns if c.name.isdigit() and c.is_dir()):
+            rows = {
+                int(f.stem)
+                for f in (level / str(x)).iterdir()
+                if f.suffix in SUFFIXES and f.stem.isdigit() and f.is_file()
+            }
+            for y in sorted(rows):
+                yield x, y
 
     def __repr__(self) -> str:
         return f"XyzTileStore({str(self._root)!r})"

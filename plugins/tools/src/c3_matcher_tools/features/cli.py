@@ -201,6 +201,9 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
                     "extracts instead while it is. Try again when it is released"
                 )
                 return EXIT_USAGE
+            if code == sqlite3.SQLITE_CANTOPEN:  # its permission: nothing to rebuild
+                ctx.err(f"c3-matcher: {exc}; the flight extracts instead while it is")
+                return EXIT_USAGE
             ctx.err(
                 f"c3-matcher: {path}: unreadable ({cause or exc}); the flight "
                 f"extracts instead. Rebuild it: c3-matcher features build {store}"

@@ -45,8 +45,12 @@ def register_tiles_command(commands: CommandRegistry) -> None:
     )
     tiles = p.add_subparsers(dest="tiles_command", required=True, parser_class=type(p))
     _add_build(tiles)
-    i = tiles.add_parser("info", help="print an MBTiles store's metadata and tile counts")
-    i.add_argument("store", type=Path, help="an MBTiles tile store")
+    i = tiles.add_parser(
+        "info", help="print a tile store's metadata (MBTiles) and tile counts (MBTiles or XYZ)"
+    )
+    i.add_argument(
+        "store", type=Path, help="a tile store: an MBTiles file or an XYZ folder (z/x/y.png|jpg)"
+    )
     i.add_argument("--json", action="store_true", help="print the info as JSON")
     d = tiles.add_parser(
         "digest",
@@ -136,26 +140,54 @@ def _digest(args: argparse.Namespace, ctx: CommandContext) -> int:
 def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher.tilestore.mbtiles import MBTilesStore
 
-    with MBTilesStore(args.store) as store:
-        info: dict[str, Any] = {
-            "path": str(store.path),
-            "metadata": dict(store.metadata),
-            "tiles": {str(z): len(list(store.tiles(z))) for z in store.zooms()},
-        }
+    if Path(args.store).is_dir():
+        info = _xyz_info(Path(args.store))
+    else:
+        with MBTilesStore(args.store) as store:
+            info = {
+                "path": str(store.path),
+                "format": "mbtiles",
+                "metadata": dict(store.metadata),
+                "tiles": {str(z): len(list(store.tiles(z))) for z in store.zooms()},
+            }
     if args.json:
         ctx.out(json.dumps(info, indent=2))
         return 0
+    kind = " (XYZ folder)" if info["format"] == "xyz" else ""
     ctx.out(
-        f"{info['path']}: " + ", ".join(f"zoom {z}: {n} tiles" for z, n in info["tiles"].items())
+        f"{info['path']}{kind}: "
+        + ", ".join(f"zoom {z}: {n} tiles" for z, n in info["tiles"].items())
     )
     for key, value in info["metadata"].items():
         ctx.out(f"  {key}: {value if len(value) <= 120 else value[:117] + '...'}")
     return 0
 
 
+def _xyz_info(root: Path) -> dict[str, Any]:
+    """``tiles info`` of the XYZ folder ``root``: its tile counts per zoom (an XYZ folder has
+    no metadata); InvalidInputError when it holds no tile."""
+    from c3_matcher.tilestore.files import cannot_open
+    from c3_matcher.tilestore.xyz import XyzTileStore
+
+    store = XyzTileStore(root)
+    try:
+        counts = {str(z): sum(1 for _ in store.tiles(z)) for z in store.zooms()}
+    except OSError as exc:  # a folder it may not list
+        raise InvalidInputError("store", f"{exc.filename or root}: {cannot_open(exc)}") from exc
+    tiles = {z: n for z, n in counts.items() if n}
+    if not tiles:
+        raise InvalidInputError(
+            "store",
+            f"{root}: is a directory, not an MBTiles file, and holds no XYZ tiles (z/x/y.png|jpg)",
+        )
+    return {"path": str(root), "format": "xyz", "metadata": {}, "tiles": tiles}
+
+
 def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher_tools.tilestore.build import build_mbtiles, parse_zooms
 
+    if Path(args.geotiff).is_dir():  # either reader would say "no such file"
+        raise InvalidInputError("geotiff", f"{args.geotiff}: is a directory, not a GeoTIFF")
     if not 1 <= args.quality <= 100:
         raise InvalidInputError("--quality", f"must be in [1, 100], got {args.quality}")
     zooms = parse_zooms([*(args.zoom or []), *([args.zooms] if args.zooms else [])])

@@ -135,6 +135,8 @@ class RasterioSource:
         from rasterio.errors import NotGeoreferencedWarning
 
         self.path = Path(path)
+        if self.path.is_dir():
+            raise InvalidInputError("geotiff", f"{self.path}: is a directory, not a GeoTIFF")
         if not self.path.is_file():
             raise InvalidInputError("geotiff", f"no such file: {self.path}")
         try:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from c3_matcher.atomic import refuse_unwritable
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.files import open_failure
 
 __all__ = ["DigestReport", "MBTilesWriter", "add_missing_digests"]
 
@@ -54,9 +55,15 @@ def add_missing_digests(path: str | Path) -> DigestReport:
     One transaction, the digest table's creation included: on any error (a file that is not an
     MBTiles store among them) the store is left as it was."""
     path = Path(path)
-    if not path.is_file():
+    why = open_failure(path, "an MBTiles file")
+    if why == "no such file":
         raise InvalidInputError("store", f"no such MBTiles file: {path}")
-    db = sqlite3.connect(str(path), isolation_level=None)  # transactions are ours: DDL included
+    if why is not None:  # a directory, a permission: said, not "unable to open database file"
+        raise InvalidInputError("store", f"{path}: {why}")
+    try:  # transactions are ours: DDL included
+        db = sqlite3.connect(str(path), isolation_level=None)
+    except sqlite3.Error as exc:
+        raise InvalidInputError("store", f"{path}: cannot open ({exc})") from exc
     try:
         db.execute("BEGIN IMMEDIATE")
         try:
