@@ -36,7 +36,7 @@ from c3_matcher.tilestore.features import (
 )
 from c3_matcher.tilestore.files import open_failure
 from c3_matcher.tilestore.mbtiles import MBTilesStore
-from c3_matcher.tilestore.sidecar import SidecarDamagedError
+from c3_matcher.tilestore.sidecar import DEFAULT_RETRY_S, SidecarDamagedError
 from c3_matcher.tilestore.xyz import XyzTileStore
 
 REPO = Path(__file__).resolve().parents[2]
@@ -175,6 +175,29 @@ def test_the_flight_extracts_instead_of_an_unopenable_sidecar(
         with pytest.raises(FeatureStoreUnavailableError, match="permission denied"):
             serve_window(source, REQUEST, ZOOM, (x * 256, y * 256), (WINDOW, WINDOW))  # type: ignore[arg-type]
         assert source.tile_bytes(ZOOM, x, y) is not None
+
+
+def test_an_unopenable_sidecar_is_said_once_an_outage_not_by_every_candidate(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each candidate of each frame asked the sidecar again, and each failure was a WARNING
+    (and an FDR record): now the first says it, later ones extract silently until the next
+    try ``DEFAULT_RETRY_S`` later, which is silent too while it fails, and serves once it
+    opens."""
+    path = tmp_path / "tiles.mbtiles"
+    shutil.copy(STORE, path)
+    MapFeatureStore(sidecar_path(path), writable=True).close()
+    refuse_reading(monkeypatch, sidecar_path(path))
+    now = [0.0]
+    with MBTilesStore(path, clock=lambda: now[0]) as source:
+        with pytest.raises(FeatureStoreUnavailableError):
+            source.feature_store()
+        assert source.feature_store() is None  # the same outage: extract, nothing said
+        now[0] = DEFAULT_RETRY_S + 1
+        assert source.feature_store() is None  # tried again, still refused: still silent
+        monkeypatch.undo()  # readable again
+        now[0] = 2 * DEFAULT_RETRY_S + 2
+        assert source.feature_store() is not None
 
 
 # -- the sidecar: malformed stored values -----------------------------------------------------

@@ -48,6 +48,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.base import TileStoreBase
 from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
 from c3_matcher.tilestore.files import open_failure
+from c3_matcher.tilestore.sidecar import DEFAULT_RETRY_S, FeatureStoreUnavailableError
 
 __all__ = ["MBTilesStore", "TileDigestError", "TileStoreUnusableError"]
 
@@ -91,6 +92,7 @@ class MBTilesStore(TileStoreBase):
         self._conn_lock = threading.Lock()
         self._unusable: str | None = None
         self._features: MapFeatureStore | None = None
+        self._features_retry_at: float | None = None  # an unopenable sidecar: next try then
         try:
             db = self._db
             tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
@@ -127,11 +129,26 @@ class MBTilesStore(TileStoreBase):
         return db
 
     def feature_store(self) -> MapFeatureStore | None:
-        """The precomputed map features beside the store (``<store>.features.sqlite``), or None."""
-        if self._features is None:
-            side = sidecar_path(self.path)
-            if side.is_file():
-                self._features = MapFeatureStore(side)
+        """The precomputed map features beside the store (``<store>.features.sqlite``), or None.
+        A sidecar that cannot be opened (its permission) raises FeatureStoreUnavailableError
+        once, then is None (extract) until it is tried again ``DEFAULT_RETRY_S`` later: said
+        once an outage, as a locked one is, not by every candidate of every frame."""
+        if self._features is not None:
+            return self._features
+        side = sidecar_path(self.path)
+        if not side.is_file():
+            return None
+        retry_at = self._features_retry_at
+        if retry_at is not None and self._clock() < retry_at:
+            return None
+        try:
+            self._features = MapFeatureStore(side)
+        except FeatureStoreUnavailableError:
+            self._features_retry_at = self._clock() + DEFAULT_RETRY_S
+            if retry_at is None:
+                raise  # the outage's first word; later failed tries are silent
+            return None
+        self._features_retry_at = None
         return self._features
 
     @property
