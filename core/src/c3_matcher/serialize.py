@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from c3_matcher.dto import CameraCalibration, MatchResult
 from c3_matcher.errors import InvalidInputError
@@ -30,44 +31,103 @@ _REQUIRED_CALIBRATION_KEYS = {
     "K": "the 3x3 intrinsic matrix, px",
     "image_size": "[width, height] px of the images K was calibrated for",
 }
+_DISTORTION_FORM = "a list of 0, 4, 5, 8, 12 or 14 numbers (k1, k2, p1, p2[, k3...]; [] for none)"
 
 
-def load_calibration(path: Path) -> CameraCalibration:
+def load_calibration(path: Path, *, field: str | None = None) -> CameraCalibration:
     """Read a calibration JSON: ``{"K": 3x3, "distortion": [k1, k2, p1, p2, k3...],
-    "image_size": [width, height], "camera_to_body": 3x3 (optional)}``."""
+    "image_size": [width, height], "camera_to_body": 3x3 (optional)}``, every value checked
+    (InvalidInputError naming the key and the form it takes).
+
+    ``field`` says what the file is to the user: by default ``match``'s option,
+    ``--calibration PATH: why``; given (``"dataset"`` for a dataset's own calibration.json),
+    ``FIELD: PATH: why``."""
+
+    def refused(why: str) -> InvalidInputError:
+        if field is None:
+            return InvalidInputError(f"--calibration {path}", why)
+        return InvalidInputError(field, f"{path}: {why}")
+
     try:
         with Path(path).open("rb") as file:
             raw = file.read(MAX_CALIBRATION_BYTES + 1)
         if len(raw) > MAX_CALIBRATION_BYTES:
-            raise InvalidInputError(
-                f"--calibration {path}",
-                f"larger than {MAX_CALIBRATION_BYTES} bytes: not a calibration (refused unread)",
+            raise refused(
+                f"larger than {MAX_CALIBRATION_BYTES} bytes: not a calibration (refused unread)"
             )
         data = json.loads(raw.decode("utf-8"))
+    except FileNotFoundError:
+        raise refused("no such file") from None
+    except IsADirectoryError:
+        raise refused("is a directory, not a calibration JSON file") from None
     except (OSError, json.JSONDecodeError) as exc:
-        raise InvalidInputError(f"--calibration {path}", f"unreadable: {exc}") from exc
+        raise refused(f"unreadable: {exc}") from exc
     except UnicodeDecodeError as exc:
-        raise InvalidInputError(f"--calibration {path}", f"not UTF-8 text: {exc}") from None
+        raise refused(f"not UTF-8 text: {exc}") from None
     if not isinstance(data, dict):
-        raise InvalidInputError(
-            f"--calibration {path}",
-            f"expected a JSON object with K, distortion, image_size; got {type(data).__name__}",
+        raise refused(
+            f"expected a JSON object with K, distortion, image_size; got {type(data).__name__}"
         )
     for key, what in _REQUIRED_CALIBRATION_KEYS.items():
         if key not in data:
-            raise InvalidInputError(f"--calibration {path}", f'missing key "{key}" ({what})')
+            raise refused(f'missing key "{key}" ({what})')
     try:
         c2b = data.get("camera_to_body")
         return CameraCalibration(
-            K=np.asarray(data["K"], dtype=np.float64),
-            distortion=np.asarray(data.get("distortion", []), dtype=np.float64),
-            image_size=(int(data["image_size"][0]), int(data["image_size"][1])),
-            camera_to_body=None if c2b is None else np.asarray(c2b, dtype=np.float64),
+            K=_matrix(data["K"], "K"),
+            distortion=_numbers(data.get("distortion", []), "distortion", _DISTORTION_FORM),
+            image_size=_image_size(data["image_size"]),
+            camera_to_body=None if c2b is None else _matrix(c2b, "camera_to_body"),
         )
     except InvalidInputError as exc:
-        raise InvalidInputError(f"--calibration {path}", str(exc)) from None
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as exc:
-        raise InvalidInputError(f"--calibration {path}", f"malformed: {exc!r}") from None
+        raise refused(str(exc)) from None
+
+
+def _shown(value: object) -> str:
+    """``value`` as a refusal quotes it: its repr, cut short."""
+    text = repr(value)
+    return text if len(text) <= 60 else f"{text[:57]}..."
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _numbers(value: object, key: str, form: str) -> NDArray[np.float64]:
+    """``value`` when it is a JSON list of numbers, as float64, else InvalidInputError naming
+    ``key`` and the ``form`` it takes."""
+    if not isinstance(value, list) or not all(_is_number(v) for v in value):
+        raise InvalidInputError(key, f"expected {form}, got {_shown(value)}")
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except OverflowError:  # an integer beyond a float's range
+        raise InvalidInputError(key, f"a number beyond float range in {_shown(value)}") from None
+
+
+def _matrix(value: object, key: str) -> NDArray[np.float64]:
+    """A 3x3 matrix given as a JSON list of 3 rows of 3 numbers."""
+    form = "a 3x3 list of numbers ([[a, b, c], [d, e, f], [g, h, i]])"
+    rows = value if isinstance(value, list) and len(value) == 3 else None
+    if rows is None or not all(isinstance(r, list) and len(r) == 3 for r in rows):
+        raise InvalidInputError(key, f"expected {form}, got {_shown(value)}")
+    return np.stack([_numbers(r, key, form) for r in rows])
+
+
+def _is_whole(value: object) -> bool:
+    """A JSON integer, or a float with no fraction (``640.0``)."""
+    if isinstance(value, float):
+        return value.is_integer()
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _image_size(value: object) -> tuple[int, int]:
+    """``[width, height]``: two whole numbers of pixels (``640.0`` is taken as 640)."""
+    sizes = value if isinstance(value, list) and len(value) == 2 else None
+    if sizes is None or not all(_is_whole(v) for v in sizes):
+        raise InvalidInputError(
+            "image_size", f"expected [width, height] as whole numbers of px, got {_shown(value)}"
+        )
+    return int(sizes[0]), int(sizes[1])
 
 
 def result_to_json(

@@ -23,14 +23,34 @@ def check_output_dir(
 ) -> None:
     """Refuse an ``out`` that is or holds one of ``inputs``
     (:func:`~c3_matcher.atomic.refuse_output_over_inputs`), that exists (unless ``force`` and it
-    is a directory) or whose nearest existing ancestor is not a writable directory (missing
-    parents are created on writing, as ``replay`` does); nothing is created here."""
+    is a dataset directory, one holding ``dataset.json``, or an empty one) or whose nearest
+    existing ancestor is not a writable directory (missing parents are created on writing, as
+    ``replay`` does); nothing is created here."""
     out = Path(out)
     refuse_output_over_inputs(out, inputs, field=field)
-    if out.exists() and not (force and out.is_dir()):
+    if out.exists():
+        _refuse_existing(out, force=force, field=field)
+    refuse_unwritable(out, field=field)
+
+
+def _refuse_existing(out: Path, *, force: bool, field: str) -> None:
+    """Refuse the existing ``out`` unless ``force`` may replace it: ``--force`` replaces a
+    dataset directory (or an empty one), never a file or a directory of other things."""
+    if not force:
         hint = "" if out.is_dir() else " (and is not a directory)"
         raise InvalidInputError(field, f"{out} already exists{hint}: choose another or --force")
-    refuse_unwritable(out, field=field)
+    if not out.is_dir():
+        raise InvalidInputError(
+            field,
+            f"{out} already exists and is not a directory: --force replaces only a dataset "
+            "directory, not a file; choose another OUT or remove the file",
+        )
+    if not (out / "dataset.json").is_file() and not _empty(out):
+        raise InvalidInputError(
+            field,
+            f"{out} is a directory but not a dataset (no dataset.json): --force replaces only "
+            "a dataset directory; choose another OUT or empty it",
+        )
 
 
 @contextmanager
@@ -55,3 +75,11 @@ def atomic_directory(out: Path, *, force: bool = False) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def _empty(directory: Path) -> bool:
+    """``directory`` holds nothing (False as well when it cannot be listed)."""
+    try:
+        return not any(directory.iterdir())
+    except OSError:
+        return False

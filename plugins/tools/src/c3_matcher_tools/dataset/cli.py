@@ -15,12 +15,36 @@ from c3_matcher_tools.dataset.progress import ProgressBar
 __all__ = ["register_dataset_command"]
 
 
+IMAGE_SIDE_PX = (16, 8192)
+"""The side (px) of a rendered frame, each of width and height (``dataset render --image-size``)."""
+MAX_RENDER_FRAMES = 10_000
+"""The most frames one ``dataset render`` plans (``--frames``): every frame is rendered and
+held in memory before anything is written."""
+MAX_RENDER_PIXELS = 2**31
+"""The most frame pixels (frames x width x height) one ``dataset render`` holds: about 2.1 Gpx,
+some 1-2 GB of JPEG, e.g. 27,000 frames of 320x240 or 32 of 8192x8192."""
+
+
 def _size(text: str) -> tuple[int, int]:
+    """An argparse type: ``WIDTHxHEIGHT``, each side in :data:`IMAGE_SIDE_PX`."""
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    low, high = IMAGE_SIDE_PX
+    if not (low <= w <= high and low <= h <= high):
+        raise argparse.ArgumentTypeError(f"each side must be in [{low}, {high}] px, got {w}x{h}")
     return w, h
+
+
+def _frame_count(text: str) -> int:
+    """An argparse type: ``--frames``, an int in [1, :data:`MAX_RENDER_FRAMES`]."""
+    frames = bounded_int()(text)
+    if frames > MAX_RENDER_FRAMES:
+        raise argparse.ArgumentTypeError(
+            f"must be <= {MAX_RENDER_FRAMES} (a render holds every frame in memory), got {frames}"
+        )
+    return frames
 
 
 IMPORT_HELP = """\
@@ -52,6 +76,12 @@ a row and rows without an image are skipped and each is listed in the summary; a
 refused value names its CSV line. Every input is checked before anything is written;
 OUT is written atomically (temp dir + rename; a missing parent folder is created).
 """
+
+
+FORCE_HELP = (
+    "replace an existing dataset directory OUT (never a file, a directory that is not a dataset, "
+    "or one holding an input)"
+)
 
 
 def _dataset_name(text: str) -> str:
@@ -92,7 +122,13 @@ def _add_render(ds: Any) -> None:
     r.add_argument("frames_geotiff", type=Path, help="orthophoto the frames are rendered from")
     r.add_argument("store", type=Path, help="MBTiles store of the candidate tiles")
     r.add_argument("out", type=Path, help="dataset directory to write")
-    r.add_argument("--frames", type=bounded_int(), default=36, help="number of frames (default 36)")
+    r.add_argument(
+        "--frames",
+        type=_frame_count,
+        default=36,
+        help=f"number of frames, 1..{MAX_RENDER_FRAMES} and at most "
+        f"{MAX_RENDER_PIXELS / 1e9:.1f} Gpx in all (frames x width x height) (default 36)",
+    )
     r.add_argument(
         "--pattern", choices=("orbit", "line"), default="orbit", help="flight path (default orbit)"
     )
@@ -122,7 +158,12 @@ def _add_render(ds: Any) -> None:
         help="orbit radius, m",
     )
     r.add_argument("--max-tilt", type=float, default=20.0, help="max attitude tilt, deg")
-    r.add_argument("--image-size", type=_size, default=(320, 240), help="WxH px (default 320x240)")
+    r.add_argument(
+        "--image-size",
+        type=_size,
+        default=(320, 240),
+        help=f"WxH px, each side {IMAGE_SIDE_PX[0]}..{IMAGE_SIDE_PX[1]} (default 320x240)",
+    )
     r.add_argument(
         "--focal",
         type=bounded_float(0.0, above=True),
@@ -156,9 +197,7 @@ def _add_render(ds: Any) -> None:
     )
     r.add_argument("--attribution", default="", help="imagery credit stored in dataset.json")
     add_seed_option(r, "random seed of the flight")
-    r.add_argument(
-        "--force", action="store_true", help="replace an existing OUT (never one holding an input)"
-    )
+    r.add_argument("--force", action="store_true", help=FORCE_HELP)
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
@@ -217,9 +256,7 @@ def _add_import(ds: Any) -> None:
         default=None,
         help="dataset name, one path component (default: OUT's name)",
     )
-    m.add_argument(
-        "--force", action="store_true", help="replace an existing OUT (never one holding an input)"
-    )
+    m.add_argument("--force", action="store_true", help=FORCE_HELP)
     m.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_log_import_options(m)
 
@@ -290,6 +327,7 @@ def _import_csv(args: argparse.Namespace, ctx: CommandContext) -> int:
 def _render(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
 
+    _check_render_budget(args.frames, args.image_size)
     spec = FlightSpec(
         frames_geotiff=args.frames_geotiff,
         store=args.store,
@@ -322,3 +360,20 @@ def _render(args: argparse.Namespace, ctx: CommandContext) -> int:
     else:
         ctx.out(f"{out}: {spec.n_frames} frames rendered")
     return 0
+
+
+def _check_render_budget(frames: int, image_size: tuple[int, int]) -> None:
+    """Refuse a render whose frames would not fit in memory (:data:`MAX_RENDER_PIXELS`) before
+    any is rendered, naming both options."""
+    from c3_matcher.errors import InvalidInputError
+
+    width, height = image_size
+    pixels = frames * width * height
+    if pixels > MAX_RENDER_PIXELS:
+        most = max(1, MAX_RENDER_PIXELS // (width * height))
+        raise InvalidInputError(
+            "--frames",
+            f"{frames} frames of {width}x{height} px is {pixels / 1e9:.1f} Gpx, more than a "
+            f"render holds in memory ({MAX_RENDER_PIXELS / 1e9:.1f} Gpx): at most {most} frames "
+            "of this --image-size; lower --frames or --image-size",
+        )

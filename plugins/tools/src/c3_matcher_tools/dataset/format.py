@@ -395,9 +395,16 @@ def write_dataset(
     return root
 
 
+_MAX_ZOOM = 30  # a tile id's zoom range, see dto.TileId
+
+
 def _meta(path: Path) -> dict[str, Any]:
-    """``dataset.json`` read and checked: a ``c3-flight/1`` object with its keys, the files it
-    names as strings and a candidate size in :data:`CANDIDATE_SIZE_PX`."""
+    """``dataset.json`` read and checked, every key a run or ``dataset info`` reads, once: a
+    ``c3-flight/1`` object with its keys, the files it names as strings and a candidate size in
+    :data:`CANDIDATE_SIZE_PX`; where present, a ``name`` a run can name its output directory
+    after (:func:`name_problem`), a ``zoom`` in [0, 30], ``absent_frames`` as a list of frame
+    indices, the sources and credits as strings, the fit residual a number >= 0 and ``spec`` /
+    ``import`` / ``attitude_noise`` as objects (InvalidInputError naming the file and key)."""
     try:
         meta = _object(json.loads(path.read_text(encoding="utf-8")), "top level")
         if meta.get("format") != FORMAT:
@@ -405,9 +412,36 @@ def _meta(path: Path) -> dict[str, Any]:
         for key in ("store", "frames", "calibration"):
             _text(meta[key], key)
         _integer(meta["candidate_size_px"], "candidate_size_px", *CANDIDATE_SIZE_PX)
+        _optional_meta(meta)
     except (KeyError, OSError, ValueError) as exc:  # JSON and UTF-8 errors among them
         raise InvalidInputError("dataset", f"{path}: {_why(exc)}") from exc
     return meta
+
+
+def _optional_meta(meta: dict[str, Any]) -> None:
+    """The optional keys of ``dataset.json`` checked where present (see :func:`_meta`)."""
+    if "name" in meta:
+        name = meta["name"]
+        why = name_problem(name) if isinstance(name, str) else "expected a string"
+        if why:
+            raise InvalidInputError("name", f"{name!r}: {why}")
+    if "zoom" in meta:
+        _integer(meta["zoom"], "zoom", 0, _MAX_ZOOM)
+    if "absent_frames" in meta:
+        absent = meta["absent_frames"]
+        if not isinstance(absent, list):
+            why = f"expected a list of frame indices, got {absent!r}"
+            raise InvalidInputError("absent_frames", why)
+        for index in absent:
+            _integer(index, "absent_frames", 0, _INT64_MAX)
+    for key in ("tiles_source", "frames_source", "georeference", "attribution"):
+        if key in meta and not isinstance(meta[key], str):
+            raise InvalidInputError(key, f"expected a string, got {meta[key]!r}")
+    if "gt_fit_max_residual_px" in meta:
+        _number(meta["gt_fit_max_residual_px"], "gt_fit_max_residual_px", low=0.0)
+    for key in ("spec", "import", "attitude_noise"):
+        if key in meta:
+            _object(meta[key], key)
 
 
 def _why(exc: Exception) -> str:
@@ -459,7 +493,7 @@ def load_dataset(
     if not meta_path.is_file():
         raise InvalidInputError("dataset", f"{base}: no dataset.json (not a {FORMAT} dataset)")
     meta = _meta(meta_path)
-    calibration = load_calibration(base / meta["calibration"])
+    calibration = load_calibration(base / meta["calibration"], field="dataset")
     frames = _frames(base / meta["frames"])
     if not (base / meta["store"]).is_file():
         raise InvalidInputError("dataset", f"{base / meta['store']}: tile store missing")

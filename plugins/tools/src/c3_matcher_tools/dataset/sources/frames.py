@@ -12,6 +12,7 @@ proposed for them.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,33 +30,58 @@ __all__ = ["Frame", "assemble_frames", "ground_elevation_sampler"]
 
 def ground_elevation_sampler(dem: Path) -> Callable[[float, float], float | None]:
     """``(lat, lon) -> ground altitude (m)`` read from a DEM GeoTIFF (the tools' ``geo``
-    extra: rasterio); None outside the raster or on nodata."""
+    extra: rasterio); None outside the raster or on nodata. The DEM's first band is read whole
+    and the file closed before this returns; one that cannot be opened, is not georeferenced or
+    whose pixels cannot be read is refused (InvalidInputError naming ``--dem`` and the file,
+    with GDAL's own words and no Python warning)."""
     try:
         import rasterio
+        from rasterio.errors import NotGeoreferencedWarning
+        from rasterio.transform import rowcol
         from rasterio.warp import transform
     except ImportError:
         raise InvalidInputError(
             "--dem", "reading a DEM needs the geo extra: pip install 'c3-matcher-tools[geo]'"
         ) from None
     if not Path(dem).is_file():
-        raise InvalidInputError("--dem", f"{dem}: no such file")
-    try:
-        ds = rasterio.open(dem)
-    except Exception as exc:
-        raise InvalidInputError("--dem", f"{dem}: not a readable raster: {exc}") from None
-    if ds.crs is None:
-        raise InvalidInputError("--dem", f"{dem}: no georeference (CRS)")
-    band = ds.read(1, masked=True)
+        why = "is a directory, not a GeoTIFF" if Path(dem).is_dir() else "no such file"
+        raise InvalidInputError("--dem", f"{dem}: {why}")
+    with warnings.catch_warnings():  # a raster without a transform: refused below, by name
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        try:
+            ds = rasterio.open(dem)
+        except Exception as exc:
+            why = f"not a readable raster ({_gdal_why(exc)})"
+            raise InvalidInputError("--dem", f"{dem}: {why}") from None
+    with ds:
+        if ds.crs is None:
+            raise InvalidInputError("--dem", f"{dem}: no georeference (CRS)")
+        if ds.count < 1:
+            raise InvalidInputError("--dem", f"{dem}: no raster band")
+        try:
+            band = ds.read(1, masked=True)
+        except Exception as exc:  # rasterio's "Read failed": a truncated or damaged file
+            why = f"damaged raster, its pixels cannot be read ({_gdal_why(exc)})"
+            raise InvalidInputError("--dem", f"{dem}: {why}") from None
+        crs, affine, height, width = ds.crs, ds.transform, ds.height, ds.width
     nodata = np.ma.getmaskarray(band)
 
     def at(lat: float, lon: float) -> float | None:
-        xs, ys = transform("EPSG:4326", ds.crs, [lon], [lat])
-        row, col = ds.index(xs[0], ys[0])
-        if not (0 <= row < ds.height and 0 <= col < ds.width) or bool(nodata[row, col]):
+        xs, ys = transform("EPSG:4326", crs, [lon], [lat])
+        row, col = (int(v) for v in rowcol(affine, xs[0], ys[0]))
+        if not (0 <= row < height and 0 <= col < width) or bool(nodata[row, col]):
             return None
         return float(band[row, col])
 
     return at
+
+
+def _gdal_why(exc: BaseException) -> str:
+    """GDAL's own words for a failed open or read: the innermost cause of rasterio's exception
+    (whose message only says "see previous exception"), on one line."""
+    while exc.__cause__ is not None or exc.__context__ is not None:
+        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]
+    return " ".join(str(exc).split())
 
 
 @dataclass(frozen=True)
