@@ -237,3 +237,14 @@ def test_frames_outside_the_store_beyond_those_shown_are_counted_not_hidden() ->
     assert message.startswith("flight.ulg: 6 frame(s) look outside")
     assert "IMG_4.jpg" in message and "IMG_5.jpg" not in message
     assert message.endswith(" and 1 more")
+
+
+def test_a_bad_calibration_file_is_named_as_the_argument_given(tmp_path: Path) -> None:
+    """``dataset import``'s CALIBRATION is a positional argument: a missing or malformed file
+    is named so (it read ``--calibration PATH``, an option the command does not have)."""
+    images, csv = recorded(tmp_path)
+    missing = ImportSpec(images, csv, tmp_path / "none.json", DEMO / "tiles.mbtiles")
+    with pytest.raises(InvalidInputError) as info:
+        import_csv_flight(missing, tmp_path / "flight")
+    assert info.value.field == "CALIBRATION" and "none.json: no such file" in str(info.value)
+    assert not (tmp_path / "flight").exists()

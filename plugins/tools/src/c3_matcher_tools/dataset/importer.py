@@ -723,7 +723,7 @@ def _check_csv_inputs(spec: ImportSpec) -> _CheckedCsv:
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: not a directory")
     if not Path(spec.store).is_file():
         raise InvalidInputError("STORE", f"{spec.store}: no such tile store")
-    calibration = load_calibration(Path(spec.calibration_json))
+    calibration = load_calibration(Path(spec.calibration_json), field="CALIBRATION")
     table = read_telemetry_table(
         Path(spec.telemetry_csv), ground_elevation_m=spec.ground_elevation_m, dem=spec.dem
     )

@@ -257,7 +257,7 @@ def _calibration(args: argparse.Namespace, recorded: CameraCalibration | None) -
                 "CALIBRATION", "'-' takes the bag's CameraInfo, and none was recorded"
             )
         return recorded
-    return load_calibration(Path(args.calibration))
+    return load_calibration(Path(args.calibration), field="CALIBRATION")
 
 
 def _import_options(
