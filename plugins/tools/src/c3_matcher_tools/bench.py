@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from c3_matcher.commands import (
+    EXIT_USAGE,
     CommandContext,
     CommandRegistry,
     add_max_keypoints_option,
@@ -56,6 +57,16 @@ __all__ = [
 ]
 
 Kind = Literal["engine", "pytorch", "sift"]
+THREADS_PER_CORE = 4
+"""``--threads`` goes up to this many intra-op threads a core (more only oversubscribes)."""
+
+
+def max_threads() -> int:
+    """The most ``--threads`` takes: :data:`THREADS_PER_CORE` a core of this machine, and never
+    more than ``[engines] intra_op_threads`` allows (1024)."""
+    return min(THREADS_PER_CORE * (os.cpu_count() or 1), 1024)
+
+
 SWEEP_LONG_SIDES = (512, 1024)
 SWEEP_KEYPOINTS = (512, 1024, 2048)
 
@@ -214,15 +225,30 @@ def register_bench_command(commands: CommandRegistry) -> None:
         action="append",
         help=argparse.SUPPRESS,
     )
+    most = max_threads()
     p.add_argument(
         "--threads",
-        type=bounded_int(),
+        type=_threads,
         action="append",
         default=None,
-        help="also time ONNX Runtime intra-op threads N, new tiles (repeatable)",
+        help=f"also time ONNX Runtime intra-op threads N, new tiles (repeatable; 1..{most}: "
+        f"at most {THREADS_PER_CORE}x this machine's {os.cpu_count() or 1} cores)",
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
     p.set_defaults(handler=run_bench)
+
+
+def _threads(text: str) -> int:
+    """``--threads``: an int in 1..:func:`max_threads` (more threads than that never run
+    faster, and ONNX Runtime would try to start every one), else a usage error."""
+    value = bounded_int()(text)
+    most = max_threads()
+    if value > most:
+        raise argparse.ArgumentTypeError(
+            f"must be <= {most} ({THREADS_PER_CORE}x this machine's {os.cpu_count() or 1} "
+            f"cores), got {value}"
+        )
+    return value
 
 
 def demo_data(data: Path | None) -> Path:
@@ -245,18 +271,33 @@ def demo_data(data: Path | None) -> Path:
 
 def _checked_data(data: Path) -> Path:
     """``data`` when it is a flight dataset that loads, tile store included (``dataset.json``),
-    with a frame to time (``timed_frames``), or a demo-format directory (``demo.json``); else
-    InvalidInputError naming it (exit 2)."""
+    with a frame to time (``timed_frames``), each of those frames' images readable and of its
+    calibration's size (``check_frames``, as ``replay`` checks them), or a demo-format
+    directory (``demo.json``) whose frame, tiles and calibration read; else InvalidInputError
+    naming it (exit 2)."""
     from c3_matcher_tools.dataset.format import load_dataset
-    from c3_matcher_tools.run.inputs import timed_frames
+    from c3_matcher_tools.run.flight import check_frames
+    from c3_matcher_tools.run.inputs import demo_inputs, timed_frames
 
     if not data.is_dir():
         raise InvalidInputError("--data", f"no such directory: {data}")
     if (data / "dataset.json").is_file():
         dataset = load_dataset(data)
         with dataset.open_store():  # its frames, calibration and tile store
-            timed_frames(dataset)
-    elif not (data / "demo.json").is_file():
+            frames = timed_frames(dataset)
+        try:
+            check_frames(dataset, frames)
+        except InvalidInputError as exc:
+            raise InvalidInputError("--data", str(exc)) from exc
+    elif (data / "demo.json").is_file():
+        try:
+            demo_inputs(data)  # what a case reads of it: its frame, tiles and calibration
+        except InvalidInputError as exc:
+            raise InvalidInputError("--data", str(exc)) from exc
+        except (KeyError, TypeError, ValueError, OSError) as exc:
+            why = f"missing key {exc}" if isinstance(exc, KeyError) else str(exc)
+            raise InvalidInputError("--data", f"{data / 'demo.json'}: {why}") from exc
+    else:
         raise InvalidInputError(
             "--data",
             f"{data}: neither a flight dataset (dataset.json) nor a demo-format directory "
@@ -283,6 +324,8 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
         if args.config:
             cmd += ["--config", str(args.config)]
         out = subprocess.run(cmd, check=False, capture_output=True, text=True)
+        if out.returncode == EXIT_USAGE:  # the worker refused its input: one line, exit 2
+            raise _worker_refusal(case, out.stderr)
         if out.returncode != 0:
             raise SystemExit(f"bench: {case.label} failed:\n{out.stderr.strip()}")
         results.append(json.loads(out.stdout.strip().splitlines()[-1]))
@@ -298,6 +341,18 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
         return 0
     ctx.out(_text_report(report))
     return 0
+
+
+def _worker_refusal(case: BenchCase, stderr: str) -> InvalidInputError:
+    """The InvalidInputError a worker refused its case with (its last stderr line, JSON
+    ``{"field", "reason"}``), the case named."""
+    lines = stderr.strip().splitlines() or ["{}"]
+    try:
+        refused = json.loads(lines[-1])
+        field, reason = str(refused["field"]), str(refused["reason"])
+    except (ValueError, KeyError, TypeError):
+        field, reason = "bench", lines[-1]
+    return InvalidInputError(field, f"{reason} (bench case {case.label})")
 
 
 def _text_report(report: dict[str, Any]) -> str:

@@ -7,7 +7,9 @@ A frame whose match raised InsufficientInliersError is still timed (the matcher 
 counts in ``frame_ms`` and its best inlier count as 0, and ``frames_raised`` counts it. Candidate
 and stage times come from the diagnostics of a result, so only from frames that matched:
 ``per_candidate_ms`` is None when none did. ``peak_rss_mib``: the worker's own peak
-(:func:`~c3_matcher_tools.memory.peak_rss_mib`)."""
+(:func:`~c3_matcher_tools.memory.peak_rss_mib`). Bad input (``InvalidInputError``: a frame
+that cannot be read, say) exits 2 with one JSON line ``{"field", "reason"}`` on stderr, never a
+traceback; ``bench`` reports it as its own refusal."""
 
 from __future__ import annotations
 
@@ -22,8 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from c3_matcher.commands import bounded_int
+from c3_matcher.commands import EXIT_USAGE, bounded_int
 from c3_matcher.config import C3Settings, load_settings
+from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.bench import BenchCase
 from c3_matcher_tools.memory import peak_rss_mib
 from c3_matcher_tools.run.inputs import flight_inputs
@@ -148,7 +151,12 @@ def _worker_main(argv: list[str]) -> int:
 
     logger.remove()
     case = BenchCase(**json.loads(args.case))
-    print(json.dumps(run_worker(case, args.runs, args.data, load_settings(args.config))))
+    try:
+        result = run_worker(case, args.runs, args.data, load_settings(args.config))
+    except InvalidInputError as exc:  # bad input, never a traceback: the parent says it
+        print(json.dumps({"field": exc.field, "reason": exc.reason}), file=sys.stderr)
+        return EXIT_USAGE
+    print(json.dumps(result))
     return 0
 
 

@@ -36,14 +36,17 @@ rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summar
 ``--json`` stdout carries one JSON document: a single dataset's ``eval.json``; for several,
 ``{"flights": [each dataset's eval.json, in order], "summary": summary.json's rows}``. A
 dataset name that names an output directory must be one plain path component, and several
-datasets need as many names (refused before anything runs, exit 2, as is a strategy this build
-cannot run).
+datasets need as many names (refused before anything runs, exit 2, as are a strategy this build
+cannot run, a noisy attitude out of range (``--attitude-noise-deg``) and an output directory that
+is, holds or lies inside a dataset: nothing is made or written then).
 
 A strategy that fails to run on a dataset (it cannot start, a frame cannot be read) is a table
 row and an ``error`` entry, the others go on, and the command exits 1 once every table and
-report is written. An output directory another process is writing (its FDR lock held) stops the
-command at once: nothing more is written into it; so does an output directory another ``eval``
-or ``replay`` holds (each holds its directories, ``--out`` and each dataset's, while it runs).
+report is written; one that cannot start (a missing engine: it is composed before its directory
+is touched) leaves its directory as an earlier eval left it. An output directory another
+process is writing (its FDR lock held) stops the command at once: nothing more is written into
+it; so does an output directory another ``eval`` or ``replay`` holds (each holds its
+directories, ``--out`` and each dataset's, while it runs).
 
 Writes ``eval.json``, per strategy ``<strategy>/results.jsonl`` (+ FDR and logs),
 ``<strategy>/flight.geojson`` and ``<strategy>/report.html`` (the same as ``replay`` writes, each
@@ -79,12 +82,17 @@ from c3_matcher.config import C3Settings
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr import FdrOpenError
 from c3_matcher.plugins.manager import PluginHost
-from c3_matcher_tools.args import add_attitude_noise_option, add_strategies_option
-from c3_matcher_tools.dataset.format import FlightDataset, load_dataset, with_attitude_noise
+from c3_matcher_tools.args import (
+    add_attitude_noise_option,
+    add_strategies_option,
+    apply_attitude_noise,
+)
+from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     NO_OVERRIDES,
     Overrides,
+    check_output_dirs,
     exclusive_output_dir,
     flight_report,
     fly,
@@ -185,7 +193,12 @@ def register_eval_command(commands: CommandRegistry) -> None:
         default=None,
         help="the first N frames (>= 1) in the second (C3-IT-02) run (default: all)",
     )
-    p.add_argument("--samples", type=int, default=3, help="match pictures per strategy (default 3)")
+    p.add_argument(
+        "--samples",
+        type=bounded_int(0),
+        default=3,
+        help="match pictures per strategy (>= 0; 0: none; default 3)",
+    )
     add_attitude_noise_option(p)
     p.add_argument(
         "--json",
@@ -204,16 +217,18 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     """Every dataset through every strategy; ``EXIT_FAILURE`` (the tables and reports still
     written) when a strategy failed to run on a dataset."""
     limit = ctx.settings.matcher.max_image_pixels
-    datasets = [  # every input checked before anything runs
-        with_attitude_noise(load_dataset(path, limit), args.attitude_noise_deg)
+    datasets = [  # every input checked before anything runs or any directory is made
+        apply_attitude_noise(load_dataset(path, limit), args.attitude_noise_deg)
         for path in args.dataset
     ]
     names = _strategies(args, ctx.plugin_host)
     outs = _output_dirs(args.out, datasets)
     root = args.out or Path("out") / "eval"
+    held = [*([root] if len(datasets) > 1 else []), *outs]
+    check_output_dirs(held, datasets)  # none is, holds or lies inside an input
     summary: list[dict[str, Any]] = []
     reports: list[dict[str, Any]] = []
-    with exclusive_output_dir(*([root] if len(datasets) > 1 else []), *outs):
+    with exclusive_output_dir(*held):
         if len(datasets) > 1:
             forget_previous_run(root, ("summary.json",))
         for dataset, out in zip(datasets, outs, strict=True):

@@ -10,6 +10,9 @@ estimate: centres, tracks, footprints; QGIS opens it) and ``report.html`` (the s
 flight report, with the ``report`` extra: matplotlib). The results and reports are each
 replaced atomically; the FDR and log are started afresh only once this run holds the FDR's
 lock, so a replay into a directory another one is writing is refused with its files untouched.
+What can refuse the run is checked before ``--out`` is touched: every frame image (readable,
+of the calibration's size), every noisy attitude (``--attitude-noise-deg``), an ``--out`` that
+is, holds or lies inside the dataset, the strategy and its engines (composed first).
 stdout carries the report (a table, or JSON with ``--json``). Each ``ok`` result carries the
 best homography and, the tile ids being georeferenced, the frame centre's lat/lon and its
 footprint; frames with ground truth also carry ``truth_lat``/``truth_lon`` and
@@ -33,16 +36,18 @@ from c3_matcher.commands import (
     add_max_keypoints_option,
     bounded_int,
 )
-from c3_matcher_tools.args import add_attitude_noise_option
-from c3_matcher_tools.dataset.format import load_dataset, with_attitude_noise
+from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_noise
+from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     Overrides,
-    check_calibration_size,
+    check_frames,
+    check_output_dirs,
     exclusive_output_dir,
     flight_report,
-    fly,
+    fly_prepared,
     output_dir_name,
+    prepare_matcher,
     write_flight_outputs,
 )
 
@@ -83,24 +88,29 @@ def register_replay_command(commands: CommandRegistry) -> None:
 
 
 def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
+    """Everything that can refuse the run (the dataset, its frames, the noisy attitudes,
+    ``--out``, the strategy and its engines) is checked before ``--out`` is touched: a refused
+    replay leaves an existing ``--out`` as it was and makes none."""
     settings = ctx.settings
-    dataset = with_attitude_noise(
-        load_dataset(args.dataset, settings.matcher.max_image_pixels), args.attitude_noise_deg
-    )
+    loaded = load_dataset(args.dataset, settings.matcher.max_image_pixels)
+    dataset = apply_attitude_noise(loaded, args.attitude_noise_deg, args.limit)
     strategy = args.strategy or settings.matcher.strategy
     out = args.out or Path("out") / "replay" / f"{output_dir_name(dataset)}-{strategy}"
     frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
-    if frames:
-        check_calibration_size(dataset, frames[0])
-    ctx.plugin_host.resolve(strategy)  # a strategy this build cannot run touches no file
-    with exclusive_output_dir(out):
-        run = fly(
-            settings,
-            strategy,
+    check_frames(dataset, frames)
+    check_output_dirs([out], [dataset])
+    overrides = Overrides(max_keypoints=args.max_keypoints)
+    with (
+        prepare_matcher(
+            settings, strategy, plugin_host=ctx.plugin_host, overrides=overrides
+        ) as prepared,
+        exclusive_output_dir(out),
+    ):
+        run = fly_prepared(
+            prepared,
             dataset,
             out,
             plugin_host=ctx.plugin_host,
-            overrides=Overrides(max_keypoints=args.max_keypoints),
             frames=frames,
             progress=ProgressBar(f"replay {dataset.name} {strategy}"),
             with_correspondences=not args.no_correspondences,

@@ -1,21 +1,32 @@
 """The tools' run layer, which replay, eval, bench, features, the reports and the GeoJSON
 export build on: typed run records (:class:`FrameOutcome`, :class:`FlightRun`), opening a
-matcher for a strategy with :class:`Overrides` (:func:`open_matcher`, :func:`compose_matcher`,
-:func:`open_backend`), flying a flight (:func:`run_flight`, :func:`fly`), scoring it against
-ground truth and telemetry (:func:`summarize`, :func:`result_fingerprint`) and writing a run's
-files, each one atomically (:mod:`c3_matcher.atomic`). Commands live beside it (``replay``,
+matcher for a strategy with :class:`Overrides` (:func:`prepare_matcher`, composed before a run
+touches its directory, :func:`open_matcher`, :func:`compose_matcher`, :func:`open_backend`),
+flying a flight (:func:`run_flight`, :func:`fly`), scoring it against ground truth and
+telemetry (:func:`summarize`, :func:`result_fingerprint`) and writing a run's files, each one
+atomically (:mod:`c3_matcher.atomic`). Commands live beside it (``replay``,
 ``evaluate``, ``bench``); nothing here is one."""
 
-from c3_matcher_tools.run.flight import Progress, check_calibration_size, fly, run_flight
+from c3_matcher_tools.run.flight import (
+    Progress,
+    check_calibration_size,
+    check_frames,
+    fly,
+    fly_prepared,
+    run_flight,
+)
 from c3_matcher_tools.run.matcher import (
     NO_OVERRIDES,
     ComposedMatcher,
     Overrides,
+    PreparedMatcher,
     compose_matcher,
     open_backend,
     open_matcher,
+    prepare_matcher,
 )
 from c3_matcher_tools.run.outputs import (
+    check_output_dirs,
     exclusive_output_dir,
     flight_report,
     forget_previous_run,
@@ -45,20 +56,25 @@ __all__ = [
     "FlightRun",
     "FrameOutcome",
     "Overrides",
+    "PreparedMatcher",
     "Progress",
     "StrategyEval",
     "StrategyFailure",
     "StrategyRow",
     "best_candidate_error",
     "check_calibration_size",
+    "check_frames",
+    "check_output_dirs",
     "compose_matcher",
     "exclusive_output_dir",
     "flight_report",
     "fly",
+    "fly_prepared",
     "forget_previous_run",
     "open_backend",
     "open_matcher",
     "output_dir_name",
+    "prepare_matcher",
     "result_fingerprint",
     "run_flight",
     "summarize",

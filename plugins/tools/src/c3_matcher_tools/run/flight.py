@@ -18,9 +18,15 @@ from c3_matcher.georef import haversine_m
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import CALIBRATION_SIZE_FIX, result_to_json
+from c3_matcher.tiles import MmapTileHandle, image_header_size
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
-from c3_matcher_tools.run.matcher import NO_OVERRIDES, Overrides, open_matcher
+from c3_matcher_tools.run.matcher import (
+    NO_OVERRIDES,
+    Overrides,
+    PreparedMatcher,
+    prepare_matcher,
+)
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.scoring import (
     best_candidate_error,
@@ -29,7 +35,14 @@ from c3_matcher_tools.run.scoring import (
     truth_position,
 )
 
-__all__ = ["Progress", "check_calibration_size", "fly", "run_flight"]
+__all__ = [
+    "Progress",
+    "check_calibration_size",
+    "check_frames",
+    "fly",
+    "fly_prepared",
+    "run_flight",
+]
 
 Progress = Callable[[int, int], None]
 
@@ -159,32 +172,100 @@ def fly(
     progress: Progress | None = None,
     with_correspondences: bool = True,
 ) -> FlightRun:
-    """Open ``strategy`` (:func:`~c3_matcher_tools.run.matcher.open_matcher`, FDR and logs
-    under ``out_dir``), fly ``frames`` (default: all) and time it: start-up is opening the
-    matcher, wall time opening it and flying (s)."""
-    started = time.perf_counter()
-    with open_matcher(
-        settings, strategy, out_dir, plugin_host=plugin_host, overrides=overrides
-    ) as matcher:
-        startup_s = time.perf_counter() - started
-        outcomes = run_flight(
-            matcher,
+    """Open ``strategy`` (:func:`~c3_matcher_tools.run.matcher.prepare_matcher`: composed
+    before ``out_dir`` is touched, so one that cannot start leaves it as it was), then fly
+    ``frames`` (default: all) with its FDR and logs under ``out_dir`` (:func:`fly_prepared`)."""
+    with prepare_matcher(
+        settings, strategy, plugin_host=plugin_host, overrides=overrides
+    ) as prepared:
+        return fly_prepared(
+            prepared,
             dataset,
+            out_dir,
+            plugin_host=plugin_host,
             frames=frames,
             progress=progress,
             with_correspondences=with_correspondences,
         )
-    wall_s = time.perf_counter() - started
-    ran = strategy_settings(overrides.apply(settings, strategy), strategy, plugin_host)
-    return FlightRun(
-        strategy, ran.matcher.model_dump(mode="json"), tuple(outcomes), startup_s, wall_s
+
+
+def fly_prepared(
+    prepared: PreparedMatcher,
+    dataset: FlightDataset,
+    out_dir: Path,
+    *,
+    plugin_host: PluginHost,
+    frames: Sequence[FrameRecord] | None = None,
+    progress: Progress | None = None,
+    with_correspondences: bool = True,
+) -> FlightRun:
+    """Start ``prepared`` in ``out_dir`` (:meth:`~PreparedMatcher.start`: a fresh FDR and log),
+    fly ``frames`` (default: all) and time it: start-up is composing the matcher and opening
+    its FDR, wall time that and flying (s)."""
+    started = time.perf_counter()
+    prepared.start(out_dir)
+    startup_s = prepared.startup_s + time.perf_counter() - started
+    outcomes = run_flight(
+        prepared.matcher,
+        dataset,
+        frames=frames,
+        progress=progress,
+        with_correspondences=with_correspondences,
     )
+    wall_s = prepared.startup_s + time.perf_counter() - started
+    ran = strategy_settings(prepared.settings, prepared.strategy, plugin_host)
+    return FlightRun(
+        prepared.strategy, ran.matcher.model_dump(mode="json"), tuple(outcomes), startup_s, wall_s
+    )
+
+
+def check_frames(dataset: FlightDataset, frames: Sequence[FrameRecord]) -> None:
+    """Every frame of ``frames`` as a run will read it, checked before the run starts: its
+    image a readable file whose header names a decodable format (PNG, JPEG, TIFF, BMP, WebP,
+    GIF) within ``dataset.max_image_pixels``, of the size its calibration was made for
+    (:func:`check_calibration_size`'s message). ``InvalidInputError`` naming the first image
+    that is not. Only the headers are read: nothing is decoded."""
+    for frame in frames:
+        path = dataset.root / frame.image
+        width, height = _header_size(path, dataset.max_image_pixels)
+        _refuse_another_size(dataset, frame, width, height)
+
+
+def _header_size(path: Path, max_pixels: int) -> tuple[int, int]:
+    """(width, height) of the image file ``path`` from its header, as ``read_image`` would
+    refuse it (missing, not a regular file, empty, unreadable, not an image, too large)."""
+    if not path.exists():
+        raise InvalidInputError(str(path), "no such image file")
+    MmapTileHandle(path, max_pixels=max_pixels)  # a regular file, not empty
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(1 << 20)
+    except OSError as exc:
+        raise InvalidInputError(
+            str(path), f"cannot read image file: {exc.strerror or exc}"
+        ) from exc
+    size = image_header_size(head)
+    if size is None or min(size) <= 0:
+        raise InvalidInputError(
+            str(path), "not a decodable image (PNG, JPEG, TIFF, BMP, WebP, GIF)"
+        )
+    if size[0] * size[1] > max_pixels:
+        raise InvalidInputError(
+            str(path),
+            f"image of {size[0]}x{size[1]} px exceeds the limit of {max_pixels} px "
+            "([matcher] max_image_pixels)",
+        )
+    return size
 
 
 def check_calibration_size(dataset: FlightDataset, frame: FrameRecord) -> None:
     """A calibration made for another image size is bad input (exit 2) naming both sizes,
     not a backbone failure on every frame."""
     h, w = dataset.nav_frame(frame).image.shape[:2]
+    _refuse_another_size(dataset, frame, w, h)
+
+
+def _refuse_another_size(dataset: FlightDataset, frame: FrameRecord, w: int, h: int) -> None:
     cw, ch = dataset.calibration.image_size
     if (cw, ch) != (w, h):
         raise InvalidInputError(

@@ -1,15 +1,19 @@
 """Opening a matcher for a strategy, the one way every ground command does it: the
 configuration with a run's :class:`Overrides`, composed by ``compose_root`` on the process's
 plugin host (or, for a strategy's PyTorch reference, the same per-frame loop on the reference
-backend), its FDR records and JSON logs in a run directory when it has one."""
+backend), its FDR records and JSON logs in a run directory when it has one: composed first
+(:func:`prepare_matcher`, engines loaded), so a run that cannot start touches no file, and only
+then given its directory (:meth:`PreparedMatcher.start`)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import ExitStack, contextmanager
+import io
+import time
+from collections.abc import Iterator, Mapping
+from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from c3_matcher.compose import ComposedRoot, build_plugin_host, strategy_settings
 from c3_matcher.config import C3Settings
@@ -22,9 +26,11 @@ __all__ = [
     "NO_OVERRIDES",
     "ComposedMatcher",
     "Overrides",
+    "PreparedMatcher",
     "compose_matcher",
     "open_backend",
     "open_matcher",
+    "prepare_matcher",
 ]
 
 _MATCHER_KEYS = ("max_keypoints", "tile_cache_size", "max_long_side", "stored_features")
@@ -132,6 +138,120 @@ def _reference_matcher(
     return ComposedMatcher(matcher, str(backend.provenance()["provider"]))
 
 
+class _HeldBackFdr:
+    """The FDR a matcher is composed with before its run directory is taken: its records wait
+    in memory (a run refused at start-up writes nothing) until :meth:`attach` writes them, in
+    order, to the run's recorder, which every later record goes straight to."""
+
+    def __init__(self) -> None:
+        self._held: list[tuple[str, Mapping[str, Any]]] = []
+        self._to: FdrClient | None = None
+
+    def record(self, kind: str, payload: Mapping[str, Any]) -> None:
+        if self._to is None:
+            self._held.append((kind, payload))
+        else:
+            self._to.record(kind, payload)
+
+    def attach(self, fdr: FdrClient) -> None:
+        from c3_matcher.fdr import FdrWriteError
+
+        held, self._held, self._to = self._held, [], fdr
+        for kind, payload in held:
+            with suppress(FdrWriteError):  # kept pending by the recorder: the next record writes it
+                fdr.record(kind, payload)
+
+
+class _HeldBackLog(io.StringIO):
+    """The matcher's JSON log lines, kept in memory until the run's ``matcher.log`` is opened
+    (:meth:`attach`), then written there with every later line."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._to: TextIO | None = None
+
+    def write(self, text: str) -> int:
+        return super().write(text) if self._to is None else self._to.write(text)
+
+    def flush(self) -> None:
+        if self._to is not None:
+            self._to.flush()
+
+    def attach(self, stream: TextIO) -> None:
+        stream.write(self.getvalue())
+        stream.flush()
+        self._to = stream
+
+
+@dataclass
+class PreparedMatcher:
+    """A matcher composed for a run (engines loaded, start-up probe run) that has touched no
+    file yet: its FDR records and log lines wait in memory until :meth:`start` opens the run's
+    directory. ``settings``: what it was composed with (the run's overrides and strategy
+    applied); ``startup_s``: how long composing took."""
+
+    matcher: CrossDomainMatcher
+    strategy: str
+    settings: C3Settings
+    startup_s: float
+    _fdr: _HeldBackFdr
+    _log: _HeldBackLog
+    _started: ExitStack
+    _clock: Clock
+
+    def start(self, out_dir: Path) -> None:
+        """Record to ``out_dir/fdr.jsonl`` and log to ``out_dir/matcher.log``, both started
+        afresh, an earlier run's results removed (:func:`forget_previous_run`), only once this
+        process holds the FDR's lock: a run refused by it (another process writing
+        ``out_dir``) leaves that run's files as they are. What the matcher recorded and logged
+        while it was composed comes first."""
+        from c3_matcher.fdr import JsonlFdrRecorder
+
+        out_dir.mkdir(parents=True, exist_ok=True)
+        fdr = JsonlFdrRecorder(
+            out_dir / "fdr.jsonl", self._clock, max_bytes=self.settings.fdr.max_bytes, fresh=True
+        )
+        self._started.callback(fdr.close)
+        forget_previous_run(out_dir)  # the FDR is this run's now: so are the results
+        log = self._started.enter_context((out_dir / "matcher.log").open("w", encoding="utf-8"))
+        self._log.attach(log)
+        self._fdr.attach(fdr)
+
+
+@contextmanager
+def prepare_matcher(
+    settings: C3Settings,
+    strategy: str,
+    *,
+    plugin_host: PluginHost | None = None,
+    overrides: Overrides = NO_OVERRIDES,
+    log_level: str | None = None,
+) -> Iterator[PreparedMatcher]:
+    """A :class:`PreparedMatcher` for ``strategy`` (a linked strategy, or the ``sift_magsac``
+    baseline, also a strategy) with ``overrides``: everything that can fail at start-up (an
+    unknown strategy, a missing or broken engine) fails here, before any file is touched.
+    Closed on exit, with the FDR and log :meth:`~PreparedMatcher.start` opened."""
+    from c3_matcher.health import MonotonicClock
+    from c3_matcher.logs import configure_logging
+
+    host = plugin_host if plugin_host is not None else build_plugin_host()
+    host.resolve(strategy)
+    clock = MonotonicClock()
+    started = time.perf_counter()
+    with ExitStack() as opened:  # closed in reverse, also when opening fails part-way
+        run_files = opened.enter_context(ExitStack())  # the FDR and log: closed last
+        fdr, log = _HeldBackFdr(), _HeldBackLog()
+        logs = configure_logging(fdr, level=log_level or settings.logging.level, stream=log)
+        opened.callback(logs.close)
+        chosen = overrides.apply(settings, strategy)
+        composed = compose_matcher(chosen, fdr=fdr, clock=clock, plugin_host=host)
+        opened.callback(composed.close)
+        startup_s = time.perf_counter() - started
+        yield PreparedMatcher(
+            composed.matcher, strategy, chosen, startup_s, fdr, log, run_files, clock
+        )
+
+
 @contextmanager
 def open_matcher(
     settings: C3Settings,
@@ -142,34 +262,16 @@ def open_matcher(
     overrides: Overrides = NO_OVERRIDES,
     log_level: str | None = None,
 ) -> Iterator[CrossDomainMatcher]:
-    """A matcher for ``strategy`` (a linked strategy, or the ``sift_magsac`` baseline, also a
-    strategy) with ``overrides``, whose FDR records go to ``out_dir/fdr.jsonl`` and JSON logs
-    to ``out_dir/matcher.log``; closed on exit. A strategy this build cannot run is refused
-    before any file is touched; both files are started afresh, and an earlier run's results
-    removed (:func:`forget_previous_run`), only once this process holds the FDR's lock, so a
-    run refused by it (another process writing ``out_dir``) leaves that run's files as they
-    are."""
-    from c3_matcher.fdr import JsonlFdrRecorder
-    from c3_matcher.health import MonotonicClock
-    from c3_matcher.logs import configure_logging
-
-    host = plugin_host if plugin_host is not None else build_plugin_host()
-    host.resolve(strategy)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    clock = MonotonicClock()
-    with ExitStack() as opened:  # closed in reverse, also when opening fails part-way
-        fdr = JsonlFdrRecorder(
-            out_dir / "fdr.jsonl", clock, max_bytes=settings.fdr.max_bytes, fresh=True
-        )
-        opened.callback(fdr.close)
-        forget_previous_run(out_dir)  # the FDR is this run's now: so are the results
-        log_stream = opened.enter_context((out_dir / "matcher.log").open("w", encoding="utf-8"))
-        logs = configure_logging(fdr, level=log_level or settings.logging.level, stream=log_stream)
-        opened.callback(logs.close)
-        chosen = overrides.apply(settings, strategy)
-        composed = compose_matcher(chosen, fdr=fdr, clock=clock, plugin_host=host)
-        opened.callback(composed.close)
-        yield composed.matcher
+    """A matcher for ``strategy`` with ``overrides``, whose FDR records go to
+    ``out_dir/fdr.jsonl`` and JSON logs to ``out_dir/matcher.log``; closed on exit. It is
+    composed first (:func:`prepare_matcher`): a strategy this build cannot run, or one that
+    cannot start (a missing engine), is refused before any file is touched, ``out_dir`` not
+    made; then :meth:`PreparedMatcher.start` takes ``out_dir``."""
+    with prepare_matcher(
+        settings, strategy, plugin_host=plugin_host, overrides=overrides, log_level=log_level
+    ) as prepared:
+        prepared.start(out_dir)
+        yield prepared.matcher
 
 
 def open_backend(

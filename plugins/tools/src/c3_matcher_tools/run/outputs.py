@@ -13,7 +13,12 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.atomic import atomic_writer, held_directory, refuse_unwritable
+from c3_matcher.atomic import (
+    atomic_writer,
+    held_directory,
+    refuse_output_over_inputs,
+    refuse_unwritable,
+)
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
@@ -21,6 +26,7 @@ from c3_matcher_tools.run.scoring import summarize
 
 __all__ = [
     "RUN_FILES",
+    "check_output_dirs",
     "exclusive_output_dir",
     "flight_report",
     "forget_previous_run",
@@ -44,6 +50,36 @@ def exclusive_output_dir(*directories: Path) -> Iterator[None]:
         for directory in directories:
             held.enter_context(held_directory(directory, when_busy=_refused(directory)))
         yield
+
+
+def check_output_dirs(
+    directories: Sequence[Path], datasets: Sequence[FlightDataset], *, field: str = "--out"
+) -> None:
+    """Refuse, before anything is made or loaded, an output directory of a run over
+    ``datasets`` that is, holds or lies inside one of them: one that is or holds the dataset's
+    directory, tile store, frames, calibration or frame images
+    (:func:`~c3_matcher.atomic.refuse_output_over_inputs`, as ``dataset render`` and ``import``
+    refuse an OUT holding an input), or that lies inside the dataset's directory, which a run
+    reads and never writes; then one that is a file or not writable. ``InvalidInputError``
+    naming ``field``."""
+    for directory in directories:
+        for dataset in datasets:
+            inputs = {
+                dataset.root,
+                dataset.store_path,
+                dataset.root / str(dataset.meta["frames"]),
+                dataset.root / str(dataset.meta["calibration"]),
+                *((dataset.root / f.image).parent for f in dataset.frames),
+            }
+            refuse_output_over_inputs(directory, sorted(inputs), field=field)
+            root = dataset.root.expanduser().resolve()
+            if root in directory.expanduser().resolve().parents:
+                raise InvalidInputError(
+                    field,
+                    f"{directory} is inside the input dataset {dataset.root}, which a run reads "
+                    "and never writes: choose another",
+                )
+        refuse_unwritable(directory, field=field, directory=True)
 
 
 RUN_FILES = ("results.jsonl", "report.json", "flight.geojson", "report.html")
