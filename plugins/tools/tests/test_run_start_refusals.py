@@ -304,6 +304,21 @@ def test_bench_refuses_a_demo_directory_whose_tile_is_missing(
     assert tile in err
 
 
+def test_bench_names_a_demo_directorys_bad_calibration_as_its_data(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The directory's own calibration.json is blamed on --data, not on a --calibration
+    option bench does not have."""
+    from c3_matcher.cli import main
+
+    demo = shutil.copytree(REPO / "data" / "demo", tmp_path / "demo")
+    (demo / "calibration.json").write_text('{"K": 1}')
+    assert main(["bench", "--runs", "1", "--no-reference", "--data", str(demo)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("c3-matcher: --data: ") and "calibration.json" in err, err
+    assert "--calibration" not in err
+
+
 def test_a_workers_bad_input_is_one_line_and_exit_2_never_a_traceback(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -80,5 +80,5 @@ def demo_inputs(data_dir: Path) -> MatchInputs:
         )
         for t in meta["tiles"]
     )
-    calibration = load_calibration(data_dir / "calibration.json")
+    calibration = load_calibration(data_dir / "calibration.json", field="--data")
     return frame, RerankResult(frame.frame_id, candidates), calibration
