@@ -11,7 +11,6 @@ CANTOPEN error SQLite gives such a file."""
 
 from __future__ import annotations
 
-import errno
 import os
 import re
 import shutil
@@ -24,6 +23,7 @@ import numpy as np
 import pytest
 
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.testing.permissions import cantopen, refuse_reading
 from c3_matcher.tiles import read_image
 from c3_matcher.tilestore.features import (
     FeatureRequest,
@@ -48,32 +48,6 @@ FSET = FeatureSet(
     REQUEST.set_id(WINDOW), REQUEST.extractor_sha256, REQUEST.provider, 32, "clahe", 4,
     WINDOW, STRIDE, 64, "xfeat",
 )  # fmt: skip
-
-
-def refuse_reading(monkeypatch: pytest.MonkeyPatch, target: Path) -> None:
-    """``target`` opens as a file without read permission does (EACCES), for os.open and for
-    SQLite (CANTOPEN); every other file as it is."""
-    real_open, real_connect = os.open, sqlite3.connect
-
-    def os_open(path: Any, flags: int, *args: Any, **kwargs: Any) -> int:
-        if Path(path).resolve() == target.resolve():
-            raise PermissionError(errno.EACCES, "Permission denied", str(path))
-        return real_open(path, flags, *args, **kwargs)
-
-    def connect(database: Any, *args: Any, **kwargs: Any) -> sqlite3.Connection:
-        if str(target.resolve()) in str(database) or str(database) == str(target):
-            raise cantopen()
-        return real_connect(database, *args, **kwargs)
-
-    monkeypatch.setattr(os, "open", os_open)
-    monkeypatch.setattr(sqlite3, "connect", connect)
-
-
-def cantopen() -> sqlite3.OperationalError:
-    """The error SQLite gives for a file it may not open."""
-    exc = sqlite3.OperationalError("unable to open database file")
-    exc.sqlite_errorcode = sqlite3.SQLITE_CANTOPEN  # type: ignore[attr-defined]
-    return exc
 
 
 # -- the tile store -------------------------------------------------------------------------

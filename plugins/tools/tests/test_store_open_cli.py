@@ -10,9 +10,7 @@ CANTOPEN for it."""
 
 from __future__ import annotations
 
-import errno
 import json
-import os
 import shutil
 import sqlite3
 from pathlib import Path
@@ -20,6 +18,7 @@ from typing import Any
 
 import pytest
 
+from c3_matcher.testing.permissions import refuse_reading
 from c3_matcher.tilestore.features import FeatureSet, MapFeatureStore, sidecar_path
 
 REPO = Path(__file__).resolve().parents[3]
@@ -28,27 +27,6 @@ TILE = REPO / "data" / "demo" / "tile_a.png"
 FSET = FeatureSet(
     "ab" * 32, "ab" * 32, "CPUExecutionProvider", 32, "none", 4, 256, 256, 64, "xfeat"
 )
-
-
-def refuse_reading(monkeypatch: pytest.MonkeyPatch, target: Path) -> None:
-    """``target`` opens as a file without read permission does: EACCES from os.open, CANTOPEN
-    from SQLite; every other file as it is."""
-    real_open, real_connect = os.open, sqlite3.connect
-
-    def os_open(path: Any, flags: int, *args: Any, **kwargs: Any) -> int:
-        if Path(path).resolve() == target.resolve():
-            raise PermissionError(errno.EACCES, "Permission denied", str(path))
-        return real_open(path, flags, *args, **kwargs)
-
-    def connect(database: Any, *args: Any, **kwargs: Any) -> sqlite3.Connection:
-        if str(database) == str(target) or str(target.resolve()) in str(database):
-            exc = sqlite3.OperationalError("unable to open database file")
-            exc.sqlite_errorcode = sqlite3.SQLITE_CANTOPEN  # type: ignore[attr-defined]
-            raise exc
-        return real_connect(database, *args, **kwargs)
-
-    monkeypatch.setattr(os, "open", os_open)
-    monkeypatch.setattr(sqlite3, "connect", connect)
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
