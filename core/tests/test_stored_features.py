@@ -34,8 +34,9 @@ from c3_matcher.tilestore.features import (
     tile_digest,
     window_digest,
 )
+from c3_matcher.tilestore.files import set_aside
 from c3_matcher.tilestore.mbtiles import MBTilesStore
-from c3_matcher.tilestore.sidecar import PAGE_BYTES, SidecarDamagedError, set_aside
+from c3_matcher.tilestore.sidecar import PAGE_BYTES, SidecarDamagedError
 
 REPO = Path(__file__).resolve().parents[2]
 STORE = REPO / "data" / "flights" / "naip_demo" / "tiles.mbtiles"

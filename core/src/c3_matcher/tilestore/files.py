@@ -1,4 +1,4 @@
-"""Why a store file (an MBTiles store, a map-features sidecar) cannot be opened, in words a
+"""Store files (an MBTiles store, a map-features sidecar): why one cannot be opened, in words a
 user can act on, found before SQLite is asked: SQLite says "unable to open database file" for a
 missing file, a directory and a permission problem alike."""
 
@@ -9,7 +9,9 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["cannot_open", "open_failure"]
+__all__ = ["cannot_open", "open_failure", "set_aside"]
+
+_COMPANIONS = ("-wal", "-shm", "-journal")  # SQLite's files beside a database, by suffix
 
 
 def open_failure(path: str | Path, kind: str) -> str | None:
@@ -40,3 +42,19 @@ def cannot_open(exc: OSError) -> str:
     if exc.errno in (errno.EACCES, errno.EPERM):
         return "cannot open (permission denied)"
     return f"cannot open ({(exc.strerror or str(exc)).lower()})"
+
+
+def set_aside(path: str | Path) -> Path:
+    """Rename the sidecar ``path`` and its SQLite companions (``-wal``, ``-shm``, ``-journal``,
+    whose pages would otherwise be replayed into a new file) to the first free
+    ``<name>.damaged[.N]``, which is returned; nothing is deleted."""
+    p = Path(path)
+    names = ("", *_COMPANIONS)
+    aside, n = p.with_name(f"{p.name}.damaged"), 0
+    while any(Path(f"{aside}{s}").exists() for s in names):
+        n += 1
+        aside = p.with_name(f"{p.name}.damaged.{n}")
+    for s in names:
+        if Path(f"{p}{s}").exists():
+            Path(f"{p}{s}").rename(f"{aside}{s}")
+    return aside

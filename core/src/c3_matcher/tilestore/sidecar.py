@@ -5,17 +5,14 @@ single writer on the ground."""
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import sqlite3
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-import numpy as np
-
 from c3_matcher.tilestore.files import open_failure
-from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, row_checksum
+from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, decode_row, row_checksum
 
 WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
 
@@ -23,7 +20,6 @@ FEATURES_SUFFIX = ".features.sqlite"
 DEFAULT_RETRY_S = 30.0  # a locked or unreadable sidecar is tried again after this long
 MMAP_BYTES = 256 * 1024 * 1024  # the read connection's memory map (as the tile store's)
 PAGE_BYTES = 65536  # SQLite page size of a new sidecar (a row is about a megabyte)
-_COMPANIONS = ("-wal", "-shm", "-journal")  # SQLite's files beside a database, by suffix
 _DAMAGE = (sqlite3.SQLITE_NOTADB, sqlite3.SQLITE_CORRUPT)  # SQLite's "the file is damaged"
 _ROW_COLUMNS = "window_digest, n, keypoints, scores, descriptors, checksum"
 
@@ -45,7 +41,6 @@ _SET_COLUMNS = (
     "set_id, extractor_sha256, provider, multiple, photometric, border_erode_px, window_px, "
     "stride_px, descriptor_dim, strategy, complete, windows, descriptor_dtype"
 )
-_MAY_BE_ZERO = ("border_erode_px", "windows")  # the set's counts that may be 0 (others >= 1)
 
 T = TypeVar("T")
 
@@ -366,80 +361,15 @@ def _open_writable(path: Path) -> sqlite3.Connection:
     return db
 
 
-def decode_row(
-    fset: FeatureSet, key: tuple[str, int, int, int], row: Sequence[Any]
-) -> WindowFeatures:
-    """The window a ``window_features`` row (``window_digest, n, keypoints, scores,
-    descriptors, checksum``) of ``fset`` holds under ``key`` (set, zoom, gx, gy), verified: a
-    ValueError saying why it is refused (``checksum mismatch``, ``undecodable (...)``)."""
-    try:
-        n, d = int(row[1]), fset.descriptor_dim
-        if n < 0:
-            raise ValueError(f"negative count {n}")
-        ok = row_checksum(key, str(row[0]), n, row[2:5]) == str(row[5])
-        stored = WindowFeatures(
-            str(row[0]),
-            np.frombuffer(row[2], dtype=np.float32).reshape(n, 2),
-            np.frombuffer(row[3], dtype=np.float32).reshape(n),
-            np.frombuffer(row[4], dtype=np.dtype(fset.descriptor_dtype)).reshape(n, d),
-        )
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"undecodable ({exc})") from None
-    if not ok:
-        raise ValueError("checksum mismatch")
-    return stored
-
-
-def set_aside(path: str | Path) -> Path:
-    """Rename the sidecar ``path`` and its SQLite companions (``-wal``, ``-shm``, ``-journal``,
-    whose pages would otherwise be replayed into a new file) to the first free
-    ``<name>.damaged[.N]``, which is returned; nothing is deleted."""
-    p = Path(path)
-    names = ("", *_COMPANIONS)
-    aside, n = p.with_name(f"{p.name}.damaged"), 0
-    while any(Path(f"{aside}{s}").exists() for s in names):
-        n += 1
-        aside = p.with_name(f"{p.name}.damaged.{n}")
-    for s in names:
-        if Path(f"{p}{s}").exists():
-            Path(f"{p}{s}").rename(f"{aside}{s}")
-    return aside
-
-
 def _set_of(path: Path, row: Sequence[Any]) -> FeatureSet:
-    """A ``window_sets`` row (``_SET_COLUMNS``: ``FeatureSet``'s fields, in order) of the
-    sidecar ``path``; SidecarDamagedError naming the row and the first malformed value (of
-    another type than its column's, or out of its range)."""
-    values: list[Any] = []
-    for f, v in zip(dataclasses.fields(FeatureSet), row, strict=True):
-        why = _malformed(f.name, str(f.type), v)
-        if why is not None:
-            set_id = str(row[0])[:12]
-            raise SidecarDamagedError(
-                path, f"damaged (window_sets row {set_id}...: {f.name} {repr(v)[:40]} {why})"
-            )
-        values.append(bool(v) if f.type == "bool" else v)
-    return FeatureSet(*values)
-
-
-def _malformed(name: str, kind: str, value: object) -> str | None:
-    """Why the stored ``value`` of the FeatureSet field ``name`` (annotated ``kind``) is not
-    one, or None."""
-    if kind == "str":
-        if type(value) is not str:
-            return "is not a text"
-        if name == "descriptor_dtype":
-            try:
-                np.dtype(value)
-            except TypeError:
-                return "is not a NumPy dtype"
-        return None
-    if type(value) is not int:
-        return "is not an integer"
-    if kind == "bool":
-        return None if value in (0, 1) else "is not 0 or 1"
-    least = 0 if name in _MAY_BE_ZERO else 1
-    return None if value >= least else f"is not >= {least}"
+    """A ``window_sets`` row of the sidecar ``path``; SidecarDamagedError naming the row and
+    its first malformed value."""
+    try:
+        return FeatureSet.of_row(row)
+    except ValueError as exc:
+        raise SidecarDamagedError(
+            path, f"damaged (window_sets row {str(row[0])[:12]}...: {exc})"
+        ) from None
 
 
 def stored_sets(store: MapFeatureStore) -> Iterator[Mapping[str, Any]]:

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -112,6 +112,42 @@ class FeatureSet:
     windows: int = 0
     descriptor_dtype: str = "float32"  # or "uint8" (packed binary descriptors)
 
+    @classmethod
+    def of_row(cls, row: Sequence[Any]) -> FeatureSet:
+        """The set a stored row holds (its fields, in order), every value checked: ValueError
+        naming the first one of another type than its field's, or out of its range (SQLite
+        keeps any value in any column)."""
+        values: list[Any] = []
+        for f, v in zip(fields(cls), row, strict=True):
+            why = _malformed(f.name, str(f.type), v)
+            if why is not None:
+                raise ValueError(f"{f.name} {repr(v)[:40]} {why}")
+            values.append(bool(v) if f.type == "bool" else v)
+        return cls(*values)
+
+
+_MAY_BE_ZERO = ("border_erode_px", "windows")  # the set's counts that may be 0 (others >= 1)
+
+
+def _malformed(name: str, kind: str, value: object) -> str | None:
+    """Why the stored ``value`` of the FeatureSet field ``name`` (annotated ``kind``) is not
+    one, or None."""
+    if kind == "str":
+        if type(value) is not str:
+            return "is not a text"
+        if name == "descriptor_dtype":
+            try:
+                np.dtype(value)
+            except TypeError:
+                return "is not a NumPy dtype"
+        return None
+    if type(value) is not int:
+        return "is not an integer"
+    if kind == "bool":
+        return None if value in (0, 1) else "is not 0 or 1"
+    least = 0 if name in _MAY_BE_ZERO else 1
+    return None if value >= least else f"is not >= {least}"
+
 
 @dataclass(frozen=True, slots=True)
 class WindowFeatures:
@@ -152,3 +188,27 @@ def grid_index(origin: tuple[int, int], stride_px: int) -> tuple[int, int]:
         math.floor(origin[0] / stride_px + 0.5),
         math.floor(origin[1] / stride_px + 0.5),
     )
+
+
+def decode_row(
+    fset: FeatureSet, key: tuple[str, int, int, int], row: Sequence[Any]
+) -> WindowFeatures:
+    """The window a ``window_features`` row (``window_digest, n, keypoints, scores,
+    descriptors, checksum``) of ``fset`` holds under ``key`` (set, zoom, gx, gy), verified: a
+    ValueError saying why it is refused (``checksum mismatch``, ``undecodable (...)``)."""
+    try:
+        n, d = int(row[1]), fset.descriptor_dim
+        if n < 0:
+            raise ValueError(f"negative count {n}")
+        ok = row_checksum(key, str(row[0]), n, row[2:5]) == str(row[5])
+        stored = WindowFeatures(
+            str(row[0]),
+            np.frombuffer(row[2], dtype=np.float32).reshape(n, 2),
+            np.frombuffer(row[3], dtype=np.float32).reshape(n),
+            np.frombuffer(row[4], dtype=np.dtype(fset.descriptor_dtype)).reshape(n, d),
+        )
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"undecodable ({exc})") from None
+    if not ok:
+        raise ValueError("checksum mismatch")
+    return stored

@@ -48,8 +48,9 @@ from c3_matcher.tilestore.features import (
     tile_digest,
     window_digest,
 )
+from c3_matcher.tilestore.files import set_aside
 from c3_matcher.tilestore.geo import TILE_PX
-from c3_matcher.tilestore.sidecar import SidecarDamagedError, set_aside
+from c3_matcher.tilestore.sidecar import SidecarDamagedError
 from c3_matcher_tools.features.cluster import cores_of, dask_client
 from c3_matcher_tools.features.lock import BuildRunningError, build_lock
 from c3_matcher_tools.features.windows import (
