@@ -9,7 +9,6 @@ atomically (:mod:`c3_matcher.atomic`). Commands live beside it (``replay``,
 
 from c3_matcher_tools.run.flight import (
     Progress,
-    check_calibration_size,
     check_frames,
     fly,
     fly_prepared,
@@ -62,7 +61,6 @@ __all__ = [
     "StrategyFailure",
     "StrategyRow",
     "best_candidate_error",
-    "check_calibration_size",
     "check_frames",
     "check_output_dirs",
     "compose_matcher",

@@ -37,7 +37,6 @@ from c3_matcher_tools.run.scoring import (
 
 __all__ = [
     "Progress",
-    "check_calibration_size",
     "check_frames",
     "fly",
     "fly_prepared",
@@ -223,7 +222,7 @@ def check_frames(dataset: FlightDataset, frames: Sequence[FrameRecord]) -> None:
     """Every frame of ``frames`` as a run will read it, checked before the run starts: its
     image a readable file whose header names a decodable format (PNG, JPEG, TIFF, BMP, WebP,
     GIF) within ``dataset.max_image_pixels``, of the size its calibration was made for
-    (:func:`check_calibration_size`'s message). ``InvalidInputError`` naming the first image
+    (both sizes named). ``InvalidInputError`` naming the first image
     that is not. Only the headers are read: nothing is decoded."""
     for frame in frames:
         path = dataset.root / frame.image
@@ -258,14 +257,9 @@ def _header_size(path: Path, max_pixels: int) -> tuple[int, int]:
     return size
 
 
-def check_calibration_size(dataset: FlightDataset, frame: FrameRecord) -> None:
+def _refuse_another_size(dataset: FlightDataset, frame: FrameRecord, w: int, h: int) -> None:
     """A calibration made for another image size is bad input (exit 2) naming both sizes,
     not a backbone failure on every frame."""
-    h, w = dataset.nav_frame(frame).image.shape[:2]
-    _refuse_another_size(dataset, frame, w, h)
-
-
-def _refuse_another_size(dataset: FlightDataset, frame: FrameRecord, w: int, h: int) -> None:
     cw, ch = dataset.calibration.image_size
     if (cw, ch) != (w, h):
         raise InvalidInputError(
