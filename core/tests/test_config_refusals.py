@@ -192,3 +192,22 @@ def test_a_word_where_a_list_belongs_is_told_the_form_a_list_takes(
         load_settings()
     assert "engines.providers" in str(info.value) and "got 'cpu': give a list" in str(info.value)
     assert "(in the environment, as JSON)" in str(info.value)
+
+
+def test_config_prints_a_strategy_this_build_knows_but_does_not_link(
+    clean_env: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An operator-tooling install links no DISK, the default: its configuration is still good
+    and ``config`` prints it (``match`` says what to install)."""
+    from c3_matcher.cli import main
+    from c3_matcher.errors import StrategyNotLinkedError
+    from c3_matcher.plugins.manager import PluginHost
+
+    def not_linked(self: PluginHost, strategy: str) -> None:
+        raise StrategyNotLinkedError(
+            strategy, "BUILD_MATCHER_DISK_LIGHTGLUE", "operator-tooling", ""
+        )
+
+    clean_env.setattr(PluginHost, "resolve", not_linked)
+    assert main(["config", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["matcher"]["strategy"] == "disk_lightglue"
