@@ -151,6 +151,28 @@ def test_features_build_keeps_a_malformed_sidecar_aside_and_builds_anew(
     assert built["window_px"] == 256 and built["complete"] and built["damaged"] == 0
 
 
+@pytest.mark.slow
+def test_features_build_of_an_unreadable_sidecar_says_why(
+    store: Path,
+    engine_dir: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """As the readers say it: "cannot open (permission denied)", not SQLite's "unable to open
+    database file"; exit 2, the sidecar untouched."""
+    monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
+    side = _sidecar(store)
+    before = side.read_bytes()
+    refuse_reading(monkeypatch, side)
+    code, _, err = run(
+        capsys, "features", "build", str(store), "--strategy", "xfeat", "--workers", "0"
+    )
+    assert code == 2 and "cannot be opened for writing: cannot open (permission denied)" in err, err
+    assert "unable to open database file" not in err
+    monkeypatch.undo()
+    assert side.read_bytes() == before
+
+
 # -- defect: a directory called "no such file"; tiles info of an XYZ folder -------------------
 def test_a_directory_where_a_file_is_expected_is_said_to_be_one(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]

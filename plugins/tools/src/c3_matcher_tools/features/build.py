@@ -48,7 +48,7 @@ from c3_matcher.tilestore.features import (
     tile_digest,
     window_digest,
 )
-from c3_matcher.tilestore.files import set_aside
+from c3_matcher.tilestore.files import open_failure, set_aside
 from c3_matcher.tilestore.geo import TILE_PX
 from c3_matcher.tilestore.sidecar import SidecarDamagedError
 from c3_matcher_tools.features.cluster import cores_of, dask_client
@@ -172,8 +172,9 @@ def _open_sidecar(path: Path) -> MapFeatureStore:
     ValueError naming it."""
     try:
         return MapFeatureStore(path, writable=True)
-    except sqlite3.OperationalError as exc:
-        raise ValueError(f"{path}: cannot be opened for writing: {exc}") from exc
+    except sqlite3.OperationalError as exc:  # why, as the readers say it (SQLite's words else)
+        why = open_failure(path, "a features sidecar") if path.exists() else None
+        raise ValueError(f"{path}: cannot be opened for writing: {why or exc}") from exc
 
 
 def _move_aside(path: Path, exc: SidecarDamagedError, say: Callable[[str], None]) -> None:
