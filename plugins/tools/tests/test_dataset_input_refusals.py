@@ -22,6 +22,7 @@ from c3_matcher_tools.dataset.atomic import check_output_dir
 from c3_matcher_tools.dataset.sources.frames import ground_elevation_sampler
 from c3_matcher_tools.testing.cli import run_cli
 
+SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
 REPO = Path(__file__).resolve().parents[3]
 FLIGHT = REPO / "data" / "flights" / "naip_demo"
 DEMO = REPO / "data" / "demo"
@@ -131,18 +132,6 @@ def test_dataset_import_with_a_bad_dem_says_one_line(
 # --- 2 and 6. a dataset's own files ----------------------------------------------------------
 
 
-def _dataset(root: Path) -> Path:
-    """naip_demo's dataset.json, calibration and first two frame records; the store a
-    placeholder (loading only checks it is there)."""
-    root.mkdir()
-    for name in ("dataset.json", "calibration.json"):
-        shutil.copyfile(FLIGHT / name, root / name)
-    (root / "tiles.mbtiles").write_bytes(b"")
-    lines = (FLIGHT / "frames.jsonl").read_text().splitlines()[:2]
-    (root / "frames.jsonl").write_text("\n".join(lines) + "\n")
-    return root
-
-
 def _refusals(root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> list[str]:
     """What ``dataset info``, ``replay``, ``eval`` and ``bench --data`` say of ``root`` (each
     exit 2, one line, no output directory made)."""
@@ -173,12 +162,13 @@ def _refusals(root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     ],
 )
 def test_a_datasets_calibration_is_named_as_the_datasets_not_as_an_option(
+    small_flight: SmallFlight,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
     damage: Callable[[Path], None],
     why: str,
 ) -> None:
-    root = _dataset(tmp_path / "flight")
+    root = small_flight("flight")
     damage(root / "calibration.json")
     for said in _refusals(root, tmp_path, capsys):
         assert said.startswith(f"c3-matcher: dataset: {root / 'calibration.json'}: {why}"), said
@@ -205,9 +195,13 @@ def _edit_meta(root: Path, **values: Any) -> None:
     ],
 )
 def test_info_replay_eval_and_bench_refuse_the_same_dataset_json_naming_the_key(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], values: dict[str, Any], why: str
+    small_flight: SmallFlight,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    values: dict[str, Any],
+    why: str,
 ) -> None:
-    root = _dataset(tmp_path / "flight")
+    root = small_flight("flight")
     _edit_meta(root, **values)
     said = _refusals(root, tmp_path, capsys)
     assert said[0].startswith(f"c3-matcher: dataset: {root / 'dataset.json'}: {why}"), said[0]
@@ -241,13 +235,15 @@ def test_force_onto_a_file_says_force_replaces_only_a_dataset_directory(
                                       "or --force")  # fmt: skip
 
 
-def test_force_never_replaces_a_directory_that_is_not_a_dataset(tmp_path: Path) -> None:
+def test_force_never_replaces_a_directory_that_is_not_a_dataset(
+    small_flight: SmallFlight, tmp_path: Path
+) -> None:
     other = tmp_path / "photos"
     other.mkdir()
     (other / "IMG_0001.jpg").write_bytes(b"keep")
     with pytest.raises(InvalidInputError, match="not a dataset .*--force replaces only a dataset"):
         check_output_dir(other, force=True)
-    check_output_dir(_dataset(tmp_path / "flight"), force=True)  # a dataset: replaced
+    check_output_dir(small_flight("flight"), force=True)  # a dataset: replaced
     (tmp_path / "empty").mkdir()
     check_output_dir(tmp_path / "empty", force=True)  # nothing to lose
 
