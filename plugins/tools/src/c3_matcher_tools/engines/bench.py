@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +32,9 @@ from numpy.typing import NDArray
 from c3_matcher.commands import bounded_int
 from c3_matcher.features import PairSide
 from c3_matcher_tools.memory import current_rss_mib, peak_rss_mib
+
+if TYPE_CHECKING:
+    from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
 __all__ = ["BenchResult", "format_table", "run_bench"]
 
@@ -102,65 +105,84 @@ def _time_runs(fn: Callable[[], object], runs: int) -> tuple[float, list[float]]
     return first, times
 
 
-def _child(args: argparse.Namespace) -> int:
+class _Case(NamedTuple):
+    """One case set up in the child: label, timed call, engine load time (ms), result detail."""
+
+    label: str
+    fn: Callable[[], object]
+    load_ms: float
+    detail: dict[str, Any]
+
+
+def _extractor_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> _Case:
+    """Load the extractor engine and set up its run on the real image at ``--size``."""
     from c3_matcher.engines.extract import run_extractor
+
+    start = time.perf_counter()
+    engine_id = runtime.load_engine(args.engine)
+    load_ms = (time.perf_counter() - start) * 1e3
+    width, height = args.size
+    rgb = _read_rgb(Path(args.image), (width, height))
+    mask = np.ones((height, width), dtype=bool)
+    model = Path(args.engine).name.split("_", 1)[0]
+
+    def fn() -> object:
+        return run_extractor(runtime, engine_id, rgb, mask, 2048)
+
+    detail = {"keypoints": len(run_extractor(runtime, engine_id, rgb, mask, 2048))}
+    return _Case(f"{model} {width}x{height}", fn, load_ms, detail)
+
+
+def _matcher_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> _Case:
+    """Load the LightGlue engine and set up its match of the first ``--keypoints`` per side."""
     from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
+
+    start = time.perf_counter()
+    matcher = OnnxLightGlueRuntime(runtime)
+    matcher.load(args.feature_type, Path(args.engine))
+    load_ms = (time.perf_counter() - start) * 1e3
+    data = np.load(args.features)
+    n = args.keypoints
+
+    def side(i: int) -> PairSide:  # keypoints, descriptors and (width, height) of image i
+        width, height = (int(v) for v in data[f"size{i}"])
+        return PairSide(data[f"k{i}"][:n], data[f"d{i}"][:n], (width, height))
+
+    side0, side1 = side(0), side(1)
+    label = f"{args.feature_type} lightglue {len(side0.keypoints)}x{len(side1.keypoints)} kpts"
+
+    def fn() -> object:
+        return matcher.match_pair(side0, side1, feature_type=args.feature_type)
+
+    detail = {"matches": len(matcher.match_pair(side0, side1, feature_type=args.feature_type))}
+    return _Case(label, fn, load_ms, detail)
+
+
+def _child(args: argparse.Namespace) -> int:
+    """One measurement: set up the case, time its runs, print its ``BenchResult`` as JSON."""
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
     baseline = current_rss_mib()
     runtime = OnnxInferenceRuntime(
         ["CPUExecutionProvider"], settings=_settings(args.mem_pattern == "on", args.arena == "on")
     )
-    start = time.perf_counter()
-    detail: dict[str, Any] = {}
-    fn: Callable[[], object]
-    if args.kind == "extractor":
-        engine_id = runtime.load_engine(args.engine)
-        load_ms = (time.perf_counter() - start) * 1e3
-        width, height = args.size
-        rgb = _read_rgb(Path(args.image), (width, height))
-        mask = np.ones((height, width), dtype=bool)
-        model = Path(args.engine).name.split("_", 1)[0]
-        case = f"{model} {width}x{height}"
-
-        def fn() -> object:
-            return run_extractor(runtime, engine_id, rgb, mask, 2048)
-
-        detail["keypoints"] = len(run_extractor(runtime, engine_id, rgb, mask, 2048))
-    else:
-        matcher = OnnxLightGlueRuntime(runtime)
-        matcher.load(args.feature_type, Path(args.engine))
-        load_ms = (time.perf_counter() - start) * 1e3
-        data = np.load(args.features)
-        n = args.keypoints
-
-        def side(i: int) -> PairSide:  # keypoints, descriptors and (width, height) of image i
-            width, height = (int(v) for v in data[f"size{i}"])
-            return PairSide(data[f"k{i}"][:n], data[f"d{i}"][:n], (width, height))
-
-        side0, side1 = side(0), side(1)
-        case = f"{args.feature_type} lightglue {len(side0.keypoints)}x{len(side1.keypoints)} kpts"
-
-        def fn() -> object:
-            return matcher.match_pair(side0, side1, feature_type=args.feature_type)
-
-        detail["matches"] = len(matcher.match_pair(side0, side1, feature_type=args.feature_type))
-    first, times = _time_runs(fn, args.runs)
+    case = (_extractor_case if args.kind == "extractor" else _matcher_case)(args, runtime)
+    first, times = _time_runs(case.fn, args.runs)
     ordered = sorted(times)
     p95 = ordered[min(len(ordered) - 1, int(np.ceil(0.95 * len(ordered))) - 1)]
     result = BenchResult(
         engine=Path(args.engine).name,
-        case=case,
+        case=case.label,
         runs=len(times),
         median_ms=round(statistics.median(times), 1),
         p95_ms=round(p95, 1),
         min_ms=round(ordered[0], 1),
         first_run_ms=round(first, 1),
-        load_ms=round(load_ms, 1),
+        load_ms=round(case.load_ms, 1),
         peak_rss_mib=round(peak_rss_mib(), 1),
         baseline_rss_mib=round(baseline, 1),
         settings=f"mem_pattern={args.mem_pattern} arena={args.arena}",
-        detail=detail,
+        detail=case.detail,
     )
     print(json.dumps(asdict(result)))
     return 0
@@ -222,50 +244,36 @@ def run_bench(
         say("extracting real DISK features for the LightGlue cases")
         _prepare_features(disk_engine, image, features, max(lightglue_counts))
         for mem_pattern, arena in settings:
-            flags = [
-                "--mem-pattern",
-                "on" if mem_pattern else "off",
-                "--arena",
-                "on" if arena else "off",
-                "--runs",
-                str(runs),
-            ]
+            flags = _setting_flags(mem_pattern, arena, runs)
             for width, height in disk_sizes:
                 say(f"disk {width}x{height} ({flags[1]} mem pattern, {flags[3]} arena)")
-                results.append(
-                    _run_child(
-                        [
-                            "extractor",
-                            "--engine",
-                            str(disk_engine),
-                            "--image",
-                            str(image),
-                            "--size",
-                            str(width),
-                            str(height),
-                            *flags,
-                        ]
-                    )
-                )
+                options = ["--image", str(image), "--size", str(width), str(height)]
+                argv = _child_argv("extractor", disk_engine, options, flags)
+                results.append(_run_child(argv))
             for count in lightglue_counts:
                 say(f"lightglue {count} keypoints/side ({flags[1]} mem pattern, {flags[3]} arena)")
-                results.append(
-                    _run_child(
-                        [
-                            "matcher",
-                            "--engine",
-                            str(lightglue_engine),
-                            "--features",
-                            str(features),
-                            "--keypoints",
-                            str(count),
-                            "--feature-type",
-                            feature_type,
-                            *flags,
-                        ]
-                    )
-                )
+                options = ["--features", str(features), "--keypoints", str(count)]
+                options += ["--feature-type", feature_type]
+                argv = _child_argv("matcher", lightglue_engine, options, flags)
+                results.append(_run_child(argv))
     return results
+
+
+def _setting_flags(mem_pattern: bool, arena: bool, runs: int) -> list[str]:
+    """The child's options of one (memory pattern, arena) setting and its run count."""
+    return [
+        "--mem-pattern",
+        "on" if mem_pattern else "off",
+        "--arena",
+        "on" if arena else "off",
+        "--runs",
+        str(runs),
+    ]
+
+
+def _child_argv(kind: str, engine: Path, options: Sequence[str], flags: list[str]) -> list[str]:
+    """The child's arguments: the case ``kind``, its engine, its own options, the setting's."""
+    return [kind, "--engine", str(engine), *options, *flags]
 
 
 def format_table(results: Sequence[BenchResult]) -> str:

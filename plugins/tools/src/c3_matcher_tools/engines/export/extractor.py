@@ -208,8 +208,6 @@ def export_and_verify_extractor(
         ``compare_keypoint_sets`` (identical whole-pixel sets) with ``tolerances`` (and
     ``relative_scores``). A masked case
         reports ``masked_keypoints``, the graph's keypoints on invalid pixels."""
-    from c3_matcher.engines.extract import image_to_feeds
-
     multiple = request.spec.size_multiple
     if multiple is None:
         raise ValueError(f"engine spec {request.spec.key} declares no size_multiple")
@@ -232,21 +230,39 @@ def export_and_verify_extractor(
     failures: list[str] = []
     for image in request.images:
         for case in (cases or full_mask_cases)(image):
-            valid = case.valid
-            feeds = image_to_feeds(case.rgb, valid)
-            kp, sc, de = session.run(None, feeds)
-            keep = sc > 0
             name = f"{image.name}:{case.label}"
-            got = (kp[keep], sc[keep], de[keep])
-            check = (compare or keypoint_sets)(name, got, reference(feeds, case), failures)
-            if case.mask is not None:
-                rows = got[0][:, 1].round().astype(int)
-                cols = got[0][:, 0].round().astype(int)
-                check["masked_keypoints"] = int((~valid[rows, cols]).sum())
-            checks.append(check)
-            request.log(f"  {check}")
+            check = _check_case(session, name, case, reference, compare or keypoint_sets, failures)
+            _record(request, checks, check)
         if image_check is not None:
-            check = image_check(session, image, failures)
-            checks.append(check)
-            request.log(f"  {check}")
+            _record(request, checks, image_check(session, image, failures))
     return ExportReport.from_checks(reference_name, tolerances, checks, failures, notes=notes)
+
+
+def _check_case(
+    session: ort.InferenceSession,
+    name: str,
+    case: ExtractorCase,
+    reference: ReferenceFn,
+    compare: CompareFn,
+    failures: list[str],
+) -> dict[str, Any]:
+    """Run the graph on one case, drop its padding rows and compare them with the reference."""
+    from c3_matcher.engines.extract import image_to_feeds
+
+    valid = case.valid
+    feeds = image_to_feeds(case.rgb, valid)
+    kp, sc, de = session.run(None, feeds)
+    keep = sc > 0
+    got = (kp[keep], sc[keep], de[keep])
+    check = compare(name, got, reference(feeds, case), failures)
+    if case.mask is not None:
+        rows = got[0][:, 1].round().astype(int)
+        cols = got[0][:, 0].round().astype(int)
+        check["masked_keypoints"] = int((~valid[rows, cols]).sum())
+    return check
+
+
+def _record(request: ExportRequest, checks: list[dict[str, Any]], check: dict[str, Any]) -> None:
+    """Keep one check for the report and log it."""
+    checks.append(check)
+    request.log(f"  {check}")

@@ -43,12 +43,14 @@ __all__ = [
     "FeaturePair",
     "FeaturesFn",
     "LightGlueForExport",
+    "PairCheckFn",
     "assignment_matches",
     "export_lightglue",
     "feature_pairs",
     "load_lightglue_reference",
     "reference_inputs",
     "verification_pairs",
+    "verify_feature_pairs",
 ]
 
 _UNUSED_KEY = re.compile(r"^log_assignment\.\d+\.r$")
@@ -241,6 +243,26 @@ class _SessionRuntime:
         return dict(zip(names, self._session.run(names, dict(feeds)), strict=True))
 
 
+PairCheckFn = Callable[[FeaturePair], tuple[dict[str, Any], list[str]]]
+"""``feature pair -> (check figures, failures)``: one pair's verification."""
+
+
+def verify_feature_pairs(
+    request: ExportRequest,
+    pairs: Iterator[FeaturePair],
+    check_pair: PairCheckFn,
+) -> tuple[list[dict[str, Any]], list[str]]:
+    """Run ``check_pair`` on every pair, logging each check: (checks, failures)."""
+    checks: list[dict[str, Any]] = []
+    failures: list[str] = []
+    for fp in pairs:
+        check, failed = check_pair(fp)
+        checks.append(check)
+        request.log(f"  {check}")
+        failures.extend(failed)
+    return checks, failures
+
+
 def export_lightglue(
     request: ExportRequest,
     *,
@@ -260,14 +282,44 @@ def export_lightglue(
     ``num_heads`` (LighterGlue: 64, 96, 6, 1); ``input_dim`` alone means LightGlue's default
     width, depth and heads (256, 9, 4)."""
     torch.set_grad_enabled(False)
+    arch = _architecture(input_dim, architecture)
+    reference = load_lightglue_reference(request.weights_path, **arch)
+    request.log(f"exporting {reference_name} for {feature_type} (opset {request.spec.opset})")
+    _export_graph(request, reference, arch["input_dim"])
+    request.log(f"verifying {reference_name} against kornia LightGlue on real features")
+    session = _SessionRuntime(request.output_path)
+    runtime = OnnxLightGlueRuntime(session)
+    runtime.load(feature_type, request.output_path)
+
+    def check_pair(fp: FeaturePair) -> tuple[dict[str, Any], list[str]]:
+        check = _pair_check(fp, reference, session, runtime, feature_type)
+        return check, _pair_failures(fp.where, check)
+
+    checks, failures = verify_feature_pairs(
+        request, feature_pairs(request.images, features_fn, keypoint_counts), check_pair
+    )
+    return ExportReport.from_checks(
+        f"kornia {_version('kornia')} LightGlue (pruning off) with {reference_name} "
+        f"weights on {feature_type} features",
+        LIGHTGLUE_TOLERANCES,
+        checks,
+        failures,
+        nothing_run="no verification pair was run",
+    )
+
+
+def _architecture(input_dim: int | None, architecture: Mapping[str, int] | None) -> dict[str, int]:
+    """``architecture`` with ``input_dim`` set when given; ``ValueError`` if it has none."""
     arch = dict(architecture or {})
     if input_dim is not None:
         arch["input_dim"] = input_dim
     if "input_dim" not in arch:
         raise ValueError("export_lightglue needs input_dim (or architecture['input_dim'])")
-    input_dim = arch["input_dim"]
-    reference = load_lightglue_reference(request.weights_path, **arch)
-    request.log(f"exporting {reference_name} for {feature_type} (opset {request.spec.opset})")
+    return arch
+
+
+def _export_graph(request: ExportRequest, reference: LightGlue, input_dim: int) -> None:
+    """Trace ``reference`` (no pruning, fused attention) and write it to the request's path."""
     num0 = torch.export.Dim("num_keypoints0", min=1, max=65536)
     num1 = torch.export.Dim("num_keypoints1", min=1, max=65536)
     generator = torch.Generator().manual_seed(0)
@@ -292,54 +344,47 @@ def export_lightglue(
         opset=request.spec.opset,
         translations=ONNX_TRANSLATIONS,
     )
-    request.log(f"verifying {reference_name} against kornia LightGlue on real features")
-    session = _SessionRuntime(request.output_path)
-    runtime = OnnxLightGlueRuntime(session)
-    runtime.load(feature_type, request.output_path)
-    checks: list[dict[str, Any]] = []
+
+
+def _pair_check(
+    fp: FeaturePair,
+    reference: LightGlue,
+    session: _SessionRuntime,
+    runtime: OnnxLightGlueRuntime,
+    feature_type: str,
+) -> dict[str, Any]:
+    """The figures comparing the graph's matches and scores on one pair with kornia's."""
+    ref = fp.run_reference(reference)
+    ref_matches = ref["matches"][0].numpy().astype(np.int64)
+    ref_scores = ref["scores"][0].numpy()
+    ref_ms0 = ref["matching_scores0"][0].numpy()
+    got = runtime.match_pair(fp.side0, fp.side1, feature_type=feature_type)
+    same = got.matches.shape == ref_matches.shape and bool(np.array_equal(got.matches, ref_matches))
+    mismatch = len(set(map(tuple, got.matches.tolist())) ^ set(map(tuple, ref_matches.tolist())))
+    score_err = 0.0
+    if same and len(ref_scores):
+        score_err = float(np.abs(got.scores - ref_scores).max())
+    return {
+        "pair": fp.pair,
+        "keypoints": [len(fp.side0.keypoints), len(fp.side1.keypoints)],
+        "matches": len(got),
+        "reference_matches": len(ref_matches),
+        "matches_identical": same,
+        "matches_mismatch": mismatch,
+        "match_score_max_abs": score_err,
+        "mscores0_max_abs": _mscores_error(session, fp, ref_ms0),
+    }
+
+
+def _pair_failures(where: str, check: Mapping[str, Any]) -> list[str]:
+    """What of one pair's check is out of ``LIGHTGLUE_TOLERANCES``."""
     failures: list[str] = []
-    for fp in feature_pairs(request.images, features_fn, keypoint_counts):
-        ref = fp.run_reference(reference)
-        ref_matches = ref["matches"][0].numpy().astype(np.int64)
-        ref_scores = ref["scores"][0].numpy()
-        ref_ms0 = ref["matching_scores0"][0].numpy()
-        got = runtime.match_pair(fp.side0, fp.side1, feature_type=feature_type)
-        same = got.matches.shape == ref_matches.shape and bool(
-            np.array_equal(got.matches, ref_matches)
-        )
-        mismatch = len(
-            set(map(tuple, got.matches.tolist())) ^ set(map(tuple, ref_matches.tolist()))
-        )
-        score_err = 0.0
-        if same and len(ref_scores):
-            score_err = float(np.abs(got.scores - ref_scores).max())
-        check: dict[str, Any] = {
-            "pair": fp.pair,
-            "keypoints": [len(fp.side0.keypoints), len(fp.side1.keypoints)],
-            "matches": len(got),
-            "reference_matches": len(ref_matches),
-            "matches_identical": same,
-            "matches_mismatch": mismatch,
-            "match_score_max_abs": score_err,
-            "mscores0_max_abs": _mscores_error(session, fp, ref_ms0),
-        }
-        checks.append(check)
-        request.log(f"  {check}")
-        if not same:
-            failures.append(f"{fp.where}: {mismatch} matches differ")
-        for key in ("match_score_max_abs", "mscores0_max_abs"):
-            if float(check[key]) > LIGHTGLUE_TOLERANCES[key]:
-                failures.append(
-                    f"{fp.where}: {key} {check[key]:.3g} > {LIGHTGLUE_TOLERANCES[key]:.3g}"
-                )
-    return ExportReport.from_checks(
-        f"kornia {_version('kornia')} LightGlue (pruning off) with {reference_name} "
-        f"weights on {feature_type} features",
-        LIGHTGLUE_TOLERANCES,
-        checks,
-        failures,
-        nothing_run="no verification pair was run",
-    )
+    if not check["matches_identical"]:
+        failures.append(f"{where}: {check['matches_mismatch']} matches differ")
+    for key in ("match_score_max_abs", "mscores0_max_abs"):
+        if float(check[key]) > LIGHTGLUE_TOLERANCES[key]:
+            failures.append(f"{where}: {key} {check[key]:.3g} > {LIGHTGLUE_TOLERANCES[key]:.3g}")
+    return failures
 
 
 def _mscores_error(

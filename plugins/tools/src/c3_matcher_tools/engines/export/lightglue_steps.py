@@ -34,17 +34,20 @@ from c3_matcher.engines.lightglue_adaptive import (
     STEPS_INPUTS,
     STEPS_OUTPUTS,
     AdaptiveLightGlue,
+    AdaptiveResult,
 )
 from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
 from c3_matcher_tools.engines.export.lightglue import (
+    FeaturePair,
     FeaturesFn,
     assignment_matches,
     export_lightglue,
     feature_pairs,
     load_lightglue_reference,
     verification_pairs,
+    verify_feature_pairs,
 )
 from c3_matcher_tools.engines.export.onnx_export import export_module
 
@@ -197,14 +200,52 @@ def export_lightglue_steps(
         )
     depth = float(spec.option("depth_confidence"))
     width = float(spec.option("width_confidence"))
-    conf: Any = reference.conf
-    input_dim, descriptor_dim = int(conf.input_dim), int(conf.descriptor_dim)
-    n_layers = int(conf.n_layers)
+    n_layers = int(reference.conf.n_layers)
     request.log(
         f"exporting stepped LightGlue for {feature_type} ({n_layers} layers, opset {spec.opset})"
     )
+    _export_steps_graph(request, reference)
+    request.log(
+        f"verifying stepped LightGlue against upstream adaptive LightGlue "
+        f"(depth {depth}, width {width}) on real pairs"
+    )
+    adaptive = _adaptive_runtime(request, reference.conf, depth, width)
+    _set_upstream_adaptive(reference, depth, width)
+    checks, failures = verify_feature_pairs(
+        request,
+        feature_pairs(request.images, features_fn, keypoint_counts, _pairs_and_distractor),
+        lambda fp: _steps_pair_check(fp, reference, adaptive),
+    )
+    return ExportReport.from_checks(
+        f"kornia {importlib.metadata.version('kornia')} LightGlue adaptive forward "
+        f"(depth_confidence {depth}, width_confidence {width}) on {feature_type} features",
+        STEPS_TOLERANCES,
+        checks,
+        failures,
+        notes={"depth_confidence": depth, "width_confidence": width, "n_layers": n_layers},
+        nothing_run="no verification pair was run",
+    )
+
+
+def _export_steps_graph(request: ExportRequest, reference: Any) -> None:
+    """Trace the steps graph of ``reference`` (fused attention) and write it to the request."""
+    conf: Any = reference.conf
     module = LightGlueStepsForExport(fused_attention_copy(reference)).eval()
-    sizes = (300, 280, 260, 240, 220, 200)
+    dynamic_shapes = _steps_dynamic_shapes()
+    export_module(
+        module,
+        _steps_example(int(conf.input_dim), int(conf.descriptor_dim)),
+        request.output_path,
+        input_names=list(STEPS_INPUTS),
+        output_names=list(STEPS_OUTPUTS),
+        dynamic_shapes=dynamic_shapes,
+        opset=request.spec.opset,
+        translations=ONNX_TRANSLATIONS,
+    )
+
+
+def _steps_dynamic_shapes() -> dict[str, Any]:
+    """The steps graph's dynamic axes: each side's descriptor, state and final-state counts."""
     dims = [
         torch.export.Dim(name, min=1, max=65536)
         for name in (
@@ -216,12 +257,29 @@ def export_lightglue_steps(
             "num_final1",
         )
     ]
+    return {
+        "desc0": {1: dims[0]},
+        "desc1": {1: dims[1]},
+        "kpts0": {1: dims[2]},
+        "kpts1": {1: dims[3]},
+        "state0": {1: dims[2]},
+        "state1": {1: dims[3]},
+        "layer": None,
+        "final0": {1: dims[4]},
+        "final1": {1: dims[5]},
+        "final_layer": None,
+    }
+
+
+def _steps_example(input_dim: int, descriptor_dim: int) -> tuple[torch.Tensor, ...]:
+    """Seeded random example inputs of the steps graph, a different size on every dynamic axis."""
+    sizes = (300, 280, 260, 240, 220, 200)
     generator = torch.Generator().manual_seed(0)
 
     def rand(*shape: int) -> torch.Tensor:
         return torch.rand(*shape, generator=generator)
 
-    example = (
+    return (
         nnf.normalize(rand(1, sizes[0], input_dim), dim=-1),
         nnf.normalize(rand(1, sizes[1], input_dim), dim=-1),
         rand(1, sizes[2], 2) * 2 - 1,
@@ -233,107 +291,97 @@ def export_lightglue_steps(
         rand(1, sizes[5], descriptor_dim),
         torch.tensor([2], dtype=torch.int64),
     )
-    export_module(
-        module,
-        example,
-        request.output_path,
-        input_names=list(STEPS_INPUTS),
-        output_names=list(STEPS_OUTPUTS),
-        dynamic_shapes={
-            "desc0": {1: dims[0]},
-            "desc1": {1: dims[1]},
-            "kpts0": {1: dims[2]},
-            "kpts1": {1: dims[3]},
-            "state0": {1: dims[2]},
-            "state1": {1: dims[3]},
-            "layer": None,
-            "final0": {1: dims[4]},
-            "final1": {1: dims[5]},
-            "final_layer": None,
-        },
-        opset=spec.opset,
-        translations=ONNX_TRANSLATIONS,
-    )
-    request.log(
-        f"verifying stepped LightGlue against upstream adaptive LightGlue "
-        f"(depth {depth}, width {width}) on real pairs"
-    )
+
+
+def _adaptive_runtime(
+    request: ExportRequest, conf: Any, depth: float, width: float
+) -> AdaptiveLightGlue:
+    """The run time's adaptive driver over the exported graph (ONNX Runtime, CPU)."""
     session = ort.InferenceSession(
         str(request.output_path),
         sess_options=SessionSettings().build(),
         providers=["CPUExecutionProvider"],
     )
-    adaptive = AdaptiveLightGlue(
+    return AdaptiveLightGlue(
         _session_run(session),
-        n_layers=n_layers,
-        input_dim=input_dim,
-        descriptor_dim=descriptor_dim,
+        n_layers=int(conf.n_layers),
+        input_dim=int(conf.input_dim),
+        descriptor_dim=int(conf.descriptor_dim),
         depth_confidence=depth,
         width_confidence=width,
     )
+
+
+def _set_upstream_adaptive(reference: Any, depth: float, width: float) -> None:
+    """Set upstream's adaptive forward to the check's confidences and the run time's threshold."""
     reference.conf.depth_confidence = depth
     reference.conf.width_confidence = width
     reference.conf.filter_threshold = DEFAULT_FILTER_THRESHOLD
-    threshold = np.float32(DEFAULT_FILTER_THRESHOLD)
-    checks: list[dict[str, Any]] = []
-    failures: list[str] = []
-    for fp in feature_pairs(request.images, features_fn, keypoint_counts, _pairs_and_distractor):
-        ref = fp.run_reference(reference)
-        ref_matches = ref["matches"][0].numpy().astype(np.int64).reshape(-1, 2)
-        s0, s1 = fp.side0, fp.side1
-        got = adaptive.match(
-            normalize_keypoints(s0.keypoints, s0.size),
-            normalize_keypoints(s1.keypoints, s1.size),
-            s0.descriptors,
-            s1.descriptors,
-        )
-        valid = (got.matches0 > -1) & (got.mscores0 > threshold)
-        index0 = np.flatnonzero(valid)
-        matches = np.stack([index0, got.matches0[valid]], -1).astype(np.int64)
-        mine = set(map(tuple, matches.tolist()))
-        theirs = set(map(tuple, ref_matches.tolist()))
-        union = len(mine | theirs)
-        share = len(mine & theirs) / union if union else 1.0
-        inl = _inliers(s0.keypoints, s1.keypoints, matches)
-        ref_inl = _inliers(s0.keypoints, s1.keypoints, ref_matches)
-        ref_layers = int(ref["stop"])
-        check: dict[str, Any] = {
-            "pair": fp.pair,
-            "keypoints": [len(s0.keypoints), len(s1.keypoints)],
-            "matches": len(mine),
-            "reference_matches": len(theirs),
-            "identical_share": round(share, 5),
-            "matches_mismatch": len(mine ^ theirs),
-            "layers": got.layers,
-            "reference_layers": ref_layers,
-            "kept_last": [got.kept0[-1], got.kept1[-1]],
-            "reference_kept_last": [
-                int((ref["prune0"][0] == ref["prune0"][0].max()).sum()),
-                int((ref["prune1"][0] == ref["prune1"][0].max()).sum()),
-            ],
-            "inliers": inl,
-            "reference_inliers": ref_inl,
-        }
-        checks.append(check)
-        request.log(f"  {check}")
-        where = fp.where
-        if len(theirs) >= 20 and share < STEPS_TOLERANCES["min_identical_share"]:
-            failures.append(f"{where}: identical share {share:.4f}")
-        if len(theirs) < 20 and len(mine ^ theirs) > STEPS_TOLERANCES["max_mismatch_distractor"]:
-            failures.append(f"{where}: {len(mine ^ theirs)} matches differ")
-        if abs(got.layers - ref_layers) > STEPS_TOLERANCES["layers_differ"]:
-            failures.append(f"{where}: {got.layers} layers vs upstream {ref_layers}")
-        if abs(inl - ref_inl) > STEPS_TOLERANCES["inliers_rel_diff"] * max(ref_inl, 1):
-            failures.append(f"{where}: {inl} inliers vs upstream {ref_inl}")
-    return ExportReport.from_checks(
-        f"kornia {importlib.metadata.version('kornia')} LightGlue adaptive forward "
-        f"(depth_confidence {depth}, width_confidence {width}) on {feature_type} features",
-        STEPS_TOLERANCES,
-        checks,
-        failures,
-        notes={"depth_confidence": depth, "width_confidence": width, "n_layers": n_layers},
-        nothing_run="no verification pair was run",
+
+
+def _steps_matches(
+    fp: FeaturePair, adaptive: AdaptiveLightGlue
+) -> tuple[AdaptiveResult, NDArray[np.int64]]:
+    """The steps run time's result on one pair and its matches above the filter threshold."""
+    s0, s1 = fp.side0, fp.side1
+    got = adaptive.match(
+        normalize_keypoints(s0.keypoints, s0.size),
+        normalize_keypoints(s1.keypoints, s1.size),
+        s0.descriptors,
+        s1.descriptors,
     )
+    valid = (got.matches0 > -1) & (got.mscores0 > np.float32(DEFAULT_FILTER_THRESHOLD))
+    index0 = np.flatnonzero(valid)
+    return got, np.stack([index0, got.matches0[valid]], -1).astype(np.int64)
+
+
+def _steps_pair_check(
+    fp: FeaturePair, reference: Any, adaptive: AdaptiveLightGlue
+) -> tuple[dict[str, Any], list[str]]:
+    """Compare the steps run time with upstream's adaptive forward on one pair."""
+    ref = fp.run_reference(reference)
+    ref_matches = ref["matches"][0].numpy().astype(np.int64).reshape(-1, 2)
+    got, matches = _steps_matches(fp, adaptive)
+    s0, s1 = fp.side0, fp.side1
+    mine = set(map(tuple, matches.tolist()))
+    theirs = set(map(tuple, ref_matches.tolist()))
+    union = len(mine | theirs)
+    share = len(mine & theirs) / union if union else 1.0
+    check: dict[str, Any] = {
+        "pair": fp.pair,
+        "keypoints": [len(s0.keypoints), len(s1.keypoints)],
+        "matches": len(mine),
+        "reference_matches": len(theirs),
+        "identical_share": round(share, 5),
+        "matches_mismatch": len(mine ^ theirs),
+        "layers": got.layers,
+        "reference_layers": int(ref["stop"]),
+        "kept_last": [got.kept0[-1], got.kept1[-1]],
+        "reference_kept_last": [
+            int((ref["prune0"][0] == ref["prune0"][0].max()).sum()),
+            int((ref["prune1"][0] == ref["prune1"][0].max()).sum()),
+        ],
+        "inliers": _inliers(s0.keypoints, s1.keypoints, matches),
+        "reference_inliers": _inliers(s0.keypoints, s1.keypoints, ref_matches),
+    }
+    return check, _steps_failures(fp.where, check, share)
+
+
+def _steps_failures(where: str, check: Mapping[str, Any], share: float) -> list[str]:
+    """What of one pair's check (``share`` unrounded) is out of ``STEPS_TOLERANCES``."""
+    failures: list[str] = []
+    theirs, differ = check["reference_matches"], check["matches_mismatch"]
+    layers, ref_layers = check["layers"], check["reference_layers"]
+    inl, ref_inl = check["inliers"], check["reference_inliers"]
+    if theirs >= 20 and share < STEPS_TOLERANCES["min_identical_share"]:
+        failures.append(f"{where}: identical share {share:.4f}")
+    if theirs < 20 and differ > STEPS_TOLERANCES["max_mismatch_distractor"]:
+        failures.append(f"{where}: {differ} matches differ")
+    if abs(layers - ref_layers) > STEPS_TOLERANCES["layers_differ"]:
+        failures.append(f"{where}: {layers} layers vs upstream {ref_layers}")
+    if abs(inl - ref_inl) > STEPS_TOLERANCES["inliers_rel_diff"] * max(ref_inl, 1):
+        failures.append(f"{where}: {inl} inliers vs upstream {ref_inl}")
+    return failures
 
 
 def lightglue_exporters(
