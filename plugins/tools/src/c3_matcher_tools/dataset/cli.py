@@ -109,9 +109,7 @@ def register_dataset_command(commands: CommandRegistry) -> None:
 
 
 def _add_render(ds: Any) -> None:
-    from c3_matcher.dto import MAX_HEIGHT_ABOVE_GROUND_M
-    from c3_matcher_tools.tilestore.cli import parse_latlon
-
+    """Declare ``dataset render``: its inputs, then its option groups in --help order."""
     r = ds.add_parser(
         "render",
         help="render a flight over a GeoTIFF against an MBTiles store (c3-matcher tiles build)",
@@ -122,6 +120,16 @@ def _add_render(ds: Any) -> None:
     r.add_argument("frames_geotiff", type=Path, help="orthophoto the frames are rendered from")
     r.add_argument("store", type=Path, help="MBTiles store of the candidate tiles")
     r.add_argument("out", type=Path, help="dataset directory to write")
+    _add_flight_path_options(r)
+    _add_camera_options(r)
+    _add_candidate_options(r)
+    _add_dataset_options(r)
+
+
+def _add_flight_path_options(r: argparse.ArgumentParser) -> None:
+    """Add ``dataset render``'s flight path and motion: frames, pattern, height, speed, tilt."""
+    from c3_matcher.dto import MAX_HEIGHT_ABOVE_GROUND_M
+
     r.add_argument(
         "--frames",
         type=_frame_count,
@@ -158,6 +166,10 @@ def _add_render(ds: Any) -> None:
         help="orbit radius, m",
     )
     r.add_argument("--max-tilt", type=float, default=20.0, help="max attitude tilt, deg")
+
+
+def _add_camera_options(r: argparse.ArgumentParser) -> None:
+    """Add ``dataset render``'s camera: image size and focal length."""
     r.add_argument(
         "--image-size",
         type=_size,
@@ -170,6 +182,10 @@ def _add_render(ds: Any) -> None:
         default=300.0,
         help="focal length, px",
     )
+
+
+def _add_candidate_options(r: argparse.ArgumentParser) -> None:
+    """Add ``dataset render``'s candidates: their size, absent true tiles and the distractors."""
     r.add_argument("--candidate-size", type=int, default=448, help="candidate image side, px")
     r.add_argument(
         "--absent-share",
@@ -189,6 +205,12 @@ def _add_render(ds: Any) -> None:
         default=0.35,
         help="largest nodata share of a distractor window (default 0.35)",
     )
+
+
+def _add_dataset_options(r: argparse.ArgumentParser) -> None:
+    """Add ``dataset render``'s georeference, credit and seed, and how the dataset is written."""
+    from c3_matcher_tools.tilestore.cli import parse_latlon
+
     r.add_argument(
         "--ref-latlon",
         type=parse_latlon,

@@ -345,6 +345,54 @@ def store_reference(metadata: Mapping[str, str], store: Path) -> tuple[float, fl
     return (built.ref_lat, built.ref_lon) if built.kind == "local_tangent_plane" else None
 
 
+@dataclass(frozen=True)
+class _Scene:
+    """What every frame of a flight is rendered from and placed on: the frames' orthophoto, its
+    grid and GSD (m/px), the store's coverage and its m/WORLD px, the camera, and the centre of the
+    flight (projected metres of the frames' grid)."""
+
+    grid: GeoGrid
+    rgb: NDArray[np.uint8]
+    gsd: float
+    cov: _Coverage
+    m_per_px: float
+    calibration: CameraCalibration
+    renderer: NavCameraRenderer
+    centre_en: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class _Shot:
+    """One frame rendered along the trajectory: its index, heading (deg), attitude, the ORTHO px
+    below the camera, and the rendered frame."""
+
+    index: int
+    heading: float
+    attitude: Attitude
+    nadir: tuple[float, float]
+    frame: RenderedFrame
+
+
+@dataclass(frozen=True)
+class _Footprint:
+    """A frame's ground footprint (WORLD px of the store's zoom), its centre, and the top-left
+    WORLD px of the true candidate window that holds it."""
+
+    world: F64
+    centre: F64
+    true_origin: tuple[int, int]
+
+
+@dataclass(frozen=True)
+class _PlannedFrame:
+    """One frame planned: its record, its JPEG bytes, and the homography fit residual (px) of
+    each of its candidates."""
+
+    record: FrameRecord
+    jpeg: bytes
+    fits: tuple[float, ...]
+
+
 def _plan(
     spec: FlightSpec,
     store: MBTilesStore,
@@ -354,142 +402,248 @@ def _plan(
 ) -> tuple[dict[str, Any], CameraCalibration, list[FrameRecord], dict[str, bytes]]:
     """Render every frame and choose its candidates, in memory: (dataset meta, calibration,
     frame records, {relative image path: JPEG bytes})."""
+    scene = _scene(spec, store)
+    absent = _absent_frames(spec)
+    frames: list[FrameRecord] = []
+    images: dict[str, bytes] = {}
+    worst_fit = 0.0
+    for i, pose in enumerate(_trajectory(spec, scene.centre_en)):
+        planned = _plan_frame(spec, scene, i, pose, i in absent)
+        worst_fit = max((worst_fit, *planned.fits))
+        images[planned.record.image] = planned.jpeg
+        frames.append(planned.record)
+        if progress is not None:
+            progress(i + 1, spec.n_frames)
+    meta = _meta(spec, store, scene, name, attribution, worst_fit, absent)
+    return meta, scene.calibration, frames, images
+
+
+def _scene(spec: FlightSpec, store: MBTilesStore) -> _Scene:
+    """Read the frames' orthophoto, its grid and the store's coverage; set up the camera."""
     reference = spec.reference_latlon or store_reference(store.metadata, store.path)
     grid = read_geotiff_grid(spec.frames_geotiff, reference=reference)
     photo = load_orthophoto(spec.frames_geotiff)
     gsd = photo.gsd_m or math.sqrt(grid.scale_x * grid.scale_y)
     cov = _coverage(store)
-    zoom, size = cov.zoom, spec.candidate_size_px
     centre_lon, centre_lat = grid.centre_lonlat()
-    m_per_px = TileId(zoom, centre_lat, centre_lon).web_mercator_gsd_m()
+    m_per_px = TileId(cov.zoom, centre_lat, centre_lon).web_mercator_gsd_m()
     _check_coverage(spec, cov, m_per_px)
     calibration = spec.calibration()
     renderer = NavCameraRenderer(calibration)
+    centre_en = _flight_centre(store, grid)
+    return _Scene(grid, photo.rgb, gsd, cov, m_per_px, calibration, renderer, centre_en)
+
+
+def _absent_frames(spec: FlightSpec) -> set[int]:
+    """Draw (with the flight's seed) the ``absent_share`` of frames that get no true tile."""
     rng = np.random.default_rng(spec.seed)
     n_absent = round(spec.absent_share * spec.n_frames)
-    absent = set(rng.choice(spec.n_frames, size=n_absent, replace=False).tolist())
-    centre_en = _flight_centre(store, grid)
-    frames: list[FrameRecord] = []
-    images: dict[str, bytes] = {}
-    worst_fit = 0.0
-    for i, (east, north, heading) in enumerate(_trajectory(spec, centre_en)):
-        frng = np.random.default_rng([spec.seed, i])
-        attitude = _attitude(spec, heading, frng)
-        nadir = (
-            (east - grid.origin_e) / grid.scale_x - 0.5,
-            (grid.origin_n - north) / grid.scale_y - 0.5,
+    return set(rng.choice(spec.n_frames, size=n_absent, replace=False).tolist())
+
+
+def _plan_frame(
+    spec: FlightSpec,
+    scene: _Scene,
+    i: int,
+    pose: tuple[float, float, float],
+    is_absent: bool,
+) -> _PlannedFrame:
+    """Render frame ``i`` at its pose and choose its candidates: its record, JPEG and fits."""
+    frng = np.random.default_rng([spec.seed, i])
+    shot = _shoot(spec, scene, i, pose, frng)
+    footprint = _footprint(spec, scene, shot)
+    origins = [] if is_absent else [(footprint.true_origin, True)]
+    origins += [(o, False) for o in _distractor_origins(spec, scene, i, footprint, is_absent)]
+    candidates, fits = _candidates(spec, scene, shot.frame, footprint.centre, origins)
+    ordered = _shuffled(candidates, frng)
+    image_rel = f"frames/{i:06d}.jpg"
+    jpeg = _jpeg(shot)
+    return _PlannedFrame(
+        _record(spec, scene, shot, footprint.centre, ordered, image_rel), jpeg, fits
+    )
+
+
+def _shoot(
+    spec: FlightSpec,
+    scene: _Scene,
+    i: int,
+    pose: tuple[float, float, float],
+    frng: np.random.Generator,
+) -> _Shot:
+    """Draw frame ``i``'s attitude and render it; refuse one that sees beyond the orthophoto."""
+    east, north, heading = pose
+    grid = scene.grid
+    attitude = _attitude(spec, heading, frng)
+    nadir = (
+        (east - grid.origin_e) / grid.scale_x - 0.5,
+        (grid.origin_n - north) / grid.scale_y - 0.5,
+    )
+    frame = scene.renderer.render(
+        scene.rgb,
+        scene.gsd,
+        nadir,
+        spec.height_m,
+        attitude,
+        photometric=spec.photometric,
+        seed=frng,
+    )
+    if frame.coverage.mean() < 0.995:
+        raise InvalidInputError(
+            "trajectory",
+            f"frame {i} (nadir E {east:.0f} N {north:.0f}) sees beyond the orthophoto "
+            f"({100 * (1 - frame.coverage.mean()):.1f}% nodata): lower --height, "
+            "--radius or --frames x --speed x --interval",
         )
-        frame = renderer.render(
-            photo.rgb, gsd, nadir, spec.height_m, attitude, photometric=spec.photometric, seed=frng
+    return _Shot(i, heading, attitude, nadir, frame)
+
+
+def _footprint(spec: FlightSpec, scene: _Scene, shot: _Shot) -> _Footprint:
+    """Place the footprint in WORLD px and find its true window; refuse one none can hold."""
+    zoom, size = scene.cov.zoom, spec.candidate_size_px
+    fp_world = lonlat_to_world_px(scene.grid.px_to_lonlat(shot.frame.footprint_ortho()), zoom)
+    centre_world = fp_world.mean(axis=0)
+    true_origin = _true_origin(fp_world, size, spec.grid_px)
+    if true_origin is None:
+        lo, hi = fp_world.min(axis=0), fp_world.max(axis=0)
+        raise InvalidInputError(
+            "candidate_size_px",
+            f"frame {shot.index}: the footprint spans {(hi - lo).round(1)} WORLD px, more than a "
+            f"{size} px candidate on a {spec.grid_px} px grid holds: raise "
+            "--candidate-size or lower --height / --max-tilt",
         )
-        if frame.coverage.mean() < 0.995:
-            raise InvalidInputError(
-                "trajectory",
-                f"frame {i} (nadir E {east:.0f} N {north:.0f}) sees beyond the orthophoto "
-                f"({100 * (1 - frame.coverage.mean()):.1f}% nodata): lower --height, "
-                "--radius or --frames x --speed x --interval",
-            )
-        fp_world = lonlat_to_world_px(grid.px_to_lonlat(frame.footprint_ortho()), zoom)
-        centre_world = fp_world.mean(axis=0)
-        true_origin = _true_origin(fp_world, size, spec.grid_px)
-        if true_origin is None:
-            lo, hi = fp_world.min(axis=0), fp_world.max(axis=0)
-            raise InvalidInputError(
-                "candidate_size_px",
-                f"frame {i}: the footprint spans {(hi - lo).round(1)} WORLD px, more than a "
-                f"{size} px candidate on a {spec.grid_px} px grid holds: raise "
-                "--candidate-size or lower --height / --max-tilt",
-            )
-        is_absent = i in absent
-        count = 3 if is_absent else 2
-        fp_cov = fp_world - np.asarray(cov.origin, dtype=np.float64)
-        if not is_absent:  # present: distractors may overlap the footprint, not its centre
-            fp_cov = np.repeat((centre_world - cov.origin)[None, :], 3, axis=0)
-        # Distractors are drawn from a generator seeded by the true window's position, so
-        # frames that share their true tile share their distractors (tile feature cache hits).
-        drng = np.random.default_rng([spec.seed, int(is_absent), *true_origin])
-        try:
-            picked = pick_distractor_tiles(
-                cov.image,
-                fp_cov,
-                (size, size),
-                count,
-                drng,
-                m_per_px,
-                margin_px=8,
-                min_distance_px=spec.min_distractor_distance_m / m_per_px,
-                max_nodata_fraction=spec.max_distractor_nodata if not is_absent else 0.5,
-                stride_px=spec.grid_px,
-            )
-        except InvalidInputError as exc:
-            raise InvalidInputError(
-                "distractors",
-                f"frame {i}: {exc.reason}; the store is too "
-                "small for this candidate size / distance: lower --candidate-size or "
-                "--min-distractor-distance, raise --max-distractor-nodata, or build the store "
-                f"at a finer zoom (tiles build --zoom {zoom + 1}) or over more ground",
-            ) from exc
-        origins = [] if is_absent else [(true_origin, True)]
-        origins += [
-            ((cov.origin[0] + t.offset_px[0], cov.origin[1] + t.offset_px[1]), False)
-            for t in picked
-        ]
-        cands = []
-        for origin, is_true in origins:
-            cand, fit = _candidate(frame, grid, zoom, origin, size, centre_world, m_per_px, is_true)
-            worst_fit = max(worst_fit, fit)
-            assert mosaic_origin(cand.tile_id, size) == origin, "tile id does not round-trip"
-            cands.append(cand)
-        order = frng.permutation(len(cands))
-        ordered = tuple(
-            CandidateTruth(
-                c.tile_id, round(0.9 - 0.1 * k, 3), c.is_true, c.distance_m, c.h_tile_to_undistorted
-            )
-            for k, c in enumerate(cands[j] for j in order)
+    return _Footprint(fp_world, centre_world, true_origin)
+
+
+def _distractor_origins(
+    spec: FlightSpec, scene: _Scene, i: int, footprint: _Footprint, is_absent: bool
+) -> list[tuple[int, int]]:
+    """Pick frame ``i``'s distractor windows (top-left WORLD px), naming the options if none fit."""
+    cov, size = scene.cov, spec.candidate_size_px
+    count = 3 if is_absent else 2
+    fp_cov = footprint.world - np.asarray(cov.origin, dtype=np.float64)
+    if not is_absent:  # present: distractors may overlap the footprint, not its centre
+        fp_cov = np.repeat((footprint.centre - cov.origin)[None, :], 3, axis=0)
+    # Distractors are drawn from a generator seeded by the true window's position, so
+    # frames that share their true tile share their distractors (tile feature cache hits).
+    drng = np.random.default_rng([spec.seed, int(is_absent), *footprint.true_origin])
+    try:
+        picked = pick_distractor_tiles(
+            cov.image,
+            fp_cov,
+            (size, size),
+            count,
+            drng,
+            scene.m_per_px,
+            margin_px=8,
+            min_distance_px=spec.min_distractor_distance_m / scene.m_per_px,
+            max_nodata_fraction=spec.max_distractor_nodata if not is_absent else 0.5,
+            stride_px=spec.grid_px,
         )
-        image_rel = f"frames/{i:06d}.jpg"
-        ok, jpeg = cv2.imencode(".jpg", frame.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
-        if not ok:
-            raise InvalidInputError("frames", f"frame {i}: cannot encode the image")
-        images[image_rel] = jpeg.tobytes()
-        nadir_lon, nadir_lat = grid.px_to_lonlat([nadir])[0]
-        c_lon, c_lat = world_px_to_lonlat(centre_world[None, :], zoom)[0]
-        frames.append(
-            FrameRecord(
-                index=i,
-                frame_id=uuid.UUID(int=(spec.seed << 32) + i + 1),
-                image=image_rel,
-                captured_at_ns=round(i * spec.frame_interval_s * 1e9),
-                attitude_deg=(
-                    math.degrees(attitude.roll),
-                    math.degrees(attitude.pitch),
-                    math.degrees(attitude.yaw),
-                ),
-                height_m=spec.height_m,
-                candidates=ordered,
-                pose={
-                    "nadir_lat": float(nadir_lat),
-                    "nadir_lon": float(nadir_lon),
-                    "footprint_centre_lat": float(c_lat),
-                    "footprint_centre_lon": float(c_lon),
-                    "heading_deg": heading,
-                    "frame_nadir_gsd_m": frame.nadir_gsd_m,
-                },
-            )
+    except InvalidInputError as exc:
+        raise InvalidInputError(
+            "distractors",
+            f"frame {i}: {exc.reason}; the store is too "
+            "small for this candidate size / distance: lower --candidate-size or "
+            "--min-distractor-distance, raise --max-distractor-nodata, or build the store "
+            f"at a finer zoom (tiles build --zoom {cov.zoom + 1}) or over more ground",
+        ) from exc
+    return [(cov.origin[0] + t.offset_px[0], cov.origin[1] + t.offset_px[1]) for t in picked]
+
+
+def _candidates(
+    spec: FlightSpec,
+    scene: _Scene,
+    frame: RenderedFrame,
+    centre_world: F64,
+    origins: list[tuple[tuple[int, int], bool]],
+) -> tuple[list[CandidateTruth], tuple[float, ...]]:
+    """Ground truth of the window at each (WORLD px origin, is true), and each one's fit (px)."""
+    size = spec.candidate_size_px
+    cands, fits = [], []
+    for origin, is_true in origins:
+        cand, fit = _candidate(
+            frame, scene.grid, scene.cov.zoom, origin, size, centre_world, scene.m_per_px, is_true
         )
-        if progress is not None:
-            progress(i + 1, spec.n_frames)
-    meta = {
+        fits.append(fit)
+        assert mosaic_origin(cand.tile_id, size) == origin, "tile id does not round-trip"
+        cands.append(cand)
+    return cands, tuple(fits)
+
+
+def _shuffled(cands: list[CandidateTruth], frng: np.random.Generator) -> tuple[CandidateTruth, ...]:
+    """Shuffle the candidates and score them C2.5-like (0.9, 0.8, 0.7, ...)."""
+    order = frng.permutation(len(cands))
+    return tuple(
+        CandidateTruth(
+            c.tile_id, round(0.9 - 0.1 * k, 3), c.is_true, c.distance_m, c.h_tile_to_undistorted
+        )
+        for k, c in enumerate(cands[j] for j in order)
+    )
+
+
+def _jpeg(shot: _Shot) -> bytes:
+    """Encode the frame's image as JPEG (quality 95)."""
+    ok, jpeg = cv2.imencode(".jpg", shot.frame.image[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+    if not ok:
+        raise InvalidInputError("frames", f"frame {shot.index}: cannot encode the image")
+    return jpeg.tobytes()
+
+
+def _record(
+    spec: FlightSpec,
+    scene: _Scene,
+    shot: _Shot,
+    centre_world: F64,
+    candidates: tuple[CandidateTruth, ...],
+    image_rel: str,
+) -> FrameRecord:
+    """Write down the frame's record: id, time, attitude, height, candidates and true pose."""
+    i, attitude = shot.index, shot.attitude
+    nadir_lon, nadir_lat = scene.grid.px_to_lonlat([shot.nadir])[0]
+    c_lon, c_lat = world_px_to_lonlat(centre_world[None, :], scene.cov.zoom)[0]
+    return FrameRecord(
+        index=i,
+        frame_id=uuid.UUID(int=(spec.seed << 32) + i + 1),
+        image=image_rel,
+        captured_at_ns=round(i * spec.frame_interval_s * 1e9),
+        attitude_deg=(
+            math.degrees(attitude.roll),
+            math.degrees(attitude.pitch),
+            math.degrees(attitude.yaw),
+        ),
+        height_m=spec.height_m,
+        candidates=candidates,
+        pose={
+            "nadir_lat": float(nadir_lat),
+            "nadir_lon": float(nadir_lon),
+            "footprint_centre_lat": float(c_lat),
+            "footprint_centre_lon": float(c_lon),
+            "heading_deg": shot.heading,
+            "frame_nadir_gsd_m": shot.frame.nadir_gsd_m,
+        },
+    )
+
+
+def _meta(
+    spec: FlightSpec,
+    store: MBTilesStore,
+    scene: _Scene,
+    name: str,
+    attribution: str,
+    worst_fit: float,
+    absent: set[int],
+) -> dict[str, Any]:
+    """Describe the planned flight: the dataset's meta (dataset.json)."""
+    return {
         "name": name,
         "store": "tiles.mbtiles",
-        "candidate_size_px": size,
-        "zoom": zoom,
+        "candidate_size_px": spec.candidate_size_px,
+        "zoom": scene.cov.zoom,
         "tiles_source": store.metadata.get("c3_source", ""),
         "frames_source": Path(spec.frames_geotiff).name,
-        "georeference": grid.projection.describe(),
+        "georeference": scene.grid.projection.describe(),
         "gt_fit_max_residual_px": worst_fit,
         "absent_frames": sorted(int(a) for a in absent),
         "spec": spec.to_json(),
         "attribution": attribution,
     }
-    return meta, calibration, frames, images

@@ -20,7 +20,7 @@ from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.features.build import WINDOW_PX_RANGE
 
 if TYPE_CHECKING:
-    from c3_matcher.tilestore.features import MapFeatureStore
+    from c3_matcher.tilestore.features import FeatureStoreUnavailableError, MapFeatureStore
 
 __all__ = ["register_features_command"]
 
@@ -162,60 +162,25 @@ def _store_of(path: Path) -> Path:
 
 
 def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
-    import sqlite3
-
-    from c3_matcher.errors import InvalidInputError
-    from c3_matcher.tilestore.features import (
-        FeatureStoreUnavailableError,
-        MapFeatureStore,
-        sidecar_path,
-        stored_sets,
-    )
+    """Print the feature sets stored beside a store (checked with --verify); exit 1 if damaged."""
+    from c3_matcher.tilestore.features import FeatureStoreUnavailableError, sidecar_path
     from c3_matcher.tilestore.mbtiles import MBTilesStore
     from c3_matcher.tilestore.sidecar import SidecarDamagedError
 
     store = _store_of(args.store)
     MBTilesStore(store).close()  # an MBTiles store (InvalidInputError naming it), not any file
     path = sidecar_path(store)
-    sets: list[dict[str, object]] = []
-    damaged = 0
-    if path.exists() and not path.is_file():
-        raise InvalidInputError(str(path), "not a file (the flight ignores it)")
-    if path.is_file():
-        try:
-            with MapFeatureStore(path) as side:
-                sets = [dict(s) for s in stored_sets(side)]
-                damaged = _verified(side, sets) if args.verify else 0
-        except SidecarDamagedError as exc:
-            ctx.err(
-                f"c3-matcher: {exc}; the flight extracts instead where it is. "
-                f"Rebuild it: c3-matcher features build {store}"
-            )
-            return EXIT_FAILURE
-        except FeatureStoreUnavailableError as exc:
-            cause = exc.__cause__
-            code = getattr(cause, "sqlite_errorcode", 0) & 0xFF
-            if code in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
-                ctx.err(
-                    f"c3-matcher: {path}: locked by another process ({cause}); the flight "
-                    "extracts instead while it is. Try again when it is released"
-                )
-                return EXIT_USAGE
-            if code == sqlite3.SQLITE_CANTOPEN:  # its permission: nothing to rebuild
-                ctx.err(f"c3-matcher: {exc}; the flight extracts instead while it is")
-                return EXIT_USAGE
-            ctx.err(
-                f"c3-matcher: {path}: unreadable ({cause or exc}); the flight "
-                f"extracts instead. Rebuild it: c3-matcher features build {store}"
-            )
-            return EXIT_USAGE
-    if args.json:
-        ctx.out(json.dumps({"store": str(store), "sidecar": str(path), "sets": sets}, indent=2))
-    elif not sets:
-        ctx.out(f"{store}: no precomputed features ({path} absent or empty)")
-    else:
-        for s in sets:
-            ctx.out(", ".join(f"{k}: {v}" for k, v in s.items()))
+    try:
+        sets, damaged = _stored_sets(path, verify=args.verify)
+    except SidecarDamagedError as exc:
+        ctx.err(
+            f"c3-matcher: {exc}; the flight extracts instead where it is. "
+            f"Rebuild it: c3-matcher features build {store}"
+        )
+        return EXIT_FAILURE
+    except FeatureStoreUnavailableError as exc:
+        return _unavailable(exc, store, path, ctx)
+    _print_sets(store, path, sets, ctx, as_json=args.json)
     if damaged:
         ctx.err(
             f"c3-matcher: {path}: {damaged} damaged windows (the flight extracts those instead); "
@@ -223,6 +188,57 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
         )
         return EXIT_FAILURE
     return EXIT_OK
+
+
+def _stored_sets(path: Path, *, verify: bool) -> tuple[list[dict[str, object]], int]:
+    """Read the sets the sidecar ``path`` holds (none without one), checked when ``verify``."""
+    from c3_matcher.errors import InvalidInputError
+    from c3_matcher.tilestore.features import MapFeatureStore, stored_sets
+
+    if path.exists() and not path.is_file():
+        raise InvalidInputError(str(path), "not a file (the flight ignores it)")
+    if not path.is_file():
+        return [], 0
+    with MapFeatureStore(path) as side:
+        sets = [dict(s) for s in stored_sets(side)]
+        return sets, _verified(side, sets) if verify else 0
+
+
+def _unavailable(
+    exc: FeatureStoreUnavailableError, store: Path, path: Path, ctx: CommandContext
+) -> int:
+    """Say why the sidecar cannot be opened (locked, not permitted, unreadable); exit 2."""
+    import sqlite3
+
+    cause = exc.__cause__
+    code = getattr(cause, "sqlite_errorcode", 0) & 0xFF
+    if code in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
+        ctx.err(
+            f"c3-matcher: {path}: locked by another process ({cause}); the flight "
+            "extracts instead while it is. Try again when it is released"
+        )
+        return EXIT_USAGE
+    if code == sqlite3.SQLITE_CANTOPEN:  # its permission: nothing to rebuild
+        ctx.err(f"c3-matcher: {exc}; the flight extracts instead while it is")
+        return EXIT_USAGE
+    ctx.err(
+        f"c3-matcher: {path}: unreadable ({cause or exc}); the flight "
+        f"extracts instead. Rebuild it: c3-matcher features build {store}"
+    )
+    return EXIT_USAGE
+
+
+def _print_sets(
+    store: Path, path: Path, sets: list[dict[str, object]], ctx: CommandContext, *, as_json: bool
+) -> None:
+    """Print the stored sets: as JSON, one line each, or that there are none."""
+    if as_json:
+        ctx.out(json.dumps({"store": str(store), "sidecar": str(path), "sets": sets}, indent=2))
+    elif not sets:
+        ctx.out(f"{store}: no precomputed features ({path} absent or empty)")
+    else:
+        for s in sets:
+            ctx.out(", ".join(f"{k}: {v}" for k, v in s.items()))
 
 
 def _verified(side: MapFeatureStore, sets: list[dict[str, object]]) -> int:

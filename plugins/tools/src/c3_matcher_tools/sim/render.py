@@ -257,51 +257,18 @@ class NavCameraRenderer:
         seed: int | np.random.Generator = 0,
     ) -> RenderedFrame:
         """See :func:`render_nav_frame`."""
-        if not isinstance(ortho, np.ndarray) or ortho.dtype != np.uint8 or ortho.ndim not in (2, 3):
-            raise InvalidInputError("ortho", "expected a uint8 (H, W) or (H, W, 3) array")
-        if not (gsd_m > 0 and height_m > 0):
-            raise InvalidInputError("gsd_m/height_m", f"must be > 0, got {gsd_m}, {height_m}")
+        _check_render_inputs(ortho, gsd_m, height_m)
         calibration = self.calibration
         h_o2u = ortho_to_undistorted_homography(calibration, attitude, nadir_px, height_m, gsd_m)
         h_u2o: F64 = np.asarray(np.linalg.inv(h_o2u), dtype=np.float64)
-        rx, ry = self.pixel_rays()
-        r_wc = cam.rotation_world_from_camera(attitude, calibration)
-        g = h_u2o @ calibration.K
-        hits = (r_wc[2, 0] * rx + r_wc[2, 1] * ry + r_wc[2, 2]) > 1e-9  # ray points down
-        qw = g[2, 0] * rx + g[2, 1] * ry + g[2, 2]
-        qw[~hits] = 1.0
-        u = (g[0, 0] * rx + g[0, 1] * ry + g[0, 2]) / qw
-        v = (g[1, 0] * rx + g[1, 1] * ry + g[1, 2]) / qw
+        pixels = self._ortho_px(h_u2o, attitude, ortho.shape[:2])
+        src, offset, scale = self._source(ortho, pixels, height_m, gsd_m)
+        img = _remap(src, offset, scale, pixels)
+        img = _shifted_and_masked(img, pixels.inside, photometric, seed)
         oh, ow = ortho.shape[:2]
-        inside = hits & (u >= -0.5) & (u <= ow - 0.5) & (v >= -0.5) & (v <= oh - 0.5)
-        src: NDArray[np.uint8] = ortho
-        offset = np.zeros(2)
-        scale = np.ones(2)
-        if np.any(inside):
-            ui, vi = u[inside], v[inside]
-            lo = np.maximum(np.floor([ui.min(), vi.min()]) - 2, 0).astype(int)
-            hi = np.minimum(np.ceil([ui.max(), vi.max()]) + 3, [ow, oh]).astype(int)
-            src = ortho[lo[1] : hi[1], lo[0] : hi[0]]
-            offset = lo.astype(np.float64)
-            ratio = (height_m / math.sqrt(calibration.K[0, 0] * calibration.K[1, 1])) / gsd_m
-            if self.antialias and ratio >= 1.5:
-                src, src_scale = area_downscale(src, ratio)
-                scale = np.array(src_scale)
-        map_x = ((u - (offset[0] - 0.5)) * scale[0] - 0.5).astype(np.float32)
-        map_y = ((v - (offset[1] - 0.5)) * scale[1] - 0.5).astype(np.float32)
-        map_x[~inside] = -10.0
-        map_y[~inside] = -10.0
-        img = remap_linear(src, map_x, map_y)
-        if img.ndim == 2:
-            img = np.asarray(cv2.cvtColor(img, cv2.COLOR_GRAY2RGB), dtype=np.uint8)
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        if photometric is not None:
-            img = photometric.apply(img, rng)
-        coverage = np.asarray(inside)
-        img = np.asarray(cv2.bitwise_and(img, img, mask=coverage.astype(np.uint8)), dtype=np.uint8)
         return RenderedFrame(
             image=img,
-            coverage=coverage,
+            coverage=pixels.inside,
             gt_homography_undistorted_to_ortho=h_u2o,
             calibration=calibration,
             attitude=attitude,
@@ -310,6 +277,84 @@ class NavCameraRenderer:
             ortho_gsd_m=float(gsd_m),
             ortho_size=(ow, oh),
         )
+
+    def _ortho_px(self, h_u2o: F64, attitude: Attitude, ortho_hw: tuple[int, ...]) -> _PixelMap:
+        """Map every ORIGINAL pixel's ray to ORTHO px (u, v); mark those that see the orthophoto."""
+        calibration = self.calibration
+        rx, ry = self.pixel_rays()
+        r_wc = cam.rotation_world_from_camera(attitude, calibration)
+        g = h_u2o @ calibration.K
+        hits = (r_wc[2, 0] * rx + r_wc[2, 1] * ry + r_wc[2, 2]) > 1e-9  # ray points down
+        qw = g[2, 0] * rx + g[2, 1] * ry + g[2, 2]
+        qw[~hits] = 1.0
+        u = (g[0, 0] * rx + g[0, 1] * ry + g[0, 2]) / qw
+        v = (g[1, 0] * rx + g[1, 1] * ry + g[1, 2]) / qw
+        oh, ow = ortho_hw[:2]
+        inside = hits & (u >= -0.5) & (u <= ow - 0.5) & (v >= -0.5) & (v <= oh - 0.5)
+        return _PixelMap(u, v, np.asarray(inside))
+
+    def _source(
+        self, ortho: NDArray[np.uint8], pixels: _PixelMap, height_m: float, gsd_m: float
+    ) -> tuple[NDArray[np.uint8], F64, F64]:
+        """Cut what the frame sees from the orthophoto, area-downscaled: (source, offset, scale)."""
+        if not np.any(pixels.inside):
+            return ortho, np.zeros(2), np.ones(2)
+        oh, ow = ortho.shape[:2]
+        ui, vi = pixels.u[pixels.inside], pixels.v[pixels.inside]
+        lo = np.maximum(np.floor([ui.min(), vi.min()]) - 2, 0).astype(int)
+        hi = np.minimum(np.ceil([ui.max(), vi.max()]) + 3, [ow, oh]).astype(int)
+        src = ortho[lo[1] : hi[1], lo[0] : hi[0]]
+        offset = lo.astype(np.float64)
+        scale = np.ones(2)
+        k = self.calibration.K
+        ratio = (height_m / math.sqrt(k[0, 0] * k[1, 1])) / gsd_m
+        if self.antialias and ratio >= 1.5:
+            src, src_scale = area_downscale(src, ratio)
+            scale = np.array(src_scale)
+        return src, offset, scale
+
+
+@dataclass(frozen=True)
+class _PixelMap:
+    """Where each ORIGINAL frame pixel's ray meets the ground: ORTHO px ``u``, ``v`` (H, W), and
+    ``inside``, True where that point lies on the orthophoto."""
+
+    u: F64
+    v: F64
+    inside: NDArray[np.bool_]
+
+
+def _remap(src: NDArray[np.uint8], offset: F64, scale: F64, pixels: _PixelMap) -> NDArray[np.uint8]:
+    """Sample ``src`` bilinearly at each pixel's ORTHO px, as RGB; 0 where it misses the ortho."""
+    map_x = ((pixels.u - (offset[0] - 0.5)) * scale[0] - 0.5).astype(np.float32)
+    map_y = ((pixels.v - (offset[1] - 0.5)) * scale[1] - 0.5).astype(np.float32)
+    map_x[~pixels.inside] = -10.0
+    map_y[~pixels.inside] = -10.0
+    img = remap_linear(src, map_x, map_y)
+    if img.ndim == 2:
+        img = np.asarray(cv2.cvtColor(img, cv2.COLOR_GRAY2RGB), dtype=np.uint8)
+    return img
+
+
+def _check_render_inputs(ortho: NDArray[np.uint8], gsd_m: float, height_m: float) -> None:
+    """Refuse an orthophoto that is not a uint8 image, or a GSD or height that is not > 0."""
+    if not isinstance(ortho, np.ndarray) or ortho.dtype != np.uint8 or ortho.ndim not in (2, 3):
+        raise InvalidInputError("ortho", "expected a uint8 (H, W) or (H, W, 3) array")
+    if not (gsd_m > 0 and height_m > 0):
+        raise InvalidInputError("gsd_m/height_m", f"must be > 0, got {gsd_m}, {height_m}")
+
+
+def _shifted_and_masked(
+    img: NDArray[np.uint8],
+    inside: NDArray[np.bool_],
+    photometric: PhotometricShift | None,
+    seed: int | np.random.Generator,
+) -> NDArray[np.uint8]:
+    """Apply ``photometric`` (drawn from ``seed``), then zero the pixels outside ``inside``."""
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    if photometric is not None:
+        img = photometric.apply(img, rng)
+    return np.asarray(cv2.bitwise_and(img, img, mask=inside.astype(np.uint8)), dtype=np.uint8)
 
 
 def render_nav_frame(
@@ -356,42 +401,13 @@ def pick_distractor_tiles(
     tw, th = int(size[0]), int(size[1])
     oh, ow = ortho.shape[:2]
     fp = np.asarray(footprint_ortho, dtype=np.float64).reshape(-1, 2)
-    occupied = np.zeros((oh, ow), dtype=np.uint8)
-    if fp.shape[0] >= 3:
-        pts = np.round(np.clip(fp, -1e6, 1e6) * 16).astype(np.int32).reshape(-1, 1, 2)
-        cv2.fillPoly(occupied, [pts], (1,), lineType=cv2.LINE_8, shift=4)
-        if margin_px > 0:
-            k = np.ones((2 * margin_px + 1, 2 * margin_px + 1), dtype=np.uint8)
-            occupied = np.asarray(cv2.dilate(occupied, k), dtype=np.uint8)
+    xs, ys = _grid_positions((ow, oh), (tw, th), stride_px or max(1, min(tw, th) // 8))
+    ok = _window_sums(_footprint_mask(fp, (oh, ow), margin_px), xs, ys, (tw, th)) == 0
     nodata = np.all(ortho == 0, axis=2) if ortho.ndim == 3 else ortho == 0
-    occ_int = np.asarray(cv2.integral(occupied), dtype=np.int64)
-    nod_int = np.asarray(cv2.integral(nodata.astype(np.uint8)), dtype=np.int64)
-    stride = stride_px or max(1, min(tw, th) // 8)
-    ys, xs = np.mgrid[0 : max(oh - th + 1, 0) : stride, 0 : max(ow - tw + 1, 0) : stride]
-    xs, ys = xs.ravel(), ys.ravel()
-
-    def window_sum(
-        integral: NDArray[np.int64], x: NDArray[np.int64], y: NDArray[np.int64]
-    ) -> NDArray[np.int64]:
-        return np.asarray(
-            integral[y + th, x + tw] - integral[y, x + tw] - integral[y + th, x] + integral[y, x],
-            dtype=np.int64,
-        )
-
+    ok &= _window_sums(nodata.astype(np.uint8), xs, ys, (tw, th)) <= max_nodata_fraction * tw * th
     centre = fp.mean(axis=0) if fp.shape[0] else np.array([-1e9, -1e9])
-    ok = window_sum(occ_int, xs, ys) == 0
-    ok &= window_sum(nod_int, xs, ys) <= max_nodata_fraction * tw * th
-    dist = np.hypot(xs + (tw - 1) / 2 - centre[0], ys + (th - 1) / 2 - centre[1])
-    ok &= dist >= min_distance_px
-    cand = np.flatnonzero(ok)
-    order = rng.permutation(cand.size)
-    chosen: list[tuple[int, int]] = []
-    for idx in cand[order]:
-        x, y = int(xs[idx]), int(ys[idx])
-        if all(abs(x - cx) >= tw or abs(y - cy) >= th for cx, cy in chosen):
-            chosen.append((x, y))
-            if len(chosen) == count:
-                break
+    ok &= np.hypot(xs + (tw - 1) / 2 - centre[0], ys + (th - 1) / 2 - centre[1]) >= min_distance_px
+    chosen = _draw_apart(xs, ys, np.flatnonzero(ok), (tw, th), count, rng)
     if len(chosen) < count:
         raise InvalidInputError(
             "count",
@@ -399,3 +415,60 @@ def pick_distractor_tiles(
             f"distractor tiles fit, {count} requested",
         )
     return [cut_tile(ortho, c, (tw, th), gsd_m) for c in chosen]
+
+
+def _grid_positions(
+    ortho_size: tuple[int, int], size: tuple[int, int], stride: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """List the top-left (x, y) of each (w, h) window inside the orthophoto on a stride grid."""
+    (ow, oh), (tw, th) = ortho_size, size
+    ys, xs = np.mgrid[0 : max(oh - th + 1, 0) : stride, 0 : max(ow - tw + 1, 0) : stride]
+    return xs.ravel(), ys.ravel()
+
+
+def _footprint_mask(fp: F64, shape: tuple[int, int], margin_px: int) -> NDArray[np.uint8]:
+    """Rasterize the footprint polygon (ORTHO px, dilated by ``margin_px``): 1 where occupied."""
+    occupied = np.zeros(shape, dtype=np.uint8)
+    if fp.shape[0] >= 3:
+        pts = np.round(np.clip(fp, -1e6, 1e6) * 16).astype(np.int32).reshape(-1, 1, 2)
+        cv2.fillPoly(occupied, [pts], (1,), lineType=cv2.LINE_8, shift=4)
+        if margin_px > 0:
+            k = np.ones((2 * margin_px + 1, 2 * margin_px + 1), dtype=np.uint8)
+            occupied = np.asarray(cv2.dilate(occupied, k), dtype=np.uint8)
+    return occupied
+
+
+def _window_sums(
+    mask: NDArray[np.uint8], xs: NDArray[np.int64], ys: NDArray[np.int64], size: tuple[int, int]
+) -> NDArray[np.int64]:
+    """Sum ``mask`` over the (w, h) window at each top-left (x, y), through its integral image."""
+    tw, th = size
+    integral = np.asarray(cv2.integral(mask), dtype=np.int64)
+    return np.asarray(
+        integral[ys + th, xs + tw]
+        - integral[ys, xs + tw]
+        - integral[ys + th, xs]
+        + integral[ys, xs],
+        dtype=np.int64,
+    )
+
+
+def _draw_apart(
+    xs: NDArray[np.int64],
+    ys: NDArray[np.int64],
+    allowed: NDArray[np.intp],
+    size: tuple[int, int],
+    count: int,
+    rng: np.random.Generator,
+) -> list[tuple[int, int]]:
+    """Draw up to ``count`` allowed windows in ``rng``'s order, each clear of those drawn before."""
+    tw, th = size
+    order = rng.permutation(allowed.size)
+    chosen: list[tuple[int, int]] = []
+    for idx in allowed[order]:
+        x, y = int(xs[idx]), int(ys[idx])
+        if all(abs(x - cx) >= tw or abs(y - cy) >= th for cx, cy in chosen):
+            chosen.append((x, y))
+            if len(chosen) == count:
+                break
+    return chosen
