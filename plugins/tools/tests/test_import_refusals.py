@@ -17,12 +17,13 @@ from rasterio.transform import from_origin
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import load_dataset
-from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight, read_telemetry
+from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
 from c3_matcher_tools.dataset.sources.options import (
     MAX_CANDIDATES,
     MAX_SEARCH_TILES,
     max_uncertainty_m,
 )
+from c3_matcher_tools.dataset.telemetry import read_telemetry
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -227,7 +228,8 @@ def test_candidates_beyond_what_the_search_reaches_are_refused(
 
 
 def test_frames_outside_the_store_beyond_those_shown_are_counted_not_hidden() -> None:
-    from c3_matcher_tools.dataset.importer import StoreProposals, TelemetryRow
+    from c3_matcher_tools.dataset.proposals import StoreProposals
+    from c3_matcher_tools.dataset.telemetry import TelemetryRow
 
     rows = [TelemetryRow(i, float(i), f"IMG_{i}.jpg", 63.4, 10.4, 80.0, 0, 0, 0) for i in range(6)]
     proposals = StoreProposals(18, [], rows, "", "")

@@ -122,6 +122,10 @@ def _dense(poses: Sequence[Pose], rate_hz: float = 5.0) -> list[tuple[float, flo
 # --- PX4 ULog (pyulog) ---------------------------------------------------------------------
 
 
+_Topic = tuple[str, list[tuple[str, str]], dict[str, Sequence[Any]]]
+"""A ULog topic: its name, (type, field) of each field, and each field's values."""
+
+
 def write_ulog(
     path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = (), rangefinder: bool = False
 ) -> Path:
@@ -137,84 +141,11 @@ def write_ulog(
     ulog._file_version = 1
     ulog._start_timestamp = int(BOOT_S * 1e6) - 1_000_000
     us = [int((BOOT_S + p.t_s) * 1e6) for p in poses]
-    dense = _dense(poses)
-    dus = [int((BOOT_S + d[0]) * 1e6) for d in dense]
-    topics: list[tuple[str, list[tuple[str, str]], dict[str, Sequence[Any]]]] = []
+    topics: list[_Topic] = []
     if "no_attitude" not in flaws:
-        quats = [p.quaternion() for p in poses]
-        att_us = list(us)
-        topics.append(
-            (
-                "vehicle_attitude",
-                [("uint64_t", "timestamp"), ("float[4]", "q")],
-                {"timestamp": att_us, **{f"q[{k}]": [q[k] for q in quats] for k in range(4)}},
-            )
-        )
-    topics.append(
-        (
-            "vehicle_global_position",
-            [("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"), ("float", "alt")],
-            {
-                "timestamp": dus,
-                "lat": [d[1] for d in dense],
-                "lon": [d[2] for d in dense],
-                "alt": [d[3] for d in dense],
-            },
-        )
-    )
-    lost = {
-        i
-        for i, d in enumerate(dense)
-        if "gnss_loss" in flaws and len(poses) > 1 and abs(d[0] - poses[1].t_s) < 0.3
-    }
-    topics.append(
-        (
-            "vehicle_gps_position",
-            [
-                ("uint64_t", "timestamp"),
-                ("uint64_t", "time_utc_usec"),
-                ("int32_t", "lat"),
-                ("int32_t", "lon"),
-                ("int32_t", "alt"),
-                ("float", "eph"),
-                ("uint8_t", "fix_type"),
-            ],
-            {
-                "timestamp": dus,
-                "time_utc_usec": [int((UTC0 + d[0]) * 1e6) for d in dense],
-                "lat": [round(d[1] * 1e7) for d in dense],
-                "lon": [round(d[2] * 1e7) for d in dense],
-                "alt": [round(d[3] * 1e3) for d in dense],
-                "eph": [99.0 if i in lost else 1.5 for i in range(len(dense))],
-                "fix_type": [0 if i in lost else 3 for i in range(len(dense))],
-            },
-        )
-    )
-    topics.append(
-        (
-            "home_position",
-            [("uint64_t", "timestamp"), ("float", "alt")],
-            {"timestamp": [us[0]], "alt": [GROUND_M - (20.0 if rangefinder else 0.0)]},
-        )
-    )
-    if rangefinder:
-        topics.append(
-            (
-                "vehicle_local_position",
-                [
-                    ("uint64_t", "timestamp"),
-                    ("float", "dist_bottom"),
-                    ("bool", "dist_bottom_valid"),
-                    ("float", "ref_alt"),
-                ],
-                {
-                    "timestamp": us,
-                    "dist_bottom": [p.height_m for p in poses],
-                    "dist_bottom_valid": [True] * len(us),
-                    "ref_alt": [GROUND_M - 20.0] * len(us),
-                },
-            )
-        )
+        topics.append(_ulog_attitude(poses, us))
+    topics += _ulog_positions(poses, gnss_loss="gnss_loss" in flaws)
+    topics += _ulog_heights(poses, us, rangefinder)
     if "no_trigger" not in flaws:
         topics.append(
             (
@@ -229,6 +160,88 @@ def write_ulog(
     with path.open("wb") as fh:
         ulog.write_ulog(fh)
     return path
+
+
+def _ulog_attitude(poses: Sequence[Pose], us: list[int]) -> _Topic:
+    """``vehicle_attitude``: each frame's quaternion at its time ``us`` (µs since boot)."""
+    quats = [p.quaternion() for p in poses]
+    return (
+        "vehicle_attitude",
+        [("uint64_t", "timestamp"), ("float[4]", "q")],
+        {"timestamp": list(us), **{f"q[{k}]": [q[k] for q in quats] for k in range(4)}},
+    )
+
+
+def _ulog_positions(poses: Sequence[Pose], *, gnss_loss: bool) -> list[_Topic]:
+    """``vehicle_global_position`` and ``vehicle_gps_position`` along the poses (``gnss_loss``:
+    no fix within 0.3 s of the second frame)."""
+    dense = _dense(poses)
+    dus = [int((BOOT_S + d[0]) * 1e6) for d in dense]
+    lost = {
+        i
+        for i, d in enumerate(dense)
+        if gnss_loss and len(poses) > 1 and abs(d[0] - poses[1].t_s) < 0.3
+    }
+    estimate: _Topic = (
+        "vehicle_global_position",
+        [("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"), ("float", "alt")],
+        {
+            "timestamp": dus,
+            "lat": [d[1] for d in dense],
+            "lon": [d[2] for d in dense],
+            "alt": [d[3] for d in dense],
+        },
+    )
+    receiver: _Topic = (
+        "vehicle_gps_position",
+        [
+            ("uint64_t", "timestamp"),
+            ("uint64_t", "time_utc_usec"),
+            ("int32_t", "lat"),
+            ("int32_t", "lon"),
+            ("int32_t", "alt"),
+            ("float", "eph"),
+            ("uint8_t", "fix_type"),
+        ],
+        {
+            "timestamp": dus,
+            "time_utc_usec": [int((UTC0 + d[0]) * 1e6) for d in dense],
+            "lat": [round(d[1] * 1e7) for d in dense],
+            "lon": [round(d[2] * 1e7) for d in dense],
+            "alt": [round(d[3] * 1e3) for d in dense],
+            "eph": [99.0 if i in lost else 1.5 for i in range(len(dense))],
+            "fix_type": [0 if i in lost else 3 for i in range(len(dense))],
+        },
+    )
+    return [estimate, receiver]
+
+
+def _ulog_heights(poses: Sequence[Pose], us: list[int], rangefinder: bool) -> list[_Topic]:
+    """``home_position`` (its altitude the ground's, 20 m lower with a ``rangefinder``) and the
+    rangefinder's ``vehicle_local_position`` at each frame's time ``us``."""
+    home: _Topic = (
+        "home_position",
+        [("uint64_t", "timestamp"), ("float", "alt")],
+        {"timestamp": [us[0]], "alt": [GROUND_M - (20.0 if rangefinder else 0.0)]},
+    )
+    if not rangefinder:
+        return [home]
+    local: _Topic = (
+        "vehicle_local_position",
+        [
+            ("uint64_t", "timestamp"),
+            ("float", "dist_bottom"),
+            ("bool", "dist_bottom_valid"),
+            ("float", "ref_alt"),
+        ],
+        {
+            "timestamp": us,
+            "dist_bottom": [p.height_m for p in poses],
+            "dist_bottom_valid": [True] * len(us),
+            "ref_alt": [GROUND_M - 20.0] * len(us),
+        },
+    )
+    return [home, local]
 
 
 def _ulog_topic(
@@ -263,85 +276,60 @@ def write_tlog(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) 
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
-    records: list[tuple[float, Any]] = []
-    for t, lat, lon, alt in _dense(poses):
-        ms = int((BOOT_S + t) * 1e3)
-        rel = int((alt - GROUND_M) * 1e3)
-        records.append(
-            (
-                t,
-                mavlink.MAVLink_global_position_int_message(
-                    ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1e3), rel, 0, 0, 0, 0
-                ),
-            )
-        )
-        records.append(
-            (
-                t,
-                mavlink.MAVLink_gps_raw_int_message(
-                    int((UTC0 + t) * 1e6),
-                    3,
-                    round(lat * 1e7),
-                    round(lon * 1e7),
-                    round(alt * 1e3),
-                    80,
-                    120,
-                    0,
-                    0,
-                    12,
-                    0,
-                    1500,
-                    2500,
-                    0,
-                    0,
-                    0,
-                ),
-            )
-        )
-    for i, p in enumerate(poses):
-        ms = int((BOOT_S + p.t_s) * 1e3)
-        if "no_attitude" not in flaws:
-            records.append(
-                (
-                    p.t_s,
-                    mavlink.MAVLink_attitude_message(
-                        ms,
-                        math.radians(p.roll),
-                        math.radians(p.pitch),
-                        math.radians(p.yaw),
-                        0,
-                        0,
-                        0,
-                    ),
-                )
-            )
-        if "no_trigger" not in flaws:
-            records.append(
-                (
-                    p.t_s,
-                    mavlink.MAVLink_camera_feedback_message(
-                        int((UTC0 + p.t_s) * 1e6),
-                        1,
-                        0,
-                        i,
-                        round(p.lat * 1e7),
-                        round(p.lon * 1e7),
-                        p.alt_m,
-                        p.height_m,
-                        p.roll,
-                        p.pitch,
-                        p.yaw,
-                        4.5,
-                        0,
-                    ),
-                )
-            )
+    records = _tlog_positions(poses) + _tlog_frames(poses, flaws)
     records.sort(key=lambda r: r[0])
     path = Path(path)
     with path.open("wb") as fh:
         for t, msg in records:
             fh.write(struct.pack(">Q", int((UTC0 + t) * 1e6)) + msg.pack(mav))
     return path
+
+
+def _tlog_positions(poses: Sequence[Pose]) -> list[tuple[float, Any]]:
+    """(t, message) of GLOBAL_POSITION_INT and GPS_RAW_INT (3D fix, h_acc 1.5 m) along the
+    poses."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    records: list[tuple[float, Any]] = []
+    for t, lat, lon, alt in _dense(poses):
+        ms = int((BOOT_S + t) * 1e3)
+        rel = int((alt - GROUND_M) * 1e3)
+        lat_e7, lon_e7, alt_mm = round(lat * 1e7), round(lon * 1e7), round(alt * 1e3)
+        records.append(
+            (
+                t,
+                mavlink.MAVLink_global_position_int_message(
+                    ms, lat_e7, lon_e7, alt_mm, rel, 0, 0, 0, 0
+                ),
+            )
+        )
+        utc_us = int((UTC0 + t) * 1e6)
+        fix = mavlink.MAVLink_gps_raw_int_message(
+            utc_us, 3, lat_e7, lon_e7, alt_mm, 80, 120, 0, 0, 12, 0, 1500, 2500, 0, 0, 0
+        )
+        records.append((t, fix))
+    return records
+
+
+def _tlog_frames(poses: Sequence[Pose], flaws: Sequence[str]) -> list[tuple[float, Any]]:
+    """(t, message) of each frame's ATTITUDE and CAMERA_FEEDBACK (``flaws``: ``no_attitude``,
+    ``no_trigger`` leave them out)."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    records: list[tuple[float, Any]] = []
+    for i, p in enumerate(poses):
+        ms = int((BOOT_S + p.t_s) * 1e3)
+        if "no_attitude" not in flaws:
+            roll, pitch, yaw = (math.radians(a) for a in (p.roll, p.pitch, p.yaw))
+            records.append((p.t_s, mavlink.MAVLink_attitude_message(ms, roll, pitch, yaw, 0, 0, 0)))
+        if "no_trigger" not in flaws:
+            utc_us = int((UTC0 + p.t_s) * 1e6)
+            lat_e7, lon_e7 = round(p.lat * 1e7), round(p.lon * 1e7)
+            feedback = mavlink.MAVLink_camera_feedback_message(
+                utc_us, 1, 0, i, lat_e7, lon_e7, p.alt_m, p.height_m, p.roll, p.pitch, p.yaw, 4.5, 0
+            )
+            records.append((p.t_s, feedback))
+    return records
 
 
 # --- ArduPilot DataFlash (.bin) ---------------------------------------------------------------
@@ -434,132 +422,176 @@ def write_bag(
     ``/gps/fix`` (``sensor_msgs/NavSatFix``, covariance 1.5 m); ``pose_topic``: the same
     orientation also on ``/vehicle/pose`` (``geometry_msgs/PoseStamped``). ``flaws``:
     ``no_imu``, ``no_gps``."""
-    import cv2
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS2_HUMBLE)
-    m = store.types
-    header_t = m["std_msgs/msg/Header"]
-    time_t = m["builtin_interfaces/msg/Time"]
-
-    def header(t: float, frame: str) -> Any:
-        ns = round((UTC0 + t) * 1e9)
-        return header_t(
-            stamp=time_t(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000), frame_id=frame
-        )
-
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    enu_from_ned = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-    frd_from_flu = np.diag([1.0, -1.0, -1.0])
     path = Path(path)
     with Writer(path, version=8, storage_plugin=plugin) as writer:
-        image_topic = "/camera/image_raw/compressed" if compressed else "/camera/image_raw"
-        image_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
-        conns = {
-            "image": writer.add_connection(image_topic, image_type, typestore=store),
-            "info": writer.add_connection(
-                "/camera/camera_info", "sensor_msgs/msg/CameraInfo", typestore=store
-            ),
-        }
-        if "no_imu" not in flaws:
-            conns["imu"] = writer.add_connection(
-                "/imu/data", "sensor_msgs/msg/Imu", typestore=store
-            )
-        if pose_topic:
-            conns["pose"] = writer.add_connection(
-                "/vehicle/pose", "geometry_msgs/msg/PoseStamped", typestore=store
-            )
-        if "no_gps" not in flaws:
-            conns["gps"] = writer.add_connection(
-                "/gps/fix", "sensor_msgs/msg/NavSatFix", typestore=store
-            )
-        msgs: list[tuple[float, str, Any]] = []
-        k = np.asarray(calibration.K, dtype=np.float64)
-        d = np.asarray(calibration.distortion, dtype=np.float64)
-        w, h = calibration.image_size
-        for p in poses:
-            data = p.image.read_bytes()
-            if compressed:
-                img = m["sensor_msgs/msg/CompressedImage"](
-                    header=header(p.t_s, "camera"),
-                    format="jpeg",
-                    data=np.frombuffer(data, np.uint8),
-                )
-            else:
-                rgb = cv2.cvtColor(
-                    cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB
-                )
-                img = m["sensor_msgs/msg/Image"](
-                    header=header(p.t_s, "camera"),
-                    height=h,
-                    width=w,
-                    encoding="rgb8",
-                    is_bigendian=0,
-                    step=w * 3,
-                    data=rgb.reshape(-1),
-                )
-            msgs.append((p.t_s, "image", img))
-            if "no_imu" not in flaws:
-                r_ned_frd = rotation_world_from_body(Attitude.from_degrees(p.roll, p.pitch, p.yaw))
-                qw, qx, qy, qz = _quat(enu_from_ned @ r_ned_frd @ frd_from_flu)
-                imu = m["sensor_msgs/msg/Imu"](
-                    header=header(p.t_s, "base_link"),
-                    orientation=m["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
-                    orientation_covariance=np.zeros(9),
-                    angular_velocity=m["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
-                    angular_velocity_covariance=np.zeros(9),
-                    linear_acceleration=m["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=9.81),
-                    linear_acceleration_covariance=np.zeros(9),
-                )
-                msgs.append((p.t_s, "imu", imu))
-            if pose_topic:
-                pose = m["geometry_msgs/msg/PoseStamped"](
-                    header=header(p.t_s, "map"),
-                    pose=m["geometry_msgs/msg/Pose"](
-                        position=m["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=p.height_m),
-                        orientation=m["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
-                    ),
-                )
-                msgs.append((p.t_s, "pose", pose))
-        msgs.append(
-            (
-                poses[0].t_s - 0.5,
-                "info",
-                m["sensor_msgs/msg/CameraInfo"](
-                    header=header(poses[0].t_s - 0.5, "camera"),
-                    height=h,
-                    width=w,
-                    distortion_model="plumb_bob",
-                    d=d,
-                    k=k.reshape(-1),
-                    r=np.eye(3).reshape(-1),
-                    p=np.hstack([k, np.zeros((3, 1))]).reshape(-1),
-                    binning_x=0,
-                    binning_y=0,
-                    roi=m["sensor_msgs/msg/RegionOfInterest"](
-                        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-                    ),
-                ),
-            )
+        conns = _bag_connections(writer, store, compressed, flaws, pose_topic)
+        msgs = _bag_frame_messages(
+            store.types, poses, calibration.image_size, compressed, flaws, pose_topic
         )
+        info_t = poses[0].t_s - 0.5
+        msgs.append((info_t, "info", _camera_info(store.types, calibration, info_t)))
         if "no_gps" not in flaws:
-            for t, lat, lon, alt in _dense(poses):
-                fix = m["sensor_msgs/msg/NavSatFix"](
-                    header=header(t, "gps"),
-                    status=m["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
-                    latitude=lat,
-                    longitude=lon,
-                    altitude=alt,
-                    position_covariance=np.diag([2.25, 2.25, 9.0]).reshape(-1),
-                    position_covariance_type=2,
-                )
-                msgs.append((t, "gps", fix))
+            msgs += _gps_fixes(store.types, poses)
         msgs.sort(key=lambda x: (x[0], x[1]))
         for t, key, msg in msgs:
-            ns = round((UTC0 + t) * 1e9)
-            writer.write(conns[key], ns, store.serialize_cdr(msg, msg.__msgtype__))
+            writer.write(conns[key], _utc_ns(t), store.serialize_cdr(msg, msg.__msgtype__))
     return path
+
+
+def _utc_ns(t: float) -> int:
+    """The UTC time in ns of log time ``t`` (s from the first frame)."""
+    return round((UTC0 + t) * 1e9)
+
+
+def _ros_header(types: Any, t: float, frame: str) -> Any:
+    """A ``std_msgs/Header`` stamped with the UTC time of log time ``t``, in ``frame``."""
+    ns = _utc_ns(t)
+    stamp = types["builtin_interfaces/msg/Time"](
+        sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000
+    )
+    return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+
+def _bag_connections(
+    writer: Any, store: Any, compressed: bool, flaws: Sequence[str], pose_topic: bool
+) -> dict[str, Any]:
+    """The bag's topics by message key: the images (``compressed`` or raw), the camera info,
+    then the IMU (unless ``no_imu``), the pose (``pose_topic``) and the fix (unless
+    ``no_gps``)."""
+    image_topic = "/camera/image_raw/compressed" if compressed else "/camera/image_raw"
+    image_type = "sensor_msgs/msg/CompressedImage" if compressed else "sensor_msgs/msg/Image"
+    conns = {
+        "image": writer.add_connection(image_topic, image_type, typestore=store),
+        "info": writer.add_connection(
+            "/camera/camera_info", "sensor_msgs/msg/CameraInfo", typestore=store
+        ),
+    }
+    if "no_imu" not in flaws:
+        conns["imu"] = writer.add_connection("/imu/data", "sensor_msgs/msg/Imu", typestore=store)
+    if pose_topic:
+        conns["pose"] = writer.add_connection(
+            "/vehicle/pose", "geometry_msgs/msg/PoseStamped", typestore=store
+        )
+    if "no_gps" not in flaws:
+        conns["gps"] = writer.add_connection(
+            "/gps/fix", "sensor_msgs/msg/NavSatFix", typestore=store
+        )
+    return conns
+
+
+def _bag_frame_messages(
+    types: Any,
+    poses: Sequence[Pose],
+    size: tuple[int, int],
+    compressed: bool,
+    flaws: Sequence[str],
+    pose_topic: bool,
+) -> list[tuple[float, str, Any]]:
+    """(t, key, message) of each frame's image, its IMU orientation (unless ``no_imu``) and
+    pose (``pose_topic``)."""
+    msgs: list[tuple[float, str, Any]] = []
+    for p in poses:
+        msgs.append((p.t_s, "image", _image_message(types, p, size, compressed)))
+        qw, qx, qy, qz = _ros_orientation(p)
+        orientation = types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)
+        if "no_imu" not in flaws:
+            vector = types["geometry_msgs/msg/Vector3"]
+            imu = types["sensor_msgs/msg/Imu"](
+                header=_ros_header(types, p.t_s, "base_link"),
+                orientation=orientation,
+                orientation_covariance=np.zeros(9),
+                angular_velocity=vector(x=0.0, y=0.0, z=0.0),
+                angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=vector(x=0.0, y=0.0, z=9.81),
+                linear_acceleration_covariance=np.zeros(9),
+            )
+            msgs.append((p.t_s, "imu", imu))
+        if pose_topic:
+            pose = types["geometry_msgs/msg/PoseStamped"](
+                header=_ros_header(types, p.t_s, "map"),
+                pose=types["geometry_msgs/msg/Pose"](
+                    position=types["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=p.height_m),
+                    orientation=orientation,
+                ),
+            )
+            msgs.append((p.t_s, "pose", pose))
+    return msgs
+
+
+def _ros_orientation(p: Pose) -> tuple[float, float, float, float]:
+    """(w, x, y, z) of frame ``p``'s body (FLU) to ENU rotation, as REP 103 states it."""
+    enu_from_ned = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    frd_from_flu = np.diag([1.0, -1.0, -1.0])
+    r_ned_frd = rotation_world_from_body(Attitude.from_degrees(p.roll, p.pitch, p.yaw))
+    return _quat(enu_from_ned @ r_ned_frd @ frd_from_flu)
+
+
+def _image_message(types: Any, p: Pose, size: tuple[int, int], compressed: bool) -> Any:
+    """Frame ``p``'s image: its JPEG as it is (``compressed``), else decoded to rgb8 of
+    ``size`` (w, h)."""
+    import cv2
+
+    data = p.image.read_bytes()
+    header = _ros_header(types, p.t_s, "camera")
+    if compressed:
+        return types["sensor_msgs/msg/CompressedImage"](
+            header=header, format="jpeg", data=np.frombuffer(data, np.uint8)
+        )
+    w, h = size
+    bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    return types["sensor_msgs/msg/Image"](
+        header=header,
+        height=h,
+        width=w,
+        encoding="rgb8",
+        is_bigendian=0,
+        step=w * 3,
+        data=cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB).reshape(-1),
+    )
+
+
+def _camera_info(types: Any, calibration: Any, t: float) -> Any:
+    """A ``sensor_msgs/CameraInfo`` (plumb_bob) of ``calibration`` at log time ``t``."""
+    k = np.asarray(calibration.K, dtype=np.float64)
+    w, h = calibration.image_size
+    return types["sensor_msgs/msg/CameraInfo"](
+        header=_ros_header(types, t, "camera"),
+        height=h,
+        width=w,
+        distortion_model="plumb_bob",
+        d=np.asarray(calibration.distortion, dtype=np.float64),
+        k=k.reshape(-1),
+        r=np.eye(3).reshape(-1),
+        p=np.hstack([k, np.zeros((3, 1))]).reshape(-1),
+        binning_x=0,
+        binning_y=0,
+        roi=types["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        ),
+    )
+
+
+def _gps_fixes(types: Any, poses: Sequence[Pose]) -> list[tuple[float, str, Any]]:
+    """(t, "gps", fix) along the poses: ``sensor_msgs/NavSatFix``, 1.5 m horizontal and 3 m
+    vertical standard deviation."""
+    fixes: list[tuple[float, str, Any]] = []
+    for t, lat, lon, alt in _dense(poses):
+        fix = types["sensor_msgs/msg/NavSatFix"](
+            header=_ros_header(types, t, "gps"),
+            status=types["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
+            latitude=lat,
+            longitude=lon,
+            altitude=alt,
+            position_covariance=np.diag([2.25, 2.25, 9.0]).reshape(-1),
+            position_covariance_type=2,
+        )
+        fixes.append((t, "gps", fix))
+    return fixes
 
 
 # --- photos with EXIF / XMP (piexif) ----------------------------------------------------------

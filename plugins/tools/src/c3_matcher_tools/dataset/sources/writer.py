@@ -39,7 +39,7 @@ def write_imported_flight(
     point and write the ``c3-flight/1`` dataset ``out`` atomically (everything is checked
     first); returns what was done (``skipped``: images the caller already set aside, with the
     reason). Raises InvalidInputError naming the input at fault."""
-    from c3_matcher_tools.dataset.importer import imported_frame
+    from c3_matcher_tools.dataset.proposals import imported_frame
 
     out = Path(out)
     check_output_dir(out, force=force, inputs=(track.source, options.store, options.dem))
@@ -85,7 +85,9 @@ def write_imported_flight(
 def _propose(track: LogTrack, frames: Sequence[Frame], options: ImportOptions) -> Any:
     """(proposer, telemetry rows, proposal) of the candidates around each frame's look point,
     refused when a look point lies outside the store."""
-    from c3_matcher_tools.dataset.importer import ImportSpec, TelemetryRow, propose_from_store
+    from c3_matcher_tools.dataset.importer import ImportSpec
+    from c3_matcher_tools.dataset.proposals import propose_from_store
+    from c3_matcher_tools.dataset.telemetry import TelemetryRow
 
     proposer = ImportSpec(
         Path(),

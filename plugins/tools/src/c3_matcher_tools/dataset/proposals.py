@@ -1,0 +1,217 @@
+"""Candidate tiles proposed from a tile store for each telemetry row (a stand-in for the upstream
+re-ranker C2.5), and the imported frame's record that carries them (:func:`imported_frame`).
+
+At zoom ``zoom`` of the store (default its finest), the ground point the camera's optical axis
+hits (from the telemetry position, attitude, height and the calibration's camera mount; the
+nadir when the axis points above the horizon) is located in a 256-px slippy tile; the candidates
+are the ``candidate_size_px`` windows centred on (:func:`c3_matcher.tilestore.base.tile_centre_id`)
+that tile, the other tiles whose square comes within ``uncertainty_m`` of the point, nearest
+first, then the nearest further tiles (distractors) until there are ``candidates``; only tiles
+the store holds. Their order is shuffled by a generator seeded by (``seed``, frame index), scores
+0.9, 0.8, ... in that order. The options are those of
+:class:`~c3_matcher_tools.dataset.importer.ImportSpec`.
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from c3_matcher.camera import rotation_world_from_camera
+from c3_matcher.dto import CameraCalibration, TileId
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.base import tile_centre_id
+from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px
+from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.dataset.format import CandidateTruth, FrameRecord
+from c3_matcher_tools.dataset.sources.options import MAX_SEARCH_TILES, max_uncertainty_m
+from c3_matcher_tools.dataset.telemetry import TelemetryRow
+
+if TYPE_CHECKING:
+    from c3_matcher_tools.dataset.importer import ImportSpec
+
+__all__ = [
+    "StoreProposals",
+    "imported_frame",
+    "look_point",
+    "propose_from_store",
+    "shuffled_candidates",
+    "store_zoom",
+]
+
+M_PER_DEG_LAT = 111_320.0
+
+
+def look_point(row: TelemetryRow, calibration: CameraCalibration) -> tuple[float, float]:
+    """(lon, lat) where the optical axis meets flat ground ``altitude_m`` below the vehicle
+    (the telemetry position itself when the axis does not point down)."""
+    axis = rotation_world_from_camera(row.attitude, calibration) @ np.array([0.0, 0.0, 1.0])
+    north, east, down = (float(v) for v in axis)
+    if down < 0.2:  # about 78 deg off nadir or worse: the hit point means nothing
+        return row.lon, row.lat
+    dn, de = row.altitude_m * north / down, row.altitude_m * east / down
+    lat = row.lat + dn / M_PER_DEG_LAT
+    lon = row.lon + de / (M_PER_DEG_LAT * math.cos(math.radians(row.lat)))
+    return lon, lat
+
+
+def store_zoom(store: MBTilesStore, path: object, zoom: int | None) -> int:
+    """The zoom candidates are proposed at: ``zoom`` if the store holds it, else its finest;
+    ``InvalidInputError`` for an empty store or a zoom it does not hold."""
+    zooms = store.zooms()
+    if not zooms:
+        raise InvalidInputError("STORE", f"{path}: holds no tiles")
+    chosen = zooms[-1] if zoom is None else zoom
+    if chosen not in zooms:
+        raise InvalidInputError("--zoom", f"{chosen} not in the store's zooms {zooms}")
+    return chosen
+
+
+def _propose(
+    store: MBTilesStore, zoom: int, lonlat: tuple[float, float], spec: ImportSpec
+) -> list[tuple[TileId, float]] | None:
+    """(tile id, distance m from the point to the tile square) of the candidates, the tile
+    holding the point first; None when the store lacks that tile. Refuses an uncertainty
+    beyond :func:`max_uncertainty_m` there."""
+    reach_m = max_uncertainty_m(zoom, lonlat[1])
+    if spec.uncertainty_m > reach_m:
+        raise InvalidInputError(
+            "--uncertainty-m",
+            f"{spec.uncertainty_m:g} m reaches beyond {MAX_SEARCH_TILES} tiles of the store's "
+            f"zoom {zoom} ({reach_m:.0f} m at latitude {lonlat[1]:.2f}): give at most that",
+        )
+    p = lonlat_to_world_px([lonlat], zoom)[0]
+    m_per_px = TileId(zoom, lonlat[1], lonlat[0]).web_mercator_gsd_m()
+    tx, ty = int(p[0] // TILE_PX), int(p[1] // TILE_PX)
+    if store.tile_bytes(zoom, tx, ty) is None:
+        return None
+    ring = max(2, math.ceil(spec.uncertainty_m / (m_per_px * TILE_PX)) + 1)
+    ring = max(ring, math.ceil(math.sqrt(spec.candidates)) + 1)
+    near: list[tuple[float, float, int, int]] = []
+    for x in range(tx - ring, tx + ring + 1):
+        for y in range(ty - ring, ty + ring + 1):
+            if (x, y) == (tx, ty) or store.tile_bytes(zoom, x, y) is None:
+                continue
+            dx = max(x * TILE_PX - p[0], 0.0, p[0] - (x + 1) * TILE_PX)
+            dy = max(y * TILE_PX - p[1], 0.0, p[1] - (y + 1) * TILE_PX)
+            edge_m = math.hypot(dx, dy) * m_per_px
+            centre_m = math.hypot((x + 0.5) * TILE_PX - p[0], (y + 0.5) * TILE_PX - p[1])
+            # within the uncertainty first (nearest centre first), then the nearest others
+            near.append((0.0 if edge_m <= spec.uncertainty_m else 1.0, centre_m, x, y))
+    near.sort()
+    picked = [(tile_centre_id(zoom, tx, ty), 0.0)]
+    for _, _, x, y in near[: spec.candidates - 1]:
+        dx = max(x * TILE_PX - p[0], 0.0, p[0] - (x + 1) * TILE_PX)
+        dy = max(y * TILE_PX - p[1], 0.0, p[1] - (y + 1) * TILE_PX)
+        picked.append((tile_centre_id(zoom, x, y), math.hypot(dx, dy) * m_per_px))
+    return picked
+
+
+@dataclass(frozen=True)
+class StoreProposals:
+    """The candidates proposed from a store for each telemetry row, in row order.
+
+    ``looks``: (look point (lon, lat) deg, candidates as (tile id, distance m) or None where
+    the store lacks the tile under the look point); ``outside``: the rows whose look point the
+    store does not cover; ``attribution`` and ``tiles_source``: the store's metadata.
+    """
+
+    zoom: int
+    looks: list[tuple[tuple[float, float], list[tuple[TileId, float]] | None]]
+    outside: list[TelemetryRow]
+    attribution: str
+    tiles_source: str
+
+    def refuse_outside(
+        self, where: str, label: Callable[[TelemetryRow], str], *, hint: str = "", shown: int = 10
+    ) -> None:
+        """``InvalidInputError`` naming ``where`` when any row looks outside the store: how many,
+        then the first ``shown`` as ``label(row)`` and their (lat, lon); ``hint`` follows the
+        zoom."""
+        if self.outside:
+            names = [f"{label(r)} ({r.lat:.6f}, {r.lon:.6f})" for r in self.outside]
+            more = f" and {len(names) - shown} more" if len(names) > shown else ""
+            raise InvalidInputError(
+                where,
+                f"{len(names)} frame(s) look outside the store's coverage at zoom {self.zoom}"
+                f"{hint}: " + ", ".join(names[:shown]) + more,
+            )
+
+
+def propose_from_store(
+    rows: Sequence[TelemetryRow], calibration: CameraCalibration, spec: ImportSpec
+) -> StoreProposals:
+    """Propose ``spec.candidates`` tiles of ``spec.store`` around each row's look point."""
+    with MBTilesStore(spec.store) as store:
+        zoom = store_zoom(store, spec.store, spec.zoom)
+        looks: list[tuple[tuple[float, float], list[tuple[TileId, float]] | None]] = []
+        outside: list[TelemetryRow] = []
+        for r in rows:
+            lonlat = look_point(r, calibration)
+            cands = _propose(store, zoom, lonlat, spec)
+            if cands is None:
+                outside.append(r)
+            looks.append((lonlat, cands))
+        return StoreProposals(
+            zoom,
+            looks,
+            outside,
+            store.metadata.get("attribution", ""),
+            store.metadata.get("c3_source", ""),
+        )
+
+
+def shuffled_candidates(
+    cands: list[tuple[TileId, float]] | None, seed: int, index: int
+) -> tuple[CandidateTruth, ...]:
+    """Frame ``index``'s candidates in a seeded order, priors 0.9, 0.8, ... (the truth tile is
+    not always first); ``cands`` is never None once the coverage check passed."""
+    assert cands is not None
+    order = np.random.default_rng([seed, index]).permutation(len(cands))
+    return tuple(CandidateTruth(cands[j][0], round(0.9 - 0.1 * k, 3)) for k, j in enumerate(order))
+
+
+def imported_frame(
+    index: int,
+    row: TelemetryRow,
+    t0_s: float,
+    base: uuid.UUID,
+    suffix: str,
+    proposal: tuple[tuple[float, float], list[tuple[TileId, float]] | None],
+    spec: ImportSpec,
+    *,
+    heights: dict[str, Any],
+    extra: dict[str, Any] | None = None,
+) -> FrameRecord:
+    """The dataset record of imported frame ``index`` (image ``frames/<index><suffix>``, id from
+    ``base`` and the source image name, time from ``t0_s``, the first row's time in s) with its
+    ``proposal`` (look point (lon, lat) deg, candidates) in seeded order. Telemetry: position,
+    ``heights`` (the height keys a source knows), time, source image, look point, uncertainty
+    m, then ``extra``."""
+    look, cands = proposal
+    return FrameRecord(
+        index=index,
+        frame_id=uuid.uuid5(base, row.image),
+        image=f"frames/{index:06d}{suffix}",
+        captured_at_ns=round((row.time_s - t0_s) * 1e9),
+        attitude_deg=(row.roll_deg, row.pitch_deg, row.yaw_deg),
+        height_m=row.altitude_m,
+        candidates=shuffled_candidates(cands, spec.seed, index),
+        telemetry={
+            "lat": row.lat,
+            "lon": row.lon,
+            "altitude_m": row.altitude_m,
+            **heights,
+            "time_s": row.time_s,
+            "source_image": row.image,
+            "look_lat": look[1],
+            "look_lon": look[0],
+            "uncertainty_m": spec.uncertainty_m,
+            **(extra or {}),
+        },
+    )
