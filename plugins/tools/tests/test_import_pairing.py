@@ -18,6 +18,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from c3_matcher.errors import InvalidInputError
@@ -378,6 +379,22 @@ def test_a_bag_without_attitude_is_read_level_and_says_so(
     summary = _imported(c3(*args))
     assert summary["frames"] == 3 and summary["attitude_assumed"] == [0, 1, 2]
     assert all("attitude_assumed" in f.telemetry["flags"] for f in load_dataset(flight).frames)
+
+
+def test_a_bag_with_a_pose_topic_and_no_imu_takes_its_attitude_from_the_pose(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """A bag whose only attitude is a ``geometry_msgs/PoseStamped`` (no Imu) is read with
+    that attitude, no topic to choose (the test writer failed to write one)."""
+    from c3_matcher_tools.dataset.sources.rosbag import read_bag
+
+    calibration = load_calibration(Path(CAL))
+    bag = fl.write_bag(tmp_path / "bag", poses[:3], calibration, flaws=("no_imu",), pose_topic=True)
+    track, shots, _ = read_bag(bag)
+    assert track.attitude is not None and track.attitude.name == "/vehicle/pose"
+    assert len(shots) == 3
+    rpy = np.array([(p.roll, p.pitch, p.yaw) for p in poses[:3]])
+    assert np.allclose(track.attitude.values[:3], rpy, atol=1e-4)
 
 
 def test_time_offset_corrects_the_camera_clock_where_photos_meet_triggers_by_time(
