@@ -21,9 +21,8 @@ from numpy.typing import NDArray
 from torch import nn
 from torch.nn import functional as nnf
 
-from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
-from c3_matcher_tools.engines.export.onnx_export import export_module
+from c3_matcher_tools.engines.export.onnx_export import export_module, verification_session
 
 __all__ = [
     "ExtractorCase",
@@ -109,11 +108,7 @@ def export_extractor(
         },
         opset=request.spec.opset,
     )
-    return ort.InferenceSession(
-        str(request.output_path),
-        sess_options=SessionSettings().build(),
-        providers=["CPUExecutionProvider"],
-    )
+    return verification_session(request.output_path)
 
 
 def compare_keypoint_sets(

@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import onnxruntime as ort
 import torch
 from kornia.feature import LightGlue
 from numpy.typing import NDArray
@@ -32,11 +31,10 @@ from torch import nn
 from torch.nn import functional as nnf
 
 from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, OnnxLightGlueRuntime
-from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher.features import PairSide
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
 from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
-from c3_matcher_tools.engines.export.onnx_export import export_module
+from c3_matcher_tools.engines.export.onnx_export import export_module, verification_session
 
 __all__ = [
     "LIGHTGLUE_TOLERANCES",
@@ -227,9 +225,7 @@ class _SessionRuntime:
     """A minimal ``InferenceRuntime`` over a raw session (the manifest does not exist yet)."""
 
     def __init__(self, path: Path) -> None:
-        self._session = ort.InferenceSession(
-            str(path), sess_options=SessionSettings().build(), providers=["CPUExecutionProvider"]
-        )
+        self._session = verification_session(path)
 
     @property
     def provider(self) -> str:

@@ -36,7 +36,6 @@ from c3_matcher.engines.lightglue_adaptive import (
     AdaptiveLightGlue,
     AdaptiveResult,
 )
-from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
 from c3_matcher_tools.engines.export.lightglue import (
@@ -49,7 +48,7 @@ from c3_matcher_tools.engines.export.lightglue import (
     verification_pairs,
     verify_feature_pairs,
 )
-from c3_matcher_tools.engines.export.onnx_export import export_module
+from c3_matcher_tools.engines.export.onnx_export import export_module, verification_session
 
 __all__ = [
     "STEPS_TOLERANCES",
@@ -297,11 +296,7 @@ def _adaptive_runtime(
     request: ExportRequest, conf: Any, depth: float, width: float
 ) -> AdaptiveLightGlue:
     """The run time's adaptive driver over the exported graph (ONNX Runtime, CPU)."""
-    session = ort.InferenceSession(
-        str(request.output_path),
-        sess_options=SessionSettings().build(),
-        providers=["CPUExecutionProvider"],
-    )
+    session = verification_session(request.output_path)
     return AdaptiveLightGlue(
         _session_run(session),
         n_layers=int(conf.n_layers),

@@ -14,11 +14,13 @@ from pathlib import Path
 from typing import Any
 
 import onnx
+import onnxruntime as ort
 import torch
 
+from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher.engines.spec import TensorSpec
 
-__all__ = ["check_onnx_io", "export_module"]
+__all__ = ["check_onnx_io", "export_module", "verification_session"]
 
 _ONNX_TO_NUMPY = {
     onnx.TensorProto.FLOAT: "float32",
@@ -90,3 +92,10 @@ def check_onnx_io(path: Path, inputs: Sequence[TensorSpec], outputs: Sequence[Te
                     raise ValueError(
                         f"{role} {name}: dim {axis} is fixed {got_dim}, declared dynamic"
                     )
+
+
+def verification_session(path: Path) -> ort.InferenceSession:
+    """An exported graph opened as the run time opens it, on the CPU, for its verification."""
+    return ort.InferenceSession(
+        str(path), sess_options=SessionSettings().build(), providers=["CPUExecutionProvider"]
+    )
