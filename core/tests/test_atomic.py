@@ -98,3 +98,19 @@ def test_an_output_that_cannot_be_written_is_refused_naming_it(
     monkeypatch.setattr(atomic.os, "access", lambda path, mode: False)  # a read-only mount
     with pytest.raises(InvalidInputError, match=f"{tmp_path} is not writable"):
         refuse_unwritable(tmp_path / "new" / "deeper", directory=True)
+
+
+def test_a_write_that_fails_names_the_file_asked_for_not_its_temporary_file(
+    tmp_path: Path,
+) -> None:
+    """``--viz`` naming a folder said ``Is a directory: '.viz.png.123-ab.tmp' -> ...``."""
+    folder = tmp_path / "pictures"
+    folder.mkdir()
+    with pytest.raises(IsADirectoryError) as info:
+        write_png(np.zeros((8, 8, 3), np.uint8), folder)
+    assert info.value.filename == str(folder) and ".tmp" not in str(info.value)
+    with pytest.raises(FileNotFoundError) as missing:
+        write_text_atomically(tmp_path / "gone" / "results.jsonl", "x")
+    assert missing.value.filename == str(tmp_path / "gone" / "results.jsonl")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pictures"]
+    assert list(folder.iterdir()) == []
