@@ -3,15 +3,16 @@ plugins it links (and the ground tools for ground profiles), every run-time depe
 profile's engines, so an airborne computer with no network installs and starts from that folder
 alone:
 
-    .venv/bin/python scripts/wheelhouse.py airborne --out dist/wheelhouse-airborne
+    .venv/bin/python scripts/wheelhouse.py airborne --out dist/wheelhouse-airborne \\
+        --engines .engines
     # on the target, offline:
     python3 -m venv /opt/c3 && /opt/c3/bin/pip install --no-index \\
         --find-links dist/wheelhouse-airborne "c3-matcher[airborne]"
     C3_MATCHER_ENGINES__DIRECTORY=dist/wheelhouse-airborne/engines /opt/c3/bin/c3-matcher plugins
 
-Engines are copied from ``--engines`` (default: the configured engine directory), after
-``c3-matcher engines build`` in this (build) environment; only those of the plugins the profile
-links are copied. Needs network (PyPI) here, never on the target.
+Engines are copied from ``--engines`` (none without it), after ``c3-matcher engines build`` in
+this (build) environment; only those of the plugins the profile links are copied. Needs network
+(PyPI) here, never on the target.
 """
 
 from __future__ import annotations

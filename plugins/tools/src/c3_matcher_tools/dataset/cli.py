@@ -250,7 +250,9 @@ def _add_import(ds: Any) -> None:
         help="calibration JSON {K, distortion, image_size[, camera_to_body]} (as for match)",
     )
     m.add_argument("store", type=Path, help="MBTiles store the candidates are proposed from")
-    m.add_argument("out", type=Path, help="dataset directory to write (must not exist)")
+    m.add_argument(
+        "out", type=Path, help="dataset directory to write (an existing one only with --force)"
+    )
     m.add_argument(
         "--uncertainty-m",
         type=non_negative_float(),
