@@ -50,7 +50,7 @@ def test_the_handler_gets_the_context_the_command_line_built(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     import c3_matcher.cli as cli
-    from c3_matcher.commands import CommandContext
+    from c3_matcher.context import CommandContext
 
     seen: list[CommandContext] = []
 

@@ -14,7 +14,7 @@ from typing import Any, cast
 
 import pytest
 
-from c3_matcher.commands import CommandContext
+from c3_matcher.context import CommandContext
 from c3_matcher_tools.evaluate import _print_summary, _table_row, metrics
 from c3_matcher_tools.run import FrameOutcome
 from c3_matcher_tools.run.records import FlightRun, StrategyEval

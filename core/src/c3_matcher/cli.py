@@ -18,16 +18,9 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from c3_matcher.commands import (
-    EXIT_FAILURE,
-    EXIT_OK,
-    EXIT_USAGE,
-    CommandContext,
-    CommandRegistry,
-    Handler,
-    UsageParser,
-)
+from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegistry, UsageParser
 from c3_matcher.config import C3Settings, load_settings
+from c3_matcher.context import CommandContext, Handler
 from c3_matcher.errors import (
     C3Error,
     ConfigurationError,

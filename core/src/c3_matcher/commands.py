@@ -5,8 +5,9 @@ The core registers its flight commands (``plugins``, ``config``, ``match``,
 ``engines list|verify``) through the same registry; ground tooling (``c3-matcher-tools``) and
 third parties add theirs, or subcommands of a group such as ``engines``. A leaf command sets its
 handler with ``parser.set_defaults(handler=run)``; ``run(args, context) -> exit status``, where
-``context`` is the process's :class:`CommandContext` (settings, plugin host, output streams):
-the plugins are discovered once per process, by the command line, and every handler shares them.
+``context`` is the process's ``c3_matcher.context.CommandContext`` (settings, plugin host, output
+streams): the plugins are discovered once per process, by the command line, and every handler
+shares them.
 """
 
 from __future__ import annotations
@@ -15,51 +16,20 @@ import argparse
 import re
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, TextIO
-
-if TYPE_CHECKING:
-    from c3_matcher.config import C3Settings
-    from c3_matcher.plugins.manager import PluginHost
+from typing import Any
 
 __all__ = [
     "EXIT_FAILURE",
     "EXIT_INSUFFICIENT",
     "EXIT_OK",
     "EXIT_USAGE",
-    "CommandContext",
     "CommandRegistry",
-    "Handler",
     "add_max_keypoints_option",
     "bounded_int",
     "keypoint_budget",
 ]
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_INSUFFICIENT = 0, 1, 2, 3
-
-
-@dataclass(frozen=True)
-class CommandContext:
-    """What every command handler receives beside its arguments: the validated configuration
-    (``--config`` file < environment), the plugin host the command line was built from (its
-    profile, strategies, engine specs: discovered once per process) and the streams a command
-    writes its result (``stdout``) and its progress and diagnostics (``stderr``) to."""
-
-    settings: C3Settings
-    plugin_host: PluginHost
-    stdout: TextIO
-    stderr: TextIO
-
-    def out(self, text: str = "") -> None:
-        """One line of the command's result on ``stdout``."""
-        print(text, file=self.stdout)
-
-    def err(self, text: str) -> None:
-        """One line of progress or diagnostics on ``stderr`` (flushed)."""
-        print(text, file=self.stderr, flush=True)
-
-
-Handler = Callable[[argparse.Namespace, CommandContext], int]
 
 
 class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):

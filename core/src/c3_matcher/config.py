@@ -32,8 +32,9 @@ from c3_matcher.config_sources import (
     unknown_env_keys,
     validation_problems,
 )
+from c3_matcher.engines.providers import canonical_provider
 from c3_matcher.engines.store import default_engine_dir
-from c3_matcher.errors import ConfigurationError
+from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.plugins.types import StrategyDefaults
 
 __all__ = [
@@ -235,9 +236,6 @@ class EngineSettings(_Section):
     def _known_providers(cls, value: tuple[str, ...] | None) -> tuple[str, ...] | None:
         if value is None:
             return None
-        from c3_matcher.engines.runtime import canonical_provider
-        from c3_matcher.errors import EngineError
-
         if not value:
             raise ValueError("is empty: name at least one provider, or remove the setting")
         try:

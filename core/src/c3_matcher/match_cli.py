@@ -17,14 +17,14 @@ from c3_matcher.atomic import refuse_output_over_inputs
 from c3_matcher.commands import (
     EXIT_INSUFFICIENT,
     EXIT_USAGE,
-    CommandContext,
     CommandRegistry,
     add_max_keypoints_option,
     bounded_int,
 )
 from c3_matcher.config import C3Settings
+from c3_matcher.context import CommandContext
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
-from c3_matcher.dto.candidates import RerankResult
+from c3_matcher.dto.candidates import RerankResult, TilePixelsHandle
 from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError
 from c3_matcher.fdr import FdrOpenError, InMemoryFdr, JsonlFdrRecorder
@@ -36,7 +36,6 @@ from c3_matcher.match_inputs import (
     store_candidates,
 )
 from c3_matcher.match_viz import draw_or_report
-from c3_matcher.protocols import TilePixelsHandle
 from c3_matcher.serialize import result_to_json
 
 __all__ = ["register_match_command"]

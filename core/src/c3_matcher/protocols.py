@@ -20,6 +20,7 @@ from c3_matcher.dto import (
     NavCameraFrame,
     RansacResult,
     RerankResult,
+    TilePixelsHandle,
 )
 from c3_matcher.features import PairSide, RawMatches
 
@@ -114,19 +115,6 @@ class StoredFeaturesBackend(FeatureBackend, Protocol):
 
     @property
     def max_keypoints(self) -> int: ...
-
-
-@runtime_checkable
-class TilePixelsHandle(Protocol):
-    """A reference to one tile's encoded bytes (PNG/JPEG/TIFF...) that decodes on demand.
-
-    ``encoded()`` returns a zero-copy view of the bytes (page-cache backed where the store allows);
-    ``decode()`` returns uint8 RGB (H, W, 3) pixels and raises on undecodable data.
-    """
-
-    def encoded(self) -> memoryview: ...
-
-    def decode(self) -> NDArray[np.uint8]: ...
 
 
 @runtime_checkable

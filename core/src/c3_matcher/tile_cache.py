@@ -12,11 +12,10 @@ import hashlib
 from collections import OrderedDict
 from dataclasses import dataclass
 
-from c3_matcher.dto import TileId
+from c3_matcher.dto import TileId, TilePixelsHandle
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.features import Features
 from c3_matcher.prepared import PreparedImage
-from c3_matcher.protocols import TilePixelsHandle
 
 __all__ = ["CachedTile", "TileFeatureCache", "tile_cache_key"]
 

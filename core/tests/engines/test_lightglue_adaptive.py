@@ -17,17 +17,12 @@ from loguru import logger
 from numpy.typing import NDArray
 
 from c3_matcher.engines.lightglue import (
-    STEPS_OPTION,
     OnnxLightGlueRuntime,
     steps_engines_beside,
     steps_specs,
 )
-from c3_matcher.engines.lightglue_adaptive import (
-    AdaptiveLightGlue,
-    confidence_threshold,
-    steps_engine_spec,
-    steps_io,
-)
+from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue, confidence_threshold
+from c3_matcher.engines.lightglue_specs import STEPS_OPTION, steps_engine_spec, steps_io
 from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.spec import EngineSpec, WeightsRef, matcher_spec
@@ -167,8 +162,9 @@ def test_adaptive_runtime_imports_without_torch() -> None:
         "import sys\n"
         "for name in ('torch', 'kornia', 'onnxscript'):\n"
         "    sys.modules[name] = None\n"
-        "import c3_matcher.engines.lightglue_adaptive as m\n"
+        "import c3_matcher.engines.lightglue_adaptive\n"
         "import c3_matcher.engines.lightglue\n"
+        "import c3_matcher.engines.lightglue_specs as m\n"
         "assert callable(m.steps_engine_spec)\n"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)

@@ -4,13 +4,26 @@ from __future__ import annotations
 
 import uuid
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
 
 from c3_matcher import _validate as v
 from c3_matcher.dto.geo import TileId
 
-if TYPE_CHECKING:
-    from c3_matcher.protocols import TilePixelsHandle
+
+@runtime_checkable
+class TilePixelsHandle(Protocol):
+    """A reference to one tile's encoded bytes (PNG/JPEG/TIFF...) that decodes on demand.
+
+    ``encoded()`` returns a zero-copy view of the bytes (page-cache backed where the store allows);
+    ``decode()`` returns uint8 RGB (H, W, 3) pixels and raises on undecodable data.
+    """
+
+    def encoded(self) -> memoryview: ...
+
+    def decode(self) -> NDArray[np.uint8]: ...
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,8 +19,9 @@ from c3_matcher.engines.store import BUILD_COMMAND, EngineStore, VerifyOutcome
 from c3_matcher.errors import EngineError
 
 if TYPE_CHECKING:
-    from c3_matcher.commands import CommandContext, CommandRegistry
+    from c3_matcher.commands import CommandRegistry
     from c3_matcher.config import C3Settings
+    from c3_matcher.context import CommandContext
     from c3_matcher.plugins.manager import PluginHost
 
 __all__ = ["EnginesCliContext", "engines_context", "figures", "register_engines_commands"]

@@ -35,6 +35,7 @@ from loguru import logger
 from numpy.typing import NDArray
 
 from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
+from c3_matcher.engines.lightglue_specs import STEPS_OPTION
 from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file, read_manifest
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.engines.store import EngineStore
@@ -45,7 +46,6 @@ from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
 __all__ = [
     "DEFAULT_FILTER_THRESHOLD",
     "LIGHTGLUE_MODES",
-    "STEPS_OPTION",
     "OnnxLightGlueRuntime",
     "normalize_keypoints",
     "resolve_mode",
@@ -114,10 +114,6 @@ def _check_pair(
     width, height = size
     if width <= 0 or height <= 0:
         raise ValueError(f"size{side} must be (width, height) > 0, got {size}")
-
-
-STEPS_OPTION = ("pruning", "steps")
-"""The manifest option that marks a steps engine (``lightglue_adaptive.steps_engine_spec``)."""
 
 
 def steps_engines_beside(

@@ -41,82 +41,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.engines.lightglue_specs import UPSTREAM_DEPTH_CONFIDENCE, UPSTREAM_WIDTH_CONFIDENCE
+
 __all__ = [
-    "STEPS_INPUTS",
-    "STEPS_OUTPUTS",
-    "UPSTREAM_DEPTH_CONFIDENCE",
-    "UPSTREAM_WIDTH_CONFIDENCE",
     "AdaptiveLightGlue",
     "AdaptiveResult",
     "confidence_threshold",
-    "steps_engine_spec",
-    "steps_io",
 ]
-
-UPSTREAM_DEPTH_CONFIDENCE = 0.95
-"""Upstream LightGlue's early-exit confidence (``depth_confidence``), its default."""
-UPSTREAM_WIDTH_CONFIDENCE = 0.99
-"""Upstream LightGlue's point-pruning confidence (``width_confidence``), its default."""
 
 RunFn = Callable[[Mapping[str, NDArray[Any]]], Mapping[str, NDArray[Any]]]
 """Runs the steps graph on a full feed dict and returns its outputs by name."""
-
-STEPS_INPUTS = (
-    "desc0",
-    "desc1",
-    "kpts0",
-    "kpts1",
-    "state0",
-    "state1",
-    "layer",
-    "final0",
-    "final1",
-    "final_layer",
-)
-STEPS_OUTPUTS = (
-    "proj0",
-    "proj1",
-    "out0",
-    "out1",
-    "confidence0",
-    "confidence1",
-    "matchability0",
-    "matchability1",
-    "matches0",
-    "mscores0",
-)
-
-
-def steps_io(input_dim: int, descriptor_dim: int) -> tuple[tuple[Any, ...], tuple[Any, ...]]:
-    """Declared (inputs, outputs) ``TensorSpec`` tuples of a steps engine."""
-    from c3_matcher.engines.spec import TensorSpec
-
-    c = descriptor_dim
-    inputs = (
-        TensorSpec("desc0", "float32", (1, "num_desc0", input_dim)),
-        TensorSpec("desc1", "float32", (1, "num_desc1", input_dim)),
-        TensorSpec("kpts0", "float32", (1, "num_state0", 2)),
-        TensorSpec("kpts1", "float32", (1, "num_state1", 2)),
-        TensorSpec("state0", "float32", (1, "num_state0", c)),
-        TensorSpec("state1", "float32", (1, "num_state1", c)),
-        TensorSpec("layer", "int64", (1,)),
-        TensorSpec("final0", "float32", (1, "num_final0", c)),
-        TensorSpec("final1", "float32", (1, "num_final1", c)),
-        TensorSpec("final_layer", "int64", (1,)),
-    )
-    outputs = (
-        TensorSpec("proj0", "float32", (1, "num_desc0", c)),
-        TensorSpec("proj1", "float32", (1, "num_desc1", c)),
-        TensorSpec("out0", "float32", (1, "num_state0", c)),
-        TensorSpec("out1", "float32", (1, "num_state1", c)),
-        TensorSpec("confidence0", "float32", ("num_state0",)),
-        TensorSpec("confidence1", "float32", ("num_state1",)),
-        TensorSpec("matchability0", "float32", ("num_state0",)),
-        TensorSpec("matchability1", "float32", ("num_state1",)),
-        TensorSpec("matches0", "int64", ("num_final0",)),
-        TensorSpec("mscores0", "float32", ("num_final0",)),
-    )
-    return inputs, outputs
 
 
 def confidence_threshold(layer_index: int, n_layers: int) -> np.float32:
@@ -331,43 +265,4 @@ def _result(
         side1.kept,
         matched,
         unmatchable,
-    )
-
-
-def steps_engine_spec(
-    full: Any, *, exporter: str, description: str, descriptor_dim: int = 256
-) -> Any:
-    """The ``EngineSpec`` of the steps engine of the single-graph LightGlue ``full`` (same model,
-    weights, feature type, ``input_dim`` and ``n_layers``; variant ``"<feature_type>-steps"``,
-    option ``("pruning", "steps")``, by which ``OnnxLightGlueRuntime`` finds it among the
-    manifests). ``descriptor_dim`` is the transformer's width; the early-exit and pruning
-    settings are upstream LightGlue's defaults (``UPSTREAM_*_CONFIDENCE``). The
-    plugin that declares it names its own ``exporter`` (``"module:callable"``); a feature type
-    whose plugin declares none runs its full graph."""
-    from c3_matcher.engines.spec import EngineSpec
-
-    feature_type = str(full.feature_type)
-    input_dim = int(full.option("input_dim"))
-    n_layers = int(full.option("n_layers"))
-    inputs, outputs = steps_io(input_dim, descriptor_dim)
-    return EngineSpec(
-        model=full.model,
-        variant=f"{feature_type}-steps",
-        weights=full.weights,
-        exporter=exporter,
-        kind="matcher",
-        inputs=inputs,
-        outputs=outputs,
-        input_rule="kpdyn",
-        options=(
-            ("input_dim", input_dim),
-            ("descriptor_dim", descriptor_dim),
-            ("n_layers", n_layers),
-            ("pruning", "steps"),
-            ("depth_confidence", UPSTREAM_DEPTH_CONFIDENCE),
-            ("width_confidence", UPSTREAM_WIDTH_CONFIDENCE),
-        ),
-        export_revision=2,  # 2: fused attention (ONNX Runtime MultiHeadAttention)
-        feature_type=feature_type,
-        description=description,
     )

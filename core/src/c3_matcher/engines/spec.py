@@ -22,9 +22,7 @@ __all__ = [
     "WeightsRef",
     "extractor_spec",
     "file_sha256",
-    "lightglue_engine_specs",
     "lightglue_io",
-    "lightglue_spec",
     "matcher_spec",
 ]
 
@@ -260,65 +258,3 @@ def matcher_spec(
         feature_type=feature_type,
         description=description,
     )
-
-
-LIGHTGLUE_LAYERS = 9
-"""Layers of upstream LightGlue (its pretrained weights for every extractor)."""
-
-
-def lightglue_spec(
-    feature_type: str,
-    *,
-    weights: WeightsRef,
-    exporter: str,
-    descriptor_dim: int,
-    description: str,
-    export_revision: int = 2,
-) -> EngineSpec:
-    """The ``EngineSpec`` ``lightglue/<feature_type>`` of upstream LightGlue for one extractor:
-    ``LIGHTGLUE_LAYERS`` layers over ``descriptor_dim``-wide descriptors, adaptive pruning off
-    (the match threshold is applied at run time). Export revision 2: fused attention (ONNX
-    Runtime MultiHeadAttention)."""
-    return matcher_spec(
-        model="lightglue",
-        variant=feature_type,
-        weights=weights,
-        exporter=exporter,
-        feature_type=feature_type,
-        descriptor_dim=descriptor_dim,
-        options=(
-            ("input_dim", descriptor_dim),
-            ("n_layers", LIGHTGLUE_LAYERS),
-            ("pruning", "off"),
-        ),
-        description=description,
-        export_revision=export_revision,
-    )
-
-
-def lightglue_engine_specs(
-    feature_type: str, *, weights: WeightsRef, exporters: str, descriptor_dim: int
-) -> tuple[EngineSpec, EngineSpec]:
-    """Upstream LightGlue for the features ``feature_type`` as its two engines: the single graph
-    ``lightglue/<feature_type>`` (``lightglue_spec``) and its steps engine
-    ``lightglue/<feature_type>-steps`` (early exit and point pruning, on ONNX Runtime).
-    ``exporters`` is the plugin's build-time module holding ``export_lightglue_<feature_type>``
-    and ``export_lightglue_<feature_type>_steps``."""
-    from c3_matcher.engines.lightglue_adaptive import steps_engine_spec
-
-    exporter = f"{exporters}:export_lightglue_{feature_type}"
-    label = feature_type.upper()
-    full = lightglue_spec(
-        feature_type,
-        weights=weights,
-        exporter=exporter,
-        descriptor_dim=descriptor_dim,
-        description=f"LightGlue for {label}, {LIGHTGLUE_LAYERS} layers, no adaptive pruning, "
-        "threshold applied at run time",
-    )
-    steps = steps_engine_spec(
-        full,
-        exporter=f"{exporter}_steps",
-        description=f"LightGlue for {label} in steps: upstream early exit and point pruning",
-    )
-    return full, steps

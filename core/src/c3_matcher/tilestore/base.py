@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from c3_matcher.dto import RerankCandidate, TileId
-from c3_matcher.protocols import TilePixelsHandle
+from c3_matcher.dto import RerankCandidate, TileId, TilePixelsHandle
 from c3_matcher.tilestore.geo import TILE_PX, world_px_to_lonlat
 from c3_matcher.tilestore.handles import (
     MosaicTileHandle,

@@ -22,7 +22,8 @@ loaded with the same state dict, top-K mode, on the real verification image at e
 
 from __future__ import annotations
 
-from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, lightglue_engine_specs
+from c3_matcher.engines.lightglue_specs import lightglue_engine_specs
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec
 
 __all__ = [
     "ALIKED_DESCRIPTOR_DIM",

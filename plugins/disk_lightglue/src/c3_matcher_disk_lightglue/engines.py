@@ -16,7 +16,8 @@ the flattened map padded with K zeros, so images with fewer than K pixels work t
 
 from __future__ import annotations
 
-from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec, lightglue_engine_specs
+from c3_matcher.engines.lightglue_specs import lightglue_engine_specs
+from c3_matcher.engines.spec import EngineSpec, WeightsRef, extractor_spec
 
 __all__ = [
     "DISK_SIZE_MULTIPLE",

@@ -38,13 +38,13 @@ from typing import Any, Literal
 
 from c3_matcher.commands import (
     EXIT_USAGE,
-    CommandContext,
     CommandRegistry,
     add_max_keypoints_option,
     bounded_int,
     keypoint_budget,
 )
 from c3_matcher.config import C3Settings
+from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.bench_report import comparisons, format_report

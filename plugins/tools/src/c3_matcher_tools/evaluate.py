@@ -73,12 +73,12 @@ from c3_matcher.atomic import write_text_atomically
 from c3_matcher.commands import (
     EXIT_FAILURE,
     EXIT_OK,
-    CommandContext,
     CommandRegistry,
     add_max_keypoints_option,
     bounded_int,
 )
 from c3_matcher.config import C3Settings
+from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr import FdrOpenError
 from c3_matcher.plugins.manager import PluginHost

@@ -30,12 +30,8 @@ from pathlib import Path
 from typing import Any
 
 from c3_matcher.atomic import write_text_atomically
-from c3_matcher.commands import (
-    CommandContext,
-    CommandRegistry,
-    add_max_keypoints_option,
-    bounded_int,
-)
+from c3_matcher.commands import CommandRegistry, add_max_keypoints_option, bounded_int
+from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_noise
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar

@@ -12,7 +12,8 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
-from c3_matcher.commands import CommandContext, CommandRegistry, bounded_int
+from c3_matcher.commands import CommandRegistry, bounded_int
+from c3_matcher.context import CommandContext
 from c3_matcher.engines.cli import EnginesCliContext, engines_context, figures
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.engines.store import EngineStore

@@ -8,14 +8,8 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from c3_matcher.commands import (
-    EXIT_FAILURE,
-    EXIT_OK,
-    EXIT_USAGE,
-    CommandContext,
-    CommandRegistry,
-    bounded_int,
-)
+from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegistry, bounded_int
+from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.features.build import WINDOW_PX_RANGE
 

@@ -9,7 +9,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import CommandContext, CommandRegistry
+from c3_matcher.commands import CommandRegistry
+from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.progress import ProgressBar
 

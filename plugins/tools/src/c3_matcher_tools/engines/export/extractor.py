@@ -100,8 +100,8 @@ def export_extractor(
         module,
         (torch.rand(1, 3, 256, 320), torch.ones(1, 1, 256, 320)),
         request.output_path,
-        input_names=["image", "mask"],
-        output_names=["keypoints", "keypoint_scores", "descriptors"],
+        input_names=[t.name for t in request.spec.inputs],
+        output_names=[t.name for t in request.spec.outputs],
         dynamic_shapes={
             "image": {2: multiple * rows, 3: multiple * cols},
             "mask": {2: multiple * rows, 3: multiple * cols},

@@ -329,8 +329,8 @@ def _export_graph(request: ExportRequest, reference: LightGlue, input_dim: int) 
         LightGlueForExport(fused_attention_copy(reference)),
         example,
         request.output_path,
-        input_names=["kpts0", "kpts1", "desc0", "desc1"],
-        output_names=["matches0", "mscores0"],
+        input_names=[t.name for t in request.spec.inputs],
+        output_names=[t.name for t in request.spec.outputs],
         dynamic_shapes={
             "kpts0": {1: num0},
             "kpts1": {1: num1},

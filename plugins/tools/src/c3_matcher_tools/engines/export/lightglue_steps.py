@@ -30,12 +30,7 @@ from torch.func import functional_call
 from torch.nn import functional as nnf
 
 from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, normalize_keypoints
-from c3_matcher.engines.lightglue_adaptive import (
-    STEPS_INPUTS,
-    STEPS_OUTPUTS,
-    AdaptiveLightGlue,
-    AdaptiveResult,
-)
+from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue, AdaptiveResult
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
 from c3_matcher_tools.engines.export.lightglue import (
@@ -235,8 +230,8 @@ def _export_steps_graph(request: ExportRequest, reference: Any) -> None:
         module,
         _steps_example(int(conf.input_dim), int(conf.descriptor_dim)),
         request.output_path,
-        input_names=list(STEPS_INPUTS),
-        output_names=list(STEPS_OUTPUTS),
+        input_names=[t.name for t in request.spec.inputs],
+        output_names=[t.name for t in request.spec.outputs],
         dynamic_shapes=dynamic_shapes,
         opset=request.spec.opset,
         translations=ONNX_TRANSLATIONS,

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.config import C3Settings
-from c3_matcher.engines.lightglue_adaptive import (
+from c3_matcher.engines.lightglue_specs import (
     UPSTREAM_DEPTH_CONFIDENCE,
     UPSTREAM_WIDTH_CONFIDENCE,
 )
