@@ -10,7 +10,8 @@ import sys
 from collections.abc import Iterable
 from pathlib import Path
 
-from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
+from c3_matcher_tools.dataset.flight import render_flight
+from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.tilestore.build import BuildReport, build_mbtiles
 

@@ -28,7 +28,7 @@ from pathlib import Path
 
 from flight_kit import NAIP, NAIP_CREDIT, build_store, render, unknown_flights
 
-from c3_matcher_tools.dataset.flight import FlightSpec
+from c3_matcher_tools.dataset.flight_spec import FlightSpec
 
 DATES = {
     "2010": "m_4709963_se_14_1_20100629.tif",

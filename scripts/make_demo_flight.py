@@ -26,7 +26,7 @@ from pathlib import Path
 
 from flight_kit import NAIP, NAIP_CREDIT, build_store, render
 
-from c3_matcher_tools.dataset.flight import FlightSpec
+from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.progress import ProgressBar
 
 

@@ -38,7 +38,7 @@ import numpy as np
 import rasterio
 from flight_kit import IMAGERY, NAIP, NAIP_CREDIT, build_store, render, unknown_flights
 
-from c3_matcher_tools.dataset.flight import FlightSpec
+from c3_matcher_tools.dataset.flight_spec import FlightSpec
 
 NAIP_2020 = NAIP / "m_4709963_se_14_1_20200831.tif"
 GORINCHEM = IMAGERY / "open_orthophotos" / "test_tiled.tif"

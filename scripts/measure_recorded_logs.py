@@ -19,6 +19,11 @@ from pathlib import Path
 
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.testing import flightlogs as fl
+from c3_matcher_tools.testing.flightlogs.dataflash import write_dataflash
+from c3_matcher_tools.testing.flightlogs.exif import write_exif_photos
+from c3_matcher_tools.testing.flightlogs.mavlink import write_tlog
+from c3_matcher_tools.testing.flightlogs.rosbag import write_bag
+from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -50,16 +55,16 @@ def main() -> None:
         shutil.copyfile(pose.image, images / f"IMG_{i:04d}.jpg")
     cal, store = str(DEMO / "calibration.json"), str(DEMO / "tiles.mbtiles")
     sources = {
-        "PX4 ULog": [str(images), str(fl.write_ulog(out / "f.ulg", poses)), cal],
-        "ArduPilot tlog": [str(images), str(fl.write_tlog(out / "f.tlog", poses)), cal],
-        "ArduPilot DataFlash": [str(images), str(fl.write_dataflash(out / "f.bin", poses)), cal],
-        "ROS 2 bag sqlite3": ["-", str(fl.write_bag(out / "bag1", poses, calibration)), "-"],
+        "PX4 ULog": [str(images), str(write_ulog(out / "f.ulg", poses)), cal],
+        "ArduPilot tlog": [str(images), str(write_tlog(out / "f.tlog", poses)), cal],
+        "ArduPilot DataFlash": [str(images), str(write_dataflash(out / "f.bin", poses)), cal],
+        "ROS 2 bag sqlite3": ["-", str(write_bag(out / "bag1", poses, calibration)), "-"],
         "ROS 2 bag MCAP": [
             "-",
-            str(fl.write_bag(out / "bag2", poses, calibration, storage="mcap", compressed=False)),
+            str(write_bag(out / "bag2", poses, calibration, storage="mcap", compressed=False)),
             "-",
         ],
-        "photo EXIF/XMP": [str(fl.write_exif_photos(out / "photos", poses)), "-", cal],
+        "photo EXIF/XMP": [str(write_exif_photos(out / "photos", poses)), "-", cal],
     }
     for n, (label, head) in enumerate(sources.items()):
         flight = out / f"flight{n}"

@@ -13,12 +13,14 @@ import pytest
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.mbtiles import MBTilesStore
-from c3_matcher_tools.dataset.flight import FlightSpec, render_flight, store_reference
+from c3_matcher_tools.dataset.flight import render_flight
+from c3_matcher_tools.dataset.flight_scene import store_reference
+from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.format import FORMAT, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.tilestore.build import build_mbtiles
-from c3_matcher_tools.tilestore.geo import Projection
+from c3_matcher_tools.tilestore.projection import Projection
 
 REPO = Path(__file__).resolve().parents[3]
 NAIP = REPO / "data" / "imagery" / "naip_timeseries"

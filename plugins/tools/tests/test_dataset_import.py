@@ -17,6 +17,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.georef import haversine_m
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.importer import ImportSpec, import_flight
+from c3_matcher_tools.dataset.sources.options import ProposalOptions
 from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[3]
@@ -45,7 +46,8 @@ def _recorded(root: Path, frames: range = range(6)) -> tuple[Path, Path]:
 
 
 def _spec(images: Path, csv: Path, **kw: object) -> ImportSpec:
-    return ImportSpec(images, csv, DEMO / "calibration.json", DEMO / "tiles.mbtiles", **kw)  # type: ignore[arg-type]
+    proposal = ProposalOptions(DEMO / "tiles.mbtiles", **kw)  # type: ignore[arg-type]
+    return ImportSpec(images, csv, DEMO / "calibration.json", proposal)
 
 
 def test_import_builds_truth_free_dataset(tmp_path: Path) -> None:

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from c3_matcher.georef import haversine_m
-from c3_matcher_tools.tilestore.geo import Projection, read_geotiff_grid
+from c3_matcher_tools.tilestore.geo import read_geotiff_grid
+from c3_matcher_tools.tilestore.projection import Projection
 
 REPO = Path(__file__).resolve().parents[3]
 ORTHO = REPO / "data" / "imagery" / "open_orthophotos"

@@ -29,6 +29,11 @@ from c3_matcher_tools.dataset.sources.track import (
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.cli import run_cli
+from c3_matcher_tools.testing.flightlogs.dataflash import write_dataflash
+from c3_matcher_tools.testing.flightlogs.exif import write_exif_photos
+from c3_matcher_tools.testing.flightlogs.mavlink import write_tlog
+from c3_matcher_tools.testing.flightlogs.rosbag import write_bag
+from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -88,7 +93,7 @@ def poses() -> list[fl.Pose]:
 def test_ulog_imports_replays_and_reports_error_against_gnss(
     poses: list[fl.Pose], engine_dir: Path, tmp_path: Path
 ) -> None:
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=("gnss_loss",))
+    log = write_ulog(tmp_path / "flight.ulg", poses, flaws=("gnss_loss",))
     images = _images(tmp_path, poses)
     flight = tmp_path / "flight"
     proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(flight))
@@ -114,7 +119,7 @@ def test_ulog_imports_replays_and_reports_error_against_gnss(
 def test_ulog_frames_without_attitude_are_imported_and_marked(
     poses: list[fl.Pose], tmp_path: Path
 ) -> None:
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses)
+    log = write_ulog(tmp_path / "flight.ulg", poses)
     images = _images(tmp_path, poses)
     flight = tmp_path / "flight"
     # one second after each trigger the attitude (one sample per frame) is 1 s away
@@ -147,7 +152,7 @@ def test_bad_ulog_is_refused_with_one_line(
     poses: list[fl.Pose], tmp_path: Path, flaws: tuple[str, ...], extra: tuple[str, ...],
     needles: tuple[str, ...],
 ) -> None:  # fmt: skip
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=flaws)
+    log = write_ulog(tmp_path / "flight.ulg", poses, flaws=flaws)
     images = _images(tmp_path, poses)
     out = tmp_path / "flight"
     _refused(c3("dataset", "import", str(images), str(log), CAL, STORE, str(out), *extra), *needles)
@@ -174,7 +179,7 @@ def test_real_px4_log_is_read_with_its_topics_and_units() -> None:
 def test_ardupilot_logs_import_and_replay(
     kind: str, poses: list[fl.Pose], engine_dir: Path, tmp_path: Path
 ) -> None:
-    writer = fl.write_tlog if kind == "tlog" else fl.write_dataflash
+    writer = write_tlog if kind == "tlog" else write_dataflash
     log = writer(tmp_path / f"flight.{kind}", poses)
     images = _images(tmp_path, poses)
     flight = tmp_path / "flight"
@@ -212,7 +217,7 @@ def test_ros2_bags_import_with_recorded_intrinsics(
     storage: str, compressed: bool, poses: list[fl.Pose], engine_dir: Path, tmp_path: Path
 ) -> None:
     calibration = load_calibration(DEMO / "calibration.json")
-    bag = fl.write_bag(tmp_path / "bag", poses, calibration, storage=storage, compressed=compressed)
+    bag = write_bag(tmp_path / "bag", poses, calibration, storage=storage, compressed=compressed)
     flight = tmp_path / "flight"
     common = ["-", str(bag), "-", STORE]
     _refused(c3("dataset", "import", *common, str(flight)), "--ground-elevation")
@@ -235,9 +240,7 @@ def test_ros2_bags_import_with_recorded_intrinsics(
     assert [s.t_s for s in every_other] == pytest.approx([fl.UTC0 + p.t_s for p in poses[::2]])
     if storage == "mcap":
         _replay_near_gnss(flight, tmp_path / "replay", engine_dir)
-    no_gps = fl.write_bag(
-        tmp_path / "nogps", poses, calibration, storage=storage, flaws=("no_gps",)
-    )
+    no_gps = write_bag(tmp_path / "nogps", poses, calibration, storage=storage, flaws=("no_gps",))
     _refused(
         c3("dataset", "import", "-", str(no_gps), "-", STORE, str(tmp_path / "x")),
         "no sensor_msgs/NavSatFix topic",
@@ -247,7 +250,7 @@ def test_ros2_bags_import_with_recorded_intrinsics(
 def test_exif_photo_folder_imports_and_replays(
     poses: list[fl.Pose], engine_dir: Path, tmp_path: Path
 ) -> None:
-    photos = fl.write_exif_photos(tmp_path / "photos", poses)
+    photos = write_exif_photos(tmp_path / "photos", poses)
     shutil.copyfile(poses[0].image, photos / "ZZZ_no_gps.jpg")
     flight = tmp_path / "flight"
     proc = c3("dataset", "import", str(photos), "-", CAL, STORE, str(flight))
@@ -276,7 +279,7 @@ def test_gimbal_straight_down_is_the_default_mount_level() -> None:
 def test_ulog_with_a_video_and_a_rangefinder(poses: list[fl.Pose], tmp_path: Path) -> None:
     import cv2
 
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",), rangefinder=True)
+    log = write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",), rangefinder=True)
     video = tmp_path / "nav.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 0.5, (320, 240))
     for p in poses:  # one frame every 2 s, as the demo flight's frames
@@ -303,8 +306,8 @@ def test_ulog_with_a_video_and_a_rangefinder(poses: list[fl.Pose], tmp_path: Pat
 def test_ulog_with_photos_matched_by_exif_time(poses: list[fl.Pose], tmp_path: Path) -> None:
     import dataclasses
 
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",))
-    photos = fl.write_exif_photos(tmp_path / "photos", poses, xmp=False)
+    log = write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",))
+    photos = write_exif_photos(tmp_path / "photos", poses, xmp=False)
     flight = tmp_path / "flight"
     proc = c3("dataset", "import", str(photos), str(log), CAL, STORE, str(flight), "--json")
     assert proc.returncode == 0, proc.stderr
@@ -316,7 +319,7 @@ def test_ulog_with_photos_matched_by_exif_time(poses: list[fl.Pose], tmp_path: P
         assert f.telemetry["time_s"] == pytest.approx(fl.BOOT_S + p.t_s, abs=1e-3)
     # photos of another flight 5 km away, at the same times: refused
     away = [dataclasses.replace(p, lat=p.lat + 0.045) for p in poses]
-    other = fl.write_exif_photos(tmp_path / "other", away, xmp=False)
+    other = write_exif_photos(tmp_path / "other", away, xmp=False)
     _refused(
         c3("dataset", "import", str(other), str(log), CAL, STORE, str(tmp_path / "x")),
         "images and log of different flights",
@@ -340,7 +343,7 @@ def test_height_from_a_dem(poses: list[fl.Pose], tmp_path: Path) -> None:
             ds.write(values)
         return path
 
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses)
+    log = write_ulog(tmp_path / "flight.ulg", poses)
     images = _images(tmp_path, poses)
     west, north = poses[0].lon - 0.015, poses[0].lat + 0.02
     here = dem(tmp_path / "dem.tif", west, north)
@@ -394,7 +397,7 @@ def test_damaged_logs_are_refused_with_one_line(
 
 def test_bag_attitude_from_a_chosen_pose_topic(poses: list[fl.Pose], tmp_path: Path) -> None:
     calibration = load_calibration(DEMO / "calibration.json")
-    bag = fl.write_bag(tmp_path / "bag", poses, calibration, pose_topic=True)
+    bag = write_bag(tmp_path / "bag", poses, calibration, pose_topic=True)
     ground = ["--ground-elevation", str(fl.GROUND_M)]
     # an Imu and a PoseStamped: which one is the attitude must be said
     _refused(

@@ -26,11 +26,15 @@ from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
 from c3_matcher_tools.dataset.sources.images import folder_shots
-from c3_matcher_tools.dataset.sources.options import ImportOptions
+from c3_matcher_tools.dataset.sources.options import ImportOptions, ProposalOptions
 from c3_matcher_tools.dataset.sources.pairing import match_shots
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.cli import run_cli
+from c3_matcher_tools.testing.flightlogs.exif import write_exif_photos
+from c3_matcher_tools.testing.flightlogs.mavlink import write_tlog
+from c3_matcher_tools.testing.flightlogs.rosbag import write_bag
+from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -69,7 +73,7 @@ def _telemetry(kind: str, poses: list[fl.Pose], folder: Path) -> str:
     """TELEMETRY of ``kind``: a ULog of ``poses``, a CSV with its header only, or ``-`` (the
     photos are their own)."""
     if kind == "ulog":
-        return str(fl.write_ulog(folder / "flight.ulg", poses))
+        return str(write_ulog(folder / "flight.ulg", poses))
     if kind == "csv":
         csv = folder / "t.csv"
         csv.write_text("time_s,image,lat,lon,altitude_m,roll,pitch,yaw\n")
@@ -85,8 +89,8 @@ def poses() -> list[fl.Pose]:
 def test_a_missing_or_extra_photo_meets_its_own_trigger_by_time(
     poses: list[fl.Pose], tmp_path: Path
 ) -> None:
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses)  # one camera trigger per frame
-    photos = fl.write_exif_photos(tmp_path / "photos", poses, xmp=False)
+    log = write_ulog(tmp_path / "flight.ulg", poses)  # one camera trigger per frame
+    photos = write_exif_photos(tmp_path / "photos", poses, xmp=False)
     full = _imported(c3("dataset", "import", photos, log, CAL, STORE, tmp_path / "a", "--json"))
     assert full["time_source"] == "camera trigger (5 in the log, 5 image(s))"  # as before
     (photos / "DJI_0002.JPG").rename(tmp_path / "DJI_0002.JPG")  # the camera missed one
@@ -106,7 +110,7 @@ def test_a_missing_or_extra_photo_meets_its_own_trigger_by_time(
     # back in, and a stray photo half a second after the second one: 6 photos, 5 triggers
     (tmp_path / "DJI_0002.JPG").rename(photos / "DJI_0002.JPG")
     stray = dataclasses.replace(poses[1], t_s=poses[1].t_s + 0.5)
-    fl.write_exif_photos(tmp_path / "stray", [stray], names="DJI_0001b.JPG", xmp=False)
+    write_exif_photos(tmp_path / "stray", [stray], names="DJI_0001b.JPG", xmp=False)
     shutil.copyfile(tmp_path / "stray" / "DJI_0001b.JPG", photos / "DJI_0001b.JPG")
     more = _imported(c3("dataset", "import", photos, log, CAL, STORE, tmp_path / "m", "--json"))
     assert more["frames"] == 5 and more["time_source"].endswith(
@@ -125,7 +129,7 @@ def test_a_missing_or_extra_photo_meets_its_own_trigger_by_time(
 def test_untimed_images_and_a_different_trigger_count_are_refused_or_paired_as_asked(
     poses: list[fl.Pose], tmp_path: Path
 ) -> None:
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses[:4])  # 4 triggers
+    log = write_ulog(tmp_path / "flight.ulg", poses[:4])  # 4 triggers
     images = _plain(tmp_path / "images", poses)  # 5 images, none with a capture time
     common = (images, log, CAL, STORE)
     _refused(
@@ -159,10 +163,10 @@ def test_untimed_images_and_a_different_trigger_count_are_refused_or_paired_as_a
 def test_the_refusal_names_exif_only_where_it_would_work(
     poses: list[fl.Pose], tmp_path: Path
 ) -> None:
-    track = read_ulog(fl.write_ulog(tmp_path / "flight.ulg", poses[:4]))
-    photos = fl.write_exif_photos(tmp_path / "photos", poses, xmp=False)  # 5 timed photos
+    track = read_ulog(write_ulog(tmp_path / "flight.ulg", poses[:4]))
+    photos = write_exif_photos(tmp_path / "photos", poses, xmp=False)  # 5 timed photos
     shutil.copyfile(poses[0].image, photos / "DJI_0001.JPG")  # its time gone
-    options = ImportOptions(load_calibration(Path(CAL)), Path(STORE))
+    options = ImportOptions(load_calibration(Path(CAL)), ProposalOptions(Path(STORE)))
     shots = folder_shots(photos)
     with pytest.raises(InvalidInputError) as partly:
         match_shots(track, shots, options)
@@ -184,7 +188,7 @@ def test_a_video_keeps_its_own_clock_beside_camera_triggers(
 ) -> None:
     import cv2
 
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses[:4])  # 4 camera triggers
+    log = write_ulog(tmp_path / "flight.ulg", poses[:4])  # 4 camera triggers
     video = tmp_path / "nav.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter.fourcc(*"MJPG"), 1.0, (320, 240))
     for p in poses[:4]:  # one frame a second, each frame twice (the frames are 2 s apart)
@@ -213,8 +217,8 @@ def test_a_video_keeps_its_own_clock_beside_camera_triggers(
 def test_a_partly_timed_folder_says_how_many_lack_a_time(
     poses: list[fl.Pose], tmp_path: Path
 ) -> None:
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",))
-    photos = fl.write_exif_photos(tmp_path / "photos", poses, xmp=False)
+    log = write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",))
+    photos = write_exif_photos(tmp_path / "photos", poses, xmp=False)
     for k in (1, 3):  # two photos without EXIF
         shutil.copyfile(poses[k].image, photos / f"DJI_{k:04d}.JPG")
     _refused(
@@ -244,7 +248,7 @@ def test_a_partly_timed_folder_says_how_many_lack_a_time(
 def test_frame_step_with_a_folder_is_refused(
     poses: list[fl.Pose], tmp_path: Path, telemetry: str, step: str, needle: str
 ) -> None:
-    photos = fl.write_exif_photos(tmp_path / "photos", poses[:2])
+    photos = write_exif_photos(tmp_path / "photos", poses[:2])
     telemetry = _telemetry(telemetry, poses[:2], tmp_path)
     out = tmp_path / "x"
     _refused(
@@ -279,10 +283,11 @@ def test_a_truncated_jpeg_is_refused_by_every_path_quietly(
     ]
     csv = tmp_path / "telemetry.csv"
     csv.write_text("\n".join(rows) + "\n")
+    spec = ImportSpec(images, csv, Path(CAL), ProposalOptions(Path(STORE)))
     with pytest.raises(InvalidInputError, match="line 3: IMG_0001.jpg: not a readable image"):
-        import_csv_flight(ImportSpec(images, csv, Path(CAL), Path(STORE)), tmp_path / "a")
+        import_csv_flight(spec, tmp_path / "a")
     assert capfd.readouterr().err == ""  # nothing printed beside the refusal
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses[:2])
+    log = write_ulog(tmp_path / "flight.ulg", poses[:2])
     (images / "IMG_0000.jpg").write_bytes(b"not a jpeg")  # exifread: "format not recognized"
     _refused(
         c3("dataset", "import", images, log, CAL, STORE, tmp_path / "b"),
@@ -297,7 +302,7 @@ def test_a_photo_folder_skips_an_untimed_photo_among_timed_ones(
     one was placed at 1970 + its file index, first in the flight; it is skipped, saying why."""
     import piexif
 
-    photos = fl.write_exif_photos(tmp_path / "photos", poses)
+    photos = write_exif_photos(tmp_path / "photos", poses)
     for k in (1, 3):  # their GPS kept, their capture time removed
         path = photos / f"DJI_{k:04d}.JPG"
         exif = piexif.load(str(path))
@@ -323,7 +328,7 @@ def test_a_damaged_ulog_is_named_as_damaged_and_its_reader_keeps_off_stdout(
     """pyulog prints "File corruption detected ..." on stdout (where ``--json`` goes) and the
     refusal blamed a missing topic; stdout now stays clean and the refusal says what pyulog
     found."""
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses)
+    log = write_ulog(tmp_path / "flight.ulg", poses)
     cut = tmp_path / "cut.ulg"
     cut.write_bytes(log.read_bytes()[:100])
     photos = _plain(tmp_path / "photos", poses)
@@ -333,7 +338,8 @@ def test_a_damaged_ulog_is_named_as_damaged_and_its_reader_keeps_off_stdout(
 
 
 def _options(**kw: object) -> ImportOptions:
-    return ImportOptions(load_calibration(Path(CAL)), Path(STORE), **kw)  # type: ignore[arg-type]
+    proposal = ProposalOptions(Path(STORE))
+    return ImportOptions(load_calibration(Path(CAL)), proposal, **kw)  # type: ignore[arg-type]
 
 
 def test_a_ulog_without_attitude_is_imported_level_and_marked(
@@ -341,8 +347,8 @@ def test_a_ulog_without_attitude_is_imported_level_and_marked(
 ) -> None:
     """The help says frames without attitude are imported and marked: a log without any
     attitude topic was refused instead."""
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses[:3], flaws=("no_attitude",))
-    photos = fl.write_exif_photos(tmp_path / "photos", poses[:3], xmp=False)
+    log = write_ulog(tmp_path / "flight.ulg", poses[:3], flaws=("no_attitude",))
+    photos = write_exif_photos(tmp_path / "photos", poses[:3], xmp=False)
     flight = tmp_path / "flight"
     summary = _imported(c3("dataset", "import", photos, log, CAL, STORE, flight, "--json"))
     assert summary["frames"] == 3 and summary["attitude_assumed"] == [0, 1, 2]
@@ -357,7 +363,7 @@ def test_an_ardupilot_log_without_attitude_is_read_and_says_so(
 ) -> None:
     from c3_matcher_tools.dataset.sources.mavlink import read_mavlink
 
-    track = read_mavlink(fl.write_tlog(tmp_path / "f.tlog", poses[:3], flaws=("no_attitude",)))
+    track = read_mavlink(write_tlog(tmp_path / "f.tlog", poses[:3], flaws=("no_attitude",)))
     assert track.attitude is None and track.gnss is not None
     assert track.notes[0].startswith("no ATT / ATTITUDE message: every frame's attitude")
 
@@ -371,7 +377,7 @@ def test_a_bag_without_attitude_is_read_level_and_says_so(
     from c3_matcher_tools.dataset.sources.rosbag import NO_ATTITUDE, read_bag
 
     calibration = load_calibration(Path(CAL))
-    bag = fl.write_bag(tmp_path / "bag", poses[:3], calibration, flaws=("no_imu",))
+    bag = write_bag(tmp_path / "bag", poses[:3], calibration, flaws=("no_imu",))
     track, shots, _ = read_bag(bag)
     assert track.attitude is None and len(shots) == 3 and NO_ATTITUDE in track.notes
     flight = tmp_path / "flight"
@@ -389,7 +395,7 @@ def test_a_bag_with_a_pose_topic_and_no_imu_takes_its_attitude_from_the_pose(
     from c3_matcher_tools.dataset.sources.rosbag import read_bag
 
     calibration = load_calibration(Path(CAL))
-    bag = fl.write_bag(tmp_path / "bag", poses[:3], calibration, flaws=("no_imu",), pose_topic=True)
+    bag = write_bag(tmp_path / "bag", poses[:3], calibration, flaws=("no_imu",), pose_topic=True)
     track, shots, _ = read_bag(bag)
     assert track.attitude is not None and track.attitude.name == "/vehicle/pose"
     assert len(shots) == 3
@@ -403,8 +409,8 @@ def test_time_offset_corrects_the_camera_clock_where_photos_meet_triggers_by_tim
     """Photos 30 s ahead of the log's clock, as many as the triggers: ``--time-offset -30``
     (seconds added to the images' times) moved the trigger times instead, off the log."""
     ahead = [dataclasses.replace(p, t_s=p.t_s + 30.0) for p in poses]
-    photos = fl.write_exif_photos(tmp_path / "photos", ahead, xmp=False)
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses)
+    photos = write_exif_photos(tmp_path / "photos", ahead, xmp=False)
+    log = write_ulog(tmp_path / "flight.ulg", poses)
     flight = tmp_path / "f"
     args = ("dataset", "import", photos, log, CAL, STORE, flight, "--time-offset", "-30")
     summary = _imported(c3(*args, "--json"))
@@ -424,8 +430,8 @@ def test_an_image_outside_the_log_is_said_to_be_there_with_the_offset_added(
     poses: list[fl.Pose], tmp_path: Path
 ) -> None:
     ahead = [dataclasses.replace(p, t_s=p.t_s + 30.0) for p in poses]
-    photos = fl.write_exif_photos(tmp_path / "photos", ahead, xmp=False)
-    track = read_ulog(fl.write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",)))
+    photos = write_exif_photos(tmp_path / "photos", ahead, xmp=False)
+    track = read_ulog(write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",)))
     taken, skipped, _ = match_shots(track, folder_shots(photos), _options(time_offset_s=-27.0))
     assert len(taken) == 4
     assert skipped == [
@@ -443,8 +449,8 @@ def test_photos_meet_as_many_triggers_by_capture_time_not_file_name(
     """File names that do not sort in capture order (a camera's counter wrapped): the photos
     take the triggers in the order of their own times, with or without UTC in the log; in file
     order only when asked (``--time-source trigger``)."""
-    photos = fl.write_exif_photos(tmp_path / "photos", poses[::-1], xmp=False)  # 0000 is last
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses)
+    photos = write_exif_photos(tmp_path / "photos", poses[::-1], xmp=False)  # 0000 is last
+    log = write_ulog(tmp_path / "flight.ulg", poses)
     flight = tmp_path / "f"
     summary = _imported(c3("dataset", "import", photos, log, CAL, STORE, flight, "--json"))
     assert summary["frames"] == 5 and summary["skipped"] == []
@@ -462,7 +468,7 @@ def test_photos_meet_as_many_triggers_by_capture_time_not_file_name(
 
 
 def test_a_copied_photo_is_imported_once_naming_both(poses: list[fl.Pose], tmp_path: Path) -> None:
-    photos = fl.write_exif_photos(tmp_path / "photos", poses[:3])
+    photos = write_exif_photos(tmp_path / "photos", poses[:3])
     shutil.copyfile(photos / "DJI_0001.JPG", photos / "DJI_0001_copy.JPG")
     reason = "a copy of DJI_0001.JPG (the same bytes): imported once, as DJI_0001.JPG"
     own = _imported(c3("dataset", "import", photos, "-", CAL, STORE, tmp_path / "a", "--json"))
@@ -473,7 +479,7 @@ def test_a_copied_photo_is_imported_once_naming_both(poses: list[fl.Pose], tmp_p
     for i, p in enumerate(poses[:3]):
         shutil.copyfile(p.image, plain / f"IMG_{i:04d}.jpg")
     shutil.copyfile(plain / "IMG_0002.jpg", plain / "IMG_0002b.jpg")
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses[:3])
+    log = write_ulog(tmp_path / "flight.ulg", poses[:3])
     got = _imported(c3("dataset", "import", plain, log, CAL, STORE, tmp_path / "b", "--json"))
     assert got["frames"] == 3 and got["time_source"] == "camera trigger (3 in the log, 3 image(s))"
     assert got["skipped"] == [
@@ -497,8 +503,8 @@ def test_frame_step_is_checked_once_on_the_photo_folder_path(
         check(step, video=video)
 
     monkeypatch.setattr(images, "check_frame_step", counted)
-    photos = fl.write_exif_photos(tmp_path / "photos", poses[:2], xmp=False)
-    log = fl.write_ulog(tmp_path / "flight.ulg", poses[:2])
+    photos = write_exif_photos(tmp_path / "photos", poses[:2], xmp=False)
+    log = write_ulog(tmp_path / "flight.ulg", poses[:2])
     said: list[str] = []
     args = argparse.Namespace(
         images_dir=photos, telemetry=log, calibration=Path(CAL), store=Path(STORE),

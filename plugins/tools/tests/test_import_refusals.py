@@ -7,6 +7,7 @@ with their telemetry written out (real imagery)."""
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
 from c3_matcher_tools.dataset.sources.options import (
     MAX_CANDIDATES,
     MAX_SEARCH_TILES,
+    ProposalOptions,
     max_uncertainty_m,
 )
 from c3_matcher_tools.dataset.telemetry import read_telemetry
@@ -52,8 +54,17 @@ def recorded(root: Path, frames: range = range(4), *, msl: bool = False) -> tupl
     return images, csv
 
 
-def spec(images: Path, csv: Path, **kw: object) -> ImportSpec:
-    return ImportSpec(images, csv, DEMO / "calibration.json", DEMO / "tiles.mbtiles", **kw)  # type: ignore[arg-type]
+def spec(
+    images: Path,
+    csv: Path,
+    *,
+    ground_elevation_m: float | None = None,
+    dem: Path | None = None,
+    **proposal: object,
+) -> ImportSpec:
+    """The demo's calibration and store; ``proposal``: how candidates are proposed."""
+    options = ProposalOptions(DEMO / "tiles.mbtiles", **proposal)  # type: ignore[arg-type]
+    return ImportSpec(images, csv, DEMO / "calibration.json", options, ground_elevation_m, dem)
 
 
 def edit_line(csv: Path, line: int, column: int, value: str) -> None:
@@ -227,6 +238,30 @@ def test_candidates_beyond_what_the_search_reaches_are_refused(
         spec(images, csv, candidates=candidates)
 
 
+@pytest.mark.parametrize(
+    ("bad", "refusal"),
+    [
+        ({"uncertainty_m": -1.0}, "--uncertainty-m: must be >= 0, got -1.0"),
+        ({"uncertainty_m": math.nan}, "--uncertainty-m: must be >= 0, got nan"),
+        ({"candidates": 0}, f"--candidates: must be in [1, {MAX_CANDIDATES}], got 0"),
+        (
+            {"candidates": MAX_CANDIDATES + 1},
+            f"--candidates: must be in [1, {MAX_CANDIDATES}], got {MAX_CANDIDATES + 1}",
+        ),
+        ({"candidate_size_px": 32}, "--candidate-size: must be in [64, 4096] px, got 32"),
+    ],
+)
+def test_the_proposal_options_refuse_a_bad_value_naming_the_option(
+    bad: dict[str, float], refusal: str
+) -> None:
+    """How every import proposes candidates is one record, checked when made: a bad value is
+    refused naming the option that gave it, before any input is read."""
+    with pytest.raises(InvalidInputError) as refused:
+        ProposalOptions(DEMO / "tiles.mbtiles", **bad)  # type: ignore[arg-type]
+    assert str(refused.value) == refusal
+    assert refused.value.field == refusal.split(":")[0]
+
+
 def test_frames_outside_the_store_beyond_those_shown_are_counted_not_hidden() -> None:
     from c3_matcher_tools.dataset.proposals import StoreProposals
     from c3_matcher_tools.dataset.telemetry import TelemetryRow
@@ -245,7 +280,8 @@ def test_a_bad_calibration_file_is_named_as_the_argument_given(tmp_path: Path) -
     """``dataset import``'s CALIBRATION is a positional argument: a missing or malformed file
     is named so (it read ``--calibration PATH``, an option the command does not have)."""
     images, csv = recorded(tmp_path)
-    missing = ImportSpec(images, csv, tmp_path / "none.json", DEMO / "tiles.mbtiles")
+    proposal = ProposalOptions(DEMO / "tiles.mbtiles")
+    missing = ImportSpec(images, csv, tmp_path / "none.json", proposal)
     with pytest.raises(InvalidInputError) as info:
         import_csv_flight(missing, tmp_path / "flight")
     assert info.value.field == "CALIBRATION" and "none.json: no such file" in str(info.value)

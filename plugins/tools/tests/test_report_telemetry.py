@@ -21,9 +21,10 @@ import pytest
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.sources.images import folder_shots
-from c3_matcher_tools.dataset.sources.options import ImportOptions
+from c3_matcher_tools.dataset.sources.options import ImportOptions, ProposalOptions
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.dataset.sources.writer import write_imported_flight
+from c3_matcher_tools.report import charts as report_charts
 from c3_matcher_tools.report import html as report_html
 from c3_matcher_tools.run import (
     FrameOutcome,
@@ -32,6 +33,7 @@ from c3_matcher_tools.run import (
     write_html_report,
 )
 from c3_matcher_tools.testing import flightlogs as fl
+from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -41,12 +43,13 @@ DEMO = REPO / "data" / "flights" / "naip_demo"
 def recorded(tmp_path_factory: pytest.TempPathFactory) -> FlightDataset:
     root = tmp_path_factory.mktemp("recorded")
     poses = fl.flight_poses(DEMO, range(5))
-    log = fl.write_ulog(root / "flight.ulg", poses, flaws=("gnss_loss",))
+    log = write_ulog(root / "flight.ulg", poses, flaws=("gnss_loss",))
     images = root / "images"
     images.mkdir()
     for i, p in enumerate(poses):
         shutil.copyfile(p.image, images / f"IMG_{i:04d}.jpg")
-    options = ImportOptions(load_calibration(DEMO / "calibration.json"), DEMO / "tiles.mbtiles")
+    proposal = ProposalOptions(DEMO / "tiles.mbtiles")
+    options = ImportOptions(load_calibration(DEMO / "calibration.json"), proposal)
     write_imported_flight(read_ulog(log), folder_shots(images), options, root / "flight")
     return load_dataset(root / "flight")
 
@@ -91,8 +94,8 @@ def drawn(
     }
     out = tmp_path_factory.mktemp("report")
     mp = pytest.MonkeyPatch()
-    mp.setattr(report_html, "_png_uri", keep)
-    mp.setattr(report_html, "_gallery", lambda *a, **k: [])
+    mp.setattr(report_charts, "_png_uri", keep)
+    mp.setattr(report_html, "gallery_pictures", lambda *a, **k: [])
     try:
         written = write_html_report(out, recorded, outcomes, "xfeat", report)
     finally:

@@ -29,11 +29,11 @@ from c3_matcher.tilestore.xyz import XyzTileStore
 from c3_matcher_tools.run import open_matcher
 from c3_matcher_tools.tilestore.build import build_mbtiles
 from c3_matcher_tools.tilestore.geo import (
-    Projection,
     lonlat_to_world_px,
     read_geotiff_grid,
     world_px_to_lonlat,
 )
+from c3_matcher_tools.tilestore.projection import Projection
 from c3_matcher_tools.tilestore.writer import MBTilesWriter
 
 ZOOM = 15

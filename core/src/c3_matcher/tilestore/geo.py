@@ -3,7 +3,8 @@
 WORLD px (X, Y) are web-mercator pixels of 256-px slippy tiles at a zoom ``z`` (corner
 convention: the world spans [0, 256 * 2**z) and pixel index i has its centre at X = i + 0.5;
 tile (x, y) covers X in [256 x, 256 (x + 1))). Degrees in and out, vectorised over numpy arrays.
-GeoTIFF grids and projections are ground tooling (the ground tools' ``tilestore.geo``).
+GeoTIFF grids and projections are ground tooling (the ground tools' ``tilestore.geo`` and
+``tilestore.projection``).
 """
 
 from __future__ import annotations

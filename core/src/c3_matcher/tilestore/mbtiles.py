@@ -11,7 +11,7 @@ Tiles are 256-px web-mercator tiles; ``tile_row`` is TMS (row 0 at the south), s
 ``2**zoom - 1 - tile_row``. Metadata holds the spec's ``name``, ``format`` (png|jpg), ``bounds``,
 ``center``, ``minzoom``, ``maxzoom``, ``type`` plus, for stores built by ``c3-matcher tiles
 build``, ``c3_source`` (the GeoTIFF), ``c3_georeference`` (how its grid was converted to
-WGS84, JSON of :class:`~c3_matcher.tilestore.geo.Projection`) and ``c3_source_gsd_m``.
+WGS84: the JSON of the ground tools' ``tilestore.projection.Projection``) and ``c3_source_gsd_m``.
 
 Reading opens the database read-only with SQLite memory-mapped I/O (``PRAGMA mmap_size``): the
 database pages are served from the page cache through a mapping, not ``read()`` into SQLite's

@@ -3,7 +3,8 @@ truth (:mod:`.flight`), the on-disk format (:mod:`.format`) and scoring (:mod:`.
 
 from __future__ import annotations
 
-from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
+from c3_matcher_tools.dataset.flight import render_flight
+from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.format import (
     FORMAT,
     CandidateTruth,

@@ -8,7 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import CommandContext, CommandRegistry, bounded_int
+from c3_matcher.commands import CommandRegistry, bounded_int
+from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_seed_option, bounded_float, non_negative_float
 from c3_matcher_tools.dataset.progress import ProgressBar
 
@@ -325,18 +326,14 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
 
 def _import_csv(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
+    from c3_matcher_tools.dataset.sources.cli import proposal_options
 
     report = import_csv_flight(
         ImportSpec(
             images_dir=args.images_dir,
             telemetry_csv=args.telemetry,
             calibration_json=args.calibration,
-            store=args.store,
-            uncertainty_m=args.uncertainty_m,
-            candidates=args.candidates,
-            zoom=args.zoom,
-            candidate_size_px=args.candidate_size,
-            seed=args.seed,
+            proposal=proposal_options(args),
             ground_elevation_m=args.ground_elevation,
             dem=args.dem,
         ),
@@ -349,7 +346,8 @@ def _import_csv(args: argparse.Namespace, ctx: CommandContext) -> int:
 
 
 def _render(args: argparse.Namespace, ctx: CommandContext) -> int:
-    from c3_matcher_tools.dataset.flight import FlightSpec, render_flight
+    from c3_matcher_tools.dataset.flight import render_flight
+    from c3_matcher_tools.dataset.flight_spec import FlightSpec
 
     _check_render_budget(args.frames, args.image_size)
     spec = FlightSpec(

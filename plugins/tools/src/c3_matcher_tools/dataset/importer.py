@@ -27,7 +27,7 @@ from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.format import FrameRecord, write_dataset
 from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
-from c3_matcher_tools.dataset.sources.options import ImportReport, check_proposal_options
+from c3_matcher_tools.dataset.sources.options import ImportReport, ProposalOptions
 from c3_matcher_tools.dataset.sources.writer import image_problem
 from c3_matcher_tools.dataset.telemetry import (
     Telemetry,
@@ -41,17 +41,14 @@ __all__ = ["ImportSpec", "import_csv_flight", "import_flight"]
 
 @dataclass(frozen=True)
 class ImportSpec:
-    """What ``c3-matcher dataset import`` was given (lengths in metres, sizes in px)."""
+    """What ``c3-matcher dataset import`` was given (lengths in metres): the inputs, how
+    candidates are proposed (``proposal``, the tile store included) and the ground's altitude
+    when the telemetry gives altitudes above sea level."""
 
     images_dir: Path
     telemetry_csv: Path
     calibration_json: Path
-    store: Path
-    uncertainty_m: float = 50.0
-    candidates: int = 3
-    zoom: int | None = None
-    candidate_size_px: int = 512
-    seed: int = 0
+    proposal: ProposalOptions
     ground_elevation_m: float | None = None  # the ground's altitude above sea level, m
     dem: Path | None = None  # a DEM GeoTIFF of the ground's altitude above sea level
 
@@ -64,12 +61,12 @@ class ImportSpec:
             raise InvalidInputError(
                 "--ground-elevation", f"must be in [-9000, 9000] m, got {self.ground_elevation_m}"
             )
-        check_proposal_options(self.uncertainty_m, self.candidates, self.candidate_size_px)
 
     @property
     def inputs(self) -> tuple[Path | None, ...]:
         """The files and folders the import reads (``None``: no DEM)."""
-        return (self.images_dir, self.telemetry_csv, self.calibration_json, self.store, self.dem)
+        store = self.proposal.store
+        return (self.images_dir, self.telemetry_csv, self.calibration_json, store, self.dem)
 
 
 def _check_image(path: Path, calibration: CameraCalibration) -> str | None:
@@ -124,7 +121,7 @@ def import_csv_flight(
         (tmp / "frames").mkdir()
         for r, f in zip(checked.rows, frames, strict=True):
             shutil.copyfile(checked.images_dir / r.image, tmp / f.image)
-        shutil.copyfile(spec.store, tmp / "tiles.mbtiles")
+        shutil.copyfile(spec.proposal.store, tmp / "tiles.mbtiles")
         write_dataset(tmp, meta, checked.calibration, frames)
     return _csv_report(checked, spec, out, len(frames))
 
@@ -152,8 +149,8 @@ def _check_csv_inputs(spec: ImportSpec) -> _CheckedCsv:
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: no such file or folder")
     if not images_dir.is_dir():
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: not a directory")
-    if not Path(spec.store).is_file():
-        raise InvalidInputError("STORE", f"{spec.store}: no such tile store")
+    if not Path(spec.proposal.store).is_file():
+        raise InvalidInputError("STORE", f"{spec.proposal.store}: no such tile store")
     calibration = load_calibration(Path(spec.calibration_json), field="CALIBRATION")
     table = read_telemetry_table(
         Path(spec.telemetry_csv), ground_elevation_m=spec.ground_elevation_m, dem=spec.dem
@@ -166,7 +163,7 @@ def _check_csv_inputs(spec: ImportSpec) -> _CheckedCsv:
             f"({len(table.rows)} row(s), e.g. {table.rows[0].image!r})",
         )
     refuse_lines(images_dir, _image_problems(images_dir, rows, calibration))
-    proposed = propose_from_store(rows, calibration, spec)
+    proposed = propose_from_store(rows, calibration, spec.proposal)
     proposed.refuse_outside("TELEMETRY", lambda r: f"line {r.line}")
     return _CheckedCsv(images_dir, calibration, table, rows, skipped, proposed)
 
@@ -194,7 +191,7 @@ def _csv_frames(checked: _CheckedCsv, spec: ImportSpec, name: str) -> list[Frame
         if r.altitude_msl_m is not None:
             known["altitude_msl_m"] = r.altitude_msl_m
         known["height_source"] = checked.table.height_source
-        frames.append(imported_frame(i, r, t0, base, ext, proposal, spec, heights=known))
+        frames.append(imported_frame(i, r, t0, base, ext, proposal, spec.proposal, heights=known))
     return frames
 
 
@@ -205,7 +202,7 @@ def _csv_meta(checked: _CheckedCsv, spec: ImportSpec, name: str) -> dict[str, An
     return {
         "name": name,
         "store": "tiles.mbtiles",
-        "candidate_size_px": spec.candidate_size_px,
+        "candidate_size_px": spec.proposal.candidate_size_px,
         "zoom": zoom,
         "tiles_source": checked.proposed.tiles_source,
         "frames_source": f"imported: {Path(spec.telemetry_csv).name}",
@@ -214,12 +211,7 @@ def _csv_meta(checked: _CheckedCsv, spec: ImportSpec, name: str) -> dict[str, An
             "images_dir": checked.images_dir.name,
             "telemetry_csv": Path(spec.telemetry_csv).name,
             "calibration_json": Path(spec.calibration_json).name,
-            "store": Path(spec.store).name,
-            "uncertainty_m": spec.uncertainty_m,
-            "candidates": spec.candidates,
-            "candidate_size_px": spec.candidate_size_px,
-            "zoom": zoom,
-            "seed": spec.seed,
+            **spec.proposal.spec_json(zoom),
             **(
                 {}
                 if spec.ground_elevation_m is None

@@ -8,8 +8,8 @@ are the ``candidate_size_px`` windows centred on (:func:`c3_matcher.tilestore.ba
 that tile, the other tiles whose square comes within ``uncertainty_m`` of the point, nearest
 first, then the nearest further tiles (distractors) until there are ``candidates``; only tiles
 the store holds. Their order is shuffled by a generator seeded by (``seed``, frame index), scores
-0.9, 0.8, ... in that order. The options are those of
-:class:`~c3_matcher_tools.dataset.importer.ImportSpec`.
+0.9, 0.8, ... in that order. The options are a
+:class:`~c3_matcher_tools.dataset.sources.options.ProposalOptions`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import math
 import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -29,11 +29,12 @@ from c3_matcher.tilestore.base import tile_centre_id
 from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.format import CandidateTruth, FrameRecord
-from c3_matcher_tools.dataset.sources.options import MAX_SEARCH_TILES, max_uncertainty_m
+from c3_matcher_tools.dataset.sources.options import (
+    MAX_SEARCH_TILES,
+    ProposalOptions,
+    max_uncertainty_m,
+)
 from c3_matcher_tools.dataset.telemetry import TelemetryRow
-
-if TYPE_CHECKING:
-    from c3_matcher_tools.dataset.importer import ImportSpec
 
 __all__ = [
     "StoreProposals",
@@ -73,16 +74,16 @@ def store_zoom(store: MBTilesStore, path: object, zoom: int | None) -> int:
 
 
 def _propose(
-    store: MBTilesStore, zoom: int, lonlat: tuple[float, float], spec: ImportSpec
+    store: MBTilesStore, zoom: int, lonlat: tuple[float, float], options: ProposalOptions
 ) -> list[tuple[TileId, float]] | None:
     """(tile id, distance m from the point to the tile square) of the candidates, the tile
     holding the point first; None when the store lacks that tile. Refuses an uncertainty
     beyond :func:`max_uncertainty_m` there."""
     reach_m = max_uncertainty_m(zoom, lonlat[1])
-    if spec.uncertainty_m > reach_m:
+    if options.uncertainty_m > reach_m:
         raise InvalidInputError(
             "--uncertainty-m",
-            f"{spec.uncertainty_m:g} m reaches beyond {MAX_SEARCH_TILES} tiles of the store's "
+            f"{options.uncertainty_m:g} m reaches beyond {MAX_SEARCH_TILES} tiles of the store's "
             f"zoom {zoom} ({reach_m:.0f} m at latitude {lonlat[1]:.2f}): give at most that",
         )
     p = lonlat_to_world_px([lonlat], zoom)[0]
@@ -90,8 +91,8 @@ def _propose(
     tx, ty = int(p[0] // TILE_PX), int(p[1] // TILE_PX)
     if store.tile_bytes(zoom, tx, ty) is None:
         return None
-    ring = max(2, math.ceil(spec.uncertainty_m / (m_per_px * TILE_PX)) + 1)
-    ring = max(ring, math.ceil(math.sqrt(spec.candidates)) + 1)
+    ring = max(2, math.ceil(options.uncertainty_m / (m_per_px * TILE_PX)) + 1)
+    ring = max(ring, math.ceil(math.sqrt(options.candidates)) + 1)
     near: list[tuple[float, float, int, int]] = []
     for x in range(tx - ring, tx + ring + 1):
         for y in range(ty - ring, ty + ring + 1):
@@ -102,10 +103,10 @@ def _propose(
             edge_m = math.hypot(dx, dy) * m_per_px
             centre_m = math.hypot((x + 0.5) * TILE_PX - p[0], (y + 0.5) * TILE_PX - p[1])
             # within the uncertainty first (nearest centre first), then the nearest others
-            near.append((0.0 if edge_m <= spec.uncertainty_m else 1.0, centre_m, x, y))
+            near.append((0.0 if edge_m <= options.uncertainty_m else 1.0, centre_m, x, y))
     near.sort()
     picked = [(tile_centre_id(zoom, tx, ty), 0.0)]
-    for _, _, x, y in near[: spec.candidates - 1]:
+    for _, _, x, y in near[: options.candidates - 1]:
         dx = max(x * TILE_PX - p[0], 0.0, p[0] - (x + 1) * TILE_PX)
         dy = max(y * TILE_PX - p[1], 0.0, p[1] - (y + 1) * TILE_PX)
         picked.append((tile_centre_id(zoom, x, y), math.hypot(dx, dy) * m_per_px))
@@ -144,16 +145,16 @@ class StoreProposals:
 
 
 def propose_from_store(
-    rows: Sequence[TelemetryRow], calibration: CameraCalibration, spec: ImportSpec
+    rows: Sequence[TelemetryRow], calibration: CameraCalibration, options: ProposalOptions
 ) -> StoreProposals:
-    """Propose ``spec.candidates`` tiles of ``spec.store`` around each row's look point."""
-    with MBTilesStore(spec.store) as store:
-        zoom = store_zoom(store, spec.store, spec.zoom)
+    """Propose ``options.candidates`` tiles of ``options.store`` around each row's look point."""
+    with MBTilesStore(options.store) as store:
+        zoom = store_zoom(store, options.store, options.zoom)
         looks: list[tuple[tuple[float, float], list[tuple[TileId, float]] | None]] = []
         outside: list[TelemetryRow] = []
         for r in rows:
             lonlat = look_point(r, calibration)
-            cands = _propose(store, zoom, lonlat, spec)
+            cands = _propose(store, zoom, lonlat, options)
             if cands is None:
                 outside.append(r)
             looks.append((lonlat, cands))
@@ -183,16 +184,16 @@ def imported_frame(
     base: uuid.UUID,
     suffix: str,
     proposal: tuple[tuple[float, float], list[tuple[TileId, float]] | None],
-    spec: ImportSpec,
+    options: ProposalOptions,
     *,
     heights: dict[str, Any],
     extra: dict[str, Any] | None = None,
 ) -> FrameRecord:
     """The dataset record of imported frame ``index`` (image ``frames/<index><suffix>``, id from
     ``base`` and the source image name, time from ``t0_s``, the first row's time in s) with its
-    ``proposal`` (look point (lon, lat) deg, candidates) in seeded order. Telemetry: position,
-    ``heights`` (the height keys a source knows), time, source image, look point, uncertainty
-    m, then ``extra``."""
+    ``proposal`` (look point (lon, lat) deg, candidates) in the order ``options.seed`` gives.
+    Telemetry: position, ``heights`` (the height keys a source knows), time, source image, look
+    point, ``options.uncertainty_m``, then ``extra``."""
     look, cands = proposal
     return FrameRecord(
         index=index,
@@ -201,7 +202,7 @@ def imported_frame(
         captured_at_ns=round((row.time_s - t0_s) * 1e9),
         attitude_deg=(row.roll_deg, row.pitch_deg, row.yaw_deg),
         height_m=row.altitude_m,
-        candidates=shuffled_candidates(cands, spec.seed, index),
+        candidates=shuffled_candidates(cands, options.seed, index),
         telemetry={
             "lat": row.lat,
             "lon": row.lon,
@@ -211,7 +212,7 @@ def imported_frame(
             "source_image": row.image,
             "look_lat": look[1],
             "look_lon": look[0],
-            "uncertainty_m": spec.uncertainty_m,
+            "uncertainty_m": options.uncertainty_m,
             **(extra or {}),
         },
     )

@@ -4,7 +4,8 @@
 from __future__ import annotations
 
 from c3_matcher_tools.tilestore.build import BuildReport, build_mbtiles
-from c3_matcher_tools.tilestore.geo import GeoGrid, Projection, read_geotiff_grid
+from c3_matcher_tools.tilestore.geo import GeoGrid, read_geotiff_grid
+from c3_matcher_tools.tilestore.projection import Projection
 from c3_matcher_tools.tilestore.writer import MBTilesWriter
 
 __all__ = [

@@ -1,34 +1,20 @@
-"""Georeferencing without pyproj: GeoTIFF grids, projected metres <-> WGS84 (ground tooling).
+"""GeoTIFF grids (ground tooling): a north-up grid read from a GeoTIFF, checked against its CRS.
 
 Conventions. ORTHO px (u, v) are 0-based with the origin at the centre of the top-left pixel,
 (x, y) order. A GeoTIFF's grid maps them to projected metres (E, N) through its pixel scale and
 tie point (``PixelIsArea``: the tie point is the top-left pixel's CORNER; ``PixelIsPoint``:
 its centre). WORLD px (X, Y) are web-mercator pixels of 256-px slippy tiles at a zoom ``z``
 (corner convention: the world spans [0, 256 * 2**z) and pixel index i has its centre at
-X = i + 0.5; tile (x, y) covers X in [256 x, 256 (x + 1))).
-
-Projections (:class:`Projection`), all vectorised over numpy arrays, degrees in and out:
-
-- ``utm``: EPSG 326zz / 327zz (WGS84 UTM) and 269zz (NAD83 UTM, treated as WGS84: the datums
-  differ by ~1-2 m in North America), exact Kruger series (Karney 2011, n^3 terms: < 1 mm);
-- ``web_mercator`` (EPSG 3857/900913) and ``world_mercator`` (EPSG 3395, ellipsoidal), exact;
-- ``geographic`` (EPSG 4326): identity;
-- ``local_tangent_plane``: any other projected CRS in metres (RD New 28992, LV95 2056, ...):
-  the grid is treated as a local plane around a REFERENCE lat/lon given by the user (grid metres
-  east/north of the image centre = metres east/north of the reference, equirectangular at the
-  reference latitude). It ignores the CRS's scale error and grid convergence (< 0.1 % and < 1
-  deg over a few km); it keeps ids, tiles and ground truth mutually consistent, which is all
-  the matcher needs, but the lat/lon are only as good as the reference.
+X = i + 0.5; tile (x, y) covers X in [256 x, 256 (x + 1))). Projected metres become WGS84
+through the grid's :class:`~c3_matcher_tools.tilestore.projection.Projection`.
 """
 
 from __future__ import annotations
 
-import functools
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, NamedTuple
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -36,11 +22,11 @@ from numpy.typing import ArrayLike
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
+from c3_matcher_tools.tilestore.projection import WGS84_A, Projection
 
 __all__ = [
     "TILE_PX",
     "GeoGrid",
-    "Projection",
     "check_grid_fits_crs",
     "check_pixel_scale",
     "check_source_gsd",
@@ -50,241 +36,6 @@ __all__ = [
     "world_px_to_lonlat",
     "zoom_for_gsd",
 ]
-
-_A = 6378137.0
-_F = 1 / 298.257223563
-_E2 = _F * (2 - _F)
-_M_PER_DEG = math.pi * _A / 180.0
-
-
-def _kruger() -> tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
-    n = _F / (2 - _F)
-    big_a = _A / (1 + n) * (1 + n**2 / 4 + n**4 / 64)
-    alpha = (n / 2 - 2 * n**2 / 3 + 5 * n**3 / 16, 13 * n**2 / 48 - 3 * n**3 / 5, 61 * n**3 / 240)
-    beta = (n / 2 - 2 * n**2 / 3 + 37 * n**3 / 96, n**2 / 48 + n**3 / 15, 17 * n**3 / 480)
-    delta = (2 * n - 2 * n**2 / 3 - 2 * n**3, 7 * n**2 / 3 - 8 * n**3 / 5, 56 * n**3 / 15)
-    return big_a, alpha, beta, delta
-
-
-_KA, _ALPHA, _BETA, _DELTA = _kruger()
-
-
-@dataclass(frozen=True)
-class Projection:
-    """A map projection from projected metres (E, N) to WGS84 (lon, lat) degrees and back.
-
-    ``kind``: ``utm`` (``zone``, ``south``), ``web_mercator``, ``world_mercator``,
-    ``geographic`` or ``local_tangent_plane`` (``ref_lat``/``ref_lon`` degrees at the grid point
-    ``ref_en`` metres)."""
-
-    kind: str
-    zone: int = 0
-    south: bool = False
-    ref_lat: float = 0.0
-    ref_lon: float = 0.0
-    ref_en: tuple[float, float] = (0.0, 0.0)
-    epsg: int = 0
-
-    @classmethod
-    def from_epsg(
-        cls,
-        epsg: int | None,
-        *,
-        reference: tuple[float, float] | None = None,
-        ref_en: tuple[float, float] = (0.0, 0.0),
-        source: str | Path = "the grid",
-    ) -> Projection:
-        """The projection of ``epsg`` (None: a CRS without an EPSG code); a CRS that is not UTM,
-        mercator or 4326 and that pyproj cannot convert (no pyproj, no code, a code PROJ does not
-        know) needs ``reference`` (lat, lon) degrees of the grid point ``ref_en`` (local tangent
-        plane), else it is refused naming ``source``."""
-        if epsg is not None and (32601 <= epsg <= 32660 or 32701 <= epsg <= 32760):
-            return cls("utm", zone=epsg % 100, south=epsg >= 32701)
-        if epsg is not None and 26901 <= epsg <= 26923:
-            if pyproj_available():  # NAD83 is not WGS84: the datum shift is pyproj's
-                return cls("pyproj", epsg=epsg)
-            return cls("utm", zone=epsg - 26900)
-        if epsg in (3857, 900913, 3785):
-            return cls("web_mercator")
-        if epsg == 3395:
-            return cls("world_mercator")
-        if epsg == 4326:
-            return cls("geographic")
-        if epsg is not None and _pyproj_knows(epsg):
-            return cls("pyproj", epsg=int(epsg))
-        if reference is None:
-            raise InvalidInputError(
-                "geotiff",
-                f"{source}: {_unconvertible(epsg)}: give a reference latitude/longitude of the "
-                "image centre (--ref-latlon LAT,LON); the grid is then treated as a local tangent "
-                "plane around it",
-            )
-        return cls(
-            "local_tangent_plane",
-            ref_lat=float(reference[0]),
-            ref_lon=float(reference[1]),
-            ref_en=(float(ref_en[0]), float(ref_en[1])),
-        )
-
-    def describe(self) -> str:
-        if self.kind == "utm":
-            return f"utm zone {self.zone}{'S' if self.south else 'N'} (exact, Kruger series)"
-        if self.kind == "local_tangent_plane":
-            return (
-                f"local tangent plane at lat {self.ref_lat:.7f}, lon {self.ref_lon:.7f} "
-                f"(grid E {self.ref_en[0]:.2f}, N {self.ref_en[1]:.2f})"
-            )
-        if self.kind == "pyproj":
-            return f"EPSG:{self.epsg} (exact, pyproj)"
-        return f"{self.kind} (exact)"
-
-    def to_dict(self) -> dict[str, Any]:
-        """Every field, in order; ``epsg`` only when set."""
-        data = {**asdict(self), "ref_en": list(self.ref_en)}
-        if not self.epsg:
-            del data["epsg"]
-        return data
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> Projection:
-        return cls(
-            str(data["kind"]),
-            int(data.get("zone", 0)),
-            bool(data.get("south", False)),
-            float(data.get("ref_lat", 0.0)),
-            float(data.get("ref_lon", 0.0)),
-            (float(data.get("ref_en", (0, 0))[0]), float(data.get("ref_en", (0, 0))[1])),
-            int(data.get("epsg", 0)),
-        )
-
-    def __post_init__(self) -> None:
-        if self.kind not in _FORMULAS:
-            raise InvalidInputError(
-                "projection.kind",
-                f"unknown projection {self.kind!r}, expected one of: {', '.join(_FORMULAS)}",
-            )
-
-    def to_lonlat(self, e: ArrayLike, n: ArrayLike) -> tuple[F64, F64]:
-        """Projected metres -> (lon, lat) degrees."""
-        e_a, n_a = np.asarray(e, dtype=np.float64), np.asarray(n, dtype=np.float64)
-        return _FORMULAS[self.kind].inverse(self, e_a, n_a)
-
-    def from_lonlat(self, lon: ArrayLike, lat: ArrayLike) -> tuple[F64, F64]:
-        """(lon, lat) degrees -> projected metres."""
-        lo, la = np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)
-        return _FORMULAS[self.kind].forward(self, lo, la)
-
-
-_Formula = Callable[[Projection, F64, F64], tuple[F64, F64]]
-
-
-class _Formulas(NamedTuple):
-    """One projection kind's pair: ``forward`` (lon, lat) degrees -> metres, ``inverse``."""
-
-    forward: _Formula
-    inverse: _Formula
-
-
-def _utm_lon0(p: Projection) -> float:
-    return math.radians(-183.0 + 6.0 * p.zone)
-
-
-def _utm_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
-    k0, n = 0.9996, _F / (2 - _F)
-    phi, lam = np.radians(lat), np.radians(lon) - _utm_lon0(p)
-    c = 2 * math.sqrt(n) / (1 + n)
-    t = np.sinh(np.arctanh(np.sin(phi)) - c * np.arctanh(c * np.sin(phi)))
-    xi_p = np.arctan2(t, np.cos(lam))
-    eta_p = np.arctanh(np.sin(lam) / np.sqrt(1 + t * t))
-    xi, eta = xi_p.copy(), eta_p.copy()
-    for j, a in enumerate(_ALPHA, start=1):
-        xi += a * np.sin(2 * j * xi_p) * np.cosh(2 * j * eta_p)
-        eta += a * np.cos(2 * j * xi_p) * np.sinh(2 * j * eta_p)
-    e = 500_000.0 + k0 * _KA * eta
-    north = k0 * _KA * xi + (10_000_000.0 if p.south else 0.0)
-    return e, north
-
-
-def _utm_inverse(p: Projection, e: F64, north: F64) -> tuple[F64, F64]:
-    k0 = 0.9996
-    xi = (north - (10_000_000.0 if p.south else 0.0)) / (k0 * _KA)
-    eta = (e - 500_000.0) / (k0 * _KA)
-    xi_p, eta_p = xi.copy(), eta.copy()
-    for j, b in enumerate(_BETA, start=1):
-        xi_p -= b * np.sin(2 * j * xi) * np.cosh(2 * j * eta)
-        eta_p -= b * np.cos(2 * j * xi) * np.sinh(2 * j * eta)
-    chi = np.arcsin(np.sin(xi_p) / np.cosh(eta_p))
-    phi = chi.copy()
-    for j, d in enumerate(_DELTA, start=1):
-        phi += d * np.sin(2 * j * chi)
-    lam = np.arctan2(np.sinh(eta_p), np.cos(xi_p))
-    return np.degrees(_utm_lon0(p) + lam), np.degrees(phi)
-
-
-def _mercator_forward(_p: Projection, lon: F64, lat: F64, *, ellipsoidal: bool) -> tuple[F64, F64]:
-    phi = np.radians(lat)
-    y = np.log(np.tan(np.pi / 4 + phi / 2))
-    if ellipsoidal:  # world mercator
-        e1 = math.sqrt(_E2)
-        es = e1 * np.sin(phi)
-        y = y + (e1 / 2) * np.log((1 - es) / (1 + es))
-    return _A * np.radians(lon), _A * y
-
-
-def _mercator_inverse(_p: Projection, e: F64, n: F64, *, ellipsoidal: bool) -> tuple[F64, F64]:
-    lon = np.degrees(e / _A)
-    t = np.exp(-n / _A)
-    phi = np.pi / 2 - 2 * np.arctan(t)
-    if ellipsoidal:  # world mercator: fixed-point iteration on the latitude
-        e1 = math.sqrt(_E2)
-        for _ in range(12):
-            es = e1 * np.sin(phi)
-            phi = np.pi / 2 - 2 * np.arctan(t * ((1 - es) / (1 + es)) ** (e1 / 2))
-    return lon, np.degrees(phi)
-
-
-def _identity(_p: Projection, a: F64, b: F64) -> tuple[F64, F64]:
-    return a.copy(), b.copy()
-
-
-def _pyproj_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
-    e, n = _transformer(p.epsg, inverse=False).transform(lon, lat)
-    return np.asarray(e, np.float64), np.asarray(n, np.float64)
-
-
-def _pyproj_inverse(p: Projection, e: F64, n: F64) -> tuple[F64, F64]:
-    lon, lat = _transformer(p.epsg, inverse=True).transform(e, n)
-    return np.asarray(lon, np.float64), np.asarray(lat, np.float64)
-
-
-def _tangent_plane_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
-    n = p.ref_en[1] + (lat - p.ref_lat) * _M_PER_DEG
-    e = p.ref_en[0] + (lon - p.ref_lon) * (_M_PER_DEG * math.cos(math.radians(p.ref_lat)))
-    return e, n
-
-
-def _tangent_plane_inverse(p: Projection, e: F64, n: F64) -> tuple[F64, F64]:
-    lat = p.ref_lat + (n - p.ref_en[1]) / _M_PER_DEG
-    lon = p.ref_lon + (e - p.ref_en[0]) / (_M_PER_DEG * math.cos(math.radians(p.ref_lat)))
-    return lon, lat
-
-
-_FORMULAS: Final[Mapping[str, _Formulas]] = {
-    "utm": _Formulas(_utm_forward, _utm_inverse),
-    "web_mercator": _Formulas(
-        functools.partial(_mercator_forward, ellipsoidal=False),
-        functools.partial(_mercator_inverse, ellipsoidal=False),
-    ),
-    "world_mercator": _Formulas(
-        functools.partial(_mercator_forward, ellipsoidal=True),
-        functools.partial(_mercator_inverse, ellipsoidal=True),
-    ),
-    "geographic": _Formulas(_identity, _identity),
-    "pyproj": _Formulas(_pyproj_forward, _pyproj_inverse),
-    "local_tangent_plane": _Formulas(_tangent_plane_forward, _tangent_plane_inverse),
-}
-"""Each projection kind's formulas (the module docstring); a ``Projection`` of a kind not here is
-refused. ``describe`` and the grid range check add what a kind needs beyond its formulas."""
 
 
 @dataclass(frozen=True)
@@ -325,54 +76,6 @@ class GeoGrid:
         return float(lon), float(lat)
 
 
-def pyproj_available() -> bool:
-    """The ``geo`` extra is installed (pyproj: any EPSG grid, exact) and not switched off by
-    ``C3_MATCHER_TOOLS_NO_PYPROJ=1`` (the hand-written fallback, for comparison)."""
-    import importlib.util
-    import os
-
-    if os.environ.get("C3_MATCHER_TOOLS_NO_PYPROJ") == "1":
-        return False
-    return importlib.util.find_spec("pyproj") is not None
-
-
-def _pyproj_knows(epsg: int) -> bool:
-    """pyproj is available (:func:`pyproj_available`) and its PROJ database holds ``epsg``."""
-    return pyproj_available() and _proj_database_has(epsg)
-
-
-@functools.lru_cache(maxsize=32)
-def _proj_database_has(epsg: int) -> bool:
-    """PROJ's database holds EPSG ``epsg`` (asked once per code)."""
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
-    try:
-        CRS.from_epsg(epsg)
-    except CRSError:
-        return False
-    return True
-
-
-def _unconvertible(epsg: int | None) -> str:
-    """Why pyproj cannot convert the CRS ``epsg`` (None: no EPSG code, or one GDAL could not
-    resolve) to WGS84."""
-    if epsg is None:
-        return "its CRS has no EPSG code that PROJ knows, so it cannot be converted to WGS84"
-    if not pyproj_available():
-        return f"EPSG:{epsg} cannot be converted to WGS84 without pyproj"
-    return f"EPSG:{epsg} is not a CRS that PROJ knows, so it cannot be converted to WGS84"
-
-
-@functools.lru_cache(maxsize=32)
-def _transformer(epsg: int, *, inverse: bool) -> Any:
-    from pyproj import Transformer
-
-    if inverse:
-        return Transformer.from_crs(f"EPSG:{epsg}", "EPSG:4326", always_xy=True)
-    return Transformer.from_crs("EPSG:4326", f"EPSG:{epsg}", always_xy=True)
-
-
 def geokeys(directory: Any) -> dict[int, Any]:
     """The GeoKeyDirectory (tag 34735) of a GeoTIFF as {key id: value} (inline values)."""
     values = [int(v) for v in directory]
@@ -387,8 +90,8 @@ def geokeys(directory: Any) -> dict[int, Any]:
 def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None = None) -> GeoGrid:
     """Read the north-up grid of a GeoTIFF (ModelPixelScale + ModelTiepoint + GeoKeys) with
     ``tifffile``; ``reference`` (lat, lon) of the image centre is needed for CRSs other than
-    UTM / mercator / 4326 (see the module docstring). Rotated grids (ModelTransformation) are
-    refused."""
+    UTM / mercator / 4326 (see :class:`~c3_matcher_tools.tilestore.projection.Projection`).
+    Rotated grids (ModelTransformation) are refused."""
     import tifffile
 
     p = Path(path)
@@ -532,5 +235,5 @@ def zoom_for_gsd(gsd_m: float, lat_deg: float) -> int:
     than a zoom is not upsampled needlessly), i.e. no source detail is thrown away. (The zoom
     nearest the GSD on a log scale, the old default, picked zoom 14 at 6.5 m/px for the 5 m NAIP
     sheet: a store of 12 tiles on which ``dataset render`` finds no distractors.)"""
-    z0 = 2 * math.pi * _A / TILE_PX * math.cos(math.radians(lat_deg))
+    z0 = 2 * math.pi * WGS84_A / TILE_PX * math.cos(math.radians(lat_deg))
     return max(0, min(30, math.ceil(math.log2(z0 / (gsd_m * 1.05)))))

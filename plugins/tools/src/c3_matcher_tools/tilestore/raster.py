@@ -34,12 +34,8 @@ from numpy.typing import NDArray
 
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.tilestore.geo import (
-    GeoGrid,
-    Projection,
-    check_grid_fits_crs,
-    check_pixel_scale,
-)
+from c3_matcher_tools.tilestore.geo import GeoGrid, check_grid_fits_crs, check_pixel_scale
+from c3_matcher_tools.tilestore.projection import Projection
 
 __all__ = ["RasterioSource", "ValueMapping", "ValueRange", "grid_gsd_m", "rasterio_available"]
 

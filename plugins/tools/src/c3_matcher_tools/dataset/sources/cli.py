@@ -9,10 +9,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from c3_matcher.commands import CommandContext
+from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.args import bounded_float
-from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport
+from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport, ProposalOptions
 
 if TYPE_CHECKING:
     from c3_matcher.dto import CameraCalibration
@@ -24,6 +24,7 @@ __all__ = [
     "add_log_import_options",
     "detect_kind",
     "import_log",
+    "proposal_options",
     "run_log_import",
 ]
 
@@ -267,7 +268,7 @@ def _import_options(
     meet it by their own time)."""
     return ImportOptions(
         calibration=calibration,
-        store=Path(args.store),
+        proposal=proposal_options(args),
         time_source="exif" if kind == "exif" else args.time_source,
         time_offset_s=args.time_offset,
         interval_s=args.interval,
@@ -275,6 +276,14 @@ def _import_options(
         gnss_degraded_m=args.gnss_degraded_m,
         ground_elevation_m=args.ground_elevation,
         dem=args.dem,
+    )
+
+
+def proposal_options(args: argparse.Namespace) -> ProposalOptions:
+    """How the parsed ``dataset import`` arguments say candidates are proposed (every source
+    kind, the telemetry CSV's included)."""
+    return ProposalOptions(
+        store=Path(args.store),
         uncertainty_m=args.uncertainty_m,
         candidates=args.candidates,
         zoom=args.zoom,

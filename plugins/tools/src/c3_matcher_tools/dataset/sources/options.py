@@ -1,5 +1,6 @@
-"""The options of an import from a recorded log (:class:`ImportOptions`), their bounds, and
-what the import reports (:class:`ImportReport`)."""
+"""The options of an import from a recorded log (:class:`ImportOptions`), how every import
+proposes candidates (:class:`ProposalOptions`), their bounds, and what the import reports
+(:class:`ImportReport`)."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ __all__ = [
     "MAX_SEARCH_TILES",
     "ImportOptions",
     "ImportReport",
-    "check_proposal_options",
+    "ProposalOptions",
     "max_uncertainty_m",
     "number_ranges",
 ]
@@ -42,22 +43,48 @@ def max_uncertainty_m(zoom: int, lat_deg: float = 0.0) -> float:
     return MAX_SEARCH_TILES * TILE_PX * TileId(zoom, lat_deg, 0.0).web_mercator_gsd_m()
 
 
-def check_proposal_options(uncertainty_m: float, candidates: int, candidate_size_px: int) -> None:
-    """``InvalidInputError`` naming the option unless the look-point uncertainty (m) is finite
-    and >= 0, 1 to :data:`MAX_CANDIDATES` candidates are asked for and the candidate size is in
+@dataclass(frozen=True, slots=True)
+class ProposalOptions:
+    """How candidates are proposed for each frame (:mod:`c3_matcher_tools.dataset.proposals`):
+    ``candidates`` tiles of the tile store ``store`` at ``zoom`` (None: its finest), those within
+    ``uncertainty_m`` (m) of the look point first, each a ``candidate_size_px`` px window, their
+    order shuffled by ``seed``. Refuses, naming the option, an uncertainty that is not finite and
+    >= 0, candidates not 1 to :data:`MAX_CANDIDATES` and a candidate size out of
     :data:`~c3_matcher_tools.dataset.format.CANDIDATE_SIZE_PX`."""
-    if not (math.isfinite(uncertainty_m) and uncertainty_m >= 0):
-        raise InvalidInputError("--uncertainty-m", f"must be >= 0, got {uncertainty_m}")
-    if not 1 <= candidates <= MAX_CANDIDATES:
-        raise InvalidInputError(
-            "--candidates", f"must be in [1, {MAX_CANDIDATES}], got {candidates}"
-        )
-    check_candidate_size(candidate_size_px)
+
+    store: Path
+    uncertainty_m: float = 50.0
+    candidates: int = 3
+    zoom: int | None = None
+    candidate_size_px: int = 512
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.uncertainty_m) and self.uncertainty_m >= 0):
+            raise InvalidInputError("--uncertainty-m", f"must be >= 0, got {self.uncertainty_m}")
+        if not 1 <= self.candidates <= MAX_CANDIDATES:
+            raise InvalidInputError(
+                "--candidates", f"must be in [1, {MAX_CANDIDATES}], got {self.candidates}"
+            )
+        check_candidate_size(self.candidate_size_px)
+
+    def spec_json(self, zoom: int) -> dict[str, Any]:
+        """The options as a dataset's ``spec`` records them: the store by its file name, the
+        zoom the candidates were proposed at."""
+        return {
+            "store": Path(self.store).name,
+            "uncertainty_m": self.uncertainty_m,
+            "candidates": self.candidates,
+            "candidate_size_px": self.candidate_size_px,
+            "zoom": zoom,
+            "seed": self.seed,
+        }
 
 
 @dataclass(frozen=True)
 class ImportOptions:
-    """How images meet the log and how candidates are proposed (lengths m, times s).
+    """How images meet the log and how candidates are proposed (``proposal``; lengths m,
+    times s).
 
     ``time_source``: ``auto`` | ``trigger`` | ``exif`` (the images' own clock) | ``order`` (file
     order, one image every ``interval_s`` from ``time_offset_s`` on the log's clock; a video's
@@ -69,7 +96,7 @@ class ImportOptions:
     altitude (same datum as the log's altitude) when the log has no height above ground."""
 
     calibration: CameraCalibration
-    store: Path
+    proposal: ProposalOptions
     time_source: str = "auto"
     time_offset_s: float = 0.0
     interval_s: float | None = None
@@ -77,11 +104,6 @@ class ImportOptions:
     gnss_degraded_m: float = 5.0
     ground_elevation_m: float | None = None
     dem: Path | None = None
-    uncertainty_m: float = 50.0
-    candidates: int = 3
-    zoom: int | None = None
-    candidate_size_px: int = 512
-    seed: int = 0
 
     def __post_init__(self) -> None:
         if self.time_source not in ("auto", "trigger", "exif", "order"):
@@ -102,7 +124,6 @@ class ImportOptions:
             )
         if self.ground_elevation_m is not None and not math.isfinite(self.ground_elevation_m):
             raise InvalidInputError("--ground-elevation", "must be finite")
-        check_proposal_options(self.uncertainty_m, self.candidates, self.candidate_size_px)
 
 
 @dataclass(frozen=True)

@@ -12,13 +12,16 @@ from typing import Any
 
 import numpy as np
 
+from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.format import write_dataset
+from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.frames import Frame, assemble_frames
-from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport
+from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport, ProposalOptions
 from c3_matcher_tools.dataset.sources.pairing import match_shots
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
+from c3_matcher_tools.dataset.telemetry import TelemetryRow
 
 __all__ = ["MAX_OWN_GPS_OFFSET_M", "image_problem", "write_imported_flight"]
 
@@ -39,14 +42,13 @@ def write_imported_flight(
     point and write the ``c3-flight/1`` dataset ``out`` atomically (everything is checked
     first); returns what was done (``skipped``: images the caller already set aside, with the
     reason). Raises InvalidInputError naming the input at fault."""
-    from c3_matcher_tools.dataset.proposals import imported_frame
-
     out = Path(out)
-    check_output_dir(out, force=force, inputs=(track.source, options.store, options.dem))
+    proposer = options.proposal
+    check_output_dir(out, force=force, inputs=(track.source, proposer.store, options.dem))
     frames, skipped, how = _placed(track, shots, options, attitude_of, skipped)
     calibration = options.calibration
     images = _images(frames, calibration.image_size)
-    proposer, rows, proposed = _propose(track, frames, options)
+    rows, proposed = _propose(track, frames, proposer, calibration)
     zoom, proposals = proposed.zoom, proposed.looks
     attribution, tiles_source = proposed.attribution, proposed.tiles_source
     label = name or out.name
@@ -65,7 +67,7 @@ def write_imported_flight(
     meta = {
         "name": label,
         "store": "tiles.mbtiles",
-        "candidate_size_px": options.candidate_size_px,
+        "candidate_size_px": proposer.candidate_size_px,
         "zoom": zoom,
         "tiles_source": tiles_source,
         "frames_source": f"imported: {Path(track.source).name} ({track.kind})",
@@ -77,38 +79,28 @@ def write_imported_flight(
         (tmp / "frames").mkdir()
         for rec, data in zip(records, images, strict=True):
             (tmp / rec.image).write_bytes(data)
-        shutil.copyfile(options.store, tmp / "tiles.mbtiles")
+        shutil.copyfile(proposer.store, tmp / "tiles.mbtiles")
         write_dataset(tmp, meta, calibration, records)
     return report
 
 
-def _propose(track: LogTrack, frames: Sequence[Frame], options: ImportOptions) -> Any:
-    """(proposer, telemetry rows, proposal) of the candidates around each frame's look point,
-    refused when a look point lies outside the store."""
-    from c3_matcher_tools.dataset.importer import ImportSpec
-    from c3_matcher_tools.dataset.proposals import propose_from_store
-    from c3_matcher_tools.dataset.telemetry import TelemetryRow
-
-    proposer = ImportSpec(
-        Path(),
-        Path(track.source),
-        Path(),
-        Path(options.store),
-        uncertainty_m=options.uncertainty_m,
-        candidates=options.candidates,
-        zoom=options.zoom,
-        candidate_size_px=options.candidate_size_px,
-        seed=options.seed,
-    )
+def _propose(
+    track: LogTrack,
+    frames: Sequence[Frame],
+    proposer: ProposalOptions,
+    calibration: CameraCalibration,
+) -> tuple[list[TelemetryRow], StoreProposals]:
+    """(telemetry rows, proposal) of the candidates around each frame's look point, refused
+    when a look point lies outside the store."""
     rows = [
         TelemetryRow(i, f.t_s, f.shot.name, f.lat, f.lon, f.height_m, *f.attitude)
         for i, f in enumerate(frames)
     ]
-    proposed = propose_from_store(rows, options.calibration, proposer)
+    proposed = propose_from_store(rows, calibration, proposer)
     proposed.refuse_outside(
         track.source, lambda r: r.image, hint=" (log and store of different places?)", shown=5
     )
-    return proposer, rows, proposed
+    return rows, proposed
 
 
 def _placed(
@@ -121,8 +113,9 @@ def _placed(
     """The frames placed on the log (refused when none is, when the images' own GPS says
     another flight, or when no frame has a height above ground), every image skipped with its
     reason, and how the images met the log's clock."""
-    if not Path(options.store).is_file():
-        raise InvalidInputError("STORE", f"{options.store}: no such tile store")
+    store = options.proposal.store
+    if not Path(store).is_file():
+        raise InvalidInputError("STORE", f"{store}: no such tile store")
     if not shots:
         raise InvalidInputError("IMAGES", "no image found")
     if track.position is None and track.gnss is None:
@@ -163,12 +156,7 @@ def _spec(track: LogTrack, how: str, options: ImportOptions, zoom: int) -> dict[
         "log_kind": track.kind,
         "time_source": how,
         "time_offset_s": options.time_offset_s,
-        "store": Path(options.store).name,
-        "uncertainty_m": options.uncertainty_m,
-        "candidates": options.candidates,
-        "candidate_size_px": options.candidate_size_px,
-        "zoom": zoom,
-        "seed": options.seed,
+        **options.proposal.spec_json(zoom),
     }
 
 

@@ -1,0 +1,165 @@
+"""What a simulated flight is rendered on (its scene) and the records each frame is planned in."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher.arrays import F64
+from c3_matcher.dto import Attitude, CameraCalibration, TileId
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.handles import stitch
+from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.dataset.flight_spec import FlightSpec
+from c3_matcher_tools.dataset.format import FrameRecord
+from c3_matcher_tools.sim.orthophotos import load_orthophoto
+from c3_matcher_tools.sim.render import NavCameraRenderer, RenderedFrame
+from c3_matcher_tools.tilestore.geo import TILE_PX, GeoGrid, read_geotiff_grid
+from c3_matcher_tools.tilestore.projection import Projection
+
+__all__ = [
+    "Coverage",
+    "Footprint",
+    "PlannedFrame",
+    "Scene",
+    "Shot",
+    "read_scene",
+    "store_reference",
+]
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """The store's whole coverage at one zoom as one image: COVERAGE px = WORLD px - origin."""
+
+    image: NDArray[np.uint8]
+    origin: tuple[int, int]
+    zoom: int
+
+
+def _coverage(store: MBTilesStore) -> Coverage:
+    zooms = store.zooms()
+    if not zooms:
+        raise InvalidInputError("store", f"{store.path}: holds no tiles")
+    z = zooms[-1]
+    keys = list(store.tiles(z))
+    xs, ys = [k[0] for k in keys], [k[1] for k in keys]
+    origin = (min(xs) * TILE_PX, min(ys) * TILE_PX)
+    size = ((max(xs) - min(xs) + 1) * TILE_PX, (max(ys) - min(ys) + 1) * TILE_PX)
+    return Coverage(stitch(store, z, origin, size, store.name), origin, z)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """What every frame of a flight is rendered from and placed on: the frames' orthophoto, its
+    grid and GSD (m/px), the store's coverage and its m/WORLD px, the camera, and the centre of the
+    flight (projected metres of the frames' grid)."""
+
+    grid: GeoGrid
+    rgb: NDArray[np.uint8]
+    gsd: float
+    cov: Coverage
+    m_per_px: float
+    calibration: CameraCalibration
+    renderer: NavCameraRenderer
+    centre_en: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Shot:
+    """One frame rendered along the trajectory: its index, heading (deg), attitude, the ORTHO px
+    below the camera, and the rendered frame."""
+
+    index: int
+    heading: float
+    attitude: Attitude
+    nadir: tuple[float, float]
+    frame: RenderedFrame
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """A frame's ground footprint (WORLD px of the store's zoom), its centre, and the top-left
+    WORLD px of the true candidate window that holds it."""
+
+    world: F64
+    centre: F64
+    true_origin: tuple[int, int]
+
+
+@dataclass(frozen=True)
+class PlannedFrame:
+    """One frame planned: its record, its JPEG bytes, and the homography fit residual (px) of
+    each of its candidates."""
+
+    record: FrameRecord
+    jpeg: bytes
+    fits: tuple[float, ...]
+
+
+def read_scene(spec: FlightSpec, store: MBTilesStore) -> Scene:
+    """Read the frames' orthophoto, its grid and the store's coverage; set up the camera."""
+    reference = spec.reference_latlon or store_reference(store.metadata, store.path)
+    grid = read_geotiff_grid(spec.frames_geotiff, reference=reference)
+    photo = load_orthophoto(spec.frames_geotiff)
+    gsd = photo.gsd_m or math.sqrt(grid.scale_x * grid.scale_y)
+    cov = _coverage(store)
+    centre_lon, centre_lat = grid.centre_lonlat()
+    m_per_px = TileId(cov.zoom, centre_lat, centre_lon).web_mercator_gsd_m()
+    _check_coverage(spec, cov, m_per_px)
+    calibration = spec.calibration()
+    renderer = NavCameraRenderer(calibration)
+    centre_en = _flight_centre(store, grid)
+    return Scene(grid, photo.rgb, gsd, cov, m_per_px, calibration, renderer, centre_en)
+
+
+def _check_coverage(spec: FlightSpec, cov: Coverage, m_per_px: float) -> None:
+    """Refuse a store too small for a candidate window plus distractors at the requested
+    distance before any frame is rendered (names the command-line options)."""
+    h, w = cov.image.shape[:2]
+    size = spec.candidate_size_px
+    need = size + spec.min_distractor_distance_m / m_per_px
+    if w < need and h < need:
+        raise InvalidInputError(
+            "--candidate-size",
+            f"the store covers {w}x{h} px at zoom {cov.zoom} ({m_per_px:.2f} m/px), too small "
+            f"for a {size} px candidate plus distractors {spec.min_distractor_distance_m:.0f} m "
+            "away: lower --candidate-size or --min-distractor-distance, or build the store at "
+            f"a finer zoom (tiles build --zoom {cov.zoom + 1})",
+        )
+
+
+def _flight_centre(store: MBTilesStore, grid: GeoGrid) -> tuple[float, float]:
+    """Projected metres (frames grid) of the store's ``center`` (a fixed ground point, so
+    flights rendered from different dates of the same ground fly the same path), else of the
+    frames orthophoto's centre."""
+    centre = store.metadata.get("center", "")
+    try:
+        lon, lat = (float(v) for v in centre.split(",")[:2])
+    except ValueError:
+        lon, lat = grid.centre_lonlat()
+    e, n = grid.projection.from_lonlat([lon], [lat])
+    return float(e[0]), float(n[0])
+
+
+def store_reference(metadata: Mapping[str, str], store: Path) -> tuple[float, float] | None:
+    """The (lat, lon) reference a tile store was built around when its GeoTIFF's grid was
+    treated as a local tangent plane (``c3_georeference``, written by ``tiles build``), so
+    frames rendered from the same grid land on its tiles; None for any other store.
+    ``InvalidInputError`` naming the store when that metadata cannot be read."""
+    text = metadata.get("c3_georeference")
+    if text is None:
+        return None
+    try:
+        built = Projection.from_dict(json.loads(text))
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        raise InvalidInputError(
+            str(store), f"unreadable c3_georeference metadata ({exc}): rebuild the store"
+        ) from None
+    return (built.ref_lat, built.ref_lon) if built.kind == "local_tangent_plane" else None

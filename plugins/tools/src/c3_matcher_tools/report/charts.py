@@ -1,0 +1,178 @@
+"""The flight report's plots as PNG data URIs: the trajectory and the per-frame panels."""
+
+from __future__ import annotations
+
+import base64
+import io
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from c3_matcher_tools.dataset.format import FlightDataset
+from c3_matcher_tools.report.trajectory import draw_trajectory
+from c3_matcher_tools.run.records import FrameOutcome
+
+__all__ = ["FAILED", "STATUS_COLOUR", "WRONG", "per_frame_figure", "trajectory_figure"]
+
+FAILED = "failed"
+WRONG = "wrong tile"
+"""The words the chart's legend and the frames table both use (the chart marks F / W)."""
+STATUS_COLOUR = {"ok": "#2c9f2c", "insufficient": "#d62728", "backbone_error": "#222222"}
+
+
+def _plt() -> Any:
+    try:
+        import matplotlib
+    except ImportError as exc:  # pragma: no cover - the extra is documented
+        raise RuntimeError(
+            "report.html needs matplotlib: pip install 'c3-matcher-tools[report]'"
+        ) from exc
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png_uri(fig: Any) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    _plt().close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
+
+
+def trajectory_figure(dataset: FlightDataset, outcomes: Sequence[FrameOutcome], title: str) -> str:
+    """The trajectory on the flight's map mosaic (:func:`draw_trajectory`), as a data URI."""
+    fig, ax = _plt().subplots(figsize=(8, 8))
+    draw_trajectory(ax, dataset, outcomes, title)
+    return _png_uri(fig)
+
+
+def per_frame_figure(outcomes: Sequence[FrameOutcome], min_inliers: int) -> str:
+    """The per-frame figure as a data URI: the best inliers against the threshold, the errors and
+    the latency, one panel each, frames whose true tile is absent banded grey and failed or
+    wrong-tile frames marked F / W; legends outside the panels."""
+    plt = _plt()
+    idx = np.array([o.index for o in outcomes])
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
+    inl = np.array([o.candidate_inliers for o in outcomes])
+    _draw_inliers(axes[0], outcomes, idx, inl, min_inliers)
+    _draw_errors(axes[1], outcomes, idx)
+    _draw_latency(axes[2], outcomes, idx)
+    _band_absent_tiles(axes, outcomes)
+    _mark_failed_and_wrong(axes[0], outcomes, inl)
+    _status_legend(axes[0], outcomes, min_inliers)
+    axes[2].xaxis.get_major_locator().set_params(integer=True)
+    fig.suptitle("per frame: inliers, error, latency")
+    return _png_uri(fig)
+
+
+def _draw_inliers(
+    ax: Any,
+    outcomes: Sequence[FrameOutcome],
+    idx: NDArray[np.int_],
+    inl: NDArray[np.int_],
+    min_inliers: int,
+) -> None:
+    """Each frame's best inlier count, coloured by status, and the threshold."""
+    colours = [STATUS_COLOUR.get(o.status, "#888") for o in outcomes]
+    ax.bar(idx, inl, color=colours, width=0.8)
+    ax.axhline(min_inliers, ls="--", color="#555", lw=1)
+    ax.set_ylabel("best inliers")
+
+
+def _draw_errors(ax: Any, outcomes: Sequence[FrameOutcome], idx: NDArray[np.int_]) -> None:
+    """The position errors (vs truth, vs telemetry, the log's GNSS accuracy) in m, the mean
+    inlier error in px on a twin axis, frames with GNSS absent or degraded banded yellow; each
+    line only where it has a value."""
+    err_m = np.array([o.position_error_m for o in outcomes], dtype=float)
+    err_px = np.array([o.mean_error_px for o in outcomes], dtype=float)
+    err_tele = np.array([o.telemetry_error_m for o in outcomes], dtype=float)
+    accuracy = np.array(
+        [math.nan if o.gnss_accuracy_m is None else o.gnss_accuracy_m for o in outcomes],
+        dtype=float,
+    )
+    error_lines = []
+    if np.isfinite(err_m).any():
+        error_lines += ax.plot(idx, err_m, "o-", color="#ff7f0e", ms=4, label="vs truth")
+    if np.isfinite(err_tele).any():
+        error_lines += ax.plot(
+            idx, err_tele, "^-", color="#2ca02c", ms=4, label="estimate - telemetry"
+        )
+    if np.isfinite(accuracy).any():
+        error_lines += ax.plot(
+            idx, accuracy, ":", color="#2ca02c", lw=1.2, label="GNSS accuracy (log)"
+        )
+    ax.set_ylabel("position error (m)")
+    if np.isfinite(err_px).any():
+        twin = ax.twinx()
+        error_lines += twin.plot(
+            idx, err_px, "s:", color="#9467bd", ms=3, label="mean inlier error (px)"
+        )
+        twin.set_ylabel("inlier error (px)", color="#9467bd")
+    for o in outcomes:
+        if o.gnss_degraded:
+            ax.axvspan(o.index - 0.5, o.index + 0.5, color="#ffbf00", alpha=0.25, lw=0)
+    if error_lines:
+        ax.legend(
+            handles=error_lines,
+            loc="upper left",
+            bbox_to_anchor=(1.08, 1.0),
+            fontsize=8,
+            frameon=False,
+        )
+
+
+def _draw_latency(ax: Any, outcomes: Sequence[FrameOutcome], idx: NDArray[np.int_]) -> None:
+    """Each frame's time in the matcher."""
+    ax.bar(idx, [o.elapsed_ms for o in outcomes], color="#7f7f7f", width=0.8)
+    ax.set_ylabel("latency (ms)")
+    ax.set_xlabel("frame")
+
+
+def _band_absent_tiles(axes: Sequence[Any], outcomes: Sequence[FrameOutcome]) -> None:
+    """A grey band on every panel over the frames whose true tile is not a candidate."""
+    for ax in axes:
+        for o in outcomes:
+            if o.has_truth and not o.true_present:
+                ax.axvspan(o.index - 0.5, o.index + 0.5, color="#bbbbbb", alpha=0.45, lw=0)
+        ax.grid(axis="y", alpha=0.3)
+
+
+def _mark_failed_and_wrong(
+    ax: Any, outcomes: Sequence[FrameOutcome], inl: NDArray[np.int_]
+) -> None:
+    """W over a frame that matched a wrong tile, F over a failed one, above the tallest bar."""
+    top = max(1.0, float(inl.max()) if inl.size else 1.0)
+    for o in outcomes:
+        if o.status == "ok" and o.has_truth and o.true_present and not o.correct:
+            ax.text(
+                o.index, top * 1.02, "W", color="#d62728", ha="center", fontsize=9, weight="bold"
+            )
+        elif o.status != "ok":
+            ax.text(
+                o.index, top * 1.02, "F", color="#d62728", ha="center", fontsize=9, weight="bold"
+            )
+    ax.set_ylim(0, top * 1.12)
+
+
+def _status_legend(ax: Any, outcomes: Sequence[FrameOutcome], min_inliers: int) -> None:
+    """The inlier panel's legend: the statuses, the marks, the bands and the threshold."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [
+        Patch(color=STATUS_COLOUR["ok"], label="matched"),
+        Patch(color=STATUS_COLOUR["insufficient"], label=f"F: {FAILED}"),
+        Patch(color="white", label=f"W: {WRONG}"),
+        Patch(color="#bbbbbb", label="true tile absent"),
+        Line2D([], [], ls="--", color="#555", lw=1, label=f"{min_inliers} inliers threshold"),
+    ]
+    if any(o.gnss_degraded for o in outcomes):
+        handles.append(Patch(color="#ffbf00", alpha=0.4, label="GNSS absent or degraded"))
+    # outside the axes: a legend never covers a bar or the threshold line
+    ax.legend(
+        handles=handles, loc="upper left", bbox_to_anchor=(1.08, 1.0), fontsize=8, frameon=False
+    )

@@ -1,0 +1,80 @@
+"""An ArduPilot DataFlash log (``.bin``) of a rendered flight, in the documented FMT layout."""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from c3_matcher_tools.testing.flightlogs import BOOT_S, GROUND_M, UTC0, Pose, dense_track
+
+__all__ = ["write_dataflash"]
+
+_DF_HEAD = b"\xa3\x95"
+_DF_FORMATS = {
+    # name: (type id, struct format chars, columns)
+    "ATT": (1, "Qfff", "TimeUS,Roll,Pitch,Yaw"),
+    "POS": (2, "QLLff", "TimeUS,Lat,Lng,Alt,RelHomeAlt"),
+    "GPS": (3, "QBIHLLf", "TimeUS,Status,GMS,GWk,Lat,Lng,Alt"),
+    "GPA": (4, "Qf", "TimeUS,HAcc"),
+    "CAM": (5, "QH", "TimeUS,Img"),
+}
+_DF_STRUCT = {"Q": "Q", "f": "f", "L": "i", "B": "B", "I": "I", "H": "H"}
+
+
+def write_dataflash(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) -> Path:
+    """An ArduPilot DataFlash log in the documented binary layout (FMT messages, then ATT, POS,
+    GPS with GNSS week time, GPA and CAM); ``flaws``: ``no_attitude``, ``no_trigger``,
+    ``time_jump`` (the middle frame's ATT stamped 5 s before the frame before it)."""
+    out = bytearray()
+
+    def fmt_message(type_id: int, name: str, fmt: str, cols: str) -> bytes:
+        length = 3 + struct.calcsize("<" + "".join(_DF_STRUCT[c] for c in fmt))
+        return (
+            _DF_HEAD
+            + bytes([128])
+            + struct.pack(
+                "<BB4s16s64s", type_id, length, name.encode(), fmt.encode(), cols.encode()
+            )
+        )
+
+    out += (
+        _DF_HEAD
+        + bytes([128])
+        + struct.pack("<BB4s16s64s", 128, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns")
+    )
+    for name, (type_id, fmt, cols) in _DF_FORMATS.items():
+        out += fmt_message(type_id, name, fmt, cols)
+
+    def msg(name: str, *values: Any) -> tuple[int, bytes]:
+        type_id, fmt, _ = _DF_FORMATS[name]
+        body = struct.pack("<" + "".join(_DF_STRUCT[c] for c in fmt), *values)
+        return values[0], _DF_HEAD + bytes([type_id]) + body
+
+    gps_epoch = 315_964_800.0  # 1980-01-06 UTC
+    leap = 18.0
+    items: list[tuple[int, bytes]] = []
+    for t, lat, lon, alt in dense_track(poses):
+        tus = int((BOOT_S + t) * 1e6)
+        gps_s = UTC0 + t - gps_epoch + leap
+        week, ms = int(gps_s // 604800), round((gps_s % 604800) * 1e3)
+        items.append(msg("POS", tus, round(lat * 1e7), round(lon * 1e7), alt, alt - GROUND_M))
+        items.append(msg("GPS", tus, 3, ms, week, round(lat * 1e7), round(lon * 1e7), alt))
+        items.append(msg("GPA", tus, 1.5))
+    for i, p in enumerate(poses):
+        tus = int((BOOT_S + p.t_s) * 1e6)
+        if "no_attitude" not in flaws:
+            att = msg("ATT", tus, p.roll, p.pitch, p.yaw % 360.0)
+            if "time_jump" in flaws and i == len(poses) // 2:
+                back = int((BOOT_S + poses[i - 1].t_s - 5.0) * 1e6)
+                att = (tus, msg("ATT", back, p.roll, p.pitch, p.yaw % 360.0)[1])
+            items.append(att)
+        if "no_trigger" not in flaws:
+            items.append(msg("CAM", tus, i))
+    items.sort(key=lambda x: x[0])
+    for _, data in items:
+        out += data
+    path = Path(path)
+    path.write_bytes(bytes(out))
+    return path

@@ -1,0 +1,158 @@
+"""A PX4 ULog of a rendered flight, written with ``pyulog`` (test and example data)."""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from c3_matcher_tools.testing.flightlogs import BOOT_S, GROUND_M, UTC0, Pose, dense_track
+
+__all__ = ["write_ulog"]
+
+
+_Topic = tuple[str, list[tuple[str, str]], dict[str, Sequence[Any]]]
+"""A ULog topic: its name, (type, field) of each field, and each field's values."""
+
+
+def write_ulog(
+    path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = (), rangefinder: bool = False
+) -> Path:
+    """A PX4 ULog with ``vehicle_attitude``, ``vehicle_global_position``,
+    ``vehicle_gps_position`` (eph 1.5 m, 3D fix, UTC time), ``home_position`` and
+    ``camera_capture`` (one per frame). ``flaws``: ``no_attitude`` (topic left out),
+    ``no_trigger``, ``gnss_loss`` (the receiver reports no fix over the second frame);
+    ``rangefinder``: ``vehicle_local_position.dist_bottom`` (valid) states the height above
+    ground, the ground 20 m higher than home (``home_position.alt``)."""
+    from pyulog import ULog
+
+    ulog = ULog(None)
+    ulog._file_version = 1
+    ulog._start_timestamp = int(BOOT_S * 1e6) - 1_000_000
+    us = [int((BOOT_S + p.t_s) * 1e6) for p in poses]
+    topics: list[_Topic] = []
+    if "no_attitude" not in flaws:
+        topics.append(_ulog_attitude(poses, us))
+    topics += _ulog_positions(poses, gnss_loss="gnss_loss" in flaws)
+    topics += _ulog_heights(poses, us, rangefinder)
+    if "no_trigger" not in flaws:
+        topics.append(
+            (
+                "camera_capture",
+                [("uint64_t", "timestamp"), ("uint32_t", "seq")],
+                {"timestamp": us, "seq": list(range(len(us)))},
+            )
+        )
+    for msg_id, (name, fields, values) in enumerate(topics):
+        _ulog_topic(ulog, msg_id, name, fields, values)
+    path = Path(path)
+    with path.open("wb") as fh:
+        ulog.write_ulog(fh)
+    return path
+
+
+def _ulog_attitude(poses: Sequence[Pose], us: list[int]) -> _Topic:
+    """``vehicle_attitude``: each frame's quaternion at its time ``us`` (µs since boot)."""
+    quats = [p.quaternion() for p in poses]
+    return (
+        "vehicle_attitude",
+        [("uint64_t", "timestamp"), ("float[4]", "q")],
+        {"timestamp": list(us), **{f"q[{k}]": [q[k] for q in quats] for k in range(4)}},
+    )
+
+
+def _ulog_positions(poses: Sequence[Pose], *, gnss_loss: bool) -> list[_Topic]:
+    """``vehicle_global_position`` and ``vehicle_gps_position`` along the poses (``gnss_loss``:
+    no fix within 0.3 s of the second frame)."""
+    dense = dense_track(poses)
+    dus = [int((BOOT_S + d[0]) * 1e6) for d in dense]
+    lost = {
+        i
+        for i, d in enumerate(dense)
+        if gnss_loss and len(poses) > 1 and abs(d[0] - poses[1].t_s) < 0.3
+    }
+    estimate: _Topic = (
+        "vehicle_global_position",
+        [("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"), ("float", "alt")],
+        {
+            "timestamp": dus,
+            "lat": [d[1] for d in dense],
+            "lon": [d[2] for d in dense],
+            "alt": [d[3] for d in dense],
+        },
+    )
+    receiver: _Topic = (
+        "vehicle_gps_position",
+        [
+            ("uint64_t", "timestamp"),
+            ("uint64_t", "time_utc_usec"),
+            ("int32_t", "lat"),
+            ("int32_t", "lon"),
+            ("int32_t", "alt"),
+            ("float", "eph"),
+            ("uint8_t", "fix_type"),
+        ],
+        {
+            "timestamp": dus,
+            "time_utc_usec": [int((UTC0 + d[0]) * 1e6) for d in dense],
+            "lat": [round(d[1] * 1e7) for d in dense],
+            "lon": [round(d[2] * 1e7) for d in dense],
+            "alt": [round(d[3] * 1e3) for d in dense],
+            "eph": [99.0 if i in lost else 1.5 for i in range(len(dense))],
+            "fix_type": [0 if i in lost else 3 for i in range(len(dense))],
+        },
+    )
+    return [estimate, receiver]
+
+
+def _ulog_heights(poses: Sequence[Pose], us: list[int], rangefinder: bool) -> list[_Topic]:
+    """``home_position`` (its altitude the ground's, 20 m lower with a ``rangefinder``) and the
+    rangefinder's ``vehicle_local_position`` at each frame's time ``us``."""
+    home: _Topic = (
+        "home_position",
+        [("uint64_t", "timestamp"), ("float", "alt")],
+        {"timestamp": [us[0]], "alt": [GROUND_M - (20.0 if rangefinder else 0.0)]},
+    )
+    if not rangefinder:
+        return [home]
+    local: _Topic = (
+        "vehicle_local_position",
+        [
+            ("uint64_t", "timestamp"),
+            ("float", "dist_bottom"),
+            ("bool", "dist_bottom_valid"),
+            ("float", "ref_alt"),
+        ],
+        {
+            "timestamp": us,
+            "dist_bottom": [p.height_m for p in poses],
+            "dist_bottom_valid": [True] * len(us),
+            "ref_alt": [GROUND_M - 20.0] * len(us),
+        },
+    )
+    return [home, local]
+
+
+def _ulog_topic(
+    ulog: Any,
+    msg_id: int,
+    name: str,
+    fields: list[tuple[str, str]],
+    values: dict[str, Sequence[Any]],
+) -> None:
+    from pyulog import ULog
+
+    spec = name + ":" + "".join(f"{t} {n};" for t, n in fields)
+    ulog._message_formats[name] = ULog.MessageFormat(spec.encode(), None)
+    add = ULog._MessageAddLogged(
+        struct.pack("<BH", 0, msg_id) + name.encode(), None, ulog._message_formats
+    )
+    n = len(values["timestamp"])
+    arr = np.zeros(n, dtype=add.dtype)
+    for f in add.field_data:
+        arr[f.field_name] = values[f.field_name]
+    add.buffer = bytearray(arr.tobytes())
+    ulog._data_list.append(ULog.Data(add))
