@@ -124,14 +124,20 @@ def test_shipped_similarity_graph_is_the_one_the_exporter_writes():
 
 def test_onnx_similarity_equals_numpy_and_gives_the_same_matches():
     """Full XFeat sets (4096 and 3000 unit descriptors): ONNX Runtime's Gemm and numpy's
-    product give the same matrix bit for bit, so the flight matcher's matches are numpy's."""
+    product give the same matrix to float32 rounding (bit for bit where both take the same
+    kernel: on an AVX-512 CPU; elsewhere a few entries differ in the last bit, each as close to
+    the exact product), and the flight matcher's matches are numpy's."""
     rng = np.random.default_rng(11)
     d0 = rng.normal(size=(4096, 64)).astype(np.float32)
     d1 = rng.normal(size=(3000, 64)).astype(np.float32)
     d0 /= np.linalg.norm(d0, axis=1, keepdims=True)
     d1 /= np.linalg.norm(d1, axis=1, keepdims=True)
-    onnx = OnnxSimilarity(threads=2)
-    assert np.array_equal(onnx(d0, d1), numpy_similarity(d0, d1))
+    exact = d0.astype(np.float64) @ d1.T.astype(np.float64)
+    onnx, numpy = OnnxSimilarity(threads=2)(d0, d1), numpy_similarity(d0, d1)
+    rounding = 64 * np.finfo(np.float32).eps  # 64-term dot products of unit vectors
+    assert onnx.dtype == np.float32 and onnx.shape == (4096, 3000)
+    assert np.abs(onnx - exact).max() <= rounding
+    assert np.abs(onnx - numpy).max() <= rounding
     ours = MutualNearestNeighbourMatcher(0.5, threads=2).match(
         Features(np.zeros((4096, 2), np.float32), d0, np.ones(4096, np.float32), (640, 480)),
         Features(np.zeros((3000, 2), np.float32), d1, np.ones(3000, np.float32), (640, 480)),
@@ -139,7 +145,7 @@ def test_onnx_similarity_equals_numpy_and_gives_the_same_matches():
     reference = mutual_nearest_neighbours(d0, d1, 0.5)
     assert len(reference) > 0
     assert np.array_equal(ours.matches, reference.matches)
-    assert np.array_equal(ours.scores, reference.scores)
+    np.testing.assert_allclose(ours.scores, reference.scores, rtol=0, atol=rounding)
 
 
 def test_entry_point_wiring_through_the_public_lookup():

@@ -8,8 +8,9 @@ when ``min_cossim > 0``, their similarity exceeds ``min_cossim``. Ties go to the
 The similarity matrix (4096 x 4096 x 64 for two full XFeat sets) is the one heavy product. In
 flight (``MutualNearestNeighbourMatcher``) it runs as ONNX Runtime's ``Gemm`` in a session of its
 own whose threads do not spin after a run (``OnnxSimilarity``). numpy's product, through
-OpenBLAS, gives the same matrix, but OpenBLAS's worker threads keep spinning for a while after
-it and took the cores from the next XFeat extraction: on the 2-core reference machine that
+OpenBLAS, gives the same matrix to float32 rounding (bit for bit on an AVX-512 CPU, where both
+take the same kernel), but OpenBLAS's worker threads keep spinning for a while after it and
+took the cores from the next XFeat extraction: on the 2-core reference machine that
 extraction ran ~2x slower (docs/benchmarks.md). ``mutual_nearest_neighbours`` keeps numpy's
 product as its default (ground tools and tests).
 """
