@@ -35,6 +35,7 @@ from c3_matcher_tools.dataset.sources.options import (
     max_uncertainty_m,
 )
 from c3_matcher_tools.dataset.telemetry import TelemetryRow
+from c3_matcher_tools.geodesy import flat_offset_latlon
 
 __all__ = [
     "StoreProposals",
@@ -45,8 +46,6 @@ __all__ = [
     "store_zoom",
 ]
 
-M_PER_DEG_LAT = 111_320.0
-
 
 def look_point(row: TelemetryRow, calibration: CameraCalibration) -> tuple[float, float]:
     """(lon, lat) where the optical axis meets flat ground ``altitude_m`` below the vehicle
@@ -56,8 +55,7 @@ def look_point(row: TelemetryRow, calibration: CameraCalibration) -> tuple[float
     if down < 0.2:  # about 78 deg off nadir or worse: the hit point means nothing
         return row.lon, row.lat
     dn, de = row.altitude_m * north / down, row.altitude_m * east / down
-    lat = row.lat + dn / M_PER_DEG_LAT
-    lon = row.lon + de / (M_PER_DEG_LAT * math.cos(math.radians(row.lat)))
+    lat, lon = flat_offset_latlon(row.lat, row.lon, dn, de)
     return lon, lat
 
 

@@ -22,7 +22,6 @@ CRSs (degrees) are converted at the centre's latitude. Without ``tifffile`` or t
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.geodesy import MERCATOR_EPSG, ground_gsd_m, mercator_latitude_deg
 
 __all__ = ["KNOWN_GSD_M", "Orthophoto", "geotiff_gsd_m", "load_orthophoto"]
 
@@ -48,9 +48,6 @@ KNOWN_GSD_M: dict[str, float] = {
     "swissimage_zurich_1091-322_00_0p5m.tif": 0.5,
     "swissimage_ref-img_0p5m.tif": 0.5,
 }
-
-_WGS84_A = 6378137.0
-_WGS84_E2 = 0.0066943799901413165
 
 
 @dataclass(frozen=True)
@@ -109,18 +106,6 @@ def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any], str
     return arr, tags, ""
 
 
-def _mercator_lat(y: float, ellipsoidal: bool) -> float:
-    """Latitude (rad) of Mercator northing ``y`` (m) on WGS84 (ellipsoidal) or the sphere."""
-    t = math.exp(-y / _WGS84_A)
-    phi = math.pi / 2 - 2 * math.atan(t)
-    if ellipsoidal:
-        e = math.sqrt(_WGS84_E2)
-        for _ in range(20):
-            es = e * math.sin(phi)
-            phi = math.pi / 2 - 2 * math.atan(t * ((1 - es) / (1 + es)) ** (e / 2))
-    return phi
-
-
 def geotiff_gsd_m(
     tags: dict[int, Any], height_px: int, *, source: str | Path = "the GeoTIFF"
 ) -> float | None:
@@ -136,30 +121,21 @@ def geotiff_gsd_m(
     check_pixel_scale(sx, sy, source)
 
     keys = geokeys(tags[34735]) if 34735 in tags else {}
-    tie = tags.get(33922)
-    centre_y = None
-    if tie is not None and len(tie) >= 6:
-        centre_y = float(tie[4]) - sy * (height_px / 2.0 - float(tie[1]))
-    model = keys.get(1024)
-    if model == 2:  # geographic: degrees
-        if centre_y is None:
-            return None
-        lat = math.radians(centre_y)
-        s2 = math.sin(lat) ** 2
-        m_per_deg_lat = math.radians(1) * _WGS84_A * (1 - _WGS84_E2) / (1 - _WGS84_E2 * s2) ** 1.5
-        m_per_deg_lon = math.radians(1) * _WGS84_A * math.cos(lat) / math.sqrt(1 - _WGS84_E2 * s2)
-        return math.sqrt(sx * m_per_deg_lon * sy * m_per_deg_lat)
+    geographic = keys.get(1024) == 2
     epsg = keys.get(3072)
-    gsd = math.sqrt(sx * sy)
-    if epsg in (3395, 3857, 900913, 3785) and centre_y is not None:
-        ellipsoidal = epsg == 3395
-        lat = _mercator_lat(centre_y, ellipsoidal)
-        if ellipsoidal:
-            k = math.sqrt(1 - _WGS84_E2 * math.sin(lat) ** 2) / math.cos(lat)
-        else:
-            k = 1.0 / math.cos(lat)
-        gsd /= k
-    return gsd
+    mercator = None if epsg is None else MERCATOR_EPSG.get(int(epsg))
+    lat_deg = 0.0  # projected metres need no latitude
+    if geographic or mercator is not None:
+        tie = tags.get(33922)
+        if tie is None or len(tie) < 6:
+            return None  # no tie point: no latitude to convert degrees or a Mercator scale at
+        centre_y = float(tie[4]) - sy * (height_px / 2.0 - float(tie[1]))
+        lat_deg = (
+            centre_y
+            if geographic
+            else float(mercator_latitude_deg(centre_y, ellipsoidal=bool(mercator)))
+        )
+    return ground_gsd_m(sx, sy, lat_deg, geographic=geographic, epsg=epsg)
 
 
 def load_orthophoto(path: str | Path, *, gsd_m: float | None = None) -> Orthophoto:

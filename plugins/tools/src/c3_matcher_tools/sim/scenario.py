@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from c3_matcher.dto import Attitude, CameraCalibration, TileId
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.geodesy import flat_offset_latlon
 from c3_matcher_tools.sim.orthophotos import Orthophoto, load_orthophoto
 from c3_matcher_tools.sim.photometric import PhotometricShift
 from c3_matcher_tools.sim.render import (
@@ -29,9 +30,6 @@ from c3_matcher_tools.sim.render import (
 )
 
 __all__ = ["Scenario", "ScenarioSpec", "build_scenario", "inlier_errors_px"]
-
-M_PER_DEG_LAT = 111_320.0
-EQUATOR_M_PER_PX_Z0 = 156_543.03392804097
 
 
 @dataclass(frozen=True)
@@ -81,9 +79,8 @@ def _tile_id(ortho: Orthophoto, tile: OrthoTile, ref: tuple[float, float]) -> Ti
     w, h = tile.size
     cx = tile.offset_px[0] + (w - 1) / 2 - (ortho.size[0] - 1) / 2
     cy = tile.offset_px[1] + (h - 1) / 2 - (ortho.size[1] - 1) / 2
-    lat = ref[0] - cy * tile.gsd_m / M_PER_DEG_LAT
-    lon = ref[1] + cx * tile.gsd_m / (M_PER_DEG_LAT * math.cos(math.radians(ref[0])))
-    zoom = round(math.log2(EQUATOR_M_PER_PX_Z0 * math.cos(math.radians(lat)) / tile.gsd_m))
+    lat, lon = flat_offset_latlon(ref[0], ref[1], -cy * tile.gsd_m, cx * tile.gsd_m)
+    zoom = round(math.log2(TileId(0, lat, lon).web_mercator_gsd_m() / tile.gsd_m))
     return TileId(max(0, min(30, zoom)), lat, lon)
 
 

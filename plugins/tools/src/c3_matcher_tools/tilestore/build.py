@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.sim.orthophotos import load_orthophoto
 from c3_matcher_tools.tilestore.geo import (
@@ -199,8 +200,7 @@ class _Plan:
 
     def tile_gsd(self, z: int) -> float:
         """The ground GSD (m/px) of zoom ``z``'s tiles at the image centre."""
-        lat_c = self.centre[1]
-        return 2 * math.pi * 6378137.0 / TILE_PX * math.cos(math.radians(lat_c)) / 2**z
+        return TileId(z, self.centre[1], self.centre[0]).web_mercator_gsd_m()
 
 
 def build_mbtiles(

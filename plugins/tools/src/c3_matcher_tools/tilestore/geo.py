@@ -20,9 +20,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from c3_matcher.arrays import F64
+from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
-from c3_matcher_tools.tilestore.projection import WGS84_A, Projection
+from c3_matcher_tools.tilestore.projection import Projection
 
 __all__ = [
     "TILE_PX",
@@ -235,5 +236,5 @@ def zoom_for_gsd(gsd_m: float, lat_deg: float) -> int:
     than a zoom is not upsampled needlessly), i.e. no source detail is thrown away. (The zoom
     nearest the GSD on a log scale, the old default, picked zoom 14 at 6.5 m/px for the 5 m NAIP
     sheet: a store of 12 tiles on which ``dataset render`` finds no distractors.)"""
-    z0 = 2 * math.pi * WGS84_A / TILE_PX * math.cos(math.radians(lat_deg))
+    z0 = TileId(0, lat_deg, 0.0).web_mercator_gsd_m()
     return max(0, min(30, math.ceil(math.log2(z0 / (gsd_m * 1.05)))))

@@ -14,18 +14,21 @@ from numpy.typing import ArrayLike
 
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.geodesy import (
+    MERCATOR_EPSG,
+    WGS84_A,
+    WGS84_E2,
+    WGS84_F,
+    mercator_latitude_deg,
+)
 
-__all__ = ["WGS84_A", "Projection", "pyproj_available"]
+__all__ = ["Projection", "pyproj_available"]
 
-WGS84_A = 6378137.0
-"""The WGS84 ellipsoid's semi-major axis (m)."""
-_F = 1 / 298.257223563
-_E2 = _F * (2 - _F)
 _M_PER_DEG = math.pi * WGS84_A / 180.0
 
 
 def _kruger() -> tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
-    n = _F / (2 - _F)
+    n = WGS84_F / (2 - WGS84_F)
     big_a = WGS84_A / (1 + n) * (1 + n**2 / 4 + n**4 / 64)
     alpha = (n / 2 - 2 * n**2 / 3 + 5 * n**3 / 16, 13 * n**2 / 48 - 3 * n**3 / 5, 61 * n**3 / 240)
     beta = (n / 2 - 2 * n**2 / 3 + 37 * n**3 / 96, n**2 / 48 + n**3 / 15, 17 * n**3 / 480)
@@ -84,10 +87,8 @@ class Projection:
             if pyproj_available():  # NAD83 is not WGS84: the datum shift is pyproj's
                 return cls("pyproj", epsg=epsg)
             return cls("utm", zone=epsg - 26900)
-        if epsg in (3857, 900913, 3785):
-            return cls("web_mercator")
-        if epsg == 3395:
-            return cls("world_mercator")
+        if epsg in MERCATOR_EPSG:
+            return cls("world_mercator" if MERCATOR_EPSG[epsg] else "web_mercator")
         if epsg == 4326:
             return cls("geographic")
         if epsg is not None and _pyproj_knows(epsg):
@@ -170,7 +171,7 @@ def _utm_lon0(p: Projection) -> float:
 
 
 def _utm_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
-    k0, n = 0.9996, _F / (2 - _F)
+    k0, n = 0.9996, WGS84_F / (2 - WGS84_F)
     phi, lam = np.radians(lat), np.radians(lon) - _utm_lon0(p)
     c = 2 * math.sqrt(n) / (1 + n)
     t = np.sinh(np.arctanh(np.sin(phi)) - c * np.arctanh(c * np.sin(phi)))
@@ -205,22 +206,14 @@ def _mercator_forward(_p: Projection, lon: F64, lat: F64, *, ellipsoidal: bool) 
     phi = np.radians(lat)
     y = np.log(np.tan(np.pi / 4 + phi / 2))
     if ellipsoidal:  # world mercator
-        e1 = math.sqrt(_E2)
+        e1 = math.sqrt(WGS84_E2)
         es = e1 * np.sin(phi)
         y = y + (e1 / 2) * np.log((1 - es) / (1 + es))
     return WGS84_A * np.radians(lon), WGS84_A * y
 
 
 def _mercator_inverse(_p: Projection, e: F64, n: F64, *, ellipsoidal: bool) -> tuple[F64, F64]:
-    lon = np.degrees(e / WGS84_A)
-    t = np.exp(-n / WGS84_A)
-    phi = np.pi / 2 - 2 * np.arctan(t)
-    if ellipsoidal:  # world mercator: fixed-point iteration on the latitude
-        e1 = math.sqrt(_E2)
-        for _ in range(12):
-            es = e1 * np.sin(phi)
-            phi = np.pi / 2 - 2 * np.arctan(t * ((1 - es) / (1 + es)) ** (e1 / 2))
-    return lon, np.degrees(phi)
+    return np.degrees(e / WGS84_A), mercator_latitude_deg(n, ellipsoidal=ellipsoidal)
 
 
 def _identity(_p: Projection, a: F64, b: F64) -> tuple[F64, F64]:

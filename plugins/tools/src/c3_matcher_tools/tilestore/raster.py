@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.geodesy import ground_gsd_m
 from c3_matcher_tools.tilestore.geo import GeoGrid, check_grid_fits_crs, check_pixel_scale
 from c3_matcher_tools.tilestore.projection import Projection
 
@@ -41,10 +42,6 @@ __all__ = ["RasterioSource", "ValueMapping", "ValueRange", "grid_gsd_m", "raster
 
 #: how source values become 8 bits: None (the 99.9th percentile), "bits" or (lo, hi)
 ValueRange = str | tuple[float, float] | None
-
-_A = 6378137.0
-_E2 = 0.0066943799901413165
-_MERCATOR = (3395, 3857, 900913, 3785)
 
 
 def rasterio_available() -> bool:
@@ -59,18 +56,7 @@ def grid_gsd_m(grid: GeoGrid, *, geographic: bool) -> float:
     :func:`c3_matcher_tools.sim.orthophotos.geotiff_gsd_m`: projected metres as they are,
     mercator scales divided by the scale factor at the centre latitude, degrees converted."""
     _lon, lat_deg = grid.centre_lonlat()
-    lat = math.radians(lat_deg)
-    s2 = math.sin(lat) ** 2
-    if geographic:
-        m_lat = math.radians(1) * _A * (1 - _E2) / (1 - _E2 * s2) ** 1.5
-        m_lon = math.radians(1) * _A * math.cos(lat) / math.sqrt(1 - _E2 * s2)
-        return math.sqrt(grid.scale_x * m_lon * grid.scale_y * m_lat)
-    gsd = math.sqrt(grid.scale_x * grid.scale_y)
-    if grid.epsg == 3395:
-        gsd /= math.sqrt(1 - _E2 * s2) / math.cos(lat)
-    elif grid.epsg in _MERCATOR:
-        gsd *= math.cos(lat)
-    return gsd
+    return ground_gsd_m(grid.scale_x, grid.scale_y, lat_deg, geographic=geographic, epsg=grid.epsg)
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.options import ImportOptions
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
+from c3_matcher_tools.geodesy import flat_offset_m
 
 __all__ = ["Frame", "assemble_frames", "ground_elevation_sampler"]
 
@@ -227,8 +228,7 @@ def _course_deg(track: LogTrack, t: float) -> float:
     a, b = series.at(t - 1.0, 5.0), series.at(t + 1.0, 5.0)
     if a is None or b is None or not np.all(np.isfinite([*a[:2], *b[:2]])):
         return 0.0
-    dn = (b[0] - a[0]) * 111_320.0
-    de = (b[1] - a[1]) * 111_320.0 * math.cos(math.radians(a[0]))
+    dn, de = flat_offset_m(float(a[0]), float(a[1]), float(b[0]), float(b[1]))
     return 0.0 if math.hypot(dn, de) < 1.0 else math.degrees(math.atan2(de, dn))
 
 
