@@ -133,3 +133,26 @@ def test_a_replay_where_no_frame_matched_says_what_to_check(ok: int, hinted: boo
     said = "\n".join(_report_lines("myflight", report, Path("out")))
     assert ("no frame matched" in said) is hinted
     assert ("c3-matcher eval" in said) is hinted
+
+
+def test_a_frame_whose_image_cannot_be_decoded_is_recorded_and_the_flight_goes_on(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    """A damaged image body (its header whole, so the checks before the run pass) is the
+    camera's loss: that frame is ``unreadable`` with the reason, the others are flown."""
+    import json
+
+    flight = small_flight("damaged")
+    images = sorted((flight / "frames").iterdir())
+    images[1].write_bytes(images[1].read_bytes()[:2000])
+    out = tmp_path / "out"
+    proc = c3("replay", str(flight), "--strategy", "sift_magsac", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
+    assert [r["status"] for r in rows][1] == "unreadable" and rows[0]["status"] != "unreadable"
+    assert images[1].name in rows[1]["error"] and "decod" in rows[1]["error"]
+    assert "unreadable images 1" in proc.stdout
+    assert json.loads((out / "report.json").read_text())["unreadable"] == 1
+    done = [r for r in read_fdr(out / "fdr.jsonl") if r["kind"] == "matcher.frame_done"]
+    assert len(done) == 1  # the matcher never saw the damaged frame
+    assert (out / "report.html").stat().st_size > 0

@@ -3,18 +3,19 @@ composition root's matcher (or the SIFT + MAGSAC baseline), with a progress bar 
 
 Writes under ``--out`` (default ``out/replay/<dataset>-<strategy>``; a dataset name that is not
 one plain path component is refused): ``results.jsonl`` (one line per frame: status ``ok`` |
-``insufficient`` | ``backbone_error``, elapsed ms, the scoring against ground truth and, for
-``ok``, the MatchResult as ``c3-matcher match`` prints it), ``fdr.jsonl`` (the flight-data
-records), ``matcher.log`` (the JSON logs), ``report.json``, ``flight.geojson`` (truth and
-estimate: centres, tracks, footprints; QGIS opens it) and ``report.html`` (the self-contained
-flight report, with the ``report`` extra: matplotlib). The results and reports are each
-replaced atomically; the FDR and log are started afresh only once this run holds the FDR's
-lock, so a replay into a directory another one is writing is refused with its files untouched.
-What can refuse the run is checked before ``--out`` is touched: every frame image (readable,
-of the calibration's size), every noisy attitude (``--attitude-noise-deg``), an ``--out`` that
-is, holds or lies inside the dataset, the strategy and its engines (composed first).
-stdout carries the report (a table, or JSON with ``--json``). Each ``ok`` result carries the
-best homography and, the tile ids being georeferenced, the frame centre's lat/lon and its
+``insufficient`` | ``backbone_error`` | ``unreadable`` (its image could not be read or decoded:
+the frame is recorded with the reason and the flight goes on), elapsed ms, the scoring against
+ground truth and, for ``ok``, the MatchResult as ``c3-matcher match`` prints it), ``fdr.jsonl``
+(the flight-data records), ``matcher.log`` (the JSON logs), ``report.json``, ``flight.geojson``
+(truth and estimate: centres, tracks, footprints; QGIS opens it) and ``report.html`` (the
+self-contained flight report, with the ``report`` extra: matplotlib). The results and reports
+are each replaced atomically; the FDR and log are started afresh only once this run holds the
+FDR's lock, so a replay into a directory another one is writing is refused with its files
+untouched. What can refuse the run is checked before ``--out`` is touched: every frame image
+(readable, of the calibration's size), every noisy attitude (``--attitude-noise-deg``), an
+``--out`` that is, holds or lies inside the dataset, the strategy and its engines (composed
+first). stdout carries the report (a table, or JSON with ``--json``). Each ``ok`` result carries
+the best homography and, the tile ids being georeferenced, the frame centre's lat/lon and its
 footprint; frames with ground truth also carry ``truth_lat``/``truth_lon`` and
 ``position_error_m``. The report's ``settings`` are the ``[matcher]`` settings the strategy ran
 with (its own defaults where the configuration leaves a setting unset).
@@ -133,7 +134,8 @@ def _report_lines(name: str, report: dict[str, Any], out: Path) -> list[str]:
         f"replay {name} with {report['strategy']}: {report['frames']} frames in "
         f"{report['wall_s']:.1f} s (startup {report['startup_s']:.1f} s)",
         f"  ok {report['ok']}, insufficient inliers {report['insufficient']}, "
-        f"backbone errors {report['backbone_error']}",
+        f"backbone errors {report['backbone_error']}"
+        + (f", unreadable images {report['unreadable']}" if report.get("unreadable") else ""),
     ]
     if report["frames"] and not report["ok"]:
         lines.append(

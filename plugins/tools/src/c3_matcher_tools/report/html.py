@@ -121,7 +121,10 @@ def _kpis(summary: dict[str, Any]) -> list[tuple[str, Any]]:
     return [
         ("frames", summary.get("frames")),
         ("matched", summary.get("ok")),
-        ("failed", (summary.get("insufficient") or 0) + (summary.get("backbone_error") or 0)),
+        (
+            "failed",
+            sum(summary.get(k) or 0 for k in ("insufficient", "backbone_error", "unreadable")),
+        ),
         (
             "correct tile",
             f"{summary.get('correct_candidate')}/{summary.get('true_present')}"

@@ -117,7 +117,8 @@ def _picture_title(outcome: FrameOutcome) -> str:
 def gallery_pictures(
     dataset: FlightDataset, outcomes: Sequence[FrameOutcome], n: int
 ) -> list[tuple[str, str]]:
-    """(caption, data URI) of the ``n`` worst and ``n`` best frames."""
+    """(caption, data URI) of the ``n`` worst and ``n`` best frames whose image could be read
+    (an ``unreadable`` frame has no picture: the table names it and why)."""
 
     def badness(o: FrameOutcome) -> tuple[float, float]:
         if o.status != "ok":
@@ -130,7 +131,8 @@ def gallery_pictures(
         err = o.position_error_m if math.isfinite(o.position_error_m) else 0.0
         return (1.0, err - o.best_inliers / 1e4)
 
-    ranked = sorted(outcomes, key=badness, reverse=True)
+    readable = [o for o in outcomes if o.status != "unreadable"]
+    ranked = sorted(readable, key=badness, reverse=True)
     worst = ranked[:n]
     best = [o for o in reversed(ranked) if o.status == "ok" and o not in worst][:n]
     out: list[tuple[str, str]] = []

@@ -72,27 +72,38 @@ def _fly_frame(
     store: MBTilesStore,
     with_correspondences: bool,
 ) -> FrameOutcome:
-    nav = dataset.nav_frame(frame)
-    rerank = dataset.rerank(frame, store)
-    t0 = time.perf_counter()
-    error: str | None = None
-    result: MatchResult | None = None
-    best_count = 0
-    try:
-        result = matcher.match(nav, rerank, dataset.calibration)
-        status = "ok"
-    except InsufficientInliersError as exc:
-        status, best_count, error = "insufficient", exc.best_inlier_count, str(exc)
-    except MatcherBackboneError as exc:
-        status, error = "backbone_error", str(exc)
-    elapsed = (time.perf_counter() - t0) * 1e3
     truth = truth_position(dataset, frame)
     geo: dict[str, Any] = {"has_truth": frame.has_truth}
     if truth is not None:
         geo.update(truth_lat=truth[0], truth_lon=truth[1])
     geo.update(telemetry_reference(frame))
-    if result is not None:
-        return _matched(dataset, frame, result, elapsed, geo, with_correspondences)
+    try:
+        nav = dataset.nav_frame(frame)
+    except InvalidInputError as exc:  # a damaged or vanished image: the camera's loss, not C3's
+        return _unmatched(frame, "unreadable", 0.0, str(exc), 0, geo)
+    rerank = dataset.rerank(frame, store)
+    t0 = time.perf_counter()
+    try:
+        result = matcher.match(nav, rerank, dataset.calibration)
+    except InsufficientInliersError as exc:
+        elapsed = (time.perf_counter() - t0) * 1e3
+        return _unmatched(frame, "insufficient", elapsed, str(exc), exc.best_inlier_count, geo)
+    except MatcherBackboneError as exc:
+        elapsed = (time.perf_counter() - t0) * 1e3
+        return _unmatched(frame, "backbone_error", elapsed, str(exc), 0, geo)
+    elapsed = (time.perf_counter() - t0) * 1e3
+    return _matched(dataset, frame, result, elapsed, geo, with_correspondences)
+
+
+def _unmatched(
+    frame: FrameRecord,
+    status: str,
+    elapsed: float,
+    error: str,
+    best_count: int,
+    geo: dict[str, Any],
+) -> FrameOutcome:
+    """A frame that gave no result: ``status`` and the ``error`` that says why."""
     return FrameOutcome(
         frame.index,
         str(frame.frame_id),

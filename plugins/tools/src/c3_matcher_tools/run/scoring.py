@@ -118,6 +118,7 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> dict[str, Any]:
         "ok": sum(o.status == "ok" for o in outcomes),
         "insufficient": sum(o.status == "insufficient" for o in outcomes),
         "backbone_error": sum(o.status == "backbone_error" for o in outcomes),
+        "unreadable": sum(o.status == "unreadable" for o in outcomes),
         "with_truth": sum(o.has_truth for o in outcomes),
         "true_present": len(present),
         "correct_candidate": sum(o.correct for o in present),
