@@ -13,7 +13,7 @@ import numpy as np
 from c3_matcher.config import C3Settings
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import InputRule, PreparedImage
-from c3_matcher.strategy import backend_strategy_factory
+from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS, backend_strategy_factory
 
 __all__ = ["SIFT_LABEL", "SiftBackend", "create"]
 
@@ -28,7 +28,9 @@ class SiftBackend:
     extract_phase = "sift_extract"
     match_phase = "sift_match"
 
-    def __init__(self, rule: InputRule, max_keypoints: int = 2048, ratio: float = 0.85) -> None:
+    def __init__(
+        self, rule: InputRule, max_keypoints: int = DEFAULT_MAX_KEYPOINTS, ratio: float = 0.85
+    ) -> None:
         self.input_rule = rule
         self._sift = cv2.SIFT.create(nfeatures=max_keypoints)
         self._matcher = cv2.BFMatcher(cv2.NORM_L2)
@@ -73,9 +75,10 @@ class SiftBackend:
 
 
 def _sift_backend(config: C3Settings, _options: Any) -> SiftBackend:
-    """Long side and keypoint budget from ``[matcher]``, 2048 keypoints by default."""
+    """Long side and keypoint budget from ``[matcher]``, the LightGlue strategies' default
+    keypoints (:data:`~c3_matcher.strategy.config.DEFAULT_MAX_KEYPOINTS`) when it names none."""
     m = config.matcher
-    return SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints or 2048)
+    return SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints or DEFAULT_MAX_KEYPOINTS)
 
 
 #: strategy factory of the ``sift_magsac`` baseline (the same pipeline as every strategy)

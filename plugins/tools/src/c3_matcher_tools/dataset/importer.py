@@ -149,8 +149,7 @@ def _check_csv_inputs(spec: ImportSpec) -> _CheckedCsv:
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: no such file or folder")
     if not images_dir.is_dir():
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: not a directory")
-    if not Path(spec.proposal.store).is_file():
-        raise InvalidInputError("STORE", f"{spec.proposal.store}: no such tile store")
+    spec.proposal.check_store()
     calibration = load_calibration(Path(spec.calibration_json), field="CALIBRATION")
     table = read_telemetry_table(
         Path(spec.telemetry_csv), ground_elevation_m=spec.ground_elevation_m, dem=spec.dem

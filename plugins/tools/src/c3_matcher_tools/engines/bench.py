@@ -93,25 +93,27 @@ def _settings(mem_pattern: bool, arena: bool) -> Any:
     return SessionSettings(enable_mem_pattern=mem_pattern, enable_cpu_mem_arena=arena)
 
 
-def _time_runs(fn: Callable[[], object], runs: int) -> tuple[float, list[float]]:
+def _time_runs(fn: Callable[[], object], runs: int) -> tuple[object, float, list[float]]:
+    """The first run's result and time (ms), then ``runs`` more timed runs (ms)."""
     start = time.perf_counter()
-    fn()
+    first_result = fn()
     first = (time.perf_counter() - start) * 1e3
     times = []
     for _ in range(runs):
         start = time.perf_counter()
         fn()
         times.append((time.perf_counter() - start) * 1e3)
-    return first, times
+    return first_result, first, times
 
 
 class _Case(NamedTuple):
-    """One case set up in the child: label, timed call, engine load time (ms), result detail."""
+    """One case set up in the child: label, timed call, engine load time (ms), and what its
+    result reports (from the first run's result: nothing runs untimed before it)."""
 
     label: str
     fn: Callable[[], object]
     load_ms: float
-    detail: dict[str, Any]
+    detail: Callable[[Any], dict[str, Any]]
 
 
 def _extractor_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> _Case:
@@ -129,8 +131,7 @@ def _extractor_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> 
     def fn() -> object:
         return run_extractor(runtime, engine_id, rgb, mask, 2048)
 
-    detail = {"keypoints": len(run_extractor(runtime, engine_id, rgb, mask, 2048))}
-    return _Case(f"{model} {width}x{height}", fn, load_ms, detail)
+    return _Case(f"{model} {width}x{height}", fn, load_ms, lambda f: {"keypoints": len(f)})
 
 
 def _matcher_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> _Case:
@@ -154,8 +155,7 @@ def _matcher_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> _C
     def fn() -> object:
         return matcher.match_pair(side0, side1, feature_type=args.feature_type)
 
-    detail = {"matches": len(matcher.match_pair(side0, side1, feature_type=args.feature_type))}
-    return _Case(label, fn, load_ms, detail)
+    return _Case(label, fn, load_ms, lambda m: {"matches": len(m)})
 
 
 def _child(args: argparse.Namespace) -> int:
@@ -167,7 +167,7 @@ def _child(args: argparse.Namespace) -> int:
         ["CPUExecutionProvider"], settings=_settings(args.mem_pattern == "on", args.arena == "on")
     )
     case = (_extractor_case if args.kind == "extractor" else _matcher_case)(args, runtime)
-    first, times = _time_runs(case.fn, args.runs)
+    first_result, first, times = _time_runs(case.fn, args.runs)
     ordered = sorted(times)
     p95 = ordered[min(len(ordered) - 1, int(np.ceil(0.95 * len(ordered))) - 1)]
     result = BenchResult(
@@ -182,7 +182,7 @@ def _child(args: argparse.Namespace) -> int:
         peak_rss_mib=round(peak_rss_mib(), 1),
         baseline_rss_mib=round(baseline, 1),
         settings=f"mem_pattern={args.mem_pattern} arena={args.arena}",
-        detail=case.detail,
+        detail=case.detail(first_result),
     )
     print(json.dumps(asdict(result)))
     return 0

@@ -68,6 +68,12 @@ class ProposalOptions:
             )
         check_candidate_size(self.candidate_size_px)
 
+    def check_store(self) -> None:
+        """Refuse, naming ``STORE``, a tile store that is not a file (checked when the import
+        reaches it, after the inputs it names before)."""
+        if not Path(self.store).is_file():
+            raise InvalidInputError("STORE", f"{self.store}: no such tile store")
+
     def spec_json(self, zoom: int) -> dict[str, Any]:
         """The options as a dataset's ``spec`` records them: the store by its file name, the
         zoom the candidates were proposed at."""

@@ -113,9 +113,7 @@ def _placed(
     """The frames placed on the log (refused when none is, when the images' own GPS says
     another flight, or when no frame has a height above ground), every image skipped with its
     reason, and how the images met the log's clock."""
-    store = options.proposal.store
-    if not Path(store).is_file():
-        raise InvalidInputError("STORE", f"{store}: no such tile store")
+    options.proposal.check_store()
     if not shots:
         raise InvalidInputError("IMAGES", "no image found")
     if track.position is None and track.gnss is None:

@@ -22,7 +22,7 @@ from torch import nn
 from torch.nn import functional as nnf
 
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
-from c3_matcher_tools.engines.export.onnx_export import export_module, verification_session
+from c3_matcher_tools.engines.export.onnx_export import export_requested, verification_session
 
 __all__ = [
     "ExtractorCase",
@@ -96,17 +96,14 @@ def export_extractor(
     rows = torch.export.Dim(f"height{multiple}", min=2, max=max_blocks)
     cols = torch.export.Dim(f"width{multiple}", min=2, max=max_blocks)
     request.log(f"exporting {label} (opset {request.spec.opset})")
-    export_module(
+    export_requested(
+        request,
         module,
         (torch.rand(1, 3, 256, 320), torch.ones(1, 1, 256, 320)),
-        request.output_path,
-        input_names=[t.name for t in request.spec.inputs],
-        output_names=[t.name for t in request.spec.outputs],
         dynamic_shapes={
             "image": {2: multiple * rows, 3: multiple * cols},
             "mask": {2: multiple * rows, 3: multiple * cols},
         },
-        opset=request.spec.opset,
     )
     return verification_session(request.output_path)
 

@@ -34,7 +34,7 @@ from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, OnnxLightGlue
 from c3_matcher.features import PairSide
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
 from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
-from c3_matcher_tools.engines.export.onnx_export import export_module, verification_session
+from c3_matcher_tools.engines.export.onnx_export import export_requested, verification_session
 
 __all__ = [
     "LIGHTGLUE_TOLERANCES",
@@ -325,19 +325,16 @@ def _export_graph(request: ExportRequest, reference: LightGlue, input_dim: int) 
         nnf.normalize(torch.rand(1, 300, input_dim, generator=generator), dim=-1),
         nnf.normalize(torch.rand(1, 280, input_dim, generator=generator), dim=-1),
     )
-    export_module(
+    export_requested(
+        request,
         LightGlueForExport(fused_attention_copy(reference)),
         example,
-        request.output_path,
-        input_names=[t.name for t in request.spec.inputs],
-        output_names=[t.name for t in request.spec.outputs],
         dynamic_shapes={
             "kpts0": {1: num0},
             "kpts1": {1: num1},
             "desc0": {1: num0},
             "desc1": {1: num1},
         },
-        opset=request.spec.opset,
         translations=ONNX_TRANSLATIONS,
     )
 

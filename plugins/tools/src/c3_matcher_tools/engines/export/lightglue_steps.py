@@ -43,7 +43,7 @@ from c3_matcher_tools.engines.export.lightglue import (
     verification_pairs,
     verify_feature_pairs,
 )
-from c3_matcher_tools.engines.export.onnx_export import export_module, verification_session
+from c3_matcher_tools.engines.export.onnx_export import export_requested, verification_session
 
 __all__ = [
     "STEPS_TOLERANCES",
@@ -226,14 +226,11 @@ def _export_steps_graph(request: ExportRequest, reference: Any) -> None:
     conf: Any = reference.conf
     module = LightGlueStepsForExport(fused_attention_copy(reference)).eval()
     dynamic_shapes = _steps_dynamic_shapes()
-    export_module(
+    export_requested(
+        request,
         module,
         _steps_example(int(conf.input_dim), int(conf.descriptor_dim)),
-        request.output_path,
-        input_names=[t.name for t in request.spec.inputs],
-        output_names=[t.name for t in request.spec.outputs],
         dynamic_shapes=dynamic_shapes,
-        opset=request.spec.opset,
         translations=ONNX_TRANSLATIONS,
     )
 

@@ -19,8 +19,9 @@ import torch
 
 from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher.engines.spec import TensorSpec
+from c3_matcher_tools.engines.export import ExportRequest
 
-__all__ = ["check_onnx_io", "export_module", "verification_session"]
+__all__ = ["check_onnx_io", "export_module", "export_requested", "verification_session"]
 
 _ONNX_TO_NUMPY = {
     onnx.TensorProto.FLOAT: "float32",
@@ -62,6 +63,28 @@ def export_module(
         if program is None:
             raise RuntimeError("torch.onnx.export returned no program")
         program.save(str(path), external_data=False)
+
+
+def export_requested(
+    request: ExportRequest,
+    module: torch.nn.Module,
+    args: tuple[torch.Tensor, ...],
+    *,
+    dynamic_shapes: Mapping[str, Any],
+    translations: Mapping[Any, Any] | None = None,
+) -> None:
+    """Export ``module`` as ``request`` asks: to its output path, its inputs and outputs named
+    and its opset taken from the engine spec it declares (see :func:`export_module`)."""
+    export_module(
+        module,
+        args,
+        request.output_path,
+        input_names=[t.name for t in request.spec.inputs],
+        output_names=[t.name for t in request.spec.outputs],
+        dynamic_shapes=dynamic_shapes,
+        opset=request.spec.opset,
+        translations=translations,
+    )
 
 
 def check_onnx_io(path: Path, inputs: Sequence[TensorSpec], outputs: Sequence[TensorSpec]) -> None:
