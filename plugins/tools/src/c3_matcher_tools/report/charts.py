@@ -13,14 +13,19 @@ from numpy.typing import NDArray
 
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.report.trajectory import draw_trajectory
-from c3_matcher_tools.run.records import FrameOutcome
+from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = ["FAILED", "STATUS_COLOUR", "WRONG", "per_frame_figure", "trajectory_figure"]
 
 FAILED = "failed"
 WRONG = "wrong tile"
 """The words the chart's legend and the frames table both use (the chart marks F / W)."""
-STATUS_COLOUR = {"ok": "#2c9f2c", "insufficient": "#d62728", "backbone_error": "#222222"}
+STATUS_COLOUR = {
+    FrameStatus.OK: "#2c9f2c",
+    FrameStatus.INSUFFICIENT: "#d62728",
+    FrameStatus.BACKBONE_ERROR: "#222222",
+    FrameStatus.UNREADABLE: "#888888",
+}
 
 
 def _plt() -> Any:
@@ -77,7 +82,7 @@ def _draw_inliers(
     min_inliers: int,
 ) -> None:
     """Each frame's best inlier count, coloured by status, and the threshold."""
-    colours = [STATUS_COLOUR.get(o.status, "#888") for o in outcomes]
+    colours = [STATUS_COLOUR[o.status] for o in outcomes]
     ax.bar(idx, inl, color=colours, width=0.8)
     ax.axhline(min_inliers, ls="--", color="#555", lw=1)
     ax.set_ylabel("best inliers")
@@ -147,11 +152,11 @@ def _mark_failed_and_wrong(
     """W over a frame that matched a wrong tile, F over a failed one, above the tallest bar."""
     top = max(1.0, float(inl.max()) if inl.size else 1.0)
     for o in outcomes:
-        if o.status == "ok" and o.has_truth and o.true_present and not o.correct:
+        if o.status == FrameStatus.OK and o.has_truth and o.true_present and not o.correct:
             ax.text(
                 o.index, top * 1.02, "W", color="#d62728", ha="center", fontsize=9, weight="bold"
             )
-        elif o.status != "ok":
+        elif o.status != FrameStatus.OK:
             ax.text(
                 o.index, top * 1.02, "F", color="#d62728", ha="center", fontsize=9, weight="bold"
             )
@@ -164,8 +169,8 @@ def _status_legend(ax: Any, outcomes: Sequence[FrameOutcome], min_inliers: int) 
     from matplotlib.patches import Patch
 
     handles = [
-        Patch(color=STATUS_COLOUR["ok"], label="matched"),
-        Patch(color=STATUS_COLOUR["insufficient"], label=f"F: {FAILED}"),
+        Patch(color=STATUS_COLOUR[FrameStatus.OK], label="matched"),
+        Patch(color=STATUS_COLOUR[FrameStatus.INSUFFICIENT], label=f"F: {FAILED}"),
         Patch(color="white", label=f"W: {WRONG}"),
         Patch(color="#bbbbbb", label="true tile absent"),
         Line2D([], [], ls="--", color="#555", lw=1, label=f"{min_inliers} inliers threshold"),

@@ -26,14 +26,14 @@ from c3_matcher.atomic import write_text_atomically
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.report.charts import FAILED, WRONG, per_frame_figure, trajectory_figure
 from c3_matcher_tools.report.pictures import gallery_pictures
-from c3_matcher_tools.run.records import FrameOutcome
+from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = ["write_report"]
 
 
 def _verdict(o: FrameOutcome) -> str:
     """The frame's result in the chart's words: F failed, W wrong tile."""
-    if o.status != "ok":
+    if o.status != FrameStatus.OK:
         return f"F {FAILED}" + (" (true tile absent)" if o.has_truth and not o.true_present else "")
     if not o.has_truth:
         return "matched"
@@ -123,7 +123,7 @@ def _kpis(summary: dict[str, Any]) -> list[tuple[str, Any]]:
         ("matched", summary.get("ok")),
         (
             "failed",
-            sum(summary.get(k) or 0 for k in ("insufficient", "backbone_error", "unreadable")),
+            sum(summary.get(s) or 0 for s in FrameStatus if s != FrameStatus.OK),
         ),
         (
             "correct tile",

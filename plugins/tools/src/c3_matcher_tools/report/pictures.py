@@ -16,7 +16,7 @@ from c3_matcher.viz import CandidateView, render_match
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.report.charts import FAILED, WRONG
-from c3_matcher_tools.run.records import FrameOutcome
+from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = ["frame_picture", "gallery_pictures"]
 
@@ -98,7 +98,7 @@ def _candidate_views(
 def _picture_title(outcome: FrameOutcome) -> str:
     """The picture's title: inliers, verdict and error of a matched frame; why a frame
     failed."""
-    if outcome.status == "ok":
+    if outcome.status == FrameStatus.OK:
         pos = (
             ""
             if not math.isfinite(outcome.position_error_m)
@@ -121,7 +121,7 @@ def gallery_pictures(
     (an ``unreadable`` frame has no picture: the table names it and why)."""
 
     def badness(o: FrameOutcome) -> tuple[float, float]:
-        if o.status != "ok":
+        if o.status != FrameStatus.OK:
             return (
                 3.0 if (o.has_truth and o.true_present) or not o.has_truth else 0.5,
                 -o.insufficient_best,
@@ -131,10 +131,10 @@ def gallery_pictures(
         err = o.position_error_m if math.isfinite(o.position_error_m) else 0.0
         return (1.0, err - o.best_inliers / 1e4)
 
-    readable = [o for o in outcomes if o.status != "unreadable"]
+    readable = [o for o in outcomes if o.status != FrameStatus.UNREADABLE]
     ranked = sorted(readable, key=badness, reverse=True)
     worst = ranked[:n]
-    best = [o for o in reversed(ranked) if o.status == "ok" and o not in worst][:n]
+    best = [o for o in reversed(ranked) if o.status == FrameStatus.OK and o not in worst][:n]
     out: list[tuple[str, str]] = []
     with dataset.open_store() as store:
         for label, group in (("worst", worst), ("best", best)):

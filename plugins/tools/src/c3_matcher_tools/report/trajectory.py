@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,9 +19,7 @@ from numpy.typing import NDArray
 from c3_matcher.dto import TileId
 from c3_matcher.georef import lonlat_to_tile_px
 from c3_matcher_tools.dataset.format import FlightDataset
-
-if TYPE_CHECKING:
-    from c3_matcher_tools.run.records import FrameOutcome
+from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = ["MAX_MOSAIC_PX", "draw_trajectory"]
 
@@ -177,7 +175,7 @@ def draw_trajectory(
     failed = {"marker": "x", "s": 70, "color": RED, "zorder": 5}
     if truth:
         _line(ax, truth, "-o", color="#1f77b4", ms=4, lw=1.5, label="truth")
-        not_ok = [t for t in truth if t[0].status != "ok"]
+        not_ok = [t for t in truth if t[0].status != FrameStatus.OK]
         _mark(ax, not_ok, **failed, label="failed frame (truth)")
     if est:
         _line(ax, est, "-s", color="#ff7f0e", ms=4, lw=1.2, label="estimate")
@@ -193,7 +191,7 @@ def draw_trajectory(
         ring = {"facecolors": "none", "edgecolors": "#ffbf00", "linewidths": 1.5, "zorder": 6}
         _mark(ax, degraded, marker="o", s=90, **ring, label="GNSS absent or degraded")
         if not truth:
-            not_ok = [t for t in tele if t[0].status != "ok"]
+            not_ok = [t for t in tele if t[0].status != FrameStatus.OK]
             _mark(ax, not_ok, **failed, label="failed frame (telemetry)")
     _references(ax, truth, tele, est)
     _axes_and_scale(ax, title, mosaic)

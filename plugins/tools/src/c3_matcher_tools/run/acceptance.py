@@ -17,7 +17,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from c3_matcher_tools.run.records import FrameOutcome
+from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = [
     "BARS",
@@ -102,7 +102,7 @@ per-inlier scatter of a right but imprecise fix (IT-03 means of 2-4 px across se
 
 def is_wrong_fix(outcome: FrameOutcome) -> bool:
     """A returned pick that places the frame wrong (see ``WRONG_FIX_PX``); a raise never is."""
-    if outcome.status != "ok":
+    if outcome.status != FrameStatus.OK:
         return False
     error = outcome.mean_error_px
     return not (math.isfinite(error) and error <= WRONG_FIX_PX)
@@ -117,7 +117,7 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[
     p5 = float(np.percentile(inliers, 5)) if inliers else math.nan
     correct = sum(o.correct for o in present)
     rate = correct / len(present) if present else math.nan
-    raised = sum(o.status == "insufficient" for o in absent)
+    raised = sum(o.status == FrameStatus.INSUFFICIENT for o in absent)
     return {
         "C3-IT-01": {"p5_best_inliers": p5, "frames": len(present), "pass": IT01_BAR.judge(p5)},
         "C3-IT-02": _it02(run1, run2),
@@ -153,10 +153,12 @@ def _it02(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[st
 
 
 def _it03(present: Sequence[FrameOutcome]) -> dict[str, Any]:
-    positions = [o.position_error_m for o in present if o.status == "ok"]
+    positions = [o.position_error_m for o in present if o.status == FrameStatus.OK]
     positions = [p for p in positions if math.isfinite(p)]
     errors = [
-        o.mean_error_px for o in present if o.status == "ok" and math.isfinite(o.mean_error_px)
+        o.mean_error_px
+        for o in present
+        if o.status == FrameStatus.OK and math.isfinite(o.mean_error_px)
     ]
     p95 = float(np.percentile(errors, 95)) if errors else math.nan
     return {
@@ -172,7 +174,9 @@ def _it03(present: Sequence[FrameOutcome]) -> dict[str, Any]:
 def _false_confident(scored: Sequence[FrameOutcome]) -> dict[str, Any]:
     wrong = [o.index for o in scored if is_wrong_fix(o)]
     right_elsewhere = [
-        o.index for o in scored if o.status == "ok" and not o.correct and not is_wrong_fix(o)
+        o.index
+        for o in scored
+        if o.status == FrameStatus.OK and not o.correct and not is_wrong_fix(o)
     ]
     return {
         "frames": wrong,

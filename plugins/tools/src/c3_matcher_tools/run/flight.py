@@ -27,7 +27,7 @@ from c3_matcher_tools.run.matcher import (
     PreparedMatcher,
     prepare_matcher,
 )
-from c3_matcher_tools.run.records import FlightRun, FrameOutcome
+from c3_matcher_tools.run.records import FlightRun, FrameOutcome, FrameStatus
 from c3_matcher_tools.run.scoring import (
     best_candidate_error,
     result_fingerprint,
@@ -80,24 +80,26 @@ def _fly_frame(
     try:
         nav = dataset.nav_frame(frame)
     except InvalidInputError as exc:  # a damaged or vanished image: the camera's loss, not C3's
-        return _unmatched(frame, "unreadable", 0.0, str(exc), 0, geo)
+        return _unmatched(frame, FrameStatus.UNREADABLE, 0.0, str(exc), 0, geo)
     rerank = dataset.rerank(frame, store)
     t0 = time.perf_counter()
     try:
         result = matcher.match(nav, rerank, dataset.calibration)
     except InsufficientInliersError as exc:
         elapsed = (time.perf_counter() - t0) * 1e3
-        return _unmatched(frame, "insufficient", elapsed, str(exc), exc.best_inlier_count, geo)
+        return _unmatched(
+            frame, FrameStatus.INSUFFICIENT, elapsed, str(exc), exc.best_inlier_count, geo
+        )
     except MatcherBackboneError as exc:
         elapsed = (time.perf_counter() - t0) * 1e3
-        return _unmatched(frame, "backbone_error", elapsed, str(exc), 0, geo)
+        return _unmatched(frame, FrameStatus.BACKBONE_ERROR, elapsed, str(exc), 0, geo)
     elapsed = (time.perf_counter() - t0) * 1e3
     return _matched(dataset, frame, result, elapsed, geo, with_correspondences)
 
 
 def _unmatched(
     frame: FrameRecord,
-    status: str,
+    status: FrameStatus,
     elapsed: float,
     error: str,
     best_count: int,
@@ -115,7 +117,7 @@ def _unmatched(
         False,
         math.nan,
         math.nan,
-        result_fingerprint(None, best_count) if status == "insufficient" else "",
+        result_fingerprint(None, best_count) if status == FrameStatus.INSUFFICIENT else "",
         error,
         None,
         insufficient_best=best_count,
@@ -155,7 +157,7 @@ def _matched(
     return FrameOutcome(
         frame.index,
         str(frame.frame_id),
-        "ok",
+        FrameStatus.OK,
         elapsed_ms,
         frame.true_tile_present,
         result.per_candidate[0].inlier_count,

@@ -169,8 +169,6 @@ def write_html_report(
     results)."""
     try:
         import matplotlib  # noqa: F401
-
-        from c3_matcher_tools.report import write_report
     except ImportError as exc:
         (out / "report.html").unlink(missing_ok=True)
         print(
@@ -180,6 +178,8 @@ def write_html_report(
         )
         return None
     from importlib.metadata import version
+
+    from c3_matcher_tools.report import write_report
 
     summary = {k: v for k, v in report.items() if k not in ("settings",)}
     provenance = {

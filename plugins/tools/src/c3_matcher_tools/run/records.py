@@ -7,9 +7,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from enum import StrEnum
 from typing import Any
 
-__all__ = ["FlightRun", "FrameOutcome", "StrategyEval", "StrategyFailure", "StrategyRow"]
+__all__ = [
+    "FlightRun",
+    "FrameOutcome",
+    "FrameStatus",
+    "StrategyEval",
+    "StrategyFailure",
+    "StrategyRow",
+]
+
+
+class FrameStatus(StrEnum):
+    """How a frame of a run ended: its ``status`` in ``results.jsonl`` and the reports."""
+
+    OK = "ok"
+    """Matched: the result's best candidate reached the inlier threshold."""
+    INSUFFICIENT = "insufficient"
+    """No candidate reached the threshold (``InsufficientInliersError``)."""
+    BACKBONE_ERROR = "backbone_error"
+    """The matcher's backbone failed on the frame (``MatcherBackboneError``)."""
+    UNREADABLE = "unreadable"
+    """The frame's image could not be read or decoded: the matcher never saw it."""
 
 
 @dataclass(frozen=True)
@@ -26,7 +47,7 @@ class FrameOutcome:
 
     index: int
     frame_id: str
-    status: str
+    status: FrameStatus
     elapsed_ms: float
     true_present: bool
     best_inliers: int
@@ -54,7 +75,7 @@ class FrameOutcome:
     def candidate_inliers(self) -> int:
         """The best candidate's inlier count, whether the frame matched or raised (the count
         below the threshold); ``best_inliers`` is the matched result's, 0 when it raised."""
-        return self.best_inliers if self.status == "ok" else self.insufficient_best
+        return self.best_inliers if self.status == FrameStatus.OK else self.insufficient_best
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)

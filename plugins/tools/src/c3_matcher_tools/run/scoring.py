@@ -15,7 +15,7 @@ from c3_matcher import camera as cam
 from c3_matcher.dto import MatchResult
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.dataset.truth import inlier_errors_px
-from c3_matcher_tools.run.records import FrameOutcome
+from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = [
     "best_candidate_error",
@@ -109,16 +109,13 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> dict[str, Any]:
     beside it, and the frames whose GNSS was absent or degraded)."""
     times = [o.elapsed_ms for o in outcomes]
     present = [o for o in outcomes if o.true_present]
-    pos = [o.position_error_m for o in outcomes if o.status == "ok"]
+    pos = [o.position_error_m for o in outcomes if o.status == FrameStatus.OK]
     tele = [o for o in outcomes if o.telemetry_lat is not None]
-    tele_err = [o.telemetry_error_m for o in tele if o.status == "ok"]
+    tele_err = [o.telemetry_error_m for o in tele if o.status == FrameStatus.OK]
     accuracy = [o.gnss_accuracy_m for o in tele if o.gnss_accuracy_m is not None]
     return {
         "frames": len(outcomes),
-        "ok": sum(o.status == "ok" for o in outcomes),
-        "insufficient": sum(o.status == "insufficient" for o in outcomes),
-        "backbone_error": sum(o.status == "backbone_error" for o in outcomes),
-        "unreadable": sum(o.status == "unreadable" for o in outcomes),
+        **{str(s): sum(o.status == s for o in outcomes) for s in FrameStatus},
         "with_truth": sum(o.has_truth for o in outcomes),
         "true_present": len(present),
         "correct_candidate": sum(o.correct for o in present),
@@ -129,7 +126,12 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> dict[str, Any]:
         "telemetry_error_m_p50": _percentile(tele_err, 50),
         "telemetry_error_m_p95": _percentile(tele_err, 95),
         "telemetry_error_m_p50_gnss_good": _percentile(
-            [o.telemetry_error_m for o in tele if o.status == "ok" and not o.gnss_degraded], 50
+            [
+                o.telemetry_error_m
+                for o in tele
+                if o.status == FrameStatus.OK and not o.gnss_degraded
+            ],
+            50,
         ),
         "gnss_accuracy_m_p50": _percentile(accuracy, 50),
         "gnss_degraded_frames": [o.index for o in tele if o.gnss_degraded],

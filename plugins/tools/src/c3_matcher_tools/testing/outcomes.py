@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from c3_matcher_tools.run.records import FrameOutcome
+from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = ["frame_outcome"]
 
@@ -13,7 +13,7 @@ __all__ = ["frame_outcome"]
 def frame_outcome(
     index: int,
     *,
-    status: str = "ok",
+    status: FrameStatus = FrameStatus.OK,
     inliers: int = 100,
     correct: bool | None = None,
     error_px: float = 1.0,
@@ -24,7 +24,7 @@ def frame_outcome(
     error of ``error_px`` against ground truth, or raised (any other ``status``). ``correct``
     (only when matched): the true tile picked; by default, when it is among the candidates and
     the flight has ground truth."""
-    ok = status == "ok"
+    ok = status == FrameStatus.OK
     picked_true = true_present and has_truth if correct is None else correct
     return FrameOutcome(
         index=index,
