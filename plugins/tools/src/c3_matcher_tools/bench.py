@@ -101,10 +101,11 @@ class BenchCase:
 
 def stored_features_path(data_dir: Path) -> Path | None:
     """The features sidecar of a flight dataset's store (``<store>.features.sqlite``), if any."""
-    meta = data_dir / "dataset.json"
-    if not meta.is_file():
+    from c3_matcher_tools.dataset.format import META_FILE, STORE_FILE, is_flight_dataset
+
+    if not is_flight_dataset(data_dir):
         return None
-    store = data_dir / str(json.loads(meta.read_text()).get("store", "tiles.mbtiles"))
+    store = data_dir / str(json.loads((data_dir / META_FILE).read_text()).get("store", STORE_FILE))
     sidecar = store.with_name(store.name + ".features.sqlite")
     return sidecar if sidecar.is_file() else None
 
@@ -275,13 +276,13 @@ def _checked_data(data: Path) -> Path:
     calibration's size (``check_frames``, as ``replay`` checks them), or a demo-format
     directory (``demo.json``) whose frame, tiles and calibration read; else InvalidInputError
     naming it (exit 2)."""
-    from c3_matcher_tools.dataset.format import load_dataset
+    from c3_matcher_tools.dataset.format import is_flight_dataset, load_dataset
     from c3_matcher_tools.run.flight import check_frames
     from c3_matcher_tools.run.inputs import demo_inputs, timed_frames
 
     if not data.is_dir():
         raise InvalidInputError("--data", f"no such directory: {data}")
-    if (data / "dataset.json").is_file():
+    if is_flight_dataset(data):
         dataset = load_dataset(data)
         with dataset.open_store():  # its frames, calibration and tile store
             frames = timed_frames(dataset)

@@ -11,9 +11,9 @@ from c3_matcher_tools.dataset.format import (
     FlightDataset,
     FrameRecord,
     load_dataset,
-    write_dataset,
 )
 from c3_matcher_tools.dataset.truth import inlier_errors_px
+from c3_matcher_tools.dataset.writing import write_dataset
 
 __all__ = [
     "FORMAT",

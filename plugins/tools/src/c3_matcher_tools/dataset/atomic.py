@@ -10,6 +10,7 @@ from pathlib import Path
 
 from c3_matcher.atomic import refuse_output_over_inputs, refuse_unwritable
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.format import is_flight_dataset
 
 __all__ = ["atomic_directory", "check_output_dir"]
 
@@ -45,7 +46,7 @@ def _refuse_existing(out: Path, *, force: bool, field: str) -> None:
             f"{out} already exists and is not a directory: --force replaces only a dataset "
             "directory, not a file; choose another OUT or remove the file",
         )
-    if not (out / "dataset.json").is_file() and not _empty(out):
+    if not is_flight_dataset(out) and not _empty(out):
         raise InvalidInputError(
             field,
             f"{out} is a directory but not a dataset (no dataset.json): --force replaces only "

@@ -39,7 +39,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.flight_plan import Progress, plan_flight
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
-from c3_matcher_tools.dataset.format import write_dataset
+from c3_matcher_tools.dataset.writing import write_dataset
 
 __all__ = ["render_flight"]
 
@@ -61,7 +61,6 @@ def render_flight(
     holds the GeoTIFF or the store always. Raises InvalidInputError naming the option that
     makes the flight impossible (leaving the imagery, footprint larger than a candidate, too
     few distractor positions)."""
-    import shutil
 
     from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 
@@ -86,8 +85,7 @@ def render_flight(
     meta, calibration, frames, images = plan
     with atomic_directory(out, force=force) as tmp:
         (tmp / "frames").mkdir()
-        shutil.copyfile(spec.store, tmp / "tiles.mbtiles")
         for rel, data in images.items():
             (tmp / rel).write_bytes(data)
-        write_dataset(tmp, meta, calibration, frames)
+        write_dataset(tmp, meta, calibration, frames, store=spec.store)
     return out

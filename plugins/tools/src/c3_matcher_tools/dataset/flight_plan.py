@@ -229,7 +229,6 @@ def _meta(
     """Describe the planned flight: the dataset's meta (dataset.json)."""
     return {
         "name": name,
-        "store": "tiles.mbtiles",
         "candidate_size_px": spec.candidate_size_px,
         "zoom": scene.cov.zoom,
         "tiles_source": store.metadata.get("c3_source", ""),

@@ -32,7 +32,6 @@ import dataclasses
 import json
 import math
 import uuid
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,23 +46,37 @@ from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 
 __all__ = [
+    "CALIBRATION_FILE",
     "CANDIDATE_SIZE_PX",
     "FORMAT",
+    "FRAMES_FILE",
+    "META_FILE",
+    "STORE_FILE",
     "CandidateTruth",
     "FlightDataset",
     "FrameRecord",
     "check_candidate_size",
+    "is_flight_dataset",
     "load_dataset",
     "name_problem",
     "with_attitude_noise",
-    "write_dataset",
 ]
 
 FORMAT = "c3-flight/1"
+META_FILE = "dataset.json"
+"""A dataset directory's description: its format, its files, how it was made."""
+STORE_FILE = "tiles.mbtiles"
+CALIBRATION_FILE = "calibration.json"
+FRAMES_FILE = "frames.jsonl"
 CANDIDATE_SIZE_PX = (64, 4096)
 """The side (px) of a dataset's candidate windows: import and render write, and a load accepts,
 only sizes in this range."""
 _INT64_MAX = 2**63 - 1  # frame indices and capture times are recorded as int64
+
+
+def is_flight_dataset(path: str | Path) -> bool:
+    """``path`` is a directory that describes a dataset (holds :data:`META_FILE`)."""
+    return (Path(path) / META_FILE).is_file()
 
 
 def name_problem(name: str) -> str | None:
@@ -361,40 +374,6 @@ def with_attitude_noise(dataset: FlightDataset, sigma_deg: float, seed: int = 0)
     return dataclasses.replace(dataset, meta=meta, frames=tuple(frames))
 
 
-def calibration_to_json(calibration: dto.CameraCalibration) -> dict[str, Any]:
-    out: dict[str, Any] = {
-        "K": calibration.K.tolist(),
-        "distortion": calibration.distortion.tolist(),
-        "image_size": list(calibration.image_size),
-    }
-    if calibration.camera_to_body is not None:
-        out["camera_to_body"] = np.asarray(calibration.camera_to_body).tolist()
-    return out
-
-
-def write_dataset(
-    root: Path,
-    meta: dict[str, Any],
-    calibration: dto.CameraCalibration,
-    frames: Sequence[FrameRecord],
-) -> Path:
-    """Write ``dataset.json``, ``calibration.json`` and ``frames.jsonl`` under ``root`` (the
-    frame images and the store must already be there)."""
-    root.mkdir(parents=True, exist_ok=True)
-    full = {
-        "format": FORMAT,
-        "calibration": "calibration.json",
-        "frames": "frames.jsonl",
-        **meta,
-    }
-    (root / "calibration.json").write_text(json.dumps(calibration_to_json(calibration), indent=1))
-    with (root / "frames.jsonl").open("w", encoding="utf-8") as fh:
-        for f in frames:
-            fh.write(json.dumps(f.to_json()) + "\n")
-    (root / "dataset.json").write_text(json.dumps(full, indent=2) + "\n")
-    return root
-
-
 _MAX_ZOOM = 30  # a tile id's zoom range, see dto.TileId
 
 
@@ -489,9 +468,9 @@ def load_dataset(
     ``frames.jsonl``) before any frame is used; its frames are decoded up to
     ``max_image_pixels`` (width x height)."""
     base = Path(root)
-    meta_path = base / "dataset.json"
+    meta_path = base / META_FILE
     if not meta_path.is_file():
-        raise InvalidInputError("dataset", f"{base}: no dataset.json (not a {FORMAT} dataset)")
+        raise InvalidInputError("dataset", f"{base}: no {META_FILE} (not a {FORMAT} dataset)")
     meta = _meta(meta_path)
     calibration = load_calibration(base / meta["calibration"], field="dataset")
     frames = _frames(base / meta["frames"])

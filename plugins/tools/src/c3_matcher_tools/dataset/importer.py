@@ -24,7 +24,7 @@ from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
-from c3_matcher_tools.dataset.format import FrameRecord, write_dataset
+from c3_matcher_tools.dataset.format import FrameRecord
 from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
 from c3_matcher_tools.dataset.sources.options import ImportReport, ProposalOptions
@@ -35,6 +35,7 @@ from c3_matcher_tools.dataset.telemetry import (
     read_telemetry_table,
     refuse_lines,
 )
+from c3_matcher_tools.dataset.writing import write_dataset
 
 __all__ = ["ImportSpec", "import_csv_flight", "import_flight"]
 
@@ -121,8 +122,7 @@ def import_csv_flight(
         (tmp / "frames").mkdir()
         for r, f in zip(checked.rows, frames, strict=True):
             shutil.copyfile(checked.images_dir / r.image, tmp / f.image)
-        shutil.copyfile(spec.proposal.store, tmp / "tiles.mbtiles")
-        write_dataset(tmp, meta, checked.calibration, frames)
+        write_dataset(tmp, meta, checked.calibration, frames, store=spec.proposal.store)
     return _csv_report(checked, spec, out, len(frames))
 
 
@@ -200,7 +200,6 @@ def _csv_meta(checked: _CheckedCsv, spec: ImportSpec, name: str) -> dict[str, An
     zoom = checked.proposed.zoom
     return {
         "name": name,
-        "store": "tiles.mbtiles",
         "candidate_size_px": spec.proposal.candidate_size_px,
         "zoom": zoom,
         "tiles_source": checked.proposed.tiles_source,

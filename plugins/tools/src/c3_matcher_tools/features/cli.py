@@ -142,10 +142,10 @@ def _store_of(path: Path) -> Path:
     """The MBTiles store ``path`` names: itself, or a flight dataset directory's store;
     InvalidInputError (exit 2) naming what it is not."""
     from c3_matcher.errors import InvalidInputError
-    from c3_matcher_tools.dataset.format import load_dataset
+    from c3_matcher_tools.dataset.format import is_flight_dataset, load_dataset
 
     if path.is_dir():
-        if not (path / "dataset.json").is_file():
+        if not is_flight_dataset(path):
             raise InvalidInputError(
                 "STORE", f"{path}: a directory without dataset.json: no store, no dataset"
             )

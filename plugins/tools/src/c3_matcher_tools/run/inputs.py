@@ -32,10 +32,11 @@ def flight_inputs(data_dir: Path) -> Iterator[list[MatchInputs]]:
     """One ``MatchInputs`` per frame: a flight dataset's :func:`timed_frames`, or the single
     frame of a demo-format directory. A dataset's tile store, which the candidates' tile handles
     read from, stays open until the ``with`` block ends."""
-    if not (data_dir / "dataset.json").is_file():
+    from c3_matcher_tools.dataset.format import is_flight_dataset, load_dataset
+
+    if not is_flight_dataset(data_dir):
         yield [demo_inputs(data_dir)]
         return
-    from c3_matcher_tools.dataset.format import load_dataset
 
     dataset = load_dataset(data_dir)
     with dataset.open_store() as store:

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import math
-import shutil
 import uuid
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -15,13 +14,13 @@ import numpy as np
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
-from c3_matcher_tools.dataset.format import write_dataset
 from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.frames import Frame, assemble_frames
 from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport, ProposalOptions
 from c3_matcher_tools.dataset.sources.pairing import match_shots
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 from c3_matcher_tools.dataset.telemetry import TelemetryRow
+from c3_matcher_tools.dataset.writing import write_dataset
 
 __all__ = ["MAX_OWN_GPS_OFFSET_M", "image_problem", "write_imported_flight"]
 
@@ -66,7 +65,6 @@ def write_imported_flight(
     report = _report(out, track, frames, skipped, how, options, zoom)
     meta = {
         "name": label,
-        "store": "tiles.mbtiles",
         "candidate_size_px": proposer.candidate_size_px,
         "zoom": zoom,
         "tiles_source": tiles_source,
@@ -79,8 +77,7 @@ def write_imported_flight(
         (tmp / "frames").mkdir()
         for rec, data in zip(records, images, strict=True):
             (tmp / rec.image).write_bytes(data)
-        shutil.copyfile(proposer.store, tmp / "tiles.mbtiles")
-        write_dataset(tmp, meta, calibration, records)
+        write_dataset(tmp, meta, calibration, records, store=proposer.store)
     return report
 
 
