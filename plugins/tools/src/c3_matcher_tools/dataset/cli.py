@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import MISSING, fields
 from pathlib import Path
 from typing import Any
 
 from c3_matcher.commands import CommandRegistry, bounded_int
 from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_seed_option, bounded_float, non_negative_float
+from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.progress import ProgressBar
 
 __all__ = ["register_dataset_command"]
@@ -24,6 +26,8 @@ held in memory before anything is written."""
 MAX_RENDER_PIXELS = 2**31
 """The most frame pixels (frames x width x height) one ``dataset render`` holds: about 2.1 Gpx,
 some 1-2 GB of JPEG, e.g. 27,000 frames of 320x240 or 32 of 8192x8192."""
+_RENDER = {f.name: f.default for f in fields(FlightSpec) if f.default is not MISSING}
+"""``dataset render``'s defaults: the flight spec's own."""
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -134,39 +138,47 @@ def _add_flight_path_options(r: argparse.ArgumentParser) -> None:
     r.add_argument(
         "--frames",
         type=_frame_count,
-        default=36,
+        default=_RENDER["n_frames"],
         help=f"number of frames, 1..{MAX_RENDER_FRAMES} and at most "
-        f"{MAX_RENDER_PIXELS / 1e9:.1f} Gpx in all (frames x width x height) (default 36)",
+        f"{MAX_RENDER_PIXELS / 1e9:.1f} Gpx in all (frames x width x height) "
+        f"(default {_RENDER['n_frames']})",
     )
     r.add_argument(
-        "--pattern", choices=("orbit", "line"), default="orbit", help="flight path (default orbit)"
+        "--pattern",
+        choices=("orbit", "line"),
+        default=_RENDER["pattern"],
+        help=f"flight path (default {_RENDER['pattern']})",
     )
     r.add_argument(
         "--height",
         type=bounded_float(0.0, MAX_HEIGHT_ABOVE_GROUND_M, above=True),
-        default=780.0,
+        default=_RENDER["height_m"],
         help="height above ground, m",
     )
-    r.add_argument("--speed", type=non_negative_float(), default=30.0, help="ground speed, m/s")
+    r.add_argument(
+        "--speed", type=non_negative_float(), default=_RENDER["speed_mps"], help="ground speed, m/s"
+    )
     r.add_argument(
         "--interval",
         type=bounded_float(0.0, above=True),
-        default=2.0,
+        default=_RENDER["frame_interval_s"],
         help="seconds between frames",
     )
     r.add_argument(
         "--heading",
         type=bounded_float(),
-        default=0.0,
+        default=_RENDER["heading_deg"],
         help="line heading / orbit start, deg",
     )
     r.add_argument(
         "--radius",
         type=bounded_float(0.0, above=True),
-        default=450.0,
+        default=_RENDER["orbit_radius_m"],
         help="orbit radius, m",
     )
-    r.add_argument("--max-tilt", type=float, default=20.0, help="max attitude tilt, deg")
+    r.add_argument(
+        "--max-tilt", type=float, default=_RENDER["max_tilt_deg"], help="max attitude tilt, deg"
+    )
 
 
 def _add_camera_options(r: argparse.ArgumentParser) -> None:
@@ -174,37 +186,44 @@ def _add_camera_options(r: argparse.ArgumentParser) -> None:
     r.add_argument(
         "--image-size",
         type=_size,
-        default=(320, 240),
-        help=f"WxH px, each side {IMAGE_SIDE_PX[0]}..{IMAGE_SIDE_PX[1]} (default 320x240)",
+        default=_RENDER["image_size"],
+        help=f"WxH px, each side {IMAGE_SIDE_PX[0]}..{IMAGE_SIDE_PX[1]} "
+        f"(default {'x'.join(map(str, _RENDER['image_size']))})",
     )
     r.add_argument(
         "--focal",
         type=bounded_float(0.0, above=True),
-        default=300.0,
+        default=_RENDER["focal_px"],
         help="focal length, px",
     )
 
 
 def _add_candidate_options(r: argparse.ArgumentParser) -> None:
     """Add ``dataset render``'s candidates: their size, absent true tiles and the distractors."""
-    r.add_argument("--candidate-size", type=int, default=448, help="candidate image side, px")
+    r.add_argument(
+        "--candidate-size",
+        type=int,
+        default=_RENDER["candidate_size_px"],
+        help="candidate image side, px",
+    )
     r.add_argument(
         "--absent-share",
         type=bounded_float(0.0, 1.0),
-        default=0.1,
-        help="share of frames without their true tile (default 0.1)",
+        default=_RENDER["absent_share"],
+        help=f"share of frames without their true tile (default {_RENDER['absent_share']:g})",
     )
     r.add_argument(
         "--min-distractor-distance",
         type=non_negative_float(),
-        default=350.0,
-        help="m (default 350)",
+        default=_RENDER["min_distractor_distance_m"],
+        help=f"m (default {_RENDER['min_distractor_distance_m']:g})",
     )
     r.add_argument(
         "--max-distractor-nodata",
         type=bounded_float(0.0, 1.0),
-        default=0.35,
-        help="largest nodata share of a distractor window (default 0.35)",
+        default=_RENDER["max_distractor_nodata"],
+        help="largest nodata share of a distractor window "
+        f"(default {_RENDER['max_distractor_nodata']:g})",
     )
 
 
@@ -347,7 +366,6 @@ def _import_csv(args: argparse.Namespace, ctx: CommandContext) -> int:
 
 def _render(args: argparse.Namespace, ctx: CommandContext) -> int:
     from c3_matcher_tools.dataset.flight import render_flight
-    from c3_matcher_tools.dataset.flight_spec import FlightSpec
 
     _check_render_budget(args.frames, args.image_size)
     spec = FlightSpec(

@@ -32,6 +32,15 @@ from numpy.typing import NDArray
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.geodesy import MERCATOR_EPSG, ground_gsd_m, mercator_latitude_deg
+from c3_matcher_tools.geotiff import (
+    MODEL_TYPE_KEY,
+    PIXEL_SCALE,
+    PROJECTED_CRS_KEY,
+    TIEPOINT,
+    check_pixel_scale,
+    geo_keys,
+    grid_tags,
+)
 
 __all__ = ["KNOWN_GSD_M", "Orthophoto", "geotiff_gsd_m", "load_orthophoto"]
 
@@ -89,9 +98,7 @@ def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any], str
     try:
         with tifffile.TiffFile(str(path)) as tif:
             page = tif.pages.first
-            tags = {
-                code: page.tags[code].value for code in (33550, 33922, 34735) if code in page.tags
-            }
+            tags = grid_tags(page)
             arr = np.asarray(page.asarray())
     except (ValueError, NotImplementedError, ImportError) as exc:  # TiffFileError is a ValueError
         return None, tags, " ".join(str(exc).split())
@@ -111,22 +118,18 @@ def geotiff_gsd_m(
 ) -> float | None:
     """Ground GSD (m/px, geometric mean of x and y) from raw GeoTIFF tags, or None; a pixel
     scale that is not a north-up grid's is refused naming ``source``."""
-    scale = tags.get(33550)
+    scale = tags.get(PIXEL_SCALE)
     if scale is None:
         return None
     sx, sy = float(scale[0]), float(scale[1])
-    # imported here: the tilestore package imports sim
-    from c3_matcher_tools.tilestore.geo import check_pixel_scale, geokeys
-
     check_pixel_scale(sx, sy, source)
-
-    keys = geokeys(tags[34735]) if 34735 in tags else {}
-    geographic = keys.get(1024) == 2
-    epsg = keys.get(3072)
+    keys = geo_keys(tags)
+    geographic = keys.get(MODEL_TYPE_KEY) == 2
+    epsg = keys.get(PROJECTED_CRS_KEY)
     mercator = None if epsg is None else MERCATOR_EPSG.get(int(epsg))
     lat_deg = 0.0  # projected metres need no latitude
     if geographic or mercator is not None:
-        tie = tags.get(33922)
+        tie = tags.get(TIEPOINT)
         if tie is None or len(tie) < 6:
             return None  # no tie point: no latitude to convert degrees or a Mercator scale at
         centre_y = float(tie[4]) - sy * (height_px / 2.0 - float(tie[1]))

@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -23,15 +22,23 @@ from c3_matcher.arrays import F64
 from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
+from c3_matcher_tools.geotiff import (
+    GEOGRAPHIC_CRS_KEY,
+    PIXEL_SCALE,
+    PROJECTED_CRS_KEY,
+    RASTER_TYPE_KEY,
+    TIEPOINT,
+    check_pixel_scale,
+    geo_keys,
+    grid_tags,
+)
 from c3_matcher_tools.tilestore.projection import Projection
 
 __all__ = [
     "TILE_PX",
     "GeoGrid",
     "check_grid_fits_crs",
-    "check_pixel_scale",
     "check_source_gsd",
-    "geokeys",
     "lonlat_to_world_px",
     "read_geotiff_grid",
     "world_px_to_lonlat",
@@ -77,17 +84,6 @@ class GeoGrid:
         return float(lon), float(lat)
 
 
-def geokeys(directory: Any) -> dict[int, Any]:
-    """The GeoKeyDirectory (tag 34735) of a GeoTIFF as {key id: value} (inline values)."""
-    values = [int(v) for v in directory]
-    keys: dict[int, Any] = {}
-    for i in range(values[3]):
-        key_id, location, _count, value = values[4 + 4 * i : 8 + 4 * i]
-        if location == 0:
-            keys[key_id] = value
-    return keys
-
-
 def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None = None) -> GeoGrid:
     """Read the north-up grid of a GeoTIFF (ModelPixelScale + ModelTiepoint + GeoKeys) with
     ``tifffile``; ``reference`` (lat, lon) of the image centre is needed for CRSs other than
@@ -101,27 +97,27 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
     try:
         with tifffile.TiffFile(str(p)) as tif:
             page = tif.pages.first
-            tags = {c: page.tags[c].value for c in (33550, 33922, 34735) if c in page.tags}
+            tags = grid_tags(page)
             w, h = int(page.imagewidth), int(page.imagelength)
     except Exception as exc:  # tifffile raises many kinds on a non-TIFF
         raise InvalidInputError(
             "geotiff", f"{p}: no georeference (not a TIFF: {' '.join(str(exc).split())})"
         ) from exc
-    if 33550 not in tags or 33922 not in tags:
+    if PIXEL_SCALE not in tags or TIEPOINT not in tags:
         raise InvalidInputError(
             "geotiff",
             f"{p}: no georeference (no ModelPixelScale/ModelTiepoint tags: not a north-up GeoTIFF)",
         )
-    sx, sy = float(tags[33550][0]), float(tags[33550][1])
+    sx, sy = float(tags[PIXEL_SCALE][0]), float(tags[PIXEL_SCALE][1])
     check_pixel_scale(sx, sy, p)
-    tie = [float(t) for t in tags[33922][:6]]
-    keys = geokeys(tags[34735]) if 34735 in tags else {}
-    point = keys.get(1025) == 2  # RasterPixelIsPoint: the tie point is a pixel centre
+    tie = [float(t) for t in tags[TIEPOINT][:6]]
+    keys = geo_keys(tags)
+    point = keys.get(RASTER_TYPE_KEY) == 2  # RasterPixelIsPoint: the tie point is a pixel centre
     i0, j0, e0, n0 = tie[0], tie[1], tie[3], tie[4]
     shift = 0.5 if point else 0.0
     origin_e = e0 - (i0 + shift) * sx
     origin_n = n0 + (j0 + shift) * sy
-    epsg = keys.get(3072) or keys.get(2048)
+    epsg = keys.get(PROJECTED_CRS_KEY) or keys.get(GEOGRAPHIC_CRS_KEY)
     centre_en = (origin_e + w / 2 * sx, origin_n - h / 2 * sy)
     projection = Projection.from_epsg(
         None if epsg is None else int(epsg), reference=reference, ref_en=centre_en, source=p
@@ -129,17 +125,6 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
     grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
     check_grid_fits_crs(grid, p)
     return grid
-
-
-def check_pixel_scale(scale_x: float, scale_y: float, source: str | Path) -> None:
-    """Refuse a pixel size that is not finite and > 0 on both axes (E to the right, N up): a
-    negative one flips the grid (not north-up), zero or NaN is no grid at all."""
-    if not all(math.isfinite(s) and s > 0 for s in (scale_x, scale_y)):
-        raise InvalidInputError(
-            "geotiff",
-            f"{source}: not a north-up grid: its pixel size {scale_x:g} x {scale_y:g} (E x N) "
-            "must be finite and > 0 on both axes",
-        )
 
 
 _MERCATOR_MAX_M = 20_048_966.2  # web-mercator northing at lat 85.06 deg (the tiles' limit)

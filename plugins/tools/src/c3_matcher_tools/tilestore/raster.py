@@ -35,7 +35,8 @@ from numpy.typing import NDArray
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.geodesy import ground_gsd_m
-from c3_matcher_tools.tilestore.geo import GeoGrid, check_grid_fits_crs, check_pixel_scale
+from c3_matcher_tools.geotiff import check_pixel_scale
+from c3_matcher_tools.tilestore.geo import GeoGrid, check_grid_fits_crs
 from c3_matcher_tools.tilestore.projection import Projection
 
 __all__ = ["RasterioSource", "ValueMapping", "ValueRange", "grid_gsd_m", "rasterio_available"]
