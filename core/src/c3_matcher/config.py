@@ -47,6 +47,7 @@ __all__ = [
     "LoggingSettings",
     "MatcherSettings",
     "load_settings",
+    "matcher_default",
     "with_strategy_defaults",
 ]
 
@@ -188,6 +189,12 @@ class MatcherSettings(_Section):
         default_factory=dict,
         description="per-strategy options, [matcher.options.<strategy>], validated by the plugin",
     )
+
+
+def matcher_default(name: str) -> Any:
+    """``[matcher]``'s default for the setting ``name``: what every settings record derived from
+    it (the pipeline's, a strategy's) defaults to, so that each default is written once."""
+    return MatcherSettings.model_fields[name].default
 
 
 class EngineSettings(_Section):

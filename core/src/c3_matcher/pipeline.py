@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from c3_matcher.config import MatcherSettings
+from c3_matcher.config import MatcherSettings, matcher_default
 from c3_matcher.dto import (
     CameraCalibration,
     MatcherHealth,
@@ -60,27 +60,22 @@ from c3_matcher.tile_cache import TileFeatureCache
 __all__ = ["QUERY_ROTATIONS_DEG", "FeatureBackend", "PipelineMatcher", "PipelineSettings"]
 
 
-def _matcher_default(name: str) -> Any:
-    """``[matcher]``'s default for ``name``: the pipeline's defaults are the configuration's."""
-    return MatcherSettings.model_fields[name].default
-
-
 @dataclass(frozen=True, slots=True)
 class PipelineSettings:
     """The specified thresholds (from ``MatcherSettings``, whose defaults are these)."""
 
-    min_inliers_threshold: int = _matcher_default("min_inliers_threshold")
-    residual_warn_threshold_px: float = _matcher_default("residual_warn_threshold_px")
-    ransac_threshold_px: float = _matcher_default("ransac_threshold_px")
+    min_inliers_threshold: int = matcher_default("min_inliers_threshold")
+    residual_warn_threshold_px: float = matcher_default("residual_warn_threshold_px")
+    ransac_threshold_px: float = matcher_default("ransac_threshold_px")
     # a store's map features when built (else: extract)
-    use_stored_features: bool = _matcher_default("stored_features")
+    use_stored_features: bool = matcher_default("stored_features")
     # only acts when the frame had attitude and height
-    geometric_prior: bool = _matcher_default("geometric_prior")
+    geometric_prior: bool = matcher_default("geometric_prior")
     prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
     photometric: str = "none"  # query and tiles alike (photometry.normalise_photometry)
     # frames without attitude tried at 4 turns (opt-in)
-    rotation_search: bool = _matcher_default("rotation_search")
-    refine: bool = _matcher_default("refine")  # a second pass through the best's homography
+    rotation_search: bool = matcher_default("rotation_search")
+    refine: bool = matcher_default("refine")  # a second pass through the best's homography
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, Self
 
-from c3_matcher.config import C3Settings
+from c3_matcher.config import C3Settings, matcher_default
 from c3_matcher.pipeline import PipelineSettings
 from c3_matcher.prepared import InputRule
 from c3_matcher.protocols import LightGlueRuntime
@@ -33,9 +33,9 @@ class ExtractorLightGlueConfig:
     extractor_engine_path: Path
     lightglue_engine_path: Path
     size_multiple: int
-    max_long_side: int = 1024
+    max_long_side: int = matcher_default("max_long_side")
     max_keypoints: int = DEFAULT_MAX_KEYPOINTS
-    tile_cache_size: int = 16
+    tile_cache_size: int = matcher_default("tile_cache_size")
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)  # from [matcher]
 
     match_phase = "lightglue_match"

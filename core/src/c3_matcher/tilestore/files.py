@@ -9,7 +9,10 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["cannot_open", "open_failure", "set_aside"]
+__all__ = ["MMAP_BYTES", "cannot_open", "open_failure", "set_aside"]
+
+MMAP_BYTES = 256 * 1024 * 1024
+"""The memory map of a read connection to a store file (tile store and map-features sidecar)."""
 
 _COMPANIONS = ("-wal", "-shm", "-journal")  # SQLite's files beside a database, by suffix
 

@@ -47,7 +47,7 @@ from typing import Final
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.base import TileStoreBase
 from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
-from c3_matcher.tilestore.files import open_failure
+from c3_matcher.tilestore.files import MMAP_BYTES, open_failure
 from c3_matcher.tilestore.sidecar import DEFAULT_RETRY_S, FeatureStoreUnavailableError
 
 __all__ = ["MBTilesStore", "TileDigestError", "TileStoreUnusableError"]
@@ -61,7 +61,6 @@ class TileStoreUnusableError(InvalidInputError):
     """The whole store no longer answers (not one tile's problem)."""
 
 
-MMAP_BYTES = 256 * 1024 * 1024
 LOCK_WAIT_S = 0.05  # SQLite busy timeout of a read: a commit elsewhere, never a held lock
 RETRY_S = 5.0  # an unusable store is tried again after this long
 

@@ -11,14 +11,13 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
-from c3_matcher.tilestore.files import open_failure
+from c3_matcher.tilestore.files import MMAP_BYTES, open_failure
 from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, decode_row, row_checksum
 
 WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
 
 FEATURES_SUFFIX = ".features.sqlite"
 DEFAULT_RETRY_S = 30.0  # a locked or unreadable sidecar is tried again after this long
-MMAP_BYTES = 256 * 1024 * 1024  # the read connection's memory map (as the tile store's)
 PAGE_BYTES = 65536  # SQLite page size of a new sidecar (a row is about a megabyte)
 _DAMAGE = (sqlite3.SQLITE_NOTADB, sqlite3.SQLITE_CORRUPT)  # SQLite's "the file is damaged"
 _ROW_COLUMNS = "window_digest, n, keypoints, scores, descriptors, checksum"

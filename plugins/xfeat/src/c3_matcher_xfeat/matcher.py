@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from c3_matcher.config import C3Settings, with_strategy_defaults
+from c3_matcher.config import C3Settings, matcher_default, with_strategy_defaults
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.pipeline import PipelineSettings
 from c3_matcher.prepared import InputRule
@@ -34,7 +34,12 @@ from c3_matcher_xfeat.engines import (
     XFEAT_TOP_K,
 )
 from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher
-from c3_matcher_xfeat.options import DEFAULT_MIN_COSSIM, XFeatMatcherKind, XFeatOptions
+from c3_matcher_xfeat.options import (
+    DEFAULT_MAX_KEYPOINTS,
+    DEFAULT_MIN_COSSIM,
+    XFeatMatcherKind,
+    XFeatOptions,
+)
 
 __all__ = [
     "EXTRACT_PHASE",
@@ -63,9 +68,9 @@ class XFeatConfig:
     matcher: XFeatMatcherKind = "mnn"
     lighterglue_engine_path: Path | None = None
     min_cossim: float = DEFAULT_MIN_COSSIM
-    max_long_side: int = 1024
-    max_keypoints: int = 4096
-    tile_cache_size: int = 16
+    max_long_side: int = matcher_default("max_long_side")
+    max_keypoints: int = DEFAULT_MAX_KEYPOINTS["mnn"]
+    tile_cache_size: int = matcher_default("tile_cache_size")
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)  # from [matcher]
     similarity_threads: int = 0  # [engines] intra_op_threads, for the mutual-NN similarity
 
