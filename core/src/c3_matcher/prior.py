@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.arrays import F64
+from c3_matcher.config import matcher_default
 
 __all__ = [
     "GeometricPrior",
@@ -43,12 +44,13 @@ __all__ = [
 
 @dataclass(frozen=True, slots=True)
 class PriorTolerances:
-    """How far the true homography may be from a pure translation (see docs/decisions.md)."""
+    """How far the true homography may be from a pure translation (see docs/decisions.md); the
+    defaults are ``[matcher]``'s ``prior_*`` settings'."""
 
-    rotation_deg: float = 10.0
-    scale: float = 0.15
-    shear: float = 0.15
-    base_px: float = 12.0
+    rotation_deg: float = matcher_default("prior_rotation_tol_deg")
+    scale: float = matcher_default("prior_scale_tol")
+    shear: float = matcher_default("prior_shear_tol")
+    base_px: float = matcher_default("prior_base_tol_px")
     vote_cell_px: float = 16.0
 
 
