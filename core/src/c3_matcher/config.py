@@ -3,9 +3,8 @@
 Environment variables use the prefix ``C3_MATCHER_`` and ``__`` between levels, e.g.
 ``C3_MATCHER_MATCHER__MIN_INLIERS_THRESHOLD=80``. Unknown keys are refused (a typo in a flight
 configuration must not pass silently), and so are bad values, naming the field and why.
-Defaults follow the upstream LightGlue conventions unless a measurement chose otherwise
-(docs/decisions.md).
-"""
+Defaults follow upstream LightGlue's conventions unless a measurement chose otherwise
+(docs/decisions.md); every record derived from ``[matcher]`` takes them from here."""
 
 from __future__ import annotations
 
@@ -192,8 +191,7 @@ class MatcherSettings(_Section):
 
 
 def matcher_default(name: str) -> Any:
-    """``[matcher]``'s default for the setting ``name``: what every settings record derived from
-    it (the pipeline's, a strategy's) defaults to, so that each default is written once."""
+    """``[matcher]``'s default for ``name``: every record derived from it defaults to this."""
     return MatcherSettings.model_fields[name].default
 
 
@@ -348,10 +346,10 @@ class C3Settings(BaseSettings):
 def with_strategy_defaults(
     settings: C3Settings, defaults: StrategyDefaults, strategy: str = ""
 ) -> C3Settings:
-    """``settings`` with every setting the configuration left unset (None) taken from a
-    strategy's ``defaults`` (``[matcher] photometric`` and ``refit_threshold_px``, ``[lightglue]
-    filter_threshold`` and ``exit_matches``); a set value is kept. Idempotent.
-    ``ConfigurationError`` names the strategy when its declared defaults are not valid settings."""
+    """``settings`` with each setting left unset (None) taken from a strategy's ``defaults``
+    (``[matcher] photometric``, ``refit_threshold_px``, ``[lightglue] filter_threshold``,
+    ``exit_matches``); a set value is kept. Idempotent. ``ConfigurationError`` names the
+    strategy when its declared defaults are not valid settings."""
     try:
         matcher = _defaulted(settings.matcher, defaults, ("photometric", "refit_threshold_px"))
         lightglue = _defaulted(settings.lightglue, defaults, ("filter_threshold", "exit_matches"))
@@ -367,8 +365,7 @@ _S = TypeVar("_S", bound=BaseModel)
 
 
 def _defaulted(section: _S, defaults: StrategyDefaults, keys: tuple[str, ...]) -> _S:
-    """``section`` with its unset (None) ``keys`` taken from ``defaults``, validated; itself
-    when none is unset."""
+    """``section`` with its unset (None) ``keys`` from ``defaults``, validated (or itself)."""
     unset = {key: getattr(defaults, key) for key in keys if getattr(section, key) is None}
     return type(section).model_validate({**dict(section), **unset}) if unset else section
 
