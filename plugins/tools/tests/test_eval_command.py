@@ -1,8 +1,9 @@
-"""What ``c3-matcher eval`` refuses before anything runs (a strategy this build cannot run,
-datasets whose names cannot each name their own output directory, a determinism subset below
-one frame, an output directory another run is writing) and how it ends when a strategy fails to
-run: every table and report written, exit status 1 (two-frame flights, the ``sift_magsac``
-baseline)."""
+"""What ``c3-matcher eval`` refuses before anything runs (a strategy this build cannot run, a
+missing frame image, datasets whose names cannot each name their own output directory, a
+determinism subset below one frame, an output directory another run is writing), how it ends
+when a strategy fails to run (every table and report written, exit status 1), and a frame image
+damaged past its header (that frame's status); two-frame flights, mostly the ``sift_magsac``
+baseline."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import pytest
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock
 from c3_matcher_tools.run import exclusive_output_dir
+from c3_matcher_tools.testing.cli import run_cli
 
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
 C3 = Callable[..., subprocess.CompletedProcess[str]]
@@ -34,17 +36,45 @@ def test_an_unknown_strategy_is_refused_before_anything_runs(
 
 
 def test_a_strategy_that_failed_to_run_is_reported_and_the_exit_status_is_1(
+    small_flight: SmallFlight, tmp_path: Path
+) -> None:
+    """xfeat cannot start (no engines where the configuration points); the baseline still runs."""
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    no_engines = {"C3_MATCHER_ENGINES__DIRECTORY": str(tmp_path / "no-engines")}
+    argv = ("eval", flight, "--strategy", "xfeat", "--out", out, *QUICK)
+    proc = run_cli(*argv, cwd=tmp_path, settings=no_engines, timeout=600)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert "xfeat" in proc.stdout and "failed to run" in proc.stdout  # the table
+    assert ", max_keypoints each strategy its own" in proc.stdout  # no --max-keypoints given
+    assert "failed to run: xfeat on two_frames" in proc.stderr
+    rows = {r["strategy"]: r for r in json.loads((out / "eval.json").read_text())["strategies"]}
+    assert "no valid xfeat" in rows["xfeat"]["error"] and "sift_magsac" in rows
+
+
+def test_a_missing_frame_image_is_refused_before_anything_runs(
     small_flight: SmallFlight, c3: C3, tmp_path: Path
 ) -> None:
     flight = small_flight("two_frames", without_image=0)
     out = tmp_path / "out"
     proc = c3("eval", str(flight), "--strategy", "sift_magsac", "--out", str(out), *QUICK)
-    assert proc.returncode == 1, proc.stderr[-2000:]
-    assert "sift_magsac" in proc.stdout and "failed to run" in proc.stdout  # the table
-    assert ", max_keypoints each strategy its own" in proc.stdout  # no --max-keypoints given
-    assert "failed to run: sift_magsac on two_frames" in proc.stderr
-    (row,) = json.loads((out / "eval.json").read_text())["strategies"]
-    assert row["strategy"] == "sift_magsac" and "000000.jpg" in row["error"]
+    assert proc.returncode == 2 and "000000.jpg: no such image file" in proc.stderr, proc.stderr
+    assert not out.exists()
+
+
+def test_a_frame_image_damaged_past_its_header_is_that_frames_status(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames")
+    image = sorted((flight / "frames").iterdir())[0]
+    image.write_bytes(image.read_bytes()[:2000])  # the header whole: the checks pass
+    out = tmp_path / "out"
+    proc = c3("eval", str(flight), "--strategy", "sift_magsac", "--out", str(out), *QUICK)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    results = (out / "sift_magsac" / "results.jsonl").read_text().splitlines()
+    first, second = (json.loads(line) for line in results)
+    assert first["status"] == "unreadable" and image.name in first["error"]
+    assert second["status"] != "unreadable"
 
 
 def test_several_datasets_of_one_name_are_refused_before_anything_runs(

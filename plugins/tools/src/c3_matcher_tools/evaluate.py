@@ -37,11 +37,13 @@ rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summar
 ``{"flights": [each dataset's eval.json, in order], "summary": summary.json's rows}``. A
 dataset name that names an output directory must be one plain path component, and several
 datasets need as many names (refused before anything runs, exit 2, as are a strategy this build
-cannot run, a noisy attitude out of range (``--attitude-noise-deg``) and an output directory that
-is, holds or lies inside a dataset: nothing is made or written then).
+cannot run, a frame image missing, unreadable or of another size than its calibration's (as
+``replay`` checks them), a noisy attitude out of range (``--attitude-noise-deg``) and an output
+directory that is, holds or lies inside a dataset: nothing is made or written then). A frame whose
+image turns out damaged mid-run is that frame's ``unreadable`` status; the flight goes on.
 
-A strategy that fails to run on a dataset (it cannot start, a frame cannot be read) is a table
-row and an ``error`` entry, the others go on, and the command exits 1 once every table and
+A strategy that fails to run on a dataset (it cannot start) is a table row and an ``error``
+entry, the others go on, and the command exits 1 once every table and
 report is written; one that cannot start (a missing engine: it is composed before its directory
 is touched) leaves its directory as an earlier eval left it. An output directory another
 process is writing (its FDR lock held) stops the command at once: nothing more is written into
@@ -92,6 +94,7 @@ from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     NO_OVERRIDES,
     Overrides,
+    check_frames,
     check_output_dirs,
     exclusive_output_dir,
     flight_report,
@@ -221,6 +224,8 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         apply_attitude_noise(load_dataset(path, limit), args.attitude_noise_deg)
         for path in args.dataset
     ]
+    for dataset in datasets:  # each frame image there, readable and of its calibration's size
+        check_frames(dataset, dataset.frames)
     names = _strategies(args, ctx.plugin_host)
     outs = _output_dirs(args.out, datasets)
     root = args.out or Path("out") / "eval"
