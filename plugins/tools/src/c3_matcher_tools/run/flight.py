@@ -83,17 +83,17 @@ def _fly_frame(
         return _unmatched(frame, FrameStatus.UNREADABLE, 0.0, str(exc), 0, geo)
     rerank = dataset.rerank(frame, store)
     t0 = time.perf_counter()
+    failure: tuple[FrameStatus, Exception, int] | None = None
     try:
         result = matcher.match(nav, rerank, dataset.calibration)
     except InsufficientInliersError as exc:
-        elapsed = (time.perf_counter() - t0) * 1e3
-        return _unmatched(
-            frame, FrameStatus.INSUFFICIENT, elapsed, str(exc), exc.best_inlier_count, geo
-        )
+        failure = (FrameStatus.INSUFFICIENT, exc, exc.best_inlier_count)
     except MatcherBackboneError as exc:
-        elapsed = (time.perf_counter() - t0) * 1e3
-        return _unmatched(frame, FrameStatus.BACKBONE_ERROR, elapsed, str(exc), 0, geo)
+        failure = (FrameStatus.BACKBONE_ERROR, exc, 0)
     elapsed = (time.perf_counter() - t0) * 1e3
+    if failure is not None:
+        status, error, best_count = failure
+        return _unmatched(frame, status, elapsed, str(error), best_count, geo)
     return _matched(dataset, frame, result, elapsed, geo, with_correspondences)
 
 
