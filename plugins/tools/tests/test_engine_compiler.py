@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from c3_matcher.engines.manifest import check_engine_file
+from c3_matcher.engines.manifest import check_engine_file, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, WeightsRef
 from c3_matcher_tools.engines.compiler import EngineBuildError, build_engines, select_specs
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
@@ -112,6 +112,21 @@ def test_build_then_reuse_then_force(tmp_path: Path, fake_exporters: None) -> No
     forced = build_engines([spec], tmp_path, force=True)[0]
     assert not forced.reused and forced.path == first.path
     assert len(_engine_files(tmp_path)) == 2  # engine + manifest, no scratch left
+
+
+def test_a_build_removes_what_a_killed_build_left(tmp_path: Path, fake_exporters: None) -> None:
+    """A build killed before its cleanup (out of memory, SIGKILL) leaves its scratch folder;
+    the next build of the directory holds it, so nothing else is building: it removes them."""
+    left = tmp_path / ".build-toy_fake_x-4242"
+    left.mkdir()
+    (left / "toy_fake_x.onnx").write_bytes(b"half an engine")
+    lines: list[str] = []
+    outcome = build_engines([make_spec("passing")], tmp_path, log=lines.append)[0]
+    assert not left.exists()
+    assert any(".build-toy_fake_x-4242" in line and "stopped" in line for line in lines)
+    assert _engine_files(tmp_path) == sorted(
+        [outcome.path.name, manifest_path_for(outcome.path).name]
+    )
 
 
 def test_one_graph_is_the_same_bytes_wherever_it_is_built(

@@ -182,7 +182,7 @@ def cases_for(args: argparse.Namespace, settings: C3Settings, data: Path) -> lis
 def register_bench_command(commands: CommandRegistry) -> None:
     p = commands.add(
         "bench",
-        help="C3-PT-01: latency and peak memory beside the PyTorch "
+        help="latency and peak memory per strategy (the C3-PT-01 targets), beside the PyTorch "
         "reference and the SIFT + MAGSAC baseline",
     )
     p.add_argument(

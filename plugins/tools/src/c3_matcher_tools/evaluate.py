@@ -174,9 +174,10 @@ def evaluate_strategy(
 def register_eval_command(commands: CommandRegistry) -> None:
     p = commands.add(
         "eval",
-        help="C3-IT-01..05 for every linked strategy and the SIFT + MAGSAC baseline",
-        description="Evaluate strategies side by side on a c3-flight/1 dataset against its "
-        "ground truth (see c3_matcher_tools.evaluate). Table on stdout, progress on stderr.",
+        help="accuracy of every linked strategy on flight datasets (the C3-IT-01..05 checks), "
+        "beside the SIFT + MAGSAC baseline",
+        description="Evaluate every linked strategy side by side on c3-flight/1 datasets against "
+        "their ground truth, then the SIFT + MAGSAC baseline. Table on stdout, progress on stderr.",
     )
     p.add_argument(
         "dataset",

@@ -184,15 +184,27 @@ def _drop_node_metadata(nodes: Any) -> None:
                 _drop_graph_metadata(subgraph)
 
 
+_SCRATCH_PREFIX = ".build-"
+
+
 @contextlib.contextmanager
 def _scratch(directory: Path, stem: str) -> Iterator[Path]:
-    scratch = directory / f".build-{stem}-{os.getpid()}"
+    scratch = directory / f"{_SCRATCH_PREFIX}{stem}-{os.getpid()}"
     shutil.rmtree(scratch, ignore_errors=True)
     scratch.mkdir(parents=True)
     try:
         yield scratch
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _remove_abandoned(directory: Path, log: Callable[[str], None]) -> None:
+    """Remove the scratch folders of builds killed before they could clean up (out of memory,
+    SIGKILL, power lost): called with ``directory`` held, so no build of it is running."""
+    for scratch in sorted(directory.glob(f"{_SCRATCH_PREFIX}*")):
+        if scratch.is_dir():
+            shutil.rmtree(scratch, ignore_errors=True)
+            log(f"removed {scratch.name}, left by a build that was stopped before it finished")
 
 
 def _existing(path: Path, key: str) -> EngineManifest | None:
@@ -402,6 +414,7 @@ def build_engines(
     outcomes = []
     waiting = f"waiting for another engines build in {directory} to finish"
     with held_directory(directory, when_busy=lambda: say(waiting)):  # then reuses its engines
+        _remove_abandoned(directory, say)
         for index, spec in enumerate(selected, start=1):
             say(f"[{index}/{len(selected)}] {spec.key}")
             outcomes.append(
