@@ -1,6 +1,7 @@
 """Files replaced whole or not at all: a write that fails part-way (an error, a file size limit)
 leaves the previous file whole and no temporary file behind, two writers of one file never share
-a temporary file, and pictures are written the same way."""
+a temporary file, pictures are written the same way, and what a killed writer left is removed
+by the next writer of the file."""
 
 from __future__ import annotations
 
@@ -12,8 +13,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from c3_matcher.atomic import atomic_writer, write_bytes_atomically, write_text_atomically
+from c3_matcher.atomic import (
+    atomic_writer,
+    temporary_sibling,
+    write_bytes_atomically,
+    write_text_atomically,
+)
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.testing.killed import killed_while_writing
 from c3_matcher.viz import write_png
 
 
@@ -114,3 +121,36 @@ def test_a_write_that_fails_names_the_file_asked_for_not_its_temporary_file(
     assert missing.value.filename == str(tmp_path / "gone" / "results.jsonl")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pictures"]
     assert list(folder.iterdir()) == []
+
+
+def test_what_a_killed_writer_left_is_removed_by_the_next_writer(tmp_path: Path) -> None:
+    path = write_text_atomically(tmp_path / "results.jsonl", "the previous run\n")
+    killed_while_writing(
+        f"""
+        from pathlib import Path
+        from c3_matcher.atomic import atomic_writer
+        with atomic_writer(Path({str(path)!r})) as fh:
+            fh.write("half a run"); fh.flush()
+        """
+    )
+    (left,) = [p for p in tmp_path.iterdir() if p != path]
+    assert left.name.startswith(".results.jsonl.tmp-")
+    assert path.read_text() == "the previous run\n"  # the kill cost nothing but the leftover
+    write_text_atomically(path, "this run\n")
+    assert [p.name for p in tmp_path.iterdir()] == ["results.jsonl"]
+
+
+def test_a_running_writers_and_another_machines_temporary_files_are_left_alone(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "report.json"
+    running = temporary_sibling(path)  # this process's: it runs
+    running.write_text("a writer at work")
+    elsewhere = tmp_path / f".report.json.tmp-00000000-{1 << 22}-0123abcd"  # a shared disk
+    elsewhere.write_text("another machine's")
+    unrelated = tmp_path / ".report.json.swp"
+    unrelated.write_text("an editor's")
+    write_text_atomically(path, "{}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["report.json", running.name, elsewhere.name, unrelated.name]
+    )

@@ -4,14 +4,19 @@
 file of its own beside the target, fsynced and renamed over it (the rename then fsynced in the
 directory) when the block ends; on any exception (a full disk, a file size limit, Ctrl-C) the
 temporary file is removed and the target keeps what it held before. Results, reports and
-pictures are written this way."""
+pictures are written this way; the ground tools' tile stores and datasets take their temporary
+names from :func:`temporary_sibling` too, so what a killed writer left is removed by the next."""
 
 from __future__ import annotations
 
 import contextlib
 import fcntl
+import glob
 import os
 import secrets
+import shutil
+import socket
+import zlib
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any, TextIO, cast
@@ -24,6 +29,7 @@ __all__ = [
     "held_directory",
     "refuse_output_over_inputs",
     "refuse_unwritable",
+    "temporary_sibling",
     "write_bytes_atomically",
     "write_text_atomically",
 ]
@@ -96,10 +102,40 @@ def _one_file(a: Path, b: Path) -> bool:
         return False
 
 
+def temporary_sibling(path: Path) -> Path:
+    """A new hidden name beside ``path`` for its writer to fill and then rename onto it:
+    ``.NAME.tmp-HOST-PID-XXXXXXXX`` (``HOST`` a tag of this machine's name). First removes what
+    earlier writers of ``path`` on this machine left there when they were killed before they
+    could clean up (out of memory, SIGKILL, power lost): those whose process is gone. A live
+    writer's, another machine's (a shared disk) and anything else are left alone."""
+    prefix = f".{path.name}.tmp-{zlib.crc32(socket.gethostname().encode()):08x}-"
+    for left in path.parent.glob(f"{glob.escape(prefix)}*"):
+        pid = left.name[len(prefix) :].split("-", 1)[0]
+        if not pid.isdigit() or _running(int(pid)):
+            continue
+        with contextlib.suppress(OSError):
+            if left.is_dir() and not left.is_symlink():
+                shutil.rmtree(left)
+            else:
+                left.unlink()
+    return path.with_name(f"{prefix}{os.getpid()}-{secrets.token_hex(4)}")
+
+
+def _running(pid: int) -> bool:
+    """A process ``pid`` runs on this machine (one of another user's included)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 @contextlib.contextmanager
 def _replacing(path: Path, mode: str) -> Iterator[IO[Any]]:
     with _naming(path):
-        tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+        tmp = temporary_sibling(path)
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         try:
             with os.fdopen(fd, mode, encoding=None if "b" in mode else "utf-8") as fh:

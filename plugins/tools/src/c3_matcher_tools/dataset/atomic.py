@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import shutil
-import uuid
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from c3_matcher.atomic import refuse_output_over_inputs, refuse_unwritable
+from c3_matcher.atomic import refuse_output_over_inputs, refuse_unwritable, temporary_sibling
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import is_flight_dataset
 
@@ -60,14 +59,13 @@ def atomic_directory(out: Path, *, force: bool = False) -> Iterator[Path]:
     existing ``out`` only when ``force``), on any error remove it and leave ``out`` untouched."""
     out = Path(out)
     check_output_dir(out, force=force)
-    tag = uuid.uuid4().hex[:8]
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.tmp-{tag}"
+    tmp = temporary_sibling(out)
     tmp.mkdir()
     try:
         yield tmp
         if out.exists():
-            old = out.parent / f".{out.name}.old-{tag}"
+            old = tmp.with_name(f"{tmp.name}.old")
             out.rename(old)
             tmp.rename(out)
             shutil.rmtree(old, ignore_errors=True)

@@ -7,12 +7,11 @@ import hashlib
 import json
 import os
 import sqlite3
-import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from c3_matcher.atomic import refuse_unwritable
+from c3_matcher.atomic import refuse_unwritable, temporary_sibling
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.files import open_failure
 
@@ -106,10 +105,11 @@ def _digest_missing(db: sqlite3.Connection, path: Path) -> tuple[int, int]:
 
 
 class MBTilesWriter:
-    """Create a new MBTiles file atomically: it is written as a hidden sibling
-    (``.NAME.tmp-XXXXXXXX``) and renamed onto ``path`` by :meth:`close`; :meth:`abort` (or
-    leaving the ``with`` block on any exception, Ctrl-C included) removes it and its journal, and
-    an existing ``path`` is untouched until the rename (refused unless ``overwrite``)."""
+    """Create a new MBTiles file atomically: it is written as a hidden sibling (named by
+    :func:`c3_matcher.atomic.temporary_sibling`) and renamed onto ``path`` by :meth:`close`;
+    :meth:`abort` (or leaving the ``with`` block on any exception, Ctrl-C included) removes it
+    and its journal, and an existing ``path`` is untouched until the rename (refused unless
+    ``overwrite``)."""
 
     def __init__(self, path: str | Path, *, overwrite: bool = False) -> None:
         self._path = Path(path)
@@ -119,7 +119,7 @@ class MBTilesWriter:
             raise InvalidInputError("mbtiles", f"{self._path} is a directory")
         refuse_unwritable(self._path, field="mbtiles")
         self._path.parent.mkdir(parents=True, exist_ok=True)
-        self._tmp = self._path.with_name(f".{self._path.name}.tmp-{uuid.uuid4().hex[:8]}")
+        self._tmp = temporary_sibling(self._path)
         self._db: sqlite3.Connection | None = sqlite3.connect(str(self._tmp))
         try:
             for statement in _SCHEMA:
