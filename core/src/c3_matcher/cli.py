@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import re
 import signal
 import sys
@@ -299,8 +300,6 @@ def _terminate_as_interrupt() -> Iterator[None]:
 def _drop_stdout() -> None:
     """Point stdout at /dev/null, so that the interpreter's last flush finds no broken pipe to
     complain about on stderr."""
-    import os
-
     with contextlib.suppress(AttributeError, OSError, ValueError):
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
@@ -363,8 +362,6 @@ def _command(argv: Sequence[str] | None) -> int:
         print(f"c3-matcher:{where} {exc.strerror or exc}", file=sys.stderr)
         return EXIT_USAGE
     except Exception as exc:  # a bug: one line, not a traceback (C3_MATCHER_TRACEBACK=1 shows it)
-        import os
-
         if os.environ.get("C3_MATCHER_TRACEBACK"):
             raise
         print(_fail(f"internal error: {type(exc).__name__}: {exc}"), file=sys.stderr)

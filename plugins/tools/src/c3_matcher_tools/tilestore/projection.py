@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import functools
+import importlib.util
 import math
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -265,9 +267,6 @@ formulas."""
 def pyproj_available() -> bool:
     """The ``geo`` extra is installed (pyproj: any EPSG grid, exact) and not switched off by
     ``C3_MATCHER_TOOLS_NO_PYPROJ=1`` (the hand-written fallback, for comparison)."""
-    import importlib.util
-    import os
-
     if os.environ.get("C3_MATCHER_TOOLS_NO_PYPROJ") == "1":
         return False
     return importlib.util.find_spec("pyproj") is not None

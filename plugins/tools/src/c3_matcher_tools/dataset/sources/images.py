@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import io
 import logging
 import math
 import re
@@ -96,8 +97,6 @@ def read_photo_metadata(path: Path) -> dict[str, Any]:
     angles of one photo, each only when the photo states it (see the module docstring)."""
     exifread = logs_library("exifread", path, "photo metadata")
     data = path.read_bytes()
-    import io
-
     with _quiet_logger("exifread"):  # it logs "File format not recognized." and the like
         tags = exifread.process_file(io.BytesIO(data), details=False)
     out: dict[str, Any] = {}
