@@ -16,6 +16,7 @@ from typing import Any
 from c3_matcher.atomic import refuse_output_over_inputs
 from c3_matcher.commands import (
     EXIT_INSUFFICIENT,
+    EXIT_OK,
     EXIT_USAGE,
     CommandRegistry,
     add_max_keypoints_option,
@@ -217,7 +218,7 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
             out["viz"] = str(args.viz)
         ctx.out(json.dumps(out))
         ctx.stdout.flush()
-        return EXIT_USAGE if _report(problems) else 0
+        return EXIT_USAGE if _report(problems) else EXIT_OK
 
 
 def _match_settings(args: argparse.Namespace, settings: C3Settings) -> C3Settings:

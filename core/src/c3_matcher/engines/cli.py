@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from c3_matcher.commands import EXIT_FAILURE, EXIT_OK
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.engines.store import BUILD_COMMAND, EngineStore, VerifyOutcome
 from c3_matcher.errors import EngineError
@@ -82,10 +83,10 @@ def _list(args: argparse.Namespace, command: CommandContext) -> int:
                 indent=2,
             )
         )
-        return 0
+        return EXIT_OK
     if not records:
         print(f"no engines in {ctx.engine_dir} (build them with `{BUILD_COMMAND}`)")
-        return 0
+        return EXIT_OK
     for r in records:
         m = r.manifest
         status = "ok" if r.ok else f"PROBLEM: {r.problem}"
@@ -103,7 +104,7 @@ def _list(args: argparse.Namespace, command: CommandContext) -> int:
                 f"vs {m.verification.get('reference', '?')}"
             )
             print("\n".join(figures(dict(m.verification))))
-    return 0
+    return EXIT_OK
 
 
 def _verify(args: argparse.Namespace, command: CommandContext) -> int:
@@ -112,7 +113,7 @@ def _verify(args: argparse.Namespace, command: CommandContext) -> int:
     outcomes = store.verify()
     if not outcomes:
         _err(f"no engines in {ctx.engine_dir}; build them with `{BUILD_COMMAND}`")
-        return 1
+        return EXIT_FAILURE
     seen = {o.path for o in outcomes}
     for spec in ctx.specs:  # every engine an installed plugin needs must be there
         try:
@@ -123,14 +124,14 @@ def _verify(args: argparse.Namespace, command: CommandContext) -> int:
                 outcomes.append(VerifyOutcome(path, False, f"missing: {exc.reason}"))
     if not outcomes:
         _err(f"no engines in {ctx.engine_dir}; build them with `{BUILD_COMMAND}`")
-        return 1
+        return EXIT_FAILURE
     if args.json:
         rows = [{"path": str(o.path), "ok": o.ok, "detail": o.detail} for o in outcomes]
         print(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
     else:
         for o in outcomes:
             print(f"{'OK  ' if o.ok else 'FAIL'} {o.path.name}: {o.detail}")
-    return 0 if all(o.ok for o in outcomes) else 1
+    return EXIT_OK if all(o.ok for o in outcomes) else EXIT_FAILURE
 
 
 def register_engines_commands(commands: CommandRegistry) -> None:

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from c3_matcher.commands import (
+    EXIT_OK,
     EXIT_USAGE,
     CommandRegistry,
     add_max_keypoints_option,
@@ -339,9 +340,9 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
     }
     if args.json:
         ctx.out(json.dumps(report, indent=2))
-        return 0
+        return EXIT_OK
     ctx.out(_text_report(report))
-    return 0
+    return EXIT_OK
 
 
 def _worker_refusal(case: BenchCase, stderr: str) -> InvalidInputError:

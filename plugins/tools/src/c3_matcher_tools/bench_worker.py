@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from c3_matcher.commands import EXIT_USAGE, bounded_int
+from c3_matcher.commands import EXIT_OK, EXIT_USAGE, bounded_int
 from c3_matcher.config import C3Settings, load_settings
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.bench import BenchCase
@@ -157,7 +157,7 @@ def _worker_main(argv: list[str]) -> int:
         print(json.dumps({"field": exc.field, "reason": exc.reason}), file=sys.stderr)
         return EXIT_USAGE
     print(json.dumps(result))
-    return 0
+    return EXIT_OK
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from c3_matcher.atomic import write_text_atomically
-from c3_matcher.commands import CommandRegistry, add_max_keypoints_option, bounded_int
+from c3_matcher.commands import EXIT_OK, CommandRegistry, add_max_keypoints_option, bounded_int
 from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_noise
 from c3_matcher_tools.dataset.format import load_dataset
@@ -123,10 +123,10 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
         write_text_atomically(out / "report.json", json.dumps(report, indent=2) + "\n")
     if args.json:
         ctx.out(json.dumps(report, indent=2))
-        return 0
+        return EXIT_OK
     for line in _report_lines(dataset.name, report, out):
         ctx.out(line)
-    return 0
+    return EXIT_OK
 
 
 def _report_lines(name: str, report: dict[str, Any], out: Path) -> list[str]:

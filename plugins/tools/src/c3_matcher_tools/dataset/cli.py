@@ -9,7 +9,7 @@ from dataclasses import MISSING, fields
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import CommandRegistry, bounded_int
+from c3_matcher.commands import EXIT_OK, CommandRegistry, bounded_int
 from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_seed_option, bounded_float, non_negative_float
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
@@ -340,7 +340,7 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
         ctx.out(json.dumps(info, indent=2))
     else:
         ctx.out("\n".join(f"{k}: {v}" for k, v in info.items()))
-    return 0
+    return EXIT_OK
 
 
 def _import_csv(args: argparse.Namespace, ctx: CommandContext) -> int:
@@ -361,7 +361,7 @@ def _import_csv(args: argparse.Namespace, ctx: CommandContext) -> int:
         force=args.force,
     )
     ctx.out(json.dumps(report.to_json()) if args.json else "\n".join(report.lines()))
-    return 0
+    return EXIT_OK
 
 
 def _render(args: argparse.Namespace, ctx: CommandContext) -> int:
@@ -399,7 +399,7 @@ def _render(args: argparse.Namespace, ctx: CommandContext) -> int:
         ctx.out(json.dumps({"dataset": str(out), "frames": spec.n_frames}))
     else:
         ctx.out(f"{out}: {spec.n_frames} frames rendered")
-    return 0
+    return EXIT_OK
 
 
 def _check_render_budget(frames: int, image_size: tuple[int, int]) -> None:

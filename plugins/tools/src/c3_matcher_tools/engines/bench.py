@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from c3_matcher.commands import bounded_int
+from c3_matcher.commands import EXIT_OK, bounded_int
 from c3_matcher.features import PairSide
 from c3_matcher_tools.memory import current_rss_mib, peak_rss_mib
 
@@ -185,7 +185,7 @@ def _child(args: argparse.Namespace) -> int:
         detail=case.detail(first_result),
     )
     print(json.dumps(asdict(result)))
-    return 0
+    return EXIT_OK
 
 
 def _run_child(argv: list[str]) -> BenchResult:

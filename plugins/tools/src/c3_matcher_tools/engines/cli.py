@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
-from c3_matcher.commands import CommandRegistry, bounded_int
+from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, CommandRegistry, bounded_int
 from c3_matcher.context import CommandContext
 from c3_matcher.engines.cli import EnginesCliContext, engines_context, figures
 from c3_matcher.engines.spec import EngineSpec
@@ -40,7 +40,7 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
         raise  # a bad --only: a usage error (exit 2), said by the command line
     except (EngineBuildError, ValueError) as exc:
         command.err(f"error: {exc}")
-        return 1
+        return EXIT_FAILURE
     total = time.perf_counter() - start
     if args.json:
         rows = [
@@ -48,7 +48,7 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
             for o in outcomes
         ]
         command.out(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
-        return 0
+        return EXIT_OK
     for o in outcomes:
         state = "reused" if o.reused else f"built in {o.seconds:.1f} s"
         command.out(f"{o.spec.key:<18} {state:<16} {o.path}")
@@ -59,7 +59,7 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
         f"{len(built)} built, {len(outcomes) - len(built)} reused in {total:.1f} s "
         f"({ctx.engine_dir})"
     )
-    return 0
+    return EXIT_OK
 
 
 def _bench_pairs(specs: Sequence[EngineSpec]) -> list[tuple[EngineSpec, EngineSpec]]:
@@ -82,7 +82,7 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
     pairs = _bench_pairs(ctx.specs)
     if not pairs:
         command.err("error: no installed plugin declares an extractor + matcher pair to bench")
-        return 1
+        return EXIT_FAILURE
     store = EngineStore(ctx.engine_dir)
     if args.image:
         image = args.image
@@ -102,7 +102,7 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
             matcher_path = store.require_spec(matcher)
         except C3Error as exc:
             command.err(f"error: {exc}")
-            return 1
+            return EXIT_FAILURE
         results += run_bench(
             extractor_path,
             matcher_path,
@@ -116,7 +116,7 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
         command.out(json.dumps([asdict(r) for r in results], indent=2))
     else:
         command.out(format_table(results))
-    return 0
+    return EXIT_OK
 
 
 def register_engines_build_commands(commands: CommandRegistry) -> None:

@@ -9,7 +9,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import CommandRegistry
+from c3_matcher.commands import EXIT_OK, CommandRegistry
 from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.progress import ProgressBar
@@ -135,7 +135,7 @@ def _digest(args: argparse.Namespace, ctx: CommandContext) -> int:
             f"{done.path}: {done.added} digests added, {done.kept} already there "
             f"({done.tiles} tiles)"
         )
-    return 0
+    return EXIT_OK
 
 
 def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
@@ -153,7 +153,7 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
             }
     if args.json:
         ctx.out(json.dumps(info, indent=2))
-        return 0
+        return EXIT_OK
     kind = " (XYZ folder)" if info["format"] == "xyz" else ""
     ctx.out(
         f"{info['path']}{kind}: "
@@ -161,7 +161,7 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     )
     for key, value in info["metadata"].items():
         ctx.out(f"  {key}: {value if len(value) <= 120 else value[:117] + '...'}")
-    return 0
+    return EXIT_OK
 
 
 def _xyz_info(root: Path) -> dict[str, Any]:
@@ -220,4 +220,4 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
             f"{report.bytes / 1e6:.2f} MB; georeference {report.georeference}; "
             f"pixel values {report.value_mapping}"
         )
-    return 0
+    return EXIT_OK
