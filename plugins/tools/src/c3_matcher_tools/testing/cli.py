@@ -9,6 +9,8 @@ import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+from c3_matcher.config_sources import ENV_PREFIX
+
 __all__ = ["run_cli"]
 
 
@@ -23,10 +25,10 @@ def run_cli(
     """``c3-matcher ARGS`` run in ``cwd`` (its output captured as text); ``engine_dir``: the
     engines it reads (``C3_MATCHER_ENGINES__DIRECTORY``); ``settings``: the ``C3_MATCHER_*``
     environment it is given; ``limit_file_bytes`` caps every file it writes (``ulimit -f``)."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("C3_MATCHER_")}
+    env = {k: v for k, v in os.environ.items() if not k.startswith(ENV_PREFIX)}
     env.update(settings or {})
     if engine_dir is not None:
-        env["C3_MATCHER_ENGINES__DIRECTORY"] = str(engine_dir)
+        env[f"{ENV_PREFIX}ENGINES__DIRECTORY"] = str(engine_dir)
     return subprocess.run(
         [sys.executable, "-m", "c3_matcher.cli", *map(str, args)],
         capture_output=True,
