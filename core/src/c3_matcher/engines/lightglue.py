@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
 from c3_matcher.engines.lightglue_specs import STEPS_OPTION
 from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file, read_manifest
+from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.errors import EngineError
@@ -64,7 +65,7 @@ def resolve_mode(mode: str, provider: str) -> str:
     launches and host round trips cost more than the layers they skip: docs/decisions.md, GPU
     defaults); ``"adaptive"`` and ``"full"`` are kept as given."""
     if mode == "auto":
-        return "adaptive" if provider == "CPUExecutionProvider" else "full"
+        return "adaptive" if provider == CPU_PROVIDER else "full"
     if mode not in LIGHTGLUE_MODES:
         raise ValueError(f"mode must be one of auto, {', '.join(LIGHTGLUE_MODES)}; got {mode!r}")
     return mode

@@ -18,6 +18,7 @@ from typing import Any
 from c3_matcher.errors import EngineError
 
 __all__ = [
+    "CPU_PROVIDER",
     "PROVIDERS_SETTING",
     "PROVIDER_ALIASES",
     "PROVIDER_CHAIN",
@@ -28,6 +29,9 @@ __all__ = [
     "select_providers",
 ]
 
+CPU_PROVIDER = "CPUExecutionProvider"
+"""The provider every onnxruntime build has, the last of the chain."""
+
 PROVIDER_CHAIN: tuple[str, ...] = (
     "TensorrtExecutionProvider",
     "CUDAExecutionProvider",
@@ -36,7 +40,7 @@ PROVIDER_CHAIN: tuple[str, ...] = (
     "OpenVINOExecutionProvider",
     "DmlExecutionProvider",
     "CoreMLExecutionProvider",
-    "CPUExecutionProvider",
+    CPU_PROVIDER,
 )
 
 PROVIDER_ALIASES: dict[str, str] = {
@@ -49,7 +53,7 @@ PROVIDER_ALIASES: dict[str, str] = {
     "directml": "DmlExecutionProvider",
     "dml": "DmlExecutionProvider",
     "coreml": "CoreMLExecutionProvider",
-    "cpu": "CPUExecutionProvider",
+    "cpu": CPU_PROVIDER,
 }
 
 _GPU_PROVIDERS = frozenset(
@@ -168,7 +172,7 @@ def provider_options(
                 opts["cudnn_conv_algo_search"] = "DEFAULT"
         if cfg.extra and name in cfg.extra:
             opts.update(dict(cfg.extra[name]))
-        if name == "CPUExecutionProvider" or not opts:
+        if name == CPU_PROVIDER or not opts:
             out.append(name)
         else:
             out.append((name, opts))

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.tilestore.geo import TILE_PX
 
 
@@ -80,7 +81,7 @@ class FeatureRequest:
     max_keypoints: int
     border_erode_px: int = 4
     photometric: str = "none"
-    provider: str = "CPUExecutionProvider"
+    provider: str = CPU_PROVIDER
 
     def set_id(self, window_px: int) -> str:
         """The key of the set holding ``window_px`` windows for this request."""

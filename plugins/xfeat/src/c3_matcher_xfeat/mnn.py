@@ -24,6 +24,7 @@ import numpy as np
 import onnxruntime as ort
 from numpy.typing import NDArray
 
+from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher.features import Features, RawMatches
 
@@ -56,7 +57,7 @@ class OnnxSimilarity:
     def __init__(self, threads: int = 0) -> None:
         options = SessionSettings(intra_op_num_threads=threads, allow_spinning=False).build()
         self._session = ort.InferenceSession(
-            str(SIMILARITY_GRAPH), options, providers=["CPUExecutionProvider"]
+            str(SIMILARITY_GRAPH), options, providers=[CPU_PROVIDER]
         )
 
     def __call__(

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.commands import EXIT_OK, bounded_int
+from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.features import PairSide
 from c3_matcher_tools.memory import current_rss_mib, peak_rss_mib
 
@@ -164,7 +165,7 @@ def _child(args: argparse.Namespace) -> int:
 
     baseline = current_rss_mib()
     runtime = OnnxInferenceRuntime(
-        ["CPUExecutionProvider"], settings=_settings(args.mem_pattern == "on", args.arena == "on")
+        [CPU_PROVIDER], settings=_settings(args.mem_pattern == "on", args.arena == "on")
     )
     case = (_extractor_case if args.kind == "extractor" else _matcher_case)(args, runtime)
     first_result, first, times = _time_runs(case.fn, args.runs)
@@ -207,7 +208,7 @@ def _prepare_features(disk_engine: Path, image: Path, out: Path, max_keypoints: 
     from c3_matcher.engines.extract import run_extractor
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
-    runtime = OnnxInferenceRuntime(["CPUExecutionProvider"])
+    runtime = OnnxInferenceRuntime([CPU_PROVIDER])
     engine_id = runtime.load_engine(disk_engine)
     a, b = _pair_views(image)
     fa = run_extractor(runtime, engine_id, a, np.ones(a.shape[:2], bool), max_keypoints)

@@ -31,6 +31,7 @@ from torch import nn
 from torch.nn import functional as nnf
 
 from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, OnnxLightGlueRuntime
+from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.features import PairSide
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
 from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
@@ -229,7 +230,7 @@ class _SessionRuntime:
 
     @property
     def provider(self) -> str:
-        return "CPUExecutionProvider"
+        return CPU_PROVIDER
 
     def load_engine(self, path: Any) -> str:
         return "candidate"

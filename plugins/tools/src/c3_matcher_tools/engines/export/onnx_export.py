@@ -17,6 +17,7 @@ import onnx
 import onnxruntime as ort
 import torch
 
+from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.engines.runtime import SessionSettings
 from c3_matcher.engines.spec import TensorSpec
 from c3_matcher_tools.engines.export import ExportRequest
@@ -120,5 +121,5 @@ def check_onnx_io(path: Path, inputs: Sequence[TensorSpec], outputs: Sequence[Te
 def verification_session(path: Path) -> ort.InferenceSession:
     """An exported graph opened as the run time opens it, on the CPU, for its verification."""
     return ort.InferenceSession(
-        str(path), sess_options=SessionSettings().build(), providers=["CPUExecutionProvider"]
+        str(path), sess_options=SessionSettings().build(), providers=[CPU_PROVIDER]
     )
