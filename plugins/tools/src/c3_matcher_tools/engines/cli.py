@@ -49,9 +49,10 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
         ]
         command.out(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
         return EXIT_OK
+    width = max((len(o.spec.key) for o in outcomes), default=0)
     for o in outcomes:
         state = "reused" if o.reused else f"built in {o.seconds:.1f} s"
-        command.out(f"{o.spec.key:<18} {state:<16} {o.path}")
+        command.out(f"{o.spec.key:<{width}}  {state:<16} {o.path}")
         if not o.reused:
             command.out("\n".join(figures(dict(o.manifest.verification))))
     built = [o for o in outcomes if not o.reused]
