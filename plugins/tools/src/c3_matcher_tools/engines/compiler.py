@@ -190,8 +190,7 @@ _SCRATCH_PREFIX = ".build-"
 @contextlib.contextmanager
 def _scratch(directory: Path, stem: str) -> Iterator[Path]:
     scratch = directory / f"{_SCRATCH_PREFIX}{stem}-{os.getpid()}"
-    shutil.rmtree(scratch, ignore_errors=True)
-    scratch.mkdir(parents=True)
+    scratch.mkdir(parents=True)  # an earlier build's was removed: see _remove_abandoned
     try:
         yield scratch
     finally:
