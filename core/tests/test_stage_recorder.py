@@ -129,3 +129,22 @@ def test_the_refine_record_says_why_only_when_not_kept():
     assert kept == {"candidate_index": 1, "inliers_before": 80, "inliers_after": 95, "kept": True}
     refused = RefineRecord(1, 80, reason="ranks no better than the first pass").as_record()
     assert list(refused) == ["candidate_index", "inliers_before", "inliers_after", "kept", "reason"]
+
+
+def test_the_match_commands_drop_reasons_are_read_from_the_recorders_log_events():
+    """``c3-matcher match`` says why each dropped candidate went by listening to the log kinds
+    the recorder writes; a kind renamed on one side only would silently lose every reason."""
+    from c3_matcher.match_cli import _collect_drop_reasons, _remove_sink
+
+    reasons: dict[str, str] = {}
+    sink = _collect_drop_reasons(reasons)
+    try:
+        recorder = FrameRecorder(_sinks()[0], "f")
+        recorder.backbone_error("18,1,2", "lightglue_match", RuntimeError("boom"), 0)
+        recorder.zero_inliers("18,3,4", raw_matches=7)
+    finally:
+        _remove_sink(sink)
+    assert reasons == {
+        "18,1,2": "backbone error in lightglue_match: RuntimeError: boom",
+        "18,3,4": "no inliers after RANSAC (7 raw matches)",
+    }

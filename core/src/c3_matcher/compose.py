@@ -28,7 +28,7 @@ from c3_matcher.errors import (
 )
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.logs import LoggingHandle, configure_logging, log_event
+from c3_matcher.logs import MATCHER_READY, LoggingHandle, configure_logging, log_event
 from c3_matcher.pipeline import PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost, discover
 from c3_matcher.plugins.types import StrategyDefaults
@@ -268,7 +268,7 @@ def _log_ready(config: C3Settings, host: PluginHost, helpers: Mapping[str, Any])
     name = config.matcher.strategy
     log_event(
         "INFO",
-        "c3.matcher.ready",
+        MATCHER_READY,
         f"C3 ready: matcher={name}",
         strategy=name,
         min_inliers_threshold=config.matcher.min_inliers_threshold,

@@ -37,6 +37,9 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FDR_WRITE_FAILED",
+    "MATCHER_BACKBONE_ERROR",
+    "MATCHER_READY",
+    "MATCHER_ZERO_INLIERS",
     "LoggingHandle",
     "claim_stderr",
     "configure_logging",
@@ -50,6 +53,15 @@ FDR_WRITE_FAILED = "c3.fdr.write_failed"
 """The kind of the ERROR a failed FDR write logs: never forwarded into that FDR (the record it
 concerns is kept pending and lands with its own time once the FDR can write again; one more
 record per failure would only grow what is pending while the disk stays full)."""
+
+# The matcher's log kinds that another module reads (the other kinds are only written, each in
+# one place: the frame recorder, c3_matcher.stages.recorder); tests state them as literals.
+MATCHER_READY = "c3.matcher.ready"
+"""The INFO a composed matcher logs once, naming its strategy and thresholds."""
+MATCHER_BACKBONE_ERROR = "c3.matcher.backbone_error"
+"""The ERROR of a backbone failure (a candidate dropped, or the query or the matcher failing)."""
+MATCHER_ZERO_INLIERS = "c3.matcher.zero_inliers"
+"""The DEBUG of a candidate left without an inlier by RANSAC (dropped)."""
 
 
 def log_event(level: str, kind: str, message: str, **fields: Any) -> None:

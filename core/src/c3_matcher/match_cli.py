@@ -331,14 +331,16 @@ def _warn_missing(args: argparse.Namespace) -> None:
 def _collect_drop_reasons(reasons: dict[str, str]) -> int:
     from loguru import logger
 
+    from c3_matcher.logs import MATCHER_BACKBONE_ERROR, MATCHER_ZERO_INLIERS
+
     def sink(message: Any) -> None:
         extra = message.record["extra"]
         kind = extra.get("kind")
-        if kind == "c3.matcher.backbone_error":
+        if kind == MATCHER_BACKBONE_ERROR:
             reasons[str(extra.get("tile_id"))] = (
                 f"backbone error in {extra.get('phase')}: {extra.get('error')}"
             )
-        elif kind == "c3.matcher.zero_inliers":
+        elif kind == MATCHER_ZERO_INLIERS:
             reasons[str(extra.get("tile_id"))] = (
                 f"no inliers after RANSAC ({extra.get('raw_matches')} raw matches)"
             )

@@ -18,7 +18,12 @@ from typing import Any
 from c3_matcher.dto import CandidateMatchSet
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError
 from c3_matcher.health import RollingHealthWindow
-from c3_matcher.logs import FDR_WRITE_FAILED, log_event
+from c3_matcher.logs import (
+    FDR_WRITE_FAILED,
+    MATCHER_BACKBONE_ERROR,
+    MATCHER_ZERO_INLIERS,
+    log_event,
+)
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend
 from c3_matcher.stages.outcomes import FrameEvidence, GeometryRefusal, Survivor
 from c3_matcher.stages.query import QUERY_ROTATIONS_DEG
@@ -89,7 +94,7 @@ class FrameRecorder:
         error = f"{type(exc).__name__}: {exc}"
         log_event(
             "ERROR",
-            "c3.matcher.backbone_error",
+            MATCHER_BACKBONE_ERROR,
             f"C3 backbone error; frame={self.frame_id}; tile={tile_id}; phase={phase}; "
             f"backbone={label}; {error}",
             frame_id=self.frame_id,
@@ -124,7 +129,7 @@ class FrameRecorder:
         """Step 4e: a candidate without an inlier, dropped."""
         log_event(
             "DEBUG",
-            "c3.matcher.zero_inliers",
+            MATCHER_ZERO_INLIERS,
             f"C3 zero inliers; frame={self.frame_id}; tile={tile_id}",
             frame_id=self.frame_id,
             tile_id=tile_id,

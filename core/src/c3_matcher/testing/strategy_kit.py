@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.logs import configure_logging
+from c3_matcher.logs import MATCHER_READY, configure_logging
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.strategy import ExtractorMatcher, ExtractorStrategyConfig
 from c3_matcher.testing.contract import Doubles, MatcherContract
@@ -103,8 +103,8 @@ def compose_ready(
     finally:
         handle.close()
     records = [json.loads(line) for line in stream.getvalue().splitlines()]
-    ready = [r for r in records if r["kind"] == "c3.matcher.ready"]
-    assert len(ready) == 1, f"{len(ready)} c3.matcher.ready records"
+    ready = [r for r in records if r["kind"] == MATCHER_READY]
+    assert len(ready) == 1, f"{len(ready)} {MATCHER_READY} records"
     return root, ready[0]
 
 
