@@ -92,6 +92,7 @@ from c3_matcher_tools.args import (
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
+    EVAL_OUT,
     NO_OVERRIDES,
     Overrides,
     check_frames,
@@ -188,7 +189,7 @@ def register_eval_command(commands: CommandRegistry) -> None:
     add_strategies_option(p, "strategy to evaluate (repeatable; default: every linked strategy)")
     p.add_argument("--no-baseline", action="store_true", help="skip the SIFT + MAGSAC baseline")
     p.add_argument(
-        "--out", type=Path, default=None, help="output directory (default out/eval/<dataset>)"
+        "--out", type=Path, default=None, help=f"output directory (default {EVAL_OUT}/<dataset>)"
     )
     add_max_keypoints_option(p)
     p.add_argument(
@@ -229,7 +230,7 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         check_frames(dataset, dataset.frames)
     names = _strategies(args, ctx.plugin_host)
     outs = _output_dirs(args.out, datasets)
-    root = args.out or Path("out") / "eval"
+    root = args.out or EVAL_OUT
     held = [*([root] if len(datasets) > 1 else []), *outs]
     check_output_dirs(held, datasets)  # none is, holds or lies inside an input
     summary: list[dict[str, Any]] = []
@@ -292,7 +293,7 @@ def _output_dirs(out: Path | None, datasets: Sequence[FlightDataset]) -> list[Pa
                 f"{first} and {datasets[n].root} are both named {name!r} (dataset.json "
                 '"name"); their outputs would share one directory: give each its own name',
             )
-    return [(out or Path("out") / "eval") / name for name in names]
+    return [(out or EVAL_OUT) / name for name in names]
 
 
 def _eval_dataset(

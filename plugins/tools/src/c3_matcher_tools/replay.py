@@ -37,6 +37,7 @@ from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_nois
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
+    REPLAY_OUT,
     Overrides,
     check_frames,
     check_output_dirs,
@@ -69,7 +70,7 @@ def register_replay_command(commands: CommandRegistry) -> None:
         "--out",
         type=Path,
         default=None,
-        help="output directory (default out/replay/<dataset>-<strategy>)",
+        help=f"output directory (default {REPLAY_OUT}/<dataset>-<strategy>)",
     )
     p.add_argument(
         "--limit", type=bounded_int(), default=None, help="only the first N frames (>= 1)"
@@ -93,7 +94,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     loaded = load_dataset(args.dataset, settings.matcher.max_image_pixels)
     dataset = apply_attitude_noise(loaded, args.attitude_noise_deg, args.limit)
     strategy = args.strategy or settings.matcher.strategy
-    out = args.out or Path("out") / "replay" / f"{output_dir_name(dataset)}-{strategy}"
+    out = args.out or REPLAY_OUT / f"{output_dir_name(dataset)}-{strategy}"
     frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
     check_frames(dataset, frames)
     check_output_dirs([out], [dataset])

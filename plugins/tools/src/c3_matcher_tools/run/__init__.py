@@ -25,6 +25,8 @@ from c3_matcher_tools.run.matcher import (
     prepare_matcher,
 )
 from c3_matcher_tools.run.outputs import (
+    EVAL_OUT,
+    REPLAY_OUT,
     check_output_dirs,
     exclusive_output_dir,
     flight_report,
@@ -50,7 +52,9 @@ from c3_matcher_tools.run.scoring import (
 )
 
 __all__ = [
+    "EVAL_OUT",
     "NO_OVERRIDES",
+    "REPLAY_OUT",
     "ComposedMatcher",
     "FlightRun",
     "FrameOutcome",

@@ -25,6 +25,8 @@ from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.scoring import summarize
 
 __all__ = [
+    "EVAL_OUT",
+    "REPLAY_OUT",
     "RUN_FILES",
     "check_output_dirs",
     "exclusive_output_dir",
@@ -35,6 +37,12 @@ __all__ = [
     "write_html_report",
     "write_results",
 ]
+
+REPLAY_OUT = Path("out") / "replay"
+"""Where ``replay`` writes without ``--out``: ``<this>/<dataset>-<strategy>`` below the working
+directory."""
+EVAL_OUT = Path("out") / "eval"
+"""Where ``eval`` writes without ``--out``: ``<this>/<dataset>`` below the working directory."""
 
 
 @contextlib.contextmanager
