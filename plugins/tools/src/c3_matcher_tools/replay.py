@@ -56,9 +56,8 @@ def register_replay_command(commands: CommandRegistry) -> None:
     p = commands.add(
         "replay",
         help="run every frame of a flight dataset through the matcher (results, FDR, report)",
-        description="Replay a flight dataset (c3-flight/1: what `c3-matcher dataset render` and "
-        "`dataset import` write) through the configured matcher. Progress on stderr; the report "
-        "on stdout.",
+        description="Replay a flight dataset (what `dataset render` and `dataset import` write) "
+        "through the configured matcher. Progress on stderr; the report on stdout.",
     )
     p.add_argument("dataset", type=Path, help="dataset directory (holds dataset.json)")
     p.add_argument(
