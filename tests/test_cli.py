@@ -193,6 +193,13 @@ def test_unreadable_tile_exits_2_not_3(tmp_path):
     args[args.index("--tile") + 1] = str(junk)
     proc = c3(args, {"C3_MATCHER_ENGINES__DIRECTORY": str(tmp_path)})
     assert proc.returncode == 2 and "--tile" in _one_line(proc)
+    junk.write_bytes((DEMO / "tile_a.png").read_bytes()[:3000])  # cut short: OpenCV warns
+    proc = c3(args, {"C3_MATCHER_ENGINES__DIRECTORY": str(tmp_path)})
+    assert proc.returncode == 2 and "--tile" in _one_line(proc)  # in its words only
+    args[args.index("--tile") + 1] = str(tmp_path)  # there, but a directory
+    proc = c3(args, {"C3_MATCHER_ENGINES__DIRECTORY": str(tmp_path)})
+    said = f"c3-matcher: --tile {tmp_path}: cannot read image file: it is a directory"
+    assert proc.returncode == 2 and _one_line(proc) == said
 
 
 def test_unknown_strategy_exits_2(env):
@@ -280,3 +287,35 @@ def test_a_reader_that_stops_reading_stdout_ends_the_command_quietly(monkeypatch
     monkeypatch.setattr(sys, "stdout", GoneReader())
     assert main(["config"]) == 141
     assert capsys.readouterr().err == ""
+
+
+def test_a_result_that_cannot_be_written_to_stdout_exits_1_naming_stdout(monkeypatch, capsys):
+    """``c3-matcher config > /dev/full``: the disk's failure (1), not the user's input (2)."""
+    import errno
+    import sys
+
+    from c3_matcher.cli import main
+
+    class FullDisk:
+        def write(self, text: str) -> int:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def flush(self) -> None:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(sys, "stdout", FullDisk())
+    assert main(["config"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == "c3-matcher: cannot write the result to stdout: No space left on device"
+
+
+def test_match_with_a_tile_gsd_in_other_units_than_the_height_exits_2_with_one_line(env):
+    """A GSD that scales the frame a billion times is a number in the wrong units: bad input,
+    said in one line on stderr with nothing on stdout, not a backbone failure."""
+    calibration = str(DEMO / "calibration.json")
+    argv = ["match", "--query", str(DEMO / "frame.jpg"), "--tile", str(DEMO / "tile_a.png")]
+    proc = c3([*argv, "--tile-gsd", "1e9", "--calibration", calibration, "--height", "27"], env)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert proc.stdout == ""
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("c3-matcher: tile_gsd_m: 1e+09 m/px would scale the frame"), last

@@ -64,6 +64,16 @@ def test_a_whole_float_size_and_an_absent_distortion_still_load(tmp_path: Path) 
     assert load_calibration(DEMO / "calibration.json").image_size == (640, 480)
 
 
+def test_an_unknown_key_is_refused_by_name_not_dropped(tmp_path: Path) -> None:
+    """A misspelt "distortion" would otherwise load as a lens without distortion."""
+    values = {k: v for k, v in SHIPPED.items() if k != "distortion"}
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps({**values, "distorsion": SHIPPED["distortion"]}))
+    with pytest.raises(InvalidInputError) as refused:
+        load_calibration(path)
+    assert refused.value.reason.startswith('unknown key "distorsion" (a calibration holds "K",')
+
+
 def test_the_caller_names_the_file_it_is(tmp_path: Path) -> None:
     """``field`` replaces match's ``--calibration PATH``: ``FIELD: PATH: why``."""
     path = _written(tmp_path, K="abc")

@@ -35,6 +35,7 @@ def cms(n: int, residual: float = 1.0, tile: TileId = TILE) -> CandidateMatchSet
         ({"zoom": 31, "lat": 0.0, "lon": 0.0}, "tile_id.zoom"),
         ({"zoom": 5, "lat": 91.0, "lon": 0.0}, "tile_id.lat"),
         ({"zoom": 5, "lat": 0.0, "lon": float("nan")}, "tile_id.lon"),
+        ({"zoom": 5, "lat": 10**400, "lon": 0.0}, "tile_id.lat"),  # beyond a float
     ],
 )
 def test_tile_id_validation_names_field(kwargs, field):
@@ -62,6 +63,10 @@ def test_frame_validation():
         NavCameraFrame(uuid.uuid4(), image, 0, height_above_ground_m=-5.0)
     with pytest.raises(InvalidInputError, match="attitude.pitch"):
         Attitude(0.0, 2.0, 0.0)
+    with pytest.raises(InvalidInputError, match="frame.height_above_ground_m.*finite"):
+        NavCameraFrame(uuid.uuid4(), image, 0, height_above_ground_m=10**400)
+    with pytest.raises(InvalidInputError, match="attitude.roll"):
+        Attitude.from_degrees(10**400, 0, 0)
     frame = NavCameraFrame(uuid.uuid4(), image, 0, Attitude.from_degrees(1, 2, 270), 120.0)
     with pytest.raises(dataclasses.FrozenInstanceError):
         frame.captured_at_ns = 5  # type: ignore[misc]

@@ -80,6 +80,19 @@ def test_match_refuses_to_write_an_output_over_an_input(
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in files.values())
 
 
+@pytest.mark.parametrize("option", ["--fdr", "--viz"])
+def test_an_output_that_is_a_directory_is_said_to_be_one(
+    inputs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str], option: str
+) -> None:
+    """The folder holding the inputs is refused as a folder, not as a replacement of them."""
+    from c3_matcher.cli import main
+
+    argv = ["match", "--query", str(inputs["query"]), "--tile", str(inputs["tile"])]
+    assert main([*argv, option, str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == f"c3-matcher: {option}: {tmp_path} is a directory: it names a file to write"
+
+
 def test_the_configured_fdr_path_may_not_be_an_input_either(
     inputs: dict[str, Path], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

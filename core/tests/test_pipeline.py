@@ -3,6 +3,8 @@ doubles."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
@@ -66,6 +68,35 @@ def test_tile_decode_failure_is_a_backbone_drop(fdr, logs):
     result = rig.match()
     assert result.candidates_dropped == 1
     assert fdr.of_kind("matcher.backbone_error")[0]["phase"] == "tile_decode"
+
+
+class _UnprintableError(Exception):
+    def __str__(self) -> str:
+        raise ValueError("this message cannot be read")
+
+
+class _HandleRaisingUnprintable:
+    """A third party's tile handle whose error cannot even say what it is."""
+
+    def encoded(self) -> memoryview:
+        return memoryview(b"x")
+
+    def decode(self):
+        raise _UnprintableError
+
+
+def test_a_candidate_error_whose_message_fails_drops_that_candidate_only(fdr, logs):
+    rig = ScriptedRig([S(100), S(100), S(90)], fdr)
+    second = rig.rerank.candidates[1]
+    odd = dataclasses.replace(second, tile_pixels_handle=_HandleRaisingUnprintable())
+    rig.rerank = dataclasses.replace(
+        rig.rerank, candidates=(rig.rerank.candidates[0], odd, rig.rerank.candidates[2])
+    )
+    result = rig.match()
+    assert result.candidates_dropped == 1 and len(result.per_candidate) == 2
+    (record,) = fdr.of_kind("matcher.backbone_error")
+    assert record["phase"] == "tile_decode"
+    assert record["error"] == "_UnprintableError: <its message could not be read: ValueError>"
 
 
 def test_ac5_all_below_threshold_raises_insufficient(fdr, logs):

@@ -55,6 +55,27 @@ def test_seeded_and_deterministic(real_correspondences):
     assert a.per_candidate_residual_px == b.per_candidate_residual_px
 
 
+def test_a_call_in_between_leaves_a_running_call_alone(real_correspondences, monkeypatch):
+    """The filter is shared (the stages after the matcher use it too): a call with another
+    threshold made while one runs, which is what a second thread can do, changes nothing."""
+    ransac = OpenCvRansacFilter()
+    alone = ransac.filter(real_correspondences, 3.0)
+    real_find = cv2.findHomography
+    interrupted: list[bool] = []
+
+    def another_call_first(*args):
+        if not interrupted:
+            interrupted.append(True)
+            ransac.filter(real_correspondences, 60.0)
+        return real_find(*args)
+
+    monkeypatch.setattr(cv2, "findHomography", another_call_first)
+    crossed = ransac.filter(real_correspondences, 3.0)
+    assert interrupted
+    assert crossed.inlier_correspondences.tobytes() == alone.inlier_correspondences.tobytes()
+    assert crossed.per_candidate_residual_px == alone.per_candidate_residual_px
+
+
 def test_fewer_than_four_and_degenerate_give_zero_inliers():
     f = OpenCvRansacFilter()
     three = np.array([[0, 0, 1, 1], [5, 5, 6, 6], [9, 1, 10, 2]], np.float32)

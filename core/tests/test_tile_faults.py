@@ -241,6 +241,28 @@ def test_corrupt_blob_fails_its_digest_and_names_the_tile(tmp_path):
         assert store.tile_bytes(3, 3, 1) is not None  # the others are fine
 
 
+def test_a_tile_whose_data_is_gone_fails_its_digest(tmp_path):
+    """A row left with NULL data where a sha256 is stored lost its tile: it is not a blank one."""
+    tiles = {(3, 2, 1): _jpeg(1), (3, 3, 1): _jpeg(2)}
+    path = _mbtiles(tmp_path / "s.mbtiles", tiles, digests=True)
+    db = sqlite3.connect(path)
+    db.execute("UPDATE tiles SET tile_data=NULL WHERE tile_column=2")
+    db.commit()
+    db.close()
+    with MBTilesStore(path) as store:
+        with pytest.raises(TileDigestError, match=r"s.mbtiles tile 3/2/1.*NULL"):
+            store.tile_bytes(3, 2, 1)
+        assert store.tile_bytes(3, 3, 1) is not None
+
+
+def test_a_window_beyond_the_tiles_latitude_limit_is_refused_by_name(tmp_path):
+    path = _mbtiles(tmp_path / "s.mbtiles", {(3, 2, 1): _png()}, digests=False)
+    with MBTilesStore(path) as store:
+        for lat in (-90.0, 90.0, 85.06):
+            with pytest.raises(InvalidInputError, match="tile_id.lat.*web-mercator"):
+                store.candidate(TileId(3, lat, 0.0), size_px=256)
+
+
 def test_store_without_digests_still_reads(tmp_path):
     path = _mbtiles(tmp_path / "s.mbtiles", {(3, 2, 1): _png()}, digests=False)
     with MBTilesStore(path) as store:

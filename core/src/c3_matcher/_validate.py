@@ -21,7 +21,11 @@ def finite_float(
 ) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
         raise InvalidInputError(field, f"expected a number, got {type(value).__name__}")
-    number = float(value)
+    try:
+        number = float(value)
+    except OverflowError:  # an int beyond the float range, such as 10**400
+        bits = int(value).bit_length()
+        raise InvalidInputError(field, f"must be finite, got an int of {bits} bits") from None
     require(math.isfinite(number), field, f"must be finite, got {number}")
     if low is not None:
         require(number >= low, field, f"must be >= {low}, got {number}")

@@ -28,6 +28,7 @@ from c3_matcher.errors import (
     InvalidInputError,
     StrategyNotLinkedError,
     UnknownStrategyError,
+    describe,
 )
 
 if TYPE_CHECKING:
@@ -342,7 +343,9 @@ def _command(argv: Sequence[str] | None) -> int:
     context = CommandContext(settings, host, sys.stdout, sys.stderr)
     try:
         handler: Handler = args.handler
-        return handler(args, context)
+        status = handler(args, context)
+        context.flush()  # a full disk under stdout said here, not lost at the interpreter's exit
+        return status
     except (
         InvalidInputError,
         ConfigurationError,
@@ -364,7 +367,7 @@ def _command(argv: Sequence[str] | None) -> int:
     except Exception as exc:  # a bug: one line, not a traceback (C3_MATCHER_TRACEBACK=1 shows it)
         if os.environ.get("C3_MATCHER_TRACEBACK"):
             raise
-        print(_fail(f"internal error: {type(exc).__name__}: {exc}"), file=sys.stderr)
+        print(_fail(f"internal error: {describe(exc)}"), file=sys.stderr)
         return EXIT_FAILURE
 
 

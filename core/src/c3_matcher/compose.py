@@ -25,6 +25,7 @@ from c3_matcher.errors import (
     C3Error,
     ConfigurationError,
     StrategyStartupError,
+    describe,
 )
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
@@ -234,7 +235,7 @@ def _create_strategy(
     except C3Error:
         raise  # says itself what is wrong (an engine, an option)
     except Exception as exc:
-        raise StrategyStartupError(name, plugin, f"{type(exc).__name__}: {exc}") from exc
+        raise StrategyStartupError(name, plugin, describe(exc)) from exc
     if not isinstance(matcher, CrossDomainMatcher):
         kind = type(matcher).__name__
         raise StrategyStartupError(name, plugin, f"its factory returned {kind}, not a matcher")

@@ -20,12 +20,25 @@ __all__ = [
     "InvalidInputError",
     "MatcherBackboneError",
     "MatcherClosedError",
+    "OutputStreamError",
     "PluginLoadError",
     "ProfileError",
     "StrategyNotLinkedError",
     "StrategyStartupError",
     "UnknownStrategyError",
+    "describe",
 ]
+
+
+def describe(exc: BaseException) -> str:
+    """``"TypeName: message"`` of an exception, also of one whose message cannot be read (a
+    plugin's or a tile handle's ``__str__`` that raises): telling of a failure must never be
+    what fails."""
+    try:
+        message = str(exc)
+    except Exception as failure:
+        message = f"<its message could not be read: {type(failure).__name__}>"
+    return f"{type(exc).__name__}: {message}"
 
 
 class C3Error(Exception):
@@ -53,7 +66,7 @@ class MatcherBackboneError(C3Error):
         self.tile_id = tile_id
         self.cause = cause
         where = "query frame" if tile_id is None else f"tile {tile_id}"
-        detail = cause if isinstance(cause, str) else f"{type(cause).__name__}: {cause}"
+        detail = cause if isinstance(cause, str) else describe(cause)
         super().__init__(f"backbone failure in phase {phase!r} on {where}: {detail}")
 
 
@@ -165,7 +178,7 @@ class PluginLoadError(C3Error):
         self.plugin = plugin
         self.distribution = distribution
         self.cause = cause
-        detail = cause if isinstance(cause, str) else f"{type(cause).__name__}: {cause}"
+        detail = cause if isinstance(cause, str) else describe(cause)
         super().__init__(
             f'Error importing plugin "{plugin}" (distribution {distribution}): {detail}'
         )
@@ -181,6 +194,16 @@ class DuplicateStrategyError(C3Error):
             f"strategy {strategy!r} is claimed by more than one distribution: "
             f"{', '.join(self.distributions)}"
         )
+
+
+class OutputStreamError(C3Error):
+    """A command's result could not be written to its stream (``stdout``): a full disk, a
+    closed file. A reader that stopped (``BrokenPipeError``) is not this error."""
+
+    def __init__(self, stream: str, cause: OSError) -> None:
+        self.stream = stream
+        self.cause = cause
+        super().__init__(f"cannot write the result to {stream}: {cause.strerror or cause}")
 
 
 class ProfileError(C3Error):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -143,11 +144,20 @@ def swap_default_handler() -> None:
     logger.add(sys.stderr, filter=lambda record: not is_matcher_record(record))
 
 
+_OPENCV_SILENT = 0  # cv2.utils.logging.LOG_LEVEL_SILENT
+
+
 def claim_stderr() -> None:
     """For a program that owns its process (the ``c3-matcher`` command): remove loguru's default
-    plain-text stderr handler (id 0, installed at import), and nothing else."""
+    plain-text stderr handler (id 0, installed at import), and keep OpenCV's own messages off
+    stderr unless ``OPENCV_LOG_LEVEL`` asks for them (its "[ WARN:0@0.7] global loadsave.cpp"
+    lines repeat, in its words, a failure the command says in one line of its own)."""
     with contextlib.suppress(ValueError):
         logger.remove(_LOGURU_DEFAULT_HANDLER)
+    if "OPENCV_LOG_LEVEL" not in os.environ:
+        import cv2
+
+        cv2.setLogLevel(_OPENCV_SILENT)
 
 
 def _fdr_forwarder(fdr: FdrClient) -> Callable[[Message], None]:

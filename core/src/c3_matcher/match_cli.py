@@ -27,7 +27,7 @@ from c3_matcher.context import CommandContext
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
 from c3_matcher.dto.candidates import RerankResult, TilePixelsHandle
 from c3_matcher.dto.geo import Attitude, TileId
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError
+from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
 from c3_matcher.fdr import FdrOpenError, InMemoryFdr, JsonlFdrRecorder
 from c3_matcher.match_inputs import (
     file_candidates,
@@ -209,6 +209,10 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
             ctx.out(json.dumps(_insufficient_json(exc, args, problems)))
             _report(problems)
             return EXIT_INSUFFICIENT
+        except MatcherBackboneError as exc:
+            if isinstance(exc.cause, InvalidInputError):  # the frame's own numbers, such as a
+                raise exc.cause from exc  # height and a GSD in different units: bad input
+            raise
         out = _result_json(args, result, rerank, calibration, reasons)
         if args.viz and draw(
             result,
@@ -217,7 +221,7 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
         ):
             out["viz"] = str(args.viz)
         ctx.out(json.dumps(out))
-        ctx.stdout.flush()
+        ctx.flush()
         return EXIT_USAGE if _report(problems) else EXIT_OK
 
 
@@ -242,7 +246,11 @@ def _refuse_output_over_input(args: argparse.Namespace, fdr_path: Path) -> None:
     line and append its records to it, ``--viz`` would replace it (bad input, exit 2, nothing
     written)."""
     inputs = [args.query, *(args.tile or ()), args.store, args.calibration]
-    refuse_output_over_inputs(fdr_path, inputs, field="--fdr" if args.fdr else "[fdr] path")
+    fdr_field = "--fdr" if args.fdr else "[fdr] path"
+    for out, field in ((fdr_path, fdr_field), (args.viz, "--viz")):
+        if out is not None and Path(out).is_dir():
+            raise InvalidInputError(field, f"{out} is a directory: it names a file to write")
+    refuse_output_over_inputs(fdr_path, inputs, field=fdr_field)
     if args.viz:
         refuse_output_over_inputs(args.viz, [*inputs, fdr_path], field="--viz")
 

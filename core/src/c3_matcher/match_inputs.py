@@ -116,8 +116,11 @@ def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
     """A handle on a ``--tile`` file that exists and decodes within ``max_pixels`` (exit 2
     otherwise, naming it)."""
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise InvalidInputError(f"--tile {p}", "no such image file")
-    handle = MmapTileHandle(p, max_pixels=max_pixels)
+    try:  # a directory, a FIFO, an empty file: said as such
+        handle = MmapTileHandle(p, max_pixels=max_pixels)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"--tile {p}", exc.reason) from None
     decode_image(handle.encoded(), f"--tile {p}", max_pixels)
     return handle

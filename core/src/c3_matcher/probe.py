@@ -9,7 +9,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from c3_matcher.errors import EngineError
+from c3_matcher.errors import EngineError, describe
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.protocols import FeatureBackend
 
@@ -56,7 +56,7 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
                 "setting that stops every pair early: [lightglue] exit_matches)"
             )
     except Exception as exc:
-        failed = f"start-up probe failed: {type(exc).__name__}: {exc}"
+        failed = f"start-up probe failed: {describe(exc)}"
         if _runs_engines(backend):
             raise EngineError(backend.label, failed) from exc
         raise EngineError(

@@ -63,18 +63,26 @@ class OpenCvRansacFilter:
         )
         self.refit_px = float(refit_px)
         self.refit_floor = int(refit_floor)
-        self._params = cv2.UsacParams()
-        self._params.confidence = confidence
-        self._params.maxIterations = max_iters
-        self._params.randomGeneratorState = seed
-        self._params.sampler = cv2.SAMPLING_UNIFORM
-        self._params.score = cv2.SCORE_METHOD_MAGSAC
-        self._params.loMethod = cv2.LOCAL_OPTIM_SIGMA
-        self._params.loIterations = 10
-        self._params.loSampleSize = 50
-        self._params.final_polisher = cv2.MAGSAC if refine else cv2.NONE_POLISHER
-        self._params.final_polisher_iterations = 10 if refine else 0
-        self._params.isParallel = False
+        self._confidence, self._max_iters, self._seed = confidence, max_iters, seed
+        self._refine = refine
+
+    def _usac_params(self, threshold: float) -> cv2.UsacParams:
+        """OpenCV's USAC parameters for one call: built per call, so no call sees another's
+        threshold (the filter is shared with the stages after the matcher, on other threads)."""
+        params = cv2.UsacParams()
+        params.threshold = threshold
+        params.confidence = self._confidence
+        params.maxIterations = self._max_iters
+        params.randomGeneratorState = self._seed
+        params.sampler = cv2.SAMPLING_UNIFORM
+        params.score = cv2.SCORE_METHOD_MAGSAC
+        params.loMethod = cv2.LOCAL_OPTIM_SIGMA
+        params.loIterations = 10
+        params.loSampleSize = 50
+        params.final_polisher = cv2.MAGSAC if self._refine else cv2.NONE_POLISHER
+        params.final_polisher_iterations = 10 if self._refine else 0
+        params.isParallel = False
+        return params
 
     def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult:
         corr = v.array(correspondences, "correspondences", dtype=np.float32, shape=(None, 4))
@@ -83,11 +91,10 @@ class OpenCvRansacFilter:
         m = corr.shape[0]
         if m < MIN_CORRESPONDENCES:
             return _empty(m)
-        self._params.threshold = threshold
         src = np.ascontiguousarray(corr[:, 0:2], dtype=np.float64)
         dst = np.ascontiguousarray(corr[:, 2:4], dtype=np.float64)
         try:
-            found, mask = cv2.findHomography(src, dst, self._params)
+            found, mask = cv2.findHomography(src, dst, self._usac_params(threshold))
         except cv2.error:
             return _empty(m)
         if found is None or mask is None or not np.isfinite(found).all():

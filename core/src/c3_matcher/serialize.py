@@ -31,6 +31,7 @@ _REQUIRED_CALIBRATION_KEYS = {
     "K": "the 3x3 intrinsic matrix, px",
     "image_size": "[width, height] px of the images K was calibrated for",
 }
+_CALIBRATION_KEYS = {*_REQUIRED_CALIBRATION_KEYS, "distortion", "camera_to_body"}
 _DISTORTION_FORM = "a list of 0, 4, 5, 8, 12 or 14 numbers (k1, k2, p1, p2[, k3...]; [] for none)"
 
 
@@ -71,6 +72,10 @@ def load_calibration(path: Path, *, field: str | None = None) -> CameraCalibrati
     for key, what in _REQUIRED_CALIBRATION_KEYS.items():
         if key not in data:
             raise refused(f'missing key "{key}" ({what})')
+    unknown = sorted(set(data) - _CALIBRATION_KEYS)
+    if unknown:  # a misspelt "distortion" would otherwise be no distortion, silently
+        known = ", ".join(f'"{key}"' for key in sorted(_CALIBRATION_KEYS))
+        raise refused(f'unknown key "{unknown[0]}" (a calibration holds {known})')
     try:
         c2b = data.get("camera_to_body")
         return CameraCalibration(

@@ -6,7 +6,7 @@ into the process (``pread`` under a size check) only by ``encoded()`` / ``decode
 of the file: touching a mapping whose file shrank kills the process with SIGBUS, whereas a
 read of a shrunk file is that candidate's error.
 
-Decompression bombs: ``decode_image`` reads the image header (PNG, JPEG, TIFF, BMP, WebP, GIF)
+Decompression bombs: ``decode_image`` reads the image header (PNG, JPEG, TIFF, BMP, WebP)
 and refuses an image above its ``max_pixels`` argument (width x height; the configured
 ``[matcher] max_image_pixels`` where the caller has a configuration, else
 ``DEFAULT_MAX_IMAGE_PIXELS``, 50 Mpx) before decoding it; an image whose size cannot be read
@@ -38,6 +38,8 @@ __all__ = [
 ]
 
 DEFAULT_MAX_IMAGE_PIXELS = 50_000_000  # the default of [matcher] max_image_pixels
+DECODABLE_FORMATS = "PNG, JPEG, TIFF, BMP, WebP"
+"""The image formats read (by their header, then by OpenCV), as messages name them."""
 
 
 def _checked_limit(value: int) -> int:
@@ -61,7 +63,7 @@ def decode_image(
         raise ImageDecodeError(what, "no bytes to decode")
     size = image_header_size(raw[: 1 << 20].tobytes())
     if size is None:
-        raise ImageDecodeError(what, "not a decodable image (PNG, JPEG, TIFF, BMP, WebP, GIF)")
+        raise ImageDecodeError(what, f"not a decodable image ({DECODABLE_FORMATS})")
     width, height = size
     limit = _checked_limit(max_pixels)
     if width <= 0 or height <= 0:
@@ -74,7 +76,7 @@ def decode_image(
         )
     image = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
     if image is None:
-        raise ImageDecodeError(what, "not a decodable image (PNG, JPEG, TIFF, ...)")
+        raise ImageDecodeError(what, f"not a decodable image ({DECODABLE_FORMATS})")
     return to_rgb8(image, what, bgr=True)
 
 
@@ -100,8 +102,8 @@ def to_rgb8(image: NDArray[np.generic], what: str, *, bgr: bool) -> NDArray[np.u
 
 
 def image_header_size(head: bytes) -> tuple[int, int] | None:
-    """(width, height) from the first bytes of a PNG, JPEG, TIFF, BMP, WebP or GIF file, or None
-    when the format or its header is not recognised."""
+    """(width, height) from the first bytes of a PNG, JPEG, TIFF, BMP or WebP file, or None
+    when the format or its header is not recognised (a GIF too: OpenCV does not decode it)."""
     try:
         if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
             w, h = struct.unpack(">II", head[16:24])
@@ -113,9 +115,6 @@ def image_header_size(head: bytes) -> tuple[int, int] | None:
         if head[:2] == b"BM":
             w, h = struct.unpack("<ii", head[18:26])
             return abs(int(w)), abs(int(h))
-        if head[:6] in (b"GIF87a", b"GIF89a"):
-            w, h = struct.unpack("<HH", head[6:10])
-            return int(w), int(h)
         if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
             chunk = head[12:16]
             if chunk == b"VP8X":

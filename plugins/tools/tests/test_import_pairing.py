@@ -517,3 +517,11 @@ def test_frame_step_is_checked_once_on_the_photo_folder_path(
     ctx = argparse.Namespace(out=said.append)
     assert cli.run_log_import(args, ctx) == 0  # type: ignore[arg-type]
     assert calls == [(1, False)] and json.loads(said[0])["frames"] == 2
+
+
+def test_a_store_folder_is_refused_as_one(tmp_path: Path) -> None:
+    """An XYZ tile folder as STORE: said to be a folder, not to be missing."""
+    with pytest.raises(InvalidInputError, match="a folder; a dataset's store is one MBTiles file"):
+        ProposalOptions(tmp_path).check_store()
+    with pytest.raises(InvalidInputError, match="no such tile store"):
+        ProposalOptions(tmp_path / "none.mbtiles").check_store()

@@ -16,6 +16,7 @@ REPO = Path(__file__).resolve().parents[3]
 NAIP = REPO / "data" / "imagery" / "naip_timeseries"
 NAIP_2020 = NAIP / "m_4709963_se_14_1_20200831.tif"
 NAIP_2010 = NAIP / "m_4709963_se_14_1_20100629.tif"
+ELSEWHERE = REPO / "data" / "imagery" / "open_orthophotos" / "test_tiled.tif"
 
 
 def _cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
@@ -79,12 +80,15 @@ def test_failed_render_leaves_nothing_and_names_real_options(tmp_path: Path) -> 
         (("missing.tif", "STORE"), "FRAMES_GEOTIFF"),
         ((NAIP_2010, "missing.mbtiles"), "STORE"),
         ((NAIP_2010, NAIP_2010), "STORE"),
+        ((NAIP_2010, "elsewhere.mbtiles"), "do not overlap"),  # Dakota frames, a Dutch store
     ],
 )
 def test_render_checks_inputs_before_writing(
     tmp_path: Path, args: tuple[str | Path, str | Path], needle: str
 ) -> None:
     resolved = [tmp_path / a if isinstance(a, str) else a for a in args]
+    if args[1] == "elsewhere.mbtiles":
+        assert _cli("tiles", "build", ELSEWHERE, resolved[1]).returncode == 0
     out = tmp_path / "ds"
     r = _cli("dataset", "render", *resolved, out)
     assert r.returncode == 2 and needle in r.stderr, r.stderr

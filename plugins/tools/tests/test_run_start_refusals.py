@@ -143,6 +143,24 @@ def test_a_replay_with_a_frame_image_missing_mid_flight_is_refused_before_out_is
     assert not (tmp_path / "fresh").exists()
 
 
+@pytest.mark.parametrize("command", ["replay", "eval"])
+def test_a_run_whose_tile_store_is_damaged_is_refused_before_out_is_touched(
+    command: str, small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    extra = ("--no-baseline", *QUICK_EVAL) if command == "eval" else ()
+    argv = (command, str(flight), "--strategy", "sift_magsac", "--out", str(out), *extra)
+    assert c3(*argv).returncode == 0
+    before = _tree(out)
+    store = flight / "tiles.mbtiles"
+    store.write_bytes(store.read_bytes()[:4096])  # cut short: its tables are gone
+    proc = c3(*argv)
+    assert proc.returncode == 2
+    assert "tiles.mbtiles" in _one_line(proc)
+    assert _tree(out) == before  # the previous results, FDR and reports all kept
+
+
 # --- defect 2: --attitude-noise-deg refused up front, naming itself, the frame, degrees -----
 
 

@@ -3,6 +3,7 @@ the tifffile fallback and pyproj/GDAL transforms, on the shipped orthophotos."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import cv2
@@ -125,6 +126,33 @@ def test_nodata_tag_becomes_zero_and_masked(tmp_path: Path) -> None:
     # the fallback ignores the tag: the same area is white there
     fb = _tiles(build_mbtiles(tif, tmp_path / "f.mbtiles", use_rasterio=False).path)
     assert any((img == 255).all(axis=2).sum() > 1000 for img in fb.values())
+
+
+@pytest.mark.parametrize("kind", ["float_nan_nodata", "rgba_with_nodata"])
+def test_nodata_a_library_would_warn_about_builds_quietly(tmp_path: Path, kind: str) -> None:
+    """A float raster whose nodata is NaN and an RGBA raster with a nodata tag too build their
+    tiles without a library warning on stderr: NaN pixels are 0 like every invalid one, and the
+    mask follows the tag (GDAL's rule) as the module says."""
+    from rasterio.transform import from_origin
+
+    rng = np.random.default_rng(0)
+    count, dtype, nodata = (3, "float32", float("nan")) if kind == "float_nan_nodata" else (
+        4, "uint8", 255)  # fmt: skip
+    img = rng.uniform(20, 235, size=(count, 300, 300)).astype(dtype)
+    img[:, :, :100] = nodata
+    tif = tmp_path / f"{kind}.tif"
+    profile = {
+        "driver": "GTiff", "width": 300, "height": 300, "count": count, "dtype": dtype,
+        "crs": "EPSG:32633", "transform": from_origin(500000.0, 5300000.0, 1.0, 1.0),
+        "nodata": nodata, **({"photometric": "RGB", "alpha": "YES"} if count == 4 else {}),
+    }  # fmt: skip
+    with rasterio.open(tif, "w", **profile) as ds:
+        ds.write(img)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any warning fails the build
+        report = build_mbtiles(tif, tmp_path / "t.mbtiles", use_rasterio=True)
+    tiles = _tiles(report.path)
+    assert tiles and any((img > 0).any() for img in tiles.values())
 
 
 def test_multi_zoom_store_with_overviews_reads_back(tmp_path: Path) -> None:

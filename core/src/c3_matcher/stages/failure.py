@@ -6,6 +6,8 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from c3_matcher.errors import describe
+
 __all__ = ["CandidateStepError", "failing_as", "timed"]
 
 
@@ -18,7 +20,7 @@ class CandidateStepError(Exception):
     is the exception the step raised."""
 
     def __init__(self, phase: str, source: str, cause: Exception) -> None:
-        super().__init__(f"{phase}: {type(cause).__name__}: {cause}")
+        super().__init__(f"{phase}: {describe(cause)}")
         self.phase = phase
         self.source = source
         self.cause = cause

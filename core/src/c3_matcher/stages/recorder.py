@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from c3_matcher.dto import CandidateMatchSet
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError
+from c3_matcher.errors import InsufficientInliersError, InvalidInputError, describe
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import (
     FDR_WRITE_FAILED,
@@ -79,9 +79,9 @@ class FrameRecorder:
             log_event(
                 "ERROR",
                 FDR_WRITE_FAILED,
-                f"FDR write failed for {kind}: {exc}",
+                f"FDR write failed for {kind}: {describe(exc)}",
                 record_kind=kind,
-                error=f"{type(exc).__name__}: {exc}",
+                error=describe(exc),
             )
 
     # -- per candidate --------------------------------------------------------------------
@@ -91,7 +91,7 @@ class FrameRecorder:
         """A backbone failure: of a candidate (dropped), of the query or of the matcher."""
         self._backbone_errors += 1
         label = self._sinks.backend.label
-        error = f"{type(exc).__name__}: {exc}"
+        error = describe(exc)
         log_event(
             "ERROR",
             MATCHER_BACKBONE_ERROR,
@@ -120,7 +120,7 @@ class FrameRecorder:
             "WARNING",
             "c3.matcher.stored_features_failed",
             f"C3 stored features unusable; frame={self.frame_id}; "
-            f"tile={tile_id}; extracting instead: {type(exc).__name__}: {exc}",
+            f"tile={tile_id}; extracting instead: {describe(exc)}",
             frame_id=self.frame_id,
             tile_id=tile_id,
         )
@@ -150,7 +150,7 @@ class FrameRecorder:
         log_event(
             "WARNING",
             "c3.matcher.refine_failed",
-            f"C3 refine pass failed, first pass kept; frame={self.frame_id}; {exc}",
+            f"C3 refine pass failed, first pass kept; frame={self.frame_id}; {describe(exc)}",
             frame_id=self.frame_id,
             tile_id=tile_id,
         )

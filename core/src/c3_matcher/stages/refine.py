@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 
 from c3_matcher.dto import CameraCalibration, NavCameraFrame, ranking_key
+from c3_matcher.errors import describe
 from c3_matcher.prepared import correspondences
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
@@ -55,7 +56,7 @@ class RefinePass:
                 verdict = self._second_pass(frame, calibration, query, verifier, first)
         except Exception as exc:  # the first pass stands; the failure is on record
             recorder.refine_failed(first.match_set.tile_id, exc)
-            return list(survivors), replace(record, reason=f"{type(exc).__name__}: {exc}")
+            return list(survivors), replace(record, reason=describe(exc))
         if verdict is None:
             return list(survivors), replace(record, reason=NO_FOOTPRINT)
         record = replace(record, inliers_after=verdict.match_set.inlier_count)

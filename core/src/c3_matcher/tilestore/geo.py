@@ -14,9 +14,11 @@ from numpy.typing import ArrayLike
 
 from c3_matcher.arrays import F64
 
-__all__ = ["TILE_PX", "lonlat_to_world_px", "world_px_to_lonlat"]
+__all__ = ["MERCATOR_MAX_LAT", "TILE_PX", "lonlat_to_world_px", "world_px_to_lonlat"]
 
 TILE_PX = 256
+MERCATOR_MAX_LAT = 85.05112877980659
+"""The latitude where web-mercator tiles end (north and south): the square world's edge."""
 
 
 def lonlat_to_world_px(lonlat: ArrayLike, zoom: int) -> F64:

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tiles import decode_image
-from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px
+from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT, TILE_PX, lonlat_to_world_px
 
 if TYPE_CHECKING:
     from c3_matcher.features import Features
@@ -61,7 +61,13 @@ class SlippyTileSource(Protocol):
 
 def mosaic_origin(tile_id: TileId, size_px: int) -> tuple[int, int]:
     """WORLD px index of the top-left pixel of the ``size_px`` window centred on ``tile_id``:
-    TILE px (u, v) of the served image is WORLD px (X0 + u + 0.5, Y0 + v + 0.5)."""
+    TILE px (u, v) of the served image is WORLD px (X0 + u + 0.5, Y0 + v + 0.5). A centre beyond
+    the tiles' latitude limit is refused (InvalidInputError): no tile covers it."""
+    if abs(tile_id.lat) > MERCATOR_MAX_LAT:
+        raise InvalidInputError(
+            "tile_id.lat",
+            f"{tile_id.lat} is beyond the web-mercator tiles' limit, +-{MERCATOR_MAX_LAT:.4f} deg",
+        )
     (cx, cy) = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0]
     return math.floor(cx - size_px / 2 + 0.5), math.floor(cy - size_px / 2 + 0.5)
 

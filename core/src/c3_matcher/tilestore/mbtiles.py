@@ -44,7 +44,7 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Final
 
-from c3_matcher.errors import InvalidInputError
+from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.tilestore.base import TileStoreBase
 from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
 from c3_matcher.tilestore.files import MMAP_BYTES, open_failure
@@ -185,9 +185,13 @@ class MBTilesStore(TileStoreBase):
                 f"tile store {self.path} answers again; serving tiles",
                 store=str(self.path),
             )
-        if found is None or found[0] is None:
+        if found is None:
             return None
         blob, digest = found
+        if blob is None:
+            if digest is None:
+                return None  # a store made by another tool: an empty row is no tile
+            raise TileDigestError(what, "its data is NULL but a sha256 is stored: the tile is lost")
         if digest is not None and hashlib.sha256(blob).hexdigest() != digest:
             raise TileDigestError(
                 what, f"sha256 mismatch (stored {str(digest)[:16]}...): the tile is corrupt"
@@ -208,7 +212,7 @@ class MBTilesStore(TileStoreBase):
                 probe.close()
             return  # the store answers: this was one tile's error
         except sqlite3.Error as probe_exc:
-            reason = f"store unusable: {type(exc).__name__}: {exc} (probe: {probe_exc})"
+            reason = f"store unusable: {describe(exc)} (probe: {probe_exc})"
         self._retry_at = self._clock() + self._retry_s
         if self._unusable is None:
             self._unusable = reason

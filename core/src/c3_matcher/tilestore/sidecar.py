@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
+from c3_matcher.errors import describe
 from c3_matcher.tilestore.files import MMAP_BYTES, open_failure
 from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, decode_row, row_checksum
 
@@ -117,8 +118,7 @@ class MapFeatureStore:
                 return None
             self._reported = True
             raise FeatureStoreUnavailableError(
-                f"{self.path}: {type(exc).__name__}: {exc}; extracting instead, "
-                f"next try in {self._retry_s:g} s"
+                f"{self.path}: {describe(exc)}; extracting instead, next try in {self._retry_s:g} s"
             ) from exc
         self._down_until, self._reported = None, False
         return result

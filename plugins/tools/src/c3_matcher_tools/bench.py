@@ -274,11 +274,11 @@ def demo_data(data: Path | None) -> Path:
 def _checked_data(data: Path) -> Path:
     """``data`` when it is a flight dataset that loads, tile store included (``dataset.json``),
     with a frame to time (``timed_frames``), each of those frames' images readable and of its
-    calibration's size (``check_frames``, as ``replay`` checks them), or a demo-format
+    calibration's size (``check_flight``, as ``replay`` checks them), or a demo-format
     directory (``demo.json``) whose frame, tiles and calibration read; else InvalidInputError
     naming it (exit 2)."""
     from c3_matcher_tools.dataset.format import is_flight_dataset, load_dataset
-    from c3_matcher_tools.run.flight import check_frames
+    from c3_matcher_tools.run.flight import check_flight
     from c3_matcher_tools.run.inputs import demo_inputs, timed_frames
 
     if not data.is_dir():
@@ -288,7 +288,7 @@ def _checked_data(data: Path) -> Path:
         with dataset.open_store():  # its frames, calibration and tile store
             frames = timed_frames(dataset)
         try:
-            check_frames(dataset, frames)
+            check_flight(dataset, frames)
         except InvalidInputError as exc:
             raise InvalidInputError("--data", str(exc)) from exc
     elif (data / "demo.json").is_file():

@@ -81,7 +81,7 @@ from c3_matcher.commands import (
 )
 from c3_matcher.config import C3Settings
 from c3_matcher.context import CommandContext
-from c3_matcher.errors import InvalidInputError
+from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.fdr import FdrOpenError
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher_tools.args import (
@@ -95,7 +95,7 @@ from c3_matcher_tools.run import (
     EVAL_OUT,
     NO_OVERRIDES,
     Overrides,
-    check_frames,
+    check_flight,
     check_output_dirs,
     exclusive_output_dir,
     flight_report,
@@ -226,8 +226,8 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         apply_attitude_noise(load_dataset(path, limit), args.attitude_noise_deg)
         for path in args.dataset
     ]
-    for dataset in datasets:  # each frame image there, readable and of its calibration's size
-        check_frames(dataset, dataset.frames)
+    for dataset in datasets:  # its tile store opens; each frame image readable, of its size
+        check_flight(dataset, dataset.frames)
     names = _strategies(args, ctx.plugin_host)
     outs = _output_dirs(args.out, datasets)
     root = args.out or EVAL_OUT
@@ -327,12 +327,12 @@ def _eval_dataset(
         except FdrOpenError:  # another process writes this directory: leave it to that run
             raise
         except Exception as exc:  # a strategy that cannot start is a row, not the end
-            rows.append(StrategyFailure(name, f"{type(exc).__name__}: {exc}"))
+            rows.append(StrategyFailure(name, describe(exc)))
     ran = [r.run for r in rows if isinstance(r, StrategyEval)]
     try:
         plots = eval_plots(dataset, ran, out, args.samples)
     except Exception as exc:  # the figures matter more than the pictures
-        ctx.err(f"c3-matcher eval: plots failed: {type(exc).__name__}: {exc}")
+        ctx.err(f"c3-matcher eval: plots failed: {describe(exc)}")
         plots = []
     report = {
         "dataset": str(dataset.root),

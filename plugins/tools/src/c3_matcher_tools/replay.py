@@ -39,7 +39,7 @@ from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     REPLAY_OUT,
     Overrides,
-    check_frames,
+    check_flight,
     check_output_dirs,
     exclusive_output_dir,
     flight_report,
@@ -95,7 +95,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     strategy = args.strategy or settings.matcher.strategy
     out = args.out or REPLAY_OUT / f"{output_dir_name(dataset)}-{strategy}"
     frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
-    check_frames(dataset, frames)
+    check_flight(dataset, frames)
     check_output_dirs([out], [dataset])
     overrides = Overrides(max_keypoints=args.max_keypoints)
     with (

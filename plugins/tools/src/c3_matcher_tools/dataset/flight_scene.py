@@ -20,7 +20,12 @@ from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.format import FrameRecord
 from c3_matcher_tools.sim.orthophotos import load_orthophoto
 from c3_matcher_tools.sim.render import NavCameraRenderer, RenderedFrame
-from c3_matcher_tools.tilestore.geo import TILE_PX, GeoGrid, read_geotiff_grid
+from c3_matcher_tools.tilestore.geo import (
+    TILE_PX,
+    GeoGrid,
+    read_geotiff_grid,
+    world_px_to_lonlat,
+)
 from c3_matcher_tools.tilestore.projection import Projection
 
 __all__ = [
@@ -110,6 +115,7 @@ def read_scene(spec: FlightSpec, store: MBTilesStore) -> Scene:
     photo = load_orthophoto(spec.frames_geotiff)
     gsd = photo.gsd_m or math.sqrt(grid.scale_x * grid.scale_y)
     cov = _coverage(store)
+    _check_overlap(spec, grid, cov, store.path)
     centre_lon, centre_lat = grid.centre_lonlat()
     m_per_px = TileId(cov.zoom, centre_lat, centre_lon).web_mercator_gsd_m()
     _check_coverage(spec, cov, m_per_px)
@@ -117,6 +123,32 @@ def read_scene(spec: FlightSpec, store: MBTilesStore) -> Scene:
     renderer = NavCameraRenderer(calibration)
     centre_en = _flight_centre(store, grid)
     return Scene(grid, photo.rgb, gsd, cov, m_per_px, calibration, renderer, centre_en)
+
+
+def _check_overlap(spec: FlightSpec, grid: GeoGrid, cov: Coverage, store: Path) -> None:
+    """Refuse frames whose orthophoto and the store's tiles show different places (their
+    latitude and longitude spans named) before any other advice about the store's size."""
+    w, h = grid.size
+    photo = grid.px_to_lonlat([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]])
+    rows, cols = cov.image.shape[:2]
+    (ox, oy), (ex, ey) = cov.origin, (cov.origin[0] + cols, cov.origin[1] + rows)
+    tiles = world_px_to_lonlat([[ox, oy], [ex, ey]], cov.zoom)
+    p_lat0, p_lat1, p_lon0, p_lon1 = _span(photo)
+    t_lat0, t_lat1, t_lon0, t_lon1 = _span(tiles)
+    if p_lat1 < t_lat0 or t_lat1 < p_lat0 or p_lon1 < t_lon0 or t_lon1 < p_lon0:
+        raise InvalidInputError(
+            "frames_geotiff",
+            f"{spec.frames_geotiff} (lat {p_lat0:.4f}..{p_lat1:.4f}, lon {p_lon0:.4f}.."
+            f"{p_lon1:.4f}) and the store {store.name} (lat {t_lat0:.4f}..{t_lat1:.4f}, lon "
+            f"{t_lon0:.4f}..{t_lon1:.4f}) do not overlap: render from an orthophoto of the "
+            "store's place",
+        )
+
+
+def _span(lonlat: F64) -> tuple[float, float, float, float]:
+    """(lat min, lat max, lon min, lon max) of (N, 2) (lon, lat) points."""
+    lon, lat = lonlat[:, 0], lonlat[:, 1]
+    return float(lat.min()), float(lat.max()), float(lon.min()), float(lon.max())
 
 
 def _check_coverage(spec: FlightSpec, cov: Coverage, m_per_px: float) -> None:

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher import dto
-from c3_matcher.errors import InvalidInputError
+from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.serialize import load_calibration
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
@@ -429,7 +429,7 @@ def _why(exc: Exception) -> str:
         return f"missing key {exc}"
     if isinstance(exc, InvalidInputError):
         return str(exc)
-    return f"{type(exc).__name__}: {exc}"
+    return describe(exc)
 
 
 def _frames(path: Path) -> tuple[FrameRecord, ...]:

@@ -37,7 +37,7 @@ from c3_matcher.atomic import held_directory
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, file_sha256
-from c3_matcher.errors import C3Error, EngineError, InvalidInputError
+from c3_matcher.errors import C3Error, EngineError, InvalidInputError, describe
 
 if TYPE_CHECKING:
     from c3_matcher_tools.engines.export import ExportReport, ExportRequest
@@ -313,7 +313,7 @@ def _export(
     except EngineBuildError:
         raise
     except Exception as exc:
-        raise EngineBuildError(spec.key, f"export failed: {type(exc).__name__}: {exc}") from exc
+        raise EngineBuildError(spec.key, f"export failed: {describe(exc)}") from exc
     if not report.passed:
         raise EngineBuildError(
             spec.key, "verification failed: " + "; ".join(report.failures or ("no figures",))

@@ -9,7 +9,7 @@ atomically (:mod:`c3_matcher.atomic`). Commands live beside it (``replay``,
 
 from c3_matcher_tools.run.flight import (
     Progress,
-    check_frames,
+    check_flight,
     fly,
     fly_prepared,
     run_flight,
@@ -65,7 +65,7 @@ __all__ = [
     "StrategyFailure",
     "StrategyRow",
     "best_candidate_error",
-    "check_frames",
+    "check_flight",
     "check_output_dirs",
     "compose_matcher",
     "exclusive_output_dir",

@@ -18,7 +18,7 @@ from c3_matcher.georef import haversine_m
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import CALIBRATION_SIZE_FIX, result_to_json
-from c3_matcher.tiles import MmapTileHandle, image_header_size
+from c3_matcher.tiles import DECODABLE_FORMATS, MmapTileHandle, image_header_size
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.run.matcher import (
@@ -37,7 +37,7 @@ from c3_matcher_tools.run.scoring import (
 
 __all__ = [
     "Progress",
-    "check_frames",
+    "check_flight",
     "fly",
     "fly_prepared",
     "run_flight",
@@ -231,12 +231,13 @@ def fly_prepared(
     )
 
 
-def check_frames(dataset: FlightDataset, frames: Sequence[FrameRecord]) -> None:
-    """Every frame of ``frames`` as a run will read it, checked before the run starts: its
-    image a readable file whose header names a decodable format (PNG, JPEG, TIFF, BMP, WebP,
-    GIF) within ``dataset.max_image_pixels``, of the size its calibration was made for
-    (both sizes named). ``InvalidInputError`` naming the first image
+def check_flight(dataset: FlightDataset, frames: Sequence[FrameRecord]) -> None:
+    """What a run of ``frames`` will read, checked before the run starts: the dataset's tile
+    store opens (an MBTiles file with its tables), and each frame's image is a readable file
+    whose header names a decodable format within ``dataset.max_image_pixels``, of the size its
+    calibration was made for (both sizes named). ``InvalidInputError`` naming the first input
     that is not. Only the headers are read: nothing is decoded."""
+    dataset.open_store().close()
     for frame in frames:
         path = dataset.root / frame.image
         width, height = _header_size(path, dataset.max_image_pixels)
@@ -258,9 +259,7 @@ def _header_size(path: Path, max_pixels: int) -> tuple[int, int]:
         ) from exc
     size = image_header_size(head)
     if size is None or min(size) <= 0:
-        raise InvalidInputError(
-            str(path), "not a decodable image (PNG, JPEG, TIFF, BMP, WebP, GIF)"
-        )
+        raise InvalidInputError(str(path), f"not a decodable image ({DECODABLE_FORMATS})")
     if size[0] * size[1] > max_pixels:
         raise InvalidInputError(
             str(path),

@@ -1,6 +1,7 @@
 """Read a GeoTIFF for ``tiles build`` through rasterio (the ``geo`` extra): windowed reads (one
 window per tile, never the whole raster), the GeoTIFF nodata tag / internal mask / alpha band
-(GDAL's dataset mask), and the file's overviews for coarser zooms.
+(GDAL's dataset mask: where a file has both a nodata tag and an alpha band, the tag), and the
+file's overviews for coarser zooms.
 
 :func:`rasterio_available` says whether this path is used: rasterio importable and
 ``C3_MATCHER_TOOLS_NO_RASTERIO=1`` not set (that forces the hand-written tifffile fallback,
@@ -79,6 +80,7 @@ class ValueMapping:
         if self.how == "as is":
             return np.asarray(data, dtype=np.uint8)
         scaled = (data.astype(np.float64) - self.lo) * (255.0 / max(self.hi - self.lo, 1e-12))
+        scaled = np.nan_to_num(scaled, nan=0.0)  # a NaN nodata pixel: 0, as every invalid one
         return np.asarray(np.clip(np.rint(scaled), 0, 255), dtype=np.uint8)
 
 
@@ -224,7 +226,7 @@ class RasterioSource:
         self, ds: Any, window: Any, out_shape: tuple[int, int] | None, *, average: bool
     ) -> tuple[NDArray[Any], NDArray[np.uint8]]:
         from rasterio.enums import Resampling
-        from rasterio.errors import RasterioError
+        from rasterio.errors import NodataShadowWarning, RasterioError
 
         shape = None if out_shape is None else (len(self.bands), *out_shape)
         try:
@@ -234,9 +236,11 @@ class RasterioSource:
                 out_shape=shape,
                 resampling=Resampling.average if average else Resampling.nearest,
             )
-            mask = ds.dataset_mask(
-                window=window, out_shape=out_shape, resampling=Resampling.nearest
-            )
+            with warnings.catch_warnings():  # a nodata tag beside an alpha band: GDAL's
+                warnings.simplefilter("ignore", NodataShadowWarning)  # mask follows the tag
+                mask = ds.dataset_mask(
+                    window=window, out_shape=out_shape, resampling=Resampling.nearest
+                )
         except RasterioError as exc:
             raise InvalidInputError(
                 "geotiff",

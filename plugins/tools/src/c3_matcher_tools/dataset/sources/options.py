@@ -71,7 +71,12 @@ class ProposalOptions:
     def check_store(self) -> None:
         """Refuse, naming ``STORE``, a tile store that is not a file (checked when the import
         reaches it, after the inputs it names before)."""
-        if not Path(self.store).is_file():
+        store = Path(self.store)
+        if store.is_dir():
+            raise InvalidInputError(
+                "STORE", f"{self.store}: a folder; a dataset's store is one MBTiles file"
+            )
+        if not store.is_file():
             raise InvalidInputError("STORE", f"{self.store}: no such tile store")
 
     def spec_json(self, zoom: int) -> dict[str, Any]:
