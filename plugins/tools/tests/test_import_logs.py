@@ -20,6 +20,7 @@ import pytest
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.format import load_dataset
+from c3_matcher_tools.dataset.sources.mavlink import read_mavlink
 from c3_matcher_tools.dataset.sources.rosbag import read_bag
 from c3_matcher_tools.dataset.sources.track import (
     body_attitude_for_camera,
@@ -437,3 +438,44 @@ def test_ulog_reader_without_its_library_is_refused_naming_the_extra(
     monkeypatch.setitem(sys.modules, "pyulog", None)
     with pytest.raises(InvalidInputError, match=r"reading a ULog needs the logs extra"):
         read_ulog(tmp_path / "flight.ulg")
+
+
+def test_a_damaged_dataflash_log_is_read_past_its_damage_quietly_and_says_so(
+    poses: list[fl.Pose], tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """pymavlink's compiled indexer writes a line per damaged header to the process's stderr
+    (thousands on a damaged log): they are counted into the track's damage, never printed."""
+    log = write_dataflash(tmp_path / "flight.bin", poses)
+    data = bytearray(log.read_bytes())
+    data[len(data) // 2 : len(data) // 2 + 10] = bytes(10)  # headers in the middle zeroed
+    log.write_bytes(bytes(data))
+    track = read_mavlink(log)
+    assert capfd.readouterr().err == ""
+    assert track.damage is not None and "damaged message headers skipped" in track.damage
+    assert track.notes[0].startswith("the log is damaged")
+
+
+def test_a_dot_log_file_is_read_as_what_it_holds_binary_or_text(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """``.log`` names both kinds of DataFlash log: a binary one (pymavlink would read it as
+    text by its name) and a text one (``FMT, ...`` lines). Both read as the ``.bin`` does."""
+    from pymavlink import DFReader
+
+    binary = write_dataflash(tmp_path / "flight.bin", poses)
+    named_log = tmp_path / "binary.log"
+    shutil.copyfile(binary, named_log)
+    reader, lines = DFReader.DFReader_binary(str(binary)), []
+    while (msg := reader.recv_msg()) is not None:
+        values = [getattr(msg, c) for c in msg.fmt.columns]
+        shown = [v.decode().rstrip("\0") if isinstance(v, bytes) else str(v) for v in values]
+        lines.append(", ".join([msg.get_type(), *shown]))
+    text = tmp_path / "text.log"
+    text.write_text("\n".join(lines) + "\n")
+    want = read_mavlink(binary)
+    for path in (named_log, text):
+        got = read_mavlink(path)
+        assert got.position is not None and want.position is not None
+        np.testing.assert_allclose(got.position.values, want.position.values, rtol=1e-6)
+        assert got.triggers_s is not None and want.triggers_s is not None
+        np.testing.assert_allclose(got.triggers_s, want.triggers_s, atol=1e-3)

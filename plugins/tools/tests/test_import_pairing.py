@@ -356,6 +356,12 @@ def test_a_ulog_without_attitude_is_imported_level_and_marked(
     frames = load_dataset(flight).frames
     assert all("attitude_assumed" in f.telemetry["flags"] for f in frames)
     assert all(f.attitude_deg[:2] == (0.0, 0.0) for f in frames)
+    info = c3("dataset", "info", flight)  # says so later too, as the import said it
+    assert info.returncode == 0, info.stderr
+    assert "  attitude assumed level (no attitude sample): frames 0-2" in info.stdout.splitlines()
+    assert json.loads(c3("dataset", "info", flight, "--json").stdout)["import"] == {
+        k: v for k, v in summary.items() if k != "dataset"
+    }
 
 
 def test_an_ardupilot_log_without_attitude_is_read_and_says_so(
@@ -525,3 +531,16 @@ def test_a_store_folder_is_refused_as_one(tmp_path: Path) -> None:
         ProposalOptions(tmp_path).check_store()
     with pytest.raises(InvalidInputError, match="no such tile store"):
         ProposalOptions(tmp_path / "none.mbtiles").check_store()
+
+
+def test_an_empty_photo_is_refused_as_empty_not_skipped_for_its_gps(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """It was skipped as "no GPS position in its EXIF", while a photo cut short is refused."""
+    from c3_matcher_tools.dataset.sources.exif import read_photo_folder
+
+    photos = write_exif_photos(tmp_path / "photos", poses[:3])
+    victim = sorted(photos.iterdir())[1]
+    victim.write_bytes(b"")
+    with pytest.raises(InvalidInputError, match=f"{victim}: an empty file, not an image"):
+        read_photo_folder(photos)

@@ -286,3 +286,40 @@ def test_a_bad_calibration_file_is_named_as_the_argument_given(tmp_path: Path) -
         import_csv_flight(missing, tmp_path / "flight")
     assert info.value.field == "CALIBRATION" and "none.json: no such file" in str(info.value)
     assert not (tmp_path / "flight").exists()
+
+
+def test_a_row_with_more_fields_than_the_header_is_refused_not_shifted(tmp_path: Path) -> None:
+    """A decimal comma splits a value in two: the values after it would land in the wrong
+    columns (a roll of 1,5 read as roll 1, pitch 5, yaw the pitch). Refused, naming the line."""
+    _, csv = recorded(tmp_path)
+    lines = csv.read_text().splitlines()
+    lines[2] = lines[2] + ",5"  # line 3 of the file
+    csv.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InvalidInputError, match=r"line 3: 9 fields, the header names 8"):
+        read_telemetry(csv)
+
+
+def test_a_refused_value_names_its_own_line_after_blank_lines(tmp_path: Path) -> None:
+    _, csv = recorded(tmp_path)
+    header, *rows = csv.read_text().splitlines()
+    cells = rows[1].split(",")
+    rows[1] = ",".join([*cells[:4], "abc", *cells[5:]])  # the altitude of the second row
+    csv.write_text("\n".join([header, "", rows[0], "", "", rows[1], *rows[2:]]) + "\n")
+    with pytest.raises(InvalidInputError, match=r"line 6: altitude_m 'abc' is not a number"):
+        read_telemetry(csv)
+
+
+def test_empty_trailing_header_columns_are_extra_columns(tmp_path: Path) -> None:
+    """A spreadsheet's export ends each line with empty columns: ignored as extra columns are."""
+    _, csv = recorded(tmp_path)
+    csv.write_text("".join(f"{line},,\n" for line in csv.read_text().splitlines()))
+    assert len(read_telemetry(csv)) == 4
+
+
+def test_an_empty_image_is_refused_as_one_not_an_internal_error(tmp_path: Path) -> None:
+    """OpenCV raises on an empty buffer where it returns nothing for a damaged one."""
+    images, csv = recorded(tmp_path)
+    (images / "IMG_0002.jpg").write_bytes(b"")
+    with pytest.raises(InvalidInputError, match=r"IMG_0002.jpg: an empty file, not an image"):
+        import_csv_flight(spec(images, csv), tmp_path / "out")
+    assert not (tmp_path / "out").exists()

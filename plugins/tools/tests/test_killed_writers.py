@@ -6,6 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
+from c3_matcher.errors import InvalidInputError
 from c3_matcher.testing.killed import killed_while_writing
 from c3_matcher_tools.dataset.atomic import atomic_directory
 from c3_matcher_tools.tilestore.writer import MBTilesWriter
@@ -44,3 +47,11 @@ def test_a_killed_dataset_write_leaves_nothing_after_the_next(tmp_path: Path) ->
         (tmp / "dataset.json").write_text("{}")
     assert [p.name for p in tmp_path.iterdir()] == ["flight"]
     assert [p.name for p in out.iterdir()] == ["dataset.json"]
+
+
+def test_an_out_that_cannot_be_made_is_named_not_its_temporary_folder() -> None:
+    """/proc takes no new folder: the refusal names OUT, never the hidden name beside it."""
+    with pytest.raises(InvalidInputError) as refused, atomic_directory(Path("/proc/c3-out")):
+        pass
+    assert str(refused.value).startswith("OUT: /proc/c3-out: cannot be written (")
+    assert ".tmp-" not in str(refused.value)

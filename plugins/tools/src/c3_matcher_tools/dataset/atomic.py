@@ -59,9 +59,13 @@ def atomic_directory(out: Path, *, force: bool = False) -> Iterator[Path]:
     existing ``out`` only when ``force``), on any error remove it and leave ``out`` untouched."""
     out = Path(out)
     check_output_dir(out, force=force)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_sibling(out)
-    tmp.mkdir()
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = temporary_sibling(out)
+        tmp.mkdir()
+    except OSError as exc:  # said of OUT, not of the temporary folder beside it
+        why = exc.strerror or exc
+        raise InvalidInputError("OUT", f"{out}: cannot be written ({why})") from None
     try:
         yield tmp
         if out.exists():

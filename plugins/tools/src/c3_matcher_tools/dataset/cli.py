@@ -11,6 +11,7 @@ from typing import Any
 
 from c3_matcher.commands import EXIT_OK, CommandRegistry, bounded_int
 from c3_matcher.context import CommandContext
+from c3_matcher.errors import describe
 from c3_matcher_tools.args import add_seed_option, bounded_float, non_negative_float
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.progress import ProgressBar
@@ -334,13 +335,27 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
         ),
         "candidate_size_px": d.candidate_size_px,
         "calibration_image_size": list(d.calibration.image_size),
-        **{k: d.meta[k] for k in ("tiles_source", "frames_source") if k in d.meta},
+        **{k: d.meta[k] for k in ("tiles_source", "frames_source", "import") if k in d.meta},
     }
     if args.json:
         ctx.out(json.dumps(info, indent=2))
-    else:
-        ctx.out("\n".join(f"{k}: {v}" for k, v in info.items()))
+        return EXIT_OK
+    record = info.pop("import", None)
+    ctx.out("\n".join(f"{k}: {v}" for k, v in info.items()))
+    if isinstance(record, dict):  # what the import said: marked frames, skipped images, notes
+        ctx.out("\n".join(_import_lines(record, d.name)))
     return EXIT_OK
+
+
+def _import_lines(record: dict[str, object], name: str) -> list[str]:
+    """The import's own summary, as ``dataset import`` printed it; one line when the record
+    cannot be read (a dataset written by another version)."""
+    from c3_matcher_tools.dataset.sources.options import ImportReport
+
+    try:
+        return ImportReport.from_record(record, name).lines()
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        return [f"import record unreadable ({describe(exc)})"]
 
 
 def _import_csv(args: argparse.Namespace, ctx: CommandContext) -> int:

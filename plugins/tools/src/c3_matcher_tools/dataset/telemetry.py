@@ -101,7 +101,7 @@ def _find(lowered: dict[str, str], aliases: tuple[str, ...]) -> str | None:
 def _repeated_columns(header: list[str]) -> list[str]:
     """The columns ``header`` gives more than once: a name repeated, or two aliases of one."""
     names = [h.strip().lower() for h in header]
-    repeated = [f"{n!r} twice" for n in dict.fromkeys(names) if names.count(n) > 1]
+    repeated = [f"{n!r} twice" for n in dict.fromkeys(names) if n and names.count(n) > 1]
     for aliases in (*COLUMNS.values(), *HEIGHT_COLUMNS.values()):
         given = [a for a in aliases if a in names]
         if len(given) > 1:
@@ -312,13 +312,22 @@ def _read_rows(
     """The accepted rows in line order, and (line, why) of each refused one."""
     rows: list[TelemetryRow] = []
     problems: list[tuple[int, str]] = []
-    for n, rec in enumerate(reader, start=2):
-        row = _row(n, rec, rules)
+    for rec in reader:
+        n = reader.line_num  # the record's own line, blank lines before it counted
+        extra = rec.get(None)  # the fields beyond the header's names
+        row = _too_many(rec, len(extra)) if extra else _row(n, rec, rules)
         if isinstance(row, str):
             problems.append((n, f"line {n}: {row}"))
         else:
             rows.append(row)
     return rows, problems
+
+
+def _too_many(rec: dict[str, str], extra: int) -> str:
+    """Why a record with ``extra`` fields more than the header is refused: which value went
+    under which column would be a guess (a decimal comma splits a number in two)."""
+    named = len(rec) - 1  # the header's names; the extra fields sit under one more key
+    return f"{named + extra} fields, the header names {named} (a decimal comma?)"
 
 
 def _row(n: int, rec: dict[str, str], rules: _RowRules) -> TelemetryRow | str:

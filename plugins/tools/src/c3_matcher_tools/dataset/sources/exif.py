@@ -45,6 +45,8 @@ def read_photo_folder(
     kept: list[Shot] = []
     timed = any("t_s" in s.own for s in shots if "lat" in s.own)
     for i, s in enumerate(shots):
+        if "lat" not in s.own and not s.read():  # refused as any unreadable image is
+            raise InvalidInputError("IMAGES", f"{folder / s.name}: an empty file, not an image")
         if "lat" not in s.own:
             skipped.append((s.name, "no GPS position in its EXIF"))
             continue

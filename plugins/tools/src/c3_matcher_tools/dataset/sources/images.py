@@ -26,6 +26,7 @@ from typing import Any
 import cv2
 
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.quiet import quiet
 from c3_matcher_tools.dataset.sources.track import Shot, constant, logs_library
 
 __all__ = [
@@ -206,7 +207,13 @@ def unique_photos(shots: Sequence[Shot]) -> tuple[list[Shot], list[tuple[str, st
 
 def _video_frames(path: Path, step: int) -> list[Shot]:
     """Every ``step``-th frame of the video ``path`` as a JPEG (quality 95), with its time on
-    the video's clock in ``own['relative_s']``."""
+    the video's clock in ``own['relative_s']``; FFmpeg's own lines (a damaged packet, a file
+    that is no video) kept from the terminal: the refusal says it in one line."""
+    with quiet(io.StringIO()):
+        return _decoded_frames(path, step)
+
+
+def _decoded_frames(path: Path, step: int) -> list[Shot]:
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         raise InvalidInputError("IMAGES", f"{path}: not a readable video")

@@ -14,16 +14,16 @@ fix, the ground station's clock in a telemetry log).
 
 from __future__ import annotations
 
-import contextlib
 import io
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.quiet import quiet
 from c3_matcher_tools.dataset.sources.track import LogTrack, Series, logs_library
 
 __all__ = ["read_mavlink"]
@@ -47,26 +47,32 @@ TYPES = [
 ]
 
 
-@contextlib.contextmanager
-def _quiet(chatter: io.StringIO) -> Iterator[None]:
-    """pymavlink's prints (stdout and stderr) into ``chatter``: an error is one line."""
-    with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
-        yield
+def _text_log(path: Path) -> bool:
+    """Whether ``path`` starts as a text DataFlash log does (``FMT, ...``)."""
+    with path.open("rb") as fh:
+        return fh.read(4) == b"FMT,"
 
 
 def _open(path: Path, chatter: io.StringIO) -> Any:
+    """The open log: a binary DataFlash log by its content (whatever its name), a text one
+    (``.log``) or a MAVLink ``.tlog`` by its name."""
     mavutil = logs_library("pymavlink.mavutil", path, "an ArduPilot log")
+    dfreader = logs_library("pymavlink.DFReader", path, "an ArduPilot log")
     if not path.is_file():
         raise InvalidInputError(str(path), "no such file")
-    if path.suffix.lower() != ".tlog":
+    suffix = path.suffix.lower()
+    binary = False
+    if suffix != ".tlog":
         with path.open("rb") as fh:
-            head = fh.read(3)
-        if head != DATAFLASH_MAGIC:
+            binary = fh.read(3) == DATAFLASH_MAGIC
+        if not binary and not (suffix == ".log" and _text_log(path)):
             raise InvalidInputError(
                 str(path), "not an ArduPilot DataFlash log: it does not start with a FMT message"
             )
     try:
-        with _quiet(chatter):  # the DataFlash index prints damaged headers
+        with quiet(chatter):  # the DataFlash index prints damaged headers
+            if binary:  # by its content: a binary log named .log is binary all the same
+                return dfreader.DFReader_binary(str(path), zero_time_base=False)
             return mavutil.mavlink_connection(str(path), robust_parsing=True)
     except Exception as exc:
         raise InvalidInputError(str(path), f"not a readable ArduPilot log: {exc}") from None
@@ -131,7 +137,7 @@ def _read(log: Any, source: str, kind: str, handlers: dict[str, Callable[[Any, f
     """Every message of :data:`TYPES` through its handler; the types seen."""
     seen: set[str] = set()
     try:
-        with _quiet(chatter):
+        with quiet(chatter):
             while True:
                 msg = log.recv_match(type=TYPES)
                 if msg is None:
@@ -199,6 +205,10 @@ def read_mavlink(path: Path) -> LogTrack:
             "no ATT / ATTITUDE message: every frame's attitude assumed level, its yaw from the "
             "GNSS course (frames marked attitude_assumed)",
         )
+    damaged = chatter.getvalue().count("bad header")
+    damage = f"{damaged} damaged message headers skipped" if damaged else None
+    if damage:
+        notes.insert(0, f"the log is damaged ({damage}); read past the damage")
     first_t = (rows["att"] or rows["pos"] or rows["gps"])[0][0]
     return LogTrack(
         source=source,
@@ -211,4 +221,5 @@ def read_mavlink(path: Path) -> LogTrack:
         home_alt_m=next((h for h in home if math.isfinite(h)), None),
         utc_offset_s=0.0 if first_t > 1e9 else None,
         notes=tuple(notes),
+        damage=damage,
     )

@@ -160,6 +160,26 @@ class ImportReport:
         """Every field, in order, JSON-ready: a skipped image as {"image", "reason"}."""
         return {**asdict(self), "skipped": [{"image": n, "reason": r} for n, r in self.skipped]}
 
+    @classmethod
+    def from_record(cls, record: dict[str, Any], dataset: str) -> ImportReport:
+        """The report a dataset keeps of its import (``dataset.json``'s ``import``: every field
+        of :meth:`to_json` but the dataset's own name, given here)."""
+        return cls(
+            dataset=dataset,
+            source=str(record["source"]),
+            kind=str(record["kind"]),
+            frames=int(record["frames"]),
+            skipped=tuple((str(s["image"]), str(s["reason"])) for s in record["skipped"]),
+            time_source=str(record["time_source"]),
+            time_offset_s=float(record["time_offset_s"]),
+            height_sources={str(k): int(v) for k, v in record["height_sources"].items()},
+            attitude_assumed=tuple(int(i) for i in record["attitude_assumed"]),
+            height_assumed=tuple(int(i) for i in record["height_assumed"]),
+            gnss_degraded=tuple(int(i) for i in record["gnss_degraded"]),
+            zoom=int(record["zoom"]),
+            notes=tuple(str(n) for n in record.get("notes", ())),
+        )
+
     def lines(self) -> list[str]:
         heights = ", ".join(f"{k} ({v})" for k, v in sorted(self.height_sources.items()))
         out = [

@@ -29,7 +29,8 @@ def _no_time_source(track: LogTrack, shots: Sequence[Shot], untimed: Sequence[Sh
     """Why ``auto`` finds no way to put images without a camera trigger on the log's clock, and
     the options that would."""
     n, timed = len(shots), len(shots) - len(untimed)
-    head = f"{track.source}: no camera trigger in the log"
+    damaged = f" (the log is damaged or truncated: {track.damage})" if track.damage else ""
+    head = f"{track.source}: no camera trigger in the log{damaged}"
     if not timed:
         return f"{head}, and none of the {n} images states a capture time: give {_ORDER_HINT}"
     if track.utc_offset_s is None:

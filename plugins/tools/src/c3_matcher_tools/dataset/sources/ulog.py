@@ -14,7 +14,6 @@ boot) in seconds.
 
 from __future__ import annotations
 
-import contextlib
 import io
 import math
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.quiet import quiet
 from c3_matcher_tools.dataset.sources.track import (
     LogTrack,
     Series,
@@ -55,7 +55,7 @@ def _load(path: Path) -> tuple[Any, str | None]:
         raise InvalidInputError(str(path), "no such file")
     said = io.StringIO()
     try:
-        with contextlib.redirect_stdout(said):
+        with quiet(said):
             ulog = pyulog.ULog(str(path), list(TOPICS))
     except Exception as exc:  # pyulog raises several types on a damaged file
         raise InvalidInputError(str(path), f"not a readable PX4 ULog: {exc}") from None

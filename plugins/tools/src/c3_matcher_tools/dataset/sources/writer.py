@@ -225,6 +225,8 @@ def image_problem(data: bytes, size: tuple[int, int]) -> str | None:
     every import checks its images with this (a truncated JPEG is not readable)."""
     import cv2
 
+    if not data:
+        return "an empty file, not an image"
     image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         return "not a readable image"
