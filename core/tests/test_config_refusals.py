@@ -211,3 +211,26 @@ def test_config_prints_a_strategy_this_build_knows_but_does_not_link(
     clean_env.setattr(PluginHost, "resolve", not_linked)
     assert main(["config", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["matcher"]["strategy"] == "disk_lightglue"
+
+
+def test_an_options_table_no_installed_strategy_has_is_refused_at_start_up(
+    clean_env: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """A misspelt ``[matcher.options.xfet]`` left the strategy on its defaults, silently; a
+    table of another installed strategy is held to that strategy's options."""
+    from c3_matcher.compose import build_default_helpers, compose_root
+    from c3_matcher.config import C3Settings
+    from c3_matcher.fdr import InMemoryFdr
+
+    for options, field in (
+        ({"xfet": {"matcher": "lighterglue"}}, "matcher.options.xfet"),
+        ({"xfeat": {"matcher": "bogus"}}, "matcher.options.xfeat.matcher"),
+    ):
+        settings = C3Settings(
+            matcher={"strategy": "disk_lightglue", "options": options},
+            engines={"directory": tmp_path},
+        )
+        helpers = {**build_default_helpers(settings), "c13_fdr": InMemoryFdr()}
+        with pytest.raises(ConfigurationError) as refused:
+            compose_root(settings, helpers, configure_logs=False)
+        assert _fields(refused.value) == [field]

@@ -167,8 +167,12 @@ def _raising(config: Any, options: Any) -> Any:
             c3.backend_strategy_factory(lambda config, options: NoMatchPhase()),
             "NoMatchPhase is not a FeatureBackend: it lacks match_phase",
         ),
+        (
+            c3.backend_strategy_factory(lambda config, options: None),
+            "NoneType is not a FeatureBackend: it lacks label",
+        ),
     ],
-    ids=["factory-raises", "not-a-matcher", "member-missing"],
+    ids=["factory-raises", "not-a-matcher", "member-missing", "backend-none"],
 )
 def test_a_strategy_that_cannot_start_is_named_with_its_plugin_at_start_up(
     tmp_path: Any, create: Any, said: str

@@ -159,3 +159,34 @@ def test_every_hookspec_is_documented_and_prefixed():
         assert spec.__name__.startswith("c3_matcher_")
         doc = inspect.getdoc(spec) or ""
         assert len(doc.split()) >= 15, f"hook {spec.__name__} is not documented"
+
+
+NOISY_PLUGIN = """
+from c3_matcher.plugins import hookimpl
+
+print("a plugin printing as it is imported")
+
+@hookimpl
+def c3_matcher_register_commands(commands):
+    def run(args, ctx):
+        print("a plugin printing while a command runs")
+        ctx.out("the result")
+        return 0
+
+    commands.add("noisy", help="prints, then says its result").set_defaults(handler=run)
+"""
+
+
+def test_what_a_plugin_prints_goes_to_stderr_and_stdout_holds_the_result_alone(
+    site, monkeypatch, capsys
+):
+    """A plugin's print would otherwise land in every command's --json output."""
+    import c3_matcher.compose
+    from c3_matcher.cli import main
+
+    make_dist(site, "acme-noisy", "acme_noisy", NOISY_PLUGIN)
+    monkeypatch.setattr(c3_matcher.compose, "build_plugin_host", lambda: host_for(site))
+    assert main(["noisy"]) == 0
+    said = capsys.readouterr()
+    assert said.out == "the result\n"
+    assert "printing as it is imported" in said.err and "printing while a command" in said.err

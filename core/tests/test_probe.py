@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from c3_matcher.errors import EngineError
-from c3_matcher.features import Features
+from c3_matcher.features import Features, RawMatches
 from c3_matcher.probe import engine_startup_probe
 
 
@@ -48,3 +48,51 @@ def test_a_backend_that_runs_engines_is_told_to_build_them():
     with pytest.raises(EngineError) as failed:
         engine_startup_probe(Blind({"extractor": {"file_sha256": "ab" * 32}}))  # type: ignore[arg-type]
     assert str(failed.value).endswith("build it with `c3-matcher engines build`")
+
+
+class Faulty:
+    """A plugin's backend with one of the mistakes the probe stops at start-up, which would
+    otherwise fail every frame as "no match" or inflate inlier counts."""
+
+    label = "faulty"
+
+    def __init__(self, mistake: str) -> None:
+        self.mistake = mistake
+
+    def extract(self, image: Any) -> Features:
+        xy = np.stack(np.meshgrid(np.arange(8.0, 120, 16), np.arange(8.0, 120, 16)), -1)
+        kp = xy.reshape(-1, 2).astype(np.float32)
+        if self.mistake == "outside":
+            kp[:5] += 5000
+        n = len(kp)
+        return Features(kp, np.eye(n, 32, dtype=np.float32), np.ones(n, np.float32), (128, 128))
+
+    def match(self, query: Features, tile: Features) -> Any:
+        index = np.arange(len(query), dtype=np.int64)
+        pairs = np.stack([index, index], 1)
+        if self.mistake == "tuple":
+            return pairs, np.ones(len(pairs), np.float32)
+        if self.mistake == "index":
+            pairs[0, 1] = 10**6
+        if self.mistake == "twice":
+            pairs = np.concatenate([pairs, pairs])
+        return RawMatches(pairs, np.ones(len(pairs), np.float32))
+
+    def provenance(self) -> dict[str, Any]:
+        return {"provider": "opencv", "engines": {}}
+
+
+@pytest.mark.parametrize(
+    ("mistake", "said"),
+    [
+        ("outside", "5 keypoint(s) outside the 128x128 px probe image"),
+        ("tuple", "match returned tuple, not RawMatches"),
+        ("index", "match gave indices outside the 49 keypoints it was given"),
+        ("twice", "match paired one query keypoint more than once"),
+    ],
+)
+def test_a_backend_that_breaks_the_contract_stops_start_up_naming_how(mistake, said):
+    with pytest.raises(EngineError) as failed:
+        engine_startup_probe(Faulty(mistake))  # type: ignore[arg-type]
+    assert said in str(failed.value)
+    engine_startup_probe(Faulty("none"))  # type: ignore[arg-type]  # the same backend, mended

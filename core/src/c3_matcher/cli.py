@@ -327,7 +327,8 @@ def _command(argv: Sequence[str] | None) -> int:
     claim_stderr()  # a command owns its process: JSON log lines on stderr from the first one
 
     try:
-        host = build_plugin_host()
+        with contextlib.redirect_stdout(sys.stderr):  # a plugin printing as it is imported
+            host = build_plugin_host()
     except C3Error as exc:  # the installation itself is broken (e.g. two profiles installed)
         print(_fail(exc), file=sys.stderr)
         return EXIT_FAILURE
@@ -343,7 +344,8 @@ def _command(argv: Sequence[str] | None) -> int:
     context = CommandContext(settings, host, sys.stdout, sys.stderr)
     try:
         handler: Handler = args.handler
-        status = handler(args, context)
+        with contextlib.redirect_stdout(sys.stderr):  # a plugin's prints: the result alone is
+            status = handler(args, context)  # on stdout (context.stdout, taken before this)
         context.flush()  # a full disk under stdout said here, not lost at the interpreter's exit
         return status
     except (

@@ -24,7 +24,9 @@ from c3_matcher.errors import (
     AirborneBootstrapError,
     C3Error,
     ConfigurationError,
+    StrategyNotLinkedError,
     StrategyStartupError,
+    UnknownStrategyError,
     describe,
 )
 from c3_matcher.fdr import JsonlFdrRecorder
@@ -217,6 +219,7 @@ def _create_strategy(
         log_event("ERROR", "c3.plugins.load_error", str(error), error=str(error))
     name = config.matcher.strategy
     spec = host.resolve(name)
+    check_options_tables(config, host)
     config = with_strategy_defaults(config, spec.defaults, name)
     options = _strategy_options(config, name, spec.options_model)
     health = RollingHealthWindow(clock, config.matcher.min_inliers_threshold)
@@ -277,6 +280,25 @@ def _log_ready(config: C3Settings, host: PluginHost, helpers: Mapping[str, Any])
         profile=host.profile.name,
         provider=helpers["c7_inference"].provider,
     )
+
+
+def check_options_tables(config: C3Settings, host: PluginHost) -> None:
+    """Every ``[matcher.options.NAME]`` table checked, not only the selected strategy's: one
+    whose name no installed plugin and no build flag knows (a misspelling would otherwise leave
+    the strategy on its defaults, silently), and the values of each installed strategy's own
+    (``ConfigurationError`` naming the key). A strategy this build does not link is passed over:
+    its table does no harm here."""
+    for name in config.matcher.options:
+        try:
+            spec = host.resolve(name)
+        except StrategyNotLinkedError:
+            continue
+        except UnknownStrategyError as exc:
+            raise ConfigurationError(
+                "matcher.options",
+                [(f"matcher.options.{name}", f"options for no installed strategy: {exc}")],
+            ) from None
+        _strategy_options(config, name, spec.options_model)
 
 
 def _strategy_options(config: C3Settings, name: str, model: type[BaseModel] | None) -> Any:

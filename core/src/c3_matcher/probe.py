@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.errors import EngineError, describe
+from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.protocols import FeatureBackend
 
@@ -47,14 +48,9 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
     )
     try:
         features = backend.extract(probe)
-        if len(features) == 0:
-            raise ValueError("the extractor found no keypoint on the textured probe image")
+        _check_features(features, size)
         matches = backend.match(features, features)
-        if len(matches) == 0:
-            raise ValueError(
-                "matching the probe image with itself gave no match (an engine fault, or a "
-                "setting that stops every pair early: [lightglue] exit_matches)"
-            )
+        _check_matches(matches, len(features))
     except Exception as exc:
         failed = f"start-up probe failed: {describe(exc)}"
         if _runs_engines(backend):
@@ -65,6 +61,37 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
             "contract kit (c3_matcher.testing.contract.BackendContract, docs/plugins.md)",
             command=None,
         ) from exc
+
+
+def _check_features(features: object, size: int) -> None:
+    """The probe's features: a :class:`Features` with keypoints, all inside the image."""
+    if not isinstance(features, Features):
+        raise TypeError(f"extract returned {type(features).__name__}, not Features")
+    if len(features) == 0:
+        raise ValueError("the extractor found no keypoint on the textured probe image")
+    kp = features.keypoints
+    outside = int((~((kp >= -0.5) & (kp <= size - 0.5)).all(axis=1)).sum())
+    if outside:
+        raise ValueError(f"{outside} keypoint(s) outside the {size}x{size} px probe image")
+
+
+def _check_matches(matches: object, count: int) -> None:
+    """The probe matched with itself: :class:`RawMatches` of indices into its ``count``
+    keypoints, some, each query keypoint in one pair at most (a pair given twice would count
+    twice as an inlier)."""
+    if not isinstance(matches, RawMatches):
+        raise TypeError(f"match returned {type(matches).__name__}, not RawMatches")
+    if len(matches) == 0:
+        raise ValueError(
+            "matching the probe image with itself gave no match (an engine fault, or a "
+            "setting that stops every pair early: [lightglue] exit_matches)"
+        )
+    pairs = matches.matches
+    if not bool(((pairs >= 0) & (pairs < count)).all()):
+        raise ValueError(f"match gave indices outside the {count} keypoints it was given")
+    query = pairs[:, 0]
+    if np.unique(query).size != query.size:
+        raise ValueError("match paired one query keypoint more than once")
 
 
 def _runs_engines(backend: FeatureBackend) -> bool:

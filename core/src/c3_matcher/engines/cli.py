@@ -70,7 +70,7 @@ def _list(args: argparse.Namespace, command: CommandContext) -> int:
     ctx = engines_context(command.settings, command.plugin_host)
     records = EngineStore(ctx.engine_dir).list()
     if args.json:
-        print(
+        command.out(
             json.dumps(
                 [
                     {
@@ -85,25 +85,25 @@ def _list(args: argparse.Namespace, command: CommandContext) -> int:
         )
         return EXIT_OK
     if not records:
-        print(f"no engines in {ctx.engine_dir} (build them with `{BUILD_COMMAND}`)")
+        command.out(f"no engines in {ctx.engine_dir} (build them with `{BUILD_COMMAND}`)")
         return EXIT_OK
     for r in records:
         m = r.manifest
         status = "ok" if r.ok else f"PROBLEM: {r.problem}"
-        print(f"{r.path.name}  [{status}]")
+        command.out(f"{r.path.name}  [{status}]")
         if m is not None:
-            print(
+            command.out(
                 f"    {m.model}/{m.variant} {m.kind} {m.precision} opset {m.opset}; "
                 f"weights {m.weights.get('distribution')} {m.weights.get('version')} "
                 f"sha256 {m.weights_sha256[:12]}...; built {m.built_at} in {m.build_seconds} s"
             )
             io = "; ".join(f"{t.name} {t.dtype} {list(t.shape)}" for t in (*m.inputs, *m.outputs))
-            print(f"    I/O: {io}")
-            print(
+            command.out(f"    I/O: {io}")
+            command.out(
                 f"    verification: {'passed' if m.verification_passed else 'FAILED'} "
                 f"vs {m.verification.get('reference', '?')}"
             )
-            print("\n".join(figures(dict(m.verification))))
+            command.out("\n".join(figures(dict(m.verification))))
     return EXIT_OK
 
 
@@ -127,10 +127,10 @@ def _verify(args: argparse.Namespace, command: CommandContext) -> int:
         return EXIT_FAILURE
     if args.json:
         rows = [{"path": str(o.path), "ok": o.ok, "detail": o.detail} for o in outcomes]
-        print(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
+        command.out(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
     else:
         for o in outcomes:
-            print(f"{'OK  ' if o.ok else 'FAIL'} {o.path.name}: {o.detail}")
+            command.out(f"{'OK  ' if o.ok else 'FAIL'} {o.path.name}: {o.detail}")
     return EXIT_OK if all(o.ok for o in outcomes) else EXIT_FAILURE
 
 

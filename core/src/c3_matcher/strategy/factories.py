@@ -12,6 +12,7 @@ from pydantic import BaseModel
 from c3_matcher.config import C3Settings
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher, PipelineSettings
 from c3_matcher.plugins.types import StrategyFactory, StrategyHelpers
+from c3_matcher.probe import check_members
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.strategy.config import ExtractorStrategyConfig
 from c3_matcher.strategy.matcher import ExtractorMatcher
@@ -67,8 +68,10 @@ def backend_strategy_factory(
     def create(
         config: C3Settings, *, options: Any = None, **helpers: Unpack[StrategyHelpers]
     ) -> CrossDomainMatcher:
+        backend = make_backend(config, _validated(options_model, options))
+        check_members(backend)  # None or another object: said as such, before it is used
         return PipelineMatcher(
-            make_backend(config, _validated(options_model, options)),
+            backend,
             helpers["ransac_filter"],
             helpers["fdr_client"],
             helpers["health_window"],
