@@ -47,12 +47,6 @@ TYPES = [
 ]
 
 
-def _text_log(path: Path) -> bool:
-    """Whether ``path`` starts as a text DataFlash log does (``FMT, ...``)."""
-    with path.open("rb") as fh:
-        return fh.read(4) == b"FMT,"
-
-
 def _open(path: Path, chatter: io.StringIO) -> Any:
     """The open log: a binary DataFlash log by its content (whatever its name), a text one
     (``.log``) or a MAVLink ``.tlog`` by its name."""
@@ -64,8 +58,10 @@ def _open(path: Path, chatter: io.StringIO) -> Any:
     binary = False
     if suffix != ".tlog":
         with path.open("rb") as fh:
-            binary = fh.read(3) == DATAFLASH_MAGIC
-        if not binary and not (suffix == ".log" and _text_log(path)):
+            head = fh.read(4)
+        binary = head[:3] == DATAFLASH_MAGIC
+        text = suffix == ".log" and head == b"FMT,"  # a text DataFlash log's first line
+        if not binary and not text:
             raise InvalidInputError(
                 str(path), "not an ArduPilot DataFlash log: it does not start with a FMT message"
             )
