@@ -33,7 +33,7 @@ def _create(**_: Any) -> Any:
 
 
 def _plugin(name: str, hook: Any) -> PluginSource:
-    module = types.SimpleNamespace(c3_matcher_strategies=hook)
+    module = types.SimpleNamespace(c3_matcher_strategies=c3.hookimpl(hook))
     return PluginSource(name, f"dist-{name}", "1.0", module=module)
 
 

@@ -70,6 +70,31 @@ def test_broken_plugin_is_reported_naming_plugin_and_distribution(site):
     assert host.strategies() == {}
 
 
+@pytest.mark.parametrize(
+    ("module", "source", "said"),
+    [
+        (
+            "acme_wrong_module",
+            "import os  # the entry point aims at the wrong module\n",
+            "acme_wrong_module implements no c3_matcher hook",
+        ),
+        (
+            "acme_unmarked",
+            "def c3_matcher_strategies():  # @hookimpl forgotten\n    return []\n",
+            "c3_matcher_strategies not marked as a hook",
+        ),
+    ],
+)
+def test_entry_point_implementing_no_hook_is_reported_not_loaded_silently(
+    site, module, source, said
+):
+    make_dist(site, "acme-empty", module, source)
+    host = host_for(site)
+    (error,) = host.errors
+    assert f'plugin "{module}"' in str(error) and said in str(error)
+    assert host.loaded == ()
+
+
 def test_duplicate_strategy_rejected_naming_both_distributions(site):
     for dist, mod in (("acme-one", "acme_one"), ("acme-two", "acme_two")):
         make_dist(site, dist, mod, WORKING_PLUGIN.format(strategy="acme_match", flag=None))

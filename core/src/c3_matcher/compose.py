@@ -242,13 +242,15 @@ def _create_strategy(
     if not isinstance(matcher, CrossDomainMatcher):
         kind = type(matcher).__name__
         raise StrategyStartupError(name, plugin, f"its factory returned {kind}, not a matcher")
+    provider = helpers["c7_inference"].provider
     if isinstance(matcher, PipelineMatcher):  # every strategy on the shared pipeline
         try:
             check_members(matcher.backend)
         except TypeError as exc:  # a member forgotten fails here, not on the first frame
             raise StrategyStartupError(name, plugin, str(exc)) from None
         engine_startup_probe(matcher.backend)
-    _log_ready(config, host, helpers)
+        provider = str(matcher.backend.provenance().get("provider", provider))
+    _log_ready(config, host, provider)
     return matcher, health
 
 
@@ -268,7 +270,9 @@ def _checked_helpers(pre_constructed: Mapping[str, Any] | None) -> dict[str, Any
     return helpers
 
 
-def _log_ready(config: C3Settings, host: PluginHost, helpers: Mapping[str, Any]) -> None:
+def _log_ready(config: C3Settings, host: PluginHost, provider: str) -> None:
+    """``provider`` is what runs the strategy: its backend's own (``provenance()``), as in
+    every result and flight-data record, else the inference runtime's."""
     name = config.matcher.strategy
     log_event(
         "INFO",
@@ -278,7 +282,7 @@ def _log_ready(config: C3Settings, host: PluginHost, helpers: Mapping[str, Any])
         min_inliers_threshold=config.matcher.min_inliers_threshold,
         residual_warn_threshold_px=config.matcher.residual_warn_threshold_px,
         profile=host.profile.name,
-        provider=helpers["c7_inference"].provider,
+        provider=provider,
     )
 
 

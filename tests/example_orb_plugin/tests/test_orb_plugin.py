@@ -9,9 +9,9 @@ import json
 from pathlib import Path
 from types import ModuleType
 
+import cv2
 import numpy as np
 
-from c3_matcher.compose import compose_root
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import TileId
 from c3_matcher.fdr import InMemoryFdr
@@ -22,6 +22,7 @@ from c3_matcher.profiles import BuildProfile
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.testing import FakeClock, FakeInferenceRuntime, FakeLightGlueRuntime
 from c3_matcher.testing.contract import BackendContract
+from c3_matcher.testing.strategy_kit import compose_ready
 from c3_matcher_tools.run.inputs import demo_inputs
 
 HERE = Path(__file__).resolve().parents[1]
@@ -71,17 +72,14 @@ def test_real_demo_frame_through_the_plugin_host() -> None:
     settings = C3Settings(
         matcher={"strategy": "example_orb", "options": {"example_orb": {"max_keypoints": 3000}}}
     )
-    fdr = InMemoryFdr()
     pre = {
         "c7_inference": FakeInferenceRuntime(),
         "c3_lightglue_runtime": FakeLightGlueRuntime(),
         "c282_ransac_filter": OpenCvRansacFilter(),
-        "c13_fdr": fdr,
         "clock": FakeClock(),
     }
-    root = compose_root(
-        settings, pre, plugin_host=PluginHost(profile, [source]), configure_logs=False
-    )
+    root, ready = compose_ready(settings, pre, plugin_host=PluginHost(profile, [source]))
+    assert ready["provider"] == f"opencv {cv2.__version__}"  # the backend's, not the runtime's
     matcher = root.matcher
     frame, rerank, calibration = demo_inputs(DEMO)
     result = matcher.match(frame, rerank, calibration)
@@ -90,4 +88,4 @@ def test_real_demo_frame_through_the_plugin_host() -> None:
     assert best.tile_id == TileId(*truth["tile_id"])
     assert best.inlier_count >= 200 and best.per_candidate_residual_px < 2.0  # 1043, 0.82 px
     assert result.matcher_label == "example_orb"
-    assert fdr.of_kind("matcher.frame_done")
+    assert isinstance(root.fdr, InMemoryFdr) and root.fdr.of_kind("matcher.frame_done")

@@ -116,6 +116,7 @@ class PluginHost:
             module = source.module if source.module is not None else _load_entry_point(source)
             self._pm.register(module, name=f"{source.distribution}:{source.name}")
             self._pm.check_pending()
+            _check_implements_a_hook(self._pm, module)
             specs = self._strategies_of(module)
         except Exception as exc:
             plugin_name = f"{source.distribution}:{source.name}"
@@ -265,6 +266,28 @@ class PluginHost:
             )
         broken = [str(e) for e in self._errors]  # the strategy may be a plugin's that failed
         raise UnknownStrategyError(strategy, sorted(self._registry.strategies), broken)
+
+
+def _check_implements_a_hook(pm: pluggy.PluginManager, module: object) -> None:
+    """``TypeError`` when ``module`` implements no hook, or defines one without ``@hookimpl``:
+    an entry point aimed at the wrong module would otherwise load nothing, and an unmarked hook
+    be passed over, silently."""
+    unmarked = sorted(
+        name
+        for name in vars(pm.hook)
+        if callable(getattr(module, name, None)) and pm.parse_hookimpl_opts(module, name) is None
+    )
+    if unmarked:
+        raise TypeError(
+            f"{', '.join(unmarked)} not marked as a hook: decorate each with "
+            "@c3_matcher.plugins.hookimpl"
+        )
+    if not pm.get_hookcallers(module):
+        name = getattr(module, "__name__", type(module).__name__)
+        raise TypeError(
+            f"{name} implements no c3_matcher hook (is the entry point aimed at the module "
+            "holding the @hookimpl functions?)"
+        )
 
 
 def _norm(name: str) -> str:

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
     from c3_matcher.compose import ComposedRoot
     from c3_matcher.config import C3Settings
     from c3_matcher.engines.spec import EngineSpec
+    from c3_matcher.plugins import PluginHost
 
 __all__ = [
     "ExtractorMatcherContract",
@@ -89,17 +90,20 @@ def matcher_over_helpers(
 
 
 def compose_ready(
-    settings: C3Settings, helpers: Mapping[str, Any]
+    settings: C3Settings, helpers: Mapping[str, Any], *, plugin_host: PluginHost | None = None
 ) -> tuple[ComposedRoot, dict[str, Any]]:
-    """``compose_root(settings)`` over ``helpers`` with an in-memory FDR, its logs captured;
-    returns the root and its ``c3.matcher.ready`` record (AssertionError unless exactly one)."""
+    """``compose_root(settings)`` over ``helpers`` (and ``plugin_host``, else the installed
+    plugins) with an in-memory FDR, its logs captured; returns the root and its
+    ``c3.matcher.ready`` record (AssertionError unless exactly one)."""
     from c3_matcher.compose import compose_root
 
     fdr = InMemoryFdr()
     stream = io.StringIO()
     handle = configure_logging(fdr, stream=stream)
     try:
-        root = compose_root(settings, {**helpers, "c13_fdr": fdr}, configure_logs=False)
+        root = compose_root(
+            settings, {**helpers, "c13_fdr": fdr}, plugin_host=plugin_host, configure_logs=False
+        )
     finally:
         handle.close()
     records = [json.loads(line) for line in stream.getvalue().splitlines()]
