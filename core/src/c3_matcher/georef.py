@@ -3,10 +3,11 @@
 A candidate's ``TileId(zoom, lat, lon)`` names the centre of its image; when the image is a
 web-mercator window of that zoom (what the tile stores serve, see
 :mod:`c3_matcher.tilestore.handles`) or has a known ground sample distance, a TILE px maps to
-WORLD px and so to lon/lat (:func:`tile_px_to_lonlat`). The best candidate's inliers give the
-homography from UNDISTORTED query px to tile px (:func:`fit_query_to_tile`, least squares over
-every inlier: the ground is a plane at this scale), through which the frame's principal point
-(the centre) and its image boundary (the footprint) land on the map.
+WORLD px and so to lon/lat (:func:`tile_px_to_lonlat`). The best candidate gives the map from
+UNDISTORTED query px to tile px (:func:`best_query_to_tile`), through which the frame's
+principal point (the centre) and its image boundary (the footprint) land on the map: the
+homography fitted by least squares over every inlier (:func:`fit_query_to_tile`: the ground is
+a plane at this scale), or the geometric prior's similarity when the matcher kept that one.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from c3_matcher.tilestore.geo import lonlat_to_world_px, world_px_to_lonlat
 
 __all__ = [
     "EARTH_RADIUS_M",
+    "best_query_to_tile",
     "fit_query_to_tile",
     "footprint_lonlat",
     "georeference_result",
@@ -97,6 +99,22 @@ def fit_query_to_tile(
     return np.asarray(found / found[2, 2], dtype=np.float64)
 
 
+def best_query_to_tile(result: MatchResult, calibration: CameraCalibration | None) -> F64 | None:
+    """The best candidate's map UNDISTORTED query px -> tile px; None when none fits.
+
+    The matcher keeps the prior's similarity (``diagnostics["models"]``) exactly when the free
+    homography of the inliers fails the prior's geometry check: inliers along one line or in one
+    corner constrain a free homography poorly away from them. Refitting one over those inliers
+    would bring back the extrapolation the prior refused, so the kept similarity
+    (``diagnostics["query_to_tile"]``) is used. Otherwise: the least-squares homography over
+    every inlier."""
+    models = result.diagnostics.get("models") or ()
+    kept = result.diagnostics.get("query_to_tile") or ()
+    if models and models[0] == "similarity" and kept and kept[0] is not None:
+        return np.asarray(kept[0], dtype=np.float64)
+    return fit_query_to_tile(result.per_candidate[0].inlier_correspondences, calibration)
+
+
 def footprint_lonlat(
     h_query_to_tile: ArrayLike,
     tile_id: TileId,
@@ -136,11 +154,12 @@ def georeference_result(
     tile_gsd_m: float | None = None,
 ) -> dict[str, Any]:
     """The JSON fields of the best candidate's georeference: ``best_homography`` (UNDISTORTED
-    query px -> best tile px, row-major 3x3) and, when its tile id is georeferenced and the
-    tiles' sizes (per INPUT position) are known, ``centre_lat``, ``centre_lon`` and
-    ``footprint`` (a closed GeoJSON ring of [lon, lat]). Empty when no homography fits."""
+    query px -> best tile px, row-major 3x3, :func:`best_query_to_tile`) and, when its tile id
+    is georeferenced and the tiles' sizes (per INPUT position) are known, ``centre_lat``,
+    ``centre_lon`` and ``footprint`` (a closed GeoJSON ring of [lon, lat]). Empty when no
+    homography fits."""
     best = result.per_candidate[0]
-    hom = fit_query_to_tile(best.inlier_correspondences, calibration)
+    hom = best_query_to_tile(result, calibration)
     if hom is None:
         return {}
     out: dict[str, Any] = {"best_homography": hom.tolist()}

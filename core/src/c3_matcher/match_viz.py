@@ -33,7 +33,7 @@ def _draw(
 ) -> None:
     """The --viz picture: rectified query beside the best tile, every candidate in a strip;
     the query beside the candidates for a failed frame."""
-    from c3_matcher.georef import fit_query_to_tile
+    from c3_matcher.georef import best_query_to_tile
     from c3_matcher.viz import CandidateView, render_match, write_png
 
     counts: dict[int, int] = {}
@@ -43,7 +43,7 @@ def _draw(
         counts = {int(i): c.inlier_count for i, c in zip(indices, result.per_candidate)}
         best_index = int(next(iter(indices)))
         corr = result.per_candidate[0].inlier_correspondences
-        hom = fit_query_to_tile(corr, calibration)
+        hom = best_query_to_tile(result, calibration)
     names = [p.name for p in args.tile or ()] or [str(c.tile_id) for c in rerank.candidates]
     views = [
         CandidateView(

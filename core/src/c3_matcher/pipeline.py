@@ -311,6 +311,7 @@ class PipelineMatcher:
             tile,
             verdict.model,
             timings,
+            query.image.from_undistorted(verdict.homography),
         )
 
     def _diagnostics(
@@ -320,14 +321,16 @@ class PipelineMatcher:
         geometric_prior: bool,
         timings: dict[str, float],
     ) -> dict[str, Any]:
-        """``MatchResult.diagnostics``: timings, the survivors' input order, homographies,
-        turns and models, the tile cache's counters and the frame's evidence."""
+        """``MatchResult.diagnostics``: timings, the survivors' input order, homographies
+        (from WORKING px, and ``query_to_tile`` from UNDISTORTED px), turns and models, the
+        tile cache's counters and the frame's evidence."""
         cache = self._tiles.cache
         return {
             "timings_ms": dict(timings),
             "per_candidate_timings_ms": list(evidence.per_candidate_ms),
             "input_index": [s.input_index for s in survivors],
             "homographies": [s.homography for s in survivors],
+            "query_to_tile": [s.query_to_tile for s in survivors],
             "tile_cache": {"hits": cache.hits, "misses": cache.misses},
             "candidate_features": list(evidence.sources),
             "geometric_prior": geometric_prior,

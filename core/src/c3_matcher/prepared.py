@@ -174,6 +174,15 @@ class PreparedImage:
             working_from_engine=self.working_from_engine @ rotation_from_turned(rotation_deg, w, h),
         )
 
+    def from_undistorted(self, model: F64 | None) -> F64 | None:
+        """A 3x3 ``model`` from this query's WORKING px (to a tile's px) composed with the
+        rectification: from UNDISTORTED query px, scaled so its [2, 2] is 1; None without a
+        model or without the rectification (an unrectified query's WORKING px are ORIGINAL)."""
+        if model is None or self.working_from_undistorted is None:
+            return None
+        composed = model @ self.working_from_undistorted
+        return np.asarray(composed / composed[2, 2], dtype=np.float64)
+
     def in_original_px(self, rows: NDArray[np.float32]) -> NDArray[np.float32]:
         """(M, 4) correspondence rows (x_query, y_query, x_tile, y_tile) with the query point
         moved from WORKING to ORIGINAL frame px (:meth:`working_to_original`), float32."""

@@ -11,7 +11,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from c3_matcher.georef import fit_query_to_tile
 from c3_matcher.viz import CandidateView, render_match
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.dataset.truth import inlier_errors_px
@@ -39,7 +38,7 @@ def frame_picture(
     size = dataset.candidate_size_px
     counts, corr = _inliers(outcome)
     views = _candidate_views(frame, outcome, store, size, counts)
-    hom = fit_query_to_tile(corr, dataset.calibration) if corr is not None and len(corr) else None
+    hom = _best_homography(outcome, corr)
     errors = None
     if hom is not None and outcome.best_input_index is not None and corr is not None:
         h_true = frame.candidates[outcome.best_input_index].h_tile_to_undistorted
@@ -56,6 +55,17 @@ def frame_picture(
         title=_picture_title(outcome),
         panel=panel,
     )
+
+
+def _best_homography(
+    outcome: FrameOutcome, corr: NDArray[np.float64] | None
+) -> NDArray[np.float64] | None:
+    """The result's ``best_homography``: the map its position comes from (replay writes it
+    whenever one fits, :func:`c3_matcher.georef.best_query_to_tile`); None without inliers."""
+    if outcome.result is None or corr is None or not len(corr):
+        return None
+    stored = outcome.result.get("best_homography")
+    return None if stored is None else np.asarray(stored, dtype=np.float64).reshape(3, 3)
 
 
 def _inliers(outcome: FrameOutcome) -> tuple[dict[int, int], NDArray[np.float64] | None]:
