@@ -544,3 +544,10 @@ def test_an_empty_photo_is_refused_as_empty_not_skipped_for_its_gps(
     victim.write_bytes(b"")
     with pytest.raises(InvalidInputError, match=f"{victim}: an empty file, not an image"):
         read_photo_folder(photos)
+
+
+def test_a_time_offset_beyond_any_clock_is_refused_by_the_options() -> None:
+    """The command line refuses it while parsing; the options refuse it alike."""
+    with pytest.raises(InvalidInputError, match=r"--time-offset: must be in \[-4e\+09, 4e\+09\] s"):
+        _options(time_offset_s=1e308)
+    assert _options(time_offset_s=-4e9).time_offset_s == -4e9
