@@ -479,3 +479,95 @@ def test_a_dot_log_file_is_read_as_what_it_holds_binary_or_text(
         np.testing.assert_allclose(got.position.values, want.position.values, rtol=1e-6)
         assert got.triggers_s is not None and want.triggers_s is not None
         np.testing.assert_allclose(got.triggers_s, want.triggers_s, atol=1e-3)
+
+
+def _first_data_message(log: bytes) -> int:
+    """The byte where a ULog's definitions section ends: its first message of another type
+    than B, F, I, M, P, Q (each message: size u16, type u8, then its bytes)."""
+    at = 16
+    while log[at + 2 : at + 3] in (b"B", b"F", b"I", b"M", b"P", b"Q"):
+        at += 3 + int.from_bytes(log[at : at + 2], "little")
+    return at
+
+
+@pytest.mark.parametrize("which", ["shipped", "written"])
+def test_a_ulog_whose_definitions_are_zeroed_is_refused_as_such(
+    which: str, poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """Zeroed definitions (the formats of the topics): the shipped log was refused with every
+    warning pyulog printed (some 5,000 characters), a short one with pyulog's ``[Errno 22]
+    Invalid argument``; both now say the definitions are damaged, naming the file."""
+    source = REAL_ULOG if which == "shipped" else write_ulog(tmp_path / "flight.ulg", poses)
+    data = bytearray(source.read_bytes())
+    end = _first_data_message(bytes(data))
+    assert data[end + 2] == ord("A")
+    data[16:end] = bytes(end - 16)
+    log = tmp_path / "zeroed.ulg"
+    log.write_bytes(bytes(data))
+    images, out = _images(tmp_path, poses), tmp_path / "x"
+    proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(out))
+    _refused(
+        proc,
+        f"{log}: not a readable PX4 ULog: its message definitions (the formats of its topics) "
+        "are damaged from byte 16 on, so none of its topics can be read",
+    )
+    assert len(proc.stderr) < 300 and not out.exists()
+
+
+def test_a_ulog_cut_mid_message_says_so_and_keeps_the_samples_before(tmp_path: Path) -> None:
+    """pyulog reads a log cut mid-message up to the cut and says nothing (its
+    ``file_corruption`` stays false): the track's notes and damage now say where it ends."""
+    whole = read_ulog(REAL_ULOG)
+    assert not any("mid-message" in n for n in whole.notes) and whole.damage is None
+    data = REAL_ULOG.read_bytes()
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(data[:700001])
+    track = read_ulog(cut)
+    said = "ends mid-message, cut short at byte 700001 in a message from byte "
+    assert any(n.startswith(f"the log {said}") for n in track.notes), track.notes
+    assert any(n.endswith("; the samples before it are kept") for n in track.notes)
+    assert track.damage is not None and track.damage.startswith(f"it {said}")
+    assert whole.gnss is not None and track.gnss is not None
+    kept = len(track.gnss)
+    assert 0 < kept < len(whole.gnss)
+    np.testing.assert_array_equal(track.gnss.t_s, whole.gnss.t_s[:kept])
+    np.testing.assert_array_equal(track.gnss.values, whole.gnss.values[:kept])
+
+
+def test_a_dataflash_log_cut_mid_message_says_so_in_the_record(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """Cut in its last camera trigger: the refusal of 3 triggers for 4 images called the log
+    whole; it now says the log ends mid-message, and so does the record of an import made."""
+    whole = write_dataflash(tmp_path / "flight.bin", poses)
+    log = tmp_path / "cut.bin"
+    log.write_bytes(whole.read_bytes()[:-1])
+    images = _images(tmp_path, poses)
+    args = ["dataset", "import", str(images), str(log), CAL, STORE]
+    said = f"ends mid-message, cut short at byte {log.stat().st_size} in a CAM message from byte "
+    _refused(c3(*args, str(tmp_path / "x")), "3 camera trigger(s) in the log", f"it {said}")
+    flight = tmp_path / "f"
+    proc = c3(*args, str(flight), "--time-source", "trigger", "--json")
+    assert proc.returncode == 0, proc.stderr
+    record = json.loads((flight / "dataset.json").read_text())["import"]
+    assert record["frames"] == 3
+    assert any(n.startswith(f"the log {said}") for n in record["notes"]), record["notes"]
+    assert not any("mid-message" in n for n in read_mavlink(whole).notes)
+
+
+def test_a_bag_folder_without_metadata_names_what_it_lacks(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """rosbags said "Expected metadata file '<the folder>' does not exist", naming the folder
+    as the missing file."""
+    calibration = load_calibration(DEMO / "calibration.json")
+    bag = write_bag(tmp_path / "bag", poses[:1], calibration)
+    (bag / "metadata.yaml").unlink()
+    out = tmp_path / "x"
+    proc = c3("dataset", "import", "-", str(bag), "-", STORE, str(out), "--source", "rosbag")
+    _refused(
+        proc,
+        f"{bag}: a folder without metadata.yaml, which a ROS 2 bag's folder holds (beside its "
+        ".db3 or .mcap files)",
+    )
+    assert not out.exists()

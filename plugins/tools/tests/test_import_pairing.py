@@ -27,7 +27,7 @@ from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
 from c3_matcher_tools.dataset.sources.images import folder_shots
 from c3_matcher_tools.dataset.sources.options import ImportOptions, ProposalOptions
-from c3_matcher_tools.dataset.sources.pairing import match_shots
+from c3_matcher_tools.dataset.sources.pairing import match_shots, times_apart
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.cli import run_cli
@@ -544,3 +544,82 @@ def test_an_empty_photo_is_refused_as_empty_not_skipped_for_its_gps(
     victim.write_bytes(b"")
     with pytest.raises(InvalidInputError, match=f"{victim}: an empty file, not an image"):
         read_photo_folder(photos)
+
+
+def _clock_reset(photo: Path, when: bytes = b"1970:01:01 00:00:03") -> None:
+    """``photo``'s EXIF capture time set to ``when``, as a camera whose clock was reset says."""
+    import piexif
+
+    exif = piexif.load(str(photo))
+    exif["Exif"][piexif.ExifIFD.DateTimeOriginal] = when
+    piexif.insert(piexif.dump(exif), str(photo))
+
+
+def test_times_apart_are_those_outside_the_largest_group() -> None:
+    flight = [1.79e9 + 2 * k for k in range(4)]
+    assert times_apart(flight, 10.0) == []
+    assert times_apart([flight[0], 3.0, *flight[1:]], 10.0) == [1]
+    assert times_apart([3.0, flight[0]], 10.0) == [0]  # of equal groups the later is kept
+    assert times_apart([], 10.0) == []
+
+
+def test_a_photo_whose_clock_was_reset_keeps_its_place_among_as_many_triggers(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """As many timed photos as triggers take them in capture order: a photo stamped 1970 sorted
+    first and moved every photo before it onto the pose of its neighbour's trigger, silently.
+    It now keeps its place in file order, and the import's notes name it."""
+    photos = write_exif_photos(tmp_path / "photos", poses[:4], xmp=False)
+    _clock_reset(photos / "DJI_0002.JPG")
+    log = write_ulog(tmp_path / "flight.ulg", poses[:4])
+    flight = tmp_path / "f"
+    summary = _imported(c3("dataset", "import", photos, log, CAL, STORE, flight, "--json"))
+    assert summary["frames"] == 4 and summary["skipped"] == []
+    assert summary["time_source"] == "camera trigger (4 in the log, 4 image(s))"
+    frames = load_dataset(flight).frames
+    for f, p, k in zip(frames, poses[:4], range(4), strict=True):
+        assert f.telemetry["source_image"] == f"DJI_{k:04d}.JPG"
+        assert (f.telemetry["lat"], f.telemetry["lon"]) == pytest.approx((p.lat, p.lon), abs=1e-7)
+    note = (
+        "DJI_0002.JPG at 1970-01-01 00:00:03 UTC: a capture time apart from the other photos' "
+        "(2026-09-21 14:13:20 UTC .. 2026-09-21 14:13:26 UTC) by more than the camera triggers' "
+        "span (a camera clock reset?): paired by its place in file order, the others by their "
+        "capture times"
+    )
+    assert note in summary["notes"]
+    record = json.loads((flight / "dataset.json").read_text())["import"]
+    assert note in record["notes"]
+
+
+def test_a_photo_whose_clock_was_reset_is_skipped_from_a_photo_folder(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """A photo folder is its own telemetry: a photo stamped 1970 among photos of today became
+    the flight's first frame, 56 years before the next, silently. Its place is unknown, as is
+    that of a photo without a capture time among timed ones: it is skipped, saying why."""
+    photos = write_exif_photos(tmp_path / "photos", poses[:4])
+    _clock_reset(photos / "DJI_0002.JPG")
+    flight = tmp_path / "f"
+    summary = _imported(c3("dataset", "import", photos, "-", CAL, STORE, flight, "--json"))
+    assert summary["frames"] == 3
+    assert summary["skipped"] == [
+        {
+            "image": "DJI_0002.JPG",
+            "reason": "its EXIF capture time (1970-01-01 00:00:03 UTC) lies more than a day apart "
+            "from the other photos' (2026-09-21 14:13:20 UTC .. 2026-09-21 14:13:26 UTC): a "
+            "camera clock reset, or another day's photo? Its place in the flight is unknown",
+        }
+    ]
+    frames = load_dataset(flight).frames
+    assert [f.telemetry["source_image"] for f in frames] == [
+        "DJI_0000.JPG",
+        "DJI_0001.JPG",
+        "DJI_0003.JPG",
+    ]
+
+
+def test_a_time_offset_beyond_any_clock_is_refused_by_the_options() -> None:
+    """The command line refuses it while parsing; the options refuse it alike."""
+    with pytest.raises(InvalidInputError, match=r"--time-offset: must be in \[-4e\+09, 4e\+09\] s"):
+        _options(time_offset_s=1e308)
+    assert _options(time_offset_s=-4e9).time_offset_s == -4e9

@@ -12,7 +12,12 @@ from typing import TYPE_CHECKING
 from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.args import bounded_float
-from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport, ProposalOptions
+from c3_matcher_tools.dataset.sources.options import (
+    MAX_TIME_OFFSET_S,
+    ImportOptions,
+    ImportReport,
+    ProposalOptions,
+)
 
 if TYPE_CHECKING:
     from c3_matcher.dto import CameraCalibration
@@ -96,11 +101,13 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--time-offset",
-        type=bounded_float(),
+        type=bounded_float(-MAX_TIME_OFFSET_S, MAX_TIME_OFFSET_S),
         default=0.0,
         help="seconds added to the images' times: to their own (EXIF) times, negative when the "
         "camera's clock is ahead of the log's; to the trigger times when images without a time "
-        "take the triggers in order; in file order, the log time of the first image; default 0",
+        "take the triggers in order; in file order, the log time of the first image; default 0; "
+        f"at most {MAX_TIME_OFFSET_S:g} s either way (127 years: a log clock of UTC seconds since "
+        "1970, or a camera clock never set)",
     )
     g.add_argument(
         "--interval",

@@ -7,8 +7,9 @@ that points the calibration's camera mount the same way), else the aircraft's XM
 marked ``attitude_assumed``; height above ground from the XMP ``RelativeAltitude`` (above the
 take-off point: right over flat ground) unless a ground elevation or DEM is given, then EXIF
 altitude minus the ground. Time: the EXIF capture time (file order, 1 s apart, when no photo
-states one; a photo without one among photos that do is skipped: its place is unknown). A
-byte-for-byte copy of another photo is skipped, naming it.
+states one; a photo without one among photos that do is skipped: its place is unknown, and so
+is a photo whose time lies more than :data:`PHOTO_TIMES_APART_S` from the others', a camera
+clock reset). A byte-for-byte copy of another photo is skipped, naming it.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.images import folder_shots, unique_photos
+from c3_matcher_tools.dataset.sources.pairing import times_apart, utc_text
 from c3_matcher_tools.dataset.sources.track import (
     LogTrack,
     Series,
@@ -30,9 +32,14 @@ from c3_matcher_tools.dataset.sources.track import (
     gimbal_camera_matrix,
 )
 
-__all__ = ["photo_attitude", "read_photo_folder"]
+__all__ = ["PHOTO_TIMES_APART_S", "photo_attitude", "read_photo_folder"]
 
 KIND = "photo EXIF/XMP"
+PHOTO_TIMES_APART_S = 86400.0
+"""A photo whose capture time lies farther than this from every other photo's (:func:`times_apart`,
+the largest group kept) is no part of the flight's sequence: one flight's photos are taken within
+hours (a battery lasts under one), so a day between them is a camera clock that was reset (to
+1970, 2000...) or another day's photo, and sorting it by that time would put it first or last."""
 
 
 def read_photo_folder(
@@ -63,6 +70,8 @@ def read_photo_folder(
         raise InvalidInputError(
             str(folder), f"none of the {len(shots)} photo(s) has a GPS position in its EXIF"
         )
+    if timed:
+        kept = _without_times_apart(kept, skipped)
     kept.sort(key=lambda s: (s.t_s or 0.0, s.name))
     times = [s.t_s or 0.0 for s in kept]
     values = [
@@ -79,6 +88,25 @@ def read_photo_folder(
         notes=() if timed else ("no EXIF capture time: photos taken 1 s apart in file order",),
     )
     return track, kept, skipped
+
+
+def _without_times_apart(shots: list[Shot], skipped: list[tuple[str, str]]) -> list[Shot]:
+    """``shots`` but those whose capture time lies apart from the others' (more than
+    :data:`PHOTO_TIMES_APART_S`), each added to ``skipped`` with the reason."""
+    times = [float(s.t_s or 0.0) for s in shots]
+    apart = set(times_apart(times, PHOTO_TIMES_APART_S))
+    if not apart:
+        return shots
+    rest = [t for i, t in enumerate(times) if i not in apart]
+    others = f"{utc_text(min(rest))} .. {utc_text(max(rest))}"
+    for i in sorted(apart):
+        why = (
+            f"its EXIF capture time ({utc_text(times[i])}) lies more than a day apart from the "
+            f"other photos' ({others}): a camera clock reset, or another day's photo? Its place "
+            "in the flight is unknown"
+        )
+        skipped.append((shots[i].name, why))
+    return [s for i, s in enumerate(shots) if i not in apart]
 
 
 def photo_attitude(

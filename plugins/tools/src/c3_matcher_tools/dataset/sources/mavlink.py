@@ -24,7 +24,7 @@ import numpy as np
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.quiet import quiet
-from c3_matcher_tools.dataset.sources.track import LogTrack, Series, logs_library
+from c3_matcher_tools.dataset.sources.track import LogTrack, Series, cut_short, logs_library
 
 __all__ = ["read_mavlink"]
 
@@ -72,6 +72,31 @@ def _open(path: Path, chatter: io.StringIO) -> Any:
             return mavutil.mavlink_connection(str(path), robust_parsing=True)
     except Exception as exc:
         raise InvalidInputError(str(path), f"not a readable ArduPilot log: {exc}") from None
+
+
+def _cut_at(log: Any, path: Path) -> str | None:
+    """How a binary DataFlash log ends mid-message (:func:`cut_short`), from pymavlink's index
+    of where each message starts: its last message runs past the end of the file, or a header's
+    first bytes follow it; None when it ends where a message does (or is no binary log)."""
+    from pymavlink.DFReader import DFReader_binary
+
+    if not isinstance(log, DFReader_binary):
+        return None  # a text DataFlash log or a telemetry log: not indexed by byte
+    starts = [(at[-1], kind) for kind, at in enumerate(log.offsets) if at]
+    if not starts:
+        return None
+    at, kind = max(starts)
+    fmt, size = log.formats.get(kind), log.data_len
+    if fmt is None:
+        return None
+    if at + fmt.len > size:
+        return cut_short(at, size, f"a {fmt.name} message")
+    with path.open("rb") as fh:  # after the last whole message: a header's first bytes?
+        fh.seek(at + fmt.len)
+        tail = fh.read(3)
+    if tail and len(tail) < 3 and DATAFLASH_MAGIC[:2].startswith(tail):
+        return cut_short(at + fmt.len, size, "a message header")
+    return None
 
 
 Row = tuple[float, list[float]]
@@ -176,6 +201,7 @@ def read_mavlink(path: Path) -> LogTrack:
     path = Path(path)
     chatter = io.StringIO()  # pymavlink prints every damaged header it skips
     log = _open(path, chatter)
+    cut = _cut_at(log, path)
     source = str(path)
     kind = "MAVLink telemetry log" if path.suffix.lower() == ".tlog" else "ArduPilot DataFlash"
     rows: dict[str, list[Row]] = {k: [] for k in ("att", "pos", "gps", "rng", "trig")}
@@ -202,9 +228,12 @@ def read_mavlink(path: Path) -> LogTrack:
             "GNSS course (frames marked attitude_assumed)",
         )
     damaged = chatter.getvalue().count("bad header")
-    damage = f"{damaged} damaged message headers skipped" if damaged else None
-    if damage:
-        notes.insert(0, f"the log is damaged ({damage}); read past the damage")
+    skipped = f"{damaged} damaged message headers skipped" if damaged else None
+    if skipped:
+        notes.insert(0, f"the log is damaged ({skipped}); read past the damage")
+    if cut:
+        notes.append(f"the log {cut}; the samples before it are kept")
+    damage = "; ".join(x for x in (skipped, cut and f"it {cut}") if x) or None
     first_t = (rows["att"] or rows["pos"] or rows["gps"])[0][0]
     return LogTrack(
         source=source,

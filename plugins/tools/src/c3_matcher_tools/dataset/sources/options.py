@@ -18,6 +18,7 @@ from c3_matcher_tools.dataset.format import check_candidate_size
 __all__ = [
     "MAX_CANDIDATES",
     "MAX_SEARCH_TILES",
+    "MAX_TIME_OFFSET_S",
     "ImportOptions",
     "ImportReport",
     "ProposalOptions",
@@ -35,6 +36,14 @@ cover more ground than that anyway."""
 MAX_CANDIDATES = MAX_SEARCH_TILES**2
 """``--candidates`` proposes at most this many tiles a frame: more would not fit the square the
 search reaches (:data:`MAX_SEARCH_TILES` tiles from the look point), which would widen it."""
+
+
+MAX_TIME_OFFSET_S = 4e9
+"""``--time-offset`` moves the images' times at most this far either way, s (127 years): enough
+to put the first image on a log clock that counts UTC seconds since 1970 (an ArduPilot log's, a
+ground station's: in file order the offset is that image's log time) until 2096, or to bring a
+camera clock that was never set (1970, 2000) onto the log's; beyond it the times are no clock's
+and the figures printed of them run to hundreds of digits."""
 
 
 def max_uncertainty_m(zoom: int, lat_deg: float = 0.0) -> float:
@@ -121,8 +130,12 @@ class ImportOptions:
             raise InvalidInputError(
                 "--time-source", f"one of auto, trigger, exif, order; got {self.time_source!r}"
             )
-        if not (math.isfinite(self.time_offset_s)):
-            raise InvalidInputError("--time-offset", f"must be finite, got {self.time_offset_s}")
+        if not (math.isfinite(self.time_offset_s) and abs(self.time_offset_s) <= MAX_TIME_OFFSET_S):
+            raise InvalidInputError(
+                "--time-offset",
+                f"must be in [-{MAX_TIME_OFFSET_S:g}, {MAX_TIME_OFFSET_S:g}] s, got "
+                f"{self.time_offset_s:g}",
+            )
         if self.interval_s is not None and not (
             math.isfinite(self.interval_s) and self.interval_s > 0
         ):

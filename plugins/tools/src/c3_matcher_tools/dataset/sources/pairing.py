@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from datetime import UTC, datetime
 
 import numpy as np
 
@@ -13,7 +14,33 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.options import ImportOptions
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 
-__all__ = ["match_shots"]
+__all__ = ["match_shots", "times_apart", "utc_text"]
+
+
+def times_apart(times: Sequence[float], gap_s: float) -> list[int]:
+    """The indices of the ``times`` that lie apart from the rest: in time order the times split
+    where two neighbours are more than ``gap_s`` apart, and those outside the largest group (of
+    equal ones the latest: a camera clock that was reset went back to an epoch) are apart.
+    Empty when no two neighbours are that far apart."""
+    groups: list[list[int]] = []
+    for i in sorted(range(len(times)), key=lambda k: times[k]):
+        if groups and times[i] - times[groups[-1][-1]] <= gap_s:
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    flight: set[int] = set()
+    for group in groups:  # the largest, of equal ones the latest
+        if len(group) >= len(flight):
+            flight = set(group)
+    return [i for i in range(len(times)) if i not in flight]
+
+
+def utc_text(t_s: float) -> str:
+    """UTC seconds as ``1970-01-01 00:00:03 UTC`` (as seconds when no calendar date)."""
+    try:
+        return datetime.fromtimestamp(t_s, UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+    except (OverflowError, OSError, ValueError):
+        return f"{t_s:.0f} s"
 
 
 def _names(shots: Sequence[Shot], shown: int = 3) -> str:
@@ -155,19 +182,39 @@ def _triggers_by_time(
 
 
 def _as_many_triggers(
-    shots: Sequence[Shot], triggers: F64
+    shots: Sequence[Shot], triggers: F64, options: ImportOptions, notes: list[str]
 ) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
     """As many photos as triggers, each stating its own time: the photos take the triggers in
     the order of those times (ties, as whole-second EXIF times give, in file order), not by file
     name, which need not sort in capture order; each photo at its trigger's time. Order alone:
     a camera clock off the log's, or times truncated to the second, move no photo onto another's
-    trigger, as pairing each with the trigger nearest its time could."""
+    trigger, as pairing each with the trigger nearest its time could. A photo whose time lies
+    apart from the others' (:func:`times_apart`: farther than the triggers' whole span, a clock
+    reset) does not sort among them: it keeps its place in file order, and ``notes`` says so."""
     counts = f"{triggers.size} in the log, {len(shots)} image(s)"
-    ordered = sorted(shots, key=lambda s: float(s.t_s or 0.0))  # stable: ties keep file order
+    times = [float(s.t_s or 0.0) for s in shots]
+    apart = set(times_apart(times, float(triggers[-1] - triggers[0]) + options.max_gap_s))
+    in_time = iter(sorted((i for i in range(len(shots)) if i not in apart), key=times.__getitem__))
+    ordered = [shots[i if i in apart else next(in_time)] for i in range(len(shots))]  # stable
+    if apart:
+        notes.append(_apart_note(shots, apart))
     how = f"camera trigger ({counts})"
     if any(a is not b for a, b in zip(ordered, shots, strict=True)):
         how = f"camera trigger in the images' capture order, not their file order ({counts})"
     return [(s, float(t)) for s, t in zip(ordered, triggers, strict=True)], [], how
+
+
+def _apart_note(shots: Sequence[Shot], apart: set[int]) -> str:
+    """What :func:`_as_many_triggers` says of the photos whose times lie ``apart``."""
+    odd = [shots[i] for i in sorted(apart)]
+    rest = [float(s.t_s or 0.0) for i, s in enumerate(shots) if i not in apart]
+    when = ", ".join(f"{s.name} at {utc_text(float(s.t_s or 0.0))}" for s in odd[:3])
+    more = f" and {len(odd) - 3} more" if len(odd) > 3 else ""
+    return (
+        f"{when}{more}: a capture time apart from the other photos' ({utc_text(min(rest))} .. "
+        f"{utc_text(max(rest))}) by more than the camera triggers' span (a camera clock "
+        "reset?): paired by its place in file order, the others by their capture times"
+    )
 
 
 def _auto_source(
@@ -249,7 +296,11 @@ def _by_file_order(
 
 
 def match_shots(
-    track: LogTrack, shots: Sequence[Shot], options: ImportOptions
+    track: LogTrack,
+    shots: Sequence[Shot],
+    options: ImportOptions,
+    *,
+    notes: list[str] | None = None,
 ) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
     """Each shot's time on the log's clock, in time order: ([(shot, t_s)], [(name, why
     skipped)], how).
@@ -265,7 +316,9 @@ def match_shots(
     unpaired. ``--time-offset`` is added to the images' own times where they are used, else to
     the trigger times or to the file order's start. Raises InvalidInputError when no image
     falls within the log's time span (images of another flight) or the chosen time source
-    cannot be used."""
+    cannot be used. What the import should say besides is appended to ``notes`` (a photo
+    whose capture time lies apart from the others', paired by its place in file order)."""
+    notes = [] if notes is None else notes
     triggers = track.triggers_s if track.triggers_s is not None else np.zeros(0)
     src = options.time_source
     if src == "auto":
@@ -273,7 +326,7 @@ def match_shots(
     if src == "trigger":
         taken, skipped, how = _in_file_order(track, shots, triggers, options)
     elif src == "as many triggers":
-        taken, skipped, how = _as_many_triggers(shots, triggers)
+        taken, skipped, how = _as_many_triggers(shots, triggers, options, notes)
     elif src == "trigger time":
         taken, skipped, how = _triggers_by_time(track, shots, triggers, options)
     elif src == "exif":

@@ -59,6 +59,12 @@ def _reader(path: Path) -> Any:
     typesys = logs_library("rosbags.typesys", path, "a ROS bag")
     if not path.exists():
         raise InvalidInputError(str(path), "no such bag")
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        raise InvalidInputError(
+            str(path),
+            "a folder without metadata.yaml, which a ROS 2 bag's folder holds (beside its .db3 or "
+            ".mcap files): give the bag's folder, or a ROS 1 .bag or an MCAP file",
+        )
     bag = path.parent if path.is_file() and path.suffix in (".db3", ".mcap") else path
     if path.is_file() and not (bag / "metadata.yaml").is_file() and path.suffix != ".bag":
         bag = path  # a bare MCAP file: rosbags reads it through its directory-less path

@@ -32,6 +32,7 @@ __all__ = [
     "attitude_from_matrix",
     "body_attitude_for_camera",
     "constant",
+    "cut_short",
     "gimbal_camera_matrix",
     "logs_library",
     "quaternion_matrix",
@@ -48,6 +49,13 @@ def logs_library(module: str, path: Path, reading: str) -> Any:
             str(path),
             f"reading {reading} needs the logs extra: pip install 'c3-matcher-tools[logs]'",
         ) from None
+
+
+def cut_short(at: int, size: int, what: str = "a message") -> str:
+    """What a log of ``size`` bytes whose last message (``what``), from byte ``at``, runs past
+    its end is said to do: "ends mid-message, cut short ..." (its reader keeps what came
+    before)."""
+    return f"ends mid-message, cut short at byte {size} in {what} from byte {at}"
 
 
 @dataclass(frozen=True)

@@ -10,12 +10,20 @@ or new ``latitude_deg``/``longitude_deg``/``altitude_msl_m``); height above grou
 ``home_position.alt`` else ``vehicle_local_position.ref_alt``; camera trigger times from
 ``camera_capture`` / ``camera_trigger``. Times: the log's ``timestamp`` (microseconds since
 boot) in seconds.
+
+Besides pyulog, the reader walks the file's message headers (each its size and type, as the
+ULog format lays them out) to say what pyulog does not: definitions too damaged to read any topic
+(refused as such), and a log that ends mid-message (cut short: pyulog keeps what came before and
+says nothing).
 """
 
 from __future__ import annotations
 
 import io
 import math
+import mmap
+import struct
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +35,7 @@ from c3_matcher_tools.dataset.sources.track import (
     LogTrack,
     Series,
     attitude_from_matrix,
+    cut_short,
     logs_library,
     quaternion_matrix,
 )
@@ -46,21 +55,90 @@ TOPICS = (
 )
 
 
-def _load(path: Path) -> tuple[Any, str | None]:
-    """The parsed log and, when pyulog found it damaged or truncated (it reads up to the
-    damage), what it said; pyulog's own prints (on stdout, where ``--json`` output goes) are
-    kept from the terminal."""
+MAGIC = b"ULog\x01\x12\x35"
+"""A ULog's first bytes."""
+HEADER_BYTES = 16
+"""A ULog's file header (:data:`MAGIC`, version, start time); its messages follow."""
+MESSAGE_TYPES = frozenset(b"BFIMPQARDLCSO")
+"""The message types the ULog format defines (the third byte of each message's header)."""
+DEFINITION_TYPES = frozenset(b"BFIMPQ")
+"""Those of the definitions section: it ends at the first message of another type."""
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """What a walk of a ULog's message headers found. ``definitions_damaged_at``: the byte where
+    the definitions section stops being readable (a header of no ULog type, or the data with no
+    format definition before it), None when it reads; ``cut_at``: the byte where the last
+    message starts when it runs past the end of the file (the log ends mid-message), None when
+    the file ends where a message does or the walk met damage first (pyulog says that)."""
+
+    definitions_damaged_at: int | None = None
+    cut_at: int | None = None
+
+
+def _layout(path: Path) -> _Layout:
+    """Walk ``path``'s message headers (3 bytes: size, type) from the file header on; nothing
+    found when it is no ULog or cannot be read (pyulog then says why)."""
+    try:
+        with path.open("rb") as fh:
+            if path.stat().st_size <= HEADER_BYTES or fh.read(len(MAGIC)) != MAGIC:
+                return _Layout()
+            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+                return _walk(data)
+    except (OSError, ValueError):
+        return _Layout()
+
+
+def _walk(data: mmap.mmap) -> _Layout:
+    end, at, formats, definitions = len(data), HEADER_BYTES, 0, True
+    while at < end:
+        if end - at < 3:  # a header cut short
+            return _Layout(cut_at=at)
+        size, kind = struct.unpack_from("<HB", data, at)
+        if kind not in MESSAGE_TYPES or size == 0:  # damage: pyulog skips it, and says so
+            return _Layout(definitions_damaged_at=at if definitions else None)
+        if definitions and kind not in DEFINITION_TYPES:
+            definitions = False
+            if not formats:
+                return _Layout(definitions_damaged_at=at)
+        formats += kind == ord("F")
+        if at + 3 + size > end:
+            return _Layout(cut_at=at)
+        at += 3 + size
+    return _Layout()
+
+
+def _load(path: Path) -> tuple[Any, str | None, _Layout]:
+    """The parsed log, what pyulog said when it found the log damaged or truncated (it reads up
+    to the damage; several warnings in one, the first and their count) and the file's
+    :class:`_Layout`; pyulog's own prints (on stdout, where ``--json`` output goes) are kept
+    from the terminal. A log whose definitions are too damaged to read any topic is refused."""
     pyulog = logs_library("pyulog", path, "a ULog")
     if not path.is_file():
         raise InvalidInputError(str(path), "no such file")
+    layout = _layout(path)
     said = io.StringIO()
     try:
         with quiet(said):
             ulog = pyulog.ULog(str(path), list(TOPICS))
     except Exception as exc:  # pyulog raises several types on a damaged file
+        if layout.definitions_damaged_at is not None:
+            raise InvalidInputError(str(path), _damaged_definitions(layout)) from None
         raise InvalidInputError(str(path), f"not a readable PX4 ULog: {exc}") from None
-    damage = " ".join(said.getvalue().split()) or "file corruption detected"
-    return ulog, damage if ulog.file_corruption else None
+    if layout.definitions_damaged_at is not None and not ulog.data_list:
+        raise InvalidInputError(str(path), _damaged_definitions(layout))
+    warnings = [line.strip() for line in said.getvalue().splitlines() if line.strip()]
+    more = f" (+{len(warnings) - 1} more warnings)" if len(warnings) > 1 else ""
+    damage = (warnings[0] + more) if warnings else "file corruption detected"
+    return ulog, damage if ulog.file_corruption else None, layout
+
+
+def _damaged_definitions(layout: _Layout) -> str:
+    return (
+        "not a readable PX4 ULog: its message definitions (the formats of its topics) are "
+        f"damaged from byte {layout.definitions_damaged_at} on, so none of its topics can be read"
+    )
 
 
 def _topic(ulog: Any, name: str) -> dict[str, np.ndarray] | None:
@@ -190,10 +268,14 @@ def read_ulog(path: Path) -> LogTrack:
     ``vehicle_attitude`` is read, and said so in its notes: each frame is then imported level
     with the yaw of its GNSS course and marked ``attitude_assumed``."""
     path = Path(path)
-    ulog, damage = _load(path)
+    ulog, said, layout = _load(path)
     source = str(path)
+    notes = [f"the log is damaged or truncated ({said}); read up to the damage"] if said else []
+    cut = None if layout.cut_at is None else cut_short(layout.cut_at, path.stat().st_size)
+    if cut:
+        notes.append(f"the log {cut}; the samples before it are kept")
+    damage = "; ".join(x for x in (said, cut and f"it {cut}") if x) or None
     damaged = f"the log is damaged or truncated ({damage}); " if damage else ""
-    notes: list[str] = [f"{damaged}read up to the damage"] if damage else []
     attitude = _attitude(ulog, source)
     if attitude is None:
         notes.append(

@@ -44,7 +44,8 @@ def write_imported_flight(
     out = Path(out)
     proposer = options.proposal
     check_output_dir(out, force=force, inputs=(track.source, proposer.store, options.dem))
-    frames, skipped, how = _placed(track, shots, options, attitude_of, skipped)
+    notes = list(track.notes)
+    frames, skipped, how = _placed(track, shots, options, attitude_of, skipped, notes)
     calibration = options.calibration
     images = _images(frames, calibration.image_size)
     rows, proposed = _propose(track, frames, proposer, calibration)
@@ -62,7 +63,7 @@ def write_imported_flight(
                 i, row, t0, base, f.shot.suffix, proposal, proposer, heights=heights, extra=extra
             )
         )
-    report = _report(out, track, frames, skipped, how, options, zoom)
+    report = _report(out, track, frames, skipped, how, options, zoom, notes)
     meta = {
         "name": label,
         "candidate_size_px": proposer.candidate_size_px,
@@ -106,16 +107,18 @@ def _placed(
     options: ImportOptions,
     attitude_of: Callable[[Shot, float], tuple[float, float, float] | None] | None,
     skipped: Sequence[tuple[str, str]],
+    notes: list[str],
 ) -> tuple[list[Frame], list[tuple[str, str]], str]:
     """The frames placed on the log (refused when none is, when the images' own GPS says
     another flight, or when no frame has a height above ground), every image skipped with its
-    reason, and how the images met the log's clock."""
+    reason, and how the images met the log's clock (what else the pairing says appended to
+    ``notes``)."""
     options.proposal.check_store()
     if not shots:
         raise InvalidInputError("IMAGES", "no image found")
     if track.position is None and track.gnss is None:
         raise InvalidInputError(track.source, "the log holds no position (GNSS or estimator)")
-    matched, unmatched, how = match_shots(track, shots, options)
+    matched, unmatched, how = match_shots(track, shots, options, notes=notes)
     frames, no_pos = assemble_frames(track, matched, options, attitude_of)
     rank = {s.name: i for i, s in enumerate(shots)}
     every = [*skipped, *sorted([*unmatched, *no_pos], key=lambda x: rank.get(x[0], -1))]
@@ -163,6 +166,7 @@ def _report(
     how: str,
     options: ImportOptions,
     zoom: int,
+    notes: Sequence[str],
 ) -> ImportReport:
     return ImportReport(
         dataset=str(out),
@@ -177,7 +181,7 @@ def _report(
         height_assumed=tuple(i for i, f in enumerate(frames) if "height_assumed" in f.flags),
         gnss_degraded=tuple(i for i, f in enumerate(frames) if "gnss_degraded" in f.flags),
         zoom=zoom,
-        notes=track.notes,
+        notes=tuple(notes),
     )
 
 
