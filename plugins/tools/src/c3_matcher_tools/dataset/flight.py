@@ -8,11 +8,15 @@ cross-date case; the two GeoTIFF grids, whose origins differ by metres, are tied
 Trajectory: ``orbit`` (a circle of ``orbit_radius_m`` around the orthophoto centre, flown
 clockwise from bearing ``heading_deg``; every heading occurs) or ``line`` (straight along
 ``heading_deg``, centred on the orthophoto centre) at ``speed_mps``, one frame every
-``frame_interval_s``, ``height_m`` above the flat ground. Attitude per frame: yaw = heading +
-uniform jitter, and a tilt drawn uniformly in [0, ``max_tilt_deg``] in a random direction
-(roll, pitch). Camera: ``image_size`` px, ``focal_px``, OpenCV ``distortion``; photometric shift
-(colour, gamma, vignetting, blur, noise, JPEG) seeded per frame. The attitude's yaw is measured
-from the frames orthophoto's grid north (UTM grid convergence: 0.11 deg for the NAIP tile).
+``frame_interval_s``, ``height_m`` above the flat ground. Speeds and radii are ground metres on
+any grid: they are converted to the frames GeoTIFF's projected units with its scale at the
+flight centre (:func:`~.flight_scene.grid_units_per_m`: 1.47 units/m for web mercator at 47 N,
+1.033 for the Manila EPSG:3395 tile, 0.9996 for the NAIP UTM tile), so the path is flown
+straight in the grid. Attitude per frame: yaw = heading + uniform jitter, and a tilt drawn
+uniformly in [0, ``max_tilt_deg``] in a random direction (roll, pitch). Camera: ``image_size``
+px, ``focal_px``, OpenCV ``distortion``; photometric shift (colour, gamma, vignetting, blur,
+noise, JPEG) seeded per frame. The attitude's yaw is measured from the frames orthophoto's grid
+north (UTM grid convergence: 0.11 deg for the NAIP tile).
 
 Candidates: the true tile is the ``candidate_size_px`` window of the store centred on the
 footprint's bounding box snapped to a ``grid_px`` grid of WORLD px (so consecutive frames share

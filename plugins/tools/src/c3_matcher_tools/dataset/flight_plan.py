@@ -51,7 +51,7 @@ def plan_flight(
     frames: list[FrameRecord] = []
     images: dict[str, bytes] = {}
     worst_fit = 0.0
-    for i, pose in enumerate(_trajectory(spec, scene.centre_en)):
+    for i, pose in enumerate(_trajectory(spec, scene.centre_en, scene.units_per_m)):
         planned = _plan_frame(spec, scene, i, pose, i in absent)
         worst_fit = max((worst_fit, *planned.fits))
         images[planned.record.image] = planned.jpeg
@@ -92,23 +92,26 @@ def _plan_frame(
 
 
 def _trajectory(
-    spec: FlightSpec, centre_en: tuple[float, float]
+    spec: FlightSpec, centre_en: tuple[float, float], units_per_m: tuple[float, float]
 ) -> list[tuple[float, float, float]]:
-    """(east, north, heading deg) per frame, projected metres of the frames' grid."""
+    """(east, north, heading deg from grid north) per frame, projected units of the frames'
+    grid; speeds and radii are ground metres, ``units_per_m`` (east, north) the grid's projected
+    units per ground metre at ``centre_en``."""
     step = spec.speed_mps * spec.frame_interval_s
+    ue, un = units_per_m
     out = []
     for i in range(spec.n_frames):
         if spec.pattern == "orbit":
             bearing = math.radians(spec.heading_deg) + i * step / spec.orbit_radius_m
-            e = centre_en[0] + spec.orbit_radius_m * math.sin(bearing)
-            n = centre_en[1] + spec.orbit_radius_m * math.cos(bearing)
+            e = centre_en[0] + spec.orbit_radius_m * math.sin(bearing) * ue
+            n = centre_en[1] + spec.orbit_radius_m * math.cos(bearing) * un
             heading = math.degrees(bearing) + 90.0
         else:
             h = math.radians(spec.heading_deg)
             s = (i - (spec.n_frames - 1) / 2) * step
             e, n, heading = (
-                centre_en[0] + s * math.sin(h),
-                centre_en[1] + s * math.cos(h),
+                centre_en[0] + s * math.sin(h) * ue,
+                centre_en[1] + s * math.cos(h) * un,
                 spec.heading_deg,
             )
         out.append((e, n, heading % 360.0))
