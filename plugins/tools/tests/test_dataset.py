@@ -16,15 +16,19 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.georef import haversine_m
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.flight import render_flight
-from c3_matcher_tools.dataset.flight_scene import grid_units_per_m, store_reference
+from c3_matcher_tools.dataset.flight_scene import (
+    grid_convergence_deg,
+    grid_units_per_m,
+    store_reference,
+)
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
-from c3_matcher_tools.dataset.format import FORMAT, FlightDataset, load_dataset
+from c3_matcher_tools.dataset.format import FORMAT, FlightDataset, FrameRecord, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.geodesy import WGS84_A, WGS84_E2
 from c3_matcher_tools.sim import load_orthophoto
 from c3_matcher_tools.tilestore.build import build_mbtiles
-from c3_matcher_tools.tilestore.geo import GeoGrid
+from c3_matcher_tools.tilestore.geo import GeoGrid, read_geotiff_grid
 from c3_matcher_tools.tilestore.projection import Projection
 
 REPO = Path(__file__).resolve().parents[3]
@@ -225,6 +229,46 @@ def _flight_over(tif: Path, out: Path, **kw: object) -> FlightDataset:
         build_mbtiles(tif, store, zoom=15, tile_format="jpg")
     spec = FlightSpec(tif, store, n_frames=3, absent_share=0.0, seed=5, **kw)  # type: ignore[arg-type]
     return load_dataset(render_flight(spec, out))
+
+
+def _tile_bearing_error_deg(ds: FlightDataset, frame: FrameRecord) -> float:
+    """How far (deg, clockwise) the true tile's up (true north: a web-mercator tile) lies from
+    the north of the frame's recorded attitude, from its ground-truth homography: 0 when the
+    recorded yaw is from true north."""
+    from c3_matcher import camera as cam
+
+    assert frame.true_index is not None
+    truth = frame.candidates[frame.true_index]
+    r_wc = cam.rotation_world_from_camera(frame.attitude, ds.calibration)
+    a = r_wc @ np.linalg.inv(ds.calibration.K) @ truth.h_tile_to_undistorted
+    c = ds.candidate_size_px / 2
+
+    def ground(x: float, y: float) -> np.ndarray:  # (north, east) / height of a tile px
+        ray = a @ np.array([x, y, 1.0])
+        return np.asarray(ray[:2] / ray[2])
+
+    up = ground(c, c - 10) - ground(c, c)
+    right = ground(c + 10, c) - ground(c, c)
+    errors = [math.atan2(up[1], up[0]), math.atan2(right[1], right[0]) - math.pi / 2]
+    return math.degrees(float(np.mean(np.angle(np.exp(1j * np.array(errors))))))
+
+
+def test_recorded_yaw_is_from_true_north_on_a_grid_with_convergence(tmp_path: Path) -> None:
+    # UTM 14N 250 km east of its central meridian at 47 N: grid north is 2.4 deg east of true
+    # north. The frames are rendered in the grid; their recorded yaw (and heading) must be from
+    # true north, as an autopilot's, so the matcher's rectified frame is north-up like the tiles.
+    utm = Projection("utm", zone=14)
+    e, n = utm.from_lonlat([-99.0 + 3.3], [47.0])
+    tif = _regeoreferenced(tmp_path / "utm_edge.tif", 32614, (float(e[0]), float(n[0])), 5.0)
+    grid = read_geotiff_grid(tif)
+    w, h = grid.size
+    convergence = grid_convergence_deg(grid, ((w - 1) / 2, (h - 1) / 2))
+    lon, lat = grid.centre_lonlat()
+    assert convergence == pytest.approx((lon + 99.0) * math.sin(math.radians(lat)), abs=0.02)
+    assert convergence > 2.3
+    ds = _flight_over(tif, tmp_path / "flight")
+    errors = [_tile_bearing_error_deg(ds, f) for f in ds.frames]
+    assert len(errors) == 3 and max(abs(e) for e in errors) < 0.05, errors
 
 
 def test_speed_and_radius_are_ground_metres_on_a_mercator_grid(tmp_path: Path) -> None:

@@ -26,6 +26,7 @@ from c3_matcher_tools.dataset.flight_scene import (
     PlannedFrame,
     Scene,
     Shot,
+    grid_convergence_deg,
     read_scene,
 )
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
@@ -193,8 +194,12 @@ def _record(
     candidates: tuple[CandidateTruth, ...],
     image_rel: str,
 ) -> FrameRecord:
-    """Write down the frame's record: id, time, attitude, height, candidates and true pose."""
+    """Write down the frame's record: id, time, attitude, height, candidates and true pose. The
+    frame was rendered with its yaw and heading from the grid's north; both are recorded from
+    true north (the grid convergence at the nadir added), as an autopilot reports them."""
     i, attitude = shot.index, shot.attitude
+    convergence = grid_convergence_deg(scene.grid, shot.nadir)
+    yaw = (math.degrees(attitude.yaw) + convergence + 180.0) % 360.0 - 180.0
     nadir_lon, nadir_lat = scene.grid.px_to_lonlat([shot.nadir])[0]
     c_lon, c_lat = world_px_to_lonlat(centre_world[None, :], scene.cov.zoom)[0]
     return FrameRecord(
@@ -202,11 +207,7 @@ def _record(
         frame_id=uuid.UUID(int=(spec.seed << 32) + i + 1),
         image=image_rel,
         captured_at_ns=round(i * spec.frame_interval_s * 1e9),
-        attitude_deg=(
-            math.degrees(attitude.roll),
-            math.degrees(attitude.pitch),
-            math.degrees(attitude.yaw),
-        ),
+        attitude_deg=(math.degrees(attitude.roll), math.degrees(attitude.pitch), yaw),
         height_m=spec.height_m,
         candidates=candidates,
         pose={
@@ -214,7 +215,7 @@ def _record(
             "nadir_lon": float(nadir_lon),
             "footprint_centre_lat": float(c_lat),
             "footprint_centre_lon": float(c_lon),
-            "heading_deg": shot.heading,
+            "heading_deg": (shot.heading + convergence) % 360.0,
             "frame_nadir_gsd_m": shot.frame.nadir_gsd_m,
         },
     )

@@ -35,6 +35,7 @@ __all__ = [
     "PlannedFrame",
     "Scene",
     "Shot",
+    "grid_convergence_deg",
     "grid_units_per_m",
     "read_scene",
     "store_reference",
@@ -198,6 +199,20 @@ def grid_units_per_m(grid: GeoGrid, en: tuple[float, float]) -> tuple[float, flo
     along_e = math.hypot((lon[1] - lon[0]) * m_lon, (lat[1] - lat[0]) * m_lat)
     along_n = math.hypot((lon[3] - lon[2]) * m_lon, (lat[3] - lat[2]) * m_lat)
     return 2 * de / along_e, 2 * dn / along_n
+
+
+def grid_convergence_deg(grid: GeoGrid, px: tuple[float, float]) -> float:
+    """The grid convergence (deg) at ORTHO px ``px``: the angle clockwise from true north to
+    the grid's north (up, -v), so a bearing measured from grid north plus it is the bearing from
+    true north. Measured through the grid's projection: a step of about 1 m north along the
+    meridian through ``px`` mapped back to ORTHO px (UTM: about +(lon - central meridian) *
+    sin(lat), positive east of the central meridian in the northern hemisphere; 0 for
+    mercator and geographic grids)."""
+    lon, lat = grid.px_to_lonlat([px])[0]
+    d = 1e-5  # degrees of latitude: about 1.1 m
+    south, north = grid.lonlat_to_px([[lon, lat - d], [lon, lat + d]])
+    du, dv = north - south
+    return -math.degrees(math.atan2(du, -dv))
 
 
 def store_reference(metadata: Mapping[str, str], store: Path) -> tuple[float, float] | None:
