@@ -10,16 +10,25 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import tifffile
 
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.georef import haversine_m
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.flight import render_flight
-from c3_matcher_tools.dataset.flight_scene import store_reference
+from c3_matcher_tools.dataset.flight_scene import (
+    grid_convergence_deg,
+    grid_units_per_m,
+    store_reference,
+)
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
-from c3_matcher_tools.dataset.format import FORMAT, load_dataset
+from c3_matcher_tools.dataset.format import FORMAT, FlightDataset, FrameRecord, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.truth import inlier_errors_px
+from c3_matcher_tools.geodesy import WGS84_A, WGS84_E2
+from c3_matcher_tools.sim import load_orthophoto
 from c3_matcher_tools.tilestore.build import build_mbtiles
+from c3_matcher_tools.tilestore.geo import GeoGrid, read_geotiff_grid
 from c3_matcher_tools.tilestore.projection import Projection
 
 REPO = Path(__file__).resolve().parents[3]
@@ -190,3 +199,115 @@ def test_a_tangent_plane_stores_reference_is_reused_and_bad_metadata_named(store
     bad = {"c3_georeference": '{"kind": "lambert"}'}
     with pytest.raises(InvalidInputError, match=r"naip2020\.mbtiles.*unknown projection 'lambert'"):
         store_reference(bad, store)
+
+
+def _regeoreferenced(path: Path, epsg: int, centre_en: tuple[float, float], scale: float) -> Path:
+    """The NAIP 2020 pixels written as a GeoTIFF of EPSG ``epsg`` whose centre is at projected
+    ``centre_en`` with a ``scale`` units/px pixel scale: a grid the shipped imagery lacks."""
+    rgb = load_orthophoto(NAIP_2020).rgb
+    h, w = rgb.shape[:2]
+    e0, n0 = centre_en[0] - w / 2 * scale, centre_en[1] + h / 2 * scale
+    keys = (1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, epsg)
+    tifffile.imwrite(
+        path,
+        rgb,
+        photometric="rgb",
+        extratags=[
+            (33550, "d", 3, (scale, scale, 0.0)),
+            (33922, "d", 6, (0.0, 0.0, 0.0, e0, n0, 0.0)),
+            (34735, "H", len(keys), keys),
+        ],
+    )
+    return path
+
+
+def _flight_over(tif: Path, out: Path, **kw: object) -> FlightDataset:
+    """Three frames, each with its true tile, rendered over ``tif`` into ``out`` (its zoom-15
+    store built beside it once)."""
+    store = tif.with_suffix(".mbtiles")
+    if not store.exists():
+        build_mbtiles(tif, store, zoom=15, tile_format="jpg")
+    spec = FlightSpec(tif, store, n_frames=3, absent_share=0.0, seed=5, **kw)  # type: ignore[arg-type]
+    return load_dataset(render_flight(spec, out))
+
+
+def _tile_bearing_error_deg(ds: FlightDataset, frame: FrameRecord) -> float:
+    """How far (deg, clockwise) the true tile's up (true north: a web-mercator tile) lies from
+    the north of the frame's recorded attitude, from its ground-truth homography: 0 when the
+    recorded yaw is from true north."""
+    from c3_matcher import camera as cam
+
+    assert frame.true_index is not None
+    truth = frame.candidates[frame.true_index]
+    r_wc = cam.rotation_world_from_camera(frame.attitude, ds.calibration)
+    a = r_wc @ np.linalg.inv(ds.calibration.K) @ truth.h_tile_to_undistorted
+    c = ds.candidate_size_px / 2
+
+    def ground(x: float, y: float) -> np.ndarray:  # (north, east) / height of a tile px
+        ray = a @ np.array([x, y, 1.0])
+        return np.asarray(ray[:2] / ray[2])
+
+    up = ground(c, c - 10) - ground(c, c)
+    right = ground(c + 10, c) - ground(c, c)
+    errors = [math.atan2(up[1], up[0]), math.atan2(right[1], right[0]) - math.pi / 2]
+    return math.degrees(float(np.mean(np.angle(np.exp(1j * np.array(errors))))))
+
+
+def test_recorded_yaw_is_from_true_north_on_a_grid_with_convergence(tmp_path: Path) -> None:
+    # UTM 14N 250 km east of its central meridian at 47 N: grid north is 2.4 deg east of true
+    # north. The frames are rendered in the grid; their recorded yaw (and heading) must be from
+    # true north, as an autopilot's, so the matcher's rectified frame is north-up like the tiles.
+    utm = Projection("utm", zone=14)
+    e, n = utm.from_lonlat([-99.0 + 3.3], [47.0])
+    tif = _regeoreferenced(tmp_path / "utm_edge.tif", 32614, (float(e[0]), float(n[0])), 5.0)
+    grid = read_geotiff_grid(tif)
+    w, h = grid.size
+    convergence = grid_convergence_deg(grid, ((w - 1) / 2, (h - 1) / 2))
+    lon, lat = grid.centre_lonlat()
+    assert convergence == pytest.approx((lon + 99.0) * math.sin(math.radians(lat)), abs=0.02)
+    assert convergence > 2.3
+    ds = _flight_over(tif, tmp_path / "flight")
+    errors = [_tile_bearing_error_deg(ds, f) for f in ds.frames]
+    assert len(errors) == 3 and max(abs(e) for e in errors) < 0.05, errors
+
+
+def test_speed_and_radius_are_ground_metres_on_a_mercator_grid(tmp_path: Path) -> None:
+    # web mercator at 47 N: 1.47 projected units per ground metre. A 60 m step (30 m/s x 2 s)
+    # flown in projected units was 40.9 m on the ground.
+    lat0 = 47.0
+    merc = Projection("web_mercator")
+    e, n = merc.from_lonlat([-98.9], [lat0])
+    scale = 5.0 / math.cos(math.radians(lat0))  # 5 m on the ground, like the NAIP pixels
+    tif = _regeoreferenced(tmp_path / "merc.tif", 3857, (float(e[0]), float(n[0])), scale)
+    line = _flight_over(tif, tmp_path / "line", pattern="line", heading_deg=30.0)
+    nadirs = np.array([[f.pose["nadir_lon"], f.pose["nadir_lat"]] for f in line.frames])
+    steps = haversine_m(nadirs[:-1], nadirs[1:])
+    np.testing.assert_allclose(steps, 60.0, rtol=0.005)
+    orbit = _flight_over(tif, tmp_path / "orbit", orbit_radius_m=300.0)
+    with MBTilesStore(tmp_path / "merc.mbtiles") as st:
+        c_lon, c_lat = (float(v) for v in st.metadata["center"].split(",")[:2])
+    nadirs = np.array([[f.pose["nadir_lon"], f.pose["nadir_lat"]] for f in orbit.frames])
+    radii = haversine_m(nadirs, np.repeat([[c_lon, c_lat]], len(nadirs), axis=0))
+    np.testing.assert_allclose(radii, 300.0, rtol=0.005)
+    np.testing.assert_allclose(haversine_m(nadirs[:-1], nadirs[1:]), 60.0, rtol=0.005)
+
+
+def test_grid_units_per_ground_metre_on_the_ellipsoid() -> None:
+    # web mercator is the sphere's formula on WGS84 lon/lat: a/(N cos lat) units per metre east,
+    # a/(M cos lat) north (0.34 % apart at 47 N); UTM 14N at its central meridian: k0 = 0.9996
+    lat = 47.0
+    phi = math.radians(lat)
+    w2 = 1 - WGS84_E2 * math.sin(phi) ** 2
+    n_radius, m_radius = WGS84_A / math.sqrt(w2), WGS84_A * (1 - WGS84_E2) / w2**1.5
+    for projection, lon, expected in [
+        (
+            Projection("web_mercator"),
+            -98.9,
+            (WGS84_A / (n_radius * math.cos(phi)), WGS84_A / (m_radius * math.cos(phi))),
+        ),
+        (Projection("utm", zone=14), -99.0, (0.9996, 0.9996)),
+    ]:
+        e, n = projection.from_lonlat([lon], [lat])
+        grid = GeoGrid(float(e[0]), float(n[0]), 2.0, 2.0, (10, 10), None, projection)
+        units = grid_units_per_m(grid, (float(e[0]), float(n[0])))
+        np.testing.assert_allclose(units, expected, rtol=1e-6)

@@ -1,6 +1,6 @@
-"""The ground tools' geodesy, each fact once: the WGS84 ellipsoid, the latitude of a Mercator
-northing, the ground GSD of a north-up grid's pixel scale, and the flat-earth offsets the
-simulator and the candidate proposer place points with.
+"""The ground tools' geodesy, each fact once: the WGS84 ellipsoid and its metres per degree,
+the latitude of a Mercator northing, the ground GSD of a north-up grid's pixel scale, and the
+flat-earth offsets the simulator and the candidate proposer place points with.
 
 The GeoTIFF readers (:mod:`c3_matcher_tools.sim.orthophotos`, :mod:`c3_matcher_tools.tilestore`)
 and the projections (:mod:`c3_matcher_tools.tilestore.projection`) build on this module; it
@@ -26,6 +26,7 @@ __all__ = [
     "flat_offset_latlon",
     "flat_offset_m",
     "ground_gsd_m",
+    "m_per_deg",
     "mercator_latitude_deg",
 ]
 
@@ -63,6 +64,17 @@ def mercator_latitude_deg(northing_m: ArrayLike, *, ellipsoidal: bool) -> F64:
     return degrees
 
 
+def m_per_deg(lat_deg: float) -> tuple[float, float]:
+    """(east, north) ground metres per degree of longitude and of latitude at latitude
+    ``lat_deg`` on the WGS84 ellipsoid (its prime-vertical and meridional radii): the exact
+    length of a small step in lon/lat."""
+    lat = math.radians(lat_deg)
+    w2 = 1 - WGS84_E2 * math.sin(lat) ** 2
+    m_lon = math.radians(1) * WGS84_A * math.cos(lat) / math.sqrt(w2)
+    m_lat = math.radians(1) * WGS84_A * (1 - WGS84_E2) / w2**1.5
+    return m_lon, m_lat
+
+
 def ground_gsd_m(
     scale_x: float, scale_y: float, lat_deg: float, *, geographic: bool, epsg: int | None
 ) -> float:
@@ -74,8 +86,7 @@ def ground_gsd_m(
     lat = math.radians(lat_deg)
     s2 = math.sin(lat) ** 2
     if geographic:
-        m_lat = math.radians(1) * WGS84_A * (1 - WGS84_E2) / (1 - WGS84_E2 * s2) ** 1.5
-        m_lon = math.radians(1) * WGS84_A * math.cos(lat) / math.sqrt(1 - WGS84_E2 * s2)
+        m_lon, m_lat = m_per_deg(lat_deg)
         return math.sqrt(scale_x * m_lon * scale_y * m_lat)
     gsd = math.sqrt(scale_x * scale_y)
     ellipsoidal = MERCATOR_EPSG.get(epsg) if epsg is not None else None

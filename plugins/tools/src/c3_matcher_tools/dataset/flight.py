@@ -8,11 +8,24 @@ cross-date case; the two GeoTIFF grids, whose origins differ by metres, are tied
 Trajectory: ``orbit`` (a circle of ``orbit_radius_m`` around the orthophoto centre, flown
 clockwise from bearing ``heading_deg``; every heading occurs) or ``line`` (straight along
 ``heading_deg``, centred on the orthophoto centre) at ``speed_mps``, one frame every
-``frame_interval_s``, ``height_m`` above the flat ground. Attitude per frame: yaw = heading +
-uniform jitter, and a tilt drawn uniformly in [0, ``max_tilt_deg``] in a random direction
-(roll, pitch). Camera: ``image_size`` px, ``focal_px``, OpenCV ``distortion``; photometric shift
-(colour, gamma, vignetting, blur, noise, JPEG) seeded per frame. The attitude's yaw is measured
-from the frames orthophoto's grid north (UTM grid convergence: 0.11 deg for the NAIP tile).
+``frame_interval_s``, ``height_m`` above the flat ground. Speeds and radii are ground metres on
+any grid: they are converted to the frames GeoTIFF's projected units with its scale at the
+flight centre (:func:`~.flight_scene.grid_units_per_m`: 1.47 units/m for web mercator at 47 N,
+1.033 for the Manila EPSG:3395 tile, 0.9996 for the NAIP UTM tile), so the path is flown
+straight in the grid. Attitude per frame: yaw = heading + uniform jitter, and a tilt drawn
+uniformly in [0, ``max_tilt_deg``] in a random direction (roll, pitch). Camera: ``image_size``
+px, ``focal_px``, OpenCV ``distortion``; photometric shift (colour, gamma, vignetting, blur,
+noise, JPEG) seeded per frame.
+
+North. Each frame is rendered in the frames orthophoto's grid, whose north is not true north:
+``heading_deg`` and the drawn yaw are from GRID north. The records hold them from TRUE north,
+as the matcher and an autopilot read a yaw: the grid convergence at the frame's nadir
+(:func:`~.flight_scene.grid_convergence_deg`, measured through the GeoTIFF's georeference) is
+added to the recorded yaw (``attitude_deg``) and heading (``pose.heading_deg``). It is -0.11 deg
+for the NAIP tile (UTM 14N, west of the central meridian), -0.31 deg for Gorinchem (RD New),
++0.77 deg for Zurich (LV95), 0 on mercator grids, and up to 2-3 deg for UTM near a zone's edge;
+over a flight of a few hundred metres it varies by under 0.01 deg. Flights rendered before this
+(the shipped ones under data/flights/) recorded the grid yaw and their speed in projected units.
 
 Candidates: the true tile is the ``candidate_size_px`` window of the store centred on the
 footprint's bounding box snapped to a ``grid_px`` grid of WORLD px (so consecutive frames share

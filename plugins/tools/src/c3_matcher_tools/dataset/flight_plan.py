@@ -26,6 +26,7 @@ from c3_matcher_tools.dataset.flight_scene import (
     PlannedFrame,
     Scene,
     Shot,
+    grid_convergence_deg,
     read_scene,
 )
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
@@ -51,7 +52,7 @@ def plan_flight(
     frames: list[FrameRecord] = []
     images: dict[str, bytes] = {}
     worst_fit = 0.0
-    for i, pose in enumerate(_trajectory(spec, scene.centre_en)):
+    for i, pose in enumerate(_trajectory(spec, scene.centre_en, scene.units_per_m)):
         planned = _plan_frame(spec, scene, i, pose, i in absent)
         worst_fit = max((worst_fit, *planned.fits))
         images[planned.record.image] = planned.jpeg
@@ -92,23 +93,26 @@ def _plan_frame(
 
 
 def _trajectory(
-    spec: FlightSpec, centre_en: tuple[float, float]
+    spec: FlightSpec, centre_en: tuple[float, float], units_per_m: tuple[float, float]
 ) -> list[tuple[float, float, float]]:
-    """(east, north, heading deg) per frame, projected metres of the frames' grid."""
+    """(east, north, heading deg from grid north) per frame, projected units of the frames'
+    grid; speeds and radii are ground metres, ``units_per_m`` (east, north) the grid's projected
+    units per ground metre at ``centre_en``."""
     step = spec.speed_mps * spec.frame_interval_s
+    ue, un = units_per_m
     out = []
     for i in range(spec.n_frames):
         if spec.pattern == "orbit":
             bearing = math.radians(spec.heading_deg) + i * step / spec.orbit_radius_m
-            e = centre_en[0] + spec.orbit_radius_m * math.sin(bearing)
-            n = centre_en[1] + spec.orbit_radius_m * math.cos(bearing)
+            e = centre_en[0] + spec.orbit_radius_m * math.sin(bearing) * ue
+            n = centre_en[1] + spec.orbit_radius_m * math.cos(bearing) * un
             heading = math.degrees(bearing) + 90.0
         else:
             h = math.radians(spec.heading_deg)
             s = (i - (spec.n_frames - 1) / 2) * step
             e, n, heading = (
-                centre_en[0] + s * math.sin(h),
-                centre_en[1] + s * math.cos(h),
+                centre_en[0] + s * math.sin(h) * ue,
+                centre_en[1] + s * math.cos(h) * un,
                 spec.heading_deg,
             )
         out.append((e, n, heading % 360.0))
@@ -190,8 +194,12 @@ def _record(
     candidates: tuple[CandidateTruth, ...],
     image_rel: str,
 ) -> FrameRecord:
-    """Write down the frame's record: id, time, attitude, height, candidates and true pose."""
+    """Write down the frame's record: id, time, attitude, height, candidates and true pose. The
+    frame was rendered with its yaw and heading from the grid's north; both are recorded from
+    true north (the grid convergence at the nadir added), as an autopilot reports them."""
     i, attitude = shot.index, shot.attitude
+    convergence = grid_convergence_deg(scene.grid, shot.nadir)
+    yaw = (math.degrees(attitude.yaw) + convergence + 180.0) % 360.0 - 180.0
     nadir_lon, nadir_lat = scene.grid.px_to_lonlat([shot.nadir])[0]
     c_lon, c_lat = world_px_to_lonlat(centre_world[None, :], scene.cov.zoom)[0]
     return FrameRecord(
@@ -199,11 +207,7 @@ def _record(
         frame_id=uuid.UUID(int=(spec.seed << 32) + i + 1),
         image=image_rel,
         captured_at_ns=round(i * spec.frame_interval_s * 1e9),
-        attitude_deg=(
-            math.degrees(attitude.roll),
-            math.degrees(attitude.pitch),
-            math.degrees(attitude.yaw),
-        ),
+        attitude_deg=(math.degrees(attitude.roll), math.degrees(attitude.pitch), yaw),
         height_m=spec.height_m,
         candidates=candidates,
         pose={
@@ -211,7 +215,7 @@ def _record(
             "nadir_lon": float(nadir_lon),
             "footprint_centre_lat": float(c_lat),
             "footprint_centre_lon": float(c_lon),
-            "heading_deg": shot.heading,
+            "heading_deg": (shot.heading + convergence) % 360.0,
             "frame_nadir_gsd_m": shot.frame.nadir_gsd_m,
         },
     )

@@ -18,6 +18,7 @@ from c3_matcher.tilestore.handles import stitch
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.format import FrameRecord
+from c3_matcher_tools.geodesy import m_per_deg
 from c3_matcher_tools.sim.orthophotos import load_orthophoto
 from c3_matcher_tools.sim.render import NavCameraRenderer, RenderedFrame
 from c3_matcher_tools.tilestore.geo import (
@@ -34,6 +35,8 @@ __all__ = [
     "PlannedFrame",
     "Scene",
     "Shot",
+    "grid_convergence_deg",
+    "grid_units_per_m",
     "read_scene",
     "store_reference",
 ]
@@ -63,8 +66,9 @@ def _coverage(store: MBTilesStore) -> Coverage:
 @dataclass(frozen=True)
 class Scene:
     """What every frame of a flight is rendered from and placed on: the frames' orthophoto, its
-    grid and GSD (m/px), the store's coverage and its m/WORLD px, the camera, and the centre of the
-    flight (projected metres of the frames' grid)."""
+    grid and GSD (m/px), the store's coverage and its m/WORLD px, the camera, the centre of the
+    flight (projected metres of the frames' grid) and the grid's projected units per ground metre
+    (east, north) there (:func:`grid_units_per_m`)."""
 
     grid: GeoGrid
     rgb: NDArray[np.uint8]
@@ -74,6 +78,7 @@ class Scene:
     calibration: CameraCalibration
     renderer: NavCameraRenderer
     centre_en: tuple[float, float]
+    units_per_m: tuple[float, float]
 
 
 @dataclass(frozen=True)
@@ -122,7 +127,8 @@ def read_scene(spec: FlightSpec, store: MBTilesStore) -> Scene:
     calibration = spec.calibration()
     renderer = NavCameraRenderer(calibration)
     centre_en = _flight_centre(store, grid)
-    return Scene(grid, photo.rgb, gsd, cov, m_per_px, calibration, renderer, centre_en)
+    units_per_m = grid_units_per_m(grid, centre_en)
+    return Scene(grid, photo.rgb, gsd, cov, m_per_px, calibration, renderer, centre_en, units_per_m)
 
 
 def _check_overlap(spec: FlightSpec, grid: GeoGrid, cov: Coverage, store: Path) -> None:
@@ -178,6 +184,35 @@ def _flight_centre(store: MBTilesStore, grid: GeoGrid) -> tuple[float, float]:
         lon, lat = grid.centre_lonlat()
     e, n = grid.projection.from_lonlat([lon], [lat])
     return float(e[0]), float(n[0])
+
+
+def grid_units_per_m(grid: GeoGrid, en: tuple[float, float]) -> tuple[float, float]:
+    """The projected units of ``grid`` per ground metre along its E and its N axis at the
+    projected point ``en``, measured through its projection: a one-pixel step each way converted
+    to lon/lat and its length taken on the WGS84 ellipsoid. About 1 for UTM and national grids
+    (their scale error, < 0.1 %), 1 / cos(lat) for web mercator (1.47 at 47 N), degrees per
+    metre for a geographic grid."""
+    e, n = en
+    de, dn = grid.scale_x / 2, grid.scale_y / 2
+    lon, lat = grid.projection.to_lonlat([e - de, e + de, e, e], [n, n, n - dn, n + dn])
+    m_lon, m_lat = m_per_deg(float(lat.mean()))
+    along_e = math.hypot((lon[1] - lon[0]) * m_lon, (lat[1] - lat[0]) * m_lat)
+    along_n = math.hypot((lon[3] - lon[2]) * m_lon, (lat[3] - lat[2]) * m_lat)
+    return 2 * de / along_e, 2 * dn / along_n
+
+
+def grid_convergence_deg(grid: GeoGrid, px: tuple[float, float]) -> float:
+    """The grid convergence (deg) at ORTHO px ``px``: the angle clockwise from true north to
+    the grid's north (up, -v), so a bearing measured from grid north plus it is the bearing from
+    true north. Measured through the grid's projection: a step of about 1 m north along the
+    meridian through ``px`` mapped back to ORTHO px (UTM: about +(lon - central meridian) *
+    sin(lat), positive east of the central meridian in the northern hemisphere; 0 for
+    mercator and geographic grids)."""
+    lon, lat = grid.px_to_lonlat([px])[0]
+    d = 1e-5  # degrees of latitude: about 1.1 m
+    south, north = grid.lonlat_to_px([[lon, lat - d], [lon, lat + d]])
+    du, dv = north - south
+    return -math.degrees(math.atan2(du, -dv))
 
 
 def store_reference(metadata: Mapping[str, str], store: Path) -> tuple[float, float] | None:

@@ -30,8 +30,8 @@ def _default_shift() -> PhotometricShift:
 
 @dataclass(frozen=True)
 class FlightSpec:
-    """How to render a flight (see :mod:`c3_matcher_tools.dataset.flight`); lengths in metres,
-    angles in degrees, sizes in px."""
+    """How to render a flight (see :mod:`c3_matcher_tools.dataset.flight`); lengths in ground
+    metres, angles in degrees (``heading_deg`` from the frames grid's north), sizes in px."""
 
     frames_geotiff: Path
     store: Path

@@ -12,7 +12,7 @@ Layout of a dataset directory::
     tiles.mbtiles      the tile store the candidates' ids refer to (MBTiles, web mercator)
 
 A frame record: ``index``, ``frame_id`` (UUID), ``image`` (path relative to the dataset),
-``captured_at_ns``, ``attitude_deg`` [roll, pitch, yaw] (Z-Y-X, NED, yaw from north),
+``captured_at_ns``, ``attitude_deg`` [roll, pitch, yaw] (Z-Y-X, NED, yaw from true north),
 ``height_m`` above ground, ``true_tile_present``, ``candidates`` in C2.5's order, each
 ``{"tile_id": [zoom, lat, lon], "score", "is_true", "distance_m" (candidate centre to the
 footprint centre), "h_tile_to_undistorted": 3x3}``: the ground-truth homography from the
