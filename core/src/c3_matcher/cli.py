@@ -87,8 +87,12 @@ def _cmd_plugins(args: argparse.Namespace, ctx: CommandContext) -> int:
 def _cmd_config(args: argparse.Namespace, ctx: CommandContext) -> int:
     # A name no plugin and no build flag knows (a misspelling) is refused; a real strategy
     # this build does not link (operator tooling) leaves the configuration itself good.
+    # Every options table is checked as start-up checks it.
+    from c3_matcher.compose import check_options_tables
+
     with contextlib.suppress(StrategyNotLinkedError):
         ctx.plugin_host.resolve(ctx.settings.matcher.strategy)
+    check_options_tables(ctx.settings, ctx.plugin_host)
     data = ctx.settings.model_dump(mode="json")
     ctx.out(json.dumps(data, indent=2) if args.json else to_toml(data, _notes()))
     return EXIT_OK
