@@ -10,7 +10,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import tifffile
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.georef import haversine_m
@@ -27,6 +26,7 @@ from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.geodesy import WGS84_A, WGS84_E2
 from c3_matcher_tools.sim import load_orthophoto
+from c3_matcher_tools.testing.geotiff import projected_keys, write_geotiff
 from c3_matcher_tools.tilestore.build import build_mbtiles
 from c3_matcher_tools.tilestore.geo import GeoGrid, read_geotiff_grid
 from c3_matcher_tools.tilestore.projection import Projection
@@ -206,19 +206,9 @@ def _regeoreferenced(path: Path, epsg: int, centre_en: tuple[float, float], scal
     ``centre_en`` with a ``scale`` units/px pixel scale: a grid the shipped imagery lacks."""
     rgb = load_orthophoto(NAIP_2020).rgb
     h, w = rgb.shape[:2]
-    e0, n0 = centre_en[0] - w / 2 * scale, centre_en[1] + h / 2 * scale
-    keys = (1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, epsg)
-    tifffile.imwrite(
-        path,
-        rgb,
-        photometric="rgb",
-        extratags=[
-            (33550, "d", 3, (scale, scale, 0.0)),
-            (33922, "d", 6, (0.0, 0.0, 0.0, e0, n0, 0.0)),
-            (34735, "H", len(keys), keys),
-        ],
-    )
-    return path
+    top_left = (centre_en[0] - w / 2 * scale, centre_en[1] + h / 2 * scale)
+    keys = projected_keys(epsg)
+    return write_geotiff(path, rgb, scale=(scale, scale), top_left=top_left, keys=keys)
 
 
 def _flight_over(tif: Path, out: Path, **kw: object) -> FlightDataset:

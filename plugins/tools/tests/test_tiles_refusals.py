@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 import rasterio
-import tifffile
 from rasterio.transform import from_origin
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.testing.geotiff import write_geotiff
 from c3_matcher_tools.tilestore.build import build_mbtiles
 
 REPO = Path(__file__).resolve().parents[3]
@@ -189,18 +189,7 @@ def tiny_geotiff(
     EPSG code, which GDAL would not write): its top-left corner at ``tie`` in the CRS of
     ``keys``, ``scale`` CRS units per pixel."""
     image = np.random.default_rng(0).integers(1, 255, (64, 64, 3), dtype=np.uint8)
-    tifffile.imwrite(
-        path,
-        image,
-        photometric="rgb",
-        compression=compression,
-        extratags=[
-            (33550, "d", 3, (*scale, 0.0), True),
-            (33922, "d", 6, (0.0, 0.0, 0.0, *tie, 0.0), True),
-            (34735, "H", len(keys), keys, True),
-        ],
-    )
-    return path
+    return write_geotiff(path, image, scale=scale, top_left=tie, keys=keys, compression=compression)
 
 
 def truncated(path: Path) -> Path:

@@ -10,7 +10,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import tifffile
 
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import Attitude, CameraCalibration, NavCameraFrame, RerankResult, TileId
@@ -27,6 +26,7 @@ from c3_matcher.tilestore.handles import (
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher.tilestore.xyz import XyzTileStore
 from c3_matcher_tools.run import open_matcher
+from c3_matcher_tools.testing.geotiff import projected_keys, write_geotiff
 from c3_matcher_tools.tilestore.build import build_mbtiles
 from c3_matcher_tools.tilestore.geo import (
     lonlat_to_world_px,
@@ -47,18 +47,9 @@ def _texture(h: int, w: int, seed: int = 0) -> np.ndarray:
 
 
 def _geotiff(path: Path, image: np.ndarray, epsg: int = 32633) -> Path:
-    geokeys = (1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, epsg)
-    tifffile.imwrite(
-        path,
-        image,
-        photometric="rgb",
-        extratags=[
-            (33550, "d", 3, (GSD, GSD, 0.0)),
-            (33922, "d", 6, (0.0, 0.0, 0.0, E0, N0, 0.0)),
-            (34735, "H", len(geokeys), geokeys),
-        ],
+    return write_geotiff(
+        path, image, scale=(GSD, GSD), top_left=(E0, N0), keys=projected_keys(epsg)
     )
-    return path
 
 
 @pytest.fixture(scope="module")
