@@ -555,16 +555,17 @@ def test_a_dataflash_log_cut_mid_message_says_so_in_the_record(
     assert not any("mid-message" in n for n in read_mavlink(whole).notes)
 
 
+@pytest.mark.parametrize("source", [("--source", "rosbag"), ()], ids=["rosbag", "told-by-files"])
 def test_a_bag_folder_without_metadata_names_what_it_lacks(
-    poses: list[fl.Pose], tmp_path: Path
+    poses: list[fl.Pose], tmp_path: Path, source: tuple[str, ...]
 ) -> None:
     """rosbags said "Expected metadata file '<the folder>' does not exist", naming the folder
-    as the missing file."""
+    as the missing file; without --source, "cannot tell the log's kind from its name"."""
     calibration = load_calibration(DEMO / "calibration.json")
     bag = write_bag(tmp_path / "bag", poses[:1], calibration)
     (bag / "metadata.yaml").unlink()
     out = tmp_path / "x"
-    proc = c3("dataset", "import", "-", str(bag), "-", STORE, str(out), "--source", "rosbag")
+    proc = c3("dataset", "import", "-", str(bag), "-", STORE, str(out), *source)
     _refused(
         proc,
         f"{bag}: a folder without metadata.yaml, which a ROS 2 bag's folder holds (beside its "

@@ -17,8 +17,10 @@ untouched. What can refuse the run is checked before ``--out`` is touched: every
 first). stdout carries the report (a table, or JSON with ``--json``). Each ``ok`` result carries
 the best homography and, the tile ids being georeferenced, the frame centre's lat/lon and its
 footprint; frames with ground truth also carry ``truth_lat``/``truth_lon`` and
-``position_error_m``. The report's ``settings`` are the ``[matcher]`` settings the strategy ran
-with (its own defaults where the configuration leaves a setting unset).
+``position_error_m``: both centres are the principal point's ground point, where the camera
+looks (under tilt, not the point below the vehicle). The report's ``settings`` are the
+``[matcher]`` settings the strategy ran with (its own defaults where the configuration leaves a
+setting unset).
 
 The command only: flying and scoring are the run layer's (:mod:`c3_matcher_tools.run`).
 """

@@ -82,7 +82,13 @@ def detect_kind(telemetry: str, images: str) -> str:
 
 
 def _is_bag(path: Path) -> bool:
-    return path.is_dir() and (path / "metadata.yaml").is_file()
+    """A ROS 2 bag's folder: its metadata.yaml, or its .db3 or .mcap files without it (the bag
+    reader then says what it lacks)."""
+    if not path.is_dir():
+        return False
+    return (path / "metadata.yaml").is_file() or any(
+        p.suffix.lower() in (".db3", ".mcap") for p in path.iterdir()
+    )
 
 
 def add_log_import_options(m: argparse.ArgumentParser) -> None:
