@@ -232,7 +232,7 @@ class PipelineMatcher:
             recorder.residual_above_threshold(best, self.settings.residual_warn_threshold_px)
         recorder.update_health(best.inlier_count)  # step 9
         timings["total"] = (time.perf_counter() - started) * 1e3
-        diagnostics = self._diagnostics(evidence, survivors, prior is not None, timings)
+        diagnostics = self._diagnostics(evidence, survivors, query, prior is not None, timings)
         recorder.frame_done(evidence, survivors, timings)  # step 10
         return MatchResult(  # step 11
             frame_id=rerank.frame_id,
@@ -311,13 +311,13 @@ class PipelineMatcher:
             tile,
             verdict.model,
             timings,
-            query.image.from_undistorted(verdict.homography),
         )
 
     def _diagnostics(
         self,
         evidence: FrameEvidence,
         survivors: Sequence[Survivor],
+        query: Query,
         geometric_prior: bool,
         timings: dict[str, float],
     ) -> dict[str, Any]:
@@ -330,7 +330,7 @@ class PipelineMatcher:
             "per_candidate_timings_ms": list(evidence.per_candidate_ms),
             "input_index": [s.input_index for s in survivors],
             "homographies": [s.homography for s in survivors],
-            "query_to_tile": [s.query_to_tile for s in survivors],
+            "query_to_tile": [query.image.from_undistorted(s.homography) for s in survivors],
             "tile_cache": {"hits": cache.hits, "misses": cache.misses},
             "candidate_features": list(evidence.sources),
             "geometric_prior": geometric_prior,

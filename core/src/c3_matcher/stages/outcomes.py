@@ -41,8 +41,7 @@ class Survivor:
     """A candidate kept: its match set, its index in the re-rank, the model mapping WORKING
     query px to tile px (``homography``: the RANSAC homography, or the prior's similarity when
     ``model`` is ``"similarity"``), the query turn it kept, its tile features (for the refine
-    pass), its step timings (ms), and the same model from UNDISTORTED query px
-    (``query_to_tile``; None for an unrectified query)."""
+    pass) and its step timings (ms)."""
 
     match_set: CandidateMatchSet
     input_index: int
@@ -51,7 +50,6 @@ class Survivor:
     tile: TileFeatures
     model: str = "homography"
     timings: dict[str, float] = field(default_factory=dict, compare=False)
-    query_to_tile: NDArray[np.float64] | None = None
 
     @property
     def source(self) -> str:

@@ -76,11 +76,7 @@ class RefinePass:
             ),
         )
         second = replace(
-            first,
-            match_set=match_set,
-            homography=verdict.homography,
-            model=verdict.model,
-            query_to_tile=query.image.from_undistorted(verdict.homography),
+            first, match_set=match_set, homography=verdict.homography, model=verdict.model
         )
         kept = [second if s is first else s for s in survivors]
         return kept, replace(record, kept=True)
