@@ -319,3 +319,37 @@ def test_match_with_a_tile_gsd_in_other_units_than_the_height_exits_2_with_one_l
     assert proc.stdout == ""
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("c3-matcher: tile_gsd_m: 1e+09 m/px would scale the frame"), last
+
+
+def test_match_a_query_frame_the_backbone_fails_on_prints_a_json_error_and_exits_1(
+    env, monkeypatch, capsys
+):
+    """The query frame failing to extract (an engine run failing, say) is the matcher's own
+    error: a JSON error object on stdout as for no match, one line on stderr, exit 1, and the
+    frame's FDR record."""
+    from c3_matcher.cli import main
+
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+
+    def engine_run_fails(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("engine run failed: out of device memory")
+
+    monkeypatch.setattr("c3_matcher.pipeline.prepare_query", engine_run_fails)
+    assert main(demo_args([0, 1])) == 1
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)
+    assert captured.out.count("\n") == 1
+    assert (out["error"], out["phase"], out["strategy"]) == (
+        "MatcherBackboneError",
+        "query_extract",
+        "disk_lightglue",
+    )
+    assert "out of device memory" in out["message"]
+    last = captured.err.strip().splitlines()[-1]
+    assert last.startswith("c3-matcher: backbone failure in phase 'query_extract' on query frame")
+    fdr = Path(env["C3_MATCHER_FDR__PATH"]).read_text().splitlines()
+    (record,) = [
+        r["payload"] for r in map(json.loads, fdr) if r["kind"] == "matcher.backbone_error"
+    ]
+    assert record["phase"] == "query_extract" and record["frame_id"] == out["frame_id"]

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 
+from c3_matcher.dto import Attitude
 from c3_matcher.errors import InsufficientInliersError, MatcherBackboneError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
@@ -226,6 +228,21 @@ def test_ac12_frame_done_record(fdr, logs):
         sorted(t) for t in result.diagnostics["per_candidate_timings_ms"]
     ]
     assert {"extract", "match", "ransac"} <= set(per[0]) and "match" not in per[1]
+
+
+@pytest.mark.parametrize("attitude", [None, Attitude(0.08, -0.05, 0.6)])
+def test_the_frame_done_record_says_which_pixels_its_homography_maps(fdr, logs, attitude):
+    """The record's ``best_homography`` maps the px the query was matched in (rectified with
+    an attitude); ``query_rectification`` takes UNDISTORTED px there, so the two compose to the
+    result's ``query_to_tile``, the map its JSON reports."""
+    result = ScriptedRig([S(120, 1.1), S(80, 1.5)], fdr, attitude=attitude).match()
+    (record,) = fdr.of_kind("matcher.frame_done")
+    hom = np.asarray(record["best_homography"], dtype=np.float64)
+    assert np.array_equal(hom, result.diagnostics["homographies"][0])
+    rect = np.asarray(record["query_rectification"], dtype=np.float64)
+    assert rect.shape == (3, 3) and np.allclose(rect, np.eye(3)) == (attitude is None)
+    composed = hom @ rect
+    np.testing.assert_allclose(composed / composed[2, 2], result.diagnostics["query_to_tile"][0])
 
 
 def test_an_insufficient_record_says_where_each_candidates_time_went(fdr, logs):

@@ -15,6 +15,7 @@ from typing import Any
 
 from c3_matcher.atomic import refuse_output_over_inputs
 from c3_matcher.commands import (
+    EXIT_FAILURE,
     EXIT_INSUFFICIENT,
     EXIT_OK,
     EXIT_USAGE,
@@ -212,7 +213,12 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
         except MatcherBackboneError as exc:
             if isinstance(exc.cause, InvalidInputError):  # the frame's own numbers, such as a
                 raise exc.cause from exc  # height and a GSD in different units: bad input
-            raise
+            strategy = settings.matcher.strategy
+            ctx.out(
+                json.dumps(_error_json(exc, frame.frame_id, phase=exc.phase, strategy=strategy))
+            )
+            _report([str(exc), *problems])
+            return EXIT_FAILURE
         out = _result_json(args, result, rerank, calibration, reasons)
         if args.viz and draw(
             result,
@@ -255,20 +261,24 @@ def _refuse_output_over_input(args: argparse.Namespace, fdr_path: Path) -> None:
         refuse_output_over_inputs(args.viz, [*inputs, fdr_path], field="--viz")
 
 
+def _error_json(exc: Exception, frame_id: object, **fields: Any) -> dict[str, Any]:
+    """The JSON error object of a frame the matcher answered with its contract's error."""
+    return {"error": type(exc).__name__, "message": str(exc), "frame_id": str(frame_id), **fields}
+
+
 def _insufficient_json(
     exc: InsufficientInliersError, args: argparse.Namespace, problems: list[str]
 ) -> dict[str, Any]:
-    return {
-        "error": "InsufficientInliersError",
-        "message": str(exc),
-        "frame_id": str(exc.frame_id),
-        "best_inlier_count": exc.best_inlier_count,
-        "threshold": exc.threshold,
-        "candidates_input": exc.candidates_input,
-        "candidates_dropped": exc.candidates_dropped,
-        "matcher_label": exc.matcher_label,
+    return _error_json(
+        exc,
+        exc.frame_id,
+        best_inlier_count=exc.best_inlier_count,
+        threshold=exc.threshold,
+        candidates_input=exc.candidates_input,
+        candidates_dropped=exc.candidates_dropped,
+        matcher_label=exc.matcher_label,
         **({"viz": str(args.viz)} if args.viz and not problems else {}),
-    }
+    )
 
 
 def _result_json(

@@ -233,7 +233,8 @@ class PipelineMatcher:
         recorder.update_health(best.inlier_count)  # step 9
         timings["total"] = (time.perf_counter() - started) * 1e3
         diagnostics = self._diagnostics(evidence, survivors, query, prior is not None, timings)
-        recorder.frame_done(evidence, survivors, timings)  # step 10
+        rectification = query.image.working_from_undistorted
+        recorder.frame_done(evidence, survivors, rectification, timings)  # step 10
         return MatchResult(  # step 11
             frame_id=rerank.frame_id,
             per_candidate=tuple(s.match_set for s in survivors),

@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from c3_matcher.arrays import F64
 from c3_matcher.dto import CandidateMatchSet
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, describe
 from c3_matcher.health import RollingHealthWindow
@@ -183,9 +184,15 @@ class FrameRecorder:
         )
 
     def frame_done(
-        self, evidence: FrameEvidence, ranked: Sequence[Survivor], timings: dict[str, float]
+        self,
+        evidence: FrameEvidence,
+        ranked: Sequence[Survivor],
+        rectification: F64 | None,
+        timings: dict[str, float],
     ) -> None:
-        """Step 10: the success record (+ homography, the frame's and each candidate's stage
+        """Step 10: the success record (+ the best homography, from the px the query was
+        matched in, and ``query_rectification``, UNDISTORTED query px to those, null for a
+        query matched unrectified in its ORIGINAL px; the frame's and each candidate's stage
         timings in input order, provider, engines)."""
         best = ranked[0].match_set
         self.record(
@@ -198,6 +205,7 @@ class FrameRecorder:
                 "best_residual_px": best.per_candidate_residual_px,
                 "best_tile_id": best.tile_id,
                 "best_homography": ranked[0].homography,
+                "query_rectification": rectification,
                 "per_candidate": per_candidate_records(evidence, ranked),
                 "candidate_features": list(evidence.sources),
                 **_rotation_record(evidence),
