@@ -34,6 +34,7 @@ __all__ = [
     "Clock",
     "ClosableMatcher",
     "CrossDomainMatcher",
+    "DigestedTileHandle",
     "FdrClient",
     "FeatureBackend",
     "InferenceRuntime",
@@ -125,6 +126,17 @@ class StoredFeaturesHandle(TilePixelsHandle, Protocol):
     Optional: the pipeline extracts from the pixels of any other handle."""
 
     def stored_features(self, request: FeatureRequest) -> Features | None: ...
+
+
+@runtime_checkable
+class DigestedTileHandle(TilePixelsHandle, Protocol):
+    """A tile handle that names its pixels' content without encoding them: ``content_digest()``
+    digests the bytes they are decoded from, read anew at each call, and changes whenever the
+    pixels do. The tile cache keys such a handle by it, any other by a digest of ``encoded()``.
+    Optional: a mosaic of stored tiles declares it (its ``encoded()`` is a PNG made on demand,
+    which costs more than extracting the tile on a GPU)."""
+
+    def content_digest(self) -> str: ...
 
 
 @runtime_checkable

@@ -1,8 +1,9 @@
 """``TileFeatureCache``: features of recently seen tiles, so a tile that stays among the
 candidates over consecutive frames (the usual case at 3 Hz) is decoded and extracted once.
 
-Keyed by the tile id AND a digest of the tile's encoded bytes: a tile whose pixels change (a
-store update) is never served stale. Extraction is deterministic, so a hit gives exactly the
+Keyed by the tile id AND a digest of the tile's content (its encoded bytes, or for a store's
+mosaic the stored tiles it is stitched from): a tile whose pixels change (a store update) is
+never served stale. Extraction is deterministic, so a hit gives exactly the
 features a fresh extraction would. Least recently used entries are evicted.
 """
 
@@ -16,6 +17,7 @@ from c3_matcher.dto import TileId, TilePixelsHandle
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.features import Features
 from c3_matcher.prepared import PreparedImage
+from c3_matcher.protocols import DigestedTileHandle
 
 __all__ = ["CachedTile", "TileFeatureCache", "tile_cache_key"]
 
@@ -27,7 +29,11 @@ class CachedTile:
 
 
 def tile_cache_key(tile_id: TileId, handle: TilePixelsHandle) -> tuple[TileId, str]:
-    """(tile id, blake2b of the encoded bytes): read through the zero-copy view."""
+    """(tile id, digest of the tile's content): a ``DigestedTileHandle``'s ``content_digest()``
+    (a store's mosaic: no stitching, no encoding), else blake2b of the encoded bytes read
+    through the zero-copy view."""
+    if isinstance(handle, DigestedTileHandle):
+        return tile_id, handle.content_digest()
     return tile_id, hashlib.blake2b(handle.encoded(), digest_size=16).hexdigest()
 
 

@@ -172,6 +172,56 @@ def test_handle_serves_stored_tile_or_mosaic_lazily(built: tuple[Path, Path, np.
         assert cand.gsd_m_per_px == pytest.approx(tid.web_mercator_gsd_m())
 
 
+def test_a_mosaic_is_keyed_by_its_stored_tiles_without_stitching_or_encoding(
+    built: tuple[Path, Path, np.ndarray], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The tile cache keys a store's mosaic by the stored tiles it covers: the same key for the
+    same tiles, another once one of them is rewritten (its digest with it, as a store update
+    does), and no tile decoded nor the window encoded on the way: a window seen before costs a
+    few tile reads, not a stitch and a PNG."""
+    import hashlib
+    import shutil
+
+    from c3_matcher.protocols import DigestedTileHandle
+    from c3_matcher.tile_cache import tile_cache_key
+    from c3_matcher.tilestore import handles
+
+    path = tmp_path / "copy.mbtiles"
+    shutil.copy(built[1], path)
+    with MBTilesStore(path) as store:
+        x, y = sorted(store.tiles(ZOOM))[len(list(store.tiles(ZOOM))) // 2]
+        tid = tile_centre_id(ZOOM, x, y)
+        west = bytes(store.tile_bytes(ZOOM, x - 1, y) or b"")
+        pixels = store.handle(tid, 320).decode()
+
+    def must_not_run(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a cache key decoded or encoded the window")
+
+    monkeypatch.setattr(handles, "decode_image", must_not_run)
+    monkeypatch.setattr(handles.cv2, "imencode", must_not_run)
+    with MBTilesStore(path) as store:
+        mosaic = store.handle(tid, 320)
+        assert isinstance(mosaic, DigestedTileHandle)
+        key = tile_cache_key(tid, mosaic)
+        assert key == tile_cache_key(tid, store.handle(tid, 320))
+        assert key != tile_cache_key(tid, store.handle(tid, 448))  # another window
+    monkeypatch.undo()
+    tile = cv2.imdecode(np.frombuffer(west, np.uint8), cv2.IMREAD_COLOR)
+    tile[100, 240] = 255 - tile[100, 240]  # the west tile, one pixel in the window, rewritten
+    blob = cv2.imencode(".png", tile)[1].tobytes()
+    with sqlite3.connect(path) as db:
+        row = (1 << ZOOM) - 1 - y
+        where = "WHERE zoom_level=? AND tile_column=? AND tile_row=?"
+        db.execute(f"UPDATE tiles SET tile_data=? {where}", (blob, ZOOM, x - 1, row))
+        sha = hashlib.sha256(blob).hexdigest()
+        db.execute(f"UPDATE c3_tile_digest SET sha256=? {where}", (sha, ZOOM, x - 1, row))
+    db.close()
+    with MBTilesStore(path) as store:
+        rewritten = store.handle(tid, 320)
+        assert tile_cache_key(tid, rewritten) != key
+        assert not np.array_equal(rewritten.decode(), pixels)
+
+
 def test_xyz_folder_is_zero_copy(built: tuple[Path, Path, np.ndarray], tmp_path: Path) -> None:
     _, store_path, _ = built
     with MBTilesStore(store_path) as store:

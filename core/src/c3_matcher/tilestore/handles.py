@@ -8,7 +8,9 @@ zero-copy from the page cache; for MBTiles the one copy SQLite hands to Python o
 memory-mapped database), ``decode()`` decodes it. Otherwise :class:`MosaicTileHandle` stitches
 the ``size_px`` x ``size_px`` window of WORLD px centred on the id's centre from the stored
 tiles, lazily: nothing is read before the first ``encoded()`` / ``decode()``, the mosaic is
-decoded once and kept, and ``encoded()`` is a lossless PNG of it made once.
+decoded once and kept, and ``encoded()`` is a lossless PNG of it made once. Its
+``content_digest()`` names its content from the stored tiles' bytes alone: the tile cache's key,
+so that a window seen before is neither stitched nor encoded again.
 
 Failures are the candidate's: a corrupt or undecodable stored tile, or a window with no stored
 tile at all, raise from ``encoded()`` / ``decode()``, which the pipeline turns into that
@@ -18,6 +20,7 @@ are nodata (0), which the matcher masks.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from typing import TYPE_CHECKING, Protocol
 
@@ -29,6 +32,7 @@ from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tiles import decode_image
 from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT, TILE_PX, lonlat_to_world_px
+from c3_matcher.tilestore.windows import covered_tiles
 
 if TYPE_CHECKING:
     from c3_matcher.features import Features
@@ -46,6 +50,9 @@ __all__ = [
 
 class TileNotFoundError(InvalidInputError):
     """The store holds no tile for the requested id / window."""
+
+
+NO_TILE_IN_WINDOW = "no stored tile overlaps this window"
 
 
 class SlippyTileSource(Protocol):
@@ -133,6 +140,23 @@ class MosaicTileHandle:
     def decode(self) -> NDArray[np.uint8]:
         return self._mosaic().copy()
 
+    def content_digest(self) -> str:
+        """blake2b of the window (zoom, origin, size) and of each stored tile it covers, read
+        anew (a missing one marked): the mosaic's pixels depend on these alone, so the digest
+        changes whenever they do, and nothing is stitched or encoded. Raises as ``decode()``
+        does when no stored tile overlaps the window."""
+        origin, size = self.origin_world_px, (self._size, self._size)
+        digest = hashlib.blake2b(f"{self._tile_id.zoom}/{origin}/{size}".encode(), digest_size=16)
+        found = 0
+        for key in covered_tiles(self._tile_id.zoom, origin, size):
+            blob = self._source.tile_bytes(*key)
+            found += blob is not None
+            digest.update(f";{key}:{-1 if blob is None else len(blob)}:".encode())
+            digest.update(b"" if blob is None else blob)
+        if found == 0:
+            raise TileNotFoundError(self._what(), NO_TILE_IN_WINDOW)
+        return digest.hexdigest()
+
     def stored_features(self, request: FeatureRequest) -> Features | None:
         """The window's features from the store's precomputed map features (window
         px), or None: see :func:`c3_matcher.tilestore.features.serve_window`."""
@@ -205,5 +229,5 @@ def stitch(
                 sy0 - ay : sy1 - ay, sx0 - ax : sx1 - ax
             ]
     if found == 0:
-        raise TileNotFoundError(what, "no stored tile overlaps this window")
+        raise TileNotFoundError(what, NO_TILE_IN_WINDOW)
     return out
