@@ -59,13 +59,15 @@ def main(argv: list[str]) -> int:
         for candidate in json.loads(line)["candidates"]
     ]
     with MBTilesStore(flight / "tiles.mbtiles") as store:
-        for size in sizes:
-            for step in ("content key", "encoded key", "stitch"):
-                ms = _timed_ms(ids, functools.partial(store.handle, size_px=size), step)
-                print(
-                    f"{flight.name} {size:4d} px windows ({len(ids)}): {step:<11} "
-                    f"p50 {np.median(ms):6.2f} ms  p95 {np.percentile(ms, 95):6.2f} ms"
-                )
+        timings = {
+            (size, step): _timed_ms(ids, functools.partial(store.handle, size_px=size), step)
+            for size in sizes
+            for step in ("content key", "encoded key", "stitch")
+        }
+    for (size, step), ms in timings.items():
+        p50, p95 = np.percentile(ms, [50, 95])
+        where = f"{flight.name} {size:4d} px windows ({len(ids)})"
+        print(f"{where}: {step:<11} p50 {p50:6.2f} ms  p95 {p95:6.2f} ms")
     return 0
 
 

@@ -184,3 +184,18 @@ def test_tensorrt_fp16_is_opt_in(tmp_path) -> None:
     assert EngineSettings().tensorrt_fp16 is False
     opts = provider_options([TRT, CPU], tmp_path, ProviderSettings())
     assert opts[0][1]["trt_fp16_enable"] is False
+
+
+def test_the_runtime_of_the_settings_keeps_onnxruntimes_warnings_off_stderr(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """ONNX Runtime's own log is plain text on stderr, where every line is JSON; on a GPU it
+    warns per convolution and input shape. The product's runtime sets it to errors."""
+    import onnxruntime as ort
+
+    from c3_matcher.config import EngineSettings
+
+    levels: list[int] = []
+    monkeypatch.setattr(ort, "set_default_logger_severity", levels.append)
+    OnnxInferenceRuntime.from_settings(EngineSettings(), providers_available=[CPU])
+    assert levels == [3]

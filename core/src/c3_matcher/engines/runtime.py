@@ -93,6 +93,10 @@ _ORT_TO_NUMPY = {
 }
 
 
+ORT_ERROR = 3
+"""ONNX Runtime's severity level for errors (0 verbose, 1 info, 2 warning, 3 error, 4 fatal)."""
+
+
 @dataclass(frozen=True, slots=True)
 class SessionSettings:
     """ONNX Runtime session options (defaults chosen by measurement, see the module docstring)."""
@@ -114,7 +118,7 @@ class SessionSettings:
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         options.use_deterministic_compute = self.deterministic
-        options.log_severity_level = 3
+        options.log_severity_level = ORT_ERROR
         if not self.allow_spinning:
             options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         return options
@@ -194,7 +198,12 @@ class OnnxInferenceRuntime:
     def from_settings(
         cls, engines: EngineSettings, providers_available: Sequence[str] | None = None
     ) -> OnnxInferenceRuntime:
-        """A runtime from the ``[engines]`` settings (providers, per-provider options, threads)."""
+        """A runtime from the ``[engines]`` settings (providers, per-provider options, threads).
+        ONNX Runtime's own log is set to errors: its warnings are plain text on stderr, where
+        the product writes JSON lines, and on a GPU it warns once per convolution and new input
+        shape (2376 lines in one ``scripts/bench-gpu`` run, 2026-11-28); what matters of them is
+        said by the matcher (``provider_fallback``, the determinism checks)."""
+        ort.set_default_logger_severity(ORT_ERROR)
         return cls(
             providers_available,
             settings=SessionSettings(
