@@ -213,12 +213,7 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
         except MatcherBackboneError as exc:
             if isinstance(exc.cause, InvalidInputError):  # the frame's own numbers, such as a
                 raise exc.cause from exc  # height and a GSD in different units: bad input
-            strategy = settings.matcher.strategy
-            ctx.out(
-                json.dumps(_error_json(exc, frame.frame_id, phase=exc.phase, strategy=strategy))
-            )
-            _report([str(exc), *problems])
-            return EXIT_FAILURE
+            return _backbone_failed(ctx, exc, frame, settings.matcher.strategy, problems)
         out = _result_json(args, result, rerank, calibration, reasons)
         if args.viz and draw(
             result,
@@ -259,6 +254,20 @@ def _refuse_output_over_input(args: argparse.Namespace, fdr_path: Path) -> None:
     refuse_output_over_inputs(fdr_path, inputs, field=fdr_field)
     if args.viz:
         refuse_output_over_inputs(args.viz, [*inputs, fdr_path], field="--viz")
+
+
+def _backbone_failed(
+    ctx: CommandContext,
+    exc: MatcherBackboneError,
+    frame: NavCameraFrame,
+    strategy: str,
+    problems: list[str],
+) -> int:
+    """The query frame failed in the backbone: its JSON error object on stdout, its one line on
+    stderr (then any output that could not be written), exit 1."""
+    ctx.out(json.dumps(_error_json(exc, frame.frame_id, phase=exc.phase, strategy=strategy)))
+    _report([str(exc), *problems])
+    return EXIT_FAILURE
 
 
 def _error_json(exc: Exception, frame_id: object, **fields: Any) -> dict[str, Any]:
