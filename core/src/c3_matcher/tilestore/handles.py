@@ -20,7 +20,6 @@ are nodata (0), which the matcher masks.
 
 from __future__ import annotations
 
-import hashlib
 import math
 from typing import TYPE_CHECKING, Protocol
 
@@ -32,7 +31,7 @@ from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tiles import decode_image
 from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT, TILE_PX, lonlat_to_world_px
-from c3_matcher.tilestore.windows import covered_tiles
+from c3_matcher.tilestore.windows import covered_tiles, tile_digest, window_digest
 
 if TYPE_CHECKING:
     from c3_matcher.features import Features
@@ -141,21 +140,22 @@ class MosaicTileHandle:
         return self._mosaic().copy()
 
     def content_digest(self) -> str:
-        """blake2b of the window (zoom, origin, size) and of each stored tile it covers, read
-        anew (a missing one marked): the mosaic's pixels depend on these alone, so the digest
+        """The window's size and :func:`~c3_matcher.tilestore.windows.window_digest` of the
+        stored tiles it covers, read anew: the mosaic's pixels depend on these alone, so it
         changes whenever they do, and nothing is stitched or encoded. Raises as ``decode()``
         does when no stored tile overlaps the window."""
         origin, size = self.origin_world_px, (self._size, self._size)
-        digest = hashlib.blake2b(f"{self._tile_id.zoom}/{origin}/{size}".encode(), digest_size=16)
-        found = 0
-        for key in covered_tiles(self._tile_id.zoom, origin, size):
+        found: list[bool] = []
+
+        def digest_of(key: tuple[int, int, int]) -> str | None:
             blob = self._source.tile_bytes(*key)
-            found += blob is not None
-            digest.update(f";{key}:{-1 if blob is None else len(blob)}:".encode())
-            digest.update(b"" if blob is None else blob)
-        if found == 0:
+            found.append(blob is not None)
+            return None if blob is None else tile_digest(blob)
+
+        digest = window_digest(covered_tiles(self._tile_id.zoom, origin, size), digest_of)
+        if not any(found):
             raise TileNotFoundError(self._what(), NO_TILE_IN_WINDOW)
-        return digest.hexdigest()
+        return f"{self._size}:{digest}"
 
     def stored_features(self, request: FeatureRequest) -> Features | None:
         """The window's features from the store's precomputed map features (window
