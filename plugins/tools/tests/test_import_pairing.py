@@ -427,9 +427,10 @@ def test_time_offset_corrects_the_camera_clock_where_photos_meet_triggers_by_tim
     # without the offset the same: as many photos as triggers meet them in capture order, so
     # a camera clock off the log's moves no photo
     track, shots = read_ulog(log), folder_shots(photos)
-    taken, skipped, _ = match_shots(track, shots, _options())
-    assert [t for _, t in taken] == pytest.approx([fl.BOOT_S + p.t_s for p in poses])
-    assert [s.name for s, _ in taken] == [s.name for s in shots] and skipped == []
+    pairing = match_shots(track, shots, _options())
+    assert [t for _, t in pairing.taken] == pytest.approx([fl.BOOT_S + p.t_s for p in poses])
+    assert [s.name for s, _ in pairing.taken] == [s.name for s in shots]
+    assert pairing.skipped == () and pairing.notes == ()
 
 
 def test_an_image_outside_the_log_is_said_to_be_there_with_the_offset_added(
@@ -438,15 +439,15 @@ def test_an_image_outside_the_log_is_said_to_be_there_with_the_offset_added(
     ahead = [dataclasses.replace(p, t_s=p.t_s + 30.0) for p in poses]
     photos = write_exif_photos(tmp_path / "photos", ahead, xmp=False)
     track = read_ulog(write_ulog(tmp_path / "flight.ulg", poses, flaws=("no_trigger",)))
-    taken, skipped, _ = match_shots(track, folder_shots(photos), _options(time_offset_s=-27.0))
-    assert len(taken) == 4
-    assert skipped == [
+    pairing = match_shots(track, folder_shots(photos), _options(time_offset_s=-27.0))
+    assert len(pairing.taken) == 4
+    assert pairing.skipped == (
         (
             "DJI_0004.JPG",
             "at 111.0 s on the log's clock, --time-offset -27 s added, outside the log "
             "(100.0 .. 108.0 s)",
-        )
-    ]
+        ),
+    )
 
 
 def test_photos_meet_as_many_triggers_by_capture_time_not_file_name(
@@ -465,12 +466,12 @@ def test_photos_meet_as_many_triggers_by_capture_time_not_file_name(
         assert f.telemetry["source_image"] == f"DJI_{k:04d}.JPG"
         assert (f.telemetry["lat"], f.telemetry["lon"]) == pytest.approx((p.lat, p.lon), abs=1e-7)
     track, shots = read_ulog(log), folder_shots(photos)
-    asked, _, how = match_shots(track, shots, _options(time_source="trigger"))
-    assert [s.name for s, _ in asked] == [f"DJI_{k:04d}.JPG" for k in range(5)]  # as asked
+    asked = match_shots(track, shots, _options(time_source="trigger"))
+    assert [s.name for s, _ in asked.taken] == [f"DJI_{k:04d}.JPG" for k in range(5)]  # as asked
     no_utc = dataclasses.replace(track, utc_offset_s=None)
-    taken, _, how = match_shots(no_utc, shots, _options())  # still by capture time
-    assert [s.name for s, _ in taken] == [f"DJI_{k:04d}.JPG" for k in range(4, -1, -1)]
-    assert "capture order" in how
+    by_time = match_shots(no_utc, shots, _options())  # still by capture time
+    assert [s.name for s, _ in by_time.taken] == [f"DJI_{k:04d}.JPG" for k in range(4, -1, -1)]
+    assert "capture order" in by_time.how
 
 
 def test_a_copied_photo_is_imported_once_naming_both(poses: list[fl.Pose], tmp_path: Path) -> None:

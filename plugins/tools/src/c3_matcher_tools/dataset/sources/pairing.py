@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime
 
 import numpy as np
@@ -14,7 +15,19 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.options import ImportOptions
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 
-__all__ = ["match_shots", "times_apart", "utc_text"]
+__all__ = ["Pairing", "match_shots", "times_apart", "utc_text"]
+
+
+@dataclass(frozen=True, slots=True)
+class Pairing:
+    """How images met a log's clock: each paired image with its time on the log's clock, each
+    image left out with the reason, how they were paired, and what else the import should say
+    (a photo whose capture time lies apart from the others')."""
+
+    taken: tuple[tuple[Shot, float], ...]
+    skipped: tuple[tuple[str, str], ...]
+    how: str
+    notes: tuple[str, ...] = ()
 
 
 def times_apart(times: Sequence[float], gap_s: float) -> list[int]:
@@ -157,7 +170,7 @@ def _nearest_triggers(
 
 def _triggers_by_time(
     track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
-) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+) -> Pairing:
     """:func:`_nearest_triggers` within :func:`_tolerance` of the images' own times, refused
     when no image meets a trigger; with ``how``."""
     tol = _tolerance(triggers, options)
@@ -178,30 +191,27 @@ def _triggers_by_time(
         f"camera trigger nearest each image's own UTC time, within {tol:g} s ({triggers.size} "
         f"in the log, {len(shots)} image(s): {left})"
     )
-    return taken, skipped, how
+    return Pairing(tuple(taken), tuple(skipped), how)
 
 
-def _as_many_triggers(
-    shots: Sequence[Shot], triggers: F64, options: ImportOptions, notes: list[str]
-) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+def _as_many_triggers(shots: Sequence[Shot], triggers: F64, options: ImportOptions) -> Pairing:
     """As many photos as triggers, each stating its own time: the photos take the triggers in
     the order of those times (ties, as whole-second EXIF times give, in file order), not by file
     name, which need not sort in capture order; each photo at its trigger's time. Order alone:
     a camera clock off the log's, or times truncated to the second, move no photo onto another's
     trigger, as pairing each with the trigger nearest its time could. A photo whose time lies
     apart from the others' (:func:`times_apart`: farther than the triggers' whole span, a clock
-    reset) does not sort among them: it keeps its place in file order, and ``notes`` says so."""
+    reset) does not sort among them: it keeps its place in file order, and a note says so."""
     counts = f"{triggers.size} in the log, {len(shots)} image(s)"
     times = [float(s.t_s or 0.0) for s in shots]
     apart = set(times_apart(times, float(triggers[-1] - triggers[0]) + options.max_gap_s))
     in_time = iter(sorted((i for i in range(len(shots)) if i not in apart), key=times.__getitem__))
     ordered = [shots[i if i in apart else next(in_time)] for i in range(len(shots))]  # stable
-    if apart:
-        notes.append(_apart_note(shots, apart))
     how = f"camera trigger ({counts})"
     if any(a is not b for a, b in zip(ordered, shots, strict=True)):
         how = f"camera trigger in the images' capture order, not their file order ({counts})"
-    return [(s, float(t)) for s, t in zip(ordered, triggers, strict=True)], [], how
+    taken = tuple((s, float(t)) for s, t in zip(ordered, triggers, strict=True))
+    return Pairing(taken, (), how, (_apart_note(shots, apart),) if apart else ())
 
 
 def _apart_note(shots: Sequence[Shot], apart: set[int]) -> str:
@@ -241,17 +251,17 @@ def _auto_source(
 
 def _in_file_order(
     track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
-) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+) -> Pairing:
     """The triggers in order, ``--time-offset`` added to their times (``--time-source
     trigger``, or images that state no time of their own)."""
     if not triggers.size:
         raise InvalidInputError("--time-source", f"{track.source}: no camera trigger")
     off = options.time_offset_s
-    taken = [(s, float(t) + off) for s, t in zip(shots, triggers, strict=False)]
-    skipped = [
+    taken = tuple((s, float(t) + off) for s, t in zip(shots, triggers, strict=False))
+    skipped = tuple(
         (s.name, f"no camera trigger left ({triggers.size} in the log)")
         for s in shots[triggers.size :]
-    ]
+    )
     how = f"camera trigger ({triggers.size} in the log, {len(shots)} image(s))"
     if triggers.size != len(shots):
         left = _unpaired(max(len(shots) - triggers.size, 0), max(triggers.size - len(shots), 0))
@@ -259,51 +269,45 @@ def _in_file_order(
             f"camera trigger in file order, as asked ({triggers.size} in the log, "
             f"{len(shots)} image(s): {left})"
         )
-    return taken, skipped, how
+    return Pairing(tuple(taken), tuple(skipped), how)
 
 
-def _by_own_time(
-    track: LogTrack, shots: Sequence[Shot], options: ImportOptions
-) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+def _by_own_time(track: LogTrack, shots: Sequence[Shot], options: ImportOptions) -> Pairing:
     """Each image at its own UTC time on the log's clock, ``--time-offset`` added."""
     if track.utc_offset_s is None:
         raise InvalidInputError(
             "--time-source", f"{track.source}: the log states no UTC time (no GNSS time)"
         )
-    taken = [
+    taken = tuple(
         (s, s.t_s - track.utc_offset_s + options.time_offset_s) for s in shots if s.t_s is not None
-    ]
-    skipped = [(s.name, "the image states no capture time") for s in shots if s.t_s is None]
-    return taken, skipped, "the images' own UTC time stamps against the log's UTC time"
+    )
+    skipped = tuple((s.name, "the image states no capture time") for s in shots if s.t_s is None)
+    return Pairing(taken, skipped, "the images' own UTC time stamps against the log's UTC time")
 
 
-def _by_file_order(
-    shots: Sequence[Shot], triggers: F64, options: ImportOptions
-) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
+def _by_file_order(shots: Sequence[Shot], triggers: F64, options: ImportOptions) -> Pairing:
     """One image every ``--interval`` from ``--time-offset`` on (a video: its own clock)."""
     video = bool(shots) and all("relative_s" in s.own for s in shots)
     if options.interval_s is None and not video:
         raise InvalidInputError("--interval", "file order needs --interval (s between images)")
     step, off = options.interval_s or 0.0, options.time_offset_s
-    taken = [(s, off + float(s.own.get("relative_s", i * step))) for i, s in enumerate(shots)]
+    taken = tuple((s, off + float(s.own.get("relative_s", i * step))) for i, s in enumerate(shots))
     how = "video clock" if video else f"file order, one image every {step:g} s"
     if video and triggers.size and options.time_source == "auto":
         how += (
             f" (the log's {triggers.size} camera trigger(s), a stills camera's, not used: "
             "--time-source trigger to pair them in order)"
         )
-    return taken, [], how
+    return Pairing(taken, (), how)
 
 
 def match_shots(
     track: LogTrack,
     shots: Sequence[Shot],
     options: ImportOptions,
-    *,
-    notes: list[str] | None = None,
-) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]], str]:
-    """Each shot's time on the log's clock, in time order: ([(shot, t_s)], [(name, why
-    skipped)], how).
+) -> Pairing:
+    """Each shot's time on the log's clock, in time order, the shots left out with the reason,
+    how they were paired, and what else the import should say.
 
     ``auto``: a video's frames keep the video's clock (the log's camera triggers are a stills
     camera's). Photos take the camera triggers: when the log has exactly as many and every
@@ -316,25 +320,24 @@ def match_shots(
     unpaired. ``--time-offset`` is added to the images' own times where they are used, else to
     the trigger times or to the file order's start. Raises InvalidInputError when no image
     falls within the log's time span (images of another flight) or the chosen time source
-    cannot be used. What the import should say besides is appended to ``notes`` (a photo
-    whose capture time lies apart from the others', paired by its place in file order)."""
-    notes = [] if notes is None else notes
+    cannot be used."""
     triggers = track.triggers_s if track.triggers_s is not None else np.zeros(0)
     src = options.time_source
     if src == "auto":
         src = _auto_source(track, shots, triggers, options)
     if src == "trigger":
-        taken, skipped, how = _in_file_order(track, shots, triggers, options)
+        pairing = _in_file_order(track, shots, triggers, options)
     elif src == "as many triggers":
-        taken, skipped, how = _as_many_triggers(shots, triggers, options, notes)
+        pairing = _as_many_triggers(shots, triggers, options)
     elif src == "trigger time":
-        taken, skipped, how = _triggers_by_time(track, shots, triggers, options)
+        pairing = _triggers_by_time(track, shots, triggers, options)
     elif src == "exif":
-        taken, skipped, how = _by_own_time(track, shots, options)
+        pairing = _by_own_time(track, shots, options)
     else:
-        taken, skipped, how = _by_file_order(shots, triggers, options)
-    inside, outside = _within_log(track, taken, options, src)
-    return sorted(inside, key=lambda x: x[1]), [*skipped, *outside], how
+        pairing = _by_file_order(shots, triggers, options)
+    inside, outside = _within_log(track, pairing.taken, options, src)
+    in_order = tuple(sorted(inside, key=lambda x: x[1]))
+    return Pairing(in_order, (*pairing.skipped, *outside), pairing.how, pairing.notes)
 
 
 def _within_log(

@@ -17,7 +17,7 @@ from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.frames import Frame, assemble_frames
 from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport, ProposalOptions
-from c3_matcher_tools.dataset.sources.pairing import match_shots
+from c3_matcher_tools.dataset.sources.pairing import Pairing, match_shots
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 from c3_matcher_tools.dataset.telemetry import TelemetryRow
 from c3_matcher_tools.dataset.writing import write_dataset
@@ -44,8 +44,8 @@ def write_imported_flight(
     out = Path(out)
     proposer = options.proposal
     check_output_dir(out, force=force, inputs=(track.source, proposer.store, options.dem))
-    notes = list(track.notes)
-    frames, skipped, how = _placed(track, shots, options, attitude_of, skipped, notes)
+    frames, skipped, pairing = _placed(track, shots, options, attitude_of, skipped)
+    how, notes = pairing.how, (*track.notes, *pairing.notes)
     calibration = options.calibration
     images = _images(frames, calibration.image_size)
     rows, proposed = _propose(track, frames, proposer, calibration)
@@ -107,21 +107,19 @@ def _placed(
     options: ImportOptions,
     attitude_of: Callable[[Shot, float], tuple[float, float, float] | None] | None,
     skipped: Sequence[tuple[str, str]],
-    notes: list[str],
-) -> tuple[list[Frame], list[tuple[str, str]], str]:
+) -> tuple[list[Frame], list[tuple[str, str]], Pairing]:
     """The frames placed on the log (refused when none is, when the images' own GPS says
     another flight, or when no frame has a height above ground), every image skipped with its
-    reason, and how the images met the log's clock (what else the pairing says appended to
-    ``notes``)."""
+    reason, and how the images met the log's clock."""
     options.proposal.check_store()
     if not shots:
         raise InvalidInputError("IMAGES", "no image found")
     if track.position is None and track.gnss is None:
         raise InvalidInputError(track.source, "the log holds no position (GNSS or estimator)")
-    matched, unmatched, how = match_shots(track, shots, options, notes=notes)
-    frames, no_pos = assemble_frames(track, matched, options, attitude_of)
+    pairing = match_shots(track, shots, options)
+    frames, no_pos = assemble_frames(track, pairing.taken, options, attitude_of)
     rank = {s.name: i for i, s in enumerate(shots)}
-    every = [*skipped, *sorted([*unmatched, *no_pos], key=lambda x: rank.get(x[0], -1))]
+    every = [*skipped, *sorted([*pairing.skipped, *no_pos], key=lambda x: rank.get(x[0], -1))]
     if not frames:
         raise InvalidInputError(track.source, "no image could be placed: " + _why(every))
     _check_same_flight(track, frames)
@@ -132,7 +130,7 @@ def _placed(
             f"{', '.join(sorted({f.height_source for f in frames}))}): give --ground-elevation "
             "(the ground's altitude, m, in the log's datum) or --dem",
         )
-    return frames, every, how
+    return frames, every, pairing
 
 
 def _images(frames: Sequence[Frame], size: tuple[int, int]) -> list[bytes]:
