@@ -35,9 +35,9 @@ def test_anything_else_with_a_minus_is_still_an_option(word: str) -> None:
         ("--attitude", "1,2", "expected 3 finite comma-separated numbers, got '1,2'"),
         ("--attitude", "0,95,0", "attitude.pitch_deg: must be <= 90.0, got 95.0"),  # degrees in,
         ("--attitude", "0,0,720", "attitude.yaw_deg: must be <= 360.0, got 720.0"),  # degrees out
-        ("--height", "nan", "expected a finite number, got 'nan'"),
+        ("--height", "nan", "must be finite and > 0, got nan"),
         ("--tile-id", "18,1", "expected ZOOM,LAT,LON"),
-        ("--height", "-4", "must be > 0, got -4"),
+        ("--height", "-4", "must be finite and > 0, got -4.0"),
         ("--window", "8", "must be in [64, 4096], got 8"),
         ("--max-keypoints", "0", "must be in ["),
     ],

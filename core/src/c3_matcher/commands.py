@@ -13,6 +13,7 @@ shares them.
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import sys
 from collections.abc import Callable
@@ -25,6 +26,7 @@ __all__ = [
     "EXIT_USAGE",
     "CommandRegistry",
     "add_max_keypoints_option",
+    "bounded_float",
     "bounded_int",
     "keypoint_budget",
 ]
@@ -105,6 +107,35 @@ def bounded_int(low: int = 1, high: int | None = None) -> Callable[[str], int]:
         return value
 
     return parse
+
+
+def bounded_float(
+    low: float = -math.inf, high: float = math.inf, *, above: bool = False
+) -> Callable[[str], float]:
+    """An argparse type: a finite float in [low, high] (in (low, high] when ``above``), else a
+    usage error (exit 2); argparse names the option."""
+    bounds = _bounds_text(low, high, above)
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        inside = (value > low if above else value >= low) and value <= high
+        if not (math.isfinite(value) and inside):
+            raise argparse.ArgumentTypeError(f"must be finite{bounds}, got {value}")
+        return value
+
+    return parse
+
+
+def _bounds_text(low: float, high: float, above: bool) -> str:
+    """`` and >= 0``, `` and in (0, 1]``, ... for :func:`bounded_float`'s message."""
+    if high == math.inf:
+        return "" if low == -math.inf else f" and {'>' if above else '>='} {low:g}"
+    if low == -math.inf:
+        return f" and <= {high:g}"
+    return f" and in {'(' if above else '['}{low:g}, {high:g}]"
 
 
 def add_max_keypoints_option(

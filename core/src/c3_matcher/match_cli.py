@@ -21,6 +21,7 @@ from c3_matcher.commands import (
     EXIT_USAGE,
     CommandRegistry,
     add_max_keypoints_option,
+    bounded_float,
     bounded_int,
 )
 from c3_matcher.config import C3Settings
@@ -43,11 +44,12 @@ from c3_matcher.serialize import result_to_json
 __all__ = ["register_match_command"]
 
 DEFAULT_WINDOW_PX = 512  # a --store candidate window's side without --window
+_POSITIVE = bounded_float(0.0, above=True)
 
 
 def _floats(text: str, n: int) -> tuple[float, ...]:
-    """``n`` finite comma-separated numbers (one: a number)."""
-    what = "a finite number" if n == 1 else f"{n} finite comma-separated numbers"
+    """``n`` finite comma-separated numbers."""
+    what = f"{n} finite comma-separated numbers"
     try:
         values = tuple(float(x) for x in text.split(","))
     except ValueError:
@@ -70,13 +72,6 @@ def _tile_id(text: str) -> TileId:
         return TileId.parse(text)
     except InvalidInputError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _positive(text: str) -> float:
-    (value,) = _floats(text, 1)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
 
 
 def register_match_command(commands: CommandRegistry) -> None:
@@ -103,7 +98,7 @@ def register_match_command(commands: CommandRegistry) -> None:
         default=None,
         help="ROLL,PITCH,YAW of the vehicle in DEGREES (Z-Y-X, NED, yaw from north)",
     )
-    p.add_argument("--height", type=_positive, default=None, help="height above ground, m")
+    p.add_argument("--height", type=_POSITIVE, default=None, help="height above ground, m")
     _add_output_options(p)
     p.set_defaults(handler=run_match)
 
@@ -139,7 +134,7 @@ def _add_candidate_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--tile-gsd",
-        type=_positive,
+        type=_POSITIVE,
         default=None,
         help="tiles' ground sample distance, m/px (default: from the tile id's zoom)",
     )

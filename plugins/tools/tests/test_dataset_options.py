@@ -9,7 +9,8 @@ import argparse
 import pytest
 
 from c3_matcher.cli import main
-from c3_matcher_tools.args import SEED_RANGE, bounded_float
+from c3_matcher.commands import bounded_float
+from c3_matcher_tools.args import SEED_RANGE
 
 IMPORT_CSV = ["dataset", "import", "images", "tele.csv", "calib.json", "tiles.mbtiles", "out"]
 IMPORT_ULOG = ["dataset", "import", "images", "flight.ulg", "calib.json", "tiles.mbtiles", "out"]

@@ -9,7 +9,7 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from c3_matcher.commands import bounded_int
+from c3_matcher.commands import bounded_float, bounded_int
 from c3_matcher.errors import InvalidInputError
 
 if TYPE_CHECKING:
@@ -21,7 +21,6 @@ __all__ = [
     "add_seed_option",
     "add_strategies_option",
     "apply_attitude_noise",
-    "bounded_float",
     "non_negative_float",
 ]
 
@@ -104,35 +103,6 @@ def add_seed_option(p: argparse.ArgumentParser, help: str) -> None:
 def add_strategies_option(p: argparse.ArgumentParser, help: str) -> None:
     """``--strategy``, repeatable: the strategies a command runs (``None`` when not given)."""
     p.add_argument("--strategy", action="append", default=None, help=help)
-
-
-def bounded_float(
-    low: float = -math.inf, high: float = math.inf, *, above: bool = False
-) -> Callable[[str], float]:
-    """An argparse type: a finite float in [low, high] (in (low, high] when ``above``), else a
-    usage error (exit 2); argparse names the option."""
-    bounds = _bounds_text(low, high, above)
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        inside = (value > low if above else value >= low) and value <= high
-        if not (math.isfinite(value) and inside):
-            raise argparse.ArgumentTypeError(f"must be finite{bounds}, got {value}")
-        return value
-
-    return parse
-
-
-def _bounds_text(low: float, high: float, above: bool) -> str:
-    """`` and >= 0``, `` and in (0, 1]``, ... for :func:`bounded_float`'s message."""
-    if high == math.inf:
-        return "" if low == -math.inf else f" and {'>' if above else '>='} {low:g}"
-    if low == -math.inf:
-        return f" and <= {high:g}"
-    return f" and in {'(' if above else '['}{low:g}, {high:g}]"
 
 
 def non_negative_float() -> Callable[[str], float]:

@@ -9,10 +9,10 @@ from dataclasses import MISSING, fields
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.commands import EXIT_OK, CommandRegistry, bounded_int
+from c3_matcher.commands import EXIT_OK, CommandRegistry, bounded_float, bounded_int
 from c3_matcher.context import CommandContext
 from c3_matcher.errors import describe
-from c3_matcher_tools.args import add_seed_option, bounded_float, non_negative_float
+from c3_matcher_tools.args import add_seed_option, non_negative_float
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.progress import ProgressBar
 

@@ -9,9 +9,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from c3_matcher.commands import bounded_float
 from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.args import bounded_float
 from c3_matcher_tools.dataset.sources.options import (
     MAX_TIME_OFFSET_S,
     ImportOptions,
