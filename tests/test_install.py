@@ -25,6 +25,9 @@ PROFILES = ("airborne", "research", "replay-cli", "operator-tooling")
 MATRIX = tomllib.loads((REPO / "buildflags" / "matrix.toml").read_text())
 EXAMPLE = REPO / "tests" / "example_plugin"
 DEMO = REPO / "data" / "demo"
+# one test process builds the wheelhouse (about 80 s) and runs every install (scripts/test runs
+# the tests in two processes: --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("install")
 
 
 def offline(cmd: list[str]) -> list[str]:
