@@ -555,6 +555,25 @@ def test_a_dataflash_log_cut_mid_message_says_so_in_the_record(
     assert not any("mid-message" in n for n in read_mavlink(whole).notes)
 
 
+def test_a_telemetry_log_cut_mid_packet_says_so_and_keeps_the_packets_before(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """pymavlink reads a ``.tlog`` cut mid-packet up to the cut and says nothing: the track's
+    notes and damage now say where it ends, as for a DataFlash log or a ULog."""
+    whole = write_tlog(tmp_path / "flight.tlog", poses)
+    data = whole.read_bytes()
+    complete = read_mavlink(whole)
+    assert complete.damage is None and not any("mid-message" in n for n in complete.notes)
+    log = tmp_path / "cut.tlog"
+    log.write_bytes(data[:-5])
+    track = read_mavlink(log)
+    said = f"ends mid-message, cut short at byte {len(data) - 5} in a MAVLink packet from byte "
+    assert any(n.startswith(f"the log {said}") for n in track.notes), track.notes
+    assert track.damage is not None and track.damage.startswith(f"it {said}")
+    assert complete.position is not None and track.position is not None
+    assert 0 < len(track.position) <= len(complete.position)
+
+
 @pytest.mark.parametrize("source", [("--source", "rosbag"), ()], ids=["rosbag", "told-by-files"])
 def test_a_bag_folder_without_metadata_names_what_it_lacks(
     poses: list[fl.Pose], tmp_path: Path, source: tuple[str, ...]

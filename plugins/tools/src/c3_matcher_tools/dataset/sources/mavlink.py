@@ -99,6 +99,20 @@ def _cut_at(log: Any, path: Path) -> str | None:
     return None
 
 
+def _packet_cut(log: Any, path: Path) -> str | None:
+    """How a MAVLink telemetry log, read to its end, ends mid-packet (:func:`cut_short`): its
+    parser still holds the first bytes of a packet no byte completed (bytes that start no packet
+    are dropped as they are read); None when it ends where a packet does (or is no telemetry
+    log)."""
+    from pymavlink.mavutil import mavlogfile
+
+    left = log.mav.buf_len() if isinstance(log, mavlogfile) else 0
+    if not left:
+        return None
+    size = path.stat().st_size
+    return cut_short(size - left, size, "a MAVLink packet")
+
+
 Row = tuple[float, list[float]]
 
 
@@ -208,6 +222,7 @@ def read_mavlink(path: Path) -> LogTrack:
     home: list[float] = []
     hacc: list[tuple[float, float]] = []
     seen = _read(log, source, kind, _handlers(rows, home, hacc), chatter)
+    cut = cut or _packet_cut(log, path)
     if not rows["pos"] and not rows["gps"]:
         raise InvalidInputError(
             source, "no POS / GLOBAL_POSITION_INT / GPS message: the log holds no position"
