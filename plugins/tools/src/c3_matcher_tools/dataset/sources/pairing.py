@@ -269,7 +269,7 @@ def _in_file_order(
             f"camera trigger in file order, as asked ({triggers.size} in the log, "
             f"{len(shots)} image(s): {left})"
         )
-    return Pairing(tuple(taken), tuple(skipped), how)
+    return Pairing(taken, skipped, how)
 
 
 def _by_own_time(track: LogTrack, shots: Sequence[Shot], options: ImportOptions) -> Pairing:
