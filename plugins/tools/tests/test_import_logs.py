@@ -460,18 +460,10 @@ def test_a_dot_log_file_is_read_as_what_it_holds_binary_or_text(
 ) -> None:
     """``.log`` names both kinds of DataFlash log: a binary one (pymavlink would read it as
     text by its name) and a text one (``FMT, ...`` lines). Both read as the ``.bin`` does."""
-    from pymavlink import DFReader
-
     binary = write_dataflash(tmp_path / "flight.bin", poses)
     named_log = tmp_path / "binary.log"
     shutil.copyfile(binary, named_log)
-    reader, lines = DFReader.DFReader_binary(str(binary)), []
-    while (msg := reader.recv_msg()) is not None:
-        values = [getattr(msg, c) for c in msg.fmt.columns]
-        shown = [v.decode().rstrip("\0") if isinstance(v, bytes) else str(v) for v in values]
-        lines.append(", ".join([msg.get_type(), *shown]))
-    text = tmp_path / "text.log"
-    text.write_text("\n".join(lines) + "\n")
+    text = _as_text_dataflash(binary, tmp_path / "text.log")
     want = read_mavlink(binary)
     for path in (named_log, text):
         got = read_mavlink(path)
@@ -479,6 +471,40 @@ def test_a_dot_log_file_is_read_as_what_it_holds_binary_or_text(
         np.testing.assert_allclose(got.position.values, want.position.values, rtol=1e-6)
         assert got.triggers_s is not None and want.triggers_s is not None
         np.testing.assert_allclose(got.triggers_s, want.triggers_s, atol=1e-3)
+
+
+def _as_text_dataflash(binary: Path, out: Path) -> Path:
+    """The binary DataFlash log ``binary`` written as a text one (``FMT, ...`` lines)."""
+    from pymavlink import DFReader
+
+    reader, lines = DFReader.DFReader_binary(str(binary)), []
+    while (msg := reader.recv_msg()) is not None:
+        values = [getattr(msg, c) for c in msg.fmt.columns]
+        shown = [v.decode().rstrip("\0") if isinstance(v, bytes) else str(v) for v in values]
+        lines.append(", ".join([msg.get_type(), *shown]))
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+@pytest.mark.parametrize("lost", [1, 6], ids=["newline", "mid-line"])
+def test_a_text_dataflash_log_cut_in_its_last_line_says_so(
+    lost: int, poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """pymavlink reads a text DataFlash line once its newline is there: a log cut in its last
+    line (its last camera trigger here) lost that line and said nothing; now it says so."""
+    whole = _as_text_dataflash(write_dataflash(tmp_path / "flight.bin", poses), tmp_path / "w.log")
+    complete = read_mavlink(whole)
+    assert complete.damage is None and not any("mid-message" in n for n in complete.notes)
+    data = whole.read_bytes()
+    log = tmp_path / "cut.log"
+    log.write_bytes(data[:-lost])
+    start = data.rstrip(b"\n").rfind(b"\n") + 1
+    track = read_mavlink(log)
+    said = f"ends mid-message, cut short at byte {len(data) - lost} in a CAM line from byte {start}"
+    assert track.damage == f"it {said}", track.damage
+    assert f"the log {said}; the samples before it are kept" in track.notes
+    assert complete.triggers_s is not None and track.triggers_s is not None
+    np.testing.assert_array_equal(track.triggers_s, complete.triggers_s[:-1])
 
 
 def _first_data_message(log: bytes) -> int:

@@ -75,13 +75,17 @@ def _open(path: Path, chatter: io.StringIO) -> Any:
 
 
 def _cut_at(log: Any, path: Path) -> str | None:
-    """How a binary DataFlash log ends mid-message (:func:`cut_short`), from pymavlink's index
-    of where each message starts: its last message runs past the end of the file, or a header's
-    first bytes follow it; None when it ends where a message does (or is no binary log)."""
-    from pymavlink.DFReader import DFReader_binary
+    """How a DataFlash log ends mid-message (:func:`cut_short`). A binary one, from pymavlink's
+    index of where each message starts: its last message runs past the end of the file, or a
+    header's first bytes follow it. A text one: its last line has no newline (pymavlink reads a
+    line once its newline is there, so that line is lost). None when it ends where a message
+    does (or is a telemetry log: see :func:`_packet_cut`)."""
+    from pymavlink.DFReader import DFReader_binary, DFReader_text
 
+    if isinstance(log, DFReader_text):
+        return _line_cut(path)
     if not isinstance(log, DFReader_binary):
-        return None  # a text DataFlash log or a telemetry log: not indexed by byte
+        return None
     starts = [(at[-1], kind) for kind, at in enumerate(log.offsets) if at]
     if not starts:
         return None
@@ -97,6 +101,20 @@ def _cut_at(log: Any, path: Path) -> str | None:
     if tail and len(tail) < 3 and DATAFLASH_MAGIC[:2].startswith(tail):
         return cut_short(at + fmt.len, size, "a message header")
     return None
+
+
+def _line_cut(path: Path) -> str | None:
+    """How a text DataFlash log whose last line has no newline ends: in that line (named by its
+    message), from the byte after the last newline; None when it ends with a newline."""
+    size = path.stat().st_size
+    with path.open("rb") as fh:
+        fh.seek(max(size - 4096, 0))  # a DataFlash line is far shorter
+        tail = fh.read()
+    if not tail or tail.endswith(b"\n"):
+        return None
+    line = tail[tail.rfind(b"\n") + 1 :]
+    name = line.split(b",")[0].strip().decode("ascii", "replace")
+    return cut_short(size - len(line), size, f"a {name} line" if name else "a line")
 
 
 def _packet_cut(log: Any, path: Path) -> str | None:
