@@ -505,6 +505,9 @@ def test_a_text_dataflash_log_cut_in_its_last_line_says_so(
     assert f"the log {said}; the samples before it are kept" in track.notes
     assert complete.triggers_s is not None and track.triggers_s is not None
     np.testing.assert_array_equal(track.triggers_s, complete.triggers_s[:-1])
+    log.write_bytes(data + b"x" * 5000)  # damage after the last line: named as a line
+    said = f"ends mid-message, cut short at byte {len(data) + 5000} in a line from byte {len(data)}"
+    assert read_mavlink(log).damage == f"it {said}"
 
 
 def _first_data_message(log: bytes) -> int:

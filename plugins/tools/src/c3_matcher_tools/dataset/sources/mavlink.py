@@ -108,13 +108,22 @@ def _line_cut(path: Path) -> str | None:
     message), from the byte after the last newline; None when it ends with a newline."""
     size = path.stat().st_size
     with path.open("rb") as fh:
-        fh.seek(max(size - 4096, 0))  # a DataFlash line is far shorter
-        tail = fh.read()
-    if not tail or tail.endswith(b"\n"):
-        return None
-    line = tail[tail.rfind(b"\n") + 1 :]
-    name = line.split(b",")[0].strip().decode("ascii", "replace")
-    return cut_short(size - len(line), size, f"a {name} line" if name else "a line")
+        fh.seek(max(size - 1, 0))
+        if fh.read(1) in (b"", b"\n"):
+            return None
+        start = size
+        while start > 0:  # back to the byte after the last newline, 4 KiB at a time
+            back = max(start - 4096, 0)
+            fh.seek(back)
+            at = fh.read(start - back).rfind(b"\n")
+            if at >= 0:
+                start = back + at + 1
+                break
+            start = back
+        fh.seek(start)
+        name = fh.read(17).split(b",")[0].strip()
+    named = name.isalnum() and len(name) <= 16  # a message's name, not bytes of damage
+    return cut_short(start, size, f"a {name.decode()} line" if named else "a line")
 
 
 def _packet_cut(log: Any, path: Path) -> str | None:
