@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import types
 
 import pytest
@@ -9,7 +10,7 @@ import pytest
 from c3_matcher.compose import compose_root
 from c3_matcher.config import C3Settings
 from c3_matcher.errors import AirborneBootstrapError, StrategyNotLinkedError
-from c3_matcher.fdr import JsonlFdrRecorder
+from c3_matcher.fdr import FdrWriteError, JsonlFdrRecorder
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.plugins import PluginHost, StrategySpec, hookimpl
 from c3_matcher.plugins.manager import PluginSource
@@ -114,6 +115,24 @@ def test_builds_the_durable_recorder_when_no_fdr_is_given(tmp_path):
         assert root.fdr.path == tmp_path / "fdr.jsonl"
     finally:
         root.close()
+
+
+def test_the_recorder_it_builds_holds_at_most_fdr_max_pending_bytes_on_a_full_disk(
+    tmp_path, monkeypatch
+):
+    bounded = C3Settings(
+        matcher={"strategy": "fake_match"},
+        fdr={"path": tmp_path / "fdr.jsonl", "max_pending_bytes": 2048},
+    )
+    root = compose_root(bounded, helpers(), plugin_host=fake_plugin_host(), configure_logs=False)
+    monkeypatch.setattr(os, "write", lambda fd, data: (_ for _ in ()).throw(OSError(28, "full")))
+    for i in range(40):
+        with pytest.raises(FdrWriteError):
+            root.fdr.record("k", {"i": i, "pad": "x" * 100})
+    assert isinstance(root.fdr, JsonlFdrRecorder)
+    assert 0 < root.fdr.pending < 20 and root.fdr.pending + root.fdr.dropped == 40
+    monkeypatch.undo()
+    root.close()
 
 
 def test_strategy_not_linked(tmp_path):

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr import FdrOpenError, FdrWriteError, JsonlFdrRecorder, read_fdr
 from c3_matcher.testing import FakeClock
 
@@ -405,3 +406,84 @@ def test_a_torn_tail_is_cut_even_when_the_disk_has_no_room_to_keep_it(tmp_path, 
     assert note["kind"] == "fdr.torn_tail_cut" and note["payload"]["kept_in"] is None
     assert "No space left" in note["payload"]["not_kept"]
     assert [r["seq"] for r in result] == [1, 2, 3]
+
+
+def _disk_full(fd, data):
+    raise OSError(28, "No space left on device")
+
+
+def test_a_disk_full_for_long_holds_at_most_max_pending_bytes_and_says_what_it_let_go(
+    tmp_path, monkeypatch
+):
+    """Memory stays bounded while the disk refuses every record: the oldest waiting ones are let
+    go, the newest kept; once space returns, the kept ones are written in order and one
+    ``fdr.records_dropped`` record names the seqs that are missing, so ``seq`` only gaps there."""
+    rec = JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock(), max_pending_bytes=4096)
+    rec.record("k", {"i": 0})
+    real_write = os.write
+    monkeypatch.setattr(os, "write", _disk_full)
+    for i in range(1, 101):
+        with pytest.raises(FdrWriteError, match="record\\(s\\) pending"):
+            rec.record("k", {"i": i, "pad": "x" * 100})
+    held, let_go = rec.pending, rec.dropped
+    assert 0 < held < 100 and held + let_go == 100
+    with pytest.raises(FdrWriteError, match=f"{let_go} let go"):
+        rec.flush()
+    monkeypatch.setattr(os, "write", real_write)
+    rec.flush()
+    assert (rec.pending, rec.dropped) == (0, let_go)
+    records = read_fdr(rec.path)
+    assert records.corrupt == []
+    kept = list(range(101 - held, 101))
+    assert [r["payload"]["i"] for r in records[:-1]] == [0, *kept]
+    assert [r["seq"] for r in records] == [1, *(i + 1 for i in kept), 102]
+    note = records[-1]
+    assert note["kind"] == "fdr.records_dropped"
+    assert {k: note["payload"][k] for k in ("count", "first_seq", "last_seq")} == {
+        "count": let_go,
+        "first_seq": 2,
+        "last_seq": let_go + 1,
+    }
+    assert sum(len(json.dumps(r, separators=(",", ":"))) + 1 for r in records[1:-1]) <= 4096
+    rec.record("k", {"i": 101})
+    assert read_fdr(rec.path)[-1]["seq"] == 103
+    rec.close()
+
+
+def _let_go_then_room_but_for(path: Path, blocked: bytes, monkeypatch) -> JsonlFdrRecorder:
+    """A recorder at ``path`` whose disk refused 20 records (16 let go, seqs 17-20 kept), then
+    has room again for every write but those starting with ``blocked``."""
+    rec = JsonlFdrRecorder(path, FakeClock(), max_pending_bytes=1024)
+    room_for = _full_for(blocked)
+    monkeypatch.setattr(os, "write", _disk_full)
+    for i in range(20):
+        with pytest.raises(FdrWriteError):
+            rec.record("k", {"i": i, "pad": "x" * 100})
+    assert (rec.pending, rec.dropped) == (4, 16)
+    monkeypatch.setattr(os, "write", room_for)
+    return rec
+
+
+def test_the_note_of_records_let_go_waits_like_any_record(tmp_path, monkeypatch):
+    """Room for the kept records but not yet for the note: the next record is written first
+    and the note after it (``seq`` never goes back in the file)."""
+    rec = _let_go_then_room_but_for(tmp_path / "fdr.jsonl", b'{"seq":21,', monkeypatch)
+    with pytest.raises(FdrWriteError, match="0 record\\(s\\) pending, 16 let go"):
+        rec.flush()
+    monkeypatch.undo()
+    rec.record("k", {"i": 20})
+    rec.close()
+    tail = [(r["seq"], r["kind"]) for r in read_fdr(rec.path)][-6:]
+    assert tail == [(s, "k") for s in range(17, 22)] + [(22, "fdr.records_dropped")]
+
+
+def test_closing_before_the_note_of_records_let_go_is_written_says_so(tmp_path, monkeypatch):
+    rec = _let_go_then_room_but_for(tmp_path / "fdr.jsonl", b'{"seq":21,', monkeypatch)
+    with pytest.raises(FdrWriteError, match="0 record\\(s\\) pending, 16 let go: lost"):
+        rec.close()
+    assert [r["seq"] for r in read_fdr(rec.path)] == [17, 18, 19, 20]
+
+
+def test_max_pending_bytes_below_a_kilobyte_is_refused(tmp_path):
+    with pytest.raises(InvalidInputError, match="fdr.max_pending_bytes.*>= 1024, got 10"):
+        JsonlFdrRecorder(tmp_path / "fdr.jsonl", FakeClock(), max_pending_bytes=10)

@@ -14,12 +14,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from contextlib import ExitStack
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
 from c3_matcher import protocols
-from c3_matcher.config import C3Settings, with_strategy_defaults
+from c3_matcher.config import C3Settings, FdrSettings, with_strategy_defaults
 from c3_matcher.errors import (
     AirborneBootstrapError,
     C3Error,
@@ -48,6 +49,7 @@ __all__ = [
     "build_default_helpers",
     "build_plugin_host",
     "compose_root",
+    "open_recorder",
     "state_default_fdr_path",
     "strategy_settings",
 ]
@@ -163,6 +165,20 @@ def strategy_settings(
     return with_strategy_defaults(settings, defaults, name)
 
 
+def open_recorder(
+    fdr: FdrSettings, clock: Clock, *, path: Path | None = None, fresh: bool = False
+) -> JsonlFdrRecorder:
+    """The durable recorder of ``[fdr]`` at its ``path`` (or ``path``), rotating and holding
+    records on a full disk within its limits; ``fresh`` starts a new log (a ground run's)."""
+    return JsonlFdrRecorder(
+        path or fdr.path,
+        clock,
+        max_bytes=fdr.max_bytes,
+        max_pending_bytes=fdr.max_pending_bytes,
+        fresh=fresh,
+    )
+
+
 def state_default_fdr_path(config: C3Settings) -> None:
     """Log (INFO ``c3.fdr.default_path``) where the recorder writes when ``[fdr] path`` was not
     set by a file, the environment or the caller: the user's data directory, which nobody
@@ -191,7 +207,7 @@ def compose_root(
     with ExitStack() as opened:  # given back at once if composition fails, else by close()
         owned_fdr: JsonlFdrRecorder | None = None  # a given c13_fdr stays the caller's
         if "c13_fdr" not in helpers:
-            owned_fdr = JsonlFdrRecorder(config.fdr.path, clock, max_bytes=config.fdr.max_bytes)
+            owned_fdr = open_recorder(config.fdr, clock)
             opened.callback(owned_fdr.close)
         fdr: FdrClient = helpers["c13_fdr"] if owned_fdr is None else owned_fdr
         handle = None

@@ -161,8 +161,7 @@ class MatcherSettings(_Section):
         "it after an IMU fault and passes attitude=None): extract the query turned by 0/90/180/"
         "270 deg and keep, per candidate, the turn whose RANSAC result ranks best (inliers, then "
         "residual); about 4x the query extraction and matching (docs/accuracy.md, rotation "
-        "search); "
-        "off: such a frame is matched as it comes, frames with attitude are never affected",
+        "search); off: such a frame is matched as it comes; never applied with attitude",
     )
     refine: bool = Field(
         False,
@@ -306,6 +305,7 @@ class FdrSettings(_Section):
         "(~/.local/share/c3-matcher/fdr on Linux)",
     )
     max_bytes: int = Field(64 * 1024 * 1024, ge=1024, description="rotate above this size")
+    max_pending_bytes: int = Field(64 << 20, ge=1024, description="held while the disk is full")
 
 
 class LoggingSettings(_Section):

@@ -320,12 +320,11 @@ def _open_fdr(settings: C3Settings, problems: list[str]) -> JsonlFdrRecorder | N
     """The durable recorder at the configured path; None if it cannot be opened: the frame is
     still matched and printed (its records kept in memory) and the failure is reported
     (exit 2)."""
+    from c3_matcher.compose import open_recorder
     from c3_matcher.health import MonotonicClock
 
     try:
-        return JsonlFdrRecorder(
-            settings.fdr.path, MonotonicClock(), max_bytes=settings.fdr.max_bytes
-        )
+        return open_recorder(settings.fdr, MonotonicClock())
     except FdrOpenError as exc:
         problems.append(f"{exc}; the result was printed but NOT recorded in the FDR")
         return None

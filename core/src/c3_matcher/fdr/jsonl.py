@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import datetime as dt
 import errno
 import fcntl
 import json
 import os
 import threading
+from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -52,7 +54,11 @@ class JsonlFdrRecorder:
     line; the cut bytes are appended to ``<path>.torn`` (one JSON line per cut: offset, length,
     the bytes) and a ``fdr.torn_tail_cut`` record says so (kept pending, like any record, when
     it cannot be written yet). On a full disk the cut bytes are dropped, being part of no
-    acknowledged record, and that record says why. One process writes a path: the recorder
+    acknowledged record, and that record says why. What waits is bounded by
+    ``max_pending_bytes``, so a disk that stays full cannot exhaust the vehicle's memory: past
+    it the oldest waiting records are let go (the newest say the most about the vehicle's state
+    now), and once the rest are written a ``fdr.records_dropped`` record says how many and
+    which seqs (the only gap ``seq`` ever has). One process writes a path: the recorder
     holds ``flock`` on ``<path>.lock``; a second one is refused with ``FdrOpenError``, as is a
     ``path`` holding something else (not empty, not beginning with a record's ``{``: an image
     named by mistake), which is never cut, appended to or removed. ``record`` is thread-safe.
@@ -69,15 +75,17 @@ class JsonlFdrRecorder:
         clock: Clock,
         max_bytes: int = 64 * 1024 * 1024,
         *,
+        max_pending_bytes: int = 64 * 1024 * 1024,
         fresh: bool = False,
     ) -> None:
-        if max_bytes < 1024:
-            raise InvalidInputError("fdr.max_bytes", f"must be >= 1024, got {max_bytes}")
+        for name, value in (("max_bytes", max_bytes), ("max_pending_bytes", max_pending_bytes)):
+            if value < 1024:
+                raise InvalidInputError(f"fdr.{name}", f"must be >= 1024, got {value}")
         self._path = Path(path).expanduser()
         self._clock = clock
         self._max_bytes = max_bytes
         self._lock = threading.RLock()
-        self._pending: list[bytes] = []
+        self._pending = _Pending(max_pending_bytes)
         self._fd = -1
         self._lock_fd = -1
         self._needs_repair = False
@@ -158,28 +166,39 @@ class JsonlFdrRecorder:
         with self._lock:
             if self._lock_fd < 0:
                 raise FdrWriteError(f"FDR {self._path}: recorder is closed")
-            line = {
-                "seq": self._seq,
-                "kind": kind,
-                "recorded_at_ns": self._clock.monotonic_ns(),
-                "wall_time": dt.datetime.now(dt.UTC).isoformat(timespec="microseconds"),
-                "payload": body,
-            }
+            self._pending.hold(self._seq, self._line(kind, body))
             self._seq += 1
-            self._pending.append((json.dumps(line, separators=(",", ":")) + "\n").encode())
             self._write_pending()
+
+    def _line(self, kind: str, body: Any) -> bytes:
+        """The record ``kind`` as one JSON line, with the next ``seq``."""
+        line = {
+            "seq": self._seq,
+            "kind": kind,
+            "recorded_at_ns": self._clock.monotonic_ns(),
+            "wall_time": dt.datetime.now(dt.UTC).isoformat(timespec="microseconds"),
+            "payload": body,
+        }
+        return (json.dumps(line, separators=(",", ":")) + "\n").encode()
 
     @property
     def pending(self) -> int:
         """How many records are accepted but not yet durable (after a write failure)."""
         with self._lock:
-            return len(self._pending)
+            return len(self._pending.records)
+
+    @property
+    def dropped(self) -> int:
+        """How many waiting records were let go since this recorder opened (a disk full for
+        longer than ``max_pending_bytes`` of records)."""
+        with self._lock:
+            return self._pending.dropped_total
 
     def flush(self) -> None:
         """Write the pending records now (say, once space has returned); ``FdrWriteError`` if
         they still cannot be written."""
         with self._lock:
-            if self._pending and self._lock_fd < 0:
+            if self._pending.waiting and self._lock_fd < 0:
                 raise FdrWriteError(f"FDR {self._path}: recorder is closed")
             self._write_pending()
 
@@ -189,7 +208,7 @@ class JsonlFdrRecorder:
         files are closed and the lock released all the same)."""
         with self._lock:
             lost: FdrWriteError | None = None
-            if self._pending and self._lock_fd >= 0:
+            if self._pending.waiting and self._lock_fd >= 0:
                 try:
                     self._write_pending()
                 except FdrWriteError as exc:
@@ -209,13 +228,21 @@ class JsonlFdrRecorder:
 
     # -- internals ------------------------------------------------------------------------
     def _write_pending(self) -> None:
+        """Write the waiting records in order, then the note of any that were let go (its seq
+        is the next one: ``seq`` never goes back in the file)."""
+        pending = self._pending
         try:
-            while self._pending:
-                self._write_durably(self._pending[0])
-                self._pending.pop(0)
+            while pending.records:
+                self._write_durably(pending.records[0][1])
+                pending.written()
+            if pending.dropped is not None:
+                self._write_durably(self._line("fdr.records_dropped", pending.dropped.payload()))
+                self._seq += 1
+                pending.dropped = None
         except OSError as exc:
+            let_go = f", {pending.dropped.count} let go" if pending.dropped else ""
             raise FdrWriteError(
-                f"FDR {self._path}: {exc}; {len(self._pending)} record(s) pending"
+                f"FDR {self._path}: {exc}; {len(pending.records)} record(s) pending{let_go}"
             ) from exc
 
     def _rotated(self) -> list[tuple[int, Path]]:
@@ -306,3 +333,55 @@ class JsonlFdrRecorder:
                     if isinstance(seq, int):
                         last = max(last, seq)
         return last
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class DroppedRecords:
+    """Waiting records let go while the disk refused them: how many, their bytes, and the
+    first and last of their seqs (every seq between that the file lacks is one of them)."""
+
+    count: int
+    size_bytes: int
+    first_seq: int
+    last_seq: int
+
+    def payload(self) -> dict[str, Any]:
+        return {
+            **dataclasses.asdict(self),
+            "reason": "the disk refused them while more than [fdr] max_pending_bytes waited: "
+            "the oldest were let go",
+        }
+
+
+class _Pending:
+    """Records accepted but not yet durable, oldest first, at most ``max_bytes`` of them (the
+    newest is always kept); what is let go to stay within it is counted in ``dropped``."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self.records: deque[tuple[int, bytes]] = deque()
+        self.size_bytes = 0
+        self.dropped: DroppedRecords | None = None  # not yet said by a record
+        self.dropped_total = 0
+
+    def hold(self, seq: int, data: bytes) -> None:
+        self.records.append((seq, data))
+        self.size_bytes += len(data)
+        while self.size_bytes > self.max_bytes and len(self.records) > 1:
+            old_seq, old = self.records.popleft()
+            self.size_bytes -= len(old)
+            self.dropped_total += 1
+            was = self.dropped or DroppedRecords(0, 0, old_seq, old_seq)
+            self.dropped = DroppedRecords(
+                was.count + 1, was.size_bytes + len(old), was.first_seq, old_seq
+            )
+
+    @property
+    def waiting(self) -> bool:
+        """Records, or the note of those let go, are still to be written."""
+        return bool(self.records) or self.dropped is not None
+
+    def written(self) -> None:
+        """The oldest record is durable."""
+        _, data = self.records.popleft()
+        self.size_bytes -= len(data)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
-from c3_matcher.compose import ComposedRoot, build_plugin_host, strategy_settings
+from c3_matcher.compose import ComposedRoot, build_plugin_host, open_recorder, strategy_settings
 from c3_matcher.config import C3Settings
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost
@@ -205,12 +205,8 @@ class PreparedMatcher:
         process holds the FDR's lock: a run refused by it (another process writing
         ``out_dir``) leaves that run's files as they are. What the matcher recorded and logged
         while it was composed comes first."""
-        from c3_matcher.fdr import JsonlFdrRecorder
-
         out_dir.mkdir(parents=True, exist_ok=True)
-        fdr = JsonlFdrRecorder(
-            out_dir / "fdr.jsonl", self._clock, max_bytes=self.settings.fdr.max_bytes, fresh=True
-        )
+        fdr = open_recorder(self.settings.fdr, self._clock, path=out_dir / "fdr.jsonl", fresh=True)
         self._started.callback(fdr.close)
         forget_previous_run(out_dir)  # the FDR is this run's now: so are the results
         log = self._started.enter_context((out_dir / "matcher.log").open("w", encoding="utf-8"))
