@@ -336,7 +336,7 @@ class JsonlFdrRecorder:
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
-class DroppedRecords:
+class _DroppedRecords:
     """Waiting records let go while the disk refused them: how many, their bytes, and the
     first and last of their seqs (every seq between that the file lacks is one of them)."""
 
@@ -361,7 +361,7 @@ class _Pending:
         self.max_bytes = max_bytes
         self.records: deque[tuple[int, bytes]] = deque()
         self.size_bytes = 0
-        self.dropped: DroppedRecords | None = None  # not yet said by a record
+        self.dropped: _DroppedRecords | None = None  # not yet said by a record
         self.dropped_total = 0
 
     def hold(self, seq: int, data: bytes) -> None:
@@ -371,8 +371,8 @@ class _Pending:
             old_seq, old = self.records.popleft()
             self.size_bytes -= len(old)
             self.dropped_total += 1
-            was = self.dropped or DroppedRecords(0, 0, old_seq, old_seq)
-            self.dropped = DroppedRecords(
+            was = self.dropped or _DroppedRecords(0, 0, old_seq, old_seq)
+            self.dropped = _DroppedRecords(
                 was.count + 1, was.size_bytes + len(old), was.first_seq, old_seq
             )
 
