@@ -309,22 +309,98 @@ rec.close()
 
 
 def test_real_full_filesystem_at_rotation_loses_nothing(tmp_path):
-    mnt = tmp_path / "mnt"
-    mnt.mkdir()
-    script = _FULL_DISK_SCRIPT.format(src=str(CORE_SRC), mnt=str(mnt))
-    out = subprocess.run(
-        ["unshare", "--mount", "--map-root-user", sys.executable, "-c", script],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert out.returncode == 0, out.stderr
-    report = json.loads(out.stdout.strip().splitlines()[-1])
+    report = _in_a_full_tmpfs(tmp_path, _FULL_DISK_SCRIPT)
     assert report["failed"], "the filesystem never filled: the test proved nothing"
     assert report["pending_while_full"] > 0
     assert report["pending_after"] == 0
     assert report["seen"] == list(range(80))  # every record, once, in order
     assert report["segments"] >= 3
+
+
+# The same real full filesystem, closed while records still wait: the lock file takes the note
+# of them in bytes it already has, a recorder opened while the disk is still full opens, and once
+# space returns the note is the log's next record.
+_CLOSED_ON_FULL_DISK_SCRIPT = """
+import errno, json, os, sys
+from pathlib import Path
+sys.path.insert(0, {src!r})
+from c3_matcher.fdr import FdrWriteError, JsonlFdrRecorder, read_fdr
+from c3_matcher.testing import FakeClock
+mnt = Path({mnt!r})
+os.system(f"mount -t tmpfs -o size=64k tmpfs {{mnt}}")
+assert os.statvfs(mnt).f_blocks * os.statvfs(mnt).f_frsize <= 64 * 1024, "tmpfs not mounted"
+path = mnt / "fdr.jsonl"
+rec = JsonlFdrRecorder(path, FakeClock())
+rec.record("k", {{"i": 0}})
+filler = mnt / "filler"
+fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
+try:
+    while True:
+        os.write(fd, b"\\0" * 4096)
+except OSError as exc:
+    assert exc.errno == errno.ENOSPC
+os.close(fd)
+refused = 0
+for i in range(1, 40):  # the live segment's page fills, then the disk refuses
+    try:
+        rec.record("k", {{"i": i, "pad": "x" * 200}})
+    except FdrWriteError:
+        refused += 1
+try:
+    rec.close()
+    closed = "written"
+except FdrWriteError as exc:
+    closed = str(exc)
+reopened = JsonlFdrRecorder(path, FakeClock())  # the disk is still full
+pending_on_reopen = reopened.pending
+filler.unlink()
+reopened.record("k", {{"i": 40}})
+reopened.close()
+records = read_fdr(path)
+print(json.dumps({{"refused": refused, "closed": closed, "pending_on_reopen": pending_on_reopen,
+                  "records": [[r["seq"], r["kind"], r["payload"]] for r in records],
+                  "corrupt": len(records.corrupt)}}))
+"""
+
+
+def _in_a_full_tmpfs(tmp_path: Path, script: str) -> dict:
+    """Run ``script`` (formatted with ``src`` and ``mnt``) in a private mount namespace; the JSON
+    object it prints last."""
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    out = subprocess.run(
+        [
+            "unshare",
+            "--mount",
+            "--map-root-user",
+            sys.executable,
+            "-c",
+            script.format(src=str(CORE_SRC), mnt=str(mnt)),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_records_lost_by_a_close_on_a_real_full_filesystem_are_recorded_once_space_returns(
+    tmp_path,
+):
+    report = _in_a_full_tmpfs(tmp_path, _CLOSED_ON_FULL_DISK_SCRIPT)
+    assert report["refused"] > 0, "the filesystem never filled: the test proved nothing"
+    assert "lost, the recorder is closed; the next recorder" in report["closed"]
+    assert report["pending_on_reopen"] == 0  # the note waits as the note, not as a record
+    records, written = report["records"], [r for r in report["records"] if r[1] == "k"]
+    note = records[-1]  # written once space returns, after the record that found it
+    assert note[1] == "fdr.records_dropped" and records[-2][2] == {"i": 40}
+    assert note[2]["count"] == report["refused"]
+    seqs = [r[0] for r in records]
+    assert seqs == sorted(set(seqs)), "a seq was given twice"
+    missing = set(range(1, seqs[-1] + 1)) - set(seqs)
+    assert missing == set(range(note[2]["first_seq"], note[2]["last_seq"] + 1))
+    assert len(written) + note[2]["count"] == 41 and report["corrupt"] == 0
 
 
 def test_a_torn_tail_note_that_cannot_be_written_yet_is_kept_pending(tmp_path, monkeypatch):
@@ -386,9 +462,70 @@ def test_closing_with_records_the_disk_still_refuses_says_they_are_lost(tmp_path
     monkeypatch.setattr(os, "write", lambda fd, data: (_ for _ in ()).throw(OSError(28, "full")))
     with pytest.raises(FdrWriteError):
         rec.record("k", {"i": 1})
-    with pytest.raises(FdrWriteError, match="1 record.* lost"):
+    with pytest.raises(FdrWriteError, match="1 record.* lost.*records them as fdr.records_dropped"):
         rec.close()
-    JsonlFdrRecorder(path, FakeClock()).close()  # the lock was given back all the same
+    monkeypatch.undo()
+    again = JsonlFdrRecorder(path, FakeClock())  # the lock was given back all the same
+    again.record("k", {"i": 2})
+    again.close()
+    records = read_fdr(path)
+    assert [(r["seq"], r["kind"]) for r in records] == [
+        (1, "k"),
+        (3, "fdr.records_dropped"),  # seq 2 is never given again: the note names it
+        (4, "k"),
+    ]
+    assert _counts(records[1]) == (1, 2, 2)
+    assert records[1]["payload"]["reasons"] == [
+        "the recorder closed while the disk still refused them"
+    ]
+    JsonlFdrRecorder(path, FakeClock()).close()  # the lock no longer names them: said once
+    assert len(read_fdr(path)) == 3
+
+
+def _counts(note: dict) -> tuple[int, int, int]:
+    """A ``fdr.records_dropped`` record's count, first seq and last seq."""
+    assert note["kind"] == "fdr.records_dropped"
+    return note["payload"]["count"], note["payload"]["first_seq"], note["payload"]["last_seq"]
+
+
+def test_records_lost_at_close_are_noted_across_reopens_on_a_disk_still_full(tmp_path, monkeypatch):
+    """Reopened while the disk is still full, the recorder opens, keeps the note waiting and,
+    closed again, carries it on with the records it lost itself: one note, once space returns."""
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    rec.record("k", {"i": 0})
+    monkeypatch.setattr(os, "write", _disk_full)
+    with pytest.raises(FdrWriteError):
+        rec.record("k", {"i": 1})
+    with pytest.raises(FdrWriteError, match="lost"):
+        rec.close()
+    again = JsonlFdrRecorder(path, FakeClock())
+    with pytest.raises(FdrWriteError):
+        again.record("k", {"i": 2})
+    with pytest.raises(FdrWriteError, match="1 record\\(s\\) pending.*lost"):
+        again.close()
+    monkeypatch.undo()
+    JsonlFdrRecorder(path, FakeClock()).close()
+    records = read_fdr(path)
+    assert [r["seq"] for r in records] == [1, 4]
+    assert _counts(records[1]) == (2, 2, 3)
+
+
+def test_a_lock_file_that_holds_no_note_of_ours_is_not_read_as_one(tmp_path):
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    rec.record("k", {"i": 0})
+    rec.close()
+    lock = path.with_name("fdr.jsonl.lock")
+    for text in (
+        '99\n{"count": 3}\n',
+        '99\n{"count":1,"size_bytes":1,"first_seq":"2","last_seq":9,"reasons":[]}\n',
+        "99\nnot json\n",
+        "",
+    ):
+        lock.write_text(text)
+        JsonlFdrRecorder(path, FakeClock()).close()
+    assert [r["seq"] for r in read_fdr(path)] == [1]
 
 
 def test_a_torn_tail_is_cut_even_when_the_disk_has_no_room_to_keep_it(tmp_path, monkeypatch):
@@ -482,6 +619,10 @@ def test_closing_before_the_note_of_records_let_go_is_written_says_so(tmp_path, 
     with pytest.raises(FdrWriteError, match="0 record\\(s\\) pending, 16 let go: lost"):
         rec.close()
     assert [r["seq"] for r in read_fdr(rec.path)] == [17, 18, 19, 20]
+    monkeypatch.undo()
+    JsonlFdrRecorder(rec.path, FakeClock()).close()  # the next recorder says it
+    note = read_fdr(rec.path)[-1]
+    assert (note["seq"], *_counts(note)) == (21, 16, 1, 16)
 
 
 def test_max_pending_bytes_below_a_kilobyte_is_refused(tmp_path):

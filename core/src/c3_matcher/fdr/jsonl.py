@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import datetime as dt
 import errno
 import fcntl
 import json
 import os
 import threading
-from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -24,10 +22,10 @@ from c3_matcher.fdr.files import (
     make_dirs_durably,
     open_for_append,
     read_meta,
-    read_small,
     rotated_segments,
     write_meta,
 )
+from c3_matcher.fdr.pending import DroppedRecords, Pending, lock_text, read_lock
 from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, read_fdr, to_jsonable
 from c3_matcher.protocols import Clock
 
@@ -46,7 +44,9 @@ class JsonlFdrRecorder:
     short write, I/O error) is rolled back to the last complete line, raises ``FdrWriteError``
     and keeps the record pending; the next ``record`` writes pending records first, so none is
     dropped (``flush`` retries them without a new record; ``close`` tries once more and raises
-    ``FdrWriteError`` for what it could not write). A rotation is atomic with respect to
+    ``FdrWriteError`` for what it could not write, and names those records in the lock file, in
+    bytes it already has: the next recorder at ``path`` gives none of their seqs again and says
+    they were lost in a ``fdr.records_dropped`` record). A rotation is atomic with respect to
     failure: the next segment number is reserved in ``<path>.meta`` before the live segment is
     renamed, and if either step fails (disk full) nothing has moved: the recorder keeps
     appending to the live segment past ``max_bytes`` and rotates at the next record that finds
@@ -85,28 +85,32 @@ class JsonlFdrRecorder:
         self._clock = clock
         self._max_bytes = max_bytes
         self._lock = threading.RLock()
-        self._pending = _Pending(max_pending_bytes)
+        self._pending = Pending(max_pending_bytes)
         self._fd = -1
         self._lock_fd = -1
         self._needs_repair = False
         self._reserved: int | None = None  # a segment number reserved by a failed rotation
+        self._lock_notes: DroppedRecords | None = None  # lost records the lock file names
         what = f"fdr.path {self._path}"
         self._take_lock(what)
         try:
-            os.ftruncate(self._lock_fd, 0)
-            os.pwrite(self._lock_fd, f"{os.getpid()}\n".encode(), 0)
+            carried = None if fresh else read_lock(self._lock_path)[1]
+            self._write_lock(carried)  # until the note of records lost at the last close is out
             if fresh:
                 self._remove_previous_log()
             self._drop_half_rotated_live()
             torn = self._cut_torn_tail()
-            self._seq = self._last_seq() + 1
+            self._seq = max(self._last_seq(), carried.last_seq if carried else 0) + 1
             self._fd = open_for_append(self._path)
+            self._pending.dropped = carried
         except OSError as exc:
             self.close()
             raise FdrOpenError(what, f"cannot open: {exc.strerror or exc}") from exc
-        if torn is not None:
-            kept = {"kept_in": None, "not_kept": torn.not_kept} if torn.not_kept else {}
-            with contextlib.suppress(FdrWriteError):  # kept pending: the next record writes it
+        with contextlib.suppress(FdrWriteError):  # kept pending: the next record writes them
+            if torn is None:
+                self._write_pending()  # the note of records lost at the last close, if any
+            else:
+                kept = {"kept_in": None, "not_kept": torn.not_kept} if torn.not_kept else {}
                 self.record(
                     "fdr.torn_tail_cut",
                     {
@@ -135,12 +139,21 @@ class JsonlFdrRecorder:
         try:
             fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
-            holder = read_small(self._lock_path).strip() or "?"
+            holder = read_lock(self._lock_path)[0] or "?"
             os.close(self._lock_fd)
             self._lock_fd = -1
             raise FdrOpenError(
                 what, f"another process (pid {holder}) is writing this FDR; one writer per path"
             ) from exc
+
+    def _write_lock(self, lost: DroppedRecords | None) -> None:
+        """Our pid in the lock file and, while they are not yet in the log, the records ``lost``
+        by a close the disk refused: written over the file's own bytes, which needs no space."""
+        data = lock_text(os.getpid(), lost)
+        os.pwrite(self._lock_fd, data, 0)
+        os.ftruncate(self._lock_fd, len(data))
+        os.fsync(self._lock_fd)
+        self._lock_notes = lost
 
     @property
     def path(self) -> Path:
@@ -208,11 +221,12 @@ class JsonlFdrRecorder:
         files are closed and the lock released all the same)."""
         with self._lock:
             lost: FdrWriteError | None = None
+            noted = ""
             if self._pending.waiting and self._lock_fd >= 0:
                 try:
                     self._write_pending()
                 except FdrWriteError as exc:
-                    lost = exc
+                    lost, noted = exc, self._note_lost()
             if self._fd >= 0:
                 os.close(self._fd)
                 self._fd = -1
@@ -220,7 +234,16 @@ class JsonlFdrRecorder:
                 os.close(self._lock_fd)  # releases the flock
                 self._lock_fd = -1
         if lost is not None:
-            raise FdrWriteError(f"{lost}: lost, the recorder is closed") from lost
+            raise FdrWriteError(f"{lost}: lost, the recorder is closed{noted}") from lost
+
+    def _note_lost(self) -> str:
+        """Write what ``close`` cannot write, as lost records, in the lock file: the next
+        recorder at this path gives none of their seqs again and records the loss."""
+        try:
+            self._write_lock(self._pending.lost())
+        except OSError as exc:
+            return f" (and cannot be noted in {self._lock_path.name}: {exc.strerror or exc})"
+        return "; the next recorder to append to this log records them as fdr.records_dropped"
 
     def segments(self) -> list[Path]:
         """Rotated segments oldest first (by number), then the live one."""
@@ -239,6 +262,8 @@ class JsonlFdrRecorder:
                 self._write_durably(self._line("fdr.records_dropped", pending.dropped.payload()))
                 self._seq += 1
                 pending.dropped = None
+            if self._lock_notes is not None:
+                self._write_lock(None)  # the log says it now
         except OSError as exc:
             let_go = f", {pending.dropped.count} let go" if pending.dropped else ""
             raise FdrWriteError(
@@ -333,55 +358,3 @@ class JsonlFdrRecorder:
                     if isinstance(seq, int):
                         last = max(last, seq)
         return last
-
-
-@dataclasses.dataclass(frozen=True, slots=True)
-class _DroppedRecords:
-    """Waiting records let go while the disk refused them: how many, their bytes, and the
-    first and last of their seqs (every seq between that the file lacks is one of them)."""
-
-    count: int
-    size_bytes: int
-    first_seq: int
-    last_seq: int
-
-    def payload(self) -> dict[str, Any]:
-        return {
-            **dataclasses.asdict(self),
-            "reason": "the disk refused them while more than [fdr] max_pending_bytes waited: "
-            "the oldest were let go",
-        }
-
-
-class _Pending:
-    """Records accepted but not yet durable, oldest first, at most ``max_bytes`` of them (the
-    newest is always kept); what is let go to stay within it is counted in ``dropped``."""
-
-    def __init__(self, max_bytes: int) -> None:
-        self.max_bytes = max_bytes
-        self.records: deque[tuple[int, bytes]] = deque()
-        self.size_bytes = 0
-        self.dropped: _DroppedRecords | None = None  # not yet said by a record
-        self.dropped_total = 0
-
-    def hold(self, seq: int, data: bytes) -> None:
-        self.records.append((seq, data))
-        self.size_bytes += len(data)
-        while self.size_bytes > self.max_bytes and len(self.records) > 1:
-            old_seq, old = self.records.popleft()
-            self.size_bytes -= len(old)
-            self.dropped_total += 1
-            was = self.dropped or _DroppedRecords(0, 0, old_seq, old_seq)
-            self.dropped = _DroppedRecords(
-                was.count + 1, was.size_bytes + len(old), was.first_seq, old_seq
-            )
-
-    @property
-    def waiting(self) -> bool:
-        """Records, or the note of those let go, are still to be written."""
-        return bool(self.records) or self.dropped is not None
-
-    def written(self) -> None:
-        """The oldest record is durable."""
-        _, data = self.records.popleft()
-        self.size_bytes -= len(data)

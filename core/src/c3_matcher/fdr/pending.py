@@ -1,0 +1,126 @@
+"""What waits on a full disk: the records accepted but not yet durable (bounded in bytes), the
+note of those let go, and the lock file that carries that note across a close the disk refused.
+
+The lock file ``<path>.lock`` holds the writer's pid on its first line. When ``close`` cannot
+write what waits, the loss is written into the lock file instead: a rewrite of bytes the file
+already has, which needs no new space on the disk. The next recorder at that path reads it,
+never gives those seqs again, and records the loss as ``fdr.records_dropped``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+LET_GO = "more than [fdr] max_pending_bytes waited while the disk refused them: the oldest went"
+CLOSED = "the recorder closed while the disk still refused them"
+LOCK_BYTES = 1024  # the lock file's fixed size: room for the pid and a note of lost records
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class DroppedRecords:
+    """Records accepted but never written: how many, their bytes, the first and last of their
+    seqs (every seq between that the file lacks is one of them) and why."""
+
+    count: int
+    size_bytes: int
+    first_seq: int
+    last_seq: int
+    reasons: tuple[str, ...]
+
+    def payload(self) -> dict[str, Any]:
+        """The ``fdr.records_dropped`` record's payload (and the lock file's note)."""
+        return {**dataclasses.asdict(self), "reasons": list(self.reasons)}
+
+
+def _with(
+    note: DroppedRecords | None, records: list[tuple[int, bytes]], reason: str
+) -> DroppedRecords:
+    """``note`` (``None``: nothing dropped yet) and ``records`` (``(seq, line)``) more."""
+    seqs = [seq for seq, _ in records]
+    size = sum(len(line) for _, line in records)
+    if note is None:
+        return DroppedRecords(len(records), size, min(seqs), max(seqs), (reason,))
+    return DroppedRecords(
+        note.count + len(records),
+        note.size_bytes + size,
+        min(note.first_seq, *seqs),
+        max(note.last_seq, *seqs),
+        note.reasons if reason in note.reasons else (*note.reasons, reason),
+    )
+
+
+class Pending:
+    """Records accepted but not yet durable, oldest first, at most ``max_bytes`` of them (the
+    newest is always kept); what is let go to stay within it is counted in ``dropped``."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self.records: deque[tuple[int, bytes]] = deque()
+        self.size_bytes = 0
+        self.dropped: DroppedRecords | None = None  # not yet said by a record
+        self.dropped_total = 0
+
+    def hold(self, seq: int, data: bytes) -> None:
+        self.records.append((seq, data))
+        self.size_bytes += len(data)
+        while self.size_bytes > self.max_bytes and len(self.records) > 1:
+            old = self.records.popleft()
+            self.size_bytes -= len(old[1])
+            self.dropped_total += 1
+            self.dropped = _with(self.dropped, [old], LET_GO)
+
+    @property
+    def waiting(self) -> bool:
+        """Records, or the note of those let go, are still to be written."""
+        return bool(self.records) or self.dropped is not None
+
+    def written(self) -> None:
+        """The oldest record is durable."""
+        _, data = self.records.popleft()
+        self.size_bytes -= len(data)
+
+    def lost(self) -> DroppedRecords | None:
+        """All that waits, as records lost: the recorder closes before it could write them."""
+        if not self.records:
+            return self.dropped
+        return _with(self.dropped, list(self.records), CLOSED)
+
+
+def lock_text(pid: int, lost: DroppedRecords | None) -> bytes:
+    """The lock file's bytes: ``pid``, then the note of records ``lost`` if any, padded to
+    ``LOCK_BYTES`` so that rewriting them never needs new space."""
+    text = f"{pid}\n"
+    if lost is not None:
+        text += json.dumps(lost.payload(), separators=(",", ":")) + "\n"
+    data = text.encode()
+    return data + b" " * max(0, LOCK_BYTES - len(data))
+
+
+def read_lock(path: Path) -> tuple[str, DroppedRecords | None]:
+    """The lock file's holder (its pid, "" when unreadable) and its note of lost records."""
+    try:
+        lines = path.read_bytes()[:LOCK_BYTES].decode("utf-8", errors="replace").splitlines()
+    except OSError:
+        return "", None
+    holder = lines[0].strip()[:32] if lines else ""
+    return holder, _note(lines[1]) if len(lines) > 1 else None
+
+
+def _note(line: str) -> DroppedRecords | None:
+    """The note of lost records in a lock file's second line; ``None`` when it holds none (or
+    something this recorder did not write: nothing to carry)."""
+    try:
+        fields = json.loads(line)
+        count, size_bytes, first_seq, last_seq = (
+            fields[k] for k in ("count", "size_bytes", "first_seq", "last_seq")
+        )
+        reasons = tuple(r for r in fields["reasons"] if r in (LET_GO, CLOSED))
+    except (ValueError, TypeError, KeyError):
+        return None
+    if not all(type(n) is int and n >= 0 for n in (count, size_bytes, first_seq, last_seq)):
+        return None
+    return DroppedRecords(count, size_bytes, first_seq, last_seq, reasons)
