@@ -203,8 +203,9 @@ def _toml_table(
 
 
 def _register_builtin(commands: CommandRegistry) -> None:
-    """The flight commands: plugins, config, engines list|verify, match."""
+    """The flight commands: plugins, config, engines list|verify, match, fdr."""
     from c3_matcher.engines.cli import register_engines_commands
+    from c3_matcher.fdr.cli import register_fdr_command
     from c3_matcher.match_cli import register_match_command
 
     p = commands.add("plugins", help="list strategies, distributions, profile and flags")
@@ -217,6 +218,7 @@ def _register_builtin(commands: CommandRegistry) -> None:
     c.set_defaults(handler=_cmd_config)
     register_engines_commands(commands)
     register_match_command(commands)
+    register_fdr_command(commands)
 
 
 def _build_parser(host: PluginHost) -> argparse.ArgumentParser:

@@ -1,0 +1,169 @@
+"""A flight-data log checked after the flight: every segment read in order, ``seq`` followed
+from record to record, each gap held against the ``fdr.records_dropped`` notes, and the lock
+file's note of records a close could not write."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections import Counter
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.fdr.files import rotated_segments
+from c3_matcher.fdr.pending import DroppedRecords, read_lock
+from c3_matcher.fdr.records import FdrRecord, read_fdr
+
+__all__ = ["FdrCheck", "SeqRange", "check_fdr", "read_fdr_log"]
+
+DROPPED = "fdr.records_dropped"
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class SeqRange:
+    """The seqs ``first``..``last``, both included."""
+
+    first: int
+    last: int
+
+    def __str__(self) -> str:
+        return str(self.first) if self.first == self.last else f"{self.first}..{self.last}"
+
+    def within(self, ranges: tuple[SeqRange, ...]) -> bool:
+        """Every seq of this range lies in one of ``ranges``."""
+        reached = self.first  # the first seq not yet covered
+        for r in sorted(ranges, key=lambda r: r.first):
+            if r.first > reached:
+                break
+            reached = max(reached, r.last + 1)
+        return reached > self.last
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class FdrCheck:
+    """What a flight-data log holds and whether it is whole. ``gaps``: seqs missing between
+    records that no ``fdr.records_dropped`` note names (``noted_gaps``: those one names);
+    ``went_back``: ``(previous, seq)`` wherever ``seq`` did not grow; ``unreadable``: lines that
+    are not records, as ``segment:line: reason``; ``lost_at_close``: records a close could not
+    write, named in the lock file until a recorder at this path writes their note."""
+
+    path: Path
+    segments: tuple[Path, ...]
+    kinds: Mapping[str, int]
+    seqs: SeqRange | None
+    wall_times: tuple[str, str] | None
+    let_go: int
+    noted_gaps: tuple[SeqRange, ...]
+    gaps: tuple[SeqRange, ...]
+    went_back: tuple[tuple[int, int], ...]
+    unreadable: tuple[str, ...]
+    lost_at_close: DroppedRecords | None
+
+    @property
+    def records(self) -> int:
+        return sum(self.kinds.values())
+
+    @property
+    def intact(self) -> bool:
+        """No line unreadable, no gap unexplained, ``seq`` always growing."""
+        return not (self.gaps or self.went_back or self.unreadable)
+
+    def to_json(self) -> dict[str, Any]:
+        lost = self.lost_at_close
+        return {
+            "path": str(self.path),
+            "intact": self.intact,
+            "segments": [str(p) for p in self.segments],
+            "records": self.records,
+            "kinds": dict(self.kinds),
+            "seqs": dataclasses.asdict(self.seqs) if self.seqs else None,
+            "wall_times": list(self.wall_times) if self.wall_times else None,
+            "let_go": self.let_go,
+            "noted_gaps": [dataclasses.asdict(r) for r in self.noted_gaps],
+            "gaps": [dataclasses.asdict(r) for r in self.gaps],
+            "went_back": [list(pair) for pair in self.went_back],
+            "unreadable": list(self.unreadable),
+            "lost_at_close": lost.payload() if lost else None,
+        }
+
+
+def log_segments(path: Path) -> tuple[Path, ...]:
+    """The segments of the log whose live segment is ``path``: rotated ones by number, then
+    the live one (``InvalidInputError`` when there is none)."""
+    if path.is_dir():
+        raise InvalidInputError("fdr", f"{path} is a directory: give the log's live segment")
+    found = [p for _, p in rotated_segments(path)] + ([path] if path.is_file() else [])
+    if not found:
+        raise InvalidInputError("fdr", f"no flight-data log at {path}")
+    return tuple(found)
+
+
+def read_fdr_log(path: Path) -> Iterator[FdrRecord]:
+    """Every record of the log at ``path`` (all its segments, oldest first), in file order;
+    lines that are not records are skipped here: :func:`check_fdr` names them."""
+    for segment in log_segments(Path(path).expanduser()):
+        yield from read_fdr(segment)
+
+
+def check_fdr(path: Path) -> FdrCheck:
+    """Read every segment of the log at ``path`` and say what it holds and whether it is
+    whole (``InvalidInputError`` when there is no log there)."""
+    path = Path(path).expanduser()
+    segments = log_segments(path)
+    kinds: Counter[str] = Counter()
+    seqs: list[int] = []
+    times: list[str] = []
+    noted: list[SeqRange] = []
+    let_go = 0
+    unreadable: list[str] = []
+    for segment in segments:
+        result = read_fdr(segment)
+        unreadable += [f"{segment.name}:{n}: {why}" for n, _, why in result.corrupt]
+        for record in result:
+            kinds[str(record.get("kind"))] += 1
+            if isinstance(seq := record.get("seq"), int):
+                seqs.append(seq)
+            if isinstance(wall := record.get("wall_time"), str):
+                times.append(wall)
+            if record.get("kind") == DROPPED and (note := _noted(record.get("payload"))):
+                noted.append(note[0])
+                let_go += note[1]
+    gaps, went_back = _follow(seqs)
+    named = tuple(noted)
+    return FdrCheck(
+        path=path,
+        segments=segments,
+        kinds=dict(sorted(kinds.items())),
+        seqs=SeqRange(seqs[0], seqs[-1]) if seqs else None,
+        wall_times=(times[0], times[-1]) if times else None,
+        let_go=let_go,
+        noted_gaps=tuple(g for g in gaps if g.within(named)),
+        gaps=tuple(g for g in gaps if not g.within(named)),
+        went_back=tuple(went_back),
+        unreadable=tuple(unreadable),
+        lost_at_close=read_lock(path.with_name(path.name + ".lock"))[1],
+    )
+
+
+def _noted(payload: Any) -> tuple[SeqRange, int] | None:
+    """The seqs a ``fdr.records_dropped`` note names, and how many records it says were lost."""
+    if not isinstance(payload, dict):
+        return None
+    first, last, count = (payload.get(k) for k in ("first_seq", "last_seq", "count"))
+    if isinstance(first, int) and isinstance(last, int) and isinstance(count, int):
+        return SeqRange(first, last), count
+    return None
+
+
+def _follow(seqs: list[int]) -> tuple[list[SeqRange], list[tuple[int, int]]]:
+    """The seqs missing between consecutive records, and each place ``seq`` did not grow."""
+    gaps: list[SeqRange] = []
+    went_back: list[tuple[int, int]] = []
+    for previous, seq in itertools.pairwise(seqs):
+        if seq > previous + 1:
+            gaps.append(SeqRange(previous + 1, seq - 1))
+        elif seq <= previous:
+            went_back.append((previous, seq))
+    return gaps, went_back
