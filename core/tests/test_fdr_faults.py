@@ -476,7 +476,7 @@ def test_closing_with_records_the_disk_still_refuses_says_they_are_lost(tmp_path
     ]
     assert _counts(records[1]) == (1, 2, 2)
     assert records[1]["payload"]["reasons"] == [
-        "the recorder closed while the disk still refused them"
+        "the recorder stopped (closed, killed or out of power) while the disk refused them"
     ]
     JsonlFdrRecorder(path, FakeClock()).close()  # the lock no longer names them: said once
     assert len(read_fdr(path)) == 3
@@ -486,6 +486,35 @@ def _counts(note: dict) -> tuple[int, int, int]:
     """A ``fdr.records_dropped`` record's count, first seq and last seq."""
     assert note["kind"] == "fdr.records_dropped"
     return note["payload"]["count"], note["payload"]["first_seq"], note["payload"]["last_seq"]
+
+
+def test_records_waiting_when_the_recorder_is_killed_are_noted_by_the_next_one(tmp_path):
+    """``kill -9`` (or a power cut) while the disk refuses records: the lock file already names
+    them, so the next recorder gives none of their seqs again and records the loss."""
+    path = tmp_path / "fdr.jsonl"
+    script = textwrap.dedent(f"""
+        import os, signal, sys
+        sys.path.insert(0, {str(CORE_SRC)!r})
+        from c3_matcher.fdr import FdrWriteError, JsonlFdrRecorder
+        from c3_matcher.testing import FakeClock
+        rec = JsonlFdrRecorder(__import__("pathlib").Path({str(path)!r}), FakeClock())
+        rec.record("k", {{"i": 0}})
+        def full(fd, data):
+            raise OSError(28, "No space left on device")
+        os.write = full
+        for i in range(1, 4):
+            try:
+                rec.record("k", {{"i": i}})
+            except FdrWriteError:
+                pass
+        os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert out.returncode == -9, out.stderr
+    JsonlFdrRecorder(path, FakeClock()).close()
+    records = read_fdr(path)
+    assert [r["seq"] for r in records] == [1, 5]
+    assert _counts(records[1]) == (3, 2, 4)
 
 
 def test_records_lost_at_close_are_noted_across_reopens_on_a_disk_still_full(tmp_path, monkeypatch):

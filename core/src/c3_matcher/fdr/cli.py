@@ -15,11 +15,9 @@ if TYPE_CHECKING:
     from c3_matcher.commands import CommandRegistry
     from c3_matcher.context import CommandContext
 
-__all__ = ["describe_check", "register_fdr_command"]
+__all__ = ["register_fdr_command"]
 
 _SHOWN = 5  # items of a list a line names before "and N more"
-
-
 _HELP = "check a flight-data log: records by kind, seq gaps and the notes that explain them"
 _DESCRIPTION = (
     "Read every segment of a flight-data log (the live one and its rotated ones) and say what "
@@ -43,12 +41,12 @@ def _cmd_fdr(args: argparse.Namespace, ctx: CommandContext) -> int:
     if args.json:
         ctx.out(json.dumps(check.to_json(), indent=2))
     else:
-        for line in describe_check(check):
+        for line in _describe(check):
             ctx.out(line)
     return EXIT_OK if check.intact else EXIT_FAILURE
 
 
-def describe_check(check: FdrCheck) -> list[str]:
+def _describe(check: FdrCheck) -> list[str]:
     """``check`` as lines for a person: the verdict, then what the log holds and its damage."""
     segments = check.segments
     lines = [

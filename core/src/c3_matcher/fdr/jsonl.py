@@ -44,9 +44,10 @@ class JsonlFdrRecorder:
     short write, I/O error) is rolled back to the last complete line, raises ``FdrWriteError``
     and keeps the record pending; the next ``record`` writes pending records first, so none is
     dropped (``flush`` retries them without a new record; ``close`` tries once more and raises
-    ``FdrWriteError`` for what it could not write, and names those records in the lock file, in
-    bytes it already has: the next recorder at ``path`` gives none of their seqs again and says
-    they were lost in a ``fdr.records_dropped`` record). A rotation is atomic with respect to
+    ``FdrWriteError`` for what it could not write). While records wait they are named in the
+    lock file, in bytes it already has: should the recorder stop before writing them (closed,
+    killed, out of power), the next recorder at ``path`` gives none of their seqs again and
+    says they were lost in a ``fdr.records_dropped`` record. A rotation is atomic with respect to
     failure: the next segment number is reserved in ``<path>.meta`` before the live segment is
     renamed, and if either step fails (disk full) nothing has moved: the recorder keeps
     appending to the live segment past ``max_bytes`` and rotates at the next record that finds
@@ -226,7 +227,7 @@ class JsonlFdrRecorder:
                 try:
                     self._write_pending()
                 except FdrWriteError as exc:
-                    lost, noted = exc, self._note_lost()
+                    lost, noted = exc, self._note_waiting()
             if self._fd >= 0:
                 os.close(self._fd)
                 self._fd = -1
@@ -236,9 +237,10 @@ class JsonlFdrRecorder:
         if lost is not None:
             raise FdrWriteError(f"{lost}: lost, the recorder is closed{noted}") from lost
 
-    def _note_lost(self) -> str:
-        """Write what ``close`` cannot write, as lost records, in the lock file: the next
-        recorder at this path gives none of their seqs again and records the loss."""
+    def _note_waiting(self) -> str:
+        """Name what waits, as records lost should the recorder stop before it writes them, in
+        the lock file: the next recorder at this path gives none of their seqs again and
+        records the loss. What ``close`` adds to its error: where the note is, or why not."""
         try:
             self._write_lock(self._pending.lost())
         except OSError as exc:
@@ -265,6 +267,7 @@ class JsonlFdrRecorder:
             if self._lock_notes is not None:
                 self._write_lock(None)  # the log says it now
         except OSError as exc:
+            self._note_waiting()  # should the recorder stop now, the next one knows
             let_go = f", {pending.dropped.count} let go" if pending.dropped else ""
             raise FdrWriteError(
                 f"FDR {self._path}: {exc}; {len(pending.records)} record(s) pending{let_go}"

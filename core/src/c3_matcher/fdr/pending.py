@@ -1,10 +1,11 @@
 """What waits on a full disk: the records accepted but not yet durable (bounded in bytes), the
 note of those let go, and the lock file that carries that note across a close the disk refused.
 
-The lock file ``<path>.lock`` holds the writer's pid on its first line. When ``close`` cannot
-write what waits, the loss is written into the lock file instead: a rewrite of bytes the file
-already has, which needs no new space on the disk. The next recorder at that path reads it,
-never gives those seqs again, and records the loss as ``fdr.records_dropped``.
+The lock file ``<path>.lock`` holds the writer's pid on its first line. While records wait,
+the second line names them, as records lost should the recorder stop before writing them
+(closed, killed, out of power): a rewrite of bytes the file already has, which needs no new
+space on the disk. The next recorder at that path reads it, never gives those seqs again, and
+records the loss as ``fdr.records_dropped``.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from pathlib import Path
 from typing import Any
 
 LET_GO = "more than [fdr] max_pending_bytes waited while the disk refused them: the oldest went"
-CLOSED = "the recorder closed while the disk still refused them"
+STOPPED = "the recorder stopped (closed, killed or out of power) while the disk refused them"
 LOCK_BYTES = 1024  # the lock file's fixed size: room for the pid and a note of lost records
+SeqSpan = tuple[int, int]  # the first and last seq of some records
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -37,18 +39,18 @@ class DroppedRecords:
 
 
 def _with(
-    note: DroppedRecords | None, records: list[tuple[int, bytes]], reason: str
+    note: DroppedRecords | None, count: int, size_bytes: int, seqs: SeqSpan, reason: str
 ) -> DroppedRecords:
-    """``note`` (``None``: nothing dropped yet) and ``records`` (``(seq, line)``) more."""
-    seqs = [seq for seq, _ in records]
-    size = sum(len(line) for _, line in records)
+    """``note`` (``None``: nothing dropped yet) and ``count`` more records of ``size_bytes``
+    whose seqs lie in ``seqs`` (first, last)."""
+    first, last = seqs
     if note is None:
-        return DroppedRecords(len(records), size, min(seqs), max(seqs), (reason,))
+        return DroppedRecords(count, size_bytes, first, last, (reason,))
     return DroppedRecords(
-        note.count + len(records),
-        note.size_bytes + size,
-        min(note.first_seq, *seqs),
-        max(note.last_seq, *seqs),
+        note.count + count,
+        note.size_bytes + size_bytes,
+        min(note.first_seq, first),
+        max(note.last_seq, last),
         note.reasons if reason in note.reasons else (*note.reasons, reason),
     )
 
@@ -68,10 +70,10 @@ class Pending:
         self.records.append((seq, data))
         self.size_bytes += len(data)
         while self.size_bytes > self.max_bytes and len(self.records) > 1:
-            old = self.records.popleft()
-            self.size_bytes -= len(old[1])
+            seq, old = self.records.popleft()
+            self.size_bytes -= len(old)
             self.dropped_total += 1
-            self.dropped = _with(self.dropped, [old], LET_GO)
+            self.dropped = _with(self.dropped, 1, len(old), (seq, seq), LET_GO)
 
     @property
     def waiting(self) -> bool:
@@ -84,10 +86,12 @@ class Pending:
         self.size_bytes -= len(data)
 
     def lost(self) -> DroppedRecords | None:
-        """All that waits, as records lost: the recorder closes before it could write them."""
+        """All that waits, as records lost should the recorder stop now (closed, killed or out
+        of power) before it could write them."""
         if not self.records:
             return self.dropped
-        return _with(self.dropped, list(self.records), CLOSED)
+        span = (self.records[0][0], self.records[-1][0])
+        return _with(self.dropped, len(self.records), self.size_bytes, span, STOPPED)
 
 
 def lock_text(pid: int, lost: DroppedRecords | None) -> bytes:
@@ -118,7 +122,7 @@ def _note(line: str) -> DroppedRecords | None:
         count, size_bytes, first_seq, last_seq = (
             fields[k] for k in ("count", "size_bytes", "first_seq", "last_seq")
         )
-        reasons = tuple(r for r in fields["reasons"] if r in (LET_GO, CLOSED))
+        reasons = tuple(r for r in fields["reasons"] if r in (LET_GO, STOPPED))
     except (ValueError, TypeError, KeyError):
         return None
     if not all(type(n) is int and n >= 0 for n in (count, size_bytes, first_seq, last_seq)):
