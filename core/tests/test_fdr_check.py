@@ -105,10 +105,10 @@ def test_records_a_close_could_not_write_are_named_until_the_next_recorder_write
     monkeypatch.undo()
     status, out = _run(["fdr", str(path)], capsys)
     assert status == 0  # nothing in the log is damaged: the loss is at its end, and named
-    assert "lost at the last close: 1 record(s), seqs 3, named in fdr.jsonl.lock" in out
+    assert "not in the log: 1 record(s), seqs 3, named in fdr.jsonl.lock" in out
     JsonlFdrRecorder(path, FakeClock()).close()
     check = check_fdr(path)
-    assert check.lost_at_close is None and check.let_go == 1 and check.intact
+    assert check.not_in_log is None and check.let_go == 1 and check.intact
 
 
 def test_the_configured_log_is_checked_by_default_and_a_missing_one_is_bad_input(

@@ -1,6 +1,6 @@
 """A flight-data log checked after the flight: every segment read in order, ``seq`` followed
 from record to record, each gap held against the ``fdr.records_dropped`` notes, and the lock
-file's note of records a close could not write."""
+file's note of records not yet in the log."""
 
 from __future__ import annotations
 
@@ -46,8 +46,9 @@ class FdrCheck:
     """What a flight-data log holds and whether it is whole. ``gaps``: seqs missing between
     records that no ``fdr.records_dropped`` note names (``noted_gaps``: those one names);
     ``went_back``: ``(previous, seq)`` wherever ``seq`` did not grow; ``unreadable``: lines that
-    are not records, as ``segment:line: reason``; ``lost_at_close``: records a close could not
-    write, named in the lock file until a recorder at this path writes their note."""
+    are not records, as ``segment:line: reason``; ``not_in_log``: records the lock file names,
+    waiting on a full disk or lost when the recorder stopped, until a recorder at this path
+    writes their note."""
 
     path: Path
     segments: tuple[Path, ...]
@@ -59,7 +60,7 @@ class FdrCheck:
     gaps: tuple[SeqRange, ...]
     went_back: tuple[tuple[int, int], ...]
     unreadable: tuple[str, ...]
-    lost_at_close: DroppedRecords | None
+    not_in_log: DroppedRecords | None
 
     @property
     def records(self) -> int:
@@ -71,7 +72,7 @@ class FdrCheck:
         return not (self.gaps or self.went_back or self.unreadable)
 
     def to_json(self) -> dict[str, Any]:
-        lost = self.lost_at_close
+        lost = self.not_in_log
         return {
             "path": str(self.path),
             "intact": self.intact,
@@ -85,7 +86,7 @@ class FdrCheck:
             "gaps": [dataclasses.asdict(r) for r in self.gaps],
             "went_back": [list(pair) for pair in self.went_back],
             "unreadable": list(self.unreadable),
-            "lost_at_close": lost.payload() if lost else None,
+            "not_in_log": lost.payload() if lost else None,
         }
 
 
@@ -143,7 +144,7 @@ def check_fdr(path: Path) -> FdrCheck:
         gaps=tuple(g for g in gaps if not g.within(named)),
         went_back=tuple(went_back),
         unreadable=tuple(unreadable),
-        lost_at_close=read_lock(path.with_name(path.name + ".lock"))[1],
+        not_in_log=read_lock(path.with_name(path.name + ".lock"))[1],
     )
 
 

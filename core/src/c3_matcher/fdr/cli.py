@@ -70,11 +70,12 @@ def _describe(check: FdrCheck) -> list[str]:
         lines.append("  seq went back: " + _some([f"{s} after {p}" for p, s in check.went_back]))
     if check.unreadable:
         lines.append("  unreadable lines: " + _some(list(check.unreadable)))
-    if (lost := check.lost_at_close) is not None:
+    if (lost := check.not_in_log) is not None:
         lines.append(
-            f"  lost at the last close: {lost.count} record(s), seqs "
+            f"  not in the log: {lost.count} record(s), seqs "
             f"{SeqRange(lost.first_seq, lost.last_seq)}, named in {check.path.name}.lock "
-            "(the next recorder at this path records them)"
+            "(waiting on a full disk, or lost when the recorder stopped: the next recorder at "
+            "this path records them)"
         )
     return lines
 

@@ -96,7 +96,7 @@ class JsonlFdrRecorder:
         self._take_lock(what)
         try:
             carried = None if fresh else read_lock(self._lock_path)[1]
-            self._write_lock(carried)  # until the note of records lost at the last close is out
+            self._write_lock(carried)  # until the note of records lost when the last stopped is out
             if fresh:
                 self._remove_previous_log()
             self._drop_half_rotated_live()
@@ -109,7 +109,7 @@ class JsonlFdrRecorder:
             raise FdrOpenError(what, f"cannot open: {exc.strerror or exc}") from exc
         with contextlib.suppress(FdrWriteError):  # kept pending: the next record writes them
             if torn is None:
-                self._write_pending()  # the note of records lost at the last close, if any
+                self._write_pending()  # the note of records lost when the last stopped, if any
             else:
                 kept = {"kept_in": None, "not_kept": torn.not_kept} if torn.not_kept else {}
                 self.record(
