@@ -27,14 +27,6 @@ def rotated_segments(path: Path) -> list[tuple[int, Path]]:
     return sorted(out)
 
 
-def read_small(path: Path) -> str:
-    """The first 64 characters of a small text file (a lock holder's pid), "" if unreadable."""
-    try:
-        return path.read_text(encoding="utf-8", errors="replace")[:64]
-    except OSError:
-        return ""
-
-
 def is_foreign(path: Path) -> bool:
     """Whether ``path`` holds something other than a log of records: it is not empty and does
     not begin with ``{`` as every record line does (an image, a document). A file that cannot

@@ -1,5 +1,5 @@
 """What waits on a full disk: the records accepted but not yet durable (bounded in bytes), the
-note of those let go, and the lock file that carries that note across a close the disk refused.
+note of those let go, and the lock file that carries what waits to the next recorder.
 
 The lock file ``<path>.lock`` holds the writer's pid on its first line. While records wait,
 the second line names them, as records lost should the recorder stop before writing them
@@ -67,13 +67,14 @@ class Pending:
         self.dropped_total = 0
 
     def hold(self, seq: int, data: bytes) -> None:
+        """Keep the record ``seq`` (its line ``data``); let the oldest go past ``max_bytes``."""
         self.records.append((seq, data))
         self.size_bytes += len(data)
         while self.size_bytes > self.max_bytes and len(self.records) > 1:
-            seq, old = self.records.popleft()
+            old_seq, old = self.records.popleft()
             self.size_bytes -= len(old)
             self.dropped_total += 1
-            self.dropped = _with(self.dropped, 1, len(old), (seq, seq), LET_GO)
+            self.dropped = _with(self.dropped, 1, len(old), (old_seq, old_seq), LET_GO)
 
     @property
     def waiting(self) -> bool:
