@@ -180,7 +180,7 @@ def test_profile_installs_offline_and_behaves_as_the_matrix_says(profile, wheelh
     assert ("c3-matcher-tools" in installed) == tools
     assert ("tifffile" in installed) == tools  # a ground dependency only
     commands = set(_commands(env.c3("--help").stdout))
-    flight = {"plugins", "config", "engines", "match"}
+    flight = {"plugins", "config", "engines", "match", "fdr"}
     ground = {"tiles", "dataset", "replay", "eval", "bench", "features"}
     assert commands == (flight | ground if tools else flight)
     engines = set(_commands(env.c3("engines", "--help").stdout))
@@ -198,6 +198,10 @@ def test_profile_installs_offline_and_behaves_as_the_matrix_says(profile, wheelh
             assert "BUILD_MATCHER_" in proc.stderr
     config = env.c3("config", "--json")
     assert config.returncode == 0 and json.loads(config.stdout)["matcher"]["strategy"]
+    log = env.c3("fdr", "--json")  # the log every match above wrote, checked where it flies
+    assert log.returncode == 0, log.stdout + log.stderr
+    frames = json.loads(log.stdout)["kinds"].get("matcher.frame_done", 0)
+    assert frames == list(states.values()).count("ON")
 
 
 @pytest.mark.slow
