@@ -55,3 +55,40 @@ def test_an_out_that_cannot_be_made_is_named_not_its_temporary_folder() -> None:
         pass
     assert str(refused.value).startswith("OUT: /proc/c3-out: cannot be written (")
     assert ".tmp-" not in str(refused.value)
+
+
+def test_a_store_another_build_finished_meanwhile_is_kept_not_replaced(tmp_path: Path) -> None:
+    """Two builds of one store without --force: the second to finish is refused, naming the
+    path, and the first one's store stays byte for byte; nothing is left beside it."""
+    store = tmp_path / "tiles.mbtiles"
+    second = MBTilesWriter(store)
+    second.put_tile(1, 0, 0, b"the second build")
+    with MBTilesWriter(store) as first:
+        first.put_tile(1, 0, 0, b"the first build")
+    kept = store.read_bytes()
+    with pytest.raises(InvalidInputError, match="appeared while this build ran.*--force"):
+        second.close()
+    assert store.read_bytes() == kept
+    assert [p.name for p in tmp_path.iterdir()] == ["tiles.mbtiles"]
+    forced = MBTilesWriter(store, overwrite=True)
+    forced.put_tile(1, 0, 0, b"forced")
+    forced.close()
+    assert store.read_bytes() != kept and [p.name for p in tmp_path.iterdir()] == ["tiles.mbtiles"]
+
+
+def test_where_the_filesystem_has_no_hard_links_the_store_is_still_named(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def no_links(src: object, dst: object) -> None:
+        raise OSError(1, "Operation not permitted")
+
+    monkeypatch.setattr("os.link", no_links)
+    store = tmp_path / "tiles.mbtiles"
+    with MBTilesWriter(store) as w:
+        w.put_tile(1, 0, 0, b"a whole store")
+    assert [p.name for p in tmp_path.iterdir()] == ["tiles.mbtiles"]
+    late = MBTilesWriter(tmp_path / "late.mbtiles")
+    (tmp_path / "late.mbtiles").write_bytes(b"another build's")
+    with pytest.raises(InvalidInputError, match="late.mbtiles exists"):
+        late.close()
+    assert (tmp_path / "late.mbtiles").read_bytes() == b"another build's"

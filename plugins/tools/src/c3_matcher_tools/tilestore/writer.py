@@ -109,10 +109,11 @@ class MBTilesWriter:
     :func:`c3_matcher.atomic.temporary_sibling`) and renamed onto ``path`` by :meth:`close`;
     :meth:`abort` (or leaving the ``with`` block on any exception, Ctrl-C included) removes it
     and its journal, and an existing ``path`` is untouched until the rename (refused unless
-    ``overwrite``)."""
+    ``overwrite``, also when another build put it there while this one ran)."""
 
     def __init__(self, path: str | Path, *, overwrite: bool = False) -> None:
         self._path = Path(path)
+        self._overwrite = overwrite
         if self._path.exists() and not overwrite:
             raise InvalidInputError("mbtiles", f"{self._path} exists (use --force)")
         if self._path.is_dir():
@@ -165,10 +166,33 @@ class MBTilesWriter:
             db.execute("VACUUM")
             db.close()
             self._db = None
-            os.replace(self._tmp, self._path)
+            self._name()
         except BaseException:
             self.abort()
             raise
+
+    def _name(self) -> None:
+        """Give the finished store its path. Without ``overwrite``, only while nothing else has
+        it: a store another build put there meanwhile is kept (a hard link, which fails when the
+        name exists, then the temporary name removed; a rename where the filesystem has no hard
+        links)."""
+        if self._overwrite:
+            os.replace(self._tmp, self._path)
+            return
+        try:
+            os.link(self._tmp, self._path)
+        except FileExistsError:
+            raise InvalidInputError(
+                "mbtiles",
+                f"{self._path} appeared while this build ran (another build?); "
+                "kept as it is: use --force to replace it",
+            ) from None
+        except OSError:  # no hard links here (FAT, some network filesystems)
+            if self._path.exists():
+                raise InvalidInputError("mbtiles", f"{self._path} exists (use --force)") from None
+            os.replace(self._tmp, self._path)
+            return
+        self._tmp.unlink()
 
     def abort(self) -> None:
         """Drop the unfinished store: nothing is left at the path or beside it."""
