@@ -15,6 +15,7 @@ import pytest
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr import FdrOpenError, FdrWriteError, JsonlFdrRecorder, read_fdr
+from c3_matcher.fdr.pending import STOPPED, DroppedRecords, lock_text
 from c3_matcher.testing import FakeClock
 
 CORE_SRC = Path(__file__).resolve().parents[1] / "src"
@@ -515,6 +516,25 @@ def test_records_waiting_when_the_recorder_is_killed_are_noted_by_the_next_one(t
     records = read_fdr(path)
     assert [r["seq"] for r in records] == [1, 5]
     assert _counts(records[1]) == (3, 2, 4)
+
+
+def test_a_note_of_waiting_records_counts_only_those_the_log_lacks(tmp_path):
+    """What a kill leaves while waiting records were being written back: the lock file names
+    seqs 3-6, the log holds 1-4. The next recorder says 2 were lost (5 and 6) and goes on at 7;
+    a note all of whose records reached the log is not written at all."""
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    for i in range(4):
+        rec.record("k", {"i": i})
+    rec.close()
+    lock = path.with_name("fdr.jsonl.lock")
+    lock.write_bytes(lock_text(1, DroppedRecords(4, 400, 3, 6, (STOPPED,))))
+    JsonlFdrRecorder(path, FakeClock()).close()
+    note = read_fdr(path)[-1]
+    assert (note["seq"], *_counts(note)) == (7, 2, 3, 6)
+    lock.write_bytes(lock_text(1, DroppedRecords(2, 200, 3, 4, (STOPPED,))))
+    JsonlFdrRecorder(path, FakeClock()).close()
+    assert len(read_fdr(path)) == 5  # 3 and 4 are both in the log: nothing was lost
 
 
 def test_records_lost_at_close_are_noted_across_reopens_on_a_disk_still_full(tmp_path, monkeypatch):

@@ -96,12 +96,14 @@ class JsonlFdrRecorder:
         self._take_lock(what)
         try:
             carried = None if fresh else read_lock(self._lock_path)[1]
-            self._write_lock(carried)  # until the note of records lost when the last stopped is out
             if fresh:
                 self._remove_previous_log()
             self._drop_half_rotated_live()
             torn = self._cut_torn_tail()
-            self._seq = max(self._last_seq(), carried.last_seq if carried else 0) + 1
+            seqs = self._recent_seqs()
+            self._seq = max([self._meta_seq(), *seqs, carried.last_seq if carried else 0]) + 1
+            carried = carried and carried.without(seqs)  # some written before the last stopped
+            self._write_lock(carried)  # until the note of records lost when the last stopped is out
             self._fd = open_for_append(self._path)
             self._pending.dropped = carried
         except OSError as exc:
@@ -351,13 +353,17 @@ class JsonlFdrRecorder:
         """Cut the live segment back to its last complete line; keep the cut bytes aside."""
         return cut_torn_tail(self._path, self.torn_path)
 
-    def _last_seq(self) -> int:
-        last = int(read_meta(self._meta_path).get("last_seq", 0))
-        rotated = self._rotated()
-        for p in [*(q for _, q in rotated[-1:]), self._path]:
+    def _meta_seq(self) -> int:
+        """The last seq ``.meta`` keeps (so seq never goes back once all is offloaded)."""
+        return int(read_meta(self._meta_path).get("last_seq", 0))
+
+    def _recent_seqs(self) -> list[int]:
+        """The seqs in the newest rotated segment and the live one."""
+        seqs = []
+        for p in [*(q for _, q in self._rotated()[-1:]), self._path]:
             if p.exists():
                 for record in read_fdr(p):
                     seq = record.get("seq", 0) if isinstance(record, dict) else 0
                     if isinstance(seq, int):
-                        last = max(last, seq)
-        return last
+                        seqs.append(seq)
+        return seqs

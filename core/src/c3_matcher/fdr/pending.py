@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections import deque
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -25,13 +26,22 @@ SeqSpan = tuple[int, int]  # the first and last seq of some records
 @dataclasses.dataclass(frozen=True, slots=True)
 class DroppedRecords:
     """Records accepted but never written: how many, their bytes, the first and last of their
-    seqs (every seq between that the file lacks is one of them) and why."""
+    seqs (every seq between that the file lacks is one of them) and why. Carried to the next
+    recorder, the count is of the seqs its log lacks; the bytes stay an upper bound."""
 
     count: int
     size_bytes: int
     first_seq: int
     last_seq: int
     reasons: tuple[str, ...]
+
+    def without(self, written: Iterable[int]) -> DroppedRecords | None:
+        """This note less the records whose seqs are among ``written`` (a recorder killed
+        while it wrote waiting records back wrote some of them); ``None`` when none is left.
+        ``size_bytes`` stays an upper bound."""
+        in_range = {seq for seq in written if self.first_seq <= seq <= self.last_seq}
+        count = min(self.count, self.last_seq - self.first_seq + 1 - len(in_range))
+        return dataclasses.replace(self, count=count) if count > 0 else None
 
     def payload(self) -> dict[str, Any]:
         """The ``fdr.records_dropped`` record's payload (and the lock file's note)."""
