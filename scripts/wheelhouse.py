@@ -21,6 +21,7 @@ import argparse
 import shutil
 import subprocess
 import sys
+import tempfile
 import tomllib
 from pathlib import Path
 
@@ -39,6 +40,15 @@ def linked_plugin_dirs(profile: str) -> list[Path]:
     return [d for d in dirs if (d / "pyproject.toml").is_file()]
 
 
+def _clean_copy(source: Path, target: Path) -> Path:
+    """``source``'s project copied to ``target`` without what earlier builds left in it: each
+    wheel is built in a folder of its own, so the checkout gets no ``build/`` or ``*.egg-info``
+    and nothing else touches a build while it runs."""
+    leftovers = shutil.ignore_patterns("build", "dist", "*.egg-info", "__pycache__", ".*_cache")
+    shutil.copytree(source, target, ignore=leftovers)
+    return target
+
+
 def build(profiles: list[str], out: Path, engines: Path | None, extra: list[Path]) -> None:
     out.mkdir(parents=True, exist_ok=True)
     sources = {REPO / "core"}
@@ -46,9 +56,11 @@ def build(profiles: list[str], out: Path, engines: Path | None, extra: list[Path
         sources |= {REPO / "buildflags" / profile, *linked_plugin_dirs(profile)}
     sources |= set(extra)
     print(f"wheelhouse: building {len(sources)} local wheels", file=sys.stderr)
-    subprocess.run(
-        [*PIP, "wheel", "--no-deps", "-w", str(out), *map(str, sorted(sources))], check=True
-    )
+    with tempfile.TemporaryDirectory(prefix="c3-wheelhouse-") as tmp:
+        copies = [
+            _clean_copy(source, Path(tmp) / f"{i:02d}") for i, source in enumerate(sorted(sources))
+        ]
+        subprocess.run([*PIP, "wheel", "--no-deps", "-w", str(out), *map(str, copies)], check=True)
     requirements = [f"c3-matcher[{p}]" for p in profiles]
     print("wheelhouse: downloading run-time dependencies", file=sys.stderr)
     subprocess.run(
