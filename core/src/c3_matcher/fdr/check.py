@@ -13,12 +13,10 @@ from typing import Any
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import rotated_segments
-from c3_matcher.fdr.pending import DroppedRecords, read_lock
+from c3_matcher.fdr.pending import RECORDS_DROPPED, DroppedRecords, read_lock
 from c3_matcher.fdr.records import FdrRecord, read_fdr
 
 __all__ = ["FdrCheck", "SeqRange", "check_fdr", "read_fdr_log"]
-
-DROPPED = "fdr.records_dropped"
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -128,7 +126,7 @@ def check_fdr(path: Path) -> FdrCheck:
                 seqs.append(seq)
             if isinstance(wall := record.get("wall_time"), str):
                 times.append(wall)
-            if record.get("kind") == DROPPED and (note := _noted(record.get("payload"))):
+            if record.get("kind") == RECORDS_DROPPED and (note := _noted(record.get("payload"))):
                 noted.append(note[0])
                 let_go += note[1]
     gaps, went_back = _follow(seqs)

@@ -25,7 +25,13 @@ from c3_matcher.fdr.files import (
     rotated_segments,
     write_meta,
 )
-from c3_matcher.fdr.pending import DroppedRecords, Pending, lock_text, read_lock
+from c3_matcher.fdr.pending import (
+    RECORDS_DROPPED,
+    DroppedRecords,
+    Pending,
+    lock_text,
+    read_lock,
+)
 from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, read_fdr, to_jsonable
 from c3_matcher.protocols import Clock
 
@@ -263,7 +269,7 @@ class JsonlFdrRecorder:
                 self._write_durably(pending.records[0][1])
                 pending.written()
             if pending.dropped is not None:
-                self._write_durably(self._line("fdr.records_dropped", pending.dropped.payload()))
+                self._write_durably(self._line(RECORDS_DROPPED, pending.dropped.payload()))
                 self._seq += 1
                 pending.dropped = None
             if self._lock_notes is not None:

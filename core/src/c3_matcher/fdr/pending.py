@@ -19,6 +19,7 @@ from typing import Any
 
 LET_GO = "more than [fdr] max_pending_bytes waited while the disk refused them: the oldest went"
 STOPPED = "the recorder stopped (closed, killed or out of power) while the disk refused them"
+RECORDS_DROPPED = "fdr.records_dropped"  # the kind of the record that names lost records
 LOCK_BYTES = 1024  # the lock file's fixed size: room for the pid and a note of lost records
 SeqSpan = tuple[int, int]  # the first and last seq of some records
 
