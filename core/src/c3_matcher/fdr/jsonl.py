@@ -97,7 +97,8 @@ class JsonlFdrRecorder:
         self._lock_fd = -1
         self._needs_repair = False
         self._reserved: int | None = None  # a segment number reserved by a failed rotation
-        self._lock_notes: DroppedRecords | None = None  # lost records the lock file names
+        self._lock_names_loss = False  # the lock file names records not yet in the log
+        self._noted = ""  # where the last write failure's waiting records are named, or why not
         what = f"fdr.path {self._path}"
         self._take_lock(what)
         try:
@@ -157,12 +158,12 @@ class JsonlFdrRecorder:
 
     def _write_lock(self, lost: DroppedRecords | None) -> None:
         """Our pid in the lock file and, while they are not yet in the log, the records ``lost``
-        by a close the disk refused: written over the file's own bytes, which needs no space."""
+        should this recorder stop: written over the file's own bytes, which needs no space."""
         data = lock_text(os.getpid(), lost)
         os.pwrite(self._lock_fd, data, 0)
         os.ftruncate(self._lock_fd, len(data))
         os.fsync(self._lock_fd)
-        self._lock_notes = lost
+        self._lock_names_loss = lost is not None
 
     @property
     def path(self) -> Path:
@@ -230,12 +231,11 @@ class JsonlFdrRecorder:
         files are closed and the lock released all the same)."""
         with self._lock:
             lost: FdrWriteError | None = None
-            noted = ""
             if self._pending.waiting and self._lock_fd >= 0:
                 try:
                     self._write_pending()
                 except FdrWriteError as exc:
-                    lost, noted = exc, self._note_waiting()
+                    lost = exc  # its failure already named the waiting records (_noted)
             if self._fd >= 0:
                 os.close(self._fd)
                 self._fd = -1
@@ -243,17 +243,20 @@ class JsonlFdrRecorder:
                 os.close(self._lock_fd)  # releases the flock
                 self._lock_fd = -1
         if lost is not None:
-            raise FdrWriteError(f"{lost}: lost, the recorder is closed{noted}") from lost
+            raise FdrWriteError(f"{lost}: lost, the recorder is closed{self._noted}") from lost
 
-    def _note_waiting(self) -> str:
+    def _note_waiting(self) -> None:
         """Name what waits, as records lost should the recorder stop before it writes them, in
         the lock file: the next recorder at this path gives none of their seqs again and
-        records the loss. What ``close`` adds to its error: where the note is, or why not."""
+        records the loss. ``_noted`` keeps what ``close`` adds to its error: where, or why not."""
         try:
             self._write_lock(self._pending.lost())
         except OSError as exc:
-            return f" (and cannot be noted in {self._lock_path.name}: {exc.strerror or exc})"
-        return "; the next recorder to append to this log records them as fdr.records_dropped"
+            self._noted = f" (and cannot be noted in {self._lock_path.name}: {exc.strerror or exc})"
+            return
+        self._noted = (
+            "; the next recorder to append to this log records them as fdr.records_dropped"
+        )
 
     def segments(self) -> list[Path]:
         """Rotated segments oldest first (by number), then the live one."""
@@ -272,7 +275,7 @@ class JsonlFdrRecorder:
                 self._write_durably(self._line(RECORDS_DROPPED, pending.dropped.payload()))
                 self._seq += 1
                 pending.dropped = None
-            if self._lock_notes is not None:
+            if self._lock_names_loss:
                 self._write_lock(None)  # the log says it now
         except OSError as exc:
             self._note_waiting()  # should the recorder stop now, the next one knows
