@@ -22,6 +22,7 @@ OUT; an existing one is read back, not re-run.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import math
@@ -42,7 +43,7 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.strategy import ExtractorBackend
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.run import open_matcher, run_flight
-from c3_matcher_tools.run.acceptance import headline, metrics
+from c3_matcher_tools.run.acceptance import Acceptance, metrics
 
 
 def _digest(*parts: Any) -> str:
@@ -135,15 +136,15 @@ def _variant_settings(
     return base.model_copy(update={"matcher": matcher, "lightglue": lightglue})
 
 
-def _row(flight: str, m: dict[str, Any], outcomes: list[Any], wall_s: float) -> dict[str, Any]:
+def _row(flight: str, m: Acceptance, outcomes: list[Any], wall_s: float) -> dict[str, Any]:
     present = [o for o in outcomes if o.has_truth and o.true_present]
     correct_inliers = [o.best_inliers for o in present if o.correct]
     return {
         "flight": flight,
-        **headline(m),
-        "it01_p5": m["C3-IT-01"]["p5_best_inliers"],
-        "it03_median_px": m["C3-IT-03"]["median_mean_error_px"],
-        "other_tile": len(m["false_confident"]["right_fix_other_tile"]),
+        **dataclasses.asdict(m.headline),
+        "it01_p5": m.inlier_count.p5_best_inliers,
+        "it03_median_px": m.inlier_error.median_mean_error_px,
+        "other_tile": len(m.false_confident.right_fix_other_tile),
         "min_correct_inliers": min(correct_inliers) if correct_inliers else None,
         "per_frame": [
             {

@@ -5,6 +5,7 @@ table's columns line up under their headers."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import random
@@ -16,8 +17,9 @@ import pytest
 
 from c3_matcher.context import CommandContext
 from c3_matcher_tools.evaluate import _print_summary, _table_row, metrics
-from c3_matcher_tools.run import FrameOutcome
-from c3_matcher_tools.run.records import FlightRun, StrategyEval
+from c3_matcher_tools.run import FrameOutcome, StrategyEval, SummaryRow, summarize
+from c3_matcher_tools.run.acceptance import Headline
+from c3_matcher_tools.run.records import FlightRun
 from c3_matcher_tools.testing.cli import run_cli
 from c3_matcher_tools.testing.outcomes import frame_outcome
 
@@ -28,7 +30,7 @@ FLIGHTS = REPO / "data" / "flights"
 def _row(outcomes: list[FrameOutcome], run2: list[FrameOutcome] | None = None) -> str:
     m = metrics(outcomes, outcomes[:1] if run2 is None else run2)
     run = FlightRun("xfeat", {}, tuple(outcomes), 0.0, 0.0)
-    timing = {"frame_ms_p50": 10.0, "frame_ms_p95": 12.0}
+    timing = dataclasses.replace(summarize(outcomes), frame_ms_p50=10.0, frame_ms_p95=12.0)
     return _table_row(StrategyEval(run, m, timing, "map.geojson", None))
 
 
@@ -47,9 +49,9 @@ def test_a_flight_without_true_tile_frames_leaves_its_true_tile_bars_unjudged() 
     """naip_distractors_s2015's shape: every frame's true tile absent, every one refused."""
     run = [frame_outcome(i, status="insufficient", true_present=False) for i in range(12)]
     m = metrics(run, run[:1])
-    assert m["C3-IT-01"]["pass"] is None and m["C3-IT-03"]["pass"] is None
-    assert m["C3-IT-04"]["pass"] is None
-    assert m["C3-IT-05"]["pass"] is True and m["false_confident"]["pass"] is True
+    assert m.inlier_count.passed is None and m.inlier_error.passed is None
+    assert m.correct_tile.passed is None
+    assert m.absent_raised.passed is True and m.false_confident.passed is True
     cells = _row(run).split()
     assert cells[1:6] == ["n/a", "same", "n/a", "0/0", "12/12"], cells  # no '!'
 
@@ -59,11 +61,11 @@ def test_a_flight_without_ground_truth_leaves_every_truth_bar_unjudged() -> None
     false-confident's 0 of 0; only IT-02 (run twice) is measured, and an unmeasured bar
     never makes a run pass every bar."""
     run = [frame_outcome(i, true_present=False, has_truth=False) for i in range(5)]
-    m = metrics(run, run[:1])
+    m = metrics(run, run[:1]).measures()
     unmeasured = ("C3-IT-01", "C3-IT-03", "C3-IT-04", "C3-IT-05", "false_confident")
-    assert {k: m[k]["pass"] for k in unmeasured} == dict.fromkeys(unmeasured)
-    assert m["C3-IT-02"]["pass"] is True
-    assert not all(v["pass"] for v in m.values())
+    assert {k: m[k].passed for k in unmeasured} == dict.fromkeys(unmeasured)
+    assert m["C3-IT-02"].passed is True
+    assert not all(v.passed for v in m.values())
     assert "!" not in _row(run)
     assert _row(run, run2=[]).split()[2] == "n/a"  # IT-02 with no frame run twice
 
@@ -72,7 +74,7 @@ def test_a_measured_bar_that_is_missed_is_still_marked() -> None:
     run = [frame_outcome(0, inliers=60, error_px=3.0), frame_outcome(1, status="insufficient")]
     run.append(frame_outcome(2, true_present=False, error_px=400.0))  # an absent frame matched
     m = metrics(run, run[:1])
-    assert [m[k]["pass"] for k in m] == [False, True, False, False, False, False]
+    assert [v.passed for v in m.measures().values()] == [False, True, False, False, False, False]
     cells = _row(run).split()
     assert cells[1] == "3!" and cells[3] == "3.00!" and cells[4] == "1/2!"
     assert cells[5:7] == ["0/1!", "1/3!"]
@@ -88,8 +90,8 @@ def test_printed_figures_agree_with_their_bars() -> None:
     errors = [*[1.0] * 18, 2.49, 2.61]
     run = [frame_outcome(i, inliers=n, error_px=e) for i, (n, e) in enumerate(zip(inliers, errors))]
     m = metrics(run, run[:1])
-    assert m["C3-IT-01"]["p5_best_inliers"] == pytest.approx(79.95)
-    assert m["C3-IT-03"]["p95_mean_error_px"] == pytest.approx(2.496)
+    assert m.inlier_count.p5_best_inliers == pytest.approx(79.95)
+    assert m.inlier_error.p95_mean_error_px == pytest.approx(2.496)
     cells = _row(run).split()
     assert cells[1] == "79.9!" and float(cells[1][:-1]) < 80
     assert cells[3] == "2.496" and float(cells[3]) < 2.5
@@ -130,14 +132,13 @@ def test_every_figure_printed_beside_a_bar_is_judged_as_its_value() -> None:
 # -- the summary table ------------------------------------------------------------------------
 
 
-def _summary(flight: str, **figures: Any) -> dict[str, Any]:
-    row = {"strategy": "xfeat", "flight": flight, "correct": 0, "present": 0}
-    row |= {"it03_p95_px": math.nan, "it05_raised": 12, "absent": 12, "false_confident": 0}
-    row |= {"scored": 12, "right_fix_other_tile": 0, "frame_ms_p50": 600.0}
-    return row | figures
+def _summary(flight: str, **figures: Any) -> SummaryRow:
+    row = {"correct": 0, "present": 0, "it03_p95_px": math.nan, "it05_raised": 12}
+    row |= {"absent": 12, "false_confident": 0, "scored": 12}
+    return SummaryRow("xfeat", flight, Headline(**(row | figures)), 0, 600.0)
 
 
-def _summary_lines(rows: list[dict[str, Any]]) -> list[str]:
+def _summary_lines(rows: list[SummaryRow]) -> list[str]:
     sink = _Lines()
     _print_summary(cast(CommandContext, sink), rows)
     return sink.lines

@@ -43,8 +43,8 @@ def test_metrics_count_wrong_fixes_and_right_fixes_on_another_tile_apart() -> No
         frame_outcome(5, correct=False, error_px=500.0, true_present=False),
     ]
     m = metrics(run, run[:1])
-    assert m["C3-IT-04"]["correct"] == 1 and m["C3-IT-04"]["frames"] == 4
-    assert m["false_confident"]["frames"] == [2, 5]
-    assert m["false_confident"]["right_fix_other_tile"] == [1]
-    assert m["false_confident"]["pass"] is False
-    assert m["C3-IT-05"] == {"insufficient": 1, "absent_frames": 2, "pass": False}
+    assert m.correct_tile.correct == 1 and m.correct_tile.frames == 4
+    assert m.false_confident.frames == (2, 5)
+    assert m.false_confident.right_fix_other_tile == (1,)
+    assert m.false_confident.passed is False
+    assert m.to_json()["C3-IT-05"] == {"insufficient": 1, "absent_frames": 2, "pass": False}

@@ -111,26 +111,16 @@ def test_a_dataset_name_that_is_not_one_path_component_cannot_name_the_default_o
 @pytest.mark.parametrize(("ok", "hinted"), [(0, True), (1, False)])
 def test_a_replay_where_no_frame_matched_says_what_to_check(ok: int, hinted: bool) -> None:
     from c3_matcher_tools.replay import _report_lines
+    from c3_matcher_tools.run import summarize
+    from c3_matcher_tools.testing.outcomes import frame_outcome
 
-    report = {
-        "strategy": "xfeat",
-        "frames": 6,
-        "wall_s": 1.0,
-        "startup_s": 0.1,
-        "ok": ok,
-        "insufficient": 6 - ok,
-        "backbone_error": 0,
-        "with_truth": False,
-        "frame_ms_p50": 1.0,
-        "frame_ms_p95": 2.0,
-        "georeferenced": ok,
-        "with_telemetry": False,
-        "results": "r",
-        "fdr": "f",
-        "geojson": "g",
-        "html": None,
-    }
-    said = "\n".join(_report_lines("myflight", report, Path("out")))
+    outcomes = [
+        frame_outcome(i, status="ok" if i < ok else "insufficient", has_truth=False)
+        for i in range(6)
+    ]
+    report = {"strategy": "xfeat", "wall_s": 1.0, "startup_s": 0.1}
+    report |= {"results": "r", "fdr": "f", "geojson": "g", "html": None}
+    said = "\n".join(_report_lines("myflight", report, summarize(outcomes), Path("out")))
     assert ("no frame matched" in said) is hinted
     assert ("c3-matcher eval" in said) is hinted
 

@@ -90,7 +90,7 @@ def drawn(
     report = {
         "settings": {"min_inliers_threshold": 60},
         "matcher_labels": [],
-        **summarize(outcomes),
+        **summarize(outcomes).to_json(),
     }
     out = tmp_path_factory.mktemp("report")
     mp = pytest.MonkeyPatch()
@@ -106,10 +106,11 @@ def drawn(
 
 def test_summary_reports_estimate_minus_telemetry(recorded: FlightDataset) -> None:
     s = summarize(_outcomes(recorded))
-    assert s["with_truth"] == 0 and s["with_telemetry"] == 5
-    assert s["telemetry_error_m_p50"] == pytest.approx(2.0)
-    assert s["gnss_accuracy_m_p50"] == pytest.approx(1.5)
-    assert s["gnss_degraded_frames"] == [1]
+    assert s.with_truth == 0 and s.with_telemetry == 5
+    assert s.telemetry_error_m_p50 == pytest.approx(2.0)
+    assert s.gnss_accuracy_m_p50 == pytest.approx(1.5)
+    assert s.gnss_degraded_frames == (1,)
+    assert s.to_json()["gnss_degraded_frames"] == [1]
 
 
 def test_no_truth_report_draws_the_telemetry_and_gnss_tracks(drawn: tuple[str, list[Any]]) -> None:

@@ -111,17 +111,22 @@ from c3_matcher_tools.run.acceptance import (
     IT03_BAR,
     IT04_BAR,
     WRONG_FIX_PX,
-    headline,
     is_wrong_fix,
     metrics,
 )
-from c3_matcher_tools.run.records import StrategyEval, StrategyFailure, StrategyRow
+from c3_matcher_tools.run.evaluation import (
+    StrategyEval,
+    StrategyFailure,
+    StrategyRow,
+    SummaryRow,
+)
 
 __all__ = [
     "BARS",
     "WRONG_FIX_PX",
     "StrategyEval",
     "StrategyFailure",
+    "SummaryRow",
     "evaluate_strategy",
     "is_wrong_fix",
     "metrics",
@@ -166,7 +171,7 @@ def evaluate_strategy(
     scores = metrics(run1.outcomes, run2.outcomes)
     flight: dict[str, Any] = {
         **flight_report(dataset, run1, timing),
-        **{f"{k} pass": v["pass"] for k, v in scores.items()},
+        **{f"{k} pass": v.passed for k, v in scores.measures().items()},
     }
     write_flight_outputs(out / strategy, dataset, run1, flight)
     return StrategyEval(run1, scores, timing, flight["geojson"], flight["html"])
@@ -214,8 +219,8 @@ def register_eval_command(commands: CommandRegistry) -> None:
     p.set_defaults(handler=run_eval)
 
 
-def _fmt(value: float, spec: str) -> str:
-    return "n/a" if not math.isfinite(value) else format(value, spec)
+def _fmt(value: float | None, spec: str) -> str:
+    return "n/a" if value is None or not math.isfinite(value) else format(value, spec)
 
 
 def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
@@ -233,7 +238,7 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     root = args.out or EVAL_OUT
     held = [*([root] if len(datasets) > 1 else []), *outs]
     check_output_dirs(held, datasets)  # none is, holds or lies inside an input
-    summary: list[dict[str, Any]] = []
+    summary: list[SummaryRow] = []
     reports: list[dict[str, Any]] = []
     with exclusive_output_dir(*held):
         if len(datasets) > 1:
@@ -241,15 +246,16 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         for dataset, out in zip(datasets, outs, strict=True):
             rows, report = _eval_dataset(args, ctx, dataset, names, out)
             reports.append(report)
-            summary.extend(_summary_row(dataset.name, r) for r in rows)
+            summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
+        summary_rows = [s.to_json() for s in summary]
         if len(datasets) > 1:
-            summary_json = json.dumps(_finite(summary), indent=2) + "\n"
+            summary_json = json.dumps(_finite(summary_rows), indent=2) + "\n"
             write_text_atomically(root / "summary.json", summary_json)
     if args.json:
-        ctx.out(json.dumps(_finite(_json_document(reports, summary)), indent=2))
+        ctx.out(json.dumps(_finite(_json_document(reports, summary_rows)), indent=2))
     else:
         _print_summary(ctx, summary)
-    failed = [f"{s['strategy']} on {s['flight']}" for s in summary if "error" in s]
+    failed = [f"{s.strategy} on {s.flight}" for s in summary if s.figures is None]
     if failed:
         ctx.err(f"c3-matcher eval: failed to run: {', '.join(failed)}")
         return EXIT_FAILURE
@@ -401,20 +407,20 @@ def _table_row(r: StrategyRow) -> str:
         return f"{r.strategy:18} failed to run: {r.error}"
     m, t = r.metrics, r.timing
 
-    def mark(key: str) -> str:  # passed or nothing to measure (None): no mark
-        return "!" if m[key]["pass"] is False else ""
+    def mark(measure: Any) -> str:  # passed or nothing to measure (None): no mark
+        return "!" if measure.passed is False else ""
 
-    it2 = m["C3-IT-02"]["pass"]
-    it4, it5, fc = m["C3-IT-04"], m["C3-IT-05"], m["false_confident"]
+    it1, it2, it3 = m.inlier_count, m.determinism.passed, m.inlier_error
+    it4, it5, fc = m.correct_tile, m.absent_raised, m.false_confident
     cells = (
-        IT01_BAR.figure(m["C3-IT-01"]["p5_best_inliers"]) + mark("C3-IT-01"),
+        IT01_BAR.figure(it1.p5_best_inliers) + mark(it1),
         "n/a" if it2 is None else "same" if it2 else "DIFF",
-        IT03_BAR.figure(m["C3-IT-03"]["p95_mean_error_px"], 2) + mark("C3-IT-03"),
-        f"{it4['correct']}/{it4['frames']}" + mark("C3-IT-04"),
-        f"{it5['insufficient']}/{it5['absent_frames']}" + mark("C3-IT-05"),
-        f"{fc['count']}/{fc['of']}" + mark("false_confident"),
-        str(len(fc["right_fix_other_tile"])),
-        f"{t['frame_ms_p50']:.0f}/{t['frame_ms_p95']:.0f}",
+        IT03_BAR.figure(it3.p95_mean_error_px, 2) + mark(it3),
+        f"{it4.correct}/{it4.frames}" + mark(it4),
+        f"{it5.insufficient}/{it5.absent_frames}" + mark(it5),
+        f"{fc.count}/{fc.of}" + mark(fc),
+        str(len(fc.right_fix_other_tile)),
+        f"{_fmt(t.frame_ms_p50, '.0f')}/{_fmt(t.frame_ms_p95, '.0f')}",
     )
     return (
         f"{r.strategy:18} {cells[0]:>13} {cells[1]:>7} {cells[2]:>13} {cells[3]:>14} "
@@ -424,55 +430,43 @@ def _table_row(r: StrategyRow) -> str:
 
 def _print_links(ctx: CommandContext, r: StrategyEval) -> None:
     t = r.timing
-    if t["with_telemetry"]:
+    if t.with_telemetry:
         ctx.out(
             f"  {r.strategy}: estimate - telemetry look point m p50 "
-            f"{_fmt(t['telemetry_error_m_p50'] or math.nan, '.1f')}, p95 "
-            f"{_fmt(t['telemetry_error_m_p95'] or math.nan, '.1f')} (GNSS accuracy stated "
-            f"p50 {_fmt(t['gnss_accuracy_m_p50'] or math.nan, '.1f')} m, GNSS absent or "
-            f"degraded on {len(t['gnss_degraded_frames'])} frame(s))"
+            f"{_fmt(t.telemetry_error_m_p50, '.1f')}, p95 "
+            f"{_fmt(t.telemetry_error_m_p95, '.1f')} (GNSS accuracy stated "
+            f"p50 {_fmt(t.gnss_accuracy_m_p50, '.1f')} m, GNSS absent or "
+            f"degraded on {len(t.gnss_degraded_frames)} frame(s))"
         )
     ctx.out(f"  {r.strategy}: map {r.geojson}, flight report {r.html or '-'}")
 
 
-def _summary_row(flight: str, r: StrategyRow) -> dict[str, Any]:
-    if isinstance(r, StrategyFailure):
-        return {"strategy": r.strategy, "flight": flight, "error": r.error}
-    m = r.metrics
-    return {
-        "strategy": r.strategy,
-        "flight": flight,
-        **headline(m),
-        "right_fix_other_tile": len(m["false_confident"]["right_fix_other_tile"]),
-        "frame_ms_p50": r.timing["frame_ms_p50"],
-    }
-
-
-def _print_summary(ctx: CommandContext, summary: list[dict[str, Any]]) -> None:
+def _print_summary(ctx: CommandContext, summary: Sequence[SummaryRow]) -> None:
     """The one strategy x flight table."""
-    rows = sorted(summary, key=lambda s: (s["strategy"], s["flight"]))
-    w = max([20, *(len(s["flight"]) for s in rows)])  # the flight column fits every name
+    rows = sorted(summary, key=lambda s: (s.strategy, s.flight))
+    w = max([20, *(len(s.flight) for s in rows)])  # the flight column fits every name
     ctx.out()
     ctx.out(
         f"{'strategy':18} {'flight':{w}} {'correct tile':>13} {'IT-03 p95':>10} {'IT-05':>7} "
         f"{'false-conf':>10} {'other tile':>10} {'ms/frame':>9}"
     )
     for s in rows:
-        if "error" in s:
-            ctx.out(f"{s['strategy']:18} {s['flight']:{w}} failed to run: {s['error']}")
+        h = s.figures
+        if h is None:
+            ctx.out(f"{s.strategy:18} {s.flight:{w}} failed to run: {s.error}")
             continue
-        rate = f"{s['correct']}/{s['present']}" if s["present"] else "-"
-        it05 = f"{s['it05_raised']}/{s['absent']}"
-        fc = f"{s['false_confident']}/{s['scored']}"
+        rate = f"{h.correct}/{h.present}" if h.present else "-"
+        it05 = f"{h.it05_raised}/{h.absent}"
+        fc = f"{h.false_confident}/{h.scored}"
         ctx.out(
-            f"{s['strategy']:18} {s['flight']:{w}} {rate:>13} "
-            f"{IT03_BAR.figure(s['it03_p95_px'], 2):>10} {it05:>7} "
-            f"{fc:>10} {s['right_fix_other_tile']:>10} {s['frame_ms_p50']:>9.0f}"
+            f"{s.strategy:18} {s.flight:{w}} {rate:>13} "
+            f"{IT03_BAR.figure(h.it03_p95_px, 2):>10} {it05:>7} "
+            f"{fc:>10} {s.right_fix_other_tile:>10} {_fmt(s.frame_ms_p50, '.0f'):>9}"
         )
-    for strategy in sorted({s["strategy"] for s in rows if "error" not in s}):
-        mine = [s for s in rows if s["strategy"] == strategy and "error" not in s]
-        correct, present = sum(s["correct"] for s in mine), sum(s["present"] for s in mine)
-        wrong, scored = sum(s["false_confident"] for s in mine), sum(s["scored"] for s in mine)
+    for strategy in sorted({s.strategy for s in rows if s.figures is not None}):
+        mine = [s.figures for s in rows if s.strategy == strategy and s.figures is not None]
+        correct, present = sum(h.correct for h in mine), sum(h.present for h in mine)
+        wrong, scored = sum(h.false_confident for h in mine), sum(h.scored for h in mine)
         rate = (
             f"{correct}/{present} ({IT04_BAR.figure(correct / present, percent=True)})"
             if present

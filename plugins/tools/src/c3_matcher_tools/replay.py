@@ -41,6 +41,7 @@ from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     REPLAY_OUT,
     Overrides,
+    RunSummary,
     check_flight,
     check_output_dirs,
     exclusive_output_dir,
@@ -48,8 +49,10 @@ from c3_matcher_tools.run import (
     fly_prepared,
     output_dir_name,
     prepare_matcher,
+    summarize,
     write_flight_outputs,
 )
+from c3_matcher_tools.run.records import FrameStatus
 
 __all__ = ["register_replay_command", "run_replay"]
 
@@ -115,8 +118,9 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
             progress=ProgressBar(f"replay {dataset.name} {strategy}"),
             with_correspondences=not args.no_correspondences,
         )
+        summary = summarize(run.outcomes)
         report = {
-            **flight_report(dataset, run),
+            **flight_report(dataset, run, summary),
             "attitude_noise": dataset.meta.get("attitude_noise"),
             "results": str(out / "results.jsonl"),
             "fdr": str(out / "fdr.jsonl"),
@@ -127,39 +131,42 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     if args.json:
         ctx.out(json.dumps(report, indent=2))
         return EXIT_OK
-    for line in _report_lines(dataset.name, report, out):
+    for line in _report_lines(dataset.name, report, summary, out):
         ctx.out(line)
     return EXIT_OK
 
 
-def _report_lines(name: str, report: dict[str, Any], out: Path) -> list[str]:
+def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -> list[str]:
+    """The table: ``s``'s figures, and the run and files ``report`` names."""
+    unreadable = s.count(FrameStatus.UNREADABLE)
     lines = [
-        f"replay {name} with {report['strategy']}: {report['frames']} frames in "
+        f"replay {name} with {report['strategy']}: {s.frames} frames in "
         f"{report['wall_s']:.1f} s (startup {report['startup_s']:.1f} s)",
-        f"  ok {report['ok']}, insufficient inliers {report['insufficient']}, "
-        f"backbone errors {report['backbone_error']}"
-        + (f", unreadable images {report['unreadable']}" if report.get("unreadable") else ""),
+        f"  ok {s.count(FrameStatus.OK)}, insufficient inliers "
+        f"{s.count(FrameStatus.INSUFFICIENT)}, backbone errors "
+        f"{s.count(FrameStatus.BACKBONE_ERROR)}"
+        + (f", unreadable images {unreadable}" if unreadable else ""),
     ]
-    if report["frames"] and not report["ok"]:
+    if s.frames and not s.count(FrameStatus.OK):
         lines.append(
             "  no frame matched: check that the store covers the flight and that heights and "
             "attitudes are right; `c3-matcher eval` compares the strategies on it"
         )
-    if report["with_truth"]:
+    if s.with_truth:
         lines.append(
-            f"  correct candidate {report['correct_candidate']}/{report['true_present']} "
+            f"  correct candidate {s.correct_candidate}/{s.true_present} "
             "frames with the true tile present"
         )
     else:
         lines.append("  no ground truth in this flight: nothing scored against truth")
-    lines.append(f"  frame ms p50 {report['frame_ms_p50']:.0f}, p95 {report['frame_ms_p95']:.0f}")
-    if report["georeferenced"] and report["with_truth"]:
+    lines.append(f"  frame ms p50 {_fmt(s.frame_ms_p50, '.0f')}, p95 {_fmt(s.frame_ms_p95, '.0f')}")
+    if s.georeferenced and s.with_truth:
         lines.append(
-            f"  position error m p50 {_fmt(report['position_error_m_p50'])}, "
-            f"p95 {_fmt(report['position_error_m_p95'])} ({report['georeferenced']} frames located)"
+            f"  position error m p50 {_fmt(s.position_error_m_p50)}, "
+            f"p95 {_fmt(s.position_error_m_p95)} ({s.georeferenced} frames located)"
         )
-    if report["with_telemetry"]:
-        lines.append(_telemetry_line(report))
+    if s.with_telemetry:
+        lines.append(_telemetry_line(s))
     lines.append(
         f"  results {report['results']}, FDR {report['fdr']}, report {out / 'report.json'}"
     )
@@ -167,12 +174,12 @@ def _report_lines(name: str, report: dict[str, Any], out: Path) -> list[str]:
     return lines
 
 
-def _telemetry_line(report: dict[str, Any]) -> str:
-    degraded = report["gnss_degraded_frames"]
-    accuracy = report["gnss_accuracy_m_p50"]
+def _telemetry_line(s: RunSummary) -> str:
+    degraded = list(s.gnss_degraded_frames)
+    accuracy = s.gnss_accuracy_m_p50
     return (
-        f"  estimate - telemetry look point m p50 {_fmt(report['telemetry_error_m_p50'])}, "
-        f"p95 {_fmt(report['telemetry_error_m_p95'])} ({report['georeferenced']} frames "
+        f"  estimate - telemetry look point m p50 {_fmt(s.telemetry_error_m_p50)}, "
+        f"p95 {_fmt(s.telemetry_error_m_p95)} ({s.georeferenced} frames "
         "located; "
         + ("GNSS accuracy not stated" if accuracy is None else f"GNSS accuracy {accuracy:.1f} m")
         + f"; GNSS absent or degraded on {len(degraded)} frame(s)"
@@ -180,5 +187,5 @@ def _telemetry_line(report: dict[str, Any]) -> str:
     )
 
 
-def _fmt(value: float | None) -> str:
-    return "n/a" if value is None else f"{value:.1f}"
+def _fmt(value: float | None, spec: str = ".1f") -> str:
+    return "n/a" if value is None else format(value, spec)

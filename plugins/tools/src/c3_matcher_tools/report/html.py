@@ -27,6 +27,7 @@ from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.report.charts import FAILED, WRONG, per_frame_figure, trajectory_figure
 from c3_matcher_tools.report.pictures import gallery_pictures
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
+from c3_matcher_tools.run.scoring import RunSummary, summarize
 
 __all__ = ["write_report"]
 
@@ -78,10 +79,12 @@ def write_report(
     provenance: dict[str, Any],
     gallery: int = 3,
 ) -> Path:
-    """Write ``out`` (report.html) for one replayed run; returns its path."""
-    kpis = _kpis(summary)
+    """Write ``out`` (report.html) for one replayed run; returns its path. ``summary``: the
+    run's report, shown as it is; the headline figures are the ``outcomes``' own."""
+    figures = summarize(outcomes)
+    kpis = _kpis(figures)
     min_inliers = int(settings.get("min_inliers_threshold", 60))
-    reference = "truth" if summary.get("with_truth") else "telemetry"
+    reference = "truth" if figures.with_truth else "telemetry"
     traj = trajectory_figure(
         dataset, outcomes, f"{dataset.name}: {reference} vs estimate ({strategy})"
     )
@@ -111,34 +114,31 @@ def _fmt(v: Any, spec: str = ".1f") -> str:
     )
 
 
-def _kpis(summary: dict[str, Any]) -> list[tuple[str, Any]]:
+def _kpis(summary: RunSummary) -> list[tuple[str, Any]]:
     """The headline figures (label, value) of the run's ``summary``; the telemetry's error only
     for a flight that has telemetry."""
     tele_kpi = (
         "estimate - telemetry p50 / p95 (m)",
-        f"{_fmt(summary.get('telemetry_error_m_p50'))} / {_fmt(summary.get('telemetry_error_m_p95'))}",
+        f"{_fmt(summary.telemetry_error_m_p50)} / {_fmt(summary.telemetry_error_m_p95)}",
     )
     return [
-        ("frames", summary.get("frames")),
-        ("matched", summary.get("ok")),
-        (
-            "failed",
-            sum(summary.get(s) or 0 for s in FrameStatus if s != FrameStatus.OK),
-        ),
+        ("frames", summary.frames),
+        ("matched", summary.count(FrameStatus.OK)),
+        ("failed", summary.failed),
         (
             "correct tile",
-            f"{summary.get('correct_candidate')}/{summary.get('true_present')}"
-            if summary.get("with_truth")
+            f"{summary.correct_candidate}/{summary.true_present}"
+            if summary.with_truth
             else "no truth",
         ),
         (
             "position error p50 / p95 (m)",
-            f"{_fmt(summary.get('position_error_m_p50'))} / {_fmt(summary.get('position_error_m_p95'))}",
+            f"{_fmt(summary.position_error_m_p50)} / {_fmt(summary.position_error_m_p95)}",
         ),
-        *([tele_kpi] if summary.get("with_telemetry") else []),
+        *([tele_kpi] if summary.with_telemetry else []),
         (
             "frame ms p50 / p95",
-            f"{_fmt(summary.get('frame_ms_p50'), '.0f')} / {_fmt(summary.get('frame_ms_p95'), '.0f')}",
+            f"{_fmt(summary.frame_ms_p50, '.0f')} / {_fmt(summary.frame_ms_p95, '.0f')}",
         ),
     ]
 

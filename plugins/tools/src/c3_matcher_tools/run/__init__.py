@@ -7,6 +7,12 @@ telemetry (:func:`summarize`, :func:`result_fingerprint`) and writing a run's fi
 atomically (:mod:`c3_matcher.atomic`). Commands live beside it (``replay``,
 ``evaluate``, ``bench``); nothing here is one."""
 
+from c3_matcher_tools.run.evaluation import (
+    StrategyEval,
+    StrategyFailure,
+    StrategyRow,
+    SummaryRow,
+)
 from c3_matcher_tools.run.flight import (
     Progress,
     check_flight,
@@ -36,14 +42,9 @@ from c3_matcher_tools.run.outputs import (
     write_html_report,
     write_results,
 )
-from c3_matcher_tools.run.records import (
-    FlightRun,
-    FrameOutcome,
-    StrategyEval,
-    StrategyFailure,
-    StrategyRow,
-)
+from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.scoring import (
+    RunSummary,
     best_candidate_error,
     result_fingerprint,
     summarize,
@@ -61,9 +62,11 @@ __all__ = [
     "Overrides",
     "PreparedMatcher",
     "Progress",
+    "RunSummary",
     "StrategyEval",
     "StrategyFailure",
     "StrategyRow",
+    "SummaryRow",
     "best_candidate_error",
     "check_flight",
     "check_output_dirs",

@@ -1,19 +1,20 @@
 """The C3-IT acceptance measures of one strategy's run over a flight with ground truth (see
 :mod:`c3_matcher_tools.evaluate` for what each measures and its bar).
 
-Every measure's ``"pass"`` is True (bar met), False (bar missed) or None: nothing to measure
-(its figure is n/a or 0 of 0: no true-tile frame, no matched one, no absent frame, no frame
-with ground truth, no frame run twice), neither passed nor missed. A figure judged against a
-bar is printed through :meth:`Bar.figure`, rounded so that the printed figure meets the bar
-exactly when the measured one does."""
+Every measure's ``passed`` (``"pass"`` in JSON) is True (bar met), False (bar missed) or None:
+nothing to measure (its figure is n/a or 0 of 0: no true-tile frame, no matched one, no absent
+frame, no frame with ground truth, no frame run twice), neither passed nor missed. A figure
+judged against a bar is printed through :meth:`Bar.figure`, rounded so that the printed figure
+meets the bar exactly when the measured one does."""
 
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal, cast
 
 import numpy as np
 
@@ -26,8 +27,15 @@ __all__ = [
     "IT03_BAR_PX",
     "IT04_BAR",
     "WRONG_FIX_PX",
+    "AbsentRaised",
+    "Acceptance",
     "Bar",
-    "headline",
+    "CorrectTile",
+    "Determinism",
+    "FalseConfident",
+    "Headline",
+    "InlierCount",
+    "InlierError",
     "is_wrong_fix",
     "metrics",
 ]
@@ -108,7 +116,164 @@ def is_wrong_fix(outcome: FrameOutcome) -> bool:
     return not (math.isfinite(error) and error <= WRONG_FIX_PX)
 
 
-def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[str, Any]:
+class _Measure(ABC):
+    """One measure (each a frozen dataclass of its figures), named ``name`` in the reports:
+    ``passed`` is True (bar met), False (bar missed) or None (nothing to measure), judged from
+    the figures, and written ``"pass"`` in JSON after them."""
+
+    name: ClassVar[str]
+
+    @property
+    @abstractmethod
+    def passed(self) -> bool | None: ...
+
+    def to_json(self) -> dict[str, Any]:
+        figures = {f.name: getattr(self, f.name) for f in fields(cast(Any, self))}
+        return {
+            **{k: list(v) if isinstance(v, tuple) else v for k, v in figures.items()},
+            "pass": self.passed,
+        }
+
+
+@dataclass(frozen=True)
+class InlierCount(_Measure):
+    """C3-IT-01: the p5 of the best candidate's inlier count over the true-tile frames."""
+
+    name: ClassVar[str] = "C3-IT-01"
+    p5_best_inliers: float
+    frames: int
+
+    @property
+    def passed(self) -> bool | None:
+        return IT01_BAR.judge(self.p5_best_inliers)
+
+
+@dataclass(frozen=True)
+class Determinism(_Measure):
+    """C3-IT-02: the frames run twice whose results differ (status or fingerprint)."""
+
+    name: ClassVar[str] = "C3-IT-02"
+    frames_compared: int
+    differing_frames: tuple[int, ...]
+
+    @property
+    def passed(self) -> bool | None:
+        return not self.differing_frames if self.frames_compared else None
+
+
+@dataclass(frozen=True)
+class InlierError(_Measure):
+    """C3-IT-03: the mean inlier error against ground truth of the true-tile frames matched
+    (ORIGINAL frame px; p95 judged), and the position error (m) beside it."""
+
+    name: ClassVar[str] = "C3-IT-03"
+    p95_mean_error_px: float
+    frames_scored: int
+    median_mean_error_px: float
+    p95_position_error_m: float
+    median_position_error_m: float
+
+    @property
+    def passed(self) -> bool | None:
+        return IT03_BAR.judge(self.p95_mean_error_px)
+
+
+@dataclass(frozen=True)
+class CorrectTile(_Measure):
+    """C3-IT-04: the true-tile frames whose best candidate is the true tile."""
+
+    name: ClassVar[str] = "C3-IT-04"
+    correct_rate: float
+    correct: int
+    frames: int
+
+    @property
+    def passed(self) -> bool | None:
+        return IT04_BAR.judge(self.correct_rate)
+
+
+@dataclass(frozen=True)
+class AbsentRaised(_Measure):
+    """C3-IT-05: the frames without their true tile that raised ``InsufficientInliersError``:
+    all of them, to pass."""
+
+    name: ClassVar[str] = "C3-IT-05"
+    insufficient: int
+    absent_frames: int
+
+    @property
+    def passed(self) -> bool | None:
+        return self.insufficient == self.absent_frames if self.absent_frames else None
+
+
+@dataclass(frozen=True)
+class FalseConfident(_Measure):
+    """Returned picks that are wrong fixes (:func:`is_wrong_fix`) among the frames with ground
+    truth (none, to pass), and apart from them the picks of another tile that still place the
+    frame right."""
+
+    name: ClassVar[str] = "false_confident"
+    frames: tuple[int, ...]
+    count: int
+    of: int
+    rate: float
+    bound_px: float
+    right_fix_other_tile: tuple[int, ...]
+
+    @property
+    def passed(self) -> bool | None:
+        return not self.frames if self.of else None
+
+
+@dataclass(frozen=True)
+class Headline:
+    """The figures a strategy x flight summary row shows: correct tile of the frames whose true
+    tile is present, IT-03 p95 (px), absent frames raised, and returned picks that are wrong
+    fixes (false-confident) of those scored."""
+
+    correct: int
+    present: int
+    it03_p95_px: float
+    it05_raised: int
+    absent: int
+    false_confident: int
+    scored: int
+
+
+@dataclass(frozen=True)
+class Acceptance:
+    """The C3-IT measures of one strategy's run over a flight, and its false-confident picks."""
+
+    inlier_count: InlierCount
+    determinism: Determinism
+    inlier_error: InlierError
+    correct_tile: CorrectTile
+    absent_raised: AbsentRaised
+    false_confident: FalseConfident
+
+    def measures(self) -> dict[str, _Measure]:
+        """Each measure by its name in the reports, in that order."""
+        every = (self.inlier_count, self.determinism, self.inlier_error, self.correct_tile)
+        return {m.name: m for m in (*every, self.absent_raised, self.false_confident)}
+
+    def to_json(self) -> dict[str, Any]:
+        """``eval.json``'s ``metrics``: each measure's figures and ``"pass"`` by its name."""
+        return {name: measure.to_json() for name, measure in self.measures().items()}
+
+    @property
+    def headline(self) -> Headline:
+        return Headline(
+            correct=self.correct_tile.correct,
+            present=self.correct_tile.frames,
+            it03_p95_px=self.inlier_error.p95_mean_error_px,
+            it05_raised=self.absent_raised.insufficient,
+            absent=self.absent_raised.absent_frames,
+            false_confident=self.false_confident.count,
+            scored=self.false_confident.of,
+        )
+
+
+def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Acceptance:
     """The C3-IT figures and pass flags of one strategy (see the module docstring): a flag is
     None where its measure had nothing to measure."""
     present = [o for o in run1 if o.has_truth and o.true_present]
@@ -118,41 +283,28 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[
     correct = sum(o.correct for o in present)
     rate = correct / len(present) if present else math.nan
     raised = sum(o.status == FrameStatus.INSUFFICIENT for o in absent)
-    return {
-        "C3-IT-01": {"p5_best_inliers": p5, "frames": len(present), "pass": IT01_BAR.judge(p5)},
-        "C3-IT-02": _it02(run1, run2),
-        "C3-IT-03": _it03(present),
-        "C3-IT-04": {
-            "correct_rate": rate,
-            "correct": correct,
-            "frames": len(present),
-            "pass": IT04_BAR.judge(rate),
-        },
-        "C3-IT-05": {
-            "insufficient": raised,
-            "absent_frames": len(absent),
-            "pass": raised == len(absent) if absent else None,
-        },
-        "false_confident": _false_confident([o for o in run1 if o.has_truth]),
-    }
+    return Acceptance(
+        InlierCount(p5, len(present)),
+        _it02(run1, run2),
+        _it03(present),
+        CorrectTile(rate, correct, len(present)),
+        AbsentRaised(raised, len(absent)),
+        _false_confident([o for o in run1 if o.has_truth]),
+    )
 
 
-def _it02(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> dict[str, Any]:
+def _it02(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Determinism:
     first = {o.index: o for o in run1}
     compared = [o for o in run2 if o.index in first]
-    differing = [
+    differing = tuple(
         o.index
         for o in compared
         if (o.status, o.fingerprint) != (first[o.index].status, first[o.index].fingerprint)
-    ]
-    return {
-        "frames_compared": len(compared),
-        "differing_frames": differing,
-        "pass": not differing if compared else None,
-    }
+    )
+    return Determinism(len(compared), differing)
 
 
-def _it03(present: Sequence[FrameOutcome]) -> dict[str, Any]:
+def _it03(present: Sequence[FrameOutcome]) -> InlierError:
     positions = [o.position_error_m for o in present if o.status == FrameStatus.OK]
     positions = [p for p in positions if math.isfinite(p)]
     errors = [
@@ -161,44 +313,27 @@ def _it03(present: Sequence[FrameOutcome]) -> dict[str, Any]:
         if o.status == FrameStatus.OK and math.isfinite(o.mean_error_px)
     ]
     p95 = float(np.percentile(errors, 95)) if errors else math.nan
-    return {
-        "p95_mean_error_px": p95,
-        "frames_scored": len(errors),
-        "median_mean_error_px": float(np.median(errors)) if errors else math.nan,
-        "p95_position_error_m": float(np.percentile(positions, 95)) if positions else math.nan,
-        "median_position_error_m": float(np.median(positions)) if positions else math.nan,
-        "pass": IT03_BAR.judge(p95),
-    }
+    return InlierError(
+        p95_mean_error_px=p95,
+        frames_scored=len(errors),
+        median_mean_error_px=float(np.median(errors)) if errors else math.nan,
+        p95_position_error_m=float(np.percentile(positions, 95)) if positions else math.nan,
+        median_position_error_m=float(np.median(positions)) if positions else math.nan,
+    )
 
 
-def _false_confident(scored: Sequence[FrameOutcome]) -> dict[str, Any]:
-    wrong = [o.index for o in scored if is_wrong_fix(o)]
-    right_elsewhere = [
+def _false_confident(scored: Sequence[FrameOutcome]) -> FalseConfident:
+    wrong = tuple(o.index for o in scored if is_wrong_fix(o))
+    right_elsewhere = tuple(
         o.index
         for o in scored
         if o.status == FrameStatus.OK and not o.correct and not is_wrong_fix(o)
-    ]
-    return {
-        "frames": wrong,
-        "count": len(wrong),
-        "of": len(scored),
-        "rate": len(wrong) / len(scored) if scored else math.nan,
-        "bound_px": WRONG_FIX_PX,
-        "right_fix_other_tile": right_elsewhere,
-        "pass": not wrong if scored else None,
-    }
-
-
-def headline(m: dict[str, Any]) -> dict[str, Any]:
-    """The figures of :func:`metrics` a strategy x flight summary row shows: correct tile of
-    the frames whose true tile is present, IT-03 p95 (px), absent frames raised, and returned
-    picks that are wrong fixes (false-confident) of those scored."""
-    return {
-        "correct": m["C3-IT-04"]["correct"],
-        "present": m["C3-IT-04"]["frames"],
-        "it03_p95_px": m["C3-IT-03"]["p95_mean_error_px"],
-        "it05_raised": m["C3-IT-05"]["insufficient"],
-        "absent": m["C3-IT-05"]["absent_frames"],
-        "false_confident": m["false_confident"]["count"],
-        "scored": m["false_confident"]["of"],
-    }
+    )
+    return FalseConfident(
+        frames=wrong,
+        count=len(wrong),
+        of=len(scored),
+        rate=len(wrong) / len(scored) if scored else math.nan,
+        bound_px=WRONG_FIX_PX,
+        right_fix_other_tile=right_elsewhere,
+    )

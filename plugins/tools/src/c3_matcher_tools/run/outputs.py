@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import sys
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,7 @@ from c3_matcher.atomic import (
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
-from c3_matcher_tools.run.scoring import summarize
+from c3_matcher_tools.run.scoring import RunSummary, summarize
 
 __all__ = [
     "EVAL_OUT",
@@ -133,7 +133,7 @@ def write_results(path: Path, outcomes: Sequence[FrameOutcome]) -> Path:
 
 
 def flight_report(
-    dataset: FlightDataset, run: FlightRun, summary: Mapping[str, Any] | None = None
+    dataset: FlightDataset, run: FlightRun, summary: RunSummary | None = None
 ) -> dict[str, Any]:
     """What every run's report starts with (``replay``'s ``report.json``, each strategy's entry
     in ``eval.json``): the dataset, the strategy, its matcher labels, the ``[matcher]`` settings
@@ -146,7 +146,7 @@ def flight_report(
         "settings": run.settings,
         "startup_s": run.startup_s,
         "wall_s": run.wall_s,
-        **(summarize(run.outcomes) if summary is None else summary),
+        **(summarize(run.outcomes) if summary is None else summary).to_json(),
     }
 
 

@@ -1,7 +1,5 @@
 """The run records: what one frame (:class:`FrameOutcome`) and one strategy over one flight
-(:class:`FlightRun`) came to, and one strategy evaluated on a flight (:class:`StrategyEval`,
-or :class:`StrategyFailure` when it could not run). Frozen values; ``to_json`` gives their
-JSON forms."""
+(:class:`FlightRun`) came to. Frozen values; ``to_json`` gives their JSON forms."""
 
 from __future__ import annotations
 
@@ -14,9 +12,6 @@ __all__ = [
     "FlightRun",
     "FrameOutcome",
     "FrameStatus",
-    "StrategyEval",
-    "StrategyFailure",
-    "StrategyRow",
 ]
 
 
@@ -101,67 +96,3 @@ class FlightRun:
     def matcher_labels(self) -> list[str]:
         """The results' ``matcher_label`` values, sorted (one for a strategy)."""
         return sorted({str(o.result["matcher_label"]) for o in self.outcomes if o.result})
-
-
-@dataclass(frozen=True)
-class StrategyEval:
-    """One strategy evaluated on one flight: its first run, its C3-IT measures, the run's
-    timing summary (:func:`~c3_matcher_tools.run.summarize`) and the map and flight report
-    written for it (``html`` None: no matplotlib)."""
-
-    run: FlightRun
-    metrics: dict[str, Any]
-    timing: dict[str, Any]
-    geojson: str
-    html: str | None
-
-    @property
-    def strategy(self) -> str:
-        return self.run.strategy
-
-    def to_json(self) -> dict[str, Any]:
-        """Its ``eval.json`` entry (NaN left for the caller to make strict)."""
-        return {
-            "strategy": self.strategy,
-            "settings": self.run.settings,
-            "startup_s": self.run.startup_s,
-            "wall_s": self.run.wall_s,
-            "timing": self.timing,
-            "metrics": self.metrics,
-            "geojson": self.geojson,
-            "html": self.html,
-            "per_frame": [
-                {
-                    "index": o.index,
-                    "status": o.status,
-                    "true_present": o.true_present,
-                    "best_inliers": o.best_inliers,
-                    "correct": o.correct,
-                    "mean_error_px": _or_none(o.mean_error_px),
-                    "telemetry_error_m": _or_none(o.telemetry_error_m),
-                    "gnss_accuracy_m": o.gnss_accuracy_m,
-                    "gnss_degraded": o.gnss_degraded,
-                    "elapsed_ms": o.elapsed_ms,
-                }
-                for o in self.run.outcomes
-            ],
-        }
-
-
-@dataclass(frozen=True)
-class StrategyFailure:
-    """A strategy that could not be evaluated (it failed to start or to run): a row of the
-    table, not the end of the evaluation."""
-
-    strategy: str
-    error: str
-
-    def to_json(self) -> dict[str, Any]:
-        return {"strategy": self.strategy, "error": self.error}
-
-
-StrategyRow = StrategyEval | StrategyFailure
-
-
-def _or_none(value: float) -> float | None:
-    return value if math.isfinite(value) else None

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -18,6 +20,7 @@ from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = [
+    "RunSummary",
     "best_candidate_error",
     "result_fingerprint",
     "summarize",
@@ -103,40 +106,80 @@ def _percentile(values: list[float], q: float) -> float | None:
     return float(np.percentile(np.asarray(finite), q)) if finite else None
 
 
-def summarize(outcomes: Sequence[FrameOutcome]) -> dict[str, Any]:
-    """Counts and timing (ms) of a run; position errors (m) against ground truth and, for a
-    recorded flight, the estimate minus the telemetry's position (its stated GNSS accuracy
-    beside it, and the frames whose GNSS was absent or degraded)."""
+@dataclass(frozen=True)
+class RunSummary:
+    """Counts and timing of a run (:func:`summarize`). Percentiles are None without a value:
+    position errors (m) of the matched frames against ground truth; for a recorded flight, the
+    estimate minus the telemetry's look point (m), all matched frames and those whose GNSS was
+    good, the stated GNSS accuracy, and the frames whose GNSS was absent or degraded."""
+
+    frames: int
+    by_status: Mapping[FrameStatus, int]
+    with_truth: int
+    true_present: int
+    correct_candidate: int
+    georeferenced: int
+    position_error_m_p50: float | None
+    position_error_m_p95: float | None
+    with_telemetry: int
+    telemetry_error_m_p50: float | None
+    telemetry_error_m_p95: float | None
+    telemetry_error_m_p50_gnss_good: float | None
+    gnss_accuracy_m_p50: float | None
+    gnss_degraded_frames: tuple[int, ...]
+    frame_ms_p50: float | None
+    frame_ms_p95: float | None
+    frame_ms_mean: float | None
+    total_s: float
+
+    def count(self, status: FrameStatus) -> int:
+        return self.by_status.get(status, 0)
+
+    @property
+    def failed(self) -> int:
+        """Frames that did not match, whatever the reason."""
+        return self.frames - self.count(FrameStatus.OK)
+
+    def to_json(self) -> dict[str, Any]:
+        """Its form in ``report.json`` and ``eval.json``: the counts by status flattened, as
+        ``"ok"``, ``"insufficient"``, ... after ``"frames"``."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        by_status = out.pop("by_status")
+        return {
+            "frames": out.pop("frames"),
+            **{str(s): by_status.get(s, 0) for s in FrameStatus},
+            **out,
+            "gnss_degraded_frames": list(self.gnss_degraded_frames),
+        }
+
+
+def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
+    """The :class:`RunSummary` of a run's ``outcomes``."""
     times = [o.elapsed_ms for o in outcomes]
     present = [o for o in outcomes if o.true_present]
     pos = [o.position_error_m for o in outcomes if o.status == FrameStatus.OK]
     tele = [o for o in outcomes if o.telemetry_lat is not None]
-    tele_err = [o.telemetry_error_m for o in tele if o.status == FrameStatus.OK]
+    tele_ok = [o for o in tele if o.status == FrameStatus.OK]
     accuracy = [o.gnss_accuracy_m for o in tele if o.gnss_accuracy_m is not None]
-    return {
-        "frames": len(outcomes),
-        **{str(s): sum(o.status == s for o in outcomes) for s in FrameStatus},
-        "with_truth": sum(o.has_truth for o in outcomes),
-        "true_present": len(present),
-        "correct_candidate": sum(o.correct for o in present),
-        "georeferenced": sum(o.est_lat is not None for o in outcomes),
-        "position_error_m_p50": _percentile(pos, 50),
-        "position_error_m_p95": _percentile(pos, 95),
-        "with_telemetry": len(tele),
-        "telemetry_error_m_p50": _percentile(tele_err, 50),
-        "telemetry_error_m_p95": _percentile(tele_err, 95),
-        "telemetry_error_m_p50_gnss_good": _percentile(
-            [
-                o.telemetry_error_m
-                for o in tele
-                if o.status == FrameStatus.OK and not o.gnss_degraded
-            ],
-            50,
+    return RunSummary(
+        frames=len(outcomes),
+        by_status=MappingProxyType({s: sum(o.status == s for o in outcomes) for s in FrameStatus}),
+        with_truth=sum(o.has_truth for o in outcomes),
+        true_present=len(present),
+        correct_candidate=sum(o.correct for o in present),
+        georeferenced=sum(o.est_lat is not None for o in outcomes),
+        position_error_m_p50=_percentile(pos, 50),
+        position_error_m_p95=_percentile(pos, 95),
+        with_telemetry=len(tele),
+        telemetry_error_m_p50=_percentile([o.telemetry_error_m for o in tele_ok], 50),
+        telemetry_error_m_p95=_percentile([o.telemetry_error_m for o in tele_ok], 95),
+        telemetry_error_m_p50_gnss_good=_percentile(
+            [o.telemetry_error_m for o in tele_ok if not o.gnss_degraded], 50
         ),
-        "gnss_accuracy_m_p50": _percentile(accuracy, 50),
-        "gnss_degraded_frames": [o.index for o in tele if o.gnss_degraded],
-        "frame_ms_p50": _percentile(times, 50),
-        "frame_ms_p95": _percentile(times, 95),
-        "frame_ms_mean": float(np.mean(times)) if times else None,
-        "total_s": float(np.sum(times)) / 1e3,
-    }
+        gnss_accuracy_m_p50=_percentile(accuracy, 50),
+        gnss_degraded_frames=tuple(o.index for o in tele if o.gnss_degraded),
+        frame_ms_p50=_percentile(times, 50),
+        frame_ms_p95=_percentile(times, 95),
+        frame_ms_mean=float(np.mean(times)) if times else None,
+        total_s=float(np.sum(times)) / 1e3,
+    )

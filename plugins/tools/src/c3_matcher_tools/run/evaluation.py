@@ -1,0 +1,117 @@
+"""One strategy evaluated on one flight (:class:`StrategyEval`), or a strategy that could
+not be (:class:`StrategyFailure`): the rows of ``eval``, and each one's row of the strategy x
+flight summary (:class:`SummaryRow`). Frozen values; ``to_json`` gives their ``eval.json`` and
+``summary.json`` entries."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from c3_matcher_tools.run.acceptance import Acceptance, Headline
+from c3_matcher_tools.run.records import FlightRun
+from c3_matcher_tools.run.scoring import RunSummary
+
+__all__ = ["StrategyEval", "StrategyFailure", "StrategyRow", "SummaryRow"]
+
+
+@dataclass(frozen=True)
+class StrategyEval:
+    """One strategy evaluated on one flight: its first run, its C3-IT measures, the run's
+    summary (counts and timing) and the map and flight report written for it (``html`` None:
+    no matplotlib)."""
+
+    run: FlightRun
+    metrics: Acceptance
+    timing: RunSummary
+    geojson: str
+    html: str | None
+
+    @property
+    def strategy(self) -> str:
+        return self.run.strategy
+
+    def to_json(self) -> dict[str, Any]:
+        """Its ``eval.json`` entry (NaN left for the caller to make strict)."""
+        return {
+            "strategy": self.strategy,
+            "settings": self.run.settings,
+            "startup_s": self.run.startup_s,
+            "wall_s": self.run.wall_s,
+            "timing": self.timing.to_json(),
+            "metrics": self.metrics.to_json(),
+            "geojson": self.geojson,
+            "html": self.html,
+            "per_frame": [
+                {
+                    "index": o.index,
+                    "status": o.status,
+                    "true_present": o.true_present,
+                    "best_inliers": o.best_inliers,
+                    "correct": o.correct,
+                    "mean_error_px": _or_none(o.mean_error_px),
+                    "telemetry_error_m": _or_none(o.telemetry_error_m),
+                    "gnss_accuracy_m": o.gnss_accuracy_m,
+                    "gnss_degraded": o.gnss_degraded,
+                    "elapsed_ms": o.elapsed_ms,
+                }
+                for o in self.run.outcomes
+            ],
+        }
+
+
+@dataclass(frozen=True)
+class StrategyFailure:
+    """A strategy that could not be evaluated (it failed to start or to run): a row of the
+    table, not the end of the evaluation."""
+
+    strategy: str
+    error: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"strategy": self.strategy, "error": self.error}
+
+
+StrategyRow = StrategyEval | StrategyFailure
+
+
+@dataclass(frozen=True)
+class SummaryRow:
+    """One strategy on one flight in the summary table and ``summary.json``: its headline
+    figures, or (``figures`` None) the error that stopped it."""
+
+    strategy: str
+    flight: str
+    figures: Headline | None = None
+    right_fix_other_tile: int = 0
+    frame_ms_p50: float | None = None
+    error: str | None = None
+
+    @classmethod
+    def of(cls, flight: str, row: StrategyRow) -> SummaryRow:
+        """``row``'s summary on ``flight``."""
+        if isinstance(row, StrategyFailure):
+            return cls(row.strategy, flight, error=row.error)
+        return cls(
+            row.strategy,
+            flight,
+            row.metrics.headline,
+            len(row.metrics.false_confident.right_fix_other_tile),
+            row.timing.frame_ms_p50,
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        where = {"strategy": self.strategy, "flight": self.flight}
+        if self.figures is None:
+            return {**where, "error": self.error}
+        return {
+            **where,
+            **asdict(self.figures),
+            "right_fix_other_tile": self.right_fix_other_tile,
+            "frame_ms_p50": self.frame_ms_p50,
+        }
+
+
+def _or_none(value: float) -> float | None:
+    return value if math.isfinite(value) else None
