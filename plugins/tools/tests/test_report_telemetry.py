@@ -59,16 +59,18 @@ def _outcomes(dataset: FlightDataset) -> list[FrameOutcome]:
     out = []
     for f in dataset.frames:
         ref = telemetry_reference(f)
+        assert ref is not None
         ok = f.index != 3
-        est_lat = ref["telemetry_lat"] + 2.0 / 111_320.0
+        est_lat = ref.lat + 2.0 / 111_320.0
         out.append(
             FrameOutcome(
                 f.index, str(uuid.uuid4()), "ok" if ok else "insufficient", 500.0, False,
                 120 if ok else 0, 0 if ok else None, False, math.nan, 0.5 if ok else math.nan,
                 "", None if ok else "insufficient inliers", None, has_truth=False,
-                est_lat=est_lat if ok else None, est_lon=ref["telemetry_lon"] if ok else None,
+                est_lat=est_lat if ok else None, est_lon=ref.lon if ok else None,
                 telemetry_error_m=2.0 if ok else math.nan, insufficient_best=0 if ok else 31,
-                **ref,
+                telemetry_lat=ref.lat, telemetry_lon=ref.lon,
+                gnss_accuracy_m=ref.gnss_accuracy_m, gnss_degraded=ref.gnss_degraded,
             )
         )  # fmt: skip
     return out

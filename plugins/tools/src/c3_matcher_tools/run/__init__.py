@@ -45,6 +45,7 @@ from c3_matcher_tools.run.outputs import (
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.scoring import (
     RunSummary,
+    TelemetryReference,
     best_candidate_error,
     result_fingerprint,
     summarize,
@@ -67,6 +68,7 @@ __all__ = [
     "StrategyFailure",
     "StrategyRow",
     "SummaryRow",
+    "TelemetryReference",
     "best_candidate_error",
     "check_flight",
     "check_output_dirs",

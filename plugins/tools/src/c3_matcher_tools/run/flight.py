@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,7 @@ from c3_matcher_tools.run.matcher import (
 )
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome, FrameStatus
 from c3_matcher_tools.run.scoring import (
+    TelemetryReference,
     best_candidate_error,
     result_fingerprint,
     telemetry_reference,
@@ -72,15 +74,11 @@ def _fly_frame(
     store: MBTilesStore,
     with_correspondences: bool,
 ) -> FrameOutcome:
-    truth = truth_position(dataset, frame)
-    geo: dict[str, Any] = {"has_truth": frame.has_truth}
-    if truth is not None:
-        geo.update(truth_lat=truth[0], truth_lon=truth[1])
-    geo.update(telemetry_reference(frame))
+    where = _Where(frame.has_truth, truth_position(dataset, frame), telemetry_reference(frame))
     try:
         nav = dataset.nav_frame(frame)
     except InvalidInputError as exc:  # a damaged or vanished image: the camera's loss, not C3's
-        return _unmatched(frame, FrameStatus.UNREADABLE, 0.0, str(exc), 0, geo)
+        return where.outcome(frame, FrameStatus.UNREADABLE, 0.0, error=str(exc))
     rerank = dataset.rerank(frame, store)
     t0 = time.perf_counter()
     failure: tuple[FrameStatus, Exception, int] | None = None
@@ -93,40 +91,90 @@ def _fly_frame(
     elapsed = (time.perf_counter() - t0) * 1e3
     if failure is not None:
         status, error, best_count = failure
-        return _unmatched(frame, status, elapsed, str(error), best_count, geo)
-    return _matched(dataset, frame, result, elapsed, geo, with_correspondences)
+        return where.outcome(frame, status, elapsed, error=str(error), best_count=best_count)
+    return _matched(dataset, frame, result, elapsed, where, with_correspondences)
 
 
-def _unmatched(
-    frame: FrameRecord,
-    status: FrameStatus,
-    elapsed: float,
-    error: str,
-    best_count: int,
-    geo: dict[str, Any],
-) -> FrameOutcome:
-    """A frame that gave no result: ``status`` and the ``error`` that says why."""
-    return FrameOutcome(
-        frame.index,
-        str(frame.frame_id),
-        status,
-        elapsed,
-        frame.true_tile_present,
-        0,
-        None,
-        False,
-        math.nan,
-        math.nan,
-        result_fingerprint(None, best_count) if status == FrameStatus.INSUFFICIENT else "",
-        error,
-        None,
-        insufficient_best=best_count,
-        **geo,
-    )
+@dataclass(frozen=True)
+class _Where:
+    """Where a frame truly looks (``truth``, lat/lon: None without ground truth) and where its
+    telemetry says it looks: what each outcome of the frame is scored against."""
+
+    has_truth: bool
+    truth: tuple[float, float] | None
+    telemetry: TelemetryReference | None
+
+    def outcome(
+        self,
+        frame: FrameRecord,
+        status: FrameStatus,
+        elapsed_ms: float,
+        *,
+        error: str | None = None,
+        best_count: int = 0,
+        matched: _Matched | None = None,
+    ) -> FrameOutcome:
+        """The frame's outcome: ``matched``, or ``status`` and the ``error`` that says why not
+        (``best_count``: the best candidate's inliers below the threshold)."""
+        tele = self.telemetry
+        est = None if matched is None else matched.estimate
+        return FrameOutcome(
+            frame.index,
+            str(frame.frame_id),
+            status,
+            elapsed_ms,
+            frame.true_tile_present,
+            0 if matched is None else matched.result.per_candidate[0].inlier_count,
+            None if matched is None else matched.best_input,
+            matched is not None and matched.best_input == frame.true_index,
+            math.nan if matched is None else matched.mean_error_px,
+            math.nan if matched is None else matched.result.reprojection_residual_px,
+            _fingerprint(status, matched, best_count),
+            error,
+            None if matched is None else matched.as_json,
+            has_truth=self.has_truth,
+            est_lat=None if est is None else est[0],
+            est_lon=None if est is None else est[1],
+            truth_lat=None if self.truth is None else self.truth[0],
+            truth_lon=None if self.truth is None else self.truth[1],
+            position_error_m=_distance_m(est, self.truth),
+            insufficient_best=best_count,
+            telemetry_lat=None if tele is None else tele.lat,
+            telemetry_lon=None if tele is None else tele.lon,
+            telemetry_error_m=_distance_m(est, None if tele is None else (tele.lat, tele.lon)),
+            gnss_accuracy_m=None if tele is None else tele.gnss_accuracy_m,
+            gnss_degraded=None if tele is None else tele.gnss_degraded,
+        )
 
 
-def _distance_m(lat: float, lon: float, to_lat: float, to_lon: float) -> float:
-    return float(haversine_m([[lon, lat]], [[to_lon, to_lat]])[0])
+@dataclass(frozen=True)
+class _Matched:
+    """A frame's result and what scoring it gave: the best candidate's input index, its inlier
+    error against ground truth, the result as JSON and where it puts the frame (lat, lon)."""
+
+    result: MatchResult
+    best_input: int
+    mean_error_px: float
+    as_json: dict[str, Any]
+
+    @property
+    def estimate(self) -> tuple[float, float] | None:
+        if "centre_lat" not in self.as_json:
+            return None
+        return float(self.as_json["centre_lat"]), float(self.as_json["centre_lon"])
+
+
+def _fingerprint(status: FrameStatus, matched: _Matched | None, best_count: int) -> str:
+    if matched is not None:
+        return result_fingerprint(matched.result)
+    return result_fingerprint(None, best_count) if status == FrameStatus.INSUFFICIENT else ""
+
+
+def _distance_m(a: tuple[float, float] | None, b: tuple[float, float] | None) -> float:
+    """Metres between two (lat, lon); NaN when either is missing."""
+    if a is None or b is None:
+        return math.nan
+    return float(haversine_m([[a[1], a[0]]], [[b[1], b[0]]])[0])
 
 
 def _matched(
@@ -134,7 +182,7 @@ def _matched(
     frame: FrameRecord,
     result: MatchResult,
     elapsed_ms: float,
-    geo: dict[str, Any],
+    where: _Where,
     with_correspondences: bool,
 ) -> FrameOutcome:
     best_input, mean_err = best_candidate_error(dataset, frame, result)
@@ -145,31 +193,8 @@ def _matched(
         calibration=dataset.calibration,
         tile_sizes=[(size, size)] * len(frame.candidates),
     )
-    if "centre_lat" in as_json:
-        lat, lon = as_json["centre_lat"], as_json["centre_lon"]
-        geo.update(est_lat=lat, est_lon=lon)
-        if "truth_lat" in geo:
-            geo["position_error_m"] = _distance_m(lat, lon, geo["truth_lat"], geo["truth_lon"])
-        if "telemetry_lat" in geo:
-            geo["telemetry_error_m"] = _distance_m(
-                lat, lon, geo["telemetry_lat"], geo["telemetry_lon"]
-            )
-    return FrameOutcome(
-        frame.index,
-        str(frame.frame_id),
-        FrameStatus.OK,
-        elapsed_ms,
-        frame.true_tile_present,
-        result.per_candidate[0].inlier_count,
-        best_input,
-        best_input == frame.true_index,
-        mean_err,
-        result.reprojection_residual_px,
-        result_fingerprint(result),
-        None,
-        as_json,
-        **geo,
-    )
+    matched = _Matched(result, best_input, mean_err, as_json)
+    return where.outcome(frame, FrameStatus.OK, elapsed_ms, matched=matched)
 
 
 def fly(

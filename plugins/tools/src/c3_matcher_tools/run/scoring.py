@@ -21,6 +21,7 @@ from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = [
     "RunSummary",
+    "TelemetryReference",
     "best_candidate_error",
     "result_fingerprint",
     "summarize",
@@ -68,20 +69,30 @@ def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, f
     return None
 
 
-def telemetry_reference(frame: FrameRecord) -> dict[str, Any]:
-    """The frame's telemetry reference for :class:`FrameOutcome`: where the recorded position,
-    attitude and height put the frame's centre (the import's look point), the stated GNSS
-    accuracy and the degraded flag; empty without telemetry."""
+@dataclass(frozen=True)
+class TelemetryReference:
+    """Where the flight's recorded position, attitude and height put a frame's centre (the
+    import's look point, lat/lon), the GNSS accuracy the log states and whether GNSS was absent
+    or degraded (None: the log does not say)."""
+
+    lat: float
+    lon: float
+    gnss_accuracy_m: float | None
+    gnss_degraded: bool | None
+
+
+def telemetry_reference(frame: FrameRecord) -> TelemetryReference | None:
+    """The frame's :class:`TelemetryReference`; None without telemetry."""
     t = frame.telemetry
     if "look_lat" not in t or "look_lon" not in t:
-        return {}
+        return None
     accuracy = t.get("gnss_accuracy_m")
-    return {
-        "telemetry_lat": float(t["look_lat"]),
-        "telemetry_lon": float(t["look_lon"]),
-        "gnss_accuracy_m": None if accuracy is None else float(accuracy),
-        "gnss_degraded": None if "gnss_degraded" not in t else bool(t["gnss_degraded"]),
-    }
+    return TelemetryReference(
+        float(t["look_lat"]),
+        float(t["look_lon"]),
+        None if accuracy is None else float(accuracy),
+        None if "gnss_degraded" not in t else bool(t["gnss_degraded"]),
+    )
 
 
 def best_candidate_error(
