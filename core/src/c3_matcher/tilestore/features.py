@@ -42,7 +42,7 @@ leaves the sidecar one self-contained file (no WAL), readable from read-only med
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -87,6 +87,7 @@ __all__ = [
 ]
 
 
+@runtime_checkable
 class FeatureSource(Protocol):
     """A slippy tile store that may serve stored features (``feature_store`` returns None when
     it has none)."""
@@ -125,7 +126,8 @@ def serve_window(
     grid_origin = (gx * fset.stride_px, gy * fset.stride_px)
     keys = covered_tiles(zoom, grid_origin, (w, h))
     blobs = {k: source.tile_bytes(*k) for k in keys}
-    digest = window_digest(keys, lambda k: None if blobs[k] is None else tile_digest(blobs[k]))  # type: ignore[arg-type]
+    digests = {k: None if blob is None else tile_digest(blob) for k, blob in blobs.items()}
+    digest = window_digest(keys, digests.__getitem__)
     if digest != stored.window_digest:
         return None  # the tiles changed since the build: stale
     n = min(int(request.max_keypoints), stored.scores.shape[0])

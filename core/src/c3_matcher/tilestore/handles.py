@@ -186,11 +186,11 @@ def _stored_window(
     origin: tuple[int, int],
     size_px: int,
 ) -> Features | None:
-    if not callable(getattr(source, "feature_store", None)):
-        return None  # a store without precomputed features (optional method)
-    from c3_matcher.tilestore.features import serve_window
+    from c3_matcher.tilestore.features import FeatureSource, serve_window
 
-    return serve_window(source, request, zoom, origin, (size_px, size_px))  # type: ignore[arg-type]
+    if not isinstance(source, FeatureSource):
+        return None  # a store without precomputed features (its optional ``feature_store``)
+    return serve_window(source, request, zoom, origin, (size_px, size_px))
 
 
 def stitch(
