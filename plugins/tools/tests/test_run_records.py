@@ -1,0 +1,60 @@
+"""A run's summary and its C3-IT measures are typed records whose JSON forms are what
+``report.json``, ``eval.json`` and ``summary.json`` hold: the counts by status flattened after
+``frames``, each measure's ``"pass"`` after its figures and judged from them."""
+
+from __future__ import annotations
+
+import json
+import math
+
+from c3_matcher_tools.run import FlightRun, StrategyEval, SummaryRow, summarize
+from c3_matcher_tools.run.acceptance import metrics
+from c3_matcher_tools.run.records import FrameStatus
+from c3_matcher_tools.testing.outcomes import frame_outcome
+
+
+def test_a_summary_in_json_counts_every_status_right_after_frames() -> None:
+    outcomes = [
+        frame_outcome(0),
+        frame_outcome(1, status=FrameStatus.INSUFFICIENT),
+        frame_outcome(2, status=FrameStatus.UNREADABLE),
+        frame_outcome(3, status=FrameStatus.UNREADABLE),
+    ]
+    s = summarize(outcomes)
+    assert s.frames == 4 and s.failed == 3 and s.count(FrameStatus.UNREADABLE) == 2
+    j = s.to_json()
+    statuses = [str(x) for x in FrameStatus]
+    assert list(j)[: 1 + len(statuses)] == ["frames", *statuses]
+    assert [j[x] for x in statuses] == [s.count(x) for x in FrameStatus] == [1, 1, 0, 2]
+    assert json.loads(json.dumps(j)) == j  # plain JSON: lists, not tuples
+
+
+def test_a_summary_of_no_frame_has_no_percentile() -> None:
+    s = summarize([])
+    assert s.frames == 0 and s.frame_ms_p50 is None and s.position_error_m_p95 is None
+    assert s.to_json()["total_s"] == 0.0
+
+
+def test_each_measure_is_judged_from_its_own_figures_and_says_so_last() -> None:
+    run = [frame_outcome(0, inliers=50), frame_outcome(1, inliers=300, error_px=3.0)]
+    run.append(frame_outcome(2, status=FrameStatus.INSUFFICIENT, true_present=False))
+    m = metrics(run, run[:2])
+    assert m.inlier_count.passed is False  # p5 of (50, 300) is below 80
+    assert m.inlier_error.passed is False  # p95 of (1, 3) px is above 2.5
+    assert m.absent_raised.passed is True and m.determinism.passed is True
+    for name, measure in m.to_json().items():
+        assert list(measure)[-1] == "pass", name
+        assert measure["pass"] is m.measures()[name].passed
+    h = m.headline
+    assert (h.correct, h.present, h.it05_raised, h.absent) == (2, 2, 1, 1)
+
+
+def test_a_summary_row_is_the_headline_or_the_error() -> None:
+    outcomes = [frame_outcome(0), frame_outcome(1)]
+    run = FlightRun("xfeat", {}, tuple(outcomes), 0.0, 0.0)
+    evaluated = StrategyEval(run, metrics(outcomes, []), summarize(outcomes), "g", None)
+    row = SummaryRow.of("f", evaluated).to_json()
+    assert row["strategy"] == "xfeat" and row["flight"] == "f" and row["correct"] == 2
+    assert math.isclose(row["it03_p95_px"], 1.0) and row["frame_ms_p50"] == 10.0
+    failed = SummaryRow("xfeat", "f", error="no engine").to_json()
+    assert failed == {"strategy": "xfeat", "flight": "f", "error": "no engine"}
