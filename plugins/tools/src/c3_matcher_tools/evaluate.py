@@ -111,6 +111,7 @@ from c3_matcher_tools.run.acceptance import (
     IT03_BAR,
     IT04_BAR,
     WRONG_FIX_PX,
+    Measure,
     is_wrong_fix,
     metrics,
 )
@@ -167,14 +168,14 @@ def evaluate_strategy(
         frames=subset,
         progress=ProgressBar(f"eval {strategy} run 2"),
     )
-    timing = summarize(run1.outcomes)
-    scores = metrics(run1.outcomes, run2.outcomes)
+    summary = summarize(run1.outcomes)
+    acceptance = metrics(run1.outcomes, run2.outcomes)
     flight: dict[str, Any] = {
-        **flight_report(dataset, run1, timing),
-        **{f"{k} pass": v.passed for k, v in scores.measures().items()},
+        **flight_report(dataset, run1, summary),
+        **{f"{k} pass": v.passed for k, v in acceptance.measures().items()},
     }
     write_flight_outputs(out / strategy, dataset, run1, flight)
-    return StrategyEval(run1, scores, timing, flight["geojson"], flight["html"])
+    return StrategyEval(run1, acceptance, summary, flight["geojson"], flight["html"])
 
 
 def register_eval_command(commands: CommandRegistry) -> None:
@@ -405,9 +406,9 @@ def _print_table(
 def _table_row(r: StrategyRow) -> str:
     if isinstance(r, StrategyFailure):
         return f"{r.strategy:18} failed to run: {r.error}"
-    m, t = r.metrics, r.timing
+    m, t = r.acceptance, r.summary
 
-    def mark(measure: Any) -> str:  # passed or nothing to measure (None): no mark
+    def mark(measure: Measure) -> str:  # passed or nothing to measure (None): no mark
         return "!" if measure.passed is False else ""
 
     it1, it2, it3 = m.inlier_count, m.determinism.passed, m.inlier_error
@@ -429,7 +430,7 @@ def _table_row(r: StrategyRow) -> str:
 
 
 def _print_links(ctx: CommandContext, r: StrategyEval) -> None:
-    t = r.timing
+    t = r.summary
     if t.with_telemetry:
         ctx.out(
             f"  {r.strategy}: estimate - telemetry look point m p50 "

@@ -36,6 +36,7 @@ __all__ = [
     "Headline",
     "InlierCount",
     "InlierError",
+    "Measure",
     "is_wrong_fix",
     "metrics",
 ]
@@ -116,7 +117,7 @@ def is_wrong_fix(outcome: FrameOutcome) -> bool:
     return not (math.isfinite(error) and error <= WRONG_FIX_PX)
 
 
-class _Measure(ABC):
+class Measure(ABC):
     """One measure (each a frozen dataclass of its figures), named ``name`` in the reports:
     ``passed`` is True (bar met), False (bar missed) or None (nothing to measure), judged from
     the figures, and written ``"pass"`` in JSON after them."""
@@ -136,7 +137,7 @@ class _Measure(ABC):
 
 
 @dataclass(frozen=True)
-class InlierCount(_Measure):
+class InlierCount(Measure):
     """C3-IT-01: the p5 of the best candidate's inlier count over the true-tile frames."""
 
     name: ClassVar[str] = "C3-IT-01"
@@ -149,7 +150,7 @@ class InlierCount(_Measure):
 
 
 @dataclass(frozen=True)
-class Determinism(_Measure):
+class Determinism(Measure):
     """C3-IT-02: the frames run twice whose results differ (status or fingerprint)."""
 
     name: ClassVar[str] = "C3-IT-02"
@@ -162,7 +163,7 @@ class Determinism(_Measure):
 
 
 @dataclass(frozen=True)
-class InlierError(_Measure):
+class InlierError(Measure):
     """C3-IT-03: the mean inlier error against ground truth of the true-tile frames matched
     (ORIGINAL frame px; p95 judged), and the position error (m) beside it."""
 
@@ -179,7 +180,7 @@ class InlierError(_Measure):
 
 
 @dataclass(frozen=True)
-class CorrectTile(_Measure):
+class CorrectTile(Measure):
     """C3-IT-04: the true-tile frames whose best candidate is the true tile."""
 
     name: ClassVar[str] = "C3-IT-04"
@@ -193,7 +194,7 @@ class CorrectTile(_Measure):
 
 
 @dataclass(frozen=True)
-class AbsentRaised(_Measure):
+class AbsentRaised(Measure):
     """C3-IT-05: the frames without their true tile that raised ``InsufficientInliersError``:
     all of them, to pass."""
 
@@ -207,7 +208,7 @@ class AbsentRaised(_Measure):
 
 
 @dataclass(frozen=True)
-class FalseConfident(_Measure):
+class FalseConfident(Measure):
     """Returned picks that are wrong fixes (:func:`is_wrong_fix`) among the frames with ground
     truth (none, to pass), and apart from them the picks of another tile that still place the
     frame right."""
@@ -251,7 +252,7 @@ class Acceptance:
     absent_raised: AbsentRaised
     false_confident: FalseConfident
 
-    def measures(self) -> dict[str, _Measure]:
+    def measures(self) -> dict[str, Measure]:
         """Each measure by its name in the reports, in that order."""
         every = (self.inlier_count, self.determinism, self.inlier_error, self.correct_tile)
         return {m.name: m for m in (*every, self.absent_raised, self.false_confident)}

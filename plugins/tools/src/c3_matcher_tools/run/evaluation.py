@@ -23,8 +23,8 @@ class StrategyEval:
     no matplotlib)."""
 
     run: FlightRun
-    metrics: Acceptance
-    timing: RunSummary
+    acceptance: Acceptance
+    summary: RunSummary
     geojson: str
     html: str | None
 
@@ -39,8 +39,8 @@ class StrategyEval:
             "settings": self.run.settings,
             "startup_s": self.run.startup_s,
             "wall_s": self.run.wall_s,
-            "timing": self.timing.to_json(),
-            "metrics": self.metrics.to_json(),
+            "timing": self.summary.to_json(),
+            "metrics": self.acceptance.to_json(),
             "geojson": self.geojson,
             "html": self.html,
             "per_frame": [
@@ -96,9 +96,9 @@ class SummaryRow:
         return cls(
             row.strategy,
             flight,
-            row.metrics.headline,
-            len(row.metrics.false_confident.right_fix_other_tile),
-            row.timing.frame_ms_p50,
+            row.acceptance.headline,
+            len(row.acceptance.false_confident.right_fix_other_tile),
+            row.summary.frame_ms_p50,
         )
 
     def to_json(self) -> dict[str, Any]:
