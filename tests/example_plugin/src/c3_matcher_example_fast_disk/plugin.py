@@ -1,12 +1,15 @@
 """The whole plugin: an options model, a config and one hook implementation.
 
-It reuses the engines the DISK plugin declares (``disk/depth`` and ``lightglue/disk``), so it
-declares none of its own; a plugin with its own networks would add ``c3_matcher_engine_specs``.
+It reuses the engines the DISK plugin declares (``disk/depth`` and ``lightglue/disk``, a
+dependency of this distribution), so it declares none of its own and takes each engine by its
+spec: the build of exactly that graph, never another one found under the same name. A plugin with
+its own networks would add ``c3_matcher_engine_specs``.
 """
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from c3_matcher import plugins as c3
+from c3_matcher_disk_lightglue.engines import DISK_SIZE_MULTIPLE, DISK_SPEC, LIGHTGLUE_DISK_SPEC
 
 NAME = "example_fast_disk"
 
@@ -27,9 +30,9 @@ def make_config(settings: c3.C3Settings, options: Options) -> c3.ExtractorLightG
         label=NAME,
         feature_type="disk",
         extract_phase="disk_forward",
-        extractor_engine_path=store.require("disk", "depth"),
-        lightglue_engine_path=store.require("lightglue", "disk"),
-        size_multiple=16,
+        extractor_engine_path=store.require_spec(DISK_SPEC),
+        lightglue_engine_path=store.require_spec(LIGHTGLUE_DISK_SPEC),
+        size_multiple=DISK_SIZE_MULTIPLE,
         max_keypoints=options.max_keypoints,
         max_long_side=options.max_long_side,
     )
