@@ -98,7 +98,7 @@ def copy_engines(profiles: list[str], target: Path, source: Path) -> None:
     for profile in profiles:
         host = PluginHost(BuildProfile.from_data(rows[profile], None), discover())
         for spec in host.engine_specs():
-            path = store.require(spec.model, spec.variant)
+            path = store.require_spec(spec)  # the build of the graph the plugin runs
             for f in (path, manifest_path_for(path)):
                 shutil.copy2(f, target / f.name)
                 print(f"wheelhouse: engine {f.name}", file=sys.stderr)
