@@ -253,9 +253,9 @@ class Acceptance:
     false_confident: FalseConfident
 
     def measures(self) -> dict[str, Measure]:
-        """Each measure by its name in the reports, in that order."""
-        every = (self.inlier_count, self.determinism, self.inlier_error, self.correct_tile)
-        return {m.name: m for m in (*every, self.absent_raised, self.false_confident)}
+        """Each measure (every field) by its name in the reports, in that order."""
+        every: list[Measure] = [getattr(self, f.name) for f in fields(self)]
+        return {m.name: m for m in every}
 
     def to_json(self) -> dict[str, Any]:
         """``eval.json``'s ``metrics``: each measure's figures and ``"pass"`` by its name."""
