@@ -96,9 +96,8 @@ def test_a_run_without_matplotlib_removes_the_report_an_earlier_run_left(
     write_flight_outputs(tmp_path, dataset, flown, flight_report(dataset, flown))
     assert (tmp_path / "report.html").exists()
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib: ImportError
-    report = flight_report(dataset, flown)
-    write_flight_outputs(tmp_path, dataset, flown, report)
-    assert report["html"] is None
+    files = write_flight_outputs(tmp_path, dataset, flown, flight_report(dataset, flown))
+    assert files.html is None and files.geojson == str(tmp_path / "flight.geojson")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.geojson", "results.jsonl"]
 
 

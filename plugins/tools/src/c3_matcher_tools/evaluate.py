@@ -170,12 +170,12 @@ def evaluate_strategy(
     )
     summary = summarize(run1.outcomes)
     acceptance = metrics(run1.outcomes, run2.outcomes)
-    flight: dict[str, Any] = {
+    flight = {
         **flight_report(dataset, run1, summary),
         **{f"{k} pass": v.passed for k, v in acceptance.measures().items()},
     }
-    write_flight_outputs(out / strategy, dataset, run1, flight)
-    return StrategyEval(run1, acceptance, summary, flight["geojson"], flight["html"])
+    files = write_flight_outputs(out / strategy, dataset, run1, flight)
+    return StrategyEval(run1, acceptance, summary, files.geojson, files.html)
 
 
 def register_eval_command(commands: CommandRegistry) -> None:

@@ -119,14 +119,15 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
             with_correspondences=not args.no_correspondences,
         )
         summary = summarize(run.outcomes)
-        report = {
+        run_report = {
             **flight_report(dataset, run, summary),
             "attitude_noise": dataset.meta.get("attitude_noise"),
             "results": str(out / "results.jsonl"),
             "fdr": str(out / "fdr.jsonl"),
             "log": str(out / "matcher.log"),
         }
-        write_flight_outputs(out, dataset, run, report)
+        files = write_flight_outputs(out, dataset, run, run_report)
+        report = {**run_report, "geojson": files.geojson, "html": files.html}
         write_text_atomically(out / "report.json", json.dumps(report, indent=2) + "\n")
     if args.json:
         ctx.out(json.dumps(report, indent=2))

@@ -33,6 +33,7 @@ from c3_matcher_tools.run.matcher import (
 from c3_matcher_tools.run.outputs import (
     EVAL_OUT,
     REPLAY_OUT,
+    RunFiles,
     check_output_dirs,
     exclusive_output_dir,
     flight_report,
@@ -63,6 +64,7 @@ __all__ = [
     "Overrides",
     "PreparedMatcher",
     "Progress",
+    "RunFiles",
     "RunSummary",
     "StrategyEval",
     "StrategyFailure",

@@ -9,7 +9,8 @@ from __future__ import annotations
 import contextlib
 import json
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,7 @@ __all__ = [
     "EVAL_OUT",
     "REPLAY_OUT",
     "RUN_FILES",
+    "RunFiles",
     "check_output_dirs",
     "exclusive_output_dir",
     "flight_report",
@@ -150,19 +152,27 @@ def flight_report(
     }
 
 
+@dataclass(frozen=True)
+class RunFiles:
+    """Where a run's map and flight report were written (``html`` None: no matplotlib)."""
+
+    geojson: str
+    html: str | None
+
+
 def write_flight_outputs(
-    out: Path, dataset: FlightDataset, run: FlightRun, report: dict[str, Any]
-) -> None:
+    out: Path, dataset: FlightDataset, run: FlightRun, report: Mapping[str, Any]
+) -> RunFiles:
     """A run's files in ``out`` (replay, and eval per strategy): ``results.jsonl``,
-    ``flight.geojson`` and ``report.html``; the last two's paths go into ``report["geojson"]``
-    / ``report["html"]`` (None: no matplotlib). ``report`` needs :func:`flight_report`'s
-    keys."""
+    ``flight.geojson`` and ``report.html``, which shows ``report`` (it needs
+    :func:`flight_report`'s keys) and the map's path."""
     from c3_matcher_tools.geojson import write_geojson
 
     write_results(out / "results.jsonl", run.outcomes)
     outcomes = list(run.outcomes)
-    report["geojson"] = str(write_geojson(out / "flight.geojson", outcomes, run.strategy))
-    report["html"] = write_html_report(out, dataset, outcomes, run.strategy, report)
+    geojson = str(write_geojson(out / "flight.geojson", outcomes, run.strategy))
+    shown = {**report, "geojson": geojson}
+    return RunFiles(geojson, write_html_report(out, dataset, outcomes, run.strategy, shown))
 
 
 def write_html_report(
@@ -170,7 +180,7 @@ def write_html_report(
     dataset: FlightDataset,
     outcomes: Sequence[FrameOutcome],
     strategy: str,
-    report: dict[str, Any],
+    report: Mapping[str, Any],
 ) -> str | None:
     """``out/report.html`` (None, with the reason on stderr, when matplotlib is missing: then a
     ``report.html`` an earlier run left there is removed, as it reports another run's
