@@ -13,7 +13,7 @@ from typing import Any
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import rotated_segments
-from c3_matcher.fdr.pending import RECORDS_DROPPED, DroppedRecords, read_lock
+from c3_matcher.fdr.pending import RECORDS_DROPPED, DroppedRecords, lock_path, read_lock
 from c3_matcher.fdr.records import FdrRecord, read_fdr
 
 __all__ = ["FdrCheck", "SeqRange", "check_fdr", "read_fdr_log"]
@@ -142,7 +142,7 @@ def check_fdr(path: Path) -> FdrCheck:
         gaps=tuple(g for g in gaps if not g.within(named)),
         went_back=tuple(went_back),
         unreadable=tuple(unreadable),
-        not_in_log=read_lock(path.with_name(path.name + ".lock"))[1],
+        not_in_log=read_lock(lock_path(path))[1],
     )
 
 

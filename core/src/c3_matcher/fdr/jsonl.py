@@ -29,6 +29,7 @@ from c3_matcher.fdr.pending import (
     RECORDS_DROPPED,
     DroppedRecords,
     Pending,
+    lock_path,
     lock_text,
     read_lock,
 )
@@ -176,7 +177,7 @@ class JsonlFdrRecorder:
 
     @property
     def _lock_path(self) -> Path:
-        return self._path.with_name(self._path.name + ".lock")
+        return lock_path(self._path)
 
     @property
     def _meta_path(self) -> Path:

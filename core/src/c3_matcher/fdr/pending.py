@@ -116,6 +116,11 @@ def lock_text(pid: int, lost: DroppedRecords | None) -> bytes:
     return data + b" " * max(0, LOCK_BYTES - len(data))
 
 
+def lock_path(log: Path) -> Path:
+    """The lock file of the log whose live segment is ``log``: ``<log>.lock``."""
+    return log.with_name(log.name + ".lock")
+
+
 def read_lock(path: Path) -> tuple[str, DroppedRecords | None]:
     """The lock file's holder (its pid, "" when unreadable) and its note of lost records."""
     try:
