@@ -34,6 +34,7 @@ from c3_matcher.config_sources import (
 from c3_matcher.engines.providers import canonical_provider
 from c3_matcher.engines.store import default_engine_dir
 from c3_matcher.errors import ConfigurationError, EngineError
+from c3_matcher.fdr.jsonl import MIN_BYTES, PENDING_BYTES, SEGMENT_BYTES
 from c3_matcher.plugins.types import StrategyDefaults
 
 __all__ = [
@@ -304,8 +305,10 @@ class FdrSettings(_Section):
         description="live FDR segment (JSON Lines); default in the user data directory "
         "(~/.local/share/c3-matcher/fdr on Linux)",
     )
-    max_bytes: int = Field(64 * 1024 * 1024, ge=1024, description="rotate above this size")
-    max_pending_bytes: int = Field(64 << 20, ge=1024, description="held while the disk is full")
+    max_bytes: int = Field(SEGMENT_BYTES, ge=MIN_BYTES, description="rotate above this size")
+    max_pending_bytes: int = Field(
+        PENDING_BYTES, ge=MIN_BYTES, description="held while the disk is full"
+    )
 
 
 class LoggingSettings(_Section):
@@ -318,10 +321,7 @@ class C3Settings(BaseSettings):
     """The whole configuration."""
 
     model_config = SettingsConfigDict(
-        env_prefix=ENV_PREFIX,
-        env_nested_delimiter="__",
-        extra="forbid",
-        frozen=True,
+        env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid", frozen=True
     )
 
     matcher: MatcherSettings = MatcherSettings()
@@ -397,4 +397,4 @@ def load_settings(
         )
         field = ", ".join(named) or "environment"
         reason = f"not valid JSON for a table or list value ({exc.__cause__ or text})"
-        raise ConfigurationError(source, [(field or "environment", reason)]) from None
+        raise ConfigurationError(source, [(field, reason)]) from None

@@ -36,6 +36,13 @@ from c3_matcher.fdr.pending import (
 from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, read_fdr, to_jsonable
 from c3_matcher.protocols import Clock
 
+SEGMENT_BYTES = 64 * 1024 * 1024
+"""Default ``max_bytes``: a live segment rotates above this size."""
+PENDING_BYTES = 64 * 1024 * 1024
+"""Default ``max_pending_bytes``: what records may wait while the disk is full."""
+MIN_BYTES = 1024
+"""The least either bound may be."""
+
 
 class JsonlFdrRecorder:
     """Durable append-only JSON Lines recorder, rotated by size, safe under power loss.
@@ -81,14 +88,14 @@ class JsonlFdrRecorder:
         self,
         path: Path,
         clock: Clock,
-        max_bytes: int = 64 * 1024 * 1024,
+        max_bytes: int = SEGMENT_BYTES,
         *,
-        max_pending_bytes: int = 64 * 1024 * 1024,
+        max_pending_bytes: int = PENDING_BYTES,
         fresh: bool = False,
     ) -> None:
         for name, value in (("max_bytes", max_bytes), ("max_pending_bytes", max_pending_bytes)):
-            if value < 1024:
-                raise InvalidInputError(f"fdr.{name}", f"must be >= 1024, got {value}")
+            if value < MIN_BYTES:
+                raise InvalidInputError(f"fdr.{name}", f"must be >= {MIN_BYTES}, got {value}")
         self._path = Path(path).expanduser()
         self._clock = clock
         self._max_bytes = max_bytes
