@@ -30,7 +30,11 @@ def _tile_id(candidate: dict[str, object]) -> str:
 
 
 def test_a_frame_against_windows_of_a_store_finds_its_own(engine_dir, tmp_path):
+    """The true window wins; a window over no stored tile (off the map) is dropped as in
+    flight and named in the JSON with why, and the fix and the picture are still given."""
     true, other = sorted(FRAME["candidates"], key=lambda c: not c["is_true"])[:2]
+    zoom, lat, lon = true["tile_id"]
+    off_map = f"{zoom},{lat},{lon + 0.5}"  # ~40 km east of the store's map
     roll, pitch, yaw = FRAME["attitude_deg"]
     proc = _match(
         tmp_path,
@@ -38,7 +42,7 @@ def test_a_frame_against_windows_of_a_store_finds_its_own(engine_dir, tmp_path):
         *("--calibration", str(FLIGHT / "calibration.json")),
         *("--attitude", f"{roll},{pitch},{yaw}", "--height", str(FRAME["height_m"])),
         *("--store", str(STORE), "--window", "448"),
-        *("--tile-id", _tile_id(other), "--tile-id", _tile_id(true)),
+        *("--tile-id", _tile_id(other), "--tile-id", _tile_id(true), "--tile-id", off_map),
         *("--viz", str(tmp_path / "match.png"), "--no-correspondences"),
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -49,10 +53,12 @@ def test_a_frame_against_windows_of_a_store_finds_its_own(engine_dir, tmp_path):
     truth = FRAME["pose"]
     assert abs(out["centre_lat"] - truth["footprint_centre_lat"]) < 0.001  # about 100 m
     assert abs(out["centre_lon"] - truth["footprint_centre_lon"]) < 0.0015
+    (dropped,) = (d for d in out["dropped"] if d["tile_index"] == 2)
+    assert "no stored tile overlaps" in dropped["reason"], dropped
     assert (tmp_path / "match.png").stat().st_size > 10_000
     records = [json.loads(x) for x in (tmp_path / "fdr.jsonl").read_text().splitlines()]
     (done,) = (r["payload"] for r in records if r["kind"] == "matcher.frame_done")
-    assert done["candidates_input"] == 2
+    assert done["candidates_input"] == 3
 
 
 @pytest.mark.parametrize(

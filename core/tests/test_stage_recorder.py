@@ -75,23 +75,43 @@ def test_a_failing_fdr_never_fails_the_frame():
     FrameRecorder(_sinks(Down())[0], "f").record("matcher.frame_done", {})  # no exception
 
 
-def test_insufficient_records_the_evidence_and_returns_the_error():
-    fdr = InMemoryFdr()
-    sinks, health = _sinks(fdr)
+def _refused_evidence() -> FrameEvidence:
+    """Three candidates: 0 refused on geometry (40 inliers), 1 kept, 2 dropped unmatched."""
     refusal = GeometryRefusal(TileId(18, 47.0, 8.5), 0, 40, "scale 1.5", None)
-    evidence = FrameEvidence(
+    return FrameEvidence(
         3, ("stored", "extracted", "none"), ({}, {}, {}), 2, (refusal,), False, None
     )
-    error = FrameRecorder(sinks, "f").insufficient(evidence, 20, [_survivor(1, 20, 1.0)], 60)
-    assert (error.best_inlier_count, error.threshold, error.candidates_dropped) == (20, 60, 2)
-    (record,) = fdr.of_kind("matcher.insufficient_inliers")
+
+
+def _assert_candidates_recorded(record: dict[str, Any]) -> None:
     assert record["candidate_features"] == ["stored", "extracted", "none"]
     assert record["per_candidate"][0]["features"] == "extracted"
     assert [(r["reason"], r["inlier_count"]) for r in record["geometry_refused"]] == [
         ("scale 1.5", 40)
     ]
+
+
+def test_insufficient_records_the_evidence_and_returns_the_error():
+    fdr = InMemoryFdr()
+    sinks, health = _sinks(fdr)
+    recorder = FrameRecorder(sinks, "f")
+    error = recorder.insufficient(_refused_evidence(), 20, [_survivor(1, 20, 1.0)], 60)
+    assert (error.best_inlier_count, error.threshold, error.candidates_dropped) == (20, 60, 2)
+    (record,) = fdr.of_kind("matcher.insufficient_inliers")
+    _assert_candidates_recorded(record)
     assert "stale_rerank" not in record and "refine" not in record
     assert health.update_count == 1 and health.last_update.best_inlier_count == 0  # type: ignore[union-attr]
+
+
+def test_the_success_record_names_the_candidates_refused_on_geometry_too():
+    """A frame that finds its fix still says which candidate the prior refused and why: in
+    flight that is the FDR's only account of it (the refusal's log line is DEBUG)."""
+    fdr = InMemoryFdr()
+    recorder = FrameRecorder(_sinks(fdr)[0], "f")
+    recorder.frame_done(_refused_evidence(), [_survivor(1, 90, 1.0)], None, {"total": 5.0})
+    (record,) = fdr.of_kind("matcher.frame_done")
+    _assert_candidates_recorded(record)
+    assert record["best_inlier_count"] == 90 and record["timings_ms"] == {"total": 5.0}
 
 
 def test_a_stale_rerank_is_named_in_the_record():
@@ -136,15 +156,20 @@ def test_the_match_commands_drop_reasons_are_read_from_the_recorders_log_events(
     the recorder writes; a kind renamed on one side only would silently lose every reason."""
     from c3_matcher.match_cli import _collect_drop_reasons, _remove_sink
 
-    reasons: dict[str, str] = {}
+    reasons: dict[int, str] = {}
     sink = _collect_drop_reasons(reasons)
     try:
         recorder = FrameRecorder(_sinks()[0], "f")
         recorder.backbone_error("18,1,2", "lightglue_match", RuntimeError("boom"), 0)
-        recorder.zero_inliers("18,3,4", raw_matches=7)
+        recorder.zero_inliers("18,3,4", 1, raw_matches=7)
+        recorder.zero_inliers("18,3,4", 2, raw_matches=9)  # the same tile id twice: by position
+        recorder.geometry_refused(GeometryRefusal("18,5,6", 3, 41, "rotation 45.0 deg"))
+        recorder.backbone_error(None, "query_extract", RuntimeError("no"))  # no candidate's
     finally:
         _remove_sink(sink)
     assert reasons == {
-        "18,1,2": "backbone error in lightglue_match: RuntimeError: boom",
-        "18,3,4": "no inliers after RANSAC (7 raw matches)",
+        0: "backbone error in lightglue_match: RuntimeError: boom",
+        1: "no inliers after RANSAC (7 raw matches)",
+        2: "no inliers after RANSAC (9 raw matches)",
+        3: "refused on geometry: rotation 45.0 deg (41 inliers)",
     }

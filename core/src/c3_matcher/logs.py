@@ -39,6 +39,7 @@ if TYPE_CHECKING:
 __all__ = [
     "FDR_WRITE_FAILED",
     "MATCHER_BACKBONE_ERROR",
+    "MATCHER_GEOMETRY_REFUSED",
     "MATCHER_READY",
     "MATCHER_ZERO_INLIERS",
     "LoggingHandle",
@@ -63,6 +64,8 @@ MATCHER_BACKBONE_ERROR = "c3.matcher.backbone_error"
 """The ERROR of a backbone failure (a candidate dropped, or the query or the matcher failing)."""
 MATCHER_ZERO_INLIERS = "c3.matcher.zero_inliers"
 """The DEBUG of a candidate left without an inlier by RANSAC (dropped)."""
+MATCHER_GEOMETRY_REFUSED = "c3.matcher.geometry_refused"
+"""The DEBUG of a candidate the geometric prior refused, whatever its inliers (dropped)."""
 
 
 def log_event(level: str, kind: str, message: str, **fields: Any) -> None:

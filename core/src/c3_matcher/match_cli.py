@@ -194,7 +194,7 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
         root = compose_root(settings, helpers, plugin_host=host)
         opened.callback(root.close)
         state_default_fdr_path(settings)
-        reasons: dict[str, str] = {}
+        reasons: dict[int, str] = {}
         opened.callback(_remove_sink, _collect_drop_reasons(reasons))
         draw = functools.partial(draw_or_report, problems, args, image, calibration, rerank)
         try:
@@ -290,14 +290,14 @@ def _result_json(
     result: Any,
     rerank: RerankResult,
     calibration: CameraCalibration,
-    reasons: dict[str, str],
+    reasons: dict[int, str],
 ) -> dict[str, Any]:
     """The result as ``match`` prints it, with the dropped candidates and why."""
     out = result_to_json(
         result,
         with_correspondences=not args.no_correspondences,
         calibration=calibration,
-        tile_sizes=[_image_size(c.tile_pixels_handle) for c in rerank.candidates],
+        tile_sizes=_kept_tile_sizes(result, rerank),
         tile_gsd_m=args.tile_gsd,
     )
     kept = {int(c["tile_index"]) for c in out["per_candidate"]}
@@ -305,7 +305,7 @@ def _result_json(
         {
             "tile_index": i,
             "tile_id": c.tile_id.as_list(),
-            "reason": reasons.get(str(c.tile_id), "no inliers after RANSAC"),
+            "reason": reasons.get(i, "no inliers after RANSAC"),
         }
         for i, c in enumerate(rerank.candidates)
         if i not in kept
@@ -349,21 +349,29 @@ def _warn_missing(args: argparse.Namespace) -> None:
         print(f"c3-matcher match: warning: no {what}", file=sys.stderr)
 
 
-def _collect_drop_reasons(reasons: dict[str, str]) -> int:
+def _collect_drop_reasons(reasons: dict[int, str]) -> int:
+    """Listen for why each candidate is dropped, by its input position (two candidates may
+    share a tile id): a backbone error, no inlier, or a refusal on geometry."""
     from loguru import logger
 
-    from c3_matcher.logs import MATCHER_BACKBONE_ERROR, MATCHER_ZERO_INLIERS
+    from c3_matcher.logs import (
+        MATCHER_BACKBONE_ERROR,
+        MATCHER_GEOMETRY_REFUSED,
+        MATCHER_ZERO_INLIERS,
+    )
 
     def sink(message: Any) -> None:
         extra = message.record["extra"]
-        kind = extra.get("kind")
+        kind, index = extra.get("kind"), extra.get("candidate_index")
+        if index is None:
+            return
         if kind == MATCHER_BACKBONE_ERROR:
-            reasons[str(extra.get("tile_id"))] = (
-                f"backbone error in {extra.get('phase')}: {extra.get('error')}"
-            )
+            reasons[index] = f"backbone error in {extra.get('phase')}: {extra.get('error')}"
         elif kind == MATCHER_ZERO_INLIERS:
-            reasons[str(extra.get("tile_id"))] = (
-                f"no inliers after RANSAC ({extra.get('raw_matches')} raw matches)"
+            reasons[index] = f"no inliers after RANSAC ({extra.get('raw_matches')} raw matches)"
+        elif kind == MATCHER_GEOMETRY_REFUSED:
+            reasons[index] = (
+                f"refused on geometry: {extra.get('reason')} ({extra.get('inlier_count')} inliers)"
             )
 
     return int(logger.add(sink, level="DEBUG", format="{message}"))
@@ -374,6 +382,17 @@ def _remove_sink(sink: int) -> None:
 
     with contextlib.suppress(ValueError):
         logger.remove(sink)
+
+
+def _kept_tile_sizes(result: Any, rerank: RerankResult) -> list[tuple[int, int]]:
+    """(width, height) per input position, decoded for the kept candidates only: a dropped one
+    is never georeferenced, and its pixels may be what dropped it (a window over no stored
+    tile, a damaged tile), so it stands as (0, 0)."""
+    kept = set(result.diagnostics.get("input_index", range(len(result.per_candidate))))
+    return [
+        _image_size(c.tile_pixels_handle) if i in kept else (0, 0)
+        for i, c in enumerate(rerank.candidates)
+    ]
 
 
 def _image_size(handle: TilePixelsHandle) -> tuple[int, int]:

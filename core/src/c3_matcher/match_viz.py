@@ -47,8 +47,7 @@ def _draw(
     names = [p.name for p in args.tile or ()] or [str(c.tile_id) for c in rerank.candidates]
     views = [
         CandidateView(
-            c.tile_pixels_handle.decode(),
-            str(c.tile_id) if c.tile_id.zoom else name,
+            *_pixels(c.tile_pixels_handle, str(c.tile_id) if c.tile_id.zoom else name),
             counts.get(i),
             best=i == best_index,
         )
@@ -64,3 +63,14 @@ def _draw(
         title=title,
     )
     write_png(picture, args.viz)
+
+
+def _pixels(handle: Any, label: str) -> tuple[Any, str]:
+    """A candidate's pixels and label; a grey square labelled so when they cannot be decoded
+    (a window over no stored tile, a damaged tile: dropped in the match, as in flight)."""
+    import numpy as np
+
+    try:
+        return handle.decode(), label
+    except C3Error:
+        return np.full((64, 64, 3), 128, np.uint8), f"{label} (no pixels)"

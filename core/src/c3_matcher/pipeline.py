@@ -298,7 +298,7 @@ class PipelineMatcher:
             )
             return Dropped(index, failure.source, timings)
         if match_set.inlier_count == 0:  # step 4e
-            recorder.zero_inliers(candidate.tile_id, verdict.raw_matches)
+            recorder.zero_inliers(candidate.tile_id, index, verdict.raw_matches)
             return Dropped(index, tile.source, timings)
         if verdict.refused:  # refused on geometry, whatever its inliers
             refusal = _refusal(index, verdict, match_set.inlier_count, query.rotation_search)

@@ -22,6 +22,7 @@ from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import (
     FDR_WRITE_FAILED,
     MATCHER_BACKBONE_ERROR,
+    MATCHER_GEOMETRY_REFUSED,
     MATCHER_ZERO_INLIERS,
     log_event,
 )
@@ -100,6 +101,7 @@ class FrameRecorder:
             f"backbone={label}; {error}",
             frame_id=self.frame_id,
             tile_id=tile_id,
+            candidate_index=candidate_index,
             phase=phase,
             error=error,
             backbone=label,
@@ -126,7 +128,7 @@ class FrameRecorder:
             tile_id=tile_id,
         )
 
-    def zero_inliers(self, tile_id: Any, raw_matches: int) -> None:
+    def zero_inliers(self, tile_id: Any, candidate_index: int, raw_matches: int) -> None:
         """Step 4e: a candidate without an inlier, dropped."""
         log_event(
             "DEBUG",
@@ -134,13 +136,14 @@ class FrameRecorder:
             f"C3 zero inliers; frame={self.frame_id}; tile={tile_id}",
             frame_id=self.frame_id,
             tile_id=tile_id,
+            candidate_index=candidate_index,
             raw_matches=raw_matches,
         )
 
     def geometry_refused(self, refusal: GeometryRefusal) -> None:
         log_event(
             "DEBUG",
-            "c3.matcher.geometry_refused",
+            MATCHER_GEOMETRY_REFUSED,
             f"C3 candidate refused on geometry; frame={self.frame_id}; tile={refusal.tile_id}; "
             f"inliers={refusal.inlier_count}; {refusal.reason}",
             frame_id=self.frame_id,
@@ -206,12 +209,8 @@ class FrameRecorder:
                 "best_tile_id": best.tile_id,
                 "best_homography": ranked[0].homography,
                 "query_rectification": rectification,
-                "per_candidate": per_candidate_records(evidence, ranked),
-                "candidate_features": list(evidence.sources),
-                **_rotation_record(evidence),
-                **_refine_record(evidence),
                 "timings_ms": timings,
-                "per_candidate_timings_ms": list(evidence.per_candidate_ms),
+                **_candidates_record(evidence, ranked),
                 **self._sinks.backend.provenance(),
             },
         )
@@ -254,12 +253,7 @@ class FrameRecorder:
                 "candidates_dropped": evidence.dropped,
                 "best_inlier_count": best_count,
                 "threshold": threshold,
-                "per_candidate": per_candidate_records(evidence, survivors),
-                "candidate_features": list(evidence.sources),
-                "geometry_refused": [r.as_record() for r in evidence.refused],
-                **_rotation_record(evidence),
-                **_refine_record(evidence),
-                "per_candidate_timings_ms": list(evidence.per_candidate_ms),
+                **_candidates_record(evidence, survivors),
                 **self._sinks.backend.provenance(),
             },
         )
@@ -312,6 +306,20 @@ def per_candidate_records(
             row["model"] = s.model
         rows.append(row)
     return rows
+
+
+def _candidates_record(evidence: FrameEvidence, kept: Sequence[Survivor]) -> dict[str, Any]:
+    """What a terminal FDR record says of the candidates, success or not: the ``kept`` ones'
+    figures, where each one's features came from, the refusals on geometry (whatever their
+    inliers), the rotation search and refine pass when they ran, and each one's timings."""
+    return {
+        "per_candidate": per_candidate_records(evidence, kept),
+        "candidate_features": list(evidence.sources),
+        "geometry_refused": [r.as_record() for r in evidence.refused],
+        **_rotation_record(evidence),
+        **_refine_record(evidence),
+        "per_candidate_timings_ms": list(evidence.per_candidate_ms),
+    }
 
 
 def _rotation_record(evidence: FrameEvidence) -> dict[str, Any]:
