@@ -148,7 +148,8 @@ def test_an_eval_stopped_part_way_leaves_no_earlier_evals_figures_as_current(
     small_flight: SmallFlight, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A rerun into an evaluated directory, stopped before its own figures: the earlier run's
-    eval.json and charts are gone (not shown beside this run's strategy directories)."""
+    eval.json, charts and match pictures are gone (not shown beside this run's strategy
+    directories)."""
     import c3_matcher_tools.evaluate
     from c3_matcher.cli import main
 
@@ -157,6 +158,8 @@ def test_an_eval_stopped_part_way_leaves_no_earlier_evals_figures_as_current(
     out.mkdir()
     for name in ("eval.json", "inliers.png", "error.png", "notes.txt"):
         (out / name).write_text("the earlier run's\n")
+    (out / "matches").mkdir()
+    (out / "matches" / "xfeat_0003.png").write_text("the earlier run's\n")
 
     def stopped(*args: object, **kwargs: object) -> None:
         raise KeyboardInterrupt

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 from c3_matcher_tools.run import FlightRun, StrategyEval, SummaryRow, summarize
 from c3_matcher_tools.run.acceptance import metrics
@@ -58,3 +59,23 @@ def test_a_summary_row_is_the_headline_or_the_error() -> None:
     assert math.isclose(row["it03_p95_px"], 1.0) and row["frame_ms_p50"] == 10.0
     failed = SummaryRow("xfeat", "f", error="no engine").to_json()
     assert failed == {"strategy": "xfeat", "flight": "f", "error": "no engine"}
+
+
+def test_frame_times_are_those_of_the_frames_the_matcher_ran_on() -> None:
+    """An unreadable image never reaches the matcher: its 0 ms must not pull the latency
+    figures down."""
+    ran = [replace(frame_outcome(i), elapsed_ms=ms) for i, ms in ((0, 500.0), (1, 520.0))]
+    unreadable = [
+        replace(frame_outcome(i, status=FrameStatus.UNREADABLE), elapsed_ms=0.0) for i in (2, 3)
+    ]
+    s = summarize([*ran, *unreadable])
+    assert (s.frame_ms_p50, s.frame_ms_mean, s.total_s) == (510.0, 510.0, 1.02)
+    assert summarize(unreadable).frame_ms_p50 is None
+
+
+def test_the_correct_tile_count_is_over_the_frames_c3_it_04_scores() -> None:
+    """A frame without ground truth (its candidates only partly labelled) is left out of the
+    summary's correct-tile count as it is out of C3-IT-04: the report and eval.json agree."""
+    outcomes = [frame_outcome(0), frame_outcome(1), frame_outcome(2, has_truth=False)]
+    s, h = summarize(outcomes), metrics(outcomes, []).headline
+    assert (s.true_present, s.correct_candidate) == (h.present, h.correct) == (2, 2)

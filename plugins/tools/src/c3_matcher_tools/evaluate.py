@@ -67,6 +67,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -312,10 +313,11 @@ def _eval_dataset(
 ) -> tuple[list[StrategyRow], dict[str, Any]]:
     """``dataset`` through every strategy: the rows and the report written as ``eval.json``
     (its table printed unless ``--json``)."""
-    from c3_matcher_tools.plots import CHARTS, eval_plots
+    from c3_matcher_tools.plots import CHARTS, MATCH_PICTURES, eval_plots
 
     out.mkdir(parents=True, exist_ok=True)
     forget_previous_run(out, ("eval.json", *(f"{chart}.png" for chart in CHARTS)))
+    shutil.rmtree(out / MATCH_PICTURES, ignore_errors=True)  # this run draws its own samples
     overrides = Overrides(max_keypoints=args.max_keypoints)
     rows: list[StrategyRow] = []
     for name in names:

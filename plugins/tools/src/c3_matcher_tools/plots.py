@@ -19,10 +19,13 @@ if TYPE_CHECKING:
     from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
     from c3_matcher_tools.run.records import FlightRun
 
-__all__ = ["CHARTS", "eval_plots", "line_chart"]
+__all__ = ["CHARTS", "MATCH_PICTURES", "eval_plots", "line_chart"]
 
 CHARTS = ("inliers", "error")
 """The charts :func:`eval_plots` writes in its output directory (``<name>.png``)."""
+MATCH_PICTURES = "matches"
+"""The folder of its output directory where :func:`eval_plots` draws the sampled frames'
+matches (``<strategy>_<frame>.png``)."""
 
 _COLOURS = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189))
 
@@ -156,7 +159,7 @@ def _match_pictures(
                 corr = np.asarray(best.get("inlier_correspondences", []), dtype=np.float32)
                 cand = frame.candidates[o.best_input_index]
                 tile = store.handle(cand.tile_id, dataset.candidate_size_px).decode()
-                path = out / "matches" / f"{r.strategy}_{frame.index:04d}.png"
+                path = out / MATCH_PICTURES / f"{r.strategy}_{frame.index:04d}.png"
                 draw_matches(
                     dataset.nav_frame(frame).image,
                     tile,

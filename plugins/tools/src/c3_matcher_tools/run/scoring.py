@@ -122,7 +122,10 @@ class RunSummary:
     """Counts and timing of a run (:func:`summarize`). Percentiles are None without a value:
     position errors (m) of the matched frames against ground truth; for a recorded flight, the
     estimate minus the telemetry's look point (m), all matched frames and those whose GNSS was
-    good, the stated GNSS accuracy, and the frames whose GNSS was absent or degraded."""
+    good, the stated GNSS accuracy, and the frames whose GNSS was absent or degraded.
+    ``true_present`` and ``correct_candidate`` count the frames with ground truth only (as
+    C3-IT-04 does); frame times are those of the frames the matcher ran on (an unreadable
+    image never reached it)."""
 
     frames: int
     by_status: Mapping[FrameStatus, int]
@@ -166,8 +169,8 @@ class RunSummary:
 
 def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
     """The :class:`RunSummary` of a run's ``outcomes``."""
-    times = [o.elapsed_ms for o in outcomes]
-    present = [o for o in outcomes if o.true_present]
+    matched = [o.elapsed_ms for o in outcomes if o.status != FrameStatus.UNREADABLE]
+    present = [o for o in outcomes if o.has_truth and o.true_present]
     pos = [o.position_error_m for o in outcomes if o.status == FrameStatus.OK]
     tele = [o for o in outcomes if o.telemetry_lat is not None]
     tele_ok = [o for o in tele if o.status == FrameStatus.OK]
@@ -189,8 +192,8 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
         ),
         gnss_accuracy_m_p50=_percentile(accuracy, 50),
         gnss_degraded_frames=tuple(o.index for o in tele if o.gnss_degraded),
-        frame_ms_p50=_percentile(times, 50),
-        frame_ms_p95=_percentile(times, 95),
-        frame_ms_mean=float(np.mean(times)) if times else None,
-        total_s=float(np.sum(times)) / 1e3,
+        frame_ms_p50=_percentile(matched, 50),
+        frame_ms_p95=_percentile(matched, 95),
+        frame_ms_mean=float(np.mean(matched)) if matched else None,
+        total_s=float(np.sum(matched)) / 1e3,
     )
