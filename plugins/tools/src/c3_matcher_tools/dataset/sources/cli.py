@@ -232,7 +232,8 @@ def _read_log(kind: str, args: argparse.Namespace) -> _ReadLog:
         topics = BagTopics(
             args.image_topic, args.attitude_topic, args.navsat_topic, args.camera_info_topic
         )
-        track, shots, recorded = read_bag(telemetry, topics, args.frame_step)
+        wanted = str(args.calibration) == "-"  # the recorded intrinsics, checked when wanted
+        track, shots, recorded = read_bag(telemetry, topics, args.frame_step, intrinsics=wanted)
         return _ReadLog(track, shots, [], recorded)
     if kind == "exif":
         from c3_matcher_tools.dataset.sources.exif import read_photo_folder

@@ -5,11 +5,14 @@ Messages used (DataFlash / MAVLink): attitude ``ATT`` (Roll, Pitch, Yaw, deg) / 
 (rad; without either, each frame is imported level, its yaw from the GNSS course, and marked);
 position ``POS`` (Lat, Lng, Alt above sea level; ``RelHomeAlt`` gives the home altitude) /
 ``GLOBAL_POSITION_INT`` (1e-7 deg, mm; ``relative_alt``); the receiver ``GPS`` (Status = fix
-type, horizontal accuracy from ``GPA.HAcc``) / ``GPS_RAW_INT`` (fix_type, ``h_acc`` mm);
-height above ground from a rangefinder ``RFND.Dist`` / ``DISTANCE_SENSOR.current_distance`` (cm);
-camera triggers ``CAM`` / ``TRIG`` / ``CAMERA_FEEDBACK`` / ``CAMERA_TRIGGER``. Times: the time
-pymavlink gives each message (UTC seconds from the GNSS week time in a DataFlash log with a
-fix, the ground station's clock in a telemetry log).
+type, horizontal accuracy from ``GPA.HAcc``; instance 0, the first receiver) / ``GPS_RAW_INT``
+(fix_type, ``h_acc`` mm); height above ground from a downward rangefinder ``RFND.Dist`` /
+``DISTANCE_SENSOR.current_distance`` (cm; see :func:`_downward_rfnd` and
+:func:`_downward_distance`); camera triggers ``CAM`` / ``TRIG`` / ``CAMERA_FEEDBACK`` /
+``CAMERA_TRIGGER``. A telemetry log holding several MAVLink systems (vehicles on one link) is
+read for the camera vehicle's alone (:func:`_camera_system`). Times: the time pymavlink gives
+each message (UTC seconds from the GNSS week time in a DataFlash log with a fix, the ground
+station's clock in a telemetry log).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -141,6 +145,43 @@ def _packet_cut(log: Any, path: Path) -> str | None:
 
 
 Row = tuple[float, list[float]]
+DOWNWARD = 25
+"""MAV_SENSOR_ROTATION_PITCH_270: a rangefinder facing down, the only one that measures the
+height above ground (``DISTANCE_SENSOR.orientation``, ``RFND.Orient``)."""
+RANGE_GOOD = 4
+"""``RFND.Stat`` of a good reading (ArduPilot's RangeFinder status Good)."""
+
+
+def _first_instance(m: Any, column: str) -> bool:
+    """Whether a DataFlash message is of instance 0 by its ``column`` (``I`` of GPS / GPA,
+    ``Instance`` of RFND); a format without that column has one instance."""
+    return int(getattr(m, column, 0)) == 0
+
+
+def _downward_distance(m: Any) -> bool:
+    """Whether a DISTANCE_SENSOR reading is a height above ground: from a sensor facing down,
+    within its range [min_distance, max_distance) (a forward one measures obstacles ahead)."""
+    return bool(m.orientation == DOWNWARD and m.min_distance <= m.current_distance < m.max_distance)
+
+
+def _downward_rfnd(m: Any) -> bool:
+    """Whether an RFND reading is a height above ground: instance 0, facing down (``Orient``),
+    its status good (``Stat``). Older DataFlash formats lack some of these columns: a reading is
+    then kept without that check (an RFND without ``Orient`` is taken as facing down)."""
+    return (
+        _first_instance(m, "Instance")
+        and getattr(m, "Orient", DOWNWARD) == DOWNWARD
+        and getattr(m, "Stat", RANGE_GOOD) == RANGE_GOOD
+    )
+
+
+WANTED: dict[str, Callable[[Any], bool]] = {
+    "GPS": lambda m: _first_instance(m, "I"),
+    "GPA": lambda m: _first_instance(m, "I"),
+    "RFND": _downward_rfnd,
+    "DISTANCE_SENSOR": _downward_distance,
+}
+"""Per message type, which of its messages are read (every one of a type not named)."""
 
 
 def _position(
@@ -156,10 +197,22 @@ def _position(
     home.append(home_alt)
 
 
-def _handlers(
-    rows: dict[str, list[Row]], home: list[float], hacc: list[tuple[float, float]]
-) -> dict[str, Callable[[Any, float], None]]:
-    """Per message type, what its message adds to ``rows`` / ``home`` / ``hacc``."""
+@dataclass(frozen=True)
+class _System:
+    """What one MAVLink system's messages said (a DataFlash log's: all of them): the samples by
+    kind, the home altitudes, the ``GPA.HAcc`` accuracies and the message types seen."""
+
+    rows: dict[str, list[Row]] = field(
+        default_factory=lambda: {k: [] for k in ("att", "pos", "gps", "rng", "trig")}
+    )
+    home: list[float] = field(default_factory=list)
+    hacc: list[tuple[float, float]] = field(default_factory=list)
+    seen: set[str] = field(default_factory=set)
+
+
+def _handlers(system: _System) -> dict[str, Callable[[Any, float], None]]:
+    """Per message type, what its message adds to ``system``."""
+    rows, home, hacc = system.rows, system.home, system.hacc
     return {
         "ATT": lambda m, t: rows["att"].append((t, [m.Roll, m.Pitch, m.Yaw])),
         "ATTITUDE": lambda m, t: rows["att"].append(
@@ -194,31 +247,64 @@ def _handlers(
     }
 
 
-def _read(log: Any, source: str, kind: str, handlers: dict[str, Callable[[Any, float], None]],
-          chatter: io.StringIO) -> set[str]:  # fmt: skip
-    """Every message of :data:`TYPES` through its handler; the types seen."""
-    seen: set[str] = set()
+def _read(log: Any, source: str, kind: str, chatter: io.StringIO) -> dict[int, _System]:
+    """Every message of :data:`TYPES` (those :data:`WANTED`) through its handler, by the
+    MAVLink system that sent it (0: a DataFlash log's, which names none)."""
+    systems: dict[int, tuple[_System, dict[str, Callable[[Any, float], None]]]] = {}
     try:
         with quiet(chatter):
-            while True:
-                msg = log.recv_match(type=TYPES)
-                if msg is None:
-                    break
+            while (msg := log.recv_match(type=TYPES)) is not None:
+                sent_by = getattr(msg, "get_srcSystem", None)
+                number = int(sent_by()) if sent_by is not None else 0
+                if number not in systems:
+                    system = _System()
+                    systems[number] = (system, _handlers(system))
+                system, handlers = systems[number]
                 name = msg.get_type()
-                seen.add(name)
-                handlers[name](msg, float(msg._timestamp))
+                system.seen.add(name)
+                if name not in WANTED or WANTED[name](msg):
+                    handlers[name](msg, float(msg._timestamp))
     except Exception as exc:
         raise InvalidInputError(source, f"unreadable {kind}: {exc}") from None
     finally:
         log.close()
-    if not seen:
+    if not systems:
         damaged = chatter.getvalue().count("bad header")
         raise InvalidInputError(
             source,
             f"not a readable {kind}: no ATT, POS, GPS or camera message found"
             + (f" ({damaged} damaged headers skipped)" if damaged else ""),
         )
-    return seen
+    return {number: system for number, (system, _) in systems.items()}
+
+
+def _camera_system(systems: dict[int, _System], source: str) -> tuple[_System, str | None]:
+    """The camera vehicle's messages, and a note saying whose they are when the log holds
+    several MAVLink systems (a ground station's link to several vehicles): the system that sent
+    camera feedback (CAMERA_FEEDBACK / CAMERA_TRIGGER), else the one whose position came first;
+    refused naming them when several systems sent camera feedback."""
+    if len(systems) == 1:
+        return next(iter(systems.values())), None
+    numbers = sorted(systems)
+    cameras = [n for n in numbers if systems[n].rows["trig"]]
+    if len(cameras) > 1:
+        raise InvalidInputError(
+            source,
+            f"camera feedback from MAVLink systems {', '.join(map(str, cameras))}: the log holds "
+            "several camera vehicles, and one flight is imported at a time",
+        )
+    chosen = cameras[0] if cameras else min(numbers, key=lambda n: _first_position(systems[n]))
+    why = "its camera feedback" if cameras else "its position came first"
+    named = ", ".join(map(str, numbers))
+    return systems[chosen], f"MAVLink systems {named} in the log: read system {chosen} ({why})"
+
+
+def _first_position(system: _System) -> tuple[int, float]:
+    """When ``system``'s first position came: a GLOBAL_POSITION_INT before any GPS_RAW_INT."""
+    for rank, key in enumerate(("pos", "gps")):
+        if system.rows[key]:
+            return rank, system.rows[key][0][0]
+    return 2, math.inf
 
 
 def _receiver(gnss: Series | None, hacc: list[tuple[float, float]]) -> Series | None:
@@ -245,14 +331,14 @@ def read_mavlink(path: Path) -> LogTrack:
     cut = _cut_at(log, path)
     source = str(path)
     kind = "MAVLink telemetry log" if path.suffix.lower() == ".tlog" else "ArduPilot DataFlash"
-    rows: dict[str, list[Row]] = {k: [] for k in ("att", "pos", "gps", "rng", "trig")}
-    home: list[float] = []
-    hacc: list[tuple[float, float]] = []
-    seen = _read(log, source, kind, _handlers(rows, home, hacc), chatter)
+    vehicle, which = _camera_system(_read(log, source, kind, chatter), source)
     cut = cut or _packet_cut(log, path)
+    rows, seen = vehicle.rows, vehicle.seen
     if not rows["pos"] and not rows["gps"]:
         raise InvalidInputError(
-            source, "no POS / GLOBAL_POSITION_INT / GPS message: the log holds no position"
+            source,
+            "no POS / GLOBAL_POSITION_INT / GPS message: the log holds no position"
+            + (f" ({which})" if which else ""),
         )
 
     def series(key: str, name: str, angles: tuple[int, ...] = ()) -> Series | None:
@@ -262,7 +348,30 @@ def read_mavlink(path: Path) -> LogTrack:
         return Series.build(name, [t for t, _ in got], [v for _, v in got], angles, source=source)
 
     trig = np.sort(np.array([t for t, _ in rows["trig"]], dtype=np.float64))
-    notes = [f"{trig.size} camera trigger(s)"] if trig.size else []
+    notes, damage = _notes(rows, chatter, cut, which)
+    first_t = (rows["att"] or rows["pos"] or rows["gps"])[0][0]
+    return LogTrack(
+        source=source,
+        kind=kind,
+        attitude=series("att", "ATT" if "ATT" in seen else "ATTITUDE", (2,)),
+        position=series("pos", "POS" if "POS" in seen else "GLOBAL_POSITION_INT"),
+        gnss=_receiver(series("gps", "GPS" if "GPS" in seen else "GPS_RAW_INT"), vehicle.hacc),
+        height=series("rng", "RFND" if "RFND" in seen else "DISTANCE_SENSOR"),
+        triggers_s=trig if trig.size else None,
+        home_alt_m=next((h for h in vehicle.home if math.isfinite(h)), None),
+        utc_offset_s=0.0 if first_t > 1e9 else None,
+        notes=tuple(notes),
+        damage=damage,
+    )
+
+
+def _notes(
+    rows: dict[str, list[Row]], chatter: io.StringIO, cut: str | None, which: str | None
+) -> tuple[list[str], str | None]:
+    """The track's notes (the MAVLink system read, ``which``; damaged headers skipped; no
+    attitude; the camera triggers; where the log ends mid-message, ``cut``) and its damage."""
+    triggers = len(rows["trig"])
+    notes = [f"{triggers} camera trigger(s)"] if triggers else []
     if not rows["att"]:
         notes.insert(
             0,
@@ -273,20 +382,9 @@ def read_mavlink(path: Path) -> LogTrack:
     skipped = f"{damaged} damaged message headers skipped" if damaged else None
     if skipped:
         notes.insert(0, f"the log is damaged ({skipped}); read past the damage")
+    if which:
+        notes.insert(0, which)
     if cut:
         notes.append(f"the log {cut}; the samples before it are kept")
     damage = "; ".join(x for x in (skipped, cut and f"it {cut}") if x) or None
-    first_t = (rows["att"] or rows["pos"] or rows["gps"])[0][0]
-    return LogTrack(
-        source=source,
-        kind=kind,
-        attitude=series("att", "ATT" if "ATT" in seen else "ATTITUDE", (2,)),
-        position=series("pos", "POS" if "POS" in seen else "GLOBAL_POSITION_INT"),
-        gnss=_receiver(series("gps", "GPS" if "GPS" in seen else "GPS_RAW_INT"), hacc),
-        height=series("rng", "RFND" if "RFND" in seen else "DISTANCE_SENSOR"),
-        triggers_s=trig if trig.size else None,
-        home_alt_m=next((h for h in home if math.isfinite(h)), None),
-        utc_offset_s=0.0 if first_t > 1e9 else None,
-        notes=tuple(notes),
-        damage=damage,
-    )
+    return notes, damage

@@ -4,11 +4,14 @@
 Topics (each chosen by option; by default the bag's only topic of that type):
 images ``sensor_msgs/CompressedImage`` or ``sensor_msgs/Image``; attitude ``sensor_msgs/Imu``
 (or ``geometry_msgs/PoseStamped`` / ``nav_msgs/Odometry``) orientation, ENU world and FLU body
-as REP 103 says (turned into NED / FRD here); position ``sensor_msgs/NavSatFix`` (altitude above
-the ellipsoid or sea level as the receiver gives it; horizontal accuracy from its covariance;
-``status`` < 0: no fix); intrinsics ``sensor_msgs/CameraInfo`` (plumb_bob / rational_polynomial)
-when recorded. Times: each message's header stamp (UTC seconds), the bag's receive time when
-the stamp is zero. A raw ``Image`` is stored as PNG (lossless), a ``CompressedImage`` as it is.
+as REP 103 says (turned into NED / FRD here; an Imu sample marked as stating no orientation,
+``orientation_covariance[0]`` = -1, and a quaternion of about zero norm are skipped); position
+``sensor_msgs/NavSatFix`` (altitude above the ellipsoid or sea level as the receiver gives it;
+horizontal accuracy from its covariance; ``status`` < 0: no fix); intrinsics
+``sensor_msgs/CameraInfo`` (plumb_bob / rational_polynomial, or no model and no distortion; any
+other model refused) when recorded. Times: each message's header stamp (UTC seconds), the bag's
+receive time when the stamp is zero. A raw ``Image`` is stored as PNG (lossless), a
+``CompressedImage`` as it is.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.images import check_frame_step
 from c3_matcher_tools.dataset.sources.track import (
+    MIN_QUATERNION_NORM,
     LogTrack,
     Series,
     Shot,
@@ -112,6 +116,17 @@ def _orientation(msg: Any) -> Any:
     return pose.orientation
 
 
+def _stated_orientation(msg: Any) -> Any | None:
+    """The orientation an attitude message states; None when it states none: an Imu marked so
+    (``orientation_covariance[0]`` = -1, as sensor_msgs/Imu says) or a quaternion of about zero
+    norm."""
+    if hasattr(msg, "orientation_covariance") and float(msg.orientation_covariance[0]) == -1.0:
+        return None
+    q = _orientation(msg)
+    norm = math.sqrt(sum(float(c) ** 2 for c in (q.w, q.x, q.y, q.z)))
+    return q if norm >= MIN_QUATERNION_NORM else None
+
+
 def _attitude_ned(q: Any) -> tuple[float, float, float]:
     from c3_matcher_tools.dataset.sources.track import quaternion_matrix
 
@@ -119,8 +134,22 @@ def _attitude_ned(q: Any) -> tuple[float, float, float]:
     return attitude_from_matrix(_NED_FROM_ENU @ r_enu_flu @ _FLU_FROM_FRD)
 
 
-def _calibration(msg: Any) -> CameraCalibration:
+DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
+"""The CameraInfo distortion models whose coefficients are OpenCV's (k1, k2, p1, p2, k3[, ...])."""
+
+
+def _calibration(msg: Any, source: str) -> CameraCalibration:
+    """A CameraInfo's intrinsics; refused naming its distortion model when that is neither of
+    :data:`DISTORTION_MODELS` (nor absent with no distortion): e.g. a fisheye ``equidistant``
+    model, whose coefficients OpenCV's pinhole model would misread."""
     d = np.asarray(msg.d, dtype=np.float64)
+    model = str(msg.distortion_model)
+    if model not in DISTORTION_MODELS and (model or np.any(d != 0)):
+        raise InvalidInputError(
+            source,
+            f"CameraInfo distortion model {model!r} is not supported (only "
+            f"{' or '.join(DISTORTION_MODELS)}): give the camera's calibration JSON",
+        )
     if d.size not in (0, 4, 5, 8, 12, 14):
         d = d[:5] if d.size > 5 else np.pad(d, (0, 5 - d.size))
     return CameraCalibration(
@@ -143,10 +172,13 @@ def _image_bytes(msg: Any, msgtype: str) -> tuple[bytes, str]:
     return png.tobytes(), ".png"
 
 
-NO_ATTITUDE = (
-    "no sensor_msgs/Imu, PoseStamped or Odometry topic (--attitude-topic names one): every "
-    "frame's attitude assumed level, its yaw from the GNSS course (frames marked "
+ASSUMED_LEVEL = (
+    "every frame's attitude assumed level, its yaw from the GNSS course (frames marked "
     "attitude_assumed)"
+)
+NO_ATTITUDE = (
+    "no sensor_msgs/Imu, PoseStamped or Odometry topic (--attitude-topic names one): "
+    + ASSUMED_LEVEL
 )
 
 
@@ -168,23 +200,26 @@ class _Connections:
 @dataclass(frozen=True)
 class _Messages:
     """What the chosen topics held, in the bag's order: the kept images, the attitude and
-    NavSatFix samples (times and values) and the first CameraInfo."""
+    NavSatFix samples (times and values), the first CameraInfo and how many attitude samples
+    stated no orientation (skipped)."""
 
     shots: list[Shot]
     att_t: list[float]
     att_v: list[tuple[float, float, float]]
     fix_t: list[float]
     fix_v: list[list[float]]
-    calibration: CameraCalibration | None
+    info: Any | None
+    no_orientation: int = 0
 
 
 def read_bag(
-    path: Path, topics: BagTopics = BagTopics(), step: int = 1
+    path: Path, topics: BagTopics = BagTopics(), step: int = 1, *, intrinsics: bool = True
 ) -> tuple[LogTrack, list[Shot], CameraCalibration | None]:
     """The track, every ``step``-th image and the recorded intrinsics (None when no
-    CameraInfo) of a bag (see the module docstring); raises InvalidInputError naming a missing
-    image or position topic. A bag without attitude is read, and said so in its notes: each
-    frame is then imported level with the yaw of its GNSS course and marked
+    CameraInfo, or not ``intrinsics``: not wanted, their distortion model then unchecked) of a
+    bag (see the module docstring); raises InvalidInputError naming a missing image or position
+    topic. A bag without attitude (or whose attitude topic states none) is read, and said so in
+    its notes: each frame is then imported level with the yaw of its GNSS course and marked
     ``attitude_assumed``, as from any log without attitude."""
     check_frame_step(step, video=True)
     path = Path(path)
@@ -193,9 +228,11 @@ def read_bag(
     _check_messages(source, conns, messages)
     attitude = (
         _series(conns.attitude[0].topic, messages.att_t, messages.att_v, source, angles=(2,))
-        if conns.attitude
+        if messages.att_t
         else None
     )
+    info = messages.info
+    calibration = _calibration(info, source) if intrinsics and info is not None else None
     gnss = _series(conns.navsat[0].topic, messages.fix_t, messages.fix_v, source)
     shots = sorted(messages.shots, key=lambda s: s.t_s or 0.0)
     track = LogTrack(
@@ -205,9 +242,9 @@ def read_bag(
         position=None,
         gnss=gnss,
         utc_offset_s=0.0,
-        notes=_notes(conns),
+        notes=_notes(conns, messages.no_orientation, bool(messages.att_t)),
     )
-    return track, shots, messages.calibration
+    return track, shots, calibration
 
 
 def _read(reader: Any, source: str, topics: BagTopics, step: int) -> tuple[_Connections, _Messages]:
@@ -243,15 +280,15 @@ def _connections(reader: Any, source: str, topics: BagTopics) -> _Connections:
 
 
 def _messages(reader: Any, conns: _Connections, step: int) -> _Messages:
-    """Every message of the chosen topics: every ``step``-th image kept, each attitude and
-    NavSatFix sample at its stamp, the first CameraInfo."""
+    """Every message of the chosen topics: every ``step``-th image kept, each attitude sample
+    that states an orientation and each NavSatFix sample at its stamp, the first CameraInfo."""
     shots: list[Shot] = []
     att_t: list[float] = []
     att_v: list[tuple[float, float, float]] = []
     fix_t: list[float] = []
     fix_v: list[list[float]] = []
-    calibration = None
-    seen_images = 0
+    info = None
+    seen_images = no_orientation = 0
     for conn, received, raw in reader.messages(connections=conns.wanted):
         msg = reader.deserialize(raw, conn.msgtype)
         t = _stamp(msg, received)
@@ -262,14 +299,17 @@ def _messages(reader: Any, conns: _Connections, step: int) -> _Messages:
             data, suffix = _image_bytes(msg, conn.msgtype)
             shots.append(Shot(f"{conn.topic}@{t:.6f}", constant(data), suffix, t, {"stamp_s": t}))
         elif conn.msgtype in ATTITUDE_TYPES:
-            att_t.append(t)
-            att_v.append(_attitude_ned(_orientation(msg)))
+            q = _stated_orientation(msg)
+            no_orientation += q is None
+            if q is not None:
+                att_t.append(t)
+                att_v.append(_attitude_ned(q))
         elif conn.msgtype in NAVSAT_TYPES:
             fix_t.append(t)
             fix_v.append(_fix(msg))
-        elif calibration is None:
-            calibration = _calibration(msg)
-    return _Messages(shots, att_t, att_v, fix_t, fix_v, calibration)
+        elif info is None:
+            info = msg
+    return _Messages(shots, att_t, att_v, fix_t, fix_v, info, no_orientation)
 
 
 def _fix(msg: Any) -> list[float]:
@@ -291,7 +331,7 @@ def _check_messages(source: str, conns: _Connections, messages: _Messages) -> No
     """Refuse a chosen image, attitude or NavSatFix topic without a message."""
     if not messages.shots:
         raise InvalidInputError(source, f"no message on the image topic {conns.images[0].topic}")
-    if conns.attitude and not messages.att_t:
+    if conns.attitude and not messages.att_t and not messages.no_orientation:
         raise InvalidInputError(
             source, f"no message on the attitude topic {conns.attitude[0].topic}"
         )
@@ -316,12 +356,22 @@ def _series(
     )
 
 
-def _notes(conns: _Connections) -> tuple[str, ...]:
-    """The topics read, and :data:`NO_ATTITUDE` when the bag has no attitude topic."""
+def _notes(conns: _Connections, no_orientation: int, attitude: bool) -> tuple[str, ...]:
+    """The topics read, and :data:`NO_ATTITUDE` when the bag has no attitude topic; the
+    attitude samples skipped for stating no orientation, and the attitude then assumed when
+    none did."""
     topics = (
         f"images {conns.images[0].topic}, attitude "
         + (conns.attitude[0].topic if conns.attitude else "none")
         + f", position {conns.navsat[0].topic}, intrinsics "
         + (conns.camera_info[0].topic if conns.camera_info else "not recorded")
     )
-    return (topics, *([] if conns.attitude else [NO_ATTITUDE]))
+    if not conns.attitude:
+        return (topics, NO_ATTITUDE)
+    if not no_orientation:
+        return (topics,)
+    skipped = (
+        f"{no_orientation} {conns.attitude[0].topic} sample(s) state no orientation "
+        "(orientation_covariance[0] = -1, or a zero quaternion): skipped"
+    )
+    return (topics, skipped if attitude else f"{skipped}; {ASSUMED_LEVEL}")

@@ -26,6 +26,7 @@ from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 
 __all__ = [
+    "MIN_QUATERNION_NORM",
     "LogTrack",
     "Series",
     "Shot",
@@ -80,9 +81,14 @@ class Series:
         source: str,
     ) -> Series:
         """Check the samples (finite times that never step back) and keep the finite rows;
-        raises InvalidInputError naming ``source`` and the topic at a backward time jump."""
+        raises InvalidInputError naming ``source`` and the topic at a time that is not finite
+        (it would hide a jump back) or a backward time jump."""
         t = np.asarray(t_s, dtype=np.float64).reshape(-1)
         v = np.asarray(values, dtype=np.float64).reshape(t.size, -1)
+        bad = np.flatnonzero(~np.isfinite(t))
+        if bad.size:
+            i = int(bad[0])
+            raise InvalidInputError(source, f"sample {i} of {name} has no finite time ({t[i]})")
         steps = np.diff(t)
         back = np.flatnonzero(steps < 0)
         if back.size:
@@ -92,7 +98,7 @@ class Series:
                 f"time jumps back {-steps[i]:.3f} s at {t[i]:.3f} s in {name} (a log cut and "
                 "joined, or two logs in one?)",
             )
-        keep = np.isfinite(t) & np.any(np.isfinite(v), axis=1)
+        keep = np.any(np.isfinite(v), axis=1)
         v = v[keep].copy()
         for col in angles:
             ok = np.isfinite(v[:, col])
@@ -107,14 +113,17 @@ class Series:
         return (float(self.t_s[0]), float(self.t_s[-1])) if len(self) else (math.nan, math.nan)
 
     def at(self, t: float, max_gap_s: float) -> F64 | None:
-        """Linear interpolation at ``t`` between the samples around it when both are within
-        ``max_gap_s``, else the nearer one when it is within ``max_gap_s``; None otherwise."""
+        """The sample at ``t`` when one falls on it exactly; else linear interpolation between
+        the samples around it when both are within ``max_gap_s``, else the nearer one when it is
+        within ``max_gap_s``; None otherwise."""
         if not len(self):
             return None
         j = int(np.searchsorted(self.t_s, t))
         lo, hi = max(j - 1, 0), min(j, len(self) - 1)
         dlo, dhi = abs(t - self.t_s[lo]), abs(self.t_s[hi] - t)
-        if lo != hi and dlo <= max_gap_s and dhi <= max_gap_s and self.t_s[hi] > self.t_s[lo]:
+        if dhi == 0:  # on a sample: itself, not a weighted sum that a NaN beside it would spoil
+            out = self.values[hi].copy()
+        elif lo != hi and dlo <= max_gap_s and dhi <= max_gap_s and self.t_s[hi] > self.t_s[lo]:
             w = (t - self.t_s[lo]) / (self.t_s[hi] - self.t_s[lo])
             out = (1 - w) * self.values[lo] + w * self.values[hi]
         elif min(dlo, dhi) <= max_gap_s:
@@ -181,6 +190,11 @@ def attitude_from_matrix(r_world_from_body: F64) -> tuple[float, float, float]:
     roll = math.atan2(float(r[2, 1]), float(r[2, 2]))
     yaw = math.atan2(float(r[1, 0]), float(r[0, 0]))
     return math.degrees(roll), math.degrees(pitch), math.degrees(yaw)
+
+
+MIN_QUATERNION_NORM = 1e-3
+"""A recorded quaternion shorter than this states no orientation (ROS 1's all-zero default,
+PX4's before its estimator runs): its sample is skipped, never normalised."""
 
 
 def quaternion_matrix(w: float, x: float, y: float, z: float) -> F64:

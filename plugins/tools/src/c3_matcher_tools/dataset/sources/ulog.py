@@ -32,6 +32,7 @@ import numpy as np
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.quiet import quiet
 from c3_matcher_tools.dataset.sources.track import (
+    MIN_QUATERNION_NORM,
     LogTrack,
     Series,
     attitude_from_matrix,
@@ -141,12 +142,14 @@ def _damaged_definitions(layout: _Layout) -> str:
     )
 
 
-def _topic(ulog: Any, name: str) -> dict[str, np.ndarray] | None:
+def _topic(ulog: Any, name: str, source: str) -> dict[str, np.ndarray] | None:
+    """Instance 0 of topic ``name``, None when not logged or empty; refused when it lacks its
+    ``timestamp`` (a damaged format definition)."""
     try:
         data = ulog.get_dataset(name, 0).data
     except (KeyError, IndexError, ValueError):
         return None
-    return data if len(data["timestamp"]) else None
+    return data if len(_required(data, name, "timestamp", source)) else None
 
 
 def _field(data: dict[str, np.ndarray], *names: str, scale: float = 1.0) -> np.ndarray | None:
@@ -156,10 +159,14 @@ def _field(data: dict[str, np.ndarray], *names: str, scale: float = 1.0) -> np.n
     return None
 
 
-def _required(data: dict[str, np.ndarray], name: str, source: str) -> np.ndarray:
+def _required(data: dict[str, np.ndarray], topic: str, name: str, source: str) -> np.ndarray:
+    """Field ``name`` of ``topic``'s ``data``; refused naming both when the topic lacks it (its
+    format definition damaged, or not PX4's)."""
     got = _field(data, name)
     if got is None:
-        raise InvalidInputError(source, f"vehicle_global_position lacks its field {name!r}")
+        raise InvalidInputError(
+            source, f"{topic} lacks its field {name!r} (a damaged format definition?)"
+        )
     return got
 
 
@@ -169,14 +176,20 @@ def _new_or_old(data: dict[str, np.ndarray], new: str, old: str, scale: float) -
 
 
 def _attitude(ulog: Any, source: str) -> Series | None:
-    """``vehicle_attitude.q`` as roll, pitch, yaw (deg); None when the log has no such topic."""
-    att = _topic(ulog, "vehicle_attitude")
+    """``vehicle_attitude.q`` as roll, pitch, yaw (deg); None when the log has no such topic
+    or none of its quaternions states an orientation (about zero norm: such a sample is
+    skipped)."""
+    att = _topic(ulog, "vehicle_attitude", source)
     if att is None:
         return None
     t = att["timestamp"].astype(np.float64) / 1e6
+    q = np.stack([_required(att, "vehicle_attitude", f"q[{k}]", source) for k in range(4)], 1)
+    stated = np.linalg.norm(q.astype(np.float64), axis=1) >= MIN_QUATERNION_NORM
+    if not stated.any():
+        return None
     angles = [
-        attitude_from_matrix(quaternion_matrix(*(float(att[f"q[{k}]"][i]) for k in range(4))))
-        for i in range(t.size)
+        attitude_from_matrix(quaternion_matrix(*map(float, qi))) if ok else (math.nan,) * 3
+        for qi, ok in zip(q, stated, strict=True)
     ]
     return Series.build("vehicle_attitude", t, angles, (2,), source=source)
 
@@ -184,7 +197,7 @@ def _attitude(ulog: Any, source: str) -> Series | None:
 def _receiver(ulog: Any, source: str) -> tuple[Series | None, float | None]:
     """The receiver's fix (lat, lon, alt, eph, fix type; no position without a fix) and the
     log's UTC offset, from ``vehicle_gps_position`` or ``sensor_gps``."""
-    gps = _topic(ulog, "vehicle_gps_position") or _topic(ulog, "sensor_gps")
+    gps = _topic(ulog, "vehicle_gps_position", source) or _topic(ulog, "sensor_gps", source)
     if gps is None:
         return None, None
     gnss = None
@@ -217,21 +230,24 @@ def _receiver(ulog: Any, source: str) -> tuple[Series | None, float | None]:
 
 
 def _global_position(ulog: Any, source: str) -> Series | None:
-    glob = _topic(ulog, "vehicle_global_position")
+    glob = _topic(ulog, "vehicle_global_position", source)
     if glob is None:
         return None
     tp = glob["timestamp"].astype(np.float64) / 1e6
     return Series.build(
         "vehicle_global_position",
         tp,
-        np.stack([_required(glob, k, source) for k in ("lat", "lon", "alt")], axis=1),
+        np.stack(
+            [_required(glob, "vehicle_global_position", k, source) for k in ("lat", "lon", "alt")],
+            axis=1,
+        ),
         source=source,
     )
 
 
 def _ground(ulog: Any, source: str) -> tuple[Series | None, float | None]:
     """The rangefinder's valid heights above ground and the home altitude."""
-    local = _topic(ulog, "vehicle_local_position")
+    local = _topic(ulog, "vehicle_local_position", source)
     height = None
     home_alt: float | None = None
     if local is not None:
@@ -246,15 +262,15 @@ def _ground(ulog: Any, source: str) -> tuple[Series | None, float | None]:
         ref = _field(local, "ref_alt")
         if ref is not None and np.any(ref != 0):
             home_alt = float(ref[np.flatnonzero(ref != 0)[0]])
-    home = _topic(ulog, "home_position")
+    home = _topic(ulog, "home_position", source)
     if home is not None and "alt" in home:
         home_alt = float(home["alt"][0])
     return height, home_alt
 
 
-def _triggers(ulog: Any, notes: list[str]) -> np.ndarray | None:
+def _triggers(ulog: Any, notes: list[str], source: str) -> np.ndarray | None:
     for topic in ("camera_capture", "camera_trigger"):
-        cam = _topic(ulog, topic)
+        cam = _topic(ulog, topic, source)
         if cam is not None:
             triggers = np.sort(cam["timestamp"].astype(np.float64) / 1e6)
             notes.append(f"{triggers.size} camera trigger(s) from {topic}")
@@ -293,7 +309,7 @@ def read_ulog(path: Path) -> LogTrack:
             "position",
         )
     height, home_alt = _ground(ulog, source)
-    triggers = _triggers(ulog, notes)
+    triggers = _triggers(ulog, notes, source)
     return LogTrack(
         source=source,
         kind=KIND,
