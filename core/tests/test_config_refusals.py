@@ -249,3 +249,41 @@ def test_an_options_table_no_installed_strategy_has_is_refused_at_start_up(
         with pytest.raises(ConfigurationError) as refused:
             compose_root(settings, helpers, configure_logs=False)
         assert _fields(refused.value) == [field]
+
+
+@pytest.mark.parametrize("nested", ["[" * 5000 + "]" * 5000, "{ a = " * 3000 + "1" + " }" * 3000])
+def test_a_config_nested_too_deep_is_refused_naming_the_file(tmp_path: Path, nested: str) -> None:
+    """Arrays or inline tables nested thousands deep used to escape as RecursionError."""
+    toml = tmp_path / "c3.toml"
+    toml.write_text(f"[matcher]\nx = {nested}\n")
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(toml, env={})
+    assert list(info.value.problems) == [("--config", "unreadable TOML: nested too deep")]
+
+
+def test_json_nested_too_deep_in_the_environment_is_a_configuration_error() -> None:
+    deep = '{"x": {"y": ' + "[" * 5000 + "]" * 5000 + "}}"
+    with pytest.raises(ConfigurationError, match="not valid JSON"):
+        load_settings(env={"C3_MATCHER_MATCHER__OPTIONS": deep})
+
+
+@pytest.mark.parametrize(
+    ("variable", "field"),
+    [
+        ("C3_MATCHER_ENGINES__DIRECTORY", "engines.directory"),
+        ("C3_MATCHER_ENGINES__TENSORRT_CACHE_DIR", "engines.tensorrt_cache_dir"),
+        ("C3_MATCHER_FDR__PATH", "fdr.path"),
+    ],
+)
+def test_a_path_beginning_with_a_tilde_is_under_the_users_home(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, variable: str, field: str
+) -> None:
+    """``[engines] directory = "~/engines"`` used to name a folder ``~`` in the working
+    directory (the FDR's recorder alone expanded its own path)."""
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    section, key = field.split(".")
+    toml = tmp_path / "c3.toml"
+    toml.write_text(f'[{section}]\n{key} = "~/from-toml"\n')
+    from_toml = getattr(getattr(load_settings(toml, env={}), section), key)
+    from_env = getattr(getattr(load_settings(env={variable: "~/from-env"}), section), key)
+    assert (from_toml, from_env) == (tmp_path / "home/from-toml", tmp_path / "home/from-env")

@@ -9,7 +9,6 @@ Defaults follow upstream LightGlue's conventions unless a measurement chose othe
 from __future__ import annotations
 
 import os
-import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args
@@ -29,6 +28,7 @@ from c3_matcher.config_sources import (
     MappingEnvSource,
     read_toml,
     unknown_env_keys,
+    unparsed_env,
     validation_problems,
 )
 from c3_matcher.engines.providers import canonical_provider
@@ -64,13 +64,16 @@ class _Section(BaseModel):
     @classmethod
     def _no_stand_ins(cls, value: Any, info: ValidationInfo) -> Any:
         """Refuse a boolean for a number (``tile_cache_size = true`` must not mean one tile) and
-        an empty path (``Path("")`` is ``.``: ``C3_MATCHER_FDR__PATH=$UNSET`` must not pass)."""
+        an empty path (``Path("")`` is ``.``: ``C3_MATCHER_FDR__PATH=$UNSET`` must not pass);
+        read a leading ``~`` in every path as the user's home, as a shell would."""
         field = cls.model_fields.get(info.field_name or "")
         types = set() if field is None else {field.annotation, *get_args(field.annotation)}
         if isinstance(value, bool) and {int, float} & types:
             raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
         if value == "" and Path in types:
             raise ValueError("is empty: give a path, or remove the setting")
+        if isinstance(value, str | Path) and Path in types:
+            return Path(value).expanduser()
         return value
 
 
@@ -387,14 +390,6 @@ def load_settings(
         return C3Settings(_build_sources=(sources, data))  # environment > TOML > defaults
     except ValidationError as exc:
         raise ConfigurationError(source, validation_problems(exc)) from None
-    except (SettingsError, ValueError, TypeError) as exc:
+    except (SettingsError, ValueError, TypeError, RecursionError) as exc:
         # e.g. C3_MATCHER_MATCHER__OPTIONS=not json: pydantic-settings fails before validation
-        text = str(exc)
-        match = re.search(r'field "([a-z_]+)"', text)
-        section = f"{ENV_PREFIX}{match.group(1).upper()}" if match else ENV_PREFIX
-        named = sorted(  # the section's variable (C3_MATCHER_MATCHER) or its keys' (..._MATCHER__X)
-            k for k in environ if k.upper() == section or k.upper().startswith(f"{section}__")
-        )
-        field = ", ".join(named) or "environment"
-        reason = f"not valid JSON for a table or list value ({exc.__cause__ or text})"
-        raise ConfigurationError(source, [(field, reason)]) from None
+        raise ConfigurationError(source, unparsed_env(exc, environ)) from None

@@ -4,6 +4,7 @@ environment variables (``C3_MATCHER_``, ``__`` between levels) of a given mappin
 
 from __future__ import annotations
 
+import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
@@ -21,6 +22,7 @@ __all__ = [
     "MappingEnvSource",
     "read_toml",
     "unknown_env_keys",
+    "unparsed_env",
     "validation_problems",
 ]
 
@@ -48,7 +50,8 @@ disk, ``/dev/zero``), not read into memory whole."""
 
 def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
     """The TOML file's tables; ``ConfigurationError`` (naming ``--config``) when it is missing,
-    larger than ``MAX_TOML_BYTES``, not UTF-8 or not TOML."""
+    larger than ``MAX_TOML_BYTES``, not UTF-8 or not TOML (arrays or tables nested deeper than
+    the parser's recursion allows included)."""
     try:
         with Path(toml_path).open("rb") as file:
             data = file.read(MAX_TOML_BYTES + 1)
@@ -65,6 +68,10 @@ def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
         ) from None
     except (OSError, tomllib.TOMLDecodeError, ValueError) as exc:
         raise ConfigurationError(source, [("--config", f"unreadable TOML: {exc}")]) from None
+    except RecursionError:
+        raise ConfigurationError(
+            source, [("--config", "unreadable TOML: nested too deep")]
+        ) from None
 
 
 def unknown_env_keys(
@@ -87,6 +94,18 @@ def unknown_env_keys(
         if section is None or (len(parts) > 1 and parts[1] not in fields):
             problems.append((key, UNKNOWN_SETTING))
     return problems
+
+
+def unparsed_env(exc: Exception, env: Mapping[str, str]) -> list[tuple[str, str]]:
+    """(variables, reason) for an environment value that pydantic-settings could not parse
+    before validation (``C3_MATCHER_MATCHER__OPTIONS=not json``, or JSON nested too deep): the
+    section's variable (``C3_MATCHER_MATCHER``) or its keys' (``C3_MATCHER_MATCHER__X``)."""
+    text = str(exc)
+    match = re.search(r'field "([a-z_]+)"', text)
+    section = f"{ENV_PREFIX}{match.group(1).upper()}" if match else ENV_PREFIX
+    named = sorted(k for k in env if k.upper() == section or k.upper().startswith(f"{section}__"))
+    field = ", ".join(named) or "environment"
+    return [(field, f"not valid JSON for a table or list value ({exc.__cause__ or text})")]
 
 
 _COLLECTIONS = {"tuple_type": "list", "list_type": "list", "dict_type": "table"}

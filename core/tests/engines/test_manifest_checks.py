@@ -128,6 +128,38 @@ def test_a_truncated_engine_is_not_listed_ok_nor_taken(tiny_engine: Path) -> Non
         store.require("toy", "tiny")
 
 
+@pytest.mark.parametrize("sha256", [None, ""])
+def test_a_manifest_without_the_weights_hash_is_refused_where_it_is_read(
+    tiny_engine: Path, sha256: str | None
+) -> None:
+    """It used to be listed ok and taken, then fail the load with a bare KeyError('sha256')
+    (after the session was built, where the load is logged)."""
+    path = manifest_path_for(tiny_engine)
+    data = json.loads(path.read_text())
+    if sha256 is None:
+        del data["weights"]["sha256"]
+    else:
+        data["weights"]["sha256"] = sha256
+    path.write_text(json.dumps(data))
+    store = EngineStore(tiny_engine.parent)
+    (record,) = store.list()
+    assert not record.ok and "weights.sha256 is missing" in (record.problem or "")
+    with pytest.raises(EngineError, match="weights.sha256 is missing"):
+        store.require("toy", "tiny")
+    with pytest.raises(EngineError, match="weights.sha256 is missing") as info:
+        OnnxInferenceRuntime(["CPUExecutionProvider"]).load_engine(tiny_engine)
+    _assert_names_file_and_command(info.value, tiny_engine)
+
+
+def test_an_engine_directory_beginning_with_a_tilde_is_under_the_users_home(
+    tiny_engine: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("HOME", str(tiny_engine.parent.parent))
+    store = EngineStore(Path("~") / tiny_engine.parent.name)
+    assert store.directory == tiny_engine.parent
+    assert store.require("toy", "tiny") == tiny_engine
+
+
 def _toy_spec(export_revision: int, **options: int | float | str) -> EngineSpec:
     return EngineSpec(
         model="toy",

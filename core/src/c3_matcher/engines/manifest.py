@@ -126,7 +126,8 @@ class EngineManifest:
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> EngineManifest:
-        """Parse; ``KeyError``/``ValueError``/``TypeError`` on a malformed manifest."""
+        """Parse; ``KeyError``/``ValueError``/``TypeError`` on a malformed manifest (one whose
+        ``weights`` lack the ``sha256`` every load records included)."""
         if int(data["schema"]) != MANIFEST_SCHEMA:
             raise ValueError(f"manifest schema {data['schema']} != {MANIFEST_SCHEMA}")
         return cls(
@@ -140,7 +141,7 @@ class EngineManifest:
             input_rule=str(data["input_rule"]),
             opset=int(data["opset"]),
             build_key=str(data["build_key"]),
-            weights={str(k): str(v) for k, v in dict(data["weights"]).items()},
+            weights=_weights(data["weights"]),
             inputs=tuple(TensorSpec.from_json(t) for t in data["inputs"]),
             outputs=tuple(TensorSpec.from_json(t) for t in data["outputs"]),
             exporter={str(k): str(v) for k, v in dict(data["exporter"]).items()},
@@ -158,6 +159,15 @@ class EngineManifest:
 
     def write(self, path: Path) -> None:
         path.write_text(json.dumps(self.to_json(), indent=2, sort_keys=False) + "\n")
+
+
+def _weights(value: Any) -> dict[str, str]:
+    """A manifest's ``weights``; ``ValueError`` naming ``weights.sha256`` when it is missing or
+    empty (the hash of the weights the engine was built from, which every load records)."""
+    weights = {str(k): str(v) for k, v in dict(value).items()}
+    if not weights.get("sha256"):
+        raise ValueError("weights.sha256 is missing: the hash of the weights it was built from")
+    return weights
 
 
 def read_manifest(engine_path: Path) -> EngineManifest:

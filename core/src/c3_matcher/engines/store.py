@@ -88,10 +88,10 @@ class VerifyOutcome:
 
 
 class EngineStore:
-    """Engines in ``directory`` (which need not exist yet)."""
+    """Engines in ``directory`` (which need not exist yet; a leading ``~`` is the user's home)."""
 
     def __init__(self, directory: Path) -> None:
-        self._directory = Path(directory)
+        self._directory = Path(directory).expanduser()
 
     @property
     def directory(self) -> Path:

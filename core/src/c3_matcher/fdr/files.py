@@ -1,6 +1,13 @@
 """The files beside an FDR segment and the durable ways of writing them: the numbered
 rotated segments, the small ``.meta`` state file (replaced atomically), directory fsync and the
-cut of a torn last line (kept in ``.torn``)."""
+cut of a torn last line (kept in ``.torn``).
+
+A rotated segment of the live segment ``<stem><suffix>`` is named ``<stem>.<number><suffix>``,
+the number written with at least ``SEGMENT_DIGITS`` digits (``fdr.000001.jsonl``): exactly the
+names ``segment_path`` gives are read as segments, so a user's ``fdr.1.jsonl`` beside the log is
+not one. A longer number (a millionth rotation) is one only when ``.meta`` has reserved it, as
+the recorder does before each rotation: ``fdr.20240105.jsonl``, a copy named by its date, is not
+taken for the twenty-millionth segment of a log that never rotated that often."""
 
 from __future__ import annotations
 
@@ -12,31 +19,55 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
+
+SEGMENT_DIGITS = 6
+"""The least number of digits of a rotated segment's number (zero-padded)."""
+
+
+def segment_path(path: Path, number: int) -> Path:
+    """The rotated segment ``number`` of the live segment ``path``: ``<stem>.<number><suffix>``."""
+    return path.with_name(f"{path.stem}.{number:0{SEGMENT_DIGITS}d}{path.suffix}")
+
+
+def meta_path(path: Path) -> Path:
+    """The ``.meta`` state file of the live segment ``path``: ``<path>.meta``."""
+    return path.with_name(path.name + ".meta")
 
 
 def rotated_segments(path: Path) -> list[tuple[int, Path]]:
-    """``(number, path)`` of the rotated segments ``<stem>.<NNNNNN><suffix>`` of the live
-    segment ``path``, by number."""
+    """``(number, path)`` of the rotated segments of the live segment ``path``, by number: the
+    files named as ``segment_path`` names them, a number past ``SEGMENT_DIGITS`` digits only up
+    to the last one ``.meta`` reserved (see the module docstring)."""
     stem, suffix = path.stem, path.suffix
+    reserved = read_meta(meta_path(path)).get("last_segment")
     out = []
     for p in path.parent.glob(f"{glob.escape(stem)}.[0-9]*{glob.escape(suffix)}"):
-        number = p.name[len(stem) + 1 : len(p.name) - len(suffix)]
-        if number.isdigit():
-            out.append((int(number), p))
+        digits = p.name[len(stem) + 1 : len(p.name) - len(suffix)]
+        if not (digits.isascii() and digits.isdigit()):
+            continue
+        number = int(digits)  # fdr.1.jsonl, fdr.0000001.jsonl: not names the recorder gives
+        if p.name == segment_path(path, number).name and (
+            len(digits) == SEGMENT_DIGITS or (type(reserved) is int and number <= reserved)
+        ):
+            out.append((number, p))
     return sorted(out)
 
 
 def is_foreign(path: Path) -> bool:
-    """Whether ``path`` holds something other than a log of records: it is not empty and does
-    not begin with ``{`` as every record line does (an image, a document). A file that cannot
-    be read is not judged here (opening it reports that)."""
+    """Whether ``path`` holds something other than a log of records: it is not empty, does not
+    begin with ``{`` as every record line does (an image, a document), and is not all NUL bytes
+    (a power cut during the first line, on a file system that had committed the new size but
+    not the data: a torn tail, cut on open). A file that cannot be read is not judged here
+    (opening it reports that)."""
     try:
         with path.open("rb") as fh:
             first = fh.read(1)
+            if first != b"\0":
+                return first not in (b"", b"{")
+            return any(block.strip(b"\0") for block in iter(lambda: fh.read(1 << 16), b""))
     except OSError:
         return False
-    return first not in (b"", b"{")
 
 
 def read_meta(path: Path) -> dict[str, Any]:
@@ -103,8 +134,10 @@ class TornCut:
     not_kept: str = ""
 
 
-def cut_torn_tail(path: Path, torn_path: Path) -> TornCut | None:
-    """Cut the segment ``path`` back to its last complete line; append the cut bytes to
+def cut_torn_tail(path: Path, torn_path: Path, end: int | None = None) -> TornCut | None:
+    """Cut the segment ``path`` back to its last complete line, or to ``end`` when it is
+    shorter (where a record began whose write failed and could not be rolled back: its line may
+    be whole, but it was never acknowledged and will be written again); append the cut bytes to
     ``torn_path`` (one JSON line per cut: segment, offset, length, wall time, the bytes). The
     cut is made even when they cannot be kept (a full disk): they are part of a record never
     acknowledged, and appending after them would spoil the next. None when nothing was cut."""
@@ -112,23 +145,9 @@ def cut_torn_tail(path: Path, torn_path: Path) -> TornCut | None:
         return None
     with path.open("r+b") as fh:
         size = os.fstat(fh.fileno()).st_size
-        if size == 0:
+        keep = end if end is not None and end < size else _complete_lines(fh, size)
+        if keep == size:
             return None
-        fh.seek(max(0, size - 1))
-        if fh.read(1) == b"\n":
-            return None
-        keep = 0
-        block = 1 << 16
-        pos = size
-        while pos > 0:  # find the last newline, reading backwards
-            lo = max(0, pos - block)
-            fh.seek(lo)
-            chunk = fh.read(pos - lo)
-            i = chunk.rfind(b"\n")
-            if i >= 0:
-                keep = lo + i + 1
-                break
-            pos = lo
         fh.seek(keep)
         cut = fh.read()
         side = {
@@ -143,6 +162,26 @@ def cut_torn_tail(path: Path, torn_path: Path) -> TornCut | None:
         fh.flush()
         os.fsync(fh.fileno())
     return TornCut(keep, len(cut), not_kept)
+
+
+def _complete_lines(fh: BinaryIO, size: int) -> int:
+    """How many of the ``size`` bytes of ``fh`` end with its last newline (``size`` when the
+    last byte is one, or the file is empty)."""
+    if size == 0:
+        return 0
+    fh.seek(size - 1)
+    if fh.read(1) == b"\n":
+        return size
+    block = 1 << 16
+    pos = size
+    while pos > 0:  # find the last newline, reading backwards
+        lo = max(0, pos - block)
+        fh.seek(lo)
+        i = fh.read(pos - lo).rfind(b"\n")
+        if i >= 0:
+            return lo + i + 1
+        pos = lo
+    return 0
 
 
 def _keep_aside(torn_path: Path, line: bytes) -> str:

@@ -20,9 +20,11 @@ from c3_matcher.fdr.files import (
     fsync_dir,
     is_foreign,
     make_dirs_durably,
+    meta_path,
     open_for_append,
     read_meta,
     rotated_segments,
+    segment_path,
     write_meta,
 )
 from c3_matcher.fdr.pending import (
@@ -75,8 +77,10 @@ class JsonlFdrRecorder:
     now), and once the rest are written a ``fdr.records_dropped`` record says how many and
     which seqs (the only gap ``seq`` ever has). One process writes a path: the recorder
     holds ``flock`` on ``<path>.lock``; a second one is refused with ``FdrOpenError``, as is a
-    ``path`` holding something else (not empty, not beginning with a record's ``{``: an image
-    named by mistake), which is never cut, appended to or removed. ``record`` is thread-safe.
+    ``path`` holding something else (not empty, not all NUL bytes, not beginning with a record's
+    ``{``: an image named by mistake), which is never cut, appended to or removed. A live
+    segment of NUL bytes alone (a power cut during its first line, on a file system that had
+    committed the size but not the data) is a torn tail, cut as one. ``record`` is thread-safe.
 
     ``fresh``: start a new log at ``path`` (a ground run's FDR, started anew with each run):
     only once the lock is held are the previous live segment, its rotated segments, ``.meta``
@@ -103,7 +107,7 @@ class JsonlFdrRecorder:
         self._pending = Pending(max_pending_bytes)
         self._fd = -1
         self._lock_fd = -1
-        self._needs_repair = False
+        self._repair_to: int | None = None  # where a write that could not be rolled back began
         self._reserved: int | None = None  # a segment number reserved by a failed rotation
         self._lock_names_loss = False  # the lock file names records not yet in the log
         self._noted = ""  # where the last write failure's waiting records are named, or why not
@@ -188,7 +192,7 @@ class JsonlFdrRecorder:
 
     @property
     def _meta_path(self) -> Path:
-        return self._path.with_name(self._path.name + ".meta")
+        return meta_path(self._path)
 
     def record(self, kind: str, payload: Mapping[str, Any]) -> None:
         if not kind or not isinstance(kind, str):
@@ -298,9 +302,9 @@ class JsonlFdrRecorder:
     def _write_durably(self, data: bytes) -> None:
         if self._fd < 0:
             self._fd = open_for_append(self._path)
-        if self._needs_repair:
-            self._cut_torn_tail()
-            self._needs_repair = False
+        if self._repair_to is not None:  # the unacknowledged line goes, whole or not
+            cut_torn_tail(self._path, self.torn_path, self._repair_to)
+            self._repair_to = None
         start = os.fstat(self._fd).st_size
         if start > 0 and start + len(data) > self._max_bytes and self._rotate():
             start = 0
@@ -317,7 +321,7 @@ class JsonlFdrRecorder:
                 os.ftruncate(self._fd, start)
                 os.fsync(self._fd)
             except OSError:
-                self._needs_repair = True
+                self._repair_to = start
             raise
 
     def _next_segment_number(self) -> int:
@@ -331,12 +335,15 @@ class JsonlFdrRecorder:
         to the live segment. After the rename an error propagates with ``_fd`` closed, so the
         next write opens the new live segment: the rotation is then complete either way."""
         number = self._reserved or self._next_segment_number()
-        target = self._path.with_name(f"{self._path.stem}.{number:06d}{self._path.suffix}")
-        while target.exists():  # never overwrite (we hold the lock: no other writer races us)
+        while segment_path(self._path, number).exists():  # never overwrite (we hold the lock)
             number += 1
-            target = self._path.with_name(f"{self._path.stem}.{number:06d}{self._path.suffix}")
+        target = segment_path(self._path, number)
+        # the last seq given to a record acknowledged, or let go and so noted: never one that
+        # waits (a kill before it is written must leave no gap that no note explains)
+        waiting = self._pending.records
+        last_seq = waiting[0][0] - 1 if waiting else self._seq - 1
         try:  # reserve the number first: a failure here leaves everything as it was
-            write_meta(self._meta_path, {"last_segment": number, "last_seq": self._seq - 1})
+            write_meta(self._meta_path, {"last_segment": number, "last_seq": last_seq})
             self._reserved = number  # kept for the next try: one number per rotation
             self._path.rename(target)  # atomic: the records are under exactly one name
         except OSError:

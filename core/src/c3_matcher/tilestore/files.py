@@ -9,7 +9,7 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["MMAP_BYTES", "cannot_open", "open_failure", "set_aside"]
+__all__ = ["MMAP_BYTES", "cannot_open", "open_failure", "read_only_uri", "set_aside"]
 
 MMAP_BYTES = 256 * 1024 * 1024
 """The memory map of a read connection to a store file (tile store and map-features sidecar)."""
@@ -38,6 +38,14 @@ def open_failure(path: str | Path, kind: str) -> str | None:
     except OSError as exc:
         return cannot_open(exc)
     return None
+
+
+def read_only_uri(path: str | Path) -> str:
+    """The SQLite URI that opens the database file ``path`` read-only (``uri=True``): the
+    absolute path percent-encoded, so that a ``#``, ``?`` or ``%`` in a folder's name is part of
+    the name, not a fragment, a query or an escape (which would open another file, or drop
+    ``mode=ro``)."""
+    return f"{Path(path).resolve().as_uri()}?mode=ro"
 
 
 def cannot_open(exc: OSError) -> str:

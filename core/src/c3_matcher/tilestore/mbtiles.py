@@ -47,7 +47,7 @@ from typing import Final
 from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.tilestore.base import TileStoreBase
 from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
-from c3_matcher.tilestore.files import MMAP_BYTES, open_failure
+from c3_matcher.tilestore.files import MMAP_BYTES, open_failure, read_only_uri
 from c3_matcher.tilestore.sidecar import DEFAULT_RETRY_S, FeatureStoreUnavailableError
 
 __all__ = ["MBTilesStore", "TileDigestError", "TileStoreUnusableError"]
@@ -92,14 +92,18 @@ class MBTilesStore(TileStoreBase):
         self._unusable: str | None = None
         self._features: MapFeatureStore | None = None
         self._features_retry_at: float | None = None  # an unopenable sidecar: next try then
-        try:
+        self._metadata: dict[str, str] = {}
+        try:  # a damaged page (metadata's included) is said as such, the connection closed
             db = self._db
             tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
+            missing = {"metadata", "tiles"} - tables
+            if not missing:
+                rows = db.execute("SELECT name, value FROM metadata")
+                self._metadata = {str(k): str(v) for k, v in rows}
         except sqlite3.DatabaseError as exc:
             self.close()
             why = _open_error(self.path, exc)
             raise InvalidInputError("mbtiles", f"{self.path}: {why}") from exc
-        missing = {"metadata", "tiles"} - tables
         if missing:
             self.close()
             raise InvalidInputError(
@@ -107,7 +111,6 @@ class MBTilesStore(TileStoreBase):
             )
         self.has_digests: Final = "c3_tile_digest" in tables
         """Whether the store carries per-tile sha256 digests (verified on every read)."""
-        self._metadata = {str(k): str(v) for k, v in db.execute("SELECT name, value FROM metadata")}
 
     @property
     def _db(self) -> sqlite3.Connection:
@@ -116,10 +119,7 @@ class MBTilesStore(TileStoreBase):
         if db is None:
             # used only by this thread; check_same_thread=False lets close() run on any thread
             db = sqlite3.connect(
-                f"file:{self.path.resolve()}?mode=ro",
-                uri=True,
-                check_same_thread=False,
-                timeout=LOCK_WAIT_S,
+                read_only_uri(self.path), uri=True, check_same_thread=False, timeout=LOCK_WAIT_S
             )
             db.execute(f"PRAGMA mmap_size={self._mmap_bytes}")
             self._local.db = db
@@ -202,9 +202,7 @@ class MBTilesStore(TileStoreBase):
         """After a read error: if a fresh connection cannot read the store either, the store is
         unusable: say so once (ERROR log, forwarded to the FDR) and fail every later tile fast."""
         try:
-            probe = sqlite3.connect(
-                f"file:{self.path.resolve()}?mode=ro", uri=True, timeout=LOCK_WAIT_S
-            )
+            probe = sqlite3.connect(read_only_uri(self.path), uri=True, timeout=LOCK_WAIT_S)
             try:
                 probe.execute("SELECT count(*) FROM metadata").fetchone()
                 probe.execute("SELECT tile_data FROM tiles LIMIT 1").fetchone()
@@ -265,12 +263,15 @@ class MBTilesStore(TileStoreBase):
 
 def _open_error(path: Path, exc: sqlite3.DatabaseError) -> str:
     """What an SQLite error on opening the store ``path`` says about it: locked, not to be
-    opened (SQLite's CANTOPEN: the file's permission, a read-only folder a journal needs), or
-    not an SQLite database (a text file, a damaged one)."""
+    opened (SQLite's CANTOPEN: the file's permission, a read-only folder a journal needs), a
+    damaged one (a page SQLite finds malformed) or not an SQLite database (a text file)."""
     if _locked(exc):
         return f"locked by another process: {exc}"
-    if getattr(exc, "sqlite_errorcode", 0) & 0xFF == sqlite3.SQLITE_CANTOPEN:
+    code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
+    if code == sqlite3.SQLITE_CANTOPEN:
         return open_failure(path, "an MBTiles file") or f"cannot open ({exc})"
+    if code == sqlite3.SQLITE_CORRUPT:
+        return f"damaged SQLite database: {exc}"
     return f"not an SQLite database: {exc}"
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from c3_matcher.errors import describe
-from c3_matcher.tilestore.files import MMAP_BYTES, open_failure
+from c3_matcher.tilestore.files import MMAP_BYTES, open_failure, read_only_uri
 from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, decode_row, row_checksum
 
 WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
@@ -327,7 +327,7 @@ def _open_read_only(path: Path) -> sqlite3.Connection:
     the frame never waits); FeatureStoreUnavailableError saying why a sidecar cannot be opened
     (its permission, a directory), its cause SQLite's error."""
     try:
-        db = sqlite3.connect(f"file:{path.resolve()}?mode=ro", uri=True, timeout=0)
+        db = sqlite3.connect(read_only_uri(path), uri=True, timeout=0)
     except sqlite3.Error as exc:
         why = open_failure(path, "a features sidecar") or f"cannot open ({exc})"
         raise FeatureStoreUnavailableError(f"{path}: {why}") from exc
