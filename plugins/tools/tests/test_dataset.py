@@ -301,3 +301,23 @@ def test_grid_units_per_ground_metre_on_the_ellipsoid() -> None:
         grid = GeoGrid(float(e[0]), float(n[0]), 2.0, 2.0, (10, 10), None, projection)
         units = grid_units_per_m(grid, (float(e[0]), float(n[0])))
         np.testing.assert_allclose(units, expected, rtol=1e-6)
+
+
+def test_a_frame_whose_candidates_are_only_partly_labelled_has_no_truth() -> None:
+    """Neither its truth nor its true tile counts (eval's C3-IT-04 and the run summary alike
+    leave it out), whichever candidate says ``is_true``."""
+    import uuid
+
+    from c3_matcher.dto import TileId
+    from c3_matcher_tools.dataset.format import CandidateTruth
+
+    def frame(*labels: bool | None) -> FrameRecord:
+        candidates = tuple(
+            CandidateTruth(TileId(15, 47.0, -99.0 + i), 0.5, x) for i, x in enumerate(labels)
+        )
+        return FrameRecord(0, uuid.uuid4(), "f.jpg", 0, (0.0, 0.0, 0.0), 100.0, candidates)
+
+    partly = frame(True, None)
+    assert not partly.has_truth and not partly.true_tile_present
+    labelled = frame(False, True)
+    assert labelled.has_truth and labelled.true_tile_present and labelled.true_index == 1

@@ -238,8 +238,9 @@ class FrameRecord:
 
     @property
     def true_tile_present(self) -> bool:
-        """The true tile is among the candidates (False as well when there is no truth)."""
-        return any(bool(c.is_true) for c in self.candidates)
+        """The true tile is among the candidates (False as well when there is no truth, as in
+        a frame whose candidates are only partly labelled)."""
+        return self.has_truth and any(bool(c.is_true) for c in self.candidates)
 
     @property
     def true_index(self) -> int | None:
