@@ -297,7 +297,7 @@ def _result_json(
         result,
         with_correspondences=not args.no_correspondences,
         calibration=calibration,
-        tile_sizes=_kept_tile_sizes(result, rerank),
+        tile_sizes=_best_tile_sizes(result, rerank),
         tile_gsd_m=args.tile_gsd,
     )
     kept = {int(c["tile_index"]) for c in out["per_candidate"]}
@@ -384,13 +384,13 @@ def _remove_sink(sink: int) -> None:
         logger.remove(sink)
 
 
-def _kept_tile_sizes(result: Any, rerank: RerankResult) -> list[tuple[int, int]]:
-    """(width, height) per input position, decoded for the kept candidates only: a dropped one
-    is never georeferenced, and its pixels may be what dropped it (a window over no stored
-    tile, a damaged tile), so it stands as (0, 0)."""
-    kept = set(result.diagnostics.get("input_index", range(len(result.per_candidate))))
+def _best_tile_sizes(result: Any, rerank: RerankResult) -> list[tuple[int, int]]:
+    """(width, height) per input position, decoded for the best candidate alone (the one the
+    georeference uses); the others stand as (0, 0): a dropped one's pixels may be what dropped
+    it (a window over no stored tile, a damaged tile)."""
+    best = int(result.diagnostics.get("input_index", [0])[0])
     return [
-        _image_size(c.tile_pixels_handle) if i in kept else (0, 0)
+        _image_size(c.tile_pixels_handle) if i == best else (0, 0)
         for i, c in enumerate(rerank.candidates)
     ]
 
