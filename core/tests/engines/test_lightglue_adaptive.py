@@ -376,3 +376,25 @@ def test_unmatchable_exit_on_real_pairs(
     other, other_run = pair("elsewhere", 16)
     assert other_run["unmatchable"] and other_run["layers"] == 2 and other_run["matched"] < 16
     assert other.matches.shape == (0, 2)
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"input_dim": 4, "descriptor_dim": 4},
+        {"input_dim": 4, "descriptor_dim": 4, "n_layers": 0},
+        {"input_dim": 4, "descriptor_dim": 4, "n_layers": "9"},
+    ],
+)
+def test_a_steps_engine_without_its_layer_count_is_refused_by_name(
+    make_tiny_engine: Callable[..., Path], tmp_path: Path, options: dict[str, Any]
+) -> None:
+    """Loaded directly, a steps engine whose manifest lacks a usable ``n_layers`` is an
+    ``EngineError`` naming the file and the option (it was a bare ``KeyError``)."""
+    from c3_matcher.errors import EngineError
+
+    steps = make_tiny_engine(tmp_path, variant="toy-steps")
+    _declare(steps, feature_type="toy", options={**options, STEPS_OPTION[0]: STEPS_OPTION[1]})
+    runtime = OnnxLightGlueRuntime(OnnxInferenceRuntime(["CPUExecutionProvider"]), mode="full")
+    with pytest.raises(EngineError, match=r"options\.n_layers .*not a positive whole number"):
+        runtime.load("toy", steps)

@@ -137,6 +137,21 @@ def steps_engines_beside(
     return [path for _, path in sorted(found, reverse=True)]
 
 
+_STEPS_SIZES = ("n_layers", "input_dim", "descriptor_dim")
+
+
+def _size_option(path: Path, options: Mapping[str, Any], name: str) -> int:
+    """A steps engine's positive whole-number size ``name`` from its manifest's options."""
+    value = options.get(name)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise EngineError(
+            path,
+            f"its manifest's options.{name} is {value!r}, not a positive whole number "
+            f"(a steps engine records {', '.join(_STEPS_SIZES)}); rebuild it",
+        )
+    return value
+
+
 class _Pair(NamedTuple):
     """One pair's normalised keypoints and descriptors, in the steps driver's argument order."""
 
@@ -226,7 +241,7 @@ class OnnxLightGlueRuntime:
                 f"{table_name} LightGlue for {feature_type!r} is already loaded from {loaded[0]}",
             )
         if steps:
-            self._steps[feature_type] = (path, engine_id, *self._drivers(engine_id, options))
+            self._steps[feature_type] = (path, engine_id, *self._drivers(path, engine_id, options))
         else:
             self._engines[feature_type] = (path, engine_id)
             self._verify_steps_beside(feature_type, path)
@@ -291,20 +306,17 @@ class OnnxLightGlueRuntime:
                 continue  # an unusable build, not a changed one: full mode does not run it
 
     def _drivers(
-        self, engine_id: str, options: dict[str, Any]
+        self, path: Path, engine_id: str, options: dict[str, Any]
     ) -> tuple[AdaptiveLightGlue, AdaptiveLightGlue]:
-        """(adaptive, every-layer) drivers of one steps engine."""
+        """(adaptive, every-layer) drivers of one steps engine; ``EngineError`` naming the
+        option when its manifest lacks a size the drivers need."""
 
         def run(feeds: Any) -> Any:
             return self._inference.run(engine_id, feeds)
 
         depth = self._depth if self._depth is not None else options.get("depth_confidence", -1)
         width = self._width if self._width is not None else options.get("width_confidence", -1)
-        common = {
-            "n_layers": int(options["n_layers"]),
-            "input_dim": int(options["input_dim"]),
-            "descriptor_dim": int(options["descriptor_dim"]),
-        }
+        common = {name: _size_option(path, options, name) for name in _STEPS_SIZES}
         adaptive = AdaptiveLightGlue(
             run,
             depth_confidence=float(depth),
