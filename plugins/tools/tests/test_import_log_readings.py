@@ -317,17 +317,66 @@ def test_a_dataflash_log_reads_its_first_receiver_alone(
     assert len(track.gnss) == len(fl.dense_track(poses))
 
 
-def test_rfnd_heights_are_rangefinder_0_facing_down_and_good(
+def test_rfnd_heights_are_the_first_downward_rangefinder_s_good_readings(
     poses: list[fl.Pose], tmp_path: Path
 ) -> None:
     """Every RFND was taken as the height above ground. Left now: another rangefinder's
-    (Instance 1, facing forward, 12 m to an obstacle) and rangefinder 0's readings that are not
-    good (Stat 1, no data)."""
+    (Instance 1, facing forward, 12 m to an obstacle), a later downward one's (Instance 2) and
+    rangefinder 0's readings that are not good (Stat 1, no data)."""
     rows = _flight_rows(poses)
     for _, tus, *_ in [r for r in rows if r[0] == "RFND"]:
         rows += [("RFND", tus + 20_000, 1, 12.0, 4, 0), ("RFND", tus + 40_000, 0, 0.0, 1, 25)]
+        rows.append(("RFND", tus + 60_000, 2, 280.0, 4, 25))
     track = read_mavlink(_dataflash(tmp_path / "flight.bin", _FORMATS, rows))
     assert track.height is not None and track.height.values[:, 0].tolist() == [300.0] * 4
+
+
+def test_the_first_downward_rangefinder_need_not_be_rangefinder_0(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """ArduPilot takes its height from the first rangefinder facing down: with a forward one
+    as rangefinder 0, rangefinder 1's readings were all set aside (no height at all)."""
+    rows = [r if r[0] != "RFND" else ("RFND", r[1], 1, *r[3:]) for r in _flight_rows(poses)]
+    rows += [("RFND", r[1] + 20_000, 0, 12.0, 4, 0) for r in rows if r[0] == "RFND"]
+    track = read_mavlink(_dataflash(tmp_path / "flight.bin", _FORMATS, rows))
+    assert track.height is not None and track.height.values[:, 0].tolist() == [300.0] * 4
+
+
+def test_a_photo_logged_as_both_cam_and_trig_is_one_trigger(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """With a feedback pin ArduPilot logs TRIG at the trigger and CAM at the shutter: each
+    photo was counted twice (8 triggers for 4 images). CAM is read, TRIG set aside."""
+    formats = {**_FORMATS, "TRIG": ("QH", "TimeUS,Img", "s-")}
+    rows = _flight_rows(poses)
+    rows += [("TRIG", r[1] - 30_000, r[2]) for r in rows if r[0] == "CAM"]
+    track = read_mavlink(_dataflash(tmp_path / "flight.bin", formats, rows))
+    cams = [fl.BOOT_S + p.t_s for p in poses]
+    assert track.triggers_s is not None and len(track.triggers_s) == len(poses)
+    assert np.allclose(np.diff(track.triggers_s), np.diff(cams))
+    assert "4 camera trigger(s) from CAM; TRIG of the same photos set aside" in track.notes
+    only_trig = [r if r[0] != "CAM" else ("TRIG", *r[1:]) for r in _flight_rows(poses)]
+    track = read_mavlink(_dataflash(tmp_path / "trig.bin", formats, only_trig))
+    assert "4 camera trigger(s) from TRIG" in track.notes
+
+
+def test_a_global_position_at_zero_zero_before_the_origin_is_no_position(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """ArduPilot sends GLOBAL_POSITION_INT at latitude and longitude 0 until its estimator has
+    an origin: it was a position sample, 6,000 km from the flight."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    no_origin = mavlink.MAVLink_global_position_int_message(0, 0, 0, 0, 0, 0, 0, 0, 0)
+    records = [(-1.0, no_origin), *_tlog_positions(poses), *_tlog_frames(poses, ())]
+    link = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    log = tmp_path / "flight.tlog"
+    with log.open("wb") as fh:
+        for t, msg in sorted(records, key=lambda r: r[0]):
+            fh.write(struct.pack(">Q", int((fl.UTC0 + t) * 1e6)) + msg.pack(link))
+    track = read_mavlink(log)
+    assert track.position is not None and len(track.position) == len(fl.dense_track(poses))
+    assert np.all(np.abs(track.position.values[:, 0]) > 1.0)
 
 
 def test_an_rfnd_format_without_instance_status_or_orientation_is_read_as_a_height(

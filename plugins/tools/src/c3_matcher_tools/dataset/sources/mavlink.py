@@ -4,12 +4,12 @@ the vehicle (``.bin``) and MAVLink telemetry logs recorded by a ground station (
 Messages used (DataFlash / MAVLink): attitude ``ATT`` (Roll, Pitch, Yaw, deg) / ``ATTITUDE``
 (rad; without either, each frame is imported level, its yaw from the GNSS course, and marked);
 position ``POS`` (Lat, Lng, Alt above sea level; ``RelHomeAlt`` gives the home altitude) /
-``GLOBAL_POSITION_INT`` (1e-7 deg, mm; ``relative_alt``); the receiver ``GPS`` (Status = fix
-type, horizontal accuracy from ``GPA.HAcc``; instance 0, the first receiver) / ``GPS_RAW_INT``
-(fix_type, ``h_acc`` mm); height above ground from a downward rangefinder ``RFND.Dist`` /
-``DISTANCE_SENSOR.current_distance`` (cm; see :func:`_downward_rfnd` and
-:func:`_downward_distance`); camera triggers ``CAM`` / ``TRIG`` / ``CAMERA_FEEDBACK`` /
-``CAMERA_TRIGGER``. A telemetry log holding several MAVLink systems (vehicles on one link) is
+``GLOBAL_POSITION_INT`` (1e-7 deg, mm; ``relative_alt``; not at 0, 0); the receiver ``GPS``
+(Status = fix type, horizontal accuracy from ``GPA.HAcc``; instance 0, the first receiver) /
+``GPS_RAW_INT`` (fix_type, ``h_acc`` mm); height above ground from the first downward
+rangefinder, ``RFND.Dist`` / ``DISTANCE_SENSOR.current_distance`` (cm; see :func:`_range` and
+:func:`_heights`); camera triggers, one per photo, of the first of :data:`TRIGGERS` logged.
+A telemetry log holding several MAVLink systems (vehicles on one link) is
 read for the camera vehicle's alone (:func:`_camera_system`). Times: the time pymavlink gives
 each message (UTC seconds from the GNSS week time in a DataFlash log with a fix, the ground
 station's clock in a telemetry log).
@@ -152,34 +152,57 @@ RANGE_GOOD = 4
 """``RFND.Stat`` of a good reading (ArduPilot's RangeFinder status Good)."""
 
 
+TRIGGERS = ("CAM", "CAMERA_FEEDBACK", "TRIG", "CAMERA_TRIGGER")
+"""The camera messages, the one read first: ``CAM`` / ``CAMERA_FEEDBACK`` (ArduPilot: the shutter's
+feedback, or the trigger when no feedback pin is set) before ``TRIG`` / ``CAMERA_TRIGGER`` (the
+trigger, logged beside ``CAM`` for the same photo when a feedback pin is set; PX4's own)."""
+
+
 def _first_instance(m: Any, column: str) -> bool:
-    """Whether a DataFlash message is of instance 0 by its ``column`` (``I`` of GPS / GPA,
-    ``Instance`` of RFND); a format without that column has one instance."""
+    """Whether a DataFlash message is of instance 0 by its ``column`` (``I`` of GPS / GPA);
+    a format without that column has one instance."""
     return int(getattr(m, column, 0)) == 0
 
 
-def _downward_distance(m: Any) -> bool:
-    """Whether a DISTANCE_SENSOR reading is a height above ground: from a sensor facing down,
-    within its range [min_distance, max_distance) (a forward one measures obstacles ahead)."""
-    return bool(m.orientation == DOWNWARD and m.min_distance <= m.current_distance < m.max_distance)
+def _range(m: Any, t: float) -> Row:
+    """A downward rangefinder's reading: (t, [distance m, instance, whether it is a height]):
+    ``RFND`` (``Instance``; good by ``Stat``) or ``DISTANCE_SENSOR`` (``id``; cm, within
+    [min_distance, max_distance), a reading out of range is none). Older DataFlash formats lack
+    some of RFND's columns: a reading is then kept without that check."""
+    if m.get_type() == "RFND":
+        good = getattr(m, "Stat", RANGE_GOOD) == RANGE_GOOD
+        return t, [float(m.Dist), float(getattr(m, "Instance", 0)), float(good)]
+    good = m.min_distance <= m.current_distance < m.max_distance
+    return t, [m.current_distance * 1e-2, float(m.id), float(good)]
 
 
-def _downward_rfnd(m: Any) -> bool:
-    """Whether an RFND reading is a height above ground: instance 0, facing down (``Orient``),
-    its status good (``Stat``). Older DataFlash formats lack some of these columns: a reading is
-    then kept without that check (an RFND without ``Orient`` is taken as facing down)."""
-    return (
-        _first_instance(m, "Instance")
-        and getattr(m, "Orient", DOWNWARD) == DOWNWARD
-        and getattr(m, "Stat", RANGE_GOOD) == RANGE_GOOD
-    )
+def _heights(readings: list[Row]) -> list[Row]:
+    """The first downward rangefinder's good readings (ArduPilot's height above ground comes
+    from the first rangefinder that faces down, whatever its number)."""
+    if not readings:
+        return []
+    first = min(v[1] for _, v in readings)
+    return [(t, v[:1]) for t, v in readings if v[1] == first and v[2]]
+
+
+def _downward(m: Any) -> bool:
+    """Whether a rangefinder faces down (``Orient`` / ``orientation``; an RFND without ``Orient``
+    is taken as facing down): one that faces another way measures obstacles, not the ground."""
+    return getattr(m, "Orient", getattr(m, "orientation", DOWNWARD)) == DOWNWARD
+
+
+def _fixed_position(m: Any) -> bool:
+    """Whether a GLOBAL_POSITION_INT states a position: ArduPilot sends latitude and longitude
+    0 before its estimator has an origin (a place no flight of this product is at)."""
+    return bool(m.lat != 0 or m.lon != 0)
 
 
 WANTED: dict[str, Callable[[Any], bool]] = {
     "GPS": lambda m: _first_instance(m, "I"),
     "GPA": lambda m: _first_instance(m, "I"),
-    "RFND": _downward_rfnd,
-    "DISTANCE_SENSOR": _downward_distance,
+    "RFND": _downward,
+    "DISTANCE_SENSOR": _downward,
+    "GLOBAL_POSITION_INT": _fixed_position,
 }
 """Per message type, which of its messages are read (every one of a type not named)."""
 
@@ -238,12 +261,12 @@ def _handlers(system: _System) -> dict[str, Callable[[Any, float], None]]:
                 ],
             )
         ),
-        "RFND": lambda m, t: rows["rng"].append((t, [m.Dist])),
-        "DISTANCE_SENSOR": lambda m, t: rows["rng"].append((t, [m.current_distance * 1e-2])),
-        "CAM": lambda m, t: rows["trig"].append((t, [])),
-        "TRIG": lambda m, t: rows["trig"].append((t, [])),
-        "CAMERA_FEEDBACK": lambda m, t: rows["trig"].append((t, [])),
-        "CAMERA_TRIGGER": lambda m, t: rows["trig"].append((t, [])),
+        "RFND": lambda m, t: rows["rng"].append(_range(m, t)),
+        "DISTANCE_SENSOR": lambda m, t: rows["rng"].append(_range(m, t)),
+        **{
+            name: lambda m, t: rows["trig"].append((t, [TRIGGERS.index(m.get_type())]))
+            for name in TRIGGERS
+        },
     }
 
 
@@ -333,7 +356,9 @@ def read_mavlink(path: Path) -> LogTrack:
     kind = "MAVLink telemetry log" if path.suffix.lower() == ".tlog" else "ArduPilot DataFlash"
     vehicle, which = _camera_system(_read(log, source, kind, chatter), source)
     cut = cut or _packet_cut(log, path)
-    rows, seen = vehicle.rows, vehicle.seen
+    seen = vehicle.seen
+    rows = {**vehicle.rows, "rng": _heights(vehicle.rows["rng"])}
+    rows["trig"], camera = _shutters(vehicle.rows["trig"])
     if not rows["pos"] and not rows["gps"]:
         raise InvalidInputError(
             source,
@@ -348,7 +373,7 @@ def read_mavlink(path: Path) -> LogTrack:
         return Series.build(name, [t for t, _ in got], [v for _, v in got], angles, source=source)
 
     trig = np.sort(np.array([t for t, _ in rows["trig"]], dtype=np.float64))
-    notes, damage = _notes(rows, chatter, cut, which)
+    notes, damage = _notes(rows, chatter, cut, which, camera)
     first_t = (rows["att"] or rows["pos"] or rows["gps"])[0][0]
     return LogTrack(
         source=source,
@@ -365,13 +390,29 @@ def read_mavlink(path: Path) -> LogTrack:
     )
 
 
+def _shutters(messages: list[Row]) -> tuple[list[Row], str]:
+    """The camera messages of the first of :data:`TRIGGERS` logged (one per photo), and what
+    they are: a photo logged as both ``CAM`` and ``TRIG`` counted twice before."""
+    ranks = sorted({int(v[0]) for _, v in messages})
+    if not ranks:
+        return [], ""
+    kept = [m for m in messages if m[1][0] == ranks[0]]
+    aside = ", ".join(TRIGGERS[r] for r in ranks[1:])
+    return kept, TRIGGERS[ranks[0]] + (f"; {aside} of the same photos set aside" if aside else "")
+
+
 def _notes(
-    rows: dict[str, list[Row]], chatter: io.StringIO, cut: str | None, which: str | None
+    rows: dict[str, list[Row]],
+    chatter: io.StringIO,
+    cut: str | None,
+    which: str | None,
+    camera: str,
 ) -> tuple[list[str], str | None]:
     """The track's notes (the MAVLink system read, ``which``; damaged headers skipped; no
-    attitude; the camera triggers; where the log ends mid-message, ``cut``) and its damage."""
+    attitude; the camera triggers, ``camera`` saying which messages; where the log ends
+    mid-message, ``cut``) and its damage."""
     triggers = len(rows["trig"])
-    notes = [f"{triggers} camera trigger(s)"] if triggers else []
+    notes = [f"{triggers} camera trigger(s) from {camera}"] if triggers else []
     if not rows["att"]:
         notes.insert(
             0,
