@@ -79,3 +79,20 @@ def test_the_correct_tile_count_is_over_the_frames_c3_it_04_scores() -> None:
     outcomes = [frame_outcome(0), frame_outcome(1), frame_outcome(2, has_truth=False)]
     s, h = summarize(outcomes), metrics(outcomes, []).headline
     assert (s.true_present, s.correct_candidate) == (h.present, h.correct) == (2, 2)
+
+
+def test_the_gnss_good_figure_is_over_frames_whose_log_says_gnss_was_good() -> None:
+    """A frame whose log states no GNSS quality (``gnss_degraded`` None) was counted as one of
+    good GNSS: the figure now holds only the frames the log says were good."""
+    near = dict(telemetry_lat=0.0, telemetry_lon=0.0)
+    outcomes = [
+        replace(frame_outcome(0), **near, telemetry_error_m=2.0, gnss_degraded=False),
+        replace(frame_outcome(1), **near, telemetry_error_m=4.0, gnss_degraded=False),
+        replace(frame_outcome(2), **near, telemetry_error_m=90.0, gnss_degraded=None),
+        replace(frame_outcome(3), **near, telemetry_error_m=50.0, gnss_degraded=True),
+    ]
+    s = summarize(outcomes)
+    assert (s.with_telemetry, s.gnss_degraded_frames) == (4, (3,))
+    assert s.telemetry_error_m_p50_gnss_good == 3.0
+    unstated = [replace(o, gnss_degraded=None) for o in outcomes]
+    assert summarize(unstated).telemetry_error_m_p50_gnss_good is None

@@ -188,7 +188,7 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
         telemetry_error_m_p50=_percentile([o.telemetry_error_m for o in tele_ok], 50),
         telemetry_error_m_p95=_percentile([o.telemetry_error_m for o in tele_ok], 95),
         telemetry_error_m_p50_gnss_good=_percentile(
-            [o.telemetry_error_m for o in tele_ok if not o.gnss_degraded], 50
+            [o.telemetry_error_m for o in tele_ok if o.gnss_degraded is False], 50
         ),
         gnss_accuracy_m_p50=_percentile(accuracy, 50),
         gnss_degraded_frames=tuple(o.index for o in tele if o.gnss_degraded),
