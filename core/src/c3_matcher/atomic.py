@@ -10,6 +10,8 @@ names from :func:`temporary_sibling` too, so what a killed writer left is remove
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
 import fcntl
 import glob
 import os
@@ -29,6 +31,8 @@ __all__ = [
     "held_directory",
     "refuse_output_over_inputs",
     "refuse_unwritable",
+    "replace_directory",
+    "restore_aside",
     "temporary_sibling",
     "write_bytes_atomically",
     "write_text_atomically",
@@ -108,17 +112,91 @@ def temporary_sibling(path: Path) -> Path:
     earlier writers of ``path`` on this machine left there when they were killed before they
     could clean up (out of memory, SIGKILL, power lost): those whose process is gone. A live
     writer's, another machine's (a shared disk) and anything else are left alone."""
-    prefix = f".{path.name}.tmp-{zlib.crc32(socket.gethostname().encode()):08x}-"
-    for left in path.parent.glob(f"{glob.escape(prefix)}*"):
-        pid = left.name[len(prefix) :].split("-", 1)[0]
-        if not pid.isdigit() or _running(int(pid)):
-            continue
+    restore_aside(path)
+    prefix = _prefix(path)
+    for left in _left_by_the_dead(path):
         with contextlib.suppress(OSError):
             if left.is_dir() and not left.is_symlink():
                 shutil.rmtree(left)
             else:
                 left.unlink()
     return path.with_name(f"{prefix}{os.getpid()}-{secrets.token_hex(4)}")
+
+
+_ASIDE = ".aside"
+"""The ending of the name :func:`replace_directory` gives a directory it is replacing, where it
+cannot swap the two in one step."""
+
+
+def _prefix(path: Path) -> str:
+    return f".{path.name}.tmp-{zlib.crc32(socket.gethostname().encode()):08x}-"
+
+
+def _left_by_the_dead(path: Path) -> list[Path]:
+    """The temporary names beside ``path`` whose writer (a process on this machine) is gone."""
+    prefix = _prefix(path)
+    return sorted(
+        left
+        for left in path.parent.glob(f"{glob.escape(prefix)}*")
+        if (pid := left.name[len(prefix) :].split("-", 1)[0]).isdigit() and not _running(int(pid))
+    )
+
+
+def restore_aside(path: Path) -> None:
+    """Put back the directory :func:`replace_directory` set aside to replace ``path`` when its
+    writer died before the new one took its place (``path`` is missing): replacing loses
+    nothing, even killed between its two renames."""
+    if path.exists() or path.is_symlink():
+        return
+    for left in _left_by_the_dead(path):
+        if left.name.endswith(_ASIDE) and left.is_dir():
+            with contextlib.suppress(OSError):
+                left.rename(path)
+                fsync_dir(path.parent)
+            return
+
+
+def replace_directory(new: Path, path: Path) -> None:
+    """Rename the directory ``new`` (a :func:`temporary_sibling`) onto ``path``, removing the
+    directory ``path`` held. Where the kernel swaps two names in one step (Linux ``renameat2``
+    ``RENAME_EXCHANGE``), ``path`` is always either the old or the new; elsewhere the old is
+    renamed aside first, and a writer killed between the two renames leaves it for the next
+    writer of ``path`` to put back (:func:`restore_aside`)."""
+    if not path.exists():
+        new.rename(path)
+    elif _exchange(new, path):
+        shutil.rmtree(new, ignore_errors=True)
+    else:
+        aside = new.with_name(new.name + _ASIDE)
+        path.rename(aside)
+        new.rename(path)
+        shutil.rmtree(aside, ignore_errors=True)
+    fsync_dir(path.parent)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap the names ``a`` and ``b`` in one step; False where this system cannot."""
+    try:
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):  # not Linux, or a C library without renameat2
+        return False
+    renameat2.argtypes = [
+        ctypes.c_int,
+        ctypes.c_char_p,
+        ctypes.c_int,
+        ctypes.c_char_p,
+        ctypes.c_uint,
+    ]
+    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):  # a file system that cannot
+        return False
+    raise OSError(code, os.strerror(code), str(b))
+
+
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2
 
 
 def _running(pid: int) -> bool:

@@ -92,3 +92,69 @@ def test_where_the_filesystem_has_no_hard_links_the_store_is_still_named(
     with pytest.raises(InvalidInputError, match="late.mbtiles exists"):
         late.close()
     assert (tmp_path / "late.mbtiles").read_bytes() == b"another build's"
+
+
+def test_a_dataset_replacement_killed_between_its_renames_loses_nothing(tmp_path: Path) -> None:
+    """Where the two directories cannot be swapped in one step, ``--force`` renames the old
+    dataset aside before the new one takes its place. Killed between the two, only the hidden
+    copy was left, and the next writer deleted it: now it is OUT again."""
+    import subprocess
+    import sys
+    import textwrap
+
+    out = tmp_path / "flight"
+    out.mkdir()
+    (out / "dataset.json").write_text('{"old": 1}')
+    script = f"""
+        import os, signal
+        from pathlib import Path
+        import c3_matcher.atomic
+        from c3_matcher_tools.dataset.atomic import atomic_directory
+
+        c3_matcher.atomic._exchange = lambda a, b: False  # a system that cannot swap
+        rename = Path.rename
+
+        def killed_after_aside(self, target):
+            done = rename(self, target)
+            if str(target).endswith(".aside"):
+                os.kill(os.getpid(), signal.SIGKILL)
+            return done
+
+        Path.rename = killed_after_aside
+        with atomic_directory(Path({str(out)!r}), force=True) as tmp:
+            (tmp / "dataset.json").write_text('{{"new": 1}}')
+        """
+    done = subprocess.run([sys.executable, "-c", textwrap.dedent(script)], capture_output=True)
+    assert done.returncode == -9, done.stderr
+    assert not out.exists() and any(p.name.endswith(".aside") for p in tmp_path.iterdir())
+    with pytest.raises(InvalidInputError, match="already exists"), atomic_directory(out):
+        pass
+    assert (out / "dataset.json").read_text() == '{"old": 1}'
+    with atomic_directory(out, force=True) as tmp:
+        (tmp / "dataset.json").write_text('{"new": 2}')
+    assert [p.name for p in tmp_path.iterdir()] == ["flight"]
+    assert (out / "dataset.json").read_text() == '{"new": 2}'
+
+
+def test_a_forced_dataset_replacement_swaps_the_two_in_one_step(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """On Linux OUT is never missing while it is replaced: the old and new are swapped."""
+    import c3_matcher.atomic
+
+    out = tmp_path / "flight"
+    out.mkdir()
+    (out / "dataset.json").write_text('{"old": 1}')
+    swaps: list[bool] = []
+    exchange = c3_matcher.atomic._exchange
+
+    def seen(a: Path, b: Path) -> bool:
+        swaps.append(exchange(a, b))
+        return swaps[-1]
+
+    monkeypatch.setattr(c3_matcher.atomic, "_exchange", seen)
+    with atomic_directory(out, force=True) as tmp:
+        (tmp / "dataset.json").write_text('{"new": 1}')
+    assert swaps == [True]
+    assert [p.name for p in tmp_path.iterdir()] == ["flight"]
+    assert (out / "dataset.json").read_text() == '{"new": 1}'

@@ -7,7 +7,13 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from c3_matcher.atomic import refuse_output_over_inputs, refuse_unwritable, temporary_sibling
+from c3_matcher.atomic import (
+    refuse_output_over_inputs,
+    refuse_unwritable,
+    replace_directory,
+    restore_aside,
+    temporary_sibling,
+)
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import is_flight_dataset
 
@@ -25,9 +31,11 @@ def check_output_dir(
     (:func:`~c3_matcher.atomic.refuse_output_over_inputs`), that exists (unless ``force`` and it
     is a dataset directory, one holding ``dataset.json``, or an empty one) or whose nearest
     existing ancestor is not a writable directory (missing parents are created on writing, as
-    ``replay`` does); nothing is created here."""
+    ``replay`` does); nothing is created here (a dataset a killed ``--force`` set aside is put
+    back first, :func:`~c3_matcher.atomic.restore_aside`)."""
     out = Path(out)
     refuse_output_over_inputs(out, inputs, field=field)
+    restore_aside(out)  # what a replacing writer killed mid-way set aside is OUT again
     if out.exists():
         _refuse_existing(out, force=force, field=field)
     refuse_unwritable(out, field=field)
@@ -68,13 +76,7 @@ def atomic_directory(out: Path, *, force: bool = False) -> Iterator[Path]:
         raise InvalidInputError("OUT", f"{out}: cannot be written ({why})") from None
     try:
         yield tmp
-        if out.exists():
-            old = tmp.with_name(f"{tmp.name}.old")
-            out.rename(old)
-            tmp.rename(out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            tmp.rename(out)
+        replace_directory(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
