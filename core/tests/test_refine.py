@@ -219,3 +219,39 @@ def test_no_refined_geometry_for_a_homography_that_leaves_no_footprint(homograph
     pre = FramePreprocessor(InputRule(max_long_side=512, multiple=16))
     geometry = pre.query_geometry(frame, calibration, 0.5)
     assert pre.refined_geometry(geometry, homography, (448, 448)) is None
+
+
+def test_the_refined_render_shrinks_the_source_by_its_own_scale_not_the_first_pass_s():
+    """A 4000x3000 camera 100 m up over 512-px tiles at 5 cm/px: the first pass's image is the
+    working canvas cut to 1024 px (about 4.9 original px per engine px), the refine image the
+    tile's own grid (about 1.5). The refine render kept the first figure and area-shrank the
+    frame 3x more than its grid needs: a smeared image for the pass meant to add precision."""
+    from c3_matcher import camera as cam
+
+    cal = CameraCalibration.pinhole(4000, 3000, 3000.0)
+    frame = NavCameraFrame(
+        uuid.uuid4(),
+        np.zeros((3000, 4000, 3), np.uint8),
+        1,
+        attitude=Attitude.from_degrees(3, 2, 40),
+        height_above_ground_m=100.0,
+    )
+    pre = FramePreprocessor(InputRule(1024, 16))
+    first = pre.query_geometry(frame, cal, 0.05)
+    nx, ny = first.nadir_working_px
+    refined = pre.refined_geometry(
+        first, np.array([[1, 0, 256 - nx], [0, 1, 256 - ny], [0, 0, 1.0]]), (512, 512)
+    )
+    assert refined is not None
+
+    def original_per_engine(g):
+        to_undistorted = np.linalg.inv(g.working_from_undistorted) @ g.working_from_engine
+        p, e = np.asarray(g.content_size, float) / 2, 1e-3
+        f = lambda q: cam.apply_homography(to_undistorted, [q])[0]  # noqa: E731
+        step = np.eye(2) * e
+        jac = np.stack([(f(p + step[0]) - f(p)) / e, (f(p + step[1]) - f(p)) / e], axis=1)
+        return float(np.sqrt(abs(np.linalg.det(jac))))
+
+    assert first.nadir_shrink == pytest.approx(original_per_engine(first), rel=0.02)
+    assert refined.nadir_shrink == pytest.approx(original_per_engine(refined), rel=0.02)
+    assert refined.nadir_shrink < first.nadir_shrink / 3

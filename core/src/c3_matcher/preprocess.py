@@ -235,11 +235,13 @@ class FramePreprocessor:
         content = self.rule.content_size(*size)
         shift = np.array([[1.0, 0.0, lo[0]], [0.0, 1.0, lo[1]], [0.0, 0.0, 1.0]])
         tile_from_engine = shift @ engine_to_working(size, content)
+        working_from_engine = np.linalg.inv(h1) @ tile_from_engine
         return dataclasses.replace(
             geometry,
             content_size=content,
             final_size=self.rule.final_size(*size),
-            working_from_engine=np.linalg.inv(h1) @ tile_from_engine,
+            working_from_engine=working_from_engine,
+            nadir_shrink=_refined_shrink(geometry, working_from_engine, content),
         )
 
     def _boundary_rays(self, calibration: CameraCalibration) -> F64:
@@ -377,3 +379,19 @@ class FramePreprocessor:
             working_from_engine=engine_to_working((w, h), content),
             working_size=(w, h),
         )
+
+
+def _refined_shrink(
+    geometry: QueryGeometry, working_from_engine: F64, content: tuple[int, int]
+) -> float:
+    """ORIGINAL px per engine px of a refine pass's image at its centre: ``geometry``'s own
+    ORIGINAL px per WORKING px (its ``nadir_shrink`` over its WORKING px per engine px) times
+    the new image's WORKING px per engine px (sqrt |det J| of ``working_from_engine``; for a
+    homography M at p, det J = det M / w(p)^3). The first pass's figure, kept before, shrank
+    the source for a refine image at another scale (blurred, or aliased)."""
+    original_per_working = (
+        geometry.nadir_shrink * geometry.content_size[0] / geometry.working_size[0]
+    )
+    w = working_from_engine[2] @ np.array([content[0] / 2, content[1] / 2, 1.0])
+    working_per_engine = math.sqrt(abs(np.linalg.det(working_from_engine) / w**3))
+    return original_per_working * working_per_engine
