@@ -214,6 +214,8 @@ def test_disk_steps_engine_agrees_with_the_single_graph(
     lean_runtime.load("disk", lightglue_engine)  # the strategy names the full engine...
     loaded = [lean.engine_path(i).name for i in lean.session_providers]
     assert loaded == [disk_steps_engine.name]  # ...and only the steps engine beside it is loaded
+    lean_runtime.load("disk", lightglue_engine)  # again (a second root over the same helpers):
+    assert [lean.engine_path(i).name for i in lean.session_providers] == loaded  # nothing more
     assert lean_runtime.match_pair(*args, feature_type="disk").matches.shape[0] > 0
 
     adaptive = OnnxLightGlueRuntime(inference, mode="adaptive")

@@ -195,6 +195,8 @@ class OnnxLightGlueRuntime:
         self._declared = None if steps_specs is None else dict(steps_specs)
         self._engines: dict[str, tuple[Path, str]] = {}
         self._steps: dict[str, tuple[Path, str, AdaptiveLightGlue, AdaptiveLightGlue]] = {}
+        self._served_by_steps: dict[str, Path] = {}
+        """The full engine a steps engine was loaded in place of, per feature type."""
         self.last_run: dict[str, Any] = {}
 
     @property
@@ -212,6 +214,8 @@ class OnnxLightGlueRuntime:
         for table in (self._engines, self._steps):
             if feature_type in table and table[feature_type][0] == path:
                 return
+        if self._served_by_steps.get(feature_type) == path:
+            return  # its steps engine is loaded in its place (memory): not loaded now either
         if (
             self.mode == "adaptive"
             and feature_type not in self._steps
@@ -221,6 +225,7 @@ class OnnxLightGlueRuntime:
             # the steps engine serves both modes: the full graph is not loaded (memory), but it
             # is verified now, so a changed file is refused at start-up, not on a later switch
             check_engine_file(path, check_hash=True)
+            self._served_by_steps[feature_type] = path
             return
         engine_id = self._inference.load_engine(path)
         options: dict[str, Any] = {}
