@@ -61,6 +61,24 @@ def test_correspondences_are_working_px_of_both_images():
     assert correspondences(query, fq, tile, ft, none).shape == (0, 4)
 
 
+@pytest.mark.parametrize(
+    ("pairs", "said"),
+    [
+        ([[0, 0], [-1, 1]], "query keypoint -1, but the query has 2"),
+        ([[0, 2]], "tile keypoint 2, but the tile has 2"),
+    ],
+)
+def test_a_match_that_points_at_no_keypoint_is_refused_naming_it(pairs, said):
+    """A matcher's -1 for "unmatched" paired the last keypoint (numpy counts from the end), and
+    an index past the end was a bare IndexError: both are a ValueError naming the index."""
+    image = PreparedImage(np.zeros((8, 8, 3), np.uint8), np.ones((8, 8), bool), np.eye(3), (8, 8))
+    keypoints = np.array([[1.0, 1.0], [3.0, 2.0]], np.float32)
+    features = Features(keypoints, np.zeros((2, 4), np.float32), np.ones(2, np.float32), (8, 8))
+    raw = RawMatches(np.array(pairs, np.int64), np.ones(len(pairs), np.float32))
+    with pytest.raises(ValueError, match=said):
+        correspondences(image, features, image, features, raw)
+
+
 def test_rows_in_original_px_move_only_the_query_point():
     rows = np.array([[1.0, 2.0, 3.0, 4.0], [5.0, 6.0, 7.0, 8.0]], np.float32)
     tile = PreparedImage(np.zeros((8, 8, 3), np.uint8), np.ones((8, 8), bool), np.eye(3), (8, 8))
