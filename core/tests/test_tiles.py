@@ -49,3 +49,25 @@ def test_bad_inputs_are_named(tmp_path):
         MmapTileHandle(junk).decode()
     with pytest.raises(InvalidInputError, match="no bytes"):
         decode_image(b"", "x")
+
+
+def test_a_tiff_whose_first_ifd_follows_its_pixels_is_decoded_and_sized(tmp_path):
+    """libtiff (OpenCV, GDAL) writes the IFD after the pixel data: past the first MiB of a
+    frame of 1024x768 it was refused as "not a decodable image"."""
+    import io
+    import struct
+
+    from c3_matcher.tiles import image_file_size
+
+    image = np.random.default_rng(0).integers(0, 256, (768, 1024, 3), dtype=np.uint8)
+    ok, encoded = cv2.imencode(".tif", image)
+    data = encoded.tobytes()
+    assert ok and struct.unpack("<I", data[4:8])[0] > 1 << 20  # its IFD lies past 1 MiB
+    assert np.array_equal(decode_image(data, "frame.tif"), image[:, :, ::-1])
+    path = tmp_path / "frame.tif"
+    path.write_bytes(data)
+    assert read_image(path).shape == (768, 1024, 3)
+    with path.open("rb") as fh:
+        assert image_file_size(fh) == (1024, 768)
+    ifd = struct.unpack("<I", data[4:8])[0]
+    assert image_file_size(io.BytesIO(data[: ifd + 4])) is None  # its IFD cut off: no size

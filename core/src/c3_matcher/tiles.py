@@ -20,6 +20,7 @@ import os
 import stat
 import struct
 from pathlib import Path
+from typing import BinaryIO
 
 import cv2
 import numpy as np
@@ -33,6 +34,7 @@ __all__ = [
     "ImageDecodeError",
     "MmapTileHandle",
     "decode_image",
+    "image_file_size",
     "image_header_size",
     "read_image",
 ]
@@ -61,7 +63,7 @@ def decode_image(
     raw = np.frombuffer(buffer, dtype=np.uint8)
     if raw.size == 0:
         raise ImageDecodeError(what, "no bytes to decode")
-    size = image_header_size(raw[: 1 << 20].tobytes())
+    size = image_header_size(raw.data)  # the whole buffer: a TIFF's IFD may follow its pixels
     if size is None:
         raise ImageDecodeError(what, f"not a decodable image ({DECODABLE_FORMATS})")
     width, height = size
@@ -101,16 +103,18 @@ def to_rgb8(image: NDArray[np.generic], what: str, *, bgr: bool) -> NDArray[np.u
     return np.ascontiguousarray(rgb, dtype=np.uint8)
 
 
-def image_header_size(head: bytes) -> tuple[int, int] | None:
+def image_header_size(head: bytes | memoryview) -> tuple[int, int] | None:
     """(width, height) from the first bytes of a PNG, JPEG, TIFF, BMP or WebP file, or None
-    when the format or its header is not recognised (a GIF too: OpenCV does not decode it)."""
+    when the format or its header is not recognised (a GIF too: OpenCV does not decode it).
+    A TIFF's first IFD must lie within ``head`` (libtiff and OpenCV write it after the pixels:
+    :func:`image_file_size` reads it where it is)."""
     try:
         if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
             w, h = struct.unpack(">II", head[16:24])
             return int(w), int(h)
         if head[:2] == b"\xff\xd8":
             return _jpeg_size(head)
-        if head[:4] in (b"II*\x00", b"MM\x00*"):
+        if head[:4] in _TIFF_MAGIC:
             return _tiff_size(head)
         if head[:2] == b"BM":
             w, h = struct.unpack("<ii", head[18:26])
@@ -132,7 +136,7 @@ def image_header_size(head: bytes) -> tuple[int, int] | None:
     return None
 
 
-def _jpeg_size(head: bytes) -> tuple[int, int] | None:
+def _jpeg_size(head: bytes | memoryview) -> tuple[int, int] | None:
     i = 2
     while i + 9 < len(head):
         if head[i] != 0xFF:
@@ -152,10 +156,38 @@ def _jpeg_size(head: bytes) -> tuple[int, int] | None:
     return None
 
 
-def _tiff_size(head: bytes) -> tuple[int, int] | None:
-    endian = "<" if head[:2] == b"II" else ">"
-    (offset,) = struct.unpack(endian + "I", head[4:8])
-    (count,) = struct.unpack(endian + "H", head[offset : offset + 2])
+def image_file_size(fh: BinaryIO) -> tuple[int, int] | None:
+    """:func:`image_header_size` of the file open in ``fh`` (binary, seekable) from its first
+    MiB, and from its first IFD where a TIFF's lies beyond that."""
+    head = fh.read(1 << 20)
+    size = image_header_size(head)
+    if size is not None or head[:4] not in _TIFF_MAGIC:
+        return size
+    try:
+        (offset,) = struct.unpack(_tiff_endian(head) + "I", head[4:8])
+        fh.seek(offset)
+        (count,) = struct.unpack(_tiff_endian(head) + "H", fh.read(2))
+        return _tiff_size(head[:8] + fh.read(12 * count), count)
+    except (struct.error, OSError, ValueError):
+        return None
+
+
+_TIFF_MAGIC = (b"II*\x00", b"MM\x00*")
+
+
+def _tiff_endian(head: bytes | memoryview) -> str:
+    return "<" if head[:2] == b"II" else ">"
+
+
+def _tiff_size(head: bytes | memoryview, count: int | None = None) -> tuple[int, int] | None:
+    """A TIFF's size from its first IFD: at its offset in ``head``, or (``count`` given) its
+    ``count`` entries right after ``head``'s first 8 bytes."""
+    endian = _tiff_endian(head)
+    if count is None:
+        (offset,) = struct.unpack(endian + "I", head[4:8])
+        (count,) = struct.unpack(endian + "H", head[offset : offset + 2])
+    else:
+        offset = 6  # the entries follow the 8-byte header directly
     dims: dict[int, int] = {}
     for k in range(count):
         entry = head[offset + 2 + 12 * k : offset + 14 + 12 * k]

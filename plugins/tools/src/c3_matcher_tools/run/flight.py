@@ -19,7 +19,7 @@ from c3_matcher.georef import haversine_m
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import CALIBRATION_SIZE_FIX, result_to_json
-from c3_matcher.tiles import DECODABLE_FORMATS, MmapTileHandle, image_header_size
+from c3_matcher.tiles import DECODABLE_FORMATS, MmapTileHandle, image_file_size
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.run.matcher import (
@@ -277,12 +277,11 @@ def _header_size(path: Path, max_pixels: int) -> tuple[int, int]:
     MmapTileHandle(path, max_pixels=max_pixels)  # a regular file, not empty
     try:
         with path.open("rb") as fh:
-            head = fh.read(1 << 20)
+            size = image_file_size(fh)
     except OSError as exc:
         raise InvalidInputError(
             str(path), f"cannot read image file: {exc.strerror or exc}"
         ) from exc
-    size = image_header_size(head)
     if size is None or min(size) <= 0:
         raise InvalidInputError(str(path), f"not a decodable image ({DECODABLE_FORMATS})")
     if size[0] * size[1] > max_pixels:
