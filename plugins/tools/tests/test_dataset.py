@@ -321,3 +321,31 @@ def test_a_frame_whose_candidates_are_only_partly_labelled_has_no_truth() -> Non
     assert not partly.has_truth and not partly.true_tile_present
     labelled = frame(False, True)
     assert labelled.has_truth and labelled.true_tile_present and labelled.true_index == 1
+
+
+@pytest.mark.parametrize("square", [False, True], ids=["equal-degrees", "square-on-the-ground"])
+def test_a_frames_orthophoto_of_non_square_ground_pixels_is_refused(
+    store: Path, tmp_path: Path, square: bool
+) -> None:
+    """The NAIP pixels in WGS84 degrees at 47 N: a pixel of equal degrees is 1.47 times as high
+    as it is wide on the ground. The renderer takes pixels as squares, so its frames came out
+    stretched east-west while their height and attitude described an upright camera. Degrees
+    scaled by 1 / cos(lat) east-west are square on the ground and render."""
+    from c3_matcher_tools.dataset.flight_scene import read_scene
+
+    rgb = load_orthophoto(NAIP_2020).rgb
+    h, w = rgb.shape[:2]
+    lat_step = 5.0 / 111_200.0  # about 5 m of latitude
+    lon_step = lat_step / math.cos(math.radians(47.02)) if square else lat_step
+    top_left = (-99.1548 - w / 2 * lon_step, 47.0204 + h / 2 * lat_step)
+    keys = (1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326)  # geographic, WGS84
+    tif = write_geotiff(
+        tmp_path / "degrees.tif", rgb, scale=(lon_step, lat_step), top_left=top_left, keys=keys
+    )
+    spec = FlightSpec(tif, store, n_frames=3, seed=5)
+    with MBTilesStore(store) as opened:
+        if square:
+            assert read_scene(spec, opened).gsd == pytest.approx(5.0, rel=0.01)
+            return
+        with pytest.raises(InvalidInputError, match="pixels are .* wide and .* high"):
+            read_scene(spec, opened)

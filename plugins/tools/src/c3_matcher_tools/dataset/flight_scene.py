@@ -117,6 +117,7 @@ def read_scene(spec: FlightSpec, store: MBTilesStore) -> Scene:
     """Read the frames' orthophoto, its grid and the store's coverage; set up the camera."""
     reference = spec.reference_latlon or store_reference(store.metadata, store.path)
     grid = read_geotiff_grid(spec.frames_geotiff, reference=reference)
+    _check_square_pixels(spec, grid)
     photo = load_orthophoto(spec.frames_geotiff)
     gsd = photo.gsd_m or math.sqrt(grid.scale_x * grid.scale_y)
     cov = _coverage(store)
@@ -129,6 +130,29 @@ def read_scene(spec: FlightSpec, store: MBTilesStore) -> Scene:
     centre_en = _flight_centre(store, grid)
     units_per_m = grid_units_per_m(grid, centre_en)
     return Scene(grid, photo.rgb, gsd, cov, m_per_px, calibration, renderer, centre_en, units_per_m)
+
+
+SQUARE_PIXEL_TOLERANCE = 0.005
+"""How far a frames orthophoto's pixel may be from square on the ground (0.5 %): a projected
+grid's pixels are square to its scale error (< 0.1 % for UTM and national grids); a pixel of
+equal degrees is cos(latitude) as wide as it is high, 0.5 % narrower 6 deg from the equator."""
+
+
+def _check_square_pixels(spec: FlightSpec, grid: GeoGrid) -> None:
+    """Refuse an orthophoto whose pixels are not square on the ground at its centre (a grid of
+    equal degrees): the renderer takes each pixel as a square of one GSD, so its frames would
+    be stretched east-west while their height and attitude describe an upright camera."""
+    w, h = grid.size
+    centre = (grid.origin_e + w / 2 * grid.scale_x, grid.origin_n - h / 2 * grid.scale_y)
+    ue, un = grid_units_per_m(grid, centre)
+    across, along = grid.scale_x / ue, grid.scale_y / un  # ground m per px, east and north
+    if abs(across / along - 1.0) > SQUARE_PIXEL_TOLERANCE:
+        raise InvalidInputError(
+            "frames_geotiff",
+            f"{spec.frames_geotiff}: its pixels are {across:.3g} m wide and {along:.3g} m high "
+            "on the ground (a grid of equal degrees?); frames are rendered from square pixels: "
+            "reproject it to a projected CRS first (UTM, or the national grid)",
+        )
 
 
 def _check_overlap(spec: FlightSpec, grid: GeoGrid, cov: Coverage, store: Path) -> None:
