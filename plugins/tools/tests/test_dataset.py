@@ -349,3 +349,35 @@ def test_a_frames_orthophoto_of_non_square_ground_pixels_is_refused(
             return
         with pytest.raises(InvalidInputError, match="pixels are .* wide and .* high"):
             read_scene(spec, opened)
+
+
+def test_a_frame_whose_true_tile_lacks_what_it_sees_is_refused(tmp_path: Path) -> None:
+    """A store built over a 1.5 km square of the sheet, a flight flown 1.45 km from its centre:
+    the frames saw ground the store holds no imagery of, and their true tiles (empty) were still
+    labelled present, scoring the matcher against a match nobody could make."""
+    grid = read_geotiff_grid(NAIP_2020)
+    rgb = load_orthophoto(NAIP_2020).rgb
+    crop = np.ascontiguousarray(rgb[211:511, 317:617])
+    top_left = (grid.origin_e + 317 * grid.scale_x, grid.origin_n - 211 * grid.scale_y)
+    small = write_geotiff(
+        tmp_path / "centre.tif",
+        crop,
+        scale=(grid.scale_x, grid.scale_y),
+        top_left=top_left,
+        keys=projected_keys(26914),
+    )
+    store = tmp_path / "centre.mbtiles"
+    build_mbtiles(small, store, zoom=15, tile_format="jpg")
+    spec = FlightSpec(
+        NAIP_2020,
+        store,
+        n_frames=2,
+        absent_share=0.0,
+        orbit_radius_m=1450.0,
+        height_m=400.0,
+        candidate_size_px=256,
+        seed=0,
+    )
+    with pytest.raises(InvalidInputError, match=r"frame 0: the store holds no imagery under"):
+        render_flight(spec, tmp_path / "flight")
+    assert not (tmp_path / "flight").exists()

@@ -81,6 +81,8 @@ def _plan_frame(
     frng = np.random.default_rng([spec.seed, i])
     shot = _shoot(spec, scene, i, pose, frng)
     footprint = _footprint(spec, scene, shot)
+    if not is_absent:
+        _check_store_under(scene, i, footprint)
     origins = [] if is_absent else [(footprint.true_origin, True)]
     origins += [(o, False) for o in distractor_origins(spec, scene, i, footprint, is_absent)]
     candidates, fits = candidate_truths(spec, scene, shot.frame, footprint.centre, origins)
@@ -176,6 +178,37 @@ def _footprint(spec: FlightSpec, scene: Scene, shot: Shot) -> Footprint:
             "--candidate-size or lower --height / --max-tilt",
         )
     return Footprint(fp_world, centre_world, true_origin)
+
+
+MAX_TRUE_NODATA = 0.05
+"""The largest share of a frame's footprint its true tile may lack (the store's nodata, or no
+tile): a true tile that does not show what the frame sees would score the matcher against a
+match nobody could make. 5 %: the rim of a coverage, not a frame flown off it."""
+
+
+def _check_store_under(scene: Scene, i: int, footprint: Footprint) -> None:
+    """Refuse frame ``i`` when the store holds nodata (all channels 0, or no tile) under more
+    than :data:`MAX_TRUE_NODATA` of its footprint."""
+    cov = scene.cov.image
+    poly = footprint.world - np.asarray(scene.cov.origin, dtype=np.float64)
+    lo = np.floor(poly.min(axis=0)).astype(int)
+    hi = np.ceil(poly.max(axis=0)).astype(int) + 1
+    inside = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
+    cv2.fillPoly(inside, [np.round(poly - lo).astype(np.int32)], (1,))
+    data = np.zeros(inside.shape, bool)  # outside the coverage: no tile
+    x0, y0 = max(lo[0], 0), max(lo[1], 0)
+    x1, y1 = min(hi[0], cov.shape[1]), min(hi[1], cov.shape[0])
+    if x1 > x0 and y1 > y0:
+        window = cov[y0:y1, x0:x1].any(axis=2)
+        data[y0 - lo[1] : y1 - lo[1], x0 - lo[0] : x1 - lo[0]] = window
+    share = 1.0 - float(data[inside > 0].mean())
+    if share > MAX_TRUE_NODATA:
+        raise InvalidInputError(
+            "trajectory",
+            f"frame {i}: the store holds no imagery under {100 * share:.0f}% of its footprint, "
+            "so its true tile would not show what it sees: lower --radius, --height or "
+            "--frames x --speed x --interval, or build the store over more ground",
+        )
 
 
 def _jpeg(shot: Shot) -> bytes:
