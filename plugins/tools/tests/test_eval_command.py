@@ -75,6 +75,10 @@ def test_a_frame_image_damaged_past_its_header_is_that_frames_status(
     first, second = (json.loads(line) for line in results)
     assert first["status"] == "unreadable" and image.name in first["error"]
     assert second["status"] != "unreadable"
+    said = "1 frame image(s) could not be read (the camera's loss, not the matcher's)"
+    assert said in proc.stdout  # and no IT measure counts it:
+    (row,) = json.loads((out / "eval.json").read_text())["strategies"]
+    assert row["metrics"]["false_confident"]["of"] == 1
 
 
 def test_several_datasets_of_one_name_are_refused_before_anything_runs(

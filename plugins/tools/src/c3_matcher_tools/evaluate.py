@@ -40,7 +40,8 @@ datasets need as many names (refused before anything runs, exit 2, as are a stra
 cannot run, a frame image missing, unreadable or of another size than its calibration's (as
 ``replay`` checks them), a noisy attitude out of range (``--attitude-noise-deg``) and an output
 directory that is, holds or lies inside a dataset: nothing is made or written then). A frame whose
-image turns out damaged mid-run is that frame's ``unreadable`` status; the flight goes on.
+image turns out damaged mid-run is that frame's ``unreadable`` status; the flight goes on, no
+IT measure counts it (the camera's loss, not the matcher's), and a line under the table says so.
 
 A strategy that fails to run on a dataset (it cannot start) is a table row and an ``error``
 entry, the others go on, and the command exits 1 once every table and
@@ -67,7 +68,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import shutil
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -116,12 +116,8 @@ from c3_matcher_tools.run.acceptance import (
     is_wrong_fix,
     metrics,
 )
-from c3_matcher_tools.run.evaluation import (
-    StrategyEval,
-    StrategyFailure,
-    StrategyRow,
-    SummaryRow,
-)
+from c3_matcher_tools.run.evaluation import StrategyEval, StrategyFailure, StrategyRow, SummaryRow
+from c3_matcher_tools.run.records import FrameStatus
 
 __all__ = [
     "BARS",
@@ -313,11 +309,11 @@ def _eval_dataset(
 ) -> tuple[list[StrategyRow], dict[str, Any]]:
     """``dataset`` through every strategy: the rows and the report written as ``eval.json``
     (its table printed unless ``--json``)."""
-    from c3_matcher_tools.plots import CHARTS, MATCH_PICTURES, eval_plots
+    from c3_matcher_tools.plots import CHARTS, eval_plots, forget_match_pictures
 
     out.mkdir(parents=True, exist_ok=True)
     forget_previous_run(out, ("eval.json", *(f"{chart}.png" for chart in CHARTS)))
-    shutil.rmtree(out / MATCH_PICTURES, ignore_errors=True)  # this run draws its own samples
+    forget_match_pictures(out)  # this run draws its own samples
     overrides = Overrides(max_keypoints=args.max_keypoints)
     rows: list[StrategyRow] = []
     for name in names:
@@ -399,10 +395,21 @@ def _print_table(
         f"false-conf: picks whose inliers miss ground truth by > {WRONG_FIX_PX:g} px (bar: zero); "
         "other tile: picks of a candidate other than the true tile that still place the frame right"
     )
+    _print_unreadable(ctx, rows)
     ctx.out(f"report {out / 'eval.json'}, plots {out}")
     for r in rows:
         if isinstance(r, StrategyEval):
             _print_links(ctx, r)
+
+
+def _print_unreadable(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:
+    """Say how many frames no measure counts: those whose image could not be read."""
+    runs = [r.summary.count(FrameStatus.UNREADABLE) for r in rows if isinstance(r, StrategyEval)]
+    if max(runs, default=0):
+        ctx.out(
+            f"{max(runs)} frame image(s) could not be read (the camera's loss, not the "
+            "matcher's): no IT measure counts them"
+        )
 
 
 def _table_row(r: StrategyRow) -> str:

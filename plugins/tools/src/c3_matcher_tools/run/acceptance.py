@@ -276,9 +276,11 @@ class Acceptance:
 
 def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Acceptance:
     """The C3-IT figures and pass flags of one strategy (see the module docstring): a flag is
-    None where its measure had nothing to measure."""
-    present = [o for o in run1 if o.has_truth and o.true_present]
-    absent = [o for o in run1 if o.has_truth and not o.true_present]
+    None where its measure had nothing to measure. A frame whose image could not be read is
+    the camera's loss, not the matcher's: no measure counts it."""
+    scored = [o for o in run1 if o.has_truth and o.status != FrameStatus.UNREADABLE]
+    present = [o for o in scored if o.true_present]
+    absent = [o for o in scored if not o.true_present]
     inliers = [float(o.best_inliers) for o in present]
     p5 = float(np.percentile(inliers, 5)) if inliers else math.nan
     correct = sum(o.correct for o in present)
@@ -290,7 +292,7 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Accep
         _it03(present),
         CorrectTile(rate, correct, len(present)),
         AbsentRaised(raised, len(absent)),
-        _false_confident([o for o in run1 if o.has_truth]),
+        _false_confident(scored),
     )
 
 
