@@ -96,3 +96,34 @@ def test_the_gnss_good_figure_is_over_frames_whose_log_says_gnss_was_good() -> N
     assert s.telemetry_error_m_p50_gnss_good == 3.0
     unstated = [replace(o, gnss_degraded=None) for o in outcomes]
     assert summarize(unstated).telemetry_error_m_p50_gnss_good is None
+
+
+def test_a_frame_whose_image_could_not_be_read_counts_in_no_it_measure() -> None:
+    """An unreadable frame (the camera's loss) was a true-tile frame with 0 inliers: it dragged
+    IT-01's p5 to 0 and IT-04 below its bar for a matcher right on every readable frame."""
+    lost = FrameStatus.UNREADABLE
+    run = [frame_outcome(i, inliers=90) for i in range(4)]
+    run += [frame_outcome(4, status=lost), frame_outcome(5, status=lost, true_present=False)]
+    run.append(frame_outcome(6, status=FrameStatus.INSUFFICIENT, true_present=False))
+    m = metrics(run, [])
+    assert (m.inlier_count.p5_best_inliers, m.inlier_count.frames) == (90.0, 4)
+    assert (m.correct_tile.correct, m.correct_tile.frames, m.correct_tile.passed) == (4, 4, True)
+    assert (m.absent_raised.insufficient, m.absent_raised.absent_frames) == (1, 1)
+    assert m.false_confident.of == 5
+
+
+def test_eval_forgets_its_own_match_pictures_and_nothing_else(tmp_path) -> None:
+    """An eval removed the whole ``matches/`` folder of its output, a user's notes in it too."""
+    from c3_matcher_tools.plots import MATCH_PICTURES, forget_match_pictures
+
+    folder = tmp_path / MATCH_PICTURES
+    folder.mkdir()
+    for name in ("disk_lightglue_0003.png", "xfeat_0012.png", "notes.txt", "map.png"):
+        (folder / name).write_text("x")
+    forget_match_pictures(tmp_path)
+    assert sorted(p.name for p in folder.iterdir()) == ["map.png", "notes.txt"]
+    (folder / "notes.txt").unlink()
+    (folder / "map.png").unlink()
+    (folder / "xfeat_0001.png").write_text("x")
+    forget_match_pictures(tmp_path)
+    assert not folder.exists()  # its own pictures only: the folder goes with them

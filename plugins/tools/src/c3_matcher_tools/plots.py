@@ -3,7 +3,9 @@ pictures ``eval`` draws of its runs (:func:`eval_plots`)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -19,7 +21,7 @@ if TYPE_CHECKING:
     from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
     from c3_matcher_tools.run.records import FlightRun
 
-__all__ = ["CHARTS", "MATCH_PICTURES", "eval_plots", "line_chart"]
+__all__ = ["CHARTS", "MATCH_PICTURES", "eval_plots", "forget_match_pictures", "line_chart"]
 
 CHARTS = ("inliers", "error")
 """The charts :func:`eval_plots` writes in its output directory (``<name>.png``)."""
@@ -142,6 +144,19 @@ def _sample_frames(dataset: FlightDataset, samples: int) -> list[FrameRecord]:
         {round(k * (len(present) - 1) / max(samples - 1, 1)) for k in range(samples)}
     )
     return [present[p] for p in positions] if present else []
+
+
+def forget_match_pictures(out: Path) -> None:
+    """Remove the match pictures an earlier eval drew in ``out`` (``matches/<strategy>_<frame>
+    .png``, and the folder once empty): a run draws its own. Nothing else there is touched."""
+    folder = out / MATCH_PICTURES
+    if not folder.is_dir() or folder.is_symlink():
+        return
+    for picture in folder.glob("*_[0-9][0-9][0-9][0-9]*.png"):
+        if re.fullmatch(r".+_\d{4,}\.png", picture.name) and picture.is_file():
+            picture.unlink(missing_ok=True)
+    with contextlib.suppress(OSError):
+        folder.rmdir()  # only when empty
 
 
 def _match_pictures(
