@@ -208,6 +208,52 @@ def test_info_replay_eval_and_bench_refuse_the_same_dataset_json_naming_the_key(
     assert len(set(said)) == 1, said
 
 
+def _edit_first_homography(root: Path, edit: Callable[[np.ndarray], np.ndarray]) -> None:
+    """Replace the first candidate's ground-truth homography of the first frame by its edit."""
+    lines = (root / "frames.jsonl").read_text().splitlines()
+    frame = json.loads(lines[0])
+    h = np.asarray(frame["candidates"][0]["h_tile_to_undistorted"], dtype=np.float64)
+    frame["candidates"][0]["h_tile_to_undistorted"] = edit(h).tolist()
+    (root / "frames.jsonl").write_text("\n".join([json.dumps(frame), *lines[1:]]) + "\n")
+
+
+def test_a_singular_ground_truth_homography_is_refused_before_anything_runs(
+    small_flight: SmallFlight, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It crashed replay and eval mid-run (LinAlgError, an internal error) after --out was
+    emptied of the previous run."""
+    root = small_flight("flight")
+    _edit_first_homography(root, lambda h: np.vstack([h[:2], h[:1]]))
+    for said in _refusals(root, tmp_path, capsys):
+        assert "h_tile_to_undistorted: singular" in said, said
+
+
+def test_a_homography_that_sends_the_frames_centre_to_infinity_gives_no_truth_from_it(
+    small_flight: SmallFlight,
+) -> None:
+    """Its truth position was infinite and written as ``Infinity`` into results.jsonl and the
+    GeoJSON (not JSON), then refused mid-run: the next candidate's homography gives it."""
+    from c3_matcher_tools.dataset.format import load_dataset
+    from c3_matcher_tools.run.scoring import truth_position
+
+    root = small_flight("flight")
+    before = load_dataset(root)
+    expected = truth_position(before, before.frames[0])
+    k = before.calibration.K
+
+    def to_infinity(h: np.ndarray) -> np.ndarray:
+        g = np.linalg.inv(h)  # undistorted -> tile: its w row now 0 at the principal point
+        g[2] = [1.0, 0.0, -k[0, 2]]
+        return np.linalg.inv(g)
+
+    _edit_first_homography(root, to_infinity)
+    after = load_dataset(root)
+    first = after.frames[0]
+    assert len(first.candidates) > 1 and expected is not None
+    got = truth_position(after, first)
+    assert got is not None and np.allclose(got, expected, atol=1e-6)
+
+
 def test_the_shipped_flights_still_pass_dataset_info(capsys: pytest.CaptureFixture[str]) -> None:
     for meta in sorted(FLIGHT.parent.glob("*/dataset.json")):
         assert main(["dataset", "info", str(meta.parent), "--json"]) == 0, meta

@@ -208,6 +208,10 @@ class CandidateTruth:
         homography = None if h is None else np.asarray(h, dtype=np.float64).reshape(3, 3)
         if homography is not None and not np.isfinite(homography).all():
             raise InvalidInputError("candidate.h_tile_to_undistorted", "not finite")
+        if homography is not None and not np.linalg.cond(homography) < 1e12:
+            raise InvalidInputError(
+                "candidate.h_tile_to_undistorted", "singular: it places the tile on no frame"
+            )
         return cls(
             dto.TileId(*tile),
             _number(cand.get("score", 1.0), "candidate.score"),

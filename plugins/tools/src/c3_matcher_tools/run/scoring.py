@@ -58,9 +58,10 @@ def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, f
     for cand in sorted(frame.candidates, key=lambda c: not c.is_true):
         if cand.h_tile_to_undistorted is not None:
             size = dataset.candidate_size_px
-            tile_px = cam.apply_homography(
-                np.linalg.inv(cand.h_tile_to_undistorted), [[k[0, 2], k[1, 2]]]
-            )
+            g, centre = np.linalg.inv(cand.h_tile_to_undistorted), np.array([k[0, 2], k[1, 2], 1])
+            if abs(g[2] @ centre) <= 1e-9 * np.linalg.norm(g[2]) * np.linalg.norm(centre):
+                continue  # the frame's centre looks along the ground plane: it meets no ground
+            tile_px = cam.apply_homography(g, [centre[:2]])
             lon, lat = tile_px_to_lonlat(cand.tile_id, (size, size), tile_px)[0]
             return float(lat), float(lon)
     pose = frame.pose
