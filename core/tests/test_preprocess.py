@@ -365,3 +365,29 @@ def test_photometric_normalisation_is_grey_masked_and_applied_to_query_and_tile(
 def test_photometric_mode_is_validated() -> None:
     with pytest.raises(InvalidInputError, match="photometric"):
         FramePreprocessor(InputRule(1024, 16), photometric="sepia")
+
+
+def test_clahe_cells_cover_the_same_working_px_in_a_shrunk_image_and_a_whole_one(
+    monkeypatch,
+) -> None:
+    """A 2048x1536 frame's engine image is half its WORKING px each way (1024 long side) and a
+    512-px tile's is its own: CLAHE cells were counted in engine px, so the query's covered 4x
+    the ground of the tile's. Both are now 64 WORKING px."""
+    import c3_matcher.preprocess as module
+    from c3_matcher.photometry import CLAHE_CELL_PX
+
+    grids: list[tuple[int, int]] = []
+    real = module.normalise_photometry
+
+    def seen(image, valid, mode, working_per_engine=1.0):
+        h, w = image.shape[:2]
+        cell = CLAHE_CELL_PX / working_per_engine  # engine px
+        grids.append((round(w / cell), round(h / cell)))
+        return real(image, valid, mode, working_per_engine)
+
+    monkeypatch.setattr(module, "normalise_photometry", seen)
+    pre = FramePreprocessor(InputRule(1024, 16), photometric="clahe")
+    pre.prepare_tile(_texture(512, 512, seed=1))
+    big = NavCameraFrame(uuid.uuid4(), cv2.resize(_texture(), (2048, 1536)), 1)
+    pre.prepare_query(big, CameraCalibration.pinhole(2048, 1536, 1800.0), None)
+    assert grids == [(8, 8), (32, 24)]  # 512 / 64 and 2048 x 1536 / 64 WORKING px

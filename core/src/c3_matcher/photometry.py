@@ -23,14 +23,15 @@ CLAHE_CELL_PX = 64  # CLAHE cells of a fixed size in WORKING px: the same ground
 
 
 def normalise_photometry(
-    image: NDArray[np.uint8], valid: NDArray[np.uint8], mode: str
+    image: NDArray[np.uint8], valid: NDArray[np.uint8], mode: str, working_per_engine: float = 1.0
 ) -> NDArray[np.uint8]:
     """The photometric normalisation of an engine image (RGB uint8), the same for query
     and tile: ``"none"`` leaves it; ``"grey"`` keeps luminance only (replicated to three
     channels: what a season changes most is hue and saturation); ``"clahe"`` is grey plus
-    contrast-limited adaptive histogram equalisation in ``CLAHE_CELL_PX`` cells (local contrast
-    made comparable whatever the illumination, haze or the sensor's gain). Pixels outside
-    ``valid`` (255 inside) stay 0."""
+    contrast-limited adaptive histogram equalisation in cells of ``CLAHE_CELL_PX`` WORKING px
+    (``working_per_engine`` of them to an engine px of ``image``: the same ground in the query
+    and a tile; local contrast made comparable whatever the illumination, haze or the sensor's
+    gain). Pixels outside ``valid`` (255 inside) stay 0."""
     if mode == "none":
         return image
     if mode not in PHOTOMETRIC_MODES:
@@ -38,7 +39,8 @@ def normalise_photometry(
     grey = np.asarray(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY), dtype=np.uint8)
     if mode == "clahe":
         h, w = grey.shape
-        cells = (max(1, round(w / CLAHE_CELL_PX)), max(1, round(h / CLAHE_CELL_PX)))
+        cell = CLAHE_CELL_PX / working_per_engine  # engine px
+        cells = (max(1, round(w / cell)), max(1, round(h / cell)))
         grey = np.asarray(
             cv2.createCLAHE(clipLimit=2.0, tileGridSize=cells).apply(grey), dtype=np.uint8
         )

@@ -137,7 +137,8 @@ class FramePreprocessor:
         warped = remap_linear(src, map1, map2)
         inside = self._polygon_mask(geometry.footprint_engine(), geometry.final_size)
         warped = np.asarray(cv2.bitwise_and(warped, warped, mask=inside), dtype=np.uint8)
-        rgb = normalise_photometry(to_rgb(warped), inside, self.photometric)
+        scale = geometry.working_per_engine()
+        rgb = normalise_photometry(to_rgb(warped), inside, self.photometric, scale)
         return PreparedImage(
             image=np.ascontiguousarray(rgb),
             valid=self._erode(inside),
@@ -235,14 +236,14 @@ class FramePreprocessor:
         content = self.rule.content_size(*size)
         shift = np.array([[1.0, 0.0, lo[0]], [0.0, 1.0, lo[1]], [0.0, 0.0, 1.0]])
         tile_from_engine = shift @ engine_to_working(size, content)
-        working_from_engine = np.linalg.inv(h1) @ tile_from_engine
-        return dataclasses.replace(
+        refined = dataclasses.replace(
             geometry,
             content_size=content,
             final_size=self.rule.final_size(*size),
-            working_from_engine=working_from_engine,
-            nadir_shrink=_refined_shrink(geometry, working_from_engine, content),
-        )
+            working_from_engine=np.linalg.inv(h1) @ tile_from_engine,
+        )  # the source is shrunk for this image's own scale (the first's blurred it 3x)
+        shrink = geometry.original_per_working() * refined.working_per_engine()
+        return dataclasses.replace(refined, nadir_shrink=shrink)
 
     def _boundary_rays(self, calibration: CameraCalibration) -> F64:
         w, h = calibration.image_size
@@ -374,24 +375,8 @@ class FramePreprocessor:
         image[:uh, :uw] = small[:uh, :uw]
         inside[:uh, :uw] = np.where(nodata[:uh, :uw] == 0, np.uint8(255), np.uint8(0))
         return PreparedImage(
-            image=normalise_photometry(image, inside, self.photometric),
+            image=normalise_photometry(image, inside, self.photometric, w / cw),
             valid=self._erode(inside),
             working_from_engine=engine_to_working((w, h), content),
             working_size=(w, h),
         )
-
-
-def _refined_shrink(
-    geometry: QueryGeometry, working_from_engine: F64, content: tuple[int, int]
-) -> float:
-    """ORIGINAL px per engine px of a refine pass's image at its centre: ``geometry``'s own
-    ORIGINAL px per WORKING px (its ``nadir_shrink`` over its WORKING px per engine px) times
-    the new image's WORKING px per engine px (sqrt |det J| of ``working_from_engine``; for a
-    homography M at p, det J = det M / w(p)^3). The first pass's figure, kept before, shrank
-    the source for a refine image at another scale (blurred, or aliased)."""
-    original_per_working = (
-        geometry.nadir_shrink * geometry.content_size[0] / geometry.working_size[0]
-    )
-    w = working_from_engine[2] @ np.array([content[0] / 2, content[1] / 2, 1.0])
-    working_per_engine = math.sqrt(abs(np.linalg.det(working_from_engine) / w**3))
-    return original_per_working * working_per_engine

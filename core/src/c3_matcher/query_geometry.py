@@ -39,6 +39,17 @@ class QueryGeometry:
     working_gsd_m: float | None
     nadir_shrink: float
 
+    def working_per_engine(self) -> float:
+        """WORKING px per engine px at the engine image's centre (sqrt |det J| of
+        ``working_from_engine``; for a homography M at p, det J = det M / w(p)^3)."""
+        m = self.working_from_engine
+        w = m[2] @ np.array([self.content_size[0] / 2, self.content_size[1] / 2, 1.0])
+        return float(np.sqrt(abs(np.linalg.det(m) / w**3)))
+
+    def original_per_working(self) -> float:
+        """ORIGINAL px per WORKING px near the optical axis."""
+        return self.nadir_shrink / self.working_per_engine()
+
     def footprint_engine(self) -> F64:
         """The footprint polygon (N, 2) in ENGINE px."""
         return cam.apply_homography(np.linalg.inv(self.working_from_engine), self.footprint_working)
