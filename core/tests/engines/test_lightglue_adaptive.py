@@ -135,6 +135,23 @@ def test_a_pair_with_too_few_confident_matches_stops_with_no_matches() -> None:
         AdaptiveLightGlue(fake, n_layers=4, input_dim=4, descriptor_dim=4, exit_matches=-1)
 
 
+def test_a_side_pruned_to_no_point_stops_the_layers() -> None:
+    """Every point of one image unmatchable after layer 0: the layers ran on over an empty side
+    (time only: no match can come of it); upstream stops, and so does the driver now."""
+    n = 6
+    conf = np.full((4, 100 + n), 0.99, np.float32)
+    conf[:, 0] = 0.1  # set 0 keeps an unconfident point, so the exit test never passes
+    match = np.ones((4, 100 + n), np.float32)
+    match[:, 100:] = 0.001  # set 1's points (ids 100..105) all unmatchable
+    fake = FakeSteps(conf, match)
+    k, d = _points(n)
+    d1 = d.copy()
+    d1[:, 0] += 100
+    result = _driver(fake, 0.999, 0.99).match(k, k, d, d1)
+    assert result.layers == 1 and fake.layers_run == [0]
+    assert result.kept1 == [n, 0] and np.all(result.matches0 == -1)
+
+
 def test_both_rules_off_run_every_layer_on_every_point() -> None:
     n = 6
     fake = FakeSteps(np.ones((3, n), np.float32), np.zeros((3, n), np.float32))

@@ -173,6 +173,8 @@ class AdaptiveLightGlue:
                     return _result(m, side0, side1, layer + 1, matched, unmatchable=True)
             if self._after_layer(layer, out, side0, side1) == "confident":
                 break
+            if not (len(side0.index) and len(side1.index)):
+                break  # a side pruned to no point: nothing left to match (upstream stops too)
         result = _result(m, side0, side1, layer + 1, matched)
         if len(side0.index) and len(side1.index):
             out = self._run(
