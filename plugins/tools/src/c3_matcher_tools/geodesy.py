@@ -1,6 +1,7 @@
 """The ground tools' geodesy, each fact once: the WGS84 ellipsoid and its metres per degree,
-the latitude of a Mercator northing, the ground GSD of a north-up grid's pixel scale, and the
-flat-earth offsets the simulator and the candidate proposer place points with.
+the latitude of a Mercator northing, the linear unit of a projected CRS and the ground GSD of a
+north-up grid's pixel scale, and the flat-earth offsets the simulator and the candidate proposer
+place points with.
 
 The GeoTIFF readers (:mod:`c3_matcher_tools.sim.orthophotos`, :mod:`c3_matcher_tools.tilestore`)
 and the projections (:mod:`c3_matcher_tools.tilestore.projection`) build on this module; it
@@ -10,16 +11,23 @@ tile's GSD is the core's (:meth:`c3_matcher.dto.TileId.web_mercator_gsd_m`).
 
 from __future__ import annotations
 
+import functools
+import importlib.util
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from c3_matcher.arrays import F64
+from c3_matcher.errors import InvalidInputError
 
 __all__ = [
     "FLAT_M_PER_DEG_LAT",
+    "LINEAR_UNITS",
     "MERCATOR_EPSG",
+    "METRE",
     "WGS84_A",
     "WGS84_E2",
     "WGS84_F",
@@ -28,6 +36,8 @@ __all__ = [
     "ground_gsd_m",
     "m_per_deg",
     "mercator_latitude_deg",
+    "projected_unit",
+    "pyproj_available",
 ]
 
 WGS84_A = 6378137.0
@@ -45,6 +55,16 @@ FLAT_M_PER_DEG_LAT = 111_320.0
 """Metres per degree of latitude on the flat earth the simulator and the candidate proposer
 place points on (offsets of a few hundred metres: the ellipsoid's 1 % over latitude is below
 what either needs)."""
+
+LINEAR_UNITS: dict[int, tuple[str, float]] = {
+    9001: ("metre", 1.0),
+    9002: ("foot", 0.3048),
+    9003: ("US survey foot", 1200 / 3937),
+    9036: ("kilometre", 1000.0),
+}
+"""The common linear units by EPSG unit code (a GeoTIFF's ProjLinearUnitsGeoKey): (name, metres
+per unit); pyproj knows the others."""
+METRE = LINEAR_UNITS[9001]
 
 _MERCATOR_ITERATIONS = 12
 
@@ -75,20 +95,87 @@ def m_per_deg(lat_deg: float) -> tuple[float, float]:
     return m_lon, m_lat
 
 
+def pyproj_available() -> bool:
+    """The ``geo`` extra is installed (pyproj: any EPSG grid, exact) and not switched off by
+    ``C3_MATCHER_TOOLS_NO_PYPROJ=1`` (the hand-written fallback, for comparison)."""
+    if os.environ.get("C3_MATCHER_TOOLS_NO_PYPROJ") == "1":
+        return False
+    return importlib.util.find_spec("pyproj") is not None
+
+
+def projected_unit(
+    epsg: int | None, *, unit_code: int | None = None, source: str | Path = "the grid"
+) -> tuple[str, float]:
+    """(name, metres per unit) of a projected grid's coordinates: the unit its GeoTIFF declares
+    (ProjLinearUnitsGeoKey ``unit_code``: :data:`LINEAR_UNITS`, else pyproj's), else the axis
+    unit of CRS ``epsg`` (pyproj, :func:`pyproj_available`), else metres (no code, a code PROJ
+    does not know, or no pyproj: the hand-written projections and the local tangent plane take
+    metres). A declared unit that is not known (a user-defined one) is refused naming
+    ``source``: its ground pixel size cannot be measured."""
+    if unit_code is not None:
+        unit = LINEAR_UNITS.get(unit_code) or _pyproj_unit(unit_code)
+        if unit is None:
+            raise InvalidInputError(
+                "geotiff",
+                f"{source}: its coordinates are in linear unit {unit_code} (ProjLinearUnitsGeoKey)"
+                ", not an EPSG unit the tools know, so its ground pixel size cannot be measured",
+            )
+        return unit
+    if epsg is None or not pyproj_available():
+        return METRE
+    return _crs_axis_unit(int(epsg))
+
+
+def _pyproj_unit(unit_code: int) -> tuple[str, float] | None:
+    """(name, metres per unit) of EPSG linear unit ``unit_code`` in PROJ's database, or None."""
+    if not pyproj_available():
+        return None
+    from pyproj.database import get_units_map
+
+    for name, unit in get_units_map(auth_name="EPSG", category="linear").items():
+        if unit.code == str(unit_code):
+            return str(name), float(unit.conv_factor)
+    return None
+
+
+@functools.lru_cache(maxsize=32)
+def _crs_axis_unit(epsg: int) -> tuple[str, float]:
+    """(name, metres per unit) of projected CRS ``epsg``'s first axis (pyproj); metres for a
+    code PROJ does not know or a CRS that is not projected."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        crs = CRS.from_epsg(epsg)
+    except CRSError:
+        return METRE
+    if not crs.is_projected or not crs.axis_info:
+        return METRE
+    axis = crs.axis_info[0]
+    return str(axis.unit_name), float(axis.unit_conversion_factor)
+
+
 def ground_gsd_m(
-    scale_x: float, scale_y: float, lat_deg: float, *, geographic: bool, epsg: int | None
+    scale_x: float,
+    scale_y: float,
+    lat_deg: float,
+    *,
+    geographic: bool,
+    epsg: int | None,
+    unit_m: float = 1.0,
 ) -> float:
     """The ground GSD (m/px, geometric mean of x and y) of a north-up grid with pixel scale
     (``scale_x``, ``scale_y``) centred at latitude ``lat_deg``: degrees (``geographic``)
-    converted on the WGS84 ellipsoid there; Mercator scales (:data:`MERCATOR_EPSG`) divided by
-    their scale factor there; projected metres as they are (UTM's and the national grids' scale
-    error, < 0.1 %, is ignored)."""
+    converted on the WGS84 ellipsoid there; projected scales in their CRS's linear unit,
+    ``unit_m`` metres each (US feet: 0.3048006, :func:`projected_unit`), then Mercator scales
+    (:data:`MERCATOR_EPSG`) divided by their scale factor there; other projected metres as they
+    are (UTM's and the national grids' scale error, < 0.1 %, is ignored)."""
     lat = math.radians(lat_deg)
     s2 = math.sin(lat) ** 2
     if geographic:
         m_lon, m_lat = m_per_deg(lat_deg)
         return math.sqrt(scale_x * m_lon * scale_y * m_lat)
-    gsd = math.sqrt(scale_x * scale_y)
+    gsd = math.sqrt(scale_x * scale_y) * unit_m
     ellipsoidal = MERCATOR_EPSG.get(epsg) if epsg is not None else None
     if ellipsoidal is True:
         gsd /= math.sqrt(1 - WGS84_E2 * s2) / math.cos(lat)

@@ -1,5 +1,7 @@
 """The GeoTIFF tags a north-up grid is read from, each fact once: the tag and GeoKey ids, the
-tags of a ``tifffile`` page, the GeoKeyDirectory's inline keys, and the check of a pixel scale.
+tags of a ``tifffile`` page, the GeoKeyDirectory's inline keys, the pixel scale and the tie
+point, each checked (a malformed tag, too short for what it must hold, is refused naming the
+file, as GDAL refuses it, never an internal error).
 
 Both GeoTIFF readers build on it (:mod:`c3_matcher_tools.sim.orthophotos` for a frame source's
 GSD, :mod:`c3_matcher_tools.tilestore.geo` for a tile store's grid); it imports nothing of the
@@ -13,6 +15,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from c3_matcher.errors import InvalidInputError
 
 __all__ = [
@@ -22,11 +26,14 @@ __all__ = [
     "MODEL_TYPE_KEY",
     "PIXEL_SCALE",
     "PROJECTED_CRS_KEY",
+    "PROJ_LINEAR_UNITS_KEY",
     "RASTER_TYPE_KEY",
     "TIEPOINT",
     "check_pixel_scale",
     "geo_keys",
     "grid_tags",
+    "pixel_scale",
+    "tiepoint",
 ]
 
 PIXEL_SCALE = 33550
@@ -45,6 +52,9 @@ GEOGRAPHIC_CRS_KEY = 2048
 """GeographicTypeGeoKey: the EPSG code of a geographic CRS."""
 PROJECTED_CRS_KEY = 3072
 """ProjectedCSTypeGeoKey: the EPSG code of a projected CRS."""
+PROJ_LINEAR_UNITS_KEY = 3076
+"""ProjLinearUnitsGeoKey: the EPSG code of a projected CRS's linear unit (9001 metre, 9002
+foot, 9003 US survey foot)."""
 
 
 def grid_tags(page: Any) -> dict[int, Any]:
@@ -52,11 +62,62 @@ def grid_tags(page: Any) -> dict[int, Any]:
     return {code: page.tags[code].value for code in GRID_TAGS if code in page.tags}
 
 
-def geo_keys(tags: Mapping[int, Any]) -> dict[int, Any]:
-    """The inline GeoKeys of ``tags``' GeoKeyDirectory as {key id: value} ({} without one)."""
+def _malformed(source: str | Path, what: str) -> InvalidInputError:
+    return InvalidInputError("geotiff", f"{source}: malformed GeoTIFF: {what}")
+
+
+def _numbers(
+    tags: Mapping[int, Any], code: int, need: int, what: str, source: str | Path
+) -> list[float] | None:
+    """The numbers of tag ``code`` (None without it); fewer than ``need`` (or text) refused."""
+    if code not in tags:
+        return None
+    try:
+        values = [float(v) for v in np.ravel(tags[code])]
+    except (TypeError, ValueError):
+        values = []
+    if len(values) < need:
+        raise _malformed(
+            source, f"its {what} tag holds {len(values)} number(s), at least {need} needed"
+        )
+    return values
+
+
+def pixel_scale(tags: Mapping[int, Any], source: str | Path) -> tuple[float, float] | None:
+    """(x, y) of ``tags``' ModelPixelScale, checked (:func:`check_pixel_scale`), or None without
+    it; a tag of fewer than two numbers is refused naming ``source``."""
+    values = _numbers(tags, PIXEL_SCALE, 2, "ModelPixelScale (x, y, z)", source)
+    if values is None:
+        return None
+    check_pixel_scale(values[0], values[1], source)
+    return values[0], values[1]
+
+
+def tiepoint(tags: Mapping[int, Any], source: str | Path) -> tuple[float, ...] | None:
+    """(i, j, k, x, y, z) of ``tags``' first ModelTiepoint, or None without it; a tag of fewer
+    than six numbers is refused naming ``source``."""
+    values = _numbers(tags, TIEPOINT, 6, "ModelTiepoint (i, j, k, x, y, z)", source)
+    return None if values is None else tuple(values[:6])
+
+
+def geo_keys(tags: Mapping[int, Any], source: str | Path = "the GeoTIFF") -> dict[int, Any]:
+    """The inline GeoKeys of ``tags``' GeoKeyDirectory as {key id: value} ({} without one); a
+    directory shorter than its header (4 numbers) plus 4 numbers a key it declares is refused
+    naming ``source``."""
     if GEO_KEY_DIRECTORY not in tags:
         return {}
-    values = [int(v) for v in tags[GEO_KEY_DIRECTORY]]
+    try:
+        values = [int(v) for v in np.ravel(tags[GEO_KEY_DIRECTORY])]
+    except (TypeError, ValueError):
+        values = []
+    if len(values) < 4:
+        raise _malformed(source, f"its GeoKeyDirectory holds {len(values)} number(s), no header")
+    if len(values) < 4 + 4 * values[3]:
+        raise _malformed(
+            source,
+            f"its GeoKeyDirectory declares {values[3]} keys but holds {len(values)} numbers "
+            f"({4 + 4 * values[3]} needed: a header of 4 and 4 a key)",
+        )
     keys: dict[int, Any] = {}
     for i in range(values[3]):
         key_id, location, _count, value = values[4 + 4 * i : 8 + 4 * i]

@@ -13,9 +13,11 @@ therefore refused without ``tifffile`` rather than silently corrupted.
 
 GSD: from the GeoTIFF tags (ModelPixelScaleTag 33550, ModelTiepointTag 33922,
 GeoKeyDirectoryTag 34735) when ``tifffile`` is importable. Projected CRSs in metres (UTM, RD New,
-LV95, ...) give the pixel scale directly (their scale error, < 0.1 %, is ignored). Mercator
-pixel scales are not ground metres: EPSG:3395 (ellipsoidal World Mercator) and EPSG:3857 (web
-mercator) are corrected at the image centre's latitude, read from the tie point. Geographic
+LV95, ...) give the pixel scale directly (their scale error, < 0.1 %, is ignored); those in feet
+(US state planes) are converted by the declared ProjLinearUnitsGeoKey or, without it, by the
+EPSG code's unit (pyproj). Mercator pixel scales are not ground metres: EPSG:3395 (ellipsoidal
+World Mercator) and EPSG:3857 (web mercator) are corrected at the image centre's latitude, read
+from the tie point. Geographic
 CRSs (degrees) are converted at the centre's latitude. Without ``tifffile`` or tags, the
 :data:`KNOWN_GSD_M` table of the fixtures (data/imagery/ATTRIBUTION.md) is used, by file name.
 """
@@ -31,15 +33,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher_tools.geodesy import MERCATOR_EPSG, ground_gsd_m, mercator_latitude_deg
+from c3_matcher_tools.geodesy import (
+    MERCATOR_EPSG,
+    ground_gsd_m,
+    mercator_latitude_deg,
+    projected_unit,
+)
 from c3_matcher_tools.geotiff import (
     MODEL_TYPE_KEY,
-    PIXEL_SCALE,
+    PROJ_LINEAR_UNITS_KEY,
     PROJECTED_CRS_KEY,
-    TIEPOINT,
-    check_pixel_scale,
     geo_keys,
     grid_tags,
+    pixel_scale,
+    tiepoint,
 )
 
 __all__ = ["KNOWN_GSD_M", "Orthophoto", "geotiff_gsd_m", "load_orthophoto"]
@@ -117,28 +124,33 @@ def geotiff_gsd_m(
     tags: dict[int, Any], height_px: int, *, source: str | Path = "the GeoTIFF"
 ) -> float | None:
     """Ground GSD (m/px, geometric mean of x and y) from raw GeoTIFF tags, or None; a pixel
-    scale that is not a north-up grid's is refused naming ``source``."""
-    scale = tags.get(PIXEL_SCALE)
+    scale that is not a north-up grid's, a malformed tag or an unknown linear unit is refused
+    naming ``source``. Projected scales are in their CRS's linear unit (the declared
+    ProjLinearUnitsGeoKey, else the EPSG code's:
+    :func:`~c3_matcher_tools.geodesy.projected_unit`)."""
+    scale = pixel_scale(tags, source)
     if scale is None:
         return None
-    sx, sy = float(scale[0]), float(scale[1])
-    check_pixel_scale(sx, sy, source)
-    keys = geo_keys(tags)
+    sx, sy = scale
+    keys = geo_keys(tags, source)
     geographic = keys.get(MODEL_TYPE_KEY) == 2
     epsg = keys.get(PROJECTED_CRS_KEY)
     mercator = None if epsg is None else MERCATOR_EPSG.get(int(epsg))
     lat_deg = 0.0  # projected metres need no latitude
     if geographic or mercator is not None:
-        tie = tags.get(TIEPOINT)
-        if tie is None or len(tie) < 6:
+        tie = tiepoint(tags, source)
+        if tie is None:
             return None  # no tie point: no latitude to convert degrees or a Mercator scale at
-        centre_y = float(tie[4]) - sy * (height_px / 2.0 - float(tie[1]))
+        centre_y = tie[4] - sy * (height_px / 2.0 - tie[1])
         lat_deg = (
             centre_y
             if geographic
             else float(mercator_latitude_deg(centre_y, ellipsoidal=bool(mercator)))
         )
-    return ground_gsd_m(sx, sy, lat_deg, geographic=geographic, epsg=epsg)
+    unit_m = 1.0
+    if not geographic:
+        unit_m = projected_unit(epsg, unit_code=keys.get(PROJ_LINEAR_UNITS_KEY), source=source)[1]
+    return ground_gsd_m(sx, sy, lat_deg, geographic=geographic, epsg=epsg, unit_m=unit_m)
 
 
 def load_orthophoto(path: str | Path, *, gsd_m: float | None = None) -> Orthophoto:

@@ -55,8 +55,9 @@ from c3_matcher_tools.tilestore.writer import MBTilesWriter
 __all__ = ["MAX_UPSAMPLE", "BuildReport", "build_mbtiles", "parse_zooms", "render_tile"]
 
 Progress = Callable[[int, int], None]
-#: the tifffile fallback's raster for one zoom: RGB, valid mask, scale from the source's pixels
-_Scaled = tuple[NDArray[np.uint8], NDArray[np.uint8], float]
+#: the tifffile fallback's raster for one zoom: RGB, valid mask, (x, y) scale from the source's
+#: pixels (each axis its own: the rounded sizes differ in ratio)
+_Scaled = tuple[NDArray[np.uint8], NDArray[np.uint8], tuple[float, float]]
 
 #: the finest tiles built without ``force``: this many times finer than the source's GSD
 MAX_UPSAMPLE = 4.0
@@ -116,12 +117,14 @@ def render_tile(
     zoom: int,
     x: int,
     y: int,
-    scale: float = 1.0,
+    scale: float | tuple[float, float] = 1.0,
 ) -> NDArray[np.uint8] | None:
     """Tile (zoom, x, y) resampled from ``ortho`` (uint8 RGB, possibly pre-scaled by ``scale``
-    relative to ``grid``'s pixels) with nodata 0, or None when it holds no data."""
+    relative to ``grid``'s pixels: one factor, or (x, y) when the axes were scaled apart) with
+    nodata 0, or None when it holds no data."""
+    kx, ky = (scale, scale) if isinstance(scale, (int, float)) else scale
     uv = _tile_uv(grid, zoom, x, y)
-    return _remap(ortho, valid, (uv[:, 0] + 0.5) * scale - 0.5, (uv[:, 1] + 0.5) * scale - 0.5)
+    return _remap(ortho, valid, (uv[:, 0] + 0.5) * kx - 0.5, (uv[:, 1] + 0.5) * ky - 0.5)
 
 
 def parse_zooms(values: Sequence[int | str] | None) -> list[int] | None:
@@ -270,7 +273,9 @@ def _open_source(
         raise InvalidInputError(
             "geotiff", f"{geotiff}: pixel size {photo.size} != grid {grid.size}"
         )
-    gsd = math.sqrt(grid.scale_x * grid.scale_y) if photo.gsd_m is None else photo.gsd_m
+    gsd = (
+        math.sqrt(grid.scale_x * grid.scale_y) * grid.unit_m if photo.gsd_m is None else photo.gsd_m
+    )
     return _Source(grid, gsd, "tifffile", None, _fallback_mapping(geotiff), photo_rgb=photo.rgb)
 
 
@@ -435,12 +440,14 @@ def _metadata(geotiff: str | Path, source: _Source, plan: _Plan, output: _Output
 
 
 def _downscaled(rgb: NDArray[np.uint8], ratio: float) -> _Scaled:
-    """The fallback's whole-image area downscale for tiles >= 1.15x coarser than the source."""
+    """The fallback's whole-image area downscale for tiles >= 1.15x coarser than the source,
+    with its scale on each axis (the sizes are rounded apart: 0.5 px over the height is half a
+    tile pixel misplaced at the bottom if the width's scale stood for both)."""
     valid = np.any(rgb > 0, axis=2).astype(np.uint8)
     if ratio < 1.15:
-        return rgb, valid, 1.0
+        return rgb, valid, (1.0, 1.0)
     h, w = rgb.shape[:2]
     sw, sh = max(2, round(w / ratio)), max(2, round(h / ratio))
     small = np.asarray(cv2.resize(rgb, (sw, sh), interpolation=cv2.INTER_AREA), dtype=np.uint8)
     small_valid = np.asarray(cv2.resize(valid, (sw, sh), interpolation=cv2.INTER_NEAREST))
-    return small, small_valid, sw / w
+    return small, small_valid, (sw / w, sh / h)

@@ -22,15 +22,19 @@ from c3_matcher.arrays import F64
 from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
+from c3_matcher_tools.geodesy import projected_unit
 from c3_matcher_tools.geotiff import (
     GEOGRAPHIC_CRS_KEY,
+    MODEL_TYPE_KEY,
     PIXEL_SCALE,
+    PROJ_LINEAR_UNITS_KEY,
     PROJECTED_CRS_KEY,
     RASTER_TYPE_KEY,
     TIEPOINT,
-    check_pixel_scale,
     geo_keys,
     grid_tags,
+    pixel_scale,
+    tiepoint,
 )
 from c3_matcher_tools.tilestore.projection import Projection
 
@@ -48,10 +52,12 @@ __all__ = [
 
 @dataclass(frozen=True)
 class GeoGrid:
-    """A north-up GeoTIFF grid: ORTHO px (u, v) -> projected metres
+    """A north-up GeoTIFF grid: ORTHO px (u, v) -> projected coordinates (metres, feet)
     ``E = origin_e + (u + 0.5) * scale_x``, ``N = origin_n - (v + 0.5) * scale_y`` where
     (origin_e, origin_n) is the top-left pixel's corner; ``projection`` converts to WGS84;
-    ``size`` (w, h) px; ``epsg`` the file's projected/geographic CRS code (None if absent)."""
+    ``size`` (w, h) px; ``epsg`` the file's projected/geographic CRS code (None if absent);
+    ``unit_m`` metres per unit of a projected grid's coordinates (0.3048 for feet; 1 for
+    degrees, whose ground size :func:`~c3_matcher_tools.geodesy.ground_gsd_m` converts)."""
 
     origin_e: float
     origin_n: float
@@ -60,6 +66,7 @@ class GeoGrid:
     size: tuple[int, int]
     epsg: int | None
     projection: Projection
+    unit_m: float = 1.0
 
     def px_to_lonlat(self, pts: ArrayLike) -> F64:
         """(N, 2) ORTHO px -> (N, 2) (lon, lat) degrees."""
@@ -108,21 +115,25 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
             "geotiff",
             f"{p}: no georeference (no ModelPixelScale/ModelTiepoint tags: not a north-up GeoTIFF)",
         )
-    sx, sy = float(tags[PIXEL_SCALE][0]), float(tags[PIXEL_SCALE][1])
-    check_pixel_scale(sx, sy, p)
-    tie = [float(t) for t in tags[TIEPOINT][:6]]
-    keys = geo_keys(tags)
+    scale, tie = pixel_scale(tags, p), tiepoint(tags, p)
+    assert scale is not None and tie is not None  # both tags are there
+    sx, sy = scale
+    keys = geo_keys(tags, p)
     point = keys.get(RASTER_TYPE_KEY) == 2  # RasterPixelIsPoint: the tie point is a pixel centre
     i0, j0, e0, n0 = tie[0], tie[1], tie[3], tie[4]
     shift = 0.5 if point else 0.0
     origin_e = e0 - (i0 + shift) * sx
     origin_n = n0 + (j0 + shift) * sy
     epsg = keys.get(PROJECTED_CRS_KEY) or keys.get(GEOGRAPHIC_CRS_KEY)
+    unit_m = 1.0
+    if keys.get(MODEL_TYPE_KEY) != 2:  # projected: its coordinates' unit (feet or metres)
+        code = keys.get(PROJECTED_CRS_KEY)
+        unit_m = projected_unit(code, unit_code=keys.get(PROJ_LINEAR_UNITS_KEY), source=p)[1]
     centre_en = (origin_e + w / 2 * sx, origin_n - h / 2 * sy)
     projection = Projection.from_epsg(
         None if epsg is None else int(epsg), reference=reference, ref_en=centre_en, source=p
     )
-    grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
+    grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection, unit_m)
     check_grid_fits_crs(grid, p)
     return grid
 
@@ -147,7 +158,10 @@ def check_grid_fits_crs(grid: GeoGrid, source: str | Path) -> None:
     """Refuse a grid whose coordinates cannot be its CRS's (metres labelled degrees, a wrong
     EPSG code, a missing scale): its corners must lie in the CRS's range (degrees: lon -180..180,
     lat -90..90; UTM: E 0..1e6 m, N 0..1e7 m; mercator: within the world) and convert to finite
-    lon/lat (pyproj CRSs: within 2 degrees of the CRS's area of use)."""
+    lon/lat (pyproj CRSs: within 2 degrees of the CRS's area of use, which may cross the
+    antimeridian). Coordinates in a unit other than metres (feet) need pyproj: the hand-written
+    projections take metres."""
+    _check_unit(grid, source)
     w, h = grid.size
     e0, e1 = grid.origin_e, grid.origin_e + w * grid.scale_x
     n0, n1 = grid.origin_n - h * grid.scale_y, grid.origin_n
@@ -173,10 +187,7 @@ def check_grid_fits_crs(grid: GeoGrid, source: str | Path) -> None:
         area = _area_of_use(grid.projection.epsg)
         if area is not None:
             west, south, east, north = area
-            ok = bool(
-                lon.min() >= west - 2 and lon.max() <= east + 2
-                and lat.min() >= south - 2 and lat.max() <= north + 2
-            )  # fmt: skip
+            ok = _within_area(lon, lat, area)
             if not ok:
                 raise InvalidInputError(
                     "geotiff",
@@ -190,6 +201,32 @@ def check_grid_fits_crs(grid: GeoGrid, source: str | Path) -> None:
             f"{source}: coordinates ({extent}) do not convert to a valid latitude/longitude "
             f"in {label}: is the CRS right?",
         )
+
+
+def _within_area(lon: F64, lat: F64, area: tuple[float, float, float, float]) -> bool:
+    """Every (lon, lat) lies within 2 degrees of ``area`` (west, south, east, north) degrees;
+    a west bound east of the east bound crosses the antimeridian (EPSG:4269's NAD83 runs from
+    167.65 E across 180 to 40.73 W): longitudes are measured eastward from the west bound."""
+    west, south, east, north = area
+    span = (east - west) % 360.0 or 360.0  # 0: the whole circle (-180..180)
+    east_of_west = (lon - west) % 360.0
+    lon_ok = (east_of_west <= span + 2) | (east_of_west >= 360.0 - 2)
+    lat_ok = (lat >= south - 2) & (lat <= north + 2)
+    return bool(lon_ok.all() and lat_ok.all())
+
+
+def _check_unit(grid: GeoGrid, source: str | Path) -> None:
+    """Refuse a grid in a unit other than metres (feet) whose projection is hand-written (UTM,
+    mercator, a local tangent plane): those take metres, only pyproj converts the CRS's own."""
+    if math.isclose(grid.unit_m, 1.0) or grid.projection.kind in ("pyproj", "geographic"):
+        return
+    label = f"EPSG:{grid.epsg}" if grid.epsg else "its CRS"
+    raise InvalidInputError(
+        "geotiff",
+        f"{source}: its coordinates are in units of {grid.unit_m:g} m ({label}), but the "
+        f"{grid.projection.describe()} projection takes metres: install the geo extra "
+        "(pyproj) to convert them exactly",
+    )
 
 
 #: plausible ground GSD of an orthophoto, m/px (a grid outside it has the wrong units)

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import functools
-import importlib.util
 import math
-import os
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -22,6 +20,7 @@ from c3_matcher_tools.geodesy import (
     WGS84_E2,
     WGS84_F,
     mercator_latitude_deg,
+    pyproj_available,
 )
 
 __all__ = ["Projection", "pyproj_available"]
@@ -262,14 +261,6 @@ _FORMULAS: Final[Mapping[str, _Formulas]] = {
 refused. ``describe`` and the grid range check
 (:func:`~c3_matcher_tools.tilestore.geo.check_grid_fits_crs`) add what a kind needs beyond its
 formulas."""
-
-
-def pyproj_available() -> bool:
-    """The ``geo`` extra is installed (pyproj: any EPSG grid, exact) and not switched off by
-    ``C3_MATCHER_TOOLS_NO_PYPROJ=1`` (the hand-written fallback, for comparison)."""
-    if os.environ.get("C3_MATCHER_TOOLS_NO_PYPROJ") == "1":
-        return False
-    return importlib.util.find_spec("pyproj") is not None
 
 
 def _pyproj_knows(epsg: int) -> bool:

@@ -55,10 +55,31 @@ def rasterio_available() -> bool:
 
 def grid_gsd_m(grid: GeoGrid, *, geographic: bool) -> float:
     """Ground GSD (m/px) at the grid centre, by the same rules as
-    :func:`c3_matcher_tools.sim.orthophotos.geotiff_gsd_m`: projected metres as they are,
-    mercator scales divided by the scale factor at the centre latitude, degrees converted."""
+    :func:`c3_matcher_tools.sim.orthophotos.geotiff_gsd_m`: projected units times the grid's
+    metres per unit (``unit_m``: feet become metres), mercator scales divided by the scale
+    factor at the centre latitude, degrees converted."""
     _lon, lat_deg = grid.centre_lonlat()
-    return ground_gsd_m(grid.scale_x, grid.scale_y, lat_deg, geographic=geographic, epsg=grid.epsg)
+    return ground_gsd_m(
+        grid.scale_x,
+        grid.scale_y,
+        lat_deg,
+        geographic=geographic,
+        epsg=grid.epsg,
+        unit_m=grid.unit_m,
+    )
+
+
+def _linear_unit_m(crs: Any) -> float:
+    """Metres per unit of a projected rasterio CRS's coordinates as GDAL reads them (0.3048 for
+    feet); 1 for a geographic CRS (degrees: converted by the GSD rule) or one without a unit."""
+    from rasterio.errors import CRSError
+
+    if not crs.is_projected:
+        return 1.0
+    try:
+        return float(crs.linear_units_factor[1])
+    except CRSError:
+        return 1.0
 
 
 @dataclass(frozen=True)
@@ -165,7 +186,8 @@ class RasterioSource:
             ref_en=(origin_e + w / 2 * sx, origin_n - h / 2 * sy),
             source=self.path,
         )
-        self.grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection)
+        unit_m = _linear_unit_m(ds.crs)
+        self.grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection, unit_m)
         check_grid_fits_crs(self.grid, self.path)
         self.gsd_m = grid_gsd_m(self.grid, geographic=bool(ds.crs.is_geographic))
         self.bands = [1, 2, 3] if ds.count >= 3 else [1]
