@@ -347,7 +347,7 @@ def test_a_workers_bad_input_is_one_line_and_exit_2_never_a_traceback(
 
     flight = _flight_copy(tmp_path)
     (flight / "frames" / "000000.jpg").unlink()
-    monkeypatch.setattr(c3_matcher_tools.bench, "_checked_data", lambda data: data)
+    monkeypatch.setattr(c3_matcher_tools.bench, "_checked_data", lambda data, *_: data)
     argv = ["bench", "--runs", "1", "--strategy", "xfeat", "--no-baseline", "--no-reference"]
     assert main([*argv, "--no-modes", "--data", str(flight)]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("bench:")]

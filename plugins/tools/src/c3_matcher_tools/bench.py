@@ -34,7 +34,7 @@ import subprocess
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from c3_matcher.commands import (
     EXIT_OK,
@@ -47,13 +47,18 @@ from c3_matcher.commands import (
 from c3_matcher.config import C3Settings
 from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.bench_report import comparisons, format_report
+
+if TYPE_CHECKING:
+    from c3_matcher.plugins.manager import PluginHost
 
 __all__ = [
     "BenchCase",
     "comparisons",
     "format_report",
+    "offers_reference",
     "register_bench_command",
 ]
 
@@ -134,10 +139,25 @@ def _has_torch() -> bool:
     return importlib.util.find_spec("torch") is not None
 
 
-def cases_for(args: argparse.Namespace, settings: C3Settings, data: Path) -> list[BenchCase]:
-    """The cases ``bench`` runs on ``data`` for the parsed command line ``args``."""
+def offers_reference(host: PluginHost, strategy: str) -> bool:
+    """Whether ``strategy``'s plugin offers a PyTorch reference
+    (``c3_matcher_reference_backend``): a learned strategy's does, a baseline (SIFT + MAGSAC,
+    ``StrategySpec.baseline``) has none. Told from its spec, without building the reference."""
+    spec = host.strategies().get(strategy)
+    return spec is not None and not spec.baseline
+
+
+def cases_for(
+    args: argparse.Namespace,
+    settings: C3Settings,
+    data: Path,
+    plugin_host: PluginHost | None = None,
+) -> list[BenchCase]:
+    """The cases ``bench`` runs on ``data`` for the parsed command line ``args``; the PyTorch
+    reference only for a strategy that offers one (:func:`offers_reference`)."""
     import onnxruntime as ort
 
+    from c3_matcher.compose import build_plugin_host
     from c3_matcher.engines.lightglue import resolve_mode
     from c3_matcher.engines.runtime import resolve_providers
 
@@ -148,6 +168,8 @@ def cases_for(args: argparse.Namespace, settings: C3Settings, data: Path) -> lis
     provider = resolve_providers(settings.engines.providers, ort.get_available_providers())
     mode = resolve_mode(settings.lightglue.mode, provider[0])
     other_mode = {"adaptive": "full", "full": "adaptive"}[mode]
+    host = plugin_host if plugin_host is not None else build_plugin_host()
+    reference = not args.no_reference and _has_torch()
     cases: list[BenchCase] = []
     for name in args.strategy or [m.strategy]:
         cases += [
@@ -166,7 +188,7 @@ def cases_for(args: argparse.Namespace, settings: C3Settings, data: Path) -> lis
             cases.append(
                 BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, False, None, threads)
             )
-        if not args.no_reference and _has_torch():
+        if reference and offers_reference(host, name):
             cases.append(BenchCase(name, "pytorch", 0, m.max_long_side, m.max_keypoints))
         if args.sweep:
             cases += [
@@ -253,13 +275,13 @@ def _threads(text: str) -> int:
     return value
 
 
-def demo_data(data: Path | None) -> Path:
+def demo_data(data: Path | None, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> Path:
     """``--data``, checked before any case runs (a flight dataset, read as the cases will read
-    it, or a demo-format directory), or the built-in demo frame (``data/demo`` of the source
-    checkout this runs from); installed from wheels there is none, and ``--data`` must name
-    one."""
+    it, or a demo-format directory, images within ``max_pixels``: ``[matcher]
+    max_image_pixels``), or the built-in demo frame (``data/demo`` of the source checkout this
+    runs from); installed from wheels there is none, and ``--data`` must name one."""
     if data is not None:
-        return _checked_data(data)
+        return _checked_data(data, max_pixels)
     from c3_matcher.engines.store import checkout_root
 
     root = checkout_root()
@@ -271,12 +293,12 @@ def demo_data(data: Path | None) -> Path:
     return root / "data" / "demo"
 
 
-def _checked_data(data: Path) -> Path:
+def _checked_data(data: Path, max_pixels: int) -> Path:
     """``data`` when it is a flight dataset that loads, tile store included (``dataset.json``),
-    with a frame to time (``timed_frames``), each of those frames' images readable and of its
-    calibration's size (``check_flight``, as ``replay`` checks them), or a demo-format
-    directory (``demo.json``) whose frame, tiles and calibration read; else InvalidInputError
-    naming it (exit 2)."""
+    with a frame to time (``timed_frames``), each of those frames' images readable, within
+    ``max_pixels`` and of its calibration's size (``check_flight``, as ``replay`` checks them),
+    or a demo-format directory (``demo.json``) whose frame, tiles and calibration read (within
+    ``max_pixels``); else InvalidInputError naming it (exit 2)."""
     from c3_matcher_tools.dataset.format import is_flight_dataset, load_dataset
     from c3_matcher_tools.run.flight import check_flight
     from c3_matcher_tools.run.inputs import demo_inputs, timed_frames
@@ -284,7 +306,7 @@ def _checked_data(data: Path) -> Path:
     if not data.is_dir():
         raise InvalidInputError("--data", f"no such directory: {data}")
     if is_flight_dataset(data):
-        dataset = load_dataset(data)
+        dataset = load_dataset(data, max_pixels)
         with dataset.open_store():  # its frames, calibration and tile store
             frames = timed_frames(dataset)
         try:
@@ -293,7 +315,8 @@ def _checked_data(data: Path) -> Path:
             raise InvalidInputError("--data", str(exc)) from exc
     elif (data / "demo.json").is_file():
         try:
-            demo_inputs(data)  # what a case reads of it: its frame, tiles and calibration
+            # what a case reads of it: its frame, tiles and calibration
+            demo_inputs(data, max_pixels)
         except InvalidInputError as exc:
             raise InvalidInputError("--data", str(exc)) from exc
         except (KeyError, TypeError, ValueError, OSError) as exc:
@@ -311,9 +334,9 @@ def _checked_data(data: Path) -> Path:
 def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
     for name in args.strategy or [ctx.settings.matcher.strategy]:
         ctx.plugin_host.resolve(name)  # one this build cannot run: refused before any case
-    data = demo_data(args.data)
+    data = demo_data(args.data, ctx.settings.matcher.max_image_pixels)
     results = []
-    for case in cases_for(args, ctx.settings, data):
+    for case in cases_for(args, ctx.settings, data, ctx.plugin_host):
         ctx.err(f"bench: {case.label}, {args.runs} runs...")
         cmd = [
             sys.executable,

@@ -70,7 +70,11 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
             update={"matcher": settings.matcher.model_copy(update={"max_keypoints": None})}
         )
     clock = MonotonicClock()
-    with flight_inputs(data_dir) as inputs, tempfile.TemporaryDirectory(prefix="c3-bench-") as tmp:
+    limit = settings.matcher.max_image_pixels
+    with (
+        flight_inputs(data_dir, limit) as inputs,
+        tempfile.TemporaryDirectory(prefix="c3-bench-") as tmp,
+    ):
         fdr = JsonlFdrRecorder(Path(tmp) / "fdr.jsonl", clock)
         started = time.perf_counter()
         try:

@@ -16,7 +16,7 @@ from c3_matcher.dto.candidates import RerankCandidate, RerankResult
 from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
-from c3_matcher.tiles import MmapTileHandle, read_image
+from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, MmapTileHandle, read_image
 
 if TYPE_CHECKING:
     from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
@@ -28,17 +28,20 @@ MatchInputs = tuple[NavCameraFrame, RerankResult, CameraCalibration]
 
 
 @contextmanager
-def flight_inputs(data_dir: Path) -> Iterator[list[MatchInputs]]:
+def flight_inputs(
+    data_dir: Path, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+) -> Iterator[list[MatchInputs]]:
     """One ``MatchInputs`` per frame: a flight dataset's :func:`timed_frames`, or the single
-    frame of a demo-format directory. A dataset's tile store, which the candidates' tile handles
-    read from, stays open until the ``with`` block ends."""
+    frame of a demo-format directory, its images read within ``max_pixels`` (``[matcher]
+    max_image_pixels``). A dataset's tile store, which the candidates' tile handles read from,
+    stays open until the ``with`` block ends."""
     from c3_matcher_tools.dataset.format import is_flight_dataset, load_dataset
 
     if not is_flight_dataset(data_dir):
-        yield [demo_inputs(data_dir)]
+        yield [demo_inputs(data_dir, max_pixels)]
         return
 
-    dataset = load_dataset(data_dir)
+    dataset = load_dataset(data_dir, max_pixels)
     with dataset.open_store() as store:
         yield [
             (dataset.nav_frame(f), dataset.rerank(f, store), dataset.calibration)
@@ -64,20 +67,24 @@ def timed_frames(dataset: FlightDataset) -> tuple[FrameRecord, ...]:
     )
 
 
-def demo_inputs(data_dir: Path) -> MatchInputs:
-    """The frame of a demo-format directory with its candidate tiles (``demo.json``'s order)."""
+def demo_inputs(data_dir: Path, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> MatchInputs:
+    """The frame of a demo-format directory with its candidate tiles (``demo.json``'s order),
+    each image within ``max_pixels`` (``[matcher] max_image_pixels``)."""
     meta = json.loads((data_dir / "demo.json").read_text())
     att = meta["attitude_deg"]
     frame = NavCameraFrame(
         uuid.UUID(int=1),
-        read_image(data_dir / "frame.jpg"),
+        read_image(data_dir / "frame.jpg", max_pixels),
         1,
         Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
         meta["height_m"],
     )
     candidates = tuple(
         RerankCandidate(
-            TileId(*t["tile_id"]), 1.0, MmapTileHandle(data_dir / t["file"]), meta["tile_gsd_m"]
+            TileId(*t["tile_id"]),
+            1.0,
+            MmapTileHandle(data_dir / t["file"], max_pixels=max_pixels),
+            meta["tile_gsd_m"],
         )
         for t in meta["tiles"]
     )
