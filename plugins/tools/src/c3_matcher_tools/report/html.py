@@ -26,6 +26,7 @@ from c3_matcher.atomic import write_text_atomically
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.report.charts import FAILED, WRONG, per_frame_figure, trajectory_figure
 from c3_matcher_tools.report.pictures import gallery_pictures
+from c3_matcher_tools.run.acceptance import WRONG_FIX_PX
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 from c3_matcher_tools.run.scoring import RunSummary, summarize
 
@@ -204,7 +205,11 @@ W: {WRONG} chosen. A recorded flight's error is the estimate minus the telemetry
 beside the accuracy its GNSS states.</p>
 <img id="per-frame" alt="per-frame plots" src="{self.per_frame}">
 <h2>Worst and best frames</h2>
-<p>Left: the query rectified onto the best tile; right: the tile with the query's footprint
+<p>Worst: frames that went wrong (no match where the true tile was a candidate, a wrong tile, or
+the true tile with its inliers more than {WRONG_FIX_PX:g} px off the ground truth); best: right
+matches and frames that rightly raised with their true tile absent; without ground truth, matched
+frames by inlier count.{"" if any(c.startswith("worst") for c, _ in self.pictures) else " No frame went wrong."}
+Left: the query rectified onto the best tile; right: the tile with the query's footprint
 (yellow); green lines agree with the ground truth (or the fitted homography without truth) within
 3 px, red do not; the strip shows every candidate with its inlier count.</p>
 <div class="gallery">{"".join(f'<figure><img class="frame" alt="{html.escape(c)}" src="{u}"><figcaption>{html.escape(c)}</figcaption></figure>' for c, u in self.pictures)}</div>

@@ -15,9 +15,10 @@ from c3_matcher.viz import CandidateView, render_match
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.report.charts import FAILED, WRONG
+from c3_matcher_tools.run.acceptance import WRONG_FIX_PX
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
-__all__ = ["frame_picture", "gallery_pictures"]
+__all__ = ["frame_picture", "gallery_frames", "gallery_pictures"]
 
 
 def _jpeg_uri(rgb: NDArray[np.uint8], quality: int = 85) -> str:
@@ -32,22 +33,26 @@ def _jpeg_uri(rgb: NDArray[np.uint8], quality: int = 85) -> str:
 def frame_picture(
     dataset: FlightDataset, outcome: FrameOutcome, store: Any, panel: int = 360
 ) -> NDArray[np.uint8]:
-    """The :func:`c3_matcher.viz.render_match` picture of one replayed frame."""
+    """The :func:`c3_matcher.viz.render_match` picture of one replayed frame: a matched frame
+    on its best tile through the result's ``best_homography``, whether or not its inlier
+    correspondences were kept (``replay --no-correspondences`` drops them: the footprint is
+    drawn, no lines)."""
     frame = next(f for f in dataset.frames if f.index == outcome.index)
     query = dataset.nav_frame(frame).image
     size = dataset.candidate_size_px
     counts, corr = _inliers(outcome)
     views = _candidate_views(frame, outcome, store, size, counts)
-    hom = _best_homography(outcome, corr)
+    hom = _best_homography(outcome)
+    best = outcome.best_input_index if outcome.status == FrameStatus.OK else None
     errors = None
-    if hom is not None and outcome.best_input_index is not None and corr is not None:
-        h_true = frame.candidates[outcome.best_input_index].h_tile_to_undistorted
+    if hom is not None and best is not None and corr is not None and len(corr):
+        h_true = frame.candidates[best].h_tile_to_undistorted
         if h_true is not None:
             errors = inlier_errors_px(h_true, dataset.calibration, corr.astype(np.float32))
     return render_match(
         query,
         views,
-        best_index=outcome.best_input_index if hom is not None else None,
+        best_index=best,
         h_query_to_tile=hom,
         correspondences=corr,
         calibration=dataset.calibration,
@@ -57,12 +62,11 @@ def frame_picture(
     )
 
 
-def _best_homography(
-    outcome: FrameOutcome, corr: NDArray[np.float64] | None
-) -> NDArray[np.float64] | None:
+def _best_homography(outcome: FrameOutcome) -> NDArray[np.float64] | None:
     """The result's ``best_homography``: the map its position comes from (replay writes it
-    whenever one fits, :func:`c3_matcher.georef.best_query_to_tile`); None without inliers."""
-    if outcome.result is None or corr is None or not len(corr):
+    whenever one fits, :func:`c3_matcher.georef.best_query_to_tile`, with or without the
+    inlier correspondences); None when the frame did not match or none fits."""
+    if outcome.status != FrameStatus.OK or outcome.result is None:
         return None
     stored = outcome.result.get("best_homography")
     return None if stored is None else np.asarray(stored, dtype=np.float64).reshape(3, 3)
@@ -70,7 +74,8 @@ def _best_homography(
 
 def _inliers(outcome: FrameOutcome) -> tuple[dict[int, int], NDArray[np.float64] | None]:
     """Each candidate's inlier count by input position, and the best candidate's inlier
-    correspondences (N, 4); both empty / None when the frame has no result."""
+    correspondences (N, 4; none when the result was written without them); empty / None when
+    the frame has no result."""
     counts: dict[int, int] = {}
     if outcome.result is None:
         return counts, None
@@ -128,23 +133,9 @@ def gallery_pictures(
     dataset: FlightDataset, outcomes: Sequence[FrameOutcome], n: int
 ) -> list[tuple[str, str]]:
     """(caption, data URI) of the ``n`` worst and ``n`` best frames whose image could be read
-    (an ``unreadable`` frame has no picture: the table names it and why)."""
-
-    def badness(o: FrameOutcome) -> tuple[float, float]:
-        if o.status != FrameStatus.OK:
-            return (
-                3.0 if (o.has_truth and o.true_present) or not o.has_truth else 0.5,
-                -o.insufficient_best,
-            )
-        if o.has_truth and not o.correct:
-            return (2.0, 0.0)
-        err = o.position_error_m if math.isfinite(o.position_error_m) else 0.0
-        return (1.0, err - o.best_inliers / 1e4)
-
-    readable = [o for o in outcomes if o.status != FrameStatus.UNREADABLE]
-    ranked = sorted(readable, key=badness, reverse=True)
-    worst = ranked[:n]
-    best = [o for o in reversed(ranked) if o.status == FrameStatus.OK and o not in worst][:n]
+    (an ``unreadable`` frame has no picture: the table names it and why), as
+    :func:`gallery_frames` picks them."""
+    worst, best = gallery_frames(outcomes, n)
     out: list[tuple[str, str]] = []
     with dataset.open_store() as store:
         for label, group in (("worst", worst), ("best", best)):
@@ -153,3 +144,79 @@ def gallery_pictures(
                     (f"{label}: frame {o.index}", _jpeg_uri(frame_picture(dataset, o, store)))
                 )
     return out
+
+
+def gallery_frames(
+    outcomes: Sequence[FrameOutcome], n: int
+) -> tuple[list[FrameOutcome], list[FrameOutcome]]:
+    """The gallery's (worst, best) frames, at most ``n`` each, no frame in both, unreadable
+    frames left out. Worst: frames that went wrong (:func:`_went_wrong`), worst first; best:
+    frames that went right (:func:`_went_right`), best first. A matched frame without ground
+    truth to judge it by can be either: such frames fill the room either group has left, the
+    fewest inliers towards worst and the most towards best. A flight with frames of both kinds
+    shows both groups."""
+    readable = [o for o in outcomes if o.status != FrameStatus.UNREADABLE]
+    worst = sorted((o for o in readable if _went_wrong(o)), key=_wrongness, reverse=True)[:n]
+    best = sorted((o for o in readable if _went_right(o)), key=_rightness)[:n]
+    unjudged = sorted(
+        (o for o in readable if not _went_wrong(o) and not _went_right(o)),
+        key=lambda o: (o.best_inliers, -_finite(o.telemetry_error_m, 0.0)),
+    )  # worst first
+    while unjudged and (len(worst) < n or len(best) < n):
+        if len(worst) < n:
+            worst.append(unjudged.pop(0))
+        if unjudged and len(best) < n:
+            best.append(unjudged.pop())
+    return worst, best
+
+
+def _finite(value: float, otherwise: float) -> float:
+    return value if math.isfinite(value) else otherwise
+
+
+def _right_match(o: FrameOutcome) -> bool:
+    """Matched the true tile, its inliers within ``WRONG_FIX_PX`` of ground truth (the bound
+    the evaluation's false-confidence measure uses); an unknown inlier error (no truth
+    homography) leaves the verdict to the tile."""
+    if o.status != FrameStatus.OK or not o.has_truth or not o.correct:
+        return False
+    return not (math.isfinite(o.mean_error_px) and o.mean_error_px > WRONG_FIX_PX)
+
+
+def _rightly_raised(o: FrameOutcome) -> bool:
+    """Raised InsufficientInliersError on a frame whose true tile is not among its candidates:
+    what it should do."""
+    return o.status == FrameStatus.INSUFFICIENT and o.has_truth and not o.true_present
+
+
+def _went_right(o: FrameOutcome) -> bool:
+    return _right_match(o) or _rightly_raised(o)
+
+
+def _went_wrong(o: FrameOutcome) -> bool:
+    """Failed where a match was due (or the matcher failed), or matched a frame with ground
+    truth anywhere but right; a matched frame without ground truth is neither."""
+    if o.status == FrameStatus.OK:
+        return o.has_truth and not _right_match(o)
+    return not _rightly_raised(o)
+
+
+def _wrongness(o: FrameOutcome) -> tuple[float, float]:
+    """Higher is worse: a missed match (fewest inliers worst), then a wrong fix (most
+    inliers, the most confidently wrong, worst)."""
+    if o.status != FrameStatus.OK:
+        return (2.0, -o.insufficient_best)
+    return (1.0, o.best_inliers)
+
+
+def _rightness(o: FrameOutcome) -> tuple[float, float, float, float]:
+    """Lower is better: right matches by inlier error (px), position error (m) and inliers,
+    then frames that rightly raised (fewest inliers first)."""
+    if o.status != FrameStatus.OK:
+        return (1.0, o.insufficient_best, 0.0, 0.0)
+    return (
+        0.0,
+        _finite(o.mean_error_px, math.inf),
+        _finite(o.position_error_m, math.inf),
+        -o.best_inliers,
+    )
