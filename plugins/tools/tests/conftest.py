@@ -59,3 +59,15 @@ def c3(tmp_path: Path) -> C3:
         return run_cli(*args, cwd=cwd, timeout=600, limit_file_bytes=limit_file_bytes)
 
     return run
+
+
+@pytest.fixture()
+def no_bench_case(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``bench`` fails the test if it gets as far as running a case (its checks must refuse
+    first)."""
+    import c3_matcher_tools.bench
+
+    def no_case(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a case ran")
+
+    monkeypatch.setattr(c3_matcher_tools.bench, "cases_for", no_case)

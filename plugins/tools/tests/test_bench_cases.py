@@ -83,15 +83,11 @@ def test_bench_refuses_frames_above_the_configured_max_image_pixels(
     data: Path,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
-    monkeypatch: pytest.MonkeyPatch,
+    no_bench_case: None,
 ) -> None:
     """As ``replay`` refuses them: exit 2 naming the limit, before any case runs."""
     from c3_matcher.cli import main
 
-    def no_case(*args: object, **kwargs: object) -> None:
-        raise AssertionError("a case ran")
-
-    monkeypatch.setattr(c3_matcher_tools.bench, "cases_for", no_case)
     config = _small_config(tmp_path)
     argv = ["bench", "--runs", "1", "--strategy", "sift_magsac", "--no-reference"]
     code = main(["--config", str(config), *argv, "--no-baseline", "--data", str(data)])

@@ -290,15 +290,10 @@ def test_bench_refuses_data_whose_frames_cannot_be_timed_before_any_case_runs(
     message: str,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
-    monkeypatch: pytest.MonkeyPatch,
+    no_bench_case: None,
 ) -> None:
-    import c3_matcher_tools.bench
     from c3_matcher.cli import main
 
-    def no_case(*args: object, **kwargs: object) -> None:
-        raise AssertionError("a case ran")
-
-    monkeypatch.setattr(c3_matcher_tools.bench, "cases_for", no_case)
     flight = _flight_copy(tmp_path)
     spoil(flight)
     argv = ["bench", "--runs", "1", "--strategy", "xfeat", "--no-baseline", "--no-reference"]
