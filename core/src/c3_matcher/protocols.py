@@ -195,7 +195,9 @@ class LightGlueRuntime(Protocol):
 @runtime_checkable
 class LoadableLightGlueRuntime(LightGlueRuntime, Protocol):
     """A ``LightGlueRuntime`` that loads its engines at start-up (``OnnxLightGlueRuntime``):
-    ``load(feature_type, engine_path)`` is idempotent for the same file. Optional: a strategy
-    given a runtime without it expects the runtime to hold its engines already."""
+    ``load(feature_type, engine_path)`` is idempotent for the same file and returns the file
+    that will match ``feature_type`` (another than ``engine_path`` when one is loaded in its
+    place, as a steps engine in adaptive mode), or None when it does not say. Optional: a
+    strategy given a runtime without it expects the runtime to hold its engines already."""
 
-    def load(self, feature_type: str, engine_path: Path) -> None: ...
+    def load(self, feature_type: str, engine_path: Path) -> Path | None: ...

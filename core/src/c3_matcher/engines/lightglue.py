@@ -204,12 +204,30 @@ class OnnxLightGlueRuntime:
         """Feature types with a loaded engine."""
         return tuple(sorted(set(self._engines) | set(self._steps)))
 
-    def load(self, feature_type: str, engine_path: Path) -> None:
-        """Load the LightGlue engine for ``feature_type`` (at strategy creation).
+    def load(self, feature_type: str, engine_path: Path) -> Path:
+        """Load the LightGlue engine for ``feature_type`` (at strategy creation); the file that
+        will match ``feature_type`` (:meth:`serving_engine`: in adaptive mode the steps engine
+        loaded in place of a full one).
 
         Idempotent for the same path; ``EngineError`` if another engine is already loaded for
         this feature type, or if the engine's manifest declares another feature type.
         """
+        self._load(feature_type, engine_path)
+        served = self.serving_engine(feature_type)
+        assert served is not None  # loaded now, or raised
+        return served
+
+    def serving_engine(self, feature_type: str) -> Path | None:
+        """The engine file :meth:`match_pair` runs for ``feature_type`` (None: none loaded): the
+        steps engine in adaptive mode or when it is the only one, else the full graph."""
+        if feature_type in self._steps and (
+            self.mode == "adaptive" or feature_type not in self._engines
+        ):
+            return self._steps[feature_type][0]
+        loaded = self._engines.get(feature_type)
+        return None if loaded is None else loaded[0]
+
+    def _load(self, feature_type: str, engine_path: Path) -> None:
         path = Path(engine_path).expanduser().resolve()
         for table in (self._engines, self._steps):
             if feature_type in table and table[feature_type][0] == path:
@@ -274,7 +292,7 @@ class OnnxLightGlueRuntime:
             return False  # the path given is the steps engine itself
         for candidate in siblings:
             try:
-                self.load(feature_type, candidate)
+                self._load(feature_type, candidate)
             except EngineIntegrityError:
                 raise  # changed after its build: refused, never replaced by the full graph
             except (EngineError, OSError, ValueError, KeyError) as exc:
@@ -385,9 +403,8 @@ class OnnxLightGlueRuntime:
         if len(kpts0) == 0 or len(kpts1) == 0:
             return RawMatches(np.zeros((0, 2), np.int64), np.zeros((0,), np.float32))
         n0, n1 = normalize_keypoints(kpts0, size0), normalize_keypoints(kpts1, size1)
-        if feature_type in self._steps and (
-            self.mode == "adaptive" or feature_type not in self._engines
-        ):
+        steps = self._steps.get(feature_type)
+        if steps is not None and self.serving_engine(feature_type) == steps[0]:
             matches0, mscores0 = self._run_steps(feature_type, _Pair(n0, n1, desc0, desc1))
         else:
             matches0, mscores0 = self._run_full(feature_type, _Pair(n0, n1, desc0, desc1))

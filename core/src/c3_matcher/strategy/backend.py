@@ -14,7 +14,7 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
 from c3_matcher.strategy.config import ExtractorStrategyConfig
-from c3_matcher.strategy.pairs import PairMatcher
+from c3_matcher.strategy.pairs import EnginePairMatcher, PairMatcher
 
 
 class ExtractorBackend:
@@ -38,7 +38,12 @@ class ExtractorBackend:
         self.pair_matcher: Final = pair_matcher
         self.engine_id = runtime.load_engine(config.extractor_engine_path)
         facts = {"extractor": _engine_facts(runtime, self.engine_id, config.extractor_engine_path)}
-        for role, path in config.matcher_engines().items():
+        served = (
+            pair_matcher.engine_files()
+            if isinstance(pair_matcher, EnginePairMatcher)
+            else config.matcher_engines()
+        )  # what matches: a steps engine loaded in place of the configured full one
+        for role, path in served.items():
             facts[role] = _engine_facts(None, None, path)
         self._provenance: dict[str, Any] = {"provider": runtime.provider, "engines": facts}
 

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.protocols import LightGlueRuntime, LoadableLightGlueRuntime
@@ -15,15 +16,38 @@ class PairMatcher(Protocol):
     def match(self, query: Features, tile: Features) -> RawMatches: ...
 
 
+@runtime_checkable
+class EnginePairMatcher(PairMatcher, Protocol):
+    """A ``PairMatcher`` that runs engine files and says which (the FDR names them)."""
+
+    def engine_files(self) -> Mapping[str, Path]:
+        """The engine files that match, by provenance role (``"lightglue"``)."""
+        ...
+
+
 class LightGluePairMatcher:
     """A ``PairMatcher`` over the shared ``LightGlueRuntime`` for one feature type; loads the
-    engine into it now (start-up) when the runtime has ``load``."""
+    engine into it now (start-up) when the runtime has ``load``. ``role`` names the engine in
+    the provenance: the file the runtime says it runs (a steps engine loaded in place of the
+    full one), else ``engine_path``."""
 
-    def __init__(self, runtime: LightGlueRuntime, engine_path: Path, feature_type: str) -> None:
+    def __init__(
+        self,
+        runtime: LightGlueRuntime,
+        engine_path: Path,
+        feature_type: str,
+        *,
+        role: str = "lightglue",
+    ) -> None:
         self._runtime = runtime
         self._feature_type = feature_type
+        served = None
         if isinstance(runtime, LoadableLightGlueRuntime):
-            runtime.load(feature_type, engine_path)
+            served = runtime.load(feature_type, engine_path)
+        self._engine_files = {role: Path(served or engine_path)}
+
+    def engine_files(self) -> Mapping[str, Path]:
+        return dict(self._engine_files)
 
     def match(self, query: Features, tile: Features) -> RawMatches:
         return match_features(self._runtime, query, tile, self._feature_type)

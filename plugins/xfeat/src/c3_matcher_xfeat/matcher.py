@@ -107,7 +107,9 @@ class XFeatConfig:
     def pair_matcher(self, lightglue_runtime: LightGlueRuntime) -> PairMatcher:
         if self.matcher == "lighterglue":
             assert self.lighterglue_engine_path is not None  # __post_init__
-            return LightGluePairMatcher(lightglue_runtime, self.lighterglue_engine_path, "xfeat")
+            return LightGluePairMatcher(
+                lightglue_runtime, self.lighterglue_engine_path, "xfeat", role="lighterglue"
+            )
         return MutualNearestNeighbourMatcher(self.min_cossim, self.similarity_threads)
 
     @classmethod
