@@ -112,11 +112,8 @@ def build_default_helpers(
     (``strategy_settings``: the helpers serve the one strategy ``compose_root`` wires); the
     feature types with a steps engine are those the plugins' engine specs declare
     (``steps_specs``). ``plugin_host``: the process's (default: discovered now)."""
-    from c3_matcher.engines.lightglue import (
-        OnnxLightGlueRuntime,
-        resolve_mode,
-        steps_specs,
-    )
+    from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, resolve_mode
+    from c3_matcher.engines.lightglue_specs import steps_specs
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
     from c3_matcher.logs import swap_default_handler
 

@@ -16,13 +16,14 @@ import pytest
 from loguru import logger
 from numpy.typing import NDArray
 
-from c3_matcher.engines.lightglue import (
-    OnnxLightGlueRuntime,
-    steps_engines_beside,
+from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, steps_engines_beside
+from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue, confidence_threshold
+from c3_matcher.engines.lightglue_specs import (
+    STEPS_OPTION,
+    steps_engine_spec,
+    steps_io,
     steps_specs,
 )
-from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue, confidence_threshold
-from c3_matcher.engines.lightglue_specs import STEPS_OPTION, steps_engine_spec, steps_io
 from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.spec import EngineSpec, WeightsRef, matcher_spec

@@ -21,7 +21,7 @@ def test_tools_engine_modules_and_plugin_specs_import_without_torch() -> None:
         f"for module in {TOOLS_MODULES!r}:\n"
         "    __import__(module)\n"
         "from c3_matcher.compose import build_plugin_host\n"
-        "from c3_matcher.engines.lightglue import steps_specs\n"
+        "from c3_matcher.engines.lightglue_specs import steps_specs\n"
         "specs = build_plugin_host().engine_specs()\n"
         "keys = {s.key for s in specs}\n"
         "assert {'disk/depth', 'lightglue/disk', 'lightglue/disk-steps'} <= keys, keys\n"

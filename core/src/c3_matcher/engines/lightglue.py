@@ -26,7 +26,7 @@ points kept per layer, the confident matches at that test, whether it stopped th
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final, NamedTuple
 
@@ -35,7 +35,7 @@ from loguru import logger
 from numpy.typing import NDArray
 
 from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
-from c3_matcher.engines.lightglue_specs import STEPS_OPTION
+from c3_matcher.engines.lightglue_specs import STEPS_OPTION, STEPS_SIZES, steps_size
 from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file, read_manifest
 from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.engines.spec import EngineSpec
@@ -51,7 +51,6 @@ __all__ = [
     "normalize_keypoints",
     "resolve_mode",
     "steps_engines_beside",
-    "steps_specs",
 ]
 
 DEFAULT_FILTER_THRESHOLD = 0.1
@@ -69,16 +68,6 @@ def resolve_mode(mode: str, provider: str) -> str:
     if mode not in LIGHTGLUE_MODES:
         raise ValueError(f"mode must be one of auto, {', '.join(LIGHTGLUE_MODES)}; got {mode!r}")
     return mode
-
-
-def steps_specs(specs: Collection[EngineSpec]) -> dict[str, EngineSpec]:
-    """The steps engines among ``specs`` (the ``EngineSpec``s the plugins declare, hook
-    ``c3_matcher_engine_specs``), by the feature type they match."""
-    return {
-        str(spec.feature_type): spec
-        for spec in specs
-        if spec.feature_type and dict(spec.options).get(STEPS_OPTION[0]) == STEPS_OPTION[1]
-    }
 
 
 def normalize_keypoints(kpts: NDArray[np.float32], size: tuple[int, int]) -> NDArray[np.float32]:
@@ -135,21 +124,6 @@ def steps_engines_beside(
         ):
             found.append((manifest.built_at, record.path))
     return [path for _, path in sorted(found, reverse=True)]
-
-
-_STEPS_SIZES = ("n_layers", "input_dim", "descriptor_dim")
-
-
-def _size_option(path: Path, options: Mapping[str, Any], name: str) -> int:
-    """A steps engine's positive whole-number size ``name`` from its manifest's options."""
-    value = options.get(name)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise EngineError(
-            path,
-            f"its manifest's options.{name} is {value!r}, not a positive whole number "
-            f"(a steps engine records {', '.join(_STEPS_SIZES)}); rebuild it",
-        )
-    return value
 
 
 class _Pair(NamedTuple):
@@ -339,7 +313,7 @@ class OnnxLightGlueRuntime:
 
         depth = self._depth if self._depth is not None else options.get("depth_confidence", -1)
         width = self._width if self._width is not None else options.get("width_confidence", -1)
-        common = {name: _size_option(path, options, name) for name in _STEPS_SIZES}
+        common = {name: steps_size(path, options, name) for name in STEPS_SIZES}
         adaptive = AdaptiveLightGlue(
             run,
             depth_confidence=float(depth),

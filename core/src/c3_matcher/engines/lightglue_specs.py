@@ -6,17 +6,25 @@ ONNX Runtime.
 
 from __future__ import annotations
 
+from collections.abc import Collection, Mapping
+from pathlib import Path
+from typing import Any
+
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, WeightsRef, matcher_spec
+from c3_matcher.errors import EngineError
 
 __all__ = [
     "LIGHTGLUE_LAYERS",
     "STEPS_OPTION",
+    "STEPS_SIZES",
     "UPSTREAM_DEPTH_CONFIDENCE",
     "UPSTREAM_WIDTH_CONFIDENCE",
     "lightglue_engine_specs",
     "lightglue_spec",
     "steps_engine_spec",
     "steps_io",
+    "steps_size",
+    "steps_specs",
 ]
 
 LIGHTGLUE_LAYERS = 9
@@ -153,3 +161,29 @@ def lightglue_engine_specs(
         description=f"LightGlue for {label} in steps: upstream early exit and point pruning",
     )
     return full, steps
+
+
+def steps_specs(specs: Collection[EngineSpec]) -> dict[str, EngineSpec]:
+    """The steps engines among ``specs`` (the ``EngineSpec``s the plugins declare, hook
+    ``c3_matcher_engine_specs``), by the feature type they match."""
+    return {
+        str(spec.feature_type): spec
+        for spec in specs
+        if spec.feature_type and dict(spec.options).get(STEPS_OPTION[0]) == STEPS_OPTION[1]
+    }
+
+
+STEPS_SIZES = ("n_layers", "input_dim", "descriptor_dim")
+"""The sizes a steps engine's manifest records in its options (its drivers need them)."""
+
+
+def steps_size(path: Path, options: Mapping[str, Any], name: str) -> int:
+    """A steps engine's positive whole-number size ``name`` from its manifest's options."""
+    value = options.get(name)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise EngineError(
+            path,
+            f"its manifest's options.{name} is {value!r}, not a positive whole number "
+            f"(a steps engine records {', '.join(STEPS_SIZES)}); rebuild it",
+        )
+    return value
