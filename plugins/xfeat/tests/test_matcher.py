@@ -224,7 +224,10 @@ def test_keypoint_budget_precedence():
     assert XFeatOptions(matcher="lighterglue").keypoint_budget(None) == 2048
     assert XFeatOptions().keypoint_budget(1000) == 1000  # [matcher] max_keypoints set explicitly
     assert XFeatOptions().keypoint_budget(8000) == 4096  # capped at the engine's top-K
-    assert XFeatOptions(max_keypoints=512).keypoint_budget(1000) == 512
+    assert XFeatOptions(max_keypoints=512).keypoint_budget(None) == 512  # the table's
+    # --max-keypoints (and C3_MATCHER_MATCHER__MAX_KEYPOINTS) set [matcher] max_keypoints: a
+    # run's budget wins over a configuration file's table, as for every strategy (it lost)
+    assert XFeatOptions(max_keypoints=512).keypoint_budget(1000) == 1000
 
 
 def test_missing_engine_is_a_startup_error_naming_the_build_command(tmp_path):
