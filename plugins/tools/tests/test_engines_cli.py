@@ -95,13 +95,14 @@ def test_bench_machinery_smoke(engine_dir: Path) -> None:
     store = EngineStore(engine_dir)
     results = run_bench(
         store.require("disk", "depth"),
-        store.require("lightglue", "disk"),
+        [store.require("lightglue", "disk")],
         default_verification_imagery()[0],
         runs=1,
         disk_sizes=((256, 256),),
         lightglue_counts=(128,),
     )
-    assert [r.case for r in results] == ["disk 256x256", "disk lightglue 128x128 kpts"]
+    assert [r.case for r in results] == ["disk/depth 256x256", "lightglue/disk 128x128 kpts"]
+    assert results[1].detail["mode"] == "full"
     for r in results:
         assert r.median_ms > 0 and r.peak_rss_mib > r.baseline_rss_mib > 0
 
@@ -132,3 +133,70 @@ def test_bench_missing_image_is_refused_naming_it(
     assert main(["engines", "bench", "--image", str(missing), "--runs", "1"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"c3-matcher: --image: no such file: {missing}"
+
+
+def test_bench_times_every_engine_once_under_its_own_label() -> None:
+    """Every extractor variant (ALIKED n16, the default, and n16rot) and every matcher engine
+    (full and steps) is one case set, on the real plugins' specs; no two labels are equal and
+    each names its engine's key (once ALIKED was timed only as n16rot, each extractor twice, and
+    ``lightglue/disk`` and ``lightglue/disk-steps`` shared the label ``disk lightglue ...``)."""
+    from c3_matcher.compose import build_plugin_host
+    from c3_matcher.engines.lightglue_specs import STEPS_OPTION
+    from c3_matcher_tools.engines.bench import (
+        DISK_SIZES,
+        LIGHTGLUE_COUNTS,
+        extractor_label,
+        matcher_label,
+    )
+    from c3_matcher_tools.engines.cli import _bench_groups
+
+    specs = build_plugin_host().engine_specs()
+    groups, unserved = _bench_groups(specs)
+    assert unserved == []
+    assert [g.extractor.key for g in groups] == [s.key for s in specs if s.kind == "extractor"]
+    timed = sorted(m.key for g in groups for m in g.matchers)
+    assert timed == sorted(s.key for s in specs if s.kind == "matcher")
+    by_key = {g.extractor.key: [m.key for m in g.matchers] for g in groups}
+    assert by_key["aliked/n16"] == ["lightglue/aliked", "lightglue/aliked-steps"]
+    assert by_key["aliked/n16rot"] == [] and "disk/depth" in by_key
+    labels = [
+        (g.extractor.key, extractor_label(g.extractor.key, w, h))
+        for g in groups
+        for w, h in DISK_SIZES
+    ]
+    labels += [
+        (m.key, matcher_label(m.key, STEPS_OPTION in m.options, n, n))
+        for g in groups
+        for m in g.matchers
+        for n in LIGHTGLUE_COUNTS
+    ]
+    assert len({label for _, label in labels}) == len(labels)
+    assert all(label.split(" ", 1)[0] == key for key, label in labels)
+    assert "lightglue/disk-steps 512x512 kpts, every layer" in {label for _, label in labels}
+
+
+def test_bench_command_runs_each_engine_once(
+    engines: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``engines bench`` itself (children stubbed: no inference) starts one case per engine
+    and size or keypoint count, ALIKED n16 included, none twice."""
+    import c3_matcher_tools.engines.bench as bench
+    from c3_matcher.compose import build_plugin_host
+
+    started: list[tuple[str, str, str]] = []
+
+    def child(argv: list[str]) -> bench.BenchResult:
+        kind, engine = argv[0], Path(argv[2]).name
+        size = " ".join(argv[6:8]) if kind == "extractor" else argv[6]
+        started.append((kind, engine, size))
+        return bench.BenchResult(engine, f"{engine} {size}", 1, 1, 1, 1, 1, 1, 1, 1, "", {})
+
+    monkeypatch.setattr(bench, "_run_child", child)
+    monkeypatch.setattr(bench, "_prepare_features", lambda *_args: None)
+    assert main(["engines", "bench", "--runs", "1", "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)) == len(started)
+    assert len(set(started)) == len(started)
+    store = EngineStore(engines)
+    for spec in build_plugin_host().engine_specs():
+        runs = [s for s in started if s[:2] == (spec.kind, store.require_spec(spec).name)]
+        assert len(runs) == 2, (spec.key, started)

@@ -3,12 +3,18 @@
 Each measurement runs in a fresh subprocess (``python -m c3_matcher_tools.engines.bench child ...``)
 so that its peak RSS (``VmHWM`` from ``/proc/self/status``, else ``ru_maxrss``) belongs to that
 case alone: interpreter + onnxruntime + one session + its runs. Latency: one warm-up run, then
-``runs`` timed runs of ``InferenceRuntime.run`` (DISK: ``run_extractor``, LightGlue:
-``match_pair``, pre- and post-processing included); median and p95 in ms.
+``runs`` timed runs of ``InferenceRuntime.run`` (extractors: ``run_extractor``, LightGlue-family
+matchers: ``OnnxLightGlueRuntime.match_pair`` in ``"full"`` mode, pre- and post-processing
+included); median and p95 in ms.
 
-Cases: DISK at two input sizes (512x512, 1024x1024 px, resized from the real orthophoto) and
-LightGlue at two keypoint counts per side (512, 2048), on DISK features of two overlapping real
-views (1024x1024). No PyTorch.
+Cases, per engine: an extractor (DISK, ALIKED, XFeat...) at two input sizes (512x512, 1024x1024
+px, resized from the real orthophoto), and a matcher at two keypoint counts per side (512, 2048),
+on its extractor's features of two overlapping real views (1024x1024). Each case is labelled by
+its engine's key (``model/variant`` from the engine's manifest): ``aliked/n16 512x512``,
+``lightglue/disk 512x512 kpts``. A steps engine (``pruning = "steps"``) loaded alone runs as
+``match_pair`` runs it in full mode: every layer on every point, one graph call per layer, no
+early exit or pruning (the adaptive figure depends on the pair: ``c3-matcher bench``); its label
+says so (``lightglue/disk-steps 512x512 kpts, every layer``). No PyTorch.
 """
 
 from __future__ import annotations
@@ -37,10 +43,23 @@ from c3_matcher_tools.memory import current_rss_mib, peak_rss_mib
 if TYPE_CHECKING:
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
-__all__ = ["BenchResult", "format_table", "run_bench"]
+__all__ = ["BenchResult", "extractor_label", "format_table", "matcher_label", "run_bench"]
 
 DISK_SIZES: tuple[tuple[int, int], ...] = ((512, 512), (1024, 1024))
 LIGHTGLUE_COUNTS: tuple[int, ...] = (512, 2048)
+CASE_WIDTH = 28
+"""The table's narrowest case column (it widens to the longest label)."""
+
+
+def extractor_label(key: str, width: int, height: int) -> str:
+    """The case label of extractor engine ``key`` (``model/variant``) at ``width`` x ``height``."""
+    return f"{key} {width}x{height}"
+
+
+def matcher_label(key: str, steps: bool, n0: int, n1: int) -> str:
+    """The case label of matcher engine ``key`` on ``n0`` x ``n1`` keypoints; a ``steps``
+    engine is timed running every layer on every point (full mode), and says so."""
+    return f"{key} {n0}x{n1} kpts" + (", every layer" if steps else "")
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,20 +146,24 @@ def _extractor_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> 
     width, height = args.size
     rgb = _read_rgb(Path(args.image), (width, height))
     mask = np.ones((height, width), dtype=bool)
-    model = Path(args.engine).name.split("_", 1)[0]
+    manifest = runtime.manifest(engine_id)
+    label = extractor_label(f"{manifest.model}/{manifest.variant}", width, height)
 
     def fn() -> object:
         return run_extractor(runtime, engine_id, rgb, mask, 2048)
 
-    return _Case(f"{model} {width}x{height}", fn, load_ms, lambda f: {"keypoints": len(f)})
+    return _Case(label, fn, load_ms, lambda f: {"keypoints": len(f)})
 
 
 def _matcher_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> _Case:
-    """Load the LightGlue engine and set up its match of the first ``--keypoints`` per side."""
+    """Load the LightGlue engine and set up its match of the first ``--keypoints`` per side (in
+    full mode: a steps engine loaded alone runs every layer on every point)."""
     from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
+    from c3_matcher.engines.lightglue_specs import STEPS_OPTION
+    from c3_matcher.engines.manifest import read_manifest
 
     start = time.perf_counter()
-    matcher = OnnxLightGlueRuntime(runtime)
+    matcher = OnnxLightGlueRuntime(runtime, mode="full")
     matcher.load(args.feature_type, Path(args.engine))
     load_ms = (time.perf_counter() - start) * 1e3
     data = np.load(args.features)
@@ -151,12 +174,19 @@ def _matcher_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> _C
         return PairSide(data[f"k{i}"][:n], data[f"d{i}"][:n], (width, height))
 
     side0, side1 = side(0), side(1)
-    label = f"{args.feature_type} lightglue {len(side0.keypoints)}x{len(side1.keypoints)} kpts"
+    manifest = read_manifest(Path(args.engine))
+    steps = manifest.options.get(STEPS_OPTION[0]) == STEPS_OPTION[1]
+    key = f"{manifest.model}/{manifest.variant}"
+    label = matcher_label(key, steps, len(side0.keypoints), len(side1.keypoints))
 
     def fn() -> object:
         return matcher.match_pair(side0, side1, feature_type=args.feature_type)
 
-    return _Case(label, fn, load_ms, lambda m: {"matches": len(m)})
+    def detail(m: Any) -> dict[str, Any]:  # how the runtime ran it: "full" or "steps-full"
+        run = matcher.last_run
+        return {"matches": len(m), "mode": run.get("mode"), "layers": run.get("layers")}
+
+    return _Case(label, fn, load_ms, detail)
 
 
 def _child(args: argparse.Namespace) -> int:
@@ -204,12 +234,12 @@ def _run_child(argv: list[str]) -> BenchResult:
     return BenchResult(**json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
-def _prepare_features(disk_engine: Path, image: Path, out: Path, max_keypoints: int) -> None:
+def _prepare_features(extractor_engine: Path, image: Path, out: Path, max_keypoints: int) -> None:
     from c3_matcher.engines.extract import run_extractor
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
     runtime = OnnxInferenceRuntime([CPU_PROVIDER])
-    engine_id = runtime.load_engine(disk_engine)
+    engine_id = runtime.load_engine(extractor_engine)
     a, b = _pair_views(image)
     fa = run_extractor(runtime, engine_id, a, np.ones(a.shape[:2], bool), max_keypoints)
     fb = run_extractor(runtime, engine_id, b, np.ones(b.shape[:2], bool), max_keypoints)
@@ -225,8 +255,8 @@ def _prepare_features(disk_engine: Path, image: Path, out: Path, max_keypoints: 
 
 
 def run_bench(
-    disk_engine: Path,
-    lightglue_engine: Path,
+    extractor_engine: Path,
+    matcher_engines: Sequence[Path],
     image: Path,
     *,
     runs: int = 20,
@@ -236,27 +266,32 @@ def run_bench(
     settings: Sequence[tuple[bool, bool]] = ((False, True),),
     log: Callable[[str], None] | None = None,
 ) -> list[BenchResult]:
-    """Measure every case, each in a fresh process; ``settings`` lists (memory pattern, arena)
-    combinations to compare (default: the runtime's chosen options)."""
+    """Measure every case, each in a fresh process: ``extractor_engine`` at each of
+    ``disk_sizes``, then each of ``matcher_engines`` (``feature_type`` matchers, none: the
+    extractor alone) at each of ``lightglue_counts`` on that extractor's features. ``settings``
+    lists (memory pattern, arena) combinations to compare (default: the runtime's options)."""
     say = log or (lambda _line: None)
     results: list[BenchResult] = []
     with tempfile.TemporaryDirectory(prefix="c3-bench-") as tmp:
         features = Path(tmp) / "features.npz"
-        say("extracting real DISK features for the LightGlue cases")
-        _prepare_features(disk_engine, image, features, max(lightglue_counts))
+        if matcher_engines:
+            say(f"extracting real features with {extractor_engine.name} for the matcher cases")
+            _prepare_features(extractor_engine, image, features, max(lightglue_counts))
         for mem_pattern, arena in settings:
             flags = _setting_flags(mem_pattern, arena, runs)
+            where = f"({flags[1]} mem pattern, {flags[3]} arena)"
             for width, height in disk_sizes:
-                say(f"disk {width}x{height} ({flags[1]} mem pattern, {flags[3]} arena)")
+                say(f"{extractor_engine.name} {width}x{height} {where}")
                 options = ["--image", str(image), "--size", str(width), str(height)]
-                argv = _child_argv("extractor", disk_engine, options, flags)
+                argv = _child_argv("extractor", extractor_engine, options, flags)
                 results.append(_run_child(argv))
-            for count in lightglue_counts:
-                say(f"lightglue {count} keypoints/side ({flags[1]} mem pattern, {flags[3]} arena)")
-                options = ["--features", str(features), "--keypoints", str(count)]
-                options += ["--feature-type", feature_type]
-                argv = _child_argv("matcher", lightglue_engine, options, flags)
-                results.append(_run_child(argv))
+            for matcher_engine in matcher_engines:
+                for count in lightglue_counts:
+                    say(f"{matcher_engine.name} {count} keypoints/side {where}")
+                    options = ["--features", str(features), "--keypoints", str(count)]
+                    options += ["--feature-type", feature_type]
+                    argv = _child_argv("matcher", matcher_engine, options, flags)
+                    results.append(_run_child(argv))
     return results
 
 
@@ -278,15 +313,16 @@ def _child_argv(kind: str, engine: Path, options: Sequence[str], flags: list[str
 
 
 def format_table(results: Sequence[BenchResult]) -> str:
-    """A fixed-width text table of ``results``."""
+    """A fixed-width text table of ``results`` (the case column as wide as its longest label)."""
+    width = max([CASE_WIDTH, *(len(r.case) for r in results)])
     header = (
-        f"{'case':<28} {'median ms':>10} {'p95 ms':>8} {'min ms':>8} {'peak MiB':>9} "
+        f"{'case':<{width}} {'median ms':>10} {'p95 ms':>8} {'min ms':>8} {'peak MiB':>9} "
         f"{'base MiB':>9} {'load ms':>8}  settings"
     )
     lines = [header, "-" * len(header)]
     for r in results:
         lines.append(
-            f"{r.case:<28} {r.median_ms:>10.1f} {r.p95_ms:>8.1f} {r.min_ms:>8.1f} "
+            f"{r.case:<{width}} {r.median_ms:>10.1f} {r.p95_ms:>8.1f} {r.min_ms:>8.1f} "
             f"{r.peak_rss_mib:>9.0f} {r.baseline_rss_mib:>9.0f} {r.load_ms:>8.0f}  {r.settings}"
         )
     return "\n".join(lines)

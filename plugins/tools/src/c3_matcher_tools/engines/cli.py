@@ -11,6 +11,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
+from typing import NamedTuple
 
 from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, CommandRegistry, bounded_int
 from c3_matcher.context import CommandContext
@@ -63,15 +64,40 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
     return EXIT_OK
 
 
-def _bench_pairs(specs: Sequence[EngineSpec]) -> list[tuple[EngineSpec, EngineSpec]]:
-    """(extractor, matcher) pairs: each matcher spec with the extractor whose model is its
-    feature type (DISK with LightGlue-for-DISK)."""
-    extractors = {s.model: s for s in specs if s.kind == "extractor"}
-    return [
-        (extractors[m.feature_type], m)
-        for m in specs
-        if m.kind == "matcher" and m.feature_type in extractors
+class _BenchGroup(NamedTuple):
+    """One extractor engine and the matcher engines timed on its features."""
+
+    extractor: EngineSpec
+    matchers: tuple[EngineSpec, ...]
+
+
+def _bench_groups(specs: Sequence[EngineSpec]) -> tuple[list[_BenchGroup], list[EngineSpec]]:
+    """What ``engines bench`` times: every extractor spec once (each variant: ``aliked/n16``
+    and ``aliked/n16rot``), in declared order, each with the matcher specs timed on its
+    features; every matcher spec once (full and steps engines alike), on the features of the
+    first extractor declared for its feature type (the plugin's default variant). Second: the
+    matcher specs no declared extractor serves (not timed)."""
+    extractors = [s for s in specs if s.kind == "extractor"]
+    first: dict[str, EngineSpec] = {}
+    for extractor in extractors:
+        first.setdefault(extractor.model, extractor)
+    matchers = [m for m in specs if m.kind == "matcher"]
+    groups = [
+        _BenchGroup(e, tuple(m for m in matchers if first.get(str(m.feature_type)) is e))
+        for e in extractors
     ]
+    return groups, [m for m in matchers if str(m.feature_type) not in first]
+
+
+def _bench_image(args: argparse.Namespace, ctx: EnginesCliContext) -> Path:
+    """``--image``, else the configured verification imagery's first, else the packaged one."""
+    if args.image:
+        return Path(args.image)
+    if ctx.imagery:
+        return Path(ctx.imagery[0])
+    from c3_matcher_tools.engines.export import default_verification_imagery
+
+    return default_verification_imagery()[0]
 
 
 def _bench(args: argparse.Namespace, command: CommandContext) -> int:
@@ -80,36 +106,31 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
     ctx: EnginesCliContext = engines_context(command.settings, command.plugin_host)
     from c3_matcher_tools.engines.bench import format_table, run_bench
 
-    pairs = _bench_pairs(ctx.specs)
-    if not pairs:
-        command.err("error: no installed plugin declares an extractor + matcher pair to bench")
+    groups, unserved = _bench_groups(ctx.specs)
+    if not groups:
+        command.err("error: no installed plugin declares an extractor engine to bench")
         return EXIT_FAILURE
+    for matcher in unserved:
+        command.err(f"note: {matcher.key} not benched: no extractor of {matcher.feature_type!r}")
     store = EngineStore(ctx.engine_dir)
-    if args.image:
-        image = args.image
-    elif ctx.imagery:
-        image = ctx.imagery[0]
-    else:
-        from c3_matcher_tools.engines.export import default_verification_imagery
-
-        image = default_verification_imagery()[0]
+    image = _bench_image(args, ctx)
     session_options: tuple[tuple[bool, bool], ...] = ((False, True),)
     if args.sweep_session_options:
         session_options = ((True, True), (False, True), (False, False))
     results = []
-    for extractor, matcher in pairs:
+    for group in groups:
         try:
-            extractor_path = store.require_spec(extractor)
-            matcher_path = store.require_spec(matcher)
+            extractor_path = store.require_spec(group.extractor)
+            matcher_paths = [store.require_spec(m) for m in group.matchers]
         except C3Error as exc:
             command.err(f"error: {exc}")
             return EXIT_FAILURE
         results += run_bench(
             extractor_path,
-            matcher_path,
+            matcher_paths,
             image,
             runs=args.runs,
-            feature_type=str(matcher.feature_type),
+            feature_type=group.extractor.model,
             settings=session_options,
             log=command.err,
         )
