@@ -84,3 +84,25 @@ def test_missing_engine_is_a_startup_error_naming_the_build_command(tmp_path):
     settings = settings_for(tmp_path / "no-engines", tmp_path)
     with pytest.raises(EngineError, match="c3-matcher engines build"):
         compose_root(settings, build_default_helpers(settings), configure_logs=False)
+
+
+def test_a_keypoint_budget_above_the_engines_top_k_is_cut_to_it_and_said(engine_dir, tmp_path):
+    """--max-keypoints 8192 was accepted and reported while the DISK graph gives 2048 at most:
+    nothing changed but the figure a user reads (the ready record, a bench label)."""
+    from loguru import logger
+
+    settings = settings_for(engine_dir, tmp_path)
+    settings = settings.model_copy(
+        update={"matcher": settings.matcher.model_copy(update={"max_keypoints": 8192})}
+    )
+    said: list[dict] = []
+    sink = logger.add(lambda m: said.append(dict(m.record["extra"])), level="WARNING")
+    try:
+        config = DiskLightGlueConfig.from_c3_settings(settings)
+        matcher = matcher_over_helpers(
+            DiskLightGlueMatcher, config, build_default_helpers(settings)
+        )
+    finally:
+        logger.remove(sink)
+    assert config.max_keypoints == 8192 and matcher.backend.max_keypoints == 2048
+    assert {"kind": "c3.matcher.keypoints_capped", "strategy": "disk_lightglue"} in said

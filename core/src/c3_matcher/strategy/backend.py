@@ -7,6 +7,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final
 
+from loguru import logger
+
 from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.errors import EngineError
@@ -33,10 +35,10 @@ class ExtractorBackend:
         self.input_rule: Final = config.input_rule
         self.extract_phase: Final = config.extract_phase
         self.match_phase: Final = config.match_phase
-        self.max_keypoints: Final = config.max_keypoints
-        """The keypoint budget (``StoredFeaturesBackend``): at most this many per image."""
         self.pair_matcher: Final = pair_matcher
         self.engine_id = runtime.load_engine(config.extractor_engine_path)
+        self.max_keypoints: Final = _budget(runtime, self.engine_id, config)
+        """The keypoint budget (``StoredFeaturesBackend``): at most this many per image."""
         facts = {"extractor": _engine_facts(runtime, self.engine_id, config.extractor_engine_path)}
         served = (
             pair_matcher.engine_files()
@@ -57,6 +59,24 @@ class ExtractorBackend:
 
     def provenance(self) -> Mapping[str, Any]:
         return self._provenance
+
+
+def _budget(runtime: InferenceRuntime, engine_id: str, config: ExtractorStrategyConfig) -> int:
+    """``config.max_keypoints``, at most the extractor engine's fixed top-K (its manifest's
+    ``top_k``: a larger budget would keep no more and only be reported), said once when cut."""
+    top_k = None
+    if isinstance(runtime, ManifestRuntime):
+        top_k = runtime.manifest(engine_id).options.get("top_k")
+    if not isinstance(top_k, int) or config.max_keypoints <= top_k:
+        return config.max_keypoints
+    logger.bind(kind="c3.matcher.keypoints_capped", strategy=config.label).warning(
+        "{}: {} keypoints per image asked, the extractor engine gives at most {}: {} kept",
+        config.label,
+        config.max_keypoints,
+        top_k,
+        top_k,
+    )
+    return top_k
 
 
 def _engine_facts(
