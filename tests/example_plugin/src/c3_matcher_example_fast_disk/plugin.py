@@ -23,7 +23,8 @@ class Options(BaseModel):
 
 
 def make_config(settings: c3.C3Settings, options: Options) -> c3.ExtractorLightGlueConfig:
-    """DISK + LightGlue at the options' keypoint budget and long side (px)."""
+    """DISK + LightGlue at the run's keypoint budget (``--max-keypoints``, ``[matcher]
+    max_keypoints``: None when unset), else the options', and at the options' long side (px)."""
     store = c3.EngineStore(settings.engines.directory)
     return c3.ExtractorLightGlueConfig.from_settings(
         settings,
@@ -33,7 +34,7 @@ def make_config(settings: c3.C3Settings, options: Options) -> c3.ExtractorLightG
         extractor_engine_path=store.require_spec(DISK_SPEC),
         lightglue_engine_path=store.require_spec(LIGHTGLUE_DISK_SPEC),
         size_multiple=DISK_SIZE_MULTIPLE,
-        max_keypoints=options.max_keypoints,
+        max_keypoints=settings.matcher.max_keypoints or options.max_keypoints,
         max_long_side=options.max_long_side,
     )
 
