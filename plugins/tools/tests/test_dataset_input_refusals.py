@@ -260,6 +260,32 @@ def test_the_shipped_flights_still_pass_dataset_info(capsys: pytest.CaptureFixtu
         assert json.loads(capsys.readouterr().out)["name"] == meta.parent.name
 
 
+def test_every_shipped_frame_with_its_true_tile_is_shown_by_it() -> None:
+    """What ``dataset render`` now requires of a frame it labels present (its true tile holds
+    imagery under at least 95 % of it): each true tile's data mask warped onto the frame through
+    the recorded ground truth. 0.0 % nodata on every shipped flight when written."""
+    import cv2
+
+    from c3_matcher_tools.dataset.flight_plan import MAX_TRUE_NODATA
+    from c3_matcher_tools.dataset.format import load_dataset
+
+    for meta in sorted(FLIGHT.parent.glob("*/dataset.json")):
+        dataset = load_dataset(meta.parent)
+        size = tuple(dataset.calibration.image_size)
+        with dataset.open_store() as store:
+            for frame in dataset.frames:
+                if frame.true_index is None:
+                    continue
+                truth = frame.candidates[frame.true_index]
+                tile = store.handle(truth.tile_id, dataset.candidate_size_px).decode()
+                data = np.where(tile.max(axis=2) > 0, np.uint8(255), np.uint8(0))
+                seen = cv2.warpPerspective(
+                    data, truth.h_tile_to_undistorted, size, flags=cv2.INTER_NEAREST
+                )
+                nodata = float((seen == 0).mean())
+                assert nodata <= MAX_TRUE_NODATA, (meta.parent.name, frame.index, nodata)
+
+
 # --- 4. --force onto a file ------------------------------------------------------------------
 
 
