@@ -332,14 +332,20 @@ def _command(argv: Sequence[str] | None) -> int:
 
     claim_stderr()  # a command owns its process: JSON log lines on stderr from the first one
 
-    try:
+    try:  # a plugin that fails is listed by `plugins` and left out, the host goes on
         with contextlib.redirect_stdout(sys.stderr):  # a plugin printing as it is imported
             host = build_plugin_host()
+            parser = _build_parser(host)  # or as it adds its commands
     except C3Error as exc:  # the installation itself is broken (e.g. two profiles installed)
         print(_fail(exc), file=sys.stderr)
         return EXIT_FAILURE
+    except Exception as exc:  # a bug: one line, as for a command (C3_MATCHER_TRACEBACK=1)
+        if os.environ.get("C3_MATCHER_TRACEBACK"):
+            raise
+        print(_fail(f"internal error: {describe(exc)}"), file=sys.stderr)
+        return EXIT_FAILURE
     rest, config = split_config(sys.argv[1:] if argv is None else argv)
-    args = _build_parser(host).parse_args(rest)
+    args = parser.parse_args(rest)
     if config is not None:
         args.config = config
     try:

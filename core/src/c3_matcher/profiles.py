@@ -17,6 +17,7 @@ from typing import Any
 import importlib_metadata
 
 from c3_matcher.errors import ProfileError
+from c3_matcher.plugins.distributions import entry_points_in, field_of, location_of
 
 __all__ = [
     "PROFILE_GROUP",
@@ -143,11 +144,16 @@ def installed_profile(
     found: list[tuple[str, importlib_metadata.EntryPoint]] = []
     seen: set[str] = set()
     for dist in dists:
-        name = dist.metadata["Name"]
+        name = field_of(dist, "Name")  # None: incomplete metadata, skipped unless a profile's
+        if name is None and entry_points_in(dist, PROFILE_GROUP):
+            raise ProfileError(
+                f"the build profile at {location_of(dist)} has no readable Name in its "
+                "metadata; reinstall it (pip install --force-reinstall c3-matcher-profile-...)"
+            )
         if name is None or _norm(name) in seen:
             continue
         seen.add(_norm(name))
-        found.extend((name, ep) for ep in dist.entry_points if ep.group == PROFILE_GROUP)
+        found.extend((name, ep) for ep in entry_points_in(dist, PROFILE_GROUP))
     if not found:
         return UNPROFILED
     if len(found) > 1:
@@ -159,7 +165,9 @@ def installed_profile(
     dist_name, entry_point = found[0]
     try:
         data = entry_point.load()
-    except Exception as exc:
+    except (KeyboardInterrupt, GeneratorExit):
+        raise
+    except BaseException as exc:  # SystemExit too: a broken profile is one line, not an exit
         raise ProfileError(
             f"profile {entry_point.name} ({dist_name}) failed to load: {exc}"
         ) from exc

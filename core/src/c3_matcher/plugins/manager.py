@@ -19,8 +19,11 @@ from c3_matcher.errors import (
     PluginLoadError,
     StrategyNotLinkedError,
     UnknownStrategyError,
+    describe,
 )
 from c3_matcher.plugins import hookspecs
+from c3_matcher.plugins.distributions import entry_points_in, field_of, location_of
+from c3_matcher.plugins.isolation import CommandRecorder, call_one, checked_list, is_failure
 from c3_matcher.plugins.types import StrategySpec
 from c3_matcher.profiles import BuildProfile, FlagState
 
@@ -37,13 +40,15 @@ ENTRY_POINT_GROUP = "c3_matcher.plugins"
 
 @dataclass(frozen=True, slots=True)
 class PluginSource:
-    """An entry point and the distribution that ships it."""
+    """An entry point and the distribution that ships it; ``problem``: why it cannot be loaded
+    (its distribution's metadata is incomplete), listed as its load error."""
 
     name: str
     distribution: str
     version: str
     entry_point: importlib_metadata.EntryPoint | None = None
     module: types.ModuleType | object | None = None  # pre-imported (tests, in-tree registration)
+    problem: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,24 +70,32 @@ class IgnoredPlugin:
 class _Registry:
     strategies: dict[str, tuple[StrategySpec, LoadedPlugin]] = field(default_factory=dict)
     duplicates: dict[str, DuplicateStrategyError] = field(default_factory=dict)
+    engines: dict[str, list[EngineSpec]] = field(default_factory=dict)  # by plugin, load order
+    left_out: dict[str, PluginLoadError] = field(default_factory=dict)  # strategy -> why
 
 
 def discover(
     distributions: Iterable[importlib_metadata.Distribution] | None = None,
 ) -> list[PluginSource]:
-    """Entry points of the plugin group, one per (distribution, name), in a stable order."""
+    """Entry points of the plugin group, one per (distribution, name), in a stable order. A
+    distribution whose metadata lacks its Name or Version is passed over if it declares no
+    plugin, else its plugins come with that ``problem`` (its folder names it when its Name is
+    missing)."""
     dists = importlib_metadata.distributions() if distributions is None else distributions
     sources: dict[tuple[str, str], PluginSource] = {}
     for dist in dists:
-        dist_name = dist.metadata["Name"]
-        if dist_name is None:
+        entry_points = entry_points_in(dist, ENTRY_POINT_GROUP)
+        if not entry_points:
             continue
-        for ep in dist.entry_points:
-            if ep.group == ENTRY_POINT_GROUP:
-                sources.setdefault(
-                    (dist_name.lower(), ep.name),
-                    PluginSource(ep.name, dist_name, dist.version or "?", ep),
-                )
+        name, version = field_of(dist, "Name"), field_of(dist, "Version")
+        problem = None
+        if name is None or version is None:
+            missing = "Name" if name is None else "Version"
+            problem = f"its metadata ({location_of(dist)}) has no readable {missing}; reinstall it"
+        label = name or location_of(dist)
+        for ep in entry_points:
+            source = PluginSource(ep.name, label, version or "?", ep, problem=problem)
+            sources.setdefault((label.lower(), ep.name), source)
     return [sources[key] for key in sorted(sources)]
 
 
@@ -103,6 +116,9 @@ class PluginHost:
 
     # -- loading ------------------------------------------------------------------------------
     def _load(self, source: PluginSource) -> None:
+        if source.problem is not None:
+            self._errors.append(PluginLoadError(source.name, source.distribution, source.problem))
+            return
         if not self._profile.allows_distribution(source.distribution):
             self._ignored.append(
                 IgnoredPlugin(
@@ -112,17 +128,25 @@ class PluginHost:
                 )
             )
             return
-        try:
+        plugin_name = f"{source.distribution}:{source.name}"
+        specs: list[StrategySpec] = []
+        hook = None  # the hook being asked, once the module is in
+        try:  # SystemExit too (a module calling sys.exit as it is imported), not Ctrl-C
             module = source.module if source.module is not None else _load_entry_point(source)
-            self._pm.register(module, name=f"{source.distribution}:{source.name}")
+            self._pm.register(module, name=plugin_name)
             self._pm.check_pending()
             _check_implements_a_hook(self._pm, module)
             specs = self._strategies_of(module)
-        except Exception as exc:
-            plugin_name = f"{source.distribution}:{source.name}"
-            if self._pm.has_plugin(plugin_name):
-                self._pm.unregister(name=plugin_name)
-            self._errors.append(PluginLoadError(source.name, source.distribution, exc))
+            hook = "c3_matcher_engine_specs"  # asked now: its failure is listed as it loads
+            self._registry.engines[plugin_name] = self._engine_specs_of(plugin_name)
+        except BaseException as exc:
+            if not is_failure(exc):
+                raise
+            self._unregister(plugin_name)
+            cause = exc if hook is None else f"{hook}: {describe(exc)}"
+            error = PluginLoadError(source.name, source.distribution, cause)
+            self._errors.append(error)
+            self._registry.left_out.update(dict.fromkeys((s.name for s in specs), error))
             return
         specs = [spec for spec in specs if self._offered(spec, source)]
         loaded = LoadedPlugin(
@@ -149,17 +173,36 @@ class PluginHost:
     def _strategies_of(self, module: object) -> list[StrategySpec]:
         impl = getattr(module, "c3_matcher_strategies", None)
         returned = impl() if callable(impl) else []
-        if not isinstance(returned, list | tuple):
-            raise TypeError(
-                f"c3_matcher_strategies returned {type(returned).__name__}, expected a list "
-                "of StrategySpec (return [StrategySpec(...)])"
-            )
-        for spec in returned:
-            if not isinstance(spec, StrategySpec):
-                raise TypeError(
-                    f"c3_matcher_strategies returned {type(spec).__name__}, expected StrategySpec"
-                )
-        return list(returned)
+        return checked_list(returned, "c3_matcher_strategies", StrategySpec)
+
+    def _engine_specs_of(self, plugin_name: str) -> list[EngineSpec]:
+        """The engines the plugin declares, asked once as it loads: a hook that fails is its
+        load error, not a failure of every strategy's start-up later."""
+        from c3_matcher.engines.spec import EngineSpec
+
+        hook = "c3_matcher_engine_specs"
+        batches = reversed(call_one(self._pm, plugin_name, hook))
+        return [spec for batch in batches for spec in checked_list(batch, hook, EngineSpec)]
+
+    def _unregister(self, plugin_name: str) -> None:
+        if self._pm.has_plugin(plugin_name):
+            self._pm.unregister(name=plugin_name)
+
+    def _leave_out(self, plugin_name: str, exc: BaseException, hook: str) -> PluginLoadError:
+        """Unregister a loaded plugin whose ``hook`` failed: its strategies and engines go, and
+        selecting one of its strategies is refused with the returned error (listed too)."""
+        plugin = next(p for p in self._loaded if f"{p.distribution}:{p.name}" == plugin_name)
+        error = PluginLoadError(plugin.name, plugin.distribution, f"{hook}: {describe(exc)}")
+        self._unregister(plugin_name)
+        self._loaded.remove(plugin)
+        self._errors.append(error)
+        self._registry.engines.pop(plugin_name, None)
+        for name in plugin.strategies:
+            self._registry.left_out[name] = error
+            owned = self._registry.strategies.get(name)
+            if owned is not None and owned[1] is plugin:
+                del self._registry.strategies[name]
+        return error
 
     def _add_strategy(self, spec: StrategySpec, plugin: LoadedPlugin) -> None:
         if spec.name in self._registry.duplicates:
@@ -204,15 +247,21 @@ class PluginHost:
 
     def engine_specs(self) -> list[EngineSpec]:
         """Every engine the loaded plugins declare (plugin registration order)."""
-        specs: list[EngineSpec] = []
-        for batch in reversed(self._pm.hook.c3_matcher_engine_specs()):
-            specs.extend(batch)
-        return specs
+        return [spec for specs in self._registry.engines.values() for spec in specs]
 
     def register_commands(self, commands: CommandRegistry) -> None:
-        """Let every loaded plugin add its commands (registration order)."""
-        for impl in reversed(self._pm.hook.c3_matcher_register_commands.get_hookimpls()):
-            impl.function(commands=commands)
+        """Let every loaded plugin add its commands, one plugin at a time: one whose hook fails
+        is left out (``_leave_out``), the commands it added refuse with the reason."""
+        hook = "c3_matcher_register_commands"
+        impls = getattr(self._pm.hook, hook).get_hookimpls()
+        for plugin_name in dict.fromkeys(impl.plugin_name for impl in reversed(impls)):
+            recorder = CommandRecorder(commands)
+            try:
+                call_one(self._pm, plugin_name, hook, commands=recorder)
+            except BaseException as exc:
+                if not is_failure(exc):
+                    raise
+                recorder.refuse(self._leave_out(plugin_name, exc, hook))
 
     def reference_backend(self, strategy: str, settings: C3Settings) -> FeatureBackend | None:
         """The PyTorch reference of ``strategy`` from its plugin (build environment only)."""
@@ -243,6 +292,10 @@ class PluginHost:
             raise StrategyNotLinkedError(strategy, row.flag, profile, fix)
         if found is not None:
             return found[0]
+        if strategy in self._registry.left_out and row is None:
+            error = self._registry.left_out[strategy]
+            fix = f"its plugin was left out, fix or uninstall {error.distribution}: {error}"
+            raise StrategyNotLinkedError(strategy, None, profile, fix)
         if strategy in self._refused:
             fix = f"{self._refused[strategy]}; it runs in a research or replay-cli build"
             raise StrategyNotLinkedError(strategy, row.flag if row else None, profile, fix)
