@@ -253,7 +253,7 @@ class PluginHost:
         """Let every loaded plugin add its commands, one plugin at a time: one whose hook fails
         is left out (``_leave_out``), the commands it added refuse with the reason."""
         hook = "c3_matcher_register_commands"
-        impls = getattr(self._pm.hook, hook).get_hookimpls()
+        impls = self._pm.hook.c3_matcher_register_commands.get_hookimpls()
         for plugin_name in dict.fromkeys(impl.plugin_name for impl in reversed(impls)):
             recorder = CommandRecorder(commands)
             try:
