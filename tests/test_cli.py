@@ -321,6 +321,20 @@ def test_match_with_a_tile_gsd_in_other_units_than_the_height_exits_2_with_one_l
     assert last.startswith("c3-matcher: tile_gsd_m: 1e+09 m/px would scale the frame"), last
 
 
+def test_match_with_a_height_but_tiles_of_unknown_gsd_matches_unscaled(env):
+    """Tiles given without --tile-gsd or --tile-id have no known GSD: the frame cannot be
+    scaled to it. With --height it was scaled to zoom 0's 156 543 m/px placeholder and refused
+    (exit 2, nothing on stdout, a query failure in the FDR); it now matches as without one."""
+    att = META["attitude_deg"]
+    argv = ["match", "--query", str(DEMO / "frame.jpg"), "--tile", str(DEMO / "tile_b.png")]
+    argv += ["--calibration", str(DEMO / "calibration.json")]
+    argv += ["--attitude", f"{att['roll']},{att['pitch']},{att['yaw']}"]
+    proc = c3([*argv, "--height", str(META["height_m"])], env)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads(proc.stdout)["candidates_input"] == 1
+    assert "the tiles' GSD is unknown; --height is not used" in proc.stderr
+
+
 def test_match_a_query_frame_the_backbone_fails_on_prints_a_json_error_and_exits_1(
     env, monkeypatch, capsys
 ):

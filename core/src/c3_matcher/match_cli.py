@@ -37,6 +37,7 @@ from c3_matcher.match_inputs import (
     open_store,
     read_query,
     store_candidates,
+    usable_height,
 )
 from c3_matcher.match_viz import draw_or_report
 from c3_matcher.serialize import result_to_json
@@ -170,9 +171,8 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
     _refuse_output_over_input(args, settings.fdr.path)
     max_pixels = settings.matcher.max_image_pixels
     image, calibration = read_query(args.query, args.calibration, max_pixels)
-    frame = NavCameraFrame(
-        frame_id_of(image), image, time.monotonic_ns(), args.attitude, args.height
-    )
+    height = usable_height(args)
+    frame = NavCameraFrame(frame_id_of(image), image, time.monotonic_ns(), args.attitude, height)
     problems: list[str] = []  # output that could not be written: reported after the result
     with contextlib.ExitStack() as opened:  # given back in reverse, also when composing fails
         if args.store:
@@ -185,7 +185,6 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
             rerank = file_candidates(
                 frame.frame_id, args.tile or [], args.tile_id, args.tile_gsd, max_pixels
             )
-        _warn_missing(args)
         helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
         own_fdr = _open_fdr(settings, problems)
         if own_fdr is not None:
@@ -334,19 +333,6 @@ def _report(problems: list[str]) -> bool:
     for line in problems:
         print(f"c3-matcher: {' '.join(line.split())}", file=sys.stderr)
     return bool(problems)
-
-
-def _warn_missing(args: argparse.Namespace) -> None:
-    """Say on stderr what the matcher will have to do without (it fails silently otherwise)."""
-    missing = []
-    if args.attitude is None:
-        missing.append("--attitude (the query is not rotated north-up: yaw >= ~60 deg fails)")
-    if args.height is None:
-        missing.append("--height (the query's scale is not matched to the tiles')")
-    if args.tile_gsd is None and not args.tile_id:
-        missing.append("--tile-gsd or --tile-id (the tiles' ground sample distance is unknown)")
-    for what in missing:
-        print(f"c3-matcher match: warning: no {what}", file=sys.stderr)
 
 
 def _collect_drop_reasons(reasons: dict[int, str]) -> int:

@@ -5,8 +5,10 @@ either tile image files (``--tile``) or windows of an MBTiles store centred on t
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import hashlib
+import sys
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
@@ -22,7 +24,14 @@ from c3_matcher.serialize import CALIBRATION_SIZE_FIX, load_calibration
 from c3_matcher.tiles import MmapTileHandle, decode_image, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 
-__all__ = ["file_candidates", "frame_id_of", "open_store", "read_query", "store_candidates"]
+__all__ = [
+    "file_candidates",
+    "frame_id_of",
+    "open_store",
+    "read_query",
+    "store_candidates",
+    "usable_height",
+]
 
 _FRAME_IDS = uuid.UUID("6c3d1e0a-5b7e-4f0e-9a51-3c3a7d0f2b11")  # the namespace of frame_id_of
 
@@ -124,3 +133,21 @@ def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
         raise InvalidInputError(f"--tile {p}", exc.reason) from None
     decode_image(handle.encoded(), f"--tile {p}", max_pixels)
     return handle
+
+
+def usable_height(args: argparse.Namespace) -> float | None:
+    """The frame's height for ``match``'s parsed ``args``: none where the tiles' GSD is unknown
+    (no scale to match it to: zoom 0's stood in, and the frame was refused). Says on stderr
+    what the matcher will have to do without (it fails silently otherwise)."""
+    missing = []
+    if args.attitude is None:
+        missing.append("--attitude (the query is not rotated north-up: yaw >= ~60 deg fails)")
+    if args.height is None:
+        missing.append("--height (the query's scale is not matched to the tiles')")
+    unknown = args.tile_gsd is None and not args.tile_id
+    if unknown:
+        unused = "; --height is not used" if args.height is not None else ""
+        missing.append(f"--tile-gsd or --tile-id (the tiles' GSD is unknown{unused})")
+    for what in missing:
+        print(f"c3-matcher match: warning: no {what}", file=sys.stderr)
+    return None if unknown else args.height
