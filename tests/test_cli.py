@@ -63,6 +63,7 @@ def test_match_demo_prints_one_json_object_and_a_picture(env, tmp_path):
     assert viz.stat().st_size > 10_000
     kinds = {json.loads(line)["kind"] for line in proc.stderr.splitlines() if line.startswith("{")}
     assert "c3.matcher.ready" in kinds
+    assert "c3.inference.provider_selected" in kinds  # made before the sinks: said once they are
     records = [json.loads(x) for x in Path(env["C3_MATCHER_FDR__PATH"]).read_text().splitlines()]
     assert [r["kind"] for r in records].count("matcher.frame_done") == 1
 

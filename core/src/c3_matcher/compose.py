@@ -213,11 +213,21 @@ def compose_root(
             opened.callback(handle.close)
         if owned_fdr is not None:
             state_default_fdr_path(config)
+        _log_provider_request(helpers["c7_inference"])
         host = plugin_host if plugin_host is not None else build_plugin_host()
         matcher, health = _create_strategy(config, helpers, host, fdr, clock)
         opened.pop_all()
     name = config.matcher.strategy
     return ComposedRoot(matcher, name, health, fdr, clock, host, helpers, handle, owned_fdr)
+
+
+def _log_provider_request(inference: object) -> None:
+    """The shared ONNX Runtime's provider request, logged now that the sinks are set up (it is
+    made before them, by ``build_default_helpers``)."""
+    from c3_matcher.engines.runtime import OnnxInferenceRuntime
+
+    if isinstance(inference, OnnxInferenceRuntime):
+        inference.log_selection()
 
 
 def _create_strategy(

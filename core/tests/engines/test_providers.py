@@ -41,7 +41,7 @@ def test_choice_is_logged_with_a_kind() -> None:
     records: list[dict[str, Any]] = []
     sink = logger.add(lambda message: records.append(message.record["extra"]), level="INFO")
     try:
-        OnnxInferenceRuntime([CUDA, CPU])
+        OnnxInferenceRuntime([CUDA, CPU]).log_selection()
     finally:
         logger.remove(sink)
     selected = [r for r in records if r.get("kind") == "c3.inference.provider_selected"]

@@ -2,10 +2,11 @@
 
 Which execution providers the sessions ask for, and with what options, is
 ``c3_matcher.engines.providers``; ``intra_op_threads`` sets the session threads. The request is
-logged once (``c3.inference.provider_selected``); what each session ACTUALLY uses
-(``session.get_providers()``: onnxruntime silently falls back to CPU when a provider cannot
-start) is logged per engine and is what ``provider`` reports, so the ready log and every FDR
-record name the real one; a fallback is a WARNING ``c3.inference.provider_fallback``.
+logged once the sinks are set up (``c3.inference.provider_selected``, ``log_selection``); what
+each session ACTUALLY uses (``session.get_providers()``: onnxruntime silently falls back to CPU
+when a provider cannot start) is logged per engine and is what ``provider`` reports, so the
+ready log and every FDR record name the real one; a fallback is a WARNING
+``c3.inference.provider_fallback``.
 
 Session options, chosen by measurement (``c3-matcher engines bench --sweep-session-options``;
 2-core CPU, onnxruntime 1.31, fresh process per case, 20 runs; peak RSS = VmHWM):
@@ -185,14 +186,20 @@ class OnnxInferenceRuntime:
         self._tensorrt_cache_dir = tensorrt_cache_dir
         self._provider_settings = provider_settings or ProviderSettings()
         self._engines: dict[str, _Loaded] = {}
-        logger.bind(
-            kind="c3.inference.provider_selected",
-            provider=self._providers[0],
-            chain=self._providers,
-            available=available,
-            requested=None if requested is None else list(requested),
-            onnxruntime=ort.__version__,
-        ).info("inference provider requested: {}", self._providers[0])
+        self._selection = {
+            "provider": self._providers[0],
+            "chain": self._providers,
+            "available": available,
+            "requested": None if requested is None else list(requested),
+            "onnxruntime": ort.__version__,
+        }
+
+    def log_selection(self) -> None:
+        """Log the provider request (``c3.inference.provider_selected``, INFO): ``compose_root``
+        does once the log sinks are set up (the runtime is made before them)."""
+        logger.bind(kind="c3.inference.provider_selected", **self._selection).info(
+            "inference provider requested: {}", self._providers[0]
+        )
 
     @classmethod
     def from_settings(
