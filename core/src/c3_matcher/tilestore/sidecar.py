@@ -13,6 +13,7 @@ from typing import Any, TypeVar
 
 from c3_matcher.errors import describe
 from c3_matcher.tilestore.files import MMAP_BYTES, open_failure, read_only_uri
+from c3_matcher.tilestore.sidecar_file import LEAVE_WAL_S, leave_wal, schema_mismatch
 from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, decode_row, row_checksum
 
 WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
@@ -84,8 +85,10 @@ class MapFeatureStore:
         writable: bool = False,
         retry_s: float = DEFAULT_RETRY_S,
         clock: Callable[[], float] = time.monotonic,
+        leave_wal_s: float = LEAVE_WAL_S,
     ) -> None:
         self.path = Path(path)
+        self._leave_wal_s = float(leave_wal_s)
         self._writable = writable
         self._retry_s = float(retry_s)
         self._clock = clock
@@ -308,18 +311,23 @@ class MapFeatureStore:
             self._db.commit()
 
     def close(self) -> None:
-        """Close; the writer first leaves WAL (when no reader is attached), so the sidecar is
-        one self-contained file that a reader on read-only media can open."""
-        if self._writable:
-            with contextlib.suppress(sqlite3.Error):
-                self._db.execute("PRAGMA journal_mode=DELETE")
-        self._db.close()
+        """Close; the writer first leaves WAL (:func:`leave_wal`: tried for ``leave_wal_s``
+        while a reader holds it), so the sidecar is one self-contained file that a reader on
+        read-only media can open; SidecarInUseError (closed all the same) when it cannot be."""
+        try:
+            if self._writable:
+                leave_wal(self._db, self.path, self._leave_wal_s)
+        finally:
+            self._db.close()
 
     def __enter__(self) -> MapFeatureStore:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is not None:  # the error in flight is the one said: one try, no wait
+            self._leave_wal_s = 0.0
+        with contextlib.suppress(*(() if exc_type is None else (sqlite3.Error,))):
+            self.close()
 
 
 def _open_read_only(path: Path) -> sqlite3.Connection:
@@ -339,12 +347,14 @@ def _open_read_only(path: Path) -> sqlite3.Connection:
 def _open_writable(path: Path) -> sqlite3.Connection:
     """The writer's connection to the sidecar ``path`` (created when absent), its tables read
     once and every set row parsed; SidecarDamagedError when the file is not an SQLite database
-    or a damaged one, or a set row is malformed (a lock held elsewhere is waited for, and any
-    other error raised as it is)."""
-    db = sqlite3.connect(str(path), timeout=60)
+    or a damaged one, its tables another version's (never migrated: an old set's rows may not
+    be what its id now means) or a set row malformed (a lock held elsewhere is waited for)."""
+    db = sqlite3.connect(str(path), timeout=LEAVE_WAL_S)
     try:
         db.execute(f"PRAGMA page_size={PAGE_BYTES}")  # a new file: fewer pages a row
         db.executescript(_SCHEMA)
+        if (mismatch := schema_mismatch(db, _SCHEMA)) is not None:
+            raise SidecarDamagedError(path, mismatch)
         for row in db.execute(f"SELECT {_SET_COLUMNS} FROM window_sets"):  # as `features info`
             _set_of(path, row)
         db.commit()
@@ -354,7 +364,7 @@ def _open_writable(path: Path) -> sqlite3.Connection:
         if exc.sqlite_errorcode & 0xFF in _DAMAGE:
             raise SidecarDamagedError(path, exc) from exc
         raise
-    except BaseException:  # a malformed set row: the file is left as it is (no WAL)
+    except BaseException:  # a malformed set row, another schema: left as it is (no WAL)
         db.close()
         raise
     return db
