@@ -28,6 +28,7 @@ from c3_matcher.tiles import (
     decode_image,
     image_header_size,
 )
+from c3_matcher.tilestore.base import tile_centre_id
 from c3_matcher.tilestore.mbtiles import MBTilesStore, TileDigestError, TileStoreUnusableError
 from c3_matcher.tilestore.xyz import XyzTileStore
 
@@ -273,3 +274,19 @@ def test_unusable_error_type_is_a_candidate_error():
     assert issubclass(TileStoreUnusableError, InvalidInputError)
     assert issubclass(TileDigestError, InvalidInputError)
     _ = logger  # loguru is the log bus the ERROR goes through
+
+
+def test_a_stored_tile_not_256_px_is_refused_whole_as_in_a_mosaic(tmp_path):
+    """A store of 512-px tiles: the 256-px candidate that is exactly one stored tile is refused
+    as the mosaic refuses it (it was served 512x512 labelled 256 px: 2x off in tile px)."""
+    tiles = {(3, 2, 1): _png(0, 512), (3, 3, 1): _png(1, 512)}
+    path = _mbtiles(tmp_path / "s.mbtiles", tiles, digests=False)
+    with MBTilesStore(path) as store:
+        whole = store.handle(tile_centre_id(3, 2, 1), size_px=256)
+        assert type(whole).__name__ == "StoredTileHandle"
+        expected = r"s.mbtiles tile 3/2/1.*expected 256x256 px, got 512x512"
+        with pytest.raises(InvalidInputError, match=expected):
+            whole.decode()
+        mosaic = store.handle(tile_centre_id(3, 2, 1), size_px=300)
+        with pytest.raises(InvalidInputError, match=expected):
+            mosaic.decode()

@@ -96,7 +96,7 @@ class StoredTileHandle:
 
     def decode(self) -> NDArray[np.uint8]:
         if self._pixels is None:
-            self._pixels = decode_image(self.encoded(), self._what())
+            self._pixels = _tile_pixels(self.encoded(), self._what())
         return self._pixels.copy()
 
     def stored_features(self, request: FeatureRequest) -> Features | None:
@@ -216,11 +216,7 @@ def stitch(
             if blob is None:
                 continue
             name = f"{source.name} tile {zoom}/{tx % n}/{ty}"
-            tile = decode_image(blob, name)
-            if tile.shape[:2] != (TILE_PX, TILE_PX):
-                raise InvalidInputError(
-                    name, f"expected {TILE_PX}x{TILE_PX} px, got {tile.shape[1]}x{tile.shape[0]}"
-                )
+            tile = _tile_pixels(blob, name)
             found += 1
             ax, ay = tx * TILE_PX, ty * TILE_PX
             sx0, sy0 = max(x0, ax), max(y0, ay)
@@ -231,3 +227,14 @@ def stitch(
     if found == 0:
         raise TileNotFoundError(what, NO_TILE_IN_WINDOW)
     return out
+
+
+def _tile_pixels(blob: memoryview, name: str) -> NDArray[np.uint8]:
+    """The stored tile ``blob`` (``name``) decoded, uint8 RGB; InvalidInputError unless it is
+    TILE_PX x TILE_PX (a store of other tiles would serve them labelled as TILE_PX px)."""
+    tile = decode_image(blob, name)
+    if tile.shape[:2] != (TILE_PX, TILE_PX):
+        raise InvalidInputError(
+            name, f"expected {TILE_PX}x{TILE_PX} px, got {tile.shape[1]}x{tile.shape[0]}"
+        )
+    return tile
