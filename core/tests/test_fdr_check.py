@@ -132,3 +132,25 @@ def test_a_gap_is_explained_only_where_notes_cover_every_seq_of_it():
     assert not SeqRange(9, 12).within(notes)  # 10 and 11 are named by no note
     assert not SeqRange(4, 5).within(notes)
     assert not SeqRange(1, 1).within(())
+
+
+@pytest.mark.parametrize(
+    ("was", "garbled"),
+    [(b'"seq":', b'"sfq":'), (b'"seq":6,', b'"seq":true,'), (b'"seq":6,', b'"seq":6.0,')],
+)
+def test_a_json_object_without_an_integer_seq_is_damage_not_a_record(
+    tmp_path, capsys, was, garbled
+):
+    """The last line's seq garbled (a bool or a float is no seq): it was counted as a record
+    and the log said intact."""
+    path = tmp_path / "fdr.jsonl"
+    _log(path, 6, max_bytes=1 << 20).close()
+    lines = path.read_bytes().splitlines(keepends=True)
+    assert lines[5].startswith(b'{"seq":6,')
+    path.write_bytes(b"".join([*lines[:5], lines[5].replace(was, garbled, 1)]))
+    check = check_fdr(path)
+    assert not check.intact and check.records == 5 and check.seqs == SeqRange(1, 5)
+    assert check.unreadable == ("fdr.jsonl:6: no seq (a JSON object, not a record)",)
+    status, out = _run(["fdr", str(path)], capsys)
+    assert status == 1 and out.splitlines()[0] == f"{path}: damaged"
+    assert "unreadable lines: fdr.jsonl:6: no seq" in out

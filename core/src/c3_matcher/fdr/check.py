@@ -118,12 +118,9 @@ def check_fdr(path: Path) -> FdrCheck:
     let_go = 0
     unreadable: list[str] = []
     for segment in segments:
-        result = read_fdr(segment)
-        unreadable += [f"{segment.name}:{n}: {why}" for n, _, why in result.corrupt]
-        for record in result:
+        for record in _records(segment, unreadable):
             kinds[str(record.get("kind"))] += 1
-            if isinstance(seq := record.get("seq"), int):
-                seqs.append(seq)
+            seqs.append(record["seq"])
             if isinstance(wall := record.get("wall_time"), str):
                 times.append(wall)
             if record.get("kind") == RECORDS_DROPPED and (note := _noted(record.get("payload"))):
@@ -144,6 +141,23 @@ def check_fdr(path: Path) -> FdrCheck:
         unreadable=tuple(unreadable),
         not_in_log=read_lock(lock_path(path))[1],
     )
+
+
+def _records(segment: Path, unreadable: list[str]) -> list[FdrRecord]:
+    """The records of ``segment``: its JSON objects with an integer ``seq`` (a bool is none);
+    every other line is added to ``unreadable`` as ``segment:line: reason``, in line order."""
+    result = read_fdr(segment)
+    bad = {n: why for n, _, why in result.corrupt}
+    skipped = set(bad)
+    numbers = (n for n in itertools.count(1) if n not in skipped)
+    records = []
+    for number, record in zip(numbers, result, strict=False):
+        if type(record.get("seq")) is int:
+            records.append(record)
+        else:
+            bad[number] = "no seq (a JSON object, not a record)"
+    unreadable += [f"{segment.name}:{n}: {why}" for n, why in sorted(bad.items())]
+    return records
 
 
 def _noted(payload: Any) -> tuple[SeqRange, int] | None:
