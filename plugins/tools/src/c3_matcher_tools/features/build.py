@@ -32,7 +32,7 @@ from __future__ import annotations
 import sqlite3
 import sys
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,7 +45,6 @@ from c3_matcher.tilestore.features import (
     covered_tiles,
     set_id_for,
     sidecar_path,
-    tile_digest,
     window_digest,
 )
 from c3_matcher.tilestore.files import open_failure, set_aside
@@ -63,11 +62,13 @@ from c3_matcher_tools.features.worker import (
     BackendCache,
     NotStorableError,
     SetFacts,
+    check_window,
     extract_window_features,
     open_source,
     photometric_of,
     set_facts,
     set_facts_task,
+    stored_tile_digest,
     task,
 )
 
@@ -80,6 +81,8 @@ __all__ = [
     "flight_grid",
     "flight_windows",
     "grid_windows",
+    "store_tile_digests",
+    "window_digests",
 ]
 
 DEFAULT_WINDOW_PX = TILE_PX  # the store's own tiles as the candidates
@@ -143,11 +146,14 @@ def _built(
 ) -> BuildReport:
     """Build each of ``job``'s strategies' sets of ``plan`` in the sidecar ``path``, moved aside
     and built anew once when it is found damaged. Every strategy's set facts are learnt first,
-    so a strategy refused (:class:`NotStorableError`) leaves the sidecar untouched."""
+    so a strategy refused (:class:`NotStorableError`, or a window its input rule would pad or
+    resize: :func:`check_window`) leaves the sidecar untouched."""
     report, new = BuildReport(str(job.store), str(path)), False
     with dask_client(workers, scheduler) as client:
         local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
         facts = {s: _set_facts(job, s, client, local) for s in job.settings_json}
+        for strategy, known in facts.items():  # a window the flight never serves: refused
+            check_window(known.input_rule, job.window_px, strategy)
         runner = _Runner(client, local, cores_of(client, workers))
         while True:
             try:
@@ -232,9 +238,8 @@ def _plan(
     min_coverage: float,
 ) -> dict[WindowKey, str | None]:
     """Every window to build (sorted), each with the digest of the stored tiles it covers."""
-    with open_source(str(store)) as source:
-        tiles = {(z, x, y) for z in source.zooms() for x, y in source.tiles(z)}
-        digests = {k: tile_digest(source.tile_bytes(*k) or b"") for k in tiles}
+    digests = store_tile_digests(store)
+    tiles = set(digests)
     if not tiles:
         raise ValueError(f"{store}: the store holds no tiles: nothing to build")
     todo_all = (
@@ -249,11 +254,31 @@ def _plan(
             if windows is None
             else f"{store}: no window to build"
         )
+    return window_digests(todo_all, window_px, stride, digests)
+
+
+def store_tile_digests(store: Path) -> dict[tuple[int, int, int], str | None]:
+    """Each tile the store lists (zoom, x, y), with its digest as the worker and the flight
+    compute it (:func:`stored_tile_digest`: None for a tile stored with NULL data)."""
+    with open_source(str(store)) as source:
+        tiles = {(z, x, y) for z in source.zooms() for x, y in source.tiles(z)}
+        return {k: stored_tile_digest(source, k) for k in tiles}
+
+
+def window_digests(
+    windows: Iterable[WindowKey],
+    window_px: int,
+    stride: int,
+    digests: Mapping[tuple[int, int, int], str | None],
+) -> dict[WindowKey, str | None]:
+    """Each ``window_px`` window (zoom, gx, gy) of a ``stride`` px grid with the digest of the
+    tiles it covers (``digests``, :func:`store_tile_digests`; a tile not there is missing): the
+    ``window_digest`` the worker stores for it and the flight compares before serving it."""
     return {
         (z, gx, gy): window_digest(
             covered_tiles(z, (gx * stride, gy * stride), (window_px, window_px)), digests.get
         )
-        for z, gx, gy in todo_all
+        for z, gx, gy in windows
     }
 
 

@@ -45,8 +45,10 @@ def register_features_command(commands: CommandRegistry) -> None:
     i.add_argument(
         "--verify",
         action="store_true",
-        help="read every stored window and check it as the flight does (exit 1 when one is "
-        "damaged; features build extracts those again)",
+        help="read every stored window and check it as the flight does: its checksum and shapes "
+        "(damaged) and its tiles' digest against the store's tiles now (stale: a tile changed "
+        "since it was built; the flight serves neither); exit 1 when one is damaged or stale "
+        "(features build extracts those again)",
     )
     i.set_defaults(handler=_info)
 
@@ -156,7 +158,10 @@ def _store_of(path: Path) -> Path:
 
 
 def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
-    """Print the feature sets stored beside a store (checked with --verify); exit 1 if damaged."""
+    """Print the feature sets stored beside a store; with --verify each window is checked as the
+    flight checks it (its row's checksum and shapes, and its tiles' digest against the store's
+    tiles now), each set counting its ``intact``, ``damaged`` and ``stale`` windows: exit 1 when
+    one is damaged or stale (the flight extracts those instead; a build extracts them again)."""
     from c3_matcher.tilestore.features import FeatureStoreUnavailableError, sidecar_path
     from c3_matcher.tilestore.mbtiles import MBTilesStore
     from c3_matcher.tilestore.sidecar import SidecarDamagedError
@@ -165,7 +170,7 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     MBTilesStore(store).close()  # an MBTiles store (InvalidInputError naming it), not any file
     path = sidecar_path(store)
     try:
-        sets, damaged = _stored_sets(path, verify=args.verify)
+        sets, damaged, stale = _stored_sets(store, path, verify=args.verify)
     except SidecarDamagedError as exc:
         ctx.err(
             f"c3-matcher: {exc}; the flight extracts instead where it is. "
@@ -180,22 +185,30 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
             f"c3-matcher: {path}: {damaged} damaged windows (the flight extracts those instead); "
             f"extract them again: c3-matcher features build {store}"
         )
-        return EXIT_FAILURE
-    return EXIT_OK
+    if stale:
+        ctx.err(
+            f"c3-matcher: {path}: {stale} stale windows (their tiles changed in {store} since "
+            "they were built; the flight extracts those instead); extract them again: "
+            f"c3-matcher features build {store}"
+        )
+    return EXIT_FAILURE if damaged or stale else EXIT_OK
 
 
-def _stored_sets(path: Path, *, verify: bool) -> tuple[list[dict[str, object]], int]:
-    """Read the sets the sidecar ``path`` holds (none without one), checked when ``verify``."""
+def _stored_sets(
+    store: Path, path: Path, *, verify: bool
+) -> tuple[list[dict[str, object]], int, int]:
+    """Read the sets the sidecar ``path`` of ``store`` holds (none without one), checked when
+    ``verify``: the sets, and how many windows are damaged and stale in all."""
     from c3_matcher.errors import InvalidInputError
     from c3_matcher.tilestore.features import MapFeatureStore, stored_sets
 
     if path.exists() and not path.is_file():
         raise InvalidInputError(str(path), "not a file (the flight ignores it)")
     if not path.is_file():
-        return [], 0
+        return [], 0, 0
     with MapFeatureStore(path) as side:
         sets = [dict(s) for s in stored_sets(side)]
-        return sets, _verified(side, sets) if verify else 0
+        return (sets, *_verified(store, side, sets)) if verify else (sets, 0, 0)
 
 
 def _unavailable(
@@ -235,15 +248,22 @@ def _print_sets(
             ctx.out(", ".join(f"{k}: {v}" for k, v in s.items()))
 
 
-def _verified(side: MapFeatureStore, sets: list[dict[str, object]]) -> int:
-    """Each set's windows read and checked (:meth:`MapFeatureStore.checked_windows`): its
-    ``intact`` and ``damaged`` counts, the damaged ones' reasons under ``damage``; the number
-    damaged in all."""
-    damaged = 0
+def _verified(store: Path, side: MapFeatureStore, sets: list[dict[str, object]]) -> tuple[int, int]:
+    """Each set's windows read and checked as the flight checks them: its row
+    (:meth:`MapFeatureStore.checked_windows`: ``damaged``, the reasons under ``damage``) and its
+    tiles' digest against ``store``'s tiles now, computed as a build plans it
+    (:func:`~c3_matcher_tools.features.build.window_digests`: ``stale`` when they differ);
+    ``intact``: the windows the flight serves. The numbers damaged and stale in all."""
+    from c3_matcher_tools.features.build import store_tile_digests, window_digests
+
+    tiles = store_tile_digests(store)
+    damaged = stale = 0
     for s in sets:
         fset = side.feature_set(str(s["set_id"]))
         intact, bad = side.checked_windows(fset) if fset else ({}, {})
-        s.update(intact=len(intact), damaged=len(bad))
+        now = window_digests(intact, fset.window_px, fset.stride_px, tiles) if fset else {}
+        old = [k for k, digest in intact.items() if now[k] != digest]
+        s.update(intact=len(intact) - len(old), damaged=len(bad), stale=len(old))
         s["damage"] = {f"{z}/{x}/{y}": why for (z, x, y), why in sorted(bad.items())}
-        damaged += len(bad)
-    return damaged
+        damaged, stale = damaged + len(bad), stale + len(old)
+    return damaged, stale

@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.config import C3Settings
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.prepared import InputRule
 from c3_matcher.protocols import StoredFeaturesBackend
 from c3_matcher.tilestore.features import (
     WindowFeatures,
@@ -27,11 +29,13 @@ __all__ = [
     "BackendCache",
     "NotStorableError",
     "SetFacts",
+    "check_window",
     "extract_window_features",
     "open_source",
     "photometric_of",
     "set_facts",
     "set_facts_task",
+    "stored_tile_digest",
     "task",
 ]
 
@@ -40,7 +44,8 @@ EXTRACT_BUDGET = 8192  # keep the engine's whole top-K per window (capped by the
 
 @dataclass(frozen=True)
 class SetFacts:
-    """What keys a strategy's set, learnt from its backend in a worker."""
+    """What keys a strategy's set, learnt from its backend in a worker (and its input rule,
+    which the build checks its window against before the sidecar is touched)."""
 
     extractor_sha256: str
     provider: str
@@ -48,6 +53,7 @@ class SetFacts:
     border_erode_px: int
     descriptor_dim: int
     descriptor_dtype: str
+    input_rule: InputRule
 
 
 BackendCache = dict[tuple[str, str], Any]
@@ -95,6 +101,27 @@ def _preprocessor(backend: Any, photometric: str) -> Any:
     return FramePreprocessor(backend.input_rule, photometric=photometric)
 
 
+def check_window(rule: InputRule, window_px: int, strategy: str | None = None) -> None:
+    """InvalidInputError naming ``--window`` when the input ``rule`` would pad or resize a
+    ``window_px`` px window (the flight serves no stored features for it): the one place of the
+    rule, checked by the build before the sidecar is touched and by each worker's window."""
+    if rule.final_size(window_px, window_px) == (window_px, window_px):  # as prepare_tile sizes
+        return
+    whose = f" of strategy {strategy!r}" if strategy else ""
+    raise InvalidInputError(
+        "--window",
+        f"{window_px} px would be padded or resized by the input rule{whose}: a window must be "
+        f"a multiple of {rule.multiple} px and at most {rule.max_long_side} px",
+    )
+
+
+def stored_tile_digest(source: Any, key: tuple[int, int, int]) -> str | None:
+    """The digest of the stored tile ``key`` (zoom, x, y) as the flight computes it: its bytes'
+    sha256, None (``-`` in a window's digest) for a missing tile or one stored with NULL data."""
+    blob = source.tile_bytes(*key)
+    return None if blob is None else tile_digest(blob)
+
+
 def extract_window_features(
     backend: Any,
     source: Any,
@@ -104,17 +131,15 @@ def extract_window_features(
     photometric: str,
 ) -> WindowFeatures:
     """The features of the ``window_px`` window of WORLD px whose top-left pixel is ``origin``,
-    exactly as the flight extracts a candidate with that window (window px); ValueError when
-    the input rule would resize or pad the window."""
+    exactly as the flight extracts a candidate with that window (window px); InvalidInputError
+    when the input rule would resize or pad the window (:func:`check_window`)."""
     from c3_matcher.tilestore.handles import stitch
 
+    check_window(backend.input_rule, window_px)
     keys = covered_tiles(zoom, origin, (window_px, window_px))
-    blobs = {k: source.tile_bytes(*k) for k in keys}
-    digest = window_digest(keys, lambda k: None if blobs[k] is None else tile_digest(blobs[k]))
+    digest = window_digest(keys, lambda k: stored_tile_digest(source, k))
     image = stitch(source, zoom, origin, (window_px, window_px), f"window {zoom}/{origin}")
     prepared = _preprocessor(backend, photometric).prepare_tile(image)
-    if prepared.engine_size != (window_px, window_px):
-        raise ValueError(f"input rule {backend.input_rule} resizes or pads a {window_px} px window")
     f = backend.extract(prepared)
     return WindowFeatures(
         digest,
@@ -202,4 +227,5 @@ def set_facts(strategy: str, settings_json: str, cache: BackendCache | None = No
         int(_preprocessor(backend, photometric).border_erode_px),
         int(f.descriptors.shape[1]),
         str(f.descriptors.dtype),
+        backend.input_rule,
     )
