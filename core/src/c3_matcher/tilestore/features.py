@@ -63,6 +63,7 @@ from c3_matcher.tilestore.windows import (
     grid_index,
     row_checksum,
     set_id_for,
+    stored_tile_digest,
     tile_digest,
     window_digest,
 )
@@ -82,6 +83,7 @@ __all__ = [
     "set_id_for",
     "sidecar_path",
     "stored_sets",
+    "stored_tile_digest",
     "tile_digest",
     "window_digest",
 ]
@@ -125,9 +127,7 @@ def serve_window(
         return None
     grid_origin = (gx * fset.stride_px, gy * fset.stride_px)
     keys = covered_tiles(zoom, grid_origin, (w, h))
-    blobs = {k: source.tile_bytes(*k) for k in keys}
-    digests = {k: None if blob is None else tile_digest(blob) for k, blob in blobs.items()}
-    digest = window_digest(keys, digests.__getitem__)
+    digest = window_digest(keys, lambda key: stored_tile_digest(source, key))
     if digest != stored.window_digest:
         return None  # the tiles changed since the build: stale
     n = min(int(request.max_keypoints), stored.scores.shape[0])

@@ -31,7 +31,7 @@ from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tiles import decode_image
 from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT, TILE_PX, lonlat_to_world_px
-from c3_matcher.tilestore.windows import covered_tiles, tile_digest, window_digest
+from c3_matcher.tilestore.windows import covered_tiles, stored_tile_digest, window_digest
 
 if TYPE_CHECKING:
     from c3_matcher.features import Features
@@ -148,9 +148,9 @@ class MosaicTileHandle:
         found: list[bool] = []
 
         def digest_of(key: tuple[int, int, int]) -> str | None:
-            blob = self._source.tile_bytes(*key)
-            found.append(blob is not None)
-            return None if blob is None else tile_digest(blob)
+            digest = stored_tile_digest(self._source, key)
+            found.append(digest is not None)
+            return digest
 
         digest = window_digest(covered_tiles(self._tile_id.zoom, origin, size), digest_of)
         if not any(found):

@@ -11,7 +11,7 @@ import hashlib
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +23,18 @@ from c3_matcher.tilestore.geo import TILE_PX
 def tile_digest(blob: bytes | memoryview) -> str:
     """sha256 (hex) of a tile's encoded bytes (as a tile store's ``c3_tile_digest`` table)."""
     return hashlib.sha256(blob).hexdigest()
+
+
+class _TileBytes(Protocol):
+    def tile_bytes(self, zoom: int, x: int, y: int) -> memoryview | bytes | None: ...
+
+
+def stored_tile_digest(source: _TileBytes, key: tuple[int, int, int]) -> str | None:
+    """The digest of stored tile ``key`` (zoom, x, y) of ``source``: its bytes' sha256 (the
+    flight's, the build's and ``--verify``'s), None (``-`` in a window's digest) for a missing
+    tile or one stored with NULL data."""
+    blob = source.tile_bytes(*key)
+    return None if blob is None else tile_digest(blob)
 
 
 def covered_tiles(

@@ -45,6 +45,7 @@ from c3_matcher.tilestore.features import (
     covered_tiles,
     set_id_for,
     sidecar_path,
+    stored_tile_digest,
     window_digest,
 )
 from c3_matcher.tilestore.files import open_failure, set_aside
@@ -68,7 +69,6 @@ from c3_matcher_tools.features.worker import (
     photometric_of,
     set_facts,
     set_facts_task,
-    stored_tile_digest,
     task,
 )
 

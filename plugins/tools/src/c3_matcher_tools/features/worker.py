@@ -19,7 +19,7 @@ from c3_matcher.protocols import StoredFeaturesBackend
 from c3_matcher.tilestore.features import (
     WindowFeatures,
     covered_tiles,
-    tile_digest,
+    stored_tile_digest,
     window_digest,
 )
 from c3_matcher_tools.features.windows import WindowKey
@@ -35,7 +35,6 @@ __all__ = [
     "photometric_of",
     "set_facts",
     "set_facts_task",
-    "stored_tile_digest",
     "task",
 ]
 
@@ -113,13 +112,6 @@ def check_window(rule: InputRule, window_px: int, strategy: str | None = None) -
         f"{window_px} px would be padded or resized by the input rule{whose}: a window must be "
         f"a multiple of {rule.multiple} px and at most {rule.max_long_side} px",
     )
-
-
-def stored_tile_digest(source: Any, key: tuple[int, int, int]) -> str | None:
-    """The digest of the stored tile ``key`` (zoom, x, y) as the flight computes it: its bytes'
-    sha256, None (``-`` in a window's digest) for a missing tile or one stored with NULL data."""
-    blob = source.tile_bytes(*key)
-    return None if blob is None else tile_digest(blob)
 
 
 def extract_window_features(
