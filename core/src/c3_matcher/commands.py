@@ -17,7 +17,10 @@ import math
 import re
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from c3_matcher.config import C3Settings
 
 __all__ = [
     "EXIT_FAILURE",
@@ -29,6 +32,7 @@ __all__ = [
     "bounded_float",
     "bounded_int",
     "keypoint_budget",
+    "with_keypoint_budget",
 ]
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_INSUFFICIENT = 0, 1, 2, 3
@@ -154,6 +158,19 @@ def add_max_keypoints_option(
         help=f"{help} ({low}..{high})",
         **kwargs,
     )
+
+
+def with_keypoint_budget(settings: C3Settings, budget: int) -> C3Settings:
+    """``settings`` with a command's ``--max-keypoints``: the run's budget above every one the
+    configuration sets, ``[matcher] max_keypoints`` and each strategy's own ``max_keypoints``
+    option alike (within the configuration the strategy's option is the more specific and wins;
+    a command-line flag is above the configuration)."""
+    tables = {
+        name: {k: v for k, v in table.items() if k != "max_keypoints"}
+        for name, table in settings.matcher.options.items()
+    }
+    matcher = settings.matcher.model_copy(update={"max_keypoints": budget, "options": tables})
+    return settings.model_copy(update={"matcher": matcher})
 
 
 def keypoint_budget() -> Callable[[str], int]:

@@ -23,6 +23,7 @@ from c3_matcher.commands import (
     add_max_keypoints_option,
     bounded_float,
     bounded_int,
+    with_keypoint_budget,
 )
 from c3_matcher.config import C3Settings
 from c3_matcher.context import CommandContext
@@ -222,14 +223,11 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
 
 def _match_settings(args: argparse.Namespace, settings: C3Settings) -> C3Settings:
     """The configuration with the command's ``--strategy``, ``--max-keypoints`` and ``--fdr``."""
-    update: dict[str, Any] = {}
-    matcher_update: dict[str, Any] = {}
-    if args.strategy:
-        matcher_update["strategy"] = args.strategy
     if args.max_keypoints:
-        matcher_update["max_keypoints"] = args.max_keypoints
-    if matcher_update:
-        update["matcher"] = settings.matcher.model_copy(update=matcher_update)
+        settings = with_keypoint_budget(settings, args.max_keypoints)
+    update: dict[str, Any] = {}
+    if args.strategy:
+        update["matcher"] = settings.matcher.model_copy(update={"strategy": args.strategy})
     if args.fdr:
         update["fdr"] = settings.fdr.model_copy(update={"path": args.fdr})
     return settings.model_copy(update=update)

@@ -224,10 +224,25 @@ def test_keypoint_budget_precedence():
     assert XFeatOptions(matcher="lighterglue").keypoint_budget(None) == 2048
     assert XFeatOptions().keypoint_budget(1000) == 1000  # [matcher] max_keypoints set explicitly
     assert XFeatOptions().keypoint_budget(8000) == 4096  # capped at the engine's top-K
-    assert XFeatOptions(max_keypoints=512).keypoint_budget(None) == 512  # the table's
-    # --max-keypoints (and C3_MATCHER_MATCHER__MAX_KEYPOINTS) set [matcher] max_keypoints: a
-    # run's budget wins over a configuration file's table, as for every strategy (it lost)
-    assert XFeatOptions(max_keypoints=512).keypoint_budget(1000) == 1000
+    assert XFeatOptions(max_keypoints=512).keypoint_budget(1000) == 512
+
+
+def test_a_runs_keypoint_budget_is_above_the_configurations_the_strategy_table_included():
+    """Within the configuration the strategy's table is the more specific and wins; a command's
+    ``--max-keypoints`` (``with_keypoint_budget``) is above both: it lost to the table."""
+    from c3_matcher.commands import with_keypoint_budget
+
+    configured = C3Settings(
+        matcher={"max_keypoints": 512, "options": {"xfeat": {"max_keypoints": 4096}}}
+    )
+
+    def budget(s: C3Settings) -> int:
+        return XFeatOptions(**s.matcher.options["xfeat"]).keypoint_budget(s.matcher.max_keypoints)
+
+    assert budget(configured) == 4096
+    run = with_keypoint_budget(configured, 1024)
+    assert budget(run) == 1024 and run.matcher.max_keypoints == 1024
+    assert run.matcher.options == {"xfeat": {}} and configured.matcher.options["xfeat"]
 
 
 def test_missing_engine_is_a_startup_error_naming_the_build_command(tmp_path):

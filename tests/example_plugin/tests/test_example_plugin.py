@@ -24,16 +24,25 @@ class TestExampleContract(ExtractorMatcherContract):
     config = CONFIG
 
 
-def test_the_runs_keypoint_budget_wins_over_the_options(engine_dir, monkeypatch) -> None:
-    """``--max-keypoints`` (``[matcher] max_keypoints``) is the run's budget, as the plugin guide
-    tells authors; the example applied its own option's 512 whatever the run asked."""
+def test_the_keypoint_budget_is_the_options_then_the_configurations_then_512(
+    engine_dir, monkeypatch
+) -> None:
+    """The strategy's own option is the more specific; ``--max-keypoints`` clears it
+    (``with_keypoint_budget``), so a run's flag is above both. The example applied its option's
+    512 whatever the run asked."""
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "src"))
+    from c3_matcher.commands import with_keypoint_budget
     from c3_matcher_example_fast_disk.plugin import Options, make_config
 
     settings = c3.C3Settings(engines={"directory": engine_dir})
     assert make_config(settings, Options()).max_keypoints == 512
-    assert make_config(settings, Options(max_keypoints=256)).max_keypoints == 256
-    run = settings.model_copy(
-        update={"matcher": settings.matcher.model_copy(update={"max_keypoints": 64})}
+    configured = c3.C3Settings(
+        engines={"directory": engine_dir},
+        matcher={"max_keypoints": 1024, "options": {"example_fast_disk": {"max_keypoints": 256}}},
     )
-    assert make_config(run, Options(max_keypoints=256)).max_keypoints == 64
+    table = Options(**configured.matcher.options["example_fast_disk"])
+    assert make_config(configured, table).max_keypoints == 256
+    assert make_config(configured, Options()).max_keypoints == 1024
+    run = with_keypoint_budget(configured, 64)
+    cleared = Options(**run.matcher.options["example_fast_disk"])
+    assert make_config(run, cleared).max_keypoints == 64

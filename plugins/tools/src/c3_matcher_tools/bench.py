@@ -99,7 +99,7 @@ class BenchCase:
         }[self.kind]
         tiles = "cached" if self.tile_cache_size else "new"
         tiles = "stored" if self.stored_features else tiles
-        budget = f"{self.max_keypoints} kp" if self.max_keypoints else "default kp"
+        budget = f"{self.max_keypoints} kp" if self.max_keypoints else "configured kp"
         extra = f", LG {self.lightglue_mode}" if self.lightglue_mode else ""
         extra += f", {self.intra_op_threads} thr" if self.intra_op_threads else ""
         return f"{name} ({tiles} tiles, {self.max_long_side}px, {budget}{extra})"
@@ -170,26 +170,22 @@ def cases_for(
     other_mode = {"adaptive": "full", "full": "adaptive"}[mode]
     host = plugin_host if plugin_host is not None else build_plugin_host()
     reference = not args.no_reference and _has_torch()
-    cases: list[BenchCase] = []
+    cases: list[BenchCase] = []  # a budget of None: the configured one (the strategy's own)
     for name in args.strategy or [m.strategy]:
         cases += [
-            BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints),
-            BenchCase(name, "engine", cached, m.max_long_side, m.max_keypoints),
+            BenchCase(name, "engine", 0, m.max_long_side, None),
+            BenchCase(name, "engine", cached, m.max_long_side, None),
         ]
         if stored and not args.no_stored:
-            cases.append(BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, True))
+            cases.append(BenchCase(name, "engine", 0, m.max_long_side, None, True))
         if _uses_lightglue(name) and not args.no_modes:
-            cases.append(
-                BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, False, other_mode)
-            )
+            cases.append(BenchCase(name, "engine", 0, m.max_long_side, None, False, other_mode))
         for kp in args.keypoints or ():
             cases.append(BenchCase(name, "engine", 0, m.max_long_side, kp))
         for threads in args.threads or ():
-            cases.append(
-                BenchCase(name, "engine", 0, m.max_long_side, m.max_keypoints, False, None, threads)
-            )
+            cases.append(BenchCase(name, "engine", 0, m.max_long_side, None, False, None, threads))
         if reference and offers_reference(host, name):
-            cases.append(BenchCase(name, "pytorch", 0, m.max_long_side, m.max_keypoints))
+            cases.append(BenchCase(name, "pytorch", 0, m.max_long_side, None))
         if args.sweep:
             cases += [
                 BenchCase(name, "engine", 0, side, kp)
@@ -198,7 +194,7 @@ def cases_for(
                 if (side, kp) != (m.max_long_side, m.max_keypoints)
             ]
     if not args.no_baseline:
-        cases.append(BenchCase(m.strategy, "sift", 0, m.max_long_side, m.max_keypoints))
+        cases.append(BenchCase(m.strategy, "sift", 0, m.max_long_side, None))
     return cases
 
 

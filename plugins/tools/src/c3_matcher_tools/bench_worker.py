@@ -64,11 +64,7 @@ def run_worker(case: BenchCase, runs: int, data_dir: Path, settings: C3Settings)
     from c3_matcher_tools.baselines import SIFT_LABEL
 
     strategy = SIFT_LABEL if case.kind == "sift" else case.strategy
-    settings = _overrides(case).apply(settings, strategy)
-    if case.max_keypoints is None:  # the case's budget: the configured one
-        settings = settings.model_copy(
-            update={"matcher": settings.matcher.model_copy(update={"max_keypoints": None})}
-        )
+    settings = _overrides(case).apply(settings, strategy)  # no budget: the configured one
     clock = MonotonicClock()
     limit = settings.matcher.max_image_pixels
     with (

@@ -121,8 +121,8 @@ class XFeatConfig:
     ) -> XFeatConfig:
         """Engine paths from the engine directory (``EngineError`` naming the build command if
         one is missing), thresholds and image rules from ``[matcher]``, the matcher choice and
-        the keypoint budget from ``[matcher] max_keypoints`` when set explicitly, else from
-        ``[matcher.options.xfeat]`` (``XFeatOptions.keypoint_budget``)."""
+        the keypoint budget from ``[matcher.options.xfeat]`` (``XFeatOptions.keypoint_budget``;
+        ``[matcher] max_keypoints`` counts only when set explicitly)."""
         settings = with_strategy_defaults(settings, DEFAULTS, STRATEGY)
         opts = options or XFeatOptions()
         engines = store or EngineStore(settings.engines.directory)

@@ -7,9 +7,8 @@
 
 Unknown keys and bad values are refused, naming the field (``extra="forbid"``).
 
-Keypoint budget: ``[matcher] max_keypoints`` when it is set explicitly (what ``--max-keypoints`` and
-``C3_MATCHER_MATCHER__MAX_KEYPOINTS`` set: a run's budget, as for every strategy), else
-``max_keypoints`` here, else ``DEFAULT_MAX_KEYPOINTS[matcher]``: 4096 for mnn (upstream XFeat's
+Keypoint budget, when ``max_keypoints`` is not given here: ``[matcher] max_keypoints`` if that is
+set explicitly, else ``DEFAULT_MAX_KEYPOINTS[matcher]``: 4096 for mnn (upstream XFeat's
 ``top_k``; measured on the real-path scenarios, the 2048 of ``[matcher]``'s LightGlue convention
 leaves the Manila yaw-120 frame at 35 inliers with mnn, 4096 gives 101), 2048 for lighterglue
 (passes every scenario; attention cost grows with the square of the count).
@@ -57,11 +56,10 @@ class XFeatOptions(BaseModel):
     )
 
     def keypoint_budget(self, matcher_max_keypoints: int | None) -> int:
-        """The effective budget: ``matcher_max_keypoints`` (``[matcher]``'s, only when set
-        explicitly: ``--max-keypoints`` sets it), else this table's, else the matcher's default;
-        capped at the engine's top-K. (The table won over ``--max-keypoints`` before.)"""
-        if matcher_max_keypoints is not None:
-            return min(matcher_max_keypoints, XFEAT_MAX_KEYPOINTS)
+        """The effective budget: this table's, else ``matcher_max_keypoints`` (``[matcher]``'s,
+        only when set explicitly), else the matcher's default; capped at the engine's top-K."""
         if self.max_keypoints is not None:
             return self.max_keypoints
+        if matcher_max_keypoints is not None:
+            return min(matcher_max_keypoints, XFEAT_MAX_KEYPOINTS)
         return DEFAULT_MAX_KEYPOINTS[self.matcher]

@@ -18,13 +18,14 @@ class Options(BaseModel):
     """``[matcher.options.example_fast_disk]``."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-    max_keypoints: int = Field(512, ge=64, le=4096)
+    max_keypoints: int | None = Field(None, ge=64, le=4096)  # None: [matcher]'s, else 512
     max_long_side: int = Field(640, ge=128, le=2048)
 
 
 def make_config(settings: c3.C3Settings, options: Options) -> c3.ExtractorLightGlueConfig:
-    """DISK + LightGlue at the run's keypoint budget (``--max-keypoints``, ``[matcher]
-    max_keypoints``: None when unset), else the options', and at the options' long side (px)."""
+    """DISK + LightGlue at the options' keypoint budget, else ``[matcher] max_keypoints`` (None
+    when unset), else 512 (``--max-keypoints`` sets the latter and clears the former), and at
+    the options' long side (px)."""
     store = c3.EngineStore(settings.engines.directory)
     return c3.ExtractorLightGlueConfig.from_settings(
         settings,
@@ -34,7 +35,7 @@ def make_config(settings: c3.C3Settings, options: Options) -> c3.ExtractorLightG
         extractor_engine_path=store.require_spec(DISK_SPEC),
         lightglue_engine_path=store.require_spec(LIGHTGLUE_DISK_SPEC),
         size_multiple=DISK_SIZE_MULTIPLE,
-        max_keypoints=settings.matcher.max_keypoints or options.max_keypoints,
+        max_keypoints=options.max_keypoints or settings.matcher.max_keypoints or 512,
         max_long_side=options.max_long_side,
     )
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
+from c3_matcher.commands import with_keypoint_budget
 from c3_matcher.compose import ComposedRoot, build_plugin_host, open_recorder, strategy_settings
 from c3_matcher.config import C3Settings
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher
@@ -33,7 +34,7 @@ __all__ = [
     "prepare_matcher",
 ]
 
-_MATCHER_KEYS = ("max_keypoints", "tile_cache_size", "max_long_side", "stored_features")
+_MATCHER_KEYS = ("tile_cache_size", "max_long_side", "stored_features")
 
 
 @dataclass(frozen=True)
@@ -50,7 +51,10 @@ class Overrides:
     intra_op_threads: int | None = None
 
     def apply(self, settings: C3Settings, strategy: str | None = None) -> C3Settings:
-        """``settings`` with these overrides and ``[matcher] strategy`` = ``strategy``."""
+        """``settings`` with these overrides and ``[matcher] strategy`` = ``strategy``; a
+        keypoint budget overrides the strategies' own options too (``with_keypoint_budget``)."""
+        if self.max_keypoints is not None:
+            settings = with_keypoint_budget(settings, self.max_keypoints)
         matcher: dict[str, Any] = {k: getattr(self, k) for k in _MATCHER_KEYS}
         matcher = {k: v for k, v in matcher.items() if v is not None}
         if strategy:
