@@ -11,7 +11,7 @@ class Options(BaseModel):
     """``[matcher.options.example_orb]``."""  # an unknown key is refused at start-up
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-    max_keypoints: int = Field(2000, ge=64, le=20000)
+    max_keypoints: int | None = Field(None, ge=64, le=20000)  # None: [matcher]'s, else 2000
 
 
 class OrbBackend:
@@ -42,8 +42,8 @@ class OrbBackend:
         return {"provider": f"opencv {cv2.__version__}", "engines": {}}
 
 
-create = c3.backend_strategy_factory(  # the configured budget (--max-keypoints), else the option
-    lambda s, o: OrbBackend(s.matcher.max_keypoints or o.max_keypoints), Options
+create = c3.backend_strategy_factory(  # the option, else [matcher] max_keypoints, else 2000
+    lambda s, o: OrbBackend(o.max_keypoints or s.matcher.max_keypoints or 2000), Options
 )
 
 
