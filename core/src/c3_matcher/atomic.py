@@ -110,11 +110,16 @@ def temporary_sibling(path: Path) -> Path:
     """A new hidden name beside ``path`` for its writer to fill and then rename onto it:
     ``.NAME.tmp-HOST-PID-XXXXXXXX`` (``HOST`` a tag of this machine's name). First removes what
     earlier writers of ``path`` on this machine left there when they were killed before they
-    could clean up (out of memory, SIGKILL, power lost): those whose process is gone. A live
-    writer's, another machine's (a shared disk) and anything else are left alone."""
-    restore_aside(path)
+    could clean up (out of memory, SIGKILL, power lost): those whose process is gone, but for a
+    directory set aside to replace a ``path`` now missing, which is put back
+    (:func:`restore_aside`). A live writer's, another machine's (a shared disk) and anything
+    else are left alone."""
     prefix = _prefix(path)
-    for left in _left_by_the_dead(path):
+    dead = _left_by_the_dead(path)
+    put_back = _put_back(path, dead)
+    for left in dead:
+        if left == put_back:
+            continue
         with contextlib.suppress(OSError):
             if left.is_dir() and not left.is_symlink():
                 shutil.rmtree(left)
@@ -146,14 +151,21 @@ def restore_aside(path: Path) -> None:
     """Put back the directory :func:`replace_directory` set aside to replace ``path`` when its
     writer died before the new one took its place (``path`` is missing): replacing loses
     nothing, even killed between its two renames."""
+    _put_back(path, _left_by_the_dead(path))
+
+
+def _put_back(path: Path, dead: list[Path]) -> Path | None:
+    """The set-aside directory among ``dead`` (:func:`_left_by_the_dead`) renamed back onto a
+    missing ``path``, or None when ``path`` is there or none was set aside."""
     if path.exists() or path.is_symlink():
-        return
-    for left in _left_by_the_dead(path):
+        return None
+    for left in dead:
         if left.name.endswith(_ASIDE) and left.is_dir():
             with contextlib.suppress(OSError):
                 left.rename(path)
                 fsync_dir(path.parent)
-            return
+            return left
+    return None
 
 
 def replace_directory(new: Path, path: Path) -> None:

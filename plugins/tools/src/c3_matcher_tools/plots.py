@@ -152,7 +152,7 @@ def forget_match_pictures(out: Path) -> None:
     folder = out / MATCH_PICTURES
     if not folder.is_dir() or folder.is_symlink():
         return
-    for picture in folder.glob("*_[0-9][0-9][0-9][0-9]*.png"):
+    for picture in folder.iterdir():
         if re.fullmatch(r".+_\d{4,}\.png", picture.name) and picture.is_file():
             picture.unlink(missing_ok=True)
     with contextlib.suppress(OSError):
