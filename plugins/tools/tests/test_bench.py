@@ -164,3 +164,39 @@ def test_the_worker_refuses_fewer_than_one_run() -> None:
     with pytest.raises(SystemExit) as stop:
         _worker_main(["{}", "0", str(FLIGHT)])
     assert stop.value.code == 2
+
+
+def test_a_case_whose_worker_fails_is_reported_and_the_others_kept(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A worker that fails (a plugin's reference hook raising, a crash) costs its case, not
+    the figures of the cases before and after it: they are printed, the failure is named, exit 1."""
+    import json
+    import subprocess
+
+    from c3_matcher.cli import main
+    from c3_matcher_tools import bench
+
+    run = subprocess.run
+
+    def worker(cmd: list[str], **kw: Any) -> subprocess.CompletedProcess[str]:
+        if "c3_matcher_tools.bench_worker" not in cmd:
+            return run(cmd, **kw)  # not a case (platform asks uname)
+        case = BenchCase(**json.loads(cmd[3]))
+        if case.kind == "pytorch":
+            return subprocess.CompletedProcess(cmd, 1, "", "Traceback...\nImportError: no torch\n")
+        return subprocess.CompletedProcess(cmd, 0, json.dumps(_result(case, 100.0)) + "\n", "")
+
+    monkeypatch.setattr(bench.subprocess, "run", worker)
+    monkeypatch.setattr(bench, "_has_torch", lambda: True)
+    argv = ["bench", "--runs", "1", "--strategy", "disk_lightglue", "--no-modes", "--no-stored"]
+    assert main([*argv, "--data", str(FLIGHT)]) == 1
+    out = capsys.readouterr().out
+    assert "disk_lightglue (new tiles" in out and "sift" in out  # before and after the failure
+    failed = [line for line in out.splitlines() if line.startswith("failed: ")]
+    assert len(failed) == 1 and failed[0].startswith("failed: disk_lightglue[pytorch] (")
+    assert failed[0].endswith(": ImportError: no torch")
+    assert main([*argv, "--data", str(FLIGHT), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert [f["error"] for f in report["failed"]] == ["ImportError: no torch"]
+    assert {r["case"]["kind"] for r in report["results"]} == {"engine", "sift"}

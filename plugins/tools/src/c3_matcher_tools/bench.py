@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from c3_matcher.commands import (
+    EXIT_FAILURE,
     EXIT_OK,
     EXIT_USAGE,
     CommandRegistry,
@@ -328,40 +329,54 @@ def _checked_data(data: Path, max_pixels: int) -> Path:
 
 
 def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
+    """Run every case in a worker process of its own; a case whose worker fails is reported
+    beside the others' figures (exit 1), a worker's refusal of its input stops the bench (2)."""
     for name in args.strategy or [ctx.settings.matcher.strategy]:
         ctx.plugin_host.resolve(name)  # one this build cannot run: refused before any case
     data = demo_data(args.data, ctx.settings.matcher.max_image_pixels)
-    results = []
+    results: list[dict[str, Any]] = []
+    failed: list[dict[str, str]] = []
     for case in cases_for(args, ctx.settings, data, ctx.plugin_host):
         ctx.err(f"bench: {case.label}, {args.runs} runs...")
-        cmd = [
-            sys.executable,
-            "-m",
-            "c3_matcher_tools.bench_worker",
-            json.dumps(asdict(case)),
-            str(args.runs),
-            str(data),
-        ]
-        if args.config:
-            cmd += ["--config", str(args.config)]
-        out = subprocess.run(cmd, check=False, capture_output=True, text=True)
-        if out.returncode == EXIT_USAGE:  # the worker refused its input: one line, exit 2
-            raise _worker_refusal(case, out.stderr)
-        if out.returncode != 0:
-            raise SystemExit(f"bench: {case.label} failed:\n{out.stderr.strip()}")
-        results.append(json.loads(out.stdout.strip().splitlines()[-1]))
+        outcome = _run_case(case, args, data)
+        if isinstance(outcome, str):
+            ctx.err(f"bench: {case.label} failed: {outcome}")
+            failed.append({"label": case.label, "error": outcome})
+        else:
+            results.append(outcome)
     report: dict[str, Any] = {
         "machine": _machine(),
         "runs": args.runs,
         "data": str(data),
         "results": results,
         "comparisons": comparisons(results),
+        "failed": failed,
     }
-    if args.json:
-        ctx.out(json.dumps(report, indent=2))
-        return EXIT_OK
-    ctx.out(_text_report(report))
-    return EXIT_OK
+    ctx.out(json.dumps(report, indent=2) if args.json else _text_report(report))
+    return EXIT_FAILURE if failed else EXIT_OK
+
+
+def _run_case(case: BenchCase, args: argparse.Namespace, data: Path) -> dict[str, Any] | str:
+    """The result of ``case``'s worker, or why it failed (its stderr's last line); a worker
+    that refused its input raises that refusal."""
+    cmd = [
+        sys.executable,
+        "-m",
+        "c3_matcher_tools.bench_worker",
+        json.dumps(asdict(case)),
+        str(args.runs),
+        str(data),
+    ]
+    if args.config:
+        cmd += ["--config", str(args.config)]
+    out = subprocess.run(cmd, check=False, capture_output=True, text=True)
+    if out.returncode == EXIT_USAGE:  # the worker refused its input: one line, exit 2
+        raise _worker_refusal(case, out.stderr)
+    if out.returncode != 0:
+        lines = out.stderr.strip().splitlines()
+        return lines[-1] if lines else f"worker exit status {out.returncode}, no message"
+    result: dict[str, Any] = json.loads(out.stdout.strip().splitlines()[-1])
+    return result
 
 
 def _worker_refusal(case: BenchCase, stderr: str) -> InvalidInputError:
@@ -380,7 +395,7 @@ def _text_report(report: dict[str, Any]) -> str:
     """``format_report``'s table, then a note for each case whose timed frames raised
     InsufficientInliersError: their times count in the frame columns, but candidate and stage
     times come only from frames that matched, so a case where none did has no candidate time
-    (n/a)."""
+    (n/a); last, each case that failed and why."""
     lines = [format_report(report)]
     for r in report["results"]:
         raised = r.get("frames_raised", 0)
@@ -392,4 +407,5 @@ def _text_report(report: dict[str, Any]) -> str:
             "InsufficientInliersError (in frame p50/p95, inliers 0); cand p95 and stage times: "
             + (f"the {matched} that matched" if matched else "n/a (none matched)")
         )
+    lines += [f"failed: {f['label']}: {f['error']}" for f in report["failed"]]
     return "\n".join(lines)
