@@ -15,7 +15,7 @@ from c3_matcher.viz import CandidateView, render_match
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.report.charts import FAILED, WRONG
-from c3_matcher_tools.run.acceptance import WRONG_FIX_PX
+from c3_matcher_tools.run.acceptance import inliers_within_bound
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = ["frame_picture", "gallery_frames", "gallery_pictures"]
@@ -175,12 +175,12 @@ def _finite(value: float, otherwise: float) -> float:
 
 
 def _right_match(o: FrameOutcome) -> bool:
-    """Matched the true tile, its inliers within ``WRONG_FIX_PX`` of ground truth (the bound
-    the evaluation's false-confidence measure uses); an unknown inlier error (no truth
-    homography) leaves the verdict to the tile."""
+    """Matched the true tile, its inliers within the evaluation's wrong-fix bound
+    (:func:`inliers_within_bound`); an unknown inlier error (no truth homography) leaves the
+    verdict to the tile, where the evaluation's false-confidence measure counts it wrong."""
     if o.status != FrameStatus.OK or not o.has_truth or not o.correct:
         return False
-    return not (math.isfinite(o.mean_error_px) and o.mean_error_px > WRONG_FIX_PX)
+    return inliers_within_bound(o) is not False
 
 
 def _rightly_raised(o: FrameOutcome) -> bool:

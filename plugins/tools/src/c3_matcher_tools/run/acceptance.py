@@ -37,6 +37,7 @@ __all__ = [
     "InlierCount",
     "InlierError",
     "Measure",
+    "inliers_within_bound",
     "is_wrong_fix",
     "metrics",
 ]
@@ -109,12 +110,18 @@ distractor's offset (>= 350 m, over 100 frame px on every shipped flight) and ab
 per-inlier scatter of a right but imprecise fix (IT-03 means of 2-4 px across seasons)."""
 
 
-def is_wrong_fix(outcome: FrameOutcome) -> bool:
-    """A returned pick that places the frame wrong (see ``WRONG_FIX_PX``); a raise never is."""
-    if outcome.status != FrameStatus.OK:
-        return False
+def inliers_within_bound(outcome: FrameOutcome) -> bool | None:
+    """Whether a pick's inliers lie within ``WRONG_FIX_PX`` of ground truth; None where that
+    is unknown (no truth homography, so no inlier error)."""
     error = outcome.mean_error_px
-    return not (math.isfinite(error) and error <= WRONG_FIX_PX)
+    return error <= WRONG_FIX_PX if math.isfinite(error) else None
+
+
+def is_wrong_fix(outcome: FrameOutcome) -> bool:
+    """A returned pick that places the frame wrong (see ``WRONG_FIX_PX``); a raise never is.
+    An unknown inlier error counts as wrong: the measure of false confidence takes no pick on
+    trust."""
+    return outcome.status == FrameStatus.OK and inliers_within_bound(outcome) is not True
 
 
 class Measure(ABC):
