@@ -35,7 +35,13 @@ def _result(case: BenchCase, p50: float, rss: float = 100.0) -> dict[str, Any]:
         "frame_ms": {"p50": p50, "p95": p50 * 1.1},
         "per_candidate_ms": {"p50": p50 / 3, "p95": p50 / 3},
         "stages_ms": {"extract": {"p50": 1.0, "p95": 2.0}},
-        "feature_sources": {"stored": 3} if case.stored_features else {"extracted": 3},
+        "feature_sources": (
+            {"stored": 3}
+            if case.stored_features
+            else {"cached": 2, "extracted": 1}
+            if case.tile_cache_size
+            else {"extracted": 3}
+        ),
         "peak_rss_mib": rss,
     }
 
@@ -200,3 +206,44 @@ def test_a_case_whose_worker_fails_is_reported_and_the_others_kept(
     report = json.loads(capsys.readouterr().out)
     assert [f["error"] for f in report["failed"]] == ["ImportError: no torch"]
     assert {r["case"]["kind"] for r in report["results"]} == {"engine", "sift"}
+
+
+def test_a_tile_source_that_served_nothing_is_not_compared() -> None:
+    """A cached case whose frames share no tile extracted every tile, like the new-tiles case:
+    its ratio would be noise, so the report says why there is none."""
+    s = "disk_lightglue"
+    cached = _result(BenchCase(s, "engine", 16, 1024, None), 900.0)
+    cached["feature_sources"] = {"extracted": 3}
+    stale = _result(BenchCase(s, "engine", 0, 1024, None, True), 950.0)
+    stale["feature_sources"] = {"extracted": 3}
+    results = [_result(BenchCase(s, "engine", 0, 1024, None), 1000.0), cached, stale]
+    got = {c["comparison"]: c for c in comparisons(results)}
+    assert "speedup_p50" not in got["cached vs new tiles"]
+    assert "from the cache" in got["cached vs new tiles"]["not_compared"]
+    assert "from the store" in got["stored features vs extraction"]["not_compared"]
+    text = format_report({"machine": _machine(), "runs": 1, "data": "x", "results": results})
+    assert "cached vs new tiles: not compared: no tile features came from the cache" in text
+
+
+def test_a_candidates_time_is_every_stage_it_went_through() -> None:
+    """Stored features cost their assembly, a refined best its second pass: both count in the
+    per-candidate time and are listed as stages."""
+    from c3_matcher_tools.bench_worker import _time_matches
+
+    class Matcher:
+        def match(self, *_: Any) -> Any:
+            class Result:
+                per_candidate = (type("M", (), {"inlier_count": 80})(),)
+                diagnostics = {
+                    "candidate_features": ["stored"],
+                    "timings_ms": {"query_preprocess": 1.0, "query_extract": 2.0},
+                    "per_candidate_timings_ms": [
+                        {"assemble": 3.0, "match": 40.0, "ransac": 5.0, "refine": 50.0}
+                    ],
+                }
+
+            return Result()
+
+    timed = _time_matches(Matcher(), [(None, None, None)], 1)
+    assert timed["per_candidate_ms"]["p50"] == pytest.approx(98.0)
+    assert timed["stages_ms"]["assemble"]["p50"] == 3.0 and "refine" in timed["stages_ms"]

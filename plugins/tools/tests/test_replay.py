@@ -8,6 +8,7 @@ from __future__ import annotations
 import subprocess
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -108,21 +109,45 @@ def test_a_dataset_name_that_is_not_one_path_component_cannot_name_the_default_o
     assert list(work.iterdir()) == []
 
 
-@pytest.mark.parametrize(("ok", "hinted"), [(0, True), (1, False)])
-def test_a_replay_where_no_frame_matched_says_what_to_check(ok: int, hinted: bool) -> None:
+def _replay_table(outcomes: list[Any]) -> str:
     from c3_matcher_tools.replay import _report_lines
     from c3_matcher_tools.run import summarize
-    from c3_matcher_tools.testing.outcomes import frame_outcome
 
-    outcomes = [
-        frame_outcome(i, status="ok" if i < ok else "insufficient", has_truth=False)
-        for i in range(6)
-    ]
     report = {"strategy": "xfeat", "wall_s": 1.0, "startup_s": 0.1}
     report |= {"results": "r", "fdr": "f", "geojson": "g", "html": None}
-    said = "\n".join(_report_lines("myflight", report, summarize(outcomes), Path("out")))
+    return "\n".join(_report_lines("myflight", report, summarize(outcomes), Path("out")))
+
+
+@pytest.mark.parametrize(("ok", "hinted"), [(0, True), (1, False)])
+def test_a_replay_where_no_frame_matched_says_what_to_check(ok: int, hinted: bool) -> None:
+    from c3_matcher_tools.testing.outcomes import frame_outcome
+
+    said = _replay_table(
+        [
+            frame_outcome(i, status="ok" if i < ok else "insufficient", has_truth=False)
+            for i in range(6)
+        ]
+    )
     assert ("no frame matched" in said) is hinted
     assert ("c3-matcher eval" in said) is hinted
+
+
+@pytest.mark.parametrize(
+    ("last", "hinted"), [(None, False), ("unreadable", False), ("insufficient", True)]
+)
+def test_frames_without_their_true_tile_that_raised_are_no_alarm(
+    last: str | None, hinted: bool
+) -> None:
+    """Frames without their true tile that raised did right (IT-05), and an unreadable image
+    never reached the matcher: neither is a store or attitude problem. A read frame whose
+    true tile was there and that raised is."""
+    from c3_matcher_tools.testing.outcomes import frame_outcome
+
+    outcomes = [frame_outcome(i, status="insufficient", true_present=False) for i in range(3)]
+    outcomes += [frame_outcome(3, status=last)] if last else []
+    said = _replay_table(outcomes)
+    assert ("no frame matched" in said) is hinted
+    assert "raised on 3/3 frames without their true tile" in said
 
 
 def test_a_frame_whose_image_cannot_be_decoded_is_recorded_and_the_flight_goes_on(

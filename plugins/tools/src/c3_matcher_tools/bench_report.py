@@ -36,11 +36,16 @@ Pair = tuple[str, Result | None, Result | None]  # (what, slower side, faster si
 def comparisons(results: list[Result]) -> list[Result]:
     """The ratios a run proves, per strategy: stored vs extracted tiles, adaptive vs full
     LightGlue, cached vs new tiles, each engine case vs the PyTorch reference (speed-ups of
-    frame p50 and p95, peak RSS of both sides)."""
+    frame p50 and p95, peak RSS of both sides); a tile-source comparison whose faster case
+    drew no features from that source says so (``not_compared``) instead of a ratio."""
     out: list[Result] = []
     for strategy in dict.fromkeys(r["case"]["strategy"] for r in results):
         for what, slow, fast in _pairs(results, strategy):
             if slow is None or fast is None:
+                continue
+            unserved = _unserved(what, fast)
+            if unserved:  # the faster side's features never came from where it is named for
+                out.append({"strategy": strategy, "comparison": what, "not_compared": unserved})
                 continue
             out.append(
                 {
@@ -52,6 +57,21 @@ def comparisons(results: list[Result]) -> list[Result]:
                 }
             )
     return out
+
+
+_SERVED_FROM = {
+    "cached vs new tiles": ("cached", "the cache (no tile recurs between the frames timed)"),
+    "stored features vs extraction": ("stored", "the store (its features missing or stale)"),
+}
+
+
+def _unserved(what: str, fast: Result) -> str | None:
+    """Why comparison ``what`` would measure nothing: none of its faster case's tile features
+    came from where that case is named for; else None."""
+    source, where = _SERVED_FROM.get(what, (None, ""))
+    if source is None or (fast.get("feature_sources") or {}).get(source):
+        return None
+    return f"not compared: no tile features came from {where}"
 
 
 def _first(results: list[Result], strategy: str, kind: str, **fields: Any) -> Result | None:
@@ -111,6 +131,9 @@ def format_report(report: dict[str, Any]) -> str:
         )
     lines.append("speed-ups (frame p50 and p95, slower / faster; peak MiB faster vs slower side):")
     for c in report.get("comparisons") or comparisons(results):
+        if "not_compared" in c:
+            lines.append(f"  {c['strategy']}: {c['comparison']}: {c['not_compared']}")
+            continue
         fast_mib, slow_mib = c["peak_rss_mib"]
         lines.append(
             f"  {c['strategy']}: {c['comparison']}: {c['speedup_p50']:.2f}x p50, "

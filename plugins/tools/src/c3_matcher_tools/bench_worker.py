@@ -35,6 +35,8 @@ from c3_matcher_tools.run.matcher import Overrides, compose_matcher
 __all__ = ["run_worker"]
 
 STAGES = ("decode", "preprocess", "extract", "match", "ransac")
+"""A candidate's stages listed whether or not it went through them (0 ms when not); the
+others it records (``assemble`` of stored features, ``refine``) follow where it did."""
 
 
 def _percentiles(values: list[float]) -> dict[str, float] | None:
@@ -127,9 +129,9 @@ def _time_matches(matcher: Any, inputs: list[tuple[Any, Any, Any]], runs: int) -
         for key in ("query_preprocess", "query_extract"):
             stages[key].append(diag["timings_ms"][key])
         for cand in diag["per_candidate_timings_ms"]:
-            candidate_ms.append(sum(cand.get(s, 0.0) for s in STAGES))
-            for s in STAGES:
-                stages[s].append(cand.get(s, 0.0))
+            candidate_ms.append(sum(cand.values()))  # every stage it went through
+            for s in (*STAGES, *(k for k in cand if k not in STAGES)):
+                stages.setdefault(s, []).append(cand.get(s, 0.0))
     return {
         "best_inliers": int(np.median(best)),
         "frames_raised": raised,

@@ -99,6 +99,7 @@ from c3_matcher_tools.run import (
     check_flight,
     check_output_dirs,
     exclusive_output_dir,
+    figure,
     flight_report,
     fly,
     forget_previous_run,
@@ -215,10 +216,6 @@ def register_eval_command(commands: CommandRegistry) -> None:
         'several, {"flights": [each dataset\'s eval.json], "summary": summary.json\'s rows}',
     )
     p.set_defaults(handler=run_eval)
-
-
-def _fmt(value: float | None, spec: str) -> str:
-    return "n/a" if value is None or not math.isfinite(value) else format(value, spec)
 
 
 def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
@@ -430,7 +427,7 @@ def _table_row(r: StrategyRow) -> str:
         f"{it5.insufficient}/{it5.absent_frames}" + mark(it5),
         f"{fc.count}/{fc.of}" + mark(fc),
         str(len(fc.right_fix_other_tile)),
-        f"{_fmt(t.frame_ms_p50, '.0f')}/{_fmt(t.frame_ms_p95, '.0f')}",
+        f"{figure(t.frame_ms_p50, '.0f')}/{figure(t.frame_ms_p95, '.0f')}",
     )
     return (
         f"{r.strategy:18} {cells[0]:>13} {cells[1]:>7} {cells[2]:>13} {cells[3]:>14} "
@@ -443,9 +440,9 @@ def _print_links(ctx: CommandContext, r: StrategyEval) -> None:
     if t.with_telemetry:
         ctx.out(
             f"  {r.strategy}: estimate - telemetry look point m p50 "
-            f"{_fmt(t.telemetry_error_m_p50, '.1f')}, p95 "
-            f"{_fmt(t.telemetry_error_m_p95, '.1f')} (GNSS accuracy stated "
-            f"p50 {_fmt(t.gnss_accuracy_m_p50, '.1f')} m, GNSS absent or "
+            f"{figure(t.telemetry_error_m_p50, '.1f')}, p95 "
+            f"{figure(t.telemetry_error_m_p95, '.1f')} (GNSS accuracy stated "
+            f"p50 {figure(t.gnss_accuracy_m_p50, '.1f')} m, GNSS absent or "
             f"degraded on {len(t.gnss_degraded_frames)} frame(s))"
         )
     ctx.out(f"  {r.strategy}: map {r.geojson}, flight report {r.html or '-'}")
@@ -471,7 +468,7 @@ def _print_summary(ctx: CommandContext, summary: Sequence[SummaryRow]) -> None:
         ctx.out(
             f"{s.strategy:18} {s.flight:{w}} {rate:>13} "
             f"{IT03_BAR.figure(h.it03_p95_px, 2):>10} {it05:>7} "
-            f"{fc:>10} {s.right_fix_other_tile:>10} {_fmt(s.frame_ms_p50, '.0f'):>9}"
+            f"{fc:>10} {s.right_fix_other_tile:>10} {figure(s.frame_ms_p50, '.0f'):>9}"
         )
     for strategy in sorted({s.strategy for s in rows if s.figures is not None}):
         mine = [s.figures for s in rows if s.strategy == strategy and s.figures is not None]

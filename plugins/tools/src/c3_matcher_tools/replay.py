@@ -45,6 +45,7 @@ from c3_matcher_tools.run import (
     check_flight,
     check_output_dirs,
     exclusive_output_dir,
+    figure,
     flight_report,
     fly_prepared,
     output_dir_name,
@@ -148,7 +149,7 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
         f"{s.count(FrameStatus.BACKBONE_ERROR)}"
         + (f", unreadable images {unreadable}" if unreadable else ""),
     ]
-    if s.frames and not s.count(FrameStatus.OK):
+    if s.frames - unreadable - s.true_absent > 0 and not s.count(FrameStatus.OK):
         lines.append(
             "  no frame matched: check that the store covers the flight and that heights and "
             "attitudes are right; `c3-matcher eval` compares the strategies on it"
@@ -160,11 +161,18 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
         )
     else:
         lines.append("  no ground truth in this flight: nothing scored against truth")
-    lines.append(f"  frame ms p50 {_fmt(s.frame_ms_p50, '.0f')}, p95 {_fmt(s.frame_ms_p95, '.0f')}")
+    if s.true_absent:
+        lines.append(
+            f"  raised on {s.absent_raised}/{s.true_absent} frames without their true tile "
+            "(InsufficientInliersError is the right answer there)"
+        )
+    lines.append(
+        f"  frame ms p50 {figure(s.frame_ms_p50, '.0f')}, p95 {figure(s.frame_ms_p95, '.0f')}"
+    )
     if s.georeferenced and s.with_truth:
         lines.append(
-            f"  position error m p50 {_fmt(s.position_error_m_p50)}, "
-            f"p95 {_fmt(s.position_error_m_p95)} ({s.georeferenced} frames located)"
+            f"  position error m p50 {figure(s.position_error_m_p50)}, "
+            f"p95 {figure(s.position_error_m_p95)} ({s.georeferenced} frames located)"
         )
     if s.with_telemetry:
         lines.append(_telemetry_line(s))
@@ -179,14 +187,10 @@ def _telemetry_line(s: RunSummary) -> str:
     degraded = list(s.gnss_degraded_frames)
     accuracy = s.gnss_accuracy_m_p50
     return (
-        f"  estimate - telemetry look point m p50 {_fmt(s.telemetry_error_m_p50)}, "
-        f"p95 {_fmt(s.telemetry_error_m_p95)} ({s.georeferenced} frames "
+        f"  estimate - telemetry look point m p50 {figure(s.telemetry_error_m_p50)}, "
+        f"p95 {figure(s.telemetry_error_m_p95)} ({s.georeferenced} frames "
         "located; "
         + ("GNSS accuracy not stated" if accuracy is None else f"GNSS accuracy {accuracy:.1f} m")
         + f"; GNSS absent or degraded on {len(degraded)} frame(s)"
         + (f": {degraded[:20]})" if degraded else ")")
     )
-
-
-def _fmt(value: float | None, spec: str = ".1f") -> str:
-    return "n/a" if value is None else format(value, spec)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import html
 import json
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +27,7 @@ from c3_matcher_tools.report.charts import FAILED, WRONG, per_frame_figure, traj
 from c3_matcher_tools.report.pictures import gallery_pictures
 from c3_matcher_tools.run.acceptance import WRONG_FIX_PX
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
-from c3_matcher_tools.run.scoring import RunSummary, summarize
+from c3_matcher_tools.run.scoring import RunSummary, figure, summarize
 
 __all__ = ["write_report"]
 
@@ -108,19 +107,12 @@ def write_report(
     return write_text_atomically(out, page.html())
 
 
-def _fmt(v: Any, spec: str = ".1f") -> str:
-    """``v`` formatted with ``spec``; "n/a" for None, NaN and infinity."""
-    return (
-        "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
-    )
-
-
 def _kpis(summary: RunSummary) -> list[tuple[str, Any]]:
     """The headline figures (label, value) of the run's ``summary``; the telemetry's error only
     for a flight that has telemetry."""
     tele_kpi = (
         "estimate - telemetry p50 / p95 (m)",
-        f"{_fmt(summary.telemetry_error_m_p50)} / {_fmt(summary.telemetry_error_m_p95)}",
+        f"{figure(summary.telemetry_error_m_p50)} / {figure(summary.telemetry_error_m_p95)}",
     )
     return [
         ("frames", summary.frames),
@@ -134,12 +126,12 @@ def _kpis(summary: RunSummary) -> list[tuple[str, Any]]:
         ),
         (
             "position error p50 / p95 (m)",
-            f"{_fmt(summary.position_error_m_p50)} / {_fmt(summary.position_error_m_p95)}",
+            f"{figure(summary.position_error_m_p50)} / {figure(summary.position_error_m_p95)}",
         ),
         *([tele_kpi] if summary.with_telemetry else []),
         (
             "frame ms p50 / p95",
-            f"{_fmt(summary.frame_ms_p50, '.0f')} / {_fmt(summary.frame_ms_p95, '.0f')}",
+            f"{figure(summary.frame_ms_p50, '.0f')} / {figure(summary.frame_ms_p95, '.0f')}",
         ),
     ]
 
@@ -155,11 +147,11 @@ def _frame_rows(outcomes: Sequence[FrameOutcome]) -> str:
                 o.status,
                 o.candidate_inliers,
                 _verdict(o),
-                _fmt(o.position_error_m),
-                _fmt(o.telemetry_error_m),
+                figure(o.position_error_m),
+                figure(o.telemetry_error_m),
                 _gnss_cell(o),
-                _fmt(o.mean_error_px, ".2f"),
-                _fmt(o.elapsed_ms, ".0f"),
+                figure(o.mean_error_px, ".2f"),
+                figure(o.elapsed_ms, ".0f"),
                 "" if o.est_lat is None else f"{o.est_lat:.6f}, {o.est_lon:.6f}",
             )
         )

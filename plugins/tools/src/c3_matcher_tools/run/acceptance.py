@@ -285,7 +285,7 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Accep
     """The C3-IT figures and pass flags of one strategy (see the module docstring): a flag is
     None where its measure had nothing to measure. A frame whose image could not be read is
     the camera's loss, not the matcher's: no measure counts it."""
-    scored = [o for o in run1 if o.has_truth and o.status != FrameStatus.UNREADABLE]
+    scored = [o for o in run1 if o.scored]
     present = [o for o in scored if o.true_present]
     absent = [o for o in scored if not o.true_present]
     inliers = [float(o.best_inliers) for o in present]
@@ -304,8 +304,10 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Accep
 
 
 def _it02(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Determinism:
-    first = {o.index: o for o in run1}
-    compared = [o for o in run2 if o.index in first]
+    """The frames the matcher ran twice (an image unreadable in either run never reached it)
+    and those whose results differ."""
+    first = {o.index: o for o in run1 if o.status != FrameStatus.UNREADABLE}
+    compared = [o for o in run2 if o.index in first and o.status != FrameStatus.UNREADABLE]
     differing = tuple(
         o.index
         for o in compared

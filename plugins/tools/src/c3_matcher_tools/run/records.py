@@ -67,6 +67,12 @@ class FrameOutcome:
     gnss_degraded: bool | None = None
 
     @property
+    def scored(self) -> bool:
+        """Whether accuracy measures count this frame: it has ground truth and its image was
+        read (an unreadable image is the camera's loss, not the matcher's)."""
+        return self.has_truth and self.status != FrameStatus.UNREADABLE
+
+    @property
     def candidate_inliers(self) -> int:
         """The best candidate's inlier count, whether the frame matched or raised (the count
         below the threshold); ``best_inliers`` is the matched result's, 0 when it raised."""

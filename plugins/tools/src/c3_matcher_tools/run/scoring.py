@@ -23,11 +23,24 @@ __all__ = [
     "RunSummary",
     "TelemetryReference",
     "best_candidate_error",
+    "figure",
     "result_fingerprint",
     "summarize",
     "telemetry_reference",
     "truth_position",
 ]
+
+
+def figure(value: float | None, spec: str | None = None) -> str:
+    """A figure as reports print it: "n/a" for None, NaN and infinity; ``spec`` when given,
+    else three significant digits to the millimetre (0.0309 -> "0.031", 12.34 -> "12.3"), so a
+    centimetre error never reads as 0."""
+    if value is None or not math.isfinite(value):
+        return "n/a"
+    if spec is not None:
+        return format(value, spec)
+    digits = 2 - math.floor(math.log10(abs(value))) if value else 1
+    return f"{value:.{min(max(digits, 0), 3)}f}"
 
 
 def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -> str:
@@ -124,15 +137,18 @@ class RunSummary:
     position errors (m) of the matched frames against ground truth; for a recorded flight, the
     estimate minus the telemetry's look point (m), all matched frames and those whose GNSS was
     good, the stated GNSS accuracy, and the frames whose GNSS was absent or degraded.
-    ``true_present`` and ``correct_candidate`` count the frames with ground truth only (as
-    C3-IT-04 does); frame times are those of the frames the matcher ran on (an unreadable
-    image never reached it)."""
+    ``true_present`` and ``correct_candidate`` count the frames with ground truth whose image
+    was read (``FrameOutcome.scored``, as C3-IT-04 does), ``true_absent`` and
+    ``absent_raised`` those whose true tile is not a candidate (as C3-IT-05 does); frame
+    times are those of the frames the matcher ran on (an unreadable image never reached it)."""
 
     frames: int
     by_status: Mapping[FrameStatus, int]
     with_truth: int
     true_present: int
     correct_candidate: int
+    true_absent: int
+    absent_raised: int
     georeferenced: int
     position_error_m_p50: float | None
     position_error_m_p95: float | None
@@ -171,7 +187,8 @@ class RunSummary:
 def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
     """The :class:`RunSummary` of a run's ``outcomes``."""
     matched = [o.elapsed_ms for o in outcomes if o.status != FrameStatus.UNREADABLE]
-    present = [o for o in outcomes if o.has_truth and o.true_present]
+    present = [o for o in outcomes if o.scored and o.true_present]
+    absent = [o for o in outcomes if o.scored and not o.true_present]
     pos = [o.position_error_m for o in outcomes if o.status == FrameStatus.OK]
     tele = [o for o in outcomes if o.telemetry_lat is not None]
     tele_ok = [o for o in tele if o.status == FrameStatus.OK]
@@ -182,6 +199,8 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
         with_truth=sum(o.has_truth for o in outcomes),
         true_present=len(present),
         correct_candidate=sum(o.correct for o in present),
+        true_absent=len(absent),
+        absent_raised=sum(o.status == FrameStatus.INSUFFICIENT for o in absent),
         georeferenced=sum(o.est_lat is not None for o in outcomes),
         position_error_m_p50=_percentile(pos, 50),
         position_error_m_p95=_percentile(pos, 95),
