@@ -72,6 +72,10 @@ def test_a_frame_against_windows_of_a_store_finds_its_own(engine_dir, tmp_path):
         (["--store", str(STORE), "--tile-id", "15,47,-99", "--fdr", str(STORE)], "--fdr"),
         (["--store", str(STORE), "--tile-id", "15,47,-99", "--window", "8"], "--window"),
         (["--tile", str(TILE), "--window", "256"], "--window: sizes --store windows"),
+        (
+            ["--store", str(STORE), "--tile-id", "15,47,-99", "--tile-gsd", "0.097"],
+            "--tile-gsd: is for --tile images; a --store window's is its zoom's",
+        ),
     ],
     ids=[
         "no-tile-id",
@@ -82,6 +86,7 @@ def test_a_frame_against_windows_of_a_store_finds_its_own(engine_dir, tmp_path):
         "fdr-over-it",
         "window",
         "window-without-store",
+        "gsd-over-the-zoom",
     ],
 )
 def test_what_a_store_cannot_serve_is_one_line_and_exit_2(engine_dir, tmp_path, args, needle):

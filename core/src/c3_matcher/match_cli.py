@@ -138,7 +138,8 @@ def _add_candidate_options(p: argparse.ArgumentParser) -> None:
         "--tile-gsd",
         type=_POSITIVE,
         default=None,
-        help="tiles' ground sample distance, m/px (default: from the tile id's zoom)",
+        help="--tile images' ground sample distance, m/px (default: from the tile id's zoom; "
+        "a --store window's is always its zoom's)",
     )
 
 

@@ -6,7 +6,6 @@ either tile image files (``--tile``) or windows of an MBTiles store centred on t
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import hashlib
 import sys
 import uuid
@@ -105,7 +104,12 @@ def store_candidates(
 ) -> RerankResult:
     """One candidate per tile id: the ``window_px`` square of ``store`` centred on it, at its
     zoom (a zoom the store lacks is bad input; a window over no stored tile is a candidate
-    dropped, as in flight), its GSD the web-mercator one at its latitude unless given."""
+    dropped, as in flight), its GSD the web-mercator one of that zoom at its latitude: the
+    window's grid is the zoom's, so a ``tile_gsd_m`` given (``--tile-gsd``) is refused."""
+    if tile_gsd_m is not None:
+        raise InvalidInputError(
+            "--tile-gsd", "is for --tile images; a --store window's is its zoom's"
+        )
     if not tile_ids:
         raise InvalidInputError("--tile-id", "--store needs one --tile-id per candidate window")
     zooms = store.zooms()
@@ -115,10 +119,7 @@ def store_candidates(
                 f"--tile-id {tile_id.zoom},{tile_id.lat},{tile_id.lon}",
                 f"{store.path} has no tiles at zoom {tile_id.zoom} (it has {zooms})",
             )
-    candidates = [store.candidate(t, size_px=window_px) for t in tile_ids]
-    if tile_gsd_m is not None:
-        candidates = [dataclasses.replace(c, gsd_m_per_px=tile_gsd_m) for c in candidates]
-    return RerankResult(frame_id, tuple(candidates))
+    return RerankResult(frame_id, tuple(store.candidate(t, size_px=window_px) for t in tile_ids))
 
 
 def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
