@@ -154,3 +154,23 @@ def test_a_json_object_without_an_integer_seq_is_damage_not_a_record(
     status, out = _run(["fdr", str(path)], capsys)
     assert status == 1 and out.splitlines()[0] == f"{path}: damaged"
     assert "unreadable lines: fdr.jsonl:6: no seq" in out
+
+
+@pytest.mark.parametrize(
+    "content",
+    [
+        b'{"frame": 0, "status": "ok"}\n{"frame": 1, "status": "ok"}\n',  # replay's results
+        b"\xff\xd8\xff\xe0\x00\x10JFIF\x00\n\x01\x02\n",  # a JPEG
+    ],
+    ids=["results.jsonl", "jpeg"],
+)
+def test_a_file_with_no_record_at_all_is_not_called_a_damaged_log(tmp_path, capsys, content):
+    """The file beside the FDR in a replay folder, or an image, is the wrong file (exit 2),
+    not a flight record to distrust (exit 1); an empty log is still a new, intact one."""
+    path = tmp_path / "results.jsonl"
+    path.write_bytes(content)
+    assert main(["fdr", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: no line is a flight-data record" in err and "not a flight-data log" in err
+    path.write_bytes(b"")
+    assert main(["fdr", str(path)]) == 0

@@ -108,7 +108,7 @@ def read_fdr_log(path: Path) -> Iterator[FdrRecord]:
 
 def check_fdr(path: Path) -> FdrCheck:
     """Read every segment of the log at ``path`` and say what it holds and whether it is
-    whole (``InvalidInputError`` when there is no log there)."""
+    whole (``InvalidInputError`` when there is no log there, or no line of it is a record)."""
     path = Path(path).expanduser()
     segments = log_segments(path)
     kinds: Counter[str] = Counter()
@@ -126,6 +126,12 @@ def check_fdr(path: Path) -> FdrCheck:
             if record.get("kind") == RECORDS_DROPPED and (note := _noted(record.get("payload"))):
                 noted.append(note[0])
                 let_go += note[1]
+    if unreadable and not seqs:
+        raise InvalidInputError(
+            "fdr",
+            f"{path}: no line is a flight-data record (a JSON object with an integer seq): "
+            "not a flight-data log, or one damaged throughout",
+        )
     gaps, went_back = _follow(seqs)
     named = tuple(noted)
     return FdrCheck(
