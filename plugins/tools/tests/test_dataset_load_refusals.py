@@ -130,6 +130,19 @@ def test_a_dataset_without_frames_is_refused_with_one_line_and_exit_2(
     )
 
 
+def test_the_datasets_own_file_given_for_it_names_its_directory(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``dataset info flight/dataset.json`` (or replay, eval, features): the file exists, so
+    "no dataset.json" was wrong; the fix is its directory."""
+    root = _dataset(tmp_path / "flight")
+    assert main(["dataset", "info", str(root / "dataset.json")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"c3-matcher: dataset: {root / 'dataset.json'} is the dataset's file: give its "
+        f"directory {root}"
+    )
+
+
 def test_every_shipped_flight_passes_the_checks() -> None:
     for flight in sorted(DEMO.parent.glob("*/dataset.json")):
         assert load_dataset(flight.parent).frames

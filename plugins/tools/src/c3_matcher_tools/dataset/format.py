@@ -474,6 +474,10 @@ def load_dataset(
     ``max_image_pixels`` (width x height)."""
     base = Path(root)
     meta_path = base / META_FILE
+    if base.name == META_FILE and base.is_file():  # the file, given for its directory
+        raise InvalidInputError(
+            "dataset", f"{base} is the dataset's file: give its directory {base.parent}"
+        )
     if not meta_path.is_file():
         raise InvalidInputError("dataset", f"{base}: no {META_FILE} (not a {FORMAT} dataset)")
     meta = _meta(meta_path)
