@@ -101,6 +101,7 @@ def test_altitude_above_sea_level_needs_the_ground(tmp_path: Path) -> None:
         import_csv_flight(spec(images, csv), tmp_path / "a")
     report = import_csv_flight(spec(images, csv, ground_elevation_m=GROUND_M), tmp_path / "b")
     assert list(report.height_sources) == ["column 'altitude_msl_m' minus ground elevation 450 m"]
+    assert "sea level go in a column" not in report.notes[0]
     agl = read_telemetry(csv, ground_elevation_m=GROUND_M)
     (tmp_path / "plain").mkdir()
     _, plain_csv = recorded(tmp_path / "plain", msl=False)
@@ -129,8 +130,11 @@ def test_both_altitudes_without_the_ground_take_the_height_unchecked(tmp_path: P
     report = import_csv_flight(spec(images, csv), tmp_path / "flight")
     assert report.frames == 4 and not report.skipped
     assert list(report.height_sources) == ["column 'altitude_m' read as height above ground"]
+    # the note says the sea-level column was not used and why (it told them to add it)
+    assert "'altitude_msl_m' (above sea level) not used: no --ground-elevation" in report.notes[0]
     checked = import_csv_flight(spec(images, csv, ground_elevation_m=GROUND_M), tmp_path / "b")
     assert checked.frames == 4 and "checked against" in next(iter(checked.height_sources))
+    assert "'altitude_msl_m' read against the ground elevation" in checked.notes[0]
     with pytest.raises(InvalidInputError, match=r"line 2: .* but the ground is at 0 m"):
         read_telemetry(csv, ground_elevation_m=0.0)
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import shutil
 import uuid
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -238,7 +238,24 @@ def _csv_report(checked: _CheckedCsv, spec: ImportSpec, out: Path, frames: int) 
         gnss_degraded=(),
         zoom=checked.proposed.zoom,
         notes=(
-            f"heights above ground {min(heights):.1f} to {max(heights):.1f} m; altitudes above "
-            "sea level go in a column altitude_msl_m, with --ground-elevation or --dem",
+            f"heights above ground {min(heights):.1f} to {max(heights):.1f} m; "
+            + _msl_note(checked.table.columns, spec),
         ),
     )
+
+
+def _msl_note(columns: Mapping[str, str], spec: ImportSpec) -> str:
+    """What became of an altitude above sea level: used, not used (and why), or where to put
+    one."""
+    msl = columns.get("altitude_msl_m")
+    if msl is None:
+        return (
+            "altitudes above sea level go in a column altitude_msl_m, with --ground-elevation "
+            "or --dem"
+        )
+    if spec.ground_elevation_m is None and spec.dem is None:
+        return (
+            f"column {msl!r} (above sea level) not used: no --ground-elevation or --dem to read "
+            "it against"
+        )
+    return f"column {msl!r} read against {'the DEM' if spec.dem else 'the ground elevation'}"
