@@ -121,3 +121,17 @@ def test_a_hard_link_to_an_input_is_that_input(
     assert main(argv) == 2
     assert f"is the input {tile}" in capsys.readouterr().err
     assert tile.read_bytes() == before
+
+
+@pytest.mark.parametrize("name", ["match.jpg", "match", "match.png.webp"])
+def test_a_picture_not_named_png_is_refused_before_matching(
+    inputs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    """The picture is PNG data: under a .jpg name strict viewers and upload tools reject it."""
+    from c3_matcher.cli import main
+
+    argv = ["match", "--query", str(inputs["query"]), "--tile", str(inputs["tile"])]
+    assert main([*argv, "--viz", str(tmp_path / name)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err == f"c3-matcher: --viz: {tmp_path / name}: the picture is a PNG; name it *.png"
+    assert not (tmp_path / name).exists() and not (tmp_path / "fdr.jsonl").exists()

@@ -151,7 +151,7 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
         "--viz",
         type=Path,
         default=None,
-        help="write a picture of query, best tile and inlier lines (PNG)",
+        help="write a picture of query, best tile and inlier lines (a .png file)",
     )
     p.add_argument(
         "--fdr",
@@ -237,8 +237,8 @@ def _match_settings(args: argparse.Namespace, settings: C3Settings) -> C3Setting
 def _refuse_output_over_input(args: argparse.Namespace, fdr_path: Path) -> None:
     """Neither file the command writes (the flight-data record, ``--viz``) may be one of the
     files it reads, nor ``--viz`` the record: the recorder would cut an image's tail as a torn
-    line and append its records to it, ``--viz`` would replace it (bad input, exit 2, nothing
-    written)."""
+    line and append its records to it, ``--viz`` would replace it; and ``--viz`` is a PNG, so
+    named (bad input, exit 2, nothing written)."""
     inputs = [args.query, *(args.tile or ()), args.store, args.calibration]
     fdr_field = "--fdr" if args.fdr else "[fdr] path"
     for out, field in ((fdr_path, fdr_field), (args.viz, "--viz")):
@@ -247,6 +247,8 @@ def _refuse_output_over_input(args: argparse.Namespace, fdr_path: Path) -> None:
     refuse_output_over_inputs(fdr_path, inputs, field=fdr_field)
     if args.viz:
         refuse_output_over_inputs(args.viz, [*inputs, fdr_path], field="--viz")
+        if Path(args.viz).suffix.lower() != ".png":  # a viewer trusts the name
+            raise InvalidInputError("--viz", f"{args.viz}: the picture is a PNG; name it *.png")
 
 
 def _backbone_failed(
