@@ -59,6 +59,21 @@ def test_tiles_build_onto_its_own_geotiff_is_refused_with_force(
     assert {p: p.read_bytes() for p in files} == files
 
 
+def test_tiles_build_into_a_name_ending_in_a_slash_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``tiles build o.tif newtiles/`` meant a folder: it wrote an MBTiles file called
+    ``newtiles``. OUT is the store file; the refusal says so, with a name to use."""
+    _inputs(tmp_path)
+    out = f"{tmp_path / 'newtiles'}/"
+    with pytest.raises(SystemExit) as stop:
+        main(["tiles", "build", str(tmp_path / "o.tif"), out])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"{out} names a folder: OUT is the .mbtiles file to write" in err, err
+    assert not (tmp_path / "newtiles").exists()
+
+
 def test_inputs_are_compared_resolved_through_links(tmp_path: Path) -> None:
     (tmp_path / "data").mkdir()
     (tmp_path / "data" / "tele.csv").write_text("t")

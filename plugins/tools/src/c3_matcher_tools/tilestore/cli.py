@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -63,13 +64,23 @@ def register_tiles_command(commands: CommandRegistry) -> None:
     p.set_defaults(handler=run_tiles)
 
 
+def _store_file(text: str) -> Path:
+    """``tiles build``'s OUT: a file; a name ending in a separator means a folder (Path would
+    drop the slash and write a file under the folder's name)."""
+    if text.endswith(("/", os.sep)):
+        raise argparse.ArgumentTypeError(
+            f"{text} names a folder: OUT is the .mbtiles file to write, e.g. {text}map.mbtiles"
+        )
+    return Path(text)
+
+
 def _add_build(tiles: Any) -> None:
     b = tiles.add_parser(
         "build",
         help="build an MBTiles store (256-px web-mercator tiles) from a north-up GeoTIFF",
     )
     b.add_argument("geotiff", type=Path, help="the georeferenced orthophoto (GeoTIFF) to tile")
-    b.add_argument("out", type=Path, help="the .mbtiles file to write")
+    b.add_argument("out", type=_store_file, help="the .mbtiles file to write")
     b.add_argument(
         "--zoom",
         type=int,
