@@ -228,22 +228,21 @@ def test_a_tile_source_that_served_nothing_is_not_compared() -> None:
 def test_a_candidates_time_is_every_stage_it_went_through() -> None:
     """Stored features cost their assembly, a refined best its second pass: both count in the
     per-candidate time and are listed as stages."""
+    from types import SimpleNamespace
+
     from c3_matcher_tools.bench_worker import _time_matches
 
-    class Matcher:
-        def match(self, *_: Any) -> Any:
-            class Result:
-                per_candidate = (type("M", (), {"inlier_count": 80})(),)
-                diagnostics = {
-                    "candidate_features": ["stored"],
-                    "timings_ms": {"query_preprocess": 1.0, "query_extract": 2.0},
-                    "per_candidate_timings_ms": [
-                        {"assemble": 3.0, "match": 40.0, "ransac": 5.0, "refine": 50.0}
-                    ],
-                }
-
-            return Result()
-
-    timed = _time_matches(Matcher(), [(None, None, None)], 1)
+    result = SimpleNamespace(
+        per_candidate=(SimpleNamespace(inlier_count=80),),
+        diagnostics={
+            "candidate_features": ["stored"],
+            "timings_ms": {"query_preprocess": 1.0, "query_extract": 2.0},
+            "per_candidate_timings_ms": [
+                {"assemble": 3.0, "match": 40.0, "ransac": 5.0, "refine": 50.0}
+            ],
+        },
+    )
+    matcher = SimpleNamespace(match=lambda *_: result)
+    timed = _time_matches(matcher, [(None, None, None)], 1)
     assert timed["per_candidate_ms"]["p50"] == pytest.approx(98.0)
     assert timed["stages_ms"]["assemble"]["p50"] == 3.0 and "refine" in timed["stages_ms"]
