@@ -10,6 +10,7 @@ engines gets them built. ``read_image`` and ``gorinchem``: real imagery from ``d
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 from collections.abc import Callable, Mapping
@@ -83,37 +84,54 @@ def write_tiny_engine(
     variant: str = "tiny",
     inputs: tuple[TensorSpec, ...] = TINY_INPUTS,
     outputs: tuple[TensorSpec, ...] = TINY_OUTPUTS,
-    build_key: str = "ab" * 32,
     passed: bool = True,
     export_revision: int = 1,
     options: Mapping[str, int | float | str] | None = None,
     built_at: str = "2026-01-01T00:00:00+00:00",
+    feature_type: str | None = None,
+    input_rule: str = "any",
+    versions: Mapping[str, str] | None = None,
 ) -> Path:
     """A tiny engine plus a consistent manifest (declaring ``inputs``/``outputs``, built by
-    ``export_revision`` of its exporter with ``options``, at ``built_at``)."""
+    ``export_revision`` of its exporter with ``options`` and library ``versions``, at
+    ``built_at``, for ``feature_type`` features), named by the build key recomputed from its
+    fields, as a build names it (other ``versions``: another build of the same graph)."""
     directory.mkdir(parents=True, exist_ok=True)
-    name = EngineName.from_build_key("toy", variant, "fp32", "any", 18, build_key)
-    path = directory / name.filename
-    write_tiny_onnx(path)
-    EngineManifest(
-        file=name.filename,
-        file_sha256=file_sha256(path),
-        file_bytes=path.stat().st_size,
+    manifest = EngineManifest(
+        file="",
+        file_sha256="",
+        file_bytes=0,
         model="toy",
         variant=variant,
         kind="extractor",
         precision="fp32",
-        input_rule="any",
+        input_rule=input_rule,
         opset=18,
-        build_key=build_key,
+        build_key="",
         weights={"distribution": "none", "version": "0", "path": "none", "sha256": "cd" * 32},
         inputs=inputs,
         outputs=outputs,
-        exporter={"callable": "tests:none", "export_revision": str(export_revision)},
+        exporter={
+            "callable": "tests:none",
+            "export_revision": str(export_revision),
+            **(versions or {}),
+        },
         options=dict(options or {}),
         verification={"passed": passed, "checks": []},
         build_seconds=0.0,
         built_at=built_at,
+        feature_type=feature_type,
+    )
+    key = manifest.build_inputs().key()
+    name = EngineName.from_build_key("toy", variant, "fp32", input_rule, 18, key)
+    path = directory / name.filename
+    write_tiny_onnx(path)
+    dataclasses.replace(
+        manifest,
+        file=name.filename,
+        file_sha256=file_sha256(path),
+        file_bytes=path.stat().st_size,
+        build_key=key,
     ).write(directory / name.manifest_filename)
     return path
 

@@ -4,7 +4,6 @@ torch-free import, and the real DISK steps engine against the single-graph engin
 from __future__ import annotations
 
 import dataclasses
-import json
 import subprocess
 import sys
 from collections.abc import Callable, Mapping
@@ -24,7 +23,6 @@ from c3_matcher.engines.lightglue_specs import (
     steps_io,
     steps_specs,
 )
-from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.spec import EngineSpec, WeightsRef, matcher_spec
 from c3_matcher.features import PairSide
@@ -245,14 +243,6 @@ def test_disk_steps_engine_agrees_with_the_single_graph(
     assert len(a & b) / len(b) > 0.8, (len(a), len(b), len(a & b))
 
 
-def _declare(engine: Path, **fields: Any) -> None:
-    """Rewrite the manifest beside ``engine`` with ``fields`` (feature type, options)."""
-    manifest = manifest_path_for(engine)
-    data = json.loads(manifest.read_text())
-    data.update(fields)
-    manifest.write_text(json.dumps(data))
-
-
 def _steps_of(feature_type: str, revision: int | None = None) -> EngineSpec:
     """A plugin's declared steps engine for ``feature_type`` (its exporter at ``revision``)."""
     full = matcher_spec(
@@ -276,16 +266,17 @@ def test_only_a_steps_engine_of_the_declared_graph_is_run(
 ) -> None:
     """A steps engine built by an older exporter is not run (it was, being found beside)."""
     declared = _steps_of("toy")
-    full = make_tiny_engine(tmp_path / "engines", variant="toy", build_key="ab" * 32)
-    _declare(full, feature_type="toy", options={"pruning": "off"})
+    full = make_tiny_engine(
+        tmp_path / "engines", variant="toy", feature_type="toy", options={"pruning": "off"}
+    )
     built = make_tiny_engine(
         full.parent,
         variant="toy-steps",
-        build_key="cd" * 32,
         export_revision=declared.export_revision,
         options=dict(declared.options),
+        feature_type="toy",
+        input_rule=declared.input_rule,
     )
-    _declare(built, feature_type="toy", input_rule=declared.input_rule)
     assert steps_engines_beside(full, "toy", declared) == [built]
     stale = _steps_of("toy", revision=declared.export_revision + 1)
     assert steps_engines_beside(full, "toy", stale) == []
@@ -296,12 +287,13 @@ def test_steps_engines_are_found_by_manifest_not_by_name(
     make_tiny_engine: Callable[..., Path], tmp_path: Path
 ) -> None:
     directory = tmp_path / "engines"
-    full = make_tiny_engine(directory, variant="toy", build_key="ab" * 32)
-    named_steps = make_tiny_engine(directory, variant="toy-steps", build_key="cd" * 32)
-    declared = make_tiny_engine(directory, variant="other", build_key="ef" * 32)
-    _declare(full, feature_type="toy", options={"pruning": "off"})
-    _declare(named_steps, feature_type="toy")  # its name says steps, its manifest does not
-    _declare(declared, feature_type="toy", options=dict([STEPS_OPTION]))
+    full = make_tiny_engine(
+        directory, variant="toy", feature_type="toy", options={"pruning": "off"}
+    )
+    make_tiny_engine(directory, variant="toy-steps", feature_type="toy")  # steps by name only
+    declared = make_tiny_engine(
+        directory, variant="other", feature_type="toy", options=dict([STEPS_OPTION])
+    )
     assert steps_engines_beside(full, "toy") == [declared]
     assert steps_engines_beside(full, "else") == []
 
@@ -309,8 +301,7 @@ def test_steps_engines_are_found_by_manifest_not_by_name(
 def test_missing_steps_engine_warned_only_where_a_plugin_declares_one(
     make_tiny_engine: Callable[..., Path], tmp_path: Path
 ) -> None:
-    full = make_tiny_engine(tmp_path / "engines", variant="toy")
-    _declare(full, feature_type="toy")
+    full = make_tiny_engine(tmp_path / "engines", variant="toy", feature_type="toy")
     seen: list[dict[str, Any]] = []
     sink = logger.add(lambda m: seen.append(dict(m.record["extra"])), level="WARNING")
     try:
@@ -413,8 +404,12 @@ def test_a_steps_engine_without_its_layer_count_is_refused_by_name(
     ``EngineError`` naming the file and the option (it was a bare ``KeyError``)."""
     from c3_matcher.errors import EngineError
 
-    steps = make_tiny_engine(tmp_path, variant="toy-steps")
-    _declare(steps, feature_type="toy", options={**options, STEPS_OPTION[0]: STEPS_OPTION[1]})
+    steps = make_tiny_engine(
+        tmp_path,
+        variant="toy-steps",
+        feature_type="toy",
+        options={**options, STEPS_OPTION[0]: STEPS_OPTION[1]},
+    )
     runtime = OnnxLightGlueRuntime(OnnxInferenceRuntime(["CPUExecutionProvider"]), mode="full")
     with pytest.raises(EngineError, match=r"options\.n_layers .*not a positive whole number"):
         runtime.load("toy", steps)

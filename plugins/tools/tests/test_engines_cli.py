@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from c3_matcher.cli import main
+from c3_matcher.config import EngineSettings
 from c3_matcher.engines.store import EngineStore
 from c3_matcher_tools.engines.bench import run_bench
 
@@ -89,7 +90,9 @@ def test_verify_empty_directory(
 
 def test_bench_machinery_smoke(engine_dir: Path) -> None:
     """The bench runs end to end on real imagery (a smoke test: one run, small cases, no timing
-    assertions; the real measurement is ``c3-matcher engines bench``)."""
+    assertions; the real measurement is ``c3-matcher engines bench``), on the runtime of the
+    ``[engines]`` settings it is given, and names the provider and threads of each case."""
+    from c3_matcher_tools.engines.bench import format_table
     from c3_matcher_tools.engines.export import default_verification_imagery
 
     store = EngineStore(engine_dir)
@@ -100,11 +103,43 @@ def test_bench_machinery_smoke(engine_dir: Path) -> None:
         runs=1,
         disk_sizes=((256, 256),),
         lightglue_counts=(128,),
+        engines=EngineSettings(providers=("CPU",), intra_op_threads=1, cpu_mem_arena=False),
     )
     assert [r.case for r in results] == ["disk/depth 256x256", "lightglue/disk 128x128 kpts"]
     assert results[1].detail["mode"] == "full"
     for r in results:
         assert r.median_ms > 0 and r.peak_rss_mib > r.baseline_rss_mib > 0
+        assert (r.provider, r.threads) == ("CPUExecutionProvider", 1)
+        assert r.settings == "CPU threads=1 mem_pattern=off arena=off"
+    assert format_table(results).count("CPU threads=1 mem_pattern=off arena=off") == 2
+
+
+def test_bench_runtime_hands_the_engines_settings_to_onnx_runtime(
+    engine_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each case's session gets the ``[engines]`` threads, arena and providers (it always got
+    the CPU provider and the default options); the sweep's memory pattern and arena win."""
+    import onnxruntime as ort
+
+    from c3_matcher_tools.engines.bench import bench_runtime
+
+    sessions: list[ort.InferenceSession] = []
+    real = ort.InferenceSession
+
+    def spy(*args: object, **kwargs: object) -> ort.InferenceSession:
+        sessions.append(real(*args, **kwargs))
+        return sessions[-1]
+
+    monkeypatch.setattr(ort, "InferenceSession", spy)
+    engine = EngineStore(engine_dir).require("xfeat", "default")
+    engines = EngineSettings(providers=("CPU",), intra_op_threads=1, cpu_mem_arena=False)
+    bench_runtime(engines).load_engine(engine)
+    bench_runtime(engines, mem_pattern=True, arena=True).load_engine(engine)
+    configured, swept = (s.get_session_options() for s in sessions)
+    assert (configured.intra_op_num_threads, swept.intra_op_num_threads) == (1, 1)
+    assert (configured.enable_cpu_mem_arena, configured.enable_mem_pattern) == (False, False)
+    assert (swept.enable_cpu_mem_arena, swept.enable_mem_pattern) == (True, True)
+    assert all(s.get_providers() == ["CPUExecutionProvider"] for s in sessions)
 
 
 @pytest.mark.parametrize("runs", ["0", "-3"])
@@ -189,7 +224,7 @@ def test_bench_command_runs_each_engine_once(
         kind, engine = argv[0], Path(argv[2]).name
         size = " ".join(argv[6:8]) if kind == "extractor" else argv[6]
         started.append((kind, engine, size))
-        return bench.BenchResult(engine, f"{engine} {size}", 1, 1, 1, 1, 1, 1, 1, 1, "", {})
+        return bench.BenchResult(engine, f"{engine} {size}", *[1] * 8, "", {}, "CPU", 0)
 
     monkeypatch.setattr(bench, "_run_child", child)
     monkeypatch.setattr(bench, "_prepare_features", lambda *_args: None)
@@ -200,3 +235,85 @@ def test_bench_command_runs_each_engine_once(
     for spec in build_plugin_host().engine_specs():
         runs = [s for s in started if s[:2] == (spec.kind, store.require_spec(spec).name)]
         assert len(runs) == 2, (spec.key, started)
+
+
+@pytest.fixture()
+def stubbed_children(monkeypatch: pytest.MonkeyPatch) -> list[list[str]]:
+    """``engines bench``'s cases, recorded instead of run (no inference): each child's argv."""
+    import c3_matcher_tools.engines.bench as bench
+
+    started: list[list[str]] = []
+
+    def child(argv: list[str]) -> bench.BenchResult:
+        started.append(argv)
+        return bench.BenchResult(argv[2], argv[2], *[1] * 8, "", {}, "CPU", 0)
+
+    monkeypatch.setattr(bench, "_run_child", child)
+    monkeypatch.setattr(bench, "_prepare_features", lambda *_args: None)
+    return started
+
+
+def test_bench_cases_run_on_the_engines_settings(
+    engines: Path,
+    stubbed_children: list[list[str]],
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Every case is handed the ``[engines]`` settings (threads, providers...) and runs with
+    the arena they set (each ran on the CPU provider with the default session options)."""
+    monkeypatch.setenv("C3_MATCHER_ENGINES__INTRA_OP_THREADS", "1")
+    monkeypatch.setenv("C3_MATCHER_ENGINES__CPU_MEM_ARENA", "false")
+    monkeypatch.setenv("C3_MATCHER_ENGINES__PROVIDERS", '["CPU"]')
+    assert main(["engines", "bench", "--runs", "1", "--json"]) == 0
+    assert stubbed_children and len(json.loads(capsys.readouterr().out)) == len(stubbed_children)
+    for argv in stubbed_children:
+        assert argv[argv.index("--arena") + 1] == "off", argv
+        settings = json.loads(argv[argv.index("--engine-settings") + 1])
+        assert settings["intra_op_threads"] == 1 and settings["providers"] == [
+            "CPUExecutionProvider"
+        ]
+
+
+def test_bench_refuses_a_provider_not_installed_before_any_case(
+    engines: Path,
+    stubbed_children: list[list[str]],
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """As ``match`` does: the cases ran on the CPU whatever ``[engines] providers`` asked."""
+    monkeypatch.setenv("C3_MATCHER_ENGINES__PROVIDERS", '["CUDA"]')
+    assert main(["engines", "bench", "--runs", "1"]) != 0
+    out, err = capsys.readouterr()
+    assert stubbed_children == [] and out == ""
+    assert "[engines] providers" in err and "CUDAExecutionProvider" in err
+
+
+def test_bench_refuses_missing_engines_before_timing_any(
+    engine_dir: Path,
+    engines_at,  # type: ignore[no-untyped-def]
+    stubbed_children: list[list[str]],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Two engines missing (a later group's): both are named with the one command that builds
+    them, and nothing is timed. The bench timed every earlier group first, then threw all its
+    cases away, printing nothing, at the first missing engine. The other engines are listed
+    as the store lists them (manifest and a file of the recorded size: the children are
+    stubbed, nothing loads them)."""
+    copy = tmp_path / "engines"
+    copy.mkdir()
+    for engine in engine_dir.glob("*.onnx"):
+        if engine.name.startswith(("disk_depth_", "lighterglue_xfeat_")):
+            continue
+        shutil.copy2(engine.with_suffix(".manifest.json"), copy)
+        with (copy / engine.name).open("wb") as sparse:
+            sparse.truncate(engine.stat().st_size)
+    engines_at(copy)
+    assert main(["engines", "bench", "--runs", "1", "--json"]) == 1
+    out, err = capsys.readouterr()
+    assert stubbed_children == [] and out == ""
+    assert "no valid disk/depth engine" in err and "no valid lighterglue/xfeat engine" in err
+    assert err.strip().splitlines()[-1] == (
+        "error: 2 engine(s) to bench are missing or unusable, nothing was timed; "
+        "build them: c3-matcher engines build --only disk/depth --only lighterglue/xfeat"
+    )

@@ -4,6 +4,8 @@ The manifest is JSON (``<engine stem>.manifest.json``) and records: the file's s
 model/variant/precision/input rule/opset, the build key, the weights (distribution, version, path,
 sha256), the graph's inputs and outputs (names, dtypes, shapes; a string dimension is a dynamic
 axis), the exporter and library versions, the exporter options and the verification figures.
+The build key is recomputed from those fields whenever an engine is checked (``build_key``): a
+manifest edited after its build no longer matches its key and its engine is refused.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from c3_matcher.engines.build_key import BuildInputs
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, file_sha256
 from c3_matcher.errors import EngineError
@@ -30,8 +33,9 @@ MANIFEST_SCHEMA = 1
 
 
 class EngineIntegrityError(EngineError):
-    """The engine file is not the one its manifest describes (size or sha256 differ): it was
-    changed or corrupted after the build. Never a reason to fall back to another engine."""
+    """The engine file is not the one its manifest describes (size or sha256 differ), or the
+    manifest no longer matches its build key: either was changed or corrupted after the build.
+    Never a reason to fall back to another engine."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,6 +94,28 @@ class EngineManifest:
             if built != declared
         ]
         return "built for another graph: " + "; ".join(differ) if differ else None
+
+    def build_inputs(self) -> BuildInputs:
+        """What the manifest says the engine was built from, as its build key covers it;
+        ``KeyError``/``ValueError`` when a field the key needs is missing or malformed."""
+        return BuildInputs(
+            model=self.model,
+            variant=self.variant,
+            kind=self.kind,
+            precision=self.precision,
+            input_rule=self.input_rule,
+            opset=self.opset,
+            options=tuple(self.options.items()),
+            export_revision=int(self.exporter["export_revision"]),
+            exporter=self.exporter["callable"],
+            weights_sha256=self.weights_sha256,
+            weights_version=self.weights["version"],
+            inputs=self.inputs,
+            outputs=self.outputs,
+            feature_type=self.feature_type,
+            size_multiple=self.size_multiple,
+            versions=self.exporter,
+        )
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict (dynamic axes spelled out per tensor for readers)."""
@@ -187,10 +213,11 @@ def check_engine_file(engine_path: Path, *, check_hash: bool = True) -> EngineMa
     """Check an engine file against the name schema and its manifest.
 
     Checks: the file exists; its name follows the schema; the manifest names this file and agrees
-    with the name's model/variant/precision/rule/opset/hash; the verification passed; the file's
-    size equals the manifest's (free: a truncated copy is caught by a listing too); and (with
-    ``check_hash``) its sha256 does. Returns the manifest; raises ``EngineError`` naming the file
-    and the build command otherwise.
+    with the name's model/variant/precision/rule/opset/hash; its build key is the one recomputed
+    from its own fields; the verification passed; the file's size equals the manifest's (free: a
+    truncated copy is caught by a listing too); and (with ``check_hash``) its sha256 does.
+    Returns the manifest; raises ``EngineError`` naming the file and the build command otherwise
+    (``EngineIntegrityError`` for an engine or manifest changed after its build).
     """
     path = Path(engine_path)
     if not path.is_file():
@@ -212,6 +239,7 @@ def check_engine_file(engine_path: Path, *, check_hash: bool = True) -> EngineMa
     )
     if expected != declared or not manifest.build_key.startswith(name.short_hash):
         raise EngineError(path, f"file name {expected} disagrees with its manifest {declared}")
+    _check_build_key(path, manifest)
     if not manifest.verification_passed:
         raise EngineError(path, "its manifest records a failed verification")
     size = path.stat().st_size
@@ -224,3 +252,23 @@ def check_engine_file(engine_path: Path, *, check_hash: bool = True) -> EngineMa
                 path, f"sha256 {digest[:16]}... != manifest {manifest.file_sha256[:16]}..."
             )
     return manifest
+
+
+def _check_build_key(path: Path, manifest: EngineManifest) -> None:
+    """Refuse ``manifest`` when the build key recomputed from its fields (weights, versions,
+    exporter, I/O...) is not the key it records (and the file name carries)."""
+    manifest_name = manifest_path_for(path).name
+    try:
+        recomputed = manifest.build_inputs().key()
+    except (KeyError, ValueError) as exc:
+        raise EngineError(
+            path, f"its manifest {manifest_name} lacks a field of its build key ({exc})"
+        ) from exc
+    if recomputed != manifest.build_key:
+        raise EngineIntegrityError(
+            path,
+            f"its manifest {manifest_name} does not match its build key: recomputed from the "
+            f"manifest's fields {recomputed[:12]}..., recorded {manifest.build_key[:12]}... (the "
+            "manifest was edited after the build, or an earlier c3-matcher whose key covered "
+            "less built it)",
+        )

@@ -64,7 +64,12 @@ from c3_matcher_aliked_lightglue.engines import (
     LIGHTGLUE_ALIKED_SPEC,
 )
 from c3_matcher_aliked_lightglue.matcher import EXTRACT_PHASE, AlikedLightGlueOptions
-from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
+from c3_matcher_tools.engines.export import (
+    ExportReport,
+    ExportRequest,
+    VerificationImage,
+    tolerance_failures,
+)
 from c3_matcher_tools.engines.export.extractor import (
     ExtractorCase,
     KeypointSet,
@@ -362,10 +367,9 @@ def _check(figures: dict[str, Any], label: str) -> list[str]:
             f"{label}: {figures['keypoints_mismatch']} keypoints differ "
             f"({figures['keypoints']} vs reference {figures['reference_keypoints']})"
         )
-    for key in ("keypoints_max_abs_px", "scores_max_abs", "descriptors_max_abs"):
-        if key in figures and figures[key] > ALIKED_TOLERANCES[key]:
-            failures.append(f"{label}: {key} {figures[key]:.3g} > {ALIKED_TOLERANCES[key]:.3g}")
-    return failures
+    keys = ("keypoints_max_abs_px", "scores_max_abs", "descriptors_max_abs")
+    present = [key for key in keys if key in figures]  # none when no keypoint was paired
+    return failures + tolerance_failures(label, figures, ALIKED_TOLERANCES, present)
 
 
 def _paired_check(

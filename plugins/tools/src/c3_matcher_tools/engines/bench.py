@@ -15,6 +15,11 @@ its engine's key (``model/variant`` from the engine's manifest): ``aliked/n16 51
 ``match_pair`` runs it in full mode: every layer on every point, one graph call per layer, no
 early exit or pruning (the adaptive figure depends on the pair: ``c3-matcher bench``); its label
 says so (``lightglue/disk-steps 512x512 kpts, every layer``). No PyTorch.
+
+Every case runs on the runtime the matcher builds from the ``[engines]`` settings (providers and
+their options, ``intra_op_threads``, ``cpu_mem_arena``; ``--sweep-session-options`` varies the
+arena and memory pattern); each result names the provider its sessions actually used and the
+thread setting.
 """
 
 from __future__ import annotations
@@ -36,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.commands import EXIT_OK, bounded_int
-from c3_matcher.engines.providers import CPU_PROVIDER
+from c3_matcher.config import EngineSettings
 from c3_matcher.features import PairSide
 from c3_matcher_tools.memory import current_rss_mib, peak_rss_mib
 
@@ -64,7 +69,9 @@ def matcher_label(key: str, steps: bool, n0: int, n1: int) -> str:
 
 @dataclass(frozen=True, slots=True)
 class BenchResult:
-    """One case: ``engine`` file, ``case`` label, latency (ms) and memory (MiB)."""
+    """One case: ``engine`` file, ``case`` label, latency (ms) and memory (MiB); ``provider``
+    the execution provider its session used, ``threads`` the ``intra_op_threads`` setting (0:
+    one per core) and ``settings`` both with the session options, as the table shows them."""
 
     engine: str
     case: str
@@ -78,6 +85,8 @@ class BenchResult:
     baseline_rss_mib: float
     settings: str
     detail: dict[str, Any]
+    provider: str
+    threads: int
 
 
 def _read_rgb(path: Path, size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
@@ -107,10 +116,31 @@ def _pair_views(path: Path, side: int = 1024) -> tuple[NDArray[np.uint8], NDArra
     )
 
 
-def _settings(mem_pattern: bool, arena: bool) -> Any:
-    from c3_matcher.engines.runtime import SessionSettings
+def bench_runtime(
+    engines: EngineSettings, *, mem_pattern: bool = False, arena: bool | None = None
+) -> OnnxInferenceRuntime:
+    """The runtime the matcher builds from ``engines`` (``OnnxInferenceRuntime.from_settings``:
+    providers, their options, threads), with the memory pattern on if ``mem_pattern`` and the
+    CPU arena as ``arena`` says (None: as ``engines`` does). ``EngineError`` naming the setting
+    when no requested provider is installed."""
+    from dataclasses import replace
 
-    return SessionSettings(enable_mem_pattern=mem_pattern, enable_cpu_mem_arena=arena)
+    from c3_matcher.engines.runtime import OnnxInferenceRuntime, SessionSettings
+
+    class _Runtime(OnnxInferenceRuntime):
+        def __init__(self, *args: Any, settings: SessionSettings | None = None, **kw: Any) -> None:
+            chosen = replace(settings or SessionSettings(), enable_mem_pattern=mem_pattern)
+            super().__init__(*args, settings=chosen, **kw)
+
+    if arena is not None:
+        engines = engines.model_copy(update={"cpu_mem_arena": arena})
+    return _Runtime.from_settings(engines)
+
+
+def _settings_label(provider: str, threads: int, mem_pattern: str, arena: str) -> str:
+    """The table's settings column: the provider (short name), the threads and the options."""
+    short = provider.removesuffix("ExecutionProvider")
+    return f"{short} threads={threads or 'auto'} mem_pattern={mem_pattern} arena={arena}"
 
 
 def _time_runs(fn: Callable[[], object], runs: int) -> tuple[object, float, list[float]]:
@@ -191,12 +221,9 @@ def _matcher_case(args: argparse.Namespace, runtime: OnnxInferenceRuntime) -> _C
 
 def _child(args: argparse.Namespace) -> int:
     """One measurement: set up the case, time its runs, print its ``BenchResult`` as JSON."""
-    from c3_matcher.engines.runtime import OnnxInferenceRuntime
-
     baseline = current_rss_mib()
-    runtime = OnnxInferenceRuntime(
-        [CPU_PROVIDER], settings=_settings(args.mem_pattern == "on", args.arena == "on")
-    )
+    engines = EngineSettings.model_validate(json.loads(args.engine_settings))
+    runtime = bench_runtime(engines, mem_pattern=args.mem_pattern == "on", arena=args.arena == "on")
     case = (_extractor_case if args.kind == "extractor" else _matcher_case)(args, runtime)
     first_result, first, times = _time_runs(case.fn, args.runs)
     ordered = sorted(times)
@@ -212,8 +239,12 @@ def _child(args: argparse.Namespace) -> int:
         load_ms=round(case.load_ms, 1),
         peak_rss_mib=round(peak_rss_mib(), 1),
         baseline_rss_mib=round(baseline, 1),
-        settings=f"mem_pattern={args.mem_pattern} arena={args.arena}",
+        settings=_settings_label(
+            runtime.provider, engines.intra_op_threads, args.mem_pattern, args.arena
+        ),
         detail=case.detail(first_result),
+        provider=runtime.provider,
+        threads=engines.intra_op_threads,
     )
     print(json.dumps(asdict(result)))
     return EXIT_OK
@@ -234,11 +265,12 @@ def _run_child(argv: list[str]) -> BenchResult:
     return BenchResult(**json.loads(proc.stdout.strip().splitlines()[-1]))
 
 
-def _prepare_features(extractor_engine: Path, image: Path, out: Path, max_keypoints: int) -> None:
+def _prepare_features(
+    extractor_engine: Path, image: Path, out: Path, max_keypoints: int, engines: EngineSettings
+) -> None:
     from c3_matcher.engines.extract import run_extractor
-    from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
-    runtime = OnnxInferenceRuntime([CPU_PROVIDER])
+    runtime = bench_runtime(engines)
     engine_id = runtime.load_engine(extractor_engine)
     a, b = _pair_views(image)
     fa = run_extractor(runtime, engine_id, a, np.ones(a.shape[:2], bool), max_keypoints)
@@ -263,22 +295,26 @@ def run_bench(
     disk_sizes: Sequence[tuple[int, int]] = DISK_SIZES,
     lightglue_counts: Sequence[int] = LIGHTGLUE_COUNTS,
     feature_type: str = "disk",
-    settings: Sequence[tuple[bool, bool]] = ((False, True),),
+    engines: EngineSettings | None = None,
+    settings: Sequence[tuple[bool, bool]] | None = None,
     log: Callable[[str], None] | None = None,
 ) -> list[BenchResult]:
     """Measure every case, each in a fresh process: ``extractor_engine`` at each of
     ``disk_sizes``, then each of ``matcher_engines`` (``feature_type`` matchers, none: the
-    extractor alone) at each of ``lightglue_counts`` on that extractor's features. ``settings``
-    lists (memory pattern, arena) combinations to compare (default: the runtime's options)."""
+    extractor alone) at each of ``lightglue_counts`` on that extractor's features. Each runs on
+    the runtime of the ``engines`` settings (default: ``[engines]``'s defaults); ``settings``
+    lists (memory pattern, arena) combinations to compare (default: the memory pattern off, as
+    the runtime has it, and the arena as ``engines`` says)."""
     say = log or (lambda _line: None)
+    engines = engines or EngineSettings()
     results: list[BenchResult] = []
     with tempfile.TemporaryDirectory(prefix="c3-bench-") as tmp:
         features = Path(tmp) / "features.npz"
         if matcher_engines:
             say(f"extracting real features with {extractor_engine.name} for the matcher cases")
-            _prepare_features(extractor_engine, image, features, max(lightglue_counts))
-        for mem_pattern, arena in settings:
-            flags = _setting_flags(mem_pattern, arena, runs)
+            _prepare_features(extractor_engine, image, features, max(lightglue_counts), engines)
+        for mem_pattern, arena in settings or ((False, engines.cpu_mem_arena),):
+            flags = _setting_flags(mem_pattern, arena, runs, engines)
             where = f"({flags[1]} mem pattern, {flags[3]} arena)"
             for width, height in disk_sizes:
                 say(f"{extractor_engine.name} {width}x{height} {where}")
@@ -295,8 +331,9 @@ def run_bench(
     return results
 
 
-def _setting_flags(mem_pattern: bool, arena: bool, runs: int) -> list[str]:
-    """The child's options of one (memory pattern, arena) setting and its run count."""
+def _setting_flags(mem_pattern: bool, arena: bool, runs: int, engines: EngineSettings) -> list[str]:
+    """The child's options of one (memory pattern, arena) setting, its run count and the
+    ``[engines]`` settings its runtime is built from."""
     return [
         "--mem-pattern",
         "on" if mem_pattern else "off",
@@ -304,6 +341,8 @@ def _setting_flags(mem_pattern: bool, arena: bool, runs: int) -> list[str]:
         "on" if arena else "off",
         "--runs",
         str(runs),
+        "--engine-settings",
+        engines.model_dump_json(),
     ]
 
 
@@ -342,6 +381,9 @@ def _main(argv: Sequence[str] | None = None) -> int:
     child.add_argument("--runs", type=bounded_int(), default=20)
     child.add_argument("--mem-pattern", choices=["on", "off"], default="off")
     child.add_argument("--arena", choices=["on", "off"], default="on")
+    child.add_argument(
+        "--engine-settings", default="{}", help="the [engines] settings, as JSON (internal)"
+    )
     args = parser.parse_args(argv)
     return _child(args)
 

@@ -17,7 +17,7 @@ from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, CommandRegistry, bounded_
 from c3_matcher.context import CommandContext
 from c3_matcher.engines.cli import EnginesCliContext, engines_context, figures
 from c3_matcher.engines.spec import EngineSpec
-from c3_matcher.engines.store import EngineStore
+from c3_matcher.engines.store import BUILD_COMMAND, EngineStore
 from c3_matcher.errors import C3Error, InvalidInputError
 
 __all__ = ["register_engines_build_commands"]
@@ -100,11 +100,51 @@ def _bench_image(args: argparse.Namespace, ctx: EnginesCliContext) -> Path:
     return default_verification_imagery()[0]
 
 
+class _Missing(NamedTuple):
+    """An engine ``engines bench`` would time that is not in the directory, and why."""
+
+    spec: EngineSpec
+    error: C3Error
+
+
+def _bench_engines(
+    groups: Sequence[_BenchGroup], store: EngineStore
+) -> tuple[list[tuple[Path, list[Path]]], list[_Missing]]:
+    """Every group's engine files (extractor, matchers), found before anything is timed; second:
+    each engine that is missing (or refused), for one message naming them all."""
+    found: list[tuple[Path, list[Path]]] = []
+    missing: list[_Missing] = []
+
+    def require(spec: EngineSpec) -> Path:
+        try:
+            return store.require_spec(spec)
+        except C3Error as exc:
+            missing.append(_Missing(spec, exc))
+            return Path()
+
+    for group in groups:
+        found.append((require(group.extractor), [require(m) for m in group.matchers]))
+    return found, missing
+
+
+def _refuse_missing(missing: Sequence[_Missing], command: CommandContext) -> int:
+    """Say which engines are missing (each with its reason) and the one command building them
+    all; nothing was timed."""
+    for item in missing:
+        command.err(f"error: {item.error}")
+    only = " ".join(f"--only {item.spec.key}" for item in missing)
+    command.err(
+        f"error: {len(missing)} engine(s) to bench are missing or unusable, nothing was timed; "
+        f"build them: {BUILD_COMMAND} {only}"
+    )
+    return EXIT_FAILURE
+
+
 def _bench(args: argparse.Namespace, command: CommandContext) -> int:
     if args.image and not args.image.is_file():
         raise InvalidInputError("--image", f"no such file: {args.image}")
     ctx: EnginesCliContext = engines_context(command.settings, command.plugin_host)
-    from c3_matcher_tools.engines.bench import format_table, run_bench
+    from c3_matcher_tools.engines.bench import bench_runtime, format_table, run_bench
 
     groups, unserved = _bench_groups(ctx.specs)
     if not groups:
@@ -112,25 +152,24 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
         return EXIT_FAILURE
     for matcher in unserved:
         command.err(f"note: {matcher.key} not benched: no extractor of {matcher.feature_type!r}")
-    store = EngineStore(ctx.engine_dir)
+    engines = command.settings.engines
+    bench_runtime(engines)  # no requested provider installed: refused here, before any case
+    found, missing = _bench_engines(groups, EngineStore(ctx.engine_dir))
+    if missing:
+        return _refuse_missing(missing, command)
     image = _bench_image(args, ctx)
-    session_options: tuple[tuple[bool, bool], ...] = ((False, True),)
+    session_options: tuple[tuple[bool, bool], ...] | None = None  # arena as [engines] says
     if args.sweep_session_options:
         session_options = ((True, True), (False, True), (False, False))
     results = []
-    for group in groups:
-        try:
-            extractor_path = store.require_spec(group.extractor)
-            matcher_paths = [store.require_spec(m) for m in group.matchers]
-        except C3Error as exc:
-            command.err(f"error: {exc}")
-            return EXIT_FAILURE
+    for group, (extractor_path, matcher_paths) in zip(groups, found, strict=True):
         results += run_bench(
             extractor_path,
             matcher_paths,
             image,
             runs=args.runs,
             feature_type=group.extractor.model,
+            engines=engines,
             settings=session_options,
             log=command.err,
         )

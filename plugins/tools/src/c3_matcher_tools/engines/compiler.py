@@ -1,7 +1,8 @@
 """The engine compiler: export, verify and store the engines that plugins declare.
 
 ``build_engines(specs, directory)`` builds each ``EngineSpec`` whose valid engine is not already
-in ``directory`` (same build key: weights sha256, export parameters, export revision, exporter and
+in ``directory`` (same build key, ``c3_matcher.engines.build_key``: the spec's graph, export
+parameters, revision and exporter, the weights' sha256 and their distribution's version, the
 library versions), or every one with ``force=True``. Per engine: resolve the weights, call the
 spec's exporter (export + verification against the PyTorch reference on real imagery), check the
 graph's I/O against the spec, name the dynamic axes as declared, hash, write the manifest, move
@@ -18,10 +19,8 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
-import hashlib
 import importlib
 import importlib.metadata
-import json
 import os
 import platform
 import shutil
@@ -34,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 from loguru import logger
 
 from c3_matcher.atomic import held_directory
+from c3_matcher.engines.build_key import BuildInputs
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, file_sha256
@@ -46,7 +46,6 @@ __all__ = [
     "BuildOutcome",
     "EngineBuildError",
     "build_engines",
-    "build_key",
     "ensure_engines",
     "library_versions",
     "select_specs",
@@ -84,25 +83,6 @@ def library_versions() -> dict[str, str]:
         except importlib.metadata.PackageNotFoundError:
             versions[name] = "not-installed"
     return versions
-
-
-def build_key(spec: EngineSpec, weights_sha256: str, versions: dict[str, str]) -> str:
-    """Hex sha256 identifying a build: equal keys mean an equal graph may be reused."""
-    payload = {
-        "model": spec.model,
-        "variant": spec.variant,
-        "precision": spec.precision,
-        "input_rule": spec.input_rule,
-        "opset": spec.opset,
-        "options": [list(o) for o in spec.options],
-        "export_revision": spec.export_revision,
-        "exporter": spec.exporter,
-        "weights_sha256": weights_sha256,
-        "inputs": [t.to_json() for t in spec.inputs],
-        "outputs": [t.to_json() for t in spec.outputs],
-        "versions": {k: v for k, v in versions.items() if k != "python"},
-    }
-    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
 def select_specs(specs: Sequence[EngineSpec], only: Sequence[str] | None) -> list[EngineSpec]:
@@ -206,12 +186,16 @@ def _remove_abandoned(directory: Path, log: Callable[[str], None]) -> None:
             log(f"removed {scratch.name}, left by a build that was stopped before it finished")
 
 
-def _existing(path: Path, key: str) -> EngineManifest | None:
+def _existing(path: Path, key: str, log: Callable[[str], None]) -> EngineManifest | None:
+    """The valid engine at ``path`` built with build key ``key``, or None (saying why a file
+    that is there is not reused: changed after its build, a manifest that no longer matches its
+    key, a failed verification)."""
     if not path.is_file():
         return None
     try:
         manifest = check_engine_file(path, check_hash=True)
-    except EngineError:
+    except EngineError as exc:
+        log(f"{path.name} is not reused: {exc.reason}")
         return None
     return manifest if manifest.build_key == key else None
 
@@ -235,11 +219,13 @@ def _remove_superseded(
 
 @dataclass(frozen=True, slots=True)
 class _Identity:
-    """What names one build of a spec: its resolved weights and their sha256, the build key,
-    and the engine's name and path (``target``) in the directory."""
+    """What names one build of a spec: its resolved weights, their sha256 and the version of the
+    distribution that ships them, the build key, and the engine's name and path (``target``) in
+    the directory."""
 
     weights_path: Path
     weights_sha256: str
+    weights_version: str
     key: str
     name: EngineName
     target: Path
@@ -261,7 +247,7 @@ def _build_one(
     ident = _identify(spec, directory, versions)
     target = ident.target
     if not force:
-        manifest = _existing(target, ident.key)
+        manifest = _existing(target, ident.key, log)
         if manifest is not None:
             log(f"{spec.key}: valid engine {target.name} reused")
             return BuildOutcome(spec, target, manifest, True, time.perf_counter() - start)
@@ -296,11 +282,14 @@ def _identify(spec: EngineSpec, directory: Path, versions: dict[str, str]) -> _I
     except FileNotFoundError as exc:
         raise EngineBuildError(spec.key, str(exc)) from exc
     weights_sha = file_sha256(weights_path)
-    key = build_key(spec, weights_sha, versions)
+    weights_version = spec.weights.version()
+    key = BuildInputs.of_spec(spec, weights_sha, weights_version, versions).key()
     name = EngineName.from_build_key(
         spec.model, spec.variant, spec.precision, spec.input_rule, spec.opset, key
     )
-    return _Identity(weights_path, weights_sha, key, name, directory / name.filename)
+    return _Identity(
+        weights_path, weights_sha, weights_version, key, name, directory / name.filename
+    )
 
 
 def _export(
@@ -356,7 +345,7 @@ def _manifest(
         build_key=ident.key,
         weights={
             "distribution": spec.weights.distribution,
-            "version": spec.weights.version(),
+            "version": ident.weights_version,
             "path": spec.weights.path,
             "sha256": ident.weights_sha256,
         },

@@ -13,7 +13,8 @@ unless ``report.passed``.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -30,6 +31,7 @@ __all__ = [
     "VerificationImage",
     "default_verification_imagery",
     "load_verification_images",
+    "tolerance_failures",
 ]
 
 
@@ -95,6 +97,23 @@ class ExportReport:
             "failures": list(self.failures),
             "notes": dict(self.notes),
         }
+
+
+def tolerance_failures(
+    where: str, figures: Mapping[str, Any], tolerances: Mapping[str, float], keys: Iterable[str]
+) -> list[str]:
+    """What of one input's ``figures`` (``where`` names the input) is out of ``tolerances``: for
+    each of ``keys``, a figure above its tolerance, or one that is not a finite number. A NaN
+    figure (a graph whose descriptors or scores came out NaN) is above no tolerance, so a plain
+    comparison would pass it; so would it pass infinity against an infinite tolerance."""
+    failures: list[str] = []
+    for key in keys:
+        figure, tolerance = float(figures[key]), float(tolerances[key])
+        if not math.isfinite(figure):
+            failures.append(f"{where}: {key} is {figure} (not a finite number)")
+        elif figure > tolerance:
+            failures.append(f"{where}: {key} {figure:.3g} > {tolerance:.3g}")
+    return failures
 
 
 def default_verification_imagery() -> tuple[Path, ...]:

@@ -21,7 +21,12 @@ from numpy.typing import NDArray
 from torch import nn
 from torch.nn import functional as nnf
 
-from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
+from c3_matcher_tools.engines.export import (
+    ExportReport,
+    ExportRequest,
+    VerificationImage,
+    tolerance_failures,
+)
 from c3_matcher_tools.engines.export.onnx_export import export_requested, verification_session
 
 __all__ = [
@@ -139,9 +144,8 @@ def compare_keypoint_sets(
         if relative_scores:
             check["scores_max_rel"] = float((score_err / np.abs(rs[ref_order])).max(initial=0.0))
         check["descriptors_max_abs"] = float(np.abs(de[order] - rd[ref_order]).max(initial=0.0))
-        for key in ("scores_max_abs", "descriptors_max_abs"):
-            if check[key] > tolerances[key]:
-                failures.append(f"{name}: {key} {check[key]:.3g} > {tolerances[key]:.3g}")
+        keys = ("scores_max_abs", "descriptors_max_abs")
+        failures.extend(tolerance_failures(name, check, tolerances, keys))
     else:
         failures.append(f"{name}: {mismatch} keypoints differ ({len(kp)} vs reference {len(rk)})")
     return check

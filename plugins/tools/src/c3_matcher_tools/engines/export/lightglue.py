@@ -33,7 +33,12 @@ from torch.nn import functional as nnf
 from c3_matcher.engines.lightglue import DEFAULT_FILTER_THRESHOLD, OnnxLightGlueRuntime
 from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.features import PairSide
-from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
+from c3_matcher_tools.engines.export import (
+    ExportReport,
+    ExportRequest,
+    VerificationImage,
+    tolerance_failures,
+)
 from c3_matcher_tools.engines.export.attention import ONNX_TRANSLATIONS, fused_attention_copy
 from c3_matcher_tools.engines.export.onnx_export import export_requested, verification_session
 
@@ -375,10 +380,8 @@ def _pair_failures(where: str, check: Mapping[str, Any]) -> list[str]:
     failures: list[str] = []
     if not check["matches_identical"]:
         failures.append(f"{where}: {check['matches_mismatch']} matches differ")
-    for key in ("match_score_max_abs", "mscores0_max_abs"):
-        if float(check[key]) > LIGHTGLUE_TOLERANCES[key]:
-            failures.append(f"{where}: {key} {check[key]:.3g} > {LIGHTGLUE_TOLERANCES[key]:.3g}")
-    return failures
+    keys = ("match_score_max_abs", "mscores0_max_abs")
+    return failures + tolerance_failures(where, check, LIGHTGLUE_TOLERANCES, keys)
 
 
 def _mscores_error(
