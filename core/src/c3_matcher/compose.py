@@ -111,8 +111,10 @@ def build_default_helpers(
     configured strategy's own defaults where the configuration leaves them unset
     (``strategy_settings``: the helpers serve the one strategy ``compose_root`` wires); the
     feature types with a steps engine are those the plugins' engine specs declare
-    (``steps_specs``). ``plugin_host``: the process's (default: discovered now)."""
-    from c3_matcher.engines.lightglue import OnnxLightGlueRuntime, resolve_mode
+    (``steps_specs``); ``[lightglue] mode = "auto"`` is settled by the LightGlue runtime from the
+    provider its sessions actually get. ``plugin_host``: the process's (default: discovered
+    now)."""
+    from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
     from c3_matcher.engines.lightglue_specs import steps_specs
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
     from c3_matcher.logs import swap_default_handler
@@ -127,7 +129,7 @@ def build_default_helpers(
         "c7_inference": inference,
         "c3_lightglue_runtime": OnnxLightGlueRuntime(
             inference,
-            mode=resolve_mode(settings.lightglue.mode, inference.provider),
+            mode=settings.lightglue.mode,  # "auto": from the provider the sessions run on
             filter_threshold=threshold,
             depth_confidence=settings.lightglue.depth_confidence,
             width_confidence=settings.lightglue.width_confidence,

@@ -31,9 +31,9 @@ from c3_matcher.config_sources import (
     unparsed_env,
     validation_problems,
 )
-from c3_matcher.engines.providers import canonical_provider
-from c3_matcher.engines.store import default_engine_dir
-from c3_matcher.errors import ConfigurationError, EngineError
+from c3_matcher.engines.providers import canonical_provider_options, configured_providers
+from c3_matcher.engines.store import default_engine_dir, usable_directory
+from c3_matcher.errors import ConfigurationError
 from c3_matcher.fdr.jsonl import MIN_BYTES, PENDING_BYTES, SEGMENT_BYTES
 from c3_matcher.plugins.types import StrategyDefaults
 
@@ -236,20 +236,25 @@ class EngineSettings(_Section):
     )
     provider_options: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
-        description="raw onnxruntime options per provider name, merged last",
+        description="raw onnxruntime options per provider (any name providers accepts), merged "
+        "last; none for CPU (its settings: intra_op_threads, cpu_mem_arena)",
     )
 
-    @field_validator("providers")
+    @field_validator("directory", "tensorrt_cache_dir")
     @classmethod
-    def _known_providers(cls, value: tuple[str, ...] | None) -> tuple[str, ...] | None:
-        if value is None:
-            return None
-        if not value:
-            raise ValueError("is empty: name at least one provider, or remove the setting")
+    def _a_directory(cls, value: Path) -> Path:
+        return usable_directory(value)  # ValueError: a file there, or above it
+
+    @field_validator("providers", "provider_options")
+    @classmethod
+    def _known_providers(cls, value: Any, info: ValidationInfo) -> Any:
+        """Provider names made canonical; unknown ones, options never applied are refused."""
         try:
-            return tuple(canonical_provider(v) for v in value)
-        except EngineError as exc:
-            raise ValueError(exc.reason) from None
+            if info.field_name == "providers":
+                return configured_providers(value)
+            return canonical_provider_options(value, info.data.get("providers"))
+        except ConfigurationError as exc:
+            raise ValueError("; ".join(reason for _, reason in exc.problems)) from None
 
 
 def _adaptive_share(description: str, *, upstream: str) -> Any:
@@ -271,8 +276,8 @@ class LightGlueSettings(_Section):
         "auto",
         description="adaptive: the transformer in steps with upstream's early exit and point "
         "pruning (needs the <feature>-steps engine, else full); full: the single graph, every "
-        "layer on every point; auto: adaptive on the CPU provider, full on a GPU one (measured: "
-        "docs/decisions.md)",
+        "layer on every point; auto: adaptive where the sessions run on the CPU (a GPU provider "
+        "that fell back too), full on a GPU (measured: docs/decisions.md)",
     )
     filter_threshold: float | None = Field(
         None,

@@ -8,7 +8,7 @@ import pytest
 from loguru import logger
 
 from c3_matcher.engines.runtime import OnnxInferenceRuntime, select_providers
-from c3_matcher.errors import EngineError
+from c3_matcher.errors import ConfigurationError
 
 TRT = "TensorrtExecutionProvider"
 CUDA = "CUDAExecutionProvider"
@@ -33,7 +33,7 @@ def test_chain_order(available: list[str], chain: list[str]) -> None:
 
 
 def test_no_usable_provider() -> None:
-    with pytest.raises(EngineError, match="none of"):
+    with pytest.raises(ConfigurationError, match="none of"):
         OnnxInferenceRuntime(["AzureExecutionProvider"])
 
 
@@ -122,10 +122,13 @@ def test_configured_providers_are_intersected_with_installed(configured, install
 
 
 def test_unusable_provider_list_names_the_setting() -> None:
-    with pytest.raises(EngineError, match=r"\[engines\] providers") as info:
+    with pytest.raises(ConfigurationError, match=r"\[engines\] providers") as info:
         OnnxInferenceRuntime([CPU], requested=["CUDA", "TensorRT"])
     assert "pip install onnxruntime" not in str(info.value)
-    with pytest.raises(EngineError, match=r"\[engines\] providers.*unknown execution provider"):
+    assert not str(info.value).startswith("engine ")  # a setting, not an engine to build
+    with pytest.raises(
+        ConfigurationError, match=r"\[engines\] providers.*unknown execution provider"
+    ):
         OnnxInferenceRuntime([CPU], requested=["Quantum"])
 
 

@@ -36,10 +36,10 @@ from numpy.typing import NDArray
 
 from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
 from c3_matcher.engines.lightglue_specs import STEPS_OPTION, STEPS_SIZES, steps_size
-from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file, read_manifest
+from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file
 from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.engines.spec import EngineSpec
-from c3_matcher.engines.store import EngineStore
+from c3_matcher.engines.store import steps_engines_beside
 from c3_matcher.errors import EngineError
 from c3_matcher.features import PairSide, RawMatches
 from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
@@ -106,26 +106,6 @@ def _check_pair(
         raise ValueError(f"size{side} must be (width, height) > 0, got {size}")
 
 
-def steps_engines_beside(
-    engine_path: Path, feature_type: str, graph: EngineSpec | None = None
-) -> list[Path]:
-    """The steps engines for ``feature_type`` in ``engine_path``'s directory, found by their
-    manifests (``feature_type`` and option ``pruning = "steps"``), not by their file names;
-    newest build first; with ``graph``, only builds of the graph it declares. An engine whose
-    manifest is unreadable is not one."""
-    found: list[tuple[str, Path]] = []
-    for record in EngineStore(Path(engine_path).parent).list():
-        manifest = record.manifest
-        if (
-            manifest is not None
-            and manifest.feature_type == feature_type
-            and manifest.options.get(STEPS_OPTION[0]) == STEPS_OPTION[1]
-            and (graph is None or manifest.other_graph(graph) is None)
-        ):
-            found.append((manifest.built_at, record.path))
-    return [path for _, path in sorted(found, reverse=True)]
-
-
 class _Pair(NamedTuple):
     """One pair's normalised keypoints and descriptors, in the steps driver's argument order."""
 
@@ -142,7 +122,10 @@ class OnnxLightGlueRuntime:
     engines the plugins declare, by feature type (``steps_specs`` of the plugin host's engine
     specs): only a build of a declared graph is run, and a missing one is warned about in
     adaptive mode, naming the build command. ``None`` (not known): any steps engine found beside
-    a full one is used, and none found is no warning."""
+    a full one is used, and none found is no warning. ``mode="auto"`` is ``resolve_mode`` of the
+    provider the sessions ACTUALLY run on: the requested one until a LightGlue engine is loaded,
+    then its session's (onnxruntime falls back to the CPU when a GPU provider cannot start:
+    adaptive then, the steps engine loaded beside the full graph already loaded)."""
 
     def __init__(
         self,
@@ -157,11 +140,10 @@ class OnnxLightGlueRuntime:
     ) -> None:
         if not 0.0 <= filter_threshold < 1.0:
             raise ValueError(f"filter_threshold must be in [0, 1), got {filter_threshold}")
-        if mode not in LIGHTGLUE_MODES:
-            raise ValueError(f"mode must be one of {LIGHTGLUE_MODES}, got {mode!r}")
         self._inference = inference
+        self._auto = mode == "auto"
+        self._mode = resolve_mode(mode, inference.provider if self._auto else "")
         self.filter_threshold: Final = float(filter_threshold)
-        self.mode: Final = mode
         self._depth = depth_confidence
         self._width = width_confidence
         self.exit_matches: Final = int(exit_matches)
@@ -172,6 +154,11 @@ class OnnxLightGlueRuntime:
         self._served_by_steps: dict[str, Path] = {}
         """The full engine a steps engine was loaded in place of, per feature type."""
         self.last_run: dict[str, Any] = {}
+
+    @property
+    def mode(self) -> str:
+        """The mode that runs: ``"adaptive"`` or ``"full"`` (``"auto"`` resolved)."""
+        return self._mode
 
     @property
     def feature_types(self) -> tuple[str, ...]:
@@ -202,12 +189,13 @@ class OnnxLightGlueRuntime:
         return None if loaded is None else loaded[0]
 
     def _load(self, feature_type: str, engine_path: Path) -> None:
-        path = Path(engine_path).expanduser().resolve()
+        path = Path(engine_path).expanduser().absolute()  # a link: its manifest is beside it
         for table in (self._engines, self._steps):
             if feature_type in table and table[feature_type][0] == path:
                 return
         if self._served_by_steps.get(feature_type) == path:
             return  # its steps engine is loaded in its place (memory): not loaded now either
+        self._settle_auto()  # sessions loaded already (an extractor) tell the provider
         if (
             self.mode == "adaptive"
             and feature_type not in self._steps
@@ -241,13 +229,29 @@ class OnnxLightGlueRuntime:
             self._steps[feature_type] = (path, engine_id, *self._drivers(path, engine_id, options))
         else:
             self._engines[feature_type] = (path, engine_id)
-            self._verify_steps_beside(feature_type, path)
+            if not (self._settle_auto() and self._load_sibling_steps(feature_type, path)):
+                self._verify_steps_beside(feature_type, path)
         logger.bind(
             kind="c3.lightglue.engine_loaded",
             feature_type=feature_type,
             engine_id=engine_id,
             engine_kind=table_name,
         ).info("LightGlue ({}) for {} loaded", table_name, feature_type)
+
+    def _settle_auto(self) -> bool:
+        """``mode="auto"`` resolved as full from the requested provider, whose sessions run on
+        the CPU (onnxruntime fell back): adaptive from now on, said as a WARNING. True when it
+        switched."""
+        provider = self._inference.provider
+        if not self._auto or self._mode == "adaptive" or resolve_mode("auto", provider) == "full":
+            return False
+        self._mode = "adaptive"
+        logger.bind(kind="c3.lightglue.mode_fallback", provider=provider).warning(
+            "LightGlue mode auto: the sessions run on {} (onnxruntime fell back), so adaptive, "
+            "as on a CPU",
+            provider,
+        )
+        return True
 
     def _may_have_steps(self, feature_type: str) -> bool:
         return self._declared is None or feature_type in self._declared
@@ -273,18 +277,15 @@ class OnnxLightGlueRuntime:
                 logger.warning("steps engine {} not usable: {}", candidate.name, exc)
                 continue
             return True
-        if self._declared is not None:
-            try:
-                model = read_manifest(full_path).model
-            except EngineError:
-                model = "<model>"
+        spec = None if self._declared is None else self._declared.get(feature_type)
+        if spec is not None:
             logger.bind(kind="c3.lightglue.no_steps_engine", feature_type=feature_type).warning(
                 "LightGlue for {}: no steps engine beside {}, running every layer on every "
-                "point (build it: c3-matcher engines build --only {}/{}-steps)",
+                "point (build it: c3-matcher engines build --only {}/{})",
                 feature_type,
                 full_path.name,
-                model,
-                feature_type,
+                spec.model,
+                spec.variant,
             )
         return False
 

@@ -256,9 +256,11 @@ class OnnxInferenceRuntime:
 
         Raises ``EngineError`` (naming the file and the build command) when the file is missing,
         its name breaks the schema, its manifest is missing or disagrees, its sha256 differs, or
-        the graph's real inputs/outputs differ from the manifest's.
+        the graph's real inputs/outputs differ from the manifest's. A symbolic link is not
+        followed to find the manifest: it is the one beside ``path``, named as ``path`` is (an
+        engine directory of links into a blob store).
         """
-        engine_path = Path(path).expanduser().resolve()
+        engine_path = Path(path).expanduser().absolute()
         for engine_id, loaded in self._engines.items():
             if loaded.path == engine_path:
                 return engine_id

@@ -10,7 +10,13 @@ import builtins
 from dataclasses import dataclass
 from pathlib import Path
 
-from c3_matcher.engines.manifest import EngineManifest, check_engine_file, read_manifest
+from c3_matcher.engines.lightglue_specs import STEPS_OPTION
+from c3_matcher.engines.manifest import (
+    EngineIntegrityError,
+    EngineManifest,
+    check_engine_file,
+    read_manifest,
+)
 from c3_matcher.engines.naming import ENGINE_SUFFIX, MANIFEST_SUFFIX, EngineName
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.errors import EngineError
@@ -22,6 +28,8 @@ __all__ = [
     "VerifyOutcome",
     "checkout_root",
     "default_engine_dir",
+    "steps_engines_beside",
+    "usable_directory",
 ]
 
 BUILD_COMMAND = "c3-matcher engines build"
@@ -61,6 +69,25 @@ def default_engine_dir() -> Path:
     from platformdirs import user_cache_dir
 
     return Path(user_cache_dir("c3-matcher")) / "engines"
+
+
+def usable_directory(path: Path) -> Path:
+    """``path`` when it can be a directory (it is one, or it does not exist yet and nothing
+    above it is a file); ``ValueError`` saying which file is in the way otherwise (a setting
+    such as ``[engines] directory`` is refused with it, not by the first command that writes
+    there)."""
+    for place in (path, *path.parents):
+        try:
+            if not place.exists():
+                continue
+            is_dir = place.is_dir()
+        except OSError:  # not readable from here: the command that uses it says why
+            break
+        if not is_dir:
+            where = "" if place == path else f" ({place} is a file)"
+            raise ValueError(f"{path} is not a directory{where}")
+        break
+    return path
 
 
 @dataclass(frozen=True, slots=True)
@@ -122,6 +149,8 @@ class EngineStore:
 
         Raises ``EngineError`` naming ``c3-matcher engines build`` when there is none, and the
         missing file when a manifest there describes one (else the file pattern looked for).
+        A build changed after it was made (``EngineIntegrityError``: a file cut short, a
+        manifest edited) stops the search, naming it: it is never skipped for another build.
         The file hash is not checked here; ``load_engine`` checks it.
         """
         pattern = EngineName.glob_for(model, variant)
@@ -137,6 +166,8 @@ class EngineStore:
                 continue
             try:
                 manifest = check_engine_file(path, check_hash=False)
+            except EngineIntegrityError:
+                raise  # changed after its build: refused, never replaced by an older build
             except EngineError as exc:
                 problems.append(f"{path.name}: {exc.reason}")
                 continue
@@ -221,3 +252,23 @@ class EngineStore:
                 continue
             outcomes.append(VerifyOutcome(path, True, f"sha256 {manifest.file_sha256[:16]}... ok"))
         return outcomes
+
+
+def steps_engines_beside(
+    engine_path: Path, feature_type: str, graph: EngineSpec | None = None
+) -> list[Path]:
+    """The steps engines for ``feature_type`` in ``engine_path``'s directory, found by their
+    manifests (``feature_type`` and option ``pruning = "steps"``), not by their file names;
+    newest build first; with ``graph``, only builds of the graph it declares. An engine whose
+    manifest is unreadable is not one."""
+    found: list[tuple[str, Path]] = []
+    for record in EngineStore(Path(engine_path).parent).list():
+        manifest = record.manifest
+        if (
+            manifest is not None
+            and manifest.feature_type == feature_type
+            and manifest.options.get(STEPS_OPTION[0]) == STEPS_OPTION[1]
+            and (graph is None or manifest.other_graph(graph) is None)
+        ):
+            found.append((manifest.built_at, record.path))
+    return [path for _, path in sorted(found, reverse=True)]
