@@ -49,7 +49,7 @@ def test_a_fresh_recorder_refused_by_the_lock_removes_nothing(tmp_path: Path) ->
     writer = _previous_log(path)  # another run, still writing
     try:
         before = _files(tmp_path)
-        with pytest.raises(FdrOpenError, match="another process"):
+        with pytest.raises(FdrOpenError, match="already writes this FDR"):  # (this process)
             JsonlFdrRecorder(path, FakeClock(), max_bytes=1024, fresh=True)
         assert _files(tmp_path) == before
     finally:

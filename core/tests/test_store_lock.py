@@ -71,7 +71,7 @@ def test_a_locked_store_fails_fast_is_said_once_and_serves_again_after_release(s
     now = [0.0]
     store = MBTilesStore(path, retry_s=5.0, clock=lambda: now[0])
     assert store.tile_bytes(*key) is not None
-    store.close()  # fresh connections: the lock is taken while none is open
+    store._close_connections()  # fresh connections: the lock is taken while none is open
     fdr = InMemoryFdr()
     handle = configure_logging(fdr, level="WARNING")
     lock = _Lock(path)

@@ -15,7 +15,8 @@ Every record carries a ``kind`` (``logger.bind(kind=...)``); the stderr sink wri
 object per line. ERROR and WARNING records are also forwarded to the FDR as records of their own
 kinds, ``log.error`` and ``log.warning``, so the matcher's own FDR kinds keep exactly one record
 per event; a forward the FDR cannot write yet stays pending in the recorder (nothing on stderr),
-and the FDR's own write failures (``FDR_WRITE_FAILED``) stay in the log stream.
+and the FDR's own write failures (``FDR_WRITE_FAILED``, one line, also when a caller's own FDR
+client fails a forward) stay in the log stream.
 """
 
 from __future__ import annotations
@@ -24,13 +25,16 @@ import contextlib
 import json
 import os
 import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TextIO
 
 from loguru import logger
 
+from c3_matcher.errors import describe
 from c3_matcher.fdr import FdrWriteError, to_jsonable
+from c3_matcher.fdr.turns import close_after_frame
 from c3_matcher.protocols import FdrClient
 
 if TYPE_CHECKING:
@@ -99,6 +103,12 @@ class LoggingHandle:
     sink_ids: list[int]
 
     def close(self) -> None:
+        """Remove the sinks; called on a thread inside a matcher's frame (a signal handler's
+        shutdown), once that frame is done (its log lines are said)."""
+        if not close_after_frame(self._remove):
+            self._remove()
+
+    def _remove(self) -> None:
         for sink_id in self.sink_ids:
             with contextlib.suppress(ValueError):
                 logger.remove(sink_id)
@@ -124,9 +134,9 @@ def configure_logging(
     ours = is_matcher_record
     ids = [logger.add(json_sink, level=level.upper(), format="{message}", filter=ours)]
     if fdr is not None:
-        forwarder = _fdr_forwarder(fdr)
+        forwarder, forwarded = _fdr_forwarder(fdr)
         ids.append(
-            logger.add(forwarder, level="WARNING", format="{message}", filter=ours, catch=True)
+            logger.add(forwarder, level="WARNING", format="{message}", filter=forwarded, catch=True)
         )
     return LoggingHandle(ids)
 
@@ -163,21 +173,40 @@ def claim_stderr() -> None:
         cv2.setLogLevel(_OPENCV_SILENT)
 
 
-def _fdr_forwarder(fdr: FdrClient) -> Callable[[Message], None]:
-    busy = False
+def _fdr_forwarder(fdr: FdrClient) -> tuple[Callable[[Message], None], Callable[[Record], bool]]:
+    """The sink forwarding the matcher's WARNING and ERROR records to ``fdr`` and its filter.
+    The filter keeps out the FDR's own write failures and whatever is logged while a forward is
+    under way on that thread (the FDR client's own logs), so a forward never runs inside
+    another. A write the FDR keeps pending says nothing; any other failure of the client is
+    one ERROR ``FDR_WRITE_FAILED`` line, no traceback."""
+    forwarding = threading.local()
+
+    def forwarded(record: Record) -> bool:
+        return (
+            is_matcher_record(record)
+            and record["extra"].get("kind") != FDR_WRITE_FAILED
+            and not getattr(forwarding, "busy", False)
+        )
 
     def forward(message: Message) -> None:
-        nonlocal busy
         record = message.record
         kind = FORWARDED_LEVELS.get(record["level"].name)
-        if kind is None or busy or record["extra"].get("kind") == FDR_WRITE_FAILED:
+        if kind is None:
             return
-        busy = True  # a failing FDR logs an error; never forward that error back into it
+        forwarding.busy = True
         try:
             fdr.record(kind, _record_to_dict(record))
         except FdrWriteError:
             pass  # kept pending by the recorder, written with the next record (no stderr noise)
+        except Exception as exc:  # a caller's client failing: said once, on every other sink
+            log_event(
+                "ERROR",
+                FDR_WRITE_FAILED,
+                f"FDR write failed for {kind}: {describe(exc)}",
+                record_kind=kind,
+                error=describe(exc),
+            )
         finally:
-            busy = False
+            forwarding.busy = False
 
-    return forward
+    return forward, forwarded

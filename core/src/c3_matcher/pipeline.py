@@ -21,7 +21,6 @@ image, match two feature sets); ``PipelineMatcher.match`` composes the stages of
 from __future__ import annotations
 
 import dataclasses
-import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -41,8 +40,11 @@ from c3_matcher.errors import (
     InvalidInputError,
     MatcherBackboneError,
     MatcherClosedError,
+    describe,
 )
+from c3_matcher.fdr.turns import FrameTurns
 from c3_matcher.health import RollingHealthWindow
+from c3_matcher.logs import FDR_WRITE_FAILED, log_event
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.prior import PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend, RansacFilter
@@ -101,8 +103,8 @@ class PipelineSettings:
 class PipelineMatcher:
     """The one ``CrossDomainMatcher`` of every strategy: the per-frame loop over a strategy's
     ``FeatureBackend``. One frame at a time: calls from several threads are serialised (a
-    second caller waits), and ``close()`` waits for a frame in progress. ``tile_cache_size``
-    tiles keep their features between frames (0: off)."""
+    second caller waits, served in the order called), and ``close()`` waits for a frame in
+    progress. ``tile_cache_size`` tiles keep their features between frames (0: off)."""
 
     def __init__(
         self,
@@ -129,8 +131,7 @@ class PipelineMatcher:
             backend, self._pre, cache, request, settings.use_stored_features
         )
         self._refine = RefinePass(self._pre, backend)
-        self._lock = threading.RLock()
-        self._closed = False
+        self._turns = FrameTurns(_close_failed)
 
     @property
     def stored_features(self) -> bool:
@@ -146,18 +147,20 @@ class PipelineMatcher:
     def match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
     ) -> MatchResult:
-        with self._lock:  # one frame at a time: a second thread waits, as does close()
-            if self._closed:  # no fix from this call either: the health window says so
+        with self._turns.turn() as admitted:  # one frame at a time, first come first served
+            if not admitted:  # closed: no fix from this call either, the health window says so
                 FrameRecorder(self._sinks, None).update_health(0)
                 raise MatcherClosedError(self.backend.label)
             return self._contract_match(frame, rerank_result, calibration)
 
     def close(self) -> None:
-        """Refuse every later ``match`` (``MatcherClosedError``); a frame in progress in another
-        thread finishes first, with its records. Idempotent. ``ComposedRoot.close()`` calls it
-        before it releases the recorder and the log sinks."""
-        with self._lock:
-            self._closed = True
+        """Refuse every later ``match`` (``MatcherClosedError``), callers still waiting
+        included; a frame in progress finishes first, with its records: ``close()`` waits for
+        it, or, called from within it (a signal handler's), returns at once, and the recorder
+        and log sinks closed meanwhile on that thread close once it is done
+        (``c3_matcher.fdr.turns``). Idempotent. ``ComposedRoot.close()`` calls it before it
+        releases the recorder and the log sinks."""
+        self._turns.close()
 
     def _contract_match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
@@ -352,6 +355,11 @@ def _refusal(index: int, verdict: Verdict, inliers: int, rotation_search: bool) 
         verdict.check.reason,
         verdict.rotation_deg if rotation_search else None,
     )
+
+
+def _close_failed(exc: Exception) -> None:
+    """A sink close kept for the end of a frame failed (records it could not write)."""
+    log_event("ERROR", FDR_WRITE_FAILED, f"closing after the frame: {exc}", error=describe(exc))
 
 
 def _frame_id(frame: object, rerank: object, calibration: object) -> Any:

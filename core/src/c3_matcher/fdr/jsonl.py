@@ -31,11 +31,13 @@ from c3_matcher.fdr.pending import (
     RECORDS_DROPPED,
     DroppedRecords,
     Pending,
+    held_by,
     lock_path,
     lock_text,
     read_lock,
 )
 from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, read_fdr, to_jsonable
+from c3_matcher.fdr.turns import close_after_frame
 from c3_matcher.protocols import Clock
 
 SEGMENT_BYTES = 64 * 1024 * 1024
@@ -126,7 +128,7 @@ class JsonlFdrRecorder:
             self._fd = open_for_append(self._path)
             self._pending.dropped = carried
         except OSError as exc:
-            self.close()
+            self._close()
             raise FdrOpenError(what, f"cannot open: {exc.strerror or exc}") from exc
         with contextlib.suppress(FdrWriteError):  # kept pending: the next record writes them
             if torn is None:
@@ -161,12 +163,9 @@ class JsonlFdrRecorder:
         try:
             fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
-            holder = read_lock(self._lock_path)[0] or "?"
             os.close(self._lock_fd)
             self._lock_fd = -1
-            raise FdrOpenError(
-                what, f"another process (pid {holder}) is writing this FDR; one writer per path"
-            ) from exc
+            raise FdrOpenError(what, held_by(self._lock_path)) from exc
 
     def _write_lock(self, lost: DroppedRecords | None) -> None:
         """Our pid in the lock file and, while they are not yet in the log, the records ``lost``
@@ -240,7 +239,12 @@ class JsonlFdrRecorder:
     def close(self) -> None:
         """Write what is pending (a last chance after a full disk) and give the path back;
         ``FdrWriteError`` naming how many records were lost when that last write failed (the
-        files are closed and the lock released all the same)."""
+        files are closed and the lock released all the same). Called on a thread inside a
+        matcher's frame (a signal handler's shutdown), it closes once that frame is done."""
+        if not close_after_frame(self._close):
+            self._close()
+
+    def _close(self) -> None:
         with self._lock:
             lost: FdrWriteError | None = None
             if self._pending.waiting and self._lock_fd >= 0:

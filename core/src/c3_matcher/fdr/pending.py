@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from collections import deque
 from collections.abc import Iterable
 from pathlib import Path
@@ -129,6 +130,18 @@ def read_lock(path: Path) -> tuple[str, DroppedRecords | None]:
         return "", None
     holder = lines[0].strip()[:32] if lines else ""
     return holder, _note(lines[1]) if len(lines) > 1 else None
+
+
+def held_by(path: Path) -> str:
+    """Why the lock file ``path`` cannot be taken: who holds it (the pid it names)."""
+    holder = read_lock(path)[0] or "?"
+    if holder == str(os.getpid()):
+        return (
+            f"this process (pid {holder}) already writes this FDR (a recorder, or a composed "
+            "root, still open): close it first, or give another path; one writer per path, "
+            "whether this process or another process"
+        )
+    return f"another process (pid {holder}) is writing this FDR; one writer per path"
 
 
 def _note(line: str) -> DroppedRecords | None:

@@ -20,7 +20,9 @@ handles expose it as a ``memoryview`` without further copies. A database error w
 tile (a corrupt page) is raised as that tile's error, never a crash of the caller.
 
 Threads: each thread gets its own read-only connection (SQLite objects may not cross threads),
-so a store opened on one thread serves another. A store-wide failure (the
+so a store opened on one thread serves another; the connections of threads that have ended are
+closed when the next one is made, and all of them by ``close()``, after which every read raises
+``TileStoreUnusableError`` saying the store is closed. A store-wide failure (the
 database no longer answers at all: locked by another process, replaced, truncated,
 unreadable) is reported ONCE per outage as an ERROR log ``c3.tilestore.unusable`` naming the
 store (forwarded to the FDR as ``log.error``), then raised at once as each tile's
@@ -87,8 +89,9 @@ class MBTilesStore(TileStoreBase):
         self._clock = clock
         self._retry_at = 0.0
         self._local = threading.local()
-        self._connections: list[sqlite3.Connection] = []
+        self._connections: dict[threading.Thread, sqlite3.Connection] = {}
         self._conn_lock = threading.Lock()
+        self._closed = False
         self._unusable: str | None = None
         self._features: MapFeatureStore | None = None
         self._features_retry_at: float | None = None  # an unopenable sidecar: next try then
@@ -114,17 +117,25 @@ class MBTilesStore(TileStoreBase):
 
     @property
     def _db(self) -> sqlite3.Connection:
-        """This thread's read-only connection (made on first use)."""
+        """This thread's read-only connection (made on first use, when the connections of
+        threads that have ended are closed); a closed store refuses (TileStoreUnusableError)."""
         db: sqlite3.Connection | None = getattr(self._local, "db", None)
-        if db is None:
-            # used only by this thread; check_same_thread=False lets close() run on any thread
+        if db is not None:
+            return db
+        with self._conn_lock:
+            if self._closed:
+                raise TileStoreUnusableError(
+                    str(self.path), "the store is closed (close() was called): open it again"
+                )
+            for ended in [t for t in self._connections if not t.is_alive()]:
+                self._connections.pop(ended).close()
+            # used only by this thread; check_same_thread=False lets another thread close it
             db = sqlite3.connect(
                 read_only_uri(self.path), uri=True, check_same_thread=False, timeout=LOCK_WAIT_S
             )
             db.execute(f"PRAGMA mmap_size={self._mmap_bytes}")
-            self._local.db = db
-            with self._conn_lock:
-                self._connections.append(db)
+            self._connections[threading.current_thread()] = db
+        self._local.db = db
         return db
 
     def feature_store(self) -> MapFeatureStore | None:
@@ -135,8 +146,8 @@ class MBTilesStore(TileStoreBase):
         if self._features is not None:
             return self._features
         side = sidecar_path(self.path)
-        if not side.is_file():
-            return None
+        if self._closed or not side.is_file():
+            return None  # closed: its tiles' reads say so
         retry_at = self._features_retry_at
         if retry_at is not None and self._clock() < retry_at:
             return None
@@ -239,6 +250,10 @@ class MBTilesStore(TileStoreBase):
             yield int(col), n - 1 - int(row)
 
     def close(self) -> None:
+        """Close every connection (the sidecar's too); later reads raise
+        TileStoreUnusableError saying the store is closed. Idempotent."""
+        with self._conn_lock:
+            self._closed = True
         if self._features is not None:
             self._features.close()
             self._features = None
@@ -246,7 +261,7 @@ class MBTilesStore(TileStoreBase):
 
     def _close_connections(self) -> None:
         with self._conn_lock:
-            for db in self._connections:
+            for db in self._connections.values():
                 db.close()
             self._connections.clear()
         self._local = threading.local()

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import sqlite3
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -13,7 +14,7 @@ from typing import Any, TypeVar
 
 from c3_matcher.errors import describe
 from c3_matcher.tilestore.files import MMAP_BYTES, open_failure, read_only_uri
-from c3_matcher.tilestore.sidecar_file import LEAVE_WAL_S, leave_wal, schema_mismatch
+from c3_matcher.tilestore.sidecar_file import LEAVE_WAL_S, leave_wal, schema_mismatch, sqlite_code
 from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, decode_row, row_checksum
 
 WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
@@ -96,6 +97,7 @@ class MapFeatureStore:
         self._down_until: float | None = None  # unavailable: nothing served before this time
         self._reported = False  # this outage was already raised
         self._refused: set[tuple[str, int, int, int]] = set()
+        self._reading = threading.Lock()
         if writable:
             self._db = _open_writable(self.path)
         else:
@@ -107,13 +109,14 @@ class MapFeatureStore:
         raises FeatureStoreUnavailableError, later ones within it return None. The writer has
         no outages: its errors are raised (damage as SidecarDamagedError)."""
         if self._writable:
-            with self._damage_refused():
+            with _damage_refused(self.path):
                 return query()
         now = self._clock()
         if self._down_until is not None and now < self._down_until:
             return None
         try:
-            result = query()
+            with self._reading:  # one read at a time, from whichever thread
+                result = query()
         except sqlite3.Error as exc:
             self._down_until = now + self._retry_s
             self._sets.clear()
@@ -184,7 +187,7 @@ class MapFeatureStore:
                 key,
             ).fetchone()
         except sqlite3.DatabaseError as exc:
-            if exc.sqlite_errorcode & 0xFF == sqlite3.SQLITE_CORRUPT:
+            if sqlite_code(exc) == sqlite3.SQLITE_CORRUPT:
                 return exc
             raise
         return row
@@ -192,7 +195,7 @@ class MapFeatureStore:
     def done_windows(self, set_id: str) -> dict[WindowKey, str]:
         """(zoom, gx, gy) -> window digest of every window stored in a set (as stored: see
         :meth:`checked_windows`); SidecarDamagedError for a key that is no integer."""
-        with self._damage_refused():
+        with _damage_refused(self.path):
             return {
                 self._window_key(set_id, z, x, y): str(d)
                 for z, x, y, d in self._db.execute(
@@ -222,7 +225,7 @@ class MapFeatureStore:
         itself damaged."""
         intact: dict[WindowKey, str] = {}
         damaged: dict[WindowKey, str] = {}
-        with self._damage_refused():
+        with _damage_refused(self.path):
             for z, x, y, *row in self._db.execute(
                 f"SELECT zoom, gx, gy, {_ROW_COLUMNS} FROM window_features WHERE set_id=?",
                 (fset.set_id,),
@@ -233,16 +236,6 @@ class MapFeatureStore:
                 except ValueError as exc:
                     damaged[key] = str(exc)
         return intact, damaged
-
-    @contextlib.contextmanager
-    def _damage_refused(self) -> Iterator[None]:
-        """SQLite's errors saying the database is damaged raised as SidecarDamagedError."""
-        try:
-            yield
-        except sqlite3.DatabaseError as exc:
-            if exc.sqlite_errorcode & 0xFF in _DAMAGE:
-                raise SidecarDamagedError(self.path, exc) from exc
-            raise
 
     # -- writing (ground) ---------------------------------------------------------------
     def ensure_set(self, fset: FeatureSet) -> None:
@@ -306,7 +299,7 @@ class MapFeatureStore:
     def _write(self, sql: str, rows: Sequence[Sequence[Any]]) -> None:
         """``sql`` once per row of parameters, committed; SQLite finding the database damaged
         raised as SidecarDamagedError."""
-        with self._damage_refused():
+        with _damage_refused(self.path):
             self._db.executemany(sql, rows)
             self._db.commit()
 
@@ -331,11 +324,11 @@ class MapFeatureStore:
 
 
 def _open_read_only(path: Path) -> sqlite3.Connection:
-    """The flight's read-only connection (busy timeout 0: a lock held elsewhere fails at once,
-    the frame never waits); FeatureStoreUnavailableError saying why a sidecar cannot be opened
-    (its permission, a directory), its cause SQLite's error."""
+    """The flight's read-only connection, for every thread in turn (``_read``), busy timeout 0:
+    a lock held elsewhere fails at once, the frame never waits; FeatureStoreUnavailableError
+    saying why a sidecar cannot be opened (its permission, a directory), its cause SQLite's."""
     try:
-        db = sqlite3.connect(read_only_uri(path), uri=True, timeout=0)
+        db = sqlite3.connect(read_only_uri(path), uri=True, timeout=0, check_same_thread=False)
     except sqlite3.Error as exc:
         why = open_failure(path, "a features sidecar") or f"cannot open ({exc})"
         raise FeatureStoreUnavailableError(f"{path}: {why}") from exc
@@ -351,23 +344,30 @@ def _open_writable(path: Path) -> sqlite3.Connection:
     be what its id now means) or a set row malformed (a lock held elsewhere is waited for)."""
     db = sqlite3.connect(str(path), timeout=LEAVE_WAL_S)
     try:
-        db.execute(f"PRAGMA page_size={PAGE_BYTES}")  # a new file: fewer pages a row
-        db.executescript(_SCHEMA)
-        if (mismatch := schema_mismatch(db, _SCHEMA)) is not None:
-            raise SidecarDamagedError(path, mismatch)
-        for row in db.execute(f"SELECT {_SET_COLUMNS} FROM window_sets"):  # as `features info`
-            _set_of(path, row)
-        db.commit()
-        db.execute("PRAGMA journal_mode=WAL")  # once readable: a damaged file is left as it is
-    except sqlite3.DatabaseError as exc:
-        db.close()
-        if exc.sqlite_errorcode & 0xFF in _DAMAGE:
-            raise SidecarDamagedError(path, exc) from exc
-        raise
-    except BaseException:  # a malformed set row, another schema: left as it is (no WAL)
+        with _damage_refused(path):
+            db.execute(f"PRAGMA page_size={PAGE_BYTES}")  # a new file: fewer pages a row
+            db.executescript(_SCHEMA)
+            if (mismatch := schema_mismatch(db, _SCHEMA)) is not None:
+                raise SidecarDamagedError(path, mismatch)
+            for row in db.execute(f"SELECT {_SET_COLUMNS} FROM window_sets"):  # `features info`
+                _set_of(path, row)
+            db.commit()
+            db.execute("PRAGMA journal_mode=WAL")  # once readable: a damaged file is left as is
+    except BaseException:  # damaged, a malformed set row, another schema: left as is (no WAL)
         db.close()
         raise
     return db
+
+
+@contextlib.contextmanager
+def _damage_refused(path: Path) -> Iterator[None]:
+    """SQLite's errors saying the database ``path`` is damaged raised as SidecarDamagedError."""
+    try:
+        yield
+    except sqlite3.DatabaseError as exc:
+        if sqlite_code(exc) in _DAMAGE:
+            raise SidecarDamagedError(path, exc) from exc
+        raise
 
 
 def _set_of(path: Path, row: Sequence[Any]) -> FeatureSet:

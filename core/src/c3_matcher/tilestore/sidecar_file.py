@@ -33,6 +33,13 @@ class SidecarInUseError(sqlite3.OperationalError):
         )
 
 
+def sqlite_code(exc: BaseException) -> int:
+    """SQLite's primary result code of ``exc`` (``SQLITE_BUSY``, ``SQLITE_CORRUPT``...); 0 for
+    an error the sqlite3 module raises itself (a closed connection, misuse), which has none."""
+    code = getattr(exc, "sqlite_errorcode", None)
+    return code & 0xFF if isinstance(code, int) else 0
+
+
 def schema_mismatch(db: sqlite3.Connection, schema: str) -> str | None:
     """How the tables of ``db`` differ from those ``schema`` creates (a sidecar of another
     version: a column missing or one more), None when they are the same."""
@@ -72,7 +79,7 @@ def leave_wal(db: sqlite3.Connection, path: Path, wait_s: float = LEAVE_WAL_S) -
             if mode is not None and str(mode[0]).lower() == "delete":
                 return
         except sqlite3.OperationalError as exc:
-            if exc.sqlite_errorcode & 0xFF not in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
+            if sqlite_code(exc) not in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
                 raise
         if time.monotonic() >= deadline:
             raise SidecarInUseError(path, holders(path), checkpointed)
