@@ -11,6 +11,7 @@ import pytest
 from c3_matcher.errors import EngineError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.probe import engine_startup_probe
+from c3_matcher.testing.fakes import equal_descriptor_pairs, texture_features
 
 
 class Blind:
@@ -52,7 +53,9 @@ def test_a_backend_that_runs_engines_is_told_to_build_them():
 
 class Faulty:
     """A plugin's backend with one of the mistakes the probe stops at start-up, which would
-    otherwise fail every frame as "no match" or inflate inlier counts."""
+    otherwise fail every frame as "no match" or inflate inlier counts; without a mistake it
+    finds the probe texture's block corners and pairs equal descriptors, as a correct backend
+    would."""
 
     label = "faulty"
 
@@ -60,22 +63,26 @@ class Faulty:
         self.mistake = mistake
 
     def extract(self, image: Any) -> Features:
-        xy = np.stack(np.meshgrid(np.arange(8.0, 120, 16), np.arange(8.0, 120, 16)), -1)
-        kp = xy.reshape(-1, 2).astype(np.float32)
+        out = texture_features(image.image, image.valid)
+        kp = out["keypoints"]
         if self.mistake == "outside":
             kp[:5] += 5000
-        n = len(kp)
-        return Features(kp, np.eye(n, 32, dtype=np.float32), np.ones(n, np.float32), (128, 128))
+        size = (image.image.shape[1], image.image.shape[0])
+        return Features(kp, out["descriptors"], out["keypoint_scores"], size)
 
     def match(self, query: Features, tile: Features) -> Any:
-        index = np.arange(len(query), dtype=np.int64)
-        pairs = np.stack([index, index], 1)
+        pairs = equal_descriptor_pairs(query.descriptors, tile.descriptors).matches
         if self.mistake == "tuple":
             return pairs, np.ones(len(pairs), np.float32)
         if self.mistake == "index":
             pairs[0, 1] = 10**6
         if self.mistake == "twice":
             pairs = np.concatenate([pairs, pairs])
+        if self.mistake == "swapped":  # (tile, query): the matcher called the other way round
+            pairs = equal_descriptor_pairs(tile.descriptors, query.descriptors).matches
+        if self.mistake == "ignores_tile":  # keypoint i with keypoint i, whatever they show
+            index = np.arange(min(len(query), len(tile)), dtype=np.int64)
+            pairs = np.stack([index, index], 1)
         return RawMatches(pairs, np.ones(len(pairs), np.float32))
 
     def provenance(self) -> dict[str, Any]:
@@ -87,8 +94,10 @@ class Faulty:
     [
         ("outside", "5 keypoint(s) outside the 128x128 px probe image"),
         ("tuple", "match returned tuple, not RawMatches"),
-        ("index", "match gave indices outside the 49 keypoints it was given"),
+        ("index", "match gave tile indices outside the"),
         ("twice", "match paired one query keypoint more than once"),
+        ("swapped", "match gave query indices outside the"),
+        ("ignores_tile", "pairs join a query point (x, y) to the tile point (x + 16, y)"),
     ],
 )
 def test_a_backend_that_breaks_the_contract_stops_start_up_naming_how(mistake, said):

@@ -1,9 +1,18 @@
-"""The engine-output assertion that fires at start-up: a backend run once on a deterministic
-textured image (``compose_root`` runs it on every strategy's backend; the contract kit uses the
-same image)."""
+"""The engine-output assertion that fires at start-up: a backend run on a deterministic textured
+image and on a wider view of the same texture that holds it at a known offset, the two matched
+once (``compose_root`` runs it on every strategy's backend; the contract kit uses the same
+images).
+
+Both images follow the backend's own ``input_rule`` (``probe_side``), and the offset is a multiple
+of the rule's ``multiple`` (``probe_shift``), so a network with that stride sees the same texture
+at the same phase in both. A backend that matches correctly pairs each query point (x, y) with
+the tile point (x + shift, y), in (query, tile) order, each query keypoint once; the tile has
+texture the query lacks, and so more keypoints.
+"""
 
 from __future__ import annotations
 
+from functools import cache
 from typing import Final
 
 import numpy as np
@@ -11,48 +20,125 @@ from numpy.typing import NDArray
 
 from c3_matcher.errors import EngineError, describe
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.prepared import PreparedImage
+from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.protocols import FeatureBackend
 
 __all__ = [
     "BACKEND_MEMBERS",
+    "PROBE_SIDE",
     "check_members",
+    "check_shifted_matches",
     "engine_startup_probe",
     "missing_members",
+    "probe_image",
+    "probe_pair",
+    "probe_shift",
+    "probe_side",
     "textured_probe",
 ]
 
+PROBE_SIDE: Final = 128
+"""px: the probe image's side before the backend's input rule rounds it."""
+MIN_SHIFT: Final = 16
+"""px: the query sits at least this far into the tile (then up to the rule's next multiple)."""
+ON_OFFSET_PX: Final = 2.0
+"""px: a pair follows the known offset when its tile point is this close to where it should be."""
+_FIELD_CELLS: Final = 512  # the texture field: 512 x 512 blocks (3072 px at 6 px), then repeated
 
-def textured_probe(width: int, height: int, block: int = 6) -> NDArray[np.uint8]:
+
+@cache
+def _field() -> NDArray[np.uint8]:
+    """The random block colours (seed 0) every probe image is cut from (read-only)."""
+    field = np.random.default_rng(0).integers(0, 256, (_FIELD_CELLS, _FIELD_CELLS, 3), np.uint8)
+    field.setflags(write=False)
+    return field
+
+
+def textured_probe(width: int, height: int, block: int = 6, *, x0: int = 0) -> NDArray[np.uint8]:
     """A deterministic textured RGB image (height, width, 3) uint8: ``block`` px squares of
-    random colour (seed 0), the start-up probe's and the contract kit's stand-in image."""
-    rng = np.random.default_rng(0)
-    cells = -(-max(width, height) // block)
-    noise = rng.integers(0, 256, (cells, cells, 3), dtype=np.uint8)
-    blocks = np.kron(noise, np.ones((block, block, 1), np.uint8))[:height, :width]
-    return np.ascontiguousarray(blocks)
+    random colour (seed 0), the start-up probe's and the contract kit's stand-in image.
+
+    Every image is a window on one texture: ``x0`` moves the window right, so the pixel
+    (x, y) of ``textured_probe(w, h, x0=s)`` is the pixel (x + s, y) of ``textured_probe(w + s,
+    h)``."""
+    cx0, cx1 = x0 // block, -(-(x0 + width) // block)
+    cy1 = -(-height // block)
+    field = _field()
+    reps = (-(-cy1 // _FIELD_CELLS), -(-cx1 // _FIELD_CELLS), 1)
+    cells = np.tile(field, reps)[:cy1, cx0:cx1] if reps != (1, 1, 1) else field[:cy1, cx0:cx1]
+    blocks = np.kron(cells, np.ones((block, block, 1), np.uint8))
+    start = x0 - cx0 * block
+    return np.ascontiguousarray(blocks[:height, start : start + width])
 
 
-def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 6) -> None:
-    """Run the backend once on a deterministic textured probe image and assert its outputs
-    (the engine-output assertion that fires at start-up, not on the first frame).
+def probe_side(rule: InputRule | None, at_least: int = PROBE_SIDE) -> int:
+    """The side (px) of a square image that follows ``rule``: the smallest multiple of its
+    ``multiple`` that is at least ``at_least``, else (past ``max_long_side``) the largest that
+    fits; ``at_least`` without a rule."""
+    if rule is None:
+        return at_least
+    m = rule.multiple
+    up = -(-at_least // m) * m
+    return up if up <= rule.max_long_side else (rule.max_long_side // m) * m
 
-    The probe is ``block`` px squares of random colour (seed 0); 6 px blocks do not line up with
-    the 8x8 cells some detectors (XFeat) score, so every cell sees texture."""
-    image = textured_probe(size, size, block)
-    probe = PreparedImage(
-        image=image,
-        valid=np.ones((size, size), bool),
+
+def probe_shift(rule: InputRule | None, side: int) -> int:
+    """How far (px) into the tile the ``side`` px query sits: the smallest multiple of the
+    rule's ``multiple`` that is at least ``MIN_SHIFT``; 0 (the image itself) when that is more
+    than half the side."""
+    m = 1 if rule is None else rule.multiple
+    shift = -(-MIN_SHIFT // m) * m
+    return shift if 2 * shift <= side else 0
+
+
+def probe_image(width: int, height: int, x0: int = 0, block: int = 6) -> PreparedImage:
+    """A :class:`PreparedImage` of the probe texture (``textured_probe``, its window moved
+    ``x0`` px right), every pixel valid."""
+    return PreparedImage(
+        image=textured_probe(width, height, block, x0=x0),
+        valid=np.ones((height, width), bool),
         working_from_engine=np.eye(3),
-        working_size=(size, size),
+        working_size=(width, height),
     )
+
+
+def probe_pair(
+    rule: InputRule | None, at_least: int = PROBE_SIDE, block: int = 6
+) -> tuple[PreparedImage, PreparedImage, int]:
+    """(query, tile, shift): the ``probe_side`` px square query is the texture from x =
+    ``shift``; the tile, from x = 0, is ``shift`` px wider, so the query point (x, y) is the
+    tile point (x + shift, y). Where that tile would pass the rule's ``max_long_side``, the tile
+    is the square and the query ``shift`` px narrower."""
+    side = probe_side(rule, at_least)
+    shift = probe_shift(rule, side)
+    query_width, tile_width = side, side + shift
+    if rule is not None and tile_width > rule.max_long_side:
+        query_width, tile_width = side - shift, side
+    query = probe_image(query_width, side, shift, block)
+    return query, probe_image(tile_width, side, 0, block), shift
+
+
+def engine_startup_probe(backend: FeatureBackend, size: int = PROBE_SIDE, block: int = 6) -> None:
+    """Extract the probe pair (``probe_pair``), match it once and assert the outputs (the
+    engine-output assertion that fires at start-up, not on the first frame): features inside
+    their image, pairs in (query, tile) order that follow the known offset, each query keypoint
+    once (``check_shifted_matches``).
+
+    The images are ``size`` px rounded by the backend's ``input_rule``, ``block`` px squares
+    of random colour (seed 0); 6 px blocks do not line up with the 8x8 cells some detectors
+    (XFeat) score, so every cell sees texture."""
+    rule = getattr(backend, "input_rule", None)
+    query_image, tile_image, shift = probe_pair(rule if isinstance(rule, InputRule) else None, size)
     try:
-        features = backend.extract(probe)
-        _check_features(features, size)
-        matches = backend.match(features, features)
-        _check_matches(matches, len(features))
+        query = backend.extract(query_image)
+        _check_features(query, query_image.engine_size)
+        tile = backend.extract(tile_image)
+        _check_features(tile, tile_image.engine_size)
+        check_shifted_matches(query, tile, backend.match(query, tile), shift)
     except Exception as exc:
-        failed = f"start-up probe failed: {describe(exc)}"
+        (w, h), (tw, _) = query_image.engine_size, tile_image.engine_size
+        images = f"a {w}x{h} px image in a {tw}x{h} px one, {shift} px in"
+        failed = f"start-up probe failed ({images}): {describe(exc)}"
         if _runs_engines(backend):
             raise EngineError(backend.label, failed) from exc
         raise EngineError(
@@ -63,35 +149,52 @@ def engine_startup_probe(backend: FeatureBackend, size: int = 128, block: int = 
         ) from exc
 
 
-def _check_features(features: object, size: int) -> None:
-    """The probe's features: a :class:`Features` with keypoints, all inside the image."""
+def _check_features(features: object, size: tuple[int, int]) -> None:
+    """The probe's features: a :class:`Features` with keypoints, all inside the (w, h) px
+    image."""
     if not isinstance(features, Features):
         raise TypeError(f"extract returned {type(features).__name__}, not Features")
     if len(features) == 0:
         raise ValueError("the extractor found no keypoint on the textured probe image")
     kp = features.keypoints
-    outside = int((~((kp >= -0.5) & (kp <= size - 0.5)).all(axis=1)).sum())
+    inside = (kp >= -0.5) & (kp <= np.array(size, np.float32) - 0.5)
+    outside = int((~inside.all(axis=1)).sum())
     if outside:
-        raise ValueError(f"{outside} keypoint(s) outside the {size}x{size} px probe image")
+        raise ValueError(f"{outside} keypoint(s) outside the {size[0]}x{size[1]} px probe image")
 
 
-def _check_matches(matches: object, count: int) -> None:
-    """The probe matched with itself: :class:`RawMatches` of indices into its ``count``
-    keypoints, some, each query keypoint in one pair at most (a pair given twice would count
-    twice as an inlier)."""
+def check_shifted_matches(
+    query: Features, tile: Features, matches: object, shift: int, min_on_offset: float = 0.5
+) -> None:
+    """``ValueError`` unless ``matches`` are the matches of ``query`` with ``tile``, whose
+    texture holds the query's ``shift`` px to the right: :class:`RawMatches`, some, indices
+    into each side's own keypoints, each query keypoint in one pair at most (a pair given twice
+    would count twice as an inlier), and at least ``min_on_offset`` of them pairing a query
+    point (x, y) with a tile point within ``ON_OFFSET_PX`` of (x + shift, y)."""
     if not isinstance(matches, RawMatches):
         raise TypeError(f"match returned {type(matches).__name__}, not RawMatches")
     if len(matches) == 0:
         raise ValueError(
-            "matching the probe image with itself gave no match (an engine fault, or a "
-            "setting that stops every pair early: [lightglue] exit_matches)"
+            "matching the probe image with a view that holds it gave no match (an engine "
+            "fault, or a setting that stops every pair early: [lightglue] exit_matches)"
         )
-    pairs = matches.matches
-    if not bool(((pairs >= 0) & (pairs < count)).all()):
-        raise ValueError(f"match gave indices outside the {count} keypoints it was given")
-    query = pairs[:, 0]
-    if np.unique(query).size != query.size:
+    q, t = matches.matches[:, 0], matches.matches[:, 1]
+    for side, index, features in (("query", q, query), ("tile", t, tile)):
+        if not bool(((index >= 0) & (index < len(features))).all()):
+            raise ValueError(
+                f"match gave {side} indices outside the {len(features)} {side} keypoints"
+            )
+    if np.unique(q).size != q.size:
         raise ValueError("match paired one query keypoint more than once")
+    expected = query.keypoints[q] + np.array([shift, 0], np.float32)
+    on = float(np.mean(np.linalg.norm(tile.keypoints[t] - expected, axis=1) <= ON_OFFSET_PX))
+    if on < min_on_offset:
+        raise ValueError(
+            f"only {on:.0%} of the {len(matches)} pairs join a query point (x, y) to the tile "
+            f"point (x + {shift}, y) that shows it (at least {min_on_offset:.0%} expected): "
+            "are the pairs (query index, tile index), each from the matching of those two "
+            "images?"
+        )
 
 
 def _runs_engines(backend: FeatureBackend) -> bool:

@@ -4,21 +4,17 @@ entry-point wiring; options validation; the engines' weights provenance; the mnn
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from numpy.typing import NDArray
 
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
 from c3_matcher.errors import ConfigurationError, EngineError
-from c3_matcher.features import Features, RawMatches
+from c3_matcher.features import Features
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.testing.contract import Doubles
-from c3_matcher.testing.fakes import FakeInferenceRuntime, ScriptedCandidate
 from c3_matcher.testing.strategy_kit import (
     ExtractorMatcherContract,
     assert_registered,
@@ -45,53 +41,12 @@ LIGHTERGLUE_CONFIG = XFeatConfig(
 MNN_CONFIG = XFeatConfig(extractor_engine_path=Path("xfeat.onnx"), max_long_side=64)
 
 
-class UnitDescriptors:
-    """The fake extractor with one-hot unit descriptors (its own are zeros, which no cosine
-    similarity threshold keeps), so the real mutual nearest neighbour matches keypoint i to i."""
-
-    def __init__(self, inner: FakeInferenceRuntime) -> None:
-        self.inner = inner
-        self.provider = inner.provider
-
-    def load_engine(self, path: Any) -> str:
-        return self.inner.load_engine(path)
-
-    def run(self, engine_id: str, feeds: Mapping[str, NDArray[Any]]) -> dict[str, NDArray[Any]]:
-        out = self.inner.run(engine_id, feeds)
-        n = len(out["keypoints"])
-        return {**out, "descriptors": np.eye(n, 64, dtype=np.float32)}
-
-
-class ScriptedMnn:
-    """The real mnn matcher, raising for the candidates scripted ``fail_match`` (the fake
-    extractor marks a tile's keypoints with its index + 1 in y)."""
-
-    def __init__(self, script: list[ScriptedCandidate]) -> None:
-        self.script = script
-        self.real = MutualNearestNeighbourMatcher(0.82)
-
-    def match(self, query: Features, tile: Features) -> RawMatches:
-        mark = int(tile.keypoints[0, 1]) - 1 if len(tile) else -1
-        if 0 <= mark < len(self.script) and self.script[mark].fail_match:
-            raise RuntimeError(f"scripted mnn failure on candidate {mark}")
-        return self.real.match(query, tile)
-
-
 class TestXFeatMnnContract(ExtractorMatcherContract):
+    """As the kit's docstring says: the matcher class and its config, nothing else (the kit
+    runs the real mutual nearest neighbour on the fake extractor's unit descriptors)."""
+
     matcher_class = XFeatMatcher
     config = MNN_CONFIG
-
-    def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
-        return XFeatMatcher(
-            UnitDescriptors(doubles.inference),
-            doubles.lightglue,
-            doubles.ransac,
-            doubles.fdr,
-            doubles.health,
-            MNN_CONFIG,
-            doubles.clock,
-            pair_matcher=ScriptedMnn(doubles.script),
-        )
 
 
 class TestXFeatLighterGlueContract(ExtractorMatcherContract):
@@ -210,6 +165,7 @@ def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path)
         ({"matcher": "mnn", "top_k": 10}, "matcher.options.xfeat.top_k"),
         ({"min_cossim": 1.5}, "matcher.options.xfeat.min_cossim"),
         ({"max_keypoints": 8192}, "matcher.options.xfeat.max_keypoints"),
+        ({"matcher": "lighterglue", "min_cossim": 0.99}, "matcher.options.xfeat.min_cossim"),
     ],
 )
 def test_bad_option_refused_naming_the_field(tmp_path, options, field):
@@ -223,7 +179,7 @@ def test_keypoint_budget_precedence():
     assert XFeatOptions().keypoint_budget(None) == 4096
     assert XFeatOptions(matcher="lighterglue").keypoint_budget(None) == 2048
     assert XFeatOptions().keypoint_budget(1000) == 1000  # [matcher] max_keypoints set explicitly
-    assert XFeatOptions().keypoint_budget(8000) == 4096  # capped at the engine's top-K
+    assert XFeatOptions().keypoint_budget(8000) == 8000  # the backend caps it, and says so
     assert XFeatOptions(max_keypoints=512).keypoint_budget(1000) == 512
 
 

@@ -37,6 +37,7 @@ class ExtractorBackend:
         self.match_phase: Final = config.match_phase
         self.pair_matcher: Final = pair_matcher
         self.engine_id = runtime.load_engine(config.extractor_engine_path)
+        _check_size_multiple(runtime, self.engine_id, config)
         self.max_keypoints: Final = _budget(runtime, self.engine_id, config)
         """The keypoint budget (``StoredFeaturesBackend``): at most this many per image."""
         facts = {"extractor": _engine_facts(runtime, self.engine_id, config.extractor_engine_path)}
@@ -77,6 +78,26 @@ def _budget(runtime: InferenceRuntime, engine_id: str, config: ExtractorStrategy
         top_k,
     )
     return top_k
+
+
+def _check_size_multiple(
+    runtime: InferenceRuntime, engine_id: str, config: ExtractorStrategyConfig
+) -> None:
+    """``EngineError`` (no build advice: the strategy's rule is what is wrong) when the input
+    rule's ``multiple`` is not a multiple of the sides the extractor engine's manifest takes:
+    images prepared by that rule would be refused by the engine."""
+    if not isinstance(runtime, ManifestRuntime):
+        return
+    needs = runtime.manifest(engine_id).size_multiple
+    multiple = config.input_rule.multiple
+    if needs and multiple % needs:
+        raise EngineError(
+            config.extractor_engine_path,
+            f"it takes H and W multiples of {needs}, but the strategy {config.label}'s input "
+            f"rule makes them multiples of {multiple} (its size multiple must be a multiple "
+            f"of {needs})",
+            command=None,
+        )
 
 
 def _engine_facts(

@@ -5,11 +5,14 @@ per-frame flight-data record.
 
 Any ``FeatureBackend`` (ORB + brute force, SIFT, a PyTorch model, an ONNX extractor): subclass
 ``BackendContract`` and implement ``make_backend``; the kit runs your real ``extract`` and
-``match`` on a textured stand-in image while the script decides which calls fail and what RANSAC
-finds, and checks your backend itself (every ``FeatureBackend`` member, features well formed,
-no keypoint where ``image.valid`` is False, a blank image gives no keypoint rather than an
-exception, self-matching finds the same points with confidences in [0, 1], determinism,
-start-up probe)::
+``match`` on a textured stand-in image (the query) and on views of the same texture moved a
+known offset (the tiles) while the script decides which calls fail and what RANSAC finds,
+checks that every match of the query with a tile follows that offset in (query, tile) order,
+and checks your backend itself (every ``FeatureBackend`` member, features well formed, no
+keypoint where ``image.valid`` is False, a blank image gives no keypoint rather than an
+exception, self-matching finds the same points, matching the query with a tile pairs each query
+point once with the tile point that shows it, confidences in [0, 1], determinism, start-up
+probe). Every image follows your ``input_rule``::
 
     from c3_matcher.testing.contract import BackendContract
 
@@ -39,6 +42,7 @@ Every strategy built on ``c3_matcher.strategy`` or ``c3_matcher.pipeline`` passe
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import uuid
@@ -58,9 +62,16 @@ from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import configure_logging
 from c3_matcher.pipeline import FeatureBackend, PipelineSettings
 from c3_matcher.prepared import PreparedImage
-from c3_matcher.probe import missing_members
+from c3_matcher.probe import (
+    check_shifted_matches,
+    engine_startup_probe,
+    missing_members,
+    probe_image,
+    probe_pair,
+    probe_shift,
+    probe_side,
+)
 from c3_matcher.protocols import CrossDomainMatcher
-from c3_matcher.strategy import engine_startup_probe, textured_probe
 from c3_matcher.testing.fakes import (
     FakeClock,
     FakeInferenceRuntime,
@@ -143,7 +154,11 @@ class MatcherContract:
             rerank = make_rerank(frame.frame_id, script, self.frame_size)
 
             def match() -> MatchResult:
-                return matcher.match(frame, rerank, calibration)
+                try:
+                    return matcher.match(frame, rerank, calibration)
+                finally:  # a match that broke the (query, tile) contract fails the test
+                    if backend is not None:
+                        backend.assert_no_breach()
 
             return doubles, match
 
@@ -253,14 +268,16 @@ class BackendContract(MatcherContract):
     engines needed). Every matcher test above runs through ``PipelineMatcher`` over your backend
     (see ``ScriptedBackend``); the tests below check the backend itself."""
 
-    frame_size = 256  # px: large enough for detectors with a border (ORB's is 31 px)
-    min_self_matches = 8  # matches of the textured stand-in with itself, at least
+    frame_size = 256  # px, at least (then the input rule's): room for a border (ORB's: 31 px)
+    min_self_matches = 8  # matches of the stand-in with itself or with a tile, at least
 
     def make_backend(self) -> FeatureBackend:
         raise NotImplementedError("implement make_backend() in your test class")
 
     def _scripted_backend(self, script: list[ScriptedCandidate]) -> ScriptedBackend | None:
-        return ScriptedBackend(self.make_backend(), script)
+        backend = self.make_backend()
+        shift = probe_shift(backend.input_rule, self._side(backend))
+        return ScriptedBackend(backend, script, shift)
 
     def make_matcher(self, doubles: Doubles) -> CrossDomainMatcher:
         backend = doubles.backend or ScriptedBackend(self.make_backend(), doubles.script)
@@ -280,9 +297,14 @@ class BackendContract(MatcherContract):
         mask = np.ones((h, w), bool) if valid is None else valid
         return PreparedImage(pixels, mask, np.eye(3), (w, h))
 
-    def _textured(self) -> Features:
-        side = self.frame_size
-        return self.make_backend().extract(self._image(textured_probe(side, side)))
+    def _side(self, backend: FeatureBackend) -> int:
+        """The stand-in's side: ``frame_size`` rounded by the backend's input rule."""
+        return probe_side(backend.input_rule, self.frame_size)
+
+    def _textured(self, backend: FeatureBackend | None = None) -> Features:
+        backend = backend or self.make_backend()
+        side = self._side(backend)
+        return backend.extract(probe_image(side, side))
 
     def test_backend_has_every_member(self) -> None:
         backend = self.make_backend()
@@ -292,34 +314,38 @@ class BackendContract(MatcherContract):
     def test_backend_keeps_keypoints_on_valid_pixels(self) -> None:
         """``image.valid`` False (nodata, padding, warp borders) keeps no keypoint: here the
         left half, textured like the rest, is masked out."""
-        side = self.frame_size
+        backend = self.make_backend()
+        side = self._side(backend)
         valid = np.ones((side, side), bool)
         valid[:, : side // 2] = False
-        features = self.make_backend().extract(self._image(textured_probe(side, side), valid))
+        image = dataclasses.replace(probe_image(side, side), valid=valid)
+        features = backend.extract(image)
         assert len(features) > 0, "no keypoint on the valid half (is the mask 0/255?)"
         outside = int((features.keypoints[:, 0] < side // 2 - 1.0).sum())
         assert outside == 0, f"{outside} keypoints where image.valid is False (pass it as a mask)"
 
     def test_backend_features_well_formed(self) -> None:
-        features = self._textured()
+        backend = self.make_backend()
+        features = self._textured(backend)
         assert isinstance(features, Features) and len(features) > 0
         assert features.descriptors.dtype in DESCRIPTOR_DTYPES
-        side = self.frame_size
+        side = self._side(backend)
         assert features.image_size == (side, side)
         kp = features.keypoints
         assert bool(((kp >= -0.5) & (kp <= side - 0.5)).all()), "keypoints outside the image"
 
     def test_backend_blank_image_gives_no_error(self) -> None:
         backend = self.make_backend()
-        side = self.frame_size
+        side = self._side(backend)
         blank = backend.extract(self._image(np.full((side, side, 3), 128, np.uint8)))
         assert isinstance(blank, Features)
-        raw = backend.match(blank, self._textured())
+        raw = backend.match(blank, self._textured(backend))
         assert isinstance(raw, RawMatches) and len(raw) <= len(blank)
 
     def test_backend_self_match_finds_the_same_points(self) -> None:
-        features = self._textured()
-        raw = self.make_backend().match(features, features)
+        backend = self.make_backend()
+        features = self._textured(backend)
+        raw = backend.match(features, features)
         assert isinstance(raw, RawMatches) and len(raw) >= self.min_self_matches
         q, t = raw.matches[:, 0], raw.matches[:, 1]
         assert bool(((q >= 0) & (q < len(features)) & (t >= 0) & (t < len(features))).all())
@@ -328,12 +354,33 @@ class BackendContract(MatcherContract):
         scores = raw.scores
         assert bool(((scores >= 0) & (scores <= 1)).all()), "match confidences outside [0, 1]"
 
+    def _pair(self, backend: FeatureBackend) -> tuple[Features, Features, int]:
+        """The query and tile features of the probe pair (``probe_pair``), and its shift."""
+        query, tile, shift = probe_pair(backend.input_rule, self.frame_size)
+        return backend.extract(query), backend.extract(tile), shift
+
+    def test_backend_matches_a_view_that_holds_the_image_in_query_tile_order(self) -> None:
+        """The tile shows the query's texture ``shift`` px further right, and texture the query
+        lacks: each pair is (query index, tile index), joins a point to the same point of the
+        tile, and uses a query keypoint once."""
+        backend = self.make_backend()
+        query, tile, shift = self._pair(backend)
+        raw = backend.match(query, tile)
+        assert isinstance(raw, RawMatches) and len(raw) >= self.min_self_matches
+        try:
+            check_shifted_matches(query, tile, raw, shift)
+        except ValueError as exc:
+            raise AssertionError(str(exc)) from None
+        scores = raw.scores
+        assert bool(((scores >= 0) & (scores <= 1)).all()), "match confidences outside [0, 1]"
+
     def test_backend_deterministic(self) -> None:
-        a, b = self._textured(), self._textured()
+        backend = self.make_backend()
+        a, tile, _ = self._pair(backend)
+        b, _, _ = self._pair(backend)
         for name in ("keypoints", "descriptors", "keypoint_scores"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
-        backend = self.make_backend()
-        assert np.array_equal(backend.match(a, b).matches, backend.match(a, b).matches)
+        assert np.array_equal(backend.match(a, tile).matches, backend.match(b, tile).matches)
 
     def test_backend_startup_probe_and_provenance(self) -> None:
         backend = self.make_backend()

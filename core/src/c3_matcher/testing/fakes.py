@@ -4,7 +4,10 @@ The scripted doubles let a test say, per candidate, how many inliers and which m
 RANSAC "finds", and which call raises: ``ScriptedCandidate(inliers=120, residual=1.1)``.
 Candidate ``i``'s tile image is the constant value ``i + 1`` (0 would read as nodata) and the
 fake extractor puts that mark in its keypoints' y coordinate, so each double knows which
-candidate it is looking at without any shared counter.
+candidate it is looking at without any shared counter. On a textured image (the start-up
+probe's) the fake extractor finds the corners of the texture's blocks, each described by the
+colours around it, and the fake LightGlue pairs equal descriptors, so the doubles match the
+probe the way a real strategy does.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ __all__ = [
     "FakeLightGlueRuntime",
     "FakeRansacFilter",
     "ScriptedCandidate",
+    "ScriptedPairMatcher",
     "ScriptedRig",
     "SequenceRansacFilter",
     "make_frame",
@@ -80,7 +84,9 @@ class FakeClock:
 
 class FakeInferenceRuntime:
     """An InferenceRuntime double: engines are names, ``run`` returns keypoints that encode the
-    image's mark; raises on the scripted candidates (``fail_extract``)."""
+    image's mark (distinct unit descriptors: keypoint ``i`` of every marked image has the
+    ``i``-th unit vector); raises on the scripted candidates (``fail_extract``). A colour
+    texture (marked images are grey) gives its block corners (``texture_features``)."""
 
     provider = "FakeExecutionProvider"
 
@@ -100,17 +106,65 @@ class FakeInferenceRuntime:
         self.calls.append(mark - 1)
         if 0 <= mark - 1 < len(self.script) and self.script[mark - 1].fail_extract:
             raise RuntimeError(f"scripted extractor failure on candidate {mark - 1}")
+        pixels = _rgb_uint8(image)
+        if np.mean(pixels[..., 0] != pixels[..., 1]) > 0.5:  # colour: a texture, not a mark
+            return texture_features(pixels, feeds.get("mask"))
         n = 8
         kpts = np.stack([np.arange(n, dtype=np.float32), np.full(n, mark, np.float32)], axis=1)
         return {
             "keypoints": kpts,
             "keypoint_scores": np.ones(n, np.float32),
-            "descriptors": np.zeros((n, 4), np.float32),
+            "descriptors": np.eye(n, FAKE_DESCRIPTOR_DIM, dtype=np.float32),
         }
 
 
+FAKE_DESCRIPTOR_DIM = 16
+"""Width of the fake extractor's descriptors (unit float32 vectors)."""
+
+
+def _rgb_uint8(image: NDArray[Any]) -> NDArray[np.uint8]:
+    """An extractor feed, uint8 (H, W, 3) or float32 (1, 3, H, W) in [0, 1], as uint8
+    (H, W, 3)."""
+    if image.ndim == 4:
+        image = image[0].transpose(1, 2, 0)
+    if image.dtype.kind == "f":
+        return np.rint(image * 255).astype(np.uint8)
+    return np.asarray(image, np.uint8)
+
+
+def texture_features(
+    pixels: NDArray[np.uint8], mask: NDArray[Any] | None = None
+) -> dict[str, NDArray[Any]]:
+    """The fake extractor on a block texture (``textured_probe``): a keypoint at the top-left
+    pixel of every block (its colour differs from the pixels left of and above it) where the
+    mask is valid, in raster order, described by the four colours around it as a unit vector,
+    so the same corner of a moved copy has the same descriptor."""
+    rgb = pixels.astype(np.float32)
+    corner = (pixels[1:, 1:] != pixels[1:, :-1]).any(-1) & (pixels[1:, 1:] != pixels[:-1, 1:]).any(
+        -1
+    )
+    ys, xs = np.nonzero(corner)
+    ys, xs = ys + 1, xs + 1
+    if mask is not None:
+        keep = np.asarray(mask).reshape(pixels.shape[:2])[ys, xs] > 0.5
+        ys, xs = ys[keep], xs[keep]
+    around = np.concatenate(
+        [rgb[ys, xs], rgb[ys - 1, xs - 1], rgb[ys - 1, xs], rgb[ys, xs - 1]], axis=1
+    )
+    desc = np.zeros((len(xs), FAKE_DESCRIPTOR_DIM), np.float32)
+    desc[:, : around.shape[1]] = around + 1.0
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    return {
+        "keypoints": np.stack([xs, ys], axis=1).astype(np.float32).reshape(-1, 2),
+        "keypoint_scores": np.ones(len(xs), np.float32),
+        "descriptors": desc,
+    }
+
+
 class FakeLightGlueRuntime:
-    """A LightGlueRuntime double: matches every keypoint to itself; raises when scripted."""
+    """A LightGlueRuntime double: pairs each keypoint of image 0 with the first keypoint of
+    image 1 whose descriptor equals its own (a marked image's keypoint ``i`` with keypoint
+    ``i``: ``FakeInferenceRuntime``); raises when scripted."""
 
     def __init__(self, script: Sequence[ScriptedCandidate] = ()) -> None:
         self.script = list(script)
@@ -118,14 +172,41 @@ class FakeLightGlueRuntime:
 
     def match_pair(self, side0: PairSide, side1: PairSide, *, feature_type: str) -> RawMatches:
         """``LightGlueRuntime.match_pair``."""
-        kpts0, kpts1 = side0.keypoints, side1.keypoints
+        kpts1 = side1.keypoints
         mark = int(kpts1[0, 1]) - 1 if len(kpts1) else -1
         self.calls.append(mark)
         if 0 <= mark < len(self.script) and self.script[mark].fail_match:
             raise RuntimeError(f"scripted LightGlue failure on candidate {mark}")
-        n = min(len(kpts0), len(kpts1))
-        idx = np.arange(n, dtype=np.int64)
-        return RawMatches(np.stack([idx, idx], axis=1), np.ones(n, np.float32))
+        return equal_descriptor_pairs(side0.descriptors, side1.descriptors)
+
+
+def equal_descriptor_pairs(desc0: NDArray[Any], desc1: NDArray[Any]) -> RawMatches:
+    """Pairs (i, j), confidence 1, of each row i of ``desc0`` with the first equal row j of
+    ``desc1``, in the order of i."""
+    first: dict[bytes, int] = {}
+    for j, row in enumerate(np.ascontiguousarray(desc1)):
+        first.setdefault(row.tobytes(), j)
+    rows = np.ascontiguousarray(desc0, dtype=np.asarray(desc1).dtype)
+    pairs = [(i, first[row.tobytes()]) for i, row in enumerate(rows) if row.tobytes() in first]
+    matches = np.array(pairs, np.int64).reshape(-1, 2)
+    return RawMatches(matches, np.ones(len(matches), np.float32))
+
+
+class ScriptedPairMatcher:
+    """A ``PairMatcher`` that raises for the candidates scripted ``fail_match`` (the tile's
+    mark is its keypoints' y: ``FakeInferenceRuntime``) and otherwise runs ``inner``: the
+    contract kit's wrapper of a strategy's own pair matcher, whatever it is."""
+
+    def __init__(self, inner: Any, script: Sequence[ScriptedCandidate]) -> None:
+        self.inner = inner
+        self.script = list(script)
+
+    def match(self, query: Features, tile: Features) -> RawMatches:
+        mark = int(tile.keypoints[0, 1]) - 1 if len(tile) else -1
+        if 0 <= mark < len(self.script) and self.script[mark].fail_match:
+            raise RuntimeError(f"scripted matcher failure on candidate {mark}")
+        raw: RawMatches = self.inner.match(query, tile)
+        return raw
 
 
 class FakeRansacFilter:

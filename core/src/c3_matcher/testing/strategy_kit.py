@@ -30,6 +30,7 @@ from c3_matcher.logs import MATCHER_READY, configure_logging
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.strategy import ExtractorMatcher, ExtractorStrategyConfig
 from c3_matcher.testing.contract import Doubles, MatcherContract
+from c3_matcher.testing.fakes import ScriptedPairMatcher
 
 if TYPE_CHECKING:
     from c3_matcher.compose import ComposedRoot
@@ -52,7 +53,10 @@ HEALTH_MIN_INLIERS = 60  # the health window's threshold in the real-path helper
 
 class ExtractorMatcherContract(MatcherContract):
     """``MatcherContract`` for an ``ExtractorMatcher`` subclass: set ``matcher_class`` and
-    ``config``; the phase names are the config's."""
+    ``config``; the phase names are the config's. The strategy's own pair matcher
+    (``config.pair_matcher``: LightGlue, a mutual nearest neighbour, any other) runs on the fake
+    extractor's distinct unit descriptors, wrapped so the script's ``fail_match`` raises
+    (``ScriptedPairMatcher``)."""
 
     matcher_class: ClassVar[type[ExtractorMatcher]]
     config: ClassVar[ExtractorStrategyConfig]
@@ -71,6 +75,9 @@ class ExtractorMatcherContract(MatcherContract):
             doubles.health,
             self.config,
             doubles.clock,
+            pair_matcher=ScriptedPairMatcher(
+                self.config.pair_matcher(doubles.lightglue), doubles.script
+            ),
         )
 
 

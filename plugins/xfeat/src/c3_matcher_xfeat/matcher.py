@@ -31,7 +31,6 @@ from c3_matcher_xfeat.engines import (
     LIGHTERGLUE_SPEC,
     XFEAT_SIZE_MULTIPLE,
     XFEAT_SPEC,
-    XFEAT_TOP_K,
 )
 from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher
 from c3_matcher_xfeat.options import (
@@ -61,7 +60,8 @@ class XFeatConfig:
 
     Engine paths are files in the engine directory (``lighterglue_engine_path`` only for
     ``matcher == "lighterglue"``); image and keypoint rules are in px; ``max_keypoints`` is the
-    per-image budget, at most the graph's top-K (``XFEAT_TOP_K``).
+    per-image budget: above the graph's top-K (``XFEAT_TOP_K``) the extractor backend keeps the
+    top-K and warns once (``c3.matcher.keypoints_capped``), as for every strategy.
     """
 
     extractor_engine_path: Path
@@ -77,10 +77,8 @@ class XFeatConfig:
     def __post_init__(self) -> None:
         if self.matcher not in MATCH_PHASES:
             raise ValueError(f"matcher must be one of {sorted(MATCH_PHASES)}, got {self.matcher!r}")
-        if not 1 <= self.max_keypoints <= XFEAT_TOP_K:
-            raise ValueError(
-                f"max_keypoints must be in [1, {XFEAT_TOP_K}], got {self.max_keypoints}"
-            )
+        if self.max_keypoints < 1:
+            raise ValueError(f"max_keypoints must be >= 1, got {self.max_keypoints}")
         if self.matcher == "lighterglue" and self.lighterglue_engine_path is None:
             raise ValueError("matcher 'lighterglue' needs lighterglue_engine_path")
 

@@ -5,10 +5,13 @@
     min_cossim = 0.82        # mnn only: minimum cosine similarity of a kept match
     max_keypoints = 4096     # keypoint budget per image (default: see below)
 
-Unknown keys and bad values are refused, naming the field (``extra="forbid"``).
+Unknown keys and bad values are refused, naming the field (``extra="forbid"``); so is
+``min_cossim`` given with ``matcher = "lighterglue"``, which does not read it.
 
 Keypoint budget, when ``max_keypoints`` is not given here: ``[matcher] max_keypoints`` if that is
-set explicitly, else ``DEFAULT_MAX_KEYPOINTS[matcher]``: 4096 for mnn (upstream XFeat's
+set explicitly (above the engine's top-K the extractor keeps the top-K, and says so once at
+start-up: ``c3.matcher.keypoints_capped``, as for every strategy), else
+``DEFAULT_MAX_KEYPOINTS[matcher]``: 4096 for mnn (upstream XFeat's
 ``top_k``; measured on the real-path scenarios, the 2048 of ``[matcher]``'s LightGlue convention
 leaves the Manila yaw-120 frame at 35 inliers with mnn, 4096 gives 101), 2048 for lighterglue
 (passes every scenario; attention cost grows with the square of the count).
@@ -18,7 +21,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 from c3_matcher_xfeat.engines import XFEAT_TOP_K
 
@@ -55,11 +58,24 @@ class XFeatOptions(BaseModel):
         None, ge=16, le=XFEAT_MAX_KEYPOINTS, description="keypoints per image (None: default)"
     )
 
+    @field_validator("min_cossim")
+    @classmethod
+    def _only_for_mnn(cls, value: float, info: ValidationInfo) -> float:
+        """A ``min_cossim`` given with another matcher would be silently ignored: refused."""
+        matcher = info.data.get("matcher")
+        if matcher is not None and matcher != "mnn":
+            raise ValueError(
+                f"min_cossim is the mnn matcher's threshold; matcher = {matcher!r} does not "
+                'read it (remove min_cossim, or set matcher = "mnn")'
+            )
+        return value
+
     def keypoint_budget(self, matcher_max_keypoints: int | None) -> int:
         """The effective budget: this table's, else ``matcher_max_keypoints`` (``[matcher]``'s,
-        only when set explicitly), else the matcher's default; capped at the engine's top-K."""
+        only when set explicitly), else the matcher's default. A ``[matcher]`` budget above the
+        engine's top-K is kept here: the extractor backend caps it and says so."""
         if self.max_keypoints is not None:
             return self.max_keypoints
         if matcher_max_keypoints is not None:
-            return min(matcher_max_keypoints, XFEAT_MAX_KEYPOINTS)
+            return matcher_max_keypoints
         return DEFAULT_MAX_KEYPOINTS[self.matcher]
