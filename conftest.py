@@ -122,7 +122,7 @@ def write_tiny_engine(
         built_at=built_at,
         feature_type=feature_type,
     )
-    key = manifest.build_inputs().key()
+    key = manifest.recomputed_key()
     name = EngineName.from_build_key("toy", variant, "fp32", input_rule, 18, key)
     path = directory / name.filename
     write_tiny_onnx(path)

@@ -132,7 +132,7 @@ def _disk_engines(engine_dir: Path, tmp_path: Path, multiple: int) -> tuple[Path
     manifest = json.loads(disk.with_name(disk.stem + ".manifest.json").read_text())
     rule = manifest["input_rule"]
     manifest.update(size_multiple=multiple, input_rule=rule.replace("hw16", f"hw{multiple}"))
-    key = EngineManifest.from_json(manifest).build_inputs().key()
+    key = EngineManifest.from_json(manifest).recomputed_key()
     name = disk.name.replace(rule, manifest["input_rule"])
     name = name.replace(manifest["build_key"][:10], key[:10])
     manifest.update(file=name, build_key=key)

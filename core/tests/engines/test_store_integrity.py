@@ -78,7 +78,7 @@ def _older_build_beside(engine: Path) -> Path:
     manifest = dataclasses.replace(
         manifest, exporter={**manifest.exporter, **OLD_LIBRARIES}, built_at=OLDER
     )
-    key = manifest.build_inputs().key()
+    key = manifest.recomputed_key()
     name = EngineName.parse(engine.name)
     older = EngineName.from_build_key(
         name.model, name.variant, name.precision, name.input_rule, name.opset, key

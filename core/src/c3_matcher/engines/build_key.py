@@ -6,11 +6,12 @@ the whole key. Every check of an engine (``manifest.check_engine_file``: loading
 ``engines verify``, reuse by a build) recomputes the key from the manifest's own fields, so a
 manifest edited after its build (other weights, another version) is refused, not served.
 
-The key covers what the spec declares (model, variant, kind, precision, input rule, opset,
-exporter callable, options and revision, inputs and outputs, feature type, size multiple), the
-weights (their sha256, and the version of the distribution that ships them: its Python code
-defines the exported network as much as the weights do) and the versions of the libraries that
-shape an exported graph (a manifest records them beside the exporter; Python's is left out).
+The key covers what the graph declares (model, variant, kind, precision, input rule, opset,
+inputs and outputs, feature type, size multiple: the names an ``EngineSpec`` declares and an
+``EngineManifest`` records alike), the exporter's options, callable and revision, the weights
+(their sha256, and the version of the distribution that ships them: its Python code defines the
+exported network as much as the weights do) and the versions of the libraries that shape an
+exported graph (a manifest records them beside the exporter; Python's is left out).
 """
 
 from __future__ import annotations
@@ -18,86 +19,50 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
-from c3_matcher.engines.spec import EngineSpec, TensorSpec
+from c3_matcher.engines.spec import TensorSpec
 
-__all__ = ["NOT_LIBRARIES", "BuildInputs"]
+__all__ = ["NOT_LIBRARIES", "DeclaredGraph", "build_key"]
 
 NOT_LIBRARIES = frozenset({"python", "callable", "method", "export_revision"})
 """Keys of a manifest's ``exporter`` record that are not the version of a graph-shaping library
 (the key covers the callable and the revision as fields of their own)."""
 
+_GRAPH = ("model", "variant", "kind", "precision", "input_rule", "opset")
+_GRAPH_OPTIONAL = ("feature_type", "size_multiple")
 
-@dataclass(frozen=True, slots=True)
-class BuildInputs:
-    """What one build of an engine is made from; ``key()`` is its build key."""
 
-    model: str
-    variant: str
-    kind: str
-    precision: str
-    input_rule: str
-    opset: int
-    options: tuple[tuple[str, Any], ...]
-    export_revision: int
-    exporter: str
-    weights_sha256: str
-    weights_version: str
-    inputs: tuple[TensorSpec, ...]
-    outputs: tuple[TensorSpec, ...]
-    feature_type: str | None
-    size_multiple: int | None
-    versions: Mapping[str, str]
+class DeclaredGraph(Protocol):
+    """What a spec declares and a manifest records of a graph, under the same names."""
 
-    @classmethod
-    def of_spec(
-        cls,
-        spec: EngineSpec,
-        weights_sha256: str,
-        weights_version: str,
-        versions: Mapping[str, str],
-    ) -> BuildInputs:
-        """A build of ``spec`` from weights ``weights_sha256`` (shipped by version
-        ``weights_version`` of ``spec.weights.distribution``) with library ``versions``."""
-        return cls(
-            model=spec.model,
-            variant=spec.variant,
-            kind=spec.kind,
-            precision=spec.precision,
-            input_rule=spec.input_rule,
-            opset=spec.opset,
-            options=tuple(spec.options),
-            export_revision=spec.export_revision,
-            exporter=spec.exporter,
-            weights_sha256=weights_sha256,
-            weights_version=weights_version,
-            inputs=spec.inputs,
-            outputs=spec.outputs,
-            feature_type=spec.feature_type,
-            size_multiple=spec.size_multiple,
-            versions=versions,
-        )
+    @property
+    def model(self) -> str: ...
+    @property
+    def inputs(self) -> tuple[TensorSpec, ...]: ...
+    @property
+    def outputs(self) -> tuple[TensorSpec, ...]: ...
 
-    def key(self) -> str:
-        """The build key (hex sha256): equal keys mean an equal graph may be reused."""
-        payload = {
-            "model": self.model,
-            "variant": self.variant,
-            "kind": self.kind,
-            "precision": self.precision,
-            "input_rule": self.input_rule,
-            "opset": self.opset,
-            "options": [list(o) for o in self.options],
-            "export_revision": self.export_revision,
-            "exporter": self.exporter,
-            "weights_sha256": self.weights_sha256,
-            "weights_version": self.weights_version,
-            "inputs": [t.to_json() for t in self.inputs],
-            "outputs": [t.to_json() for t in self.outputs],
-            "feature_type": self.feature_type,
-            "size_multiple": self.size_multiple,
-            "versions": {k: v for k, v in self.versions.items() if k not in NOT_LIBRARIES},
-        }
-        return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+def build_key(
+    graph: DeclaredGraph,
+    options: Mapping[str, Any],
+    exporter: Mapping[str, str],
+    weights: Mapping[str, str],
+) -> str:
+    """The build key (hex sha256) of ``graph`` exported with ``options`` by ``exporter`` (a
+    manifest's exporter record: ``callable``, ``export_revision`` and the library versions) from
+    ``weights`` (``sha256`` and the shipping distribution's ``version``); equal keys mean an
+    equal graph may be reused. ``KeyError``/``ValueError`` when a field is missing or bad."""
+    payload: dict[str, Any] = {name: getattr(graph, name) for name in _GRAPH + _GRAPH_OPTIONAL}
+    payload |= {
+        "options": [list(o) for o in options.items()],
+        "export_revision": int(exporter["export_revision"]),
+        "exporter": exporter["callable"],
+        "weights_sha256": weights["sha256"],
+        "weights_version": weights["version"],
+        "inputs": [t.to_json() for t in graph.inputs],
+        "outputs": [t.to_json() for t in graph.outputs],
+        "versions": {k: v for k, v in exporter.items() if k not in NOT_LIBRARIES},
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()

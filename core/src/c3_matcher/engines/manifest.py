@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.engines.build_key import BuildInputs
+from c3_matcher.engines.build_key import build_key
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, file_sha256
 from c3_matcher.errors import EngineError
@@ -95,27 +95,10 @@ class EngineManifest:
         ]
         return "built for another graph: " + "; ".join(differ) if differ else None
 
-    def build_inputs(self) -> BuildInputs:
-        """What the manifest says the engine was built from, as its build key covers it;
+    def recomputed_key(self) -> str:
+        """The build key of what the manifest says the engine was built from (``build_key``);
         ``KeyError``/``ValueError`` when a field the key needs is missing or malformed."""
-        return BuildInputs(
-            model=self.model,
-            variant=self.variant,
-            kind=self.kind,
-            precision=self.precision,
-            input_rule=self.input_rule,
-            opset=self.opset,
-            options=tuple(self.options.items()),
-            export_revision=int(self.exporter["export_revision"]),
-            exporter=self.exporter["callable"],
-            weights_sha256=self.weights_sha256,
-            weights_version=self.weights["version"],
-            inputs=self.inputs,
-            outputs=self.outputs,
-            feature_type=self.feature_type,
-            size_multiple=self.size_multiple,
-            versions=self.exporter,
-        )
+        return build_key(self, self.options, self.exporter, self.weights)
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict (dynamic axes spelled out per tensor for readers)."""
@@ -259,7 +242,7 @@ def _check_build_key(path: Path, manifest: EngineManifest) -> None:
     exporter, I/O...) is not the key it records (and the file name carries)."""
     manifest_name = manifest_path_for(path).name
     try:
-        recomputed = manifest.build_inputs().key()
+        recomputed = manifest.recomputed_key()
     except (KeyError, ValueError) as exc:
         raise EngineError(
             path, f"its manifest {manifest_name} lacks a field of its build key ({exc})"

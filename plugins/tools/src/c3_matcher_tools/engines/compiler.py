@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 from loguru import logger
 
 from c3_matcher.atomic import held_directory
-from c3_matcher.engines.build_key import BuildInputs
+from c3_matcher.engines.build_key import build_key
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, file_sha256
@@ -283,7 +283,8 @@ def _identify(spec: EngineSpec, directory: Path, versions: dict[str, str]) -> _I
         raise EngineBuildError(spec.key, str(exc)) from exc
     weights_sha = file_sha256(weights_path)
     weights_version = spec.weights.version()
-    key = BuildInputs.of_spec(spec, weights_sha, weights_version, versions).key()
+    weights = _weights_record(spec, weights_sha, weights_version)
+    key = build_key(spec, dict(spec.options), _exporter_record(spec, versions), weights)
     name = EngineName.from_build_key(
         spec.model, spec.variant, spec.precision, spec.input_rule, spec.opset, key
     )
@@ -343,20 +344,10 @@ def _manifest(
         input_rule=spec.input_rule,
         opset=spec.opset,
         build_key=ident.key,
-        weights={
-            "distribution": spec.weights.distribution,
-            "version": ident.weights_version,
-            "path": spec.weights.path,
-            "sha256": ident.weights_sha256,
-        },
+        weights=_weights_record(spec, ident.weights_sha256, ident.weights_version),
         inputs=spec.inputs,
         outputs=spec.outputs,
-        exporter={
-            "callable": spec.exporter,
-            "method": "torch.onnx.export(dynamo=True, external_data=False)",
-            "export_revision": str(spec.export_revision),
-            **versions,
-        },
+        exporter=_exporter_record(spec, versions),
         options=dict(spec.options),
         verification=report.to_json(),
         build_seconds=round(seconds, 2),
@@ -365,6 +356,27 @@ def _manifest(
         size_multiple=spec.size_multiple,
         description=spec.description,
     )
+
+
+def _weights_record(spec: EngineSpec, sha256: str, version: str) -> dict[str, str]:
+    """The manifest's ``weights``: which file of which distribution's version, and its hash."""
+    return {
+        "distribution": spec.weights.distribution,
+        "version": version,
+        "path": spec.weights.path,
+        "sha256": sha256,
+    }
+
+
+def _exporter_record(spec: EngineSpec, versions: dict[str, str]) -> dict[str, str]:
+    """The manifest's ``exporter``: the callable, how it exports, its revision, and the
+    versions of the libraries that shape the graph."""
+    return {
+        "callable": spec.exporter,
+        "method": "torch.onnx.export(dynamo=True, external_data=False)",
+        "export_revision": str(spec.export_revision),
+        **versions,
+    }
 
 
 def build_engines(
