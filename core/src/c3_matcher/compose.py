@@ -32,7 +32,13 @@ from c3_matcher.errors import (
 )
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock, RollingHealthWindow
-from c3_matcher.logs import MATCHER_READY, LoggingHandle, configure_logging, log_event
+from c3_matcher.logs import (
+    MATCHER_READY,
+    LoggingHandle,
+    configure_logging,
+    log_event,
+    logging_as,
+)
 from c3_matcher.pipeline import PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost, discover
 from c3_matcher.plugins.types import StrategyDefaults
@@ -72,7 +78,9 @@ _KEY_TYPES: Mapping[str, type] = {
 class ComposedRoot:
     """What ``compose_root`` wired. ``close()`` closes the matcher (a frame in progress in
     another thread finishes first; a later ``match`` raises ``MatcherClosedError``), then
-    releases the logging sinks and the recorder it built. Idempotent."""
+    releases the logging sinks and the recorder it built. Idempotent. What it logs, composing,
+    matching and closing, is its own: another root's sinks take none of it
+    (``c3_matcher.logs``)."""
 
     matcher: CrossDomainMatcher
     strategy: str
@@ -85,12 +93,13 @@ class ComposedRoot:
     owned_fdr: JsonlFdrRecorder | None = None  # the recorder it built (no ``c13_fdr`` given)
 
     def close(self) -> None:
-        if isinstance(self.matcher, ClosableMatcher):  # a strategy's own matcher may not be
-            self.matcher.close()
-        if self.logging is not None:
-            self.logging.close()
-        if self.owned_fdr is not None:
-            self.owned_fdr.close()
+        with logging_as(self.logging):
+            if isinstance(self.matcher, ClosableMatcher):  # a strategy's own matcher may not be
+                self.matcher.close()
+            if self.logging is not None:
+                self.logging.close()
+            if self.owned_fdr is not None:
+                self.owned_fdr.close()
 
 
 def build_plugin_host() -> PluginHost:
@@ -213,11 +222,12 @@ def compose_root(
         if configure_logs:
             handle = configure_logging(fdr, level=config.logging.level)
             opened.callback(handle.close)
-        if owned_fdr is not None:
-            state_default_fdr_path(config)
-        _log_provider_request(helpers["c7_inference"])
-        host = plugin_host if plugin_host is not None else build_plugin_host()
-        matcher, health = _create_strategy(config, helpers, host, fdr, clock)
+        with logging_as(handle):  # its records, its matcher's frames' too, are its own
+            if owned_fdr is not None:
+                state_default_fdr_path(config)
+            _log_provider_request(helpers["c7_inference"])
+            host = plugin_host if plugin_host is not None else build_plugin_host()
+            matcher, health = _create_strategy(config, helpers, host, fdr, clock)
         opened.pop_all()
     name = config.matcher.strategy
     return ComposedRoot(matcher, name, health, fdr, clock, host, helpers, handle, owned_fdr)

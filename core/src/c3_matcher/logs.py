@@ -17,6 +17,15 @@ kinds, ``log.error`` and ``log.warning``, so the matcher's own FDR kinds keep ex
 per event; a forward the FDR cannot write yet stays pending in the recorder (nothing on stderr),
 and the FDR's own write failures (``FDR_WRITE_FAILED``, one line, also when a caller's own FDR
 client fails a forward) stay in the log stream.
+
+Several roots in one process (two cameras, or a root composed before the old one is closed):
+each ``configure_logging`` is a root's set of sinks, and a record goes to one of them only. A
+record logged while a root works (``logging_as``: ``compose_root`` composing it, its matcher's
+frames, its ``close()``; on that thread, shared helpers and plugins included) is that root's:
+only its sinks take it, and none once that root is closed. Any other record (a helper built
+before composition, a thread of the program's, a root composed with ``configure_logs=False``
+under sinks configured apart) goes to the earliest root still open. With one root, every
+matcher record is that root's, as it always was.
 """
 
 from __future__ import annotations
@@ -26,8 +35,9 @@ import json
 import os
 import sys
 import threading
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from contextvars import ContextVar
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
 
 from loguru import logger
@@ -49,8 +59,10 @@ __all__ = [
     "LoggingHandle",
     "claim_stderr",
     "configure_logging",
+    "current_log_root",
     "is_matcher_record",
     "log_event",
+    "logging_as",
     "swap_default_handler",
 ]
 
@@ -96,11 +108,12 @@ def is_matcher_record(record: Record) -> bool:
     return "kind" in record["extra"] or (record["name"] or "").startswith("c3_matcher")
 
 
-@dataclass
+@dataclass(eq=False)
 class LoggingHandle:
-    """What ``configure_logging`` installed; ``close()`` removes its sinks."""
+    """What ``configure_logging`` installed: a root's sinks (module docstring); ``close()``
+    removes them."""
 
-    sink_ids: list[int]
+    sink_ids: list[int] = field(default_factory=list)
 
     def close(self) -> None:
         """Remove the sinks; called on a thread inside a matcher's frame (a signal handler's
@@ -108,11 +121,59 @@ class LoggingHandle:
         if not close_after_frame(self._remove):
             self._remove()
 
+    def takes(self) -> bool:
+        """Whether the record being logged now, on this thread, is this root's to take."""
+        root = _working_for.get()
+        if root is not None:
+            return root is self
+        live = _roots.live  # replaced whole, never changed in place: read once
+        return bool(live) and live[0] is self
+
     def _remove(self) -> None:
+        _roots.leave(self)  # first: the next root takes the un-rooted records from now
         for sink_id in self.sink_ids:
             with contextlib.suppress(ValueError):
                 logger.remove(sink_id)
         self.sink_ids.clear()
+
+
+class _Roots:
+    """The roots whose sinks are installed, earliest first."""
+
+    def __init__(self) -> None:
+        self.live: tuple[LoggingHandle, ...] = ()
+        self._lock = threading.Lock()
+
+    def join(self, root: LoggingHandle) -> None:
+        with self._lock:
+            self.live = (*self.live, root)
+
+    def leave(self, root: LoggingHandle) -> None:
+        with self._lock:
+            self.live = tuple(r for r in self.live if r is not root)
+
+
+_roots = _Roots()
+_working_for: ContextVar[LoggingHandle | None] = ContextVar("c3_matcher_log_root", default=None)
+
+
+def current_log_root() -> LoggingHandle | None:
+    """The root this thread is working for now (``logging_as``), or None."""
+    return _working_for.get()
+
+
+@contextlib.contextmanager
+def logging_as(root: LoggingHandle | None) -> Iterator[None]:
+    """Records logged in this block, on this thread, are ``root``'s: only its sinks take them
+    (module docstring). None: they stay whose they were."""
+    if root is None:
+        yield
+        return
+    token = _working_for.set(root)
+    try:
+        yield
+    finally:
+        _working_for.reset(token)
 
 
 def configure_logging(
@@ -122,23 +183,29 @@ def configure_logging(
     stream: TextIO | None = None,
 ) -> LoggingHandle:
     """Add the JSON stderr sink (at ``level``) and the ERROR/WARN forwarder to ``fdr``, both
-    for the matcher's records only (``is_matcher_record``); sinks added by anyone else are left
-    alone, loguru's untouched default handler aside (module docstring)."""
+    for the matcher's records only (``is_matcher_record``), of this root only (module
+    docstring); sinks added by anyone else are left alone, loguru's untouched default handler
+    aside."""
     out = stream if stream is not None else sys.stderr
+    handle = LoggingHandle()
 
     def json_sink(message: Message) -> None:
         out.write(json.dumps(_record_to_dict(message.record), separators=(",", ":")) + "\n")
         out.flush()
 
+    def ours(record: Record) -> bool:
+        return is_matcher_record(record) and handle.takes()
+
     swap_default_handler()
-    ours = is_matcher_record
-    ids = [logger.add(json_sink, level=level.upper(), format="{message}", filter=ours)]
+    ids = handle.sink_ids
+    ids.append(logger.add(json_sink, level=level.upper(), format="{message}", filter=ours))
     if fdr is not None:
-        forwarder, forwarded = _fdr_forwarder(fdr)
+        forwarder, forwarded = _fdr_forwarder(fdr, ours)
         ids.append(
             logger.add(forwarder, level="WARNING", format="{message}", filter=forwarded, catch=True)
         )
-    return LoggingHandle(ids)
+    _roots.join(handle)
+    return handle
 
 
 _LOGURU_DEFAULT_HANDLER = 0
@@ -173,8 +240,11 @@ def claim_stderr() -> None:
         cv2.setLogLevel(_OPENCV_SILENT)
 
 
-def _fdr_forwarder(fdr: FdrClient) -> tuple[Callable[[Message], None], Callable[[Record], bool]]:
-    """The sink forwarding the matcher's WARNING and ERROR records to ``fdr`` and its filter.
+def _fdr_forwarder(
+    fdr: FdrClient, ours: Callable[[Record], bool]
+) -> tuple[Callable[[Message], None], Callable[[Record], bool]]:
+    """The sink forwarding the WARNING and ERROR records ``ours`` takes (the matcher's, of its
+    root) to ``fdr`` and its filter.
     The filter keeps out the FDR's own write failures and whatever is logged while a forward is
     under way on that thread (the FDR client's own logs), so a forward never runs inside
     another. A write the FDR keeps pending says nothing; any other failure of the client is
@@ -183,7 +253,7 @@ def _fdr_forwarder(fdr: FdrClient) -> tuple[Callable[[Message], None], Callable[
 
     def forwarded(record: Record) -> bool:
         return (
-            is_matcher_record(record)
+            ours(record)
             and record["extra"].get("kind") != FDR_WRITE_FAILED
             and not getattr(forwarding, "busy", False)
         )

@@ -44,7 +44,7 @@ from c3_matcher.errors import (
 )
 from c3_matcher.fdr.turns import FrameTurns
 from c3_matcher.health import RollingHealthWindow
-from c3_matcher.logs import FDR_WRITE_FAILED, log_event
+from c3_matcher.logs import FDR_WRITE_FAILED, current_log_root, log_event, logging_as
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.prior import PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend, RansacFilter
@@ -132,6 +132,7 @@ class PipelineMatcher:
         )
         self._refine = RefinePass(self._pre, backend)
         self._turns = FrameTurns(_close_failed)
+        self._log_root = current_log_root()  # composed by a root: its frames log as its own
 
     @property
     def stored_features(self) -> bool:
@@ -147,7 +148,8 @@ class PipelineMatcher:
     def match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
     ) -> MatchResult:
-        with self._turns.turn() as admitted:  # one frame at a time, first come first served
+        with logging_as(self._log_root), self._turns.turn() as admitted:  # as its root's
+            # one frame at a time, first come first served
             if not admitted:  # closed: no fix from this call either, the health window says so
                 FrameRecorder(self._sinks, None).update_health(0)
                 raise MatcherClosedError(self.backend.label)
