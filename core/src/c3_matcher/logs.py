@@ -62,6 +62,7 @@ __all__ = [
     "current_log_root",
     "is_matcher_record",
     "log_event",
+    "log_fdr_write_failed",
     "logging_as",
     "swap_default_handler",
 ]
@@ -240,6 +241,18 @@ def claim_stderr() -> None:
         cv2.setLogLevel(_OPENCV_SILENT)
 
 
+def log_fdr_write_failed(kind: str, exc: BaseException) -> None:
+    """The one ERROR line of an FDR record of ``kind`` that could not be written."""
+    error = describe(exc)
+    log_event(
+        "ERROR",
+        FDR_WRITE_FAILED,
+        f"FDR write failed for {kind}: {error}",
+        record_kind=kind,
+        error=error,
+    )
+
+
 def _fdr_forwarder(
     fdr: FdrClient, ours: Callable[[Record], bool]
 ) -> tuple[Callable[[Message], None], Callable[[Record], bool]]:
@@ -269,13 +282,7 @@ def _fdr_forwarder(
         except FdrWriteError:
             pass  # kept pending by the recorder, written with the next record (no stderr noise)
         except Exception as exc:  # a caller's client failing: said once, on every other sink
-            log_event(
-                "ERROR",
-                FDR_WRITE_FAILED,
-                f"FDR write failed for {kind}: {describe(exc)}",
-                record_kind=kind,
-                error=describe(exc),
-            )
+            log_fdr_write_failed(kind, exc)
         finally:
             forwarding.busy = False
 

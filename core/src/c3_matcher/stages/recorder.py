@@ -20,11 +20,11 @@ from c3_matcher.dto import CandidateMatchSet
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, describe
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import (
-    FDR_WRITE_FAILED,
     MATCHER_BACKBONE_ERROR,
     MATCHER_GEOMETRY_REFUSED,
     MATCHER_ZERO_INLIERS,
     log_event,
+    log_fdr_write_failed,
 )
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend
 from c3_matcher.stages.outcomes import FrameEvidence, GeometryRefusal, Survivor
@@ -78,13 +78,7 @@ class FrameRecorder:
         try:
             self._sinks.fdr.record(kind, payload)
         except Exception as exc:
-            log_event(
-                "ERROR",
-                FDR_WRITE_FAILED,
-                f"FDR write failed for {kind}: {describe(exc)}",
-                record_kind=kind,
-                error=describe(exc),
-            )
+            log_fdr_write_failed(kind, exc)
 
     # -- per candidate --------------------------------------------------------------------
     def backbone_error(
