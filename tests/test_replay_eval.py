@@ -64,6 +64,8 @@ def test_replay_writes_results_fdr_and_report(engine_dir: Path, tmp_path: Path) 
     assert json.loads((out / "report.json").read_text())["ok"] == report["ok"]
     assert report["settings"]["strategy"] == "disk_lightglue"
     assert report["settings"]["photometric"] is not None  # resolved: the strategy's own
+    assert report["lightglue_settings"]["exit_matches"] == 8  # DISK's own, beside [matcher]
+    assert "lightglue.exit_matches" in (out / "report.html").read_text()
 
 
 def test_eval_meets_the_c3_it_bars_for_the_default_strategy(
@@ -108,6 +110,9 @@ def test_eval_meets_the_c3_it_bars_for_the_default_strategy(
         assert ran["strategy"] == name and ran["max_keypoints"] == 1024
         assert ran["photometric"] == defaults.photometric
         assert ran["refit_threshold_px"] == defaults.refit_threshold_px
+        lightglue = row["lightglue_settings"]  # [lightglue], resolved the same way
+        assert lightglue["exit_matches"] == defaults.exit_matches
+        assert lightglue["filter_threshold"] == defaults.filter_threshold
     for name in ("inliers.png", "error.png"):
         assert (out / name).stat().st_size > 1000
     assert list((out / "matches").glob("disk_lightglue_*.png"))

@@ -13,6 +13,7 @@ docs/precision.md measures it per strategy.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -20,6 +21,9 @@ from numpy.typing import NDArray
 
 from c3_matcher import _validate as v
 from c3_matcher.dto import RansacResult
+
+if TYPE_CHECKING:
+    from c3_matcher.config import MatcherSettings
 
 __all__ = ["OpenCvRansacFilter", "homography_residuals", "refit"]
 
@@ -65,6 +69,17 @@ class OpenCvRansacFilter:
         self.refit_floor = int(refit_floor)
         self._confidence, self._max_iters, self._seed = confidence, max_iters, seed
         self._refine = refine
+
+    @classmethod
+    def from_settings(cls, matcher: MatcherSettings) -> OpenCvRansacFilter:
+        """The filter ``[matcher]`` asks for, resolved for its strategy (``refit_threshold_px``
+        set: unset means none): its seed, and a refit over the inliers within the refit
+        threshold kept only while at least ``min_inliers_threshold`` remain."""
+        return cls(
+            seed=matcher.ransac_seed,
+            refit_px=matcher.refit_threshold_px or 0.0,
+            refit_floor=matcher.min_inliers_threshold,
+        )
 
     def _usac_params(self, threshold: float) -> cv2.UsacParams:
         """OpenCV's USAC parameters for one call: built per call, so no call sees another's

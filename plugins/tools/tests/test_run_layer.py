@@ -197,3 +197,30 @@ def test_a_frame_without_its_true_tile_has_its_truth_through_the_distractors() -
         assert haversine_m([lon, lat], [blon, blat])[0] < 1.0, frame.index
         checked += 1
     assert checked >= 20
+
+
+def test_the_pytorch_reference_filters_as_the_engine_cases_do(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """bench's reference row runs the same per-frame loop with the same RANSAC: the
+    strategy's refit threshold (DISK's 2 px) and its floor. It had no refit: its inlier column
+    (1206 against the engine's 1173 on the demo frame) was not comparable."""
+    from c3_matcher.compose import build_plugin_host
+    from c3_matcher.fdr import InMemoryFdr
+    from c3_matcher.testing import (
+        FakeBackend,
+        FakeClock,
+        FakeInferenceRuntime,
+        FakeLightGlueRuntime,
+    )
+    from c3_matcher_tools.run.matcher import _reference_matcher
+
+    host = build_plugin_host()
+    backend = FakeBackend(FakeInferenceRuntime(), FakeLightGlueRuntime())
+    monkeypatch.setattr(host, "reference_backend", lambda strategy, settings: backend)
+    settings = C3Settings()
+    composed = _reference_matcher(settings, host, InMemoryFdr(), FakeClock())
+    ransac = composed.matcher._ransac  # type: ignore[attr-defined]
+    defaults = host.resolve("disk_lightglue").defaults
+    assert ransac.refit_px == defaults.refit_threshold_px == 2.0
+    assert ransac.refit_floor == settings.matcher.min_inliers_threshold

@@ -209,7 +209,7 @@ Left: the query rectified onto the best tile; right: the tile with the query's f
 <table><tr><th>frame</th><th>status</th><th>inliers</th><th>result</th><th>error vs truth m</th><th>estimate - telemetry m</th><th>GNSS (accuracy m)</th><th>error px</th><th>ms</th><th>estimate lat, lon</th></tr>{self.rows}</table>
 <h2>Settings and provenance</h2>
 {_table([("strategy replayed", self.strategy), *self.provenance.items()])}
-<h3>[matcher] settings</h3>
+<h3>[matcher] and [lightglue] settings</h3>
 {_table(list(self.settings.items()))}
 <h3>summary</h3>
 <pre>{html.escape(json.dumps(self.summary, indent=1, default=str))}</pre>

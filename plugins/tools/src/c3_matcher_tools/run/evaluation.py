@@ -37,6 +37,7 @@ class StrategyEval:
         return {
             "strategy": self.strategy,
             "settings": self.run.settings,
+            "lightglue_settings": self.run.lightglue,
             "startup_s": self.run.startup_s,
             "wall_s": self.run.wall_s,
             "timing": self.summary.to_json(),

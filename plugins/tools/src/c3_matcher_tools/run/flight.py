@@ -252,7 +252,12 @@ def fly_prepared(
     wall_s = prepared.startup_s + time.perf_counter() - started
     ran = strategy_settings(prepared.settings, prepared.strategy, plugin_host)
     return FlightRun(
-        prepared.strategy, ran.matcher.model_dump(mode="json"), tuple(outcomes), startup_s, wall_s
+        prepared.strategy,
+        ran.matcher.model_dump(mode="json"),
+        tuple(outcomes),
+        startup_s,
+        wall_s,
+        ran.lightglue.model_dump(mode="json"),
     )
 
 

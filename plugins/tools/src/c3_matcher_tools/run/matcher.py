@@ -133,7 +133,7 @@ def _reference_matcher(
         raise LookupError(f"no PyTorch reference for {strategy}")
     matcher = PipelineMatcher(
         backend,
-        OpenCvRansacFilter(seed=m.ransac_seed),
+        OpenCvRansacFilter.from_settings(m),  # as the engine cases' (the strategy's refit)
         fdr,
         RollingHealthWindow(clock, m.min_inliers_threshold),
         clock,

@@ -138,14 +138,15 @@ def flight_report(
     dataset: FlightDataset, run: FlightRun, summary: RunSummary | None = None
 ) -> dict[str, Any]:
     """What every run's report starts with (``replay``'s ``report.json``, each strategy's entry
-    in ``eval.json``): the dataset, the strategy, its matcher labels, the ``[matcher]`` settings
-    it ran with, start-up and wall time, then ``summary`` (:func:`summarize` of the run's
-    outcomes when None)."""
+    in ``eval.json``): the dataset, the strategy, its matcher labels, the ``[matcher]`` and
+    ``[lightglue]`` settings it ran with, start-up and wall time, then ``summary``
+    (:func:`summarize` of the run's outcomes when None)."""
     return {
         "dataset": str(dataset.root),
         "strategy": run.strategy,
         "matcher_labels": run.matcher_labels,
         "settings": run.settings,
+        "lightglue_settings": run.lightglue,
         "startup_s": run.startup_s,
         "wall_s": run.wall_s,
         **(summarize(run.outcomes) if summary is None else summary).to_json(),
@@ -199,7 +200,9 @@ def write_html_report(
 
     from c3_matcher_tools.report import write_report
 
-    summary = {k: v for k, v in report.items() if k not in ("settings",)}
+    summary = {k: v for k, v in report.items() if k not in ("settings", "lightglue_settings")}
+    lightglue = report.get("lightglue_settings") or {}
+    settings = {**report["settings"], **{f"lightglue.{k}": v for k, v in lightglue.items()}}
     provenance = {
         "dataset": str(dataset.root),
         "dataset format": dataset.meta.get("format"),
@@ -214,7 +217,7 @@ def write_html_report(
         list(outcomes),
         strategy=strategy,
         summary=summary,
-        settings=report["settings"],
+        settings=settings,
         provenance=provenance,
     )
     return str(path)

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from enum import StrEnum
 from typing import Any
 
@@ -90,13 +90,16 @@ class FrameOutcome:
 class FlightRun:
     """One strategy flown over one flight: its frames' outcomes in order, the matcher settings
     it ran with (``[matcher]`` resolved for that strategy: its own defaults where the
-    configuration leaves a setting unset, as JSON), start-up and wall time (s)."""
+    configuration leaves a setting unset, as JSON), start-up and wall time (s), and the
+    ``[lightglue]`` settings resolved for it the same way (its pair matcher's, when it uses
+    LightGlue)."""
 
     strategy: str
     settings: dict[str, Any]
     outcomes: tuple[FrameOutcome, ...]
     startup_s: float
     wall_s: float
+    lightglue: dict[str, Any] = field(default_factory=dict)
 
     @property
     def matcher_labels(self) -> list[str]:
