@@ -4,14 +4,19 @@ attitude, and a CameraInfo of a distortion model other than OpenCV's is refused 
 intrinsics are wanted; a rangefinder that does not face down (or reads out of its range, or not
 good) is no height above ground; a DataFlash log's second GNSS receiver or rangefinder is not
 mixed with the first; a telemetry log holding several vehicles is read for the camera vehicle's
-messages; a series sampled exactly on a sample gives that sample. Logs are written with the
+messages; an older RFND layout is read and a layout not known ignored and said; each frame's
+height is above the home in force at its time; a ROS 1 bag's CameraInfo is read in its own
+spelling and images stamped alike are frames of their own; a series sampled exactly on a
+sample gives that sample. Logs are written with the
 libraries' own writers (:mod:`c3_matcher_tools.testing.flightlogs`, a DataFlash log in the
 documented FMT layout here) over frames of the shipped demo flight, and read back by them."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import shutil
 import struct
 from collections.abc import Sequence
 from pathlib import Path
@@ -22,6 +27,7 @@ import pytest
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
+from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.sources.mavlink import read_mavlink
 from c3_matcher_tools.dataset.sources.rosbag import read_bag
 from c3_matcher_tools.dataset.sources.track import Series
@@ -29,6 +35,7 @@ from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.cli import run_cli
 from c3_matcher_tools.testing.flightlogs import rosbag as rb
+from c3_matcher_tools.testing.flightlogs.dataflash import write_dataflash
 from c3_matcher_tools.testing.flightlogs.mavlink import _tlog_frames, _tlog_positions, write_tlog
 from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
@@ -388,6 +395,61 @@ def test_an_rfnd_format_without_instance_status_or_orientation_is_read_as_a_heig
     assert track.height is not None and track.height.values[:, 0].tolist() == [300.0] * 4
 
 
+@pytest.mark.parametrize(
+    ("chars", "columns", "readings", "height"),
+    [
+        ("QfBfB", "TimeUS,Dist1,Orient1,Dist2,Orient2", (12.0, 0, 300.0, 25), 300.0),
+        ("QfBfB", "TimeUS,Dist1,Orient1,Dist2,Orient2", (300.0, 25, 280.0, 25), 300.0),
+        ("QfBfB", "TimeUS,Dist1,Orient1,Dist2,Orient2", (300.0, 25, 0.0, 0), 300.0),
+        ("Qff", "TimeUS,Dist1,Dist2", (300.0, 0.0), 300.0),
+    ],
+    ids=["3.6-forward-then-down", "3.6-both-down", "3.6-one", "3.4"],
+)
+def test_an_rfnd_of_two_rangefinders_a_message_is_read_per_rangefinder(
+    poses: list[fl.Pose],
+    tmp_path: Path,
+    chars: str,
+    columns: str,
+    readings: tuple[float, ...],
+    height: float,
+) -> None:
+    """Copter and Plane 3.5-3.6 log RFND as TimeUS,Dist1,Orient1,Dist2,Orient2 (3.4 and before
+    without the orientations): such a log was refused whole, its reason the one word "Dist".
+    Each reading is rangefinder 0 or 1's; the first facing down gives the height, a zero
+    distance (no reading: these formats have no status) is none."""
+    formats = {**_FORMATS, "RFND": (chars, columns, "s" + "-" * (len(chars) - 1))}
+    rows = [r if r[0] != "RFND" else ("RFND", r[1], *readings) for r in _flight_rows(poses)]
+    track = read_mavlink(_dataflash(tmp_path / "flight.bin", formats, rows))
+    assert track.height is not None and track.height.values[:, 0].tolist() == [height] * 4
+    assert not any("ignored" in n for n in track.notes)
+
+
+def test_an_optional_message_in_a_layout_not_read_is_ignored_and_said(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """A rangefinder or accuracy message whose format lacks a column read (another ArduPilot
+    version's) refused the whole log, naming only the column. The log is read without them and
+    its notes name each type and column; the frames' heights then come from the home."""
+    formats = {
+        **_FORMATS,
+        "RFND": ("Qf", "TimeUS,Range", "sm"),
+        "GPA": ("QBf", "TimeUS,I,VAcc", "s#m"),
+    }
+    rows = [r if r[0] != "RFND" else ("RFND", r[1], r[3]) for r in _flight_rows(poses)]
+    track = read_mavlink(_dataflash(tmp_path / "flight.bin", formats, rows))
+    assert track.height is None and track.position is not None and track.gnss is not None
+    assert np.isnan(track.gnss.values[:, 3]).all()  # no stated accuracy
+    said = "messages in a format this importer does not read, ignored: GPA (no column HAcc), "
+    assert said + "RFND (no column Dist)" in track.notes
+    without_position = {**formats, "POS": ("QLL", "TimeUS,Lat,Lon", "sDU")}
+    rows = [r for r in rows if r[0] not in ("GPS", "POS")]
+    rows += [("POS", r[1], r[2], r[3]) for r in _flight_rows(poses) if r[0] == "POS"]
+    with pytest.raises(InvalidInputError) as refused:
+        read_mavlink(_dataflash(tmp_path / "no_position.bin", without_position, rows))
+    assert "the log holds no position" in str(refused.value)
+    assert "POS (no column Lng)" in str(refused.value)
+
+
 def _east(poses: Sequence[fl.Pose]) -> list[fl.Pose]:
     return [dataclasses.replace(p, lon=p.lon + 0.025) for p in poses]
 
@@ -441,6 +503,106 @@ def test_camera_feedback_from_two_vehicles_is_refused_naming_them(
     with pytest.raises(InvalidInputError) as refused:
         read_mavlink(log)
     assert "camera feedback from MAVLink systems 1, 2" in str(refused.value)
+
+
+# --- the home altitude, set again at arming -------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["ulg", "tlog", "bin"])
+def test_each_frame_s_height_is_above_the_home_in_force_at_its_time(
+    poses: list[fl.Pose], tmp_path: Path, kind: str
+) -> None:
+    """PX4 and ArduPilot set the home again at arming; the first home in the log (before
+    arming, 12 m high here) was taken for every frame: heights 768 m for 780 m, the report
+    saying only "altitude - home altitude". Each frame now takes the home in force at its time
+    (a MAVLink log's at each position sample) and the report states it, with when it was set."""
+    writer = {"ulg": write_ulog, "tlog": write_tlog, "bin": write_dataflash}[kind]
+    log = writer(tmp_path / f"flight.{kind}", poses, flaws=("home_reset",))
+    images = tmp_path / "images"
+    images.mkdir()
+    for i, p in enumerate(poses):
+        shutil.copyfile(p.image, images / f"IMG_{i:04d}.jpg")
+    flight = tmp_path / "flight"
+    cal = str(DEMO / "calibration.json")
+    proc = run_cli("dataset", "import", images, log, cal, STORE, flight, "--json", cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    frames = load_dataset(flight).frames
+    assert [f.height_m for f in frames] == pytest.approx([p.height_m for p in poses], abs=0.01)
+    summary = json.loads(proc.stdout)
+    assert summary["height_sources"] == {"altitude - home altitude 500.0 m": 4}
+    said = [n for n in summary["notes"] if n.startswith("home altitude (")]
+    assert len(said) == 1 and " set 2 times: 512.0 m from " in said[0], summary["notes"]
+    assert ", 500.0 m from " in said[0]
+
+
+def test_a_home_holds_from_when_it_was_set() -> None:
+    from c3_matcher_tools.dataset.sources.track import home_series
+
+    home, note = home_series("home", [10.0, 50.0, 50.2], [512.0, 500.0, 500.001], source="log")
+    assert home is not None and note is not None
+    held = [home.held(t)[0] for t in (0.0, 10.0, 49.9, 50.0, 51.0, 1e6)]  # type: ignore[index]
+    assert held == [512.0, 512.0, 512.0, 500.0, 500.001, 500.001]
+    assert note.startswith("home altitude (home) set 2 times: 512.0 m from 10.0 s, 500.0 m from")
+    assert home_series("home", [1.0, 2.0], [500.0, 500.001], source="log")[1] is None
+    assert home_series("home", [1.0], [math.nan], source="log") == (None, None)
+
+
+# --- ROS bags: ROS 1 spelling, images stamped alike -----------------------------------------
+
+
+def test_a_ros1_bag_s_camera_info_is_read_in_its_own_spelling(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """ROS 1's CameraInfo spells its matrices D, K (ROS 2: d, k): CALIBRATION '-' with a
+    ROS 1 bag ended in an internal error ("no attribute 'd'", exit 1)."""
+    cal = load_calibration(DEMO / "calibration.json")
+    bag = rb.write_bag(tmp_path / "flight.bag", poses, cal, storage="ros1")
+    track, shots, recorded = read_bag(bag)
+    assert recorded is not None and len(shots) == 4 and track.attitude is not None
+    assert np.allclose(recorded.K, cal.K) and recorded.image_size == cal.image_size
+    assert np.allclose(recorded.distortion, cal.distortion)
+    flight = tmp_path / "flight"
+    ground = ("--ground-elevation", str(fl.GROUND_M))
+    proc = run_cli("dataset", "import", "-", bag, "-", STORE, flight, *ground, "--json", cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["frames"] == 4
+
+
+def test_images_stamped_alike_are_frames_of_their_own_and_a_recorded_copy_is_set_aside(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """Two images of one header stamp were named alike ("topic@stamp"), so their frames had
+    one frame id: the import wrote a dataset that ``dataset info`` and ``replay`` refuse.
+    Each is now named by its index in the topic too; an image recorded twice (the same bytes)
+    is imported once, naming both."""
+    cal = load_calibration(DEMO / "calibration.json")
+    alike = dataclasses.replace(poses[1], t_s=poses[0].t_s)  # another image, frame 0's stamp
+    bag = rb.write_bag(tmp_path / "bag", [poses[0], alike, poses[2], poses[2], poses[3]], cal)
+    flight = tmp_path / "flight"
+    ground = ("--ground-elevation", str(fl.GROUND_M))
+    proc = run_cli("dataset", "import", "-", bag, "-", STORE, flight, *ground, "--json", cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    topic = "/camera/image_raw/compressed"
+    stamp = [f"{fl.UTC0 + p.t_s:.6f}" for p in poses]
+    assert summary["frames"] == 4
+    copy, first = f"{topic}@{stamp[2]}#3", f"{topic}@{stamp[2]}#2"
+    reason = f"a copy of {first} (the same bytes): imported once, as {first}"
+    assert summary["skipped"] == [{"image": copy, "reason": reason}]
+    assert any(
+        n.startswith("4 images at 2 header stamp(s) that several share") for n in summary["notes"]
+    )
+    frames = load_dataset(flight).frames  # refused before: one frame id twice
+    names = [f.telemetry["source_image"] for f in frames]
+    assert names == [
+        f"{topic}@{stamp[0]}#0",
+        f"{topic}@{stamp[0]}#1",
+        first,
+        f"{topic}@{stamp[3]}#4",
+    ]
+    assert len({f.frame_id for f in frames}) == 4
+    info = run_cli("dataset", "info", flight, cwd=REPO)
+    assert info.returncode == 0, info.stderr
 
 
 # --- Series ---------------------------------------------------------------------------------

@@ -102,7 +102,7 @@ def test_ulog_imports_replays_and_reports_error_against_gnss(
     said = proc.stdout
     assert "imported 4 frame(s) from flight.ulg (PX4 ULog)" in said
     assert "camera trigger (4 in the log, 4 image(s)), offset +0.000 s" in said
-    assert "height above ground: altitude - home altitude (4)" in said
+    assert "height above ground: altitude - home altitude 500.0 m (4)" in said
     assert "GNSS absent or degraded: frames 1" in said and "skipped: none" in said
     d = load_dataset(flight)
     for f, p in zip(d.frames, poses, strict=True):
@@ -189,7 +189,7 @@ def test_ardupilot_logs_import_and_replay(
     summary = json.loads(proc.stdout)
     assert summary["frames"] == 4 and summary["skipped"] == []
     assert summary["time_source"].startswith("camera trigger")
-    assert summary["height_sources"] == {"altitude - home altitude": 4}
+    assert summary["height_sources"] == {"altitude - home altitude 500.0 m": 4}
     d = load_dataset(flight)
     assert [f.height_m for f in d.frames] == pytest.approx([p.height_m for p in poses], abs=0.01)
     again = tmp_path / "again"  # the same inputs give the same dataset, bit for bit

@@ -413,7 +413,9 @@ def test_time_offset_corrects_the_camera_clock_where_photos_meet_triggers_by_tim
     poses: list[fl.Pose], tmp_path: Path
 ) -> None:
     """Photos 30 s ahead of the log's clock, as many as the triggers: ``--time-offset -30``
-    (seconds added to the images' times) moved the trigger times instead, off the log."""
+    (seconds added to the images' times) moved the trigger times instead, off the log. Added to
+    the photos' own times it leaves their order, so each keeps its trigger's time, and the
+    import says so (the report showed the offset as if it had moved the frames)."""
     ahead = [dataclasses.replace(p, t_s=p.t_s + 30.0) for p in poses]
     photos = write_exif_photos(tmp_path / "photos", ahead, xmp=False)
     log = write_ulog(tmp_path / "flight.ulg", poses)
@@ -421,7 +423,11 @@ def test_time_offset_corrects_the_camera_clock_where_photos_meet_triggers_by_tim
     args = ("dataset", "import", photos, log, CAL, STORE, flight, "--time-offset", "-30")
     summary = _imported(c3(*args, "--json"))
     assert summary["frames"] == 5 and summary["skipped"] == []
-    assert summary["time_source"] == "camera trigger (5 in the log, 5 image(s))"
+    assert summary["time_source"] == (
+        "camera trigger (5 in the log, 5 image(s)); --time-offset moves the photos' own times, "
+        "not their order: each keeps its trigger"
+    )
+    assert summary["time_offset_s"] == -30.0
     times = [f.telemetry["time_s"] for f in load_dataset(flight).frames]
     assert times == pytest.approx([fl.BOOT_S + p.t_s for p in poses])
     # without the offset the same: as many photos as triggers meet them in capture order, so

@@ -327,3 +327,107 @@ def test_an_empty_image_is_refused_as_one_not_an_internal_error(tmp_path: Path) 
     with pytest.raises(InvalidInputError, match=r"IMG_0002.jpg: an empty file, not an image"):
         import_csv_flight(spec(images, csv), tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+# --- options that a source would not use; the ground given twice; attitude in radians -------
+
+
+@pytest.mark.parametrize(
+    ("telemetry", "options", "refused"),
+    [
+        ("t.csv", ["--time-offset", "5"], "--time-offset: not used by an import from a telemetry "
+         "CSV (its rows name their images and state each frame's telemetry): leave it out"),
+        ("t.csv", ["--max-gap", "0.01", "--time-source", "order", "--interval", "3"],
+         "--time-source, --interval, --max-gap: not used by an import from a telemetry CSV"),
+        ("t.csv", ["--gnss-degraded-m", "0.1", "--image-topic", "/cam"],
+         "--gnss-degraded-m, --image-topic: not used by an import from a telemetry CSV"),
+        ("t.csv", ["--max-gap", "1"], "--max-gap: not used by an import from a telemetry CSV"),
+        ("f.ulg", ["--navsat-topic", "/fix"], "--navsat-topic: not used by an import from a PX4 "
+         "ULog (only a ROS bag has topics)"),
+        ("-", ["--time-source", "trigger"], "--time-source: not used by an import from a photo "
+         "folder"),
+    ],
+    ids=["csv-offset", "csv-pairing", "csv-gnss-topic", "csv-default-value", "ulog-topic", "exif"],
+)  # fmt: skip
+def test_options_a_source_would_not_use_are_refused_naming_them(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], telemetry: str, options: list[str],
+    refused: str,
+) -> None:  # fmt: skip
+    """A telemetry CSV import took every recorded-log option and used none (its report even
+    said "offset +0.000 s" after --time-offset 5); a bag's topic options were taken by any
+    import. Refused before any input is read (the inputs here are placeholders)."""
+    from c3_matcher.cli import main
+
+    out = tmp_path / "out"
+    argv = ["dataset", "import", "images", telemetry, "cal.json", "tiles.mbtiles", str(out)]
+    assert main([*argv, *options]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"c3-matcher: {refused}") and "\n" not in err, err
+    assert not out.exists()
+
+
+def test_a_ground_elevation_and_a_dem_are_refused_together_for_a_log_as_for_a_csv(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A log import took both and used the DEM alone, giving frames where the DEM has no value
+    another frame's height (flagged) instead of the elevation given; a CSV import refused the
+    pair. One rule now, before the log is read."""
+    from c3_matcher.cli import main
+    from c3_matcher_tools.testing import flightlogs as fl
+    from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
+
+    poses = fl.flight_poses(DEMO, range(4))
+    images = tmp_path / "images"
+    images.mkdir()
+    for i, p in enumerate(poses):
+        (images / f"IMG_{i:04d}.jpg").write_bytes(p.image.read_bytes())
+    log = write_ulog(tmp_path / "flight.ulg", poses)
+    dem = tmp_path / "dem.tif"
+    with rasterio.open(
+        dem, "w", driver="GTiff", width=40, height=40, count=1, dtype="float32",
+        crs="EPSG:4326", transform=from_origin(poses[0].lon - 0.02, poses[0].lat + 0.02, 0.001,
+                                               0.001),
+    ) as raster:  # fmt: skip
+        raster.write(np.full((1, 40, 40), fl.GROUND_M, np.float32))
+    out = tmp_path / "flight"
+    cal, store = DEMO / "calibration.json", DEMO / "tiles.mbtiles"
+    argv = ["dataset", "import", images, log, cal, store, out, "--dem", dem]
+    assert main([*map(str, argv), "--ground-elevation", "500"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        "c3-matcher: --ground-elevation: give it or --dem, not both"
+    )
+    assert not out.exists()
+    with pytest.raises(InvalidInputError, match="give it or --dem, not both"):  # a CSV's spec
+        spec(images, tmp_path / "t.csv", ground_elevation_m=GROUND_M, dem=dem)
+    assert main([*map(str, argv), "--json"]) == 0  # the DEM alone
+    assert capsys.readouterr().out and len(load_dataset(out).frames) == 4
+
+
+def _radians(csv: Path) -> None:
+    """``csv`` with its roll, pitch and yaw (columns 5-7) in radians."""
+    lines = csv.read_text().splitlines()
+    for n in range(1, len(lines)):
+        cells = lines[n].split(",")
+        cells[5:8] = [f"{math.radians(float(c)):.5f}" for c in cells[5:8]]
+        lines[n] = ",".join(cells)
+    csv.write_text("\n".join(lines) + "\n")
+
+
+def test_attitude_that_may_be_radians_is_said_naming_the_columns(tmp_path: Path) -> None:
+    """A CSV of radians imported silently as degrees (roll 0.2 for 11.7 deg); the only hint,
+    "(radians?)", came at |roll| >= 90, which radians never reach. Every roll, pitch and yaw
+    within +-pi is said in the report, not refused: a flight heading within 3 deg of north with
+    a steady camera gives such degrees too, and no CSV tells the two apart."""
+    images, csv = recorded(tmp_path)
+    report = import_csv_flight(spec(images, csv), tmp_path / "degrees")
+    assert not any("radians" in n for n in report.notes)
+    _radians(csv)
+    report = import_csv_flight(spec(images, csv), tmp_path / "radians")
+    said = [n for n in report.notes if "radians" in n]
+    assert len(said) == 1, report.notes
+    assert said[0].startswith("every 'roll_deg', 'pitch_deg', 'yaw_deg' value lies within +-3.1416")
+    assert "convert them to degrees" in said[0]
+    assert any("radians" in line for line in report.lines())
+    edit_line(csv, 2, 7, "4.0")  # a yaw beyond pi: degrees
+    report = import_csv_flight(spec(images, csv), tmp_path / "beyond-pi")
+    assert not any("radians" in n for n in report.notes)

@@ -12,7 +12,6 @@ sibling directory and renamed into place.
 
 from __future__ import annotations
 
-import math
 import shutil
 import uuid
 from collections.abc import Mapping, Sequence
@@ -27,7 +26,11 @@ from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.format import FrameRecord
 from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
-from c3_matcher_tools.dataset.sources.options import ImportReport, ProposalOptions
+from c3_matcher_tools.dataset.sources.options import (
+    ImportReport,
+    ProposalOptions,
+    check_ground_options,
+)
 from c3_matcher_tools.dataset.sources.writer import image_problem
 from c3_matcher_tools.dataset.telemetry import (
     Telemetry,
@@ -54,14 +57,7 @@ class ImportSpec:
     dem: Path | None = None  # a DEM GeoTIFF of the ground's altitude above sea level
 
     def __post_init__(self) -> None:
-        if self.ground_elevation_m is not None and self.dem is not None:
-            raise InvalidInputError("--ground-elevation", "give it or --dem, not both")
-        if self.ground_elevation_m is not None and not (
-            math.isfinite(self.ground_elevation_m) and abs(self.ground_elevation_m) <= 9000
-        ):
-            raise InvalidInputError(
-                "--ground-elevation", f"must be in [-9000, 9000] m, got {self.ground_elevation_m}"
-            )
+        check_ground_options(self.ground_elevation_m, self.dem)
 
     @property
     def inputs(self) -> tuple[Path | None, ...]:
@@ -240,6 +236,7 @@ def _csv_report(checked: _CheckedCsv, spec: ImportSpec, out: Path, frames: int) 
         notes=(
             f"heights above ground {min(heights):.1f} to {max(heights):.1f} m; "
             + _msl_note(checked.table.columns, spec),
+            *checked.table.notes,
         ),
     )
 

@@ -147,11 +147,13 @@ def _column_map(header: list[str], path: Path) -> dict[str, str]:
 @dataclass(frozen=True)
 class Telemetry:
     """The checked rows (sorted by time) and how their heights above ground were obtained:
-    ``height_source`` in words, ``columns`` canonical -> the CSV's header names."""
+    ``height_source`` in words, ``columns`` canonical -> the CSV's header names; ``notes``:
+    what the import should say of the values (:func:`radians_note`)."""
 
     rows: tuple[TelemetryRow, ...]
     height_source: str
     columns: dict[str, str]
+    notes: tuple[str, ...] = ()
 
 
 def refuse_lines(path: Path, problems: list[tuple[int, str]]) -> None:
@@ -179,7 +181,7 @@ def _row_problem(values: dict[str, float], col: dict[str, str]) -> str | None:
         return f"{col['lon']} {values['lon']:g} outside [-180, 180] deg"
     for key in ("roll_deg", "pitch_deg"):
         if abs(values[key]) >= 90.0:
-            return f"{col[key]} {values[key]:g}: |roll| and |pitch| must be < 90 deg (radians?)"
+            return f"{col[key]} {values[key]:g}: |roll| and |pitch| must be < 90 deg"
     if abs(values["yaw_deg"]) > 360.0:
         return f"{col['yaw_deg']} {values['yaw_deg']:g} outside [-360, 360] deg"
     return None
@@ -252,7 +254,27 @@ def read_telemetry_table(
     rows.sort(key=lambda r: (r.time_s, r.line))
     problems += _repeated_times(rows)
     refuse_lines(path, problems)
-    return Telemetry(tuple(rows), _height_source(cols, ground_elevation_m, dem), cols)
+    note = radians_note(rows, cols)
+    source = _height_source(cols, ground_elevation_m, dem)
+    return Telemetry(tuple(rows), source, cols, (note,) if note else ())
+
+
+def radians_note(rows: Sequence[TelemetryRow], cols: dict[str, str]) -> str | None:
+    """A warning when the attitude columns may hold radians: every roll, pitch and yaw of a
+    flight of several rows within +-pi, not all zero. Radians always are; degrees only for a
+    flight heading within 3 deg of north all along (a straight line north, or a camera whose
+    yaw is recorded as 0), which a CSV cannot be told from. So it is a note, never a refusal:
+    it fires on every radians file of more than one row and on few degrees files, and it
+    refuses none that is right."""
+    angles = [a for r in rows for a in (r.roll_deg, r.pitch_deg, r.yaw_deg)]
+    if len(rows) < 2 or not any(angles) or max(abs(a) for a in angles) > math.pi:
+        return None
+    named = ", ".join(repr(cols[k]) for k in ("roll_deg", "pitch_deg", "yaw_deg"))
+    return (
+        f"every {named} value lies within +-3.1416 (pi): read as degrees, as the telemetry CSV "
+        "states attitude; if these are radians, convert them to degrees (x 180/pi), or every "
+        "frame is imported as near level and heading north"
+    )
 
 
 def _csv_reader(path: Path) -> tuple[csv.DictReader[str], list[str]]:

@@ -7,7 +7,7 @@ import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from c3_matcher.commands import bounded_float
 from c3_matcher.context import CommandContext
@@ -17,6 +17,7 @@ from c3_matcher_tools.dataset.sources.options import (
     ImportOptions,
     ImportReport,
     ProposalOptions,
+    check_ground_options,
 )
 
 if TYPE_CHECKING:
@@ -51,10 +52,12 @@ Images meet the log by camera trigger (when logged: photos that state their capt
 by that time, else in file order when the log has as many triggers as there are photos,
 else refused; a video keeps its own clock), else by their own UTC time (EXIF, bag stamps),
 else in file order (--interval, --time-offset). A copy of a photo is imported once.
-Height above ground: rangefinder when logged, else altitude minus --dem /
---ground-elevation / the home altitude. Frames without attitude or height (a log without
-attitude included) are imported and marked; frames that cannot be placed are skipped; the
-import says which and why. Each frame keeps its GNSS fix and its stated accuracy: replay
+Height above ground: rangefinder when logged, else altitude minus --dem or
+--ground-elevation (not both), else minus the home altitude in force at the frame's time
+(set again at arming). Options a source does not use are refused (a CSV takes no log timing
+or topic option). Frames without attitude or height (a log without attitude included) are
+imported and marked; frames that cannot be placed are skipped; the import says which and
+why. Each frame keeps its GNSS fix and its stated accuracy: replay
 reports the estimate minus that position.
 """
 
@@ -101,17 +104,19 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--time-source",
         choices=("auto", "trigger", "exif", "order"),
-        default="auto",
+        default=None,
         help="how images meet the log: camera trigger, the images' own UTC time, or file order "
         "(default: the first available, in that order)",
     )
     g.add_argument(
         "--time-offset",
         type=bounded_float(-MAX_TIME_OFFSET_S, MAX_TIME_OFFSET_S),
-        default=0.0,
+        default=None,
         help="seconds added to the images' times: to their own (EXIF) times, negative when the "
-        "camera's clock is ahead of the log's; to the trigger times when images without a time "
-        "take the triggers in order; in file order, the log time of the first image; default 0; "
+        "camera's clock is ahead of the log's (as many photos as triggers keep their triggers' "
+        "times: they take them in capture order, which no offset changes); to the trigger times "
+        "when images without a time take the triggers in order; in file order, the log time of "
+        "the first image; default 0; "
         f"at most {MAX_TIME_OFFSET_S:g} s either way (127 years: a log clock of UTC seconds since "
         "1970, or a camera clock never set)",
     )
@@ -124,20 +129,20 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--max-gap",
         type=bounded_float(0.0, above=True),
-        default=1.0,
+        default=None,
         help="farthest a log sample may be from an image's time, s (default 1)",
     )
     g.add_argument(
         "--ground-elevation",
         type=bounded_float(),
         default=None,
-        help="the ground's altitude, m, in the log's datum: height = altitude - this",
+        help="the ground's altitude, m, in the log's datum: height = altitude - this (or --dem)",
     )
     g.add_argument("--dem", type=Path, default=None, help="DEM GeoTIFF of the ground's altitude")
     g.add_argument(
         "--gnss-degraded-m",
         type=bounded_float(0.0, above=True),
-        default=5.0,
+        default=None,
         help="flag frames whose stated GNSS accuracy is worse than this, m (default 5)",
     )
     g.add_argument(
@@ -159,6 +164,8 @@ def run_log_import(args: argparse.Namespace, ctx: CommandContext) -> int | None:
     images, telemetry = str(args.images_dir), str(args.telemetry)
     kind = args.source if args.source != "auto" else detect_kind(telemetry, images)
     check_frame_step(args.frame_step, video=_frames_of_a_video(kind, images))
+    check_ground_options(args.ground_elevation, args.dem)
+    refuse_options_not_for(kind, args)
     if str(args.calibration) == "-" and kind != "rosbag":  # before any log is read
         raise InvalidInputError(
             "CALIBRATION",
@@ -170,6 +177,56 @@ def run_log_import(args: argparse.Namespace, ctx: CommandContext) -> int | None:
     report = import_log(kind, args)
     ctx.out(json.dumps(report.to_json(), indent=2) if args.json else "\n".join(report.lines()))
     return 0
+
+
+SOURCE_OPTIONS = (
+    ("time_source", "--time-source", ("ulog", "ardupilot", "rosbag")),
+    ("time_offset", "--time-offset", ("ulog", "ardupilot", "rosbag", "exif")),
+    ("interval", "--interval", ("ulog", "ardupilot", "rosbag")),
+    ("max_gap", "--max-gap", ("ulog", "ardupilot", "rosbag", "exif")),
+    ("gnss_degraded_m", "--gnss-degraded-m", ("ulog", "ardupilot", "rosbag", "exif")),
+    *((f"{t}_topic", f"--{t}-topic", ("rosbag",)) for t in ("image", "attitude", "navsat")),
+    ("camera_info_topic", "--camera-info-topic", ("rosbag",)),
+)
+"""(attribute, option, the source kinds it applies to) of each option that some kinds do not
+use: a telemetry CSV pairs rows and images by name and states each frame's telemetry; a photo
+folder places each photo at its own time; only a bag has topics."""
+DEFAULTS = {"time_source": "auto", "time_offset": 0.0, "max_gap": 1.0, "gnss_degraded_m": 5.0}
+"""The values of the options of :data:`SOURCE_OPTIONS` not given (None there: given or not is
+told apart)."""
+
+
+def refuse_options_not_for(kind: str, args: argparse.Namespace) -> None:
+    """Refuse, naming them, the options given that a ``kind`` import would not use (they would
+    change nothing, silently)."""
+    given = [
+        option
+        for name, option, kinds in SOURCE_OPTIONS
+        if getattr(args, name, None) is not None and kind not in kinds
+    ]
+    if not given:
+        return
+    what = {
+        "csv": "a telemetry CSV",
+        "exif": "a photo folder",
+        "ulog": "a PX4 ULog",
+        "ardupilot": "an ArduPilot log",
+    }.get(kind, kind)
+    why = {
+        "csv": "its rows name their images and state each frame's telemetry",
+        "exif": "each photo is placed at its own capture time, and only a ROS bag has topics",
+    }.get(kind, "only a ROS bag has topics")
+    raise InvalidInputError(
+        ", ".join(given),
+        f"not used by an import from {what} ({why}): leave {'it' if len(given) == 1 else 'them'} "
+        "out",
+    )
+
+
+def _given(args: argparse.Namespace, name: str) -> Any:
+    """Option ``name``'s value, its default (:data:`DEFAULTS`) when not given."""
+    value = getattr(args, name, None)
+    return DEFAULTS[name] if value is None else value
 
 
 def _frames_of_a_video(kind: str, images: str) -> bool:
@@ -224,6 +281,8 @@ class _ReadLog:
 def _read_log(kind: str, args: argparse.Namespace) -> _ReadLog:
     """The log of ``kind`` and its images, as IMAGES and TELEMETRY name them."""
     telemetry, images = Path(args.telemetry), str(args.images_dir)
+    from c3_matcher_tools.dataset.sources.images import read_images, unique_photos
+
     if kind == "rosbag":
         from c3_matcher_tools.dataset.sources.rosbag import BagTopics, read_bag
 
@@ -234,7 +293,7 @@ def _read_log(kind: str, args: argparse.Namespace) -> _ReadLog:
         )
         wanted = str(args.calibration) == "-"  # the recorded intrinsics, checked when wanted
         track, shots, recorded = read_bag(telemetry, topics, args.frame_step, intrinsics=wanted)
-        return _ReadLog(track, shots, [], recorded)
+        return _ReadLog(track, *unique_photos(shots), recorded)  # a message recorded twice
     if kind == "exif":
         from c3_matcher_tools.dataset.sources.exif import read_photo_folder
 
@@ -242,8 +301,6 @@ def _read_log(kind: str, args: argparse.Namespace) -> _ReadLog:
             raise InvalidInputError("TELEMETRY", "photos carry their own telemetry: give '-'")
         given_ground = args.ground_elevation is not None or args.dem is not None
         return _ReadLog(*read_photo_folder(Path(images), relative_height=not given_ground))
-    from c3_matcher_tools.dataset.sources.images import read_images
-
     track = _read_flight_log(kind, telemetry)
     shots, skipped = read_images(Path(images), args.frame_step)  # step checked already
     return _ReadLog(track, shots, skipped)
@@ -283,11 +340,11 @@ def _import_options(
     return ImportOptions(
         calibration=calibration,
         proposal=proposal_options(args),
-        time_source="exif" if kind == "exif" else args.time_source,
-        time_offset_s=args.time_offset,
+        time_source="exif" if kind == "exif" else _given(args, "time_source"),
+        time_offset_s=_given(args, "time_offset"),
         interval_s=args.interval,
-        max_gap_s=args.max_gap,
-        gnss_degraded_m=args.gnss_degraded_m,
+        max_gap_s=_given(args, "max_gap"),
+        gnss_degraded_m=_given(args, "gnss_degraded_m"),
         ground_elevation_m=args.ground_elevation,
         dem=args.dem,
     )

@@ -257,8 +257,9 @@ def _height(
         return math.nan, "the DEM has no value here"
     if options.ground_elevation_m is not None:
         return alt - options.ground_elevation_m, "altitude - ground elevation"
-    if track.home_alt_m is not None:
-        return alt - track.home_alt_m, "altitude - home altitude"
+    home = track.home.held(t) if track.home is not None else None
+    if home is not None:  # the home in force at the frame's time, re-set at arming or not
+        return alt - float(home[0]), f"altitude - home altitude {float(home[0]):.1f} m"
     return math.nan, "no ground elevation, DEM or home altitude"
 
 

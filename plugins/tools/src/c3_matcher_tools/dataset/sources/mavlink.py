@@ -4,10 +4,11 @@ the vehicle (``.bin``) and MAVLink telemetry logs recorded by a ground station (
 Messages used (DataFlash / MAVLink): attitude ``ATT`` (Roll, Pitch, Yaw, deg) / ``ATTITUDE``
 (rad; without either, each frame is imported level, its yaw from the GNSS course, and marked);
 position ``POS`` (Lat, Lng, Alt above sea level; ``RelHomeAlt`` gives the home altitude) /
-``GLOBAL_POSITION_INT`` (1e-7 deg, mm; ``relative_alt``; not at 0, 0); the receiver ``GPS``
+``GLOBAL_POSITION_INT`` (1e-7 deg, mm; ``relative_alt``; not at 0, 0), the home altitude at
+each sample (ArduPilot sets it again at arming); the receiver ``GPS``
 (Status = fix type, horizontal accuracy from ``GPA.HAcc``; instance 0, the first receiver) /
 ``GPS_RAW_INT`` (fix_type, ``h_acc`` mm); height above ground from the first downward
-rangefinder, ``RFND.Dist`` / ``DISTANCE_SENSOR.current_distance`` (cm; see :func:`_range` and
+rangefinder, ``RFND.Dist`` / ``DISTANCE_SENSOR.current_distance`` (cm; see :func:`_ranges` and
 :func:`_heights`); camera triggers, one per photo, of the first of :data:`TRIGGERS` logged.
 A telemetry log holding several MAVLink systems (vehicles on one link) is
 read for the camera vehicle's alone (:func:`_camera_system`). Times: the time pymavlink gives
@@ -28,7 +29,13 @@ import numpy as np
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.quiet import quiet
-from c3_matcher_tools.dataset.sources.track import LogTrack, Series, cut_short, logs_library
+from c3_matcher_tools.dataset.sources.track import (
+    LogTrack,
+    Series,
+    cut_short,
+    home_series,
+    logs_library,
+)
 
 __all__ = ["read_mavlink"]
 
@@ -164,16 +171,33 @@ def _first_instance(m: Any, column: str) -> bool:
     return int(getattr(m, column, 0)) == 0
 
 
-def _range(m: Any, t: float) -> Row:
-    """A downward rangefinder's reading: (t, [distance m, instance, whether it is a height]):
-    ``RFND`` (``Instance``; good by ``Stat``) or ``DISTANCE_SENSOR`` (``id``; cm, within
-    [min_distance, max_distance), a reading out of range is none). Older DataFlash formats lack
-    some of RFND's columns: a reading is then kept without that check."""
-    if m.get_type() == "RFND":
-        good = getattr(m, "Stat", RANGE_GOOD) == RANGE_GOOD
-        return t, [float(m.Dist), float(getattr(m, "Instance", 0)), float(good)]
-    good = m.min_distance <= m.current_distance < m.max_distance
-    return t, [m.current_distance * 1e-2, float(m.id), float(good)]
+def _ranges(m: Any, t: float) -> list[Row]:
+    """A rangefinder message's downward readings, each (t, [distance m, instance, whether it is
+    a height]): ``DISTANCE_SENSOR`` (``id``; cm, within [min_distance, max_distance): a reading
+    out of range is none) or ``RFND``: one rangefinder a message (``Instance``; good by
+    ``Stat``), or in the format of ArduPilot 3.5-3.6, ``Dist1``, ``Orient1``, ``Dist2``,
+    ``Orient2`` (rangefinders 0 and 1; before 3.5 without the orientations). A format without
+    ``Stat`` is read without that check, its zero readings (no reading) left out; one without
+    an orientation is taken as facing down."""
+    if m.get_type() == "DISTANCE_SENSOR":
+        if m.orientation != DOWNWARD:
+            return []
+        good = m.min_distance <= m.current_distance < m.max_distance
+        return [(t, [m.current_distance * 1e-2, float(m.id), float(good)])]
+    if hasattr(m, "Dist"):
+        readings = [(m.Dist, getattr(m, "Instance", 0), getattr(m, "Orient", DOWNWARD))]
+    elif hasattr(m, "Dist1"):  # two rangefinders a message
+        readings = [(m.Dist1, 0, getattr(m, "Orient1", DOWNWARD))]
+        if hasattr(m, "Dist2"):
+            readings.append((m.Dist2, 1, getattr(m, "Orient2", DOWNWARD)))
+    else:  # neither layout: the type is ignored, and said so (see _take)
+        raise AttributeError("Dist")
+    status = getattr(m, "Stat", None)
+    return [
+        (t, [float(d), float(k), float(d > 0 if status is None else status == RANGE_GOOD)])
+        for d, k, orient in readings
+        if orient == DOWNWARD
+    ]
 
 
 def _heights(readings: list[Row]) -> list[Row]:
@@ -185,12 +209,6 @@ def _heights(readings: list[Row]) -> list[Row]:
     return [(t, v[:1]) for t, v in readings if v[1] == first and v[2]]
 
 
-def _downward(m: Any) -> bool:
-    """Whether a rangefinder faces down (``Orient`` / ``orientation``; an RFND without ``Orient``
-    is taken as facing down): one that faces another way measures obstacles, not the ground."""
-    return getattr(m, "Orient", getattr(m, "orientation", DOWNWARD)) == DOWNWARD
-
-
 def _fixed_position(m: Any) -> bool:
     """Whether a GLOBAL_POSITION_INT states a position: ArduPilot sends latitude and longitude
     0 before its estimator has an origin (a place no flight of this product is at)."""
@@ -200,8 +218,6 @@ def _fixed_position(m: Any) -> bool:
 WANTED: dict[str, Callable[[Any], bool]] = {
     "GPS": lambda m: _first_instance(m, "I"),
     "GPA": lambda m: _first_instance(m, "I"),
-    "RFND": _downward,
-    "DISTANCE_SENSOR": _downward,
     "GLOBAL_POSITION_INT": _fixed_position,
 }
 """Per message type, which of its messages are read (every one of a type not named)."""
@@ -209,7 +225,7 @@ WANTED: dict[str, Callable[[Any], bool]] = {
 
 def _position(
     rows: dict[str, list[Row]],
-    home: list[float],
+    home: list[Row],
     t: float,
     lat: float,
     lon: float,
@@ -217,20 +233,23 @@ def _position(
     home_alt: float,
 ) -> None:
     rows["pos"].append((t, [lat, lon, alt]))
-    home.append(home_alt)
+    home.append((t, [home_alt]))
 
 
 @dataclass(frozen=True)
 class _System:
     """What one MAVLink system's messages said (a DataFlash log's: all of them): the samples by
-    kind, the home altitudes, the ``GPA.HAcc`` accuracies and the message types seen."""
+    kind, the home altitude at each position sample (its altitude minus its altitude above
+    home), the ``GPA.HAcc`` accuracies, the message types seen and those ignored (by the column
+    their format lacks)."""
 
     rows: dict[str, list[Row]] = field(
         default_factory=lambda: {k: [] for k in ("att", "pos", "gps", "rng", "trig")}
     )
-    home: list[float] = field(default_factory=list)
+    home: list[Row] = field(default_factory=list)
     hacc: list[tuple[float, float]] = field(default_factory=list)
     seen: set[str] = field(default_factory=set)
+    ignored: dict[str, str] = field(default_factory=dict)
 
 
 def _handlers(system: _System) -> dict[str, Callable[[Any, float], None]]:
@@ -261,8 +280,8 @@ def _handlers(system: _System) -> dict[str, Callable[[Any, float], None]]:
                 ],
             )
         ),
-        "RFND": lambda m, t: rows["rng"].append(_range(m, t)),
-        "DISTANCE_SENSOR": lambda m, t: rows["rng"].append(_range(m, t)),
+        "RFND": lambda m, t: rows["rng"].extend(_ranges(m, t)),
+        "DISTANCE_SENSOR": lambda m, t: rows["rng"].extend(_ranges(m, t)),
         **{
             name: lambda m, t: rows["trig"].append((t, [TRIGGERS.index(m.get_type())]))
             for name in TRIGGERS
@@ -282,11 +301,7 @@ def _read(log: Any, source: str, kind: str, chatter: io.StringIO) -> dict[int, _
                 if number not in systems:
                     system = _System()
                     systems[number] = (system, _handlers(system))
-                system, handlers = systems[number]
-                name = msg.get_type()
-                system.seen.add(name)
-                if name not in WANTED or WANTED[name](msg):
-                    handlers[name](msg, float(msg._timestamp))
+                _take(msg, *systems[number])
     except Exception as exc:
         raise InvalidInputError(source, f"unreadable {kind}: {exc}") from None
     finally:
@@ -299,6 +314,21 @@ def _read(log: Any, source: str, kind: str, chatter: io.StringIO) -> dict[int, _
             + (f" ({damaged} damaged headers skipped)" if damaged else ""),
         )
     return {number: system for number, (system, _) in systems.items()}
+
+
+def _take(msg: Any, system: _System, handlers: dict[str, Callable[[Any, float], None]]) -> None:
+    """``msg`` through its handler into ``system`` (when :data:`WANTED`). A message whose format
+    lacks a column read (a layout of another ArduPilot version) is ignored, and every later one
+    of its type: the column is named in the notes, and the log read without them."""
+    name = msg.get_type()
+    system.seen.add(name)
+    if name in system.ignored:
+        return
+    try:
+        if name not in WANTED or WANTED[name](msg):
+            handlers[name](msg, float(msg._timestamp))
+    except AttributeError as exc:  # each reads its columns before it adds a sample
+        system.ignored[name] = str(exc.name or exc)
 
 
 def _camera_system(systems: dict[int, _System], source: str) -> tuple[_System, str | None]:
@@ -359,11 +389,12 @@ def read_mavlink(path: Path) -> LogTrack:
     seen = vehicle.seen
     rows = {**vehicle.rows, "rng": _heights(vehicle.rows["rng"])}
     rows["trig"], camera = _shutters(vehicle.rows["trig"])
+    ignored = _ignored(vehicle.ignored)
     if not rows["pos"] and not rows["gps"]:
         raise InvalidInputError(
             source,
             "no POS / GLOBAL_POSITION_INT / GPS message: the log holds no position"
-            + (f" ({which})" if which else ""),
+            + "".join(f" ({x})" for x in (which, ignored) if x),
         )
 
     def series(key: str, name: str, angles: tuple[int, ...] = ()) -> Series | None:
@@ -374,6 +405,13 @@ def read_mavlink(path: Path) -> LogTrack:
 
     trig = np.sort(np.array([t for t, _ in rows["trig"]], dtype=np.float64))
     notes, damage = _notes(rows, chatter, cut, which, camera)
+    home, home_note = home_series(
+        "POS.Alt - RelHomeAlt" if "POS" in seen else "GLOBAL_POSITION_INT alt - relative_alt",
+        [t for t, _ in vehicle.home],
+        [v[0] for _, v in vehicle.home],
+        source=source,
+    )
+    notes += [x for x in (ignored, home_note) if x]
     first_t = (rows["att"] or rows["pos"] or rows["gps"])[0][0]
     return LogTrack(
         source=source,
@@ -383,11 +421,19 @@ def read_mavlink(path: Path) -> LogTrack:
         gnss=_receiver(series("gps", "GPS" if "GPS" in seen else "GPS_RAW_INT"), vehicle.hacc),
         height=series("rng", "RFND" if "RFND" in seen else "DISTANCE_SENSOR"),
         triggers_s=trig if trig.size else None,
-        home_alt_m=next((h for h in vehicle.home if math.isfinite(h)), None),
+        home=home,
         utc_offset_s=0.0 if first_t > 1e9 else None,
         notes=tuple(notes),
         damage=damage,
     )
+
+
+def _ignored(ignored: dict[str, str]) -> str | None:
+    """What the notes say of the message types ignored, by the column their format lacks."""
+    if not ignored:
+        return None
+    named = ", ".join(f"{name} (no column {column})" for name, column in sorted(ignored.items()))
+    return f"messages in a format this importer does not read, ignored: {named}"
 
 
 def _shutters(messages: list[Row]) -> tuple[list[Row], str]:

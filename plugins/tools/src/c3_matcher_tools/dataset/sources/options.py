@@ -22,6 +22,7 @@ __all__ = [
     "ImportOptions",
     "ImportReport",
     "ProposalOptions",
+    "check_ground_options",
     "max_uncertainty_m",
     "number_ranges",
 ]
@@ -44,6 +45,27 @@ to put the first image on a log clock that counts UTC seconds since 1970 (an Ard
 ground station's: in file order the offset is that image's log time) until 2096, or to bring a
 camera clock that was never set (1970, 2000) onto the log's; beyond it the times are no clock's
 and the figures printed of them run to hundreds of digits."""
+
+
+MAX_GROUND_ELEVATION_M = 9000.0
+"""``--ground-elevation`` lies within this of sea level, m (no ground is higher or deeper)."""
+
+
+def check_ground_options(ground_elevation_m: float | None, dem: Path | None) -> None:
+    """The one rule of every import's ground: ``--ground-elevation`` or ``--dem``, not both
+    (which would hold where the other does not is a guess; one given is used for every frame),
+    and a ground elevation within :data:`MAX_GROUND_ELEVATION_M` of sea level; refused naming
+    ``--ground-elevation``."""
+    if ground_elevation_m is not None and dem is not None:
+        raise InvalidInputError("--ground-elevation", "give it or --dem, not both")
+    if ground_elevation_m is not None and not (
+        math.isfinite(ground_elevation_m) and abs(ground_elevation_m) <= MAX_GROUND_ELEVATION_M
+    ):
+        raise InvalidInputError(
+            "--ground-elevation",
+            f"must be in [-{MAX_GROUND_ELEVATION_M:g}, {MAX_GROUND_ELEVATION_M:g}] m, got "
+            f"{ground_elevation_m}",
+        )
 
 
 def max_uncertainty_m(zoom: int, lat_deg: float = 0.0) -> float:
@@ -110,10 +132,11 @@ class ImportOptions:
     order, one image every ``interval_s`` from ``time_offset_s`` on the log's clock; a video's
     frames at ``time_offset_s`` plus their time in the video);
     ``time_offset_s`` is added to trigger / image times otherwise (to the images' own times when
-    they are paired with triggers by time: see :func:`match_shots`). ``max_gap_s``: the farthest a
-    log sample may be from a frame's time to be used. ``gnss_degraded_m``: a stated horizontal
-    accuracy worse than this flags the frame. ``ground_elevation_m`` / ``dem``: the ground's
-    altitude (same datum as the log's altitude) when the log has no height above ground."""
+    they state one, to the trigger times when they do not: see :func:`match_shots`).
+    ``max_gap_s``: the farthest a log sample may be from a frame's time to be used.
+    ``gnss_degraded_m``: a stated horizontal accuracy worse than this flags the frame.
+    ``ground_elevation_m`` / ``dem``: the ground's altitude (same datum as the log's altitude)
+    when the log has no height above ground; one or the other (:func:`check_ground_options`)."""
 
     calibration: CameraCalibration
     proposal: ProposalOptions
@@ -146,8 +169,7 @@ class ImportOptions:
             raise InvalidInputError(
                 "--gnss-degraded-m", f"must be > 0 m, got {self.gnss_degraded_m}"
             )
-        if self.ground_elevation_m is not None and not math.isfinite(self.ground_elevation_m):
-            raise InvalidInputError("--ground-elevation", "must be finite")
+        check_ground_options(self.ground_elevation_m, self.dem)
 
 
 @dataclass(frozen=True)

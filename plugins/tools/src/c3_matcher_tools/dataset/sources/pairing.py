@@ -199,9 +199,11 @@ def _as_many_triggers(shots: Sequence[Shot], triggers: F64, options: ImportOptio
     the order of those times (ties, as whole-second EXIF times give, in file order), not by file
     name, which need not sort in capture order; each photo at its trigger's time. Order alone:
     a camera clock off the log's, or times truncated to the second, move no photo onto another's
-    trigger, as pairing each with the trigger nearest its time could. A photo whose time lies
-    apart from the others' (:func:`times_apart`: farther than the triggers' whole span, a clock
-    reset) does not sort among them: it keeps its place in file order, and a note says so."""
+    trigger, as pairing each with the trigger nearest its time could; nor does ``--time-offset``
+    (added to the photos' own times, it leaves their order: ``how`` says so). A photo whose time
+    lies apart from the others' (:func:`times_apart`: farther than the triggers' whole span, a
+    clock reset) does not sort among them: it keeps its place in file order, and a note says
+    so."""
     counts = f"{triggers.size} in the log, {len(shots)} image(s)"
     times = [float(s.t_s or 0.0) for s in shots]
     apart = set(times_apart(times, float(triggers[-1] - triggers[0]) + options.max_gap_s))
@@ -211,6 +213,10 @@ def _as_many_triggers(shots: Sequence[Shot], triggers: F64, options: ImportOptio
     if any(a is not b for a, b in zip(ordered, shots, strict=True)):
         how = f"camera trigger in the images' capture order, not their file order ({counts})"
     taken = tuple((s, float(t)) for s, t in zip(ordered, triggers, strict=True))
+    if options.time_offset_s:  # the report shows the offset given: say what it did
+        how += (
+            "; --time-offset moves the photos' own times, not their order: each keeps its trigger"
+        )
     return Pairing(taken, (), how, (_apart_note(shots, apart),) if apart else ())
 
 

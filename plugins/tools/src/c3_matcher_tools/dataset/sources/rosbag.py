@@ -138,12 +138,17 @@ DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
 """The CameraInfo distortion models whose coefficients are OpenCV's (k1, k2, p1, p2, k3[, ...])."""
 
 
+def _info_field(msg: Any, name: str) -> Any:
+    """A CameraInfo field by its ROS 2 name (``d``, ``k``) or its ROS 1 one (``D``, ``K``)."""
+    return getattr(msg, name) if hasattr(msg, name) else getattr(msg, name.upper())
+
+
 def _calibration(msg: Any, source: str) -> CameraCalibration:
-    """A CameraInfo's intrinsics; refused naming its distortion model when that is neither of
-    :data:`DISTORTION_MODELS` (nor absent with no distortion): e.g. a fisheye ``equidistant``
-    model, whose coefficients OpenCV's pinhole model would misread."""
-    d = np.asarray(msg.d, dtype=np.float64)
-    model = str(msg.distortion_model)
+    """A CameraInfo's intrinsics (ROS 1 or ROS 2 spelling); refused naming its distortion model
+    when that is neither of :data:`DISTORTION_MODELS` (nor absent with no distortion): e.g. a
+    fisheye ``equidistant`` model, whose coefficients OpenCV's pinhole model would misread."""
+    d = np.asarray(_info_field(msg, "d"), dtype=np.float64).reshape(-1)
+    model = str(getattr(msg, "distortion_model", "") or "")
     if model not in DISTORTION_MODELS and (model or np.any(d != 0)):
         raise InvalidInputError(
             source,
@@ -152,9 +157,15 @@ def _calibration(msg: Any, source: str) -> CameraCalibration:
         )
     if d.size not in (0, 4, 5, 8, 12, 14):
         d = d[:5] if d.size > 5 else np.pad(d, (0, 5 - d.size))
-    return CameraCalibration(
-        np.asarray(msg.k, dtype=np.float64).reshape(3, 3), d, (int(msg.width), int(msg.height))
-    )
+    try:
+        k = np.asarray(_info_field(msg, "k"), dtype=np.float64).reshape(3, 3)
+        return CameraCalibration(k, d, (int(msg.width), int(msg.height)))
+    except (InvalidInputError, ValueError) as exc:  # K of zeros: a camera never calibrated
+        raise InvalidInputError(
+            source,
+            f"its CameraInfo states no usable intrinsics ({exc}): give the camera's "
+            "calibration JSON",
+        ) from None
 
 
 def _image_bytes(msg: Any, msgtype: str) -> tuple[bytes, str]:
@@ -224,15 +235,13 @@ def read_bag(
     check_frame_step(step, video=True)
     path = Path(path)
     source = str(path)
-    conns, messages = _read(_reader(path), source, topics, step)
+    conns, messages, calibration = _read(_reader(path), source, topics, step, intrinsics)
     _check_messages(source, conns, messages)
     attitude = (
         _series(conns.attitude[0].topic, messages.att_t, messages.att_v, source, angles=(2,))
         if messages.att_t
         else None
     )
-    info = messages.info
-    calibration = _calibration(info, source) if intrinsics and info is not None else None
     gnss = _series(conns.navsat[0].topic, messages.fix_t, messages.fix_v, source)
     shots = sorted(messages.shots, key=lambda s: s.t_s or 0.0)
     track = LogTrack(
@@ -242,17 +251,23 @@ def read_bag(
         position=None,
         gnss=gnss,
         utc_offset_s=0.0,
-        notes=_notes(conns, messages.no_orientation, bool(messages.att_t)),
+        notes=_notes(conns, messages, bool(messages.att_t)),
     )
     return track, shots, calibration
 
 
-def _read(reader: Any, source: str, topics: BagTopics, step: int) -> tuple[_Connections, _Messages]:
-    """The chosen connections and their messages; the reader is closed after. Any failure of
-    the bag's reader is refused as an unreadable bag."""
+def _read(
+    reader: Any, source: str, topics: BagTopics, step: int, intrinsics: bool
+) -> tuple[_Connections, _Messages, CameraCalibration | None]:
+    """The chosen connections, their messages and the first CameraInfo's intrinsics (when
+    wanted, ``intrinsics``, and recorded); the reader is closed after. Any failure of the bag's
+    reader or of a message read is refused as an unreadable bag."""
     try:
         conns = _connections(reader, source, topics)
-        return conns, _messages(reader, conns, step)
+        messages = _messages(reader, conns, step)
+        info = messages.info
+        calibration = _calibration(info, source) if intrinsics and info is not None else None
+        return conns, messages, calibration
     except InvalidInputError:
         raise
     except Exception as exc:
@@ -297,7 +312,8 @@ def _messages(reader: Any, conns: _Connections, step: int) -> _Messages:
             if (seen_images - 1) % step:
                 continue
             data, suffix = _image_bytes(msg, conn.msgtype)
-            shots.append(Shot(f"{conn.topic}@{t:.6f}", constant(data), suffix, t, {"stamp_s": t}))
+            name = f"{conn.topic}@{t:.6f}#{seen_images - 1}"  # unique where stamps are alike
+            shots.append(Shot(name, constant(data), suffix, t, {"stamp_s": t}))
         elif conn.msgtype in ATTITUDE_TYPES:
             q = _stated_orientation(msg)
             no_orientation += q is None
@@ -356,22 +372,41 @@ def _series(
     )
 
 
-def _notes(conns: _Connections, no_orientation: int, attitude: bool) -> tuple[str, ...]:
-    """The topics read, and :data:`NO_ATTITUDE` when the bag has no attitude topic; the
-    attitude samples skipped for stating no orientation, and the attitude then assumed when
-    none did."""
+def _notes(conns: _Connections, messages: _Messages, attitude: bool) -> tuple[str, ...]:
+    """The topics read, images stamped alike (:func:`_alike`), and :data:`NO_ATTITUDE` when
+    the bag has no attitude topic; the attitude samples skipped for stating no orientation, and
+    the attitude then assumed when none did."""
     topics = (
         f"images {conns.images[0].topic}, attitude "
         + (conns.attitude[0].topic if conns.attitude else "none")
         + f", position {conns.navsat[0].topic}, intrinsics "
         + (conns.camera_info[0].topic if conns.camera_info else "not recorded")
     )
+    notes = [topics, *_alike(messages.shots)]
+    no_orientation = messages.no_orientation
     if not conns.attitude:
-        return (topics, NO_ATTITUDE)
+        return (*notes, NO_ATTITUDE)
     if not no_orientation:
-        return (topics,)
+        return tuple(notes)
     skipped = (
         f"{no_orientation} {conns.attitude[0].topic} sample(s) state no orientation "
         "(orientation_covariance[0] = -1, or a zero quaternion): skipped"
     )
-    return (topics, skipped if attitude else f"{skipped}; {ASSUMED_LEVEL}")
+    return (*notes, skipped if attitude else f"{skipped}; {ASSUMED_LEVEL}")
+
+
+def _alike(shots: Sequence[Shot]) -> list[str]:
+    """A note when images share a header stamp (a message recorded twice, or a driver stamping
+    frames alike): each is named by its index in the topic (``#k``) and imported at that time;
+    a copy of another's bytes is set aside by the import."""
+    stamps: dict[float | None, int] = {}
+    for shot in shots:
+        stamps[shot.t_s] = stamps.get(shot.t_s, 0) + 1
+    shared = [n for n in stamps.values() if n > 1]
+    if not shared:
+        return []
+    return [
+        f"{sum(shared)} images at {len(shared)} header stamp(s) that several share (a message "
+        "recorded twice, or frames stamped alike): each named by its index in the topic (#k), "
+        "placed at its stamp"
+    ]

@@ -15,6 +15,7 @@ import importlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +36,7 @@ __all__ = [
     "constant",
     "cut_short",
     "gimbal_camera_matrix",
+    "home_series",
     "logs_library",
     "quaternion_matrix",
 ]
@@ -134,6 +136,52 @@ class Series:
             out[col] = (out[col] + 180.0) % 360.0 - 180.0
         return np.asarray(out, dtype=np.float64)
 
+    def held(self, t: float) -> F64 | None:
+        """The value in force at ``t`` of a quantity that is set now and then and holds until
+        set again (a home altitude): the latest sample at or before ``t``, else the first;
+        None when there is none."""
+        if not len(self):
+            return None
+        j = int(np.searchsorted(self.t_s, t, side="right")) - 1
+        return np.asarray(self.values[max(j, 0)], dtype=np.float64).copy()
+
+
+HOME_STEP_M = 0.05
+"""A home altitude that differs from the one in force by more than this was set again (a log's
+altitudes, rounded to the millimetre or to float32, jitter by less)."""
+
+
+def _when(t_s: float) -> str:
+    """A log time as a person reads it: UTC when the log's clock is (past 2001), else s."""
+    if t_s < 1e9:
+        return f"{t_s:.1f} s"
+    return datetime.fromtimestamp(t_s, UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def home_series(
+    name: str, t_s: Sequence[float] | F64, alt_m: Sequence[float] | F64, *, source: str
+) -> tuple[Series | None, str | None]:
+    """The home altitudes logged (``name``: where from) as a series read with
+    :meth:`Series.held`, None when none is finite; and a note when the home was set again at
+    another altitude (PX4 and ArduPilot set it again at arming, the first often before the
+    GNSS altitude settled): each altitude and when it was set, on the log's clock."""
+    home = Series.build(name, t_s, np.asarray(alt_m, dtype=np.float64), source=source)
+    if not len(home):
+        return None, None
+    v = home.values[:, 0]
+    sets = [0]
+    for i in range(1, v.size):
+        if abs(v[i] - v[sets[-1]]) > HOME_STEP_M:
+            sets.append(i)
+    if len(sets) == 1:
+        return home, None
+    shown = ", ".join(f"{v[i]:.1f} m from {_when(home.t_s[i])}" for i in sets[:4])
+    more = f" and {len(sets) - 4} more" if len(sets) > 4 else ""
+    return home, (
+        f"home altitude ({name}) set {len(sets)} times: {shown}{more}; each frame's height is "
+        "its altitude minus the home altitude in force at its time"
+    )
+
 
 @dataclass(frozen=True)
 class LogTrack:
@@ -141,7 +189,8 @@ class LogTrack:
     ``position``: lat, lon, alt_m; ``gnss``: the receiver's own lat, lon, alt_m, horizontal
     accuracy (m, NaN when not stated) and fix type (3 = 3D); ``height``: height above ground
     (m, valid samples only, e.g. a rangefinder); ``triggers_s``: camera trigger times;
-    ``home_alt_m``: the ground's altitude at home (same datum as ``alt_m``)."""
+    ``home``: the ground's altitude at home (same datum as ``alt_m``) as the log set it over
+    time, read at a frame's time with :meth:`Series.held` (:func:`home_series`)."""
 
     source: str
     kind: str
@@ -150,7 +199,7 @@ class LogTrack:
     gnss: Series | None = None
     height: Series | None = None
     triggers_s: F64 | None = None
-    home_alt_m: float | None = None
+    home: Series | None = None
     utc_offset_s: float | None = None
     notes: tuple[str, ...] = ()
     per_image: bool = False

@@ -7,7 +7,8 @@ receiver; the receiver's fix, stated horizontal accuracy ``eph`` and UTC time fr
 ``vehicle_gps_position`` (or ``sensor_gps``; old ``lat``/``lon`` in 1e-7 deg and ``alt`` in mm,
 or new ``latitude_deg``/``longitude_deg``/``altitude_msl_m``); height above ground from
 ``vehicle_local_position.dist_bottom`` where ``dist_bottom_valid``; the ground's altitude from
-``home_position.alt`` else ``vehicle_local_position.ref_alt``; camera trigger times from
+``home_position.alt`` (each home as it was set: PX4 sets it again at arming) else
+``vehicle_local_position.ref_alt``; camera trigger times from
 ``camera_capture`` / ``camera_trigger``. Times: the log's ``timestamp`` (microseconds since
 boot) in seconds.
 
@@ -37,6 +38,7 @@ from c3_matcher_tools.dataset.sources.track import (
     Series,
     attitude_from_matrix,
     cut_short,
+    home_series,
     logs_library,
     quaternion_matrix,
 )
@@ -245,11 +247,14 @@ def _global_position(ulog: Any, source: str) -> Series | None:
     )
 
 
-def _ground(ulog: Any, source: str) -> tuple[Series | None, float | None]:
-    """The rangefinder's valid heights above ground and the home altitude."""
+def _ground(ulog: Any, source: str) -> tuple[Series | None, Series | None, str | None]:
+    """The rangefinder's valid heights above ground, the home altitudes as they were set over
+    the log (:func:`home_series`: ``home_position.alt`` where ``valid_alt``, else the estimator's
+    reference ``vehicle_local_position.ref_alt`` where set) and a note when the home was set
+    again at another altitude."""
     local = _topic(ulog, "vehicle_local_position", source)
     height = None
-    home_alt: float | None = None
+    home_at: tuple[str, np.ndarray, np.ndarray] | None = None
     if local is not None:
         tl = local["timestamp"].astype(np.float64) / 1e6
         dist = _field(local, "dist_bottom")
@@ -261,11 +266,18 @@ def _ground(ulog: Any, source: str) -> tuple[Series | None, float | None]:
             )
         ref = _field(local, "ref_alt")
         if ref is not None and np.any(ref != 0):
-            home_alt = float(ref[np.flatnonzero(ref != 0)[0]])
+            home_at = ("vehicle_local_position.ref_alt", tl[ref != 0], ref[ref != 0])
     home = _topic(ulog, "home_position", source)
-    if home is not None and "alt" in home:
-        home_alt = float(home["alt"][0])
-    return height, home_alt
+    alt = None if home is None else _field(home, "alt")
+    if home is not None and alt is not None:
+        valid_alt = _field(home, "valid_alt")
+        keep = valid_alt > 0 if valid_alt is not None else np.ones(alt.size, dtype=bool)
+        if keep.any():
+            th = home["timestamp"].astype(np.float64) / 1e6
+            home_at = ("home_position.alt", th[keep], alt[keep])
+    if home_at is None:
+        return height, None, None
+    return (height, *home_series(*home_at, source=source))
 
 
 def _triggers(ulog: Any, notes: list[str], source: str) -> np.ndarray | None:
@@ -308,7 +320,8 @@ def read_ulog(path: Path) -> LogTrack:
             f"{damaged}no vehicle_global_position nor vehicle_gps_position: the log holds no "
             "position",
         )
-    height, home_alt = _ground(ulog, source)
+    height, home, home_note = _ground(ulog, source)
+    notes += [home_note] if home_note else []
     triggers = _triggers(ulog, notes, source)
     return LogTrack(
         source=source,
@@ -318,7 +331,7 @@ def read_ulog(path: Path) -> LogTrack:
         gnss=gnss,
         height=height,
         triggers_s=triggers,
-        home_alt_m=home_alt,
+        home=home,
         utc_offset_s=utc_offset,
         notes=tuple(notes),
         damage=damage,

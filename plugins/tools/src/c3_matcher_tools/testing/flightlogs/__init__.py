@@ -28,15 +28,20 @@ from c3_matcher.dto import Attitude
 __all__ = [
     "BOOT_S",
     "GROUND_M",
+    "HOME_FIRST_M",
     "UTC0",
     "Pose",
     "dense_track",
     "flight_poses",
+    "pre_arm_track",
     "quaternion_wxyz",
 ]
 
 GROUND_M = 500.0
 """The ground's altitude above sea level in every written log (m)."""
+HOME_FIRST_M = 12.0
+"""``home_reset`` (ULog, telemetry and DataFlash writers): the home first set this much above the
+ground (before arming, the GNSS altitude not settled); set again at arming, at the ground's."""
 UTC0 = 1_790_000_000.0
 """UTC time of the first frame (s)."""
 BOOT_S = 100.0
@@ -96,6 +101,13 @@ def flight_poses(dataset: Path, frames: Sequence[int]) -> list[Pose]:
             )
         )
     return out
+
+
+def pre_arm_track(poses: Sequence[Pose]) -> list[tuple[float, float, float, float]]:
+    """(t, lat, lon, alt) on the ground at the first frame's place, once a second from 30 to 11
+    s before the first frame: the vehicle before arming."""
+    p = poses[0]
+    return [(p.t_s - 30.0 + k, p.lat, p.lon, GROUND_M) for k in range(20)]
 
 
 def dense_track(

@@ -7,7 +7,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher_tools.testing.flightlogs import BOOT_S, GROUND_M, UTC0, Pose, dense_track
+from c3_matcher_tools.testing.flightlogs import (
+    BOOT_S,
+    GROUND_M,
+    HOME_FIRST_M,
+    UTC0,
+    Pose,
+    dense_track,
+    pre_arm_track,
+)
 
 __all__ = ["write_dataflash"]
 
@@ -26,7 +34,9 @@ _DF_STRUCT = {"Q": "Q", "f": "f", "L": "i", "B": "B", "I": "I", "H": "H"}
 def write_dataflash(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) -> Path:
     """An ArduPilot DataFlash log in the documented binary layout (FMT messages, then ATT, POS,
     GPS with GNSS week time, GPA and CAM); ``flaws``: ``no_attitude``, ``no_trigger``,
-    ``time_jump`` (the middle frame's ATT stamped 5 s before the frame before it)."""
+    ``time_jump`` (the middle frame's ATT stamped 5 s before the frame before it), ``home_reset``
+    (POS on the ground before arming, its ``RelHomeAlt`` above a home :data:`HOME_FIRST_M`
+    higher than the ground, the home of the flight)."""
     out = bytearray()
 
     def fmt_message(type_id: int, name: str, fmt: str, cols: str) -> bytes:
@@ -55,6 +65,8 @@ def write_dataflash(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] =
     gps_epoch = 315_964_800.0  # 1980-01-06 UTC
     leap = 18.0
     items: list[tuple[int, bytes]] = []
+    if "home_reset" in flaws:  # on the ground before arming, the home then higher
+        items += [msg("POS", *values) for values in _pre_arm_positions(poses)]
     for t, lat, lon, alt in dense_track(poses):
         tus = int((BOOT_S + t) * 1e6)
         gps_s = UTC0 + t - gps_epoch + leap
@@ -78,3 +90,13 @@ def write_dataflash(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] =
     path = Path(path)
     path.write_bytes(bytes(out))
     return path
+
+
+def _pre_arm_positions(poses: Sequence[Pose]) -> list[tuple[Any, ...]]:
+    """POS values on the ground before arming (:func:`pre_arm_track`), ``RelHomeAlt`` above a
+    home :data:`HOME_FIRST_M` higher than the ground."""
+    home = GROUND_M + HOME_FIRST_M
+    return [
+        (int((BOOT_S + t) * 1e6), round(lat * 1e7), round(lon * 1e7), alt, alt - home)
+        for t, lat, lon, alt in pre_arm_track(poses)
+    ]

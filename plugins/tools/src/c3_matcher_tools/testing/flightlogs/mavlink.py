@@ -8,7 +8,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher_tools.testing.flightlogs import BOOT_S, GROUND_M, UTC0, Pose, dense_track
+from c3_matcher_tools.testing.flightlogs import (
+    BOOT_S,
+    GROUND_M,
+    HOME_FIRST_M,
+    UTC0,
+    Pose,
+    dense_track,
+    pre_arm_track,
+)
 
 __all__ = ["write_tlog"]
 
@@ -16,11 +24,15 @@ __all__ = ["write_tlog"]
 def write_tlog(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) -> Path:
     """A ground station's MAVLink telemetry log: ATTITUDE, GLOBAL_POSITION_INT, GPS_RAW_INT
     (h_acc 1.5 m) and CAMERA_FEEDBACK per frame, each prefixed by its UTC time as pymavlink
-    writes it. ``flaws``: ``no_attitude``, ``no_trigger``."""
+    writes it. ``flaws``: ``no_attitude``, ``no_trigger``, ``home_reset`` (GLOBAL_POSITION_INT on
+    the ground before arming, its ``relative_alt`` above a home :data:`HOME_FIRST_M` higher than
+    the ground, the home of the flight)."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     records = _tlog_positions(poses) + _tlog_frames(poses, flaws)
+    if "home_reset" in flaws:
+        records += _tlog_positions(poses, pre_arm=True)
     records.sort(key=lambda r: r[0])
     path = Path(path)
     with path.open("wb") as fh:
@@ -29,15 +41,17 @@ def write_tlog(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) 
     return path
 
 
-def _tlog_positions(poses: Sequence[Pose]) -> list[tuple[float, Any]]:
+def _tlog_positions(poses: Sequence[Pose], *, pre_arm: bool = False) -> list[tuple[float, Any]]:
     """(t, message) of GLOBAL_POSITION_INT and GPS_RAW_INT (3D fix, h_acc 1.5 m) along the
-    poses."""
+    poses (``pre_arm``: on the ground before arming, :func:`pre_arm_track`, the home then
+    :data:`HOME_FIRST_M` higher)."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
     records: list[tuple[float, Any]] = []
-    for t, lat, lon, alt in dense_track(poses):
+    home = GROUND_M + (HOME_FIRST_M if pre_arm else 0.0)
+    for t, lat, lon, alt in pre_arm_track(poses) if pre_arm else dense_track(poses):
         ms = int((BOOT_S + t) * 1e3)
-        rel = int((alt - GROUND_M) * 1e3)
+        rel = int((alt - home) * 1e3)
         lat_e7, lon_e7, alt_mm = round(lat * 1e7), round(lon * 1e7), round(alt * 1e3)
         records.append(
             (

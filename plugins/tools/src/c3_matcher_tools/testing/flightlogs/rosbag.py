@@ -1,4 +1,5 @@
-"""ROS 2 bags (sqlite3 or MCAP storage) of a rendered flight, written with ``rosbags``."""
+"""ROS bags of a rendered flight, written with ``rosbags``: ROS 2 (sqlite3 or MCAP storage) or
+ROS 1 (a ``.bag`` of ROS 1 Noetic's message types, ``CameraInfo.D`` / ``K`` spelt so)."""
 
 from __future__ import annotations
 
@@ -25,19 +26,20 @@ def write_bag(
     flaws: Sequence[str] = (),
     pose_topic: bool = False,
 ) -> Path:
-    """A ROS 2 bag (``storage`` sqlite3 or mcap) with ``/camera/image_raw/compressed``
+    """A ROS 2 bag (``storage`` sqlite3 or mcap; ``ros1``: a ROS 1 ``.bag`` file) with
+    ``/camera/image_raw/compressed``
     (``sensor_msgs/CompressedImage``; ``sensor_msgs/Image`` rgb8 when not ``compressed``),
     ``/camera/camera_info``, ``/imu/data`` (``sensor_msgs/Imu``, ENU / FLU as REP 103 says) and
     ``/gps/fix`` (``sensor_msgs/NavSatFix``, covariance 1.5 m); ``pose_topic``: the same
     orientation also on ``/vehicle/pose`` (``geometry_msgs/PoseStamped``). ``flaws``:
     ``no_imu``, ``no_gps``."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    ros1 = storage == "ros1"
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    serialize = store.serialize_ros1 if ros1 else store.serialize_cdr
     path = Path(path)
-    with Writer(path, version=8, storage_plugin=plugin) as writer:
+    with _writer(path, storage) as writer:
         conns = _bag_connections(writer, store, compressed, flaws, pose_topic)
         msgs = _bag_frame_messages(
             store.types, poses, calibration.image_size, compressed, flaws, pose_topic
@@ -48,8 +50,25 @@ def write_bag(
             msgs += _gps_fixes(store.types, poses)
         msgs.sort(key=lambda x: (x[0], x[1]))
         for t, key, msg in msgs:
-            writer.write(conns[key], _utc_ns(t), store.serialize_cdr(msg, msg.__msgtype__))
+            writer.write(conns[key], _utc_ns(t), serialize(msg, msg.__msgtype__))
     return path
+
+
+def _writer(path: Path, storage: str) -> Any:
+    """The bag's writer: ROS 1 (``ros1``) or ROS 2 in ``storage`` (sqlite3 or mcap)."""
+    if storage == "ros1":
+        from rosbags.rosbag1 import Writer as Ros1Writer
+
+        return Ros1Writer(path)
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    return Writer(path, version=8, storage_plugin=plugin)
+
+
+def _ros1(types: Any) -> bool:
+    """Whether ``types`` are ROS 1's (its Header has a ``seq``)."""
+    return "seq" in types["std_msgs/msg/Header"].__dataclass_fields__
 
 
 def _utc_ns(t: float) -> int:
@@ -63,7 +82,8 @@ def _ros_header(types: Any, t: float, frame: str) -> Any:
     stamp = types["builtin_interfaces/msg/Time"](
         sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000
     )
-    return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+    seq = {"seq": 0} if _ros1(types) else {}
+    return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame, **seq)
 
 
 def _bag_connections(
@@ -165,18 +185,23 @@ def _image_message(types: Any, p: Pose, size: tuple[int, int], compressed: bool)
 
 
 def _camera_info(types: Any, calibration: Any, t: float) -> Any:
-    """A ``sensor_msgs/CameraInfo`` (plumb_bob) of ``calibration`` at log time ``t``."""
+    """A ``sensor_msgs/CameraInfo`` (plumb_bob) of ``calibration`` at log time ``t`` (its
+    matrices ``D``, ``K``, ``R``, ``P`` in ROS 1, ``d``, ``k``, ``r``, ``p`` in ROS 2)."""
     k = np.asarray(calibration.K, dtype=np.float64)
     w, h = calibration.image_size
+    matrices = {
+        "d": np.asarray(calibration.distortion, dtype=np.float64),
+        "k": k.reshape(-1),
+        "r": np.eye(3).reshape(-1),
+        "p": np.hstack([k, np.zeros((3, 1))]).reshape(-1),
+    }
+    ros1 = _ros1(types)
     return types["sensor_msgs/msg/CameraInfo"](
         header=_ros_header(types, t, "camera"),
         height=h,
         width=w,
         distortion_model="plumb_bob",
-        d=np.asarray(calibration.distortion, dtype=np.float64),
-        k=k.reshape(-1),
-        r=np.eye(3).reshape(-1),
-        p=np.hstack([k, np.zeros((3, 1))]).reshape(-1),
+        **{(name.upper() if ros1 else name): value for name, value in matrices.items()},
         binning_x=0,
         binning_y=0,
         roi=types["sensor_msgs/msg/RegionOfInterest"](

@@ -9,7 +9,14 @@ from typing import Any
 
 import numpy as np
 
-from c3_matcher_tools.testing.flightlogs import BOOT_S, GROUND_M, UTC0, Pose, dense_track
+from c3_matcher_tools.testing.flightlogs import (
+    BOOT_S,
+    GROUND_M,
+    HOME_FIRST_M,
+    UTC0,
+    Pose,
+    dense_track,
+)
 
 __all__ = ["write_ulog"]
 
@@ -24,7 +31,9 @@ def write_ulog(
     """A PX4 ULog with ``vehicle_attitude``, ``vehicle_global_position``,
     ``vehicle_gps_position`` (eph 1.5 m, 3D fix, UTC time), ``home_position`` and
     ``camera_capture`` (one per frame). ``flaws``: ``no_attitude`` (topic left out),
-    ``no_trigger``, ``gnss_loss`` (the receiver reports no fix over the second frame);
+    ``no_trigger``, ``gnss_loss`` (the receiver reports no fix over the second frame),
+    ``home_reset`` (``home_position`` first 60 s before the first frame, :data:`HOME_FIRST_M`
+    higher, then again 5 s before it, as PX4 sets it again at arming);
     ``rangefinder``: ``vehicle_local_position.dist_bottom`` (valid) states the height above
     ground, the ground 20 m higher than home (``home_position.alt``)."""
     from pyulog import ULog
@@ -37,7 +46,13 @@ def write_ulog(
     if "no_attitude" not in flaws:
         topics.append(_ulog_attitude(poses, us))
     topics += _ulog_positions(poses, gnss_loss="gnss_loss" in flaws)
-    topics += _ulog_heights(poses, us, rangefinder)
+    heights = _ulog_heights(poses, us, rangefinder)
+    if "home_reset" in flaws:
+        name, fields, home = heights[0]
+        at = (us[0] - 60_000_000, us[0] - 5_000_000)
+        alt = float(home["alt"][0])
+        heights[0] = (name, fields, {"timestamp": at, "alt": (alt + HOME_FIRST_M, alt)})
+    topics += heights
     if "no_trigger" not in flaws:
         topics.append(
             (
