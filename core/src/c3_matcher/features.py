@@ -35,7 +35,10 @@ class PairSide(NamedTuple):
 class Features:
     """Keypoints float32 (K, 2) (x, y) px; descriptors (K, D) float32, or uint8 for packed
     binary descriptors (D bytes = 8 D bits, matched by Hamming distance; never cast);
-    keypoint_scores float32 (K,); image_size (width, height) of the image the extractor saw."""
+    keypoint_scores float32 (K,); image_size (width, height) of the image the extractor saw.
+    The arrays are made read-only: one query's features serve every candidate and a tile's
+    stay in the cache, so a matcher that edited them in place would make a frame's result
+    depend on its candidates' order (it fails at its first write instead)."""
 
     keypoints: NDArray[np.float32]
     descriptors: NDArray[np.float32]
@@ -55,6 +58,8 @@ class Features:
         v.array(self.keypoint_scores, "features.keypoint_scores", dtype=np.float32, shape=(n,))
         w, h = self.image_size
         v.require(w > 0 and h > 0, "features.image_size", f"must be > 0, got {self.image_size}")
+        for array in (self.keypoints, self.descriptors, self.keypoint_scores):
+            array.flags.writeable = False  # shared by every candidate and the cache: never edited
 
     def __len__(self) -> int:
         return int(self.keypoints.shape[0])
