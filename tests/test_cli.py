@@ -208,13 +208,13 @@ def test_unknown_strategy_exits_2(env):
     assert proc.returncode == 2 and "no_such_strategy" in _one_line(proc)
 
 
-def test_a_setting_that_stops_every_pair_fails_the_start_up_probe_naming_it(env):
-    """An unmatchable-pair exit above what any pair reaches: the start-up probe (the frame
-    matched with itself) finds no match; the error names the setting, not only the engines."""
+def test_a_setting_that_stops_every_pair_is_refused_as_configuration_naming_it(env):
+    """An unmatchable-pair exit above what any pair reaches (more matches than the keypoints
+    kept): a configuration error naming the setting, exit 2, no engine rebuild advised."""
     proc = c3(demo_args([0]), {**env, "C3_MATCHER_LIGHTGLUE__EXIT_MATCHES": "5000"})
-    assert proc.returncode == 1 and proc.stdout == ""
+    assert proc.returncode == 2 and proc.stdout == ""
     line = _one_line(proc)
-    assert "start-up probe failed" in line and "[lightglue] exit_matches" in line, line
+    assert "lightglue.exit_matches" in line and "engines build" not in line, line
 
 
 def test_replay_refuses_negative_limit_and_keypoints(tmp_path):

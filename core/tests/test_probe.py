@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from c3_matcher.errors import EngineError
+from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.probe import engine_startup_probe
 from c3_matcher.testing.fakes import equal_descriptor_pairs, texture_features
@@ -105,3 +105,61 @@ def test_a_backend_that_breaks_the_contract_stops_start_up_naming_how(mistake, s
         engine_startup_probe(Faulty(mistake))  # type: ignore[arg-type]
     assert said in str(failed.value)
     engine_startup_probe(Faulty("none"))  # type: ignore[arg-type]  # the same backend, mended
+
+
+class ExitsEarly(Faulty):
+    """A correct backend whose matcher stops a pair with fewer than ``needs`` pairs before
+    matching it, as a setting tells it (LightGlue's unmatchable-pair exit), and says so through
+    ``early_stop``."""
+
+    def __init__(self, needs: int) -> None:
+        super().__init__("none")
+        self.needs = needs
+        self.sides: list[int] = []
+        self.stopped = False
+
+    def match(self, query: Features, tile: Features) -> Any:
+        self.sides.append(query.image_size[1])
+        found = super().match(query, tile)
+        self.stopped = len(found) < self.needs
+        return (
+            RawMatches(np.zeros((0, 2), np.int64), np.zeros(0, np.float32))
+            if self.stopped
+            else found
+        )
+
+    def early_stop(self) -> tuple[str, str] | None:
+        return (
+            ("lightglue.exit_matches", f"{self.needs} stopped the pair") if self.stopped else None
+        )
+
+
+def test_a_pair_a_setting_stops_early_is_probed_again_larger_not_called_an_engine_fault():
+    """``[lightglue] exit_matches = 200`` (documented 0..8192) failed start-up as an engine
+    fault with build advice: the 128 px probe pair has too few matches to pass the exit, though
+    real frames do. A larger pair passes it, and the contract is checked on that one."""
+    backend = ExitsEarly(needs=1000)  # the 128 px pair has ~440 corners, the 256 px ~1800
+    engine_startup_probe(backend)  # type: ignore[arg-type]
+    assert backend.sides == [128, 256]
+    engine_startup_probe(ExitsEarly(needs=1))  # type: ignore[arg-type]  # passes at once
+
+
+def test_a_setting_that_stops_even_the_largest_probe_pair_is_a_configuration_error():
+    backend = ExitsEarly(needs=10**6)
+    with pytest.raises(ConfigurationError) as refused:
+        engine_startup_probe(backend)  # type: ignore[arg-type]
+    assert backend.sides == [128, 256, 512]
+    ((field, reason),) = refused.value.problems
+    assert field == "lightglue.exit_matches" and "1000000 stopped the pair" in reason
+    assert "512x512 px" in reason and "engines build" not in str(refused.value)
+
+
+def test_an_empty_match_no_setting_explains_is_still_an_engine_fault():
+    class Silent(ExitsEarly):
+        def early_stop(self) -> None:
+            return None
+
+    backend = Silent(needs=10**6)
+    with pytest.raises(EngineError, match="gave no match"):
+        engine_startup_probe(backend)  # type: ignore[arg-type]
+    assert backend.sides == [128]  # not tried larger

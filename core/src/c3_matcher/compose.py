@@ -54,6 +54,7 @@ __all__ = [
     "ComposedRoot",
     "build_default_helpers",
     "build_plugin_host",
+    "check_inliers_reachable",
     "compose_root",
     "open_recorder",
     "state_default_fdr_path",
@@ -283,10 +284,31 @@ def _create_strategy(
             check_members(matcher.backend)
         except TypeError as exc:  # a member forgotten fails here, not on the first frame
             raise StrategyStartupError(name, plugin, str(exc)) from None
+        check_inliers_reachable(config, matcher.backend)
         engine_startup_probe(matcher.backend)
         provider = str(matcher.backend.provenance().get("provider", provider))
     _log_ready(config, host, provider)
     return matcher, health
+
+
+def check_inliers_reachable(config: C3Settings, backend: object) -> None:
+    """``ConfigurationError`` naming ``[matcher] min_inliers_threshold`` and the keypoint budget
+    when the threshold is above the keypoints per image the backend keeps (its ``max_keypoints``,
+    after any cut to its extractor engine's top-K; a backend without one is not checked): a
+    candidate has no more inliers than keypoints, so every frame would fail."""
+    budget = getattr(backend, "max_keypoints", None)
+    m = config.matcher
+    if not isinstance(budget, int) or m.min_inliers_threshold <= budget:
+        return
+    asked = "unset: the strategy's default" if m.max_keypoints is None else m.max_keypoints
+    reason = (
+        f"{m.min_inliers_threshold} exceeds the {budget} keypoints per image the strategy "
+        "keeps: a candidate has no more inliers than keypoints, so every frame would fail; "
+        f"lower it to at most {budget}, or raise the budget ([matcher] max_keypoints = {asked}; "
+        "a strategy's options table may set its own; its extractor engine's top-K caps it)"
+    )
+    problem = ("matcher.min_inliers_threshold", reason)
+    raise ConfigurationError(f"strategy {m.strategy}", [problem])
 
 
 def _checked_helpers(pre_constructed: Mapping[str, Any] | None) -> dict[str, Any]:

@@ -11,10 +11,10 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal, TypeVar, get_args
+from typing import Any, Literal, TypeVar
 
 from platformdirs import user_cache_dir, user_data_dir
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator
+from pydantic import BaseModel, Field, ValidationError, ValidationInfo, field_validator
 from pydantic_settings import (
     BaseSettings,
     InitSettingsSource,
@@ -26,10 +26,11 @@ from pydantic_settings import (
 from c3_matcher.config_sources import (
     ENV_PREFIX,
     MappingEnvSource,
+    SettingsSection,
     read_toml,
-    unknown_env_keys,
     unparsed_env,
     validation_problems,
+    without_env_values,
 )
 from c3_matcher.engines.providers import canonical_provider_options, configured_providers
 from c3_matcher.engines.store import default_engine_dir, usable_directory
@@ -57,27 +58,7 @@ KEYPOINT_BUDGET_RANGE = (16, 8192)
 """The keypoints per image ``[matcher] max_keypoints`` and ``--max-keypoints`` accept."""
 
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    @field_validator("*", mode="before")
-    @classmethod
-    def _no_stand_ins(cls, value: Any, info: ValidationInfo) -> Any:
-        """Refuse a boolean for a number (``tile_cache_size = true`` must not mean one tile) and
-        an empty path (``Path("")`` is ``.``: ``C3_MATCHER_FDR__PATH=$UNSET`` must not pass);
-        read a leading ``~`` in every path as the user's home, as a shell would."""
-        field = cls.model_fields.get(info.field_name or "")
-        types = set() if field is None else {field.annotation, *get_args(field.annotation)}
-        if isinstance(value, bool) and {int, float} & types:
-            raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
-        if value == "" and Path in types:
-            raise ValueError("is empty: give a path, or remove the setting")
-        if isinstance(value, str | Path) and Path in types:
-            return Path(value).expanduser()
-        return value
-
-
-class MatcherSettings(_Section):
+class MatcherSettings(SettingsSection):
     """The ``[matcher]`` table."""
 
     strategy: str = Field(
@@ -88,7 +69,7 @@ class MatcherSettings(_Section):
     min_inliers_threshold: int = Field(
         60,
         ge=4,
-        le=KEYPOINT_BUDGET_RANGE[1],  # inliers <= keypoints: a larger one fails every frame
+        le=KEYPOINT_BUDGET_RANGE[1],  # inliers <= keypoints: above the budget, refused at start-up
         description="RANSAC inliers a candidate needs; below it on every candidate: "
         "InsufficientInliersError",
     )
@@ -198,7 +179,7 @@ def matcher_default(name: str) -> Any:
     return MatcherSettings.model_fields[name].default
 
 
-class EngineSettings(_Section):
+class EngineSettings(SettingsSection):
     """The ``[engines]`` table."""
 
     directory: Path = Field(
@@ -269,7 +250,7 @@ def _adaptive_share(description: str, *, upstream: str) -> Any:
     )
 
 
-class LightGlueSettings(_Section):
+class LightGlueSettings(SettingsSection):
     """The ``[lightglue]`` table: how the LightGlue-family matchers run."""
 
     mode: Literal["auto", "adaptive", "full"] = Field(
@@ -298,14 +279,14 @@ class LightGlueSettings(_Section):
     exit_matches: int | None = Field(
         None,
         ge=0,
-        le=KEYPOINT_BUDGET_RANGE[1],  # mutual matches <= keypoints: a larger one stops every pair
+        le=KEYPOINT_BUDGET_RANGE[1],  # matches <= keypoints: above the budget, refused at start-up
         description="unmatchable-pair exit (adaptive mode): after the second layer, stop a pair "
         "with no matches when fewer than this many mutual matches have confidence above 0.3; "
         "0 off; unset: the strategy's own default, chosen by measurement (docs/decisions.md)",
     )
 
 
-class FdrSettings(_Section):
+class FdrSettings(SettingsSection):
     """The ``[fdr]`` table."""
 
     path: Path = Field(
@@ -319,10 +300,20 @@ class FdrSettings(_Section):
     )
 
 
-class LoggingSettings(_Section):
+class LoggingSettings(SettingsSection):
     """The ``[logging]`` table."""
 
-    level: Literal["TRACE", "DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+    level: Literal["TRACE", "DEBUG", "INFO", "WARNING", "ERROR"] = Field(
+        "INFO",
+        description="the least severe of the matcher's JSON log records kept, of TRACE < DEBUG "
+        "< INFO < WARNING < ERROR (any case): on stderr, and in a replay's matcher.log; the "
+        "flight data recorder takes the WARNING and ERROR records whatever it is",
+    )
+
+    @field_validator("level", mode="before")
+    @classmethod
+    def _any_case(cls, value: Any) -> Any:
+        return value.upper() if isinstance(value, str) else value
 
 
 class C3Settings(BaseSettings):
@@ -347,8 +338,8 @@ class C3Settings(BaseSettings):
         dotenv_settings: PydanticBaseSettingsSource,
         file_secret_settings: PydanticBaseSettingsSource,
     ) -> tuple[PydanticBaseSettingsSource, ...]:
-        # init (TOML contents, passed by load_settings) < environment.
-        return (env_settings, init_settings)
+        # init < environment (os.environ; load_settings passes its own: TOML < a given one)
+        return (MappingEnvSource(settings_cls), init_settings)
 
 
 def with_strategy_defaults(
@@ -382,14 +373,12 @@ def load_settings(
     toml_path: Path | None = None, env: Mapping[str, str] | None = None
 ) -> C3Settings:
     """Load and validate the configuration: defaults < the TOML file < the environment
-    (``env``, default ``os.environ``, only read); raise ``ConfigurationError`` naming every bad
-    field."""
+    (``env``, default ``os.environ``, only read), a value set in the environment replacing the
+    file's whole (a table too); raise ``ConfigurationError`` naming every bad field."""
     environ = dict(os.environ if env is None else env)
     source = f"{toml_path} + environment" if toml_path else "environment"
     data = read_toml(toml_path, source) if toml_path is not None else {}
-    unknown = unknown_env_keys(C3Settings, environ)
-    if unknown:
-        raise ConfigurationError("environment", unknown)
+    data = without_env_values(data, environ)
     try:
         sources = (MappingEnvSource(C3Settings, environ), InitSettingsSource(C3Settings, data))
         return C3Settings(_build_sources=(sources, data))  # environment > TOML > defaults

@@ -1,16 +1,19 @@
 """Where the configuration comes from, read without side effects: the TOML file and the
-environment variables (``C3_MATCHER_``, ``__`` between levels) of a given mapping, never
-``os.environ`` changed; unknown keys named so that a typo does not pass silently."""
+environment variables (``C3_MATCHER_``, ``__`` between levels) of a given mapping or
+``os.environ``, never changed; unknown keys named so that a typo does not pass silently; a
+value the environment gives replaces the file's whole (a table too)."""
 
 from __future__ import annotations
 
+import json
+import os
 import re
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Final, get_args
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, EnvSettingsSource
 from pydantic_settings.sources.utils import parse_env_vars
 
@@ -18,23 +21,34 @@ from c3_matcher.errors import ConfigurationError
 
 __all__ = [
     "ENV_PREFIX",
+    "PROCESS_SWITCHES",
     "UNKNOWN_SETTING",
     "MappingEnvSource",
+    "SettingsSection",
     "read_toml",
     "unknown_env_keys",
     "unparsed_env",
     "validation_problems",
+    "without_env_values",
 ]
 
 ENV_PREFIX = "C3_MATCHER_"
 UNKNOWN_SETTING = "unknown setting (check the spelling)"
+PROCESS_SWITCHES: Final = ("ENGINE_DIR", "TOOLS_NO_PYPROJ", "TOOLS_NO_RASTERIO", "TRACEBACK")
+"""The ``C3_MATCHER_<NAME>`` variables that are switches of a process, not settings: the
+command's traceback on an internal error, the ground tools' hand-written fallbacks, the test
+suite's engine directory. Any other name without ``__`` must be a section (its JSON)."""
 
 
 class MappingEnvSource(EnvSettingsSource):
-    """A settings class's environment source reading ``env`` instead of ``os.environ``."""
+    """A settings class's environment source reading ``env`` (default: ``os.environ``, only
+    read) that refuses a ``C3_MATCHER_`` variable naming no setting and no process switch
+    (``ConfigurationError``, ``unknown_env_keys``) when it is read."""
 
-    def __init__(self, settings_cls: type[BaseSettings], env: Mapping[str, str]) -> None:
-        self._given = dict(env)
+    def __init__(
+        self, settings_cls: type[BaseSettings], env: Mapping[str, str] | None = None
+    ) -> None:
+        self._given = dict(os.environ if env is None else env)
         super().__init__(settings_cls)
 
     def _load_env_vars(self) -> Mapping[str, str | None]:
@@ -42,10 +56,39 @@ class MappingEnvSource(EnvSettingsSource):
             self._given, self.case_sensitive, self.env_ignore_empty, self.env_parse_none_str
         )
 
+    def __call__(self) -> dict[str, Any]:
+        unknown = unknown_env_keys(self.settings_cls, self._given)
+        if unknown:
+            raise ConfigurationError("environment", unknown)
+        return super().__call__()
+
 
 MAX_TOML_BYTES = 1 << 20
 """A configuration file larger than this is refused unread (``--config`` naming an image, a
 disk, ``/dev/zero``), not read into memory whole."""
+
+
+class SettingsSection(BaseModel):
+    """A table of the configuration (``[matcher]``, ``[engines]``, ...): unknown keys refused,
+    frozen, values read as a file or a shell means them."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_stand_ins(cls, value: Any, info: ValidationInfo) -> Any:
+        """Refuse a boolean for a number (``tile_cache_size = true`` must not mean one tile) and
+        an empty path (``Path("")`` is ``.``: ``C3_MATCHER_FDR__PATH=$UNSET`` must not pass);
+        read a leading ``~`` in every path as the user's home, as a shell would."""
+        field = cls.model_fields.get(info.field_name or "")
+        types = set() if field is None else {field.annotation, *get_args(field.annotation)}
+        if isinstance(value, bool) and {int, float} & types:
+            raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
+        if value == "" and Path in types:
+            raise ValueError("is empty: give a path, or remove the setting")
+        if isinstance(value, str | Path) and Path in types:
+            return Path(value).expanduser()
+        return value
 
 
 def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
@@ -78,22 +121,76 @@ def unknown_env_keys(
     settings_cls: type[BaseSettings], env: Mapping[str, str]
 ) -> list[tuple[str, str]]:
     """(variable, reason) for each ``C3_MATCHER_<SECTION>[__<KEY>]`` that names no setting of
-    ``settings_cls``; a variable without ``__`` naming no section is a process switch
-    (``C3_MATCHER_TRACEBACK``), not a setting."""
+    ``settings_cls`` and is no process switch (``PROCESS_SWITCHES``); a name with single
+    underscores that reads as a setting (``C3_MATCHER_ENGINES_PROVIDERS``, or
+    ``C3_MATCHER_STRATEGY`` without its section) is told the variable meant."""
     sections = dict(settings_cls.model_fields)
     problems = []
     for key in env:
-        if not key.upper().startswith(ENV_PREFIX):
+        name = key.upper()
+        if not name.startswith(ENV_PREFIX) or name[len(ENV_PREFIX) :] in PROCESS_SWITCHES:
             continue
         parts = key[len(ENV_PREFIX) :].lower().split("__")
-        if len(parts) == 1 and parts[0] not in sections:
-            continue  # a process switch, not a setting (C3_MATCHER_TRACEBACK, C3_MATCHER_TOOLS_*)
         section = sections.get(parts[0])
-        annotation = section.annotation if section else None
-        fields = getattr(annotation, "model_fields", {})
-        if section is None or (len(parts) > 1 and parts[1] not in fields):
+        fields = getattr(section.annotation if section else None, "model_fields", {})
+        if section is None and len(parts) == 1:
+            problems.append((key, _not_a_switch(parts[0], sections)))
+        elif section is None or (len(parts) > 1 and parts[1] not in fields):
             problems.append((key, UNKNOWN_SETTING))
     return problems
+
+
+def _not_a_switch(name: str, sections: Mapping[str, Any]) -> str:
+    """Why ``C3_MATCHER_<NAME>`` (no ``__``, no section) is refused, with the setting it may
+    have meant: a section and key joined by one underscore, or a key without its section."""
+    meant = [
+        f"{ENV_PREFIX}{section.upper()}__{key.upper()}"
+        for section, info in sections.items()
+        for key in getattr(info.annotation, "model_fields", {})
+        if name in (f"{section}_{key}", key)
+    ]
+    form = f"a setting is {ENV_PREFIX}<SECTION>__<KEY>, two underscores between section and key"
+    if meant:
+        return f"{UNKNOWN_SETTING}: did you mean {' or '.join(meant)}? ({form})"
+    switches = ", ".join(ENV_PREFIX + s for s in PROCESS_SWITCHES)
+    return f"{UNKNOWN_SETTING}: {form}, and the only other variables read are {switches}"
+
+
+def without_env_values(data: Mapping[str, Any], env: Mapping[str, str]) -> dict[str, Any]:
+    """``data`` (the file's tables) less every value ``env`` sets, so that the environment's
+    replaces it whole rather than being merged into it key by key: a variable naming a setting
+    or a key below one (``C3_MATCHER_MATCHER__OPTIONS``, ``C3_MATCHER_MATCHER__OPTIONS__XFEAT``)
+    takes the file's value at that place out, a table with all its keys; a section's JSON
+    (``C3_MATCHER_MATCHER='{"options": ...}'``) takes out each setting it gives. The section's
+    other settings still come from the file."""
+    out = _copied(data)
+    for key, value in env.items():
+        if not key.upper().startswith(ENV_PREFIX):
+            continue
+        path = key[len(ENV_PREFIX) :].lower().split("__")
+        places = [path] if len(path) > 1 else [[path[0], k] for k in _json_keys(value)]
+        for *above, last in places:
+            table: Any = out
+            for part in above:
+                table = table.get(part) if isinstance(table, dict) else None
+            if isinstance(table, dict):
+                table.pop(last, None)
+    return out
+
+
+def _copied(data: Mapping[str, Any]) -> dict[str, Any]:
+    """``data`` with every table below it copied (the caller's is left as it is)."""
+    return {k: _copied(v) if isinstance(v, Mapping) else v for k, v in data.items()}
+
+
+def _json_keys(value: str) -> list[str]:
+    """The keys of ``value`` read as a JSON object; none when it is not one (pydantic-settings
+    then names the variable)."""
+    try:
+        given = json.loads(value)
+    except (ValueError, RecursionError):
+        return []
+    return [str(k) for k in given] if isinstance(given, dict) else []
 
 
 def unparsed_env(exc: Exception, env: Mapping[str, str]) -> list[tuple[str, str]]:

@@ -8,6 +8,12 @@ of the rule's ``multiple`` (``probe_shift``), so a network with that stride sees
 at the same phase in both. A backend that matches correctly pairs each query point (x, y) with
 the tile point (x + shift, y), in (query, tile) order, each query keypoint once; the tile has
 texture the query lacks, and so more keypoints.
+
+A backend may say why a match gave no pair: ``early_stop()`` returns ``(setting, why)`` when a
+configured rule stopped the last pair before matching it (LightGlue's unmatchable-pair exit), not
+a fault. The probe then tries a larger pair (``PROBE_GROWTH``), with more matches to pass such a
+rule, and checks the contract on the first that is matched; a rule that stops even the largest
+is a configuration error naming the setting.
 """
 
 from __future__ import annotations
@@ -18,13 +24,14 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from c3_matcher.errors import EngineError, describe
+from c3_matcher.errors import ConfigurationError, EngineError, describe
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.protocols import FeatureBackend
 
 __all__ = [
     "BACKEND_MEMBERS",
+    "PROBE_GROWTH",
     "PROBE_SIDE",
     "check_members",
     "check_shifted_matches",
@@ -43,6 +50,9 @@ MIN_SHIFT: Final = 16
 """px: the query sits at least this far into the tile (then up to the rule's next multiple)."""
 ON_OFFSET_PX: Final = 2.0
 """px: a pair follows the known offset when its tile point is this close to where it should be."""
+PROBE_GROWTH: Final = (1, 2, 4)
+"""The probe's sizes, in multiples of its ``size``, tried in turn while the backend says a setting
+stopped the pair early (``early_stop``); a larger one is never tried otherwise."""
 _FIELD_CELLS: Final = 512  # the texture field: 512 x 512 blocks (3072 px at 6 px), then repeated
 
 
@@ -126,19 +136,51 @@ def engine_startup_probe(backend: FeatureBackend, size: int = PROBE_SIDE, block:
 
     The images are ``size`` px rounded by the backend's ``input_rule``, ``block`` px squares
     of random colour (seed 0); 6 px blocks do not line up with the 8x8 cells some detectors
-    (XFeat) score, so every cell sees texture."""
+    (XFeat) score, so every cell sees texture. A pair a setting of the backend stops early
+    (``early_stop``) is tried again larger (``PROBE_GROWTH``); ``ConfigurationError`` naming the
+    setting when it stops the largest too: it would stop every pair of real images."""
     rule = getattr(backend, "input_rule", None)
-    query_image, tile_image, shift = probe_pair(rule if isinstance(rule, InputRule) else None, size)
+    rule = rule if isinstance(rule, InputRule) else None
+    stopped: tuple[str, str] | None = None
+    for side in dict.fromkeys(probe_side(rule, size * grow) for grow in PROBE_GROWTH):
+        stopped = _probe_once(backend, rule, side, block)
+        if stopped is None:
+            return
+    assert stopped is not None
+    setting, why = stopped
+    raise ConfigurationError(
+        "start-up probe",
+        [
+            (
+                setting,
+                f"{why} on the start-up probe's largest pair too ({_images(rule, side)}): "
+                "an image matched with a view holding it, clearer than real pairs, so every "
+                "pair would stop with no match; set it lower",
+            )
+        ],
+    )
+
+
+def _probe_once(
+    backend: FeatureBackend, rule: InputRule | None, side: int, block: int
+) -> tuple[str, str] | None:
+    """One probe on the ``side`` px pair: None when it passes, ``(setting, why)`` when a
+    setting of the backend stopped its match early (``early_stop``); ``EngineError``
+    otherwise."""
+    query_image, tile_image, shift = probe_pair(rule, side)
     try:
         query = backend.extract(query_image)
         _check_features(query, query_image.engine_size)
         tile = backend.extract(tile_image)
         _check_features(tile, tile_image.engine_size)
-        check_shifted_matches(query, tile, backend.match(query, tile), shift)
+        matches = backend.match(query, tile)
+        if isinstance(matches, RawMatches) and len(matches) == 0:
+            stopped = _early_stop(backend)
+            if stopped is not None:
+                return stopped
+        check_shifted_matches(query, tile, matches, shift)
     except Exception as exc:
-        (w, h), (tw, _) = query_image.engine_size, tile_image.engine_size
-        images = f"a {w}x{h} px image in a {tw}x{h} px one, {shift} px in"
-        failed = f"start-up probe failed ({images}): {describe(exc)}"
+        failed = f"start-up probe failed ({_images(rule, side)}): {describe(exc)}"
         if _runs_engines(backend):
             raise EngineError(backend.label, failed) from exc
         raise EngineError(
@@ -147,6 +189,28 @@ def engine_startup_probe(backend: FeatureBackend, size: int = PROBE_SIDE, block:
             "contract kit (c3_matcher.testing.contract.BackendContract, docs/plugins.md)",
             command=None,
         ) from exc
+    return None
+
+
+def _images(rule: InputRule | None, side: int) -> str:
+    """The probe pair of ``side`` px, in words."""
+    query, tile, shift = probe_pair(rule, side)
+    (w, h), (tw, _) = query.engine_size, tile.engine_size
+    return f"a {w}x{h} px image in a {tw}x{h} px one, {shift} px in"
+
+
+def _early_stop(backend: FeatureBackend) -> tuple[str, str] | None:
+    """The backend's ``early_stop()`` (optional): ``(setting, why)`` when a configured rule
+    stopped its last match before matching, else None (a backend without it, or one that fails,
+    says nothing)."""
+    said = getattr(backend, "early_stop", None)
+    try:
+        found = said() if callable(said) else None
+    except Exception:
+        return None
+    if isinstance(found, tuple) and len(found) == 2 and all(isinstance(x, str) for x in found):
+        return found[0], found[1]
+    return None
 
 
 def _check_features(features: object, size: tuple[int, int]) -> None:
@@ -176,7 +240,7 @@ def check_shifted_matches(
     if len(matches) == 0:
         raise ValueError(
             "matching the probe image with a view that holds it gave no match (an engine "
-            "fault, or a setting that stops every pair early: [lightglue] exit_matches)"
+            "fault, or a setting that stops every pair early)"
         )
     q, t = matches.matches[:, 0], matches.matches[:, 1]
     for side, index, features in (("query", q, query), ("tile", t, tile)):

@@ -11,7 +11,7 @@ from loguru import logger
 
 from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
-from c3_matcher.errors import EngineError
+from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
@@ -40,6 +40,7 @@ class ExtractorBackend:
         _check_size_multiple(runtime, self.engine_id, config)
         self.max_keypoints: Final = _budget(runtime, self.engine_id, config)
         """The keypoint budget (``StoredFeaturesBackend``): at most this many per image."""
+        _check_reachable(pair_matcher, self.max_keypoints, config.label)
         facts = {"extractor": _engine_facts(runtime, self.engine_id, config.extractor_engine_path)}
         served = (
             pair_matcher.engine_files()
@@ -57,6 +58,12 @@ class ExtractorBackend:
 
     def match(self, query: Features, tile: Features) -> RawMatches:
         return self.pair_matcher.match(query, tile)
+
+    def early_stop(self) -> tuple[str, str] | None:
+        """The pair matcher's ``early_stop()`` where it has one: ``(setting, why)`` when a
+        setting stopped the last match before matching (the start-up probe asks)."""
+        said = getattr(self.pair_matcher, "early_stop", None)
+        return said() if callable(said) else None
 
     def provenance(self) -> Mapping[str, Any]:
         return self._provenance
@@ -78,6 +85,28 @@ def _budget(runtime: InferenceRuntime, engine_id: str, config: ExtractorStrategy
         top_k,
     )
     return top_k
+
+
+def _check_reachable(pair_matcher: PairMatcher, budget: int, label: str) -> None:
+    """``ConfigurationError`` when the pair matcher stops every pair with fewer matches than a
+    setting asks (``required_matches``: LightGlue's unmatchable-pair exit) and that count is
+    above the keypoint budget: no pair has more mutual matches than keypoints."""
+    said = getattr(pair_matcher, "required_matches", None)
+    required = said() if callable(said) else None
+    if required is None or required[1] <= budget:
+        return
+    setting, count = required
+    raise ConfigurationError(
+        f"strategy {label}",
+        [
+            (
+                setting,
+                f"{count} exceeds the {budget} keypoints per image the strategy keeps: no pair "
+                "has more mutual matches than keypoints, so every pair would stop with no "
+                f"match; set it to at most {budget}",
+            )
+        ],
+    )
 
 
 def _check_size_multiple(

@@ -52,6 +52,29 @@ class LightGluePairMatcher:
     def match(self, query: Features, tile: Features) -> RawMatches:
         return match_features(self._runtime, query, tile, self._feature_type)
 
+    def required_matches(self) -> tuple[str, int] | None:
+        """``("lightglue.exit_matches", n)`` when the runtime runs adaptive with the
+        unmatchable-pair exit on: a pair with fewer than ``n`` confident mutual matches after
+        its second layer stops with none; None otherwise."""
+        count = getattr(self._runtime, "exit_matches", 0)
+        if getattr(self._runtime, "mode", None) != "adaptive" or not isinstance(count, int):
+            return None
+        return ("lightglue.exit_matches", count) if count > 0 else None
+
+    def early_stop(self) -> tuple[str, str] | None:
+        """``("lightglue.exit_matches", why)`` when the runtime's last match (``last_run``, of
+        whichever thread matched last: for the start-up probe) stopped the pair at the
+        unmatchable-pair exit, a setting rather than a fault; None otherwise."""
+        run = getattr(self._runtime, "last_run", None)
+        if not isinstance(run, dict) or not run.get("unmatchable"):
+            return None
+        count = getattr(self._runtime, "exit_matches", "?")
+        return (
+            "lightglue.exit_matches",
+            f"{count} stopped the pair after its second layer ({run.get('matched')} mutual "
+            "matches of confidence above 0.3)",
+        )
+
 
 def match_features(
     runtime: LightGlueRuntime, query: Features, tile: Features, feature_type: str
