@@ -128,6 +128,9 @@ class ExitsEarly(Faulty):
             else found
         )
 
+    def required_matches(self) -> tuple[str, int] | None:
+        return ("lightglue.exit_matches", self.needs)
+
     def early_stop(self) -> tuple[str, str] | None:
         return (
             ("lightglue.exit_matches", f"{self.needs} stopped the pair") if self.stopped else None

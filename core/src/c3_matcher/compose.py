@@ -44,7 +44,14 @@ from c3_matcher.plugins.manager import PluginHost, discover
 from c3_matcher.plugins.types import StrategyDefaults
 from c3_matcher.probe import check_members
 from c3_matcher.profiles import installed_profile
-from c3_matcher.protocols import Clock, ClosableMatcher, CrossDomainMatcher, FdrClient
+from c3_matcher.protocols import (
+    Clock,
+    ClosableMatcher,
+    CrossDomainMatcher,
+    FdrClient,
+    FeatureBackend,
+    StoredFeaturesBackend,
+)
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.strategy import engine_startup_probe
 
@@ -291,14 +298,15 @@ def _create_strategy(
     return matcher, health
 
 
-def check_inliers_reachable(config: C3Settings, backend: object) -> None:
+def check_inliers_reachable(config: C3Settings, backend: FeatureBackend) -> None:
     """``ConfigurationError`` naming ``[matcher] min_inliers_threshold`` and the keypoint budget
     when the threshold is above the keypoints per image the backend keeps (its ``max_keypoints``,
     after any cut to its extractor engine's top-K; a backend without one is not checked): a
     candidate has no more inliers than keypoints, so every frame would fail."""
-    budget = getattr(backend, "max_keypoints", None)
-    m = config.matcher
-    if not isinstance(budget, int) or m.min_inliers_threshold <= budget:
+    if not isinstance(backend, StoredFeaturesBackend):  # the backends that declare a budget
+        return
+    budget, m = backend.max_keypoints, config.matcher
+    if m.min_inliers_threshold <= budget:
         return
     asked = "unset: the strategy's default" if m.max_keypoints is None else m.max_keypoints
     reason = (

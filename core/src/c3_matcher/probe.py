@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from c3_matcher.errors import ConfigurationError, EngineError, describe
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import InputRule, PreparedImage
-from c3_matcher.protocols import FeatureBackend
+from c3_matcher.protocols import EarlyStopping, FeatureBackend
 
 __all__ = [
     "BACKEND_MEMBERS",
@@ -200,12 +200,13 @@ def _images(rule: InputRule | None, side: int) -> str:
 
 
 def _early_stop(backend: FeatureBackend) -> tuple[str, str] | None:
-    """The backend's ``early_stop()`` (optional): ``(setting, why)`` when a configured rule
+    """The backend's ``early_stop()`` (``EarlyStopping``): ``(setting, why)`` when a rule
     stopped its last match before matching, else None (a backend without it, or one that fails,
     says nothing)."""
-    said = getattr(backend, "early_stop", None)
+    if not isinstance(backend, EarlyStopping):
+        return None
     try:
-        found = said() if callable(said) else None
+        found = backend.early_stop()
     except Exception:
         return None
     if isinstance(found, tuple) and len(found) == 2 and all(isinstance(x, str) for x in found):

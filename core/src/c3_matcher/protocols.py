@@ -35,6 +35,8 @@ __all__ = [
     "ClosableMatcher",
     "CrossDomainMatcher",
     "DigestedTileHandle",
+    "EarlyExitLightGlueRuntime",
+    "EarlyStopping",
     "FdrClient",
     "FeatureBackend",
     "InferenceRuntime",
@@ -201,3 +203,30 @@ class LoadableLightGlueRuntime(LightGlueRuntime, Protocol):
     strategy given a runtime without it expects the runtime to hold its engines already."""
 
     def load(self, feature_type: str, engine_path: Path) -> Path | None: ...
+
+
+@runtime_checkable
+class EarlyExitLightGlueRuntime(LightGlueRuntime, Protocol):
+    """A ``LightGlueRuntime`` with the unmatchable-pair exit (``OnnxLightGlueRuntime``): in
+    ``mode`` ``"adaptive"`` a pair with fewer than ``exit_matches`` confident mutual matches
+    after its second layer stops with none (0: off); ``last_run`` says what the last
+    ``match_pair`` did (``"unmatchable"``: stopped so, ``"matched"``: the count it had)."""
+
+    @property
+    def mode(self) -> str: ...
+    @property
+    def exit_matches(self) -> int: ...
+    @property
+    def last_run(self) -> Mapping[str, Any]: ...
+
+
+@runtime_checkable
+class EarlyStopping(Protocol):
+    """A pair matcher, or a backend through its pair matcher, that a setting can make stop a
+    pair early (LightGlue's unmatchable-pair exit). ``required_matches()``: ``(setting, n)``
+    when a pair with fewer than ``n`` matches stops with none; ``early_stop()``: ``(setting,
+    why)`` when the last match stopped so. None otherwise. The start-up probe asks, to tell a
+    setting from an engine fault."""
+
+    def required_matches(self) -> tuple[str, int] | None: ...
+    def early_stop(self) -> tuple[str, str] | None: ...

@@ -14,7 +14,7 @@ from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import PreparedImage
-from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
+from c3_matcher.protocols import EarlyStopping, InferenceRuntime, ManifestRuntime
 from c3_matcher.strategy.config import ExtractorStrategyConfig
 from c3_matcher.strategy.pairs import EnginePairMatcher, PairMatcher
 
@@ -59,11 +59,16 @@ class ExtractorBackend:
     def match(self, query: Features, tile: Features) -> RawMatches:
         return self.pair_matcher.match(query, tile)
 
+    def required_matches(self) -> tuple[str, int] | None:
+        """The pair matcher's, where a setting can stop its pairs early (``EarlyStopping``)."""
+        matcher = self.pair_matcher
+        return matcher.required_matches() if isinstance(matcher, EarlyStopping) else None
+
     def early_stop(self) -> tuple[str, str] | None:
-        """The pair matcher's ``early_stop()`` where it has one: ``(setting, why)`` when a
-        setting stopped the last match before matching (the start-up probe asks)."""
-        said = getattr(self.pair_matcher, "early_stop", None)
-        return said() if callable(said) else None
+        """The pair matcher's, where a setting can stop its pairs early (``EarlyStopping``):
+        ``(setting, why)`` when one stopped the last match (the start-up probe asks)."""
+        matcher = self.pair_matcher
+        return matcher.early_stop() if isinstance(matcher, EarlyStopping) else None
 
     def provenance(self) -> Mapping[str, Any]:
         return self._provenance
@@ -91,8 +96,7 @@ def _check_reachable(pair_matcher: PairMatcher, budget: int, label: str) -> None
     """``ConfigurationError`` when the pair matcher stops every pair with fewer matches than a
     setting asks (``required_matches``: LightGlue's unmatchable-pair exit) and that count is
     above the keypoint budget: no pair has more mutual matches than keypoints."""
-    said = getattr(pair_matcher, "required_matches", None)
-    required = said() if callable(said) else None
+    required = pair_matcher.required_matches() if isinstance(pair_matcher, EarlyStopping) else None
     if required is None or required[1] <= budget:
         return
     setting, count = required

@@ -7,7 +7,11 @@ from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.protocols import LightGlueRuntime, LoadableLightGlueRuntime
+from c3_matcher.protocols import (
+    EarlyExitLightGlueRuntime,
+    LightGlueRuntime,
+    LoadableLightGlueRuntime,
+)
 
 
 class PairMatcher(Protocol):
@@ -56,23 +60,26 @@ class LightGluePairMatcher:
         """``("lightglue.exit_matches", n)`` when the runtime runs adaptive with the
         unmatchable-pair exit on: a pair with fewer than ``n`` confident mutual matches after
         its second layer stops with none; None otherwise."""
-        count = getattr(self._runtime, "exit_matches", 0)
-        if getattr(self._runtime, "mode", None) != "adaptive" or not isinstance(count, int):
+        runtime = self._runtime
+        if not isinstance(runtime, EarlyExitLightGlueRuntime) or runtime.mode != "adaptive":
             return None
+        count = runtime.exit_matches
         return ("lightglue.exit_matches", count) if count > 0 else None
 
     def early_stop(self) -> tuple[str, str] | None:
         """``("lightglue.exit_matches", why)`` when the runtime's last match (``last_run``, of
         whichever thread matched last: for the start-up probe) stopped the pair at the
         unmatchable-pair exit, a setting rather than a fault; None otherwise."""
-        run = getattr(self._runtime, "last_run", None)
-        if not isinstance(run, dict) or not run.get("unmatchable"):
+        runtime = self._runtime
+        if not isinstance(runtime, EarlyExitLightGlueRuntime):
             return None
-        count = getattr(self._runtime, "exit_matches", "?")
+        run = runtime.last_run
+        if not run.get("unmatchable"):
+            return None
         return (
             "lightglue.exit_matches",
-            f"{count} stopped the pair after its second layer ({run.get('matched')} mutual "
-            "matches of confidence above 0.3)",
+            f"{runtime.exit_matches} stopped the pair after its second layer "
+            f"({run.get('matched')} mutual matches of confidence above 0.3)",
         )
 
 
