@@ -7,11 +7,8 @@ sidecar's own writer (as in test_stored_features.py)."""
 
 from __future__ import annotations
 
-import shutil
 import sqlite3
 import threading
-from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,23 +21,14 @@ from c3_matcher.tilestore.features import (
 )
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 
-from .test_stored_features import FSET, STORE, STRIDE, ZOOM, _serve, _window
+from .test_stored_features import FSET, STRIDE, ZOOM, _serve, store  # noqa: F401  (a fixture)
 
 
 @pytest.fixture
-def served(tmp_path: Path) -> Iterator[tuple[MBTilesStore, tuple[int, int]]]:
-    """A copy of the demo store with one stored window; its grid origin in world px."""
-    path = tmp_path / "tiles.mbtiles"
-    shutil.copy(STORE, path)
-    source = MBTilesStore(path)
-    (x, y) = min(source.tiles(ZOOM))
-    cell = (x * 256 // STRIDE + 2, y * 256 // STRIDE + 2)
-    with MapFeatureStore(sidecar_path(path), writable=True) as side:
-        side.ensure_set(FSET)
-        side.put_windows(FSET.set_id, [(ZOOM, *cell, _window(source, *cell))])
-        side.mark(FSET.set_id, complete=True, windows=1)
-    yield source, (cell[0] * STRIDE, cell[1] * STRIDE)
-    source.close()
+def served(store: tuple[MBTilesStore, tuple[int, int]]) -> tuple[MBTilesStore, tuple[int, int]]:  # noqa: F811
+    """The demo store copy with one stored window (``store``); its grid origin in world px."""
+    source, (gx, gy) = store
+    return source, (gx * STRIDE, gy * STRIDE)
 
 
 def _in_thread(source: MBTilesStore, origin: tuple[int, int]) -> dict[str, Any]:
