@@ -153,7 +153,8 @@ def engine_startup_probe(backend: FeatureBackend, size: int = PROBE_SIDE, block:
         [
             (
                 setting,
-                f"{why} on the start-up probe's largest pair too ({_images(rule, side)}): "
+                f"{why} on the start-up probe's largest pair too "
+                f"({_images(*probe_pair(rule, side))}): "
                 "an image matched with a view holding it, clearer than real pairs, so every "
                 "pair would stop with no match; set it lower",
             )
@@ -180,7 +181,9 @@ def _probe_once(
                 return stopped
         check_shifted_matches(query, tile, matches, shift)
     except Exception as exc:
-        failed = f"start-up probe failed ({_images(rule, side)}): {describe(exc)}"
+        failed = (
+            f"start-up probe failed ({_images(query_image, tile_image, shift)}): {describe(exc)}"
+        )
         if _runs_engines(backend):
             raise EngineError(backend.label, failed) from exc
         raise EngineError(
@@ -192,9 +195,8 @@ def _probe_once(
     return None
 
 
-def _images(rule: InputRule | None, side: int) -> str:
-    """The probe pair of ``side`` px, in words."""
-    query, tile, shift = probe_pair(rule, side)
+def _images(query: PreparedImage, tile: PreparedImage, shift: int) -> str:
+    """A probe pair (``probe_pair``), in words."""
     (w, h), (tw, _) = query.engine_size, tile.engine_size
     return f"a {w}x{h} px image in a {tw}x{h} px one, {shift} px in"
 
