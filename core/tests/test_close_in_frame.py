@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import signal
 import threading
-import types
 from pathlib import Path
 from typing import Any
 
@@ -22,20 +21,16 @@ from c3_matcher.config import C3Settings
 from c3_matcher.errors import MatcherClosedError
 from c3_matcher.fdr import JsonlFdrRecorder, read_fdr
 from c3_matcher.features import Features
-from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
-from c3_matcher.plugins import PluginHost, StrategySpec, hookimpl
-from c3_matcher.plugins.manager import PluginSource
 from c3_matcher.prepared import PreparedImage
-from c3_matcher.profiles import BuildProfile
 from c3_matcher.testing import (
     FakeBackend,
     FakeClock,
-    FakeInferenceRuntime,
-    FakeLightGlueRuntime,
-    FakeRansacFilter,
     ScriptedCandidate,
+    fake_helpers,
     make_frame,
     make_rerank,
+    one_strategy_host,
+    pipeline_strategy,
 )
 
 S = ScriptedCandidate
@@ -65,29 +60,9 @@ class HookedBackend(FakeBackend):
         return super().extract(image)
 
 
-def _strategy(**kw: Any) -> PipelineMatcher:
-    backend = HookedBackend(kw["inference_runtime"], kw["lightglue_runtime"])
-    return PipelineMatcher(
-        backend,
-        kw["ransac_filter"],
-        kw["fdr_client"],
-        kw["health_window"],
-        kw["clock"],
-        PipelineSettings(),
-    )
-
-
 def _root(tmp_path: Path, *, configure_logs: bool = False) -> ComposedRoot:
-    profile = BuildProfile.from_data({"name": "research", "strict": False, "flags": {}}, "test")
-    module = types.SimpleNamespace(
-        c3_matcher_strategies=hookimpl(lambda: [StrategySpec("hooked", _strategy)])
-    )
-    host = PluginHost(profile, [PluginSource("hooked", "hooked-dist", "1.0", module=module)])
-    helpers = {
-        "c3_lightglue_runtime": FakeLightGlueRuntime(SCRIPT),
-        "c282_ransac_filter": FakeRansacFilter(SCRIPT),
-        "c7_inference": FakeInferenceRuntime(SCRIPT),
-    }
+    host = one_strategy_host("hooked", pipeline_strategy(HookedBackend))
+    helpers = fake_helpers(SCRIPT)
     settings = C3Settings(matcher={"strategy": "hooked"}, fdr={"path": tmp_path / "fdr.jsonl"})
     root = compose_root(settings, helpers, plugin_host=host, configure_logs=configure_logs)
     backend: HookedBackend = root.matcher.backend  # type: ignore[attr-defined]

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import types
 
 import pytest
 
@@ -12,16 +11,14 @@ from c3_matcher.config import C3Settings
 from c3_matcher.errors import AirborneBootstrapError, StrategyNotLinkedError
 from c3_matcher.fdr import FdrWriteError, JsonlFdrRecorder
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
-from c3_matcher.plugins import PluginHost, StrategySpec, hookimpl
-from c3_matcher.plugins.manager import PluginSource
+from c3_matcher.plugins import PluginHost
 from c3_matcher.profiles import BuildProfile
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.testing import (
     FakeBackend,
     FakeClock,
-    FakeInferenceRuntime,
-    FakeLightGlueRuntime,
-    FakeRansacFilter,
+    fake_helpers,
+    one_strategy_host,
 )
 
 PROFILE = BuildProfile.from_data(
@@ -55,18 +52,11 @@ class FakeStrategy(PipelineMatcher):
 
 
 def fake_plugin_host() -> PluginHost:
-    module = types.SimpleNamespace(
-        c3_matcher_strategies=hookimpl(lambda: [StrategySpec("fake_match", FakeStrategy)])
-    )
-    return PluginHost(PROFILE, [PluginSource("fake", "fake-dist", "1.0", module=module)])
+    return one_strategy_host("fake_match", FakeStrategy, PROFILE)
 
 
 def helpers():  # type: ignore[no-untyped-def]
-    return {
-        "c3_lightglue_runtime": FakeLightGlueRuntime(),
-        "c282_ransac_filter": FakeRansacFilter([]),
-        "c7_inference": FakeInferenceRuntime(),
-    }
+    return fake_helpers()
 
 
 def settings(tmp_path, strategy: str = "fake_match") -> C3Settings:

@@ -8,7 +8,6 @@ recorder it builds."""
 from __future__ import annotations
 
 import threading
-import types
 from pathlib import Path
 from typing import Any
 
@@ -25,20 +24,16 @@ from c3_matcher.errors import (
 )
 from c3_matcher.fdr import read_fdr
 from c3_matcher.features import Features
-from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
-from c3_matcher.plugins import PluginHost, StrategySpec, hookimpl
-from c3_matcher.plugins.manager import PluginSource
 from c3_matcher.prepared import PreparedImage
-from c3_matcher.profiles import BuildProfile
 from c3_matcher.testing import (
     FakeBackend,
-    FakeInferenceRuntime,
-    FakeLightGlueRuntime,
-    FakeRansacFilter,
     ScriptedCandidate,
     ScriptedRig,
+    fake_helpers,
     make_frame,
     make_rerank,
+    one_strategy_host,
+    pipeline_strategy,
 )
 
 S = ScriptedCandidate
@@ -72,31 +67,10 @@ class GatedBackend(FakeBackend):
                 self.active -= 1
 
 
-def _strategy(**kw: Any) -> PipelineMatcher:
-    backend = GatedBackend(kw["inference_runtime"], kw["lightglue_runtime"])
-    return PipelineMatcher(
-        backend,
-        kw["ransac_filter"],
-        kw["fdr_client"],
-        kw["health_window"],
-        kw["clock"],
-        PipelineSettings(),
-    )
-
-
 def _root(tmp_path: Path) -> ComposedRoot:
-    profile = BuildProfile.from_data({"name": "research", "strict": False, "flags": {}}, "test")
-    module = types.SimpleNamespace(
-        c3_matcher_strategies=hookimpl(lambda: [StrategySpec("gated", _strategy)])
-    )
-    host = PluginHost(profile, [PluginSource("gated", "gated-dist", "1.0", module=module)])
-    helpers = {
-        "c3_lightglue_runtime": FakeLightGlueRuntime(SCRIPT),
-        "c282_ransac_filter": FakeRansacFilter(SCRIPT),
-        "c7_inference": FakeInferenceRuntime(SCRIPT),
-    }
+    host = one_strategy_host("gated", pipeline_strategy(GatedBackend))
     settings = C3Settings(matcher={"strategy": "gated"}, fdr={"path": tmp_path / "fdr.jsonl"})
-    return compose_root(settings, helpers, plugin_host=host, configure_logs=False)
+    return compose_root(settings, fake_helpers(SCRIPT), plugin_host=host, configure_logs=False)
 
 
 def _inputs() -> tuple[Any, Any, Any]:

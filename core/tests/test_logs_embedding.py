@@ -8,7 +8,6 @@ import json
 import subprocess
 import sys
 import textwrap
-import types
 from pathlib import Path
 from typing import Any
 
@@ -16,15 +15,11 @@ import pytest
 
 from c3_matcher.compose import compose_root
 from c3_matcher.config import C3Settings
-from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
-from c3_matcher.plugins import PluginHost, StrategySpec, hookimpl
-from c3_matcher.plugins.manager import PluginSource
-from c3_matcher.profiles import BuildProfile
+from c3_matcher.plugins import PluginHost
 from c3_matcher.testing import (
-    FakeBackend,
-    FakeInferenceRuntime,
-    FakeLightGlueRuntime,
-    FakeRansacFilter,
+    fake_helpers,
+    one_strategy_host,
+    pipeline_strategy,
 )
 
 PROGRAM = textwrap.dedent(
@@ -60,31 +55,7 @@ def test_each_matcher_record_once_at_the_configured_level() -> None:
 
 
 def _fake_host() -> PluginHost:
-    module = types.SimpleNamespace(
-        c3_matcher_strategies=hookimpl(lambda: [StrategySpec("fake", _Fake)])
-    )
-    profile = BuildProfile.from_data({"name": "research", "strict": False, "flags": {}}, "test")
-    return PluginHost(profile, [PluginSource("fake", "fake-dist", "1.0", module=module)])
-
-
-class _Fake(PipelineMatcher):
-    def __init__(self, **kw: Any) -> None:
-        super().__init__(
-            FakeBackend(kw["inference_runtime"], kw["lightglue_runtime"]),
-            kw["ransac_filter"],
-            kw["fdr_client"],
-            kw["health_window"],
-            kw["clock"],
-            PipelineSettings(),
-        )
-
-
-def _helpers() -> dict[str, Any]:
-    return {
-        "c3_lightglue_runtime": FakeLightGlueRuntime(),
-        "c282_ransac_filter": FakeRansacFilter([]),
-        "c7_inference": FakeInferenceRuntime(),
-    }
+    return one_strategy_host("fake", pipeline_strategy())
 
 
 @pytest.mark.parametrize("configured", [False, True])
@@ -95,7 +66,7 @@ def test_the_default_fdr_path_is_stated_when_used(
     fdr = {"path": tmp_path / "mine.jsonl"} if configured else {}
     root = compose_root(
         C3Settings(matcher={"strategy": "fake"}, fdr=fdr),
-        _helpers(),
+        fake_helpers(),
         plugin_host=_fake_host(),
         configure_logs=False,
     )

@@ -89,6 +89,14 @@ class NoMatchPhase:
         return {"engines": {}}
 
 
+class RuleAsTuple(NoMatchPhase):
+    """Every member, but the input rule written as a (max side, multiple) tuple: each frame
+    failed on it (and the start-up probe passed it over)."""
+
+    match_phase = "x_match"
+    input_rule = (1024, 16)  # type: ignore[assignment]
+
+
 class IgnoresTheMask(OpenCvBackend):
     """Keypoints on nodata, padding and warp borders: the mask is never passed."""
 
@@ -142,16 +150,11 @@ def _started(tmp_path: Any, create: Any) -> None:
     """Compose a strategy ``mine`` whose factory is ``create`` (fake helpers, no logging)."""
     from c3_matcher.compose import compose_root
     from c3_matcher.config import C3Settings
-    from c3_matcher.testing import FakeInferenceRuntime, FakeLightGlueRuntime, FakeRansacFilter
+    from c3_matcher.testing import fake_helpers
 
     host = c3.PluginHost(RESEARCH, [_plugin("mine", lambda: [c3.StrategySpec("mine", create)])])
     settings = C3Settings(matcher={"strategy": "mine"}, fdr={"path": tmp_path / "fdr.jsonl"})
-    helpers = {
-        "c3_lightglue_runtime": FakeLightGlueRuntime(),
-        "c282_ransac_filter": FakeRansacFilter([]),
-        "c7_inference": FakeInferenceRuntime(),
-    }
-    compose_root(settings, helpers, plugin_host=host, configure_logs=False).close()
+    compose_root(settings, fake_helpers(), plugin_host=host, configure_logs=False).close()
 
 
 def _raising(config: Any, options: Any) -> Any:
@@ -171,8 +174,12 @@ def _raising(config: Any, options: Any) -> Any:
             c3.backend_strategy_factory(lambda config, options: None),
             "NoneType is not a FeatureBackend: it lacks label",
         ),
+        (
+            c3.backend_strategy_factory(lambda config, options: RuleAsTuple()),
+            "RuleAsTuple is not a FeatureBackend: it lacks input_rule (an InputRule)",
+        ),
     ],
-    ids=["factory-raises", "not-a-matcher", "member-missing", "backend-none"],
+    ids=["factory-raises", "not-a-matcher", "member-missing", "backend-none", "rule-not-a-rule"],
 )
 def test_a_strategy_that_cannot_start_is_named_with_its_plugin_at_start_up(
     tmp_path: Any, create: Any, said: str

@@ -139,8 +139,7 @@ def engine_startup_probe(backend: FeatureBackend, size: int = PROBE_SIDE, block:
     (XFeat) score, so every cell sees texture. A pair a setting of the backend stops early
     (``early_stop``) is tried again larger (``PROBE_GROWTH``); ``ConfigurationError`` naming the
     setting when it stops the largest too: it would stop every pair of real images."""
-    rule = getattr(backend, "input_rule", None)
-    rule = rule if isinstance(rule, InputRule) else None
+    rule = backend.input_rule
     stopped: tuple[str, str] | None = None
     for side in dict.fromkeys(probe_side(rule, size * grow) for grow in PROBE_GROWTH):
         stopped = _probe_once(backend, rule, side, block)
@@ -286,13 +285,18 @@ BACKEND_MEMBERS: Final = (
 
 
 def missing_members(backend: object) -> list[str]:
-    """The ``FeatureBackend`` members ``backend`` lacks (methods must be callable)."""
+    """The ``FeatureBackend`` members ``backend`` lacks (methods must be callable, the input
+    rule an ``InputRule``)."""
     missing = [name for name in BACKEND_MEMBERS if not hasattr(backend, name)]
-    return missing + [
+    wrong = [
         name
         for name in ("extract", "match", "provenance")
         if name not in missing and not callable(getattr(backend, name))
     ]
+    rule = getattr(backend, "input_rule", None)
+    if "input_rule" not in missing and not isinstance(rule, InputRule):
+        wrong.append("input_rule (an InputRule)")
+    return missing + wrong
 
 
 def check_members(backend: object) -> None:

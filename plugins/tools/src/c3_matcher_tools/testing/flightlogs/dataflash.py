@@ -7,15 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher_tools.testing.flightlogs import (
-    BOOT_S,
-    GROUND_M,
-    HOME_FIRST_M,
-    UTC0,
-    Pose,
-    dense_track,
-    pre_arm_track,
-)
+from c3_matcher_tools.testing import flightlogs as fl
 
 __all__ = ["write_dataflash"]
 
@@ -31,7 +23,7 @@ _DF_FORMATS = {
 _DF_STRUCT = {"Q": "Q", "f": "f", "L": "i", "B": "B", "I": "I", "H": "H"}
 
 
-def write_dataflash(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) -> Path:
+def write_dataflash(path: Path, poses: Sequence[fl.Pose], *, flaws: Sequence[str] = ()) -> Path:
     """An ArduPilot DataFlash log in the documented binary layout (FMT messages, then ATT, POS,
     GPS with GNSS week time, GPA and CAM); ``flaws``: ``no_attitude``, ``no_trigger``,
     ``time_jump`` (the middle frame's ATT stamped 5 s before the frame before it), ``home_reset``
@@ -67,19 +59,19 @@ def write_dataflash(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] =
     items: list[tuple[int, bytes]] = []
     if "home_reset" in flaws:  # on the ground before arming, the home then higher
         items += [msg("POS", *values) for values in _pre_arm_positions(poses)]
-    for t, lat, lon, alt in dense_track(poses):
-        tus = int((BOOT_S + t) * 1e6)
-        gps_s = UTC0 + t - gps_epoch + leap
+    for t, lat, lon, alt in fl.dense_track(poses):
+        tus = int((fl.BOOT_S + t) * 1e6)
+        gps_s = fl.UTC0 + t - gps_epoch + leap
         week, ms = int(gps_s // 604800), round((gps_s % 604800) * 1e3)
-        items.append(msg("POS", tus, round(lat * 1e7), round(lon * 1e7), alt, alt - GROUND_M))
+        items.append(msg("POS", tus, round(lat * 1e7), round(lon * 1e7), alt, alt - fl.GROUND_M))
         items.append(msg("GPS", tus, 3, ms, week, round(lat * 1e7), round(lon * 1e7), alt))
         items.append(msg("GPA", tus, 1.5))
     for i, p in enumerate(poses):
-        tus = int((BOOT_S + p.t_s) * 1e6)
+        tus = int((fl.BOOT_S + p.t_s) * 1e6)
         if "no_attitude" not in flaws:
             att = msg("ATT", tus, p.roll, p.pitch, p.yaw % 360.0)
             if "time_jump" in flaws and i == len(poses) // 2:
-                back = int((BOOT_S + poses[i - 1].t_s - 5.0) * 1e6)
+                back = int((fl.BOOT_S + poses[i - 1].t_s - 5.0) * 1e6)
                 att = (tus, msg("ATT", back, p.roll, p.pitch, p.yaw % 360.0)[1])
             items.append(att)
         if "no_trigger" not in flaws:
@@ -92,11 +84,11 @@ def write_dataflash(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] =
     return path
 
 
-def _pre_arm_positions(poses: Sequence[Pose]) -> list[tuple[Any, ...]]:
+def _pre_arm_positions(poses: Sequence[fl.Pose]) -> list[tuple[Any, ...]]:
     """POS values on the ground before arming (:func:`pre_arm_track`), ``RelHomeAlt`` above a
     home :data:`HOME_FIRST_M` higher than the ground."""
-    home = GROUND_M + HOME_FIRST_M
+    home = fl.GROUND_M + fl.HOME_FIRST_M
     return [
-        (int((BOOT_S + t) * 1e6), round(lat * 1e7), round(lon * 1e7), alt, alt - home)
-        for t, lat, lon, alt in pre_arm_track(poses)
+        (int((fl.BOOT_S + t) * 1e6), round(lat * 1e7), round(lon * 1e7), alt, alt - home)
+        for t, lat, lon, alt in fl.pre_arm_track(poses)
     ]

@@ -8,20 +8,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from c3_matcher_tools.testing.flightlogs import (
-    BOOT_S,
-    GROUND_M,
-    HOME_FIRST_M,
-    UTC0,
-    Pose,
-    dense_track,
-    pre_arm_track,
-)
+from c3_matcher_tools.testing import flightlogs as fl
 
 __all__ = ["write_tlog"]
 
 
-def write_tlog(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) -> Path:
+def write_tlog(path: Path, poses: Sequence[fl.Pose], *, flaws: Sequence[str] = ()) -> Path:
     """A ground station's MAVLink telemetry log: ATTITUDE, GLOBAL_POSITION_INT, GPS_RAW_INT
     (h_acc 1.5 m) and CAMERA_FEEDBACK per frame, each prefixed by its UTC time as pymavlink
     writes it. ``flaws``: ``no_attitude``, ``no_trigger``, ``home_reset`` (GLOBAL_POSITION_INT on
@@ -37,20 +29,20 @@ def write_tlog(path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = ()) 
     path = Path(path)
     with path.open("wb") as fh:
         for t, msg in records:
-            fh.write(struct.pack(">Q", int((UTC0 + t) * 1e6)) + msg.pack(mav))
+            fh.write(struct.pack(">Q", int((fl.UTC0 + t) * 1e6)) + msg.pack(mav))
     return path
 
 
-def _tlog_positions(poses: Sequence[Pose], *, pre_arm: bool = False) -> list[tuple[float, Any]]:
+def _tlog_positions(poses: Sequence[fl.Pose], *, pre_arm: bool = False) -> list[tuple[float, Any]]:
     """(t, message) of GLOBAL_POSITION_INT and GPS_RAW_INT (3D fix, h_acc 1.5 m) along the
     poses (``pre_arm``: on the ground before arming, :func:`pre_arm_track`, the home then
     :data:`HOME_FIRST_M` higher)."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
     records: list[tuple[float, Any]] = []
-    home = GROUND_M + (HOME_FIRST_M if pre_arm else 0.0)
-    for t, lat, lon, alt in pre_arm_track(poses) if pre_arm else dense_track(poses):
-        ms = int((BOOT_S + t) * 1e3)
+    home = fl.GROUND_M + (fl.HOME_FIRST_M if pre_arm else 0.0)
+    for t, lat, lon, alt in fl.pre_arm_track(poses) if pre_arm else fl.dense_track(poses):
+        ms = int((fl.BOOT_S + t) * 1e3)
         rel = int((alt - home) * 1e3)
         lat_e7, lon_e7, alt_mm = round(lat * 1e7), round(lon * 1e7), round(alt * 1e3)
         records.append(
@@ -61,7 +53,7 @@ def _tlog_positions(poses: Sequence[Pose], *, pre_arm: bool = False) -> list[tup
                 ),
             )
         )
-        utc_us = int((UTC0 + t) * 1e6)
+        utc_us = int((fl.UTC0 + t) * 1e6)
         fix = mavlink.MAVLink_gps_raw_int_message(
             utc_us, 3, lat_e7, lon_e7, alt_mm, 80, 120, 0, 0, 12, 0, 1500, 2500, 0, 0, 0
         )
@@ -69,19 +61,19 @@ def _tlog_positions(poses: Sequence[Pose], *, pre_arm: bool = False) -> list[tup
     return records
 
 
-def _tlog_frames(poses: Sequence[Pose], flaws: Sequence[str]) -> list[tuple[float, Any]]:
+def _tlog_frames(poses: Sequence[fl.Pose], flaws: Sequence[str]) -> list[tuple[float, Any]]:
     """(t, message) of each frame's ATTITUDE and CAMERA_FEEDBACK (``flaws``: ``no_attitude``,
     ``no_trigger`` leave them out)."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
     records: list[tuple[float, Any]] = []
     for i, p in enumerate(poses):
-        ms = int((BOOT_S + p.t_s) * 1e3)
+        ms = int((fl.BOOT_S + p.t_s) * 1e3)
         if "no_attitude" not in flaws:
             roll, pitch, yaw = (math.radians(a) for a in (p.roll, p.pitch, p.yaw))
             records.append((p.t_s, mavlink.MAVLink_attitude_message(ms, roll, pitch, yaw, 0, 0, 0)))
         if "no_trigger" not in flaws:
-            utc_us = int((UTC0 + p.t_s) * 1e6)
+            utc_us = int((fl.UTC0 + p.t_s) * 1e6)
             lat_e7, lon_e7 = round(p.lat * 1e7), round(p.lon * 1e7)
             feedback = mavlink.MAVLink_camera_feedback_message(
                 utc_us, 1, 0, i, lat_e7, lon_e7, p.alt_m, p.height_m, p.roll, p.pitch, p.yaw, 4.5, 0

@@ -9,14 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from c3_matcher_tools.testing.flightlogs import (
-    BOOT_S,
-    GROUND_M,
-    HOME_FIRST_M,
-    UTC0,
-    Pose,
-    dense_track,
-)
+from c3_matcher_tools.testing import flightlogs as fl
 
 __all__ = ["write_ulog"]
 
@@ -26,7 +19,7 @@ _Topic = tuple[str, list[tuple[str, str]], dict[str, Sequence[Any]]]
 
 
 def write_ulog(
-    path: Path, poses: Sequence[Pose], *, flaws: Sequence[str] = (), rangefinder: bool = False
+    path: Path, poses: Sequence[fl.Pose], *, flaws: Sequence[str] = (), rangefinder: bool = False
 ) -> Path:
     """A PX4 ULog with ``vehicle_attitude``, ``vehicle_global_position``,
     ``vehicle_gps_position`` (eph 1.5 m, 3D fix, UTC time), ``home_position`` and
@@ -40,8 +33,8 @@ def write_ulog(
 
     ulog = ULog(None)
     ulog._file_version = 1
-    ulog._start_timestamp = int(BOOT_S * 1e6) - 1_000_000
-    us = [int((BOOT_S + p.t_s) * 1e6) for p in poses]
+    ulog._start_timestamp = int(fl.BOOT_S * 1e6) - 1_000_000
+    us = [int((fl.BOOT_S + p.t_s) * 1e6) for p in poses]
     topics: list[_Topic] = []
     if "no_attitude" not in flaws:
         topics.append(_ulog_attitude(poses, us))
@@ -51,7 +44,7 @@ def write_ulog(
         name, fields, home = heights[0]
         at = (us[0] - 60_000_000, us[0] - 5_000_000)
         alt = float(home["alt"][0])
-        heights[0] = (name, fields, {"timestamp": at, "alt": (alt + HOME_FIRST_M, alt)})
+        heights[0] = (name, fields, {"timestamp": at, "alt": (alt + fl.HOME_FIRST_M, alt)})
     topics += heights
     if "no_trigger" not in flaws:
         topics.append(
@@ -69,7 +62,7 @@ def write_ulog(
     return path
 
 
-def _ulog_attitude(poses: Sequence[Pose], us: list[int]) -> _Topic:
+def _ulog_attitude(poses: Sequence[fl.Pose], us: list[int]) -> _Topic:
     """``vehicle_attitude``: each frame's quaternion at its time ``us`` (µs since boot)."""
     quats = [p.quaternion() for p in poses]
     return (
@@ -79,11 +72,11 @@ def _ulog_attitude(poses: Sequence[Pose], us: list[int]) -> _Topic:
     )
 
 
-def _ulog_positions(poses: Sequence[Pose], *, gnss_loss: bool) -> list[_Topic]:
+def _ulog_positions(poses: Sequence[fl.Pose], *, gnss_loss: bool) -> list[_Topic]:
     """``vehicle_global_position`` and ``vehicle_gps_position`` along the poses (``gnss_loss``:
     no fix within 0.3 s of the second frame)."""
-    dense = dense_track(poses)
-    dus = [int((BOOT_S + d[0]) * 1e6) for d in dense]
+    dense = fl.dense_track(poses)
+    dus = [int((fl.BOOT_S + d[0]) * 1e6) for d in dense]
     lost = {
         i
         for i, d in enumerate(dense)
@@ -112,7 +105,7 @@ def _ulog_positions(poses: Sequence[Pose], *, gnss_loss: bool) -> list[_Topic]:
         ],
         {
             "timestamp": dus,
-            "time_utc_usec": [int((UTC0 + d[0]) * 1e6) for d in dense],
+            "time_utc_usec": [int((fl.UTC0 + d[0]) * 1e6) for d in dense],
             "lat": [round(d[1] * 1e7) for d in dense],
             "lon": [round(d[2] * 1e7) for d in dense],
             "alt": [round(d[3] * 1e3) for d in dense],
@@ -123,13 +116,13 @@ def _ulog_positions(poses: Sequence[Pose], *, gnss_loss: bool) -> list[_Topic]:
     return [estimate, receiver]
 
 
-def _ulog_heights(poses: Sequence[Pose], us: list[int], rangefinder: bool) -> list[_Topic]:
+def _ulog_heights(poses: Sequence[fl.Pose], us: list[int], rangefinder: bool) -> list[_Topic]:
     """``home_position`` (its altitude the ground's, 20 m lower with a ``rangefinder``) and the
     rangefinder's ``vehicle_local_position`` at each frame's time ``us``."""
     home: _Topic = (
         "home_position",
         [("uint64_t", "timestamp"), ("float", "alt")],
-        {"timestamp": [us[0]], "alt": [GROUND_M - (20.0 if rangefinder else 0.0)]},
+        {"timestamp": [us[0]], "alt": [fl.GROUND_M - (20.0 if rangefinder else 0.0)]},
     )
     if not rangefinder:
         return [home]
@@ -145,7 +138,7 @@ def _ulog_heights(poses: Sequence[Pose], us: list[int], rangefinder: bool) -> li
             "timestamp": us,
             "dist_bottom": [p.height_m for p in poses],
             "dist_bottom_valid": [True] * len(us),
-            "ref_alt": [GROUND_M - 20.0] * len(us),
+            "ref_alt": [fl.GROUND_M - 20.0] * len(us),
         },
     )
     return [home, local]
