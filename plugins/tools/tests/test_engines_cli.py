@@ -317,3 +317,43 @@ def test_bench_refuses_missing_engines_before_timing_any(
         "error: 2 engine(s) to bench are missing or unusable, nothing was timed; "
         "build them: c3-matcher engines build --only disk/depth --only lighterglue/xfeat"
     )
+
+
+def test_a_bench_case_whose_process_fails_is_said_and_the_others_still_run(
+    engines: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A case's process that fails (out of memory, killed) lost every case timed before it:
+    the command stopped with a traceback and printed nothing. It is a failed row now, the
+    others are timed, and the command exits 1 naming it."""
+    import c3_matcher_tools.engines.bench as bench
+
+    def child(argv: list[str]) -> bench.BenchResult | bench.FailedCase:
+        if argv[0] == "matcher" and argv[argv.index("--keypoints") + 1] == "2048":
+            return bench.FailedCase(argv[2], f"{argv[2]} 2048 kpts", "killed by signal 9")
+        return bench.BenchResult(argv[2], argv[2], *[1] * 8, "", {}, "CPU", 0)
+
+    monkeypatch.setattr(bench, "_run_child", child)
+    monkeypatch.setattr(bench, "_prepare_features", lambda *_args: None)
+    assert main(["engines", "bench", "--runs", "1"]) == 1
+    out, err = capsys.readouterr()
+    rows = out.splitlines()[2:]
+    failed = [row for row in rows if "failed: killed by signal 9" in row]
+    assert failed and len(rows) > len(failed)
+    assert f"{len(failed)} case(s) failed, the others are timed" in err
+
+
+def test_a_case_process_that_fails_becomes_a_failed_case_with_its_last_words(
+    tmp_path: Path,
+) -> None:
+    """The real child process, on an engine file that is not a model: how it ended and the
+    last line it wrote, under the case it was to time."""
+    from c3_matcher_tools.engines.bench import FailedCase, _child_argv, _run_child, _setting_flags
+
+    engine = tmp_path / "disk_depth_fp32_hw16-k2048_op18_0000000000.onnx"
+    engine.write_bytes(b"not a model")
+    options = ["--image", str(tmp_path / "none.png"), "--size", "256", "192"]
+    flags = _setting_flags(False, False, 1, EngineSettings())
+    result = _run_child(_child_argv("extractor", engine, options, flags))
+    assert isinstance(result, FailedCase)
+    assert result.case == f"{engine.name} 256x192"
+    assert result.failed.startswith("exit status ") and len(result.failed) > len("exit status 1")

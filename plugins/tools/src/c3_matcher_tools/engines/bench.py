@@ -48,7 +48,14 @@ from c3_matcher_tools.memory import current_rss_mib, peak_rss_mib
 if TYPE_CHECKING:
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
-__all__ = ["BenchResult", "extractor_label", "format_table", "matcher_label", "run_bench"]
+__all__ = [
+    "BenchResult",
+    "FailedCase",
+    "extractor_label",
+    "format_table",
+    "matcher_label",
+    "run_bench",
+]
 
 DISK_SIZES: tuple[tuple[int, int], ...] = ((512, 512), (1024, 1024))
 LIGHTGLUE_COUNTS: tuple[int, ...] = (512, 2048)
@@ -87,6 +94,17 @@ class BenchResult:
     detail: dict[str, Any]
     provider: str
     threads: int
+
+
+@dataclass(frozen=True, slots=True)
+class FailedCase:
+    """A case whose process failed (an error, out of memory, killed): ``engine`` file, ``case``
+    (the engine and the size or keypoint count it was to time) and ``failed``, how it ended and
+    the last line it wrote."""
+
+    engine: str
+    case: str
+    failed: str
 
 
 def _read_rgb(path: Path, size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
@@ -250,7 +268,9 @@ def _child(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _run_child(argv: list[str]) -> BenchResult:
+def _run_child(argv: list[str]) -> BenchResult | FailedCase:
+    """Run one case (``_child_argv``) in a fresh process; a process that fails is a
+    ``FailedCase`` and the other cases still run."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
     proc = subprocess.run(
@@ -260,9 +280,15 @@ def _run_child(argv: list[str]) -> BenchResult:
         env=env,
         check=False,
     )
-    if proc.returncode != 0:
-        raise RuntimeError(f"bench child {argv} failed:\n{proc.stderr[-2000:]}")
-    return BenchResult(**json.loads(proc.stdout.strip().splitlines()[-1]))
+    if proc.returncode == 0:
+        return BenchResult(**json.loads(proc.stdout.strip().splitlines()[-1]))
+    code = proc.returncode
+    ended = f"killed by signal {-code}" if code < 0 else f"exit status {code}"
+    said = [line for line in proc.stderr.splitlines() if line.strip()]
+    engine = Path(argv[2]).name
+    what = " ".join(argv[argv.index("--size") + 1 :][:2]) if argv[0] == "extractor" else ""
+    what = what.replace(" ", "x") if what else f"{argv[argv.index('--keypoints') + 1]} kpts"
+    return FailedCase(engine, f"{engine} {what}", ended + (f": {said[-1]}" if said else ""))
 
 
 def _prepare_features(
@@ -298,16 +324,17 @@ def run_bench(
     engines: EngineSettings | None = None,
     settings: Sequence[tuple[bool, bool]] | None = None,
     log: Callable[[str], None] | None = None,
-) -> list[BenchResult]:
-    """Measure every case, each in a fresh process: ``extractor_engine`` at each of
-    ``disk_sizes``, then each of ``matcher_engines`` (``feature_type`` matchers, none: the
-    extractor alone) at each of ``lightglue_counts`` on that extractor's features. Each runs on
-    the runtime of the ``engines`` settings (default: ``[engines]``'s defaults); ``settings``
-    lists (memory pattern, arena) combinations to compare (default: the memory pattern off, as
-    the runtime has it, and the arena as ``engines`` says)."""
+) -> list[BenchResult | FailedCase]:
+    """Measure every case, each in a fresh process (one that fails is a ``FailedCase``):
+    ``extractor_engine`` at each of ``disk_sizes``, then each of ``matcher_engines``
+    (``feature_type`` matchers, none: the extractor alone) at each of ``lightglue_counts`` on
+    that extractor's features. Each runs on the runtime of the ``engines`` settings (default:
+    ``[engines]``'s defaults); ``settings`` lists (memory pattern, arena) combinations to
+    compare (default: the memory pattern off, as the runtime has it, and the arena as
+    ``engines`` says)."""
     say = log or (lambda _line: None)
     engines = engines or EngineSettings()
-    results: list[BenchResult] = []
+    results: list[BenchResult | FailedCase] = []
     with tempfile.TemporaryDirectory(prefix="c3-bench-") as tmp:
         features = Path(tmp) / "features.npz"
         if matcher_engines:
@@ -351,8 +378,9 @@ def _child_argv(kind: str, engine: Path, options: Sequence[str], flags: list[str
     return [kind, "--engine", str(engine), *options, *flags]
 
 
-def format_table(results: Sequence[BenchResult]) -> str:
-    """A fixed-width text table of ``results`` (the case column as wide as its longest label)."""
+def format_table(results: Sequence[BenchResult | FailedCase]) -> str:
+    """A fixed-width text table of ``results`` (the case column as wide as its longest label);
+    a failed case's row says how it ended."""
     width = max([CASE_WIDTH, *(len(r.case) for r in results)])
     header = (
         f"{'case':<{width}} {'median ms':>10} {'p95 ms':>8} {'min ms':>8} {'peak MiB':>9} "
@@ -360,6 +388,9 @@ def format_table(results: Sequence[BenchResult]) -> str:
     )
     lines = [header, "-" * len(header)]
     for r in results:
+        if isinstance(r, FailedCase):
+            lines.append(f"{r.case:<{width}} failed: {r.failed}")
+            continue
         lines.append(
             f"{r.case:<{width}} {r.median_ms:>10.1f} {r.p95_ms:>8.1f} {r.min_ms:>8.1f} "
             f"{r.peak_rss_mib:>9.0f} {r.baseline_rss_mib:>9.0f} {r.load_ms:>8.0f}  {r.settings}"

@@ -144,7 +144,12 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
     if args.image and not args.image.is_file():
         raise InvalidInputError("--image", f"no such file: {args.image}")
     ctx: EnginesCliContext = engines_context(command.settings, command.plugin_host)
-    from c3_matcher_tools.engines.bench import bench_runtime, format_table, run_bench
+    from c3_matcher_tools.engines.bench import (
+        FailedCase,
+        bench_runtime,
+        format_table,
+        run_bench,
+    )
 
     groups, unserved = _bench_groups(ctx.specs)
     if not groups:
@@ -177,6 +182,11 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
         command.out(json.dumps([asdict(r) for r in results], indent=2))
     else:
         command.out(format_table(results))
+    failed = [r.case for r in results if isinstance(r, FailedCase)]
+    if failed:
+        said = ", ".join(failed)
+        command.err(f"error: {len(failed)} case(s) failed, the others are timed: {said}")
+        return EXIT_FAILURE
     return EXIT_OK
 
 
