@@ -112,7 +112,10 @@ def store_candidates(
         )
     if not tile_ids:
         raise InvalidInputError("--tile-id", "--store needs one --tile-id per candidate window")
-    zooms = store.zooms()
+    try:  # a zoom_level the check at open does not look at: the store is no MBTiles file
+        zooms = store.zooms()
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"--store {store.path}", exc.reason) from None
     for tile_id in tile_ids:
         if tile_id.zoom not in zooms:
             raise InvalidInputError(

@@ -13,6 +13,10 @@ Tiles are 256-px web-mercator tiles; ``tile_row`` is TMS (row 0 at the south), s
 build``, ``c3_source`` (the GeoTIFF), ``c3_georeference`` (how its grid was converted to
 WGS84: the JSON of the ground tools' ``tilestore.projection.Projection``) and ``c3_source_gsd_m``.
 
+Opening checks, once, that the file is an SQLite database with these two tables, each with the
+columns it is read by (``PRAGMA table_info``), and that its smallest and largest zoom_level are
+zooms (integers >= 0); a file that is not is ``InvalidInputError`` naming it and what is wrong.
+
 Reading opens the database read-only with SQLite memory-mapped I/O (``PRAGMA mmap_size``): the
 database pages are served from the page cache through a mapping, not ``read()`` into SQLite's
 own cache; each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way) and
@@ -99,19 +103,17 @@ class MBTilesStore(TileStoreBase):
         try:  # a damaged page (metadata's included) is said as such, the connection closed
             db = self._db
             tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
-            missing = {"metadata", "tiles"} - tables
-            if not missing:
+            wrong = _not_mbtiles(db, tables)
+            if wrong is None:
                 rows = db.execute("SELECT name, value FROM metadata")
                 self._metadata = {str(k): str(v) for k, v in rows}
         except sqlite3.DatabaseError as exc:
             self.close()
             why = _open_error(self.path, exc)
             raise InvalidInputError("mbtiles", f"{self.path}: {why}") from exc
-        if missing:
+        if wrong is not None:
             self.close()
-            raise InvalidInputError(
-                "mbtiles", f"{self.path}: not an MBTiles file (missing tables {sorted(missing)})"
-            )
+            raise self._refusal(wrong)
         self.has_digests: Final = "c3_tile_digest" in tables
         """Whether the store carries per-tile sha256 digests (verified on every read)."""
 
@@ -237,17 +239,29 @@ class MBTilesStore(TileStoreBase):
         raise TileStoreUnusableError(self.name, reason) from exc
 
     def zooms(self) -> list[int]:
-        return [
-            int(r[0]) for r in self._db.execute("SELECT DISTINCT zoom_level FROM tiles ORDER BY 1")
-        ]
+        """The zooms stored; a zoom_level that is no zoom (the check at open sees the smallest
+        and the largest only) is InvalidInputError naming the store."""
+        found = [r[0] for r in self._db.execute("SELECT DISTINCT zoom_level FROM tiles ORDER BY 1")]
+        for zoom in found:
+            if not _is_zoom(zoom):
+                raise self._refusal(_holds("zoom_level", zoom))
+        return found
 
     def tiles(self, zoom: int) -> Iterator[tuple[int, int]]:
-        """XYZ (x, y) of every stored tile at ``zoom``."""
+        """XYZ (x, y) of every stored tile at ``zoom``; a tile_column or tile_row that is no
+        integer is InvalidInputError naming the store."""
         n = 1 << zoom
         for col, row in self._db.execute(
             "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=? ORDER BY 2 DESC, 1", (zoom,)
         ):
-            yield int(col), n - 1 - int(row)
+            for name, value in (("tile_column", col), ("tile_row", row)):
+                if not isinstance(value, int):
+                    raise self._refusal(_holds(name, value))
+            yield col, n - 1 - row
+
+    def _refusal(self, wrong: str) -> InvalidInputError:
+        """The refusal of this store as no MBTiles file, for the reason ``wrong``."""
+        return InvalidInputError("mbtiles", f"{self.path}: not an MBTiles file ({wrong})")
 
     def close(self) -> None:
         """Close every connection (the sidecar's too); later reads raise
@@ -274,6 +288,46 @@ class MBTilesStore(TileStoreBase):
 
     def __repr__(self) -> str:
         return f"MBTilesStore({str(self.path)!r})"
+
+
+_COLUMNS: Final = {
+    "tiles": ("zoom_level", "tile_column", "tile_row", "tile_data"),
+    "metadata": ("name", "value"),
+}
+"""The columns the store is read by, per table (spec 1.3)."""
+
+
+def _not_mbtiles(db: sqlite3.Connection, tables: set[str]) -> str | None:
+    """Why the database ``db`` holding ``tables`` is no MBTiles store, or None: a table missing,
+    a table without the columns it is read by, or a zoom_level that is no zoom. Cheap, once at
+    open: the columns from ``PRAGMA table_info``, the zooms only the smallest and the largest
+    (each one step of the spec's index: NULL sorts first, text and blobs last)."""
+    missing = sorted({"metadata", "tiles"} - tables)
+    if missing:
+        return f"missing tables {missing}"
+    for table, wanted in _COLUMNS.items():
+        has = [str(r[1]) for r in db.execute(f"PRAGMA table_info({table})")]
+        lacks = [c for c in wanted if c not in {h.lower() for h in has}]
+        if lacks:
+            return f"its {table} table lacks the columns {lacks}; it has {has}"
+    for order in ("ASC", "DESC"):
+        row = db.execute(f"SELECT zoom_level FROM tiles ORDER BY zoom_level {order} LIMIT 1")
+        found = row.fetchone()
+        if found is not None and not _is_zoom(found[0]):
+            return _holds("zoom_level", found[0])
+    return None
+
+
+def _is_zoom(value: object) -> bool:
+    return isinstance(value, int) and value >= 0
+
+
+def _holds(column: str, value: object) -> str:
+    """What a ``column`` of the tiles table holding ``value`` (none of its kind) is said as."""
+    shown = "NULL" if value is None else repr(value)
+    shown = shown if len(shown) <= 40 else shown[:37] + "..."
+    expected = "a zoom is an integer >= 0" if column == "zoom_level" else "it is an integer"
+    return f"its tiles table holds a {column} of {shown}: {expected}"
 
 
 def _open_error(path: Path, exc: sqlite3.DatabaseError) -> str:

@@ -1,0 +1,117 @@
+"""A PNG cut short (a tile or the query) is refused before it is decoded, as an image that is not
+decodable, with a message saying it is cut short: libpng, given one, wrote its own line to the
+process's stderr ("libpng error: PNG input buffer is incomplete") beside the product's one-line
+refusal, and a flight process's stderr is the host's. A JPEG cut short is refused by OpenCV's
+decoder without a word on stderr, so it is left to it. ``capfd`` reads the file descriptor."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.testing import ScriptedCandidate, ScriptedRig
+from c3_matcher.tiles import BytesTileHandle, ImageDecodeError, decode_image, read_image
+
+REPO = Path(__file__).resolve().parents[2]
+DEMO = REPO / "data" / "demo"
+PNG = (DEMO / "tile_a.png").read_bytes()
+JPEG = (DEMO / "frame.jpg").read_bytes()
+CUT_SHORT = "cut short"
+
+
+@pytest.mark.parametrize(
+    "data",
+    [PNG[: len(PNG) // 2], PNG[:-12], PNG[:-1], PNG[:200]],
+    ids=["half", "no IEND", "one byte short", "header only"],
+)
+def test_a_png_cut_short_is_refused_before_decoding_and_libpng_says_nothing(
+    capfd: pytest.CaptureFixture[str], data: bytes
+) -> None:
+    capfd.readouterr()
+    with pytest.raises(ImageDecodeError) as refused:
+        decode_image(data, "tile.png")
+    assert str(refused.value).startswith("tile.png: ") and CUT_SHORT in str(refused.value)
+    assert capfd.readouterr().err == ""
+
+
+def test_a_png_whole_or_with_bytes_after_its_end_decodes_as_before(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    whole = decode_image(PNG, "tile.png")
+    np.testing.assert_array_equal(decode_image(PNG + b"\0" * 64, "tile.png"), whole)
+    expected = cv2.imdecode(np.frombuffer(PNG, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1]
+    np.testing.assert_array_equal(whole, expected)
+    assert capfd.readouterr().err == ""
+
+
+def test_a_jpeg_cut_short_is_refused_without_a_word_on_stderr(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    capfd.readouterr()
+    for data in (JPEG[: len(JPEG) // 2], JPEG[:-2]):
+        with pytest.raises(ImageDecodeError, match="not a decodable image"):
+            decode_image(data, "frame.jpg")
+    assert capfd.readouterr().err == ""
+
+
+def test_match_with_a_png_cut_short_says_one_line_exit_2(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    from c3_matcher.cli import main
+
+    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
+        monkeypatch.delenv(key)
+    monkeypatch.setenv("C3_MATCHER_FDR__PATH", str(tmp_path / "fdr.jsonl"))
+    cut = tmp_path / "cut.png"
+    cut.write_bytes(PNG[: len(PNG) // 2])
+    query = tmp_path / "frame.png"
+    query.write_bytes(cv2.imencode(".png", cv2.imread(str(DEMO / "frame.jpg")))[1].tobytes()[:-5])
+    shutil.copy(DEMO / "calibration.json", tmp_path / "calibration.json")
+    runs = [
+        (["--query", str(DEMO / "frame.jpg"), "--tile", str(cut)], f"--tile {cut}: "),
+        (["--query", str(query), "--tile", str(DEMO / "tile_a.png")], f"{query}: "),
+    ]
+    for argv, named in runs:
+        capfd.readouterr()
+        assert main(["match", *argv, "--tile-gsd", "0.097", "--height", "27"]) == 2
+        out, err = capfd.readouterr()
+        lines = [x for x in err.splitlines() if not x.startswith("c3-matcher match: warning")]
+        assert out == "" and len(lines) == 1, err
+        assert lines[0].startswith(f"c3-matcher: {named}") and CUT_SHORT in lines[0], err
+
+
+def test_a_tile_cut_short_in_flight_is_a_decode_failure_dropped_in_silence(
+    fdr: InMemoryFdr, capfd: pytest.CaptureFixture[str]
+) -> None:
+    S = ScriptedCandidate
+    rig = ScriptedRig([S(100), S(100), S(90)], fdr)
+    second = rig.rerank.candidates[1]
+    cut = BytesTileHandle(PNG[: len(PNG) // 2], "tile 15/1/2")
+    odd = dataclasses.replace(second, tile_pixels_handle=cut)
+    rig.rerank = dataclasses.replace(
+        rig.rerank, candidates=(rig.rerank.candidates[0], odd, rig.rerank.candidates[2])
+    )
+    capfd.readouterr()
+    result = rig.match()
+    assert result.candidates_dropped == 1 and len(result.per_candidate) == 2
+    (record,) = fdr.of_kind("matcher.backbone_error")
+    assert record["phase"] == "tile_decode" and CUT_SHORT in record["error"]
+    assert "libpng" not in capfd.readouterr().err
+
+
+def test_read_image_of_a_png_cut_short_names_the_file(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    cut = tmp_path / "cut.png"
+    cut.write_bytes(PNG[:-12])
+    capfd.readouterr()
+    with pytest.raises(ImageDecodeError, match=f"{cut}: .*{CUT_SHORT}"):
+        read_image(cut)
+    assert capfd.readouterr().err == ""
