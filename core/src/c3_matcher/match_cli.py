@@ -203,7 +203,8 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
         except InsufficientInliersError as exc:
             if args.viz:
                 draw(None, f"FAILED: {exc}")
-            ctx.out(json.dumps(_insufficient_json(exc, args, problems)))
+            dropped = _dropped_json(args, rerank, sorted(reasons), reasons)
+            ctx.out(json.dumps(_insufficient_json(exc, args, problems, dropped)))
             _report(problems)
             return EXIT_INSUFFICIENT
         except MatcherBackboneError as exc:
@@ -271,8 +272,12 @@ def _error_json(exc: Exception, frame_id: object, **fields: Any) -> dict[str, An
 
 
 def _insufficient_json(
-    exc: InsufficientInliersError, args: argparse.Namespace, problems: list[str]
+    exc: InsufficientInliersError,
+    args: argparse.Namespace,
+    problems: list[str],
+    dropped: list[dict[str, Any]],
 ) -> dict[str, Any]:
+    """The no-fix frame's JSON error object, with each dropped candidate and why."""
     return _error_json(
         exc,
         exc.frame_id,
@@ -281,6 +286,7 @@ def _insufficient_json(
         candidates_input=exc.candidates_input,
         candidates_dropped=exc.candidates_dropped,
         matcher_label=exc.matcher_label,
+        dropped=dropped,
         **({"viz": str(args.viz)} if args.viz and not problems else {}),
     )
 
@@ -301,19 +307,27 @@ def _result_json(
         tile_gsd_m=args.tile_gsd,
     )
     kept = {int(c["tile_index"]) for c in out["per_candidate"]}
-    out["dropped"] = [
-        {
-            "tile_index": i,
-            "tile_id": c.tile_id.as_list(),
-            "reason": reasons.get(i, "no inliers after RANSAC"),
-        }
-        for i, c in enumerate(rerank.candidates)
-        if i not in kept
-    ]
+    dropped = [i for i in range(len(rerank.candidates)) if i not in kept]
+    out["dropped"] = _dropped_json(args, rerank, dropped, reasons)
     if not args.tile_id:  # the placeholder ids 0,0,INDEX are no place: the JSON says none
-        for entry in (*out["per_candidate"], *out["dropped"]):
+        for entry in out["per_candidate"]:
             entry["tile_id"] = None
     return out
+
+
+def _dropped_json(
+    args: argparse.Namespace, rerank: RerankResult, dropped: list[int], reasons: dict[int, str]
+) -> list[dict[str, Any]]:
+    """The candidates at input positions ``dropped``: each one's position, tile id (null for
+    the placeholder ids of ``--tile`` files without ``--tile-id``) and why it was dropped."""
+    return [
+        {
+            "tile_index": i,
+            "tile_id": rerank.candidates[i].tile_id.as_list() if args.tile_id else None,
+            "reason": reasons.get(i, "no inliers after RANSAC"),
+        }
+        for i in dropped
+    ]
 
 
 def _open_fdr(settings: C3Settings, problems: list[str]) -> JsonlFdrRecorder | None:
@@ -338,28 +352,17 @@ def _report(problems: list[str]) -> bool:
 
 def _collect_drop_reasons(reasons: dict[int, str]) -> int:
     """Listen for why each candidate is dropped, by its input position (two candidates may
-    share a tile id): a backbone error, no inlier, or a refusal on geometry."""
+    share a tile id): a backbone error, no inlier, or a refusal on geometry, in the words of
+    the FDR's terminal record."""
     from loguru import logger
 
-    from c3_matcher.logs import (
-        MATCHER_BACKBONE_ERROR,
-        MATCHER_GEOMETRY_REFUSED,
-        MATCHER_ZERO_INLIERS,
-    )
+    from c3_matcher.stages.recorder import drop_reason
 
     def sink(message: Any) -> None:
         extra = message.record["extra"]
-        kind, index = extra.get("kind"), extra.get("candidate_index")
-        if index is None:
-            return
-        if kind == MATCHER_BACKBONE_ERROR:
-            reasons[index] = f"backbone error in {extra.get('phase')}: {extra.get('error')}"
-        elif kind == MATCHER_ZERO_INLIERS:
-            reasons[index] = f"no inliers after RANSAC ({extra.get('raw_matches')} raw matches)"
-        elif kind == MATCHER_GEOMETRY_REFUSED:
-            reasons[index] = (
-                f"refused on geometry: {extra.get('reason')} ({extra.get('inlier_count')} inliers)"
-            )
+        index, reason = extra.get("candidate_index"), drop_reason(extra.get("kind"), extra)
+        if index is not None and reason is not None:
+            reasons[index] = reason
 
     return int(logger.add(sink, level="DEBUG", format="{message}"))
 

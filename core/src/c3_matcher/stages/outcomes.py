@@ -1,7 +1,8 @@
 """The values that travel between the stages of the per-frame loop: a candidate's tile
-features, a candidate kept (:class:`Survivor`) or dropped (:class:`Dropped`), the refine pass's
-record and what a frame's terminal records report (:class:`FrameEvidence`). Query points of a
-``Survivor``'s correspondences are ORIGINAL frame px; tile points are the tile's px."""
+features, a candidate kept (:class:`Survivor`) or dropped (:class:`Dropped`, named in the
+records as a :class:`CandidateDrop`), the refine pass's record and what a frame's terminal
+records report (:class:`FrameEvidence`). Query points of a ``Survivor``'s correspondences are
+ORIGINAL frame px; tile points are the tile's px."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from c3_matcher.features import Features
 from c3_matcher.prepared import PreparedImage
 
 __all__ = [
+    "CandidateDrop",
     "Dropped",
     "FrameEvidence",
     "GeometryRefusal",
@@ -80,6 +82,20 @@ class Dropped:
     source: str
     timings: dict[str, float] = field(default_factory=dict, compare=False)
     refusal: GeometryRefusal | None = None
+
+
+@dataclass(frozen=True)
+class CandidateDrop:
+    """A dropped candidate as a terminal FDR record names it: its input position, its tile id
+    and why it was dropped (in the words ``c3-matcher match`` prints)."""
+
+    candidate_index: int
+    tile_id: Any
+    reason: str
+
+    def as_record(self) -> dict[str, Any]:
+        """The drop as it appears in FDR records."""
+        return _record(self)
 
 
 @dataclass(frozen=True)

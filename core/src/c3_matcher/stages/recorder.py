@@ -7,6 +7,12 @@ with ``phase="query_extract"`` (the query frame itself failed) or ``phase="inter
 answered with the contract's error), or ``matcher.invalid_input``. Per dropped candidate, one
 ``matcher.backbone_error`` record with its ``tile_id`` and ``phase``. A recorder failure is
 logged, never fails the frame.
+
+The success and no-fix records name the matcher (``matcher_label``), carry the frame's stage
+timings (``timings_ms``; on a no-fix frame when its candidates were matched) and account for
+every input candidate by its input position: each kept one's row carries its
+``candidate_index``, each dropped one is in ``dropped`` with its tile id and why. In flight the
+FDR is the only account of a drop for zero inliers or on geometry (their log lines are DEBUG).
 """
 
 from __future__ import annotations
@@ -27,10 +33,10 @@ from c3_matcher.logs import (
     log_fdr_write_failed,
 )
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend
-from c3_matcher.stages.outcomes import FrameEvidence, GeometryRefusal, Survivor
+from c3_matcher.stages.outcomes import CandidateDrop, FrameEvidence, GeometryRefusal, Survivor
 from c3_matcher.stages.query import QUERY_ROTATIONS_DEG
 
-__all__ = ["FrameRecorder", "RecorderSinks", "per_candidate_records"]
+__all__ = ["FrameRecorder", "RecorderSinks", "drop_reason", "per_candidate_records"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +60,7 @@ class FrameRecorder:
         self._frame_id = frame_id
         self._health_updated = False
         self._backbone_errors = 0
+        self._drops: dict[int, CandidateDrop] = {}  # by input position
 
     @property
     def frame_id(self) -> Any:
@@ -88,29 +95,23 @@ class FrameRecorder:
         self._backbone_errors += 1
         label = self._sinks.backend.label
         error = describe(exc)
+        fields = {
+            "frame_id": self.frame_id,
+            "tile_id": tile_id,
+            "candidate_index": candidate_index,
+            "phase": phase,
+            "error": error,
+            "backbone": label,
+        }
         log_event(
             "ERROR",
             MATCHER_BACKBONE_ERROR,
             f"C3 backbone error; frame={self.frame_id}; tile={tile_id}; phase={phase}; "
             f"backbone={label}; {error}",
-            frame_id=self.frame_id,
-            tile_id=tile_id,
-            candidate_index=candidate_index,
-            phase=phase,
-            error=error,
-            backbone=label,
+            **fields,
         )
-        self.record(
-            "matcher.backbone_error",
-            {
-                "frame_id": self.frame_id,
-                "tile_id": tile_id,
-                "candidate_index": candidate_index,
-                "phase": phase,
-                "error": error,
-                "backbone": label,
-            },
-        )
+        self.record("matcher.backbone_error", dict(fields))
+        self._dropped(MATCHER_BACKBONE_ERROR, fields)
 
     def stored_features_failed(self, tile_id: Any, exc: Exception) -> None:
         log_event(
@@ -124,15 +125,19 @@ class FrameRecorder:
 
     def zero_inliers(self, tile_id: Any, candidate_index: int, raw_matches: int) -> None:
         """Step 4e: a candidate without an inlier, dropped."""
+        fields = {
+            "tile_id": tile_id,
+            "candidate_index": candidate_index,
+            "raw_matches": raw_matches,
+        }
         log_event(
             "DEBUG",
             MATCHER_ZERO_INLIERS,
             f"C3 zero inliers; frame={self.frame_id}; tile={tile_id}",
             frame_id=self.frame_id,
-            tile_id=tile_id,
-            candidate_index=candidate_index,
-            raw_matches=raw_matches,
+            **fields,
         )
+        self._dropped(MATCHER_ZERO_INLIERS, fields)
 
     def geometry_refused(self, refusal: GeometryRefusal) -> None:
         log_event(
@@ -143,6 +148,19 @@ class FrameRecorder:
             frame_id=self.frame_id,
             **refusal.as_record(),
         )
+        self._dropped(MATCHER_GEOMETRY_REFUSED, refusal.as_record())
+
+    def _dropped(self, kind: str, fields: Mapping[str, Any]) -> None:
+        """Keep a candidate's drop for the frame's terminal record (a failure of the query or
+        of the matcher, with no input position, is no candidate's)."""
+        index, reason = fields.get("candidate_index"), drop_reason(kind, fields)
+        if index is not None and reason is not None:
+            self._drops[index] = CandidateDrop(index, fields.get("tile_id"), reason)
+
+    @property
+    def drops(self) -> list[CandidateDrop]:
+        """The candidates dropped so far, in input order."""
+        return [self._drops[index] for index in sorted(self._drops)]
 
     def refine_failed(self, tile_id: Any, exc: Exception) -> None:
         log_event(
@@ -189,8 +207,9 @@ class FrameRecorder:
     ) -> None:
         """Step 10: the success record (+ the best homography, from the px the query was
         matched in, and ``query_rectification``, UNDISTORTED query px to those, null for a
-        query matched unrectified in its ORIGINAL px; the frame's and each candidate's stage
-        timings in input order, provider, engines)."""
+        query matched unrectified in its ORIGINAL px; the matcher's label; the frame's and each
+        candidate's stage timings in input order; the kept candidates ranked and the dropped
+        ones, each by input position; provider, engines)."""
         best = ranked[0].match_set
         self.record(
             "matcher.frame_done",
@@ -203,8 +222,9 @@ class FrameRecorder:
                 "best_tile_id": best.tile_id,
                 "best_homography": ranked[0].homography,
                 "query_rectification": rectification,
+                "matcher_label": self._sinks.backend.label,
                 "timings_ms": timings,
-                **_candidates_record(evidence, ranked),
+                **_candidates_record(evidence, ranked, self.drops),
                 **self._sinks.backend.provenance(),
             },
         )
@@ -217,12 +237,15 @@ class FrameRecorder:
         threshold: int,
         *,
         stale_rerank_frame_id: Any = None,
+        timings: Mapping[str, float] | None = None,
     ) -> InsufficientInliersError:
         """Step 6, no fix for this frame: health 0, log, FDR record; returns the error to raise.
         With ``stale_rerank_frame_id`` every candidate was dropped unmatched: the re-rank was
-        made for that other frame, so its tiles say where the vehicle was, not where it is."""
+        made for that other frame, so its tiles say where the vehicle was, not where it is.
+        ``timings``: the frame's stage timings (``timings_ms``), given when it was matched."""
         label = self._sinks.backend.label
         stale = {} if stale_rerank_frame_id is None else {"stale_rerank": stale_rerank_frame_id}
+        timed = {} if timings is None else {"timings_ms": dict(timings)}
         self.update_health(0)  # best_inlier_count=0
         log_event(
             "ERROR",
@@ -247,7 +270,9 @@ class FrameRecorder:
                 "candidates_dropped": evidence.dropped,
                 "best_inlier_count": best_count,
                 "threshold": threshold,
-                **_candidates_record(evidence, survivors),
+                "matcher_label": label,
+                **timed,
+                **_candidates_record(evidence, survivors, self.drops),
                 **self._sinks.backend.provenance(),
             },
         )
@@ -283,12 +308,13 @@ class FrameRecorder:
 def per_candidate_records(
     evidence: FrameEvidence, survivors: Sequence[Survivor]
 ) -> list[dict[str, Any]]:
-    """The survivors as FDR rows; ``rotation_deg`` (the kept turn) only under rotation search
-    and ``model`` only for a candidate kept on the prior's similarity, so other records are as
-    they were."""
+    """The survivors as FDR rows, each with its input position (``candidate_index``);
+    ``rotation_deg`` (the kept turn) only under rotation search and ``model`` only for a
+    candidate kept on the prior's similarity, so other records are as they were."""
     rows: list[dict[str, Any]] = []
     for s in survivors:
         row: dict[str, Any] = {
+            "candidate_index": s.input_index,
             "tile_id": s.match_set.tile_id,
             "inlier_count": s.match_set.inlier_count,
             "residual_px": s.match_set.per_candidate_residual_px,
@@ -302,14 +328,18 @@ def per_candidate_records(
     return rows
 
 
-def _candidates_record(evidence: FrameEvidence, kept: Sequence[Survivor]) -> dict[str, Any]:
+def _candidates_record(
+    evidence: FrameEvidence, kept: Sequence[Survivor], drops: Sequence[CandidateDrop]
+) -> dict[str, Any]:
     """What a terminal FDR record says of the candidates, success or not: the ``kept`` ones'
     figures, where each one's features came from, the refusals on geometry (whatever their
-    inliers), the rotation search and refine pass when they ran, and each one's timings."""
+    inliers), every dropped one and why, the rotation search and refine pass when they ran,
+    and each one's timings (the lists without an index in input order)."""
     return {
         "per_candidate": per_candidate_records(evidence, kept),
         "candidate_features": list(evidence.sources),
         "geometry_refused": [r.as_record() for r in evidence.refused],
+        "dropped": [d.as_record() for d in drops],
         **_rotation_record(evidence),
         **_refine_record(evidence),
         "per_candidate_timings_ms": list(evidence.per_candidate_ms),
@@ -327,3 +357,16 @@ def _rotation_record(evidence: FrameEvidence) -> dict[str, Any]:
 def _refine_record(evidence: FrameEvidence) -> dict[str, Any]:
     """The refine pass's record for the terminal FDR record: only when it ran."""
     return {"refine": evidence.refine.as_record()} if evidence.refine is not None else {}
+
+
+def drop_reason(kind: str | None, fields: Mapping[str, Any]) -> str | None:
+    """Why a candidate was dropped, in words, from the fields of the log event ``kind`` that
+    dropped it: a backbone error, no inlier, or a refusal on geometry (None for another kind).
+    The terminal FDR records and ``c3-matcher match``'s JSON say it alike."""
+    if kind == MATCHER_BACKBONE_ERROR:
+        return f"backbone error in {fields.get('phase')}: {fields.get('error')}"
+    if kind == MATCHER_ZERO_INLIERS:
+        return f"no inliers after RANSAC ({fields.get('raw_matches')} raw matches)"
+    if kind == MATCHER_GEOMETRY_REFUSED:
+        return f"refused on geometry: {fields.get('reason')} ({fields.get('inlier_count')} inliers)"
+    return None
