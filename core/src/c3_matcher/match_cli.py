@@ -7,7 +7,6 @@ import argparse
 import contextlib
 import functools
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -29,15 +28,16 @@ from c3_matcher.config import C3Settings
 from c3_matcher.context import CommandContext
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
 from c3_matcher.dto.candidates import RerankResult, TilePixelsHandle
-from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
-from c3_matcher.fdr import FdrOpenError, InMemoryFdr, JsonlFdrRecorder
+from c3_matcher.fdr import FdrOpenError, FdrWriteError, InMemoryFdr, JsonlFdrRecorder
 from c3_matcher.match_inputs import (
+    attitude_arg,
     file_candidates,
     frame_id_of,
     open_store,
     read_query,
     store_candidates,
+    tile_id_arg,
     usable_height,
 )
 from c3_matcher.match_viz import draw_or_report
@@ -47,33 +47,6 @@ __all__ = ["register_match_command"]
 
 DEFAULT_WINDOW_PX = 512  # a --store candidate window's side without --window
 _POSITIVE = bounded_float(0.0, above=True)
-
-
-def _floats(text: str, n: int) -> tuple[float, ...]:
-    """``n`` finite comma-separated numbers."""
-    what = f"{n} finite comma-separated numbers"
-    try:
-        values = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-    if len(values) != n or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
-    return values
-
-
-def _attitude(text: str) -> Attitude:
-    roll, pitch, yaw = _floats(text, 3)
-    try:
-        return Attitude.from_degrees(roll, pitch, yaw)
-    except InvalidInputError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _tile_id(text: str) -> TileId:
-    try:
-        return TileId.parse(text)
-    except InvalidInputError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def register_match_command(commands: CommandRegistry) -> None:
@@ -96,7 +69,7 @@ def register_match_command(commands: CommandRegistry) -> None:
     )
     p.add_argument(
         "--attitude",
-        type=_attitude,
+        type=attitude_arg,
         default=None,
         help="ROLL,PITCH,YAW of the vehicle in DEGREES (Z-Y-X, NED, yaw from north)",
     )
@@ -122,7 +95,7 @@ def _add_candidate_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--tile-id",
-        type=_tile_id,
+        type=tile_id_arg,
         action="append",
         default=[],
         help="ZOOM,LAT,LON of the matching --tile, in order, or of a --store window's centre "
@@ -167,6 +140,14 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
 
 
 def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
+    """``match``; records the FDR could not write when it closed are reported after the result
+    (exit 2 for a result, as for an FDR that could not be opened)."""
+    unrecorded: list[str] = []
+    code = _run_match(args, ctx, unrecorded)
+    return EXIT_USAGE if _report(unrecorded) and code == EXIT_OK else code
+
+
+def _run_match(args: argparse.Namespace, ctx: CommandContext, unrecorded: list[str]) -> int:
     from c3_matcher.compose import build_default_helpers, compose_root, state_default_fdr_path
 
     settings, host = _match_settings(args, ctx.settings), ctx.plugin_host
@@ -190,7 +171,7 @@ def run_match(args: argparse.Namespace, ctx: CommandContext) -> int:
         helpers: dict[str, Any] = dict(build_default_helpers(settings, plugin_host=host))
         own_fdr = _open_fdr(settings, problems)
         if own_fdr is not None:
-            opened.callback(own_fdr.close)
+            opened.callback(_close_fdr, own_fdr, unrecorded)
         helpers["c13_fdr"] = InMemoryFdr() if own_fdr is None else own_fdr
         root = compose_root(settings, helpers, plugin_host=host)
         opened.callback(root.close)
@@ -342,6 +323,13 @@ def _open_fdr(settings: C3Settings, problems: list[str]) -> JsonlFdrRecorder | N
     except FdrOpenError as exc:
         problems.append(f"{exc}; the result was printed but NOT recorded in the FDR")
         return None
+
+
+def _close_fdr(fdr: JsonlFdrRecorder, unrecorded: list[str]) -> None:
+    try:
+        fdr.close()
+    except FdrWriteError as exc:  # the records pending are said lost: reported, not raised
+        unrecorded.append(f"{exc}; the result was printed but NOT recorded in the FDR")
 
 
 def _report(problems: list[str]) -> bool:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import math
 import sys
 import uuid
 from collections.abc import Sequence
@@ -17,18 +18,20 @@ from numpy.typing import NDArray
 
 from c3_matcher.dto.camera import CameraCalibration
 from c3_matcher.dto.candidates import RerankCandidate, RerankResult
-from c3_matcher.dto.geo import TileId
+from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import CALIBRATION_SIZE_FIX, load_calibration
 from c3_matcher.tiles import MmapTileHandle, decode_image, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 
 __all__ = [
+    "attitude_arg",
     "file_candidates",
     "frame_id_of",
     "open_store",
     "read_query",
     "store_candidates",
+    "tile_id_arg",
     "usable_height",
 ]
 
@@ -155,3 +158,32 @@ def usable_height(args: argparse.Namespace) -> float | None:
     for what in missing:
         print(f"c3-matcher match: warning: no {what}", file=sys.stderr)
     return None if unknown else args.height
+
+
+def _floats(text: str, n: int) -> tuple[float, ...]:
+    """``n`` finite comma-separated numbers."""
+    what = f"{n} finite comma-separated numbers"
+    try:
+        values = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+    return values
+
+
+def attitude_arg(text: str) -> Attitude:
+    """``--attitude ROLL,PITCH,YAW`` (degrees)."""
+    roll, pitch, yaw = _floats(text, 3)
+    try:
+        return Attitude.from_degrees(roll, pitch, yaw)
+    except InvalidInputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def tile_id_arg(text: str) -> TileId:
+    """``--tile-id Z,LAT,LON``."""
+    try:
+        return TileId.parse(text)
+    except InvalidInputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
