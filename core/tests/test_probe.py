@@ -10,6 +10,7 @@ import pytest
 
 from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.features import Features, RawMatches
+from c3_matcher.prepared import InputRule
 from c3_matcher.probe import engine_startup_probe
 from c3_matcher.testing.fakes import equal_descriptor_pairs, texture_features
 
@@ -18,6 +19,7 @@ class Blind:
     """A backend that finds no keypoint (the 0/1-mask pitfall of docs/plugins.md)."""
 
     label = "blind"
+    input_rule = InputRule(max_long_side=1024, multiple=1)
 
     def __init__(self, engines: dict[str, Any]) -> None:
         self.engines = engines
@@ -58,6 +60,7 @@ class Faulty:
     would."""
 
     label = "faulty"
+    input_rule = InputRule(max_long_side=1024, multiple=1)
 
     def __init__(self, mistake: str) -> None:
         self.mistake = mistake
