@@ -404,6 +404,130 @@ def test_records_lost_by_a_close_on_a_real_full_filesystem_are_recorded_once_spa
     assert len(written) + note[2]["count"] == 41 and report["corrupt"] == 0
 
 
+# A first start on a disk already full: no lock file yet, so no bytes to write the note over.
+# The recorder starts, its records wait; once space returns they are written with the lock
+# file's bytes, so that a second full disk, a close, is noted for the next recorder as usual.
+_FULL_AT_FIRST_START_SCRIPT = """
+import errno, json, os, sys
+from pathlib import Path
+sys.path.insert(0, {src!r})
+from c3_matcher.fdr import FdrWriteError, JsonlFdrRecorder, read_fdr
+from c3_matcher.testing import FakeClock
+mnt = Path({mnt!r})
+os.system(f"mount -t tmpfs -o size=64k tmpfs {{mnt}}")
+assert os.statvfs(mnt).f_blocks * os.statvfs(mnt).f_frsize <= 64 * 1024, "tmpfs not mounted"
+path, lock, filler = mnt / "fdr.jsonl", mnt / "fdr.jsonl.lock", mnt / "filler"
+def fill():
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_APPEND)
+    try:
+        while True:
+            os.write(fd, b"\\0" * 4096)
+    except OSError as exc:
+        assert exc.errno == errno.ENOSPC
+    os.close(fd)
+def refused(rec, first, pad):
+    n = 0
+    for i in range(first, first + 3):
+        try:
+            rec.record("k", {{"i": i, "pad": "x" * pad}})
+        except FdrWriteError:
+            n += 1
+    return n
+fill()
+rec = JsonlFdrRecorder(path, FakeClock())  # the lock file is new: the disk has no byte for it
+lock_at_start = lock.stat().st_size
+refused_at_start = refused(rec, 0, 0)
+filler.unlink()  # space returns
+rec.record("k", {{"i": 3}})
+lock_once_written = lock.read_bytes().split(b"\\n")[0].decode()
+fill()  # full again: what waits now is named in the lock file's own bytes
+refused_later = refused(rec, 4, 5000)
+try:
+    rec.close()
+    closed = "written"
+except FdrWriteError as exc:
+    closed = str(exc)
+filler.unlink()
+again = JsonlFdrRecorder(path, FakeClock())
+again.record("k", {{"i": 7}})
+again.close()
+records = read_fdr(path)
+print(json.dumps({{"lock_at_start": lock_at_start, "refused_at_start": refused_at_start,
+                  "lock_once_written": lock_once_written, "pid": os.getpid(),
+                  "refused_later": refused_later, "closed": closed,
+                  "records": [[r["seq"], r["kind"], r["payload"]] for r in records],
+                  "corrupt": len(records.corrupt)}}))
+"""
+
+
+def test_a_first_start_on_a_real_full_filesystem_starts_and_notes_later_losses(tmp_path):
+    """Before, the lock file's first write failed the start: ``compose_root`` raised and the
+    matcher did not start."""
+    report = _in_a_full_tmpfs(tmp_path, _FULL_AT_FIRST_START_SCRIPT)
+    assert report["lock_at_start"] == 0 and report["refused_at_start"] == 3
+    assert report["lock_once_written"] == str(report["pid"])
+    assert report["refused_later"] == 3, "the filesystem never filled: the test proved nothing"
+    assert "lost, the recorder is closed; the next recorder" in report["closed"]
+    records = [(seq, kind, payload.get("i")) for seq, kind, payload in report["records"]]
+    assert records == [
+        (1, "k", 0),
+        (2, "k", 1),
+        (3, "k", 2),
+        (4, "k", 3),
+        (8, "fdr.records_dropped", None),
+        (9, "k", 7),
+    ]
+    assert report["records"][4][2]["first_seq"] == 5 and report["records"][4][2]["count"] == 3
+    assert report["corrupt"] == 0
+
+
+def _refuse_lock_writes(monkeypatch: pytest.MonkeyPatch) -> None:
+    def full(fd, data, offset):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "pwrite", full)
+
+
+def test_a_lock_file_that_cannot_be_written_at_start_is_written_with_the_first_record(
+    tmp_path, monkeypatch
+):
+    path = tmp_path / "fdr.jsonl"
+    lock = path.with_name("fdr.jsonl.lock")
+    _refuse_lock_writes(monkeypatch)
+    rec = JsonlFdrRecorder(path, FakeClock())  # raised FdrOpenError: the matcher never started
+    assert rec.pending == 0 and lock.read_bytes() == b""
+    rec.record("k", {"i": 0})  # the log has room, the lock file not yet: tried again later
+    assert lock.read_bytes() == b""
+    monkeypatch.undo()
+    rec.record("k", {"i": 1})
+    assert lock.read_bytes() == lock_text(os.getpid(), None)
+    rec.close()
+    assert [r["seq"] for r in read_fdr(path)] == [1, 2]
+
+
+def test_a_note_the_lock_file_holds_stays_until_the_log_says_it_when_it_cannot_be_rewritten(
+    tmp_path, monkeypatch
+):
+    """The note of records a killed recorder lost is kept as it was while the lock file cannot
+    be written (a copy-on-write filesystem), so a second kill still leaves it for the next."""
+    path = tmp_path / "fdr.jsonl"
+    JsonlFdrRecorder(path, FakeClock()).close()
+    lock = path.with_name("fdr.jsonl.lock")
+    noted = lock_text(1, DroppedRecords(2, 200, 1, 2, (STOPPED,)))
+    lock.write_bytes(noted)
+    _refuse_lock_writes(monkeypatch)
+    monkeypatch.setattr(os, "write", _disk_full)
+    rec = JsonlFdrRecorder(path, FakeClock())
+    assert lock.read_bytes() == noted
+    monkeypatch.undo()
+    rec.record("k", {"i": 0})
+    rec.close()
+    assert lock.read_bytes() == lock_text(os.getpid(), None)
+    records = read_fdr(path)
+    assert [r["kind"] for r in records] == ["k", "fdr.records_dropped"]
+    assert [r["seq"] for r in records] == [3, 4] and _counts(records[1]) == (2, 1, 2)
+
+
 def test_a_torn_tail_note_that_cannot_be_written_yet_is_kept_pending(tmp_path, monkeypatch):
     """A full disk just as the recorder opens over a torn tail: it opens, the
     ``fdr.torn_tail_cut`` record waits, and the next record writes it first."""

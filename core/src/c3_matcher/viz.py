@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from c3_matcher.atomic import write_bytes_atomically
 from c3_matcher.dto import CameraCalibration
+from c3_matcher.fdr.files import make_dirs_durably
 
 __all__ = ["CandidateView", "draw_matches", "render_match", "write_png"]
 
@@ -207,7 +208,7 @@ def write_png(image_rgb: NDArray[np.uint8], out: Path) -> Path:
     """``out`` holding ``image_rgb`` as a PNG, replaced whole (:mod:`c3_matcher.atomic`): a
     picture that cannot be written leaves the previous one as it was."""
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    make_dirs_durably(out.parent)  # a file in the way: "<file> is not a directory"
     ok, png = cv2.imencode(".png", np.ascontiguousarray(image_rgb[:, :, ::-1]))
     if not ok:
         raise OSError(f"cannot encode {out} as PNG")

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from c3_matcher.fdr.records import read_fdr
+
 SEGMENT_DIGITS = 6
 """The least number of digits of a rotated segment's number (zero-padded)."""
 
@@ -52,6 +54,23 @@ def rotated_segments(path: Path) -> list[tuple[int, Path]]:
         ):
             out.append((number, p))
     return sorted(out)
+
+
+def refusal(path: Path) -> str | None:
+    """Why the recorder may not write its live segment at ``path`` (None: it may): a directory;
+    something that is not a regular file (a device, a FIFO, a socket: judged by ``stat``, never
+    opened, so never read or waited on); a file where a folder above it should be; a file
+    holding something other than records (:func:`is_foreign`)."""
+    if path.is_dir():
+        return "is a directory (give a file path)"
+    if path.exists() and not path.is_file():
+        return "is not a regular file (a device, a FIFO or a socket): give a file path"
+    in_the_way = file_in_the_way(path.parent)
+    if in_the_way is not None:
+        return f"{in_the_way} is not a directory"
+    if is_foreign(path):
+        return "holds something other than flight-data records: give another path"
+    return None
 
 
 def is_foreign(path: Path) -> bool:
@@ -102,12 +121,61 @@ def fsync_dir(directory: Path) -> None:
         os.close(dir_fd)
 
 
+def file_in_the_way(directory: Path) -> Path | None:
+    """The nearest of ``directory`` and the folders above it that exists, when that is not a
+    directory (a file where a folder is wanted); None otherwise."""
+    for place in (directory, *directory.parents):
+        if place.exists():
+            return None if place.is_dir() else place
+    return None
+
+
 def make_dirs_durably(directory: Path) -> None:
-    """``mkdir -p`` whose new directories survive a power cut (each one's parent fsynced)."""
+    """``mkdir -p`` whose new directories survive a power cut (each one's parent fsynced); a
+    file where a folder should be is ``NotADirectoryError`` "<file> is not a directory"."""
+    in_the_way = file_in_the_way(directory)
+    if in_the_way is not None:
+        refused = NotADirectoryError(f"{in_the_way} is not a directory")
+        refused.errno = errno.ENOTDIR
+        raise refused
     missing = [d for d in (directory, *directory.parents) if not d.exists()]
     directory.mkdir(parents=True, exist_ok=True)
     for made in reversed(missing):
         fsync_dir(made.parent)
+
+
+def remove_log(path: Path, torn_path: Path) -> None:
+    """Remove every file of the log whose live segment is ``path`` (its rotated segments,
+    ``.meta``, the ``torn_path`` beside it) but the lock, durably."""
+    previous = [path, *(p for _, p in rotated_segments(path)), meta_path(path), torn_path]
+    for p in previous:
+        p.unlink(missing_ok=True)
+    fsync_dir(path.parent)
+
+
+def drop_half_rotated_live(path: Path) -> None:
+    """Should the live segment ``path`` and the newest rotated one be one file under two names
+    (a rotation by hard link interrupted), drop the live name: the rotated one keeps the data."""
+    if not path.exists():
+        return
+    live = path.stat()
+    for _, p in rotated_segments(path)[-1:]:
+        st = p.stat()
+        if (st.st_dev, st.st_ino) == (live.st_dev, live.st_ino):
+            path.unlink()
+            fsync_dir(path.parent)
+
+
+def recent_seqs(path: Path) -> list[int]:
+    """The seqs in the newest rotated segment and the live one, ``path``."""
+    seqs = []
+    for p in [*(q for _, q in rotated_segments(path)[-1:]), path]:
+        if p.exists():
+            for record in read_fdr(p):
+                seq = record.get("seq", 0) if isinstance(record, dict) else 0
+                if isinstance(seq, int):
+                    seqs.append(seq)
+    return seqs
 
 
 def open_for_append(path: Path) -> int:

@@ -15,14 +15,15 @@ from typing import Any
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import (
-    TornCut,
     cut_torn_tail,
-    fsync_dir,
-    is_foreign,
+    drop_half_rotated_live,
     make_dirs_durably,
     meta_path,
     open_for_append,
     read_meta,
+    recent_seqs,
+    refusal,
+    remove_log,
     rotated_segments,
     segment_path,
     write_meta,
@@ -36,7 +37,7 @@ from c3_matcher.fdr.pending import (
     lock_text,
     read_lock,
 )
-from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, read_fdr, to_jsonable
+from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, to_jsonable
 from c3_matcher.fdr.turns import close_after_frame
 from c3_matcher.protocols import Clock
 
@@ -80,7 +81,10 @@ class JsonlFdrRecorder:
     which seqs (the only gap ``seq`` ever has). One process writes a path: the recorder
     holds ``flock`` on ``<path>.lock``; a second one is refused with ``FdrOpenError``, as is a
     ``path`` holding something else (not empty, not all NUL bytes, not beginning with a record's
-    ``{``: an image named by mistake), which is never cut, appended to or removed. A live
+    ``{``: an image named by mistake), which is never cut, appended to or removed, or that is
+    not a regular file (a device, a FIFO, a socket: never opened). A start on a full disk with
+    no lock file yet starts all the same; the lock file gets its bytes with the first write the
+    disk takes (until then a loss it would name cannot be noted, which ``close`` says). A live
     segment of NUL bytes alone (a power cut during its first line, on a file system that had
     committed the size but not the data) is a torn tail, cut as one. ``record`` is thread-safe.
 
@@ -112,19 +116,20 @@ class JsonlFdrRecorder:
         self._repair_to: int | None = None  # where a write that could not be rolled back began
         self._reserved: int | None = None  # a segment number reserved by a failed rotation
         self._lock_names_loss = False  # the lock file names records not yet in the log
+        self._lock_unwritten = False  # it lacks our bytes: a start on a full disk
         self._noted = ""  # where the last write failure's waiting records are named, or why not
         what = f"fdr.path {self._path}"
         self._take_lock(what)
         try:
             carried = None if fresh else read_lock(self._lock_path)[1]
             if fresh:
-                self._remove_previous_log()
-            self._drop_half_rotated_live()
-            torn = self._cut_torn_tail()
-            seqs = self._recent_seqs()
+                remove_log(self._path, self.torn_path)
+            drop_half_rotated_live(self._path)
+            torn = cut_torn_tail(self._path, self.torn_path)
+            seqs = recent_seqs(self._path)
             self._seq = max([self._meta_seq(), *seqs, carried.last_seq if carried else 0]) + 1
             carried = carried and carried.without(seqs)  # some written before the last stopped
-            self._write_lock(carried)  # until the note of records lost when the last stopped is out
+            self._write_first_lock(carried)  # the note of records lost when the last stopped
             self._fd = open_for_append(self._path)
             self._pending.dropped = carried
         except OSError as exc:
@@ -147,15 +152,12 @@ class JsonlFdrRecorder:
 
     def _take_lock(self, what: str) -> None:
         """Hold ``<path>.lock`` (``FdrOpenError`` when another process does, or when ``path`` is
-        a directory or holds something other than records: never cut, appended to or, fresh,
-        removed)."""
-        if self._path.is_dir():
-            raise FdrOpenError(what, "is a directory (give a file path)")
-        if is_foreign(self._path):
-            raise FdrOpenError(
-                what, "holds something other than flight-data records: give another path"
-            )
+        refused by ``refusal``, before anything is made: a directory, not a regular file, under
+        a file, or holding something other than records: never cut, appended to or removed)."""
         try:
+            refused = refusal(self._path)  # an OSError deciding it: cannot create
+            if refused is not None:
+                raise FdrOpenError(what, refused)
             make_dirs_durably(self._path.parent)
             self._lock_fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:
@@ -171,10 +173,26 @@ class JsonlFdrRecorder:
         """Our pid in the lock file and, while they are not yet in the log, the records ``lost``
         should this recorder stop: written over the file's own bytes, which needs no space."""
         data = lock_text(os.getpid(), lost)
-        os.pwrite(self._lock_fd, data, 0)
+        if os.pwrite(self._lock_fd, data, 0) != len(data):
+            raise OSError(errno.EIO, "short write")
         os.ftruncate(self._lock_fd, len(data))
         os.fsync(self._lock_fd)
         self._lock_names_loss = lost is not None
+        self._lock_unwritten = False
+
+    def _write_first_lock(self, carried: DroppedRecords | None) -> None:
+        """``_write_lock(carried)``, at start-up. A new lock file on a full disk has no bytes to
+        write over: the recorder starts all the same (a frame never fails because of the FDR)
+        and ``_write_pending`` writes them once the disk takes a record. The file keeps until
+        then the note ``carried`` (as it was) or nothing (freeing bytes needs no room)."""
+        try:
+            self._write_lock(carried)
+        except OSError:
+            if carried is None:
+                with contextlib.suppress(OSError):
+                    os.ftruncate(self._lock_fd, 0)
+            self._lock_names_loss = carried is not None
+            self._lock_unwritten = True
 
     @property
     def path(self) -> Path:
@@ -299,6 +317,9 @@ class JsonlFdrRecorder:
             raise FdrWriteError(
                 f"FDR {self._path}: {exc}; {len(pending.records)} record(s) pending{let_go}"
             ) from exc
+        if self._lock_unwritten:  # a start on a full disk: now that a record found room
+            with contextlib.suppress(OSError):  # else tried again with the next record
+                self._write_lock(None)
 
     def _rotated(self) -> list[tuple[int, Path]]:
         return rotated_segments(self._path)
@@ -358,40 +379,6 @@ class JsonlFdrRecorder:
         self._fd = open_for_append(self._path)  # fsyncs the directory: the rename too
         return True
 
-    def _remove_previous_log(self) -> None:
-        """Remove every file of the log at this path but the lock (held by us), durably."""
-        previous = [self._path, *(p for _, p in self._rotated()), self._meta_path, self.torn_path]
-        for p in previous:
-            p.unlink(missing_ok=True)
-        fsync_dir(self._path.parent)
-
-    def _drop_half_rotated_live(self) -> None:
-        """Should the live segment and the newest rotated one be one file under two names (a
-        rotation by hard link interrupted), drop the live name: the rotated one keeps the data."""
-        if not self._path.exists():
-            return
-        live = self._path.stat()
-        for _, p in self._rotated()[-1:]:
-            st = p.stat()
-            if (st.st_dev, st.st_ino) == (live.st_dev, live.st_ino):
-                self._path.unlink()
-                fsync_dir(self._path.parent)
-
-    def _cut_torn_tail(self) -> TornCut | None:
-        """Cut the live segment back to its last complete line; keep the cut bytes aside."""
-        return cut_torn_tail(self._path, self.torn_path)
-
     def _meta_seq(self) -> int:
         """The last seq ``.meta`` keeps (so seq never goes back once all is offloaded)."""
         return int(read_meta(self._meta_path).get("last_seq", 0))
-
-    def _recent_seqs(self) -> list[int]:
-        """The seqs in the newest rotated segment and the live one."""
-        seqs = []
-        for p in [*(q for _, q in self._rotated()[-1:]), self._path]:
-            if p.exists():
-                for record in read_fdr(p):
-                    seq = record.get("seq", 0) if isinstance(record, dict) else 0
-                    if isinstance(seq, int):
-                        seqs.append(seq)
-        return seqs
