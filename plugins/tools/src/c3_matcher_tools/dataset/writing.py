@@ -4,9 +4,11 @@ or from a log) ends here."""
 
 from __future__ import annotations
 
+import errno
 import json
 import shutil
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +50,7 @@ def write_dataset(
     copied in, the calibration, the frames and the description (the format and the files, then
     ``meta``: its ``name`` first, then how the dataset was made)."""
     root.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(store, root / STORE_FILE)
+    _copy_store(store, root / STORE_FILE)
     described = {
         "format": FORMAT,
         "calibration": CALIBRATION_FILE,
@@ -57,9 +59,38 @@ def write_dataset(
         "store": STORE_FILE,
         **meta,
     }
-    (root / CALIBRATION_FILE).write_text(json.dumps(calibration_to_json(calibration), indent=1))
-    with (root / FRAMES_FILE).open("w", encoding="utf-8") as fh:
+    with _naming(root / CALIBRATION_FILE):
+        (root / CALIBRATION_FILE).write_text(json.dumps(calibration_to_json(calibration), indent=1))
+    with _naming(root / FRAMES_FILE), (root / FRAMES_FILE).open("w", encoding="utf-8") as fh:
         for f in frames:
             fh.write(json.dumps(f.to_json()) + "\n")
-    (root / META_FILE).write_text(json.dumps(described, indent=2) + "\n")
+    with _naming(root / META_FILE):
+        (root / META_FILE).write_text(json.dumps(described, indent=2) + "\n")
     return root
+
+
+def _copy_store(store: Path, copy: Path) -> None:
+    """Copy the tile store ``store`` to ``copy``. A failure only the destination can cause (a
+    full disk, a file-size limit, a quota, a read-only file system) names the copy:
+    ``shutil.copyfile`` names the store, the user's input, for any failure of its copy."""
+    try:
+        shutil.copyfile(store, copy)
+    except OSError as exc:
+        if exc.errno in _WRITE_ERRNOS:
+            raise OSError(exc.errno, exc.strerror, str(copy)) from exc
+        raise
+
+
+_WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS})
+
+
+@contextmanager
+def _naming(path: Path) -> Iterator[None]:
+    """An ``OSError`` that names no file names ``path`` (a write or a flush that fails names
+    none); one that names a file is left as it is."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None:
+            exc.filename = str(path)
+        raise

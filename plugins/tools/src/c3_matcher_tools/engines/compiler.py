@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import errno
 import importlib
 import importlib.metadata
 import os
@@ -52,6 +53,9 @@ __all__ = [
 ]
 
 _VERSIONED = ("torch", "onnx", "onnxscript", "onnxruntime", "kornia", "numpy")
+
+# failures only a write has, said of the file written when the error names none
+_WRITE_FAULTS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS})
 
 
 class EngineBuildError(C3Error):
@@ -263,7 +267,11 @@ def _build_one(
         seconds = time.perf_counter() - start
         manifest = _manifest(spec, ident, candidate, report, versions, seconds)
         manifest_tmp = scratch / ident.name.manifest_filename
-        manifest.write(manifest_tmp)
+        try:
+            manifest.write(manifest_tmp)
+        except OSError as exc:
+            why = describe(_naming(exc, manifest_tmp))
+            raise EngineBuildError(spec.key, f"its manifest cannot be written: {why}") from exc
         candidate.replace(target)
         manifest_tmp.replace(directory / ident.name.manifest_filename)
     _remove_superseded(directory, spec, target, log)
@@ -303,7 +311,8 @@ def _export(
     except EngineBuildError:
         raise
     except Exception as exc:
-        raise EngineBuildError(spec.key, f"export failed: {describe(exc)}") from exc
+        why = describe(_naming(exc, request.output_path))
+        raise EngineBuildError(spec.key, f"export failed: {why}") from exc
     if not report.passed:
         raise EngineBuildError(
             spec.key, "verification failed: " + "; ".join(report.failures or ("no figures",))
@@ -320,7 +329,18 @@ def _check_graph(candidate: Path, spec: EngineSpec) -> None:
         _finish_graph(candidate, spec)
         check_onnx_io(candidate, spec.inputs, spec.outputs)
     except Exception as exc:
-        raise EngineBuildError(spec.key, f"graph I/O check failed: {exc}") from exc
+        raise EngineBuildError(
+            spec.key, f"graph I/O check failed: {_naming(exc, candidate)}"
+        ) from exc
+
+
+def _naming(exc: Exception, written: Path) -> Exception:
+    """``exc``, or for a write that failed naming no file (a full disk, a file-size limit:
+    ``onnx.save`` names none) the same ``OSError`` naming ``written``, the file being written
+    (in the scratch folder of the engine directory)."""
+    if isinstance(exc, OSError) and exc.filename is None and exc.errno in _WRITE_FAULTS:
+        return OSError(exc.errno, exc.strerror, str(written))
+    return exc
 
 
 def _manifest(

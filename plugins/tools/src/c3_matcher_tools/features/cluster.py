@@ -1,12 +1,14 @@
 """Where ``features build`` runs its tasks: a local Dask cluster, an existing one, or this
-process; started whole when Ctrl-C or SIGTERM comes while it starts, and closed on exit."""
+process; started whole when Ctrl-C or SIGTERM comes while it starts, its worker processes
+deaf to both (this process stops them), and closed on exit."""
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack, contextmanager
 from typing import Any
 
 __all__ = ["cores_of", "dask_client", "stops_deferred"]
@@ -20,29 +22,55 @@ _SCHEDULER_HTTP = "127.0.0.1:0"
 @contextmanager
 def stops_deferred() -> Iterator[None]:
     """Ctrl-C or SIGTERM while the block runs takes effect when it ends (its handler is called
-    then), so what the block starts is whole when it is stopped; signals are left alone off
-    the main thread."""
+    then), so what the block starts is whole when it is stopped; a block that failed meanwhile
+    is stopped as well (the stop is what the user asked for, its failure the stop's doing).
+    The threads the block starts, and the processes they start, never take either signal:
+    they are held back there for good (a terminal's Ctrl-C reaches its whole process group,
+    and a Dask worker took it as its own: a traceback, and a cluster that failed to start);
+    whoever started them stops them. A signal this process ignores stays ignored; signals are
+    left alone off the main thread."""
     caught: list[signal.Signals] = []
     try:
         previous = {
-            s: signal.signal(s, lambda n, _: caught.append(signal.Signals(n))) for s in _STOPS
+            s: signal.signal(s, lambda n, _: caught.append(signal.Signals(n)))
+            for s in _STOPS
+            if signal.getsignal(s) is not signal.SIG_IGN  # a job started in the background
         }
     except ValueError:  # not the main thread
         yield
         return
+    held = _hold_stops()
     try:
         yield
     finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)  # a stop held back is caught here
         for s, handler in previous.items():
             signal.signal(s, handler)
-    if caught:
-        handler = previous[caught[0]]
-        if callable(handler):
-            handler(caught[0], None)  # raises KeyboardInterrupt, as it would have
-        raise KeyboardInterrupt
+        if caught:
+            _stop(caught[0], previous[caught[0]])
 
 
 _STOPS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _hold_stops() -> set[int | signal.Signals]:
+    """Hold Ctrl-C and SIGTERM back in this thread, and so in every thread and process started
+    from it, until the mask returned is set again; in this process they are caught by the
+    threads that do not hold them, or once the mask is set again. Multiprocessing's resource
+    tracker is started first: its start, with the first process spawned, lets both through
+    again in the thread that starts it, and so in the next process that thread starts."""
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    return signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)
+
+
+def _stop(stop: signal.Signals, handler: Any) -> None:
+    """Take ``stop`` as its handler ``handler`` would have (the command line's raises
+    KeyboardInterrupt), and raise KeyboardInterrupt whatever it does."""
+    if callable(handler):
+        handler(stop, None)
+    raise KeyboardInterrupt
 
 
 @contextmanager
@@ -54,8 +82,7 @@ def dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
         return
     from dask.distributed import Client, LocalCluster
 
-    cluster: Any = None
-    try:
+    with ExitStack() as closes:  # the client, then the cluster
         if scheduler:
             client = Client(scheduler)
         else:
@@ -67,14 +94,42 @@ def dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
                     dashboard_address=None,
                     scheduler_kwargs={"dashboard_address": _SCHEDULER_HTTP},
                 )
+                closes.callback(_unsaid, cluster.close)  # also when the start was stopped
             client = Client(cluster)
-        try:
-            yield client
-        finally:
-            client.close()
+        closes.callback(_unsaid, client.close)
+        if not scheduler:
+            client.run(_quiet_close)
+        yield client
+
+
+def _unsaid(close: Callable[[], object]) -> None:
+    """``close()`` with Dask's records in this process dropped: a build stopped or failed
+    leaves tasks running and results not gathered, and the scheduler warned of each as the
+    cluster went down (results lost, a client already gone), some with a traceback; the build
+    says what happened, in one line."""
+    handlers = {*logging.getLogger("distributed").handlers, *logging.getLogger("tornado").handlers}
+    for handler in handlers:
+        handler.addFilter(_nothing)
+    try:
+        close()
     finally:
-        if cluster is not None:
-            cluster.close()
+        for handler in handlers:
+            handler.removeFilter(_nothing)
+
+
+def _nothing(record: logging.LogRecord) -> bool:
+    return False
+
+
+def _quiet_close() -> None:
+    """In a worker of the local cluster: drop Dask's warning that a task was cancelled by the
+    worker's close (one for each task running when the build stops or fails; the build says
+    why, in one line)."""
+    logging.getLogger("distributed.worker.state_machine").addFilter(_not_cancelled_by_close)
+
+
+def _not_cancelled_by_close(record: logging.LogRecord) -> bool:
+    return not record.getMessage().endswith("ended with CancelledError")
 
 
 def cores_of(client: Any, workers: int) -> int:

@@ -7,7 +7,9 @@ import hashlib
 import json
 import os
 import sqlite3
-from collections.abc import Mapping
+import stat
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -109,22 +111,36 @@ class MBTilesWriter:
     :func:`c3_matcher.atomic.temporary_sibling`) and renamed onto ``path`` by :meth:`close`;
     :meth:`abort` (or leaving the ``with`` block on any exception, Ctrl-C included) removes it
     and its journal, and an existing ``path`` is untouched until the rename (refused unless
-    ``overwrite``, also when another build put it there while this one ran)."""
+    ``overwrite``, also when another build put it there while this one ran; a ``path`` that is
+    not a regular file, a directory, a device, a FIFO or a socket, is refused even then). A
+    store that cannot be written (a full disk, a file-size limit) is an ``InvalidInputError``
+    naming ``path``, and nothing is left."""
 
     def __init__(self, path: str | Path, *, overwrite: bool = False) -> None:
         self._path = Path(path)
         self._overwrite = overwrite
+        _refuse_special(self._path)
         if self._path.exists() and not overwrite:
             raise InvalidInputError("mbtiles", f"{self._path} exists (use --force)")
-        if self._path.is_dir():
-            raise InvalidInputError("mbtiles", f"{self._path} is a directory")
         refuse_unwritable(self._path, field="mbtiles")
         self._path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = temporary_sibling(self._path)
-        self._db: sqlite3.Connection | None = sqlite3.connect(str(self._tmp))
-        try:
+        self._db: sqlite3.Connection | None = None
+        with self._writing():
+            self._db = sqlite3.connect(str(self._tmp))
             for statement in _SCHEMA:
                 self._db.execute(statement)
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """SQLite failing to write the store (``database or disk is full``, ``disk I/O
+        error`` past a file-size limit) is said of the path, as a fault of where it is
+        written, and the unfinished store is dropped; so is any other failure."""
+        try:
+            yield
+        except sqlite3.OperationalError as exc:
+            self.abort()
+            raise InvalidInputError("mbtiles", f"{self._path}: cannot be written: {exc}") from exc
         except BaseException:
             self.abort()
             raise
@@ -143,33 +159,32 @@ class MBTilesWriter:
         """Store XYZ tile (zoom, x, y) (converted to a TMS row) and its sha256."""
         row = (1 << zoom) - 1 - y
         db = self._open()
-        db.execute(
-            "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?)",
-            (zoom, x, row, sqlite3.Binary(data)),
-        )
-        db.execute(
-            "INSERT OR REPLACE INTO c3_tile_digest VALUES (?, ?, ?, ?)",
-            (zoom, x, row, hashlib.sha256(data).hexdigest()),
-        )
+        with self._writing():
+            db.execute(
+                "INSERT OR REPLACE INTO tiles VALUES (?, ?, ?, ?)",
+                (zoom, x, row, sqlite3.Binary(data)),
+            )
+            db.execute(
+                "INSERT OR REPLACE INTO c3_tile_digest VALUES (?, ?, ?, ?)",
+                (zoom, x, row, hashlib.sha256(data).hexdigest()),
+            )
 
     def put_metadata(self, values: Mapping[str, object]) -> None:
         db = self._open()
-        for key, value in values.items():
-            text = value if isinstance(value, str) else json.dumps(value)
-            db.execute("INSERT OR REPLACE INTO metadata VALUES (?, ?)", (key, text))
+        with self._writing():
+            for key, value in values.items():
+                text = value if isinstance(value, str) else json.dumps(value)
+                db.execute("INSERT OR REPLACE INTO metadata VALUES (?, ?)", (key, text))
 
     def close(self) -> None:
         """Commit, compact and rename the store onto its path (the one moment it appears)."""
         db = self._open()
-        try:
+        with self._writing():
             db.commit()
             db.execute("VACUUM")
             db.close()
             self._db = None
             self._name()
-        except BaseException:
-            self.abort()
-            raise
 
     def _name(self) -> None:
         """Give the finished store its path. Without ``overwrite``, only while nothing else has
@@ -210,3 +225,26 @@ class MBTilesWriter:
             self.close()
         else:
             self.abort()
+
+
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def _refuse_special(path: Path) -> None:
+    """Refuse a ``path`` that exists and is not a regular file (followed through a symbolic
+    link): the rename that ends a build would replace it, a device node or a FIFO with it, by
+    its name."""
+    try:
+        mode = path.stat().st_mode
+    except OSError:  # nothing there (or nothing that can be looked at: the writes will say)
+        return
+    if stat.S_ISREG(mode):
+        return
+    kind = next((name for test, name in _KINDS if test(mode)), "no regular file")
+    raise InvalidInputError("mbtiles", f"{path} is {kind}, not a file: it is never replaced")
