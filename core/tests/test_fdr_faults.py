@@ -266,9 +266,10 @@ def test_failed_rename_at_rotation_leaves_the_live_segment_in_place(tmp_path, mo
     rec.close()
 
 
-# Runs inside a private mount namespace on a 64 KiB tmpfs: a real full filesystem, no root
-# needed where user namespaces are allowed, and nothing mounted outside the child process.
-_FULL_DISK_SCRIPT = """
+# Each script runs after this, inside a private mount namespace on a 64 KiB tmpfs at ``mnt``: a
+# real full filesystem, no root needed where user namespaces are allowed, and nothing mounted
+# outside the child process.
+_TMPFS_PRELUDE = """
 import errno, json, os, sys
 from pathlib import Path
 sys.path.insert(0, {src!r})
@@ -277,6 +278,8 @@ from c3_matcher.testing import FakeClock
 mnt = Path({mnt!r})
 os.system(f"mount -t tmpfs -o size=64k tmpfs {{mnt}}")
 assert os.statvfs(mnt).f_blocks * os.statvfs(mnt).f_frsize <= 64 * 1024, "tmpfs not mounted"
+"""
+_FULL_DISK_SCRIPT = """
 rec = JsonlFdrRecorder(mnt / "fdr.jsonl", FakeClock(), max_bytes=1024)
 rec.record("k", {{"i": 0, "pad": "x" * 60}})
 filler = mnt / "filler"
@@ -322,14 +325,6 @@ def test_real_full_filesystem_at_rotation_loses_nothing(tmp_path):
 # of them in bytes it already has, a recorder opened while the disk is still full opens, and once
 # space returns the note is the log's next record.
 _CLOSED_ON_FULL_DISK_SCRIPT = """
-import errno, json, os, sys
-from pathlib import Path
-sys.path.insert(0, {src!r})
-from c3_matcher.fdr import FdrWriteError, JsonlFdrRecorder, read_fdr
-from c3_matcher.testing import FakeClock
-mnt = Path({mnt!r})
-os.system(f"mount -t tmpfs -o size=64k tmpfs {{mnt}}")
-assert os.statvfs(mnt).f_blocks * os.statvfs(mnt).f_frsize <= 64 * 1024, "tmpfs not mounted"
 path = mnt / "fdr.jsonl"
 rec = JsonlFdrRecorder(path, FakeClock())
 rec.record("k", {{"i": 0}})
@@ -365,8 +360,8 @@ print(json.dumps({{"refused": refused, "closed": closed, "pending_on_reopen": pe
 
 
 def _in_a_full_tmpfs(tmp_path: Path, script: str) -> dict:
-    """Run ``script`` (formatted with ``src`` and ``mnt``) in a private mount namespace; the JSON
-    object it prints last."""
+    """Run ``script`` after the prelude that mounts the tmpfs (both formatted with ``src`` and
+    ``mnt``) in a private mount namespace; the JSON object it prints last."""
     mnt = tmp_path / "mnt"
     mnt.mkdir()
     out = subprocess.run(
@@ -376,7 +371,7 @@ def _in_a_full_tmpfs(tmp_path: Path, script: str) -> dict:
             "--map-root-user",
             sys.executable,
             "-c",
-            script.format(src=str(CORE_SRC), mnt=str(mnt)),
+            (_TMPFS_PRELUDE + script).format(src=str(CORE_SRC), mnt=str(mnt)),
         ],
         capture_output=True,
         text=True,
@@ -408,14 +403,6 @@ def test_records_lost_by_a_close_on_a_real_full_filesystem_are_recorded_once_spa
 # The recorder starts, its records wait; once space returns they are written with the lock
 # file's bytes, so that a second full disk, a close, is noted for the next recorder as usual.
 _FULL_AT_FIRST_START_SCRIPT = """
-import errno, json, os, sys
-from pathlib import Path
-sys.path.insert(0, {src!r})
-from c3_matcher.fdr import FdrWriteError, JsonlFdrRecorder, read_fdr
-from c3_matcher.testing import FakeClock
-mnt = Path({mnt!r})
-os.system(f"mount -t tmpfs -o size=64k tmpfs {{mnt}}")
-assert os.statvfs(mnt).f_blocks * os.statvfs(mnt).f_frsize <= 64 * 1024, "tmpfs not mounted"
 path, lock, filler = mnt / "fdr.jsonl", mnt / "fdr.jsonl.lock", mnt / "filler"
 def fill():
     fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_APPEND)

@@ -99,36 +99,6 @@ def test_ctrl_c_to_the_process_group_is_one_line_and_130(
         assert all(line.startswith("features xfeat: ") for line in lines[:-1]), lines
 
 
-def _failing_start(stop: signal.Signals) -> None:
-    """A cluster start that a stop reaches part-way, and so fails (its workers died)."""
-    os.kill(os.getpid(), stop)
-    time.sleep(0.2)
-    raise RuntimeError("Nanny failed to start.")
-
-
-@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_a_cluster_start_that_fails_after_a_stop_is_the_stop(
-    stop: signal.Signals, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    import dask.distributed
-
-    from c3_matcher_tools.features.cluster import dask_client
-
-    def terminate(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt  # as the command line's SIGTERM handler does
-
-    previous = signal.signal(signal.SIGTERM, terminate)
-    monkeypatch.setattr(dask.distributed, "LocalCluster", lambda **kw: _failing_start(stop))
-    try:
-        with pytest.raises(KeyboardInterrupt) as stopped, dask_client(2, None):
-            pytest.fail("the block runs after a stop")
-        assert isinstance(stopped.value.__context__, RuntimeError)  # kept, as its cause
-        assert signal.getsignal(signal.SIGTERM) is terminate
-        assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == set()
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def test_a_stop_this_process_ignores_stays_ignored(monkeypatch: pytest.MonkeyPatch) -> None:
     """A build started in the background, SIGINT ignored (``nohup``, ``&`` in a script)."""
     from c3_matcher_tools.features.cluster import stops_deferred

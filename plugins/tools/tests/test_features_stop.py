@@ -15,11 +15,14 @@ from c3_matcher_tools.features.cluster import dask_client
 
 
 class _Cluster:
-    """A local cluster whose start is interrupted by ``stop`` part-way."""
+    """A local cluster whose start is interrupted by ``stop`` part-way; with ``fails``, the
+    start then fails (its workers died of the stop: "Nanny failed to start")."""
 
-    def __init__(self, stop: signal.Signals, **kwargs: Any) -> None:
+    def __init__(self, stop: signal.Signals, fails: bool = False, **kwargs: Any) -> None:
         os.kill(os.getpid(), stop)
         time.sleep(0.2)  # the signal arrives here, half-way through the start
+        if fails:
+            raise RuntimeError("Nanny failed to start.")
         self.started, self.closed = True, False
         MADE.append(self)
 
@@ -30,10 +33,13 @@ class _Cluster:
 MADE: list[_Cluster] = []
 
 
+@pytest.mark.parametrize("fails", [False, True], ids=["starts", "fails-to-start"])
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
 def test_a_stop_during_the_clusters_start_stops_it_whole(
-    stop: signal.Signals, monkeypatch: pytest.MonkeyPatch
+    stop: signal.Signals, fails: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """A start the stop made fail is the stop too (it was an internal error), its failure kept
+    as the context; the stop signals are taken again once the start is over."""
     import dask.distributed
 
     def terminate(signum: int, frame: object) -> None:
@@ -41,13 +47,17 @@ def test_a_stop_during_the_clusters_start_stops_it_whole(
 
     previous = signal.signal(signal.SIGTERM, terminate)
     MADE.clear()
-    monkeypatch.setattr(dask.distributed, "LocalCluster", lambda **kw: _Cluster(stop, **kw))
+    monkeypatch.setattr(dask.distributed, "LocalCluster", lambda **kw: _Cluster(stop, fails, **kw))
     monkeypatch.setattr(dask.distributed, "Client", lambda cluster: pytest.fail("not started"))
     try:
-        with pytest.raises(KeyboardInterrupt), dask_client(2, None):
+        with pytest.raises(KeyboardInterrupt) as stopped, dask_client(2, None):
             pytest.fail("the block runs after a stop")
-        (cluster,) = MADE
-        assert cluster.started and cluster.closed
+        if fails:
+            assert isinstance(stopped.value.__context__, RuntimeError)
+        else:
+            (cluster,) = MADE
+            assert cluster.started and cluster.closed
         assert signal.getsignal(signal.SIGTERM) is terminate
+        assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == set()
     finally:
         signal.signal(signal.SIGTERM, previous)
