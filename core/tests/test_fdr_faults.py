@@ -278,18 +278,20 @@ from c3_matcher.testing import FakeClock
 mnt = Path({mnt!r})
 os.system(f"mount -t tmpfs -o size=64k tmpfs {{mnt}}")
 assert os.statvfs(mnt).f_blocks * os.statvfs(mnt).f_frsize <= 64 * 1024, "tmpfs not mounted"
+filler = mnt / "filler"
+def fill():  # take every free page (filler.unlink() gives them back)
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_APPEND)
+    try:
+        while True:
+            os.write(fd, b"\\0" * 4096)
+    except OSError as exc:
+        assert exc.errno == errno.ENOSPC
+    os.close(fd)
 """
 _FULL_DISK_SCRIPT = """
 rec = JsonlFdrRecorder(mnt / "fdr.jsonl", FakeClock(), max_bytes=1024)
 rec.record("k", {{"i": 0, "pad": "x" * 60}})
-filler = mnt / "filler"
-fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
-try:  # take every free page
-    while True:
-        os.write(fd, b"\\0" * 4096)
-except OSError as exc:
-    assert exc.errno == errno.ENOSPC
-os.close(fd)
+fill()  # take every free page
 failed = []
 for i in range(1, 60):  # rotations are due from about the 13th record on
     try:
@@ -328,14 +330,7 @@ _CLOSED_ON_FULL_DISK_SCRIPT = """
 path = mnt / "fdr.jsonl"
 rec = JsonlFdrRecorder(path, FakeClock())
 rec.record("k", {{"i": 0}})
-filler = mnt / "filler"
-fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
-try:
-    while True:
-        os.write(fd, b"\\0" * 4096)
-except OSError as exc:
-    assert exc.errno == errno.ENOSPC
-os.close(fd)
+fill()
 refused = 0
 for i in range(1, 40):  # the live segment's page fills, then the disk refuses
     try:
@@ -403,15 +398,7 @@ def test_records_lost_by_a_close_on_a_real_full_filesystem_are_recorded_once_spa
 # The recorder starts, its records wait; once space returns they are written with the lock
 # file's bytes, so that a second full disk, a close, is noted for the next recorder as usual.
 _FULL_AT_FIRST_START_SCRIPT = """
-path, lock, filler = mnt / "fdr.jsonl", mnt / "fdr.jsonl.lock", mnt / "filler"
-def fill():
-    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_APPEND)
-    try:
-        while True:
-            os.write(fd, b"\\0" * 4096)
-    except OSError as exc:
-        assert exc.errno == errno.ENOSPC
-    os.close(fd)
+path, lock = mnt / "fdr.jsonl", mnt / "fdr.jsonl.lock"
 def refused(rec, first, pad):
     n = 0
     for i in range(first, first + 3):
