@@ -77,9 +77,20 @@ def atomic_directory(out: Path, *, force: bool = False) -> Iterator[Path]:
     try:
         yield tmp
         replace_directory(tmp, out)
+    except OSError as exc:  # a file of it that could not be written is said of OUT's
+        shutil.rmtree(tmp, ignore_errors=True)
+        exc.filename = _under(out, tmp, exc.filename)
+        raise
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def _under(out: Path, tmp: Path, name: object) -> object:
+    """``name`` (an error's file), when it is in ``tmp``, as the file it was to be in ``out``."""
+    if isinstance(name, str | Path) and Path(name).is_relative_to(tmp):
+        return str(out / Path(name).relative_to(tmp))
+    return name
 
 
 def _empty(directory: Path) -> bool:

@@ -52,7 +52,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.flight_plan import Progress, plan_flight
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
-from c3_matcher_tools.dataset.writing import write_dataset
+from c3_matcher_tools.dataset.writing import write_dataset, write_file
 
 __all__ = ["render_flight"]
 
@@ -99,6 +99,6 @@ def render_flight(
     with atomic_directory(out, force=force) as tmp:
         (tmp / "frames").mkdir()
         for rel, data in images.items():
-            (tmp / rel).write_bytes(data)
+            write_file(tmp / rel, data)
         write_dataset(tmp, meta, calibration, frames, store=spec.store)
     return out

@@ -12,7 +12,6 @@ sibling directory and renamed into place.
 
 from __future__ import annotations
 
-import shutil
 import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -38,7 +37,7 @@ from c3_matcher_tools.dataset.telemetry import (
     read_telemetry_table,
     refuse_lines,
 )
-from c3_matcher_tools.dataset.writing import write_dataset
+from c3_matcher_tools.dataset.writing import copy_file, write_dataset
 
 __all__ = ["ImportSpec", "import_csv_flight", "import_flight"]
 
@@ -117,7 +116,7 @@ def import_csv_flight(
     with atomic_directory(out, force=force) as tmp:
         (tmp / "frames").mkdir()
         for r, f in zip(checked.rows, frames, strict=True):
-            shutil.copyfile(checked.images_dir / r.image, tmp / f.image)
+            copy_file(checked.images_dir / r.image, tmp / f.image)
         write_dataset(tmp, meta, checked.calibration, frames, store=spec.proposal.store)
     return _csv_report(checked, spec, out, len(frames))
 

@@ -24,7 +24,7 @@ from c3_matcher_tools.dataset.format import (
     FrameRecord,
 )
 
-__all__ = ["calibration_to_json", "write_dataset"]
+__all__ = ["calibration_to_json", "copy_file", "write_dataset", "write_file"]
 
 
 def calibration_to_json(calibration: dto.CameraCalibration) -> dict[str, Any]:
@@ -50,7 +50,7 @@ def write_dataset(
     copied in, the calibration, the frames and the description (the format and the files, then
     ``meta``: its ``name`` first, then how the dataset was made)."""
     root.mkdir(parents=True, exist_ok=True)
-    _copy_store(store, root / STORE_FILE)
+    copy_file(store, root / STORE_FILE)
     described = {
         "format": FORMAT,
         "calibration": CALIBRATION_FILE,
@@ -69,12 +69,18 @@ def write_dataset(
     return root
 
 
-def _copy_store(store: Path, copy: Path) -> None:
-    """Copy the tile store ``store`` to ``copy``. A failure only the destination can cause (a
-    full disk, a file-size limit, a quota, a read-only file system) names the copy:
-    ``shutil.copyfile`` names the store, the user's input, for any failure of its copy."""
+def write_file(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path``; a failure names ``path`` (a write that fails names none)."""
+    with _naming(path):
+        path.write_bytes(data)
+
+
+def copy_file(source: Path, copy: Path) -> None:
+    """Copy ``source`` to ``copy``. A failure only the destination can cause (a full disk, a
+    file-size limit, a quota, a read-only file system) names the copy: ``shutil.copyfile``
+    names the source, the user's input, for any failure of its copy."""
     try:
-        shutil.copyfile(store, copy)
+        shutil.copyfile(source, copy)
     except OSError as exc:
         if exc.errno in _WRITE_ERRNOS:
             raise OSError(exc.errno, exc.strerror, str(copy)) from exc

@@ -20,7 +20,7 @@ from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport
 from c3_matcher_tools.dataset.sources.pairing import Pairing, match_shots
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 from c3_matcher_tools.dataset.telemetry import TelemetryRow
-from c3_matcher_tools.dataset.writing import write_dataset
+from c3_matcher_tools.dataset.writing import write_dataset, write_file
 
 __all__ = ["MAX_OWN_GPS_OFFSET_M", "image_problem", "write_imported_flight"]
 
@@ -77,7 +77,7 @@ def write_imported_flight(
     with atomic_directory(out, force=force) as tmp:
         (tmp / "frames").mkdir()
         for rec, data in zip(records, images, strict=True):
-            (tmp / rec.image).write_bytes(data)
+            write_file(tmp / rec.image, data)
         write_dataset(tmp, meta, calibration, records, store=proposer.store)
     return report
 
