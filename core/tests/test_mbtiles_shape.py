@@ -151,3 +151,27 @@ def test_a_value_not_an_integer_among_the_rows_is_bad_input_when_listed(
             list(store.tiles(zoom))
     assert str(refused.value).startswith(f"mbtiles: {path}: not an MBTiles file (")
     assert said in str(refused.value)
+
+
+def test_a_store_of_untyped_columns_holding_whole_numbers_as_reals_opens_as_before(
+    tmp_path: Path,
+) -> None:
+    """A store whose tiles table was made without column types, its numbers written as 15.0
+    (another tool's store): read as it was before the shape check, never refused."""
+
+    def untyped_reals(db: sqlite3.Connection) -> None:
+        db.executescript(
+            "ALTER TABLE tiles RENAME TO typed;"
+            "CREATE TABLE tiles (zoom_level, tile_column, tile_row, tile_data);"
+            "INSERT INTO tiles SELECT zoom_level * 1.0, tile_column * 1.0, tile_row * 1.0,"
+            " tile_data FROM typed;"
+            "DROP TABLE typed;"
+        )
+
+    path = _store(tmp_path, "untyped", untyped_reals)
+    with MBTilesStore(STORE) as typed, MBTilesStore(path) as store:
+        assert store.zooms() == [15] and all(type(z) is int for z in store.zooms())
+        tiles = list(store.tiles(15))
+        assert tiles == list(typed.tiles(15)) and all(type(x) is int for x, _ in tiles)
+        x, y = tiles[0]
+        assert store.tile_bytes(15, x, y) == typed.tile_bytes(15, x, y)

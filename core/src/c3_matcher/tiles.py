@@ -10,7 +10,7 @@ Decompression bombs: ``decode_image`` reads the image header (PNG, JPEG, TIFF, B
 and refuses an image above its ``max_pixels`` argument (width x height; the configured
 ``[matcher] max_image_pixels`` where the caller has a configuration, else
 ``DEFAULT_MAX_IMAGE_PIXELS``, 50 Mpx) before decoding it; an image whose size cannot be read
-from its header is refused too, and so is a PNG cut short (no IEND chunk at its end: libpng,
+from its header is refused too, and so is a PNG cut short (its chunks end before IEND: libpng,
 given one, writes its own line to the process's stderr). The limit is a value each reader is
 given, never process state: ``read_image``, ``MmapTileHandle`` and ``BytesTileHandle`` take it
 too.
@@ -79,7 +79,7 @@ def decode_image(
             "([matcher] max_image_pixels); refused before decoding",
         )
     if _png_cut_short(raw):  # refused here: libpng would write its own line to fd 2
-        raise ImageDecodeError(what, "a PNG cut short: its data does not end with the IEND chunk")
+        raise ImageDecodeError(what, "a PNG cut short: its chunks end before the IEND chunk")
     image = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ImageDecodeError(what, f"not a decodable image ({DECODABLE_FORMATS})")
@@ -87,15 +87,23 @@ def decode_image(
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_END = b"IEND\xaeB`\x82"  # the IEND chunk's type and CRC: the last 8 bytes of a whole PNG
-_PNG_TRAILER = 4096  # bytes after IEND (libpng reads no further): looked for in this many
 
 
 def _png_cut_short(raw: NDArray[np.uint8]) -> bool:
-    """Whether ``raw`` is a PNG cut short: no IEND chunk among its last bytes. libpng, given one,
-    writes "libpng error: PNG input buffer is incomplete" to the process's stderr (OpenCV's
-    JPEG decoder refuses a JPEG cut short silently). Only the last bytes are looked at."""
-    return raw[:8].tobytes() == _PNG_SIGNATURE and _PNG_END not in raw[-_PNG_TRAILER:].tobytes()
+    """Whether ``raw`` is a PNG cut short: its chunks, followed by their lengths from the
+    signature on, run past its end before the IEND chunk (bytes after IEND are allowed, as
+    libpng reads no further). libpng, given one, writes "libpng error: PNG input buffer is
+    incomplete" to the process's stderr (OpenCV's JPEG decoder refuses a JPEG cut short
+    silently). Reads 8 bytes a chunk: a few per image."""
+    data = raw.data
+    if bytes(data[:8]) != _PNG_SIGNATURE:
+        return False
+    at, end = 8, len(data)
+    while at + 8 <= end:
+        if bytes(data[at + 4 : at + 8]) == b"IEND":
+            return at + 12 > end  # its CRC whole
+        at += 12 + int.from_bytes(data[at : at + 4], "big")  # length, type, data, CRC
+    return True
 
 
 def to_rgb8(image: NDArray[np.generic], what: str, *, bgr: bool) -> NDArray[np.uint8]:

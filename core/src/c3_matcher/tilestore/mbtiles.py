@@ -242,10 +242,11 @@ class MBTilesStore(TileStoreBase):
         """The zooms stored; a zoom_level that is no zoom (the check at open sees the smallest
         and the largest only) is InvalidInputError naming the store."""
         found = [r[0] for r in self._db.execute("SELECT DISTINCT zoom_level FROM tiles ORDER BY 1")]
-        for zoom in found:
-            if not _is_zoom(zoom):
-                raise self._refusal(_holds("zoom_level", zoom))
-        return found
+        zooms = [_whole(zoom) for zoom in found]
+        for zoom, value in zip(zooms, found, strict=True):
+            if zoom is None or zoom < 0:
+                raise self._refusal(_holds("zoom_level", value))
+        return list(dict.fromkeys(z for z in zooms if z is not None))
 
     def tiles(self, zoom: int) -> Iterator[tuple[int, int]]:
         """XYZ (x, y) of every stored tile at ``zoom``; a tile_column or tile_row that is no
@@ -254,10 +255,12 @@ class MBTilesStore(TileStoreBase):
         for col, row in self._db.execute(
             "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=? ORDER BY 2 DESC, 1", (zoom,)
         ):
-            for name, value in (("tile_column", col), ("tile_row", row)):
-                if not isinstance(value, int):
-                    raise self._refusal(_holds(name, value))
-            yield col, n - 1 - row
+            x, tms_row = _whole(col), _whole(row)
+            if x is None:
+                raise self._refusal(_holds("tile_column", col))
+            if tms_row is None:
+                raise self._refusal(_holds("tile_row", row))
+            yield x, n - 1 - tms_row
 
     def _refusal(self, wrong: str) -> InvalidInputError:
         """The refusal of this store as no MBTiles file, for the reason ``wrong``."""
@@ -319,7 +322,20 @@ def _not_mbtiles(db: sqlite3.Connection, tables: set[str]) -> str | None:
 
 
 def _is_zoom(value: object) -> bool:
-    return isinstance(value, int) and value >= 0
+    whole = _whole(value)
+    return whole is not None and whole >= 0
+
+
+def _whole(value: object) -> int | None:
+    """``value`` as an int when it is a whole number (a column without a type affinity may hold
+    17.0 for 17), else None."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None
 
 
 def _holds(column: str, value: object) -> str:
