@@ -479,6 +479,21 @@ def test_a_lock_file_that_cannot_be_written_at_start_is_written_with_the_first_r
     assert [r["seq"] for r in read_fdr(path)] == [1, 2]
 
 
+def test_a_second_recorder_beside_one_started_on_a_full_disk_is_told_what_holds_the_path(
+    tmp_path, monkeypatch
+):
+    """Its lock file names no pid yet: the refusal said "another process (pid ?)", also to the
+    process that holds it."""
+    path = tmp_path / "fdr.jsonl"
+    _refuse_lock_writes(monkeypatch)
+    first = JsonlFdrRecorder(path, FakeClock())
+    with pytest.raises(FdrOpenError) as refused:
+        JsonlFdrRecorder(path, FakeClock())
+    said = str(refused.value)
+    assert "names no pid yet" in said and "close it first" in said and "pid ?" not in said
+    first.close()
+
+
 def test_a_note_the_lock_file_holds_stays_until_the_log_says_it_when_it_cannot_be_rewritten(
     tmp_path, monkeypatch
 ):

@@ -295,7 +295,7 @@ def missing_members(backend: object) -> list[str]:
     ]
     rule = getattr(backend, "input_rule", None)
     if "input_rule" not in missing and not isinstance(rule, InputRule):
-        wrong.append("input_rule (an InputRule)")
+        wrong.append(f"input_rule as an InputRule (it is a {type(rule).__name__})")
     return missing + wrong
 
 

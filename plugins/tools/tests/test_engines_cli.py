@@ -329,7 +329,8 @@ def test_a_bench_case_whose_process_fails_is_said_and_the_others_still_run(
 
     def child(argv: list[str]) -> bench.BenchResult | bench.FailedCase:
         if argv[0] == "matcher" and argv[argv.index("--keypoints") + 1] == "2048":
-            return bench.FailedCase(argv[2], f"{argv[2]} 2048 kpts", "killed by signal 9")
+            killed = "killed by signal 9"
+            return bench.FailedCase(argv[2], f"{argv[2]} 2048 kpts", "arena=on", killed)
         return bench.BenchResult(argv[2], argv[2], *[1] * 8, "", {}, "CPU", 0)
 
     monkeypatch.setattr(bench, "_run_child", child)
@@ -337,7 +338,7 @@ def test_a_bench_case_whose_process_fails_is_said_and_the_others_still_run(
     assert main(["engines", "bench", "--runs", "1"]) == 1
     out, err = capsys.readouterr()
     rows = out.splitlines()[2:]
-    failed = [row for row in rows if "failed: killed by signal 9" in row]
+    failed = [row for row in rows if "failed (arena=on): killed by signal 9" in row]
     assert failed and len(rows) > len(failed)
     assert f"{len(failed)} case(s) failed, the others are timed" in err
 
@@ -356,4 +357,5 @@ def test_a_case_process_that_fails_becomes_a_failed_case_with_its_last_words(
     result = _run_child(_child_argv("extractor", engine, options, flags))
     assert isinstance(result, FailedCase)
     assert result.case == f"{engine.name} 256x192"
+    assert result.settings == "mem_pattern=off arena=off"  # a sweep's cases told apart
     assert result.failed.startswith("exit status ") and len(result.failed) > len("exit status 1")

@@ -61,3 +61,23 @@ def test_a_stop_during_the_clusters_start_stops_it_whole(
         assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == set()
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_the_handlers_are_given_back_when_holding_the_stops_fails(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Multiprocessing's helper process that could not start left the deferring handlers in
+    place: every later Ctrl-C was swallowed."""
+    from multiprocessing import resource_tracker
+
+    from c3_matcher_tools.features.cluster import stops_deferred
+
+    def cannot_start() -> None:
+        raise OSError("cannot start the resource tracker")
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    monkeypatch.setattr(resource_tracker, "ensure_running", cannot_start)
+    with pytest.raises(OSError, match="resource tracker"), stops_deferred():
+        pytest.fail("the block runs")
+    assert {s: signal.getsignal(s) for s in before} == before
+    assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == set()

@@ -134,7 +134,13 @@ def read_lock(path: Path) -> tuple[str, DroppedRecords | None]:
 
 def held_by(path: Path) -> str:
     """Why the lock file ``path`` cannot be taken: who holds it (the pid it names)."""
-    holder = read_lock(path)[0] or "?"
+    holder = read_lock(path)[0]
+    if not holder:  # its recorder started on a full disk: its pid is written with a record
+        return (
+            "a recorder is writing this FDR (its lock file names no pid yet: it started on a "
+            "full disk), in this process or another: close it first, or give another path; "
+            "one writer per path"
+        )
     if holder == str(os.getpid()):
         return (
             f"this process (pid {holder}) already writes this FDR (a recorder, or a composed "

@@ -99,11 +99,12 @@ class BenchResult:
 @dataclass(frozen=True, slots=True)
 class FailedCase:
     """A case whose process failed (an error, out of memory, killed): ``engine`` file, ``case``
-    (the engine and the size or keypoint count it was to time) and ``failed``, how it ended and
-    the last line it wrote."""
+    (the engine and the size or keypoint count it was to time), ``settings`` (the session
+    options it was to run with) and ``failed``, how it ended and the last line it wrote."""
 
     engine: str
     case: str
+    settings: str
     failed: str
 
 
@@ -288,7 +289,15 @@ def _run_child(argv: list[str]) -> BenchResult | FailedCase:
     engine = Path(argv[2]).name
     what = " ".join(argv[argv.index("--size") + 1 :][:2]) if argv[0] == "extractor" else ""
     what = what.replace(" ", "x") if what else f"{argv[argv.index('--keypoints') + 1]} kpts"
-    return FailedCase(engine, f"{engine} {what}", ended + (f": {said[-1]}" if said else ""))
+    settings = f"mem_pattern={_flag(argv, '--mem-pattern')} arena={_flag(argv, '--arena')}"
+    return FailedCase(
+        engine, f"{engine} {what}", settings, ended + (f": {said[-1]}" if said else "")
+    )
+
+
+def _flag(argv: list[str], name: str) -> str:
+    """The value of option ``name`` in ``argv`` ("?" without it)."""
+    return argv[argv.index(name) + 1] if name in argv else "?"
 
 
 def _prepare_features(
@@ -389,7 +398,7 @@ def format_table(results: Sequence[BenchResult | FailedCase]) -> str:
     lines = [header, "-" * len(header)]
     for r in results:
         if isinstance(r, FailedCase):
-            lines.append(f"{r.case:<{width}} failed: {r.failed}")
+            lines.append(f"{r.case:<{width}} failed ({r.settings}): {r.failed}")
             continue
         lines.append(
             f"{r.case:<{width}} {r.median_ms:>10.1f} {r.p95_ms:>8.1f} {r.min_ms:>8.1f} "

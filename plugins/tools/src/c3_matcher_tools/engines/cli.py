@@ -182,7 +182,7 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
         command.out(json.dumps([asdict(r) for r in results], indent=2))
     else:
         command.out(format_table(results))
-    failed = [r.case for r in results if isinstance(r, FailedCase)]
+    failed = [f"{r.case} ({r.settings})" for r in results if isinstance(r, FailedCase)]
     if failed:
         said = ", ".join(failed)
         command.err(f"error: {len(failed)} case(s) failed, the others are timed: {said}")

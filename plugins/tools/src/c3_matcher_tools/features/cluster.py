@@ -39,11 +39,13 @@ def stops_deferred() -> Iterator[None]:
     except ValueError:  # not the main thread
         yield
         return
-    held = _hold_stops()
+    held: set[int | signal.Signals] | None = None
     try:
+        held = _hold_stops()
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)  # a stop held back is caught here
+        if held is not None:  # a stop held back is caught here
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
         for s, handler in previous.items():
             signal.signal(s, handler)
         if caught:
