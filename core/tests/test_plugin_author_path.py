@@ -176,7 +176,8 @@ def _raising(config: Any, options: Any) -> Any:
         ),
         (
             c3.backend_strategy_factory(lambda config, options: RuleAsTuple()),
-            "RuleAsTuple is not a FeatureBackend: it lacks input_rule as an InputRule (it is a tuple)",
+            "RuleAsTuple is not a FeatureBackend: it lacks input_rule as an InputRule "
+            "(it is a tuple)",
         ),
     ],
     ids=["factory-raises", "not-a-matcher", "member-missing", "backend-none", "rule-not-a-rule"],
