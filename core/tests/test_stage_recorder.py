@@ -108,10 +108,11 @@ def test_the_success_record_names_the_candidates_refused_on_geometry_too():
     flight that is the FDR's only account of it (the refusal's log line is DEBUG)."""
     fdr = InMemoryFdr()
     recorder = FrameRecorder(_sinks(fdr)[0], "f")
-    recorder.frame_done(_refused_evidence(), [_survivor(1, 90, 1.0)], None, {"total": 5.0})
+    recorder.frame_done(_refused_evidence(), [_survivor(1, 90, 1.0)], None, {"total": 5.0}, 60)
     (record,) = fdr.of_kind("matcher.frame_done")
     _assert_candidates_recorded(record)
     assert record["best_inlier_count"] == 90 and record["timings_ms"] == {"total": 5.0}
+    assert record["threshold"] == 60  # the one it passed, as the no-fix record names its own
 
 
 def test_a_stale_rerank_is_named_in_the_record():

@@ -240,7 +240,7 @@ class PipelineMatcher:
         timings["total"] = (time.perf_counter() - started) * 1e3
         diagnostics = self._diagnostics(evidence, survivors, query, prior is not None, timings)
         rectification = query.image.working_from_undistorted
-        recorder.frame_done(evidence, survivors, rectification, timings)  # step 10
+        recorder.frame_done(evidence, survivors, rectification, timings, threshold)  # step 10
         return MatchResult(  # step 11
             frame_id=rerank.frame_id,
             per_candidate=tuple(s.match_set for s in survivors),

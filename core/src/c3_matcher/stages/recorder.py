@@ -204,10 +204,12 @@ class FrameRecorder:
         ranked: Sequence[Survivor],
         rectification: F64 | None,
         timings: dict[str, float],
+        threshold: int,
     ) -> None:
         """Step 10: the success record (+ the best homography, from the px the query was
         matched in, and ``query_rectification``, UNDISTORTED query px to those, null for a
-        query matched unrectified in its ORIGINAL px; the matcher's label; the frame's and each
+        query matched unrectified in its ORIGINAL px; the inlier ``threshold`` it passed, as
+        the no-fix record names the one it missed; the matcher's label; the frame's and each
         candidate's stage timings in input order; the kept candidates ranked and the dropped
         ones, each by input position; provider, engines)."""
         best = ranked[0].match_set
@@ -218,6 +220,7 @@ class FrameRecorder:
                 "candidates_input": evidence.candidates_input,
                 "candidates_dropped": evidence.dropped,
                 "best_inlier_count": best.inlier_count,
+                "threshold": threshold,
                 "best_residual_px": best.per_candidate_residual_px,
                 "best_tile_id": best.tile_id,
                 "best_homography": ranked[0].homography,

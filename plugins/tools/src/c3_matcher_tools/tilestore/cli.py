@@ -121,8 +121,8 @@ def _add_build(tiles: Any) -> None:
     b.add_argument(
         "--force",
         action="store_true",
-        help="overwrite OUT (never the GEOTIFF itself), and build a zoom more than 4x finer than "
-        "the source",
+        help="overwrite OUT (never the GEOTIFF itself, nor an OUT that is no regular file), and "
+        "build a zoom more than 4x finer than the source",
     )
     b.add_argument("--json", action="store_true", help="print the report as JSON")
 
