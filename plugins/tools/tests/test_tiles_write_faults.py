@@ -45,9 +45,12 @@ def _socket(path: Path) -> None:
 
 
 def _device(path: Path) -> None:
-    if os.geteuid() != 0:
-        pytest.skip("a device node is made by root")
-    os.mknod(path, 0o666 | stat.S_IFCHR, os.makedev(1, 3))  # /dev/null's numbers
+    """A character device made here with /dev/null's numbers where this process may make one;
+    else a link here to the system's (a build that replaced it would replace the link)."""
+    try:
+        os.mknod(path, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+    except PermissionError:
+        path.symlink_to("/dev/null")
 
 
 @pytest.mark.parametrize(
