@@ -16,6 +16,18 @@ def require(condition: bool, field: str, reason: str) -> None:
         raise InvalidInputError(field, reason)
 
 
+def whole_number(value: object) -> int | None:
+    """``value`` as an int when it is a whole number: an int (not a bool) or a float with no
+    fraction (``640.0``, as JSON or an untyped SQLite column may give it); None otherwise."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None
+
+
 def finite_float(
     value: object, field: str, *, low: float | None = None, high: float | None = None
 ) -> float:

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from c3_matcher._validate import whole_number
 from c3_matcher.dto import CameraCalibration, MatchResult
 from c3_matcher.errors import InvalidInputError
 
@@ -118,21 +119,15 @@ def _matrix(value: object, key: str) -> NDArray[np.float64]:
     return np.stack([_numbers(r, key, form) for r in rows])
 
 
-def _is_whole(value: object) -> bool:
-    """A JSON integer, or a float with no fraction (``640.0``)."""
-    if isinstance(value, float):
-        return value.is_integer()
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
 def _image_size(value: object) -> tuple[int, int]:
     """``[width, height]``: two whole numbers of pixels (``640.0`` is taken as 640)."""
-    sizes = value if isinstance(value, list) and len(value) == 2 else None
-    if sizes is None or not all(_is_whole(v) for v in sizes):
+    sizes = value if isinstance(value, list) and len(value) == 2 else [None, None]
+    width, height = (whole_number(v) for v in sizes)
+    if width is None or height is None:
         raise InvalidInputError(
             "image_size", f"expected [width, height] as whole numbers of px, got {_shown(value)}"
         )
-    return int(sizes[0]), int(sizes[1])
+    return width, height
 
 
 def result_to_json(

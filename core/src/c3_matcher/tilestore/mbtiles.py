@@ -50,6 +50,7 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Final
 
+from c3_matcher._validate import whole_number
 from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.tilestore.base import TileStoreBase
 from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
@@ -242,7 +243,7 @@ class MBTilesStore(TileStoreBase):
         """The zooms stored; a zoom_level that is no zoom (the check at open sees the smallest
         and the largest only) is InvalidInputError naming the store."""
         found = [r[0] for r in self._db.execute("SELECT DISTINCT zoom_level FROM tiles ORDER BY 1")]
-        zooms = [_whole(zoom) for zoom in found]
+        zooms = [whole_number(zoom) for zoom in found]
         for zoom, value in zip(zooms, found, strict=True):
             if zoom is None or zoom < 0:
                 raise self._refusal(_holds("zoom_level", value))
@@ -255,7 +256,7 @@ class MBTilesStore(TileStoreBase):
         for col, row in self._db.execute(
             "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=? ORDER BY 2 DESC, 1", (zoom,)
         ):
-            x, tms_row = _whole(col), _whole(row)
+            x, tms_row = whole_number(col), whole_number(row)
             if x is None:
                 raise self._refusal(_holds("tile_column", col))
             if tms_row is None:
@@ -322,20 +323,8 @@ def _not_mbtiles(db: sqlite3.Connection, tables: set[str]) -> str | None:
 
 
 def _is_zoom(value: object) -> bool:
-    whole = _whole(value)
+    whole = whole_number(value)
     return whole is not None and whole >= 0
-
-
-def _whole(value: object) -> int | None:
-    """``value`` as an int when it is a whole number (a column without a type affinity may hold
-    17.0 for 17), else None."""
-    if isinstance(value, bool):
-        return None
-    if isinstance(value, int):
-        return value
-    if isinstance(value, float) and value.is_integer():
-        return int(value)
-    return None
 
 
 def _holds(column: str, value: object) -> str:
