@@ -31,7 +31,12 @@ DEMO_MATCH = [  # the README's demo frame, matched by the OpenCV strategy (no en
     *("--calibration", str(DEMO / "calibration.json"), "--attitude", "18,0,120"),
     *("--height", "27.112037", "--strategy", "sift_magsac", "--no-correspondences"),
 ]
-NOT_REGULAR = "is not a regular file (a device, a FIFO or a socket): give a file path"
+KIND = {"device": "a character device", "fifo": "a FIFO", "socket": "a socket"}
+
+
+def _not_regular(kind: str) -> str:
+    """The refusal of a path of ``kind``, naming what it is."""
+    return f"is {KIND[kind]}, not a regular file: give a file path"
 
 
 def _special(tmp_path: Path, kind: str) -> Path:
@@ -78,14 +83,14 @@ def _started(path: Path) -> str:
 @pytest.mark.parametrize("kind", ["device", "fifo", "socket"])
 def test_a_path_that_is_not_a_regular_file_is_refused_unread(tmp_path: Path, kind: str) -> None:
     path = _special(tmp_path, kind)
-    assert _started(path) == f"fdr.path {path}: {NOT_REGULAR}"
+    assert _started(path) == f"fdr.path {path}: {_not_regular(kind)}"
     assert [p.name for p in tmp_path.iterdir()] == [path.name]  # no lock file beside it
 
 
 def test_a_link_to_something_not_a_regular_file_is_refused(tmp_path: Path) -> None:
     link = tmp_path / "fdr.jsonl"
     link.symlink_to(_special(tmp_path, "fifo"))
-    assert _started(link) == f"fdr.path {link}: {NOT_REGULAR}"
+    assert _started(link) == f"fdr.path {link}: {_not_regular('fifo')}"
 
 
 @pytest.mark.parametrize("under", ["f.jsonl", "deeper/f.jsonl"])
@@ -111,6 +116,6 @@ def test_match_with_an_fdr_that_is_a_fifo_prints_the_result_and_exits_2(tmp_path
     assert json.loads(out.stdout)["per_candidate"]  # the result was printed
     last = out.stderr.strip().splitlines()[-1]
     assert last == (
-        f"c3-matcher: fdr.path {fifo}: {NOT_REGULAR}; the result was printed but NOT recorded "
-        "in the FDR"
+        f"c3-matcher: fdr.path {fifo}: {_not_regular('fifo')}; the result was printed but "
+        "NOT recorded in the FDR"
     )

@@ -102,7 +102,7 @@ def test_open_failure_names_each_case(tmp_path: Path, monkeypatch: pytest.Monkey
     assert open_failure(file, "an MBTiles file") is None
     assert open_failure(tmp_path / "absent", "an MBTiles file") == "no such file"
     assert open_failure(tmp_path, "an MBTiles file") == "is a directory, not an MBTiles file"
-    assert open_failure(fifo, "an MBTiles file") == "not a regular file, not an MBTiles file"
+    assert open_failure(fifo, "an MBTiles file") == "is a FIFO, not an MBTiles file"
     refuse_reading(monkeypatch, file)
     assert open_failure(file, "an MBTiles file") == "cannot open (permission denied)"
 

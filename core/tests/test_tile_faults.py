@@ -161,7 +161,8 @@ def _png_claiming(width: int, height: int) -> bytes:
     idat = zlib.compress(b"\0" * 4096)
     chunk2 = b"IDAT" + idat
     body += struct.pack(">I", len(idat)) + chunk2 + struct.pack(">I", zlib.crc32(chunk2))
-    return b"\x89PNG\r\n\x1a\n" + body
+    body += struct.pack(">I", 0) + b"IEND" + struct.pack(">I", zlib.crc32(b"IEND"))
+    return b"\x89PNG\r\n\x1a\n" + body  # whole, as a bomb made to be opened is
 
 
 def test_decompression_bomb_is_refused_from_its_header():
@@ -205,7 +206,8 @@ def test_an_image_header_declaring_no_pixels_is_not_an_image_and_an_empty_file_i
     from c3_matcher.tiles import BytesTileHandle, read_image
 
     png = bytearray(_png(size=64))
-    png[16:24] = struct.pack(">II", 0, 0)  # IHDR width and height (its CRC no longer matters)
+    png[16:24] = struct.pack(">II", 0, 0)  # IHDR width and height, and its CRC to match
+    png[29:33] = struct.pack(">I", zlib.crc32(bytes(png[12:29])))
     with pytest.raises(ImageDecodeError, match="header declares 0x0 px: not an image"):
         BytesTileHandle(bytes(png), "frame.png").decode()
     empty = tmp_path / "frame.jpg"

@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 import os
 import shutil
+import struct
+import zlib
 from pathlib import Path
 
 import cv2
@@ -116,3 +118,45 @@ def test_read_image_of_a_png_cut_short_names_the_file(
     with pytest.raises(ImageDecodeError, match=f"{cut}: .*{CUT_SHORT}"):
         read_image(cut)
     assert capfd.readouterr().err == ""
+
+
+def _chunk_at(data: bytes, kind: bytes) -> int:
+    """Where the first chunk of ``kind`` starts (its length field)."""
+    return data.index(kind) - 4
+
+
+def _flip(data: bytes, at: int) -> bytes:
+    damaged = bytearray(data)
+    damaged[at] ^= 0xFF
+    return bytes(damaged)
+
+
+@pytest.mark.parametrize(
+    ("kind", "offset"), [(b"IDAT", 1000), (b"IHDR", 12), (b"IEND", 8)], ids=["IDAT", "IHDR", "IEND"]
+)
+def test_a_png_whose_critical_chunk_fails_its_crc_is_refused_naming_it_and_libpng_says_nothing(
+    capfd: pytest.CaptureFixture[str], kind: bytes, offset: int
+) -> None:
+    """A damaged copy (a flipped byte in the pixels, in the header's size, in the end chunk's
+    CRC) is refused as damaged, naming the chunk, before its header's size is believed; libpng
+    had written "libpng error: IDAT: CRC error" to fd 2 (and a flipped height was refused as
+    an image over the pixel limit)."""
+    at = PNG.rindex(b"IEND") - 4 if kind == b"IEND" else _chunk_at(PNG, kind)
+    capfd.readouterr()
+    with pytest.raises(ImageDecodeError) as refused:
+        decode_image(_flip(PNG, at + offset), "tile.png")
+    assert str(refused.value) == (
+        f"tile.png: a damaged PNG: its {kind.decode()} chunk at byte {at} fails its CRC check"
+    )
+    assert capfd.readouterr().err == ""
+
+
+def test_a_png_with_a_damaged_ancillary_chunk_decodes_as_before() -> None:
+    """An ancillary chunk (here a text comment) is libpng's to judge: it skips a damaged one
+    and decodes the image, so the image is not refused for it."""
+    text = b"tEXtComment\0tile"
+    ihdr_end = 8 + 12 + 13
+    for crc in (zlib.crc32(text), zlib.crc32(text) ^ 1):
+        chunk = struct.pack(">I", len(text) - 4) + text + struct.pack(">I", crc)
+        with_text = PNG[:ihdr_end] + chunk + PNG[ihdr_end:]
+        np.testing.assert_array_equal(decode_image(with_text, "t"), decode_image(PNG, "t"))

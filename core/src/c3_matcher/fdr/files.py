@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from c3_matcher.fdr.records import read_fdr
+from c3_matcher.file_kinds import special_kind
 
 SEGMENT_DIGITS = 6
 """The least number of digits of a rotated segment's number (zero-padded)."""
@@ -61,10 +62,11 @@ def refusal(path: Path) -> str | None:
     something that is not a regular file (a device, a FIFO, a socket: judged by ``stat``, never
     opened, so never read or waited on); a file where a folder above it should be; a file
     holding something other than records (:func:`is_foreign`)."""
-    if path.is_dir():
+    special = special_kind(path)
+    if special == "a directory":
         return "is a directory (give a file path)"
-    if path.exists() and not path.is_file():
-        return "is not a regular file (a device, a FIFO or a socket): give a file path"
+    if special is not None:
+        return f"is {special}, not a regular file: give a file path"
     in_the_way = file_in_the_way(path.parent)
     if in_the_way is not None:
         return f"{in_the_way} is not a directory"

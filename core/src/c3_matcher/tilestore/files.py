@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import errno
 import os
-import stat
 from pathlib import Path
+
+from c3_matcher.file_kinds import kind_of
 
 __all__ = ["MMAP_BYTES", "cannot_open", "open_failure", "read_only_uri", "set_aside"]
 
@@ -19,8 +20,8 @@ _COMPANIONS = ("-wal", "-shm", "-journal")  # SQLite's files beside a database, 
 
 def open_failure(path: str | Path, kind: str) -> str | None:
     """Why ``path`` cannot be opened for reading as ``kind`` (e.g. ``"an MBTiles file"``):
-    ``"no such file"``, ``"is a directory, not <kind>"``, ``"not a regular file, not
-    <kind>"``, ``"cannot open (permission denied)"`` or ``"cannot open (<the system's
+    ``"no such file"``, ``"is a directory, not <kind>"`` (or a FIFO, a device, a
+    socket), ``"cannot open (permission denied)"`` or ``"cannot open (<the system's
     words>)"``; None when it opens."""
     p = Path(path)
     try:
@@ -29,10 +30,9 @@ def open_failure(path: str | Path, kind: str) -> str | None:
         return "no such file"
     except OSError as exc:  # a folder on the way without search permission, a loop of links
         return cannot_open(exc)
-    if stat.S_ISDIR(st.st_mode):
-        return f"is a directory, not {kind}"
-    if not stat.S_ISREG(st.st_mode):  # a pipe or a device: opening it could block
-        return f"not a regular file, not {kind}"
+    special = kind_of(st.st_mode)
+    if special is not None:  # a FIFO or a device: opening it could block
+        return f"is {special}, not {kind}"
     try:
         os.close(os.open(p, os.O_RDONLY))
     except OSError as exc:

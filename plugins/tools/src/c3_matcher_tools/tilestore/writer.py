@@ -7,7 +7,6 @@ import hashlib
 import json
 import os
 import sqlite3
-import stat
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -15,6 +14,7 @@ from pathlib import Path
 
 from c3_matcher.atomic import refuse_unwritable, temporary_sibling
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.file_kinds import special_kind
 from c3_matcher.tilestore.files import open_failure
 
 __all__ = ["DigestReport", "MBTilesWriter", "add_missing_digests"]
@@ -227,24 +227,10 @@ class MBTilesWriter:
             self.abort()
 
 
-_KINDS = (
-    (stat.S_ISDIR, "a directory"),
-    (stat.S_ISCHR, "a character device"),
-    (stat.S_ISBLK, "a block device"),
-    (stat.S_ISFIFO, "a FIFO"),
-    (stat.S_ISSOCK, "a socket"),
-)
-
-
 def _refuse_special(path: Path) -> None:
     """Refuse a ``path`` that exists and is not a regular file (followed through a symbolic
     link): the rename that ends a build would replace it, a device node or a FIFO with it, by
     its name."""
-    try:
-        mode = path.stat().st_mode
-    except OSError:  # nothing there (or nothing that can be looked at: the writes will say)
-        return
-    if stat.S_ISREG(mode):
-        return
-    kind = next((name for test, name in _KINDS if test(mode)), "no regular file")
-    raise InvalidInputError("mbtiles", f"{path} is {kind}, not a file: it is never replaced")
+    kind = special_kind(path)
+    if kind is not None:
+        raise InvalidInputError("mbtiles", f"{path} is {kind}, not a file: it is never replaced")

@@ -224,15 +224,22 @@ def _why(skipped: Sequence[tuple[str, str]]) -> str:
 
 def image_problem(data: bytes, size: tuple[int, int]) -> str | None:
     """Why the encoded image ``data`` cannot be a frame of a ``size`` (w, h) camera, or None:
-    every import checks its images with this (a truncated JPEG is not readable)."""
-    import cv2
+    every import checks its images with this. The size is read from the header first (an image
+    of another size is never decoded, however large it says it is), then the image is decoded
+    as the matcher will decode it: a copy cut short or damaged is not readable, and is refused
+    before a decoder would write its own line to stderr."""
+    from c3_matcher.tiles import ImageDecodeError, decode_image, image_header_size
 
     if not data:
         return "an empty file, not an image"
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if image is None:
+    header = image_header_size(data)
+    if header is None:
         return "not a readable image"
-    h, w = image.shape[:2]
+    w, h = header
     if (w, h) != tuple(size):
         return f"is {w}x{h} px, the calibration says {size[0]}x{size[1]}"
+    try:
+        decode_image(data, "image")
+    except ImageDecodeError as exc:
+        return f"not a readable image: {exc.reason}"
     return None
