@@ -14,6 +14,7 @@ from __future__ import annotations
 import datetime as dt
 import errno
 import glob
+import itertools
 import json
 import os
 from collections.abc import Mapping
@@ -26,6 +27,12 @@ from c3_matcher.file_kinds import special_kind
 
 SEGMENT_DIGITS = 6
 """The least number of digits of a rotated segment's number (zero-padded)."""
+RECORD_KEYS = ("seq", "kind", "recorded_at_ns", "wall_time", "payload")
+"""The keys of every record line, in the order the recorder writes them (compact JSON)."""
+RECORD_START = f'{{"{RECORD_KEYS[0]}":'.encode()
+"""How every record line begins: ``{"seq":``."""
+JUDGED_BYTES = 1 << 16
+"""How much of a file is read to judge whether it is a log (:func:`is_foreign`)."""
 
 
 def segment_path(path: Path, number: int) -> Path:
@@ -76,19 +83,52 @@ def refusal(path: Path) -> str | None:
 
 
 def is_foreign(path: Path) -> bool:
-    """Whether ``path`` holds something other than a log of records: it is not empty, does not
-    begin with ``{`` as every record line does (an image, a document), and is not all NUL bytes
+    """Whether ``path`` holds something other than a log of records, judged by its first line
+    (:func:`begins_a_log`, the first ``JUDGED_BYTES`` read). A file of NUL bytes alone is a log
     (a power cut during the first line, on a file system that had committed the new size but
-    not the data: a torn tail, cut on open). A file that cannot be read is not judged here
-    (opening it reports that)."""
+    not the data: a torn tail, cut on open); one that only begins with them is not (a video).
+    An empty file is a log; a file that cannot be read is not judged here (opening it reports
+    that)."""
     try:
         with path.open("rb") as fh:
-            first = fh.read(1)
-            if first != b"\0":
-                return first not in (b"", b"{")
-            return any(block.strip(b"\0") for block in iter(lambda: fh.read(1 << 16), b""))
+            head = fh.read(JUDGED_BYTES)
+            if head.startswith(b"\0"):
+                rest = iter(lambda: fh.read(JUDGED_BYTES), b"")  # block by block
+                return any(block.strip(b"\0") for block in itertools.chain([head], rest))
+            return bool(head) and not begins_a_log(head, whole=not fh.read(1))
     except OSError:
         return False
+
+
+def begins_a_log(head: bytes, *, whole: bool) -> bool:
+    """Whether ``head``, the first bytes of a file (all of them when ``whole``), begin a log of
+    records: a first line that is a record (:func:`is_record_line`); a first line longer than
+    ``head`` that begins as a record line does (``RECORD_START``); or, in a file with no
+    newline, a first record cut by a power cut: a start of a record line, whole or cut short,
+    NUL bytes after it where the file system had not committed the data. A JSON document
+    (pretty-printed: a lone ``{``; an object that is not a record) is not a log."""
+    end = head.find(b"\n")
+    if end >= 0:
+        return is_record_line(head[:end])
+    if not whole:
+        return head.startswith(RECORD_START)
+    cut = head.rstrip(b"\0")
+    if not (cut.startswith(RECORD_START) or RECORD_START.startswith(cut)):
+        return False
+    try:
+        json.loads(cut)
+    except (ValueError, RecursionError):
+        return True  # cut short
+    return is_record_line(cut)  # whole but for its newline: a record, or a one-line document
+
+
+def is_record_line(line: bytes) -> bool:
+    """Whether ``line`` is a JSON object with every key of a record (``RECORD_KEYS``)."""
+    try:
+        value = json.loads(line)
+    except (ValueError, RecursionError):
+        return False
+    return isinstance(value, dict) and all(key in value for key in RECORD_KEYS)
 
 
 def read_meta(path: Path) -> dict[str, Any]:

@@ -15,6 +15,7 @@ from typing import Any
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import (
+    RECORD_KEYS,
     cut_torn_tail,
     drop_half_rotated_live,
     make_dirs_durably,
@@ -80,13 +81,14 @@ class JsonlFdrRecorder:
     now), and once the rest are written a ``fdr.records_dropped`` record says how many and
     which seqs (the only gap ``seq`` ever has). One process writes a path: the recorder
     holds ``flock`` on ``<path>.lock``; a second one is refused with ``FdrOpenError``, as is a
-    ``path`` holding something else (not empty, not all NUL bytes, not beginning with a record's
-    ``{``: an image named by mistake), which is never cut, appended to or removed, or that is
-    not a regular file (a device, a FIFO, a socket: never opened). A start on a full disk with
-    no lock file yet starts all the same; the lock file gets its bytes with the first write the
-    disk takes (until then a loss it would name cannot be noted, which ``close`` says). A live
-    segment of NUL bytes alone (a power cut during its first line, on a file system that had
-    committed the size but not the data) is a torn tail, cut as one. ``record`` is thread-safe.
+    ``path`` holding something else (not empty, not all NUL bytes, its first line not a record
+    nor a record's start cut by a power cut: an image or a JSON document named by mistake),
+    which is never cut, appended to or removed, or that is not a regular file (a device, a
+    FIFO, a socket: never opened). A start on a full disk with no lock file yet starts all the
+    same; the lock file gets its bytes with the first write the disk takes (until then a loss
+    it would name cannot be noted, which ``close`` says). A live segment of NUL bytes alone (a
+    power cut during its first line, on a file system that had committed the size but not the
+    data) is a torn tail, cut as one. ``record`` is thread-safe.
 
     ``fresh``: start a new log at ``path`` (a ground run's FDR, started anew with each run):
     only once the lock is held are the previous live segment, its rotated segments, ``.meta``
@@ -223,14 +225,11 @@ class JsonlFdrRecorder:
             self._write_pending()
 
     def _line(self, kind: str, body: Any) -> bytes:
-        """The record ``kind`` as one JSON line, with the next ``seq``."""
-        line = {
-            "seq": self._seq,
-            "kind": kind,
-            "recorded_at_ns": self._clock.monotonic_ns(),
-            "wall_time": dt.datetime.now(dt.UTC).isoformat(timespec="microseconds"),
-            "payload": body,
-        }
+        """The record ``kind`` as one JSON line, with the next ``seq``: its ``RECORD_KEYS`` in
+        order (a file is judged a log by them)."""
+        wall_time = dt.datetime.now(dt.UTC).isoformat(timespec="microseconds")
+        values = (self._seq, kind, self._clock.monotonic_ns(), wall_time, body)
+        line = dict(zip(RECORD_KEYS, values, strict=True))
         return (json.dumps(line, separators=(",", ":")) + "\n").encode()
 
     @property
