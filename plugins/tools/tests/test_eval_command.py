@@ -17,6 +17,7 @@ import pytest
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock
 from c3_matcher_tools.run import exclusive_output_dir
+from c3_matcher_tools.run.outputs import EVAL_RUN, RUN_MARK
 from c3_matcher_tools.testing.cli import run_cli
 
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
@@ -139,11 +140,12 @@ def test_an_eval_into_a_directory_another_run_is_writing_is_refused_and_writes_n
     flight = small_flight("two_frames")
     out = tmp_path / "out"
     (out / "sift_magsac").mkdir(parents=True)
+    (out / RUN_MARK).write_text(json.dumps(EVAL_RUN.mark))  # that run is an eval's
     running = JsonlFdrRecorder(out / "sift_magsac" / "fdr.jsonl", MonotonicClock())
     try:
         proc = c3("eval", str(flight), "--strategy", "sift_magsac", "--out", str(out), *QUICK)
         assert proc.returncode == 2 and "another process" in proc.stderr, proc.stderr
-        assert sorted(p.name for p in out.iterdir()) == ["sift_magsac"]
+        assert sorted(p.name for p in out.iterdir()) == [RUN_MARK, "sift_magsac"]
     finally:
         running.close()
 
@@ -160,6 +162,7 @@ def test_an_eval_stopped_part_way_leaves_no_earlier_evals_figures_as_current(
     flight = small_flight("two_frames")
     out = tmp_path / "out"
     out.mkdir()
+    (out / RUN_MARK).write_text(json.dumps(EVAL_RUN.mark))  # an earlier eval's directory
     for name in ("eval.json", "inliers.png", "error.png", "notes.txt"):
         (out / name).write_text("the earlier run's\n")
     (out / "matches").mkdir()
@@ -172,4 +175,4 @@ def test_an_eval_stopped_part_way_leaves_no_earlier_evals_figures_as_current(
     assert (
         main(["eval", str(flight), "--strategy", "sift_magsac", "--out", str(out), *QUICK]) == 130
     )
-    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt", RUN_MARK]

@@ -5,6 +5,7 @@ directory whatever the dataset's name (two-frame flights, the ``sift_magsac`` ba
 
 from __future__ import annotations
 
+import json
 import subprocess
 from collections.abc import Callable
 from pathlib import Path
@@ -15,6 +16,7 @@ import pytest
 from c3_matcher.fdr import JsonlFdrRecorder, read_fdr
 from c3_matcher.health import MonotonicClock
 from c3_matcher_tools.run import exclusive_output_dir
+from c3_matcher_tools.run.outputs import REPLAY_RUN, RUN_MARK
 
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
 C3 = Callable[..., subprocess.CompletedProcess[str]]
@@ -30,8 +32,9 @@ def test_a_replay_into_a_directory_another_run_is_writing_is_refused_leaving_its
     flight = small_flight("two_frames")
     out = tmp_path / "out"
     out.mkdir()
+    (out / RUN_MARK).write_text(json.dumps(REPLAY_RUN.mark))  # the first run, still going
     (out / "matcher.log").write_text('{"kind": "c3.matcher.ready"}\n')
-    running = JsonlFdrRecorder(out / "fdr.jsonl", MonotonicClock())  # the first run, still going
+    running = JsonlFdrRecorder(out / "fdr.jsonl", MonotonicClock())
     try:
         running.record("matcher.frame_done", {"frame": 0})
         proc = c3("replay", str(flight), "--strategy", "sift_magsac", "--out", str(out))

@@ -39,7 +39,8 @@ dataset name that names an output directory must be one plain path component, an
 datasets need as many names (refused before anything runs, exit 2, as are a strategy this build
 cannot run, a frame image missing, unreadable or of another size than its calibration's (as
 ``replay`` checks them), a noisy attitude out of range (``--attitude-noise-deg``) and an output
-directory that is, holds or lies inside a dataset: nothing is made or written then). A frame whose
+directory that is, holds or lies inside a dataset, or holds something but no earlier eval's
+output (marked ``run.json``): nothing is made or written then). A frame whose
 image turns out damaged mid-run is that frame's ``unreadable`` status; the flight goes on, no
 IT measure counts it (the camera's loss, not the matcher's), and a line under the table says so.
 
@@ -118,6 +119,7 @@ from c3_matcher_tools.run.acceptance import (
     metrics,
 )
 from c3_matcher_tools.run.evaluation import StrategyEval, StrategyFailure, StrategyRow, SummaryRow
+from c3_matcher_tools.run.outputs import EVAL_RUN, EVAL_SUMMARY, mark_output_dirs
 from c3_matcher_tools.run.records import FrameStatus
 
 __all__ = [
@@ -230,22 +232,22 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         check_flight(dataset, dataset.frames)
     names = _strategies(args, ctx.plugin_host)
     outs = _output_dirs(args.out, datasets)
-    root = args.out or EVAL_OUT
-    held = [*([root] if len(datasets) > 1 else []), *outs]
-    check_output_dirs(held, datasets)  # none is, holds or lies inside an input
+    root = (args.out or EVAL_OUT) if len(datasets) > 1 else None
+    check_output_dirs(outs, datasets, layout=EVAL_RUN, root=root)  # before anything runs
     summary: list[SummaryRow] = []
     reports: list[dict[str, Any]] = []
-    with exclusive_output_dir(*held):
-        if len(datasets) > 1:
-            forget_previous_run(root, ("summary.json",))
+    with exclusive_output_dir(*([] if root is None else [root]), *outs):
+        mark_output_dirs(EVAL_RUN, *outs)
+        if root is not None:
+            forget_previous_run(root, (EVAL_SUMMARY,))
         for dataset, out in zip(datasets, outs, strict=True):
             rows, report = _eval_dataset(args, ctx, dataset, names, out)
             reports.append(report)
             summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
         summary_rows = [s.to_json() for s in summary]
-        if len(datasets) > 1:
+        if root is not None:
             summary_json = json.dumps(_finite(summary_rows), indent=2) + "\n"
-            write_text_atomically(root / "summary.json", summary_json)
+            write_text_atomically(root / EVAL_SUMMARY, summary_json)
     if args.json:
         ctx.out(json.dumps(_finite(_json_document(reports, summary_rows)), indent=2))
     else:
@@ -309,7 +311,7 @@ def _eval_dataset(
     from c3_matcher_tools.plots import CHARTS, eval_plots, forget_match_pictures
 
     out.mkdir(parents=True, exist_ok=True)
-    forget_previous_run(out, ("eval.json", *(f"{chart}.png" for chart in CHARTS)))
+    forget_previous_run(out, (EVAL_RUN.report, *(f"{chart}.png" for chart in CHARTS)))
     forget_match_pictures(out)  # this run draws its own samples
     overrides = Overrides(max_keypoints=args.max_keypoints)
     rows: list[StrategyRow] = []
@@ -346,7 +348,7 @@ def _eval_dataset(
         "strategies": [r.to_json() for r in rows],
         "plots": plots,
     }
-    write_text_atomically(out / "eval.json", json.dumps(_finite(report), indent=2) + "\n")
+    write_text_atomically(out / EVAL_RUN.report, json.dumps(_finite(report), indent=2) + "\n")
     if not args.json:
         max_keypoints = overrides.apply(ctx.settings).matcher.max_keypoints
         _print_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
@@ -393,7 +395,7 @@ def _print_table(
         "other tile: picks of a candidate other than the true tile that still place the frame right"
     )
     _print_unreadable(ctx, rows)
-    ctx.out(f"report {out / 'eval.json'}, plots {out}")
+    ctx.out(f"report {out / EVAL_RUN.report}, plots {out}")
     for r in rows:
         if isinstance(r, StrategyEval):
             _print_links(ctx, r)

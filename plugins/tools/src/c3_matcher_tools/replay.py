@@ -8,13 +8,16 @@ the frame is recorded with the reason and the flight goes on), elapsed ms, the s
 ground truth and, for ``ok``, the MatchResult as ``c3-matcher match`` prints it), ``fdr.jsonl``
 (the flight-data records), ``matcher.log`` (the JSON logs), ``report.json``, ``flight.geojson``
 (truth and estimate: centres, tracks, footprints; QGIS opens it) and ``report.html`` (the
-self-contained flight report, with the ``report`` extra: matplotlib). The results and reports
-are each replaced atomically; the FDR and log are started afresh only once this run holds the
-FDR's lock, so a replay into a directory another one is writing is refused with its files
-untouched. What can refuse the run is checked before ``--out`` is touched: every frame image
-(readable, of the calibration's size), every noisy attitude (``--attitude-noise-deg``), an
-``--out`` that is, holds or lies inside the dataset, the strategy and its engines (composed
-first). stdout carries the report (a table, or JSON with ``--json``). Each ``ok`` result carries
+self-contained flight report, with the ``report`` extra: matplotlib), and first ``run.json``,
+which marks the directory as a replay's. A replay replaces an earlier replay's output; an
+existing ``--out`` that is not empty and holds none (a flight-data log, a user's files, an
+eval's output) is refused. The results and reports are each replaced atomically; the FDR and
+log are started afresh only once this run holds the FDR's lock, so a replay into a directory
+another one is writing is refused with its files untouched. What can refuse the run is checked
+before ``--out`` is touched: every frame image (readable, of the calibration's size), every
+noisy attitude (``--attitude-noise-deg``), an ``--out`` that is, holds or lies inside the
+dataset or holds no earlier replay, the strategy and its engines (composed first). stdout
+carries the report (a table, or JSON with ``--json``). Each ``ok`` result carries
 the best homography and, the tile ids being georeferenced, the frame centre's lat/lon and its
 footprint; frames with ground truth also carry ``truth_lat``/``truth_lon`` and
 ``position_error_m``: both centres are the principal point's ground point, where the camera
@@ -53,6 +56,7 @@ from c3_matcher_tools.run import (
     summarize,
     write_flight_outputs,
 )
+from c3_matcher_tools.run.outputs import REPLAY_RUN, mark_output_dirs
 from c3_matcher_tools.run.records import FrameStatus
 
 __all__ = ["register_replay_command", "run_replay"]
@@ -102,7 +106,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     out = args.out or REPLAY_OUT / f"{output_dir_name(dataset)}-{strategy}"
     frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
     check_flight(dataset, frames)
-    check_output_dirs([out], [dataset])
+    check_output_dirs([out], [dataset], layout=REPLAY_RUN)
     overrides = Overrides(max_keypoints=args.max_keypoints)
     with (
         prepare_matcher(
@@ -110,6 +114,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
         ) as prepared,
         exclusive_output_dir(out),
     ):
+        mark_output_dirs(REPLAY_RUN, out)
         run = fly_prepared(
             prepared,
             dataset,
@@ -129,7 +134,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
         }
         files = write_flight_outputs(out, dataset, run, run_report)
         report = {**run_report, "geojson": files.geojson, "html": files.html}
-        write_text_atomically(out / "report.json", json.dumps(report, indent=2) + "\n")
+        write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
     if args.json:
         ctx.out(json.dumps(report, indent=2))
         return EXIT_OK
@@ -177,7 +182,7 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
     if s.with_telemetry:
         lines.append(_telemetry_line(s))
     lines.append(
-        f"  results {report['results']}, FDR {report['fdr']}, report {out / 'report.json'}"
+        f"  results {report['results']}, FDR {report['fdr']}, report {out / REPLAY_RUN.report}"
     )
     lines.append(f"  map {report['geojson']}, flight report {report['html'] or '(not written)'}")
     return lines

@@ -2,7 +2,10 @@
 :class:`FrameOutcome` a line), ``flight.geojson`` and ``report.html`` (the same for ``replay`` and
 for each strategy ``eval`` runs, :func:`write_flight_outputs`), every one written through
 :func:`~c3_matcher.atomic.atomic_writer`: a run that fails part-way leaves no torn file, and
-no earlier run's results beside its own FDR (:func:`forget_previous_run`)."""
+no earlier run's results beside its own FDR (:func:`forget_previous_run`). A run's output
+directory is its command's alone: marked as it is taken (:data:`RUN_MARK`,
+:func:`mark_output_dirs`), and one that holds anything but an earlier run of the command is
+refused before anything runs (:func:`check_output_dirs`)."""
 
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ from c3_matcher.atomic import (
     held_directory,
     refuse_output_over_inputs,
     refuse_unwritable,
+    write_text_atomically,
 )
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
@@ -27,14 +31,21 @@ from c3_matcher_tools.run.scoring import RunSummary, summarize
 
 __all__ = [
     "EVAL_OUT",
+    "EVAL_RUN",
+    "EVAL_SUMMARY",
     "REPLAY_OUT",
+    "REPLAY_RUN",
     "RUN_FILES",
+    "RUN_MARK",
     "RunFiles",
+    "RunLayout",
     "check_output_dirs",
     "exclusive_output_dir",
     "flight_report",
     "forget_previous_run",
+    "mark_output_dirs",
     "output_dir_name",
+    "refuse_foreign_output",
     "write_flight_outputs",
     "write_html_report",
     "write_results",
@@ -45,6 +56,50 @@ REPLAY_OUT = Path("out") / "replay"
 directory."""
 EVAL_OUT = Path("out") / "eval"
 """Where ``eval`` writes without ``--out``: ``<this>/<dataset>`` below the working directory."""
+RUN_MARK = "run.json"
+"""The file ``replay`` and ``eval`` write first into each output directory they take, naming
+the command (``{"command": "c3-matcher replay"}``): the directory is that command's output,
+which a later run of it replaces (:func:`check_output_dirs`)."""
+_LARGEST_REPORT = 1 << 26
+"""The most bytes read of a file to tell whether it is a run's mark or report (theirs are far
+smaller)."""
+
+
+@dataclass(frozen=True)
+class RunLayout:
+    """What ``c3-matcher <command>`` writes in an output directory, and how an earlier run of it
+    is known there: by its :data:`RUN_MARK`, or, in a directory without one (a run written
+    before runs were marked), by ``report``, a JSON object holding ``keys``. ``summary``: the
+    report of a run over several flights, written beside a directory per flight (None: the
+    command has no such run)."""
+
+    command: str
+    report: str
+    keys: frozenset[str]
+    summary: str | None = None
+
+    @property
+    def mark(self) -> dict[str, str]:
+        """What its :data:`RUN_MARK` holds."""
+        return {"command": f"c3-matcher {self.command}"}
+
+    def holds_run(self, directory: Path) -> bool:
+        """``directory`` holds an earlier run of the command: its mark, or, with no
+        :data:`RUN_MARK` at all, its report."""
+        if (directory / RUN_MARK).is_symlink() or (directory / RUN_MARK).exists():
+            return _marked_by(directory) == self.mark["command"]
+        report = _json_file(directory / self.report)
+        return isinstance(report, dict) and self.keys <= report.keys()
+
+
+REPLAY_RUN = RunLayout("replay", "report.json", frozenset({"dataset", "strategy", "fdr", "log"}))
+"""``replay``'s output directory; a ``report.json`` of its own names the FDR and log."""
+EVAL_SUMMARY = "summary.json"
+"""What ``eval`` over several flights writes beside their directories: each strategy on each."""
+EVAL_RUN = RunLayout(
+    "eval", "eval.json", frozenset({"dataset", "frames", "bars", "strategies"}), EVAL_SUMMARY
+)
+"""``eval``'s output directory for one flight (for several, one below the root per flight)."""
 
 
 @contextlib.contextmanager
@@ -63,15 +118,34 @@ def exclusive_output_dir(*directories: Path) -> Iterator[None]:
 
 
 def check_output_dirs(
-    directories: Sequence[Path], datasets: Sequence[FlightDataset], *, field: str = "--out"
+    directories: Sequence[Path],
+    datasets: Sequence[FlightDataset],
+    *,
+    layout: RunLayout,
+    root: Path | None = None,
+    field: str = "--out",
 ) -> None:
     """Refuse, before anything is made or loaded, an output directory of a run over
-    ``datasets`` that is, holds or lies inside one of them: one that is or holds the dataset's
-    directory, tile store, frames, calibration or frame images
+    ``datasets`` (``directories``, each written as ``layout``, and ``root``, that of a run over
+    several flights, above them) that is, holds or lies inside one of them: one that is or holds
+    the dataset's directory, tile store, frames, calibration or frame images
     (:func:`~c3_matcher.atomic.refuse_output_over_inputs`, as ``dataset render`` and ``import``
     refuse an OUT holding an input), or that lies inside the dataset's directory, which a run
-    reads and never writes; then one that is a file or not writable. ``InvalidInputError``
-    naming ``field``."""
+    reads and never writes; then one that is a file or not writable; then one that holds
+    anything but an earlier run of the command (:func:`refuse_foreign_output`): a run replaces
+    only what the command wrote. ``InvalidInputError`` naming ``field``."""
+    _refuse_over_inputs([*([] if root is None else [root]), *directories], datasets, field)
+    if root is not None:
+        _refuse_foreign_root(root, layout, field)
+    for directory in directories:
+        refuse_foreign_output(directory, layout, field=field)
+
+
+def _refuse_over_inputs(
+    directories: Sequence[Path], datasets: Sequence[FlightDataset], field: str
+) -> None:
+    """:func:`check_output_dirs`' refusals of an output directory over an input dataset, or
+    that is a file or not writable."""
     for directory in directories:
         for dataset in datasets:
             inputs = {
@@ -92,7 +166,117 @@ def check_output_dirs(
         refuse_unwritable(directory, field=field, directory=True)
 
 
-RUN_FILES = ("results.jsonl", "report.json", "flight.geojson", "report.html")
+def refuse_foreign_output(directory: Path, layout: RunLayout, *, field: str = "--out") -> None:
+    """Refuse ``directory`` when it is a directory that holds something but no earlier run of
+    ``layout``'s command (:meth:`RunLayout.holds_run`): a flight-data log, a user's files,
+    another command's output, none of them a run's to replace. ``InvalidInputError`` naming
+    ``field``, ``directory`` and what it holds; one missing or empty is taken."""
+    names = _names_or_refuse(directory, field)
+    if not names or layout.holds_run(directory):
+        return
+    whose = _marked_by(directory)
+    if whose is not None:  # another command's
+        why = f"its {RUN_MARK} says {whose} wrote it"
+    else:
+        why = f"no {layout.command}'s {RUN_MARK} or {layout.report} there"
+    raise InvalidInputError(
+        field,
+        f"{directory} holds {_some(names)}, which no earlier {layout.command} wrote ({why}): "
+        f"{_only_its_own(layout)}; give an empty or new directory",
+    )
+
+
+def _refuse_foreign_root(root: Path, layout: RunLayout, field: str) -> None:
+    """Refuse ``root``, the output directory of a run of ``layout`` over several flights, when
+    it holds anything but such a run's ``summary`` and a directory per flight (each empty or
+    holding an earlier run of ``layout``)."""
+    foreign = [n for n in _names_or_refuse(root, field) if not _of_root(root / n, layout)]
+    if foreign:
+        raise InvalidInputError(
+            field,
+            f"{root} holds {_some(foreign)}, which no earlier {layout.command} of several "
+            f"flights wrote (only its {layout.summary} and a directory per flight belong "
+            f"there): {_only_its_own(layout)}; give an empty or new directory",
+        )
+
+
+def _only_its_own(layout: RunLayout) -> str:
+    """What a run of ``layout`` replaces in a directory, said as a refusal ends."""
+    return f"{layout.command} replaces only an earlier {layout.command}'s output"
+
+
+def _of_root(path: Path, layout: RunLayout) -> bool:
+    """``path``, in the output directory of a run of ``layout`` over several flights, is that
+    run's summary or one flight's directory (empty, or an earlier run of ``layout``'s)."""
+    if path.name == layout.summary:
+        rows = _json_file(path)
+        return isinstance(rows, list) and all(
+            isinstance(r, dict) and {"strategy", "flight"} <= r.keys() for r in rows
+        )
+    if path.is_symlink() or not path.is_dir():
+        return False
+    names = _names(path)
+    return names == [] or (names is not None and layout.holds_run(path))
+
+
+def mark_output_dirs(layout: RunLayout, *directories: Path) -> None:
+    """Mark ``directories``, which this run now holds (:func:`exclusive_output_dir`), as
+    ``layout``'s output (:data:`RUN_MARK`), before the run writes anything else there: each
+    checked again first (:func:`refuse_foreign_output`: something may have come since
+    :func:`check_output_dirs`), then given its mark unless it has it."""
+    for directory in directories:
+        refuse_foreign_output(directory, layout)
+    for directory in directories:
+        if _marked_by(directory) != layout.mark["command"]:
+            write_text_atomically(directory / RUN_MARK, json.dumps(layout.mark) + "\n")
+
+
+def _marked_by(directory: Path) -> str | None:
+    """The command ``directory``'s :data:`RUN_MARK` names; None without one that names one."""
+    mark = _json_file(directory / RUN_MARK)
+    command = mark.get("command") if isinstance(mark, dict) else None
+    return command if isinstance(command, str) else None
+
+
+def _names_or_refuse(directory: Path, field: str) -> list[str]:
+    """:func:`_names`, a directory that cannot be listed refused naming ``field``."""
+    names = _names(directory)
+    if names is None:
+        raise InvalidInputError(
+            field, f"{directory}: cannot be listed, so what it holds cannot be told"
+        )
+    return names
+
+
+def _names(directory: Path) -> list[str] | None:
+    """What ``directory`` holds, by name, sorted; [] when it is missing or no directory (a
+    file there is refused as unwritable); None when it cannot be listed."""
+    if not directory.is_dir():
+        return []
+    try:
+        return sorted(p.name for p in directory.iterdir())
+    except OSError:
+        return None
+
+
+def _some(names: Sequence[str], shown: int = 3) -> str:
+    """The first ``shown`` of ``names``, and how many more."""
+    more = len(names) - shown
+    return ", ".join(names[:shown]) + (f" and {more} more" if more > 0 else "")
+
+
+def _json_file(path: Path) -> Any:
+    """What the JSON file ``path`` holds; None when it is no regular file, is larger than a
+    run's mark or report can be, or cannot be read or parsed."""
+    try:
+        if not path.is_file() or path.stat().st_size > _LARGEST_REPORT:
+            return None
+        return json.loads(path.read_bytes())
+    except (OSError, ValueError, RecursionError):
+        return None
+
+
+RUN_FILES = ("results.jsonl", REPLAY_RUN.report, "flight.geojson", "report.html")
 """What a finished run leaves beside its FDR and log (``report.json``: replay's)."""
 
 
