@@ -8,39 +8,16 @@ one is a private copy: the shared engine directory is never written)."""
 
 from __future__ import annotations
 
-import os
-import shutil
 from pathlib import Path
 
 import pytest
 
-from c3_matcher.compose import build_default_helpers, compose_root
-from c3_matcher.config import C3Settings
 from c3_matcher.engines.manifest import EngineIntegrityError
 from c3_matcher.engines.naming import MANIFEST_SUFFIX, manifest_path_for
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.errors import EngineError
-from c3_matcher.fdr import InMemoryFdr
 
-DISK = ("disk", "depth")
-FULL = ("lightglue", "disk")
-STEPS = ("lightglue", "disk-steps")
-
-
-def _strategy_engines(engine_dir: Path, into: Path) -> dict[tuple[str, str], Path]:
-    """The disk_lightglue engines (file + manifest) hard-linked (else copied) into ``into``."""
-    into.mkdir()
-    store = EngineStore(engine_dir)
-    found = {}
-    for key in (DISK, FULL, STEPS):
-        source = store.require(*key)
-        for path in (source, manifest_path_for(source)):
-            try:
-                os.link(path, into / path.name)
-            except OSError:
-                shutil.copy2(path, into / path.name)
-        found[key] = into / source.name
-    return found
+from .copies import DISK, FULL, STEPS, start_up, strategy_engines
 
 
 def _tamper(path: Path) -> None:
@@ -49,16 +26,6 @@ def _tamper(path: Path) -> None:
     path.unlink()  # never write through the link to the shared file
     data[len(data) // 2] ^= 0xFF
     path.write_bytes(bytes(data))
-
-
-def _start(engines: Path, mode: str) -> None:
-    settings = C3Settings(
-        matcher={"strategy": "disk_lightglue"},
-        engines={"directory": engines, "providers": ["CPUExecutionProvider"]},
-        lightglue={"mode": mode},
-    )
-    helpers = {**build_default_helpers(settings), "c13_fdr": InMemoryFdr()}
-    compose_root(settings, helpers, configure_logs=False).close()
 
 
 @pytest.mark.parametrize(
@@ -73,25 +40,25 @@ def _start(engines: Path, mode: str) -> None:
     ids=lambda v: "-".join(v) if isinstance(v, tuple) else v,
 )
 def test_a_tampered_engine_of_any_kind_stops_start_up(engine_dir, tmp_path, mode, kind):
-    engines = _strategy_engines(engine_dir, tmp_path / "engines")
+    engines = strategy_engines(engine_dir, tmp_path / "engines")
     _tamper(engines[kind])
     with pytest.raises(EngineIntegrityError) as info:
-        _start(tmp_path / "engines", mode)
+        start_up(tmp_path / "engines", mode)
     assert info.value.path == engines[kind].resolve() or info.value.path == engines[kind]
     assert "sha256" in info.value.reason
 
 
 def test_untampered_engines_start_in_both_modes(engine_dir, tmp_path):
-    _strategy_engines(engine_dir, tmp_path / "engines")
+    strategy_engines(engine_dir, tmp_path / "engines")
     for mode in ("adaptive", "full"):
-        _start(tmp_path / "engines", mode)
+        start_up(tmp_path / "engines", mode)
 
 
 def test_a_missing_engine_is_named_when_its_manifest_is_there(engine_dir, tmp_path):
-    engines = _strategy_engines(engine_dir, tmp_path / "engines")
+    engines = strategy_engines(engine_dir, tmp_path / "engines")
     engines[FULL].unlink()
     with pytest.raises(EngineError) as info:
-        _start(tmp_path / "engines", "adaptive")
+        start_up(tmp_path / "engines", "adaptive")
     assert info.value.path == engines[FULL]
     assert f"{engines[FULL].name}: file not found" in str(info.value)
     assert "*" not in str(info.value.path)

@@ -15,14 +15,14 @@ from pathlib import Path
 import pytest
 from loguru import logger
 
-from c3_matcher.compose import build_default_helpers, build_plugin_host, compose_root
-from c3_matcher.config import C3Settings
+from c3_matcher.compose import build_plugin_host
 from c3_matcher.engines.lightglue import OnnxLightGlueRuntime
 from c3_matcher.engines.lightglue_specs import steps_specs
 from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher.engines.store import EngineStore
-from c3_matcher.fdr import InMemoryFdr
+
+from .copies import start_up
 
 STRATEGY = (("disk", "depth"), ("lightglue", "disk"), ("lightglue", "disk-steps"))
 
@@ -49,13 +49,7 @@ def _linked(engine_dir: Path, tmp_path: Path, keys: tuple[tuple[str, str], ...])
 def test_linked_engines_start_up(engine_dir: Path, tmp_path: Path, mode: str) -> None:
     links = _linked(engine_dir, tmp_path, STRATEGY)
     assert all(o.ok for o in EngineStore(links).verify())
-    settings = C3Settings(
-        matcher={"strategy": "disk_lightglue"},
-        engines={"directory": links, "providers": ["CPUExecutionProvider"]},
-        lightglue={"mode": mode},
-    )
-    helpers = {**build_default_helpers(settings), "c13_fdr": InMemoryFdr()}
-    compose_root(settings, helpers, configure_logs=False).close()
+    helpers = start_up(links, mode)
     kind = "disk-steps" if mode == "adaptive" else "disk"
     served = helpers["c3_lightglue_runtime"].serving_engine("disk")
     assert served == links / EngineStore(links).require("lightglue", kind).name

@@ -9,10 +9,6 @@ for start-up."""
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import os
-import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -20,10 +16,11 @@ import pytest
 
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
-from c3_matcher.engines.manifest import EngineIntegrityError, EngineManifest
-from c3_matcher.engines.naming import EngineName, manifest_path_for
+from c3_matcher.engines.manifest import EngineIntegrityError
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.fdr import InMemoryFdr
+
+from .copies import DISK, exporter_of, other_build, strategy_engines
 
 OLDER = "2026-01-01T00:00:00+00:00"
 NEWER = "2026-06-01T00:00:00+00:00"
@@ -64,30 +61,10 @@ def test_an_unusable_build_is_still_passed_over_for_a_valid_one(
     assert EngineStore(directory).require("toy", "tiny") == older
 
 
-def _link_or_copy(source: Path, target: Path) -> None:
-    try:
-        os.link(source, target)
-    except OSError:
-        shutil.copy2(source, target)
-
-
 def _older_build_beside(engine: Path) -> Path:
     """A copy of ``engine`` as an older build of its graph: made with other library versions
     (another build key, so another file name), its manifest consistent with them."""
-    manifest = EngineManifest.from_json(json.loads(manifest_path_for(engine).read_text()))
-    manifest = dataclasses.replace(
-        manifest, exporter={**manifest.exporter, **OLD_LIBRARIES}, built_at=OLDER
-    )
-    key = manifest.recomputed_key()
-    name = EngineName.parse(engine.name)
-    older = EngineName.from_build_key(
-        name.model, name.variant, name.precision, name.input_rule, name.opset, key
-    )
-    _link_or_copy(engine, engine.with_name(older.filename))
-    dataclasses.replace(manifest, file=older.filename, build_key=key).write(
-        engine.with_name(older.manifest_filename)
-    )
-    return engine.with_name(older.filename)
+    return other_build(engine, exporter={**exporter_of(engine), **OLD_LIBRARIES}, built_at=OLDER)
 
 
 def test_start_up_stops_on_a_cut_short_extractor_with_an_older_build_beside_it(
@@ -97,13 +74,7 @@ def test_start_up_stops_on_a_cut_short_extractor_with_an_older_build_beside_it(
     key, e.g. an older exporter toolchain): the newest cut short must stop start-up, not run
     the older one."""
     into = tmp_path / "engines"
-    into.mkdir()
-    store = EngineStore(engine_dir)
-    for key in (("disk", "depth"), ("lightglue", "disk"), ("lightglue", "disk-steps")):
-        source = store.require(*key)
-        for path in (source, manifest_path_for(source)):
-            _link_or_copy(path, into / path.name)
-    newest = into / store.require("disk", "depth").name
+    newest = strategy_engines(engine_dir, into)[DISK]
     _older_build_beside(newest)
     assert EngineStore(into).require("disk", "depth") == newest  # the newest build is served
     _cut_short(newest)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,10 +46,6 @@ def engines_context(
 
     host = plugin_host if plugin_host is not None else build_plugin_host()
     return EnginesCliContext(settings.engines.directory, host.engine_specs())
-
-
-def _err(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
 
 
 def figures(verification: dict[str, Any] | Any) -> list[str]:
@@ -108,30 +103,40 @@ def _list(args: argparse.Namespace, command: CommandContext) -> int:
 
 
 def _verify(args: argparse.Namespace, command: CommandContext) -> int:
+    """A row per engine file (re-hashed against its manifest) and per engine an installed
+    plugin needs that is not there; the same document (``--json``) or rows whatever the
+    directory holds, a missing or empty one included (every needed engine missing)."""
     ctx = engines_context(command.settings, command.plugin_host)
     store = EngineStore(ctx.engine_dir)
     outcomes = store.verify()
     if not outcomes:
-        _err(f"no engines in {ctx.engine_dir}; build them with `{BUILD_COMMAND}`")
-        return EXIT_FAILURE
-    seen = {o.path for o in outcomes}
-    for spec in ctx.specs:  # every engine an installed plugin needs must be there
-        try:
-            store.require_spec(spec)
-        except EngineError as exc:
-            path = Path(str(exc.path))
-            if path not in seen:
-                outcomes.append(VerifyOutcome(path, False, f"missing: {exc.reason}"))
-    if not outcomes:
-        _err(f"no engines in {ctx.engine_dir}; build them with `{BUILD_COMMAND}`")
-        return EXIT_FAILURE
+        command.err(
+            f"c3-matcher: no engines in {ctx.engine_dir}; build them with `{BUILD_COMMAND}`"
+        )
+    outcomes += _missing(store, ctx.specs, {o.path for o in outcomes})
     if args.json:
         rows = [{"path": str(o.path), "ok": o.ok, "detail": o.detail} for o in outcomes]
         command.out(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
     else:
         for o in outcomes:
             command.out(f"{'OK  ' if o.ok else 'FAIL'} {o.path.name}: {o.detail}")
-    return EXIT_OK if all(o.ok for o in outcomes) else EXIT_FAILURE
+    return EXIT_OK if outcomes and all(o.ok for o in outcomes) else EXIT_FAILURE
+
+
+def _missing(
+    store: EngineStore, specs: Sequence[EngineSpec], seen: set[Path]
+) -> list[VerifyOutcome]:
+    """A failed row for each engine of ``specs`` (every one an installed plugin needs) that
+    ``store`` cannot serve, unless a row names its file already."""
+    rows = []
+    for spec in specs:
+        try:
+            store.require_spec(spec)
+        except EngineError as exc:
+            path = Path(str(exc.path))
+            if path not in seen:
+                rows.append(VerifyOutcome(path, False, f"missing: {exc.reason}"))
+    return rows
 
 
 def register_engines_commands(commands: CommandRegistry) -> None:

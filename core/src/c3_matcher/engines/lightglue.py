@@ -36,10 +36,10 @@ from numpy.typing import NDArray
 
 from c3_matcher.engines.lightglue_adaptive import AdaptiveLightGlue
 from c3_matcher.engines.lightglue_specs import STEPS_OPTION, STEPS_SIZES, steps_size
-from c3_matcher.engines.manifest import EngineIntegrityError, check_engine_file
+from c3_matcher.engines.manifest import EngineIntegrityError
 from c3_matcher.engines.providers import CPU_PROVIDER
 from c3_matcher.engines.spec import EngineSpec
-from c3_matcher.engines.store import steps_engines_beside
+from c3_matcher.engines.store import intact_engine, steps_engines_beside, unreadable_engine
 from c3_matcher.errors import EngineError
 from c3_matcher.features import PairSide, RawMatches
 from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
@@ -204,7 +204,7 @@ class OnnxLightGlueRuntime:
         ):
             # the steps engine serves both modes: the full graph is not loaded (memory), but it
             # is verified now, so a changed file is refused at start-up, not on a later switch
-            check_engine_file(path, check_hash=True)
+            intact_engine(path)
             self._served_by_steps[feature_type] = path
             return
         engine_id = self._inference.load_engine(path)
@@ -264,7 +264,9 @@ class OnnxLightGlueRuntime:
         """Adaptive mode: load the steps engine for ``feature_type`` beside a full one (same
         directory, ``steps_engines_beside``) INSTEAD of it, so a strategy that names its full
         engine runs adaptive; False when none is there or usable (the full engine then runs,
-        with a warning naming the build command when the plugin declares one)."""
+        with a warning naming the build command when the plugin declares one). A steps engine
+        changed after its build, or whose file or manifest cannot be read, stops start-up
+        (``EngineIntegrityError``, from ``steps_engines_beside`` or the load)."""
         siblings = steps_engines_beside(full_path, feature_type, self._graph(feature_type))
         if full_path in siblings:
             return False  # the path given is the steps engine itself
@@ -273,7 +275,9 @@ class OnnxLightGlueRuntime:
                 self._load(feature_type, candidate)
             except EngineIntegrityError:
                 raise  # changed after its build: refused, never replaced by the full graph
-            except (EngineError, OSError, ValueError, KeyError) as exc:
+            except OSError as exc:  # its file cannot be read: as if changed
+                raise unreadable_engine(candidate, exc) from exc
+            except (EngineError, ValueError, KeyError) as exc:
                 logger.warning("steps engine {} not usable: {}", candidate.name, exc)
                 continue
             return True
@@ -297,7 +301,7 @@ class OnnxLightGlueRuntime:
             return
         for candidate in steps_engines_beside(full_path, feature_type, self._graph(feature_type)):
             try:
-                check_engine_file(candidate, check_hash=True)
+                intact_engine(candidate)
             except EngineIntegrityError:
                 raise
             except EngineError:

@@ -17,7 +17,12 @@ from c3_matcher.engines.manifest import (
     check_engine_file,
     read_manifest,
 )
-from c3_matcher.engines.naming import ENGINE_SUFFIX, MANIFEST_SUFFIX, EngineName
+from c3_matcher.engines.naming import (
+    ENGINE_SUFFIX,
+    MANIFEST_SUFFIX,
+    EngineName,
+    manifest_path_for,
+)
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.errors import EngineError
 
@@ -27,8 +32,11 @@ __all__ = [
     "EngineStore",
     "VerifyOutcome",
     "checkout_root",
+    "damage",
     "default_engine_dir",
+    "intact_engine",
     "steps_engines_beside",
+    "unreadable_engine",
     "usable_directory",
 ]
 
@@ -150,8 +158,9 @@ class EngineStore:
         Raises ``EngineError`` naming ``c3-matcher engines build`` when there is none, and the
         missing file when a manifest there describes one (else the file pattern looked for).
         A build changed after it was made (``EngineIntegrityError``: a file cut short, a
-        manifest edited) stops the search, naming it: it is never skipped for another build.
-        The file hash is not checked here; ``load_engine`` checks it.
+        manifest edited) stops the search, naming it and the build that removes it; never
+        skipped for another build, whatever its age (``built_at`` is no part of the build key:
+        a damaged build's age cannot be believed). ``load_engine`` checks the file hash.
         """
         pattern = EngineName.glob_for(model, variant)
         expected = self._directory / pattern
@@ -166,8 +175,8 @@ class EngineStore:
                 continue
             try:
                 manifest = check_engine_file(path, check_hash=False)
-            except EngineIntegrityError:
-                raise  # changed after its build: refused, never replaced by an older build
+            except EngineIntegrityError as exc:  # refused, never passed over for another build
+                raise EngineIntegrityError(path, exc.reason, _build_only(model, variant)) from exc
             except EngineError as exc:
                 problems.append(f"{path.name}: {exc.reason}")
                 continue
@@ -192,7 +201,7 @@ class EngineStore:
                 f"no valid {model}/{variant} engine in {self._directory}{detail} (the "
                 "[engines] directory setting, or C3_MATCHER_ENGINES__DIRECTORY, says where to "
                 "look)",
-                f"{BUILD_COMMAND} --only {model}/{variant}",
+                _build_only(model, variant),
             )
         return max(valid)[1]
 
@@ -232,7 +241,7 @@ class EngineStore:
 
     def verify(self) -> builtins.list[VerifyOutcome]:
         """Re-hash every engine and compare with its manifest; a manifest whose engine file is
-        missing is a failure too."""
+        missing, or an engine file that cannot be read, is a failure too (one outcome each)."""
         outcomes: builtins.list[VerifyOutcome] = []
         for manifest_file in self._files(f"*{MANIFEST_SUFFIX}"):
             engine = manifest_file.with_name(
@@ -246,12 +255,70 @@ class EngineStore:
                 )
         for path in self._files():
             try:
-                manifest = check_engine_file(path, check_hash=True)
+                manifest = intact_engine(path)
             except EngineError as exc:
                 outcomes.append(VerifyOutcome(path, False, exc.reason))
                 continue
             outcomes.append(VerifyOutcome(path, True, f"sha256 {manifest.file_sha256[:16]}... ok"))
         return outcomes
+
+
+def _build_only(model: str, variant: str) -> str:
+    """The command that builds ``model``/``variant`` (and removes its damaged builds)."""
+    return f"{BUILD_COMMAND} --only {model}/{variant}"
+
+
+def intact_engine(path: Path, *, check_hash: bool = True) -> EngineManifest:
+    """``check_engine_file`` of ``path``; an engine file that cannot be read (no read
+    permission, an I/O error) is ``EngineIntegrityError`` too (``"cannot open (permission
+    denied)"``): it cannot be shown to be the file its manifest describes, and is never passed
+    over for another engine."""
+    try:
+        return check_engine_file(path, check_hash=check_hash)
+    except OSError as exc:
+        raise unreadable_engine(path, exc) from exc
+
+
+def unreadable_engine(path: Path, exc: OSError) -> EngineIntegrityError:
+    """The refusal of the engine file ``path``, which could not be read (``exc``)."""
+    from c3_matcher.tilestore.files import cannot_open
+
+    return EngineIntegrityError(path, cannot_open(exc))
+
+
+def _manifest_damage(path: Path, name: EngineName) -> EngineIntegrityError | None:
+    """The refusal of the build ``path`` (named ``name``) when its manifest is there but cannot
+    be read (cut short, of another schema, without read permission); None when it reads, or is
+    not there."""
+    if not manifest_path_for(path).is_file():
+        return None
+    try:
+        read_manifest(path)
+    except EngineError as exc:
+        return EngineIntegrityError(path, exc.reason, _build_only(name.model, name.variant))
+    return None
+
+
+def damage(path: Path) -> EngineIntegrityError | None:
+    """What stops start-up in the build at ``path``: a file or manifest changed after the build
+    or that cannot be read (size, sha256 or build key other than recorded; a manifest cut short,
+    of another schema or without read permission), naming the build of its model/variant; None
+    for an intact build, or one start-up passes over (a failed verification, no manifest, a name
+    outside the schema)."""
+    try:
+        name = EngineName.parse(path.name)
+    except ValueError:
+        return None
+    found = _manifest_damage(path, name)
+    if found is not None:
+        return found
+    try:
+        intact_engine(path)
+    except EngineIntegrityError as exc:
+        return EngineIntegrityError(path, exc.reason, _build_only(name.model, name.variant))
+    except EngineError:
+        return None
+    return None
 
 
 def steps_engines_beside(
@@ -260,15 +327,35 @@ def steps_engines_beside(
     """The steps engines for ``feature_type`` in ``engine_path``'s directory, found by their
     manifests (``feature_type`` and option ``pruning = "steps"``), not by their file names;
     newest build first; with ``graph``, only builds of the graph it declares. An engine whose
-    manifest is unreadable is not one."""
+    manifest is missing (or, with no ``graph``, cannot be read) is not one. With ``graph``, a
+    file named as a build of its model/variant whose manifest is there but cannot be read
+    stops the search (``EngineIntegrityError`` naming it and why): a damaged steps engine is
+    never passed over for the full graph."""
     found: list[tuple[str, Path]] = []
     for record in EngineStore(Path(engine_path).parent).list():
         manifest = record.manifest
+        if manifest is None:
+            if graph is not None:
+                _refuse_unreadable(record.path, graph)
+            continue
         if (
-            manifest is not None
-            and manifest.feature_type == feature_type
+            manifest.feature_type == feature_type
             and manifest.options.get(STEPS_OPTION[0]) == STEPS_OPTION[1]
             and (graph is None or manifest.other_graph(graph) is None)
         ):
             found.append((manifest.built_at, record.path))
     return [path for _, path in sorted(found, reverse=True)]
+
+
+def _refuse_unreadable(path: Path, graph: EngineSpec) -> None:
+    """``EngineIntegrityError`` when ``path`` is named as a build of ``graph``'s model/variant
+    and its manifest is there but cannot be read."""
+    try:
+        name = EngineName.parse(path.name)
+    except ValueError:
+        return
+    found = None
+    if (name.model, name.variant) == (graph.model, graph.variant):
+        found = _manifest_damage(path, name)
+    if found is not None:
+        raise found

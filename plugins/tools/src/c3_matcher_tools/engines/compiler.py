@@ -6,7 +6,9 @@ parameters, revision and exporter, the weights' sha256 and their distribution's 
 library versions), or every one with ``force=True``. Per engine: resolve the weights, call the
 spec's exporter (export + verification against the PyTorch reference on real imagery), check the
 graph's I/O against the spec, name the dynamic axes as declared, hash, write the manifest, move
-both into place atomically, and remove superseded builds of the same model/variant. A failed
+both into place atomically, and remove superseded builds of the same model/variant. A reused
+engine's damaged siblings (builds of its model/variant changed after their build or that cannot
+be read, which start-up refuses whatever their age) are removed, saying so. A failed
 verification or check raises ``EngineBuildError`` and keeps no file. One build at a time writes
 a directory: a second one (a demo and the tests started together) waits, saying so, and then
 reuses what the first built.
@@ -38,6 +40,7 @@ from c3_matcher.engines.build_key import build_key
 from c3_matcher.engines.manifest import EngineManifest, check_engine_file
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, file_sha256
+from c3_matcher.engines.store import damage
 from c3_matcher.errors import C3Error, EngineError, InvalidInputError, describe
 
 if TYPE_CHECKING:
@@ -204,21 +207,49 @@ def _existing(path: Path, key: str, log: Callable[[str], None]) -> EngineManifes
     return manifest if manifest.build_key == key else None
 
 
-def _remove_superseded(
-    directory: Path, spec: EngineSpec, keep: Path, log: Callable[[str], None]
-) -> None:
-    for other in directory.glob(EngineName.glob_for(spec.model, spec.variant)):
-        if other.name == keep.name:
-            continue
+def _other_builds(directory: Path, spec: EngineSpec, keep: Path) -> list[Path]:
+    """The engine files of ``spec``'s model/variant in ``directory`` but ``keep``."""
+    others = []
+    for other in sorted(directory.glob(EngineName.glob_for(spec.model, spec.variant))):
         try:
             parsed = EngineName.parse(other.name)
         except ValueError:
             continue
-        if (parsed.model, parsed.variant) != (spec.model, spec.variant):
-            continue
+        if (parsed.model, parsed.variant) == (spec.model, spec.variant) and other.name != keep.name:
+            others.append(other)
+    return others
+
+
+def _remove_superseded(
+    directory: Path, spec: EngineSpec, keep: Path, log: Callable[[str], None]
+) -> None:
+    for other in _other_builds(directory, spec, keep):
         other.unlink(missing_ok=True)
         manifest_path_for(other).unlink(missing_ok=True)
         log(f"removed superseded engine {other.name}")
+
+
+def _remove_damaged(
+    directory: Path, spec: EngineSpec, keep: Path, log: Callable[[str], None]
+) -> None:
+    """Remove the builds of ``spec``'s model/variant beside the reused ``keep`` that were
+    changed after their build or cannot be read (``damage``): start-up refuses any of them,
+    whatever its age, naming this build as the remedy. Valid builds are left as they are.
+    ``EngineError`` naming one that cannot be removed."""
+    for other in _other_builds(directory, spec, keep):
+        found = damage(other)
+        if found is None:
+            continue
+        try:
+            other.unlink(missing_ok=True)
+            manifest_path_for(other).unlink(missing_ok=True)
+        except OSError as exc:
+            raise EngineError(
+                other,
+                f"{found.reason}: start-up refuses it, and it cannot be removed ({describe(exc)})",
+                None,
+            ) from exc
+        log(f"removed damaged engine {other.name} ({found.reason})")
 
 
 @dataclass(frozen=True, slots=True)
@@ -244,9 +275,9 @@ def _build_one(
     versions: dict[str, str],
     log: Callable[[str], None],
 ) -> BuildOutcome:
-    """Reuse ``spec``'s valid engine in ``directory`` (unless ``force``), or export it in a
-    scratch folder, verify and check it, move it and its manifest into place and remove the
-    builds it supersedes."""
+    """Reuse ``spec``'s valid engine in ``directory`` (unless ``force``; removing the damaged
+    builds beside it), or export it in a scratch folder, verify and check it, move it and its
+    manifest into place and remove the builds it supersedes."""
     start = time.perf_counter()
     ident = _identify(spec, directory, versions)
     target = ident.target
@@ -254,6 +285,7 @@ def _build_one(
         manifest = _existing(target, ident.key, log)
         if manifest is not None:
             log(f"{spec.key}: valid engine {target.name} reused")
+            _remove_damaged(directory, spec, target, log)
             return BuildOutcome(spec, target, manifest, True, time.perf_counter() - start)
     from c3_matcher_tools.engines.export import ExportRequest
 
