@@ -1,17 +1,17 @@
 """Fixtures shared by every test directory of the workspace.
 
 ``engine_dir``: the real ONNX engines the installed plugins declare, built once per machine by
-the real engine compiler (``c3-matcher engines build``'s code path) and cached in
-``$C3_MATCHER_ENGINE_DIR`` or the default engine directory (``<repo>/.engines/`` for this
-checkout, where ``c3-matcher`` itself looks); valid engines are reused, so only a fresh
-clone pays the build (about two minutes on two cores). Nothing is skipped: a test that needs
-engines gets them built. ``read_image`` and ``gorinchem``: real imagery from ``data/imagery``.
+the real engine compiler (``c3-matcher engines build``'s code path) and cached where
+``c3-matcher`` itself looks: ``[engines] directory`` as the environment sets it
+(``C3_MATCHER_ENGINES__DIRECTORY``), else the default (``<repo>/.engines/`` for this
+checkout); valid engines are reused, so only a fresh clone pays the build (about two minutes
+on two cores). Nothing is skipped: a test that needs engines gets them built. ``read_image``
+and ``gorinchem``: real imagery from ``data/imagery``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -30,10 +30,10 @@ REPO = Path(__file__).resolve().parent
 @pytest.fixture(scope="session")
 def engine_dir() -> Path:
     from c3_matcher.compose import build_plugin_host
-    from c3_matcher.engines.store import default_engine_dir
+    from c3_matcher.config import load_settings
     from c3_matcher_tools.engines.compiler import ensure_engines
 
-    directory = Path(os.environ.get("C3_MATCHER_ENGINE_DIR") or default_engine_dir())
+    directory = load_settings().engines.directory
     specs = build_plugin_host().engine_specs()
     assert specs, "no installed plugin declares an engine: run scripts/setup"
     ensure_engines(specs, directory, log=lambda line: print(line, file=sys.stderr))

@@ -5,8 +5,8 @@ build`` from a GeoTIFF, ``dataset import`` of a recorded flight, ``replay``.
 
 Engines: the conftest ``engine_dir`` fixture builds them where ``c3-matcher`` looks by default
 (this checkout's ``.engines``). Only when the test run itself was pointed at another engine
-directory (``C3_MATCHER_ENGINE_DIR``, a developer's override) is that directory passed on, the
-one way a user would do it too (``C3_MATCHER_ENGINES__DIRECTORY``).
+directory (``C3_MATCHER_ENGINES__DIRECTORY``, as a user would do it too) is that directory
+passed on.
 """
 
 from __future__ import annotations

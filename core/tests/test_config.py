@@ -70,8 +70,8 @@ def test_unknown_environment_variable_is_refused():
 
 
 def test_process_switches_are_not_settings():
-    """Single-word C3_MATCHER_* variables that name no section are switches of tools and tests
-    (C3_MATCHER_TRACEBACK, C3_MATCHER_TOOLS_NO_PYPROJ, C3_MATCHER_ENGINE_DIR), not settings."""
+    """Single-word C3_MATCHER_* variables that name no section are switches of the command and
+    the tools (C3_MATCHER_TRACEBACK, C3_MATCHER_TOOLS_NO_PYPROJ), not settings."""
     env = {"C3_MATCHER_TOOLS_NO_RASTERIO": "1", "C3_MATCHER_TRACEBACK": "1"}
     assert load_settings(env=env).matcher.strategy == "disk_lightglue"
 

@@ -53,9 +53,9 @@ def test_a_one_word_variable_that_is_no_switch_is_refused_naming_the_switches() 
 
 
 def test_every_process_switch_the_tree_reads_is_still_no_setting() -> None:
-    """Those read with ``os.environ`` (the command's traceback, the tools' fallbacks, the test
-    suite's engine directory), and only those."""
-    switches = ["TRACEBACK", "ENGINE_DIR", "TOOLS_NO_PYPROJ", "TOOLS_NO_RASTERIO"]
+    """Those read with ``os.environ`` (the command's traceback, the tools' fallbacks), and only
+    those."""
+    switches = ["TRACEBACK", "TOOLS_NO_PYPROJ", "TOOLS_NO_RASTERIO"]
     env = {f"C3_MATCHER_{name}": "1" for name in switches}
     assert load_settings(env=env).matcher.strategy == "disk_lightglue"
     from c3_matcher.config_sources import PROCESS_SWITCHES

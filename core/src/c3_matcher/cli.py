@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegistry, UsageParser
 from c3_matcher.config import C3Settings, load_settings
+from c3_matcher.config_sources import split_config
 from c3_matcher.context import CommandContext, Handler
 from c3_matcher.errors import (
     C3Error,
@@ -96,6 +97,26 @@ def _cmd_config(args: argparse.Namespace, ctx: CommandContext) -> int:
     data = ctx.settings.model_dump(mode="json")
     ctx.out(json.dumps(data, indent=2) if args.json else to_toml(data, _notes()))
     return EXIT_OK
+
+
+def _options_as_read(settings: C3Settings, host: PluginHost) -> C3Settings:
+    """``settings`` with each strategy's options table as its plugin's options model reads it,
+    the keys given: ``"0.5"`` from the environment is the number 0.5 the strategy runs with, as
+    ``config`` prints it and a run records it. A table no linked strategy takes, or one its
+    model refuses, stays as given: it is refused where it is checked."""
+    from pydantic import ValidationError
+
+    if not settings.matcher.options:
+        return settings
+    tables = dict(settings.matcher.options)
+    for name, table in settings.matcher.options.items():
+        with contextlib.suppress(C3Error, ValidationError):
+            model = host.resolve(name).options_model
+            if model is not None:
+                read = model.model_validate(table)
+                tables[name] = read.model_dump(by_alias=True, exclude_unset=True)
+    matcher = settings.matcher.model_copy(update={"options": tables})
+    return settings.model_copy(update={"matcher": matcher})
 
 
 def _notes() -> dict[str, str]:
@@ -246,32 +267,6 @@ def _version() -> str:
         return "unknown"
 
 
-def split_config(argv: Sequence[str]) -> tuple[list[str], Path | None]:
-    """Take ``--config FILE`` / ``--config=FILE`` out of ``argv`` wherever it is (before or
-    after the subcommand); the last one wins. A ``--config`` without a value is left for the
-    parser to refuse."""
-    rest: list[str] = []
-    config: Path | None = None
-    items = list(argv)
-    i = 0
-    while i < len(items):
-        arg = items[i]
-        if arg == "--":
-            rest.extend(items[i:])
-            break
-        if arg == "--config" and i + 1 < len(items) and not items[i + 1].startswith("--"):
-            config = Path(items[i + 1])
-            i += 2
-            continue
-        if arg.startswith("--config="):
-            config = Path(arg.split("=", 1)[1])
-            i += 1
-            continue
-        rest.append(arg)
-        i += 1
-    return rest, config
-
-
 def _fail(exc: BaseException | str) -> str:
     text = " ".join(str(exc).split()) or type(exc).__name__
     return f"c3-matcher: {text}"
@@ -349,7 +344,7 @@ def _command(argv: Sequence[str] | None) -> int:
     if config is not None:
         args.config = config
     try:
-        settings = load_settings(args.config)
+        settings = _options_as_read(load_settings(args.config), host)
     except ConfigurationError as exc:
         print(_fail(exc), file=sys.stderr)
         return EXIT_USAGE

@@ -1,15 +1,20 @@
-"""Where the configuration comes from, read without side effects: the TOML file and the
-environment variables (``C3_MATCHER_``, ``__`` between levels) of a given mapping or
-``os.environ``, never changed; unknown keys named so that a typo does not pass silently; a
-value the environment gives replaces the file's whole (a table too)."""
+"""Where the configuration comes from, read without side effects: the TOML file ``--config``
+names and the environment variables (``C3_MATCHER_``, ``__`` between levels, upper case as
+documented) of a given mapping or ``os.environ``, never changed; unknown keys named so that a
+typo does not pass silently, and so is a variable spelt in another case (two spellings of one
+setting would otherwise both be read, the later one winning); a value the environment gives
+replaces the file's whole (a table too); a relative path made absolute against the working
+directory (a file's and the environment's, as a command's path flags are read), so that
+``config`` and every message name the place meant."""
 
 from __future__ import annotations
 
+import difflib
 import json
 import os
 import re
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Final, get_args
 
@@ -26,6 +31,7 @@ __all__ = [
     "MappingEnvSource",
     "SettingsSection",
     "read_toml",
+    "split_config",
     "unknown_env_keys",
     "unparsed_env",
     "validation_problems",
@@ -34,10 +40,10 @@ __all__ = [
 
 ENV_PREFIX = "C3_MATCHER_"
 UNKNOWN_SETTING = "unknown setting (check the spelling)"
-PROCESS_SWITCHES: Final = ("ENGINE_DIR", "TOOLS_NO_PYPROJ", "TOOLS_NO_RASTERIO", "TRACEBACK")
+PROCESS_SWITCHES: Final = ("TOOLS_NO_PYPROJ", "TOOLS_NO_RASTERIO", "TRACEBACK")
 """The ``C3_MATCHER_<NAME>`` variables that are switches of a process, not settings: the
-command's traceback on an internal error, the ground tools' hand-written fallbacks, the test
-suite's engine directory. Any other name without ``__`` must be a section (its JSON)."""
+command's traceback on an internal error, the ground tools' hand-written fallbacks. Any other
+name without ``__`` must be a section (its JSON)."""
 
 
 class MappingEnvSource(EnvSettingsSource):
@@ -79,7 +85,9 @@ class SettingsSection(BaseModel):
     def _no_stand_ins(cls, value: Any, info: ValidationInfo) -> Any:
         """Refuse a boolean for a number (``tile_cache_size = true`` must not mean one tile) and
         an empty path (``Path("")`` is ``.``: ``C3_MATCHER_FDR__PATH=$UNSET`` must not pass);
-        read a leading ``~`` in every path as the user's home, as a shell would."""
+        read a leading ``~`` in every path as the user's home, as a shell would, and a relative
+        path against the working directory, made absolute here so that ``config`` and every
+        message name the place it means."""
         field = cls.model_fields.get(info.field_name or "")
         types = set() if field is None else {field.annotation, *get_args(field.annotation)}
         if isinstance(value, bool) and {int, float} & types:
@@ -87,8 +95,19 @@ class SettingsSection(BaseModel):
         if value == "" and Path in types:
             raise ValueError("is empty: give a path, or remove the setting")
         if isinstance(value, str | Path) and Path in types:
-            return Path(value).expanduser()
+            return _absolute(Path(value).expanduser())
         return value
+
+
+def _absolute(path: Path) -> Path:
+    """``path`` made absolute against the working directory (``ValueError`` when there is none
+    to read: it was removed)."""
+    try:
+        return path.absolute()
+    except OSError as exc:
+        raise ValueError(
+            f"{path} is relative to a working directory that is gone ({exc})"
+        ) from None
 
 
 def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
@@ -117,38 +136,79 @@ def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
         ) from None
 
 
+def split_config(argv: Sequence[str]) -> tuple[list[str], Path | None]:
+    """Take ``--config FILE`` / ``--config=FILE`` out of ``argv`` wherever it is (before or
+    after the subcommand); the last one wins. A ``--config`` without a value is left for the
+    parser to refuse."""
+    rest: list[str] = []
+    config: Path | None = None
+    items = list(argv)
+    i = 0
+    while i < len(items):
+        arg = items[i]
+        if arg == "--":
+            rest.extend(items[i:])
+            break
+        if arg == "--config" and i + 1 < len(items) and not items[i + 1].startswith("--"):
+            config = Path(items[i + 1])
+            i += 2
+            continue
+        if arg.startswith("--config="):
+            config = Path(arg.split("=", 1)[1])
+            i += 1
+            continue
+        rest.append(arg)
+        i += 1
+    return rest, config
+
+
 def unknown_env_keys(
     settings_cls: type[BaseSettings], env: Mapping[str, str]
 ) -> list[tuple[str, str]]:
     """(variable, reason) for each ``C3_MATCHER_<SECTION>[__<KEY>]`` that names no setting of
-    ``settings_cls`` and is no process switch (``PROCESS_SWITCHES``); a name with single
-    underscores that reads as a setting (``C3_MATCHER_ENGINES_PROVIDERS``, or
-    ``C3_MATCHER_STRATEGY`` without its section) is told the variable meant."""
+    ``settings_cls`` and is no process switch (``PROCESS_SWITCHES``); a name that reads as a
+    setting (single underscores, ``C3_MATCHER_ENGINES_PROVIDERS``; a key without its section,
+    ``C3_MATCHER_STRATEGY``; a near miss, ``C3_MATCHER_ENGINE_DIR``) is told the variable
+    meant, and so is one spelt in another case than the upper case documented."""
     sections = dict(settings_cls.model_fields)
     problems = []
     for key in env:
         name = key.upper()
-        if not name.startswith(ENV_PREFIX) or name[len(ENV_PREFIX) :] in PROCESS_SWITCHES:
+        if not name.startswith(ENV_PREFIX):
             continue
-        parts = key[len(ENV_PREFIX) :].lower().split("__")
-        section = sections.get(parts[0])
-        fields = getattr(section.annotation if section else None, "model_fields", {})
-        if section is None and len(parts) == 1:
-            problems.append((key, _not_a_switch(parts[0], sections)))
-        elif section is None or (len(parts) > 1 and parts[1] not in fields):
-            problems.append((key, UNKNOWN_SETTING))
+        reason = _unknown(name[len(ENV_PREFIX) :].lower().split("__"), sections)
+        if reason is None and key != name:
+            reason = f"{UNKNOWN_SETTING}: did you mean {name}? (variables are upper case)"
+        if reason is not None:
+            problems.append((key, reason))
     return problems
+
+
+def _unknown(parts: Sequence[str], sections: Mapping[str, Any]) -> str | None:
+    """Why ``C3_MATCHER_<PARTS joined by __>`` names nothing read, or None when it names a
+    section, a setting (or a key below one) or a process switch."""
+    section = sections.get(parts[0])
+    fields = getattr(section.annotation if section else None, "model_fields", {})
+    if section is None and len(parts) == 1:
+        return None if parts[0].upper() in PROCESS_SWITCHES else _not_a_switch(parts[0], sections)
+    if section is None or (len(parts) > 1 and parts[1] not in fields):
+        return UNKNOWN_SETTING
+    return None
 
 
 def _not_a_switch(name: str, sections: Mapping[str, Any]) -> str:
     """Why ``C3_MATCHER_<NAME>`` (no ``__``, no section) is refused, with the setting it may
-    have meant: a section and key joined by one underscore, or a key without its section."""
-    meant = [
-        f"{ENV_PREFIX}{section.upper()}__{key.upper()}"
+    have meant: a section and key joined by one underscore, a key without its section, or a
+    near miss of either (``engine_dir``)."""
+    variables = [
+        (form, f"{ENV_PREFIX}{section.upper()}__{key.upper()}")
         for section, info in sections.items()
         for key in getattr(info.annotation, "model_fields", {})
-        if name in (f"{section}_{key}", key)
+        for form in (f"{section}_{key}", key)
     ]
+    forms = [form for form, _ in variables]
+    near = [name] if name in forms else difflib.get_close_matches(name, forms, 3, 0.7)
+    meant = list(dict.fromkeys(variable for form, variable in variables if form in near))
     form = f"a setting is {ENV_PREFIX}<SECTION>__<KEY>, two underscores between section and key"
     if meant:
         return f"{UNKNOWN_SETTING}: did you mean {' or '.join(meant)}? ({form})"

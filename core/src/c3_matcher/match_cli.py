@@ -39,6 +39,7 @@ from c3_matcher.match_inputs import (
     store_candidates,
     tile_id_arg,
     usable_height,
+    warn_missing_inputs,
 )
 from c3_matcher.match_viz import draw_or_report
 from c3_matcher.serialize import result_to_json
@@ -176,6 +177,7 @@ def _run_match(args: argparse.Namespace, ctx: CommandContext, unrecorded: list[s
         root = compose_root(settings, helpers, plugin_host=host)
         opened.callback(root.close)
         state_default_fdr_path(settings)
+        warn_missing_inputs(args)  # logged now: on stderr as JSON at the level, and in the FDR
         reasons: dict[int, str] = {}
         opened.callback(_remove_sink, _collect_drop_reasons(reasons))
         draw = functools.partial(draw_or_report, problems, args, image, calibration, rerank)

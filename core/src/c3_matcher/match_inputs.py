@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import math
-import sys
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,11 +19,13 @@ from c3_matcher.dto.camera import CameraCalibration
 from c3_matcher.dto.candidates import RerankCandidate, RerankResult
 from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.logs import log_event
 from c3_matcher.serialize import CALIBRATION_SIZE_FIX, load_calibration
 from c3_matcher.tiles import MmapTileHandle, decode_image, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 
 __all__ = [
+    "MISSING_INPUT",
     "attitude_arg",
     "file_candidates",
     "frame_id_of",
@@ -33,7 +34,12 @@ __all__ = [
     "store_candidates",
     "tile_id_arg",
     "usable_height",
+    "warn_missing_inputs",
 ]
+
+MISSING_INPUT = "c3.match.input_missing"
+"""The kind of the WARNING ``match`` logs for each input it was not given
+(``warn_missing_inputs``)."""
 
 _FRAME_IDS = uuid.UUID("6c3d1e0a-5b7e-4f0e-9a51-3c3a7d0f2b11")  # the namespace of frame_id_of
 
@@ -144,20 +150,29 @@ def _readable_tile(path: Path, max_pixels: int) -> MmapTileHandle:
 
 def usable_height(args: argparse.Namespace) -> float | None:
     """The frame's height for ``match``'s parsed ``args``: none where the tiles' GSD is unknown
-    (no scale to match it to: zoom 0's stood in, and the frame was refused). Says on stderr
-    what the matcher will have to do without (it fails silently otherwise)."""
+    (no scale to match it to: zoom 0's stood in, and the frame was refused)."""
+    return None if _gsd_unknown(args) else args.height
+
+
+def _gsd_unknown(args: argparse.Namespace) -> bool:
+    return args.tile_gsd is None and not args.tile_id
+
+
+def warn_missing_inputs(args: argparse.Namespace) -> None:
+    """One WARNING (``MISSING_INPUT``, the option in ``option``) per input of ``match``'s parsed
+    ``args`` that the matcher will have to do without (it fails silently otherwise): a JSON log
+    record on stderr at the configured level, and in the FDR as every warning is. Called once
+    the matcher's logging is configured."""
     missing = []
     if args.attitude is None:
-        missing.append("--attitude (the query is not rotated north-up: yaw >= ~60 deg fails)")
+        missing.append(("--attitude", "the query is not rotated north-up: yaw >= ~60 deg fails"))
     if args.height is None:
-        missing.append("--height (the query's scale is not matched to the tiles')")
-    unknown = args.tile_gsd is None and not args.tile_id
-    if unknown:
+        missing.append(("--height", "the query's scale is not matched to the tiles'"))
+    if _gsd_unknown(args):
         unused = "; --height is not used" if args.height is not None else ""
-        missing.append(f"--tile-gsd or --tile-id (the tiles' GSD is unknown{unused})")
-    for what in missing:
-        print(f"c3-matcher match: warning: no {what}", file=sys.stderr)
-    return None if unknown else args.height
+        missing.append(("--tile-gsd or --tile-id", f"the tiles' GSD is unknown{unused}"))
+    for option, consequence in missing:
+        log_event("WARNING", MISSING_INPUT, f"no {option} ({consequence})", option=option)
 
 
 def _floats(text: str, n: int) -> tuple[float, ...]:
