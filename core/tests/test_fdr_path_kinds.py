@@ -21,16 +21,8 @@ import pytest
 from c3_matcher.fdr import FdrOpenError, JsonlFdrRecorder
 from c3_matcher.testing import FakeClock
 
-DEMO = Path(__file__).resolve().parents[2] / "data" / "demo"
-DEMO_MATCH = [  # the README's demo frame, matched by the OpenCV strategy (no engine)
-    "match",
-    "--query",
-    str(DEMO / "frame.jpg"),
-    *("--tile", str(DEMO / "tile_a.png"), "--tile", str(DEMO / "tile_b.png")),
-    *("--tile", str(DEMO / "tile_c.png"), "--tile-gsd", "0.09682870211490897"),
-    *("--calibration", str(DEMO / "calibration.json"), "--attitude", "18,0,120"),
-    *("--height", "27.112037", "--strategy", "sift_magsac", "--no-correspondences"),
-]
+from .demo_match import run_match
+
 KIND = {"device": "a character device", "fifo": "a FIFO", "socket": "a socket"}
 
 
@@ -106,12 +98,7 @@ def test_a_path_under_a_file_says_that_file_is_not_a_directory(tmp_path: Path, u
 
 def test_match_with_an_fdr_that_is_a_fifo_prints_the_result_and_exits_2(tmp_path: Path) -> None:
     fifo = _special(tmp_path, "fifo")
-    env = {k: v for k, v in os.environ.items() if not k.upper().startswith("C3_MATCHER_")}
-    argv = [*DEMO_MATCH, "--fdr", str(fifo)]
-    script = f"import sys\nfrom c3_matcher.cli import main\nsys.exit(main({argv!r}))"
-    out = subprocess.run(
-        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env
-    )
+    out = run_match("--fdr", str(fifo))
     assert out.returncode == 2, out.stderr
     assert json.loads(out.stdout)["per_candidate"]  # the result was printed
     last = out.stderr.strip().splitlines()[-1]

@@ -12,16 +12,7 @@ import pytest
 
 from c3_matcher.viz import write_png
 
-DEMO = Path(__file__).resolve().parents[2] / "data" / "demo"
-DEMO_MATCH = [  # the README's demo frame, matched by the OpenCV strategy (no engine)
-    "match",
-    "--query",
-    str(DEMO / "frame.jpg"),
-    *("--tile", str(DEMO / "tile_a.png"), "--tile", str(DEMO / "tile_b.png")),
-    *("--tile", str(DEMO / "tile_c.png"), "--tile-gsd", "0.09682870211490897"),
-    *("--calibration", str(DEMO / "calibration.json"), "--attitude", "18,0,120"),
-    *("--height", "27.112037", "--strategy", "sift_magsac", "--no-correspondences"),
-]
+from .demo_match import DEMO_MATCH
 
 
 @pytest.mark.parametrize("under", ["v.png", "deeper/v.png"])
