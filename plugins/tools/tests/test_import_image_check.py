@@ -52,3 +52,14 @@ def test_a_photo_claiming_a_huge_other_size_is_refused_from_its_header_undecoded
     start = time.perf_counter()
     assert image_problem(png, SIZE) == "is 40000x40000 px, the calibration says 96x64"
     assert time.perf_counter() - start < 0.5
+
+
+def test_a_photo_above_the_matchers_default_pixel_limit_is_checked_as_the_camera_says() -> None:
+    """A survey camera's photo (here 7100 x 7100 px, 50.4 Mpx: over the default 50 Mpx limit)
+    of the calibrated size is readable: the import's check is bounded by the camera's size, not
+    by a pixel limit the flight's replay is given (the first version refused it, naming a
+    setting the import never read)."""
+    side = 7100
+    ok, buf = cv2.imencode(".png", np.zeros((side, side), np.uint8))
+    assert ok
+    assert image_problem(buf.tobytes(), (side, side)) is None

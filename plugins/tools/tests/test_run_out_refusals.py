@@ -91,7 +91,7 @@ def test_a_recorded_flight_log_and_a_users_files_in_out_are_refused_and_left_byt
     else:
         proc = c3("eval", str(small_flight("two_frames")), *EVAL, "--out", str(out))
     line = _refused(proc, out, "fdr.000001.jsonl")
-    assert f"no earlier {command} wrote" in line, line
+    assert f"not known as an earlier {command}'s output" in line, line
     assert _tree(out) == before  # nothing removed, replaced or made
     assert len(read_fdr(out / "fdr.jsonl")) >= 1
 
@@ -168,9 +168,9 @@ def test_one_commands_output_is_refused_to_the_other(
         (out / RUN_MARK).unlink()  # also known without the mark, by its report
     mine = _tree(replayed), _tree(evaluated)
     line = _refused(cli("eval", flight, *EVAL, "--out", str(replayed)), replayed, "fdr.jsonl")
-    assert "no earlier eval wrote" in line
+    assert "not known as an earlier eval's output" in line
     line = _refused(cli("replay", str(DEMO), *REPLAY, "--out", str(evaluated)), evaluated, "eval")
-    assert "no earlier replay wrote" in line
+    assert "not known as an earlier replay's output" in line
     assert (_tree(replayed), _tree(evaluated)) == mine
     again = cli("eval", flight, *EVAL, "--out", str(evaluated))  # its eval.json tells it
     assert again.returncode == 0, again.stderr[-2000:]
@@ -197,3 +197,6 @@ def test_an_eval_of_several_flights_reruns_into_its_root_and_refuses_a_foreign_o
     assert single.returncode == 0, single.stderr[-2000:]
     assert _tree(root)["summary.json"] == before["summary.json"]
     _refused(cli("eval", flights[0], *EVAL, "--out", str(root)), root, "north")
+    (root / "notes.txt").unlink()  # an eval of several flights alone: said so
+    line = _refused(cli("eval", flights[0], *EVAL, "--out", str(root)), root, "north")
+    assert "it holds eval's output for several flights: give a flight's folder)" in line, line

@@ -177,12 +177,14 @@ def refuse_foreign_output(directory: Path, layout: RunLayout, *, field: str = "-
     whose = _marked_by(directory)
     if whose is not None:  # another command's
         why = f"its {RUN_MARK} says {whose} wrote it"
-    else:
+    elif layout.summary is not None and all(_of_root(directory / n, layout) for n in names):
+        why = f"it holds {layout.command}'s output for several flights: give a flight's folder"
+    else:  # a user's files, or a run stopped before runs were marked
         why = f"no {layout.command}'s {RUN_MARK} or {layout.report} there"
     raise InvalidInputError(
         field,
-        f"{directory} holds {_some(names)}, which no earlier {layout.command} wrote ({why}): "
-        f"{_only_its_own(layout)}; give an empty or new directory",
+        f"{directory} holds {_some(names)}, not known as an earlier {layout.command}'s output "
+        f"({why}): {_only_its_own(layout)}; give an empty or new directory",
     )
 
 
@@ -194,8 +196,8 @@ def _refuse_foreign_root(root: Path, layout: RunLayout, field: str) -> None:
     if foreign:
         raise InvalidInputError(
             field,
-            f"{root} holds {_some(foreign)}, which no earlier {layout.command} of several "
-            f"flights wrote (only its {layout.summary} and a directory per flight belong "
+            f"{root} holds {_some(foreign)}, not known as an earlier {layout.command} of "
+            f"several flights (only its {layout.summary} and a directory per flight belong "
             f"there): {_only_its_own(layout)}; give an empty or new directory",
         )
 

@@ -227,7 +227,8 @@ def image_problem(data: bytes, size: tuple[int, int]) -> str | None:
     every import checks its images with this. The size is read from the header first (an image
     of another size is never decoded, however large it says it is), then the image is decoded
     as the matcher will decode it: a copy cut short or damaged is not readable, and is refused
-    before a decoder would write its own line to stderr."""
+    before a decoder would write its own line to stderr. The camera's size bounds the decode,
+    whatever the matcher's pixel limit (a replay of the flight applies the limit it is given)."""
     from c3_matcher.tiles import ImageDecodeError, decode_image, image_header_size
 
     if not data:
@@ -239,7 +240,7 @@ def image_problem(data: bytes, size: tuple[int, int]) -> str | None:
     if (w, h) != tuple(size):
         return f"is {w}x{h} px, the calibration says {size[0]}x{size[1]}"
     try:
-        decode_image(data, "image")
+        decode_image(data, "image", max_pixels=w * h)
     except ImageDecodeError as exc:
         return f"not a readable image: {exc.reason}"
     return None
