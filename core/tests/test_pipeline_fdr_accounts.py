@@ -72,3 +72,15 @@ def test_a_frame_whose_every_candidate_has_no_inlier_names_each_of_them(fdr, log
         (0, _tile(rig, 0)),
         (1, _tile(rig, 1)),
     ]
+
+
+def test_the_no_fix_record_lists_its_candidates_best_first_as_the_success_record_does(fdr, logs):
+    """An investigator reads ``per_candidate[0]`` as the best candidate: it was the first input
+    candidate on a frame without a fix (9 inliers beside the best's 29)."""
+    rig = ScriptedRig([S(9, 1.5), S(29, 1.1), S(29, 0.9), S(0)], fdr)
+    with pytest.raises(InsufficientInliersError):
+        rig.match()
+    (record,) = fdr.of_kind("matcher.insufficient_inliers")
+    rows = record["per_candidate"]
+    assert [r["candidate_index"] for r in rows] == [2, 1, 0]  # inliers, then residual
+    assert rows[0]["inlier_count"] == record["best_inlier_count"] == 29

@@ -231,7 +231,8 @@ class PipelineMatcher:
         threshold = self.settings.min_inliers_threshold
         if not survivors or best_count < threshold:  # step 6, with the frame's timings too
             timings["total"] = (time.perf_counter() - started) * 1e3
-            raise recorder.insufficient(evidence, best_count, survivors, threshold, timings=timings)
+            rows = ranked(survivors)  # best first, as in the success record
+            raise recorder.insufficient(evidence, best_count, rows, threshold, timings=timings)
         survivors = ranked(survivors)  # step 7
         best = survivors[0].match_set
         if best.per_candidate_residual_px > self.settings.residual_warn_threshold_px:  # step 8

@@ -1,7 +1,8 @@
 """The ground tools' geodesy, each fact once: the WGS84 ellipsoid and its metres per degree,
 the latitude of a Mercator northing, the linear unit of a projected CRS and the ground GSD of a
-north-up grid's pixel scale, and the flat-earth offsets the simulator and the candidate proposer
-place points with.
+north-up grid's pixel scale, the flat-earth offsets the simulator and the candidate proposer
+place points with, and where a camera's optical axis meets flat ground (``axis_ground_point``:
+the import's look point, and a dataset's truth when no homography gives it).
 
 The GeoTIFF readers (:mod:`c3_matcher_tools.sim.orthophotos`, :mod:`c3_matcher_tools.tilestore`)
 and the projections (:mod:`c3_matcher_tools.tilestore.projection`) build on this module; it
@@ -21,6 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from c3_matcher.arrays import F64
+from c3_matcher.camera import rotation_world_from_camera
+from c3_matcher.dto import Attitude, CameraCalibration
 from c3_matcher.errors import InvalidInputError
 
 __all__ = [
@@ -31,6 +34,7 @@ __all__ = [
     "WGS84_A",
     "WGS84_E2",
     "WGS84_F",
+    "axis_ground_point",
     "flat_offset_latlon",
     "flat_offset_m",
     "ground_gsd_m",
@@ -202,3 +206,17 @@ def flat_offset_m(
     north = (to_lat_deg - lat_deg) * FLAT_M_PER_DEG_LAT
     east = (to_lon_deg - lon_deg) * FLAT_M_PER_DEG_LAT * math.cos(math.radians(lat_deg))
     return north, east
+
+
+def axis_ground_point(
+    lat: float, lon: float, height_m: float, attitude: Attitude, calibration: CameraCalibration
+) -> tuple[float, float] | None:
+    """(lat, lon) where the optical axis of a camera at (``lat``, ``lon``), ``height_m`` above
+    flat ground with ``attitude``, meets the ground: where the frame's principal point looks,
+    the point the matcher's frame centre estimates. None when the axis is about 78 deg off nadir
+    or worse (it meets the ground far off, or never: the point means nothing)."""
+    axis = rotation_world_from_camera(attitude, calibration) @ np.array([0.0, 0.0, 1.0])
+    north, east, down = (float(v) for v in axis)
+    if down < 0.2:
+        return None
+    return flat_offset_latlon(lat, lon, height_m * north / down, height_m * east / down)

@@ -163,7 +163,7 @@ def _telemetry(value: object) -> dict[str, Any]:
 
 
 def _pose(value: object) -> dict[str, Any]:
-    """A record's ``pose``, its positions checked (scoring reads the footprint centre)."""
+    """A record's ``pose``, its positions checked (scoring reads the nadir)."""
     pairs = (("nadir_lat", "nadir_lon"), ("footprint_centre_lat", "footprint_centre_lon"))
     return _degrees(_object(value, "pose"), "pose", pairs)
 

@@ -22,7 +22,6 @@ from typing import Any
 
 import numpy as np
 
-from c3_matcher.camera import rotation_world_from_camera
 from c3_matcher.dto import CameraCalibration, TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.base import tile_centre_id
@@ -35,7 +34,7 @@ from c3_matcher_tools.dataset.sources.options import (
     max_uncertainty_m,
 )
 from c3_matcher_tools.dataset.telemetry import TelemetryRow
-from c3_matcher_tools.geodesy import flat_offset_latlon
+from c3_matcher_tools.geodesy import axis_ground_point
 
 __all__ = [
     "StoreProposals",
@@ -49,14 +48,9 @@ __all__ = [
 
 def look_point(row: TelemetryRow, calibration: CameraCalibration) -> tuple[float, float]:
     """(lon, lat) where the optical axis meets flat ground ``altitude_m`` below the vehicle
-    (the telemetry position itself when the axis does not point down)."""
-    axis = rotation_world_from_camera(row.attitude, calibration) @ np.array([0.0, 0.0, 1.0])
-    north, east, down = (float(v) for v in axis)
-    if down < 0.2:  # about 78 deg off nadir or worse: the hit point means nothing
-        return row.lon, row.lat
-    dn, de = row.altitude_m * north / down, row.altitude_m * east / down
-    lat, lon = flat_offset_latlon(row.lat, row.lon, dn, de)
-    return lon, lat
+    (``axis_ground_point``; the telemetry position itself when the axis does not point down)."""
+    hit = axis_ground_point(row.lat, row.lon, row.altitude_m, row.attitude, calibration)
+    return (row.lon, row.lat) if hit is None else (hit[1], hit[0])
 
 
 def store_zoom(store: MBTilesStore, path: object, zoom: int | None) -> int:

@@ -17,6 +17,7 @@ from c3_matcher import camera as cam
 from c3_matcher.dto import MatchResult
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.dataset.truth import inlier_errors_px
+from c3_matcher_tools.geodesy import axis_ground_point
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = [
@@ -63,8 +64,10 @@ def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -
 def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, float] | None:
     """(lat, lon) where the frame's principal point truly looks: through a candidate's
     ground-truth homography (the true one first; a distractor's maps the same ground plane, so a
-    frame without its true tile has its truth too), else the record's ``pose`` footprint centre;
-    None without truth."""
+    frame without its true tile has its truth too), else where the optical axis meets flat
+    ground from the record's ``pose`` nadir, attitude and height (``axis_ground_point``: the
+    pose's footprint centre, the mean of the footprint's corners, is another point, tens of
+    metres off at 20 deg of tilt); None without truth."""
     from c3_matcher.georef import tile_px_to_lonlat
 
     k = dataset.calibration.K
@@ -78,8 +81,9 @@ def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, f
             lon, lat = tile_px_to_lonlat(cand.tile_id, (size, size), tile_px)[0]
             return float(lat), float(lon)
     pose = frame.pose
-    if frame.has_truth and "footprint_centre_lat" in pose and "footprint_centre_lon" in pose:
-        return float(pose["footprint_centre_lat"]), float(pose["footprint_centre_lon"])
+    if frame.has_truth and "nadir_lat" in pose and "nadir_lon" in pose:
+        nadir = float(pose["nadir_lat"]), float(pose["nadir_lon"])
+        return axis_ground_point(*nadir, frame.height_m, frame.attitude, dataset.calibration)
     return None
 
 
