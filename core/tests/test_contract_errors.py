@@ -44,6 +44,11 @@ def test_stale_rerank_is_insufficient_inliers_with_its_record(fdr, logs):
     assert record["frame_id"] == str(rig.frame.frame_id)
     assert record["stale_rerank"] == str(uuid.UUID(int=8))
     assert record["candidates_dropped"] == 2 and record["per_candidate"] == []
+    why = f"the re-rank was made for frame {uuid.UUID(int=8)}"  # each of them named, with why
+    tiles = [c.tile_id.as_list() for c in stale.candidates]
+    assert record["dropped"] == [
+        {"candidate_index": i, "tile_id": tile, "reason": why} for i, tile in enumerate(tiles)
+    ]
     assert fdr.of_kind("matcher.invalid_input") == []
     last = rig.health.last_update
     assert rig.health.update_count == 1 and last is not None

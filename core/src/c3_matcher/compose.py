@@ -31,7 +31,7 @@ from c3_matcher.errors import (
     describe,
 )
 from c3_matcher.fdr import JsonlFdrRecorder
-from c3_matcher.health import MonotonicClock, RollingHealthWindow
+from c3_matcher.health import MonotonicClock, RollingHealthWindow, clock_problem
 from c3_matcher.logs import (
     MATCHER_READY,
     LoggingHandle,
@@ -332,6 +332,8 @@ def _checked_helpers(pre_constructed: Mapping[str, Any] | None) -> dict[str, Any
             raise AirborneBootstrapError(
                 CONSUMER, key, f"expected a {expected.__name__}, got {type(value).__name__}"
             )
+    if "clock" in helpers and (problem := clock_problem(helpers["clock"])) is not None:
+        raise AirborneBootstrapError(CONSUMER, "clock", problem)
     return helpers
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numbers
 import threading
 import time
 from collections import deque
@@ -11,7 +12,7 @@ from c3_matcher.dto import MatcherHealth
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.protocols import Clock
 
-__all__ = ["HealthUpdate", "MonotonicClock", "RollingHealthWindow"]
+__all__ = ["HealthUpdate", "MonotonicClock", "RollingHealthWindow", "clock_problem"]
 
 NS_PER_S = 1_000_000_000
 
@@ -21,6 +22,21 @@ class MonotonicClock:
 
     def monotonic_ns(self) -> int:
         return time.monotonic_ns()
+
+
+def clock_problem(clock: Clock) -> str | None:
+    """Why ``clock`` cannot time the matcher's frames (None: it can), read once: its
+    ``monotonic_ns()`` must give whole nanoseconds >= 0. A float, a negative value or a call
+    that raises passed start-up and then failed every frame after its success was recorded."""
+    try:
+        now = clock.monotonic_ns()
+    except Exception as exc:
+        return f"monotonic_ns() raised {type(exc).__name__}: {exc}"
+    if isinstance(now, bool) or not isinstance(now, numbers.Integral):
+        return f"monotonic_ns() gave {now!r} ({type(now).__name__}), not whole nanoseconds"
+    if now < 0:
+        return f"monotonic_ns() gave {now}, not nanoseconds >= 0"
+    return None
 
 
 @dataclass(frozen=True, slots=True)

@@ -179,14 +179,7 @@ class PipelineMatcher:
                 recorder.query_failed(exc)
                 raise MatcherBackboneError("query_extract", None, exc) from exc
             if rerank_result.frame_id != frame.frame_id:  # candidates of another frame
-                unmatched = len(rerank_result.candidates)
-                raise recorder.insufficient(
-                    FrameEvidence(unmatched, dropped=unmatched),
-                    0,
-                    [],
-                    self.settings.min_inliers_threshold,
-                    stale_rerank_frame_id=rerank_result.frame_id,
-                )
+                raise recorder.stale_rerank(rerank_result, self.settings.min_inliers_threshold)
             if not rerank_result.candidates:  # the re-ranker proposed no tile: no fix, as when
                 raise recorder.insufficient(  # every candidate fails (the VIO fallback's cue)
                     FrameEvidence(0, dropped=0), 0, [], self.settings.min_inliers_threshold

@@ -8,7 +8,7 @@ every segment of a log in order; ``check_fdr`` says whether it is whole.
 
 Record schema (one JSON object per line)::
 
-    {"seq": 17, "kind": "matcher.frame_done", "recorded_at_ns": 123, "wall_time": "...Z",
+    {"seq": 17, "kind": "matcher.frame_done", "recorded_at_ns": 123, "wall_time": "...+00:00",
      "payload": {...}}
 """
 

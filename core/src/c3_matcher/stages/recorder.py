@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from c3_matcher.arrays import F64
-from c3_matcher.dto import CandidateMatchSet
+from c3_matcher.dto import CandidateMatchSet, RerankResult
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, describe
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import (
@@ -287,6 +287,16 @@ class FrameRecorder:
             evidence.dropped,
             label,
         )
+
+    def stale_rerank(self, rerank: RerankResult, threshold: int) -> InsufficientInliersError:
+        """No fix: the re-rank was made for another frame (its tiles say where the vehicle
+        was), so every candidate is dropped unmatched, each named with why in ``dropped``."""
+        why = f"the re-rank was made for frame {rerank.frame_id}"
+        for index, candidate in enumerate(rerank.candidates):
+            self._drops[index] = CandidateDrop(index, candidate.tile_id, why)
+        unmatched = len(rerank.candidates)
+        evidence = FrameEvidence(unmatched, dropped=unmatched)
+        return self.insufficient(evidence, 0, [], threshold, stale_rerank_frame_id=rerank.frame_id)
 
     def query_failed(self, exc: Exception) -> None:
         """The nav frame itself could not be decoded or extracted: health (0, backbone error)
