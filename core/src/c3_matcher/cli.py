@@ -31,6 +31,7 @@ from c3_matcher.errors import (
     UnknownStrategyError,
     describe,
 )
+from c3_matcher.ground_commands import ground_refusal
 
 if TYPE_CHECKING:
     from c3_matcher.plugins.manager import PluginHost
@@ -340,6 +341,9 @@ def _command(argv: Sequence[str] | None) -> int:
         print(_fail(f"internal error: {describe(exc)}"), file=sys.stderr)
         return EXIT_FAILURE
     rest, config = split_config(sys.argv[1:] if argv is None else argv)
+    if refusal := ground_refusal(parser, host.profile.name, rest):
+        print(_fail(refusal), file=sys.stderr)
+        return EXIT_USAGE
     args = parser.parse_args(rest)
     if config is not None:
         args.config = config

@@ -13,7 +13,6 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from platformdirs import user_cache_dir, user_data_dir
 from pydantic import BaseModel, Field, ValidationError, ValidationInfo, field_validator
 from pydantic_settings import (
     BaseSettings,
@@ -37,6 +36,7 @@ from c3_matcher.engines.store import default_engine_dir, usable_directory
 from c3_matcher.errors import ConfigurationError
 from c3_matcher.fdr.jsonl import MIN_BYTES, PENDING_BYTES, SEGMENT_BYTES
 from c3_matcher.plugins.types import StrategyDefaults
+from c3_matcher.user_dirs import user_cache_dir, user_data_dir
 
 __all__ = [
     "ENV_PREFIX",
@@ -51,8 +51,6 @@ __all__ = [
     "matcher_default",
     "with_strategy_defaults",
 ]
-
-APP_NAME = "c3-matcher"
 
 KEYPOINT_BUDGET_RANGE = (16, 8192)
 """The keypoints per image ``[matcher] max_keypoints`` and ``--max-keypoints`` accept."""
@@ -188,7 +186,7 @@ class EngineSettings(SettingsSection):
         "from a source checkout, else ~/.cache/c3-matcher/engines)",
     )
     tensorrt_cache_dir: Path = Field(
-        default_factory=lambda: Path(user_cache_dir(APP_NAME)) / "tensorrt",
+        default_factory=lambda: user_cache_dir() / "tensorrt",
         description="ONNX Runtime TensorRT engine cache (filled on the ground, reused in flight)",
     )
     providers: tuple[str, ...] | None = Field(
@@ -290,9 +288,9 @@ class FdrSettings(SettingsSection):
     """The ``[fdr]`` table."""
 
     path: Path = Field(
-        default_factory=lambda: Path(user_data_dir(APP_NAME)) / "fdr" / "c3_fdr.jsonl",
+        default_factory=lambda: user_data_dir() / "fdr" / "c3_fdr.jsonl",
         description="live FDR segment (JSON Lines); default in the user data directory "
-        "(~/.local/share/c3-matcher/fdr on Linux)",
+        "($XDG_DATA_HOME/c3-matcher/fdr, else ~/.local/share/c3-matcher/fdr)",
     )
     max_bytes: int = Field(SEGMENT_BYTES, ge=MIN_BYTES, description="rotate above this size")
     max_pending_bytes: int = Field(

@@ -3,11 +3,12 @@
 Execution providers: ``[engines] providers`` names any ONNX Runtime provider, in order of
 preference, by its full name or a short alias (TensorRT, CUDA, ROCm, MIGraphX, OpenVINO,
 DirectML, CoreML, CPU); the list is intersected with what the installed onnxruntime offers (or
-the injected ``providers_available``), and nothing usable left is a ``ConfigurationError``
-naming the setting. Without the setting: the first of TensorRT -> CUDA -> ... -> CPU that is
-installed, the rest as fallbacks. Per-provider options: device id, GPU memory limit, TensorRT
-FP16 switch, and ``[engines] provider_options`` keyed by any name ``providers`` accepts
-(``canonical_provider_options``).
+the injected ``providers_available``): a provider not installed is left out and said as a
+WARNING at start-up (``providers_not_installed``), and nothing usable left is a
+``ConfigurationError`` naming the setting. Without the setting: the first of TensorRT -> CUDA
+-> ... -> CPU that is installed, the rest as fallbacks. Per-provider options: device id, GPU
+memory limit, TensorRT FP16 switch, and ``[engines] provider_options`` keyed by any name
+``providers`` accepts (``canonical_provider_options``).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ __all__ = [
     "canonical_provider_options",
     "configured_providers",
     "provider_options",
+    "providers_not_installed",
     "resolve_providers",
     "select_providers",
 ]
@@ -184,6 +186,20 @@ def resolve_providers(configured: Sequence[str] | None, installed: Sequence[str]
             "installed providers, or remove the setting for the default chain",
         )
     return chosen
+
+
+def providers_not_installed(
+    configured: Sequence[str] | None, installed: Sequence[str]
+) -> tuple[str, ...]:
+    """The providers of ``configured`` (canonical names, in its order) that ``installed``
+    lacks: :func:`resolve_providers` leaves them out, and the runtime says so as a WARNING at
+    start-up (a flight config naming TensorRT on a CPU-only onnxruntime runs on the CPU).
+    Without ``configured`` (the default chain: the installed ones), none."""
+    if configured is None:
+        return ()
+    have = {str(p) for p in installed}
+    wanted = dict.fromkeys(canonical_provider(p) for p in configured)
+    return tuple(p for p in wanted if p not in have)
 
 
 def select_providers(available: Sequence[str]) -> list[str]:

@@ -2,7 +2,9 @@
 
 Which execution providers the sessions ask for, and with what options, is
 ``c3_matcher.engines.providers``; ``intra_op_threads`` sets the session threads. The request is
-logged once the sinks are set up (``c3.inference.provider_selected``, ``log_selection``); what
+logged once the sinks are set up (``c3.inference.provider_selected``, ``log_selection``), with a
+WARNING ``c3.inference.provider_not_installed`` naming any configured provider the installed
+onnxruntime lacks (left out: the matcher runs on the rest); what
 each session ACTUALLY uses (``session.get_providers()``: onnxruntime silently falls back to CPU
 when a provider cannot start) is logged per engine and is what ``provider`` reports, so the
 ready log and every FDR record name the real one; a fallback is a WARNING
@@ -56,13 +58,17 @@ from c3_matcher.engines.manifest import EngineManifest, check_engine_file
 from c3_matcher.engines.providers import (
     PROVIDER_ALIASES,
     PROVIDER_CHAIN,
+    PROVIDERS_SETTING,
     ProviderSettings,
+    configured_providers,
     provider_options,
+    providers_not_installed,
     resolve_providers,
     select_providers,
 )
 from c3_matcher.engines.spec import TensorSpec
 from c3_matcher.errors import EngineError
+from c3_matcher.logs import log_event
 
 if TYPE_CHECKING:
     from c3_matcher.config import EngineSettings
@@ -70,6 +76,7 @@ if TYPE_CHECKING:
 __all__ = [
     "PROVIDER_ALIASES",
     "PROVIDER_CHAIN",
+    "PROVIDER_NOT_INSTALLED",
     "SESSION_OPTIONS_NOTE",
     "OnnxInferenceRuntime",
     "ProviderSettings",
@@ -93,6 +100,9 @@ _ORT_TO_NUMPY = {
     "tensor(uint8)": "uint8",
 }
 
+
+PROVIDER_NOT_INSTALLED = "c3.inference.provider_not_installed"
+"""The WARNING of configured providers the installed onnxruntime lacks (``log_selection``)."""
 
 ORT_ERROR = 3
 """ONNX Runtime's severity level for errors (0 verbose, 1 info, 2 warning, 3 error, 4 fatal)."""
@@ -182,6 +192,7 @@ class OnnxInferenceRuntime:
             else list(providers_available)
         )
         self._providers = resolve_providers(requested, available)
+        configured = configured_providers(requested)  # canonical names, as they are logged
         self._settings = settings or SessionSettings()
         self._tensorrt_cache_dir = tensorrt_cache_dir
         self._provider_settings = provider_settings or ProviderSettings()
@@ -190,16 +201,38 @@ class OnnxInferenceRuntime:
             "provider": self._providers[0],
             "chain": self._providers,
             "available": available,
-            "requested": None if requested is None else list(requested),
+            "requested": None if configured is None else list(configured),
+            "not_installed": list(providers_not_installed(configured, available)),
             "onnxruntime": ort.__version__,
         }
 
     def log_selection(self) -> None:
-        """Log the provider request (``c3.inference.provider_selected``, INFO): ``compose_root``
-        does once the log sinks are set up (the runtime is made before them)."""
-        logger.bind(kind="c3.inference.provider_selected", **self._selection).info(
-            "inference provider requested: {}", self._providers[0]
+        """Log the provider list (``c3.inference.provider_selected``, INFO) and, when configured
+        providers are not installed, ``PROVIDER_NOT_INSTALLED`` (WARNING, forwarded to the FDR
+        as warnings are): ``compose_root`` does once the log sinks are set up (the runtime is
+        made before them)."""
+        chain, origin = ", ".join(self._providers), self._selection["requested"]
+        of = "the default chain, as installed" if origin is None else f"configured: {origin}"
+        log_event(
+            "INFO",
+            "c3.inference.provider_selected",
+            f"inference providers, preferred first: {chain} ({of})",
+            **self._selection,
         )
+        missing = self._selection["not_installed"]
+        if missing:
+            log_event(
+                "WARNING",
+                PROVIDER_NOT_INSTALLED,
+                f"configured execution providers {missing} are not installed (onnxruntime "
+                f"{ort.__version__} has {self._selection['available']}): the matcher runs on "
+                f"{chain}; install an onnxruntime that has them, or leave them out of "
+                f"{PROVIDERS_SETTING}",
+                requested=origin,
+                not_installed=missing,
+                chain=self._providers,
+                available=self._selection["available"],
+            )
 
     @classmethod
     def from_settings(

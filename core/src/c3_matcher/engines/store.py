@@ -28,8 +28,10 @@ from c3_matcher.errors import EngineError
 
 __all__ = [
     "BUILD_COMMAND",
+    "TOOLS_DISTRIBUTION",
     "EngineRecord",
     "EngineStore",
+    "MissingEngineError",
     "VerifyOutcome",
     "checkout_root",
     "damage",
@@ -41,6 +43,22 @@ __all__ = [
 ]
 
 BUILD_COMMAND = "c3-matcher engines build"
+TOOLS_DISTRIBUTION = "c3-matcher-tools"
+"""The ground tools, which add ``BUILD_COMMAND`` (and every ground command): never in flight."""
+
+
+class MissingEngineError(EngineError):
+    """No valid engine of a model/variant in the engine directory. The ground tools build it;
+    a flight computer, which has no tools, takes the engines a ground machine built: the
+    message names both."""
+
+    def __init__(self, path: Path, reason: str, command: str, directory: Path) -> None:
+        super().__init__(path, reason, command)
+        self.directory = directory
+        self.args = (
+            f"{self.args[0]} (the ground tools, {TOOLS_DISTRIBUTION}), or copy the engines a "
+            f"ground machine built into {directory}",
+        )
 
 
 CHECKOUT_ENGINE_DIR = ".engines"
@@ -68,15 +86,16 @@ def default_engine_dir() -> Path:
 
     From a source checkout (editable install): ``<checkout>/.engines``, where ``scripts/setup``,
     ``scripts/demo``, ``scripts/test`` and ``c3-matcher engines build`` put the engines, beside
-    the checkout's ``.venv``. Installed from wheels: the user cache directory of c3-matcher
-    (``~/.cache/c3-matcher/engines`` on Linux, from ``platformdirs``).
+    the checkout's ``.venv``. Installed from wheels: ``engines`` in c3-matcher's user cache
+    directory (``$XDG_CACHE_HOME/c3-matcher/engines``, else ``~/.cache/c3-matcher/engines``:
+    ``c3_matcher.user_dirs``).
     """
     root = checkout_root()
     if root is not None:
         return root / CHECKOUT_ENGINE_DIR
-    from platformdirs import user_cache_dir
+    from c3_matcher.user_dirs import user_cache_dir
 
-    return Path(user_cache_dir("c3-matcher")) / "engines"
+    return user_cache_dir() / "engines"
 
 
 def usable_directory(path: Path) -> Path:
@@ -155,8 +174,9 @@ class EngineStore:
         """The engine file of ``model``/``variant`` (newest valid build; with ``weights_sha256``,
         only one built from those weights; with ``graph``, only a build of that graph).
 
-        Raises ``EngineError`` naming ``c3-matcher engines build`` when there is none, and the
-        missing file when a manifest there describes one (else the file pattern looked for).
+        Raises ``MissingEngineError`` naming ``c3-matcher engines build`` (or a ground machine's
+        engines to copy) when there is none, and the missing file when a manifest there
+        describes one (else the file pattern looked for).
         A build changed after it was made (``EngineIntegrityError``: a file cut short, a
         manifest edited) stops the search, naming it and the build that removes it; never
         skipped for another build, whatever its age (``built_at`` is no part of the build key:
@@ -192,18 +212,24 @@ class EngineStore:
                 continue
             valid.append((manifest.built_at, path))
         if not valid:
-            missing = self._engines_without_file(model, variant)
-            problems += [f"{p.name}: file not found (its manifest is there)" for p in missing]
-            expected = missing[-1] if missing else expected
-            detail = f" ({'; '.join(problems)})" if problems else ""
-            raise EngineError(
-                expected,
-                f"no valid {model}/{variant} engine in {self._directory}{detail} (the "
-                "[engines] directory setting, or C3_MATCHER_ENGINES__DIRECTORY, says where to "
-                "look)",
-                _build_only(model, variant),
-            )
+            raise self._missing(model, variant, problems, expected)
         return max(valid)[1]
+
+    def _missing(
+        self, model: str, variant: str, problems: builtins.list[str], expected: Path
+    ) -> MissingEngineError:
+        """No valid ``model``/``variant`` engine here: the ``problems`` of the builds there, and
+        any file whose manifest is there without it (named; else ``expected``, the pattern)."""
+        missing = self._engines_without_file(model, variant)
+        problems += [f"{p.name}: file not found (its manifest is there)" for p in missing]
+        detail = f" ({'; '.join(problems)})" if problems else ""
+        return MissingEngineError(
+            missing[-1] if missing else expected,
+            f"no valid {model}/{variant} engine in {self._directory}{detail} (the [engines] "
+            "directory setting, or C3_MATCHER_ENGINES__DIRECTORY, says where to look)",
+            _build_only(model, variant),
+            self._directory,
+        )
 
     def _engines_without_file(self, model: str, variant: str) -> builtins.list[Path]:
         """The engine files of ``model``/``variant`` whose manifest is there but not the file."""
