@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numbers
 import threading
 import time
 from collections import deque
@@ -26,14 +25,15 @@ class MonotonicClock:
 
 def clock_problem(clock: Clock) -> str | None:
     """Why ``clock`` cannot time the matcher's frames (None: it can), read once: its
-    ``monotonic_ns()`` must give whole nanoseconds >= 0. A float, a negative value or a call
-    that raises passed start-up and then failed every frame after its success was recorded."""
+    ``monotonic_ns()`` must give whole nanoseconds >= 0 as a Python ``int``. A float, a negative
+    value or a call that raises passed start-up and then failed every frame after its success
+    was recorded; a numpy integer left every FDR record unwritten (not JSON) or overflowed."""
     try:
         now = clock.monotonic_ns()
     except Exception as exc:
         return f"monotonic_ns() raised {type(exc).__name__}: {exc}"
-    if isinstance(now, bool) or not isinstance(now, numbers.Integral):
-        return f"monotonic_ns() gave {now!r} ({type(now).__name__}), not whole nanoseconds"
+    if type(now) is not int:  # a bool, a float, a numpy integer
+        return f"monotonic_ns() gave {now!r} ({type(now).__name__}), not an int of nanoseconds"
     if now < 0:
         return f"monotonic_ns() gave {now}, not nanoseconds >= 0"
     return None
