@@ -6,9 +6,12 @@ and the dropped ones with their tile id and why (``dropped``)."""
 
 from __future__ import annotations
 
+import dataclasses
+import uuid
+
 import pytest
 
-from c3_matcher.errors import InsufficientInliersError
+from c3_matcher.errors import InsufficientInliersError, InvalidInputError
 from c3_matcher.testing import ScriptedCandidate, ScriptedRig
 
 S = ScriptedCandidate
@@ -84,3 +87,25 @@ def test_the_no_fix_record_lists_its_candidates_best_first_as_the_success_record
     rows = record["per_candidate"]
     assert [r["candidate_index"] for r in rows] == [2, 1, 0]  # inliers, then residual
     assert rows[0]["inlier_count"] == record["best_inlier_count"] == 29
+
+
+def test_the_terminal_records_carry_the_frames_capture_time(fdr, logs):
+    """How old a frame was when matched could not be read after a flight: ``captured_at_ns``
+    was checked and then carried nowhere (not the result, the FDR or the logs)."""
+    rig = ScriptedRig([S(80, 1.5)], fdr)
+    rig.match()
+    (done,) = fdr.of_kind("matcher.frame_done")
+    assert done["captured_at_ns"] == rig.frame.captured_at_ns == 1
+    stale = ScriptedRig([S(80, 1.5)], fdr)
+    stale_rerank = dataclasses.replace(stale.rerank, frame_id=uuid.UUID(int=9))
+    with pytest.raises(InsufficientInliersError):
+        stale.pipeline.match(stale.frame, stale_rerank, stale.calibration)
+    (record,) = fdr.of_kind("matcher.insufficient_inliers")
+    assert record["captured_at_ns"] == 1
+
+
+@pytest.mark.parametrize("captured", [2**63, 2**64, 10**30])
+def test_a_capture_time_beyond_int64_nanoseconds_is_refused(fdr, captured: int) -> None:
+    rig = ScriptedRig([S(80)], fdr)
+    with pytest.raises(InvalidInputError, match="frame.captured_at_ns: exceeds int64 ns"):
+        dataclasses.replace(rig.frame, captured_at_ns=captured)

@@ -178,6 +178,7 @@ class PipelineMatcher:
                 exc = InvalidInputError("frame", "is None (no nav frame)")
                 recorder.query_failed(exc)
                 raise MatcherBackboneError("query_extract", None, exc) from exc
+            recorder.captured(frame.captured_at_ns)
             if rerank_result.frame_id != frame.frame_id:  # candidates of another frame
                 raise recorder.stale_rerank(rerank_result, self.settings.min_inliers_threshold)
             if not rerank_result.candidates:  # the re-ranker proposed no tile: no fix, as when

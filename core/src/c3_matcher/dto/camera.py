@@ -58,7 +58,8 @@ class NavCameraFrame:
         )
         # a private read-only copy: the caller's buffer may be reused by the camera driver
         object.__setattr__(self, "image", v.frozen_copy(_check_image(self.image, "frame.image")))
-        v.non_negative_int(self.captured_at_ns, "frame.captured_at_ns")
+        captured = v.non_negative_int(self.captured_at_ns, "frame.captured_at_ns")
+        v.require(captured < 2**63, "frame.captured_at_ns", f"exceeds int64 ns, got {captured}")
         v.require(
             self.attitude is None or isinstance(self.attitude, Attitude),
             "frame.attitude",

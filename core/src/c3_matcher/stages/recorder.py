@@ -61,6 +61,12 @@ class FrameRecorder:
         self._health_updated = False
         self._backbone_errors = 0
         self._drops: dict[int, CandidateDrop] = {}  # by input position
+        self._capture: dict[str, int] = {}  # the frame's capture time, once its inputs passed
+
+    def captured(self, captured_at_ns: int) -> None:
+        """The frame's capture time, which its terminal records carry (``captured_at_ns``): how
+        old a frame was when matched can be read from the FDR after a flight."""
+        self._capture = {"captured_at_ns": int(captured_at_ns)}
 
     @property
     def frame_id(self) -> Any:
@@ -217,6 +223,7 @@ class FrameRecorder:
             "matcher.frame_done",
             {
                 "frame_id": self.frame_id,
+                **self._capture,
                 "candidates_input": evidence.candidates_input,
                 "candidates_dropped": evidence.dropped,
                 "best_inlier_count": best.inlier_count,
@@ -268,6 +275,7 @@ class FrameRecorder:
             "matcher.insufficient_inliers",
             {
                 "frame_id": self.frame_id,
+                **self._capture,
                 **stale,
                 "candidates_input": evidence.candidates_input,
                 "candidates_dropped": evidence.dropped,
