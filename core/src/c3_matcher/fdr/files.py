@@ -17,12 +17,11 @@ import glob
 import itertools
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from c3_matcher.fdr.records import read_fdr
 from c3_matcher.file_kinds import special_kind
 
 SEGMENT_DIGITS = 6
@@ -33,6 +32,8 @@ RECORD_START = f'{{"{RECORD_KEYS[0]}":'.encode()
 """How every record line begins: ``{"seq":``."""
 JUDGED_BYTES = 1 << 16
 """How much of a file is read to judge whether it is a log (:func:`is_foreign`)."""
+BLOCK_BYTES = 1 << 16
+"""How much of a segment is read at a time from its end (:func:`blocks_backward`)."""
 
 
 def segment_path(path: Path, number: int) -> Path:
@@ -124,11 +125,17 @@ def begins_a_log(head: bytes, *, whole: bool) -> bool:
 
 def is_record_line(line: bytes) -> bool:
     """Whether ``line`` is a JSON object with every key of a record (``RECORD_KEYS``)."""
+    value = json_object(line)
+    return value is not None and all(key in value for key in RECORD_KEYS)
+
+
+def json_object(line: bytes) -> dict[str, Any] | None:
+    """The JSON object ``line`` holds; None when it holds no JSON, or JSON that is no object."""
     try:
         value = json.loads(line)
     except (ValueError, RecursionError):
-        return False
-    return isinstance(value, dict) and all(key in value for key in RECORD_KEYS)
+        return None
+    return value if isinstance(value, dict) else None
 
 
 def read_meta(path: Path) -> dict[str, Any]:
@@ -208,18 +215,6 @@ def drop_half_rotated_live(path: Path) -> None:
             fsync_dir(path.parent)
 
 
-def recent_seqs(path: Path) -> list[int]:
-    """The seqs in the newest rotated segment and the live one, ``path``."""
-    seqs = []
-    for p in [*(q for _, q in rotated_segments(path)[-1:]), path]:
-        if p.exists():
-            for record in read_fdr(p):
-                seq = record.get("seq", 0) if isinstance(record, dict) else 0
-                if isinstance(seq, int):
-                    seqs.append(seq)
-    return seqs
-
-
 def open_for_append(path: Path) -> int:
     """``path`` opened to append; a file this creates is made durable in its directory, so
     that the records fsynced into it survive a power cut with it."""
@@ -277,21 +272,24 @@ def cut_torn_tail(path: Path, torn_path: Path, end: int | None = None) -> TornCu
 def _complete_lines(fh: BinaryIO, size: int) -> int:
     """How many of the ``size`` bytes of ``fh`` end with its last newline (``size`` when the
     last byte is one, or the file is empty)."""
-    if size == 0:
-        return 0
-    fh.seek(size - 1)
-    if fh.read(1) == b"\n":
-        return size
-    block = 1 << 16
-    pos = size
-    while pos > 0:  # find the last newline, reading backwards
-        lo = max(0, pos - block)
-        fh.seek(lo)
-        i = fh.read(pos - lo).rfind(b"\n")
-        if i >= 0:
-            return lo + i + 1
-        pos = lo
+    for offset, block in blocks_backward(fh, size):
+        end = block.rfind(b"\n")
+        if end >= 0:
+            return offset + end + 1
     return 0
+
+
+def blocks_backward(
+    fh: BinaryIO, size: int, block: int = BLOCK_BYTES
+) -> Iterator[tuple[int, bytes]]:
+    """The first ``size`` bytes of ``fh`` from the end back, ``block`` bytes at a time (the
+    first block of the file may be shorter), each with its offset in the file."""
+    pos = size
+    while pos > 0:
+        start = max(0, pos - block)
+        fh.seek(start)
+        yield start, fh.read(pos - start)
+        pos = start
 
 
 def _keep_aside(torn_path: Path, line: bytes) -> str:

@@ -22,7 +22,6 @@ from c3_matcher.fdr.files import (
     meta_path,
     open_for_append,
     read_meta,
-    recent_seqs,
     refusal,
     remove_log,
     rotated_segments,
@@ -39,6 +38,7 @@ from c3_matcher.fdr.pending import (
     read_lock,
 )
 from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, to_jsonable
+from c3_matcher.fdr.tail import recent_seqs
 from c3_matcher.fdr.turns import close_after_frame
 from c3_matcher.protocols import Clock
 
@@ -128,7 +128,7 @@ class JsonlFdrRecorder:
                 remove_log(self._path, self.torn_path)
             drop_half_rotated_live(self._path)
             torn = cut_torn_tail(self._path, self.torn_path)
-            seqs = recent_seqs(self._path)
+            seqs = recent_seqs(self._path, carried.first_seq if carried else None)
             self._seq = max([self._meta_seq(), *seqs, carried.last_seq if carried else 0]) + 1
             carried = carried and carried.without(seqs)  # some written before the last stopped
             self._write_first_lock(carried)  # the note of records lost when the last stopped
