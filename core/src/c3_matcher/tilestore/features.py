@@ -37,12 +37,16 @@ sidecar is locked or unreadable the store says so once (:class:`FeatureStoreUnav
 then serves nothing for ``retry_s`` seconds (the pipeline extracts) and tries again; a corrupt
 row (checksum, shapes, or database pages SQLite finds malformed) is refused once
 (:class:`StoredFeaturesCorruptError`, naming the window) and never served. The ground writer
-leaves the sidecar one self-contained file (no WAL), readable from read-only media.
+leaves the sidecar one self-contained file (no WAL), readable from read-only media; one an older
+version left in WAL mode is read there as an immutable file (nothing can write it:
+:func:`~c3_matcher.tilestore.files.unchanging`), and where its ``-shm`` cannot be made otherwise
+the outage says so, and that ``features build`` makes it one file.
 """
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from collections.abc import Iterator, Mapping
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -53,7 +57,6 @@ from c3_matcher.tilestore.sidecar import (
     MapFeatureStore,
     StoredFeaturesCorruptError,
     sidecar_path,
-    stored_sets,
 )
 from c3_matcher.tilestore.windows import (
     FeatureRequest,
@@ -141,3 +144,23 @@ def serve_window(
         keypoint_scores=np.ascontiguousarray(stored.scores[:n], dtype=np.float32),
         image_size=(w, h),
     )
+
+
+def stored_sets(store: MapFeatureStore) -> Iterator[Mapping[str, Any]]:
+    """The sets of a sidecar as dicts (for ``features info``; ``windows``: those stored, also
+    in a set a stopped build left incomplete; ``extractor_sha256``: the engine file that
+    extracted them, which the flight's must be to be served them)."""
+    for s in store.feature_sets():
+        yield {
+            "set_id": s.set_id,
+            "strategy": s.strategy,
+            "extractor_sha256": s.extractor_sha256,
+            "provider": s.provider,
+            "photometric": s.photometric,
+            "window_px": s.window_px,
+            "stride_px": s.stride_px,
+            "descriptor_dim": s.descriptor_dim,
+            "descriptor_dtype": s.descriptor_dtype,
+            "complete": s.complete,
+            "windows": len(store.done_windows(s.set_id)),
+        }

@@ -1,21 +1,36 @@
 """Store files (an MBTiles store, a map-features sidecar): why one cannot be opened, in words a
 user can act on, found before SQLite is asked: SQLite says "unable to open database file" for a
-missing file, a directory and a permission problem alike."""
+missing file, a directory and a permission problem alike, and for a file in WAL journal mode
+whose ``-shm`` cannot be made beside it (said once SQLite failed: :func:`wal_blocked`); such a
+file on read-only media is read as immutable (:func:`unchanging`)."""
 
 from __future__ import annotations
 
 import errno
 import os
+import sqlite3
+import stat
 from pathlib import Path
 
 from c3_matcher.file_kinds import kind_of
+from c3_matcher.tilestore.sidecar_file import sqlite_code
 
-__all__ = ["MMAP_BYTES", "cannot_open", "open_failure", "read_only_uri", "set_aside"]
+__all__ = [
+    "MMAP_BYTES",
+    "cannot_open",
+    "on_read_only_media",
+    "open_failure",
+    "read_only_uri",
+    "set_aside",
+    "unchanging",
+    "wal_blocked",
+]
 
 MMAP_BYTES = 256 * 1024 * 1024
 """The memory map of a read connection to a store file (tile store and map-features sidecar)."""
 
 _COMPANIONS = ("-wal", "-shm", "-journal")  # SQLite's files beside a database, by suffix
+_WAL_VERSION = 2  # an SQLite header's bytes 18 and 19 (write and read version) in WAL mode
 
 
 def open_failure(path: str | Path, kind: str) -> str | None:
@@ -44,8 +59,81 @@ def read_only_uri(path: str | Path) -> str:
     """The SQLite URI that opens the database file ``path`` read-only (``uri=True``): the
     absolute path percent-encoded, so that a ``#``, ``?`` or ``%`` in a folder's name is part of
     the name, not a fragment, a query or an escape (which would open another file, or drop
-    ``mode=ro``)."""
-    return f"{Path(path).resolve().as_uri()}?mode=ro"
+    ``mode=ro``); ``immutable=1`` too for a file that is :func:`unchanging`."""
+    p = Path(path).resolve()
+    return f"{p.as_uri()}?mode=ro{'&immutable=1' if unchanging(p) else ''}"
+
+
+def unchanging(path: Path) -> bool:
+    """Whether the database ``path`` is read as an immutable file (SQLite then takes no lock
+    and makes no ``-shm``): it is in WAL journal mode (an older c3-matcher left its sidecars so,
+    other tools their MBTiles stores), no SQLite companion lies beside it (no connection has it
+    open, no page waits in a ``-wal``) and its file system is mounted read-only. SQLite could
+    not read it otherwise (a reader of a WAL file needs a ``-shm`` beside it, which cannot be
+    made there), and nothing can write it while it is mounted so."""
+    return (
+        _in_wal_mode(path)
+        and not any(_beside(path, s) for s in _COMPANIONS)
+        and on_read_only_media(path)
+    )
+
+
+def on_read_only_media(path: Path) -> bool:
+    """Whether the file system holding ``path`` is mounted read-only (``ST_RDONLY``)."""
+    try:
+        return bool(os.statvfs(path).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
+def wal_blocked(path: Path, exc: BaseException) -> str | None:
+    """Why SQLite could not open the database ``path`` (``exc``, its error: CANTOPEN, or
+    READONLY when the ``-shm`` cannot be written) when it is in WAL journal mode and no ``-shm``
+    lies beside it: a reader needs one, and none could be made there (a read-only folder or
+    medium); None when that is not so."""
+    if sqlite_code(exc) not in (sqlite3.SQLITE_CANTOPEN, sqlite3.SQLITE_READONLY):
+        return None
+    if not _in_wal_mode(path) or _beside(path, "-shm"):
+        return None
+    wal = Path(f"{path}-wal")
+    pages = f"; its latest pages are only in {wal.name}" if _size(wal) else ""
+    return (
+        f"in WAL journal mode, which needs a {path.name}-shm file beside it, and none can be "
+        f"made in its folder{pages}"
+    )
+
+
+def _in_wal_mode(path: Path) -> bool:
+    """Whether the SQLite file ``path``'s header says WAL journal mode (False when it is no
+    regular file or cannot be read; a FIFO is not waited on)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError:
+        return False
+    try:
+        header = os.read(fd, 20) if stat.S_ISREG(os.fstat(fd).st_mode) else b""
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+    return len(header) == 20 and header[18] == header[19] == _WAL_VERSION
+
+
+def _beside(path: Path, suffix: str) -> bool:
+    """Whether the SQLite companion ``<path><suffix>`` lies beside ``path`` (none can where its
+    name would be too long; one that cannot be looked for is taken as there)."""
+    try:
+        return Path(f"{path}{suffix}").exists()
+    except OSError as exc:
+        return exc.errno != errno.ENAMETOOLONG
+
+
+def _size(path: Path) -> int:
+    """The size of the file ``path`` in bytes; 0 when there is none."""
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
 
 
 def cannot_open(exc: OSError) -> str:

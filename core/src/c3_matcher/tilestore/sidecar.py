@@ -8,12 +8,12 @@ import contextlib
 import sqlite3
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
 from c3_matcher.errors import describe
-from c3_matcher.tilestore.files import MMAP_BYTES, open_failure, read_only_uri
+from c3_matcher.tilestore.files import MMAP_BYTES, open_failure, read_only_uri, wal_blocked
 from c3_matcher.tilestore.sidecar_file import LEAVE_WAL_S, leave_wal, schema_mismatch, sqlite_code
 from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, decode_row, row_checksum
 
@@ -48,8 +48,16 @@ T = TypeVar("T")
 
 
 class FeatureStoreUnavailableError(RuntimeError):
-    """The sidecar is locked by another process or unreadable: raised once per outage (the
-    store then serves nothing until it is tried again)."""
+    """The sidecar ``path`` is locked by another process or unreadable (``why``, in words, its
+    cause SQLite's error; ``fix``: what makes it readable, when something does): raised once
+    per outage (the store then serves nothing until it is tried again, ``retry_s`` later)."""
+
+    def __init__(
+        self, path: Path, why: str, *, fix: str = "", retry_s: float | None = None
+    ) -> None:
+        self.path, self.why = path, why
+        then = "" if retry_s is None else f"; extracting instead, next try in {retry_s:g} s"
+        super().__init__(f"{path}: {why}{f'; {fix}' if fix else ''}{then}")
 
 
 class SidecarDamagedError(RuntimeError):
@@ -98,10 +106,7 @@ class MapFeatureStore:
         self._reported = False  # this outage was already raised
         self._refused: set[tuple[str, int, int, int]] = set()
         self._reading = threading.Lock()
-        if writable:
-            self._db = _open_writable(self.path)
-        else:
-            self._db = _open_read_only(self.path)
+        self._db = _open_writable(self.path) if writable else _open_read_only(self.path)
 
     # -- reading ------------------------------------------------------------------------
     def _read(self, query: Callable[[], T]) -> T | None:
@@ -123,8 +128,9 @@ class MapFeatureStore:
             if self._reported:
                 return None
             self._reported = True
+            why, fix = _unreadable(self.path, exc)
             raise FeatureStoreUnavailableError(
-                f"{self.path}: {describe(exc)}; extracting instead, next try in {self._retry_s:g} s"
+                self.path, why, fix=fix, retry_s=self._retry_s
             ) from exc
         self._down_until, self._reported = None, False
         return result
@@ -331,7 +337,7 @@ def _open_read_only(path: Path) -> sqlite3.Connection:
         db = sqlite3.connect(read_only_uri(path), uri=True, timeout=0, check_same_thread=False)
     except sqlite3.Error as exc:
         why = open_failure(path, "a features sidecar") or f"cannot open ({exc})"
-        raise FeatureStoreUnavailableError(f"{path}: {why}") from exc
+        raise FeatureStoreUnavailableError(path, why) from exc
     with contextlib.suppress(sqlite3.Error):  # rows read from the page cache
         db.execute(f"PRAGMA mmap_size={MMAP_BYTES}")
     return db
@@ -359,6 +365,19 @@ def _open_writable(path: Path) -> sqlite3.Connection:
     return db
 
 
+def _unreadable(path: Path, exc: sqlite3.Error) -> tuple[str, str]:
+    """Why the sidecar ``path`` cannot be read (``exc``, SQLite's error), in words, and what
+    makes it readable ("" when nothing here can tell)."""
+    if (blocked := wal_blocked(path, exc)) is None:
+        return describe(exc), ""
+    return (
+        "cannot be read here: an older c3-matcher (or a build that a reader held open) left it "
+        f"{blocked}",
+        "`c3-matcher features build` of its store, where it can be written, makes it one file "
+        "that read-only media serve, keeping its features",
+    )
+
+
 @contextlib.contextmanager
 def _damage_refused(path: Path) -> Iterator[None]:
     """SQLite's errors saying the database ``path`` is damaged raised as SidecarDamagedError."""
@@ -379,21 +398,3 @@ def _set_of(path: Path, row: Sequence[Any]) -> FeatureSet:
         raise SidecarDamagedError(
             path, f"damaged (window_sets row {str(row[0])[:12]}...: {exc})"
         ) from None
-
-
-def stored_sets(store: MapFeatureStore) -> Iterator[Mapping[str, Any]]:
-    """The sets of a sidecar as dicts (for ``features info``; ``windows``: those stored, also
-    in a set a stopped build left incomplete)."""
-    for s in store.feature_sets():
-        yield {
-            "set_id": s.set_id,
-            "strategy": s.strategy,
-            "provider": s.provider,
-            "photometric": s.photometric,
-            "window_px": s.window_px,
-            "stride_px": s.stride_px,
-            "descriptor_dim": s.descriptor_dim,
-            "descriptor_dtype": s.descriptor_dtype,
-            "complete": s.complete,
-            "windows": len(store.done_windows(s.set_id)),
-        }

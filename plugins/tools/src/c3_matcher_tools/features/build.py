@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from c3_matcher.config import C3Settings
+from c3_matcher.errors import C3Error
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.tilestore.features import (
     FeatureSet,
@@ -76,11 +77,13 @@ __all__ = [
     "WINDOW_PX_RANGE",
     "BuildReport",
     "BuildRunningError",
+    "InstalledExtractor",
     "build_features",
     "extract_window_features",
     "flight_grid",
     "flight_windows",
     "grid_windows",
+    "installed_extractor",
     "store_tile_digests",
     "window_digests",
 ]
@@ -228,6 +231,28 @@ def _resolved(
     for s in strategies:  # one unknown or not linked here: refused before any worker starts
         host.resolve(s)
     return {s: strategy_settings(settings, s, host).model_dump_json() for s in strategies}
+
+
+@dataclass(frozen=True)
+class InstalledExtractor:
+    """The extractor engine a strategy flies with in this installation: its file's sha256 (the
+    flight is served only the sets that engine built), or None and why it cannot be named (the
+    strategy's plugin is not installed, its engine is missing or refused)."""
+
+    sha256: str | None
+    why: str = ""
+
+
+def installed_extractor(
+    strategy: str, settings: C3Settings, host: PluginHost | None = None
+) -> InstalledExtractor:
+    """``strategy``'s extractor engine under ``settings``, learnt as a build learns the set it
+    builds (its backend loaded in this process: :func:`set_facts`)."""
+    try:
+        settings_json = _resolved(settings, [strategy], host)[strategy]
+        return InstalledExtractor(set_facts(strategy, settings_json, {}).extractor_sha256)
+    except (C3Error, ValueError, OSError, RuntimeError) as exc:
+        return InstalledExtractor(None, " ".join(str(exc).split()))
 
 
 def _plan(

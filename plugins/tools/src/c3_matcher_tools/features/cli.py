@@ -47,8 +47,9 @@ def register_features_command(commands: CommandRegistry) -> None:
         action="store_true",
         help="read every stored window and check it as the flight does: its checksum and shapes "
         "(damaged) and its tiles' digest against the store's tiles now (stale: a tile changed "
-        "since it was built; the flight serves neither); exit 1 when one is damaged or stale "
-        "(features build extracts those again)",
+        "since it was built; the flight serves neither); exit 1 when one is damaged or stale, "
+        "or a strategy's sets were all built with another extractor engine than the installed "
+        "one (features build extracts those again)",
     )
     i.set_defaults(handler=_info)
 
@@ -158,10 +159,13 @@ def _store_of(path: Path) -> Path:
 
 
 def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
-    """Print the feature sets stored beside a store; with --verify each window is checked as the
-    flight checks it (its row's checksum and shapes, and its tiles' digest against the store's
-    tiles now), each set counting its ``intact``, ``damaged`` and ``stale`` windows: exit 1 when
-    one is damaged or stale (the flight extracts those instead; a build extracts them again)."""
+    """Print the feature sets stored beside a store, each with whether the installed extractor
+    engine built it (:func:`_mark_engines`: the flight is served no other); with --verify each
+    window is checked as the flight checks it (its row's checksum and shapes, and its tiles'
+    digest against the store's tiles now), each set counting its ``intact``, ``damaged`` and
+    ``stale`` windows: exit 1 when one is damaged or stale, or when a strategy has sets but none
+    the installed engine built (the flight extracts those instead; a build extracts them
+    again)."""
     from c3_matcher.tilestore.features import FeatureStoreUnavailableError, sidecar_path
     from c3_matcher.tilestore.mbtiles import MBTilesStore
     from c3_matcher.tilestore.sidecar import SidecarDamagedError
@@ -179,6 +183,7 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
         return EXIT_FAILURE
     except FeatureStoreUnavailableError as exc:
         return _unavailable(exc, store, path, ctx)
+    _mark_engines(sets, ctx)
     _print_sets(store, path, sets, ctx, as_json=args.json)
     if damaged:
         ctx.err(
@@ -191,7 +196,8 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
             "they were built; the flight extracts those instead); extract them again: "
             f"c3-matcher features build {store}"
         )
-    return EXIT_FAILURE if damaged or stale else EXIT_OK
+    unserved = _engine_notes(args.store, path, sets, ctx)
+    return EXIT_FAILURE if damaged or stale or (unserved and args.verify) else EXIT_OK
 
 
 def _stored_sets(
@@ -214,23 +220,33 @@ def _stored_sets(
 def _unavailable(
     exc: FeatureStoreUnavailableError, store: Path, path: Path, ctx: CommandContext
 ) -> int:
-    """Say why the sidecar cannot be opened (locked, not permitted, unreadable); exit 2."""
+    """Say why the sidecar cannot be opened (locked, in WAL journal mode where it cannot be
+    read, not permitted, unreadable) and what to do about it; exit 2."""
     import sqlite3
 
-    cause = exc.__cause__
-    code = getattr(cause, "sqlite_errorcode", 0) & 0xFF
+    from c3_matcher.tilestore.files import open_failure, wal_blocked
+    from c3_matcher.tilestore.sidecar_file import sqlite_code
+
+    cause = exc.__cause__ or exc
+    code = sqlite_code(cause)
+    then = f"Rebuild it: c3-matcher features build {store}"
     if code in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
-        ctx.err(
-            f"c3-matcher: {path}: locked by another process ({cause}); the flight "
-            "extracts instead while it is. Try again when it is released"
+        why, then = f"locked by another process ({cause})", "Try again when it is released"
+    elif wal_blocked(path, cause) is not None:  # exc.why says it, and the way out
+        why, then = (
+            exc.why,
+            (
+                f"Make it one file on a writable copy of its folder, keeping its features (then "
+                f"copy it back): c3-matcher features build {store}"
+            ),
         )
-        return EXIT_USAGE
-    if code == sqlite3.SQLITE_CANTOPEN:  # its permission: nothing to rebuild
-        ctx.err(f"c3-matcher: {exc}; the flight extracts instead while it is")
-        return EXIT_USAGE
+    elif code == sqlite3.SQLITE_CANTOPEN and (failed := open_failure(path, "a features sidecar")):
+        why, then = failed, "Let the user who runs c3-matcher read it and search its folder"
+    else:
+        why = f"unreadable ({' '.join(str(cause).split())})"
     ctx.err(
-        f"c3-matcher: {path}: unreadable ({cause or exc}); the flight "
-        f"extracts instead. Rebuild it: c3-matcher features build {store}"
+        f"c3-matcher: {path}: {why}; the flight extracts every candidate instead while it is "
+        f"so. {then}."
     )
     return EXIT_USAGE
 
@@ -267,3 +283,65 @@ def _verified(store: Path, side: MapFeatureStore, sets: list[dict[str, object]])
         s["damage"] = {f"{z}/{x}/{y}": why for (z, x, y), why in sorted(bad.items())}
         damaged, stale = damaged + len(bad), stale + len(old)
     return damaged, stale
+
+
+def _mark_engines(sets: list[dict[str, object]], ctx: CommandContext) -> None:
+    """Mark each set with the extractor engine its strategy flies with in this installation
+    (``installed_extractor_sha256``, learnt once per strategy) and ``engine_installed``: whether
+    that engine built it (the flight is served no set another engine built), None when the
+    installed engine cannot be named (``engine_unknown``: why)."""
+    from c3_matcher_tools.features.build import installed_extractor
+
+    strategies = sorted({str(s["strategy"]) for s in sets})
+    installed = {n: installed_extractor(n, ctx.settings, ctx.plugin_host) for n in strategies}
+    for s in sets:
+        known = installed[str(s["strategy"])]
+        s["installed_extractor_sha256"] = known.sha256
+        s["engine_installed"] = (
+            None if known.sha256 is None else known.sha256 == s["extractor_sha256"]
+        )
+        if known.sha256 is None:
+            s["engine_unknown"] = known.why
+
+
+def _engine_notes(
+    store: Path, path: Path, sets: list[dict[str, object]], ctx: CommandContext
+) -> int:
+    """Say of each set the installed extractor engine did not build (:func:`_mark_engines`) that
+    the flight never serves it, and what builds the set it is served; of each set whose engine
+    cannot be named, why. The number of sets not served that no set of the installed engine
+    (same strategy and window) replaces: the flight extracts their candidates."""
+    served = {(s["strategy"], s["window_px"]): s for s in sets if s["engine_installed"]}
+    only = " (with --flight-candidates: only its candidates' windows)" if store.is_dir() else ""
+    unserved = 0
+    for s in sets:
+        name, window = s["strategy"], s["window_px"]
+        what = f"set {str(s['set_id'])[:12]}... ({name}, {window} px windows)"
+        if s["engine_installed"] is None:
+            ctx.err(
+                f"c3-matcher: {path}: {what}: whether the installed engines serve it cannot be "
+                f"told: {str(s['engine_unknown']).rstrip('.')}."
+            )
+            continue
+        if s["engine_installed"]:
+            continue
+        other = served.get((name, window))
+        built = (
+            f"c3-matcher: {path}: {what} was built with another extractor engine (sha256 "
+            f"{str(s['extractor_sha256'])[:12]}...) than the installed one "
+            f"({str(s['installed_extractor_sha256'])[:12]}...), so the flight is never served it."
+        )
+        if other is None:
+            unserved += 1
+            built += (
+                " The flight extracts those candidates instead; build the set for the installed "
+                f"engine: c3-matcher features build {store} --strategy {name} --window {window} "
+                f"--stride {s['stride_px']}{only}."
+            )
+        else:
+            built += f" Set {str(other['set_id'])[:12]}... of the installed engine replaces it."
+        ctx.err(
+            f"{built} No command removes a single set: its windows keep their space until "
+            f"{path.name} is deleted, which removes every set in it."
+        )
+    return unserved
