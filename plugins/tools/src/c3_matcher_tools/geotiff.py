@@ -1,7 +1,8 @@
 """The GeoTIFF tags a north-up grid is read from, each fact once: the tag and GeoKey ids, the
 tags of a ``tifffile`` page, the GeoKeyDirectory's inline keys, the pixel scale and the tie
-point, each checked (a malformed tag, too short for what it must hold, is refused naming the
-file, as GDAL refuses it, never an internal error).
+point (or the model transformation that may stand for both), each checked (a malformed tag,
+too short for what it must hold, is refused naming the file, as GDAL refuses it, never an
+internal error); a grid that is not north-up is refused as such.
 
 Both GeoTIFF readers build on it (:mod:`c3_matcher_tools.sim.orthophotos` for a frame source's
 GSD, :mod:`c3_matcher_tools.tilestore.geo` for a tile store's grid); it imports nothing of the
@@ -23,6 +24,7 @@ __all__ = [
     "GEOGRAPHIC_CRS_KEY",
     "GEO_KEY_DIRECTORY",
     "GRID_TAGS",
+    "MODEL_TRANSFORMATION",
     "MODEL_TYPE_KEY",
     "PIXEL_SCALE",
     "PROJECTED_CRS_KEY",
@@ -32,6 +34,8 @@ __all__ = [
     "check_pixel_scale",
     "geo_keys",
     "grid_tags",
+    "model_transformation",
+    "north_up_scale",
     "pixel_scale",
     "tiepoint",
 ]
@@ -40,9 +44,12 @@ PIXEL_SCALE = 33550
 """ModelPixelScaleTag: (x, y, z) size of a pixel in the CRS's units."""
 TIEPOINT = 33922
 """ModelTiepointTag: (i, j, k, x, y, z), raster point (i, j) at CRS point (x, y)."""
+MODEL_TRANSFORMATION = 34264
+"""ModelTransformationTag: a 4 x 4 matrix (row by row) from raster (i, j) to CRS (x, y), in
+place of the pixel scale and tie point; GDAL writes it for a rotated or flipped grid."""
 GEO_KEY_DIRECTORY = 34735
 """GeoKeyDirectoryTag: the GeoKeys, four numbers a key after a four-number header."""
-GRID_TAGS = (PIXEL_SCALE, TIEPOINT, GEO_KEY_DIRECTORY)
+GRID_TAGS = (PIXEL_SCALE, TIEPOINT, MODEL_TRANSFORMATION, GEO_KEY_DIRECTORY)
 
 MODEL_TYPE_KEY = 1024
 """GTModelTypeGeoKey: 1 projected, 2 geographic (degrees)."""
@@ -100,6 +107,18 @@ def tiepoint(tags: Mapping[int, Any], source: str | Path) -> tuple[float, ...] |
     return None if values is None else tuple(values[:6])
 
 
+def model_transformation(
+    tags: Mapping[int, Any], source: str | Path
+) -> tuple[float, float, float, float, float, float] | None:
+    """(a, b, c, d, e, f) of ``tags``' ModelTransformation, ``x = a i + b j + c``,
+    ``y = d i + e j + f``, or None without it; a tag of fewer than 8 numbers (its first two
+    rows) is refused naming ``source``."""
+    values = _numbers(tags, MODEL_TRANSFORMATION, 8, "ModelTransformation (4 x 4 matrix)", source)
+    if values is None:
+        return None
+    return values[0], values[1], values[3], values[4], values[5], values[7]
+
+
 def geo_keys(tags: Mapping[int, Any], source: str | Path = "the GeoTIFF") -> dict[int, Any]:
     """The inline GeoKeys of ``tags``' GeoKeyDirectory as {key id: value} ({} without one); a
     directory shorter than its header (4 numbers) plus 4 numbers a key it declares is refused
@@ -135,3 +154,21 @@ def check_pixel_scale(scale_x: float, scale_y: float, source: str | Path) -> Non
             f"{source}: not a north-up grid: its pixel size {scale_x:g} x {scale_y:g} (E x N) "
             "must be finite and > 0 on both axes",
         )
+
+
+def north_up_scale(
+    matrix: tuple[float, float, float, float, float, float], source: str | Path
+) -> tuple[float, float]:
+    """The (x, y) pixel size (E x N) of the affine ``matrix`` (a, b, c, d, e, f):
+    ``x = a i + b j + c``, ``y = d i + e j + f``, a ModelTransformation's or GDAL's geotransform;
+    a grid that it rotates or shears (b, d not 0) or flips (:func:`check_pixel_scale`) is refused
+    naming ``source`` as not north-up."""
+    a, b, c, d, e, f = matrix
+    if b != 0 or d != 0:
+        raise InvalidInputError(
+            "geotiff",
+            f"{source}: not a north-up grid: its georeference (| {a:g}, {b:g}, {c:,.2f} | {d:g}, "
+            f"{e:g}, {f:,.2f} |) rotates or shears it; reproject it north-up first",
+        )
+    check_pixel_scale(a, -e, source)
+    return a, -e

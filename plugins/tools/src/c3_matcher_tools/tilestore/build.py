@@ -12,12 +12,18 @@ its own window (never the whole raster) and coarser zooms read the file's overvi
 zooms can be written into one store. The zoom defaults to the coarsest whose ground GSD at the
 image centre is at most the orthophoto's (:func:`c3_matcher_tools.tilestore.geo.zoom_for_gsd`).
 
+The tiles planned are those along the orthophoto's outline (its edges sampled, not only its
+corners), their columns modulo 2**zoom across 180 deg, their rows within the web-mercator world
+(the share of the orthophoto beyond +-85.0511 deg is reported as ``beyond_world_pct``).
+
 Refused before any tile is written (``InvalidInputError``): coordinates that do not fit the CRS
-(:func:`~c3_matcher_tools.tilestore.geo.check_grid_fits_crs`), an implausible ground GSD, and,
-unless ``force``, a zoom whose tiles are more than :data:`MAX_UPSAMPLE` times finer than the
-source (invented detail, and 4x the tiles per zoom step). A build that stores no tile is refused
-too. The store is written atomically (:class:`MBTilesWriter`). Non-8-bit data is mapped to 8 bits
-as the report's ``value_mapping`` says (:class:`~c3_matcher_tools.tilestore.raster.ValueMapping`).
+(:func:`~c3_matcher_tools.tilestore.geo.check_grid_fits_crs`), a grid holding a pole or wholly
+beyond the web-mercator world (:func:`~c3_matcher_tools.tilestore.geo.refuse_off_the_tiles`),
+an implausible ground GSD, and, unless ``force``, a zoom whose tiles are more than
+:data:`MAX_UPSAMPLE` times finer than the source (invented detail, and 4x the tiles per zoom
+step). A build that stores no tile is refused too. The store is written atomically
+(:class:`MBTilesWriter`). Non-8-bit data is mapped to 8 bits as the report's ``value_mapping``
+says (:class:`~c3_matcher_tools.tilestore.raster.ValueMapping`).
 """
 
 from __future__ import annotations
@@ -34,16 +40,21 @@ from numpy.typing import NDArray
 
 from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT
 from c3_matcher_tools.sim.orthophotos import load_orthophoto
 from c3_matcher_tools.tilestore.geo import (
     TILE_PX,
     GeoGrid,
     check_source_gsd,
-    lonlat_to_world_px,
+    grid_outline_lonlat,
     read_geotiff_grid,
+    refuse_off_the_tiles,
+    share_beyond_world,
+    tile_ranges,
     world_px_to_lonlat,
     zoom_for_gsd,
 )
+from c3_matcher_tools.tilestore.projection import wrap_lon
 from c3_matcher_tools.tilestore.raster import (
     RasterioSource,
     ValueMapping,
@@ -68,7 +79,8 @@ class BuildReport:
     """What ``build_mbtiles`` wrote: ``tiles`` stored (of ``candidates`` in the bounds) over
     ``zooms`` (``zoom`` the finest, ``tile_gsd_m`` its GSD; ``tiles_per_zoom``), read with
     ``reader`` (``rasterio`` or ``tifffile``); ``value_mapping`` says how the source's values
-    became 8 bits."""
+    became 8 bits; ``beyond_world_pct`` how much of the orthophoto (% of its pixels) lies beyond
+    the web-mercator world (|lat| > 85.0511 deg) and is in no tile."""
 
     path: Path
     zoom: int
@@ -84,6 +96,7 @@ class BuildReport:
     nodata: float | None = None
     overview_levels: tuple[int, ...] = ()
     value_mapping: str = "uint8 as is"
+    beyond_world_pct: float = 0.0
 
 
 def _tile_uv(grid: GeoGrid, zoom: int, x: int, y: int) -> NDArray[np.float64]:
@@ -183,14 +196,17 @@ class _Output:
 @dataclass(frozen=True)
 class _Plan:
     """The tiles a build covers: per zoom (``zooms``, ascending) the tile columns and rows
-    (``ranges``) around the orthophoto's ``corners`` (lon, lat); ``centre`` (lon, lat) is the
-    image centre and ``default_zoom`` the source's own zoom."""
+    (``ranges``; columns unwrapped across 180 deg, meant modulo 2**zoom) around the orthophoto's
+    ``corners`` (lon, lat, unwrapped around the centre's); ``centre`` (lon, lat) is the image
+    centre, ``default_zoom`` the source's own zoom and ``beyond_world`` the share of the
+    orthophoto beyond the web-mercator world."""
 
     zooms: tuple[int, ...]
     default_zoom: int
     centre: tuple[float, float]
     corners: NDArray[np.float64]
     ranges: dict[int, tuple[range, range]]
+    beyond_world: float = 0.0
 
     @property
     def planned(self) -> int:
@@ -198,8 +214,11 @@ class _Plan:
         return sum(len(xs) * len(ys) for xs, ys in self.ranges.values())
 
     def jobs(self) -> list[tuple[int, int, int]]:
-        """(zoom, x, y) of every tile in the bounds: zoom by zoom, row by row."""
-        return [(z, tx, ty) for z, (xs, ys) in self.ranges.items() for ty in ys for tx in xs]
+        """(zoom, x, y) of every tile in the bounds: zoom by zoom, row by row, west to east
+        (across 180 deg from the world's last columns to its first)."""
+        return [
+            (z, tx % (1 << z), ty) for z, (xs, ys) in self.ranges.items() for ty in ys for tx in xs
+        ]
 
     def tile_gsd(self, z: int) -> float:
         """The ground GSD (m/px) of zoom ``z``'s tiles at the image centre."""
@@ -300,7 +319,7 @@ def _build(
 ) -> BuildReport:
     """Plan the tiles, refuse a zoom of invented detail (unless ``force``), write every tile
     that holds data and the store's metadata, and report; a store with no tile is refused."""
-    plan = _plan(source, zooms)
+    plan = _plan(geotiff, source, zooms)
     _refuse_too_fine(plan, source.gsd, force)
     jobs = plan.jobs()
     with MBTilesWriter(output.path, overwrite=output.overwrite) as writer:
@@ -328,27 +347,29 @@ def _build(
         None if source.nodata is None else float(source.nodata),
         tuple(sorted(source.raster.levels_used)) if source.raster is not None else (),
         source.mapping,
+        round(plan.beyond_world * 100.0, 2),
     )
 
 
-def _plan(source: _Source, zooms: list[int] | None) -> _Plan:
-    """The tiles covering the orthophoto at ``zooms`` (None: the source's own zoom)."""
+def _plan(geotiff: str | Path, source: _Source, zooms: list[int] | None) -> _Plan:
+    """The tiles covering the orthophoto at ``zooms`` (None: the source's own zoom): along its
+    outline, across 180 deg where it crosses it, within the web-mercator world (a grid that
+    holds a pole or lies wholly beyond the world is refused, naming ``geotiff``)."""
     grid = source.grid
     centre = grid.centre_lonlat()
     default_zoom = zoom_for_gsd(source.gsd, centre[1])
     if zooms is None:
         zooms = [default_zoom]
+    outline = grid_outline_lonlat(grid)
+    refuse_off_the_tiles(grid, outline, geotiff)
     w, h = grid.size
     corners = grid.px_to_lonlat(
         [[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]
     )
-    ranges: dict[int, tuple[range, range]] = {}
-    for z in zooms:
-        world = lonlat_to_world_px(corners, z)
-        x_lo, y_lo = (np.floor(world.min(axis=0)) // TILE_PX).astype(int)
-        x_hi, y_hi = (np.floor(world.max(axis=0)) // TILE_PX).astype(int)
-        ranges[z] = (range(x_lo, x_hi + 1), range(y_lo, y_hi + 1))
-    return _Plan(tuple(zooms), default_zoom, centre, corners, ranges)
+    corners[:, 0] = wrap_lon(corners[:, 0], centre[0])
+    ranges = {z: tile_ranges(outline, z) for z in zooms}
+    beyond = share_beyond_world(grid, outline)
+    return _Plan(tuple(zooms), default_zoom, centre, corners, ranges, beyond)
 
 
 def _refuse_too_fine(plan: _Plan, gsd: float, force: bool) -> None:
@@ -414,9 +435,14 @@ def _encode(tile: NDArray[np.uint8], output: _Output, z: int, x: int, y: int) ->
 
 
 def _metadata(geotiff: str | Path, source: _Source, plan: _Plan, output: _Output) -> dict[str, str]:
-    """The store's MBTiles metadata, with the source's georeference, reader and mapping."""
-    lons, lats = plan.corners[:, 0], plan.corners[:, 1]
-    lon_c, lat_c = plan.centre
+    """The store's MBTiles metadata, with the source's georeference, reader and mapping; its
+    bounds within the web-mercator world (west > east across 180 deg)."""
+    lons = wrap_lon([plan.corners[:, 0].min(), plan.corners[:, 0].max()])
+    lats = np.clip(plan.corners[:, 1], -MERCATOR_MAX_LAT, MERCATOR_MAX_LAT)
+    lon_c, lat_c = (
+        plan.centre[0],
+        float(np.clip(plan.centre[1], -MERCATOR_MAX_LAT, MERCATOR_MAX_LAT)),
+    )
     grid, nodata = source.grid, source.nodata
     return {
         "name": Path(geotiff).stem,
@@ -425,7 +451,7 @@ def _metadata(geotiff: str | Path, source: _Source, plan: _Plan, output: _Output
         "version": "1.0",
         "description": f"web-mercator tiles of {Path(geotiff).name} (c3-matcher)",
         "attribution": output.attribution,
-        "bounds": f"{lons.min():.7f},{lats.min():.7f},{lons.max():.7f},{lats.max():.7f}",
+        "bounds": f"{lons[0]:.7f},{lats.min():.7f},{lons[1]:.7f},{lats.max():.7f}",
         "center": f"{lon_c:.7f},{lat_c:.7f},{max(plan.zooms)}",
         "minzoom": str(min(plan.zooms)),
         "maxzoom": str(max(plan.zooms)),

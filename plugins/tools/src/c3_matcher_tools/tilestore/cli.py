@@ -231,4 +231,9 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
             f"{report.bytes / 1e6:.2f} MB; georeference {report.georeference}; "
             f"pixel values {report.value_mapping}"
         )
+        if report.beyond_world_pct > 0:
+            ctx.out(
+                f"  {report.beyond_world_pct:.0f} % of the orthophoto lies beyond the web-mercator "
+                "world (|lat| > 85.0511 deg, where there are no tiles) and is left out"
+            )
     return EXIT_OK

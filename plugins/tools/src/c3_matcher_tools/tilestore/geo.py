@@ -11,9 +11,11 @@ through the grid's :class:`~c3_matcher_tools.tilestore.projection.Projection`.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -21,25 +23,31 @@ from numpy.typing import ArrayLike
 from c3_matcher.arrays import F64
 from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
+from c3_matcher.tilestore.geo import (
+    MERCATOR_MAX_LAT,
+    TILE_PX,
+    lonlat_to_world_px,
+    world_px_to_lonlat,
+)
 from c3_matcher_tools.geodesy import projected_unit
 from c3_matcher_tools.geotiff import (
     GEOGRAPHIC_CRS_KEY,
     MODEL_TYPE_KEY,
-    PIXEL_SCALE,
     PROJ_LINEAR_UNITS_KEY,
     PROJECTED_CRS_KEY,
     RASTER_TYPE_KEY,
-    TIEPOINT,
     geo_keys,
     grid_tags,
+    model_transformation,
+    north_up_scale,
     pixel_scale,
     tiepoint,
 )
-from c3_matcher_tools.tilestore.projection import Projection
+from c3_matcher_tools.tilestore.projection import Projection, wrap_lon
 
 __all__ = [
     "TILE_PX",
+    "TM_REACH_M",
     "GeoGrid",
     "check_grid_fits_crs",
     "check_source_gsd",
@@ -48,6 +56,15 @@ __all__ = [
     "world_px_to_lonlat",
     "zoom_for_gsd",
 ]
+
+#: how far east or west of its central meridian (metres) a transverse Mercator grid (UTM, and a
+#: pyproj CRS of that method beyond its area of use) is read. National grids use their UTM zone
+#: well beyond it: Norway's zone 33 from -66 km (Utvaer, 4.5 E) to 1,115 km E (31.1 E), 615 km
+#: either side; Denmark's and Germany's zone 32 to 15 E. The maths stays exact far past this
+#: bound (the tools' Kruger series agrees with PROJ to 0.72 mm at 1,000 km and under 1 mm to
+#: 4,000 km), so the bound is set by use: coordinates further out (at the equator, a zone and a
+#: half beyond the zone's edge) are more likely a wrong CRS than a grid that far from its zone.
+TM_REACH_M = 1_000_000.0
 
 
 @dataclass(frozen=True)
@@ -95,7 +112,8 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
     """Read the north-up grid of a GeoTIFF (ModelPixelScale + ModelTiepoint + GeoKeys) with
     ``tifffile``; ``reference`` (lat, lon) of the image centre is needed for CRSs other than
     UTM / mercator / 4326 (see :class:`~c3_matcher_tools.tilestore.projection.Projection`).
-    Rotated grids (ModelTransformation) are refused."""
+    A ModelTransformation stands for both tags when it is north-up; a rotated or flipped one is
+    refused as not north-up."""
     import tifffile
 
     p = Path(path)
@@ -110,13 +128,9 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
         raise InvalidInputError(
             "geotiff", f"{p}: no georeference (not a TIFF: {' '.join(str(exc).split())})"
         ) from exc
-    if PIXEL_SCALE not in tags or TIEPOINT not in tags:
-        raise InvalidInputError(
-            "geotiff",
-            f"{p}: no georeference (no ModelPixelScale/ModelTiepoint tags: not a north-up GeoTIFF)",
-        )
     scale, tie = pixel_scale(tags, p), tiepoint(tags, p)
-    assert scale is not None and tie is not None  # both tags are there
+    if scale is None or tie is None:
+        scale, tie = _north_up_transformation(tags, p)
     sx, sy = scale
     keys = geo_keys(tags, p)
     point = keys.get(RASTER_TYPE_KEY) == 2  # RasterPixelIsPoint: the tie point is a pixel centre
@@ -138,6 +152,22 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
     return grid
 
 
+def _north_up_transformation(
+    tags: dict[int, Any], source: Path
+) -> tuple[tuple[float, float], tuple[float, ...]]:
+    """(pixel scale, tie point) of the north-up ModelTransformation in ``tags``; refused when
+    there is none (no georeference) or when it rotates, shears or flips the grid
+    (:func:`~c3_matcher_tools.geotiff.north_up_scale`)."""
+    matrix = model_transformation(tags, source)
+    if matrix is None:
+        raise InvalidInputError(
+            "geotiff",
+            f"{source}: no georeference (no ModelPixelScale/ModelTiepoint or "
+            "ModelTransformation tags)",
+        )
+    return north_up_scale(matrix, source), (0.0, 0.0, 0.0, matrix[2], matrix[5], 0.0)
+
+
 _MERCATOR_MAX_M = 20_048_966.2  # web-mercator northing at lat 85.06 deg (the tiles' limit)
 
 
@@ -147,60 +177,88 @@ def _crs_bounds(projection: Projection) -> tuple[str, float, float, float, float
     if projection.kind == "geographic":
         return "degrees (lon -180..180, lat -90..90)", -180.0, 180.0, -90.0, 90.0
     if projection.kind == "utm":
-        return "UTM metres (E 0..1,000,000, N 0..10,000,000)", 0.0, 1e6, 0.0, 1e7
+        what = (
+            "UTM metres (E -500,000..1,500,000, within 1,000 km of the zone's meridian; N 0..1e7)"
+        )
+        return what, 500_000.0 - TM_REACH_M, 500_000.0 + TM_REACH_M, 0.0, 1e7
     if projection.kind in ("web_mercator", "world_mercator"):
         m = _MERCATOR_MAX_M
         return "mercator metres (|E|, |N| <= 20,048,966)", -m, m, -m, m
     return None
 
 
+def _extent(grid: GeoGrid) -> tuple[float, float, float, float]:
+    """(E west, E east, N south, N north) of the grid's outer pixel edges, in its units."""
+    w, h = grid.size
+    e0, n1 = grid.origin_e, grid.origin_n
+    return e0, e0 + w * grid.scale_x, n1 - h * grid.scale_y, n1
+
+
 def check_grid_fits_crs(grid: GeoGrid, source: str | Path) -> None:
     """Refuse a grid whose coordinates cannot be its CRS's (metres labelled degrees, a wrong
     EPSG code, a missing scale): its corners must lie in the CRS's range (degrees: lon -180..180,
-    lat -90..90; UTM: E 0..1e6 m, N 0..1e7 m; mercator: within the world) and convert to finite
-    lon/lat (pyproj CRSs: within 2 degrees of the CRS's area of use, which may cross the
-    antimeridian). Coordinates in a unit other than metres (feet) need pyproj: the hand-written
-    projections take metres."""
+    lat -90..90; UTM: within :data:`TM_REACH_M` of the zone's meridian, N 0..1e7 m, and not
+    numbers that look like degrees; mercator: within the world) and convert to finite lon/lat
+    (pyproj CRSs: within 2 degrees of the CRS's area of use, which may cross the antimeridian, or
+    for a transverse Mercator CRS within its latitudes and :data:`TM_REACH_M` of its meridian).
+    Coordinates in a unit other than metres (feet) need pyproj: the hand-written projections
+    take metres."""
     _check_unit(grid, source)
-    w, h = grid.size
-    e0, e1 = grid.origin_e, grid.origin_e + w * grid.scale_x
-    n0, n1 = grid.origin_n - h * grid.scale_y, grid.origin_n
+    e0, e1, n0, n1 = _extent(grid)
     label = f"EPSG:{grid.epsg}" if grid.epsg else "its CRS"
     extent = f"E {e0:,.2f}..{e1:,.2f}, N {n0:,.2f}..{n1:,.2f}"
     bounds = _crs_bounds(grid.projection)
     if bounds is not None:
         what, e_lo, e_hi, n_lo, n_hi = bounds
-        if not (e_lo <= e0 and e1 <= e_hi and n_lo <= n0 and n1 <= n_hi):
+        degrees = grid.projection.kind != "geographic" and max(abs(e0), abs(e1)) <= 180.0
+        degrees = degrees and max(abs(n0), abs(n1)) <= 90.0
+        if degrees or not (e_lo <= e0 and e1 <= e_hi and n_lo <= n0 and n1 <= n_hi):
             raise InvalidInputError(
                 "geotiff",
                 f"{source}: coordinates ({extent}) do not fit {label}, whose coordinates are "
-                f"{what}: is the CRS right?",
+                f"{what}{' (these look like degrees)' if degrees else ''}: is the CRS right?",
             )
+    w, h = grid.size
     with np.errstate(all="ignore"):
         corners = grid.px_to_lonlat(
             [[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]]
         )
-    lon, lat = corners[:, 0], corners[:, 1]
-    ok = bool(np.isfinite(corners).all() and (np.abs(lon) <= 180).all())
-    ok = ok and bool((np.abs(lat) <= 90).all())
+    ok = bool(np.isfinite(corners).all() and (np.abs(corners[:, 0]) <= 180).all())
+    ok = ok and bool((np.abs(corners[:, 1]) <= 90).all())
     if ok and grid.projection.kind == "pyproj":
-        area = _area_of_use(grid.projection.epsg)
-        if area is not None:
-            west, south, east, north = area
-            ok = _within_area(lon, lat, area)
-            if not ok:
-                raise InvalidInputError(
-                    "geotiff",
-                    f"{source}: coordinates ({extent}) fall at lon {lon.min():.3f}..{lon.max():.3f}"
-                    f", lat {lat.min():.3f}..{lat.max():.3f}, outside {label}'s area of use (lon "
-                    f"{west}..{east}, lat {south}..{north}): is the CRS right?",
-                )
+        _check_area_of_use(grid, corners, f"{source}: coordinates ({extent})", label)
     if not ok:
         raise InvalidInputError(
             "geotiff",
             f"{source}: coordinates ({extent}) do not convert to a valid latitude/longitude "
             f"in {label}: is the CRS right?",
         )
+
+
+def _check_area_of_use(grid: GeoGrid, corners: F64, said: str, label: str) -> None:
+    """Refuse a pyproj grid whose ``corners`` (lon, lat) lie outside its CRS's area of use
+    (:func:`_within_area`) unless it is a transverse Mercator grid within the area's latitudes
+    and :data:`TM_REACH_M` of its meridian (a national UTM grid used beyond its zone)."""
+    area = _area_of_use(grid.projection.epsg)
+    if area is None:
+        return
+    lon, lat = corners[:, 0], corners[:, 1]
+    west, south, east, north = area
+    if _within_area(lon, lat, area):
+        return
+    false_easting = _tm_false_easting_m(grid.projection.epsg)
+    if false_easting is not None:
+        e0, e1, _n0, _n1 = _extent(grid)
+        off = max(abs(e0 * grid.unit_m - false_easting), abs(e1 * grid.unit_m - false_easting))
+        if off <= TM_REACH_M and bool(((lat >= south - 2) & (lat <= north + 2)).all()):
+            return
+    reach = "" if false_easting is None else f" and {TM_REACH_M / 1e3:,.0f} km of its meridian"
+    raise InvalidInputError(
+        "geotiff",
+        f"{said} fall at lon {lon.min():.3f}..{lon.max():.3f}, lat {lat.min():.3f}.."
+        f"{lat.max():.3f}, outside {label}'s area of use (lon {west}..{east}, lat {south}.."
+        f"{north}){reach}: is the CRS right?",
+    )
 
 
 def _within_area(lon: F64, lat: F64, area: tuple[float, float, float, float]) -> bool:
@@ -213,6 +271,21 @@ def _within_area(lon: F64, lat: F64, area: tuple[float, float, float, float]) ->
     lon_ok = (east_of_west <= span + 2) | (east_of_west >= 360.0 - 2)
     lat_ok = (lat >= south - 2) & (lat <= north + 2)
     return bool(lon_ok.all() and lat_ok.all())
+
+
+@functools.lru_cache(maxsize=32)
+def _tm_false_easting_m(epsg: int) -> float | None:
+    """The false easting (metres) of EPSG ``epsg`` when it is a transverse Mercator projection
+    (UTM and the national grids of that method), else None."""
+    from pyproj import CRS
+
+    operation = CRS.from_epsg(epsg).coordinate_operation
+    if operation is None or operation.method_name != "Transverse Mercator":
+        return None
+    for param in operation.params:
+        if param.name == "False easting":
+            return float(param.value) * float(param.unit_conversion_factor or 1.0)
+    return None
 
 
 def _check_unit(grid: GeoGrid, source: str | Path) -> None:
@@ -260,3 +333,81 @@ def zoom_for_gsd(gsd_m: float, lat_deg: float) -> int:
     sheet: a store of 12 tiles on which ``dataset render`` finds no distractors.)"""
     z0 = TileId(0, lat_deg, 0.0).web_mercator_gsd_m()
     return max(0, min(30, math.ceil(math.log2(z0 / (gsd_m * 1.05)))))
+
+
+def grid_outline_lonlat(grid: GeoGrid, per_edge: int = 64) -> F64:
+    """(N, 2) (lon, lat) of points along the grid's outer pixel edges, ``per_edge`` segments a
+    side (a grid's straight edge curves in lon/lat: its extreme latitude may lie between two
+    corners), longitudes unwrapped around the grid centre's (:func:`wrap_lon`)."""
+    w, h = grid.size
+    t = np.linspace(0.0, 1.0, per_edge + 1)
+    u, v = t * w - 0.5, t * h - 0.5
+    top, bottom = np.full_like(t, -0.5), np.full_like(t, h - 0.5)
+    left, right = np.full_like(t, -0.5), np.full_like(t, w - 0.5)
+    edges = [np.stack(pair, axis=1) for pair in ((u, top), (u, bottom), (left, v), (right, v))]
+    lonlat = grid.px_to_lonlat(np.concatenate(edges))
+    lonlat[:, 0] = wrap_lon(lonlat[:, 0], grid.centre_lonlat()[0])
+    return lonlat
+
+
+def _pole_inside(grid: GeoGrid) -> float | None:
+    """The latitude (90 or -90) of a pole the grid holds, or None: a pole its projection maps to
+    one point (a polar stereographic or UTM grid, not a geographic or mercator one) inside it."""
+    w, h = grid.size
+    for lat in (90.0, -90.0):
+        with np.errstate(all="ignore"):
+            px = grid.lonlat_to_px([[lon, lat] for lon in (-90.0, 0.0, 90.0, 180.0)])
+        if not np.isfinite(px).all() or float(np.ptp(px, axis=0).max()) > 1e-3:
+            continue
+        if -0.5 <= px[0, 0] <= w - 0.5 and -0.5 <= px[0, 1] <= h - 0.5:
+            return lat
+    return None
+
+
+def refuse_off_the_tiles(grid: GeoGrid, outline: F64, source: str | Path) -> None:
+    """Refuse, before any tile is planned, a grid that web-mercator tiles cannot hold: one that
+    holds a pole (the tiles end at +-85.0511 deg and every longitude meets there) or that lies
+    wholly beyond +-85.0511 deg; ``outline`` is :func:`grid_outline_lonlat`'s."""
+    limit = MERCATOR_MAX_LAT
+    pole = _pole_inside(grid)
+    if pole is not None:
+        name, side, hemi = ("North", "south", "N") if pole > 0 else ("South", "north", "S")
+        raise InvalidInputError(
+            "geotiff",
+            f"{source}: the orthophoto holds the {name} Pole: web-mercator tiles end at "
+            f"{limit:.4f} {hemi} and have none there (every longitude meets at the pole); cut "
+            f"the orthophoto to the part {side} of {limit:.2f} {hemi} first",
+        )
+    lat = outline[:, 1]
+    if (lat > limit).all() or (lat < -limit).all():
+        side = "north of " if lat.min() > 0 else "south of -"
+        raise InvalidInputError(
+            "geotiff",
+            f"{source}: the orthophoto lies wholly {side}{limit:.4f} deg (lat {lat.min():.4f}.."
+            f"{lat.max():.4f}), beyond the web-mercator world: no tile can hold it",
+        )
+
+
+def share_beyond_world(grid: GeoGrid, outline: F64) -> float:
+    """The share (0..1) of the grid's pixels beyond the web-mercator world (|lat| > 85.0511
+    deg, where no tile is), from at most 512 x 512 evenly spread pixel centres; 0 when its
+    ``outline`` (:func:`grid_outline_lonlat`) stays within the world."""
+    if (np.abs(outline[:, 1]) <= MERCATOR_MAX_LAT).all():
+        return 0.0
+    w, h = grid.size
+    u, v = np.meshgrid(np.linspace(0, w - 1, min(w, 512)), np.linspace(0, h - 1, min(h, 512)))
+    lat = grid.px_to_lonlat(np.stack([u.ravel(), v.ravel()], axis=1))[:, 1]
+    return float(np.mean(np.abs(lat) > MERCATOR_MAX_LAT))
+
+
+def tile_ranges(outline: F64, zoom: int) -> tuple[range, range]:
+    """The tile columns and rows at ``zoom`` that cover ``outline`` (lon, lat; longitudes
+    unwrapped, so the columns of a grid across 180 deg run past the world's last, 2**zoom - 1,
+    and are meant modulo 2**zoom; never more than the world's width), rows within the world."""
+    n = 1 << zoom
+    world = lonlat_to_world_px(outline, zoom)
+    x_lo, y_lo = (np.floor(world.min(axis=0)) // TILE_PX).astype(int)
+    x_hi, y_hi = (np.floor(world.max(axis=0)) // TILE_PX).astype(int)
+    if x_hi - x_lo + 1 >= n:
+        x_lo, x_hi = 0, n - 1
+    return range(int(x_lo), int(x_hi) + 1), range(max(int(y_lo), 0), min(int(y_hi), n - 1) + 1)

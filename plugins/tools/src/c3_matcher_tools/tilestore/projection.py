@@ -23,9 +23,18 @@ from c3_matcher_tools.geodesy import (
     pyproj_available,
 )
 
-__all__ = ["Projection", "pyproj_available"]
+__all__ = ["Projection", "pyproj_available", "wrap_lon"]
 
 _M_PER_DEG = math.pi * WGS84_A / 180.0
+
+
+def wrap_lon(lon: ArrayLike, around: float = 0.0) -> F64:
+    """Longitudes (degrees) moved by whole turns to within 180 deg of ``around``: by default
+    into [-180, 180] (a grid across 180 deg converts to longitudes on both sides of it); around
+    a grid's centre, its longitudes read as one stretch (179.9 .. 180.1). A longitude already
+    there is returned bit for bit."""
+    a = np.asarray(lon, dtype=np.float64)
+    return np.asarray(a - 360.0 * np.round((a - around) / 360.0), dtype=np.float64)
 
 
 def _kruger() -> tuple[float, tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
@@ -59,7 +68,10 @@ class Projection:
       metres east/north of the image centre = metres east/north of the reference, equirectangular
       at the reference latitude). It ignores the CRS's scale error and grid convergence (< 0.1 %
       and < 1 deg over a few km); it keeps ids, tiles and ground truth mutually consistent, which
-      is all the matcher needs, but the lat/lon are only as good as the reference."""
+      is all the matcher needs, but the lat/lon are only as good as the reference.
+
+    UTM and the tangent plane are periodic in longitude: a grid across 180 deg converts to
+    longitudes in [-180, 180] on both sides of it, and back (:func:`wrap_lon`)."""
 
     kind: str
     zone: int = 0
@@ -200,7 +212,7 @@ def _utm_inverse(p: Projection, e: F64, north: F64) -> tuple[F64, F64]:
     for j, d in enumerate(_DELTA, start=1):
         phi += d * np.sin(2 * j * chi)
     lam = np.arctan2(np.sinh(eta_p), np.cos(xi_p))
-    return np.degrees(_utm_lon0(p) + lam), np.degrees(phi)
+    return wrap_lon(np.degrees(_utm_lon0(p) + lam)), np.degrees(phi)
 
 
 def _mercator_forward(_p: Projection, lon: F64, lat: F64, *, ellipsoidal: bool) -> tuple[F64, F64]:
@@ -233,14 +245,15 @@ def _pyproj_inverse(p: Projection, e: F64, n: F64) -> tuple[F64, F64]:
 
 def _tangent_plane_forward(p: Projection, lon: F64, lat: F64) -> tuple[F64, F64]:
     n = p.ref_en[1] + (lat - p.ref_lat) * _M_PER_DEG
-    e = p.ref_en[0] + (lon - p.ref_lon) * (_M_PER_DEG * math.cos(math.radians(p.ref_lat)))
+    east_deg = wrap_lon(lon - p.ref_lon)  # across 180 deg: the short way round
+    e = p.ref_en[0] + east_deg * (_M_PER_DEG * math.cos(math.radians(p.ref_lat)))
     return e, n
 
 
 def _tangent_plane_inverse(p: Projection, e: F64, n: F64) -> tuple[F64, F64]:
     lat = p.ref_lat + (n - p.ref_en[1]) / _M_PER_DEG
     lon = p.ref_lon + (e - p.ref_en[0]) / (_M_PER_DEG * math.cos(math.radians(p.ref_lat)))
-    return lon, lat
+    return wrap_lon(lon), lat
 
 
 _FORMULAS: Final[Mapping[str, _Formulas]] = {

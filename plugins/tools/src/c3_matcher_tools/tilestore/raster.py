@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.geodesy import ground_gsd_m
-from c3_matcher_tools.geotiff import check_pixel_scale
+from c3_matcher_tools.geotiff import north_up_scale
 from c3_matcher_tools.tilestore.geo import GeoGrid, check_grid_fits_crs
 from c3_matcher_tools.tilestore.projection import Projection
 
@@ -173,10 +173,8 @@ class RasterioSource:
                 f"{self.path}: no georeference (no CRS{' or pixel grid' if t.is_identity else ''}"
                 "): tiles build needs a GeoTIFF",
             )
-        if t.b != 0 or t.d != 0:
-            raise InvalidInputError("geotiff", f"{self.path}: not a north-up grid ({t})")
-        sx, sy = float(t.a), float(-t.e)
-        check_pixel_scale(sx, sy, self.path)
+        matrix = (float(t.a), float(t.b), float(t.c), float(t.d), float(t.e), float(t.f))
+        sx, sy = north_up_scale(matrix, self.path)
         epsg = ds.crs.to_epsg()
         w, h = int(ds.width), int(ds.height)
         origin_e, origin_n = float(t.c), float(t.f)
