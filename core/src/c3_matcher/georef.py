@@ -8,6 +8,11 @@ UNDISTORTED query px to tile px (:func:`best_query_to_tile`), through which the 
 principal point (the centre) and its image boundary (the footprint) land on the map: the
 homography fitted by least squares over every inlier (:func:`fit_query_to_tile`: the ground is
 a plane at this scale), or the geometric prior's similarity when the matcher kept that one.
+
+Longitudes come out in [-180, 180) (:func:`wrap_longitude`), a window that straddles 180 deg
+included. A footprint is one continuous ring around its centre: where it crosses the line, its
+points beyond it lie beyond 180 deg (or -180 deg), as a GeoJSON reader draws a ring it is given
+whole (RFC 7946 would cut it in two).
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from numpy.typing import ArrayLike
 from c3_matcher import camera as cam
 from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration, MatchResult, TileId
-from c3_matcher.tilestore.geo import lonlat_to_world_px, world_px_to_lonlat
+from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
 
 __all__ = [
     "EARTH_RADIUS_M",
@@ -35,9 +40,20 @@ __all__ = [
     "is_georeferenced",
     "lonlat_to_tile_px",
     "tile_px_to_lonlat",
+    "wrap_longitude",
 ]
 
 EARTH_RADIUS_M = 6_371_008.8
+
+
+def wrap_longitude(lon: ArrayLike) -> F64:
+    """Longitudes (degrees, any turn) in [-180, 180); one already there is kept exactly, and
+    so is one that is not finite."""
+    x = np.asarray(lon, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        wrapped = x - 360.0 * np.floor((x + 180.0) / 360.0)
+    wrapped = np.where(wrapped < -180.0, wrapped + 360.0, wrapped)  # x + 180 rounded up to 360
+    return np.asarray(np.where(np.isfinite(x), wrapped, x), np.float64)
 
 
 def is_georeferenced(tile_id: TileId) -> bool:
@@ -62,11 +78,11 @@ def _origin(tile_id: TileId, size: tuple[int, int], scale: float) -> tuple[float
     return cx - (w / 2 - 0.5) * scale, cy - (h / 2 - 0.5) * scale
 
 
-def tile_px_to_lonlat(
-    tile_id: TileId, size: tuple[int, int], pts: ArrayLike, tile_gsd_m: float | None = None
+def _continuous_lonlat(
+    tile_id: TileId, size: tuple[int, int], pts: ArrayLike, tile_gsd_m: float | None
 ) -> F64:
-    """(N, 2) TILE px (u, v) of a ``size`` = (width, height) image centred on ``tile_id`` ->
-    (N, 2) (lon, lat) degrees."""
+    """:func:`tile_px_to_lonlat` before its longitudes are wrapped: continuous across the
+    image (beyond 180 deg where the image straddles the line east of its centre)."""
     p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
     s = _scale(tile_id, tile_gsd_m)
     x0, y0 = _origin(tile_id, size, s)
@@ -74,14 +90,28 @@ def tile_px_to_lonlat(
     return world_px_to_lonlat(world, tile_id.zoom)
 
 
+def tile_px_to_lonlat(
+    tile_id: TileId, size: tuple[int, int], pts: ArrayLike, tile_gsd_m: float | None = None
+) -> F64:
+    """(N, 2) TILE px (u, v) of a ``size`` = (width, height) image centred on ``tile_id`` ->
+    (N, 2) (lon, lat) degrees, longitudes in [-180, 180)."""
+    lonlat = _continuous_lonlat(tile_id, size, pts, tile_gsd_m)
+    lonlat[:, 0] = wrap_longitude(lonlat[:, 0])
+    return lonlat
+
+
 def lonlat_to_tile_px(
     tile_id: TileId, size: tuple[int, int], lonlat: ArrayLike, tile_gsd_m: float | None = None
 ) -> F64:
-    """Inverse of :func:`tile_px_to_lonlat`."""
+    """Inverse of :func:`tile_px_to_lonlat`: a point is taken on the turn of the globe nearest
+    the image (a longitude across 180 deg from it lies beside it, not a world away)."""
     s = _scale(tile_id, tile_gsd_m)
     x0, y0 = _origin(tile_id, size, s)
     world = lonlat_to_world_px(lonlat, tile_id.zoom)
-    return np.stack([(world[:, 0] - x0) / s, (world[:, 1] - y0) / s], axis=1)
+    centre_x = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0, 0]
+    span = TILE_PX * 2.0**tile_id.zoom
+    world_x = world[:, 0] - span * np.round((world[:, 0] - centre_x) / span)
+    return np.stack([(world_x - x0) / s, (world[:, 1] - y0) / s], axis=1)
 
 
 def fit_query_to_tile(
@@ -125,7 +155,8 @@ def footprint_lonlat(
 ) -> tuple[tuple[float, float], F64]:
     """(centre (lon, lat), closed footprint polygon (N + 1, 2) lon/lat) of a frame whose
     UNDISTORTED px map to ``tile_id``'s image by ``h_query_to_tile``. The centre is the principal
-    point; the footprint follows the image boundary (undistorted)."""
+    point, its longitude in [-180, 180); the footprint follows the image boundary (undistorted),
+    one continuous ring around the centre (see the module docstring)."""
     w, h = calibration.image_size
     k = calibration.K
     centre_px = np.array([[k[0, 2], k[1, 2]]])
@@ -133,7 +164,10 @@ def footprint_lonlat(
     if calibration.distortion.size and np.any(calibration.distortion != 0):
         boundary = cam.undistort_points(boundary, calibration)
     pts = cam.apply_homography(h_query_to_tile, np.concatenate([centre_px, boundary]))
-    lonlat = tile_px_to_lonlat(tile_id, tile_size, pts, tile_gsd_m)
+    lonlat = _continuous_lonlat(tile_id, tile_size, pts, tile_gsd_m)
+    turns = np.round((wrap_longitude(lonlat[0, 0]) - lonlat[0, 0]) / 360.0)
+    if np.isfinite(turns):
+        lonlat[:, 0] += 360.0 * turns  # the centre in [-180, 180), the ring around it
     ring = np.concatenate([lonlat[1:], lonlat[1:2]])
     return (float(lonlat[0, 0]), float(lonlat[0, 1])), ring
 

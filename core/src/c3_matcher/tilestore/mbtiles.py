@@ -21,7 +21,8 @@ Reading opens the database read-only with SQLite memory-mapped I/O (``PRAGMA mma
 database pages are served from the page cache through a mapping, not ``read()`` into SQLite's
 own cache; each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way) and
 handles expose it as a ``memoryview`` without further copies. A database error while reading a
-tile (a corrupt page) is raised as that tile's error, never a crash of the caller.
+tile (a corrupt page) is raised as that tile's error, never a crash of the caller. Which tiles
+a range of columns and rows holds is one query of the tile index, no tile read (``stored_in``).
 
 Threads: each thread gets its own read-only connection (SQLite objects may not cross threads),
 so a store opened on one thread serves another; the connections of threads that have ended are
@@ -252,16 +253,41 @@ class MBTilesStore(TileStoreBase):
     def tiles(self, zoom: int) -> Iterator[tuple[int, int]]:
         """XYZ (x, y) of every stored tile at ``zoom``; a tile_column or tile_row that is no
         integer is InvalidInputError naming the store."""
-        n = 1 << zoom
         for col, row in self._db.execute(
             "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=? ORDER BY 2 DESC, 1", (zoom,)
         ):
-            x, tms_row = whole_number(col), whole_number(row)
-            if x is None:
-                raise self._refusal(_holds("tile_column", col))
-            if tms_row is None:
-                raise self._refusal(_holds("tile_row", row))
-            yield x, n - 1 - tms_row
+            yield self._xyz(zoom, col, row)
+
+    def stored_in(
+        self, zoom: int, columns: tuple[int, int], rows: tuple[int, int]
+    ) -> list[tuple[int, int]]:
+        """XYZ (x, y) of the tiles stored at ``zoom`` with x in ``columns`` and y in ``rows``
+        (first, last), found in the tile index by one query: no tile is read, so a damaged or
+        empty one is listed too (:meth:`tile_bytes` says what it holds). A database error is
+        InvalidInputError naming the store."""
+        last = (1 << zoom) - 1
+        query = (
+            "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=?"
+            " AND tile_column BETWEEN ? AND ? AND tile_row BETWEEN ? AND ?"
+        )
+        args = (zoom, *columns, last - rows[1], last - rows[0])
+        try:
+            found = self._db.execute(query, args).fetchall()
+        except sqlite3.Error as exc:
+            raise InvalidInputError(str(self.path), f"listing its tiles failed: {exc}") from exc
+        if all(type(col) is int and type(row) is int for col, row in found):
+            return [(col, last - row) for col, row in found]  # the usual store: nothing to check
+        return [self._xyz(zoom, col, row) for col, row in found]
+
+    def _xyz(self, zoom: int, col: object, row: object) -> tuple[int, int]:
+        """XYZ (x, y) of the stored ``tile_column`` and TMS ``tile_row`` at ``zoom``; one that
+        is no integer is InvalidInputError naming the store."""
+        x, tms_row = whole_number(col), whole_number(row)
+        if x is None:
+            raise self._refusal(_holds("tile_column", col))
+        if tms_row is None:
+            raise self._refusal(_holds("tile_row", row))
+        return x, (1 << zoom) - 1 - tms_row
 
     def _refusal(self, wrong: str) -> InvalidInputError:
         """The refusal of this store as no MBTiles file, for the reason ``wrong``."""

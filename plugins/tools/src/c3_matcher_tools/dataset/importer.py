@@ -7,7 +7,9 @@ are listed there); each frame's candidates are proposed from the tile store by
 Rows and images: every image in IMAGES_DIR without a telemetry row and every row whose image
 is missing is skipped and reported (:class:`ImportReport`); a refused value names its CSV line.
 Everything is checked before anything is written; the dataset is written into a temporary
-sibling directory and renamed into place.
+sibling directory and renamed into place. Its tile store is a hard link to the one given where
+both are on one filesystem, else a copy (:func:`~c3_matcher_tools.dataset.writing.link_or_copy`);
+the report says which.
 """
 
 from __future__ import annotations
@@ -117,8 +119,10 @@ def import_csv_flight(
         (tmp / "frames").mkdir()
         for r, f in zip(checked.rows, frames, strict=True):
             copy_file(checked.images_dir / r.image, tmp / f.image)
-        write_dataset(tmp, meta, checked.calibration, frames, store=spec.proposal.store)
-    return _csv_report(checked, spec, out, len(frames))
+        placed = write_dataset(
+            tmp, meta, checked.calibration, frames, store=spec.proposal.store, link_store=True
+        )
+    return _csv_report(checked, spec, out, len(frames), placed)
 
 
 @dataclass(frozen=True)
@@ -216,8 +220,11 @@ def _csv_meta(checked: _CheckedCsv, spec: ImportSpec, name: str) -> dict[str, An
     }
 
 
-def _csv_report(checked: _CheckedCsv, spec: ImportSpec, out: Path, frames: int) -> ImportReport:
-    """What the import of ``frames`` frames into ``out`` did."""
+def _csv_report(
+    checked: _CheckedCsv, spec: ImportSpec, out: Path, frames: int, placed: str
+) -> ImportReport:
+    """What the import of ``frames`` frames into ``out`` did (``placed``: how its tile store
+    got there)."""
     heights = [r.altitude_m for r in checked.rows]
     return ImportReport(
         dataset=str(out),
@@ -236,6 +243,7 @@ def _csv_report(checked: _CheckedCsv, spec: ImportSpec, out: Path, frames: int) 
             f"heights above ground {min(heights):.1f} to {max(heights):.1f} m; "
             + _msl_note(checked.table.columns, spec),
             *checked.table.notes,
+            placed,
         ),
     )
 

@@ -10,6 +10,11 @@ first, then the nearest further tiles (distractors) until there are ``candidates
 the store holds. Their order is shuffled by a generator seeded by (``seed``, frame index), scores
 0.9, 0.8, ... in that order. The options are a
 :class:`~c3_matcher_tools.dataset.sources.options.ProposalOptions`.
+
+The tiles of the search square are found in the store's index, one query a frame; only the
+tiles proposed are read, so a damaged one among them (its sha256 does not match) is refused,
+named, never proposed. Longitudes are wrapped into [-180, 180) and tile columns around the
+globe: near 180 deg the tiles across the line are searched, at their true distance.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import numpy as np
 
 from c3_matcher.dto import CameraCalibration, TileId
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.georef import wrap_longitude
 from c3_matcher.tilestore.base import tile_centre_id
 from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px
 from c3_matcher.tilestore.mbtiles import MBTilesStore
@@ -48,9 +54,11 @@ __all__ = [
 
 def look_point(row: TelemetryRow, calibration: CameraCalibration) -> tuple[float, float]:
     """(lon, lat) where the optical axis meets flat ground ``altitude_m`` below the vehicle
-    (``axis_ground_point``; the telemetry position itself when the axis does not point down)."""
+    (``axis_ground_point``; the telemetry position itself when the axis does not point down),
+    the longitude in [-180, 180) (a look across 180 deg)."""
     hit = axis_ground_point(row.lat, row.lon, row.altitude_m, row.attitude, calibration)
-    return (row.lon, row.lat) if hit is None else (hit[1], hit[0])
+    lon, lat = (row.lon, row.lat) if hit is None else (hit[1], hit[0])
+    return float(wrap_longitude(lon)), lat
 
 
 def store_zoom(store: MBTilesStore, path: object, zoom: int | None) -> int:
@@ -80,29 +88,49 @@ def _propose(
         )
     p = lonlat_to_world_px([lonlat], zoom)[0]
     m_per_px = TileId(zoom, lonlat[1], lonlat[0]).web_mercator_gsd_m()
+    n = 1 << zoom
     tx, ty = int(p[0] // TILE_PX), int(p[1] // TILE_PX)
-    if store.tile_bytes(zoom, tx, ty) is None:
+    if store.tile_bytes(zoom, tx % n, ty) is None:
         return None
     ring = max(2, math.ceil(options.uncertainty_m / (m_per_px * TILE_PX)) + 1)
     ring = max(ring, math.ceil(math.sqrt(options.candidates)) + 1)
-    near: list[tuple[float, float, int, int]] = []
-    for x in range(tx - ring, tx + ring + 1):
-        for y in range(ty - ring, ty + ring + 1):
-            if (x, y) == (tx, ty) or store.tile_bytes(zoom, x, y) is None:
-                continue
-            dx = max(x * TILE_PX - p[0], 0.0, p[0] - (x + 1) * TILE_PX)
-            dy = max(y * TILE_PX - p[1], 0.0, p[1] - (y + 1) * TILE_PX)
-            edge_m = math.hypot(dx, dy) * m_per_px
-            centre_m = math.hypot((x + 0.5) * TILE_PX - p[0], (y + 0.5) * TILE_PX - p[1])
-            # within the uncertainty first (nearest centre first), then the nearest others
-            near.append((0.0 if edge_m <= options.uncertainty_m else 1.0, centre_m, x, y))
+    px, py, reach, hypot = float(p[0]), float(p[1]), options.uncertainty_m, math.hypot
+    near: list[tuple[float, float, int, int, float]] = []
+    for x, y in _stored_around(store, zoom, (tx, ty), ring):
+        if x == tx and y == ty:
+            continue
+        dx = max(x * TILE_PX - px, 0.0, px - (x + 1) * TILE_PX)
+        dy = max(y * TILE_PX - py, 0.0, py - (y + 1) * TILE_PX)
+        edge_m = hypot(dx, dy) * m_per_px
+        centre_px = hypot((x + 0.5) * TILE_PX - px, (y + 0.5) * TILE_PX - py)
+        # within the uncertainty first (nearest centre first), then the nearest others
+        near.append((0.0 if edge_m <= reach else 1.0, centre_px, x, y, edge_m))
     near.sort()
-    picked = [(tile_centre_id(zoom, tx, ty), 0.0)]
-    for _, _, x, y in near[: options.candidates - 1]:
-        dx = max(x * TILE_PX - p[0], 0.0, p[0] - (x + 1) * TILE_PX)
-        dy = max(y * TILE_PX - p[1], 0.0, p[1] - (y + 1) * TILE_PX)
-        picked.append((tile_centre_id(zoom, x, y), math.hypot(dx, dy) * m_per_px))
+    picked = [(tile_centre_id(zoom, tx % n, ty), 0.0)]
+    for *_, x, y, edge_m in near:
+        if len(picked) == options.candidates:
+            break
+        if store.tile_bytes(zoom, x % n, y) is not None:  # read: a damaged tile is refused
+            picked.append((tile_centre_id(zoom, x % n, y), edge_m))
     return picked
+
+
+def _stored_around(
+    store: MBTilesStore, zoom: int, tile: tuple[int, int], ring: int
+) -> list[tuple[int, int]]:
+    """The stored tiles (x, y) within ``ring`` tiles of ``tile`` (x, y): their columns taken
+    around the globe, each where it lies nearest ``tile`` (x beyond 0 .. 2**zoom - 1 across
+    180 deg), from the store's index (no tile read)."""
+    n = 1 << zoom
+    (tx, ty), half = tile, n // 2
+    rows = (max(ty - ring, 0), min(ty + ring, n - 1))
+    if 2 * ring + 1 >= n:
+        spans = [(0, n - 1)]
+    else:
+        first, last = (tx - ring) % n, (tx + ring) % n
+        spans = [(first, last)] if first <= last else [(first, n - 1), (0, last)]
+    found = [t for span in spans for t in store.stored_in(zoom, span, rows)]
+    return [(tx + (x - tx + half) % n - half, y) for x, y in found]
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import errno
 import json
+import os
 import shutil
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -24,7 +25,7 @@ from c3_matcher_tools.dataset.format import (
     FrameRecord,
 )
 
-__all__ = ["calibration_to_json", "copy_file", "write_dataset", "write_file"]
+__all__ = ["calibration_to_json", "copy_file", "link_or_copy", "write_dataset", "write_file"]
 
 
 def calibration_to_json(calibration: dto.CameraCalibration) -> dict[str, Any]:
@@ -45,12 +46,19 @@ def write_dataset(
     frames: Sequence[FrameRecord],
     *,
     store: Path,
-) -> Path:
+    link_store: bool = False,
+) -> str:
     """Write a dataset under ``root``, its frame images already there: the tile store ``store``
-    copied in, the calibration, the frames and the description (the format and the files, then
-    ``meta``: its ``name`` first, then how the dataset was made)."""
+    copied in (``link_store``: hard-linked where it can be, :func:`link_or_copy`), the
+    calibration, the frames and the description (the format and the files, then ``meta``: its
+    ``name`` first, then how the dataset was made). Returns how the store was put there, in
+    words."""
     root.mkdir(parents=True, exist_ok=True)
-    copy_file(store, root / STORE_FILE)
+    if link_store:
+        placed = link_or_copy(store, root / STORE_FILE)
+    else:
+        copy_file(store, root / STORE_FILE)
+        placed = f"{STORE_FILE}: a copy of {store}"
     described = {
         "format": FORMAT,
         "calibration": CALIBRATION_FILE,
@@ -66,7 +74,24 @@ def write_dataset(
             fh.write(json.dumps(f.to_json()) + "\n")
     with _naming(root / META_FILE):
         (root / META_FILE).write_text(json.dumps(described, indent=2) + "\n")
-    return root
+    return placed
+
+
+def link_or_copy(store: Path, target: Path) -> str:
+    """Put the tile store ``store`` at ``target``: a hard link (the same file, no copy) where
+    the filesystem makes one, else a copy (another filesystem, links refused or not supported);
+    returns which, in words. A link is safe to share: ``tiles build`` replaces a store by a
+    rename, which leaves the link with the old file, a deleted store leaves it too, and nothing
+    else the tools do changes a store's tiles in place (``tiles digest`` adds missing sha256s)."""
+    try:
+        os.link(store, target)
+    except OSError as exc:
+        copy_file(store, target)
+        return f"{target.name}: a copy of {store} (no hard link: {exc.strerror or exc})"
+    return (
+        f"{target.name}: a hard link to {store} (the same file, not a copy; rebuilding or "
+        "deleting that store leaves the dataset's as it is)"
+    )
 
 
 def write_file(path: Path, data: bytes) -> None:
