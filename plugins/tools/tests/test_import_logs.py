@@ -620,3 +620,19 @@ def test_a_bag_folder_without_metadata_names_what_it_lacks(
         ".db3 or .mcap files)",
     )
     assert not out.exists()
+
+
+def test_a_log_imports_store_is_a_hard_link_to_the_users_store(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    store = tmp_path / "maps" / "area.mbtiles"
+    store.parent.mkdir()
+    shutil.copyfile(STORE, store)
+    log = write_ulog(tmp_path / "flight.ulg", poses)
+    flight = tmp_path / "flight"
+    proc = c3(
+        "dataset", "import", str(_images(tmp_path, poses)), str(log), CAL, str(store), str(flight)
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert (flight / "tiles.mbtiles").stat().st_ino == store.stat().st_ino
+    assert f"tiles.mbtiles: a hard link to {store}" in proc.stdout

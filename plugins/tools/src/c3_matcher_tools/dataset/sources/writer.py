@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import uuid
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -78,8 +79,10 @@ def write_imported_flight(
         (tmp / "frames").mkdir()
         for rec, data in zip(records, images, strict=True):
             write_file(tmp / rec.image, data)
-        write_dataset(tmp, meta, calibration, records, store=proposer.store)
-    return report
+        placed = write_dataset(
+            tmp, meta, calibration, records, store=proposer.store, link_store=True
+        )
+    return replace(report, notes=(*report.notes, placed))
 
 
 def _propose(
