@@ -17,6 +17,7 @@ import importlib.util
 import math
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -40,6 +41,7 @@ __all__ = [
     "ground_gsd_m",
     "m_per_deg",
     "mercator_latitude_deg",
+    "point_scale_factor",
     "projected_unit",
     "pyproj_available",
 ]
@@ -167,13 +169,16 @@ def ground_gsd_m(
     geographic: bool,
     epsg: int | None,
     unit_m: float = 1.0,
+    lon_deg: float | None = None,
 ) -> float:
     """The ground GSD (m/px, geometric mean of x and y) of a north-up grid with pixel scale
-    (``scale_x``, ``scale_y``) centred at latitude ``lat_deg``: degrees (``geographic``)
-    converted on the WGS84 ellipsoid there; projected scales in their CRS's linear unit,
-    ``unit_m`` metres each (US feet: 0.3048006, :func:`projected_unit`), then Mercator scales
-    (:data:`MERCATOR_EPSG`) divided by their scale factor there; other projected metres as they
-    are (UTM's and the national grids' scale error, < 0.1 %, is ignored)."""
+    (``scale_x``, ``scale_y``) centred at latitude ``lat_deg`` (and longitude ``lon_deg``):
+    degrees (``geographic``) converted on the WGS84 ellipsoid there; projected scales in their
+    CRS's linear unit, ``unit_m`` metres each (US feet: 0.3048006, :func:`projected_unit`), then
+    divided by the projection's scale factor there: Mercator scales (:data:`MERCATOR_EPSG`) by
+    formula, any other CRS ``epsg`` given ``lon_deg`` by :func:`point_scale_factor` (pyproj:
+    1.045 for PDC Mercator at 17 S, 0.984 for polar stereographic at 77.7 S, 0.9996 for UTM on
+    its central meridian); without a longitude or pyproj as they are."""
     lat = math.radians(lat_deg)
     s2 = math.sin(lat) ** 2
     if geographic:
@@ -185,7 +190,34 @@ def ground_gsd_m(
         gsd /= math.sqrt(1 - WGS84_E2 * s2) / math.cos(lat)
     elif ellipsoidal is False:
         gsd *= math.cos(lat)
+    elif epsg is not None and lon_deg is not None:
+        gsd /= point_scale_factor(int(epsg), lon_deg, lat_deg)
     return gsd
+
+
+def point_scale_factor(epsg: int, lon_deg: float, lat_deg: float) -> float:
+    """Projected CRS ``epsg``'s point scale factor at (``lon_deg``, ``lat_deg``): grid length
+    over ground length, the square root of its areal scale (a conformal grid's scale in every
+    direction), through pyproj (:func:`pyproj_available`); 1 without pyproj, for a code PROJ does
+    not know, a CRS that is not projected or a point outside its domain."""
+    proj = _scale_proj(int(epsg)) if pyproj_available() else None
+    if proj is None:
+        return 1.0
+    areal = float(proj.get_factors(lon_deg, lat_deg).areal_scale)
+    return math.sqrt(areal) if math.isfinite(areal) and areal > 0 else 1.0
+
+
+@functools.lru_cache(maxsize=32)
+def _scale_proj(epsg: int) -> Any:
+    """pyproj's ``Proj`` of projected CRS ``epsg`` (its scale factors), or None."""
+    from pyproj import CRS, Proj
+    from pyproj.exceptions import CRSError
+
+    try:
+        crs = CRS.from_epsg(epsg)
+    except CRSError:
+        return None
+    return Proj(crs) if crs.is_projected else None
 
 
 def flat_offset_latlon(

@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from c3_matcher.arrays import F64
 from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.handles import mosaic_origin
-from c3_matcher_tools.dataset.flight_scene import Footprint, Scene
+from c3_matcher_tools.dataset.flight_scene import Footprint, Scene, corner_sums, window_starts
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.format import CandidateTruth
-from c3_matcher_tools.sim.render import RenderedFrame, pick_distractor_tiles
+from c3_matcher_tools.sim.render import RenderedFrame, draw_apart, footprint_mask
 from c3_matcher_tools.tilestore.geo import GeoGrid, world_px_to_lonlat
 
 __all__ = ["candidate_truths", "distractor_origins", "shuffled", "true_window_origin"]
@@ -37,27 +38,16 @@ def distractor_origins(
     spec: FlightSpec, scene: Scene, i: int, footprint: Footprint, is_absent: bool
 ) -> list[tuple[int, int]]:
     """Pick frame ``i``'s distractor windows (top-left WORLD px), naming the options if none fit."""
-    cov, size = scene.cov, spec.candidate_size_px
-    count = 3 if is_absent else 2
+    cov = scene.cov
     fp_cov = footprint.world - np.asarray(cov.origin, dtype=np.float64)
     if not is_absent:  # present: distractors may overlap the footprint, not its centre
         fp_cov = np.repeat((footprint.centre - cov.origin)[None, :], 3, axis=0)
     # Distractors are drawn from a generator seeded by the true window's position, so
     # frames that share their true tile share their distractors (tile feature cache hits).
     drng = np.random.default_rng([spec.seed, int(is_absent), *footprint.true_origin])
+    nodata = spec.max_distractor_nodata if not is_absent else 0.5
     try:
-        picked = pick_distractor_tiles(
-            cov.image,
-            fp_cov,
-            (size, size),
-            count,
-            drng,
-            scene.m_per_px,
-            margin_px=8,
-            min_distance_px=spec.min_distractor_distance_m / scene.m_per_px,
-            max_nodata_fraction=spec.max_distractor_nodata if not is_absent else 0.5,
-            stride_px=spec.grid_px,
-        )
+        picked = _pick_windows(spec, scene, fp_cov, 3 if is_absent else 2, drng, nodata)
     except InvalidInputError as exc:
         raise InvalidInputError(
             "distractors",
@@ -66,7 +56,81 @@ def distractor_origins(
             "--min-distractor-distance, raise --max-distractor-nodata, or build the store "
             f"at a finer zoom (tiles build --zoom {cov.zoom + 1}) or over more ground",
         ) from exc
-    return [(cov.origin[0] + t.offset_px[0], cov.origin[1] + t.offset_px[1]) for t in picked]
+    return [(cov.origin[0] + x, cov.origin[1] + y) for x, y in picked]
+
+
+DISTRACTOR_MARGIN_PX = 8
+"""How far (px) a distractor window stays from the footprint (or, for a frame whose true tile
+is present, from its centre)."""
+
+
+def _pick_windows(
+    spec: FlightSpec,
+    scene: Scene,
+    fp: F64,
+    count: int,
+    rng: np.random.Generator,
+    max_nodata: float,
+) -> list[tuple[int, int]]:
+    """``count`` windows (top-left COVERAGE px) drawn as :func:`pick_distractor_tiles` draws
+    them over the whole coverage (the same grid of windows, the same tests, the same draw), from
+    the coverage's window nodata and the footprint's surroundings alone: clear of the footprint
+    (COVERAGE px, dilated by :data:`DISTRACTOR_MARGIN_PX`) and of each other, centres
+    ``min_distractor_distance_m`` from its centroid, at most ``max_nodata`` nodata."""
+    cov, size = scene.cov, spec.candidate_size_px
+    xs = window_starts(cov.size[0], size, spec.grid_px)
+    ys = window_starts(cov.size[1], size, spec.grid_px)
+    ok = cov.window_nodata <= max_nodata * size * size
+    ok &= _clear_of(fp, xs, ys, size, cov.size)
+    ok &= _far_from(fp.mean(axis=0), xs, ys, size, spec.min_distractor_distance_m / scene.m_per_px)
+    allowed = np.flatnonzero(ok)
+    at_x, at_y = xs[allowed % xs.size], ys[allowed // xs.size]
+    chosen = draw_apart(at_x, at_y, np.arange(allowed.size), (size, size), count, rng)
+    if len(chosen) < count:
+        raise InvalidInputError(
+            "count",
+            f"only {len(chosen)} non-overlapping {size}x{size} px "
+            f"distractor tiles fit, {count} requested",
+        )
+    return chosen
+
+
+def _clear_of(
+    fp: F64, xs: NDArray[np.int64], ys: NDArray[np.int64], size: int, cov_size: tuple[int, int]
+) -> NDArray[np.bool_]:
+    """(rows, cols): the window at (xs[c], ys[r]) holds no px of the footprint ``fp``
+    (COVERAGE px) dilated by :data:`DISTRACTOR_MARGIN_PX`, rasterised within the coverage over
+    its neighbourhood only."""
+    clear = np.ones((ys.size, xs.size), bool)
+    reach = DISTRACTOR_MARGIN_PX + 2
+    lo = np.maximum(np.floor(fp.min(axis=0)).astype(np.int64) - reach, 0)
+    hi = np.minimum(np.ceil(fp.max(axis=0)).astype(np.int64) + reach, cov_size)
+    if np.any(hi <= lo) or not clear.size:
+        return clear
+    (w, h), (x0, y0) = hi - lo, lo
+    mask = footprint_mask(fp - lo, (int(h), int(w)), DISTRACTOR_MARGIN_PX)
+    integral = np.asarray(cv2.integral(mask), dtype=np.int64)
+    rows = (np.clip(ys - y0, 0, h), np.clip(ys + size - y0, 0, h))
+    cols = (np.clip(xs - x0, 0, w), np.clip(xs + size - x0, 0, w))
+    clear &= corner_sums(integral, rows, cols) == 0
+    return clear
+
+
+def _far_from(
+    centre: F64, xs: NDArray[np.int64], ys: NDArray[np.int64], size: int, distance: float
+) -> NDArray[np.bool_]:
+    """(rows, cols): the centre of the window at (xs[c], ys[r]) is ``distance`` px or more from
+    ``centre``; measured only where it may be nearer (the windows within ``distance`` + 1 px of
+    it along both axes), the rest being farther along one axis alone."""
+    dx = xs + (size - 1) / 2 - centre[0]
+    dy = ys + (size - 1) / 2 - centre[1]
+    far = np.ones((ys.size, xs.size), bool)
+    near_x, near_y = np.flatnonzero(abs(dx) < distance + 1), np.flatnonzero(abs(dy) < distance + 1)
+    if near_x.size and near_y.size:
+        c = slice(near_x[0], near_x[-1] + 1)
+        r = slice(near_y[0], near_y[-1] + 1)
+        far[r, c] = np.hypot(dx[None, c], dy[r, None]) >= distance
+    return far
 
 
 def candidate_truths(

@@ -31,7 +31,7 @@ from c3_matcher_tools.dataset.flight_scene import (
 )
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
 from c3_matcher_tools.dataset.format import CandidateTruth, FrameRecord
-from c3_matcher_tools.tilestore.geo import lonlat_to_world_px, world_px_to_lonlat
+from c3_matcher_tools.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
 
 __all__ = ["Progress", "plan_flight"]
 
@@ -167,6 +167,7 @@ def _footprint(spec: FlightSpec, scene: Scene, shot: Shot) -> Footprint:
     """Place the footprint in WORLD px and find its true window; refuse one none can hold."""
     zoom, size = scene.cov.zoom, spec.candidate_size_px
     fp_world = lonlat_to_world_px(scene.grid.px_to_lonlat(shot.frame.footprint_ortho()), zoom)
+    _refuse_footprint_across_antimeridian(shot.index, fp_world, zoom)
     centre_world = fp_world.mean(axis=0)
     true_origin = true_window_origin(fp_world, size, spec.grid_px)
     if true_origin is None:
@@ -180,6 +181,22 @@ def _footprint(spec: FlightSpec, scene: Scene, shot: Shot) -> Footprint:
     return Footprint(fp_world, centre_world, true_origin)
 
 
+def _refuse_footprint_across_antimeridian(i: int, fp_world: F64, zoom: int) -> None:
+    """Refuse frame ``i`` when its footprint (WORLD px) crosses the 180th meridian: its corners
+    lie at both ends of the map's WORLD px (or beyond them), and no candidate window of the
+    store's tiles holds it."""
+    world = TILE_PX * 2**zoom
+    lo, hi = float(fp_world[:, 0].min()), float(fp_world[:, 0].max())
+    if lo < 0 or hi > world or hi - lo > world / 2:
+        raise InvalidInputError(
+            "trajectory",
+            f"frame {i}: its footprint crosses the 180th meridian (the antimeridian), where no "
+            "candidate tile can hold it: fly on one side of it (lower --radius, --height or "
+            "--frames x --speed x --interval, or build the store, whose centre the flight is "
+            "flown round, farther from it)",
+        )
+
+
 MAX_TRUE_NODATA = 0.05
 """The largest share of a frame's footprint its true tile may lack (the store's nodata, or no
 tile): a true tile that does not show what the frame sees would score the matcher against a
@@ -189,17 +206,17 @@ match nobody could make. 5 %: the rim of a coverage, not a frame flown off it.""
 def _check_store_under(scene: Scene, i: int, footprint: Footprint) -> None:
     """Refuse frame ``i`` when the store holds nodata (all channels 0, or no tile) under more
     than :data:`MAX_TRUE_NODATA` of its footprint."""
-    cov = scene.cov.image
-    poly = footprint.world - np.asarray(scene.cov.origin, dtype=np.float64)
+    cov = scene.cov
+    poly = footprint.world - np.asarray(cov.origin, dtype=np.float64)
     lo = np.floor(poly.min(axis=0)).astype(int)
     hi = np.ceil(poly.max(axis=0)).astype(int) + 1
     inside = np.zeros((hi[1] - lo[1], hi[0] - lo[0]), np.uint8)
     cv2.fillPoly(inside, [np.round(poly - lo).astype(np.int32)], (1,))
     data = np.zeros(inside.shape, bool)  # outside the coverage: no tile
     x0, y0 = max(lo[0], 0), max(lo[1], 0)
-    x1, y1 = min(hi[0], cov.shape[1]), min(hi[1], cov.shape[0])
+    x1, y1 = min(hi[0], cov.size[0]), min(hi[1], cov.size[1])
     if x1 > x0 and y1 > y0:
-        window = cov[y0:y1, x0:x1].any(axis=2)
+        window = cov.window(x0, y0, x1, y1).any(axis=2)
         data[y0 - lo[1] : y1 - lo[1], x0 - lo[0] : x1 - lo[0]] = window
     share = 1.0 - float(data[inside > 0].mean())
     if share > MAX_TRUE_NODATA:

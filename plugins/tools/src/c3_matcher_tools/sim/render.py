@@ -41,6 +41,8 @@ __all__ = [
     "OrthoTile",
     "RenderedFrame",
     "cut_tile",
+    "draw_apart",
+    "footprint_mask",
     "ortho_to_undistorted_homography",
     "pick_distractor_tiles",
     "render_nav_frame",
@@ -402,12 +404,12 @@ def pick_distractor_tiles(
     oh, ow = ortho.shape[:2]
     fp = np.asarray(footprint_ortho, dtype=np.float64).reshape(-1, 2)
     xs, ys = _grid_positions((ow, oh), (tw, th), stride_px or max(1, min(tw, th) // 8))
-    ok = _window_sums(_footprint_mask(fp, (oh, ow), margin_px), xs, ys, (tw, th)) == 0
+    ok = _window_sums(footprint_mask(fp, (oh, ow), margin_px), xs, ys, (tw, th)) == 0
     nodata = np.all(ortho == 0, axis=2) if ortho.ndim == 3 else ortho == 0
     ok &= _window_sums(nodata.astype(np.uint8), xs, ys, (tw, th)) <= max_nodata_fraction * tw * th
     centre = fp.mean(axis=0) if fp.shape[0] else np.array([-1e9, -1e9])
     ok &= np.hypot(xs + (tw - 1) / 2 - centre[0], ys + (th - 1) / 2 - centre[1]) >= min_distance_px
-    chosen = _draw_apart(xs, ys, np.flatnonzero(ok), (tw, th), count, rng)
+    chosen = draw_apart(xs, ys, np.flatnonzero(ok), (tw, th), count, rng)
     if len(chosen) < count:
         raise InvalidInputError(
             "count",
@@ -426,7 +428,7 @@ def _grid_positions(
     return xs.ravel(), ys.ravel()
 
 
-def _footprint_mask(fp: F64, shape: tuple[int, int], margin_px: int) -> NDArray[np.uint8]:
+def footprint_mask(fp: F64, shape: tuple[int, int], margin_px: int) -> NDArray[np.uint8]:
     """Rasterize the footprint polygon (ORTHO px, dilated by ``margin_px``): 1 where occupied."""
     occupied = np.zeros(shape, dtype=np.uint8)
     if fp.shape[0] >= 3:
@@ -453,7 +455,7 @@ def _window_sums(
     )
 
 
-def _draw_apart(
+def draw_apart(
     xs: NDArray[np.int64],
     ys: NDArray[np.int64],
     allowed: NDArray[np.intp],
