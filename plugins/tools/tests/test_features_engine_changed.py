@@ -90,9 +90,15 @@ def test_sets_of_another_extractor_engine_are_named_as_never_served(
     assert (code, text_err) == (0, err), text_err
     assert "engine_installed: False" in out and f"installed_extractor_sha256: {sha}" in out
 
+    monkeypatch.setenv("C3_MATCHER_MATCHER__PHOTOMETRIC", "clahe")  # another set id but engine
+    assert _run(capsys, *build, "--flight-candidates")[0] == 0
+    monkeypatch.delenv("C3_MATCHER_MATCHER__PHOTOMETRIC")
+    code, out, err = _run(capsys, "features", "info", str(flight), "--verify", "--json")
+    assert code == 1 and rebuild in err and "replaces it" not in err, err  # clahe serves no "none"
+
     assert _run(capsys, *build, "--flight-candidates")[0] == 0  # for the installed engine
     code, out, err = _run(capsys, "features", "info", str(flight), "--verify", "--json")
-    sets = {s["set_id"]: s for s in json.loads(out)["sets"]}
+    sets = {s["set_id"]: s for s in json.loads(out)["sets"] if ":clahe:" not in s["set_id"]}
     assert code == 0, err
     assert sets.pop(old["set_id"])["engine_installed"] is False
     ((new_id, new),) = sets.items()

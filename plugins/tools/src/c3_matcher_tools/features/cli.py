@@ -311,7 +311,7 @@ def _engine_notes(
     the flight never serves it, and what builds the set it is served; of each set whose engine
     cannot be named, why. The number of sets not served that no set of the installed engine
     (same strategy and window) replaces: the flight extracts their candidates."""
-    served = {(s["strategy"], s["window_px"]): s for s in sets if s["engine_installed"]}
+    served = {_asked_as(s): s for s in sets if s["engine_installed"]}
     only = " (with --flight-candidates: only its candidates' windows)" if store.is_dir() else ""
     unserved = 0
     for s in sets:
@@ -325,7 +325,7 @@ def _engine_notes(
             continue
         if s["engine_installed"]:
             continue
-        other = served.get((name, window))
+        other = served.get(_asked_as(s))
         built = (
             f"c3-matcher: {path}: {what} was built with another extractor engine (sha256 "
             f"{str(s['extractor_sha256'])[:12]}...) than the installed one "
@@ -345,3 +345,10 @@ def _engine_notes(
             f"{path.name} is deleted, which removes every set in it."
         )
     return unserved
+
+
+def _asked_as(s: dict[str, object]) -> tuple[str, str]:
+    """What a flight asks a set for but its extractor engine: the strategy and the rest of the
+    set id (provider, size multiple, photometric normalisation, border erosion, window): a set
+    of the installed engine replaces one of another engine only when they agree in all of it."""
+    return str(s["strategy"]), str(s["set_id"]).partition(":")[2]
