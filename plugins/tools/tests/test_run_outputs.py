@@ -121,3 +121,30 @@ def test_a_frame_that_raised_shows_its_best_candidates_inliers_in_every_output(
     ]
     assert points[0]["inliers"] == 59 and points[0]["status"] == "insufficient"
     assert points[1]["inliers"] == flown.outcomes[1].candidate_inliers
+
+
+def test_a_track_across_180_deg_is_cut_there_not_drawn_round_the_world(flown: FlightRun) -> None:
+    import dataclasses
+
+    from c3_matcher_tools.geojson import flight_geojson
+
+    a, b = flown.outcomes[:2]
+    c = b
+    across = [
+        dataclasses.replace(
+            a, est_lon=179.9999, est_lat=-17.0, truth_lon=-179.9999, truth_lat=-17.0
+        ),
+        dataclasses.replace(b, est_lon=-179.9997, est_lat=-17.0002, truth_lon=179.9995),
+        dataclasses.replace(c, est_lon=-179.9990, est_lat=-17.0004),
+    ]
+    feats = flight_geojson(across, "xfeat")["features"]
+    (track,) = [f["geometry"] for f in feats if f["properties"]["kind"] == "estimate_track"]
+    assert track["type"] == "MultiLineString"
+    west, east = track["coordinates"]
+    assert west[0] == [179.9999, -17.0] and west[-1][0] == 180.0
+    assert east[0][0] == -180.0 and east[-1] == [-179.999, -17.0004]
+    assert west[-1][1] == east[0][1] == pytest.approx(-17.00005)
+    errors = [f["geometry"] for f in feats if f["properties"]["kind"] == "error"]
+    assert errors[0]["type"] == "MultiLineString"  # truth west of the line, estimate east
+    whole = flight_geojson(flown.outcomes, "xfeat")["features"]
+    assert all(f["geometry"]["type"] != "MultiLineString" for f in whole)

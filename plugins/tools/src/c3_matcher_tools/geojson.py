@@ -8,6 +8,9 @@ Features, each with ``properties.kind``:
   ``correct``, ``position_error_m``;
 - ``footprint``: the estimated footprint Polygon of each matched frame (counterclockwise);
 - ``error``: a LineString from each frame's true to its estimated centre.
+
+A line that crosses 180 deg is cut there into a MultiLineString (RFC 7946, 3.1.9), each part
+ending on the line: joined whole, it would run round the world between points metres apart.
 """
 
 from __future__ import annotations
@@ -52,6 +55,24 @@ def _counterclockwise(ring: list[list[float]]) -> list[list[float]]:
     return ring if twice_area >= 0 else ring[::-1]
 
 
+def _line(points: Sequence[tuple[float, float]]) -> dict[str, Any]:
+    """The LineString through ``points`` (lon, lat), or the MultiLineString of its parts cut at
+    180 deg where one step crosses it (the shorter way round: a step of over 180 deg of
+    longitude), each cut at the latitude where the step meets the line."""
+    parts = [[list(points[0])]]
+    for (x0, y0), (x1, y1) in itertools.pairwise(points):
+        if abs(x1 - x0) > 180.0:
+            side = 180.0 if x0 > 0 else -180.0
+            span = (x1 + 2 * side) - x0  # the step's longitude the shorter way round
+            y = y0 + (y1 - y0) * ((side - x0) / span if span else 0.0)
+            parts[-1].append([side, y])
+            parts.append([[-side, y]])
+        parts[-1].append([x1, y1])
+    if len(parts) == 1:
+        return {"type": "LineString", "coordinates": parts[0]}
+    return {"type": "MultiLineString", "coordinates": parts}
+
+
 def flight_geojson(outcomes: Sequence[FrameOutcome], strategy: str) -> dict[str, Any]:
     """The FeatureCollection of one run (see the module docstring)."""
     feats: list[dict[str, Any]] = []
@@ -68,7 +89,7 @@ def flight_geojson(outcomes: Sequence[FrameOutcome], strategy: str) -> dict[str,
             feats.append(
                 {
                     "type": "Feature",
-                    "geometry": {"type": "LineString", "coordinates": [list(p) for p in pts]},
+                    "geometry": _line(pts),
                     "properties": {"kind": kind, "strategy": strategy, "frames": len(pts)},
                 }
             )
@@ -102,10 +123,7 @@ def flight_geojson(outcomes: Sequence[FrameOutcome], strategy: str) -> dict[str,
                 feats.append(
                     {
                         "type": "Feature",
-                        "geometry": {
-                            "type": "LineString",
-                            "coordinates": [[o.truth_lon, o.truth_lat], [o.est_lon, o.est_lat]],
-                        },
+                        "geometry": _line([(o.truth_lon, o.truth_lat), (o.est_lon, o.est_lat)]),
                         "properties": _props(o, "error", strategy),
                     }
                 )
