@@ -29,7 +29,6 @@ says (:class:`~c3_matcher_tools.tilestore.raster.ValueMapping`).
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +40,7 @@ from numpy.typing import NDArray
 from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT
+from c3_matcher_tools.geotiff import MODEL_TYPE_KEY, geo_keys, grid_tags
 from c3_matcher_tools.sim.orthophotos import load_orthophoto
 from c3_matcher_tools.tilestore.geo import (
     TILE_PX,
@@ -59,6 +59,7 @@ from c3_matcher_tools.tilestore.raster import (
     RasterioSource,
     ValueMapping,
     ValueRange,
+    grid_gsd_m,
     rasterio_available,
 )
 from c3_matcher_tools.tilestore.writer import MBTilesWriter
@@ -292,10 +293,18 @@ def _open_source(
         raise InvalidInputError(
             "geotiff", f"{geotiff}: pixel size {photo.size} != grid {grid.size}"
         )
-    gsd = (
-        math.sqrt(grid.scale_x * grid.scale_y) * grid.unit_m if photo.gsd_m is None else photo.gsd_m
-    )
+    gsd = grid_gsd_m(grid, geographic=_declared_geographic(geotiff))
     return _Source(grid, gsd, "tifffile", None, _fallback_mapping(geotiff), photo_rgb=photo.rgb)
+
+
+def _declared_geographic(geotiff: str | Path) -> bool:
+    """Whether ``geotiff``'s GeoKeys declare a geographic model (degrees), as the tifffile
+    reader's GSD rule reads them (:func:`~c3_matcher_tools.sim.orthophotos.geotiff_gsd_m`)."""
+    import tifffile
+
+    with tifffile.TiffFile(str(geotiff)) as tif:
+        keys = geo_keys(grid_tags(tif.pages.first), geotiff)
+    return bool(keys.get(MODEL_TYPE_KEY) == 2)
 
 
 def _fallback_mapping(geotiff: str | Path) -> str:

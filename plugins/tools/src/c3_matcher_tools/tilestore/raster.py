@@ -54,11 +54,12 @@ def rasterio_available() -> bool:
 
 
 def grid_gsd_m(grid: GeoGrid, *, geographic: bool) -> float:
-    """Ground GSD (m/px) at the grid centre, by the same rules as
-    :func:`c3_matcher_tools.sim.orthophotos.geotiff_gsd_m`: projected units times the grid's
-    metres per unit (``unit_m``: feet become metres), mercator scales divided by the scale
-    factor at the centre latitude, degrees converted."""
-    _lon, lat_deg = grid.centre_lonlat()
+    """Ground GSD (m/px) at the grid centre, the figure both ``tiles build`` readers report
+    (:func:`~c3_matcher_tools.geodesy.ground_gsd_m`): projected units times the grid's metres per
+    unit (``unit_m``: feet become metres) divided by the projection's scale factor at the centre
+    (1.045 for PDC Mercator at 17 S, 0.984 for polar stereographic at 77.7 S, 0.9996 for UTM on
+    its central meridian; 1 without pyproj but on mercator grids), degrees converted."""
+    lon_deg, lat_deg = grid.centre_lonlat()
     return ground_gsd_m(
         grid.scale_x,
         grid.scale_y,
@@ -66,6 +67,7 @@ def grid_gsd_m(grid: GeoGrid, *, geographic: bool) -> float:
         geographic=geographic,
         epsg=grid.epsg,
         unit_m=grid.unit_m,
+        lon_deg=lon_deg,
     )
 
 
