@@ -25,7 +25,14 @@ from c3_matcher_tools.dataset.format import (
     FrameRecord,
 )
 
-__all__ = ["calibration_to_json", "copy_file", "link_or_copy", "write_dataset", "write_file"]
+__all__ = [
+    "calibration_to_json",
+    "copy_file",
+    "link_or_copy",
+    "place_store",
+    "write_dataset",
+    "write_file",
+]
 
 
 def calibration_to_json(calibration: dto.CameraCalibration) -> dict[str, Any]:
@@ -45,20 +52,16 @@ def write_dataset(
     calibration: dto.CameraCalibration,
     frames: Sequence[FrameRecord],
     *,
-    store: Path,
+    store: Path | None,
     link_store: bool = False,
 ) -> str:
     """Write a dataset under ``root``, its frame images already there: the tile store ``store``
-    copied in (``link_store``: hard-linked where it can be, :func:`link_or_copy`), the
-    calibration, the frames and the description (the format and the files, then ``meta``: its
-    ``name`` first, then how the dataset was made). Returns how the store was put there, in
-    words."""
+    put there by :func:`place_store` (None: the caller placed it first), the calibration, the
+    frames and the description (the format and the files, then ``meta``: its ``name`` first,
+    then how the dataset was made). Returns how the store was put there, in words ("" when the
+    caller placed it)."""
     root.mkdir(parents=True, exist_ok=True)
-    if link_store:
-        placed = link_or_copy(store, root / STORE_FILE)
-    else:
-        copy_file(store, root / STORE_FILE)
-        placed = f"{STORE_FILE}: a copy of {store}"
+    placed = "" if store is None else place_store(root, store, link=link_store)
     described = {
         "format": FORMAT,
         "calibration": CALIBRATION_FILE,
@@ -75,6 +78,16 @@ def write_dataset(
     with _naming(root / META_FILE):
         (root / META_FILE).write_text(json.dumps(described, indent=2) + "\n")
     return placed
+
+
+def place_store(root: Path, store: Path, *, link: bool) -> str:
+    """Put the tile store ``store`` in the dataset folder ``root``: copied, or with ``link``
+    hard-linked where it can be (:func:`link_or_copy`); returns which, in words."""
+    root.mkdir(parents=True, exist_ok=True)
+    if link:
+        return link_or_copy(store, root / STORE_FILE)
+    copy_file(store, root / STORE_FILE)
+    return f"{STORE_FILE}: a copy of {store}"
 
 
 def link_or_copy(store: Path, target: Path) -> str:

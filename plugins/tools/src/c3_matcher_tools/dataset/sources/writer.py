@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import uuid
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +20,7 @@ from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport
 from c3_matcher_tools.dataset.sources.pairing import Pairing, match_shots
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 from c3_matcher_tools.dataset.telemetry import TelemetryRow
-from c3_matcher_tools.dataset.writing import write_dataset, write_file
+from c3_matcher_tools.dataset.writing import place_store, write_dataset, write_file
 
 __all__ = ["MAX_OWN_GPS_OFFSET_M", "image_problem", "write_imported_flight"]
 
@@ -64,25 +63,24 @@ def write_imported_flight(
                 i, row, t0, base, f.shot.suffix, proposal, proposer, heights=heights, extra=extra
             )
         )
-    report = _report(out, track, frames, skipped, how, options, zoom, notes)
-    meta = {
-        "name": label,
-        "candidate_size_px": proposer.candidate_size_px,
-        "zoom": zoom,
-        "tiles_source": tiles_source,
-        "frames_source": f"imported: {Path(track.source).name} ({track.kind})",
-        "spec": {**_spec(track, how, options, zoom), **(spec or {})},
-        "import": {k: v for k, v in report.to_json().items() if k != "dataset"},
-        "attribution": attribution,
-    }
     with atomic_directory(out, force=force) as tmp:
+        placed = place_store(tmp, proposer.store, link=True)  # the import's record says how
+        report = _report(out, track, frames, skipped, how, options, zoom, [*notes, placed])
+        meta = {
+            "name": label,
+            "candidate_size_px": proposer.candidate_size_px,
+            "zoom": zoom,
+            "tiles_source": tiles_source,
+            "frames_source": f"imported: {Path(track.source).name} ({track.kind})",
+            "spec": {**_spec(track, how, options, zoom), **(spec or {})},
+            "import": {k: v for k, v in report.to_json().items() if k != "dataset"},
+            "attribution": attribution,
+        }
         (tmp / "frames").mkdir()
         for rec, data in zip(records, images, strict=True):
             write_file(tmp / rec.image, data)
-        placed = write_dataset(
-            tmp, meta, calibration, records, store=proposer.store, link_store=True
-        )
-    return replace(report, notes=(*report.notes, placed))
+        write_dataset(tmp, meta, calibration, records, store=None)
+    return report
 
 
 def _propose(
