@@ -93,7 +93,10 @@ def _fail() -> int:
     ("read", "said"),
     [
         (lambda: 1.5e9, "monotonic_ns() gave 1500000000.0 (float), not an int of nanoseconds"),
-        (lambda: np.int64(7), "monotonic_ns() gave np.int64(7) (int64), not an int of nanoseconds"),
+        (  # numpy's repr of the value: np.int64(7) from numpy 2, 7 before
+            lambda: np.int64(7),
+            f"monotonic_ns() gave {np.int64(7)!r} (int64), not an int of nanoseconds",
+        ),
         (lambda: -5, "monotonic_ns() gave -5, not nanoseconds >= 0"),
         (_fail, "monotonic_ns() raised OSError: no time source"),
     ],
