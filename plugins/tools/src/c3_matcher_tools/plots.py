@@ -15,11 +15,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.viz import draw_matches, write_png
-from c3_matcher_tools.run.acceptance import IT01_BAR, IT03_BAR
+from c3_matcher_tools.run.acceptance import IT01_BAR, IT03_BAR, it01_inliers
 
 if TYPE_CHECKING:
     from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
-    from c3_matcher_tools.run.records import FlightRun
+    from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 
 __all__ = ["CHARTS", "MATCH_PICTURES", "eval_plots", "forget_match_pictures", "line_chart"]
 
@@ -40,9 +40,13 @@ def line_chart(
     ylabel: str,
     bar: float | None = None,
     size: tuple[int, int] = (900, 420),
+    marked: Mapping[str, Sequence[bool]] | None = None,
+    marked_note: Sequence[str] = (),
 ) -> Path:
     """Write a PNG line chart: one polyline per series over the frame index (x), NaN values
-    leave gaps (drawn as an 'x' on the axis); ``bar`` draws a dashed horizontal reference."""
+    leave gaps (drawn as an 'x' on the axis); ``bar`` draws a dashed horizontal reference;
+    ``marked``: per series, the points ringed with a square, which the legend explains in the
+    lines of ``marked_note``."""
     w, h = size
     left, right, top, bottom = 70, 170, 40, 40
     canvas = np.full((h, w, 3), 255, dtype=np.uint8)
@@ -67,13 +71,13 @@ def line_chart(
         _, y = px(0, bar)
         for x in range(left, w - right, 12):
             cv2.line(canvas, (x, y), (min(x + 6, w - right), y), (0, 0, 200), 1)
+    marks = marked or {}
     for idx, (label, values) in enumerate(series.items()):
         colour = _COLOURS[idx % len(_COLOURS)][::-1]
-        _polyline(canvas, values, colour, px)
-        ly = top + 18 * idx + 10
-        cv2.line(canvas, (w - right + 10, ly), (w - right + 30, ly), colour, 2)
-        font = cv2.FONT_HERSHEY_SIMPLEX
-        cv2.putText(canvas, label[:18], (w - right + 35, ly + 4), font, 0.4, (0, 0, 0), 1)
+        _polyline(canvas, values, colour, px, marks.get(label, ()))
+        _legend_entry(canvas, (w - right, top + 18 * idx + 10), label, colour)
+    if any(any(m) for m in marks.values()):
+        _legend_entry(canvas, (w - right, top + 18 * len(series) + 10), "", None, marked_note)
     cv2.putText(canvas, title, (left, 25), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1)
     axis = f"{ylabel} / frame index"
     cv2.putText(canvas, axis, (left, h - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1)
@@ -85,8 +89,10 @@ def _polyline(
     values: Sequence[float],
     colour: tuple[int, int, int],
     px: Callable[[float, float], tuple[int, int]],
+    marked: Sequence[bool] = (),
 ) -> None:
-    """One series: a line through its finite values, an 'x' on the axis for each NaN."""
+    """One series: a line through its finite values, an 'x' on the axis for each NaN, a
+    square around each ``marked`` point."""
     previous = None
     for i, v in enumerate(values):
         if not math.isfinite(v):
@@ -98,15 +104,39 @@ def _polyline(
         if previous is not None:
             cv2.line(canvas, previous, p, colour, 2, cv2.LINE_AA)
         cv2.circle(canvas, p, 2, colour, -1)
+        if i < len(marked) and marked[i]:
+            cv2.drawMarker(canvas, p, colour, cv2.MARKER_SQUARE, 11, 1)
         previous = p
+
+
+def _legend_entry(
+    canvas: NDArray[np.uint8],
+    at: tuple[int, int],
+    label: str,
+    colour: tuple[int, int, int] | None,
+    note: Sequence[str] = (),
+) -> None:
+    """A legend entry right of the plot (whose right edge and row ``at`` gives): a series'
+    line in ``colour`` and its ``label``, or (``colour`` None) the square that rings marked
+    points and the lines of ``note``."""
+    x, y = at
+    font, black = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0)
+    if colour is None:
+        cv2.drawMarker(canvas, (x + 20, y), black, cv2.MARKER_SQUARE, 11, 1)
+    else:
+        cv2.line(canvas, (x + 10, y), (x + 30, y), colour, 2)
+    for k, line in enumerate(note or (label,)):
+        cv2.putText(canvas, line[:18], (x + 35, y + 4 + 14 * k), font, 0.4, black, 1)
 
 
 def eval_plots(
     dataset: FlightDataset, runs: Sequence[FlightRun], out: Path, samples: int
 ) -> list[str]:
     """``out/inliers.png`` and ``out/error.png`` (best-candidate inliers and mean inlier error
-    against ground truth per frame, one line per run) and, for ``samples`` frames with the true
-    tile spread over the flight, ``out/matches/<strategy>_<frame>.png``; the paths written."""
+    against ground truth per frame, one line per run; a frame with its true tile that raised
+    ringed: C3-IT-01 counts it as 0, not at the count drawn) and, for ``samples`` frames with
+    the true tile spread over the flight, ``out/matches/<strategy>_<frame>.png``; the paths
+    written."""
     charts = zip(
         CHARTS,
         (
@@ -117,6 +147,7 @@ def eval_plots(
         strict=True,
     )
     titles = {"inliers": "best-candidate inliers", "error": "mean inlier error vs ground truth"}
+    counted_apart = {r.strategy: [_counted_apart(o) for o in r.outcomes] for r in runs}
     written = [
         str(
             line_chart(
@@ -125,6 +156,8 @@ def eval_plots(
                 title=f"{dataset.name}: {titles[name]} per frame",
                 ylabel={"inliers": "inliers", "error": "px"}[name],
                 bar=bar,
+                marked=counted_apart if name == "inliers" else None,
+                marked_note=("raised: counts 0", "in C3-IT-01"),
             )
         )
         for name, series, bar in charts
@@ -132,6 +165,13 @@ def eval_plots(
     if samples > 0:
         written += _match_pictures(dataset, runs, out, _sample_frames(dataset, samples))
     return written
+
+
+def _counted_apart(o: FrameOutcome) -> bool:
+    """Whether C3-IT-01 counts the frame at another inlier count than the chart draws: a frame
+    with its true tile that raised, drawn at the count it fell short with, counted 0."""
+    counted = it01_inliers(o)
+    return counted is not None and counted != o.candidate_inliers
 
 
 def _finite_or_nan(value: float) -> float:

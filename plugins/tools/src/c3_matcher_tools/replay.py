@@ -177,7 +177,8 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
     if s.georeferenced and s.with_truth:
         lines.append(
             f"  position error m p50 {figure(s.position_error_m_p50)}, "
-            f"p95 {figure(s.position_error_m_p95)} ({s.georeferenced} frames located)"
+            f"p95 {figure(s.position_error_m_p95)} over every matched frame "
+            f"({s.position_error_frames} frames; {s.georeferenced} located)"
         )
     if s.with_telemetry:
         lines.append(_telemetry_line(s))

@@ -13,13 +13,24 @@ from numpy.typing import NDArray
 
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.report.trajectory import draw_trajectory
+from c3_matcher_tools.run.acceptance import Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
-__all__ = ["FAILED", "STATUS_COLOUR", "WRONG", "per_frame_figure", "trajectory_figure"]
+__all__ = [
+    "MARKS",
+    "STATUS_COLOUR",
+    "per_frame_figure",
+    "trajectory_figure",
+]
 
-FAILED = "failed"
-WRONG = "wrong tile"
-"""The words the chart's legend and the frames table both use (the chart marks F / W)."""
+MARKS = {
+    Verdict.FAILED: "F",
+    Verdict.WRONG_TILE: "W",
+    Verdict.TRUE_TILE_PLACED_WRONG: "W",
+    Verdict.OTHER_TILE: "O",
+}
+"""The letter over a frame in the per-frame chart and the frames table, by :class:`Verdict`
+(none over a right pick of the true tile, or one without ground truth)."""
 STATUS_COLOUR = {
     FrameStatus.OK: "#2c9f2c",
     FrameStatus.INSUFFICIENT: "#d62728",
@@ -57,8 +68,8 @@ def trajectory_figure(dataset: FlightDataset, outcomes: Sequence[FrameOutcome], 
 
 def per_frame_figure(outcomes: Sequence[FrameOutcome], min_inliers: int) -> str:
     """The per-frame figure as a data URI: the best inliers against the threshold, the errors and
-    the latency, one panel each, frames whose true tile is absent banded grey and failed or
-    wrong-tile frames marked F / W; legends outside the panels."""
+    the latency, one panel each, frames whose true tile is absent banded grey and failed,
+    wrong-tile and other-tile right fixes marked F / W / O; legends outside the panels."""
     plt = _plt()
     idx = np.array([o.index for o in outcomes])
     fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
@@ -149,18 +160,20 @@ def _band_absent_tiles(axes: Sequence[Any], outcomes: Sequence[FrameOutcome]) ->
 def _mark_failed_and_wrong(
     ax: Any, outcomes: Sequence[FrameOutcome], inl: NDArray[np.int_]
 ) -> None:
-    """W over a frame that matched a wrong tile, F over a failed one, above the tallest bar."""
+    """Over each frame, above the tallest bar: O over a pick of another tile that places the
+    frame right, W over a pick of a wrong tile, F over a failed frame."""
     top = max(1.0, float(inl.max()) if inl.size else 1.0)
     for o in outcomes:
-        if o.status == FrameStatus.OK and o.has_truth and o.true_present and not o.correct:
-            ax.text(
-                o.index, top * 1.02, "W", color="#d62728", ha="center", fontsize=9, weight="bold"
-            )
-        elif o.status != FrameStatus.OK:
-            ax.text(
-                o.index, top * 1.02, "F", color="#d62728", ha="center", fontsize=9, weight="bold"
-            )
+        mark = _mark(o)
+        if mark:
+            colour = "#2c9f2c" if mark == "O" else "#d62728"
+            ax.text(o.index, top * 1.02, mark, color=colour, ha="center", fontsize=9, weight="bold")
     ax.set_ylim(0, top * 1.12)
+
+
+def _mark(o: FrameOutcome) -> str:
+    """The frame's mark over the chart: O, W, F or none (:data:`MARKS`)."""
+    return MARKS.get(verdict(o), "")
 
 
 def _status_legend(ax: Any, outcomes: Sequence[FrameOutcome], min_inliers: int) -> None:
@@ -170,8 +183,9 @@ def _status_legend(ax: Any, outcomes: Sequence[FrameOutcome], min_inliers: int) 
 
     handles = [
         Patch(color=STATUS_COLOUR[FrameStatus.OK], label="matched"),
-        Patch(color=STATUS_COLOUR[FrameStatus.INSUFFICIENT], label=f"F: {FAILED}"),
-        Patch(color="white", label=f"W: {WRONG}"),
+        Patch(color=STATUS_COLOUR[FrameStatus.INSUFFICIENT], label=f"F: {Verdict.FAILED}"),
+        Patch(color="white", label=f"W: {Verdict.WRONG_TILE}, or {Verdict.TRUE_TILE_PLACED_WRONG}"),
+        Patch(color="white", label=f"O: {Verdict.OTHER_TILE}"),
         Patch(color="#bbbbbb", label="true tile absent"),
         Line2D([], [], ls="--", color="#555", lw=1, label=f"{min_inliers} inliers threshold"),
     ]

@@ -6,7 +6,7 @@ Sections: summary figures; the trajectory on the map mosaic of the flight's tile
 vs estimate, error segments, failed frames marked; for a recorded flight the telemetry's track,
 frames whose GNSS was absent or degraded marked); inliers, error (m and px; a recorded flight's
 estimate minus the telemetry's look point beside the GNSS accuracy the log states) and latency per
-frame with absent-tile, wrong-tile and failed frames marked (legends outside the plots); a gallery of the worst and best
+frame with absent-tile, wrong-tile, other-tile right fixes and failed frames marked (legends outside the plots); a gallery of the worst and best
 frames (:func:`c3_matcher.viz.render_match`); the run's settings and provenance. This module
 assembles the page; the plots are drawn in :mod:`.charts`, the gallery's pictures in
 :mod:`.pictures`.
@@ -23,9 +23,9 @@ from typing import Any
 
 from c3_matcher.atomic import write_text_atomically
 from c3_matcher_tools.dataset.format import FlightDataset
-from c3_matcher_tools.report.charts import FAILED, WRONG, per_frame_figure, trajectory_figure
+from c3_matcher_tools.report.charts import MARKS, per_frame_figure, trajectory_figure
 from c3_matcher_tools.report.pictures import gallery_pictures
-from c3_matcher_tools.run.acceptance import WRONG_FIX_PX
+from c3_matcher_tools.run.acceptance import WRONG_FIX_PX, Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 from c3_matcher_tools.run.scoring import RunSummary, figure, summarize
 
@@ -33,14 +33,11 @@ __all__ = ["write_report"]
 
 
 def _verdict(o: FrameOutcome) -> str:
-    """The frame's result in the chart's words: F failed, W wrong tile."""
-    if o.status != FrameStatus.OK:
-        return f"F {FAILED}" + (" (true tile absent)" if o.has_truth and not o.true_present else "")
-    if not o.has_truth:
-        return "matched"
-    if not o.true_present:
-        return "matched (true tile absent)"
-    return "true tile" if o.correct else f"W {WRONG}"
+    """The frame's :class:`Verdict` in the frames table, after the chart's mark (F, W, O)."""
+    judged = verdict(o)
+    mark = MARKS.get(judged)
+    absent = " (true tile absent)" if o.has_truth and not o.true_present else ""
+    return f"{mark} {judged}{absent}" if mark else f"{judged}{absent}"
 
 
 def _gnss_cell(o: FrameOutcome) -> str:
@@ -125,8 +122,9 @@ def _kpis(summary: RunSummary) -> list[tuple[str, Any]]:
             else "no truth",
         ),
         (
-            "position error p50 / p95 (m)",
-            f"{figure(summary.position_error_m_p50)} / {figure(summary.position_error_m_p95)}",
+            "position error p50 / p95 (m), every matched frame",
+            f"{figure(summary.position_error_m_p50)} / {figure(summary.position_error_m_p95)}"
+            f" ({summary.position_error_frames} frames)",
         ),
         *([tele_kpi] if summary.with_telemetry else []),
         (
@@ -187,14 +185,17 @@ class _Page:
 <h2>Trajectory</h2>
 <p>Frame centres on the tile store's imagery: truth (blue; a recorded flight: where its telemetry
 says the frame looks, green) and estimate (orange); red segments join each frame's reference and
-estimated centre; x: a failed frame, diamond: a wrong tile, yellow ring: GNSS absent or
-degraded.</p>
+estimated centre; x: a failed frame, diamond: a wrong fix (W below), square: another tile that
+places the frame right, yellow ring: GNSS absent or degraded.</p>
 <img id="trajectory" alt="trajectory" src="{self.trajectory}">
 <h2>Per frame</h2>
 <p>Grey bands: frames whose true tile is not among the candidates (they should fail); yellow
-bands: GNSS absent or degraded. F: {FAILED} (fewer inliers than the threshold, or an error);
-W: {WRONG} chosen. A recorded flight's error is the estimate minus the telemetry's position,
-beside the accuracy its GNSS states.</p>
+bands: GNSS absent or degraded. F: {Verdict.FAILED} (fewer inliers than the threshold, or an
+error); W: a wrong fix, one eval counts false-confident ({Verdict.WRONG_TILE}, or
+{Verdict.TRUE_TILE_PLACED_WRONG}: inliers over {WRONG_FIX_PX:g} px from the ground truth);
+O: {Verdict.OTHER_TILE} (a candidate other than the true tile whose inliers place the frame
+within {WRONG_FIX_PX:g} px: eval's "other tile"). A recorded flight's error is the estimate
+minus the telemetry's position, beside the accuracy its GNSS states.</p>
 <img id="per-frame" alt="per-frame plots" src="{self.per_frame}">
 <h2>Worst and best frames</h2>
 <p>Worst: frames that went wrong (no match where the true tile was a candidate, a wrong tile, or

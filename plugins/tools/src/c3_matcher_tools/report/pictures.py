@@ -14,8 +14,7 @@ from numpy.typing import NDArray
 from c3_matcher.viz import CandidateView, render_match
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.dataset.truth import inlier_errors_px
-from c3_matcher_tools.report.charts import FAILED, WRONG
-from c3_matcher_tools.run.acceptance import inliers_within_bound
+from c3_matcher_tools.run.acceptance import Verdict, inliers_within_bound, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = ["frame_picture", "gallery_frames", "gallery_pictures"]
@@ -119,11 +118,9 @@ def _picture_title(outcome: FrameOutcome) -> str:
             if not math.isfinite(outcome.position_error_m)
             else f", {outcome.position_error_m:.1f} m off"
         )
-        verdict = (
-            "" if not outcome.has_truth else (" true tile" if outcome.correct else f" {WRONG}")
-        )
-        return f"frame {outcome.index}: {outcome.best_inliers} inliers,{verdict}{pos}"
-    title = f"frame {outcome.index}: {FAILED} ({outcome.status}, best {outcome.insufficient_best} inliers)"  # noqa: E501
+        judged = "" if not outcome.has_truth else f" {verdict(outcome)}"
+        return f"frame {outcome.index}: {outcome.best_inliers} inliers,{judged}{pos}"
+    title = f"frame {outcome.index}: {Verdict.FAILED} ({outcome.status}, best {outcome.insufficient_best} inliers)"  # noqa: E501
     if outcome.has_truth and not outcome.true_present:
         title += ", true tile absent"
     return title

@@ -1,7 +1,8 @@
 """The flight report's trajectory: frame centres on the map mosaic of the flight's tile store.
 
 Truth (blue) and estimate (orange) with a red segment from each frame's reference to its
-estimate, failed frames (x) and wrong tiles (diamonds) marked; for a recorded flight the
+estimate, failed frames (x), wrong tiles (diamonds) and picks of another tile that place the
+frame right (squares) marked; for a recorded flight the
 vehicle's GNSS track and where the telemetry says each frame looks (green), frames whose GNSS was
 absent or degraded ringed. Drawn onto a matplotlib ``Axes`` the caller owns; positions are
 WGS84 degrees, drawn in mosaic px (degrees when the store has no imagery there).
@@ -19,6 +20,7 @@ from numpy.typing import NDArray
 from c3_matcher.dto import TileId
 from c3_matcher.georef import lonlat_to_tile_px
 from c3_matcher_tools.dataset.format import FlightDataset
+from c3_matcher_tools.run.acceptance import Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = ["MAX_MOSAIC_PX", "draw_trajectory"]
@@ -179,9 +181,19 @@ def draw_trajectory(
         _mark(ax, not_ok, **failed, label="failed frame (truth)")
     if est:
         _line(ax, est, "-s", color="#ff7f0e", ms=4, lw=1.2, label="estimate")
-        wrong = [e for e in est if e[0].has_truth and not e[0].correct]
+        wrong = (Verdict.WRONG_TILE, Verdict.TRUE_TILE_PLACED_WRONG)
         ring = {"facecolors": "none", "edgecolors": RED, "zorder": 6}
-        _mark(ax, wrong, marker="D", s=60, **ring, label="wrong tile")
+        _mark(
+            ax,
+            [e for e in est if verdict(e[0]) in wrong],
+            marker="D",
+            s=60,
+            **ring,
+            label="wrong fix",
+        )
+        ring = {**ring, "edgecolors": "#2c9f2c"}
+        elsewhere = [e for e in est if verdict(e[0]) == Verdict.OTHER_TILE]
+        _mark(ax, elsewhere, marker="s", s=60, **ring, label=Verdict.OTHER_TILE)
     tele = _located(outcomes, lambda o: (o.telemetry_lon, o.telemetry_lat), to_xy)
     _vehicle_track(ax, dataset, outcomes, to_xy)
     if tele:

@@ -14,6 +14,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from decimal import ROUND_CEILING, ROUND_FLOOR, Decimal
+from enum import StrEnum
 from typing import Any, ClassVar, Literal, cast
 
 import numpy as np
@@ -37,9 +38,13 @@ __all__ = [
     "InlierCount",
     "InlierError",
     "Measure",
+    "Verdict",
     "inliers_within_bound",
+    "is_right_fix_other_tile",
     "is_wrong_fix",
+    "it01_inliers",
     "metrics",
+    "verdict",
 ]
 
 
@@ -124,6 +129,47 @@ def is_wrong_fix(outcome: FrameOutcome) -> bool:
     return outcome.status == FrameStatus.OK and inliers_within_bound(outcome) is not True
 
 
+def is_right_fix_other_tile(outcome: FrameOutcome) -> bool:
+    """A returned pick of a candidate other than the true tile whose inliers still place the
+    frame right (within ``WRONG_FIX_PX``): no wrong fix, yet not the correct tile."""
+    return verdict(outcome) == Verdict.OTHER_TILE
+
+
+class Verdict(StrEnum):
+    """What a frame's result came to, judged as eval judges it, in the report's words."""
+
+    FAILED = "failed"
+    """No pick: the match raised, or the image could not be read."""
+    MATCHED = "matched"
+    """A pick, and no ground truth to judge it by."""
+    TRUE_TILE = "true tile"
+    """The true tile, its inliers within ``WRONG_FIX_PX`` of ground truth."""
+    OTHER_TILE = "another tile, right fix"
+    """Another candidate whose inliers still place the frame right (eval's "other tile")."""
+    WRONG_TILE = "wrong tile"
+    """Another candidate, placing the frame wrong: a false-confident frame."""
+    TRUE_TILE_PLACED_WRONG = "true tile, placed wrong"
+    """The true tile, its inliers over ``WRONG_FIX_PX`` off (or unknown): false-confident."""
+
+
+def verdict(outcome: FrameOutcome) -> Verdict:
+    """The frame's :class:`Verdict`: the one rule the report's table, marks and pictures and
+    eval's false-confident count share."""
+    if outcome.status != FrameStatus.OK:
+        return Verdict.FAILED
+    if not outcome.has_truth:
+        return Verdict.MATCHED
+    if is_wrong_fix(outcome):
+        return Verdict.TRUE_TILE_PLACED_WRONG if outcome.correct else Verdict.WRONG_TILE
+    return Verdict.TRUE_TILE if outcome.correct else Verdict.OTHER_TILE
+
+
+def it01_inliers(outcome: FrameOutcome) -> int | None:
+    """The inlier count C3-IT-01 takes from a frame: the match's, 0 when it raised; None for a
+    frame it leaves out (no ground truth, its image unread, or its true tile absent)."""
+    return outcome.best_inliers if outcome.scored and outcome.true_present else None
+
+
 class Measure(ABC):
     """One measure (each a frozen dataclass of its figures), named ``name`` in the reports:
     ``passed`` is True (bar met), False (bar missed) or None (nothing to measure), judged from
@@ -172,7 +218,9 @@ class Determinism(Measure):
 @dataclass(frozen=True)
 class InlierError(Measure):
     """C3-IT-03: the mean inlier error against ground truth of the true-tile frames matched
-    (ORIGINAL frame px; p95 judged), and the position error (m) beside it."""
+    (ORIGINAL frame px; p95 judged) over ``frames_scored``, and beside it the position error
+    (m) of the same frames, over the ``position_error_frames`` that have one (the run
+    summary's position error counts every matched frame, true tile there or not)."""
 
     name: ClassVar[str] = "C3-IT-03"
     p95_mean_error_px: float
@@ -180,6 +228,7 @@ class InlierError(Measure):
     median_mean_error_px: float
     p95_position_error_m: float
     median_position_error_m: float
+    position_error_frames: int
 
     @property
     def passed(self) -> bool | None:
@@ -288,7 +337,7 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Accep
     scored = [o for o in run1 if o.scored]
     present = [o for o in scored if o.true_present]
     absent = [o for o in scored if not o.true_present]
-    inliers = [float(o.best_inliers) for o in present]
+    inliers = [float(n) for o in present if (n := it01_inliers(o)) is not None]
     p5 = float(np.percentile(inliers, 5)) if inliers else math.nan
     correct = sum(o.correct for o in present)
     rate = correct / len(present) if present else math.nan
@@ -331,16 +380,13 @@ def _it03(present: Sequence[FrameOutcome]) -> InlierError:
         median_mean_error_px=float(np.median(errors)) if errors else math.nan,
         p95_position_error_m=float(np.percentile(positions, 95)) if positions else math.nan,
         median_position_error_m=float(np.median(positions)) if positions else math.nan,
+        position_error_frames=len(positions),
     )
 
 
 def _false_confident(scored: Sequence[FrameOutcome]) -> FalseConfident:
     wrong = tuple(o.index for o in scored if is_wrong_fix(o))
-    right_elsewhere = tuple(
-        o.index
-        for o in scored
-        if o.status == FrameStatus.OK and not o.correct and not is_wrong_fix(o)
-    )
+    right_elsewhere = tuple(o.index for o in scored if is_right_fix_other_tile(o))
     return FalseConfident(
         frames=wrong,
         count=len(wrong),

@@ -34,14 +34,21 @@ __all__ = [
 
 def figure(value: float | None, spec: str | None = None) -> str:
     """A figure as reports print it: "n/a" for None, NaN and infinity; ``spec`` when given,
-    else three significant digits to the millimetre (0.0309 -> "0.031", 12.34 -> "12.3"), so a
-    centimetre error never reads as 0."""
+    else three significant digits to the millimetre (0.0309 -> "0.031", 12.34 -> "12.3", 9.996 ->
+    "10.0": the digits counted after rounding), so a centimetre error never reads as 0."""
     if value is None or not math.isfinite(value):
         return "n/a"
     if spec is not None:
         return format(value, spec)
+    text = f"{value:.{_decimals(value)}f}"
+    rounded = float(text)  # rounding may carry it to the next power of ten: 9.996 -> 10.00
+    return f"{value:.{_decimals(rounded)}f}" if rounded else text
+
+
+def _decimals(value: float) -> int:
+    """The decimals that show ``value`` to three significant digits, at most three."""
     digits = 2 - math.floor(math.log10(abs(value))) if value else 1
-    return f"{value:.{min(max(digits, 0), 3)}f}"
+    return min(max(digits, 0), 3)
 
 
 def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -> str:
@@ -138,8 +145,10 @@ def _percentile(values: list[float], q: float) -> float | None:
 @dataclass(frozen=True)
 class RunSummary:
     """Counts and timing of a run (:func:`summarize`). Percentiles are None without a value:
-    position errors (m) of the matched frames against ground truth; for a recorded flight, the
-    estimate minus the telemetry's look point (m), all matched frames and those whose GNSS was
+    position errors (m) against ground truth over every matched frame that has one
+    (``position_error_frames`` of them, true tile a candidate or not: C3-IT-03's position
+    figures count only those whose true tile is); for a recorded flight, the estimate minus
+    the telemetry's look point (m), all matched frames and those whose GNSS was
     good, the stated GNSS accuracy, and the frames whose GNSS was absent or degraded.
     ``true_present`` and ``correct_candidate`` count the frames with ground truth whose image
     was read (``FrameOutcome.scored``, as C3-IT-04 does), ``true_absent`` and
@@ -156,6 +165,7 @@ class RunSummary:
     georeferenced: int
     position_error_m_p50: float | None
     position_error_m_p95: float | None
+    position_error_frames: int
     with_telemetry: int
     telemetry_error_m_p50: float | None
     telemetry_error_m_p95: float | None
@@ -194,6 +204,7 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
     present = [o for o in outcomes if o.scored and o.true_present]
     absent = [o for o in outcomes if o.scored and not o.true_present]
     pos = [o.position_error_m for o in outcomes if o.status == FrameStatus.OK]
+    pos = [p for p in pos if math.isfinite(p)]
     tele = [o for o in outcomes if o.telemetry_lat is not None]
     tele_ok = [o for o in tele if o.status == FrameStatus.OK]
     accuracy = [o.gnss_accuracy_m for o in tele if o.gnss_accuracy_m is not None]
@@ -208,6 +219,7 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
         georeferenced=sum(o.est_lat is not None for o in outcomes),
         position_error_m_p50=_percentile(pos, 50),
         position_error_m_p95=_percentile(pos, 95),
+        position_error_frames=len(pos),
         with_telemetry=len(tele),
         telemetry_error_m_p50=_percentile([o.telemetry_error_m for o in tele_ok], 50),
         telemetry_error_m_p95=_percentile([o.telemetry_error_m for o in tele_ok], 95),
