@@ -24,16 +24,14 @@ from c3_matcher_tools.dataset.sources.images import folder_shots
 from c3_matcher_tools.dataset.sources.options import ImportOptions, ProposalOptions
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.dataset.sources.writer import write_imported_flight
-from c3_matcher_tools.report import charts as report_charts
-from c3_matcher_tools.report import html as report_html
 from c3_matcher_tools.run import (
     FrameOutcome,
     summarize,
     telemetry_reference,
-    write_html_report,
 )
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
+from c3_matcher_tools.testing.report import drawn_report
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -81,29 +79,7 @@ def drawn(
     recorded: FlightDataset, tmp_path_factory: pytest.TempPathFactory
 ) -> tuple[str, list[Any]]:
     """(report.html text, the matplotlib figures it embeds, in order)."""
-    figures: list[Any] = []
-
-    def keep(fig: Any) -> str:
-        fig.canvas.draw()
-        figures.append(fig)
-        return "data:,"
-
-    outcomes = _outcomes(recorded)
-    report = {
-        "settings": {"min_inliers_threshold": 60},
-        "matcher_labels": [],
-        **summarize(outcomes).to_json(),
-    }
-    out = tmp_path_factory.mktemp("report")
-    mp = pytest.MonkeyPatch()
-    mp.setattr(report_charts, "_png_uri", keep)
-    mp.setattr(report_html, "gallery_pictures", lambda *a, **k: [])
-    try:
-        written = write_html_report(out, recorded, outcomes, "xfeat", report)
-    finally:
-        mp.undo()
-    assert written == str(out / "report.html")
-    return (out / "report.html").read_text(), figures
+    return drawn_report(tmp_path_factory.mktemp("report"), recorded, _outcomes(recorded))
 
 
 def test_summary_reports_estimate_minus_telemetry(recorded: FlightDataset) -> None:

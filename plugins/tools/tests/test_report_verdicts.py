@@ -17,11 +17,10 @@ import pytest
 
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.evaluate import metrics
-from c3_matcher_tools.report import charts as report_charts
-from c3_matcher_tools.report import html as report_html
-from c3_matcher_tools.run import FrameOutcome, summarize, truth_position, write_html_report
+from c3_matcher_tools.run import FrameOutcome, truth_position
 from c3_matcher_tools.run.records import FrameStatus
 from c3_matcher_tools.testing.outcomes import frame_outcome
+from c3_matcher_tools.testing.report import drawn_report
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -63,24 +62,7 @@ def _outcomes(dataset: FlightDataset) -> list[FrameOutcome]:
 def drawn(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, list[Any]]:
     """(report.html text, the matplotlib figures it embeds, in order)."""
     dataset = load_dataset(DEMO)
-    figures: list[Any] = []
-
-    def keep(fig: Any) -> str:
-        fig.canvas.draw()
-        figures.append(fig)
-        return "data:,"
-
-    outcomes = _outcomes(dataset)
-    report = {"settings": {"min_inliers_threshold": 60}, **summarize(outcomes).to_json()}
-    out = tmp_path_factory.mktemp("report")
-    mp = pytest.MonkeyPatch()
-    mp.setattr(report_charts, "_png_uri", keep)
-    mp.setattr(report_html, "gallery_pictures", lambda *a, **k: [])
-    try:
-        assert write_html_report(out, dataset, outcomes, "xfeat", report) is not None
-    finally:
-        mp.undo()
-    return (out / "report.html").read_text(), figures
+    return drawn_report(tmp_path_factory.mktemp("report"), dataset, _outcomes(dataset))
 
 
 def test_eval_counts_frame_1_as_a_right_fix_on_another_tile_and_2_5_6_as_wrong() -> None:
