@@ -100,12 +100,17 @@ def test_bench_refuses_frames_above_the_configured_max_image_pixels(
 def test_the_worker_reads_frames_under_the_configured_max_image_pixels(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """The case's worker reads the data under the same limit (one JSON line, exit 2)."""
+    """The case's worker reads the data under the same limit (one JSON line, exit 2, no
+    answer)."""
+    import io
+
     from c3_matcher_tools.bench_worker import _worker_main
 
     case = json.dumps(asdict(BenchCase("sift_magsac", "engine", 0, 1024, None)))
     config = _small_config(tmp_path)
-    assert _worker_main([case, "1", str(FLIGHT), "--config", str(config)]) == 2
+    answers = io.StringIO()
+    argv = [case, "1", str(FLIGHT), "--config", str(config)]
+    assert _worker_main(argv, io.StringIO(), answers) == 2 and answers.getvalue() == ""
     refused = json.loads(capsys.readouterr().err.strip().splitlines()[-1])
     assert f"exceeds the limit of {SMALL} px" in refused["reason"], refused
 

@@ -16,12 +16,19 @@ same run, when they apply:
   counted so a case that silently fell back to extraction shows it;
 - full vs adaptive LightGlue (``[lightglue] mode``) for the LightGlue-family strategies.
 
-Ratios are speed-ups of frame p50 (slower / faster, >1 means the case is faster).
-``--sweep`` adds image-size x keypoint-budget variants; ``--max-keypoints N`` and ``--threads N``
-(repeatable) add keypoint-budget and ONNX Runtime intra-op thread variants (new tiles). Every
-case runs in a fresh worker process (``python -m c3_matcher_tools.bench_worker``) so that its peak
-memory (its ``VmHWM``) is its own.
-Wall-clock figures on a shared machine are noisy: compare ratios within one run.
+Ratios are speed-ups of frame p50 (slower / faster, >1 means the case is faster), and the median
+of the ratios of the two cases' matches of each round. ``--sweep`` adds image-size x
+keypoint-budget variants; ``--max-keypoints N`` and ``--threads N`` (repeatable) add budget and
+ONNX Runtime intra-op thread variants (new tiles).
+
+Every case runs in a worker process of its own (``python -m c3_matcher_tools.bench_worker``), so
+that its peak memory (its ``VmHWM``) is its own, and the cases are timed interleaved, so that load
+from outside falls on every case alike: the workers of one strategy (the SIFT + MAGSAC baseline
+joins the first strategy's) load and warm up one after another, then, round by round, each times
+one match in turn while the others wait on their pipe, in an order that changes every round
+(``bench_worker.round_order``). One strategy at a time, not the whole run, bounds the memory held
+at once (a PyTorch worker ~1.1 GB, an engine one ~0.6 GB); every ratio the run reports is within
+one strategy. On a failure or Ctrl-C every worker is ended and reaped.
 """
 
 from __future__ import annotations
@@ -30,16 +37,12 @@ import argparse
 import json
 import os
 import platform
-import subprocess
-import sys
-from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 from c3_matcher.commands import (
     EXIT_FAILURE,
     EXIT_OK,
-    EXIT_USAGE,
     CommandRegistry,
     add_max_keypoints_option,
     bounded_int,
@@ -50,7 +53,8 @@ from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS
 from c3_matcher_tools.args import add_strategies_option
-from c3_matcher_tools.bench_report import comparisons, format_report
+from c3_matcher_tools.bench_report import comparisons, format_report, text_report
+from c3_matcher_tools.bench_worker import BenchCase, time_interleaved
 
 if TYPE_CHECKING:
     from c3_matcher.plugins.manager import PluginHost
@@ -59,11 +63,11 @@ __all__ = [
     "BenchCase",
     "comparisons",
     "format_report",
+    "interleaved_groups",
     "offers_reference",
     "register_bench_command",
 ]
 
-Kind = Literal["engine", "pytorch", "sift"]
 THREADS_PER_CORE = 4
 """``--threads`` goes up to this many intra-op threads a core (more only oversubscribes)."""
 
@@ -76,34 +80,6 @@ def max_threads() -> int:
 
 SWEEP_LONG_SIDES = (512, 1024)
 SWEEP_KEYPOINTS = (512, 1024, 2048)
-
-
-@dataclass(frozen=True)
-class BenchCase:
-    """One timed configuration: a strategy, how it runs, its tile cache and image rules."""
-
-    strategy: str
-    kind: Kind
-    tile_cache_size: int
-    max_long_side: int
-    max_keypoints: int | None
-    stored_features: bool = False
-    lightglue_mode: str | None = None  # None: as configured
-    intra_op_threads: int | None = None  # None: as configured
-
-    @property
-    def label(self) -> str:
-        name = {
-            "engine": self.strategy,
-            "pytorch": f"{self.strategy}[pytorch]",
-            "sift": "sift_magsac",
-        }[self.kind]
-        tiles = "cached" if self.tile_cache_size else "new"
-        tiles = "stored" if self.stored_features else tiles
-        budget = f"{self.max_keypoints} kp" if self.max_keypoints else "configured kp"
-        extra = f", LG {self.lightglue_mode}" if self.lightglue_mode else ""
-        extra += f", {self.intra_op_threads} thr" if self.intra_op_threads else ""
-        return f"{name} ({tiles} tiles, {self.max_long_side}px, {budget}{extra})"
 
 
 def stored_features_path(data_dir: Path) -> Path | None:
@@ -329,83 +305,41 @@ def _checked_data(data: Path, max_pixels: int) -> Path:
 
 
 def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
-    """Run every case in a worker process of its own; a case whose worker fails is reported
-    beside the others' figures (exit 1), a worker's refusal of its input stops the bench (2)."""
+    """Run every case in a worker process of its own, the cases of a group interleaved round by
+    round (the module docstring); a case whose worker fails is reported beside the others'
+    figures (exit 1), a worker's refusal of its input stops the bench (2)."""
     for name in args.strategy or [ctx.settings.matcher.strategy]:
         ctx.plugin_host.resolve(name)  # one this build cannot run: refused before any case
     data = demo_data(args.data, ctx.settings.matcher.max_image_pixels)
+    cases = cases_for(args, ctx.settings, data, ctx.plugin_host)
+    groups = interleaved_groups(cases)
     results: list[dict[str, Any]] = []
     failed: list[dict[str, str]] = []
-    for case in cases_for(args, ctx.settings, data, ctx.plugin_host):
-        ctx.err(f"bench: {case.label}, {args.runs} runs...")
-        outcome = _run_case(case, args, data)
-        if isinstance(outcome, str):
-            ctx.err(f"bench: {case.label} failed: {outcome}")
-            failed.append({"label": case.label, "error": outcome})
-        else:
-            results.append(outcome)
+    for group in groups:
+        timed, lost = time_interleaved(group, args.runs, data, args.config, ctx.err)
+        results += timed
+        failed += lost
+    planned = {case.label: n for n, case in enumerate(cases)}  # the table in the plan's order
+    results.sort(key=lambda r: planned[r["label"]])
+    failed.sort(key=lambda f: planned[f["label"]])
     report: dict[str, Any] = {
         "machine": _machine(),
         "runs": args.runs,
         "data": str(data),
+        "interleaved": [[case.label for case in group] for group in groups],
         "results": results,
         "comparisons": comparisons(results),
         "failed": failed,
     }
-    ctx.out(json.dumps(report, indent=2) if args.json else _text_report(report))
+    ctx.out(json.dumps(report, indent=2) if args.json else text_report(report))
     return EXIT_FAILURE if failed else EXIT_OK
 
 
-def _run_case(case: BenchCase, args: argparse.Namespace, data: Path) -> dict[str, Any] | str:
-    """The result of ``case``'s worker, or why it failed (its stderr's last line); a worker
-    that refused its input raises that refusal."""
-    cmd = [
-        sys.executable,
-        "-m",
-        "c3_matcher_tools.bench_worker",
-        json.dumps(asdict(case)),
-        str(args.runs),
-        str(data),
-    ]
-    if args.config:
-        cmd += ["--config", str(args.config)]
-    out = subprocess.run(cmd, check=False, capture_output=True, text=True)
-    if out.returncode == EXIT_USAGE:  # the worker refused its input: one line, exit 2
-        raise _worker_refusal(case, out.stderr)
-    if out.returncode != 0:
-        lines = out.stderr.strip().splitlines()
-        return lines[-1] if lines else f"worker exit status {out.returncode}, no message"
-    result: dict[str, Any] = json.loads(out.stdout.strip().splitlines()[-1])
-    return result
-
-
-def _worker_refusal(case: BenchCase, stderr: str) -> InvalidInputError:
-    """The InvalidInputError a worker refused its case with (its last stderr line, JSON
-    ``{"field", "reason"}``), the case named."""
-    lines = stderr.strip().splitlines() or ["{}"]
-    try:
-        refused = json.loads(lines[-1])
-        field, reason = str(refused["field"]), str(refused["reason"])
-    except (ValueError, KeyError, TypeError):
-        field, reason = "bench", lines[-1]
-    return InvalidInputError(field, f"{reason} (bench case {case.label})")
-
-
-def _text_report(report: dict[str, Any]) -> str:
-    """``format_report``'s table, then a note for each case whose timed frames raised
-    InsufficientInliersError: their times count in the frame columns, but candidate and stage
-    times come only from frames that matched, so a case where none did has no candidate time
-    (n/a); last, each case that failed and why."""
-    lines = [format_report(report)]
-    for r in report["results"]:
-        raised = r.get("frames_raised", 0)
-        if not raised:
-            continue
-        matched = r["runs"] - raised
-        lines.append(
-            f"note: {r['label']}: {raised}/{r['runs']} timed frames raised "
-            "InsufficientInliersError (in frame p50/p95, inliers 0); cand p95 and stage times: "
-            + (f"the {matched} that matched" if matched else "n/a (none matched)")
-        )
-    lines += [f"failed: {f['label']}: {f['error']}" for f in report["failed"]]
-    return "\n".join(lines)
+def interleaved_groups(cases: list[BenchCase]) -> list[list[BenchCase]]:
+    """The cases timed together, round by round: those of one strategy, in the plan's order,
+    the SIFT + MAGSAC baseline with the first strategy's."""
+    groups: dict[str, list[BenchCase]] = {}
+    for case in cases:
+        key = next(iter(groups), case.strategy) if case.kind == "sift" else case.strategy
+        groups.setdefault(key, []).append(case)
+    return list(groups.values())

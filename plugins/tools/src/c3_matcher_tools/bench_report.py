@@ -1,12 +1,14 @@
 """The figures ``c3-matcher bench`` reports from its cases' results: the ratios a run proves
-(speed-ups of frame p50 and p95, slower / faster, >1 means the second case is faster; peak RSS
-of both sides, MiB) and the table."""
+(speed-ups of frame p50 and p95, slower / faster, >1 means the second case is faster; the median
+of the two cases' ratios round by round, where both were timed in the same rounds; peak RSS of
+both sides, MiB) and the table."""
 
 from __future__ import annotations
 
+import statistics
 from typing import Any
 
-__all__ = ["comparisons", "format_report"]
+__all__ = ["comparisons", "format_report", "paired_speedup", "text_report"]
 
 
 def _speedup(slow: dict[str, Any] | None, fast: dict[str, Any] | None, key: str = "p50") -> str:
@@ -36,8 +38,9 @@ Pair = tuple[str, Result | None, Result | None]  # (what, slower side, faster si
 def comparisons(results: list[Result]) -> list[Result]:
     """The ratios a run proves, per strategy: stored vs extracted tiles, adaptive vs full
     LightGlue, cached vs new tiles, each engine case vs the PyTorch reference (speed-ups of
-    frame p50 and p95, peak RSS of both sides); a tile-source comparison whose faster case
-    drew no features from that source says so (``not_compared``) instead of a ratio."""
+    frame p50 and p95, the paired speed-up (:func:`paired_speedup`) where there is one, peak
+    RSS of both sides); a tile-source comparison whose faster case drew no features from that
+    source says so (``not_compared``) instead of a ratio."""
     out: list[Result] = []
     for strategy in dict.fromkeys(r["case"]["strategy"] for r in results):
         for what, slow, fast in _pairs(results, strategy):
@@ -53,10 +56,30 @@ def comparisons(results: list[Result]) -> list[Result]:
                     "comparison": what,
                     "speedup_p50": slow["frame_ms"]["p50"] / fast["frame_ms"]["p50"],
                     "speedup_p95": slow["frame_ms"]["p95"] / fast["frame_ms"]["p95"],
+                    **_paired(slow, fast),
                     "peak_rss_mib": (fast["peak_rss_mib"], slow["peak_rss_mib"]),
                 }
             )
     return out
+
+
+def paired_speedup(slow: Result, fast: Result) -> float | None:
+    """The median over the rounds of ``slow``'s match time / ``fast``'s of the same round
+    (``frame_ms_runs``: the two were timed one after the other in every round, on the same
+    frame), which load drifting during the run moves far less than a ratio of medians; None
+    unless both have a time for every round."""
+    slow_ms, fast_ms = slow.get("frame_ms_runs") or [], fast.get("frame_ms_runs") or []
+    if not slow_ms or len(slow_ms) != len(fast_ms) or not all(fast_ms):
+        return None
+    return statistics.median(s / f for s, f in zip(slow_ms, fast_ms, strict=True))
+
+
+def _paired(slow: Result, fast: Result) -> Result:
+    """``speedup_paired`` and its number of rounds, where :func:`paired_speedup` has one."""
+    paired = paired_speedup(slow, fast)
+    return (
+        {} if paired is None else {"speedup_paired": paired, "rounds": len(fast["frame_ms_runs"])}
+    )
 
 
 _SERVED_FROM = {
@@ -129,18 +152,49 @@ def format_report(report: dict[str, Any]) -> str:
             f"{r['peak_rss_mib']:8.0f} {r['best_inliers']:7d} {vs_torch:>8} "
             f"{vs_sift:>7}  {_sources(r)}"
         )
-    lines.append("speed-ups (frame p50 and p95, slower / faster; peak MiB faster vs slower side):")
+    lines.append(
+        "speed-ups (frame p50 and p95, slower / faster; paired: the median of the two cases' "
+        "ratios round by round; peak MiB faster vs slower side):"
+    )
     for c in report.get("comparisons") or comparisons(results):
         if "not_compared" in c:
             lines.append(f"  {c['strategy']}: {c['comparison']}: {c['not_compared']}")
             continue
         fast_mib, slow_mib = c["peak_rss_mib"]
+        paired = (
+            f", {c['speedup_paired']:.2f}x paired (median of {c['rounds']} rounds)"
+            if "speedup_paired" in c
+            else ""
+        )
         lines.append(
             f"  {c['strategy']}: {c['comparison']}: {c['speedup_p50']:.2f}x p50, "
-            f"{c['speedup_p95']:.2f}x p95; peak {fast_mib:.0f} vs {slow_mib:.0f} MiB"
+            f"{c['speedup_p95']:.2f}x p95{paired}; peak {fast_mib:.0f} vs {slow_mib:.0f} MiB"
         )
     lines.append("per stage, ms (p50/p95):")
     for r in results:
         parts = [f"{k} {v['p50']:.0f}/{v['p95']:.0f}" for k, v in r["stages_ms"].items()]
         lines.append(f"  {r['label']}: " + ", ".join(parts))
+    return "\n".join(lines)
+
+
+def text_report(report: dict[str, Any]) -> str:
+    """:func:`format_report`'s table, then a note for each case whose timed frames raised
+    InsufficientInliersError: their times count in the frame columns, but candidate and stage
+    times come only from frames that matched, so a case where none did has no candidate time
+    (n/a); then which cases were timed in turn, round by round; last, each case that failed and
+    why."""
+    lines = [format_report(report)]
+    for r in report["results"]:
+        raised = r.get("frames_raised", 0)
+        if not raised:
+            continue
+        matched = r["runs"] - raised
+        lines.append(
+            f"note: {r['label']}: {raised}/{r['runs']} timed frames raised "
+            "InsufficientInliersError (in frame p50/p95, inliers 0); cand p95 and stage times: "
+            + (f"the {matched} that matched" if matched else "n/a (none matched)")
+        )
+    for group in report.get("interleaved", ()):
+        lines.append(f"timed in turn, one match each a round: {'; '.join(group)}")
+    lines += [f"failed: {f['label']}: {f['error']}" for f in report["failed"]]
     return "\n".join(lines)
