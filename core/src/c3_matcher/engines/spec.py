@@ -2,7 +2,7 @@
 
 Everything here is plain data and imports without PyTorch: the run time reads the declared I/O;
 only the engine compiler imports ``EngineSpec.exporter`` (a ``"module:callable"`` string), which
-needs the build-time extra (``c3-matcher[engine-build]``).
+needs the build-time extra (``c3-matcher-tools[engine-build]``).
 """
 
 from __future__ import annotations

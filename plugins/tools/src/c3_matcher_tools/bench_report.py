@@ -181,8 +181,8 @@ def text_report(report: dict[str, Any]) -> str:
     """:func:`format_report`'s table, then a note for each case whose timed frames raised
     InsufficientInliersError: their times count in the frame columns, but candidate and stage
     times come only from frames that matched, so a case where none did has no candidate time
-    (n/a); then which cases were timed in turn, round by round; last, each case that failed and
-    why."""
+    (n/a); then why the PyTorch reference was not timed, where the run would have timed it;
+    which cases were timed in turn, round by round; last, each case that failed and why."""
     lines = [format_report(report)]
     for r in report["results"]:
         raised = r.get("frames_raised", 0)
@@ -194,6 +194,8 @@ def text_report(report: dict[str, Any]) -> str:
             "InsufficientInliersError (in frame p50/p95, inliers 0); cand p95 and stage times: "
             + (f"the {matched} that matched" if matched else "n/a (none matched)")
         )
+    if why := (report.get("pytorch_reference") or {}).get("reason"):
+        lines.append(f"note: the PyTorch reference was not timed (no vs torch): {why}")
     for group in report.get("interleaved", ()):
         lines.append(f"timed in turn, one match each a round: {'; '.join(group)}")
     lines += [f"failed: {f['label']}: {f['error']}" for f in report["failed"]]

@@ -119,7 +119,7 @@ from c3_matcher_tools.run.acceptance import (
     metrics,
 )
 from c3_matcher_tools.run.evaluation import StrategyEval, StrategyFailure, StrategyRow, SummaryRow
-from c3_matcher_tools.run.outputs import EVAL_RUN, EVAL_SUMMARY, mark_output_dirs
+from c3_matcher_tools.run.outputs import EVAL_RUN, EVAL_SUMMARY, mark_output_dirs, no_report_html
 from c3_matcher_tools.run.records import FrameStatus
 
 __all__ = [
@@ -146,7 +146,7 @@ def evaluate_strategy(
     overrides: Overrides = NO_OVERRIDES,
 ) -> StrategyEval:
     """Run ``strategy`` twice over ``dataset`` (the second time on the first
-    ``determinism_frames`` frames, all when None) and score it."""
+    ``determinism_frames`` frames, all when None) and score it (no report.html: the run says)."""
     frames = list(dataset.frames)
     run1 = fly(
         settings,
@@ -174,7 +174,7 @@ def evaluate_strategy(
         **flight_report(dataset, run1, summary),
         **{f"{k} pass": v.passed for k, v in acceptance.measures().items()},
     }
-    files = write_flight_outputs(out / strategy, dataset, run1, flight)
+    files = write_flight_outputs(out / strategy, dataset, run1, flight, say_no_report=False)
     return StrategyEval(run1, acceptance, summary, files.geojson, files.html)
 
 
@@ -234,6 +234,8 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     outs = _output_dirs(args.out, datasets)
     root = (args.out or EVAL_OUT) if len(datasets) > 1 else None
     check_output_dirs(outs, datasets, layout=EVAL_RUN, root=root)  # before anything runs
+    if (no_report := no_report_html()) is not None:  # once a run, not once a strategy
+        ctx.err(no_report)
     summary: list[SummaryRow] = []
     reports: list[dict[str, Any]] = []
     with exclusive_output_dir(*([] if root is None else [root]), *outs):

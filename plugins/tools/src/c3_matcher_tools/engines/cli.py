@@ -38,7 +38,7 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
             log=command.err,
         )
     except InvalidInputError:
-        raise  # a bad --only: a usage error (exit 2), said by the command line
+        raise  # a bad --only, or what a build needs not installed: exit 2, said by the command line
     except (EngineBuildError, ValueError) as exc:
         command.err(f"error: {exc}")
         return EXIT_FAILURE

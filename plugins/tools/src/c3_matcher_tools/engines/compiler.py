@@ -42,6 +42,7 @@ from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, file_sha256
 from c3_matcher.engines.store import damage
 from c3_matcher.errors import C3Error, EngineError, InvalidInputError, describe
+from c3_matcher_tools.extras import check_engine_build, install_line
 
 if TYPE_CHECKING:
     from c3_matcher_tools.engines.export import ExportReport, ExportRequest
@@ -120,7 +121,7 @@ def _load_exporter(spec: EngineSpec) -> Callable[[Any], Any]:
         raise EngineBuildError(
             spec.key,
             f"cannot import exporter {spec.exporter} ({exc}); engine builds need the build-time "
-            "extra: pip install 'c3-matcher[engine-build]'",
+            f"extra: {install_line('engine-build')}",
         ) from exc
     if not callable(exporter):
         raise EngineBuildError(spec.key, f"exporter {spec.exporter} is not callable")
@@ -443,10 +444,13 @@ def build_engines(
     """Build (or reuse) the engines of ``specs`` (``only``: a subset by ``"model/variant"``) in
     ``directory``, verifying each on ``imagery`` (default: the packaged real orthophoto).
 
-    Raises ``EngineBuildError`` at the first failed engine (engines built before it are kept).
+    Raises ``EngineBuildError`` at the first failed engine (engines built before it are kept),
+    ``InvalidInputError`` naming what a build needs that is not installed, before anything is
+    made (the engine-build extra, the weights: without them no engine is reused either).
     """
     say = log or (lambda _line: None)
     selected = select_specs(specs, only)
+    check_engine_build(selected)  # the engine-build extra and the weights: before anything
     directory = Path(directory).expanduser()
     directory.mkdir(parents=True, exist_ok=True)
     versions = library_versions()

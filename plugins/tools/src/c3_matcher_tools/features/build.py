@@ -12,9 +12,10 @@ windows already stored for the same set with the same tiles are skipped.
 
 Cluster: ``dask.distributed.LocalCluster(n_workers=workers, threads_per_worker=1)`` by default,
 or ``Client(scheduler)`` for an existing cluster (its workers need this environment and read
-access to the store path). ``workers=0`` runs in this process, without Dask. The local cluster
-serves no dashboard and takes no fixed port (:mod:`.cluster`): builds of different stores run
-side by side.
+access to the store path). ``workers=0`` runs in this process, without Dask; where Dask (the
+tools' ``dask`` extra) is not installed, workers are refused naming it
+(:func:`.cluster.needs_dask`). The local cluster serves no dashboard and takes no fixed port
+(:mod:`.cluster`): builds of different stores run side by side.
 
 One build of a store at a time (:mod:`.lock`): a build holds the store's build lock while it
 runs, and a second one is refused at once (``BuildRunningError``, a ValueError) rather than

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -16,7 +17,10 @@ from c3_matcher_tools.features.build import WINDOW_PX_RANGE
 if TYPE_CHECKING:
     from c3_matcher.tilestore.features import FeatureStoreUnavailableError, MapFeatureStore
 
-__all__ = ["register_features_command"]
+__all__ = ["DEFAULT_WORKERS", "register_features_command"]
+
+DEFAULT_WORKERS = 2
+"""``--workers`` left out: a local Dask cluster of this many processes (where Dask is installed)."""
 
 
 def register_features_command(commands: CommandRegistry) -> None:
@@ -61,8 +65,9 @@ def _add_build_options(b: argparse.ArgumentParser) -> None:
     where.add_argument(
         "--workers",
         type=bounded_int(0),
-        default=2,
-        help="local Dask cluster of N worker processes (0: in this process, no Dask)",
+        default=None,
+        help=f"local Dask cluster of N worker processes (0: in this process, no Dask; default "
+        f"{DEFAULT_WORKERS}, or 0 where Dask, the tools' dask extra, is not installed)",
     )
     where.add_argument("--scheduler", default=None, help="an existing Dask scheduler ADDRESS")
     b.add_argument(
@@ -111,6 +116,7 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
         ctx.err("features build: --flight-candidates needs a flight dataset")
         return EXIT_USAGE
     window = window or fb.DEFAULT_WINDOW_PX
+    workers, notice = _workers(args)
     try:
         report = fb.build_features(
             store,
@@ -120,9 +126,10 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
             stride_px=stride,
             min_coverage=args.min_coverage,
             windows=windows,
-            workers=args.workers,
+            workers=workers,
             scheduler=args.scheduler,
             batch_size=args.batch,
+            progress=_progress(notice, ctx.err),
             plugin_host=ctx.plugin_host,
         )
     except ValueError as exc:
@@ -139,6 +146,39 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
             f"{r['windows_per_s_per_core']:.2f} windows/s/core -> {report.sidecar}"
         )
     return EXIT_OK
+
+
+def _workers(args: argparse.Namespace) -> tuple[int, str | None]:
+    """The Dask workers a build runs on: ``--workers`` as given (refused by the build, naming the
+    extra, where Dask is not installed), else :data:`DEFAULT_WORKERS`, or 0 (this process) where
+    Dask is not installed, with the line that says so."""
+    from c3_matcher_tools.extras import install_line, not_installed
+    from c3_matcher_tools.features.cluster import DASK_MODULES
+
+    if args.workers is not None or args.scheduler:
+        return (DEFAULT_WORKERS if args.workers is None else args.workers), None
+    if not_installed(*DASK_MODULES):
+        return 0, (
+            "features build: dask is not installed: building in this process (for parallel "
+            f"workers: {install_line('dask')})"
+        )
+    return DEFAULT_WORKERS, None
+
+
+def _progress(first: str | None, err: Callable[[str], None]) -> Callable[[str], None] | None:
+    """A build's progress lines said with ``err``, ``first`` once before them: once the build
+    has checked its input and starts (a refused build says its one line alone). None (the
+    build's own) without ``first``."""
+    if first is None:
+        return None
+    pending = [first]
+
+    def say(line: str) -> None:
+        while pending:
+            err(pending.pop())
+        err(line)
+
+    return say
 
 
 def _store_of(path: Path) -> Path:

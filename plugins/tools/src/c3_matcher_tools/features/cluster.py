@@ -11,7 +11,12 @@ from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from typing import Any
 
-__all__ = ["cores_of", "dask_client", "stops_deferred"]
+from c3_matcher_tools.extras import install_line, not_installed
+
+__all__ = ["DASK_MODULES", "cores_of", "dask_client", "needs_dask", "stops_deferred"]
+
+DASK_MODULES = ("dask", "distributed")
+"""What the tools' ``dask`` extra installs (``dask[distributed]``): a cluster's workers."""
 
 # The local cluster's scheduler serves no dashboard (nothing reads it); its HTTP server (health,
 # metrics) listens on a free loopback port: never on 8787, which another build, or any Dask,
@@ -82,6 +87,9 @@ def dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
     if not (workers > 0 or scheduler):
         yield None
         return
+    if not_installed(*DASK_MODULES):
+        asked = f"--scheduler {scheduler}" if scheduler else f"--workers {workers}"
+        raise ValueError(needs_dask(asked))
     from dask.distributed import Client, LocalCluster
 
     with ExitStack() as closes:  # the client, then the cluster
@@ -102,6 +110,16 @@ def dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
         if not scheduler:
             client.run(_quiet_close)
         yield client
+
+
+def needs_dask(asked: str) -> str:
+    """What a build ``asked`` to run on Dask workers (``--workers N``, ``--scheduler ADDRESS``)
+    is told where Dask is not installed: the extra that brings it, and the build in this
+    process that needs none."""
+    return (
+        f"{asked} runs the build on Dask workers, and Dask is not installed: "
+        f"{install_line('dask')}, or build in this process with --workers 0"
+    )
 
 
 def _unsaid(close: Callable[[], object]) -> None:

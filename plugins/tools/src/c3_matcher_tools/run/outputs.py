@@ -26,6 +26,7 @@ from c3_matcher.atomic import (
 )
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
+from c3_matcher_tools.extras import install_line
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.scoring import RunSummary, summarize
 
@@ -44,6 +45,7 @@ __all__ = [
     "flight_report",
     "forget_previous_run",
     "mark_output_dirs",
+    "no_report_html",
     "output_dir_name",
     "refuse_foreign_output",
     "write_flight_outputs",
@@ -348,18 +350,36 @@ class RunFiles:
 
 
 def write_flight_outputs(
-    out: Path, dataset: FlightDataset, run: FlightRun, report: Mapping[str, Any]
+    out: Path,
+    dataset: FlightDataset,
+    run: FlightRun,
+    report: Mapping[str, Any],
+    *,
+    say_no_report: bool = True,
 ) -> RunFiles:
     """A run's files in ``out`` (replay, and eval per strategy): ``results.jsonl``,
     ``flight.geojson`` and ``report.html``, which shows ``report`` (it needs
-    :func:`flight_report`'s keys) and the map's path."""
+    :func:`flight_report`'s keys) and the map's path; ``say_no_report``: say why there is no
+    ``report.html`` (:func:`no_report_html`; False: the caller says it, once a run)."""
     from c3_matcher_tools.geojson import write_geojson
 
     write_results(out / "results.jsonl", run.outcomes)
     outcomes = list(run.outcomes)
     geojson = str(write_geojson(out / "flight.geojson", outcomes, run.strategy))
     shown = {**report, "geojson": geojson}
-    return RunFiles(geojson, write_html_report(out, dataset, outcomes, run.strategy, shown))
+    html = write_html_report(out, dataset, outcomes, run.strategy, shown, say=say_no_report)
+    return RunFiles(geojson, html)
+
+
+def no_report_html() -> str | None:
+    """Why no ``report.html`` can be written here (matplotlib, the report extra, is not
+    installed), as a run says it; None where one can."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError as exc:
+        extra = install_line("report")
+        return f"c3-matcher: no report.html ({exc}): install the report extra ({extra})"
+    return None
 
 
 def write_html_report(
@@ -368,19 +388,16 @@ def write_html_report(
     outcomes: Sequence[FrameOutcome],
     strategy: str,
     report: Mapping[str, Any],
+    *,
+    say: bool = True,
 ) -> str | None:
-    """``out/report.html`` (None, with the reason on stderr, when matplotlib is missing: then a
-    ``report.html`` an earlier run left there is removed, as it reports another run's
-    results)."""
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError as exc:
+    """``out/report.html`` (None when matplotlib is missing, with the reason on stderr when
+    ``say``: then a ``report.html`` an earlier run left there is removed, as it reports another
+    run's results)."""
+    if (why := no_report_html()) is not None:
         (out / "report.html").unlink(missing_ok=True)
-        print(
-            f"c3-matcher: no report.html ({exc}): install the report extra "
-            "(pip install 'c3-matcher-tools[report]')",
-            file=sys.stderr,
-        )
+        if say:
+            print(why, file=sys.stderr)
         return None
     from importlib.metadata import version
 

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike
 
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.extras import install_line, not_installed
 from c3_matcher_tools.geodesy import (
     MERCATOR_EPSG,
     WGS84_A,
@@ -107,12 +108,7 @@ class Projection:
         if epsg is not None and _pyproj_knows(epsg):
             return cls("pyproj", epsg=int(epsg))
         if reference is None:
-            raise InvalidInputError(
-                "geotiff",
-                f"{source}: {_unconvertible(epsg)}: give a reference latitude/longitude of the "
-                "image centre (--ref-latlon LAT,LON); the grid is then treated as a local tangent "
-                "plane around it",
-            )
+            raise InvalidInputError("geotiff", f"{source}: {_unconvertible(epsg)}")
         return cls(
             "local_tangent_plane",
             ref_lat=float(reference[0]),
@@ -294,14 +290,31 @@ def _proj_database_has(epsg: int) -> bool:
     return True
 
 
+_GIVE_REFERENCE = (
+    "give a reference latitude/longitude of the image centre (--ref-latlon LAT,LON); the grid "
+    "is then treated as a local tangent plane around it"
+)
+
+
 def _unconvertible(epsg: int | None) -> str:
     """Why pyproj cannot convert the CRS ``epsg`` (None: no EPSG code, or one GDAL could not
-    resolve) to WGS84."""
+    resolve) to WGS84, and what to do: install pyproj (the geo extra) where that converts it,
+    else give a reference point."""
     if epsg is None:
-        return "its CRS has no EPSG code that PROJ knows, so it cannot be converted to WGS84"
-    if not pyproj_available():
-        return f"EPSG:{epsg} cannot be converted to WGS84 without pyproj"
-    return f"EPSG:{epsg} is not a CRS that PROJ knows, so it cannot be converted to WGS84"
+        why = "its CRS has no EPSG code that PROJ knows, so it cannot be converted to WGS84"
+    elif pyproj_available():
+        why = f"EPSG:{epsg} is not a CRS that PROJ knows, so it cannot be converted to WGS84"
+    elif not_installed("pyproj"):
+        return (
+            f"EPSG:{epsg} cannot be converted to WGS84 without pyproj: install the geo extra "
+            f"({install_line('geo')}) for the exact conversion, or {_GIVE_REFERENCE}"
+        )
+    else:
+        why = (
+            f"EPSG:{epsg} cannot be converted to WGS84 without pyproj (switched off: "
+            "C3_MATCHER_TOOLS_NO_PYPROJ=1)"
+        )
+    return f"{why}: {_GIVE_REFERENCE}"
 
 
 @functools.lru_cache(maxsize=32)

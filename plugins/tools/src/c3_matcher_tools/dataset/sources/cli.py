@@ -138,7 +138,7 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
         default=None,
         help="the ground's altitude, m, in the log's datum: height = altitude - this (or --dem)",
     )
-    g.add_argument("--dem", type=Path, default=None, help="DEM GeoTIFF of the ground's altitude")
+    g.add_argument("--dem", type=Path, default=None, help="DEM GeoTIFF of the ground (geo extra)")
     g.add_argument(
         "--gnss-degraded-m",
         type=bounded_float(0.0, above=True),

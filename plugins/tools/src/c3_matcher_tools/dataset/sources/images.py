@@ -40,6 +40,8 @@ __all__ = [
     "unique_photos",
 ]
 
+PHOTO_METADATA = "photo metadata (EXIF)"
+"""What reading a photo's metadata is called where its reader (the logs extra) is missing."""
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".m4v")
 _XMP = re.compile(rb"<x:xmpmeta.*?</x:xmpmeta>", re.DOTALL)
@@ -96,7 +98,7 @@ def _xmp(data: bytes) -> dict[str, float]:
 def read_photo_metadata(path: Path) -> dict[str, Any]:
     """``t_s`` (UTC seconds), ``lat``, ``lon``, ``alt_m``, ``relative_alt_m`` and the XMP
     angles of one photo, each only when the photo states it (see the module docstring)."""
-    exifread = logs_library("exifread", path, "photo metadata")
+    exifread = logs_library("exifread", path, PHOTO_METADATA)
     data = path.read_bytes()
     with _quiet_logger("exifread"):  # it logs "File format not recognized." and the like
         tags = exifread.process_file(io.BytesIO(data), details=False)
@@ -169,20 +171,18 @@ def _tz(sign: int, hours: int, minutes: int) -> timezone:
 
 def folder_shots(folder: Path, *, metadata: bool = True) -> list[Shot]:
     """The photos in ``folder`` (file-name order), each with its EXIF time and metadata in
-    ``own`` when ``metadata`` (and the logs extra is installed)."""
+    ``own`` when ``metadata``: then refused once, naming the logs extra, where its EXIF reader
+    is not installed (never taken as photos that state nothing)."""
     folder = Path(folder)
     check_images_path(folder, video=False)
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise InvalidInputError("IMAGES", f"{folder}: no image ({', '.join(IMAGE_SUFFIXES)}) in it")
+    if metadata:
+        logs_library("exifread", folder, PHOTO_METADATA)
     shots = []
     for p in files:
-        own: dict[str, Any] = {}
-        if metadata:
-            try:
-                own = read_photo_metadata(p)
-            except InvalidInputError:
-                own = {}
+        own: dict[str, Any] = read_photo_metadata(p) if metadata else {}
         shots.append(Shot(p.name, p.read_bytes, p.suffix.lower(), own.get("t_s"), own))
     return shots
 

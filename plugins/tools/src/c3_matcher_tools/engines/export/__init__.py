@@ -2,7 +2,7 @@
 
 This module imports without PyTorch; the exporter implementations (``export.onnx_export``,
 ``export.lightglue`` and the plugins' ``engines`` modules) import torch and run only inside
-``c3-matcher engines build`` (extra ``c3-matcher[engine-build]``).
+``c3-matcher engines build`` (extra ``c3-matcher-tools[engine-build]``).
 
 An exporter is a callable ``exporter(request: ExportRequest) -> ExportReport``: it loads the
 weights at ``request.weights_path``, writes one self-contained ONNX file (no external data) to
