@@ -65,7 +65,7 @@ def test_a_case_whose_every_frame_raises_reports_its_frame_times_and_no_candidat
     engine_dir: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     from c3_matcher.cli import main
-    from c3_matcher_tools.bench import _text_report
+    from c3_matcher_tools.bench_report import text_report
 
     monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
     # XFeat's whole budget (its engine's top-K, 4096): no candidate reaches it, so every frame
@@ -87,7 +87,7 @@ def test_a_case_whose_every_frame_raises_reports_its_frame_times_and_no_candidat
         # counts what the parent held when it forked the worker, 4.4 GiB under a test run)
         assert 50 < r["peak_rss_mib"] < 1024 and "peak_rss_mb" not in r
     assert {c["comparison"] for c in report["comparisons"]} == {"cached vs new tiles"}
-    text = _text_report(report)  # what bench prints without --json
+    text = text_report(report)  # what bench prints without --json
     for r in results:
         row = next(line for line in text.splitlines() if line.startswith(r["label"]))
         assert "n/a" in row.split()  # cand p95

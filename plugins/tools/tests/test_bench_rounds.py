@@ -33,7 +33,8 @@ from c3_matcher_tools.bench_worker import BenchCase
 
 case = BenchCase(**json.loads(sys.argv[1]))
 runs, log, plans = int(sys.argv[2]), sys.argv[3], json.loads(sys.argv[4])
-plan = plans.get(case.kind + ("" if case.tile_cache_size == 0 else "+cache"), {})
+kind = case.kind + ("" if case.tile_cache_size == 0 else "+cache")
+plan = plans.get(f"{case.strategy}:{kind}", plans.get(kind, {}))
 times = plan.get("ms", [100.0] * runs)
 
 
@@ -90,7 +91,8 @@ Plans = dict[str, dict[str, Any]]
 @pytest.fixture()
 def stand_in(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Callable[[Plans], Path]:
     """``stand_in(plans)``: bench's workers replaced by the stand-in, each case's behaviour
-    from ``plans`` by its kind (``engine``, ``engine+cache``, ``pytorch``, ``sift``: ``ms`` its
+    from ``plans`` by its kind (``engine``, ``engine+cache``, ``pytorch``, ``sift``, or one
+    strategy's, ``xfeat:engine``: ``ms`` its
     times round by round, ``die`` / ``refuse`` at that run (0: while loading), ``stubborn``);
     the log it writes (``pid PID LABEL`` as each starts, ``turn LABEL`` at each timed run,
     ``result LABEL`` as it gives its result)."""
@@ -225,6 +227,42 @@ def test_a_worker_that_dies_is_reported_and_the_others_timed_to_the_end(
     failed = [line for line in out.splitlines() if line.startswith("failed: ")]
     assert len(failed) == 1 and failed[0].startswith("failed: disk_lightglue[pytorch] (")
     assert failed[0].endswith(": RuntimeError: worker died")
+
+
+def test_a_strategy_whose_every_worker_dies_loading_leaves_the_others_figures(
+    stand_in: Callable[[Plans], Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A strategy none of whose cases loads (its engines missing) times no round and costs no
+    other strategy its figures: both its cases named as failed, exit 1."""
+    from c3_matcher.cli import main
+
+    log = stand_in(
+        {"aliked_lightglue:engine": {"die": 0}, "aliked_lightglue:engine+cache": {"die": 0}}
+    )
+    strategies = ["--strategy", "xfeat", "--strategy", "aliked_lightglue"]
+    argv = _bench(*strategies, "--no-baseline", "--no-reference", "--no-modes", runs=2)
+    assert main([*argv, "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert [r["label"].split(" (")[0] for r in report["results"]] == ["xfeat", "xfeat"]
+    assert [f["label"].split(" (")[0] for f in report["failed"]] == ["aliked_lightglue"] * 2
+    assert all("aliked" not in label for label in _turns(log))
+    _assert_all_reaped(log)
+
+
+def test_a_case_asked_for_twice_is_timed_once(
+    stand_in: Callable[[Plans], Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The baseline named as a strategy too, and a strategy named twice: one case a label,
+    the table in the order asked."""
+    from c3_matcher.cli import main
+
+    stand_in({})
+    strategies = ["--strategy", "sift_magsac", "--strategy", "xfeat", "--strategy", "xfeat"]
+    argv = _bench(*strategies, "--no-reference", "--no-modes", runs=1)
+    assert main([*argv, "--json"]) == 0
+    labels = [r["label"] for r in json.loads(capsys.readouterr().out)["results"]]
+    assert len(labels) == len(set(labels)) == 4
+    assert [label.split(" (")[0] for label in labels] == ["sift_magsac"] * 2 + ["xfeat"] * 2
 
 
 @pytest.mark.parametrize("refuse", [0, 2], ids=["while-loading", "mid-run"])

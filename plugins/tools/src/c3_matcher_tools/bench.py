@@ -37,6 +37,7 @@ import argparse
 import json
 import os
 import platform
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -55,6 +56,7 @@ from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.bench_report import comparisons, format_report, text_report
 from c3_matcher_tools.bench_worker import BenchCase, time_interleaved
+from c3_matcher_tools.extras import install_line, not_installed
 
 if TYPE_CHECKING:
     from c3_matcher.plugins.manager import PluginHost
@@ -65,6 +67,7 @@ __all__ = [
     "format_report",
     "interleaved_groups",
     "offers_reference",
+    "pytorch_reference",
     "register_bench_command",
 ]
 
@@ -111,9 +114,23 @@ def _machine() -> dict[str, Any]:
 
 
 def _has_torch() -> bool:
-    import importlib.util
+    return not not_installed("torch")
 
-    return importlib.util.find_spec("torch") is not None
+
+def pytorch_reference(
+    args: argparse.Namespace, host: PluginHost, strategies: Sequence[str]
+) -> dict[str, Any]:
+    """Whether the PyTorch reference is timed for ``strategies`` (those whose plugin offers one,
+    :func:`offers_reference`): ``timed``, and ``reason``, why not, where the run would time it
+    but torch (the engine-build extra) is not installed; None where it is timed, left out with
+    ``--no-reference`` or offered by none (a baseline has no reference)."""
+    offered = any(offers_reference(host, name) for name in strategies)
+    if args.no_reference or not offered:
+        return {"timed": False, "reason": None}
+    if not _has_torch():
+        why = f"torch is not installed (the engine-build extra: {install_line('engine-build')})"
+        return {"timed": False, "reason": why}
+    return {"timed": True, "reason": None}
 
 
 def offers_reference(host: PluginHost, strategy: str) -> bool:
@@ -130,8 +147,8 @@ def cases_for(
     data: Path,
     plugin_host: PluginHost | None = None,
 ) -> list[BenchCase]:
-    """The cases ``bench`` runs on ``data`` for the parsed command line ``args``; the PyTorch
-    reference only for a strategy that offers one (:func:`offers_reference`)."""
+    """The cases ``bench`` runs on ``data`` for the parsed command line ``args``, each label once;
+    the PyTorch reference only for a strategy that offers one (:func:`offers_reference`)."""
     import onnxruntime as ort
 
     from c3_matcher.compose import build_plugin_host
@@ -146,9 +163,10 @@ def cases_for(
     mode = resolve_mode(settings.lightglue.mode, provider[0])
     other_mode = {"adaptive": "full", "full": "adaptive"}[mode]
     host = plugin_host if plugin_host is not None else build_plugin_host()
-    reference = not args.no_reference and _has_torch()
+    strategies = args.strategy or [m.strategy]
+    reference = pytorch_reference(args, host, strategies)["timed"]
     cases: list[BenchCase] = []  # a budget of None: the configured one (the strategy's own)
-    for name in args.strategy or [m.strategy]:
+    for name in strategies:
         cases += [
             BenchCase(name, "engine", 0, m.max_long_side, None),
             BenchCase(name, "engine", cached, m.max_long_side, None),
@@ -172,7 +190,10 @@ def cases_for(
             ]
     if not args.no_baseline:
         cases.append(BenchCase(m.strategy, "sift", 0, m.max_long_side, None))
-    return cases
+    unique: dict[str, BenchCase] = {}  # one case per label: the same measurement asked twice
+    for case in cases:  # (a strategy named twice; sift_magsac named and the baseline)
+        unique.setdefault(case.label, case)
+    return list(unique.values())
 
 
 def register_bench_command(commands: CommandRegistry) -> None:
@@ -252,16 +273,18 @@ def demo_data(data: Path | None, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> 
     """``--data``, checked before any case runs (a flight dataset, read as the cases will read
     it, or a demo-format directory, images within ``max_pixels``: ``[matcher]
     max_image_pixels``), or the built-in demo frame (``data/demo`` of the source checkout this
-    runs from); installed from wheels there is none, and ``--data`` must name one."""
+    runs from); installed from wheels there is none, and ``--data`` must name one
+    (InvalidInputError, exit 2)."""
     if data is not None:
         return _checked_data(data, max_pixels)
     from c3_matcher.engines.store import checkout_root
 
     root = checkout_root()
-    if root is None:
-        raise SystemExit(
-            "c3-matcher bench: --data is required: the built-in demo frame ships with the source "
-            "checkout (data/demo), and this c3-matcher is installed from wheels"
+    if root is None:  # bad input (exit 2)
+        raise InvalidInputError(
+            "--data",
+            "required: the built-in demo frame ships with the source checkout (data/demo), and "
+            "this c3-matcher is installed from wheels",
         )
     return root / "data" / "demo"
 
@@ -308,7 +331,8 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
     """Run every case in a worker process of its own, the cases of a group interleaved round by
     round (the module docstring); a case whose worker fails is reported beside the others'
     figures (exit 1), a worker's refusal of its input stops the bench (2)."""
-    for name in args.strategy or [ctx.settings.matcher.strategy]:
+    strategies = args.strategy or [ctx.settings.matcher.strategy]
+    for name in strategies:
         ctx.plugin_host.resolve(name)  # one this build cannot run: refused before any case
     data = demo_data(args.data, ctx.settings.matcher.max_image_pixels)
     cases = cases_for(args, ctx.settings, data, ctx.plugin_host)
@@ -327,6 +351,7 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
         "runs": args.runs,
         "data": str(data),
         "interleaved": [[case.label for case in group] for group in groups],
+        "pytorch_reference": pytorch_reference(args, ctx.plugin_host, strategies),
         "results": results,
         "comparisons": comparisons(results),
         "failed": failed,

@@ -94,7 +94,9 @@ def round_order(cases: int, round_index: int) -> list[int]:
     """The order ``cases`` workers time their match in, in round ``round_index``: the rows of a
     Williams design in turn (row 0: 0, 1, n-1, 2, n-2, ...; row r adds r, modulo n; for an odd n
     the reversed rows follow), so that over n rounds (2n for an odd n) each case holds every
-    place, and follows every other case, equally often."""
+    place, and follows every other case, equally often. No cases: an empty order."""
+    if cases == 0:
+        return []
     first = [(k + 1) // 2 if k % 2 else (cases - k // 2) % cases for k in range(cases)]
     row = round_index % (cases if cases % 2 == 0 else 2 * cases)
     order = [(i + row) % cases for i in first]
@@ -135,7 +137,7 @@ def time_interleaved(
             workers.append(_start(case, runs, data, config, stack))
             if _step(workers[-1], _reply, failed, say) is not None:
                 live.append(workers[-1])
-        for n in range(runs):
+        for n in range(runs if live else 0):  # none left: no rounds, the failures said
             say(f"bench: round {n + 1}/{runs}, {len(live)} cases in turn...")
             turns = [live[i] for i in round_order(len(live), n)]
             gone = [w for w in turns if _step(w, _turn, failed, say) is None]

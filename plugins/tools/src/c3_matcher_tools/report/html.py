@@ -192,14 +192,16 @@ places the frame right, yellow ring: GNSS absent or degraded.</p>
 <p>Grey bands: frames whose true tile is not among the candidates (they should fail); yellow
 bands: GNSS absent or degraded. F: {Verdict.FAILED} (fewer inliers than the threshold, or an
 error); W: a wrong fix, one eval counts false-confident ({Verdict.WRONG_TILE}, or
-{Verdict.TRUE_TILE_PLACED_WRONG}: inliers over {WRONG_FIX_PX:g} px from the ground truth);
+{Verdict.TRUE_TILE_PLACED_WRONG}: inliers over {WRONG_FIX_PX:g} px from the ground truth, or
+their error unknown);
 O: {Verdict.OTHER_TILE} (a candidate other than the true tile whose inliers place the frame
 within {WRONG_FIX_PX:g} px: eval's "other tile"). A recorded flight's error is the estimate
 minus the telemetry's position, beside the accuracy its GNSS states.</p>
 <img id="per-frame" alt="per-frame plots" src="{self.per_frame}">
 <h2>Worst and best frames</h2>
 <p>Worst: frames that went wrong (no match where the true tile was a candidate, a wrong tile, or
-the true tile with its inliers more than {WRONG_FIX_PX:g} px off the ground truth); best: right
+the true tile with its inliers more than {WRONG_FIX_PX:g} px off the ground truth, or by an
+unknown error); best: right
 matches and frames that rightly raised with their true tile absent; without ground truth, matched
 frames by inlier count.{"" if any(c.startswith("worst") for c, _ in self.pictures) else " No frame went wrong."}
 Left: the query rectified onto the best tile; right: the tile with the query's footprint
