@@ -7,6 +7,7 @@ where they are not installed."""
 from __future__ import annotations
 
 import json
+import shutil
 import sqlite3
 import sys
 from collections.abc import Callable
@@ -158,6 +159,30 @@ def test_photos_read_without_exifread_are_refused_once_naming_the_extra(
     )
 
 
+@pytest.mark.parametrize(
+    "pairing", [["trigger"], ["order", "--interval", "2", "--time-offset", "100"]]
+)
+def test_photos_paired_with_a_log_by_trigger_or_order_need_no_exif_reader(
+    pairing: list[str], tmp_path: Path, without: Without
+) -> None:
+    """Their EXIF is never read there: imported without exifread (pyulog installed alone)."""
+    from c3_matcher.cli import main
+    from c3_matcher_tools.testing import flightlogs as fl
+    from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
+
+    poses = fl.flight_poses(DEMO, range(4))
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i, pose in enumerate(poses):
+        shutil.copyfile(pose.image, photos / f"IMG_{i:04d}.jpg")
+    log = write_ulog(tmp_path / "flight.ulg", poses)
+    out = tmp_path / "flight"
+    without("exifread")
+    argv = ["dataset", "import", str(photos), str(log), CAL, STORE, str(out)]
+    assert main([*argv, "--time-source", *pairing]) == 0
+    assert len((out / "frames.jsonl").read_text().splitlines()) == 4
+
+
 # engines build: the engine-build extra and the weights
 
 
@@ -266,6 +291,28 @@ def test_tiles_build_of_an_epsg_grid_without_the_geo_extra_names_it_beside_ref_l
     assert main(["tiles", "build", str(ZURICH), str(out)]) == 2
     _one_line(capsys.readouterr().err, "EPSG:2056", "without pyproj", GEO, "--ref-latlon")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_grid_given_by_its_parameters_is_not_called_epsg_32767(
+    tmp_path: Path, without: Without, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """32767 marks a CRS given by its parameters (as GDAL writes one without an EPSG code): it
+    named "EPSG:32767" as if it were a grid. The geo extra's reader may resolve it."""
+    import numpy as np
+
+    from c3_matcher.cli import main
+    from c3_matcher_tools.testing.geotiff import projected_keys, write_geotiff
+
+    image = np.full((64, 64, 3), 128, np.uint8)
+    keys = projected_keys(32767)
+    tif = write_geotiff(
+        tmp_path / "g.tif", image, scale=(0.5, 0.5), top_left=(2.6e6, 1.2e6), keys=keys
+    )
+    without("pyproj", "rasterio")
+    assert main(["tiles", "build", str(tif), str(tmp_path / "g.mbtiles")]) == 2
+    err = capsys.readouterr().err
+    _one_line(err, "no EPSG code", GEO, "parameters", "--ref-latlon")
+    assert "32767" not in err
 
 
 # eval without matplotlib: the report extra

@@ -188,12 +188,13 @@ def cases_for(
                 for kp in SWEEP_KEYPOINTS
                 if (side, kp) != (m.max_long_side, m.max_keypoints)
             ]
-    if not args.no_baseline:
-        cases.append(BenchCase(m.strategy, "sift", 0, m.max_long_side, None))
-    unique: dict[str, BenchCase] = {}  # one case per label: the same measurement asked twice
-    for case in cases:  # (a strategy named twice; sift_magsac named and the baseline)
-        unique.setdefault(case.label, case)
-    return list(unique.values())
+    baseline = [] if args.no_baseline else [BenchCase(m.strategy, "sift", 0, m.max_long_side, None)]
+    unique: dict[str, BenchCase] = {}  # one case per label: a strategy named twice is timed once,
+    taken = {case.label for case in baseline}  # and sift_magsac's new-tiles case is the baseline
+    for case in cases:
+        if case.label not in taken:
+            unique.setdefault(case.label, case)
+    return [*unique.values(), *baseline]
 
 
 def register_bench_command(commands: CommandRegistry) -> None:

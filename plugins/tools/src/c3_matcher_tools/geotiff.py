@@ -31,6 +31,7 @@ __all__ = [
     "PROJ_LINEAR_UNITS_KEY",
     "RASTER_TYPE_KEY",
     "TIEPOINT",
+    "USER_DEFINED",
     "check_pixel_scale",
     "geo_keys",
     "grid_tags",
@@ -59,6 +60,8 @@ GEOGRAPHIC_CRS_KEY = 2048
 """GeographicTypeGeoKey: the EPSG code of a geographic CRS."""
 PROJECTED_CRS_KEY = 3072
 """ProjectedCSTypeGeoKey: the EPSG code of a projected CRS."""
+USER_DEFINED = 32767
+"""A CRS key's value where the CRS is given by its parameters, not by an EPSG code."""
 PROJ_LINEAR_UNITS_KEY = 3076
 """ProjLinearUnitsGeoKey: the EPSG code of a projected CRS's linear unit (9001 metre, 9002
 foot, 9003 US survey foot)."""

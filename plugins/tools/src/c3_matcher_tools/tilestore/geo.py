@@ -36,6 +36,7 @@ from c3_matcher_tools.geotiff import (
     PROJ_LINEAR_UNITS_KEY,
     PROJECTED_CRS_KEY,
     RASTER_TYPE_KEY,
+    USER_DEFINED,
     geo_keys,
     grid_tags,
     model_transformation,
@@ -139,6 +140,7 @@ def read_geotiff_grid(path: str | Path, *, reference: tuple[float, float] | None
     origin_e = e0 - (i0 + shift) * sx
     origin_n = n0 + (j0 + shift) * sy
     epsg = keys.get(PROJECTED_CRS_KEY) or keys.get(GEOGRAPHIC_CRS_KEY)
+    epsg = None if epsg == USER_DEFINED else epsg  # given by its parameters: no EPSG code
     unit_m = 1.0
     if keys.get(MODEL_TYPE_KEY) != 2:  # projected: its coordinates' unit (feet or metres)
         code = keys.get(PROJECTED_CRS_KEY)

@@ -298,10 +298,15 @@ _GIVE_REFERENCE = (
 
 def _unconvertible(epsg: int | None) -> str:
     """Why pyproj cannot convert the CRS ``epsg`` (None: no EPSG code, or one GDAL could not
-    resolve) to WGS84, and what to do: install pyproj (the geo extra) where that converts it,
-    else give a reference point."""
+    resolve) to WGS84, and what to do: install the geo extra where that may convert it (pyproj;
+    rasterio, which reads a CRS given by its parameters), else give a reference point."""
     if epsg is None:
         why = "its CRS has no EPSG code that PROJ knows, so it cannot be converted to WGS84"
+        if not_installed("rasterio"):  # GDAL may find the EPSG CRS its parameters describe
+            return (
+                f"{why} here: install the geo extra ({install_line('geo')}), which reads a CRS "
+                f"given by its parameters, or {_GIVE_REFERENCE}"
+            )
     elif pyproj_available():
         why = f"EPSG:{epsg} is not a CRS that PROJ knows, so it cannot be converted to WGS84"
     elif not_installed("pyproj"):

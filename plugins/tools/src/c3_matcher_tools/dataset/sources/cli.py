@@ -302,7 +302,8 @@ def _read_log(kind: str, args: argparse.Namespace) -> _ReadLog:
         given_ground = args.ground_elevation is not None or args.dem is not None
         return _ReadLog(*read_photo_folder(Path(images), relative_height=not given_ground))
     track = _read_flight_log(kind, telemetry)
-    shots, skipped = read_images(Path(images), args.frame_step)  # step checked already
+    by_own_time = _given(args, "time_source") not in ("trigger", "order")  # else EXIF unread
+    shots, skipped = read_images(Path(images), args.frame_step, metadata=by_own_time)
     return _ReadLog(track, shots, skipped)
 
 

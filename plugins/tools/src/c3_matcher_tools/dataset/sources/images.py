@@ -249,15 +249,19 @@ def _decoded_frames(path: Path, step: int) -> list[Shot]:
     return shots
 
 
-def read_images(source: Path, step: int = 1) -> tuple[list[Shot], list[tuple[str, str]]]:
-    """A folder of photos, its copies set aside (:func:`unique_photos`), or every ``step``-th
-    frame of a video file: (images, [(image, why skipped)]). The caller has checked ``step``
-    (``--frame-step``, :func:`check_frame_step`: refused with a folder)."""
+def read_images(
+    source: Path, step: int = 1, *, metadata: bool = True
+) -> tuple[list[Shot], list[tuple[str, str]]]:
+    """A folder of photos, its copies set aside (:func:`unique_photos`), each with its EXIF
+    when ``metadata`` (:func:`folder_shots`; False where the photos pair with the log by trigger
+    or file order, never by their own time), or every ``step``-th frame of a video file:
+    (images, [(image, why skipped)]). The caller has checked ``step`` (``--frame-step``,
+    :func:`check_frame_step`: refused with a folder)."""
     source = Path(source)
     check_images_path(source)
     if source.is_file():
         return _video_frames(source, step), []
-    return unique_photos(folder_shots(source))
+    return unique_photos(folder_shots(source, metadata=metadata))
 
 
 def check_frame_step(step: int, *, video: bool) -> None:
