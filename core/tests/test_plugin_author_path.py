@@ -5,6 +5,7 @@ keeps keypoints where the image is masked out, or gives confidences outside [0, 
 
 from __future__ import annotations
 
+import dataclasses
 import types
 from typing import Any
 
@@ -48,6 +49,57 @@ def test_a_hook_returning_one_spec_instead_of_a_list_is_named() -> None:
     (error,) = host.errors
     assert "expected a list of StrategySpec" in str(error) and "single" in str(error)
     assert host.strategies() == {}
+
+
+def test_an_options_model_that_is_not_pydantic_is_named_at_load() -> None:
+    """A dataclass as the options model: it was listed as healthy and its first run said
+    "internal error: AttributeError ... model_validate" without naming the plugin."""
+
+    @dataclasses.dataclass
+    class Opts:
+        n: int = 1
+
+    spec = lambda: [c3.StrategySpec("mine", _create, options_model=Opts)]  # noqa: E731
+    host = c3.PluginHost(RESEARCH, [_plugin("mine", spec)])
+    (error,) = host.errors
+    assert "not a pydantic model" in str(error) and "dist-mine" in str(error)
+    assert host.strategies() == {}
+
+
+@pytest.mark.parametrize("fault", [KeyError, TypeError])
+def test_an_options_validator_that_fails_is_a_configuration_error_naming_the_table(
+    fault: type[Exception],
+) -> None:
+    """A validator raising what pydantic does not turn into a validation error (a KeyError, a
+    TypeError) crashed every command with a traceback, ``plugins`` included, and even where
+    another strategy was selected."""
+    from pydantic import BaseModel, field_validator
+
+    from c3_matcher.cli import _options_as_read
+    from c3_matcher.compose import check_options_tables
+    from c3_matcher.config import C3Settings
+    from c3_matcher.errors import ConfigurationError
+
+    class Opts(BaseModel):
+        cross_check: bool = True
+
+        @field_validator("cross_check")
+        @classmethod
+        def _needs(cls, value: bool) -> bool:
+            if not value:
+                raise fault("cross_check off needs a table we do not have")
+            return value
+
+    host = c3.PluginHost(
+        RESEARCH, [_plugin("mine", lambda: [c3.StrategySpec("mine", _create, options_model=Opts)])]
+    )
+    settings = C3Settings(matcher={"options": {"mine": {"cross_check": False}}})
+    assert _options_as_read(settings, host) == settings  # as given: refused where checked
+    with pytest.raises(ConfigurationError) as refused:
+        check_options_tables(settings, host)
+    said = str(refused.value)
+    assert "matcher.options.mine" in said and "options model failed" in said
+    assert "cross_check off needs a table" in said
 
 
 def test_unknown_strategy_names_the_plugin_that_failed_to_load() -> None:

@@ -104,14 +104,13 @@ def _options_as_read(settings: C3Settings, host: PluginHost) -> C3Settings:
     """``settings`` with each strategy's options table as its plugin's options model reads it,
     the keys given: ``"0.5"`` from the environment is the number 0.5 the strategy runs with, as
     ``config`` prints it and a run records it. A table no linked strategy takes, or one its
-    model refuses, stays as given: it is refused where it is checked."""
-    from pydantic import ValidationError
-
+    model refuses (or fails on: a plugin's own fault), stays as given: it is refused where it
+    is checked, naming the table."""
     if not settings.matcher.options:
         return settings
     tables = dict(settings.matcher.options)
     for name, table in settings.matcher.options.items():
-        with contextlib.suppress(C3Error, ValidationError):
+        with contextlib.suppress(Exception):
             model = host.resolve(name).options_model
             if model is not None:
                 read = model.model_validate(table)

@@ -376,15 +376,8 @@ def _strategy_options(config: C3Settings, name: str, model: type[BaseModel] | No
     raw = config.matcher.options.get(name, {})
     if model is None:
         if raw:
-            raise ConfigurationError(
-                "matcher.options",
-                [
-                    (
-                        f"matcher.options.{name}",
-                        f"strategy {name!r} takes no options, got {sorted(raw)}",
-                    )
-                ],
-            )
+            why = f"strategy {name!r} takes no options, got {sorted(raw)}"
+            raise ConfigurationError("matcher.options", [(f"matcher.options.{name}", why)])
         return None
     try:
         return model.model_validate(raw)
@@ -396,3 +389,6 @@ def _strategy_options(config: C3Settings, name: str, model: type[BaseModel] | No
                 for e in exc.errors()
             ],
         ) from None
+    except Exception as exc:  # the plugin's validator failed (a KeyError...): not a traceback
+        why = f"strategy {name!r}'s options model failed on it: {describe(exc)}"
+        raise ConfigurationError("matcher.options", [(f"matcher.options.{name}", why)]) from exc

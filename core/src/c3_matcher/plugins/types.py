@@ -7,12 +7,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, TypedDict
 
+from pydantic import BaseModel
+
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.protocols import CrossDomainMatcher
 
 if TYPE_CHECKING:
-    from pydantic import BaseModel
-
     from c3_matcher.health import RollingHealthWindow
     from c3_matcher.protocols import (
         Clock,
@@ -91,3 +91,9 @@ class StrategySpec:
             )
         if not callable(self.factory):
             raise InvalidInputError("strategy.factory", "must be callable")
+        model = self.options_model
+        if model is not None and not (isinstance(model, type) and issubclass(model, BaseModel)):
+            raise InvalidInputError(
+                "strategy.options_model",
+                f"{model!r} is not a pydantic model (a BaseModel subclass), or None",
+            )
