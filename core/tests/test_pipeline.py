@@ -337,7 +337,7 @@ def test_matcher_settings_reach_the_pipeline_of_every_strategy(tmp_path):
         size_multiple=16,
     )
     pipeline = config.pipeline
-    assert not pipeline.use_stored_features and not pipeline.geometric_prior  # both not default
+    assert not pipeline.stored_features and not pipeline.geometric_prior  # both not default
     assert pipeline.prior_tolerances.rotation_deg == 5.0
     assert pipeline.min_inliers_threshold == 70
     assert load_settings(env={}) and PipelineSettings().geometric_prior  # defaults untouched

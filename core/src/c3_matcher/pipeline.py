@@ -70,7 +70,7 @@ class PipelineSettings:
     residual_warn_threshold_px: float = matcher_default("residual_warn_threshold_px")
     ransac_threshold_px: float = matcher_default("ransac_threshold_px")
     # a store's map features when built (else: extract)
-    use_stored_features: bool = matcher_default("stored_features")
+    stored_features: bool = matcher_default("stored_features")
     # only acts when the frame had attitude and height
     geometric_prior: bool = matcher_default("geometric_prior")
     prior_tolerances: PriorTolerances = field(default_factory=PriorTolerances)
@@ -81,22 +81,17 @@ class PipelineSettings:
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
-        """Every pipeline setting from ``[matcher]`` (thresholds, stored features, the prior)."""
+        """Every pipeline setting from ``[matcher]``: each field reads the setting of its name."""
+        named = {
+            f.name: getattr(matcher, f.name)
+            for f in dataclasses.fields(cls)
+            if f.name not in ("prior_tolerances", "photometric")
+        }
+        # photometric unset: resolved per strategy before it gets here
         return cls(
-            matcher.min_inliers_threshold,
-            matcher.residual_warn_threshold_px,
-            matcher.ransac_threshold_px,
-            matcher.stored_features,
-            matcher.geometric_prior,
-            PriorTolerances(
-                rotation_deg=matcher.prior_rotation_tol_deg,
-                scale=matcher.prior_scale_tol,
-                shear=matcher.prior_shear_tol,
-                base_px=matcher.prior_base_tol_px,
-            ),
-            matcher.photometric or "none",  # unset: resolved per strategy before (upstream here)
-            matcher.rotation_search,
-            matcher.refine,
+            **named,
+            prior_tolerances=PriorTolerances.from_settings(matcher),
+            photometric=matcher.photometric or "none",
         )
 
 
@@ -128,7 +123,7 @@ class PipelineMatcher:
         cache = TileFeatureCache(tile_cache_size)
         request = _feature_request(backend, self._pre)
         self._tiles = CandidateFeatures(
-            backend, self._pre, cache, request, settings.use_stored_features
+            backend, self._pre, cache, request, settings.stored_features
         )
         self._refine = RefinePass(self._pre, backend)
         self._turns = FrameTurns(_close_failed)

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.arrays import F64
-from c3_matcher.config import matcher_default
+from c3_matcher.config import MatcherSettings, matcher_default
 
 __all__ = [
     "GeometricPrior",
@@ -52,6 +52,16 @@ class PriorTolerances:
     shear: float = matcher_default("prior_shear_tol")
     base_px: float = matcher_default("prior_base_tol_px")
     vote_cell_px: float = 16.0
+
+    @classmethod
+    def from_settings(cls, matcher: MatcherSettings) -> PriorTolerances:
+        """The tolerances ``[matcher]``'s ``prior_*`` settings give."""
+        return cls(
+            rotation_deg=matcher.prior_rotation_tol_deg,
+            scale=matcher.prior_scale_tol,
+            shear=matcher.prior_shear_tol,
+            base_px=matcher.prior_base_tol_px,
+        )
 
 
 @dataclass(frozen=True, slots=True)
