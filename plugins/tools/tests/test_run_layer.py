@@ -9,6 +9,7 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from c3_matcher.config import C3Settings
@@ -56,6 +57,11 @@ def test_a_flight_run_records_the_settings_it_ran_with_and_repeats_bit_for_bit(
     assert [json.loads(line)["fingerprint"] for line in lines] == [
         o.fingerprint for o in first.outcomes
     ]
+    matched = next(i for i, o in enumerate(first.outcomes) if o.result)
+    held = first.outcomes[matched].result["per_candidate"][0]["inlier_correspondences"]
+    assert isinstance(held, np.ndarray) and held.dtype == np.float32  # not lists of floats
+    written = json.loads(lines[matched])["result"]["per_candidate"][0]
+    assert written["inlier_correspondences"] == held.tolist() and len(held) > 0
     assert (tmp_path / "run0" / "fdr.jsonl").stat().st_size > 0
 
 

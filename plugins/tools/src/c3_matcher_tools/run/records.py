@@ -8,6 +8,8 @@ from dataclasses import asdict, dataclass, field
 from enum import StrEnum
 from typing import Any
 
+import numpy as np
+
 __all__ = [
     "FlightRun",
     "FrameOutcome",
@@ -38,7 +40,9 @@ class FrameOutcome:
     attitude, height) says the frame's centre looks; ``telemetry_error_m``: the estimate's
     distance from it (m, NaN when either is missing); ``gnss_accuracy_m``: the horizontal
     accuracy the log states for that fix; ``gnss_degraded``: GNSS was absent or degraded at the
-    frame (None: no telemetry, or it does not say)."""
+    frame (None: no telemetry, or it does not say). ``result``: the result as JSON
+    (:func:`c3_matcher.serialize.result_to_json`), its inlier correspondences held as the
+    result's float32 (I, 4) arrays until :meth:`to_json` writes them as lists."""
 
     index: int
     frame_id: str
@@ -83,6 +87,10 @@ class FrameOutcome:
         for key in ("mean_error_px", "residual_px", "position_error_m", "telemetry_error_m"):
             if not math.isfinite(out[key]):
                 out[key] = None
+        for candidate in (out["result"] or {}).get("per_candidate", ()):
+            corr = candidate.get("inlier_correspondences")
+            if isinstance(corr, np.ndarray):
+                candidate["inlier_correspondences"] = corr.tolist()
         return out
 
 
