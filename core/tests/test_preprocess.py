@@ -391,3 +391,16 @@ def test_clahe_cells_cover_the_same_working_px_in_a_shrunk_image_and_a_whole_one
     big = NavCameraFrame(uuid.uuid4(), cv2.resize(_texture(), (2048, 1536)), 1)
     pre.prepare_query(big, CameraCalibration.pinhole(2048, 1536, 1800.0), None)
     assert grids == [(8, 8), (32, 24)]  # 512 / 64 and 2048 x 1536 / 64 WORKING px
+
+
+@pytest.mark.parametrize("distortion", [(0.0,) * 7 + (5.0,), (5.0,) * 14])
+@pytest.mark.parametrize("attitude", [None, Attitude(0.0, 0.0, 1.0)])
+def test_distortion_that_maps_the_frame_edge_nowhere_is_named(distortion, attitude) -> None:
+    """Coefficients under which the frame's edge has no undistorted position (the iteration
+    gives NaN) name ``calibration.distortion``, not a NaN deep inside the canvas sums."""
+    k = np.array([[F, 0.0, CX], [0.0, F, CY], [0.0, 0.0, 1.0]])
+    cal = CameraCalibration(k, np.array(distortion), (W, H))
+    pre = FramePreprocessor(InputRule(1024, 16))
+    with pytest.raises(InvalidInputError, match="undistorted") as err:
+        pre.prepare_query(_frame(_texture(), attitude, 150.0), cal, 0.3)
+    assert err.value.field == "calibration.distortion"

@@ -254,6 +254,12 @@ class FramePreprocessor:
         rays = cam.undistort_normalized(
             cam.image_boundary(w, h, self.boundary_samples_per_side), calibration
         )
+        if not np.isfinite(rays).all():
+            raise InvalidInputError(
+                "calibration.distortion",
+                f"{calibration.distortion.tolist()} leaves the edge of a {w}x{h} px frame with "
+                "no undistorted position: not a lens this image was taken through",
+            )
         self._lens_cache = [_LensCache(key, rays), *self._lens_cache[:3]]
         return rays
 
