@@ -54,6 +54,8 @@ def end_at(n):  # n: 0 while loading, else the timed run
     if plan.get("die") == n:
         print("Traceback (most recent call last):\nRuntimeError: worker died", file=sys.stderr)
         sys.exit(1)
+    if plan.get("hang") == n:
+        hold_on()
 
 
 def hold_on():  # a worker that outlives its pipes and ignores SIGTERM: only SIGKILL ends it
@@ -93,7 +95,8 @@ def stand_in(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Callable[[Plans
     """``stand_in(plans)``: bench's workers replaced by the stand-in, each case's behaviour
     from ``plans`` by its kind (``engine``, ``engine+cache``, ``pytorch``, ``sift``, or one
     strategy's, ``xfeat:engine``: ``ms`` its
-    times round by round, ``die`` / ``refuse`` at that run (0: while loading), ``stubborn``);
+    times round by round, ``die`` / ``refuse`` / ``hang`` (never answer) at that run (0: while
+    loading), ``stubborn``);
     the log it writes (``pid PID LABEL`` as each starts, ``turn LABEL`` at each timed run,
     ``result LABEL`` as it gives its result)."""
     script = tmp_path / "stand_in.py"
@@ -227,6 +230,29 @@ def test_a_worker_that_dies_is_reported_and_the_others_timed_to_the_end(
     failed = [line for line in out.splitlines() if line.startswith("failed: ")]
     assert len(failed) == 1 and failed[0].startswith("failed: disk_lightglue[pytorch] (")
     assert failed[0].endswith(": RuntimeError: worker died")
+
+
+@pytest.mark.parametrize("hang", [0, 2], ids=["while-loading", "mid-run"])
+def test_a_worker_that_never_answers_is_stopped_and_the_others_timed_to_the_end(
+    hang: int,
+    stand_in: Callable[[Plans], Path],
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A worker that hangs (a deadlocked runtime, a plugin waiting on something that never
+    comes) is stopped once it has not answered in the time limit: its case failed and said,
+    the others timed to the end, every worker reaped, exit 1."""
+    from c3_matcher.cli import main
+
+    monkeypatch.setattr(bench_worker, "ANSWER_LIMIT_S", 8.0)  # the others start within it
+    log = stand_in({"pytorch": {"hang": hang}})
+    argv = _bench("--strategy", "xfeat", "--no-modes", "--no-baseline", runs=3)
+    assert main([*argv, "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert [f["error"] for f in report["failed"]] == ["no answer in 8 s: stopped"]
+    assert report["failed"][0]["label"].startswith("xfeat[pytorch] (")
+    assert all(len(r["frame_ms_runs"]) == 3 for r in report["results"]) and report["results"]
+    _assert_all_reaped(log)
 
 
 def test_a_strategy_whose_every_worker_dies_loading_leaves_the_others_figures(

@@ -10,7 +10,8 @@ would fall in another worker's timed match. While it waits it is blocked on its 
 answers, it waits until no other thread of its process is runnable (ONNX Runtime's intra-op
 threads spin 20-40 ms after a run), so that its threads leave the cores to the next worker's turn
 (``settle_ms``: how long that took). Stray prints of a library go to stderr, never into the
-answers. A worker whose stdin closes before its runs are done (bench stopped) ends, exit 1.
+answers. A worker whose stdin closes before its runs are done (bench stopped) ends, exit 1; one
+that has not answered in :data:`ANSWER_LIMIT_S` is stopped by bench, its case failed.
 
 A frame whose match raised InsufficientInliersError is still timed (the matcher ran): its time
 counts in ``frame_ms`` and its best inlier count as 0, and ``frames_raised`` counts it. Candidate
@@ -26,6 +27,7 @@ import argparse
 import contextlib
 import json
 import os
+import selectors
 import subprocess
 import sys
 import tempfile
@@ -59,6 +61,9 @@ SETTLE_LIMIT_S = 1.0
 GRACE_S = 2.0
 """How long the workers have to end by themselves once bench closes their pipes (an idle one
 ends at once) before the ones still running are killed."""
+ANSWER_LIMIT_S = 600.0
+"""The longest bench waits for a worker's answer (loading and warm-up included) before it stops
+the worker as hung and reports its case failed."""
 Result = dict[str, Any]
 
 
@@ -209,6 +214,10 @@ def _reply(worker: _Worker) -> Result:
     last line), or the InvalidInputError it refused its input with (exit 2)."""
     stdout = worker.process.stdout
     assert stdout is not None
+    if not _readable_within(stdout, ANSWER_LIMIT_S):
+        worker.process.kill()
+        worker.process.wait()
+        raise _WorkerEndedError(f"no answer in {ANSWER_LIMIT_S:g} s: stopped")
     line = stdout.readline()
     if line:
         answer: Result = json.loads(line)
@@ -220,6 +229,14 @@ def _reply(worker: _Worker) -> Result:
         raise _worker_refusal(worker.case, stderr)
     lines = stderr.strip().splitlines()
     raise _WorkerEndedError(lines[-1] if lines else f"worker exit status {status}, no message")
+
+
+def _readable_within(stream: IO[str], seconds: float) -> bool:
+    """Whether ``stream`` (a pipe, answered a line at a time) has a line or its end to read
+    within ``seconds``."""
+    with selectors.DefaultSelector() as selector:
+        selector.register(stream, selectors.EVENT_READ)
+        return bool(selector.select(seconds))
 
 
 def _worker_refusal(case: BenchCase, stderr: str) -> InvalidInputError:
