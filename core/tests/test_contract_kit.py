@@ -6,6 +6,7 @@ lazily loaded names."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import cv2
@@ -86,6 +87,31 @@ class ShuffledMatches(OpenCvBackend):
         pairs = raw.matches.copy()
         pairs[:, 1] = np.roll(pairs[:, 1], 1)
         return RawMatches(pairs, raw.scores)
+
+
+class ScaleForgotten(OpenCvBackend):
+    """Detects images over 300 px upsampled twice and never scales the keypoints back."""
+
+    def extract(self, image: PreparedImage) -> Features:
+        features = super().extract(image)
+        if max(features.image_size) <= 300:
+            return features
+        return dataclasses.replace(features, keypoints=features.keypoints * 2)
+
+
+def test_kit_fails_keypoints_off_a_frame_sized_image_that_small_images_miss() -> None:
+    """The stand-in and the start-up probe are under 300 px: they pass this backend; the
+    frame-sized image names its keypoints off the image, as the core refuses them in flight."""
+
+    class Scaled(BackendContract):
+        def make_backend(self) -> FeatureBackend:
+            return ScaleForgotten(cv2.AKAZE_create(), cv2.NORM_HAMMING, "x")
+
+    Scaled().test_backend_features_well_formed()
+    Scaled().test_backend_startup_probe_and_provenance()
+    with pytest.raises(InvalidInputError, match="outside the 640x480 px image"):
+        Scaled().test_backend_keeps_keypoints_on_a_frame_sized_image()
+    TestAkazeBinaryContract().test_backend_keeps_keypoints_on_a_frame_sized_image()
 
 
 @pytest.mark.parametrize(

@@ -28,6 +28,7 @@ from c3_matcher.errors import ConfigurationError, EngineError, describe
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.protocols import EarlyStopping, FeatureBackend
+from c3_matcher.stages.extract import checked_features
 
 __all__ = [
     "BACKEND_MEMBERS",
@@ -216,17 +217,10 @@ def _early_stop(backend: FeatureBackend) -> tuple[str, str] | None:
 
 
 def _check_features(features: object, size: tuple[int, int]) -> None:
-    """The probe's features: a :class:`Features` with keypoints, all inside the (w, h) px
-    image."""
-    if not isinstance(features, Features):
-        raise TypeError(f"extract returned {type(features).__name__}, not Features")
-    if len(features) == 0:
+    """The probe's features: a :class:`Features` with keypoints, all on the (w, h) px image
+    (:func:`~c3_matcher.stages.extract.checked_features`, as in flight)."""
+    if len(checked_features(features, size, "probe image")) == 0:
         raise ValueError("the extractor found no keypoint on the textured probe image")
-    kp = features.keypoints
-    inside = (kp >= -0.5) & (kp <= np.array(size, np.float32) - 0.5)
-    outside = int((~inside.all(axis=1)).sum())
-    if outside:
-        raise ValueError(f"{outside} keypoint(s) outside the {size[0]}x{size[1]} px probe image")
 
 
 def check_shifted_matches(
