@@ -31,10 +31,10 @@ class OpenCvBackend:
     extract_phase, match_phase = "cv_detect", "cv_match"
     input_rule = InputRule(max_long_side=1024, multiple=1)
 
-    def __init__(self, detector: Any, norm: int, label: str) -> None:
+    def __init__(self, detector: Any, norm: int, label: str, *, cross_check: bool = True) -> None:
         self.label = label
         self._detector = detector
-        self._bf = cv2.BFMatcher(norm, crossCheck=True)
+        self._bf = cv2.BFMatcher(norm, crossCheck=cross_check)
         self._width = 61 if norm == cv2.NORM_HAMMING else 128
         self._dtype = np.uint8 if norm == cv2.NORM_HAMMING else np.float32
 

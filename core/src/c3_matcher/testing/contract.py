@@ -373,7 +373,7 @@ class BackendContract(MatcherContract):
     def test_backend_matches_a_view_that_holds_the_image_in_query_tile_order(self) -> None:
         """The tile shows the query's texture ``shift`` px further right, and texture the query
         lacks: each pair is (query index, tile index), joins a point to the same point of the
-        tile, and uses a query keypoint once."""
+        tile, and uses a keypoint of either side once."""
         backend = self.make_backend()
         query, tile, shift = self._pair(backend)
         raw = backend.match(query, tile)
