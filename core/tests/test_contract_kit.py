@@ -6,6 +6,7 @@ lazily loaded names."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import cv2
@@ -30,10 +31,10 @@ class OpenCvBackend:
     extract_phase, match_phase = "cv_detect", "cv_match"
     input_rule = InputRule(max_long_side=1024, multiple=1)
 
-    def __init__(self, detector: Any, norm: int, label: str) -> None:
+    def __init__(self, detector: Any, norm: int, label: str, *, cross_check: bool = True) -> None:
         self.label = label
         self._detector = detector
-        self._bf = cv2.BFMatcher(norm, crossCheck=True)
+        self._bf = cv2.BFMatcher(norm, crossCheck=cross_check)
         self._width = 61 if norm == cv2.NORM_HAMMING else 128
         self._dtype = np.uint8 if norm == cv2.NORM_HAMMING else np.float32
 
@@ -86,6 +87,31 @@ class ShuffledMatches(OpenCvBackend):
         pairs = raw.matches.copy()
         pairs[:, 1] = np.roll(pairs[:, 1], 1)
         return RawMatches(pairs, raw.scores)
+
+
+class ScaleForgotten(OpenCvBackend):
+    """Detects images over 300 px upsampled twice and never scales the keypoints back."""
+
+    def extract(self, image: PreparedImage) -> Features:
+        features = super().extract(image)
+        if max(features.image_size) <= 300:
+            return features
+        return dataclasses.replace(features, keypoints=features.keypoints * 2)
+
+
+def test_kit_fails_keypoints_off_a_frame_sized_image_that_small_images_miss() -> None:
+    """The stand-in and the start-up probe are under 300 px: they pass this backend; the
+    frame-sized image names its keypoints off the image, as the core refuses them in flight."""
+
+    class Scaled(BackendContract):
+        def make_backend(self) -> FeatureBackend:
+            return ScaleForgotten(cv2.AKAZE_create(), cv2.NORM_HAMMING, "x")
+
+    Scaled().test_backend_features_well_formed()
+    Scaled().test_backend_startup_probe_and_provenance()
+    with pytest.raises(InvalidInputError, match="outside the 640x480 px image"):
+        Scaled().test_backend_keeps_keypoints_on_a_frame_sized_image()
+    TestAkazeBinaryContract().test_backend_keeps_keypoints_on_a_frame_sized_image()
 
 
 @pytest.mark.parametrize(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+import json
 
 import pytest
 
@@ -200,6 +201,35 @@ def c3_matcher_register_commands(commands):
 
     commands.add("noisy", help="prints, then says its result").set_defaults(handler=run)
 """
+
+
+NATIVE_PLUGIN = """
+import ctypes, os
+from c3_matcher.plugins import hookimpl
+
+@hookimpl
+def c3_matcher_register_commands(commands):
+    def run(args, ctx):
+        os.write(1, b"a native library writing to descriptor 1\\n")
+        ctypes.CDLL(None).printf(b"a native printf\\n")
+        ctx.out('{"result": 1}')
+        return 0
+
+    commands.add("native", help="writes natively, then says its result").set_defaults(handler=run)
+"""
+
+
+def test_what_a_plugin_writes_natively_to_stdout_goes_to_stderr(site, monkeypatch, capfd):
+    """A C library's printf (a vendor extractor) went to descriptor 1, into a JSON result."""
+    import c3_matcher.compose
+    from c3_matcher.cli import main
+
+    make_dist(site, "acme-native", "acme_native", NATIVE_PLUGIN)
+    monkeypatch.setattr(c3_matcher.compose, "build_plugin_host", lambda: host_for(site))
+    assert main(["native"]) == 0
+    said = capfd.readouterr()
+    assert json.loads(said.out) == {"result": 1} and said.out.count("\n") == 1
+    assert "writing to descriptor 1" in said.err and "a native printf" in said.err
 
 
 def test_what_a_plugin_prints_goes_to_stderr_and_stdout_holds_the_result_alone(

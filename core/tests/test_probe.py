@@ -81,6 +81,8 @@ class Faulty:
             pairs[0, 1] = 10**6
         if self.mistake == "twice":
             pairs = np.concatenate([pairs, pairs])
+        if self.mistake == "tile_twice":  # a second query keypoint onto the first's tile keypoint
+            pairs[1, 1] = pairs[0, 1]
         if self.mistake == "swapped":  # (tile, query): the matcher called the other way round
             pairs = equal_descriptor_pairs(tile.descriptors, query.descriptors).matches
         if self.mistake == "ignores_tile":  # keypoint i with keypoint i, whatever they show
@@ -99,6 +101,7 @@ class Faulty:
         ("tuple", "match returned tuple, not RawMatches"),
         ("index", "match gave tile indices outside the"),
         ("twice", "match paired one query keypoint more than once"),
+        ("tile_twice", "match paired one tile keypoint more than once"),
         ("swapped", "match gave query indices outside the"),
         ("ignores_tile", "pairs join a query point (x, y) to the tile point (x + 16, y)"),
     ],

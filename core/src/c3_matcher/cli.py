@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegistry, UsageParser
 from c3_matcher.config import C3Settings, load_settings
 from c3_matcher.config_sources import split_config
-from c3_matcher.context import CommandContext, Handler
+from c3_matcher.context import CommandContext, Handler, result_stream
 from c3_matcher.errors import (
     C3Error,
     ConfigurationError,
@@ -351,12 +351,12 @@ def _command(argv: Sequence[str] | None) -> int:
     except ConfigurationError as exc:
         print(_fail(exc), file=sys.stderr)
         return EXIT_USAGE
-    context = CommandContext(settings, host, sys.stdout, sys.stderr)
     try:
         handler: Handler = args.handler
-        with contextlib.redirect_stdout(sys.stderr):  # a plugin's prints: the result alone is
-            status = handler(args, context)  # on stdout (context.stdout, taken before this)
-        context.flush()  # a full disk under stdout said here, not lost at the interpreter's exit
+        with result_stream() as stdout:  # a plugin's prints, native ones too: the result alone
+            context = CommandContext(settings, host, stdout, sys.stderr)  # is on stdout
+            status = handler(args, context)
+            context.flush()  # a full disk under stdout said here, not lost at exit
         return status
     except (
         InvalidInputError,

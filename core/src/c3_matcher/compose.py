@@ -287,6 +287,7 @@ def _create_strategy(
         raise StrategyStartupError(name, plugin, f"its factory returned {kind}, not a matcher")
     provider = helpers["c7_inference"].provider
     if isinstance(matcher, PipelineMatcher):  # every strategy on the shared pipeline
+        matcher.record_as(name)  # not its backend's label: one backend may serve two strategies
         try:
             check_members(matcher.backend)
         except TypeError as exc:  # a member forgotten fails here, not on the first frame

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
+import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, TextIO
@@ -15,7 +17,7 @@ if TYPE_CHECKING:
     from c3_matcher.config import C3Settings
     from c3_matcher.plugins.manager import PluginHost
 
-__all__ = ["CommandContext", "Handler"]
+__all__ = ["CommandContext", "Handler", "result_stream"]
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,65 @@ def _writing(stream: str) -> Iterator[None]:
         raise
     except OSError as exc:
         raise OutputStreamError(stream, exc) from exc
+
+
+@contextlib.contextmanager
+def result_stream() -> Iterator[TextIO]:
+    """The stream a command writes its result to while it runs, with everything else written
+    to stdout sent to stderr: Python's ``print`` and what a plugin's native library writes to
+    descriptor 1 (C's ``printf``), which would otherwise mix into a JSON result. Descriptor 1
+    points at descriptor 2 until the command ends (C's buffered output flushed first); the
+    result goes to a copy of the original descriptor 1, or to ``sys.stdout`` itself where that
+    is no descriptor (a stream replaced in-process)."""
+    stdout = sys.stdout
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no descriptor 1: nothing native can mix into the result either
+        with contextlib.redirect_stdout(sys.stderr):
+            yield stdout
+        return
+    result = _copy(stdout, saved)
+    try:
+        with contextlib.suppress(OSError):  # no descriptor 2: native writes stay where they are
+            os.dup2(2, 1)
+        with contextlib.redirect_stdout(sys.stderr):
+            yield result
+    finally:
+        _flush_native()  # what C's stdio holds for descriptor 1 goes out while it is stderr
+        if result is not stdout:
+            with contextlib.suppress(OSError):  # a reader gone or a full disk: said already
+                result.close()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+def _copy(stdout: TextIO, saved: int) -> TextIO:
+    """A text stream, buffered as ``stdout``, on a copy of ``saved`` (descriptor 1) where
+    ``stdout`` writes to descriptor 1; else ``stdout``."""
+    try:
+        on_one = stdout.fileno() == 1
+    except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation: no descriptor
+        on_one = False
+    if not on_one:
+        return stdout
+    line = bool(getattr(stdout, "line_buffering", False))  # a terminal's: each line at once
+    return open(
+        os.dup(saved),
+        "w",
+        buffering=1 if line else -1,
+        encoding=stdout.encoding,
+        errors=stdout.errors,
+    )
+
+
+def _flush_native() -> None:
+    """C's ``fflush(NULL)``: what native code's ``printf`` buffered is written out now."""
+    import ctypes
+
+    with contextlib.suppress(Exception):  # no C library to ask: nothing buffered there
+        ctypes.CDLL(None).fflush(None)
 
 
 Handler = Callable[[argparse.Namespace, CommandContext], int]

@@ -130,6 +130,18 @@ class PipelineMatcher:
         self._log_root = current_log_root()  # composed by a root: its frames log as its own
 
     @property
+    def label(self) -> str:
+        """The strategy's name in its results and records (``matcher_label``): the strategy
+        selected (``record_as``), else the backend's ``label``."""
+        return self._sinks.label
+
+    def record_as(self, strategy: str) -> None:
+        """Name the results and records after ``strategy``, the one selected (the composition
+        calls it at start-up): one backend may serve several strategies under one ``label``,
+        which a backbone-error record keeps as its ``backbone``."""
+        self._sinks = dataclasses.replace(self._sinks, strategy=strategy)
+
+    @property
     def stored_features(self) -> bool:
         """Whether candidate features come from precomputed map features when the tile store
         has them (``features build``); False: always extract. A composition input
@@ -147,7 +159,7 @@ class PipelineMatcher:
             # one frame at a time, first come first served
             if not admitted:  # closed: no fix from this call either, the health window says so
                 FrameRecorder(self._sinks, None).update_health(0)
-                raise MatcherClosedError(self.backend.label)
+                raise MatcherClosedError(self.label)
             return self._contract_match(frame, rerank_result, calibration)
 
     def close(self) -> None:
@@ -237,7 +249,7 @@ class PipelineMatcher:
             best_candidate_idx=0,
             reprojection_residual_px=best.per_candidate_residual_px,
             matched_at=self._sinks.clock.monotonic_ns(),
-            matcher_label=self.backend.label,
+            matcher_label=self.label,
             candidates_input=evidence.candidates_input,
             candidates_dropped=evidence.dropped,
             diagnostics=diagnostics,

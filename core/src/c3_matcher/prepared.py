@@ -215,8 +215,8 @@ def correspondences(
     """(M, 4) float32 rows (x_query, y_query, x_tile, y_tile) of ``raw`` matches in WORKING px
     (rectified query, full-resolution tile); (0, 4) without a match. ``ValueError`` naming the
     index when a match points at no keypoint (a backend's -1 for "unmatched" would otherwise
-    pair the last keypoint) or pairs one query keypoint more than once (each pair would count
-    as an inlier of its own)."""
+    pair the last keypoint) or pairs one query keypoint, or one tile keypoint, more than once
+    (each pair would count as an inlier of its own)."""
     if len(raw) == 0:
         return np.zeros((0, 4), dtype=np.float32)
     for column, (side, features) in enumerate((("query", query), ("tile", tile))):
@@ -227,13 +227,14 @@ def correspondences(
                 f"the matcher's output pairs {side} keypoint {int(outside[0])}, but the {side} "
                 f"has {len(features)} keypoints (indices 0..{len(features) - 1})"
             )
-    uses = np.bincount(raw.matches[:, 0], minlength=1)
-    if uses.max() > 1:
-        twice = int(np.argmax(uses))
-        raise ValueError(
-            f"the matcher's output pairs query keypoint {twice} {int(uses[twice])} times (each "
-            "query keypoint may be in one pair at most)"
-        )
+    for column, side in enumerate(("query", "tile")):
+        uses = np.bincount(raw.matches[:, column], minlength=1)
+        if uses.max() > 1:
+            twice = int(np.argmax(uses))
+            raise ValueError(
+                f"the matcher's output pairs {side} keypoint {twice} {int(uses[twice])} times "
+                f"(each {side} keypoint may be in one pair at most)"
+            )
     q = query_image.to_working(query.keypoints[raw.matches[:, 0]].astype(np.float64))
     t = tile_image.to_working(tile.keypoints[raw.matches[:, 1]].astype(np.float64))
     return np.hstack([q, t]).astype(np.float32)

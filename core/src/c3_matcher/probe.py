@@ -6,7 +6,7 @@ images).
 Both images follow the backend's own ``input_rule`` (``probe_side``), and the offset is a multiple
 of the rule's ``multiple`` (``probe_shift``), so a network with that stride sees the same texture
 at the same phase in both. A backend that matches correctly pairs each query point (x, y) with
-the tile point (x + shift, y), in (query, tile) order, each query keypoint once; the tile has
+the tile point (x + shift, y), in (query, tile) order, each keypoint once; the tile has
 texture the query lacks, and so more keypoints.
 
 A backend may say why a match gave no pair: ``early_stop()`` returns ``(setting, why)`` when a
@@ -28,6 +28,7 @@ from c3_matcher.errors import ConfigurationError, EngineError, describe
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.protocols import EarlyStopping, FeatureBackend
+from c3_matcher.stages.extract import checked_features
 
 __all__ = [
     "BACKEND_MEMBERS",
@@ -216,17 +217,10 @@ def _early_stop(backend: FeatureBackend) -> tuple[str, str] | None:
 
 
 def _check_features(features: object, size: tuple[int, int]) -> None:
-    """The probe's features: a :class:`Features` with keypoints, all inside the (w, h) px
-    image."""
-    if not isinstance(features, Features):
-        raise TypeError(f"extract returned {type(features).__name__}, not Features")
-    if len(features) == 0:
+    """The probe's features: a :class:`Features` with keypoints, all on the (w, h) px image
+    (:func:`~c3_matcher.stages.extract.checked_features`, as in flight)."""
+    if len(checked_features(features, size, "probe image")) == 0:
         raise ValueError("the extractor found no keypoint on the textured probe image")
-    kp = features.keypoints
-    inside = (kp >= -0.5) & (kp <= np.array(size, np.float32) - 0.5)
-    outside = int((~inside.all(axis=1)).sum())
-    if outside:
-        raise ValueError(f"{outside} keypoint(s) outside the {size[0]}x{size[1]} px probe image")
 
 
 def check_shifted_matches(
@@ -234,9 +228,9 @@ def check_shifted_matches(
 ) -> None:
     """``ValueError`` unless ``matches`` are the matches of ``query`` with ``tile``, whose
     texture holds the query's ``shift`` px to the right: :class:`RawMatches`, some, indices
-    into each side's own keypoints, each query keypoint in one pair at most (a pair given twice
-    would count twice as an inlier), and at least ``min_on_offset`` of them pairing a query
-    point (x, y) with a tile point within ``ON_OFFSET_PX`` of (x + shift, y)."""
+    into each side's own keypoints, each keypoint of either side in one pair at most (a pair
+    given twice would count twice as an inlier), and at least ``min_on_offset`` of them pairing
+    a query point (x, y) with a tile point within ``ON_OFFSET_PX`` of (x + shift, y)."""
     if not isinstance(matches, RawMatches):
         raise TypeError(f"match returned {type(matches).__name__}, not RawMatches")
     if len(matches) == 0:
@@ -250,8 +244,9 @@ def check_shifted_matches(
             raise ValueError(
                 f"match gave {side} indices outside the {len(features)} {side} keypoints"
             )
-    if np.unique(q).size != q.size:
-        raise ValueError("match paired one query keypoint more than once")
+    for side, index in (("query", q), ("tile", t)):
+        if np.unique(index).size != index.size:
+            raise ValueError(f"match paired one {side} keypoint more than once")
     expected = query.keypoints[q] + np.array([shift, 0], np.float32)
     on = float(np.mean(np.linalg.norm(tile.keypoints[t] - expected, axis=1) <= ON_OFFSET_PX))
     if on < min_on_offset:

@@ -12,6 +12,7 @@
 - :mod:`~c3_matcher.stages.recorder`: the frame's health update, logs and FDR records.
 
 :mod:`~c3_matcher.stages.outcomes` holds the values that travel between them (a candidate kept
-or dropped, what a frame's records report) and :mod:`~c3_matcher.stages.failure` the typed
-failure of a candidate's backbone step.
+or dropped, what a frame's records report), :mod:`~c3_matcher.stages.failure` the typed
+failure of a candidate's backbone step and :mod:`~c3_matcher.stages.extract` a backend's
+features checked wherever a stage takes them.
 """

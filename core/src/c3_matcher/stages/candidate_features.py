@@ -12,6 +12,7 @@ from c3_matcher.dto import RerankCandidate
 from c3_matcher.features import Features
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend, StoredFeaturesBackend, StoredFeaturesHandle
+from c3_matcher.stages.extract import extract_checked
 from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.recorder import FrameRecorder
@@ -93,7 +94,7 @@ class CandidateFeatures:
             with timed(timings, "preprocess"):
                 image = self._pre.prepare_tile(pixels)
         with failing_as(self._backend.extract_phase, "extracted"), timed(timings, "extract"):
-            features = self._backend.extract(image)
+            features = extract_checked(self._backend, image)
         if key is not None and _unchanged(candidate, key):
             self.cache.put(key, CachedTile(image, features))
         return TileFeatures("extracted", image, features)

@@ -20,6 +20,7 @@ from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
 from c3_matcher.query_geometry import QueryGeometry
+from c3_matcher.stages.extract import extract_checked
 from c3_matcher.stages.failure import timed
 
 __all__ = ["QUERY_ROTATIONS_DEG", "Query", "QueryView", "prepare_query", "tile_gsd"]
@@ -75,5 +76,7 @@ def prepare_query(
         turns = QUERY_ROTATIONS_DEG if search else (0,)
         images = [(deg, image.turned(deg)) for deg in turns]
     with timed(timings, "query_extract"):
-        views = tuple(QueryView(deg, turned, backend.extract(turned)) for deg, turned in images)
+        views = tuple(
+            QueryView(deg, turned, extract_checked(backend, turned)) for deg, turned in images
+        )
     return Query(geometry, image, views, search)

@@ -8,7 +8,7 @@ answered with the contract's error), or ``matcher.invalid_input``. Per dropped c
 ``matcher.backbone_error`` record with its ``tile_id`` and ``phase``. A recorder failure is
 logged, never fails the frame.
 
-The success and no-fix records name the matcher (``matcher_label``), carry the frame's stage
+The success and no-fix records name the strategy (``matcher_label``), carry the frame's stage
 timings (``timings_ms``; on a no-fix frame when its candidates were matched) and account for
 every input candidate by its input position: each kept one's row carries its
 ``candidate_index``, each dropped one is in ``dropped`` with its tile id and why. In flight the
@@ -41,13 +41,19 @@ __all__ = ["FrameRecorder", "RecorderSinks", "drop_reason", "per_candidate_recor
 
 @dataclass(frozen=True)
 class RecorderSinks:
-    """Where a matcher's frames are recorded: the FDR, the health window (read with the clock)
-    and the backend (its label and provenance)."""
+    """Where a matcher's frames are recorded: the FDR, the health window (read with the clock),
+    the backend (its label and provenance) and the strategy selected (None: the backend's)."""
 
     fdr: FdrClient
     health: RollingHealthWindow
     clock: Clock
     backend: FeatureBackend
+    strategy: str | None = None
+
+    @property
+    def label(self) -> str:
+        """``matcher_label``: the strategy selected, else the backend's ``label``."""
+        return self.strategy or self.backend.label
 
 
 class FrameRecorder:
@@ -232,7 +238,7 @@ class FrameRecorder:
                 "best_tile_id": best.tile_id,
                 "best_homography": ranked[0].homography,
                 "query_rectification": rectification,
-                "matcher_label": self._sinks.backend.label,
+                "matcher_label": self._sinks.label,
                 "timings_ms": timings,
                 **_candidates_record(evidence, ranked, self.drops),
                 **self._sinks.backend.provenance(),
@@ -253,7 +259,7 @@ class FrameRecorder:
         With ``stale_rerank_frame_id`` every candidate was dropped unmatched: the re-rank was
         made for that other frame, so its tiles say where the vehicle was, not where it is.
         ``timings``: the frame's stage timings (``timings_ms``), given when it was matched."""
-        label = self._sinks.backend.label
+        label = self._sinks.label
         stale = {} if stale_rerank_frame_id is None else {"stale_rerank": stale_rerank_frame_id}
         timed = {} if timings is None else {"timings_ms": dict(timings)}
         self.update_health(0)  # best_inlier_count=0

@@ -15,6 +15,7 @@ from c3_matcher.errors import describe
 from c3_matcher.prepared import correspondences
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
+from c3_matcher.stages.extract import extract_checked
 from c3_matcher.stages.failure import timed
 from c3_matcher.stages.outcomes import RefineRecord, Survivor
 from c3_matcher.stages.query import Query
@@ -99,7 +100,7 @@ class RefinePass:
         if refined is None:
             return None
         image = self._pre.render_query(frame, calibration, refined)
-        features = self._backend.extract(image)
+        features = extract_checked(self._backend, image)
         raw = self._backend.match(features, tile.features)
         rows = correspondences(image, features, tile.image, tile.features, raw)
         return verifier.verify(first.match_set.tile_id, first.rotation_deg, rows)

@@ -72,6 +72,7 @@ from c3_matcher.probe import (
     probe_side,
 )
 from c3_matcher.protocols import CrossDomainMatcher
+from c3_matcher.stages.extract import checked_features
 from c3_matcher.testing.fakes import (
     FakeClock,
     FakeInferenceRuntime,
@@ -331,8 +332,18 @@ class BackendContract(MatcherContract):
         assert features.descriptors.dtype in DESCRIPTOR_DTYPES
         side = self._side(backend)
         assert features.image_size == (side, side)
-        kp = features.keypoints
-        assert bool(((kp >= -0.5) & (kp <= side - 0.5)).all()), "keypoints outside the image"
+        checked_features(features, (side, side))  # refused as in flight, naming them
+
+    def test_backend_keeps_keypoints_on_a_frame_sized_image(self) -> None:
+        """A nav-frame-sized image (640 x 480 px, rounded by the input rule): its keypoints on
+        it, as the core checks on every image in flight (a scale forgotten past some image size
+        shows here, not on the small stand-in)."""
+        backend = self.make_backend()
+        w, h = probe_side(backend.input_rule, 640), probe_side(backend.input_rule, 480)
+        features = backend.extract(probe_image(w, h))
+        assert isinstance(features, Features) and len(features) > 0
+        assert features.image_size == (w, h)
+        checked_features(features, (w, h))  # refused as in flight, naming them
 
     def test_backend_blank_image_gives_no_error(self) -> None:
         backend = self.make_backend()
@@ -362,7 +373,7 @@ class BackendContract(MatcherContract):
     def test_backend_matches_a_view_that_holds_the_image_in_query_tile_order(self) -> None:
         """The tile shows the query's texture ``shift`` px further right, and texture the query
         lacks: each pair is (query index, tile index), joins a point to the same point of the
-        tile, and uses a query keypoint once."""
+        tile, and uses a keypoint of either side once."""
         backend = self.make_backend()
         query, tile, shift = self._pair(backend)
         raw = backend.match(query, tile)

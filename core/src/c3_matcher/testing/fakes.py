@@ -83,10 +83,12 @@ class FakeClock:
 
 
 class FakeInferenceRuntime:
-    """An InferenceRuntime double: engines are names, ``run`` returns keypoints that encode the
-    image's mark (distinct unit descriptors: keypoint ``i`` of every marked image has the
-    ``i``-th unit vector); raises on the scripted candidates (``fail_extract``). A colour
-    texture (marked images are grey) gives its block corners (``texture_features``)."""
+    """An InferenceRuntime double: engines are names, ``run`` returns keypoints on the image
+    that encode its mark in their y (a tile's; the query's 255 lies past a small image, so its
+    keypoints lie on the last row: no double reads the query's mark from them), with distinct
+    unit descriptors (keypoint ``i`` of every marked image has the ``i``-th unit vector); raises
+    on the scripted candidates (``fail_extract``). A colour texture (marked images are grey)
+    gives its block corners (``texture_features``)."""
 
     provider = "FakeExecutionProvider"
 
@@ -110,7 +112,8 @@ class FakeInferenceRuntime:
         if np.mean(pixels[..., 0] != pixels[..., 1]) > 0.5:  # colour: a texture, not a mark
             return texture_features(pixels, feeds.get("mask"))
         n = 8
-        kpts = np.stack([np.arange(n, dtype=np.float32), np.full(n, mark, np.float32)], axis=1)
+        row = min(mark, pixels.shape[0] - 1)  # on the image
+        kpts = np.stack([np.arange(n, dtype=np.float32), np.full(n, row, np.float32)], axis=1)
         return {
             "keypoints": kpts,
             "keypoint_scores": np.ones(n, np.float32),
