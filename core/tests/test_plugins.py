@@ -207,6 +207,8 @@ NATIVE_PLUGIN = """
 import ctypes, os
 from c3_matcher.plugins import hookimpl
 
+os.write(1, b"a native banner as it is imported\\n")
+
 @hookimpl
 def c3_matcher_register_commands(commands):
     def run(args, ctx):
@@ -220,7 +222,8 @@ def c3_matcher_register_commands(commands):
 
 
 def test_what_a_plugin_writes_natively_to_stdout_goes_to_stderr(site, monkeypatch, capfd):
-    """A C library's printf (a vendor extractor) went to descriptor 1, into a JSON result."""
+    """A C library's printf (a vendor extractor) went to descriptor 1, into a JSON result; so
+    did a native banner as the plugin was imported."""
     import c3_matcher.compose
     from c3_matcher.cli import main
 
@@ -230,6 +233,7 @@ def test_what_a_plugin_writes_natively_to_stdout_goes_to_stderr(site, monkeypatc
     said = capfd.readouterr()
     assert json.loads(said.out) == {"result": 1} and said.out.count("\n") == 1
     assert "writing to descriptor 1" in said.err and "a native printf" in said.err
+    assert "a native banner as it is imported" in said.err
 
 
 def test_what_a_plugin_prints_goes_to_stderr_and_stdout_holds_the_result_alone(

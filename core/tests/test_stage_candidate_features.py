@@ -186,3 +186,19 @@ def test_a_tile_rewritten_while_decoded_is_not_cached_under_its_old_bytes():
     again = dataclasses.replace(two[0], tile_pixels_handle=BytesTileHandle(first))
     assert source.fetch(again, Recorder(), {}).source == "extracted"  # type: ignore[arg-type]
     assert source.fetch(again, Recorder(), {}).source == "cached"  # type: ignore[arg-type]
+
+
+def test_stored_features_off_their_window_are_not_served_but_extracted_instead():
+    """A store's features with a keypoint far off the window (a set built by a backend that
+    forgot a scale) are checked as an extraction is: reported, and the tile extracted."""
+    backend = _backend(BudgetBackend)
+    plain = _candidate()
+    keypoints = np.array([[4116.0, 30.0], [10.0, 20.0]], np.float32)  # x 4116 on a 64 px window
+    off = Features(keypoints, np.zeros((2, 4), np.float32), np.ones(2, np.float32), (64, 64))
+    handle = StoredHandle(plain.tile_pixels_handle.encoded().tobytes(), off)
+    candidate = RerankCandidate(plain.tile_id, plain.score, handle, gsd_m_per_px=0.3)
+    recorder = Recorder()
+    got = _source(backend).fetch(candidate, recorder, {})  # type: ignore[arg-type]
+    assert got.source == "extracted" and got.features is not off
+    assert [tile for tile, _ in recorder.failures] == [plain.tile_id]
+    assert "1 keypoint(s) outside the 64x64 px" in recorder.failures[0][1]

@@ -328,7 +328,7 @@ def _command(argv: Sequence[str] | None) -> int:
     claim_stderr()  # a command owns its process: JSON log lines on stderr from the first one
 
     try:  # a plugin that fails is listed by `plugins` and left out, the host goes on
-        with contextlib.redirect_stdout(sys.stderr):  # a plugin printing as it is imported
+        with result_stream():  # a plugin printing as it is imported, natively too
             host = build_plugin_host()
             parser = _build_parser(host)  # or as it adds its commands
     except C3Error as exc:  # the installation itself is broken (e.g. two profiles installed)

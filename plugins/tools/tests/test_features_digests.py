@@ -126,3 +126,32 @@ def test_a_window_the_input_rule_would_pad_is_refused_before_the_sidecar_is_touc
     assert "a window must be a multiple of 32 px and at most" in err, err
     assert len(err.splitlines()) == 1, err
     assert not (store.parent / "tiles.mbtiles.features.sqlite").exists()
+
+
+class _ScaleForgotten:
+    """The strategy's backend, but its keypoints at twice their place (a scale forgotten)."""
+
+    def __init__(self, backend: Any) -> None:
+        self._backend = backend
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._backend, name)
+
+    def extract(self, image: Any) -> Any:
+        import dataclasses
+
+        found = self._backend.extract(image)
+        return dataclasses.replace(found, keypoints=found.keypoints * 2 + 8)
+
+
+def test_a_build_stores_no_window_whose_keypoints_fall_off_it(
+    store: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """What the flight would refuse on extraction is refused before it is stored, naming it."""
+    from c3_matcher.errors import InvalidInputError
+    from c3_matcher_tools.features import worker
+
+    backend_of = worker._backend
+    monkeypatch.setattr(worker, "_backend", lambda *a: _ScaleForgotten(backend_of(*a)))
+    with pytest.raises(InvalidInputError, match=r"keypoint\(s\) outside the 256x256 px"):
+        _build(store, [(ZOOM, 2 * X + 1, 2 * Y)], 128)

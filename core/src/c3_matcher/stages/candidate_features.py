@@ -12,7 +12,7 @@ from c3_matcher.dto import RerankCandidate
 from c3_matcher.features import Features
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend, StoredFeaturesBackend, StoredFeaturesHandle
-from c3_matcher.stages.extract import extract_checked
+from c3_matcher.stages.extract import checked_features, extract_checked
 from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.recorder import FrameRecorder
@@ -113,6 +113,8 @@ class CandidateFeatures:
             if not isinstance(features, Features):
                 return None
             geometry = self._pre.tile_geometry(*features.image_size)
+            if geometry is not None:  # held to the rule an extraction is held to
+                checked_features(features, geometry.engine_size, "stored window")
         except Exception as exc:
             recorder.stored_features_failed(candidate.tile_id, exc)
             return None

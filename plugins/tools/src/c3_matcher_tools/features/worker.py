@@ -16,6 +16,7 @@ from c3_matcher.config import C3Settings
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.prepared import InputRule
 from c3_matcher.protocols import StoredFeaturesBackend
+from c3_matcher.stages.extract import extract_checked
 from c3_matcher.tilestore.features import (
     WindowFeatures,
     covered_tiles,
@@ -132,7 +133,7 @@ def extract_window_features(
     digest = window_digest(keys, lambda k: stored_tile_digest(source, k))
     image = stitch(source, zoom, origin, (window_px, window_px), f"window {zoom}/{origin}")
     prepared = _preprocessor(backend, photometric).prepare_tile(image)
-    f = backend.extract(prepared)
+    f = extract_checked(backend, prepared)  # a store holds only what a flight would take
     return WindowFeatures(
         digest,
         np.ascontiguousarray(f.keypoints, dtype=np.float32),
