@@ -193,7 +193,7 @@ def _matched(
         calibration=dataset.calibration,
         tile_sizes=[(size, size)] * len(frame.candidates),
     )
-    if with_correspondences:  # kept as the result's arrays: a sixth of the memory of lists
+    if with_correspondences:  # the result's arrays, lists only when written (replay_memory.py)
         for entry, candidate in zip(as_json["per_candidate"], result.per_candidate, strict=True):
             entry["inlier_correspondences"] = candidate.inlier_correspondences
     matched = _Matched(result, best_input, mean_err, as_json)
