@@ -244,13 +244,47 @@ def _add_dataset_options(r: argparse.ArgumentParser) -> None:
     r.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
-def _add_import(ds: Any) -> None:
-    from c3_matcher_tools.dataset.sources.cli import add_log_import_options
+def _add_proposal_options(m: argparse.ArgumentParser) -> None:
+    """How ``dataset import`` proposes each frame's candidates from the store, and what becomes
+    of a frame the store does not cover."""
     from c3_matcher_tools.dataset.sources.options import (
         MAX_CANDIDATES,
         MAX_SEARCH_TILES,
         max_uncertainty_m,
     )
+
+    m.add_argument(
+        "--uncertainty-m",
+        type=non_negative_float(),
+        default=50.0,
+        help="position uncertainty, m: tiles within it are proposed first (default 50); at most "
+        f"{MAX_SEARCH_TILES} tiles of the store's zoom from the look point, as the tiles searched "
+        f"per frame grow with its square (about {max_uncertainty_m(15) / 1000:.0f} km at zoom "
+        f"15, {max_uncertainty_m(18) / 1000:.1f} km at zoom 18 on the equator, less towards "
+        "the poles)",
+    )
+    m.add_argument(
+        "--candidates",
+        type=bounded_int(1, MAX_CANDIDATES),
+        default=3,
+        help=f"candidates per frame (1..{MAX_CANDIDATES}; default 3)",
+    )
+    m.add_argument("--zoom", type=int, default=None, help="store zoom (default: its finest)")
+    m.add_argument(
+        "--candidate-size", type=int, default=512, help="candidate image side, px (default 512)"
+    )
+    add_seed_option(m, "candidate shuffle seed")
+    m.add_argument(
+        "--skip-outside",
+        action="store_true",
+        help="skip the frames whose look point lies outside the store, listing them with the "
+        "reason (default: refuse such a flight, as a wrong --time-offset or another place's "
+        "store must not drop frames unasked); refused still when no frame is inside",
+    )
+
+
+def _add_import(ds: Any) -> None:
+    from c3_matcher_tools.dataset.sources.cli import add_log_import_options
 
     m = ds.add_parser(
         "import",
@@ -274,27 +308,7 @@ def _add_import(ds: Any) -> None:
     m.add_argument(
         "out", type=Path, help="dataset directory to write (an existing one only with --force)"
     )
-    m.add_argument(
-        "--uncertainty-m",
-        type=non_negative_float(),
-        default=50.0,
-        help="position uncertainty, m: tiles within it are proposed first (default 50); at most "
-        f"{MAX_SEARCH_TILES} tiles of the store's zoom from the look point, as the tiles searched "
-        f"per frame grow with its square (about {max_uncertainty_m(15) / 1000:.0f} km at zoom "
-        f"15, {max_uncertainty_m(18) / 1000:.1f} km at zoom 18 on the equator, less towards "
-        "the poles)",
-    )
-    m.add_argument(
-        "--candidates",
-        type=bounded_int(1, MAX_CANDIDATES),
-        default=3,
-        help=f"candidates per frame (1..{MAX_CANDIDATES}; default 3)",
-    )
-    m.add_argument("--zoom", type=int, default=None, help="store zoom (default: its finest)")
-    m.add_argument(
-        "--candidate-size", type=int, default=512, help="candidate image side, px (default 512)"
-    )
-    add_seed_option(m, "candidate shuffle seed")
+    _add_proposal_options(m)
     m.add_argument(
         "--name",
         type=_dataset_name,

@@ -141,8 +141,8 @@ class _CheckedCsv:
 
 def _check_csv_inputs(spec: ImportSpec) -> _CheckedCsv:
     """Check the images folder, store, calibration, telemetry, each image named and the
-    store's coverage of every frame, in that order; raises InvalidInputError naming the
-    input at fault."""
+    store's coverage of every frame, in that order (a frame outside it skipped with
+    ``--skip-outside``); raises InvalidInputError naming the input at fault."""
     images_dir = Path(spec.images_dir)
     if not images_dir.exists():
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: no such file or folder")
@@ -162,8 +162,11 @@ def _check_csv_inputs(spec: ImportSpec) -> _CheckedCsv:
         )
     refuse_lines(images_dir, _image_problems(images_dir, rows, calibration))
     proposed = propose_from_store(rows, calibration, spec.proposal)
-    proposed.refuse_outside("TELEMETRY", lambda r: f"line {r.line}")
-    return _CheckedCsv(images_dir, calibration, table, rows, skipped, proposed)
+    inside, proposed, outside = proposed.within(
+        rows, "TELEMETRY", lambda r: f"line {r.line}", skip=spec.proposal.skip_outside
+    )
+    rows = [rows[i] for i in inside]
+    return _CheckedCsv(images_dir, calibration, table, rows, [*skipped, *outside], proposed)
 
 
 def _image_problems(

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import uuid
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -43,6 +43,7 @@ from c3_matcher_tools.dataset.telemetry import TelemetryRow
 from c3_matcher_tools.geodesy import axis_ground_point
 
 __all__ = [
+    "SKIP_OUTSIDE",
     "StoreProposals",
     "imported_frame",
     "look_point",
@@ -149,19 +150,73 @@ class StoreProposals:
     tiles_source: str
 
     def refuse_outside(
-        self, where: str, label: Callable[[TelemetryRow], str], *, hint: str = "", shown: int = 10
+        self,
+        where: str,
+        label: Callable[[TelemetryRow], str],
+        *,
+        hint: str = "",
+        shown: int = 10,
+        option: str | None = None,
     ) -> None:
-        """``InvalidInputError`` naming ``where`` when any row looks outside the store: how many,
-        then the first ``shown`` as ``label(row)`` and their (lat, lon); ``hint`` follows the
-        zoom."""
-        if self.outside:
-            names = [f"{label(r)} ({r.lat:.6f}, {r.lon:.6f})" for r in self.outside]
-            more = f" and {len(names) - shown} more" if len(names) > shown else ""
-            raise InvalidInputError(
-                where,
-                f"{len(names)} frame(s) look outside the store's coverage at zoom {self.zoom}"
-                f"{hint}: " + ", ".join(names[:shown]) + more,
+        """``InvalidInputError`` naming ``where`` when any row looks outside the store: how many
+        (of how many), then the first ``shown`` as ``label(row)`` and their (lat, lon). When no
+        row is inside, ``hint`` follows the zoom; else how many are inside, and ``option``
+        (when given) as the way to import those."""
+        if not self.outside:
+            return
+        names = [f"{label(r)} ({r.lat:.6f}, {r.lon:.6f})" for r in self.outside]
+        more = f" and {len(names) - shown} more" if len(names) > shown else ""
+        inside = len(self.looks) - len(self.outside)
+        head, way = f"{len(names)} frame(s)", ""
+        if inside > 0:  # not the wrong place: the hint does not apply
+            head, hint, way = (
+                f"{len(names)} of {len(self.looks)} frame(s)",
+                "",
+                f"; {inside} inside",
             )
+        if inside > 0 and option:
+            way = f"; give {option} to import the {inside} inside and list the others as skipped"
+        raise InvalidInputError(
+            where,
+            f"{head} look outside the store's coverage at zoom {self.zoom}{hint}: "
+            + ", ".join(names[:shown])
+            + more
+            + way,
+        )
+
+    def within(
+        self,
+        rows: Sequence[TelemetryRow],
+        where: str,
+        label: Callable[[TelemetryRow], str],
+        *,
+        skip: bool,
+        hint: str = "",
+        shown: int = 10,
+    ) -> tuple[list[int], StoreProposals, list[tuple[str, str]]]:
+        """(the indices of the ``rows`` whose look point the store covers, these proposals of
+        those rows alone, (image, why) of each other row); without ``skip`` refused when any
+        row is outside (:meth:`refuse_outside`, naming :data:`SKIP_OUTSIDE`), with it when
+        every row is."""
+        if not skip or len(self.outside) >= len(self.looks):
+            self.refuse_outside(where, label, hint=hint, shown=shown, option=SKIP_OUTSIDE)
+        inside = [i for i, (_, cands) in enumerate(self.looks) if cands is not None]
+        skipped = [
+            (
+                rows[i].image,
+                f"its look point ({look[1]:.6f}, {look[0]:.6f}) lies outside the store's "
+                f"coverage at zoom {self.zoom}",
+            )
+            for i, (look, cands) in enumerate(self.looks)
+            if cands is None
+        ]
+        kept = replace(self, looks=[self.looks[i] for i in inside], outside=[])
+        return inside, kept, skipped
+
+
+SKIP_OUTSIDE = "--skip-outside"
+"""The option of ``dataset import`` that skips the frames whose look point lies outside the
+store (:meth:`StoreProposals.within`); without it such a flight is refused."""
 
 
 def propose_from_store(

@@ -51,7 +51,8 @@ pip install 'c3-matcher-tools[logs]'):
 Images meet the log by camera trigger (when logged: photos that state their capture time
 by that time, else in file order when the log has as many triggers as there are photos,
 else refused; a video keeps its own clock), else by their own UTC time (EXIF, bag stamps),
-else in file order (--interval, --time-offset). A copy of a photo is imported once.
+else in file order (--interval, --time-offset). A copy of a photo is imported once; a file
+that is not a readable image (a macOS ._ file, a photo cut short) is skipped, not counted.
 Height above ground: rangefinder when logged, else altitude minus --dem or
 --ground-elevation (not both), else minus the home altitude in force at the frame's time
 (set again at arming). Options a source does not use are refused (a CSV takes no log timing
@@ -361,4 +362,5 @@ def proposal_options(args: argparse.Namespace) -> ProposalOptions:
         zoom=args.zoom,
         candidate_size_px=args.candidate_size,
         seed=args.seed,
+        skip_outside=bool(getattr(args, "skip_outside", False)),  # as parsed, or not given
     )

@@ -34,9 +34,12 @@ __all__ = [
     "VIDEO_SUFFIXES",
     "check_frame_step",
     "check_images_path",
+    "copy_reason",
     "folder_shots",
+    "image_problem",
     "read_images",
     "read_photo_metadata",
+    "readable_shots",
     "unique_photos",
 ]
 
@@ -196,13 +199,69 @@ def unique_photos(shots: Sequence[Shot]) -> tuple[list[Shot], list[tuple[str, st
     for shot in shots:
         digest = hashlib.sha256(shot.read()).digest()
         if digest in first:
-            was = first[digest]
-            why = f"a copy of {was} (the same bytes): imported once, as {was}"
-            skipped.append((shot.name, why))
+            skipped.append((shot.name, copy_reason(first[digest])))
             continue
         first[digest] = shot.name
         kept.append(shot)
     return kept, skipped
+
+
+def copy_reason(was: str) -> str:
+    """Why :func:`unique_photos` sets aside a copy of the photo ``was``."""
+    return f"a copy of {was} (the same bytes): imported once, as {was}"
+
+
+UNREADABLE = "not a readable image"
+"""What :func:`image_problem` says of a file that is not a readable image (then its reason)."""
+UNREADABLE_EMPTY = "an empty file, not an image"
+
+
+def image_problem(data: bytes, size: tuple[int, int]) -> str | None:
+    """Why the encoded image ``data`` cannot be a frame of a ``size`` (w, h) camera, or None:
+    every import checks its images with this. The size is read from the header first (an image
+    of another size is never decoded, however large it says it is), then the image is decoded
+    as the matcher will decode it: a copy cut short or damaged is not readable, and is refused
+    before a decoder would write its own line to stderr. The camera's size bounds the decode,
+    whatever the matcher's pixel limit (a replay of the flight applies the limit it is given)."""
+    from c3_matcher.tiles import ImageDecodeError, decode_image, image_header_size
+
+    if not data:
+        return UNREADABLE_EMPTY
+    header = image_header_size(data)
+    if header is None:
+        return UNREADABLE
+    w, h = header
+    if (w, h) != tuple(size):
+        return f"is {w}x{h} px, the calibration says {size[0]}x{size[1]}"
+    try:
+        decode_image(data, "image", max_pixels=w * h)
+    except ImageDecodeError as exc:
+        return f"{UNREADABLE}: {exc.reason}"
+    return None
+
+
+def readable_shots(
+    shots: Sequence[Shot], size: tuple[int, int], skipped: Sequence[tuple[str, str]] = ()
+) -> tuple[list[Shot], list[tuple[str, str]], list[tuple[str, str]]]:
+    """The ``shots`` that are readable images, each checked once (:func:`image_problem`), before
+    they meet the log: (readable shots, [(file, why)] of those that are not, ``skipped`` with
+    each copy of one of those (:func:`copy_reason`) said to be one). An image of a size other
+    than ``size`` is refused naming it (a photo of another camera, or a calibration of
+    another)."""
+    kept: list[Shot] = []
+    unreadable: list[tuple[str, str]] = []
+    for shot in shots:
+        problem = image_problem(shot.read(), size)
+        if problem is None:
+            kept.append(shot)
+        elif problem.startswith((UNREADABLE, UNREADABLE_EMPTY)):
+            unreadable.append((shot.name, problem))
+        else:
+            raise InvalidInputError("IMAGES", f"{shot.name}: {problem}")
+    copies = {
+        copy_reason(name): f"a copy of {name} (the same bytes), {why}" for name, why in unreadable
+    }
+    return kept, unreadable, [(n, copies.get(r, r)) for n, r in skipped]
 
 
 def _video_frames(path: Path, step: int) -> list[Shot]:

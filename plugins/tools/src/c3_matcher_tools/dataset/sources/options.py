@@ -79,7 +79,9 @@ class ProposalOptions:
     """How candidates are proposed for each frame (:mod:`c3_matcher_tools.dataset.proposals`):
     ``candidates`` tiles of the tile store ``store`` at ``zoom`` (None: its finest), those within
     ``uncertainty_m`` (m) of the look point first, each a ``candidate_size_px`` px window, their
-    order shuffled by ``seed``. Refuses, naming the option, an uncertainty that is not finite and
+    order shuffled by ``seed``; ``skip_outside``: frames whose look point the store does not
+    cover are skipped (else the import is refused). Refuses, naming the option, an uncertainty
+    that is not finite and
     >= 0, candidates not 1 to :data:`MAX_CANDIDATES` and a candidate size out of
     :data:`~c3_matcher_tools.dataset.format.CANDIDATE_SIZE_PX`."""
 
@@ -89,6 +91,7 @@ class ProposalOptions:
     zoom: int | None = None
     candidate_size_px: int = 512
     seed: int = 0
+    skip_outside: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.uncertainty_m) and self.uncertainty_m >= 0):
@@ -120,6 +123,7 @@ class ProposalOptions:
             "candidate_size_px": self.candidate_size_px,
             "zoom": zoom,
             "seed": self.seed,
+            "skip_outside": self.skip_outside,
         }
 
 

@@ -86,10 +86,15 @@ def _no_time_source(track: LogTrack, shots: Sequence[Shot], untimed: Sequence[Sh
 
 
 def _trigger_count_refusal(
-    track: LogTrack, shots: Sequence[Shot], triggers: F64, untimed: Sequence[Shot]
+    track: LogTrack,
+    shots: Sequence[Shot],
+    triggers: F64,
+    untimed: Sequence[Shot],
+    left_out: Sequence[tuple[str, str]],
 ) -> str:
-    """Why ``auto`` will not pair ``shots`` with a different number of ``triggers``: the counts,
-    why order is wrong, why time cannot be used, and the ways out."""
+    """Why ``auto`` will not pair ``shots`` with a different number of ``triggers``: the counts
+    (and the files ``left_out`` of them, with why), why order is wrong, why time cannot be used,
+    and the ways out."""
     n = len(shots)
     if len(untimed) == n:
         why = f"none of the {n} images states a capture time"
@@ -103,8 +108,13 @@ def _trigger_count_refusal(
         ways.append(f"give --time-source exif ({those}each by its own time)")
     ways.append("give --time-source trigger to pair them in order anyway")
     damaged = f" (the log is damaged or truncated: {track.damage})" if track.damage else ""
+    counted = f"{n} image(s)"
+    if left_out:
+        shown = ", ".join(f"{name} ({why})" for name, why in left_out[:3])
+        more = f" and {len(left_out) - 3} more" if len(left_out) > 3 else ""
+        counted += f", not counting {shown}{more}"
     return (
-        f"{track.source}: {triggers.size} camera trigger(s) in the log{damaged} but {n} image(s): "
+        f"{track.source}: {triggers.size} camera trigger(s) in the log{damaged} but {counted}: "
         "pairing them in order would put every image after a missing or extra one on another "
         f"image's pose, and they cannot be paired by time ({why}); "
         + ", ".join(ways[:-1])
@@ -234,7 +244,11 @@ def _apart_note(shots: Sequence[Shot], apart: set[int]) -> str:
 
 
 def _auto_source(
-    track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
+    track: LogTrack,
+    shots: Sequence[Shot],
+    triggers: F64,
+    options: ImportOptions,
+    left_out: Sequence[tuple[str, str]],
 ) -> str:
     """What ``--time-source auto`` uses (see :func:`match_shots`), or refused saying why."""
     untimed = [s for s in shots if s.t_s is None]
@@ -245,7 +259,7 @@ def _auto_source(
     if triggers.size:
         if untimed or track.utc_offset_s is None:
             raise InvalidInputError(
-                "--time-source", _trigger_count_refusal(track, shots, triggers, untimed)
+                "--time-source", _trigger_count_refusal(track, shots, triggers, untimed, left_out)
             )
         return "trigger time"
     if shots and not untimed and track.utc_offset_s is not None:
@@ -311,9 +325,12 @@ def match_shots(
     track: LogTrack,
     shots: Sequence[Shot],
     options: ImportOptions,
+    *,
+    left_out: Sequence[tuple[str, str]] = (),
 ) -> Pairing:
     """Each shot's time on the log's clock, in time order, the shots left out with the reason,
-    how they were paired, and what else the import should say.
+    how they were paired, and what else the import should say (``left_out``: the files set
+    aside before, with why, which a refusal of the counts names).
 
     ``auto``: a video's frames keep the video's clock (the log's camera triggers are a stills
     camera's). Photos take the camera triggers: when the log has exactly as many and every
@@ -330,7 +347,7 @@ def match_shots(
     triggers = track.triggers_s if track.triggers_s is not None else np.zeros(0)
     src = options.time_source
     if src == "auto":
-        src = _auto_source(track, shots, triggers, options)
+        src = _auto_source(track, shots, triggers, options, left_out)
     if src == "trigger":
         pairing = _in_file_order(track, shots, triggers, options)
     elif src == "as many triggers":

@@ -16,6 +16,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.frames import Frame, assemble_frames
+from c3_matcher_tools.dataset.sources.images import image_problem, readable_shots
 from c3_matcher_tools.dataset.sources.options import ImportOptions, ImportReport, ProposalOptions
 from c3_matcher_tools.dataset.sources.pairing import Pairing, match_shots
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
@@ -44,11 +45,12 @@ def write_imported_flight(
     out = Path(out)
     proposer = options.proposal
     check_output_dir(out, force=force, inputs=(track.source, proposer.store, options.dem))
-    frames, skipped, pairing = _placed(track, shots, options, attitude_of, skipped)
+    placed_frames, skipped, pairing = _placed(track, shots, options, attitude_of, skipped)
     how, notes = pairing.how, (*track.notes, *pairing.notes)
     calibration = options.calibration
-    images = _images(frames, calibration.image_size)
-    rows, proposed = _propose(track, frames, proposer, calibration)
+    frames, rows, proposed, outside = _propose(track, placed_frames, proposer, calibration)
+    skipped = [*skipped, *outside]
+    images = [f.shot.read() for f in frames]  # each checked before it met the log
     zoom, proposals = proposed.zoom, proposed.looks
     attribution, tiles_source = proposed.attribution, proposed.tiles_source
     label = name or out.name
@@ -88,18 +90,24 @@ def _propose(
     frames: Sequence[Frame],
     proposer: ProposalOptions,
     calibration: CameraCalibration,
-) -> tuple[list[TelemetryRow], StoreProposals]:
-    """(telemetry rows, proposal) of the candidates around each frame's look point, refused
-    when a look point lies outside the store."""
+) -> tuple[list[Frame], list[TelemetryRow], StoreProposals, list[tuple[str, str]]]:
+    """(frames, their telemetry rows, the candidates around each one's look point, the frames
+    skipped with why): refused when a look point lies outside the store, unless
+    ``--skip-outside`` skips those frames (refused still when no frame is inside)."""
     rows = [
         TelemetryRow(i, f.t_s, f.shot.name, f.lat, f.lon, f.height_m, *f.attitude)
         for i, f in enumerate(frames)
     ]
     proposed = propose_from_store(rows, calibration, proposer)
-    proposed.refuse_outside(
-        track.source, lambda r: r.image, hint=" (log and store of different places?)", shown=5
+    inside, proposed, outside = proposed.within(
+        rows,
+        track.source,
+        lambda r: r.image,
+        skip=proposer.skip_outside,
+        hint=" (log and store of different places?)",
+        shown=5,
     )
-    return rows, proposed
+    return [frames[i] for i in inside], [rows[i] for i in inside], proposed, outside
 
 
 def _placed(
@@ -111,13 +119,22 @@ def _placed(
 ) -> tuple[list[Frame], list[tuple[str, str]], Pairing]:
     """The frames placed on the log (refused when none is, when the images' own GPS says
     another flight, or when no frame has a height above ground), every image skipped with its
-    reason, and how the images met the log's clock."""
+    reason (a file that is not a readable image before the images meet the log, so that it is
+    never counted among them), and how the images met the log's clock."""
     options.proposal.check_store()
     if not shots:
         raise InvalidInputError("IMAGES", "no image found")
     if track.position is None and track.gnss is None:
         raise InvalidInputError(track.source, "the log holds no position (GNSS or estimator)")
-    pairing = match_shots(track, shots, options)
+    shots, unreadable, skipped = readable_shots(shots, options.calibration.image_size, skipped)
+    if not shots:
+        (first, why), others = unreadable[0], unreadable[1:]
+        more = ", ".join(f"{n} ({w})" for n, w in others[:3]) + (", ..." if others[3:] else "")
+        raise InvalidInputError(
+            "IMAGES", f"{first}: {why}" + (f", nor is any other: {more}" if others else "")
+        )
+    skipped = [*unreadable, *skipped]  # a copy of an unreadable file follows it
+    pairing = match_shots(track, shots, options, left_out=unreadable)
     frames, no_pos = assemble_frames(track, pairing.taken, options, attitude_of)
     rank = {s.name: i for i, s in enumerate(shots)}
     every = [*skipped, *sorted([*pairing.skipped, *no_pos], key=lambda x: rank.get(x[0], -1))]
@@ -132,18 +149,6 @@ def _placed(
             "(the ground's altitude, m, in the log's datum) or --dem",
         )
     return frames, every, pairing
-
-
-def _images(frames: Sequence[Frame], size: tuple[int, int]) -> list[bytes]:
-    """Each frame's encoded image, refused naming the first that is not a frame of ``size``."""
-    images: list[bytes] = []
-    for f in frames:
-        data = f.shot.read()
-        problem = image_problem(data, size)
-        if problem:
-            raise InvalidInputError("IMAGES", f"{f.shot.name}: {problem}")
-        images.append(data)
-    return images
 
 
 def _spec(track: LogTrack, how: str, options: ImportOptions, zoom: int) -> dict[str, Any]:
@@ -221,27 +226,3 @@ def _count(values: Any) -> dict[str, int]:
 def _why(skipped: Sequence[tuple[str, str]]) -> str:
     reasons = _count(r.split(" at ")[0] if r.startswith("no position") else r for _, r in skipped)
     return "; ".join(f"{r} ({n})" for r, n in list(reasons.items())[:3]) or "no image"
-
-
-def image_problem(data: bytes, size: tuple[int, int]) -> str | None:
-    """Why the encoded image ``data`` cannot be a frame of a ``size`` (w, h) camera, or None:
-    every import checks its images with this. The size is read from the header first (an image
-    of another size is never decoded, however large it says it is), then the image is decoded
-    as the matcher will decode it: a copy cut short or damaged is not readable, and is refused
-    before a decoder would write its own line to stderr. The camera's size bounds the decode,
-    whatever the matcher's pixel limit (a replay of the flight applies the limit it is given)."""
-    from c3_matcher.tiles import ImageDecodeError, decode_image, image_header_size
-
-    if not data:
-        return "an empty file, not an image"
-    header = image_header_size(data)
-    if header is None:
-        return "not a readable image"
-    w, h = header
-    if (w, h) != tuple(size):
-        return f"is {w}x{h} px, the calibration says {size[0]}x{size[1]}"
-    try:
-        decode_image(data, "image", max_pixels=w * h)
-    except ImageDecodeError as exc:
-        return f"not a readable image: {exc.reason}"
-    return None
