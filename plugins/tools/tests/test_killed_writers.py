@@ -158,3 +158,21 @@ def test_a_forced_dataset_replacement_swaps_the_two_in_one_step(
     assert swaps == [True]
     assert [p.name for p in tmp_path.iterdir()] == ["flight"]
     assert (out / "dataset.json").read_text() == '{"new": 1}'
+
+
+def test_two_forced_builds_of_one_store_the_later_to_finish_is_refused(tmp_path: Path) -> None:
+    """Two ``tiles build --force`` of one store at once: each would say it wrote the store,
+    while it holds one build's tiles. The first to finish replaces it; the second is refused,
+    naming the path, and the first one's store stays byte for byte, nothing beside it."""
+    store = tmp_path / "tiles.mbtiles"
+    with MBTilesWriter(store) as old:
+        old.put_tile(1, 0, 0, b"the store before")
+    second = MBTilesWriter(store, overwrite=True)
+    second.put_tile(1, 0, 0, b"the second build")
+    with MBTilesWriter(store, overwrite=True) as first:
+        first.put_tile(1, 0, 0, b"the first build")
+    kept = store.read_bytes()
+    with pytest.raises(InvalidInputError, match="was replaced while this build ran"):
+        second.close()
+    assert store.read_bytes() == kept
+    assert [p.name for p in tmp_path.iterdir()] == ["tiles.mbtiles"]

@@ -111,8 +111,9 @@ class MBTilesWriter:
     :func:`c3_matcher.atomic.temporary_sibling`) and renamed onto ``path`` by :meth:`close`;
     :meth:`abort` (or leaving the ``with`` block on any exception, Ctrl-C included) removes it
     and its journal, and an existing ``path`` is untouched until the rename (refused unless
-    ``overwrite``, also when another build put it there while this one ran; a ``path`` that is
-    not a regular file, a directory, a device, a FIFO or a socket, is refused even then). A
+    ``overwrite``, also when another build put it there while this one ran; with
+    ``overwrite``, refused when another build replaced it meanwhile; a ``path`` that is not a
+    regular file, a directory, a device, a FIFO or a socket, is refused even then). A
     store that cannot be written (a full disk, a file-size limit) is an ``InvalidInputError``
     naming ``path``, and nothing is left."""
 
@@ -123,6 +124,7 @@ class MBTilesWriter:
         if self._path.exists() and not overwrite:
             raise InvalidInputError("mbtiles", f"{self._path} exists (use --force)")
         refuse_unwritable(self._path, field="mbtiles")
+        self._found = _identity(self._path)  # what --force replaces: that file, or none
         self._path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = temporary_sibling(self._path)
         self._db: sqlite3.Connection | None = None
@@ -192,6 +194,12 @@ class MBTilesWriter:
         name exists, then the temporary name removed; a rename where the filesystem has no hard
         links)."""
         if self._overwrite:
+            if _identity(self._path) != self._found:  # both builds would say they wrote it
+                raise InvalidInputError(
+                    "mbtiles",
+                    f"{self._path} was replaced while this build ran (another build?); kept as "
+                    "it is: build again to replace it",
+                )
             os.replace(self._tmp, self._path)
             return
         try:
@@ -225,6 +233,16 @@ class MBTilesWriter:
             self.close()
         else:
             self.abort()
+
+
+def _identity(path: Path) -> tuple[int, int, int, int] | None:
+    """Which file ``path`` is now (device, inode, size, modification time), None when none
+    is: a file replaced or rewritten in place reads as another."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return None
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def _refuse_special(path: Path) -> None:
