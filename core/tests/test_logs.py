@@ -86,6 +86,26 @@ def test_a_full_disk_keeps_forwards_pending_says_nothing_on_stderr_and_no_more_a
     ]
 
 
+def test_a_log_stream_that_cannot_be_written_drops_and_counts_its_lines(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    """The JSON log's own disk full (replay's matcher.log, stderr on a full log disk): each line
+    it cannot take is dropped and counted, with no traceback from loguru and nothing raised."""
+
+    class FullDisk(io.StringIO):
+        def write(self, s: str) -> int:
+            raise OSError(28, "No space left on device")
+
+    handle = configure_logging(None, stream=FullDisk())
+    try:
+        for n in range(3):
+            log_event("WARNING", "c3.matcher.residual_above_threshold", "w", residual_px=float(n))
+    finally:
+        handle.close()
+    assert handle.lines_lost == 3
+    assert capfd.readouterr().err == ""
+
+
 def test_an_embedding_programs_own_sink_survives_configure_and_close() -> None:
     import io
 

@@ -112,9 +112,11 @@ def is_matcher_record(record: Record) -> bool:
 @dataclass(eq=False)
 class LoggingHandle:
     """What ``configure_logging`` installed: a root's sinks (module docstring); ``close()``
-    removes them."""
+    removes them. ``lines_lost``: JSON log lines its stream could not take (a full disk, a
+    closed pipe), each dropped where it failed, never raised into the matcher."""
 
     sink_ids: list[int] = field(default_factory=list)
+    lines_lost: int = 0
 
     def close(self) -> None:
         """Remove the sinks; called on a thread inside a matcher's frame (a signal handler's
@@ -191,8 +193,12 @@ def configure_logging(
     handle = LoggingHandle()
 
     def json_sink(message: Message) -> None:
-        out.write(json.dumps(_record_to_dict(message.record), separators=(",", ":")) + "\n")
-        out.flush()
+        line = json.dumps(_record_to_dict(message.record), separators=(",", ":")) + "\n"
+        try:
+            out.write(line)
+            out.flush()
+        except (OSError, ValueError):  # ValueError: closed. Not loguru's traceback per line
+            handle.lines_lost += 1
 
     def ours(record: Record) -> bool:
         return is_matcher_record(record) and handle.takes()
