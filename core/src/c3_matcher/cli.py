@@ -267,9 +267,12 @@ def _version() -> str:
         return "unknown"
 
 
-def _fail(exc: BaseException | str) -> str:
+def _fail(exc: BaseException | str) -> None:
+    """The command's one line saying why it stopped, on stderr; lost, not raised, where stderr
+    cannot be written (a full log disk): the exit status still says it."""
     text = " ".join(str(exc).split()) or type(exc).__name__
-    return f"c3-matcher: {text}"
+    with contextlib.suppress(OSError, ValueError):
+        print(f"c3-matcher: {text}", file=sys.stderr, flush=True)
 
 
 EXIT_BROKEN_PIPE = 128 + 13  # as a shell reports a command SIGPIPE ended
@@ -314,10 +317,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             return _command(argv)
         except _Terminated:
-            print("c3-matcher: terminated", file=sys.stderr)
+            _fail("terminated")
             return EXIT_TERMINATED
         except KeyboardInterrupt:
-            print("c3-matcher: interrupted", file=sys.stderr)
+            _fail("interrupted")
             return EXIT_INTERRUPTED
 
 
@@ -332,16 +335,16 @@ def _command(argv: Sequence[str] | None) -> int:
             host = build_plugin_host()
             parser = _build_parser(host)  # or as it adds its commands
     except C3Error as exc:  # the installation itself is broken (e.g. two profiles installed)
-        print(_fail(exc), file=sys.stderr)
+        _fail(exc)
         return EXIT_FAILURE
     except Exception as exc:  # a bug: one line, as for a command (C3_MATCHER_TRACEBACK=1)
         if os.environ.get("C3_MATCHER_TRACEBACK"):
             raise
-        print(_fail(f"internal error: {describe(exc)}"), file=sys.stderr)
+        _fail(f"internal error: {describe(exc)}")
         return EXIT_FAILURE
     rest, config = split_config(sys.argv[1:] if argv is None else argv)
     if refusal := ground_refusal(parser, host.profile.name, rest):
-        print(_fail(refusal), file=sys.stderr)
+        _fail(refusal)
         return EXIT_USAGE
     args = parser.parse_args(rest)
     if config is not None:
@@ -349,7 +352,7 @@ def _command(argv: Sequence[str] | None) -> int:
     try:
         settings = _options_as_read(load_settings(args.config), host)
     except ConfigurationError as exc:
-        print(_fail(exc), file=sys.stderr)
+        _fail(exc)
         return EXIT_USAGE
     try:
         handler: Handler = args.handler
@@ -364,22 +367,22 @@ def _command(argv: Sequence[str] | None) -> int:
         UnknownStrategyError,
         StrategyNotLinkedError,
     ) as exc:
-        print(_fail(exc), file=sys.stderr)
+        _fail(exc)
         return EXIT_USAGE
     except C3Error as exc:
-        print(_fail(exc), file=sys.stderr)
+        _fail(exc)
         return EXIT_FAILURE
     except BrokenPipeError:  # whoever read stdout stopped (`c3-matcher config | head`)
         _drop_stdout()
         return EXIT_BROKEN_PIPE
     except OSError as exc:  # a file we were told to read or write: the user's input
-        where = f" {exc.filename}" if exc.filename else ""
-        print(f"c3-matcher:{where} {exc.strerror or exc}", file=sys.stderr)
+        where = f"{exc.filename}: " if exc.filename else ""
+        _fail(f"{where}{exc.strerror or exc}")
         return EXIT_USAGE
     except Exception as exc:  # a bug: one line, not a traceback (C3_MATCHER_TRACEBACK=1 shows it)
         if os.environ.get("C3_MATCHER_TRACEBACK"):
             raise
-        print(_fail(f"internal error: {describe(exc)}"), file=sys.stderr)
+        _fail(f"internal error: {describe(exc)}")
         return EXIT_FAILURE
 
 

@@ -45,8 +45,11 @@ class CommandContext:
             self.stdout.flush()
 
     def err(self, text: str) -> None:
-        """One line of progress or diagnostics on ``stderr`` (flushed)."""
-        print(text, file=self.stderr, flush=True)
+        """One line of progress or diagnostics on ``stderr`` (flushed). A line that cannot be
+        written (a full log disk, a closed pipe) is lost, not the command: its result, exit
+        status and files say what happened."""
+        with contextlib.suppress(OSError, ValueError):
+            print(text, file=self.stderr, flush=True)
 
 
 @contextlib.contextmanager

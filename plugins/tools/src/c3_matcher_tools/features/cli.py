@@ -165,13 +165,11 @@ def _workers(args: argparse.Namespace) -> tuple[int, str | None]:
     return DEFAULT_WORKERS, None
 
 
-def _progress(first: str | None, err: Callable[[str], None]) -> Callable[[str], None] | None:
-    """A build's progress lines said with ``err``, ``first`` once before them: once the build
-    has checked its input and starts (a refused build says its one line alone). None (the
-    build's own) without ``first``."""
-    if first is None:
-        return None
-    pending = [first]
+def _progress(first: str | None, err: Callable[[str], None]) -> Callable[[str], None]:
+    """A build's progress lines said with ``err`` (a line it cannot write is lost, not the
+    build), ``first``, when given, once before them: once the build has checked its input and
+    starts (a refused build says its one line alone)."""
+    pending = [] if first is None else [first]
 
     def say(line: str) -> None:
         while pending:
