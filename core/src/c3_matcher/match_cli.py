@@ -43,6 +43,7 @@ from c3_matcher.match_inputs import (
 )
 from c3_matcher.match_viz import draw_or_report
 from c3_matcher.serialize import result_to_json
+from c3_matcher.stages.drops import drops_heard
 
 __all__ = ["register_match_command"]
 
@@ -178,14 +179,14 @@ def _run_match(args: argparse.Namespace, ctx: CommandContext, unrecorded: list[s
         opened.callback(root.close)
         state_default_fdr_path(settings)
         warn_missing_inputs(args)  # logged now: on stderr as JSON at the level, and in the FDR
-        reasons: dict[int, str] = {}
-        opened.callback(_remove_sink, _collect_drop_reasons(reasons))
+        heard = opened.enter_context(drops_heard())  # why each dropped candidate was
         draw = functools.partial(draw_or_report, problems, args, image, calibration, rerank)
         try:
             result = root.matcher.match(frame, rerank, calibration)
         except InsufficientInliersError as exc:
             if args.viz:
                 draw(None, f"FAILED: {exc}")
+            reasons = {i: drop.reason for i, drop in heard.items()}
             dropped = _dropped_json(args, rerank, sorted(reasons), reasons)
             ctx.out(json.dumps(_insufficient_json(exc, args, problems, dropped)))
             _report(problems)
@@ -194,6 +195,7 @@ def _run_match(args: argparse.Namespace, ctx: CommandContext, unrecorded: list[s
             if isinstance(exc.cause, InvalidInputError):  # the frame's own numbers, such as a
                 raise exc.cause from exc  # height and a GSD in different units: bad input
             return _backbone_failed(ctx, exc, frame, settings.matcher.strategy, problems)
+        reasons = {i: drop.reason for i, drop in heard.items()}
         out = _result_json(args, result, rerank, calibration, reasons)
         if args.viz and draw(
             result,
@@ -338,30 +340,6 @@ def _report(problems: list[str]) -> bool:
     for line in problems:
         print(f"c3-matcher: {' '.join(line.split())}", file=sys.stderr)
     return bool(problems)
-
-
-def _collect_drop_reasons(reasons: dict[int, str]) -> int:
-    """Listen for why each candidate is dropped, by its input position (two candidates may
-    share a tile id): a backbone error, no inlier, or a refusal on geometry, in the words of
-    the FDR's terminal record."""
-    from loguru import logger
-
-    from c3_matcher.stages.recorder import drop_reason
-
-    def sink(message: Any) -> None:
-        extra = message.record["extra"]
-        index, reason = extra.get("candidate_index"), drop_reason(extra.get("kind"), extra)
-        if index is not None and reason is not None:
-            reasons[index] = reason
-
-    return int(logger.add(sink, level="DEBUG", format="{message}"))
-
-
-def _remove_sink(sink: int) -> None:
-    from loguru import logger
-
-    with contextlib.suppress(ValueError):
-        logger.remove(sink)
 
 
 def _best_tile_sizes(result: Any, rerank: RerankResult) -> list[tuple[int, int]]:
