@@ -22,7 +22,7 @@ from loguru import logger
 from c3_matcher.config import load_settings
 from c3_matcher.engines.runtime import OnnxInferenceRuntime
 from c3_matcher_tools.dataset.format import load_dataset
-from c3_matcher_tools.run import open_matcher, run_flight
+from c3_matcher_tools.run import FlightOptions, open_matcher, run_flight
 
 
 def main(strategy: str, flight: Path) -> None:
@@ -48,7 +48,7 @@ def main(strategy: str, flight: Path) -> None:
         frame_s = []
         for frame in dataset.frames:
             started = time.perf_counter()
-            run_flight(matcher, dataset, frames=[frame])
+            run_flight(matcher, dataset, FlightOptions([frame]))
             frame_s.append(time.perf_counter() - started)
     print(
         f"{strategy} {dataset.name}: frame p50 {1e3 * np.percentile(frame_s, 50):.0f} ms, "

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from c3_matcher.serialize import load_calibration
+from c3_matcher_tools.run.scoring import figure
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.flightlogs.dataflash import write_dataflash
 from c3_matcher_tools.testing.flightlogs.exif import write_exif_photos
@@ -78,8 +79,9 @@ def main() -> None:
         errors = [r["telemetry_error_m"] for r in rows if r["telemetry_error_m"] is not None]
         print(
             f"{label:20} frames {report['frames']:3} located {len(errors):3} "
-            f"estimate-telemetry m p50 {report['telemetry_error_m_p50']:.2f} "
-            f"p95 {report['telemetry_error_m_p95']:.2f} max {max(errors):.2f}"
+            f"estimate-telemetry m p50 {figure(report['telemetry_error_m_p50'], '.2f')} "
+            f"p95 {figure(report['telemetry_error_m_p95'], '.2f')} "
+            f"max {figure(max(errors, default=None), '.2f')}"
         )
 
 

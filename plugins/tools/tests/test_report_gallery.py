@@ -20,7 +20,7 @@ from c3_matcher.config import C3Settings
 from c3_matcher.viz import FOOT
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.report import pictures
-from c3_matcher_tools.run import open_matcher, run_flight
+from c3_matcher_tools.run import FlightOptions, open_matcher, run_flight
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 from c3_matcher_tools.testing.outcomes import frame_outcome
 
@@ -38,7 +38,7 @@ def test_a_match_replayed_without_correspondences_is_drawn_on_its_best_tile(
 ) -> None:
     frames = [f for f in dataset.frames if f.index in (11, 12)]  # SIFT matches both
     with open_matcher(C3Settings(), "sift_magsac", tmp_path / "run") as matcher:
-        outcomes = run_flight(matcher, dataset, frames=frames, with_correspondences=False)
+        outcomes = run_flight(matcher, dataset, FlightOptions(frames, with_correspondences=False))
     matched = [o for o in outcomes if o.status == FrameStatus.OK]
     assert matched, [o.error for o in outcomes]
     with dataset.open_store() as store:

@@ -230,3 +230,29 @@ def test_the_pytorch_reference_filters_as_the_engine_cases_do(
     defaults = host.resolve("disk_lightglue").defaults
     assert ransac.refit_px == defaults.refit_threshold_px == 2.0
     assert ransac.refit_floor == settings.matcher.min_inliers_threshold
+
+
+def test_a_run_whose_log_cannot_be_written_flies_and_counts_the_lines_lost(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """matcher.log on a full disk: the frames are matched all the same, and the run says how
+    many log lines were lost (replay prints it, report.json holds it)."""
+    import io
+
+    from c3_matcher_tools.run.matcher import _HeldBackLog
+
+    class FullDisk(io.StringIO):
+        def write(self, s: str) -> int:
+            raise OSError(28, "No space left on device")
+
+    attach = _HeldBackLog.attach
+    monkeypatch.setattr(_HeldBackLog, "attach", lambda log, stream: attach(log, FullDisk()))
+    flight = load_dataset(DEMO)
+    flight = dataclasses.replace(flight, frames=flight.frames[:2])
+    from c3_matcher.compose import build_plugin_host
+
+    run = fly(
+        C3Settings(), "sift_magsac", flight, tmp_path / "run", plugin_host=build_plugin_host()
+    )
+    assert [o.index for o in run.outcomes] == [0, 1]
+    assert run.log_lines_lost > 0

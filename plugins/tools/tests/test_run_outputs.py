@@ -14,6 +14,7 @@ from c3_matcher.config import C3Settings
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.run import (
+    FlightOptions,
     FlightRun,
     exclusive_output_dir,
     flight_report,
@@ -38,7 +39,7 @@ def flown(tmp_path_factory: pytest.TempPathFactory) -> FlightRun:
         flight,
         out,
         plugin_host=build_plugin_host(),
-        frames=flight.frames[:2],
+        options=FlightOptions(flight.frames[:2]),
     )
 
 

@@ -21,9 +21,10 @@ baseline, side by side, against a flight's ground truth (the C3-IT acceptance me
   not correct.
 
 A recorded flight (no ground truth, ``dataset import``) is scored against its own telemetry:
-per frame the estimate minus where the telemetry says the frame looks (m), p50/p95 beside the
-GNSS accuracy the log states, and the frames whose GNSS was absent or degraded (``timing`` and
-``per_frame`` in ``eval.json``).
+per frame the estimate minus where the telemetry says the frame looks (m), p50/p95 over the
+frames whose attitude was measured beside the GNSS accuracy the log states, the frames whose GNSS
+was absent or degraded, and apart those whose attitude the import assumed level, with their own
+p50 (``timing`` and ``per_frame`` in ``eval.json``).
 
 Each measure's ``pass`` is true (bar met), false (bar missed, '!' in the table) or null: nothing
 to measure (no true-tile frame, no matched one, no absent frame, no ground truth), neither
@@ -96,6 +97,7 @@ from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     EVAL_OUT,
     NO_OVERRIDES,
+    FlightOptions,
     Overrides,
     check_flight,
     check_output_dirs,
@@ -121,6 +123,7 @@ from c3_matcher_tools.run.acceptance import (
 from c3_matcher_tools.run.evaluation import StrategyEval, StrategyFailure, StrategyRow, SummaryRow
 from c3_matcher_tools.run.outputs import EVAL_RUN, EVAL_SUMMARY, mark_output_dirs, no_report_html
 from c3_matcher_tools.run.records import FrameStatus
+from c3_matcher_tools.run.scoring import dropped_lines, telemetry_lines
 
 __all__ = [
     "BARS",
@@ -155,7 +158,7 @@ def evaluate_strategy(
         out / strategy,
         plugin_host=plugin_host,
         overrides=overrides,
-        progress=ProgressBar(f"eval {strategy} run 1"),
+        options=FlightOptions(progress=ProgressBar(f"eval {strategy} run 1")),
     )
     subset = frames[:determinism_frames] if determinism_frames else frames
     run2 = fly(
@@ -165,8 +168,7 @@ def evaluate_strategy(
         out / strategy / "run2",
         plugin_host=plugin_host,
         overrides=overrides,
-        frames=subset,
-        progress=ProgressBar(f"eval {strategy} run 2"),
+        options=FlightOptions(subset, ProgressBar(f"eval {strategy} run 2")),
     )
     summary = summarize(run1.outcomes)
     acceptance = metrics(run1.outcomes, run2.outcomes)
@@ -354,6 +356,9 @@ def _eval_dataset(
     if not args.json:
         max_keypoints = overrides.apply(ctx.settings).matcher.max_keypoints
         _print_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
+        for r in (r for r in rows if isinstance(r, StrategyEval)):  # and what each dropped
+            for line in dropped_lines(r.summary, dataset.store_path):
+                ctx.out(f"{r.strategy}: {line}")
     return rows, report
 
 
@@ -440,15 +445,8 @@ def _table_row(r: StrategyRow) -> str:
 
 
 def _print_links(ctx: CommandContext, r: StrategyEval) -> None:
-    t = r.summary
-    if t.with_telemetry:
-        ctx.out(
-            f"  {r.strategy}: estimate - telemetry look point m p50 "
-            f"{figure(t.telemetry_error_m_p50, '.1f')}, p95 "
-            f"{figure(t.telemetry_error_m_p95, '.1f')} (GNSS accuracy stated "
-            f"p50 {figure(t.gnss_accuracy_m_p50, '.1f')} m, GNSS absent or "
-            f"degraded on {len(t.gnss_degraded_frames)} frame(s))"
-        )
+    for line in telemetry_lines(r.summary) if r.summary.with_telemetry else ():
+        ctx.out(f"  {r.strategy}: {line}")
     ctx.out(f"  {r.strategy}: map {r.geojson}, flight report {r.html or '-'}")
 
 

@@ -23,7 +23,11 @@ footprint; frames with ground truth also carry ``truth_lat``/``truth_lon`` and
 ``position_error_m``: both centres are the principal point's ground point, where the camera
 looks (under tilt, not the point below the vehicle). The report's ``settings`` are the
 ``[matcher]`` settings the strategy ran with (its own defaults where the configuration leaves a
-setting unset).
+setting unset). Stopped by Ctrl-C or SIGTERM during the frames, a replay keeps those done: its
+``run.json`` says the run is incomplete (``"complete": false``, ``frames_done``, ``frames``),
+then ``results.jsonl`` and ``report.json`` hold them (no map, no flight report) and one line
+says so (exit 130/143). The report reaches stdout before the files are written: a final write
+that fails (a full disk) still leaves it.
 
 The command only: flying and scoring are the run layer's (:mod:`c3_matcher_tools.run`).
 """
@@ -32,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -39,10 +44,13 @@ from c3_matcher.atomic import write_text_atomically
 from c3_matcher.commands import EXIT_OK, CommandRegistry, add_max_keypoints_option, bounded_int
 from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_noise
-from c3_matcher_tools.dataset.format import load_dataset
+from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.run import (
     REPLAY_OUT,
+    FlightOptions,
+    FlightRun,
+    FlightStopped,
     Overrides,
     RunSummary,
     check_flight,
@@ -55,9 +63,17 @@ from c3_matcher_tools.run import (
     prepare_matcher,
     summarize,
     write_flight_outputs,
+    write_results,
 )
-from c3_matcher_tools.run.outputs import REPLAY_RUN, mark_output_dirs
+from c3_matcher_tools.run.outputs import (
+    REPLAY_RUN,
+    RUN_MARK,
+    mark_output_dirs,
+    mark_stopped,
+    no_report_html,
+)
 from c3_matcher_tools.run.records import FrameStatus
+from c3_matcher_tools.run.scoring import dropped_lines, telemetry_lines
 
 __all__ = ["register_replay_command", "run_replay"]
 
@@ -115,36 +131,84 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
         exclusive_output_dir(out),
     ):
         mark_output_dirs(REPLAY_RUN, out)
-        run = fly_prepared(
-            prepared,
-            dataset,
-            out,
-            plugin_host=ctx.plugin_host,
-            frames=frames,
-            progress=ProgressBar(f"replay {dataset.name} {strategy}"),
-            with_correspondences=not args.no_correspondences,
-        )
+        try:
+            flown = FlightOptions(
+                frames,
+                ProgressBar(f"replay {dataset.name} {strategy}"),
+                with_correspondences=not args.no_correspondences,
+                keep_stopped=True,
+            )
+            run = fly_prepared(prepared, dataset, out, plugin_host=ctx.plugin_host, options=flown)
+        except FlightStopped as stop:
+            return _keep_stopped(ctx, dataset, out, stop)
         summary = summarize(run.outcomes)
-        run_report = {
-            **flight_report(dataset, run, summary),
-            "attitude_noise": dataset.meta.get("attitude_noise"),
-            "results": str(out / "results.jsonl"),
-            "fdr": str(out / "fdr.jsonl"),
-            "log": str(out / "matcher.log"),
-        }
-        files = write_flight_outputs(out, dataset, run, run_report)
-        report = {**run_report, "geojson": files.geojson, "html": files.html}
+        html = None if no_report_html() else str(out / "report.html")
+        shown = {**_run_report(dataset, run, summary, out), "geojson": str(out / "flight.geojson")}
+        _print_report(ctx, args.json, dataset.name, {**shown, "html": html}, summary, out)
+        files = write_flight_outputs(out, dataset, run, shown)  # a failure: after the summary
+        report = {**shown, "geojson": files.geojson, "html": files.html}
         write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
-    if args.json:
-        ctx.out(json.dumps(report, indent=2))
-        return EXIT_OK
-    for line in _report_lines(dataset.name, report, summary, out):
-        ctx.out(line)
     return EXIT_OK
 
 
+def _run_report(
+    dataset: FlightDataset, run: FlightRun, summary: RunSummary, out: Path
+) -> dict[str, Any]:
+    """``report.json`` but for the map and flight report: the run, whether it is whole, its
+    figures and its files."""
+    return {
+        **flight_report(dataset, run, summary),
+        **run.progress,
+        "attitude_noise": dataset.meta.get("attitude_noise"),
+        "store": str(dataset.store_path),
+        "results": str(out / "results.jsonl"),
+        "fdr": str(out / "fdr.jsonl"),
+        "log": str(out / "matcher.log"),
+        "log_lines_lost": run.log_lines_lost,
+    }
+
+
+def _print_report(
+    ctx: CommandContext,
+    as_json: bool,
+    name: str,
+    report: dict[str, Any],
+    summary: RunSummary,
+    out: Path,
+) -> None:
+    """The report on stdout, flushed: printed before the run's files are written, so that one
+    that cannot be written (a full disk) still leaves the summary of the frames matched."""
+    if as_json:
+        ctx.out(json.dumps(report, indent=2))
+    else:
+        for line in _report_lines(name, report, summary, out):
+            ctx.out(line)
+    ctx.flush()
+
+
+def _keep_stopped(
+    ctx: CommandContext, dataset: FlightDataset, out: Path, stop: FlightStopped
+) -> int:
+    """A replay stopped by Ctrl-C or SIGTERM part-way keeps the frames it did: ``run.json``
+    marked incomplete first, then their ``results.jsonl`` and ``report.json``, each written
+    atomically (a second Ctrl-C meanwhile stops at once, tearing nothing); one line naming what
+    is kept, and 130 or 143 as a shell reports the signal."""
+    run = stop.run
+    assert run is not None  # fly_prepared's FlightStopped holds the run
+    mark_stopped(REPLAY_RUN, out, run)
+    results = write_results(out / "results.jsonl", run.outcomes)
+    report = _run_report(dataset, run, summarize(run.outcomes), out)
+    write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
+    word = "terminated" if stop.signum == signal.SIGTERM else "interrupted"
+    ctx.err(
+        f"c3-matcher: {word} after {len(run.outcomes)} of {stop.planned} frames: their results "
+        f"are in {results} ({RUN_MARK} marks the run incomplete)"
+    )
+    return 128 + stop.signum
+
+
 def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -> list[str]:
-    """The table: ``s``'s figures, and the run and files ``report`` names."""
+    """The table: ``s``'s figures, and the run, tile store and files ``report`` names."""
     unreadable = s.count(FrameStatus.UNREADABLE)
     lines = [
         f"replay {name} with {report['strategy']}: {s.frames} frames in "
@@ -154,11 +218,20 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
         f"{s.count(FrameStatus.BACKBONE_ERROR)}"
         + (f", unreadable images {unreadable}" if unreadable else ""),
     ]
+    dropped = dropped_lines(s, report.get("store", "of the dataset"))  # then the store if failed
+    lines.extend(f"  {line}" for line in dropped[:1])
     if s.frames - unreadable - s.true_absent > 0 and not s.count(FrameStatus.OK):
         lines.append(
-            "  no frame matched: check that the store covers the flight and that heights and "
-            "attitudes are right; `c3-matcher eval` compares the strategies on it"
+            "  no frame matched: "
+            + (
+                dropped[1]
+                if len(dropped) > 1
+                else "check that the store covers the flight and that heights and attitudes are "
+                "right; `c3-matcher eval` compares the strategies on it"
+            )
         )
+    elif len(dropped) > 1:
+        lines.append(f"  {dropped[1]}")
     if s.with_truth:
         lines.append(
             f"  correct candidate {s.correct_candidate}/{s.true_present} "
@@ -181,22 +254,11 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
             f"({s.position_error_frames} frames; {s.georeferenced} located)"
         )
     if s.with_telemetry:
-        lines.append(_telemetry_line(s))
+        lines.extend(f"  {line}" for line in telemetry_lines(s))
     lines.append(
         f"  results {report['results']}, FDR {report['fdr']}, report {out / REPLAY_RUN.report}"
     )
     lines.append(f"  map {report['geojson']}, flight report {report['html'] or '(not written)'}")
+    if lost := report.get("log_lines_lost"):
+        lines.append(f"  {report['log']}: {lost} line(s) could not be written (a full disk?)")
     return lines
-
-
-def _telemetry_line(s: RunSummary) -> str:
-    degraded = list(s.gnss_degraded_frames)
-    accuracy = s.gnss_accuracy_m_p50
-    return (
-        f"  estimate - telemetry look point m p50 {figure(s.telemetry_error_m_p50)}, "
-        f"p95 {figure(s.telemetry_error_m_p95)} ({s.georeferenced} frames "
-        "located; "
-        + ("GNSS accuracy not stated" if accuracy is None else f"GNSS accuracy {accuracy:.1f} m")
-        + f"; GNSS absent or degraded on {len(degraded)} frame(s)"
-        + (f": {degraded[:20]})" if degraded else ")")
-    )

@@ -102,10 +102,14 @@ def _draw_inliers(
 def _draw_errors(ax: Any, outcomes: Sequence[FrameOutcome], idx: NDArray[np.int_]) -> None:
     """The position errors (vs truth, vs telemetry, the log's GNSS accuracy) in m, the mean
     inlier error in px on a twin axis, frames with GNSS absent or degraded banded yellow; each
-    line only where it has a value."""
+    line only where it has a value. Vs telemetry, a frame whose attitude the import assumed
+    level is drawn apart: its look point is a level camera's."""
     err_m = np.array([o.position_error_m for o in outcomes], dtype=float)
     err_px = np.array([o.mean_error_px for o in outcomes], dtype=float)
     err_tele = np.array([o.telemetry_error_m for o in outcomes], dtype=float)
+    assumed = np.array([o.attitude_assumed for o in outcomes], dtype=bool)
+    err_level = np.where(assumed, err_tele, math.nan)
+    err_tele = np.where(assumed, math.nan, err_tele)
     accuracy = np.array(
         [math.nan if o.gnss_accuracy_m is None else o.gnss_accuracy_m for o in outcomes],
         dtype=float,
@@ -116,6 +120,15 @@ def _draw_errors(ax: Any, outcomes: Sequence[FrameOutcome], idx: NDArray[np.int_
     if np.isfinite(err_tele).any():
         error_lines += ax.plot(
             idx, err_tele, "^-", color="#2ca02c", ms=4, label="estimate - telemetry"
+        )
+    if np.isfinite(err_level).any():
+        error_lines += ax.plot(
+            idx,
+            err_level,
+            "v--",
+            color="#8c564b",
+            ms=4,
+            label="estimate - a level camera's look point (attitude assumed)",
         )
     if np.isfinite(accuracy).any():
         error_lines += ax.plot(

@@ -5,7 +5,8 @@ no network. Plots are drawn with matplotlib (the tools' ``report`` extra).
 Sections: summary figures; the trajectory on the map mosaic of the flight's tile store (truth
 vs estimate, error segments, failed frames marked; for a recorded flight the telemetry's track,
 frames whose GNSS was absent or degraded marked); inliers, error (m and px; a recorded flight's
-estimate minus the telemetry's look point beside the GNSS accuracy the log states) and latency per
+estimate minus the telemetry's look point beside the GNSS accuracy the log states, or a level
+camera's look point where the log has no attitude) and latency per
 frame with absent-tile, wrong-tile, other-tile right fixes and failed frames marked (legends outside the plots); a gallery of the worst and best
 frames (:func:`c3_matcher.viz.render_match`); the run's settings and provenance. This module
 assembles the page; the plots are drawn in :mod:`.charts`, the gallery's pictures in
@@ -104,13 +105,34 @@ def write_report(
     return write_text_atomically(out, page.html())
 
 
+def _telemetry_kpis(summary: RunSummary) -> list[tuple[str, Any]]:
+    """The telemetry's figures for a flight that has telemetry: the estimate minus the look
+    point over the frames whose attitude was measured; apart, the frames whose attitude was
+    assumed level and the estimate minus a level camera's look point."""
+    if not summary.with_telemetry:
+        return []
+    assumed = summary.attitude_assumed_frames
+    kpis: list[tuple[str, Any]] = [
+        (
+            "estimate - telemetry p50 / p95 (m)"
+            + (", frames with a measured attitude" if assumed else ""),
+            f"{figure(summary.telemetry_error_m_p50)} / {figure(summary.telemetry_error_m_p95)}",
+        )
+    ]
+    if assumed:
+        kpis.append(
+            (
+                f"attitude assumed level on {len(assumed)} frame(s) (the log has no attitude "
+                "at their time): not counted; estimate - a level camera's look point p50 (m)",
+                figure(summary.telemetry_error_m_p50_attitude_assumed),
+            )
+        )
+    return kpis
+
+
 def _kpis(summary: RunSummary) -> list[tuple[str, Any]]:
-    """The headline figures (label, value) of the run's ``summary``; the telemetry's error only
-    for a flight that has telemetry."""
-    tele_kpi = (
-        "estimate - telemetry p50 / p95 (m)",
-        f"{figure(summary.telemetry_error_m_p50)} / {figure(summary.telemetry_error_m_p95)}",
-    )
+    """The headline figures (label, value) of the run's ``summary``; the telemetry's only for a
+    flight that has telemetry."""
     return [
         ("frames", summary.frames),
         ("matched", summary.count(FrameStatus.OK)),
@@ -126,7 +148,7 @@ def _kpis(summary: RunSummary) -> list[tuple[str, Any]]:
             f"{figure(summary.position_error_m_p50)} / {figure(summary.position_error_m_p95)}"
             f" ({summary.position_error_frames} frames)",
         ),
-        *([tele_kpi] if summary.with_telemetry else []),
+        *_telemetry_kpis(summary),
         (
             "frame ms p50 / p95",
             f"{figure(summary.frame_ms_p50, '.0f')} / {figure(summary.frame_ms_p95, '.0f')}",
@@ -146,7 +168,7 @@ def _frame_rows(outcomes: Sequence[FrameOutcome]) -> str:
                 o.candidate_inliers,
                 _verdict(o),
                 figure(o.position_error_m),
-                figure(o.telemetry_error_m),
+                figure(o.telemetry_error_m) + (" (level assumed)" if o.attitude_assumed else ""),
                 _gnss_cell(o),
                 figure(o.mean_error_px, ".2f"),
                 figure(o.elapsed_ms, ".0f"),
@@ -196,7 +218,9 @@ error); W: a wrong fix, one eval counts false-confident ({Verdict.WRONG_TILE}, o
 their error unknown);
 O: {Verdict.OTHER_TILE} (a candidate other than the true tile whose inliers place the frame
 within {WRONG_FIX_PX:g} px: eval's "other tile"). A recorded flight's error is the estimate
-minus the telemetry's position, beside the accuracy its GNSS states.</p>
+minus the telemetry's position, beside the accuracy its GNSS states; on a frame whose attitude
+the log lacks (attitude assumed level, "level assumed" in the table) it is the distance from
+where a level camera would look, not counted in the figures above.</p>
 <img id="per-frame" alt="per-frame plots" src="{self.per_frame}">
 <h2>Worst and best frames</h2>
 <p>Worst: frames that went wrong (no match where the true tile was a candidate, a wrong tile, or

@@ -14,6 +14,9 @@ from c3_matcher_tools.run.evaluation import (
     SummaryRow,
 )
 from c3_matcher_tools.run.flight import (
+    ALL_FRAMES,
+    FlightOptions,
+    FlightStopped,
     Progress,
     check_flight,
     fly,
@@ -56,11 +59,14 @@ from c3_matcher_tools.run.scoring import (
 )
 
 __all__ = [
+    "ALL_FRAMES",
     "EVAL_OUT",
     "NO_OVERRIDES",
     "REPLAY_OUT",
     "ComposedMatcher",
+    "FlightOptions",
     "FlightRun",
+    "FlightStopped",
     "FrameOutcome",
     "Overrides",
     "PreparedMatcher",

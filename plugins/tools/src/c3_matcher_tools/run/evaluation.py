@@ -55,6 +55,7 @@ class StrategyEval:
                     "telemetry_error_m": _or_none(o.telemetry_error_m),
                     "gnss_accuracy_m": o.gnss_accuracy_m,
                     "gnss_degraded": o.gnss_degraded,
+                    "attitude_assumed": o.attitude_assumed,
                     "elapsed_ms": o.elapsed_ms,
                 }
                 for o in self.run.outcomes

@@ -4,10 +4,12 @@ opened, flown and timed (:func:`fly`)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -16,9 +18,11 @@ from c3_matcher.config import C3Settings
 from c3_matcher.dto import MatchResult
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
 from c3_matcher.georef import haversine_m
+from c3_matcher.logs import MATCHER_GEOMETRY_REFUSED, MATCHER_ZERO_INLIERS
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import CALIBRATION_SIZE_FIX, result_to_json
+from c3_matcher.stages.drops import drops_heard
 from c3_matcher.tiles import DECODABLE_FORMATS, MmapTileHandle, image_file_size
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
@@ -28,7 +32,7 @@ from c3_matcher_tools.run.matcher import (
     PreparedMatcher,
     prepare_matcher,
 )
-from c3_matcher_tools.run.records import FlightRun, FrameOutcome, FrameStatus
+from c3_matcher_tools.run.records import DroppedCandidate, FlightRun, FrameOutcome, FrameStatus
 from c3_matcher_tools.run.scoring import (
     TelemetryReference,
     best_candidate_error,
@@ -38,6 +42,9 @@ from c3_matcher_tools.run.scoring import (
 )
 
 __all__ = [
+    "ALL_FRAMES",
+    "FlightOptions",
+    "FlightStopped",
     "Progress",
     "check_flight",
     "fly",
@@ -48,23 +55,87 @@ __all__ = [
 Progress = Callable[[int, int], None]
 
 
+@dataclass(frozen=True)
+class FlightOptions:
+    """How a flight is flown: ``frames`` (None: all, in order), ``progress`` (called with the
+    frames done and those to fly), whether each result keeps its inlier correspondences, and
+    ``keep_stopped``: Ctrl-C or SIGTERM during the frames raises :class:`FlightStopped` with
+    the outcomes of those done (else the interrupt as it came)."""
+
+    frames: Sequence[FrameRecord] | None = None
+    progress: Progress | None = None
+    with_correspondences: bool = True
+    keep_stopped: bool = False
+
+
+ALL_FRAMES = FlightOptions()
+
+
+class FlightStopped(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) or SIGTERM stopped a flight part-way (``keep_stopped``): ``signum``, the
+    outcomes of the frames done and how many it was to fly; :func:`fly_prepared` adds ``run``,
+    those outcomes as a :class:`FlightRun` whose ``complete`` is False."""
+
+    def __init__(
+        self,
+        signum: int,
+        done: Sequence[FrameOutcome],
+        planned: int,
+        run: FlightRun | None = None,
+    ) -> None:
+        super().__init__(f"stopped after {len(done)} of {planned} frames")
+        self.signum = signum
+        self.done = tuple(done)
+        self.planned = planned
+        self.run = run
+
+
 def run_flight(
-    matcher: CrossDomainMatcher,
-    dataset: FlightDataset,
-    *,
-    frames: Sequence[FrameRecord] | None = None,
-    progress: Progress | None = None,
-    with_correspondences: bool = True,
+    matcher: CrossDomainMatcher, dataset: FlightDataset, options: FlightOptions = ALL_FRAMES
 ) -> list[FrameOutcome]:
-    """Match every frame (or ``frames``) in order; tiles are read lazily from the store."""
-    todo = list(dataset.frames if frames is None else frames)
+    """Match every frame (or ``options.frames``) in order, as ``options`` says; tiles are read
+    lazily from the store."""
+    todo = list(dataset.frames if options.frames is None else options.frames)
+    progress, with_correspondences = options.progress, options.with_correspondences
     outcomes: list[FrameOutcome] = []
-    with dataset.open_store() as store:
-        for n, frame in enumerate(todo, start=1):
-            outcomes.append(_fly_frame(matcher, dataset, frame, store, with_correspondences))
-            if progress is not None:
-                progress(n, len(todo))
+    with dataset.open_store() as store, _signals_noted() as noted:
+        try:
+            for n, frame in enumerate(todo, start=1):
+                outcomes.append(_fly_frame(matcher, dataset, frame, store, with_correspondences))
+                if progress is not None:
+                    progress(n, len(todo))
+        except KeyboardInterrupt as exc:
+            if not options.keep_stopped or not noted:
+                raise
+            raise FlightStopped(noted[-1], outcomes, len(todo)) from exc
     return outcomes
+
+
+@contextlib.contextmanager
+def _signals_noted() -> Iterator[list[int]]:
+    """The SIGINT and SIGTERM that come while the block runs, in order, each then handled as
+    before (raising ``KeyboardInterrupt``, as the command line has it); the handlers as they
+    were afterwards, so that a second one while a stopped run's results are written stops it
+    at once. Signals left alone where handlers cannot be set (not the main thread) or the
+    current one is not Python's."""
+    noted: list[int] = []
+    previous: dict[int, Callable[..., object]] = {}
+
+    def note(signum: int, frame: object) -> None:
+        noted.append(signum)
+        previous[signum](signum, frame)
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(signum)
+        if callable(handler):
+            with contextlib.suppress(ValueError):  # not the main thread: left alone
+                signal.signal(signum, note)
+                previous[signum] = handler
+    try:
+        yield noted
+    finally:
+        for number, before in previous.items():
+            signal.signal(number, before)
 
 
 def _fly_frame(
@@ -82,27 +153,48 @@ def _fly_frame(
     rerank = dataset.rerank(frame, store)
     t0 = time.perf_counter()
     failure: tuple[FrameStatus, Exception, int] | None = None
-    try:
-        result = matcher.match(nav, rerank, dataset.calibration)
-    except InsufficientInliersError as exc:
-        failure = (FrameStatus.INSUFFICIENT, exc, exc.best_inlier_count)
-    except MatcherBackboneError as exc:
-        failure = (FrameStatus.BACKBONE_ERROR, exc, 0)
+    with drops_heard() as heard:
+        try:
+            result = matcher.match(nav, rerank, dataset.calibration)
+        except InsufficientInliersError as exc:
+            failure = (FrameStatus.INSUFFICIENT, exc, exc.best_inlier_count)
+        except MatcherBackboneError as exc:
+            failure = (FrameStatus.BACKBONE_ERROR, exc, 0)
     elapsed = (time.perf_counter() - t0) * 1e3
+    dropped = tuple(
+        DroppedCandidate(i, drop.event.get("tile_id"), drop.reason, _cause(drop.event))
+        for i, drop in sorted(heard.items())
+    )
+    where = replace(where, candidates=len(rerank.candidates), dropped=dropped)
     if failure is not None:
         status, error, best_count = failure
         return where.outcome(frame, status, elapsed, error=str(error), best_count=best_count)
     return _matched(dataset, frame, result, elapsed, where, with_correspondences)
 
 
+def _cause(event: Mapping[str, Any]) -> str:
+    """What a run's summary counts a drop under: the step and error type of a backbone error
+    (``"tile_decode TileDigestError"``), else no inliers or a refusal on geometry."""
+    kind = event.get("kind")
+    if kind == MATCHER_ZERO_INLIERS:
+        return "no inliers"
+    if kind == MATCHER_GEOMETRY_REFUSED:
+        return "refused on geometry"
+    error_type = str(event.get("error", "")).split(":", 1)[0]
+    return f"{event.get('phase')} {error_type}".strip()
+
+
 @dataclass(frozen=True)
 class _Where:
     """Where a frame truly looks (``truth``, lat/lon: None without ground truth) and where its
-    telemetry says it looks: what each outcome of the frame is scored against."""
+    telemetry says it looks: what each outcome of the frame is scored against; once matched,
+    the candidates it was given and those the matcher dropped."""
 
     has_truth: bool
     truth: tuple[float, float] | None
     telemetry: TelemetryReference | None
+    candidates: int = 0
+    dropped: tuple[DroppedCandidate, ...] = ()
 
     def outcome(
         self,
@@ -144,6 +236,9 @@ class _Where:
             telemetry_error_m=_distance_m(est, None if tele is None else (tele.lat, tele.lon)),
             gnss_accuracy_m=None if tele is None else tele.gnss_accuracy_m,
             gnss_degraded=None if tele is None else tele.gnss_degraded,
+            attitude_assumed=tele is not None and tele.attitude_assumed,
+            candidates=self.candidates,
+            dropped=self.dropped,
         )
 
 
@@ -208,25 +303,15 @@ def fly(
     *,
     plugin_host: PluginHost,
     overrides: Overrides = NO_OVERRIDES,
-    frames: Sequence[FrameRecord] | None = None,
-    progress: Progress | None = None,
-    with_correspondences: bool = True,
+    options: FlightOptions = ALL_FRAMES,
 ) -> FlightRun:
     """Open ``strategy`` (:func:`~c3_matcher_tools.run.matcher.prepare_matcher`: composed
-    before ``out_dir`` is touched, so one that cannot start leaves it as it was), then fly
-    ``frames`` (default: all) with its FDR and logs under ``out_dir`` (:func:`fly_prepared`)."""
+    before ``out_dir`` is touched, so one that cannot start leaves it as it was), then fly it
+    as ``options`` says with its FDR and logs under ``out_dir`` (:func:`fly_prepared`)."""
     with prepare_matcher(
         settings, strategy, plugin_host=plugin_host, overrides=overrides
     ) as prepared:
-        return fly_prepared(
-            prepared,
-            dataset,
-            out_dir,
-            plugin_host=plugin_host,
-            frames=frames,
-            progress=progress,
-            with_correspondences=with_correspondences,
-        )
+        return fly_prepared(prepared, dataset, out_dir, plugin_host=plugin_host, options=options)
 
 
 def fly_prepared(
@@ -235,33 +320,35 @@ def fly_prepared(
     out_dir: Path,
     *,
     plugin_host: PluginHost,
-    frames: Sequence[FrameRecord] | None = None,
-    progress: Progress | None = None,
-    with_correspondences: bool = True,
+    options: FlightOptions = ALL_FRAMES,
 ) -> FlightRun:
     """Start ``prepared`` in ``out_dir`` (:meth:`~PreparedMatcher.start`: a fresh FDR and log),
-    fly ``frames`` (default: all) and time it: start-up is composing the matcher and opening
-    its FDR, wall time that and flying (s)."""
+    fly it as ``options`` says and time it: start-up is composing the matcher and opening its
+    FDR, wall time that and flying (s). With ``options.keep_stopped``, a flight stopped
+    part-way raises :class:`FlightStopped` holding the run of the frames done."""
     started = time.perf_counter()
     prepared.start(out_dir)
     startup_s = prepared.startup_s + time.perf_counter() - started
-    outcomes = run_flight(
-        prepared.matcher,
-        dataset,
-        frames=frames,
-        progress=progress,
-        with_correspondences=with_correspondences,
-    )
-    wall_s = prepared.startup_s + time.perf_counter() - started
-    ran = strategy_settings(prepared.settings, prepared.strategy, plugin_host)
-    return FlightRun(
-        prepared.strategy,
-        ran.matcher.model_dump(mode="json"),
-        tuple(outcomes),
-        startup_s,
-        wall_s,
-        ran.lightglue.model_dump(mode="json"),
-    )
+
+    def flight_run(outcomes: Sequence[FrameOutcome], planned: int | None = None) -> FlightRun:
+        ran = strategy_settings(prepared.settings, prepared.strategy, plugin_host)
+        return FlightRun(
+            prepared.strategy,
+            ran.matcher.model_dump(mode="json"),
+            tuple(outcomes),
+            startup_s,
+            prepared.startup_s + time.perf_counter() - started,
+            ran.lightglue.model_dump(mode="json"),
+            planned,
+            prepared.log_lines_lost,
+        )
+
+    try:
+        outcomes = run_flight(prepared.matcher, dataset, options)
+    except FlightStopped as stop:
+        run = flight_run(stop.done, stop.planned)
+        raise FlightStopped(stop.signum, stop.done, stop.planned, run) from stop.__cause__
+    return flight_run(outcomes)
 
 
 def check_flight(dataset: FlightDataset, frames: Sequence[FrameRecord]) -> None:

@@ -18,6 +18,7 @@ from typing import Any, TextIO
 from c3_matcher.commands import with_keypoint_budget
 from c3_matcher.compose import ComposedRoot, build_plugin_host, open_recorder, strategy_settings
 from c3_matcher.config import C3Settings
+from c3_matcher.logs import LoggingHandle
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import Clock, CrossDomainMatcher, FdrClient
@@ -168,11 +169,13 @@ class _HeldBackFdr:
 
 class _HeldBackLog(io.StringIO):
     """The matcher's JSON log lines, kept in memory until the run's ``matcher.log`` is opened
-    (:meth:`attach`), then written there with every later line."""
+    (:meth:`attach`), then written there with every later line; ``lost``: those held back that
+    it could not take (a full disk; a later line lost is counted by the log's sink)."""
 
     def __init__(self) -> None:
         super().__init__()
         self._to: TextIO | None = None
+        self.lost = 0
 
     def write(self, text: str) -> int:
         return super().write(text) if self._to is None else self._to.write(text)
@@ -182,8 +185,12 @@ class _HeldBackLog(io.StringIO):
             self._to.flush()
 
     def attach(self, stream: TextIO) -> None:
-        stream.write(self.getvalue())
-        stream.flush()
+        held = self.getvalue()
+        try:
+            stream.write(held)
+            stream.flush()
+        except OSError:
+            self.lost = held.count("\n")
         self._to = stream
 
 
@@ -202,6 +209,12 @@ class PreparedMatcher:
     _log: _HeldBackLog
     _started: ExitStack
     _clock: Clock
+    _logs: LoggingHandle
+
+    @property
+    def log_lines_lost(self) -> int:
+        """The log lines ``matcher.log`` could not take (a full disk): dropped, counted."""
+        return self._log.lost + self._logs.lines_lost
 
     def start(self, out_dir: Path) -> None:
         """Record to ``out_dir/fdr.jsonl`` and log to ``out_dir/matcher.log``, both started
@@ -248,7 +261,7 @@ def prepare_matcher(
         opened.callback(composed.close)
         startup_s = time.perf_counter() - started
         yield PreparedMatcher(
-            composed.matcher, strategy, chosen, startup_s, fdr, log, run_files, clock
+            composed.matcher, strategy, chosen, startup_s, fdr, log, run_files, clock, logs
         )
 
 

@@ -45,6 +45,7 @@ __all__ = [
     "flight_report",
     "forget_previous_run",
     "mark_output_dirs",
+    "mark_stopped",
     "no_report_html",
     "output_dir_name",
     "refuse_foreign_output",
@@ -115,7 +116,11 @@ def exclusive_output_dir(*directories: Path) -> Iterator[None]:
         refuse_unwritable(directory, field="--out", directory=True)
     with contextlib.ExitStack() as held:
         for directory in directories:
-            held.enter_context(held_directory(directory, when_busy=_refused(directory)))
+            try:
+                held.enter_context(held_directory(directory, when_busy=_refused(directory)))
+            except OSError as exc:  # what no permission check foresees (/proc, a full disk)
+                why = exc.strerror or str(exc)
+                raise InvalidInputError("--out", f"{directory}: cannot be made: {why}") from exc
         yield
 
 
@@ -227,12 +232,22 @@ def mark_output_dirs(layout: RunLayout, *directories: Path) -> None:
     """Mark ``directories``, which this run now holds (:func:`exclusive_output_dir`), as
     ``layout``'s output (:data:`RUN_MARK`), before the run writes anything else there: each
     checked again first (:func:`refuse_foreign_output`: something may have come since
-    :func:`check_output_dirs`), then given its mark unless it has it."""
+    :func:`check_output_dirs`), then given its mark unless it has it (an earlier run's that
+    says it was stopped part-way is this run's no more: :func:`mark_stopped`)."""
     for directory in directories:
         refuse_foreign_output(directory, layout)
     for directory in directories:
-        if _marked_by(directory) != layout.mark["command"]:
+        if _json_file(directory / RUN_MARK) != layout.mark:
             write_text_atomically(directory / RUN_MARK, json.dumps(layout.mark) + "\n")
+
+
+def mark_stopped(layout: RunLayout, directory: Path, run: FlightRun) -> Path:
+    """Mark ``directory`` as holding ``run``, stopped part-way: its :data:`RUN_MARK` says so
+    (``"complete": false``, the frames done and those it was to fly), written before the
+    run's results, so that no reader takes them for a whole run's."""
+    return write_text_atomically(
+        directory / RUN_MARK, json.dumps({**layout.mark, **run.progress}) + "\n"
+    )
 
 
 def _marked_by(directory: Path) -> str | None:

@@ -1,5 +1,6 @@
-"""The run records: what one frame (:class:`FrameOutcome`) and one strategy over one flight
-(:class:`FlightRun`) came to. Frozen values; ``to_json`` gives their JSON forms."""
+"""The run records: what one frame (:class:`FrameOutcome`, with the candidates the matcher
+dropped, :class:`DroppedCandidate`) and one strategy over one flight (:class:`FlightRun`) came
+to. Frozen values; ``to_json`` gives their JSON forms."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "TILE_PHASE",
+    "DroppedCandidate",
     "FlightRun",
     "FrameOutcome",
     "FrameStatus",
@@ -30,6 +33,29 @@ class FrameStatus(StrEnum):
     """The frame's image could not be read or decoded: the matcher never saw it."""
 
 
+TILE_PHASE = "tile_decode"
+"""The matcher's step that reads and checks a candidate's tile from the store (its sha256, its
+decoding): a candidate dropped there was dropped for the tile itself."""
+
+
+@dataclass(frozen=True)
+class DroppedCandidate:
+    """A candidate the matcher dropped on a frame: its input position, its tile id, why (in the
+    words of ``c3-matcher match``'s ``dropped``) and ``cause``, what the run's summary counts
+    it under: ``"<step> <error type>"`` for a backbone error (``"tile_decode TileDigestError"``:
+    the tile failed its sha256), ``"no inliers"`` or ``"refused on geometry"``."""
+
+    candidate_index: int
+    tile_id: Any
+    reason: str
+    cause: str
+
+    @property
+    def of_tile(self) -> bool:
+        """Dropped for its tile: it could not be read, checked or decoded from the store."""
+        return self.cause.split(" ", 1)[0] == TILE_PHASE
+
+
 @dataclass(frozen=True)
 class FrameOutcome:
     """One frame's outcome. ``best_input_index``: input position of the best candidate;
@@ -40,9 +66,12 @@ class FrameOutcome:
     attitude, height) says the frame's centre looks; ``telemetry_error_m``: the estimate's
     distance from it (m, NaN when either is missing); ``gnss_accuracy_m``: the horizontal
     accuracy the log states for that fix; ``gnss_degraded``: GNSS was absent or degraded at the
-    frame (None: no telemetry, or it does not say). ``result``: the result as JSON
-    (:func:`c3_matcher.serialize.result_to_json`), its inlier correspondences held as the
-    result's float32 (I, 4) arrays until :meth:`to_json` writes them as lists."""
+    frame (None: no telemetry, or it does not say); ``attitude_assumed``: the log had no
+    attitude at the frame, so the import assumed it level and the look point is where a level
+    camera would look, not the frame's (summaries keep such frames apart); ``candidates``: how
+    many the matcher was given, ``dropped``: those it dropped and why. ``result``: the result
+    as JSON (:func:`c3_matcher.serialize.result_to_json`), its inlier correspondences held as
+    the result's float32 (I, 4) arrays until :meth:`to_json` writes them as lists."""
 
     index: int
     frame_id: str
@@ -69,6 +98,9 @@ class FrameOutcome:
     telemetry_error_m: float = math.nan
     gnss_accuracy_m: float | None = None
     gnss_degraded: bool | None = None
+    attitude_assumed: bool = False
+    candidates: int = 0
+    dropped: tuple[DroppedCandidate, ...] = ()
 
     @property
     def scored(self) -> bool:
@@ -98,9 +130,10 @@ class FrameOutcome:
 class FlightRun:
     """One strategy flown over one flight: its frames' outcomes in order, the matcher settings
     it ran with (``[matcher]`` resolved for that strategy: its own defaults where the
-    configuration leaves a setting unset, as JSON), start-up and wall time (s), and the
+    configuration leaves a setting unset, as JSON), start-up and wall time (s), the
     ``[lightglue]`` settings resolved for it the same way (its pair matcher's, when it uses
-    LightGlue)."""
+    LightGlue), ``planned``, the frames it was to fly when it was stopped before the last
+    (None: it flew them all), and the log lines its ``matcher.log`` could not take."""
 
     strategy: str
     settings: dict[str, Any]
@@ -108,6 +141,21 @@ class FlightRun:
     startup_s: float
     wall_s: float
     lightglue: dict[str, Any] = field(default_factory=dict)
+    planned: int | None = None
+    log_lines_lost: int = 0
+
+    @property
+    def complete(self) -> bool:
+        """Whether every frame the run was to fly has its outcome."""
+        return self.planned is None or len(self.outcomes) >= self.planned
+
+    @property
+    def progress(self) -> dict[str, Any]:
+        """What says, beside its results, whether the run is whole: ``complete``,
+        ``frames_done`` and ``frames`` (those it was to fly)."""
+        done = len(self.outcomes)
+        planned = done if self.planned is None else self.planned
+        return {"complete": self.complete, "frames_done": done, "frames": planned}
 
     @property
     def matcher_labels(self) -> list[str]:

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
+from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
@@ -16,6 +18,7 @@ import numpy as np
 from c3_matcher import camera as cam
 from c3_matcher.dto import MatchResult
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
+from c3_matcher_tools.dataset.sources.options import number_ranges
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.geodesy import axis_ground_point
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
@@ -24,9 +27,11 @@ __all__ = [
     "RunSummary",
     "TelemetryReference",
     "best_candidate_error",
+    "dropped_lines",
     "figure",
     "result_fingerprint",
     "summarize",
+    "telemetry_lines",
     "telemetry_reference",
     "truth_position",
 ]
@@ -97,13 +102,15 @@ def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, f
 @dataclass(frozen=True)
 class TelemetryReference:
     """Where the flight's recorded position, attitude and height put a frame's centre (the
-    import's look point, lat/lon), the GNSS accuracy the log states and whether GNSS was absent
-    or degraded (None: the log does not say)."""
+    import's look point, lat/lon), the GNSS accuracy the log states, whether GNSS was absent
+    or degraded (None: the log does not say) and whether the attitude was assumed level (the
+    log had none at the frame: the look point is a level camera's, not the frame's)."""
 
     lat: float
     lon: float
     gnss_accuracy_m: float | None
     gnss_degraded: bool | None
+    attitude_assumed: bool = False
 
 
 def telemetry_reference(frame: FrameRecord) -> TelemetryReference | None:
@@ -112,11 +119,13 @@ def telemetry_reference(frame: FrameRecord) -> TelemetryReference | None:
     if "look_lat" not in t or "look_lon" not in t:
         return None
     accuracy = t.get("gnss_accuracy_m")
+    flags = t.get("flags")
     return TelemetryReference(
         float(t["look_lat"]),
         float(t["look_lon"]),
         None if accuracy is None else float(accuracy),
         None if "gnss_degraded" not in t else bool(t["gnss_degraded"]),
+        isinstance(flags, list) and "attitude_assumed" in flags,
     )
 
 
@@ -148,12 +157,18 @@ class RunSummary:
     position errors (m) against ground truth over every matched frame that has one
     (``position_error_frames`` of them, true tile a candidate or not: C3-IT-03's position
     figures count only those whose true tile is); for a recorded flight, the estimate minus
-    the telemetry's look point (m), all matched frames and those whose GNSS was
-    good, the stated GNSS accuracy, and the frames whose GNSS was absent or degraded.
+    the telemetry's look point (m) over the located frames whose attitude was measured
+    (``telemetry_error_frames`` of them) and those of them whose GNSS was good, the stated GNSS
+    accuracy, the frames whose GNSS was absent or degraded, and apart the frames whose attitude
+    the import assumed level (``attitude_assumed_frames``: their look point is a level
+    camera's, hundreds of metres from a tilted one's) with the p50 of their estimate minus it.
     ``true_present`` and ``correct_candidate`` count the frames with ground truth whose image
     was read (``FrameOutcome.scored``, as C3-IT-04 does), ``true_absent`` and
     ``absent_raised`` those whose true tile is not a candidate (as C3-IT-05 does); frame
-    times are those of the frames the matcher ran on (an unreadable image never reached it)."""
+    times are those of the frames the matcher ran on (an unreadable image never reached it).
+    ``candidates``: those the matcher was given over the run; ``candidates_dropped``: those it
+    dropped, counted by cause (:class:`DroppedCandidate`), most first; ``tile_dropped``: those
+    dropped for their tiles (a tile failing its sha256 or not decoding: the store's fault)."""
 
     frames: int
     by_status: Mapping[FrameStatus, int]
@@ -170,12 +185,18 @@ class RunSummary:
     telemetry_error_m_p50: float | None
     telemetry_error_m_p95: float | None
     telemetry_error_m_p50_gnss_good: float | None
+    telemetry_error_frames: int
     gnss_accuracy_m_p50: float | None
     gnss_degraded_frames: tuple[int, ...]
+    attitude_assumed_frames: tuple[int, ...]
+    telemetry_error_m_p50_attitude_assumed: float | None
     frame_ms_p50: float | None
     frame_ms_p95: float | None
     frame_ms_mean: float | None
     total_s: float
+    candidates: int = 0
+    candidates_dropped: tuple[tuple[str, int], ...] = ()
+    tile_dropped: int = 0
 
     def count(self, status: FrameStatus) -> int:
         return self.by_status.get(status, 0)
@@ -195,7 +216,15 @@ class RunSummary:
             **{str(s): by_status.get(s, 0) for s in FrameStatus},
             **out,
             "gnss_degraded_frames": list(self.gnss_degraded_frames),
+            "attitude_assumed_frames": list(self.attitude_assumed_frames),
+            "candidates_dropped": dict(self.candidates_dropped),
         }
+
+    @property
+    def dropped_for_tiles(self) -> bool:
+        """Most of the candidates the matcher was given were dropped for their tiles: the
+        tile store, not the matcher or the flight, is what failed."""
+        return self.tile_dropped * 2 > self.candidates
 
 
 def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
@@ -207,7 +236,13 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
     pos = [p for p in pos if math.isfinite(p)]
     tele = [o for o in outcomes if o.telemetry_lat is not None]
     tele_ok = [o for o in tele if o.status == FrameStatus.OK]
+    measured = [o.telemetry_error_m for o in tele_ok if not o.attitude_assumed]
+    level = [o.telemetry_error_m for o in tele_ok if o.attitude_assumed]
+    good = [
+        o.telemetry_error_m for o in tele_ok if not o.attitude_assumed and o.gnss_degraded is False
+    ]
     accuracy = [o.gnss_accuracy_m for o in tele if o.gnss_accuracy_m is not None]
+    causes = Counter(d.cause for o in outcomes for d in o.dropped)
     return RunSummary(
         frames=len(outcomes),
         by_status=MappingProxyType({s: sum(o.status == s for o in outcomes) for s in FrameStatus}),
@@ -221,15 +256,63 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
         position_error_m_p95=_percentile(pos, 95),
         position_error_frames=len(pos),
         with_telemetry=len(tele),
-        telemetry_error_m_p50=_percentile([o.telemetry_error_m for o in tele_ok], 50),
-        telemetry_error_m_p95=_percentile([o.telemetry_error_m for o in tele_ok], 95),
-        telemetry_error_m_p50_gnss_good=_percentile(
-            [o.telemetry_error_m for o in tele_ok if o.gnss_degraded is False], 50
-        ),
+        telemetry_error_m_p50=_percentile(measured, 50),
+        telemetry_error_m_p95=_percentile(measured, 95),
+        telemetry_error_m_p50_gnss_good=_percentile(good, 50),
+        telemetry_error_frames=sum(math.isfinite(e) for e in measured),
         gnss_accuracy_m_p50=_percentile(accuracy, 50),
         gnss_degraded_frames=tuple(o.index for o in tele if o.gnss_degraded),
+        attitude_assumed_frames=tuple(o.index for o in tele if o.attitude_assumed),
+        telemetry_error_m_p50_attitude_assumed=_percentile(level, 50),
         frame_ms_p50=_percentile(matched, 50),
         frame_ms_p95=_percentile(matched, 95),
         frame_ms_mean=float(np.mean(matched)) if matched else None,
         total_s=float(np.sum(matched)) / 1e3,
+        candidates=sum(o.candidates for o in outcomes),
+        candidates_dropped=tuple(causes.most_common()),
+        tile_dropped=sum(d.of_tile for o in outcomes for d in o.dropped),
     )
+
+
+def dropped_lines(s: RunSummary, store: Path | str) -> list[str]:
+    """What ``replay`` and ``eval`` say of the candidates the matcher dropped (nothing when
+    none was): how many, by cause; then, when most were dropped for their tiles, that the
+    tile store ``store`` is what failed, and what to do."""
+    if not s.candidates_dropped:
+        return []
+    total = sum(n for _, n in s.candidates_dropped)
+    lines = [
+        f"candidates dropped {total} of {s.candidates}: "
+        + ", ".join(f"{cause} {n}" for cause, n in s.candidates_dropped)
+    ]
+    if s.dropped_for_tiles:
+        lines.append(
+            f"{s.tile_dropped} of {s.candidates} candidates were dropped for their tiles: the "
+            f"tile store {store} is damaged (tiles failing their sha256 or not decoding, each "
+            "named in matcher.log): restore it or build it again (`c3-matcher tiles build`)"
+        )
+    return lines
+
+
+def telemetry_lines(s: RunSummary) -> list[str]:
+    """What ``replay`` and ``eval`` say of a recorded flight's figures: the estimate minus the
+    telemetry's look point over the frames whose attitude was measured, beside the GNSS accuracy
+    the log states; then, apart, the frames whose attitude the import assumed level and how far
+    the estimates lie from where a level camera would look."""
+    degraded, assumed = s.gnss_degraded_frames, s.attitude_assumed_frames
+    accuracy = s.gnss_accuracy_m_p50
+    lines = [
+        f"estimate - telemetry look point m p50 {figure(s.telemetry_error_m_p50)}, "
+        f"p95 {figure(s.telemetry_error_m_p95)} over {s.telemetry_error_frames} located "
+        f"frame(s){' with a measured attitude' if assumed else ''} ("
+        + ("GNSS accuracy not stated" if accuracy is None else f"GNSS accuracy {accuracy:.1f} m")
+        + f"; GNSS absent or degraded on {len(degraded)} frame(s)"
+        + (f": {number_ranges(degraded)})" if degraded else ")")
+    ]
+    if assumed:
+        lines.append(
+            f"attitude assumed level on {len(assumed)} frame(s) ({number_ranges(assumed)}; the "
+            "log has no attitude at their time): not counted above; estimate - a level "
+            f"camera's look point m p50 {figure(s.telemetry_error_m_p50_attitude_assumed)}"
+        )
+    return lines

@@ -1,0 +1,119 @@
+"""A long ``c3-matcher replay`` that is stopped keeps what it did: Ctrl-C (SIGINT) or SIGTERM
+during the frames leaves ``results.jsonl`` of the frames done (whole lines), ``run.json`` saying
+the run is incomplete, exit 130/143 and one line naming what is kept; a final write that fails
+(a full disk) still prints the summary of the frames matched (the ``sift_magsac`` baseline)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.config_sources import ENV_PREFIX
+from c3_matcher_tools.run.outputs import RUN_MARK
+
+DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
+SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
+C3 = Callable[..., subprocess.CompletedProcess[str]]
+
+
+def _flight(where: Path) -> Path:
+    """The demo flight: 30 frames, far more than are done once the first one is."""
+    shutil.copytree(DEMO, where)
+    return where
+
+
+def _wait(until: Callable[[], bool], proc: subprocess.Popen[bytes]) -> None:
+    deadline = time.monotonic() + 300
+    while not until():
+        assert proc.poll() is None, "the replay ended before its first frame was done"
+        assert time.monotonic() < deadline, "no frame done in 300 s"
+        time.sleep(0.01)
+
+
+def _frame_done(progress: Path) -> bool:
+    """The progress bar on stderr counts a frame done (its outcome is the run's)."""
+    return re.search(rb"\] +[1-9][0-9]*/30 ", progress.read_bytes()) is not None
+
+
+@pytest.mark.parametrize(
+    ("signum", "code", "word"),
+    [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")],
+    ids=["ctrl-c", "sigterm"],
+)
+def test_a_stopped_replay_keeps_the_results_of_the_frames_it_did(
+    c3: C3, tmp_path: Path, signum: int, code: int, word: str
+) -> None:
+    flight, out = _flight(tmp_path / "flight"), tmp_path / "out"
+    earlier = c3(
+        "replay", str(flight), "--strategy", "sift_magsac", "--out", str(out), "--limit", "1"
+    )
+    assert earlier.returncode == 0, earlier.stderr
+    env = {k: v for k, v in os.environ.items() if not k.startswith(ENV_PREFIX)}
+    argv = [sys.executable, "-m", "c3_matcher.cli", "replay", str(flight)]
+    err = tmp_path / "stderr"
+    with err.open("wb") as sink:
+        proc = subprocess.Popen(
+            [*argv, "--strategy", "sift_magsac", "--out", str(out)],
+            stdout=subprocess.DEVNULL,
+            stderr=sink,
+            env=env,
+            cwd=tmp_path,
+        )
+        try:
+            _wait(lambda: _frame_done(err), proc)
+            proc.send_signal(signum)
+            assert proc.wait(timeout=300) == code
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    last = err.read_text().splitlines()[-1]
+    lines = (out / "results.jsonl").read_text().splitlines()
+    done = len(lines)
+    assert 1 <= done < 30
+    assert [json.loads(line)["index"] for line in lines] == list(range(done))
+    assert last == (
+        f"c3-matcher: {word} after {done} of 30 frames: their results are in "
+        f"{out / 'results.jsonl'} ({RUN_MARK} marks the run incomplete)"
+    ), last
+    mark = json.loads((out / RUN_MARK).read_text())
+    assert mark == {
+        "command": "c3-matcher replay",
+        "complete": False,
+        "frames_done": done,
+        "frames": 30,
+    }
+    report = json.loads((out / "report.json").read_text())
+    assert (report["complete"], report["frames_done"], report["frames"]) == (False, done, 30)
+    assert not (out / "flight.geojson").exists() and not (out / "report.html").exists()
+    again = c3(
+        "replay", str(flight), "--strategy", "sift_magsac", "--out", str(out), "--limit", "1"
+    )
+    assert again.returncode == 0, again.stderr  # a whole run there again: marked whole
+    assert json.loads((out / RUN_MARK).read_text()) == {"command": "c3-matcher replay"}
+    assert json.loads((out / "report.json").read_text())["complete"] is True
+
+
+def test_a_replay_whose_results_cannot_be_written_still_prints_its_summary(
+    small_flight: SmallFlight, c3: C3, tmp_path: Path
+) -> None:
+    flight = small_flight("two_frames")
+    out = tmp_path / "out"
+    proc = c3(
+        "replay", str(flight), "--strategy", "sift_magsac", "--out", str(out),
+        limit_file_bytes=8 << 10,
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stdout.startswith("replay two_frames with sift_magsac: 2 frames in "), proc.stdout
+    assert "  ok 1, insufficient inliers 1" in proc.stdout, proc.stdout
+    assert proc.stderr.splitlines()[-1].startswith(f"c3-matcher: {out / 'results.jsonl'}: ")
