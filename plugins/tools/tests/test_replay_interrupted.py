@@ -91,10 +91,15 @@ def test_a_stopped_replay_keeps_the_results_of_the_frames_it_did(
         "command": "c3-matcher replay",
         "complete": False,
         "frames_done": done,
-        "frames": 30,
+        "frames_planned": 30,
     }
     report = json.loads((out / "report.json").read_text())
-    assert (report["complete"], report["frames_done"], report["frames"]) == (False, done, 30)
+    assert (report["complete"], report["frames_done"], report["frames_planned"]) == (
+        False,
+        done,
+        30,
+    )
+    assert report["frames"] == report["ok"] + report["insufficient"] == done  # counts agree
     assert not (out / "flight.geojson").exists() and not (out / "report.html").exists()
     again = c3(
         "replay", str(flight), "--strategy", "sift_magsac", "--out", str(out), "--limit", "1"
@@ -117,3 +122,33 @@ def test_a_replay_whose_results_cannot_be_written_still_prints_its_summary(
     assert proc.stdout.startswith("replay two_frames with sift_magsac: 2 frames in "), proc.stdout
     assert "  ok 1, insufficient inliers 1" in proc.stdout, proc.stdout
     assert proc.stderr.splitlines()[-1].startswith(f"c3-matcher: {out / 'results.jsonl'}: ")
+
+
+def test_a_replay_stopped_while_writing_its_files_keeps_every_frame(
+    small_flight: SmallFlight,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Ctrl-C after the last frame, as the map and flight report are written: the frames'
+    results are kept all the same, the report printed, and the one line says so (exit 130)."""
+    import c3_matcher_tools.replay
+    from c3_matcher.cli import main
+
+    def ctrl_c(*args: object, **kwargs: object) -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(5)  # the signal arrives first
+
+    monkeypatch.setattr(c3_matcher_tools.replay, "write_flight_outputs", ctrl_c)
+    flight, out = small_flight("writing"), tmp_path / "out"
+    code = main(["replay", str(flight), "--strategy", "sift_magsac", "--out", str(out), "--json"])
+    said = capsys.readouterr()
+    assert code == 130
+    assert said.err.splitlines()[-1] == (
+        f"c3-matcher: interrupted after 2 of 2 frames: their results are in {out / 'results.jsonl'}"
+    )
+    assert json.loads(said.out)["frames_done"] == 2
+    lines = (out / "results.jsonl").read_text().splitlines()
+    assert [json.loads(line)["index"] for line in lines] == [0, 1]
+    mark = json.loads((out / RUN_MARK).read_text())
+    assert (mark["complete"], mark["frames_done"], mark["frames_planned"]) == (True, 2, 2)

@@ -23,11 +23,11 @@ footprint; frames with ground truth also carry ``truth_lat``/``truth_lon`` and
 ``position_error_m``: both centres are the principal point's ground point, where the camera
 looks (under tilt, not the point below the vehicle). The report's ``settings`` are the
 ``[matcher]`` settings the strategy ran with (its own defaults where the configuration leaves a
-setting unset). Stopped by Ctrl-C or SIGTERM during the frames, a replay keeps those done: its
-``run.json`` says the run is incomplete (``"complete": false``, ``frames_done``, ``frames``),
-then ``results.jsonl`` and ``report.json`` hold them (no map, no flight report) and one line
-says so (exit 130/143). The report reaches stdout before the files are written: a final write
-that fails (a full disk) still leaves it.
+setting unset). Stopped by Ctrl-C or SIGTERM during the frames or its final writes, a replay
+keeps the frames done: its ``run.json`` says how many (``complete``, ``frames_done``,
+``frames_planned``), then ``results.jsonl`` and ``report.json`` hold them (no map, no flight
+report) and one line says so (exit 130/143). The report reaches stdout before the files are
+written: a final write that fails (a full disk) still leaves it.
 
 The command only: flying and scoring are the run layer's (:mod:`c3_matcher_tools.run`).
 """
@@ -61,6 +61,7 @@ from c3_matcher_tools.run import (
     fly_prepared,
     output_dir_name,
     prepare_matcher,
+    signals_noted,
     summarize,
     write_flight_outputs,
     write_results,
@@ -131,24 +132,49 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
         exclusive_output_dir(out),
     ):
         mark_output_dirs(REPLAY_RUN, out)
-        try:
-            flown = FlightOptions(
-                frames,
-                ProgressBar(f"replay {dataset.name} {strategy}"),
-                with_correspondences=not args.no_correspondences,
-                keep_stopped=True,
-            )
-            run = fly_prepared(prepared, dataset, out, plugin_host=ctx.plugin_host, options=flown)
-        except FlightStopped as stop:
-            return _keep_stopped(ctx, dataset, out, stop)
-        summary = summarize(run.outcomes)
-        html = None if no_report_html() else str(out / "report.html")
-        shown = {**_run_report(dataset, run, summary, out), "geojson": str(out / "flight.geojson")}
-        _print_report(ctx, args.json, dataset.name, {**shown, "html": html}, summary, out)
-        files = write_flight_outputs(out, dataset, run, shown)  # a failure: after the summary
-        report = {**shown, "geojson": files.geojson, "html": files.html}
-        write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
-    return EXIT_OK
+        flown = FlightOptions(
+            frames,
+            ProgressBar(f"replay {dataset.name} {strategy}"),
+            with_correspondences=not args.no_correspondences,
+            keep_stopped=True,
+        )
+        run: FlightRun | None = None
+        said: list[bool] = []  # whether the report reached stdout
+        with signals_noted() as noted:  # from the first frame to the last file written
+            try:
+                run = fly_prepared(
+                    prepared, dataset, out, plugin_host=ctx.plugin_host, options=flown
+                )
+                _write_run(ctx, args.json, dataset, run, out, said)
+                return EXIT_OK
+            except FlightStopped as stop:
+                run, signum = stop.run, stop.signum
+            except KeyboardInterrupt:
+                if run is None or not noted:  # before the first frame: nothing to keep
+                    raise
+                signum = noted[-1]
+        assert run is not None  # fly_prepared's FlightStopped holds the run
+        return _keep_stopped(ctx, None if said else args.json, dataset, out, run, signum)
+
+
+def _write_run(
+    ctx: CommandContext,
+    as_json: bool,
+    dataset: FlightDataset,
+    run: FlightRun,
+    out: Path,
+    said: list[bool],
+) -> None:
+    """The report on stdout (``said`` then holds True), then the run's files (a failure to
+    write them: after the report)."""
+    summary = summarize(run.outcomes)
+    html = None if no_report_html() else str(out / "report.html")
+    shown = {**_run_report(dataset, run, summary, out), "geojson": str(out / "flight.geojson")}
+    _print_report(ctx, as_json, dataset.name, {**shown, "html": html}, summary, out)
+    said.append(True)
+    files = write_flight_outputs(out, dataset, run, shown)
+    report = {**shown, "geojson": files.geojson, "html": files.html}
+    write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
 
 
 def _run_report(
@@ -187,24 +213,34 @@ def _print_report(
 
 
 def _keep_stopped(
-    ctx: CommandContext, dataset: FlightDataset, out: Path, stop: FlightStopped
+    ctx: CommandContext,
+    as_json: bool | None,
+    dataset: FlightDataset,
+    out: Path,
+    run: FlightRun,
+    signum: int,
 ) -> int:
-    """A replay stopped by Ctrl-C or SIGTERM part-way keeps the frames it did: ``run.json``
-    marked incomplete first, then their ``results.jsonl`` and ``report.json``, each written
-    atomically (a second Ctrl-C meanwhile stops at once, tearing nothing); one line naming what
-    is kept, and 130 or 143 as a shell reports the signal."""
-    run = stop.run
-    assert run is not None  # fly_prepared's FlightStopped holds the run
+    """A replay stopped by Ctrl-C or SIGTERM, part-way or while writing its files, keeps the
+    frames it did: ``run.json`` says how many first, then their ``results.jsonl`` and
+    ``report.json`` (no map, no flight report), each written atomically (a second Ctrl-C
+    meanwhile stops at once, tearing nothing); the report on stdout (as JSON or not; None: it
+    is there already), one line naming what is kept, and 130 or 143 as a shell reports the
+    signal."""
     mark_stopped(REPLAY_RUN, out, run)
     results = write_results(out / "results.jsonl", run.outcomes)
-    report = _run_report(dataset, run, summarize(run.outcomes), out)
+    summary = summarize(run.outcomes)
+    report = {**_run_report(dataset, run, summary, out), "geojson": None, "html": None}
     write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
-    word = "terminated" if stop.signum == signal.SIGTERM else "interrupted"
+    if as_json is not None:
+        _print_report(ctx, as_json, dataset.name, report, summary, out)
+    word = "terminated" if signum == signal.SIGTERM else "interrupted"
+    done, planned = report["frames_done"], report["frames_planned"]
+    whole = "" if run.complete else f" ({RUN_MARK} marks the run incomplete)"
     ctx.err(
-        f"c3-matcher: {word} after {len(run.outcomes)} of {stop.planned} frames: their results "
-        f"are in {results} ({RUN_MARK} marks the run incomplete)"
+        f"c3-matcher: {word} after {done} of {planned} frames: their results are in {results}"
+        + whole
     )
-    return 128 + stop.signum
+    return 128 + signum
 
 
 def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -> list[str]:
@@ -258,7 +294,10 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
     lines.append(
         f"  results {report['results']}, FDR {report['fdr']}, report {out / REPLAY_RUN.report}"
     )
-    lines.append(f"  map {report['geojson']}, flight report {report['html'] or '(not written)'}")
+    lines.append(
+        f"  map {report['geojson'] or '(not written)'}, "
+        f"flight report {report['html'] or '(not written)'}"
+    )
     if lost := report.get("log_lines_lost"):
         lines.append(f"  {report['log']}: {lost} line(s) could not be written (a full disk?)")
     return lines

@@ -22,6 +22,7 @@ from c3_matcher_tools.run.flight import (
     fly,
     fly_prepared,
     run_flight,
+    signals_noted,
 )
 from c3_matcher_tools.run.matcher import (
     NO_OVERRIDES,
@@ -94,6 +95,7 @@ __all__ = [
     "prepare_matcher",
     "result_fingerprint",
     "run_flight",
+    "signals_noted",
     "summarize",
     "telemetry_reference",
     "truth_position",

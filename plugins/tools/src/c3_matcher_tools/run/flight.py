@@ -50,6 +50,7 @@ __all__ = [
     "fly",
     "fly_prepared",
     "run_flight",
+    "signals_noted",
 ]
 
 Progress = Callable[[int, int], None]
@@ -98,7 +99,7 @@ def run_flight(
     todo = list(dataset.frames if options.frames is None else options.frames)
     progress, with_correspondences = options.progress, options.with_correspondences
     outcomes: list[FrameOutcome] = []
-    with dataset.open_store() as store, _signals_noted() as noted:
+    with dataset.open_store() as store, signals_noted() as noted:
         try:
             for n, frame in enumerate(todo, start=1):
                 outcomes.append(_fly_frame(matcher, dataset, frame, store, with_correspondences))
@@ -112,7 +113,7 @@ def run_flight(
 
 
 @contextlib.contextmanager
-def _signals_noted() -> Iterator[list[int]]:
+def signals_noted() -> Iterator[list[int]]:
     """The SIGINT and SIGTERM that come while the block runs, in order, each then handled as
     before (raising ``KeyboardInterrupt``, as the command line has it); the handlers as they
     were afterwards, so that a second one while a stopped run's results are written stops it

@@ -152,10 +152,10 @@ class FlightRun:
     @property
     def progress(self) -> dict[str, Any]:
         """What says, beside its results, whether the run is whole: ``complete``,
-        ``frames_done`` and ``frames`` (those it was to fly)."""
+        ``frames_done`` and ``frames_planned`` (those it was to fly)."""
         done = len(self.outcomes)
         planned = done if self.planned is None else self.planned
-        return {"complete": self.complete, "frames_done": done, "frames": planned}
+        return {"complete": self.complete, "frames_done": done, "frames_planned": planned}
 
     @property
     def matcher_labels(self) -> list[str]:
