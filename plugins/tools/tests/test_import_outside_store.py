@@ -77,7 +77,7 @@ def test_a_flight_partly_outside_the_store_is_refused_naming_those_inside_and_th
     proc = c3(recorded / "photos", recorded / "flight.ulg", CAL, store, out)
     line = _one_line(proc)
     assert "flight.ulg: 10 of 30 frame(s) look outside the store's coverage at zoom 15" in line
-    assert "IMG_0009.jpg (" in line and "and 5 more" in line
+    assert "IMG_0009.jpg (looks at " in line and "and 5 more" in line
     assert "give --skip-outside to import the 20 inside" in line
     assert "different places" not in line  # two thirds of the flight is over the store
     assert not out.exists()
@@ -105,6 +105,8 @@ def test_with_skip_outside_the_frames_outside_are_skipped_and_listed(
     assert d.meta["spec"]["skip_outside"] is True
     said = c3(recorded / "photos", recorded / "flight.ulg", CAL, store, tmp_path / "again")
     assert said.returncode == 2  # the default is the refusal: nothing dropped unasked
+    first = summary["skipped"][0]["reason"].split("look point (")[1].split(")")[0]
+    assert f"{names[0]} (looks at {first})" in said.stderr  # one place, said alike
 
 
 def test_with_skip_outside_a_flight_wholly_outside_the_store_is_refused_still(

@@ -271,7 +271,7 @@ def test_frames_outside_the_store_beyond_those_shown_are_counted_not_hidden() ->
     from c3_matcher_tools.dataset.telemetry import TelemetryRow
 
     rows = [TelemetryRow(i, float(i), f"IMG_{i}.jpg", 63.4, 10.4, 80.0, 0, 0, 0) for i in range(6)]
-    proposals = StoreProposals(18, [], rows, "", "")
+    proposals = StoreProposals(18, [((10.4, 63.4), None)] * 6, rows, "", "")
     with pytest.raises(InvalidInputError) as refused:
         proposals.refuse_outside("flight.ulg", lambda r: r.image, shown=5)
     message = str(refused.value)

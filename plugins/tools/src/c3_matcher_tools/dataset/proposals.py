@@ -159,12 +159,17 @@ class StoreProposals:
         option: str | None = None,
     ) -> None:
         """``InvalidInputError`` naming ``where`` when any row looks outside the store: how many
-        (of how many), then the first ``shown`` as ``label(row)`` and their (lat, lon). When no
+        (of how many), then the first ``shown`` as ``label(row)`` and the (lat, lon) each looks
+        at (as :meth:`within` lists them skipped, not the vehicle's position). When no
         row is inside, ``hint`` follows the zoom; else how many are inside, and ``option``
         (when given) as the way to import those."""
         if not self.outside:
             return
-        names = [f"{label(r)} ({r.lat:.6f}, {r.lon:.6f})" for r in self.outside]
+        looks = [look for look, cands in self.looks if cands is None]  # the outside rows'
+        names = [
+            f"{label(r)} (looks at {lat:.6f}, {lon:.6f})"
+            for r, (lon, lat) in zip(self.outside, looks, strict=True)
+        ]
         more = f" and {len(names) - shown} more" if len(names) > shown else ""
         inside = len(self.looks) - len(self.outside)
         head, way = f"{len(names)} frame(s)", ""
