@@ -155,19 +155,17 @@ def test_the_refine_record_says_why_only_when_not_kept():
 def test_the_match_commands_drop_reasons_are_read_from_the_recorders_log_events():
     """``c3-matcher match`` says why each dropped candidate went by listening to the log kinds
     the recorder writes; a kind renamed on one side only would silently lose every reason."""
-    from c3_matcher.match_cli import _collect_drop_reasons, _remove_sink
+    from c3_matcher.stages.drops import drops_heard
 
-    reasons: dict[int, str] = {}
-    sink = _collect_drop_reasons(reasons)
-    try:
+    with drops_heard() as heard:
         recorder = FrameRecorder(_sinks()[0], "f")
         recorder.backbone_error("18,1,2", "lightglue_match", RuntimeError("boom"), 0)
         recorder.zero_inliers("18,3,4", 1, raw_matches=7)
         recorder.zero_inliers("18,3,4", 2, raw_matches=9)  # the same tile id twice: by position
         recorder.geometry_refused(GeometryRefusal("18,5,6", 3, 41, "rotation 45.0 deg"))
         recorder.backbone_error(None, "query_extract", RuntimeError("no"))  # no candidate's
-    finally:
-        _remove_sink(sink)
+    reasons = {i: drop.reason for i, drop in heard.items()}
+    assert heard[0].event["phase"] == "lightglue_match"  # what a run counts it under
     assert reasons == {
         0: "backbone error in lightglue_match: RuntimeError: boom",
         1: "no inliers after RANSAC (7 raw matches)",

@@ -29,7 +29,7 @@ def test_a_store_copy_over_the_file_size_limit_names_the_copy_not_the_input(
     assert r.returncode == 2, r.stderr
     last = r.stderr.strip().splitlines()[-1]
     assert str(STORE) not in last, last
-    assert last == "c3-matcher: ds/tiles.mbtiles File too large", last  # OUT's, not the tmp's
+    assert last == "c3-matcher: ds/tiles.mbtiles: File too large", last  # OUT's, not the tmp's
     assert list(tmp_path.iterdir()) == []  # nothing at OUT or beside it
 
 
