@@ -19,7 +19,11 @@ from c3_matcher.stages.recorder import FrameRecorder
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 from c3_matcher.tilestore.features import FeatureRequest
 
-__all__ = ["CandidateFeatures", "feature_request"]
+__all__ = ["TILE_DECODE_PHASE", "CandidateFeatures", "feature_request"]
+
+TILE_DECODE_PHASE = "tile_decode"
+"""The step that reads and checks a candidate's tile from its handle (its sha256, its decoding):
+a backbone error there is the tile's own, not the matcher's."""
 
 
 def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureRequest | None:
@@ -76,7 +80,7 @@ class CandidateFeatures:
     ) -> TileFeatures:
         """The candidate's tile features; raises ``CandidateStepError`` (``tile_decode`` or the
         backend's extract phase) when they can be had from none of the sources."""
-        with failing_as("tile_decode", "none"):
+        with failing_as(TILE_DECODE_PHASE, "none"):
             stored = None
             if self.use_stored:
                 with timed(timings, "assemble"):
@@ -88,7 +92,7 @@ class CandidateFeatures:
             cached = self.cache.get(key) if key is not None else None
         if cached is not None:
             return TileFeatures("cached", cached.prepared, cached.features)
-        with failing_as("tile_decode", "extracted"):
+        with failing_as(TILE_DECODE_PHASE, "extracted"):
             with timed(timings, "decode"):
                 pixels = handle.decode()
             with timed(timings, "preprocess"):

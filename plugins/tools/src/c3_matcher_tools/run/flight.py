@@ -22,7 +22,7 @@ from c3_matcher.logs import MATCHER_GEOMETRY_REFUSED, MATCHER_ZERO_INLIERS
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import CALIBRATION_SIZE_FIX, result_to_json
-from c3_matcher.stages.drops import drops_heard
+from c3_matcher.stages.drops import HeardDrop, drops_heard
 from c3_matcher.tiles import DECODABLE_FORMATS, MmapTileHandle, image_file_size
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
@@ -99,10 +99,12 @@ def run_flight(
     todo = list(dataset.frames if options.frames is None else options.frames)
     progress, with_correspondences = options.progress, options.with_correspondences
     outcomes: list[FrameOutcome] = []
-    with dataset.open_store() as store, signals_noted() as noted:
+    # one listener for the flight, not one added and removed inside each frame's timing
+    with dataset.open_store() as store, signals_noted() as noted, drops_heard() as heard:
         try:
             for n, frame in enumerate(todo, start=1):
-                outcomes.append(_fly_frame(matcher, dataset, frame, store, with_correspondences))
+                flown = _fly_frame(matcher, dataset, frame, store, heard, with_correspondences)
+                outcomes.append(flown)
                 if progress is not None:
                     progress(n, len(todo))
         except KeyboardInterrupt as exc:
@@ -144,23 +146,26 @@ def _fly_frame(
     dataset: FlightDataset,
     frame: FrameRecord,
     store: MBTilesStore,
+    heard: dict[int, HeardDrop],
     with_correspondences: bool,
 ) -> FrameOutcome:
+    """The frame matched and scored; ``heard``: the flight's listener for dropped candidates
+    (emptied here before the frame's ``match``)."""
     where = _Where(frame.has_truth, truth_position(dataset, frame), telemetry_reference(frame))
     try:
         nav = dataset.nav_frame(frame)
     except InvalidInputError as exc:  # a damaged or vanished image: the camera's loss, not C3's
         return where.outcome(frame, FrameStatus.UNREADABLE, 0.0, error=str(exc))
     rerank = dataset.rerank(frame, store)
+    heard.clear()
     t0 = time.perf_counter()
     failure: tuple[FrameStatus, Exception, int] | None = None
-    with drops_heard() as heard:
-        try:
-            result = matcher.match(nav, rerank, dataset.calibration)
-        except InsufficientInliersError as exc:
-            failure = (FrameStatus.INSUFFICIENT, exc, exc.best_inlier_count)
-        except MatcherBackboneError as exc:
-            failure = (FrameStatus.BACKBONE_ERROR, exc, 0)
+    try:
+        result = matcher.match(nav, rerank, dataset.calibration)
+    except InsufficientInliersError as exc:
+        failure = (FrameStatus.INSUFFICIENT, exc, exc.best_inlier_count)
+    except MatcherBackboneError as exc:
+        failure = (FrameStatus.BACKBONE_ERROR, exc, 0)
     elapsed = (time.perf_counter() - t0) * 1e3
     dropped = tuple(
         DroppedCandidate(i, drop.event.get("tile_id"), drop.reason, _cause(drop.event))

@@ -11,8 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from c3_matcher.stages.candidate_features import TILE_DECODE_PHASE
+
 __all__ = [
-    "TILE_PHASE",
     "DroppedCandidate",
     "FlightRun",
     "FrameOutcome",
@@ -33,11 +34,6 @@ class FrameStatus(StrEnum):
     """The frame's image could not be read or decoded: the matcher never saw it."""
 
 
-TILE_PHASE = "tile_decode"
-"""The matcher's step that reads and checks a candidate's tile from the store (its sha256, its
-decoding): a candidate dropped there was dropped for the tile itself."""
-
-
 @dataclass(frozen=True)
 class DroppedCandidate:
     """A candidate the matcher dropped on a frame: its input position, its tile id, why (in the
@@ -53,7 +49,7 @@ class DroppedCandidate:
     @property
     def of_tile(self) -> bool:
         """Dropped for its tile: it could not be read, checked or decoded from the store."""
-        return self.cause.split(" ", 1)[0] == TILE_PHASE
+        return self.cause.split(" ", 1)[0] == TILE_DECODE_PHASE
 
 
 @dataclass(frozen=True)
