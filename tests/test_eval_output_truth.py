@@ -16,7 +16,8 @@ from typing import Any, cast
 import pytest
 
 from c3_matcher.context import CommandContext
-from c3_matcher_tools.evaluate import _print_summary, _table_row, metrics
+from c3_matcher_tools.eval_tables import print_summary_table, table_row
+from c3_matcher_tools.evaluate import metrics
 from c3_matcher_tools.run import FrameOutcome, StrategyEval, SummaryRow, summarize
 from c3_matcher_tools.run.acceptance import Headline
 from c3_matcher_tools.run.records import FlightRun
@@ -31,7 +32,7 @@ def _row(outcomes: list[FrameOutcome], run2: list[FrameOutcome] | None = None) -
     m = metrics(outcomes, outcomes[:1] if run2 is None else run2)
     run = FlightRun("xfeat", {}, tuple(outcomes), 0.0, 0.0)
     timing = dataclasses.replace(summarize(outcomes), frame_ms_p50=10.0, frame_ms_p95=12.0)
-    return _table_row(StrategyEval(run, m, timing, "map.geojson", None))
+    return table_row(StrategyEval(run, m, timing, "map.geojson", None))
 
 
 class _Lines:
@@ -140,7 +141,7 @@ def _summary(flight: str, **figures: Any) -> SummaryRow:
 
 def _summary_lines(rows: list[SummaryRow]) -> list[str]:
     sink = _Lines()
-    _print_summary(cast(CommandContext, sink), rows)
+    print_summary_table(cast(CommandContext, sink), rows)
     return sink.lines
 
 

@@ -1,11 +1,13 @@
 """A damaged map is reported as one: when a store's tiles fail their sha256, ``replay`` and
 ``eval`` count the dropped candidates by why they were dropped, each frame's line in
-``results.jsonl`` names its dropped candidates and why, and the hint of a run where no frame
-matched names the tile store, not the heights and attitudes (two frames, ``sift_magsac``)."""
+``results.jsonl`` names its dropped candidates and why, ``report.html`` says so too, and the
+hint of a run where no frame matched names the tile store, not the heights and attitudes (two
+frames, ``sift_magsac``)."""
 
 from __future__ import annotations
 
 import contextlib
+import html
 import json
 import sqlite3
 import subprocess
@@ -46,6 +48,9 @@ def test_a_replay_on_a_damaged_store_says_the_candidates_were_dropped_for_their_
     assert f"  candidates dropped 6 of 6: {CAUSE} 6" in proc.stdout.splitlines(), proc.stdout
     assert f"the tile store {store}" in proc.stdout, proc.stdout
     assert "heights and attitudes" not in proc.stdout, proc.stdout
+    page = html.unescape((out / "report.html").read_text())  # the flight report says it too
+    assert f"candidates dropped 6 of 6: {CAUSE} 6" in page
+    assert f"the tile store {store} is damaged" in page
 
 
 def test_an_eval_on_a_damaged_store_counts_the_dropped_candidates(
@@ -72,5 +77,6 @@ def test_a_replay_on_an_intact_store_blames_no_tile(
     results = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
     causes = [d["cause"] for r in results for d in r["dropped"]]
     assert CAUSE not in causes
+    assert "is damaged" not in (out / "report.html").read_text()
     counted = json.loads((out / "report.json").read_text())["candidates_dropped"]
     assert counted == {cause: causes.count(cause) for cause in causes}

@@ -1,7 +1,8 @@
-"""A long ``c3-matcher replay`` that is stopped keeps what it did: Ctrl-C (SIGINT) or SIGTERM
-during the frames leaves ``results.jsonl`` of the frames done (whole lines), ``run.json`` saying
-the run is incomplete, exit 130/143 and one line naming what is kept; a final write that fails
-(a full disk) still prints the summary of the frames matched (the ``sift_magsac`` baseline)."""
+"""A long ``c3-matcher replay`` or ``eval`` that is stopped keeps what it did: Ctrl-C (SIGINT)
+or SIGTERM during the frames leaves ``results.jsonl`` of the frames done (whole lines), a mark
+saying the run is incomplete (replay's ``run.json``, eval's ``eval.json``), exit 130/143 and one
+line naming what is kept; a final write that fails (a full disk) still prints the summary of the
+frames matched (the ``sift_magsac`` baseline)."""
 
 from __future__ import annotations
 
@@ -32,17 +33,31 @@ def _flight(where: Path) -> Path:
     return where
 
 
-def _wait(until: Callable[[], bool], proc: subprocess.Popen[bytes]) -> None:
-    deadline = time.monotonic() + 300
-    while not until():
-        assert proc.poll() is None, "the replay ended before its first frame was done"
-        assert time.monotonic() < deadline, "no frame done in 300 s"
-        time.sleep(0.01)
-
-
-def _frame_done(progress: Path) -> bool:
-    """The progress bar on stderr counts a frame done (its outcome is the run's)."""
-    return re.search(rb"\] +[1-9][0-9]*/30 ", progress.read_bytes()) is not None
+def _stopped_once_a_frame_is_done(args: list[str], signum: int, where: Path) -> tuple[int, str]:
+    """``c3-matcher ARGS`` (without the caller's settings) sent ``signum`` once its progress
+    bar on stderr counts a frame of 30 done: its exit status and its stderr."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(ENV_PREFIX)}
+    err = where / "stderr"
+    with err.open("wb") as sink:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "c3_matcher.cli", *args],
+            stdout=subprocess.DEVNULL,
+            stderr=sink,
+            env=env,
+            cwd=where,
+        )
+        try:
+            deadline = time.monotonic() + 300
+            while re.search(rb"\] +[1-9][0-9]*/30 ", err.read_bytes()) is None:
+                assert proc.poll() is None, "the command ended before its first frame was done"
+                assert time.monotonic() < deadline, "no frame done in 300 s"
+                time.sleep(0.01)
+            proc.send_signal(signum)
+            return proc.wait(timeout=300), err.read_text()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
 
 
 @pytest.mark.parametrize(
@@ -58,26 +73,10 @@ def test_a_stopped_replay_keeps_the_results_of_the_frames_it_did(
         "replay", str(flight), "--strategy", "sift_magsac", "--out", str(out), "--limit", "1"
     )
     assert earlier.returncode == 0, earlier.stderr
-    env = {k: v for k, v in os.environ.items() if not k.startswith(ENV_PREFIX)}
-    argv = [sys.executable, "-m", "c3_matcher.cli", "replay", str(flight)]
-    err = tmp_path / "stderr"
-    with err.open("wb") as sink:
-        proc = subprocess.Popen(
-            [*argv, "--strategy", "sift_magsac", "--out", str(out)],
-            stdout=subprocess.DEVNULL,
-            stderr=sink,
-            env=env,
-            cwd=tmp_path,
-        )
-        try:
-            _wait(lambda: _frame_done(err), proc)
-            proc.send_signal(signum)
-            assert proc.wait(timeout=300) == code
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-    last = err.read_text().splitlines()[-1]
+    args = ["replay", str(flight), "--strategy", "sift_magsac", "--out", str(out)]
+    returncode, stderr = _stopped_once_a_frame_is_done(args, signum, tmp_path)
+    assert returncode == code, stderr
+    last = stderr.splitlines()[-1]
     lines = (out / "results.jsonl").read_text().splitlines()
     done = len(lines)
     assert 1 <= done < 30
@@ -152,3 +151,41 @@ def test_a_replay_stopped_while_writing_its_files_keeps_every_frame(
     assert [json.loads(line)["index"] for line in lines] == [0, 1]
     mark = json.loads((out / RUN_MARK).read_text())
     assert (mark["complete"], mark["frames_done"], mark["frames_planned"]) == (True, 2, 2)
+
+
+@pytest.mark.parametrize(
+    ("signum", "code", "word"),
+    [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")],
+    ids=["ctrl-c", "sigterm"],
+)
+def test_a_stopped_eval_keeps_the_flights_finished_and_the_frames_done(
+    small_flight: SmallFlight, tmp_path: Path, signum: int, code: int, word: str
+) -> None:
+    """Two flights; stopped during the second: the first one's figures stay whole, the
+    second's ``eval.json`` says it is incomplete, keeps the frames done and names what did not
+    run; ``summary.json`` has both rows."""
+    first, second = small_flight("two_frames"), _flight(tmp_path / "demo")
+    out = tmp_path / "out"
+    args = ["eval", str(first), str(second), "--strategy", "sift_magsac", "--samples", "0"]
+    returncode, stderr = _stopped_once_a_frame_is_done([*args, "--out", str(out)], signum, tmp_path)
+    assert returncode == code, stderr
+    report = out / "naip_demo" / "eval.json"
+    assert stderr.splitlines()[-1] == (
+        f"c3-matcher: {word} during sift_magsac on naip_demo: {report} holds the strategies "
+        "that finished and names those not run"
+    )
+    whole = json.loads((out / "two_frames" / "eval.json").read_text())
+    assert whole["complete"] is True and "metrics" in whole["strategies"][0]
+    stopped = json.loads(report.read_text())
+    assert (stopped["complete"], stopped["not_run"]) == (False, [])
+    (row,) = stopped["strategies"]
+    results = out / "naip_demo" / "sift_magsac" / "results.jsonl"
+    assert (row["frames_planned"], row["results"]) == (30, str(results))
+    lines = results.read_text().splitlines()
+    assert 1 <= row["frames_done"] == len(lines) < 30
+    assert [json.loads(line)["index"] for line in lines] == list(range(len(lines)))
+    summary = json.loads((out / "summary.json").read_text())
+    assert [(r["flight"], "stopped" in r) for r in summary] == [
+        ("two_frames", False),
+        ("naip_demo", True),
+    ]

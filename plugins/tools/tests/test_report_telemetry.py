@@ -1,12 +1,14 @@
-"""The flight report of a recorded flight (no ground truth): it draws the vehicle's GNSS track
-and where the telemetry says each frame looks beside the estimate, reports the estimate minus
-the telemetry position with the GNSS accuracy the log states, marks frames whose GNSS was
-degraded; its legends never cover a bar or the inlier threshold; the chart and the table use the
-same word for a failed frame; "made by" is the whole JSON. The flight is imported from a PX4
-ULog over the demo frames; outcomes are set per frame (no engine run here)."""
+"""The flight report of a recorded flight (no ground truth): it draws the vehicle's GNSS track and
+where the telemetry says each frame looks beside the estimate, reports the estimate minus the
+telemetry position with the GNSS accuracy the log states, marks frames whose GNSS was degraded; its
+legends never cover a bar or the inlier threshold; the chart and the table use the same word for a
+failed frame; "made by" is the whole JSON; a frame whose attitude was assumed level is marked, its
+look point joined to its estimate by no red error segment. The flight is imported from a PX4 ULog
+over the demo frames; outcomes are set per frame (no engine run here)."""
 
 from __future__ import annotations
 
+import dataclasses
 import html as html_lib
 import json
 import math
@@ -24,6 +26,7 @@ from c3_matcher_tools.dataset.sources.images import folder_shots
 from c3_matcher_tools.dataset.sources.options import ImportOptions, ProposalOptions
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.dataset.sources.writer import write_imported_flight
+from c3_matcher_tools.report.trajectory import ASSUMED_LABEL, GREY, RED
 from c3_matcher_tools.run import (
     FrameOutcome,
     summarize,
@@ -135,3 +138,19 @@ def test_made_by_is_whole_json(drawn: tuple[str, list[Any]], recorded: FlightDat
     cell = re.search(r"<th>made by</th><td>(.*?)</td>", text, re.S)
     assert cell is not None
     assert json.loads(html_lib.unescape(cell.group(1))) == recorded.meta["spec"]
+
+
+def test_frames_of_an_assumed_attitude_are_marked_not_drawn_as_errors(
+    recorded: FlightDataset, tmp_path: Path
+) -> None:
+    """Frame 4's attitude assumed level: its look point marked, its segment dashed grey."""
+    outcomes = [dataclasses.replace(o, attitude_assumed=o.index == 4) for o in _outcomes(recorded)]
+    _, figures = drawn_report(tmp_path, recorded, outcomes)
+    trajectory = figures[0].axes[0]
+    marked = {c.get_label(): len(c.get_offsets()) for c in trajectory.collections}
+    assert marked[ASSUMED_LABEL] == 1
+    segments = [line for line in trajectory.get_lines() if len(line.get_xdata()) == 2]
+    red = [line for line in segments if line.get_color() == RED]
+    grey = [line for line in segments if line.get_color() == GREY]
+    assert len(red) == 3 and len(grey) == 1  # frames 0-2; frame 4; frame 3 failed
+    assert grey[0].get_linestyle() == "--" and red[0].get_linestyle() == "-"

@@ -51,7 +51,11 @@ report is written; one that cannot start (a missing engine: it is composed befor
 is touched) leaves its directory as an earlier eval left it. An output directory another
 process is writing (its FDR lock held) stops the command at once: nothing more is written into
 it; so does an output directory another ``eval`` or ``replay`` holds (each holds its
-directories, ``--out`` and each dataset's, while it runs).
+directories, ``--out`` and each dataset's, while it runs). Ctrl-C or SIGTERM stops it at
+once, keeping what finished: the earlier datasets whole, this dataset's ``eval.json`` with the
+strategies done, the one stopped (the frames of its first run done, in its ``results.jsonl``)
+and those not run (``"complete": false``, ``"not_run"``), ``summary.json`` and the tables so
+far; exit 130 or 143.
 
 Writes ``eval.json``, per strategy ``<strategy>/results.jsonl`` (+ FDR and logs),
 ``<strategy>/flight.geojson`` and ``<strategy>/report.html`` (the same as ``replay`` writes, each
@@ -70,6 +74,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -94,36 +99,35 @@ from c3_matcher_tools.args import (
 )
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
+from c3_matcher_tools.eval_tables import print_flight_table, print_summary_table
 from c3_matcher_tools.run import (
     EVAL_OUT,
     NO_OVERRIDES,
     FlightOptions,
+    FlightStopped,
     Overrides,
     check_flight,
     check_output_dirs,
     exclusive_output_dir,
-    figure,
     flight_report,
     fly,
     forget_previous_run,
     output_dir_name,
+    signals_noted,
     summarize,
     write_flight_outputs,
+    write_results,
 )
-from c3_matcher_tools.run.acceptance import (
-    BARS,
-    IT01_BAR,
-    IT03_BAR,
-    IT04_BAR,
-    WRONG_FIX_PX,
-    Measure,
-    is_wrong_fix,
-    metrics,
+from c3_matcher_tools.run.acceptance import BARS, WRONG_FIX_PX, is_wrong_fix, metrics
+from c3_matcher_tools.run.evaluation import (
+    StrategyEval,
+    StrategyFailure,
+    StrategyRow,
+    StrategyStopped,
+    SummaryRow,
 )
-from c3_matcher_tools.run.evaluation import StrategyEval, StrategyFailure, StrategyRow, SummaryRow
 from c3_matcher_tools.run.outputs import EVAL_RUN, EVAL_SUMMARY, mark_output_dirs, no_report_html
-from c3_matcher_tools.run.records import FrameStatus
-from c3_matcher_tools.run.scoring import dropped_lines, telemetry_lines
+from c3_matcher_tools.run.scoring import dropped_lines
 
 __all__ = [
     "BARS",
@@ -149,7 +153,8 @@ def evaluate_strategy(
     overrides: Overrides = NO_OVERRIDES,
 ) -> StrategyEval:
     """Run ``strategy`` twice over ``dataset`` (the second time on the first
-    ``determinism_frames`` frames, all when None) and score it (no report.html: the run says)."""
+    ``determinism_frames`` frames, all when None) and score it (no report.html: the run says).
+    Ctrl-C or SIGTERM in the first run's frames raises :class:`FlightStopped` with those done."""
     frames = list(dataset.frames)
     run1 = fly(
         settings,
@@ -158,7 +163,7 @@ def evaluate_strategy(
         out / strategy,
         plugin_host=plugin_host,
         overrides=overrides,
-        options=FlightOptions(progress=ProgressBar(f"eval {strategy} run 1")),
+        options=FlightOptions(progress=ProgressBar(f"eval {strategy} run 1"), keep_stopped=True),
     )
     subset = frames[:determinism_frames] if determinism_frames else frames
     run2 = fly(
@@ -224,7 +229,8 @@ def register_eval_command(commands: CommandRegistry) -> None:
 
 def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     """Every dataset through every strategy; ``EXIT_FAILURE`` (the tables and reports still
-    written) when a strategy failed to run on a dataset."""
+    written) when a strategy failed to run on a dataset; 130 or 143 when Ctrl-C or SIGTERM
+    stopped it (:func:`_eval_dataset`: what finished is kept, the tables say what did not)."""
     limit = ctx.settings.matcher.max_image_pixels
     datasets = [  # every input checked before anything runs or any directory is made
         apply_attitude_noise(load_dataset(path, limit), args.attitude_noise_deg)
@@ -240,14 +246,16 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         ctx.err(no_report)
     summary: list[SummaryRow] = []
     reports: list[dict[str, Any]] = []
-    with exclusive_output_dir(*([] if root is None else [root]), *outs):
+    with exclusive_output_dir(*([] if root is None else [root]), *outs), signals_noted() as noted:
         mark_output_dirs(EVAL_RUN, *outs)
         if root is not None:
             forget_previous_run(root, (EVAL_SUMMARY,))
         for dataset, out in zip(datasets, outs, strict=True):
-            rows, report = _eval_dataset(args, ctx, dataset, names, out)
+            rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
             reports.append(report)
             summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
+            if not report["complete"]:
+                break
         summary_rows = [s.to_json() for s in summary]
         if root is not None:
             summary_json = json.dumps(_finite(summary_rows), indent=2) + "\n"
@@ -255,12 +263,24 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     if args.json:
         ctx.out(json.dumps(_finite(_json_document(reports, summary_rows)), indent=2))
     else:
-        _print_summary(ctx, summary)
+        print_summary_table(ctx, summary)
+    if not reports[-1]["complete"]:
+        return _said_stopped(ctx, noted[-1], summary[-1], outs[len(reports) - 1])
     failed = [f"{s.strategy} on {s.flight}" for s in summary if s.figures is None]
     if failed:
         ctx.err(f"c3-matcher eval: failed to run: {', '.join(failed)}")
         return EXIT_FAILURE
     return EXIT_OK
+
+
+def _said_stopped(ctx: CommandContext, signum: int, last: SummaryRow, out: Path) -> int:
+    """The line that says where Ctrl-C (130) or SIGTERM (143) stopped the evaluation."""
+    word = "terminated" if signum == signal.SIGTERM else "interrupted"
+    ctx.err(
+        f"c3-matcher: {word} during {last.strategy} on {last.flight}: {out / EVAL_RUN.report} "
+        "holds the strategies that finished and names those not run"
+    )
+    return 128 + signum
 
 
 def _json_document(
@@ -309,36 +329,23 @@ def _eval_dataset(
     dataset: FlightDataset,
     names: list[str],
     out: Path,
+    noted: Sequence[int],
 ) -> tuple[list[StrategyRow], dict[str, Any]]:
     """``dataset`` through every strategy: the rows and the report written as ``eval.json``
-    (its table printed unless ``--json``)."""
+    (its table printed unless ``--json``). Stopped by a signal in ``noted`` part-way, the report
+    of the strategies finished, the one stopped and those not run (``complete`` false; no
+    plots)."""
     from c3_matcher_tools.plots import CHARTS, eval_plots, forget_match_pictures
 
     out.mkdir(parents=True, exist_ok=True)
     forget_previous_run(out, (EVAL_RUN.report, *(f"{chart}.png" for chart in CHARTS)))
     forget_match_pictures(out)  # this run draws its own samples
     overrides = Overrides(max_keypoints=args.max_keypoints)
-    rows: list[StrategyRow] = []
-    for name in names:
-        try:
-            rows.append(
-                evaluate_strategy(
-                    ctx.settings,
-                    name,
-                    dataset,
-                    out,
-                    args.determinism_frames,
-                    plugin_host=ctx.plugin_host,
-                    overrides=overrides,
-                )
-            )
-        except FdrOpenError:  # another process writes this directory: leave it to that run
-            raise
-        except Exception as exc:  # a strategy that cannot start is a row, not the end
-            rows.append(StrategyFailure(name, describe(exc)))
+    rows = _eval_strategies(ctx, args.determinism_frames, dataset, names, out, overrides, noted)
+    complete = not any(isinstance(r, StrategyStopped) for r in rows)
     ran = [r.run for r in rows if isinstance(r, StrategyEval)]
     try:
-        plots = eval_plots(dataset, ran, out, args.samples)
+        plots = eval_plots(dataset, ran, out, args.samples if complete else 0)
     except Exception as exc:  # the figures matter more than the pictures
         ctx.err(f"c3-matcher eval: plots failed: {describe(exc)}")
         plots = []
@@ -349,142 +356,66 @@ def _eval_dataset(
         "with_truth": sum(f.has_truth for f in dataset.frames),
         "attitude_noise": dataset.meta.get("attitude_noise"),
         "bars": BARS,
+        "complete": complete,
+        "not_run": names[len(rows) :],
         "strategies": [r.to_json() for r in rows],
         "plots": plots,
     }
     write_text_atomically(out / EVAL_RUN.report, json.dumps(_finite(report), indent=2) + "\n")
     if not args.json:
         max_keypoints = overrides.apply(ctx.settings).matcher.max_keypoints
-        _print_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
+        print_flight_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
         for r in (r for r in rows if isinstance(r, StrategyEval)):  # and what each dropped
             for line in dropped_lines(r.summary, dataset.store_path):
                 ctx.out(f"{r.strategy}: {line}")
     return rows, report
 
 
-def _print_table(
+def _eval_strategies(
     ctx: CommandContext,
-    args: argparse.Namespace,
-    name: str,
-    report: dict[str, Any],
-    rows: Sequence[StrategyRow],
+    determinism_frames: int | None,
+    dataset: FlightDataset,
+    names: list[str],
     out: Path,
-    max_keypoints: int | None,
-) -> None:
-    ctx.out(
-        f"eval {name}: {report['frames']} frames "
-        + (
-            f"({report['absent_frames']} without the true tile)"
-            if report["with_truth"]
-            else "(no ground truth: the C3-IT figures need it; scored against the telemetry below)"
-        )
-        + f", max_keypoints {max_keypoints or 'each strategy its own'}"
-        + (
-            f", attitude noise {args.attitude_noise_deg:g} deg (1 sigma)"
-            if args.attitude_noise_deg
-            else ""
-        )
-    )
-    ctx.out(
-        f"{'strategy':18} {'IT-01 p5 inl':>13} {'IT-02':>7} {'IT-03 p95 px':>13} "
-        f"{'IT-04 correct':>14} {'IT-05 raised':>13} {'false-conf':>10} {'other tile':>10} "
-        f"{'frame p50/p95 ms':>17}"
-    )
-    for r in rows:
-        ctx.out(_table_row(r))
-    ctx.out(
-        "bars: "
-        + "; ".join(f"{k} {v}" for k, v in BARS.items())
-        + " ('!' = bar missed; n/a or x/0 = nothing to measure: neither passed nor missed)"
-    )
-    ctx.out(
-        f"false-conf: picks whose inliers miss ground truth by > {WRONG_FIX_PX:g} px (bar: zero); "
-        "other tile: picks of a candidate other than the true tile that still place the frame right"
-    )
-    _print_unreadable(ctx, rows)
-    ctx.out(f"report {out / EVAL_RUN.report}, plots {out}")
-    for r in rows:
-        if isinstance(r, StrategyEval):
-            _print_links(ctx, r)
+    overrides: Overrides,
+    noted: Sequence[int],
+) -> list[StrategyRow]:
+    """Each of ``names`` evaluated on ``dataset`` in turn (one that fails is a row, not the
+    end), up to the one a signal in ``noted`` stops: its row keeps the frames it did."""
+    rows: list[StrategyRow] = []
+    for name in names:
+        try:
+            rows.append(
+                evaluate_strategy(
+                    ctx.settings,
+                    name,
+                    dataset,
+                    out,
+                    determinism_frames,
+                    plugin_host=ctx.plugin_host,
+                    overrides=overrides,
+                )
+            )
+        except FdrOpenError:  # another process writes this directory: leave it to that run
+            raise
+        except Exception as exc:  # a strategy that cannot start is a row, not the end
+            rows.append(StrategyFailure(name, describe(exc)))
+        except KeyboardInterrupt as stop:
+            if not noted:
+                raise
+            rows.append(_stopped(out / name, name, stop))
+            break
+    return rows
 
 
-def _print_unreadable(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:
-    """Say how many frames no measure counts: those whose image could not be read."""
-    runs = [r.summary.count(FrameStatus.UNREADABLE) for r in rows if isinstance(r, StrategyEval)]
-    if max(runs, default=0):
-        ctx.out(
-            f"{max(runs)} frame image(s) could not be read (the camera's loss, not the "
-            "matcher's): no IT measure counts them"
-        )
-
-
-def _table_row(r: StrategyRow) -> str:
-    if isinstance(r, StrategyFailure):
-        return f"{r.strategy:18} failed to run: {r.error}"
-    m, t = r.acceptance, r.summary
-
-    def mark(measure: Measure) -> str:  # passed or nothing to measure (None): no mark
-        return "!" if measure.passed is False else ""
-
-    it1, it2, it3 = m.inlier_count, m.determinism.passed, m.inlier_error
-    it4, it5, fc = m.correct_tile, m.absent_raised, m.false_confident
-    cells = (
-        IT01_BAR.figure(it1.p5_best_inliers) + mark(it1),
-        "n/a" if it2 is None else "same" if it2 else "DIFF",
-        IT03_BAR.figure(it3.p95_mean_error_px, 2) + mark(it3),
-        f"{it4.correct}/{it4.frames}" + mark(it4),
-        f"{it5.insufficient}/{it5.absent_frames}" + mark(it5),
-        f"{fc.count}/{fc.of}" + mark(fc),
-        str(len(fc.right_fix_other_tile)),
-        f"{figure(t.frame_ms_p50, '.0f')}/{figure(t.frame_ms_p95, '.0f')}",
-    )
-    return (
-        f"{r.strategy:18} {cells[0]:>13} {cells[1]:>7} {cells[2]:>13} {cells[3]:>14} "
-        f"{cells[4]:>13} {cells[5]:>10} {cells[6]:>10} {cells[7]:>17}"
-    )
-
-
-def _print_links(ctx: CommandContext, r: StrategyEval) -> None:
-    for line in telemetry_lines(r.summary) if r.summary.with_telemetry else ():
-        ctx.out(f"  {r.strategy}: {line}")
-    ctx.out(f"  {r.strategy}: map {r.geojson}, flight report {r.html or '-'}")
-
-
-def _print_summary(ctx: CommandContext, summary: Sequence[SummaryRow]) -> None:
-    """The one strategy x flight table."""
-    rows = sorted(summary, key=lambda s: (s.strategy, s.flight))
-    w = max([20, *(len(s.flight) for s in rows)])  # the flight column fits every name
-    ctx.out()
-    ctx.out(
-        f"{'strategy':18} {'flight':{w}} {'correct tile':>13} {'IT-03 p95':>10} {'IT-05':>7} "
-        f"{'false-conf':>10} {'other tile':>10} {'ms/frame':>9}"
-    )
-    for s in rows:
-        h = s.figures
-        if h is None:
-            ctx.out(f"{s.strategy:18} {s.flight:{w}} failed to run: {s.error}")
-            continue
-        rate = f"{h.correct}/{h.present}" if h.present else "-"
-        it05 = f"{h.it05_raised}/{h.absent}"
-        fc = f"{h.false_confident}/{h.scored}"
-        ctx.out(
-            f"{s.strategy:18} {s.flight:{w}} {rate:>13} "
-            f"{IT03_BAR.figure(h.it03_p95_px, 2):>10} {it05:>7} "
-            f"{fc:>10} {s.right_fix_other_tile:>10} {figure(s.frame_ms_p50, '.0f'):>9}"
-        )
-    for strategy in sorted({s.strategy for s in rows if s.figures is not None}):
-        mine = [s.figures for s in rows if s.strategy == strategy and s.figures is not None]
-        correct, present = sum(h.correct for h in mine), sum(h.present for h in mine)
-        wrong, scored = sum(h.false_confident for h in mine), sum(h.scored for h in mine)
-        rate = (
-            f"{correct}/{present} ({IT04_BAR.figure(correct / present, percent=True)})"
-            if present
-            else "-"  # no frame with its true tile: as in the rows above
-        )
-        ctx.out(
-            f"{strategy:18} {'all flights':{w}} {rate} correct tile, "
-            f"{wrong}/{scored} false-confident"
-        )
+def _stopped(directory: Path, name: str, stop: KeyboardInterrupt) -> StrategyStopped:
+    """The row of strategy ``name`` that ``stop`` stopped: the frames of its first run done,
+    written to ``directory``'s ``results.jsonl``, when the stop came while it flew them."""
+    run = stop.run if isinstance(stop, FlightStopped) else None
+    if run is None:
+        return StrategyStopped(name)
+    results = write_results(directory / "results.jsonl", run.outcomes)
+    return StrategyStopped(name, len(run.outcomes), run.planned, str(results))
 
 
 def _finite(value: Any) -> Any:

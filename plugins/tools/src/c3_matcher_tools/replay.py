@@ -139,13 +139,15 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
             keep_stopped=True,
         )
         run: FlightRun | None = None
-        said: list[bool] = []  # whether the report reached stdout
+        said = False  # whether the report reached stdout
         with signals_noted() as noted:  # from the first frame to the last file written
             try:
                 run = fly_prepared(
                     prepared, dataset, out, plugin_host=ctx.plugin_host, options=flown
                 )
-                _write_run(ctx, args.json, dataset, run, out, said)
+                shown = _say_run(ctx, args.json, dataset, run, out)
+                said = True
+                _write_run(dataset, run, out, shown)
                 return EXIT_OK
             except FlightStopped as stop:
                 run, signum = stop.run, stop.signum
@@ -157,21 +159,20 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
         return _keep_stopped(ctx, None if said else args.json, dataset, out, run, signum)
 
 
-def _write_run(
-    ctx: CommandContext,
-    as_json: bool,
-    dataset: FlightDataset,
-    run: FlightRun,
-    out: Path,
-    said: list[bool],
-) -> None:
-    """The report on stdout (``said`` then holds True), then the run's files (a failure to
-    write them: after the report)."""
+def _say_run(
+    ctx: CommandContext, as_json: bool, dataset: FlightDataset, run: FlightRun, out: Path
+) -> dict[str, Any]:
+    """The report on stdout, before the run's files are written (so that one that cannot be
+    written still leaves it); ``report.json`` but for the map and flight report it names."""
     summary = summarize(run.outcomes)
     html = None if no_report_html() else str(out / "report.html")
     shown = {**_run_report(dataset, run, summary, out), "geojson": str(out / "flight.geojson")}
     _print_report(ctx, as_json, dataset.name, {**shown, "html": html}, summary, out)
-    said.append(True)
+    return shown
+
+
+def _write_run(dataset: FlightDataset, run: FlightRun, out: Path, shown: dict[str, Any]) -> None:
+    """The run's files, ``report.json`` (``shown`` with the map and flight report written) last."""
     files = write_flight_outputs(out, dataset, run, shown)
     report = {**shown, "geojson": files.geojson, "html": files.html}
     write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")

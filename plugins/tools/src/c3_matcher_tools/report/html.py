@@ -28,7 +28,7 @@ from c3_matcher_tools.report.charts import MARKS, per_frame_figure, trajectory_f
 from c3_matcher_tools.report.pictures import gallery_pictures
 from c3_matcher_tools.run.acceptance import WRONG_FIX_PX, Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
-from c3_matcher_tools.run.scoring import RunSummary, figure, summarize
+from c3_matcher_tools.run.scoring import RunSummary, dropped_lines, figure, summarize
 
 __all__ = ["write_report"]
 
@@ -80,7 +80,7 @@ def write_report(
     """Write ``out`` (report.html) for one replayed run; returns its path. ``summary``: the
     run's report, shown as it is; the headline figures are the ``outcomes``' own."""
     figures = summarize(outcomes)
-    kpis = _kpis(figures)
+    kpis = _kpis(figures, dataset.store_path)
     min_inliers = int(settings.get("min_inliers_threshold", 60))
     reference = "truth" if figures.with_truth else "telemetry"
     traj = trajectory_figure(
@@ -130,9 +130,10 @@ def _telemetry_kpis(summary: RunSummary) -> list[tuple[str, Any]]:
     return kpis
 
 
-def _kpis(summary: RunSummary) -> list[tuple[str, Any]]:
+def _kpis(summary: RunSummary, store: Path) -> list[tuple[str, Any]]:
     """The headline figures (label, value) of the run's ``summary``; the telemetry's only for a
-    flight that has telemetry."""
+    flight that has telemetry; the candidates dropped, by cause, when any was (and the tile
+    ``store`` named when most were dropped for their tiles)."""
     return [
         ("frames", summary.frames),
         ("matched", summary.count(FrameStatus.OK)),
@@ -153,6 +154,7 @@ def _kpis(summary: RunSummary) -> list[tuple[str, Any]]:
             "frame ms p50 / p95",
             f"{figure(summary.frame_ms_p50, '.0f')} / {figure(summary.frame_ms_p95, '.0f')}",
         ),
+        *(("candidates", line) for line in dropped_lines(summary, store)),
     ]
 
 

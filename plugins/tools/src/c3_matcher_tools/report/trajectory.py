@@ -1,11 +1,12 @@
 """The flight report's trajectory: frame centres on the map mosaic of the flight's tile store.
 
-Truth (blue) and estimate (orange) with a red segment from each frame's reference to its
-estimate, failed frames (x), wrong tiles (diamonds) and picks of another tile that place the
-frame right (squares) marked; for a recorded flight the
-vehicle's GNSS track and where the telemetry says each frame looks (green), frames whose GNSS was
-absent or degraded ringed. Drawn onto a matplotlib ``Axes`` the caller owns; positions are
-WGS84 degrees, drawn in mosaic px (degrees when the store has no imagery there).
+Truth (blue) and estimate (orange) with a red segment from each frame's reference to its estimate,
+failed frames (x), wrong tiles (diamonds) and picks of another tile that place the frame right
+(squares) marked; for a recorded flight the vehicle's GNSS track and where the telemetry says each
+frame looks (green), frames whose GNSS was absent or degraded ringed, frames whose attitude the
+import assumed level marked grey (where a level camera would look: their segment to the estimate is
+dashed grey, no error). Drawn onto a matplotlib ``Axes`` the caller owns; positions are WGS84
+degrees, drawn in mosaic px (degrees when the store has no imagery there).
 """
 
 from __future__ import annotations
@@ -23,10 +24,12 @@ from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run.acceptance import Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
-__all__ = ["MAX_MOSAIC_PX", "draw_trajectory"]
+__all__ = ["ASSUMED_LABEL", "MAX_MOSAIC_PX", "draw_trajectory"]
 
 MAX_MOSAIC_PX = 2048
 RED = "#d62728"
+GREY = "#7f7f7f"
+ASSUMED_LABEL = "attitude assumed level: a level camera's look point"
 
 Mosaic = tuple[NDArray[np.uint8], TileId, int]
 """The mosaic image, the tile id at its centre and its side (px)."""
@@ -128,13 +131,15 @@ def _vehicle_track(
 
 
 def _references(ax: Any, truth: list[Point], tele: list[Point], est: list[Point]) -> None:
-    """Red segments from each frame's reference (truth, else telemetry) to its estimate, and
-    every tenth reference (or estimate) labelled with its frame index."""
+    """Red segments from each frame's reference (truth, else telemetry) to its estimate (dashed
+    grey from a look point of an attitude assumed level: no error), and every tenth reference
+    (or estimate) labelled with its frame index."""
     by_index = {t[0].index: t for t in (truth or tele)}
     for e in est:
         t = by_index.get(e[0].index)
         if t is not None:
-            ax.plot([t[1], e[1]], [t[2], e[2]], color=RED, lw=0.8)
+            style = {"color": GREY, "ls": "--"} if t[0].attitude_assumed else {"color": RED}
+            ax.plot([t[1], e[1]], [t[2], e[2]], lw=0.8, **style)
     labelled = truth or tele or est
     for o, x, y in labelled[:: max(1, len(labelled) // 10)]:
         ax.annotate(
@@ -202,6 +207,9 @@ def draw_trajectory(
         degraded = [t for t in tele if t[0].gnss_degraded]
         ring = {"facecolors": "none", "edgecolors": "#ffbf00", "linewidths": 1.5, "zorder": 6}
         _mark(ax, degraded, marker="o", s=90, **ring, label="GNSS absent or degraded")
+        assumed = [t for t in tele if t[0].attitude_assumed]
+        ring = {**ring, "edgecolors": GREY}
+        _mark(ax, assumed, marker="^", s=90, **ring, label=ASSUMED_LABEL)
         if not truth:
             not_ok = [t for t in tele if t[0].status != FrameStatus.OK]
             _mark(ax, not_ok, **failed, label="failed frame (telemetry)")

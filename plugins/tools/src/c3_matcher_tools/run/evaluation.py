@@ -1,7 +1,7 @@
-"""One strategy evaluated on one flight (:class:`StrategyEval`), or a strategy that could
-not be (:class:`StrategyFailure`): the rows of ``eval``, and each one's row of the strategy x
-flight summary (:class:`SummaryRow`). Frozen values; ``to_json`` gives their ``eval.json`` and
-``summary.json`` entries."""
+"""One strategy evaluated on one flight (:class:`StrategyEval`), a strategy that could not be
+(:class:`StrategyFailure`) or one stopped part-way (:class:`StrategyStopped`): the rows of
+``eval``, and each one's row of the strategy x flight summary (:class:`SummaryRow`). Frozen
+values; ``to_json`` gives their ``eval.json`` and ``summary.json`` entries."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from c3_matcher_tools.run.acceptance import Acceptance, Headline
 from c3_matcher_tools.run.records import FlightRun
 from c3_matcher_tools.run.scoring import RunSummary
 
-__all__ = ["StrategyEval", "StrategyFailure", "StrategyRow", "SummaryRow"]
+__all__ = ["StrategyEval", "StrategyFailure", "StrategyRow", "StrategyStopped", "SummaryRow"]
 
 
 @dataclass(frozen=True)
@@ -75,13 +75,45 @@ class StrategyFailure:
         return {"strategy": self.strategy, "error": self.error}
 
 
-StrategyRow = StrategyEval | StrategyFailure
+@dataclass(frozen=True)
+class StrategyStopped:
+    """A strategy stopped part-way by Ctrl-C or SIGTERM: of its first run, the frames done and
+    those it was to fly, and ``results``, the file that keeps them (None: stopped outside its
+    first run's frames; nothing of it kept)."""
+
+    strategy: str
+    frames_done: int = 0
+    frames_planned: int | None = None
+    results: str | None = None
+
+    @property
+    def error(self) -> str:
+        """What its row says in the tables."""
+        if self.results is None:
+            return "stopped before its results were written"
+        return (
+            f"stopped after {self.frames_done} of {self.frames_planned} frames "
+            f"(their results: {self.results})"
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "strategy": self.strategy,
+            "stopped": self.error,
+            "frames_done": self.frames_done,
+            "frames_planned": self.frames_planned,
+            "results": self.results,
+        }
+
+
+StrategyRow = StrategyEval | StrategyFailure | StrategyStopped
 
 
 @dataclass(frozen=True)
 class SummaryRow:
     """One strategy on one flight in the summary table and ``summary.json``: its headline
-    figures, or (``figures`` None) the error that stopped it."""
+    figures, or (``figures`` None) the error that stopped it (``stopped``: Ctrl-C or SIGTERM
+    did)."""
 
     strategy: str
     flight: str
@@ -89,12 +121,14 @@ class SummaryRow:
     right_fix_other_tile: int = 0
     frame_ms_p50: float | None = None
     error: str | None = None
+    stopped: bool = False
 
     @classmethod
     def of(cls, flight: str, row: StrategyRow) -> SummaryRow:
         """``row``'s summary on ``flight``."""
-        if isinstance(row, StrategyFailure):
-            return cls(row.strategy, flight, error=row.error)
+        if not isinstance(row, StrategyEval):
+            stopped = isinstance(row, StrategyStopped)
+            return cls(row.strategy, flight, error=row.error, stopped=stopped)
         return cls(
             row.strategy,
             flight,
@@ -106,7 +140,7 @@ class SummaryRow:
     def to_json(self) -> dict[str, Any]:
         where = {"strategy": self.strategy, "flight": self.flight}
         if self.figures is None:
-            return {**where, "error": self.error}
+            return {**where, ("stopped" if self.stopped else "error"): self.error}
         return {
             **where,
             **asdict(self.figures),

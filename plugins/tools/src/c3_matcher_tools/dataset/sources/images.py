@@ -19,6 +19,7 @@ import logging
 import math
 import re
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
@@ -32,9 +33,11 @@ from c3_matcher_tools.dataset.sources.track import Shot, constant, logs_library
 __all__ = [
     "IMAGE_SUFFIXES",
     "VIDEO_SUFFIXES",
+    "ImageProblem",
     "check_frame_step",
     "check_images_path",
     "copy_reason",
+    "find_image_problem",
     "folder_shots",
     "image_problem",
     "read_images",
@@ -213,51 +216,69 @@ def copy_reason(was: str) -> str:
 
 UNREADABLE = "not a readable image"
 """What :func:`image_problem` says of a file that is not a readable image (then its reason)."""
-UNREADABLE_EMPTY = "an empty file, not an image"
+
+
+@dataclass(frozen=True)
+class ImageProblem:
+    """Why an encoded image cannot be a frame: ``unreadable``, it is no readable image at all
+    (an empty file, a cut-short copy, not an image); else it is one the camera did not take (of
+    another size)."""
+
+    reason: str
+    unreadable: bool
 
 
 def image_problem(data: bytes, size: tuple[int, int]) -> str | None:
     """Why the encoded image ``data`` cannot be a frame of a ``size`` (w, h) camera, or None:
-    every import checks its images with this. The size is read from the header first (an image
-    of another size is never decoded, however large it says it is), then the image is decoded
-    as the matcher will decode it: a copy cut short or damaged is not readable, and is refused
-    before a decoder would write its own line to stderr. The camera's size bounds the decode,
-    whatever the matcher's pixel limit (a replay of the flight applies the limit it is given)."""
+    every import checks its images with this (:func:`find_image_problem`)."""
+    problem = find_image_problem(data, size)
+    return None if problem is None else problem.reason
+
+
+def find_image_problem(data: bytes, size: tuple[int, int]) -> ImageProblem | None:
+    """Why the encoded image ``data`` cannot be a frame of a ``size`` (w, h) camera, or None.
+    The size is read from the header first (an image of another size is never decoded, however
+    large it says it is), then the image is decoded as the matcher will decode it: a copy cut
+    short or damaged is not readable, and is refused before a decoder would write its own line
+    to stderr. The camera's size bounds the decode, whatever the matcher's pixel limit (a
+    replay of the flight applies the limit it is given)."""
     from c3_matcher.tiles import ImageDecodeError, decode_image, image_header_size
 
     if not data:
-        return UNREADABLE_EMPTY
+        return ImageProblem("an empty file, not an image", unreadable=True)
     header = image_header_size(data)
     if header is None:
-        return UNREADABLE
+        return ImageProblem(UNREADABLE, unreadable=True)
     w, h = header
     if (w, h) != tuple(size):
-        return f"is {w}x{h} px, the calibration says {size[0]}x{size[1]}"
+        return ImageProblem(
+            f"is {w}x{h} px, the calibration says {size[0]}x{size[1]}", unreadable=False
+        )
     try:
         decode_image(data, "image", max_pixels=w * h)
     except ImageDecodeError as exc:
-        return f"{UNREADABLE}: {exc.reason}"
+        return ImageProblem(f"{UNREADABLE}: {exc.reason}", unreadable=True)
     return None
 
 
 def readable_shots(
     shots: Sequence[Shot], size: tuple[int, int], skipped: Sequence[tuple[str, str]] = ()
 ) -> tuple[list[Shot], list[tuple[str, str]], list[tuple[str, str]]]:
-    """The ``shots`` that are readable images, each checked once (:func:`image_problem`), before
-    they meet the log: (readable shots, [(file, why)] of those that are not, ``skipped`` with
-    each copy of one of those (:func:`copy_reason`) said to be one). An image of a size other
-    than ``size`` is refused naming it (a photo of another camera, or a calibration of
+    """The ``shots`` that are readable images, each checked once (:func:`find_image_problem`),
+    before they meet the log: (readable shots, [(file, why)] of those that are not, ``skipped``
+    with each copy of one of those (:func:`copy_reason`) said to be one). An image of a size
+    other than ``size`` is refused naming it (a photo of another camera, or a calibration of
     another)."""
     kept: list[Shot] = []
     unreadable: list[tuple[str, str]] = []
     for shot in shots:
-        problem = image_problem(shot.read(), size)
+        problem = find_image_problem(shot.read(), size)
         if problem is None:
             kept.append(shot)
-        elif problem.startswith((UNREADABLE, UNREADABLE_EMPTY)):
-            unreadable.append((shot.name, problem))
+        elif problem.unreadable:
+            unreadable.append((shot.name, problem.reason))
         else:
-            raise InvalidInputError("IMAGES", f"{shot.name}: {problem}")
+            raise InvalidInputError("IMAGES", f"{shot.name}: {problem.reason}")
     copies = {
         copy_reason(name): f"a copy of {name} (the same bytes), {why}" for name, why in unreadable
     }
