@@ -30,6 +30,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.features import Features, RawMatches
 
 __all__ = [
+    "MAX_UPSCALE",
     "InputRule",
     "PreparedImage",
     "correspondences",
@@ -38,19 +39,31 @@ __all__ = [
 ]
 
 
+MAX_UPSCALE = 4
+"""The largest ``InputRule.upscale``: the engine's work grows with its square."""
+
+
 @dataclass(frozen=True)
 class InputRule:
     """An engine's input rule: downscale so the long side <= ``max_long_side`` px (never
-    upscale); make the final width and height multiples of ``multiple`` (padding is masked)."""
+    upscale); make the final width and height multiples of ``multiple`` (padding is masked).
+    ``upscale``: the extractor is run on the prepared image enlarged by this whole factor
+    (``run_extractor``), its keypoints given back in the prepared image's px; for a model whose
+    descriptors come from a coarse map, so that small images still give it a fine one."""
 
     max_long_side: int
     multiple: int
+    upscale: int = 1
 
     def __post_init__(self) -> None:
-        for name in ("max_long_side", "multiple"):
+        for name in ("max_long_side", "multiple", "upscale"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
                 raise InvalidInputError(f"input_rule.{name}", f"expected an int > 0, got {value!r}")
+        if self.upscale > MAX_UPSCALE:
+            raise InvalidInputError(
+                "input_rule.upscale", f"at most {MAX_UPSCALE}, got {self.upscale}"
+            )
         if self.max_long_side < self.multiple:
             raise InvalidInputError(
                 "input_rule.max_long_side", f"{self.max_long_side} < multiple {self.multiple}"

@@ -32,13 +32,15 @@ from c3_matcher_xfeat import (
 from c3_matcher_xfeat.export import similarity_graph
 from c3_matcher_xfeat.mnn import SIMILARITY_GRAPH, OnnxSimilarity, numpy_similarity
 
+# the kit's fake extractor scripts its keypoints in the px of the image it is given: as it is
 LIGHTERGLUE_CONFIG = XFeatConfig(
     extractor_engine_path=Path("xfeat.onnx"),
     matcher="lighterglue",
     lighterglue_engine_path=Path("lighterglue.onnx"),
     max_long_side=64,
+    upscale=1,
 )
-MNN_CONFIG = XFeatConfig(extractor_engine_path=Path("xfeat.onnx"), max_long_side=64)
+MNN_CONFIG = XFeatConfig(extractor_engine_path=Path("xfeat.onnx"), max_long_side=64, upscale=1)
 
 
 class TestXFeatMnnContract(ExtractorMatcherContract):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -82,16 +83,24 @@ def run_extractor(
     image_rgb_uint8: NDArray[np.uint8],
     valid_mask_bool: NDArray[np.bool_],
     max_keypoints: int,
+    upscale: int = 1,
 ) -> Features:
     """Extract features from an image whose H and W already satisfy the engine's input rule.
 
     ``image_rgb_uint8`` uint8 (H, W, 3) RGB; ``valid_mask_bool`` bool (H, W), True = valid pixel.
     Returns at most ``max_keypoints`` features, (x, y) px in this image, best score first;
-    ``image_size`` is (W, H). ``ValueError`` for bad inputs or an image breaking the size rule
-    recorded in the engine's manifest.
+    ``image_size`` is (W, H). ``upscale`` > 1: the engine is run on the image enlarged by that
+    whole factor (bilinear; the mask nearest), its keypoints brought back to this image's px
+    (``x = (x_up + 0.5) / upscale - 0.5``, ``cv2.resize``'s area-aligned convention).
+    ``ValueError`` for bad inputs or an image breaking the size rule recorded in the engine's
+    manifest.
     """
     if isinstance(max_keypoints, bool) or not isinstance(max_keypoints, int) or max_keypoints < 1:
         raise ValueError(f"max_keypoints must be an int >= 1, got {max_keypoints!r}")
+    if upscale != 1:
+        return _upscaled(
+            runtime, engine_id, image_rgb_uint8, valid_mask_bool, max_keypoints, upscale
+        )
     feeds = image_to_feeds(image_rgb_uint8, valid_mask_bool)
     height, width = image_rgb_uint8.shape[:2]
     if isinstance(runtime, ManifestRuntime):
@@ -108,5 +117,30 @@ def run_extractor(
         keypoints=keypoints,
         descriptors=descriptors,
         keypoint_scores=scores,
+        image_size=(int(width), int(height)),
+    )
+
+
+def _upscaled(
+    runtime: InferenceRuntime,
+    engine_id: str,
+    image_rgb_uint8: NDArray[np.uint8],
+    valid_mask_bool: NDArray[np.bool_],
+    max_keypoints: int,
+    upscale: int,
+) -> Features:
+    """:func:`run_extractor` on the image enlarged ``upscale`` times, in this image's px."""
+    height, width = image_rgb_uint8.shape[:2]
+    size = (width * upscale, height * upscale)
+    image = np.asarray(
+        cv2.resize(np.ascontiguousarray(image_rgb_uint8), size, interpolation=cv2.INTER_LINEAR),
+        np.uint8,
+    )
+    mask = cv2.resize(valid_mask_bool.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
+    found = run_extractor(runtime, engine_id, image, mask > 0, max_keypoints)
+    return Features(
+        keypoints=((found.keypoints + 0.5) / np.float32(upscale) - 0.5).astype(np.float32),
+        descriptors=found.descriptors,
+        keypoint_scores=found.keypoint_scores,
         image_size=(int(width), int(height)),
     )

@@ -52,6 +52,7 @@ def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureR
         pre.border_erode_px,
         pre.photometric,
         provider,
+        rule.upscale,
     )
 
 

@@ -53,7 +53,12 @@ class ExtractorBackend:
 
     def extract(self, image: PreparedImage) -> Features:
         return run_extractor(
-            self._runtime, self.engine_id, image.image, image.valid, self.max_keypoints
+            self._runtime,
+            self.engine_id,
+            image.image,
+            image.valid,
+            self.max_keypoints,
+            self.input_rule.upscale,
         )
 
     def match(self, query: Features, tile: Features) -> RawMatches:

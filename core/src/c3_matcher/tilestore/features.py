@@ -23,14 +23,14 @@ Sidecar database ``<store>.features.sqlite``::
                      checksum, PRIMARY KEY (set_id, zoom, gx, gy))
 
 A set is keyed by everything the extraction depends on: the extractor engine's file sha256, the
-execution provider, the input rule's size multiple, the photometric normalisation, the border
-erosion and the window size: features of another engine build, device or preprocessing are
-never served. ``window_digest`` is the sha256 of the sha256 digests of the tiles the window
-covers (a window whose tiles changed is never served stale); ``checksum`` the sha256 of the row
-itself (a row altered on disk, even into finite numbers, is refused). Keypoints are float32 (n, 2)
-(x, y) in window px (origin at the centre of its top-left pixel), scores float32 (n,),
-descriptors (n, D) of the backend's own dtype (``descriptor_dtype``: float32, or uint8 for
-packed binary descriptors), never cast.
+execution provider, the input rule's size multiple (and its upscale, when not 1: in the set's key),
+the photometric normalisation, the border erosion and the window size: features of another engine
+build, device or preprocessing are never served. ``window_digest`` is the sha256 of the sha256
+digests of the tiles the window covers (a window whose tiles changed is never served stale);
+``checksum`` the sha256 of the row itself (a row altered on disk, even into finite numbers, is
+refused). Keypoints are float32 (n, 2) (x, y) in window px (origin at the centre of its top-left
+pixel), scores float32 (n,), descriptors (n, D) of the backend's own dtype (``descriptor_dtype``:
+float32, or uint8 for packed binary descriptors), never cast.
 
 Reliability in flight: the read connection never waits on a lock (busy timeout 0). When the
 sidecar is locked or unreadable the store says so once (:class:`FeatureStoreUnavailableError`),

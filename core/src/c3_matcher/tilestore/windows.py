@@ -72,20 +72,24 @@ def set_id_for(
     photometric: str,
     border_erode_px: int,
     window_px: int,
+    upscale: int = 1,
 ) -> str:
-    """A window set's key: everything a window's extraction depends on (module docstring)."""
+    """A window set's key: everything a window's extraction depends on (module docstring);
+    ``upscale`` (the input rule's: the extractor ran on each window enlarged that many times)
+    is in it when it is not 1, so sets built before it existed keep their keys."""
+    scaled = "" if upscale == 1 else f":x{int(upscale)}"
     return (
         f"{extractor_sha256}:{provider}:hw{int(multiple)}:{photometric}:"
-        f"e{int(border_erode_px)}:w{int(window_px)}"
+        f"e{int(border_erode_px)}:w{int(window_px)}{scaled}"
     )
 
 
 @dataclass(frozen=True, slots=True)
 class FeatureRequest:
     """What the flight read path asks for: the extractor engine (file sha256) and the execution
-    provider it runs on, its input rule (``multiple``, ``max_long_side``), the keypoint budget,
-    the valid-mask erosion (px) and the photometric normalisation of the flight's
-    preprocessing."""
+    provider it runs on, its input rule (``multiple``, ``max_long_side``, ``upscale``), the
+    keypoint budget, the valid-mask erosion (px) and the photometric normalisation of the
+    flight's preprocessing."""
 
     extractor_sha256: str
     multiple: int
@@ -94,6 +98,7 @@ class FeatureRequest:
     border_erode_px: int = 4
     photometric: str = "none"
     provider: str = CPU_PROVIDER
+    upscale: int = 1
 
     def set_id(self, window_px: int) -> str:
         """The key of the set holding ``window_px`` windows for this request."""
@@ -104,6 +109,7 @@ class FeatureRequest:
             self.photometric,
             self.border_erode_px,
             window_px,
+            self.upscale,
         )
 
 

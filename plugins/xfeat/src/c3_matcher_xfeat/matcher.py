@@ -36,6 +36,7 @@ from c3_matcher_xfeat.mnn import MutualNearestNeighbourMatcher
 from c3_matcher_xfeat.options import (
     DEFAULT_MAX_KEYPOINTS,
     DEFAULT_MIN_COSSIM,
+    DEFAULT_UPSCALE,
     XFeatMatcherKind,
     XFeatOptions,
 )
@@ -73,6 +74,7 @@ class XFeatConfig:
     tile_cache_size: int = matcher_default("tile_cache_size")
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)  # from [matcher]
     similarity_threads: int = 0  # [engines] intra_op_threads, for the mutual-NN similarity
+    upscale: int = DEFAULT_UPSCALE  # the extractor runs on each image enlarged this many times
 
     def __post_init__(self) -> None:
         if self.matcher not in MATCH_PHASES:
@@ -96,7 +98,9 @@ class XFeatConfig:
 
     @property
     def input_rule(self) -> InputRule:
-        return InputRule(max_long_side=self.max_long_side, multiple=XFEAT_SIZE_MULTIPLE)
+        return InputRule(
+            max_long_side=self.max_long_side, multiple=XFEAT_SIZE_MULTIPLE, upscale=self.upscale
+        )
 
     def matcher_engines(self) -> Mapping[str, Path]:
         path = self.lighterglue_engine_path
@@ -138,6 +142,7 @@ class XFeatConfig:
             tile_cache_size=m.tile_cache_size,
             pipeline=PipelineSettings.from_settings(m),
             similarity_threads=int(settings.engines.intra_op_threads),
+            upscale=opts.upscale,
         )
 
 

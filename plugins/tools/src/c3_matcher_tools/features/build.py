@@ -331,7 +331,7 @@ def _feature_set(job: _Job, strategy: str, facts: SetFacts, sidecar: MapFeatureS
         facts.border_erode_px,
         job.window_px,
     )
-    set_id = set_id_for(*keyed)
+    set_id = set_id_for(*keyed, facts.input_rule.upscale)
     existing = sidecar.feature_set(set_id)
     if existing is not None:
         if existing.stride_px != job.stride_px:
