@@ -101,13 +101,16 @@ class InsufficientInliersError(C3Error):
 class MatcherClosedError(C3Error, RuntimeError):
     """``match`` was called on a matcher after ``close()`` (``ComposedRoot.close()`` closes it):
     its flight data recorder and log sinks are released, so a frame matched now would leave no
-    record. A caller's lifecycle error: the call's one health update (no fix) is its only
+    record; or (``reason`` given) on a copy of one in a forked child process, whose recorder is
+    its parent's. A caller's lifecycle error: the call's one health update (no fix) is its only
     trace."""
 
-    def __init__(self, matcher_label: str) -> None:
+    def __init__(self, matcher_label: str, reason: str | None = None) -> None:
         self.matcher_label = matcher_label
         super().__init__(
-            f"matcher {matcher_label!r} is closed: match() was called after close() (the "
+            f"matcher {matcher_label!r} cannot match here: {reason}"
+            if reason is not None
+            else f"matcher {matcher_label!r} is closed: match() was called after close() (the "
             "recorder and log sinks it wrote to are released); compose a new root to match again"
         )
 

@@ -21,6 +21,7 @@ image, match two feature sets); ``PipelineMatcher.match`` composes the stages of
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -42,6 +43,7 @@ from c3_matcher.errors import (
     MatcherClosedError,
     describe,
 )
+from c3_matcher.fdr.jsonl import forked_from
 from c3_matcher.fdr.turns import FrameTurns
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import FDR_WRITE_FAILED, current_log_root, log_event, logging_as
@@ -128,6 +130,7 @@ class PipelineMatcher:
         self._refine = RefinePass(self._pre, backend)
         self._turns = FrameTurns(_close_failed)
         self._log_root = current_log_root()  # composed by a root: its frames log as its own
+        self._pid = os.getpid()  # its recorder and log sinks are this process's alone
 
     @property
     def label(self) -> str:
@@ -155,6 +158,9 @@ class PipelineMatcher:
     def match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
     ) -> MatchResult:
+        if (forked := forked_from(self._pid)) is not None:  # a copy in a fork's child: no turn
+            FrameRecorder(self._sinks, None).update_health(0)  # (the parent's frame holds it)
+            raise MatcherClosedError(self.label, forked)
         with logging_as(self._log_root), self._turns.turn() as admitted:  # as its root's
             # one frame at a time, first come first served
             if not admitted:  # closed: no fix from this call either, the health window says so
@@ -168,8 +174,9 @@ class PipelineMatcher:
         it, or, called from within it (a signal handler's), returns at once, and the recorder
         and log sinks closed meanwhile on that thread close once it is done
         (``c3_matcher.fdr.turns``). Idempotent. ``ComposedRoot.close()`` calls it before it
-        releases the recorder and the log sinks."""
-        self._turns.close()
+        releases the recorder and the log sinks. In a fork's child it has no frame to wait for."""
+        if forked_from(self._pid) is None:  # the parent's frame in progress is not the child's
+            self._turns.close()
 
     def _contract_match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
@@ -313,13 +320,7 @@ class PipelineMatcher:
             recorder.geometry_refused(refusal)
             return Dropped(index, tile.source, timings, refusal)
         return Survivor(
-            match_set,
-            index,
-            verdict.homography,
-            verdict.rotation_deg,
-            tile,
-            verdict.model,
-            timings,
+            match_set, index, verdict.homography, verdict.rotation_deg, tile, verdict.model, timings
         )
 
     def _diagnostics(
@@ -353,13 +354,8 @@ class PipelineMatcher:
 
 def _refusal(index: int, verdict: Verdict, inliers: int, rotation_search: bool) -> GeometryRefusal:
     assert verdict.check is not None
-    return GeometryRefusal(
-        verdict.match_set.tile_id,
-        index,
-        inliers,
-        verdict.check.reason,
-        verdict.rotation_deg if rotation_search else None,
-    )
+    turn = verdict.rotation_deg if rotation_search else None
+    return GeometryRefusal(verdict.match_set.tile_id, index, inliers, verdict.check.reason, turn)
 
 
 def _close_failed(exc: Exception) -> None:

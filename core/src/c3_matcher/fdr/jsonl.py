@@ -50,6 +50,16 @@ MIN_BYTES = 1024
 """The least either bound may be."""
 
 
+def forked_from(pid: int) -> str | None:
+    """Why a process forked from process ``pid`` may not use what ``pid`` made; else None."""
+    if (here := os.getpid()) == pid:
+        return None
+    return (
+        f"made in process {pid}, and this is process {here}, forked from it (its FDR is that "
+        "process's alone); compose the matcher in the process that uses it, after the fork"
+    )
+
+
 class JsonlFdrRecorder:
     """Durable append-only JSON Lines recorder, rotated by size, safe under power loss.
 
@@ -88,7 +98,7 @@ class JsonlFdrRecorder:
     same; the lock file gets its bytes with the first write the disk takes (until then a loss
     it would name cannot be noted, which ``close`` says). A live segment of NUL bytes alone (a
     power cut during its first line, on a file system that had committed the size but not the
-    data) is a torn tail, cut as one. ``record`` is thread-safe.
+    data) is a torn tail, cut as one. ``record`` is thread-safe, and refused in a forked child.
 
     ``fresh``: start a new log at ``path`` (a ground run's FDR, started anew with each run):
     only once the lock is held are the previous live segment, its rotated segments, ``.meta``
@@ -109,6 +119,7 @@ class JsonlFdrRecorder:
             if value < MIN_BYTES:
                 raise InvalidInputError(f"fdr.{name}", f"must be >= {MIN_BYTES}, got {value}")
         self._path = Path(path).expanduser()
+        self._pid = os.getpid()  # a fork's child writes nothing: refused before ``_lock``
         self._clock = clock
         self._max_bytes = max_bytes
         self._lock = threading.RLock()
@@ -216,6 +227,7 @@ class JsonlFdrRecorder:
     def record(self, kind: str, payload: Mapping[str, Any]) -> None:
         if not kind or not isinstance(kind, str):
             raise InvalidInputError("fdr.kind", "must be a non-empty string")
+        self._refuse_forked()
         body = to_jsonable(payload)
         with self._lock:
             if self._lock_fd < 0:
@@ -248,6 +260,7 @@ class JsonlFdrRecorder:
     def flush(self) -> None:
         """Write the pending records now (say, once space has returned); ``FdrWriteError`` if
         they still cannot be written."""
+        self._refuse_forked()
         with self._lock:
             if self._pending.waiting and self._lock_fd < 0:
                 raise FdrWriteError(f"FDR {self._path}: recorder is closed")
@@ -264,7 +277,7 @@ class JsonlFdrRecorder:
     def _close(self) -> None:
         with self._lock:
             lost: FdrWriteError | None = None
-            if self._pending.waiting and self._lock_fd >= 0:
+            if self._pending.waiting and self._lock_fd >= 0 and self._pid == os.getpid():
                 try:
                     self._write_pending()
                 except FdrWriteError as exc:
@@ -290,6 +303,10 @@ class JsonlFdrRecorder:
         self._noted = (
             "; the next recorder to append to this log records them as fdr.records_dropped"
         )
+
+    def _refuse_forked(self) -> None:
+        if (refused := forked_from(self._pid)) is not None:
+            raise FdrWriteError(f"FDR {self._path}: not written, {refused}")
 
     def segments(self) -> list[Path]:
         """Rotated segments oldest first (by number), then the live one."""
