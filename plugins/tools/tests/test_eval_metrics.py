@@ -48,7 +48,12 @@ def test_metrics_count_wrong_fixes_and_right_fixes_on_another_tile_apart() -> No
     assert m.false_confident.frames == (2, 5)
     assert m.false_confident.right_fix_other_tile == (1,)
     assert m.false_confident.passed is False
-    assert m.to_json()["C3-IT-05"] == {"insufficient": 1, "absent_frames": 2, "pass": False}
+    assert m.to_json()["C3-IT-05"] == {
+        "insufficient": 1,
+        "absent_frames": 2,
+        "tiles_unread_frames": [],
+        "pass": False,
+    }
 
 
 def _unreadable(index: int) -> FrameOutcome:

@@ -73,6 +73,7 @@ def print_flight_table(
         "other tile: picks of a candidate other than the true tile that still place the frame right"
     )
     _print_unreadable(ctx, rows)
+    _print_tiles_unread(ctx, rows)
     ctx.out(f"report {out / EVAL_RUN.report}, plots {out}")
     for r in rows:
         if isinstance(r, StrategyEval):
@@ -87,6 +88,17 @@ def _print_unreadable(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:
             f"{max(runs)} frame image(s) could not be read (the camera's loss, not the "
             "matcher's): no IT measure counts them"
         )
+
+
+def _print_tiles_unread(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:
+    """Say which absent-tile frames C3-IT-05 leaves out: every candidate dropped for its tile."""
+    for r in (r for r in rows if isinstance(r, StrategyEval)):
+        if unread := r.acceptance.absent_raised.tiles_unread_frames:
+            ctx.out(
+                f"{r.strategy}: IT-05 leaves out {len(unread)} frame(s) without the true tile "
+                "whose every candidate was dropped for its tile (the matcher saw none): "
+                + ", ".join(map(str, unread))
+            )
 
 
 def table_row(r: StrategyRow) -> str:

@@ -12,6 +12,9 @@ baseline, side by side, against a flight's ground truth (the C3-IT acceptance me
   attitude tilt up to 20 deg and distractors >= 350 m away; bar >= 0.95 (this project's choice:
   the specification names the case, not a rate).
 - C3-IT-05: every frame whose true tile is absent raises InsufficientInliersError; bar: all.
+  A frame whose every candidate was dropped for its tile (a damaged tile store) raised without
+  the matcher seeing a tile: IT-05 counts it neither as raised nor as absent, but names it
+  apart (``tiles_unread_frames``), and a line under the table says so.
 - false-confident (beside IT-05): frames that returned a best candidate whose inliers
   put the frame in the wrong place: their mean error against ground truth (the same measure as
   IT-03, through the picked candidate's own ground-truth homography) is over
@@ -33,8 +36,10 @@ bar (:meth:`~c3_matcher_tools.run.acceptance.Bar.figure`).
 
 Several datasets (``c3-matcher eval FLIGHT1 FLIGHT2 ...``) are evaluated one after the other
 (outputs under ``--out/<dataset>``) and summarised in one strategy x flight table (correct-tile
-rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summary.json``. With
-``--json`` stdout carries one JSON document: a single dataset's ``eval.json``; for several,
+rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summary.json`` (each
+row with the candidates given and those dropped for their tiles, ``tile_dropped``). With
+``--json`` stdout carries one JSON document (the line that says a tile store is damaged goes to
+stderr): a single dataset's ``eval.json``; for several,
 ``{"flights": [each dataset's eval.json, in order], "summary": summary.json's rows}``. A
 dataset name that names an output directory must be one plain path component, and several
 datasets need as many names (refused before anything runs, exit 2, as are a strategy this build
@@ -63,7 +68,11 @@ replaced atomically), and plots
 (``inliers.png``, ``error.png``, ``matches/<strategy>_<frame>.png``) under ``--out`` (default
 ``out/eval/<dataset>``); stdout carries the table (or JSON with ``--json``). Each strategy's
 entry in ``eval.json`` records the ``[matcher]`` settings it ran with (its own defaults where
-the configuration leaves a setting unset).
+the configuration leaves a setting unset), the keypoint budget it kept (``keypoint_budget``,
+the number even where ``max_keypoints`` is unset) and its ``provenance`` (c3-matcher version,
+matcher labels, execution provider and engines, as its FDR and ``report.html`` name them).
+Every dataset's earlier ``eval.json``, charts and match pictures are removed before the first
+dataset runs, so a stopped run leaves none of them looking like its own.
 
 The command only: flying, scoring and the C3-IT measures are the run layer's
 (:mod:`c3_matcher_tools.run`, :mod:`c3_matcher_tools.run.acceptance`).
@@ -127,7 +136,7 @@ from c3_matcher_tools.run.evaluation import (
     SummaryRow,
 )
 from c3_matcher_tools.run.outputs import EVAL_RUN, EVAL_SUMMARY, mark_output_dirs, no_report_html
-from c3_matcher_tools.run.scoring import dropped_lines
+from c3_matcher_tools.run.scoring import damaged_store_line, dropped_lines
 
 __all__ = [
     "BARS",
@@ -250,6 +259,7 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         mark_output_dirs(EVAL_RUN, *outs)
         if root is not None:
             forget_previous_run(root, (EVAL_SUMMARY,))
+        _forget_earlier_reports(outs)  # every flight's, before the first runs
         for dataset, out in zip(datasets, outs, strict=True):
             rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
             reports.append(report)
@@ -335,11 +345,8 @@ def _eval_dataset(
     (its table printed unless ``--json``). Stopped by a signal in ``noted`` part-way, the report
     of the strategies finished, the one stopped and those not run (``complete`` false; no
     plots)."""
-    from c3_matcher_tools.plots import CHARTS, eval_plots, forget_match_pictures
+    from c3_matcher_tools.plots import eval_plots
 
-    out.mkdir(parents=True, exist_ok=True)
-    forget_previous_run(out, (EVAL_RUN.report, *(f"{chart}.png" for chart in CHARTS)))
-    forget_match_pictures(out)  # this run draws its own samples
     overrides = Overrides(max_keypoints=args.max_keypoints)
     rows = _eval_strategies(ctx, args.determinism_frames, dataset, names, out, overrides, noted)
     complete = not any(isinstance(r, StrategyStopped) for r in rows)
@@ -365,10 +372,32 @@ def _eval_dataset(
     if not args.json:
         max_keypoints = overrides.apply(ctx.settings).matcher.max_keypoints
         print_flight_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
-        for r in (r for r in rows if isinstance(r, StrategyEval)):  # and what each dropped
+    _say_dropped(ctx, args.json, dataset, rows)
+    return rows, report
+
+
+def _forget_earlier_reports(outs: Sequence[Path]) -> None:
+    """What an earlier eval left in each of ``outs`` (its ``eval.json``, charts and match
+    pictures), removed before the first dataset runs: a run stopped part-way leaves none of
+    them looking like its own in the datasets it did not reach."""
+    from c3_matcher_tools.plots import CHARTS, forget_match_pictures
+
+    for out in outs:
+        forget_previous_run(out, (EVAL_RUN.report, *(f"{chart}.png" for chart in CHARTS)))
+        forget_match_pictures(out)  # this run draws its own samples
+
+
+def _say_dropped(
+    ctx: CommandContext, json_out: bool, dataset: FlightDataset, rows: Sequence[StrategyRow]
+) -> None:
+    """What each strategy that ran dropped (:func:`dropped_lines`), under the table; with
+    ``json_out`` (stdout is the JSON document) only that the tile store is damaged, on stderr."""
+    for r in (r for r in rows if isinstance(r, StrategyEval)):
+        if not json_out:
             for line in dropped_lines(r.summary, dataset.store_path):
                 ctx.out(f"{r.strategy}: {line}")
-    return rows, report
+        elif (damaged := damaged_store_line(r.summary, dataset.store_path)) is not None:
+            ctx.err(f"c3-matcher eval: {r.strategy} on {dataset.name}: {damaged}")
 
 
 def _eval_strategies(

@@ -252,11 +252,15 @@ class CorrectTile(Measure):
 @dataclass(frozen=True)
 class AbsentRaised(Measure):
     """C3-IT-05: the frames without their true tile that raised ``InsufficientInliersError``:
-    all of them, to pass."""
+    all of them, to pass. A frame whose every candidate was dropped for its tile
+    (:attr:`~c3_matcher_tools.run.records.FrameOutcome.no_tile_read`: a damaged tile store)
+    raised without the matcher seeing a tile: no evidence of a refusal, so it counts in neither
+    figure (nor as a miss) but apart, in ``tiles_unread_frames``, by frame index."""
 
     name: ClassVar[str] = "C3-IT-05"
     insufficient: int
     absent_frames: int
+    tiles_unread_frames: tuple[int, ...] = ()
 
     @property
     def passed(self) -> bool | None:
@@ -333,7 +337,8 @@ class Acceptance:
 def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Acceptance:
     """The C3-IT figures and pass flags of one strategy (see the module docstring): a flag is
     None where its measure had nothing to measure. A frame whose image could not be read is
-    the camera's loss, not the matcher's: no measure counts it."""
+    the camera's loss, not the matcher's: no measure counts it; nor does C3-IT-05 count a frame
+    whose every candidate was dropped for its tile (:class:`AbsentRaised`)."""
     scored = [o for o in run1 if o.scored]
     present = [o for o in scored if o.true_present]
     absent = [o for o in scored if not o.true_present]
@@ -341,13 +346,12 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Accep
     p5 = float(np.percentile(inliers, 5)) if inliers else math.nan
     correct = sum(o.correct for o in present)
     rate = correct / len(present) if present else math.nan
-    raised = sum(o.status == FrameStatus.INSUFFICIENT for o in absent)
     return Acceptance(
         InlierCount(p5, len(present)),
         _it02(run1, run2),
         _it03(present),
         CorrectTile(rate, correct, len(present)),
-        AbsentRaised(raised, len(absent)),
+        _it05(absent),
         _false_confident(scored),
     )
 
@@ -363,6 +367,14 @@ def _it02(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Determi
         if (o.status, o.fingerprint) != (first[o.index].status, first[o.index].fingerprint)
     )
     return Determinism(len(compared), differing)
+
+
+def _it05(absent: Sequence[FrameOutcome]) -> AbsentRaised:
+    """The absent-tile frames that raised, of those whose tiles the matcher saw; apart, those
+    whose every candidate was dropped for its tile."""
+    seen = [o for o in absent if not o.no_tile_read]
+    raised = sum(o.status == FrameStatus.INSUFFICIENT for o in seen)
+    return AbsentRaised(raised, len(seen), tuple(o.index for o in absent if o.no_tile_read))
 
 
 def _it03(present: Sequence[FrameOutcome]) -> InlierError:

@@ -33,11 +33,16 @@ class StrategyEval:
         return self.run.strategy
 
     def to_json(self) -> dict[str, Any]:
-        """Its ``eval.json`` entry (NaN left for the caller to make strict)."""
+        """Its ``eval.json`` entry (NaN left for the caller to make strict): the settings it ran
+        with, the keypoint budget its backend kept (``keypoint_budget``: the number, where the
+        settings may leave it unset for the strategy's own default) and its provenance
+        (:attr:`~c3_matcher_tools.run.records.FlightRun.provenance`)."""
         return {
             "strategy": self.strategy,
             "settings": self.run.settings,
+            "keypoint_budget": self.run.keypoint_budget,
             "lightglue_settings": self.run.lightglue,
+            "provenance": self.run.provenance,
             "startup_s": self.run.startup_s,
             "wall_s": self.run.wall_s,
             "timing": self.summary.to_json(),
@@ -112,8 +117,9 @@ StrategyRow = StrategyEval | StrategyFailure | StrategyStopped
 @dataclass(frozen=True)
 class SummaryRow:
     """One strategy on one flight in the summary table and ``summary.json``: its headline
-    figures, or (``figures`` None) the error that stopped it (``stopped``: Ctrl-C or SIGTERM
-    did)."""
+    figures, the candidates the matcher was given and those of them dropped for their tiles
+    (``tile_dropped``: a damaged tile store, not the matcher), or (``figures`` None) the error
+    that stopped it (``stopped``: Ctrl-C or SIGTERM did)."""
 
     strategy: str
     flight: str
@@ -122,6 +128,8 @@ class SummaryRow:
     frame_ms_p50: float | None = None
     error: str | None = None
     stopped: bool = False
+    candidates: int = 0
+    tile_dropped: int = 0
 
     @classmethod
     def of(cls, flight: str, row: StrategyRow) -> SummaryRow:
@@ -135,6 +143,8 @@ class SummaryRow:
             row.acceptance.headline,
             len(row.acceptance.false_confident.right_fix_other_tile),
             row.summary.frame_ms_p50,
+            candidates=row.summary.candidates,
+            tile_dropped=row.summary.tile_dropped,
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -146,6 +156,8 @@ class SummaryRow:
             **asdict(self.figures),
             "right_fix_other_tile": self.right_fix_other_tile,
             "frame_ms_p50": self.frame_ms_p50,
+            "candidates": self.candidates,
+            "tile_dropped": self.tile_dropped,
         }
 
 

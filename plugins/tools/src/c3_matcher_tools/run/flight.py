@@ -347,6 +347,8 @@ def fly_prepared(
             ran.lightglue.model_dump(mode="json"),
             planned,
             prepared.log_lines_lost,
+            prepared.provenance,
+            prepared.keypoint_budget,
         )
 
     try:

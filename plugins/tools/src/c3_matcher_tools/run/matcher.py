@@ -21,7 +21,7 @@ from c3_matcher.config import C3Settings
 from c3_matcher.logs import LoggingHandle
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost
-from c3_matcher.protocols import Clock, CrossDomainMatcher, FdrClient
+from c3_matcher.protocols import Clock, CrossDomainMatcher, FdrClient, StoredFeaturesBackend
 from c3_matcher_tools.run.outputs import forget_previous_run
 
 __all__ = [
@@ -210,6 +210,21 @@ class PreparedMatcher:
     _started: ExitStack
     _clock: Clock
     _logs: LoggingHandle
+
+    @property
+    def provenance(self) -> dict[str, Any]:
+        """Its feature backend's execution provider and engines, as its FDR records them (each
+        frame's record); empty for a matcher not on the shared per-frame loop."""
+        matcher = self.matcher
+        return dict(matcher.backend.provenance()) if isinstance(matcher, PipelineMatcher) else {}
+
+    @property
+    def keypoint_budget(self) -> int | None:
+        """The keypoints per image its feature backend keeps: the strategy's own default where
+        no setting names one, cut to its extractor engine's top-K (None: it declares none)."""
+        matcher = self.matcher
+        backend = matcher.backend if isinstance(matcher, PipelineMatcher) else None
+        return backend.max_keypoints if isinstance(backend, StoredFeaturesBackend) else None
 
     @property
     def log_lines_lost(self) -> int:

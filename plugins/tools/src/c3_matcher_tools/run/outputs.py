@@ -342,14 +342,17 @@ def flight_report(
 ) -> dict[str, Any]:
     """What every run's report starts with (``replay``'s ``report.json``, each strategy's entry
     in ``eval.json``): the dataset, the strategy, its matcher labels, the ``[matcher]`` and
-    ``[lightglue]`` settings it ran with, start-up and wall time, then ``summary``
-    (:func:`summarize` of the run's outcomes when None)."""
+    ``[lightglue]`` settings it ran with and the keypoint budget it kept, its provenance
+    (:attr:`FlightRun.provenance`), start-up and wall time, then ``summary`` (:func:`summarize`
+    of the run's outcomes when None)."""
     return {
         "dataset": str(dataset.root),
         "strategy": run.strategy,
         "matcher_labels": run.matcher_labels,
         "settings": run.settings,
+        "keypoint_budget": run.keypoint_budget,
         "lightglue_settings": run.lightglue,
+        "provenance": run.provenance,
         "startup_s": run.startup_s,
         "wall_s": run.wall_s,
         **(summarize(run.outcomes) if summary is None else summary).to_json(),
@@ -414,19 +417,21 @@ def write_html_report(
         if say:
             print(why, file=sys.stderr)
         return None
-    from importlib.metadata import version
-
     from c3_matcher_tools.report import write_report
 
-    summary = {k: v for k, v in report.items() if k not in ("settings", "lightglue_settings")}
+    shown_apart = ("settings", "lightglue_settings", "provenance")
+    summary = {k: v for k, v in report.items() if k not in shown_apart}
     lightglue = report.get("lightglue_settings") or {}
     settings = {**report["settings"], **{f"lightglue.{k}": v for k, v in lightglue.items()}}
+    ran = report.get("provenance") or {}  # FlightRun.provenance, as flight_report gives it
     provenance = {
         "dataset": str(dataset.root),
         "dataset format": dataset.meta.get("format"),
         "tile store": str(dataset.store_path),
         "matcher labels (from the results)": ", ".join(report.get("matcher_labels", [])),
-        "c3-matcher": version("c3-matcher"),
+        "c3-matcher": ran.get("c3-matcher", "-"),
+        "execution provider": ran.get("provider", "-"),
+        "engines": json.dumps(ran.get("engines", {})),
         "made by": json.dumps(dataset.meta.get("spec", dataset.meta.get("import", {}))),
     }
     path = write_report(

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from c3_matcher import __version__
 from c3_matcher.stages.candidate_features import TILE_DECODE_PHASE
 
 __all__ = [
@@ -105,6 +106,12 @@ class FrameOutcome:
         return self.has_truth and self.status != FrameStatus.UNREADABLE
 
     @property
+    def no_tile_read(self) -> bool:
+        """Every candidate the matcher was given was dropped for its tile (the store could not
+        give it): the frame's outcome says nothing of the matcher, only of the tile store."""
+        return self.candidates > 0 and sum(d.of_tile for d in self.dropped) >= self.candidates
+
+    @property
     def candidate_inliers(self) -> int:
         """The best candidate's inlier count, whether the frame matched or raised (the count
         below the threshold); ``best_inliers`` is the matched result's, 0 when it raised."""
@@ -129,7 +136,10 @@ class FlightRun:
     configuration leaves a setting unset, as JSON), start-up and wall time (s), the
     ``[lightglue]`` settings resolved for it the same way (its pair matcher's, when it uses
     LightGlue), ``planned``, the frames it was to fly when it was stopped before the last
-    (None: it flew them all), and the log lines its ``matcher.log`` could not take."""
+    (None: it flew them all), the log lines its ``matcher.log`` could not take, ``backend``:
+    its feature backend's provenance (execution provider and engines, as its FDR records
+    them; empty for a matcher without one) and ``keypoint_budget``: the keypoints per image
+    that backend kept (None: it declares no budget)."""
 
     strategy: str
     settings: dict[str, Any]
@@ -139,6 +149,8 @@ class FlightRun:
     lightglue: dict[str, Any] = field(default_factory=dict)
     planned: int | None = None
     log_lines_lost: int = 0
+    backend: dict[str, Any] = field(default_factory=dict)
+    keypoint_budget: int | None = None
 
     @property
     def complete(self) -> bool:
@@ -157,3 +169,10 @@ class FlightRun:
     def matcher_labels(self) -> list[str]:
         """The results' ``matcher_label`` values, sorted (one for a strategy)."""
         return sorted({str(o.result["matcher_label"]) for o in self.outcomes if o.result})
+
+    @property
+    def provenance(self) -> dict[str, Any]:
+        """What the run ran on, as ``report.html``, ``report.json`` and ``eval.json`` name it:
+        the c3-matcher version, the results' matcher labels, and the backend's execution
+        provider and engines (``backend``)."""
+        return {"c3-matcher": __version__, "matcher_labels": self.matcher_labels, **self.backend}

@@ -27,6 +27,7 @@ __all__ = [
     "RunSummary",
     "TelemetryReference",
     "best_candidate_error",
+    "damaged_store_line",
     "dropped_lines",
     "figure",
     "result_fingerprint",
@@ -285,13 +286,21 @@ def dropped_lines(s: RunSummary, store: Path | str) -> list[str]:
         f"candidates dropped {total} of {s.candidates}: "
         + ", ".join(f"{cause} {n}" for cause, n in s.candidates_dropped)
     ]
-    if s.dropped_for_tiles:
-        lines.append(
-            f"{s.tile_dropped} of {s.candidates} candidates were dropped for their tiles: the "
-            f"tile store {store} is damaged (tiles failing their sha256 or not decoding, each "
-            "named in matcher.log): restore it or build it again (`c3-matcher tiles build`)"
-        )
-    return lines
+    damaged = damaged_store_line(s, store)
+    return lines if damaged is None else [*lines, damaged]
+
+
+def damaged_store_line(s: RunSummary, store: Path | str) -> str | None:
+    """The line that says the tile store ``store`` is damaged, and what to do, when most of
+    the candidates were dropped for their tiles (:attr:`RunSummary.dropped_for_tiles`); None
+    otherwise."""
+    if not s.dropped_for_tiles:
+        return None
+    return (
+        f"{s.tile_dropped} of {s.candidates} candidates were dropped for their tiles: the "
+        f"tile store {store} is damaged (tiles failing their sha256 or not decoding, each "
+        "named in matcher.log): restore it or build it again (`c3-matcher tiles build`)"
+    )
 
 
 def telemetry_lines(s: RunSummary) -> list[str]:
