@@ -108,7 +108,7 @@ def test_a_sidecar_with_malformed_pages_is_moved_aside_and_built_anew(
     assert main(["features", "info", str(flight / "tiles.mbtiles"), "--verify"]) == 1
     said = capsys.readouterr().err
     assert f"{sidecar}: database disk image is malformed" in said
-    assert "Rebuild it: c3-matcher features build" in said
+    assert f"c3-matcher features build {flight / 'tiles.mbtiles'} --strategy NAME" in said
     assert _build(flight, engine_dir, monkeypatch) == 0
     err = capsys.readouterr().err
     assert f"{sidecar}: database disk image is malformed: moved aside to {sidecar}.damaged" in err

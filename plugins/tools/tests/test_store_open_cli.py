@@ -120,8 +120,12 @@ def test_features_info_of_a_malformed_set_row_reports_damage(
     assert (code, out) == (1, ""), err
     assert err == (
         f"c3-matcher: {side}: damaged (window_sets row {FSET.set_id[:12]}...: window_px 'abc' "
-        f"is not an integer); the flight extracts instead where it is. Rebuild it: "
-        f"c3-matcher features build {store}"
+        f"is not an integer); the flight extracts instead where it is. Its sets cannot be read "
+        "from it: build each again with the strategy, window and stride it was built with (the "
+        f"build keeps this file as {side.name}.damaged): c3-matcher features build {store} "
+        "--strategy NAME --window W --stride S (a set does not record whether it was built for "
+        "a flight: for one that was, give that flight's directory and --flight-candidates "
+        "instead of the store)."
     )
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -211,55 +212,140 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     store = _store_of(args.store)
     MBTilesStore(store).close()  # an MBTiles store (InvalidInputError naming it), not any file
     path = sidecar_path(store)
+    flight = args.store if args.store.is_dir() else None
     try:
-        sets, damaged, stale = _stored_sets(store, path, verify=args.verify)
+        found = _stored_sets(store, path, verify=args.verify, flight=flight)
     except SidecarDamagedError as exc:
         ctx.err(
             f"c3-matcher: {exc}; the flight extracts instead where it is. "
-            f"Rebuild it: c3-matcher features build {store}"
+            f"{_build_its_sets(args.store, path)}."
         )
         return EXIT_FAILURE
     except FeatureStoreUnavailableError as exc:
-        return _unavailable(exc, store, path, ctx)
-    _mark_engines(sets, ctx)
-    _print_sets(store, path, sets, ctx, as_json=args.json)
-    if damaged:
-        ctx.err(
-            f"c3-matcher: {path}: {damaged} damaged windows (the flight extracts those instead); "
-            f"extract them again: c3-matcher features build {store}"
-        )
-    if stale:
-        ctx.err(
-            f"c3-matcher: {path}: {stale} stale windows (their tiles changed in {store} since "
-            "they were built; the flight extracts those instead); extract them again: "
-            f"c3-matcher features build {store}"
-        )
-    unserved = _engine_notes(args.store, path, sets, ctx)
-    return EXIT_FAILURE if damaged or stale or (unserved and args.verify) else EXIT_OK
+        return _unavailable(exc, args.store, store, path, ctx)
+    _mark_engines(found.sets, ctx)
+    _print_sets(store, path, found.sets, ctx, as_json=args.json)
+    _window_notes(args.store, store, path, found, ctx)
+    unserved = _engine_notes(args.store, path, found, ctx)
+    failed = found.damaged or found.stale or (unserved and args.verify)
+    return EXIT_FAILURE if failed else EXIT_OK
 
 
-def _stored_sets(
-    store: Path, path: Path, *, verify: bool
-) -> tuple[list[dict[str, object]], int, int]:
+@dataclass(frozen=True)
+class _Found:
+    """The sets a sidecar holds (``features info``'s rows), how many windows are damaged and
+    stale in all (checked: ``--verify``), and per set id whether it holds only windows of the
+    flight asked about (``--flight-candidates`` builds it again; None: no flight asked about)."""
+
+    sets: list[dict[str, object]]
+    damaged: int = 0
+    stale: int = 0
+    flight_only: dict[str, bool | None] | None = None
+
+
+def _stored_sets(store: Path, path: Path, *, verify: bool, flight: Path | None) -> _Found:
     """Read the sets the sidecar ``path`` of ``store`` holds (none without one), checked when
-    ``verify``: the sets, and how many windows are damaged and stale in all."""
+    ``verify``; ``flight``: the flight directory the user named, whose candidates' windows each
+    set is compared with."""
     from c3_matcher.errors import InvalidInputError
     from c3_matcher.tilestore.features import MapFeatureStore, stored_sets
 
     if path.exists() and not path.is_file():
         raise InvalidInputError(str(path), "not a file (the flight ignores it)")
     if not path.is_file():
-        return [], 0, 0
+        return _Found([])
     with MapFeatureStore(path) as side:
         sets = [dict(s) for s in stored_sets(side)]
-        return (sets, *_verified(store, side, sets)) if verify else (sets, 0, 0)
+        damaged, stale = _verified(store, side, sets) if verify else (0, 0)
+        only = None if flight is None else _flight_only(side, sets, flight)
+        return _Found(sets, damaged, stale, only)
+
+
+def _flight_only(
+    side: MapFeatureStore, sets: list[dict[str, object]], flight: Path
+) -> dict[str, bool | None]:
+    """Per set id: whether every window the set holds is one of ``flight``'s candidates' on
+    the set's grid (what ``--flight-candidates`` builds)."""
+    from c3_matcher_tools.features.build import flight_windows
+
+    only: dict[str, bool | None] = {}
+    for s in sets:
+        asked = set(flight_windows(flight, int(str(s["stride_px"]))))
+        only[str(s["set_id"])] = set(side.done_windows(str(s["set_id"]))) <= asked
+    return only
+
+
+def _build_command(
+    given: Path, strategy: object, window: object, stride: object, flight_only: bool | None
+) -> str:
+    """The command that builds (or extracts again) the set of ``strategy`` with ``window`` px
+    windows on a ``stride`` px grid beside the store ``given`` names (a store, or a flight
+    directory, as the user gave it); ``flight_only``: with ``--flight-candidates`` (only that
+    flight's candidates' windows), None where that cannot be told (a set does not record it),
+    which the command then says."""
+    command = (
+        f"c3-matcher features build {given} --strategy {strategy} --window {window} "
+        f"--stride {stride}"
+    )
+    if flight_only:
+        return f"{command} --flight-candidates"
+    if flight_only is False:
+        return command
+    if given.is_dir():
+        return f"{command} (add --flight-candidates for only its candidates' windows)"
+    return (
+        f"{command} (a set does not record whether it was built for a flight: for one that was, "
+        "give that flight's directory and --flight-candidates instead of the store)"
+    )
+
+
+def _build_its_sets(given: Path, path: Path) -> str:
+    """What builds the sets of the damaged sidecar ``path`` again: they cannot be read from it,
+    so each is named by the user (``features build`` keeps the file aside)."""
+    command = _build_command(given, "NAME", "W", "S", None)
+    return (
+        f"Its sets cannot be read from it: build each again with the strategy, window and stride "
+        f"it was built with (the build keeps this file as {path.name}.damaged): {command}"
+    )
+
+
+def _window_notes(given: Path, store: Path, path: Path, found: _Found, ctx: CommandContext) -> None:
+    """Say of each set with damaged or stale windows how many, and the command that extracts
+    them again: the one that builds that set (:func:`_build_command`)."""
+    for s in found.sets:
+        why = {
+            "damaged": "the flight extracts those instead",
+            "stale": f"their tiles changed in {store} since they were built; the flight "
+            "extracts those instead",
+        }
+        for kind, because in why.items():
+            if not (count := int(str(s.get(kind, 0)))):
+                continue
+            command = _build_command(
+                given, s["strategy"], s["window_px"], s["stride_px"], _only(found, s)
+            )
+            ctx.err(
+                f"c3-matcher: {path}: {count} {kind} windows in {_named(s)} ({because}); "
+                f"extract them again: {command}."
+            )
+
+
+def _only(found: _Found, s: dict[str, object]) -> bool | None:
+    """Whether the set ``s`` holds only the windows of the flight asked about (None: unknown)."""
+    return None if found.flight_only is None else found.flight_only.get(str(s["set_id"]))
+
+
+def _named(s: dict[str, object]) -> str:
+    """A set in words: the start of its id, its strategy and window size."""
+    return f"set {str(s['set_id'])[:12]}... ({s['strategy']}, {s['window_px']} px windows)"
 
 
 def _unavailable(
-    exc: FeatureStoreUnavailableError, store: Path, path: Path, ctx: CommandContext
+    exc: FeatureStoreUnavailableError, given: Path, store: Path, path: Path, ctx: CommandContext
 ) -> int:
     """Say why the sidecar cannot be opened (locked, in WAL journal mode where it cannot be
-    read, not permitted, unreadable) and what to do about it; exit 2."""
+    read, not permitted: exit 2) or read (damaged: exit 1, as damaged windows) and what to do
+    about it."""
     import sqlite3
 
     from c3_matcher.tilestore.files import open_failure, wal_blocked
@@ -267,7 +353,6 @@ def _unavailable(
 
     cause = exc.__cause__ or exc
     code = sqlite_code(cause)
-    then = f"Rebuild it: c3-matcher features build {store}"
     if code in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
         why, then = f"locked by another process ({cause})", "Try again when it is released"
     elif wal_blocked(path, cause) is not None:  # exc.why says it, and the way out
@@ -281,12 +366,12 @@ def _unavailable(
     elif code == sqlite3.SQLITE_CANTOPEN and (failed := open_failure(path, "a features sidecar")):
         why, then = failed, "Let the user who runs c3-matcher read it and search its folder"
     else:
-        why = f"unreadable ({' '.join(str(cause).split())})"
+        why, then = f"unreadable ({' '.join(str(cause).split())})", _build_its_sets(given, path)
     ctx.err(
         f"c3-matcher: {path}: {why}; the flight extracts every candidate instead while it is "
         f"so. {then}."
     )
-    return EXIT_USAGE
+    return EXIT_FAILURE if then.startswith("Its sets") else EXIT_USAGE
 
 
 def _print_sets(
@@ -342,19 +427,15 @@ def _mark_engines(sets: list[dict[str, object]], ctx: CommandContext) -> None:
             s["engine_unknown"] = known.why
 
 
-def _engine_notes(
-    store: Path, path: Path, sets: list[dict[str, object]], ctx: CommandContext
-) -> int:
+def _engine_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -> int:
     """Say of each set the installed extractor engine did not build (:func:`_mark_engines`) that
     the flight never serves it, and what builds the set it is served; of each set whose engine
     cannot be named, why. The number of sets not served that no set of the installed engine
     (same strategy and window) replaces: the flight extracts their candidates."""
-    served = {_asked_as(s): s for s in sets if s["engine_installed"]}
-    only = " (with --flight-candidates: only its candidates' windows)" if store.is_dir() else ""
+    served = {_asked_as(s): s for s in found.sets if s["engine_installed"]}
     unserved = 0
-    for s in sets:
-        name, window = s["strategy"], s["window_px"]
-        what = f"set {str(s['set_id'])[:12]}... ({name}, {window} px windows)"
+    for s in found.sets:
+        what = _named(s)
         if s["engine_installed"] is None:
             ctx.err(
                 f"c3-matcher: {path}: {what}: whether the installed engines serve it cannot be "
@@ -371,10 +452,12 @@ def _engine_notes(
         )
         if other is None:
             unserved += 1
+            command = _build_command(
+                store, s["strategy"], s["window_px"], s["stride_px"], _only(found, s)
+            )
             built += (
                 " The flight extracts those candidates instead; build the set for the installed "
-                f"engine: c3-matcher features build {store} --strategy {name} --window {window} "
-                f"--stride {s['stride_px']}{only}."
+                f"engine: {command}."
             )
         else:
             built += f" Set {str(other['set_id'])[:12]}... of the installed engine replaces it."
