@@ -97,12 +97,10 @@ def run_extractor(
     """
     if isinstance(max_keypoints, bool) or not isinstance(max_keypoints, int) or max_keypoints < 1:
         raise ValueError(f"max_keypoints must be an int >= 1, got {max_keypoints!r}")
-    if upscale != 1:
-        return _upscaled(
-            runtime, engine_id, image_rgb_uint8, valid_mask_bool, max_keypoints, upscale
-        )
-    feeds = image_to_feeds(image_rgb_uint8, valid_mask_bool)
     height, width = image_rgb_uint8.shape[:2]
+    if upscale != 1:
+        image_rgb_uint8, valid_mask_bool = _enlarged(image_rgb_uint8, valid_mask_bool, upscale)
+    feeds = image_to_feeds(image_rgb_uint8, valid_mask_bool)
     if isinstance(runtime, ManifestRuntime):
         multiple = runtime.manifest(engine_id).size_multiple
         if multiple and (height % multiple or width % multiple):
@@ -113,6 +111,8 @@ def run_extractor(
     keypoints, scores, descriptors = select_keypoints(
         out["keypoints"], out["keypoint_scores"], out["descriptors"], max_keypoints
     )
+    if upscale != 1:  # back in this image's px: cv2.resize's area-aligned convention
+        keypoints = ((keypoints + 0.5) / np.float32(upscale) - 0.5).astype(np.float32)
     return Features(
         keypoints=keypoints,
         descriptors=descriptors,
@@ -121,26 +121,11 @@ def run_extractor(
     )
 
 
-def _upscaled(
-    runtime: InferenceRuntime,
-    engine_id: str,
-    image_rgb_uint8: NDArray[np.uint8],
-    valid_mask_bool: NDArray[np.bool_],
-    max_keypoints: int,
-    upscale: int,
-) -> Features:
-    """:func:`run_extractor` on the image enlarged ``upscale`` times, in this image's px."""
-    height, width = image_rgb_uint8.shape[:2]
-    size = (width * upscale, height * upscale)
-    image = np.asarray(
-        cv2.resize(np.ascontiguousarray(image_rgb_uint8), size, interpolation=cv2.INTER_LINEAR),
-        np.uint8,
-    )
-    mask = cv2.resize(valid_mask_bool.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
-    found = run_extractor(runtime, engine_id, image, mask > 0, max_keypoints)
-    return Features(
-        keypoints=((found.keypoints + 0.5) / np.float32(upscale) - 0.5).astype(np.float32),
-        descriptors=found.descriptors,
-        keypoint_scores=found.keypoint_scores,
-        image_size=(int(width), int(height)),
-    )
+def _enlarged(
+    image: NDArray[np.uint8], valid: NDArray[np.bool_], upscale: int
+) -> tuple[NDArray[np.uint8], NDArray[np.bool_]]:
+    """``image`` (bilinear) and its ``valid`` mask (nearest), ``upscale`` times larger."""
+    size = (image.shape[1] * upscale, image.shape[0] * upscale)
+    larger = cv2.resize(np.ascontiguousarray(image), size, interpolation=cv2.INTER_LINEAR)
+    mask = cv2.resize(valid.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
+    return np.asarray(larger, np.uint8), np.asarray(mask > 0)
