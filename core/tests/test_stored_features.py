@@ -114,8 +114,12 @@ def test_an_off_grid_candidate_gets_the_nearest_window_in_its_own_px(store) -> N
     stored = _window(source, gx, gy)
     got = _serve(source, (gx * STRIDE + 10, gy * STRIDE - 16))  # nearest: (gx, gy)
     assert got is not None
-    assert np.array_equal(got.keypoints, stored.keypoints + np.float32([-10, 16]))
-    assert np.array_equal(got.descriptors, stored.descriptors)
+    moved = stored.keypoints + np.float32([-10, 16])
+    on = ((moved >= -0.5) & (moved <= WINDOW - 0.5)).all(axis=1)
+    assert not on.all()  # the shift takes some keypoints off the candidate's window: left out
+    assert np.array_equal(got.keypoints, moved[on])
+    assert np.array_equal(got.descriptors, stored.descriptors[on])
+    assert np.array_equal(got.keypoint_scores, stored.scores[on])
     assert _serve(source, (gx * STRIDE + 17, gy * STRIDE)) is None  # nearest: gx + 1, not stored
 
 
@@ -134,6 +138,7 @@ def test_other_engines_devices_or_preprocessing_are_never_served(store) -> None:
         FeatureRequest("ab" * 32, 32, 1024, 4096, 2, "clahe", "CPUExecutionProvider"),
         FeatureRequest("ab" * 32, 64, 1024, 4096, 4, "clahe", "CPUExecutionProvider"),
         FeatureRequest("ab" * 32, 32, 256, 4096, 4, "clahe", "CPUExecutionProvider"),  # resized
+        FeatureRequest("ab" * 32, 32, 1024, 4096, 4, "clahe", "CPUExecutionProvider", 2),  # x2
     ):
         assert _serve(source, origin, other) is None, other
     assert _serve(source, origin) is not None

@@ -12,7 +12,9 @@ engine, keeping every keypoint the engine outputs (best score first). In flight 
 window IS a grid window gets those features bit for bit; any keypoint budget is their prefix
 (the extractor keeps the best by a stable sort). A candidate off the grid is served the nearest
 grid window's features (at most ``stride_px / 2`` px away on each axis: the re-ranker's
-candidates are approximate anyway) shifted into its own px.
+candidates are approximate anyway) shifted into its own px: those the shift leaves on its
+window, best first (the strip of it the grid window does not show has none), so they pass the
+flight's check that keypoints lie on the image they describe.
 
 Sidecar database ``<store>.features.sqlite``::
 
@@ -111,7 +113,8 @@ def serve_window(
 ) -> Features | None:
     """The stored features of the (w, h) = ``size`` window of WORLD px whose top-left pixel is
     ``origin``, in its own px: those of the nearest grid window of a set matching ``request``
-    (exactly the window's when it is on the grid), the ``request.max_keypoints`` best. None (the
+    (exactly the window's when it is on the grid; off it, those on this window:
+    :func:`_shifted_onto`), the ``request.max_keypoints`` best. None (the
     caller extracts) when the store has no such set or window, the window's tiles changed since,
     or the input rule would resize or pad it. Raises FeatureStoreUnavailableError /
     StoredFeaturesCorruptError once per outage / corrupt row (see :class:`MapFeatureStore`)."""
@@ -133,16 +136,29 @@ def serve_window(
     digest = window_digest(keys, lambda key: stored_tile_digest(source, key))
     if digest != stored.window_digest:
         return None  # the tiles changed since the build: stale
-    n = min(int(request.max_keypoints), stored.scores.shape[0])
-    keypoints = stored.keypoints[:n]
-    dx, dy = grid_origin[0] - int(origin[0]), grid_origin[1] - int(origin[1])
-    if dx or dy:  # off the grid: the nearest window's features, in this window's px
-        keypoints = keypoints + np.array([dx, dy], dtype=np.float32)
+    shift = (grid_origin[0] - int(origin[0]), grid_origin[1] - int(origin[1]))
+    return _shifted_onto(stored, shift, (w, h), int(request.max_keypoints))
+
+
+def _shifted_onto(
+    stored: WindowFeatures, shift: tuple[int, int], size: tuple[int, int], budget: int
+) -> Features:
+    """``stored``'s features moved by ``shift`` (px) into a (w, h) = ``size`` window's px, the
+    ``budget`` best of those on it: a keypoint the shift takes off the window (the part of the
+    grid window the candidate does not show) is left out, the rest kept in their order (best
+    first), so a candidate off the grid gets what lies on it, as its extraction would."""
+    keypoints, descriptors, scores = stored.keypoints, stored.descriptors, stored.scores
+    if shift != (0, 0):  # off the grid: the nearest window's features, in this window's px
+        keypoints = keypoints + np.array(shift, dtype=np.float32)
+        high = np.array(size, dtype=np.float32) - 0.5
+        on = ((keypoints >= -0.5) & (keypoints <= high)).all(axis=1)
+        keypoints, descriptors, scores = keypoints[on], descriptors[on], scores[on]
+    n = min(budget, scores.shape[0])
     return Features(
-        keypoints=np.ascontiguousarray(keypoints, dtype=np.float32),
-        descriptors=np.ascontiguousarray(stored.descriptors[:n]),
-        keypoint_scores=np.ascontiguousarray(stored.scores[:n], dtype=np.float32),
-        image_size=(w, h),
+        keypoints=np.ascontiguousarray(keypoints[:n], dtype=np.float32),
+        descriptors=np.ascontiguousarray(descriptors[:n]),
+        keypoint_scores=np.ascontiguousarray(scores[:n], dtype=np.float32),
+        image_size=size,
     )
 
 
