@@ -103,5 +103,5 @@ def test_sets_of_another_extractor_engine_are_named_as_never_served(
     assert sets.pop(old["set_id"])["engine_installed"] is False
     ((new_id, new),) = sets.items()
     assert new["engine_installed"] is True and new["extractor_sha256"] == sha
-    assert f"Set {new_id[:12]}... of the installed engine replaces it." in err, err
+    assert f"Set {new_id[:12]}..., which it is served, replaces it." in err, err
     assert rebuild not in err

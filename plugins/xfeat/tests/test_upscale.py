@@ -120,3 +120,34 @@ def test_an_upscale_out_of_range_is_refused_naming_it(tmp_path: Path, upscale: f
     assert proc.returncode == 2, proc.stderr
     assert "matcher.options.xfeat.upscale" in proc.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_a_set_built_before_the_factor_changed_is_said_not_to_serve_the_flight(
+    engine_dir: Path, tmp_path: Path
+) -> None:
+    """Map features built with ``upscale = 1``, the flight at the default 2: ``features info
+    --verify`` says the set is never served, why, and the command that builds the one it is
+    served; once built, the old set is replaced and the check passes."""
+    flight = tmp_path / "flight"
+    shutil.copytree(ZURICH, flight)
+    build = ("features", "build", flight, "--strategy", "xfeat", "--workers", "0")
+    proc = run_cli(
+        *build, "--flight-candidates", cwd=tmp_path, engine_dir=engine_dir, settings=AS_IS
+    )
+    assert proc.returncode == 0, proc.stderr
+    verify = ("features", "info", flight, "--verify", "--json")
+    proc = run_cli(*verify, cwd=tmp_path, engine_dir=engine_dir)
+    assert proc.returncode == 1, proc.stderr
+    (old,) = json.loads(proc.stdout)["sets"]
+    assert (old["engine_installed"], old["served"]) == (True, False)
+    assert old["asked_set_id"] == old["set_id"] + ":x2"
+    said = proc.stderr
+    assert "but other settings than a flight has here" in said and ":w160:x2), so" in said
+    command = re.search(r"build its set: c3-matcher (features build .*?)\. No command", said)
+    assert command is not None, said
+    assert command.group(1).endswith("--window 160 --stride 16 --flight-candidates")
+    proc = run_cli(*build, "--flight-candidates", cwd=tmp_path, engine_dir=engine_dir)
+    assert proc.returncode == 0, proc.stderr
+    proc = run_cli(*verify, cwd=tmp_path, engine_dir=engine_dir)
+    assert proc.returncode == 0, proc.stderr
+    assert "which it is served, replaces it" in proc.stderr

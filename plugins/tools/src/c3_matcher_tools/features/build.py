@@ -45,7 +45,6 @@ from c3_matcher.tilestore.features import (
     FeatureSet,
     MapFeatureStore,
     covered_tiles,
-    set_id_for,
     sidecar_path,
     stored_tile_digest,
     window_digest,
@@ -238,10 +237,17 @@ def _resolved(
 class InstalledExtractor:
     """The extractor engine a strategy flies with in this installation: its file's sha256 (the
     flight is served only the sets that engine built), or None and why it cannot be named (the
-    strategy's plugin is not installed, its engine is missing or refused)."""
+    strategy's plugin is not installed, its engine is missing or refused); with the facts and
+    photometric normalisation that key the sets a flight asks for (:meth:`asked`)."""
 
     sha256: str | None
     why: str = ""
+    facts: SetFacts | None = None
+    photometric: str = ""
+
+    def asked(self, window_px: int) -> str | None:
+        """The id of the set of ``window_px`` windows a flight of these settings asks for."""
+        return None if self.facts is None else self.facts.set_id(self.photometric, window_px)
 
 
 def installed_extractor(
@@ -251,7 +257,8 @@ def installed_extractor(
     builds (its backend loaded in this process: :func:`set_facts`)."""
     try:
         settings_json = _resolved(settings, [strategy], host)[strategy]
-        return InstalledExtractor(set_facts(strategy, settings_json, {}).extractor_sha256)
+        facts = set_facts(strategy, settings_json, {})
+        return InstalledExtractor(facts.extractor_sha256, "", facts, photometric_of(settings_json))
     except (C3Error, ValueError, OSError, RuntimeError) as exc:
         return InstalledExtractor(None, " ".join(str(exc).split()))
 
@@ -323,15 +330,8 @@ def _feature_set(job: _Job, strategy: str, facts: SetFacts, sidecar: MapFeatureS
     """``strategy``'s set in the sidecar (created when new; a set built with another stride is
     refused; nothing is written to a sidecar holding it before its rows are verified)."""
     photometric = photometric_of(job.settings_json[strategy])
-    keyed = (  # what the set's id digests, in FeatureSet's order
-        facts.extractor_sha256,
-        facts.provider,
-        facts.multiple,
-        photometric,
-        facts.border_erode_px,
-        job.window_px,
-    )
-    set_id = set_id_for(*keyed, facts.input_rule.upscale)
+    keyed = facts.keyed(photometric, job.window_px)
+    set_id = facts.set_id(photometric, job.window_px)
     existing = sidecar.feature_set(set_id)
     if existing is not None:
         if existing.stride_px != job.stride_px:

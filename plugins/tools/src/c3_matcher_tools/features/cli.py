@@ -410,9 +410,11 @@ def _verified(store: Path, side: MapFeatureStore, sets: list[dict[str, object]])
 
 def _mark_engines(sets: list[dict[str, object]], ctx: CommandContext) -> None:
     """Mark each set with the extractor engine its strategy flies with in this installation
-    (``installed_extractor_sha256``, learnt once per strategy) and ``engine_installed``: whether
-    that engine built it (the flight is served no set another engine built), None when the
-    installed engine cannot be named (``engine_unknown``: why)."""
+    (``installed_extractor_sha256``, learnt once per strategy), ``engine_installed``: whether
+    that engine built it (the flight is served no set another engine built), and ``served``:
+    whether it is the set a flight of these settings asks for (its engine, provider,
+    photometric normalisation and input rule, upscale included); both None when the installed
+    engine cannot be named (``engine_unknown``: why)."""
     from c3_matcher_tools.features.build import installed_extractor
 
     strategies = sorted({str(s["strategy"]) for s in sets})
@@ -423,16 +425,19 @@ def _mark_engines(sets: list[dict[str, object]], ctx: CommandContext) -> None:
         s["engine_installed"] = (
             None if known.sha256 is None else known.sha256 == s["extractor_sha256"]
         )
+        asked = known.asked(int(str(s["window_px"])))
+        s["served"] = None if asked is None else asked == s["set_id"]
+        s["asked_set_id"] = asked
         if known.sha256 is None:
             s["engine_unknown"] = known.why
 
 
 def _engine_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -> int:
-    """Say of each set the installed extractor engine did not build (:func:`_mark_engines`) that
-    the flight never serves it, and what builds the set it is served; of each set whose engine
-    cannot be named, why. The number of sets not served that no set of the installed engine
-    (same strategy and window) replaces: the flight extracts their candidates."""
-    served = {_asked_as(s): s for s in found.sets if s["engine_installed"]}
+    """Say of each set the flight is not served (:func:`_mark_engines`: another extractor
+    engine, or other settings, built it) that it is never served, and what builds the set it is
+    served; of each set whose engine cannot be named, why. The number of sets not served that
+    no served set (same strategy and window) replaces: the flight extracts their candidates."""
+    served = {(s["strategy"], s["window_px"]): s for s in found.sets if s["served"]}
     unserved = 0
     for s in found.sets:
         what = _named(s)
@@ -442,25 +447,27 @@ def _engine_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -
                 f"told: {str(s['engine_unknown']).rstrip('.')}."
             )
             continue
-        if s["engine_installed"]:
+        if s["served"]:
             continue
-        other = served.get(_asked_as(s))
-        built = (
-            f"c3-matcher: {path}: {what} was built with another extractor engine (sha256 "
-            f"{str(s['extractor_sha256'])[:12]}...) than the installed one "
-            f"({str(s['installed_extractor_sha256'])[:12]}...), so the flight is never served it."
+        built = f"c3-matcher: {path}: {what} was built " + (
+            "with the installed extractor engine but other settings than a flight has here (its "
+            "provider, photometric normalisation or input rule, upscale included: the set's "
+            f"key ends {_after_sha(s['set_id'])}, a flight asks for "
+            f"{_after_sha(s['asked_set_id'])}), so the flight is never served it."
+            if s["engine_installed"]
+            else f"with another extractor engine (sha256 {str(s['extractor_sha256'])[:12]}...) "
+            f"than the installed one ({str(s['installed_extractor_sha256'])[:12]}...), so the "
+            "flight is never served it."
         )
+        other = served.get((s["strategy"], s["window_px"]))
         if other is None:
             unserved += 1
             command = _build_command(
                 store, s["strategy"], s["window_px"], s["stride_px"], _only(found, s)
             )
-            built += (
-                " The flight extracts those candidates instead; build the set for the installed "
-                f"engine: {command}."
-            )
+            built += f" The flight extracts those candidates instead; build its set: {command}."
         else:
-            built += f" Set {str(other['set_id'])[:12]}... of the installed engine replaces it."
+            built += f" Set {str(other['set_id'])[:12]}..., which it is served, replaces it."
         ctx.err(
             f"{built} No command removes a single set: its windows keep their space until "
             f"{path.name} is deleted, which removes every set in it."
@@ -468,8 +475,6 @@ def _engine_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -
     return unserved
 
 
-def _asked_as(s: dict[str, object]) -> tuple[str, str]:
-    """What a flight asks a set for but its extractor engine: the strategy and the rest of the
-    set id (provider, size multiple, photometric normalisation, border erosion, window): a set
-    of the installed engine replaces one of another engine only when they agree in all of it."""
-    return str(s["strategy"]), str(s["set_id"]).partition(":")[2]
+def _after_sha(set_id: object) -> str:
+    """A set id but its extractor's sha256: what else keys the set."""
+    return str(set_id).partition(":")[2]

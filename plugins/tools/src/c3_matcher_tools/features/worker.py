@@ -20,6 +20,7 @@ from c3_matcher.stages.extract import extract_checked
 from c3_matcher.tilestore.features import (
     WindowFeatures,
     covered_tiles,
+    set_id_for,
     stored_tile_digest,
     window_digest,
 )
@@ -54,6 +55,21 @@ class SetFacts:
     descriptor_dim: int
     descriptor_dtype: str
     input_rule: InputRule
+
+    def keyed(self, photometric: str, window_px: int) -> tuple[str, str, int, str, int, int]:
+        """What the id of its set of ``window_px`` windows digests, in ``FeatureSet``'s order."""
+        return (
+            self.extractor_sha256,
+            self.provider,
+            self.multiple,
+            photometric,
+            self.border_erode_px,
+            window_px,
+        )
+
+    def set_id(self, photometric: str, window_px: int) -> str:
+        """The id of its set of ``window_px`` windows: the one a flight asks for."""
+        return set_id_for(*self.keyed(photometric, window_px), self.input_rule.upscale)
 
 
 BackendCache = dict[tuple[str, str], Any]
