@@ -102,13 +102,7 @@ class StrategyStopped:
         )
 
     def to_json(self) -> dict[str, Any]:
-        return {
-            "strategy": self.strategy,
-            "stopped": self.error,
-            "frames_done": self.frames_done,
-            "frames_planned": self.frames_planned,
-            "results": self.results,
-        }
+        return {**asdict(self), "stopped": self.error}
 
 
 StrategyRow = StrategyEval | StrategyFailure | StrategyStopped
