@@ -163,7 +163,9 @@ def test_json_for_one_dataset_is_its_eval_json() -> None:
     from c3_matcher_tools.evaluate import _json_document
 
     report = {"dataset": "d", "strategies": []}
-    assert _json_document([report], [{"strategy": "xfeat"}]) is report
+    assert _json_document([report], [{"strategy": "xfeat"}], several=False) is report
+    several = _json_document([report], [{"strategy": "xfeat"}], several=True)  # one stopped
+    assert several == {"flights": [report], "summary": [{"strategy": "xfeat"}]}
 
 
 @pytest.mark.slow

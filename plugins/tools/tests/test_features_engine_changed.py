@@ -24,6 +24,7 @@ import pytest
 from c3_matcher.engines.manifest import read_manifest
 from c3_matcher.engines.naming import manifest_path_for
 from c3_matcher.engines.spec import file_sha256
+from c3_matcher_tools.features.windows import brief_set_id
 
 
 def _run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
@@ -82,7 +83,7 @@ def test_sets_of_another_extractor_engine_are_named_as_never_served(
         f"--stride {old['stride_px']}"
     )
     assert len(err.splitlines()) == 1, err
-    assert f"set {old['set_id'][:12]}... (xfeat, {old['window_px']} px windows)" in err
+    assert f"set {brief_set_id(old['set_id'])} (xfeat, {old['window_px']} px windows)" in err
     assert "was built with another extractor engine" in err
     assert f"than the installed one ({sha[:12]}...), so the flight is never served it." in err
     assert rebuild in err and "No command removes a single set" in err
@@ -103,5 +104,5 @@ def test_sets_of_another_extractor_engine_are_named_as_never_served(
     assert sets.pop(old["set_id"])["engine_installed"] is False
     ((new_id, new),) = sets.items()
     assert new["engine_installed"] is True and new["extractor_sha256"] == sha
-    assert f"Set {new_id[:12]}..., which it is served, replaces it." in err, err
+    assert f"Set {brief_set_id(new_id)}, which it is served, replaces it." in err, err
     assert rebuild not in err

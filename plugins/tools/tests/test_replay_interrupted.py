@@ -33,9 +33,11 @@ def _flight(where: Path) -> Path:
     return where
 
 
-def _stopped_once_a_frame_is_done(args: list[str], signum: int, where: Path) -> tuple[int, str]:
+def _stopped_once_a_frame_is_done(
+    args: list[str], signum: int, where: Path, bar: bytes = rb"\] +[1-9][0-9]*/30 "
+) -> tuple[int, str]:
     """``c3-matcher ARGS`` (without the caller's settings) sent ``signum`` once its progress
-    bar on stderr counts a frame of 30 done: its exit status and its stderr."""
+    bar on stderr counts a frame of 30 done (``bar``): its exit status and its stderr."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(ENV_PREFIX)}
     err = where / "stderr"
     with err.open("wb") as sink:
@@ -48,7 +50,7 @@ def _stopped_once_a_frame_is_done(args: list[str], signum: int, where: Path) -> 
         )
         try:
             deadline = time.monotonic() + 300
-            while re.search(rb"\] +[1-9][0-9]*/30 ", err.read_bytes()) is None:
+            while re.search(bar, err.read_bytes()) is None:
                 assert proc.poll() is None, "the command ended before its first frame was done"
                 assert time.monotonic() < deadline, "no frame done in 300 s"
                 time.sleep(0.01)
@@ -189,3 +191,17 @@ def test_a_stopped_eval_keeps_the_flights_finished_and_the_frames_done(
         ("two_frames", False),
         ("naip_demo", True),
     ]
+
+
+def test_an_eval_stopped_in_its_second_run_keeps_its_first(tmp_path: Path) -> None:
+    """The determinism run stopped: the first run, whole, is kept and said to be."""
+    flight, out = _flight(tmp_path / "demo"), tmp_path / "out"
+    args = ["eval", str(flight), "--strategy", "sift_magsac", "--samples", "0", "--out", str(out)]
+    run2 = rb"run 2 \[[#.]*\] +[1-9][0-9]*/30 "
+    returncode, stderr = _stopped_once_a_frame_is_done(args, signal.SIGINT, tmp_path, run2)
+    assert returncode == 130, stderr
+    (row,) = json.loads((out / "eval.json").read_text())["strategies"]
+    assert (row["frames_done"], row["frames_planned"]) == (30, 30)
+    assert row["stopped"].startswith("stopped in its second (determinism) run; its first, of 30")
+    lines = (out / "sift_magsac" / "results.jsonl").read_text().splitlines()
+    assert [json.loads(line)["index"] for line in lines] == list(range(30))

@@ -68,6 +68,9 @@ def test_upscale_finds_the_true_tile_on_a_store_of_small_tiles(
 
     assert replay("as_is", AS_IS) == (0, 4)
     assert replay("upscaled", UPSCALED) == (4, 4)
+    for out, factor in (("as_is", 1), ("upscaled", 2)):  # the run says which it had
+        report = json.loads((tmp_path / out / "report.json").read_text())
+        assert report["provenance"]["input_rule"]["upscale"] == factor
     results = (tmp_path / "upscaled" / "results.jsonl").read_text().splitlines()
     assert all(json.loads(line)["status"] == "ok" for line in results)
 
@@ -110,7 +113,7 @@ def test_map_features_built_upscaled_serve_the_flight_the_same_matches(
     assert len(served) == 4 and not any("stored" in frame for frame in served), served
 
 
-@pytest.mark.parametrize("upscale", [0, 5, 1.5])
+@pytest.mark.parametrize("upscale", [0, 5, 1.5, True])
 def test_an_upscale_out_of_range_is_refused_naming_it(tmp_path: Path, upscale: float) -> None:
     proc = run_cli(
         "replay", ZURICH, "--strategy", "xfeat", "--out", tmp_path / "out",
@@ -151,3 +154,22 @@ def test_a_set_built_before_the_factor_changed_is_said_not_to_serve_the_flight(
     proc = run_cli(*verify, cwd=tmp_path, engine_dir=engine_dir)
     assert proc.returncode == 0, proc.stderr
     assert "which it is served, replaces it" in proc.stderr
+
+
+def test_the_pytorch_reference_extracts_as_the_engine_does(
+    engine_dir: Path, tmp_path: Path
+) -> None:
+    """``bench``'s PyTorch reference runs on the same enlarged image: the same keypoints."""
+    from c3_matcher.prepared import PreparedImage
+    from c3_matcher_xfeat.export import XFeatReference
+
+    settings = C3Settings(engines={"directory": engine_dir}, fdr={"path": tmp_path / "fdr.jsonl"})
+    runtime = build_default_helpers(settings)["c7_inference"]
+    engine = runtime.load_engine(EngineStore(engine_dir).require("xfeat", "default"))
+    tile = cv2.cvtColor(cv2.imread(str(ZURICH / "frames" / "000000.jpg")), cv2.COLOR_BGR2RGB)
+    image, valid = np.ascontiguousarray(tile[:160, :224]), np.ones((160, 224), bool)
+    ours = run_extractor(runtime, engine, image, valid, 4096, upscale=2)
+    reference = XFeatReference(settings).extract(PreparedImage(image, valid, np.eye(3), (224, 160)))
+    assert reference.image_size == (224, 160) and len(reference) == len(ours) > 100
+    gap = np.abs(reference.keypoints[:, None, :] - ours.keypoints[None, :, :]).max(axis=2)
+    assert (gap.min(axis=1) < 0.01).mean() > 0.99

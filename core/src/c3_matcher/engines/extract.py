@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from c3_matcher.features import Features
 from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
 
-__all__ = ["image_to_feeds", "run_extractor", "select_keypoints"]
+__all__ = ["enlarged", "from_enlarged", "image_to_feeds", "run_extractor", "select_keypoints"]
 
 
 class _HasManifest(Protocol):
@@ -99,7 +99,7 @@ def run_extractor(
         raise ValueError(f"max_keypoints must be an int >= 1, got {max_keypoints!r}")
     height, width = image_rgb_uint8.shape[:2]
     if upscale != 1:
-        image_rgb_uint8, valid_mask_bool = _enlarged(image_rgb_uint8, valid_mask_bool, upscale)
+        image_rgb_uint8, valid_mask_bool = enlarged(image_rgb_uint8, valid_mask_bool, upscale)
     feeds = image_to_feeds(image_rgb_uint8, valid_mask_bool)
     if isinstance(runtime, ManifestRuntime):
         multiple = runtime.manifest(engine_id).size_multiple
@@ -111,8 +111,8 @@ def run_extractor(
     keypoints, scores, descriptors = select_keypoints(
         out["keypoints"], out["keypoint_scores"], out["descriptors"], max_keypoints
     )
-    if upscale != 1:  # back in this image's px: cv2.resize's area-aligned convention
-        keypoints = ((keypoints + 0.5) / np.float32(upscale) - 0.5).astype(np.float32)
+    if upscale != 1:
+        keypoints = from_enlarged(keypoints, upscale)
     return Features(
         keypoints=keypoints,
         descriptors=descriptors,
@@ -121,11 +121,18 @@ def run_extractor(
     )
 
 
-def _enlarged(
+def enlarged(
     image: NDArray[np.uint8], valid: NDArray[np.bool_], upscale: int
 ) -> tuple[NDArray[np.uint8], NDArray[np.bool_]]:
-    """``image`` (bilinear) and its ``valid`` mask (nearest), ``upscale`` times larger."""
+    """``image`` (bilinear) and its ``valid`` mask (nearest), ``upscale`` times larger: what an
+    extractor of an ``InputRule.upscale`` is run on."""
     size = (image.shape[1] * upscale, image.shape[0] * upscale)
     larger = cv2.resize(np.ascontiguousarray(image), size, interpolation=cv2.INTER_LINEAR)
     mask = cv2.resize(valid.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST)
     return np.asarray(larger, np.uint8), np.asarray(mask > 0)
+
+
+def from_enlarged(keypoints: NDArray[np.float32], upscale: int) -> NDArray[np.float32]:
+    """(x, y) px in an image :func:`enlarged` ``upscale`` times, back in the image's own px
+    (``x = (x_up + 0.5) / upscale - 0.5``, ``cv2.resize``'s area-aligned convention)."""
+    return ((keypoints + 0.5) / np.float32(upscale) - 0.5).astype(np.float32)

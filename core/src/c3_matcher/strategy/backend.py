@@ -3,6 +3,7 @@ strategy, and the provenance facts of its engines."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Final
@@ -49,7 +50,11 @@ class ExtractorBackend:
         )  # what matches: a steps engine loaded in place of the configured full one
         for role, path in served.items():
             facts[role] = _engine_facts(None, None, path)
-        self._provenance: dict[str, Any] = {"provider": runtime.provider, "engines": facts}
+        self._provenance: dict[str, Any] = {
+            "provider": runtime.provider,
+            "engines": facts,
+            "input_rule": dataclasses.asdict(config.input_rule),  # upscale among it
+        }
 
     def extract(self, image: PreparedImage) -> Features:
         return run_extractor(

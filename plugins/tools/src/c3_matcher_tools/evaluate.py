@@ -163,7 +163,8 @@ def evaluate_strategy(
 ) -> StrategyEval:
     """Run ``strategy`` twice over ``dataset`` (the second time on the first
     ``determinism_frames`` frames, all when None) and score it (no report.html: the run says).
-    Ctrl-C or SIGTERM in the first run's frames raises :class:`FlightStopped` with those done."""
+    Ctrl-C or SIGTERM in the first run's frames raises :class:`FlightStopped` with those done;
+    in the second, with the whole first run."""
     frames = list(dataset.frames)
     run1 = fly(
         settings,
@@ -175,15 +176,19 @@ def evaluate_strategy(
         options=FlightOptions(progress=ProgressBar(f"eval {strategy} run 1"), keep_stopped=True),
     )
     subset = frames[:determinism_frames] if determinism_frames else frames
-    run2 = fly(
-        settings,
-        strategy,
-        dataset,
-        out / strategy / "run2",
-        plugin_host=plugin_host,
-        overrides=overrides,
-        options=FlightOptions(subset, ProgressBar(f"eval {strategy} run 2")),
-    )
+    try:
+        run2 = fly(
+            settings,
+            strategy,
+            dataset,
+            out / strategy / "run2",
+            plugin_host=plugin_host,
+            overrides=overrides,
+            options=FlightOptions(subset, ProgressBar(f"eval {strategy} run 2")),
+        )
+    except KeyboardInterrupt as exc:  # the first run is whole: it is kept
+        done = run1.outcomes
+        raise FlightStopped(signal.SIGINT, done, len(done), run1) from exc
     summary = summarize(run1.outcomes)
     acceptance = metrics(run1.outcomes, run2.outcomes)
     flight = {
@@ -260,22 +265,25 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         if root is not None:
             forget_previous_run(root, (EVAL_SUMMARY,))
         _forget_earlier_reports(outs)  # every flight's, before the first runs
-        for dataset, out in zip(datasets, outs, strict=True):
+        for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
             rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
             reports.append(report)
             summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
             if not report["complete"]:
+                summary.extend(_not_run(datasets[n + 1 :], names))
                 break
         summary_rows = [s.to_json() for s in summary]
         if root is not None:
             summary_json = json.dumps(_finite(summary_rows), indent=2) + "\n"
             write_text_atomically(root / EVAL_SUMMARY, summary_json)
     if args.json:
-        ctx.out(json.dumps(_finite(_json_document(reports, summary_rows)), indent=2))
+        document = _json_document(reports, summary_rows, several=root is not None)
+        ctx.out(json.dumps(_finite(document), indent=2))
     else:
         print_summary_table(ctx, summary)
     if not reports[-1]["complete"]:
-        return _said_stopped(ctx, noted[-1], summary[-1], outs[len(reports) - 1])
+        stopped = next(s for s in summary if s.stopped)
+        return _said_stopped(ctx, noted[-1], stopped, outs[len(reports) - 1])
     failed = [f"{s.strategy} on {s.flight}" for s in summary if s.figures is None]
     if failed:
         ctx.err(f"c3-matcher eval: failed to run: {', '.join(failed)}")
@@ -294,13 +302,18 @@ def _said_stopped(ctx: CommandContext, signum: int, last: SummaryRow, out: Path)
 
 
 def _json_document(
-    reports: Sequence[dict[str, Any]], summary: Sequence[dict[str, Any]]
+    reports: Sequence[dict[str, Any]], summary: Sequence[dict[str, Any]], *, several: bool
 ) -> dict[str, Any]:
     """What ``--json`` prints, one document: the one dataset's ``eval.json``, or for several
-    ``{"flights": [each one's eval.json, in order], "summary": summary.json's rows}``."""
-    if len(reports) == 1:
-        return reports[0]
-    return {"flights": list(reports), "summary": list(summary)}
+    (even when a stop came before the second) ``{"flights": [each one's eval.json, in order],
+    "summary": summary.json's rows}``."""
+    return {"flights": list(reports), "summary": list(summary)} if several else reports[0]
+
+
+def _not_run(datasets: Sequence[FlightDataset], names: Sequence[str]) -> list[SummaryRow]:
+    """The summary's rows of the flights a stop came before: each strategy, not run."""
+    said = "not run: the evaluation was stopped before this flight"
+    return [SummaryRow(n, d.name, error=said, stopped=True) for d in datasets for n in names]
 
 
 def _strategies(args: argparse.Namespace, host: PluginHost) -> list[str]:
@@ -438,13 +451,14 @@ def _eval_strategies(
 
 
 def _stopped(directory: Path, name: str, stop: KeyboardInterrupt) -> StrategyStopped:
-    """The row of strategy ``name`` that ``stop`` stopped: the frames of its first run done,
-    written to ``directory``'s ``results.jsonl``, when the stop came while it flew them."""
+    """The row of strategy ``name`` that ``stop`` stopped: the frames of its first run done (all
+    of them when the stop came in its second), written to ``directory``'s ``results.jsonl``."""
     run = stop.run if isinstance(stop, FlightStopped) else None
     if run is None:
         return StrategyStopped(name)
     results = write_results(directory / "results.jsonl", run.outcomes)
-    return StrategyStopped(name, len(run.outcomes), run.planned, str(results))
+    planned = len(run.outcomes) if run.planned is None else run.planned
+    return StrategyStopped(name, len(run.outcomes), planned, str(results))
 
 
 def _finite(value: Any) -> Any:

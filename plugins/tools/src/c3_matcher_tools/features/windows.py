@@ -11,9 +11,17 @@ from pathlib import Path
 from c3_matcher.tilestore.features import covered_tiles, grid_index
 from c3_matcher.tilestore.geo import TILE_PX
 
-__all__ = ["WindowKey", "flight_grid", "flight_windows", "grid_windows"]
+__all__ = ["WindowKey", "brief_set_id", "flight_grid", "flight_windows", "grid_windows"]
 
 WindowKey = tuple[int, int, int]  # (zoom, gx, gy)
+
+
+def brief_set_id(set_id: object) -> str:
+    """A set's id as said to a user: its extractor's sha256 cut short (every set of one engine
+    begins alike), then all that tells it from the others (provider, size multiple,
+    photometric normalisation, erosion, window, upscale)."""
+    sha, _, rest = str(set_id).partition(":")
+    return f"{sha[:12]}...:{rest}"
 
 
 def grid_windows(

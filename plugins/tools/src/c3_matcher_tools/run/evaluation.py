@@ -96,6 +96,11 @@ class StrategyStopped:
         """What its row says in the tables."""
         if self.results is None:
             return "stopped before its results were written"
+        if self.frames_done == self.frames_planned:
+            return (
+                f"stopped in its second (determinism) run; its first, of {self.frames_done} "
+                f"frames, kept (their results: {self.results})"
+            )
         return (
             f"stopped after {self.frames_done} of {self.frames_planned} frames "
             f"(their results: {self.results})"
