@@ -1,4 +1,4 @@
-"""XFeat's ``upscale`` option (2 by default): the extractor runs on each prepared image enlarged a
+"""XFeat's ``upscale`` option (1 by default): the extractor runs on each prepared image enlarged a
 whole number of times, its keypoints given back in the prepared image's px; on a store of small
 tiles (Zurich, zoom 16: 160 px windows, a 20 x 20 descriptor map) that is what lets XFeat find the
 true tile. Stored map features built with the factor carry it in their set's key: they serve a
@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import subprocess
 from pathlib import Path
 
 import cv2
@@ -22,8 +23,8 @@ from c3_matcher.engines.store import EngineStore
 from c3_matcher_tools.testing.cli import run_cli
 
 ZURICH = Path(__file__).resolve().parents[3] / "data" / "flights" / "zurich_z16"
-UPSCALED: dict[str, str] = {}  # the default: twice
-AS_IS = {"C3_MATCHER_MATCHER__OPTIONS__XFEAT": json.dumps({"upscale": 1})}
+UPSCALED = {"C3_MATCHER_MATCHER__OPTIONS__XFEAT": json.dumps({"upscale": 2})}
+AS_IS: dict[str, str] = {}  # the default: the images as prepared
 
 
 def test_an_upscaled_extraction_is_the_engine_on_the_enlarged_image_in_this_images_px(
@@ -125,33 +126,35 @@ def test_an_upscale_out_of_range_is_refused_naming_it(tmp_path: Path, upscale: f
     assert not (tmp_path / "out").exists()
 
 
-def test_a_set_built_before_the_factor_changed_is_said_not_to_serve_the_flight(
+def test_a_set_built_with_another_factor_is_said_not_to_serve_the_flight(
     engine_dir: Path, tmp_path: Path
 ) -> None:
-    """Map features built with ``upscale = 1``, the flight at the default 2: ``features info
+    """Map features built with ``upscale = 2``, a flight at the default 1: ``features info
     --verify`` says the set is never served, why, and the command that builds the one it is
-    served; once built, the old set is replaced and the check passes."""
+    served; with the factor it was built for, it is served; once the other is built, it is
+    replaced and the check passes."""
     flight = tmp_path / "flight"
     shutil.copytree(ZURICH, flight)
+
+    def c3(*args: object, settings: dict[str, str] = AS_IS) -> subprocess.CompletedProcess[str]:
+        return run_cli(*args, cwd=tmp_path, engine_dir=engine_dir, settings=settings)
+
     build = ("features", "build", flight, "--strategy", "xfeat", "--workers", "0")
-    proc = run_cli(
-        *build, "--flight-candidates", cwd=tmp_path, engine_dir=engine_dir, settings=AS_IS
-    )
-    assert proc.returncode == 0, proc.stderr
+    assert c3(*build, "--flight-candidates", settings=UPSCALED).returncode == 0
     verify = ("features", "info", flight, "--verify", "--json")
-    proc = run_cli(*verify, cwd=tmp_path, engine_dir=engine_dir)
+    proc = c3(*verify)
     assert proc.returncode == 1, proc.stderr
-    (old,) = json.loads(proc.stdout)["sets"]
-    assert (old["engine_installed"], old["served"]) == (True, False)
-    assert old["asked_set_id"] == old["set_id"] + ":x2"
+    (built,) = json.loads(proc.stdout)["sets"]
+    assert (built["engine_installed"], built["served"]) == (True, False)
+    assert built["set_id"] == built["asked_set_id"] + ":x2"
     said = proc.stderr
-    assert "but other settings than a flight has here" in said and ":w160:x2), so" in said
+    assert "but other settings than a flight has here" in said and ":w160), so" in said
     command = re.search(r"build its set: c3-matcher (features build .*?)\. No command", said)
     assert command is not None, said
     assert command.group(1).endswith("--window 160 --stride 16 --flight-candidates")
-    proc = run_cli(*build, "--flight-candidates", cwd=tmp_path, engine_dir=engine_dir)
-    assert proc.returncode == 0, proc.stderr
-    proc = run_cli(*verify, cwd=tmp_path, engine_dir=engine_dir)
+    assert c3(*verify, settings=UPSCALED).returncode == 0  # the flight it was built for
+    assert c3(*build, "--flight-candidates").returncode == 0
+    proc = c3(*verify)
     assert proc.returncode == 0, proc.stderr
     assert "which it is served, replaces it" in proc.stderr
 
@@ -163,7 +166,11 @@ def test_the_pytorch_reference_extracts_as_the_engine_does(
     from c3_matcher.prepared import PreparedImage
     from c3_matcher_xfeat.export import XFeatReference
 
-    settings = C3Settings(engines={"directory": engine_dir}, fdr={"path": tmp_path / "fdr.jsonl"})
+    settings = C3Settings(
+        matcher={"options": {"xfeat": {"upscale": 2}}},
+        engines={"directory": engine_dir},
+        fdr={"path": tmp_path / "fdr.jsonl"},
+    )
     runtime = build_default_helpers(settings)["c7_inference"]
     engine = runtime.load_engine(EngineStore(engine_dir).require("xfeat", "default"))
     tile = cv2.cvtColor(cv2.imread(str(ZURICH / "frames" / "000000.jpg")), cv2.COLOR_BGR2RGB)

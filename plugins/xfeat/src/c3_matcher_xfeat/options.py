@@ -4,7 +4,7 @@
     matcher = "mnn"          # "mnn" (numpy mutual nearest neighbour) or "lighterglue"
     min_cossim = 0.82        # mnn only: minimum cosine similarity of a kept match
     max_keypoints = 4096     # keypoint budget per image (default: see below)
-    upscale = 2              # run XFeat on each prepared image enlarged this many times (1..4)
+    upscale = 1              # run XFeat on each prepared image enlarged this many times (1..4)
 
 Unknown keys and bad values are refused, naming the field (``extra="forbid"``); so is
 ``min_cossim`` given with ``matcher = "lighterglue"``, which does not read it.
@@ -16,8 +16,10 @@ XFeat is made for. Enlarging every image twice before the extractor gives such w
 near that size; the price is four times the extractor's work. Keypoints come back in the
 prepared image's px: nothing after the extractor changes. Measured on every shipped flight
 (docs/precision.md): 2 finds the true tile on 51 of 203 frames against 23 with 1, no flight
-loses one, none of either gives a confident wrong fix. Map features built with a factor are
-keyed by it: they serve flights of that factor only.
+loses one, none of either gives a confident wrong fix; but a frame served stored map features
+takes p95 145 ms against 73, past XFeat's goal of 100 ms, so the default stays 1: set 2 (or 3
+for windows under 200 px) where recall matters more than time. Map features built with a
+factor are keyed by it: they serve flights of that factor only.
 
 Keypoint budget, when ``max_keypoints`` is not given here: ``[matcher] max_keypoints`` if that is
 set explicitly (above the engine's top-K the extractor keeps the top-K, and says so once at
@@ -51,8 +53,8 @@ DEFAULT_MIN_COSSIM = 0.82
 """Upstream ``XFeat.match``'s default: a mutual nearest neighbour must also exceed it."""
 XFEAT_MAX_KEYPOINTS = XFEAT_TOP_K
 """The engine's fixed top-K: no budget can exceed it."""
-DEFAULT_UPSCALE = 2
-"""The extractor sees each prepared image enlarged twice (module docstring: ``upscale``)."""
+DEFAULT_UPSCALE = 1
+"""The extractor sees each prepared image as it is (module docstring: ``upscale``)."""
 DEFAULT_MAX_KEYPOINTS: dict[str, int] = {"mnn": 4096, "lighterglue": 2048}
 """Per-matcher keypoint budget when neither this table nor ``[matcher]`` sets one."""
 
