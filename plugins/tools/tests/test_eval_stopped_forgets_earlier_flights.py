@@ -37,5 +37,7 @@ def test_a_stopped_eval_leaves_no_earlier_eval_json_in_the_flights_it_did_not_re
     left = sorted(p.name for p in (out / "second").iterdir())
     assert "eval.json" not in left and "matches" not in left, left
     assert not any(name.endswith(".png") for name in left), left
-    summary = json.loads((out / "summary.json").read_text())
-    assert [r["flight"] for r in summary] == ["naip_demo"]
+    summary = json.loads((out / "summary.json").read_text())  # the flight not reached named
+    assert [r["flight"] for r in summary] == ["naip_demo", "second"]
+    assert summary[0]["stopped"].startswith("stopped after ")
+    assert summary[1]["stopped"] == "not run: the evaluation was stopped before this flight"
