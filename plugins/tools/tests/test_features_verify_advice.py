@@ -27,18 +27,19 @@ def _run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str]:
     return code, capsys.readouterr().err.strip()
 
 
-def _built(
+@pytest.fixture
+def flight(
     small_flight: Callable[..., Path],
     engine_dir: Path,
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> Path:
     """A two-frame flight whose xfeat set is built as README says (``--flight-candidates``)."""
-    flight = small_flight("advice")
+    built = small_flight("advice")
     monkeypatch.setenv("C3_MATCHER_ENGINES__DIRECTORY", str(engine_dir))
-    build = ["features", "build", str(flight), "--strategy", "xfeat", "--workers", "0"]
+    build = ["features", "build", str(built), "--strategy", "xfeat", "--workers", "0"]
     assert _run(capsys, *build, "--flight-candidates")[0] == 0
-    return flight
+    return built
 
 
 def _tiles_changed(store: Path) -> None:
@@ -67,12 +68,8 @@ def _printed_command(err: str) -> list[str]:
 
 @pytest.mark.slow
 def test_the_command_printed_for_stale_windows_extracts_them_again(
-    small_flight: Callable[..., Path],
-    engine_dir: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    flight: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    flight = _built(small_flight, engine_dir, monkeypatch, capsys)
     _tiles_changed(flight / "tiles.mbtiles")
     code, err = _run(capsys, "features", "info", str(flight), "--verify")
     assert code == 1 and "stale windows" in err, err
@@ -86,12 +83,8 @@ def test_the_command_printed_for_stale_windows_extracts_them_again(
 
 @pytest.mark.slow
 def test_a_set_given_by_its_store_names_its_window_and_stride(
-    small_flight: Callable[..., Path],
-    engine_dir: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    flight: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    flight = _built(small_flight, engine_dir, monkeypatch, capsys)
     store = flight / "tiles.mbtiles"
     _tiles_changed(store)
     code, err = _run(capsys, "features", "info", str(store), "--verify")
@@ -103,13 +96,8 @@ def test_a_set_given_by_its_store_names_its_window_and_stride(
 @pytest.mark.slow
 @pytest.mark.parametrize("damage", ["cut short", "no database"])
 def test_a_damaged_sidecar_is_exit_1_and_names_the_command_for_its_sets(
-    damage: str,
-    small_flight: Callable[..., Path],
-    engine_dir: Path,
-    monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    damage: str, flight: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    flight = _built(small_flight, engine_dir, monkeypatch, capsys)
     sidecar = flight / "tiles.mbtiles.features.sqlite"
     data = sidecar.read_bytes()
     sidecar.write_bytes(data[:100_000] if damage == "cut short" else b"garbage\n" * 100)
