@@ -50,7 +50,7 @@ from c3_matcher.protocols import (
     CrossDomainMatcher,
     FdrClient,
     FeatureBackend,
-    StoredFeaturesBackend,
+    KeypointBudgetBackend,
 )
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.strategy import engine_startup_probe
@@ -304,7 +304,7 @@ def check_inliers_reachable(config: C3Settings, backend: FeatureBackend) -> None
     when the threshold is above the keypoints per image the backend keeps (its ``max_keypoints``,
     after any cut to its extractor engine's top-K; a backend without one is not checked): a
     candidate has no more inliers than keypoints, so every frame would fail."""
-    if not isinstance(backend, StoredFeaturesBackend):  # the backends that declare a budget
+    if not isinstance(backend, KeypointBudgetBackend):
         return
     budget, m = backend.max_keypoints, config.matcher
     if m.min_inliers_threshold <= budget:

@@ -40,6 +40,7 @@ __all__ = [
     "FdrClient",
     "FeatureBackend",
     "InferenceRuntime",
+    "KeypointBudgetBackend",
     "LightGlueRuntime",
     "LoadableLightGlueRuntime",
     "ManifestRuntime",
@@ -110,14 +111,23 @@ class FeatureBackend(Protocol):
 
 
 @runtime_checkable
-class StoredFeaturesBackend(FeatureBackend, Protocol):
-    """A ``FeatureBackend`` whose tile features a store may hold precomputed (``features
-    build``): it declares its keypoint budget ``max_keypoints`` (the stored features are cut to
-    it) and names its extractor engine's ``file_sha256`` in ``provenance()["engines"]``.
-    Optional: the pipeline extracts every tile of any other backend."""
+class KeypointBudgetBackend(FeatureBackend, Protocol):
+    """A ``FeatureBackend`` that declares its keypoint budget ``max_keypoints``: at most this
+    many keypoints per image (the strategy's default where no setting names one, cut to its
+    extractor engine's top-K). Start-up checks ``[matcher] min_inliers_threshold`` against it
+    and runs record it. Optional: a backend without one is not checked."""
 
     @property
     def max_keypoints(self) -> int: ...
+
+
+@runtime_checkable
+class StoredFeaturesBackend(KeypointBudgetBackend, Protocol):
+    """A ``KeypointBudgetBackend`` whose tile features a store may hold precomputed (``features
+    build``): the stored features are cut to its budget, and it names its extractor engine's
+    ``file_sha256`` in ``provenance()["engines"]`` (a backend that names none, like OpenCV
+    SIFT, has its tiles extracted). Optional: the pipeline extracts every tile of any other
+    backend."""
 
 
 @runtime_checkable

@@ -75,6 +75,25 @@ def test_the_backend_a_strategy_flies_with(engine_dir: Path) -> None:
         open_backend(settings, "no_such_strategy")
 
 
+def test_the_sift_baseline_records_the_keypoint_budget_it_ran_with(
+    engine_dir: Path, tmp_path: Path
+) -> None:
+    """The baseline's row in an eval names its budget as the learned strategies' do (it was
+    null: OpenCV SIFT declared none)."""
+    from c3_matcher.compose import build_plugin_host
+    from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS
+
+    host = build_plugin_host()
+    flight = load_dataset(DEMO)
+    flight = dataclasses.replace(flight, frames=flight.frames[:1])
+    settings = C3Settings(engines={"directory": engine_dir})
+    own = fly(settings, "sift_magsac", flight, tmp_path / "own", plugin_host=host)
+    budget = Overrides(max_keypoints=300)
+    cut = fly(settings, "sift_magsac", flight, tmp_path / "cut", plugin_host=host, overrides=budget)
+    assert (own.keypoint_budget, cut.keypoint_budget) == (DEFAULT_MAX_KEYPOINTS, 300)
+    assert not open_backend(settings, "sift_magsac").provenance()["engines"].get("extractor")
+
+
 def test_flight_inputs_read_tiles_inside_the_block_and_close_the_store_after(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

@@ -21,8 +21,9 @@ SIFT_LABEL = "sift_magsac"
 
 
 class SiftBackend:
-    """FeatureBackend: SIFT keypoints (OpenCV) inside the valid mask, Lowe ratio test + mutual
-    check on L2 distances. Deterministic (OpenCV SIFT and brute force are)."""
+    """KeypointBudgetBackend: SIFT keypoints (OpenCV) inside the valid mask, at most
+    ``max_keypoints`` per image, Lowe ratio test + mutual check on L2 distances. Deterministic
+    (OpenCV SIFT and brute force are). It names no extractor engine: its tiles are extracted."""
 
     label = SIFT_LABEL
     extract_phase = "sift_extract"
@@ -32,6 +33,7 @@ class SiftBackend:
         self, rule: InputRule, max_keypoints: int = DEFAULT_MAX_KEYPOINTS, ratio: float = 0.85
     ) -> None:
         self.input_rule = rule
+        self.max_keypoints = max_keypoints
         self._sift = cv2.SIFT.create(nfeatures=max_keypoints)
         self._matcher = cv2.BFMatcher(cv2.NORM_L2)
         self._ratio = ratio
