@@ -43,7 +43,7 @@ from c3_matcher.errors import (
     MatcherClosedError,
     describe,
 )
-from c3_matcher.fdr.jsonl import forked_from
+from c3_matcher.fdr.forks import forked_from
 from c3_matcher.fdr.turns import FrameTurns
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import FDR_WRITE_FAILED, current_log_root, log_event, logging_as

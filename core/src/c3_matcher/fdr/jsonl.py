@@ -28,6 +28,7 @@ from c3_matcher.fdr.files import (
     segment_path,
     write_meta,
 )
+from c3_matcher.fdr.forks import close_copies, forked_from
 from c3_matcher.fdr.pending import (
     RECORDS_DROPPED,
     DroppedRecords,
@@ -48,16 +49,6 @@ PENDING_BYTES = 64 * 1024 * 1024
 """Default ``max_pending_bytes``: what records may wait while the disk is full."""
 MIN_BYTES = 1024
 """The least either bound may be."""
-
-
-def forked_from(pid: int) -> str | None:
-    """Why a process forked from process ``pid`` may not use what ``pid`` made; else None."""
-    if (here := os.getpid()) == pid:
-        return None
-    return (
-        f"made in process {pid}, and this is process {here}, forked from it (its FDR is that "
-        "process's alone); compose the matcher in the process that uses it, after the fork"
-    )
 
 
 class JsonlFdrRecorder:
@@ -270,14 +261,19 @@ class JsonlFdrRecorder:
         """Write what is pending (a last chance after a full disk) and give the path back;
         ``FdrWriteError`` naming how many records were lost when that last write failed (the
         files are closed and the lock released all the same). Called on a thread inside a
-        matcher's frame (a signal handler's shutdown), it closes once that frame is done."""
-        if not close_after_frame(self._close):
+        matcher's frame (a signal handler's shutdown), it closes once that frame is done. In a
+        fork's child, at once: its copies of the files only, no lock waited for (``forks``)."""
+        if forked_from(self._pid) is not None or not close_after_frame(self._close):
             self._close()
 
     def _close(self) -> None:
+        if forked_from(self._pid) is not None:  # the parent's lock, log and records stay its own
+            fds, (self._fd, self._lock_fd) = (self._fd, self._lock_fd), (-1, -1)
+            close_copies(*fds)
+            return
         with self._lock:
             lost: FdrWriteError | None = None
-            if self._pending.waiting and self._lock_fd >= 0 and self._pid == os.getpid():
+            if self._pending.waiting and self._lock_fd >= 0:
                 try:
                     self._write_pending()
                 except FdrWriteError as exc:

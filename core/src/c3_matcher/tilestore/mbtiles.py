@@ -44,6 +44,7 @@ of each tile blob). When present, every blob read is verified against it; a mism
 from __future__ import annotations
 
 import hashlib
+import os
 import sqlite3
 import threading
 import time
@@ -98,6 +99,8 @@ class MBTilesStore(TileStoreBase):
         self._connections: dict[threading.Thread, sqlite3.Connection] = {}
         self._conn_lock = threading.Lock()
         self._closed = False
+        self._pid = os.getpid()  # a fork's child closes its copy without touching a connection
+        self._inherited: tuple[object, ...] = ()  # what such a child left unclosed
         self._unusable: str | None = None
         self._features: MapFeatureStore | None = None
         self._features_retry_at: float | None = None  # an unopenable sidecar: next try then
@@ -295,7 +298,11 @@ class MBTilesStore(TileStoreBase):
 
     def close(self) -> None:
         """Close every connection (the sidecar's too); later reads raise
-        TileStoreUnusableError saying the store is closed. Idempotent."""
+        TileStoreUnusableError saying the store is closed. Idempotent. In a process forked from
+        the one that opened it, at once (``_let_go_inherited``)."""
+        if self._pid != os.getpid():
+            self._let_go_inherited()
+            return
         with self._conn_lock:
             self._closed = True
         if self._features is not None:
@@ -309,6 +316,14 @@ class MBTilesStore(TileStoreBase):
                 db.close()
             self._connections.clear()
         self._local = threading.local()
+
+    def _let_go_inherited(self) -> None:
+        """Closed, in a fork's child, waiting for nothing: a thread of the parent, absent here,
+        may have held the connections' lock or been inside one of them (holding its SQLite
+        mutex) when it forked, so none is closed; they are kept unused, freed with the store."""
+        self._closed = True
+        self._inherited = (*self._inherited, self._connections, self._features)
+        self._connections, self._features, self._local = {}, None, threading.local()
 
     def __enter__(self) -> MBTilesStore:
         return self
