@@ -106,3 +106,37 @@ def test_a_keypoint_budget_above_the_engines_top_k_is_cut_to_it_and_said(engine_
         logger.remove(sink)
     assert config.max_keypoints == 8192 and matcher.backend.max_keypoints == 2048
     assert {"kind": "c3.matcher.keypoints_capped", "strategy": "disk_lightglue"} in said
+
+
+def test_create_takes_its_helpers_in_the_specifications_order_and_names_one_missing(
+    engine_dir, tmp_path
+):
+    """``create(config, lightglue_runtime, ransac_filter, inference_runtime, health_window)`` as
+    the specification writes it, then the FDR client and the clock; a helper left out is named
+    (it was a bare ``KeyError('fdr_client')``), as is a positional call that gives too many."""
+    from c3_matcher.fdr.jsonl import JsonlFdrRecorder
+    from c3_matcher.health import MonotonicClock, RollingHealthWindow
+    from c3_matcher_disk_lightglue.matcher import create
+
+    settings = settings_for(engine_dir, tmp_path)
+    helpers = build_default_helpers(settings)
+    clock = MonotonicClock()
+    spec_order = (
+        helpers["c3_lightglue_runtime"],
+        helpers["c282_ransac_filter"],
+        helpers["c7_inference"],
+        RollingHealthWindow(clock, 60),
+    )
+    fdr = JsonlFdrRecorder(tmp_path / "fdr.jsonl", clock)
+    try:
+        matcher = create(settings, *spec_order, fdr_client=fdr, clock=clock)
+        assert isinstance(matcher, DiskLightGlueMatcher)
+        assert matcher._lightglue_runtime is spec_order[0]
+        with pytest.raises(TypeError, match="'fdr_client' missing; 'clock' missing"):
+            create(settings, *spec_order)
+        with pytest.raises(TypeError, match="'ransac_filter' given twice"):
+            create(settings, *spec_order, fdr, clock, ransac_filter=spec_order[1])
+        with pytest.raises(TypeError, match="at most 6 helpers by position"):
+            create(settings, *spec_order, fdr, clock, clock)
+    finally:
+        fdr.close()

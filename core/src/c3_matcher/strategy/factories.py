@@ -1,21 +1,59 @@
 """A strategy's ``create`` written from a few facts: ``strategy_factory`` for an
 ``ExtractorMatcher`` subclass and its config, ``backend_strategy_factory`` for any
-``FeatureBackend``."""
+``FeatureBackend``.
+
+Either ``create`` takes its shared helpers by name (``StrategyHelpers``, as ``compose_root``
+hands them) or by position in the specification's order, ``create(config, lightglue_runtime,
+ransac_filter, inference_runtime, health_window)``, then the FDR client and the clock it also
+takes (:data:`HELPER_ORDER`). A helper missing, given twice or unknown is a ``TypeError`` that
+names it."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Unpack
+from typing import Any
 
 from pydantic import BaseModel
 
 from c3_matcher.config import C3Settings
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher, PipelineSettings
-from c3_matcher.plugins.types import StrategyFactory, StrategyHelpers
+from c3_matcher.plugins.types import StrategyFactory
 from c3_matcher.probe import check_members
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.strategy.config import ExtractorStrategyConfig
 from c3_matcher.strategy.matcher import ExtractorMatcher
+
+HELPER_ORDER = (
+    "lightglue_runtime",
+    "ransac_filter",
+    "inference_runtime",
+    "health_window",
+    "fdr_client",
+    "clock",
+)
+"""The helpers ``create`` takes by position after ``config``, in this order."""
+
+_EXTRACTOR_NEEDS = HELPER_ORDER
+_BACKEND_NEEDS = ("ransac_filter", "health_window", "fdr_client", "clock")
+
+
+def _helpers(given: tuple[Any, ...], named: dict[str, Any], needs: tuple[str, ...]) -> Any:
+    """The helpers of a ``create`` call, by name: ``given`` by position in
+    :data:`HELPER_ORDER`, ``named`` by keyword; ``TypeError`` naming each one too many,
+    unknown, given twice or missing from ``needs``."""
+    if len(given) > len(HELPER_ORDER):
+        raise TypeError(
+            f"create() takes config and at most {len(HELPER_ORDER)} helpers by position "
+            f"({', '.join(HELPER_ORDER)}), got {len(given)}"
+        )
+    helpers = dict(zip(HELPER_ORDER, given, strict=False))
+    problems = [f"unknown helper {n!r}" for n in sorted(set(named) - set(HELPER_ORDER))]
+    problems += [f"{n!r} given twice" for n in sorted(set(named) & set(helpers))]
+    helpers |= named
+    problems += [f"{n!r} missing" for n in needs if helpers.get(n) is None]
+    if problems:
+        raise TypeError(f"create(): {'; '.join(problems)} (helpers: {', '.join(HELPER_ORDER)})")
+    return helpers
 
 
 def _validated(options_model: type[BaseModel] | None, options: Any) -> Any:
@@ -31,15 +69,16 @@ def strategy_factory(
     make_config: Callable[[C3Settings, Any], ExtractorStrategyConfig],
     options_model: type[BaseModel] | None = None,
 ) -> StrategyFactory:
-    """A strategy's ``create(config, *, options, **helpers)`` (``StrategyHelpers``) from two
+    """A strategy's ``create(config, *helpers, options, **helpers)`` from two
     facts: its matcher class and how its config is made from ``C3Settings`` and its validated
     options (a mapping is validated with ``options_model`` here; None means its defaults)."""
 
     def create(
-        config: C3Settings, *, options: Any = None, **helpers: Unpack[StrategyHelpers]
+        config: C3Settings, *given: Any, options: Any = None, **named: Any
     ) -> CrossDomainMatcher:
         """``create``: resolve the strategy's engines, load them now (start-up) and
         return its wired matcher."""
+        helpers = _helpers(given, named, _EXTRACTOR_NEEDS)
         return matcher_class(
             helpers["inference_runtime"],
             helpers["lightglue_runtime"],
@@ -66,8 +105,9 @@ def backend_strategy_factory(
     used. Descriptors may be float32 or packed binary uint8 (``c3_matcher.features``)."""
 
     def create(
-        config: C3Settings, *, options: Any = None, **helpers: Unpack[StrategyHelpers]
+        config: C3Settings, *given: Any, options: Any = None, **named: Any
     ) -> CrossDomainMatcher:
+        helpers = _helpers(given, named, _BACKEND_NEEDS)
         backend = make_backend(config, _validated(options_model, options))
         check_members(backend)  # None or another object: said as such, before it is used
         return PipelineMatcher(
