@@ -60,6 +60,20 @@ def test_an_unknown_key_in_the_file_is_named_a_misspelling_as_in_the_environment
     assert [r for _, r in info.value.problems] == ["unknown setting (check the spelling)"]
 
 
+@pytest.mark.parametrize("where", ["file", "environment"])
+def test_the_specifications_engine_file_key_names_where_engines_are_found(tmp_path, where):
+    """``[matcher] disk_weights_path`` (the component specification's key for the DISK engine
+    file) read as a misspelling; it is told that engines are found in ``[engines] directory``."""
+    toml = tmp_path / "c3.toml"
+    toml.write_text('[matcher]\ndisk_weights_path = "disk.onnx"\n' if where == "file" else "")
+    env = {} if where == "file" else {"C3_MATCHER_MATCHER__DISK_WEIGHTS_PATH": "disk.onnx"}
+    with pytest.raises(ConfigurationError) as info:
+        load_settings(toml, env=env)
+    ((field, reason),) = info.value.problems
+    assert field.lower().endswith("disk_weights_path"), field
+    assert reason.startswith("not a setting") and "[engines] directory" in reason, reason
+
+
 def test_unknown_environment_variable_is_refused():
     with pytest.raises(ConfigurationError, match="C3_MATCHER_MATCHER__MIN_INLIER_THRESHOLD"):
         load_settings(env={"C3_MATCHER_MATCHER__MIN_INLIER_THRESHOLD": "80"})

@@ -40,6 +40,14 @@ __all__ = [
 
 ENV_PREFIX = "C3_MATCHER_"
 UNKNOWN_SETTING = "unknown setting (check the spelling)"
+ENGINE_FILE_KEYS: Final = ("disk_weights_path",)
+"""``[matcher]`` keys the component specification names for an engine file, which this product
+finds in ``[engines] directory`` by its manifest instead: refused, saying so."""
+_ENGINE_FILE = (
+    "not a setting: every strategy's engines are found in [engines] directory by their "
+    "manifests (c3-matcher engines build writes them there); set [engines] directory to the "
+    "folder that holds them"
+)
 PROCESS_SWITCHES: Final = ("TOOLS_NO_PYPROJ", "TOOLS_NO_RASTERIO", "TRACEBACK")
 """The ``C3_MATCHER_<NAME>`` variables that are switches of a process, not settings: the
 command's traceback on an internal error, the ground tools' hand-written fallbacks. Any other
@@ -192,8 +200,16 @@ def _unknown(parts: Sequence[str], sections: Mapping[str, Any]) -> str | None:
     if section is None and len(parts) == 1:
         return None if parts[0].upper() in PROCESS_SWITCHES else _not_a_switch(parts[0], sections)
     if section is None or (len(parts) > 1 and parts[1] not in fields):
-        return UNKNOWN_SETTING
+        return _unknown_key(parts[:2])
     return None
+
+
+def _unknown_key(loc: Sequence[object]) -> str:
+    """Why the key at ``loc`` (section, key) is refused: a misspelling, or a key of the
+    specification that this product replaced (``ENGINE_FILE_KEYS``)."""
+    if len(loc) == 2 and loc[0] == "matcher" and loc[1] in ENGINE_FILE_KEYS:
+        return _ENGINE_FILE
+    return UNKNOWN_SETTING
 
 
 def _not_a_switch(name: str, sections: Mapping[str, Any]) -> str:
@@ -277,7 +293,7 @@ def validation_problems(exc: ValidationError) -> list[tuple[str, str]]:
 
 def _reason(error: Any) -> str:
     if error["type"] == "extra_forbidden":
-        return UNKNOWN_SETTING
+        return _unknown_key(error["loc"])
     kind = _COLLECTIONS.get(error["type"])
     if kind is not None and isinstance(error.get("input"), str):
         example = '["a", "b"]' if kind == "list" else '{"key": 1}'
