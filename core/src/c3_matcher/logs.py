@@ -35,7 +35,7 @@ import json
 import os
 import sys
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from contextvars import ContextVar
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
@@ -60,6 +60,7 @@ __all__ = [
     "claim_stderr",
     "configure_logging",
     "current_log_root",
+    "drop_reason",
     "is_matcher_record",
     "log_event",
     "log_fdr_write_failed",
@@ -88,6 +89,19 @@ MATCHER_GEOMETRY_REFUSED = "c3.matcher.geometry_refused"
 def log_event(level: str, kind: str, message: str, **fields: Any) -> None:
     """Emit one structured log record: ``kind`` plus JSON-able ``fields``."""
     logger.bind(kind=kind, **fields).opt(depth=1).log(level, message)
+
+
+def drop_reason(kind: str | None, fields: Mapping[str, Any]) -> str | None:
+    """Why a candidate was dropped, in words, from the fields of the log event ``kind`` that
+    dropped it: a backbone error, no inlier, or a refusal on geometry (None for another kind).
+    The terminal FDR records and ``c3-matcher match``'s JSON say it alike."""
+    if kind == MATCHER_BACKBONE_ERROR:
+        return f"backbone error in {fields.get('phase')}: {fields.get('error')}"
+    if kind == MATCHER_ZERO_INLIERS:
+        return f"no inliers after RANSAC ({fields.get('raw_matches')} raw matches)"
+    if kind == MATCHER_GEOMETRY_REFUSED:
+        return f"refused on geometry: {fields.get('reason')} ({fields.get('inlier_count')} inliers)"
+    return None
 
 
 def _record_to_dict(record: Record) -> dict[str, Any]:

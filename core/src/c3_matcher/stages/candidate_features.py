@@ -2,10 +2,13 @@
 store's precomputed map features (``stored``, when the backend declares them possible and the
 store holds them for this backend), the tile cache (``cached``) or the tile's pixels
 (``extracted``: decode, prepare, extract; the cache keeps the result, keyed by the bytes decoded:
-read again once extracted, a tile rewritten meanwhile is not cached)."""
+read again once extracted, a tile rewritten meanwhile is not cached). A store whose sidecar holds
+map features but no set for this backend is said once per store and set (a WARNING): its
+candidates are extracted, as a store without a sidecar's are, silently."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Final
 
 from c3_matcher.dto import RerankCandidate
@@ -17,7 +20,7 @@ from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.recorder import FrameRecorder
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
-from c3_matcher.tilestore.features import FeatureRequest
+from c3_matcher.tilestore.features import FeatureRequest, NoStoredSet, StoredWindowHandle
 
 __all__ = ["TILE_DECODE_PHASE", "CandidateFeatures", "feature_request"]
 
@@ -59,8 +62,8 @@ def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureR
 class CandidateFeatures:
     """The candidate-features source of one matcher: stored, cached or extracted features.
     ``use_stored`` False (``[matcher] stored_features``): never the store's; True: the store's
-    when it has them for ``request`` (None: this backend's tiles are always extracted).
-    Single-threaded."""
+    when it has them for ``request`` (None: this backend's tiles are always extracted); a
+    sidecar without a set for ``request`` is said once for the matcher's life. Single-threaded."""
 
     def __init__(
         self,
@@ -75,6 +78,7 @@ class CandidateFeatures:
         self.cache: Final = cache
         self.request: Final = request
         self.use_stored: Final = bool(use_stored) and request is not None
+        self._unserved: set[tuple[Path, str]] = set()  # (sidecar, set id) said already
 
     def fetch(
         self, candidate: RerankCandidate, recorder: FrameRecorder, timings: dict[str, float]
@@ -110,11 +114,12 @@ class CandidateFeatures:
         failure here never drops the candidate: it falls back to extraction; the store raises
         once per outage (locked sidecar) or corrupt row, so the WARNING (and its FDR record)
         comes once, not every frame."""
-        handle = candidate.tile_pixels_handle
-        if not isinstance(handle, StoredFeaturesHandle) or self.request is None:
+        if self.request is None:
             return None
         try:
-            features = handle.stored_features(self.request)
+            features = _served(candidate, self.request)
+            if isinstance(features, NoStoredSet):
+                self._said_unserved(features, recorder)
             if not isinstance(features, Features):
                 return None
             geometry = self._pre.tile_geometry(*features.image_size)
@@ -124,6 +129,25 @@ class CandidateFeatures:
             recorder.stored_features_failed(candidate.tile_id, exc)
             return None
         return None if geometry is None else TileFeatures("stored", geometry, features)
+
+    def _said_unserved(self, unserved: NoStoredSet, recorder: FrameRecorder) -> None:
+        """Say once per sidecar and set id that the store holds no set for this backend (its
+        candidates are extracted): never per frame."""
+        key = (unserved.sidecar, unserved.asked)
+        if key not in self._unserved:
+            self._unserved.add(key)
+            recorder.stored_features_unserved(unserved)
+
+
+def _served(candidate: RerankCandidate, request: FeatureRequest) -> object:
+    """What the candidate's handle serves for ``request``: its stored features, NoStoredSet
+    (a handle that says why it has none) or None (a handle without stored features)."""
+    handle = candidate.tile_pixels_handle
+    if isinstance(handle, StoredWindowHandle):
+        return handle.stored_window(request)
+    if isinstance(handle, StoredFeaturesHandle):
+        return handle.stored_features(request)
+    return None
 
 
 def _unchanged(candidate: RerankCandidate, key: tuple[object, str]) -> bool:

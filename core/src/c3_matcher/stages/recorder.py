@@ -29,12 +29,14 @@ from c3_matcher.logs import (
     MATCHER_BACKBONE_ERROR,
     MATCHER_GEOMETRY_REFUSED,
     MATCHER_ZERO_INLIERS,
+    drop_reason,
     log_event,
     log_fdr_write_failed,
 )
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend
 from c3_matcher.stages.outcomes import CandidateDrop, FrameEvidence, GeometryRefusal, Survivor
 from c3_matcher.stages.query import QUERY_ROTATIONS_DEG
+from c3_matcher.tilestore.features import NoStoredSet
 
 __all__ = ["FrameRecorder", "RecorderSinks", "drop_reason", "per_candidate_records"]
 
@@ -133,6 +135,16 @@ class FrameRecorder:
             f"tile={tile_id}; extracting instead: {describe(exc)}",
             frame_id=self.frame_id,
             tile_id=tile_id,
+        )
+
+    def stored_features_unserved(self, unserved: NoStoredSet) -> None:
+        """A store's sidecar holds no set for this backend: its candidates are extracted."""
+        log_event(
+            "WARNING",
+            "c3.matcher.stored_features_unserved",
+            f"C3 stored features not served; frame={self.frame_id}; {unserved}",
+            frame_id=self.frame_id,
+            **unserved.as_record(),
         )
 
     def zero_inliers(self, tile_id: Any, candidate_index: int, raw_matches: int) -> None:
@@ -384,16 +396,3 @@ def _rotation_record(evidence: FrameEvidence) -> dict[str, Any]:
 def _refine_record(evidence: FrameEvidence) -> dict[str, Any]:
     """The refine pass's record for the terminal FDR record: only when it ran."""
     return {"refine": evidence.refine.as_record()} if evidence.refine is not None else {}
-
-
-def drop_reason(kind: str | None, fields: Mapping[str, Any]) -> str | None:
-    """Why a candidate was dropped, in words, from the fields of the log event ``kind`` that
-    dropped it: a backbone error, no inlier, or a refusal on geometry (None for another kind).
-    The terminal FDR records and ``c3-matcher match``'s JSON say it alike."""
-    if kind == MATCHER_BACKBONE_ERROR:
-        return f"backbone error in {fields.get('phase')}: {fields.get('error')}"
-    if kind == MATCHER_ZERO_INLIERS:
-        return f"no inliers after RANSAC ({fields.get('raw_matches')} raw matches)"
-    if kind == MATCHER_GEOMETRY_REFUSED:
-        return f"refused on geometry: {fields.get('reason')} ({fields.get('inlier_count')} inliers)"
-    return None

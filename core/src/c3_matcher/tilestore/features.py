@@ -48,6 +48,8 @@ the outage says so, and that ``features build`` makes it one file.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -79,12 +81,16 @@ __all__ = [
     "FeatureSet",
     "FeatureStoreUnavailableError",
     "MapFeatureStore",
+    "NoStoredSet",
     "StoredFeaturesCorruptError",
+    "StoredWindowHandle",
     "WindowFeatures",
     "covered_tiles",
+    "features_only",
     "grid_index",
     "row_checksum",
     "serve_window",
+    "served_window",
     "set_id_for",
     "sidecar_path",
     "stored_sets",
@@ -104,6 +110,42 @@ class FeatureSource(Protocol):
     def feature_store(self) -> MapFeatureStore | None: ...
 
 
+@dataclass(frozen=True)
+class NoStoredSet:
+    """A sidecar of map features that holds no set for a flight's request: its path, the set
+    id the request asks for (``asked``) and the ids of the sets it holds (``held``); the
+    candidate is extracted. A setting that keys the sets (an engine, provider, photometric
+    normalisation, window size, upscale) other than those a build ran with is the usual cause."""
+
+    sidecar: Path
+    asked: str
+    held: tuple[str, ...]
+
+    def __str__(self) -> str:
+        held = ", ".join(self.held) or "none"
+        return (
+            f"{self.sidecar} holds no set {self.asked}, the one these settings ask for (it "
+            f"holds: {held}); the candidates of its store are extracted instead"
+        )
+
+    def as_record(self) -> dict[str, Any]:
+        """Its fields as a log event carries them."""
+        return {
+            "sidecar": str(self.sidecar),
+            "asked_set_id": self.asked,
+            "held_set_ids": list(self.held),
+        }
+
+
+@runtime_checkable
+class StoredWindowHandle(Protocol):
+    """A tile handle that says why a store serves it no features (the MBTiles handles):
+    ``stored_window(request)`` is its features, :class:`NoStoredSet` or None, as
+    :func:`served_window` gives them."""
+
+    def stored_window(self, request: FeatureRequest) -> Features | NoStoredSet | None: ...
+
+
 def serve_window(
     source: FeatureSource,
     request: FeatureRequest,
@@ -111,22 +153,40 @@ def serve_window(
     origin: tuple[int, int],
     size: tuple[int, int],
 ) -> Features | None:
+    """The window's stored features, or None: :func:`served_window`, without why not."""
+    return features_only(served_window(source, request, zoom, origin, size))
+
+
+def features_only(served: Features | NoStoredSet | None) -> Features | None:
+    """``served`` when it is features, else None (no set for the request: extract)."""
+    return served if isinstance(served, Features) else None
+
+
+def served_window(
+    source: FeatureSource,
+    request: FeatureRequest,
+    zoom: int,
+    origin: tuple[int, int],
+    size: tuple[int, int],
+) -> Features | NoStoredSet | None:
     """The stored features of the (w, h) = ``size`` window of WORLD px whose top-left pixel is
     ``origin``, in its own px: those of the nearest grid window of a set matching ``request``
     (exactly the window's when it is on the grid; off it, those on this window:
-    :func:`_shifted_onto`), the ``request.max_keypoints`` best. None (the
-    caller extracts) when the store has no such set or window, the window's tiles changed since,
-    or the input rule would resize or pad it. Raises FeatureStoreUnavailableError /
-    StoredFeaturesCorruptError once per outage / corrupt row (see :class:`MapFeatureStore`)."""
+    :func:`_shifted_onto`), the ``request.max_keypoints`` best. :class:`NoStoredSet` when the
+    store has a sidecar without that set, None when it has none, or no such window, the
+    window's tiles changed since, or the input rule would resize or pad it (the caller extracts
+    in each case). Raises FeatureStoreUnavailableError / StoredFeaturesCorruptError once per
+    outage / corrupt row (see :class:`MapFeatureStore`)."""
     w, h = int(size[0]), int(size[1])
     if w != h or w > request.max_long_side or w % request.multiple:
         return None
     store = source.feature_store()
     if store is None:
         return None
-    fset = store.feature_set(request.set_id(w))
+    asked = request.set_id(w)
+    fset = store.feature_set(asked)
     if fset is None:
-        return None
+        return _no_set(store, asked)
     gx, gy = grid_index(origin, fset.stride_px)
     stored = store.window(fset, zoom, gx, gy)
     if stored is None:
@@ -138,6 +198,15 @@ def serve_window(
         return None  # the tiles changed since the build: stale
     shift = (grid_origin[0] - int(origin[0]), grid_origin[1] - int(origin[1]))
     return _shifted_onto(stored, shift, (w, h), int(request.max_keypoints))
+
+
+def _no_set(store: MapFeatureStore, asked: str) -> NoStoredSet | None:
+    """What the sidecar ``store`` holds instead of the set ``asked``; None when that cannot be
+    told (an outage) or the set is there but unreadable (a damaged row, said once already)."""
+    held = store.set_ids()
+    if held is None or asked in held:
+        return None
+    return NoStoredSet(store.path, asked, held)
 
 
 def _shifted_onto(

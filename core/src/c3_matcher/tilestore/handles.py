@@ -35,7 +35,7 @@ from c3_matcher.tilestore.windows import covered_tiles, stored_tile_digest, wind
 
 if TYPE_CHECKING:
     from c3_matcher.features import Features
-    from c3_matcher.tilestore.features import FeatureRequest
+    from c3_matcher.tilestore.features import FeatureRequest, NoStoredSet
 
 __all__ = [
     "MosaicTileHandle",
@@ -102,6 +102,13 @@ class StoredTileHandle:
     def stored_features(self, request: FeatureRequest) -> Features | None:
         """This tile's features from the store's precomputed map features (tile px), or None:
         see :func:`c3_matcher.tilestore.features.serve_window`."""
+        from c3_matcher.tilestore.features import features_only
+
+        return features_only(self.stored_window(request))
+
+    def stored_window(self, request: FeatureRequest) -> Features | NoStoredSet | None:
+        """:meth:`stored_features`, or why there are none when the store's sidecar holds no
+        set for ``request``: :func:`c3_matcher.tilestore.features.served_window`."""
         z, x, y = self._key
         return _stored_window(self._source, request, z, (x * TILE_PX, y * TILE_PX), TILE_PX)
 
@@ -160,6 +167,13 @@ class MosaicTileHandle:
     def stored_features(self, request: FeatureRequest) -> Features | None:
         """The window's features from the store's precomputed map features (window
         px), or None: see :func:`c3_matcher.tilestore.features.serve_window`."""
+        from c3_matcher.tilestore.features import features_only
+
+        return features_only(self.stored_window(request))
+
+    def stored_window(self, request: FeatureRequest) -> Features | NoStoredSet | None:
+        """:meth:`stored_features`, or why there are none when the store's sidecar holds no
+        set for ``request``: :func:`c3_matcher.tilestore.features.served_window`."""
         return _stored_window(
             self._source, request, self._tile_id.zoom, self.origin_world_px, self._size
         )
@@ -185,12 +199,12 @@ def _stored_window(
     zoom: int,
     origin: tuple[int, int],
     size_px: int,
-) -> Features | None:
-    from c3_matcher.tilestore.features import FeatureSource, serve_window
+) -> Features | NoStoredSet | None:
+    from c3_matcher.tilestore.features import FeatureSource, served_window
 
     if not isinstance(source, FeatureSource):
         return None  # a store without precomputed features (its optional ``feature_store``)
-    return serve_window(source, request, zoom, origin, (size_px, size_px))
+    return served_window(source, request, zoom, origin, (size_px, size_px))
 
 
 def stitch(

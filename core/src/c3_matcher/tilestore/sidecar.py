@@ -1,6 +1,6 @@
 """The sidecar database ``<store>.features.sqlite`` of stored map features (the format:
 :mod:`c3_matcher.tilestore.features`): read-only and never waiting on a lock in flight, the
-single writer on the ground."""
+single writer on the ground. What it raises: :mod:`c3_matcher.tilestore.sidecar_errors`."""
 
 from __future__ import annotations
 
@@ -14,6 +14,11 @@ from typing import Any, TypeVar
 
 from c3_matcher.errors import describe
 from c3_matcher.tilestore.files import MMAP_BYTES, open_failure, read_only_uri, wal_blocked
+from c3_matcher.tilestore.sidecar_errors import (
+    FeatureStoreUnavailableError,
+    SidecarDamagedError,
+    StoredFeaturesCorruptError,
+)
 from c3_matcher.tilestore.sidecar_file import LEAVE_WAL_S, leave_wal, schema_mismatch, sqlite_code
 from c3_matcher.tilestore.windows import FeatureSet, WindowFeatures, decode_row, row_checksum
 
@@ -47,36 +52,6 @@ _SET_COLUMNS = (
 T = TypeVar("T")
 
 
-class FeatureStoreUnavailableError(RuntimeError):
-    """The sidecar ``path`` is locked by another process or unreadable (``why``, in words, its
-    cause SQLite's error; ``fix``: what makes it readable, when something does): raised once
-    per outage (the store then serves nothing until it is tried again, ``retry_s`` later)."""
-
-    def __init__(
-        self, path: Path, why: str, *, fix: str = "", retry_s: float | None = None
-    ) -> None:
-        self.path, self.why = path, why
-        then = "" if retry_s is None else f"; extracting instead, next try in {retry_s:g} s"
-        super().__init__(f"{path}: {why}{f'; {fix}' if fix else ''}{then}")
-
-
-class SidecarDamagedError(RuntimeError):
-    """The sidecar is not an SQLite database, or a damaged one: SQLite says so (when the writer
-    opens it, or on a later read or write), or a stored value is malformed (a ``window_sets``
-    row that is no feature set, a window key that is no integer). Nothing in it can be kept
-    (``path``; the cause is SQLite's error or what is malformed); ``features build`` moves it
-    aside and builds anew, the flight extracts instead."""
-
-    def __init__(self, path: Path, cause: sqlite3.DatabaseError | str) -> None:
-        self.path = path
-        super().__init__(f"{path}: {' '.join(str(cause).split())}")
-
-
-class StoredFeaturesCorruptError(RuntimeError):
-    """A stored row does not match its checksum (or cannot be decoded): raised once per row,
-    which is never served."""
-
-
 def sidecar_path(store_path: str | Path) -> Path:
     """``<store>.features.sqlite`` beside the tile store."""
     p = Path(store_path)
@@ -102,6 +77,7 @@ class MapFeatureStore:
         self._retry_s = float(retry_s)
         self._clock = clock
         self._sets: dict[str, FeatureSet | None] = {}
+        self._held: tuple[str, ...] | None = None  # the set ids stored, once read
         self._down_until: float | None = None  # unavailable: nothing served before this time
         self._reported = False  # this outage was already raised
         self._refused: set[tuple[str, int, int, int]] = set()
@@ -125,6 +101,7 @@ class MapFeatureStore:
         except sqlite3.Error as exc:
             self._down_until = now + self._retry_s
             self._sets.clear()
+            self._held = None
             if self._reported:
                 return None
             self._reported = True
@@ -151,6 +128,18 @@ class MapFeatureStore:
                     self._sets[set_id] = None
                 raise
         return self._sets[set_id]
+
+    def set_ids(self) -> tuple[str, ...] | None:
+        """The id of every set stored, sorted, read once (again after an outage or a write);
+        None in an outage (nothing can be told then)."""
+        if self._held is None:
+            rows = self._read(
+                lambda: self._db.execute("SELECT set_id FROM window_sets ORDER BY 1").fetchall()
+            )
+            if rows is None:
+                return None
+            self._held = tuple(str(row[0]) for row in rows)
+        return self._held
 
     def feature_sets(self) -> list[FeatureSet]:
         """Every set stored; SidecarDamagedError naming the first malformed set row."""
@@ -266,6 +255,7 @@ class MapFeatureStore:
             ],
         )
         self._sets.pop(fset.set_id, None)
+        self._held = None
 
     def put_windows(
         self, set_id: str, rows: Iterable[tuple[int, int, int, WindowFeatures]]

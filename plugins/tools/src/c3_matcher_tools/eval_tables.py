@@ -26,6 +26,7 @@ from c3_matcher_tools.run.evaluation import (
     StrategyStopped,
     SummaryRow,
 )
+from c3_matcher_tools.run.flight import features_line
 from c3_matcher_tools.run.outputs import EVAL_RUN
 from c3_matcher_tools.run.records import FrameStatus
 from c3_matcher_tools.run.scoring import telemetry_lines
@@ -75,9 +76,10 @@ def print_flight_table(
     _print_unreadable(ctx, rows)
     _print_tiles_unread(ctx, rows)
     ctx.out(f"report {out / EVAL_RUN.report}, plots {out}")
+    sources = {e["strategy"]: e.get("feature_sources") for e in report["strategies"]}
     for r in rows:
         if isinstance(r, StrategyEval):
-            _print_links(ctx, r)
+            _print_links(ctx, r, sources.get(r.strategy))
 
 
 def _print_unreadable(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:
@@ -129,9 +131,13 @@ def table_row(r: StrategyRow) -> str:
     )
 
 
-def _print_links(ctx: CommandContext, r: StrategyEval) -> None:
+def _print_links(ctx: CommandContext, r: StrategyEval, sources: dict[str, int] | None) -> None:
+    """Under the table, a strategy's telemetry figures, where its candidates' features came
+    from (``sources``: counts, as ``eval.json`` has them) and its files."""
     for line in telemetry_lines(r.summary) if r.summary.with_telemetry else ():
         ctx.out(f"  {r.strategy}: {line}")
+    if sources is not None:
+        ctx.out(f"  {r.strategy}: {features_line(sources)}")
     ctx.out(f"  {r.strategy}: map {r.geojson}, flight report {r.html or '-'}")
 
 

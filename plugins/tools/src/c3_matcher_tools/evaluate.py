@@ -70,9 +70,12 @@ replaced atomically), and plots
 entry in ``eval.json`` records the ``[matcher]`` settings it ran with (its own defaults where
 the configuration leaves a setting unset), the keypoint budget it kept (``keypoint_budget``,
 the number even where ``max_keypoints`` is unset) and its ``provenance`` (c3-matcher version,
-matcher labels, execution provider and engines, as its FDR and ``report.html`` name them).
-Every dataset's earlier ``eval.json``, charts and match pictures are removed before the first
-dataset runs, so a stopped run leaves none of them looking like its own.
+matcher labels, execution provider and engines, as its FDR and ``report.html`` name them) and
+its candidates counted by where their features came from (``feature_sources``, also under the
+table); a store with map features of which a strategy was served none is said on stderr, with
+the command that builds the set it asks for. Every dataset's earlier ``eval.json``, charts
+and match pictures are removed before the first dataset runs, so a stopped run leaves none of
+them looking like its own.
 
 The command only: flying, scoring and the C3-IT measures are the run layer's
 (:mod:`c3_matcher_tools.run`, :mod:`c3_matcher_tools.run.acceptance`).
@@ -135,6 +138,7 @@ from c3_matcher_tools.run.evaluation import (
     StrategyStopped,
     SummaryRow,
 )
+from c3_matcher_tools.run.flight import FDR_LOG, feature_sources, unserved_line
 from c3_matcher_tools.run.outputs import EVAL_RUN, EVAL_SUMMARY, mark_output_dirs, no_report_html
 from c3_matcher_tools.run.scoring import damaged_store_line, dropped_lines
 
@@ -194,6 +198,7 @@ def evaluate_strategy(
     flight = {
         **flight_report(dataset, run1, summary),
         **{f"{k} pass": v.passed for k, v in acceptance.measures().items()},
+        "feature_sources": feature_sources(out / strategy / FDR_LOG),
     }
     files = write_flight_outputs(out / strategy, dataset, run1, flight, say_no_report=False)
     return StrategyEval(run1, acceptance, summary, files.geojson, files.html)
@@ -364,6 +369,11 @@ def _eval_dataset(
     rows = _eval_strategies(ctx, args.determinism_frames, dataset, names, out, overrides, noted)
     complete = not any(isinstance(r, StrategyStopped) for r in rows)
     ran = [r.run for r in rows if isinstance(r, StrategyEval)]
+    sources = {
+        r.strategy: feature_sources(out / r.strategy / FDR_LOG)
+        for r in rows
+        if isinstance(r, StrategyEval)
+    }
     try:
         plots = eval_plots(dataset, ran, out, args.samples if complete else 0)
     except Exception as exc:  # the figures matter more than the pictures
@@ -378,7 +388,7 @@ def _eval_dataset(
         "bars": BARS,
         "complete": complete,
         "not_run": names[len(rows) :],
-        "strategies": [r.to_json() for r in rows],
+        "strategies": [_entry(r, sources) for r in rows],
         "plots": plots,
     }
     write_text_atomically(out / EVAL_RUN.report, json.dumps(_finite(report), indent=2) + "\n")
@@ -386,7 +396,18 @@ def _eval_dataset(
         max_keypoints = overrides.apply(ctx.settings).matcher.max_keypoints
         print_flight_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
     _say_dropped(ctx, args.json, dataset, rows)
+    for r in (r for r in rows if isinstance(r, StrategyEval)):
+        if (line := unserved_line(dataset, r.run, sources[r.strategy])) is not None:
+            ctx.err(line)
     return rows, report
+
+
+def _entry(row: StrategyRow, sources: dict[str, dict[str, int]]) -> dict[str, Any]:
+    """``row``'s ``eval.json`` entry, with its candidates counted by where their features came
+    from (``feature_sources``) when it ran."""
+    if row.strategy not in sources:
+        return row.to_json()
+    return {**row.to_json(), "feature_sources": sources[row.strategy]}
 
 
 def _forget_earlier_reports(outs: Sequence[Path]) -> None:

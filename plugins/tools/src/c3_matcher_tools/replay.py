@@ -17,14 +17,17 @@ another one is writing is refused with its files untouched. What can refuse the 
 before ``--out`` is touched: every frame image (readable, of the calibration's size), every
 noisy attitude (``--attitude-noise-deg``), an ``--out`` that is, holds or lies inside the
 dataset or holds no earlier replay, the strategy and its engines (composed first). stdout
-carries the report (a table, or JSON with ``--json``). Each ``ok`` result carries
-the best homography and, the tile ids being georeferenced, the frame centre's lat/lon and its
-footprint; frames with ground truth also carry ``truth_lat``/``truth_lon`` and
-``position_error_m``: both centres are the principal point's ground point, where the camera
-looks (under tilt, not the point below the vehicle). The report's ``settings`` are the
-``[matcher]`` settings the strategy ran with (its own defaults where the configuration leaves a
-setting unset). Stopped by Ctrl-C or SIGTERM during the frames or its final writes, a replay
-keeps the frames done: its ``run.json`` says how many (``complete``, ``frames_done``,
+carries the report (a table, or JSON with ``--json``). Each ``ok`` result carries the best
+homography and, the tile ids being georeferenced, the frame centre's lat/lon and its footprint;
+frames with ground truth also carry ``truth_lat``/``truth_lon`` and ``position_error_m``: both
+centres are the principal point's ground point, where the camera looks (under tilt, not the
+point below the vehicle). The report's ``settings`` are the ``[matcher]`` settings the strategy
+ran with (its own defaults where the configuration leaves a setting unset). The report counts
+the candidates by where their features came from (``feature_sources``: ``stored``, ``cached``,
+``extracted``, as the FDR's terminal records say); when the tile store has map features beside
+it but the run was served none, a line on stderr says so and names the command that builds the
+set the run asks for. Stopped by Ctrl-C or SIGTERM during the frames or its final writes, a
+replay keeps the frames done: its ``run.json`` says how many (``complete``, ``frames_done``,
 ``frames_planned``), then ``results.jsonl`` and ``report.json`` hold them (no map, no flight
 report) and one line says so (exit 130/143). The report reaches stdout before the files are
 written: a final write that fails (a full disk) still leaves it.
@@ -65,6 +68,12 @@ from c3_matcher_tools.run import (
     summarize,
     write_flight_outputs,
     write_results,
+)
+from c3_matcher_tools.run.flight import (
+    FDR_LOG,
+    feature_sources,
+    features_line,
+    unserved_line,
 )
 from c3_matcher_tools.run.outputs import (
     REPLAY_RUN,
@@ -168,7 +177,17 @@ def _say_run(
     html = None if no_report_html() else str(out / "report.html")
     shown = {**_run_report(dataset, run, summary, out), "geojson": str(out / "flight.geojson")}
     _print_report(ctx, as_json, dataset.name, {**shown, "html": html}, summary, out)
+    _say_unserved(ctx, dataset, run, shown)
     return shown
+
+
+def _say_unserved(
+    ctx: CommandContext, dataset: FlightDataset, run: FlightRun, report: dict[str, Any]
+) -> None:
+    """On stderr, when the store has map features but the run was served none of them: what
+    builds the set it asks for (:func:`unserved_line`)."""
+    if (line := unserved_line(dataset, run, report["feature_sources"])) is not None:
+        ctx.err(line)
 
 
 def _write_run(dataset: FlightDataset, run: FlightRun, out: Path, shown: dict[str, Any]) -> None:
@@ -189,9 +208,10 @@ def _run_report(
         "attitude_noise": dataset.meta.get("attitude_noise"),
         "store": str(dataset.store_path),
         "results": str(out / "results.jsonl"),
-        "fdr": str(out / "fdr.jsonl"),
+        "fdr": str(out / FDR_LOG),
         "log": str(out / "matcher.log"),
         "log_lines_lost": run.log_lines_lost,
+        "feature_sources": feature_sources(out / FDR_LOG),
     }
 
 
@@ -234,6 +254,7 @@ def _keep_stopped(
     write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
     if as_json is not None:
         _print_report(ctx, as_json, dataset.name, report, summary, out)
+        _say_unserved(ctx, dataset, run, report)
     word = "terminated" if signum == signal.SIGTERM else "interrupted"
     done, planned = report["frames_done"], report["frames_planned"]
     whole = "" if run.complete else f" ({RUN_MARK} marks the run incomplete)"
@@ -284,6 +305,8 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
     lines.append(
         f"  frame ms p50 {figure(s.frame_ms_p50, '.0f')}, p95 {figure(s.frame_ms_p95, '.0f')}"
     )
+    if (sources := report.get("feature_sources")) is not None:
+        lines.append(f"  {features_line(sources)}")
     if s.georeferenced and s.with_truth:
         lines.append(
             f"  position error m p50 {figure(s.position_error_m_p50)}, "
