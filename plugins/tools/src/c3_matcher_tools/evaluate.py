@@ -111,6 +111,7 @@ from c3_matcher_tools.args import (
 )
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
+from c3_matcher_tools.dataset.provenance import say_import_faults
 from c3_matcher_tools.eval_tables import print_flight_table, print_summary_table
 from c3_matcher_tools.run import (
     EVAL_OUT,
@@ -261,6 +262,7 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     outs = _output_dirs(args.out, datasets)
     root = (args.out or EVAL_OUT) if len(datasets) > 1 else None
     check_output_dirs(outs, datasets, layout=EVAL_RUN, root=root)  # before anything runs
+    say_import_faults(*datasets, say=ctx.err)
     if (no_report := no_report_html()) is not None:  # once a run, not once a strategy
         ctx.err(no_report)
     summary: list[SummaryRow] = []

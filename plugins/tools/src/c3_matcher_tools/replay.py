@@ -49,6 +49,7 @@ from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_noise
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
+from c3_matcher_tools.dataset.provenance import say_import_faults
 from c3_matcher_tools.run import (
     REPLAY_OUT,
     FlightOptions,
@@ -133,6 +134,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
     check_flight(dataset, frames)
     check_output_dirs([out], [dataset], layout=REPLAY_RUN)
+    say_import_faults(dataset, say=ctx.err)
     overrides = Overrides(max_keypoints=args.max_keypoints)
     with (
         prepare_matcher(

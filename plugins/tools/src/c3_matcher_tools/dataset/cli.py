@@ -1,5 +1,6 @@
 """``c3-matcher dataset render``: a simulated flight over a real orthophoto (see
-:mod:`c3_matcher_tools.dataset.flight`); ``c3-matcher dataset info``: a dataset's summary (JSON)."""
+:mod:`c3_matcher_tools.dataset.flight`); ``c3-matcher dataset info``: a dataset's summary (JSON),
+with the faults known of the importer that made it (:mod:`c3_matcher_tools.dataset.provenance`)."""
 
 from __future__ import annotations
 
@@ -352,12 +353,15 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
         **{k: d.meta[k] for k in ("tiles_source", "frames_source", "import") if k in d.meta},
     }
     if args.json:
+        info["import_faults"] = [f.to_json() for f in d.import_faults]
         ctx.out(json.dumps(info, indent=2))
         return EXIT_OK
     record = info.pop("import", None)
     ctx.out("\n".join(f"{k}: {v}" for k, v in info.items()))
     if isinstance(record, dict):  # what the import said: marked frames, skipped images, notes
         ctx.out("\n".join(_import_lines(record, d.name)))
+    for fault in d.import_faults:  # an importer's fault fixed since: what to do about it
+        ctx.out(f"import fault: {fault.line()}")
     return EXIT_OK
 
 

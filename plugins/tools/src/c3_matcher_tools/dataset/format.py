@@ -5,7 +5,7 @@ Layout of a dataset directory::
 
     dataset.json       {"format": "c3-flight/1", "name", "store": "tiles.mbtiles",
                         "candidate_size_px", "calibration": "calibration.json",
-                        "frames": "frames.jsonl", "spec": {how it was made}, "attribution"}
+                        "frames": "frames.jsonl", "spec": {how, by what}, "attribution"}
     calibration.json   {"K", "distortion", "image_size"} (the ``c3-matcher match`` format)
     frames.jsonl       one JSON object per frame, see :class:`FrameRecord`
     frames/*.jpg       the nav-camera frames as captured (distorted), RGB JPEG
@@ -44,6 +44,7 @@ from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.serialize import load_calibration
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.dataset.provenance import ImportFault, import_faults
 
 __all__ = [
     "CALIBRATION_FILE",
@@ -311,13 +312,15 @@ class FrameRecord:
 class FlightDataset:
     """A loaded dataset: its directory, metadata, calibration and frame records;
     ``max_image_pixels``: the largest frame (width x height) ``nav_frame`` decodes
-    (``[matcher] max_image_pixels``)."""
+    (``[matcher] max_image_pixels``); ``import_faults``: what the importer that made it is known
+    to have got wrong, fixed since (:mod:`c3_matcher_tools.dataset.provenance`)."""
 
     root: Path
     meta: dict[str, Any]
     calibration: dto.CameraCalibration
     frames: tuple[FrameRecord, ...]
     max_image_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+    import_faults: tuple[ImportFault, ...] = ()
 
     @property
     def name(self) -> str:
@@ -471,7 +474,8 @@ def load_dataset(
 ) -> FlightDataset:
     """Read a dataset directory, naming what is missing or malformed (the file, and the line of
     ``frames.jsonl``) before any frame is used; its frames are decoded up to
-    ``max_image_pixels`` (width x height)."""
+    ``max_image_pixels`` (width x height). A dataset whose importer had a fault fixed since is
+    loaded with its notes (``import_faults``), not refused."""
     base = Path(root)
     meta_path = base / META_FILE
     if base.name == META_FILE and base.is_file():  # the file, given for its directory
@@ -485,4 +489,5 @@ def load_dataset(
     frames = _frames(base / meta["frames"])
     if not (base / meta["store"]).is_file():
         raise InvalidInputError("dataset", f"{base / meta['store']}: tile store missing")
-    return FlightDataset(base, meta, calibration, frames, max_image_pixels)
+    faults = import_faults(base, meta, [f.telemetry for f in frames])
+    return FlightDataset(base, meta, calibration, frames, max_image_pixels, faults)

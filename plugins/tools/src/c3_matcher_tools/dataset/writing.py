@@ -24,6 +24,7 @@ from c3_matcher_tools.dataset.format import (
     STORE_FILE,
     FrameRecord,
 )
+from c3_matcher_tools.dataset.provenance import made_by
 
 __all__ = [
     "calibration_to_json",
@@ -58,8 +59,9 @@ def write_dataset(
     """Write a dataset under ``root``, its frame images already there: the tile store ``store``
     put there by :func:`place_store` (None: the caller placed it first), the calibration, the
     frames and the description (the format and the files, then ``meta``: its ``name`` first,
-    then how the dataset was made). Returns how the store was put there, in words ("" when the
-    caller placed it)."""
+    then how the dataset was made, its ``spec`` naming the c3-matcher and the revision of the
+    writer that made it: :func:`~c3_matcher_tools.dataset.provenance.made_by`). Returns how the
+    store was put there, in words ("" when the caller placed it)."""
     root.mkdir(parents=True, exist_ok=True)
     placed = "" if store is None else place_store(root, store, link=link_store)
     described = {
@@ -69,6 +71,7 @@ def write_dataset(
         "name": meta["name"],
         "store": STORE_FILE,
         **meta,
+        **({"spec": made_by(meta["spec"])} if "spec" in meta else {}),
     }
     with _naming(root / CALIBRATION_FILE):
         (root / CALIBRATION_FILE).write_text(json.dumps(calibration_to_json(calibration), indent=1))

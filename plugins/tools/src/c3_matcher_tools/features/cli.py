@@ -19,7 +19,7 @@ from c3_matcher_tools.features.windows import brief_set_id
 if TYPE_CHECKING:
     from c3_matcher.tilestore.features import FeatureStoreUnavailableError, MapFeatureStore
 
-__all__ = ["DEFAULT_WORKERS", "register_features_command"]
+__all__ = ["DEFAULT_WORKERS", "build_command", "register_features_command"]
 
 DEFAULT_WORKERS = 2
 """``--workers`` left out: a local Dask cluster of this many processes (where Dask is installed)."""
@@ -276,7 +276,7 @@ def _flight_only(
     return only
 
 
-def _build_command(
+def build_command(
     given: Path, strategy: object, window: object, stride: object, flight_only: bool | None
 ) -> str:
     """The command that builds (or extracts again) the set of ``strategy`` with ``window`` px
@@ -303,7 +303,7 @@ def _build_command(
 def _build_its_sets(given: Path, path: Path) -> str:
     """What builds the sets of the damaged sidecar ``path`` again: they cannot be read from it,
     so each is named by the user (``features build`` keeps the file aside)."""
-    command = _build_command(given, "NAME", "W", "S", None)
+    command = build_command(given, "NAME", "W", "S", None)
     return (
         f"Its sets cannot be read from it: build each again with the strategy, window and stride "
         f"it was built with (the build keeps this file as {path.name}.damaged): {command}"
@@ -312,7 +312,7 @@ def _build_its_sets(given: Path, path: Path) -> str:
 
 def _window_notes(given: Path, store: Path, path: Path, found: _Found, ctx: CommandContext) -> None:
     """Say of each set with damaged or stale windows how many, and the command that extracts
-    them again: the one that builds that set (:func:`_build_command`)."""
+    them again: the one that builds that set (:func:`build_command`)."""
     for s in found.sets:
         why = {
             "damaged": "the flight extracts those instead",
@@ -322,7 +322,7 @@ def _window_notes(given: Path, store: Path, path: Path, found: _Found, ctx: Comm
         for kind, because in why.items():
             if not (count := int(str(s.get(kind, 0)))):
                 continue
-            command = _build_command(
+            command = build_command(
                 given, s["strategy"], s["window_px"], s["stride_px"], _only(found, s)
             )
             ctx.err(
@@ -463,7 +463,7 @@ def _engine_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -
         other = served.get((s["strategy"], s["window_px"]))
         if other is None:
             unserved += 1
-            command = _build_command(
+            command = build_command(
                 store, s["strategy"], s["window_px"], s["stride_px"], _only(found, s)
             )
             built += f" The flight extracts those candidates instead; build its set: {command}."

@@ -449,7 +449,7 @@ def unserved_line(dataset: FlightDataset, run: FlightRun, counts: Mapping[str, i
     them, with the command that builds the set it asks for; None when it was served some, has
     none to be served, runs with ``[matcher] stored_features`` off, or flies a strategy whose
     tiles are always extracted (its backend names no extractor engine)."""
-    from c3_matcher_tools.features.cli import _build_command
+    from c3_matcher_tools.features.cli import build_command
     from c3_matcher_tools.features.windows import flight_grid
 
     sidecar = sidecar_path(dataset.store_path)
@@ -464,7 +464,7 @@ def unserved_line(dataset: FlightDataset, run: FlightRun, counts: Mapping[str, i
     ):
         return None
     window, grid = flight_grid(dataset.root)
-    command = _build_command(dataset.root, run.strategy, window, grid, None)
+    command = build_command(dataset.root, run.strategy, window, grid, None)
     return (
         f"c3-matcher: {sidecar}: no candidate of this run was served the store's map features "
         f"(it holds no set for {run.strategy} as it ran here, or none of these windows): each "

@@ -1,0 +1,217 @@
+"""What made a flight dataset, and the faults known of the importer that made it.
+
+Every writer records in ``dataset.json``'s ``spec`` the c3-matcher that made the dataset
+(``"c3-matcher"``) and the revision of what it writes (``"import_revision"`` for ``dataset
+import``, ``"render_revision"`` for ``dataset render``): :func:`made_by`. A fix that changes what
+an import writes raises :data:`IMPORT_REVISION` and adds a :class:`_KnownFault` fixed at that
+revision, so a dataset of an earlier revision is told by its revision.
+
+Datasets written before revisions were recorded (none in ``spec``) are told by their content:
+the faults below fixed on 2026-12-02 left marks of their own in what the importer wrote
+(:func:`import_faults`). A loaded dataset carries the notes (``FlightDataset.import_faults``);
+``dataset info`` prints them, ``replay`` and ``eval`` say each in one line
+(:func:`say_import_faults`).
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+from c3_matcher import __version__
+
+__all__ = [
+    "IMPORT_REVISION",
+    "RENDER_REVISION",
+    "ImportFault",
+    "Noted",
+    "import_faults",
+    "made_by",
+    "reimport_command",
+    "say_import_faults",
+]
+
+IMPORT_REVISION = 1
+"""The revision of what ``dataset import`` writes. 1: the first recorded (2026-12-03), with the
+home altitude in force at each frame's time, the first downward rangefinder and one camera
+trigger per photo."""
+RENDER_REVISION = 1
+"""The revision of what ``dataset render`` writes (1: the first recorded, 2026-12-03)."""
+
+
+@dataclass(frozen=True)
+class ImportFault:
+    """A fault of the importer that made a dataset, fixed since: ``what`` is wrong, what it
+    ``affects`` (the figures and results that change) and the command that re-imports it
+    (``redo``)."""
+
+    what: str
+    affects: str
+    redo: str
+
+    def line(self) -> str:
+        """The note in one line."""
+        return f"{self.what}; this changes {self.affects}; re-import it: {self.redo}"
+
+    def to_json(self) -> dict[str, str]:
+        return {"what": self.what, "affects": self.affects, "redo": self.redo}
+
+
+def made_by(spec: Mapping[str, Any]) -> dict[str, Any]:
+    """``spec`` (a dataset's record of how it was made) with the c3-matcher that writes it and
+    the revision of its writer: an import's (``kind`` ``import``) or a render's."""
+    revision = (
+        {"import_revision": IMPORT_REVISION}
+        if spec.get("kind") == "import"
+        else {"render_revision": RENDER_REVISION}
+    )
+    return {**spec, "c3-matcher": __version__, **revision}
+
+
+class Noted(Protocol):
+    """What :func:`say_import_faults` reads of a loaded ``FlightDataset``."""
+
+    @property
+    def root(self) -> Path: ...
+
+    @property
+    def import_faults(self) -> tuple[ImportFault, ...]: ...
+
+
+def say_import_faults(*datasets: Noted, say: Callable[[str], None]) -> None:
+    """Each import fault of each of ``datasets`` (loaded ``FlightDataset``) as one line, given
+    to ``say`` (a command's ``ctx.err``): said before a run, never refused, as a user may replay
+    such a dataset on purpose."""
+    for dataset in datasets:
+        for fault in dataset.import_faults:
+            say(f"warning: dataset {dataset.root}: {fault.line()}")
+
+
+_OLD_HOME = re.compile(r"altitude - home altitude(?! -?\d)")
+"""A height source as the importer wrote it before 2026-12-02 (since, it names the home
+altitude used: ``altitude - home altitude 500.0 m``)."""
+_OLD_TRIGGER_NOTE = re.compile(r"\d+ camera trigger\(s\)")
+"""An ArduPilot import's trigger note before 2026-12-02 (since: ``... from CAM``)."""
+_TRIGGER_COUNTS = re.compile(r"\((\d+) in the log, (\d+) image\(s\)")
+ARDUPILOT_KINDS = ("ArduPilot DataFlash", "MAVLink telemetry log")
+_HEIGHTS_AFFECT = (
+    "the heights, which feed the rectification, the geometric prior and the telemetry "
+    "errors: positions and accuracy figures differ from a re-import's"
+)
+
+
+@dataclass(frozen=True)
+class _Seen:
+    """What a dataset's files say of its import: ``dataset.json``'s ``spec`` and ``import``
+    record, and each frame's telemetry."""
+
+    root: Path
+    spec: Mapping[str, Any]
+    record: Mapping[str, Any]
+    telemetry: Sequence[Mapping[str, Any]]
+
+
+@dataclass(frozen=True)
+class _KnownFault:
+    """A fault fixed at import revision ``fixed_in``: ``found`` tells from a dataset's content
+    whether it shows the fault (a dataset of a later revision is never checked) and returns
+    (what, affects), or None."""
+
+    fixed_in: int
+    found: Callable[[_Seen], tuple[str, str] | None]
+
+
+def _first_home(seen: _Seen) -> tuple[str, str] | None:
+    """Heights from the log's first home altitude (PX4 and ArduPilot logs, before 2026-12-02)."""
+    old = sum(1 for t in seen.telemetry if _OLD_HOME.search(str(t.get("height_source", ""))))
+    if not old:
+        return None
+    what = (
+        f"its heights ({old} of {len(seen.telemetry)} frames) are the altitude minus the log's "
+        "first home altitude, as the importer read them before 2026-12-02, which missed a home "
+        "set again at arming, as PX4 and ArduPilot set it (a home 12 m high before arming made "
+        "780 m read 768 m)"
+    )
+    return what, _HEIGHTS_AFFECT
+
+
+def _triggers_twice(seen: _Seen) -> tuple[str, str] | None:
+    """An ArduPilot log's photos counted twice, once by ``CAM`` and once by ``TRIG`` (before
+    2026-12-02): told by the trigger note of then and a log of at least twice as many triggers
+    as images."""
+    notes = seen.record.get("notes")
+    if seen.spec.get("log_kind") not in ARDUPILOT_KINDS or not isinstance(notes, list):
+        return None
+    if not any(_OLD_TRIGGER_NOTE.fullmatch(str(n)) for n in notes):
+        return None
+    counts = _TRIGGER_COUNTS.search(str(seen.record.get("time_source", "")))
+    if counts is None or int(counts[1]) < 2 * int(counts[2]):
+        return None
+    what = (
+        f"the log held {counts[1]} camera triggers for {counts[2]} images: the importer before "
+        "2026-12-02 counted a photo logged as both CAM and TRIG (ArduPilot with a feedback pin) "
+        "twice, so the images may have met other photos' triggers"
+    )
+    affects = (
+        "each frame's time, and so its position, attitude, height and candidates: every "
+        "result and figure of the flight"
+    )
+    return what, affects
+
+
+_KNOWN = (_KnownFault(1, _first_home), _KnownFault(1, _triggers_twice))
+"""Every import fault fixed since datasets were first written, in the order they are said."""
+
+
+def import_faults(
+    root: Path, meta: Mapping[str, Any], telemetry: Sequence[Mapping[str, Any]]
+) -> tuple[ImportFault, ...]:
+    """The known faults of the importer that made the dataset at ``root`` (its ``dataset.json``
+    ``meta``, each frame's ``telemetry``): none for a dataset not imported (rendered) or
+    imported at a revision that has every fix."""
+    spec, record = meta.get("spec"), meta.get("import")
+    if not isinstance(spec, Mapping) or spec.get("kind") != "import":
+        return ()
+    revision = spec.get("import_revision", 0)
+    revision = revision if isinstance(revision, int) else 0
+    seen = _Seen(root, spec, record if isinstance(record, Mapping) else {}, telemetry)
+    redo = reimport_command(root, spec)
+    found = (known.found(seen) for known in _KNOWN if revision < known.fixed_in)
+    return tuple(ImportFault(what, affects, redo) for what, affects in filter(None, found))
+
+
+_OPTIONS = (
+    ("uncertainty_m", "--uncertainty-m", 50.0),
+    ("candidates", "--candidates", 3),
+    ("candidate_size_px", "--candidate-size", 512),
+    ("zoom", "--zoom", None),
+    ("seed", "--seed", 0),
+    ("time_offset_s", "--time-offset", 0.0),
+)
+"""(``spec`` key, ``dataset import`` option, its default) of the options an import records."""
+
+
+def reimport_command(root: Path, spec: Mapping[str, Any]) -> str:
+    """The ``dataset import`` that makes the dataset at ``root`` again, replacing it: its
+    images, telemetry and store as ``spec`` names them (by file name), the options it was
+    imported with; CALIBRATION stands for the camera calibration, which a dataset keeps
+    without its file's name."""
+    images = spec.get("images") or spec.get("images_dir") or "IMAGES"
+    telemetry = spec.get("log") or spec.get("telemetry_csv") or "TELEMETRY"
+    calibration = spec.get("calibration_json") or "CALIBRATION"
+    words = ["c3-matcher", "dataset", "import", images, telemetry, calibration]
+    words += [spec.get("store") or "STORE", str(root)]
+    for key, option, default in _OPTIONS:
+        if spec.get(key) is not None and spec.get(key) != default:
+            words += [option, str(spec[key])]
+    if spec.get("skip_outside"):
+        words.append("--skip-outside")
+    words.append("--force")
+    return (
+        " ".join(shlex.quote(str(w)) for w in words)
+        + " (its sources as the dataset names them: give their paths)"
+    )
