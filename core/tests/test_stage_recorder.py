@@ -103,6 +103,27 @@ def test_insufficient_records_the_evidence_and_returns_the_error():
     assert health.update_count == 1 and health.last_update.best_inlier_count == 0  # type: ignore[union-attr]
 
 
+def test_a_frame_whose_matches_were_refused_on_geometry_says_their_inliers():
+    """ "best inlier count 0" read as "nothing matched" when the prior refused a candidate of
+    hundreds of inliers (a heading error past its tolerance): the error and the ERROR log name
+    the refused, the most inliers first."""
+    from loguru import logger
+
+    wide = GeometryRefusal(TileId(18, 47.0, 8.5), 2, 532, "rotation -15.1 deg beyond 10.0 deg")
+    few = GeometryRefusal(TileId(18, 47.1, 8.5), 0, 12, "scale 1.5")
+    evidence = FrameEvidence(3, ("extracted",) * 3, ({}, {}, {}), 3, (few, wide), False, None)
+    said: list[str] = []
+    sink = logger.add(lambda m: said.append(m.record["message"]), level="ERROR")
+    try:
+        error = FrameRecorder(_sinks()[0], "f").insufficient(evidence, 0, [], 60)
+    finally:
+        logger.remove(sink)
+    assert error.geometry_refused == ((532, wide.reason), (12, "scale 1.5"))
+    words = "2 of them refused on geometry whatever their inliers, the most 532 inliers: rotation"
+    assert words in str(error), error
+    assert any(words in line for line in said), said
+
+
 def test_the_success_record_names_the_candidates_refused_on_geometry_too():
     """A frame that finds its fix still says which candidate the prior refused and why: in
     flight that is the FDR's only account of it (the refusal's log line is DEBUG)."""

@@ -27,6 +27,7 @@ __all__ = [
     "StrategyStartupError",
     "UnknownStrategyError",
     "describe",
+    "refused_words",
 ]
 
 
@@ -74,6 +75,10 @@ class InsufficientInliersError(C3Error):
     """No candidate reached ``min_inliers_threshold`` RANSAC inliers (or every one was dropped).
 
     The caller (C5) falls back to VIO-only with provenance ``visual_propagated``.
+    ``geometry_refused``: (RANSAC inliers, reason) of each candidate the geometric prior refused
+    whatever its inliers (its attitude disagreed: a heading error past ``[matcher]
+    prior_rotation_tol_deg`` refuses the true tile too), most inliers first; the message names
+    the first, so that "best inlier count 0" is not read as "nothing matched".
     """
 
     def __init__(
@@ -84,6 +89,7 @@ class InsufficientInliersError(C3Error):
         candidates_input: int,
         candidates_dropped: int,
         matcher_label: str,
+        geometry_refused: tuple[tuple[int, str], ...] = (),
     ) -> None:
         self.frame_id = frame_id
         self.best_inlier_count = best_inlier_count
@@ -91,11 +97,23 @@ class InsufficientInliersError(C3Error):
         self.candidates_input = candidates_input
         self.candidates_dropped = candidates_dropped
         self.matcher_label = matcher_label
+        self.geometry_refused = tuple(sorted(geometry_refused, key=lambda r: -r[0]))
         super().__init__(
             f"frame {frame_id}: best inlier count {best_inlier_count} < threshold {threshold} "
-            f"({candidates_dropped} of {candidates_input} candidates dropped; "
-            f"backbone={matcher_label})"
+            f"({candidates_dropped} of {candidates_input} candidates dropped"
+            f"{refused_words(self.geometry_refused)}; backbone={matcher_label})"
         )
+
+
+def refused_words(refused: tuple[tuple[int, str], ...]) -> str:
+    """``geometry_refused`` (most inliers first) in words for a message; empty when none."""
+    if not refused:
+        return ""
+    inliers, reason = refused[0]
+    return (
+        f", {len(refused)} of them refused on geometry whatever their inliers, the most "
+        f"{inliers} inliers: {reason}"
+    )
 
 
 class MatcherClosedError(C3Error, RuntimeError):

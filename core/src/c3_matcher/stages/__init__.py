@@ -9,7 +9,8 @@
 - :mod:`~c3_matcher.stages.refine`: the optional second pass through the best candidate's
   homography;
 - :mod:`~c3_matcher.stages.ranking`: the deterministic ranking of the survivors;
-- :mod:`~c3_matcher.stages.recorder`: the frame's health update, logs and FDR records.
+- :mod:`~c3_matcher.stages.recorder`: the frame's health update, logs and FDR records
+  (:mod:`~c3_matcher.stages.frame_records`: what the terminal record says of the candidates).
 
 :mod:`~c3_matcher.stages.outcomes` holds the values that travel between them (a candidate kept
 or dropped, what a frame's records report), :mod:`~c3_matcher.stages.failure` the typed

@@ -23,7 +23,12 @@ from typing import Any
 
 from c3_matcher.arrays import F64
 from c3_matcher.dto import CandidateMatchSet, RerankResult
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError, describe
+from c3_matcher.errors import (
+    InsufficientInliersError,
+    InvalidInputError,
+    describe,
+    refused_words,
+)
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import (
     MATCHER_BACKBONE_ERROR,
@@ -34,11 +39,11 @@ from c3_matcher.logs import (
     log_fdr_write_failed,
 )
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend
+from c3_matcher.stages.frame_records import candidates_record
 from c3_matcher.stages.outcomes import CandidateDrop, FrameEvidence, GeometryRefusal, Survivor
-from c3_matcher.stages.query import QUERY_ROTATIONS_DEG
 from c3_matcher.tilestore.features import NoStoredSet
 
-__all__ = ["FrameRecorder", "RecorderSinks", "drop_reason", "per_candidate_records"]
+__all__ = ["FrameRecorder", "RecorderSinks", "drop_reason"]
 
 
 @dataclass(frozen=True)
@@ -252,7 +257,7 @@ class FrameRecorder:
                 "query_rectification": rectification,
                 "matcher_label": self._sinks.label,
                 "timings_ms": timings,
-                **_candidates_record(evidence, ranked, self.drops),
+                **candidates_record(evidence, ranked, self.drops),
                 **self._sinks.backend.provenance(),
             },
         )
@@ -275,11 +280,22 @@ class FrameRecorder:
         stale = {} if stale_rerank_frame_id is None else {"stale_rerank": stale_rerank_frame_id}
         timed = {} if timings is None else {"timings_ms": dict(timings)}
         self.update_health(0)  # best_inlier_count=0
+        refused = tuple((r.inlier_count, r.reason) for r in evidence.refused)
+        error = InsufficientInliersError(
+            self.frame_id,
+            best_count,
+            threshold,
+            evidence.candidates_input,
+            evidence.dropped,
+            label,
+            refused,
+        )
         log_event(
             "ERROR",
             "c3.matcher.insufficient_inliers",
             f"C3 insufficient inliers on all candidates; frame={self.frame_id}; "
-            f"backbone={label}; best={best_count} < {threshold}"
+            f"backbone={label}; best={best_count} < {threshold}; {evidence.dropped} of "
+            f"{evidence.candidates_input} candidates dropped{refused_words(error.geometry_refused)}"
             + ("" if not stale else f"; re-rank is for frame {stale_rerank_frame_id}"),
             frame_id=self.frame_id,
             backbone=label,
@@ -301,18 +317,11 @@ class FrameRecorder:
                 "threshold": threshold,
                 "matcher_label": label,
                 **timed,
-                **_candidates_record(evidence, survivors, self.drops),
+                **candidates_record(evidence, survivors, self.drops),
                 **self._sinks.backend.provenance(),
             },
         )
-        return InsufficientInliersError(
-            self.frame_id,
-            best_count,
-            threshold,
-            evidence.candidates_input,
-            evidence.dropped,
-            label,
-        )
+        return error
 
     def stale_rerank(self, rerank: RerankResult, threshold: int) -> InsufficientInliersError:
         """No fix: the re-rank was made for another frame (its tiles say where the vehicle
@@ -342,57 +351,3 @@ class FrameRecorder:
         """A bug must not take the vehicle down: health, an ``internal`` backbone-error record."""
         self.update_health(0, force_backbone_error=True)
         self.backbone_error(None, "internal", exc)
-
-
-def per_candidate_records(
-    evidence: FrameEvidence, survivors: Sequence[Survivor]
-) -> list[dict[str, Any]]:
-    """The survivors as FDR rows, each with its input position (``candidate_index``);
-    ``rotation_deg`` (the kept turn) only under rotation search and ``model`` only for a
-    candidate kept on the prior's similarity, so other records are as they were."""
-    rows: list[dict[str, Any]] = []
-    for s in survivors:
-        row: dict[str, Any] = {
-            "candidate_index": s.input_index,
-            "tile_id": s.match_set.tile_id,
-            "inlier_count": s.match_set.inlier_count,
-            "residual_px": s.match_set.per_candidate_residual_px,
-            "features": evidence.source_of(s.input_index),
-        }
-        if evidence.rotation_search:
-            row["rotation_deg"] = s.rotation_deg
-        if s.model != "homography":
-            row["model"] = s.model
-        rows.append(row)
-    return rows
-
-
-def _candidates_record(
-    evidence: FrameEvidence, kept: Sequence[Survivor], drops: Sequence[CandidateDrop]
-) -> dict[str, Any]:
-    """What a terminal FDR record says of the candidates, success or not: the ``kept`` ones'
-    figures, where each one's features came from, the refusals on geometry (whatever their
-    inliers), every dropped one and why, the rotation search and refine pass when they ran,
-    and each one's timings (the lists without an index in input order)."""
-    return {
-        "per_candidate": per_candidate_records(evidence, kept),
-        "candidate_features": list(evidence.sources),
-        "geometry_refused": [r.as_record() for r in evidence.refused],
-        "dropped": [d.as_record() for d in drops],
-        **_rotation_record(evidence),
-        **_refine_record(evidence),
-        "per_candidate_timings_ms": list(evidence.per_candidate_ms),
-    }
-
-
-def _rotation_record(evidence: FrameEvidence) -> dict[str, Any]:
-    """``rotation_search`` and the turns tried, in a terminal FDR record of a frame that ran
-    the search; nothing otherwise."""
-    if not evidence.rotation_search:
-        return {}
-    return {"rotation_search": True, "rotations_deg": list(QUERY_ROTATIONS_DEG)}
-
-
-def _refine_record(evidence: FrameEvidence) -> dict[str, Any]:
-    """The refine pass's record for the terminal FDR record: only when it ran."""
-    return {"refine": evidence.refine.as_record()} if evidence.refine is not None else {}
