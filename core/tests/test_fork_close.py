@@ -288,3 +288,26 @@ def test_a_forked_child_closes_a_tile_store_whose_connections_another_thread_hel
     assert _forked_while_stopped(stop, holding, child_closes) == "closed; sidecar: None"
     assert store.tile_bytes(*tile) == expected
     store.close()
+
+
+def test_a_forked_child_closes_a_root_while_another_thread_was_composing_one(tmp_path) -> None:
+    """A parent thread composing or closing another root holds the log roots' lock for a
+    moment; a child forked then closed its inherited root waiting for that lock forever."""
+    from c3_matcher import logs
+
+    root = _root(tmp_path / "fdr.jsonl")
+    stop = _Stop()
+
+    def composing() -> None:
+        with logs._roots._lock:  # where a thread joining or leaving the roots is
+            stop.here()
+
+    def close_inherited() -> str:
+        root.close()
+        return "closed"
+
+    try:
+        assert _forked_while_stopped(stop, composing, close_inherited) == "closed"
+        assert _match(root).best_candidate_idx == 0  # the parent's root goes on
+    finally:
+        root.close()

@@ -160,14 +160,23 @@ class _Roots:
     def __init__(self) -> None:
         self.live: tuple[LoggingHandle, ...] = ()
         self._lock = threading.Lock()
+        self._pid = os.getpid()
 
     def join(self, root: LoggingHandle) -> None:
-        with self._lock:
+        with self._locked():
             self.live = (*self.live, root)
 
     def leave(self, root: LoggingHandle) -> None:
-        with self._lock:
+        with self._locked():
             self.live = tuple(r for r in self.live if r is not root)
+
+    def _locked(self) -> threading.Lock:
+        """The lock, made anew in a process forked from the one that made it: a thread of the
+        parent, absent here, may have held it at the fork (a child closing an inherited root
+        waited for it forever)."""
+        if self._pid != os.getpid():
+            self._lock, self._pid = threading.Lock(), os.getpid()
+        return self._lock
 
 
 _roots = _Roots()
