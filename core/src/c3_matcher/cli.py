@@ -96,8 +96,16 @@ def _cmd_config(args: argparse.Namespace, ctx: CommandContext) -> int:
         ctx.plugin_host.resolve(ctx.settings.matcher.strategy)
     check_options_tables(ctx.settings, ctx.plugin_host)
     data = ctx.settings.model_dump(mode="json")
-    ctx.out(json.dumps(data, indent=2) if args.json else to_toml(data, _notes()))
+    said = ctx.settings.replaced_by_environment.comments()  # the file's values left out, first
+    ctx.out(json.dumps(data, indent=2) if args.json else said + to_toml(data, _notes()))
     return EXIT_OK
+
+
+def _noted(settings: C3Settings) -> C3Settings:
+    """``settings``; the file's values a table set in the environment left out, said on stderr."""
+    if settings.replaced_by_environment.values:
+        _fail(f"note: {settings.replaced_by_environment.line()}")
+    return settings
 
 
 def _options_as_read(settings: C3Settings, host: PluginHost) -> C3Settings:
@@ -268,8 +276,8 @@ def _version() -> str:
 
 
 def _fail(exc: BaseException | str) -> None:
-    """The command's one line saying why it stopped, on stderr; lost, not raised, where stderr
-    cannot be written (a full log disk): the exit status still says it."""
+    """The command's one line saying why it stopped (or a ``note:`` it goes on after), on stderr;
+    lost, not raised, where stderr cannot be written (a full log disk): the exit status says it."""
     text = " ".join(str(exc).split()) or type(exc).__name__
     with contextlib.suppress(OSError, ValueError):
         print(f"c3-matcher: {text}", file=sys.stderr, flush=True)
@@ -350,7 +358,7 @@ def _command(argv: Sequence[str] | None) -> int:
     if config is not None:
         args.config = config
     try:
-        settings = _options_as_read(load_settings(args.config), host)
+        settings = _noted(_options_as_read(load_settings(args.config), host))
     except ConfigurationError as exc:
         _fail(exc)
         return EXIT_USAGE

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
-from pydantic import BaseModel, Field, ValidationError, ValidationInfo, field_validator
+from pydantic import BaseModel, Field, PrivateAttr, ValidationError, ValidationInfo, field_validator
 from pydantic_settings import (
     BaseSettings,
     InitSettingsSource,
@@ -24,7 +24,9 @@ from pydantic_settings import (
 
 from c3_matcher.config_sources import (
     ENV_PREFIX,
+    REPLACED_KIND,
     MappingEnvSource,
+    ReplacedByEnvironment,
     SettingsSection,
     read_toml,
     unparsed_env,
@@ -35,6 +37,7 @@ from c3_matcher.engines.providers import canonical_provider_options, configured_
 from c3_matcher.engines.store import default_engine_dir, usable_directory
 from c3_matcher.errors import ConfigurationError
 from c3_matcher.fdr.jsonl import MIN_BYTES, PENDING_BYTES, SEGMENT_BYTES
+from c3_matcher.logs import log_event
 from c3_matcher.plugins.types import StrategyDefaults
 from c3_matcher.user_dirs import user_cache_dir, user_data_dir
 
@@ -326,6 +329,12 @@ class C3Settings(BaseSettings):
     lightglue: LightGlueSettings = LightGlueSettings()
     fdr: FdrSettings = FdrSettings()
     logging: LoggingSettings = LoggingSettings()
+    _replaced: ReplacedByEnvironment = PrivateAttr(default_factory=ReplacedByEnvironment)
+
+    @property
+    def replaced_by_environment(self) -> ReplacedByEnvironment:
+        """The file's values a table set in the environment left out (``load_settings``)."""
+        return self._replaced
 
     @classmethod
     def settings_customise_sources(
@@ -370,18 +379,22 @@ def _defaulted(section: _S, defaults: StrategyDefaults, keys: tuple[str, ...]) -
 def load_settings(
     toml_path: Path | None = None, env: Mapping[str, str] | None = None
 ) -> C3Settings:
-    """Load and validate the configuration: defaults < the TOML file < the environment
-    (``env``, default ``os.environ``, only read), a value set in the environment replacing the
-    file's whole (a table too); raise ``ConfigurationError`` naming every bad field."""
+    """Load and validate the configuration: defaults < the TOML file < the environment (``env``,
+    default ``os.environ``, only read), whose value replaces the file's whole, a table too (what
+    it leaves out: ``replaced_by_environment``, logged); ``ConfigurationError`` names bad fields."""
     environ = dict(os.environ if env is None else env)
     source = f"{toml_path} + environment" if toml_path else "environment"
     data = read_toml(toml_path, source) if toml_path is not None else {}
-    data = without_env_values(data, environ)
+    data, replaced = without_env_values(data, environ, toml_path)
     try:
         sources = (MappingEnvSource(C3Settings, environ), InitSettingsSource(C3Settings, data))
-        return C3Settings(_build_sources=(sources, data))  # environment > TOML > defaults
+        settings = C3Settings(_build_sources=(sources, data))  # environment > TOML > defaults
     except ValidationError as exc:
         raise ConfigurationError(source, validation_problems(exc)) from None
     except (SettingsError, ValueError, TypeError, RecursionError) as exc:
         # e.g. C3_MATCHER_MATCHER__OPTIONS=not json: pydantic-settings fails before validation
         raise ConfigurationError(source, unparsed_env(exc, environ)) from None
+    settings._replaced = replaced
+    if replaced.values:
+        log_event("WARNING", REPLACED_KIND, replaced.line(), **replaced.fields())
+    return settings

@@ -3,7 +3,8 @@ names and the environment variables (``C3_MATCHER_``, ``__`` between levels, upp
 documented) of a given mapping or ``os.environ``, never changed; unknown keys named so that a
 typo does not pass silently, and so is a variable spelt in another case (two spellings of one
 setting would otherwise both be read, the later one winning); a value the environment gives
-replaces the file's whole (a table too); a relative path made absolute against the working
+replaces the file's whole (a table too), the file's values it leaves out named
+(``ReplacedByEnvironment``); a relative path made absolute against the working
 directory (a file's and the environment's, as a command's path flags are read), so that
 ``config`` and every message name the place meant."""
 
@@ -15,6 +16,7 @@ import os
 import re
 import tomllib
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, get_args
 
@@ -27,8 +29,11 @@ from c3_matcher.errors import ConfigurationError
 __all__ = [
     "ENV_PREFIX",
     "PROCESS_SWITCHES",
+    "REPLACED_KIND",
     "UNKNOWN_SETTING",
     "MappingEnvSource",
+    "ReplacedByEnvironment",
+    "ReplacedValue",
     "SettingsSection",
     "read_toml",
     "split_config",
@@ -232,25 +237,100 @@ def _not_a_switch(name: str, sections: Mapping[str, Any]) -> str:
     return f"{UNKNOWN_SETTING}: {form}, and the only other variables read are {switches}"
 
 
-def without_env_values(data: Mapping[str, Any], env: Mapping[str, str]) -> dict[str, Any]:
-    """``data`` (the file's tables) less every value ``env`` sets, so that the environment's
+REPLACED_KIND: Final = "c3.config.file_values_replaced"
+"""The kind of the WARNING record that names the file's values the environment left out."""
+
+
+@dataclass(frozen=True, slots=True)
+class ReplacedValue:
+    """A value of the configuration file that no longer applies: the file sets ``key`` (dotted)
+    to ``value``, and ``variable`` replaces the table holding it whole without giving it."""
+
+    key: str
+    value: Any
+    variable: str
+
+
+@dataclass(frozen=True, slots=True)
+class ReplacedByEnvironment:
+    """The values of the configuration ``file`` that the environment replaced (none: nothing of
+    the file was left out, or no file)."""
+
+    file: Path | None = None
+    values: tuple[ReplacedValue, ...] = ()
+
+    def line(self) -> str:
+        """One line naming the file, each value left out and the variable that left it out."""
+        named = "; ".join(f"{v.key} ({v.variable})" for v in self.values)
+        return (
+            f"{self.file}: these values of the file do not apply, a table set in the environment "
+            f"replacing the file's whole: {named}; to keep one, give it in that variable too"
+        )
+
+    def fields(self) -> dict[str, list[str]]:
+        """The dotted keys left out and the variable that left each out, as a record's fields."""
+        return {
+            "keys": [v.key for v in self.values],
+            "variables": [v.variable for v in self.values],
+        }
+
+    def comments(self) -> str:
+        """A TOML comment line per value left out, each ending in a newline, naming the file and
+        the variable (in ASCII, control characters escaped as in JSON: a comment holds none)."""
+        file = json.dumps(str(self.file))[1:-1]
+        return "".join(
+            f"# {v.key} = {json.dumps(v.value, default=str)} from {file}: "
+            f"replaced by {v.variable}\n"
+            for v in self.values
+        )
+
+
+def without_env_values(
+    data: Mapping[str, Any], env: Mapping[str, str], file: Path | None = None
+) -> tuple[dict[str, Any], ReplacedByEnvironment]:
+    """``data`` (the tables of ``file``) less every value ``env`` sets, so that the environment's
     replaces it whole rather than being merged into it key by key: a variable naming a setting
     or a key below one (``C3_MATCHER_MATCHER__OPTIONS``, ``C3_MATCHER_MATCHER__OPTIONS__XFEAT``)
     takes the file's value at that place out, a table with all its keys; a section's JSON
     (``C3_MATCHER_MATCHER='{"options": ...}'``) takes out each setting it gives. The section's
-    other settings still come from the file."""
+    other settings still come from the file. Second: the file's values taken out that the
+    environment does not give again (a key of a table it replaces without that key)."""
     out = _copied(data)
+    replaced: list[ReplacedValue] = []
     for key, value in env.items():
         if not key.upper().startswith(ENV_PREFIX):
             continue
         path = key[len(ENV_PREFIX) :].lower().split("__")
-        places = [path] if len(path) > 1 else [[path[0], k] for k in _json_keys(value)]
-        for *above, last in places:
+        given = _json_object(value)
+        if len(path) > 1:
+            places = [(path, value if given is None else given)]
+        else:
+            places = [([path[0], k], v) for k, v in (given or {}).items()]
+        for (*above, last), there in places:
             table: Any = out
             for part in above:
                 table = table.get(part) if isinstance(table, dict) else None
-            if isinstance(table, dict):
-                table.pop(last, None)
+            if isinstance(table, dict) and last in table:
+                dotted = ".".join((*above, last))
+                replaced += _left_out(table.pop(last), there, dotted, key)
+    values = tuple(sorted(replaced, key=lambda v: (v.key, v.variable)))
+    return out, ReplacedByEnvironment(file, values)
+
+
+def _left_out(file_value: Any, given: Any, key: str, variable: str) -> list[ReplacedValue]:
+    """Each value of ``file_value`` (at dotted ``key``) that ``given``, the value ``variable``
+    sets in its place, does not set again."""
+    if not isinstance(file_value, dict):
+        return []
+    out = []
+    for name, value in file_value.items():
+        dotted = f"{key}.{name}"
+        if isinstance(given, dict) and name in given:
+            out += _left_out(value, given[name], dotted, variable)
+        elif isinstance(value, dict):
+            out += _left_out(value, None, dotted, variable)
+        else:
+            out.append(ReplacedValue(dotted, value, variable))
     return out
 
 
@@ -259,14 +339,14 @@ def _copied(data: Mapping[str, Any]) -> dict[str, Any]:
     return {k: _copied(v) if isinstance(v, Mapping) else v for k, v in data.items()}
 
 
-def _json_keys(value: str) -> list[str]:
-    """The keys of ``value`` read as a JSON object; none when it is not one (pydantic-settings
-    then names the variable)."""
+def _json_object(value: str) -> dict[str, Any] | None:
+    """``value`` read as a JSON object; None when it is not one (pydantic-settings then names
+    the variable)."""
     try:
         given = json.loads(value)
     except (ValueError, RecursionError):
-        return []
-    return [str(k) for k in given] if isinstance(given, dict) else []
+        return None
+    return given if isinstance(given, dict) else None
 
 
 def unparsed_env(exc: Exception, env: Mapping[str, str]) -> list[tuple[str, str]]:

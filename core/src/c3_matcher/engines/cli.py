@@ -86,6 +86,7 @@ def _list(args: argparse.Namespace, command: CommandContext) -> int:
         m = r.manifest
         status = "ok" if r.ok else f"PROBLEM: {r.problem}"
         command.out(f"{r.path.name}  [{status}]")
+        _say_build(command, r.command if not r.ok else None)
         if m is not None:
             command.out(
                 f"    {m.model}/{m.variant} {m.kind} {m.precision} opset {m.opset}; "
@@ -120,7 +121,14 @@ def _verify(args: argparse.Namespace, command: CommandContext) -> int:
     else:
         for o in outcomes:
             command.out(f"{'OK  ' if o.ok else 'FAIL'} {o.path.name}: {o.detail}")
+            _say_build(command, o.command if not o.ok else None)
     return EXIT_OK if outcomes and all(o.ok for o in outcomes) else EXIT_FAILURE
+
+
+def _say_build(command: CommandContext, build: str | None) -> None:
+    """Under an engine's row, the command that builds it anew (``build``; None: nothing)."""
+    if build is not None:
+        command.out(f"    build it with `{build}`")
 
 
 def _missing(
@@ -135,7 +143,7 @@ def _missing(
         except EngineError as exc:
             path = Path(str(exc.path))
             if path not in seen:
-                rows.append(VerifyOutcome(path, False, f"missing: {exc.reason}"))
+                rows.append(VerifyOutcome(path, False, f"missing: {exc.reason}", exc.command))
     return rows
 
 

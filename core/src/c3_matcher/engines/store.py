@@ -121,11 +121,12 @@ def usable_directory(path: Path) -> Path:
 class EngineRecord:
     """One ``*.onnx`` file in the directory: its manifest, or the problem that prevents reading
     it (``problem`` is ``None`` when the name and manifest check out; the hash is checked only by
-    ``EngineStore.verify`` and at load time)."""
+    ``EngineStore.verify`` and at load time) and the command that builds it anew (``command``)."""
 
     path: Path
     manifest: EngineManifest | None
     problem: str | None
+    command: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -134,11 +135,13 @@ class EngineRecord:
 
 @dataclass(frozen=True, slots=True)
 class VerifyOutcome:
-    """Result of re-hashing one engine against its manifest."""
+    """Result of re-hashing one engine against its manifest; a failure's ``command`` builds it
+    anew (None: no build names it)."""
 
     path: Path
     ok: bool
     detail: str
+    command: str | None = None
 
 
 class EngineStore:
@@ -260,7 +263,7 @@ class EngineStore:
                     partial: EngineManifest | None = read_manifest(path)
                 except EngineError:
                     partial = None
-                records.append(EngineRecord(path, partial, reason))
+                records.append(EngineRecord(path, partial, reason, _rebuild(path)))
                 continue
             records.append(EngineRecord(path, manifest, None))
         return records
@@ -274,16 +277,13 @@ class EngineStore:
                 manifest_file.name.removesuffix(MANIFEST_SUFFIX) + ENGINE_SUFFIX
             )
             if not engine.is_file():
-                outcomes.append(
-                    VerifyOutcome(
-                        engine, False, f"engine file missing (manifest {manifest_file.name})"
-                    )
-                )
+                said = f"engine file missing (manifest {manifest_file.name})"
+                outcomes.append(VerifyOutcome(engine, False, said, _rebuild(engine)))
         for path in self._files():
             try:
                 manifest = intact_engine(path)
             except EngineError as exc:
-                outcomes.append(VerifyOutcome(path, False, exc.reason))
+                outcomes.append(VerifyOutcome(path, False, exc.reason, _rebuild(path)))
                 continue
             outcomes.append(VerifyOutcome(path, True, f"sha256 {manifest.file_sha256[:16]}... ok"))
         return outcomes
@@ -292,6 +292,15 @@ class EngineStore:
 def _build_only(model: str, variant: str) -> str:
     """The command that builds ``model``/``variant`` (and removes its damaged builds)."""
     return f"{BUILD_COMMAND} --only {model}/{variant}"
+
+
+def _rebuild(path: Path) -> str | None:
+    """``_build_only`` of the model/variant ``path`` is named as a build of; None otherwise."""
+    try:
+        name = EngineName.parse(path.name)
+    except ValueError:
+        return None
+    return _build_only(name.model, name.variant)
 
 
 def intact_engine(path: Path, *, check_hash: bool = True) -> EngineManifest:
