@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from c3_matcher.context import CommandContext
+from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run import figure
 from c3_matcher_tools.run.acceptance import (
     BARS,
@@ -29,9 +30,9 @@ from c3_matcher_tools.run.evaluation import (
 from c3_matcher_tools.run.flight import features_line
 from c3_matcher_tools.run.outputs import EVAL_RUN
 from c3_matcher_tools.run.records import FrameStatus
-from c3_matcher_tools.run.scoring import telemetry_lines
+from c3_matcher_tools.run.scoring import damaged_store_line, dropped_lines, telemetry_lines
 
-__all__ = ["print_flight_table", "print_summary_table", "table_row"]
+__all__ = ["print_flight_table", "print_summary_table", "say_dropped", "table_row"]
 
 
 def print_flight_table(
@@ -73,6 +74,7 @@ def print_flight_table(
         f"false-conf: picks whose inliers miss ground truth by > {WRONG_FIX_PX:g} px (bar: zero); "
         "other tile: picks of a candidate other than the true tile that still place the frame right"
     )
+    _print_it04_case(ctx, rows)
     _print_unreadable(ctx, rows)
     _print_tiles_unread(ctx, rows)
     ctx.out(f"report {out / EVAL_RUN.report}, plots {out}")
@@ -80,6 +82,17 @@ def print_flight_table(
     for r in rows:
         if isinstance(r, StrategyEval):
             _print_links(ctx, r, sources.get(r.strategy))
+
+
+def _print_it04_case(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:
+    """Next to each strategy's C3-IT-04 verdict, the case its frames measured, and plainly
+    where that is not the criterion's (:class:`~c3_matcher_tools.run.acceptance.CorrectTile`)."""
+    for r in (r for r in rows if isinstance(r, StrategyEval)):
+        it04, case = r.acceptance.correct_tile, r.acceptance.correct_tile.case
+        if case is not None:
+            verdict = {True: "pass", False: "missed", None: "nothing to measure"}[it04.passed]
+            short = "" if case.shortfall is None else f": {case.shortfall}"
+            ctx.out(f"{r.strategy}: C3-IT-04 {verdict} ({case.measured}){short}")
 
 
 def _print_unreadable(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:
@@ -177,3 +190,16 @@ def print_summary_table(ctx: CommandContext, summary: Sequence[SummaryRow]) -> N
             f"{strategy:18} {'all flights':{w}} {rate} correct tile, "
             f"{wrong}/{scored} false-confident"
         )
+
+
+def say_dropped(
+    ctx: CommandContext, json_out: bool, dataset: FlightDataset, rows: Sequence[StrategyRow]
+) -> None:
+    """What each strategy that ran dropped (:func:`dropped_lines`), under the table; with
+    ``json_out`` (stdout is the JSON document) only that the tile store is damaged, on stderr."""
+    for r in (r for r in rows if isinstance(r, StrategyEval)):
+        if not json_out:
+            for line in dropped_lines(r.summary, dataset.store_path):
+                ctx.out(f"{r.strategy}: {line}")
+        elif (damaged := damaged_store_line(r.summary, dataset.store_path)) is not None:
+            ctx.err(f"c3-matcher eval: {r.strategy} on {dataset.name}: {damaged}")

@@ -19,6 +19,8 @@ from typing import Any, ClassVar, Literal, cast
 
 import numpy as np
 
+from c3_matcher_tools.dataset.format import FrameRecord
+from c3_matcher_tools.run.correct_tile_case import CorrectTileCase, correct_tile_case
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = [
@@ -32,6 +34,7 @@ __all__ = [
     "Acceptance",
     "Bar",
     "CorrectTile",
+    "CorrectTileCase",
     "Determinism",
     "FalseConfident",
     "Headline",
@@ -39,6 +42,7 @@ __all__ = [
     "InlierError",
     "Measure",
     "Verdict",
+    "correct_tile_case",
     "inliers_within_bound",
     "is_right_fix_other_tile",
     "is_wrong_fix",
@@ -111,8 +115,10 @@ BARS = {
 WRONG_FIX_PX = 4 * IT03_BAR_PX
 """A returned pick is a wrong fix when its inliers' mean error against ground truth exceeds
 this (ORIGINAL frame px): four times the IT-03 bar, a scale-free bound far below any
-distractor's offset (>= 350 m, over 100 frame px on every shipped flight) and above the
-per-inlier scatter of a right but imprecise fix (IT-03 means of 2-4 px across seasons)."""
+distractor's offset (its tile centre from the true tile's, nearest per flight: 624-1062 m on
+the NAIP flights, 41-132 m on zurich_z16, manila_grey_z19 and gorinchem_z18; 240 frame px or
+more on every shipped flight, docs/accuracy.md) and above the per-inlier scatter of a right
+but imprecise fix (IT-03 means of 2-4 px across seasons)."""
 
 
 def inliers_within_bound(outcome: FrameOutcome) -> bool | None:
@@ -237,16 +243,35 @@ class InlierError(Measure):
 
 @dataclass(frozen=True)
 class CorrectTile(Measure):
-    """C3-IT-04: the true-tile frames whose best candidate is the true tile."""
+    """C3-IT-04: the true-tile frames whose best candidate is the true tile; beside the figures
+    (never judged) ``case``, the case those frames are (None: not measured, no frames given)."""
 
     name: ClassVar[str] = "C3-IT-04"
     correct_rate: float
     correct: int
     frames: int
+    case: CorrectTileCase | None = None
 
     @property
     def passed(self) -> bool | None:
         return IT04_BAR.judge(self.correct_rate)
+
+    def to_json(self) -> dict[str, Any]:
+        """The figures, the case's where measured (``max_tilt_deg``, ``nearest_distractor_m``,
+        ``criterion_case`` and ``case`` in words) and ``"pass"``."""
+        figures: dict[str, Any] = {
+            "correct_rate": self.correct_rate,
+            "correct": self.correct,
+            "frames": self.frames,
+        }
+        if self.case is not None:
+            figures |= {
+                "max_tilt_deg": self.case.max_tilt_deg,
+                "nearest_distractor_m": self.case.nearest_distractor_m,
+                "criterion_case": self.case.criterion_case,
+                "case": self.case.said,
+            }
+        return {**figures, "pass": self.passed}
 
 
 @dataclass(frozen=True)
@@ -334,11 +359,17 @@ class Acceptance:
         )
 
 
-def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Acceptance:
+def metrics(
+    run1: Sequence[FrameOutcome],
+    run2: Sequence[FrameOutcome],
+    frames: Sequence[FrameRecord] | None = None,
+) -> Acceptance:
     """The C3-IT figures and pass flags of one strategy (see the module docstring): a flag is
     None where its measure had nothing to measure. A frame whose image could not be read is
     the camera's loss, not the matcher's: no measure counts it; nor does C3-IT-05 count a frame
-    whose every candidate was dropped for its tile (:class:`AbsentRaised`)."""
+    whose every candidate was dropped for its tile (:class:`AbsentRaised`). ``frames``: the
+    flight's records, of which those C3-IT-04 counts give its case (:func:`correct_tile_case`;
+    None: not measured)."""
     scored = [o for o in run1 if o.scored]
     present = [o for o in scored if o.true_present]
     absent = [o for o in scored if not o.true_present]
@@ -350,10 +381,21 @@ def metrics(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Accep
         InlierCount(p5, len(present)),
         _it02(run1, run2),
         _it03(present),
-        CorrectTile(rate, correct, len(present)),
+        CorrectTile(
+            rate,
+            correct,
+            len(present),
+            None if frames is None else correct_tile_case(_records(frames, present)),
+        ),
         _it05(absent),
         _false_confident(scored),
     )
+
+
+def _records(frames: Sequence[FrameRecord], outcomes: Sequence[FrameOutcome]) -> list[FrameRecord]:
+    """The records of ``frames`` whose outcome is among ``outcomes`` (by frame index)."""
+    counted = {o.index for o in outcomes}
+    return [f for f in frames if f.index in counted]
 
 
 def _it02(run1: Sequence[FrameOutcome], run2: Sequence[FrameOutcome]) -> Determinism:

@@ -10,9 +10,11 @@ refused before anything runs (:func:`check_output_dirs`)."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
+import os
 import sys
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,6 +27,8 @@ from c3_matcher.atomic import (
     write_text_atomically,
 )
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.fdr.files import remove_log
+from c3_matcher.fdr.pending import lock_path
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
 from c3_matcher_tools.extras import install_line
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
@@ -43,6 +47,7 @@ __all__ = [
     "check_output_dirs",
     "exclusive_output_dir",
     "flight_report",
+    "forget_earlier_strategies",
     "forget_previous_run",
     "mark_output_dirs",
     "mark_stopped",
@@ -304,6 +309,55 @@ def forget_previous_run(out: Path, files: Sequence[str] = RUN_FILES) -> None:
     stopped part-way leaves its own FDR and log, never beside another run's results."""
     for name in files:
         (out / name).unlink(missing_ok=True)
+
+
+_STRATEGY_FILES = (*(f for f in RUN_FILES if f != REPLAY_RUN.report), "matcher.log")
+"""What eval's run of a strategy writes in its directory (and its second run's) beside the FDR."""
+
+
+def forget_earlier_strategies(out: Path, kept: Collection[str], *, log: str) -> None:
+    """The directory of each strategy the earlier eval's report in ``out`` names (ran, failed
+    or not run) but ``kept`` (this run's: each replaces its own), emptied of what eval's runs
+    write there (:data:`_STRATEGY_FILES`, the FDR ``log``; its second run's, ``run2``, too) and
+    removed when that empties it: a rerun of fewer strategies leaves no earlier one's results
+    under its mark. A file no run writes stays, as does a link, and a run whose FDR another
+    process writes (its lock held)."""
+    report = _json_file(out / EVAL_RUN.report)
+    lists = (report.get("strategies"), report.get("not_run")) if isinstance(report, dict) else ()
+    named = [
+        e.get("strategy") if isinstance(e, dict) else e
+        for s in lists
+        if isinstance(s, list)
+        for e in s
+    ]
+    for name in dict.fromkeys(n for n in named if isinstance(n, str) and n not in kept):
+        if name_problem(name) is None:  # one plain path component below ``out``
+            _forget_run_dir(out / name / "run2", log)  # inside it, first
+            _forget_run_dir(out / name, log)
+
+
+def _forget_run_dir(directory: Path, log: str) -> None:
+    """What a run wrote in ``directory`` removed, its FDR's lock held (as a recorder holds it to
+    remove an earlier log), then the directory if that empties it."""
+    if directory.is_symlink() or not directory.is_dir():
+        return
+    lock = lock_path(directory / log)
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+    except OSError:  # a link, or not writable: left as it is
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:  # another process writes the FDR
+        os.close(fd)
+        return
+    try:
+        remove_log(directory / log, directory / f"{log}.torn")
+        forget_previous_run(directory, (*_STRATEGY_FILES, lock.name))
+        with contextlib.suppress(OSError):  # not empty: a file no run writes is left
+            directory.rmdir()
+    finally:
+        os.close(fd)
 
 
 def _refused(directory: Path) -> Callable[[], None]:
