@@ -9,8 +9,6 @@ child says what happened through a pipe, and one that has said nothing after ``D
 from __future__ import annotations
 
 import os
-import select
-import signal
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -35,10 +33,11 @@ from c3_matcher.testing import (
 )
 from c3_matcher.tilestore.mbtiles import MBTilesStore, TileStoreUnusableError
 
+from .forking import DEADLINE_S, in_forked_child
+
 REPO = Path(__file__).resolve().parents[2]
 STORE = REPO / "data" / "flights" / "naip_demo" / "tiles.mbtiles"
 SCRIPT = [ScriptedCandidate(100), ScriptedCandidate(90)]
-DEADLINE_S = 20.0  # a close that has not returned by then never will: the child is hung
 PAD = "x" * 300  # four records pass the 1024-byte segments: the parent's log rotates
 
 
@@ -77,29 +76,8 @@ class _StoppingClock(FakeClock):
 
 
 def _in_forked_child(work: Callable[[], str]) -> str:
-    """What ``work`` returned in a forked child (or the error it raised, as ``Type: message``);
-    a child that says nothing within ``DEADLINE_S`` is killed and the test fails: it hung."""
-    read_end, write_end = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: never back into the test runner
-        try:
-            os.close(read_end)
-            try:
-                said = work()
-            except BaseException as exc:
-                said = describe(exc)
-            os.write(write_end, said.encode())
-        finally:
-            os._exit(0)
-    os.close(write_end)
-    with os.fdopen(read_end, "rb") as pipe:
-        if not select.select([pipe], [], [], DEADLINE_S)[0]:
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-            pytest.fail(f"the forked child hung: it said nothing within {DEADLINE_S} s")
-        said = pipe.read().decode()
-    assert os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) == 0
-    return said
+    """What ``work`` returned in a forked child (:func:`.forking.in_forked_child`)."""
+    return in_forked_child(work)[1]
 
 
 def _forked_while_stopped(

@@ -8,7 +8,6 @@ is intact. Real ``os.fork``; the child says what happened through a pipe."""
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +29,8 @@ from c3_matcher.testing import (
     pipeline_strategy,
 )
 
+from .forking import in_forked_child
+
 SCRIPT = [ScriptedCandidate(100), ScriptedCandidate(90)]
 
 
@@ -37,28 +38,6 @@ SCRIPT = [ScriptedCandidate(100), ScriptedCandidate(90)]
 def _clean_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
         monkeypatch.delenv(key)
-
-
-def _in_forked_child(work: Callable[[], str]) -> tuple[int, str]:
-    """Run ``work`` in a forked child: its pid and what ``work`` returned, or the error it
-    raised as ``TypeName: message``."""
-    read_end, write_end = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: never back into the test runner
-        try:
-            os.close(read_end)
-            try:
-                said = work()
-            except BaseException as exc:
-                said = describe(exc)
-            os.write(write_end, said.encode())
-        finally:
-            os._exit(0)
-    os.close(write_end)
-    with os.fdopen(read_end, "rb") as pipe:
-        said = pipe.read().decode()
-    assert os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) == 0
-    return pid, said
 
 
 def _root(path: Path) -> ComposedRoot:
@@ -100,7 +79,7 @@ def test_a_forked_copy_of_a_matcher_is_refused_and_the_parents_log_stays_whole(t
             root.close()  # the copy's: the parent's frames, lock and log go on
         return "matched"
 
-    child, said = _in_forked_child(child_matches)
+    child, said = in_forked_child(child_matches)
     assert said.startswith("MatcherClosedError: matcher 'fake' cannot match here: ")
     assert said.endswith("(health updates: 2)")
     _names_both_processes(said, child)
@@ -124,7 +103,7 @@ def test_a_recorder_refuses_writes_from_a_forked_child_and_keeps_its_lock(tmp_pa
             recorder.close()  # the copy's descriptors go; the parent's lock and log stay
         return "written"
 
-    child, said = _in_forked_child(child_writes)
+    child, said = in_forked_child(child_writes)
     assert said.startswith(f"FdrWriteError: FDR {path}: ")
     _names_both_processes(said, child)
     for _ in range(5):  # seq goes on from the parent's own, across rotations

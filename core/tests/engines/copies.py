@@ -51,21 +51,26 @@ def strategy_engines(
     return found
 
 
-def other_build(engine: Path, **changes: Any) -> Path:
-    """Another build of ``engine`` beside it: its manifest with ``changes``, consistent with
-    them (build key recomputed, file named by it), its file a link to (else a copy of) it."""
+def other_build(
+    engine: Path, *, into: Path | None = None, build_key: str | None = None, **changes: Any
+) -> Path:
+    """Another build of ``engine``, in ``into`` (default: beside it): its manifest with
+    ``changes``, consistent with them (build key recomputed, file named by it) unless
+    ``build_key`` records another (an earlier c3-matcher's, whose key covered less), its file a
+    link to (else a copy of) it."""
     manifest = EngineManifest.from_json(json.loads(manifest_path_for(engine).read_text()))
     manifest = dataclasses.replace(manifest, **changes)
-    key = manifest.recomputed_key()
+    key = build_key or manifest.recomputed_key()
     name = EngineName.parse(engine.name)
     other = EngineName.from_build_key(
         name.model, name.variant, name.precision, name.input_rule, name.opset, key
     )
-    link_or_copy(engine, engine.with_name(other.filename))
+    there = (into or engine.parent) / other.filename
+    link_or_copy(engine, there)
     dataclasses.replace(manifest, file=other.filename, build_key=key).write(
-        engine.with_name(other.manifest_filename)
+        there.with_name(other.manifest_filename)
     )
-    return engine.with_name(other.filename)
+    return there
 
 
 def exporter_of(engine: Path) -> dict[str, Any]:

@@ -9,17 +9,14 @@ version wrote it: the same fields under another recorded key, the files named by
 
 from __future__ import annotations
 
-import dataclasses
-import json
 from pathlib import Path
 
 import pytest
 
 from c3_matcher.cli import main
-from c3_matcher.engines.manifest import EngineManifest
-from c3_matcher.engines.naming import EngineName, manifest_path_for
+from c3_matcher.engines.naming import manifest_path_for
 
-from .copies import link_or_copy
+from .copies import link_or_copy, other_build
 
 BUILD_DISK = "    build it with `c3-matcher engines build --only disk/depth`"
 
@@ -28,17 +25,7 @@ def _earlier_build(engine: Path, into: Path) -> Path:
     """``engine`` linked into ``into`` (made here) as an earlier c3-matcher built it: its
     manifest's fields unchanged, its recorded build key (and so its file name) another."""
     into.mkdir()
-    manifest = EngineManifest.from_json(json.loads(manifest_path_for(engine).read_text()))
-    key = "85ec4024b9" + "0" * 54
-    name = EngineName.parse(engine.name)
-    earlier = EngineName.from_build_key(
-        name.model, name.variant, name.precision, name.input_rule, name.opset, key
-    )
-    link_or_copy(engine, into / earlier.filename)
-    dataclasses.replace(manifest, file=earlier.filename, build_key=key).write(
-        into / earlier.manifest_filename
-    )
-    return into / earlier.filename
+    return other_build(engine, into=into, build_key="85ec4024b9" + "0" * 54)
 
 
 @pytest.fixture()
