@@ -30,7 +30,8 @@ from c3_matcher.tilestore.features import (
     MapFeatureStore,
     WindowFeatures,
     covered_tiles,
-    serve_window,
+    features_only,
+    served_window,
     sidecar_path,
     stored_tile_digest,
     window_digest,
@@ -109,7 +110,7 @@ def _read_only(monkeypatch: pytest.MonkeyPatch, folder: Path) -> None:
 
 def _serve(source: MBTilesStore, cell: Cell) -> object:
     origin = (cell[0] * STRIDE, cell[1] * STRIDE)
-    return serve_window(source, REQUEST, ZOOM, origin, (WINDOW, WINDOW))  # type: ignore[arg-type]
+    return features_only(served_window(source, REQUEST, ZOOM, origin, (WINDOW, WINDOW)))  # type: ignore[arg-type]
 
 
 def test_a_wal_sidecar_on_read_only_media_is_served_and_nothing_is_made_beside_it(

@@ -31,7 +31,8 @@ from c3_matcher.tilestore.features import (
     FeatureStoreUnavailableError,
     MapFeatureStore,
     WindowFeatures,
-    serve_window,
+    features_only,
+    served_window,
     sidecar_path,
 )
 from c3_matcher.tilestore.files import open_failure
@@ -147,7 +148,9 @@ def test_the_flight_extracts_instead_of_an_unopenable_sidecar(
     with MBTilesStore(path) as source:
         x, y = min(source.tiles(ZOOM))
         with pytest.raises(FeatureStoreUnavailableError, match="permission denied"):
-            serve_window(source, REQUEST, ZOOM, (x * 256, y * 256), (WINDOW, WINDOW))  # type: ignore[arg-type]
+            features_only(
+                served_window(source, REQUEST, ZOOM, (x * 256, y * 256), (WINDOW, WINDOW))
+            )  # type: ignore[arg-type]
         assert source.tile_bytes(ZOOM, x, y) is not None
 
 
@@ -224,9 +227,12 @@ def test_the_flight_says_a_malformed_set_row_once_then_extracts(sidecar: Path) -
         x, y = min(source.tiles(ZOOM))
         origin = (x * 256, y * 256)
         with pytest.raises(SidecarDamagedError, match="window_px 'abc' is not an integer"):
-            serve_window(source, REQUEST, ZOOM, origin, (WINDOW, WINDOW))  # type: ignore[arg-type]
+            served_window(source, REQUEST, ZOOM, origin, (WINDOW, WINDOW))  # type: ignore[arg-type]
         for _ in range(3):  # said once: every later candidate extracts without a word
-            assert serve_window(source, REQUEST, ZOOM, origin, (WINDOW, WINDOW)) is None  # type: ignore[arg-type]
+            assert (
+                features_only(served_window(source, REQUEST, ZOOM, origin, (WINDOW, WINDOW)))
+                is None
+            )  # type: ignore[arg-type]
 
 
 def test_an_intact_set_row_reads_as_written(sidecar: Path) -> None:

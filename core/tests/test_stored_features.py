@@ -29,7 +29,8 @@ from c3_matcher.tilestore.features import (
     StoredFeaturesCorruptError,
     WindowFeatures,
     covered_tiles,
-    serve_window,
+    features_only,
+    served_window,
     sidecar_path,
     tile_digest,
     window_digest,
@@ -93,7 +94,7 @@ def store(tmp_path: Path) -> Iterator[tuple[MBTilesStore, tuple[int, int]]]:
 
 
 def _serve(source: MBTilesStore, origin: tuple[int, int], request: FeatureRequest = REQUEST):
-    return serve_window(source, request, ZOOM, origin, (WINDOW, WINDOW))  # type: ignore[arg-type]
+    return features_only(served_window(source, request, ZOOM, origin, (WINDOW, WINDOW)))  # type: ignore[arg-type]
 
 
 def test_a_grid_window_is_served_as_stored_and_a_budget_is_its_prefix(store) -> None:

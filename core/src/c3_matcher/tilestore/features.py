@@ -89,7 +89,6 @@ __all__ = [
     "features_only",
     "grid_index",
     "row_checksum",
-    "serve_window",
     "served_window",
     "set_id_for",
     "sidecar_path",
@@ -144,17 +143,6 @@ class StoredWindowHandle(Protocol):
     :func:`served_window` gives them."""
 
     def stored_window(self, request: FeatureRequest) -> Features | NoStoredSet | None: ...
-
-
-def serve_window(
-    source: FeatureSource,
-    request: FeatureRequest,
-    zoom: int,
-    origin: tuple[int, int],
-    size: tuple[int, int],
-) -> Features | None:
-    """The window's stored features, or None: :func:`served_window`, without why not."""
-    return features_only(served_window(source, request, zoom, origin, size))
 
 
 def features_only(served: Features | NoStoredSet | None) -> Features | None:

@@ -101,7 +101,7 @@ class StoredTileHandle:
 
     def stored_features(self, request: FeatureRequest) -> Features | None:
         """This tile's features from the store's precomputed map features (tile px), or None:
-        see :func:`c3_matcher.tilestore.features.serve_window`."""
+        see :func:`c3_matcher.tilestore.features.served_window`."""
         from c3_matcher.tilestore.features import features_only
 
         return features_only(self.stored_window(request))
@@ -166,7 +166,7 @@ class MosaicTileHandle:
 
     def stored_features(self, request: FeatureRequest) -> Features | None:
         """The window's features from the store's precomputed map features (window
-        px), or None: see :func:`c3_matcher.tilestore.features.serve_window`."""
+        px), or None: see :func:`c3_matcher.tilestore.features.served_window`."""
         from c3_matcher.tilestore.features import features_only
 
         return features_only(self.stored_window(request))
