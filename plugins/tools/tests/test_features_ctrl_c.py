@@ -15,6 +15,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -113,3 +114,37 @@ def test_a_stop_this_process_ignores_stays_ignored(monkeypatch: pytest.MonkeyPat
         pytest.fail("an ignored SIGINT stopped the block")
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+@pytest.mark.slow
+def test_a_stop_taken_and_gone_on_from_still_ends_the_build_130_and_incomplete(
+    small_flight: Callable[..., Path],
+    engine_dir: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Ctrl-C that lands where a library takes the KeyboardInterrupt and goes on (as Dask's
+    result gathering did: the build ran to its end and said 0, its map read as complete)."""
+    import json
+
+    from c3_matcher.cli import main
+    from c3_matcher_tools.features import build
+
+    flight = small_flight("stopped")
+    monkeypatch.setenv(f"{ENV_PREFIX}ENGINES__DIRECTORY", str(engine_dir))
+    real_task, calls = build.task, []
+
+    def stopped_in_a_library(*args: Any) -> Any:
+        calls.append(args)
+        if len(calls) == 2:
+            with contextlib.suppress(KeyboardInterrupt):  # taken there, and gone on from
+                signal.raise_signal(signal.SIGINT)
+        return real_task(*args)
+
+    monkeypatch.setattr(build, "task", stopped_in_a_library)
+    argv = ["features", "build", str(flight), "--strategy", "xfeat", "--workers", "0"]
+    assert main([*argv, "--flight-candidates", "--batch", "1"]) == 130
+    assert capsys.readouterr().err.splitlines()[-1] == "c3-matcher: interrupted"
+    assert main(["features", "info", str(flight / "tiles.mbtiles"), "--json"]) == 0
+    (found,) = json.loads(capsys.readouterr().out)["sets"]
+    assert (found["complete"], found["windows"]) == (False, 1)  # stored before the stop, alone

@@ -52,7 +52,7 @@ from c3_matcher.tilestore.features import (
 from c3_matcher.tilestore.files import open_failure, set_aside
 from c3_matcher.tilestore.geo import TILE_PX
 from c3_matcher.tilestore.sidecar import SidecarDamagedError
-from c3_matcher_tools.features.cluster import cores_of, dask_client
+from c3_matcher_tools.features.cluster import Stops, cores_of, dask_client, stops_noted
 from c3_matcher_tools.features.lock import BuildRunningError, build_lock
 from c3_matcher_tools.features.windows import (
     WindowKey,
@@ -153,12 +153,12 @@ def _built(
     so a strategy refused (:class:`NotStorableError`, or a window its input rule would pad or
     resize: :func:`check_window`) leaves the sidecar untouched."""
     report, new = BuildReport(str(job.store), str(path)), False
-    with dask_client(workers, scheduler) as client:
+    with stops_noted() as stops, dask_client(workers, scheduler, stops) as client:
         local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
         facts = {s: _set_facts(job, s, client, local) for s in job.settings_json}
         for strategy, known in facts.items():  # a window the flight never serves: refused
             check_window(known.input_rule, job.window_px, strategy)
-        runner = _Runner(client, local, cores_of(client, workers))
+        runner = _Runner(client, local, cores_of(client, workers), stops)
         while True:
             try:
                 with _open_sidecar(path) as sidecar:
@@ -214,11 +214,12 @@ class _Job:
 @dataclass(frozen=True)
 class _Runner:
     """Where a build's tasks run: ``client``'s workers (None: this process, its backends held in
-    ``local``), with ``cores`` threads in all."""
+    ``local``), with ``cores`` threads in all; ``stops``: the Ctrl-C or SIGTERM that ends it."""
 
     client: Any
     local: BackendCache
     cores: int
+    stops: Stops
 
 
 def _resolved(
@@ -410,14 +411,21 @@ def _build_set(
 def _results(
     runner: _Runner, args: tuple[str, str, str, int, int], batches: Iterator[list[WindowKey]]
 ) -> Iterator[Any]:
-    """Each batch's task run (on the runner's workers, or here), its result as it finishes."""
+    """Each batch's task run (on the runner's workers, or here), its result as it finishes;
+    none after a stop came (:meth:`Stops.check`), nor the end of them: a stop that Dask took
+    while the results were collected, and went on from, ends the build all the same."""
     client = runner.client
     if client is None:
-        return (task(*args, b, runner.local) for b in batches)
-    from dask.distributed import as_completed
+        done = (task(*args, b, runner.local) for b in batches)
+    else:
+        from dask.distributed import as_completed
 
-    futures = [client.submit(task, *args, b, pure=False) for b in batches]
-    return (f.result() for f in as_completed(futures))
+        futures = as_completed([client.submit(task, *args, b, pure=False) for b in batches])
+        done = (f.result() for f in futures)  # each let go once its result is here
+    for result in done:
+        runner.stops.check()
+        yield result
+    runner.stops.check()
 
 
 def _refuse_damaged(

@@ -1,6 +1,8 @@
 """Where ``features build`` runs its tasks: a local Dask cluster, an existing one, or this
 process; started whole when Ctrl-C or SIGTERM comes while it starts, its worker processes
-deaf to both (this process stops them), and closed on exit."""
+deaf to both (this process stops them), and closed on exit. A stop that comes while a build
+runs is noted (:func:`stops_noted`): the build ends with it even where Dask took it and went
+on, and Dask's records of the teardown it causes are dropped (:func:`dask_client`)."""
 
 from __future__ import annotations
 
@@ -8,12 +10,21 @@ import logging
 import os
 import signal
 from collections.abc import Callable, Iterator
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack, contextmanager, suppress
+from dataclasses import dataclass, field
 from typing import Any
 
 from c3_matcher_tools.extras import install_line, not_installed
 
-__all__ = ["DASK_MODULES", "cores_of", "dask_client", "needs_dask", "stops_deferred"]
+__all__ = [
+    "DASK_MODULES",
+    "Stops",
+    "cores_of",
+    "dask_client",
+    "needs_dask",
+    "stops_deferred",
+    "stops_noted",
+]
 
 DASK_MODULES = ("dask", "distributed")
 """What the tools' ``dask`` extra installs (``dask[distributed]``): a cluster's workers."""
@@ -80,10 +91,63 @@ def _stop(stop: signal.Signals, handler: Any) -> None:
     raise KeyboardInterrupt
 
 
+@dataclass(frozen=True)
+class Stops:
+    """The stops (Ctrl-C, SIGTERM) that came while a build ran (:func:`stops_noted`), and the
+    handlers they were taken with."""
+
+    caught: list[signal.Signals] = field(default_factory=list)
+    handlers: dict[signal.Signals, Any] = field(default_factory=dict)
+
+    def came(self) -> bool:
+        return bool(self.caught)
+
+    def check(self) -> None:
+        """Take the first stop that came again, as its handler does (KeyboardInterrupt): a
+        stop that Dask took and went on from (the build's results still arriving) ends the
+        build all the same, never as one that finished."""
+        if self.caught:
+            _stop(self.caught[0], self.handlers.get(self.caught[0]))
+
+
 @contextmanager
-def dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
+def stops_noted() -> Iterator[Stops]:
+    """Ctrl-C or SIGTERM while the block runs is noted in the :class:`Stops` it is given and
+    taken at once by its handler, as before; a stop the block survived (taken where a library
+    swallowed it) is taken again when the block ends, as is one the block failed after (its
+    failure kept as the context). A signal this process ignores stays ignored; signals are
+    left alone off the main thread."""
+    stops = Stops()
+
+    def note(number: int, frame: Any) -> None:
+        stop = signal.Signals(number)
+        stops.caught.append(stop)
+        _stop(stop, stops.handlers.get(stop))
+
+    try:
+        for s in _STOPS:
+            if signal.getsignal(s) is not signal.SIG_IGN:  # a job started in the background
+                stops.handlers[s] = signal.signal(s, note)
+    except ValueError:  # not the main thread
+        pass
+    try:
+        yield stops
+    except BaseException as exc:
+        if not isinstance(exc, KeyboardInterrupt):  # a failure after a stop: the stop's doing
+            stops.check()
+        raise
+    else:
+        stops.check()
+    finally:
+        for s, handler in stops.handlers.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
+
+
+@contextmanager
+def dask_client(workers: int, scheduler: str | None, stops: Stops | None = None) -> Iterator[Any]:
     """A Dask client (``scheduler``'s, or a local cluster of ``workers`` processes with one
-    thread each and no dashboard), or None to run the tasks in this process; closed on exit."""
+    thread each and no dashboard), or None to run the tasks in this process; closed on exit,
+    Dask's records dropped from the moment one of ``stops`` comes (:func:`_hushed`)."""
     if not (workers > 0 or scheduler):
         yield None
         return
@@ -92,7 +156,8 @@ def dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
         raise ValueError(needs_dask(asked))
     from dask.distributed import Client, LocalCluster
 
-    with ExitStack() as closes:  # the client, then the cluster
+    with ExitStack() as closes:  # the client, then the cluster, then Dask heard again
+        hush = closes.enter_context(_hushed(stops or Stops()))
         if scheduler:
             client = Client(scheduler)
         else:
@@ -104,11 +169,11 @@ def dask_client(workers: int, scheduler: str | None) -> Iterator[Any]:
                     dashboard_address=None,
                     scheduler_kwargs={"dashboard_address": _SCHEDULER_HTTP},
                 )
-                closes.callback(_unsaid, cluster.close)  # also when the start was stopped
+                closes.callback(_closed, hush, cluster.close)  # also when the start was stopped
             client = Client(cluster)
-        closes.callback(_unsaid, client.close)
-        if not scheduler:
-            client.run(_quiet_close)
+        closes.callback(_closed, hush, client.close)
+        if not scheduler:  # the workers' own records of their close dropped in them first
+            closes.callback(_closed, hush, _workers_silenced, client)
         yield client
 
 
@@ -122,34 +187,51 @@ def needs_dask(asked: str) -> str:
     )
 
 
-def _unsaid(close: Callable[[], object]) -> None:
-    """``close()`` with Dask's records in this process dropped: a build stopped or failed
-    leaves tasks running and results not gathered, and the scheduler warned of each as the
-    cluster went down (results lost, a client already gone), some with a traceback; the build
-    says what happened, in one line."""
+@contextmanager
+def _hushed(stops: Stops) -> Iterator[Callable[[], None]]:
+    """Dask's and tornado's records in this process dropped once one of ``stops`` came or the
+    cluster closes (the call yielded says it does): a build stopped or failed leaves tasks
+    running and results not gathered, and Dask told of each as it stopped and the cluster went
+    down (a call cancelled, results lost, a client already gone), some with a traceback; the
+    build says what happened, in one line."""
+    closed: list[bool] = []
+
+    def heard(record: logging.LogRecord) -> bool:
+        return not (closed or stops.came())
+
     handlers = {*logging.getLogger("distributed").handlers, *logging.getLogger("tornado").handlers}
     for handler in handlers:
-        handler.addFilter(_nothing)
+        handler.addFilter(heard)
     try:
-        close()
+        yield lambda: closed.append(True)
     finally:
         for handler in handlers:
-            handler.removeFilter(_nothing)
+            handler.removeFilter(heard)
+
+
+def _closed(hush: Callable[[], None], close: Callable[..., object], *args: Any) -> None:
+    """``close(*args)`` with Dask's records in this process dropped (``hush``, :func:`_hushed`)."""
+    hush()
+    close(*args)
+
+
+def _workers_silenced(client: Any) -> None:
+    """Dask's records dropped in the workers of ``client`` (:func:`_silenced`) before they are
+    closed; a worker that cannot be reached any more is closed as it is."""
+    with suppress(Exception):
+        client.run(_silenced, on_error="ignore")
+
+
+def _silenced() -> None:
+    """In a worker of the local cluster, as the build closes it: Dask's records dropped (a task
+    cancelled by the close, a heartbeat to the scheduler gone first); the build says why it
+    ended, in one line."""
+    for handler in logging.getLogger("distributed").handlers:
+        handler.addFilter(_nothing)
 
 
 def _nothing(record: logging.LogRecord) -> bool:
     return False
-
-
-def _quiet_close() -> None:
-    """In a worker of the local cluster: drop Dask's warning that a task was cancelled by the
-    worker's close (one for each task running when the build stops or fails; the build says
-    why, in one line)."""
-    logging.getLogger("distributed.worker.state_machine").addFilter(_not_cancelled_by_close)
-
-
-def _not_cancelled_by_close(record: logging.LogRecord) -> bool:
-    return not record.getMessage().endswith("ended with CancelledError")
 
 
 def cores_of(client: Any, workers: int) -> int:
