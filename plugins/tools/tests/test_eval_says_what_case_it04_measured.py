@@ -49,6 +49,20 @@ def test_the_case_of_zurich_z16_is_measured_from_its_frames() -> None:
     assert "distractors nearer than 350 m" in case.said
 
 
+def test_attitude_noise_makes_no_flight_the_criterions_case() -> None:
+    """The case is the flight's: the tilt its frames recorded, not the noisier attitude that
+    ``--attitude-noise-deg`` gives the matcher (6 deg of it took naip_nir_tiles, tilted 12.5
+    deg at most, past 15 deg and called it the criterion's case)."""
+    from c3_matcher_tools.dataset.format import with_attitude_noise
+
+    nir = load_dataset(ZURICH.parent / "naip_nir_tiles")
+    noisy = with_attitude_noise(nir, 6.0)
+    assert max(abs(f.attitude_deg[0]) for f in noisy.frames) > 15.0  # the noise reaches past it
+    recorded, replayed = correct_tile_case(nir.frames), correct_tile_case(noisy.frames)
+    assert replayed.max_tilt_deg == recorded.max_tilt_deg < 15.0
+    assert replayed.criterion_case is False
+
+
 def test_the_case_changes_no_figure_nor_verdict_of_it04() -> None:
     dataset = load_dataset(ZURICH)
     run = [frame_outcome(f.index, correct=f.index != 3) for f in dataset.frames]

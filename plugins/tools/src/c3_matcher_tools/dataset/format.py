@@ -224,7 +224,8 @@ class CandidateTruth:
 
 @dataclass(frozen=True)
 class FrameRecord:
-    """One frame of a flight (see the module docstring); angles in degrees."""
+    """One frame of a flight (see the module docstring); angles in degrees. ``recorded_deg``:
+    the attitude the flight recorded, where a run replaced it by a noisy one (else None)."""
 
     index: int
     frame_id: uuid.UUID
@@ -235,6 +236,7 @@ class FrameRecord:
     candidates: tuple[CandidateTruth, ...]
     pose: dict[str, Any] = field(default_factory=dict)
     telemetry: dict[str, Any] = field(default_factory=dict)
+    recorded_deg: tuple[float, float, float] | None = None
 
     @property
     def has_truth(self) -> bool:
@@ -377,7 +379,10 @@ def with_attitude_noise(dataset: FlightDataset, sigma_deg: float, seed: int = 0)
     for frame in dataset.frames:
         noise = np.random.default_rng([seed, frame.index]).normal(0.0, sigma_deg, 3)
         roll, pitch, yaw = (a + float(n) for a, n in zip(frame.attitude_deg, noise, strict=True))
-        frames.append(dataclasses.replace(frame, attitude_deg=(roll, pitch, yaw)))
+        recorded = frame.recorded_deg or frame.attitude_deg
+        frames.append(
+            dataclasses.replace(frame, attitude_deg=(roll, pitch, yaw), recorded_deg=recorded)
+        )
     meta = {**dataset.meta, "attitude_noise": {"sigma_deg": sigma_deg, "seed": seed}}
     return dataclasses.replace(dataset, meta=meta, frames=tuple(frames))
 

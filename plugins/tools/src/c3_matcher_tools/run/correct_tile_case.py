@@ -32,9 +32,10 @@ quarter of the case's range, as the real-path scenarios take it (15-20 deg)."""
 class CorrectTileCase:
     """The case a flight's C3-IT-04 measured, from the frames it counts: ``max_tilt_deg``, the
     largest attitude tilt (the angle of the body's down axis from the vertical, from each
-    frame's roll and pitch as the matcher was given them: its ``attitude_deg``, noisy under
-    ``--attitude-noise-deg``), and ``nearest_distractor_m``, the nearest distractor's distance
-    from the true tile (tile centres, great circle). NaN: no frame, or no distractor."""
+    frame's roll and pitch as the flight recorded them: ``--attitude-noise-deg`` makes what the
+    matcher is given less sure, not the pictures more oblique), and ``nearest_distractor_m``,
+    the nearest distractor's distance from the true tile (tile centres, great circle). NaN: no
+    frame, or no distractor."""
 
     max_tilt_deg: float = math.nan
     nearest_distractor_m: float = math.nan
@@ -88,7 +89,7 @@ def correct_tile_case(frames: Sequence[FrameRecord]) -> CorrectTileCase:
     those whose true tile is among their candidates."""
     if not frames:
         return CorrectTileCase()
-    tilts = [_tilt_deg(*f.attitude_deg[:2]) for f in frames]
+    tilts = [_tilt_deg(*(f.recorded_deg or f.attitude_deg)[:2]) for f in frames]
     distances = [d for f in frames for d in _distractor_distances_m(f)]
     return CorrectTileCase(max(tilts), min(distances, default=math.nan))
 
