@@ -15,6 +15,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import shlex
 import shutil
 import subprocess
 from pathlib import Path
@@ -195,3 +196,71 @@ def test_replay_says_the_fault_before_it_runs(
         said[name] = [x for x in proc.stderr.splitlines() if "first home altitude" in x]
     assert len(said["aged"]) == 1 and str(aged) in said["aged"][0], said
     assert said["fresh"] == [], said
+
+
+@pytest.fixture(scope="module")
+def named(imported: dict[str, Path]) -> Path:
+    """A fresh import of the ULog named apart from its folder (``--name``) and given log
+    options (``--max-gap``, ``--gnss-degraded-m``)."""
+    argv = ("images", "flight.ulg", DEMO / "calibration.json", "naip_store.mbtiles", "named")
+    given = ("--name", "myflight", "--max-gap", "2", "--gnss-degraded-m", "3")
+    proc = _c3(imported["work"], "dataset", "import", *argv, *given)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return imported["work"] / "named"
+
+
+def _redo_words(dataset: Path) -> list[str]:
+    """The words of the command the dataset's first import fault gives to re-import it (the
+    command alone, without the note that follows it)."""
+    faults = load_dataset(dataset).import_faults
+    assert faults, dataset
+    redo = faults[0].redo
+    return shlex.split(redo[: redo.index(" --force") + len(" --force")])
+
+
+def _option(words: list[str], option: str) -> str | None:
+    """The value that follows ``option`` among ``words`` (None: not there)."""
+    return words[words.index(option) + 1] if option in words else None
+
+
+def test_the_reimport_carries_the_name_and_the_options_given(named: Path, tmp_path: Path) -> None:
+    spec = json.loads((named / "dataset.json").read_text())["spec"]
+    assert spec["options"] == {"--max-gap": 2.0, "--gnss-degraded-m": 3.0}, spec
+    aged = _aged(named, tmp_path / "old")
+    words = _redo_words(aged)
+    assert _option(words, "--name") == "myflight", words
+    assert _option(words, "--max-gap") == "2.0", words
+    assert _option(words, "--gnss-degraded-m") == "3.0", words
+    assert "if you gave them" not in load_dataset(aged).import_faults[0].redo
+
+
+def test_running_the_reimport_makes_the_same_dataset_again(
+    named: Path, imported: dict[str, Path], tmp_path: Path
+) -> None:
+    aged = _aged(named, tmp_path / "old")
+    words = _redo_words(aged)
+    assert words[:3] == ["c3-matcher", "dataset", "import"], words
+    given = [str(DEMO / "calibration.json") if w == "CALIBRATION" else w for w in words[1:]]
+    proc = run_cli(*given, cwd=imported["work"], timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    again = load_dataset(aged)
+    assert again.name == "myflight" and again.import_faults == ()
+    fresh = json.loads((named / "dataset.json").read_text())["spec"]
+    assert again.meta["spec"]["options"] == fresh["options"]
+
+
+def test_a_dataset_that_did_not_record_its_options_says_which_it_cannot_know(
+    named: Path, tmp_path: Path
+) -> None:
+    """A dataset imported before imports recorded their log options: the command carries its
+    name, and the note names the options the dataset cannot tell."""
+    aged = _aged(named, tmp_path / "older")
+    meta: dict[str, Any] = json.loads((aged / "dataset.json").read_text())
+    meta["spec"].pop("options", None)
+    (aged / "dataset.json").write_text(json.dumps(meta))
+    words = _redo_words(aged)
+    assert _option(words, "--name") == "myflight" and "--max-gap" not in words, words
+    redo = load_dataset(aged).import_faults[0].redo
+    for option in ("--max-gap", "--gnss-degraded-m", "--ground-elevation or --dem"):
+        assert option in redo.split(" --force", 1)[1], redo
+    assert "if you gave them" in redo, redo

@@ -26,6 +26,7 @@ from c3_matcher import __version__
 
 __all__ = [
     "IMPORT_REVISION",
+    "LOG_OPTIONS",
     "RENDER_REVISION",
     "ImportFault",
     "Noted",
@@ -35,10 +36,11 @@ __all__ = [
     "say_import_faults",
 ]
 
-IMPORT_REVISION = 1
+IMPORT_REVISION = 2
 """The revision of what ``dataset import`` writes. 1: the first recorded (2026-12-03), with the
 home altitude in force at each frame's time, the first downward rangefinder and one camera
-trigger per photo."""
+trigger per photo; 2 (2026-12-03): an import from a recorded log records the options of
+:data:`LOG_OPTIONS` it was given in ``spec["options"]``."""
 RENDER_REVISION = 1
 """The revision of what ``dataset render`` writes (1: the first recorded, 2026-12-03)."""
 
@@ -179,10 +181,27 @@ def import_faults(
     revision = spec.get("import_revision", 0)
     revision = revision if isinstance(revision, int) else 0
     seen = _Seen(root, spec, record if isinstance(record, Mapping) else {}, telemetry)
-    redo = reimport_command(root, spec)
+    name = meta.get("name")
+    redo = reimport_command(root, spec, name=str(name) if name else None)
     found = (known.found(seen) for known in _KNOWN if revision < known.fixed_in)
     return tuple(ImportFault(what, affects, redo) for what, affects in filter(None, found))
 
+
+LOG_OPTIONS = (
+    "--time-source",
+    "--interval",
+    "--max-gap",
+    "--gnss-degraded-m",
+    "--frame-step",
+    "--image-topic",
+    "--attitude-topic",
+    "--navsat-topic",
+    "--camera-info-topic",
+)
+"""The options of an import from a recorded log that change what it writes beside those
+:data:`_OPTIONS` reads: since import revision 2 its ``spec["options"]`` maps each one given to
+its value, and its ground is recorded as a telemetry CSV's import records it; a log import's
+spec without ``options`` is older and tells none of them, nor its ground."""
 
 _OPTIONS = (
     ("uncertainty_m", "--uncertainty-m", 50.0),
@@ -191,27 +210,54 @@ _OPTIONS = (
     ("zoom", "--zoom", None),
     ("seed", "--seed", 0),
     ("time_offset_s", "--time-offset", 0.0),
+    ("ground_elevation_m", "--ground-elevation", None),
+    ("dem", "--dem", None),
 )
-"""(``spec`` key, ``dataset import`` option, its default) of the options an import records."""
+"""(``spec`` key, ``dataset import`` option, its default) of the options an import records in
+keys of their own (``dem`` by the DEM's file name)."""
 
 
-def reimport_command(root: Path, spec: Mapping[str, Any]) -> str:
+def reimport_command(root: Path, spec: Mapping[str, Any], *, name: str | None = None) -> str:
     """The ``dataset import`` that makes the dataset at ``root`` again, replacing it: its
-    images, telemetry and store as ``spec`` names them (by file name), the options it was
-    imported with; CALIBRATION stands for the camera calibration, which a dataset keeps
-    without its file's name."""
+    images, telemetry and store as ``spec`` names them (by file name), its ``name`` and the
+    options it was imported with; CALIBRATION stands for the camera calibration, which a
+    dataset keeps without its file's name. A log import's spec that does not record its log
+    options (:data:`LOG_OPTIONS`) is said to."""
     images = spec.get("images") or spec.get("images_dir") or "IMAGES"
     telemetry = spec.get("log") or spec.get("telemetry_csv") or "TELEMETRY"
     calibration = spec.get("calibration_json") or "CALIBRATION"
     words = ["c3-matcher", "dataset", "import", images, telemetry, calibration]
-    words += [spec.get("store") or "STORE", str(root)]
+    words += [spec.get("store") or "STORE", str(root), *_option_words(spec)]
+    if name:
+        words += ["--name", name]
+    words.append("--force")
+    note = "its sources as the dataset names them: give their paths"
+    if spec.get("log") and not isinstance(spec.get("options"), Mapping):
+        note += f"; the dataset does not record its log options: {_unknown_options(spec)}"
+    return " ".join(shlex.quote(str(w)) for w in words) + f" ({note})"
+
+
+def _option_words(spec: Mapping[str, Any]) -> list[str]:
+    """The options of ``dataset import`` that ``spec`` records, as command-line words: the
+    source kind, those of :data:`_OPTIONS` not at their default, ``--skip-outside`` and the log
+    options given (:data:`LOG_OPTIONS`)."""
+    kind = spec.get("source_kind") or ("csv" if spec.get("telemetry_csv") else None)
+    words = ["--source", str(kind)] if kind else []
     for key, option, default in _OPTIONS:
         if spec.get(key) is not None and spec.get(key) != default:
             words += [option, str(spec[key])]
     if spec.get("skip_outside"):
         words.append("--skip-outside")
-    words.append("--force")
-    return (
-        " ".join(shlex.quote(str(w)) for w in words)
-        + " (its sources as the dataset names them: give their paths)"
-    )
+    given = spec.get("options")
+    if isinstance(given, Mapping):
+        words += [w for o in LOG_OPTIONS if o in given for w in (o, str(given[o]))]
+    return words
+
+
+def _unknown_options(spec: Mapping[str, Any]) -> str:
+    """What to add to the command of a log import that did not record its log options (a bag's
+    topics and intrinsics only for a bag's)."""
+    bag = spec.get("source_kind") == "rosbag"
+    named = "/".join(o for o in LOG_OPTIONS if bag or not o.endswith("-topic"))
+    said = f"add {named} and --ground-elevation or --dem if you gave them"
+    return said + ("; '-' for CALIBRATION if it took the bag's CameraInfo" if bag else "")

@@ -7,11 +7,13 @@ import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 from c3_matcher.commands import bounded_float
 from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.provenance import LOG_OPTIONS
 from c3_matcher_tools.dataset.sources.options import (
     MAX_TIME_OFFSET_S,
     ImportOptions,
@@ -31,6 +33,7 @@ __all__ = [
     "detect_kind",
     "import_log",
     "proposal_options",
+    "recorded",
     "run_log_import",
 ]
 
@@ -263,9 +266,34 @@ def import_log(kind: str, args: argparse.Namespace) -> ImportReport:
         name=args.name,
         force=args.force,
         attitude_of=attitude_of,
-        spec={"source_kind": kind, "images": Path(str(args.images_dir)).name},
+        spec={"source_kind": kind, "images": Path(str(args.images_dir)).name, **recorded(args)},
         skipped=log.skipped,
     )
+
+
+_NOT_GIVEN = MappingProxyType({"--frame-step": 1})
+"""The value of an option of :data:`LOG_OPTIONS` that is not given, where it is not None."""
+
+
+def recorded(args: argparse.Namespace) -> dict[str, Any]:
+    """What the spec of the import the parsed arguments ask for records of them beyond its
+    sources and its proposal: the log options given (``options``, see
+    :data:`~c3_matcher_tools.dataset.provenance.LOG_OPTIONS`), the ground as a telemetry CSV's
+    import records it (the DEM by its file name) and a bag's own intrinsics taken
+    (CALIBRATION '-'), so that ``dataset import`` can be given them again."""
+    given: dict[str, Any] = {}
+    for option in LOG_OPTIONS:
+        value = getattr(args, option[2:].replace("-", "_"), None)
+        if value is not None and value != _NOT_GIVEN.get(option):
+            given[option] = value
+    spec: dict[str, Any] = {"options": given}
+    if args.ground_elevation is not None:
+        spec["ground_elevation_m"] = args.ground_elevation
+    if args.dem is not None:
+        spec["dem"] = Path(args.dem).name
+    if str(args.calibration) == "-":
+        spec["calibration_json"] = "-"
+    return spec
 
 
 @dataclass(frozen=True)
