@@ -27,7 +27,7 @@ from c3_matcher_tools.run.evaluation import (
     StrategyStopped,
     SummaryRow,
 )
-from c3_matcher_tools.run.flight import features_line
+from c3_matcher_tools.run.feature_sources import features_line
 from c3_matcher_tools.run.outputs import EVAL_RUN
 from c3_matcher_tools.run.records import FrameStatus
 from c3_matcher_tools.run.scoring import damaged_store_line, dropped_lines, telemetry_lines

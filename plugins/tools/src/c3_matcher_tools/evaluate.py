@@ -117,6 +117,7 @@ from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.provenance import say_import_faults
 from c3_matcher_tools.eval_tables import print_flight_table, print_summary_table, say_dropped
+from c3_matcher_tools.features.command import given_settings
 from c3_matcher_tools.run import (
     EVAL_OUT,
     NO_OVERRIDES,
@@ -143,7 +144,7 @@ from c3_matcher_tools.run.evaluation import (
     StrategyStopped,
     SummaryRow,
 )
-from c3_matcher_tools.run.flight import FDR_LOG, feature_sources, unserved_line
+from c3_matcher_tools.run.feature_sources import FDR_LOG, feature_sources, unserved_line
 from c3_matcher_tools.run.outputs import (
     EVAL_RUN,
     EVAL_SUMMARY,
@@ -409,8 +410,9 @@ def _eval_dataset(
         max_keypoints = overrides.apply(ctx.settings).matcher.max_keypoints
         print_flight_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
     say_dropped(ctx, args.json, dataset, rows)
+    given = given_settings(args.config)  # the settings the build a line names must run with
     for r in (r for r in rows if isinstance(r, StrategyEval)):
-        if (line := unserved_line(dataset, r.run, sources[r.strategy])) is not None:
+        if (line := unserved_line(dataset, r.run, out / r.strategy / FDR_LOG, given)) is not None:
             ctx.err(line)
     return rows, report
 

@@ -50,6 +50,7 @@ from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_nois
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.provenance import say_import_faults
+from c3_matcher_tools.features.command import GivenSettings, given_settings
 from c3_matcher_tools.run import (
     REPLAY_OUT,
     FlightOptions,
@@ -70,7 +71,7 @@ from c3_matcher_tools.run import (
     write_flight_outputs,
     write_results,
 )
-from c3_matcher_tools.run.flight import (
+from c3_matcher_tools.run.feature_sources import (
     FDR_LOG,
     feature_sources,
     features_line,
@@ -156,7 +157,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
                 run = fly_prepared(
                     prepared, dataset, out, plugin_host=ctx.plugin_host, options=flown
                 )
-                shown = _say_run(ctx, args.json, dataset, run, out)
+                shown = _say_run(ctx, args.json, dataset, run, out, given_settings(args.config))
                 said = True
                 _write_run(dataset, run, out, shown)
                 return EXIT_OK
@@ -167,28 +168,36 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
                     raise
                 signum = noted[-1]
         assert run is not None  # fly_prepared's FlightStopped holds the run
-        return _keep_stopped(ctx, None if said else args.json, dataset, out, run, signum)
+        as_json = None if said else args.json
+        return _keep_stopped(ctx, as_json, dataset, out, run, signum, given_settings(args.config))
 
 
 def _say_run(
-    ctx: CommandContext, as_json: bool, dataset: FlightDataset, run: FlightRun, out: Path
+    ctx: CommandContext,
+    as_json: bool,
+    dataset: FlightDataset,
+    run: FlightRun,
+    out: Path,
+    given: GivenSettings,
 ) -> dict[str, Any]:
     """The report on stdout, before the run's files are written (so that one that cannot be
-    written still leaves it); ``report.json`` but for the map and flight report it names."""
+    written still leaves it), and the unserved line under ``given``, the settings the run was
+    given; ``report.json`` but for the map and flight report it names."""
     summary = summarize(run.outcomes)
     html = None if no_report_html() else str(out / "report.html")
     shown = {**_run_report(dataset, run, summary, out), "geojson": str(out / "flight.geojson")}
     _print_report(ctx, as_json, dataset.name, {**shown, "html": html}, summary, out)
-    _say_unserved(ctx, dataset, run, shown)
+    _say_unserved(ctx, dataset, run, out, given)
     return shown
 
 
 def _say_unserved(
-    ctx: CommandContext, dataset: FlightDataset, run: FlightRun, report: dict[str, Any]
+    ctx: CommandContext, dataset: FlightDataset, run: FlightRun, out: Path, given: GivenSettings
 ) -> None:
-    """On stderr, when the store has map features but the run was served none of them: what
-    builds the set it asks for (:func:`unserved_line`)."""
-    if (line := unserved_line(dataset, run, report["feature_sources"])) is not None:
+    """On stderr, when the store has map features but the run (its files in ``out``) was
+    served none of them: what builds the set it asks for under ``given``
+    (:func:`unserved_line`)."""
+    if (line := unserved_line(dataset, run, out / FDR_LOG, given)) is not None:
         ctx.err(line)
 
 
@@ -242,13 +251,14 @@ def _keep_stopped(
     out: Path,
     run: FlightRun,
     signum: int,
+    given: GivenSettings,
 ) -> int:
     """A replay stopped by Ctrl-C or SIGTERM, part-way or while writing its files, keeps the
     frames it did: ``run.json`` says how many first, then their ``results.jsonl`` and
     ``report.json`` (no map, no flight report), each written atomically (a second Ctrl-C
     meanwhile stops at once, tearing nothing); the report on stdout (as JSON or not; None: it
     is there already), one line naming what is kept, and 130 or 143 as a shell reports the
-    signal."""
+    signal; the unserved line under ``given``, the settings the run was given."""
     mark_stopped(REPLAY_RUN, out, run)
     results = write_results(out / "results.jsonl", run.outcomes)
     summary = summarize(run.outcomes)
@@ -256,7 +266,7 @@ def _keep_stopped(
     write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
     if as_json is not None:
         _print_report(ctx, as_json, dataset.name, report, summary, out)
-        _say_unserved(ctx, dataset, run, report)
+        _say_unserved(ctx, dataset, run, out, given)
     word = "terminated" if signum == signal.SIGTERM else "interrupted"
     done, planned = report["frames_done"], report["frames_planned"]
     whole = "" if run.complete else f" ({RUN_MARK} marks the run incomplete)"

@@ -14,12 +14,13 @@ from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegist
 from c3_matcher.context import CommandContext
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.features.build import WINDOW_PX_RANGE
+from c3_matcher_tools.features.command import GivenSettings, build_command, given_settings
 from c3_matcher_tools.features.windows import brief_set_id
 
 if TYPE_CHECKING:
     from c3_matcher.tilestore.features import FeatureStoreUnavailableError, MapFeatureStore
 
-__all__ = ["DEFAULT_WORKERS", "build_command", "register_features_command"]
+__all__ = ["DEFAULT_WORKERS", "register_features_command"]
 
 DEFAULT_WORKERS = 2
 """``--workers`` left out: a local Dask cluster of this many processes (where Dask is installed)."""
@@ -226,8 +227,9 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
         return _unavailable(exc, args.store, store, path, ctx)
     _mark_engines(found.sets, ctx)
     _print_sets(store, path, found.sets, ctx, as_json=args.json)
-    _window_notes(args.store, store, path, found, ctx)
-    unserved = _engine_notes(args.store, path, found, ctx)
+    given = given_settings(args.config)  # the set asked for is these settings'
+    _window_notes(args.store, store, path, found, ctx, given)
+    unserved = _engine_notes(args.store, path, found, ctx, given)
     failed = found.damaged or found.stale or (unserved and args.verify)
     return EXIT_FAILURE if failed else EXIT_OK
 
@@ -276,30 +278,6 @@ def _flight_only(
     return only
 
 
-def build_command(
-    given: Path, strategy: object, window: object, stride: object, flight_only: bool | None
-) -> str:
-    """The command that builds (or extracts again) the set of ``strategy`` with ``window`` px
-    windows on a ``stride`` px grid beside the store ``given`` names (a store, or a flight
-    directory, as the user gave it); ``flight_only``: with ``--flight-candidates`` (only that
-    flight's candidates' windows), None where that cannot be told (a set does not record it),
-    which the command then says."""
-    command = (
-        f"c3-matcher features build {given} --strategy {strategy} --window {window} "
-        f"--stride {stride}"
-    )
-    if flight_only:
-        return f"{command} --flight-candidates"
-    if flight_only is False:
-        return command
-    if given.is_dir():
-        return f"{command} (add --flight-candidates for only its candidates' windows)"
-    return (
-        f"{command} (a set does not record whether it was built for a flight: for one that was, "
-        "give that flight's directory and --flight-candidates instead of the store)"
-    )
-
-
 def _build_its_sets(given: Path, path: Path) -> str:
     """What builds the sets of the damaged sidecar ``path`` again: they cannot be read from it,
     so each is named by the user (``features build`` keeps the file aside)."""
@@ -310,9 +288,16 @@ def _build_its_sets(given: Path, path: Path) -> str:
     )
 
 
-def _window_notes(given: Path, store: Path, path: Path, found: _Found, ctx: CommandContext) -> None:
+def _window_notes(
+    given: Path,
+    store: Path,
+    path: Path,
+    found: _Found,
+    ctx: CommandContext,
+    settings: GivenSettings,
+) -> None:
     """Say of each set with damaged or stale windows how many, and the command that extracts
-    them again: the one that builds that set (:func:`build_command`)."""
+    them again: the one that builds that set (:func:`build_command`, under ``settings``)."""
     for s in found.sets:
         why = {
             "damaged": "the flight extracts those instead",
@@ -323,7 +308,7 @@ def _window_notes(given: Path, store: Path, path: Path, found: _Found, ctx: Comm
             if not (count := int(str(s.get(kind, 0)))):
                 continue
             command = build_command(
-                given, s["strategy"], s["window_px"], s["stride_px"], _only(found, s)
+                given, s["strategy"], s["window_px"], s["stride_px"], _only(found, s), settings
             )
             ctx.err(
                 f"c3-matcher: {path}: {count} {kind} windows in {_named(s)} ({because}); "
@@ -433,10 +418,13 @@ def _mark_engines(sets: list[dict[str, object]], ctx: CommandContext) -> None:
             s["engine_unknown"] = known.why
 
 
-def _engine_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -> int:
+def _engine_notes(
+    store: Path, path: Path, found: _Found, ctx: CommandContext, settings: GivenSettings
+) -> int:
     """Say of each set the flight is not served (:func:`_mark_engines`: another extractor
     engine, or other settings, built it) that it is never served, and what builds the set it is
-    served; of each set whose engine cannot be named, why. The number of sets not served that
+    served (under ``settings``, those ``features info`` was given); of each set whose engine
+    cannot be named, why. The number of sets not served that
     no served set (same strategy and window) replaces: the flight extracts their candidates."""
     served = {(s["strategy"], s["window_px"]): s for s in found.sets if s["served"]}
     unserved = 0
@@ -464,7 +452,7 @@ def _engine_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -
         if other is None:
             unserved += 1
             command = build_command(
-                store, s["strategy"], s["window_px"], s["stride_px"], _only(found, s)
+                store, s["strategy"], s["window_px"], s["stride_px"], _only(found, s), settings
             )
             built += f" The flight extracts those candidates instead; build its set: {command}."
         else:

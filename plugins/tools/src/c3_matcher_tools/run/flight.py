@@ -1,7 +1,6 @@
 """Flying a flight: every frame (or some) of a ``c3-flight/1`` dataset through a matcher, each
-scored against the flight's ground truth and telemetry (:func:`run_flight`), one strategy
-opened, flown and timed (:func:`fly`), and where its candidates' features came from
-(:func:`feature_sources`, and :func:`unserved_line` when the store's map features served none)."""
+scored against the flight's ground truth and telemetry (:func:`run_flight`), and one strategy
+opened, flown and timed (:func:`fly`)."""
 
 from __future__ import annotations
 
@@ -12,13 +11,12 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from c3_matcher.compose import strategy_settings
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import MatchResult
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
-from c3_matcher.fdr.check import read_fdr_log
 from c3_matcher.georef import haversine_m
 from c3_matcher.logs import MATCHER_GEOMETRY_REFUSED, MATCHER_ZERO_INLIERS
 from c3_matcher.plugins.manager import PluginHost
@@ -26,7 +24,6 @@ from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.serialize import CALIBRATION_SIZE_FIX, result_to_json
 from c3_matcher.stages.drops import HeardDrop, drops_heard
 from c3_matcher.tiles import DECODABLE_FORMATS, MmapTileHandle, image_file_size
-from c3_matcher.tilestore.features import sidecar_path
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.run.matcher import (
@@ -44,21 +41,19 @@ from c3_matcher_tools.run.scoring import (
     truth_position,
 )
 
+if TYPE_CHECKING:
+    pass
+
 __all__ = [
     "ALL_FRAMES",
-    "FDR_LOG",
-    "FEATURE_SOURCES",
     "FlightOptions",
     "FlightStopped",
     "Progress",
     "check_flight",
-    "feature_sources",
-    "features_line",
     "fly",
     "fly_prepared",
     "run_flight",
     "signals_noted",
-    "unserved_line",
 ]
 
 Progress = Callable[[int, int], None]
@@ -414,61 +409,3 @@ def _refuse_another_size(dataset: FlightDataset, frame: FrameRecord, w: int, h: 
             f"image_size is {cw}x{ch} px but frame {frame.image} is {w}x{h} px "
             f"({CALIBRATION_SIZE_FIX})",
         )
-
-
-FDR_LOG = "fdr.jsonl"
-"""A run's flight-data log, in its output directory (:meth:`PreparedMatcher.start`)."""
-FEATURE_SOURCES = ("stored", "cached", "extracted")
-"""Where a candidate's tile features come from: the store's map features, the tile cache, or
-its pixels (``candidate_features`` of the FDR's terminal records)."""
-_TERMINAL = ("matcher.frame_done", "matcher.insufficient_inliers")
-
-
-def feature_sources(fdr_log: Path) -> dict[str, int]:
-    """How many candidates of a run had their features from each of :data:`FEATURE_SOURCES`
-    (and ``none``, when one was dropped before it had any), as the terminal record of each
-    frame in the run's flight-data log ``fdr_log`` says; zeros where it holds none."""
-    counts = dict.fromkeys(FEATURE_SOURCES, 0)
-    with contextlib.suppress(InvalidInputError, OSError):  # no log: nothing to count
-        for record in read_fdr_log(fdr_log):
-            payload = record.get("payload")
-            if record.get("kind") in _TERMINAL and isinstance(payload, Mapping):
-                for source in map(str, payload.get("candidate_features") or ()):
-                    counts[source] = counts.get(source, 0) + 1
-    return counts
-
-
-def features_line(counts: Mapping[str, int]) -> str:
-    """The candidates counted by where their features came from, in words."""
-    shown = [*FEATURE_SOURCES, *(k for k in counts if k not in FEATURE_SOURCES)]
-    return "candidate features: " + ", ".join(f"{counts.get(k, 0)} {k}" for k in shown)
-
-
-def unserved_line(dataset: FlightDataset, run: FlightRun, counts: Mapping[str, int]) -> str | None:
-    """The line that says a run whose store has map features (a sidecar) was served none of
-    them, with the command that builds the set it asks for; None when it was served some, has
-    none to be served, runs with ``[matcher] stored_features`` off, or flies a strategy whose
-    tiles are always extracted (its backend names no extractor engine)."""
-    from c3_matcher_tools.features.cli import build_command
-    from c3_matcher_tools.features.windows import flight_grid
-
-    sidecar = sidecar_path(dataset.store_path)
-    engines = run.backend.get("engines") or {}
-    extractor = (engines.get("extractor") or {}) if isinstance(engines, Mapping) else {}
-    if (
-        counts.get("stored", 0)
-        or not sum(counts.values())
-        or not run.settings.get("stored_features")
-        or not extractor.get("file_sha256")
-        or not sidecar.is_file()
-    ):
-        return None
-    window, grid = flight_grid(dataset.root)
-    command = build_command(dataset.root, run.strategy, window, grid, None)
-    return (
-        f"c3-matcher: {sidecar}: no candidate of this run was served the store's map features "
-        f"(it holds no set for {run.strategy} as it ran here, or none of these windows): each "
-        "was extracted (or taken from the tile cache), so the run's times are extraction's. "
-        f"`c3-matcher features info {dataset.root}` names the sets it holds; build the one this "
-        f"run asks for: {command}."
-    )

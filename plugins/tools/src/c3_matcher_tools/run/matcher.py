@@ -25,6 +25,7 @@ from c3_matcher.protocols import Clock, CrossDomainMatcher, FdrClient, KeypointB
 from c3_matcher_tools.run.outputs import forget_previous_run
 
 __all__ = [
+    "FDR_LOG",
     "NO_OVERRIDES",
     "ComposedMatcher",
     "Overrides",
@@ -34,6 +35,9 @@ __all__ = [
     "open_matcher",
     "prepare_matcher",
 ]
+
+FDR_LOG = "fdr.jsonl"
+"""A run's flight-data log, in its output directory (:meth:`PreparedMatcher.start`)."""
 
 _MATCHER_KEYS = ("tile_cache_size", "max_long_side", "stored_features")
 
@@ -238,7 +242,7 @@ class PreparedMatcher:
         ``out_dir``) leaves that run's files as they are. What the matcher recorded and logged
         while it was composed comes first."""
         out_dir.mkdir(parents=True, exist_ok=True)
-        fdr = open_recorder(self.settings.fdr, self._clock, path=out_dir / "fdr.jsonl", fresh=True)
+        fdr = open_recorder(self.settings.fdr, self._clock, path=out_dir / FDR_LOG, fresh=True)
         self._started.callback(fdr.close)
         forget_previous_run(out_dir)  # the FDR is this run's now: so are the results
         log = self._started.enter_context((out_dir / "matcher.log").open("w", encoding="utf-8"))
