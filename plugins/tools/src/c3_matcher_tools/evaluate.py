@@ -412,7 +412,8 @@ def _eval_dataset(
     say_dropped(ctx, args.json, dataset, rows)
     given = given_settings(args.config)  # the settings the build a line names must run with
     for r in (r for r in rows if isinstance(r, StrategyEval)):
-        if (line := unserved_line(dataset, r.run, out / r.strategy / FDR_LOG, given)) is not None:
+        log = out / r.strategy / FDR_LOG
+        if (line := unserved_line(dataset, r.run, sources[r.strategy], log, given)) is not None:
             ctx.err(line)
     return rows, report
 

@@ -187,17 +187,23 @@ def _say_run(
     html = None if no_report_html() else str(out / "report.html")
     shown = {**_run_report(dataset, run, summary, out), "geojson": str(out / "flight.geojson")}
     _print_report(ctx, as_json, dataset.name, {**shown, "html": html}, summary, out)
-    _say_unserved(ctx, dataset, run, out, given)
+    _say_unserved(ctx, dataset, run, shown, out, given)
     return shown
 
 
 def _say_unserved(
-    ctx: CommandContext, dataset: FlightDataset, run: FlightRun, out: Path, given: GivenSettings
+    ctx: CommandContext,
+    dataset: FlightDataset,
+    run: FlightRun,
+    report: dict[str, Any],
+    out: Path,
+    given: GivenSettings,
 ) -> None:
     """On stderr, when the store has map features but the run (its files in ``out``) was
     served none of them: what builds the set it asks for under ``given``
     (:func:`unserved_line`)."""
-    if (line := unserved_line(dataset, run, out / FDR_LOG, given)) is not None:
+    counts = report["feature_sources"]  # read from the log once, for the report
+    if (line := unserved_line(dataset, run, counts, out / FDR_LOG, given)) is not None:
         ctx.err(line)
 
 
@@ -266,7 +272,7 @@ def _keep_stopped(
     write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
     if as_json is not None:
         _print_report(ctx, as_json, dataset.name, report, summary, out)
-        _say_unserved(ctx, dataset, run, out, given)
+        _say_unserved(ctx, dataset, run, report, out, given)
     word = "terminated" if signum == signal.SIGTERM else "interrupted"
     done, planned = report["frames_done"], report["frames_planned"]
     whole = "" if run.complete else f" ({RUN_MARK} marks the run incomplete)"

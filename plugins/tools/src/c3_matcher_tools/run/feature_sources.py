@@ -58,18 +58,22 @@ def features_line(counts: Mapping[str, int]) -> str:
 
 
 def unserved_line(
-    dataset: FlightDataset, run: FlightRun, fdr_log: Path, settings: GivenSettings
+    dataset: FlightDataset,
+    run: FlightRun,
+    counts: Mapping[str, int],
+    fdr_log: Path,
+    settings: GivenSettings,
 ) -> str | None:
     """The line that says a run whose store has map features (a sidecar) was served none of
-    them (its flight-data log ``fdr_log`` says where they came from, the set it asked for and
-    those held), with the command that builds the set it asks for under ``settings`` (the run's
-    ``--config`` and environment); None when it was served some, has none to be served, runs
-    with ``[matcher] stored_features`` off, or flies a strategy whose tiles are always
-    extracted (its backend names no extractor engine)."""
+    them (``counts``: :func:`feature_sources` of its flight-data log ``fdr_log``, which says
+    the set it asked for and those held), with the command that builds the set it asks for
+    under ``settings`` (the run's ``--config`` and environment); None when it was served some,
+    has none to be served, runs with ``[matcher] stored_features`` off, or flies a strategy
+    whose tiles are always extracted (its backend names no extractor engine)."""
     from c3_matcher_tools.features.command import build_command
     from c3_matcher_tools.features.windows import brief_set_id, flight_grid
 
-    sidecar, counts = sidecar_path(dataset.store_path), feature_sources(fdr_log)
+    sidecar = sidecar_path(dataset.store_path)
     engines = run.backend.get("engines") or {}
     extractor = (engines.get("extractor") or {}) if isinstance(engines, Mapping) else {}
     if (
