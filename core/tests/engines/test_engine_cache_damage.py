@@ -195,7 +195,8 @@ def test_verify_json_of_a_directory_without_engines_lists_every_one_missing(
     declared = {spec.key for spec in build_plugin_host().engine_specs()}
     rows = document["engines"]
     assert len(rows) == len(declared) and declared
-    assert all(set(r) == {"path", "ok", "detail"} and r["ok"] is False for r in rows)
+    assert all(set(r) == {"path", "ok", "detail", "command"} and r["ok"] is False for r in rows)
     assert all(r["detail"].startswith("missing: no valid ") for r in rows)
+    assert all(r["command"].startswith("c3-matcher engines build --only ") for r in rows)
     assert {r["detail"].split()[3] for r in rows} == declared
     assert captured.err.startswith(f"c3-matcher: no engines in {directory}")

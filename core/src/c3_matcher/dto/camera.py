@@ -40,8 +40,11 @@ class NavCameraFrame:
     """One nav-camera frame (C1): the raw (distorted) image and what is known of the pose.
 
     ``image`` is uint8 RGB (H, W, 3) or grey (H, W), as captured. ``captured_at_ns`` is the
-    monotonic capture time. ``attitude`` and ``height_above_ground_m`` are optional; without
-    attitude no rectification happens, without height no GSD scaling.
+    capture time in ns, on the matcher's clock in flight (its age at matching is then the FDR
+    records' ``recorded_at_ns`` minus it); a replayed dataset gives its own flight time, from its
+    first frame, while the matcher's clock is the host's. ``attitude`` and
+    ``height_above_ground_m`` are optional; without attitude no rectification happens, without
+    height no GSD scaling.
     """
 
     frame_id: uuid.UUID

@@ -102,7 +102,8 @@ def ranking_key(candidate: CandidateMatchSet) -> tuple[int, float]:
 
 @dataclass(frozen=True, slots=True)
 class MatchResult:
-    """The matcher's output for one frame; the result contract's invariants are checked here."""
+    """The matcher's output for one frame; the result contract's invariants are checked here.
+    ``matched_at`` is in ns on the matcher's clock (``Clock.monotonic_ns``)."""
 
     frame_id: uuid.UUID
     per_candidate: tuple[CandidateMatchSet, ...]

@@ -71,6 +71,7 @@ def _list(args: argparse.Namespace, command: CommandContext) -> int:
                     {
                         "path": str(r.path),
                         "problem": r.problem,
+                        "command": None if r.ok else r.command,
                         "manifest": None if r.manifest is None else r.manifest.to_json(),
                     }
                     for r in records
@@ -116,7 +117,10 @@ def _verify(args: argparse.Namespace, command: CommandContext) -> int:
         )
     outcomes += _missing(store, ctx.specs, {o.path for o in outcomes})
     if args.json:
-        rows = [{"path": str(o.path), "ok": o.ok, "detail": o.detail} for o in outcomes]
+        rows = [
+            {"path": str(o.path), "ok": o.ok, "detail": o.detail, "command": o.command}
+            for o in outcomes
+        ]
         command.out(json.dumps({"directory": str(ctx.engine_dir), "engines": rows}, indent=2))
     else:
         for o in outcomes:

@@ -91,10 +91,10 @@ def _stop(stop: signal.Signals, handler: Any) -> None:
     raise KeyboardInterrupt
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Stops:
     """The stops (Ctrl-C, SIGTERM) that came while a build ran (:func:`stops_noted`), and the
-    handlers they were taken with."""
+    handlers they were taken with: filled in as they come, by the signal handler (not frozen)."""
 
     caught: list[signal.Signals] = field(default_factory=list)
     handlers: dict[signal.Signals, Any] = field(default_factory=dict)

@@ -124,18 +124,8 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
         f"at most {MAX_TIME_OFFSET_S:g} s either way (127 years: a log clock of UTC seconds since "
         "1970, or a camera clock never set)",
     )
-    g.add_argument(
-        "--interval",
-        type=bounded_float(0.0, above=True),
-        default=None,
-        help="file order: s between images",
-    )
-    g.add_argument(
-        "--max-gap",
-        type=bounded_float(0.0, above=True),
-        default=None,
-        help="farthest a log sample may be from an image's time, s (default 1)",
-    )
+    _positive(g, "--interval", "file order: s between images")
+    _positive(g, "--max-gap", "farthest a log sample may be from an image's time, s (default 1)")
     g.add_argument(
         "--ground-elevation",
         type=bounded_float(),
@@ -143,11 +133,10 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
         help="the ground's altitude, m, in the log's datum: height = altitude - this (or --dem)",
     )
     g.add_argument("--dem", type=Path, default=None, help="DEM GeoTIFF of the ground (geo extra)")
-    g.add_argument(
+    _positive(
+        g,
         "--gnss-degraded-m",
-        type=bounded_float(0.0, above=True),
-        default=None,
-        help="flag frames whose stated GNSS accuracy is worse than this, m (default 5)",
+        "flag frames whose stated GNSS accuracy is worse than this, m (default 5)",
     )
     g.add_argument(
         "--frame-step",
@@ -158,6 +147,12 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     )
     for topic in ("image", "attitude", "navsat", "camera-info"):
         g.add_argument(f"--{topic}-topic", default=None, help=f"bag: the {topic} topic")
+
+
+def _positive(group: Any, option: str, help: str) -> None:
+    """A positive number option of ``group``, None when not given (its default is in
+    :data:`DEFAULTS`: given or not is told apart)."""
+    group.add_argument(option, type=bounded_float(0.0, above=True), default=None, help=help)
 
 
 def run_log_import(args: argparse.Namespace, ctx: CommandContext) -> int | None:
