@@ -1,9 +1,17 @@
 """Georeferencing a match: where the frame looked, in WGS84.
 
-A candidate's ``TileId(zoom, lat, lon)`` names the centre of its image; when the image is a
-web-mercator window of that zoom (what the tile stores serve, see
-:mod:`c3_matcher.tilestore.handles`) or has a known ground sample distance, a TILE px maps to
-WORLD px and so to lon/lat (:func:`tile_px_to_lonlat`). The best candidate gives the map from
+A candidate's ``TileId(zoom, lat, lon)`` names the centre of its image, and a TILE px maps to
+WORLD px and so to lon/lat (:func:`tile_px_to_lonlat`) in one of two ways, told apart by the
+``tile_gsd_m`` given:
+
+- None: the image is a tile store's window (:mod:`c3_matcher.tilestore.handles`): its pixels
+  ARE the zoom's WORLD px, the window's corner the id's centre rounded onto that grid (so the
+  image's centre is up to half a pixel from the id's);
+- a ground sample distance (m/px): the image is one the user gives (``match --tile``), centred
+  EXACTLY on its id (its centre pixel ((w - 1) / 2, (h - 1) / 2) is the id's lon/lat), its
+  pixels that many metres (the zoom's own GSD when the image is of the zoom's scale).
+
+The best candidate gives the map from
 UNDISTORTED query px to tile px (:func:`best_query_to_tile`), through which the frame's
 principal point (the centre) and its image boundary (the footprint) land on the map: the
 homography fitted by least squares over every inlier (:func:`fit_query_to_tile`: the ground is
@@ -63,18 +71,26 @@ def is_georeferenced(tile_id: TileId) -> bool:
 
 
 def _scale(tile_id: TileId, tile_gsd_m: float | None) -> float:
-    """WORLD px per tile px: 1 for a web-mercator window of the id's zoom."""
+    """WORLD px per tile px: 1 for a store window (``tile_gsd_m`` None), else the GSD given over
+    the zoom's at the id's latitude."""
     if tile_gsd_m is None:
         return 1.0
     return float(tile_gsd_m) / tile_id.web_mercator_gsd_m()
 
 
-def _origin(tile_id: TileId, size: tuple[int, int], scale: float) -> tuple[float, float]:
-    """WORLD px of tile px (0, 0)'s centre (the store's window convention when scale is 1)."""
+def _origin(
+    tile_id: TileId, size: tuple[int, int], tile_gsd_m: float | None
+) -> tuple[float, float]:
+    """WORLD px of tile px (0, 0)'s centre: on the zoom's pixel grid for a store window
+    (``tile_gsd_m`` None, the window convention of :mod:`c3_matcher.tilestore.handles`), else
+    where the image centred exactly on the id puts it. Which one is the meaning of the
+    ``tile_gsd_m`` given, never a coincidence of its value: a GSD equal to the zoom's still
+    centres the image exactly."""
     (cx, cy) = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0]
     w, h = size
-    if scale == 1.0:
+    if tile_gsd_m is None:
         return math.floor(cx - w / 2 + 0.5) + 0.5, math.floor(cy - h / 2 + 0.5) + 0.5
+    scale = _scale(tile_id, tile_gsd_m)
     return cx - (w / 2 - 0.5) * scale, cy - (h / 2 - 0.5) * scale
 
 
@@ -85,7 +101,7 @@ def _continuous_lonlat(
     image (beyond 180 deg where the image straddles the line east of its centre)."""
     p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
     s = _scale(tile_id, tile_gsd_m)
-    x0, y0 = _origin(tile_id, size, s)
+    x0, y0 = _origin(tile_id, size, tile_gsd_m)
     world = np.stack([x0 + p[:, 0] * s, y0 + p[:, 1] * s], axis=1)
     return world_px_to_lonlat(world, tile_id.zoom)
 
@@ -94,7 +110,8 @@ def tile_px_to_lonlat(
     tile_id: TileId, size: tuple[int, int], pts: ArrayLike, tile_gsd_m: float | None = None
 ) -> F64:
     """(N, 2) TILE px (u, v) of a ``size`` = (width, height) image centred on ``tile_id`` ->
-    (N, 2) (lon, lat) degrees, longitudes in [-180, 180)."""
+    (N, 2) (lon, lat) degrees, longitudes in [-180, 180). ``tile_gsd_m`` None: a store window;
+    a GSD: an image centred exactly on its id (see the module docstring)."""
     lonlat = _continuous_lonlat(tile_id, size, pts, tile_gsd_m)
     lonlat[:, 0] = wrap_longitude(lonlat[:, 0])
     return lonlat
@@ -106,7 +123,7 @@ def lonlat_to_tile_px(
     """Inverse of :func:`tile_px_to_lonlat`: a point is taken on the turn of the globe nearest
     the image (a longitude across 180 deg from it lies beside it, not a world away)."""
     s = _scale(tile_id, tile_gsd_m)
-    x0, y0 = _origin(tile_id, size, s)
+    x0, y0 = _origin(tile_id, size, tile_gsd_m)
     world = lonlat_to_world_px(lonlat, tile_id.zoom)
     centre_x = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0, 0]
     span = TILE_PX * 2.0**tile_id.zoom
@@ -154,9 +171,11 @@ def footprint_lonlat(
     samples_per_side: int = 8,
 ) -> tuple[tuple[float, float], F64]:
     """(centre (lon, lat), closed footprint polygon (N + 1, 2) lon/lat) of a frame whose
-    UNDISTORTED px map to ``tile_id``'s image by ``h_query_to_tile``. The centre is the principal
-    point, its longitude in [-180, 180); the footprint follows the image boundary (undistorted),
-    one continuous ring around the centre (see the module docstring)."""
+    UNDISTORTED px map to ``tile_id``'s image by ``h_query_to_tile`` (``tile_gsd_m``: see
+    :func:`tile_px_to_lonlat`). The centre is the principal point, its longitude in [-180, 180);
+    the footprint follows the image boundary (undistorted), one continuous ring around the
+    centre (see the module docstring), wound counter-clockwise in lon/lat as RFC 7946 wants an
+    exterior ring, whichever way the camera and the homography turn the boundary."""
     w, h = calibration.image_size
     k = calibration.K
     centre_px = np.array([[k[0, 2], k[1, 2]]])
@@ -168,8 +187,17 @@ def footprint_lonlat(
     turns = np.round((wrap_longitude(lonlat[0, 0]) - lonlat[0, 0]) / 360.0)
     if np.isfinite(turns):
         lonlat[:, 0] += 360.0 * turns  # the centre in [-180, 180), the ring around it
-    ring = np.concatenate([lonlat[1:], lonlat[1:2]])
+    ring = _counter_clockwise(np.concatenate([lonlat[1:], lonlat[1:2]]))
     return (float(lonlat[0, 0]), float(lonlat[0, 1])), ring
+
+
+def _counter_clockwise(ring: F64) -> F64:
+    """The closed lon/lat ``ring`` wound counter-clockwise (positive shoelace area, taken about
+    its first point so that large longitudes cost no precision); the image boundary comes
+    clockwise in lon/lat from a north-up tile, the other way through a mirroring map."""
+    d = ring - ring[0]
+    twice_area = float(np.sum(d[:-1, 0] * d[1:, 1] - d[1:, 0] * d[:-1, 1]))
+    return ring if twice_area >= 0 else np.ascontiguousarray(ring[::-1])
 
 
 def haversine_m(lonlat_a: ArrayLike, lonlat_b: ArrayLike) -> F64:
@@ -190,8 +218,9 @@ def georeference_result(
     """The JSON fields of the best candidate's georeference: ``best_homography`` (UNDISTORTED
     query px -> best tile px, row-major 3x3, :func:`best_query_to_tile`) and, when its tile id
     is georeferenced and the tiles' sizes (per INPUT position) are known, ``centre_lat``,
-    ``centre_lon`` and ``footprint`` (a closed GeoJSON ring of [lon, lat]). Empty when no
-    homography fits."""
+    ``centre_lon`` and ``footprint`` (a closed GeoJSON exterior ring of [lon, lat],
+    counter-clockwise). ``tile_gsd_m`` None: the tiles are store windows; a GSD: images centred
+    exactly on their ids (see the module docstring). Empty when no homography fits."""
     best = result.per_candidate[0]
     hom = best_query_to_tile(result, calibration)
     if hom is None:

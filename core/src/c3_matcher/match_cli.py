@@ -289,7 +289,7 @@ def _result_json(
         with_correspondences=not args.no_correspondences,
         calibration=calibration,
         tile_sizes=_best_tile_sizes(result, rerank),
-        tile_gsd_m=args.tile_gsd,
+        tile_gsd_m=_georef_gsd(args, result),
     )
     kept = {int(c["tile_index"]) for c in out["per_candidate"]}
     dropped = [i for i in range(len(rerank.candidates)) if i not in kept]
@@ -298,6 +298,18 @@ def _result_json(
         for entry in out["per_candidate"]:
             entry["tile_id"] = None
     return out
+
+
+def _georef_gsd(args: argparse.Namespace, result: Any) -> float | None:
+    """The GSD the georeference reads the best tile at: None for a ``--store`` window (its
+    pixels are its zoom's grid), else the ``--tile`` image's (``--tile-gsd``, or its id's zoom
+    GSD): a ``--tile`` image is centred exactly on its ``--tile-id``, never snapped onto the
+    zoom's grid (see :mod:`c3_matcher.georef`)."""
+    if args.store:
+        return None
+    if args.tile_gsd is not None:
+        return float(args.tile_gsd)
+    return float(result.per_candidate[0].tile_id.web_mercator_gsd_m())
 
 
 def _dropped_json(

@@ -70,6 +70,7 @@ def test_results_are_georeferenced_with_errors_in_metres(replayed: Path) -> None
         assert np.asarray(res["best_homography"]).shape == (3, 3)
         ring = np.asarray(res["footprint"])
         assert ring.shape[1] == 2 and np.allclose(ring[0], ring[-1])
+        assert _twice_area(ring) > 0  # a GeoJSON exterior ring: counterclockwise
         assert abs(res["centre_lat"] - 47.0) < 0.1 and abs(res["centre_lon"] + 99.15) < 0.1
         assert r["truth_lat"] is not None and r["position_error_m"] is not None
     correct = [r for r in ok if r["correct"]]
@@ -92,9 +93,20 @@ def test_geojson_holds_truth_and_estimate(replayed: Path) -> None:
         assert np.all(np.abs(coords[:, 0] + 99.15) < 0.1)  # lon first (RFC 7946)
         assert np.all(np.abs(coords[:, 1] - 47.0) < 0.1)
         if f["geometry"]["type"] == "Polygon":  # an exterior ring: closed, counterclockwise
-            x, y = coords[:, 0], coords[:, 1]
             assert (coords[0] == coords[-1]).all()
-            assert np.sum(x[:-1] * y[1:] - x[1:] * y[:-1]) > 0
+            assert _twice_area(coords) > 0
+    rows = [json.loads(line) for line in (replayed / "results.jsonl").read_text().splitlines()]
+    rings = {r["index"]: r["result"]["footprint"] for r in rows if r["status"] == "ok"}
+    polygons = [f for f in gj["features"] if f["properties"]["kind"] == "footprint"]
+    assert len(polygons) == len(rings)
+    for f in polygons:  # the result's ring as it is: every output winds it the same way
+        assert f["geometry"]["coordinates"] == [rings[f["properties"]["frame"]]]
+
+
+def _twice_area(ring: np.ndarray) -> float:
+    """Twice the signed shoelace area of a closed lon/lat ring (> 0: counterclockwise)."""
+    x, y = ring[:, 0], ring[:, 1]
+    return float(np.sum(x[:-1] * y[1:] - x[1:] * y[:-1]))
 
 
 def _data_images(html: str) -> list[np.ndarray]:

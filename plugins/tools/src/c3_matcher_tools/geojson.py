@@ -6,7 +6,8 @@ Features, each with ``properties.kind``:
   centres, in frame order (frames without one are skipped);
 - ``truth`` / ``estimate``: one Point per frame with ``frame``, ``status``, ``inliers``,
   ``correct``, ``position_error_m``;
-- ``footprint``: the estimated footprint Polygon of each matched frame (counterclockwise);
+- ``footprint``: the estimated footprint Polygon of each matched frame, its ring the result's
+  as it is (already counterclockwise, :func:`c3_matcher.georef.footprint_lonlat`);
 - ``error``: a LineString from each frame's true to its estimated centre.
 
 A line that crosses 180 deg is cut there into a MultiLineString (RFC 7946, 3.1.9), each part
@@ -46,13 +47,6 @@ def _props(o: FrameOutcome, kind: str, strategy: str) -> dict[str, Any]:
 
 def _point(lat: float, lon: float) -> dict[str, Any]:
     return {"type": "Point", "coordinates": [lon, lat]}
-
-
-def _counterclockwise(ring: list[list[float]]) -> list[list[float]]:
-    """``ring`` (closed, lon/lat) wound counterclockwise, as RFC 7946 wants an exterior ring
-    (positive shoelace area; the frame's footprint comes in the image boundary's order)."""
-    twice_area = sum(a[0] * b[1] - b[0] * a[1] for a, b in itertools.pairwise(ring))
-    return ring if twice_area >= 0 else ring[::-1]
 
 
 def _line(points: Sequence[tuple[float, float]]) -> dict[str, Any]:
@@ -115,7 +109,7 @@ def flight_geojson(outcomes: Sequence[FrameOutcome], strategy: str) -> dict[str,
                 feats.append(
                     {
                         "type": "Feature",
-                        "geometry": {"type": "Polygon", "coordinates": [_counterclockwise(ring)]},
+                        "geometry": {"type": "Polygon", "coordinates": [ring]},
                         "properties": _props(o, "footprint", strategy),
                     }
                 )
