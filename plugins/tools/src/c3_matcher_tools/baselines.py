@@ -9,21 +9,24 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from c3_matcher.config import C3Settings
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS, backend_strategy_factory
 
-__all__ = ["SIFT_LABEL", "SiftBackend", "create"]
+__all__ = ["SIFT_LABEL", "SiftBackend", "create", "distinct_strongest"]
 
 SIFT_LABEL = "sift_magsac"
 
 
 class SiftBackend:
-    """KeypointBudgetBackend: SIFT keypoints (OpenCV) inside the valid mask, at most
-    ``max_keypoints`` per image, Lowe ratio test + mutual check on L2 distances. Deterministic
-    (OpenCV SIFT and brute force are). It names no extractor engine: its tiles are extracted."""
+    """KeypointBudgetBackend: SIFT keypoints (OpenCV) inside the valid mask, one per image
+    location, at most ``max_keypoints`` per image (see :func:`distinct_strongest`), Lowe ratio
+    test + mutual check on L2 distances. Deterministic (OpenCV SIFT and brute force are, and the
+    keypoints kept are chosen in a fixed order). It names no extractor engine: its tiles are
+    extracted."""
 
     label = SIFT_LABEL
     extract_phase = "sift_extract"
@@ -34,7 +37,7 @@ class SiftBackend:
     ) -> None:
         self.input_rule = rule
         self.max_keypoints = max_keypoints
-        self._sift = cv2.SIFT.create(nfeatures=max_keypoints)
+        self._sift = cv2.SIFT.create()  # every keypoint: the budget is applied after
         self._matcher = cv2.BFMatcher(cv2.NORM_L2)
         self._ratio = ratio
 
@@ -45,12 +48,14 @@ class SiftBackend:
         n = len(keypoints)
         pts = np.array([k.pt for k in keypoints], np.float32).reshape(n, 2)
         scores = np.array([k.response for k in keypoints], np.float32).reshape(n)
+        angles = np.array([k.angle for k in keypoints], np.float32).reshape(n)
         desc = (
             np.zeros((0, 128), np.float32)
             if descriptors is None
             else descriptors.astype(np.float32)
         )
-        return Features(pts, desc, scores, image.engine_size)
+        keep = distinct_strongest(pts, scores, angles, self.max_keypoints)
+        return Features(pts[keep], desc[keep], scores[keep], image.engine_size)
 
     def match(self, query: Features, tile: Features) -> RawMatches:
         if len(query) < 2 or len(tile) < 2:
@@ -74,6 +79,26 @@ class SiftBackend:
 
     def provenance(self) -> Mapping[str, Any]:
         return {"provider": "opencv", "engines": {"sift": cv2.__version__}}
+
+
+def distinct_strongest(
+    points: NDArray[np.float32],
+    responses: NDArray[np.float32],
+    angles: NDArray[np.float32],
+    budget: int,
+) -> NDArray[np.intp]:
+    """Indices of the keypoints to keep: one per (x, y), the strongest response there, then the
+    ``budget`` strongest of those, strongest first. OpenCV SIFT gives a location one keypoint
+    per orientation peak (two or three at many corners, the same point and response, different
+    descriptors); kept, one ground point becomes several matches, each an inlier, and a frame's
+    inlier count passes the acceptance threshold on repeated evidence. Keeping one per location
+    before the budget makes every inlier a distinct point, as every learned strategy's are, and
+    the budget count distinct points. Equal responses order by x, y, then angle (at one location,
+    the smallest angle is kept), so the same keypoints give the same choice whatever order
+    OpenCV listed them in."""
+    order = np.lexsort((angles, points[:, 1], points[:, 0], -responses))
+    _, first = np.unique(points[order], axis=0, return_index=True)
+    return order[np.sort(first)][:budget]
 
 
 def _sift_backend(config: C3Settings, _options: Any) -> SiftBackend:
