@@ -16,18 +16,16 @@ from c3_matcher.file_kinds import kind_of
 from c3_matcher.tilestore.sidecar_file import sqlite_code
 
 __all__ = [
-    "MMAP_BYTES",
     "cannot_open",
+    "connect_read_only",
     "on_read_only_media",
+    "open_error",
     "open_failure",
     "read_only_uri",
     "set_aside",
     "unchanging",
     "wal_blocked",
 ]
-
-MMAP_BYTES = 256 * 1024 * 1024
-"""The memory map of a read connection to a store file (tile store and map-features sidecar)."""
 
 _COMPANIONS = ("-wal", "-shm", "-journal")  # SQLite's files beside a database, by suffix
 _WAL_VERSION = 2  # an SQLite header's bytes 18 and 19 (write and read version) in WAL mode
@@ -55,6 +53,27 @@ def open_failure(path: str | Path, kind: str) -> str | None:
     return None
 
 
+def open_error(path: Path, exc: sqlite3.DatabaseError, kind: str) -> str:
+    """What an SQLite error on opening the store file ``path`` (``kind``, e.g. ``"an MBTiles
+    file"``) says about it: locked, not to be opened (SQLite's CANTOPEN: the file's
+    permission, a read-only folder a journal needs), a damaged one (a page SQLite finds
+    malformed) or not an SQLite database (a text file)."""
+    if _locked(exc):
+        return f"locked by another process: {exc}"
+    code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
+    if code == sqlite3.SQLITE_CANTOPEN:
+        return open_failure(path, kind) or f"cannot open ({exc})"
+    if code == sqlite3.SQLITE_CORRUPT:
+        return f"damaged SQLite database: {exc}"
+    return f"not an SQLite database: {exc}"
+
+
+def _locked(exc: BaseException) -> bool:
+    """Whether an SQLite error says another connection holds a lock."""
+    text = str(exc).lower()
+    return "locked" in text or "busy" in text
+
+
 def read_only_uri(path: str | Path) -> str:
     """The SQLite URI that opens the database file ``path`` read-only (``uri=True``): the
     absolute path percent-encoded, so that a ``#``, ``?`` or ``%`` in a folder's name is part of
@@ -62,6 +81,22 @@ def read_only_uri(path: str | Path) -> str:
     ``mode=ro``); ``immutable=1`` too for a file that is :func:`unchanging`."""
     p = Path(path).resolve()
     return f"{p.as_uri()}?mode=ro{'&immutable=1' if unchanging(p) else ''}"
+
+
+def connect_read_only(path: str | Path, *, timeout: float) -> sqlite3.Connection:
+    """A read-only connection to the store file ``path`` (:func:`read_only_uri`), usable from
+    any thread, waiting at most ``timeout`` seconds on a lock, its pages read with ``read()``,
+    never memory-mapped (``PRAGMA mmap_size=0``, whatever SQLite's build default): a file
+    rewritten in place while open (``cp``, ``truncate``) is read as it now stands, an
+    SQLite error at worst, where a mapped page past its new end would kill the process (SIGBUS).
+    Raises SQLite's error when the file cannot be opened."""
+    db = sqlite3.connect(read_only_uri(path), uri=True, timeout=timeout, check_same_thread=False)
+    try:
+        db.execute("PRAGMA mmap_size=0")
+    except BaseException:
+        db.close()
+        raise
+    return db
 
 
 def unchanging(path: Path) -> bool:

@@ -17,24 +17,29 @@ Opening checks, once, that the file is an SQLite database with these two tables,
 columns it is read by (``PRAGMA table_info``), and that its smallest and largest zoom_level are
 zooms (integers >= 0); a file that is not is ``InvalidInputError`` naming it and what is wrong.
 
-Reading opens the database read-only with SQLite memory-mapped I/O (``PRAGMA mmap_size``): the
-database pages are served from the page cache through a mapping, not ``read()`` into SQLite's
-own cache; each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way) and
-handles expose it as a ``memoryview`` without further copies. A database error while reading a
-tile (a corrupt page) is raised as that tile's error, never a crash of the caller. Which tiles
-a range of columns and rows holds is one query of the tile index, no tile read (``stored_in``).
+Reading opens the database read-only and never memory-maps it (``files.connect_read_only``):
+pages are ``read()`` into SQLite's cache, so a file rewritten in place while open (``cp`` over
+it) is read as it now stands and one emptied or cut short is an outage (below), never a SIGBUS.
+Each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way) and handles
+expose it as a ``memoryview`` without further copies. A database error while reading a tile (a
+corrupt page) is raised as that tile's error, never a crash of the caller, and the thread's
+connection is made afresh for its next read (one that knew the file before a rewrite would
+fail every read). Which tiles a range of columns and rows holds is one query of the tile index,
+no tile read (``stored_in``).
 
 Threads: each thread gets its own read-only connection (SQLite objects may not cross threads),
 so a store opened on one thread serves another; the connections of threads that have ended are
 closed when the next one is made, and all of them by ``close()``, after which every read raises
 ``TileStoreUnusableError`` saying the store is closed. A store-wide failure (the
-database no longer answers at all: locked by another process, replaced, truncated,
+database no longer answers at all: locked by another process, truncated or emptied in place,
 unreadable) is reported ONCE per outage as an ERROR log ``c3.tilestore.unusable`` naming the
 store (forwarded to the FDR as ``log.error``), then raised at once as each tile's
 ``TileStoreUnusableError``; every ``retry_s`` seconds one read tries the store again (on fresh
 connections) and, when it answers, tiles are served again. A frame never waits on a lock for
 more than ``LOCK_WAIT_S`` (SQLite's busy timeout, long enough to ride through another
-process's commit).
+process's commit). A store replaced by rename (``mv``, ``os.replace``) or deleted is not seen:
+the file opened is served until the store is opened again (a restart picks up the new one), as
+its metadata and digests, read at open, describe that file.
 
 Integrity: a store built by ``c3-matcher tiles build`` holds a ``c3_tile_digest`` table (sha256
 of each tile blob). When present, every blob read is verified against it; a mismatch raises
@@ -56,7 +61,7 @@ from c3_matcher._validate import whole_number
 from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.tilestore.base import TileStoreBase
 from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
-from c3_matcher.tilestore.files import MMAP_BYTES, open_failure, read_only_uri
+from c3_matcher.tilestore.files import connect_read_only, open_error, open_failure
 from c3_matcher.tilestore.sidecar import DEFAULT_RETRY_S, FeatureStoreUnavailableError
 
 __all__ = ["MBTilesStore", "TileDigestError", "TileStoreUnusableError"]
@@ -81,7 +86,6 @@ class MBTilesStore(TileStoreBase):
         self,
         path: str | Path,
         *,
-        mmap_bytes: int = MMAP_BYTES,
         retry_s: float = RETRY_S,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
@@ -91,7 +95,6 @@ class MBTilesStore(TileStoreBase):
         if why is not None:  # a directory, a permission, not "unable to open database file"
             where = f"no such file: {self.path}" if why == "no such file" else f"{self.path}: {why}"
             raise InvalidInputError("mbtiles", where)
-        self._mmap_bytes = int(mmap_bytes)
         self._retry_s = float(retry_s)
         self._clock = clock
         self._retry_at = 0.0
@@ -114,7 +117,7 @@ class MBTilesStore(TileStoreBase):
                 self._metadata = {str(k): str(v) for k, v in rows}
         except sqlite3.DatabaseError as exc:
             self.close()
-            why = _open_error(self.path, exc)
+            why = open_error(self.path, exc, "an MBTiles file")
             raise InvalidInputError("mbtiles", f"{self.path}: {why}") from exc
         if wrong is not None:
             self.close()
@@ -136,11 +139,8 @@ class MBTilesStore(TileStoreBase):
                 )
             for ended in [t for t in self._connections if not t.is_alive()]:
                 self._connections.pop(ended).close()
-            # used only by this thread; check_same_thread=False lets another thread close it
-            db = sqlite3.connect(
-                read_only_uri(self.path), uri=True, check_same_thread=False, timeout=LOCK_WAIT_S
-            )
-            db.execute(f"PRAGMA mmap_size={self._mmap_bytes}")
+            # used only by this thread; any thread may close it
+            db = connect_read_only(self.path, timeout=LOCK_WAIT_S)
             self._connections[threading.current_thread()] = db
         self._local.db = db
         return db
@@ -192,6 +192,7 @@ class MBTilesStore(TileStoreBase):
             found = self._db.execute(query, (zoom, x, row)).fetchone()
         except sqlite3.Error as exc:
             self._check_store(exc)
+            self._forget_connection()
             raise InvalidInputError(what, f"read failed: {exc}") from exc
         if self._unusable is not None:
             self._unusable = None
@@ -220,7 +221,7 @@ class MBTilesStore(TileStoreBase):
         """After a read error: if a fresh connection cannot read the store either, the store is
         unusable: say so once (ERROR log, forwarded to the FDR) and fail every later tile fast."""
         try:
-            probe = sqlite3.connect(read_only_uri(self.path), uri=True, timeout=LOCK_WAIT_S)
+            probe = connect_read_only(self.path, timeout=LOCK_WAIT_S)
             try:
                 probe.execute("SELECT count(*) FROM metadata").fetchone()
                 probe.execute("SELECT tile_data FROM tiles LIMIT 1").fetchone()
@@ -242,6 +243,18 @@ class MBTilesStore(TileStoreBase):
                 error=reason,
             )
         raise TileStoreUnusableError(self.name, reason) from exc
+
+    def _forget_connection(self) -> None:
+        """Close this thread's connection after a read error the store itself does not share:
+        its next read opens a fresh one. One that read the file before it was rewritten in
+        place keeps the old file's table layout and would fail every later read."""
+        db: sqlite3.Connection | None = getattr(self._local, "db", None)
+        if db is None:
+            return
+        with self._conn_lock:
+            self._connections.pop(threading.current_thread(), None)
+        self._local.db = None
+        db.close()
 
     def zooms(self) -> list[int]:
         """The zooms stored; a zoom_level that is no zoom (the check at open sees the smallest
@@ -374,23 +387,3 @@ def _holds(column: str, value: object) -> str:
     shown = shown if len(shown) <= 40 else shown[:37] + "..."
     expected = "a zoom is an integer >= 0" if column == "zoom_level" else "it is an integer"
     return f"its tiles table holds a {column} of {shown}: {expected}"
-
-
-def _open_error(path: Path, exc: sqlite3.DatabaseError) -> str:
-    """What an SQLite error on opening the store ``path`` says about it: locked, not to be
-    opened (SQLite's CANTOPEN: the file's permission, a read-only folder a journal needs), a
-    damaged one (a page SQLite finds malformed) or not an SQLite database (a text file)."""
-    if _locked(exc):
-        return f"locked by another process: {exc}"
-    code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
-    if code == sqlite3.SQLITE_CANTOPEN:
-        return open_failure(path, "an MBTiles file") or f"cannot open ({exc})"
-    if code == sqlite3.SQLITE_CORRUPT:
-        return f"damaged SQLite database: {exc}"
-    return f"not an SQLite database: {exc}"
-
-
-def _locked(exc: BaseException) -> bool:
-    """Whether an SQLite error says another connection holds a lock."""
-    text = str(exc).lower()
-    return "locked" in text or "busy" in text

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from c3_matcher.errors import describe
-from c3_matcher.tilestore.files import MMAP_BYTES, open_failure, read_only_uri, wal_blocked
+from c3_matcher.tilestore.files import connect_read_only, open_failure, wal_blocked
 from c3_matcher.tilestore.sidecar_errors import (
     FeatureStoreUnavailableError,
     SidecarDamagedError,
@@ -321,16 +321,14 @@ class MapFeatureStore:
 
 def _open_read_only(path: Path) -> sqlite3.Connection:
     """The flight's read-only connection, for every thread in turn (``_read``), busy timeout 0:
-    a lock held elsewhere fails at once, the frame never waits; FeatureStoreUnavailableError
-    saying why a sidecar cannot be opened (its permission, a directory), its cause SQLite's."""
+    a lock held elsewhere fails at once, the frame never waits; never memory-mapped, so a
+    sidecar rewritten in place is an outage, not a SIGBUS. FeatureStoreUnavailableError saying
+    why a sidecar cannot be opened (its permission, a directory), its cause SQLite's."""
     try:
-        db = sqlite3.connect(read_only_uri(path), uri=True, timeout=0, check_same_thread=False)
+        return connect_read_only(path, timeout=0)
     except sqlite3.Error as exc:
         why = open_failure(path, "a features sidecar") or f"cannot open ({exc})"
         raise FeatureStoreUnavailableError(path, why) from exc
-    with contextlib.suppress(sqlite3.Error):  # rows read from the page cache
-        db.execute(f"PRAGMA mmap_size={MMAP_BYTES}")
-    return db
 
 
 def _open_writable(path: Path) -> sqlite3.Connection:
