@@ -5,11 +5,10 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import errno
-import fcntl
 import json
 import os
 import threading
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,27 +17,24 @@ from c3_matcher.fdr.files import (
     RECORD_KEYS,
     cut_torn_tail,
     drop_half_rotated_live,
-    make_dirs_durably,
     meta_path,
     open_for_append,
     read_meta,
-    refusal,
     remove_log,
     rotated_segments,
-    segment_path,
-    write_meta,
 )
 from c3_matcher.fdr.forks import close_copies, forked_from
 from c3_matcher.fdr.pending import (
     RECORDS_DROPPED,
     DroppedRecords,
     Pending,
-    held_by,
     lock_path,
     lock_text,
     read_lock,
+    take_lock,
 )
 from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, to_jsonable
+from c3_matcher.fdr.rotation import Rotation
 from c3_matcher.fdr.tail import recent_seqs
 from c3_matcher.fdr.turns import close_after_frame
 from c3_matcher.protocols import Clock
@@ -72,11 +68,14 @@ class JsonlFdrRecorder:
     failure: the next segment number is reserved in ``<path>.meta`` before the live segment is
     renamed, and if either step fails (disk full) nothing has moved: the recorder keeps
     appending to the live segment past ``max_bytes`` and rotates at the next record that finds
-    room. On open, a torn last line (power cut mid-write) is cut back to the last complete
-    line; the cut bytes are appended to ``<path>.torn`` (one JSON line per cut: offset, length,
-    the bytes) and a ``fdr.torn_tail_cut`` record says so (kept pending, like any record, when
-    it cannot be written yet). On a full disk the cut bytes are dropped, being part of no
-    acknowledged record, and that record says why. What waits is bounded by
+    room (one WARNING ``c3.fdr.rotate_failed`` says so, until a rotation succeeds: ``rotation``).
+    A write the file system refuses as too large (EFBIG: a file-size limit below ``max_bytes``,
+    a FAT32 card's 4 GiB or ``RLIMIT_FSIZE``) rotates a live segment that has records and is
+    tried once more in the new one. On open, a torn last line (power cut mid-write) is cut back
+    to the last complete line; the cut bytes are appended to ``<path>.torn`` (one JSON line per
+    cut: offset, length, the bytes) and a ``fdr.torn_tail_cut`` record says so (kept pending,
+    like any record, when it cannot be written yet). On a full disk the cut bytes are dropped,
+    being part of no acknowledged record, and that record says why. What waits is bounded by
     ``max_pending_bytes``, so a disk that stays full cannot exhaust the vehicle's memory: past
     it the oldest waiting records are let go (the newest say the most about the vehicle's state
     now), and once the rest are written a ``fdr.records_dropped`` record says how many and
@@ -118,12 +117,12 @@ class JsonlFdrRecorder:
         self._fd = -1
         self._lock_fd = -1
         self._repair_to: int | None = None  # where a write that could not be rolled back began
-        self._reserved: int | None = None  # a segment number reserved by a failed rotation
+        self._rotation = Rotation(self._path)
         self._lock_names_loss = False  # the lock file names records not yet in the log
         self._lock_unwritten = False  # it lacks our bytes: a start on a full disk
         self._noted = ""  # where the last write failure's waiting records are named, or why not
         what = f"fdr.path {self._path}"
-        self._take_lock(what)
+        self._lock_fd = take_lock(self._path, what)
         try:
             carried = None if fresh else read_lock(self._lock_path)[1]
             if fresh:
@@ -141,7 +140,8 @@ class JsonlFdrRecorder:
             raise FdrOpenError(what, f"cannot open: {exc.strerror or exc}") from exc
         with contextlib.suppress(FdrWriteError):  # kept pending: the next record writes them
             if torn is None:
-                self._write_pending()  # the note of records lost when the last stopped, if any
+                with self._locked():  # the note of records lost when the last stopped, if any
+                    self._write_pending()
             else:
                 kept = {"kept_in": None, "not_kept": torn.not_kept} if torn.not_kept else {}
                 self.record(
@@ -153,25 +153,6 @@ class JsonlFdrRecorder:
                         **kept,
                     },
                 )
-
-    def _take_lock(self, what: str) -> None:
-        """Hold ``<path>.lock`` (``FdrOpenError`` when another process does, or when ``path`` is
-        refused by ``refusal``, before anything is made: a directory, not a regular file, under
-        a file, or holding something other than records: never cut, appended to or removed)."""
-        try:
-            refused = refusal(self._path)  # an OSError deciding it: cannot create
-            if refused is not None:
-                raise FdrOpenError(what, refused)
-            make_dirs_durably(self._path.parent)
-            self._lock_fd = os.open(self._lock_path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise FdrOpenError(what, f"cannot create: {exc.strerror or exc}") from exc
-        try:
-            fcntl.flock(self._lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as exc:
-            os.close(self._lock_fd)
-            self._lock_fd = -1
-            raise FdrOpenError(what, held_by(self._lock_path)) from exc
 
     def _write_lock(self, lost: DroppedRecords | None) -> None:
         """Our pid in the lock file and, while they are not yet in the log, the records ``lost``
@@ -220,7 +201,7 @@ class JsonlFdrRecorder:
             raise InvalidInputError("fdr.kind", "must be a non-empty string")
         self._refuse_forked()
         body = to_jsonable(payload)
-        with self._lock:
+        with self._locked():
             if self._lock_fd < 0:
                 raise FdrWriteError(f"FDR {self._path}: recorder is closed")
             self._pending.hold(self._seq, self._line(kind, body))
@@ -252,7 +233,7 @@ class JsonlFdrRecorder:
         """Write the pending records now (say, once space has returned); ``FdrWriteError`` if
         they still cannot be written."""
         self._refuse_forked()
-        with self._lock:
+        with self._locked():
             if self._pending.waiting and self._lock_fd < 0:
                 raise FdrWriteError(f"FDR {self._path}: recorder is closed")
             self._write_pending()
@@ -271,7 +252,7 @@ class JsonlFdrRecorder:
             fds, (self._fd, self._lock_fd) = (self._fd, self._lock_fd), (-1, -1)
             close_copies(*fds)
             return
-        with self._lock:
+        with self._locked():
             lost: FdrWriteError | None = None
             if self._pending.waiting and self._lock_fd >= 0:
                 try:
@@ -299,6 +280,21 @@ class JsonlFdrRecorder:
         self._noted = (
             "; the next recorder to append to this log records them as fdr.records_dropped"
         )
+
+    @contextlib.contextmanager
+    def _locked(self) -> Iterator[None]:
+        """Hold the recorder's lock; a rotation failure seen meanwhile is logged once it is
+        released (the logs' forwarder may write that warning to this very recorder)."""
+        failure = None
+        try:
+            with self._lock:
+                try:
+                    yield
+                finally:
+                    failure = self._rotation.take_failure()
+        finally:
+            if failure is not None:
+                failure.log()
 
     def _refuse_forked(self) -> None:
         if (refused := forked_from(self._pid)) is not None:
@@ -337,6 +333,9 @@ class JsonlFdrRecorder:
         return rotated_segments(self._path)
 
     def _write_durably(self, data: bytes) -> None:
+        """Append ``data`` to the live segment, rotating it first when ``data`` would take it
+        past ``max_bytes``, or when the file system refuses it more bytes (EFBIG): then the
+        write is tried once more in the new segment (a failure there is handled as any)."""
         if self._fd < 0:
             self._fd = open_for_append(self._path)
         if self._repair_to is not None:  # the unacknowledged line goes, whole or not
@@ -346,6 +345,18 @@ class JsonlFdrRecorder:
         if start > 0 and start + len(data) > self._max_bytes and self._rotate():
             start = 0
         try:
+            self._append(data, start)
+        except OSError as exc:  # a segment of records too large for its file system: a new one
+            too_large = exc.errno == errno.EFBIG and start > 0 and self._repair_to is None
+            if not (too_large and self._rotate()):
+                raise
+            self._append(data, 0)
+
+    def _append(self, data: bytes, start: int) -> None:
+        """Write ``data`` at the end of the live segment (``start`` bytes) and fsync it; on a
+        failure roll back to ``start``, the last complete line, so the retry is not glued to a
+        fragment (``_repair_to`` says where, when even that fails), and raise."""
+        try:
             view = memoryview(data)
             while view:
                 written = os.write(self._fd, view)
@@ -354,38 +365,24 @@ class JsonlFdrRecorder:
                 view = view[written:]
             os.fsync(self._fd)
         except OSError:
-            try:  # roll back to the last complete line, so the retry is not glued to a fragment
+            try:
                 os.ftruncate(self._fd, start)
                 os.fsync(self._fd)
             except OSError:
                 self._repair_to = start
             raise
 
-    def _next_segment_number(self) -> int:
-        numbers = [n for n, _ in self._rotated()]
-        meta = read_meta(self._meta_path)
-        return max([0, *numbers, int(meta.get("last_segment", 0))]) + 1
-
     def _rotate(self) -> bool:
         """Start a new live segment. ``False`` when nothing could be moved (the number could
         not be reserved or the rename failed, say on a full disk): the caller keeps appending
         to the live segment. After the rename an error propagates with ``_fd`` closed, so the
         next write opens the new live segment: the rotation is then complete either way."""
-        number = self._reserved or self._next_segment_number()
-        while segment_path(self._path, number).exists():  # never overwrite (we hold the lock)
-            number += 1
-        target = segment_path(self._path, number)
         # the last seq given to a record acknowledged, or let go and so noted: never one that
         # waits (a kill before it is written must leave no gap that no note explains)
         waiting = self._pending.records
         last_seq = waiting[0][0] - 1 if waiting else self._seq - 1
-        try:  # reserve the number first: a failure here leaves everything as it was
-            write_meta(self._meta_path, {"last_segment": number, "last_seq": last_seq})
-            self._reserved = number  # kept for the next try: one number per rotation
-            self._path.rename(target)  # atomic: the records are under exactly one name
-        except OSError:
-            return False  # at worst a reserved number stays unused: never a reused one
-        self._reserved = None
+        if not self._rotation.move_aside(last_seq, os.fstat(self._fd).st_size):
+            return False
         os.close(self._fd)
         self._fd = -1
         self._fd = open_for_append(self._path)  # fsyncs the directory: the rename too

@@ -11,12 +11,16 @@ records the loss as ``fdr.records_dropped``.
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import json
 import os
 from collections import deque
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
+
+from c3_matcher.fdr.files import make_dirs_durably, refusal
+from c3_matcher.fdr.records import FdrOpenError
 
 LET_GO = "more than [fdr] max_pending_bytes waited while the disk refused them: the oldest went"
 STOPPED = "the recorder stopped (closed, killed or out of power) while the disk refused them"
@@ -148,6 +152,27 @@ def held_by(path: Path) -> str:
             "whether this process or another process"
         )
     return f"another process (pid {holder}) is writing this FDR; one writer per path"
+
+
+def take_lock(log: Path, what: str) -> int:
+    """Hold ``lock_path(log)``: its descriptor, locked (``FdrOpenError`` naming ``what`` when
+    another recorder holds it, or when ``log`` is refused by ``refusal``, before anything is
+    made: a directory, not a regular file, under a file, or holding something other than
+    records: never cut, appended to or removed)."""
+    try:
+        refused = refusal(log)  # an OSError deciding it: cannot create
+        if refused is not None:
+            raise FdrOpenError(what, refused)
+        make_dirs_durably(log.parent)
+        fd = os.open(lock_path(log), os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise FdrOpenError(what, f"cannot create: {exc.strerror or exc}") from exc
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        raise FdrOpenError(what, held_by(lock_path(log))) from exc
+    return fd
 
 
 def _note(line: str) -> DroppedRecords | None:
