@@ -314,9 +314,10 @@ def test_bench_refuses_missing_engines_before_timing_any(
     assert stubbed_children == [] and out == ""
     assert "no valid disk/depth engine" in err and "no valid lighterglue/xfeat engine" in err
     assert err.strip().splitlines()[-1] == (
-        "error: 2 engine(s) to bench are missing or unusable, nothing was timed; "
+        "c3-matcher: 2 engine(s) to bench are missing or unusable, nothing was timed; "
         "build them: c3-matcher engines build --only disk/depth --only lighterglue/xfeat"
     )
+    assert all(line.startswith("c3-matcher: ") for line in err.strip().splitlines()), err
 
 
 def test_a_bench_case_whose_process_fails_is_said_and_the_others_still_run(
@@ -340,7 +341,7 @@ def test_a_bench_case_whose_process_fails_is_said_and_the_others_still_run(
     rows = out.splitlines()[2:]
     failed = [row for row in rows if "failed (arena=on): killed by signal 9" in row]
     assert failed and len(rows) > len(failed)
-    assert f"{len(failed)} case(s) failed, the others are timed" in err
+    assert f"c3-matcher: {len(failed)} case(s) failed, the others are timed" in err
 
 
 def test_a_case_process_that_fails_becomes_a_failed_case_with_its_last_words(
@@ -359,3 +360,76 @@ def test_a_case_process_that_fails_becomes_a_failed_case_with_its_last_words(
     assert result.case == f"{engine.name} 256x192"
     assert result.settings == "mem_pattern=off arena=off"  # a sweep's cases told apart
     assert result.failed.startswith("exit status ") and len(result.failed) > len("exit status 1")
+
+
+@pytest.mark.parametrize(
+    ("raised", "said"),
+    [
+        ("build", "c3-matcher: engine build xfeat/default failed: export failed: boom; no engine"),
+        ("specs", "c3-matcher: engine specs declared more than once: disk/depth"),
+    ],
+)
+def test_a_build_that_fails_is_one_line_starting_as_every_other_and_exit_1(
+    raised: str,
+    said: str,
+    engines_at,  # type: ignore[no-untyped-def]
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    import c3_matcher_tools.engines.compiler as compiler
+
+    def fails(*args: object, **kwargs: object) -> None:
+        if raised == "build":
+            raise compiler.EngineBuildError("xfeat/default", "export failed: boom")
+        raise ValueError("engine specs declared more than once: disk/depth")
+
+    engines_at(tmp_path)
+    monkeypatch.setattr(compiler, "build_engines", fails)
+    assert main(["engines", "build", "--json"]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err.startswith(said) and err.count("\n") == 1, err
+
+
+def test_bench_without_an_extractor_to_time_is_one_line_starting_as_every_other(
+    engines_at,  # type: ignore[no-untyped-def]
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    import c3_matcher_tools.engines.cli as cli
+    from c3_matcher.engines.cli import EnginesCliContext
+
+    monkeypatch.setattr(cli, "engines_context", lambda *_: EnginesCliContext(tmp_path, ()))
+    assert main(["engines", "bench", "--runs", "1", "--json"]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and err == (
+        "c3-matcher: no installed plugin declares an extractor engine to bench\n"
+    ), err
+
+
+def test_bench_notes_and_refusals_all_start_as_every_other_line(
+    engines_at,  # type: ignore[no-untyped-def]
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A matcher no extractor serves is noted; the extractor's engine missing is refused."""
+    import c3_matcher_tools.engines.cli as cli
+    from c3_matcher.engines.cli import EnginesCliContext, engines_context
+
+    def one_extractor(*args: object) -> EnginesCliContext:
+        real = engines_context(*args)  # type: ignore[arg-type]
+        disk = next(s for s in real.specs if s.kind == "extractor" and s.model == "disk")
+        other = next(s for s in real.specs if s.kind == "matcher" and s.feature_type != "disk")
+        return EnginesCliContext(tmp_path, (disk, other))
+
+    engines_at(tmp_path)  # empty: the extractor's engine is missing
+    monkeypatch.setattr(cli, "engines_context", one_extractor)
+    assert main(["engines", "bench", "--runs", "1", "--json"]) == 1
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert out == "" and len(lines) == 3, err
+    assert lines[0].startswith("c3-matcher: note: ") and "not benched" in lines[0], err
+    assert lines[2].startswith("c3-matcher: 1 engine(s) to bench are missing"), err
+    assert all(line.startswith("c3-matcher: ") for line in lines), err

@@ -22,7 +22,6 @@ FLIGHT = REPO / "data" / "flights" / "naip_demo"
         ([str(FLIGHT / "tiles.mbtiles"), "--flight-candidates"], "needs a flight dataset"),
         ([str(REPO / "data"), "--workers", "0"], "a directory without dataset.json"),
         ([str(FLIGHT), "--stride", "999", "--workers", "0"], "stride in [1, window]"),
-        ([str(FLIGHT), "--min-coverage", "0", "--workers", "0"], "min_coverage must be in"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(
@@ -36,6 +35,7 @@ def test_bad_input_is_one_line_and_exit_2(
     assert main(["features", "build", *argv]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1, err
+    assert err.startswith("c3-matcher: "), err  # as every other refusal: scripts match it
     assert not (flight / "tiles.mbtiles.features.sqlite").exists()
 
 
@@ -60,6 +60,20 @@ def test_a_count_out_of_its_bounds_is_a_usage_error_naming_the_option(
     err = capsys.readouterr().err.strip()
     assert stop.value.code == 2 and len(err.splitlines()) == 1, err
     assert f"{option}: must be {bound}, got {value}" in err
+
+
+@pytest.mark.parametrize("value", ["7", "0", "-0.5", "nan", "inf"])
+def test_a_coverage_out_of_its_bounds_is_a_usage_error_naming_the_option(
+    value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c3_matcher.cli import main
+
+    with pytest.raises(SystemExit) as stop:  # refused while parsing, before the store is read
+        main(["features", "build", str(FLIGHT), "--min-coverage", value, "--workers", "0"])
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and len(err.splitlines()) == 1, err
+    assert err.startswith("c3-matcher features build: error: argument --min-coverage: "), err
+    assert f"must be finite and in (0, 1], got {float(value)}" in err, err
 
 
 @pytest.mark.slow
@@ -97,6 +111,7 @@ def test_a_sidecar_path_that_cannot_be_opened_is_one_line_and_exit_2(
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert f"{sidecar}: cannot be opened for writing" in err and len(err.splitlines()) == 1, err
+    assert err.startswith("c3-matcher: features build: "), err
     assert sidecar.is_dir() and not list(sidecar.iterdir())
 
 
@@ -127,3 +142,34 @@ def test_info_on_an_unreadable_sidecar_says_rebuild_and_exits_1(
     assert main(["features", "info", str(store)]) == 1  # damaged, not bad input
     err = capsys.readouterr().err.strip()
     assert f"features build {store} --strategy NAME" in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.parametrize("sidecar", ["garbage\n", "older layout"])
+def test_info_json_on_an_unreadable_sidecar_prints_the_problem_and_the_rebuild_command(
+    sidecar: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """As ``fdr --json`` and ``engines verify --json``: a document on stdout, saying what is
+    wrong and the command that builds the sets again; the line on stderr as without --json."""
+    import sqlite3
+
+    from c3_matcher.cli import main
+
+    store = tmp_path / "s4.mbtiles"
+    shutil.copy(FLIGHT / "tiles.mbtiles", store)
+    path = tmp_path / "s4.mbtiles.features.sqlite"
+    if sidecar == "older layout":
+        with sqlite3.connect(path) as db:
+            db.execute("CREATE TABLE feature_sets (set_id INTEGER PRIMARY KEY, engine TEXT)")
+    else:
+        path.write_text(sidecar)
+    assert main(["features", "info", str(store), "--verify"]) == 1
+    said = capsys.readouterr()
+    assert main(["features", "info", str(store), "--verify", "--json"]) == 1
+    out, err = capsys.readouterr()
+    assert err == said.err and said.out == "", err
+    document = json.loads(out)
+    assert document["store"] == str(store) and document["sidecar"] == str(path)
+    assert document["sets"] is None  # they cannot be read
+    assert err.strip() == f"c3-matcher: {document['problem']}", err
+    assert document["command"].startswith(f"c3-matcher features build {store} --strategy NAME")
+    assert document["command"] in document["problem"]

@@ -68,6 +68,7 @@ def test_sets_of_another_extractor_engine_are_named_as_never_served(
     code, out, err = _run(capsys, "features", "info", str(flight), "--verify", "--json")
     (built,) = json.loads(out)["sets"]
     assert (code, built["engine_installed"], err) == (0, True, "")
+    assert built["command"] is None  # served whole: nothing to build
     assert built["installed_extractor_sha256"] == built["extractor_sha256"]
 
     sha = _rebuilt(engine_dir, tmp_path / "engines")
@@ -87,6 +88,7 @@ def test_sets_of_another_extractor_engine_are_named_as_never_served(
     assert "was built with another extractor engine" in err
     assert f"than the installed one ({sha[:12]}...), so the flight is never served it." in err
     assert rebuild in err and "No command removes a single set" in err
+    assert old["command"].startswith(rebuild) and f"build its set: {old['command']}." in err
     code, out, text_err = _run(capsys, "features", "info", str(flight))  # plain: said, exit 0
     assert (code, text_err) == (0, err), text_err
     assert "engine_installed: False" in out and f"installed_extractor_sha256: {sha}" in out
@@ -101,7 +103,8 @@ def test_sets_of_another_extractor_engine_are_named_as_never_served(
     code, out, err = _run(capsys, "features", "info", str(flight), "--verify", "--json")
     sets = {s["set_id"]: s for s in json.loads(out)["sets"] if ":clahe:" not in s["set_id"]}
     assert code == 0, err
-    assert sets.pop(old["set_id"])["engine_installed"] is False
+    replaced = sets.pop(old["set_id"])
+    assert replaced["engine_installed"] is False and replaced["command"] is None  # replaced
     ((new_id, new),) = sets.items()
     assert new["engine_installed"] is True and new["extractor_sha256"] == sha
     assert f"Set {brief_set_id(new_id)}, which it is served, replaces it." in err, err

@@ -8,6 +8,7 @@ that builds its sets again."""
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 import shlex
 import sqlite3
@@ -106,3 +107,24 @@ def test_a_damaged_sidecar_is_exit_1_and_names_the_command_for_its_sets(
     assert str(sidecar) in err and "the flight extracts" in err, err
     assert f"features build {flight} --strategy NAME --window W --stride S" in err, err
     assert f"{sidecar.name}.damaged" in err, err
+
+
+@pytest.mark.slow
+def test_with_json_a_stale_set_carries_the_command_that_extracts_it_again(
+    flight: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from c3_matcher.cli import main
+
+    info = ["features", "info", str(flight), "--verify", "--json"]
+    capsys.readouterr()
+    assert main(info) == 0
+    document = json.loads(capsys.readouterr().out)
+    ((intact,),) = [document["sets"]]
+    assert intact["command"] is None and document["problem"] is document["command"] is None
+    _tiles_changed(flight / "tiles.mbtiles")
+    assert main(info) == 1
+    out, err = capsys.readouterr()
+    (stale,) = json.loads(out)["sets"]
+    assert stale["stale"] > 0 and f"extract them again: {stale['command']}." in err, err
+    built = f"c3-matcher features build {flight} --strategy xfeat --window 448 --stride 32"
+    assert stale["command"].startswith(f"{built} --flight-candidates"), stale["command"]

@@ -30,7 +30,9 @@ set the run asks for. Stopped by Ctrl-C or SIGTERM during the frames or its fina
 replay keeps the frames done: its ``run.json`` says how many (``complete``, ``frames_done``,
 ``frames_planned``), then ``results.jsonl`` and ``report.json`` hold them (no map, no flight
 report) and one line says so (exit 130/143). The report reaches stdout before the files are
-written: a final write that fails (a full disk) still leaves it.
+written: a final write that fails (a full disk) still leaves it; a stdout that cannot be written
+(its reader gone, a full disk under it) still leaves the files, and fails the command as it
+would have (exit 141, or 1 naming stdout) once they are written.
 
 The command only: flying and scoring are the run layer's (:mod:`c3_matcher_tools.run`).
 """
@@ -46,6 +48,7 @@ from typing import Any
 from c3_matcher.atomic import write_text_atomically
 from c3_matcher.commands import EXIT_OK, CommandRegistry, add_max_keypoints_option, bounded_int
 from c3_matcher.context import CommandContext
+from c3_matcher.errors import OutputStreamError
 from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_noise
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
@@ -157,9 +160,13 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
                 run = fly_prepared(
                     prepared, dataset, out, plugin_host=ctx.plugin_host, options=flown
                 )
-                shown = _say_run(ctx, args.json, dataset, run, out, given_settings(args.config))
-                said = True
+                shown, unsaid = _say_run(
+                    ctx, args.json, dataset, run, out, given_settings(args.config)
+                )
+                said = True  # or tried: a stdout that failed is not tried again
                 _write_run(dataset, run, out, shown)
+                if unsaid is not None:  # the files are written: the stdout failure said now
+                    raise unsaid
                 return EXIT_OK
             except FlightStopped as stop:
                 run, signum = stop.run, stop.signum
@@ -179,16 +186,22 @@ def _say_run(
     run: FlightRun,
     out: Path,
     given: GivenSettings,
-) -> dict[str, Any]:
+) -> tuple[dict[str, Any], OSError | OutputStreamError | None]:
     """The report on stdout, before the run's files are written (so that one that cannot be
     written still leaves it), and the unserved line under ``given``, the settings the run was
-    given; ``report.json`` but for the map and flight report it names."""
+    given. First: ``report.json`` but for the map and flight report it names; second: why
+    stdout could not be written (a reader gone, a full disk under it), None when it could,
+    raised once the files are written so that they are whatever happens to stdout."""
     summary = summarize(run.outcomes)
     html = None if no_report_html() else str(out / "report.html")
     shown = {**_run_report(dataset, run, summary, out), "geojson": str(out / "flight.geojson")}
-    _print_report(ctx, as_json, dataset.name, {**shown, "html": html}, summary, out)
+    unsaid: OSError | OutputStreamError | None = None
+    try:
+        _print_report(ctx, as_json, dataset.name, {**shown, "html": html}, summary, out)
+    except (BrokenPipeError, OutputStreamError) as exc:
+        unsaid = exc
     _say_unserved(ctx, dataset, run, shown, out, given)
-    return shown
+    return shown, unsaid
 
 
 def _say_unserved(

@@ -1,6 +1,7 @@
 """``c3-matcher engines build|bench`` (ground tooling; build needs the ``engine-build`` extra).
 
-stdout carries only the result; progress goes to stderr.
+stdout carries only the result; progress goes to stderr, and every line that says why the
+command stopped starts ``c3-matcher:`` (a refusal is raised: the command line says it).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ __all__ = ["register_engines_build_commands"]
 
 def _build(args: argparse.Namespace, command: CommandContext) -> int:
     ctx = engines_context(command.settings, command.plugin_host)
-    from c3_matcher_tools.engines.compiler import EngineBuildError, build_engines
+    from c3_matcher_tools.engines.compiler import build_engines
 
     start = time.perf_counter()
     try:
@@ -39,9 +40,8 @@ def _build(args: argparse.Namespace, command: CommandContext) -> int:
         )
     except InvalidInputError:
         raise  # a bad --only, or what a build needs not installed: exit 2, said by the command line
-    except (EngineBuildError, ValueError) as exc:
-        command.err(f"error: {exc}")
-        return EXIT_FAILURE
+    except ValueError as exc:  # specs declared twice: the plugins' fault (a failed build: exit 1)
+        raise C3Error(str(exc)) from exc
     total = time.perf_counter() - start
     if args.json:
         rows = [
@@ -127,17 +127,16 @@ def _bench_engines(
     return found, missing
 
 
-def _refuse_missing(missing: Sequence[_Missing], command: CommandContext) -> int:
-    """Say which engines are missing (each with its reason) and the one command building them
-    all; nothing was timed."""
+def _refuse_missing(missing: Sequence[_Missing], command: CommandContext) -> C3Error:
+    """Say which engines are missing, each with its reason; the error that ends the command
+    (exit 1) names the one command building them all: nothing was timed."""
     for item in missing:
-        command.err(f"error: {item.error}")
+        command.err(f"c3-matcher: {item.error}")
     only = " ".join(f"--only {item.spec.key}" for item in missing)
-    command.err(
-        f"error: {len(missing)} engine(s) to bench are missing or unusable, nothing was timed; "
+    return C3Error(
+        f"{len(missing)} engine(s) to bench are missing or unusable, nothing was timed; "
         f"build them: {BUILD_COMMAND} {only}"
     )
-    return EXIT_FAILURE
 
 
 def _bench(args: argparse.Namespace, command: CommandContext) -> int:
@@ -153,15 +152,16 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
 
     groups, unserved = _bench_groups(ctx.specs)
     if not groups:
-        command.err("error: no installed plugin declares an extractor engine to bench")
-        return EXIT_FAILURE
+        raise C3Error("no installed plugin declares an extractor engine to bench")
     for matcher in unserved:
-        command.err(f"note: {matcher.key} not benched: no extractor of {matcher.feature_type!r}")
+        command.err(
+            f"c3-matcher: note: {matcher.key} not benched: no extractor of {matcher.feature_type!r}"
+        )
     engines = command.settings.engines
     bench_runtime(engines)  # no requested provider installed: refused here, before any case
     found, missing = _bench_engines(groups, EngineStore(ctx.engine_dir))
     if missing:
-        return _refuse_missing(missing, command)
+        raise _refuse_missing(missing, command)
     image = _bench_image(args, ctx)
     session_options: tuple[tuple[bool, bool], ...] | None = None  # arena as [engines] says
     if args.sweep_session_options:
@@ -185,7 +185,7 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
     failed = [f"{r.case} ({r.settings})" for r in results if isinstance(r, FailedCase)]
     if failed:
         said = ", ".join(failed)
-        command.err(f"error: {len(failed)} case(s) failed, the others are timed: {said}")
+        command.err(f"c3-matcher: {len(failed)} case(s) failed, the others are timed: {said}")
         return EXIT_FAILURE
     return EXIT_OK
 

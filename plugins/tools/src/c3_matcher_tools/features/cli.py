@@ -10,15 +10,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegistry, bounded_int
+from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, CommandRegistry, bounded_float, bounded_int
 from c3_matcher.context import CommandContext
+from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.features.build import WINDOW_PX_RANGE
 from c3_matcher_tools.features.command import GivenSettings, build_command, given_settings
+from c3_matcher_tools.features.unreadable import Unreadable, unreadable_sidecar
 from c3_matcher_tools.features.windows import brief_set_id
 
 if TYPE_CHECKING:
-    from c3_matcher.tilestore.features import FeatureStoreUnavailableError, MapFeatureStore
+    from c3_matcher.tilestore.features import MapFeatureStore
 
 __all__ = ["DEFAULT_WORKERS", "register_features_command"]
 
@@ -90,7 +92,7 @@ def _add_build_options(b: argparse.ArgumentParser) -> None:
     )
     b.add_argument(
         "--min-coverage",
-        type=float,
+        type=bounded_float(0.0, 1.0, above=True),
         default=0.5,
         help="store a window when stored tiles cover at least this share of it",
     )
@@ -116,8 +118,9 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
         if args.flight_candidates:
             windows = fb.flight_windows(path, stride)
     elif args.flight_candidates:
-        ctx.err("features build: --flight-candidates needs a flight dataset")
-        return EXIT_USAGE
+        raise InvalidInputError(
+            "--flight-candidates", f"needs a flight dataset (a directory), not the store {path}"
+        )
     window = window or fb.DEFAULT_WINDOW_PX
     workers, notice = _workers(args)
     try:
@@ -135,9 +138,8 @@ def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
             progress=_progress(notice, ctx.err),
             plugin_host=ctx.plugin_host,
         )
-    except ValueError as exc:
-        ctx.err(f"features build: {exc}")
-        return EXIT_USAGE
+    except ValueError as exc:  # the build's own refusals, InvalidInputError among them: exit 2
+        raise InvalidInputError("features build", " ".join(str(exc).split())) from exc
     if args.json:
         ctx.out(json.dumps(report.__dict__, indent=2))
         return EXIT_OK
@@ -185,7 +187,6 @@ def _progress(first: str | None, err: Callable[[str], None]) -> Callable[[str], 
 def _store_of(path: Path) -> Path:
     """The MBTiles store ``path`` names: itself, or a flight dataset directory's store;
     InvalidInputError (exit 2) naming what it is not."""
-    from c3_matcher.errors import InvalidInputError
     from c3_matcher_tools.dataset.format import is_flight_dataset, load_dataset
 
     if path.is_dir():
@@ -206,7 +207,8 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     digest against the store's tiles now), each set counting its ``intact``, ``damaged`` and
     ``stale`` windows: exit 1 when one is damaged or stale, or when a strategy has sets but none
     the installed engine built (the flight extracts those instead; a build extracts them
-    again)."""
+    again). A sidecar that cannot be read is said (:func:`unreadable_sidecar`), with ``--json``
+    in a document too."""
     from c3_matcher.tilestore.features import FeatureStoreUnavailableError, sidecar_path
     from c3_matcher.tilestore.mbtiles import MBTilesStore
     from c3_matcher.tilestore.sidecar import SidecarDamagedError
@@ -217,19 +219,18 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     flight = args.store if args.store.is_dir() else None
     try:
         found = _stored_sets(store, path, verify=args.verify, flight=flight)
-    except SidecarDamagedError as exc:
-        ctx.err(
-            f"c3-matcher: {exc}; the flight extracts instead where it is. "
-            f"{_build_its_sets(args.store, path)}."
-        )
-        return EXIT_FAILURE
-    except FeatureStoreUnavailableError as exc:
-        return _unavailable(exc, args.store, store, path, ctx)
+    except (SidecarDamagedError, FeatureStoreUnavailableError) as exc:
+        said = unreadable_sidecar(exc, args.store, store, path)
+        ctx.err(f"c3-matcher: {said.problem}")
+        if args.json:
+            _print_document(store, path, None, ctx, said=said)
+        return said.status
     _mark_engines(found.sets, ctx)
-    _print_sets(store, path, found.sets, ctx, as_json=args.json)
     given = given_settings(args.config)  # the set asked for is these settings'
-    _window_notes(args.store, store, path, found, ctx, given)
-    unserved = _engine_notes(args.store, path, found, ctx, given)
+    _mark_commands(args.store, found, given)
+    _print_sets(store, path, found.sets, ctx, as_json=args.json)
+    _window_notes(store, path, found, ctx)
+    unserved = _engine_notes(path, found, ctx)
     failed = found.damaged or found.stale or (unserved and args.verify)
     return EXIT_FAILURE if failed else EXIT_OK
 
@@ -278,26 +279,34 @@ def _flight_only(
     return only
 
 
-def _build_its_sets(given: Path, path: Path) -> str:
-    """What builds the sets of the damaged sidecar ``path`` again: they cannot be read from it,
-    so each is named by the user (``features build`` keeps the file aside)."""
-    command = build_command(given, "NAME", "W", "S", None)
-    return (
-        f"Its sets cannot be read from it: build each again with the strategy, window and stride "
-        f"it was built with (the build keeps this file as {path.name}.damaged): {command}"
-    )
+def _mark_commands(given: Path, found: _Found, settings: GivenSettings) -> None:
+    """Mark each set with ``command``, what builds it (:func:`build_command` beside the store
+    ``given`` names, under ``settings``) where the flight is not served all it holds: damaged
+    or stale windows, or a set the flight is never served that no served set replaces; None
+    where nothing needs building."""
+    for s in found.sets:
+        unserved = s["engine_installed"] is not None and not s["served"]
+        needed = s.get("damaged") or s.get("stale") or (unserved and not _replacing(found, s))
+        s["command"] = (
+            build_command(
+                given, s["strategy"], s["window_px"], s["stride_px"], _only(found, s), settings
+            )
+            if needed
+            else None
+        )
 
 
-def _window_notes(
-    given: Path,
-    store: Path,
-    path: Path,
-    found: _Found,
-    ctx: CommandContext,
-    settings: GivenSettings,
-) -> None:
+def _replacing(found: _Found, s: dict[str, object]) -> dict[str, object] | None:
+    """The set the flight is served in place of ``s``: same strategy and window (the last
+    listed), None where there is none."""
+    key = (s["strategy"], s["window_px"])
+    served = (o for o in reversed(found.sets) if o["served"])
+    return next((o for o in served if (o["strategy"], o["window_px"]) == key), None)
+
+
+def _window_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -> None:
     """Say of each set with damaged or stale windows how many, and the command that extracts
-    them again: the one that builds that set (:func:`build_command`, under ``settings``)."""
+    them again: the one that builds that set (:func:`_mark_commands`)."""
     for s in found.sets:
         why = {
             "damaged": "the flight extracts those instead",
@@ -307,12 +316,9 @@ def _window_notes(
         for kind, because in why.items():
             if not (count := int(str(s.get(kind, 0)))):
                 continue
-            command = build_command(
-                given, s["strategy"], s["window_px"], s["stride_px"], _only(found, s), settings
-            )
             ctx.err(
                 f"c3-matcher: {path}: {count} {kind} windows in {_named(s)} ({because}); "
-                f"extract them again: {command}."
+                f"extract them again: {s['command']}."
             )
 
 
@@ -326,46 +332,31 @@ def _named(s: dict[str, object]) -> str:
     return f"set {brief_set_id(s['set_id'])} ({s['strategy']}, {s['window_px']} px windows)"
 
 
-def _unavailable(
-    exc: FeatureStoreUnavailableError, given: Path, store: Path, path: Path, ctx: CommandContext
-) -> int:
-    """Say why the sidecar cannot be opened (locked, in WAL journal mode where it cannot be
-    read, not permitted: exit 2) or read (damaged: exit 1, as damaged windows) and what to do
-    about it."""
-    import sqlite3
-
-    from c3_matcher.tilestore.files import open_failure, wal_blocked
-    from c3_matcher.tilestore.sidecar_file import sqlite_code
-
-    cause = exc.__cause__ or exc
-    code = sqlite_code(cause)
-    if code in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
-        why, then = f"locked by another process ({cause})", "Try again when it is released"
-    elif wal_blocked(path, cause) is not None:  # exc.why says it, and the way out
-        why, then = (
-            exc.why,
-            (
-                f"Make it one file on a writable copy of its folder, keeping its features (then "
-                f"copy it back): c3-matcher features build {store}"
-            ),
-        )
-    elif code == sqlite3.SQLITE_CANTOPEN and (failed := open_failure(path, "a features sidecar")):
-        why, then = failed, "Let the user who runs c3-matcher read it and search its folder"
-    else:
-        why, then = f"unreadable ({' '.join(str(cause).split())})", _build_its_sets(given, path)
-    ctx.err(
-        f"c3-matcher: {path}: {why}; the flight extracts every candidate instead while it is "
-        f"so. {then}."
-    )
-    return EXIT_FAILURE if then.startswith("Its sets") else EXIT_USAGE
+def _print_document(
+    store: Path,
+    path: Path,
+    sets: list[dict[str, object]] | None,
+    ctx: CommandContext,
+    *,
+    said: Unreadable | None = None,
+) -> None:
+    """``features info --json``: the store, its sidecar, the sets it holds (None: it cannot be
+    read: ``said``, why, and the command that builds them again)."""
+    document = {"store": str(store), "sidecar": str(path), "sets": sets}
+    problem = {
+        "problem": None if said is None else said.problem,
+        "command": None if said is None else said.command,
+    }
+    ctx.out(json.dumps({**document, **problem}, indent=2))
 
 
 def _print_sets(
     store: Path, path: Path, sets: list[dict[str, object]], ctx: CommandContext, *, as_json: bool
 ) -> None:
-    """Print the stored sets: as JSON, one line each, or that there are none."""
+    """Print the stored sets: as JSON (:func:`_print_document`), one line each, or that there
+    are none."""
     if as_json:
-        ctx.out(json.dumps({"store": str(store), "sidecar": str(path), "sets": sets}, indent=2))
+        _print_document(store, path, sets, ctx)
     elif not sets:
         ctx.out(f"{store}: no precomputed features ({path} absent or empty)")
     else:
@@ -418,15 +409,12 @@ def _mark_engines(sets: list[dict[str, object]], ctx: CommandContext) -> None:
             s["engine_unknown"] = known.why
 
 
-def _engine_notes(
-    store: Path, path: Path, found: _Found, ctx: CommandContext, settings: GivenSettings
-) -> int:
+def _engine_notes(path: Path, found: _Found, ctx: CommandContext) -> int:
     """Say of each set the flight is not served (:func:`_mark_engines`: another extractor
     engine, or other settings, built it) that it is never served, and what builds the set it is
-    served (under ``settings``, those ``features info`` was given); of each set whose engine
-    cannot be named, why. The number of sets not served that
-    no served set (same strategy and window) replaces: the flight extracts their candidates."""
-    served = {(s["strategy"], s["window_px"]): s for s in found.sets if s["served"]}
+    served (:func:`_mark_commands`); of each set whose engine cannot be named, why. The number
+    of sets not served that no served set (same strategy and window) replaces: the flight
+    extracts their candidates."""
     unserved = 0
     for s in found.sets:
         what = _named(s)
@@ -448,13 +436,12 @@ def _engine_notes(
             f"than the installed one ({str(s['installed_extractor_sha256'])[:12]}...), so the "
             "flight is never served it."
         )
-        other = served.get((s["strategy"], s["window_px"]))
+        other = _replacing(found, s)
         if other is None:
             unserved += 1
-            command = build_command(
-                store, s["strategy"], s["window_px"], s["stride_px"], _only(found, s), settings
+            built += (
+                f" The flight extracts those candidates instead; build its set: {s['command']}."
             )
-            built += f" The flight extracts those candidates instead; build its set: {command}."
         else:
             built += f" Set {brief_set_id(other['set_id'])}, which it is served, replaces it."
         ctx.err(
