@@ -93,4 +93,5 @@ def test_a_case_whose_every_frame_raises_reports_its_frame_times_and_no_candidat
         assert "n/a" in row.split()  # cand p95
         assert f"note: {r['label']}: 2/2 timed frames raised InsufficientInliersError" in text
     assert text.count("cand p95 and stage times: n/a (none matched)") == 2
-    assert "peak MiB" in text and " MB" not in text  # the table and the speed-ups
+    memory = text.replace("GPU memory <= 800 MB", "")  # C3-PT-01's bar, as the spec states it
+    assert "peak MiB" in text and " MB" not in memory  # the table and the speed-ups

@@ -54,7 +54,12 @@ from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS
 from c3_matcher_tools.args import add_strategies_option
-from c3_matcher_tools.bench_report import comparisons, format_report, text_report
+from c3_matcher_tools.bench_report import (
+    comparisons,
+    format_report,
+    latency_target,
+    text_report,
+)
 from c3_matcher_tools.bench_worker import BenchCase, time_interleaved
 from c3_matcher_tools.extras import install_line, not_installed
 
@@ -354,6 +359,7 @@ def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
         "interleaved": [[case.label for case in group] for group in groups],
         "pytorch_reference": pytorch_reference(args, ctx.plugin_host, strategies),
         "results": results,
+        "latency_target": latency_target(results),
         "comparisons": comparisons(results),
         "failed": failed,
     }

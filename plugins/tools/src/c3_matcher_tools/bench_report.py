@@ -1,14 +1,87 @@
-"""The figures ``c3-matcher bench`` reports from its cases' results: the ratios a run proves
-(speed-ups of frame p50 and p95, slower / faster, >1 means the second case is faster; the median
-of the two cases' ratios round by round, where both were timed in the same rounds; peak RSS of
-both sides, MiB) and the table."""
+"""The figures ``c3-matcher bench`` reports from its cases' results: each case judged against
+the latency target C3-PT-01 (:func:`latency_target`), the ratios a run proves (speed-ups of
+frame p50 and p95, slower / faster, >1 means the second case is faster; the median of the two
+cases' ratios round by round, where both were timed in the same rounds; peak RSS of both sides,
+MiB) and the table."""
 
 from __future__ import annotations
 
 import statistics
 from typing import Any
 
-__all__ = ["comparisons", "format_report", "paired_speedup", "text_report"]
+from c3_matcher_tools.run.acceptance import Bar
+
+__all__ = [
+    "CANDIDATE_P95_BAR",
+    "FRAME_P95_BAR",
+    "GPU_MEMORY_BAR",
+    "comparisons",
+    "format_report",
+    "latency_target",
+    "paired_speedup",
+    "text_report",
+]
+
+Result = dict[str, Any]
+Pair = tuple[str, Result | None, Result | None]  # (what, slower side, faster side)
+
+FRAME_P95_BAR = Bar("<=", 180)
+"""C3-PT-01: the p95 of a frame's match (ms): 1 query and its candidate tiles."""
+CANDIDATE_P95_BAR = Bar("<=", 60)
+"""C3-PT-01: the p95 of a candidate's time (ms), every stage it went through."""
+GPU_MEMORY_BAR = Bar("<=", 800)
+"""C3-PT-01: the GPU memory the matcher holds (MB). Bench does not measure it: its peak MiB is
+the worker's host memory (RSS)."""
+GPU_CPU_ONLY = "not measured (every case ran on the CPU: no GPU memory held)"
+GPU_NOT_MEASURED = "not measured by bench (its peak MiB is host memory, RSS)"
+
+
+def latency_target(results: list[Result]) -> Result:
+    """Each case (by label) judged against C3-PT-01: its frame p95 and candidate p95 (ms),
+    each with ``"pass"`` True (bar met), False (missed) or None (no figure: no frame matched,
+    so no candidate time); GPU memory is never measured here, neither passed nor missed, and
+    ``gpu_memory`` says why (every case on the CPU, or bench measuring host memory only)."""
+    cpu = all(r["provider"] == "CPUExecutionProvider" for r in results)
+    return {
+        "bars": {
+            "frame_p95_ms": str(FRAME_P95_BAR),
+            "per_candidate_p95_ms": str(CANDIDATE_P95_BAR),
+            "gpu_memory_mb": str(GPU_MEMORY_BAR),
+        },
+        "gpu_memory": GPU_CPU_ONLY if cpu else GPU_NOT_MEASURED,
+        "cases": {
+            r["label"]: {
+                "frame_p95_ms": _judged(FRAME_P95_BAR, r["frame_ms"]),
+                "per_candidate_p95_ms": _judged(CANDIDATE_P95_BAR, r["per_candidate_ms"]),
+                "gpu_memory_mb": {"value": None, "pass": None},
+            }
+            for r in results
+        },
+    }
+
+
+def _judged(bar: Bar, ms: dict[str, float] | None) -> Result:
+    """A p95 of ``ms`` and whether it meets ``bar`` (None without a figure)."""
+    p95 = None if ms is None else ms["p95"]
+    return {"value": p95, "pass": None if p95 is None else bar.judge(p95)}
+
+
+def _p95_cell(bar: Bar, ms: dict[str, float] | None) -> str:
+    """A p95 in ms as the table prints it, marked '!' where it misses ``bar``; n/a when there
+    is none (no frame matched)."""
+    if ms is None:
+        return "n/a"
+    return bar.figure(ms["p95"]) + ("!" if bar.judge(ms["p95"]) is False else "")
+
+
+def _target_line(target: Result) -> str:
+    """The C3-PT-01 bars the table's p95 columns are judged against, and GPU memory's state."""
+    bars = target["bars"]
+    return (
+        f"C3-PT-01 bars: frame p95 {bars['frame_p95_ms']} ms, cand p95 "
+        f"{bars['per_candidate_p95_ms']} ms ('!' = bar missed; n/a: nothing to measure), GPU "
+        f"memory {bars['gpu_memory_mb']} MB: {target['gpu_memory']}"
+    )
 
 
 def _speedup(slow: dict[str, Any] | None, fast: dict[str, Any] | None, key: str = "p50") -> str:
@@ -18,21 +91,12 @@ def _speedup(slow: dict[str, Any] | None, fast: dict[str, Any] | None, key: str 
     return f"{slow['frame_ms'][key] / fast['frame_ms'][key]:.2f}x"
 
 
-def _p95(ms: dict[str, float] | None) -> str:
-    """A p95 in ms as the table prints it; n/a when there is none (no frame matched)."""
-    return "n/a" if ms is None else f"{ms['p95']:.0f}"
-
-
 def _sources(r: dict[str, Any]) -> str:
     counts = r.get("feature_sources") or {}
     total = sum(counts.values())
     if not total:
         return ""
     return " ".join(f"{k} {v}/{total}" for k, v in sorted(counts.items()) if k != "none") or ""
-
-
-Result = dict[str, Any]
-Pair = tuple[str, Result | None, Result | None]  # (what, slower side, faster side)
 
 
 def comparisons(results: list[Result]) -> list[Result]:
@@ -130,6 +194,8 @@ def _pairs(results: list[Result], strategy: str) -> list[Pair]:
 
 
 def format_report(report: dict[str, Any]) -> str:
+    """The table: a row a case (its frame and candidate p95 marked '!' where they miss
+    C3-PT-01's bars), the line naming those bars, the speed-ups and the stage times."""
     results = report["results"]
     sift = next((r for r in results if r["case"]["kind"] == "sift"), None)
     torch_ref = {r["case"]["strategy"]: r for r in results if r["case"]["kind"] == "pytorch"}
@@ -148,10 +214,12 @@ def format_report(report: dict[str, Any]) -> str:
         lines.append(
             f"{r['label']:66} {r['provider'].removesuffix('ExecutionProvider'):18} "
             f"{r['frame_ms']['p50']:9.0f} "
-            f"{r['frame_ms']['p95']:9.0f} {_p95(r['per_candidate_ms']):>8} "
+            f"{_p95_cell(FRAME_P95_BAR, r['frame_ms']):>9} "
+            f"{_p95_cell(CANDIDATE_P95_BAR, r['per_candidate_ms']):>8} "
             f"{r['peak_rss_mib']:8.0f} {r['best_inliers']:7d} {vs_torch:>8} "
             f"{vs_sift:>7}  {_sources(r)}"
         )
+    lines.append(_target_line(report.get("latency_target") or latency_target(results)))
     lines.append(
         "speed-ups (frame p50 and p95, slower / faster; paired: the median of the two cases' "
         "ratios round by round; peak MiB faster vs slower side):"
