@@ -82,7 +82,7 @@ def test_the_frames_table_marks_a_right_fix_on_another_tile_apart(
         1: "O another tile, right fix",
         2: "W wrong tile",
         3: "F failed",
-        4: "F failed (true tile absent)",
+        4: "R rightly raised (true tile absent)",
         5: "W true tile, placed wrong",
         6: "W wrong tile (true tile absent)",
     }
@@ -93,7 +93,7 @@ def test_the_per_frame_chart_marks_and_names_it(drawn: tuple[str, list[Any]]) ->
     _, figures = drawn
     inliers = figures[1].axes[0]
     marks = {round(t.get_position()[0]): t.get_text() for t in inliers.texts}
-    assert marks == {1: "O", 2: "W", 3: "F", 4: "F", 5: "W", 6: "W"}
+    assert marks == {1: "O", 2: "W", 3: "F", 4: "R", 5: "W", 6: "W"}
     legend = [t.get_text() for t in inliers.get_legend().get_texts()]
     assert "O: another tile, right fix" in legend
     assert "W: wrong tile, or true tile, placed wrong" in legend

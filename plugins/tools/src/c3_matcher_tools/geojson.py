@@ -5,7 +5,9 @@ Features, each with ``properties.kind``:
 - ``truth_track`` / ``estimate_track``: LineStrings through the frames' true and estimated
   centres, in frame order (frames without one are skipped);
 - ``truth`` / ``estimate``: one Point per frame with ``frame``, ``status``, ``inliers``,
-  ``correct``, ``position_error_m``;
+  ``correct``, ``verdict`` (what the frame came to, in the flight report's words:
+  :class:`~c3_matcher_tools.run.acceptance.Verdict`, e.g. "wrong tile", "another tile, right
+  fix", "rightly raised"), ``position_error_m``;
 - ``footprint``: the estimated footprint Polygon of each matched frame, its ring the result's
   as it is (already counterclockwise, :func:`c3_matcher.georef.footprint_lonlat`);
 - ``error``: a LineString from each frame's true to its estimated centre.
@@ -24,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from c3_matcher.atomic import write_text_atomically
+from c3_matcher_tools.run.acceptance import verdict
 from c3_matcher_tools.run.records import FrameOutcome
 
 __all__ = ["flight_geojson", "write_geojson"]
@@ -39,6 +42,7 @@ def _props(o: FrameOutcome, kind: str, strategy: str) -> dict[str, Any]:
         "inliers": o.candidate_inliers,
         "correct": o.correct if o.has_truth else None,
         "true_tile_present": o.true_present if o.has_truth else None,
+        "verdict": str(verdict(o)),
         "position_error_m": (
             round(o.position_error_m, 3) if math.isfinite(o.position_error_m) else None
         ),

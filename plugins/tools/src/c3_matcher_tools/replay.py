@@ -53,6 +53,7 @@ from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_nois
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.provenance import say_import_faults
+from c3_matcher_tools.dataset.sources.options import number_ranges
 from c3_matcher_tools.features.command import GivenSettings, given_settings
 from c3_matcher_tools.run import (
     REPLAY_OUT,
@@ -74,6 +75,7 @@ from c3_matcher_tools.run import (
     write_flight_outputs,
     write_results,
 )
+from c3_matcher_tools.run.acceptance import WRONG_FIX_PX
 from c3_matcher_tools.run.feature_sources import (
     FDR_LOG,
     feature_sources,
@@ -88,7 +90,7 @@ from c3_matcher_tools.run.outputs import (
     no_report_html,
 )
 from c3_matcher_tools.run.records import FrameStatus
-from c3_matcher_tools.run.scoring import dropped_lines, telemetry_lines
+from c3_matcher_tools.run.scoring import attitude_noise_words, dropped_lines, telemetry_lines
 
 __all__ = ["register_replay_command", "run_replay"]
 
@@ -296,12 +298,36 @@ def _keep_stopped(
     return 128 + signum
 
 
+def _truth_lines(s: RunSummary) -> list[str]:
+    """What the run came to against ground truth: the correct candidates, the wrong fixes
+    among the frames scored (as eval's false-conf counts them: picks whose inliers miss the
+    ground truth by more than ``WRONG_FIX_PX``) and the frames without their true tile that
+    raised (the right answer there)."""
+    if not s.with_truth:
+        return ["  no ground truth in this flight: nothing scored against truth"]
+    wrong = s.false_confident_frames
+    lines = [
+        f"  correct candidate {s.correct_candidate}/{s.true_present} "
+        "frames with the true tile present",
+        f"  false-conf {s.false_confident}/{s.scored} frames: picks whose inliers miss ground "
+        f"truth by > {WRONG_FIX_PX:g} px (bar: zero)"
+        + (f"; frames {number_ranges(wrong)}" if wrong else ""),
+    ]
+    if s.true_absent:
+        lines.append(
+            f"  raised on {s.absent_raised}/{s.true_absent} frames without their true tile "
+            "(InsufficientInliersError is the right answer there)"
+        )
+    return lines
+
+
 def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -> list[str]:
     """The table: ``s``'s figures, and the run, tile store and files ``report`` names."""
     unreadable = s.count(FrameStatus.UNREADABLE)
     lines = [
         f"replay {name} with {report['strategy']}: {s.frames} frames in "
-        f"{report['wall_s']:.1f} s (startup {report['startup_s']:.1f} s)",
+        f"{report['wall_s']:.1f} s (startup {report['startup_s']:.1f} s)"
+        + attitude_noise_words(report.get("attitude_noise")),
         f"  ok {s.count(FrameStatus.OK)}, insufficient inliers "
         f"{s.count(FrameStatus.INSUFFICIENT)}, backbone errors "
         f"{s.count(FrameStatus.BACKBONE_ERROR)}"
@@ -321,18 +347,7 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
         )
     elif len(dropped) > 1:
         lines.append(f"  {dropped[1]}")
-    if s.with_truth:
-        lines.append(
-            f"  correct candidate {s.correct_candidate}/{s.true_present} "
-            "frames with the true tile present"
-        )
-    else:
-        lines.append("  no ground truth in this flight: nothing scored against truth")
-    if s.true_absent:
-        lines.append(
-            f"  raised on {s.absent_raised}/{s.true_absent} frames without their true tile "
-            "(InsufficientInliersError is the right answer there)"
-        )
+    lines.extend(_truth_lines(s))
     lines.append(
         f"  frame ms p50 {figure(s.frame_ms_p50, '.0f')}, p95 {figure(s.frame_ms_p95, '.0f')}"
     )

@@ -12,19 +12,22 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher_tools.dataset.format import FlightDataset
-from c3_matcher_tools.report.trajectory import draw_trajectory
+from c3_matcher_tools.report.trajectory import RIGHT_REFUSAL, draw_trajectory
 from c3_matcher_tools.run.acceptance import Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = [
     "MARKS",
+    "MARK_COLOUR",
     "STATUS_COLOUR",
+    "WARNING",
     "per_frame_figure",
     "trajectory_figure",
 ]
 
 MARKS = {
     Verdict.FAILED: "F",
+    Verdict.RIGHTLY_RAISED: "R",
     Verdict.WRONG_TILE: "W",
     Verdict.TRUE_TILE_PLACED_WRONG: "W",
     Verdict.OTHER_TILE: "O",
@@ -37,6 +40,17 @@ STATUS_COLOUR = {
     FrameStatus.BACKBONE_ERROR: "#222222",
     FrameStatus.UNREADABLE: "#888888",
 }
+WARNING = "#f07b12"
+"""A wrong fix's colour: a pick, so not a failure's red, yet not a right match's green."""
+MARK_COLOUR = {
+    Verdict.FAILED: STATUS_COLOUR[FrameStatus.INSUFFICIENT],
+    Verdict.RIGHTLY_RAISED: RIGHT_REFUSAL,
+    Verdict.WRONG_TILE: WARNING,
+    Verdict.TRUE_TILE_PLACED_WRONG: WARNING,
+    Verdict.OTHER_TILE: STATUS_COLOUR[FrameStatus.OK],
+}
+"""Each mark's colour (:data:`MARKS`), by :class:`Verdict`; a wrong fix's bar and a right
+refusal's are drawn in theirs too."""
 
 
 def _plt() -> Any:
@@ -67,9 +81,10 @@ def trajectory_figure(dataset: FlightDataset, outcomes: Sequence[FrameOutcome], 
 
 
 def per_frame_figure(outcomes: Sequence[FrameOutcome], min_inliers: int) -> str:
-    """The per-frame figure as a data URI: the best inliers against the threshold, the errors and
-    the latency, one panel each, frames whose true tile is absent banded grey and failed,
-    wrong-tile and other-tile right fixes marked F / W / O; legends outside the panels."""
+    """The per-frame figure as a data URI: the best inliers against the threshold (always on
+    the axis), the errors and the latency, one panel each, frames whose true tile is absent
+    banded grey and failed frames, right refusals, wrong fixes and other-tile right fixes
+    marked F / R / W / O; legends outside the panels."""
     plt = _plt()
     idx = np.array([o.index for o in outcomes])
     fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
@@ -78,7 +93,7 @@ def per_frame_figure(outcomes: Sequence[FrameOutcome], min_inliers: int) -> str:
     _draw_errors(axes[1], outcomes, idx)
     _draw_latency(axes[2], outcomes, idx)
     _band_absent_tiles(axes, outcomes)
-    _mark_failed_and_wrong(axes[0], outcomes, inl)
+    _mark_failed_and_wrong(axes[0], outcomes, inl, min_inliers)
     _status_legend(axes[0], outcomes, min_inliers)
     axes[2].xaxis.get_major_locator().set_params(integer=True)
     fig.suptitle("per frame: inliers, error, latency")
@@ -92,11 +107,19 @@ def _draw_inliers(
     inl: NDArray[np.int_],
     min_inliers: int,
 ) -> None:
-    """Each frame's best inlier count, coloured by status, and the threshold."""
-    colours = [STATUS_COLOUR[o.status] for o in outcomes]
+    """Each frame's best inlier count, coloured by status (a wrong fix's and a right refusal's
+    by :data:`MARK_COLOUR`: a wrong fix matched, yet is no right match), and the threshold."""
+    colours = [_bar_colour(o) for o in outcomes]
     ax.bar(idx, inl, color=colours, width=0.8)
     ax.axhline(min_inliers, ls="--", color="#555", lw=1)
     ax.set_ylabel("best inliers")
+
+
+def _bar_colour(o: FrameOutcome) -> str:
+    judged = verdict(o)
+    if judged.wrong_fix or judged == Verdict.RIGHTLY_RAISED:
+        return MARK_COLOUR[judged]
+    return STATUS_COLOUR[o.status]
 
 
 def _draw_errors(ax: Any, outcomes: Sequence[FrameOutcome], idx: NDArray[np.int_]) -> None:
@@ -171,22 +194,18 @@ def _band_absent_tiles(axes: Sequence[Any], outcomes: Sequence[FrameOutcome]) ->
 
 
 def _mark_failed_and_wrong(
-    ax: Any, outcomes: Sequence[FrameOutcome], inl: NDArray[np.int_]
+    ax: Any, outcomes: Sequence[FrameOutcome], inl: NDArray[np.int_], min_inliers: int
 ) -> None:
-    """Over each frame, above the tallest bar: O over a pick of another tile that places the
-    frame right, W over a pick of a wrong tile, F over a failed frame."""
-    top = max(1.0, float(inl.max()) if inl.size else 1.0)
+    """Over each frame, above the tallest bar and the threshold (the axis reaches both, so the
+    threshold line is drawn even when every bar is below it): its mark (:data:`MARKS`) in its
+    colour (:data:`MARK_COLOUR`)."""
+    top = max(1.0, float(min_inliers), float(inl.max()) if inl.size else 1.0)
     for o in outcomes:
-        mark = _mark(o)
-        if mark:
-            colour = "#2c9f2c" if mark == "O" else "#d62728"
+        judged = verdict(o)
+        if mark := MARKS.get(judged):
+            colour = MARK_COLOUR[judged]
             ax.text(o.index, top * 1.02, mark, color=colour, ha="center", fontsize=9, weight="bold")
     ax.set_ylim(0, top * 1.12)
-
-
-def _mark(o: FrameOutcome) -> str:
-    """The frame's mark over the chart: O, W, F or none (:data:`MARKS`)."""
-    return MARKS.get(verdict(o), "")
 
 
 def _status_legend(ax: Any, outcomes: Sequence[FrameOutcome], min_inliers: int) -> None:
@@ -197,7 +216,8 @@ def _status_legend(ax: Any, outcomes: Sequence[FrameOutcome], min_inliers: int) 
     handles = [
         Patch(color=STATUS_COLOUR[FrameStatus.OK], label="matched"),
         Patch(color=STATUS_COLOUR[FrameStatus.INSUFFICIENT], label=f"F: {Verdict.FAILED}"),
-        Patch(color="white", label=f"W: {Verdict.WRONG_TILE}, or {Verdict.TRUE_TILE_PLACED_WRONG}"),
+        Patch(color=RIGHT_REFUSAL, label=f"R: {Verdict.RIGHTLY_RAISED} (true tile absent)"),
+        Patch(color=WARNING, label=f"W: {Verdict.WRONG_TILE}, or {Verdict.TRUE_TILE_PLACED_WRONG}"),
         Patch(color="white", label=f"O: {Verdict.OTHER_TILE}"),
         Patch(color="#bbbbbb", label="true tile absent"),
         Line2D([], [], ls="--", color="#555", lw=1, label=f"{min_inliers} inliers threshold"),

@@ -2,12 +2,13 @@
 """A self-contained HTML flight report: one file, every image embedded as a data URI, no script,
 no network. Plots are drawn with matplotlib (the tools' ``report`` extra).
 
-Sections: summary figures; the trajectory on the map mosaic of the flight's tile store (truth
-vs estimate, error segments, failed frames marked; for a recorded flight the telemetry's track,
-frames whose GNSS was absent or degraded marked); inliers, error (m and px; a recorded flight's
+Sections: summary figures (the frames judged as eval judges them: wrong fixes, failures, right
+refusals where the true tile is absent); the trajectory on the map mosaic of the flight's tile
+store (truth vs estimate, error segments, failed frames and right refusals marked; for a
+recorded flight the telemetry's track, frames whose GNSS was absent or degraded marked); inliers, error (m and px; a recorded flight's
 estimate minus the telemetry's look point beside the GNSS accuracy the log states, or a level
 camera's look point where the log has no attitude) and latency per
-frame with absent-tile, wrong-tile, other-tile right fixes and failed frames marked (legends outside the plots); a gallery of the worst and best
+frame with absent-tile, wrong-tile, other-tile right fixes, failed frames and right refusals marked (legends outside the plots); a gallery of the worst and best
 frames (:func:`c3_matcher.viz.render_match`); the run's settings and provenance. This module
 assembles the page; the plots are drawn in :mod:`.charts`, the gallery's pictures in
 :mod:`.pictures`.
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 import html
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,13 +29,31 @@ from c3_matcher_tools.report.charts import MARKS, per_frame_figure, trajectory_f
 from c3_matcher_tools.report.pictures import gallery_pictures
 from c3_matcher_tools.run.acceptance import WRONG_FIX_PX, Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
-from c3_matcher_tools.run.scoring import RunSummary, dropped_lines, figure, summarize
+from c3_matcher_tools.run.scoring import (
+    RunSummary,
+    attitude_noise_words,
+    dropped_lines,
+    figure,
+    summarize,
+)
 
-__all__ = ["write_report"]
+__all__ = ["LIGHTGLUE_ROLES", "runs_lightglue", "write_report"]
+
+LIGHTGLUE_ROLES = frozenset({"lightglue", "lighterglue"})
+"""The roles a LightGlue-family pair matcher's engine has in a run's provenance ``engines``
+(:class:`c3_matcher.strategy.pairs.LightGluePairMatcher`'s own, XFeat's LighterGlue)."""
+
+
+def runs_lightglue(provenance: Mapping[str, Any]) -> bool:
+    """Whether a run (its provenance) matched its pairs with a LightGlue-family engine, so
+    that its ``[lightglue]`` settings applied: not the SIFT baseline, nor XFeat with mutual
+    nearest neighbours."""
+    return bool(LIGHTGLUE_ROLES & set(provenance.get("engines") or {}))
 
 
 def _verdict(o: FrameOutcome) -> str:
-    """The frame's :class:`Verdict` in the frames table, after the chart's mark (F, W, O)."""
+    """The frame's :class:`Verdict` in the frames table, after the chart's mark (F, R, W,
+    O)."""
     judged = verdict(o)
     mark = MARKS.get(judged)
     absent = " (true tile absent)" if o.has_truth and not o.true_present else ""
@@ -50,9 +69,24 @@ def _gnss_cell(o: FrameOutcome) -> str:
 
 def _table(rows: Sequence[tuple[str, Any]]) -> str:
     cells = "".join(
-        f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>" for k, v in rows
+        f"<tr><th>{html.escape(str(k))}</th><td>{html.escape('-' if v is None else str(v))}</td></tr>"
+        for k, v in rows
     )
     return f"<table>{cells}</table>"
+
+
+def _setting(key: str, value: Any, keypoint_budget: Any) -> str:
+    """A setting in the product's words: on / off for a switch; a setting left unset "unset
+    (strategy default)" (the strategy's own value applies; ``max_keypoints``'s is the
+    ``keypoint_budget`` the run kept); a table of options as JSON, "none" when empty."""
+    if value is None:
+        budget = keypoint_budget if key == "max_keypoints" else None
+        return "unset (strategy default" + ("" if budget is None else f": {budget}") + ")"
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if isinstance(value, dict | list):
+        return json.dumps(value) if value else "none"
+    return str(value)
 
 
 CSS = """
@@ -80,7 +114,7 @@ def write_report(
     """Write ``out`` (report.html) for one replayed run; returns its path. ``summary``: the
     run's report, shown as it is; the headline figures are the ``outcomes``' own."""
     figures = summarize(outcomes)
-    kpis = _kpis(figures, dataset.store_path)
+    kpis = _kpis(figures, outcomes, dataset.store_path)
     min_inliers = int(settings.get("min_inliers_threshold", 60))
     reference = "truth" if figures.with_truth else "telemetry"
     traj = trajectory_figure(
@@ -88,6 +122,7 @@ def write_report(
     )
     per_frame = per_frame_figure(outcomes, min_inliers)
     pictures = gallery_pictures(dataset, outcomes, gallery)
+    budget = summary.get("keypoint_budget")
     page = _Page(
         dataset.name,
         strategy,
@@ -97,8 +132,9 @@ def write_report(
         pictures,
         _frame_rows(outcomes),
         provenance,
-        settings,
+        {k: _setting(k, v, budget) for k, v in settings.items()},
         summary,
+        attitude_noise_words(dataset.meta.get("attitude_noise")),
     )
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -130,14 +166,44 @@ def _telemetry_kpis(summary: RunSummary) -> list[tuple[str, Any]]:
     return kpis
 
 
-def _kpis(summary: RunSummary, store: Path) -> list[tuple[str, Any]]:
-    """The headline figures (label, value) of the run's ``summary``; the telemetry's only for a
-    flight that has telemetry; the candidates dropped, by cause, when any was (and the tile
-    ``store`` named when most were dropped for their tiles)."""
+def _judged_kpis(summary: RunSummary, outcomes: Sequence[FrameOutcome]) -> list[tuple[str, Any]]:
+    """The frames as judged (:class:`Verdict`): with ground truth, the wrong fixes among those
+    scored (eval's false-confident); the failed frames; where a true tile is absent, those
+    failed apart from those that rightly raised (the right answer there, C3-IT-05) of the
+    frames without their true tile."""
+    judged = [(o, verdict(o)) for o in outcomes]
+    kpis: list[tuple[str, Any]] = []
+    if summary.with_truth:
+        wrong = f"{summary.false_confident}/{summary.scored}"
+        kpis.append(("wrong fixes (false-confident)", wrong))
+    failed = [o for o, v in judged if v == Verdict.FAILED]
+    if not summary.true_absent:
+        return [*kpis, ("failed", len(failed))]
+    rightly = sum(v == Verdict.RIGHTLY_RAISED for _, v in judged)
+    present = [o for o in failed if o.true_present or not o.has_truth]
+    return [
+        *kpis,
+        ("failed (true tile present)", len(present)),
+        *(
+            [("failed (true tile absent)", len(failed) - len(present))]
+            if len(present) < len(failed)
+            else []
+        ),
+        ("rightly raised (true tile absent)", f"{rightly}/{summary.true_absent}"),
+    ]
+
+
+def _kpis(
+    summary: RunSummary, outcomes: Sequence[FrameOutcome], store: Path
+) -> list[tuple[str, Any]]:
+    """The headline figures (label, value) of the run's ``summary`` and ``outcomes`` (each
+    judged, :func:`_judged_kpis`); the telemetry's only for a flight that has telemetry; the
+    candidates dropped, by cause, when any was (and the tile ``store`` named when most were
+    dropped for their tiles)."""
     return [
         ("frames", summary.frames),
         ("matched", summary.count(FrameStatus.OK)),
-        ("failed", summary.failed),
+        *_judged_kpis(summary, outcomes),
         (
             "correct tile",
             f"{summary.correct_candidate}/{summary.true_present}"
@@ -184,9 +250,10 @@ def _frame_rows(outcomes: Sequence[FrameOutcome]) -> str:
 
 @dataclass(frozen=True)
 class _Page:
-    """What the report shows, each section ready to place: the headline figures, the two plots
-    and the gallery as data URIs, the frames table's rows, and the run's settings, provenance
-    and summary."""
+    """What the report shows, each section ready to place: the flight, the strategy, the
+    headline figures, the two plots and the gallery as data URIs, the frames table's rows, the
+    run's settings (in words), provenance and summary, and the noise put on the attitudes (its
+    words, :func:`attitude_noise_words`; empty without)."""
 
     name: str
     strategy: str
@@ -196,26 +263,37 @@ class _Page:
     pictures: list[tuple[str, str]]
     rows: str
     provenance: dict[str, Any]
-    settings: dict[str, Any]
+    settings: dict[str, str]
     summary: dict[str, Any]
+    noise: str = ""
+
+    @property
+    def settings_heading(self) -> str:
+        """The settings table's heading: ``[lightglue]`` among it only where the strategy ran
+        LightGlue (:func:`runs_lightglue`: the caller leaves the rows out otherwise)."""
+        lightglue = any(k.startswith("lightglue.") for k in self.settings)
+        return "[matcher] and [lightglue] settings" if lightglue else "[matcher] settings"
 
     def html(self) -> str:
         """The whole page: one file, no script."""
         return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>c3-matcher flight report: {html.escape(self.name)}</title>
 <style>{CSS}</style></head><body>
-<h1>Flight report: {html.escape(self.name)} with {html.escape(self.strategy)}</h1>
+<h1>Flight report: {html.escape(self.name)} with {html.escape(self.strategy + self.noise)}</h1>
 <div class="kpi">{"".join(f"<div>{html.escape(str(k))}<b>{html.escape(str(v))}</b></div>" for k, v in self.kpis)}</div>
 <h2>Trajectory</h2>
 <p>Frame centres on the tile store's imagery: truth (blue; a recorded flight: where its telemetry
 says the frame looks, green) and estimate (orange); red segments join each frame's reference and
-estimated centre; x: a failed frame, diamond: a wrong fix (W below), square: another tile that
-places the frame right, yellow ring: GNSS absent or degraded.</p>
+estimated centre; x: a failed frame, cyan ring: a frame that {Verdict.RIGHTLY_RAISED} with its
+true tile absent (R below), diamond: a wrong fix (W below), square: another tile that places the
+frame right, yellow ring: GNSS absent or degraded.</p>
 <img id="trajectory" alt="trajectory" src="{self.trajectory}">
 <h2>Per frame</h2>
-<p>Grey bands: frames whose true tile is not among the candidates (they should fail); yellow
-bands: GNSS absent or degraded. F: {Verdict.FAILED} (fewer inliers than the threshold, or an
-error); W: a wrong fix, one eval counts false-confident ({Verdict.WRONG_TILE}, or
+<p>Grey bands: frames whose true tile is not among the candidates (they should raise); yellow
+bands: GNSS absent or degraded. F: {Verdict.FAILED} (fewer inliers than the threshold where a
+match was due, or an error); R: {Verdict.RIGHTLY_RAISED} (fewer inliers than the threshold with
+the true tile absent: the right answer, C3-IT-05; cyan bar); W: a wrong fix, one eval counts
+false-confident (orange bar: {Verdict.WRONG_TILE}, or
 {Verdict.TRUE_TILE_PLACED_WRONG}: inliers over {WRONG_FIX_PX:g} px from the ground truth, or
 their error unknown);
 O: {Verdict.OTHER_TILE} (a candidate other than the true tile whose inliers place the frame
@@ -238,7 +316,7 @@ Left: the query rectified onto the best tile; right: the tile with the query's f
 <table><tr><th>frame</th><th>status</th><th>inliers</th><th>result</th><th>error vs truth m</th><th>estimate - telemetry m</th><th>GNSS (accuracy m)</th><th>error px</th><th>ms</th><th>estimate lat, lon</th></tr>{self.rows}</table>
 <h2>Settings and provenance</h2>
 {_table([("strategy replayed", self.strategy), *self.provenance.items()])}
-<h3>[matcher] and [lightglue] settings</h3>
+<h3>{self.settings_heading}</h3>
 {_table(list(self.settings.items()))}
 <h3>summary</h3>
 <pre>{html.escape(json.dumps(self.summary, indent=1, default=str))}</pre>

@@ -110,8 +110,8 @@ def _candidate_views(
 
 
 def _picture_title(outcome: FrameOutcome) -> str:
-    """The picture's title: inliers, verdict and error of a matched frame; why a frame
-    failed."""
+    """The picture's title: inliers, verdict and error of a matched frame; the verdict of one
+    that did not match (failed, or rightly raised) and why."""
     if outcome.status == FrameStatus.OK:
         pos = (
             ""
@@ -120,7 +120,7 @@ def _picture_title(outcome: FrameOutcome) -> str:
         )
         judged = "" if not outcome.has_truth else f" {verdict(outcome)}"
         return f"frame {outcome.index}: {outcome.best_inliers} inliers,{judged}{pos}"
-    title = f"frame {outcome.index}: {Verdict.FAILED} ({outcome.status}, best {outcome.insufficient_best} inliers)"  # noqa: E501
+    title = f"frame {outcome.index}: {verdict(outcome)} ({outcome.status}, best {outcome.insufficient_best} inliers)"  # noqa: E501
     if outcome.has_truth and not outcome.true_present:
         title += ", true tile absent"
     return title
@@ -182,8 +182,8 @@ def _right_match(o: FrameOutcome) -> bool:
 
 def _rightly_raised(o: FrameOutcome) -> bool:
     """Raised InsufficientInliersError on a frame whose true tile is not among its candidates:
-    what it should do."""
-    return o.status == FrameStatus.INSUFFICIENT and o.has_truth and not o.true_present
+    what it should do (:attr:`Verdict.RIGHTLY_RAISED`)."""
+    return verdict(o) == Verdict.RIGHTLY_RAISED
 
 
 def _went_right(o: FrameOutcome) -> bool:

@@ -1,11 +1,12 @@
 """The flight report's trajectory: frame centres on the map mosaic of the flight's tile store.
 
 Truth (blue) and estimate (orange) with a red segment from each frame's reference to its estimate,
-failed frames (x), wrong tiles (diamonds) and picks of another tile that place the frame right
-(squares) marked; for a recorded flight the vehicle's GNSS track and where the telemetry says each
-frame looks (green), frames whose GNSS was absent or degraded ringed, frames whose attitude the
-import assumed level marked grey (where a level camera would look: their segment to the estimate is
-dashed grey, no error). Drawn onto a matplotlib ``Axes`` the caller owns; positions are WGS84
+failed frames (x), frames that rightly raised with their true tile absent (cyan rings), wrong
+fixes (diamonds) and picks of another tile that place the frame right (squares) marked; for a
+recorded flight the vehicle's GNSS track and where the telemetry says each frame looks (green),
+frames whose GNSS was absent or degraded ringed, frames whose attitude the import assumed level
+marked grey (where a level camera would look: their segment to the estimate is dashed grey, no
+error). Drawn onto a matplotlib ``Axes`` the caller owns; positions are WGS84
 degrees, drawn in mosaic px (degrees when the store has no imagery there).
 """
 
@@ -24,11 +25,14 @@ from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run.acceptance import Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
-__all__ = ["ASSUMED_LABEL", "MAX_MOSAIC_PX", "draw_trajectory"]
+__all__ = ["ASSUMED_LABEL", "MAX_MOSAIC_PX", "RIGHT_REFUSAL", "draw_trajectory"]
 
 MAX_MOSAIC_PX = 2048
 RED = "#d62728"
 GREY = "#7f7f7f"
+RIGHT_REFUSAL = "#17becf"
+"""The colour of a frame that rightly raised, its true tile absent: no failure's red, apart
+from the truth's blue (here and in the per-frame chart)."""
 ASSUMED_LABEL = "attitude assumed level: a level camera's look point"
 
 Mosaic = tuple[NDArray[np.uint8], TileId, int]
@@ -169,6 +173,29 @@ def _axes_and_scale(ax: Any, title: str, mosaic: Mosaic | None) -> None:
     ax.text(x0, y0 - mosaic[2] * 0.02, f"{bar:g} m", color="white", fontsize=9)
 
 
+def _mark_unmatched(ax: Any, points: Sequence[Point], where: str) -> None:
+    """Over the frames drawn at their ``where`` (truth, telemetry) that did not match: a red x
+    over a failed frame, a cyan ring over one that rightly raised (:class:`Verdict`)."""
+    judged = [(p, verdict(p[0])) for p in points if p[0].status != FrameStatus.OK]
+    failed = [p for p, v in judged if v == Verdict.FAILED]
+    _mark(ax, failed, marker="x", s=70, color=RED, zorder=5, label=f"failed frame ({where})")
+    refused = [p for p, v in judged if v == Verdict.RIGHTLY_RAISED]
+    ring = {"facecolors": "none", "edgecolors": RIGHT_REFUSAL, "linewidths": 2, "zorder": 5}
+    label = f"{Verdict.RIGHTLY_RAISED} (true tile absent)"
+    _mark(ax, refused, marker="o", s=110, **ring, label=label)
+
+
+def _mark_picks(ax: Any, est: Sequence[Point]) -> None:
+    """Over the estimates: a red diamond over a wrong fix, a green square over a pick of
+    another tile that places the frame right (:class:`Verdict`)."""
+    ring = {"facecolors": "none", "edgecolors": RED, "zorder": 6}
+    wrong = [e for e in est if verdict(e[0]).wrong_fix]
+    _mark(ax, wrong, marker="D", s=60, **ring, label="wrong fix")
+    ring = {**ring, "edgecolors": "#2c9f2c"}
+    elsewhere = [e for e in est if verdict(e[0]) == Verdict.OTHER_TILE]
+    _mark(ax, elsewhere, marker="s", s=60, **ring, label=Verdict.OTHER_TILE)
+
+
 def draw_trajectory(
     ax: Any, dataset: FlightDataset, outcomes: Sequence[FrameOutcome], title: str
 ) -> None:
@@ -179,26 +206,12 @@ def draw_trajectory(
         ax.imshow(mosaic[0], interpolation="bilinear")
     truth = _located(outcomes, lambda o: (o.truth_lon, o.truth_lat), to_xy)
     est = _located(outcomes, lambda o: (o.est_lon, o.est_lat), to_xy)
-    failed = {"marker": "x", "s": 70, "color": RED, "zorder": 5}
     if truth:
         _line(ax, truth, "-o", color="#1f77b4", ms=4, lw=1.5, label="truth")
-        not_ok = [t for t in truth if t[0].status != FrameStatus.OK]
-        _mark(ax, not_ok, **failed, label="failed frame (truth)")
+        _mark_unmatched(ax, truth, "truth")
     if est:
         _line(ax, est, "-s", color="#ff7f0e", ms=4, lw=1.2, label="estimate")
-        wrong = (Verdict.WRONG_TILE, Verdict.TRUE_TILE_PLACED_WRONG)
-        ring = {"facecolors": "none", "edgecolors": RED, "zorder": 6}
-        _mark(
-            ax,
-            [e for e in est if verdict(e[0]) in wrong],
-            marker="D",
-            s=60,
-            **ring,
-            label="wrong fix",
-        )
-        ring = {**ring, "edgecolors": "#2c9f2c"}
-        elsewhere = [e for e in est if verdict(e[0]) == Verdict.OTHER_TILE]
-        _mark(ax, elsewhere, marker="s", s=60, **ring, label=Verdict.OTHER_TILE)
+        _mark_picks(ax, est)
     tele = _located(outcomes, lambda o: (o.telemetry_lon, o.telemetry_lat), to_xy)
     _vehicle_track(ax, dataset, outcomes, to_xy)
     if tele:
@@ -211,8 +224,7 @@ def draw_trajectory(
         ring = {**ring, "edgecolors": GREY}
         _mark(ax, assumed, marker="^", s=90, **ring, label=ASSUMED_LABEL)
         if not truth:
-            not_ok = [t for t in tele if t[0].status != FrameStatus.OK]
-            _mark(ax, not_ok, **failed, label="failed frame (telemetry)")
+            _mark_unmatched(ax, tele, "telemetry")
     _references(ax, truth, tele, est)
     _axes_and_scale(ax, title, mosaic)
     if truth or est or tele:

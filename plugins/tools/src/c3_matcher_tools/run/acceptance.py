@@ -145,7 +145,11 @@ class Verdict(StrEnum):
     """What a frame's result came to, judged as eval judges it, in the report's words."""
 
     FAILED = "failed"
-    """No pick: the match raised, or the image could not be read."""
+    """No pick where one was due: the match raised with its true tile a candidate (or with no
+    ground truth to tell), the matcher failed, or the image could not be read."""
+    RIGHTLY_RAISED = "rightly raised"
+    """No pick, raised ``InsufficientInliersError`` on a frame whose true tile is not among
+    its candidates: the right answer there (C3-IT-05), no failure."""
     MATCHED = "matched"
     """A pick, and no ground truth to judge it by."""
     TRUE_TILE = "true tile"
@@ -157,12 +161,20 @@ class Verdict(StrEnum):
     TRUE_TILE_PLACED_WRONG = "true tile, placed wrong"
     """The true tile, its inliers over ``WRONG_FIX_PX`` off (or unknown): false-confident."""
 
+    @property
+    def wrong_fix(self) -> bool:
+        """A pick that places the frame wrong (:func:`is_wrong_fix` of a frame with ground
+        truth): what eval counts false-confident."""
+        return self in (Verdict.WRONG_TILE, Verdict.TRUE_TILE_PLACED_WRONG)
+
 
 def verdict(outcome: FrameOutcome) -> Verdict:
-    """The frame's :class:`Verdict`: the one rule the report's table, marks and pictures and
-    eval's false-confident count share."""
+    """The frame's :class:`Verdict`: the one rule the report's table, marks and pictures, the
+    run summary's counts and eval's false-confident count share."""
     if outcome.status != FrameStatus.OK:
-        return Verdict.FAILED
+        absent = outcome.has_truth and not outcome.true_present
+        rightly = absent and outcome.status == FrameStatus.INSUFFICIENT
+        return Verdict.RIGHTLY_RAISED if rightly else Verdict.FAILED
     if not outcome.has_truth:
         return Verdict.MATCHED
     if is_wrong_fix(outcome):

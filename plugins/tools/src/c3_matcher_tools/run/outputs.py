@@ -471,13 +471,13 @@ def write_html_report(
         if say:
             print(why, file=sys.stderr)
         return None
-    from c3_matcher_tools.report import write_report
+    from c3_matcher_tools.report.html import runs_lightglue, write_report
 
     shown_apart = ("settings", "lightglue_settings", "provenance")
     summary = {k: v for k, v in report.items() if k not in shown_apart}
-    lightglue = report.get("lightglue_settings") or {}
-    settings = {**report["settings"], **{f"lightglue.{k}": v for k, v in lightglue.items()}}
     ran = report.get("provenance") or {}  # FlightRun.provenance, as flight_report gives it
+    lightglue = (report.get("lightglue_settings") or {}) if runs_lightglue(ran) else {}
+    settings = {**report["settings"], **{f"lightglue.{k}": v for k, v in lightglue.items()}}
     provenance = {
         "dataset": str(dataset.root),
         "dataset format": dataset.meta.get("format"),

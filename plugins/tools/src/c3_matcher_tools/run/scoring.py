@@ -21,11 +21,13 @@ from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.dataset.sources.options import number_ranges
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.geodesy import axis_ground_point
+from c3_matcher_tools.run.acceptance import verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = [
     "RunSummary",
     "TelemetryReference",
+    "attitude_noise_words",
     "best_candidate_error",
     "damaged_store_line",
     "dropped_lines",
@@ -72,6 +74,17 @@ def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -
         h.update(np.float64(c.per_candidate_residual_px).tobytes())
         h.update(c.inlier_correspondences.tobytes())
     return h.hexdigest()
+
+
+def attitude_noise_words(noise: object) -> str:
+    """What a run's first line says of the noise ``--attitude-noise-deg`` put on the flight's
+    attitudes (``noise``: the dataset's ``attitude_noise``, as ``report.json`` holds it), as
+    eval's header says it: ", attitude noise 2 deg (1 sigma)"; nothing for a flight without
+    noise."""
+    sigma = noise.get("sigma_deg") if isinstance(noise, dict) else None
+    if not isinstance(sigma, int | float) or not sigma:
+        return ""
+    return f", attitude noise {sigma:g} deg (1 sigma)"
 
 
 def truth_position(dataset: FlightDataset, frame: FrameRecord) -> tuple[float, float] | None:
@@ -169,7 +182,10 @@ class RunSummary:
     times are those of the frames the matcher ran on (an unreadable image never reached it).
     ``candidates``: those the matcher was given over the run; ``candidates_dropped``: those it
     dropped, counted by cause (:class:`DroppedCandidate`), most first; ``tile_dropped``: those
-    dropped for their tiles (a tile failing its sha256 or not decoding: the store's fault)."""
+    dropped for their tiles (a tile failing its sha256 or not decoding: the store's fault);
+    ``false_confident_frames``: the frames whose pick places them wrong, as eval counts them
+    false-confident (:func:`~c3_matcher_tools.run.acceptance.verdict`), of the :attr:`scored`
+    ones."""
 
     frames: int
     by_status: Mapping[FrameStatus, int]
@@ -198,6 +214,7 @@ class RunSummary:
     candidates: int = 0
     candidates_dropped: tuple[tuple[str, int], ...] = ()
     tile_dropped: int = 0
+    false_confident_frames: tuple[int, ...] = ()
 
     def count(self, status: FrameStatus) -> int:
         return self.by_status.get(status, 0)
@@ -206,6 +223,16 @@ class RunSummary:
     def failed(self) -> int:
         """Frames that did not match, whatever the reason."""
         return self.frames - self.count(FrameStatus.OK)
+
+    @property
+    def scored(self) -> int:
+        """The frames with ground truth whose image was read: those judged against truth."""
+        return self.true_present + self.true_absent
+
+    @property
+    def false_confident(self) -> int:
+        """The frames whose pick places them wrong (``false_confident_frames``)."""
+        return len(self.false_confident_frames)
 
     def to_json(self) -> dict[str, Any]:
         """Its form in ``report.json`` and ``eval.json``: the counts by status flattened, as
@@ -219,6 +246,8 @@ class RunSummary:
             "gnss_degraded_frames": list(self.gnss_degraded_frames),
             "attitude_assumed_frames": list(self.attitude_assumed_frames),
             "candidates_dropped": dict(self.candidates_dropped),
+            "false_confident": self.false_confident,
+            "false_confident_frames": list(self.false_confident_frames),
         }
 
     @property
@@ -272,6 +301,7 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
         candidates=sum(o.candidates for o in outcomes),
         candidates_dropped=tuple(causes.most_common()),
         tile_dropped=sum(d.of_tile for o in outcomes for d in o.dropped),
+        false_confident_frames=tuple(o.index for o in outcomes if verdict(o).wrong_fix),
     )
 
 
