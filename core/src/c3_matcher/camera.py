@@ -127,17 +127,18 @@ def _project_rays(xy: F64, calibration: CameraCalibration) -> F64:
         img, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), k, d)
         return np.asarray(img, dtype=np.float64).reshape(-1, 2)
     x, y = xy[:, 0], xy[:, 1]
-    if not np.any(d):
-        xd, yd = x, y
-    else:
-        k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d[:12]
-        r2 = x * x + y * y
-        r4 = r2 * r2
-        radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
-        xy2 = 2 * x * y
-        xd = x * radial + p1 * xy2 + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r4
-        yd = y * radial + p1 * (r2 + 2 * y * y) + p2 * xy2 + s3 * r2 + s4 * r4
-    return np.stack([k[0, 0] * xd + k[0, 2], k[1, 1] * yd + k[1, 2]], axis=1)
+    with np.errstate(all="ignore"):  # an absurd lens overflows: inf/nan, which callers refuse
+        if not np.any(d):
+            xd, yd = x, y
+        else:
+            k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d[:12]
+            r2 = x * x + y * y
+            r4 = r2 * r2
+            radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+            xy2 = 2 * x * y
+            xd = x * radial + p1 * xy2 + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r4
+            yd = y * radial + p1 * (r2 + 2 * y * y) + p2 * xy2 + s3 * r2 + s4 * r4
+        return np.stack([k[0, 0] * xd + k[0, 2], k[1, 1] * yd + k[1, 2]], axis=1)
 
 
 def distort_normalized(rays_xy: ArrayLike, calibration: CameraCalibration) -> F64:

@@ -25,6 +25,7 @@ from pydantic_settings import BaseSettings, EnvSettingsSource
 from pydantic_settings.sources.utils import parse_env_vars
 
 from c3_matcher.errors import ConfigurationError
+from c3_matcher.file_kinds import special_kind
 
 __all__ = [
     "ENV_PREFIX",
@@ -83,8 +84,8 @@ class MappingEnvSource(EnvSettingsSource):
 
 
 MAX_TOML_BYTES = 1 << 20
-"""A configuration file larger than this is refused unread (``--config`` naming an image, a
-disk, ``/dev/zero``), not read into memory whole."""
+"""A configuration file larger than this is refused unread (``--config`` naming an image), not
+read into memory whole; a device (``/dev/zero``, a disk) or a FIFO is refused unopened."""
 
 
 class SettingsSection(BaseModel):
@@ -124,9 +125,13 @@ def _absolute(path: Path) -> Path:
 
 
 def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
-    """The TOML file's tables; ``ConfigurationError`` (naming ``--config``) when it is missing,
+    """The TOML file's tables; ``ConfigurationError`` (naming ``--config``) when it is no regular
+    file (judged by ``stat``, never opened: a FIFO would be waited on for ever), missing,
     larger than ``MAX_TOML_BYTES``, not UTF-8 or not TOML (arrays or tables nested deeper than
     the parser's recursion allows included)."""
+    special = special_kind(Path(toml_path))
+    if special is not None:
+        raise ConfigurationError(source, [("--config", f"is {special}, not a configuration file")])
     try:
         with Path(toml_path).open("rb") as file:
             data = file.read(MAX_TOML_BYTES + 1)

@@ -101,7 +101,8 @@ def _add_candidate_options(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         help="ZOOM,LAT,LON of the matching --tile, in order, or of a --store window's centre "
-        "(default for --tile: none, null in the JSON, 0,0,INDEX in the FDR)",
+        "(default for --tile: none, null in the JSON, a zoom-0 placeholder in the FDR: 0,0,INDEX "
+        "for the first 181)",
     )
     p.add_argument(
         "--window",
@@ -294,7 +295,7 @@ def _result_json(
     kept = {int(c["tile_index"]) for c in out["per_candidate"]}
     dropped = [i for i in range(len(rerank.candidates)) if i not in kept]
     out["dropped"] = _dropped_json(args, rerank, dropped, reasons)
-    if not args.tile_id:  # the placeholder ids 0,0,INDEX are no place: the JSON says none
+    if not args.tile_id:  # zoom-0 placeholder ids are no place: the JSON says none
         for entry in out["per_candidate"]:
             entry["tile_id"] = None
     return out

@@ -25,11 +25,13 @@ from c3_matcher.tiles import MmapTileHandle, decode_image, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 
 __all__ = [
+    "MAX_PLACEHOLDER_TILES",
     "MISSING_INPUT",
     "attitude_arg",
     "file_candidates",
     "frame_id_of",
     "open_store",
+    "placeholder_tile_id",
     "read_query",
     "store_candidates",
     "tile_id_arg",
@@ -80,19 +82,42 @@ def file_candidates(
     max_pixels: int,
 ) -> RerankResult:
     """The tile files as the frame's candidates, in order; ``tile_ids`` one per tile, or none
-    (then ``0,0,INDEX``)."""
+    (then :func:`placeholder_tile_id` of each position)."""
     if tile_ids and len(tile_ids) != len(tiles):
         raise InvalidInputError(
             "--tile-id",
             f"{len(tile_ids)} given for {len(tiles)} --tile; give one per tile or none",
         )
+    if not tile_ids and len(tiles) > MAX_PLACEHOLDER_TILES:
+        raise InvalidInputError(
+            "--tile",
+            f"{len(tiles)} given without --tile-id, at most {MAX_PLACEHOLDER_TILES}: "
+            "give one --tile-id per tile",
+        )
     candidates = []
     for i, path in enumerate(tiles):
-        tile_id = tile_ids[i] if tile_ids else TileId(0, 0.0, float(i))
+        tile_id = tile_ids[i] if tile_ids else placeholder_tile_id(i)
         candidates.append(
             RerankCandidate(tile_id, 1.0, _readable_tile(path, max_pixels), tile_gsd_m)
         )
     return RerankResult(frame_id, tuple(candidates))
+
+
+_LONGITUDES = 181  # the whole longitudes 0..180 a placeholder id counts through
+
+
+MAX_PLACEHOLDER_TILES = 91 * _LONGITUDES
+"""How many ``--tile`` a ``match`` without ``--tile-id`` takes: as many positions as
+:func:`placeholder_tile_id` names (latitudes 0..90 by longitudes 0..180)."""
+
+
+def placeholder_tile_id(index: int) -> TileId:
+    """The id of the ``--tile`` at position ``index`` given without ``--tile-id``: zoom 0 (no
+    place: see :func:`c3_matcher.georef.is_georeferenced`), ``0,0,INDEX`` for the first 181,
+    then ``0,LAT,LON`` with ``INDEX = LAT * 181 + LON``, so that every position has its own
+    id within the valid range (up to ``MAX_PLACEHOLDER_TILES``)."""
+    lat, lon = divmod(index, _LONGITUDES)
+    return TileId(0, float(lat), float(lon))
 
 
 def open_store(path: Path) -> MBTilesStore:

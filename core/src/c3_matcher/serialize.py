@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -14,13 +14,14 @@ from numpy.typing import NDArray
 from c3_matcher._validate import whole_number
 from c3_matcher.dto import CameraCalibration, MatchResult
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.file_kinds import special_kind
 
 __all__ = ["load_calibration", "result_to_json"]
 
 
 MAX_CALIBRATION_BYTES = 1 << 20
-"""A calibration file larger than this is refused unread (``--calibration`` naming an image, a
-disk, ``/dev/zero``), not read into memory whole."""
+"""A calibration file larger than this is refused unread (``--calibration`` naming an image),
+not read into memory whole; a device (``/dev/zero``, a disk) or a FIFO is refused unopened."""
 
 
 CALIBRATION_SIZE_FIX = (
@@ -50,22 +51,7 @@ def load_calibration(path: Path, *, field: str | None = None) -> CameraCalibrati
             return InvalidInputError(f"--calibration {path}", why)
         return InvalidInputError(field, f"{path}: {why}")
 
-    try:
-        with Path(path).open("rb") as file:
-            raw = file.read(MAX_CALIBRATION_BYTES + 1)
-        if len(raw) > MAX_CALIBRATION_BYTES:
-            raise refused(
-                f"larger than {MAX_CALIBRATION_BYTES} bytes: not a calibration (refused unread)"
-            )
-        data = json.loads(raw.decode("utf-8"))
-    except FileNotFoundError:
-        raise refused("no such file") from None
-    except IsADirectoryError:
-        raise refused("is a directory, not a calibration JSON file") from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise refused(f"unreadable: {exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise refused(f"not UTF-8 text: {exc}") from None
+    data = _calibration_json(Path(path), refused)
     if not isinstance(data, dict):
         raise refused(
             f"expected a JSON object with K, distortion, image_size; got {type(data).__name__}"
@@ -87,6 +73,54 @@ def load_calibration(path: Path, *, field: str | None = None) -> CameraCalibrati
         )
     except InvalidInputError as exc:
         raise refused(str(exc)) from None
+
+
+def _calibration_json(path: Path, refused: Callable[[str], InvalidInputError]) -> Any:
+    """The JSON value the calibration file at ``path`` holds; ``refused(why)`` raised when it is
+    no regular file (a FIFO would be waited on, a device read without end: judged by ``stat``,
+    never opened), is missing, larger than ``MAX_CALIBRATION_BYTES``, not UTF-8, not JSON
+    (nested deeper than the parser recurses, a number too long to convert included) or gives
+    a key twice (the later would replace the earlier silently)."""
+    special = special_kind(path)
+    if special is not None:
+        raise refused(f"is {special}, not a calibration JSON file")
+    try:
+        with path.open("rb") as file:
+            raw = file.read(MAX_CALIBRATION_BYTES + 1)
+    except FileNotFoundError:
+        raise refused("no such file") from None
+    except OSError as exc:
+        raise refused(f"unreadable: {exc}") from None
+    if len(raw) > MAX_CALIBRATION_BYTES:
+        raise refused(
+            f"larger than {MAX_CALIBRATION_BYTES} bytes: not a calibration (refused unread)"
+        )
+    try:
+        return json.loads(raw.decode("utf-8"), object_pairs_hook=_unique_keys)
+    except _DuplicateKeyError as exc:
+        raise refused(str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise refused(f"not UTF-8 text: {exc}") from None
+    except ValueError as exc:  # not JSON, or an integer of more digits than Python converts
+        why = str(exc).partition("; use sys.")[0]  # no advice to change the interpreter
+        raise refused(f"unreadable: {why}") from None
+    except RecursionError:
+        raise refused("unreadable: JSON nested too deep") from None
+
+
+class _DuplicateKeyError(ValueError):
+    """A JSON object gives one key twice."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object's pairs as a dict (``object_pairs_hook``); ``_DuplicateKeyError`` naming a
+    key given twice, which ``json`` would otherwise let the later value win silently."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKeyError(f'key "{key}" given twice (which one is meant? give it once)')
+        out[key] = value
+    return out
 
 
 def _shown(value: object) -> str:

@@ -79,6 +79,23 @@ class NavCameraFrame:
             )
 
 
+def _check_principal_point(k: NDArray[np.float64], image_size: tuple[int, int]) -> None:
+    """Refuse a principal point (cx, cy) more than an image width (height) outside the image:
+    the optical axis of a real camera meets its sensor, near the centre (a shift lens or a
+    crop from one corner of a larger sensor moves it towards the edge, never a whole image
+    beyond it), so such a K is for another image size or not in px, and would otherwise be
+    blamed later on the attitude (the camera seeing no ground)."""
+    width, height = image_size
+    cx, cy = float(k[0, 2]), float(k[1, 2])
+    v.require(
+        -width <= cx <= 2 * width and -height <= cy <= 2 * height,
+        "calibration.K",
+        f"principal point ({cx:g}, {cy:g}) px lies more than an image width or height outside "
+        f"the {width}x{height} px image (cx in [{-width}, {2 * width}], cy in [{-height}, "
+        f"{2 * height}] expected): K is for another image size, or not in px",
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class CameraCalibration:
     """Intrinsics of the nav camera (C5 artifact).
@@ -122,6 +139,7 @@ class CameraCalibration:
         v.require(len(size) == 2, field, f"expected (width, height), got {self.image_size!r}")
         width = v.positive_int(size[0], field, "width")
         object.__setattr__(self, "image_size", (width, v.positive_int(size[1], field, "height")))
+        _check_principal_point(k, self.image_size)
         if self.camera_to_body is not None:
             r = v.frozen_copy(
                 v.array(

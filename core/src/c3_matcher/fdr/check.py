@@ -15,6 +15,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import rotated_segments
 from c3_matcher.fdr.pending import RECORDS_DROPPED, DroppedRecords, lock_path, read_lock
 from c3_matcher.fdr.records import FdrRecord, read_fdr
+from c3_matcher.file_kinds import special_kind
 
 __all__ = ["FdrCheck", "SeqRange", "check_fdr", "read_fdr_log"]
 
@@ -90,9 +91,12 @@ class FdrCheck:
 
 def log_segments(path: Path) -> tuple[Path, ...]:
     """The segments of the log whose live segment is ``path``: rotated ones by number, then
-    the live one (``InvalidInputError`` when there is none)."""
-    if path.is_dir():
-        raise InvalidInputError("fdr", f"{path} is a directory: give the log's live segment")
+    the live one (``InvalidInputError`` when there is none, or ``path`` is no regular file)."""
+    special = special_kind(path)
+    if special is not None:
+        raise InvalidInputError(
+            "fdr", f"{path} is {special}, not a flight-data log: give the log's live segment"
+        )
     found = [p for _, p in rotated_segments(path)] + ([path] if path.is_file() else [])
     if not found:
         raise InvalidInputError("fdr", f"no flight-data log at {path}")

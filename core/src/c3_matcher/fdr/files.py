@@ -139,10 +139,13 @@ def json_object(line: bytes) -> dict[str, Any] | None:
 
 
 def read_meta(path: Path) -> dict[str, Any]:
-    """The ``.meta`` state (last segment number, last seq); {} when absent or unreadable."""
+    """The ``.meta`` state (last segment number, last seq); {} when absent, unreadable or no
+    regular file (a FIFO there is not opened: it would be waited on)."""
+    if special_kind(path) is not None:
+        return {}
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return {}
     return data if isinstance(data, dict) else {}
 

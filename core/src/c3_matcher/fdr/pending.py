@@ -184,7 +184,7 @@ def _note(line: str) -> DroppedRecords | None:
             fields[k] for k in ("count", "size_bytes", "first_seq", "last_seq")
         )
         reasons = tuple(r for r in fields["reasons"] if r in (LET_GO, STOPPED))
-    except (ValueError, TypeError, KeyError):
+    except (ValueError, TypeError, KeyError, RecursionError):
         return None
     if not all(type(n) is int and n >= 0 for n in (count, size_bytes, first_seq, last_seq)):
         return None

@@ -80,8 +80,9 @@ class InMemoryFdr:
 
 def read_fdr(path: Path) -> FdrReadResult:
     """Read every record of an FDR segment. The result is a list of the records; lines that
-    are not complete JSON objects are reported in ``.corrupt`` (a torn last line also in
-    ``.torn_tail``), never skipped silently."""
+    are not complete JSON objects (nested too deep or holding a number too long to read
+    included) are reported in ``.corrupt`` (a torn last line also in ``.torn_tail``), never
+    skipped silently."""
     result = FdrReadResult()
     with Path(path).open("rb") as fh:
         for number, raw in enumerate(fh, start=1):
@@ -91,8 +92,12 @@ def read_fdr(path: Path) -> FdrReadResult:
                 break
             try:
                 value = json.loads(raw)
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                result.corrupt.append((number, raw, f"not JSON: {exc}"))
+            except ValueError as exc:  # not JSON, not UTF-8, an int longer than Python converts
+                why = str(exc).partition("; use sys.")[0]  # no advice to change the interpreter
+                result.corrupt.append((number, raw, f"not JSON: {why}"))
+                continue
+            except RecursionError:
+                result.corrupt.append((number, raw, "not JSON: nested too deep to read"))
                 continue
             if not isinstance(value, dict):
                 result.corrupt.append((number, raw, "not a JSON object"))
