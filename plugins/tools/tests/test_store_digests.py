@@ -114,3 +114,71 @@ def test_tiles_digest_refuses_a_file_that_is_not_an_mbtiles_store_and_leaves_it_
         add_missing_digests(path)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["store.mbtiles"]  # no journal left
+
+
+def _demo_store(tmp_path: Path, *statements: str) -> Path:
+    """A copy of the demo's store with ``statements`` run on it (another tool's doing)."""
+    store = tmp_path / "tiles.mbtiles"
+    shutil.copy(REPO / "data" / "flights" / "naip_demo" / "tiles.mbtiles", store)
+    db = sqlite3.connect(store)
+    with db:
+        for statement in statements:
+            db.execute(statement)
+    db.close()
+    return store
+
+
+def test_tiles_digest_replaces_digest_rows_whose_sha256_is_null(tmp_path: Path) -> None:
+    """Another tool's half-written digest table: its NULL rows are no digests (it once failed
+    on SQLite's "UNIQUE constraint failed"); each is replaced, and none counted as kept."""
+    store = _demo_store(tmp_path, "UPDATE c3_tile_digest SET sha256 = NULL WHERE tile_column % 2")
+    before = _tiles(store)
+    nulls = sum(1 for d in _digests(store).values() if d is None)
+    assert 0 < nulls < len(before)
+    done = add_missing_digests(store)
+    assert (done.added, done.kept, done.empty) == (nulls, len(before) - nulls, 0)
+    assert _digests(store) == {k: hashlib.sha256(b).hexdigest() for k, b in before.items()}
+
+
+def test_tiles_digest_counts_tiles_without_data_apart(tmp_path: Path) -> None:
+    """A tile whose data is NULL is no tile to the flight read path: it gets no digest and
+    is said as such, never counted as a digest already there."""
+    store = _demo_store(
+        tmp_path, "DROP TABLE c3_tile_digest", "UPDATE tiles SET tile_data = NULL WHERE rowid <= 5"
+    )
+    tiles = len(_tiles_or_null(store))
+    done = add_missing_digests(store)
+    assert (done.tiles, done.added, done.kept, done.empty) == (tiles, tiles - 5, 0, 5)
+    exe = Path(sys.executable).with_name("c3-matcher")
+    proc = subprocess.run(
+        [str(exe), "tiles", "digest", str(store)], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert f"0 digests added, {tiles - 5} already there, 5 with no data" in proc.stdout
+
+
+def _tiles_or_null(path: Path) -> list[tuple[int, ...]]:
+    db = sqlite3.connect(path)
+    try:
+        return db.execute("SELECT zoom_level, tile_column, tile_row FROM tiles").fetchall()
+    finally:
+        db.close()
+
+
+@pytest.mark.parametrize(("value", "kind"), [("7", "INTEGER"), ("'abc'", "TEXT")])
+def test_tiles_digest_refuses_tile_data_that_is_not_bytes_naming_the_tile(
+    tmp_path: Path, value: str, kind: str
+) -> None:
+    store = _demo_store(
+        tmp_path, "DROP TABLE c3_tile_digest", f"UPDATE tiles SET tile_data = {value}"
+    )
+    (z, x, row), *_ = sorted(_tiles_or_null(store))
+    before = store.read_bytes()
+    exe = Path(sys.executable).with_name("c3-matcher")
+    proc = subprocess.run(
+        [str(exe), "tiles", "digest", str(store)], capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert f"zoom_level {z}, tile_column {x}, tile_row {row} holds {kind} data" in proc.stderr
+    assert "internal error" not in proc.stderr
+    assert store.read_bytes() == before  # the store left as it was

@@ -4,6 +4,7 @@ with a wrong CRS, other bit depths or no data)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ from rasterio.transform import from_origin
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.testing.cli import run_cli
 from c3_matcher_tools.testing.geotiff import write_geotiff
 from c3_matcher_tools.tilestore.build import build_mbtiles
 
@@ -223,3 +225,23 @@ def test_negative_pixel_scale_is_not_a_north_up_grid(tmp_path: Path, use_rasteri
     tif = tiny_geotiff(tmp_path / "flipped.tif", scale=(-1e-5, 1e-5))
     with pytest.raises(InvalidInputError, match=r"flipped\.tif: not a north-up grid"):
         build_mbtiles(tif, tmp_path / "o.mbtiles", use_rasterio=use_rasterio)
+
+
+@READERS
+def test_complex_pixels_are_refused_naming_their_type(tmp_path: Path, use_rasterio: bool) -> None:
+    """A complex-valued raster (a radar product's) has no brightness to map: refused by its
+    type, once an internal error (rasterio) or silently cast to its real part (tifffile)."""
+    source = derived(tmp_path, "c64.tif", dtype="complex64")
+    with pytest.raises(InvalidInputError, match=r"c64.tif: its pixels are complex64"):
+        build_mbtiles(source, tmp_path / "out.mbtiles", zoom=16, use_rasterio=use_rasterio)
+    assert not (tmp_path / "out.mbtiles").exists()
+
+
+def test_a_fifo_as_the_geotiff_is_named_so(tmp_path: Path) -> None:
+    fifo = tmp_path / "ortho.tif"
+    os.mkfifo(fifo)
+    proc = run_cli("tiles", "build", fifo, tmp_path / "out.mbtiles", cwd=tmp_path, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert f"geotiff: {fifo}: is a FIFO, not a GeoTIFF" in proc.stderr
+    with pytest.raises(InvalidInputError, match=r"is a FIFO, not a GeoTIFF"):
+        build_mbtiles(fifo, tmp_path / "out.mbtiles", use_rasterio=True)

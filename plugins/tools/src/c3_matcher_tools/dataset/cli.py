@@ -326,6 +326,11 @@ def run_dataset(args: argparse.Namespace, ctx: CommandContext) -> int:
 
     if args.dataset_command == "info":
         return _info(args, ctx)
+    if args.dataset_command == "import":  # every kind of log: a FIFO would be waited on
+        from c3_matcher_tools.dataset.importer import refuse_special_inputs
+
+        given = (("TELEMETRY", args.telemetry), ("CALIBRATION", args.calibration))
+        refuse_special_inputs((*given, ("--dem", args.dem)))
     if args.dataset_command == "import" and (code := run_log_import(args, ctx)) is not None:
         return code  # a recorded log (PX4, ArduPilot, ROS bag, photo metadata)
     if args.dataset_command == "import":

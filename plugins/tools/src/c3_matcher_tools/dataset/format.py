@@ -29,7 +29,6 @@ reported: ``lat``, ``lon``, ``altitude_m``, the candidates' search radius ``unce
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import uuid
 from dataclasses import dataclass, field
@@ -41,9 +40,19 @@ from numpy.typing import NDArray
 
 from c3_matcher import dto
 from c3_matcher.errors import InvalidInputError, describe
+from c3_matcher.file_kinds import special_kind
 from c3_matcher.serialize import load_calibration
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.dataset.json_values import (
+    json_integer,
+    json_number,
+    json_object,
+    json_text,
+    parse_json,
+    pose_values,
+    telemetry_values,
+)
 from c3_matcher_tools.dataset.provenance import ImportFault, import_faults
 
 __all__ = [
@@ -99,76 +108,6 @@ def check_candidate_size(size_px: int, field: str = "--candidate-size") -> None:
         raise InvalidInputError(field, f"must be in [{low}, {high}] px, got {size_px}")
 
 
-def _object(value: object, field: str) -> dict[str, Any]:
-    """``value`` when it is a JSON object, else InvalidInputError naming ``field``."""
-    if not isinstance(value, dict):
-        raise InvalidInputError(field, f"expected a JSON object, got {type(value).__name__}")
-    return value
-
-
-def _number(value: object, field: str, low: float = -math.inf, high: float = math.inf) -> float:
-    """``value`` when it is a finite JSON number in [low, high], as a float, else
-    InvalidInputError naming ``field``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InvalidInputError(field, f"expected a number, got {value!r}")
-    try:
-        number = float(value)
-    except OverflowError:  # an integer beyond a float's range
-        number = math.inf
-    if not math.isfinite(number):
-        raise InvalidInputError(field, f"must be finite, got {value!r}")
-    if not low <= number <= high:
-        raise InvalidInputError(field, f"must be in [{low:g}, {high:g}], got {value!r}")
-    return number
-
-
-def _integer(value: object, field: str, low: int, high: int) -> int:
-    """``value`` when it is a JSON integer in [low, high], else InvalidInputError naming
-    ``field``."""
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise InvalidInputError(field, f"expected an integer, got {value!r}")
-    if not low <= value <= high:
-        raise InvalidInputError(field, f"must be in [{low}, {high}], got {value}")
-    return value
-
-
-def _text(value: object, field: str) -> str:
-    """``value`` when it is a non-empty JSON string, else InvalidInputError naming ``field``."""
-    if not isinstance(value, str) or not value:
-        raise InvalidInputError(field, f"expected a non-empty string, got {value!r}")
-    return value
-
-
-def _degrees(
-    values: dict[str, Any], field: str, pairs: tuple[tuple[str, str], ...]
-) -> dict[str, Any]:
-    """A copy of ``values`` whose (latitude, longitude) keys of ``pairs``, where present, are
-    checked as WGS84 degrees; InvalidInputError names ``field`` and the key."""
-    for lat, lon in pairs:
-        if lat in values:
-            _number(values[lat], f"{field}.{lat}", -90.0, 90.0)
-        if lon in values:
-            _number(values[lon], f"{field}.{lon}", -180.0, 180.0)
-    return dict(values)
-
-
-def _telemetry(value: object) -> dict[str, Any]:
-    """A record's ``telemetry``, the values replay and its report read checked: the vehicle's
-    position, where the frame looks and the stated GNSS accuracy (m)."""
-    telemetry = _degrees(
-        _object(value, "telemetry"), "telemetry", (("lat", "lon"), ("look_lat", "look_lon"))
-    )
-    if telemetry.get("gnss_accuracy_m") is not None:
-        _number(telemetry["gnss_accuracy_m"], "telemetry.gnss_accuracy_m", low=0.0)
-    return telemetry
-
-
-def _pose(value: object) -> dict[str, Any]:
-    """A record's ``pose``, its positions checked (scoring reads the nadir)."""
-    pairs = (("nadir_lat", "nadir_lon"), ("footprint_centre_lat", "footprint_centre_lon"))
-    return _degrees(_object(value, "pose"), "pose", pairs)
-
-
 @dataclass(frozen=True)
 class CandidateTruth:
     """One candidate of a frame and its ground truth (see the module docstring)."""
@@ -197,7 +136,7 @@ class CandidateTruth:
     def from_json(cls, data: object) -> CandidateTruth:
         """A candidate as ``frames.jsonl`` holds it, every value checked (InvalidInputError
         naming the key)."""
-        cand = _object(data, "candidate")
+        cand = json_object(data, "candidate")
         tile = cand["tile_id"]
         if not isinstance(tile, list) or len(tile) != 3:
             raise InvalidInputError("candidate.tile_id", f"expected [zoom, lat, lon], got {tile!r}")
@@ -215,9 +154,9 @@ class CandidateTruth:
             )
         return cls(
             dto.TileId(*tile),
-            _number(cand.get("score", 1.0), "candidate.score"),
+            json_number(cand.get("score", 1.0), "candidate.score"),
             is_true,
-            None if distance is None else _number(distance, "candidate.distance_m", low=0.0),
+            None if distance is None else json_number(distance, "candidate.distance_m", low=0.0),
             homography,
         )
 
@@ -279,18 +218,18 @@ class FrameRecord:
     def from_json(cls, data: object) -> FrameRecord:
         """A record as ``frames.jsonl`` holds it, every value replay uses checked as the
         matcher would check it (InvalidInputError naming the key)."""
-        record = _object(data, "record")
+        record = json_object(data, "record")
         angles = record["attitude_deg"]
         if not isinstance(angles, list) or len(angles) != 3:
             raise InvalidInputError("attitude_deg", f"expected [roll, pitch, yaw], got {angles!r}")
-        roll, pitch, yaw = (_number(a, "attitude_deg") for a in angles)
+        roll, pitch, yaw = (json_number(a, "attitude_deg") for a in angles)
         try:  # the matcher's bounds on each angle
             dto.Attitude.from_degrees(roll, pitch, yaw)
         except InvalidInputError as exc:
             raise InvalidInputError(
                 "attitude_deg", f"{angles} out of range ({exc}, in rad)"
             ) from exc
-        height, highest = _number(record["height_m"], "height_m"), dto.MAX_HEIGHT_ABOVE_GROUND_M
+        height, highest = json_number(record["height_m"], "height_m"), dto.MAX_HEIGHT_ABOVE_GROUND_M
         if not 0.0 < height <= highest:
             why = f"must be > 0 and <= {highest:g} m above ground, got {height:g}"
             raise InvalidInputError("height_m", why)
@@ -298,15 +237,15 @@ class FrameRecord:
         if not isinstance(candidates, list) or not candidates:
             raise InvalidInputError("candidates", f"expected a non-empty list, got {candidates!r}")
         return cls(
-            _integer(record["index"], "index", 0, _INT64_MAX),
-            uuid.UUID(_text(record["frame_id"], "frame_id")),
-            _text(record["image"], "image"),
-            _integer(record["captured_at_ns"], "captured_at_ns", 0, _INT64_MAX),
+            json_integer(record["index"], "index", 0, _INT64_MAX),
+            uuid.UUID(json_text(record["frame_id"], "frame_id")),
+            json_text(record["image"], "image"),
+            json_integer(record["captured_at_ns"], "captured_at_ns", 0, _INT64_MAX),
             (roll, pitch, yaw),
             height,
             tuple(CandidateTruth.from_json(c) for c in candidates),
-            _pose(record.get("pose", {})),
-            _telemetry(record.get("telemetry", {})),
+            pose_values(record.get("pose", {})),
+            telemetry_values(record.get("telemetry", {})),
         )
 
 
@@ -398,12 +337,12 @@ def _meta(path: Path) -> dict[str, Any]:
     indices, the sources and credits as strings, the fit residual a number >= 0 and ``spec`` /
     ``import`` / ``attitude_noise`` as objects (InvalidInputError naming the file and key)."""
     try:
-        meta = _object(json.loads(path.read_text(encoding="utf-8")), "top level")
+        meta = json_object(parse_json(path.read_text(encoding="utf-8")), "top level")
         if meta.get("format") != FORMAT:
             raise InvalidInputError("format", f"{meta.get('format')!r}, expected {FORMAT!r}")
         for key in ("store", "frames", "calibration"):
-            _text(meta[key], key)
-        _integer(meta["candidate_size_px"], "candidate_size_px", *CANDIDATE_SIZE_PX)
+            json_text(meta[key], key)
+        json_integer(meta["candidate_size_px"], "candidate_size_px", *CANDIDATE_SIZE_PX)
         _optional_meta(meta)
     except (KeyError, OSError, ValueError) as exc:  # JSON and UTF-8 errors among them
         raise InvalidInputError("dataset", f"{path}: {_why(exc)}") from exc
@@ -418,22 +357,22 @@ def _optional_meta(meta: dict[str, Any]) -> None:
         if why:
             raise InvalidInputError("name", f"{name!r}: {why}")
     if "zoom" in meta:
-        _integer(meta["zoom"], "zoom", 0, _MAX_ZOOM)
+        json_integer(meta["zoom"], "zoom", 0, _MAX_ZOOM)
     if "absent_frames" in meta:
         absent = meta["absent_frames"]
         if not isinstance(absent, list):
             why = f"expected a list of frame indices, got {absent!r}"
             raise InvalidInputError("absent_frames", why)
         for index in absent:
-            _integer(index, "absent_frames", 0, _INT64_MAX)
+            json_integer(index, "absent_frames", 0, _INT64_MAX)
     for key in ("tiles_source", "frames_source", "georeference", "attribution"):
         if key in meta and not isinstance(meta[key], str):
             raise InvalidInputError(key, f"expected a string, got {meta[key]!r}")
     if "gt_fit_max_residual_px" in meta:
-        _number(meta["gt_fit_max_residual_px"], "gt_fit_max_residual_px", low=0.0)
+        json_number(meta["gt_fit_max_residual_px"], "gt_fit_max_residual_px", low=0.0)
     for key in ("spec", "import", "attitude_noise"):
         if key in meta:
-            _object(meta[key], key)
+            json_object(meta[key], key)
 
 
 def _why(exc: Exception) -> str:
@@ -448,7 +387,10 @@ def _why(exc: Exception) -> str:
 def _frames(path: Path) -> tuple[FrameRecord, ...]:
     """``frames.jsonl`` read and checked, naming the line of the first bad record (a frame id
     or index a line before already holds among them: results, records and reports are keyed by
-    them); at least one frame."""
+    them); at least one frame. A FIFO or a device there is refused unread."""
+    kind = special_kind(path)
+    if kind is not None:
+        raise InvalidInputError("dataset", f"{path}: is {kind}, not a file of frame records")
     try:
         lines = path.read_bytes().splitlines()
     except OSError as exc:
@@ -459,7 +401,7 @@ def _frames(path: Path) -> tuple[FrameRecord, ...]:
         if not line.strip():
             continue
         try:
-            frame = FrameRecord.from_json(json.loads(line.decode("utf-8")))
+            frame = FrameRecord.from_json(parse_json(line.decode("utf-8")))
             for key, value in (("frame_id", frame.frame_id), ("index", frame.index)):
                 if (key, value) in first_line:
                     raise InvalidInputError(key, f"{value} is line {first_line[key, value]}'s too")

@@ -4,8 +4,12 @@ The telemetry CSV is read and checked by :mod:`c3_matcher_tools.dataset.telemetr
 are listed there); each frame's candidates are proposed from the tile store by
 :mod:`c3_matcher_tools.dataset.proposals`.
 
-Rows and images: every image in IMAGES_DIR without a telemetry row and every row whose image
-is missing is skipped and reported (:class:`ImportReport`); a refused value names its CSV line.
+Rows and images: a row's image name is a path relative to IMAGES_DIR, placed there by
+:mod:`c3_matcher_tools.dataset.image_names` (one outside it, or naming the file a row before
+names, is refused). Every image in IMAGES_DIR without a telemetry row and every row whose image is
+missing is skipped and reported (:class:`ImportReport`); a refused value names its CSV line.
+TELEMETRY, CALIBRATION and the DEM must be regular files: a FIFO or a device is refused
+unread (reading one would wait for a writer, or never end).
 Everything is checked before anything is written; the dataset is written into a temporary
 sibling directory and renamed into place. Its tile store is a hard link to the one given where
 both are on one filesystem, else a copy (:func:`~c3_matcher_tools.dataset.writing.link_or_copy`);
@@ -15,16 +19,18 @@ the report says which.
 from __future__ import annotations
 
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.file_kinds import special_kind
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
 from c3_matcher_tools.dataset.format import FrameRecord
+from c3_matcher_tools.dataset.image_names import file_identity
 from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
 from c3_matcher_tools.dataset.sources.options import (
@@ -41,7 +47,7 @@ from c3_matcher_tools.dataset.telemetry import (
 )
 from c3_matcher_tools.dataset.writing import copy_file, write_dataset
 
-__all__ = ["ImportSpec", "import_csv_flight", "import_flight"]
+__all__ = ["ImportSpec", "import_csv_flight", "import_flight", "refuse_special_inputs"]
 
 
 @dataclass(frozen=True)
@@ -74,19 +80,34 @@ def _check_image(path: Path, calibration: CameraCalibration) -> str | None:
     return image_problem(path.read_bytes(), calibration.image_size)
 
 
+def refuse_special_inputs(inputs: Iterable[tuple[str, str | Path | None]]) -> None:
+    """Refuse each input given (``(field, path)``; None: not given) that is there but is a
+    FIFO, a device or a socket, naming it and what it is: reading one waits for a writer
+    forever, or never ends. A directory is left to its reader, which names it (a ROS 2 bag is
+    one)."""
+    for field, path in inputs:
+        if path is None or str(path) == "-":
+            continue
+        kind = special_kind(Path(path))
+        if kind is not None and not Path(path).is_dir():
+            raise InvalidInputError(field, f"{path} is {kind}, not a file")
+
+
 def _pair_images(
     images_dir: Path, rows: list[TelemetryRow]
 ) -> tuple[list[TelemetryRow], list[tuple[str, str]]]:
-    """(rows whose image exists, skipped (name, why)): every image in ``images_dir`` without a
-    row and every row without its image, in name / line order."""
+    """(rows whose image exists, skipped (name, why)): every image in ``images_dir`` that no
+    row names (as the file it is: :func:`file_identity`) and every row without its image, in
+    name / line order. ``rows``: placed in ``images_dir`` by the telemetry's reader."""
     on_disk = {
-        p.name
+        file_identity(p): p.name
         for p in images_dir.iterdir()
         if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
     }
-    named = {r.image for r in rows}
+    named = {file_identity(images_dir / r.image) for r in rows}
     kept = [r for r in rows if (images_dir / r.image).is_file()]
-    skipped = [(n, "no telemetry row") for n in sorted(on_disk - named)]
+    unnamed = sorted(name for file, name in on_disk.items() if file not in named)
+    skipped = [(n, "no telemetry row") for n in unnamed]
     skipped += [
         (r.image, f"line {r.line}: no such image")
         for r in sorted(rows, key=lambda r: r.line)
@@ -144,6 +165,13 @@ def _check_csv_inputs(spec: ImportSpec) -> _CheckedCsv:
     store's coverage of every frame, in that order (a frame outside it skipped with
     ``--skip-outside``); raises InvalidInputError naming the input at fault."""
     images_dir = Path(spec.images_dir)
+    refuse_special_inputs(
+        (
+            ("TELEMETRY", spec.telemetry_csv),
+            ("CALIBRATION", spec.calibration_json),
+            ("--dem", spec.dem),
+        )
+    )
     if not images_dir.exists():
         raise InvalidInputError("IMAGES_DIR", f"{images_dir}: no such file or folder")
     if not images_dir.is_dir():
@@ -151,7 +179,10 @@ def _check_csv_inputs(spec: ImportSpec) -> _CheckedCsv:
     spec.proposal.check_store()
     calibration = load_calibration(Path(spec.calibration_json), field="CALIBRATION")
     table = read_telemetry_table(
-        Path(spec.telemetry_csv), ground_elevation_m=spec.ground_elevation_m, dem=spec.dem
+        Path(spec.telemetry_csv),
+        ground_elevation_m=spec.ground_elevation_m,
+        dem=spec.dem,
+        images_dir=images_dir,
     )
     rows, skipped = _pair_images(images_dir, list(table.rows))
     if not rows:

@@ -25,22 +25,31 @@ ignored):
     yaw_deg (yaw)       idem; yaw from TRUE north, clockwise positive               degrees
     ==================  ==========================================================  ===========
 
-Every row is checked before any is used: a refused value names its CSV line
-(:func:`refuse_lines`), and so do an image two rows name and two rows at one time.
+Every row is checked before any is used: a refused value names its CSV line (the line its
+record starts on: a quoted field may hold a line break), and so do two rows at one time
+(:func:`refuse_lines`). An image name holding a line break or another control character is
+refused: no file name meant holds one. Given IMAGES_DIR, each name is placed in it, and one
+outside it or naming the file a row before names is refused
+(:mod:`c3_matcher_tools.dataset.image_names`).
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
+import io
 import itertools
 import math
-from collections.abc import Callable, Sequence
+import re
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from c3_matcher.dto import MAX_HEIGHT_ABOVE_GROUND_M, Attitude
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.file_kinds import special_kind
+from c3_matcher_tools.dataset.image_names import place_images
 from c3_matcher_tools.dataset.sources.frames import ground_elevation_sampler
 from c3_matcher_tools.dataset.sources.options import number_ranges
 
@@ -72,6 +81,7 @@ HEIGHT_COLUMNS: dict[str, tuple[str, ...]] = {
 MAX_PROBLEMS = 10
 MAX_ABS_TIME_S = 4e9  # |time_s| beyond this (126 years) is not a capture time (ns fit int64)
 AGREE_M = 30.0  # both height columns given: altitude - height must be the ground to this
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")  # a line break, a tab, a NUL: in no file name meant
 
 
 @dataclass(frozen=True)
@@ -229,10 +239,16 @@ def read_telemetry(
     *,
     ground_elevation_m: float | None = None,
     dem: Path | None = None,
+    images_dir: Path | None = None,
 ) -> list[TelemetryRow]:
     """Read and check a telemetry CSV (see the module docstring), sorted by time; raises
-    InvalidInputError naming the CSV line of every refused value."""
-    return list(read_telemetry_table(path, ground_elevation_m=ground_elevation_m, dem=dem).rows)
+    InvalidInputError naming the CSV line of every refused value. With ``images_dir``, each
+    image name is placed in it (:func:`~c3_matcher_tools.dataset.image_names.place_images`):
+    the rows name their images as paths relative to it, none twice."""
+    table = read_telemetry_table(
+        path, ground_elevation_m=ground_elevation_m, dem=dem, images_dir=images_dir
+    )
+    return list(table.rows)
 
 
 def read_telemetry_table(
@@ -240,17 +256,22 @@ def read_telemetry_table(
     *,
     ground_elevation_m: float | None = None,
     dem: Path | None = None,
+    images_dir: Path | None = None,
 ) -> Telemetry:
     """:func:`read_telemetry` with how the heights above ground were obtained."""
     path = Path(path)
-    reader, header = _csv_reader(path)
+    records = _records(path)
+    header = _header(records, path)
     cols = _column_map(header, path)
     _check_ground_given(path, cols, ground_elevation_m, dem)
     ground = ground_elevation_sampler(dem) if dem is not None else None
-    rows, problems = _read_rows(reader, _RowRules(cols, ground, ground_elevation_m))
+    rows, problems = _read_rows(records, header, _RowRules(cols, ground, ground_elevation_m))
     if not rows and not problems:
         problems.append((1, "no data rows"))
-    problems += _repeated_images(rows)
+    if images_dir is not None:
+        placed, refused = place_images(images_dir, [(r.line, r.image) for r in rows])
+        rows = [dataclasses.replace(r, image=placed[r.line]) for r in rows if r.line in placed]
+        problems += refused
     rows.sort(key=lambda r: (r.time_s, r.line))
     problems += _repeated_times(rows)
     refuse_lines(path, problems)
@@ -277,17 +298,37 @@ def radians_note(rows: Sequence[TelemetryRow], cols: dict[str, str]) -> str | No
     )
 
 
-def _csv_reader(path: Path) -> tuple[csv.DictReader[str], list[str]]:
-    """A reader of the CSV's records and its header; refused when the file cannot be read as
-    UTF-8 or has no header."""
+def _records(path: Path) -> Iterator[tuple[int, list[str]]]:
+    """Each record of the CSV with the line it starts on, blank lines counted and skipped
+    after the first; refused when the file is no regular file (a FIFO would wait for a writer
+    forever), cannot be read as UTF-8, or holds a record csv cannot read (a field beyond its
+    size limit), naming that line."""
+    kind = special_kind(path)
+    if kind is not None:
+        raise InvalidInputError(str(path), f"is {kind}, not a telemetry CSV")
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise InvalidInputError(str(path), f"unreadable telemetry CSV: {exc}") from None
-    reader = csv.DictReader(text.splitlines())
-    if not reader.fieldnames:
+    reader = csv.reader(io.StringIO(text, newline=""))  # line breaks in quotes kept as they are
+    while True:
+        start = reader.line_num + 1
+        try:
+            fields = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise InvalidInputError(str(path), f"line {start}: unreadable record ({exc})") from None
+        if fields or start == 1:  # a blank first line is a missing header
+            yield start, fields
+
+
+def _header(records: Iterator[tuple[int, list[str]]], path: Path) -> list[str]:
+    """The CSV's first record, its header; refused when there is none."""
+    _, header = next(records, (1, []))
+    if not header:
         raise InvalidInputError(str(path), "empty telemetry CSV (no header)")
-    return reader, list(reader.fieldnames)
+    return header
 
 
 def _check_ground_given(
@@ -329,15 +370,16 @@ class _RowRules:
 
 
 def _read_rows(
-    reader: csv.DictReader[str], rules: _RowRules
+    records: Iterator[tuple[int, list[str]]], header: list[str], rules: _RowRules
 ) -> tuple[list[TelemetryRow], list[tuple[int, str]]]:
-    """The accepted rows in line order, and (line, why) of each refused one."""
+    """The accepted rows in line order, and (line, why) of each refused one, each named by
+    the line its record starts on."""
     rows: list[TelemetryRow] = []
     problems: list[tuple[int, str]] = []
-    for rec in reader:
-        n = reader.line_num  # the record's own line, blank lines before it counted
-        extra = rec.get(None)  # the fields beyond the header's names
-        row = _too_many(rec, len(extra)) if extra else _row(n, rec, rules)
+    for n, fields in records:
+        rec = dict(zip(header, fields, strict=False))  # a short record lacks the last columns
+        extra = len(fields) - len(header)
+        row = _too_many(len(rec), extra) if extra > 0 else _row(n, rec, rules)
         if isinstance(row, str):
             problems.append((n, f"line {n}: {row}"))
         else:
@@ -345,23 +387,21 @@ def _read_rows(
     return rows, problems
 
 
-def _too_many(rec: dict[str, str], extra: int) -> str:
-    """Why a record with ``extra`` fields more than the header is refused: which value went
-    under which column would be a guess (a decimal comma splits a number in two)."""
-    named = len(rec) - 1  # the header's names; the extra fields sit under one more key
+def _too_many(named: int, extra: int) -> str:
+    """Why a record with ``extra`` fields more than the header's ``named`` columns is
+    refused: which value went under which column would be a guess (a decimal comma splits a
+    number in two)."""
     return f"{named + extra} fields, the header names {named} (a decimal comma?)"
 
 
 def _row(n: int, rec: dict[str, str], rules: _RowRules) -> TelemetryRow | str:
     """CSV line ``n`` as a row, or why it is refused: its values that are not finite numbers,
-    else an empty image name, else the first value out of range, else its height."""
+    else its image name, else the first value out of range, else its height."""
     cols = rules.cols
     values, bad = _numbers(rec, rules)
     image = str(rec.get(cols["image"]) or "").strip()
     why = "; ".join(bad) if bad else None
-    if why is None and not image:
-        why = f"{cols['image']} is empty"
-    why = why or _row_problem(values, cols)
+    why = why or _image_name_problem(image, cols["image"]) or _row_problem(values, cols)
     if why is not None:
         return why
     height, why = _height(values, cols, rules.ground, rules.ground_elevation_m)
@@ -399,17 +439,14 @@ def _numbers(rec: dict[str, str], rules: _RowRules) -> tuple[dict[str, float], l
     return values, bad
 
 
-def _repeated_images(rows: Sequence[TelemetryRow]) -> list[tuple[int, str]]:
-    """(line, why) of each row naming an image an earlier row names."""
-    problems: list[tuple[int, str]] = []
-    seen: dict[str, int] = {}
-    for r in rows:
-        if r.image in seen:
-            problems.append(
-                (r.line, f"line {r.line}: image {r.image!r} already on line {seen[r.image]}")
-            )
-        seen[r.image] = r.line
-    return problems
+def _image_name_problem(image: str, column: str) -> str | None:
+    """Why an image name is refused (empty, or holding a control character such as a line
+    break, which no file name meant holds), naming the CSV's column; or None."""
+    if not image:
+        return f"{column} is empty"
+    if _CONTROL.search(image):
+        return f"{column} {image!r} holds a line break or another control character"
+    return None
 
 
 def _repeated_times(rows: Sequence[TelemetryRow]) -> list[tuple[int, str]]:

@@ -59,6 +59,7 @@ from c3_matcher_tools.tilestore.raster import (
     RasterioSource,
     ValueMapping,
     ValueRange,
+    check_pixel_type,
     grid_gsd_m,
     rasterio_available,
 )
@@ -288,13 +289,14 @@ def _open_source(
     if value_range not in (None, "auto"):
         raise InvalidInputError("--value-range", "needs the rasterio reader (the geo extra)")
     grid = read_geotiff_grid(geotiff, reference=reference)
+    mapping = _fallback_mapping(geotiff)  # before the pixels: it refuses complex ones
     photo = load_orthophoto(geotiff)
     if photo.size != grid.size:
         raise InvalidInputError(
             "geotiff", f"{geotiff}: pixel size {photo.size} != grid {grid.size}"
         )
     gsd = grid_gsd_m(grid, geographic=_declared_geographic(geotiff))
-    return _Source(grid, gsd, "tifffile", None, _fallback_mapping(geotiff), photo_rgb=photo.rgb)
+    return _Source(grid, gsd, "tifffile", None, mapping, photo_rgb=photo.rgb)
 
 
 def _declared_geographic(geotiff: str | Path) -> bool:
@@ -312,7 +314,7 @@ def _fallback_mapping(geotiff: str | Path) -> str:
     import tifffile
 
     with tifffile.TiffFile(str(geotiff)) as tif:
-        dtype = str(tif.pages.first.dtype)
+        dtype = check_pixel_type(str(tif.pages.first.dtype), geotiff)
     if dtype == "uint8":
         return ValueMapping(dtype, 0.0, 255.0, "as is").describe()
     return f"{dtype} 0..p99.9 -> 0..255 linear (99.9th percentile of the non-zero pixels)"

@@ -142,8 +142,9 @@ def _digest(args: argparse.Namespace, ctx: CommandContext) -> int:
     if args.json:
         ctx.out(json.dumps({**asdict(done), "path": str(done.path)}, indent=2))
     else:
+        empty = f", {done.empty} with no data (NULL: no tile to a flight)" if done.empty else ""
         ctx.out(
-            f"{done.path}: {done.added} digests added, {done.kept} already there "
+            f"{done.path}: {done.added} digests added, {done.kept} already there{empty} "
             f"({done.tiles} tiles)"
         )
     return EXIT_OK
@@ -196,10 +197,12 @@ def _xyz_info(root: Path) -> dict[str, Any]:
 
 
 def _build(args: argparse.Namespace, ctx: CommandContext) -> int:
+    from c3_matcher.file_kinds import special_kind
     from c3_matcher_tools.tilestore.build import build_mbtiles, parse_zooms
 
-    if Path(args.geotiff).is_dir():  # either reader would say "no such file"
-        raise InvalidInputError("geotiff", f"{args.geotiff}: is a directory, not a GeoTIFF")
+    kind = special_kind(Path(args.geotiff))  # either reader would say "no such file"
+    if kind is not None:  # or wait forever on a FIFO
+        raise InvalidInputError("geotiff", f"{args.geotiff}: is {kind}, not a GeoTIFF")
     if not 1 <= args.quality <= 100:
         raise InvalidInputError("--quality", f"must be in [1, 100], got {args.quality}")
     zooms = parse_zooms([*(args.zoom or []), *([args.zooms] if args.zooms else [])])

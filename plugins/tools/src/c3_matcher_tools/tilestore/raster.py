@@ -35,12 +35,20 @@ from numpy.typing import NDArray
 
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.file_kinds import special_kind
 from c3_matcher_tools.geodesy import ground_gsd_m
 from c3_matcher_tools.geotiff import north_up_scale
 from c3_matcher_tools.tilestore.geo import GeoGrid, check_grid_fits_crs
 from c3_matcher_tools.tilestore.projection import Projection
 
-__all__ = ["RasterioSource", "ValueMapping", "ValueRange", "grid_gsd_m", "rasterio_available"]
+__all__ = [
+    "RasterioSource",
+    "ValueMapping",
+    "ValueRange",
+    "check_pixel_type",
+    "grid_gsd_m",
+    "rasterio_available",
+]
 
 #: how source values become 8 bits: None (the 99.9th percentile), "bits" or (lo, hi)
 ValueRange = str | tuple[float, float] | None
@@ -107,6 +115,23 @@ class ValueMapping:
         return np.asarray(np.clip(np.rint(scaled), 0, 255), dtype=np.uint8)
 
 
+def check_pixel_type(dtype: str, source: str | Path) -> str:
+    """``dtype`` when its pixel values are real numbers (integers or floats); refused naming it
+    otherwise (complex values, as a radar product's, have no brightness to map to 0..255; GDAL's
+    complex integers, ``complex_int16``, have no numpy type at all)."""
+    try:
+        kind = np.dtype(dtype).kind
+    except TypeError:
+        kind = "c"
+    if kind not in "uif":
+        raise InvalidInputError(
+            "geotiff",
+            f"{source}: its pixels are {dtype}, not integers or real numbers: an orthophoto's "
+            "are (convert it to 8- or 16-bit, or float, first)",
+        )
+    return dtype
+
+
 def declared_range(dtype: str, nbits: str | None, source: str | Path) -> tuple[float, str]:
     """(top value, how) of the declared bit depth: ``NBITS`` when declared, else the integer
     type's maximum; float data declares none."""
@@ -143,8 +168,9 @@ class RasterioSource:
         from rasterio.errors import NotGeoreferencedWarning
 
         self.path = Path(path)
-        if self.path.is_dir():
-            raise InvalidInputError("geotiff", f"{self.path}: is a directory, not a GeoTIFF")
+        kind = special_kind(self.path)
+        if kind is not None:  # a FIFO would be waited on forever
+            raise InvalidInputError("geotiff", f"{self.path}: is {kind}, not a GeoTIFF")
         if not self.path.is_file():
             raise InvalidInputError("geotiff", f"no such file: {self.path}")
         try:
@@ -196,7 +222,7 @@ class RasterioSource:
         self.mapping = self._mapping(ds, value_range)
 
     def _mapping(self, ds: Any, value_range: ValueRange) -> ValueMapping:
-        dtype = str(ds.dtypes[0])
+        dtype = check_pixel_type(str(ds.dtypes[0]), self.path)
         if isinstance(value_range, tuple):
             lo, hi = (float(v) for v in value_range)
             if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):

@@ -41,20 +41,25 @@ _SCHEMA = (
 @dataclass(frozen=True, slots=True)
 class DigestReport:
     """What ``add_missing_digests`` did: tiles in the store, digests added, digests already
-    there (kept as they were)."""
+    there (kept as they were), and tiles whose data is NULL (no digest: the flight read path
+    takes such a row for no tile)."""
 
     path: Path
     tiles: int
     added: int
     kept: int
+    empty: int = 0
 
 
 def add_missing_digests(path: str | Path) -> DigestReport:
     """Record the sha256 of every tile of the MBTiles store at ``path`` that has none (a store
     made by another tool, or before digests existed). Tile bytes are not touched, and an
-    existing digest is never replaced: a tile that no longer matches its digest stays detected.
-    One transaction, the digest table's creation included: on any error (a file that is not an
-    MBTiles store among them) the store is left as it was."""
+    existing digest is never replaced: a tile that no longer matches its digest stays detected;
+    a digest row whose sha256 is NULL (another tool's unfinished table) is no digest and is
+    replaced. A tile whose data is NULL gets none and is counted apart (``empty``); one whose
+    data is not bytes (an INTEGER, a TEXT) is refused, naming it. One transaction, the digest
+    table's creation included: on any error (a file that is not an MBTiles store among them)
+    the store is left as it was."""
     path = Path(path)
     why = open_failure(path, "an MBTiles file")
     if why == "no such file":
@@ -68,7 +73,7 @@ def add_missing_digests(path: str | Path) -> DigestReport:
     try:
         db.execute("BEGIN IMMEDIATE")
         try:
-            missing, tiles = _digest_missing(db, path)
+            report = _digest_missing(db, path)
         except BaseException:
             if db.in_transaction:  # SQLite may have rolled it back itself
                 db.execute("ROLLBACK")
@@ -78,13 +83,22 @@ def add_missing_digests(path: str | Path) -> DigestReport:
         raise InvalidInputError("store", f"{path}: {exc}") from exc
     finally:
         db.close()
-    return DigestReport(path, tiles, missing, tiles - missing)
+    return report
 
 
-def _digest_missing(db: sqlite3.Connection, path: Path) -> tuple[int, int]:
+_UNDIGESTED = (  # each tile without a digest: none, or a row whose sha256 is NULL
+    "SELECT t.zoom_level, t.tile_column, t.tile_row, t.tile_data, typeof(t.tile_data)"
+    " FROM tiles t WHERE NOT EXISTS (SELECT 1 FROM c3_tile_digest d"
+    " WHERE d.zoom_level=t.zoom_level AND d.tile_column=t.tile_column"
+    " AND d.tile_row=t.tile_row AND d.sha256 IS NOT NULL)"
+    " ORDER BY t.zoom_level, t.tile_column, t.tile_row"
+)
+
+
+def _digest_missing(db: sqlite3.Connection, path: Path) -> DigestReport:
     """Inside the caller's transaction: add the missing digests of the MBTiles store open as
-    ``db``; (digests added, tiles). Refuses a database without a ``tiles`` table before any
-    change."""
+    ``db`` (see :func:`add_missing_digests`). Refuses a database without a ``tiles`` table,
+    and a tile whose data is not bytes, before any change."""
     has_tiles = db.execute(
         "SELECT 1 FROM sqlite_master WHERE type IN ('table', 'view') AND name = 'tiles'"
     ).fetchone()
@@ -92,18 +106,33 @@ def _digest_missing(db: sqlite3.Connection, path: Path) -> tuple[int, int]:
         raise InvalidInputError("store", f"{path}: not an MBTiles store (no table 'tiles')")
     for statement in _DIGEST_SCHEMA:
         db.execute(statement)
-    missing = db.execute(
-        "SELECT t.zoom_level, t.tile_column, t.tile_row, t.tile_data FROM tiles t"
-        " LEFT JOIN c3_tile_digest d ON d.zoom_level=t.zoom_level"
-        " AND d.tile_column=t.tile_column AND d.tile_row=t.tile_row"
-        " WHERE d.sha256 IS NULL AND t.tile_data IS NOT NULL"
-    ).fetchall()
-    db.executemany(
-        "INSERT INTO c3_tile_digest VALUES (?, ?, ?, ?)",
-        [(z, x, row, hashlib.sha256(blob).hexdigest()) for z, x, row, blob in missing],
-    )
+    undigested = db.execute(_UNDIGESTED).fetchall()
+    _refuse_not_bytes(undigested, path)
+    digests = [
+        (z, x, row, hashlib.sha256(blob).hexdigest())
+        for z, x, row, blob, _ in undigested
+        if blob is not None
+    ]
+    db.execute("DELETE FROM c3_tile_digest WHERE sha256 IS NULL")
+    db.executemany("INSERT INTO c3_tile_digest VALUES (?, ?, ?, ?)", digests)
     (tiles,) = db.execute("SELECT count(*) FROM tiles").fetchone()
-    return len(missing), int(tiles)
+    empty = len(undigested) - len(digests)
+    return DigestReport(path, int(tiles), len(digests), int(tiles) - len(undigested), empty)
+
+
+def _refuse_not_bytes(undigested: list[tuple[object, ...]], path: Path) -> None:
+    """Refuse a store one of whose ``undigested`` tiles holds data that is neither bytes (a
+    BLOB) nor NULL, naming the first such tile, its type and how many there are: the flight
+    read path cannot decode it, and a digest of it would vouch for it."""
+    wrong = [r for r in undigested if r[4] not in ("blob", "null")]
+    if wrong:
+        z, x, row, _, kind = wrong[0]
+        more = f" (and {len(wrong) - 1} more tiles)" if len(wrong) > 1 else ""
+        raise InvalidInputError(
+            "store",
+            f"{path}: the tile at zoom_level {z}, tile_column {x}, tile_row {row} holds "
+            f"{str(kind).upper()} data, not an encoded image (a BLOB){more}: no digest added",
+        )
 
 
 class MBTilesWriter:
