@@ -307,3 +307,26 @@ def test_a_real_replay_counts_its_right_refusals_and_says_its_noise(
     assert kpis["rightly raised (true tile absent)"] == "2/2"
     assert kpis["failed (true tile present)"] == "0"
     assert text.count("R rightly raised (true tile absent)") == 2
+
+
+def test_a_frame_whose_tiles_were_never_read_is_no_right_refusal() -> None:
+    """A frame without its true tile that raised because the store gave none of its tiles (a
+    damaged store) says nothing of the matcher: not the right answer, as C3-IT-05 leaves it out,
+    so neither the verdict nor the summary counts it one."""
+    from c3_matcher_tools.run.acceptance import Verdict, verdict
+    from c3_matcher_tools.run.records import DroppedCandidate
+
+    raised = frame_outcome(0, status=FrameStatus.INSUFFICIENT, true_present=False)
+    unread = dataclasses.replace(
+        raised,
+        candidates=3,
+        dropped=tuple(
+            DroppedCandidate(i, None, "tile unreadable", "tile_decode TileDigestError")
+            for i in range(3)
+        ),
+    )
+    assert unread.no_tile_read
+    assert verdict(raised) == Verdict.RIGHTLY_RAISED
+    assert verdict(unread) == Verdict.FAILED
+    assert summarize([raised]).absent_raised == 1
+    assert summarize([unread]).absent_raised == 0

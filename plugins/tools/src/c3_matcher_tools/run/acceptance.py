@@ -174,6 +174,7 @@ def verdict(outcome: FrameOutcome) -> Verdict:
     if outcome.status != FrameStatus.OK:
         absent = outcome.has_truth and not outcome.true_present
         rightly = absent and outcome.status == FrameStatus.INSUFFICIENT
+        rightly = rightly and not outcome.no_tile_read  # C3-IT-05's rule: the tiles were seen
         return Verdict.RIGHTLY_RAISED if rightly else Verdict.FAILED
     if not outcome.has_truth:
         return Verdict.MATCHED

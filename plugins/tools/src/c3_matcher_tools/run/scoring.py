@@ -178,7 +178,8 @@ class RunSummary:
     camera's, hundreds of metres from a tilted one's) with the p50 of their estimate minus it.
     ``true_present`` and ``correct_candidate`` count the frames with ground truth whose image
     was read (``FrameOutcome.scored``, as C3-IT-04 does), ``true_absent`` and
-    ``absent_raised`` those whose true tile is not a candidate (as C3-IT-05 does); frame
+    ``absent_raised`` those whose true tile is not a candidate, raised with their tiles read
+    (as C3-IT-05 counts the right answer: a damaged store's frame is none); frame
     times are those of the frames the matcher ran on (an unreadable image never reached it).
     ``candidates``: those the matcher was given over the run; ``candidates_dropped``: those it
     dropped, counted by cause (:class:`DroppedCandidate`), most first; ``tile_dropped``: those
@@ -280,7 +281,9 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
         true_present=len(present),
         correct_candidate=sum(o.correct for o in present),
         true_absent=len(absent),
-        absent_raised=sum(o.status == FrameStatus.INSUFFICIENT for o in absent),
+        absent_raised=sum(
+            o.status == FrameStatus.INSUFFICIENT and not o.no_tile_read for o in absent
+        ),
         georeferenced=sum(o.est_lat is not None for o in outcomes),
         position_error_m_p50=_percentile(pos, 50),
         position_error_m_p95=_percentile(pos, 95),
