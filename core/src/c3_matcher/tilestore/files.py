@@ -86,9 +86,9 @@ def read_only_uri(path: str | Path) -> str:
 def connect_read_only(path: str | Path, *, timeout: float) -> sqlite3.Connection:
     """A read-only connection to the store file ``path`` (:func:`read_only_uri`), usable from
     any thread, waiting at most ``timeout`` seconds on a lock, its pages read with ``read()``,
-    never memory-mapped (``PRAGMA mmap_size=0``, whatever SQLite's build default): a file
-    rewritten in place while open (``cp``, ``truncate``) is read as it now stands, an
-    SQLite error at worst, where a mapped page past its new end would kill the process (SIGBUS).
+    never memory-mapped (``PRAGMA mmap_size=0``, whatever SQLite's build default): a file cut
+    short or rewritten in place while open (``truncate``, ``cp``) is an SQLite error at worst,
+    where a mapped page past its new end would kill the process (SIGBUS).
     Raises SQLite's error when the file cannot be opened."""
     db = sqlite3.connect(read_only_uri(path), uri=True, timeout=timeout, check_same_thread=False)
     try:

@@ -18,8 +18,8 @@ columns it is read by (``PRAGMA table_info``), and that its smallest and largest
 zooms (integers >= 0); a file that is not is ``InvalidInputError`` naming it and what is wrong.
 
 Reading opens the database read-only and never memory-maps it (``files.connect_read_only``):
-pages are ``read()`` into SQLite's cache, so a file rewritten in place while open (``cp`` over
-it) is read as it now stands and one emptied or cut short is an outage (below), never a SIGBUS.
+pages are ``read()`` into SQLite's cache, so a file emptied or cut short while open is an
+outage (below), never a SIGBUS.
 Each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way) and handles
 expose it as a ``memoryview`` without further copies. A database error while reading a tile (a
 corrupt page) is raised as that tile's error, never a crash of the caller, and the thread's
@@ -37,9 +37,16 @@ store (forwarded to the FDR as ``log.error``), then raised at once as each tile'
 ``TileStoreUnusableError``; every ``retry_s`` seconds one read tries the store again (on fresh
 connections) and, when it answers, tiles are served again. A frame never waits on a lock for
 more than ``LOCK_WAIT_S`` (SQLite's busy timeout, long enough to ride through another
-process's commit). A store replaced by rename (``mv``, ``os.replace``) or deleted is not seen:
-the file opened is served until the store is opened again (a restart picks up the new one), as
-its metadata and digests, read at open, describe that file.
+process's commit).
+
+Changing the map under a running store is not supported: restart (open the store again) to fly
+a new one. It costs no crash, but what is served is not one map: a file rewritten in place is
+read as it now stands, unless the new file keeps SQLite's change counter and size, when pages
+cached from the old one can still be served; a file replaced by rename (``mv``,
+``os.replace``) is served to threads connected before, the new one to those that connect after
+(or after a failed read), while the metadata and whether tiles carry digests, read at open,
+describe the first; a file deleted keeps serving threads connected before and is an outage to
+the others.
 
 Integrity: a store built by ``c3-matcher tiles build`` holds a ``c3_tile_digest`` table (sha256
 of each tile blob). When present, every blob read is verified against it; a mismatch raises
