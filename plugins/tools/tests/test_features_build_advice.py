@@ -127,13 +127,15 @@ def test_the_command_reads_back_as_its_words_and_names_only_the_variables_keying
         "C3_MATCHER_TOOLS_NO_PYPROJ": "1",
         "HOME": "/home/someone",
     }
-    line = build_command(store, "xfeat", 448, 32, False, given_settings(config, env))
-    command, _, note = line.partition(" (run it where ")
+    built = build_command(store, "xfeat", 448, 32, False, given_settings(config, env))
+    command, note = built.line, built.note
+    assert str(built) == f"{command} ({note})"
     assert shlex.split(command) == [
         "c3-matcher", "--config", str(config), "features", "build", str(store),
         "--strategy", "xfeat", "--window", "448", "--stride", "32",
     ]  # fmt: skip
-    named = note.split(" are set", 1)[0].split(", ")
-    assert named == ["C3_MATCHER_ENGINES__PROVIDERS", "C3_MATCHER_MATCHER"], line
+    named = note.removeprefix("run it where ").split(" are set", 1)[0].split(", ")
+    assert named == ["C3_MATCHER_ENGINES__PROVIDERS", "C3_MATCHER_MATCHER"], note
     alone = build_command(store, "xfeat", 448, 32, False, given_settings(None, {}))
-    assert alone == shlex.join(shlex.split(command)[:1] + shlex.split(command)[3:])
+    assert alone.note == "" and str(alone) == alone.line
+    assert alone.line == shlex.join(shlex.split(command)[:1] + shlex.split(command)[3:])

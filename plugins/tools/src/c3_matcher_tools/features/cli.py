@@ -280,20 +280,29 @@ def _flight_only(
 
 
 def _mark_commands(given: Path, found: _Found, settings: GivenSettings) -> None:
-    """Mark each set with ``command``, what builds it (:func:`build_command` beside the store
+    """Mark each set with ``command``, the line that builds it, and ``command_note``, what to
+    know to run it (:func:`build_command` beside the store
     ``given`` names, under ``settings``) where the flight is not served all it holds: damaged
     or stale windows, or a set the flight is never served that no served set replaces; None
     where nothing needs building."""
     for s in found.sets:
         unserved = s["engine_installed"] is not None and not s["served"]
         needed = s.get("damaged") or s.get("stale") or (unserved and not _replacing(found, s))
-        s["command"] = (
+        command = (
             build_command(
                 given, s["strategy"], s["window_px"], s["stride_px"], _only(found, s), settings
             )
             if needed
             else None
         )
+        s["command"] = None if command is None else command.line
+        s["command_note"] = None if command is None else command.note or None
+
+
+def _said(s: dict[str, object]) -> str:
+    """The command marked on the set ``s`` in words: the line, its note in brackets after it."""
+    note = s.get("command_note")
+    return f"{s['command']} ({note})" if note else str(s["command"])
 
 
 def _replacing(found: _Found, s: dict[str, object]) -> dict[str, object] | None:
@@ -318,7 +327,7 @@ def _window_notes(store: Path, path: Path, found: _Found, ctx: CommandContext) -
                 continue
             ctx.err(
                 f"c3-matcher: {path}: {count} {kind} windows in {_named(s)} ({because}); "
-                f"extract them again: {s['command']}."
+                f"extract them again: {_said(s)}."
             )
 
 
@@ -439,9 +448,7 @@ def _engine_notes(path: Path, found: _Found, ctx: CommandContext) -> int:
         other = _replacing(found, s)
         if other is None:
             unserved += 1
-            built += (
-                f" The flight extracts those candidates instead; build its set: {s['command']}."
-            )
+            built += f" The flight extracts those candidates instead; build its set: {_said(s)}."
         else:
             built += f" Set {brief_set_id(other['set_id'])}, which it is served, replaces it."
         ctx.err(

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from c3_matcher.config_sources import ENV_PREFIX
 
-__all__ = ["NO_SETTINGS_GIVEN", "GivenSettings", "build_command", "given_settings"]
+__all__ = ["NO_SETTINGS_GIVEN", "BuildCommand", "GivenSettings", "build_command", "given_settings"]
 
 _SET_SECTIONS = ("matcher", "engines")
 """The sections whose settings key the set a flight asks for: its extractor engine and provider
@@ -65,6 +65,19 @@ def given_settings(config: Path | None, env: Mapping[str, str] | None = None) ->
     return GivenSettings(config, tuple(variables))
 
 
+@dataclass(frozen=True)
+class BuildCommand:
+    """A ``features build`` command: ``line``, what a script runs as it is, and ``note``, what
+    the user must know to run it right, in words (empty: nothing). In text, the line with its
+    note in brackets after it."""
+
+    line: str
+    note: str = ""
+
+    def __str__(self) -> str:
+        return f"{self.line} ({self.note})" if self.note else self.line
+
+
 def build_command(
     given: Path,
     strategy: object,
@@ -72,11 +85,11 @@ def build_command(
     stride: object,
     flight_only: bool | None,
     settings: GivenSettings = NO_SETTINGS_GIVEN,
-) -> str:
+) -> BuildCommand:
     """The command that builds (or extracts again) the set of ``strategy`` with ``window`` px
     windows on a ``stride`` px grid beside the store ``given`` names (a store, or a flight
     directory, as the user gave it), under ``settings`` (its ``--config`` option; the variables
-    it needs set, said in brackets after it); ``flight_only``: with ``--flight-candidates``
+    it needs set, said in its note); ``flight_only``: with ``--flight-candidates``
     (only that flight's candidates' windows), None where that cannot be told (a set does not
     record it), which the command then says."""
     command = (
@@ -91,5 +104,4 @@ def build_command(
         "that flight's directory and --flight-candidates instead of the store"
     )
     notes = [unknown if flight_only is None else "", settings.environment()]
-    said = "; ".join(note for note in notes if note)
-    return f"{command} ({said})" if said else command
+    return BuildCommand(command, "; ".join(note for note in notes if note))

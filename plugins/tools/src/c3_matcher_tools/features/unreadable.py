@@ -20,7 +20,8 @@ __all__ = ["Unreadable", "unreadable_sidecar"]
 @dataclass(frozen=True)
 class Unreadable:
     """Why a sidecar cannot be opened or read and what to do about it (``problem``: the line
-    said after ``c3-matcher:``), the command in it that builds its sets (None: none does) and
+    said after ``c3-matcher:``), the command in it a script can run as it is (None: none, such
+    as a damaged sidecar's, whose sets' strategy, window and stride are unknown) and
     the exit status (1: damaged, as damaged windows; 2: locked, not permitted, read-only)."""
 
     problem: str
@@ -39,10 +40,10 @@ def unreadable_sidecar(
     from c3_matcher.tilestore.sidecar import SidecarDamagedError
     from c3_matcher.tilestore.sidecar_file import sqlite_code
 
-    rebuild, command = _build_its_sets(given, path)
+    rebuild = _build_its_sets(given, path)  # no command a script can run: NAME, W, S unknown
     if isinstance(exc, SidecarDamagedError):
         said = f"{exc}; the flight extracts instead where it is. {rebuild}."
-        return Unreadable(said, command, EXIT_FAILURE)
+        return Unreadable(said, None, EXIT_FAILURE)
     cause = exc.__cause__ or exc
     code, so = sqlite_code(cause), "the flight extracts every candidate instead while it is so"
     if code in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED):
@@ -58,16 +59,14 @@ def unreadable_sidecar(
         then = "Let the user who runs c3-matcher read it and search its folder"
         return Unreadable(f"{path}: {failed}; {so}. {then}.")
     why = f"unreadable ({' '.join(str(cause).split())})"
-    return Unreadable(f"{path}: {why}; {so}. {rebuild}.", command, EXIT_FAILURE)
+    return Unreadable(f"{path}: {why}; {so}. {rebuild}.", None, EXIT_FAILURE)
 
 
-def _build_its_sets(given: Path, path: Path) -> tuple[str, str]:
-    """What builds the sets of the damaged sidecar ``path`` again, and the command in it: they
-    cannot be read from it, so each is named by the user (``features build`` keeps the file
-    aside)."""
+def _build_its_sets(given: Path, path: Path) -> str:
+    """What builds the sets of the damaged sidecar ``path`` again, in words: they cannot be read
+    from it, so each is named by the user (``features build`` keeps the file aside)."""
     command = build_command(given, "NAME", "W", "S", None)
     return (
         f"Its sets cannot be read from it: build each again with the strategy, window and stride "
-        f"it was built with (the build keeps this file as {path.name}.damaged): {command}",
-        command,
+        f"it was built with (the build keeps this file as {path.name}.damaged): {command}"
     )
