@@ -30,7 +30,12 @@ from c3_matcher_tools.run.evaluation import (
 from c3_matcher_tools.run.feature_sources import features_line
 from c3_matcher_tools.run.outputs import EVAL_RUN
 from c3_matcher_tools.run.records import FrameStatus
-from c3_matcher_tools.run.scoring import damaged_store_line, dropped_lines, telemetry_lines
+from c3_matcher_tools.run.scoring import (
+    attitude_noise_words,
+    damaged_store_line,
+    dropped_lines,
+    telemetry_lines,
+)
 
 __all__ = ["print_flight_table", "print_summary_table", "say_dropped", "table_row"]
 
@@ -52,11 +57,7 @@ def print_flight_table(
             else "(no ground truth: the C3-IT figures need it; scored against the telemetry below)"
         )
         + f", max_keypoints {max_keypoints or 'each strategy its own'}"
-        + (
-            f", attitude noise {args.attitude_noise_deg:g} deg (1 sigma)"
-            if args.attitude_noise_deg
-            else ""
-        )
+        + attitude_noise_words({"sigma_deg": args.attitude_noise_deg})
     )
     ctx.out(
         f"{'strategy':18} {'IT-01 p5 inl':>13} {'IT-02':>7} {'IT-03 p95 px':>13} "

@@ -179,7 +179,6 @@ def _judged_kpis(summary: RunSummary, outcomes: Sequence[FrameOutcome]) -> list[
     failed = [o for o, v in judged if v == Verdict.FAILED]
     if not summary.true_absent:
         return [*kpis, ("failed", len(failed))]
-    rightly = sum(v == Verdict.RIGHTLY_RAISED for _, v in judged)
     present = [o for o in failed if o.true_present or not o.has_truth]
     return [
         *kpis,
@@ -189,7 +188,7 @@ def _judged_kpis(summary: RunSummary, outcomes: Sequence[FrameOutcome]) -> list[
             if len(present) < len(failed)
             else []
         ),
-        ("rightly raised (true tile absent)", f"{rightly}/{summary.true_absent}"),
+        ("rightly raised (true tile absent)", f"{summary.absent_raised}/{summary.true_absent}"),
     ]
 
 

@@ -21,7 +21,7 @@ from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.dataset.sources.options import number_ranges
 from c3_matcher_tools.dataset.truth import inlier_errors_px
 from c3_matcher_tools.geodesy import axis_ground_point
-from c3_matcher_tools.run.acceptance import verdict
+from c3_matcher_tools.run.acceptance import Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
 
 __all__ = [
@@ -77,10 +77,10 @@ def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -
 
 
 def attitude_noise_words(noise: object) -> str:
-    """What a run's first line says of the noise ``--attitude-noise-deg`` put on the flight's
-    attitudes (``noise``: the dataset's ``attitude_noise``, as ``report.json`` holds it), as
-    eval's header says it: ", attitude noise 2 deg (1 sigma)"; nothing for a flight without
-    noise."""
+    """What a run's first line (replay's, eval's, the flight report's) says of the noise
+    ``--attitude-noise-deg`` put on the flight's attitudes (``noise``: the dataset's
+    ``attitude_noise``, as ``report.json`` holds it): ", attitude noise 2 deg (1 sigma)";
+    nothing for a flight without noise."""
     sigma = noise.get("sigma_deg") if isinstance(noise, dict) else None
     if not isinstance(sigma, int | float) or not sigma:
         return ""
@@ -281,9 +281,7 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
         true_present=len(present),
         correct_candidate=sum(o.correct for o in present),
         true_absent=len(absent),
-        absent_raised=sum(
-            o.status == FrameStatus.INSUFFICIENT and not o.no_tile_read for o in absent
-        ),
+        absent_raised=sum(verdict(o) == Verdict.RIGHTLY_RAISED for o in absent),
         georeferenced=sum(o.est_lat is not None for o in outcomes),
         position_error_m_p50=_percentile(pos, 50),
         position_error_m_p95=_percentile(pos, 95),
