@@ -258,7 +258,12 @@ def test_a_config_nested_too_deep_is_refused_naming_the_file(tmp_path: Path, nes
     toml.write_text(f"[matcher]\nx = {nested}\n")
     with pytest.raises(ConfigurationError) as info:
         load_settings(toml, env={})
-    assert list(info.value.problems) == [("--config", "unreadable TOML: nested too deep")]
+    assert list(info.value.problems) == [
+        (
+            "--config",
+            "unreadable TOML: nested too deep to read (arrays or objects inside about 1000 others)",
+        )
+    ]
 
 
 def test_json_nested_too_deep_in_the_environment_is_a_configuration_error() -> None:

@@ -71,7 +71,7 @@ def test_a_config_that_is_a_fifo_is_refused_unopened(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("text", "why"),
     [
-        (NESTED, "unreadable: JSON nested too deep"),
+        (NESTED, "unreadable: nested too deep to read"),
         (
             _with(image_size="IMAGE_SIZE").replace('"IMAGE_SIZE"', f"[{'6' * 5001}, 480]"),
             "value has 5001 digits",

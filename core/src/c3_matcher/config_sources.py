@@ -26,6 +26,7 @@ from pydantic_settings.sources.utils import parse_env_vars
 
 from c3_matcher.errors import ConfigurationError
 from c3_matcher.file_kinds import special_kind
+from c3_matcher.json_text import NESTED_TOO_DEEP, loads_json
 
 __all__ = [
     "ENV_PREFIX",
@@ -150,7 +151,7 @@ def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
         raise ConfigurationError(source, [("--config", f"unreadable TOML: {exc}")]) from None
     except RecursionError:
         raise ConfigurationError(
-            source, [("--config", "unreadable TOML: nested too deep")]
+            source, [("--config", f"unreadable TOML: {NESTED_TOO_DEEP}")]
         ) from None
 
 
@@ -348,8 +349,8 @@ def _json_object(value: str) -> dict[str, Any] | None:
     """``value`` read as a JSON object; None when it is not one (pydantic-settings then names
     the variable)."""
     try:
-        given = json.loads(value)
-    except (ValueError, RecursionError):
+        given = loads_json(value)
+    except ValueError:
         return None
     return given if isinstance(given, dict) else None
 

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -15,6 +14,7 @@ from c3_matcher._validate import whole_number
 from c3_matcher.dto import CameraCalibration, MatchResult
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.file_kinds import special_kind
+from c3_matcher.json_text import loads_json
 
 __all__ = ["load_calibration", "result_to_json"]
 
@@ -96,16 +96,13 @@ def _calibration_json(path: Path, refused: Callable[[str], InvalidInputError]) -
             f"larger than {MAX_CALIBRATION_BYTES} bytes: not a calibration (refused unread)"
         )
     try:
-        return json.loads(raw.decode("utf-8"), object_pairs_hook=_unique_keys)
+        return loads_json(raw.decode("utf-8"), object_pairs_hook=_unique_keys)
     except _DuplicateKeyError as exc:
         raise refused(str(exc)) from None
     except UnicodeDecodeError as exc:
         raise refused(f"not UTF-8 text: {exc}") from None
-    except ValueError as exc:  # not JSON, or an integer of more digits than Python converts
-        why = str(exc).partition("; use sys.")[0]  # no advice to change the interpreter
-        raise refused(f"unreadable: {why}") from None
-    except RecursionError:
-        raise refused("unreadable: JSON nested too deep") from None
+    except ValueError as exc:
+        raise refused(f"unreadable: {exc}") from None
 
 
 class _DuplicateKeyError(ValueError):

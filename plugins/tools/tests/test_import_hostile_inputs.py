@@ -161,16 +161,18 @@ def test_a_frame_record_nested_too_deeply_is_refused_naming_its_line(tmp_path: P
     root = _dataset(tmp_path / "flight")
     with (root / "frames.jsonl").open("a") as f:
         f.write("[" * 100_000 + "]" * 100_000 + "\n")
-    with pytest.raises(InvalidInputError, match=r"frames.jsonl:3: bad frame record: .*too deeply"):
+    with pytest.raises(
+        InvalidInputError, match=r"frames.jsonl:3: bad frame record: .*nested too deep to read"
+    ):
         load_dataset(root)
     proc = run_cli("dataset", "info", root, cwd=tmp_path, timeout=120)
-    _refused(proc, "frames.jsonl:3: bad frame record", "nested too deeply")
+    _refused(proc, "frames.jsonl:3: bad frame record", "nested too deep to read")
 
 
 def test_a_dataset_json_nested_too_deeply_is_refused_naming_it(tmp_path: Path) -> None:
     root = _dataset(tmp_path / "flight")
     (root / "dataset.json").write_text("{" + '"a":{' * 100_000 + "}" * 100_001)
-    with pytest.raises(InvalidInputError, match=r"dataset.json: .*nested too deeply"):
+    with pytest.raises(InvalidInputError, match=r"dataset.json: .*nested too deep to read"):
         load_dataset(root)
 
 

@@ -20,6 +20,7 @@ from c3_matcher.engines.build_key import build_key
 from c3_matcher.engines.naming import EngineName, manifest_path_for
 from c3_matcher.engines.spec import EngineSpec, TensorSpec, file_sha256
 from c3_matcher.errors import EngineError
+from c3_matcher.json_text import loads_json
 
 __all__ = [
     "MANIFEST_SCHEMA",
@@ -185,7 +186,7 @@ def read_manifest(engine_path: Path) -> EngineManifest:
     if not manifest_path.is_file():
         raise EngineError(engine_path, f"its manifest {manifest_path.name} is missing")
     try:
-        return EngineManifest.from_json(json.loads(manifest_path.read_text()))
+        return EngineManifest.from_json(loads_json(manifest_path.read_text()))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise EngineError(
             engine_path, f"its manifest {manifest_path.name} is unreadable ({exc})"

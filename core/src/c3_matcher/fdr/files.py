@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from c3_matcher.file_kinds import special_kind
+from c3_matcher.json_text import loads_json
 
 SEGMENT_DIGITS = 6
 """The least number of digits of a rotated segment's number (zero-padded)."""
@@ -117,8 +118,8 @@ def begins_a_log(head: bytes, *, whole: bool) -> bool:
     if not (cut.startswith(RECORD_START) or RECORD_START.startswith(cut)):
         return False
     try:
-        json.loads(cut)
-    except (ValueError, RecursionError):
+        loads_json(cut)
+    except ValueError:
         return True  # cut short
     return is_record_line(cut)  # whole but for its newline: a record, or a one-line document
 
@@ -132,8 +133,8 @@ def is_record_line(line: bytes) -> bool:
 def json_object(line: bytes) -> dict[str, Any] | None:
     """The JSON object ``line`` holds; None when it holds no JSON, or JSON that is no object."""
     try:
-        value = json.loads(line)
-    except (ValueError, RecursionError):
+        value = loads_json(line)
+    except ValueError:
         return None
     return value if isinstance(value, dict) else None
 
@@ -144,8 +145,8 @@ def read_meta(path: Path) -> dict[str, Any]:
     if special_kind(path) is not None:
         return {}
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):
+        data = loads_json(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
         return {}
     return data if isinstance(data, dict) else {}
 

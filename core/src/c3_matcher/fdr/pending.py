@@ -21,6 +21,7 @@ from typing import Any
 
 from c3_matcher.fdr.files import make_dirs_durably, refusal
 from c3_matcher.fdr.records import FdrOpenError
+from c3_matcher.json_text import loads_json
 
 LET_GO = "more than [fdr] max_pending_bytes waited while the disk refused them: the oldest went"
 STOPPED = "the recorder stopped (closed, killed or out of power) while the disk refused them"
@@ -179,12 +180,12 @@ def _note(line: str) -> DroppedRecords | None:
     """The note of lost records in a lock file's second line; ``None`` when it holds none (or
     something this recorder did not write: nothing to carry)."""
     try:
-        fields = json.loads(line)
+        fields = loads_json(line)
         count, size_bytes, first_seq, last_seq = (
             fields[k] for k in ("count", "size_bytes", "first_seq", "last_seq")
         )
         reasons = tuple(r for r in fields["reasons"] if r in (LET_GO, STOPPED))
-    except (ValueError, TypeError, KeyError, RecursionError):
+    except (ValueError, TypeError, KeyError):
         return None
     if not all(type(n) is int and n >= 0 for n in (count, size_bytes, first_seq, last_seq)):
         return None

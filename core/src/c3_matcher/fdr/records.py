@@ -4,7 +4,6 @@ recorder (the test double) and the recorder errors."""
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import uuid
 from collections.abc import Mapping
@@ -14,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from c3_matcher.errors import C3Error, InvalidInputError
+from c3_matcher.json_text import loads_json
 
 FdrRecord = dict[str, Any]
 
@@ -91,13 +91,9 @@ def read_fdr(path: Path) -> FdrReadResult:
                 result.corrupt.append((number, raw, "torn last line (no newline)"))
                 break
             try:
-                value = json.loads(raw)
-            except ValueError as exc:  # not JSON, not UTF-8, an int longer than Python converts
-                why = str(exc).partition("; use sys.")[0]  # no advice to change the interpreter
-                result.corrupt.append((number, raw, f"not JSON: {why}"))
-                continue
-            except RecursionError:
-                result.corrupt.append((number, raw, "not JSON: nested too deep to read"))
+                value = loads_json(raw)
+            except ValueError as exc:  # not JSON, not UTF-8, too deep, too many digits
+                result.corrupt.append((number, raw, f"not JSON: {exc}"))
                 continue
             if not isinstance(value, dict):
                 result.corrupt.append((number, raw, "not a JSON object"))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -14,6 +13,7 @@ from numpy.typing import NDArray
 from c3_matcher.arrays import F64
 from c3_matcher.dto import Attitude, CameraCalibration, TileId
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.json_text import loads_json
 from c3_matcher.tilestore.handles import TileNotFoundError, stitch
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
@@ -362,7 +362,7 @@ def store_reference(metadata: Mapping[str, str], store: Path) -> tuple[float, fl
     if text is None:
         return None
     try:
-        built = Projection.from_dict(json.loads(text))
+        built = Projection.from_dict(loads_json(text))
     except (ValueError, KeyError, TypeError, IndexError) as exc:
         raise InvalidInputError(
             str(store), f"unreadable c3_georeference metadata ({exc}): rebuild the store"

@@ -41,6 +41,7 @@ from numpy.typing import NDArray
 from c3_matcher import dto
 from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.file_kinds import special_kind
+from c3_matcher.json_text import loads_json
 from c3_matcher.serialize import load_calibration
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
@@ -49,7 +50,6 @@ from c3_matcher_tools.dataset.json_values import (
     json_number,
     json_object,
     json_text,
-    parse_json,
     pose_values,
     telemetry_values,
 )
@@ -337,7 +337,7 @@ def _meta(path: Path) -> dict[str, Any]:
     indices, the sources and credits as strings, the fit residual a number >= 0 and ``spec`` /
     ``import`` / ``attitude_noise`` as objects (InvalidInputError naming the file and key)."""
     try:
-        meta = json_object(parse_json(path.read_text(encoding="utf-8")), "top level")
+        meta = json_object(loads_json(path.read_text(encoding="utf-8")), "top level")
         if meta.get("format") != FORMAT:
             raise InvalidInputError("format", f"{meta.get('format')!r}, expected {FORMAT!r}")
         for key in ("store", "frames", "calibration"):
@@ -401,7 +401,7 @@ def _frames(path: Path) -> tuple[FrameRecord, ...]:
         if not line.strip():
             continue
         try:
-            frame = FrameRecord.from_json(parse_json(line.decode("utf-8")))
+            frame = FrameRecord.from_json(loads_json(line.decode("utf-8")))
             for key, value in (("frame_id", frame.frame_id), ("index", frame.index)):
                 if (key, value) in first_line:
                     raise InvalidInputError(key, f"{value} is line {first_line[key, value]}'s too")

@@ -1,11 +1,9 @@
 """The checks each value of a dataset's JSON files passes (``dataset.json``, each record of
-``frames.jsonl``), every one an InvalidInputError naming the key at fault, and
-:func:`parse_json`, which reads a document nested too deeply to read as bad input (Python's
-decoder recurses: a line of 100,000 brackets would be a RecursionError)."""
+``frames.jsonl``), every one an InvalidInputError naming the key at fault. The files are
+parsed with core's ``loads_json`` (a document nested too deep is bad input there)."""
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any
 
@@ -16,21 +14,9 @@ __all__ = [
     "json_number",
     "json_object",
     "json_text",
-    "parse_json",
     "pose_values",
     "telemetry_values",
 ]
-
-
-def parse_json(text: str) -> Any:
-    """``json.loads(text)``; a document nested too deeply to decode is a ValueError as any
-    other malformed JSON is."""
-    try:
-        return json.loads(text)
-    except RecursionError:
-        raise ValueError(
-            "JSON nested too deeply to read (arrays or objects inside ~1000 others)"
-        ) from None
 
 
 def json_object(value: object, field: str) -> dict[str, Any]:
