@@ -12,6 +12,7 @@ from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import check_candidate_size
 from c3_matcher_tools.sim.photometric import PhotometricShift
+from c3_matcher_tools.sim.render import NAV_CAMERA_DISTORTION
 
 __all__ = ["FlightSpec"]
 
@@ -46,7 +47,7 @@ class FlightSpec:
     yaw_jitter_deg: float = 15.0
     image_size: tuple[int, int] = (320, 240)
     focal_px: float = 300.0
-    distortion: tuple[float, ...] = (-0.12, 0.03, 0.0005, -0.0004, 0.0)
+    distortion: tuple[float, ...] = NAV_CAMERA_DISTORTION
     candidate_size_px: int = 448
     grid_px: int = 32
     absent_share: float = 0.1

@@ -37,6 +37,7 @@ from c3_matcher.resample import area_downscale, remap_linear
 from c3_matcher_tools.sim.photometric import PhotometricShift
 
 __all__ = [
+    "NAV_CAMERA_DISTORTION",
     "NavCameraRenderer",
     "OrthoTile",
     "RenderedFrame",
@@ -47,6 +48,10 @@ __all__ = [
     "pick_distractor_tiles",
     "render_nav_frame",
 ]
+
+NAV_CAMERA_DISTORTION: tuple[float, ...] = (-0.12, 0.03, 0.0005, -0.0004, 0.0)
+"""The simulated nav camera's lens (OpenCV k1, k2, p1, p2, k3): a mild barrel, as of a small
+wide-angle camera, so that every rendered flight exercises undistortion."""
 
 
 def ortho_to_undistorted_homography(

@@ -22,6 +22,7 @@ from c3_matcher_tools.geodesy import flat_offset_latlon
 from c3_matcher_tools.sim.orthophotos import Orthophoto, load_orthophoto
 from c3_matcher_tools.sim.photometric import PhotometricShift
 from c3_matcher_tools.sim.render import (
+    NAV_CAMERA_DISTORTION,
     OrthoTile,
     RenderedFrame,
     cut_tile,
@@ -45,7 +46,7 @@ class ScenarioSpec:
     tile_size: int = 448
     image_size: tuple[int, int] = (640, 480)
     focal_px: float = 560.0
-    distortion: tuple[float, ...] = (-0.12, 0.03, 0.0005, -0.0004, 0.0)
+    distortion: tuple[float, ...] = NAV_CAMERA_DISTORTION
     seed: int = 0
     distractors: int = 2
     photometric: PhotometricShift = field(default_factory=PhotometricShift)
