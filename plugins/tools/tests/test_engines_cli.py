@@ -299,7 +299,7 @@ def test_bench_refuses_missing_engines_before_timing_any(
     them, and nothing is timed. The bench timed every earlier group first, then threw all its
     cases away, printing nothing, at the first missing engine. The other engines are listed
     as the store lists them (manifest and a file of the recorded size: the children are
-    stubbed, nothing loads them)."""
+    stubbed, nothing loads them). ``--json`` names the two in a document on stdout."""
     copy = tmp_path / "engines"
     copy.mkdir()
     for engine in engine_dir.glob("*.onnx"):
@@ -311,12 +311,16 @@ def test_bench_refuses_missing_engines_before_timing_any(
     engines_at(copy)
     assert main(["engines", "bench", "--runs", "1", "--json"]) == 1
     out, err = capsys.readouterr()
-    assert stubbed_children == [] and out == ""
+    assert stubbed_children == []
     assert "no valid disk/depth engine" in err and "no valid lighterglue/xfeat engine" in err
+    build = "c3-matcher engines build --only disk/depth --only lighterglue/xfeat"
     assert err.strip().splitlines()[-1] == (
         "c3-matcher: 2 engine(s) to bench are missing or unusable, nothing was timed; "
-        "build them: c3-matcher engines build --only disk/depth --only lighterglue/xfeat"
+        f"build them: {build}"
     )
+    document = json.loads(out)
+    assert document["command"] == build and document["directory"] == str(copy)
+    assert [row["engine"] for row in document["missing"]] == ["disk/depth", "lighterglue/xfeat"]
     assert all(line.startswith("c3-matcher: ") for line in err.strip().splitlines()), err
 
 
@@ -429,7 +433,49 @@ def test_bench_notes_and_refusals_all_start_as_every_other_line(
     assert main(["engines", "bench", "--runs", "1", "--json"]) == 1
     out, err = capsys.readouterr()
     lines = err.strip().splitlines()
-    assert out == "" and len(lines) == 3, err
+    assert len(lines) == 3, err
+    assert [row["engine"] for row in json.loads(out)["missing"]] == ["disk/depth"]
     assert lines[0].startswith("c3-matcher: note: ") and "not benched" in lines[0], err
     assert lines[2].startswith("c3-matcher: 1 engine(s) to bench are missing"), err
     assert all(line.startswith("c3-matcher: ") for line in lines), err
+
+
+def test_bench_json_without_engines_names_each_missing_one_with_its_build_command(
+    engines_at,  # type: ignore[no-untyped-def]
+    stubbed_children: list[list[str]],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """An empty engine directory: ``--json`` printed nothing on stdout, a script had nothing to
+    parse. Now a document names every engine to bench with what is wrong and the command that
+    builds it, the one ``engines verify --json`` gives it; exit 1 as before, nothing timed."""
+    from c3_matcher.compose import build_plugin_host
+
+    engines_at(tmp_path)
+    assert main(["engines", "verify", "--json"]) == 1
+    verified = {
+        row["path"]: row["command"] for row in json.loads(capsys.readouterr().out)["engines"]
+    }
+    assert main(["engines", "bench", "--runs", "1", "--json"]) == 1
+    out, err = capsys.readouterr()
+    assert stubbed_children == [] and err.strip().splitlines()[-1].startswith(
+        "c3-matcher: 9 engine(s) to bench are missing or unusable, nothing was timed; "
+    )
+    document = json.loads(out)
+    assert set(document) == {"directory", "missing", "command"}
+    assert document["directory"] == str(tmp_path)
+    rows = document["missing"]
+    keys = {spec.key for spec in build_plugin_host().engine_specs()}
+    assert {row["engine"] for row in rows} == keys and len(rows) == len(keys)
+    for row in rows:
+        assert set(row) == {"engine", "path", "problem", "command"}
+        assert (
+            row["command"]
+            == verified[row["path"]]
+            == f"c3-matcher engines build --only {row['engine']}"
+        )
+        assert row["problem"].startswith(f"no valid {row['engine']} engine in {tmp_path}")
+    assert document["command"] == "c3-matcher engines build " + " ".join(
+        f"--only {row['engine']}" for row in rows
+    )
+    assert err.strip().endswith(f"build them: {document['command']}")

@@ -15,6 +15,7 @@ import json
 import os
 import shutil
 import sqlite3
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -124,3 +125,52 @@ def test_features_info_of_a_sidecar_it_may_not_read_says_what_to_do(
 
 def _build(store: Path) -> str:
     return f"c3-matcher features build {store}"
+
+
+@pytest.mark.parametrize("verify", [(), ("--verify",)], ids=["info", "verify"])
+@pytest.mark.parametrize(
+    ("make", "what"),
+    [(Path.mkdir, "a directory"), (os.mkfifo, "a special file (a pipe, socket or device)")],
+    ids=["directory", "pipe"],
+)
+def test_features_info_json_of_a_directory_in_the_sidecars_place_is_a_document(
+    make: Callable[[Path], None],
+    what: str,
+    verify: tuple[str, ...],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A script parsing ``--json`` gets the document an unreadable sidecar gets (same keys, no
+    sets, the problem naming what is there instead), exit 2 and the one line on stderr: it got
+    that line alone and nothing to parse."""
+    unreadable = tmp_path / "unreadable" / "tiles.mbtiles"
+    unreadable.parent.mkdir()
+    shutil.copy(STORE, unreadable)
+    MapFeatureStore(sidecar_path(unreadable), writable=True).close()
+    refuse_reading(monkeypatch, sidecar_path(unreadable))
+    _, other, _ = _run(capsys, "features", "info", str(unreadable), "--json")
+    store = tmp_path / "tiles.mbtiles"
+    shutil.copy(STORE, store)
+    make(sidecar_path(store))
+    code, out, err = _run(capsys, "features", "info", str(store), "--json", *verify)
+    assert code == 2 and len(err.splitlines()) == 1, err
+    document = json.loads(out)
+    assert (
+        list(document)
+        == list(json.loads(other))
+        == [
+            "store",
+            "sidecar",
+            "sets",
+            "problem",
+            "command",
+        ]
+    )
+    assert document["sidecar"] == str(sidecar_path(store)) and document["sets"] is None
+    assert document["problem"] == (
+        f"{sidecar_path(store)}: {what}, not a features sidecar; the flight ignores it and "
+        "extracts every candidate instead. Move it away; features build then makes the "
+        "sidecar there."
+    )
+    assert document["command"] is None and err == f"c3-matcher: {document['problem']}"

@@ -19,7 +19,7 @@ from c3_matcher.context import CommandContext
 from c3_matcher.engines.cli import EnginesCliContext, engines_context, figures
 from c3_matcher.engines.spec import EngineSpec
 from c3_matcher.engines.store import BUILD_COMMAND, EngineStore
-from c3_matcher.errors import C3Error, InvalidInputError
+from c3_matcher.errors import C3Error, EngineError, InvalidInputError
 
 __all__ = ["register_engines_build_commands"]
 
@@ -101,10 +101,11 @@ def _bench_image(args: argparse.Namespace, ctx: EnginesCliContext) -> Path:
 
 
 class _Missing(NamedTuple):
-    """An engine ``engines bench`` would time that is not in the directory, and why."""
+    """An engine ``engines bench`` would time that is not in the directory, and why (the error
+    names the file looked for and the command that builds it)."""
 
     spec: EngineSpec
-    error: C3Error
+    error: EngineError
 
 
 def _bench_engines(
@@ -118,7 +119,7 @@ def _bench_engines(
     def require(spec: EngineSpec) -> Path:
         try:
             return store.require_spec(spec)
-        except C3Error as exc:
+        except EngineError as exc:
             missing.append(_Missing(spec, exc))
             return Path()
 
@@ -127,15 +128,32 @@ def _bench_engines(
     return found, missing
 
 
-def _refuse_missing(missing: Sequence[_Missing], command: CommandContext) -> C3Error:
-    """Say which engines are missing, each with its reason; the error that ends the command
-    (exit 1) names the one command building them all: nothing was timed."""
+def _refuse_missing(
+    missing: Sequence[_Missing], directory: Path, command: CommandContext, *, as_json: bool
+) -> C3Error:
+    """Say which engines are missing, each with its reason, and with ``as_json`` the same in a
+    document on stdout (each engine with the command that builds it, the one ``engines
+    verify`` names, and the one command building them all); the error that ends the command
+    (exit 1) names that command: nothing was timed."""
     for item in missing:
         command.err(f"c3-matcher: {item.error}")
     only = " ".join(f"--only {item.spec.key}" for item in missing)
+    build = f"{BUILD_COMMAND} {only}"
+    if as_json:
+        rows = [
+            {
+                "engine": item.spec.key,
+                "path": str(item.error.path),
+                "problem": item.error.reason,
+                "command": item.error.command,
+            }
+            for item in missing
+        ]
+        document = {"directory": str(directory), "missing": rows, "command": build}
+        command.out(json.dumps(document, indent=2))
     return C3Error(
         f"{len(missing)} engine(s) to bench are missing or unusable, nothing was timed; "
-        f"build them: {BUILD_COMMAND} {only}"
+        f"build them: {build}"
     )
 
 
@@ -161,7 +179,7 @@ def _bench(args: argparse.Namespace, command: CommandContext) -> int:
     bench_runtime(engines)  # no requested provider installed: refused here, before any case
     found, missing = _bench_engines(groups, EngineStore(ctx.engine_dir))
     if missing:
-        raise _refuse_missing(missing, command)
+        raise _refuse_missing(missing, ctx.engine_dir, command, as_json=args.json)
     image = _bench_image(args, ctx)
     session_options: tuple[tuple[bool, bool], ...] | None = None  # arena as [engines] says
     if args.sweep_session_options:

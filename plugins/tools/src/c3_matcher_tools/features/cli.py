@@ -16,7 +16,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.args import add_strategies_option
 from c3_matcher_tools.features.build import WINDOW_PX_RANGE
 from c3_matcher_tools.features.command import GivenSettings, build_command, given_settings
-from c3_matcher_tools.features.unreadable import Unreadable, unreadable_sidecar
+from c3_matcher_tools.features.unreadable import Unreadable, not_a_sidecar, unreadable_sidecar
 from c3_matcher_tools.features.windows import brief_set_id
 
 if TYPE_CHECKING:
@@ -207,8 +207,8 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     digest against the store's tiles now), each set counting its ``intact``, ``damaged`` and
     ``stale`` windows: exit 1 when one is damaged or stale, or when a strategy has sets but none
     the installed engine built (the flight extracts those instead; a build extracts them
-    again). A sidecar that cannot be read is said (:func:`unreadable_sidecar`), with ``--json``
-    in a document too."""
+    again). A sidecar that cannot be read (:func:`unreadable_sidecar`), or a directory in its
+    place (:func:`not_a_sidecar`), is said, with ``--json`` in a document too."""
     from c3_matcher.tilestore.features import FeatureStoreUnavailableError, sidecar_path
     from c3_matcher.tilestore.mbtiles import MBTilesStore
     from c3_matcher.tilestore.sidecar import SidecarDamagedError
@@ -217,14 +217,13 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     MBTilesStore(store).close()  # an MBTiles store (InvalidInputError naming it), not any file
     path = sidecar_path(store)
     flight = args.store if args.store.is_dir() else None
+    if path.exists() and not path.is_file():  # the flight ignores it: no sets to read
+        return _unread(store, path, not_a_sidecar(path), ctx, as_json=args.json)
     try:
         found = _stored_sets(store, path, verify=args.verify, flight=flight)
     except (SidecarDamagedError, FeatureStoreUnavailableError) as exc:
         said = unreadable_sidecar(exc, args.store, store, path)
-        ctx.err(f"c3-matcher: {said.problem}")
-        if args.json:
-            _print_document(store, path, None, ctx, said=said)
-        return said.status
+        return _unread(store, path, said, ctx, as_json=args.json)
     _mark_engines(found.sets, ctx)
     given = given_settings(args.config)  # the set asked for is these settings'
     _mark_commands(args.store, found, given)
@@ -233,6 +232,17 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     unserved = _engine_notes(path, found, ctx)
     failed = found.damaged or found.stale or (unserved and args.verify)
     return EXIT_FAILURE if failed else EXIT_OK
+
+
+def _unread(
+    store: Path, path: Path, said: Unreadable, ctx: CommandContext, *, as_json: bool
+) -> int:
+    """Say why the sidecar ``path`` of ``store`` is not read (``said``), with ``as_json`` in
+    the document too (its sets: None); the exit status."""
+    ctx.err(f"c3-matcher: {said.problem}")
+    if as_json:
+        _print_document(store, path, None, ctx, said=said)
+    return said.status
 
 
 @dataclass(frozen=True)
@@ -251,11 +261,8 @@ def _stored_sets(store: Path, path: Path, *, verify: bool, flight: Path | None) 
     """Read the sets the sidecar ``path`` of ``store`` holds (none without one), checked when
     ``verify``; ``flight``: the flight directory the user named, whose candidates' windows each
     set is compared with."""
-    from c3_matcher.errors import InvalidInputError
     from c3_matcher.tilestore.features import MapFeatureStore, stored_sets
 
-    if path.exists() and not path.is_file():
-        raise InvalidInputError(str(path), "not a file (the flight ignores it)")
     if not path.is_file():
         return _Found([])
     with MapFeatureStore(path) as side:

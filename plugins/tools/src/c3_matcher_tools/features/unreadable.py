@@ -1,5 +1,6 @@
-"""Why ``features info`` cannot read a tile store's features sidecar, and what to do about it: one
-line for stderr, the command in it (``--json`` carries it) and the exit status."""
+"""Why ``features info`` cannot read a tile store's features sidecar (or finds something else in
+its place), and what to do about it: one line for stderr, the command in it (``--json`` carries
+it) and the exit status."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ if TYPE_CHECKING:
     from c3_matcher.tilestore.features import FeatureStoreUnavailableError
     from c3_matcher.tilestore.sidecar import SidecarDamagedError
 
-__all__ = ["Unreadable", "unreadable_sidecar"]
+__all__ = ["Unreadable", "not_a_sidecar", "unreadable_sidecar"]
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,17 @@ def unreadable_sidecar(
         return Unreadable(f"{path}: {failed}; {so}. {then}.")
     why = f"unreadable ({' '.join(str(cause).split())})"
     return Unreadable(f"{path}: {why}; {so}. {rebuild}.", None, EXIT_FAILURE)
+
+
+def not_a_sidecar(path: Path) -> Unreadable:
+    """The sidecar's place ``path`` holds a directory (or another thing that is not a file): the
+    flight ignores it and ``features build`` cannot write there, so it is moved away by hand (no
+    command: what it holds is the user's); exit 2, as a sidecar it may not open."""
+    what = "a directory" if path.is_dir() else "a special file (a pipe, socket or device)"
+    return Unreadable(
+        f"{path}: {what}, not a features sidecar; the flight ignores it and extracts every "
+        "candidate instead. Move it away; features build then makes the sidecar there."
+    )
 
 
 def _build_its_sets(given: Path, path: Path) -> str:
