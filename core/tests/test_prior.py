@@ -8,6 +8,7 @@ the geometry, not the inlier count, decides. Each of them fails with ``geometric
 from __future__ import annotations
 
 import math
+import tracemalloc
 import uuid
 from typing import Any
 
@@ -89,6 +90,20 @@ def test_the_densest_cell_is_the_dense_grids_first_maximum(votes: list[tuple[int
     expected = [col + lo[0], row + lo[1]]
     assert _densest_cell(keys).tolist() == expected  # on a dense grid (small spread)
     assert _densest_cell(keys, dense_cells=0).tolist() == expected  # scored sparsely
+
+
+def test_the_widest_dense_vote_holds_at_most_12_mb() -> None:
+    """Votes spread over a whole 2^20-cell grid: the arrays numpy holds at once stay within the
+    bound the README gives (OpenCV's box sum, 4 MB of float32, comes after the int64 counts are
+    gone)."""
+    keys = np.array([[0, 0], [1021, 1021], [5, 5], [6, 6]], dtype=np.int64)
+    tracemalloc.start()
+    try:
+        _densest_cell(keys)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert 8e6 < peak <= 12.6e6, peak
 
 
 @pytest.mark.parametrize(

@@ -7,10 +7,18 @@ RANSAC-filtered; the best candidate's inlier correspondences go downstream. Star
 
 from __future__ import annotations
 
+import os
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
 from c3_matcher._lazy import load_export
+
+# ONNX Runtime (1.29 on) keeps a telemetry queue on every platform: a device id and an event
+# database under ~/.cache, uploaded when a network is there, and a coloured non-JSON stderr line
+# where HOME is read-only. A flight computer does none of that. The variable is read once, when
+# ONNX Runtime first starts, so it is set here, before any c3-matcher module imports it; a user
+# who sets it (to 0) keeps their choice.
+os.environ.setdefault("ORT_DISABLE_TELEMETRY", "1")
 
 try:
     __version__ = version("c3-matcher")  # the one version: buildflags/matrix.toml

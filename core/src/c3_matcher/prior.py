@@ -176,7 +176,10 @@ class GeometricPrior:
         return homography, mask.reshape(-1).astype(bool)
 
 
-DENSE_VOTE_CELLS = 1 << 20  # a grid up to 8 MB is box-filtered whole; a wider spread, sparsely
+DENSE_VOTE_CELLS = 1 << 20
+"""Votes that fit a grid of this many cells are box-filtered on it whole; a wider spread is
+scored sparsely. At its peak the dense vote holds the counts (int64, 8 MB at 2^20 cells) and
+their float32 copy (4 MB), then that copy and its box sum (4 + 4 MB): 12 MB at most."""
 
 
 def _densest_cell(keys: NDArray[np.int64], dense_cells: int = DENSE_VOTE_CELLS) -> F64:
@@ -188,7 +191,8 @@ def _densest_cell(keys: NDArray[np.int64], dense_cells: int = DENSE_VOTE_CELLS) 
     width, rows = (int(n) for n in keys.max(axis=0) - lo + 2)
     codes = (keys[:, 1] - lo[1]) * width + (keys[:, 0] - lo[0])  # ascending = row-major order
     if width * rows <= dense_cells:
-        grid = np.bincount(codes, minlength=width * rows).astype(np.float64).reshape(rows, width)
+        # float32 sums are exact: a cell's 3x3 sum counts at most the matches, far below 2^24
+        grid = np.bincount(codes, minlength=width * rows).astype(np.float32).reshape(rows, width)
         summed = cv2.boxFilter(grid, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
         best = int(np.argmax(summed))  # first max: stable
     else:

@@ -89,9 +89,6 @@ class BuildProfile:
         linked = {r.distribution for r in self.flags if r.state is FlagState.ON}
         return frozenset(linked | ({self.tools} if self.tools else set()))
 
-    def linked_strategies(self) -> tuple[str, ...]:
-        return tuple(r.strategy for r in self.flags if r.state is FlagState.ON)
-
     def allows_distribution(self, distribution: str) -> bool:
         return not self.strict or _norm(distribution) in {
             _norm(d) for d in self.linked_distributions()
