@@ -23,9 +23,8 @@ outage (below), never a SIGBUS.
 Each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way) and handles
 expose it as a ``memoryview`` without further copies. A database error while reading a tile (a
 corrupt page) is raised as that tile's error, never a crash of the caller, and the thread's
-connection is made afresh for its next read (one that knew the file before a rewrite would
-fail every read). Which tiles a range of columns and rows holds is one query of the tile index,
-no tile read (``stored_in``).
+connection is made afresh for its next read. Which tiles a range of columns and rows holds is
+one query of the tile index, no tile read (``stored_in``).
 
 Threads: each thread gets its own read-only connection (SQLite objects may not cross threads),
 so a store opened on one thread serves another; the connections of threads that have ended are
@@ -39,14 +38,19 @@ connections) and, when it answers, tiles are served again. A frame never waits o
 more than ``LOCK_WAIT_S`` (SQLite's busy timeout, long enough to ride through another
 process's commit).
 
-Changing the map under a running store is not supported: restart (open the store again) to fly
-a new one. It costs no crash, but what is served is not one map: a file rewritten in place is
-read as it now stands, unless the new file keeps SQLite's change counter and size, when pages
-cached from the old one can still be served; a file replaced by rename (``mv``,
-``os.replace``) is served to threads connected before, the new one to those that connect after
-(or after a failed read), while the metadata and whether tiles carry digests, read at open,
-describe the first; a file deleted keeps serving threads connected before and is an outage to
-the others.
+A map changed under a running store is followed: the path is looked at (``os.stat``, its
+``mbtiles_file.FileIdentity``) at most once every ``check_s`` seconds (``CHECK_S``, 1 s: a
+``stat`` costs a tenth of a tile read) and at once after a read fails. When it names another
+file (a rename over it: ``mv``, ``os.replace``) or the file was rewritten in place, the file is
+read again as at open (metadata, whether tiles carry digests), said once per change (WARNING
+``c3.tilestore.changed`` naming the store), and each thread's next read is on a fresh
+connection to it: within ``check_s`` of a change every thread serves the new map (a read that
+fails meanwhile is read again at once on the new file). A thread's old connection is closed at
+its next read or by ``close()``. A changed file that cannot be read as a store (emptied,
+half-written) is read as it stands, an outage as above, and looked at again until it can; a
+file deleted keeps serving threads connected before and is an outage to the others. Not seen:
+a rewrite in place keeping the inode, the size and the mtime (within the file system's
+timestamp tick, or set back), whose old pages SQLite may serve from its cache.
 
 Integrity: a store built by ``c3-matcher tiles build`` holds a ``c3_tile_digest`` table (sha256
 of each tile blob). When present, every blob read is verified against it; a mismatch raises
@@ -55,7 +59,6 @@ of each tile blob). When present, every blob read is verified against it; a mism
 
 from __future__ import annotations
 
-import hashlib
 import os
 import sqlite3
 import threading
@@ -69,20 +72,27 @@ from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.tilestore.base import TileStoreBase
 from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
 from c3_matcher.tilestore.files import connect_read_only, open_error, open_failure
+from c3_matcher.tilestore.mbtiles_file import (
+    CHECK_S,
+    LOCK_WAIT_S,
+    FollowedFile,
+    StoreFile,
+    TileDigestError,
+    file_identity,
+    holds,
+    probe_failure,
+    read_store_file,
+    verified_tile,
+)
 from c3_matcher.tilestore.sidecar import DEFAULT_RETRY_S, FeatureStoreUnavailableError
 
 __all__ = ["MBTilesStore", "TileDigestError", "TileStoreUnusableError"]
-
-
-class TileDigestError(InvalidInputError):
-    """A tile's bytes do not match the sha256 the store recorded when it was built."""
 
 
 class TileStoreUnusableError(InvalidInputError):
     """The whole store no longer answers (not one tile's problem)."""
 
 
-LOCK_WAIT_S = 0.05  # SQLite busy timeout of a read: a commit elsewhere, never a held lock
 RETRY_S = 5.0  # an unusable store is tried again after this long
 
 
@@ -94,6 +104,7 @@ class MBTilesStore(TileStoreBase):
         path: str | Path,
         *,
         retry_s: float = RETRY_S,
+        check_s: float = CHECK_S,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.path: Final = Path(path)
@@ -114,43 +125,75 @@ class MBTilesStore(TileStoreBase):
         self._unusable: str | None = None
         self._features: MapFeatureStore | None = None
         self._features_retry_at: float | None = None  # an unopenable sidecar: next try then
-        self._metadata: dict[str, str] = {}
-        try:  # a damaged page (metadata's included) is said as such, the connection closed
-            db = self._db
-            tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
-            wrong = _not_mbtiles(db, tables)
-            if wrong is None:
-                rows = db.execute("SELECT name, value FROM metadata")
-                self._metadata = {str(k): str(v) for k, v in rows}
+        try:  # a damaged page (metadata's included) is said as such
+            found = read_store_file(self.path, file_identity(self.path), timeout=LOCK_WAIT_S)
         except sqlite3.DatabaseError as exc:
-            self.close()
             why = open_error(self.path, exc, "an MBTiles file")
             raise InvalidInputError("mbtiles", f"{self.path}: {why}") from exc
-        if wrong is not None:
-            self.close()
-            raise self._refusal(wrong)
-        self.has_digests: Final = "c3_tile_digest" in tables
+        if isinstance(found, str):
+            raise self._refusal(found)
+        self._followed = FollowedFile(self.path, found, check_s=check_s, clock=clock)
+
+    @property
+    def has_digests(self) -> bool:
         """Whether the store carries per-tile sha256 digests (verified on every read)."""
+        return self._followed.current.has_digests
 
     @property
     def _db(self) -> sqlite3.Connection:
-        """This thread's read-only connection (made on first use, when the connections of
-        threads that have ended are closed); a closed store refuses (TileStoreUnusableError)."""
-        db: sqlite3.Connection | None = getattr(self._local, "db", None)
-        if db is not None:
-            return db
+        """This thread's read-only connection to the store file as last read (see
+        :meth:`_connection`), the file looked at first when ``check_s`` has passed."""
+        self._follow_in_time()
+        return self._connection(self._followed.current)
+
+    def _connection(self, file: StoreFile) -> sqlite3.Connection:
+        """This thread's read-only connection made since ``file`` was read (when it was not,
+        the thread's older one and those of ended threads are closed); a closed store refuses
+        (TileStoreUnusableError)."""
+        held: tuple[StoreFile, sqlite3.Connection] | None = getattr(self._local, "held", None)
+        if held is not None and held[0] is file:
+            return held[1]
         with self._conn_lock:
             if self._closed:
                 raise TileStoreUnusableError(
                     str(self.path), "the store is closed (close() was called): open it again"
                 )
-            for ended in [t for t in self._connections if not t.is_alive()]:
+            gone = [t for t in self._connections if t is threading.current_thread()]
+            for ended in gone + [t for t in self._connections if not t.is_alive()]:
                 self._connections.pop(ended).close()
             # used only by this thread; any thread may close it
             db = connect_read_only(self.path, timeout=LOCK_WAIT_S)
             self._connections[threading.current_thread()] = db
-        self._local.db = db
+        self._local.held = (file, db)
         return db
+
+    def _follow_in_time(self) -> None:
+        """Look at the store file (:meth:`_follow_file`) when ``check_s`` has passed since the
+        last look: a clock read per tile read, a ``stat`` per ``check_s``."""
+        if self._followed.due():
+            self._follow_file()
+
+    def _follow_file(self) -> bool:
+        """Read the store file again when it changed (``FollowedFile.look``), so that every
+        thread's next read is on a fresh connection to it; True when it was read as a store,
+        said once (WARNING ``c3.tilestore.changed``). A closed store is left as it is."""
+        if self._closed:
+            return False  # (a fork's child may not wait on a lock a parent's thread held)
+        found = self._followed.look()
+        if found is None:
+            return False
+        self._retry_at = 0.0  # it answered: an outage is tried again at once
+        from c3_matcher.logs import log_event
+
+        log_event(
+            "WARNING",
+            "c3.tilestore.changed",
+            f"tile store {self.path} is another file now (replaced or rewritten): every"
+            " thread serves its tiles from its next read",
+            store=str(self.path),
+            has_digests=found.has_digests,
+        )
+        return True
 
     def feature_store(self) -> MapFeatureStore | None:
         """The precomputed map features beside the store (``<store>.features.sqlite``), or None.
@@ -177,30 +220,22 @@ class MBTilesStore(TileStoreBase):
 
     @property
     def metadata(self) -> Mapping[str, str]:
-        return dict(self._metadata)
+        return dict(self._followed.current.metadata)
 
     def tile_bytes(self, zoom: int, x: int, y: int) -> memoryview | None:
         """The encoded XYZ tile (zoom, x, y), or None when absent; a database error is raised
         as InvalidInputError naming the tile."""
-        row = (1 << zoom) - 1 - y
+        key = (zoom, x, (1 << zoom) - 1 - y)
         what = f"{self.name} tile {zoom}/{x}/{y}"
+        self._follow_in_time()
         if self._unusable is not None:
             if self._clock() < self._retry_at:
                 raise TileStoreUnusableError(what, self._unusable)
             self._close_connections()  # try again, on fresh connections
-        query = (
-            "SELECT t.tile_data, d.sha256 FROM tiles t LEFT JOIN c3_tile_digest d"
-            " ON d.zoom_level=t.zoom_level AND d.tile_column=t.tile_column"
-            " AND d.tile_row=t.tile_row"
-            if self.has_digests
-            else "SELECT t.tile_data, NULL FROM tiles t"
-        ) + " WHERE t.zoom_level=? AND t.tile_column=? AND t.tile_row=?"
         try:
-            found = self._db.execute(query, (zoom, x, row)).fetchone()
+            found = self._fetch(key)
         except sqlite3.Error as exc:
-            self._check_store(exc)
-            self._forget_connection()
-            raise InvalidInputError(what, f"read failed: {exc}") from exc
+            found = self._fetch_again(key, exc, what)
         if self._unusable is not None:
             self._unusable = None
             from c3_matcher.logs import log_event
@@ -211,32 +246,38 @@ class MBTilesStore(TileStoreBase):
                 f"tile store {self.path} answers again; serving tiles",
                 store=str(self.path),
             )
-        if found is None:
-            return None
-        blob, digest = found
-        if blob is None:
-            if digest is None:
-                return None  # a store made by another tool: an empty row is no tile
-            raise TileDigestError(what, "its data is NULL but a sha256 is stored: the tile is lost")
-        if digest is not None and hashlib.sha256(blob).hexdigest() != digest:
-            raise TileDigestError(
-                what, f"sha256 mismatch (stored {str(digest)[:16]}...): the tile is corrupt"
-            )
-        return memoryview(blob)
+        return verified_tile(found, what)
+
+    def _fetch(self, key: tuple[int, int, int]) -> tuple[bytes | None, str | None] | None:
+        """The (blob, sha256 or None) row of the tile ``key`` (zoom, column, TMS row), read with
+        the query of the store file as last read, on this thread's connection made since."""
+        file = self._followed.current
+        found: tuple[bytes | None, str | None] | None
+        found = self._connection(file).execute(file.query, key).fetchone()
+        return found
+
+    def _fetch_again(
+        self, key: tuple[int, int, int], exc: sqlite3.Error, what: str
+    ) -> tuple[bytes | None, str | None] | None:
+        """After the read of ``key`` failed (``exc``): read it again when the file changed (the
+        failed read was on the old one, or by its query: a digests table gone); else, or when
+        that fails too, the tile's InvalidInputError, or the store's (:meth:`_check_store`)."""
+        if self._follow_file():
+            try:
+                return self._fetch(key)
+            except sqlite3.Error as again:
+                exc = again
+        self._check_store(exc)
+        self._forget_connection()
+        raise InvalidInputError(what, f"read failed: {exc}") from exc
 
     def _check_store(self, exc: BaseException) -> None:
         """After a read error: if a fresh connection cannot read the store either, the store is
         unusable: say so once (ERROR log, forwarded to the FDR) and fail every later tile fast."""
-        try:
-            probe = connect_read_only(self.path, timeout=LOCK_WAIT_S)
-            try:
-                probe.execute("SELECT count(*) FROM metadata").fetchone()
-                probe.execute("SELECT tile_data FROM tiles LIMIT 1").fetchone()
-            finally:
-                probe.close()
+        probe_exc = probe_failure(self.path, timeout=LOCK_WAIT_S)
+        if probe_exc is None:
             return  # the store answers: this was one tile's error
-        except sqlite3.Error as probe_exc:
-            reason = f"store unusable: {describe(exc)} (probe: {probe_exc})"
+        reason = f"store unusable: {describe(exc)} (probe: {probe_exc})"
         self._retry_at = self._clock() + self._retry_s
         if self._unusable is None:
             self._unusable = reason
@@ -253,15 +294,14 @@ class MBTilesStore(TileStoreBase):
 
     def _forget_connection(self) -> None:
         """Close this thread's connection after a read error the store itself does not share:
-        its next read opens a fresh one. One that read the file before it was rewritten in
-        place keeps the old file's table layout and would fail every later read."""
-        db: sqlite3.Connection | None = getattr(self._local, "db", None)
-        if db is None:
+        its next read opens a fresh one."""
+        held: tuple[StoreFile, sqlite3.Connection] | None = getattr(self._local, "held", None)
+        if held is None:
             return
         with self._conn_lock:
             self._connections.pop(threading.current_thread(), None)
-        self._local.db = None
-        db.close()
+        self._local.held = None
+        held[1].close()
 
     def zooms(self) -> list[int]:
         """The zooms stored; a zoom_level that is no zoom (the check at open sees the smallest
@@ -270,7 +310,7 @@ class MBTilesStore(TileStoreBase):
         zooms = [whole_number(zoom) for zoom in found]
         for zoom, value in zip(zooms, found, strict=True):
             if zoom is None or zoom < 0:
-                raise self._refusal(_holds("zoom_level", value))
+                raise self._refusal(holds("zoom_level", value))
         return list(dict.fromkeys(z for z in zooms if z is not None))
 
     def tiles(self, zoom: int) -> Iterator[tuple[int, int]]:
@@ -307,9 +347,9 @@ class MBTilesStore(TileStoreBase):
         is no integer is InvalidInputError naming the store."""
         x, tms_row = whole_number(col), whole_number(row)
         if x is None:
-            raise self._refusal(_holds("tile_column", col))
+            raise self._refusal(holds("tile_column", col))
         if tms_row is None:
-            raise self._refusal(_holds("tile_row", row))
+            raise self._refusal(holds("tile_row", row))
         return x, (1 << zoom) - 1 - tms_row
 
     def _refusal(self, wrong: str) -> InvalidInputError:
@@ -353,44 +393,3 @@ class MBTilesStore(TileStoreBase):
 
     def __repr__(self) -> str:
         return f"MBTilesStore({str(self.path)!r})"
-
-
-_COLUMNS: Final = {
-    "tiles": ("zoom_level", "tile_column", "tile_row", "tile_data"),
-    "metadata": ("name", "value"),
-}
-"""The columns the store is read by, per table (spec 1.3)."""
-
-
-def _not_mbtiles(db: sqlite3.Connection, tables: set[str]) -> str | None:
-    """Why the database ``db`` holding ``tables`` is no MBTiles store, or None: a table missing,
-    a table without the columns it is read by, or a zoom_level that is no zoom. Cheap, once at
-    open: the columns from ``PRAGMA table_info``, the zooms only the smallest and the largest
-    (each one step of the spec's index: NULL sorts first, text and blobs last)."""
-    missing = sorted({"metadata", "tiles"} - tables)
-    if missing:
-        return f"missing tables {missing}"
-    for table, wanted in _COLUMNS.items():
-        has = [str(r[1]) for r in db.execute(f"PRAGMA table_info({table})")]
-        lacks = [c for c in wanted if c not in {h.lower() for h in has}]
-        if lacks:
-            return f"its {table} table lacks the columns {lacks}; it has {has}"
-    for order in ("ASC", "DESC"):
-        row = db.execute(f"SELECT zoom_level FROM tiles ORDER BY zoom_level {order} LIMIT 1")
-        found = row.fetchone()
-        if found is not None and not _is_zoom(found[0]):
-            return _holds("zoom_level", found[0])
-    return None
-
-
-def _is_zoom(value: object) -> bool:
-    whole = whole_number(value)
-    return whole is not None and whole >= 0
-
-
-def _holds(column: str, value: object) -> str:
-    """What a ``column`` of the tiles table holding ``value`` (none of its kind) is said as."""
-    shown = "NULL" if value is None else repr(value)
-    shown = shown if len(shown) <= 40 else shown[:37] + "..."
-    expected = "a zoom is an integer >= 0" if column == "zoom_level" else "it is an integer"
-    return f"its tiles table holds a {column} of {shown}: {expected}"

@@ -1,0 +1,222 @@
+"""An MBTiles store file as a running store (:class:`~c3_matcher.tilestore.mbtiles.
+MBTilesStore`) reads it: its shape checked and what reading it once decides
+(:class:`StoreFile`: its metadata, whether its tiles carry sha256 digests, so which query reads
+a tile); which file that was (:class:`FileIdentity`) and when to look again whether the path
+names another file, or the file was rewritten (:class:`FollowedFile`); a tile's row checked
+against its digest (:func:`verified_tile`); whether the whole store still answers
+(:func:`probe_failure`)."""
+
+from __future__ import annotations
+
+import hashlib
+import sqlite3
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Final, NamedTuple
+
+from c3_matcher._validate import finite_float, whole_number
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.files import connect_read_only
+
+__all__ = [
+    "CHECK_S",
+    "FileIdentity",
+    "FollowedFile",
+    "StoreFile",
+    "TileDigestError",
+    "file_identity",
+    "holds",
+    "probe_failure",
+    "read_store_file",
+    "verified_tile",
+]
+
+
+class TileDigestError(InvalidInputError):
+    """A tile's bytes do not match the sha256 the store recorded when it was built."""
+
+
+class FileIdentity(NamedTuple):
+    """Which file a path names and how it stands (``os.stat``): another file (a rename over
+    the path) has another device or inode; a rewrite in place, another size or mtime."""
+
+    device: int
+    inode: int
+    size: int
+    mtime_ns: int
+
+
+def file_identity(path: Path) -> FileIdentity | None:
+    """The identity of the file ``path`` names now; None when it cannot be stat-ed (removed)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return FileIdentity(st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+_DIGEST_QUERY: Final = (
+    "SELECT t.tile_data, d.sha256 FROM tiles t LEFT JOIN c3_tile_digest d"
+    " ON d.zoom_level=t.zoom_level AND d.tile_column=t.tile_column AND d.tile_row=t.tile_row"
+    " WHERE t.zoom_level=? AND t.tile_column=? AND t.tile_row=?"
+)
+_PLAIN_QUERY: Final = (
+    "SELECT t.tile_data, NULL FROM tiles t"
+    " WHERE t.zoom_level=? AND t.tile_column=? AND t.tile_row=?"
+)
+
+
+@dataclass(frozen=True)
+class StoreFile:
+    """What reading the store file once decided. ``identity`` is the file's when it was read
+    (None: the file at the path could not be read as a store, so every later look reads it
+    again); ``query`` reads one tile's (blob, sha256 or NULL) by (zoom, column, TMS row)."""
+
+    identity: FileIdentity | None
+    metadata: Mapping[str, str]
+    has_digests: bool
+
+    @property
+    def query(self) -> str:
+        return _DIGEST_QUERY if self.has_digests else _PLAIN_QUERY
+
+
+def read_store_file(
+    path: Path, identity: FileIdentity | None, *, timeout: float
+) -> StoreFile | str:
+    """The store file ``path`` (whose identity, taken before, is ``identity``) read once on a
+    connection of its own, closed after: a :class:`StoreFile`, or why it is no MBTiles store
+    (a table or a column missing, a zoom_level that is no zoom). Raises SQLite's error when
+    it cannot be read (locked, damaged, not an SQLite database)."""
+    db = connect_read_only(path, timeout=timeout)
+    try:
+        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
+        wrong = _not_mbtiles(db, tables)
+        if wrong is not None:
+            return wrong
+        metadata = {str(k): str(v) for k, v in db.execute("SELECT name, value FROM metadata")}
+    finally:
+        db.close()
+    return StoreFile(identity, metadata, "c3_tile_digest" in tables)
+
+
+CHECK_S: Final = 1.0  # a running store looks at its file again (changed?) at most this often
+LOCK_WAIT_S: Final = 0.05  # SQLite busy timeout of a read: a commit elsewhere, never a held lock
+
+
+class FollowedFile:
+    """A running store's file as last read (``current``), looked at again at most every
+    ``check_s`` seconds of ``clock`` (:meth:`due`) and read again when it changed
+    (:meth:`look`); any thread may call either."""
+
+    def __init__(
+        self, path: Path, current: StoreFile, *, check_s: float, clock: Callable[[], float]
+    ) -> None:
+        self._path, self.current = path, current
+        self._check_s = finite_float(check_s, "check_s", low=0.0)
+        self._clock = clock
+        self._check_at = clock() + self._check_s
+        self._lock = threading.Lock()  # one thread reads a changed file at a time
+
+    def due(self) -> bool:
+        """Whether ``check_s`` has passed since the last look (the next one counts from now)."""
+        now = self._clock()
+        if now < self._check_at:
+            return False
+        self._check_at = now + self._check_s
+        return True
+
+    def look(self) -> StoreFile | None:
+        """The file read again, now ``current``, when the path names another file than was
+        read or the file changed; None when it did not, or is removed (left as it is), or
+        cannot be read as a store now (emptied, half-written: ``current`` then has no identity,
+        so every thread reads the file as it stands, and the next look reads it again)."""
+        with self._lock:
+            identity = file_identity(self._path)
+            if identity is None or identity == self.current.identity:
+                return None
+            try:
+                found = read_store_file(self._path, identity, timeout=LOCK_WAIT_S)
+            except sqlite3.Error:
+                found = "unreadable"
+            if isinstance(found, str):
+                self.current = replace(self.current, identity=None)
+                return None
+            self.current = found
+            return found
+
+
+def verified_tile(found: tuple[bytes | None, str | None] | None, what: str) -> memoryview | None:
+    """The blob of the tile row ``found`` (blob, sha256 or None) of the tile ``what``, checked
+    against its sha256 when one is stored (TileDigestError when it fails); None for no row,
+    or an empty row without a sha256 (a store made by another tool: no tile)."""
+    if found is None:
+        return None
+    blob, digest = found
+    if blob is None:
+        if digest is None:
+            return None
+        raise TileDigestError(what, "its data is NULL but a sha256 is stored: the tile is lost")
+    if digest is not None and hashlib.sha256(blob).hexdigest() != digest:
+        raise TileDigestError(
+            what, f"sha256 mismatch (stored {str(digest)[:16]}...): the tile is corrupt"
+        )
+    return memoryview(blob)
+
+
+def probe_failure(path: Path, *, timeout: float) -> sqlite3.Error | None:
+    """SQLite's error when a fresh connection cannot read the store file ``path`` (its
+    metadata, a tile), so the whole store is unusable; None when it answers."""
+    try:
+        probe = connect_read_only(path, timeout=timeout)
+        try:
+            probe.execute("SELECT count(*) FROM metadata").fetchone()
+            probe.execute("SELECT tile_data FROM tiles LIMIT 1").fetchone()
+        finally:
+            probe.close()
+    except sqlite3.Error as exc:
+        return exc
+    return None
+
+
+_COLUMNS: Final = {
+    "tiles": ("zoom_level", "tile_column", "tile_row", "tile_data"),
+    "metadata": ("name", "value"),
+}
+"""The columns the store is read by, per table (spec 1.3)."""
+
+
+def _not_mbtiles(db: sqlite3.Connection, tables: set[str]) -> str | None:
+    """Why the database ``db`` holding ``tables`` is no MBTiles store, or None: a table missing,
+    a table without the columns it is read by, or a zoom_level that is no zoom. Cheap, once a
+    read of the file: the columns from ``PRAGMA table_info``, the zooms only the smallest and
+    the largest (each one step of the spec's index: NULL sorts first, text and blobs last)."""
+    missing = sorted({"metadata", "tiles"} - tables)
+    if missing:
+        return f"missing tables {missing}"
+    for table, wanted in _COLUMNS.items():
+        has = [str(r[1]) for r in db.execute(f"PRAGMA table_info({table})")]
+        lacks = [c for c in wanted if c not in {h.lower() for h in has}]
+        if lacks:
+            return f"its {table} table lacks the columns {lacks}; it has {has}"
+    for order in ("ASC", "DESC"):
+        row = db.execute(f"SELECT zoom_level FROM tiles ORDER BY zoom_level {order} LIMIT 1")
+        found = row.fetchone()
+        if found is not None and not _is_zoom(found[0]):
+            return holds("zoom_level", found[0])
+    return None
+
+
+def _is_zoom(value: object) -> bool:
+    whole = whole_number(value)
+    return whole is not None and whole >= 0
+
+
+def holds(column: str, value: object) -> str:
+    """What a ``column`` of the tiles table holding ``value`` (none of its kind) is said as."""
+    shown = "NULL" if value is None else repr(value)
+    shown = shown if len(shown) <= 40 else shown[:37] + "..."
+    expected = "a zoom is an integer >= 0" if column == "zoom_level" else "it is an integer"
+    return f"its tiles table holds a {column} of {shown}: {expected}"
