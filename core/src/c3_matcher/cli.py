@@ -89,12 +89,14 @@ def _cmd_plugins(args: argparse.Namespace, ctx: CommandContext) -> int:
 def _cmd_config(args: argparse.Namespace, ctx: CommandContext) -> int:
     # A name no plugin and no build flag knows (a misspelling) is refused; a real strategy
     # this build does not link (operator tooling) leaves the configuration itself good.
-    # Every options table is checked as start-up checks it.
-    from c3_matcher.compose import check_options_tables
+    # Every options table, and the settings the strategy's keypoint budget cannot meet, are
+    # checked as start-up checks them.
+    from c3_matcher.compose import check_options_tables, check_strategy_budget
 
     with contextlib.suppress(StrategyNotLinkedError):
         ctx.plugin_host.resolve(ctx.settings.matcher.strategy)
     check_options_tables(ctx.settings, ctx.plugin_host)
+    check_strategy_budget(ctx.settings, ctx.plugin_host)
     data = ctx.settings.model_dump(mode="json")
     said = ctx.settings.replaced_by_environment.comments()  # the file's values left out, first
     ctx.out(json.dumps(data, indent=2) if args.json else said + to_toml(data, _notes()))

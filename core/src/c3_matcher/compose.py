@@ -19,6 +19,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from c3_matcher import keypoint_budget as budgets
 from c3_matcher import protocols
 from c3_matcher.config import C3Settings, FdrSettings, with_strategy_defaults
 from c3_matcher.errors import (
@@ -53,7 +54,7 @@ from c3_matcher.protocols import (
     KeypointBudgetBackend,
 )
 from c3_matcher.ransac import OpenCvRansacFilter
-from c3_matcher.strategy import engine_startup_probe
+from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS, engine_startup_probe
 
 __all__ = [
     "AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS",
@@ -62,6 +63,8 @@ __all__ = [
     "build_default_helpers",
     "build_plugin_host",
     "check_inliers_reachable",
+    "check_options_tables",
+    "check_strategy_budget",
     "compose_root",
     "open_recorder",
     "state_default_fdr_path",
@@ -300,24 +303,26 @@ def _create_strategy(
 
 
 def check_inliers_reachable(config: C3Settings, backend: FeatureBackend) -> None:
-    """``ConfigurationError`` naming ``[matcher] min_inliers_threshold`` and the keypoint budget
-    when the threshold is above the keypoints per image the backend keeps (its ``max_keypoints``,
-    after any cut to its extractor engine's top-K; a backend without one is not checked): a
-    candidate has no more inliers than keypoints, so every frame would fail."""
-    if not isinstance(backend, KeypointBudgetBackend):
+    """``keypoint_budget.check_inliers_reachable`` against the keypoints per image the backend
+    keeps (its ``max_keypoints``, after any cut to its extractor engine's top-K); a backend
+    without one is not checked."""
+    if isinstance(backend, KeypointBudgetBackend):
+        budgets.check_inliers_reachable(config, backend.max_keypoints)
+
+
+def check_strategy_budget(settings: C3Settings, host: PluginHost) -> None:
+    """Start-up's keypoint-budget checks of the configured strategy, no engine loaded
+    (``c3-matcher config``: ``keypoint_budget.check_declared_budget``, the same messages); a
+    strategy this build does not link is passed over, one no plugin knows refused."""
+    name = settings.matcher.strategy
+    try:
+        spec = host.resolve(name)
+    except StrategyNotLinkedError:
         return
-    budget, m = backend.max_keypoints, config.matcher
-    if m.min_inliers_threshold <= budget:
-        return
-    asked = "unset: the strategy's default" if m.max_keypoints is None else m.max_keypoints
-    reason = (
-        f"{m.min_inliers_threshold} exceeds the {budget} keypoints per image the strategy "
-        "keeps: a candidate has no more inliers than keypoints, so every frame would fail; "
-        f"lower it to at most {budget}, or raise the budget ([matcher] max_keypoints = {asked}; "
-        "a strategy's options table may set its own; its extractor engine's top-K caps it)"
-    )
-    problem = ("matcher.min_inliers_threshold", reason)
-    raise ConfigurationError(f"strategy {m.strategy}", [problem])
+    config = with_strategy_defaults(settings, spec.defaults, name)
+    options = _strategy_options(config, name, spec.options_model)
+    engines = host.strategy_engine_specs(name)
+    budgets.check_declared_budget(config, options, engines, DEFAULT_MAX_KEYPOINTS)
 
 
 def _checked_helpers(pre_constructed: Mapping[str, Any] | None) -> dict[str, Any]:

@@ -249,6 +249,11 @@ class PluginHost:
         """Every engine the loaded plugins declare (plugin registration order)."""
         return [spec for specs in self._registry.engines.values() for spec in specs]
 
+    def strategy_engine_specs(self, name: str) -> list[EngineSpec]:
+        """The engines the plugin of strategy ``name`` declares (its keypoint budget's top-K)."""
+        plugin = self.strategy_plugin(name)
+        return list(self._registry.engines.get(f"{plugin.distribution}:{plugin.name}", ()))
+
     def register_commands(self, commands: CommandRegistry) -> None:
         """Let every loaded plugin add its commands, one plugin at a time: one whose hook fails
         is left out (``_leave_out``), the commands it added refuse with the reason."""

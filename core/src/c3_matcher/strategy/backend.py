@@ -12,8 +12,9 @@ from loguru import logger
 
 from c3_matcher.engines.extract import run_extractor
 from c3_matcher.engines.manifest import read_manifest
-from c3_matcher.errors import ConfigurationError, EngineError
+from c3_matcher.errors import EngineError
 from c3_matcher.features import Features, RawMatches
+from c3_matcher.keypoint_budget import check_exit_reachable
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.protocols import EarlyStopping, InferenceRuntime, ManifestRuntime
 from c3_matcher.strategy.config import ExtractorStrategyConfig
@@ -103,24 +104,10 @@ def _budget(runtime: InferenceRuntime, engine_id: str, config: ExtractorStrategy
 
 
 def _check_reachable(pair_matcher: PairMatcher, budget: int, label: str) -> None:
-    """``ConfigurationError`` when the pair matcher stops every pair with fewer matches than a
-    setting asks (``required_matches``: LightGlue's unmatchable-pair exit) and that count is
-    above the keypoint budget: no pair has more mutual matches than keypoints."""
+    """``check_exit_reachable`` of the pair matcher's required matches (``required_matches``:
+    LightGlue's unmatchable-pair exit) against the keypoint budget."""
     required = pair_matcher.required_matches() if isinstance(pair_matcher, EarlyStopping) else None
-    if required is None or required[1] <= budget:
-        return
-    setting, count = required
-    raise ConfigurationError(
-        f"strategy {label}",
-        [
-            (
-                setting,
-                f"{count} exceeds the {budget} keypoints per image the strategy keeps: no pair "
-                "has more mutual matches than keypoints, so every pair would stop with no "
-                f"match; set it to at most {budget}",
-            )
-        ],
-    )
+    check_exit_reachable(required, budget, label)
 
 
 def _check_size_multiple(
