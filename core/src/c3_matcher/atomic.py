@@ -108,7 +108,8 @@ def _one_file(a: Path, b: Path) -> bool:
 
 def temporary_sibling(path: Path) -> Path:
     """A new hidden name beside ``path`` for its writer to fill and then rename onto it:
-    ``.NAME.tmp-HOST-PID-XXXXXXXX`` (``HOST`` a tag of this machine's name). First removes what
+    ``.NAME.tmp-HOST-PID-XXXXXXXX`` (``HOST`` a tag of this machine's name; a long ``NAME``
+    shortened so that it fits a file name, :func:`_stem`). First removes what
     earlier writers of ``path`` on this machine left there when they were killed before they
     could clean up (out of memory, SIGKILL, power lost): those whose process is gone, but for a
     directory set aside to replace a ``path`` now missing, which is put back
@@ -133,8 +134,33 @@ _ASIDE = ".aside"
 cannot swap the two in one step."""
 
 
+_NAME_MAX = 255
+"""The most bytes a file name may take (Linux's and most file systems' ``NAME_MAX``)."""
+
+_LONGEST_STEM = _NAME_MAX - 42
+"""The most bytes of a name a temporary name holds: ``.`` and ``.tmp-HOST-`` (15), ``PID-`` (at
+most 11) and ``XXXXXXXX`` (8) around it, and room for what is added to a temporary name after
+it (``.aside``, SQLite's ``-journal``: 8)."""
+
+
 def _prefix(path: Path) -> str:
-    return f".{path.name}.tmp-{zlib.crc32(socket.gethostname().encode()):08x}-"
+    """What the temporary names of ``path`` written on this machine begin with: the same for
+    every writer of ``path``, so the next one finds what a killed one left."""
+    return f".{_stem(path.name)}.tmp-{zlib.crc32(socket.gethostname().encode()):08x}-"
+
+
+def _stem(name: str) -> str:
+    """``name``, or where a temporary name holding it whole would not fit ``_NAME_MAX`` bytes,
+    its beginning and ``~`` and a tag of the whole name: a name the file system takes keeps a
+    temporary name it takes too, and two long names that begin alike keep apart."""
+    if len(os.fsencode(name)) <= _LONGEST_STEM:
+        return name
+    tag = f"~{zlib.crc32(os.fsencode(name)):08x}"
+    room = _LONGEST_STEM - len(tag)
+    head = name
+    while len(os.fsencode(head)) > room:  # by characters: a UTF-8 one is never cut in two
+        head = head[: -max(1, (len(os.fsencode(head)) - room) // 4)]
+    return head + tag
 
 
 def _left_by_the_dead(path: Path) -> list[Path]:
@@ -228,7 +254,7 @@ def _replacing(path: Path, mode: str) -> Iterator[IO[Any]]:
         tmp = temporary_sibling(path)
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         try:
-            with os.fdopen(fd, mode, encoding=None if "b" in mode else "utf-8") as fh:
+            with _open(fd, mode) as fh:
                 yield fh
                 fh.flush()
                 os.fsync(fh.fileno())
@@ -237,6 +263,16 @@ def _replacing(path: Path, mode: str) -> Iterator[IO[Any]]:
             tmp.unlink(missing_ok=True)
             raise
     fsync_dir(path.parent)
+
+
+def _open(fd: int, mode: str) -> IO[Any]:
+    """``fd`` as a file of ``mode``; a text one UTF-8, where what UTF-8 cannot hold (a lone
+    surrogate: a file name's byte that is no UTF-8, shown in a page or a log) is written as
+    Python's escape (``\\udce9``, inside a JSON string the same character): a name in it
+    costs no file."""
+    if "b" in mode:
+        return os.fdopen(fd, mode)
+    return os.fdopen(fd, mode, encoding="utf-8", errors="backslashreplace")
 
 
 @contextlib.contextmanager
@@ -253,7 +289,8 @@ def _naming(path: Path) -> Iterator[None]:
 
 @contextlib.contextmanager
 def atomic_writer(path: Path) -> Iterator[TextIO]:
-    """A UTF-8 text file to write ``path`` through (module docstring)."""
+    """A UTF-8 text file to write ``path`` through (module docstring; what UTF-8 cannot hold
+    escaped, :func:`_open`)."""
     with _replacing(path, "w") as fh:
         yield cast(TextIO, fh)
 

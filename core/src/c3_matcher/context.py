@@ -34,9 +34,9 @@ class CommandContext:
 
     def out(self, text: str = "") -> None:
         """One line of the command's result on ``stdout`` (``OutputStreamError`` when it cannot
-        be written)."""
+        be written); what its encoding cannot hold escaped (:func:`_encodable`)."""
         with _writing("stdout"):
-            print(text, file=self.stdout)
+            print(_encodable(text, self.stdout), file=self.stdout)
 
     def flush(self) -> None:
         """Push the result written so far out of ``stdout``'s buffer (``OutputStreamError`` when
@@ -49,7 +49,22 @@ class CommandContext:
         written (a full log disk, a closed pipe) is lost, not the command: its result, exit
         status and files say what happened."""
         with contextlib.suppress(OSError, ValueError):
-            print(text, file=self.stderr, flush=True)
+            print(_encodable(text, self.stderr), file=self.stderr, flush=True)
+
+
+def _encodable(text: str, stream: TextIO) -> str:
+    """``text`` as ``stream`` can write it: what its encoding cannot hold (a file name's byte
+    that is no UTF-8, which Python holds as a lone surrogate; a CJK name under a Latin-1
+    locale) as Python's escapes (``\\udce9``, ``\\u6771``), as Python's own stderr writes it. A
+    name then costs no command its result; JSON text is ASCII already (``json.dumps``)."""
+    encoding = getattr(stream, "encoding", None)
+    if not encoding:  # a stream of text, not of bytes (``io.StringIO``): it takes anything
+        return text
+    try:
+        text.encode(encoding, getattr(stream, "errors", None) or "strict")
+    except UnicodeEncodeError:
+        return text.encode(encoding, "backslashreplace").decode(encoding)
+    return text
 
 
 @contextlib.contextmanager

@@ -52,6 +52,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.dataset.flight_plan import Progress, plan_flight
 from c3_matcher_tools.dataset.flight_spec import FlightSpec
+from c3_matcher_tools.dataset.format import dataset_name
 from c3_matcher_tools.dataset.writing import write_dataset, write_file
 
 __all__ = ["render_flight"]
@@ -79,6 +80,7 @@ def render_flight(
 
     out = Path(out)
     check_output_dir(out, force=force, inputs=(spec.frames_geotiff, spec.store))
+    label = dataset_name(name, out)
     if not Path(spec.frames_geotiff).is_file():
         raise InvalidInputError("FRAMES_GEOTIFF", f"no such file: {spec.frames_geotiff}")
     if not Path(spec.store).is_file():
@@ -92,7 +94,7 @@ def render_flight(
             "STORE", f"{spec.store}: not a readable MBTiles store: {exc}"
         ) from exc
     try:
-        plan = plan_flight(spec, store, name or out.name, attribution, progress)
+        plan = plan_flight(spec, store, label, attribution, progress)
     finally:
         store.close()
     meta, calibration, frames, images = plan

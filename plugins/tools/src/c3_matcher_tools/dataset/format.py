@@ -66,6 +66,7 @@ __all__ = [
     "FlightDataset",
     "FrameRecord",
     "check_candidate_size",
+    "dataset_name",
     "is_flight_dataset",
     "load_dataset",
     "name_problem",
@@ -98,7 +99,35 @@ def name_problem(name: str) -> str | None:
             "cannot name an output directory: it must be one path component "
             "(not empty, '.' or '..'; no '/', '\\' or NUL)"
         )
+    if not _utf8(name):
+        return (
+            "is not UTF-8 text: it holds a byte of another encoding (a file name's) or a lone "
+            "surrogate"
+        )
     return None
+
+
+def _utf8(text: str) -> bool:
+    """``text`` can be written as UTF-8: it holds no lone surrogate (how Python holds a file
+    name's byte that is not UTF-8)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def dataset_name(given: str | None, out: Path) -> str:
+    """The name of the dataset written to ``out``: ``given`` (``--name``, checked as it was
+    read) or ``out``'s own name, refused (``InvalidInputError`` naming OUT) where that cannot
+    name a dataset (:func:`name_problem`): a name is JSON text in ``dataset.json`` and drawn
+    in charts, which a byte that is no UTF-8 is not."""
+    if given:
+        return given
+    why = name_problem(out.name)
+    if why:
+        raise InvalidInputError("OUT", f"{out}: its name {why}; give the dataset one with --name")
+    return out.name
 
 
 def check_candidate_size(size_px: int, field: str = "--candidate-size") -> None:

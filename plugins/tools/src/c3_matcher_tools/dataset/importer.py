@@ -29,7 +29,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.file_kinds import special_kind
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
-from c3_matcher_tools.dataset.format import FrameRecord
+from c3_matcher_tools.dataset.format import FrameRecord, dataset_name
 from c3_matcher_tools.dataset.image_names import file_identity
 from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.images import IMAGE_SUFFIXES
@@ -133,9 +133,10 @@ def import_csv_flight(
     (nothing is written then)."""
     out = Path(out)
     check_output_dir(out, force=force, inputs=spec.inputs)
+    label = dataset_name(name, out)
     checked = _check_csv_inputs(spec)
-    frames = _csv_frames(checked, spec, name or out.name)
-    meta = _csv_meta(checked, spec, name or out.name)
+    frames = _csv_frames(checked, spec, label)
+    meta = _csv_meta(checked, spec, label)
     with atomic_directory(out, force=force) as tmp:
         (tmp / "frames").mkdir()
         for r, f in zip(checked.rows, frames, strict=True):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import io
 import math
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -67,8 +68,12 @@ def _plt() -> Any:
 
 
 def _png_uri(fig: Any) -> str:
+    """``fig`` as a PNG data URI. A character its font lacks (a dataset named in CJK) is drawn
+    as the font's box, without matplotlib's warning on stderr, where it is no JSON line."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", r"Glyph \d+ .* missing from font", UserWarning)
+        fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
     _plt().close(fig)
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode()
 

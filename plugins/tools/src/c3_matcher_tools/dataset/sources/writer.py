@@ -14,6 +14,7 @@ import numpy as np
 from c3_matcher.dto import CameraCalibration
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.atomic import atomic_directory, check_output_dir
+from c3_matcher_tools.dataset.format import dataset_name
 from c3_matcher_tools.dataset.proposals import StoreProposals, imported_frame, propose_from_store
 from c3_matcher_tools.dataset.sources.frames import Frame, assemble_frames
 from c3_matcher_tools.dataset.sources.images import image_problem, readable_shots
@@ -45,6 +46,7 @@ def write_imported_flight(
     out = Path(out)
     proposer = options.proposal
     check_output_dir(out, force=force, inputs=(track.source, proposer.store, options.dem))
+    label = dataset_name(name, out)
     placed_frames, skipped, pairing = _placed(track, shots, options, attitude_of, skipped)
     how, notes = pairing.how, (*track.notes, *pairing.notes)
     calibration = options.calibration
@@ -53,7 +55,6 @@ def write_imported_flight(
     images = [f.shot.read() for f in frames]  # each checked before it met the log
     zoom, proposals = proposed.zoom, proposed.looks
     attribution, tiles_source = proposed.attribution, proposed.tiles_source
-    label = name or out.name
     base = uuid.uuid5(uuid.NAMESPACE_URL, f"c3-flight-import:{label}")
     t0 = frames[0].t_s
     records = []
