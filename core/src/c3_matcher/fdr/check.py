@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.fdr.files import rotated_segments
+from c3_matcher.fdr.files import live_segment, rotated_segments
 from c3_matcher.fdr.pending import RECORDS_DROPPED, DroppedRecords, lock_path, read_lock
 from c3_matcher.fdr.records import FdrRecord, read_fdr
 from c3_matcher.file_kinds import special_kind
@@ -90,8 +90,9 @@ class FdrCheck:
 
 
 def log_segments(path: Path) -> tuple[Path, ...]:
-    """The segments of the log whose live segment is ``path``: rotated ones by number, then
-    the live one (``InvalidInputError`` when there is none, or ``path`` is no regular file)."""
+    """The segments of the log whose live segment is ``path`` (a name ``live_segment`` has
+    resolved): rotated ones by number, then the live one (``InvalidInputError`` when there is
+    none, or ``path`` is no regular file)."""
     special = special_kind(path)
     if special is not None:
         raise InvalidInputError(
@@ -106,14 +107,15 @@ def log_segments(path: Path) -> tuple[Path, ...]:
 def read_fdr_log(path: Path) -> Iterator[FdrRecord]:
     """Every record of the log at ``path`` (all its segments, oldest first), in file order;
     lines that are not records are skipped here: :func:`check_fdr` names them."""
-    for segment in log_segments(Path(path).expanduser()):
+    for segment in log_segments(live_segment(path)):
         yield from read_fdr(segment)
 
 
 def check_fdr(path: Path) -> FdrCheck:
     """Read every segment of the log at ``path`` and say what it holds and whether it is
-    whole (``InvalidInputError`` when there is no log there, or no line of it is a record)."""
-    path = Path(path).expanduser()
+    whole (``InvalidInputError`` when there is no log there, or no line of it is a record).
+    ``FdrCheck.path`` is the file ``path`` leads to (``live_segment``), as are its segments."""
+    path = live_segment(path)
     segments = log_segments(path)
     kinds: Counter[str] = Counter()
     seqs: list[int] = []

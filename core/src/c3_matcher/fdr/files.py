@@ -37,6 +37,15 @@ BLOCK_BYTES = 1 << 16
 """How much of a segment is read at a time from its end (:func:`blocks_backward`)."""
 
 
+def live_segment(path: Path) -> Path:
+    """The file the log's name ``path`` leads to: ``~`` expanded and every symbolic link
+    resolved (``os.path.realpath``), taken once when a log is opened or read. Its lock, rotated
+    segments, ``.meta`` and ``.torn`` lie beside this file, so any two names of one file (a link
+    to it, a link to a folder above it) are one log with one writer. A link to nothing yet leads
+    to the file it names, made with its missing folders as for any path."""
+    return Path(os.path.realpath(Path(path).expanduser()))
+
+
 def segment_path(path: Path, number: int) -> Path:
     """The rotated segment ``number`` of the live segment ``path``: ``<stem>.<number><suffix>``."""
     return path.with_name(f"{path.stem}.{number:0{SEGMENT_DIGITS}d}{path.suffix}")

@@ -17,6 +17,7 @@ from c3_matcher.fdr.files import (
     RECORD_KEYS,
     cut_torn_tail,
     drop_half_rotated_live,
+    live_segment,
     meta_path,
     open_for_append,
     read_meta,
@@ -79,8 +80,10 @@ class JsonlFdrRecorder:
     ``max_pending_bytes``, so a disk that stays full cannot exhaust the vehicle's memory: past
     it the oldest waiting records are let go (the newest say the most about the vehicle's state
     now), and once the rest are written a ``fdr.records_dropped`` record says how many and
-    which seqs (the only gap ``seq`` ever has). One process writes a path: the recorder
-    holds ``flock`` on ``<path>.lock``; a second one is refused with ``FdrOpenError``, as is a
+    which seqs (the only gap ``seq`` ever has). One process writes a log: the recorder
+    holds ``flock`` on ``<path>.lock``, ``path`` being the file the name given leads to
+    (``live_segment``: links resolved, as for every file of the log; messages say the name
+    given); a second one, by any name, is refused with ``FdrOpenError``, as is a
     ``path`` holding something else (not empty, not all NUL bytes, its first line not a record
     nor a record's start cut by a power cut: an image or a JSON document named by mistake),
     which is never cut, appended to or removed, or that is not a regular file (a device, a
@@ -108,7 +111,8 @@ class JsonlFdrRecorder:
         for name, value in (("max_bytes", max_bytes), ("max_pending_bytes", max_pending_bytes)):
             if value < MIN_BYTES:
                 raise InvalidInputError(f"fdr.{name}", f"must be >= {MIN_BYTES}, got {value}")
-        self._path = Path(path).expanduser()
+        self._shown = Path(path).expanduser()  # the name given: what messages say
+        self._path = live_segment(self._shown)  # the file: where the log's files are
         self._pid = os.getpid()  # a fork's child writes nothing: refused before ``_lock``
         self._clock = clock
         self._max_bytes = max_bytes
@@ -121,7 +125,7 @@ class JsonlFdrRecorder:
         self._lock_names_loss = False  # the lock file names records not yet in the log
         self._lock_unwritten = False  # it lacks our bytes: a start on a full disk
         self._noted = ""  # where the last write failure's waiting records are named, or why not
-        what = f"fdr.path {self._path}"
+        what = f"fdr.path {self._shown}"
         self._lock_fd = take_lock(self._path, what)
         try:
             carried = None if fresh else read_lock(self._lock_path)[1]
@@ -181,6 +185,7 @@ class JsonlFdrRecorder:
 
     @property
     def path(self) -> Path:
+        """The live segment: the file the name given leads to (links resolved)."""
         return self._path
 
     @property
@@ -203,7 +208,7 @@ class JsonlFdrRecorder:
         body = to_jsonable(payload)
         with self._locked():
             if self._lock_fd < 0:
-                raise FdrWriteError(f"FDR {self._path}: recorder is closed")
+                raise FdrWriteError(f"FDR {self._shown}: recorder is closed")
             self._pending.hold(self._seq, self._line(kind, body))
             self._seq += 1
             self._write_pending()
@@ -235,7 +240,7 @@ class JsonlFdrRecorder:
         self._refuse_forked()
         with self._locked():
             if self._pending.waiting and self._lock_fd < 0:
-                raise FdrWriteError(f"FDR {self._path}: recorder is closed")
+                raise FdrWriteError(f"FDR {self._shown}: recorder is closed")
             self._write_pending()
 
     def close(self) -> None:
@@ -298,7 +303,7 @@ class JsonlFdrRecorder:
 
     def _refuse_forked(self) -> None:
         if (refused := forked_from(self._pid)) is not None:
-            raise FdrWriteError(f"FDR {self._path}: not written, {refused}")
+            raise FdrWriteError(f"FDR {self._shown}: not written, {refused}")
 
     def segments(self) -> list[Path]:
         """Rotated segments oldest first (by number), then the live one."""
@@ -323,7 +328,7 @@ class JsonlFdrRecorder:
             self._note_waiting()  # should the recorder stop now, the next one knows
             let_go = f", {pending.dropped.count} let go" if pending.dropped else ""
             raise FdrWriteError(
-                f"FDR {self._path}: {exc}; {len(pending.records)} record(s) pending{let_go}"
+                f"FDR {self._shown}: {exc}; {len(pending.records)} record(s) pending{let_go}"
             ) from exc
         if self._lock_unwritten:  # a start on a full disk: now that a record found room
             with contextlib.suppress(OSError):  # else tried again with the next record
