@@ -40,9 +40,12 @@ bar (:meth:`~c3_matcher_tools.run.acceptance.Bar.figure`).
 Several datasets (``c3-matcher eval FLIGHT1 FLIGHT2 ...``) are evaluated one after the other
 (outputs under ``--out/<dataset>``) and summarised in one strategy x flight table (correct-tile
 rate, IT-03 p95, IT-05, false-confident, frame p50 ms), also written as ``summary.json`` (each
-row with the candidates given and those dropped for their tiles, ``tile_dropped``). With
-``--json`` stdout carries one JSON document (the line that says a tile store is damaged goes to
-stderr): a single dataset's ``eval.json``; for several,
+row with the candidates given and those dropped for their tiles, ``tile_dropped``). A later eval
+of one of those flights alone into its folder (``--out <root>/<dataset>``; ``out/eval/<dataset>``
+without ``--out``) replaces that flight's rows of the summary with its own, said on stderr (where
+the folder now holds another flight, it removes the summary): no row names figures that the
+folders beside it do not hold. With ``--json`` stdout carries one JSON document (the line that
+says a tile store is damaged goes to stderr): a single dataset's ``eval.json``; for several,
 ``{"flights": [each dataset's eval.json, in order], "summary": summary.json's rows}``. A
 dataset name that names an output directory must be one plain path component, and several
 datasets need as many names (refused before anything runs, exit 2, as are a strategy this build
@@ -89,7 +92,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import signal
 from collections.abc import Sequence
 from pathlib import Path
@@ -143,14 +145,17 @@ from c3_matcher_tools.run.evaluation import (
     StrategyRow,
     StrategyStopped,
     SummaryRow,
+    strict_json,
 )
-from c3_matcher_tools.run.feature_sources import FDR_LOG, feature_sources, unserved_line
+from c3_matcher_tools.run.feature_sources import FDR_LOG, read_feature_sources, unserved_line
 from c3_matcher_tools.run.outputs import (
     EVAL_RUN,
     EVAL_SUMMARY,
     forget_earlier_strategies,
     mark_output_dirs,
     no_report_html,
+    refresh_summary,
+    summary_above,
 )
 
 __all__ = [
@@ -207,14 +212,15 @@ def evaluate_strategy(
     summary = summarize(run1.outcomes)
     acceptance = metrics(run1.outcomes, run2.outcomes, dataset.frames)
     case = acceptance.correct_tile.case  # measured: frames given
+    features = read_feature_sources(out / strategy / FDR_LOG)  # once: the log is large
     flight = {
         **flight_report(dataset, run1, summary),
         **{f"{k} pass": v.passed for k, v in acceptance.measures().items()},
         "C3-IT-04 case": None if case is None else case.said,
-        "feature_sources": feature_sources(out / strategy / FDR_LOG),
+        "feature_sources": features.counts,
     }
     files = write_flight_outputs(out / strategy, dataset, run1, flight, say_no_report=False)
-    return StrategyEval(run1, acceptance, summary, files.geojson, files.html)
+    return StrategyEval(run1, acceptance, summary, files.geojson, files.html, features)
 
 
 def register_eval_command(commands: CommandRegistry) -> None:
@@ -274,15 +280,18 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     outs = _output_dirs(args.out, datasets)
     root = (args.out or EVAL_OUT) if len(datasets) > 1 else None
     check_output_dirs(outs, datasets, layout=EVAL_RUN, root=root)  # before anything runs
+    above = None if root is not None else summary_above(outs[0], EVAL_RUN)
+    held = [root] if root is not None else ([] if above is None else [above.path.parent])
     say_import_faults(*datasets, say=ctx.err)
     if (no_report := no_report_html()) is not None:  # once a run, not once a strategy
         ctx.err(no_report)
     summary: list[SummaryRow] = []
     reports: list[dict[str, Any]] = []
-    with exclusive_output_dir(*([] if root is None else [root]), *outs), signals_noted() as noted:
+    with exclusive_output_dir(*held, *outs), signals_noted() as noted:
         mark_output_dirs(EVAL_RUN, *outs)
-        if root is not None:
-            forget_previous_run(root, (EVAL_SUMMARY,))
+        above = summary_above(outs[0], EVAL_RUN) if above else None  # read again, held
+        for summarised in held:  # written again as the run ends
+            forget_previous_run(summarised, (EVAL_SUMMARY,))
         _forget_earlier_reports(outs, names)  # every flight's, before the first runs
         for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
             rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
@@ -291,13 +300,14 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
             if not report["complete"]:
                 summary.extend(_not_run(datasets[n + 1 :], names))
                 break
-        summary_rows = [s.to_json() for s in summary]
+        summary_rows = strict_json([s.to_json() for s in summary])
         if root is not None:
-            summary_json = json.dumps(_finite(summary_rows), indent=2) + "\n"
-            write_text_atomically(root / EVAL_SUMMARY, summary_json)
+            write_text_atomically(root / EVAL_SUMMARY, json.dumps(summary_rows, indent=2) + "\n")
+        elif above is not None:  # this flight's rows in it are this run's
+            ctx.err(f"c3-matcher eval: {refresh_summary(above, datasets[0].name, summary_rows)}")
     if args.json:
         document = _json_document(reports, summary_rows, several=root is not None)
-        ctx.out(json.dumps(_finite(document), indent=2))
+        ctx.out(json.dumps(strict_json(document), indent=2))
     else:
         print_summary_table(ctx, summary)
     if not reports[-1]["complete"]:
@@ -383,11 +393,6 @@ def _eval_dataset(
     rows = _eval_strategies(ctx, args.determinism_frames, dataset, names, out, overrides, noted)
     complete = not any(isinstance(r, StrategyStopped) for r in rows)
     ran = [r.run for r in rows if isinstance(r, StrategyEval)]
-    sources = {
-        r.strategy: feature_sources(out / r.strategy / FDR_LOG)
-        for r in rows
-        if isinstance(r, StrategyEval)
-    }
     try:
         plots = eval_plots(dataset, ran, out, args.samples if complete else 0)
     except Exception as exc:  # the figures matter more than the pictures
@@ -402,28 +407,21 @@ def _eval_dataset(
         "bars": BARS,
         "complete": complete,
         "not_run": names[len(rows) :],
-        "strategies": [_entry(r, sources) for r in rows],
+        "strategies": [r.to_json() for r in rows],
         "plots": plots,
     }
-    write_text_atomically(out / EVAL_RUN.report, json.dumps(_finite(report), indent=2) + "\n")
+    write_text_atomically(out / EVAL_RUN.report, json.dumps(strict_json(report), indent=2) + "\n")
     if not args.json:
         max_keypoints = overrides.apply(ctx.settings).matcher.max_keypoints
         print_flight_table(ctx, args, dataset.name, report, rows, out, max_keypoints)
     say_dropped(ctx, args.json, dataset, rows)
     given = given_settings(args.config)  # the settings the build a line names must run with
-    for r in (r for r in rows if isinstance(r, StrategyEval)):
-        log = out / r.strategy / FDR_LOG
-        if (line := unserved_line(dataset, r.run, sources[r.strategy], log, given)) is not None:
+    for r in rows:
+        if not isinstance(r, StrategyEval) or r.features is None:
+            continue
+        if (line := unserved_line(dataset, r.run, r.features, given)) is not None:
             ctx.err(line)
     return rows, report
-
-
-def _entry(row: StrategyRow, sources: dict[str, dict[str, int]]) -> dict[str, Any]:
-    """``row``'s ``eval.json`` entry, with its candidates counted by where their features came
-    from (``feature_sources``) when it ran."""
-    if row.strategy not in sources:
-        return row.to_json()
-    return {**row.to_json(), "feature_sources": sources[row.strategy]}
 
 
 def _forget_earlier_reports(outs: Sequence[Path], names: Sequence[str]) -> None:
@@ -484,14 +482,3 @@ def _stopped(directory: Path, name: str, stop: KeyboardInterrupt) -> StrategySto
     results = write_results(directory / "results.jsonl", run.outcomes)
     planned = len(run.outcomes) if run.planned is None else run.planned
     return StrategyStopped(name, len(run.outcomes), planned, str(results))
-
-
-def _finite(value: Any) -> Any:
-    """NaN / inf -> None, recursively (strict JSON)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    return value

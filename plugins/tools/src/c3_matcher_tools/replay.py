@@ -78,8 +78,9 @@ from c3_matcher_tools.run import (
 from c3_matcher_tools.run.acceptance import WRONG_FIX_PX
 from c3_matcher_tools.run.feature_sources import (
     FDR_LOG,
-    feature_sources,
+    FeatureSources,
     features_line,
+    read_feature_sources,
     unserved_line,
 )
 from c3_matcher_tools.run.outputs import (
@@ -196,13 +197,17 @@ def _say_run(
     raised once the files are written so that they are whatever happens to stdout."""
     summary = summarize(run.outcomes)
     html = None if no_report_html() else str(out / "report.html")
-    shown = {**_run_report(dataset, run, summary, out), "geojson": str(out / "flight.geojson")}
+    features = read_feature_sources(out / FDR_LOG)  # once, for the report and the line
+    shown = {
+        **_run_report(dataset, run, summary, out, features),
+        "geojson": str(out / "flight.geojson"),
+    }
     unsaid: OSError | OutputStreamError | None = None
     try:
         _print_report(ctx, as_json, dataset.name, {**shown, "html": html}, summary, out)
     except (BrokenPipeError, OutputStreamError) as exc:
         unsaid = exc
-    _say_unserved(ctx, dataset, run, shown, out, given)
+    _say_unserved(ctx, dataset, run, features, given)
     return shown, unsaid
 
 
@@ -210,15 +215,13 @@ def _say_unserved(
     ctx: CommandContext,
     dataset: FlightDataset,
     run: FlightRun,
-    report: dict[str, Any],
-    out: Path,
+    features: FeatureSources,
     given: GivenSettings,
 ) -> None:
-    """On stderr, when the store has map features but the run (its files in ``out``) was
-    served none of them: what builds the set it asks for under ``given``
-    (:func:`unserved_line`)."""
-    counts = report["feature_sources"]  # read from the log once, for the report
-    if (line := unserved_line(dataset, run, counts, out / FDR_LOG, given)) is not None:
+    """On stderr, when the store has map features but the run (``features``: what its
+    flight-data log says of them) was served none of them: what builds the set it asks for
+    under ``given`` (:func:`unserved_line`)."""
+    if (line := unserved_line(dataset, run, features, given)) is not None:
         ctx.err(line)
 
 
@@ -230,10 +233,10 @@ def _write_run(dataset: FlightDataset, run: FlightRun, out: Path, shown: dict[st
 
 
 def _run_report(
-    dataset: FlightDataset, run: FlightRun, summary: RunSummary, out: Path
+    dataset: FlightDataset, run: FlightRun, summary: RunSummary, out: Path, features: FeatureSources
 ) -> dict[str, Any]:
     """``report.json`` but for the map and flight report: the run, whether it is whole, its
-    figures and its files."""
+    figures, its files and where its candidates' features came from (``features``)."""
     return {
         **flight_report(dataset, run, summary),
         **run.progress,
@@ -243,7 +246,7 @@ def _run_report(
         "fdr": str(out / FDR_LOG),
         "log": str(out / "matcher.log"),
         "log_lines_lost": run.log_lines_lost,
-        "feature_sources": feature_sources(out / FDR_LOG),
+        "feature_sources": features.counts,
     }
 
 
@@ -283,11 +286,12 @@ def _keep_stopped(
     mark_stopped(REPLAY_RUN, out, run)
     results = write_results(out / "results.jsonl", run.outcomes)
     summary = summarize(run.outcomes)
-    report = {**_run_report(dataset, run, summary, out), "geojson": None, "html": None}
+    features = read_feature_sources(out / FDR_LOG)
+    report = {**_run_report(dataset, run, summary, out, features), "geojson": None, "html": None}
     write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
     if as_json is not None:
         _print_report(ctx, as_json, dataset.name, report, summary, out)
-        _say_unserved(ctx, dataset, run, report, out, given)
+        _say_unserved(ctx, dataset, run, features, given)
     word = "terminated" if signum == signal.SIGTERM else "interrupted"
     done, planned = report["frames_done"], report["frames_planned"]
     whole = "" if run.complete else f" ({RUN_MARK} marks the run incomplete)"

@@ -10,23 +10,34 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from c3_matcher_tools.run.acceptance import Acceptance, Headline
+from c3_matcher_tools.run.feature_sources import FeatureSources
 from c3_matcher_tools.run.records import FlightRun
 from c3_matcher_tools.run.scoring import RunSummary
 
-__all__ = ["StrategyEval", "StrategyFailure", "StrategyRow", "StrategyStopped", "SummaryRow"]
+__all__ = [
+    "StrategyEval",
+    "StrategyFailure",
+    "StrategyRow",
+    "StrategyStopped",
+    "SummaryRow",
+    "strict_json",
+]
 
 
 @dataclass(frozen=True)
 class StrategyEval:
     """One strategy evaluated on one flight: its first run, its C3-IT measures, the run's
-    summary (counts and timing) and the map and flight report written for it (``html`` None:
-    no matplotlib)."""
+    summary (counts and timing), the map and flight report written for it (``html`` None:
+    no matplotlib) and where its candidates' features came from, as its flight-data log says
+    (``features``, read once for its report, ``eval.json`` and the line that says a store
+    served none; None: not read)."""
 
     run: FlightRun
     acceptance: Acceptance
     summary: RunSummary
     geojson: str
     html: str | None
+    features: FeatureSources | None = None
 
     @property
     def strategy(self) -> str:
@@ -36,7 +47,9 @@ class StrategyEval:
         """Its ``eval.json`` entry (NaN left for the caller to make strict): the settings it ran
         with, the keypoint budget its backend kept (``keypoint_budget``: the number, where the
         settings may leave it unset for the strategy's own default) and its provenance
-        (:attr:`~c3_matcher_tools.run.records.FlightRun.provenance`)."""
+        (:attr:`~c3_matcher_tools.run.records.FlightRun.provenance`), and its candidates
+        counted by where their features came from (``feature_sources``) when they were read."""
+        counted = {} if self.features is None else {"feature_sources": self.features.counts}
         return {
             "strategy": self.strategy,
             "settings": self.run.settings,
@@ -65,6 +78,7 @@ class StrategyEval:
                 }
                 for o in self.run.outcomes
             ],
+            **counted,
         }
 
 
@@ -162,3 +176,15 @@ class SummaryRow:
 
 def _or_none(value: float) -> float | None:
     return value if math.isfinite(value) else None
+
+
+def strict_json(value: Any) -> Any:
+    """``value`` with every NaN or infinity, however deep, made None: what ``eval.json`` and
+    ``summary.json`` hold is strict JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [strict_json(v) for v in value]
+    return value

@@ -6,8 +6,9 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.check import read_fdr_log
@@ -19,7 +20,14 @@ from c3_matcher_tools.run.records import FlightRun
 if TYPE_CHECKING:
     from c3_matcher_tools.features.command import GivenSettings
 
-__all__ = ["FDR_LOG", "FEATURE_SOURCES", "feature_sources", "features_line", "unserved_line"]
+__all__ = [
+    "FDR_LOG",
+    "FEATURE_SOURCES",
+    "FeatureSources",
+    "features_line",
+    "read_feature_sources",
+    "unserved_line",
+]
 
 FEATURE_SOURCES = ("stored", "cached", "extracted")
 """Where a candidate's tile features come from: the store's map features, the tile cache, or
@@ -28,27 +36,35 @@ _TERMINAL = ("matcher.frame_done", "matcher.insufficient_inliers")
 _UNSERVED = "c3.matcher.stored_features_unserved"  # the WARNING of a store serving no set
 
 
-def feature_sources(fdr_log: Path) -> dict[str, int]:
-    """How many candidates of a run had their features from each of :data:`FEATURE_SOURCES`
-    (and ``none``, when one was dropped before it had any), as the terminal record of each
-    frame in the run's flight-data log ``fdr_log`` says; zeros where it holds none."""
+@dataclass(frozen=True)
+class FeatureSources:
+    """What a run's flight-data log says of its candidates' tile features, read from it once
+    (for a long flight the log is the largest file a run leaves): ``counts``, how many had
+    their features from each of :data:`FEATURE_SOURCES` (and ``none``, when one was dropped
+    before it had any); ``unserved``, the set id the run asked for and those its store's sidecar
+    held, as the first warning that it was served no stored set says them (None: no warning)."""
+
+    counts: dict[str, int]
+    unserved: tuple[str, tuple[str, ...]] | None = None
+
+
+def read_feature_sources(fdr_log: Path) -> FeatureSources:
+    """:class:`FeatureSources` of the run whose flight-data log is ``fdr_log``, from the terminal
+    record of each frame and its warnings, in one pass over the log; zeros (and no warning)
+    where there is no log."""
     counts = dict.fromkeys(FEATURE_SOURCES, 0)
-    for kind, payload in _payloads(fdr_log):
-        if kind in _TERMINAL:
-            for source in map(str, payload.get("candidate_features") or ()):
-                counts[source] = counts.get(source, 0) + 1
-    return counts
-
-
-def _payloads(fdr_log: Path) -> list[tuple[str, Mapping[str, Any]]]:
-    """(kind, payload) of each record of the run's flight-data log ``fdr_log`` whose payload
-    is an object; none where there is no log."""
-    found: list[tuple[str, Mapping[str, Any]]] = []
+    unserved: tuple[str, tuple[str, ...]] | None = None
     with contextlib.suppress(InvalidInputError, OSError):  # no log: nothing read
         for record in read_fdr_log(fdr_log):
-            if isinstance(payload := record.get("payload"), Mapping):
-                found.append((str(record.get("kind")), payload))
-    return found
+            if not isinstance(payload := record.get("payload"), Mapping):
+                continue
+            if record.get("kind") in _TERMINAL:
+                for source in map(str, payload.get("candidate_features") or ()):
+                    counts[source] = counts.get(source, 0) + 1
+            elif unserved is None and payload.get("kind") == _UNSERVED:
+                held = tuple(map(str, payload.get("held_set_ids") or ()))
+                unserved = str(payload.get("asked_set_id")), held
+    return FeatureSources(counts, unserved)
 
 
 def features_line(counts: Mapping[str, int]) -> str:
@@ -60,13 +76,12 @@ def features_line(counts: Mapping[str, int]) -> str:
 def unserved_line(
     dataset: FlightDataset,
     run: FlightRun,
-    counts: Mapping[str, int],
-    fdr_log: Path,
+    sources: FeatureSources,
     settings: GivenSettings,
 ) -> str | None:
     """The line that says a run whose store has map features (a sidecar) was served none of
-    them (``counts``: :func:`feature_sources` of its flight-data log ``fdr_log``, which says
-    the set it asked for and those held), with the command that builds the set it asks for
+    them (``sources``: :func:`read_feature_sources` of its flight-data log, which counts them
+    and says the set it asked for and those held), with the command that builds the set it asks for
     under ``settings`` (the run's ``--config`` and environment); None when it was served some,
     has none to be served, runs with ``[matcher] stored_features`` off, or flies a strategy
     whose tiles are always extracted (its backend names no extractor engine)."""
@@ -76,6 +91,7 @@ def unserved_line(
     sidecar = sidecar_path(dataset.store_path)
     engines = run.backend.get("engines") or {}
     extractor = (engines.get("extractor") or {}) if isinstance(engines, Mapping) else {}
+    counts = sources.counts
     if (
         counts.get("stored", 0)
         or not sum(counts.values())
@@ -87,7 +103,7 @@ def unserved_line(
     window, grid = flight_grid(dataset.root)
     command = build_command(dataset.root, run.strategy, window, grid, None, settings)
     why = f"it holds no set for {run.strategy} as it ran here, or none of these windows"
-    if (sets := _unserved_sets(fdr_log)) is not None:
+    if (sets := sources.unserved) is not None:
         held = ", ".join(map(brief_set_id, sets[1])) or "none"
         why = f"it holds no set {brief_set_id(sets[0])}, the one this run asks for; it holds {held}"
     return (
@@ -96,12 +112,3 @@ def unserved_line(
         f"extraction's. `c3-matcher {settings.option()}features info {dataset.root}` names the "
         f"sets it holds; build the one this run asks for: {command}."
     )
-
-
-def _unserved_sets(fdr_log: Path) -> tuple[str, list[str]] | None:
-    """The set id a run asked for and those its store's sidecar held, as the first warning of
-    its flight-data log ``fdr_log`` that it was served no stored set says them (None: none)."""
-    for _, payload in _payloads(fdr_log):
-        if payload.get("kind") == _UNSERVED:
-            return str(payload.get("asked_set_id")), list(payload.get("held_set_ids") or ())
-    return None

@@ -5,7 +5,9 @@ for each strategy ``eval`` runs, :func:`write_flight_outputs`), every one writte
 no earlier run's results beside its own FDR (:func:`forget_previous_run`). A run's output
 directory is its command's alone: marked as it is taken (:data:`RUN_MARK`,
 :func:`mark_output_dirs`), and one that holds anything but an earlier run of the command is
-refused before anything runs (:func:`check_output_dirs`)."""
+refused before anything runs (:func:`check_output_dirs`). The summary of an eval over several
+flights, beside a folder per flight, follows a later run of one of them into its folder
+(:func:`summary_above`, :func:`refresh_summary`)."""
 
 from __future__ import annotations
 
@@ -13,7 +15,6 @@ import contextlib
 import fcntl
 import json
 import os
-import sys
 from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,8 +31,8 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import remove_log
 from c3_matcher.fdr.pending import lock_path
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
-from c3_matcher_tools.extras import install_line
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
+from c3_matcher_tools.run.report_html import no_report_html, write_html_report
 from c3_matcher_tools.run.scoring import RunSummary, summarize
 
 __all__ = [
@@ -44,6 +45,7 @@ __all__ = [
     "RUN_MARK",
     "RunFiles",
     "RunLayout",
+    "SummaryAbove",
     "check_output_dirs",
     "exclusive_output_dir",
     "flight_report",
@@ -53,7 +55,9 @@ __all__ = [
     "mark_stopped",
     "no_report_html",
     "output_dir_name",
+    "refresh_summary",
     "refuse_foreign_output",
+    "summary_above",
     "write_flight_outputs",
     "write_html_report",
     "write_results",
@@ -223,14 +227,66 @@ def _of_root(path: Path, layout: RunLayout) -> bool:
     """``path``, in the output directory of a run of ``layout`` over several flights, is that
     run's summary or one flight's directory (empty, or an earlier run of ``layout``'s)."""
     if path.name == layout.summary:
-        rows = _json_file(path)
-        return isinstance(rows, list) and all(
-            isinstance(r, dict) and {"strategy", "flight"} <= r.keys() for r in rows
-        )
+        return _summary_rows(path) is not None
     if path.is_symlink() or not path.is_dir():
         return False
     names = _names(path)
     return names == [] or (names is not None and layout.holds_run(path))
+
+
+def _summary_rows(path: Path) -> list[dict[str, Any]] | None:
+    """The rows of the summary of a run over several flights at ``path`` (a JSON list of
+    objects, each naming a ``strategy`` and a ``flight``); None when it is no such file."""
+    rows = _json_file(path)
+    ok = isinstance(rows, list) and all(
+        isinstance(r, dict) and {"strategy", "flight"} <= r.keys() for r in rows
+    )
+    return rows if ok else None
+
+
+@dataclass(frozen=True)
+class SummaryAbove:
+    """The summary (``path``) of an earlier run over several flights, one of which had its
+    folder ``folder`` beside it, which a run of one flight now writes: the rows it held
+    (``rows``), of which that folder's no longer say what the folder holds."""
+
+    path: Path
+    folder: str
+    rows: tuple[dict[str, Any], ...]
+
+
+def summary_above(out: Path, layout: RunLayout) -> SummaryAbove | None:
+    """The summary of an earlier run of ``layout`` over several flights that names ``out``, the
+    output directory of a run of one flight, as one of its flights' folders (it lies in
+    ``out``'s parent and has rows of the flight ``out`` is named after); None where there is
+    none."""
+    if layout.summary is None:
+        return None
+    folder = out.expanduser().resolve()
+    path = folder.parent / layout.summary
+    rows = _summary_rows(path)
+    if rows is None or all(r["flight"] != folder.name for r in rows):
+        return None
+    return SummaryAbove(path, folder.name, tuple(rows))
+
+
+def refresh_summary(above: SummaryAbove, flight: str, rows: Sequence[Mapping[str, Any]]) -> str:
+    """Rewrite ``above`` with its folder's rows replaced by ``rows``, those of this run of
+    ``flight`` into that folder, where the first of them stood (the other flights' rows stay
+    as their folders hold them); or, where the folder now holds another flight than the one
+    it is named after, leave it removed (:func:`forget_previous_run`, as the run started): no
+    row of the summary may say what the folder beside it does not hold. The line that says
+    which, for stderr."""
+    if flight != above.folder:
+        return (
+            f"{above.path} removed: {above.folder}'s folder beside it now holds {flight}'s "
+            "results; evaluate those flights together again for a summary"
+        )
+    at = next(n for n, r in enumerate(above.rows) if r["flight"] == above.folder)
+    kept = [r for r in above.rows if r["flight"] != above.folder]
+    refreshed = [*kept[:at], *rows, *kept[at:]]
+    write_text_atomically(above.path, json.dumps(refreshed, indent=2) + "\n")
+    return f"{above.path}: {flight}'s rows replaced by this run's"
 
 
 def mark_output_dirs(layout: RunLayout, *directories: Path) -> None:
@@ -441,60 +497,3 @@ def write_flight_outputs(
     shown = {**report, "geojson": geojson}
     html = write_html_report(out, dataset, outcomes, run.strategy, shown, say=say_no_report)
     return RunFiles(geojson, html)
-
-
-def no_report_html() -> str | None:
-    """Why no ``report.html`` can be written here (matplotlib, the report extra, is not
-    installed), as a run says it; None where one can."""
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError as exc:
-        extra = install_line("report")
-        return f"c3-matcher: no report.html ({exc}): install the report extra ({extra})"
-    return None
-
-
-def write_html_report(
-    out: Path,
-    dataset: FlightDataset,
-    outcomes: Sequence[FrameOutcome],
-    strategy: str,
-    report: Mapping[str, Any],
-    *,
-    say: bool = True,
-) -> str | None:
-    """``out/report.html`` (None when matplotlib is missing, with the reason on stderr when
-    ``say``: then a ``report.html`` an earlier run left there is removed, as it reports another
-    run's results)."""
-    if (why := no_report_html()) is not None:
-        (out / "report.html").unlink(missing_ok=True)
-        if say:
-            print(why, file=sys.stderr)
-        return None
-    from c3_matcher_tools.report.html import runs_lightglue, write_report
-
-    shown_apart = ("settings", "lightglue_settings", "provenance")
-    summary = {k: v for k, v in report.items() if k not in shown_apart}
-    ran = report.get("provenance") or {}  # FlightRun.provenance, as flight_report gives it
-    lightglue = (report.get("lightglue_settings") or {}) if runs_lightglue(ran) else {}
-    settings = {**report["settings"], **{f"lightglue.{k}": v for k, v in lightglue.items()}}
-    provenance = {
-        "dataset": str(dataset.root),
-        "dataset format": dataset.meta.get("format"),
-        "tile store": str(dataset.store_path),
-        "matcher labels (from the results)": ", ".join(report.get("matcher_labels", [])),
-        "c3-matcher": ran.get("c3-matcher", "-"),
-        "execution provider": ran.get("provider", "-"),
-        "engines": json.dumps(ran.get("engines", {})),
-        "made by": json.dumps(dataset.meta.get("spec", dataset.meta.get("import", {}))),
-    }
-    path = write_report(
-        out / "report.html",
-        dataset,
-        list(outcomes),
-        strategy=strategy,
-        summary=summary,
-        settings=settings,
-        provenance=provenance,
-    )
-    return str(path)
