@@ -97,6 +97,10 @@ def test_build_over_a_damaged_sidecar_moves_it_aside_and_builds_a_new_one(
     info = json.loads(capsys.readouterr().out)
     assert Path(info["store"]).resolve() == (flight / "tiles.mbtiles").resolve()
     assert [(s["strategy"], s["complete"]) for s in info["sets"]] == [("xfeat", True)]
+    assert main(["features", "info", str(flight)]) == 0  # in words: no Python None or True
+    line = capsys.readouterr().out
+    assert "complete: yes" in line and "strategy: xfeat" in line
+    assert "None" not in line and "True" not in line and "command:" not in line
 
 
 def test_a_sidecar_path_that_cannot_be_opened_is_one_line_and_exit_2(

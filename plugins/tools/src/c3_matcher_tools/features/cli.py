@@ -290,11 +290,18 @@ def _mark_commands(given: Path, found: _Found, settings: GivenSettings) -> None:
     """Mark each set with ``command``, the line that builds it, and ``command_note``, what to
     know to run it (:func:`build_command` beside the store
     ``given`` names, under ``settings``) where the flight is not served all it holds: damaged
-    or stale windows, or a set the flight is never served that no served set replaces; None
-    where nothing needs building."""
+    or stale windows, a set a stopped build left incomplete (the same line finishes it), or a
+    set the flight is never served that no served set replaces; None where nothing needs
+    building."""
     for s in found.sets:
         unserved = s["engine_installed"] is not None and not s["served"]
-        needed = s.get("damaged") or s.get("stale") or (unserved and not _replacing(found, s))
+        unfinished = s.get("complete") is False
+        needed = (
+            s.get("damaged")
+            or s.get("stale")
+            or unfinished
+            or (unserved and not _replacing(found, s))
+        )
         command = (
             build_command(
                 given, s["strategy"], s["window_px"], s["stride_px"], _only(found, s), settings
@@ -377,7 +384,12 @@ def _print_sets(
         ctx.out(f"{store}: no precomputed features ({path} absent or empty)")
     else:
         for s in sets:
-            ctx.out(", ".join(f"{k}: {v}" for k, v in s.items()))
+            ctx.out(", ".join(f"{k}: {_word(v)}" for k, v in s.items() if v is not None))
+
+
+def _word(value: object) -> object:
+    """A set's value as a line of text says it: yes or no for a flag, else the value."""
+    return ("yes" if value else "no") if isinstance(value, bool) else value
 
 
 def _verified(store: Path, side: MapFeatureStore, sets: list[dict[str, object]]) -> tuple[int, int]:
