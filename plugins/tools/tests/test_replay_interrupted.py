@@ -90,6 +90,9 @@ def test_a_stopped_replay_keeps_the_results_of_the_frames_it_did(
     mark = json.loads((out / RUN_MARK).read_text())
     assert mark == {
         "command": "c3-matcher replay",
+        "dataset": str(flight.resolve()),
+        "name": "naip_demo",
+        "strategy": "sift_magsac",
         "complete": False,
         "frames_done": done,
         "frames_planned": 30,
@@ -106,7 +109,12 @@ def test_a_stopped_replay_keeps_the_results_of_the_frames_it_did(
         "replay", str(flight), "--strategy", "sift_magsac", "--out", str(out), "--limit", "1"
     )
     assert again.returncode == 0, again.stderr  # a whole run there again: marked whole
-    assert json.loads((out / RUN_MARK).read_text()) == {"command": "c3-matcher replay"}
+    assert json.loads((out / RUN_MARK).read_text()) == {
+        "command": "c3-matcher replay",
+        "dataset": str(flight.resolve()),
+        "name": "naip_demo",
+        "strategy": "sift_magsac",
+    }
     assert json.loads((out / "report.json").read_text())["complete"] is True
 
 

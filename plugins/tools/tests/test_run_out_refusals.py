@@ -113,7 +113,12 @@ def test_a_replay_reruns_into_its_own_out_and_into_the_default_one(cli: C3, tmp_
         proc = cli("replay", str(DEMO), *REPLAY, "--out", str(out))
         assert proc.returncode == 0, proc.stderr[-2000:]
         assert len((out / "results.jsonl").read_text().splitlines()) == 1
-    assert json.loads((out / RUN_MARK).read_text()) == {"command": "c3-matcher replay"}
+    assert json.loads((out / RUN_MARK).read_text()) == {
+        "command": "c3-matcher replay",
+        "dataset": str(DEMO),
+        "name": "naip_demo",
+        "strategy": "sift_magsac",
+    }
     for _ in range(2):  # out/replay/<name>-<strategy>
         proc = cli("replay", str(DEMO), *REPLAY)
         assert proc.returncode == 0, proc.stderr[-2000:]

@@ -152,7 +152,7 @@ def _print_links(ctx: CommandContext, r: StrategyEval, sources: dict[str, int] |
         ctx.out(f"  {r.strategy}: {line}")
     if sources is not None:
         ctx.out(f"  {r.strategy}: {features_line(sources)}")
-    ctx.out(f"  {r.strategy}: map {r.geojson}, flight report {r.html or '-'}")
+    ctx.out(f"  {r.strategy}: map {r.geojson or '-'}, flight report {r.html or '-'}")
 
 
 def print_summary_table(ctx: CommandContext, summary: Sequence[SummaryRow]) -> None:

@@ -59,14 +59,16 @@ IT measure counts it (the camera's loss, not the matcher's), and a line under th
 A strategy that fails to run on a dataset (it cannot start) is a table row and an ``error``
 entry, the others go on, and the command exits 1 once every table and
 report is written; one that cannot start (a missing engine: it is composed before its directory
-is touched) leaves its directory as an earlier eval left it. An output directory another
+is touched) writes nothing there. An output directory another
 process is writing (its FDR lock held) stops the command at once: nothing more is written into
 it; so does an output directory another ``eval`` or ``replay`` holds (each holds its
 directories, ``--out`` and each dataset's, while it runs). Ctrl-C or SIGTERM stops it at
 once, keeping what finished: the earlier datasets whole, this dataset's ``eval.json`` with the
-strategies done, the one stopped (the frames of its first run done, in its ``results.jsonl``)
-and those not run (``"complete": false``, ``"not_run"``), ``summary.json`` and the tables so
-far; exit 130 or 143.
+strategies done, the one stopped (the frames of its first run done, in its ``results.jsonl``;
+stopped as its files were written, its figures whole, naming the files not written) and those
+not run (``"complete": false``, ``"not_run"``), ``summary.json`` and the tables so far; exit
+130 or 143. Each dataset is held while the run reads it: a ``--force`` import or render over
+it is refused meanwhile, and the run is refused while one replaces it.
 
 Writes ``eval.json``, per strategy ``<strategy>/results.jsonl`` (+ FDR and logs),
 ``<strategy>/flight.geojson`` and ``<strategy>/report.html`` (the same as ``replay`` writes, each
@@ -80,9 +82,9 @@ matcher labels, execution provider and engines, as its FDR and ``report.html`` n
 its candidates counted by where their features came from (``feature_sources``, also under the
 table); a store with map features of which a strategy was served none is said on stderr, with
 the command that builds the set it asks for. Every dataset's earlier ``eval.json``, charts,
-match pictures and the directories of the strategies it names that this run does not run (what
-eval wrote there: a file of the user's stays) are removed before the first dataset runs, so a
-stopped run, or one of fewer strategies, leaves none of them looking like its own.
+match pictures and what eval wrote in the directories of the strategies it names (those this
+run runs again too; a file of the user's stays) are removed before the first dataset runs, so
+a stopped run, or one of fewer strategies, leaves none of them looking like its own.
 
 The command only: flying, scoring and the C3-IT measures are the run layer's
 (:mod:`c3_matcher_tools.run`, :mod:`c3_matcher_tools.run.acceptance`).
@@ -91,6 +93,7 @@ The command only: flying, scoring and the C3-IT measures are the run layer's
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 from collections.abc import Sequence
@@ -107,7 +110,7 @@ from c3_matcher.commands import (
 )
 from c3_matcher.config import C3Settings
 from c3_matcher.context import CommandContext
-from c3_matcher.errors import InvalidInputError, describe
+from c3_matcher.errors import describe
 from c3_matcher.fdr import FdrOpenError
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher_tools.args import (
@@ -116,6 +119,7 @@ from c3_matcher_tools.args import (
     apply_attitude_noise,
 )
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
+from c3_matcher_tools.dataset.lock import reading_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.provenance import say_import_faults
 from c3_matcher_tools.eval_tables import print_flight_table, print_summary_table, say_dropped
@@ -129,32 +133,35 @@ from c3_matcher_tools.run import (
     check_flight,
     check_output_dirs,
     exclusive_output_dir,
-    flight_report,
     fly,
     forget_previous_run,
-    output_dir_name,
     signals_noted,
     summarize,
-    write_flight_outputs,
     write_results,
 )
 from c3_matcher_tools.run.acceptance import BARS, WRONG_FIX_PX, is_wrong_fix, metrics
+from c3_matcher_tools.run.eval_dirs import eval_output_dirs
 from c3_matcher_tools.run.evaluation import (
     StrategyEval,
     StrategyFailure,
     StrategyRow,
     StrategyStopped,
     SummaryRow,
+    WritingStopped,
     strict_json,
+    was_stopped,
+    write_strategy_files,
 )
-from c3_matcher_tools.run.feature_sources import FDR_LOG, read_feature_sources, unserved_line
+from c3_matcher_tools.run.feature_sources import FDR_LOG, unserved_line
+from c3_matcher_tools.run.forget import forget_earlier_strategies
 from c3_matcher_tools.run.outputs import (
     EVAL_RUN,
     EVAL_SUMMARY,
-    forget_earlier_strategies,
+    mark_ended,
     mark_output_dirs,
     no_report_html,
     refresh_summary,
+    refuse_other_dataset,
     summary_above,
 )
 
@@ -184,7 +191,8 @@ def evaluate_strategy(
     """Run ``strategy`` twice over ``dataset`` (the second time on the first
     ``determinism_frames`` frames, all when None) and score it (no report.html: the run says).
     Ctrl-C or SIGTERM in the first run's frames raises :class:`FlightStopped` with those done;
-    in the second, with the whole first run."""
+    in the second or its scoring, with the whole first run; as its files are written,
+    :class:`WritingStopped` with its figures."""
     frames = list(dataset.frames)
     run1 = fly(
         settings,
@@ -209,18 +217,13 @@ def evaluate_strategy(
     except KeyboardInterrupt as exc:  # the first run is whole: it is kept
         done = run1.outcomes
         raise FlightStopped(signal.SIGINT, done, len(done), run1) from exc
-    summary = summarize(run1.outcomes)
-    acceptance = metrics(run1.outcomes, run2.outcomes, dataset.frames)
-    case = acceptance.correct_tile.case  # measured: frames given
-    features = read_feature_sources(out / strategy / FDR_LOG)  # once: the log is large
-    flight = {
-        **flight_report(dataset, run1, summary),
-        **{f"{k} pass": v.passed for k, v in acceptance.measures().items()},
-        "C3-IT-04 case": None if case is None else case.said,
-        "feature_sources": features.counts,
-    }
-    files = write_flight_outputs(out / strategy, dataset, run1, flight, say_no_report=False)
-    return StrategyEval(run1, acceptance, summary, files.geojson, files.html, features)
+    try:
+        summary = summarize(run1.outcomes)
+        acceptance = metrics(run1.outcomes, run2.outcomes, dataset.frames)
+    except KeyboardInterrupt as exc:  # as in the second run: the first is kept
+        done = run1.outcomes
+        raise FlightStopped(signal.SIGINT, done, len(done), run1) from exc
+    return write_strategy_files(out / strategy, dataset, run1, acceptance, summary)
 
 
 def register_eval_command(commands: CommandRegistry) -> None:
@@ -268,7 +271,17 @@ def register_eval_command(commands: CommandRegistry) -> None:
 def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     """Every dataset through every strategy; ``EXIT_FAILURE`` (the tables and reports still
     written) when a strategy failed to run on a dataset; 130 or 143 when Ctrl-C or SIGTERM
-    stopped it (:func:`_eval_dataset`: what finished is kept, the tables say what did not)."""
+    stopped it (:func:`_eval_dataset`: what finished is kept, the tables say what did not).
+    Each dataset is held from the first read to the end (:func:`reading_dataset`): none is
+    replaced under the run, which reads its images frame by frame."""
+    with contextlib.ExitStack() as held:
+        for path in args.dataset:
+            held.enter_context(reading_dataset(path))
+        return _eval(args, ctx)
+
+
+def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
+    """:func:`run_eval`'s work, its datasets held."""
     limit = ctx.settings.matcher.max_image_pixels
     datasets = [  # every input checked before anything runs or any directory is made
         apply_attitude_noise(load_dataset(path, limit), args.attitude_noise_deg)
@@ -277,9 +290,12 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     for dataset in datasets:  # its tile store opens; each frame image readable, of its size
         check_flight(dataset, dataset.frames)
     names = _strategies(args, ctx.plugin_host)
-    outs = _output_dirs(args.out, datasets)
+    outs = eval_output_dirs(args.out, datasets)
     root = (args.out or EVAL_OUT) if len(datasets) > 1 else None
     check_output_dirs(outs, datasets, layout=EVAL_RUN, root=root)  # before anything runs
+    if args.out is None:  # folders named after the datasets
+        for dataset, out in zip(datasets, outs, strict=True):
+            refuse_other_dataset(out, dataset, EVAL_RUN)
     above = None if root is not None else summary_above(outs[0], EVAL_RUN)
     held = [root] if root is not None else ([] if above is None else [above.path.parent])
     say_import_faults(*datasets, say=ctx.err)
@@ -288,11 +304,11 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     summary: list[SummaryRow] = []
     reports: list[dict[str, Any]] = []
     with exclusive_output_dir(*held, *outs), signals_noted() as noted:
-        mark_output_dirs(EVAL_RUN, *outs)
+        mark_output_dirs(EVAL_RUN, *outs, datasets=datasets)
         above = summary_above(outs[0], EVAL_RUN) if above else None  # read again, held
         for summarised in held:  # written again as the run ends
             forget_previous_run(summarised, (EVAL_SUMMARY,))
-        _forget_earlier_reports(outs, names)  # every flight's, before the first runs
+        _forget_earlier_reports(outs)  # every flight's, before the first runs
         for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
             rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
             reports.append(report)
@@ -305,6 +321,8 @@ def run_eval(args: argparse.Namespace, ctx: CommandContext) -> int:
             write_text_atomically(root / EVAL_SUMMARY, json.dumps(summary_rows, indent=2) + "\n")
         elif above is not None:  # this flight's rows in it are this run's
             ctx.err(f"c3-matcher eval: {refresh_summary(above, datasets[0].name, summary_rows)}")
+        for out in outs:
+            mark_ended(out)
     if args.json:
         document = _json_document(reports, summary_rows, several=root is not None)
         ctx.out(json.dumps(strict_json(document), indent=2))
@@ -357,24 +375,6 @@ def _strategies(args: argparse.Namespace, host: PluginHost) -> list[str]:
     return list(dict.fromkeys([*(args.strategy or learned), *baselines]))
 
 
-def _output_dirs(out: Path | None, datasets: Sequence[FlightDataset]) -> list[Path]:
-    """Each dataset's output directory: ``--out`` itself for a single dataset, else
-    ``<--out or out/eval>/<dataset name>``; a name that is not one plain path component, or
-    two datasets of one name (one would overwrite the other), are refused."""
-    if len(datasets) == 1 and out is not None:
-        return [out]
-    names = [output_dir_name(d) for d in datasets]
-    for n, name in enumerate(names):
-        if name in names[:n]:
-            first = datasets[names.index(name)].root
-            raise InvalidInputError(
-                "dataset",
-                f"{first} and {datasets[n].root} are both named {name!r} (dataset.json "
-                '"name"); their outputs would share one directory: give each its own name',
-            )
-    return [(out or EVAL_OUT) / name for name in names]
-
-
 def _eval_dataset(
     args: argparse.Namespace,
     ctx: CommandContext,
@@ -391,7 +391,7 @@ def _eval_dataset(
 
     overrides = Overrides(max_keypoints=args.max_keypoints)
     rows = _eval_strategies(ctx, args.determinism_frames, dataset, names, out, overrides, noted)
-    complete = not any(isinstance(r, StrategyStopped) for r in rows)
+    complete = not any(was_stopped(r) for r in rows)
     ran = [r.run for r in rows if isinstance(r, StrategyEval)]
     try:
         plots = eval_plots(dataset, ran, out, args.samples if complete else 0)
@@ -424,14 +424,14 @@ def _eval_dataset(
     return rows, report
 
 
-def _forget_earlier_reports(outs: Sequence[Path], names: Sequence[str]) -> None:
-    """What an earlier eval left in each of ``outs`` (the directories of its strategies not in
-    ``names``, its ``eval.json``, charts and match pictures), removed before the first dataset
-    runs: a run stopped part-way leaves none of them looking like its own."""
+def _forget_earlier_reports(outs: Sequence[Path]) -> None:
+    """What an earlier eval left in each of ``outs`` (the run files in the directories of the
+    strategies it names, its ``eval.json``, charts and match pictures), removed before the
+    first dataset runs: a run stopped part-way leaves none of them looking like its own."""
     from c3_matcher_tools.plots import CHARTS, forget_match_pictures
 
     for out in outs:
-        forget_earlier_strategies(out, names, log=FDR_LOG)  # named by its eval.json: first
+        forget_earlier_strategies(out, log=FDR_LOG)  # named by its eval.json: first
         forget_previous_run(out, (EVAL_RUN.report, *(f"{chart}.png" for chart in CHARTS)))
         forget_match_pictures(out)  # this run draws its own samples
 
@@ -473,9 +473,12 @@ def _eval_strategies(
     return rows
 
 
-def _stopped(directory: Path, name: str, stop: KeyboardInterrupt) -> StrategyStopped:
+def _stopped(directory: Path, name: str, stop: KeyboardInterrupt) -> StrategyRow:
     """The row of strategy ``name`` that ``stop`` stopped: the frames of its first run done (all
-    of them when the stop came in its second), written to ``directory``'s ``results.jsonl``."""
+    of them when the stop came in its second), written to ``directory``'s ``results.jsonl``;
+    its figures where the stop came as its files were written."""
+    if isinstance(stop, WritingStopped):
+        return stop.row
     run = stop.run if isinstance(stop, FlightStopped) else None
     if run is None:
         return StrategyStopped(name)

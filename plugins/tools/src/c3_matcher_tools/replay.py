@@ -13,7 +13,9 @@ which marks the directory as a replay's. A replay replaces an earlier replay's o
 existing ``--out`` that is not empty and holds none (a flight-data log, a user's files, an
 eval's output) is refused. The results and reports are each replaced atomically; the FDR and
 log are started afresh only once this run holds the FDR's lock, so a replay into a directory
-another one is writing is refused with its files untouched. What can refuse the run is checked
+another one is writing is refused with its files untouched. The dataset is held while the
+replay reads it: a ``--force`` import or render over it is refused meanwhile, and a replay
+while one replaces it. What can refuse the run is checked
 before ``--out`` is touched: every frame image (readable, of the calibration's size), every
 noisy attitude (``--attitude-noise-deg``), an ``--out`` that is, holds or lies inside the
 dataset or holds no earlier replay, the strategy and its engines (composed first). stdout
@@ -28,11 +30,15 @@ the candidates by where their features came from (``feature_sources``: ``stored`
 it but the run was served none, a line on stderr says so and names the command that builds the
 set the run asks for. Stopped by Ctrl-C or SIGTERM during the frames or its final writes, a
 replay keeps the frames done: its ``run.json`` says how many (``complete``, ``frames_done``,
-``frames_planned``), then ``results.jsonl`` and ``report.json`` hold them (no map, no flight
-report) and one line says so (exit 130/143). The report reaches stdout before the files are
-written: a final write that fails (a full disk) still leaves it; a stdout that cannot be written
-(its reader gone, a full disk under it) still leaves the files, and fails the command as it
-would have (exit 141, or 1 naming stdout) once they are written.
+``frames_planned``), then ``results.jsonl`` and ``report.json`` hold them (with the map and
+flight report only where they were written before the stop), the report on stdout says the
+same and one line says so (exit 130/143). Until a run's files are written its ``run.json``
+says ``"running": true`` (a run killed outright is told from one that ended); it also names
+the dataset (resolved) and the strategy, and the default ``--out`` of a dataset is refused to
+another of its name (exit 2). The report reaches stdout once the files are written, naming
+those that were: a final write that fails (a full disk) still prints it; a stdout that cannot
+be written (its reader gone, a full disk under it) still leaves the files, and fails the
+command as it would have (exit 141, or 1 naming stdout).
 
 The command only: flying and scoring are the run layer's (:mod:`c3_matcher_tools.run`).
 """
@@ -51,6 +57,7 @@ from c3_matcher.context import CommandContext
 from c3_matcher.errors import OutputStreamError
 from c3_matcher_tools.args import add_attitude_noise_option, apply_attitude_noise
 from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
+from c3_matcher_tools.dataset.lock import reading_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.provenance import say_import_faults
 from c3_matcher_tools.dataset.sources.options import number_ranges
@@ -85,10 +92,12 @@ from c3_matcher_tools.run.feature_sources import (
 )
 from c3_matcher_tools.run.outputs import (
     REPLAY_RUN,
+    RUN_FILES,
     RUN_MARK,
+    mark_ended,
     mark_output_dirs,
     mark_stopped,
-    no_report_html,
+    refuse_other_dataset,
 )
 from c3_matcher_tools.run.records import FrameStatus
 from c3_matcher_tools.run.scoring import attitude_noise_words, dropped_lines, telemetry_lines
@@ -132,7 +141,15 @@ def register_replay_command(commands: CommandRegistry) -> None:
 def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     """Everything that can refuse the run (the dataset, its frames, the noisy attitudes,
     ``--out``, the strategy and its engines) is checked before ``--out`` is touched: a refused
-    replay leaves an existing ``--out`` as it was and makes none."""
+    replay leaves an existing ``--out`` as it was and makes none. The dataset is held from
+    the first read to the last file written (:func:`reading_dataset`): it is not replaced
+    under the run, which reads its images frame by frame."""
+    with reading_dataset(args.dataset):
+        return _replay(args, ctx)
+
+
+def _replay(args: argparse.Namespace, ctx: CommandContext) -> int:
+    """:func:`run_replay`'s work, the dataset held."""
     settings = ctx.settings
     loaded = load_dataset(args.dataset, settings.matcher.max_image_pixels)
     dataset = apply_attitude_noise(loaded, args.attitude_noise_deg, args.limit)
@@ -141,6 +158,8 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
     frames = list(dataset.frames[: args.limit] if args.limit else dataset.frames)
     check_flight(dataset, frames)
     check_output_dirs([out], [dataset], layout=REPLAY_RUN)
+    if args.out is None:  # named after the dataset: another of its name may have written it
+        refuse_other_dataset(out, dataset, REPLAY_RUN)
     say_import_faults(dataset, say=ctx.err)
     overrides = Overrides(max_keypoints=args.max_keypoints)
     with (
@@ -149,7 +168,7 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
         ) as prepared,
         exclusive_output_dir(out),
     ):
-        mark_output_dirs(REPLAY_RUN, out)
+        mark_output_dirs(REPLAY_RUN, out, datasets=[dataset], strategy=strategy)
         flown = FlightOptions(
             frames,
             ProgressBar(f"replay {dataset.name} {strategy}"),
@@ -157,58 +176,86 @@ def run_replay(args: argparse.Namespace, ctx: CommandContext) -> int:
             keep_stopped=True,
         )
         run: FlightRun | None = None
-        said = False  # whether the report reached stdout
+        written: list[Path] = []  # the run's files, once every one is written
         with signals_noted() as noted:  # from the first frame to the last file written
             try:
                 run = fly_prepared(
                     prepared, dataset, out, plugin_host=ctx.plugin_host, options=flown
                 )
-                shown, unsaid = _say_run(
-                    ctx, args.json, dataset, run, out, given_settings(args.config)
-                )
-                said = True  # or tried: a stdout that failed is not tried again
-                _write_run(dataset, run, out, shown)
-                if unsaid is not None:  # the files are written: the stdout failure said now
-                    raise unsaid
-                return EXIT_OK
+                given = given_settings(args.config)
+                return _write_and_say(ctx, args.json, dataset, run, out, given, written)
             except FlightStopped as stop:
                 run, signum = stop.run, stop.signum
             except KeyboardInterrupt:
-                if run is None or not noted:  # before the first frame: nothing to keep
+                if run is None or not noted or written:  # nothing to keep, or all of it kept
                     raise
                 signum = noted[-1]
         assert run is not None  # fly_prepared's FlightStopped holds the run
-        as_json = None if said else args.json
-        return _keep_stopped(ctx, as_json, dataset, out, run, signum, given_settings(args.config))
+        return _keep_stopped(ctx, args.json, dataset, out, run, signum, given_settings(args.config))
 
 
-def _say_run(
+def _write_and_say(
     ctx: CommandContext,
     as_json: bool,
     dataset: FlightDataset,
     run: FlightRun,
     out: Path,
     given: GivenSettings,
-) -> tuple[dict[str, Any], OSError | OutputStreamError | None]:
-    """The report on stdout, before the run's files are written (so that one that cannot be
-    written still leaves it), and the unserved line under ``given``, the settings the run was
-    given. First: ``report.json`` but for the map and flight report it names; second: why
-    stdout could not be written (a reader gone, a full disk under it), None when it could,
-    raised once the files are written so that they are whatever happens to stdout."""
+    written: list[Path],
+) -> int:
+    """The run's files (``report.json`` last, naming the others; ``written`` then holds them),
+    then the report on stdout and the unserved line under ``given``, the settings the run was
+    given. A write that fails (a full disk) still prints the report, naming the files that
+    were written; a stdout that cannot be written (a reader gone, a full disk under it) is
+    raised once the files are written, so that they are whatever happens to stdout."""
     summary = summarize(run.outcomes)
-    html = None if no_report_html() else str(out / "report.html")
     features = read_feature_sources(out / FDR_LOG)  # once, for the report and the line
-    shown = {
-        **_run_report(dataset, run, summary, out, features),
-        "geojson": str(out / "flight.geojson"),
+    report = _run_report(dataset, run, summary, out, features)
+    try:
+        files = write_flight_outputs(
+            out, dataset, run, {**report, "geojson": str(out / "flight.geojson")}
+        )
+        report = {**report, "geojson": files.geojson, "html": files.html}
+        write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
+        mark_ended(out)  # its files are written: the run is no longer in progress
+    except OSError:
+        _say(ctx, as_json, dataset, run, out, {**report, **_files_there(out)}, features, given)
+        raise
+    written.extend(out / name for name in RUN_FILES)
+    _say(ctx, as_json, dataset, run, out, report, features, given)
+    return EXIT_OK
+
+
+def _files_there(out: Path) -> dict[str, str | None]:
+    """The map and flight report this run wrote in ``out`` (an earlier run's were removed as it
+    started), None for each not written."""
+    geojson, html = out / "flight.geojson", out / "report.html"
+    return {
+        "geojson": str(geojson) if geojson.is_file() else None,
+        "html": str(html) if html.is_file() else None,
     }
+
+
+def _say(
+    ctx: CommandContext,
+    as_json: bool,
+    dataset: FlightDataset,
+    run: FlightRun,
+    out: Path,
+    report: dict[str, Any],
+    features: FeatureSources,
+    given: GivenSettings,
+) -> None:
+    """``report`` on stdout, then the unserved line under ``given`` on stderr; a stdout that
+    cannot be written raised after that line."""
     unsaid: OSError | OutputStreamError | None = None
     try:
-        _print_report(ctx, as_json, dataset.name, {**shown, "html": html}, summary, out)
+        _print_report(ctx, as_json, dataset.name, report, summarize(run.outcomes), out)
     except (BrokenPipeError, OutputStreamError) as exc:
         unsaid = exc
     _say_unserved(ctx, dataset, run, features, given)
-    return shown, unsaid
+    if unsaid is not None:
+        raise unsaid
 
 
 def _say_unserved(
@@ -223,13 +270,6 @@ def _say_unserved(
     under ``given`` (:func:`unserved_line`)."""
     if (line := unserved_line(dataset, run, features, given)) is not None:
         ctx.err(line)
-
-
-def _write_run(dataset: FlightDataset, run: FlightRun, out: Path, shown: dict[str, Any]) -> None:
-    """The run's files, ``report.json`` (``shown`` with the map and flight report written) last."""
-    files = write_flight_outputs(out, dataset, run, shown)
-    report = {**shown, "geojson": files.geojson, "html": files.html}
-    write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
 
 
 def _run_report(
@@ -270,7 +310,7 @@ def _print_report(
 
 def _keep_stopped(
     ctx: CommandContext,
-    as_json: bool | None,
+    as_json: bool,
     dataset: FlightDataset,
     out: Path,
     run: FlightRun,
@@ -279,19 +319,19 @@ def _keep_stopped(
 ) -> int:
     """A replay stopped by Ctrl-C or SIGTERM, part-way or while writing its files, keeps the
     frames it did: ``run.json`` says how many first, then their ``results.jsonl`` and
-    ``report.json`` (no map, no flight report), each written atomically (a second Ctrl-C
-    meanwhile stops at once, tearing nothing); the report on stdout (as JSON or not; None: it
-    is there already), one line naming what is kept, and 130 or 143 as a shell reports the
-    signal; the unserved line under ``given``, the settings the run was given."""
+    ``report.json`` (naming the map and flight report where they were written before the
+    stop), each written atomically (a second Ctrl-C meanwhile stops at once, tearing
+    nothing); the report on stdout (as JSON or not), one line naming what is kept, and 130 or
+    143 as a shell reports the signal; the unserved line under ``given``, the settings the run
+    was given."""
     mark_stopped(REPLAY_RUN, out, run)
     results = write_results(out / "results.jsonl", run.outcomes)
     summary = summarize(run.outcomes)
     features = read_feature_sources(out / FDR_LOG)
-    report = {**_run_report(dataset, run, summary, out, features), "geojson": None, "html": None}
+    report = {**_run_report(dataset, run, summary, out, features), **_files_there(out)}
     write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
-    if as_json is not None:
-        _print_report(ctx, as_json, dataset.name, report, summary, out)
-        _say_unserved(ctx, dataset, run, features, given)
+    _print_report(ctx, as_json, dataset.name, report, summary, out)
+    _say_unserved(ctx, dataset, run, features, given)
     word = "terminated" if signum == signal.SIGTERM else "interrupted"
     done, planned = report["frames_done"], report["frames_planned"]
     whole = "" if run.complete else f" ({RUN_MARK} marks the run incomplete)"
@@ -307,6 +347,8 @@ def _truth_lines(s: RunSummary) -> list[str]:
     among the frames scored (as eval's false-conf counts them: picks whose inliers miss the
     ground truth by more than ``WRONG_FIX_PX``) and the frames without their true tile that
     raised (the right answer there)."""
+    if not s.frames:
+        return ["  no frame done: nothing scored"]
     if not s.with_truth:
         return ["  no ground truth in this flight: nothing scored against truth"]
     wrong = s.false_confident_frames

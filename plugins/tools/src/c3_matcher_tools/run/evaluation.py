@@ -7,10 +7,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
+from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run.acceptance import Acceptance, Headline
-from c3_matcher_tools.run.feature_sources import FeatureSources
+from c3_matcher_tools.run.feature_sources import FDR_LOG, FeatureSources, read_feature_sources
+from c3_matcher_tools.run.outputs import (
+    flight_report,
+    no_report_html,
+    write_flight_outputs,
+    write_results,
+)
 from c3_matcher_tools.run.records import FlightRun
 from c3_matcher_tools.run.scoring import RunSummary
 
@@ -20,7 +28,10 @@ __all__ = [
     "StrategyRow",
     "StrategyStopped",
     "SummaryRow",
+    "WritingStopped",
     "strict_json",
+    "was_stopped",
+    "write_strategy_files",
 ]
 
 
@@ -28,16 +39,18 @@ __all__ = [
 class StrategyEval:
     """One strategy evaluated on one flight: its first run, its C3-IT measures, the run's
     summary (counts and timing), the map and flight report written for it (``html`` None:
-    no matplotlib) and where its candidates' features came from, as its flight-data log says
-    (``features``, read once for its report, ``eval.json`` and the line that says a store
-    served none; None: not read)."""
+    no matplotlib, or not written) and where its candidates' features came from, as its
+    flight-data log says (``features``, read once for its report, ``eval.json`` and the line
+    that says a store served none; None: not read). ``stopped``: Ctrl-C or SIGTERM came while
+    its files were written, and which were not (None: it finished)."""
 
     run: FlightRun
     acceptance: Acceptance
     summary: RunSummary
-    geojson: str
+    geojson: str | None
     html: str | None
     features: FeatureSources | None = None
+    stopped: str | None = None
 
     @property
     def strategy(self) -> str:
@@ -50,6 +63,7 @@ class StrategyEval:
         (:attr:`~c3_matcher_tools.run.records.FlightRun.provenance`), and its candidates
         counted by where their features came from (``feature_sources``) when they were read."""
         counted = {} if self.features is None else {"feature_sources": self.features.counts}
+        stopped = {} if self.stopped is None else {"stopped": self.stopped}
         return {
             "strategy": self.strategy,
             "settings": self.run.settings,
@@ -79,6 +93,7 @@ class StrategyEval:
                 for o in self.run.outcomes
             ],
             **counted,
+            **stopped,
         }
 
 
@@ -127,6 +142,70 @@ class StrategyStopped:
 StrategyRow = StrategyEval | StrategyFailure | StrategyStopped
 
 
+class WritingStopped(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM came while a strategy's files were written, its figures complete:
+    ``row``, those figures and the files not written (:attr:`StrategyEval.stopped`)."""
+
+    def __init__(self, row: StrategyEval) -> None:
+        super().__init__(row.stopped)
+        self.row = row
+
+
+def write_strategy_files(
+    directory: Path,
+    dataset: FlightDataset,
+    run: FlightRun,
+    acceptance: Acceptance,
+    summary: RunSummary,
+) -> StrategyEval:
+    """A strategy's files in ``directory``, its figures (``acceptance``, ``summary`` of its
+    first ``run``) complete: ``results.jsonl``, ``flight.geojson`` and ``report.html``, which
+    shows them. Ctrl-C or SIGTERM meanwhile raises :class:`WritingStopped`: the figures kept,
+    ``results.jsonl`` written if it was not, the files not written named."""
+    case = acceptance.correct_tile.case  # measured: frames given
+    try:
+        features = read_feature_sources(directory / FDR_LOG)  # once: the log is large
+        flight = {
+            **flight_report(dataset, run, summary),
+            **{f"{k} pass": v.passed for k, v in acceptance.measures().items()},
+            "C3-IT-04 case": None if case is None else case.said,
+            "feature_sources": features.counts,
+        }
+        files = write_flight_outputs(directory, dataset, run, flight, say_no_report=False)
+    except KeyboardInterrupt as stop:
+        raise WritingStopped(_unwritten(directory, run, acceptance, summary)) from stop
+    return StrategyEval(run, acceptance, summary, files.geojson, files.html, features)
+
+
+def _unwritten(
+    directory: Path, run: FlightRun, acceptance: Acceptance, summary: RunSummary
+) -> StrategyEval:
+    """The row of a strategy stopped while its files in ``directory`` were written: its
+    figures, ``results.jsonl`` (written now if it was not: each file is replaced atomically,
+    so one there is whole) and the map and flight report where they were written."""
+    if not (directory / "results.jsonl").is_file():
+        write_results(directory / "results.jsonl", run.outcomes)
+    geojson, html = directory / "flight.geojson", directory / "report.html"
+    expected = [geojson] + ([html] if no_report_html() is None else [])
+    missing = [p.name for p in expected if not p.is_file()]
+    said = f"stopped while its files were written: {', '.join(missing) or 'none'} not written"
+    return StrategyEval(
+        run,
+        acceptance,
+        summary,
+        str(geojson) if geojson.is_file() else None,
+        str(html) if html.is_file() else None,
+        stopped=said,
+    )
+
+
+def was_stopped(row: StrategyRow) -> bool:
+    """``row`` is the strategy a Ctrl-C or SIGTERM stopped (part-way, or writing its files)."""
+    return isinstance(row, StrategyStopped) or (
+        isinstance(row, StrategyEval) and row.stopped is not None
+    )
+
+
 @dataclass(frozen=True)
 class SummaryRow:
     """One strategy on one flight in the summary table and ``summary.json``: its headline
@@ -156,6 +235,8 @@ class SummaryRow:
             row.acceptance.headline,
             len(row.acceptance.false_confident.right_fix_other_tile),
             row.summary.frame_ms_p50,
+            error=row.stopped,
+            stopped=row.stopped is not None,
             candidates=row.summary.candidates,
             tile_dropped=row.summary.tile_dropped,
         )
@@ -171,6 +252,7 @@ class SummaryRow:
             "frame_ms_p50": self.frame_ms_p50,
             "candidates": self.candidates,
             "tile_dropped": self.tile_dropped,
+            **({"stopped": self.error} if self.stopped else {}),
         }
 
 

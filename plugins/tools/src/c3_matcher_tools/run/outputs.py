@@ -12,10 +12,8 @@ flights, beside a folder per flight, follows a later run of one of them into its
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
-import os
-from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,8 +26,6 @@ from c3_matcher.atomic import (
     write_text_atomically,
 )
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.fdr.files import remove_log
-from c3_matcher.fdr.pending import lock_path
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.report_html import no_report_html, write_html_report
@@ -49,14 +45,16 @@ __all__ = [
     "check_output_dirs",
     "exclusive_output_dir",
     "flight_report",
-    "forget_earlier_strategies",
     "forget_previous_run",
+    "mark_ended",
     "mark_output_dirs",
     "mark_stopped",
     "no_report_html",
     "output_dir_name",
     "refresh_summary",
     "refuse_foreign_output",
+    "refuse_other_dataset",
+    "run_mark",
     "summary_above",
     "write_flight_outputs",
     "write_html_report",
@@ -70,8 +68,9 @@ EVAL_OUT = Path("out") / "eval"
 """Where ``eval`` writes without ``--out``: ``<this>/<dataset>`` below the working directory."""
 RUN_MARK = "run.json"
 """The file ``replay`` and ``eval`` write first into each output directory they take, naming
-the command (``{"command": "c3-matcher replay"}``): the directory is that command's output,
-which a later run of it replaces (:func:`check_output_dirs`)."""
+the command (``{"command": "c3-matcher replay"}``), the dataset's resolved path and replay's
+strategy, and ``"running": true`` until the run ends (:func:`mark_output_dirs`): the directory
+is that command's output, which a later run of it replaces (:func:`check_output_dirs`)."""
 _LARGEST_REPORT = 1 << 26
 """The most bytes read of a file to tell whether it is a run's mark or report (theirs are far
 smaller)."""
@@ -289,25 +288,74 @@ def refresh_summary(above: SummaryAbove, flight: str, rows: Sequence[Mapping[str
     return f"{above.path}: {flight}'s rows replaced by this run's"
 
 
-def mark_output_dirs(layout: RunLayout, *directories: Path) -> None:
+def mark_output_dirs(
+    layout: RunLayout,
+    *directories: Path,
+    datasets: Sequence[FlightDataset] = (),
+    strategy: str | None = None,
+) -> None:
     """Mark ``directories``, which this run now holds (:func:`exclusive_output_dir`), as
     ``layout``'s output (:data:`RUN_MARK`), before the run writes anything else there: each
     checked again first (:func:`refuse_foreign_output`: something may have come since
-    :func:`check_output_dirs`), then given its mark unless it has it (an earlier run's that
-    says it was stopped part-way is this run's no more: :func:`mark_stopped`)."""
+    :func:`check_output_dirs`), then marked as a run in progress (``"running": true``, until
+    :func:`mark_ended`: a run killed before it could end is told from one that ended) of
+    the dataset beside it in ``datasets`` (its resolved path) and ``strategy`` where given."""
     for directory in directories:
         refuse_foreign_output(directory, layout)
-    for directory in directories:
-        if _json_file(directory / RUN_MARK) != layout.mark:
-            write_text_atomically(directory / RUN_MARK, json.dumps(layout.mark) + "\n")
+    for n, directory in enumerate(directories):
+        dataset = datasets[n] if n < len(datasets) else None
+        mark = {**run_mark(layout, dataset, strategy), "running": True}
+        write_text_atomically(directory / RUN_MARK, json.dumps(mark) + "\n")
+
+
+def run_mark(
+    layout: RunLayout, dataset: FlightDataset | None, strategy: str | None = None
+) -> dict[str, Any]:
+    """What a run of ``layout`` over ``dataset`` with ``strategy`` marks its output directory
+    with (:data:`RUN_MARK`): the command, the dataset's resolved path and name, the strategy."""
+    where = (
+        {}
+        if dataset is None
+        else {"dataset": str(dataset.root.expanduser().resolve()), "name": dataset.name}
+    )
+    return {**layout.mark, **where, **({} if strategy is None else {"strategy": strategy})}
+
+
+def mark_ended(directory: Path) -> None:
+    """``directory``'s :data:`RUN_MARK` rewritten without ``running``: the run ended, its
+    files written."""
+    mark = _json_file(directory / RUN_MARK)
+    if isinstance(mark, dict) and "running" in mark:
+        ended = {k: v for k, v in mark.items() if k != "running"}
+        write_text_atomically(directory / RUN_MARK, json.dumps(ended) + "\n")
+
+
+def refuse_other_dataset(directory: Path, dataset: FlightDataset, layout: RunLayout) -> None:
+    """Refuse ``directory``, named after ``dataset``'s name (the default output directory),
+    when its :data:`RUN_MARK` says it holds a run of another dataset of that name: replacing
+    it would lose the other's results (one of another name, written there by ``--out``, is
+    replaced). ``InvalidInputError`` naming ``--out`` and both datasets."""
+    mark = _json_file(directory / RUN_MARK)
+    if not isinstance(mark, dict) or _marked_by(directory) != layout.mark["command"]:
+        return
+    earlier, ours = mark.get("dataset"), str(dataset.root.expanduser().resolve())
+    if mark.get("name") == dataset.name and isinstance(earlier, str) and earlier != ours:
+        raise InvalidInputError(
+            "--out",
+            f"{directory} holds a {layout.command} of {earlier}, another dataset named "
+            f"{dataset.name!r} than this one ({ours}): give --out to keep both, or remove "
+            f"{directory} to replace it",
+        )
 
 
 def mark_stopped(layout: RunLayout, directory: Path, run: FlightRun) -> Path:
     """Mark ``directory`` as holding ``run``, stopped part-way: its :data:`RUN_MARK` says so
     (``"complete": false``, the frames done and those it was to fly), written before the
     run's results, so that no reader takes them for a whole run's."""
+    mark = _json_file(directory / RUN_MARK)
+    kept = {k: v for k, v in mark.items() if k != "running"} if isinstance(mark, dict) else {}
     return write_text_atomically(
-        directory / RUN_MARK, json.dumps({**layout.mark, **run.progress}) + "\n"
+        directory / RUN_MARK, json.dumps({**layout.mark, **kept, **run.progress}) + "\n"
     )
 
 
@@ -365,55 +413,6 @@ def forget_previous_run(out: Path, files: Sequence[str] = RUN_FILES) -> None:
     stopped part-way leaves its own FDR and log, never beside another run's results."""
     for name in files:
         (out / name).unlink(missing_ok=True)
-
-
-_STRATEGY_FILES = (*(f for f in RUN_FILES if f != REPLAY_RUN.report), "matcher.log")
-"""What eval's run of a strategy writes in its directory (and its second run's) beside the FDR."""
-
-
-def forget_earlier_strategies(out: Path, kept: Collection[str], *, log: str) -> None:
-    """The directory of each strategy the earlier eval's report in ``out`` names (ran, failed
-    or not run) but ``kept`` (this run's: each replaces its own), emptied of what eval's runs
-    write there (:data:`_STRATEGY_FILES`, the FDR ``log``; its second run's, ``run2``, too) and
-    removed when that empties it: a rerun of fewer strategies leaves no earlier one's results
-    under its mark. A file no run writes stays, as does a link, and a run whose FDR another
-    process writes (its lock held)."""
-    report = _json_file(out / EVAL_RUN.report)
-    lists = (report.get("strategies"), report.get("not_run")) if isinstance(report, dict) else ()
-    named = [
-        e.get("strategy") if isinstance(e, dict) else e
-        for s in lists
-        if isinstance(s, list)
-        for e in s
-    ]
-    for name in dict.fromkeys(n for n in named if isinstance(n, str) and n not in kept):
-        if name_problem(name) is None:  # one plain path component below ``out``
-            _forget_run_dir(out / name / "run2", log)  # inside it, first
-            _forget_run_dir(out / name, log)
-
-
-def _forget_run_dir(directory: Path, log: str) -> None:
-    """What a run wrote in ``directory`` removed, its FDR's lock held (as a recorder holds it to
-    remove an earlier log), then the directory if that empties it."""
-    if directory.is_symlink() or not directory.is_dir():
-        return
-    lock = lock_path(directory / log)
-    try:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
-    except OSError:  # a link, or not writable: left as it is
-        return
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:  # another process writes the FDR
-        os.close(fd)
-        return
-    try:
-        remove_log(directory / log, directory / f"{log}.torn")
-        forget_previous_run(directory, (*_STRATEGY_FILES, lock.name))
-        with contextlib.suppress(OSError):  # not empty: a file no run writes is left
-            directory.rmdir()
-    finally:
-        os.close(fd)
 
 
 def _refused(directory: Path) -> Callable[[], None]:

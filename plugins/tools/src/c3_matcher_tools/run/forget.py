@@ -1,0 +1,87 @@
+"""What an earlier ``eval`` left in its output directory for a flight, removed before a new one
+runs there (:func:`forget_earlier_strategies`): a run stopped part-way, or one of fewer
+strategies, leaves no earlier run's results under its mark."""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from c3_matcher.fdr.files import remove_log
+from c3_matcher.fdr.pending import lock_path
+from c3_matcher_tools.dataset.format import name_problem
+from c3_matcher_tools.run.outputs import EVAL_RUN, REPLAY_RUN, RUN_FILES, forget_previous_run
+
+__all__ = ["forget_earlier_strategies"]
+
+_STRATEGY_FILES = (*(f for f in RUN_FILES if f != REPLAY_RUN.report), "matcher.log")
+"""What eval's run of a strategy writes in its directory (and its second run's) beside the FDR."""
+
+_LARGEST_REPORT = 1 << 26
+"""The most bytes of an earlier ``eval.json`` read (a real one is far smaller)."""
+
+
+def forget_earlier_strategies(out: Path, *, log: str) -> None:
+    """The directory of every strategy the earlier eval's report in ``out`` names (ran, failed,
+    stopped or not run; those this run runs again as well, which it may never reach) emptied
+    of what eval's runs write there (:data:`_STRATEGY_FILES`, the FDR ``log``; its second
+    run's, ``run2``, too) and removed when that empties it: a run stopped part-way, or one of
+    fewer strategies, leaves no earlier one's results under its mark. A file no run writes
+    stays, as does a link, and a run whose FDR another process writes (its lock held)."""
+    for name in _named_strategies(out / EVAL_RUN.report):
+        if name_problem(name) is None:  # one plain path component below ``out``
+            _forget_run_dir(out / name / "run2", log)  # inside it, first
+            _forget_run_dir(out / name, log)
+
+
+def _named_strategies(report_path: Path) -> list[str]:
+    """The strategies the eval report at ``report_path`` names, in order, once each; none when
+    it is missing, no JSON object or too large for one."""
+    report = _json_file(report_path)
+    lists = (report.get("strategies"), report.get("not_run")) if isinstance(report, dict) else ()
+    named = [
+        e.get("strategy") if isinstance(e, dict) else e
+        for s in lists
+        if isinstance(s, list)
+        for e in s
+    ]
+    return list(dict.fromkeys(n for n in named if isinstance(n, str)))
+
+
+def _json_file(path: Path) -> Any:
+    """What the JSON file ``path`` holds; None when it is no regular file, is too large, or
+    cannot be read or parsed."""
+    try:
+        if not path.is_file() or path.stat().st_size > _LARGEST_REPORT:
+            return None
+        return json.loads(path.read_bytes())
+    except (OSError, ValueError, RecursionError):
+        return None
+
+
+def _forget_run_dir(directory: Path, log: str) -> None:
+    """What a run wrote in ``directory`` removed, its FDR's lock held (as a recorder holds it to
+    remove an earlier log), then the directory if that empties it."""
+    if directory.is_symlink() or not directory.is_dir():
+        return
+    lock = lock_path(directory / log)
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+    except OSError:  # a link, or not writable: left as it is
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:  # another process writes the FDR
+        os.close(fd)
+        return
+    try:
+        remove_log(directory / log, directory / f"{log}.torn")
+        forget_previous_run(directory, (*_STRATEGY_FILES, lock.name))
+        with contextlib.suppress(OSError):  # not empty: a file no run writes is left
+            directory.rmdir()
+    finally:
+        os.close(fd)
