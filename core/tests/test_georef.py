@@ -9,6 +9,7 @@ from __future__ import annotations
 import uuid
 
 import numpy as np
+import pytest
 
 from c3_matcher import camera as cam
 from c3_matcher.dto import (
@@ -19,7 +20,15 @@ from c3_matcher.dto import (
     NavCameraFrame,
     TileId,
 )
-from c3_matcher.georef import best_query_to_tile, fit_query_to_tile, georeference_result
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.georef import (
+    best_query_to_tile,
+    fit_query_to_tile,
+    footprint_lonlat,
+    georeference_result,
+    lonlat_to_tile_px,
+    tile_px_to_lonlat,
+)
 from c3_matcher.prepared import InputRule
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.prior import GeometricPrior, PriorTolerances
@@ -116,3 +125,51 @@ def test_the_centre_of_a_frame_kept_on_the_similarity_is_where_the_similarity_pu
     assert len(kept_m) >= 100  # the case is common with one band of inliers
     assert np.percentile(kept_m, 95) < 0.5  # measured 0.15 m
     assert np.median(refit_m) > 1.0  # measured 2.6 m: what the georeference gave before
+
+
+def _skewed(distortion: tuple[float, ...]) -> CameraCalibration:
+    k = np.array([[300.0, 20.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    return CameraCalibration(k, np.array(distortion), (320, 240))
+
+
+def test_a_skewed_lens_without_distortion_is_georeferenced_as_with_a_vanishing_one() -> None:
+    """The footprint takes the image boundary into UNDISTORTED px as the fitted homography takes
+    the inliers, distortion or none: a skew of 20 px with every coefficient 0 gives the footprint
+    of one with a coefficient of 1e-15 (skipping the undistortion sheared it by metres)."""
+    truth = np.array([[0.9, 0.1, 40.0], [-0.1, 0.9, 30.0], [1e-4, 0.0, 1.0]])
+    rng = np.random.default_rng(3)
+    original = rng.uniform([0, 0], [319, 239], (50, 2))
+    undistorted = cam.undistort_points(original, _skewed((1e-15, 0.0, 0.0, 0.0, 0.0)))
+    rows = np.hstack([original, cam.apply_homography(truth, undistorted)])
+    tile_id = TileId(18, 47.0, 8.5)
+    placed = []
+    for distortion in ((0.0, 0.0, 0.0, 0.0, 0.0), (1e-15, 0.0, 0.0, 0.0, 0.0)):
+        calibration = _skewed(distortion)
+        hom = fit_query_to_tile(rows, calibration)
+        assert hom is not None
+        placed.append(footprint_lonlat(hom, tile_id, (512, 512), calibration, GSD_M))
+    (centre_a, ring_a), (centre_b, ring_b) = placed
+    assert np.allclose(centre_a, centre_b, rtol=0, atol=1e-6)
+    assert np.allclose(ring_a, ring_b, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("lat", [-90.0, 90.0, 85.06, -85.052])
+def test_a_tile_id_beyond_web_mercators_latitudes_is_refused_by_name(lat: float) -> None:
+    """A pole's id gave an OverflowError, or a centre at -90 deg and longitudes of 1e12 deg."""
+    tile_id = TileId(15, lat, 0.0)
+    says = r"tile_id.lat: .* beyond web mercator's latitude limit, \+-85.0511 deg"
+    with pytest.raises(InvalidInputError, match=says):
+        tile_px_to_lonlat(tile_id, (256, 256), [[0.0, 0.0]])
+    with pytest.raises(InvalidInputError, match=says):
+        lonlat_to_tile_px(tile_id, (256, 256), [[0.0, lat]], tile_gsd_m=0.3)
+    calibration = CameraCalibration.pinhole(320, 240, focal_px=300.0)
+    with pytest.raises(InvalidInputError, match=says):
+        footprint_lonlat(np.eye(3), tile_id, (256, 256), calibration, GSD_M)
+
+
+def test_a_tile_id_just_within_web_mercators_latitudes_is_georeferenced() -> None:
+    (lon, lat), ring = footprint_lonlat(
+        np.eye(3), TileId(21, 85.05, 0.0), (320, 240), CameraCalibration.pinhole(320, 240, 300.0)
+    )
+    assert abs(lat - 85.05) < 1e-6 and abs(lon) < 1e-6
+    assert np.isfinite(ring).all() and np.abs(ring).max() < 90.0

@@ -36,7 +36,13 @@ from numpy.typing import ArrayLike
 from c3_matcher import camera as cam
 from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration, MatchResult, TileId
-from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
+from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.geo import (
+    MERCATOR_MAX_LAT,
+    TILE_PX,
+    lonlat_to_world_px,
+    world_px_to_lonlat,
+)
 
 __all__ = [
     "EARTH_RADIUS_M",
@@ -47,6 +53,7 @@ __all__ = [
     "haversine_m",
     "is_georeferenced",
     "lonlat_to_tile_px",
+    "require_mercator_latitude",
     "tile_px_to_lonlat",
     "wrap_longitude",
 ]
@@ -70,6 +77,18 @@ def is_georeferenced(tile_id: TileId) -> bool:
     return tile_id.zoom > 0
 
 
+def require_mercator_latitude(tile_id: TileId) -> None:
+    """Refuse (``InvalidInputError`` naming ``tile_id.lat``) an id centred beyond web mercator's
+    latitude limit (+-85.0511 deg, where its square world ends): its pixels map to no place (a
+    pole is infinitely far down the world's pixels), so it cannot be georeferenced."""
+    if not abs(tile_id.lat) <= MERCATOR_MAX_LAT:
+        raise InvalidInputError(
+            "tile_id.lat",
+            f"{tile_id.lat} is beyond web mercator's latitude limit, +-{MERCATOR_MAX_LAT:.4f} deg"
+            ": a tile centred there cannot be georeferenced",
+        )
+
+
 def _scale(tile_id: TileId, tile_gsd_m: float | None) -> float:
     """WORLD px per tile px: 1 for a store window (``tile_gsd_m`` None), else the GSD given over
     the zoom's at the id's latitude."""
@@ -85,7 +104,9 @@ def _origin(
     (``tile_gsd_m`` None, the window convention of :mod:`c3_matcher.tilestore.handles`), else
     where the image centred exactly on the id puts it. Which one is the meaning of the
     ``tile_gsd_m`` given, never a coincidence of its value: a GSD equal to the zoom's still
-    centres the image exactly."""
+    centres the image exactly. An id beyond web mercator's latitudes is refused
+    (:func:`require_mercator_latitude`)."""
+    require_mercator_latitude(tile_id)
     (cx, cy) = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0]
     w, h = size
     if tile_gsd_m is None:
@@ -179,9 +200,9 @@ def footprint_lonlat(
     w, h = calibration.image_size
     k = calibration.K
     centre_px = np.array([[k[0, 2], k[1, 2]]])
-    boundary = cam.image_boundary(w, h, samples_per_side)
-    if calibration.distortion.size and np.any(calibration.distortion != 0):
-        boundary = cam.undistort_points(boundary, calibration)
+    # always undistorted, as :func:`fit_query_to_tile` takes the inliers: without distortion a
+    # skewed K still moves a pixel (the lens side ignores the skew, ``K @ ray`` does not)
+    boundary = cam.undistort_points(cam.image_boundary(w, h, samples_per_side), calibration)
     pts = cam.apply_homography(h_query_to_tile, np.concatenate([centre_px, boundary]))
     lonlat = _continuous_lonlat(tile_id, tile_size, pts, tile_gsd_m)
     turns = np.round((wrap_longitude(lonlat[0, 0]) - lonlat[0, 0]) / 360.0)

@@ -19,6 +19,7 @@ from c3_matcher.dto.camera import CameraCalibration
 from c3_matcher.dto.candidates import RerankCandidate, RerankResult
 from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.georef import require_mercator_latitude
 from c3_matcher.logs import log_event
 from c3_matcher.serialize import CALIBRATION_SIZE_FIX, load_calibration
 from c3_matcher.tiles import MmapTileHandle, decode_image, read_image
@@ -222,8 +223,11 @@ def attitude_arg(text: str) -> Attitude:
 
 
 def tile_id_arg(text: str) -> TileId:
-    """``--tile-id Z,LAT,LON``."""
+    """``--tile-id Z,LAT,LON``: a place, so within web mercator's latitudes
+    (:func:`~c3_matcher.georef.require_mercator_latitude`)."""
     try:
-        return TileId.parse(text)
+        tile_id = TileId.parse(text)
+        require_mercator_latitude(tile_id)
+        return tile_id
     except InvalidInputError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None

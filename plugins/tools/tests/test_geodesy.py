@@ -7,11 +7,10 @@ import math
 
 import numpy as np
 import pytest
-from pyproj import Transformer
+from pyproj import Geod, Transformer
 
 from c3_matcher.dto import TileId
 from c3_matcher_tools.geodesy import (
-    FLAT_M_PER_DEG_LAT,
     WGS84_A,
     flat_offset_latlon,
     flat_offset_m,
@@ -52,10 +51,25 @@ def test_ground_gsd_by_crs_kind() -> None:
     assert at_60 == pytest.approx(at_equator * math.sqrt(0.5), rel=0.01)
 
 
+@pytest.mark.parametrize("lat", [0.0, 45.0, 84.0, -84.0])
+def test_flat_offsets_land_on_the_geodesic(lat: float) -> None:
+    """300 m in every direction on flat ground lands within 5 cm of the ellipsoid's geodesic
+    (at the equator a metre per degree of longitude for latitude put it 2 m short), and the
+    inverse gives the metres back."""
+    geod = Geod(ellps="WGS84")
+    for azimuth in range(0, 360, 15):
+        north = 300.0 * math.cos(math.radians(azimuth))
+        east = 300.0 * math.sin(math.radians(azimuth))
+        lon_g, lat_g, _ = geod.fwd(8.0, lat, azimuth, 300.0)
+        to_lat, to_lon = flat_offset_latlon(lat, 8.0, north, east)
+        assert geod.inv(lon_g, lat_g, to_lon, to_lat)[2] < 0.05, azimuth
+        back = flat_offset_m(lat, 8.0, to_lat, to_lon)
+        assert back == pytest.approx((north, east), abs=1e-6)
+
+
 def test_flat_offsets_and_tile_gsd() -> None:
-    assert flat_offset_latlon(10.0, 20.0, FLAT_M_PER_DEG_LAT, 0.0) == (11.0, 20.0)
-    lat, lon = flat_offset_latlon(60.0, 8.0, 0.0, FLAT_M_PER_DEG_LAT)
-    assert lat == 60.0 and lon == pytest.approx(10.0)
+    lat, lon = flat_offset_latlon(60.0, 8.0, 0.0, 0.0)
+    assert (lat, lon) == (60.0, 8.0)
     north, east = flat_offset_m(47.0, 8.0, *flat_offset_latlon(47.0, 8.0, 120.0, -35.0))
     assert north == pytest.approx(120.0) and east == pytest.approx(-35.0)
     # the zoom rule takes the web-mercator GSD from the core: zoom 0 is the equator's 2 pi a / 256

@@ -2,7 +2,8 @@
 rewritten under other grids: an orthophoto across 180 deg is tiled on both sides (each tile
 checked against GDAL's own reprojection), one holding a pole is refused before planning, rows
 beyond 85.0511 deg are left out and said, a UTM grid used beyond its zone (as national grids are)
-is read while a wrong CRS is still refused, and a rotated grid is called what it is."""
+is read while a wrong CRS is still refused, one across the equator is read in either UTM zone
+of it, and a rotated grid is called what it is."""
 
 from __future__ import annotations
 
@@ -223,9 +224,30 @@ def test_a_national_utm_grid_beyond_its_zone_is_tiled_where_gdal_places_it(
     assert_placed_as_gdal_does(tif, report.path)
 
 
+ON_THE_EQUATOR = {  # 4.67 x 3.6 km across the equator, in either zone of it (Gabon, 9.5 E)
+    "north_zone_32632": ("EPSG:32632", 553_000.0, 1_800.0),  # northings down to -1,815 m
+    "south_zone_32732": ("EPSG:32732", 553_000.0, 10_001_800.0),  # up to 10,001,800 m
+}
+
+
+@READERS
+@pytest.mark.parametrize("case", list(ON_THE_EQUATOR))
+def test_an_orthophoto_across_the_equator_is_tiled_in_either_utm_zone_where_gdal_places_it(
+    tmp_path: Path, case: str, use_rasterio: bool
+) -> None:
+    crs, e0, n0 = ON_THE_EQUATOR[case]
+    tif = naip_as(tmp_path, case, crs, at(e0, n0))
+    report = build_mbtiles(tif, tmp_path / "o.mbtiles", use_rasterio=use_rasterio)
+    tiles = assert_placed_as_gdal_does(tif, report.path)
+    n = 1 << report.zoom
+    assert {y for _z, _x, y in tiles} >= {n // 2 - 1, n // 2}  # tiles both sides of the equator
+
+
 @pytest.mark.parametrize(
     ("crs", "e0", "n0", "said"),
     [
+        ("EPSG:32632", 553_000.0, -TM_REACH_M - 10_000, "do not fit EPSG:32632"),
+        ("EPSG:32732", 553_000.0, 1e7 + TM_REACH_M + 10_000, "do not fit EPSG:32732"),
         ("EPSG:32633", 500_000 + TM_REACH_M + 10_000, 7_780_000.0, "do not fit EPSG:32633"),
         ("EPSG:32633", 500_000 - TM_REACH_M - 10_000, 7_780_000.0, "do not fit EPSG:32633"),
         ("EPSG:32633", 33_070_000.0, 7_780_000.0, "do not fit EPSG:32633"),  # zone-prefixed

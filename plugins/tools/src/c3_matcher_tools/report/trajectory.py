@@ -7,7 +7,8 @@ recorded flight the vehicle's GNSS track and where the telemetry says each frame
 frames whose GNSS was absent or degraded ringed, frames whose attitude the import assumed level
 marked grey (where a level camera would look: their segment to the estimate is dashed grey, no
 error). Drawn onto a matplotlib ``Axes`` the caller owns; positions are WGS84
-degrees, drawn in mosaic px (degrees when the store has no imagery there).
+degrees, drawn in mosaic px (degrees when the store has no imagery there). A flight across
+180 deg is drawn in one piece: its longitudes are taken within 180 deg of its first point's.
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from c3_matcher.dto import TileId
-from c3_matcher.georef import lonlat_to_tile_px
+from c3_matcher.georef import lonlat_to_tile_px, wrap_longitude
+from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run.acceptance import Verdict, verdict
 from c3_matcher_tools.run.records import FrameOutcome, FrameStatus
@@ -54,21 +56,37 @@ def _points(outcomes: Sequence[FrameOutcome]) -> list[tuple[float, float]]:
     return pts
 
 
+def _unwrapped(lon: NDArray[np.float64], about: float) -> NDArray[np.float64]:
+    """Longitudes ``lon`` each taken within 180 deg of ``about`` (a flight across 180 deg stays
+    in one piece: 179.99 and -179.99 are metres apart, not 360 deg)."""
+    return np.asarray(about + wrap_longitude(lon - about), np.float64)
+
+
+def _window(pts: Sequence[tuple[float, float]], zoom: int, margin_px: int) -> tuple[TileId, int]:
+    """(the tile id at the middle of the positions (lon, lat), the side (px) of the square
+    window at ``zoom`` that holds them all with ``margin_px`` to spare, 256 to
+    :data:`MAX_MOSAIC_PX`); longitudes taken about the first position's (:func:`_unwrapped`)."""
+    lon = _unwrapped(np.array([p[0] for p in pts]), pts[0][0])
+    lat = np.array([p[1] for p in pts])
+    middle = float(wrap_longitude((lon.min() + lon.max()) / 2))
+    centre = TileId(zoom, float((lat.min() + lat.max()) / 2), middle)
+    probe = lonlat_to_tile_px(centre, (0, 0), np.stack([lon, lat], axis=1))
+    span = float(np.max(np.abs(probe))) * 2 + margin_px
+    return centre, int(min(MAX_MOSAIC_PX, max(256, math.ceil(span))))
+
+
 def _mosaic(
     dataset: FlightDataset, outcomes: Sequence[FrameOutcome]
 ) -> tuple[NDArray[np.uint8], TileId, int] | None:
-    """The store's imagery around every position (a square window at the flight's zoom)."""
+    """The store's imagery around every position (:func:`_window` at the flight's zoom); None
+    without positions, candidates, tiles there, or with positions beyond web mercator's
+    latitudes (no tile holds them)."""
     pts = _points(outcomes)
     zooms = [c.tile_id.zoom for f in dataset.frames for c in f.candidates]
-    if not pts or not zooms:
+    if not pts or not zooms or max(abs(p[1]) for p in pts) > MERCATOR_MAX_LAT:
         return None
     zoom = max(set(zooms), key=zooms.count)
-    lon = np.array([p[0] for p in pts])
-    lat = np.array([p[1] for p in pts])
-    centre = TileId(zoom, float((lat.min() + lat.max()) / 2), float((lon.min() + lon.max()) / 2))
-    probe = lonlat_to_tile_px(centre, (0, 0), np.stack([lon, lat], axis=1))
-    span = float(np.max(np.abs(probe))) * 2 + dataset.candidate_size_px
-    size = int(min(MAX_MOSAIC_PX, max(256, math.ceil(span))))
+    centre, size = _window(pts, zoom, dataset.candidate_size_px)
     try:
         with dataset.open_store() as store:
             image = store.handle(centre, size).decode()
@@ -77,12 +95,13 @@ def _mosaic(
     return image, centre, size
 
 
-def _projection(mosaic: Mosaic | None) -> ToXY:
-    """(lon, lat) degrees -> drawn (x, y): mosaic px, or the degrees without a mosaic."""
+def _projection(mosaic: Mosaic | None, about: float) -> ToXY:
+    """(lon, lat) degrees -> drawn (x, y): mosaic px, or without a mosaic the degrees, the
+    longitude taken within 180 deg of ``about`` (:func:`_unwrapped`)."""
 
     def to_xy(lon: float, lat: float) -> tuple[float, float]:
         if mosaic is None:
-            return lon, lat
+            return float(_unwrapped(np.array([lon]), about)[0]), lat
         x, y = lonlat_to_tile_px(mosaic[1], (mosaic[2], mosaic[2]), [[lon, lat]])[0]
         return float(x), float(y)
 
@@ -201,7 +220,8 @@ def draw_trajectory(
 ) -> None:
     """Draw the flight's trajectory (module docstring) onto the matplotlib ``ax``."""
     mosaic = _mosaic(dataset, outcomes)
-    to_xy = _projection(mosaic)
+    pts = _points(outcomes)
+    to_xy = _projection(mosaic, pts[0][0] if pts else 0.0)
     if mosaic is not None:
         ax.imshow(mosaic[0], interpolation="bilinear")
     truth = _located(outcomes, lambda o: (o.truth_lon, o.truth_lat), to_xy)

@@ -59,12 +59,14 @@ __all__ = [
 ]
 
 #: how far east or west of its central meridian (metres) a transverse Mercator grid (UTM, and a
-#: pyproj CRS of that method beyond its area of use) is read. National grids use their UTM zone
-#: well beyond it: Norway's zone 33 from -66 km (Utvaer, 4.5 E) to 1,115 km E (31.1 E), 615 km
-#: either side; Denmark's and Germany's zone 32 to 15 E. The maths stays exact far past this
-#: bound (the tools' Kruger series agrees with PROJ to 0.72 mm at 1,000 km and under 1 mm to
-#: 4,000 km), so the bound is set by use: coordinates further out (at the equator, a zone and a
-#: half beyond the zone's edge) are more likely a wrong CRS than a grid that far from its zone.
+#: pyproj CRS of that method beyond its area of use) is read, and a UTM grid across the equator
+#: from its zone's hemisphere (a sheet on the equator is in either). National grids use their
+#: UTM zone well beyond it: Norway's zone 33 from -66 km (Utvaer, 4.5 E) to 1,115 km E
+#: (31.1 E), 615 km either side; Denmark's and Germany's zone 32 to 15 E. The maths stays exact
+#: far past this bound (the tools' Kruger series agrees with PROJ to 0.72 mm at 1,000 km and
+#: under 1 mm to 4,000 km), so the bound is set by use: coordinates further out (at the equator,
+#: a zone and a half beyond the zone's edge) are more likely a wrong CRS than a grid that far
+#: from its zone.
 TM_REACH_M = 1_000_000.0
 
 
@@ -171,6 +173,24 @@ def _north_up_transformation(
 
 
 _MERCATOR_MAX_M = 20_048_966.2  # web-mercator northing at lat 85.06 deg (the tiles' limit)
+_UTM_FALSE_EASTING_M = 500_000.0
+_UTM_SOUTH_FALSE_NORTHING_M = 10_000_000.0  # a southern zone's northing at the equator
+
+
+def _utm_bounds(south: bool) -> tuple[str, float, float, float, float]:
+    """:func:`_crs_bounds` of a UTM zone: :data:`TM_REACH_M` either side of its meridian, and
+    from its pole to as far across the equator (a sheet on the equator is in either zone: a
+    northern zone's northings go negative south of it, a southern zone's past 1e7 north of it)."""
+    e_lo, e_hi = _UTM_FALSE_EASTING_M - TM_REACH_M, _UTM_FALSE_EASTING_M + TM_REACH_M
+    if south:
+        n_lo, n_hi = 0.0, _UTM_SOUTH_FALSE_NORTHING_M + TM_REACH_M
+    else:
+        n_lo, n_hi = -TM_REACH_M, _UTM_SOUTH_FALSE_NORTHING_M
+    what = (
+        f"UTM metres (E {e_lo:,.0f}..{e_hi:,.0f}, N {n_lo:,.0f}..{n_hi:,.0f}: within "
+        f"{TM_REACH_M / 1000:,.0f} km of the zone's meridian and of its hemisphere)"
+    )
+    return what, e_lo, e_hi, n_lo, n_hi
 
 
 def _crs_bounds(projection: Projection) -> tuple[str, float, float, float, float] | None:
@@ -179,10 +199,7 @@ def _crs_bounds(projection: Projection) -> tuple[str, float, float, float, float
     if projection.kind == "geographic":
         return "degrees (lon -180..180, lat -90..90)", -180.0, 180.0, -90.0, 90.0
     if projection.kind == "utm":
-        what = (
-            "UTM metres (E -500,000..1,500,000, within 1,000 km of the zone's meridian; N 0..1e7)"
-        )
-        return what, 500_000.0 - TM_REACH_M, 500_000.0 + TM_REACH_M, 0.0, 1e7
+        return _utm_bounds(projection.south)
     if projection.kind in ("web_mercator", "world_mercator"):
         m = _MERCATOR_MAX_M
         return "mercator metres (|E|, |N| <= 20,048,966)", -m, m, -m, m
@@ -199,10 +216,11 @@ def _extent(grid: GeoGrid) -> tuple[float, float, float, float]:
 def check_grid_fits_crs(grid: GeoGrid, source: str | Path) -> None:
     """Refuse a grid whose coordinates cannot be its CRS's (metres labelled degrees, a wrong
     EPSG code, a missing scale): its corners must lie in the CRS's range (degrees: lon -180..180,
-    lat -90..90; UTM: within :data:`TM_REACH_M` of the zone's meridian, N 0..1e7 m, and not
-    numbers that look like degrees; mercator: within the world) and convert to finite lon/lat
-    (pyproj CRSs: within 2 degrees of the CRS's area of use, which may cross the antimeridian, or
-    for a transverse Mercator CRS within its latitudes and :data:`TM_REACH_M` of its meridian).
+    lat -90..90; UTM: within :data:`TM_REACH_M` of the zone's meridian and of its hemisphere
+    (:func:`_utm_bounds`), and not numbers that look like degrees; mercator: within the world)
+    and convert to finite lon/lat (pyproj CRSs: within 2 degrees of the CRS's area of use, which
+    may cross the antimeridian, or for a transverse Mercator CRS within its latitudes and
+    :data:`TM_REACH_M` of its meridian).
     Coordinates in a unit other than metres (feet) need pyproj: the hand-written projections
     take metres."""
     _check_unit(grid, source)
