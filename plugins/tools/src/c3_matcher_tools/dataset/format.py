@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import unicodedata
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +46,13 @@ from c3_matcher.json_text import loads_json
 from c3_matcher.serialize import load_calibration
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.dataset.inside import (
+    META_PATHS,
+    check_meta_paths,
+    inside_name,
+    leads_outside,
+    real_root,
+)
 from c3_matcher_tools.dataset.json_values import (
     json_integer,
     json_number,
@@ -93,7 +101,8 @@ def is_flight_dataset(path: str | Path) -> bool:
 def name_problem(name: str) -> str | None:
     """Why ``name`` cannot name a dataset (it names the dataset's default output directory), or
     None: it must be one plain path component, so that it never puts a run's files outside the
-    directory they are meant for."""
+    directory they are meant for, of UTF-8 text without control characters (C0, DEL and C1:
+    ESC, CR, LF, BEL among them), so that it prints as what it says."""
     if name in ("", ".", "..") or any(c in name for c in "/\\\0"):
         return (
             "cannot name an output directory: it must be one path component "
@@ -103,6 +112,12 @@ def name_problem(name: str) -> str | None:
         return (
             "is not UTF-8 text: it holds a byte of another encoding (a file name's) or a lone "
             "surrogate"
+        )
+    controls = sorted({f"U+{ord(c):04X}" for c in name if unicodedata.category(c) == "Cc"})
+    if controls:
+        return (
+            f"holds control characters ({', '.join(controls)}): a name is written into folder "
+            "names and progress lines, where they would move the cursor or end the line"
         )
     return None
 
@@ -119,14 +134,17 @@ def _utf8(text: str) -> bool:
 
 def dataset_name(given: str | None, out: Path) -> str:
     """The name of the dataset written to ``out``: ``given`` (``--name``, checked as it was
-    read) or ``out``'s own name, refused (``InvalidInputError`` naming OUT) where that cannot
-    name a dataset (:func:`name_problem`): a name is JSON text in ``dataset.json`` and drawn
-    in charts, which a byte that is no UTF-8 is not."""
+    read) or ``out``'s own name, refused (``InvalidInputError`` naming OUT, quoted with its
+    escapes: the message is printed) where that cannot name a dataset (:func:`name_problem`): a
+    name is JSON text in ``dataset.json`` and drawn in charts, which a byte that is no UTF-8 is
+    not."""
     if given:
         return given
     why = name_problem(out.name)
     if why:
-        raise InvalidInputError("OUT", f"{out}: its name {why}; give the dataset one with --name")
+        raise InvalidInputError(
+            "OUT", f"{str(out)!r}: its name {why}; give the dataset one with --name"
+        )
     return out.name
 
 
@@ -268,7 +286,7 @@ class FrameRecord:
         return cls(
             json_integer(record["index"], "index", 0, _INT64_MAX),
             uuid.UUID(json_text(record["frame_id"], "frame_id")),
-            json_text(record["image"], "image"),
+            inside_name(record["image"], "image"),
             json_integer(record["captured_at_ns"], "captured_at_ns", 0, _INT64_MAX),
             (roll, pitch, yaw),
             height,
@@ -360,17 +378,18 @@ _MAX_ZOOM = 30  # a tile id's zoom range, see dto.TileId
 
 def _meta(path: Path) -> dict[str, Any]:
     """``dataset.json`` read and checked, every key a run or ``dataset info`` reads, once: a
-    ``c3-flight/1`` object with its keys, the files it names as strings and a candidate size in
-    :data:`CANDIDATE_SIZE_PX`; where present, a ``name`` a run can name its output directory
-    after (:func:`name_problem`), a ``zoom`` in [0, 30], ``absent_frames`` as a list of frame
-    indices, the sources and credits as strings, the fit residual a number >= 0 and ``spec`` /
-    ``import`` / ``attitude_noise`` as objects (InvalidInputError naming the file and key)."""
+    ``c3-flight/1`` object with its keys, the files it names as paths inside the dataset and a
+    candidate size in :data:`CANDIDATE_SIZE_PX`; where present, a ``name`` a run can name its
+    output directory after (:func:`name_problem`), a ``zoom`` in [0, 30], ``absent_frames`` as a
+    list of frame indices, the sources and credits as strings, the fit residual a number >= 0
+    and ``spec`` / ``import`` / ``attitude_noise`` as objects (InvalidInputError naming the file
+    and key)."""
     try:
         meta = json_object(loads_json(path.read_text(encoding="utf-8")), "top level")
         if meta.get("format") != FORMAT:
             raise InvalidInputError("format", f"{meta.get('format')!r}, expected {FORMAT!r}")
-        for key in ("store", "frames", "calibration"):
-            json_text(meta[key], key)
+        for key in META_PATHS:  # each a file inside the dataset (dataset.inside)
+            inside_name(meta[key], key)
         json_integer(meta["candidate_size_px"], "candidate_size_px", *CANDIDATE_SIZE_PX)
         _optional_meta(meta)
     except (KeyError, OSError, ValueError) as exc:  # JSON and UTF-8 errors among them
@@ -413,10 +432,12 @@ def _why(exc: Exception) -> str:
     return describe(exc)
 
 
-def _frames(path: Path) -> tuple[FrameRecord, ...]:
+def _frames(path: Path, root: Path) -> tuple[FrameRecord, ...]:
     """``frames.jsonl`` read and checked, naming the line of the first bad record (a frame id
     or index a line before already holds among them: results, records and reports are keyed by
-    them); at least one frame. A FIFO or a device there is refused unread."""
+    them; an image outside the dataset folder ``root``, by name or by a symbolic link:
+    :mod:`~c3_matcher_tools.dataset.inside`); at least one frame. A FIFO or a device there is
+    refused unread."""
     kind = special_kind(path)
     if kind is not None:
         raise InvalidInputError("dataset", f"{path}: is {kind}, not a file of frame records")
@@ -424,13 +445,15 @@ def _frames(path: Path) -> tuple[FrameRecord, ...]:
         lines = path.read_bytes().splitlines()
     except OSError as exc:
         raise InvalidInputError("dataset", f"{path}: unreadable: {exc}") from exc
-    frames = []
+    frames, real = [], real_root(root)
     first_line: dict[object, int] = {}  # frame id and index -> the line that holds it
     for n, line in enumerate(lines, start=1):
         if not line.strip():
             continue
         try:
             frame = FrameRecord.from_json(loads_json(line.decode("utf-8")))
+            if outside := leads_outside(real, root, frame.image):
+                raise InvalidInputError("image", outside)
             for key, value in (("frame_id", frame.frame_id), ("index", frame.index)):
                 if (key, value) in first_line:
                     raise InvalidInputError(key, f"{value} is line {first_line[key, value]}'s too")
@@ -449,7 +472,8 @@ def load_dataset(
     root: str | Path, max_image_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
 ) -> FlightDataset:
     """Read a dataset directory, naming what is missing or malformed (the file, and the line of
-    ``frames.jsonl``) before any frame is used; its frames are decoded up to
+    ``frames.jsonl``) before any frame is used, and every file it names inside the directory
+    (:mod:`~c3_matcher_tools.dataset.inside`); its frames are decoded up to
     ``max_image_pixels`` (width x height). A dataset whose importer had a fault fixed since is
     loaded with its notes (``import_faults``), not refused."""
     base = Path(root)
@@ -461,8 +485,9 @@ def load_dataset(
     if not meta_path.is_file():
         raise InvalidInputError("dataset", f"{base}: no {META_FILE} (not a {FORMAT} dataset)")
     meta = _meta(meta_path)
+    check_meta_paths(base, meta_path, meta)
     calibration = load_calibration(base / meta["calibration"], field="dataset")
-    frames = _frames(base / meta["frames"])
+    frames = _frames(base / meta["frames"], base)
     if not (base / meta["store"]).is_file():
         raise InvalidInputError("dataset", f"{base / meta['store']}: tile store missing")
     faults = import_faults(base, meta, [f.telemetry for f in frames])

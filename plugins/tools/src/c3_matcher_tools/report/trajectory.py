@@ -178,7 +178,7 @@ def _references(ax: Any, truth: list[Point], tele: list[Point], est: list[Point]
 
 def _axes_and_scale(ax: Any, title: str, mosaic: Mosaic | None) -> None:
     """The title; degree labels without a mosaic, else no ticks and a metric scale bar."""
-    ax.set_title(title)
+    ax.set_title(title, parse_math=False)  # a dataset's name is text, never mathtext
     if mosaic is None:
         ax.set_xlabel("lon (deg)")
         ax.set_ylabel("lat (deg)")
