@@ -6,23 +6,24 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import json
 import os
 from pathlib import Path
-from typing import Any
 
 from c3_matcher.fdr.files import remove_log
 from c3_matcher.fdr.pending import lock_path
 from c3_matcher_tools.dataset.format import name_problem
-from c3_matcher_tools.run.outputs import EVAL_RUN, REPLAY_RUN, RUN_FILES, forget_previous_run
+from c3_matcher_tools.run.outputs import (
+    EVAL_RUN,
+    REPLAY_RUN,
+    RUN_FILES,
+    forget_previous_run,
+    run_json_file,
+)
 
 __all__ = ["forget_earlier_strategies"]
 
 _STRATEGY_FILES = (*(f for f in RUN_FILES if f != REPLAY_RUN.report), "matcher.log")
 """What eval's run of a strategy writes in its directory (and its second run's) beside the FDR."""
-
-_LARGEST_REPORT = 1 << 26
-"""The most bytes of an earlier ``eval.json`` read (a real one is far smaller)."""
 
 
 def forget_earlier_strategies(out: Path, *, log: str) -> None:
@@ -41,7 +42,7 @@ def forget_earlier_strategies(out: Path, *, log: str) -> None:
 def _named_strategies(report_path: Path) -> list[str]:
     """The strategies the eval report at ``report_path`` names, in order, once each; none when
     it is missing, no JSON object or too large for one."""
-    report = _json_file(report_path)
+    report = run_json_file(report_path)
     lists = (report.get("strategies"), report.get("not_run")) if isinstance(report, dict) else ()
     named = [
         e.get("strategy") if isinstance(e, dict) else e
@@ -50,17 +51,6 @@ def _named_strategies(report_path: Path) -> list[str]:
         for e in s
     ]
     return list(dict.fromkeys(n for n in named if isinstance(n, str)))
-
-
-def _json_file(path: Path) -> Any:
-    """What the JSON file ``path`` holds; None when it is no regular file, is too large, or
-    cannot be read or parsed."""
-    try:
-        if not path.is_file() or path.stat().st_size > _LARGEST_REPORT:
-            return None
-        return json.loads(path.read_bytes())
-    except (OSError, ValueError, RecursionError):
-        return None
 
 
 def _forget_run_dir(directory: Path, log: str) -> None:

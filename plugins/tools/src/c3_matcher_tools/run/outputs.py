@@ -26,6 +26,7 @@ from c3_matcher.atomic import (
     write_text_atomically,
 )
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.json_text import loads_json
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
 from c3_matcher_tools.run.records import FlightRun, FrameOutcome
 from c3_matcher_tools.run.report_html import no_report_html, write_html_report
@@ -54,6 +55,7 @@ __all__ = [
     "refresh_summary",
     "refuse_foreign_output",
     "refuse_other_dataset",
+    "run_json_file",
     "run_mark",
     "summary_above",
     "write_flight_outputs",
@@ -99,7 +101,7 @@ class RunLayout:
         :data:`RUN_MARK` at all, its report."""
         if (directory / RUN_MARK).is_symlink() or (directory / RUN_MARK).exists():
             return _marked_by(directory) == self.mark["command"]
-        report = _json_file(directory / self.report)
+        report = run_json_file(directory / self.report)
         return isinstance(report, dict) and self.keys <= report.keys()
 
 
@@ -236,7 +238,7 @@ def _of_root(path: Path, layout: RunLayout) -> bool:
 def _summary_rows(path: Path) -> list[dict[str, Any]] | None:
     """The rows of the summary of a run over several flights at ``path`` (a JSON list of
     objects, each naming a ``strategy`` and a ``flight``); None when it is no such file."""
-    rows = _json_file(path)
+    rows = run_json_file(path)
     ok = isinstance(rows, list) and all(
         isinstance(r, dict) and {"strategy", "flight"} <= r.keys() for r in rows
     )
@@ -324,7 +326,7 @@ def run_mark(
 def mark_ended(directory: Path) -> None:
     """``directory``'s :data:`RUN_MARK` rewritten without ``running``: the run ended, its
     files written."""
-    mark = _json_file(directory / RUN_MARK)
+    mark = run_json_file(directory / RUN_MARK)
     if isinstance(mark, dict) and "running" in mark:
         ended = {k: v for k, v in mark.items() if k != "running"}
         write_text_atomically(directory / RUN_MARK, json.dumps(ended) + "\n")
@@ -335,7 +337,7 @@ def refuse_other_dataset(directory: Path, dataset: FlightDataset, layout: RunLay
     when its :data:`RUN_MARK` says it holds a run of another dataset of that name: replacing
     it would lose the other's results (one of another name, written there by ``--out``, is
     replaced). ``InvalidInputError`` naming ``--out`` and both datasets."""
-    mark = _json_file(directory / RUN_MARK)
+    mark = run_json_file(directory / RUN_MARK)
     if not isinstance(mark, dict) or _marked_by(directory) != layout.mark["command"]:
         return
     earlier, ours = mark.get("dataset"), str(dataset.root.expanduser().resolve())
@@ -352,7 +354,7 @@ def mark_stopped(layout: RunLayout, directory: Path, run: FlightRun) -> Path:
     """Mark ``directory`` as holding ``run``, stopped part-way: its :data:`RUN_MARK` says so
     (``"complete": false``, the frames done and those it was to fly), written before the
     run's results, so that no reader takes them for a whole run's."""
-    mark = _json_file(directory / RUN_MARK)
+    mark = run_json_file(directory / RUN_MARK)
     kept = {k: v for k, v in mark.items() if k != "running"} if isinstance(mark, dict) else {}
     return write_text_atomically(
         directory / RUN_MARK, json.dumps({**layout.mark, **kept, **run.progress}) + "\n"
@@ -361,7 +363,7 @@ def mark_stopped(layout: RunLayout, directory: Path, run: FlightRun) -> Path:
 
 def _marked_by(directory: Path) -> str | None:
     """The command ``directory``'s :data:`RUN_MARK` names; None without one that names one."""
-    mark = _json_file(directory / RUN_MARK)
+    mark = run_json_file(directory / RUN_MARK)
     command = mark.get("command") if isinstance(mark, dict) else None
     return command if isinstance(command, str) else None
 
@@ -393,14 +395,14 @@ def _some(names: Sequence[str], shown: int = 3) -> str:
     return ", ".join(names[:shown]) + (f" and {more} more" if more > 0 else "")
 
 
-def _json_file(path: Path) -> Any:
-    """What the JSON file ``path`` holds; None when it is no regular file, is larger than a
-    run's mark or report can be, or cannot be read or parsed."""
+def run_json_file(path: Path) -> Any:
+    """What the JSON file ``path`` of a run holds (its mark, report or summary); None when it is
+    no regular file, is larger than a run's mark or report can be, or cannot be read or parsed."""
     try:
         if not path.is_file() or path.stat().st_size > _LARGEST_REPORT:
             return None
-        return json.loads(path.read_bytes())
-    except (OSError, ValueError, RecursionError):
+        return loads_json(path.read_bytes())
+    except (OSError, ValueError):
         return None
 
 
