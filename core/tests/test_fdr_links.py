@@ -76,15 +76,18 @@ def test_rotation_through_a_link_keeps_one_log_readable_by_either_name(tmp_path:
         assert check.segments == (*(tmp_path / n for n in rotated), real)
 
 
-def test_a_fresh_log_through_a_link_keeps_the_link(tmp_path: Path) -> None:
+def test_a_fresh_log_through_a_link_removes_the_link_not_the_log_it_leads_to(
+    tmp_path: Path,
+) -> None:
     link, real = _linked(tmp_path)
     rec = JsonlFdrRecorder(link, FakeClock(), max_bytes=1024)
     for i in range(40):
         rec.record("x.tick", {"i": i, "pad": "p" * 40})
     rec.close()
-    JsonlFdrRecorder(link, FakeClock(), fresh=True).close()  # the old log goes, not the link
-    assert link.is_symlink() and not list(tmp_path.glob("shared.0*.jsonl"))
-    assert [r["seq"] for r in read_fdr_log(real)] == []
+    JsonlFdrRecorder(link, FakeClock(), fresh=True).close()  # the link goes, never followed
+    assert link.is_file() and not link.is_symlink() and list(read_fdr_log(link)) == []
+    assert len(list(tmp_path.glob("shared.0*.jsonl"))) > 2
+    assert [r["seq"] for r in read_fdr_log(real)] == list(range(1, 41))
 
 
 def test_a_link_to_a_file_not_made_yet_makes_it_and_its_folders(tmp_path: Path) -> None:

@@ -7,8 +7,9 @@ import argparse
 import contextlib
 import os
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import TYPE_CHECKING, TextIO
 
 from c3_matcher.errors import OutputStreamError
@@ -17,7 +18,7 @@ if TYPE_CHECKING:
     from c3_matcher.config import C3Settings
     from c3_matcher.plugins.manager import PluginHost
 
-__all__ = ["CommandContext", "Handler", "result_stream"]
+__all__ = ["CommandContext", "Handler", "result_stream", "without_controls"]
 
 
 @dataclass(frozen=True)
@@ -34,7 +35,8 @@ class CommandContext:
 
     def out(self, text: str = "") -> None:
         """One line of the command's result on ``stdout`` (``OutputStreamError`` when it cannot
-        be written); what its encoding cannot hold escaped (:func:`_encodable`)."""
+        be written); control characters and what its encoding cannot hold escaped
+        (:func:`_encodable`)."""
         with _writing("stdout"):
             print(_encodable(text, self.stdout), file=self.stdout)
 
@@ -45,18 +47,38 @@ class CommandContext:
             self.stdout.flush()
 
     def err(self, text: str) -> None:
-        """One line of progress or diagnostics on ``stderr`` (flushed). A line that cannot be
-        written (a full log disk, a closed pipe) is lost, not the command: its result, exit
-        status and files say what happened."""
+        """One line of progress or diagnostics on ``stderr`` (flushed), escaped as ``out`` is. A
+        line that cannot be written (a full log disk, a closed pipe) is lost, not the command:
+        its result, exit status and files say what happened."""
         with contextlib.suppress(OSError, ValueError):
             print(_encodable(text, self.stderr), file=self.stderr, flush=True)
 
 
+_CONTROL_ESCAPES: Mapping[int, str] = MappingProxyType(
+    {
+        code: f"\\x{code:02x}"
+        for code in (*range(0x20), *range(0x80, 0xA0))
+        if chr(code) not in "\n\t"
+    }
+)
+"""The C0 and C1 control characters but newline and tab, each to its escape (ESC: ``\\x1b``)."""
+
+
+def without_controls(text: str) -> str:
+    """``text`` with its C0 and C1 control characters but newline and tab as their escapes
+    (``\\x1b``): as a line for a terminal, which then obeys none of them."""
+    return text.translate(_CONTROL_ESCAPES)
+
+
 def _encodable(text: str, stream: TextIO) -> str:
-    """``text`` as ``stream`` can write it: what its encoding cannot hold (a file name's byte
-    that is no UTF-8, which Python holds as a lone surrogate; a CJK name under a Latin-1
-    locale) as Python's escapes (``\\udce9``, ``\\u6771``), as Python's own stderr writes it. A
-    name then costs no command its result; JSON text is ASCII already (``json.dumps``)."""
+    """``text`` as ``stream`` can write it and no terminal obeys: C0 and C1 control characters
+    but newline and tab (ESC, CR, BEL, CSI: a name or a store's metadata from a hostile file
+    would otherwise erase lines and print fake ones) as ``\\x1b``; what its encoding cannot
+    hold (a file name's byte that is no UTF-8, which Python holds as a lone surrogate; a CJK
+    name under a Latin-1 locale) as Python's escapes (``\\udce9``, ``\\u6771``), as Python's own
+    stderr writes it. A name then costs no command its result; JSON text is ASCII already,
+    its control characters escaped (``json.dumps``), so it is written as it is."""
+    text = without_controls(text)
     encoding = getattr(stream, "encoding", None)
     if not encoding:  # a stream of text, not of bytes (``io.StringIO``): it takes anything
         return text

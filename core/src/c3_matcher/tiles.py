@@ -11,7 +11,13 @@ and refuses an image above its ``max_pixels`` argument (width x height; the conf
 ``[matcher] max_image_pixels`` where the caller has a configuration, else
 ``DEFAULT_MAX_IMAGE_PIXELS``, 50 Mpx) before decoding it; an image whose size cannot be read
 from its header is refused too, and so is a PNG cut short (its chunks end before IEND: libpng,
-given one, writes its own line to the process's stderr). The limit is a value each reader is
+given one, writes its own line to the process's stderr), and a TIFF whose first IFD gives its
+width or height twice (libtiff believes the first, a reader keeping the last would check a
+size never decoded). The decoded image's size is checked against the limit too, for any header
+read otherwise than its decoder reads it: that check costs nothing, but comes after the
+decoder's allocation (bounded then only by OpenCV's own limit, ``OPENCV_IO_MAX_IMAGE_PIXELS``,
+2^30 px by default), so it keeps such an image from the matcher, not from memory. The limit
+is a value each reader is
 given, never process state: ``read_image``, ``MmapTileHandle`` and ``BytesTileHandle`` take it
 too.
 """
@@ -62,11 +68,15 @@ def decode_image(
 ) -> NDArray[np.uint8]:
     """Decode PNG/JPEG/TIFF/... bytes to uint8 RGB (H, W, 3); 16-bit is scaled, alpha dropped,
     4-band (e.g. R,G,B,NIR GeoTIFF) keeps its first three bands in file order. An image above
-    ``max_pixels`` (width x height, read from its header) is refused before decoding."""
+    ``max_pixels`` (width x height, read from its header) is refused before decoding, and one
+    that decodes above it all the same is refused after (see the module docstring)."""
     raw = np.frombuffer(buffer, dtype=np.uint8)
     if raw.size == 0:
         raise ImageDecodeError(what, "no bytes to decode")
-    size = image_header_size(raw.data)  # the whole buffer: a TIFF's IFD may follow its pixels
+    try:
+        size = _header_size(raw.data)  # the whole buffer: a TIFF's IFD may follow its pixels
+    except RepeatedTiffTagError as exc:
+        raise ImageDecodeError(what, str(exc)) from None
     if size is None:
         raise ImageDecodeError(what, f"not a decodable image ({DECODABLE_FORMATS})")
     damage = _png_damage(raw)  # refused here: libpng would write its own line to fd 2
@@ -85,6 +95,13 @@ def decode_image(
     image = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ImageDecodeError(what, f"not a decodable image ({DECODABLE_FORMATS})")
+    decoded_h, decoded_w = image.shape[:2]
+    if decoded_w * decoded_h > limit:  # a header read otherwise than the decoder reads it
+        raise ImageDecodeError(
+            what,
+            f"decoded to {decoded_w}x{decoded_h} px, above the limit of {limit} px ([matcher] "
+            f"max_image_pixels), though its header declares {width}x{height} px",
+        )
     return to_rgb8(image, what, bgr=True)
 
 
@@ -142,11 +159,25 @@ def to_rgb8(image: NDArray[np.generic], what: str, *, bgr: bool) -> NDArray[np.u
     return np.ascontiguousarray(rgb, dtype=np.uint8)
 
 
+class RepeatedTiffTagError(ValueError):
+    """A TIFF whose first IFD gives its width or height more than once: which one the decoder
+    believes is its own choice (libtiff keeps the first), so no size read from it is."""
+
+
 def image_header_size(head: bytes | memoryview) -> tuple[int, int] | None:
     """(width, height) from the first bytes of a PNG, JPEG, TIFF, BMP or WebP file, or None
-    when the format or its header is not recognised (a GIF too: OpenCV does not decode it).
+    when the format or its header is not recognised (a GIF too: OpenCV does not decode it) or
+    cannot be believed (a TIFF giving its width or height twice: :class:`RepeatedTiffTagError`).
     A TIFF's first IFD must lie within ``head`` (libtiff and OpenCV write it after the pixels:
     :func:`image_file_size` reads it where it is)."""
+    try:
+        return _header_size(head)
+    except RepeatedTiffTagError:
+        return None
+
+
+def _header_size(head: bytes | memoryview) -> tuple[int, int] | None:
+    """:func:`image_header_size`, raising :class:`RepeatedTiffTagError` where that says None."""
     try:
         if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
             w, h = struct.unpack(">II", head[16:24])
@@ -232,6 +263,12 @@ def _tiff_size(head: bytes | memoryview, count: int | None = None) -> tuple[int,
         entry = head[offset + 2 + 12 * k : offset + 14 + 12 * k]
         tag, typ = struct.unpack(endian + "HH", entry[:4])
         if tag in (256, 257):
+            if tag in dims:
+                name = "width" if tag == 256 else "height"
+                raise RepeatedTiffTagError(
+                    f"a TIFF whose first IFD gives its {name} (tag {tag}) twice: its size "
+                    "cannot be believed, refused before decoding"
+                )
             value = struct.unpack(
                 endian + ("H" if typ == 3 else "I"), entry[8 : 10 if typ == 3 else 12]
             )

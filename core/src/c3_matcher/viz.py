@@ -5,9 +5,10 @@ then warped by the query -> tile homography, so it reads north-up at the tile's 
 that tile with the query's footprint drawn on it, and at most ``max_lines`` (100) evenly chosen
 correspondence lines between the two: green where the point agrees with the fitted homography
 (within ``good_px`` tile px, or with the ground truth when ``errors_px`` is given), red where it
-does not; bottom: a strip of every candidate (in input order) with its inlier count, ``BEST``,
-``TRUE``/``dropped`` marks. A failed frame (no homography) shows the original query beside the
-candidates with the reason in the title.
+does not; bottom: a strip of the candidates (in input order) with their inlier counts,
+``BEST``, ``TRUE``/``dropped`` marks: as many as fit at ``MIN_CELL`` px each, the best and true
+ones always, the rest counted ("+M more"). A failed frame (no homography) shows the original
+query beside the candidates with the reason in the title.
 """
 
 from __future__ import annotations
@@ -29,6 +30,9 @@ __all__ = ["CandidateView", "draw_matches", "render_match", "write_png"]
 GOOD = (60, 200, 60)  # RGB
 BAD = (230, 40, 40)
 FOOT = (255, 210, 0)
+MIN_CELL = 96
+"""The least width of a candidate's cell in the strip, px: past as many as fit, the rest are
+counted ("+M more"), never drawn smaller (a frame may have up to 1024 candidates)."""
 
 
 @dataclass(frozen=True)
@@ -84,13 +88,29 @@ def _footprint(
     return cam.apply_homography(h, ring)
 
 
+def _shown(candidates: Sequence[CandidateView], slots: int) -> list[int]:
+    """The indices of the candidates the strip draws, in input order: all of them when they
+    fit in ``slots`` cells, else ``slots - 1`` (one cell says how many more there are): the
+    best and true ones first, the rest by input order."""
+    if len(candidates) <= slots:
+        return list(range(len(candidates)))
+    marked = [i for i, c in enumerate(candidates) if c.best or c.is_true]
+    chosen = frozenset(marked)
+    rest = [i for i in range(len(candidates)) if i not in chosen]
+    return sorted((marked + rest)[: max(0, slots - 1)])
+
+
 def _strip(candidates: Sequence[CandidateView], width: int, cell: int) -> NDArray[np.uint8]:
-    n = max(1, len(candidates))
-    cell = min(cell, width // n)
+    """The candidates' strip, ``width`` px wide: a cell of at most ``cell`` px each, never
+    under ``MIN_CELL`` (nor over ``width``); the candidates that do not fit are counted in the
+    last cell ("+M more"), the best and true ones always drawn (:func:`_shown`)."""
+    cell = min(max(min(cell, width // max(1, len(candidates))), MIN_CELL), width)
+    shown = _shown(candidates, max(1, width // cell))
     strip = np.full((cell + 8, width, 3), 255, np.uint8)
-    for i, c in enumerate(candidates):
-        thumb, _ = _fit(c.image, cell - 8)
-        x = i * cell + 4
+    for slot, i in enumerate(shown):
+        c = candidates[i]
+        thumb, _ = _fit(c.image, max(1, cell - 8))
+        x = slot * cell + 4
         strip[4 : 4 + thumb.shape[0], x : x + thumb.shape[1]] = thumb
         colour = GOOD if c.best else (150, 150, 150)
         if c.best and c.is_true is False:
@@ -100,6 +120,8 @@ def _strip(candidates: Sequence[CandidateView], width: int, cell: int) -> NDArra
         marks = (" BEST" if c.best else "") + (" TRUE" if c.is_true else "")
         _text(strip, f"#{i} {count}{marks}", (x + 6, 22))
         _text(strip, c.label, (x + 6, thumb.shape[0] - 4), 0.4)
+    if len(shown) < len(candidates):
+        _text(strip, f"+{len(candidates) - len(shown)} more", (len(shown) * cell + 10, cell // 2))
     return strip
 
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from c3_matcher.file_kinds import special_kind
+from c3_matcher.file_kinds import kind_of, special_kind
 from c3_matcher.json_text import loads_json
 
 SEGMENT_DIGITS = 6
@@ -37,13 +37,19 @@ BLOCK_BYTES = 1 << 16
 """How much of a segment is read at a time from its end (:func:`blocks_backward`)."""
 
 
-def live_segment(path: Path) -> Path:
+def live_segment(path: Path, *, fresh: bool = False) -> Path:
     """The file the log's name ``path`` leads to: ``~`` expanded and every symbolic link
     resolved (``os.path.realpath``), taken once when a log is opened or read. Its lock, rotated
     segments, ``.meta`` and ``.torn`` lie beside this file, so any two names of one file (a link
     to it, a link to a folder above it) are one log with one writer. A link to nothing yet leads
-    to the file it names, made with its missing folders as for any path."""
-    return Path(os.path.realpath(Path(path).expanduser()))
+    to the file it names, made with its missing folders as for any path. With ``fresh`` (a log
+    started anew, its old files removed: a ground run's) only the folder is resolved: a link at
+    the name itself is an old file of the log, removed with the rest and never followed, so a
+    link left in an earlier run's folder cannot lead that removal to a file elsewhere."""
+    given = Path(path).expanduser()
+    if fresh:
+        return Path(os.path.realpath(given.parent)) / given.name
+    return Path(os.path.realpath(given))
 
 
 def segment_path(path: Path, number: int) -> Path:
@@ -75,11 +81,15 @@ def rotated_segments(path: Path) -> list[tuple[int, Path]]:
     return sorted(out)
 
 
-def refusal(path: Path) -> str | None:
+def refusal(path: Path, *, fresh: bool = False) -> str | None:
     """Why the recorder may not write its live segment at ``path`` (None: it may): a directory;
     something that is not a regular file (a device, a FIFO, a socket: judged by ``stat``, never
     opened, so never read or waited on); a file where a folder above it should be; a file
-    holding something other than records (:func:`is_foreign`)."""
+    holding something other than records (:func:`is_foreign`). With ``fresh`` a link at
+    ``path`` is not judged by what it leads to: it is removed, never followed
+    (:func:`live_segment`)."""
+    if fresh and path.is_symlink():
+        return None
     special = special_kind(path)
     if special == "a directory":
         return "is a directory (give a file path)"
@@ -163,8 +173,9 @@ def read_meta(path: Path) -> dict[str, Any]:
 def write_meta(path: Path, data: Mapping[str, Any]) -> None:
     """Atomically replace the small state file (never a segment)."""
     tmp = path.with_name(path.name + ".tmp")
+    tmp.unlink(missing_ok=True)  # a file left by a stop, or a link: made anew, never followed
     try:
-        with tmp.open("wb") as fh:
+        with os.fdopen(open_regular(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL), "wb") as fh:
             fh.write(json.dumps(dict(data)).encode())
             fh.flush()
             os.fsync(fh.fileno())
@@ -222,7 +233,7 @@ def drop_half_rotated_live(path: Path) -> None:
         return
     live = path.stat()
     for _, p in rotated_segments(path)[-1:]:
-        st = p.stat()
+        st = p.lstat()  # a symbolic link to the live segment is no half rotation
         if (st.st_dev, st.st_ino) == (live.st_dev, live.st_ino):
             path.unlink()
             fsync_dir(path.parent)
@@ -231,8 +242,8 @@ def drop_half_rotated_live(path: Path) -> None:
 def open_for_append(path: Path) -> int:
     """``path`` opened to append; a file this creates is made durable in its directory, so
     that the records fsynced into it survive a power cut with it."""
-    created = not path.exists()
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    created = not os.path.lexists(path)
+    fd = open_regular(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
     if created:
         try:
             fsync_dir(path.parent)
@@ -240,6 +251,39 @@ def open_for_append(path: Path) -> int:
             os.close(fd)
             raise
     return fd
+
+
+class NotRegularFileError(OSError):
+    """A file of the log the recorder would write (its lock, ``.meta``, ``.torn``, the live
+    segment) that is a symbolic link at its name or no regular file: refused, never written
+    through, so a link left beside a log cannot lead a write (or a cut) to a file elsewhere."""
+
+
+def open_regular(path: Path, flags: int) -> int:
+    """``path`` opened by ``os.open`` with ``flags`` (made 0o644 when ``O_CREAT`` creates it),
+    never through a symbolic link at its name (``O_NOFOLLOW``) and only when it is a regular
+    file (a FIFO is not waited on): else :class:`NotRegularFileError` naming it."""
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+    except OSError as exc:
+        kind = "a symbolic link" if path.is_symlink() else special_kind(path)
+        if kind is None:
+            raise
+        raise NotRegularFileError(exc.errno, _not_regular(path, kind)) from exc
+    kind = kind_of(os.fstat(fd).st_mode)
+    if kind is not None:
+        os.close(fd)
+        raise NotRegularFileError(errno.EINVAL, _not_regular(path, kind))
+    os.set_blocking(fd, True)
+    return fd
+
+
+def _not_regular(path: Path, kind: str) -> str:
+    """Why the recorder writes no file of its log at ``path``, which is ``kind``."""
+    return (
+        f"{path} is {kind}, not a regular file: the recorder writes no file of its log through "
+        "a link or into anything else; remove it, or give another path"
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -261,7 +305,7 @@ def cut_torn_tail(path: Path, torn_path: Path, end: int | None = None) -> TornCu
     acknowledged, and appending after them would spoil the next. None when nothing was cut."""
     if not path.exists():
         return None
-    with path.open("r+b") as fh:
+    with os.fdopen(open_regular(path, os.O_RDWR), "r+b") as fh:
         size = os.fstat(fh.fileno()).st_size
         keep = end if end is not None and end < size else _complete_lines(fh, size)
         if keep == size:

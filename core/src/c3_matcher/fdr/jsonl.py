@@ -96,7 +96,8 @@ class JsonlFdrRecorder:
     ``fresh``: start a new log at ``path`` (a ground run's FDR, started anew with each run):
     only once the lock is held are the previous live segment, its rotated segments, ``.meta``
     and ``.torn`` removed, so a recorder refused by the lock leaves another writer's files as
-    they are; ``seq`` then starts at 1.
+    they are; ``seq`` then starts at 1. A link at ``path`` is then one of those files: removed,
+    never followed (``live_segment``).
     """
 
     def __init__(
@@ -112,7 +113,7 @@ class JsonlFdrRecorder:
             if value < MIN_BYTES:
                 raise InvalidInputError(f"fdr.{name}", f"must be >= {MIN_BYTES}, got {value}")
         self._shown = Path(path).expanduser()  # the name given: what messages say
-        self._path = live_segment(self._shown)  # the file: where the log's files are
+        self._path = live_segment(self._shown, fresh=fresh)  # where the log's files are
         self._pid = os.getpid()  # a fork's child writes nothing: refused before ``_lock``
         self._clock = clock
         self._max_bytes = max_bytes
@@ -126,7 +127,7 @@ class JsonlFdrRecorder:
         self._lock_unwritten = False  # it lacks our bytes: a start on a full disk
         self._noted = ""  # where the last write failure's waiting records are named, or why not
         what = f"fdr.path {self._shown}"
-        self._lock_fd = take_lock(self._path, what)
+        self._lock_fd = take_lock(self._path, what, self._shown, fresh=fresh)
         try:
             carried = None if fresh else read_lock(self._lock_path)[1]
             if fresh:

@@ -19,7 +19,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from c3_matcher.fdr.files import make_dirs_durably, refusal
+from c3_matcher.fdr.files import NotRegularFileError, make_dirs_durably, open_regular, refusal
 from c3_matcher.fdr.records import FdrOpenError
 from c3_matcher.json_text import loads_json
 
@@ -155,17 +155,22 @@ def held_by(path: Path) -> str:
     return f"another process (pid {holder}) is writing this FDR; one writer per path"
 
 
-def take_lock(log: Path, what: str) -> int:
+def take_lock(log: Path, what: str, shown: Path, *, fresh: bool = False) -> int:
     """Hold ``lock_path(log)``: its descriptor, locked (``FdrOpenError`` naming ``what`` when
-    another recorder holds it, or when ``log`` is refused by ``refusal``, before anything is
-    made: a directory, not a regular file, under a file, or holding something other than
-    records: never cut, appended to or removed)."""
+    another recorder holds it, or when the log, by the name ``shown`` it was given, is refused
+    by ``refusal``, before anything is made: a directory, not a regular file, under a file
+    (named as given), or holding something other than records: never cut, appended to or
+    removed; or when the lock file is a symbolic link or no regular file: never followed, as
+    its bytes are rewritten and cut; ``fresh``: see ``refusal``)."""
     try:
-        refused = refusal(log)  # an OSError deciding it: cannot create
+        # by the name given first (what it says), then the file it leads to (a link's folders)
+        refused = refusal(shown, fresh=fresh) or refusal(log, fresh=fresh)  # OSError: cannot create
         if refused is not None:
             raise FdrOpenError(what, refused)
         make_dirs_durably(log.parent)
-        fd = os.open(lock_path(log), os.O_RDWR | os.O_CREAT, 0o644)
+        fd = open_regular(lock_path(log), os.O_RDWR | os.O_CREAT)
+    except NotRegularFileError as exc:
+        raise FdrOpenError(what, exc.strerror or str(exc)) from exc
     except OSError as exc:
         raise FdrOpenError(what, f"cannot create: {exc.strerror or exc}") from exc
     try:

@@ -10,6 +10,7 @@ and its size), the next ones say nothing until a rotation succeeds again.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -62,7 +63,7 @@ class Rotation:
         its number and ``last_seq`` in ``.meta``. ``False`` when nothing could be moved: the
         first failure of an outage is kept for ``take_failure``."""
         number = self._reserved or self.next_number()
-        while segment_path(self._path, number).exists():  # never overwrite (the lock is ours)
+        while os.path.lexists(segment_path(self._path, number)):  # never overwrite (ours: locked)
             number += 1
         try:  # reserve the number first: a failure here leaves everything as it was
             write_meta(meta_path(self._path), {"last_segment": number, "last_seq": last_seq})
