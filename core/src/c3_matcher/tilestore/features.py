@@ -35,7 +35,8 @@ pixel), scores float32 (n,), descriptors (n, D) of the backend's own dtype (``de
 float32, or uint8 for packed binary descriptors), never cast.
 
 Reliability in flight: the read connection never waits on a lock (busy timeout 0). When the
-sidecar is locked or unreadable the store says so once (:class:`FeatureStoreUnavailableError`),
+sidecar is locked, unreadable or does not answer a read within ``bounded.READ_S`` (a view
+that never ends) the store says so once (:class:`FeatureStoreUnavailableError`),
 then serves nothing for ``retry_s`` seconds (the pipeline extracts) and tries again; a corrupt
 row (checksum, shapes, or database pages SQLite finds malformed) is refused once
 (:class:`StoredFeaturesCorruptError`, naming the window) and never served. The ground writer

@@ -13,6 +13,7 @@ import stat
 from pathlib import Path
 
 from c3_matcher.file_kinds import kind_of
+from c3_matcher.tilestore.bounded import BoundedConnection, QueryTimeoutError
 from c3_matcher.tilestore.sidecar_file import sqlite_code
 
 __all__ = [
@@ -57,7 +58,10 @@ def open_error(path: Path, exc: sqlite3.DatabaseError, kind: str) -> str:
     """What an SQLite error on opening the store file ``path`` (``kind``, e.g. ``"an MBTiles
     file"``) says about it: locked, not to be opened (SQLite's CANTOPEN: the file's
     permission, a read-only folder a journal needs), a damaged one (a page SQLite finds
-    malformed) or not an SQLite database (a text file)."""
+    malformed), one whose tables do not answer in time (a view that never ends: the
+    :class:`QueryTimeoutError`'s words) or not an SQLite database (a text file)."""
+    if isinstance(exc, QueryTimeoutError):
+        return f"{exc}: refused, its tables (or views) do not answer in time"
     if _locked(exc):
         return f"locked by another process: {exc}"
     code = getattr(exc, "sqlite_errorcode", 0) & 0xFF
@@ -83,14 +87,21 @@ def read_only_uri(path: str | Path) -> str:
     return f"{p.as_uri()}?mode=ro{'&immutable=1' if unchanging(p) else ''}"
 
 
-def connect_read_only(path: str | Path, *, timeout: float) -> sqlite3.Connection:
+def connect_read_only(path: str | Path, *, timeout: float) -> BoundedConnection:
     """A read-only connection to the store file ``path`` (:func:`read_only_uri`), usable from
     any thread, waiting at most ``timeout`` seconds on a lock, its pages read with ``read()``,
     never memory-mapped (``PRAGMA mmap_size=0``, whatever SQLite's build default): a file cut
     short or rewritten in place while open (``truncate``, ``cp``) is an SQLite error at worst,
-    where a mapped page past its new end would kill the process (SIGBUS).
+    where a mapped page past its new end would kill the process (SIGBUS). Its statements are
+    bounded in :meth:`~c3_matcher.tilestore.bounded.BoundedConnection.within`.
     Raises SQLite's error when the file cannot be opened."""
-    db = sqlite3.connect(read_only_uri(path), uri=True, timeout=timeout, check_same_thread=False)
+    db = sqlite3.connect(
+        read_only_uri(path),
+        uri=True,
+        timeout=timeout,
+        check_same_thread=False,
+        factory=BoundedConnection,
+    )
     try:
         db.execute("PRAGMA mmap_size=0")
     except BaseException:

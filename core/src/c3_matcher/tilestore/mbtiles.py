@@ -19,7 +19,8 @@ zooms (integers >= 0); a file that is not is ``InvalidInputError`` naming it and
 
 Reading opens the database read-only and never memory-maps it (``files.connect_read_only``):
 pages are ``read()`` into SQLite's cache, so a file emptied or cut short while open is an
-outage (below), never a SIGBUS.
+outage (below), never a SIGBUS. A ``tiles`` view may never end: the read at open ends within
+``bounded.OPEN_S`` (refused), a tile's within ``READ_S`` (its error); a signal stops any.
 Each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way) and handles
 expose it as a ``memoryview`` without further copies. A database error while reading a tile (a
 corrupt page) is raised as that tile's error, never a crash of the caller, and the thread's
@@ -70,6 +71,7 @@ from typing import Final
 from c3_matcher._validate import whole_number
 from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.tilestore.base import TileStoreBase
+from c3_matcher.tilestore.bounded import READ_S, UNBOUNDED, BoundedConnection
 from c3_matcher.tilestore.features import MapFeatureStore, sidecar_path
 from c3_matcher.tilestore.files import connect_read_only, open_error, open_failure
 from c3_matcher.tilestore.mbtiles_file import (
@@ -82,6 +84,7 @@ from c3_matcher.tilestore.mbtiles_file import (
     holds,
     probe_failure,
     read_store_file,
+    stored_zooms,
     verified_tile,
 )
 from c3_matcher.tilestore.sidecar import DEFAULT_RETRY_S, FeatureStoreUnavailableError
@@ -117,7 +120,7 @@ class MBTilesStore(TileStoreBase):
         self._clock = clock
         self._retry_at = 0.0
         self._local = threading.local()
-        self._connections: dict[threading.Thread, sqlite3.Connection] = {}
+        self._connections: dict[threading.Thread, BoundedConnection] = {}
         self._conn_lock = threading.Lock()
         self._closed = False
         self._pid = os.getpid()  # a fork's child closes its copy without touching a connection
@@ -140,17 +143,17 @@ class MBTilesStore(TileStoreBase):
         return self._followed.current.has_digests
 
     @property
-    def _db(self) -> sqlite3.Connection:
+    def _db(self) -> BoundedConnection:
         """This thread's read-only connection to the store file as last read (see
         :meth:`_connection`), the file looked at first when ``check_s`` has passed."""
         self._follow_in_time()
         return self._connection(self._followed.current)
 
-    def _connection(self, file: StoreFile) -> sqlite3.Connection:
+    def _connection(self, file: StoreFile) -> BoundedConnection:
         """This thread's read-only connection made since ``file`` was read (when it was not,
         the thread's older one and those of ended threads are closed); a closed store refuses
         (TileStoreUnusableError)."""
-        held: tuple[StoreFile, sqlite3.Connection] | None = getattr(self._local, "held", None)
+        held: tuple[StoreFile, BoundedConnection] | None = getattr(self._local, "held", None)
         if held is not None and held[0] is file:
             return held[1]
         with self._conn_lock:
@@ -252,8 +255,8 @@ class MBTilesStore(TileStoreBase):
         """The (blob, sha256 or None) row of the tile ``key`` (zoom, column, TMS row), read with
         the query of the store file as last read, on this thread's connection made since."""
         file = self._followed.current
-        found: tuple[bytes | None, str | None] | None
-        found = self._connection(file).execute(file.query, key).fetchone()
+        with (db := self._connection(file)).within(READ_S, "the read"):
+            found: tuple[bytes | None, str | None] | None = db.execute(file.query, key).fetchone()
         return found
 
     def _fetch_again(
@@ -295,7 +298,7 @@ class MBTilesStore(TileStoreBase):
     def _forget_connection(self) -> None:
         """Close this thread's connection after a read error the store itself does not share:
         its next read opens a fresh one."""
-        held: tuple[StoreFile, sqlite3.Connection] | None = getattr(self._local, "held", None)
+        held: tuple[StoreFile, BoundedConnection] | None = getattr(self._local, "held", None)
         if held is None:
             return
         with self._conn_lock:
@@ -304,30 +307,31 @@ class MBTilesStore(TileStoreBase):
         held[1].close()
 
     def zooms(self) -> list[int]:
-        """The zooms stored; a zoom_level that is no zoom (the check at open sees the smallest
-        and the largest only) is InvalidInputError naming the store."""
-        found = [r[0] for r in self._db.execute("SELECT DISTINCT zoom_level FROM tiles ORDER BY 1")]
-        zooms = [whole_number(zoom) for zoom in found]
-        for zoom, value in zip(zooms, found, strict=True):
-            if zoom is None or zoom < 0:
-                raise self._refusal(holds("zoom_level", value))
-        return list(dict.fromkeys(z for z in zooms if z is not None))
+        """The zooms stored (:func:`stored_zooms`); a zoom_level that is no zoom, or a tiles
+        table not listing them in time, is InvalidInputError naming the store."""
+        try:
+            found = stored_zooms(self._db)
+        except sqlite3.Error as exc:
+            raise InvalidInputError(str(self.path), f"listing its zooms failed: {exc}") from exc
+        if isinstance(found, str):
+            raise self._refusal(found)
+        return found
 
     def tiles(self, zoom: int) -> Iterator[tuple[int, int]]:
-        """XYZ (x, y) of every stored tile at ``zoom``; a tile_column or tile_row that is no
-        integer is InvalidInputError naming the store."""
-        for col, row in self._db.execute(
-            "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=? ORDER BY 2 DESC, 1", (zoom,)
-        ):
-            yield self._xyz(zoom, col, row)
+        """XYZ (x, y) of every stored tile at ``zoom`` (unbounded in time: a signal stops it);
+        a tile_column or tile_row that is no integer is InvalidInputError naming the store."""
+        query = "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=? ORDER BY 2 DESC, 1"
+        with (db := self._db).within(UNBOUNDED, "listing its tiles"):
+            for col, row in db.execute(query, (zoom,)):
+                yield self._xyz(zoom, col, row)
 
     def stored_in(
         self, zoom: int, columns: tuple[int, int], rows: tuple[int, int]
     ) -> list[tuple[int, int]]:
         """XYZ (x, y) of the tiles stored at ``zoom`` with x in ``columns`` and y in ``rows``
-        (first, last), found in the tile index by one query: no tile is read, so a damaged or
-        empty one is listed too (:meth:`tile_bytes` says what it holds). A database error is
-        InvalidInputError naming the store."""
+        (first, last), found in the tile index by one query within ``READ_S``: no tile is read,
+        so a damaged or empty one is listed too (:meth:`tile_bytes` says what it holds). A
+        database error is InvalidInputError naming the store."""
         last = (1 << zoom) - 1
         query = (
             "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=?"
@@ -335,7 +339,8 @@ class MBTilesStore(TileStoreBase):
         )
         args = (zoom, *columns, last - rows[1], last - rows[0])
         try:
-            found = self._db.execute(query, args).fetchall()
+            with (db := self._db).within(READ_S, "the listing"):
+                found = db.execute(query, args).fetchall()
         except sqlite3.Error as exc:
             raise InvalidInputError(str(self.path), f"listing its tiles failed: {exc}") from exc
         if all(type(col) is int and type(row) is int for col, row in found):

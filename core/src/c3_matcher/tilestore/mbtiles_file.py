@@ -18,6 +18,7 @@ from typing import Final, NamedTuple
 
 from c3_matcher._validate import finite_float, whole_number
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.tilestore.bounded import OPEN_S, READ_S, BoundedConnection
 from c3_matcher.tilestore.files import connect_read_only
 
 __all__ = [
@@ -30,6 +31,7 @@ __all__ = [
     "holds",
     "probe_failure",
     "read_store_file",
+    "stored_zooms",
     "verified_tile",
 ]
 
@@ -84,19 +86,23 @@ class StoreFile:
 
 
 def read_store_file(
-    path: Path, identity: FileIdentity | None, *, timeout: float
+    path: Path, identity: FileIdentity | None, *, timeout: float, bound: float = OPEN_S
 ) -> StoreFile | str:
     """The store file ``path`` (whose identity, taken before, is ``identity``) read once on a
     connection of its own, closed after: a :class:`StoreFile`, or why it is no MBTiles store
     (a table or a column missing, a zoom_level that is no zoom). Raises SQLite's error when
-    it cannot be read (locked, damaged, not an SQLite database)."""
+    it cannot be read (locked, damaged, not an SQLite database), QueryTimeoutError when it
+    does not answer within ``bound`` seconds (a ``tiles`` view that never ends: ``OPEN_S`` at
+    open, ``READ_S`` when a running store reads a changed file, on a frame's thread)."""
     db = connect_read_only(path, timeout=timeout)
     try:
-        tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
-        wrong = _not_mbtiles(db, tables)
-        if wrong is not None:
-            return wrong
-        metadata = {str(k): str(v) for k, v in db.execute("SELECT name, value FROM metadata")}
+        with db.within(bound, "reading its tables as at open"):
+            tables = {r[0] for r in db.execute("SELECT name FROM sqlite_master")}
+            wrong = _not_mbtiles(db, tables)
+            if wrong is not None:
+                return wrong
+            rows = db.execute("SELECT name, value FROM metadata")
+            metadata = {str(k): str(v) for k, v in rows}
     finally:
         db.close()
     return StoreFile(identity, metadata, "c3_tile_digest" in tables)
@@ -131,18 +137,20 @@ class FollowedFile:
     def look(self) -> StoreFile | None:
         """The file read again, now ``current``, when the path names another file than was
         read or the file changed; None when it did not, or is removed (left as it is), or
-        cannot be read as a store now (emptied, half-written: ``current`` then has no identity,
-        so every thread reads the file as it stands, and the next look reads it again)."""
+        cannot be read as a store within ``READ_S`` now (emptied, half-written, a view that
+        never ends: ``current`` then carries that file's identity, so every thread reads the
+        file as it stands, and the file is read again once it changes again: a frame waits on
+        such a file at most ``READ_S`` a change)."""
         with self._lock:
             identity = file_identity(self._path)
             if identity is None or identity == self.current.identity:
                 return None
             try:
-                found = read_store_file(self._path, identity, timeout=LOCK_WAIT_S)
+                found = read_store_file(self._path, identity, timeout=LOCK_WAIT_S, bound=READ_S)
             except sqlite3.Error:
                 found = "unreadable"
             if isinstance(found, str):
-                self.current = replace(self.current, identity=None)
+                self.current = replace(self.current, identity=identity)
                 return None
             self.current = found
             return found
@@ -168,12 +176,15 @@ def verified_tile(found: tuple[bytes | None, str | None] | None, what: str) -> m
 
 def probe_failure(path: Path, *, timeout: float) -> sqlite3.Error | None:
     """SQLite's error when a fresh connection cannot read the store file ``path`` (its
-    metadata, a tile), so the whole store is unusable; None when it answers."""
+    metadata, a tile, each within ``READ_S``), so the whole store is unusable; None when it
+    answers."""
     try:
         probe = connect_read_only(path, timeout=timeout)
         try:
-            probe.execute("SELECT count(*) FROM metadata").fetchone()
-            probe.execute("SELECT tile_data FROM tiles LIMIT 1").fetchone()
+            with probe.within(READ_S, "reading its metadata"):
+                probe.execute("SELECT count(*) FROM metadata").fetchone()
+            with probe.within(READ_S, "reading a tile"):
+                probe.execute("SELECT tile_data FROM tiles LIMIT 1").fetchone()
         finally:
             probe.close()
     except sqlite3.Error as exc:
@@ -207,6 +218,25 @@ def _not_mbtiles(db: sqlite3.Connection, tables: set[str]) -> str | None:
         if found is not None and not _is_zoom(found[0]):
             return holds("zoom_level", found[0])
     return None
+
+
+def stored_zooms(db: BoundedConnection) -> list[int] | str:
+    """The zooms of the tiles table, smallest first, or why one is no zoom (the check at open
+    sees the smallest and the largest only): one seek of the spec's index per zoom, so a store
+    of any size answers in milliseconds, all within ``OPEN_S`` (QueryTimeoutError otherwise:
+    a view that never ends)."""
+    found: list[int] = []
+    query = "SELECT min(zoom_level) FROM tiles WHERE zoom_level > ?"
+    with db.within(OPEN_S, "listing its zooms"):
+        row = db.execute("SELECT min(zoom_level) FROM tiles").fetchone()
+        while row is not None and row[0] is not None:
+            if not _is_zoom(row[0]):
+                return holds("zoom_level", row[0])
+            zoom = whole_number(row[0])
+            if zoom is not None and zoom not in found:  # 15 and 15.0 are one zoom
+                found.append(zoom)
+            row = db.execute(query, (row[0],)).fetchone()
+    return found
 
 
 def _is_zoom(value: object) -> bool:

@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from c3_matcher.errors import describe
+from c3_matcher.tilestore import bounded
+from c3_matcher.tilestore.bounded import BoundedConnection
 from c3_matcher.tilestore.files import connect_read_only, open_failure, wal_blocked
 from c3_matcher.tilestore.sidecar_errors import (
     FeatureStoreUnavailableError,
@@ -90,13 +92,13 @@ class MapFeatureStore:
         raises FeatureStoreUnavailableError, later ones within it return None. The writer has
         no outages: its errors are raised (damage as SidecarDamagedError)."""
         if self._writable:
-            with _damage_refused(self.path):
+            with _damage_refused(self.path, self._db):
                 return query()
         now = self._clock()
         if self._down_until is not None and now < self._down_until:
             return None
         try:
-            with self._reading:  # one read at a time, from whichever thread
+            with self._reading, self._db.within(bounded.READ_S, "the read"):  # one at a time
                 result = query()
         except sqlite3.Error as exc:
             self._down_until = now + self._retry_s
@@ -190,7 +192,7 @@ class MapFeatureStore:
     def done_windows(self, set_id: str) -> dict[WindowKey, str]:
         """(zoom, gx, gy) -> window digest of every window stored in a set (as stored: see
         :meth:`checked_windows`); SidecarDamagedError for a key that is no integer."""
-        with _damage_refused(self.path):
+        with _damage_refused(self.path, self._db):
             return {
                 self._window_key(set_id, z, x, y): str(d)
                 for z, x, y, d in self._db.execute(
@@ -220,7 +222,7 @@ class MapFeatureStore:
         itself damaged."""
         intact: dict[WindowKey, str] = {}
         damaged: dict[WindowKey, str] = {}
-        with _damage_refused(self.path):
+        with _damage_refused(self.path, self._db):
             for z, x, y, *row in self._db.execute(
                 f"SELECT zoom, gx, gy, {_ROW_COLUMNS} FROM window_features WHERE set_id=?",
                 (fset.set_id,),
@@ -295,7 +297,7 @@ class MapFeatureStore:
     def _write(self, sql: str, rows: Sequence[Sequence[Any]]) -> None:
         """``sql`` once per row of parameters, committed; SQLite finding the database damaged
         raised as SidecarDamagedError."""
-        with _damage_refused(self.path):
+        with _damage_refused(self.path, self._db):
             self._db.executemany(sql, rows)
             self._db.commit()
 
@@ -319,7 +321,7 @@ class MapFeatureStore:
             self.close()
 
 
-def _open_read_only(path: Path) -> sqlite3.Connection:
+def _open_read_only(path: Path) -> BoundedConnection:
     """The flight's read-only connection, for every thread in turn (``_read``), busy timeout 0:
     a lock held elsewhere fails at once, the frame never waits; never memory-mapped, so a
     sidecar rewritten in place is an outage, not a SIGBUS. FeatureStoreUnavailableError saying
@@ -331,20 +333,21 @@ def _open_read_only(path: Path) -> sqlite3.Connection:
         raise FeatureStoreUnavailableError(path, why) from exc
 
 
-def _open_writable(path: Path) -> sqlite3.Connection:
+def _open_writable(path: Path) -> BoundedConnection:
     """The writer's connection to the sidecar ``path`` (created when absent), its tables read
     once and every set row parsed; SidecarDamagedError when the file is not an SQLite database
     or a damaged one, its tables another version's (never migrated: an old set's rows may not
     be what its id now means) or a set row malformed (a lock held elsewhere is waited for)."""
-    db = sqlite3.connect(str(path), timeout=LEAVE_WAL_S)
+    db = sqlite3.connect(str(path), timeout=LEAVE_WAL_S, factory=BoundedConnection)
     try:
-        with _damage_refused(path):
+        with _damage_refused(path, db):
             db.execute(f"PRAGMA page_size={PAGE_BYTES}")  # a new file: fewer pages a row
             db.executescript(_SCHEMA)
             if (mismatch := schema_mismatch(db, _SCHEMA)) is not None:
                 raise SidecarDamagedError(path, mismatch)
-            for row in db.execute(f"SELECT {_SET_COLUMNS} FROM window_sets"):  # `features info`
-                _set_of(path, row)
+            with _damage_refused(path, db, bounded.OPEN_S):  # sets that never end: damaged
+                for row in db.execute(f"SELECT {_SET_COLUMNS} FROM window_sets"):
+                    _set_of(path, row)  # `features info` says which
             db.commit()
             db.execute("PRAGMA journal_mode=WAL")  # once readable: a damaged file is left as is
     except BaseException:  # damaged, a malformed set row, another schema: left as is (no WAL)
@@ -367,12 +370,17 @@ def _unreadable(path: Path, exc: sqlite3.Error) -> tuple[str, str]:
 
 
 @contextlib.contextmanager
-def _damage_refused(path: Path) -> Iterator[None]:
-    """SQLite's errors saying the database ``path`` is damaged raised as SidecarDamagedError."""
+def _damage_refused(
+    path: Path, db: BoundedConnection, seconds: float = bounded.UNBOUNDED
+) -> Iterator[None]:
+    """The statements of ``db`` on the database ``path`` within ``seconds`` (a signal stops
+    them); SQLite's errors saying it is damaged, or that it did not answer in time (a view
+    that never ends), raised as SidecarDamagedError."""
     try:
-        yield
+        with db.within(seconds, "reading its tables"):
+            yield
     except sqlite3.DatabaseError as exc:
-        if sqlite_code(exc) in _DAMAGE:
+        if sqlite_code(exc) in _DAMAGE or isinstance(exc, bounded.QueryTimeoutError):
             raise SidecarDamagedError(path, exc) from exc
         raise
 
