@@ -153,7 +153,7 @@ from c3_matcher_tools.run.evaluation import (
     write_strategy_files,
 )
 from c3_matcher_tools.run.feature_sources import FDR_LOG, unserved_line
-from c3_matcher_tools.run.forget import forget_earlier_strategies
+from c3_matcher_tools.run.forget import forget_earlier_strategies, forget_not_reached
 from c3_matcher_tools.run.outputs import (
     EVAL_RUN,
     EVAL_SUMMARY,
@@ -308,13 +308,14 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         above = summary_above(outs[0], EVAL_RUN) if above else None  # read again, held
         for summarised in held:  # written again as the run ends
             forget_previous_run(summarised, (EVAL_SUMMARY,))
-        _forget_earlier_reports(outs)  # every flight's, before the first runs
+        _forget_earlier_reports(outs, names)  # every flight's, before the first runs
         for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
             rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
             reports.append(report)
             summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
             if not report["complete"]:
                 summary.extend(_not_run(datasets[n + 1 :], names))
+                forget_not_reached(out, rows, report["not_run"], outs[n + 1 :], names)
                 break
         summary_rows = strict_json([s.to_json() for s in summary])
         if root is not None:
@@ -424,14 +425,15 @@ def _eval_dataset(
     return rows, report
 
 
-def _forget_earlier_reports(outs: Sequence[Path]) -> None:
+def _forget_earlier_reports(outs: Sequence[Path], names: Sequence[str]) -> None:
     """What an earlier eval left in each of ``outs`` (the run files in the directories of the
-    strategies it names, its ``eval.json``, charts and match pictures), removed before the
-    first dataset runs: a run stopped part-way leaves none of them looking like its own."""
+    strategies it names but this run's ``names``, its ``eval.json``, charts and match
+    pictures), removed before the first dataset runs: a run stopped part-way leaves none of
+    them looking like its own (with ``forget_not_reached``)."""
     from c3_matcher_tools.plots import CHARTS, forget_match_pictures
 
     for out in outs:
-        forget_earlier_strategies(out, log=FDR_LOG)  # named by its eval.json: first
+        forget_earlier_strategies(out, names, log=FDR_LOG)  # named by its eval.json: first
         forget_previous_run(out, (EVAL_RUN.report, *(f"{chart}.png" for chart in CHARTS)))
         forget_match_pictures(out)  # this run draws its own samples
 

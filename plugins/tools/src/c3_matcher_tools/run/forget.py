@@ -7,11 +7,14 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+from collections.abc import Collection, Sequence
 from pathlib import Path
 
 from c3_matcher.fdr.files import remove_log
 from c3_matcher.fdr.pending import lock_path
 from c3_matcher_tools.dataset.format import name_problem
+from c3_matcher_tools.run.evaluation import StrategyRow, StrategyStopped
+from c3_matcher_tools.run.feature_sources import FDR_LOG
 from c3_matcher_tools.run.outputs import (
     EVAL_RUN,
     REPLAY_RUN,
@@ -20,20 +23,28 @@ from c3_matcher_tools.run.outputs import (
     run_json_file,
 )
 
-__all__ = ["forget_earlier_strategies"]
+__all__ = ["forget_earlier_strategies", "forget_not_reached", "forget_strategies"]
 
 _STRATEGY_FILES = (*(f for f in RUN_FILES if f != REPLAY_RUN.report), "matcher.log")
 """What eval's run of a strategy writes in its directory (and its second run's) beside the FDR."""
 
 
-def forget_earlier_strategies(out: Path, *, log: str) -> None:
-    """The directory of every strategy the earlier eval's report in ``out`` names (ran, failed,
-    stopped or not run; those this run runs again as well, which it may never reach) emptied
-    of what eval's runs write there (:data:`_STRATEGY_FILES`, the FDR ``log``; its second
-    run's, ``run2``, too) and removed when that empties it: a run stopped part-way, or one of
-    fewer strategies, leaves no earlier one's results under its mark. A file no run writes
-    stays, as does a link, and a run whose FDR another process writes (its lock held)."""
-    for name in _named_strategies(out / EVAL_RUN.report):
+def forget_earlier_strategies(out: Path, kept: Collection[str], *, log: str) -> None:
+    """:func:`forget_strategies` of every strategy the earlier eval's report in ``out`` names
+    (ran, failed, stopped or not run) but ``kept``, those this run plans (each replaces its own
+    as its run starts; one that cannot start leaves its directory as it was): a rerun of fewer
+    strategies leaves no earlier one's results under its mark."""
+    named = _named_strategies(out / EVAL_RUN.report)
+    forget_strategies(out, [n for n in named if n not in kept], log=log)
+
+
+def forget_strategies(out: Path, names: Sequence[str], *, log: str) -> None:
+    """The directory of each strategy of ``names`` in ``out`` emptied of what eval's runs write
+    there (:data:`_STRATEGY_FILES`, the FDR ``log``; its second run's, ``run2``, too) and
+    removed when that empties it (a stopped run's, for the strategies it never reached). A file
+    no run writes stays, as does a link, and a run whose FDR another process writes (its lock
+    held); a name that is not one plain path component is passed over."""
+    for name in names:
         if name_problem(name) is None:  # one plain path component below ``out``
             _forget_run_dir(out / name / "run2", log)  # inside it, first
             _forget_run_dir(out / name, log)
@@ -75,3 +86,20 @@ def _forget_run_dir(directory: Path, log: str) -> None:
             directory.rmdir()
     finally:
         os.close(fd)
+
+
+def forget_not_reached(
+    out: Path,
+    rows: Sequence[StrategyRow],
+    not_run: Sequence[str],
+    later: Sequence[Path],
+    names: Sequence[str],
+) -> None:
+    """A stopped run's strategies it never reached (not run, or stopped before any result of
+    theirs was kept), in ``out`` and in the ``later`` flights' directories: their earlier runs'
+    files removed (each would have replaced its own as it started), so none stands under this
+    run's mark; one that could not start keeps its own."""
+    unkept = [r.strategy for r in rows if isinstance(r, StrategyStopped) and r.results is None]
+    forget_strategies(out, [*unkept, *not_run], log=FDR_LOG)
+    for directory in later:
+        forget_strategies(directory, names, log=FDR_LOG)
