@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegistry, UsageParser
 from c3_matcher.config import C3Settings, load_settings
 from c3_matcher.config_sources import split_config
-from c3_matcher.context import CommandContext, Handler, result_stream
+from c3_matcher.context import CommandContext, Handler, result_stream, without_controls
 from c3_matcher.errors import (
     C3Error,
     ConfigurationError,
@@ -280,7 +280,7 @@ def _version() -> str:
 def _fail(exc: BaseException | str) -> None:
     """The command's one line saying why it stopped (or a ``note:`` it goes on after), on stderr;
     lost, not raised, where stderr cannot be written (a full log disk): the exit status says it."""
-    text = " ".join(str(exc).split()) or type(exc).__name__
+    text = without_controls(" ".join(str(exc).split())) or type(exc).__name__
     with contextlib.suppress(OSError, ValueError):
         print(f"c3-matcher: {text}", file=sys.stderr, flush=True)
 

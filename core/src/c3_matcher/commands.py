@@ -19,6 +19,8 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from c3_matcher.context import without_controls
+
 if TYPE_CHECKING:
     from c3_matcher.config import C3Settings
 
@@ -65,7 +67,7 @@ class UsageParser(argparse.ArgumentParser):
         self._negative_number_matcher = _NEGATIVE_NUMBERS
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        print(f"{self.prog}: error: {message}", file=sys.stderr)
+        print(f"{self.prog}: error: {without_controls(message)}", file=sys.stderr)
         raise SystemExit(EXIT_USAGE)
 
 

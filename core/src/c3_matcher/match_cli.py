@@ -25,7 +25,7 @@ from c3_matcher.commands import (
     with_keypoint_budget,
 )
 from c3_matcher.config import C3Settings
-from c3_matcher.context import CommandContext
+from c3_matcher.context import CommandContext, without_controls
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
 from c3_matcher.dto.candidates import RerankResult, TilePixelsHandle
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
@@ -351,7 +351,7 @@ def _close_fdr(fdr: JsonlFdrRecorder, unrecorded: list[str]) -> None:
 
 def _report(problems: list[str]) -> bool:
     for line in problems:
-        print(f"c3-matcher: {' '.join(line.split())}", file=sys.stderr)
+        print(f"c3-matcher: {without_controls(' '.join(line.split()))}", file=sys.stderr)
     return bool(problems)
 
 
