@@ -19,6 +19,7 @@ from c3_matcher.tilestore.bounded import OPEN_S, READ_S
 _NEVER = "(WITH RECURSIVE n(i) AS (SELECT 0 UNION ALL SELECT i + 1 FROM n) SELECT i FROM n {})"
 ENDLESS = _NEVER.format("WHERE i < 0 LIMIT 1")  # a scalar that is never found
 MARGIN_S = 10.0  # a loaded machine's start-up of a child Python, and its imports
+SLACK_S = 2.0  # past a bound, until a loaded machine's progress handler next runs
 
 
 def _store(path: Path, tiles_view: str) -> Path:
@@ -75,7 +76,7 @@ def test_a_recursive_view_store_is_refused_at_open_within_the_bound(tmp_path: Pa
         timeout=OPEN_S + MARGIN_S,
     )
     seconds, said = out.split(" ", 1)
-    assert OPEN_S <= float(seconds) < OPEN_S + 1.0, out
+    assert OPEN_S <= float(seconds) < OPEN_S + SLACK_S, out
     assert str(path) in said and f"took longer than {OPEN_S:g} s" in said, said
 
 
@@ -108,7 +109,7 @@ def test_a_tile_whose_read_never_ends_is_that_tiles_error_within_the_bound(
         timeout=OPEN_S + MARGIN_S,
     )
     seconds, said = out.split(" ", 1)
-    assert READ_S <= float(seconds) < READ_S + 1.0, out
+    assert READ_S <= float(seconds) < READ_S + SLACK_S, out
     assert "tile 15/1/32767" in said and f"took longer than {READ_S:g} s" in said, said
 
 
@@ -156,7 +157,10 @@ def test_sigterm_and_ctrl_c_stop_a_listing_that_never_ends(tmp_path: Path) -> No
         tmp_path / "tiles.mbtiles",
         f"SELECT zoom_level, {ENDLESS} AS tile_column, tile_row, tile_data FROM t",
     )
-    main = "import sys; from c3_matcher.cli import main; sys.exit(main(sys.argv[1:]))"
+    main = (
+        "import sys; from c3_matcher.cli import main; "
+        "print('imported', file=sys.stderr, flush=True); sys.exit(main(sys.argv[1:]))"
+    )
     for signum, status in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
         child = subprocess.Popen(
             [sys.executable, "-c", main, "tiles", "info", str(path)],
@@ -165,7 +169,9 @@ def test_sigterm_and_ctrl_c_stop_a_listing_that_never_ends(tmp_path: Path) -> No
             text=True,
         )
         try:
-            time.sleep(3.0)  # started, the store opened: in the listing
+            assert child.stderr is not None
+            assert child.stderr.readline() == "imported\n"  # however long start-up took
+            time.sleep(2.0)  # the store opened (milliseconds): in the listing
             assert child.poll() is None, child.communicate()
             child.send_signal(signum)
             _, err = child.communicate(timeout=5)
@@ -209,5 +215,6 @@ def test_a_running_store_waits_on_a_never_ending_replacement_at_most_one_read_bo
         timeout=OPEN_S + MARGIN_S,
     )
     first, *later = (float(s) for s in out.split())
-    assert first < 3 * READ_S + 0.5, out  # the look, the read, the store's probe: each bounded
-    assert all(s < 2 * READ_S + 0.5 for s in later), out  # no look again: the file is as read
+    # the look, the read, the store's probe, each within READ_S (1.5 s), well below OPEN_S (5 s)
+    assert first < 3 * READ_S + SLACK_S < OPEN_S, out
+    assert all(s < 2 * READ_S + SLACK_S for s in later), out  # no look again: the file as read

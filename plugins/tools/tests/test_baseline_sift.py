@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -210,3 +211,21 @@ def test_the_features_are_those_describing_every_keypoint_gives(
     assert np.array_equal(features.keypoints, expected.keypoints)
     assert np.array_equal(features.keypoint_scores, expected.keypoint_scores)
     assert np.array_equal(features.descriptors, expected.descriptors)
+
+
+def test_config_refuses_an_inlier_threshold_above_the_baselines_budget_as_start_up_does(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The baseline declares its keypoint budget (its options), so ``c3-matcher config``
+    refuses what every run with the file would refuse at start-up."""
+    from c3_matcher.cli import main
+
+    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
+        monkeypatch.delenv(key)
+    monkeypatch.setenv("C3_MATCHER_MATCHER__STRATEGY", "sift_magsac")
+    monkeypatch.setenv("C3_MATCHER_MATCHER__MIN_INLIERS_THRESHOLD", "3000")
+    assert main(["config"]) == 2
+    said = capsys.readouterr().err
+    assert "matcher.min_inliers_threshold: 3000 exceeds the 2048 keypoints" in said, said
+    monkeypatch.setenv("C3_MATCHER_MATCHER__MAX_KEYPOINTS", "4096")  # no engine caps SIFT's
+    assert main(["config"]) == 0

@@ -10,13 +10,14 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict
 
 from c3_matcher.config import C3Settings
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS, backend_strategy_factory
 
-__all__ = ["SIFT_LABEL", "SiftBackend", "create", "distinct_strongest"]
+__all__ = ["SIFT_LABEL", "SiftBackend", "SiftOptions", "create", "distinct_strongest"]
 
 SIFT_LABEL = "sift_magsac"
 #: the first pass describes this many of an image's strongest keypoints per keypoint of the
@@ -129,12 +130,23 @@ def _in_mask(points: NDArray[np.float32], valid: NDArray[np.bool_]) -> NDArray[n
     return valid[rows, cols]
 
 
-def _sift_backend(config: C3Settings, _options: Any) -> SiftBackend:
-    """Long side and keypoint budget from ``[matcher]``, the LightGlue strategies' default
-    keypoints (:data:`~c3_matcher.strategy.config.DEFAULT_MAX_KEYPOINTS`) when it names none."""
-    m = config.matcher
-    return SiftBackend(InputRule(m.max_long_side, 16), m.max_keypoints or DEFAULT_MAX_KEYPOINTS)
+class SiftOptions(BaseModel):
+    """The baseline takes no options of its own; it declares its keypoint budget, so that
+    ``c3-matcher config`` checks the settings the budget makes unreachable as start-up does."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def keypoint_budget(self, matcher_max_keypoints: int | None) -> int:
+        """``[matcher] max_keypoints``, else the LightGlue strategies' default keypoints
+        (:data:`~c3_matcher.strategy.config.DEFAULT_MAX_KEYPOINTS`)."""
+        return matcher_max_keypoints or DEFAULT_MAX_KEYPOINTS
+
+
+def _sift_backend(config: C3Settings, options: SiftOptions) -> SiftBackend:
+    """Long side from ``[matcher]``, the keypoint budget :meth:`SiftOptions.keypoint_budget`."""
+    budget = options.keypoint_budget(config.matcher.max_keypoints)
+    return SiftBackend(InputRule(config.matcher.max_long_side, 16), budget)
 
 
 #: strategy factory of the ``sift_magsac`` baseline (the same pipeline as every strategy)
-create = backend_strategy_factory(_sift_backend)
+create = backend_strategy_factory(_sift_backend, SiftOptions)

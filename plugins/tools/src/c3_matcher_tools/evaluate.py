@@ -59,7 +59,7 @@ IT measure counts it (the camera's loss, not the matcher's), and a line under th
 A strategy that fails to run on a dataset (it cannot start) is a table row and an ``error``
 entry, the others go on, and the command exits 1 once every table and
 report is written; one that cannot start (a missing engine: it is composed before its directory
-is touched) writes nothing there. An output directory another
+is touched) writes nothing there and leaves what an earlier run wrote. An output directory another
 process is writing (its FDR lock held) stops the command at once: nothing more is written into
 it; so does an output directory another ``eval`` or ``replay`` holds (each holds its
 directories, ``--out`` and each dataset's, while it runs). Ctrl-C or SIGTERM stops it at
@@ -82,9 +82,11 @@ matcher labels, execution provider and engines, as its FDR and ``report.html`` n
 its candidates counted by where their features came from (``feature_sources``, also under the
 table); a store with map features of which a strategy was served none is said on stderr, with
 the command that builds the set it asks for. Every dataset's earlier ``eval.json``, charts,
-match pictures and what eval wrote in the directories of the strategies it names (those this
-run runs again too; a file of the user's stays) are removed before the first dataset runs, so
-a stopped run, or one of fewer strategies, leaves none of them looking like its own.
+match pictures and what eval wrote in the directories of the strategies it names but this run
+does not run (a file of the user's stays) are removed before the first dataset runs; each
+strategy this run runs replaces its own as it starts, one that cannot start keeps it, and a
+stopped run removes those of the strategies and flights it never reached: a stopped run, or
+one of fewer strategies, leaves none of them looking like its own.
 
 The command only: flying, scoring and the C3-IT measures are the run layer's
 (:mod:`c3_matcher_tools.run`, :mod:`c3_matcher_tools.run.acceptance`).

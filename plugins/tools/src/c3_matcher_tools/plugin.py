@@ -32,12 +32,13 @@ def c3_matcher_register_commands(commands: CommandRegistry) -> None:
 
 @hookimpl
 def c3_matcher_strategies() -> list[StrategySpec]:
-    from c3_matcher_tools.baselines import SIFT_LABEL, create
+    from c3_matcher_tools.baselines import SIFT_LABEL, SiftOptions, create
 
     return [
         StrategySpec(
             name=SIFT_LABEL,
             factory=create,
+            options_model=SiftOptions,
             description="OpenCV SIFT + ratio test, MAGSAC (classical baseline, ground only)",
             baseline=True,
         )
