@@ -11,9 +11,17 @@ from c3_matcher.dto import MatcherHealth
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.protocols import Clock
 
-__all__ = ["HealthUpdate", "MonotonicClock", "RollingHealthWindow", "clock_problem"]
+__all__ = [
+    "CLOCK_STEPPED_BACK",
+    "HealthUpdate",
+    "MonotonicClock",
+    "RollingHealthWindow",
+    "clock_problem",
+]
 
 NS_PER_S = 1_000_000_000
+CLOCK_STEPPED_BACK = "c3.matcher.clock_stepped_back"
+"""The kind of the WARNING said when the matcher's clock reads before its last health update."""
 
 
 class MonotonicClock:
@@ -87,6 +95,7 @@ class RollingHealthWindow:
             raise InvalidInputError("best_inlier_count", f"must be >= 0, got {best_inlier_count}")
         with self._lock:
             self._update_count += 1
+            self._evict(now_ns)  # first: a clock stepped back empties the window
             self._updates.append(HealthUpdate(now_ns, best_inlier_count, had_backbone_error))
             if best_inlier_count < self._threshold:
                 self._consecutive_low += 1
@@ -104,6 +113,22 @@ class RollingHealthWindow:
         return MatcherHealth(consecutive_low_inlier=consecutive_low, mean_inliers_60s=mean)
 
     def _evict(self, now_ns: int) -> None:
+        """The updates older than the window dropped; all of them when the clock now reads
+        before the last (it stepped back: a wall clock given for the monotonic one, a reset),
+        since how long ago they were is then unknown, and counting them would keep a mean no
+        frame made lately (said once a step, WARNING ``c3.matcher.clock_stepped_back``)."""
+        if self._updates and self._updates[-1].at_ns > now_ns:
+            stepped_ns = self._updates[-1].at_ns - now_ns
+            self._updates.clear()
+            from c3_matcher.logs import log_event
+
+            log_event(
+                "WARNING",
+                CLOCK_STEPPED_BACK,
+                f"the matcher's clock stepped back {stepped_ns / NS_PER_S:.3f} s: the health "
+                "window restarts empty (give compose_root a monotonic clock)",
+                stepped_back_ns=stepped_ns,
+            )
         horizon = now_ns - self._window_ns
         while self._updates and self._updates[0].at_ns <= horizon:
             self._updates.popleft()
