@@ -4,7 +4,9 @@ file's note of records not yet in the log."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import datetime as dt
 import itertools
 from collections import Counter
 from collections.abc import Iterator, Mapping
@@ -44,7 +46,10 @@ class SeqRange:
 class FdrCheck:
     """What a flight-data log holds and whether it is whole. ``gaps``: seqs missing between
     records that no ``fdr.records_dropped`` note names (``noted_gaps``: those one names);
-    ``went_back``: ``(previous, seq)`` wherever ``seq`` did not grow; ``unreadable``: lines that
+    ``went_back``: ``(previous, seq)`` wherever ``seq`` did not grow; ``wall_times``: the
+    earliest and the latest record's wall time, ``wall_went_back`` how many times a record's
+    wall time is before the one before it (a restart on a computer whose clock was not set: seq
+    order is the log's order, never these times); ``unreadable``: lines that
     are not records, as ``segment:line: reason``; ``not_in_log``: records the lock file names,
     waiting on a full disk or lost when the recorder stopped, until a recorder at this path
     writes their note."""
@@ -60,6 +65,7 @@ class FdrCheck:
     went_back: tuple[tuple[int, int], ...]
     unreadable: tuple[str, ...]
     not_in_log: DroppedRecords | None
+    wall_went_back: int = 0
 
     @property
     def records(self) -> int:
@@ -80,6 +86,7 @@ class FdrCheck:
             "kinds": dict(self.kinds),
             "seqs": dataclasses.asdict(self.seqs) if self.seqs else None,
             "wall_times": list(self.wall_times) if self.wall_times else None,
+            "wall_went_back": self.wall_went_back,
             "let_go": self.let_go,
             "noted_gaps": [dataclasses.asdict(r) for r in self.noted_gaps],
             "gaps": [dataclasses.asdict(r) for r in self.gaps],
@@ -145,14 +152,42 @@ def check_fdr(path: Path) -> FdrCheck:
         segments=segments,
         kinds=dict(sorted(kinds.items())),
         seqs=SeqRange(seqs[0], seqs[-1]) if seqs else None,
-        wall_times=(times[0], times[-1]) if times else None,
+        wall_times=_span(times),
         let_go=let_go,
         noted_gaps=tuple(g for g in gaps if g.within(named)),
         gaps=tuple(g for g in gaps if not g.within(named)),
         went_back=tuple(went_back),
         unreadable=tuple(unreadable),
         not_in_log=read_lock(lock_path(path))[1],
+        wall_went_back=_went_back(_instants(times)),
     )
+
+
+def _instants(times: list[str]) -> list[dt.datetime]:
+    """The wall times that read as ISO 8601 instants with an offset, in the log's order."""
+    read = []
+    for text in times:
+        with contextlib.suppress(ValueError):
+            when = dt.datetime.fromisoformat(text)
+            if when.tzinfo is not None:
+                read.append(when)
+    return read
+
+
+def _went_back(instants: list[dt.datetime]) -> int:
+    """How many times an instant is before the one before it."""
+    return sum(later < earlier for earlier, later in itertools.pairwise(instants))
+
+
+def _span(times: list[str]) -> tuple[str, str] | None:
+    """The earliest and the latest of the wall times, in ISO 8601 (the first and the last as
+    written, in the log's order, when none reads as an instant)."""
+    if not times:
+        return None
+    instants = _instants(times)
+    if not instants:
+        return times[0], times[-1]
+    return min(instants).isoformat(), max(instants).isoformat()
 
 
 def _records(segment: Path, unreadable: list[str]) -> list[FdrRecord]:

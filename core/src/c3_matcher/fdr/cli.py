@@ -66,6 +66,11 @@ def _describe(check: FdrCheck) -> list[str]:
         )
     if check.gaps:
         lines.append(f"  gaps no note explains: seqs {_seqs(check.gaps)}")
+    if check.wall_went_back:
+        lines.append(
+            f"  wall clock went back {check.wall_went_back} time(s) between records (a restart "
+            "on a computer whose clock was not set?): the times above are the earliest and latest"
+        )
     if check.went_back:
         lines.append("  seq went back: " + _some([f"{s} after {p}" for p, s in check.went_back]))
     if check.unreadable:
