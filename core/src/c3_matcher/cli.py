@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegistry, UsageParser
 from c3_matcher.config import C3Settings, load_settings
 from c3_matcher.config_sources import split_config
-from c3_matcher.context import CommandContext, Handler, result_stream, without_controls
+from c3_matcher.context import CommandContext, Handler, result_stream
 from c3_matcher.errors import (
     C3Error,
     ConfigurationError,
@@ -32,6 +32,7 @@ from c3_matcher.errors import (
     describe,
 )
 from c3_matcher.ground_commands import ground_refusal
+from c3_matcher.terminal_text import without_controls
 
 if TYPE_CHECKING:
     from c3_matcher.plugins.manager import PluginHost
@@ -313,8 +314,7 @@ def _terminate_as_interrupt() -> Iterator[None]:
 
 
 def _drop_stdout() -> None:
-    """Point stdout at /dev/null, so that the interpreter's last flush finds no broken pipe to
-    complain about on stderr."""
+    """Point stdout at /dev/null: the interpreter's last flush then finds no broken pipe."""
     with contextlib.suppress(AttributeError, OSError, ValueError):
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())

@@ -19,7 +19,7 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from c3_matcher.context import without_controls
+from c3_matcher.terminal_text import without_controls
 
 if TYPE_CHECKING:
     from c3_matcher.config import C3Settings

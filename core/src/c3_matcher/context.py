@@ -7,18 +7,18 @@ import argparse
 import contextlib
 import os
 import sys
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from types import MappingProxyType
 from typing import TYPE_CHECKING, TextIO
 
 from c3_matcher.errors import OutputStreamError
+from c3_matcher.terminal_text import without_controls
 
 if TYPE_CHECKING:
     from c3_matcher.config import C3Settings
     from c3_matcher.plugins.manager import PluginHost
 
-__all__ = ["CommandContext", "Handler", "result_stream", "without_controls"]
+__all__ = ["CommandContext", "Handler", "result_stream"]
 
 
 @dataclass(frozen=True)
@@ -52,22 +52,6 @@ class CommandContext:
         its result, exit status and files say what happened."""
         with contextlib.suppress(OSError, ValueError):
             print(_encodable(text, self.stderr), file=self.stderr, flush=True)
-
-
-_CONTROL_ESCAPES: Mapping[int, str] = MappingProxyType(
-    {
-        code: f"\\x{code:02x}"
-        for code in (*range(0x20), *range(0x80, 0xA0))
-        if chr(code) not in "\n\t"
-    }
-)
-"""The C0 and C1 control characters but newline and tab, each to its escape (ESC: ``\\x1b``)."""
-
-
-def without_controls(text: str) -> str:
-    """``text`` with its C0 and C1 control characters but newline and tab as their escapes
-    (``\\x1b``): as a line for a terminal, which then obeys none of them."""
-    return text.translate(_CONTROL_ESCAPES)
 
 
 def _encodable(text: str, stream: TextIO) -> str:

@@ -25,7 +25,7 @@ from c3_matcher.commands import (
     with_keypoint_budget,
 )
 from c3_matcher.config import C3Settings
-from c3_matcher.context import CommandContext, without_controls
+from c3_matcher.context import CommandContext
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
 from c3_matcher.dto.candidates import RerankResult, TilePixelsHandle
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
@@ -44,6 +44,7 @@ from c3_matcher.match_inputs import (
 from c3_matcher.match_viz import draw_or_report
 from c3_matcher.serialize import result_to_json
 from c3_matcher.stages.drops import drops_heard
+from c3_matcher.terminal_text import without_controls
 
 __all__ = ["register_match_command"]
 
