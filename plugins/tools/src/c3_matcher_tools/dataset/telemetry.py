@@ -38,7 +38,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
-import itertools
 import math
 import re
 from collections.abc import Callable, Iterator, Sequence
@@ -52,6 +51,7 @@ from c3_matcher.file_kinds import special_kind
 from c3_matcher_tools.dataset.image_names import place_images
 from c3_matcher_tools.dataset.sources.frames import ground_elevation_sampler
 from c3_matcher_tools.dataset.sources.options import number_ranges
+from c3_matcher_tools.dataset.sources.pairing import same_times
 
 __all__ = [
     "COLUMNS",
@@ -450,11 +450,11 @@ def _image_name_problem(image: str, column: str) -> str | None:
 
 
 def _repeated_times(rows: Sequence[TelemetryRow]) -> list[tuple[int, str]]:
-    """(line, why) of each row at the time of the row before it (``rows`` sorted by time)."""
+    """(line, why) of each row at the time of the row before it (``rows`` sorted by time), by
+    the rule the images placed by their own times follow (:func:`same_times`)."""
     return [
-        (b.line, f"lines {a.line} and {b.line}: same time_s {a.time_s}")
-        for a, b in itertools.pairwise(rows)
-        if b.time_s == a.time_s
+        (rows[b].line, f"lines {rows[a].line} and {rows[b].line}: same time_s {rows[a].time_s}")
+        for a, b in same_times([r.time_s for r in rows])
     ]
 
 

@@ -3,6 +3,7 @@ its own time), the images' own UTC times, or file order (:func:`match_shots`).""
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -15,7 +16,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.options import ImportOptions
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 
-__all__ = ["Pairing", "match_shots", "times_apart", "utc_text"]
+__all__ = ["Pairing", "match_shots", "same_times", "times_apart", "utc_text"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,6 +47,15 @@ def times_apart(times: Sequence[float], gap_s: float) -> list[int]:
         if len(group) >= len(flight):
             flight = set(group)
     return [i for i in range(len(times)) if i not in flight]
+
+
+def same_times(times: Sequence[float]) -> list[tuple[int, int]]:
+    """Each (a, b) of indices of ``times`` that state the same time, neighbours in time order
+    (ties in index order). Two records at one time cannot both be placed on a clock: each would
+    take the other's pose, so the telemetry CSV's rows and the images placed by their own times
+    are refused on them alike."""
+    order = sorted(range(len(times)), key=lambda k: (times[k], k))
+    return [(a, b) for a, b in itertools.pairwise(order) if times[a] == times[b]]
 
 
 def utc_text(t_s: float) -> str:
@@ -301,8 +311,39 @@ def _by_own_time(track: LogTrack, shots: Sequence[Shot], options: ImportOptions)
     taken = tuple(
         (s, s.t_s - track.utc_offset_s + options.time_offset_s) for s in shots if s.t_s is not None
     )
+    if not track.per_image:  # photos that state their own position keep it, whatever the time
+        _refuse_same_times(track, [(s, t) for s, t in taken if "t_s" in s.own])
     skipped = tuple((s.name, "the image states no capture time") for s in shots if s.t_s is None)
     return Pairing(taken, skipped, "the images' own UTC time stamps against the log's UTC time")
+
+
+def _refuse_same_times(track: LogTrack, taken: Sequence[tuple[Shot, float]]) -> None:
+    """Refuse photos that state the same capture time in their own metadata (whole-second EXIF
+    times of several shots a second, a camera clock that stalled): on the log's clock they would
+    take one pose. The refusal names them and the time, and the ways out. (A bag's frames that
+    share a header stamp are the recorder's, imported each at its stamp and said in the bag's
+    notes.)"""
+    pairs = same_times([t for _, t in taken])
+    if not pairs:
+        return
+    shown = "; ".join(
+        f"{taken[a][0].name} and {taken[b][0].name}: same capture time "
+        f"{utc_text(float(taken[a][0].t_s or 0.0))} ({taken[a][1]:.3f} s on the log's clock)"
+        for a, b in pairs[:3]
+    )
+    more = f" (and {len(pairs) - 3} more)" if len(pairs) > 3 else ""
+    triggers = track.triggers_s if track.triggers_s is not None else np.zeros(0)
+    way = (
+        f"--time-source trigger to pair them with the log's {triggers.size} camera trigger(s)"
+        if triggers.size
+        else f"--time-source order with {_ORDER_HINT} to place them in file order"
+    )
+    raise InvalidInputError(
+        "--time-source",
+        f"{shown}{more}: placed by their own times they would take one pose; "
+        "fix the camera's clock or its time stamps (several photos a second need sub-second "
+        f"times), remove the repeated photos, or give {way}",
+    )
 
 
 def _by_file_order(shots: Sequence[Shot], triggers: F64, options: ImportOptions) -> Pairing:
