@@ -65,9 +65,12 @@ from the feature type's PyTorch reference extractor."""
 
 LIGHTGLUE_TOLERANCES: Mapping[str, float] = {
     "matches_mismatch": 0.0,  # identical (index0, index1) pairs
-    "match_score_max_abs": 1e-4,  # confidences of the kept matches
-    "mscores0_max_abs": 1e-4,  # every keypoint's mutual-NN confidence
+    "match_score_max_abs": 5e-4,  # confidences of the kept matches
+    "mscores0_max_abs": 5e-4,  # every keypoint's mutual-NN confidence
 }
+"""The matches must be the same pairs; their confidences (in [0, 1]) within 5e-4. The PyTorch
+reference's own confidences move with its thread count: LighterGlue's by 1.5e-4 on one thread
+(8.4e-5 on two or more), which failed the build of a one-core machine at the 1e-4 of before."""
 
 
 def load_lightglue_reference(
