@@ -92,7 +92,7 @@ def test_sets_of_another_extractor_engine_are_named_as_never_served(
     assert "(" not in old["command"]  # a line a script runs as it is; what to know: its note
     code, out, text_err = _run(capsys, "features", "info", str(flight))  # plain: said, exit 0
     assert (code, text_err) == (0, err), text_err
-    assert "engine_installed: False" in out and f"installed_extractor_sha256: {sha}" in out
+    assert "engine_installed: no" in out and f"installed_extractor_sha256: {sha}" in out
 
     monkeypatch.setenv("C3_MATCHER_MATCHER__PHOTOMETRIC", "clahe")  # another set id but engine
     assert _run(capsys, *build, "--flight-candidates")[0] == 0
