@@ -9,6 +9,7 @@ import shutil
 import subprocess
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -17,6 +18,26 @@ from c3_matcher_tools.testing.cli import run_cli
 DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
 
 SmallFlight = Callable[..., Path]
+Record = dict[str, Any]
+"""A JSON object of a dataset's files, as read."""
+
+
+def edit_frame_record(root: Path, line: int, edit: Callable[[Record], None]) -> None:
+    """The record on ``line`` (from 1) of the dataset ``root``'s ``frames.jsonl`` changed by
+    ``edit``, in place."""
+    path = root / "frames.jsonl"
+    records = [json.loads(x) for x in path.read_text().splitlines()]
+    edit(records[line - 1])
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+
+
+def edit_dataset_meta(root: Path, edit: Callable[[Record], None]) -> None:
+    """The dataset ``root``'s ``dataset.json`` changed by ``edit``, in place."""
+    meta = json.loads((root / "dataset.json").read_text())
+    edit(meta)
+    (root / "dataset.json").write_text(json.dumps(meta))
+
+
 C3 = Callable[..., subprocess.CompletedProcess[str]]
 
 

@@ -9,18 +9,14 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import load_dataset
 
-from .conftest import C3, DEMO, SmallFlight
-
-Record = dict[str, Any]
+from .conftest import C3, DEMO, SmallFlight, edit_dataset_meta, edit_frame_record
 
 
 def _secret(tmp_path: Path) -> Path:
@@ -30,19 +26,6 @@ def _secret(tmp_path: Path) -> Path:
     first = json.loads((DEMO / "frames.jsonl").read_text().splitlines()[0])
     shutil.copyfile(DEMO / first["image"], secret)
     return secret
-
-
-def _edit_record(root: Path, line: int, edit: Callable[[Record], None]) -> None:
-    path = root / "frames.jsonl"
-    records = [json.loads(x) for x in path.read_text().splitlines()]
-    edit(records[line - 1])
-    path.write_text("".join(json.dumps(r) + "\n" for r in records))
-
-
-def _edit_meta(root: Path, edit: Callable[[Record], None]) -> None:
-    meta = json.loads((root / "dataset.json").read_text())
-    edit(meta)
-    (root / "dataset.json").write_text(json.dumps(meta))
 
 
 @pytest.mark.parametrize(
@@ -58,7 +41,7 @@ def test_a_frame_image_outside_the_dataset_is_refused_naming_its_line(
     tmp_path: Path, small_flight: SmallFlight, line: int, image: str, needle: str
 ) -> None:
     secret, flight = _secret(tmp_path), small_flight("flight")
-    _edit_record(flight, line, lambda r: r.update(image=image.format(secret=secret)))
+    edit_frame_record(flight, line, lambda r: r.update(image=image.format(secret=secret)))
     with pytest.raises(InvalidInputError) as refused:
         load_dataset(flight)
     said = str(refused.value)
@@ -76,7 +59,7 @@ def test_a_file_dataset_json_names_outside_the_dataset_is_refused_naming_it(
     own = json.loads((flight / "dataset.json").read_text())[key]
     shutil.copyfile(flight / own, outside / own)  # a file there, so only where it is is wrong
     name = str(outside / own) if where == "absolute" else f"../elsewhere/{own}"
-    _edit_meta(flight, lambda m: m.update({key: name}))
+    edit_dataset_meta(flight, lambda m: m.update({key: name}))
     with pytest.raises(InvalidInputError) as refused:
         load_dataset(flight)
     said = str(refused.value)
@@ -105,7 +88,7 @@ def test_a_frame_image_linked_to_one_outside_is_refused(
 ) -> None:
     secret, flight = _secret(tmp_path), small_flight("flight")
     (flight / "frames" / "linked.jpg").symlink_to(secret)
-    _edit_record(flight, 2, lambda r: r.update(image="frames/linked.jpg"))
+    edit_frame_record(flight, 2, lambda r: r.update(image="frames/linked.jpg"))
     with pytest.raises(InvalidInputError) as refused:
         load_dataset(flight)
     said = str(refused.value)
@@ -120,8 +103,8 @@ def test_links_inside_the_dataset_and_to_it_load(tmp_path: Path, small_flight: S
     first = json.loads((flight / "frames.jsonl").read_text().splitlines()[0])["image"]
     (flight / "frames" / "again.jpg").symlink_to(Path(first).name)
     (flight / "same").symlink_to("frames")
-    _edit_record(flight, 1, lambda r: r.update(image="frames/again.jpg"))
-    _edit_record(flight, 2, lambda r: r.update(image="same/" + Path(r["image"]).name))
+    edit_frame_record(flight, 1, lambda r: r.update(image="frames/again.jpg"))
+    edit_frame_record(flight, 2, lambda r: r.update(image="same/" + Path(r["image"]).name))
     (tmp_path / "via").symlink_to(flight)
     for root in (flight, tmp_path / "via"):
         loaded = load_dataset(root)
@@ -143,7 +126,7 @@ def test_dataset_info_and_replay_refuse_a_frame_outside_before_reading_it(
     and ``replay`` exit 2 naming the line; replay writes no report (it would hold the photo)."""
     _secret(tmp_path)
     flight = small_flight("flight")
-    _edit_record(flight, 2, lambda r: r.update(image="../secret/private_photo.jpg"))
+    edit_frame_record(flight, 2, lambda r: r.update(image="../secret/private_photo.jpg"))
     info = c3("dataset", "info", str(flight))
     assert info.returncode == 2, info.stderr
     assert "frames.jsonl:2: bad frame record: image: " in info.stderr, info.stderr
@@ -160,7 +143,7 @@ def test_features_build_writes_nothing_beside_a_store_outside(
     flight = small_flight("flight")
     (tmp_path / "other").mkdir()
     shutil.move(flight / "tiles.mbtiles", tmp_path / "other" / "tiles.mbtiles")
-    _edit_meta(flight, lambda m: m.update(store="../other/tiles.mbtiles"))
+    edit_dataset_meta(flight, lambda m: m.update(store="../other/tiles.mbtiles"))
     argv = ["features", "build", str(flight), "--strategy", "xfeat", "--workers", "0"]
     done = c3(*argv)
     assert done.returncode == 2, done.stderr

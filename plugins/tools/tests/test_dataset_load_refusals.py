@@ -8,7 +8,6 @@ import json
 import shutil
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -16,9 +15,8 @@ from c3_matcher.cli import main
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import load_dataset
 
-DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
+from .conftest import DEMO, Record, edit_dataset_meta, edit_frame_record
 
-Record = dict[str, Any]
 DEMO_FIRST = (DEMO / "frames.jsonl").read_text().splitlines()[0]
 
 
@@ -32,19 +30,6 @@ def _dataset(root: Path) -> Path:
     lines = (DEMO / "frames.jsonl").read_text().splitlines()[:2]
     (root / "frames.jsonl").write_text("\n".join(lines) + "\n")
     return root
-
-
-def _edit_record(root: Path, line: int, edit: Callable[[Record], None]) -> None:
-    path = root / "frames.jsonl"
-    records = [json.loads(x) for x in path.read_text().splitlines()]
-    edit(records[line - 1])
-    path.write_text("".join(json.dumps(r) + "\n" for r in records))
-
-
-def _edit_meta(root: Path, edit: Callable[[Record], None]) -> None:
-    meta = json.loads((root / "dataset.json").read_text())
-    edit(meta)
-    (root / "dataset.json").write_text(json.dumps(meta))
 
 
 @pytest.mark.parametrize(
@@ -79,7 +64,7 @@ def test_a_bad_frame_record_is_refused_naming_its_line(
     tmp_path: Path, line: int, edit: Callable[[Record], None], needle: str
 ) -> None:
     root = _dataset(tmp_path / "flight")
-    _edit_record(root, line, edit)
+    edit_frame_record(root, line, edit)
     with pytest.raises(InvalidInputError) as refused:
         load_dataset(root)
     assert f"frames.jsonl:{line}: bad frame record: {needle}" in str(refused.value)
@@ -99,14 +84,14 @@ def test_frames_that_are_not_utf8_are_refused_naming_the_line(tmp_path: Path) ->
         (lambda root: (root / "dataset.json").write_text("[1, 2]"), "top level: expected a JSON"),
         (lambda root: (root / "dataset.json").write_bytes(b"\xff\xfe{"), "UnicodeDecodeError"),
         (
-            lambda root: _edit_meta(root, lambda m: m.update(candidate_size_px="abc")),
+            lambda root: edit_dataset_meta(root, lambda m: m.update(candidate_size_px="abc")),
             "candidate_size_px: expected an integer",
         ),
         (
-            lambda root: _edit_meta(root, lambda m: m.update(candidate_size_px=0)),
+            lambda root: edit_dataset_meta(root, lambda m: m.update(candidate_size_px=0)),
             "candidate_size_px: must be in [64, 4096]",
         ),
-        (lambda root: _edit_meta(root, lambda m: m.update(store=None)), "store: expected a"),
+        (lambda root: edit_dataset_meta(root, lambda m: m.update(store=None)), "store: expected a"),
     ],
 )
 def test_a_bad_dataset_json_is_refused_naming_the_file(

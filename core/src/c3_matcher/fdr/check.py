@@ -146,20 +146,21 @@ def check_fdr(path: Path) -> FdrCheck:
             "not a flight-data log, or one damaged throughout",
         )
     gaps, went_back = _follow(seqs)
+    instants = _instants(times)
     named = tuple(noted)
     return FdrCheck(
         path=path,
         segments=segments,
         kinds=dict(sorted(kinds.items())),
         seqs=SeqRange(seqs[0], seqs[-1]) if seqs else None,
-        wall_times=_span(times),
+        wall_times=_span(times, instants),
         let_go=let_go,
         noted_gaps=tuple(g for g in gaps if g.within(named)),
         gaps=tuple(g for g in gaps if not g.within(named)),
         went_back=tuple(went_back),
         unreadable=tuple(unreadable),
         not_in_log=read_lock(lock_path(path))[1],
-        wall_went_back=_went_back(_instants(times)),
+        wall_went_back=_went_back(instants),
     )
 
 
@@ -179,12 +180,11 @@ def _went_back(instants: list[dt.datetime]) -> int:
     return sum(later < earlier for earlier, later in itertools.pairwise(instants))
 
 
-def _span(times: list[str]) -> tuple[str, str] | None:
-    """The earliest and the latest of the wall times, in ISO 8601 (the first and the last as
-    written, in the log's order, when none reads as an instant)."""
+def _span(times: list[str], instants: list[dt.datetime]) -> tuple[str, str] | None:
+    """The earliest and the latest of the wall times, in ISO 8601 (``instants``: those that read
+    as instants; the first and the last as written, in the log's order, when none does)."""
     if not times:
         return None
-    instants = _instants(times)
     if not instants:
         return times[0], times[-1]
     return min(instants).isoformat(), max(instants).isoformat()
