@@ -95,6 +95,8 @@ def test_config_refuses_what_the_keypoint_budget_cannot_meet(
         {"matcher__strategy": "aliked_lightglue", "matcher__min_inliers_threshold": "2048"},
         {"matcher__strategy": "xfeat", "matcher__min_inliers_threshold": "3000"},  # mnn: 4096
         {"lightglue__mode": "full", "lightglue__exit_matches": "3000"},  # full: no exit
+        # mnn runs no LightGlue: [lightglue] does not concern it, as at start-up
+        {"matcher__strategy": "xfeat", "lightglue__exit_matches": "6000"},
     ],
 )
 def test_config_passes_what_the_budget_meets(

@@ -63,3 +63,11 @@ def test_a_log_whose_record_kind_holds_escapes_is_described_without_them(
     out = capsys.readouterr().out
     assert f"kinds: {ESCAPED} 1" in out
     assert not any(char in out for char in "\x1b\r\x07\x9b\x00")
+
+
+def test_delete_and_bidirectional_controls_are_printed_escaped() -> None:
+    """A name holding U+202E reads reversed from there on (``photo\\u202egpj.exe`` shows as
+    ``photoexe.jpg``); DEL erases on some terminals: each is printed as its escape."""
+    context, out, _ = _context()
+    context.out("photo\u202egpj.exe \u2066x\u2069 \u200f\x7f")
+    assert out.getvalue().decode() == "photo\\u202egpj.exe \\u2066x\\u2069 \\u200f\\x7f\n"

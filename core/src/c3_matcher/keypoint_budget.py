@@ -23,6 +23,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "KeypointBudgetOptions",
+    "PairMatcherOptions",
     "check_declared_budget",
     "check_exit_reachable",
     "check_inliers_reachable",
@@ -36,6 +37,14 @@ class KeypointBudgetOptions(Protocol):
     from the options table, else ``[matcher] max_keypoints`` (None when unset), else theirs."""
 
     def keypoint_budget(self, matcher_max_keypoints: int | None) -> int: ...
+
+
+@runtime_checkable
+class PairMatcherOptions(Protocol):
+    """A strategy's options that choose its pair matcher (XFeat's mnn or LighterGlue): whether
+    the choice matches with LightGlue, so that ``[lightglue]`` settings concern it at all."""
+
+    def matches_with_lightglue(self) -> bool: ...
 
 
 def check_inliers_reachable(config: C3Settings, budget: int) -> None:
@@ -101,13 +110,16 @@ def check_declared_budget(
 ) -> None:
     """Start-up's budget checks without an engine (``c3-matcher config``): the inlier
     threshold, and where the strategy matches with LightGlue (its plugin declares a matcher
-    engine) and ``[lightglue] mode`` may run adaptive, the unmatchable-pair exit."""
+    engine and its options, where they choose, chose it) and ``[lightglue] mode`` may run
+    adaptive, the unmatchable-pair exit."""
     budget = declared_budget(config, options, engines, default)
     if budget is None:
         return
     check_inliers_reachable(config, budget)
     exit_matches = config.lightglue.exit_matches or 0
     lightglue = any(spec.feature_type is not None for spec in engines)
+    if isinstance(options, PairMatcherOptions):
+        lightglue = lightglue and options.matches_with_lightglue()
     if lightglue and config.lightglue.mode != "full" and exit_matches > 0:
         required = ("lightglue.exit_matches", exit_matches)
         check_exit_reachable(required, budget, config.matcher.strategy)

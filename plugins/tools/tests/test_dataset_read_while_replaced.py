@@ -1,7 +1,7 @@
-"""A dataset is never replaced under a run that reads it: ``replay`` and ``eval`` hold it
-(``flock`` shared on its directory) from the first read to the end, and ``dataset render`` or
-``import --force`` holds it alone from its check to the swap: the second to come is refused,
-naming the other, and the dataset is left as it was (two real processes)."""
+"""A dataset is never replaced under a run that reads it: ``replay``, ``eval`` and ``bench
+--data`` hold it (``flock`` shared on its directory) from the first read to the end, and
+``dataset render`` or ``import --force`` holds it alone from its check to the swap: the second
+to come is refused, naming the other, and the dataset is left as it was (two real processes)."""
 
 from __future__ import annotations
 
@@ -68,9 +68,11 @@ def test_a_run_is_refused_while_its_dataset_is_being_replaced(
     small_flight: SmallFlight, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     dataset = small_flight("small")
-    for command in ("replay", "eval"):
+    bench = ["bench", "--data", str(dataset), "--runs", "1", "--no-reference"]
+    for command in ("replay", "eval", "bench"):
         out = tmp_path / command
         args = [command, str(dataset), "--strategy", "sift_magsac", "--out", str(out)]
+        args = [*bench, "--strategy", "sift_magsac"] if command == "bench" else args
         with _held_by_another_process(dataset, "LOCK_EX") as pid:
             assert main(args) == 2
         said = capsys.readouterr().err

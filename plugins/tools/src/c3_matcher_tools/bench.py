@@ -34,6 +34,7 @@ one strategy. On a failure or Ctrl-C every worker is ended and reaped.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -61,6 +62,7 @@ from c3_matcher_tools.bench_report import (
     text_report,
 )
 from c3_matcher_tools.bench_worker import BenchCase, time_interleaved
+from c3_matcher_tools.dataset.lock import reading_dataset
 from c3_matcher_tools.extras import install_line, not_installed
 
 if TYPE_CHECKING:
@@ -336,19 +338,21 @@ def _checked_data(data: Path, max_pixels: int) -> Path:
 def run_bench(args: argparse.Namespace, ctx: CommandContext) -> int:
     """Run every case in a worker process of its own, the cases of a group interleaved round by
     round (the module docstring); a case whose worker fails is reported beside the others'
-    figures (exit 1), a worker's refusal of its input stops the bench (2)."""
+    figures (exit 1), a worker's refusal of its input stops the bench (2). A ``--data`` dataset
+    is held from its check to the last case (``reading_dataset``: not replaced under them)."""
     strategies = args.strategy or [ctx.settings.matcher.strategy]
     for name in strategies:
         ctx.plugin_host.resolve(name)  # one this build cannot run: refused before any case
-    data = demo_data(args.data, ctx.settings.matcher.max_image_pixels)
-    cases = cases_for(args, ctx.settings, data, ctx.plugin_host)
-    groups = interleaved_groups(cases)
-    results: list[dict[str, Any]] = []
-    failed: list[dict[str, str]] = []
-    for group in groups:
-        timed, lost = time_interleaved(group, args.runs, data, args.config, ctx.err)
-        results += timed
-        failed += lost
+    with reading_dataset(args.data) if args.data is not None else contextlib.nullcontext():
+        data = demo_data(args.data, ctx.settings.matcher.max_image_pixels)
+        cases = cases_for(args, ctx.settings, data, ctx.plugin_host)
+        groups = interleaved_groups(cases)
+        results: list[dict[str, Any]] = []
+        failed: list[dict[str, str]] = []
+        for group in groups:
+            timed, lost = time_interleaved(group, args.runs, data, args.config, ctx.err)
+            results += timed
+            failed += lost
     planned = {case.label: n for n, case in enumerate(cases)}  # the table in the plan's order
     results.sort(key=lambda r: planned[r["label"]])
     failed.sort(key=lambda f: planned[f["label"]])

@@ -104,3 +104,8 @@ class XFeatOptions(BaseModel):
         if matcher_max_keypoints is not None:
             return matcher_max_keypoints
         return DEFAULT_MAX_KEYPOINTS[self.matcher]
+
+    def matches_with_lightglue(self) -> bool:
+        """LighterGlue runs in the shared LightGlue runtime (``[lightglue]`` applies); mnn
+        does not."""
+        return self.matcher == "lighterglue"
