@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -630,3 +631,19 @@ def test_a_time_offset_beyond_any_clock_is_refused_by_the_options() -> None:
     with pytest.raises(InvalidInputError, match=r"--time-offset: must be in \[-4e\+09, 4e\+09\] s"):
         _options(time_offset_s=1e308)
     assert _options(time_offset_s=-4e9).time_offset_s == -4e9
+
+
+def test_a_photo_name_that_is_not_utf8_is_refused_naming_it(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    """A photo named in another encoding (a byte that is no UTF-8) ended the import in
+    "internal error" where its frame id is made from its name; it is refused, naming it."""
+    photos = write_exif_photos(tmp_path / "photos", poses)
+    (photos / "DJI_0001.JPG").rename(photos / os.fsdecode(b"DJI_\xe9001.JPG"))
+    line = _refused(
+        c3("dataset", "import", photos, "-", CAL, STORE, tmp_path / "f"),
+        "IMAGES: ",
+        "1 photo name(s) not UTF-8 text",
+        "DJI_\\udce9001.JPG",
+    )
+    assert "internal error" not in line and not (tmp_path / "f").exists()

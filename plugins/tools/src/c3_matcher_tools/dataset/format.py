@@ -46,6 +46,7 @@ from c3_matcher.json_text import loads_json
 from c3_matcher.serialize import load_calibration
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, read_image
 from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher_tools.dataset.image_names import is_utf8
 from c3_matcher_tools.dataset.inside import (
     META_PATHS,
     check_meta_paths,
@@ -108,7 +109,7 @@ def name_problem(name: str) -> str | None:
             "cannot name an output directory: it must be one path component "
             "(not empty, '.' or '..'; no '/', '\\' or NUL)"
         )
-    if not _utf8(name):
+    if not is_utf8(name):
         return (
             "is not UTF-8 text: it holds a byte of another encoding (a file name's) or a lone "
             "surrogate"
@@ -120,16 +121,6 @@ def name_problem(name: str) -> str | None:
             "names and progress lines, where they would move the cursor or end the line"
         )
     return None
-
-
-def _utf8(text: str) -> bool:
-    """``text`` can be written as UTF-8: it holds no lone surrogate (how Python holds a file
-    name's byte that is not UTF-8)."""
-    try:
-        text.encode("utf-8")
-    except UnicodeEncodeError:
-        return False
-    return True
 
 
 def dataset_name(given: str | None, out: Path) -> str:

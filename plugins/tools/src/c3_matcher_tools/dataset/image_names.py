@@ -11,7 +11,17 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["file_identity", "place_images"]
+__all__ = ["file_identity", "is_utf8", "place_images"]
+
+
+def is_utf8(text: str) -> bool:
+    """``text`` can be written as UTF-8: it holds no lone surrogate (how Python holds a file
+    name's byte that is not UTF-8)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 def file_identity(path: Path) -> Path:

@@ -27,6 +27,7 @@ from typing import Any
 import cv2
 
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.image_names import is_utf8
 from c3_matcher_tools.dataset.sources.quiet import quiet
 from c3_matcher_tools.dataset.sources.track import Shot, constant, logs_library
 
@@ -184,6 +185,13 @@ def folder_shots(folder: Path, *, metadata: bool = True) -> list[Shot]:
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise InvalidInputError("IMAGES", f"{folder}: no image ({', '.join(IMAGE_SUFFIXES)}) in it")
+    odd = [p.name for p in files if not is_utf8(p.name)]
+    if odd:  # a name is kept as text in the dataset, its frame id made from it
+        raise InvalidInputError(
+            "IMAGES",
+            f"{folder}: {len(odd)} photo name(s) not UTF-8 text (a byte of another encoding), "
+            f"first {odd[0]!r}: rename them",
+        )
     if metadata:
         logs_library("exifread", folder, PHOTO_METADATA)
     shots = []
