@@ -104,14 +104,14 @@ def _pair_images(
         for p in images_dir.iterdir()
         if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
     }
-    named = {file_identity(images_dir / r.image) for r in rows}
-    kept = [r for r in rows if (images_dir / r.image).is_file()]
+    found = [(images_dir / r.image).is_file() for r in rows]  # one stat a row
+    kept = [r for r, there in zip(rows, found, strict=True) if there]
+    named = {file_identity(images_dir / r.image) for r in kept}  # only those on disk can be
     unnamed = sorted(name for file, name in on_disk.items() if file not in named)
+    missing = [r for r, there in zip(rows, found, strict=True) if not there]
     skipped = [(n, "no telemetry row") for n in unnamed]
     skipped += [
-        (r.image, f"line {r.line}: no such image")
-        for r in sorted(rows, key=lambda r: r.line)
-        if not (images_dir / r.image).is_file()
+        (r.image, f"line {r.line}: no such image") for r in sorted(missing, key=lambda r: r.line)
     ]
     return kept, skipped
 
