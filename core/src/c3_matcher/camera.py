@@ -32,6 +32,7 @@ from c3_matcher.dto import Attitude, CameraCalibration
 
 __all__ = [
     "DEFAULT_BODY_FROM_CAMERA",
+    "MAX_OFF_NADIR_DEG",
     "apply_homography",
     "body_from_camera",
     "clip_polygon",
@@ -54,6 +55,11 @@ DEFAULT_BODY_FROM_CAMERA: F64 = np.array(
     [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=np.float64
 )
 DEFAULT_BODY_FROM_CAMERA.setflags(write=False)
+
+#: The farthest from nadir (degrees) a ray is taken to see usable ground: the query is clipped
+#: to it before matching and the georeferenced footprint after (grazing rays beyond it see the
+#: ground too thinly to match, and a map's error there is magnified without bound).
+MAX_OFF_NADIR_DEG = 75.0
 
 
 def rot_x(angle: float) -> F64:

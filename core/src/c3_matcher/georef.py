@@ -26,7 +26,7 @@ whole (RFC 7946 would cut it in two).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import cv2
@@ -190,26 +190,74 @@ def footprint_lonlat(
     calibration: CameraCalibration,
     tile_gsd_m: float | None = None,
     samples_per_side: int = 8,
-) -> tuple[tuple[float, float], F64]:
+) -> tuple[tuple[float, float], F64] | None:
     """(centre (lon, lat), closed footprint polygon (N + 1, 2) lon/lat) of a frame whose
     UNDISTORTED px map to ``tile_id``'s image by ``h_query_to_tile`` (``tile_gsd_m``: see
     :func:`tile_px_to_lonlat`). The centre is the principal point, its longitude in [-180, 180);
     the footprint follows the image boundary (undistorted), one continuous ring around the
     centre (see the module docstring), wound counter-clockwise in lon/lat as RFC 7946 wants an
-    exterior ring, whichever way the camera and the homography turn the boundary."""
+    exterior ring, whichever way the camera and the homography turn the boundary.
+
+    The footprint is the ground the frame sees within :data:`~c3_matcher.camera.MAX_OFF_NADIR_DEG`
+    of nadir, the cone the query is clipped to before matching (:func:`_off_nadir_cosine` reads
+    each ray's angle off the map): the part of a tilted frame above the horizon maps through
+    the homography to points behind the camera, and the part just below it to points without
+    bound away, neither of them ground the frame saw. A frame wholly within the cone keeps its
+    whole boundary, unchanged. None when the principal point is not within the cone (it looks
+    above the horizon, or at ground too grazing to place): no centre, no footprint."""
+    hom = np.asarray(h_query_to_tile, dtype=np.float64)
+    if hom.shape != (3, 3) or not np.isfinite(hom).all():
+        raise InvalidInputError("h_query_to_tile", f"expected a finite 3x3 map, got {hom!r}")
     w, h = calibration.image_size
     k = calibration.K
     centre_px = np.array([[k[0, 2], k[1, 2]]])
     # always undistorted, as :func:`fit_query_to_tile` takes the inliers: without distortion a
     # skewed K still moves a pixel (the lens side ignores the skew, ``K @ ray`` does not)
     boundary = cam.undistort_points(cam.image_boundary(w, h, samples_per_side), calibration)
-    pts = cam.apply_homography(h_query_to_tile, np.concatenate([centre_px, boundary]))
+    cosine = _off_nadir_cosine(hom, k, np.concatenate([centre_px, boundary]))
+    cos_max = math.cos(math.radians(cam.MAX_OFF_NADIR_DEG))
+    boundary = cam.clip_polygon(boundary, lambda px: cosine(px) - cos_max)
+    if not cosine(centre_px)[0] >= cos_max or boundary.shape[0] < 3:
+        return None
+    pts = cam.apply_homography(hom, np.concatenate([centre_px, boundary]))
     lonlat = _continuous_lonlat(tile_id, tile_size, pts, tile_gsd_m)
     turns = np.round((wrap_longitude(lonlat[0, 0]) - lonlat[0, 0]) / 360.0)
     if np.isfinite(turns):
         lonlat[:, 0] += 360.0 * turns  # the centre in [-180, 180), the ring around it
     ring = _counter_clockwise(np.concatenate([lonlat[1:], lonlat[1:2]]))
     return (float(lonlat[0, 0]), float(lonlat[0, 1])), ring
+
+
+def _off_nadir_cosine(hom: F64, k: F64, frame_px: F64) -> Callable[[F64], F64]:
+    """The cosine of the angle from nadir of the ray of each (M, 2) UNDISTORTED px, read off the
+    map UNDISTORTED px -> tile px ``hom`` and the camera's ``K`` alone.
+
+    The map is ``S @ [r1 r2 t]^-1 @ K^-1`` up to scale (the tile an orthographic image of the
+    ground, ``S`` its pixels' similarity), so the ground's normal in the camera frame lies along
+    ``K.T @ hom[2]`` and a px's ray ``K^-1 @ (x, y, 1)`` meets it in the map's third
+    coordinate ``w``: the cosine is ``w / (|ray| |K.T @ hom[2]|)``, its sign (ground in front,
+    or sky behind) fixed by the map's overall sign, which a fit leaves free. The frame's own
+    px (``frame_px``: its centre and boundary) tell it when they all lie on one side of the
+    horizon: the inliers the map was fitted to lie among them, on the ground. When the horizon
+    crosses the frame, the side is where the map keeps the orientation of a camera above a
+    north-up map (``w`` of the sign of ``det(hom)``; a mirroring map is taken for a camera
+    looking the other way)."""
+    normal = k.T @ hom[2]
+    k_inv = np.linalg.inv(k)
+
+    def third(px: F64) -> F64:
+        return np.asarray(px @ hom[2, :2] + hom[2, 2], dtype=np.float64)
+
+    w_frame = np.sign(third(frame_px))
+    side = w_frame[0] if bool(np.all(w_frame == w_frame[0])) else 0.0
+    side = side or float(np.sign(np.linalg.det(hom)))
+    scale = side / float(np.linalg.norm(normal))
+
+    def cosine(px: F64) -> F64:
+        rays = np.concatenate([px, np.ones((px.shape[0], 1))], axis=1) @ k_inv.T
+        return np.asarray(scale * third(px) / np.linalg.norm(rays, axis=1), dtype=np.float64)
+
+    return cosine
 
 
 def _counter_clockwise(ring: F64) -> F64:
@@ -241,7 +289,9 @@ def georeference_result(
     is georeferenced and the tiles' sizes (per INPUT position) are known, ``centre_lat``,
     ``centre_lon`` and ``footprint`` (a closed GeoJSON exterior ring of [lon, lat],
     counter-clockwise). ``tile_gsd_m`` None: the tiles are store windows; a GSD: images centred
-    exactly on their ids (see the module docstring). Empty when no homography fits."""
+    exactly on their ids (see the module docstring). Empty when no homography fits; without the
+    centre and footprint when the frame's principal point sees no ground to place
+    (:func:`footprint_lonlat`)."""
     best = result.per_candidate[0]
     hom = best_query_to_tile(result, calibration)
     if hom is None:
@@ -251,9 +301,10 @@ def georeference_result(
         return out
     index = int(result.diagnostics.get("input_index", [0])[0])
     tw, th = tile_sizes[index]
-    (lon, lat), ring = footprint_lonlat(
-        hom, best.tile_id, (int(tw), int(th)), calibration, tile_gsd_m
-    )
+    placed = footprint_lonlat(hom, best.tile_id, (int(tw), int(th)), calibration, tile_gsd_m)
+    if placed is None:
+        return out
+    (lon, lat), ring = placed
     out.update(
         centre_lat=lat,
         centre_lon=lon,

@@ -82,7 +82,7 @@ class FramePreprocessor:
         rule: InputRule,
         *,
         border_erode_px: int = 4,
-        max_off_nadir_deg: float = 75.0,
+        max_off_nadir_deg: float = cam.MAX_OFF_NADIR_DEG,
         max_canvas_factor: float = 3.0,
         boundary_samples_per_side: int = 64,
         area_downscale_threshold: float = 2.0,
