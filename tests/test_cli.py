@@ -350,7 +350,7 @@ def test_match_a_query_frame_the_backbone_fails_on_prints_a_json_error_and_exits
     def engine_run_fails(*args: object, **kwargs: object) -> None:
         raise RuntimeError("engine run failed: out of device memory")
 
-    monkeypatch.setattr("c3_matcher.pipeline.prepare_query", engine_run_fails)
+    monkeypatch.setattr("c3_matcher.stages.scales.prepare_query", engine_run_fails)
     assert main(demo_args([0, 1])) == 1
     captured = capsys.readouterr()
     out = json.loads(captured.out)

@@ -4,6 +4,7 @@ homography with no footprint on the tile, or no homography leave the first pass 
 from __future__ import annotations
 
 import uuid
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -11,8 +12,9 @@ import numpy as np
 from c3_matcher.dto import CandidateMatchSet, TileId
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.stages.outcomes import Survivor, TileFeatures
-from c3_matcher.stages.query import Query, prepare_query
+from c3_matcher.stages.query import Query, gsd_groups, prepare_query
 from c3_matcher.stages.refine import NO_FOOTPRINT, RefinePass
+from c3_matcher.stages.scales import FrameScales, QueryScale
 from c3_matcher.stages.verify import Verifier
 from c3_matcher.testing import (
     FakeBackend,
@@ -41,9 +43,8 @@ def _setup(fail_extract: bool = False) -> tuple[FakeBackend, FramePreprocessor, 
     backend = FakeBackend(FakeInferenceRuntime(), FakeLightGlueRuntime())
     pre = FramePreprocessor(backend.input_rule)
     rerank = make_rerank(FRAME.frame_id, [ScriptedCandidate()])
-    query = prepare_query(
-        pre, backend, FRAME, CALIBRATION, rerank.candidates, rotation_search=False, timings={}
-    )
+    gsd = gsd_groups(rerank.candidates)[0].gsd_m
+    query = prepare_query(pre, backend, FRAME, CALIBRATION, gsd, rotation_search=False, timings={})
     if fail_extract:
 
         def broken(image: Any) -> Any:
@@ -67,8 +68,7 @@ def _run(backend, pre, query, first, ransac=((90, 0.5),)) -> tuple[list[Survivor
     survivors, record = RefinePass(pre, backend).run(
         FRAME,
         CALIBRATION,
-        query,
-        verifier,
+        FrameScales((QueryScale(query, verifier, (0,)),)),
         [first],
         reports,  # type: ignore[arg-type]
     )
@@ -114,3 +114,22 @@ def test_without_a_homography_there_is_no_pass():
     first = _first(backend, pre, None)
     survivors, record, _ = _run(backend, pre, query, first)
     assert survivors == [first] and record is None
+
+
+def test_the_pass_uses_the_query_and_verifier_the_best_was_matched_against():
+    """Candidates of two GSDs are matched against two queries: the best one's second pass
+    goes through its own query and is verified by its own verifier."""
+    backend, pre, query = _setup()
+    first = replace(_first(backend, pre, np.eye(3)), input_index=1)
+    other = Verifier(SequenceRansacFilter([(80, 1.0)]), 3.0, None)  # would rank no better
+    own = Verifier(SequenceRansacFilter([(90, 0.5)]), 3.0, None)
+    scales = FrameScales((QueryScale(query, other, (0,)), QueryScale(query, own, (1,))))
+    survivors, record = RefinePass(pre, backend).run(
+        FRAME,
+        CALIBRATION,
+        scales,
+        [first],
+        Reports(),  # type: ignore[arg-type]
+    )
+    assert record is not None and record.kept and survivors[0].match_set.inlier_count == 90
+    assert survivors[0].input_index == 1

@@ -4,12 +4,12 @@ A strategy supplies only its model I/O as a ``FeatureBackend`` (extract features
 image, match two feature sets); ``PipelineMatcher.match`` composes the stages of
 :mod:`c3_matcher.stages` around it, top to bottom:
 
-1-2. the query frame, prepared once and extracted (``stages.query``; every quarter turn under
-     rotation search);
+1-2. the query frame, prepared once per GSD of the candidates (one, when they share a zoom)
+     and extracted (``stages.query``; every quarter turn under rotation search);
 3-4. per candidate, with drop and continue: its tile features, stored, cached or extracted
-     (``stages.candidate_features``), matched and verified: the geometric prior, RANSAC through
-     the shared ``RansacFilter`` (``stages.verify``); zero inliers or a refusal on geometry
-     drop it;
+     (``stages.candidate_features``), matched against the query at its GSD and verified: that
+     query's geometric prior, RANSAC through the shared ``RansacFilter`` (``stages.verify``);
+     zero inliers or a refusal on geometry drop it;
      the optional refine pass of the best candidate (``stages.refine``);
 5-6. the best inlier count against ``min_inliers_threshold``;
 7.   the deterministic ranking (``stages.ranking``);
@@ -53,12 +53,13 @@ from c3_matcher.protocols import Clock, FdrClient, FeatureBackend, RansacFilter
 from c3_matcher.stages.candidate_features import CandidateFeatures
 from c3_matcher.stages.candidate_features import feature_request as _feature_request
 from c3_matcher.stages.failure import CandidateStepError, failing_as, timed
-from c3_matcher.stages.outcomes import Dropped, FrameEvidence, GeometryRefusal, Survivor
-from c3_matcher.stages.query import QUERY_ROTATIONS_DEG, Query, prepare_query
+from c3_matcher.stages.outcomes import Dropped, FrameEvidence, Survivor
+from c3_matcher.stages.query import QUERY_ROTATIONS_DEG, Query
 from c3_matcher.stages.ranking import best_inlier_count, ranked
 from c3_matcher.stages.recorder import FrameRecorder, RecorderSinks
 from c3_matcher.stages.refine import RefinePass
-from c3_matcher.stages.verify import Verdict, Verifier, best_turn, frame_prior
+from c3_matcher.stages.scales import FrameScales, prepare_scales
+from c3_matcher.stages.verify import Verifier, best_turn, frame_prior
 from c3_matcher.tile_cache import TileFeatureCache
 
 __all__ = ["QUERY_ROTATIONS_DEG", "FeatureBackend", "PipelineMatcher", "PipelineSettings"]
@@ -216,24 +217,17 @@ class PipelineMatcher:
     ) -> MatchResult:
         started = time.perf_counter()
         timings: dict[str, float] = {}
-        query = self._query(frame, calibration, rerank.candidates, recorder, timings)  # 1-2
-        prior = frame_prior(
-            query.image, self.settings.geometric_prior, self.settings.prior_tolerances
-        )
-        verifier = Verifier(self._ransac, self.settings.ransac_threshold_px, prior)
+        scales = self._scales(frame, calibration, rerank.candidates, recorder, timings)  # 1-2
         candidates = [  # steps 3-4
-            self._candidate(index, candidate, query, verifier, recorder)
+            self._candidate(index, candidate, scales, recorder)
             for index, candidate in enumerate(rerank.candidates)
         ]
         survivors = [c for c in candidates if isinstance(c, Survivor)]
         refine = None
         if self.settings.refine and survivors:
-            survivors, refine = self._refine.run(
-                frame, calibration, query, verifier, survivors, recorder
-            )
-        evidence = FrameEvidence.of(
-            candidates, rotation_search=query.rotation_search, refine=refine
-        )
+            survivors, refine = self._refine.run(frame, calibration, scales, survivors, recorder)
+        search = scales.rotation_search
+        evidence = FrameEvidence.of(candidates, rotation_search=search, refine=refine)
         best_count = best_inlier_count(survivors)  # step 5
         recorder.candidates(survivors)
         threshold = self.settings.min_inliers_threshold
@@ -247,8 +241,8 @@ class PipelineMatcher:
             recorder.residual_above_threshold(best, self.settings.residual_warn_threshold_px)
         recorder.update_health(best.inlier_count)  # step 9
         timings["total"] = (time.perf_counter() - started) * 1e3
-        diagnostics = self._diagnostics(evidence, survivors, query, prior is not None, timings)
-        rectification = query.image.working_from_undistorted
+        diagnostics = self._diagnostics(evidence, survivors, scales, timings)
+        rectification = scales.of(survivors[0].input_index).query.image.working_from_undistorted
         recorder.frame_done(evidence, survivors, rectification, timings, threshold)  # step 10
         return MatchResult(  # step 11
             frame_id=rerank.frame_id,
@@ -262,41 +256,53 @@ class PipelineMatcher:
             diagnostics=diagnostics,
         )
 
-    def _query(
+    def _scales(
         self,
         frame: NavCameraFrame,
         calibration: CameraCalibration,
         candidates: Sequence[RerankCandidate],
         recorder: FrameRecorder,
         timings: dict[str, float],
-    ) -> Query:
-        """Steps 1-2, once per frame; any failure is a query failure (``query_extract``)."""
+    ) -> FrameScales:
+        """Steps 1-2, once per GSD of the candidates (``stages.scales``); the frame failing at
+        every GSD is a query failure (``query_extract``)."""
         try:
-            return prepare_query(
+            return prepare_scales(
                 self._pre,
                 self.backend,
                 frame,
                 calibration,
                 candidates,
                 rotation_search=self.settings.rotation_search,
+                verifier=self._verifier,
                 timings=timings,
             )
         except Exception as exc:
             recorder.query_failed(exc)
             raise MatcherBackboneError("query_extract", None, exc) from exc
 
+    def _verifier(self, query: Query) -> Verifier:
+        """RANSAC and ``query``'s geometric prior (None without one)."""
+        s = self.settings
+        prior = frame_prior(query.image, s.geometric_prior, s.prior_tolerances)
+        return Verifier(self._ransac, s.ransac_threshold_px, prior)
+
     def _candidate(
         self,
         index: int,
         candidate: RerankCandidate,
-        query: Query,
-        verifier: Verifier,
+        scales: FrameScales,
         recorder: FrameRecorder,
     ) -> Survivor | Dropped:
-        """Steps 3-4 for one candidate: features, matching and verification; a backbone
-        failure drops it (recorded with its phase), as do zero inliers and a refusal on
-        geometry."""
+        """Steps 3-4 for one candidate: features, matching against the query at its GSD (its
+        one of ``scales``) and verification; a backbone failure drops it (recorded with its
+        phase), as do zero inliers and a refusal on geometry."""
         timings: dict[str, float] = {}
+        if index in scales.failed:  # the frame could not be prepared at its GSD
+            failure = scales.failed[index]
+            recorder.backbone_error(candidate.tile_id, "query_extract", failure, index)
+            return Dropped(index, "none", timings)
+        query, verifier = scales.of(index).query, scales.of(index).verifier
         try:
             tile = self._tiles.fetch(candidate, recorder, timings)
             verdict = best_turn(
@@ -316,7 +322,7 @@ class PipelineMatcher:
             recorder.zero_inliers(candidate.tile_id, index, verdict.raw_matches)
             return Dropped(index, tile.source, timings)
         if verdict.refused:  # refused on geometry, whatever its inliers
-            refusal = _refusal(index, verdict, match_set.inlier_count, query.rotation_search)
+            refusal = verdict.refusal(index, query.rotation_search)
             recorder.geometry_refused(refusal)
             return Dropped(index, tile.source, timings, refusal)
         return Survivor(
@@ -327,35 +333,30 @@ class PipelineMatcher:
         self,
         evidence: FrameEvidence,
         survivors: Sequence[Survivor],
-        query: Query,
-        geometric_prior: bool,
+        scales: FrameScales,
         timings: dict[str, float],
     ) -> dict[str, Any]:
         """``MatchResult.diagnostics``: timings, the survivors' input order, homographies
-        (from WORKING px, and ``query_to_tile`` from UNDISTORTED px), turns and models, the
-        tile cache's counters and the frame's evidence."""
+        (from WORKING px of each one's query, and ``query_to_tile`` from UNDISTORTED px), turns
+        and models, whether the frame ran with a geometric prior, the tile cache's counters and
+        the frame's evidence."""
         cache = self._tiles.cache
+        images = [scales.of(s.input_index).query.image for s in survivors]
         return {
             "timings_ms": dict(timings),
             "per_candidate_timings_ms": list(evidence.per_candidate_ms),
             "input_index": [s.input_index for s in survivors],
             "homographies": [s.homography for s in survivors],
-            "query_to_tile": [query.image.from_undistorted(s.homography) for s in survivors],
+            "query_to_tile": [i.from_undistorted(s.homography) for i, s in zip(images, survivors)],
             "tile_cache": {"hits": cache.hits, "misses": cache.misses},
             "candidate_features": list(evidence.sources),
-            "geometric_prior": geometric_prior,
+            "geometric_prior": scales.geometric_prior,
             "geometry_refused": [r.as_record() for r in evidence.refused],
             "rotation_search": evidence.rotation_search,
             "rotation_deg": [s.rotation_deg for s in survivors],
             "models": [s.model for s in survivors],
             "refine": evidence.refine.as_record() if evidence.refine is not None else None,
         }
-
-
-def _refusal(index: int, verdict: Verdict, inliers: int, rotation_search: bool) -> GeometryRefusal:
-    assert verdict.check is not None
-    turn = verdict.rotation_deg if rotation_search else None
-    return GeometryRefusal(verdict.match_set.tile_id, index, inliers, verdict.check.reason, turn)
 
 
 def _close_failed(exc: Exception) -> None:

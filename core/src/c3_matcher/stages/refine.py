@@ -1,4 +1,5 @@
-"""The refine pass (``refine``; off by default): the best-ranked survivor's query re-rendered
+"""The refine pass (``refine``; off by default): the best-ranked survivor's query (the one it
+was matched against, at its GSD) re-rendered
 through its first homography into the tile's pixel grid (same scale and orientation as the
 tile, perspective removed), extracted and matched again, then put through the same prior vote,
 RANSAC and geometry check. The matcher never sees the first homography, so the second pass's
@@ -18,10 +19,10 @@ from c3_matcher.protocols import FeatureBackend
 from c3_matcher.stages.extract import extract_checked
 from c3_matcher.stages.failure import timed
 from c3_matcher.stages.outcomes import RefineRecord, Survivor
-from c3_matcher.stages.query import Query
 from c3_matcher.stages.ranking import top
 from c3_matcher.stages.recorder import FrameRecorder
-from c3_matcher.stages.verify import Verdict, Verifier
+from c3_matcher.stages.scales import FrameScales, QueryScale
+from c3_matcher.stages.verify import Verdict
 
 __all__ = ["RefinePass"]
 
@@ -40,21 +41,22 @@ class RefinePass:
         self,
         frame: NavCameraFrame,
         calibration: CameraCalibration,
-        query: Query,
-        verifier: Verifier,
+        scales: FrameScales,
         survivors: Sequence[Survivor],
         recorder: FrameRecorder,
     ) -> tuple[list[Survivor], RefineRecord | None]:
         """``survivors`` with the best one replaced by its second pass when that one is kept,
         and the pass's record (None when the best survivor has no homography to go through).
+        The best one's query and verifier are those it was matched against.
         The pass's time is the best candidate's ``refine`` timing."""
         first = top(survivors)
         if first.homography is None:
             return list(survivors), None
+        scale = scales.of(first.input_index)
         record = RefineRecord(first.input_index, first.match_set.inlier_count)
         try:
             with timed(first.timings, "refine"):
-                verdict = self._second_pass(frame, calibration, query, verifier, first)
+                verdict = self._second_pass(frame, calibration, scale, first)
         except Exception as exc:  # the first pass stands; the failure is on record
             recorder.refine_failed(first.match_set.tile_id, exc)
             return list(survivors), replace(record, reason=describe(exc))
@@ -72,7 +74,7 @@ class RefinePass:
             return list(survivors), replace(record, reason="ranks no better than the first pass")
         match_set = replace(
             verdict.match_set,
-            inlier_correspondences=query.image.in_original_px(
+            inlier_correspondences=scale.query.image.in_original_px(
                 verdict.match_set.inlier_correspondences
             ),
         )
@@ -86,16 +88,16 @@ class RefinePass:
         self,
         frame: NavCameraFrame,
         calibration: CameraCalibration,
-        query: Query,
-        verifier: Verifier,
+        scale: QueryScale,
         first: Survivor,
     ) -> Verdict | None:
-        """The query re-rendered through ``first``'s homography, extracted, matched with its
-        tile and verified; None when the homography leaves no footprint on the tile."""
+        """``scale``'s query re-rendered through ``first``'s homography, extracted, matched with
+        its tile and verified by ``scale``'s verifier; None when the homography leaves no
+        footprint on the tile."""
         assert first.homography is not None
         tile = first.tile
         refined = self._pre.refined_geometry(
-            query.geometry, first.homography, tile.image.working_size
+            scale.query.geometry, first.homography, tile.image.working_size
         )
         if refined is None:
             return None
@@ -103,4 +105,4 @@ class RefinePass:
         features = extract_checked(self._backend, image)
         raw = self._backend.match(features, tile.features)
         rows = correspondences(image, features, tile.image, tile.features, raw)
-        return verifier.verify(first.match_set.tile_id, first.rotation_deg, rows)
+        return scale.verifier.verify(first.match_set.tile_id, first.rotation_deg, rows)

@@ -5,7 +5,9 @@ GSD): the prior's translation vote before RANSAC, RANSAC through the shared ``Ra
 then the prior's geometry check of the homography; a homography the check refuses is replaced
 by the similarity the prior implies when that one passes (``model`` ``"similarity"``), else
 the candidate is refused on geometry. Without a prior: RANSAC alone. Under rotation search the
-candidate keeps the query turn whose result ranks best (first turn on a tie)."""
+candidate keeps the query turn whose result ranks best (first turn on a tie). Each candidate is
+matched against the query scaled to its own GSD and verified with that query's prior
+(:mod:`~c3_matcher.stages.scales`)."""
 
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ from c3_matcher.prior import GeometricPrior, HomographyCheck, PriorTolerances
 from c3_matcher.protocols import FeatureBackend, RansacFilter
 from c3_matcher.ransac import MIN_CORRESPONDENCES, homography_residuals
 from c3_matcher.stages.failure import failing_as, timed
-from c3_matcher.stages.outcomes import TileFeatures
+from c3_matcher.stages.outcomes import GeometryRefusal, TileFeatures
 from c3_matcher.stages.query import QueryView
 
 __all__ = ["Verdict", "Verifier", "best_turn", "frame_prior"]
@@ -53,6 +55,16 @@ class Verdict:
         refuse first (there is no prior without attitude, so in practice never in play), then
         the pipeline's own ranking rule (inliers descending, residual ascending)."""
         return self.refused, ranking_key(self.match_set)
+
+    def refusal(self, candidate_index: int, rotation_search: bool) -> GeometryRefusal:
+        """The refusal on geometry of a refused verdict, as the records name it (its turn only
+        under rotation search)."""
+        assert self.check is not None
+        turn = self.rotation_deg if rotation_search else None
+        inliers = self.match_set.inlier_count
+        return GeometryRefusal(
+            self.match_set.tile_id, candidate_index, inliers, self.check.reason, turn
+        )
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,78 @@
+"""The pipeline with candidates of two GSDs: the query is prepared and extracted once per GSD
+(once when they share one), and each candidate is matched against its own."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import pytest
+
+from c3_matcher.dto import RerankResult
+from c3_matcher.errors import InvalidInputError, MatcherBackboneError
+from c3_matcher.testing import ScriptedCandidate as S
+from c3_matcher.testing import ScriptedRig
+
+
+def _two_gsds(rig: ScriptedRig) -> None:
+    """The rig's second candidate at twice the others' GSD (another zoom)."""
+    first, second, *rest = rig.rerank.candidates
+    coarse = dataclasses.replace(second, gsd_m_per_px=2 * second.ground_sample_distance_m())
+    rig.rerank = RerankResult(rig.rerank.frame_id, (first, coarse, *rest))
+
+
+def test_one_query_per_gsd_and_every_candidate_matched(fdr, logs):
+    rig = ScriptedRig([S(120, 1.1), S(150, 1.0), S(80, 1.5)], fdr)
+    _two_gsds(rig)
+    result = rig.match()
+    assert rig.query_extractions == 2
+    assert result.diagnostics["input_index"] == [1, 0, 2]
+    assert [m.inlier_count for m in result.per_candidate] == [150, 120, 80]
+    assert len(result.diagnostics["query_to_tile"]) == 3
+    (record,) = fdr.of_kind("matcher.frame_done")
+    assert (
+        record["timings_ms"]["query_extract"] == result.diagnostics["timings_ms"]["query_extract"]
+    )
+
+
+def test_candidates_sharing_a_gsd_share_one_query(fdr, logs):
+    rig = ScriptedRig([S(120, 1.1), S(150, 1.0), S(80, 1.5)], fdr)
+    rig.match()
+    assert rig.query_extractions == 1
+
+
+def test_a_gsd_the_frame_cannot_be_prepared_at_drops_only_its_candidates(
+    fdr, logs, monkeypatch: pytest.MonkeyPatch
+):
+    """Drop and continue: the candidate of a GSD the query fails at (a GSD mistyped in other
+    units, say) is dropped with phase ``query_extract``; the others are matched."""
+    from c3_matcher.stages import scales
+
+    real = scales.prepare_query
+
+    def fails_at_the_coarse_gsd(*args: Any, **kwargs: Any) -> Any:
+        if args[4] > 1.5 * rig.rerank.candidates[0].ground_sample_distance_m():
+            raise InvalidInputError("tile_gsd_m", "would scale the frame too far")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(scales, "prepare_query", fails_at_the_coarse_gsd)
+    rig = ScriptedRig([S(120, 1.1), S(150, 1.0), S(80, 1.5)], fdr)
+    _two_gsds(rig)
+    result = rig.match()
+    assert result.diagnostics["input_index"] == [0, 2] and result.candidates_dropped == 1
+    (record,) = fdr.of_kind("matcher.backbone_error")
+    assert (record["phase"], record["candidate_index"]) == ("query_extract", 1)
+
+
+def test_every_gsd_failing_is_the_query_failing(fdr, logs, monkeypatch: pytest.MonkeyPatch):
+    from c3_matcher.stages import scales
+
+    def fails(*args: Any, **kwargs: Any) -> Any:
+        raise InvalidInputError("tile_gsd_m", "would scale the frame too far")
+
+    monkeypatch.setattr(scales, "prepare_query", fails)
+    rig = ScriptedRig([S(120, 1.1), S(150, 1.0)], fdr)
+    _two_gsds(rig)
+    with pytest.raises(MatcherBackboneError) as err:
+        rig.match()
+    assert err.value.phase == "query_extract"
