@@ -33,6 +33,12 @@ from c3_matcher_tools.run.matcher import (
     prepare_matcher,
 )
 from c3_matcher_tools.run.records import DroppedCandidate, FlightRun, FrameOutcome, FrameStatus
+from c3_matcher_tools.run.results_file import (
+    RESULTS_FILE,
+    KeepFrame,
+    appending_results,
+    partial_results,
+)
 from c3_matcher_tools.run.scoring import (
     TelemetryReference,
     best_candidate_error,
@@ -64,7 +70,9 @@ class FlightOptions:
     """How a flight is flown: ``frames`` (None: all, in order), ``progress`` (called with the
     frames done and those to fly), whether each result keeps its inlier correspondences, and
     ``keep_stopped``: Ctrl-C or SIGTERM during the frames raises :class:`FlightStopped` with
-    the outcomes of those done (else the interrupt as it came)."""
+    the outcomes of those done (else the interrupt as it came), and :func:`fly_prepared`
+    keeps each frame's result line as it is flown, so that a run killed outright keeps them
+    too (:func:`~c3_matcher_tools.run.results_file.appending_results`)."""
 
     frames: Sequence[FrameRecord] | None = None
     progress: Progress | None = None
@@ -95,10 +103,15 @@ class FlightStopped(KeyboardInterrupt):
 
 
 def run_flight(
-    matcher: CrossDomainMatcher, dataset: FlightDataset, options: FlightOptions = ALL_FRAMES
+    matcher: CrossDomainMatcher,
+    dataset: FlightDataset,
+    options: FlightOptions = ALL_FRAMES,
+    *,
+    kept: KeepFrame | None = None,
 ) -> list[FrameOutcome]:
     """Match every frame (or ``options.frames``) in order, as ``options`` says; tiles are read
-    lazily from the store."""
+    lazily from the store. ``kept``: called with each frame's outcome once it is flown, before
+    the progress is said."""
     todo = list(dataset.frames if options.frames is None else options.frames)
     progress, with_correspondences = options.progress, options.with_correspondences
     outcomes: list[FrameOutcome] = []
@@ -108,6 +121,8 @@ def run_flight(
             for n, frame in enumerate(todo, start=1):
                 flown = _fly_frame(matcher, dataset, frame, store, heard, with_correspondences)
                 outcomes.append(flown)
+                if kept is not None:
+                    kept(flown)
                 if progress is not None:
                     progress(n, len(todo))
         except KeyboardInterrupt as exc:
@@ -334,7 +349,9 @@ def fly_prepared(
     """Start ``prepared`` in ``out_dir`` (:meth:`~PreparedMatcher.start`: a fresh FDR and log),
     fly it as ``options`` says and time it: start-up is composing the matcher and opening its
     FDR, wall time that and flying (s). With ``options.keep_stopped``, a flight stopped
-    part-way raises :class:`FlightStopped` holding the run of the frames done."""
+    part-way raises :class:`FlightStopped` holding the run of the frames done, and each
+    frame's result line is appended to ``results.jsonl.partial`` in ``out_dir`` as it is
+    flown (:func:`_kept_as_flown`), which writing the run's ``results.jsonl`` removes."""
     started = time.perf_counter()
     prepared.start(out_dir)
     startup_s = prepared.startup_s + time.perf_counter() - started
@@ -355,11 +372,27 @@ def fly_prepared(
         )
 
     try:
-        outcomes = run_flight(prepared.matcher, dataset, options)
+        with _kept_as_flown(out_dir, options.keep_stopped) as kept:
+            outcomes = run_flight(prepared.matcher, dataset, options, kept=kept)
     except FlightStopped as stop:
         run = flight_run(stop.done, stop.planned)
         raise FlightStopped(stop.signum, stop.done, stop.planned, run) from stop.__cause__
     return flight_run(outcomes)
+
+
+def _kept_as_flown(
+    out_dir: Path, keep_stopped: bool
+) -> contextlib.AbstractContextManager[KeepFrame | None]:
+    """Where a flight whose frames done are kept (``keep_stopped``) appends each frame's result
+    line as it is flown: the partial file of ``out_dir``'s results, flushed to disk, so that a
+    run killed outright (SIGKILL, out of memory) keeps them as well as one stopped. None for
+    one whose frames are not kept (eval's second run), an earlier partial file there removed:
+    no earlier run's results stand beside this run's FDR."""
+    results = out_dir / RESULTS_FILE
+    if keep_stopped:
+        return appending_results(results)
+    partial_results(results).unlink(missing_ok=True)
+    return contextlib.nullcontext()
 
 
 def check_flight(dataset: FlightDataset, frames: Sequence[FrameRecord]) -> None:

@@ -22,10 +22,15 @@ from c3_matcher_tools.run.outputs import (
     forget_previous_run,
     run_json_file,
 )
+from c3_matcher_tools.run.results_file import RESULTS_FILE, partial_results
 
 __all__ = ["forget_earlier_strategies", "forget_not_reached", "forget_strategies"]
 
-_STRATEGY_FILES = (*(f for f in RUN_FILES if f != REPLAY_RUN.report), "matcher.log")
+_STRATEGY_FILES = (
+    *(f for f in RUN_FILES if f != REPLAY_RUN.report),
+    "matcher.log",
+    partial_results(Path(RESULTS_FILE)).name,  # the frames a killed run flew
+)
 """What eval's run of a strategy writes in its directory (and its second run's) beside the FDR."""
 
 

@@ -1,9 +1,10 @@
 """A run's report (:func:`flight_report`) and files: ``results.jsonl`` (one
-:class:`FrameOutcome` a line), ``flight.geojson`` and ``report.html`` (the same for ``replay`` and
-for each strategy ``eval`` runs, :func:`write_flight_outputs`), every one written through
-:func:`~c3_matcher.atomic.atomic_writer`: a run that fails part-way leaves no torn file, and
-no earlier run's results beside its own FDR (:func:`forget_previous_run`). A run's output
-directory is its command's alone: marked as it is taken (:data:`RUN_MARK`,
+:class:`FrameOutcome` a line; the frames flown kept in a partial file beside it until then,
+:mod:`~c3_matcher_tools.run.results_file`), ``flight.geojson`` and ``report.html`` (the same
+for ``replay`` and for each strategy ``eval`` runs, :func:`write_flight_outputs`), every one
+written through :func:`~c3_matcher.atomic.atomic_writer`: a run that fails part-way leaves no
+torn file, and no earlier run's results beside its own FDR (:func:`forget_previous_run`). A
+run's output directory is its command's alone: marked as it is taken (:data:`RUN_MARK`,
 :func:`mark_output_dirs`), and one that holds anything but an earlier run of the command is
 refused before anything runs (:func:`check_output_dirs`). The summary of an eval over several
 flights, beside a folder per flight, follows a later run of one of them into its folder
@@ -19,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 from c3_matcher.atomic import (
-    atomic_writer,
     held_directory,
     refuse_output_over_inputs,
     refuse_unwritable,
@@ -28,8 +28,9 @@ from c3_matcher.atomic import (
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.json_text import loads_json
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
-from c3_matcher_tools.run.records import FlightRun, FrameOutcome
+from c3_matcher_tools.run.records import FlightRun
 from c3_matcher_tools.run.report_html import no_report_html, write_html_report
+from c3_matcher_tools.run.results_file import RESULTS_FILE, write_results
 from c3_matcher_tools.run.scoring import RunSummary, summarize
 
 __all__ = [
@@ -406,7 +407,7 @@ def run_json_file(path: Path) -> Any:
         return None
 
 
-RUN_FILES = ("results.jsonl", REPLAY_RUN.report, "flight.geojson", "report.html")
+RUN_FILES = (RESULTS_FILE, REPLAY_RUN.report, "flight.geojson", "report.html")
 """What a finished run leaves beside its FDR and log (``report.json``: replay's)."""
 
 
@@ -438,14 +439,6 @@ def output_dir_name(dataset: FlightDataset) -> str:
             "dataset", f"{dataset.root / 'dataset.json'}: name {dataset.name!r} {why}"
         )
     return dataset.name
-
-
-def write_results(path: Path, outcomes: Sequence[FrameOutcome]) -> Path:
-    """``path`` (JSON Lines): each outcome's ``to_json()``, in order."""
-    with atomic_writer(path) as fh:
-        for o in outcomes:
-            fh.write(json.dumps(o.to_json()) + "\n")
-    return path
 
 
 def flight_report(
@@ -492,7 +485,7 @@ def write_flight_outputs(
     ``report.html`` (:func:`no_report_html`; False: the caller says it, once a run)."""
     from c3_matcher_tools.geojson import write_geojson
 
-    write_results(out / "results.jsonl", run.outcomes)
+    write_results(out / RESULTS_FILE, run.outcomes)
     outcomes = list(run.outcomes)
     geojson = str(write_geojson(out / "flight.geojson", outcomes, run.strategy))
     shown = {**report, "geojson": geojson}
