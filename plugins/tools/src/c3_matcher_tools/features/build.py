@@ -15,7 +15,9 @@ or ``Client(scheduler)`` for an existing cluster (its workers need this environm
 access to the store path). ``workers=0`` runs in this process, without Dask; where Dask (the
 tools' ``dask`` extra) is not installed, workers are refused naming it
 (:func:`.cluster.needs_dask`). The local cluster serves no dashboard and takes no fixed port
-(:mod:`.cluster`): builds of different stores run side by side.
+(:mod:`.cluster`): builds of different stores run side by side. A cluster that has had no
+worker for a minute (its workers died, or none connected), or whose workers kept dying while
+running a task, ends the build in one line (:mod:`.waits`); the windows done are kept.
 
 One build of a store at a time (:mod:`.lock`): a build holds the store's build lock while it
 runs, and a second one is refused at once (``BuildRunningError``, a ValueError) rather than
@@ -54,6 +56,7 @@ from c3_matcher.tilestore.geo import TILE_PX
 from c3_matcher.tilestore.sidecar import SidecarDamagedError
 from c3_matcher_tools.features.cluster import Stops, cores_of, dask_client, stops_noted
 from c3_matcher_tools.features.lock import BuildRunningError, build_lock
+from c3_matcher_tools.features.waits import WORKERLESS_S, AskedCluster, ClusterError, finished
 from c3_matcher_tools.features.windows import (
     WindowKey,
     brief_set_id,
@@ -78,6 +81,7 @@ __all__ = [
     "WINDOW_PX_RANGE",
     "BuildReport",
     "BuildRunningError",
+    "ClusterError",
     "InstalledExtractor",
     "build_features",
     "extract_window_features",
@@ -120,11 +124,14 @@ def build_features(
     batch_size: int = 8,
     progress: Callable[[str], None] | None = None,
     plugin_host: PluginHost | None = None,
+    workerless_s: float = WORKERLESS_S,
 ) -> BuildReport:
     """Precompute ``store``'s map features for each strategy (see the module docstring):
     ``window_px`` windows on a ``stride_px`` grid (default: ``window_px``), every window the
     store covers to ``min_coverage``, or only ``windows`` (zoom, gx, gy) when given.
-    ``plugin_host``: the process's (default: discovered now)."""
+    ``plugin_host``: the process's (default: discovered now). On Dask, a cluster without a
+    worker for ``workerless_s`` seconds, or whose workers keep dying, ends the build with a
+    :class:`ClusterError`."""
     say = progress or (lambda line: print(line, file=sys.stderr, flush=True))
     stride = int(stride_px or window_px)
     low, high = WINDOW_PX_RANGE
@@ -136,29 +143,31 @@ def build_features(
         raise ValueError(f"min_coverage must be in (0, 1], got {min_coverage}")
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    if not workerless_s > 0:
+        raise ValueError(f"workerless_s must be > 0, got {workerless_s}")
     store, path = Path(store), sidecar_path(Path(store))
     with build_lock(store, path):  # another build of the store running: refused at once
         plan = _plan(store, windows, window_px, stride, min_coverage)
         job = _Job(
             store, _resolved(settings, strategies, plugin_host), window_px, stride, batch_size, say
         )
-        return _built(job, plan, path, workers, scheduler)
+        return _built(job, plan, path, AskedCluster(workers, scheduler, workerless_s))
 
 
 def _built(
-    job: _Job, plan: dict[WindowKey, str | None], path: Path, workers: int, scheduler: str | None
+    job: _Job, plan: dict[WindowKey, str | None], path: Path, asked: AskedCluster
 ) -> BuildReport:
     """Build each of ``job``'s strategies' sets of ``plan`` in the sidecar ``path``, moved aside
     and built anew once when it is found damaged. Every strategy's set facts are learnt first,
     so a strategy refused (:class:`NotStorableError`, or a window its input rule would pad or
     resize: :func:`check_window`) leaves the sidecar untouched."""
     report, new = BuildReport(str(job.store), str(path)), False
-    with stops_noted() as stops, dask_client(workers, scheduler, stops) as client:
+    with stops_noted() as stops, dask_client(asked.workers, asked.scheduler, stops) as client:
         local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
-        facts = {s: _set_facts(job, s, client, local) for s in job.settings_json}
+        runner = _Runner(client, local, cores_of(client, asked.workers), stops, asked)
+        facts = {s: _set_facts(job, s, runner) for s in job.settings_json}
         for strategy, known in facts.items():  # a window the flight never serves: refused
             check_window(known.input_rule, job.window_px, strategy)
-        runner = _Runner(client, local, cores_of(client, workers), stops)
         while True:
             try:
                 with _open_sidecar(path) as sidecar:
@@ -214,12 +223,14 @@ class _Job:
 @dataclass(frozen=True)
 class _Runner:
     """Where a build's tasks run: ``client``'s workers (None: this process, its backends held in
-    ``local``), with ``cores`` threads in all; ``stops``: the Ctrl-C or SIGTERM that ends it."""
+    ``local``), with ``cores`` threads in all; ``stops``: the Ctrl-C or SIGTERM that ends it;
+    ``asked``: the cluster asked for."""
 
     client: Any
     local: BackendCache
     cores: int
     stops: Stops
+    asked: AskedCluster
 
 
 def _resolved(
@@ -272,32 +283,48 @@ def _plan(
     stride: int,
     min_coverage: float,
 ) -> dict[WindowKey, str | None]:
-    """Every window to build (sorted), each with the digest of the stored tiles it covers."""
+    """Every window to build (sorted), each with the digest of the stored tiles it covers.
+    Given ``windows``, only the tiles they cover are read (a few windows of a large store read
+    a few tiles); else every tile is, the grid being made of them."""
+    if windows is not None:
+        with open_source(str(store)) as source:
+            if not source.zooms():
+                raise ValueError(f"{store}: the store holds no tiles: nothing to build")
+        todo = sorted(set(windows))
+        if not todo:
+            raise ValueError(f"{store}: no window to build")
+        covered = {k for w in todo for k in _covered(w, window_px, stride)}
+        return window_digests(todo, window_px, stride, store_tile_digests(store, covered))
     digests = store_tile_digests(store)
     tiles = set(digests)
     if not tiles:
         raise ValueError(f"{store}: the store holds no tiles: nothing to build")
-    todo_all = (
-        sorted(set(windows))
-        if windows is not None
-        else grid_windows(tiles, window_px, stride, min_coverage)
-    )
-    if not todo_all:
+    todo = grid_windows(tiles, window_px, stride, min_coverage)
+    if not todo:
         raise ValueError(
             f"{store}: no {window_px} px window to build (none on the {stride} px grid is "
             f"covered to {min_coverage:g} by its {len(tiles)} tiles)"
-            if windows is None
-            else f"{store}: no window to build"
         )
-    return window_digests(todo_all, window_px, stride, digests)
+    return window_digests(todo, window_px, stride, digests)
 
 
-def store_tile_digests(store: Path) -> dict[tuple[int, int, int], str | None]:
-    """Each tile the store lists (zoom, x, y), with its digest as the worker and the flight
-    compute it (:func:`stored_tile_digest`: None for a tile stored with NULL data)."""
+def _covered(window: WindowKey, window_px: int, stride: int) -> list[tuple[int, int, int]]:
+    """The tiles (zoom, x, y) the ``window_px`` grid window (zoom, gx, gy) of a ``stride`` px
+    grid covers (:func:`covered_tiles`)."""
+    z, gx, gy = window
+    return covered_tiles(z, (gx * stride, gy * stride), (window_px, window_px))
+
+
+def store_tile_digests(
+    store: Path, keys: Iterable[tuple[int, int, int]] | None = None
+) -> dict[tuple[int, int, int], str | None]:
+    """Each tile the store lists (zoom, x, y), or each of ``keys`` when given (only those are
+    read), with its digest as the worker and the flight compute it (:func:`stored_tile_digest`:
+    None for a tile stored with NULL data, or not stored)."""
     with open_source(str(store)) as source:
-        tiles = {(z, x, y) for z in source.zooms() for x, y in source.tiles(z)}
-        return {k: stored_tile_digest(source, k) for k in tiles}
+        if keys is None:
+            keys = {(z, x, y) for z in source.zooms() for x, y in source.tiles(z)}
+        return {k: stored_tile_digest(source, k) for k in keys}
 
 
 def window_digests(
@@ -309,20 +336,16 @@ def window_digests(
     """Each ``window_px`` window (zoom, gx, gy) of a ``stride`` px grid with the digest of the
     tiles it covers (``digests``, :func:`store_tile_digests`; a tile not there is missing): the
     ``window_digest`` the worker stores for it and the flight compares before serving it."""
-    return {
-        (z, gx, gy): window_digest(
-            covered_tiles(z, (gx * stride, gy * stride), (window_px, window_px)), digests.get
-        )
-        for z, gx, gy in windows
-    }
+    return {w: window_digest(_covered(w, window_px, stride), digests.get) for w in windows}
 
 
-def _set_facts(job: _Job, strategy: str, client: Any, local: BackendCache) -> SetFacts:
+def _set_facts(job: _Job, strategy: str, runner: _Runner) -> SetFacts:
     """What keys ``strategy``'s set, learnt from its backend (in a worker, when there are)."""
-    if client is None:
-        return set_facts(strategy, job.settings_json[strategy], local)
-    facts = client.submit(set_facts_task, strategy, job.settings_json[strategy], pure=False)
-    known: SetFacts | str = facts.result()
+    if runner.client is None:
+        return set_facts(strategy, job.settings_json[strategy], runner.local)
+    facts = runner.client.submit(set_facts_task, strategy, job.settings_json[strategy], pure=False)
+    known: SetFacts | str
+    (known,) = finished(runner.client, runner.asked, [facts])
     if isinstance(known, str):
         raise NotStorableError(known)
     return known
@@ -416,12 +439,10 @@ def _results(
     while the results were collected, and went on from, ends the build all the same."""
     client = runner.client
     if client is None:
-        done = (task(*args, b, runner.local) for b in batches)
+        done: Iterator[Any] = (task(*args, b, runner.local) for b in batches)
     else:
-        from dask.distributed import as_completed
-
-        futures = as_completed([client.submit(task, *args, b, pure=False) for b in batches])
-        done = (f.result() for f in futures)  # each let go once its result is here
+        futures = [client.submit(task, *args, b, pure=False) for b in batches]
+        done = finished(client, runner.asked, futures)
     for result in done:
         runner.stops.check()
         yield result

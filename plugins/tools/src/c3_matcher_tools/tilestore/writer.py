@@ -86,19 +86,29 @@ def add_missing_digests(path: str | Path) -> DigestReport:
     return report
 
 
-_UNDIGESTED = (  # each tile without a digest: none, or a row whose sha256 is NULL
-    "SELECT t.zoom_level, t.tile_column, t.tile_row, t.tile_data, typeof(t.tile_data)"
+_UNDIGESTED_WHERE = (  # each tile without a digest: none, or a row whose sha256 is NULL
     " FROM tiles t WHERE NOT EXISTS (SELECT 1 FROM c3_tile_digest d"
     " WHERE d.zoom_level=t.zoom_level AND d.tile_column=t.tile_column"
     " AND d.tile_row=t.tile_row AND d.sha256 IS NOT NULL)"
-    " ORDER BY t.zoom_level, t.tile_column, t.tile_row"
+)
+_UNDIGESTED = (
+    "SELECT t.zoom_level, t.tile_column, t.tile_row, t.tile_data"
+    + _UNDIGESTED_WHERE
+    + " ORDER BY t.zoom_level, t.tile_column, t.tile_row"
+)
+_NOT_BYTES = (  # the first undigested tile whose data is neither a BLOB nor NULL, and how many
+    "SELECT t.zoom_level, t.tile_column, t.tile_row, typeof(t.tile_data), count(*) OVER ()"
+    + _UNDIGESTED_WHERE
+    + " AND typeof(t.tile_data) NOT IN ('blob', 'null')"
+    " ORDER BY t.zoom_level, t.tile_column, t.tile_row LIMIT 1"
 )
 
 
 def _digest_missing(db: sqlite3.Connection, path: Path) -> DigestReport:
     """Inside the caller's transaction: add the missing digests of the MBTiles store open as
     ``db`` (see :func:`add_missing_digests`). Refuses a database without a ``tiles`` table,
-    and a tile whose data is not bytes, before any change."""
+    and a tile whose data is not bytes, before any change. The tiles are read and hashed one
+    at a time: only their keys and digests are held, whatever the size of the store."""
     has_tiles = db.execute(
         "SELECT 1 FROM sqlite_master WHERE type IN ('table', 'view') AND name = 'tiles'"
     ).fetchone()
@@ -106,28 +116,29 @@ def _digest_missing(db: sqlite3.Connection, path: Path) -> DigestReport:
         raise InvalidInputError("store", f"{path}: not an MBTiles store (no table 'tiles')")
     for statement in _DIGEST_SCHEMA:
         db.execute(statement)
-    undigested = db.execute(_UNDIGESTED).fetchall()
-    _refuse_not_bytes(undigested, path)
-    digests = [
-        (z, x, row, hashlib.sha256(blob).hexdigest())
-        for z, x, row, blob, _ in undigested
-        if blob is not None
-    ]
+    _refuse_not_bytes(db, path)
+    digests: list[tuple[object, object, object, str]] = []
+    undigested = 0
+    for z, x, row, blob in db.execute(_UNDIGESTED):  # one tile's bytes held at a time
+        undigested += 1
+        if blob is not None:
+            digests.append((z, x, row, hashlib.sha256(blob).hexdigest()))
     db.execute("DELETE FROM c3_tile_digest WHERE sha256 IS NULL")
     db.executemany("INSERT INTO c3_tile_digest VALUES (?, ?, ?, ?)", digests)
     (tiles,) = db.execute("SELECT count(*) FROM tiles").fetchone()
-    empty = len(undigested) - len(digests)
-    return DigestReport(path, int(tiles), len(digests), int(tiles) - len(undigested), empty)
+    empty = undigested - len(digests)
+    return DigestReport(path, int(tiles), len(digests), int(tiles) - undigested, empty)
 
 
-def _refuse_not_bytes(undigested: list[tuple[object, ...]], path: Path) -> None:
-    """Refuse a store one of whose ``undigested`` tiles holds data that is neither bytes (a
-    BLOB) nor NULL, naming the first such tile, its type and how many there are: the flight
-    read path cannot decode it, and a digest of it would vouch for it."""
-    wrong = [r for r in undigested if r[4] not in ("blob", "null")]
-    if wrong:
-        z, x, row, _, kind = wrong[0]
-        more = f" (and {len(wrong) - 1} more tiles)" if len(wrong) > 1 else ""
+def _refuse_not_bytes(db: sqlite3.Connection, path: Path) -> None:
+    """Refuse a store one of whose undigested tiles holds data that is neither bytes (a BLOB)
+    nor NULL, naming the first such tile, its type and how many there are (asked of SQLite by
+    type: no tile's data is read): the flight read path cannot decode it, and a digest of it
+    would vouch for it."""
+    wrong = db.execute(_NOT_BYTES).fetchone()
+    if wrong is not None:
+        z, x, row, kind, count = wrong
+        more = f" (and {count - 1} more tiles)" if count > 1 else ""
         raise InvalidInputError(
             "store",
             f"{path}: the tile at zoom_level {z}, tile_column {x}, tile_row {row} holds "
