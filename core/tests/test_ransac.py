@@ -9,8 +9,14 @@ import cv2
 import numpy as np
 import pytest
 
+from c3_matcher import ransac as ransac_module
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.ransac import OpenCvRansacFilter, homography_residuals, refit
+from c3_matcher.ransac import (
+    OpenCvRansacFilter,
+    homography_residuals,
+    refit,
+    spread_ratio,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 ORTHO = REPO / "data" / "imagery" / "open_orthophotos" / "test_tiled.tif"
@@ -145,3 +151,74 @@ def test_the_filter_applies_its_configured_refit(real_correspondences):
     assert got.inlier_count < plain.inlier_count
     with pytest.raises(InvalidInputError, match="refit_px"):
         OpenCvRansacFilter(refit_px=-1.0)
+
+
+def on_a_line(noise_px: float) -> np.ndarray:
+    """100 query points along a 450 px line and their tile points, a pure (5, 7) shift of them,
+    with ``noise_px`` (sigma) Gaussian noise on both sides: matches along a road or field edge."""
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 400.0, 100)
+    query = np.c_[t, 0.5 * t + 10.0]
+    tile = query + np.array([5.0, 7.0])
+    noise = rng.normal(0, noise_px, (2, *query.shape))
+    return np.c_[query + noise[0], tile + noise[1]].astype(np.float32)
+
+
+@pytest.mark.parametrize("noise_px", [0.0, 0.3])
+@pytest.mark.parametrize("refit_px", [0.0, 2.0])
+def test_inliers_on_one_line_give_zero_inliers(noise_px, refit_px):
+    """A homography fitted to points on (or near) one line fits them to a fraction of a pixel
+    while its terms across the line are noise: refused, not handed on as a confident fit."""
+    rows = on_a_line(noise_px)
+    result = OpenCvRansacFilter(refit_px=refit_px, refit_floor=60).filter(rows, 3.0)
+    assert result.inlier_count == 0 and result.homography is None
+    assert result.ransac_outlier_count == len(rows) and not result.inlier_mask.any()
+    assert result.per_candidate_residual_px == 0.0
+
+
+def test_a_refit_that_keeps_only_a_line_gives_zero_inliers():
+    """The spread is checked on the final inliers: a refit that keeps only the precise points,
+    all on one line, leaves nothing to fix the homography across it."""
+    line = on_a_line(0.0)
+    rng = np.random.default_rng(1)
+    query = rng.uniform(0, 400, (40, 2))
+    angle = rng.uniform(0, 2 * np.pi, 40)
+    tile = query + [5.0, 7.0] + 1.5 * np.c_[np.cos(angle), np.sin(angle)]  # 1.5 px off, all
+    rows = np.r_[line, np.c_[query, tile].astype(np.float32)]
+    spread = OpenCvRansacFilter().filter(rows, 3.0)
+    assert spread.inlier_count == len(rows)  # all of them: the line and the spread points
+    result = OpenCvRansacFilter(refit_px=0.5, refit_floor=60).filter(rows, 3.0)
+    assert result.inlier_count == 0 and result.homography is None
+
+
+def test_well_spread_inliers_are_kept_bit_for_bit(real_correspondences, monkeypatch):
+    """Real correspondences spread over the image: the spread check changes nothing, not a
+    bit of the inliers, the homography or the residual."""
+    corr = noisy(real_correspondences)
+    for f in (OpenCvRansacFilter(), OpenCvRansacFilter(refit_px=1.5, refit_floor=60)):
+        checked = f.filter(corr, 3.0)
+        with monkeypatch.context() as m:
+            m.setattr(ransac_module, "_degenerate", lambda _inliers: False, raising=False)
+            unchecked = f.filter(corr, 3.0)
+        inliers = checked.inlier_correspondences
+        assert min(spread_ratio(inliers[:, 0:2]), spread_ratio(inliers[:, 2:4])) > 0.5
+        assert checked.inlier_count >= 200
+        assert inliers.tobytes() == unchecked.inlier_correspondences.tobytes()
+        assert checked.homography.tobytes() == unchecked.homography.tobytes()
+        assert checked.inlier_mask.tobytes() == unchecked.inlier_mask.tobytes()
+        assert checked.per_candidate_residual_px == unchecked.per_candidate_residual_px
+
+
+def test_spread_ratio_is_width_over_length_whatever_the_pose():
+    """Unitless and unchanged by a similarity: a filled w x l rectangle gives about w / l
+    however it is turned, scaled or placed; a line or a single point gives 0."""
+    rng = np.random.default_rng(2)
+    box = rng.uniform(0, 1, (4000, 2)) * [400.0, 80.0]
+    assert spread_ratio(box) == pytest.approx(0.2, abs=0.01)
+    turn = np.array([[np.cos(1.0), -np.sin(1.0)], [np.sin(1.0), np.cos(1.0)]])
+    assert spread_ratio(3.5 * box @ turn.T + [900.0, -40.0]) == pytest.approx(spread_ratio(box))
+    assert spread_ratio(np.c_[np.arange(9.0), 2 * np.arange(9.0)]) == pytest.approx(0, abs=1e-9)
+    assert spread_ratio(np.tile([[4.0, 4.0]], (5, 1))) == 0.0
+    assert spread_ratio(np.zeros((0, 2))) == 0.0
+    with pytest.raises(InvalidInputError, match="points"):
+        spread_ratio(np.zeros((5, 3)))
