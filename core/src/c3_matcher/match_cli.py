@@ -67,8 +67,8 @@ def register_match_command(commands: CommandRegistry) -> None:
         "--calibration",
         type=Path,
         default=None,
-        help="camera calibration JSON (K, distortion, image_size[, camera_to_body]);"
-        " default: a distortion-free pinhole with focal = image width",
+        help="camera calibration JSON (K, distortion, image_size[, distortion_model,"
+        " camera_to_body]); default: a distortion-free pinhole with focal = image width",
     )
     p.add_argument(
         "--attitude",

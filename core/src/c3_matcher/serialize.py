@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import json
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -12,6 +14,7 @@ from numpy.typing import NDArray
 
 from c3_matcher._validate import whole_number
 from c3_matcher.dto import CameraCalibration, MatchResult
+from c3_matcher.dto.camera import FISHEYE_LENS_MODELS, OTHER_LENS_MODEL_FIX
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.file_kinds import special_kind
 from c3_matcher.json_text import loads_json
@@ -33,14 +36,50 @@ _REQUIRED_CALIBRATION_KEYS = {
     "K": "the 3x3 intrinsic matrix, px",
     "image_size": "[width, height] px of the images K was calibrated for",
 }
-_CALIBRATION_KEYS = {*_REQUIRED_CALIBRATION_KEYS, "distortion", "camera_to_body"}
+_CALIBRATION_KEYS = {
+    *_REQUIRED_CALIBRATION_KEYS,
+    "distortion",
+    "distortion_model",
+    "camera_to_body",
+}
 _DISTORTION_FORM = "a list of 0, 4, 5, 8, 12 or 14 numbers (k1, k2, p1, p2[, k3...]; [] for none)"
+DISTORTION_MODELS: dict[str, tuple[int, ...]] = {
+    "opencv": (0, 4, 5, 8, 12, 14),
+    "plumb_bob": (5,),
+    "rational_polynomial": (8, 12, 14),
+    "radtan": (4,),
+    "none": (0,),
+}
+"""The ``"distortion_model"`` names a calibration may give, each with the coefficient counts it
+takes; all are OpenCV's model, in its order (k1, k2, p1, p2[, k3[, k4, k5, k6[, ...]]]): ROS's
+``plumb_bob`` (5) and ``rational_polynomial`` (8, or 12 and 14 with OpenCV's thin-prism and
+tilt terms), Kalibr's ``radtan`` (4) and ``none`` (0). ``opencv``, any count OpenCV takes,
+is the default."""
+_NOT_JSON_HINTS = (
+    (
+        re.compile(r"^\s*camera_matrix\s*:", re.MULTILINE),
+        "it looks like a ROS camera_info YAML: write it as JSON, K the rows of "
+        "camera_matrix.data, distortion its distortion_coefficients.data, distortion_model its "
+        "distortion_model, image_size [image_width, image_height]",
+    ),
+    (
+        re.compile(r"^\s*cam\d+\s*:", re.MULTILINE),
+        "it looks like a Kalibr camchain YAML: write the camera as JSON, K [[fu, 0, pu], "
+        "[0, fv, pv], [0, 0, 1]] from intrinsics [fu, fv, pu, pv], distortion its "
+        "distortion_coeffs, distortion_model its distortion_model, image_size its resolution, "
+        "camera_to_body the rotation of T_cam_imu transposed (when the IMU axes are the body's: "
+        "x forward, y right, z down)",
+    ),
+)
+"""How the fields of a calibration file in another tool's format map to the JSON, for the
+formats told by a line of theirs."""
 
 
 def load_calibration(path: Path, *, field: str | None = None) -> CameraCalibration:
     """Read a calibration JSON: ``{"K": 3x3, "distortion": [k1, k2, p1, p2, k3...],
-    "image_size": [width, height], "camera_to_body": 3x3 (optional)}``, every value checked
-    (InvalidInputError naming the key and the form it takes).
+    "image_size": [width, height], "distortion_model": name (optional, one of
+    :data:`DISTORTION_MODELS`), "camera_to_body": 3x3 (optional)}``, every value checked
+    (InvalidInputError naming the key and the form it takes; a fisheye model named refused).
 
     ``field`` says what the file is to the user: by default ``match``'s option,
     ``--calibration PATH: why``; given (``"dataset"`` for a dataset's own calibration.json),
@@ -67,7 +106,7 @@ def load_calibration(path: Path, *, field: str | None = None) -> CameraCalibrati
         c2b = data.get("camera_to_body")
         return CameraCalibration(
             K=_matrix(data["K"], "K"),
-            distortion=_numbers(data.get("distortion", []), "distortion", _DISTORTION_FORM),
+            distortion=_distortion(data),
             image_size=_image_size(data["image_size"]),
             camera_to_body=None if c2b is None else _matrix(c2b, "camera_to_body"),
         )
@@ -78,9 +117,10 @@ def load_calibration(path: Path, *, field: str | None = None) -> CameraCalibrati
 def _calibration_json(path: Path, refused: Callable[[str], InvalidInputError]) -> Any:
     """The JSON value the calibration file at ``path`` holds; ``refused(why)`` raised when it is
     no regular file (a FIFO would be waited on, a device read without end: judged by ``stat``,
-    never opened), is missing, larger than ``MAX_CALIBRATION_BYTES``, not UTF-8, not JSON
-    (nested deeper than the parser recurses, a number too long to convert included) or gives
-    a key twice (the later would replace the earlier silently)."""
+    never opened), is missing, larger than ``MAX_CALIBRATION_BYTES``, not UTF-8, not JSON (a
+    ROS or Kalibr YAML told how its fields map), JSON Python cannot read (nested deeper than
+    the parser recurses, a number too long to convert) or gives a key twice (the later would
+    replace the earlier silently)."""
     special = special_kind(path)
     if special is not None:
         raise refused(f"is {special}, not a calibration JSON file")
@@ -101,8 +141,20 @@ def _calibration_json(path: Path, refused: Callable[[str], InvalidInputError]) -
         raise refused(str(exc)) from None
     except UnicodeDecodeError as exc:
         raise refused(f"not UTF-8 text: {exc}") from None
-    except ValueError as exc:
+    except json.JSONDecodeError as exc:
+        raise refused(_not_json(raw.decode("utf-8"), exc)) from None
+    except ValueError as exc:  # JSON past what Python reads (nesting, digits)
         raise refused(f"unreadable: {exc}") from None
+
+
+def _not_json(text: str, exc: json.JSONDecodeError) -> str:
+    """Why ``text`` is refused as a calibration: not JSON, and how the fields of another
+    tool's calibration file map to the JSON when it looks like one (see ``_NOT_JSON_HINTS``)."""
+    why = f"not JSON ({exc})"
+    for pattern, hint in _NOT_JSON_HINTS:
+        if pattern.search(text):
+            return f"{why}: {hint}"
+    return why
 
 
 class _DuplicateKeyError(ValueError):
@@ -139,6 +191,36 @@ def _numbers(value: object, key: str, form: str) -> NDArray[np.float64]:
         return np.asarray(value, dtype=np.float64)
     except OverflowError:  # an integer beyond a float's range
         raise InvalidInputError(key, f"a number beyond float range in {_shown(value)}") from None
+
+
+def _distortion(data: dict[str, Any]) -> NDArray[np.float64]:
+    """The ``"distortion"`` coefficients, of as many as the ``"distortion_model"`` named takes
+    (:data:`DISTORTION_MODELS`; OpenCV's by default); a fisheye model is refused by name: its
+    4 numbers read as k1, k2, p1, p2 would misplace every pixel off the centre."""
+    coefficients = _numbers(data.get("distortion", []), "distortion", _DISTORTION_FORM)
+    model = data.get("distortion_model", "opencv")
+    names = ", ".join(f'"{name}"' for name in DISTORTION_MODELS)
+    if not isinstance(model, str):
+        raise InvalidInputError("distortion_model", f"expected one of {names}, got {_shown(model)}")
+    name = model.strip().lower().replace("-", "_")
+    if name in FISHEYE_LENS_MODELS:
+        raise InvalidInputError(
+            "distortion_model",
+            f"{model!r} is a fisheye or omnidirectional lens model, not supported: "
+            f"{OTHER_LENS_MODEL_FIX}",
+        )
+    counts = DISTORTION_MODELS.get(name)
+    if counts is None:
+        raise InvalidInputError(
+            "distortion_model", f"unknown model {_shown(model)} (OpenCV's model is named {names})"
+        )
+    if name != "opencv" and coefficients.shape[0] not in counts:
+        said = " or ".join(str(count) for count in counts)
+        raise InvalidInputError(
+            "distortion",
+            f"distortion_model {model!r} takes {said} coefficients, got {coefficients.shape[0]}",
+        )
+    return coefficients
 
 
 def _matrix(value: object, key: str) -> NDArray[np.float64]:

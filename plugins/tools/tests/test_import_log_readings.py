@@ -216,7 +216,37 @@ def test_camera_info_of_another_distortion_model_is_refused_when_its_intrinsics_
     proc = run_cli("dataset", "import", "-", str(bag), "-", STORE, str(tmp_path / "out"), cwd=REPO)
     lines = [x for x in proc.stderr.splitlines() if x.strip()]
     assert proc.returncode == 2 and len(lines) == 1, proc.stderr
-    assert f"distortion model {model!r}" in lines[0] and "calibration JSON" in lines[0]
+    assert f"distortion model {model!r}" in lines[0]
+    # a fisheye model is not mended by a calibration JSON of the same 4 numbers: what to do
+    fisheye = model == "equidistant"
+    assert ("calibration JSON" in lines[0]) != fisheye, lines[0]
+    assert ("a fisheye lens model" in lines[0]) == fisheye, lines[0]
+    assert ("undistort the frames first" in lines[0]) == fisheye, lines[0]
+
+
+@pytest.mark.parametrize(
+    ("given", "kept"), [(6, 8), (7, 8), (9, 12), (11, 12), (13, 14), (14, 14), (3, 4)]
+)
+def test_camera_info_distortion_is_padded_to_a_count_opencv_takes(
+    poses: list[fl.Pose], tmp_path: Path, given: int, kept: int
+) -> None:
+    """A rational_polynomial D of 6 or 7 numbers kept only the first 5 (k4, k5 dropped): now
+    it is padded with zeros to the next count OpenCV takes, no coefficient lost."""
+    d = [0.01 * (i + 1) * (-1) ** i for i in range(given)]
+    _, _, recorded = read_bag(_bag(tmp_path / "bag", poses[:2], model="rational_polynomial", d=d))
+    assert recorded is not None
+    assert recorded.distortion.tolist() == [*d, *[0.0] * (kept - given)]
+
+
+def test_camera_info_of_more_distortion_numbers_than_opencv_takes_is_refused(
+    poses: list[fl.Pose], tmp_path: Path
+) -> None:
+    bag = _bag(tmp_path / "bag", poses[:2], model="rational_polynomial", d=[0.001] * 15)
+    with pytest.raises(InvalidInputError) as refused:
+        read_bag(bag)
+    assert "its CameraInfo gives 15 distortion coefficients: OpenCV's model takes at most 14" in (
+        str(refused.value)
+    )
 
 
 # --- MAVLink / DataFlash: rangefinders, receiver instances, several vehicles ----------------

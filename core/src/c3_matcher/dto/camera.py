@@ -18,6 +18,26 @@ from c3_matcher.dto.geo import Attitude
 
 MAX_HEIGHT_ABOVE_GROUND_M = 100_000.0  # above this a "height" is a units or sensor error
 MAX_K_CONDITION = 1e12  # a K this ill-conditioned cannot be inverted reliably
+MAX_HALF_FIELD_OF_VIEW_DEG = 85.0
+"""A pinhole image no wider than this each side of the optical axis: a focal length (px) below
+``width / (2 tan 85 deg)`` gives a field of view beyond 170 deg, which no pinhole calibration
+has (a fisheye's is no pinhole one); it is a focal length in mm or for a smaller image."""
+FISHEYE_LENS_MODELS = frozenset(
+    {"equidistant", "fisheye", "kannala_brandt", "kb4", "kb8", "fov", "omni", "double_sphere",
+     "ds", "eucm", "mei", "scaramuzza"}
+)  # fmt: skip
+"""Lens models (as ROS, Kalibr, OpenCV and Basalt name them, lower case) whose coefficients are
+not OpenCV's pinhole ones: 4 fisheye numbers read as k1, k2, p1, p2 would bend every ray."""
+OTHER_LENS_MODEL_FIX = (
+    "the matcher takes OpenCV's pinhole lens model (k1, k2, p1, p2[, k3...]) only: undistort "
+    "the frames first (and give the undistorted images' K with no distortion), or calibrate "
+    "the camera with OpenCV's model"
+)
+"""What to do about a calibration of one of :data:`FISHEYE_LENS_MODELS`."""
+ROTATION_TOLERANCE = 1e-3
+"""The most ``max |R^T R - I|`` a ``camera_to_body`` may deviate from a rotation: a rotation
+printed to 4 decimals (a 45 deg mount as 0.7071) deviates by some 1e-4. Within it the matrix is
+replaced by its nearest rotation; beyond it the matrix is no rotation, refused."""
 
 
 def _check_image(image: object, field_name: str) -> NDArray[np.uint8]:
@@ -96,14 +116,66 @@ def _check_principal_point(k: NDArray[np.float64], image_size: tuple[int, int]) 
     )
 
 
+def _check_focal_lengths(k: NDArray[np.float64], image_size: tuple[int, int]) -> None:
+    """Refuse fx (fy) below the width (height) over ``2 tan(MAX_HALF_FIELD_OF_VIEW_DEG)``: a
+    field of view beyond 170 deg, a focal length in mm (4.5 on a 640 px image: 178 deg) that
+    would otherwise undistort every frame to a few central pixels and end in "no inliers"."""
+    spread = 2.0 * math.tan(math.radians(MAX_HALF_FIELD_OF_VIEW_DEG))
+    for name, focal, extent, side in (
+        ("fx", float(k[0, 0]), image_size[0], "width"),
+        ("fy", float(k[1, 1]), image_size[1], "height"),
+    ):
+        least = extent / spread
+        v.require(
+            focal >= least,
+            "calibration.K",
+            f"{name} = {focal:g} px is below {least:.3g} px, the image {side} {extent} px over "
+            f"2 tan({MAX_HALF_FIELD_OF_VIEW_DEG:g} deg): a field of view beyond "
+            f"{2 * MAX_HALF_FIELD_OF_VIEW_DEG:g} deg (a focal length in mm?)",
+        )
+
+
+_AS_GIVEN = 1e-6
+"""A ``camera_to_body`` within this of a rotation (max |R^T R - I|) is one, written to float
+precision: used as given."""
+
+
+def _nearest_rotation(value: object) -> NDArray[np.float64]:
+    """``value`` as a read-only rotation matrix: the nearest rotation (the orthonormal factor of
+    its SVD) when it deviates from one by at most ``ROTATION_TOLERANCE`` (a matrix printed to a
+    few decimals); refused naming the deviation beyond it, or when it is a reflection."""
+    field = "calibration.camera_to_body"
+    r = v.array(value, field, dtype=np.float64, shape=(3, 3))
+    deviation = float(np.max(np.abs(r.T @ r - np.eye(3))))
+    v.require(
+        deviation <= ROTATION_TOLERANCE,
+        field,
+        f"must be a rotation matrix: max |R^T R - I| is {deviation:.3g}, more than "
+        f"{ROTATION_TOLERANCE:g}",
+    )
+    v.require(
+        float(np.linalg.det(r)) > 0,
+        field,
+        "is a reflection (determinant -1), not a rotation: is one camera or body axis "
+        "flipped (a left-handed frame?)",
+    )
+    if deviation <= _AS_GIVEN:  # a rotation to float precision: kept as given, bit for bit
+        return v.frozen_copy(r)
+    u, _, vt = np.linalg.svd(r)
+    return v.frozen_copy(np.ascontiguousarray(u @ vt, dtype=np.float64))
+
+
 @dataclass(frozen=True, slots=True)
 class CameraCalibration:
     """Intrinsics of the nav camera (C5 artifact).
 
     ``K`` float64 (3, 3) in pixels; ``distortion`` float64 (N,) OpenCV coefficients
     (k1, k2, p1, p2[, k3[, ...]]), N in {0, 4, 5, 8, 12, 14}; ``image_size`` (width, height) px;
-    ``camera_to_body`` float64 (3, 3) rotation taking camera-frame vectors to the NED body frame,
-    or None for the default mount (straight down, image top towards the nose).
+    ``camera_to_body`` float64 (3, 3) rotation taking camera-frame vectors (OpenCV: x right, y
+    down, z along the optical axis) to the body frame (FRD), or None for the default mount
+    (straight down, image top towards the nose); one within ``ROTATION_TOLERANCE`` of a rotation
+    is replaced by its nearest rotation. ``K``'s focal lengths give a field of view within
+    ``2 * MAX_HALF_FIELD_OF_VIEW_DEG``.
     """
 
     K: NDArray[np.float64]
@@ -140,22 +212,9 @@ class CameraCalibration:
         width = v.positive_int(size[0], field, "width")
         object.__setattr__(self, "image_size", (width, v.positive_int(size[1], field, "height")))
         _check_principal_point(k, self.image_size)
+        _check_focal_lengths(k, self.image_size)
         if self.camera_to_body is not None:
-            r = v.frozen_copy(
-                v.array(
-                    self.camera_to_body,
-                    "calibration.camera_to_body",
-                    dtype=np.float64,
-                    shape=(3, 3),
-                )
-            )
-            v.require(
-                bool(np.allclose(r @ r.T, np.eye(3), atol=1e-6))
-                and bool(np.isclose(np.linalg.det(r), 1.0, atol=1e-6)),
-                "calibration.camera_to_body",
-                "must be a rotation matrix",
-            )
-            object.__setattr__(self, "camera_to_body", r)
+            object.__setattr__(self, "camera_to_body", _nearest_rotation(self.camera_to_body))
 
     @classmethod
     def pinhole(

@@ -303,7 +303,8 @@ def _add_import(ds: Any) -> None:
     m.add_argument(
         "calibration",
         type=Path,
-        help="calibration JSON {K, distortion, image_size[, camera_to_body]} (as for match)",
+        help="calibration JSON {K, distortion, image_size[, distortion_model, camera_to_body]}"
+        " (as for match)",
     )
     m.add_argument("store", type=Path, help="MBTiles store the candidates are proposed from")
     m.add_argument(

@@ -9,9 +9,9 @@ as REP 103 says (turned into NED / FRD here; an Imu sample marked as stating no 
 ``sensor_msgs/NavSatFix`` (altitude above the ellipsoid or sea level as the receiver gives it;
 horizontal accuracy from its covariance; ``status`` < 0: no fix); intrinsics
 ``sensor_msgs/CameraInfo`` (plumb_bob / rational_polynomial, or no model and no distortion; any
-other model refused) when recorded. Times: each message's header stamp (UTC seconds), the bag's
-receive time when the stamp is zero. A raw ``Image`` is stored as PNG (lossless), a
-``CompressedImage`` as it is.
+other model refused; D padded with zeros to a count OpenCV takes) when recorded. Times: each
+message's header stamp (UTC seconds), the bag's receive time when the stamp is zero. A raw
+``Image`` is stored as PNG (lossless), a ``CompressedImage`` as it is.
 """
 
 from __future__ import annotations
@@ -23,8 +23,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from c3_matcher.dto import CameraCalibration
+from c3_matcher.dto.camera import FISHEYE_LENS_MODELS, OTHER_LENS_MODEL_FIX
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.images import check_frame_step
 from c3_matcher_tools.dataset.sources.track import (
@@ -150,13 +152,8 @@ def _calibration(msg: Any, source: str) -> CameraCalibration:
     d = np.asarray(_info_field(msg, "d"), dtype=np.float64).reshape(-1)
     model = str(getattr(msg, "distortion_model", "") or "")
     if model not in DISTORTION_MODELS and (model or np.any(d != 0)):
-        raise InvalidInputError(
-            source,
-            f"CameraInfo distortion model {model!r} is not supported (only "
-            f"{' or '.join(DISTORTION_MODELS)}): give the camera's calibration JSON",
-        )
-    if d.size not in (0, 4, 5, 8, 12, 14):
-        d = d[:5] if d.size > 5 else np.pad(d, (0, 5 - d.size))
+        raise InvalidInputError(source, _unsupported_model(model))
+    d = _opencv_sized(d, source)
     try:
         k = np.asarray(_info_field(msg, "k"), dtype=np.float64).reshape(3, 3)
         return CameraCalibration(k, d, (int(msg.width), int(msg.height)))
@@ -166,6 +163,40 @@ def _calibration(msg: Any, source: str) -> CameraCalibration:
             f"its CameraInfo states no usable intrinsics ({exc}): give the camera's "
             "calibration JSON",
         ) from None
+
+
+def _unsupported_model(model: str) -> str:
+    """Why a CameraInfo of distortion model ``model`` (not one of :data:`DISTORTION_MODELS`) is
+    refused, and what to do: a fisheye model is no pinhole one, whatever file gives it; an
+    unnamed one is for the user to say (its coefficients may be OpenCV's or not)."""
+    known = " or ".join(DISTORTION_MODELS)
+    said = f"CameraInfo distortion model {model!r} is not supported (only {known})"
+    if not model:
+        return (
+            f"{said}: its coefficients are of no named model; give the camera's calibration "
+            "JSON, its distortion OpenCV's k1, k2, p1, p2[, k3...]"
+        )
+    if model.lower() in FISHEYE_LENS_MODELS:
+        return f"{said}: a fisheye lens model; {OTHER_LENS_MODEL_FIX}"
+    return f"{said}: {OTHER_LENS_MODEL_FIX}"
+
+
+OPENCV_DISTORTION_SIZES = (0, 4, 5, 8, 12, 14)
+"""How many distortion coefficients OpenCV takes: a CameraInfo's D of another count is padded
+with zeros to the next (the terms it leaves out are zero)."""
+
+
+def _opencv_sized(d: NDArray[np.float64], source: str) -> NDArray[np.float64]:
+    """``d`` padded with zeros to the next count OpenCV takes (6 or 7 -> 8, 9 to 11 -> 12,
+    13 -> 14): no coefficient dropped; refused naming its count beyond 14."""
+    if d.size > OPENCV_DISTORTION_SIZES[-1]:
+        raise InvalidInputError(
+            source,
+            f"its CameraInfo gives {d.size} distortion coefficients: OpenCV's model takes at "
+            f"most {OPENCV_DISTORTION_SIZES[-1]}",
+        )
+    size = next(n for n in OPENCV_DISTORTION_SIZES if n >= d.size)
+    return np.pad(d, (0, size - d.size))
 
 
 def _image_bytes(msg: Any, msgtype: str) -> tuple[bytes, str]:
