@@ -9,16 +9,19 @@ import cv2
 import numpy as np
 import pytest
 
-from c3_matcher import ransac as ransac_module
+from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.prior import GeometricPrior, PriorTolerances
 from c3_matcher.ransac import (
     OpenCvRansacFilter,
     homography_residuals,
     refit,
     spread_ratio,
 )
+from c3_matcher.stages.verify import SpreadCheck, Verifier
 
 REPO = Path(__file__).resolve().parents[2]
+TILE = TileId(18, 47.0, 8.5)
 ORTHO = REPO / "data" / "imagery" / "open_orthophotos" / "test_tiled.tif"
 H_TRUE = np.array([[0.92, 0.18, 30.0], [-0.15, 0.95, 60.0], [2e-5, -1e-5, 1.0]])
 
@@ -166,17 +169,19 @@ def on_a_line(noise_px: float) -> np.ndarray:
 
 @pytest.mark.parametrize("noise_px", [0.0, 0.3])
 @pytest.mark.parametrize("refit_px", [0.0, 2.0])
-def test_inliers_on_one_line_give_zero_inliers(noise_px, refit_px):
+def test_inliers_on_one_line_are_refused_where_no_prior_pins_them(noise_px, refit_px):
     """A homography fitted to points on (or near) one line fits them to a fraction of a pixel
-    while its terms across the line are noise: refused, not handed on as a confident fit."""
+    while its terms across the line are noise: without a geometric prior, refused on geometry
+    naming the spread, not handed on as a confident fit."""
     rows = on_a_line(noise_px)
-    result = OpenCvRansacFilter(refit_px=refit_px, refit_floor=60).filter(rows, 3.0)
-    assert result.inlier_count == 0 and result.homography is None
-    assert result.ransac_outlier_count == len(rows) and not result.inlier_mask.any()
-    assert result.per_candidate_residual_px == 0.0
+    ransac = OpenCvRansacFilter(refit_px=refit_px, refit_floor=60)
+    assert ransac.filter(rows, 3.0).inlier_count >= 60  # RANSAC itself takes them
+    verdict = Verifier(ransac, 3.0, None).verify(TILE, 0, rows)
+    assert verdict.refused and isinstance(verdict.check, SpreadCheck)
+    assert verdict.check.spread < 0.01 and "inliers on one line" in verdict.check.reason
 
 
-def test_a_refit_that_keeps_only_a_line_gives_zero_inliers():
+def test_a_refit_that_keeps_only_a_line_is_refused():
     """The spread is checked on the final inliers: a refit that keeps only the precise points,
     all on one line, leaves nothing to fix the homography across it."""
     line = on_a_line(0.0)
@@ -185,28 +190,33 @@ def test_a_refit_that_keeps_only_a_line_gives_zero_inliers():
     angle = rng.uniform(0, 2 * np.pi, 40)
     tile = query + [5.0, 7.0] + 1.5 * np.c_[np.cos(angle), np.sin(angle)]  # 1.5 px off, all
     rows = np.r_[line, np.c_[query, tile].astype(np.float32)]
-    spread = OpenCvRansacFilter().filter(rows, 3.0)
-    assert spread.inlier_count == len(rows)  # all of them: the line and the spread points
-    result = OpenCvRansacFilter(refit_px=0.5, refit_floor=60).filter(rows, 3.0)
-    assert result.inlier_count == 0 and result.homography is None
+    assert not Verifier(OpenCvRansacFilter(), 3.0, None).verify(TILE, 0, rows).refused
+    refitted = Verifier(OpenCvRansacFilter(refit_px=0.5, refit_floor=60), 3.0, None)
+    assert refitted.verify(TILE, 0, rows).refused
 
 
-def test_well_spread_inliers_are_kept_bit_for_bit(real_correspondences, monkeypatch):
-    """Real correspondences spread over the image: the spread check changes nothing, not a
-    bit of the inliers, the homography or the residual."""
+def test_with_a_prior_the_prior_decides():
+    """Where attitude and height give a geometric prior, its own check (and its similarity
+    fallback) pins what a line leaves free: the spread check is not its."""
+    canvas = np.array([[0.0, 0.0], [400.0, 0.0], [400.0, 300.0], [0.0, 300.0]])
+    prior = GeometricPrior(PriorTolerances(), (200.0, 150.0), canvas)
+    verdict = Verifier(OpenCvRansacFilter(), 3.0, prior).verify(TILE, 0, on_a_line(0.3))
+    assert not isinstance(verdict.check, SpreadCheck)
+
+
+def test_well_spread_inliers_pass_the_check_unchanged(real_correspondences):
+    """Real correspondences spread over the image: the check passes and the verdict carries
+    RANSAC's result bit for bit."""
     corr = noisy(real_correspondences)
     for f in (OpenCvRansacFilter(), OpenCvRansacFilter(refit_px=1.5, refit_floor=60)):
-        checked = f.filter(corr, 3.0)
-        with monkeypatch.context() as m:
-            m.setattr(ransac_module, "_degenerate", lambda _inliers: False, raising=False)
-            unchecked = f.filter(corr, 3.0)
-        inliers = checked.inlier_correspondences
-        assert min(spread_ratio(inliers[:, 0:2]), spread_ratio(inliers[:, 2:4])) > 0.5
-        assert checked.inlier_count >= 200
-        assert inliers.tobytes() == unchecked.inlier_correspondences.tobytes()
-        assert checked.homography.tobytes() == unchecked.homography.tobytes()
-        assert checked.inlier_mask.tobytes() == unchecked.inlier_mask.tobytes()
-        assert checked.per_candidate_residual_px == unchecked.per_candidate_residual_px
+        plain = f.filter(corr, 3.0)
+        verdict = Verifier(f, 3.0, None).verify(TILE, 0, corr)
+        assert isinstance(verdict.check, SpreadCheck) and verdict.check.ok
+        assert verdict.check.spread > 0.5 and plain.inlier_count >= 200
+        got = verdict.match_set.inlier_correspondences
+        assert got.tobytes() == plain.inlier_correspondences.tobytes()
+        assert verdict.homography is not None and plain.homography is not None
+        assert verdict.homography.tobytes() == plain.homography.tobytes()
 
 
 def test_spread_ratio_is_width_over_length_whatever_the_pose():

@@ -1,10 +1,12 @@
 """Texture along one strip only (a road through bare fields): the matches lie in a band a
-twentieth as wide as it is long, the homography fitted to them is fixed only along the band,
-and the matcher refuses it instead of reporting a confident fix. The same frame with texture
-everywhere is matched, and its homography is the true one.
+twentieth as wide as it is long, and the homography fitted to them is fixed only along the band.
+Without attitude and height (no geometric prior to pin the rest) the matcher refuses it on
+geometry, naming the spread, instead of reporting a fix nothing vouches for; with them the
+prior's check decides and the same frame is matched, its homography the true one. The same
+frame with texture everywhere is matched either way.
 
 The real path: ``c3-matcher match`` (SIFT + MAGSAC, no engine needed) on the README's demo
-tile, the query a shifted view of it, no attitude or height (no geometric prior to catch it)."""
+tile, the query a shifted view of it (at the tile's scale: a 400 px focal at 120 m is 0.3 m/px)."""
 
 from __future__ import annotations
 
@@ -35,8 +37,9 @@ def _strip_only(tile: np.ndarray, width_px: int, angle_deg: float = 30.0) -> np.
     return out
 
 
-def _match(tmp_path: Path, tile: np.ndarray) -> tuple[int, dict[str, object]]:
-    """The shifted view of ``tile`` matched against it: exit status and the printed result."""
+def _match(tmp_path: Path, tile: np.ndarray, prior: bool = False) -> tuple[int, dict[str, object]]:
+    """The shifted view of ``tile`` matched against it (with attitude and height when
+    ``prior``): exit status and the printed result."""
     to_query = np.array([[1.0, 0.0, -SHIFT[0]], [0.0, 1.0, -SHIFT[1]], [0.0, 0.0, 1.0]])
     query = cv2.warpPerspective(tile, to_query, QUERY_SIZE, borderValue=(GREY, GREY, GREY))
     cv2.imwrite(str(tmp_path / "tile.png"), tile)
@@ -45,6 +48,7 @@ def _match(tmp_path: Path, tile: np.ndarray) -> tuple[int, dict[str, object]]:
         *("match", "--query", str(tmp_path / "query.png"), "--tile", str(tmp_path / "tile.png")),
         *("--tile-id", "19,47.0,8.0", "--tile-gsd", "0.3", "--strategy", "sift_magsac"),
         *("--no-correspondences", "--fdr", str(tmp_path / "fdr.jsonl")),
+        *(("--attitude", "0,0,0", "--height", "120") if prior else ()),
     ]
     proc = run_match(argv=argv)
     return proc.returncode, dict(json.loads(proc.stdout))
@@ -55,19 +59,26 @@ def demo_tile() -> np.ndarray:
     return cv2.imread(str(DEMO / "tile_b.png"), cv2.IMREAD_COLOR)
 
 
-def test_matches_along_one_strip_are_refused(tmp_path: Path, demo_tile: np.ndarray) -> None:
+def test_matches_along_one_strip_are_refused_without_a_prior(
+    tmp_path: Path, demo_tile: np.ndarray
+) -> None:
     code, result = _match(tmp_path, _strip_only(demo_tile, STRIP_PX))
     assert code != 0, result
     assert result["error"] == "InsufficientInliersError"
-    assert result["best_inlier_count"] == 0
+    (dropped,) = result["dropped"]  # type: ignore[misc]
+    assert "refused on geometry: inliers on one line (spread 0." in dropped["reason"], dropped
 
 
-def test_the_same_frame_textured_everywhere_is_matched(
-    tmp_path: Path, demo_tile: np.ndarray
+@pytest.mark.parametrize("prior", [False, True])
+def test_the_same_frame_is_matched_where_its_geometry_is_pinned(
+    tmp_path: Path, demo_tile: np.ndarray, prior: bool
 ) -> None:
-    code, result = _match(tmp_path, demo_tile)
+    """Texture everywhere (with or without a prior), or the strip with attitude and height:
+    matched, the homography the true shift."""
+    tile = _strip_only(demo_tile, STRIP_PX) if prior else demo_tile
+    code, result = _match(tmp_path, tile, prior=prior)
     assert code == 0, result
     found = np.asarray(result["best_homography"], dtype=np.float64)
     corners = np.array([[[0.0, 0.0]], [[399.0, 0.0]], [[399.0, 299.0]], [[0.0, 299.0]]])
     got = cv2.perspectiveTransform(corners, found).reshape(-1, 2)
-    assert np.abs(got - (corners.reshape(-1, 2) + SHIFT)).max() < 1.0
+    assert np.abs(got - (corners.reshape(-1, 2) + SHIFT)).max() < (3.0 if prior else 1.0)

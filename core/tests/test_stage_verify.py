@@ -15,7 +15,7 @@ from c3_matcher.prior import GeometricPrior, PriorTolerances
 from c3_matcher.stages.failure import CandidateStepError
 from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.query import QueryView
-from c3_matcher.stages.verify import Verifier, best_turn, frame_prior
+from c3_matcher.stages.verify import SpreadCheck, Verifier, best_turn, frame_prior
 from c3_matcher.testing import SequenceRansacFilter
 
 TILE = TileId(18, 47.0, 8.5)
@@ -44,13 +44,13 @@ def _prior() -> GeometricPrior:
     return GeometricPrior(PriorTolerances(), (200.0, 200.0))
 
 
-def test_without_a_prior_ransac_decides_alone():
+def test_without_a_prior_ransac_decides_with_the_inliers_spread():
     verdict = Verifier(SequenceRansacFilter([(30, 1.5)]), 3.0, None).verify(TILE, 90, _rows(), 55)
     assert verdict.match_set.inlier_count == 30
     assert verdict.match_set.ransac_outlier_count == 5
     assert verdict.match_set.per_candidate_residual_px == 1.5
     assert (verdict.rotation_deg, verdict.raw_matches, verdict.model) == (90, 55, "homography")
-    assert verdict.check is None and not verdict.refused
+    assert isinstance(verdict.check, SpreadCheck) and verdict.check.ok and not verdict.refused
 
 
 def test_the_prior_votes_out_inconsistent_matches_before_ransac():

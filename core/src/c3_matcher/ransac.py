@@ -9,10 +9,10 @@ leave fewer than ``refit_floor`` inliers (the pipeline's ``min_inliers_threshold
 never drops a candidate below it). It narrows the inliers handed downstream to the precise ones;
 docs/precision.md measures it per strategy.
 
-Degenerate inliers are refused (zero inliers, as for a failed estimate): points on or near one
-line on either side fix a homography only along that line, its other parameters are fitted to
-noise, so a tiny residual there promises nothing about the rest of the frame
-(:func:`spread_ratio`, :data:`MIN_SPREAD_RATIO`).
+:func:`spread_ratio` measures how widely inliers spread: points on or near one line fix a
+homography only along that line, its other parameters fitted to noise, so a tiny residual there
+promises nothing about the rest of the frame; a frame with no geometric prior to pin them is
+refused below :data:`MIN_SPREAD_RATIO` (``stages.verify.SpreadCheck``).
 """
 
 from __future__ import annotations
@@ -42,11 +42,12 @@ MIN_CORRESPONDENCES = 4
 
 MIN_SPREAD_RATIO = 0.2
 """The least :func:`spread_ratio` a homography's inliers must have on both sides (query and
-tile). A homography has 8 parameters; its two perspective terms (and the shear across a line)
-are pinned only by how far the points spread across their longest direction. Points in a band
-whose width is a fifth of its length or less (a road, a field edge, texture along one line)
-leave them to noise: with a pure shift as the truth such a fit can move the far corners of the
-frame by tens of pixels while its residual stays below a pixel. The ratio is unitless and
+tile) where no geometric prior checks it. A homography has 8 parameters; its two perspective
+terms (and the shear across a line) are pinned only by how far the points spread across their
+longest direction. Points in a band whose width is a fifth of its length or less (a road, a
+field edge, texture along one line) leave them to noise: with a pure shift as the truth such a
+fit can move the far corners of the frame by tens of pixels while its residual stays below a
+pixel (it may as well come out right: nothing tells which). The ratio is unitless and
 unchanged by a similarity on either side, so the rule does not depend on frame size, ground
 sample distance, rotation or strategy, only on the shape of the point cloud.
 
@@ -69,11 +70,9 @@ def homography_residuals(
 class OpenCvRansacFilter:
     """RANSAC homography filter over float32 (M, 4) = (x_query, y_query, x_tile, y_tile) rows.
 
-    Threshold and residuals are in tile pixels. Fewer than 4 correspondences, degenerate input, a
-    failed estimate or final inliers that hardly span a second dimension on either side
-    (:data:`MIN_SPREAD_RATIO`, after any refit) give zero inliers (no exception).
-    ``confidence`` and ``max_iters`` follow OpenCV's USAC parameters; ``seed`` fixes its random
-    generator (determinism).
+    Threshold and residuals are in tile pixels. Fewer than 4 correspondences, degenerate input or a
+    failed estimate give zero inliers (no exception). ``confidence`` and ``max_iters`` follow
+    OpenCV's USAC parameters; ``seed`` fixes its random generator (determinism).
     """
 
     def __init__(
@@ -155,8 +154,7 @@ class OpenCvRansacFilter:
             homography=homography,
             inlier_mask=inlier_mask,
         )
-        final = refit(result, self.refit_px, floor=self.refit_floor)
-        return _empty(m) if _degenerate(final.inlier_correspondences) else final
+        return refit(result, self.refit_px, floor=self.refit_floor)
 
 
 def spread_ratio(points: NDArray[np.floating]) -> float:
@@ -174,12 +172,6 @@ def spread_ratio(points: NDArray[np.floating]) -> float:
     if not singular[0] > 0:
         return 0.0
     return float(singular[1] / singular[0])
-
-
-def _degenerate(inliers: NDArray[np.float32]) -> bool:
-    """True where the ``inliers`` rows fix no homography: a side (query or tile) whose points
-    lie on or near one line (:data:`MIN_SPREAD_RATIO`)."""
-    return min(spread_ratio(inliers[:, 0:2]), spread_ratio(inliers[:, 2:4])) < MIN_SPREAD_RATIO
 
 
 def refit(

@@ -23,12 +23,17 @@ from c3_matcher.dto import CandidateMatchSet, ranking_key
 from c3_matcher.prepared import PreparedImage, correspondences
 from c3_matcher.prior import GeometricPrior, HomographyCheck, PriorTolerances
 from c3_matcher.protocols import FeatureBackend, RansacFilter
-from c3_matcher.ransac import MIN_CORRESPONDENCES, homography_residuals
+from c3_matcher.ransac import (
+    MIN_CORRESPONDENCES,
+    MIN_SPREAD_RATIO,
+    homography_residuals,
+    spread_ratio,
+)
 from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.outcomes import GeometryRefusal, TileFeatures
 from c3_matcher.stages.query import QueryView
 
-__all__ = ["Verdict", "Verifier", "best_turn", "frame_prior"]
+__all__ = ["SpreadCheck", "Verdict", "Verifier", "best_turn", "frame_prior"]
 
 
 @dataclass(frozen=True)
@@ -41,7 +46,7 @@ class Verdict:
     rotation_deg: int
     match_set: CandidateMatchSet
     homography: NDArray[np.float64] | None
-    check: HomographyCheck | None
+    check: HomographyCheck | SpreadCheck | None
     raw_matches: int = 0
     model: str = "homography"
 
@@ -68,12 +73,40 @@ class Verdict:
 
 
 @dataclass(frozen=True)
+class SpreadCheck:
+    """The check of a homography no geometric prior verifies (a frame without attitude or
+    height): its inliers must spread across both directions on both sides
+    (:data:`~c3_matcher.ransac.MIN_SPREAD_RATIO`). Points on or near one line (a road, a field
+    edge) fix a homography only along that line; the prior's own check and its similarity
+    fallback pin the rest where there is one, so only a frame without one is refused so."""
+
+    spread: float
+    reason: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.reason
+
+    @classmethod
+    def of(cls, inliers: F32) -> SpreadCheck:
+        """The check of ``inliers`` (rows x_q, y_q, x_t, y_t): the smaller side's spread."""
+        spread = min(spread_ratio(inliers[:, 0:2]), spread_ratio(inliers[:, 2:4]))
+        if spread >= MIN_SPREAD_RATIO or len(inliers) < MIN_CORRESPONDENCES:  # no homography
+            return cls(spread)
+        return cls(
+            spread,
+            f"inliers on one line (spread {spread:.2f} under {MIN_SPREAD_RATIO}): a homography "
+            "fixed only along it",
+        )
+
+
+@dataclass(frozen=True)
 class _Fit:
     inliers: F32
     outliers: int
     residual_px: float
     model_matrix: NDArray[np.float64] | None
-    check: HomographyCheck | None = None
+    check: HomographyCheck | SpreadCheck | None = None
     model: str = "homography"
 
 
@@ -115,8 +148,11 @@ class Verifier:
             ransac.per_candidate_residual_px,
             ransac.homography,
         )
-        if self.prior is not None and fit.model_matrix is not None and len(fit.inliers):
-            fit = self._checked(self.prior, fit, rows)  # after RANSAC: geometry
+        if fit.model_matrix is not None and len(fit.inliers):  # after RANSAC: geometry
+            if self.prior is not None:
+                fit = self._checked(self.prior, fit, rows)
+            else:  # nothing pins what its inliers leave free: their spread must
+                fit = replace(fit, check=SpreadCheck.of(fit.inliers))
         match_set = CandidateMatchSet(
             tile_id=tile_id,
             inlier_count=int(fit.inliers.shape[0]),

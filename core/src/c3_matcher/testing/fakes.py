@@ -12,6 +12,7 @@ probe the way a real strategy does.
 
 from __future__ import annotations
 
+import math
 import uuid
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -212,6 +213,18 @@ class ScriptedPairMatcher:
         return raw
 
 
+def _inlier_rows(n: int, first: tuple[float, float, float, float]) -> NDArray[np.float32]:
+    """``n`` inlier rows from ``first`` (the first row), the others on a square grid on both
+    sides (8 px apart): spread across the image as real inliers are, so the verifier's
+    spread check passes them (``stages.verify.SpreadCheck``)."""
+    side = math.isqrt(max(n - 1, 0)) + 1
+    grid = np.stack(np.divmod(np.arange(n), side), axis=1)[:, ::-1].astype(np.float32)
+    rows = np.tile(np.array([first], np.float32), (n, 1))
+    rows[:, 0:2] += 8.0 * grid
+    rows[:, 2:4] += 8.0 * grid
+    return rows
+
+
 class FakeRansacFilter:
     """A RansacFilter double: returns the scripted inlier count and residual for the candidate
     whose tile keypoints it sees (the tile mark is the y coordinate of the tile points)."""
@@ -224,8 +237,7 @@ class FakeRansacFilter:
         mark = round(float(correspondences[0, 3])) - 1 if len(correspondences) else -1
         self.calls.append(mark)
         s = self.script[mark] if 0 <= mark < len(self.script) else ScriptedCandidate(inliers=0)
-        rows = np.tile(np.array([[1.0, 2.0, 3.0, float(mark + 1)]], np.float32), (s.inliers, 1))
-        rows[:, 0] += np.arange(s.inliers, dtype=np.float32)
+        rows = _inlier_rows(s.inliers, (1.0, 2.0, 3.0, float(mark + 1)))
         return RansacResult(
             rows,
             s.outliers,
@@ -246,8 +258,7 @@ class SequenceRansacFilter:
     def filter(self, correspondences: NDArray[np.float32], threshold_px: float) -> RansacResult:
         n, residual = self.outcomes[len(self.calls) % len(self.outcomes)]
         self.calls.append(n)
-        rows = np.tile(np.array([[1.0, 2.0, 3.0, 4.0]], np.float32), (n, 1))
-        rows[:, 0] += np.arange(n, dtype=np.float32)
+        rows = _inlier_rows(n, (1.0, 2.0, 3.0, 4.0))
         m = len(correspondences)
         return RansacResult(
             rows, 5, residual if n else 0.0, np.eye(3) if n else None, np.ones(m, bool)
