@@ -53,6 +53,8 @@ def _refusal(path: Path) -> str:
         ("rational_polynomial", [-0.12, 0.03, 0.0005, -0.0004, 0.0, 0.01, 0.0, 0.0]),
         ("radtan", SHIPPED["distortion"][:4]),
         ("none", []),
+        ("plumb_bob", []),  # a rectified or simulated camera, as ROS drivers publish it
+        ("rational_polynomial", []),
     ],
 )
 def test_opencv_models_named_as_opencv_ros_or_kalibr_name_them_load(
@@ -78,11 +80,11 @@ def test_a_fisheye_model_is_refused_by_name_saying_what_to_do(tmp_path: Path, mo
     [
         (
             {"distortion_model": "plumb_bob", "distortion": FISHEYE_4},
-            "distortion: distortion_model 'plumb_bob' takes 5 coefficients, got 4",
+            "distortion: distortion_model 'plumb_bob' takes 0 or 5 coefficients, got 4",
         ),
         (
             {"distortion_model": "rational_polynomial"},
-            "distortion: distortion_model 'rational_polynomial' takes 8 or 12 or 14 coefficients,"
+            "distortion: distortion_model 'rational_polynomial' takes 0 or 8 or 12 or 14 coefficients,"
             " got 5",
         ),
         ({"distortion_model": "pinhole-ish"}, "distortion_model: unknown model 'pinhole-ish'"),

@@ -45,16 +45,17 @@ _CALIBRATION_KEYS = {
 _DISTORTION_FORM = "a list of 0, 4, 5, 8, 12 or 14 numbers (k1, k2, p1, p2[, k3...]; [] for none)"
 DISTORTION_MODELS: dict[str, tuple[int, ...]] = {
     "opencv": (0, 4, 5, 8, 12, 14),
-    "plumb_bob": (5,),
-    "rational_polynomial": (8, 12, 14),
-    "radtan": (4,),
+    "plumb_bob": (0, 5),
+    "rational_polynomial": (0, 8, 12, 14),
+    "radtan": (0, 4),
     "none": (0,),
 }
 """The ``"distortion_model"`` names a calibration may give, each with the coefficient counts it
 takes; all are OpenCV's model, in its order (k1, k2, p1, p2[, k3[, k4, k5, k6[, ...]]]): ROS's
 ``plumb_bob`` (5) and ``rational_polynomial`` (8, or 12 and 14 with OpenCV's thin-prism and
-tilt terms), Kalibr's ``radtan`` (4) and ``none`` (0). ``opencv``, any count OpenCV takes,
-is the default."""
+tilt terms), Kalibr's ``radtan`` (4) and ``none`` (0); none at all (``[]``) is no distortion for
+each, as ROS drivers publish a rectified or simulated camera. ``opencv``, any count OpenCV
+takes, is the default."""
 _NOT_JSON_HINTS = (
     (
         re.compile(r"^\s*camera_matrix\s*:", re.MULTILINE),
