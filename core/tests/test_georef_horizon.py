@@ -250,3 +250,29 @@ def test_match_puts_the_footprint_of_a_frame_seeing_the_sky_ahead_of_the_vehicle
     along = north * math.cos(math.radians(30.0)) + east * math.sin(math.radians(30.0))
     assert along.min() > 0.0
     assert np.hypot(north, east).max() < HEIGHT_M * math.tan(math.radians(76.0))
+
+
+def _pitched_map(pitch_deg: float, calibration: CameraCalibration) -> np.ndarray:
+    """The exact map UNDISTORTED px -> px of a 0.5 m/px north-up 2048 px tile of a camera 100 m
+    up, pitched ``pitch_deg`` forward (north) from nadir."""
+    t = math.radians(pitch_deg)
+    z = np.array([0.0, math.sin(t), -math.cos(t)])
+    x = np.array([1.0, 0.0, 0.0])
+    rotation = np.c_[x, np.cross(z, x), z]
+    ground = calibration.K @ rotation.T @ np.c_[[1.0, 0, 0], [0, 1.0, 0], [0, 0, -100.0]]
+    tile = np.array([[2.0, 0.0, 1024.0], [0.0, -2.0, 1024.0], [0.0, 0.0, 1.0]])
+    return tile @ np.linalg.inv(ground)
+
+
+@pytest.mark.parametrize("pitch_deg", [72.0, 74.0])
+def test_a_centre_beyond_the_cut_is_no_centre(pitch_deg: float) -> None:
+    """The principal point 72-74 deg off nadir lies within the 75-deg cone but beyond the
+    straight cut the boundary gets (the query's own): it is on ground the query did not keep,
+    so there is no centre (it lay outside its own footprint)."""
+    calibration = CameraCalibration.pinhole(640, 480, 400.0)
+    hom = _pitched_map(pitch_deg, calibration)
+    assert footprint_lonlat(hom, TileId(17, 47.0, 8.0), (2048, 2048), calibration, 0.5) is None
+    kept = footprint_lonlat(
+        _pitched_map(60.0, calibration), TileId(17, 47.0, 8.0), (2048, 2048), calibration, 0.5
+    )
+    assert kept is not None  # 60 deg: the centre inside its footprint

@@ -198,13 +198,15 @@ def footprint_lonlat(
     centre (see the module docstring), wound counter-clockwise in lon/lat as RFC 7946 wants an
     exterior ring, whichever way the camera and the homography turn the boundary.
 
-    The footprint is the ground the frame sees within :data:`~c3_matcher.camera.MAX_OFF_NADIR_DEG`
-    of nadir, the cone the query is clipped to before matching (:func:`_off_nadir_cosine` reads
-    each ray's angle off the map): the part of a tilted frame above the horizon maps through
-    the homography to points behind the camera, and the part just below it to points without
-    bound away, neither of them ground the frame saw. A frame wholly within the cone keeps its
-    whole boundary, unchanged. None when the principal point is not within the cone (it looks
-    above the horizon, or at ground too grazing to place): no centre, no footprint."""
+    The footprint is the frame's boundary cut where it passes
+    :data:`~c3_matcher.camera.MAX_OFF_NADIR_DEG` from nadir, as the query is clipped before
+    matching (:func:`_off_nadir_cosine` reads each ray's angle off the map; the cut is the
+    straight line between the two boundary points at that angle, the query's own): the part of
+    a tilted frame above the horizon maps through the homography to points behind the camera,
+    and the part just below it to points without bound away, neither of them ground the frame
+    matched. A frame wholly within the cone keeps its whole boundary, unchanged. None when the
+    principal point is not within what is kept (it looks above the horizon, or at ground too
+    grazing to place): no centre, no footprint."""
     hom = np.asarray(h_query_to_tile, dtype=np.float64)
     if hom.shape != (3, 3) or not np.isfinite(hom).all():
         raise InvalidInputError("h_query_to_tile", f"expected a finite 3x3 map, got {hom!r}")
@@ -216,9 +218,13 @@ def footprint_lonlat(
     boundary = cam.undistort_points(cam.image_boundary(w, h, samples_per_side), calibration)
     cosine = _off_nadir_cosine(hom, k, np.concatenate([centre_px, boundary]))
     cos_max = math.cos(math.radians(cam.MAX_OFF_NADIR_DEG))
-    boundary = cam.clip_polygon(boundary, lambda px: cosine(px) - cos_max)
-    if not cosine(centre_px)[0] >= cos_max or boundary.shape[0] < 3:
+    kept = cam.clip_polygon(boundary, lambda px: cosine(px) - cos_max)
+    if not cosine(centre_px)[0] >= cos_max or kept.shape[0] < 3:
         return None
+    cut = kept.shape != boundary.shape or not np.array_equal(kept, boundary)
+    if cut and cv2.pointPolygonTest(kept.astype(np.float32), tuple(centre_px[0]), False) < 0:
+        return None  # the centre lies beyond the cut: on ground the query did not keep
+    boundary = kept
     pts = cam.apply_homography(hom, np.concatenate([centre_px, boundary]))
     lonlat = _continuous_lonlat(tile_id, tile_size, pts, tile_gsd_m)
     turns = np.round((wrap_longitude(lonlat[0, 0]) - lonlat[0, 0]) / 360.0)
