@@ -36,6 +36,14 @@ from numpy.typing import NDArray
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.file_kinds import kind_of
+from c3_matcher.image_tags import (
+    apply_orientation,
+    declared_top,
+    displayed_size,
+    exif_orientation,
+    sixteen_bit_top,
+    tiff_orientation,
+)
 
 __all__ = [
     "DEFAULT_MAX_IMAGE_PIXELS",
@@ -66,7 +74,9 @@ class ImageDecodeError(InvalidInputError):
 def decode_image(
     buffer: memoryview | bytes, what: str, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
 ) -> NDArray[np.uint8]:
-    """Decode PNG/JPEG/TIFF/... bytes to uint8 RGB (H, W, 3); 16-bit is scaled, alpha dropped,
+    """Decode PNG/JPEG/TIFF/... bytes to uint8 RGB (H, W, 3) as displayed (its EXIF
+    orientation applied: :mod:`c3_matcher.image_tags`); 16-bit is scaled by its camera's depth
+    (:func:`to_rgb8`), alpha dropped,
     4-band (e.g. R,G,B,NIR GeoTIFF) keeps its first three bands in file order. An image above
     ``max_pixels`` (width x height, read from its header) is refused before decoding, and one
     that decodes above it all the same is refused after (see the module docstring)."""
@@ -92,9 +102,16 @@ def decode_image(
             f"image of {width}x{height} px exceeds the limit of {limit} px "
             "([matcher] max_image_pixels); refused before decoding",
         )
+    if raw.data[:4] in _TIFF_MAGIC and tiff_orientation(raw.data) >= 5:
+        raise ImageDecodeError(
+            what,
+            f"a TIFF stored turned a quarter (its Orientation tag is {tiff_orientation(raw.data)})"
+            ": OpenCV cannot decode it; write it upright (Orientation 1)",
+        )
     image = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ImageDecodeError(what, f"not a decodable image ({DECODABLE_FORMATS})")
+    image = apply_orientation(image, exif_orientation(raw.data))
     decoded_h, decoded_w = image.shape[:2]
     if decoded_w * decoded_h > limit:  # a header read otherwise than the decoder reads it
         raise ImageDecodeError(
@@ -102,7 +119,7 @@ def decode_image(
             f"decoded to {decoded_w}x{decoded_h} px, above the limit of {limit} px ([matcher] "
             f"max_image_pixels), though its header declares {width}x{height} px",
         )
-    return to_rgb8(image, what, bgr=True)
+    return to_rgb8(image, what, bgr=True, declared=declared_top(raw.data))
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -138,10 +155,19 @@ def _png_damage(raw: NDArray[np.uint8]) -> str | None:
     return "a PNG cut short: its chunks end before the IEND chunk"
 
 
-def to_rgb8(image: NDArray[np.generic], what: str, *, bgr: bool) -> NDArray[np.uint8]:
-    """Normalise an OpenCV-decoded array to uint8 RGB."""
+def to_rgb8(
+    image: NDArray[np.generic], what: str, *, bgr: bool, declared: int | None = None
+) -> NDArray[np.uint8]:
+    """Normalise an OpenCV-decoded array to uint8 RGB. 16-bit samples are scaled so that the
+    camera's top value becomes 255 (:func:`~c3_matcher.image_tags.sixteen_bit_top`, given the
+    top the file ``declared``): 10- or 12-bit data keeps its grey levels, and an image using the
+    whole 16-bit range is divided by 257."""
     if image.dtype == np.uint16:
-        image = (image // 257).astype(np.uint8)
+        top = sixteen_bit_top(image.view(np.uint16), declared)
+        if top == 65535:
+            image = (image // 257).astype(np.uint8)
+        else:  # floor(v * 255 / top), as // 257 is for 65535
+            image = np.minimum(image.astype(np.uint32) * 255 // top, 255).astype(np.uint8)
     elif image.dtype != np.uint8:
         raise ImageDecodeError(what, f"unsupported pixel type {image.dtype}")
     if image.ndim == 2:
@@ -169,11 +195,14 @@ def image_header_size(head: bytes | memoryview) -> tuple[int, int] | None:
     when the format or its header is not recognised (a GIF too: OpenCV does not decode it) or
     cannot be believed (a TIFF giving its width or height twice: :class:`RepeatedTiffTagError`).
     A TIFF's first IFD must lie within ``head`` (libtiff and OpenCV write it after the pixels:
-    :func:`image_file_size` reads it where it is)."""
+    :func:`image_file_size` reads it where it is). The size is the image's as displayed: a
+    JPEG, PNG or WebP whose EXIF Orientation turns it a quarter (5-8) gives its stored height
+    as its width, as :func:`decode_image` returns it."""
     try:
-        return _header_size(head)
+        size = _header_size(head)
     except RepeatedTiffTagError:
         return None
+    return None if size is None else displayed_size(size, exif_orientation(head))
 
 
 def _header_size(head: bytes | memoryview) -> tuple[int, int] | None:

@@ -214,9 +214,8 @@ class ScriptedPairMatcher:
 
 
 def _inlier_rows(n: int, first: tuple[float, float, float, float]) -> NDArray[np.float32]:
-    """``n`` inlier rows from ``first`` (the first row), the others on a square grid on both
-    sides (8 px apart): spread across the image as real inliers are, so the verifier's
-    spread check passes them (``stages.verify.SpreadCheck``)."""
+    """``n`` inlier rows: ``first``, then on an 8-px grid on both sides (spread as real inliers
+    are, for ``stages.verify.SpreadCheck``)."""
     side = math.isqrt(max(n - 1, 0)) + 1
     grid = np.stack(np.divmod(np.arange(n), side), axis=1)[:, ::-1].astype(np.float32)
     rows = np.tile(np.array([first], np.float32), (n, 1))

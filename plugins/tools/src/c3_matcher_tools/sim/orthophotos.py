@@ -5,7 +5,9 @@ JPEG-compressed TIFFs need the optional ``imagecodecs``), otherwise, and for eve
 format, with ``cv2.imread(IMREAD_UNCHANGED)``. Bands: grey -> RGB; 3 bands -> RGB;
 4 bands -> the first three as RGB (NAIP's R, G, B, NIR; an RGBA PNG's alpha == 0 becomes nodata
 0). 16-bit or float data is stretched linearly to 8 bits (0 stays 0, the 99.9th percentile of
-the non-zero pixels becomes 255).
+the non-zero pixels becomes 255). A palette TIFF (one band of indices and a colour map) is
+expanded to the map's RGB colours, as GDAL reads it (:func:`expand_palette`): its indices are
+no brightness.
 
 Caveat: OpenCV's TIFF reader (libtiff RGBA interface) PREMULTIPLIES the colour bands by the
 fourth band when it is tagged as unassociated alpha, which NAIP's NIR band is; a 4-band TIFF is
@@ -49,7 +51,7 @@ from c3_matcher_tools.geotiff import (
     tiepoint,
 )
 
-__all__ = ["KNOWN_GSD_M", "Orthophoto", "geotiff_gsd_m", "load_orthophoto"]
+__all__ = ["KNOWN_GSD_M", "Orthophoto", "expand_palette", "geotiff_gsd_m", "load_orthophoto"]
 
 #: Fallback GSDs (m/px) of the fixture orthophotos, from data/imagery/ATTRIBUTION.md. The two
 #: OpenAerialMap images are EPSG:3395 with a ~0.10 m pixel scale; their ground GSD is ~0.097 m
@@ -92,6 +94,28 @@ def _to_uint8(arr: NDArray[Any]) -> NDArray[np.uint8]:
     return np.asarray(np.clip(np.rint(data * (255.0 / max(top, 1e-12))), 0, 255), dtype=np.uint8)
 
 
+def expand_palette(
+    indices: NDArray[Any], table: NDArray[np.uint8], out_shape: tuple[int, int] | None = None
+) -> NDArray[np.uint8]:
+    """Palette ``indices`` (H, W) as RGB bands (3, H, W) by ``table`` (index -> RGB row),
+    area-averaged to ``out_shape`` (h, w) when given: colours average, indices do not."""
+    rgb = table[np.asarray(indices)]
+    if out_shape is not None and out_shape != rgb.shape[:2]:
+        rgb = cv2.resize(rgb, (out_shape[1], out_shape[0]), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(np.moveaxis(rgb, -1, 0))
+
+
+def _tiff_colour_table(page: Any) -> NDArray[np.uint8] | None:
+    """A one-band TIFF page's colour map as 8-bit RGB rows (None without one): 16-bit entries
+    divided by 257 as GDAL reads them, a map written with 8-bit values (all under 256) as is."""
+    cmap = getattr(page, "colormap", None)
+    if cmap is None or int(page.samplesperpixel) != 1:
+        return None
+    cmap = np.asarray(cmap, dtype=np.uint32)[:3]
+    cmap = cmap if int(cmap.max(initial=0)) < 256 else cmap // 257
+    return np.ascontiguousarray(cmap.T, dtype=np.uint8)
+
+
 def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any], str]:
     """(pixels, GeoTIFF tags, why the pixels are None) read with tifffile; (None, {}, "")
     without it. Pixels are None when tifffile cannot handle the file (not a TIFF to it, a codec
@@ -107,6 +131,7 @@ def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any], str
             page = tif.pages.first
             tags = grid_tags(page)
             arr = np.asarray(page.asarray())
+            table = _tiff_colour_table(page)
     except (ValueError, NotImplementedError, ImportError) as exc:  # TiffFileError is a ValueError
         return None, tags, " ".join(str(exc).split())
     except Exception as exc:  # the codecs' own errors: zlib.error, LZMAError, imagecodecs'
@@ -115,6 +140,8 @@ def _read_tifffile(path: Path) -> tuple[NDArray[Any] | None, dict[int, Any], str
             f"{path}: damaged TIFF, its pixel data cannot be decoded "
             f"({type(exc).__name__}: {' '.join(str(exc).split())})",
         ) from exc
+    if table is not None and arr.ndim == 2:
+        arr = np.moveaxis(expand_palette(arr, table), 0, -1)
     if arr.ndim == 3 and arr.shape[0] in (3, 4) and arr.shape[2] not in (3, 4):
         arr = np.moveaxis(arr, 0, -1)  # planar (bands, H, W)
     return arr, tags, ""

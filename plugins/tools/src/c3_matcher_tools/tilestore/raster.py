@@ -38,6 +38,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher.file_kinds import special_kind
 from c3_matcher_tools.geodesy import ground_gsd_m
 from c3_matcher_tools.geotiff import north_up_scale
+from c3_matcher_tools.sim.orthophotos import expand_palette
 from c3_matcher_tools.tilestore.geo import GeoGrid, check_grid_fits_crs
 from c3_matcher_tools.tilestore.projection import Projection
 
@@ -105,10 +106,12 @@ class ValueMapping:
     def describe(self) -> str:
         if self.dtype == "uint8" and self.how == "as is":
             return "uint8 as is"
+        if self.how == "colour map":
+            return f"{self.dtype} palette indices -> RGB by the file's colour map"
         return f"{self.dtype} {self.lo:g}..{self.hi:g} -> 0..255 linear ({self.how})"
 
     def apply(self, data: NDArray[Any]) -> NDArray[np.uint8]:
-        if self.how == "as is":
+        if self.how in ("as is", "colour map"):  # a palette's colours: expanded when read
             return np.asarray(data, dtype=np.uint8)
         scaled = (data.astype(np.float64) - self.lo) * (255.0 / max(self.hi - self.lo, 1e-12))
         scaled = np.nan_to_num(scaled, nan=0.0)  # a NaN nodata pixel: 0, as every invalid one
@@ -143,6 +146,31 @@ def declared_range(dtype: str, nbits: str | None, source: str | Path) -> tuple[f
     raise InvalidInputError(
         "--value-range", f"{source}: {dtype} data has no bit depth: give LO,HI or leave it auto"
     )
+
+
+def colour_table(ds: Any, source: str | Path) -> NDArray[np.uint8] | None:
+    """The RGB colour of each palette index (index -> row) of a one-band palette raster, as
+    GDAL reads its colour map (an entry with alpha 0 is black: nodata); None for any other.
+    Palettes are expanded rather than refused: a scanned map or a colour-reduced orthophoto is
+    still an image to match, and its indices read as grey would be noise."""
+    from rasterio.enums import ColorInterp
+
+    if ds.count < 1 or ds.colorinterp[0] != ColorInterp.palette:
+        return None
+    try:
+        cmap = ds.colormap(1)
+    except ValueError as exc:
+        raise InvalidInputError(
+            "geotiff", f"{source}: a palette image without a colour map"
+        ) from exc
+    kind = np.dtype(str(ds.dtypes[0]))
+    if kind.kind != "u" or kind.itemsize > 2:
+        raise InvalidInputError("geotiff", f"{source}: a palette of {kind} indices: not 8/16-bit")
+    table = np.zeros((np.iinfo(kind).max + 1, 3), dtype=np.uint8)
+    for index, (r, g, b, *alpha) in cmap.items():
+        if 0 <= index < len(table) and (not alpha or alpha[0] > 0):
+            table[index] = (r, g, b)
+    return table
 
 
 def _gdal_why(exc: BaseException) -> str:
@@ -216,13 +244,22 @@ class RasterioSource:
         self.grid = GeoGrid(origin_e, origin_n, sx, sy, (w, h), epsg, projection, unit_m)
         check_grid_fits_crs(self.grid, self.path)
         self.gsd_m = grid_gsd_m(self.grid, geographic=bool(ds.crs.is_geographic))
-        self.bands = [1, 2, 3] if ds.count >= 3 else [1]
+        self.palette = colour_table(ds, self.path)
+        self.bands = [1] if self.palette is not None else [1, 2, 3] if ds.count >= 3 else [1]
         self.nodata = ds.nodata
         self.overviews: list[int] = list(ds.overviews(1))
         self.mapping = self._mapping(ds, value_range)
 
     def _mapping(self, ds: Any, value_range: ValueRange) -> ValueMapping:
         dtype = check_pixel_type(str(ds.dtypes[0]), self.path)
+        if self.palette is not None:
+            if value_range not in (None, "auto"):
+                raise InvalidInputError(
+                    "--value-range",
+                    f"{self.path}: a palette image: its colours come from its colour map, "
+                    "there is no value range to give",
+                )
+            return ValueMapping(dtype, 0.0, 255.0, "colour map")
         if isinstance(value_range, tuple):
             lo, hi = (float(v) for v in value_range)
             if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
@@ -276,7 +313,9 @@ class RasterioSource:
         from rasterio.enums import Resampling
         from rasterio.errors import NodataShadowWarning, RasterioError
 
-        shape = None if out_shape is None else (len(self.bands), *out_shape)
+        shape = None  # a palette's indices: read whole, averaged once expanded
+        if out_shape is not None and self.palette is None:
+            shape = (len(self.bands), *out_shape)
         try:
             data = ds.read(
                 self.bands,
@@ -284,6 +323,8 @@ class RasterioSource:
                 out_shape=shape,
                 resampling=Resampling.average if average else Resampling.nearest,
             )
+            if self.palette is not None:  # indices at full resolution, averaged as colours
+                data = expand_palette(data[0], self.palette, out_shape)
             with warnings.catch_warnings():  # a nodata tag beside an alpha band: GDAL's
                 warnings.simplefilter("ignore", NodataShadowWarning)  # mask follows the tag
                 mask = ds.dataset_mask(
