@@ -279,9 +279,10 @@ def test_unusable_error_type_is_a_candidate_error():
 
 
 def test_a_stored_tile_not_256_px_is_refused_whole_as_in_a_mosaic(tmp_path):
-    """A store of 512-px tiles: the 256-px candidate that is exactly one stored tile is refused
-    as the mosaic refuses it (it was served 512x512 labelled 256 px: 2x off in tile px)."""
-    tiles = {(3, 2, 1): _png(0, 512), (3, 3, 1): _png(1, 512)}
+    """512-px tiles in a store whose tile read at open is 256 px (a store of 512-px tiles is
+    refused at open): the 256-px candidate that is exactly one such tile is refused as the
+    mosaic refuses it (it was served 512x512 labelled 256 px: 2x off in tile px)."""
+    tiles = {(3, 1, 1): _png(2), (3, 2, 1): _png(0, 512), (3, 3, 1): _png(1, 512)}
     path = _mbtiles(tmp_path / "s.mbtiles", tiles, digests=False)
     with MBTilesStore(path) as store:
         whole = store.handle(tile_centre_id(3, 2, 1), size_px=256)

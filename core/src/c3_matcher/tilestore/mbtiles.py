@@ -8,14 +8,16 @@ Schema (spec 1.3)::
     CREATE UNIQUE INDEX tile_index ON tiles (zoom_level, tile_column, tile_row);
 
 Tiles are 256-px web-mercator tiles; ``tile_row`` is TMS (row 0 at the south), so XYZ ``y`` is
-``2**zoom - 1 - tile_row``. Metadata holds the spec's ``name``, ``format`` (png|jpg), ``bounds``,
-``center``, ``minzoom``, ``maxzoom``, ``type`` plus, for stores built by ``c3-matcher tiles
-build``, ``c3_source`` (the GeoTIFF), ``c3_georeference`` (how its grid was converted to
+``2**zoom - 1 - tile_row``, or ``tile_row`` itself where the metadata ``scheme`` is ``xyz`` (as
+some tools write: ``mbtiles_form.stored_row``). Metadata holds the spec's ``name``, ``format``,
+``bounds``, ``center``, ``minzoom``, ``maxzoom``, ``type`` plus, for stores built by ``c3-matcher
+tiles build``, ``c3_source`` (the GeoTIFF), ``c3_georeference`` (how its grid was converted to
 WGS84: the JSON of the ground tools' ``tilestore.projection.Projection``) and ``c3_source_gsd_m``.
 
 Opening checks, once, that the file is an SQLite database with these two tables, each with the
-columns it is read by (``PRAGMA table_info``), and that its smallest and largest zoom_level are
-zooms (integers >= 0); a file that is not is ``InvalidInputError`` naming it and what is wrong.
+columns it is read by (``PRAGMA table_info``), that its smallest and largest zoom_level are
+zooms (integers >= 0), its ``scheme`` one it reads and one tile's header 256 px square
+(``mbtiles_form``); a file that is not is ``InvalidInputError`` naming it and what is wrong.
 
 Reading opens the database read-only and never memory-maps it (``files.connect_read_only``):
 pages are ``read()`` into SQLite's cache, so a file emptied or cut short while open is an
@@ -68,7 +70,6 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Final
 
-from c3_matcher._validate import whole_number
 from c3_matcher.errors import InvalidInputError, describe
 from c3_matcher.tilestore.base import TileStoreBase
 from c3_matcher.tilestore.bounded import READ_S, UNBOUNDED, BoundedConnection
@@ -81,12 +82,14 @@ from c3_matcher.tilestore.mbtiles_file import (
     StoreFile,
     TileDigestError,
     file_identity,
-    holds,
     probe_failure,
     read_store_file,
+    refusal,
+    stored_xyz,
     stored_zooms,
     verified_tile,
 )
+from c3_matcher.tilestore.mbtiles_form import stored_row
 from c3_matcher.tilestore.sidecar import DEFAULT_RETRY_S, FeatureStoreUnavailableError
 
 __all__ = ["MBTilesStore", "TileDigestError", "TileStoreUnusableError"]
@@ -134,8 +137,13 @@ class MBTilesStore(TileStoreBase):
             why = open_error(self.path, exc, "an MBTiles file")
             raise InvalidInputError("mbtiles", f"{self.path}: {why}") from exc
         if isinstance(found, str):
-            raise self._refusal(found)
+            raise refusal(self.path, found)
         self._followed = FollowedFile(self.path, found, check_s=check_s, clock=clock)
+
+    @property
+    def tile_size(self) -> tuple[int, int] | None:
+        """(width, height) of the tile whose header was read at open, None when none told it."""
+        return self._followed.current.tile_size
 
     @property
     def has_digests(self) -> bool:
@@ -228,7 +236,7 @@ class MBTilesStore(TileStoreBase):
     def tile_bytes(self, zoom: int, x: int, y: int) -> memoryview | None:
         """The encoded XYZ tile (zoom, x, y), or None when absent; a database error is raised
         as InvalidInputError naming the tile."""
-        key = (zoom, x, (1 << zoom) - 1 - y)
+        key = (zoom, x, y)
         what = f"{self.name} tile {zoom}/{x}/{y}"
         self._follow_in_time()
         if self._unusable is not None:
@@ -252,11 +260,15 @@ class MBTilesStore(TileStoreBase):
         return verified_tile(found, what)
 
     def _fetch(self, key: tuple[int, int, int]) -> tuple[bytes | None, str | None] | None:
-        """The (blob, sha256 or None) row of the tile ``key`` (zoom, column, TMS row), read with
-        the query of the store file as last read, on this thread's connection made since."""
-        file = self._followed.current
+        """The (blob, sha256 or None) row of the XYZ tile ``key``, read with the query of the
+        store file as last read (its rows counted as it counts them), on this thread's
+        connection made since."""
+        file, (zoom, x, y) = self._followed.current, key
+        row = stored_row(zoom, y, file.rows_from_north)
         with (db := self._connection(file)).within(READ_S, "the read"):
-            found: tuple[bytes | None, str | None] | None = db.execute(file.query, key).fetchone()
+            found: tuple[bytes | None, str | None] | None = db.execute(
+                file.query, (zoom, x, row)
+            ).fetchone()
         return found
 
     def _fetch_again(
@@ -314,16 +326,19 @@ class MBTilesStore(TileStoreBase):
         except sqlite3.Error as exc:
             raise InvalidInputError(str(self.path), f"listing its zooms failed: {exc}") from exc
         if isinstance(found, str):
-            raise self._refusal(found)
+            raise refusal(self.path, found)
         return found
 
     def tiles(self, zoom: int) -> Iterator[tuple[int, int]]:
         """XYZ (x, y) of every stored tile at ``zoom`` (unbounded in time: a signal stops it);
         a tile_column or tile_row that is no integer is InvalidInputError naming the store."""
-        query = "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=? ORDER BY 2 DESC, 1"
-        with (db := self._db).within(UNBOUNDED, "listing its tiles"):
+        self._follow_in_time()
+        file = self._followed.current
+        order = "2, 1" if file.rows_from_north else "2 DESC, 1"  # north first, as XYZ rows run
+        query = f"SELECT tile_column, tile_row FROM tiles WHERE zoom_level=? ORDER BY {order}"
+        with (db := self._connection(file)).within(UNBOUNDED, "listing its tiles"):
             for col, row in db.execute(query, (zoom,)):
-                yield self._xyz(zoom, col, row)
+                yield stored_xyz(self.path, zoom, (col, row), file.rows_from_north)
 
     def stored_in(
         self, zoom: int, columns: tuple[int, int], rows: tuple[int, int]
@@ -332,34 +347,19 @@ class MBTilesStore(TileStoreBase):
         (first, last), found in the tile index by one query within ``READ_S``: no tile is read,
         so a damaged or empty one is listed too (:meth:`tile_bytes` says what it holds). A
         database error is InvalidInputError naming the store."""
-        last = (1 << zoom) - 1
         query = (
             "SELECT tile_column, tile_row FROM tiles WHERE zoom_level=?"
             " AND tile_column BETWEEN ? AND ? AND tile_row BETWEEN ? AND ?"
         )
-        args = (zoom, *columns, last - rows[1], last - rows[0])
+        self._follow_in_time()
+        north = (file := self._followed.current).rows_from_north
+        ends = sorted(stored_row(zoom, y, north) for y in rows)
         try:
-            with (db := self._db).within(READ_S, "the listing"):
-                found = db.execute(query, args).fetchall()
+            with (db := self._connection(file)).within(READ_S, "the listing"):
+                found = db.execute(query, (zoom, *columns, *ends)).fetchall()
         except sqlite3.Error as exc:
             raise InvalidInputError(str(self.path), f"listing its tiles failed: {exc}") from exc
-        if all(type(col) is int and type(row) is int for col, row in found):
-            return [(col, last - row) for col, row in found]  # the usual store: nothing to check
-        return [self._xyz(zoom, col, row) for col, row in found]
-
-    def _xyz(self, zoom: int, col: object, row: object) -> tuple[int, int]:
-        """XYZ (x, y) of the stored ``tile_column`` and TMS ``tile_row`` at ``zoom``; one that
-        is no integer is InvalidInputError naming the store."""
-        x, tms_row = whole_number(col), whole_number(row)
-        if x is None:
-            raise self._refusal(holds("tile_column", col))
-        if tms_row is None:
-            raise self._refusal(holds("tile_row", row))
-        return x, (1 << zoom) - 1 - tms_row
-
-    def _refusal(self, wrong: str) -> InvalidInputError:
-        """The refusal of this store as no MBTiles file, for the reason ``wrong``."""
-        return InvalidInputError("mbtiles", f"{self.path}: not an MBTiles file ({wrong})")
+        return [stored_xyz(self.path, zoom, cell, north) for cell in found]
 
     def close(self) -> None:
         """Close every connection (the sidecar's too); later reads raise

@@ -20,6 +20,13 @@ from c3_matcher._validate import finite_float, whole_number
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.bounded import OPEN_S, READ_S, BoundedConnection
 from c3_matcher.tilestore.files import connect_read_only
+from c3_matcher.tilestore.mbtiles_form import (
+    StoreFormError,
+    first_tile_size,
+    refuse_other_tile_size,
+    rows_from_north,
+    stored_row,
+)
 
 __all__ = [
     "CHECK_S",
@@ -31,6 +38,8 @@ __all__ = [
     "holds",
     "probe_failure",
     "read_store_file",
+    "refusal",
+    "stored_xyz",
     "stored_zooms",
     "verified_tile",
 ]
@@ -74,11 +83,16 @@ _PLAIN_QUERY: Final = (
 class StoreFile:
     """What reading the store file once decided. ``identity`` is the file's when it was read
     (None: the file at the path could not be read as a store, so every later look reads it
-    again); ``query`` reads one tile's (blob, sha256 or NULL) by (zoom, column, TMS row)."""
+    again); ``query`` reads one tile's (blob, sha256 or NULL) by (zoom, column, stored row);
+    ``rows_from_north``: its rows are XYZ rows (metadata ``scheme`` ``xyz``), not TMS ones;
+    ``tile_size``: (width, height) of the tile whose header was read at open, None when none
+    told it."""
 
     identity: FileIdentity | None
     metadata: Mapping[str, str]
     has_digests: bool
+    rows_from_north: bool = False
+    tile_size: tuple[int, int] | None = None
 
     @property
     def query(self) -> str:
@@ -93,7 +107,9 @@ def read_store_file(
     (a table or a column missing, a zoom_level that is no zoom). Raises SQLite's error when
     it cannot be read (locked, damaged, not an SQLite database), QueryTimeoutError when it
     does not answer within ``bound`` seconds (a ``tiles`` view that never ends: ``OPEN_S`` at
-    open, ``READ_S`` when a running store reads a changed file, on a frame's thread)."""
+    open, ``READ_S`` when a running store reads a changed file, on a frame's thread), and
+    StoreFormError for a store laid out as it is not read (:mod:`~c3_matcher.tilestore.
+    mbtiles_form`: an unknown ``scheme``, tiles not 256 px)."""
     db = connect_read_only(path, timeout=timeout)
     try:
         with db.within(bound, "reading its tables as at open"):
@@ -103,9 +119,24 @@ def read_store_file(
                 return wrong
             rows = db.execute("SELECT name, value FROM metadata")
             metadata = {str(k): str(v) for k, v in rows}
+        from_north = rows_from_north(path, metadata)
+        size = _sampled_tile_size(db, bound)
     finally:
         db.close()
-    return StoreFile(identity, metadata, "c3_tile_digest" in tables)
+    refuse_other_tile_size(path, size)
+    tile_size = None if size is None else size[0]
+    return StoreFile(identity, metadata, "c3_tile_digest" in tables, from_north, tile_size)
+
+
+def _sampled_tile_size(db: BoundedConnection, bound: float) -> tuple[tuple[int, int], str] | None:
+    """:func:`~c3_matcher.tilestore.mbtiles_form.first_tile_size` within ``bound`` seconds, at
+    most ``READ_S`` (a tile's read); None when a damaged page holds those tiles or their data
+    is not read in time (a view's): each tile's own error when it is read, as before."""
+    try:
+        with db.within(min(bound, READ_S), "reading one tile's header"):
+            return first_tile_size(db)
+    except sqlite3.DatabaseError:  # QueryTimeoutError included
+        return None
 
 
 CHECK_S: Final = 1.0  # a running store looks at its file again (changed?) at most this often
@@ -147,7 +178,7 @@ class FollowedFile:
                 return None
             try:
                 found = read_store_file(self._path, identity, timeout=LOCK_WAIT_S, bound=READ_S)
-            except sqlite3.Error:
+            except (sqlite3.Error, StoreFormError):
                 found = "unreadable"
             if isinstance(found, str):
                 self.current = replace(self.current, identity=identity)
@@ -159,7 +190,8 @@ class FollowedFile:
 def verified_tile(found: tuple[bytes | None, str | None] | None, what: str) -> memoryview | None:
     """The blob of the tile row ``found`` (blob, sha256 or None) of the tile ``what``, checked
     against its sha256 when one is stored (TileDigestError when it fails); None for no row,
-    or an empty row without a sha256 (a store made by another tool: no tile)."""
+    or an empty row (NULL or 0 bytes, as other tools store a blank tile) without a sha256,
+    or 0 bytes whose sha256 is that of 0 bytes (it was blank when digested): no tile."""
     if found is None:
         return None
     blob, digest = found
@@ -171,7 +203,7 @@ def verified_tile(found: tuple[bytes | None, str | None] | None, what: str) -> m
         raise TileDigestError(
             what, f"sha256 mismatch (stored {str(digest)[:16]}...): the tile is corrupt"
         )
-    return memoryview(blob)
+    return memoryview(blob) if len(blob) else None
 
 
 def probe_failure(path: Path, *, timeout: float) -> sqlite3.Error | None:
@@ -242,6 +274,27 @@ def stored_zooms(db: BoundedConnection) -> list[int] | str:
 def _is_zoom(value: object) -> bool:
     whole = whole_number(value)
     return whole is not None and whole >= 0
+
+
+def refusal(path: Path, wrong: str) -> InvalidInputError:
+    """The refusal of the store at ``path`` as no MBTiles file, for the reason ``wrong``."""
+    return InvalidInputError("mbtiles", f"{path}: not an MBTiles file ({wrong})")
+
+
+def stored_xyz(
+    path: Path, zoom: int, cell: tuple[object, object], from_north: bool
+) -> tuple[int, int]:
+    """XYZ (x, y) of the stored (``tile_column``, ``tile_row``) ``cell`` at ``zoom`` of the
+    store at ``path``, its row counted as the store counts them
+    (:func:`~c3_matcher.tilestore.mbtiles_form.stored_row`); a value that is no integer is
+    InvalidInputError naming the store."""
+    col, row = cell
+    x, stored = whole_number(col), whole_number(row)
+    if x is None:
+        raise refusal(path, holds("tile_column", col))
+    if stored is None:
+        raise refusal(path, holds("tile_row", row))
+    return x, stored_row(zoom, stored, from_north)
 
 
 def holds(column: str, value: object) -> str:

@@ -1,4 +1,7 @@
 """An XYZ tile folder: ``ROOT/{z}/{x}/{y}.png`` or ``.jpg`` / ``.jpeg`` (y grows south), 256 px.
+A TMS folder (rows from the south), which holds the TMS spec's ``tilemapresource.xml`` as
+gdal2tiles writes it without ``--xyz``, is refused at open: its tiles would be served mirrored
+north-south.
 
 Each tile file is read from the page cache on demand (:class:`~c3_matcher.tiles.MmapTileHandle`,
 which holds no mapping: a file that shrinks while in use is that tile's error, never SIGBUS).
@@ -16,6 +19,7 @@ from c3_matcher.tilestore.base import TileStoreBase
 __all__ = ["XyzTileStore"]
 
 SUFFIXES = (".png", ".jpg", ".jpeg")
+TMS_RESOURCE = "tilemapresource.xml"  # the TMS spec's description of a folder of TMS rows
 
 
 class XyzTileStore(TileStoreBase):
@@ -25,6 +29,13 @@ class XyzTileStore(TileStoreBase):
         self._root = Path(root)
         if not self._root.is_dir():
             raise InvalidInputError("xyz", f"no such tile folder: {self._root}")
+        if (self._root / TMS_RESOURCE).is_file():
+            raise InvalidInputError(
+                "xyz",
+                f"{self._root}: holds {TMS_RESOURCE}, so it is a TMS tile folder (rows counted"
+                " from the south, as gdal2tiles writes without --xyz); it reads XYZ folders (rows"
+                " from the north): write the tiles with gdal2tiles --xyz",
+            )
 
     @property
     def name(self) -> str:

@@ -142,7 +142,8 @@ def _digest(args: argparse.Namespace, ctx: CommandContext) -> int:
     if args.json:
         ctx.out(json.dumps({**asdict(done), "path": str(done.path)}, indent=2))
     else:
-        empty = f", {done.empty} with no data (NULL: no tile to a flight)" if done.empty else ""
+        blank = "with no data (NULL or 0 bytes: no tile to a flight)"
+        empty = f", {done.empty} {blank}" if done.empty else ""
         ctx.out(
             f"{done.path}: {done.added} digests added, {done.kept} already there{empty} "
             f"({done.tiles} tiles)"
@@ -156,12 +157,14 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
     if Path(args.store).is_dir():
         info = _xyz_info(Path(args.store))
     else:
-        with MBTilesStore(args.store) as store:
+        with MBTilesStore(args.store) as store:  # refuses a store of tiles not 256 px
+            size = store.tile_size
             info = {
                 "path": str(store.path),
                 "format": "mbtiles",
                 "metadata": dict(store.metadata),
                 "tiles": {str(z): len(list(store.tiles(z))) for z in store.zooms()},
+                "tile_px": None if size is None else list(size),
             }
     if args.json:
         ctx.out(json.dumps(info, indent=2))
@@ -171,6 +174,9 @@ def _info(args: argparse.Namespace, ctx: CommandContext) -> int:
         f"{info['path']}{kind}: "
         + ", ".join(f"zoom {z}: {n} tiles" for z, n in info["tiles"].items())
     )
+    if info["format"] == "mbtiles":
+        size = info["tile_px"]  # from one tile's header at open; unknown when none told it
+        ctx.out(f"  tile size: {'unknown' if size is None else f'{size[0]}x{size[1]} px'}")
     for key, value in info["metadata"].items():
         ctx.out(f"  {key}: {value if len(value) <= 120 else value[:117] + '...'}")
     return EXIT_OK

@@ -41,8 +41,8 @@ _SCHEMA = (
 @dataclass(frozen=True, slots=True)
 class DigestReport:
     """What ``add_missing_digests`` did: tiles in the store, digests added, digests already
-    there (kept as they were), and tiles whose data is NULL (no digest: the flight read path
-    takes such a row for no tile)."""
+    there (kept as they were), and tiles whose data is NULL or 0 bytes (no digest: the flight
+    read path takes such a row for no tile)."""
 
     path: Path
     tiles: int
@@ -56,10 +56,10 @@ def add_missing_digests(path: str | Path) -> DigestReport:
     made by another tool, or before digests existed). Tile bytes are not touched, and an
     existing digest is never replaced: a tile that no longer matches its digest stays detected;
     a digest row whose sha256 is NULL (another tool's unfinished table) is no digest and is
-    replaced. A tile whose data is NULL gets none and is counted apart (``empty``); one whose
-    data is not bytes (an INTEGER, a TEXT) is refused, naming it. One transaction, the digest
-    table's creation included: on any error (a file that is not an MBTiles store among them)
-    the store is left as it was."""
+    replaced. A tile whose data is NULL or 0 bytes (a blank tile as some tools store it) gets
+    none and is counted apart (``empty``); one whose data is not bytes (an INTEGER, a TEXT) is
+    refused, naming it. One transaction, the digest table's creation included: on any error (a
+    file that is not an MBTiles store among them) the store is left as it was."""
     path = Path(path)
     why = open_failure(path, "an MBTiles file")
     if why == "no such file":
@@ -121,7 +121,7 @@ def _digest_missing(db: sqlite3.Connection, path: Path) -> DigestReport:
     undigested = 0
     for z, x, row, blob in db.execute(_UNDIGESTED):  # one tile's bytes held at a time
         undigested += 1
-        if blob is not None:
+        if blob:  # NULL and 0 bytes are no tile: a digest would vouch for a blank
             digests.append((z, x, row, hashlib.sha256(blob).hexdigest()))
     db.execute("DELETE FROM c3_tile_digest WHERE sha256 IS NULL")
     db.executemany("INSERT INTO c3_tile_digest VALUES (?, ?, ?, ?)", digests)
