@@ -5,6 +5,7 @@ is, so the window over it still matches; a store of 512-px tiles is one line, ex
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import shutil
@@ -103,14 +104,16 @@ def test_a_store_of_tiles_not_256_px_is_one_line_and_exit_2(
 ) -> None:
     """It was opened, and then every window failed "expected 256x256 px" (exit 3)."""
     path = _store(tmp_path, "retina.mbtiles")
-    db = sqlite3.connect(path)
-    for rowid, blob in db.execute("SELECT rowid, tile_data FROM tiles").fetchall():
+
+    def resized(blob: bytes) -> bytes:
         image = cv2.imdecode(np.frombuffer(blob, np.uint8), cv2.IMREAD_COLOR)
-        ok, buf = cv2.imencode(".jpg", cv2.resize(image, (px, px)))
-        assert ok
-        db.execute("UPDATE tiles SET tile_data = ? WHERE rowid = ?", (buf.tobytes(), rowid))
-    db.commit()
-    db.close()
+        return cv2.imencode(".jpg", cv2.resize(image, (px, px)))[1].tobytes()
+
+    with contextlib.closing(sqlite3.connect(path)) as db, db:
+        rows = db.execute("SELECT rowid, tile_data FROM tiles").fetchall()
+        db.executemany(
+            "UPDATE tiles SET tile_data = ? WHERE rowid = ?", [(resized(b), r) for r, b in rows]
+        )
     proc = _match(tmp_path, engine_dir, path)
     assert proc.returncode == 2, proc.stderr[-2000:]
     line = proc.stderr.strip().splitlines()[-1]

@@ -84,8 +84,8 @@ def test_a_fisheye_model_is_refused_by_name_saying_what_to_do(tmp_path: Path, mo
         ),
         (
             {"distortion_model": "rational_polynomial"},
-            "distortion: distortion_model 'rational_polynomial' takes 0 or 8 or 12 or 14 coefficients,"
-            " got 5",
+            "distortion: distortion_model 'rational_polynomial' takes 0 or 8 or 12 or 14"
+            " coefficients, got 5",
         ),
         ({"distortion_model": "pinhole-ish"}, "distortion_model: unknown model 'pinhole-ish'"),
         ({"distortion_model": 4}, 'distortion_model: expected one of "opencv", "plumb_bob"'),

@@ -92,3 +92,21 @@ def no_bench_case(monkeypatch: pytest.MonkeyPatch) -> None:
         raise AssertionError("a case ran")
 
     monkeypatch.setattr(c3_matcher_tools.bench, "cases_for", no_case)
+
+
+def stored_tiles(store: Path) -> dict[tuple[int, int, int], Any]:
+    """Every tile of the MBTiles ``store`` decoded (BGR, as OpenCV reads), by (zoom, x, y)
+    (XYZ rows)."""
+    import cv2
+    import numpy as np
+
+    from c3_matcher.tilestore.mbtiles import MBTilesStore
+
+    out = {}
+    with MBTilesStore(store) as st:
+        for z in st.zooms():
+            for x, y in st.tiles(z):
+                data = st.tile_bytes(z, x, y)
+                assert data is not None
+                out[(z, x, y)] = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    return out

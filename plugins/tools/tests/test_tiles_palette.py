@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import rasterio
@@ -14,10 +13,11 @@ from PIL import Image
 from rasterio.windows import Window
 
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.sim.orthophotos import load_orthophoto
 from c3_matcher_tools.tilestore.build import build_mbtiles
 from c3_matcher_tools.tilestore.raster import RasterioSource
+
+from .conftest import stored_tiles
 
 REPO = Path(__file__).resolve().parents[3]
 NAIP_2020 = REPO / "data" / "imagery" / "naip_timeseries" / "m_4709963_se_14_1_20200831.tif"
@@ -52,17 +52,6 @@ def _sheets(tmp_path: Path) -> tuple[Path, Path]:
     return palette, plain
 
 
-def _tiles(store: Path) -> dict[tuple[int, int, int], np.ndarray]:
-    out = {}
-    with MBTilesStore(store) as st:
-        for z in st.zooms():
-            for x, y in st.tiles(z):
-                data = st.tile_bytes(z, x, y)
-                assert data is not None
-                out[(z, x, y)] = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    return out
-
-
 @pytest.mark.parametrize("use_rasterio", [True, False], ids=["rasterio", "tifffile"])
 def test_a_palette_geotiff_gives_the_tiles_of_its_colours(
     tmp_path: Path, use_rasterio: bool
@@ -71,7 +60,7 @@ def test_a_palette_geotiff_gives_the_tiles_of_its_colours(
     got = build_mbtiles(palette, tmp_path / "p.mbtiles", use_rasterio=use_rasterio)
     want = build_mbtiles(plain, tmp_path / "r.mbtiles", use_rasterio=use_rasterio)
     assert got.reader == ("rasterio" if use_rasterio else "tifffile")
-    tp, tr = _tiles(got.path), _tiles(want.path)
+    tp, tr = stored_tiles(got.path), stored_tiles(want.path)
     assert tp.keys() == tr.keys() and tp
     diff = np.concatenate([np.abs(tp[k].astype(int) - tr[k].astype(int)).ravel() for k in tp])
     assert float(diff.mean()) < 0.05 and int(diff.max()) <= 2, (diff.mean(), diff.max())

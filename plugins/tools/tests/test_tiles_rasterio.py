@@ -6,7 +6,6 @@ from __future__ import annotations
 import warnings
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pyproj  # the tools' geo extra (scripts/setup installs it): never skipped
 import pytest
@@ -16,6 +15,8 @@ from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.tilestore.build import build_mbtiles
 from c3_matcher_tools.tilestore.geo import read_geotiff_grid, world_px_to_lonlat
 from c3_matcher_tools.tilestore.raster import RasterioSource
+
+from .conftest import stored_tiles
 
 REPO = Path(__file__).resolve().parents[3]
 IMAGERY = REPO / "data" / "imagery"
@@ -30,17 +31,6 @@ SHEETS = {
 }
 
 
-def _tiles(store: Path) -> dict[tuple[int, int, int], np.ndarray]:
-    out = {}
-    with MBTilesStore(store) as st:
-        for z in st.zooms():
-            for x, y in st.tiles(z):
-                data = st.tile_bytes(z, x, y)
-                assert data is not None
-                out[(z, x, y)] = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-    return out
-
-
 @pytest.mark.parametrize("sheet", list(SHEETS), ids=lambda p: p.name)
 def test_rasterio_tiles_match_the_tifffile_fallback(sheet: Path, tmp_path: Path) -> None:
     mean_tol, p99_tol = SHEETS[sheet]
@@ -48,7 +38,7 @@ def test_rasterio_tiles_match_the_tifffile_fallback(sheet: Path, tmp_path: Path)
     b = build_mbtiles(sheet, tmp_path / "t.mbtiles", use_rasterio=False)
     assert a.reader == "rasterio" and b.reader == "tifffile"
     assert a.zooms == b.zooms and abs(a.source_gsd_m - b.source_gsd_m) < 1e-9
-    ta, tb = _tiles(a.path), _tiles(b.path)
+    ta, tb = stored_tiles(a.path), stored_tiles(b.path)
     assert ta.keys() == tb.keys() and ta
     diff = np.concatenate(
         [np.abs(ta[k].astype(np.int16) - tb[k].astype(np.int16)).ravel() for k in ta]
@@ -109,7 +99,7 @@ def test_nodata_tag_becomes_zero_and_masked(tmp_path: Path) -> None:
     assert report.nodata == 255
     with MBTilesStore(report.path) as st:
         assert st.metadata["c3_source_nodata"] == "255.0"
-    tiles = _tiles(report.path)
+    tiles = stored_tiles(report.path)
     white = inside = 0
     for (z, x, y), img in tiles.items():
         i = np.arange(256) + 0.5
@@ -124,7 +114,7 @@ def test_nodata_tag_becomes_zero_and_masked(tmp_path: Path) -> None:
         assert (img[data] > 0).any(axis=1).mean() > 0.99
     assert white == 0 and inside > 1000
     # the fallback ignores the tag: the same area is white there
-    fb = _tiles(build_mbtiles(tif, tmp_path / "f.mbtiles", use_rasterio=False).path)
+    fb = stored_tiles(build_mbtiles(tif, tmp_path / "f.mbtiles", use_rasterio=False).path)
     assert any((img == 255).all(axis=2).sum() > 1000 for img in fb.values())
 
 
@@ -151,7 +141,7 @@ def test_nodata_a_library_would_warn_about_builds_quietly(tmp_path: Path, kind: 
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # any warning fails the build
         report = build_mbtiles(tif, tmp_path / "t.mbtiles", use_rasterio=True)
-    tiles = _tiles(report.path)
+    tiles = stored_tiles(report.path)
     assert tiles and any((img > 0).any() for img in tiles.values())
 
 
@@ -165,9 +155,9 @@ def test_multi_zoom_store_with_overviews_reads_back(tmp_path: Path) -> None:
         counts = {z: len(list(st.tiles(z))) for z in st.zooms()}
         assert counts == {int(z): n for z, n in (report.tiles_per_zoom or {}).items()}
         assert counts[16] > counts[15] > counts[14] >= counts[13] >= 1
-    fallback = _tiles(build_mbtiles(NAIP_2020, tmp_path / "f.mbtiles", zoom=[13, 14, 15, 16],
+    fallback = stored_tiles(build_mbtiles(NAIP_2020, tmp_path / "f.mbtiles", zoom=[13, 14, 15, 16],
                                     use_rasterio=False).path)  # fmt: skip
-    ours = _tiles(report.path)
+    ours = stored_tiles(report.path)
     assert ours.keys() == fallback.keys()
     for z in (13, 14, 15, 16):
         d = np.concatenate([np.abs(ours[k].astype(np.int16) - fallback[k]).ravel()

@@ -23,12 +23,13 @@ from rasterio.warp import Resampling, reproject
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT
-from c3_matcher.tilestore.mbtiles import MBTilesStore
 from c3_matcher_tools.geotiff import GEO_KEY_DIRECTORY
 from c3_matcher_tools.testing.geotiff import projected_keys
 from c3_matcher_tools.tilestore.build import build_mbtiles
 from c3_matcher_tools.tilestore.geo import TM_REACH_M
 from c3_matcher_tools.tilestore.projection import Projection
+
+from .conftest import stored_tiles
 
 REPO = Path(__file__).resolve().parents[3]
 NAIP_2020 = REPO / "data" / "imagery" / "naip_timeseries" / "m_4709963_se_14_1_20200831.tif"
@@ -55,15 +56,7 @@ def at(e0: float, n0: float, sx: float = 5.0, sy: float | None = None) -> Affine
 
 def stored(store: Path) -> dict[tuple[int, int, int], NDArray[np.uint8]]:
     """Every tile of ``store`` as RGB, by (zoom, x, y) (XYZ rows)."""
-    out = {}
-    with MBTilesStore(store) as st:
-        for z in st.zooms():
-            for x, y in st.tiles(z):
-                data = st.tile_bytes(z, x, y)
-                assert data is not None
-                bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-                out[(z, x, y)] = np.ascontiguousarray(bgr[:, :, ::-1])
-    return out
+    return {k: np.ascontiguousarray(bgr[:, :, ::-1]) for k, bgr in stored_tiles(store).items()}
 
 
 def gdal_tile(tif: Path, z: int, x: int, y: int) -> NDArray[np.uint8]:
