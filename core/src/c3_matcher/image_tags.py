@@ -15,12 +15,15 @@ Depth: cameras write 10-, 12- or 14-bit samples (Mono10, Mono12) in the low bits
 PNG or TIFF words, so dividing by 257 leaves such a frame 4 or 16 grey levels.
 :func:`sixteen_bit_top` gives the value that becomes 255: the top the file declares (PNG
 ``sBIT``, TIFF ``MaxSampleValue``) when its pixels fit in it, else the top of the smallest of
-10, 12, 14 or 16 bits holding the frame's largest sample. That is a property of the camera, not
-of the scene: every frame of a 12-bit camera whose brightest pixel passes a quarter of its range
-gets the same scale (a frame darker than that, without a declared depth, is read as 10-bit:
-brighter, never fewer grey levels), and an image using the 16-bit range is divided by 257 as
+10, 12, 14 or 16 bits holding the frame's largest sample. A declared depth is the camera's; an
+inferred one is each frame's: every frame of a 12-bit camera whose brightest pixel passes a
+quarter of its range gets the same scale, but a darker frame (or a full-range camera's frame
+at dusk) is read at a smaller depth, brighter, never with fewer grey levels: the matchers are
+indifferent to a frame's gain (one lamp pixel moving a dark frame's scale 4x changed no match
+measured: 1173, 1178, 1175 inliers). An image using the 16-bit range is divided by 257 as
 before. A PNG ``sBIT`` whose pixels exceed it is a PNG scaled to the full range, as the PNG
-specification writes one: it is read by its values.
+specification writes one: it is read by its values. Map tiles are read as stored, none of
+this (``tiles.decode_image``). A tag whose count the file cannot hold is no tag.
 """
 
 from __future__ import annotations
@@ -67,14 +70,14 @@ def _shorts(tiff: bytes | memoryview, field: tuple[int, int, bytes]) -> list[int
     typ, n, value = field
     endian = "<" if bytes(tiff[:2]) == b"II" else ">"
     size = 2 if typ == 3 else 4 if typ == 4 else 0
-    if size == 0 or n == 0:
+    if size == 0 or n == 0 or n * size > len(tiff):  # a count the file cannot hold: damaged
         return []
     data = (
         value[: n * size]
         if n * size <= 4
         else tiff[struct.unpack(endian + "I", value)[0] :][: n * size]
     )
-    return list(struct.unpack(endian + ("H" if size == 2 else "I") * n, bytes(data)))
+    return list(struct.unpack(f"{endian}{n}{'H' if size == 2 else 'I'}", bytes(data)))
 
 
 def _tag_value(tiff: bytes | memoryview, tag: int) -> list[int]:

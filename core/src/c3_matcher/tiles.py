@@ -17,9 +17,7 @@ size never decoded). The decoded image's size is checked against the limit too, 
 read otherwise than its decoder reads it: that check costs nothing, but comes after the
 decoder's allocation (bounded then only by OpenCV's own limit, ``OPENCV_IO_MAX_IMAGE_PIXELS``,
 2^30 px by default), so it keeps such an image from the matcher, not from memory. The limit
-is a value each reader is
-given, never process state: ``read_image``, ``MmapTileHandle`` and ``BytesTileHandle`` take it
-too.
+is a value each reader is given, never process state (``read_image``, the handles).
 """
 
 from __future__ import annotations
@@ -72,12 +70,16 @@ class ImageDecodeError(InvalidInputError):
 
 
 def decode_image(
-    buffer: memoryview | bytes, what: str, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+    buffer: memoryview | bytes,
+    what: str,
+    max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS,
+    *,
+    as_displayed: bool = False,
 ) -> NDArray[np.uint8]:
-    """Decode PNG/JPEG/TIFF/... bytes to uint8 RGB (H, W, 3) as displayed (its EXIF
-    orientation applied: :mod:`c3_matcher.image_tags`); 16-bit is scaled by its camera's depth
-    (:func:`to_rgb8`), alpha dropped,
-    4-band (e.g. R,G,B,NIR GeoTIFF) keeps its first three bands in file order. An image above
+    """Decode PNG/JPEG/TIFF/... bytes to uint8 RGB (H, W, 3): a frame ``as_displayed`` (EXIF
+    orientation applied, 16-bit scaled by its camera's depth: :mod:`c3_matcher.image_tags`), a
+    map tile as stored (its place is its grid's, never turned; 16-bit / 257 for every tile alike:
+    no seam within a scene), alpha dropped, 4-band keeps its first 3 bands. An image above
     ``max_pixels`` (width x height, read from its header) is refused before decoding, and one
     that decodes above it all the same is refused after (see the module docstring)."""
     raw = np.frombuffer(buffer, dtype=np.uint8)
@@ -102,7 +104,7 @@ def decode_image(
             f"image of {width}x{height} px exceeds the limit of {limit} px "
             "([matcher] max_image_pixels); refused before decoding",
         )
-    if raw.data[:4] in _TIFF_MAGIC and tiff_orientation(raw.data) >= 5:
+    if as_displayed and raw.data[:4] in _TIFF_MAGIC and tiff_orientation(raw.data) >= 5:
         raise ImageDecodeError(
             what,
             f"a TIFF stored turned a quarter (its Orientation tag is {tiff_orientation(raw.data)})"
@@ -111,7 +113,8 @@ def decode_image(
     image = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ImageDecodeError(what, f"not a decodable image ({DECODABLE_FORMATS})")
-    image = apply_orientation(image, exif_orientation(raw.data))
+    if as_displayed:
+        image = apply_orientation(image, exif_orientation(raw.data))
     decoded_h, decoded_w = image.shape[:2]
     if decoded_w * decoded_h > limit:  # a header read otherwise than the decoder reads it
         raise ImageDecodeError(
@@ -119,7 +122,8 @@ def decode_image(
             f"decoded to {decoded_w}x{decoded_h} px, above the limit of {limit} px ([matcher] "
             f"max_image_pixels), though its header declares {width}x{height} px",
         )
-    return to_rgb8(image, what, bgr=True, declared=declared_top(raw.data))
+    declared = declared_top(raw.data) if as_displayed else 65535  # a tile: / 257, as ever
+    return to_rgb8(image, what, bgr=True, declared=declared)
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -315,7 +319,8 @@ def read_image(path: Path, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> NDArra
         raise InvalidInputError(str(p), "is a directory, not an image")
     if not p.exists():
         raise InvalidInputError(str(p), "no such image file")
-    return MmapTileHandle(p, max_pixels=max_pixels).decode()
+    image = MmapTileHandle(p, max_pixels=max_pixels).encoded()
+    return decode_image(image, str(p), max_pixels, as_displayed=True)
 
 
 class MmapTileHandle:

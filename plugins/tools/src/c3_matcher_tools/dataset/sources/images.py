@@ -263,7 +263,7 @@ def find_image_problem(data: bytes, size: tuple[int, int]) -> ImageProblem | Non
             f"is {w}x{h} px, the calibration says {size[0]}x{size[1]}", unreadable=False
         )
     try:
-        decode_image(data, "image", max_pixels=w * h)
+        decode_image(data, "image", max_pixels=w * h, as_displayed=True)
     except ImageDecodeError as exc:
         return ImageProblem(f"{UNREADABLE}: {exc.reason}", unreadable=True)
     return None
