@@ -145,6 +145,26 @@ def test_a_store_replaced_by_its_xyz_twin_serves_the_same_tiles(tmp_path: Path) 
         assert list(store.tiles(ZOOM)) == tiles
 
 
+def test_a_store_replaced_by_one_open_would_refuse_says_so_at_every_read(tmp_path: Path) -> None:
+    """A running store whose file is replaced by one laid out as it is not read (a scheme it
+    does not read) was read with the old file's settings (its rows the old way) until it
+    changed again: every read now raises what open would have, and a store that is read
+    again is served."""
+    path = _copy(tmp_path)
+    refused = _copy(tmp_path, "refused.mbtiles")
+    _sql(refused, ("INSERT INTO metadata VALUES ('scheme', 'zxy')", ()))
+    good = _copy(tmp_path, "good.mbtiles")
+    with MBTilesStore(path, check_s=0.0) as store:
+        x, y = next(iter(store.tiles(ZOOM)))
+        before = bytes(store.tile_bytes(ZOOM, x, y) or b"")
+        os.replace(refused, path)
+        for _ in range(2):
+            with pytest.raises(StoreFormError, match=r"its metadata 'scheme' is 'zxy'"):
+                store.tile_bytes(ZOOM, x, y)
+        os.replace(good, path)
+        assert bytes(store.tile_bytes(ZOOM, x, y) or b"") == before
+
+
 def test_a_tms_store_reads_as_before_with_or_without_its_scheme(tmp_path: Path) -> None:
     path = _copy(tmp_path)
     _sql(path, ("INSERT INTO metadata VALUES ('scheme', 'tms')", ()))

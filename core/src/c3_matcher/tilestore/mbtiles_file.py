@@ -86,16 +86,20 @@ class StoreFile:
     again); ``query`` reads one tile's (blob, sha256 or NULL) by (zoom, column, stored row);
     ``rows_from_north``: its rows are XYZ rows (metadata ``scheme`` ``xyz``), not TMS ones;
     ``tile_size``: (width, height) of the tile whose header was read at open, None when none
-    told it."""
+    told it; ``refused``: why the file now at the path is not read (a form open refuses), so
+    that every read says so rather than reading it as the file before it was."""
 
     identity: FileIdentity | None
     metadata: Mapping[str, str]
     has_digests: bool
     rows_from_north: bool = False
     tile_size: tuple[int, int] | None = None
+    refused: StoreFormError | None = None
 
     @property
     def query(self) -> str:
+        if self.refused is not None:
+            raise StoreFormError(self.refused.field, self.refused.reason)
         return _DIGEST_QUERY if self.has_digests else _PLAIN_QUERY
 
 
@@ -178,10 +182,13 @@ class FollowedFile:
                 return None
             try:
                 found = read_store_file(self._path, identity, timeout=LOCK_WAIT_S, bound=READ_S)
-            except (sqlite3.Error, StoreFormError):
+            except StoreFormError as exc:  # laid out as it is not read: every read says so
+                self.current = replace(self.current, identity=identity, refused=exc)
+                return None
+            except sqlite3.Error:
                 found = "unreadable"
             if isinstance(found, str):
-                self.current = replace(self.current, identity=identity)
+                self.current = replace(self.current, identity=identity, refused=None)
                 return None
             self.current = found
             return found
