@@ -15,7 +15,16 @@ import pytest
 
 from c3_matcher_tools.testing.cli import run_cli
 
-DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
+REPO = Path(__file__).resolve().parents[3]
+DEMO = REPO / "data" / "flights" / "naip_demo"
+DEMO_CALIBRATION = str(DEMO / "calibration.json")
+DEMO_STORE = str(DEMO / "tiles.mbtiles")
+
+
+def run_in_repo(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    """``c3-matcher ARGS`` in a subprocess run from the checkout (its demo data's paths)."""
+    return run_cli(*args, cwd=REPO)
+
 
 SmallFlight = Callable[..., Path]
 Record = dict[str, Any]

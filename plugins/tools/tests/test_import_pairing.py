@@ -31,20 +31,15 @@ from c3_matcher_tools.dataset.sources.options import ImportOptions, ProposalOpti
 from c3_matcher_tools.dataset.sources.pairing import match_shots, times_apart
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.testing import flightlogs as fl
-from c3_matcher_tools.testing.cli import run_cli
 from c3_matcher_tools.testing.flightlogs.exif import write_exif_photos
 from c3_matcher_tools.testing.flightlogs.mavlink import write_tlog
 from c3_matcher_tools.testing.flightlogs.rosbag import write_bag
 from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
-REPO = Path(__file__).resolve().parents[3]
-DEMO = REPO / "data" / "flights" / "naip_demo"
-CAL = str(DEMO / "calibration.json")
-STORE = str(DEMO / "tiles.mbtiles")
-
-
-def c3(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return run_cli(*args, cwd=REPO)
+from .conftest import DEMO
+from .conftest import DEMO_CALIBRATION as CAL
+from .conftest import DEMO_STORE as STORE
+from .conftest import run_in_repo as c3
 
 
 def _refused(proc: subprocess.CompletedProcess[str], *needles: str) -> str:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -23,18 +22,13 @@ from c3_matcher_tools.dataset.sources.pairing import match_shots, same_times, ut
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.dataset.telemetry import read_telemetry
 from c3_matcher_tools.testing import flightlogs as fl
-from c3_matcher_tools.testing.cli import run_cli
 from c3_matcher_tools.testing.flightlogs.exif import write_exif_photos
 from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
-REPO = Path(__file__).resolve().parents[3]
-DEMO = REPO / "data" / "flights" / "naip_demo"
-CAL = str(DEMO / "calibration.json")
-STORE = str(DEMO / "tiles.mbtiles")
-
-
-def c3(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return run_cli(*args, cwd=REPO)
+from .conftest import DEMO
+from .conftest import DEMO_CALIBRATION as CAL
+from .conftest import DEMO_STORE as STORE
+from .conftest import run_in_repo as c3
 
 
 @pytest.fixture(scope="module")
