@@ -221,7 +221,7 @@ def footprint_lonlat(
     kept = cam.clip_polygon(boundary, lambda px: cosine(px) - cos_max)
     if not cosine(centre_px)[0] >= cos_max or kept.shape[0] < 3:
         return None
-    cut = kept.shape != boundary.shape or not np.array_equal(kept, boundary)
+    cut = not np.array_equal(kept, boundary)
     if cut and cv2.pointPolygonTest(kept.astype(np.float32), tuple(centre_px[0]), False) < 0:
         return None  # the centre lies beyond the cut: on ground the query did not keep
     boundary = kept

@@ -302,7 +302,8 @@ class PipelineMatcher:
             failure = scales.failed[index]
             recorder.backbone_error(candidate.tile_id, "query_extract", failure, index)
             return Dropped(index, "none", timings)
-        query, verifier = scales.of(index).query, scales.of(index).verifier
+        scale = scales.of(index)
+        query, verifier = scale.query, scale.verifier
         try:
             tile = self._tiles.fetch(candidate, recorder, timings)
             verdict = best_turn(
