@@ -15,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from c3_matcher.errors import InvalidInputError
@@ -23,55 +23,62 @@ from c3_matcher.errors import InvalidInputError
 __all__ = ["reading_dataset", "replacing_dataset"]
 
 _TRIES = 5
-"""How often a reader takes the lock again when the name moved to another directory meanwhile."""
+"""How often a holder takes the lock again when the name moved to another directory meanwhile."""
 
 
-@contextlib.contextmanager
-def reading_dataset(root: Path) -> Iterator[None]:
+def reading_dataset(root: Path) -> contextlib.AbstractContextManager[None]:
     """``root`` held shared while the block runs (several runs read one dataset at once);
     ``InvalidInputError`` naming ``dataset`` and the process replacing it when one is. One
     that is no directory (refused as a dataset later) or cannot be opened is not held."""
+    return _holding(
+        root,
+        fcntl.LOCK_SH,
+        "dataset",
+        lambda holders: (
+            f"another process is replacing this dataset ({holders}): "
+            "wait for it to finish, then run again"
+        ),
+    )
+
+
+def replacing_dataset(out: Path) -> contextlib.AbstractContextManager[None]:
+    """The existing dataset directory ``out`` held alone while the block runs (it builds the
+    new one and swaps it in); ``InvalidInputError`` naming ``OUT`` and the process reading
+    it when a run (``replay``, ``eval``) does. A missing ``out`` (nothing to read) is not
+    held."""
+    return _holding(
+        out,
+        fcntl.LOCK_EX,
+        "OUT",
+        lambda holders: (
+            f"a run is reading this dataset ({holders}); replacing it now "
+            "would give that run frames of two datasets: wait for it to finish, or "
+            "choose another OUT"
+        ),
+    )
+
+
+@contextlib.contextmanager
+def _holding(root: Path, how: int, field: str, refusal: Callable[[str], str]) -> Iterator[None]:
+    """The directory ``root`` names held ``how`` while the block runs; ``InvalidInputError``
+    naming ``field`` and saying ``refusal`` of the holders when another process holds it the
+    other way. Taken again when the name moved to another directory between the open and the
+    lock, so that what is held is what the name points at (a writer too: it swaps the
+    directory it holds)."""
     for _ in range(_TRIES):
         fd = _open_directory(root)
         if fd is None:
             yield
             return
         try:
-            if not _locked(fd, fcntl.LOCK_SH):
-                raise InvalidInputError(
-                    "dataset",
-                    f"{root}: another process is replacing this dataset ({_holders(fd)}): "
-                    "wait for it to finish, then run again",
-                )
+            if not _locked(fd, how):
+                raise InvalidInputError(field, f"{root}: {refusal(_holders(fd))}")
             if _same(root, fd):  # not swapped between the open and the lock
                 yield
                 return
         finally:
             os.close(fd)
-    raise InvalidInputError("dataset", f"{root}: replaced again and again while being opened")
-
-
-@contextlib.contextmanager
-def replacing_dataset(out: Path) -> Iterator[None]:
-    """The existing dataset directory ``out`` held alone while the block runs (it builds the
-    new one and swaps it in); ``InvalidInputError`` naming ``OUT`` and the process reading
-    it when a run (``replay``, ``eval``) does. A missing ``out`` (nothing to read) is not
-    held."""
-    fd = _open_directory(out)
-    if fd is None:
-        yield
-        return
-    try:
-        if not _locked(fd, fcntl.LOCK_EX):
-            raise InvalidInputError(
-                "OUT",
-                f"{out}: a run is reading this dataset ({_holders(fd)}); replacing it now "
-                "would give that run frames of two datasets: wait for it to finish, or "
-                "choose another OUT",
-            )
-        yield
-    finally:
-        os.close(fd)
+    raise InvalidInputError(field, f"{root}: replaced again and again while being opened")
 
 
 def _open_directory(path: Path) -> int | None:
