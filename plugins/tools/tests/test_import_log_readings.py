@@ -506,15 +506,16 @@ def _two_systems(
 @pytest.mark.parametrize(
     ("own_feedback", "ahead_s", "read"),
     [(True, 0.0, 1), (True, 0.1, 1), (False, 0.1, 2)],
-    ids=["camera-feedback", "camera-feedback-after-the-other", "first-position"],
+    ids=["camera-feedback", "camera-feedback-after-the-other", "given"],
 )
 def test_a_telemetry_log_of_two_vehicles_is_read_for_the_camera_vehicle(
     poses: list[fl.Pose], tmp_path: Path, own_feedback: bool, ahead_s: float, read: int
 ) -> None:
     """A ground station's log of two aircraft 2 km apart was read as one track, each frame
-    placed between them. Read: the system of the camera feedback, else of the first position."""
+    placed between them. Read: the system of the camera feedback, else the one given
+    (``--mavlink-system``; see ``test_import_mavlink_links.py`` for a log where none is)."""
     log = _two_systems(tmp_path / "flight.tlog", poses, (own_feedback, False), ahead_s)
-    track = read_mavlink(log)
+    track = read_mavlink(log) if own_feedback else read_mavlink(log, read)
     truth, shift = (poses, 0.0) if read == 1 else (_east(poses), ahead_s)
     assert track.position is not None and track.attitude is not None
     assert len(track.position) == len(fl.dense_track(poses))
@@ -522,7 +523,7 @@ def test_a_telemetry_log_of_two_vehicles_is_read_for_the_camera_vehicle(
     got = [a[:2] for a in at if a is not None]
     assert len(got) == len(truth)
     assert np.allclose(got, [(p.lat, p.lon) for p in truth], atol=1e-6)
-    why = "its camera feedback" if own_feedback else "its position came first"
+    why = "its camera feedback" if own_feedback else "given by --mavlink-system"
     assert track.notes[0] == f"MAVLink systems 1, 2 in the log: read system {read} ({why})"
 
 

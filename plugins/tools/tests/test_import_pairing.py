@@ -94,8 +94,9 @@ def test_a_missing_or_extra_photo_meets_its_own_trigger_by_time(
     summary = _imported(c3("dataset", "import", photos, log, CAL, STORE, flight, "--json"))
     assert summary["frames"] == 4 and summary["skipped"] == []
     assert summary["time_source"] == (
-        "camera trigger nearest each image's own UTC time, within 1 s (5 in the log, 4 image(s):"
-        " 1 trigger(s) left without an image)"
+        "camera trigger nearest each image's own UTC time, the images' times moved +0.00 s (the"
+        " camera's clock on the log's, found: that offset pairs 4 of them, the next best, -2.00 s,"
+        " 3), within 1 s (5 in the log, 4 image(s): 1 trigger(s) left without an image)"
     )
     frames = load_dataset(flight).frames
     for f, k in zip(frames, (0, 1, 3, 4), strict=True):  # each photo on its own pose

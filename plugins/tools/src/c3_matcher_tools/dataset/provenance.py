@@ -197,6 +197,7 @@ LOG_OPTIONS = (
     "--attitude-topic",
     "--navsat-topic",
     "--camera-info-topic",
+    "--mavlink-system",
 )
 """The options of an import from a recorded log that change what it writes beside those
 :data:`_OPTIONS` reads: since import revision 2 its ``spec["options"]`` maps each one given to

@@ -10,7 +10,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
-from c3_matcher.commands import bounded_float
+from c3_matcher.commands import bounded_float, bounded_int
 from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.provenance import LOG_OPTIONS
@@ -120,7 +120,8 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
         "camera's clock is ahead of the log's (as many photos as triggers keep their triggers' "
         "times: they take them in capture order, which no offset changes); to the trigger times "
         "when images without a time take the triggers in order; in file order, the log time of "
-        "the first image; default 0; "
+        "the first image; default 0, but where photos and camera triggers differ in count the "
+        "camera clock's offset is found (give 0 to say the camera's clock is the log's); "
         f"at most {MAX_TIME_OFFSET_S:g} s either way (127 years: a log clock of UTC seconds since "
         "1970, or a camera clock never set)",
     )
@@ -147,6 +148,13 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     )
     for topic in ("image", "attitude", "navsat", "camera-info"):
         g.add_argument(f"--{topic}-topic", default=None, help=f"bag: the {topic} topic")
+    g.add_argument(
+        "--mavlink-system",
+        type=bounded_int(1, 255),
+        default=None,
+        help="telemetry log (.tlog): the MAVLink system (vehicle) to read, when the log holds "
+        "several (default: the one that sent camera feedback)",
+    )
 
 
 def _positive(group: Any, option: str, help: str) -> None:
@@ -186,13 +194,15 @@ SOURCE_OPTIONS = (
     ("gnss_degraded_m", "--gnss-degraded-m", ("ulog", "ardupilot", "rosbag", "exif")),
     *((f"{t}_topic", f"--{t}-topic", ("rosbag",)) for t in ("image", "attitude", "navsat")),
     ("camera_info_topic", "--camera-info-topic", ("rosbag",)),
+    ("mavlink_system", "--mavlink-system", ("ardupilot",)),
 )
 """(attribute, option, the source kinds it applies to) of each option that some kinds do not
 use: a telemetry CSV pairs rows and images by name and states each frame's telemetry; a photo
 folder places each photo at its own time; only a bag has topics."""
-DEFAULTS = {"time_source": "auto", "time_offset": 0.0, "max_gap": 1.0, "gnss_degraded_m": 5.0}
+DEFAULTS = {"time_source": "auto", "time_offset": None, "max_gap": 1.0, "gnss_degraded_m": 5.0}
 """The values of the options of :data:`SOURCE_OPTIONS` not given (None there: given or not is
-told apart)."""
+told apart; ``--time-offset`` not given adds 0 but, unlike a 0 given, lets the camera clock's
+offset be found: see :class:`~c3_matcher_tools.dataset.sources.options.ImportOptions`)."""
 
 
 def refuse_options_not_for(kind: str, args: argparse.Namespace) -> None:
@@ -211,10 +221,18 @@ def refuse_options_not_for(kind: str, args: argparse.Namespace) -> None:
         "ulog": "a PX4 ULog",
         "ardupilot": "an ArduPilot log",
     }.get(kind, kind)
+    only = [
+        reason
+        for ending, reason in (
+            ("-topic", "only a ROS bag has topics"),
+            ("--mavlink-system", "only an ArduPilot telemetry log holds several MAVLink systems"),
+        )
+        if any(option.endswith(ending) for option in given)
+    ]
     why = {
         "csv": "its rows name their images and state each frame's telemetry",
-        "exif": "each photo is placed at its own capture time, and only a ROS bag has topics",
-    }.get(kind, "only a ROS bag has topics")
+        "exif": ", and ".join(["each photo is placed at its own capture time", *only]),
+    }.get(kind, "; ".join(only))
     raise InvalidInputError(
         ", ".join(given),
         f"not used by an import from {what} ({why}): leave {'it' if len(given) == 1 else 'them'} "
@@ -325,14 +343,15 @@ def _read_log(kind: str, args: argparse.Namespace) -> _ReadLog:
             raise InvalidInputError("TELEMETRY", "photos carry their own telemetry: give '-'")
         given_ground = args.ground_elevation is not None or args.dem is not None
         return _ReadLog(*read_photo_folder(Path(images), relative_height=not given_ground))
-    track = _read_flight_log(kind, telemetry)
+    track = _read_flight_log(kind, telemetry, getattr(args, "mavlink_system", None))
     by_own_time = _given(args, "time_source") not in ("trigger", "order")  # else EXIF unread
     shots, skipped = read_images(Path(images), args.frame_step, metadata=by_own_time)
     return _ReadLog(track, shots, skipped)
 
 
-def _read_flight_log(kind: str, telemetry: Path) -> LogTrack:
-    """The track of a flight controller's log (its images come separately)."""
+def _read_flight_log(kind: str, telemetry: Path, system: int | None = None) -> LogTrack:
+    """The track of a flight controller's log (its images come separately); an ArduPilot
+    telemetry log's for MAVLink system ``system`` when given."""
     if kind == "ulog":
         from c3_matcher_tools.dataset.sources.ulog import read_ulog
 
@@ -340,7 +359,7 @@ def _read_flight_log(kind: str, telemetry: Path) -> LogTrack:
     if kind == "ardupilot":
         from c3_matcher_tools.dataset.sources.mavlink import read_mavlink
 
-        return read_mavlink(telemetry)
+        return read_mavlink(telemetry, system)
     raise InvalidInputError("--source", f"unknown kind {kind!r}")
 
 

@@ -197,8 +197,11 @@ def _gnss_fix(track: LogTrack, shot: Shot, t: float, gap: float) -> F64 | None:
 
 def _position(track: LogTrack, t: float, gap: float, fix: F64 | None) -> F64 | None:
     """The vehicle's position at ``t``: the log's estimate, else the GNSS fix; None when
-    neither has a finite one within ``gap``."""
+    neither has a finite one within ``gap``. An estimate without an altitude (one its
+    estimator marked invalid) takes the fix's."""
     pos = _finite_position(track.position.at(t, gap) if track.position is not None else None)
+    if pos is not None and not math.isfinite(pos[2]) and fix is not None:
+        pos = np.array([pos[0], pos[1], fix[2]], dtype=np.float64)
     if pos is None and fix is not None:
         pos = _finite_position(fix[:3])
     return pos

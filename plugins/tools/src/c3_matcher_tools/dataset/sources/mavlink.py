@@ -9,11 +9,12 @@ each sample (ArduPilot sets it again at arming); the receiver ``GPS``
 (Status = fix type, horizontal accuracy from ``GPA.HAcc``; instance 0, the first receiver) /
 ``GPS_RAW_INT`` (fix_type, ``h_acc`` mm); height above ground from the first downward
 rangefinder, ``RFND.Dist`` / ``DISTANCE_SENSOR.current_distance`` (cm; see :func:`_ranges` and
-:func:`_heights`); camera triggers, one per photo, of the first of :data:`TRIGGERS` logged.
-A telemetry log holding several MAVLink systems (vehicles on one link) is
-read for the camera vehicle's alone (:func:`_camera_system`). Times: the time pymavlink gives
-each message (UTC seconds from the GNSS week time in a DataFlash log with a fix, the ground
-station's clock in a telemetry log).
+:func:`_heights`); camera triggers, one per photo, of the first of :data:`TRIGGERS` logged (a
+photo's MAVLink message received again, over a second link, once: :func:`_shutter`).
+A telemetry log holding several MAVLink systems (vehicles on one link) is read for the camera
+vehicle's alone, or the one given (:func:`~.mavlink_systems.camera_system`). Times: the time
+pymavlink gives each message (UTC seconds from the GNSS week time in a DataFlash log with a fix,
+the ground station's clock in a telemetry log).
 """
 
 from __future__ import annotations
@@ -21,13 +22,13 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.mavlink_systems import Row, System, camera_system, photo
 from c3_matcher_tools.dataset.sources.quiet import quiet
 from c3_matcher_tools.dataset.sources.track import (
     LogTrack,
@@ -151,7 +152,6 @@ def _packet_cut(log: Any, path: Path) -> str | None:
     return cut_short(size - left, size, "a MAVLink packet")
 
 
-Row = tuple[float, list[float]]
 DOWNWARD = 25
 """MAV_SENSOR_ROTATION_PITCH_270: a rangefinder facing down, the only one that measures the
 height above ground (``DISTANCE_SENSOR.orientation``, ``RFND.Orient``)."""
@@ -236,23 +236,7 @@ def _position(
     home.append((t, [home_alt]))
 
 
-@dataclass(frozen=True)
-class _System:
-    """What one MAVLink system's messages said (a DataFlash log's: all of them): the samples by
-    kind, the home altitude at each position sample (its altitude minus its altitude above
-    home), the ``GPA.HAcc`` accuracies, the message types seen and those ignored (by the column
-    their format lacks)."""
-
-    rows: dict[str, list[Row]] = field(
-        default_factory=lambda: {k: [] for k in ("att", "pos", "gps", "rng", "trig")}
-    )
-    home: list[Row] = field(default_factory=list)
-    hacc: list[tuple[float, float]] = field(default_factory=list)
-    seen: set[str] = field(default_factory=set)
-    ignored: dict[str, str] = field(default_factory=dict)
-
-
-def _handlers(system: _System) -> dict[str, Callable[[Any, float], None]]:
+def _handlers(system: System) -> dict[str, Callable[[Any, float], None]]:
     """Per message type, what its message adds to ``system``."""
     rows, home, hacc = system.rows, system.home, system.hacc
     return {
@@ -282,24 +266,33 @@ def _handlers(system: _System) -> dict[str, Callable[[Any, float], None]]:
         ),
         "RFND": lambda m, t: rows["rng"].extend(_ranges(m, t)),
         "DISTANCE_SENSOR": lambda m, t: rows["rng"].extend(_ranges(m, t)),
-        **{
-            name: lambda m, t: rows["trig"].append((t, [TRIGGERS.index(m.get_type())]))
-            for name in TRIGGERS
-        },
+        **{name: lambda m, t: _shutter(system, m, t) for name in TRIGGERS},
     }
 
 
-def _read(log: Any, source: str, kind: str, chatter: io.StringIO) -> dict[int, _System]:
+def _shutter(system: System, m: Any, t: float) -> None:
+    """A camera message into ``system``'s triggers, unless it tells of a photo one before it
+    did (:func:`~.mavlink_systems.photo`): then it is counted as repeated, and dropped."""
+    name, shot = m.get_type(), photo(m)
+    if shot is not None and shot in system.photos:
+        system.repeated[name] = system.repeated.get(name, 0) + 1
+        return
+    if shot is not None:
+        system.photos.add(shot)
+    system.rows["trig"].append((t, [TRIGGERS.index(name)]))
+
+
+def _read(log: Any, source: str, kind: str, chatter: io.StringIO) -> dict[int, System]:
     """Every message of :data:`TYPES` (those :data:`WANTED`) through its handler, by the
     MAVLink system that sent it (0: a DataFlash log's, which names none)."""
-    systems: dict[int, tuple[_System, dict[str, Callable[[Any, float], None]]]] = {}
+    systems: dict[int, tuple[System, dict[str, Callable[[Any, float], None]]]] = {}
     try:
         with quiet(chatter):
             while (msg := log.recv_match(type=TYPES)) is not None:
                 sent_by = getattr(msg, "get_srcSystem", None)
                 number = int(sent_by()) if sent_by is not None else 0
                 if number not in systems:
-                    system = _System()
+                    system = System()
                     systems[number] = (system, _handlers(system))
                 _take(msg, *systems[number])
     except Exception as exc:
@@ -316,7 +309,7 @@ def _read(log: Any, source: str, kind: str, chatter: io.StringIO) -> dict[int, _
     return {number: system for number, (system, _) in systems.items()}
 
 
-def _take(msg: Any, system: _System, handlers: dict[str, Callable[[Any, float], None]]) -> None:
+def _take(msg: Any, system: System, handlers: dict[str, Callable[[Any, float], None]]) -> None:
     """``msg`` through its handler into ``system`` (when :data:`WANTED`). A message whose format
     lacks a column read (a layout of another ArduPilot version) is ignored, and every later one
     of its type: the column is named in the notes, and the log read without them."""
@@ -329,35 +322,6 @@ def _take(msg: Any, system: _System, handlers: dict[str, Callable[[Any, float], 
             handlers[name](msg, float(msg._timestamp))
     except AttributeError as exc:  # each reads its columns before it adds a sample
         system.ignored[name] = str(exc.name or exc)
-
-
-def _camera_system(systems: dict[int, _System], source: str) -> tuple[_System, str | None]:
-    """The camera vehicle's messages, and a note saying whose they are when the log holds
-    several MAVLink systems (a ground station's link to several vehicles): the system that sent
-    camera feedback (CAMERA_FEEDBACK / CAMERA_TRIGGER), else the one whose position came first;
-    refused naming them when several systems sent camera feedback."""
-    if len(systems) == 1:
-        return next(iter(systems.values())), None
-    numbers = sorted(systems)
-    cameras = [n for n in numbers if systems[n].rows["trig"]]
-    if len(cameras) > 1:
-        raise InvalidInputError(
-            source,
-            f"camera feedback from MAVLink systems {', '.join(map(str, cameras))}: the log holds "
-            "several camera vehicles, and one flight is imported at a time",
-        )
-    chosen = cameras[0] if cameras else min(numbers, key=lambda n: _first_position(systems[n]))
-    why = "its camera feedback" if cameras else "its position came first"
-    named = ", ".join(map(str, numbers))
-    return systems[chosen], f"MAVLink systems {named} in the log: read system {chosen} ({why})"
-
-
-def _first_position(system: _System) -> tuple[int, float]:
-    """When ``system``'s first position came: a GLOBAL_POSITION_INT before any GPS_RAW_INT."""
-    for rank, key in enumerate(("pos", "gps")):
-        if system.rows[key]:
-            return rank, system.rows[key][0][0]
-    return 2, math.inf
 
 
 def _receiver(gnss: Series | None, hacc: list[tuple[float, float]]) -> Series | None:
@@ -373,22 +337,30 @@ def _receiver(gnss: Series | None, hacc: list[tuple[float, float]]) -> Series | 
     return Series(gnss.name, gnss.t_s, values)
 
 
-def read_mavlink(path: Path) -> LogTrack:
+def read_mavlink(path: Path, system: int | None = None) -> LogTrack:
     """The track of a DataFlash ``.bin`` / ``.log`` or MAVLink ``.tlog`` (see the module
-    docstring); raises InvalidInputError naming the file and the missing messages when it
-    holds no position. A log without attitude is read, and said so in its notes: each frame is
-    then imported level with the yaw of its GNSS course and marked ``attitude_assumed``."""
+    docstring), read for MAVLink system ``system`` when given (a telemetry log's alone);
+    raises InvalidInputError naming the file and the missing messages when it holds no
+    position. A log without attitude is read, and said so in its notes: each frame is then
+    imported level with the yaw of its GNSS course and marked ``attitude_assumed``."""
     path = Path(path)
+    source = str(path)
+    tlog = path.suffix.lower() == ".tlog"
+    if system is not None and not tlog:
+        raise InvalidInputError(
+            "--mavlink-system",
+            f"{source}: a DataFlash log is written on one vehicle and names no MAVLink system: "
+            "leave --mavlink-system out",
+        )
     chatter = io.StringIO()  # pymavlink prints every damaged header it skips
     log = _open(path, chatter)
     cut = _cut_at(log, path)
-    source = str(path)
-    kind = "MAVLink telemetry log" if path.suffix.lower() == ".tlog" else "ArduPilot DataFlash"
-    vehicle, which = _camera_system(_read(log, source, kind, chatter), source)
+    kind = "MAVLink telemetry log" if tlog else "ArduPilot DataFlash"
+    vehicle, which = camera_system(_read(log, source, kind, chatter), source, system)
     cut = cut or _packet_cut(log, path)
     seen = vehicle.seen
     rows = {**vehicle.rows, "rng": _heights(vehicle.rows["rng"])}
-    rows["trig"], camera = _shutters(vehicle.rows["trig"])
+    rows["trig"], camera = _shutters(vehicle.rows["trig"], vehicle.repeated)
     ignored = _ignored(vehicle.ignored)
     if not rows["pos"] and not rows["gps"]:
         raise InvalidInputError(
@@ -405,12 +377,7 @@ def read_mavlink(path: Path) -> LogTrack:
 
     trig = np.sort(np.array([t for t, _ in rows["trig"]], dtype=np.float64))
     notes, damage = _notes(rows, chatter, cut, which, camera)
-    home, home_note = home_series(
-        "POS.Alt - RelHomeAlt" if "POS" in seen else "GLOBAL_POSITION_INT alt - relative_alt",
-        [t for t, _ in vehicle.home],
-        [v[0] for _, v in vehicle.home],
-        source=source,
-    )
+    home, home_note = _home(vehicle, source)
     notes += [x for x in (ignored, home_note) if x]
     first_t = (rows["att"] or rows["pos"] or rows["gps"])[0][0]
     return LogTrack(
@@ -428,6 +395,22 @@ def read_mavlink(path: Path) -> LogTrack:
     )
 
 
+def _home(vehicle: System, source: str) -> tuple[Series | None, str | None]:
+    """The home altitudes ``vehicle`` logged (:func:`home_series`) and their note; none from a
+    log without a position from the estimator (a receiver's alone: its heights then need the
+    ground given)."""
+    if not vehicle.home:
+        return None, None
+    return home_series(
+        "POS.Alt - RelHomeAlt"
+        if "POS" in vehicle.seen
+        else "GLOBAL_POSITION_INT alt - relative_alt",
+        [t for t, _ in vehicle.home],
+        [v[0] for _, v in vehicle.home],
+        source=source,
+    )
+
+
 def _ignored(ignored: dict[str, str]) -> str | None:
     """What the notes say of the message types ignored, by the column their format lacks."""
     if not ignored:
@@ -436,15 +419,25 @@ def _ignored(ignored: dict[str, str]) -> str | None:
     return f"messages in a format this importer does not read, ignored: {named}"
 
 
-def _shutters(messages: list[Row]) -> tuple[list[Row], str]:
+def _shutters(messages: list[Row], repeated: dict[str, int]) -> tuple[list[Row], str]:
     """The camera messages of the first of :data:`TRIGGERS` logged (one per photo), and what
-    they are: a photo logged as both ``CAM`` and ``TRIG`` counted twice before."""
+    they are: a photo logged as both ``CAM`` and ``TRIG`` counted twice before; how many of
+    them told of a photo again (``repeated``, dropped: :func:`_shutter`)."""
     ranks = sorted({int(v[0]) for _, v in messages})
     if not ranks:
         return [], ""
     kept = [m for m in messages if m[1][0] == ranks[0]]
-    aside = ", ".join(TRIGGERS[r] for r in ranks[1:])
-    return kept, TRIGGERS[ranks[0]] + (f"; {aside} of the same photos set aside" if aside else "")
+    name = TRIGGERS[ranks[0]]
+    again = repeated.get(name, 0)
+    said = [name]
+    if again:
+        said.append(
+            f"{again} more {name} of the same photos (each received again, as over a "
+            "second link) dropped"
+        )
+    if len(ranks) > 1:
+        said.append(", ".join(TRIGGERS[r] for r in ranks[1:]) + " of the same photos set aside")
+    return kept, "; ".join(said)
 
 
 def _notes(

@@ -136,7 +136,10 @@ class ImportOptions:
     order, one image every ``interval_s`` from ``time_offset_s`` on the log's clock; a video's
     frames at ``time_offset_s`` plus their time in the video);
     ``time_offset_s`` is added to trigger / image times otherwise (to the images' own times when
-    they state one, to the trigger times when they do not: see :func:`match_shots`).
+    they state one, to the trigger times when they do not: see :func:`match_shots`); None when
+    ``--time-offset`` is not given, which adds 0 (:attr:`offset_s`) but lets photos and camera
+    triggers of different counts find the camera clock's offset, where a 0 given says the
+    camera's clock is the log's.
     ``max_gap_s``: the farthest a log sample may be from a frame's time to be used.
     ``gnss_degraded_m``: a stated horizontal accuracy worse than this flags the frame.
     ``ground_elevation_m`` / ``dem``: the ground's altitude (same datum as the log's altitude)
@@ -145,7 +148,7 @@ class ImportOptions:
     calibration: CameraCalibration
     proposal: ProposalOptions
     time_source: str = "auto"
-    time_offset_s: float = 0.0
+    time_offset_s: float | None = None
     interval_s: float | None = None
     max_gap_s: float = 1.0
     gnss_degraded_m: float = 5.0
@@ -157,11 +160,11 @@ class ImportOptions:
             raise InvalidInputError(
                 "--time-source", f"one of auto, trigger, exif, order; got {self.time_source!r}"
             )
-        if not (math.isfinite(self.time_offset_s) and abs(self.time_offset_s) <= MAX_TIME_OFFSET_S):
+        if not (math.isfinite(self.offset_s) and abs(self.offset_s) <= MAX_TIME_OFFSET_S):
             raise InvalidInputError(
                 "--time-offset",
                 f"must be in [-{MAX_TIME_OFFSET_S:g}, {MAX_TIME_OFFSET_S:g}] s, got "
-                f"{self.time_offset_s:g}",
+                f"{self.offset_s:g}",
             )
         if self.interval_s is not None and not (
             math.isfinite(self.interval_s) and self.interval_s > 0
@@ -174,6 +177,12 @@ class ImportOptions:
                 "--gnss-degraded-m", f"must be > 0 m, got {self.gnss_degraded_m}"
             )
         check_ground_options(self.ground_elevation_m, self.dem)
+
+    @property
+    def offset_s(self) -> float:
+        """The seconds added to the images' times: ``time_offset_s``, 0 when it is not given
+        (what the import reports and its dataset records either way)."""
+        return 0.0 if self.time_offset_s is None else self.time_offset_s
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ import numpy as np
 
 from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
+from c3_matcher_tools.dataset.sources.camera_clock import found_offset, nearest_triggers, shot_names
 from c3_matcher_tools.dataset.sources.options import ImportOptions
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 
@@ -66,12 +67,6 @@ def utc_text(t_s: float) -> str:
         return f"{t_s:.0f} s"
 
 
-def _names(shots: Sequence[Shot], shown: int = 3) -> str:
-    """The first ``shown`` shots' names, then how many more."""
-    more = f" and {len(shots) - shown} more" if len(shots) > shown else ""
-    return ", ".join(s.name for s in shots[:shown]) + more
-
-
 _ORDER_HINT = "--interval (s between images) and --time-offset (log time of the first image)"
 
 
@@ -90,7 +85,7 @@ def _no_time_source(track: LogTrack, shots: Sequence[Shot], untimed: Sequence[Sh
         )
     return (
         f"{head}, and {len(untimed)} of the {n} images state no capture time "
-        f"({_names(untimed)}): give --time-source exif to import the {timed} that do by their "
+        f"({shot_names(untimed)}): give --time-source exif to import the {timed} that do by their "
         f"own time, or {_ORDER_HINT} to place all {n} in file order"
     )
 
@@ -109,7 +104,7 @@ def _trigger_count_refusal(
     if len(untimed) == n:
         why = f"none of the {n} images states a capture time"
     elif untimed:
-        why = f"{len(untimed)} of the {n} images state no capture time ({_names(untimed)})"
+        why = f"{len(untimed)} of the {n} images state no capture time ({shot_names(untimed)})"
     else:
         why = "the log states no UTC time (no GNSS time)"
     ways = ["remove the images without a trigger"]
@@ -142,10 +137,14 @@ def _unpaired(images: int, triggers: int) -> str:
 
 
 def _tolerance(triggers: F64, options: ImportOptions) -> float:
-    """How far an image's own time may be from its trigger: ``--max-gap`` (default 1 s:
-    whole-second EXIF times and camera clocks a fraction of a second off GNSS time) but at most
-    half the median spacing of the triggers, so that an image is never nearer its neighbour's
-    trigger than its own."""
+    """How far an image's own time, moved by the camera clock's offset, may be from its
+    trigger, and how wide the window is in which that offset is sought
+    (:func:`~c3_matcher_tools.dataset.sources.camera_clock.fit_camera_clock`): ``--max-gap``
+    (default 1 s: the spread of whole-second EXIF times, the coarsest a camera states) but at
+    most half the median spacing of the triggers, so that an image is never nearer its
+    neighbour's trigger than its own and no window holds two shifts by a whole interval. Both
+    bounds follow from the times' resolution and the triggers' own rate, whatever the
+    flight."""
     steps = np.diff(triggers)
     steps = steps[steps > 0]
     return min(options.max_gap_s, float(np.median(steps)) / 2 if steps.size else math.inf)
@@ -154,48 +153,24 @@ def _tolerance(triggers: F64, options: ImportOptions) -> float:
 def _own_times(track: LogTrack, shots: Sequence[Shot], options: ImportOptions) -> list[float]:
     """The images' own (UTC) times on the log's clock, ``--time-offset`` added."""
     assert track.utc_offset_s is not None
-    return [float(s.t_s or 0.0) - track.utc_offset_s + options.time_offset_s for s in shots]
-
-
-def _nearest_triggers(
-    shots: Sequence[Shot], own: Sequence[float], triggers: F64, tol: float
-) -> tuple[list[tuple[Shot, float]], list[tuple[str, str]]]:
-    """Each image paired with the camera trigger nearest its ``own`` time, each trigger used
-    once (by the image nearest it), at the trigger's time; an image farther than ``tol`` from
-    every trigger, or whose trigger is nearer another image's time, is left unpaired with the
-    reason."""
-    nearest = [int(np.argmin(np.abs(triggers - t))) for t in own]
-    gaps = [abs(float(triggers[j]) - t) for j, t in zip(nearest, own, strict=True)]
-    owner: dict[int, int] = {}  # trigger -> the image nearest it in time
-    for k, (j, d) in enumerate(zip(nearest, gaps, strict=True)):
-        if d <= tol and (j not in owner or d < gaps[owner[j]]):
-            owner[j] = k
-    taken: list[tuple[Shot, float]] = []
-    skipped: list[tuple[str, str]] = []
-    for k, (shot, t, j, d) in enumerate(zip(shots, own, nearest, gaps, strict=True)):
-        at = float(triggers[j])
-        if d > tol:
-            why = (
-                f"no camera trigger within {tol:g} s of its own time ({t:.2f} s on the "
-                f"log's clock; the nearest at {at:.2f} s)"
-            )
-            skipped.append((shot.name, why))
-        elif owner[j] != k:
-            why = f"its nearest camera trigger ({at:.2f} s) is nearer the time of "
-            skipped.append((shot.name, why + shots[owner[j]].name))
-        else:
-            taken.append((shot, at))
-    return taken, skipped
+    return [float(s.t_s or 0.0) - track.utc_offset_s + options.offset_s for s in shots]
 
 
 def _triggers_by_time(
     track: LogTrack, shots: Sequence[Shot], triggers: F64, options: ImportOptions
 ) -> Pairing:
-    """:func:`_nearest_triggers` within :func:`_tolerance` of the images' own times, refused
-    when no image meets a trigger; with ``how``."""
+    """Each image the trigger nearest its own time moved by the camera clock's offset, within
+    :func:`_tolerance` (:mod:`~c3_matcher_tools.dataset.sources.camera_clock`): a
+    ``--time-offset`` given (0 too: the camera's clock is the log's) is used as given, else the
+    offset is found (``found_offset``) and ``how`` states it; refused when no image meets a
+    trigger."""
     tol = _tolerance(triggers, options)
     own = _own_times(track, shots, options)
-    taken, skipped = _nearest_triggers(shots, own, triggers, tol)
+    found = 0.0
+    said = f"--time-offset {options.offset_s:+g} s as given"
+    if options.time_offset_s is None:
+        found, said = found_offset(track, shots, triggers, own, tol)
+    taken, skipped = nearest_triggers(shots, [t + found for t in own], triggers, tol)
     if not taken:
         raise InvalidInputError(
             "--time-source",
@@ -208,8 +183,8 @@ def _triggers_by_time(
         )
     left = _unpaired(len(shots) - len(taken), triggers.size - len(taken))
     how = (
-        f"camera trigger nearest each image's own UTC time, within {tol:g} s ({triggers.size} "
-        f"in the log, {len(shots)} image(s): {left})"
+        f"camera trigger nearest each image's own UTC time, {said}, within {tol:g} s "
+        f"({triggers.size} in the log, {len(shots)} image(s): {left})"
     )
     return Pairing(tuple(taken), tuple(skipped), how)
 
@@ -233,7 +208,7 @@ def _as_many_triggers(shots: Sequence[Shot], triggers: F64, options: ImportOptio
     if any(a is not b for a, b in zip(ordered, shots, strict=True)):
         how = f"camera trigger in the images' capture order, not their file order ({counts})"
     taken = tuple((s, float(t)) for s, t in zip(ordered, triggers, strict=True))
-    if options.time_offset_s:  # the report shows the offset given: say what it did
+    if options.offset_s:  # the report shows the offset given: say what it did
         how += (
             "; --time-offset moves the photos' own times, not their order: each keeps its trigger"
         )
@@ -286,7 +261,7 @@ def _in_file_order(
     trigger``, or images that state no time of their own)."""
     if not triggers.size:
         raise InvalidInputError("--time-source", f"{track.source}: no camera trigger")
-    off = options.time_offset_s
+    off = options.offset_s
     taken = tuple((s, float(t) + off) for s, t in zip(shots, triggers, strict=False))
     skipped = tuple(
         (s.name, f"no camera trigger left ({triggers.size} in the log)")
@@ -309,12 +284,28 @@ def _by_own_time(track: LogTrack, shots: Sequence[Shot], options: ImportOptions)
             "--time-source", f"{track.source}: the log states no UTC time (no GNSS time)"
         )
     taken = tuple(
-        (s, s.t_s - track.utc_offset_s + options.time_offset_s) for s in shots if s.t_s is not None
+        (s, s.t_s - track.utc_offset_s + options.offset_s) for s in shots if s.t_s is not None
     )
     if not track.per_image:  # photos that state their own position keep it, whatever the time
         _refuse_same_times(track, [(s, t) for s, t in taken if "t_s" in s.own])
     skipped = tuple((s.name, "the image states no capture time") for s in shots if s.t_s is None)
-    return Pairing(taken, skipped, "the images' own UTC time stamps against the log's UTC time")
+    how = "the images' own UTC time stamps against the log's UTC time"
+    photos = not track.per_image and any("t_s" in s.own for s, _ in taken)
+    return Pairing(taken, skipped, how, (_unchecked_clock(options),) if photos else ())
+
+
+def _unchecked_clock(options: ImportOptions) -> str:
+    """What an import placing photos by their own times says of the camera's clock: a constant
+    offset from the log's is one number the log cannot show without camera triggers to meet
+    (every frame moves along the track alike, so nothing looks wrong), and no offset is
+    guessed."""
+    added = f", --time-offset {options.offset_s:+g} s added" if options.offset_s else ""
+    return (
+        f"the photos' capture times are the camera's clock as it states them{added}: no camera "
+        "trigger meets them, so nothing here shows that clock's offset from the log's, and an "
+        "offset of c s puts every frame where the vehicle was c s earlier or later (the distance "
+        "flown in c s); --time-offset corrects a known one"
+    )
 
 
 def _refuse_same_times(track: LogTrack, taken: Sequence[tuple[Shot, float]]) -> None:
@@ -351,7 +342,7 @@ def _by_file_order(shots: Sequence[Shot], triggers: F64, options: ImportOptions)
     video = bool(shots) and all("relative_s" in s.own for s in shots)
     if options.interval_s is None and not video:
         raise InvalidInputError("--interval", "file order needs --interval (s between images)")
-    step, off = options.interval_s or 0.0, options.time_offset_s
+    step, off = options.interval_s or 0.0, options.offset_s
     taken = tuple((s, off + float(s.own.get("relative_s", i * step))) for i, s in enumerate(shots))
     how = "video clock" if video else f"file order, one image every {step:g} s"
     if video and triggers.size and options.time_source == "auto":
@@ -410,7 +401,7 @@ def _within_log(
     """The images within the log's time span (``--max-gap`` beyond it), and the others with
     the reason; refused when none is, saying what ``--time-offset`` did."""
     lo, hi = track.span
-    tol, off = options.max_gap_s, options.time_offset_s
+    tol, off = options.max_gap_s, options.offset_s
     inside = [(s, t) for s, t in taken if lo - tol <= t <= hi + tol]
     on = f"s on the log's clock, --time-offset {off:+g} s added" if off else "s"
     if taken and not inside:

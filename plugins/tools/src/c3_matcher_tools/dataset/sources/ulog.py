@@ -3,7 +3,8 @@
 Topics used (instance 0): attitude from ``vehicle_attitude.q`` (body FRD to NED, w x y z;
 without it each frame is imported level, its yaw from the GNSS course, and marked);
 position from ``vehicle_global_position`` (lat, lon, alt AMSL) when logged, else from the
-receiver; the receiver's fix, stated horizontal accuracy ``eph`` and UTC time from
+receiver, as also where the estimate marks itself invalid (``lat_lon_valid`` / ``alt_valid``
+false, PX4 1.16 on); the receiver's fix, stated horizontal accuracy ``eph`` and UTC time from
 ``vehicle_gps_position`` (or ``sensor_gps``; old ``lat``/``lon`` in 1e-7 deg and ``alt`` in mm,
 or new ``latitude_deg``/``longitude_deg``/``altitude_msl_m``); height above ground from
 ``vehicle_local_position.dist_bottom`` where ``dist_bottom_valid``; the ground's altitude from
@@ -24,7 +25,7 @@ import io
 import math
 import mmap
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -231,20 +232,48 @@ def _receiver(ulog: Any, source: str) -> tuple[Series | None, float | None]:
     return gnss, float(utc[k] / 1e6 - tg[k])
 
 
-def _global_position(ulog: Any, source: str) -> Series | None:
+def _global_position(ulog: Any, source: str) -> tuple[Series | None, list[str]]:
+    """The estimator's lat, lon, alt and notes on what it marked invalid. PX4 1.16 on states
+    ``lat_lon_valid`` and ``alt_valid`` (once the estimator has lost its reference, GNSS
+    rejected, its position drifts on and is marked invalid): a sample marked invalid keeps its
+    time without its position (or altitude), so that a frame beside it takes the receiver's as
+    where the log has no estimate, never one interpolated across it. A log without those fields
+    is read as it is. None when no sample has a valid position."""
     glob = _topic(ulog, "vehicle_global_position", source)
     if glob is None:
-        return None
+        return None, []
     tp = glob["timestamp"].astype(np.float64) / 1e6
-    return Series.build(
-        "vehicle_global_position",
-        tp,
-        np.stack(
-            [_required(glob, "vehicle_global_position", k, source) for k in ("lat", "lon", "alt")],
-            axis=1,
-        ),
-        source=source,
+    cols = np.stack(
+        [_required(glob, "vehicle_global_position", k, source) for k in ("lat", "lon", "alt")],
+        axis=1,
     )
+    lat_lon_ok, alt_ok = _field(glob, "lat_lon_valid"), _field(glob, "alt_valid")
+    lost = np.zeros(tp.size, dtype=bool) if lat_lon_ok is None else lat_lon_ok == 0
+    no_alt = np.zeros(tp.size, dtype=bool) if alt_ok is None else (alt_ok == 0) & ~lost
+    notes = [
+        f"vehicle_global_position marks {what} invalid ({flag} false) in {int(mask.sum())} of "
+        f"its {tp.size} samples ({_stretches(tp, mask)}): {then}"
+        for mask, what, flag, then in (
+            (lost, "its position", "lat_lon_valid", "frames there take the receiver's position "
+             "(vehicle_gps_position) where it has a fix"),
+            (no_alt, "its altitude", "alt_valid", "frames there take the receiver's altitude"),
+        )
+        if mask.any()
+    ]  # fmt: skip
+    if lost.all():
+        return None, notes
+    cols[lost] = np.nan
+    cols[no_alt, 2] = np.nan
+    marked = np.where(lost, 0.0, np.nan)[:, None]  # keeps a sample without a position
+    series = Series.build("vehicle_global_position", tp, np.hstack([cols, marked]), source=source)
+    return replace(series, values=series.values[:, :3]), notes
+
+
+def _stretches(t: np.ndarray, mask: np.ndarray) -> str:
+    """The stretches of log time ``t`` (s) where ``mask`` holds, the first three."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    runs = [f"{t[a]:.1f}-{t[b - 1]:.1f} s" for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    return ", ".join(runs[:3]) + (f" and {len(runs) - 3} more" if len(runs) > 3 else "")
 
 
 def _ground(ulog: Any, source: str) -> tuple[Series | None, Series | None, str | None]:
@@ -311,14 +340,17 @@ def read_ulog(path: Path) -> LogTrack:
             "GNSS course (frames marked attitude_assumed)"
         )
     gnss, utc_offset = _receiver(ulog, source)
-    position = _global_position(ulog, source)
+    position, invalid = _global_position(ulog, source)
+    notes += invalid
+    without = "no vehicle_global_position"
+    if position is None and invalid:
+        without = "vehicle_global_position marks every position invalid"
     if position is None and gnss is not None:
-        notes.append("no vehicle_global_position: positions from vehicle_gps_position")
+        notes.append(f"{without}: positions from vehicle_gps_position")
     if position is None and gnss is None:
+        nor = " and no" if invalid else " nor"
         raise InvalidInputError(
-            source,
-            f"{damaged}no vehicle_global_position nor vehicle_gps_position: the log holds no "
-            "position",
+            source, f"{damaged}{without}{nor} vehicle_gps_position: the log holds no position"
         )
     height, home, home_note = _ground(ulog, source)
     notes += [home_note] if home_note else []

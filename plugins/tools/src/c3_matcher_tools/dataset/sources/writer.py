@@ -158,7 +158,7 @@ def _spec(track: LogTrack, how: str, options: ImportOptions, zoom: int) -> dict[
         "log": Path(track.source).name,
         "log_kind": track.kind,
         "time_source": how,
-        "time_offset_s": options.time_offset_s,
+        "time_offset_s": options.offset_s,
         **options.proposal.spec_json(zoom),
     }
 
@@ -180,7 +180,7 @@ def _report(
         frames=len(frames),
         skipped=tuple(skipped),
         time_source=how,
-        time_offset_s=options.time_offset_s,
+        time_offset_s=options.offset_s,
         height_sources=_count(f.height_source for f in frames),
         attitude_assumed=tuple(i for i, f in enumerate(frames) if "attitude_assumed" in f.flags),
         height_assumed=tuple(i for i, f in enumerate(frames) if "height_assumed" in f.flags),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,7 +27,9 @@ def write_ulog(
     ``camera_capture`` (one per frame). ``flaws``: ``no_attitude`` (topic left out),
     ``no_trigger``, ``gnss_loss`` (the receiver reports no fix over the second frame),
     ``home_reset`` (``home_position`` first 60 s before the first frame, :data:`HOME_FIRST_M`
-    higher, then again 5 s before it, as PX4 sets it again at arming);
+    higher, then again 5 s before it, as PX4 sets it again at arming), ``estimate_invalid`` and
+    ``altitude_invalid`` (:func:`_ulog_validity`: the estimate states ``lat_lon_valid`` and
+    ``alt_valid``, as PX4 does from 1.16 on, and marks part of itself invalid);
     ``rangefinder``: ``vehicle_local_position.dist_bottom`` (valid) states the height above
     ground, the ground 20 m higher than home (``home_position.alt``)."""
     from pyulog import ULog
@@ -38,7 +41,10 @@ def write_ulog(
     topics: list[_Topic] = []
     if "no_attitude" not in flaws:
         topics.append(_ulog_attitude(poses, us))
-    topics += _ulog_positions(poses, gnss_loss="gnss_loss" in flaws)
+    estimate, receiver = _ulog_positions(poses, gnss_loss="gnss_loss" in flaws)
+    if {"estimate_invalid", "altitude_invalid"} & set(flaws):
+        estimate = _ulog_validity(estimate, poses, flaws)
+    topics += [estimate, receiver]
     heights = _ulog_heights(poses, us, rangefinder)
     if "home_reset" in flaws:
         name, fields, home = heights[0]
@@ -114,6 +120,32 @@ def _ulog_positions(poses: Sequence[fl.Pose], *, gnss_loss: bool) -> list[_Topic
         },
     )
     return [estimate, receiver]
+
+
+def _ulog_validity(estimate: _Topic, poses: Sequence[fl.Pose], flaws: Sequence[str]) -> _Topic:
+    """``estimate`` (``vehicle_global_position``) with ``lat_lon_valid`` and ``alt_valid``.
+    ``estimate_invalid``: from 0.3 s before the second frame on (all along with one frame) the
+    estimate drifts north at 40 m/s, GNSS rejected, and marks its position invalid (its altitude
+    stays valid); ``altitude_invalid``: within 0.3 s of the second frame its altitude is 100 m
+    off and marked invalid."""
+    name, fields, values = estimate
+    t = np.asarray(values["timestamp"], dtype=np.float64) / 1e6 - fl.BOOT_S
+    lat, alt = np.asarray(values["lat"]), np.asarray(values["alt"])
+    second = poses[1].t_s if len(poses) > 1 else -math.inf
+    lost = t >= second - 0.3 if "estimate_invalid" in flaws else np.zeros(t.size, dtype=bool)
+    drift_m = np.where(lost, (t - max(second - 0.3, t[0])) * 40.0, 0.0)
+    off = np.abs(t - second) < 0.3 if "altitude_invalid" in flaws else np.zeros(t.size, dtype=bool)
+    return (
+        name,
+        [*fields, ("bool", "lat_lon_valid"), ("bool", "alt_valid")],
+        {
+            **values,
+            "lat": list(lat + drift_m / 111_320.0),
+            "alt": list(alt + np.where(off, 100.0, 0.0)),
+            "lat_lon_valid": list(~lost),
+            "alt_valid": list(~off),
+        },
+    )
 
 
 def _ulog_heights(poses: Sequence[fl.Pose], us: list[int], rangefinder: bool) -> list[_Topic]:
