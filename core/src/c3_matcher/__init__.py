@@ -30,6 +30,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree wi
 _EXPORTS: dict[str, str] = {
     "AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS": "c3_matcher.compose",
     "AirborneBootstrapError": "c3_matcher.errors",
+    "AmbiguousMatchError": "c3_matcher.errors",
     "Attitude": "c3_matcher.dto",
     "build_default_helpers": "c3_matcher.compose",
     "build_plugin_host": "c3_matcher.compose",

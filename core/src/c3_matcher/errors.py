@@ -12,6 +12,7 @@ from collections.abc import Sequence
 
 __all__ = [
     "AirborneBootstrapError",
+    "AmbiguousMatchError",
     "C3Error",
     "ConfigurationError",
     "DuplicateStrategyError",
@@ -103,6 +104,35 @@ class InsufficientInliersError(C3Error):
             f"({candidates_dropped} of {candidates_input} candidates dropped"
             f"{refused_words(self.geometry_refused)}; backbone={matcher_label})"
         )
+
+
+class AmbiguousMatchError(InsufficientInliersError):
+    """Candidates with enough inliers that place the frame in different places
+    (:mod:`c3_matcher.stages.ambiguity`): texture repeating at one orientation and scale
+    matches a tile of another place as well as the true one, so no fix is given.
+    ``ambiguity`` says which candidates and how far apart. An ``InsufficientInliersError``: the
+    caller (C5) falls back to VIO-only as for any frame without a fix."""
+
+    def __init__(
+        self,
+        frame_id: object,
+        best_inlier_count: int,
+        threshold: int,
+        candidates_input: int,
+        candidates_dropped: int,
+        matcher_label: str,
+        ambiguity: str,
+    ) -> None:
+        super().__init__(
+            frame_id,
+            best_inlier_count,
+            threshold,
+            candidates_input,
+            candidates_dropped,
+            matcher_label,
+        )
+        self.ambiguity = ambiguity
+        self.args = (f"frame {frame_id}: ambiguous: {ambiguity} (backbone={matcher_label})",)
 
 
 def refused_words(refused: tuple[tuple[int, str], ...]) -> str:

@@ -12,7 +12,8 @@ image, match two feature sets); ``PipelineMatcher.match`` composes the stages of
      zero inliers or a refusal on geometry drop it;
      the optional refine pass of the best candidate (``stages.refine``);
 5-6. the best inlier count against ``min_inliers_threshold``;
-7.   the deterministic ranking (``stages.ranking``);
+7.   the deterministic ranking (``stages.ranking``); no fix where a rival places the frame elsewhere
+     (``stages.ambiguity``);
 8-10. the residual warning, the single health update, the logs and the FDR records
      (``stages.recorder``, which also states the terminal FDR record of each outcome);
 11.  the ``MatchResult``.
@@ -50,6 +51,7 @@ from c3_matcher.logs import FDR_WRITE_FAILED, current_log_root, log_event, loggi
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.prior import PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend, RansacFilter
+from c3_matcher.stages.ambiguity import ambiguity
 from c3_matcher.stages.candidate_features import CandidateFeatures
 from c3_matcher.stages.candidate_features import feature_request as _feature_request
 from c3_matcher.stages.failure import CandidateStepError, failing_as, timed
@@ -231,11 +233,14 @@ class PipelineMatcher:
         best_count = best_inlier_count(survivors)  # step 5
         recorder.candidates(survivors)
         threshold = self.settings.min_inliers_threshold
-        if not survivors or best_count < threshold:  # step 6, with the frame's timings too
+        survivors = ranked(survivors)  # step 7 (best first in the no-fix record too)
+        enough = bool(survivors) and best_count >= threshold  # step 6
+        rival = ambiguity(survivors, rerank.candidates, calibration) if enough else None
+        if not enough or rival is not None:  # no fix, with the frame's timings too
             timings["total"] = (time.perf_counter() - started) * 1e3
-            rows = ranked(survivors)  # best first, as in the success record
-            raise recorder.insufficient(evidence, best_count, rows, threshold, timings=timings)
-        survivors = ranked(survivors)  # step 7
+            raise recorder.insufficient(
+                evidence, best_count, survivors, threshold, timings=timings, ambiguity=rival
+            )
         best = survivors[0].match_set
         if best.per_candidate_residual_px > self.settings.residual_warn_threshold_px:  # step 8
             recorder.residual_above_threshold(best, self.settings.residual_warn_threshold_px)

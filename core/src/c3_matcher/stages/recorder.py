@@ -24,6 +24,7 @@ from typing import Any
 from c3_matcher.arrays import F64
 from c3_matcher.dto import CandidateMatchSet, RerankResult
 from c3_matcher.errors import (
+    AmbiguousMatchError,
     InsufficientInliersError,
     InvalidInputError,
     describe,
@@ -39,6 +40,7 @@ from c3_matcher.logs import (
     log_fdr_write_failed,
 )
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend
+from c3_matcher.stages.ambiguity import Ambiguity
 from c3_matcher.stages.frame_records import candidates_record
 from c3_matcher.stages.outcomes import CandidateDrop, FrameEvidence, GeometryRefusal, Survivor
 from c3_matcher.tilestore.features import NoStoredSet
@@ -271,31 +273,25 @@ class FrameRecorder:
         *,
         stale_rerank_frame_id: Any = None,
         timings: Mapping[str, float] | None = None,
+        ambiguity: Ambiguity | None = None,
     ) -> InsufficientInliersError:
         """Step 6, no fix for this frame: health 0, log, FDR record; returns the error to raise.
         With ``stale_rerank_frame_id`` every candidate was dropped unmatched: the re-rank was
         made for that other frame, so its tiles say where the vehicle was, not where it is.
-        ``timings``: the frame's stage timings (``timings_ms``), given when it was matched."""
+        ``timings``: the frame's stage timings (``timings_ms``), given when it was matched.
+        With ``ambiguity`` (step 7) the best had enough inliers but a rival places the frame
+        elsewhere: :class:`~c3_matcher.errors.AmbiguousMatchError`, the record's ``ambiguous``."""
         label = self._sinks.label
         stale = {} if stale_rerank_frame_id is None else {"stale_rerank": stale_rerank_frame_id}
         timed = {} if timings is None else {"timings_ms": dict(timings)}
+        rival = {} if ambiguity is None else {"ambiguous": ambiguity.as_record()}
         self.update_health(0)  # best_inlier_count=0
-        refused = tuple((r.inlier_count, r.reason) for r in evidence.refused)
-        error = InsufficientInliersError(
-            self.frame_id,
-            best_count,
-            threshold,
-            evidence.candidates_input,
-            evidence.dropped,
-            label,
-            refused,
-        )
+        error = _no_fix_error(self.frame_id, evidence, best_count, threshold, label, ambiguity)
+        what, said = _no_fix_words(error, evidence, threshold, ambiguity)
         log_event(
             "ERROR",
             "c3.matcher.insufficient_inliers",
-            f"C3 insufficient inliers on all candidates; frame={self.frame_id}; "
-            f"backbone={label}; best={best_count} < {threshold}; {evidence.dropped} of "
-            f"{evidence.candidates_input} candidates dropped{refused_words(error.geometry_refused)}"
+            f"C3 {what}; frame={self.frame_id}; backbone={label}; {said}"
             + ("" if not stale else f"; re-rank is for frame {stale_rerank_frame_id}"),
             frame_id=self.frame_id,
             backbone=label,
@@ -304,6 +300,7 @@ class FrameRecorder:
             candidates_input=evidence.candidates_input,
             candidates_dropped=evidence.dropped,
             **stale,
+            **rival,
         )
         self.record(
             "matcher.insufficient_inliers",
@@ -316,6 +313,7 @@ class FrameRecorder:
                 "best_inlier_count": best_count,
                 "threshold": threshold,
                 "matcher_label": label,
+                **rival,
                 **timed,
                 **candidates_record(evidence, survivors, self.drops),
                 **self._sinks.backend.provenance(),
@@ -351,3 +349,35 @@ class FrameRecorder:
         """A bug must not take the vehicle down: health, an ``internal`` backbone-error record."""
         self.update_health(0, force_backbone_error=True)
         self.backbone_error(None, "internal", exc)
+
+
+def _no_fix_error(
+    frame_id: Any,
+    evidence: FrameEvidence,
+    best_count: int,
+    threshold: int,
+    label: str,
+    ambiguity: Ambiguity | None,
+) -> InsufficientInliersError:
+    """The error a frame without a fix raises: ambiguous, or short of inliers."""
+    facts = (frame_id, best_count, threshold, evidence.candidates_input, evidence.dropped)
+    if ambiguity is not None:
+        return AmbiguousMatchError(*facts, label, ambiguity.reason)
+    refused = tuple((r.inlier_count, r.reason) for r in evidence.refused)
+    return InsufficientInliersError(*facts, label, refused)
+
+
+def _no_fix_words(
+    error: InsufficientInliersError,
+    evidence: FrameEvidence,
+    threshold: int,
+    ambiguity: Ambiguity | None,
+) -> tuple[str, str]:
+    """What the no-fix ERROR line says happened, and its facts."""
+    if ambiguity is not None:
+        return "ambiguous match, no fix", ambiguity.reason
+    return (
+        "insufficient inliers on all candidates",
+        f"best={error.best_inlier_count} < {threshold}; {evidence.dropped} of "
+        f"{evidence.candidates_input} candidates dropped{refused_words(error.geometry_refused)}",
+    )

@@ -326,8 +326,8 @@ def make_frame(
 def make_rerank(
     frame_id: uuid.UUID, script: Sequence[ScriptedCandidate], size: int = 64
 ) -> RerankResult:
-    """One candidate per script entry (``size`` px square tiles), tile ids
-    (18, 47.0 + i/1000, 8.5)."""
+    """One candidate per script entry (``size`` px square tiles) of one place, as a re-rank's
+    overlapping tiles are: tile ids (18, 47.0 + i/1e6, 8.5), a tenth of a metre apart."""
     candidates = []
     for i, s in enumerate(script):
         handle = (
@@ -336,9 +336,7 @@ def make_rerank(
             else BytesTileHandle(_marked_png(i + 1, size), f"tile{i}")
         )
         candidates.append(
-            RerankCandidate(
-                TileId(18, 47.0 + i / 1000, 8.5), 1.0 - i / 10, handle, gsd_m_per_px=0.3
-            )
+            RerankCandidate(TileId(18, 47.0 + i / 1e6, 8.5), 1.0 - i / 10, handle, gsd_m_per_px=0.3)
         )
     return RerankResult(frame_id, tuple(candidates))
 
