@@ -13,15 +13,16 @@ tile's ground sample distance (median over the points): adjacent or overlapping 
 place, other dates or zooms of it, agree. A candidate whose id is no place (a placeholder) or
 whose inliers fit no homography cannot be placed, and so contradicts nothing.
 
-Why the numbers hold beyond the shipped flights (``scripts/ambiguity_ratios.py EVAL_OUT``):
+Why the numbers hold beyond the shipped flights (``scripts/ambiguity_ratios.py DATA EVAL_OUT``):
 - :data:`AMBIGUITY_RATIO` 0.5: a second place with half the best's support is no longer a
   distinctive match, the sense of Lowe's ratio test applied to places. On the shipped flights a
-  candidate placing the frame elsewhere reached at most 0.09 of the best's inliers, for each
-  strategy (DISK 0.07, ALIKED 0.04, XFeat 0.09, SIFT 0.05), so no fix there is refused; on
-  rendered repetitive texture with the true tile absent, the wrong fixes' rivals reached
-  0.54-0.98 (ALIKED) and 0.65-0.98 (DISK), the right fixes' at most 0.47.
-- :data:`AGREE_PX` 16: candidates of one place measured at most 8 px apart (2 px typical), for
-  every strategy; two placements closer than 16 px change the fix by less than that.
+  rival placing the frame elsewhere reached at most 0.09 of the best's inliers, for each
+  strategy (DISK 0.07, ALIKED 0.04, XFeat 0.09; SIFT's rivals were all of the best's place), so
+  no fix there is refused; on rendered repetitive texture with the true tile absent, the wrong
+  fixes' rivals reached 0.54-0.98 (ALIKED) and 0.65-0.98 (DISK), the right fixes' at most 0.47.
+- :data:`AGREE_PX` 16: rivals of the best's place were at most 12 px from it, under 3 px for
+  every one with 0.15 of its inliers or more, for every strategy; two placements closer than
+  16 px change the fix by less than that.
 """
 
 from __future__ import annotations
@@ -31,14 +32,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from c3_matcher import camera as cam
-from c3_matcher.arrays import F64
-from c3_matcher.dto import CameraCalibration, RerankCandidate
+from c3_matcher.dto import CameraCalibration, RerankCandidate, TileId
 from c3_matcher.georef import fit_query_to_tile, haversine_m, is_georeferenced, tile_px_to_lonlat
 from c3_matcher.stages.outcomes import Survivor
 
-__all__ = ["AGREE_PX", "AMBIGUITY_RATIO", "Ambiguity", "ambiguity"]
+__all__ = ["AGREE_PX", "AMBIGUITY_RATIO", "Ambiguity", "Placed", "ambiguity", "apart_m"]
 
 AMBIGUITY_RATIO = 0.5
 """A rival with at least this share of the best candidate's inliers must agree on the place."""
@@ -80,6 +81,23 @@ class Ambiguity:
         }
 
 
+@dataclass(frozen=True, slots=True)
+class Placed:
+    """A candidate's inlier rows (x_query, y_query, x_tile, y_tile; ORIGINAL px) and where its
+    tile lies: its id, its (width, height) and its ground sample distance when given (None: a
+    store window, :mod:`c3_matcher.georef`)."""
+
+    rows: NDArray[np.float32]
+    tile_id: TileId
+    size: tuple[int, int]
+    gsd_m: float | None
+
+    @property
+    def tile_gsd_m(self) -> float:
+        """The tile's ground sample distance (m/px): given, else its zoom's."""
+        return float(self.gsd_m) if self.gsd_m is not None else self.tile_id.web_mercator_gsd_m()
+
+
 def ambiguity(
     ranked: Sequence[Survivor],
     candidates: Sequence[RerankCandidate],
@@ -91,46 +109,40 @@ def ambiguity(
     best = ranked[0]
     most = best.match_set.inlier_count
     rivals = [s for s in ranked[1:] if s.match_set.inlier_count >= AMBIGUITY_RATIO * most]
-    if not rivals:
-        return None
-    query = cam.undistort_points(best.match_set.inlier_correspondences[:, 0:2], calibration)
-    here = _placed(best, candidates, calibration, query)
-    if here is None:
-        return None
-    best_gsd = _gsd_m(candidates[best.input_index])
+    here = _placed(best, candidates)
     for rival in rivals:
-        there = _placed(rival, candidates, calibration, query)
-        if there is None:
-            continue
-        apart = haversine_m(here, there)
-        distance = float(np.median(apart[np.isfinite(apart)])) if np.isfinite(apart).any() else 0
-        if distance > AGREE_PX * best_gsd:
+        distance = apart_m(here, _placed(rival, candidates), calibration)
+        if distance is not None and distance > AGREE_PX * here.tile_gsd_m:
             return Ambiguity(
                 best.input_index, most, rival.input_index, rival.match_set.inlier_count, distance
             )
     return None
 
 
-def _placed(
-    survivor: Survivor,
-    candidates: Sequence[RerankCandidate],
-    calibration: CameraCalibration,
-    undistorted: F64,
-) -> F64 | None:
-    """(N, 2) lon/lat where ``survivor``'s fitted homography puts the UNDISTORTED query points;
-    None when its tile id is no place or its inliers fit none."""
+def apart_m(best: Placed, rival: Placed, calibration: CameraCalibration | None) -> float | None:
+    """How far apart (m) ``best`` and ``rival`` place the frame: the median over the best's
+    inlier query points of the distance between where each one's fitted homography puts it;
+    None when either id is no place or either's inliers fit none."""
+    if not (is_georeferenced(best.tile_id) and is_georeferenced(rival.tile_id)):
+        return None
+    h_best, h_rival = (fit_query_to_tile(p.rows, calibration) for p in (best, rival))
+    if h_best is None or h_rival is None:
+        return None
+    rows = np.asarray(best.rows, dtype=np.float64).reshape(-1, 4)[:, 0:2]
+    query = rows if calibration is None else cam.undistort_points(rows, calibration)
+    here = tile_px_to_lonlat(
+        best.tile_id, best.size, cam.apply_homography(h_best, query), best.gsd_m
+    )
+    there = tile_px_to_lonlat(
+        rival.tile_id, rival.size, cam.apply_homography(h_rival, query), rival.gsd_m
+    )
+    apart = haversine_m(here, there)
+    finite = apart[np.isfinite(apart)]
+    return float(np.median(finite)) if finite.size else None
+
+
+def _placed(survivor: Survivor, candidates: Sequence[RerankCandidate]) -> Placed:
+    """``survivor``'s inliers and its candidate tile's place."""
     candidate = candidates[survivor.input_index]
-    if not is_georeferenced(candidate.tile_id):
-        return None
-    hom = fit_query_to_tile(survivor.match_set.inlier_correspondences, calibration)
-    if hom is None:
-        return None
-    tile_px = cam.apply_homography(hom, undistorted)
-    size = survivor.tile.image.working_size
-    return tile_px_to_lonlat(candidate.tile_id, size, tile_px, candidate.gsd_m_per_px)
-
-
-def _gsd_m(candidate: RerankCandidate) -> float:
-    """The candidate tile's ground sample distance (m/px): given, else its zoom's."""
-    gsd = candidate.gsd_m_per_px
-    return float(gsd) if gsd is not None else candidate.tile_id.web_mercator_gsd_m()
+    rows = survivor.match_set.inlier_correspondences
+    return Placed(rows, candidate.tile_id, survivor.tile.image.working_size, candidate.gsd_m_per_px)
