@@ -69,6 +69,7 @@ def test_one_picture_at_two_places_is_no_fix(tmp_path: Path, engine_dir: Path) -
     out = json.loads(proc.stdout)
     assert out["error"] == "AmbiguousMatchError", out
     assert "places the frame 11" in out["message"] and " m from candidate 0" in out["message"]
+    assert out["ambiguous"].startswith("candidate 1 (")
     records = [
         r for r in read_fdr(tmp_path / "fdr.jsonl") if r["kind"] == "matcher.insufficient_inliers"
     ]

@@ -9,6 +9,7 @@ others are start-up and configuration errors raised before the first frame.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 __all__ = [
     "AirborneBootstrapError",
@@ -113,26 +114,13 @@ class AmbiguousMatchError(InsufficientInliersError):
     ``ambiguity`` says which candidates and how far apart. An ``InsufficientInliersError``: the
     caller (C5) falls back to VIO-only as for any frame without a fix."""
 
-    def __init__(
-        self,
-        frame_id: object,
-        best_inlier_count: int,
-        threshold: int,
-        candidates_input: int,
-        candidates_dropped: int,
-        matcher_label: str,
-        ambiguity: str,
-    ) -> None:
-        super().__init__(
-            frame_id,
-            best_inlier_count,
-            threshold,
-            candidates_input,
-            candidates_dropped,
-            matcher_label,
-        )
+    def __init__(self, *facts: Any, ambiguity: str) -> None:
+        """``facts``: :class:`InsufficientInliersError`'s, without ``geometry_refused``."""
+        super().__init__(*facts)
         self.ambiguity = ambiguity
-        self.args = (f"frame {frame_id}: ambiguous: {ambiguity} (backbone={matcher_label})",)
+        self.args = (
+            f"frame {self.frame_id}: ambiguous: {ambiguity} (backbone={self.matcher_label})",
+        )
 
 
 def refused_words(refused: tuple[tuple[int, str], ...]) -> str:

@@ -28,7 +28,12 @@ from c3_matcher.config import C3Settings
 from c3_matcher.context import CommandContext
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
 from c3_matcher.dto.candidates import RerankResult, TilePixelsHandle
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
+from c3_matcher.errors import (
+    AmbiguousMatchError,
+    InsufficientInliersError,
+    InvalidInputError,
+    MatcherBackboneError,
+)
 from c3_matcher.fdr import FdrOpenError, FdrWriteError, InMemoryFdr, JsonlFdrRecorder
 from c3_matcher.match_inputs import (
     attitude_arg,
@@ -274,6 +279,7 @@ def _insufficient_json(
         candidates_dropped=exc.candidates_dropped,
         matcher_label=exc.matcher_label,
         dropped=dropped,
+        **({"ambiguous": exc.ambiguity} if isinstance(exc, AmbiguousMatchError) else {}),
         **({"viz": str(args.viz)} if args.viz and not problems else {}),
     )
 

@@ -362,7 +362,7 @@ def _no_fix_error(
     """The error a frame without a fix raises: ambiguous, or short of inliers."""
     facts = (frame_id, best_count, threshold, evidence.candidates_input, evidence.dropped)
     if ambiguity is not None:
-        return AmbiguousMatchError(*facts, label, ambiguity.reason)
+        return AmbiguousMatchError(*facts, label, ambiguity=ambiguity.reason)
     refused = tuple((r.inlier_count, r.reason) for r in evidence.refused)
     return InsufficientInliersError(*facts, label, refused)
 
