@@ -28,7 +28,7 @@ Why the numbers hold beyond the shipped flights (``scripts/ambiguity_ratios.py D
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -70,15 +70,8 @@ class Ambiguity:
         )
 
     def as_record(self) -> dict[str, Any]:
-        """The ambiguity as logs and flight-data records carry it."""
-        return {
-            "best_index": self.best_index,
-            "best_inliers": self.best_inliers,
-            "rival_index": self.rival_index,
-            "rival_inliers": self.rival_inliers,
-            "distance_m": self.distance_m,
-            "reason": self.reason,
-        }
+        """The ambiguity as logs and flight-data records carry it: its fields and reason."""
+        return {**asdict(self), "reason": self.reason}
 
 
 @dataclass(frozen=True, slots=True)
