@@ -63,6 +63,7 @@ def test_the_rival_named_is_the_one_placing_the_frame_elsewhere(fdr, logs):
         pytest.param(49, (_km_north(0), _km_north(1.0)), id="weaker-elsewhere"),
         pytest.param(100, (_km_north(0), _km_north(0.002)), id="same-place-2m"),
         pytest.param(100, (TileId(0, 0.0, 0.0), TileId(0, 0.0, 1.0)), id="no-place"),
+        pytest.param(100, (TileId(18, 86.0, 8.5), TileId(18, 86.0, 9.5)), id="beyond-mercator"),
     ],
 )
 def test_a_rival_of_the_same_place_weaker_or_unplaced_leaves_the_fix(fdr, logs, rival, ids):

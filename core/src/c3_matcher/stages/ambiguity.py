@@ -10,8 +10,9 @@ an ``InsufficientInliersError``: the caller falls back as for any frame without 
 Two candidates agree when the best one's inlier query points, each mapped through both
 candidates' fitted homographies onto the ground, land within :data:`AGREE_PX` px of the best
 tile's ground sample distance (median over the points): adjacent or overlapping tiles of one
-place, other dates or zooms of it, agree. A candidate whose id is no place (a placeholder) or
-whose inliers fit no homography cannot be placed, and so contradicts nothing.
+place, other dates or zooms of it, agree. A candidate whose id is no place (a placeholder, a
+latitude beyond web mercator's) or whose inliers fit no homography cannot be placed, and so
+contradicts nothing.
 
 Why the numbers hold beyond the shipped flights (``scripts/ambiguity_ratios.py DATA EVAL_OUT``):
 - :data:`AMBIGUITY_RATIO` 0.5: a second place with half the best's support is no longer a
@@ -38,6 +39,7 @@ from c3_matcher import camera as cam
 from c3_matcher.dto import CameraCalibration, RerankCandidate, TileId
 from c3_matcher.georef import fit_query_to_tile, haversine_m, is_georeferenced, tile_px_to_lonlat
 from c3_matcher.stages.outcomes import Survivor
+from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT
 
 __all__ = ["AGREE_PX", "AMBIGUITY_RATIO", "Ambiguity", "Placed", "ambiguity", "apart_m"]
 
@@ -116,7 +118,7 @@ def apart_m(best: Placed, rival: Placed, calibration: CameraCalibration | None) 
     """How far apart (m) ``best`` and ``rival`` place the frame: the median over the best's
     inlier query points of the distance between where each one's fitted homography puts it;
     None when either id is no place or either's inliers fit none."""
-    if not (is_georeferenced(best.tile_id) and is_georeferenced(rival.tile_id)):
+    if not (_a_place(best.tile_id) and _a_place(rival.tile_id)):
         return None
     h_best, h_rival = (fit_query_to_tile(p.rows, calibration) for p in (best, rival))
     if h_best is None or h_rival is None:
@@ -132,6 +134,12 @@ def apart_m(best: Placed, rival: Placed, calibration: CameraCalibration | None) 
     apart = haversine_m(here, there)
     finite = apart[np.isfinite(apart)]
     return float(np.median(finite)) if finite.size else None
+
+
+def _a_place(tile_id: TileId) -> bool:
+    """``tile_id`` names a place on the web-mercator map: no placeholder, no latitude beyond
+    the map's (a re-ranker's id there still gets its fix; it only cannot be compared)."""
+    return is_georeferenced(tile_id) and abs(tile_id.lat) <= MERCATOR_MAX_LAT
 
 
 def _placed(survivor: Survivor, candidates: Sequence[RerankCandidate]) -> Placed:
