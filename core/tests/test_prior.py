@@ -26,7 +26,7 @@ from c3_matcher.dto import (
     RerankResult,
     TileId,
 )
-from c3_matcher.errors import InsufficientInliersError
+from c3_matcher.errors import AmbiguousMatchError, InsufficientInliersError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
@@ -242,10 +242,14 @@ def test_a_confident_wrong_candidate_is_refused_on_geometry() -> None:
     assert "rotation" in refused[0]["reason"]
 
 
-def test_without_the_prior_the_wrong_candidate_wins() -> None:
-    """The control: the same script with geometric_prior off picks the rotated structure."""
+def test_without_the_prior_the_wrong_candidate_wins_unless_the_true_one_rivals_it() -> None:
+    """The control: the same script with geometric_prior off ranks the rotated structure first;
+    with the true tile at more than half its inliers, placing the frame elsewhere, the frame is
+    ambiguous (no fix); with the true tile weaker, the wrong one is the fix."""
     script = [(WRONG, 160, 40), (TRUE, 90, 150), (_similarity(0, 1, 0, 0), 0, 300)]
-    result = _run(script, prior=False)
+    with pytest.raises(AmbiguousMatchError, match="candidate 1 .* from candidate 0"):
+        _run(script, prior=False)
+    result = _run([(WRONG, 160, 40), (TRUE, 70, 150)], prior=False)
     assert result.per_candidate[0].tile_id.lat == pytest.approx(47.0)
 
 
@@ -257,7 +261,7 @@ def test_only_wrong_geometry_raises_insufficient_inliers() -> None:
 
 
 def test_no_attitude_means_no_prior() -> None:
-    script = [(WRONG, 160, 40), (TRUE, 90, 150)]
+    script = [(WRONG, 160, 40), (TRUE, 70, 150)]
     result = _run(script, prior=True, attitude=False)
     assert result.diagnostics["geometric_prior"] is False
     assert result.diagnostics["geometry_refused"] == []

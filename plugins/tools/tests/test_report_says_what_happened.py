@@ -248,14 +248,21 @@ def _rows(out: Path) -> list[dict[str, Any]]:
 
 
 def test_a_real_replay_counts_and_shows_its_wrong_fixes(engine_dir: Path, tmp_path: Path) -> None:
-    """15 frames at an inlier threshold of 8 without the geometric prior: picks of
-    distractors kilometres off (frames 13 and 14 have no true tile to pick)."""
+    """15 frames at an inlier threshold of 8 without the geometric prior, frame 13 (no true tile)
+    given only its first candidate (with its others, a rival elsewhere makes it ambiguous: no
+    fix): picks of distractors kilometres off."""
+    flight = tmp_path / "flight"
+    shutil.copytree(DEMO, flight)
+    rows = [json.loads(line) for line in (flight / "frames.jsonl").read_text().splitlines()]
+    for row in rows:
+        row["candidates"] = row["candidates"][:1] if row["index"] == 13 else row["candidates"]
+    (flight / "frames.jsonl").write_text("".join(json.dumps(row) + "\n" for row in rows))
     out = tmp_path / "replay"
     settings = {
         "C3_MATCHER_MATCHER__MIN_INLIERS_THRESHOLD": "8",
         "C3_MATCHER_MATCHER__GEOMETRIC_PRIOR": "false",
     }
-    args = ["replay", DEMO, "--strategy", "xfeat", "--limit", "15", "--out", out]
+    args = ["replay", flight, "--strategy", "xfeat", "--limit", "15", "--out", out]
     proc = run_cli(*args, cwd=tmp_path, engine_dir=engine_dir, settings=settings, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     wrong = [

@@ -11,6 +11,7 @@ from typing import Any
 
 from c3_matcher.context import CommandContext
 from c3_matcher_tools.dataset.format import FlightDataset
+from c3_matcher_tools.dataset.sources.options import number_ranges
 from c3_matcher_tools.run import figure
 from c3_matcher_tools.run.acceptance import (
     BARS,
@@ -77,6 +78,7 @@ def print_flight_table(
     )
     _print_it04_case(ctx, rows)
     _print_unreadable(ctx, rows)
+    _print_ambiguous(ctx, rows)
     _print_tiles_unread(ctx, rows)
     ctx.out(f"report {out / EVAL_RUN.report}, plots {out}")
     sources = {e["strategy"]: e.get("feature_sources") for e in report["strategies"]}
@@ -104,6 +106,18 @@ def _print_unreadable(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:
             f"{max(runs)} frame image(s) could not be read (the camera's loss, not the "
             "matcher's): no IT measure counts them"
         )
+
+
+def _print_ambiguous(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:
+    """Say, for each strategy that refused frames as ambiguous, how many and which: their
+    inliers may pass the threshold, yet no fix was given."""
+    for r in (r for r in rows if isinstance(r, StrategyEval)):
+        if frames := r.summary.ambiguous_frames:
+            ctx.out(
+                f"{r.strategy}: {len(frames)} frame(s) ambiguous, no fix (a rival candidate "
+                "with at least half the best's inliers places the frame elsewhere; raised, as "
+                f"IT-05 and IT-01 count them): frames {number_ranges(frames)}"
+            )
 
 
 def _print_tiles_unread(ctx: CommandContext, rows: Sequence[StrategyRow]) -> None:

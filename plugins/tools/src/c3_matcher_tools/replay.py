@@ -3,11 +3,13 @@ composition root's matcher (or the SIFT + MAGSAC baseline), with a progress bar 
 
 Writes under ``--out`` (default ``out/replay/<dataset>-<strategy>``; a dataset name that is not
 one plain path component is refused): ``results.jsonl`` (one line per frame: status ``ok`` |
-``insufficient`` | ``backbone_error`` | ``unreadable`` (its image could not be read or decoded:
-the frame is recorded with the reason and the flight goes on), elapsed ms, the scoring against
-ground truth and, for ``ok``, the MatchResult as ``c3-matcher match`` prints it), ``fdr.jsonl``
-(the flight-data records), ``matcher.log`` (the JSON logs), ``report.json``, ``flight.geojson``
-(truth and estimate: centres, tracks, footprints; QGIS opens it) and ``report.html`` (the
+``insufficient`` (no fix: too few inliers, or, with an ``ambiguous`` key naming the rival, two
+candidates placing the frame apart) | ``backbone_error`` | ``unreadable`` (its image could not be
+read or decoded: the frame is recorded with the reason and the flight goes on), elapsed ms, the
+scoring against ground truth and, for ``ok``, the MatchResult as ``c3-matcher match`` prints
+it), ``fdr.jsonl`` (the flight-data records), ``matcher.log`` (the JSON logs), ``report.json``,
+``flight.geojson`` (truth and estimate: centres, tracks, footprints; QGIS opens it) and
+``report.html`` (the
 self-contained flight report, with the ``report`` extra: matplotlib), and first ``run.json``,
 which marks the directory as a replay's. A replay replaces an earlier replay's output; an
 existing ``--out`` that is not empty and holds none (a flight-data log, a user's files, an
@@ -100,7 +102,12 @@ from c3_matcher_tools.run.outputs import (
     refuse_other_dataset,
 )
 from c3_matcher_tools.run.records import FrameStatus
-from c3_matcher_tools.run.scoring import attitude_noise_words, dropped_lines, telemetry_lines
+from c3_matcher_tools.run.scoring import (
+    attitude_noise_words,
+    dropped_lines,
+    status_line,
+    telemetry_lines,
+)
 
 __all__ = ["register_replay_command", "run_replay"]
 
@@ -362,7 +369,7 @@ def _truth_lines(s: RunSummary) -> list[str]:
     if s.true_absent:
         lines.append(
             f"  raised on {s.absent_raised}/{s.true_absent} frames without their true tile "
-            "(InsufficientInliersError is the right answer there)"
+            "(InsufficientInliersError, too few inliers or ambiguous, is the right answer there)"
         )
     return lines
 
@@ -374,10 +381,7 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
         f"replay {name} with {report['strategy']}: {s.frames} frames in "
         f"{report['wall_s']:.1f} s (startup {report['startup_s']:.1f} s)"
         + attitude_noise_words(report.get("attitude_noise")),
-        f"  ok {s.count(FrameStatus.OK)}, insufficient inliers "
-        f"{s.count(FrameStatus.INSUFFICIENT)}, backbone errors "
-        f"{s.count(FrameStatus.BACKBONE_ERROR)}"
-        + (f", unreadable images {unreadable}" if unreadable else ""),
+        f"  {status_line(s)}",
     ]
     dropped = dropped_lines(s, report.get("store", "of the dataset"))  # then the store if failed
     lines.extend(f"  {line}" for line in dropped[:1])

@@ -214,7 +214,8 @@ def _mark_failed_and_wrong(
 
 
 def _status_legend(ax: Any, outcomes: Sequence[FrameOutcome], min_inliers: int) -> None:
-    """The inlier panel's legend: the statuses, the marks, the bands and the threshold."""
+    """The inlier panel's legend: the statuses, the marks (with what a raised frame's bar over
+    the threshold means, when a frame was refused as ambiguous), the bands and the threshold."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -227,6 +228,9 @@ def _status_legend(ax: Any, outcomes: Sequence[FrameOutcome], min_inliers: int) 
         Patch(color="#bbbbbb", label="true tile absent"),
         Line2D([], [], ls="--", color="#555", lw=1, label=f"{min_inliers} inliers threshold"),
     ]
+    if any(o.ambiguous is not None for o in outcomes):
+        label = "F or R over the threshold: ambiguous (a rival candidate places it elsewhere)"
+        handles.append(Patch(color="white", label=label))
     if any(o.gnss_degraded for o in outcomes):
         handles.append(Patch(color="#ffbf00", alpha=0.4, label="GNSS absent or degraded"))
     # outside the axes: a legend never covers a bar or the threshold line

@@ -53,11 +53,12 @@ def runs_lightglue(provenance: Mapping[str, Any]) -> bool:
 
 def _verdict(o: FrameOutcome) -> str:
     """The frame's :class:`Verdict` in the frames table, after the chart's mark (F, R, W,
-    O)."""
+    O); for a frame refused as ambiguous, the rival candidate that made it so."""
     judged = verdict(o)
     mark = MARKS.get(judged)
     absent = " (true tile absent)" if o.has_truth and not o.true_present else ""
-    return f"{mark} {judged}{absent}" if mark else f"{judged}{absent}"
+    rival = "" if o.ambiguous is None else f"; ambiguous: {o.ambiguous}"
+    return (f"{mark} {judged}" if mark else str(judged)) + absent + rival
 
 
 def _gnss_cell(o: FrameOutcome) -> str:
@@ -192,16 +193,25 @@ def _judged_kpis(summary: RunSummary, outcomes: Sequence[FrameOutcome]) -> list[
     ]
 
 
+def _ambiguous_kpis(summary: RunSummary) -> list[tuple[str, Any]]:
+    """How many frames were refused as ambiguous, when any was: their inliers may pass the
+    threshold, yet they got no fix."""
+    if not summary.ambiguous:
+        return []
+    return [("ambiguous (no fix: a rival candidate places the frame elsewhere)", summary.ambiguous)]
+
+
 def _kpis(
     summary: RunSummary, outcomes: Sequence[FrameOutcome], store: Path
 ) -> list[tuple[str, Any]]:
     """The headline figures (label, value) of the run's ``summary`` and ``outcomes`` (each
     judged, :func:`_judged_kpis`); the telemetry's only for a flight that has telemetry; the
     candidates dropped, by cause, when any was (and the tile ``store`` named when most were
-    dropped for their tiles)."""
+    dropped for their tiles); the frames refused as ambiguous, when any was."""
     return [
         ("frames", summary.frames),
         ("matched", summary.count(FrameStatus.OK)),
+        *_ambiguous_kpis(summary),
         *_judged_kpis(summary, outcomes),
         (
             "correct tile",
@@ -231,7 +241,7 @@ def _frame_rows(outcomes: Sequence[FrameOutcome]) -> str:
             f"<td>{html.escape(str(c))}</td>"
             for c in (
                 o.index,
-                o.status,
+                o.status_words,
                 o.candidate_inliers,
                 _verdict(o),
                 figure(o.position_error_m),
@@ -289,9 +299,11 @@ frame right, yellow ring: GNSS absent or degraded.</p>
 <img id="trajectory" alt="trajectory" src="{self.trajectory}">
 <h2>Per frame</h2>
 <p>Grey bands: frames whose true tile is not among the candidates (they should raise); yellow
-bands: GNSS absent or degraded. F: {Verdict.FAILED} (fewer inliers than the threshold where a
-match was due, or an error); R: {Verdict.RIGHTLY_RAISED} (fewer inliers than the threshold with
-the true tile absent: the right answer, C3-IT-05; cyan bar); W: a wrong fix, one eval counts
+bands: GNSS absent or degraded. F: {Verdict.FAILED} (no fix where a match was due: fewer inliers
+than the threshold, ambiguous, or an error); R: {Verdict.RIGHTLY_RAISED} (no fix, too few inliers
+or ambiguous, with the true tile absent: the right answer, C3-IT-05; cyan bar). Ambiguous, its
+status in the table: a rival candidate with at least half the best's inliers places the frame
+elsewhere, so no fix is given whatever the inliers (its bar may pass the threshold); W: a wrong fix, one eval counts
 false-confident (orange bar: {Verdict.WRONG_TILE}, or
 {Verdict.TRUE_TILE_PLACED_WRONG}: inliers over {WRONG_FIX_PX:g} px from the ground truth, or
 their error unknown);

@@ -120,7 +120,7 @@ def _picture_title(outcome: FrameOutcome) -> str:
         )
         judged = "" if not outcome.has_truth else f" {verdict(outcome)}"
         return f"frame {outcome.index}: {outcome.best_inliers} inliers,{judged}{pos}"
-    title = f"frame {outcome.index}: {verdict(outcome)} ({outcome.status}, best {outcome.insufficient_best} inliers)"  # noqa: E501
+    title = f"frame {outcome.index}: {verdict(outcome)} ({outcome.status_words}, best {outcome.insufficient_best} inliers)"  # noqa: E501
     if outcome.has_truth and not outcome.true_present:
         title += ", true tile absent"
     return title

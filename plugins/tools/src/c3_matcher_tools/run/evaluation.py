@@ -89,6 +89,7 @@ class StrategyEval:
                     "gnss_degraded": o.gnss_degraded,
                     "attitude_assumed": o.attitude_assumed,
                     "elapsed_ms": o.elapsed_ms,
+                    **({} if o.ambiguous is None else {"ambiguous": o.ambiguous}),
                 }
                 for o in self.run.outcomes
             ],

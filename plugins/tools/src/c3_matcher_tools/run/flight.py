@@ -16,7 +16,12 @@ from typing import TYPE_CHECKING, Any
 from c3_matcher.compose import strategy_settings
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import MatchResult
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
+from c3_matcher.errors import (
+    AmbiguousMatchError,
+    InsufficientInliersError,
+    InvalidInputError,
+    MatcherBackboneError,
+)
 from c3_matcher.georef import haversine_m
 from c3_matcher.logs import MATCHER_GEOMETRY_REFUSED, MATCHER_ZERO_INLIERS
 from c3_matcher.plugins.manager import PluginHost
@@ -192,7 +197,10 @@ def _fly_frame(
     where = replace(where, candidates=len(rerank.candidates), dropped=dropped)
     if failure is not None:
         status, error, best_count = failure
-        return where.outcome(frame, status, elapsed, error=str(error), best_count=best_count)
+        ambiguous = error.ambiguity if isinstance(error, AmbiguousMatchError) else None
+        return where.outcome(
+            frame, status, elapsed, error=str(error), best_count=best_count, ambiguous=ambiguous
+        )
     return _matched(dataset, frame, result, elapsed, where, with_correspondences)
 
 
@@ -229,9 +237,11 @@ class _Where:
         error: str | None = None,
         best_count: int = 0,
         matched: _Matched | None = None,
+        ambiguous: str | None = None,
     ) -> FrameOutcome:
         """The frame's outcome: ``matched``, or ``status`` and the ``error`` that says why not
-        (``best_count``: the best candidate's inliers below the threshold)."""
+        (``best_count``: the best candidate's inliers, below the threshold unless the frame was
+        refused as ``ambiguous``: the rival candidate, in ``AmbiguousMatchError``'s words)."""
         tele = self.telemetry
         est = None if matched is None else matched.estimate
         return FrameOutcome(
@@ -263,6 +273,7 @@ class _Where:
             attitude_assumed=tele is not None and tele.attitude_assumed,
             candidates=self.candidates,
             dropped=self.dropped,
+            ambiguous=ambiguous,
         )
 
 

@@ -28,7 +28,9 @@ class FrameStatus(StrEnum):
     OK = "ok"
     """Matched: the result's best candidate reached the inlier threshold."""
     INSUFFICIENT = "insufficient"
-    """No candidate reached the threshold (``InsufficientInliersError``)."""
+    """No fix (``InsufficientInliersError``): no candidate reached the threshold, or, the
+    frame's ``ambiguous`` set (``AmbiguousMatchError``), a rival candidate with nearly the best's
+    inliers placed the frame elsewhere."""
     BACKBONE_ERROR = "backbone_error"
     """The matcher's backbone failed on the frame (``MatcherBackboneError``)."""
     UNREADABLE = "unreadable"
@@ -66,7 +68,10 @@ class FrameOutcome:
     frame (None: no telemetry, or it does not say); ``attitude_assumed``: the log had no
     attitude at the frame, so the import assumed it level and the look point is where a level
     camera would look, not the frame's (summaries keep such frames apart); ``candidates``: how
-    many the matcher was given, ``dropped``: those it dropped and why. ``result``: the result
+    many the matcher was given, ``dropped``: those it dropped and why; ``ambiguous``: the frame
+    got no fix because two candidates place it in different places (``AmbiguousMatchError``),
+    that rival in its words (None otherwise; its status is still ``insufficient``, its
+    ``insufficient_best`` the best's inliers, which may pass the threshold). ``result``: the result
     as JSON (:func:`c3_matcher.serialize.result_to_json`), its inlier correspondences held as
     the result's float32 (I, 4) arrays until :meth:`to_json` writes them as lists."""
 
@@ -98,6 +103,13 @@ class FrameOutcome:
     attitude_assumed: bool = False
     candidates: int = 0
     dropped: tuple[DroppedCandidate, ...] = ()
+    ambiguous: str | None = None
+
+    @property
+    def status_words(self) -> str:
+        """The status as the tables and reports show it: ``ambiguous`` for a frame refused as
+        ambiguous (its best candidate may have passed the threshold), else the status."""
+        return "ambiguous" if self.ambiguous is not None else str(self.status)
 
     @property
     def scored(self) -> bool:
@@ -114,11 +126,16 @@ class FrameOutcome:
     @property
     def candidate_inliers(self) -> int:
         """The best candidate's inlier count, whether the frame matched or raised (the count
-        below the threshold); ``best_inliers`` is the matched result's, 0 when it raised."""
+        below the threshold, or, ambiguous, the best's whatever the threshold); ``best_inliers``
+        is the matched result's, 0 when it raised."""
         return self.best_inliers if self.status == FrameStatus.OK else self.insufficient_best
 
     def to_json(self) -> dict[str, Any]:
+        """Its line in ``results.jsonl``; ``ambiguous`` only on a frame refused as ambiguous,
+        so that the other frames' keys are those they always had."""
         out = asdict(self)
+        if out["ambiguous"] is None:
+            del out["ambiguous"]
         for key in ("mean_error_px", "residual_px", "position_error_m", "telemetry_error_m"):
             if not math.isfinite(out[key]):
                 out[key] = None

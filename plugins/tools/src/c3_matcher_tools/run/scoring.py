@@ -33,6 +33,7 @@ __all__ = [
     "dropped_lines",
     "figure",
     "result_fingerprint",
+    "status_line",
     "summarize",
     "telemetry_lines",
     "telemetry_reference",
@@ -186,7 +187,8 @@ class RunSummary:
     dropped for their tiles (a tile failing its sha256 or not decoding: the store's fault);
     ``false_confident_frames``: the frames whose pick places them wrong, as eval counts them
     false-confident (:func:`~c3_matcher_tools.run.acceptance.verdict`), of the :attr:`scored`
-    ones."""
+    ones; ``ambiguous_frames``: those of the ``insufficient`` ones refused as ambiguous (a rival
+    candidate placed the frame elsewhere, ``FrameOutcome.ambiguous``), whatever their inliers."""
 
     frames: int
     by_status: Mapping[FrameStatus, int]
@@ -216,6 +218,7 @@ class RunSummary:
     candidates_dropped: tuple[tuple[str, int], ...] = ()
     tile_dropped: int = 0
     false_confident_frames: tuple[int, ...] = ()
+    ambiguous_frames: tuple[int, ...] = ()
 
     def count(self, status: FrameStatus) -> int:
         return self.by_status.get(status, 0)
@@ -235,9 +238,15 @@ class RunSummary:
         """The frames whose pick places them wrong (``false_confident_frames``)."""
         return len(self.false_confident_frames)
 
+    @property
+    def ambiguous(self) -> int:
+        """The frames refused as ambiguous (``ambiguous_frames``), counted as ``insufficient``."""
+        return len(self.ambiguous_frames)
+
     def to_json(self) -> dict[str, Any]:
         """Its form in ``report.json`` and ``eval.json``: the counts by status flattened, as
-        ``"ok"``, ``"insufficient"``, ... after ``"frames"``."""
+        ``"ok"``, ``"insufficient"``, ... after ``"frames"`` (``"insufficient"`` counts the
+        ``"ambiguous"`` frames too: both raised ``InsufficientInliersError``)."""
         out = {f.name: getattr(self, f.name) for f in fields(self)}
         by_status = out.pop("by_status")
         return {
@@ -249,6 +258,8 @@ class RunSummary:
             "candidates_dropped": dict(self.candidates_dropped),
             "false_confident": self.false_confident,
             "false_confident_frames": list(self.false_confident_frames),
+            "ambiguous": self.ambiguous,
+            "ambiguous_frames": list(self.ambiguous_frames),
         }
 
     @property
@@ -303,6 +314,25 @@ def summarize(outcomes: Sequence[FrameOutcome]) -> RunSummary:
         candidates_dropped=tuple(causes.most_common()),
         tile_dropped=sum(d.of_tile for o in outcomes for d in o.dropped),
         false_confident_frames=tuple(o.index for o in outcomes if verdict(o).wrong_fix),
+        ambiguous_frames=tuple(o.index for o in outcomes if o.ambiguous is not None),
+    )
+
+
+def status_line(s: RunSummary) -> str:
+    """How ``replay`` and ``eval`` say the frames ended: matched, too few inliers, refused as
+    ambiguous (when any: their inliers may pass the threshold), backbone errors, and unreadable
+    images (when any)."""
+    unreadable = s.count(FrameStatus.UNREADABLE)
+    return (
+        f"ok {s.count(FrameStatus.OK)}, insufficient inliers "
+        f"{s.count(FrameStatus.INSUFFICIENT) - s.ambiguous}"
+        + (
+            f", ambiguous {s.ambiguous} (a rival candidate places the frame elsewhere: no fix)"
+            if s.ambiguous
+            else ""
+        )
+        + f", backbone errors {s.count(FrameStatus.BACKBONE_ERROR)}"
+        + (f", unreadable images {unreadable}" if unreadable else "")
     )
 
 
