@@ -29,8 +29,11 @@ from c3_matcher_tools.dataset.provenance import (
     IMPORT_REVISION,
     RENDER_REVISION,
     ImportFault,
+    import_faults,
+    reimport_command,
     say_import_faults,
 )
+from c3_matcher_tools.dataset.sources.options import ImportReport
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.cli import run_cli
 from c3_matcher_tools.testing.flightlogs.dataflash import write_dataflash
@@ -264,3 +267,96 @@ def test_a_dataset_that_did_not_record_its_options_says_which_it_cannot_know(
     for option in ("--max-gap", "--gnss-degraded-m", "--ground-elevation or --dem"):
         assert option in redo.split(" --force", 1)[1], redo
     assert "if you gave them" in redo, redo
+
+
+_BY_OWN_TIME_THEN = (
+    "camera trigger nearest each image's own UTC time, within 1 s (5 in the log, 4 image(s): "
+    "1 trigger(s) left without an image)"
+)
+"""How the importer before 2026-12-05 said photos met triggers of another count."""
+
+
+def _spec(revision: int | None, offset: float | None, how: str) -> dict[str, Any]:
+    """A ULog import's spec of ``revision`` (None: before revisions were recorded) with
+    ``time_offset_s`` ``offset`` and the time source ``how``."""
+    spec: dict[str, Any] = {
+        "kind": "import",
+        "log": "flight.ulg",
+        "log_kind": "PX4 ULog",
+        "source_kind": "ulog",
+        "images": "photos",
+        "store": "naip_store.mbtiles",
+        "time_source": how,
+        "time_offset_s": offset,
+        "options": {},
+    }
+    return spec if revision is None else {**spec, "import_revision": revision}
+
+
+def _faults(spec: dict[str, Any]) -> tuple[ImportFault, ...]:
+    meta = {"name": "f", "spec": spec, "import": {"time_source": spec["time_source"]}}
+    return import_faults(Path("f"), meta, [])
+
+
+def test_photos_met_by_their_own_time_before_the_clock_was_sought_are_said() -> None:
+    """Before import revision 3 photos met triggers of another count each at the trigger
+    nearest its own time with the camera's clock taken as the log's: a clock off by an interval
+    put every photo on another's pose. Such a dataset, no offset given, is said with a re-import
+    that finds the clock's offset (no --time-offset); one given an offset was placed as it is
+    now, and a dataset of revision 3 is told by its revision."""
+    for revision in (None, 2):
+        faults = _faults(_spec(revision, 0.0, _BY_OWN_TIME_THEN))
+        assert len(faults) == 1, faults
+        assert "its 4 photos met the log's 5 camera triggers" in faults[0].what, faults
+        assert "another photo's trigger" in faults[0].what and "position" in faults[0].affects
+        assert "--time-offset" not in faults[0].redo.split(" (", 1)[0], faults[0].redo
+    assert _faults(_spec(2, -4.0, _BY_OWN_TIME_THEN)) == ()  # the offset the user gave
+    assert _faults(_spec(IMPORT_REVISION, None, _BY_OWN_TIME_THEN)) == ()
+    now = _BY_OWN_TIME_THEN.replace("time, within", "time, --time-offset +0 s as given, within")
+    assert _faults(_spec(2, 0.0, now)) == ()
+
+
+def test_a_time_offset_of_0_given_is_repeated_by_the_reimport() -> None:
+    """``--time-offset 0`` says the camera's clock is the log's (no offset sought): its dataset
+    records 0, one not given None, and the re-import repeats the 0 (without it photos and
+    triggers of another count are sought again, and a tie refused). Before revision 3 a 0 was
+    recorded for none given, so it is not repeated."""
+
+    def words(spec: dict[str, Any]) -> list[str]:
+        return shlex.split(reimport_command(Path("f"), spec).split(" (", 1)[0])
+
+    given = words(_spec(IMPORT_REVISION, 0.0, "camera trigger"))
+    assert given[given.index("--time-offset") + 1] == "0.0", given
+    assert "--time-offset" not in words(_spec(IMPORT_REVISION, None, "camera trigger"))
+    assert "--time-offset" not in words(_spec(2, 0.0, "camera trigger"))
+    then = words(_spec(2, -4.0, "camera trigger"))
+    assert then[then.index("--time-offset") + 1] == "-4.0", then
+
+
+def test_the_report_says_the_offset_applied_and_where_it_came_from() -> None:
+    """An offset found is reported as applied, not the 0 of no --time-offset; an old record
+    without the origin reads as given where its offset is not 0."""
+    record: dict[str, Any] = {
+        "source": "flight.ulg",
+        "kind": "PX4 ULog",
+        "frames": 4,
+        "skipped": [],
+        "time_source": "camera trigger nearest each image's own UTC time, ...",
+        "time_offset_s": -4.0,
+        "height_sources": {},
+        "attitude_assumed": [],
+        "height_assumed": [],
+        "gnss_degraded": [],
+        "zoom": 16,
+        "time_offset_origin": "found",
+    }
+    found = ImportReport.from_record(record, "f")
+    assert "..., offset -4.000 s (found)" in found.lines()[1], found.lines()
+    assert found.to_json()["time_offset_origin"] == "found"
+    del record["time_offset_origin"]
+    assert ImportReport.from_record(record, "f").time_offset_origin == "given"
+    assert (
+        ImportReport.from_record({**record, "time_offset_s": 0}, "f")
+        .lines()[1]
+        .endswith("offset +0.000 s (not given)")
+    )

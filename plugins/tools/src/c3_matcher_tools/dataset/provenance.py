@@ -27,6 +27,7 @@ from c3_matcher import __version__
 __all__ = [
     "IMPORT_REVISION",
     "LOG_OPTIONS",
+    "OFFSET_RECORDED_REVISION",
     "RENDER_REVISION",
     "ImportFault",
     "Noted",
@@ -36,11 +37,20 @@ __all__ = [
     "say_import_faults",
 ]
 
-IMPORT_REVISION = 2
+IMPORT_REVISION = 3
 """The revision of what ``dataset import`` writes. 1: the first recorded (2026-12-03), with the
 home altitude in force at each frame's time, the first downward rangefinder and one camera
 trigger per photo; 2 (2026-12-03): an import from a recorded log records the options of
-:data:`LOG_OPTIONS` it was given in ``spec["options"]``."""
+:data:`LOG_OPTIONS` it was given in ``spec["options"]``; 3 (2026-12-05): photos that meet
+camera triggers of another count by their own times find the camera clock's offset (before,
+the camera's clock was taken as the log's), PX4 estimates marked invalid give way to the
+receiver's fix, a MAVLink camera message recorded twice is read once and a telemetry log of
+several vehicles is refused; ``spec["time_offset_s"]`` is ``--time-offset`` as given (None
+when not: before, 0 stood for both) and the import record says where the offset it applied
+came from (``time_offset_origin``)."""
+OFFSET_RECORDED_REVISION = 3
+"""The import revision from which ``spec["time_offset_s"]`` tells a ``--time-offset 0`` given
+(which says the camera's clock is the log's) from none given (None)."""
 RENDER_REVISION = 1
 """The revision of what ``dataset render`` writes (1: the first recorded, 2026-12-03)."""
 
@@ -165,7 +175,43 @@ def _triggers_twice(seen: _Seen) -> tuple[str, str] | None:
     return what, affects
 
 
-_KNOWN = (_KnownFault(1, _first_home), _KnownFault(1, _triggers_twice))
+_OLD_BY_OWN_TIME = re.compile(
+    r"camera trigger nearest each image's own UTC time, within [\d.e+-]+ s "
+    r"\((\d+) in the log, (\d+) image\(s\)"
+)
+"""How photos met camera triggers of another count by their own times before import revision
+3 (since, ``how`` says the offset: ``..., the images' times moved ... (found ...)`` or
+``..., --time-offset ... as given``)."""
+
+
+def _clock_unsought(seen: _Seen) -> tuple[str, str] | None:
+    """Photos that met camera triggers of another count each at the trigger nearest its own
+    time, the camera's clock taken as the log's (before import revision 3) with no
+    ``--time-offset`` given: a clock off by a trigger interval or more put every photo on
+    another's trigger. Told by the time source of then and an offset of 0."""
+    how = str(seen.spec.get("time_source", seen.record.get("time_source", "")))
+    counts = _OLD_BY_OWN_TIME.match(how)
+    if counts is None or seen.spec.get("time_offset_s") not in (None, 0, 0.0):
+        return None
+    what = (
+        f"its {counts[2]} photos met the log's {counts[1]} camera triggers each at the trigger "
+        "nearest its own time, the camera's clock taken as the log's, as the importer did before "
+        "2026-12-05: a camera clock off the log's by a trigger interval or more put every photo "
+        "on another photo's trigger and pose (tens to hundreds of metres off) with no word; the "
+        "importer now finds the clock's offset, or refuses naming the offsets it cannot tell apart"
+    )
+    affects = (
+        "each frame's time, and so its position, attitude, height and candidates: every "
+        "result and figure of the flight"
+    )
+    return what, affects
+
+
+_KNOWN = (
+    _KnownFault(1, _first_home),
+    _KnownFault(1, _triggers_twice),
+    _KnownFault(3, _clock_unsought),
+)
 """Every import fault fixed since datasets were first written, in the order they are said."""
 
 
@@ -210,12 +256,13 @@ _OPTIONS = (
     ("candidate_size_px", "--candidate-size", 512),
     ("zoom", "--zoom", None),
     ("seed", "--seed", 0),
-    ("time_offset_s", "--time-offset", 0.0),
+    ("time_offset_s", "--time-offset", None),
     ("ground_elevation_m", "--ground-elevation", None),
     ("dem", "--dem", None),
 )
 """(``spec`` key, ``dataset import`` option, its default) of the options an import records in
-keys of their own (``dem`` by the DEM's file name)."""
+keys of their own (``dem`` by the DEM's file name; ``time_offset_s`` None when not given, so a
+0 given is repeated: :func:`_as_given`)."""
 
 
 def reimport_command(root: Path, spec: Mapping[str, Any], *, name: str | None = None) -> str:
@@ -244,15 +291,28 @@ def _option_words(spec: Mapping[str, Any]) -> list[str]:
     options given (:data:`LOG_OPTIONS`)."""
     kind = spec.get("source_kind") or ("csv" if spec.get("telemetry_csv") else None)
     words = ["--source", str(kind)] if kind else []
+    as_given = _as_given(spec)
     for key, option, default in _OPTIONS:
-        if spec.get(key) is not None and spec.get(key) != default:
-            words += [option, str(spec[key])]
+        if as_given.get(key) is not None and as_given.get(key) != default:
+            words += [option, str(as_given[key])]
     if spec.get("skip_outside"):
         words.append("--skip-outside")
     given = spec.get("options")
     if isinstance(given, Mapping):
         words += [w for o in LOG_OPTIONS if o in given for w in (o, str(given[o]))]
     return words
+
+
+def _as_given(spec: Mapping[str, Any]) -> Mapping[str, Any]:
+    """``spec`` with its ``time_offset_s`` as given: an import before
+    :data:`OFFSET_RECORDED_REVISION` recorded 0 for no ``--time-offset`` (and a 0 given meant
+    the same then), so its 0 is taken as not given, and the re-import finds the camera clock's
+    offset as an import now does."""
+    revision = spec.get("import_revision", 0)
+    old = not isinstance(revision, int) or revision < OFFSET_RECORDED_REVISION
+    if old and spec.get("time_offset_s") == 0:
+        return {**spec, "time_offset_s": None}
+    return spec
 
 
 def _unknown_options(spec: Mapping[str, Any]) -> str:

@@ -7,10 +7,13 @@ interval, so a camera clock off by any amount puts every photo within half an in
 trigger, that of a photo one or more triggers away. Only the offset that pairs the most photos
 tells them apart: shifted by whole trigger intervals, the photos run off the triggers at one end
 (images without a trigger there, triggers without an image at the other end, the signature of a
-shift), so each such shift pairs fewer."""
+shift), so each such shift pairs fewer. Where a shift pairs as many (a trigger lost at either
+end, the photos all there), the differences' spread tells them apart where the triggers' own
+timing does (:data:`TIGHTER`), else the offsets are a tie and the import is refused."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -20,7 +23,14 @@ from c3_matcher.arrays import F64
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.sources.track import LogTrack, Shot
 
-__all__ = ["ClockFit", "fit_camera_clock", "found_offset", "nearest_triggers", "shot_names"]
+__all__ = [
+    "TIGHTER",
+    "ClockFit",
+    "fit_camera_clock",
+    "found_offset",
+    "nearest_triggers",
+    "shot_names",
+]
 
 _MAX_LOOKS = 64
 """Pairs of bins looked into at most. A flight's offsets by whole trigger intervals fill a few
@@ -28,6 +38,23 @@ _MAX_LOOKS = 64
 than this could pair about as many as the best, the photos' times follow no one offset of the
 triggers' (another flight's photos), and the fit says another offset may pair as many.
 """
+
+TIGHTER = 4.0
+"""How many times smaller the spread of one offset's photo-trigger differences must be than
+another's pairing as many for it to win: at the camera clock's true offset the differences
+spread only as the photos' time stamps are coarse and the exposure follows the trigger unevenly;
+shifted by whole trigger intervals they spread as that plus the unevenness of the intervals
+themselves (each photo meets a neighbour's trigger). So where the triggers' timing varies
+clearly more than the stamps (times to the millisecond, triggers a few milliseconds uneven or
+more), the true offset's spread is the smaller by far; where it does not (whole-second EXIF
+times, triggers of a steady timer), the spreads are alike and nothing tells the offsets apart.
+The factor is well beyond what the spread (a median absolute deviation) varies by between
+two samples of a handful of pairs of one timing, so a tie is broken only by timing that
+differs, whatever the flight."""
+
+_STAMP_S = 0.001
+"""The finest spread of photo-trigger differences counted, s: the millisecond a photo's time
+stamp states at best (EXIF ``SubSecTime``), below which spreads are not told apart."""
 
 _CHUNK = 1_000_000
 """Photo-trigger differences counted at a time: the memory of the count stays a few MB however
@@ -38,12 +65,24 @@ long the flight (its time grows with photos x triggers, about a second for 10,00
 class ClockFit:
     """The camera clock's offset (``offset_s``, added to the photos' own times; negative when
     the camera's clock is ahead of the log's), how many photos it pairs with a trigger
-    (``paired``), and the best offset apart from it with its count (``runner_up``; None when no
-    other offset pairs any)."""
+    (``paired``), the spread of its photo-trigger differences (``spread_s``: their median
+    absolute deviation, at least a millisecond), and the best offset apart from it with its
+    count (``runner_up``; None when no other offset pairs any) and spread
+    (``runner_up_spread_s``; nan when not known)."""
 
     offset_s: float
     paired: int
     runner_up: tuple[float, int] | None
+    spread_s: float = _STAMP_S
+    runner_up_spread_s: float = math.nan
+
+    @property
+    def tied(self) -> bool:
+        """Whether the runner-up pairs as many and the best's spread is not clearly
+        (:data:`TIGHTER`) smaller than its: the offsets are not told apart."""
+        if self.runner_up is None or self.runner_up[1] < self.paired:
+            return False
+        return not self.spread_s * TIGHTER <= self.runner_up_spread_s
 
 
 def fit_camera_clock(own: F64, triggers: F64, width_s: float) -> ClockFit | None:
@@ -61,8 +100,9 @@ def fit_camera_clock(own: F64, triggers: F64, width_s: float) -> ClockFit | None
     alike); counted in bins ``width_s`` wide, the windows are searched from the fullest pair
     of neighbouring bins (every window lies in two, so a pair's count bounds its windows') down,
     until no pair could hold one fewer than the best or as many as the best found apart from
-    it (the next best is said beside the best; a tie refuses it), at most :data:`_MAX_LOOKS`
-    pairs."""
+    it (the next best is said beside the best), at most :data:`_MAX_LOOKS` pairs. Of offsets
+    pairing as many, the one whose differences spread the least is the best, and a tie
+    (:attr:`ClockFit.tied`) unless that spread is clearly the smaller (:data:`TIGHTER`)."""
     if not own.size or not triggers.size:
         return None
     lo = float(triggers[0] - own.max())
@@ -71,34 +111,57 @@ def fit_camera_clock(own: F64, triggers: F64, width_s: float) -> ClockFit | None
     follows = keys[1:] == keys[:-1] + 1
     nxt[:-1][follows] = counts[1:][follows]
     bound = counts + nxt  # at most as many pairs in any window starting in that bin
-    found: list[tuple[int, float]] = []  # (paired, offset)
+    found: list[_Window] = []
     for n, b in enumerate(np.argsort(-bound, kind="stable")):
-        enough = max(max(found)[0] - 1, _runner_up(found, width_s)[1]) if found else 0
+        enough = max(_top(found).paired - 1, _rival(found, width_s).paired) if found else 0
         if bound[b] < max(enough, 1):
             break
         start = lo + float(keys[b]) * width_s
         if n == _MAX_LOOKS:  # as many may lie here as at the best: not told apart
-            found.append((max(found)[0] if found else 0, start + width_s))
+            found.append(_Window(_top(found).paired if found else 0, start + width_s, math.nan))
             break
         best = _best_window(own, triggers, start, start + 2 * width_s, width_s)
         if best is not None:
             found.append(best)
     if not found:
         return None
-    top = max(found, key=lambda f: f[0])  # the first of the fullest: deterministic
-    second = _runner_up(found, width_s)
-    return ClockFit(top[1], top[0], (second[0], second[1]) if second[1] else None)
+    top, second = _top(found), _rival(found, width_s)
+    runner_up = (second.offset_s, second.paired) if second.paired else None
+    return ClockFit(top.offset_s, top.paired, runner_up, top.spread_s, second.spread_s)
 
 
-def _runner_up(found: list[tuple[int, float]], width_s: float) -> tuple[float, int]:
-    """The best (offset, paired) more than ``width_s`` from the best of ``found``; (nan, 0)
-    when none."""
-    top = max(found, key=lambda f: f[0])
-    apart = [f for f in found if abs(f[1] - top[1]) > width_s]
+@dataclass(frozen=True, slots=True)
+class _Window:
+    """A window of photo-trigger differences: the photos it pairs, the median of its
+    differences (the offset) and their spread (nan where not looked into)."""
+
+    paired: int
+    offset_s: float
+    spread_s: float
+
+
+def _top(found: list[_Window]) -> _Window:
+    """Of ``found``, the one pairing the most, of those the one spreading the least (an unknown
+    spread the most), of those the first: deterministic."""
+    spread = [w.spread_s if math.isfinite(w.spread_s) else math.inf for w in found]
+    return found[min(range(len(found)), key=lambda i: (-found[i].paired, spread[i], i))]
+
+
+def _rival(found: list[_Window], width_s: float) -> _Window:
+    """The best of ``found`` more than ``width_s`` from :func:`_top` (an unknown spread taken
+    as the hardest to beat); one pairing none when there is none."""
+    top = _top(found)
+    apart = [w for w in found if abs(w.offset_s - top.offset_s) > width_s]
     if not apart:
-        return float("nan"), 0
-    second = max(apart, key=lambda f: f[0])
-    return second[1], second[0]
+        return _Window(0, math.nan, math.nan)
+    spread = [w.spread_s if math.isfinite(w.spread_s) else -math.inf for w in apart]
+    return apart[min(range(len(apart)), key=lambda i: (-apart[i].paired, spread[i], i))]
+
+
+def _spread(diff: F64) -> float:
+    """The spread of photo-trigger differences: their median absolute deviation, at least
+    :data:`_STAMP_S`."""
+    return max(float(np.median(np.abs(diff - np.median(diff)))), _STAMP_S)
 
 
 def _bin_counts(own: F64, triggers: F64, lo: float, width_s: float) -> tuple[F64, F64]:
@@ -117,13 +180,11 @@ def _bin_counts(own: F64, triggers: F64, lo: float, width_s: float) -> tuple[F64
     return every.astype(np.float64), np.bincount(where, np.concatenate(counts)).astype(np.float64)
 
 
-def _best_window(
-    own: F64, triggers: F64, a: float, b: float, width_s: float
-) -> tuple[int, float] | None:
+def _best_window(own: F64, triggers: F64, a: float, b: float, width_s: float) -> _Window | None:
     """Of the windows ``width_s`` wide among the photo-trigger differences in [``a``, ``b``),
     the one pairing the most photos one-to-one (the fewer of the photos and triggers it
-    holds: a stray photo or a double trigger beside a pair adds none): (paired, the median of
-    its differences); None when none lies there."""
+    holds: a stray photo or a double trigger beside a pair adds none), with the median of its
+    differences and their spread; None when none lies there."""
     first = np.searchsorted(triggers, own + a, side="left")
     last = np.searchsorted(triggers, own + b, side="left")
     many = last - first
@@ -136,14 +197,14 @@ def _best_window(
     order = np.lexsort((trig, photo, diff))
     diff, photo, trig = diff[order], photo[order], trig[order]
     ends = np.searchsorted(diff, diff + width_s, side="right")
-    best: tuple[int, float] | None = None
+    best: _Window | None = None
     for s in np.argsort(-(ends - np.arange(diff.size)), kind="stable"):
         e = int(ends[s])
-        if best is not None and e - s <= best[0]:
+        if best is not None and e - s <= best.paired:
             break  # no later window holds more differences than this pairs
         paired = min(np.unique(photo[s:e]).size, np.unique(trig[s:e]).size)
-        if best is None or paired > best[0]:
-            best = (paired, float(np.median(diff[s:e])))
+        if best is None or paired > best.paired:
+            best = _Window(paired, float(np.median(diff[s:e])), _spread(diff[s:e]))
     return best
 
 
@@ -192,8 +253,9 @@ def found_offset(
     ``--time-offset``, when it is not one number the photos agree on: fewer than half of the
     photos or triggers (the fewer) pair at the best (a clock that jumped in flight, another
     flight's photos: one offset would pair nearly all), another offset apart from it pairs as
-    many (whole trigger intervals apart, photos and triggers lost at the ends look alike: each
-    named with what it pairs, as the ``--time-offset`` to give: 0 for the camera's clock), or
+    many and its differences spread alike (:attr:`ClockFit.tied`: whole trigger intervals
+    apart, photos and triggers lost at the ends look alike: each named with what it pairs, as
+    the ``--time-offset`` to give: 0 for the camera's clock), or
     no photo's own time lies within the triggers' span (their times then do not show them to
     be of this flight: a camera clock hours off is named, and given, used)."""
     fit = fit_camera_clock(np.asarray(own, dtype=np.float64), triggers, tol)
@@ -202,7 +264,7 @@ def found_offset(
     way = "give the camera clock's offset with --time-offset (the seconds added to the images' "
     way += "own times; one given is used as given, and 0 says the camera's clock is the log's)"
     at = f"{fit.offset_s:+.2f} s (added to the images' own times)"
-    if fit.runner_up is not None and fit.runner_up[1] >= fit.paired:
+    if fit.runner_up is not None and fit.tied:
         other = fit.runner_up[0]
         drop = (
             "remove the images left without a trigger at the right one (as many photos as "
@@ -217,8 +279,9 @@ def found_offset(
         raise InvalidInputError(
             "--time-source",
             f"{head}, and the camera clock's offset is not told by them: {at} and "
-            f"{other:+.2f} s each pair {fit.paired} image(s) with a trigger: whole trigger "
-            "intervals apart, images lost at one end look like triggers lost at the other; "
+            f"{other:+.2f} s each pair {fit.paired} image(s) with a trigger{_spreads(fit)}: "
+            "whole trigger intervals apart, images lost at one end look like triggers lost at "
+            "the other; "
             f"{drop}give the one that is right, {each}",
         )
     lo, hi = float(triggers[0]) - tol, float(triggers[-1]) + tol
@@ -251,7 +314,21 @@ def _offset_said(fit: ClockFit) -> str:
     best = f"that offset pairs {fit.paired} of them"
     if fit.runner_up is not None:
         best += f", the next best, {fit.runner_up[0]:+.2f} s, {fit.runner_up[1]}"
+        best += _spreads(fit) if fit.runner_up[1] >= fit.paired else ""
     return f"the images' times moved {off:+.2f} s (the camera's clock {clock}, found: {best})"
+
+
+def _spreads(fit: ClockFit) -> str:
+    """``" (the photo-trigger differences spread 1.0 ms at -4.00 s, 52.3 ms at -2.00 s)"``:
+    the spreads (median absolute deviations) that break a tie of counts, or fail to; empty when
+    the next best's is not known."""
+    if fit.runner_up is None or not math.isfinite(fit.runner_up_spread_s):
+        return ""
+    return (
+        f" (the photo-trigger differences spread {fit.spread_s * 1000:.1f} ms at "
+        f"{fit.offset_s:+.2f} s, {fit.runner_up_spread_s * 1000:.1f} ms at "
+        f"{fit.runner_up[0]:+.2f} s)"
+    )
 
 
 def _offset_word(offset: float) -> str:

@@ -188,7 +188,10 @@ class ImportOptions:
 @dataclass(frozen=True)
 class ImportReport:
     """What an import did: frames taken, skipped (image, reason), how times were matched, the
-    height source per frame and the marked frames; :meth:`lines` reads it to a person."""
+    height source per frame and the marked frames; :meth:`lines` reads it to a person.
+    ``time_offset_s`` is the offset added to the images' times and ``time_offset_origin`` says
+    where it came from: ``found`` (the camera clock's, from the photos and the camera
+    triggers), ``given`` (``--time-offset``) or ``not given`` (0)."""
 
     dataset: str
     source: str
@@ -203,6 +206,7 @@ class ImportReport:
     gnss_degraded: tuple[int, ...]
     zoom: int
     notes: tuple[str, ...] = ()
+    time_offset_origin: str = "not given"
 
     def to_json(self) -> dict[str, Any]:
         """Every field, in order, JSON-ready: a skipped image as {"image", "reason"}."""
@@ -211,7 +215,9 @@ class ImportReport:
     @classmethod
     def from_record(cls, record: dict[str, Any], dataset: str) -> ImportReport:
         """The report a dataset keeps of its import (``dataset.json``'s ``import``: every field
-        of :meth:`to_json` but the dataset's own name, given here)."""
+        of :meth:`to_json` but the dataset's own name, given here; a record from before the
+        offset's origin was recorded: ``given`` where the offset is not 0)."""
+        offset = float(record["time_offset_s"])
         return cls(
             dataset=dataset,
             source=str(record["source"]),
@@ -219,20 +225,24 @@ class ImportReport:
             frames=int(record["frames"]),
             skipped=tuple((str(s["image"]), str(s["reason"])) for s in record["skipped"]),
             time_source=str(record["time_source"]),
-            time_offset_s=float(record["time_offset_s"]),
+            time_offset_s=offset,
             height_sources={str(k): int(v) for k, v in record["height_sources"].items()},
             attitude_assumed=tuple(int(i) for i in record["attitude_assumed"]),
             height_assumed=tuple(int(i) for i in record["height_assumed"]),
             gnss_degraded=tuple(int(i) for i in record["gnss_degraded"]),
             zoom=int(record["zoom"]),
             notes=tuple(str(n) for n in record.get("notes", ())),
+            time_offset_origin=str(
+                record.get("time_offset_origin", "given" if offset else "not given")
+            ),
         )
 
     def lines(self) -> list[str]:
         heights = ", ".join(f"{k} ({v})" for k, v in sorted(self.height_sources.items()))
         out = [
             f"imported {self.frames} frame(s) from {self.source} ({self.kind}) into {self.dataset}",
-            f"  times: {self.time_source}, offset {self.time_offset_s:+.3f} s",
+            f"  times: {self.time_source}, offset {self.time_offset_s:+.3f} s "
+            f"({self.time_offset_origin})",
             f"  height above ground: {heights or 'none'}",
         ]
         for what, frames in (

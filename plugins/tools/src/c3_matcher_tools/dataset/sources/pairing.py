@@ -3,6 +3,7 @@ its own time), the images' own UTC times, or file order (:func:`match_shots`).""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Sequence
@@ -24,12 +25,15 @@ __all__ = ["Pairing", "match_shots", "same_times", "times_apart", "utc_text"]
 class Pairing:
     """How images met a log's clock: each paired image with its time on the log's clock, each
     image left out with the reason, how they were paired, and what else the import should say
-    (a photo whose capture time lies apart from the others')."""
+    (a photo whose capture time lies apart from the others'); ``found_offset_s``: the camera
+    clock's offset found and added to the images' own times (None when none was sought: one
+    given, or the images not paired by their own times)."""
 
     taken: tuple[tuple[Shot, float], ...]
     skipped: tuple[tuple[str, str], ...]
     how: str
     notes: tuple[str, ...] = ()
+    found_offset_s: float | None = None
 
 
 def times_apart(times: Sequence[float], gap_s: float) -> list[int]:
@@ -186,7 +190,8 @@ def _triggers_by_time(
         f"camera trigger nearest each image's own UTC time, {said}, within {tol:g} s "
         f"({triggers.size} in the log, {len(shots)} image(s): {left})"
     )
-    return Pairing(tuple(taken), tuple(skipped), how)
+    sought = found if options.time_offset_s is None else None
+    return Pairing(tuple(taken), tuple(skipped), how, found_offset_s=sought)
 
 
 def _as_many_triggers(shots: Sequence[Shot], triggers: F64, options: ImportOptions) -> Pairing:
@@ -392,7 +397,7 @@ def match_shots(
         pairing = _by_file_order(shots, triggers, options)
     inside, outside = _within_log(track, pairing.taken, options, src)
     in_order = tuple(sorted(inside, key=lambda x: x[1]))
-    return Pairing(in_order, (*pairing.skipped, *outside), pairing.how, pairing.notes)
+    return dataclasses.replace(pairing, taken=in_order, skipped=(*pairing.skipped, *outside))
 
 
 def _within_log(

@@ -68,7 +68,7 @@ def write_imported_flight(
         )
     with atomic_directory(out, force=force) as tmp:
         placed = place_store(tmp, proposer.store, link=True)  # the import's record says how
-        report = _report(out, track, frames, skipped, how, options, zoom, [*notes, placed])
+        report = _report(out, track, frames, skipped, pairing, options, zoom, [*notes, placed])
         meta = {
             "name": label,
             "candidate_size_px": proposer.candidate_size_px,
@@ -158,7 +158,7 @@ def _spec(track: LogTrack, how: str, options: ImportOptions, zoom: int) -> dict[
         "log": Path(track.source).name,
         "log_kind": track.kind,
         "time_source": how,
-        "time_offset_s": options.offset_s,
+        "time_offset_s": options.time_offset_s,  # as given: None when not
         **options.proposal.spec_json(zoom),
     }
 
@@ -168,25 +168,32 @@ def _report(
     track: LogTrack,
     frames: Sequence[Frame],
     skipped: Sequence[tuple[str, str]],
-    how: str,
+    pairing: Pairing,
     options: ImportOptions,
     zoom: int,
     notes: Sequence[str],
 ) -> ImportReport:
+    """What the import did: the time offset applied to the images' times is the camera
+    clock's found one where one was sought (:attr:`Pairing.found_offset_s`), else
+    ``--time-offset`` (0 when not given), and the report says which."""
+    offset, origin = options.offset_s, "not given" if options.time_offset_s is None else "given"
+    if pairing.found_offset_s is not None:
+        offset, origin = pairing.found_offset_s, "found"
     return ImportReport(
         dataset=str(out),
         source=Path(track.source).name,
         kind=track.kind,
         frames=len(frames),
         skipped=tuple(skipped),
-        time_source=how,
-        time_offset_s=options.offset_s,
+        time_source=pairing.how,
+        time_offset_s=offset,
         height_sources=_count(f.height_source for f in frames),
         attitude_assumed=tuple(i for i, f in enumerate(frames) if "attitude_assumed" in f.flags),
         height_assumed=tuple(i for i, f in enumerate(frames) if "height_assumed" in f.flags),
         gnss_degraded=tuple(i for i, f in enumerate(frames) if "gnss_degraded" in f.flags),
         zoom=zoom,
         notes=tuple(notes),
+        time_offset_origin=origin,
     )
 
 
