@@ -11,6 +11,7 @@ import dataclasses
 import json
 import shlex
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -71,14 +72,7 @@ def test_a_camera_clock_off_by_two_trigger_intervals_is_found_and_said(
     flight = tmp_path / "f"
     proc = c3("dataset", "import", photos, log, CAL, STORE, flight, "--json")
     assert proc.returncode == 0, proc.stderr[-2000:]
-    frames = load_dataset(flight).frames
-    assert [f.telemetry["source_image"] for f in frames] == [
-        f"DJI_{k:04d}.JPG" for k in (0, 1, 3, 4)
-    ]
-    for f, k in zip(frames, (0, 1, 3, 4), strict=True):
-        p = poses[k]
-        assert f.telemetry["time_s"] == pytest.approx(fl.BOOT_S + p.t_s, abs=1e-6)
-        assert (f.telemetry["lat"], f.telemetry["lon"]) == pytest.approx((p.lat, p.lon), abs=1e-7)
+    _on_their_own_poses(flight, poses, (0, 1, 3, 4))
     summary = json.loads(proc.stdout)
     assert summary["time_offset_s"] == pytest.approx(-4.0, abs=1e-3)  # applied, not 0
     assert summary["time_offset_origin"] == "found"
@@ -157,14 +151,7 @@ def test_a_lost_first_trigger_is_refused_as_a_tie_and_imports_with_a_time_offset
     ), said
     proc = c3("dataset", "import", photos, log, CAL, STORE, flight, "--time-offset", "0", "--json")
     assert proc.returncode == 0, proc.stderr[-2000:]
-    frames = load_dataset(flight).frames
-    assert [f.telemetry["source_image"] for f in frames] == [
-        f"DJI_{k:04d}.JPG" for k in (1, 2, 3, 4)
-    ]
-    for f, k in zip(frames, (1, 2, 3, 4), strict=True):
-        p = poses[k]
-        assert f.telemetry["time_s"] == pytest.approx(fl.BOOT_S + p.t_s, abs=1e-6)
-        assert (f.telemetry["lat"], f.telemetry["lon"]) == pytest.approx((p.lat, p.lon), abs=1e-7)
+    _on_their_own_poses(flight, poses, (1, 2, 3, 4))
     summary = json.loads(proc.stdout)
     assert "--time-offset +0 s as given" in summary["time_source"]
     assert summary["time_offset_s"] == 0.0 and summary["time_offset_origin"] == "given"
@@ -272,3 +259,13 @@ def test_the_fit_holds_on_a_long_flight_of_whole_second_times() -> None:
     assert fit is not None and -37.3 <= fit.offset_s < -36.3  # own - trigger in (36.3, 37.3]
     assert fit.paired == triggers.size
     assert fit.runner_up is not None and fit.runner_up[1] < fit.paired
+
+
+def _on_their_own_poses(flight: Path, poses: Sequence[fl.Pose], kept: Sequence[int]) -> None:
+    """``flight``'s frames are the photos ``kept``, each at its own pose's time and place."""
+    frames = load_dataset(flight).frames
+    assert [f.telemetry["source_image"] for f in frames] == [f"DJI_{k:04d}.JPG" for k in kept]
+    for f, k in zip(frames, kept, strict=True):
+        p = poses[k]
+        assert f.telemetry["time_s"] == pytest.approx(fl.BOOT_S + p.t_s, abs=1e-6)
+        assert (f.telemetry["lat"], f.telemetry["lon"]) == pytest.approx((p.lat, p.lon), abs=1e-7)

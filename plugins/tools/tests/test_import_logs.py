@@ -48,14 +48,6 @@ def c3(*args: str, engine_dir: Path | None = None) -> subprocess.CompletedProces
     return run_cli(*args, cwd=REPO, engine_dir=engine_dir)
 
 
-def _images(root: Path, poses: list[fl.Pose]) -> Path:
-    folder = root / "images"
-    folder.mkdir()
-    for i, p in enumerate(poses):
-        shutil.copyfile(p.image, folder / f"IMG_{i:04d}.jpg")
-    return folder
-
-
 def _refused(proc: subprocess.CompletedProcess[str], *needles: str) -> None:
     """Exit 2 with one error line naming each needle."""
     assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
@@ -95,7 +87,7 @@ def test_ulog_imports_replays_and_reports_error_against_gnss(
     poses: list[fl.Pose], engine_dir: Path, tmp_path: Path
 ) -> None:
     log = write_ulog(tmp_path / "flight.ulg", poses, flaws=("gnss_loss",))
-    images = _images(tmp_path, poses)
+    images = fl.pose_images(tmp_path, poses)
     flight = tmp_path / "flight"
     proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(flight))
     assert proc.returncode == 0, proc.stderr
@@ -121,7 +113,7 @@ def test_ulog_frames_without_attitude_are_imported_and_marked(
     poses: list[fl.Pose], tmp_path: Path
 ) -> None:
     log = write_ulog(tmp_path / "flight.ulg", poses)
-    images = _images(tmp_path, poses)
+    images = fl.pose_images(tmp_path, poses)
     flight = tmp_path / "flight"
     # one second after each trigger the attitude (one sample per frame) is 1 s away
     args = ["--time-offset", "1.0", "--max-gap", "0.5", "--json"]
@@ -154,7 +146,7 @@ def test_bad_ulog_is_refused_with_one_line(
     needles: tuple[str, ...],
 ) -> None:  # fmt: skip
     log = write_ulog(tmp_path / "flight.ulg", poses, flaws=flaws)
-    images = _images(tmp_path, poses)
+    images = fl.pose_images(tmp_path, poses)
     out = tmp_path / "flight"
     _refused(c3("dataset", "import", str(images), str(log), CAL, STORE, str(out), *extra), *needles)
     assert not out.exists()
@@ -182,7 +174,7 @@ def test_ardupilot_logs_import_and_replay(
 ) -> None:
     writer = write_tlog if kind == "tlog" else write_dataflash
     log = writer(tmp_path / f"flight.{kind}", poses)
-    images = _images(tmp_path, poses)
+    images = fl.pose_images(tmp_path, poses)
     flight = tmp_path / "flight"
     proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(flight), "--json")
     assert proc.returncode == 0, proc.stderr
@@ -345,7 +337,7 @@ def test_height_from_a_dem(poses: list[fl.Pose], tmp_path: Path) -> None:
         return path
 
     log = write_ulog(tmp_path / "flight.ulg", poses)
-    images = _images(tmp_path, poses)
+    images = fl.pose_images(tmp_path, poses)
     west, north = poses[0].lon - 0.015, poses[0].lat + 0.02
     here = dem(tmp_path / "dem.tif", west, north)
     flight = tmp_path / "flight"
@@ -391,7 +383,7 @@ def test_damaged_logs_are_refused_with_one_line(
 ) -> None:
     log = tmp_path / name
     log.write_bytes(np.random.default_rng(7).integers(0, 256, 4000, dtype=np.uint8).tobytes())
-    images = "-" if name.endswith(".mcap") else str(_images(tmp_path, poses))
+    images = "-" if name.endswith(".mcap") else str(fl.pose_images(tmp_path, poses))
     cal = "-" if name.endswith(".mcap") else CAL
     _refused(c3("dataset", "import", images, str(log), cal, STORE, str(tmp_path / "x")), needle)
 
@@ -533,7 +525,7 @@ def test_a_ulog_whose_definitions_are_zeroed_is_refused_as_such(
     data[16:end] = bytes(end - 16)
     log = tmp_path / "zeroed.ulg"
     log.write_bytes(bytes(data))
-    images, out = _images(tmp_path, poses), tmp_path / "x"
+    images, out = fl.pose_images(tmp_path, poses), tmp_path / "x"
     proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(out))
     _refused(
         proc,
@@ -571,7 +563,7 @@ def test_a_dataflash_log_cut_mid_message_says_so_in_the_record(
     whole = write_dataflash(tmp_path / "flight.bin", poses)
     log = tmp_path / "cut.bin"
     log.write_bytes(whole.read_bytes()[:-1])
-    images = _images(tmp_path, poses)
+    images = fl.pose_images(tmp_path, poses)
     args = ["dataset", "import", str(images), str(log), CAL, STORE]
     said = f"ends mid-message, cut short at byte {log.stat().st_size} in a CAM message from byte "
     _refused(c3(*args, str(tmp_path / "x")), "3 camera trigger(s) in the log", f"it {said}")
@@ -631,7 +623,13 @@ def test_a_log_imports_store_is_a_hard_link_to_the_users_store(
     log = write_ulog(tmp_path / "flight.ulg", poses)
     flight = tmp_path / "flight"
     proc = c3(
-        "dataset", "import", str(_images(tmp_path, poses)), str(log), CAL, str(store), str(flight)
+        "dataset",
+        "import",
+        str(fl.pose_images(tmp_path, poses)),
+        str(log),
+        CAL,
+        str(store),
+        str(flight),
     )
     assert proc.returncode == 0, proc.stderr
     assert (flight / "tiles.mbtiles").stat().st_ino == store.stat().st_ino

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import shutil
 import struct
 import subprocess
 from collections.abc import Sequence
@@ -43,14 +42,6 @@ Record = tuple[float, int, Any]
 @pytest.fixture(scope="module")
 def poses() -> list[fl.Pose]:
     return fl.flight_poses(DEMO, range(4))
-
-
-def _images(tmp_path: Path, poses: Sequence[fl.Pose]) -> Path:
-    images = tmp_path / "images"
-    images.mkdir()
-    for i, p in enumerate(poses):
-        shutil.copyfile(p.image, images / f"IMG_{i:04d}.jpg")
-    return images
 
 
 def _flight(poses: Sequence[fl.Pose], system: int = 1, flaws: Sequence[str] = ()) -> list[Record]:
@@ -153,7 +144,9 @@ def test_a_log_whose_positions_are_the_receiver_s_alone_is_imported_with_the_gro
     track = read_mavlink(path)
     assert track.position is None and track.home is None
     assert track.gnss is not None and len(track.gnss) == len(fl.dense_track(poses))
-    proc = _import(tmp_path, _images(tmp_path, poses), path, "--ground-elevation", str(fl.GROUND_M))
+    proc = _import(
+        tmp_path, fl.pose_images(tmp_path, poses), path, "--ground-elevation", str(fl.GROUND_M)
+    )
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["height_sources"] == {"altitude - ground elevation": 4}
     assert np.allclose(_placed(tmp_path / "flight"), _expected(poses), atol=1e-6)
@@ -222,7 +215,7 @@ def test_one_of_two_camera_vehicles_is_imported_by_mavlink_system_and_recorded(
     names no system (a DataFlash log, a PX4 ULog)."""
     east = [dataclasses.replace(p, lon=p.lon + 0.025) for p in poses]
     log = _tlog(tmp_path / "flight.tlog", _flight(poses) + _flight(east, system=2))
-    images = _images(tmp_path, poses)
+    images = fl.pose_images(tmp_path, poses)
     refused = _import(tmp_path, images, log)
     assert refused.returncode == 2 and "camera feedback from MAVLink systems 1, 2" in refused.stderr
     assert "give --mavlink-system N to read system N" in refused.stderr
@@ -253,7 +246,7 @@ def test_camera_feedback_received_twice_is_one_photo(poses: list[fl.Pose], tmp_p
     records = _flight(poses)
     again = [(t + 0.03, n, m) for t, n, m in records if m.get_type() == "CAMERA_FEEDBACK"]
     log = _tlog(tmp_path / "flight.tlog", records + again)
-    proc = _import(tmp_path, _images(tmp_path, poses), log)
+    proc = _import(tmp_path, fl.pose_images(tmp_path, poses), log)
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["time_source"] == "camera trigger (4 in the log, 4 image(s))"

@@ -16,6 +16,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +34,7 @@ __all__ = [
     "Pose",
     "dense_track",
     "flight_poses",
+    "pose_images",
     "pre_arm_track",
     "quaternion_wxyz",
 ]
@@ -130,3 +132,13 @@ def dense_track(
     last = poses[-1]
     out.append((last.t_s, last.lat, last.lon, last.alt_m))
     return out
+
+
+def pose_images(root: Path, poses: Sequence[Pose]) -> Path:
+    """``root/images`` holding each pose's image as ``IMG_0000.jpg``, ``IMG_0001.jpg``, ... in
+    order: the camera's photos of a flight written from ``poses``."""
+    folder = root / "images"
+    folder.mkdir()
+    for i, p in enumerate(poses):
+        shutil.copyfile(p.image, folder / f"IMG_{i:04d}.jpg")
+    return folder
