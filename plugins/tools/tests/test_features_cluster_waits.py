@@ -15,8 +15,6 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("distributed")
-
 STORE = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo" / "tiles.mbtiles"
 WORKERLESS_S = 3.0  # the bound the test builds with (a build's own: a minute)
 

@@ -28,8 +28,6 @@ from c3_matcher_tools.testing.flightlogs.dataflash import write_dataflash
 from c3_matcher_tools.testing.flightlogs.mavlink import _tlog_frames, _tlog_positions
 from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
-pytest.importorskip("pymavlink")
-
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
 STORE = str(DEMO / "tiles.mbtiles")

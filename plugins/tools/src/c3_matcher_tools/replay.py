@@ -9,8 +9,8 @@ read or decoded: the frame is recorded with the reason and the flight goes on), 
 scoring against ground truth and, for ``ok``, the MatchResult as ``c3-matcher match`` prints
 it), ``fdr.jsonl`` (the flight-data records), ``matcher.log`` (the JSON logs), ``report.json``,
 ``flight.geojson`` (truth and estimate: centres, tracks, footprints; QGIS opens it) and
-``report.html`` (the
-self-contained flight report, with the ``report`` extra: matplotlib), and first ``run.json``,
+``report.html`` (the self-contained flight report, with the ``report`` extra: matplotlib), and
+first ``run.json``,
 which marks the directory as a replay's. A replay replaces an earlier replay's output; an
 existing ``--out`` that is not empty and holds none (a flight-data log, a user's files, an
 eval's output) is refused. The results and reports are each replaced atomically; the FDR and

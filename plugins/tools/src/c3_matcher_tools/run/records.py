@@ -29,8 +29,8 @@ class FrameStatus(StrEnum):
     """Matched: the result's best candidate reached the inlier threshold."""
     INSUFFICIENT = "insufficient"
     """No fix (``InsufficientInliersError``): no candidate reached the threshold, or, the
-    frame's ``ambiguous`` set (``AmbiguousMatchError``), a rival candidate with nearly the best's
-    inliers placed the frame elsewhere."""
+    frame's ``ambiguous`` set (``AmbiguousMatchError``), a rival candidate with at least half the
+    best's inliers placed the frame elsewhere."""
     BACKBONE_ERROR = "backbone_error"
     """The matcher's backbone failed on the frame (``MatcherBackboneError``)."""
     UNREADABLE = "unreadable"
