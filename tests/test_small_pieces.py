@@ -1,8 +1,9 @@
-"""The tree stays in small pieces as it grows: no function over 60 lines (``def`` to its last
-line) in the core, the ground tools or any strategy plugin, no core module over 400 lines and no
-module of the ground tools or a plugin over 500 (a core module passed 400 unnoticed; the tools'
-long exporters and planners were split, then the flight renderer, the test log writers, the
-GeoTIFF grids and the HTML report)."""
+"""The tree stays in small pieces as it grows: every function under 60 lines (``def`` to its
+last line) in the core, the ground tools and every strategy plugin, no core module over 400
+lines and no module of the ground tools or a plugin over 500 (a core module passed 400
+unnoticed; the tools' long exporters and planners were split, then the flight renderer, the
+test log writers, the GeoTIFF grids and the HTML report; the command line's one function of
+exactly 60 lines passed a gate that counted 60 as under)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ REPO = Path(__file__).resolve().parents[1]
 CORE_SRC = REPO / "core" / "src"
 MAX_CORE_MODULE_LINES = 400
 MAX_PLUGIN_MODULE_LINES = 500
-MAX_FUNCTION_LINES = 60
+FUNCTION_LINES_UNDER = 60
 
 
 def _plugin_sources() -> list[Path]:
@@ -34,7 +35,7 @@ def _longer_than(paths: list[Path], max_lines: int) -> list[str]:
     ]
 
 
-def test_no_function_is_longer_than_60_lines() -> None:
+def test_every_function_is_under_60_lines() -> None:
     sources = _sources()
     assert len(sources) > 100
     long_functions = [
@@ -42,7 +43,7 @@ def test_no_function_is_longer_than_60_lines() -> None:
         for p in sources
         for node in ast.walk(ast.parse(p.read_text(encoding="utf-8")))
         if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
-        and (length := (node.end_lineno or node.lineno) - node.lineno + 1) > MAX_FUNCTION_LINES
+        and (length := (node.end_lineno or node.lineno) - node.lineno + 1) >= FUNCTION_LINES_UNDER
     ]
     assert long_functions == []
 

@@ -90,7 +90,7 @@ def test_the_composed_matcher_and_runtime_use_the_strategys_defaults(
     assert (ransac.refit_px, ransac.refit_floor) == (declared(strategy).refit_threshold_px, 60)
     root = compose_root(settings, {**helpers, "c13_fdr": InMemoryFdr()}, configure_logs=False)
     try:
-        pipeline = root.matcher.config.pipeline  # type: ignore[attr-defined]
+        pipeline = root.matcher.settings  # type: ignore[attr-defined]
         assert pipeline.photometric == declared(strategy).photometric
     finally:
         root.close()

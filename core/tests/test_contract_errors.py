@@ -25,7 +25,7 @@ from c3_matcher.errors import (
 from c3_matcher.fdr import InMemoryFdr, read_fdr
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.testing import ScriptedCandidate, ScriptedRig, make_rerank
-from c3_matcher_tools.run.inputs import demo_inputs
+from c3_matcher.testing.demo import demo_inputs
 
 S = ScriptedCandidate
 DEMO = Path(__file__).resolve().parents[2] / "data" / "demo"

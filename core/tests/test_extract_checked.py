@@ -23,7 +23,7 @@ from c3_matcher.probe import engine_startup_probe
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.stages.extract import checked_features
 from c3_matcher.testing import FakeClock, InMemoryFdr
-from c3_matcher_tools.run.inputs import demo_inputs
+from c3_matcher.testing.demo import demo_inputs
 
 from .test_contract_kit import OpenCvBackend
 
@@ -66,10 +66,10 @@ class Faulty:
 
 def _matcher(backend: Any, fdr: InMemoryFdr) -> PipelineMatcher:
     clock = FakeClock()
-    settings = PipelineSettings()
+    settings = PipelineSettings(tile_cache_size=3)
     health = RollingHealthWindow(clock, settings.min_inliers_threshold)
     ransac = OpenCvRansacFilter()
-    return PipelineMatcher(backend, ransac, fdr, health, clock, settings, tile_cache_size=3)
+    return PipelineMatcher(backend, ransac, fdr, health, clock, settings)
 
 
 def test_the_plain_backend_finds_the_true_tile() -> None:

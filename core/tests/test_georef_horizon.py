@@ -7,16 +7,14 @@ within the cone keeps exactly the footprint it always had.
 
 The maps are the true ones of a camera over flat ground (:func:`_true_map`), normalised as a fit
 leaves them (third coordinate 1 at px (0, 0), so the sign flips when that corner sees the sky),
-and refitted from the ground part of the frame as the matcher's inliers would give it."""
+and refitted from the ground part of the frame as the matcher's inliers would give it. The real
+path, a rendered frame matched by the engine: ``tests/test_georef_horizon_match.py``."""
 
 from __future__ import annotations
 
-import json
 import math
 import uuid
-from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -29,9 +27,6 @@ from c3_matcher.georef import (
     georeference_result,
     tile_px_to_lonlat,
 )
-from c3_matcher_tools.sim.orthophotos import load_orthophoto
-from c3_matcher_tools.sim.render import cut_tile, render_nav_frame
-from c3_matcher_tools.testing.cli import run_cli
 
 TILE_ID = TileId(21, 14.5955, 120.982)
 TILE_SIZE = (1400, 1400)
@@ -201,55 +196,6 @@ def test_a_map_that_is_not_a_finite_3x3_is_refused_by_name() -> None:
     hom[2, 0] = np.nan
     with pytest.raises(InvalidInputError, match="h_query_to_tile"):
         footprint_lonlat(hom, TILE_ID, TILE_SIZE, _calibration(), GSD_M)
-
-
-REPO = Path(__file__).resolve().parents[2]
-ORTHO = REPO / "data" / "imagery" / "open_orthophotos" / "5b90f92da0d7280005fab355_4310.tif"
-
-
-def test_match_puts_the_footprint_of_a_frame_seeing_the_sky_ahead_of_the_vehicle(
-    engine_dir: Path, tmp_path: Path
-) -> None:
-    """The real path: a frame rendered over a real orthophoto 62 deg nose up (its top edge
-    1.7 deg above the horizon) matched by the real engine against a tile of the ground it sees.
-    The match is right; its footprint lay up to a kilometre behind the vehicle."""
-    photo = load_orthophoto(ORTHO)
-    assert photo.gsd_m is not None
-    calibration = _calibration()
-    attitude = (0.0, 62.0, 30.0)
-    nadir_px = (700.0, 1500.0)
-    frame = render_nav_frame(
-        photo.rgb, photo.gsd_m, nadir_px, HEIGHT_M, Attitude.from_degrees(*attitude), calibration
-    )
-    look = frame.undistorted_to_ortho([[319.5, 400.0]])[0]
-    tile = cut_tile(
-        photo.rgb, (round(look[0]) - 511, round(look[1]) - 511), (1024, 1024), photo.gsd_m
-    )
-    paths = {name: tmp_path / f"{name}.png" for name in ("query", "tile")}
-    cv2.imwrite(str(paths["query"]), frame.image[:, :, ::-1])
-    cv2.imwrite(str(paths["tile"]), tile.image[:, :, ::-1])
-    (tmp_path / "cal.json").write_text(
-        json.dumps({"K": calibration.K.tolist(), "distortion": [0.0] * 5, "image_size": [640, 480]})
-    )
-    proc = run_cli(
-        *("match", "--query", paths["query"], "--tile", paths["tile"]),
-        *("--tile-gsd", repr(photo.gsd_m), "--tile-id", ",".join(map(str, TILE_ID.as_list()))),
-        *("--calibration", tmp_path / "cal.json", "--no-correspondences"),
-        *("--attitude", ",".join(map(str, attitude)), "--height", str(HEIGHT_M)),
-        cwd=tmp_path,
-        engine_dir=engine_dir,
-        settings={"C3_MATCHER_FDR__PATH": str(tmp_path / "fdr.jsonl")},
-    )
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    out = json.loads(proc.stdout)
-    ring = np.asarray(out["footprint"], np.float64)
-    nadir_tile = tile.ortho_to_tile([nadir_px])
-    (lon_n, lat_n) = tile_px_to_lonlat(TILE_ID, tile.size, nadir_tile, photo.gsd_m)[0]
-    north = (ring[:, 1] - lat_n) * M_PER_DEG
-    east = (ring[:, 0] - lon_n) * M_PER_DEG * math.cos(math.radians(lat_n))
-    along = north * math.cos(math.radians(30.0)) + east * math.sin(math.radians(30.0))
-    assert along.min() > 0.0
-    assert np.hypot(north, east).max() < HEIGHT_M * math.tan(math.radians(76.0))
 
 
 def _pitched_map(pitch_deg: float, calibration: CameraCalibration) -> np.ndarray:

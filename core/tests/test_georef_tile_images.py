@@ -20,10 +20,10 @@ import pytest
 
 from c3_matcher.dto import CameraCalibration, TileId
 from c3_matcher.georef import footprint_lonlat, haversine_m, tile_px_to_lonlat
+from c3_matcher.testing.cli import run_cli
 from c3_matcher.tilestore.geo import lonlat_to_world_px, world_px_to_lonlat
 from c3_matcher.tilestore.handles import mosaic_origin
 from c3_matcher.tilestore.mbtiles import MBTilesStore
-from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 FLIGHT = REPO / "data" / "flights" / "naip_demo"

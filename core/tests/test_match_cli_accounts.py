@@ -11,7 +11,7 @@ import subprocess
 from pathlib import Path
 from typing import Any
 
-from c3_matcher_tools.testing.cli import run_cli
+from c3_matcher.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 FLIGHT = REPO / "data" / "flights" / "naip_demo"

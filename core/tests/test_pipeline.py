@@ -286,8 +286,7 @@ def test_tile_cache_reuses_features_and_gives_identical_results(fdr, logs):
         fdr,
         rig.health,
         rig.clock,
-        rig.settings,
-        tile_cache_size=3,
+        dataclasses.replace(rig.settings, tile_cache_size=3),
     )
     first = rig.match()
     calls_after_first = len(rig.inference.calls)

@@ -17,9 +17,9 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.pipeline import PipelineSettings
 from c3_matcher.prepared import PreparedImage, correspondences
 from c3_matcher.ransac import OpenCvRansacFilter
+from c3_matcher.testing.demo import demo_inputs
 from c3_matcher.testing.fakes import ScriptedCandidate, make_frame, make_rerank, scripted_pipeline
 from c3_matcher.testing.scripted import MarkedRansac, ScriptedBackend
-from c3_matcher_tools.run.inputs import demo_inputs
 
 from .test_contract_kit import OpenCvBackend
 from .test_probe_moved_copy import TileSideNearest

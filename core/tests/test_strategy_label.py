@@ -21,8 +21,8 @@ from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.plugins.manager import PluginSource
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.strategy import backend_strategy_factory
+from c3_matcher.testing.demo import demo_inputs
 from c3_matcher.testing.hosts import RESEARCH_PROFILE, fake_helpers
-from c3_matcher_tools.run.inputs import demo_inputs
 
 from .test_contract_kit import OpenCvBackend
 

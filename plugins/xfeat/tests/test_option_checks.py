@@ -11,6 +11,7 @@ from pydantic import ValidationError
 
 from c3_matcher.compose import build_default_helpers
 from c3_matcher.config import C3Settings
+from c3_matcher.engines.store import EngineStore
 from c3_matcher.testing.strategy_kit import matcher_over_helpers
 from c3_matcher_xfeat import XFeatConfig, XFeatMatcher, XFeatOptions
 
@@ -41,7 +42,9 @@ def test_a_keypoint_budget_above_the_engines_top_k_is_cut_to_it_and_said(
     said: list[dict[str, Any]] = []
     sink = logger.add(lambda m: said.append(dict(m.record["extra"])), level="WARNING")
     try:
-        config = XFeatConfig.from_c3_settings(settings, XFeatOptions(matcher=matcher))
+        config = XFeatConfig.from_c3_settings(
+            settings, XFeatOptions(matcher=matcher), EngineStore(engine_dir)
+        )
         built = matcher_over_helpers(XFeatMatcher, config, build_default_helpers(settings))
     finally:
         logger.remove(sink)

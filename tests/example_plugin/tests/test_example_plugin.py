@@ -34,15 +34,16 @@ def test_the_keypoint_budget_is_the_options_then_the_configurations_then_512(
     from c3_matcher.commands import with_keypoint_budget
     from c3_matcher_example_fast_disk.plugin import Options, make_config
 
+    engines = c3.EngineStore(engine_dir)
     settings = c3.C3Settings(engines={"directory": engine_dir})
-    assert make_config(settings, Options()).max_keypoints == 512
+    assert make_config(settings, Options(), engines).max_keypoints == 512
     configured = c3.C3Settings(
         engines={"directory": engine_dir},
         matcher={"max_keypoints": 1024, "options": {"example_fast_disk": {"max_keypoints": 256}}},
     )
     table = Options(**configured.matcher.options["example_fast_disk"])
-    assert make_config(configured, table).max_keypoints == 256
-    assert make_config(configured, Options()).max_keypoints == 1024
+    assert make_config(configured, table, engines).max_keypoints == 256
+    assert make_config(configured, Options(), engines).max_keypoints == 1024
     run = with_keypoint_budget(configured, 64)
     cleared = Options(**run.matcher.options["example_fast_disk"])
-    assert make_config(run, cleared).max_keypoints == 64
+    assert make_config(run, cleared, engines).max_keypoints == 64

@@ -72,12 +72,7 @@ class RefinePass:
             first.match_set
         ):
             return list(survivors), replace(record, reason="ranks no better than the first pass")
-        match_set = replace(
-            verdict.match_set,
-            inlier_correspondences=scale.query.image.in_original_px(
-                verdict.match_set.inlier_correspondences
-            ),
-        )
+        match_set = verdict.in_original_px(scale.query.image).match_set
         second = replace(
             first, match_set=match_set, homography=verdict.homography, model=verdict.model
         )

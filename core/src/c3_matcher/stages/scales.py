@@ -1,6 +1,7 @@
 """Steps 1-2 for a frame's candidates: the query prepared and extracted once per GSD of the
 candidates (:func:`~c3_matcher.stages.query.gsd_groups`; one, when they share a zoom), each
-with its own verifier, whose geometric prior is that query's.
+with its own verifier, whose geometric prior is that query's (built here from the frame's
+:class:`~c3_matcher.stages.verify.VerifierSettings`).
 
 A GSD the frame cannot be prepared at (one a tile's GSD mistyped in other units asks for)
 fails only its own candidates, dropped with the others going on; every GSD failing is the
@@ -8,15 +9,17 @@ query's failure, as a frame that cannot be decoded is."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
+from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration, NavCameraFrame, RerankCandidate
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
+from c3_matcher.stages.outcomes import Survivor
 from c3_matcher.stages.query import Query, gsd_groups, prepare_query
-from c3_matcher.stages.verify import Verifier
+from c3_matcher.stages.verify import Verifier, VerifierSettings
 
 __all__ = ["FrameScales", "QueryScale", "prepare_scales"]
 
@@ -54,6 +57,12 @@ class FrameScales:
         height known)."""
         return self.scales[0].verifier.prior is not None
 
+    def query_to_tile(self, survivor: Survivor) -> F64 | None:
+        """``survivor``'s model from UNDISTORTED px of the query it was matched against
+        (``PreparedImage.from_undistorted``; None without a model or a rectification)."""
+        image = self.of(survivor.input_index).query.image
+        return image.from_undistorted(survivor.homography)
+
 
 def prepare_scales(
     pre: FramePreprocessor,
@@ -63,11 +72,12 @@ def prepare_scales(
     candidates: Sequence[RerankCandidate],
     *,
     rotation_search: bool,
-    verifier: Callable[[Query], Verifier],
+    verification: VerifierSettings,
     timings: dict[str, float],
 ) -> FrameScales:
-    """The frame prepared, extracted (``prepare_query``) and given its ``verifier`` once per
-    GSD of ``candidates``; raises the first GSD's exception when none could be prepared."""
+    """The frame prepared, extracted (``prepare_query``) and given its verifier (from
+    ``verification``, with that query's prior) once per GSD of ``candidates``; raises the
+    first GSD's exception when none could be prepared."""
     scales: list[QueryScale] = []
     failed: dict[int, Exception] = {}
     for group in gsd_groups(candidates):
@@ -84,7 +94,7 @@ def prepare_scales(
         except Exception as exc:
             failed |= dict.fromkeys(group.members, exc)
             continue
-        scales.append(QueryScale(query, verifier(query), group.members))
+        scales.append(QueryScale(query, verification.verifier(query.image), group.members))
     if not scales:
         raise failed[min(failed)]
     return FrameScales(tuple(scales), MappingProxyType(failed))

@@ -7,7 +7,9 @@ by the similarity the prior implies when that one passes (``model`` ``"similarit
 the candidate is refused on geometry. Without a prior: RANSAC alone. Under rotation search the
 candidate keeps the query turn whose result ranks best (first turn on a tie). Each candidate is
 matched against the query scaled to its own GSD and verified with that query's prior
-(:mod:`~c3_matcher.stages.scales`)."""
+(:mod:`~c3_matcher.stages.scales`, which builds each query's :class:`Verifier` from the
+frame's :class:`VerifierSettings`); its inliers come back in ORIGINAL frame px
+(:func:`candidate_verdict`)."""
 
 from __future__ import annotations
 
@@ -31,17 +33,26 @@ from c3_matcher.ransac import (
 )
 from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.outcomes import GeometryRefusal, TileFeatures
-from c3_matcher.stages.query import QueryView
+from c3_matcher.stages.query import Query, QueryView
 
-__all__ = ["SpreadCheck", "Verdict", "Verifier", "best_turn", "frame_prior"]
+__all__ = [
+    "SpreadCheck",
+    "Verdict",
+    "Verifier",
+    "VerifierSettings",
+    "best_turn",
+    "candidate_verdict",
+    "frame_prior",
+]
 
 
 @dataclass(frozen=True)
 class Verdict:
     """A candidate matched against one query view: what RANSAC (and the prior) made of it.
-    ``match_set`` query points are WORKING px of the unturned query; ``homography`` maps them
-    to tile px (the prior's similarity when ``model`` is ``"similarity"``); ``check`` is the
-    prior's geometry check (None without a prior); ``raw_matches`` the matches before RANSAC."""
+    ``match_set`` query points are WORKING px of the unturned query (ORIGINAL frame px once
+    :meth:`in_original_px`); ``homography`` maps WORKING px to tile px (the prior's similarity
+    when ``model`` is ``"similarity"``); ``check`` is the prior's geometry check (None without
+    a prior); ``raw_matches`` the matches before RANSAC."""
 
     rotation_deg: int
     match_set: CandidateMatchSet
@@ -60,6 +71,12 @@ class Verdict:
         refuse first (there is no prior without attitude, so in practice never in play), then
         the pipeline's own ranking rule (inliers descending, residual ascending)."""
         return self.refused, ranking_key(self.match_set)
+
+    def in_original_px(self, query: PreparedImage) -> Verdict:
+        """This verdict with its inliers' query points moved from WORKING px of ``query`` (the
+        image it was matched against) to ORIGINAL frame px, as a ``Survivor`` holds them."""
+        rows = query.in_original_px(self.match_set.inlier_correspondences)
+        return replace(self, match_set=replace(self.match_set, inlier_correspondences=rows))
 
     def refusal(self, candidate_index: int, rotation_search: bool) -> GeometryRefusal:
         """The refusal on geometry of a refused verdict, as the records name it (its turn only
@@ -122,6 +139,23 @@ def frame_prior(
     w, h = query.working_size
     canvas = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
     return GeometricPrior(tolerances, query.nadir_working_px, canvas)
+
+
+@dataclass(frozen=True)
+class VerifierSettings:
+    """What each query's :class:`Verifier` is built from (the pipeline's, fixed for its life):
+    the shared ``ransac`` filter at ``threshold_px``, and whether the geometric prior is on
+    (``geometric_prior``) with its ``prior_tolerances``."""
+
+    ransac: RansacFilter
+    threshold_px: float
+    geometric_prior: bool
+    prior_tolerances: PriorTolerances
+
+    def verifier(self, query: PreparedImage) -> Verifier:
+        """RANSAC and ``query``'s geometric prior (None without one: ``frame_prior``)."""
+        prior = frame_prior(query, self.geometric_prior, self.prior_tolerances)
+        return Verifier(self.ransac, self.threshold_px, prior)
 
 
 @dataclass(frozen=True)
@@ -204,3 +238,21 @@ def best_turn(
             chosen = verdict
     assert chosen is not None  # views is never empty
     return chosen
+
+
+def candidate_verdict(
+    backend: FeatureBackend,
+    verifier: Verifier,
+    query: Query,
+    tile_id: Any,
+    tile: TileFeatures,
+    timings: dict[str, float],
+) -> Verdict:
+    """The candidate's verdict against ``query`` (:func:`best_turn` over its views) with its
+    inliers' query points in ORIGINAL frame px; a point the lens model cannot map back fails
+    the ``ransac`` phase (``CandidateStepError``), as RANSAC failing does."""
+    verdict = best_turn(backend, verifier, query.views, tile_id, tile, timings)
+    if verdict.match_set.inlier_count == 0:  # no point to move
+        return verdict
+    with failing_as("ransac", tile.source), timed(timings, "ransac"):
+        return verdict.in_original_px(query.image)

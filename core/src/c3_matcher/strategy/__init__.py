@@ -9,9 +9,12 @@ strategy's ``create`` from its matcher class and config. ``engine_startup_probe`
 engine-output assertion that fires at start-up; ``compose_root`` runs it on
 every strategy's backend.
 
+``pipeline_matcher`` is the one way a builder makes the per-frame loop, from a backend, what the
+loop takes from ``[matcher]`` (``PipelineSettings``) and the shared helpers (``PipelineHelpers``).
+
 The pieces live in ``config`` (the configs and the thresholds they carry), ``pairs`` (pair
-matchers), ``backend`` (``ExtractorBackend``), ``matcher`` (``ExtractorMatcher``) and
-``factories`` (the strategies' ``create``); import them from here.
+matchers), ``backend`` (``ExtractorBackend``), ``matcher`` (``pipeline_matcher``,
+``ExtractorMatcher``) and ``factories`` (the strategies' ``create``); import them from here.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from c3_matcher.strategy.config import (
     ExtractorStrategyConfig,
 )
 from c3_matcher.strategy.factories import backend_strategy_factory, strategy_factory
-from c3_matcher.strategy.matcher import ExtractorMatcher
+from c3_matcher.strategy.matcher import ExtractorMatcher, PipelineHelpers, pipeline_matcher
 from c3_matcher.strategy.pairs import LightGluePairMatcher, PairMatcher, match_features
 
 __all__ = [
@@ -35,9 +38,11 @@ __all__ = [
     "ExtractorStrategyConfig",
     "LightGluePairMatcher",
     "PairMatcher",
+    "PipelineHelpers",
     "backend_strategy_factory",
     "engine_startup_probe",
     "match_features",
+    "pipeline_matcher",
     "strategy_factory",
     "textured_probe",
 ]

@@ -24,7 +24,8 @@ DEFAULT_MAX_KEYPOINTS = 2048  # upstream LightGlue convention
 class ExtractorLightGlueConfig:
     """What an extractor + LightGlue strategy needs (built from ``C3Settings`` by ``create``).
 
-    Engine paths are files in the engine directory; image and keypoint rules are in px.
+    Engine paths are files in the engine directory; image and keypoint rules are in px;
+    ``pipeline`` is what the per-frame loop takes from ``[matcher]``.
     """
 
     label: str
@@ -35,7 +36,6 @@ class ExtractorLightGlueConfig:
     size_multiple: int
     max_long_side: int = matcher_default("max_long_side")
     max_keypoints: int = DEFAULT_MAX_KEYPOINTS
-    tile_cache_size: int = matcher_default("tile_cache_size")
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)  # from [matcher]
 
     match_phase = "lightglue_match"
@@ -65,27 +65,29 @@ class ExtractorLightGlueConfig:
         size_multiple: int,
         **overrides: Any,
     ) -> Self:
-        """From ``[matcher]``; ``overrides`` (e.g. a plugin's ``max_keypoints``) replace fields."""
+        """From ``settings`` as composed for the strategy: image rule, keypoint budget and the
+        loop's settings from ``[matcher]``; ``overrides`` (e.g. a plugin's ``max_keypoints``)
+        replace fields."""
         m = settings.matcher
         config = cls(
-            label,
-            feature_type,
-            extract_phase,
-            extractor_engine_path,
-            lightglue_engine_path,
-            size_multiple,
-            m.max_long_side,
-            m.max_keypoints or DEFAULT_MAX_KEYPOINTS,
-            m.tile_cache_size,
-            PipelineSettings.from_settings(m),
+            label=label,
+            feature_type=feature_type,
+            extract_phase=extract_phase,
+            extractor_engine_path=extractor_engine_path,
+            lightglue_engine_path=lightglue_engine_path,
+            size_multiple=size_multiple,
+            max_long_side=m.max_long_side,
+            max_keypoints=m.max_keypoints or DEFAULT_MAX_KEYPOINTS,
+            pipeline=PipelineSettings.from_settings(m),
         )
         return dataclasses.replace(config, **overrides) if overrides else config
 
 
 class ExtractorStrategyConfig(Protocol):
     """What ``ExtractorMatcher`` needs from a strategy's config (``ExtractorLightGlueConfig``,
-    XFeat's config): labels, image rule, keypoint budget, engine files and the per-frame
-    settings (``pipeline``: thresholds, stored features, the prior; from ``[matcher]``)."""
+    XFeat's config): labels, image rule, keypoint budget, engine files and what the per-frame
+    loop takes from ``[matcher]`` (``pipeline``: thresholds, stored features, the prior, the
+    tile cache)."""
 
     @property
     def label(self) -> str: ...
@@ -101,8 +103,6 @@ class ExtractorStrategyConfig(Protocol):
     def extractor_engine_path(self) -> Path: ...
     @property
     def pipeline(self) -> PipelineSettings: ...
-    @property
-    def tile_cache_size(self) -> int: ...
     def matcher_engines(self) -> Mapping[str, Path]:
         """Role -> file of the engines besides the extractor (provenance)."""
         ...

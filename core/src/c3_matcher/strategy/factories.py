@@ -6,7 +6,11 @@ Either ``create`` takes its shared helpers by name (``StrategyHelpers``, as ``co
 hands them) or by position in the specification's order, ``create(config, lightglue_runtime,
 ransac_filter, inference_runtime, health_window)``, then the FDR client and the clock it also
 takes (:data:`HELPER_ORDER`). A helper missing, given twice or unknown is a ``TypeError`` that
-names it."""
+names it.
+
+The ``config`` a ``create`` gets is the settings ``compose_root`` composed for its strategy (the
+strategy's own defaults applied where the configuration leaves a setting unset:
+``compose.strategy_settings``); neither factory applies them again."""
 
 from __future__ import annotations
 
@@ -16,12 +20,13 @@ from typing import Any
 from pydantic import BaseModel
 
 from c3_matcher.config import C3Settings
-from c3_matcher.pipeline import FeatureBackend, PipelineMatcher, PipelineSettings
+from c3_matcher.engines.store import EngineStore
+from c3_matcher.pipeline import FeatureBackend, PipelineSettings
 from c3_matcher.plugins.types import StrategyFactory
 from c3_matcher.probe import check_members
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.strategy.config import ExtractorStrategyConfig
-from c3_matcher.strategy.matcher import ExtractorMatcher
+from c3_matcher.strategy.matcher import ExtractorMatcher, PipelineHelpers, pipeline_matcher
 
 HELPER_ORDER = (
     "lightglue_runtime",
@@ -66,12 +71,15 @@ def _validated(options_model: type[BaseModel] | None, options: Any) -> Any:
 
 def strategy_factory(
     matcher_class: type[ExtractorMatcher],
-    make_config: Callable[[C3Settings, Any], ExtractorStrategyConfig],
+    make_config: Callable[[C3Settings, Any, EngineStore], ExtractorStrategyConfig],
     options_model: type[BaseModel] | None = None,
 ) -> StrategyFactory:
-    """A strategy's ``create(config, *helpers, options, **helpers)`` from two
-    facts: its matcher class and how its config is made from ``C3Settings`` and its validated
-    options (a mapping is validated with ``options_model`` here; None means its defaults)."""
+    """A strategy's ``create(config, *helpers, options, **helpers)`` from two facts: its
+    matcher class and how its config is made, ``make_config(settings, options, engines)``:
+    from the composed settings, its validated options (a mapping is validated with
+    ``options_model`` here; None means its defaults) and the engine directory
+    (``[engines] directory``, opened here once: ``engines.require_spec`` gives an engine's
+    file). The per-frame loop's settings come from ``[matcher]`` (``PipelineSettings``)."""
 
     def create(
         config: C3Settings, *given: Any, options: Any = None, **named: Any
@@ -79,13 +87,14 @@ def strategy_factory(
         """``create``: resolve the strategy's engines, load them now (start-up) and
         return its wired matcher."""
         helpers = _helpers(given, named, _EXTRACTOR_NEEDS)
+        engines = EngineStore(config.engines.directory)
         return matcher_class(
             helpers["inference_runtime"],
             helpers["lightglue_runtime"],
             helpers["ransac_filter"],
             helpers["fdr_client"],
             helpers["health_window"],
-            make_config(config, _validated(options_model, options)),
+            make_config(config, _validated(options_model, options), engines),
             helpers["clock"],
         )
 
@@ -110,14 +119,7 @@ def backend_strategy_factory(
         helpers = _helpers(given, named, _BACKEND_NEEDS)
         backend = make_backend(config, _validated(options_model, options))
         check_members(backend)  # None or another object: said as such, before it is used
-        return PipelineMatcher(
-            backend,
-            helpers["ransac_filter"],
-            helpers["fdr_client"],
-            helpers["health_window"],
-            helpers["clock"],
-            PipelineSettings.from_settings(config.matcher),
-            tile_cache_size=config.matcher.tile_cache_size,
-        )
+        loop = PipelineSettings.from_settings(config.matcher)
+        return pipeline_matcher(backend, loop, PipelineHelpers.from_named(helpers))
 
     return create

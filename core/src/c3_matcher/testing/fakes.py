@@ -12,6 +12,7 @@ probe the way a real strategy does.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import uuid
 from collections.abc import Callable, Mapping, Sequence
@@ -37,7 +38,7 @@ from c3_matcher.features import Features, PairSide, RawMatches
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.prepared import InputRule, PreparedImage
-from c3_matcher.strategy.pairs import match_features
+from c3_matcher.strategy import PipelineHelpers, match_features, pipeline_matcher
 from c3_matcher.tiles import BytesTileHandle
 
 __all__ = [
@@ -351,10 +352,11 @@ def scripted_pipeline(
     health: RollingHealthWindow | None = None,
 ) -> PipelineMatcher:
     """A :class:`PipelineMatcher` over ``backend`` and ``ransac`` with ``clock`` (a new fake
-    clock by default) and ``health`` (a new window on that clock by default)."""
+    clock by default) and ``health`` (a new window on that clock by default), no tile cache."""
     clock = clock or FakeClock()
     health = health or RollingHealthWindow(clock, settings.min_inliers_threshold)
-    return PipelineMatcher(backend, ransac, fdr, health, clock, settings)
+    loop = dataclasses.replace(settings, tile_cache_size=0)
+    return pipeline_matcher(backend, loop, PipelineHelpers(ransac, fdr, health, clock))
 
 
 class ScriptedRig:

@@ -12,6 +12,7 @@ from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.plugins import PluginHost, StrategySpec, hookimpl
 from c3_matcher.plugins.manager import PluginSource
 from c3_matcher.profiles import BuildProfile
+from c3_matcher.strategy import PipelineHelpers, pipeline_matcher
 from c3_matcher.testing.fakes import (
     FakeBackend,
     FakeInferenceRuntime,
@@ -49,18 +50,11 @@ def fake_helpers(script: Sequence[ScriptedCandidate] = ()) -> dict[str, Any]:
 
 
 def pipeline_strategy(backend_type: type[FakeBackend] = FakeBackend) -> Callable[..., Any]:
-    """A strategy factory: a :class:`PipelineMatcher` with default settings over a
-    ``backend_type`` built on the composed runtimes."""
+    """A strategy factory: a :class:`PipelineMatcher` with default settings and no tile cache
+    over a ``backend_type`` built on the composed runtimes."""
 
     def create(**kw: Any) -> PipelineMatcher:
         backend = backend_type(kw["inference_runtime"], kw["lightglue_runtime"])
-        return PipelineMatcher(
-            backend,
-            kw["ransac_filter"],
-            kw["fdr_client"],
-            kw["health_window"],
-            kw["clock"],
-            PipelineSettings(),
-        )
+        return pipeline_matcher(backend, PipelineSettings(), PipelineHelpers.from_named(kw))
 
     return create

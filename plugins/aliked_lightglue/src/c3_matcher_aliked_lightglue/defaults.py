@@ -1,6 +1,7 @@
 """The ``aliked_lightglue`` strategy's own defaults for the settings a configuration leaves unset,
 chosen by measurement (docs/precision.md, "ALIKED + LightGlue"). The one place they are declared:
-the plugin's ``StrategySpec`` and its config builder both read ``DEFAULTS``.
+the plugin's ``StrategySpec`` reads ``DEFAULTS``, and ``compose_root`` applies them once,
+before the strategy's config is made from the settings.
 
 - ``filter_threshold = 0.1`` (upstream): 0.01 gained cross-season frames (naip_cross_date
   9 -> 11/27) and lost precision on every flight measured (naip_demo IT-03 p95 1.13 -> 1.16 px;

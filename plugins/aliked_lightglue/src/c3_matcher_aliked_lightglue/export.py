@@ -74,6 +74,7 @@ from c3_matcher_tools.engines.export.extractor import (
     ExtractorCase,
     KeypointSet,
     export_and_verify_extractor,
+    extractor_exporter,
     strict_maxima_candidates,
     verification_inputs,
 )
@@ -391,11 +392,10 @@ def _cases(image: VerificationImage) -> list[ExtractorCase]:
     ]
 
 
-def export_aliked(request: ExportRequest) -> ExportReport:
+@extractor_exporter
+def export_aliked(request: ExportRequest, top_k: int) -> ExportReport:
     """Export one ALIKED variant and verify it against kornia's ALIKED (same weights, top-K
     mode) on real imagery at every ``ALIKED_VERIFICATION_SIZES`` plus one masked input."""
-    torch.set_grad_enabled(False)
-    top_k = int(request.spec.option("top_k"))
     model_name = str(request.spec.option("model_name"))
     reference = load_aliked_reference(request.weights_path, model_name, top_k)
     return export_and_verify_extractor(

@@ -14,10 +14,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict
 
-from c3_matcher.config import C3Settings, with_strategy_defaults
+from c3_matcher.config import C3Settings
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
-from c3_matcher_aliked_lightglue.defaults import DEFAULTS
 from c3_matcher_aliked_lightglue.engines import (
     ALIKED_SIZE_MULTIPLE,
     ALIKED_SPECS,
@@ -56,17 +55,13 @@ class AlikedLightGlueConfig(ExtractorLightGlueConfig):
 
     @classmethod
     def from_c3_settings(
-        cls,
-        settings: C3Settings,
-        options: AlikedLightGlueOptions | None = None,
-        store: EngineStore | None = None,
+        cls, settings: C3Settings, options: AlikedLightGlueOptions | None, engines: EngineStore
     ) -> AlikedLightGlueConfig:
-        """Engine paths from the engine directory (``EngineError`` naming the build command if
-        one is missing) for the options' variant, thresholds and image rules from
-        ``[matcher]``."""
-        settings = with_strategy_defaults(settings, DEFAULTS, STRATEGY)
+        """Engine paths from ``engines`` (``EngineError`` naming the build command if one is
+        missing) for the options' variant (None: the default), image rules and the loop's
+        settings from ``settings`` as composed for the strategy
+        (``ExtractorLightGlueConfig.from_settings``)."""
         variant = (options or AlikedLightGlueOptions()).variant
-        engines = store or EngineStore(settings.engines.directory)
         return cls.from_settings(
             settings,
             label=STRATEGY,

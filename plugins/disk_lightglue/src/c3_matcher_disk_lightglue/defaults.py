@@ -1,6 +1,7 @@
 """The ``disk_lightglue`` strategy's own defaults for the settings a configuration leaves unset,
 chosen by measurement (docs/precision.md, "DISK + LightGlue"). The one place they are declared:
-the plugin's ``StrategySpec`` and its config builder both read ``DEFAULTS``.
+the plugin's ``StrategySpec`` reads ``DEFAULTS``, and ``compose_root`` applies them once,
+before the strategy's config is made from the settings.
 
 - ``photometric = "none"`` and ``filter_threshold = 0.1`` (upstream): CLAHE with threshold 0.01
   added cross-season fixes (naip_cross_date 11 -> 14/27, naip_s2010_f2020 9 -> 13/18) and lost

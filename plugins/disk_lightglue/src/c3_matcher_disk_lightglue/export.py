@@ -30,7 +30,11 @@ from c3_matcher_disk_lightglue.engines import (
     LIGHTGLUE_DISK_SPEC,
 )
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest
-from c3_matcher_tools.engines.export.extractor import KeypointSet, export_and_verify_extractor
+from c3_matcher_tools.engines.export.extractor import (
+    KeypointSet,
+    export_and_verify_extractor,
+    extractor_exporter,
+)
 from c3_matcher_tools.engines.export.lightglue_steps import lightglue_exporters
 from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
 
@@ -78,14 +82,13 @@ def build_disk_export_module(reference: Any, top_k: int = DISK_TOP_K) -> Any:
     return DiskForExport(unet, top_k, reference.desc_dim).eval()
 
 
-def export_disk(request: ExportRequest) -> ExportReport:
+@extractor_exporter
+def export_disk(request: ExportRequest, top_k: int) -> ExportReport:
     """Export DISK and verify it against kornia's DISK (same weights) on real imagery at every
     ``DISK_VERIFICATION_SIZES``: identical keypoint sets, scores and descriptors within
     ``DISK_TOLERANCES``."""
     import torch
 
-    torch.set_grad_enabled(False)
-    top_k = int(request.spec.option("top_k"))
     reference = load_disk_reference(request.weights_path)
 
     def reference_set(feeds: Mapping[str, Any], _case: Any) -> KeypointSet:

@@ -9,10 +9,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from c3_matcher.config import C3Settings, with_strategy_defaults
+from c3_matcher.config import C3Settings
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.strategy import ExtractorLightGlueConfig, ExtractorMatcher, strategy_factory
-from c3_matcher_disk_lightglue.defaults import DEFAULTS
 from c3_matcher_disk_lightglue.engines import DISK_SIZE_MULTIPLE, DISK_SPEC, LIGHTGLUE_DISK_SPEC
 
 __all__ = [
@@ -31,13 +30,10 @@ class DiskLightGlueConfig(ExtractorLightGlueConfig):
     """``MatcherConfig`` for DISK + LightGlue."""
 
     @classmethod
-    def from_c3_settings(
-        cls, settings: C3Settings, store: EngineStore | None = None
-    ) -> DiskLightGlueConfig:
-        """Engine paths from the engine directory (``EngineError`` naming the build command if
-        one is missing), thresholds and image rules from ``[matcher]``."""
-        settings = with_strategy_defaults(settings, DEFAULTS, STRATEGY)
-        engines = store or EngineStore(settings.engines.directory)
+    def from_c3_settings(cls, settings: C3Settings, engines: EngineStore) -> DiskLightGlueConfig:
+        """Engine paths from ``engines`` (``EngineError`` naming the build command if one is
+        missing), image rules and the loop's settings from ``settings`` as composed for the
+        strategy (``ExtractorLightGlueConfig.from_settings``)."""
         return cls.from_settings(
             settings,
             label=STRATEGY,
@@ -59,7 +55,8 @@ class DiskLightGlueMatcher(ExtractorMatcher):
 
 
 create = strategy_factory(
-    DiskLightGlueMatcher, lambda settings, _options: DiskLightGlueConfig.from_c3_settings(settings)
+    DiskLightGlueMatcher,
+    lambda settings, _options, engines: DiskLightGlueConfig.from_c3_settings(settings, engines),
 )
 """``create(config, *, lightglue_runtime, ransac_filter, inference_runtime, health_window,
 fdr_client, clock, options)``: resolve the DISK and LightGlue engines, load them now (start-up)

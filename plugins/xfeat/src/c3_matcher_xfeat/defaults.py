@@ -1,6 +1,7 @@
 """The ``xfeat`` strategy's own defaults for the settings a configuration leaves unset, chosen by
 measurement on every shipped flight (docs/precision.md, "XFeat"). The one place they are
-declared: the plugin's ``StrategySpec`` and its config builder both read ``DEFAULTS``.
+declared: the plugin's ``StrategySpec`` reads ``DEFAULTS``, and ``compose_root`` applies
+them once, before the strategy's config is made from the settings.
 
 - ``photometric = "none"``: CLAHE gained XFeat frames (naip_demo 22 -> 25/27, naip_s2015_f2020
   1 -> 2/18) but made the one cross-season fix both settings get less precise (frame 13 of

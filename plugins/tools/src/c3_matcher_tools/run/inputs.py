@@ -1,30 +1,23 @@
 """What a run feeds the matcher: (frame, rerank, calibration) per frame, read from a flight
 dataset (``dataset.json``) or from a demo-format directory (``demo.json``: one frame, its
-candidate tiles, the camera's calibration)."""
+candidate tiles, the camera's calibration; read by the core's
+:func:`~c3_matcher.testing.demo.demo_inputs`)."""
 
 from __future__ import annotations
 
-import json
-import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
-from c3_matcher.dto.candidates import RerankCandidate, RerankResult
-from c3_matcher.dto.geo import Attitude, TileId
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.serialize import load_calibration
-from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS, MmapTileHandle, read_image
+from c3_matcher.testing.demo import MatchInputs, demo_inputs
+from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS
 
 if TYPE_CHECKING:
     from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 
 __all__ = ["MatchInputs", "demo_inputs", "flight_inputs", "timed_frames"]
-
-MatchInputs = tuple[NavCameraFrame, RerankResult, CameraCalibration]
-"""One ``match`` call's arguments."""
 
 
 @contextmanager
@@ -65,28 +58,3 @@ def timed_frames(dataset: FlightDataset) -> tuple[FrameRecord, ...]:
         "its true tile among its candidates, so there is no match to time (a flight with ground "
         "truth times the frames whose true tile is present)",
     )
-
-
-def demo_inputs(data_dir: Path, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> MatchInputs:
-    """The frame of a demo-format directory with its candidate tiles (``demo.json``'s order),
-    each image within ``max_pixels`` (``[matcher] max_image_pixels``)."""
-    meta = json.loads((data_dir / "demo.json").read_text())
-    att = meta["attitude_deg"]
-    frame = NavCameraFrame(
-        uuid.UUID(int=1),
-        read_image(data_dir / "frame.jpg", max_pixels),
-        1,
-        Attitude.from_degrees(att["roll"], att["pitch"], att["yaw"]),
-        meta["height_m"],
-    )
-    candidates = tuple(
-        RerankCandidate(
-            TileId(*t["tile_id"]),
-            1.0,
-            MmapTileHandle(data_dir / t["file"], max_pixels=max_pixels),
-            meta["tile_gsd_m"],
-        )
-        for t in meta["tiles"]
-    )
-    calibration = load_calibration(data_dir / "calibration.json", field="--data")
-    return frame, RerankResult(frame.frame_id, candidates), calibration

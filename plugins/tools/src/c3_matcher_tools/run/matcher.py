@@ -126,9 +126,13 @@ def compose_matcher(
 def _reference_matcher(
     settings: C3Settings, host: PluginHost, fdr: FdrClient, clock: Clock
 ) -> ComposedMatcher:
+    """The strategy's PyTorch reference backend in the per-frame loop its engines fly in: the
+    settings composed for the strategy (its defaults where unset), the same thresholds and tile
+    cache, RANSAC with the strategy's refit."""
     from c3_matcher.health import RollingHealthWindow
     from c3_matcher.pipeline import PipelineSettings
     from c3_matcher.ransac import OpenCvRansacFilter
+    from c3_matcher.strategy import PipelineHelpers, pipeline_matcher
 
     strategy = settings.matcher.strategy
     settings = strategy_settings(settings, strategy, host)
@@ -136,14 +140,13 @@ def _reference_matcher(
     backend = host.reference_backend(strategy, settings)
     if backend is None:
         raise LookupError(f"no PyTorch reference for {strategy}")
-    matcher = PipelineMatcher(
-        backend,
+    helpers = PipelineHelpers(
         OpenCvRansacFilter.from_settings(m),  # as the engine cases' (the strategy's refit)
         fdr,
         RollingHealthWindow(clock, m.min_inliers_threshold),
         clock,
-        PipelineSettings.from_settings(m),
     )
+    matcher = pipeline_matcher(backend, PipelineSettings.from_settings(m), helpers)
     return ComposedMatcher(matcher, str(backend.provenance()["provider"]))
 
 

@@ -6,10 +6,12 @@ Extractors declare the same I/O (``extractor_spec``): inputs ``image`` (1, 3, H,
 ``export_and_verify_extractor`` is the whole exporter loop a plugin calls with its export module
 and its PyTorch reference: export, then on every verification case (by default each real image
 at each size, full mask) run the graph, drop the padding rows, compare with the reference, and
-report."""
+report. ``extractor_exporter`` makes the exporter a spec names from the plugin's function: what
+every extractor's export starts with (grad mode off, the spec's ``top_k``) is written there."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -36,6 +38,7 @@ __all__ = [
     "compare_keypoint_sets",
     "export_and_verify_extractor",
     "export_extractor",
+    "extractor_exporter",
     "strict_maxima_candidates",
     "verification_inputs",
 ]
@@ -181,6 +184,25 @@ ImageCheckFn = Callable[[ort.InferenceSession, VerificationImage, list[str]], di
 """One further check per verification image on the exported session (e.g. a masked half)."""
 
 
+ExtractorExport = Callable[[ExportRequest, int], ExportReport]
+"""``(request, top_k) -> report``: one extractor's export and verification (typically a call of
+``export_and_verify_extractor``), ``top_k`` the keypoints its graph keeps."""
+
+
+def extractor_exporter(export: ExtractorExport) -> Callable[[ExportRequest], ExportReport]:
+    """The exporter an extractor's spec names, ``exporter(request)``: ``export`` given the spec's
+    ``top_k`` option, run with PyTorch's grad mode off (nothing is trained) and the caller's mode
+    restored after, so that a build inside a test, a notebook or any longer process leaves
+    gradients as it found them."""
+
+    @functools.wraps(export)
+    def exporter(request: ExportRequest) -> ExportReport:
+        with torch.no_grad():
+            return export(request, int(request.spec.option("top_k")))
+
+    return exporter
+
+
 def export_and_verify_extractor(
     request: ExportRequest,
     module: nn.Module,
@@ -198,12 +220,12 @@ def export_and_verify_extractor(
     notes: Mapping[str, Any] | None = None,
 ) -> ExportReport:
     """Export ``module`` (``export_extractor``, H and W multiples of the spec's
-        ``size_multiple``) and verify it against ``reference`` on every case of every real image of
-        ``request.images``: ``cases(image)``, by default the image at each (width, height) of
-        ``sizes`` (``verification_inputs``) with a full mask. ``compare`` defaults to
-        ``compare_keypoint_sets`` (identical whole-pixel sets) with ``tolerances`` (and
-    ``relative_scores``). A masked case
-        reports ``masked_keypoints``, the graph's keypoints on invalid pixels."""
+    ``size_multiple``) and verify it against ``reference`` on every case of every real image of
+    ``request.images``: ``cases(image)``, by default the image at each (width, height) of
+    ``sizes`` (``verification_inputs``) with a full mask. ``compare`` defaults to
+    ``compare_keypoint_sets`` (identical whole-pixel sets) with ``tolerances`` (and
+    ``relative_scores``). A masked case reports ``masked_keypoints``, the graph's keypoints on
+    invalid pixels."""
     multiple = request.spec.size_multiple
     if multiple is None:
         raise ValueError(f"engine spec {request.spec.key} declares no size_multiple")

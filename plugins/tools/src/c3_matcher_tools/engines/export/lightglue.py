@@ -268,6 +268,7 @@ def verify_feature_pairs(
     return checks, failures
 
 
+@torch.no_grad()  # off while it runs, the caller's grad mode after
 def export_lightglue(
     request: ExportRequest,
     *,
@@ -286,7 +287,6 @@ def export_lightglue(
     ``architecture`` holds ``input_dim`` and optionally ``descriptor_dim``, ``n_layers`` and
     ``num_heads`` (LighterGlue: 64, 96, 6, 1); ``input_dim`` alone means LightGlue's default
     width, depth and heads (256, 9, 4)."""
-    torch.set_grad_enabled(False)
     arch = _architecture(input_dim, architecture)
     reference = load_lightglue_reference(request.weights_path, **arch)
     request.log(f"exporting {reference_name} for {feature_type} (opset {request.spec.opset})")

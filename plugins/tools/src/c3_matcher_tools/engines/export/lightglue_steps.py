@@ -172,6 +172,7 @@ def _pairs_and_distractor(
     return [*verification_pairs(rgb), *([distractor] if distractor is not None else [])]
 
 
+@torch.no_grad()  # off while it runs, the caller's grad mode after
 def export_lightglue_steps(
     request: ExportRequest,
     *,
@@ -186,7 +187,6 @@ def export_lightglue_steps(
     ``input_dim``) and verify it against upstream's adaptive forward on ``features_fn``'s real
     features (see the module docstring). The plugin that declares a steps engine names a
     one-line exporter calling this with its features."""
-    torch.set_grad_enabled(False)
     spec = request.spec
     if reference is None:
         reference = load_lightglue_reference(
