@@ -29,9 +29,10 @@ SHA = "ab" * 32
 
 
 class BudgetBackend(FakeBackend):
-    """A FakeBackend that declares a keypoint budget and names its extractor engine."""
+    """A FakeBackend that declares a keypoint budget and its extractor engine."""
 
     max_keypoints = 512
+    extractor_sha256: str | None = SHA
 
     def provenance(self) -> dict[str, Any]:
         return {"provider": "FakeExecutionProvider", "engines": {"extractor": {"file_sha256": SHA}}}
@@ -88,20 +89,25 @@ def test_the_request_carries_the_declared_budget_rule_erosion_and_provider():
     assert (request.border_erode_px, request.photometric) == (3, "grey")
 
 
-def test_no_request_without_a_declared_budget_or_a_named_extractor():
+def test_no_request_without_a_declared_budget_or_a_declared_extractor():
     plain = _backend()
     assert not isinstance(plain, StoredFeaturesBackend)
     assert feature_request(plain, FramePreprocessor(plain.input_rule)) is None
 
+    class Undeclared(FakeBackend):  # a budget, and a sha in its provenance, but no declaration
+        max_keypoints = 512
+
+        def provenance(self) -> dict[str, Any]:
+            return {"provider": "x", "engines": {"extractor": {"file_sha256": SHA}}}
+
     class Unnamed(BudgetBackend):
-        def provenance(self) -> dict[str, Any]:
-            return {"provider": "x", "engines": {}}
+        extractor_sha256 = None
 
-    class Broken(BudgetBackend):
-        def provenance(self) -> dict[str, Any]:
-            raise RuntimeError("no provenance")
+    class NoBudget(BudgetBackend):
+        max_keypoints = 0
 
-    for cls in (Unnamed, Broken):
+    assert not isinstance(_backend(Undeclared), StoredFeaturesBackend)
+    for cls in (Undeclared, Unnamed, NoBudget):
         backend = _backend(cls)
         assert feature_request(backend, FramePreprocessor(backend.input_rule)) is None
     source = _source(plain)

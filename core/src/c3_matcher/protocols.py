@@ -124,10 +124,16 @@ class KeypointBudgetBackend(FeatureBackend, Protocol):
 @runtime_checkable
 class StoredFeaturesBackend(KeypointBudgetBackend, Protocol):
     """A ``KeypointBudgetBackend`` whose tile features a store may hold precomputed (``features
-    build``): the stored features are cut to its budget, and it names its extractor engine's
-    ``file_sha256`` in ``provenance()["engines"]`` (a backend that names none, like OpenCV
-    SIFT, has its tiles extracted). Optional: the pipeline extracts every tile of any other
-    backend."""
+    build``): the stored features are cut to its budget and were extracted by the engine
+    ``extractor_sha256`` names. Optional: the pipeline extracts every tile of any other backend
+    (one that declares no extractor engine, like OpenCV SIFT)."""
+
+    @property
+    def extractor_sha256(self) -> str | None:
+        """The ``file_sha256`` of its extractor engine (the one ``provenance()["engines"]
+        ["extractor"]`` names): a store serves it only the sets that engine built. None when
+        the engine cannot be named (its manifest unreadable): its tiles are then extracted."""
+        ...
 
 
 @runtime_checkable

@@ -30,23 +30,16 @@ a backbone error there is the tile's own, not the matcher's."""
 
 
 def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureRequest | None:
-    """What to ask a tile store's precomputed features for: the backend's extractor engine
-    (file sha256) and execution provider from its provenance, input rule, photometric
-    normalisation and keypoint budget; None for a backend that is no ``StoredFeaturesBackend``
-    or does not name its extractor (its tiles are then always extracted)."""
+    """What to ask a tile store's precomputed features for: the extractor engine (file sha256)
+    the backend declares, its execution provider (its provenance's), input rule, photometric
+    normalisation and keypoint budget; None for a backend that is no ``StoredFeaturesBackend``,
+    names no extractor engine or keeps no keypoint (its tiles are then always extracted)."""
     if not isinstance(backend, StoredFeaturesBackend):
         return None
-    try:
-        provenance = backend.provenance()
-        engines = provenance.get("engines") or {}
-        sha = (engines.get("extractor") or {}).get("file_sha256")
-        provider = str(provenance.get("provider") or "")
-        rule = backend.input_rule
-        budget = backend.max_keypoints
-    except Exception:
-        return None
+    sha, budget, rule = backend.extractor_sha256, backend.max_keypoints, backend.input_rule
     if not isinstance(sha, str) or not sha or not isinstance(budget, int) or budget < 1:
         return None
+    provider = str(backend.provenance().get("provider") or "")
     return FeatureRequest(
         sha,
         rule.multiple,

@@ -41,9 +41,12 @@ class ExtractorBackend:
         self.engine_id = runtime.load_engine(config.extractor_engine_path)
         _check_size_multiple(runtime, self.engine_id, config)
         self.max_keypoints: Final = _budget(runtime, self.engine_id, config)
-        """The keypoint budget (``StoredFeaturesBackend``): at most this many per image."""
+        """The keypoint budget (``KeypointBudgetBackend``): at most this many per image."""
         _check_reachable(pair_matcher, self.max_keypoints, config.label)
         facts = {"extractor": _engine_facts(runtime, self.engine_id, config.extractor_engine_path)}
+        self.extractor_sha256: Final[str | None] = facts["extractor"].get("file_sha256")
+        """Its extractor engine's file sha256 (``StoredFeaturesBackend``), as its provenance
+        names it: the sets a store serves it were built by that engine."""
         served = (
             pair_matcher.engine_files()
             if isinstance(pair_matcher, EnginePairMatcher)

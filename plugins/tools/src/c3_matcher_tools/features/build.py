@@ -65,8 +65,8 @@ from c3_matcher_tools.features.windows import (
     grid_windows,
 )
 from c3_matcher_tools.features.worker import (
-    BackendCache,
     NotStorableError,
+    ProcessBackends,
     SetFacts,
     check_window,
     extract_window_features,
@@ -148,9 +148,9 @@ def build_features(
     store, path = Path(store), sidecar_path(Path(store))
     with build_lock(store, path):  # another build of the store running: refused at once
         plan = _plan(store, windows, window_px, stride, min_coverage)
-        job = _Job(
-            store, _resolved(settings, strategies, plugin_host), window_px, stride, batch_size, say
-        )
+        host = _host(plugin_host)
+        resolved = _resolved(settings, strategies, host)
+        job = _Job(store, host, resolved, window_px, stride, batch_size, say)
         return _built(job, plan, path, AskedCluster(workers, scheduler, workerless_s))
 
 
@@ -163,7 +163,7 @@ def _built(
     resize: :func:`check_window`) leaves the sidecar untouched."""
     report, new = BuildReport(str(job.store), str(path)), False
     with stops_noted() as stops, dask_client(asked.workers, asked.scheduler, stops) as client:
-        local: BackendCache = {}  # the backends of this process, when it runs the tasks itself
+        local = ProcessBackends(job.host)  # this process's, when it runs the tasks itself
         runner = _Runner(client, local, cores_of(client, asked.workers), stops, asked)
         facts = {s: _set_facts(job, s, runner) for s in job.settings_json}
         for strategy, known in facts.items():  # a window the flight never serves: refused
@@ -209,10 +209,13 @@ def _move_aside(path: Path, exc: SidecarDamagedError, say: Callable[[str], None]
 
 @dataclass(frozen=True)
 class _Job:
-    """One build: the store, each strategy's settings (resolved for it, as JSON for the
-    workers), window and stride (px), windows per task and where progress lines go."""
+    """One build: the store, the plugin host of this process (the strategies resolved on it,
+    the backends this process builds itself built on it), each strategy's settings (resolved
+    for it, as JSON for the workers), window and stride (px), windows per task and where
+    progress lines go."""
 
     store: Path
+    host: PluginHost
     settings_json: Mapping[str, str]
     window_px: int
     stride_px: int
@@ -227,20 +230,25 @@ class _Runner:
     ``asked``: the cluster asked for."""
 
     client: Any
-    local: BackendCache
+    local: ProcessBackends
     cores: int
     stops: Stops
     asked: AskedCluster
 
 
-def _resolved(
-    settings: C3Settings, strategies: Sequence[str], host: PluginHost | None
-) -> dict[str, str]:
-    """Each strategy's settings as it flies them (its own defaults where the configuration
-    leaves a setting unset), as JSON, from ``host``'s plugins (discovered here when None)."""
-    from c3_matcher.compose import build_plugin_host, strategy_settings
+def _host(host: PluginHost | None) -> PluginHost:
+    """``host``, the process's plugin host its command was given, or one discovered now (a
+    caller without a command): discovered once per build, never again per backend."""
+    from c3_matcher.compose import build_plugin_host
 
-    host = host or build_plugin_host()
+    return host if host is not None else build_plugin_host()
+
+
+def _resolved(settings: C3Settings, strategies: Sequence[str], host: PluginHost) -> dict[str, str]:
+    """Each strategy's settings as it flies them (its own defaults where the configuration
+    leaves a setting unset), as JSON, from ``host``'s plugins."""
+    from c3_matcher.compose import strategy_settings
+
     for s in strategies:  # one unknown or not linked here: refused before any worker starts
         host.resolve(s)
     return {s: strategy_settings(settings, s, host).model_dump_json() for s in strategies}
@@ -269,8 +277,9 @@ def installed_extractor(
     """``strategy``'s extractor engine under ``settings``, learnt as a build learns the set it
     builds (its backend loaded in this process: :func:`set_facts`)."""
     try:
-        settings_json = _resolved(settings, [strategy], host)[strategy]
-        facts = set_facts(strategy, settings_json, {})
+        plugins = _host(host)
+        settings_json = _resolved(settings, [strategy], plugins)[strategy]
+        facts = set_facts(strategy, settings_json, ProcessBackends(plugins))
         return InstalledExtractor(facts.extractor_sha256, "", facts, photometric_of(settings_json))
     except (C3Error, ValueError, OSError, RuntimeError) as exc:
         return InstalledExtractor(None, " ".join(str(exc).split()))

@@ -1,19 +1,21 @@
 """What a map-feature build runs in a worker (a Dask worker process, or the building process
-itself): the strategy's feature backend, built once per process with the engine's whole top-K
-(``EXTRACT_BUDGET``) and no tile cache; the facts that key its feature set; a batch of windows
-extracted exactly as the flight extracts a candidate with that window (window px)."""
+itself): the strategy's feature backend, built once per process on that process's plugin host
+with the engine's whole top-K (``EXTRACT_BUDGET``) and no tile cache; the facts that key its
+feature set; a batch of windows extracted exactly as the flight extracts a candidate with that
+window (window px)."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from c3_matcher.config import C3Settings
 from c3_matcher.errors import InvalidInputError
+from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.prepared import InputRule
 from c3_matcher.protocols import StoredFeaturesBackend
 from c3_matcher.stages.extract import extract_checked
@@ -28,8 +30,8 @@ from c3_matcher_tools.features.windows import WindowKey
 
 __all__ = [
     "EXTRACT_BUDGET",
-    "BackendCache",
     "NotStorableError",
+    "ProcessBackends",
     "SetFacts",
     "check_window",
     "extract_window_features",
@@ -72,35 +74,51 @@ class SetFacts:
         return set_id_for(*self.keyed(photometric, window_px), self.input_rule.upscale)
 
 
-BackendCache = dict[tuple[str, str], Any]
+@dataclass(frozen=True)
+class ProcessBackends:
+    """The feature backends one process runs a build's tasks with, each built once per strategy
+    and settings on ``host``, that process's plugin host: the building process's own (its
+    command's) when it runs the tasks itself, a Dask worker process's discovered there."""
+
+    host: PluginHost
+    held: dict[tuple[str, str], Any] = field(default_factory=dict)
+
+    def backend(self, strategy: str, settings_json: str) -> Any:
+        """The strategy's FeatureBackend with the whole top-K and no tile cache."""
+        key = (strategy, settings_json)
+        if key not in self.held:
+            from loguru import logger
+
+            from c3_matcher_tools.run.matcher import Overrides, open_backend
+
+            logger.remove()
+            self.held[key] = open_backend(
+                C3Settings.model_validate_json(settings_json),
+                strategy,
+                plugin_host=self.host,
+                overrides=Overrides(max_keypoints=EXTRACT_BUDGET, tile_cache_size=0),
+            )
+        return self.held[key]
 
 
-def _backend(strategy: str, settings_json: str, cache: BackendCache | None = None) -> Any:
-    """The strategy's FeatureBackend with the whole top-K and no tile cache, built once per
-    process: held in ``cache`` (the caller's, when it runs the tasks itself) or by the Dask
-    worker running the task."""
-    cache = _worker_cache() if cache is None else cache
-    key = (strategy, settings_json)
-    if key not in cache:
-        from loguru import logger
-
-        from c3_matcher_tools.run.matcher import Overrides, open_backend
-
-        logger.remove()
-        cache[key] = open_backend(
-            C3Settings.model_validate_json(settings_json),
-            strategy,
-            overrides=Overrides(max_keypoints=EXTRACT_BUDGET, tile_cache_size=0),
-        )
-    return cache[key]
+def _backend(strategy: str, settings_json: str, local: ProcessBackends | None) -> Any:
+    """The strategy's backend from ``local`` (the caller's, when it runs the tasks itself), else
+    from the backends of the Dask worker running the task."""
+    return (local if local is not None else _worker_backends()).backend(strategy, settings_json)
 
 
-def _worker_cache() -> BackendCache:
-    """The backends held by the Dask worker this task runs on (one per worker process)."""
+def _worker_backends() -> ProcessBackends:
+    """The backends of the Dask worker running the task: one per worker process, on a plugin
+    host discovered there once (the worker is another process)."""
     from dask.distributed import get_worker
 
-    cache: BackendCache = get_worker().extensions.setdefault("c3_feature_backends", {})
-    return cache
+    from c3_matcher.compose import build_plugin_host
+
+    extensions = get_worker().extensions
+    if "c3_feature_backends" not in extensions:
+        extensions["c3_feature_backends"] = ProcessBackends(build_plugin_host())
+    held: ProcessBackends = extensions["c3_feature_backends"]
+    return held
 
 
 def photometric_of(settings_json: str) -> str:
@@ -171,14 +189,15 @@ def task(
     window_px: int,
     stride_px: int,
     windows: Sequence[WindowKey],
-    cache: BackendCache | None = None,
+    local: ProcessBackends | None = None,
 ) -> tuple[list[tuple[int, int, int, WindowFeatures]], float]:
     """A worker's batch: [(zoom, gx, gy, features)] and the seconds it took (a window no stored
-    tile overlaps has no features and is left out)."""
+    tile overlaps has no features and is left out); ``local``: the backends of the process that
+    runs it itself (None: the Dask worker's)."""
     from c3_matcher.tilestore.handles import TileNotFoundError
 
     started = time.perf_counter()
-    backend = _backend(strategy, settings_json, cache)
+    backend = _backend(strategy, settings_json, local)
     photometric = photometric_of(settings_json)
     source = open_source(store_path)
     out: list[tuple[int, int, int, WindowFeatures]] = []
@@ -208,17 +227,12 @@ def set_facts_task(strategy: str, settings_json: str) -> SetFacts | str:
         return str(exc)
 
 
-def set_facts(strategy: str, settings_json: str, cache: BackendCache | None = None) -> SetFacts:
-    """The facts keying a strategy's set, in a worker (the descriptor size from a probe);
+def set_facts(strategy: str, settings_json: str, local: ProcessBackends | None = None) -> SetFacts:
+    """The facts keying a strategy's set, in a worker (the descriptor size from a probe;
+    ``local``: the backends of the process that learns them itself, None: the Dask worker's);
     :class:`NotStorableError` for a strategy whose features come from no extractor engine."""
-    backend = _backend(strategy, settings_json, cache)
-    provenance = backend.provenance()
-    if not isinstance(backend, StoredFeaturesBackend) or "extractor" not in provenance["engines"]:
-        raise NotStorableError(
-            f"strategy {strategy!r} extracts its features without an extractor engine "
-            f"({provenance['provider']}), so no stored features serve it: its tiles are "
-            "extracted in flight; build them for a strategy that has one"
-        )
+    backend = _backend(strategy, settings_json, local)
+    sha = _extractor_sha256(strategy, backend)
     from c3_matcher.prepared import PreparedImage
 
     probe = np.kron(
@@ -230,11 +244,25 @@ def set_facts(strategy: str, settings_json: str, cache: BackendCache | None = No
     )
     photometric = photometric_of(settings_json)
     return SetFacts(
-        str(provenance["engines"]["extractor"]["file_sha256"]),
-        str(provenance["provider"]),
+        sha,
+        str(backend.provenance()["provider"]),
         int(backend.input_rule.multiple),
         int(_preprocessor(backend, photometric).border_erode_px),
         int(f.descriptors.shape[1]),
         str(f.descriptors.dtype),
         backend.input_rule,
     )
+
+
+def _extractor_sha256(strategy: str, backend: Any) -> str:
+    """The extractor engine's sha256 a ``StoredFeaturesBackend`` declares: what its stored
+    features are keyed by; :class:`NotStorableError` for a backend that declares none (OpenCV
+    SIFT extracts without an engine)."""
+    sha = backend.extractor_sha256 if isinstance(backend, StoredFeaturesBackend) else None
+    if not sha:
+        raise NotStorableError(
+            f"strategy {strategy!r} extracts its features without an extractor engine "
+            f"({backend.provenance()['provider']}), so no stored features serve it: its tiles "
+            "are extracted in flight; build them for a strategy that has one"
+        )
+    return str(sha)
