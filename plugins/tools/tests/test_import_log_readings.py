@@ -593,7 +593,7 @@ def test_a_ros1_bag_s_camera_info_is_read_in_its_own_spelling(
     assert np.allclose(recorded.K, cal.K) and recorded.image_size == cal.image_size
     assert np.allclose(recorded.distortion, cal.distortion)
     flight = tmp_path / "flight"
-    ground = ("--ground-elevation", str(fl.GROUND_M))
+    ground = ("--ground-elevation", str(fl.GROUND_M), "--geoid-height", str(rb.GEOID_HEIGHT_M))
     proc = run_cli("dataset", "import", "-", bag, "-", STORE, flight, *ground, "--json", cwd=REPO)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["frames"] == 4
@@ -610,7 +610,7 @@ def test_images_stamped_alike_are_frames_of_their_own_and_a_recorded_copy_is_set
     alike = dataclasses.replace(poses[1], t_s=poses[0].t_s)  # another image, frame 0's stamp
     bag = rb.write_bag(tmp_path / "bag", [poses[0], alike, poses[2], poses[2], poses[3]], cal)
     flight = tmp_path / "flight"
-    ground = ("--ground-elevation", str(fl.GROUND_M))
+    ground = ("--ground-elevation", str(fl.GROUND_M), "--geoid-height", str(rb.GEOID_HEIGHT_M))
     proc = run_cli("dataset", "import", "-", bag, "-", STORE, flight, *ground, "--json", cwd=REPO)
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)

@@ -33,7 +33,7 @@ from c3_matcher_tools.testing.cli import run_cli
 from c3_matcher_tools.testing.flightlogs.dataflash import write_dataflash
 from c3_matcher_tools.testing.flightlogs.exif import write_exif_photos
 from c3_matcher_tools.testing.flightlogs.mavlink import write_tlog
-from c3_matcher_tools.testing.flightlogs.rosbag import write_bag
+from c3_matcher_tools.testing.flightlogs.rosbag import GEOID_HEIGHT_M, write_bag
 from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
 REPO = Path(__file__).resolve().parents[3]
@@ -214,13 +214,17 @@ def test_ros2_bags_import_with_recorded_intrinsics(
     flight = tmp_path / "flight"
     common = ["-", str(bag), "-", STORE]
     _refused(c3("dataset", "import", *common, str(flight)), "--ground-elevation")
-    proc = c3(
-        "dataset", "import", *common, str(flight), "--ground-elevation", str(fl.GROUND_M), "--json"
-    )
+    ground = ("--ground-elevation", str(fl.GROUND_M), "--geoid-height", str(GEOID_HEIGHT_M))
+    proc = c3("dataset", "import", *common, str(flight), *ground, "--json")
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
     assert summary["frames"] == 4 and summary["kind"] == "ROS bag"
-    assert summary["height_sources"] == {"altitude - ground elevation": 4}
+    assert summary["height_sources"] == {
+        "altitude above the ellipsoid - geoid height -15 m - ground elevation 500 m": 4
+    }
+    assert [f.height_m for f in load_dataset(flight).frames] == pytest.approx(
+        [p.height_m for p in poses], abs=0.01
+    )
     d = load_dataset(flight)
     assert np.allclose(d.calibration.K, calibration.K)
     assert np.allclose(d.calibration.distortion, calibration.distortion)
@@ -344,7 +348,7 @@ def test_height_from_a_dem(poses: list[fl.Pose], tmp_path: Path) -> None:
     args = ["--dem", str(here), "--json"]
     proc = c3("dataset", "import", str(images), str(log), CAL, STORE, str(flight), *args)
     assert proc.returncode == 0, proc.stderr
-    assert json.loads(proc.stdout)["height_sources"] == {"altitude - DEM": 4}
+    assert json.loads(proc.stdout)["height_sources"] == {"altitude above sea level - DEM": 4}
     assert [f.height_m for f in load_dataset(flight).frames] == pytest.approx(
         [p.height_m for p in poses], abs=0.01
     )
@@ -391,7 +395,7 @@ def test_damaged_logs_are_refused_with_one_line(
 def test_bag_attitude_from_a_chosen_pose_topic(poses: list[fl.Pose], tmp_path: Path) -> None:
     calibration = load_calibration(DEMO / "calibration.json")
     bag = write_bag(tmp_path / "bag", poses, calibration, pose_topic=True)
-    ground = ["--ground-elevation", str(fl.GROUND_M)]
+    ground = ["--ground-elevation", str(fl.GROUND_M), "--geoid-height", str(GEOID_HEIGHT_M)]
     # an Imu and a PoseStamped: which one is the attitude must be said
     _refused(
         c3("dataset", "import", "-", str(bag), "-", STORE, str(tmp_path / "x"), *ground),

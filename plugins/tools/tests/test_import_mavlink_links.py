@@ -146,7 +146,9 @@ def test_a_log_whose_positions_are_the_receiver_s_alone_is_imported_with_the_gro
         tmp_path, fl.pose_images(tmp_path, poses), path, "--ground-elevation", str(fl.GROUND_M)
     )
     assert proc.returncode == 0, proc.stderr
-    assert json.loads(proc.stdout)["height_sources"] == {"altitude - ground elevation": 4}
+    assert json.loads(proc.stdout)["height_sources"] == {
+        "altitude above sea level - ground elevation 500 m": 4
+    }
     assert np.allclose(_placed(tmp_path / "flight"), _expected(poses), atol=1e-6)
 
 

@@ -33,7 +33,7 @@ from c3_matcher_tools.dataset.sources.ulog import read_ulog
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.flightlogs.exif import write_exif_photos
 from c3_matcher_tools.testing.flightlogs.mavlink import write_tlog
-from c3_matcher_tools.testing.flightlogs.rosbag import write_bag
+from c3_matcher_tools.testing.flightlogs.rosbag import GEOID_HEIGHT_M, write_bag
 from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
 
 from .conftest import DEMO
@@ -384,7 +384,8 @@ def test_a_bag_without_attitude_is_read_level_and_says_so(
     track, shots, _ = read_bag(bag)
     assert track.attitude is None and len(shots) == 3 and NO_ATTITUDE in track.notes
     flight = tmp_path / "flight"
-    args = ("dataset", "import", "-", bag, "-", STORE, flight, "--ground-elevation", "0", "--json")
+    ground = ("--ground-elevation", "0", "--geoid-height", str(GEOID_HEIGHT_M))
+    args = ("dataset", "import", "-", bag, "-", STORE, flight, *ground, "--json")
     summary = _imported(c3(*args))
     assert summary["frames"] == 3 and summary["attitude_assumed"] == [0, 1, 2]
     assert all("attitude_assumed" in f.telemetry["flags"] for f in load_dataset(flight).frames)

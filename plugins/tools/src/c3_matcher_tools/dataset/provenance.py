@@ -37,7 +37,7 @@ __all__ = [
     "say_import_faults",
 ]
 
-IMPORT_REVISION = 3
+IMPORT_REVISION = 4
 """The revision of what ``dataset import`` writes. 1: the first recorded (2026-12-03), with the
 home altitude in force at each frame's time, the first downward rangefinder and one camera
 trigger per photo; 2 (2026-12-03): an import from a recorded log records the options of
@@ -47,7 +47,11 @@ the camera's clock was taken as the log's), PX4 estimates marked invalid give wa
 receiver's fix, a MAVLink camera message recorded twice is read once and a telemetry log of
 several vehicles is refused; ``spec["time_offset_s"]`` is ``--time-offset`` as given (None
 when not: before, 0 stood for both) and the import record says where the offset it applied
-came from (``time_offset_origin``)."""
+came from (``time_offset_origin``); 4 (2026-12-05): a ROS bag's NavSatFix altitude is taken as
+above the WGS84 ellipsoid, brought to sea level with ``--geoid-height`` (recorded in
+``spec["options"]``) before the ground is taken from it, an ArduPilot rangefinder's range is
+made vertical with the attitude (x cos roll cos pitch), and a DEM's scale, offset and unit in
+feet are applied; each height source names what it took."""
 OFFSET_RECORDED_REVISION = 3
 """The import revision from which ``spec["time_offset_s"]`` tells a ``--time-offset 0`` given
 (which says the camera's clock is the log's) from none given (None)."""
@@ -207,10 +211,58 @@ def _clock_unsought(seen: _Seen) -> tuple[str, str] | None:
     return what, affects
 
 
+_OLD_GROUND = re.compile(r"(nearest frame's height \()?altitude - (ground elevation|DEM)\b")
+"""A height source from the altitude minus the ground as the importer wrote it before import
+revision 4 (since, it names the altitude's datum: ``altitude above sea level - DEM``, a bag's
+``altitude above the ellipsoid - geoid height 47.4 m - DEM``)."""
+
+
+def _bag_ellipsoid(seen: _Seen) -> tuple[str, str] | None:
+    """A ROS bag's heights from its NavSatFix altitude, above the ellipsoid, minus a ground
+    above sea level (before import revision 4): each off by the geoid height there."""
+    if seen.spec.get("source_kind") != "rosbag" and seen.spec.get("log_kind") != "ROS bag":
+        return None
+    old = sum(1 for t in seen.telemetry if _OLD_GROUND.match(str(t.get("height_source", ""))))
+    if not old:
+        return None
+    what = (
+        f"its heights ({old} of {len(seen.telemetry)} frames) are the bag's NavSatFix altitude "
+        "minus the ground, as the importer took them before 2026-12-05: that altitude is above "
+        "the WGS84 ellipsoid and the ground above sea level, so each height is off by the geoid "
+        "height there (47 m at Zurich); add --geoid-height N (sea level's height above the "
+        "ellipsoid there, m; 0 if the bag's driver writes sea-level altitude)"
+    )
+    return what, _HEIGHTS_AFFECT
+
+
+_OLD_SLANT = re.compile(r"(nearest frame's height \()?(RFND|DISTANCE_SENSOR) \(above ground\)")
+"""An ArduPilot rangefinder's height source before import revision 4 (since: ``RFND x
+cos(roll) cos(pitch) (above ground)``)."""
+
+
+def _rangefinder_slant(seen: _Seen) -> tuple[str, str] | None:
+    """An ArduPilot log's heights from its rangefinder's range along the tilted body, taken as
+    vertical (before import revision 4): too high by 1 / (cos roll cos pitch)."""
+    if seen.spec.get("log_kind") not in ARDUPILOT_KINDS:
+        return None
+    old = sum(1 for t in seen.telemetry if _OLD_SLANT.match(str(t.get("height_source", ""))))
+    if not old:
+        return None
+    what = (
+        f"its heights ({old} of {len(seen.telemetry)} frames) are the rangefinder's range along "
+        "the tilted body, taken as vertical by the importer before 2026-12-05 (6 % too high at "
+        "20 deg of tilt, 15 % at 30 deg); the importer now multiplies it by cos(roll) cos(pitch), "
+        "as ArduPilot does"
+    )
+    return what, _HEIGHTS_AFFECT
+
+
 _KNOWN = (
     _KnownFault(1, _first_home),
     _KnownFault(1, _triggers_twice),
     _KnownFault(3, _clock_unsought),
+    _KnownFault(4, _bag_ellipsoid),
+    _KnownFault(4, _rangefinder_slant),
 )
 """Every import fault fixed since datasets were first written, in the order they are said."""
 
@@ -244,6 +296,7 @@ LOG_OPTIONS = (
     "--navsat-topic",
     "--camera-info-topic",
     "--mavlink-system",
+    "--geoid-height",
 )
 """The options of an import from a recorded log that change what it writes beside those
 :data:`_OPTIONS` reads: since import revision 2 its ``spec["options"]`` maps each one given to
@@ -319,6 +372,8 @@ def _unknown_options(spec: Mapping[str, Any]) -> str:
     """What to add to the command of a log import that did not record its log options (a bag's
     topics and intrinsics only for a bag's)."""
     bag = spec.get("source_kind") == "rosbag"
-    named = "/".join(o for o in LOG_OPTIONS if bag or not o.endswith("-topic"))
+    named = "/".join(
+        o for o in LOG_OPTIONS if bag or not (o.endswith("-topic") or o == "--geoid-height")
+    )
     said = f"add {named} and --ground-elevation or --dem if you gave them"
     return said + ("; '-' for CALIBRATION if it took the bag's CameraInfo" if bag else "")

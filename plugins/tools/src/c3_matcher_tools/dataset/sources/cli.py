@@ -15,10 +15,12 @@ from c3_matcher.context import CommandContext
 from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.provenance import LOG_OPTIONS
 from c3_matcher_tools.dataset.sources.options import (
+    MAX_GEOID_HEIGHT_M,
     MAX_TIME_OFFSET_S,
     ImportOptions,
     ImportReport,
     ProposalOptions,
+    check_geoid_height,
     check_ground_options,
 )
 
@@ -56,9 +58,11 @@ by that time, else in file order when the log has as many triggers as there are 
 else refused; a video keeps its own clock), else by their own UTC time (EXIF, bag stamps),
 else in file order (--interval, --time-offset). A copy of a photo is imported once; a file
 that is not a readable image (a macOS ._ file, a photo cut short) is skipped, not counted.
-Height above ground: rangefinder when logged, else altitude minus --dem or
---ground-elevation (not both), else minus the home altitude in force at the frame's time
-(set again at arming). Options a source does not use are refused (a CSV takes no log timing
+Height above ground: rangefinder when logged (ArduPilot's made vertical: x cos roll cos
+pitch), else altitude above sea level minus --dem or --ground-elevation (not both), else
+minus the home altitude in force at the frame's time (set again at arming). A bag's NavSatFix
+altitude is above the WGS84 ellipsoid: with a ground, give --geoid-height (0 if its driver
+writes sea-level altitude). Options a source does not use are refused (a CSV takes no log timing
 or topic option). Frames without attitude or height (a log without attitude included) are
 imported and marked; frames that cannot be placed are skipped; the import says which and
 why. Each frame keeps its GNSS fix and its stated accuracy: replay
@@ -127,13 +131,7 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     )
     _positive(g, "--interval", "file order: s between images")
     _positive(g, "--max-gap", "farthest a log sample may be from an image's time, s (default 1)")
-    g.add_argument(
-        "--ground-elevation",
-        type=bounded_float(),
-        default=None,
-        help="the ground's altitude, m, in the log's datum: height = altitude - this (or --dem)",
-    )
-    g.add_argument("--dem", type=Path, default=None, help="DEM GeoTIFF of the ground (geo extra)")
+    _add_ground_options(g)
     _positive(
         g,
         "--gnss-degraded-m",
@@ -157,6 +155,32 @@ def add_log_import_options(m: argparse.ArgumentParser) -> None:
     )
 
 
+def _add_ground_options(g: Any) -> None:
+    """The options of the ground a height above ground is taken from: ``--ground-elevation``,
+    ``--dem`` and a bag's ``--geoid-height``."""
+    g.add_argument(
+        "--ground-elevation",
+        type=bounded_float(),
+        default=None,
+        help="the ground's altitude above sea level, m: height = altitude - this (or --dem)",
+    )
+    g.add_argument(
+        "--dem",
+        type=Path,
+        default=None,
+        help="DEM GeoTIFF of the ground above sea level (geo extra; its scale and offset "
+        "applied, feet converted)",
+    )
+    g.add_argument(
+        "--geoid-height",
+        type=bounded_float(-MAX_GEOID_HEIGHT_M, MAX_GEOID_HEIGHT_M),
+        default=None,
+        help="bag: sea level's height above the WGS84 ellipsoid at the flight, m (EGM2008; 47.4 "
+        "at Zurich): the NavSatFix altitude, above the ellipsoid, less this is above sea level, "
+        "as the ground is; needed with a ground; 0 if the driver writes sea-level altitude",
+    )
+
+
 def _positive(group: Any, option: str, help: str) -> None:
     """A positive number option of ``group``, None when not given (its default is in
     :data:`DEFAULTS`: given or not is told apart)."""
@@ -173,6 +197,12 @@ def run_log_import(args: argparse.Namespace, ctx: CommandContext) -> int | None:
     check_frame_step(args.frame_step, video=_frames_of_a_video(kind, images))
     check_ground_options(args.ground_elevation, args.dem)
     refuse_options_not_for(kind, args)
+    check_geoid_height(
+        telemetry,
+        ellipsoidal=kind == "rosbag",
+        ground_given=args.ground_elevation is not None or args.dem is not None,
+        geoid_height_m=getattr(args, "geoid_height", None),
+    )
     if str(args.calibration) == "-" and kind != "rosbag":  # before any log is read
         raise InvalidInputError(
             "CALIBRATION",
@@ -195,10 +225,12 @@ SOURCE_OPTIONS = (
     *((f"{t}_topic", f"--{t}-topic", ("rosbag",)) for t in ("image", "attitude", "navsat")),
     ("camera_info_topic", "--camera-info-topic", ("rosbag",)),
     ("mavlink_system", "--mavlink-system", ("ardupilot",)),
+    ("geoid_height", "--geoid-height", ("rosbag",)),
 )
 """(attribute, option, the source kinds it applies to) of each option that some kinds do not
 use: a telemetry CSV pairs rows and images by name and states each frame's telemetry; a photo
-folder places each photo at its own time; only a bag has topics."""
+folder places each photo at its own time; only a bag has topics, and only a bag's altitude
+(NavSatFix) is above the ellipsoid rather than sea level."""
 DEFAULTS = {"time_source": "auto", "time_offset": None, "max_gap": 1.0, "gnss_degraded_m": 5.0}
 """The values of the options of :data:`SOURCE_OPTIONS` not given (None there: given or not is
 told apart; ``--time-offset`` not given adds 0 but, unlike a 0 given, lets the camera clock's
@@ -226,13 +258,19 @@ def refuse_options_not_for(kind: str, args: argparse.Namespace) -> None:
         for ending, reason in (
             ("-topic", "only a ROS bag has topics"),
             ("--mavlink-system", "only an ArduPilot telemetry log holds several MAVLink systems"),
+            (
+                "--geoid-height",
+                "only a ROS bag states its altitude above the ellipsoid (NavSatFix); this one's "
+                "is above sea level already",
+            ),
         )
         if any(option.endswith(ending) for option in given)
     ]
-    why = {
+    own = {
         "csv": "its rows name their images and state each frame's telemetry",
-        "exif": ", and ".join(["each photo is placed at its own capture time", *only]),
-    }.get(kind, "; ".join(only))
+        "exif": "each photo is placed at its own capture time",
+    }.get(kind)
+    why = ", and ".join([own, *only]) if own else "; ".join(only)
     raise InvalidInputError(
         ", ".join(given),
         f"not used by an import from {what} ({why}): leave {'it' if len(given) == 1 else 'them'} "
@@ -391,6 +429,7 @@ def _import_options(
         gnss_degraded_m=_given(args, "gnss_degraded_m"),
         ground_elevation_m=args.ground_elevation,
         dem=args.dem,
+        geoid_height_m=getattr(args, "geoid_height", None),
     )
 
 

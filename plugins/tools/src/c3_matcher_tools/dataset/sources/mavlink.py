@@ -9,8 +9,10 @@ each sample (ArduPilot sets it again at arming); the receiver ``GPS``
 (Status = fix type, horizontal accuracy from ``GPA.HAcc``; instance 0, the first receiver) /
 ``GPS_RAW_INT`` (fix_type, ``h_acc`` mm); height above ground from the first downward
 rangefinder, ``RFND.Dist`` / ``DISTANCE_SENSOR.current_distance`` (cm; see :func:`_ranges` and
-:func:`_heights`); camera triggers, one per photo, of the first of :data:`TRIGGERS` logged (a
-photo's MAVLink message received again, over a second link, once: :func:`_shutter`).
+:func:`_heights`): the range along the tilted body, made vertical at each frame with its
+attitude (:attr:`~.track.LogTrack.height_along_body`); camera triggers, one per photo, of the
+first of :data:`TRIGGERS` logged (a photo's MAVLink message received again, over a second
+link, once: :func:`_shutter`).
 A telemetry log holding several MAVLink systems (vehicles on one link) is read for the camera
 vehicle's alone, or the one given (:func:`~.mavlink_systems.camera_system`). Times: the time
 pymavlink gives each message (UTC seconds from the GNSS week time in a DataFlash log with a fix,
@@ -392,6 +394,7 @@ def read_mavlink(path: Path, system: int | None = None) -> LogTrack:
         utc_offset_s=0.0 if first_t > 1e9 else None,
         notes=tuple(notes),
         damage=damage,
+        height_along_body=True,
     )
 
 

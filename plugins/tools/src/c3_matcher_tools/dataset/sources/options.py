@@ -17,11 +17,13 @@ from c3_matcher_tools.dataset.format import check_candidate_size
 
 __all__ = [
     "MAX_CANDIDATES",
+    "MAX_GEOID_HEIGHT_M",
     "MAX_SEARCH_TILES",
     "MAX_TIME_OFFSET_S",
     "ImportOptions",
     "ImportReport",
     "ProposalOptions",
+    "check_geoid_height",
     "check_ground_options",
     "max_uncertainty_m",
     "number_ranges",
@@ -66,6 +68,31 @@ def check_ground_options(ground_elevation_m: float | None, dem: Path | None) -> 
             f"must be in [-{MAX_GROUND_ELEVATION_M:g}, {MAX_GROUND_ELEVATION_M:g}] m, got "
             f"{ground_elevation_m}",
         )
+
+
+MAX_GEOID_HEIGHT_M = 120.0
+"""``--geoid-height`` lies within this of 0, m: the geoid (sea level) lies between about 107 m
+below and 86 m above the WGS84 ellipsoid (EGM2008)."""
+
+
+def check_geoid_height(
+    source: str, *, ellipsoidal: bool, ground_given: bool, geoid_height_m: float | None
+) -> None:
+    """The rule of an altitude above the WGS84 ellipsoid (a ROS bag's NavSatFix, as the message
+    defines it) met by a ground above sea level (``--ground-elevation``, ``--dem``): the
+    geoid height there (``--geoid-height``) must be given to bring the one to the other, else
+    every height above ground is off by it (47 m at Zurich); refused
+    naming ``--geoid-height`` and ``source`` (the log), saying both ways out."""
+    if not (ellipsoidal and ground_given and geoid_height_m is None):
+        return
+    raise InvalidInputError(
+        "--geoid-height",
+        f"{source}: a ROS bag's NavSatFix altitude is above the WGS84 ellipsoid, and the "
+        "ground (--ground-elevation, --dem) above sea level: give --geoid-height N, sea "
+        "level's height above the ellipsoid at the flight, m (EGM2008; 47.4 at Zurich), or "
+        "--geoid-height 0 if the bag's GNSS driver writes sea-level altitude (or the ground "
+        "given is above the ellipsoid too)",
+    )
 
 
 def max_uncertainty_m(zoom: int, lat_deg: float = 0.0) -> float:
@@ -142,8 +169,12 @@ class ImportOptions:
     camera's clock is the log's.
     ``max_gap_s``: the farthest a log sample may be from a frame's time to be used.
     ``gnss_degraded_m``: a stated horizontal accuracy worse than this flags the frame.
-    ``ground_elevation_m`` / ``dem``: the ground's altitude (same datum as the log's altitude)
-    when the log has no height above ground; one or the other (:func:`check_ground_options`)."""
+    ``ground_elevation_m`` / ``dem``: the ground's altitude above sea level when the log has no
+    height above ground; one or the other (:func:`check_ground_options`).
+    ``geoid_height_m``: sea level's height above the WGS84 ellipsoid at the flight, which
+    brings a log's altitude above the ellipsoid (a ROS bag's NavSatFix) to sea level before
+    the ground is taken from it (:func:`check_geoid_height`); within
+    :data:`MAX_GEOID_HEIGHT_M`."""
 
     calibration: CameraCalibration
     proposal: ProposalOptions
@@ -154,6 +185,7 @@ class ImportOptions:
     gnss_degraded_m: float = 5.0
     ground_elevation_m: float | None = None
     dem: Path | None = None
+    geoid_height_m: float | None = None
 
     def __post_init__(self) -> None:
         if self.time_source not in ("auto", "trigger", "exif", "order"):
@@ -177,6 +209,12 @@ class ImportOptions:
                 "--gnss-degraded-m", f"must be > 0 m, got {self.gnss_degraded_m}"
             )
         check_ground_options(self.ground_elevation_m, self.dem)
+        geoid = self.geoid_height_m
+        if geoid is not None and not (math.isfinite(geoid) and abs(geoid) <= MAX_GEOID_HEIGHT_M):
+            raise InvalidInputError(
+                "--geoid-height",
+                f"must be in [-{MAX_GEOID_HEIGHT_M:g}, {MAX_GEOID_HEIGHT_M:g}] m, got {geoid}",
+            )
 
     @property
     def offset_s(self) -> float:

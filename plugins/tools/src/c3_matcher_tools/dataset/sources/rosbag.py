@@ -6,8 +6,9 @@ images ``sensor_msgs/CompressedImage`` or ``sensor_msgs/Image``; attitude ``sens
 (or ``geometry_msgs/PoseStamped`` / ``nav_msgs/Odometry``) orientation, ENU world and FLU body
 as REP 103 says (turned into NED / FRD here; an Imu sample marked as stating no orientation,
 ``orientation_covariance[0]`` = -1, and a quaternion of about zero norm are skipped); position
-``sensor_msgs/NavSatFix`` (altitude above the ellipsoid or sea level as the receiver gives it;
-horizontal accuracy from its covariance; ``status`` < 0: no fix); intrinsics
+``sensor_msgs/NavSatFix`` (altitude above the WGS84 ellipsoid, as the message defines it: the
+track says so, :attr:`~.track.LogTrack.ellipsoidal`, and the import brings it to sea level with
+``--geoid-height``; horizontal accuracy from its covariance; ``status`` < 0: no fix); intrinsics
 ``sensor_msgs/CameraInfo`` (plumb_bob / rational_polynomial, or no model and no distortion; any
 other model refused; D padded with zeros to a count OpenCV takes) when recorded. Times: each
 message's header stamp (UTC seconds), the bag's receive time when the stamp is zero. A raw
@@ -283,6 +284,7 @@ def read_bag(
         gnss=gnss,
         utc_offset_s=0.0,
         notes=_notes(conns, messages, bool(messages.att_t)),
+        ellipsoidal=True,
     )
     return track, shots, calibration
 

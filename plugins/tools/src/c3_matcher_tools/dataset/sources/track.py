@@ -5,8 +5,8 @@ quaternions, matrices and Z-Y-X angles.
 Conventions: times in seconds on the log's own clock (``t_s``); ``utc_offset_s`` turns it into
 UTC (``utc = t_s + utc_offset_s``) when the log says; attitude in degrees, aerospace Z-Y-X
 (yaw, pitch, roll) of the BODY in NED, yaw from true north clockwise; latitude/longitude WGS84
-degrees; ``alt_m`` above mean sea level (or the ellipsoid, as the log states it); heights in
-metres above the ground.
+degrees; ``alt_m`` above mean sea level, or above the WGS84 ellipsoid where the track says so
+(:attr:`LogTrack.ellipsoidal`); heights in metres above the ground.
 """
 
 from __future__ import annotations
@@ -206,6 +206,14 @@ class LogTrack:
     """Each image states its own position (photo metadata): it is used as the GNSS fix."""
     damage: str | None = None
     """What the log's reader said of a damaged or truncated log (read up to the damage)."""
+    ellipsoidal: bool = False
+    """Its ``alt_m`` (and ``home``) are above the WGS84 ellipsoid, not sea level (a ROS bag's
+    NavSatFix, as the message defines it): the import's geoid height brings them to sea level
+    before a ground is taken from them."""
+    height_along_body: bool = False
+    """Its ``height`` is a body-fixed rangefinder's range along the body's down axis (ArduPilot's
+    ``RFND``, MAVLink ``DISTANCE_SENSOR``), longer than the height when the vehicle tilts: made
+    vertical with the attitude at each frame's time (PX4's ``dist_bottom`` is vertical already)."""
 
     @property
     def span(self) -> tuple[float, float]:

@@ -142,14 +142,36 @@ def _placed(
     if not frames:
         raise InvalidInputError(track.source, "no image could be placed: " + _why(every))
     _check_same_flight(track, frames)
-    if not any(math.isfinite(f.height_m) and f.height_m > 0 for f in frames):
+    _check_heights(track, frames, options)
+    return frames, every, pairing
+
+
+def _check_heights(track: LogTrack, frames: Sequence[Frame], options: ImportOptions) -> None:
+    """Refuse frames none of which is above the ground, saying why: with a ground given, the
+    heights its altitudes gave (a ground of another datum or unit than the altitude's);
+    without, that one is needed (and a bag's geoid height with it)."""
+    if any(math.isfinite(f.height_m) and f.height_m > 0 for f in frames):
+        return
+    said = f"{track.source}: no height above ground for any frame"
+    sources = ", ".join(sorted({f.height_source for f in frames}))
+    heights = [f.height_m for f in frames if math.isfinite(f.height_m)]
+    if options.dem is None and options.ground_elevation_m is None:
+        geoid = ", with --geoid-height (its altitude is above the ellipsoid)"
         raise InvalidInputError(
             "--ground-elevation",
-            f"{track.source}: no height above ground for any frame (heights "
-            f"{', '.join(sorted({f.height_source for f in frames}))}): give --ground-elevation "
-            "(the ground's altitude, m, in the log's datum) or --dem",
+            f"{said} (heights {sources}): give --ground-elevation (the ground's altitude above "
+            f"sea level, m) or --dem{geoid if track.ellipsoidal else ''}",
         )
-    return frames, every, pairing
+    option = "--dem" if options.dem is not None else "--ground-elevation"
+    if not heights:
+        raise InvalidInputError(option, f"{said} (heights {sources})")
+    geoid = " and the geoid height" if track.ellipsoidal else ""
+    raise InvalidInputError(
+        option,
+        f"{said}: {sources} gave heights from {min(heights):.1f} to {max(heights):.1f} m (none "
+        f"above ground): check the ground's datum{geoid} and units ({option} is the ground's "
+        "altitude above sea level, in metres)",
+    )
 
 
 def _spec(track: LogTrack, how: str, options: ImportOptions, zoom: int) -> dict[str, Any]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Sequence
 from pathlib import Path
@@ -9,7 +10,7 @@ from typing import Any
 
 from c3_matcher_tools.testing import flightlogs as fl
 
-__all__ = ["write_dataflash"]
+__all__ = ["slant_range", "write_dataflash"]
 
 _DF_HEAD = b"\xa3\x95"
 _DF_FORMATS = {
@@ -20,37 +21,26 @@ _DF_FORMATS = {
     "GPA": (4, "Qf", "TimeUS,HAcc"),
     "CAM": (5, "QH", "TimeUS,Img"),
 }
+_DF_RFND = (6, "QBfBB", "TimeUS,Instance,Dist,Stat,Orient")
+"""The RFND format, in a log written with a rangefinder alone (so that the other logs keep their
+bytes)."""
 _DF_STRUCT = {"Q": "Q", "f": "f", "L": "i", "B": "B", "I": "I", "H": "H"}
 
 
-def write_dataflash(path: Path, poses: Sequence[fl.Pose], *, flaws: Sequence[str] = ()) -> Path:
+def write_dataflash(
+    path: Path, poses: Sequence[fl.Pose], *, flaws: Sequence[str] = (), rangefinder: bool = False
+) -> Path:
     """An ArduPilot DataFlash log in the documented binary layout (FMT messages, then ATT, POS,
-    GPS with GNSS week time, GPA and CAM); ``flaws``: ``no_attitude``, ``no_trigger``,
+    GPS with GNSS week time, GPA and CAM; ``rangefinder``: an RFND at each frame, a downward
+    rangefinder's good reading of :func:`slant_range`); ``flaws``: ``no_attitude``, ``no_trigger``,
     ``time_jump`` (the middle frame's ATT stamped 5 s before the frame before it), ``home_reset``
     (POS on the ground before arming, its ``RelHomeAlt`` above a home :data:`HOME_FIRST_M`
     higher than the ground, the home of the flight)."""
-    out = bytearray()
-
-    def fmt_message(type_id: int, name: str, fmt: str, cols: str) -> bytes:
-        length = 3 + struct.calcsize("<" + "".join(_DF_STRUCT[c] for c in fmt))
-        return (
-            _DF_HEAD
-            + bytes([128])
-            + struct.pack(
-                "<BB4s16s64s", type_id, length, name.encode(), fmt.encode(), cols.encode()
-            )
-        )
-
-    out += (
-        _DF_HEAD
-        + bytes([128])
-        + struct.pack("<BB4s16s64s", 128, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns")
-    )
-    for name, (type_id, fmt, cols) in _DF_FORMATS.items():
-        out += fmt_message(type_id, name, fmt, cols)
+    formats = {**_DF_FORMATS, **({"RFND": _DF_RFND} if rangefinder else {})}
+    out = bytearray(_fmt_header(formats))
 
     def msg(name: str, *values: Any) -> tuple[int, bytes]:
-        type_id, fmt, _ = _DF_FORMATS[name]
+        type_id, fmt, _ = formats[name]
         body = struct.pack("<" + "".join(_DF_STRUCT[c] for c in fmt), *values)
         return values[0], _DF_HEAD + bytes([type_id]) + body
 
@@ -76,12 +66,39 @@ def write_dataflash(path: Path, poses: Sequence[fl.Pose], *, flaws: Sequence[str
             items.append(att)
         if "no_trigger" not in flaws:
             items.append(msg("CAM", tus, i))
+        if rangefinder:
+            items.append(msg("RFND", tus, 0, slant_range(p), 4, 25))
     items.sort(key=lambda x: x[0])
     for _, data in items:
         out += data
     path = Path(path)
     path.write_bytes(bytes(out))
     return path
+
+
+def _fmt_header(formats: dict[str, tuple[int, str, str]]) -> bytes:
+    """The log's FMT messages: FMT's own, then one of each of ``formats``."""
+
+    def fmt_message(type_id: int, name: str, fmt: str, cols: str) -> bytes:
+        length = 3 + struct.calcsize("<" + "".join(_DF_STRUCT[c] for c in fmt))
+        return (
+            _DF_HEAD
+            + bytes([128])
+            + struct.pack(
+                "<BB4s16s64s", type_id, length, name.encode(), fmt.encode(), cols.encode()
+            )
+        )
+
+    columns = b"Type,Length,Name,Format,Columns"
+    head = _DF_HEAD + bytes([128]) + struct.pack("<BB4s16s64s", 128, 89, b"FMT", b"BBnNZ", columns)
+    return head + b"".join(fmt_message(t, name, f, c) for name, (t, f, c) in formats.items())
+
+
+def slant_range(p: fl.Pose) -> float:
+    """What a rangefinder fixed to the body, facing down, reads over flat ground at pose ``p``:
+    the range along the tilted body's down axis, height / (cos roll cos pitch)."""
+    tilt = math.cos(math.radians(p.roll)) * math.cos(math.radians(p.pitch))
+    return p.height_m / tilt
 
 
 def _pre_arm_positions(poses: Sequence[fl.Pose]) -> list[tuple[Any, ...]]:

@@ -13,16 +13,22 @@ from c3_matcher_tools.testing import flightlogs as fl
 __all__ = ["write_tlog"]
 
 
-def write_tlog(path: Path, poses: Sequence[fl.Pose], *, flaws: Sequence[str] = ()) -> Path:
+def write_tlog(
+    path: Path, poses: Sequence[fl.Pose], *, flaws: Sequence[str] = (), rangefinder: bool = False
+) -> Path:
     """A ground station's MAVLink telemetry log: ATTITUDE, GLOBAL_POSITION_INT, GPS_RAW_INT
     (h_acc 1.5 m) and CAMERA_FEEDBACK per frame, each prefixed by its UTC time as pymavlink
-    writes it. ``flaws``: ``no_attitude``, ``no_trigger``, ``home_reset`` (GLOBAL_POSITION_INT on
-    the ground before arming, its ``relative_alt`` above a home :data:`HOME_FIRST_M` higher than
-    the ground, the home of the flight)."""
+    writes it; ``rangefinder``: a DISTANCE_SENSOR at each frame, facing down, reading the range
+    along the tilted body (:func:`~.dataflash.slant_range`, cm: under 655 m). ``flaws``:
+    ``no_attitude``, ``no_trigger``, ``home_reset`` (GLOBAL_POSITION_INT on the ground before
+    arming, its ``relative_alt`` above a home :data:`HOME_FIRST_M` higher than the ground, the
+    home of the flight)."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     records = _tlog_positions(poses) + _tlog_frames(poses, flaws)
+    if rangefinder:
+        records += [(p.t_s, _distance_sensor(p)) for p in poses]
     if "home_reset" in flaws:
         records += _tlog_positions(poses, pre_arm=True)
     records.sort(key=lambda r: r[0])
@@ -80,3 +86,16 @@ def _tlog_frames(poses: Sequence[fl.Pose], flaws: Sequence[str]) -> list[tuple[f
             )
             records.append((p.t_s, feedback))
     return records
+
+
+def _distance_sensor(p: fl.Pose) -> Any:
+    """The DISTANCE_SENSOR of a downward rangefinder (0.2 to 655 m) at pose ``p``, its range
+    along the tilted body."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from c3_matcher_tools.testing.flightlogs.dataflash import slant_range
+
+    ms = int((fl.BOOT_S + p.t_s) * 1e3)
+    down = mavlink.MAV_SENSOR_ROTATION_PITCH_270
+    cm = round(slant_range(p) * 100)
+    return mavlink.MAVLink_distance_sensor_message(ms, 20, 65_500, cm, 0, 0, down, 0)

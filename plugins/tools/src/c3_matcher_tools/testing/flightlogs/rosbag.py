@@ -13,7 +13,12 @@ from c3_matcher.camera import rotation_world_from_body
 from c3_matcher.dto import Attitude
 from c3_matcher_tools.testing.flightlogs import UTC0, Pose, dense_track, quaternion_wxyz
 
-__all__ = ["write_bag"]
+__all__ = ["GEOID_HEIGHT_M", "write_bag"]
+
+GEOID_HEIGHT_M = -15.0
+"""The geoid height the bags are written with by default (sea level this far above the WGS84
+ellipsoid, m): their NavSatFix altitude is above the ellipsoid, as the message defines it,
+``GROUND_M`` + the height + this; not 0, so that a reader taking it for sea level is off."""
 
 
 def write_bag(
@@ -25,12 +30,16 @@ def write_bag(
     compressed: bool = True,
     flaws: Sequence[str] = (),
     pose_topic: bool = False,
+    geoid_height_m: float = GEOID_HEIGHT_M,
 ) -> Path:
     """A ROS 2 bag (``storage`` sqlite3 or mcap; ``ros1``: a ROS 1 ``.bag`` file) with
     ``/camera/image_raw/compressed``
     (``sensor_msgs/CompressedImage``; ``sensor_msgs/Image`` rgb8 when not ``compressed``),
     ``/camera/camera_info``, ``/imu/data`` (``sensor_msgs/Imu``, ENU / FLU as REP 103 says) and
-    ``/gps/fix`` (``sensor_msgs/NavSatFix``, covariance 1.5 m); ``pose_topic``: the same
+    ``/gps/fix`` (``sensor_msgs/NavSatFix``, covariance 1.5 m, altitude above the WGS84
+    ellipsoid as the message defines it: above sea level + ``geoid_height_m``, sea level's
+    height above the ellipsoid there; 0 writes sea-level altitude, as some drivers do);
+    ``pose_topic``: the same
     orientation also on ``/vehicle/pose`` (``geometry_msgs/PoseStamped``). ``flaws``:
     ``no_imu``, ``no_gps``."""
     from rosbags.typesys import Stores, get_typestore
@@ -47,7 +56,7 @@ def write_bag(
         info_t = poses[0].t_s - 0.5
         msgs.append((info_t, "info", _camera_info(store.types, calibration, info_t)))
         if "no_gps" not in flaws:
-            msgs += _gps_fixes(store.types, poses)
+            msgs += _gps_fixes(store.types, poses, geoid_height_m)
         msgs.sort(key=lambda x: (x[0], x[1]))
         for t, key, msg in msgs:
             writer.write(conns[key], _utc_ns(t), serialize(msg, msg.__msgtype__))
@@ -210,9 +219,12 @@ def _camera_info(types: Any, calibration: Any, t: float) -> Any:
     )
 
 
-def _gps_fixes(types: Any, poses: Sequence[Pose]) -> list[tuple[float, str, Any]]:
+def _gps_fixes(
+    types: Any, poses: Sequence[Pose], geoid_height_m: float = GEOID_HEIGHT_M
+) -> list[tuple[float, str, Any]]:
     """(t, "gps", fix) along the poses: ``sensor_msgs/NavSatFix``, 1.5 m horizontal and 3 m
-    vertical standard deviation."""
+    vertical standard deviation, its altitude above the ellipsoid (sea level's +
+    ``geoid_height_m``)."""
     fixes: list[tuple[float, str, Any]] = []
     for t, lat, lon, alt in dense_track(poses):
         fix = types["sensor_msgs/msg/NavSatFix"](
@@ -220,7 +232,7 @@ def _gps_fixes(types: Any, poses: Sequence[Pose]) -> list[tuple[float, str, Any]
             status=types["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
             latitude=lat,
             longitude=lon,
-            altitude=alt,
+            altitude=alt + geoid_height_m,
             position_covariance=np.diag([2.25, 2.25, 9.0]).reshape(-1),
             position_covariance_type=2,
         )
