@@ -1,15 +1,27 @@
 """Georeferencing a match: where the frame looked, in WGS84.
 
-A candidate's ``TileId(zoom, lat, lon)`` names the centre of its image, and a TILE px maps to
-WORLD px and so to lon/lat (:func:`tile_px_to_lonlat`) in one of two ways, told apart by the
-``tile_gsd_m`` given:
+A candidate's ``TileId(zoom, lat, lon)`` names the centre of its image. TILE px (u, v) is the
+centre of the image's pixel in column u, row v ((0, 0): the top-left pixel's centre); it lies at
+WORLD px (web mercator at the id's zoom, 256 * 2**zoom across the world, a pixel's centre at
+integer + 0.5) ``origin + scale * (u, v)`` (:func:`tile_px_origin`; :func:`candidate_placement`
+gives both as JSON) and so at a lon/lat (:func:`tile_px_to_lonlat`), in one of two ways, told
+apart by the ``tile_gsd_m`` given:
 
 - None: the image is a tile store's window (:mod:`c3_matcher.tilestore.handles`): its pixels
-  ARE the zoom's WORLD px, the window's corner the id's centre rounded onto that grid (so the
-  image's centre is up to half a pixel from the id's);
+  ARE the zoom's WORLD px (scale 1), the window's corner the id's centre rounded onto that grid
+  (so the image's centre is up to half a pixel per axis from the id's);
 - a ground sample distance (m/px): the image is one the user gives (``match --tile``), centred
   EXACTLY on its id (its centre pixel ((w - 1) / 2, (h - 1) / 2) is the id's lon/lat), its
   pixels that many metres (the zoom's own GSD when the image is of the zoom's scale).
+
+Such a GSD is taken as web mercator's nominal one, spherical (:meth:`TileId.web_mercator_gsd_m`,
+the equator's times cos(lat)), alike east and north: the scale is GSD over the zoom's. On the
+WGS84 ellipsoid a WORLD px spans fewer ground metres north-south than that: 0.6 % fewer at 15
+deg (0.02 % more east-west; at 47 deg 0.13 % fewer and 0.18 % more). At 15 deg an image whose GSD
+was measured on the ground is thus placed off north-south by 0.6 % of a point's distance from
+its centre: 0.28 px (2.7 cm) for the demo frame's centre, 46 px south of its tile's, 6 px at the
+edge of a 2048 px image. The maths stays spherical: an image cut from web-mercator imagery has
+that GSD exactly, and every fix stays as it was; a store window has none of this.
 
 The best candidate gives the map from
 UNDISTORTED query px to tile px (:func:`best_query_to_tile`), through which the frame's
@@ -47,6 +59,7 @@ from c3_matcher.tilestore.geo import (
 __all__ = [
     "EARTH_RADIUS_M",
     "best_query_to_tile",
+    "candidate_placement",
     "fit_query_to_tile",
     "footprint_lonlat",
     "georeference_result",
@@ -54,6 +67,7 @@ __all__ = [
     "is_georeferenced",
     "lonlat_to_tile_px",
     "require_mercator_latitude",
+    "tile_px_origin",
     "tile_px_to_lonlat",
     "wrap_longitude",
 ]
@@ -97,15 +111,16 @@ def _scale(tile_id: TileId, tile_gsd_m: float | None) -> float:
     return float(tile_gsd_m) / tile_id.web_mercator_gsd_m()
 
 
-def _origin(
-    tile_id: TileId, size: tuple[int, int], tile_gsd_m: float | None
+def tile_px_origin(
+    tile_id: TileId, size: tuple[int, int], tile_gsd_m: float | None = None
 ) -> tuple[float, float]:
-    """WORLD px of tile px (0, 0)'s centre: on the zoom's pixel grid for a store window
-    (``tile_gsd_m`` None, the window convention of :mod:`c3_matcher.tilestore.handles`), else
-    where the image centred exactly on the id puts it. Which one is the meaning of the
-    ``tile_gsd_m`` given, never a coincidence of its value: a GSD equal to the zoom's still
-    centres the image exactly. An id beyond web mercator's latitudes is refused
-    (:func:`require_mercator_latitude`)."""
+    """WORLD px (at ``tile_id``'s zoom) of TILE px (0, 0), the centre of the top-left pixel of a
+    ``size`` = (width, height) image centred on ``tile_id``: on the zoom's pixel grid for a store
+    window (``tile_gsd_m`` None, the window of :mod:`c3_matcher.tilestore.handles`, its corner
+    the id's centre rounded onto the grid), else where the image centred exactly on the id puts
+    it. Which one is the meaning of the ``tile_gsd_m`` given, never a coincidence of its value:
+    a GSD equal to the zoom's still centres the image exactly. An id beyond web mercator's
+    latitudes is refused (:func:`require_mercator_latitude`)."""
     require_mercator_latitude(tile_id)
     (cx, cy) = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0]
     w, h = size
@@ -115,6 +130,27 @@ def _origin(
     return cx - (w / 2 - 0.5) * scale, cy - (h / 2 - 0.5) * scale
 
 
+def candidate_placement(
+    tile_id: TileId, size: tuple[int, int], tile_gsd_m: float | None = None
+) -> dict[str, Any]:
+    """The JSON fields that place a candidate image's pixels on the map, so that a step
+    downstream need not re-derive a store window's rounding onto the zoom's grid:
+    ``tile_size_px`` [width, height], ``tile_origin_world_px`` [X, Y] (:func:`tile_px_origin`)
+    and ``world_px_per_tile_px`` (1 for a store window, ``tile_gsd_m`` None): TILE px (u, v) is
+    WORLD px ``tile_origin_world_px + world_px_per_tile_px * (u, v)`` at the id's zoom (an X
+    beyond the world's 0 to 256 * 2**zoom px where the image straddles 180 deg: a turn away).
+    Both null when ``tile_id`` names no place (:func:`is_georeferenced`)."""
+    size_px = [int(size[0]), int(size[1])]
+    if not is_georeferenced(tile_id):
+        return {"tile_size_px": size_px, "tile_origin_world_px": None, "world_px_per_tile_px": None}
+    x0, y0 = tile_px_origin(tile_id, size, tile_gsd_m)
+    return {
+        "tile_size_px": size_px,
+        "tile_origin_world_px": [float(x0), float(y0)],
+        "world_px_per_tile_px": _scale(tile_id, tile_gsd_m),
+    }
+
+
 def _continuous_lonlat(
     tile_id: TileId, size: tuple[int, int], pts: ArrayLike, tile_gsd_m: float | None
 ) -> F64:
@@ -122,7 +158,7 @@ def _continuous_lonlat(
     image (beyond 180 deg where the image straddles the line east of its centre)."""
     p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
     s = _scale(tile_id, tile_gsd_m)
-    x0, y0 = _origin(tile_id, size, tile_gsd_m)
+    x0, y0 = tile_px_origin(tile_id, size, tile_gsd_m)
     world = np.stack([x0 + p[:, 0] * s, y0 + p[:, 1] * s], axis=1)
     return world_px_to_lonlat(world, tile_id.zoom)
 
@@ -144,7 +180,7 @@ def lonlat_to_tile_px(
     """Inverse of :func:`tile_px_to_lonlat`: a point is taken on the turn of the globe nearest
     the image (a longitude across 180 deg from it lies beside it, not a world away)."""
     s = _scale(tile_id, tile_gsd_m)
-    x0, y0 = _origin(tile_id, size, tile_gsd_m)
+    x0, y0 = tile_px_origin(tile_id, size, tile_gsd_m)
     world = lonlat_to_world_px(lonlat, tile_id.zoom)
     centre_x = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0, 0]
     span = TILE_PX * 2.0**tile_id.zoom

@@ -28,6 +28,7 @@ from c3_matcher.config import C3Settings
 from c3_matcher.context import CommandContext
 from c3_matcher.dto.camera import CameraCalibration, NavCameraFrame
 from c3_matcher.dto.candidates import RerankResult, TilePixelsHandle
+from c3_matcher.dto.geo import TileId
 from c3_matcher.errors import (
     AmbiguousMatchError,
     InsufficientInliersError,
@@ -35,6 +36,7 @@ from c3_matcher.errors import (
     MatcherBackboneError,
 )
 from c3_matcher.fdr import FdrOpenError, FdrWriteError, InMemoryFdr, JsonlFdrRecorder
+from c3_matcher.georef import candidate_placement
 from c3_matcher.match_inputs import (
     attitude_arg,
     file_candidates,
@@ -291,14 +293,19 @@ def _result_json(
     calibration: CameraCalibration,
     reasons: dict[int, str],
 ) -> dict[str, Any]:
-    """The result as ``match`` prints it, with the dropped candidates and why."""
+    """The result as ``match`` prints it, each kept candidate placed on the map
+    (:func:`~c3_matcher.georef.candidate_placement`), with the dropped candidates and why."""
+    sizes = _kept_tile_sizes(result, rerank)
     out = result_to_json(
         result,
         with_correspondences=not args.no_correspondences,
         calibration=calibration,
-        tile_sizes=_best_tile_sizes(result, rerank),
-        tile_gsd_m=_georef_gsd(args, result),
+        tile_sizes=sizes,
+        tile_gsd_m=_georef_gsd(args, result.per_candidate[0].tile_id),
     )
+    for entry, c in zip(out["per_candidate"], result.per_candidate, strict=True):
+        gsd = _georef_gsd(args, c.tile_id)  # a zoom-0 placeholder id is placed nowhere (null)
+        entry.update(candidate_placement(c.tile_id, sizes[entry["tile_index"]], gsd))
     kept = {int(c["tile_index"]) for c in out["per_candidate"]}
     dropped = [i for i in range(len(rerank.candidates)) if i not in kept]
     out["dropped"] = _dropped_json(args, rerank, dropped, reasons)
@@ -308,8 +315,8 @@ def _result_json(
     return out
 
 
-def _georef_gsd(args: argparse.Namespace, result: Any) -> float | None:
-    """The GSD the georeference reads the best tile at: None for a ``--store`` window (its
+def _georef_gsd(args: argparse.Namespace, tile_id: TileId) -> float | None:
+    """The GSD the georeference reads a candidate's tile at: None for a ``--store`` window (its
     pixels are its zoom's grid), else the ``--tile`` image's (``--tile-gsd``, or its id's zoom
     GSD): a ``--tile`` image is centred exactly on its ``--tile-id``, never snapped onto the
     zoom's grid (see :mod:`c3_matcher.georef`)."""
@@ -317,7 +324,7 @@ def _georef_gsd(args: argparse.Namespace, result: Any) -> float | None:
         return None
     if args.tile_gsd is not None:
         return float(args.tile_gsd)
-    return float(result.per_candidate[0].tile_id.web_mercator_gsd_m())
+    return float(tile_id.web_mercator_gsd_m())
 
 
 def _dropped_json(
@@ -362,13 +369,14 @@ def _report(problems: list[str]) -> bool:
     return bool(problems)
 
 
-def _best_tile_sizes(result: Any, rerank: RerankResult) -> list[tuple[int, int]]:
-    """(width, height) per input position, decoded for the best candidate alone (the one the
-    georeference uses); the others stand as (0, 0): a dropped one's pixels may be what dropped
-    it (a window over no stored tile, a damaged tile)."""
-    best = int(result.diagnostics.get("input_index", [0])[0])
+def _kept_tile_sizes(result: Any, rerank: RerankResult) -> list[tuple[int, int]]:
+    """(width, height) per input position, decoded for the kept candidates alone (the best
+    one's georeferences the frame, each one's places its tile px); the others stand as (0, 0):
+    a dropped one's pixels may be what dropped it (a window over no stored tile, a damaged
+    tile)."""
+    kept = {int(i) for i in result.diagnostics.get("input_index", [0])}
     return [
-        _image_size(c.tile_pixels_handle) if i == best else (0, 0)
+        _image_size(c.tile_pixels_handle) if i in kept else (0, 0)
         for i, c in enumerate(rerank.candidates)
     ]
 

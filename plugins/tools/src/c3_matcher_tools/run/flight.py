@@ -22,7 +22,7 @@ from c3_matcher.errors import (
     InvalidInputError,
     MatcherBackboneError,
 )
-from c3_matcher.georef import haversine_m
+from c3_matcher.georef import candidate_placement, haversine_m
 from c3_matcher.logs import MATCHER_GEOMETRY_REFUSED, MATCHER_ZERO_INLIERS
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import CrossDomainMatcher
@@ -274,6 +274,7 @@ class _Where:
             candidates=self.candidates,
             dropped=self.dropped,
             ambiguous=ambiguous,
+            captured_at_ns=frame.captured_at_ns,
         )
 
 
@@ -323,8 +324,9 @@ def _matched(
         calibration=dataset.calibration,
         tile_sizes=[(size, size)] * len(frame.candidates),
     )
-    if with_correspondences:  # the result's arrays, lists only when written (replay_memory.py)
-        for entry, candidate in zip(as_json["per_candidate"], result.per_candidate, strict=True):
+    for entry, candidate in zip(as_json["per_candidate"], result.per_candidate, strict=True):
+        entry.update(candidate_placement(candidate.tile_id, (size, size)))  # a store window
+        if with_correspondences:  # the result's arrays, lists only when written (replay_memory.py)
             entry["inlier_correspondences"] = candidate.inlier_correspondences
     matched = _Matched(result, best_input, mean_err, as_json)
     return where.outcome(frame, FrameStatus.OK, elapsed_ms, matched=matched)

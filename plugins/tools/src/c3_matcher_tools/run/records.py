@@ -72,8 +72,11 @@ class FrameOutcome:
     got no fix because two candidates place it in different places (``AmbiguousMatchError``),
     that rival in its words (None otherwise; its status is still ``insufficient``, its
     ``insufficient_best`` the best's inliers, which may pass the threshold). ``result``: the result
-    as JSON (:func:`c3_matcher.serialize.result_to_json`), its inlier correspondences held as
-    the result's float32 (I, 4) arrays until :meth:`to_json` writes them as lists."""
+    as JSON (:func:`c3_matcher.serialize.result_to_json`, each kept candidate placed on the map by
+    :func:`c3_matcher.georef.candidate_placement`), its inlier correspondences held as the
+    result's float32 (I, 4) arrays until :meth:`to_json` writes them as lists.
+    ``captured_at_ns``: the frame's capture time as its dataset records it (ns from the flight's
+    first frame), the ``captured_at_ns`` of the FDR's records of the frame (None: not known)."""
 
     index: int
     frame_id: str
@@ -104,6 +107,7 @@ class FrameOutcome:
     candidates: int = 0
     dropped: tuple[DroppedCandidate, ...] = ()
     ambiguous: str | None = None
+    captured_at_ns: int | None = None
 
     @property
     def status_words(self) -> str:
