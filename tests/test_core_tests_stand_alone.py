@@ -1,7 +1,8 @@
 """The core's tests import the core alone: no ground tool and no plugin, at the top, inside a
-function or in a program they run in a child Python. The core's ``test`` extra declares neither,
-so one such import stops ``pip install c3-matcher[test]; pytest core/tests`` before a test runs;
-what needs the tools (the simulator, a whole flight) is tested in ``tests/``."""
+function or in a program they run in a child Python; what needs the tools (the simulator, a
+whole flight) is tested in ``tests/``. (Engines some of them match with are still built by the
+repository's ``conftest.py`` through the tools' engine compiler: a fixture, not an import of
+theirs.)"""
 
 from __future__ import annotations
 

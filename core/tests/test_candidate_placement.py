@@ -10,6 +10,7 @@ and the README's demo frame against its ``--tile`` images, centred exactly on th
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -95,6 +96,36 @@ def test_a_store_windows_placement_puts_the_frame_centre_where_the_result_does(
     tile_px = cam.apply_homography(np.asarray(store_match["best_homography"]), [[k[0][2], k[1][2]]])
     lon, lat = _placed(best, tile_px)[0]
     assert (lat, lon) == pytest.approx((store_match["centre_lat"], store_match["centre_lon"]))
+
+
+def test_every_kept_store_window_is_placed_not_only_the_best(tmp_path: Path) -> None:
+    """Frame 0 against its three recorded windows: the OpenCV strategy keeps two (the true one
+    and a neighbour); each kept entry has its own window's size and origin (the best's size once
+    stood in for the others')."""
+    record = json.loads((FLIGHT / "frames.jsonl").read_text().splitlines()[0])
+    ids = [
+        a for c in record["candidates"] for a in ("--tile-id", ",".join(map(repr, c["tile_id"])))
+    ]
+    argv = [
+        *("match", "--query", str(FLIGHT / record["image"])),
+        *("--store", str(FLIGHT / "tiles.mbtiles"), "--window", str(WINDOW), *ids),
+        *("--calibration", str(FLIGHT / "calibration.json"), "--height", str(record["height_m"])),
+        *("--attitude", ",".join(map(str, record["attitude_deg"])), "--strategy", "sift_magsac"),
+        *("--no-correspondences", "--fdr", str(tmp_path / "fdr.jsonl")),
+    ]
+    proc = run_match(argv=argv)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    kept = json.loads(proc.stdout)["per_candidate"]
+    assert len(kept) >= 2, kept  # the case this is about: a kept candidate after the best
+    corners = np.array([[0, 0], [WINDOW - 1, 0], [0, WINDOW - 1], [WINDOW - 1, WINDOW - 1]])
+    for entry in kept:
+        tile_id = TileId(*entry["tile_id"])
+        assert entry["tile_size_px"] == [WINDOW, WINDOW] and entry["world_px_per_tile_px"] == 1.0
+        centre = lonlat_to_world_px([[tile_id.lon, tile_id.lat]], tile_id.zoom)[0]
+        off = np.asarray(entry["tile_origin_world_px"]) + (WINDOW - 1) / 2 - centre
+        assert np.all(np.abs(off) <= 0.5), off  # its own window, rounded onto the grid
+        expected = tile_px_to_lonlat(tile_id, (WINDOW, WINDOW), corners)
+        assert np.allclose(_placed(entry, corners), expected, rtol=0, atol=1e-10)
 
 
 def test_a_tile_image_is_placed_centred_exactly_on_its_id_at_its_gsd() -> None:

@@ -15,6 +15,7 @@ import pytest
 
 from c3_matcher.compose import build_default_helpers, compose_root
 from c3_matcher.config import C3Settings
+from c3_matcher.demo import demo_inputs
 from c3_matcher.dto import RerankResult
 from c3_matcher.errors import (
     InsufficientInliersError,
@@ -25,7 +26,6 @@ from c3_matcher.errors import (
 from c3_matcher.fdr import InMemoryFdr, read_fdr
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.testing import ScriptedCandidate, ScriptedRig, make_rerank
-from c3_matcher.testing.demo import demo_inputs
 
 S = ScriptedCandidate
 DEMO = Path(__file__).resolve().parents[2] / "data" / "demo"

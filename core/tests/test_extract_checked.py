@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from c3_matcher.demo import demo_inputs
 from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.health import RollingHealthWindow
@@ -23,7 +24,6 @@ from c3_matcher.probe import engine_startup_probe
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.stages.extract import checked_features
 from c3_matcher.testing import FakeClock, InMemoryFdr
-from c3_matcher.testing.demo import demo_inputs
 
 from .test_contract_kit import OpenCvBackend
 

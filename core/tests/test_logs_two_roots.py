@@ -29,7 +29,7 @@ PROGRAM = textwrap.dedent(
     from c3_matcher.compose import build_default_helpers, compose_root
     from c3_matcher.config import C3Settings
     from c3_matcher.logs import log_event
-    from c3_matcher.testing.demo import demo_inputs
+    from c3_matcher.demo import demo_inputs
 
     engines, out, demo, first = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3]), sys.argv[4]
 

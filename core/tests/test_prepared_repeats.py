@@ -11,13 +11,13 @@ import cv2
 import numpy as np
 import pytest
 
+from c3_matcher.demo import demo_inputs
 from c3_matcher.errors import InsufficientInliersError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.pipeline import PipelineSettings
 from c3_matcher.prepared import PreparedImage, correspondences
 from c3_matcher.ransac import OpenCvRansacFilter
-from c3_matcher.testing.demo import demo_inputs
 from c3_matcher.testing.fakes import ScriptedCandidate, make_frame, make_rerank, scripted_pipeline
 from c3_matcher.testing.scripted import MarkedRansac, ScriptedBackend
 

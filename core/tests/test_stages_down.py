@@ -18,6 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from c3_matcher.demo import demo_inputs
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
@@ -28,7 +29,6 @@ from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.scales import prepare_scales
 from c3_matcher.stages.verify import VerifierSettings, best_turn, candidate_verdict
 from c3_matcher.testing import FakeClock
-from c3_matcher.testing.demo import demo_inputs
 
 from .test_contract_kit import OpenCvBackend
 

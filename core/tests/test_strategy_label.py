@@ -15,13 +15,13 @@ import pytest
 from c3_matcher import plugins as c3
 from c3_matcher.compose import compose_root
 from c3_matcher.config import C3Settings
+from c3_matcher.demo import demo_inputs
 from c3_matcher.dto import RerankResult
 from c3_matcher.errors import InsufficientInliersError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.plugins.manager import PluginSource
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.strategy import backend_strategy_factory
-from c3_matcher.testing.demo import demo_inputs
 from c3_matcher.testing.hosts import RESEARCH_PROFILE, fake_helpers
 
 from .test_contract_kit import OpenCvBackend

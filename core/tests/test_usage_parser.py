@@ -37,6 +37,7 @@ def test_anything_else_with_a_minus_is_still_an_option(word: str) -> None:
         ("--attitude", "0,0,720", "attitude.yaw_deg: must be <= 360.0, got 720.0"),  # degrees out
         ("--height", "nan", "must be finite and > 0, got nan"),
         ("--tile-id", "18,1", "expected ZOOM,LAT,LON"),
+        ("--tile-id", "0,14.6,121.0", "zoom 0 names no place: give the tile's zoom, 1 or more"),
         ("--tile-id", "21,90,0", "90.0 is beyond web mercator's latitude limit, +-85.0511 deg"),
         ("--tile-id", "21,-85.06,0", "is beyond web mercator's latitude limit"),
         ("--height", "-4", "must be finite and > 0, got -4.0"),

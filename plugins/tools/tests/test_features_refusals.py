@@ -262,7 +262,7 @@ def test_a_strategy_with_no_extractor_engine_is_refused_before_the_sidecar_is_to
     argv = ["features", "build", str(store), "--strategy", "xfeat", "--strategy", "sift_magsac"]
     assert main([*argv, "--workers", "1", "--window", "128"]) == 2
     err = capfd.readouterr().err.strip()
-    assert "strategy 'sift_magsac' extracts its features without an extractor engine" in err, err
+    assert "strategy 'sift_magsac' names no extractor engine its features come from" in err, err
     assert len(err.splitlines()) == 1, err
     assert not (tmp_path / "tiles.mbtiles.features.sqlite").exists()
 

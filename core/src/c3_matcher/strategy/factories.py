@@ -14,8 +14,9 @@ strategy's own defaults applied where the configuration leaves a setting unset:
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 from pydantic import BaseModel
 
@@ -69,9 +70,13 @@ def _validated(options_model: type[BaseModel] | None, options: Any) -> Any:
     return options
 
 
+ConfigMaker = Callable[[C3Settings, Any, EngineStore], ExtractorStrategyConfig]
+"""``make_config(settings, options, engines)``: a strategy's config (``strategy_factory``)."""
+
+
 def strategy_factory(
     matcher_class: type[ExtractorMatcher],
-    make_config: Callable[[C3Settings, Any, EngineStore], ExtractorStrategyConfig],
+    make_config: ConfigMaker | Callable[[C3Settings, Any], ExtractorStrategyConfig],
     options_model: type[BaseModel] | None = None,
 ) -> StrategyFactory:
     """A strategy's ``create(config, *helpers, options, **helpers)`` from two facts: its
@@ -79,7 +84,10 @@ def strategy_factory(
     from the composed settings, its validated options (a mapping is validated with
     ``options_model`` here; None means its defaults) and the engine directory
     (``[engines] directory``, opened here once: ``engines.require_spec`` gives an engine's
-    file). The per-frame loop's settings come from ``[matcher]`` (``PipelineSettings``)."""
+    file). The per-frame loop's settings come from ``[matcher]`` (``PipelineSettings``). A
+    ``make_config(settings, options)`` of two parameters, as plugins wrote it before the engine
+    directory was handed over, is called so (it opens the directory itself)."""
+    config_of = _three_parameters(make_config)
 
     def create(
         config: C3Settings, *given: Any, options: Any = None, **named: Any
@@ -94,11 +102,27 @@ def strategy_factory(
             helpers["ransac_filter"],
             helpers["fdr_client"],
             helpers["health_window"],
-            make_config(config, _validated(options_model, options), engines),
+            config_of(config, _validated(options_model, options), engines),
             helpers["clock"],
         )
 
     return create
+
+
+def _three_parameters(
+    make_config: ConfigMaker | Callable[[C3Settings, Any], ExtractorStrategyConfig],
+) -> ConfigMaker:
+    """``make_config`` as one of ``(settings, options, engines)``: as it is, or, taking two
+    positional parameters, called without ``engines``."""
+    try:
+        parameters = inspect.signature(make_config).parameters.values()
+    except (TypeError, ValueError):  # no signature to read (a builtin): as documented
+        return cast(ConfigMaker, make_config)
+    positional = [p for p in parameters if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    if len(positional) == 2 and not any(p.kind is p.VAR_POSITIONAL for p in parameters):
+        two = cast(Callable[[C3Settings, Any], ExtractorStrategyConfig], make_config)
+        return lambda settings, options, _engines: two(settings, options)
+    return cast(ConfigMaker, make_config)
 
 
 def backend_strategy_factory(

@@ -261,8 +261,9 @@ def _extractor_sha256(strategy: str, backend: Any) -> str:
     sha = backend.extractor_sha256 if isinstance(backend, StoredFeaturesBackend) else None
     if not sha:
         raise NotStorableError(
-            f"strategy {strategy!r} extracts its features without an extractor engine "
-            f"({backend.provenance()['provider']}), so no stored features serve it: its tiles "
-            "are extracted in flight; build them for a strategy that has one"
+            f"strategy {strategy!r} names no extractor engine its features come from (its "
+            f"backend, {backend.provenance()['provider']}, declares no extractor_sha256), so "
+            "no stored features serve it: its tiles are extracted in flight; build them for a "
+            "strategy that has one"
         )
     return str(sha)

@@ -1,7 +1,7 @@
 """What a run feeds the matcher: (frame, rerank, calibration) per frame, read from a flight
 dataset (``dataset.json``) or from a demo-format directory (``demo.json``: one frame, its
 candidate tiles, the camera's calibration; read by the core's
-:func:`~c3_matcher.testing.demo.demo_inputs`)."""
+:func:`~c3_matcher.demo.demo_inputs`)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from c3_matcher.demo import MatchInputs, demo_inputs
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.testing.demo import MatchInputs, demo_inputs
 from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS
 
 if TYPE_CHECKING:

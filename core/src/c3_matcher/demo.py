@@ -1,8 +1,8 @@
 """The inputs of one ``match`` call read from a demo-format directory (``demo.json``: one
-frame, its candidate tiles, the camera's calibration; ``data/demo`` is one): what the core's
-tests match the shipped demo frame with, and what ``c3-matcher run`` and ``bench`` read from
-such a directory. It needs the core alone, so a test of the core reads the demo without the
-ground tools installed."""
+frame, its candidate tiles, the camera's calibration; ``data/demo`` is one): what ``bench``
+and the tools' run layer read from such a directory, and what the core's tests match the
+shipped demo frame with (it needs the core alone, so they read the demo without the ground
+tools installed)."""
 
 from __future__ import annotations
 
