@@ -223,10 +223,14 @@ def attitude_arg(text: str) -> Attitude:
 
 
 def tile_id_arg(text: str) -> TileId:
-    """``--tile-id Z,LAT,LON``: a place, so within web mercator's latitudes
+    """``--tile-id Z,LAT,LON``: a place, so of zoom 1 or more (zoom 0 is the id a tile without
+    ``--tile-id`` gets: no place) and within web mercator's latitudes
     (:func:`~c3_matcher.georef.require_mercator_latitude`)."""
     try:
         tile_id = TileId.parse(text)
+        if tile_id.zoom < 1:
+            zoom = f"zoom {tile_id.zoom} names no place: give the tile's zoom, 1 or more"
+            raise argparse.ArgumentTypeError(zoom)
         require_mercator_latitude(tile_id)
         return tile_id
     except InvalidInputError as exc:

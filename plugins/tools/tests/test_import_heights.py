@@ -27,7 +27,7 @@ import pytest
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.serialize import load_calibration
 from c3_matcher_tools.dataset.format import load_dataset
-from c3_matcher_tools.dataset.provenance import IMPORT_REVISION, import_faults
+from c3_matcher_tools.dataset.provenance import IMPORT_REVISION, ImportFault, import_faults
 from c3_matcher_tools.dataset.sources.frames import ground_elevation_sampler
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.cli import run_cli
@@ -233,7 +233,7 @@ def test_a_ground_that_leaves_every_frame_below_it_says_the_heights_it_gave(
     _refused(c3(*argv, "--dem", feet), "--dem: ", "gave heights from -3720.0 to -3720.0 m")
 
 
-def _fault_whats(kind: str, revision: int, sources: list[str]) -> list[str]:
+def _faults(kind: str, revision: int, sources: list[str]) -> list[ImportFault]:
     """The import faults said of a dataset of ``kind`` (source kind) and import ``revision``
     whose frames' height sources are ``sources``."""
     log_kind = {"rosbag": "ROS bag", "ardupilot": "ArduPilot DataFlash", "ulog": "PX4 ULog"}[kind]
@@ -242,7 +242,11 @@ def _fault_whats(kind: str, revision: int, sources: list[str]) -> list[str]:
             "time_offset_s": None, "options": {}, "import_revision": revision}  # fmt: skip
     meta = {"name": "f", "spec": spec, "import": {}}
     telemetry = [{"height_source": s} for s in sources]
-    return [f.what for f in import_faults(Path("f"), meta, telemetry)]
+    return list(import_faults(Path("f"), meta, telemetry))
+
+
+def _fault_whats(kind: str, revision: int, sources: list[str]) -> list[str]:
+    return [f.what for f in _faults(kind, revision, sources)]
 
 
 def test_datasets_imported_before_are_said_to_be_at_fault() -> None:
@@ -252,6 +256,8 @@ def test_datasets_imported_before_are_said_to_be_at_fault() -> None:
     assert IMPORT_REVISION >= 4
     bag = _fault_whats("rosbag", 3, ["altitude - ground elevation"] * 3)
     assert len(bag) == 1 and "3 of 3 frames" in bag[0] and "add --geoid-height" in bag[0], bag
+    (redo,) = {f.redo for f in _faults("rosbag", 3, ["altitude - ground elevation"])}
+    assert "--geoid-height N " in redo, redo  # the command as printed runs once N is given
     assert len(_fault_whats("rosbag", 3, ["nearest frame's height (altitude - DEM gave -1 m)"]))
     assert _fault_whats("rosbag", 4, ["altitude - ground elevation"]) == []
     slant = _fault_whats("ardupilot", 3, ["RFND (above ground)", "altitude - home altitude 5 m"])

@@ -322,7 +322,8 @@ def reimport_command(root: Path, spec: Mapping[str, Any], *, name: str | None = 
     """The ``dataset import`` that makes the dataset at ``root`` again, replacing it: its
     images, telemetry and store as ``spec`` names them (by file name), its ``name`` and the
     options it was imported with; CALIBRATION stands for the camera calibration, which a
-    dataset keeps without its file's name. A log import's spec that does not record its log
+    dataset keeps without its file's name, and N for a bag's geoid height where it was imported
+    before the option was. A log import's spec that does not record its log
     options (:data:`LOG_OPTIONS`) is said to."""
     images = spec.get("images") or spec.get("images_dir") or "IMAGES"
     telemetry = spec.get("log") or spec.get("telemetry_csv") or "TELEMETRY"
@@ -351,8 +352,10 @@ def _option_words(spec: Mapping[str, Any]) -> list[str]:
     if spec.get("skip_outside"):
         words.append("--skip-outside")
     given = spec.get("options")
-    if isinstance(given, Mapping):
-        words += [w for o in LOG_OPTIONS if o in given for w in (o, str(given[o]))]
+    given = given if isinstance(given, Mapping) else {}
+    words += [w for o in LOG_OPTIONS if o in given for w in (o, str(given[o]))]
+    if spec.get("source_kind") == "rosbag" and "--geoid-height" not in given:
+        words += ["--geoid-height", "N"]  # before revision 4: the bag's geoid height, to give
     return words
 
 
@@ -373,7 +376,7 @@ def _unknown_options(spec: Mapping[str, Any]) -> str:
     topics and intrinsics only for a bag's)."""
     bag = spec.get("source_kind") == "rosbag"
     named = "/".join(
-        o for o in LOG_OPTIONS if bag or not (o.endswith("-topic") or o == "--geoid-height")
+        o for o in LOG_OPTIONS if (bag or not o.endswith("-topic")) and o != "--geoid-height"
     )
     said = f"add {named} and --ground-elevation or --dem if you gave them"
     return said + ("; '-' for CALIBRATION if it took the bag's CameraInfo" if bag else "")
