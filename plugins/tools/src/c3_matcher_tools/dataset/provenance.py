@@ -141,18 +141,32 @@ class _KnownFault:
     found: Callable[[_Seen], tuple[str, str] | None]
 
 
-def _first_home(seen: _Seen) -> tuple[str, str] | None:
-    """Heights from the log's first home altitude (PX4 and ArduPilot logs, before 2026-12-02)."""
-    old = sum(1 for t in seen.telemetry if _OLD_HOME.search(str(t.get("height_source", ""))))
-    if not old:
-        return None
-    what = (
-        f"its heights ({old} of {len(seen.telemetry)} frames) are the altitude minus the log's "
-        "first home altitude, as the importer read them before 2026-12-02, which missed a home "
-        "set again at arming, as PX4 and ArduPilot set it (a home 12 m high before arming made "
-        "780 m read 768 m)"
-    )
-    return what, _HEIGHTS_AFFECT
+@dataclass(frozen=True)
+class _OldHeights:
+    """Heights as the importer wrote them before a fix, told by each frame's height source
+    (``pattern``, searched) in a log that ``applies`` to (its spec); ``said`` is the fault in
+    words, ``{old}`` and ``{frames}`` standing for how many frames show it of how many."""
+
+    pattern: re.Pattern[str]
+    said: str
+    applies: Callable[[Mapping[str, Any]], bool] = lambda _spec: True
+
+    def __call__(self, seen: _Seen) -> tuple[str, str] | None:
+        if not self.applies(seen.spec):
+            return None
+        sources = (str(t.get("height_source", "")) for t in seen.telemetry)
+        old = sum(1 for source in sources if self.pattern.search(source))
+        if not old:
+            return None
+        return self.said.format(old=old, frames=len(seen.telemetry)), _HEIGHTS_AFFECT
+
+
+_first_home = _OldHeights(  # PX4 and ArduPilot logs, before 2026-12-02
+    _OLD_HOME,
+    "its heights ({old} of {frames} frames) are the altitude minus the log's first home "
+    "altitude, as the importer read them before 2026-12-02, which missed a home set again at "
+    "arming, as PX4 and ArduPilot set it (a home 12 m high before arming made 780 m read 768 m)",
+)
 
 
 def _triggers_twice(seen: _Seen) -> tuple[str, str] | None:
@@ -211,50 +225,32 @@ def _clock_unsought(seen: _Seen) -> tuple[str, str] | None:
     return what, affects
 
 
-_OLD_GROUND = re.compile(r"(nearest frame's height \()?altitude - (ground elevation|DEM)\b")
+_OLD_GROUND = re.compile(r"^(nearest frame's height \()?altitude - (ground elevation|DEM)\b")
 """A height source from the altitude minus the ground as the importer wrote it before import
 revision 4 (since, it names the altitude's datum: ``altitude above sea level - DEM``, a bag's
 ``altitude above the ellipsoid - geoid height 47.4 m - DEM``)."""
 
+_bag_ellipsoid = _OldHeights(  # NavSatFix altitude above the ellipsoid, a sea-level ground
+    _OLD_GROUND,
+    "its heights ({old} of {frames} frames) are the bag's NavSatFix altitude minus the ground, "
+    "as the importer took them before 2026-12-05: that altitude is above the WGS84 ellipsoid "
+    "and the ground above sea level, so each height is off by the geoid height there (47 m at "
+    "Zurich); add --geoid-height N (sea level's height above the ellipsoid there, m; 0 if the "
+    "bag's driver writes sea-level altitude)",
+    lambda spec: spec.get("source_kind") == "rosbag" or spec.get("log_kind") == "ROS bag",
+)
 
-def _bag_ellipsoid(seen: _Seen) -> tuple[str, str] | None:
-    """A ROS bag's heights from its NavSatFix altitude, above the ellipsoid, minus a ground
-    above sea level (before import revision 4): each off by the geoid height there."""
-    if seen.spec.get("source_kind") != "rosbag" and seen.spec.get("log_kind") != "ROS bag":
-        return None
-    old = sum(1 for t in seen.telemetry if _OLD_GROUND.match(str(t.get("height_source", ""))))
-    if not old:
-        return None
-    what = (
-        f"its heights ({old} of {len(seen.telemetry)} frames) are the bag's NavSatFix altitude "
-        "minus the ground, as the importer took them before 2026-12-05: that altitude is above "
-        "the WGS84 ellipsoid and the ground above sea level, so each height is off by the geoid "
-        "height there (47 m at Zurich); add --geoid-height N (sea level's height above the "
-        "ellipsoid there, m; 0 if the bag's driver writes sea-level altitude)"
-    )
-    return what, _HEIGHTS_AFFECT
-
-
-_OLD_SLANT = re.compile(r"(nearest frame's height \()?(RFND|DISTANCE_SENSOR) \(above ground\)")
+_OLD_SLANT = re.compile(r"^(nearest frame's height \()?(RFND|DISTANCE_SENSOR) \(above ground\)")
 """An ArduPilot rangefinder's height source before import revision 4 (since: ``RFND x
 cos(roll) cos(pitch) (above ground)``)."""
 
-
-def _rangefinder_slant(seen: _Seen) -> tuple[str, str] | None:
-    """An ArduPilot log's heights from its rangefinder's range along the tilted body, taken as
-    vertical (before import revision 4): too high by 1 / (cos roll cos pitch)."""
-    if seen.spec.get("log_kind") not in ARDUPILOT_KINDS:
-        return None
-    old = sum(1 for t in seen.telemetry if _OLD_SLANT.match(str(t.get("height_source", ""))))
-    if not old:
-        return None
-    what = (
-        f"its heights ({old} of {len(seen.telemetry)} frames) are the rangefinder's range along "
-        "the tilted body, taken as vertical by the importer before 2026-12-05 (6 % too high at "
-        "20 deg of tilt, 15 % at 30 deg); the importer now multiplies it by cos(roll) cos(pitch), "
-        "as ArduPilot does"
-    )
-    return what, _HEIGHTS_AFFECT
+_rangefinder_slant = _OldHeights(  # the range along the tilted body taken as vertical
+    _OLD_SLANT,
+    "its heights ({old} of {frames} frames) are the rangefinder's range along the tilted body, "
+    "taken as vertical by the importer before 2026-12-05 (6 % too high at 20 deg of tilt, 15 % "
+    "at 30 deg); the importer now multiplies it by cos(roll) cos(pitch), as ArduPilot does",
+    lambda spec: spec.get("log_kind") in ARDUPILOT_KINDS,
+)
 
 
 _KNOWN = (
