@@ -55,9 +55,12 @@ def test_two_long_names_that_begin_alike_have_temporary_names_of_their_own(
     )
 
 
-def test_a_picture_with_a_250_byte_name_is_written_by_match(tmp_path: Path) -> None:
+def test_a_picture_with_a_250_byte_name_is_written_by_match(
+    tmp_path: Path, tmp_path_factory: pytest.TempPathFactory
+) -> None:
     viz = tmp_path / ("v" * 246 + ".png")
-    done = run_match("--viz", str(viz))
+    fdr = tmp_path_factory.mktemp("fdr") / "fdr.jsonl"  # its own: tests run side by side
+    done = run_match("--viz", str(viz), "--fdr", str(fdr))
     assert done.returncode == 0, done.stderr
     assert viz.is_file() and [p.name for p in tmp_path.iterdir()] == [viz.name]
 

@@ -128,10 +128,11 @@ def test_every_kept_store_window_is_placed_not_only_the_best(tmp_path: Path) -> 
         assert np.allclose(_placed(entry, corners), expected, rtol=0, atol=1e-10)
 
 
-def test_a_tile_image_is_placed_centred_exactly_on_its_id_at_its_gsd() -> None:
+def test_a_tile_image_is_placed_centred_exactly_on_its_id_at_its_gsd(tmp_path: Path) -> None:
     demo = json.loads((DEMO / "demo.json").read_text())
     ids = [a for t in demo["tiles"] for a in ("--tile-id", ",".join(map(str, t["tile_id"])))]
-    proc = run_match(*ids, argv=[a for a in DEMO_MATCH if a != "--no-correspondences"])
+    fdr = ("--fdr", str(tmp_path / "fdr.jsonl"))  # its own: tests run side by side
+    proc = run_match(*ids, *fdr, argv=[a for a in DEMO_MATCH if a != "--no-correspondences"])
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = json.loads(proc.stdout)
     for entry in out["per_candidate"]:
@@ -147,8 +148,8 @@ def test_a_tile_image_is_placed_centred_exactly_on_its_id_at_its_gsd() -> None:
         assert np.allclose(expected[-1], [tile_id.lon, tile_id.lat], rtol=0, atol=1e-10)
 
 
-def test_a_tile_without_an_id_is_placed_nowhere() -> None:
-    proc = run_match()
+def test_a_tile_without_an_id_is_placed_nowhere(tmp_path: Path) -> None:
+    proc = run_match("--fdr", str(tmp_path / "fdr.jsonl"))
     assert proc.returncode == 0, proc.stderr[-2000:]
     for entry in json.loads(proc.stdout)["per_candidate"]:
         assert entry["tile_id"] is None and entry["tile_size_px"] == [512, 512]
