@@ -170,3 +170,31 @@ def _stitched(store: MBTilesStore, zoom: int, x0: int, y0: int) -> np.ndarray:
             ex, ey = min(TILE_PX, WINDOW - ox), min(TILE_PX, WINDOW - oy)
             out[oy + sy : oy + ey, ox + sx : ox + ex] = tile[sy:ey, sx:ex]
     return out
+
+
+def test_the_library_serializer_places_each_kept_candidate_by_its_input_position() -> None:
+    """``result_to_json`` (the Python API's serializer) places every kept candidate by its own
+    input position's size and GSD: here the best came from input 2 (a 300 px image at 0.5 m/px)
+    and the other kept one from input 0 (a store window, GSD None)."""
+    import uuid
+
+    from c3_matcher.dto import CandidateMatchSet, MatchResult
+    from c3_matcher.georef import candidate_placement
+    from c3_matcher.serialize import result_to_json
+
+    ids = (TileId(17, 47.0, 8.0), TileId(17, 47.001, 8.001))
+    corr = np.zeros((30, 4), np.float32)
+    kept = tuple(CandidateMatchSet(i, 30, corr, 5, 1.0) for i in ids)
+    result = MatchResult(uuid.UUID(int=1), kept, 0, 1.0, 0, "test", 3, 1, {"input_index": [2, 0]})
+    sizes, gsds = [(448, 448), (0, 0), (300, 200)], [None, None, 0.5]
+    out = result_to_json(result, tile_sizes=sizes, tile_gsds=gsds)
+    best, other = out["per_candidate"]
+    assert best["tile_index"] == 2 and other["tile_index"] == 0
+    assert {k: best[k] for k in candidate_placement(ids[0], (300, 200), 0.5)} == (
+        candidate_placement(ids[0], (300, 200), 0.5)
+    )
+    assert best["tile_size_px"] == [300, 200] and best["world_px_per_tile_px"] != 1.0
+    assert {k: other[k] for k in candidate_placement(ids[1], (448, 448))} == (
+        candidate_placement(ids[1], (448, 448))
+    )
+    assert "tile_origin_world_px" not in result_to_json(result)["per_candidate"][0]

@@ -36,7 +36,6 @@ from c3_matcher.errors import (
     MatcherBackboneError,
 )
 from c3_matcher.fdr import FdrOpenError, FdrWriteError, InMemoryFdr, JsonlFdrRecorder
-from c3_matcher.georef import candidate_placement
 from c3_matcher.match_inputs import (
     attitude_arg,
     file_candidates,
@@ -294,18 +293,14 @@ def _result_json(
     reasons: dict[int, str],
 ) -> dict[str, Any]:
     """The result as ``match`` prints it, each kept candidate placed on the map
-    (:func:`~c3_matcher.georef.candidate_placement`), with the dropped candidates and why."""
-    sizes = _kept_tile_sizes(result, rerank)
+    (:func:`~c3_matcher.serialize.result_to_json`), with the dropped candidates and why."""
     out = result_to_json(
         result,
         with_correspondences=not args.no_correspondences,
         calibration=calibration,
-        tile_sizes=sizes,
-        tile_gsd_m=_georef_gsd(args, result.per_candidate[0].tile_id),
+        tile_sizes=_kept_tile_sizes(result, rerank),
+        tile_gsds=[_georef_gsd(args, c.tile_id) for c in rerank.candidates],
     )
-    for entry, c in zip(out["per_candidate"], result.per_candidate, strict=True):
-        gsd = _georef_gsd(args, c.tile_id)  # a zoom-0 placeholder id is placed nowhere (null)
-        entry.update(candidate_placement(c.tile_id, sizes[entry["tile_index"]], gsd))
     kept = {int(c["tile_index"]) for c in out["per_candidate"]}
     dropped = [i for i in range(len(rerank.candidates)) if i not in kept]
     out["dropped"] = _dropped_json(args, rerank, dropped, reasons)

@@ -250,19 +250,40 @@ def result_to_json(
     *,
     calibration: CameraCalibration | None = None,
     tile_sizes: Sequence[tuple[int, int]] | None = None,
-    tile_gsd_m: float | None = None,
+    tile_gsds: Sequence[float | None] | None = None,
 ) -> dict[str, Any]:
     """The MatchResult as the CLI prints it; ``tile_index`` is the candidate's input position.
-    With ``calibration`` it carries ``best_homography`` (UNDISTORTED query px -> best tile px)
-    and, when the best tile id is georeferenced and ``tile_sizes`` (width, height per input
-    position) are given, ``centre_lat``, ``centre_lon`` and ``footprint`` (closed [lon, lat]
-    ring), see :func:`c3_matcher.georef.georeference_result`."""
-    indices = result.diagnostics.get("input_index", list(range(len(result.per_candidate))))
+    ``tile_sizes`` (width, height) and ``tile_gsds`` (m/px; None or a None entry: a store
+    window) are per input position. With ``tile_sizes`` each kept candidate carries its place on
+    the map (:func:`c3_matcher.georef.candidate_placement`). With ``calibration`` the result
+    carries ``best_homography`` (UNDISTORTED query px -> best tile px) and, when the best tile id
+    is georeferenced and ``tile_sizes`` are given, ``centre_lat``, ``centre_lon`` and
+    ``footprint`` (closed [lon, lat] ring), see :func:`c3_matcher.georef.georeference_result`."""
+    from c3_matcher.georef import candidate_placement, georeference_result
+
+    indices = [
+        int(i) for i in result.diagnostics.get("input_index", range(len(result.per_candidate)))
+    ]
+    gsds = tile_gsds or [None] * (max(indices, default=0) + 1)
     geo: dict[str, Any] = {}
     if calibration is not None:
-        from c3_matcher.georef import georeference_result
-
-        geo = georeference_result(result, calibration, tile_sizes, tile_gsd_m)
+        geo = georeference_result(
+            result, calibration, tile_sizes, gsds[indices[0]] if indices else None
+        )
+    entries = []
+    for c, index in zip(result.per_candidate, indices, strict=True):
+        entry: dict[str, Any] = {
+            "tile_id": c.tile_id.as_list(),
+            "tile_index": index,
+            "inlier_count": c.inlier_count,
+            "ransac_outlier_count": c.ransac_outlier_count,
+            "per_candidate_residual_px": c.per_candidate_residual_px,
+        }
+        if with_correspondences:
+            entry["inlier_correspondences"] = c.inlier_correspondences.tolist()
+        if tile_sizes is not None:
+            entry.update(candidate_placement(c.tile_id, tile_sizes[index], gsds[index]))
+        entries.append(entry)
     return {
         "frame_id": str(result.frame_id),
         "best_candidate_idx": result.best_candidate_idx,
@@ -271,20 +292,6 @@ def result_to_json(
         "candidates_input": result.candidates_input,
         "candidates_dropped": result.candidates_dropped,
         "matched_at": result.matched_at,
-        "per_candidate": [
-            {
-                "tile_id": c.tile_id.as_list(),
-                "tile_index": int(index),
-                "inlier_count": c.inlier_count,
-                "ransac_outlier_count": c.ransac_outlier_count,
-                "per_candidate_residual_px": c.per_candidate_residual_px,
-                **(
-                    {"inlier_correspondences": c.inlier_correspondences.tolist()}
-                    if with_correspondences
-                    else {}
-                ),
-            }
-            for c, index in zip(result.per_candidate, indices, strict=True)
-        ],
+        "per_candidate": entries,
         **geo,
     }

@@ -22,7 +22,7 @@ from c3_matcher.errors import (
     InvalidInputError,
     MatcherBackboneError,
 )
-from c3_matcher.georef import candidate_placement, haversine_m
+from c3_matcher.georef import haversine_m
 from c3_matcher.logs import MATCHER_GEOMETRY_REFUSED, MATCHER_ZERO_INLIERS
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import CrossDomainMatcher
@@ -322,10 +322,9 @@ def _matched(
         result,
         with_correspondences=False,
         calibration=dataset.calibration,
-        tile_sizes=[(size, size)] * len(frame.candidates),
+        tile_sizes=[(size, size)] * len(frame.candidates),  # store windows: placed on the grid
     )
     for entry, candidate in zip(as_json["per_candidate"], result.per_candidate, strict=True):
-        entry.update(candidate_placement(candidate.tile_id, (size, size)))  # a store window
         if with_correspondences:  # the result's arrays, lists only when written (replay_memory.py)
             entry["inlier_correspondences"] = candidate.inlier_correspondences
     matched = _Matched(result, best_input, mean_err, as_json)
