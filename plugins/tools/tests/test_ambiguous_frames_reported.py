@@ -24,6 +24,7 @@ from c3_matcher_tools.run import FlightRun, FrameOutcome, StrategyEval, summariz
 from c3_matcher_tools.run.acceptance import Verdict, metrics, verdict
 from c3_matcher_tools.run.flight import run_flight
 from c3_matcher_tools.run.records import FrameStatus
+from c3_matcher_tools.run.scoring import result_fingerprint
 from c3_matcher_tools.testing.outcomes import frame_outcome
 from c3_matcher_tools.testing.report import drawn_report
 
@@ -140,3 +141,34 @@ def test_a_flight_records_a_frame_the_matcher_found_ambiguous_as_ambiguous() -> 
     assert ambiguous.to_json()["ambiguous"] == RIVAL
     (short,) = run_flight(_RaisesInsufficient(), replace(dataset, frames=dataset.frames[:1]))
     assert short.ambiguous is None and "ambiguous" not in short.to_json()
+
+
+def test_the_geojson_names_the_rival_of_an_ambiguous_frame() -> None:
+    from c3_matcher_tools.geojson import flight_geojson
+
+    with_truth = [replace(o, truth_lat=40.0, truth_lon=-75.0) for o in _outcomes()]
+    points = {
+        f["properties"]["frame"]: f["properties"]
+        for f in flight_geojson(with_truth, "xfeat")["features"]
+        if f["properties"]["kind"] == "truth"
+    }
+    assert points[1]["ambiguous"] == RIVAL and points[1]["status"] == "insufficient"
+    assert points[3]["ambiguous"] is None and points[0]["ambiguous"] is None
+
+
+def test_a_rerun_whose_rival_changed_differs_in_its_fingerprint() -> None:
+    """The determinism check (C3-IT-02) compares fingerprints: two runs refusing a frame as
+    ambiguous against different rivals differ; a frame with too few inliers keeps its digest."""
+    dataset = load_dataset(DEMO)
+    one = replace(dataset, frames=dataset.frames[:1])
+    (first,) = run_flight(_RaisesAmbiguous(), one)
+
+    class _OtherRival(_RaisesAmbiguous):
+        def match(self, nav: Any, rerank: Any, calibration: Any) -> Any:
+            facts = (nav.frame_id, 740, 60, len(rerank.candidates), 0, "double")
+            raise AmbiguousMatchError(*facts, ambiguity=RIVAL.replace("1112 m", "905 m"))
+
+    (second,) = run_flight(_OtherRival(), one)
+    (short,) = run_flight(_RaisesInsufficient(), one)
+    assert first.fingerprint != second.fingerprint
+    assert short.fingerprint == result_fingerprint(None, 12)

@@ -7,7 +7,8 @@ Features, each with ``properties.kind``:
 - ``truth`` / ``estimate``: one Point per frame with ``frame``, ``status``, ``inliers``,
   ``correct``, ``verdict`` (what the frame came to, in the flight report's words:
   :class:`~c3_matcher_tools.run.acceptance.Verdict`, e.g. "wrong tile", "another tile, right
-  fix", "rightly raised"), ``position_error_m``;
+  fix", "rightly raised"), ``ambiguous`` (the rival candidate of a frame refused as ambiguous,
+  in the error's words; null otherwise), ``position_error_m``;
 - ``footprint``: the estimated footprint Polygon of each matched frame, its ring the result's
   as it is (already counterclockwise, :func:`c3_matcher.georef.footprint_lonlat`);
 - ``error``: a LineString from each frame's true to its estimated centre.
@@ -43,6 +44,7 @@ def _props(o: FrameOutcome, kind: str, strategy: str) -> dict[str, Any]:
         "correct": o.correct if o.has_truth else None,
         "true_tile_present": o.true_present if o.has_truth else None,
         "verdict": str(verdict(o)),
+        "ambiguous": o.ambiguous,
         "position_error_m": (
             round(o.position_error_m, 3) if math.isfinite(o.position_error_m) else None
         ),

@@ -255,7 +255,7 @@ class _Where:
             matched is not None and matched.best_input == frame.true_index,
             math.nan if matched is None else matched.mean_error_px,
             math.nan if matched is None else matched.result.reprojection_residual_px,
-            _fingerprint(status, matched, best_count),
+            _fingerprint(status, matched, best_count, ambiguous),
             error,
             None if matched is None else matched.as_json,
             has_truth=self.has_truth,
@@ -295,10 +295,14 @@ class _Matched:
         return float(self.as_json["centre_lat"]), float(self.as_json["centre_lon"])
 
 
-def _fingerprint(status: FrameStatus, matched: _Matched | None, best_count: int) -> str:
+def _fingerprint(
+    status: FrameStatus, matched: _Matched | None, best_count: int, ambiguous: str | None
+) -> str:
     if matched is not None:
         return result_fingerprint(matched.result)
-    return result_fingerprint(None, best_count) if status == FrameStatus.INSUFFICIENT else ""
+    if status != FrameStatus.INSUFFICIENT:
+        return ""
+    return result_fingerprint(None, best_count, ambiguous)
 
 
 def _distance_m(a: tuple[float, float] | None, b: tuple[float, float] | None) -> float:

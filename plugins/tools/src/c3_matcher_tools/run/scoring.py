@@ -60,13 +60,18 @@ def _decimals(value: float) -> int:
     return min(max(digits, 0), 3)
 
 
-def result_fingerprint(result: MatchResult | None, insufficient_best: int = 0) -> str:
+def result_fingerprint(
+    result: MatchResult | None, insufficient_best: int = 0, ambiguous: str | None = None
+) -> str:
     """Bit-for-bit digest of ``per_candidate`` (tile ids, counts, residual float bits,
     correspondence bytes), ``best_candidate_idx`` and the input order; for an
-    InsufficientInliersError, of its best inlier count."""
+    InsufficientInliersError, of its best inlier count, and for an AmbiguousMatchError of its
+    rival too (``ambiguous``, in the error's words: a run whose rival changed differs)."""
     h = hashlib.blake2b(digest_size=16)
     if result is None:
         h.update(f"insufficient:{insufficient_best}".encode())
+        if ambiguous is not None:
+            h.update(f"ambiguous:{ambiguous}".encode())
         return h.hexdigest()
     h.update(str(result.best_candidate_idx).encode())
     h.update(repr(result.diagnostics.get("input_index")).encode())
