@@ -91,16 +91,24 @@ def _cmd_config(args: argparse.Namespace, ctx: CommandContext) -> int:
     # A name no plugin and no build flag knows (a misspelling) is refused; a real strategy
     # this build does not link (operator tooling) leaves the configuration itself good.
     # Every options table, and the settings the strategy's keypoint budget cannot meet, are
-    # checked as start-up checks them.
+    # checked as start-up checks them; what a run would not do as written is warned on stderr
+    # (exit 0); the TOML shows, as comments, the values the strategy gives unset settings.
     from c3_matcher.compose import check_options_tables, check_strategy_budget
+    from c3_matcher.config_shown import config_warnings, shown_settings
 
+    settings, host = ctx.settings, ctx.plugin_host
     with contextlib.suppress(StrategyNotLinkedError):
-        ctx.plugin_host.resolve(ctx.settings.matcher.strategy)
-    check_options_tables(ctx.settings, ctx.plugin_host)
-    check_strategy_budget(ctx.settings, ctx.plugin_host)
-    data = ctx.settings.model_dump(mode="json")
-    said = ctx.settings.replaced_by_environment.comments()  # the file's values left out, first
-    ctx.out(json.dumps(data, indent=2) if args.json else said + to_toml(data, _notes()))
+        host.resolve(settings.matcher.strategy)
+    check_options_tables(settings, host)
+    check_strategy_budget(settings, host)
+    for line in config_warnings(settings, host):
+        _fail(f"warning: {line}")
+    if args.json:
+        ctx.out(json.dumps(settings.model_dump(mode="json"), indent=2))
+        return EXIT_OK
+    data, notes = shown_settings(settings, host)
+    said = settings.replaced_by_environment.comments()  # the file's values left out, first
+    ctx.out(said + to_toml(data, {**_notes(), **notes}))
     return EXIT_OK
 
 
@@ -250,7 +258,11 @@ def _command(argv: Sequence[str] | None) -> int:
     if started is None:
         return EXIT_FAILURE
     host, parser = started
-    rest, config = split_config(sys.argv[1:] if argv is None else argv)
+    try:
+        rest, config = split_config(sys.argv[1:] if argv is None else argv)
+    except ConfigurationError as exc:  # --config given twice
+        _fail(exc)
+        return EXIT_USAGE
     if refusal := ground_refusal(parser, host.profile.name, rest):
         _fail(refusal)
         return EXIT_USAGE

@@ -20,7 +20,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from c3_matcher import keypoint_budget as budgets
-from c3_matcher import protocols
+from c3_matcher import protocols, unread_settings
 from c3_matcher.config import C3Settings, FdrSettings, with_strategy_defaults
 from c3_matcher.errors import (
     AirborneBootstrapError,
@@ -32,7 +32,7 @@ from c3_matcher.errors import (
     describe,
 )
 from c3_matcher.fdr import JsonlFdrRecorder
-from c3_matcher.health import MonotonicClock, RollingHealthWindow, clock_problem
+from c3_matcher.health import MonotonicClock, RollingHealthWindow, SteadyClock, clock_problem
 from c3_matcher.logs import (
     MATCHER_READY,
     LoggingHandle,
@@ -222,7 +222,7 @@ def compose_root(
     """Wire the ``c3_matcher`` slot; raise ``AirborneBootstrapError`` for a missing key,
     ``StrategyNotLinkedError`` for a strategy the build does not link."""
     helpers = _checked_helpers(pre_constructed)
-    clock: Clock = helpers.get("clock") or MonotonicClock()
+    clock: Clock = SteadyClock.of(helpers.get("clock") or MonotonicClock())  # one for all
     with ExitStack() as opened:  # given back at once if composition fails, else by close()
         owned_fdr: JsonlFdrRecorder | None = None  # a given c13_fdr stays the caller's
         if "c13_fdr" not in helpers:
@@ -245,8 +245,7 @@ def compose_root(
 
 
 def _log_provider_request(inference: object) -> None:
-    """The shared ONNX Runtime's provider request, logged now that the sinks are set up (it is
-    made before them, by ``build_default_helpers``)."""
+    """The shared ONNX Runtime's provider request (made by ``build_default_helpers``), logged."""
     from c3_matcher.engines.runtime import OnnxInferenceRuntime
 
     if isinstance(inference, OnnxInferenceRuntime):
@@ -266,8 +265,9 @@ def _create_strategy(
     name = config.matcher.strategy
     spec = host.resolve(name)
     check_options_tables(config, host)
-    config = with_strategy_defaults(config, spec.defaults, name)
     options = _strategy_options(config, name, spec.options_model)
+    unread_settings.say_unread(config, spec, options, host)  # what the user set, before defaults
+    config = with_strategy_defaults(config, spec.defaults, name)
     health = RollingHealthWindow(clock, config.matcher.min_inliers_threshold)
     plugin = host.strategy_plugin(name).distribution
     try:

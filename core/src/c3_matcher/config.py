@@ -22,15 +22,15 @@ from pydantic_settings import (
     SettingsError,
 )
 
+from c3_matcher.config_problems import unparsed_env, validation_problems
 from c3_matcher.config_sources import (
     ENV_PREFIX,
     REPLACED_KIND,
+    GivenSectionsSource,
     MappingEnvSource,
     ReplacedByEnvironment,
     SettingsSection,
     read_toml,
-    unparsed_env,
-    validation_problems,
     without_env_values,
 )
 from c3_matcher.engines.providers import canonical_provider_options, configured_providers
@@ -346,7 +346,7 @@ class C3Settings(BaseSettings):
         file_secret_settings: PydanticBaseSettingsSource,
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         # init < environment (os.environ; load_settings passes its own: TOML < a given one)
-        return (MappingEnvSource(settings_cls), init_settings)
+        return (MappingEnvSource(settings_cls), GivenSectionsSource.replacing(init_settings))
 
 
 def with_strategy_defaults(
@@ -390,9 +390,9 @@ def load_settings(
         sources = (MappingEnvSource(C3Settings, environ), InitSettingsSource(C3Settings, data))
         settings = C3Settings(_build_sources=(sources, data))  # environment > TOML > defaults
     except ValidationError as exc:
-        raise ConfigurationError(source, validation_problems(exc)) from None
-    except (SettingsError, ValueError, TypeError, RecursionError) as exc:
-        # e.g. C3_MATCHER_MATCHER__OPTIONS=not json: pydantic-settings fails before validation
+        problems = validation_problems(exc, environ, toml_path, data)  # each value's origin
+        raise ConfigurationError(source, problems) from None
+    except (SettingsError, ValueError, TypeError, RecursionError) as exc:  # JSON not read
         raise ConfigurationError(source, unparsed_env(exc, environ)) from None
     settings._replaced = replaced
     if replaced.values:

@@ -13,15 +13,19 @@ from __future__ import annotations
 import difflib
 import json
 import os
-import re
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, get_args
 
-from pydantic import BaseModel, ConfigDict, ValidationError, ValidationInfo, field_validator
-from pydantic_settings import BaseSettings, EnvSettingsSource
+from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
+from pydantic_settings import (
+    BaseSettings,
+    EnvSettingsSource,
+    InitSettingsSource,
+    PydanticBaseSettingsSource,
+)
 from pydantic_settings.sources.utils import parse_env_vars
 
 from c3_matcher.errors import ConfigurationError
@@ -33,6 +37,7 @@ __all__ = [
     "PROCESS_SWITCHES",
     "REPLACED_KIND",
     "UNKNOWN_SETTING",
+    "GivenSectionsSource",
     "MappingEnvSource",
     "ReplacedByEnvironment",
     "ReplacedValue",
@@ -40,8 +45,7 @@ __all__ = [
     "read_toml",
     "split_config",
     "unknown_env_keys",
-    "unparsed_env",
-    "validation_problems",
+    "unknown_key_reason",
     "without_env_values",
 ]
 
@@ -82,6 +86,40 @@ class MappingEnvSource(EnvSettingsSource):
         if unknown:
             raise ConfigurationError("environment", unknown)
         return super().__call__()
+
+
+class GivenSectionsSource(InitSettingsSource):
+    """A settings class's keyword arguments, each section given as its model
+    (``C3Settings(engines=EngineSettings(...))``) read as the fields its caller set
+    (``model_dump(exclude_unset=True)``), so that the environment's keys merge into it as into
+    its dict form: pydantic-settings merges tables key by key but replaces a model whole by the
+    environment's table, losing every field the caller set."""
+
+    @classmethod
+    def replacing(cls, source: PydanticBaseSettingsSource) -> PydanticBaseSettingsSource:
+        """``source`` (pydantic-settings' keyword arguments source) read as this one."""
+        if not isinstance(source, InitSettingsSource):
+            return source
+        return cls(source.settings_cls, source.init_kwargs)
+
+    def __call__(self) -> dict[str, Any]:
+        fields = self.settings_cls.model_fields
+        return {
+            key: value.model_dump(exclude_unset=True)
+            if key in fields and _is_model_of(value, fields[key].annotation)
+            else value
+            for key, value in super().__call__().items()
+        }
+
+
+def _is_model_of(value: Any, annotation: Any) -> bool:
+    """Whether ``value`` is a model of the section's type ``annotation`` (one of another type is
+    left for validation to refuse)."""
+    return (
+        isinstance(annotation, type)
+        and issubclass(annotation, BaseModel)
+        and isinstance(value, annotation)
+    )
 
 
 MAX_TOML_BYTES = 1 << 20
@@ -157,10 +195,11 @@ def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
 
 def split_config(argv: Sequence[str]) -> tuple[list[str], Path | None]:
     """Take ``--config FILE`` / ``--config=FILE`` out of ``argv`` wherever it is (before or
-    after the subcommand); the last one wins. A ``--config`` without a value is left for the
-    parser to refuse."""
+    after the subcommand). A second one is refused (``ConfigurationError`` naming both files):
+    one file is read, and taking either would drop the other's settings unsaid. A ``--config``
+    without a value is left for the parser to refuse."""
     rest: list[str] = []
-    config: Path | None = None
+    configs: list[str] = []
     items = list(argv)
     i = 0
     while i < len(items):
@@ -169,16 +208,20 @@ def split_config(argv: Sequence[str]) -> tuple[list[str], Path | None]:
             rest.extend(items[i:])
             break
         if arg == "--config" and i + 1 < len(items) and not items[i + 1].startswith("--"):
-            config = Path(items[i + 1])
+            configs.append(items[i + 1])
             i += 2
             continue
         if arg.startswith("--config="):
-            config = Path(arg.split("=", 1)[1])
+            configs.append(arg.split("=", 1)[1])
             i += 1
             continue
         rest.append(arg)
         i += 1
-    return rest, config
+    if len(configs) > 1:
+        files = " and ".join(repr(c) for c in configs)
+        why = f"given {len(configs)} times ({files}), but one configuration file is taken"
+        raise ConfigurationError("command line", [("--config", f"{why}: merge them into one")])
+    return rest, Path(configs[0]) if configs else None
 
 
 def unknown_env_keys(
@@ -211,11 +254,11 @@ def _unknown(parts: Sequence[str], sections: Mapping[str, Any]) -> str | None:
     if section is None and len(parts) == 1:
         return None if parts[0].upper() in PROCESS_SWITCHES else _not_a_switch(parts[0], sections)
     if section is None or (len(parts) > 1 and parts[1] not in fields):
-        return _unknown_key(parts[:2])
+        return unknown_key_reason(parts[:2])
     return None
 
 
-def _unknown_key(loc: Sequence[object]) -> str:
+def unknown_key_reason(loc: Sequence[object]) -> str:
     """Why the key at ``loc`` (section, key) is refused: a misspelling, or a key of the
     specification that this product replaced (``ENGINE_FILE_KEYS``)."""
     if len(loc) == 2 and loc[0] == "matcher" and loc[1] in ENGINE_FILE_KEYS:
@@ -353,36 +396,3 @@ def _json_object(value: str) -> dict[str, Any] | None:
     except ValueError:
         return None
     return given if isinstance(given, dict) else None
-
-
-def unparsed_env(exc: Exception, env: Mapping[str, str]) -> list[tuple[str, str]]:
-    """(variables, reason) for an environment value that pydantic-settings could not parse
-    before validation (``C3_MATCHER_MATCHER__OPTIONS=not json``, or JSON nested too deep): the
-    section's variable (``C3_MATCHER_MATCHER``) or its keys' (``C3_MATCHER_MATCHER__X``)."""
-    text = str(exc)
-    match = re.search(r'field "([a-z_]+)"', text)
-    section = f"{ENV_PREFIX}{match.group(1).upper()}" if match else ENV_PREFIX
-    named = sorted(k for k in env if k.upper() == section or k.upper().startswith(f"{section}__"))
-    field = ", ".join(named) or "environment"
-    return [(field, f"not valid JSON for a table or list value ({exc.__cause__ or text})")]
-
-
-_COLLECTIONS = {"tuple_type": "list", "list_type": "list", "dict_type": "table"}
-
-
-def validation_problems(exc: ValidationError) -> list[tuple[str, str]]:
-    """(dotted field, reason) per validation error; a key no section has is named as a
-    misspelling, as an unknown environment variable is; a word where a list or table belongs
-    (``C3_MATCHER_ENGINES__PROVIDERS=cpu``) is told the form it takes."""
-    return [(".".join(str(p) for p in e["loc"]) or "(root)", _reason(e)) for e in exc.errors()]
-
-
-def _reason(error: Any) -> str:
-    if error["type"] == "extra_forbidden":
-        return _unknown_key(error["loc"])
-    kind = _COLLECTIONS.get(error["type"])
-    if kind is not None and isinstance(error.get("input"), str):
-        example = '["a", "b"]' if kind == "list" else '{"key": 1}'
-        got = f"{error['msg']}, got {error['input']!r}"
-        return f"{got}: give a {kind}, e.g. {example} (in the environment, as JSON)"
-    return str(error["msg"])

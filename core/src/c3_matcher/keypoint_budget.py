@@ -28,6 +28,7 @@ __all__ = [
     "check_exit_reachable",
     "check_inliers_reachable",
     "declared_budget",
+    "reads_lightglue",
 ]
 
 
@@ -45,6 +46,18 @@ class PairMatcherOptions(Protocol):
     the choice matches with LightGlue, so that ``[lightglue]`` settings concern it at all."""
 
     def matches_with_lightglue(self) -> bool: ...
+
+
+def reads_lightglue(options: object, engines: Sequence[EngineSpec]) -> bool:
+    """Whether a strategy matches its pairs with LightGlue, so that ``[lightglue]`` settings
+    apply to it, as its plugin declares it: a LightGlue-family matcher engine among its
+    ``engines`` (a spec with a ``feature_type``) and, where its validated ``options`` choose the
+    pair matcher (``PairMatcherOptions``), that choice. The one answer the budget checks,
+    start-up's word on unread settings and a run's report all take."""
+    lightglue = any(spec.feature_type is not None for spec in engines)
+    if isinstance(options, PairMatcherOptions):
+        lightglue = lightglue and options.matches_with_lightglue()
+    return lightglue
 
 
 def check_inliers_reachable(config: C3Settings, budget: int) -> None:
@@ -117,9 +130,7 @@ def check_declared_budget(
         return
     check_inliers_reachable(config, budget)
     exit_matches = config.lightglue.exit_matches or 0
-    lightglue = any(spec.feature_type is not None for spec in engines)
-    if isinstance(options, PairMatcherOptions):
-        lightglue = lightglue and options.matches_with_lightglue()
+    lightglue = reads_lightglue(options, engines)
     if lightglue and config.lightglue.mode != "full" and exit_matches > 0:
         required = ("lightglue.exit_matches", exit_matches)
         check_exit_reachable(required, budget, config.matcher.strategy)

@@ -1,16 +1,30 @@
 """Settings as a TOML document (``c3-matcher config``): :func:`to_toml`, which
-``load_settings`` reads back, each setting's description above it as a comment."""
+``load_settings`` reads back, each setting's description above it as a comment, and a setting
+left unset shown with the value that applies instead (:class:`Unset`), as a comment too."""
 
 from __future__ import annotations
 
 import re
 import textwrap
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from c3_matcher.errors import InvalidInputError
 
-__all__ = ["to_toml"]
+__all__ = ["Unset", "to_toml"]
+
+
+@dataclass(frozen=True)
+class Unset:
+    """A setting the configuration leaves unset, in :func:`to_toml`'s data: written as a comment
+    holding ``value``, the value that applies instead, and ``by``, whose it is (``"xfeat's
+    default"``), so that the document read back leaves it unset; a table of nothing else is
+    written commented out whole."""
+
+    value: Any
+    by: str
+
 
 _NO_TOML = "has no TOML form (`c3-matcher config --json` prints it)"
 _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
@@ -71,9 +85,9 @@ def _toml_value(value: Any, key: str = "value") -> str:
 def to_toml(data: dict[str, Any], notes: Mapping[str, str] | None = None, prefix: str = "") -> str:
     """``data`` (JSON-able: tables of scalars, lists and tables) as a TOML document that
     ``load_settings`` reads back; ``notes`` (by dotted key) become comment lines above their
-    key; a ``None`` value (unset: the default applies) is written as a comment. Keys TOML does
-    not allow bare are quoted; ``InvalidInputError`` names a value TOML cannot express (a null
-    inside a list)."""
+    key or table; a ``None`` value (unset: the default applies) and an :class:`Unset` are
+    written as comments. Keys TOML does not allow bare are quoted; ``InvalidInputError`` names
+    a value TOML cannot express (a null inside a list)."""
     return _toml_table(data, notes or {}, prefix, ())
 
 
@@ -92,12 +106,29 @@ def _toml_table(
             lines.extend(textwrap.wrap(note, 96, initial_indent="# ", subsequent_indent="# "))
         if value is None:
             lines.append(f"# {key}: unset, the default applies")
+        elif isinstance(value, Unset):
+            lines.append(_unset_line(key, value, dotted))
         else:
             lines.append(f"{_toml_key(key, dotted)} = {_toml_value(value, dotted)}")
     for name, table_path, table in tables:
-        lines.append(f"\n[{'.'.join(table_path)}]")
+        shown_only = bool(table) and all(isinstance(v, Unset) for v in table.values())
+        lines.append(f"\n{'# ' if shown_only else ''}[{'.'.join(table_path)}]")
         note = notes.get(name)
         if note:
             lines.extend(textwrap.wrap(note, 96, initial_indent="# ", subsequent_indent="# "))
         lines.append(_toml_table(table, notes, f"{name}.", table_path).strip("\n"))
     return "\n".join(line for line in lines if line).strip("\n")
+
+
+def _unset_line(key: str, unset: Unset, dotted: str) -> str:
+    """The comment line of a setting left unset: the value that applies and whose it is
+    (``# photometric = "none"  # unset: xfeat's default``: the part before the second ``#``
+    set as it reads); a value TOML cannot express is only named whose it is."""
+    if unset.value is not None:
+        try:
+            shown = _toml_value(unset.value, dotted)
+        except InvalidInputError:
+            pass
+        else:
+            return f"# {_toml_key(key, dotted)} = {shown}  # unset: {unset.by}"
+    return f"# {key}: unset, {unset.by} applies"

@@ -77,11 +77,21 @@ class XFeatOptions(BaseModel):
     )
     upscale: int = Field(
         DEFAULT_UPSCALE,
-        strict=True,  # true is no factor
         ge=1,
         le=MAX_UPSCALE,
         description="the extractor runs on each image enlarged this many times",
     )
+
+    @field_validator("min_cossim", "max_keypoints", "upscale", mode="before")
+    @classmethod
+    def _no_boolean(cls, value: object) -> object:
+        """A boolean is no number (``upscale = true`` must not mean 1, nor ``min_cossim = false``
+        0): refused. Other values are read as pydantic reads numbers, so that a whole number
+        given as text, as every environment variable is (``..._XFEAT__UPSCALE=3``), is taken and
+        a fraction (2.5) is refused."""
+        if isinstance(value, bool):
+            raise ValueError(f"expected a number, got the boolean {str(value).lower()}")
+        return value
 
     @field_validator("min_cossim")
     @classmethod

@@ -30,6 +30,7 @@ from c3_matcher.serialize import CALIBRATION_SIZE_FIX, result_to_json
 from c3_matcher.stages.drops import HeardDrop, drops_heard
 from c3_matcher.tiles import DECODABLE_FORMATS, MmapTileHandle, image_file_size
 from c3_matcher.tilestore.mbtiles import MBTilesStore
+from c3_matcher.unread_settings import strategy_reads_lightglue
 from c3_matcher_tools.dataset.format import FlightDataset, FrameRecord
 from c3_matcher_tools.run.matcher import (
     NO_OVERRIDES,
@@ -371,6 +372,7 @@ def fly_prepared(
     started = time.perf_counter()
     prepared.start(out_dir)
     startup_s = prepared.startup_s + time.perf_counter() - started
+    reads = strategy_reads_lightglue(prepared.settings, plugin_host, prepared.strategy)
 
     def flight_run(outcomes: Sequence[FrameOutcome], planned: int | None = None) -> FlightRun:
         ran = strategy_settings(prepared.settings, prepared.strategy, plugin_host)
@@ -380,7 +382,7 @@ def fly_prepared(
             tuple(outcomes),
             startup_s,
             prepared.startup_s + time.perf_counter() - started,
-            ran.lightglue.model_dump(mode="json"),
+            ran.lightglue.model_dump(mode="json") if reads else {},  # none applied: none said
             planned,
             prepared.log_lines_lost,
             prepared.provenance,

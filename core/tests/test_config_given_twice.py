@@ -1,0 +1,72 @@
+"""``--config`` is taken before or after the command's name, once: a second one is refused
+(exit 2) naming both files. The last one was read and the first dropped, silently, with every
+setting it held."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from c3_matcher.cli import main
+from c3_matcher.config_sources import split_config
+from c3_matcher.errors import ConfigurationError
+
+
+@pytest.fixture
+def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
+    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
+        monkeypatch.delenv(key)
+    return monkeypatch
+
+
+@pytest.fixture
+def files(tmp_path: Path) -> tuple[Path, Path]:
+    first, second = tmp_path / "a.toml", tmp_path / "b.toml"
+    first.write_text("[matcher]\nmin_inliers_threshold = 80\n")
+    second.write_text("[engines]\nintra_op_threads = 2\n")
+    return first, second
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--config", "{a}", "config", "--config", "{b}"],
+        ["--config={a}", "config", "--config={b}"],
+        ["config", "--config", "{a}", "--config={b}"],
+    ],
+    ids=["before-and-after", "equals-forms", "both-after"],
+)
+def test_a_second_config_is_refused_naming_both_files(
+    clean_env: pytest.MonkeyPatch,
+    files: tuple[Path, Path],
+    argv: list[str],
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    first, second = files
+    assert main([arg.format(a=first, b=second) for arg in argv]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    (line,) = err.splitlines()
+    assert line.startswith("c3-matcher: invalid configuration (command line): --config: ")
+    assert str(first) in line and str(second) in line and "one configuration file" in line
+
+
+def test_one_config_before_or_after_the_command_is_taken(
+    clean_env: pytest.MonkeyPatch, files: tuple[Path, Path]
+) -> None:
+    first, _ = files
+    for argv in (["--config", str(first), "config"], ["config", f"--config={first}"]):
+        assert split_config(argv) == (["config"], first)
+    assert split_config(["config", "--", "--config", "x"]) == (
+        ["config", "--", "--config", "x"],
+        None,
+    )
+
+
+def test_split_config_says_which_files_it_was_given() -> None:
+    with pytest.raises(ConfigurationError) as refused:
+        split_config(["--config", "a.toml", "match", "--config=b.toml"])
+    ((field, reason),) = refused.value.problems
+    assert field == "--config" and "'a.toml' and 'b.toml'" in reason
