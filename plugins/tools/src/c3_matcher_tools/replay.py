@@ -38,9 +38,12 @@ same and one line says so (exit 130/143). Until a run's files are written its ``
 says ``"running": true`` (a run killed outright is told from one that ended); it also names
 the dataset (resolved) and the strategy, and the default ``--out`` of a dataset is refused to
 another of its name (exit 2). The report reaches stdout once the files are written, naming
-those that were: a final write that fails (a full disk) still prints it; a stdout that cannot
-be written (its reader gone, a full disk under it) still leaves the files, and fails the
-command as it would have (exit 141, or 1 naming stdout).
+those that were: a final write that fails (a full disk) still prints it, ``run.json`` then
+saying ``"failed"`` (the file and why) in place of ``running``, and results not written name
+the partial file that keeps the frames as they were flown (one that stops taking frames, the
+disk full, says so once on stderr); a stdout that cannot be written (its reader gone, a full
+disk under it) still leaves the files, and fails the command as it would have (exit 141, or 1
+naming stdout).
 
 The command only: flying and scoring are the run layer's (:mod:`c3_matcher_tools.run`).
 """
@@ -48,6 +51,7 @@ The command only: flying and scoring are the run layer's (:mod:`c3_matcher_tools
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 from pathlib import Path
@@ -102,6 +106,7 @@ from c3_matcher_tools.run.outputs import (
     refuse_other_dataset,
 )
 from c3_matcher_tools.run.records import FrameStatus
+from c3_matcher_tools.run.results_file import RESULTS_FILE, kept_frames, partial_results
 from c3_matcher_tools.run.scoring import (
     attitude_noise_words,
     dropped_lines,
@@ -225,7 +230,9 @@ def _write_and_say(
         report = {**report, "geojson": files.geojson, "html": files.html}
         write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
         mark_ended(out)  # its files are written: the run is no longer in progress
-    except OSError:
+    except OSError as exc:  # the run ended: it says so, and what it wrote
+        with contextlib.suppress(OSError):  # a disk too full for run.json leaves it running
+            mark_ended(out, failed=f"{exc.filename or out}: {exc.strerror or exc}")
         _say(ctx, as_json, dataset, run, out, {**report, **_files_there(out)}, features, given)
         raise
     written.extend(out / name for name in RUN_FILES)
@@ -233,14 +240,22 @@ def _write_and_say(
     return EXIT_OK
 
 
-def _files_there(out: Path) -> dict[str, str | None]:
-    """The map and flight report this run wrote in ``out`` (an earlier run's were removed as it
-    started), None for each not written."""
-    geojson, html = out / "flight.geojson", out / "report.html"
-    return {
-        "geojson": str(geojson) if geojson.is_file() else None,
-        "html": str(html) if html.is_file() else None,
+def _files_there(out: Path) -> dict[str, Any]:
+    """The results, map and flight report this run wrote in ``out`` (an earlier run's were
+    removed as it started), None for each not written; with no results, the frames kept as
+    they were flown (``kept_as_flown``: the partial file and its frames) where there are any."""
+    results = out / RESULTS_FILE
+    there: dict[str, Any] = {
+        name: str(path) if path.is_file() else None
+        for name, path in (
+            ("results", results),
+            ("geojson", out / "flight.geojson"),
+            ("html", out / "report.html"),
+        )
     }
+    if there["results"] is None and (kept := kept_frames(results)):
+        there["kept_as_flown"] = {"file": str(partial_results(results)), "frames": kept}
+    return there
 
 
 def _say(
@@ -411,8 +426,10 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
         )
     if s.with_telemetry:
         lines.extend(f"  {line}" for line in telemetry_lines(s))
+    saved = out / REPLAY_RUN.report
     lines.append(
-        f"  results {report['results']}, FDR {report['fdr']}, report {out / REPLAY_RUN.report}"
+        f"  results {report['results'] or _unwritten_results(report)}, FDR {report['fdr']}, "
+        f"report {saved if saved.is_file() else '(not written)'}"
     )
     lines.append(
         f"  map {report['geojson'] or '(not written)'}, "
@@ -421,3 +438,10 @@ def _report_lines(name: str, report: dict[str, Any], s: RunSummary, out: Path) -
     if lost := report.get("log_lines_lost"):
         lines.append(f"  {report['log']}: {lost} line(s) could not be written (a full disk?)")
     return lines
+
+
+def _unwritten_results(report: dict[str, Any]) -> str:
+    """What the table says of results not written: where the frames kept as flown are."""
+    kept = report.get("kept_as_flown")
+    where = f"; the first {kept['frames']} frame(s) in {kept['file']}" if kept else ""
+    return f"(not written{where})"

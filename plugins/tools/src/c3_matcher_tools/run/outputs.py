@@ -72,8 +72,9 @@ EVAL_OUT = Path("out") / "eval"
 RUN_MARK = "run.json"
 """The file ``replay`` and ``eval`` write first into each output directory they take, naming
 the command (``{"command": "c3-matcher replay"}``), the dataset's resolved path and replay's
-strategy, and ``"running": true`` until the run ends (:func:`mark_output_dirs`): the directory
-is that command's output, which a later run of it replaces (:func:`check_output_dirs`)."""
+strategy, and ``"running": true`` until the run ends (:func:`mark_output_dirs`; ``"failed"``
+where its files could not all be written, :func:`mark_ended`): the directory is that command's
+output, which a later run of it replaces (:func:`check_output_dirs`)."""
 _LARGEST_REPORT = 1 << 26
 """The most bytes read of a file to tell whether it is a run's mark or report (theirs are far
 smaller)."""
@@ -324,12 +325,13 @@ def run_mark(
     return {**layout.mark, **where, **({} if strategy is None else {"strategy": strategy})}
 
 
-def mark_ended(directory: Path) -> None:
+def mark_ended(directory: Path, failed: str | None = None) -> None:
     """``directory``'s :data:`RUN_MARK` rewritten without ``running``: the run ended, its
-    files written."""
+    files written; or, with ``failed`` (why, as ``"failed"``), ended with some not written."""
     mark = run_json_file(directory / RUN_MARK)
     if isinstance(mark, dict) and "running" in mark:
         ended = {k: v for k, v in mark.items() if k != "running"}
+        ended |= {} if failed is None else {"failed": failed}
         write_text_atomically(directory / RUN_MARK, json.dumps(ended) + "\n")
 
 

@@ -3,18 +3,21 @@ ends or stops (:func:`write_results`), and meanwhile each frame's line appended,
 to ``results.jsonl.partial`` beside it (:func:`appending_results`), flushed to disk, so that a
 run killed outright (SIGKILL, out of memory, power cut), which writes no ``results.jsonl``,
 still leaves the frames it did, in the lines ``results.jsonl`` would have held for them. The
-partial file is removed once ``results.jsonl`` is written."""
+partial file is removed once ``results.jsonl`` is written; one that stops taking frames (a full
+disk) says so once on stderr, naming the frames it keeps (:func:`kept_frames` counts them)."""
 
 from __future__ import annotations
 
 import contextlib
 import json
 import os
+import sys
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from c3_matcher.atomic import atomic_writer
 from c3_matcher.fdr.files import fsync_dir
+from c3_matcher.terminal_text import without_controls
 from c3_matcher_tools.run.records import FrameOutcome
 
 __all__ = [
@@ -22,6 +25,7 @@ __all__ = [
     "RESULTS_FILE",
     "KeepFrame",
     "appending_results",
+    "kept_frames",
     "partial_results",
     "result_line",
     "write_results",
@@ -34,6 +38,8 @@ PARTIAL_SUFFIX = ".partial"
 
 KeepFrame = Callable[[FrameOutcome], None]
 """What is called with each frame's outcome as it is flown (:func:`appending_results`)."""
+Say = Callable[[str], None]
+"""Where a line for stderr goes (:func:`appending_results`)."""
 
 
 def partial_results(path: Path) -> Path:
@@ -62,12 +68,13 @@ def write_results(path: Path, outcomes: Sequence[FrameOutcome]) -> Path:
 
 
 @contextlib.contextmanager
-def appending_results(path: Path) -> Iterator[KeepFrame]:
+def appending_results(path: Path, say: Say | None = None) -> Iterator[KeepFrame]:
     """A :data:`KeepFrame` that appends each outcome's line to the partial file of the results
     ``path`` (:func:`partial_results`, started afresh: an earlier one, or a link there, is
     removed, never followed) and flushes it to disk (``fsync``: a few milliseconds, beside a
     frame's hundreds). A write that fails (a full disk) is cut back to the last whole line
-    and the file left as it is from then on: the run goes on, its results written as it ends.
+    and the file left as it is from then on, said once through ``say`` (None: on stderr),
+    with why and how many frames it keeps: the run goes on, its results written as it ends.
     The file is closed, not removed, when the block ends (:func:`write_results` removes it)."""
     partial = partial_results(path)
     partial.unlink(missing_ok=True)
@@ -75,17 +82,33 @@ def appending_results(path: Path) -> Iterator[KeepFrame]:
     fd = os.open(partial, flags, 0o666)
     try:
         fsync_dir(path.parent)
-        yield _appender(fd)
+        yield _appender(fd, _stopped_line(path), say or _say_on_stderr)
     finally:
         os.close(fd)
 
 
-def _appender(fd: int) -> KeepFrame:
-    """Each outcome's line appended to ``fd`` and synced; after a failed write, nothing more."""
-    whole = [0]  # bytes of whole lines written; -1 once a write failed
+def kept_frames(path: Path) -> int | None:
+    """How many frames the partial file of the results ``path`` keeps (its whole lines); None
+    when there is none, or it cannot be read."""
+    partial, lines = partial_results(path), 0
+    try:
+        with partial.open("rb") as fh:
+            while chunk := fh.read(1 << 20):
+                lines += chunk.count(b"\n")
+    except OSError:
+        return None
+    return lines
+
+
+def _appender(fd: int, stopped: Callable[[int, OSError], str], say: Say) -> KeepFrame:
+    """Each outcome's line appended to ``fd`` and synced; after a failed write, nothing more,
+    and the line ``stopped`` makes of the frames kept and the error said once."""
+    whole, lines = 0, 0  # bytes and lines written whole
+    failed = False
 
     def keep(outcome: FrameOutcome) -> None:
-        if whole[0] < 0:
+        nonlocal whole, lines, failed
+        if failed:
             return
         data = result_line(outcome).encode("utf-8", "backslashreplace")  # as atomic_writer
         try:
@@ -93,11 +116,34 @@ def _appender(fd: int) -> KeepFrame:
             while view:
                 view = view[os.write(fd, view) :]
             os.fsync(fd)
-        except OSError:
+        except OSError as exc:
             with contextlib.suppress(OSError):
-                os.ftruncate(fd, whole[0])
-            whole[0] = -1
+                os.ftruncate(fd, whole)
+            failed = True
+            say(stopped(lines, exc))
             return
-        whole[0] += len(data)
+        whole, lines = whole + len(data), lines + 1
 
     return keep
+
+
+def _stopped_line(path: Path) -> Callable[[int, OSError], str]:
+    """The line that says the partial file of the results ``path`` stopped taking frames: the
+    error, the frames it keeps, and that the run goes on to write ``path`` as it ends."""
+
+    def line(kept: int, exc: OSError) -> str:
+        return (
+            f"c3-matcher: {partial_results(path)}: {exc.strerror or exc}: it keeps the first "
+            f"{kept} frame(s) and takes no more; the run goes on, and writes every frame's "
+            f"result to {path.name} as it ends"
+        )
+
+    return line
+
+
+def _say_on_stderr(line: str) -> None:
+    """``line`` on stderr, on a line of its own (a progress bar drawn in place is ended first);
+    lost, not the run, when stderr cannot be written."""
+    with contextlib.suppress(OSError, ValueError):
+        newline = "\n" if sys.stderr.isatty() else ""
+        print(newline + without_controls(line), file=sys.stderr, flush=True)
