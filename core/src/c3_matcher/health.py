@@ -7,6 +7,7 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
+from c3_matcher.clocks import SteadyClock, read_raw, reading_problem
 from c3_matcher.dto import MatcherHealth
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.protocols import Clock
@@ -16,6 +17,7 @@ __all__ = [
     "HealthUpdate",
     "MonotonicClock",
     "RollingHealthWindow",
+    "SteadyClock",
     "clock_problem",
 ]
 
@@ -32,19 +34,12 @@ class MonotonicClock:
 
 
 def clock_problem(clock: Clock) -> str | None:
-    """Why ``clock`` cannot time the matcher's frames (None: it can), read once: its
-    ``monotonic_ns()`` must give whole nanoseconds >= 0 as a Python ``int``. A float, a negative
-    value or a call that raises passed start-up and then failed every frame after its success
-    was recorded; a numpy integer left every FDR record unwritten (not JSON) or overflowed."""
-    try:
-        now = clock.monotonic_ns()
-    except Exception as exc:
-        return f"monotonic_ns() raised {type(exc).__name__}: {exc}"
-    if type(now) is not int:  # a bool, a float, a numpy integer
-        return f"monotonic_ns() gave {now!r} ({type(now).__name__}), not an int of nanoseconds"
-    if now < 0:
-        return f"monotonic_ns() gave {now}, not nanoseconds >= 0"
-    return None
+    """Why ``clock`` cannot time the matcher's frames (None: it can), read once at start-up:
+    its ``monotonic_ns()`` must give whole nanoseconds >= 0 as a Python ``int``
+    (``clocks.reading_problem``). A clock that goes bad later is read through a
+    ``clocks.SteadyClock``, which times the frames and records on from its last good reading."""
+    now, raised = read_raw(clock)
+    return raised or reading_problem(now)
 
 
 @dataclass(frozen=True, slots=True)

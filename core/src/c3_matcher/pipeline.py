@@ -87,6 +87,8 @@ class PipelineSettings:
     # tiles whose features are kept between frames; 0 (none) for a loop built by hand,
     # [matcher]'s own (16) through from_settings
     tile_cache_size: int = 0
+    # a candidate's tile above it (width x height) is refused: c3_matcher.tile_limit
+    max_image_pixels: int = matcher_default("max_image_pixels")
 
     @classmethod
     def from_settings(cls, matcher: MatcherSettings) -> PipelineSettings:
@@ -136,7 +138,7 @@ class PipelineMatcher:
         cache = TileFeatureCache(settings.tile_cache_size)
         request = _feature_request(backend, self._pre)
         self._tiles = CandidateFeatures(
-            backend, self._pre, cache, request, settings.stored_features
+            backend, self._pre, cache, request, settings.stored_features, settings.max_image_pixels
         )
         self._refine = RefinePass(self._pre, backend)
         self._turns = FrameTurns(_close_failed)
@@ -252,22 +254,23 @@ class PipelineMatcher:
         best = survivors[0].match_set
         if best.per_candidate_residual_px > self.settings.residual_warn_threshold_px:  # step 8
             recorder.residual_above_threshold(best, self.settings.residual_warn_threshold_px)
-        recorder.update_health(best.inlier_count)  # step 9
         timings["total"] = (time.perf_counter() - started) * 1e3
         diagnostics = self._diagnostics(evidence, survivors, scales, timings)
         rectification = scales.of(survivors[0].input_index).query.image.working_from_undistorted
-        recorder.frame_done(evidence, survivors, rectification, timings, threshold)  # step 10
-        return MatchResult(  # step 11
+        result = MatchResult(  # step 11 first: once the frame is recorded nothing may fail it
             frame_id=rerank.frame_id,
             per_candidate=tuple(s.match_set for s in survivors),
             best_candidate_idx=0,
             reprojection_residual_px=best.per_candidate_residual_px,
-            matched_at=self._sinks.clock.monotonic_ns(),
+            matched_at=recorder.now_ns(),  # the frame's one reading of the clock
             matcher_label=self.label,
             candidates_input=evidence.candidates_input,
             candidates_dropped=evidence.dropped,
             diagnostics=diagnostics,
         )
+        recorder.update_health(best.inlier_count)  # step 9
+        recorder.frame_done(evidence, survivors, rectification, timings, threshold)  # step 10
+        return result
 
     def _scales(
         self,

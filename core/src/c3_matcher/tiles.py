@@ -17,16 +17,16 @@ size never decoded). The decoded image's size is checked against the limit too, 
 read otherwise than its decoder reads it: that check costs nothing, but comes after the
 decoder's allocation (bounded then only by OpenCV's own limit, ``OPENCV_IO_MAX_IMAGE_PIXELS``,
 2^30 px by default), so it keeps such an image from the matcher, not from memory. The limit
-is a value each reader is given, never process state (``read_image``, the handles).
+is a value each reader is given, never process state (``read_image``, the handles): a composed
+matcher gives its own to each candidate's handle, ``decode_within(limit)``
+(:mod:`c3_matcher.tile_limit`). Header parsing lives in :mod:`c3_matcher.image_headers`.
 """
 
 from __future__ import annotations
 
 import os
-import struct
 import zlib
 from pathlib import Path
-from typing import BinaryIO
 
 import cv2
 import numpy as np
@@ -34,14 +34,21 @@ from numpy.typing import NDArray
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.file_kinds import kind_of
+from c3_matcher.image_headers import (
+    TIFF_MAGIC,
+    RepeatedTiffTagError,
+    image_file_size,
+    image_header_size,
+)
+from c3_matcher.image_headers import stated_size as _header_size
 from c3_matcher.image_tags import (
     apply_orientation,
     declared_top,
-    displayed_size,
     exif_orientation,
     sixteen_bit_top,
     tiff_orientation,
 )
+from c3_matcher.regular_files import open_regular
 
 __all__ = [
     "DEFAULT_MAX_IMAGE_PIXELS",
@@ -104,7 +111,7 @@ def decode_image(
             f"image of {width}x{height} px exceeds the limit of {limit} px "
             "([matcher] max_image_pixels); refused before decoding",
         )
-    if as_displayed and raw.data[:4] in _TIFF_MAGIC and tiff_orientation(raw.data) >= 5:
+    if as_displayed and raw.data[:4] in TIFF_MAGIC and tiff_orientation(raw.data) >= 5:
         raise ImageDecodeError(
             what,
             f"a TIFF stored turned a quarter (its Orientation tag is {tiff_orientation(raw.data)})"
@@ -189,128 +196,6 @@ def to_rgb8(
     return np.ascontiguousarray(rgb, dtype=np.uint8)
 
 
-class RepeatedTiffTagError(ValueError):
-    """A TIFF whose first IFD gives its width or height more than once: which one the decoder
-    believes is its own choice (libtiff keeps the first), so no size read from it is."""
-
-
-def image_header_size(head: bytes | memoryview) -> tuple[int, int] | None:
-    """(width, height) from the first bytes of a PNG, JPEG, TIFF, BMP or WebP file, or None
-    when the format or its header is not recognised (a GIF too: OpenCV does not decode it) or
-    cannot be believed (a TIFF giving its width or height twice: :class:`RepeatedTiffTagError`).
-    A TIFF's first IFD must lie within ``head`` (libtiff and OpenCV write it after the pixels:
-    :func:`image_file_size` reads it where it is). The size is the image's as displayed: a
-    JPEG, PNG or WebP whose EXIF Orientation turns it a quarter (5-8) gives its stored height
-    as its width, as :func:`decode_image` returns it."""
-    try:
-        size = _header_size(head)
-    except RepeatedTiffTagError:
-        return None
-    return None if size is None else displayed_size(size, exif_orientation(head))
-
-
-def _header_size(head: bytes | memoryview) -> tuple[int, int] | None:
-    """:func:`image_header_size`, raising :class:`RepeatedTiffTagError` where that says None."""
-    try:
-        if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
-            w, h = struct.unpack(">II", head[16:24])
-            return int(w), int(h)
-        if head[:2] == b"\xff\xd8":
-            return _jpeg_size(head)
-        if head[:4] in _TIFF_MAGIC:
-            return _tiff_size(head)
-        if head[:2] == b"BM":
-            w, h = struct.unpack("<ii", head[18:26])
-            return abs(int(w)), abs(int(h))
-        if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
-            chunk = head[12:16]
-            if chunk == b"VP8X":
-                w = int.from_bytes(head[24:27], "little") + 1
-                h = int.from_bytes(head[27:30], "little") + 1
-                return w, h
-            if chunk == b"VP8L":
-                bits = int.from_bytes(head[21:25], "little")
-                return (bits & 0x3FFF) + 1, ((bits >> 14) & 0x3FFF) + 1
-            if chunk == b"VP8 ":
-                w, h = struct.unpack("<HH", head[26:30])
-                return int(w & 0x3FFF), int(h & 0x3FFF)
-    except struct.error:
-        return None
-    return None
-
-
-def _jpeg_size(head: bytes | memoryview) -> tuple[int, int] | None:
-    i = 2
-    while i + 9 < len(head):
-        if head[i] != 0xFF:
-            return None
-        marker = head[i + 1]
-        if marker == 0xFF:
-            i += 1
-            continue
-        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
-            i += 2
-            continue
-        (length,) = struct.unpack(">H", head[i + 2 : i + 4])
-        if marker in (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF):
-            h, w = struct.unpack(">HH", head[i + 5 : i + 9])
-            return int(w), int(h)
-        i += 2 + length
-    return None
-
-
-def image_file_size(fh: BinaryIO) -> tuple[int, int] | None:
-    """:func:`image_header_size` of the file open in ``fh`` (binary, seekable) from its first
-    MiB, and from its first IFD where a TIFF's lies beyond that."""
-    head = fh.read(1 << 20)
-    size = image_header_size(head)
-    if size is not None or head[:4] not in _TIFF_MAGIC:
-        return size
-    try:
-        (offset,) = struct.unpack(_tiff_endian(head) + "I", head[4:8])
-        fh.seek(offset)
-        (count,) = struct.unpack(_tiff_endian(head) + "H", fh.read(2))
-        return _tiff_size(head[:8] + fh.read(12 * count), count)
-    except (struct.error, OSError, ValueError):
-        return None
-
-
-_TIFF_MAGIC = (b"II*\x00", b"MM\x00*")
-
-
-def _tiff_endian(head: bytes | memoryview) -> str:
-    return "<" if head[:2] == b"II" else ">"
-
-
-def _tiff_size(head: bytes | memoryview, count: int | None = None) -> tuple[int, int] | None:
-    """A TIFF's size from its first IFD: at its offset in ``head``, or (``count`` given) its
-    ``count`` entries right after ``head``'s first 8 bytes."""
-    endian = _tiff_endian(head)
-    if count is None:
-        (offset,) = struct.unpack(endian + "I", head[4:8])
-        (count,) = struct.unpack(endian + "H", head[offset : offset + 2])
-    else:
-        offset = 6  # the entries follow the 8-byte header directly
-    dims: dict[int, int] = {}
-    for k in range(count):
-        entry = head[offset + 2 + 12 * k : offset + 14 + 12 * k]
-        tag, typ = struct.unpack(endian + "HH", entry[:4])
-        if tag in (256, 257):
-            if tag in dims:
-                name = "width" if tag == 256 else "height"
-                raise RepeatedTiffTagError(
-                    f"a TIFF whose first IFD gives its {name} (tag {tag}) twice: its size "
-                    "cannot be believed, refused before decoding"
-                )
-            value = struct.unpack(
-                endian + ("H" if typ == 3 else "I"), entry[8 : 10 if typ == 3 else 12]
-            )
-            dims[tag] = int(value[0])
-    if 256 in dims and 257 in dims:
-        return dims[256], dims[257]
-    return None
-
-
 def read_image(path: Path, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> NDArray[np.uint8]:
     """Read an image file to uint8 RGB, naming the file when it is missing, a directory or
     undecodable (or above ``max_pixels``, width x height)."""
@@ -323,17 +208,28 @@ def read_image(path: Path, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> NDArra
     return decode_image(image, str(p), max_pixels, as_displayed=True)
 
 
+def _limit_of(own: int | None, given: int | None) -> int:
+    """The pixel limit a handle decodes under: the tighter of its own (``max_pixels`` when it
+    was made; None: none) and the one ``given`` to ``decode_within`` (None: ``decode()``),
+    ``DEFAULT_MAX_IMAGE_PIXELS`` when neither is."""
+    limits = [_checked_limit(v) for v in (own, given) if v is not None]
+    return min(limits, default=DEFAULT_MAX_IMAGE_PIXELS)
+
+
 class MmapTileHandle:
     """A tile image file; ``encoded()`` reads it (from the page cache) under a size check.
 
     The name is kept for compatibility: no mapping is held (see the module docstring), so a file
     that shrinks or vanishes after the handle was made is an ``InvalidInputError`` of this
-    candidate, never a SIGBUS of the process.
+    candidate, never a SIGBUS of the process, and one replaced by a FIFO or a device is refused
+    when read, never waited on. ``decode()`` decodes within ``max_pixels`` (None: the default,
+    50 Mpx), ``decode_within(limit)`` within the tighter of it and ``limit``: a matcher's
+    configured ``[matcher] max_image_pixels``.
     """
 
-    def __init__(self, path: Path, *, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> None:
+    def __init__(self, path: Path, *, max_pixels: int | None = None) -> None:
         self._path = Path(path)
-        self._max_pixels = _checked_limit(max_pixels)
+        self._max_pixels = None if max_pixels is None else _checked_limit(max_pixels)
         try:
             st = self._path.stat()
         except OSError as exc:
@@ -350,7 +246,7 @@ class MmapTileHandle:
 
     def encoded(self) -> memoryview:
         try:
-            fd = os.open(self._path, os.O_RDONLY)
+            fd = open_regular(self._path)
         except OSError as exc:
             raise InvalidInputError(str(self._path), f"cannot read image file: {exc}") from exc
         try:
@@ -374,27 +270,37 @@ class MmapTileHandle:
         return memoryview(buf).toreadonly()
 
     def decode(self) -> NDArray[np.uint8]:
-        return decode_image(self.encoded(), str(self._path), self._max_pixels)
+        return self.decode_within(None)
+
+    def decode_within(self, max_pixels: int | None) -> NDArray[np.uint8]:
+        """``decode()`` refusing an image above ``max_pixels`` too (width x height)."""
+        limit = _limit_of(self._max_pixels, max_pixels)
+        return decode_image(self.encoded(), str(self._path), limit)
 
     def __repr__(self) -> str:
         return f"MmapTileHandle({str(self._path)!r})"
 
 
 class BytesTileHandle:
-    """A tile held as bytes in memory (tests, tiles received over a bus)."""
+    """A tile held as bytes in memory (tests, tiles received over a bus); its pixel limits are
+    :class:`MmapTileHandle`'s."""
 
     def __init__(
-        self, data: bytes, name: str = "<bytes>", *, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+        self, data: bytes, name: str = "<bytes>", *, max_pixels: int | None = None
     ) -> None:
         self._data = data
         self._name = name
-        self._max_pixels = _checked_limit(max_pixels)
+        self._max_pixels = None if max_pixels is None else _checked_limit(max_pixels)
 
     def encoded(self) -> memoryview:
         return memoryview(self._data)
 
     def decode(self) -> NDArray[np.uint8]:
-        return decode_image(self.encoded(), self._name, self._max_pixels)
+        return self.decode_within(None)
+
+    def decode_within(self, max_pixels: int | None) -> NDArray[np.uint8]:
+        """``decode()`` refusing an image above ``max_pixels`` too (width x height)."""
+        return decode_image(self.encoded(), self._name, _limit_of(self._max_pixels, max_pixels))
 
     def __repr__(self) -> str:
         return f"BytesTileHandle({self._name!r}, {len(self._data)} bytes)"

@@ -12,6 +12,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from c3_matcher.clocks import SteadyClock
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import (
     RECORD_KEYS,
@@ -25,15 +26,15 @@ from c3_matcher.fdr.files import (
     rotated_segments,
 )
 from c3_matcher.fdr.forks import close_copies, forked_from
-from c3_matcher.fdr.pending import (
-    RECORDS_DROPPED,
-    DroppedRecords,
-    Pending,
-    lock_path,
-    lock_text,
-    read_lock,
-    take_lock,
+from c3_matcher.fdr.moved import (
+    SEGMENT_REPLACED,
+    SegmentReplaced,
+    keep_last_seq,
+    new_name,
+    reopen_live,
+    still_there,
 )
+from c3_matcher.fdr.pending import RECORDS_DROPPED, LockFile, Pending, read_lock
 from c3_matcher.fdr.records import FdrOpenError, FdrWriteError, to_jsonable
 from c3_matcher.fdr.rotation import Rotation
 from c3_matcher.fdr.tail import recent_seqs
@@ -92,6 +93,9 @@ class JsonlFdrRecorder:
     it would name cannot be noted, which ``close`` says). A live segment of NUL bytes alone (a
     power cut during its first line, on a file system that had committed the size but not the
     data) is a torn tail, cut as one. ``record`` is thread-safe, and refused in a forked child.
+    A live segment removed or renamed while open (``rm``, a ``logrotate`` ``mv``) is made anew
+    at the next record, ``seq`` going on, and said once (``moved``). ``recorded_at_ns`` is
+    always an ``int`` >= 0, whatever the clock gives (``clocks.SteadyClock``).
 
     ``fresh``: start a new log at ``path`` (a ground run's FDR, started anew with each run):
     only once the lock is held are the previous live segment, its rotated segments, ``.meta``
@@ -115,21 +119,19 @@ class JsonlFdrRecorder:
         self._shown = Path(path).expanduser()  # the name given: what messages say
         self._path = live_segment(self._shown, fresh=fresh)  # where the log's files are
         self._pid = os.getpid()  # a fork's child writes nothing: refused before ``_lock``
-        self._clock = clock
+        self._clock = SteadyClock.of(clock)
         self._max_bytes = max_bytes
         self._lock = threading.RLock()
         self._pending = Pending(max_pending_bytes)
         self._fd = -1
-        self._lock_fd = -1
         self._repair_to: int | None = None  # where a write that could not be rolled back began
         self._rotation = Rotation(self._path)
-        self._lock_names_loss = False  # the lock file names records not yet in the log
-        self._lock_unwritten = False  # it lacks our bytes: a start on a full disk
-        self._noted = ""  # where the last write failure's waiting records are named, or why not
+        self._moved: SegmentReplaced | None = None  # the live segment went: its record waits
+        self._unsaid_move: SegmentReplaced | None = None  # its WARNING, not yet logged
         what = f"fdr.path {self._shown}"
-        self._lock_fd = take_lock(self._path, what, self._shown, fresh=fresh)
+        self._lockfile = LockFile(self._path, what, self._shown, fresh=fresh)
         try:
-            carried = None if fresh else read_lock(self._lock_path)[1]
+            carried = None if fresh else read_lock(self._lockfile.path)[1]
             if fresh:
                 remove_log(self._path, self.torn_path)
             drop_half_rotated_live(self._path)
@@ -137,7 +139,7 @@ class JsonlFdrRecorder:
             seqs = recent_seqs(self._path, carried.first_seq if carried else None)
             self._seq = max([self._meta_seq(), *seqs, carried.last_seq if carried else 0]) + 1
             carried = carried and carried.without(seqs)  # some written before the last stopped
-            self._write_first_lock(carried)  # the note of records lost when the last stopped
+            self._lockfile.write_first(carried)  # the note of records lost when the last stopped
             self._fd = open_for_append(self._path)
             self._pending.dropped = carried
         except OSError as exc:
@@ -159,31 +161,6 @@ class JsonlFdrRecorder:
                     },
                 )
 
-    def _write_lock(self, lost: DroppedRecords | None) -> None:
-        """Our pid in the lock file and, while they are not yet in the log, the records ``lost``
-        should this recorder stop: written over the file's own bytes, which needs no space."""
-        data = lock_text(os.getpid(), lost)
-        if os.pwrite(self._lock_fd, data, 0) != len(data):
-            raise OSError(errno.EIO, "short write")
-        os.ftruncate(self._lock_fd, len(data))
-        os.fsync(self._lock_fd)
-        self._lock_names_loss = lost is not None
-        self._lock_unwritten = False
-
-    def _write_first_lock(self, carried: DroppedRecords | None) -> None:
-        """``_write_lock(carried)``, at start-up. A new lock file on a full disk has no bytes to
-        write over: the recorder starts all the same (a frame never fails because of the FDR)
-        and ``_write_pending`` writes them once the disk takes a record. The file keeps until
-        then the note ``carried`` (as it was) or nothing (freeing bytes needs no room)."""
-        try:
-            self._write_lock(carried)
-        except OSError:
-            if carried is None:
-                with contextlib.suppress(OSError):
-                    os.ftruncate(self._lock_fd, 0)
-            self._lock_names_loss = carried is not None
-            self._lock_unwritten = True
-
     @property
     def path(self) -> Path:
         """The live segment: the file the name given leads to (links resolved)."""
@@ -195,10 +172,6 @@ class JsonlFdrRecorder:
         return self._path.with_name(self._path.name + ".torn")
 
     @property
-    def _lock_path(self) -> Path:
-        return lock_path(self._path)
-
-    @property
     def _meta_path(self) -> Path:
         return meta_path(self._path)
 
@@ -208,7 +181,7 @@ class JsonlFdrRecorder:
         self._refuse_forked()
         body = to_jsonable(payload)
         with self._locked():
-            if self._lock_fd < 0:
+            if self._lockfile.fd < 0:
                 raise FdrWriteError(f"FDR {self._shown}: recorder is closed")
             self._pending.hold(self._seq, self._line(kind, body))
             self._seq += 1
@@ -240,7 +213,7 @@ class JsonlFdrRecorder:
         they still cannot be written."""
         self._refuse_forked()
         with self._locked():
-            if self._pending.waiting and self._lock_fd < 0:
+            if self._pending.waiting and self._lockfile.fd < 0:
                 raise FdrWriteError(f"FDR {self._shown}: recorder is closed")
             self._write_pending()
 
@@ -255,52 +228,44 @@ class JsonlFdrRecorder:
 
     def _close(self) -> None:
         if forked_from(self._pid) is not None:  # the parent's lock, log and records stay its own
-            fds, (self._fd, self._lock_fd) = (self._fd, self._lock_fd), (-1, -1)
+            fds, (self._fd, self._lockfile.fd) = (self._fd, self._lockfile.fd), (-1, -1)
             close_copies(*fds)
             return
         with self._locked():
             lost: FdrWriteError | None = None
-            if self._pending.waiting and self._lock_fd >= 0:
+            if self._pending.waiting and self._lockfile.fd >= 0:
                 try:
                     self._write_pending()
                 except FdrWriteError as exc:
-                    lost = exc  # its failure already named the waiting records (_noted)
+                    lost = exc  # its failure already named the waiting records (noted)
             if self._fd >= 0:
+                if not still_there(self._fd, self._path):  # gone since: no seq is given again
+                    keep_last_seq(self._meta_path, self._seq - 1)
                 os.close(self._fd)
                 self._fd = -1
-            if self._lock_fd >= 0:
-                os.close(self._lock_fd)  # releases the flock
-                self._lock_fd = -1
+            self._lockfile.close()  # releases the flock
         if lost is not None:
-            raise FdrWriteError(f"{lost}: lost, the recorder is closed{self._noted}") from lost
-
-    def _note_waiting(self) -> None:
-        """Name what waits, as records lost should the recorder stop before it writes them, in
-        the lock file: the next recorder at this path gives none of their seqs again and
-        records the loss. ``_noted`` keeps what ``close`` adds to its error: where, or why not."""
-        try:
-            self._write_lock(self._pending.lost())
-        except OSError as exc:
-            self._noted = f" (and cannot be noted in {self._lock_path.name}: {exc.strerror or exc})"
-            return
-        self._noted = (
-            "; the next recorder to append to this log records them as fdr.records_dropped"
-        )
+            raise FdrWriteError(
+                f"{lost}: lost, the recorder is closed{self._lockfile.noted}"
+            ) from lost
 
     @contextlib.contextmanager
     def _locked(self) -> Iterator[None]:
-        """Hold the recorder's lock; a rotation failure seen meanwhile is logged once it is
-        released (the logs' forwarder may write that warning to this very recorder)."""
-        failure = None
+        """Hold the recorder's lock; a rotation failure, a live segment gone or a clock problem
+        seen meanwhile is logged once it is released (the logs' forwarder may write that
+        warning to this very recorder)."""
+        said: tuple[Any, ...] = ()
         try:
             with self._lock:
                 try:
                     yield
                 finally:
-                    failure = self._rotation.take_failure()
+                    moved, self._unsaid_move = self._unsaid_move, None
+                    said = (self._rotation.take_failure(), moved, self._clock.take_problem())
         finally:
-            if failure is not None:
-                failure.log()
+            for warning in said:
+                if warning is not None:
+                    warning.log()
 
     def _refuse_forked(self) -> None:
         if (refused := forked_from(self._pid)) is not None:
@@ -323,17 +288,21 @@ class JsonlFdrRecorder:
                 self._write_durably(self._line(RECORDS_DROPPED, pending.dropped.payload()))
                 self._seq += 1
                 pending.dropped = None
-            if self._lock_names_loss:
-                self._write_lock(None)  # the log says it now
+            if (moved := self._moved) is not None:  # said in the segment made anew
+                self._write_durably(self._line(SEGMENT_REPLACED, moved.payload()))
+                self._seq += 1
+                self._moved = None if self._moved is moved else self._moved
+            if self._lockfile.names_loss:
+                self._lockfile.write(None)  # the log says it now
         except OSError as exc:
-            self._note_waiting()  # should the recorder stop now, the next one knows
+            self._lockfile.note_waiting(pending)  # should the recorder stop now, the next knows
             let_go = f", {pending.dropped.count} let go" if pending.dropped else ""
             raise FdrWriteError(
                 f"FDR {self._shown}: {exc}; {len(pending.records)} record(s) pending{let_go}"
             ) from exc
-        if self._lock_unwritten:  # a start on a full disk: now that a record found room
+        if self._lockfile.unwritten:  # a start on a full disk: now that a record found room
             with contextlib.suppress(OSError):  # else tried again with the next record
-                self._write_lock(None)
+                self._lockfile.write(None)
 
     def _rotated(self) -> list[tuple[int, Path]]:
         return rotated_segments(self._path)
@@ -343,7 +312,9 @@ class JsonlFdrRecorder:
         past ``max_bytes``, or when the file system refuses it more bytes (EFBIG): then the
         write is tried once more in the new segment (a failure there is handled as any)."""
         if self._fd < 0:
-            self._fd = open_for_append(self._path)
+            self._fd = reopen_live(self._path, self.torn_path)
+        elif not still_there(self._fd, self._path):  # removed or renamed by someone else
+            self._follow_path()
         if self._repair_to is not None:  # the unacknowledged line goes, whole or not
             cut_torn_tail(self._path, self.torn_path, self._repair_to)
             self._repair_to = None
@@ -383,16 +354,28 @@ class JsonlFdrRecorder:
         not be reserved or the rename failed, say on a full disk): the caller keeps appending
         to the live segment. After the rename an error propagates with ``_fd`` closed, so the
         next write opens the new live segment: the rotation is then complete either way."""
-        # the last seq given to a record acknowledged, or let go and so noted: never one that
-        # waits (a kill before it is written must leave no gap that no note explains)
-        waiting = self._pending.records
-        last_seq = waiting[0][0] - 1 if waiting else self._seq - 1
-        if not self._rotation.move_aside(last_seq, os.fstat(self._fd).st_size):
+        if not self._rotation.move_aside(self._settled_seq(), os.fstat(self._fd).st_size):
             return False
         os.close(self._fd)
         self._fd = -1
         self._fd = open_for_append(self._path)  # fsyncs the directory: the rename too
         return True
+
+    def _settled_seq(self) -> int:
+        """The last seq given to a record acknowledged, or let go and so noted: never one that
+        waits (a kill before it is written must leave no gap that no note explains)."""
+        waiting = self._pending.records
+        return waiting[0][0] - 1 if waiting else self._seq - 1
+
+    def _follow_path(self) -> None:
+        """The live segment no longer names the file written (``moved``): a new one at ``path``
+        takes the records on; the records up to ``_settled_seq`` stay with the file that went."""
+        moved = SegmentReplaced(self._shown, new_name(self._fd, self._path), self._settled_seq())
+        os.close(self._fd)
+        self._fd, self._repair_to = -1, None  # a line to cut lies in the file that went
+        self._moved = self._unsaid_move = moved
+        keep_last_seq(self._meta_path, moved.last_seq)
+        self._fd = reopen_live(self._path, self.torn_path)
 
     def _meta_seq(self) -> int:
         """The last seq ``.meta`` keeps (so seq never goes back once all is offloaded)."""

@@ -10,7 +10,9 @@ records the loss as ``fdr.records_dropped``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import errno
 import fcntl
 import json
 import os
@@ -195,3 +197,58 @@ def _note(line: str) -> DroppedRecords | None:
     if not all(type(n) is int and n >= 0 for n in (count, size_bytes, first_seq, last_seq)):
         return None
     return DroppedRecords(count, size_bytes, first_seq, last_seq, reasons)
+
+
+class LockFile:
+    """The lock file of the log whose live segment is ``log``, held (``take_lock``: ``what``,
+    ``shown`` and ``fresh`` as there) and written by its recorder: its pid and, while records
+    wait, their note (module docstring). ``fd`` is -1 once closed."""
+
+    def __init__(self, log: Path, what: str, shown: Path, *, fresh: bool = False) -> None:
+        self.path = lock_path(log)
+        self.fd = take_lock(log, what, shown, fresh=fresh)
+        self.names_loss = False  # it names records not yet in the log
+        self.unwritten = False  # it lacks our bytes: a start on a full disk
+        self.noted = ""  # where the last write failure's waiting records are named, or why not
+
+    def write(self, lost: DroppedRecords | None) -> None:
+        """Our pid and, while they are not yet in the log, the records ``lost`` should the
+        recorder stop: written over the file's own bytes, which needs no space."""
+        data = lock_text(os.getpid(), lost)
+        if os.pwrite(self.fd, data, 0) != len(data):
+            raise OSError(errno.EIO, "short write")
+        os.ftruncate(self.fd, len(data))
+        os.fsync(self.fd)
+        self.names_loss = lost is not None
+        self.unwritten = False
+
+    def write_first(self, carried: DroppedRecords | None) -> None:
+        """``write(carried)``, at start-up. A new lock file on a full disk has no bytes to
+        write over: the recorder starts all the same (a frame never fails because of the FDR)
+        and writes them once the disk takes a record. The file keeps until then the note
+        ``carried`` (as it was) or nothing (freeing bytes needs no room)."""
+        try:
+            self.write(carried)
+        except OSError:
+            if carried is None:
+                with contextlib.suppress(OSError):
+                    os.ftruncate(self.fd, 0)
+            self.names_loss = carried is not None
+            self.unwritten = True
+
+    def note_waiting(self, pending: Pending) -> None:
+        """Name what waits in ``pending``, as records lost should the recorder stop before it
+        writes them: the next recorder at this path gives none of their seqs again and records
+        the loss. ``noted`` keeps what ``close`` adds to its error: where, or why not."""
+        try:
+            self.write(pending.lost())
+        except OSError as exc:
+            self.noted = f" (and cannot be noted in {self.path.name}: {exc.strerror or exc})"
+            return
+        self.noted = "; the next recorder to append to this log records them as " + RECORDS_DROPPED
+
+    def close(self) -> None:
+        """Close the file, which releases the lock (once)."""
+        if self.fd >= 0:
+            fd, self.fd = self.fd, -1
+            os.close(fd)

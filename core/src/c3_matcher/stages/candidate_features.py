@@ -1,10 +1,11 @@
 """Steps 4a-4b: a candidate's tile features, from the first source that has them: the tile
 store's precomputed map features (``stored``, when the backend declares them possible and the
 store holds them for this backend), the tile cache (``cached``) or the tile's pixels
-(``extracted``: decode, prepare, extract; the cache keeps the result, keyed by the bytes decoded:
-read again once extracted, a tile rewritten meanwhile is not cached). A store whose sidecar holds
-map features but no set for this backend is said once per store and set (a WARNING): its
-candidates are extracted, as a store without a sidecar's are, silently."""
+(``extracted``: decode within the matcher's pixel limit, prepare, extract; the cache keeps the
+result, keyed by the bytes decoded: read again once extracted, a tile rewritten meanwhile is not
+cached). A store whose sidecar holds map features but no set for this backend is said once per
+store and set (a WARNING): its candidates are extracted, as a store without a sidecar's are,
+silently."""
 
 from __future__ import annotations
 
@@ -20,6 +21,8 @@ from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.recorder import FrameRecorder
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
+from c3_matcher.tile_limit import decode_within
+from c3_matcher.tiles import DEFAULT_MAX_IMAGE_PIXELS
 from c3_matcher.tilestore.features import FeatureRequest, NoStoredSet, StoredWindowHandle
 
 __all__ = ["TILE_DECODE_PHASE", "CandidateFeatures", "feature_request"]
@@ -56,7 +59,8 @@ class CandidateFeatures:
     """The candidate-features source of one matcher: stored, cached or extracted features.
     ``use_stored`` False (``[matcher] stored_features``): never the store's; True: the store's
     when it has them for ``request`` (None: this backend's tiles are always extracted); a
-    sidecar without a set for ``request`` is said once for the matcher's life. Single-threaded."""
+    sidecar without a set for ``request`` is said once for the matcher's life; a tile is decoded
+    within ``max_pixels`` (:func:`~c3_matcher.tile_limit.decode_within`). Single-threaded."""
 
     def __init__(
         self,
@@ -65,12 +69,14 @@ class CandidateFeatures:
         cache: TileFeatureCache,
         request: FeatureRequest | None,
         use_stored: bool,
+        max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS,
     ) -> None:
         self._backend = backend
         self._pre = pre
         self.cache: Final = cache
         self.request: Final = request
         self.use_stored: Final = bool(use_stored) and request is not None
+        self.max_pixels: Final = max_pixels
         self._unserved: set[tuple[Path, str]] = set()  # (sidecar, set id) said already
 
     def fetch(
@@ -92,7 +98,7 @@ class CandidateFeatures:
             return TileFeatures("cached", cached.prepared, cached.features)
         with failing_as(TILE_DECODE_PHASE, "extracted"):
             with timed(timings, "decode"):
-                pixels = handle.decode()
+                pixels = decode_within(handle, self.max_pixels, f"tile {candidate.tile_id}")
             with timed(timings, "preprocess"):
                 image = self._pre.prepare_tile(pixels)
         with failing_as(self._backend.extract_phase, "extracted"), timed(timings, "extract"):

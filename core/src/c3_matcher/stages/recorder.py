@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from c3_matcher.arrays import F64
+from c3_matcher.clocks import SteadyClock, read_said
 from c3_matcher.dto import CandidateMatchSet, RerankResult
 from c3_matcher.errors import (
     AmbiguousMatchError,
@@ -50,14 +51,18 @@ __all__ = ["FrameRecorder", "RecorderSinks", "drop_reason"]
 
 @dataclass(frozen=True)
 class RecorderSinks:
-    """Where a matcher's frames are recorded: the FDR, the health window (read with the clock),
-    the backend (its label and provenance) and the strategy selected (None: the backend's)."""
+    """Where a matcher's frames are recorded: the FDR, the health window (read with the clock,
+    kept as a ``SteadyClock`` across frames), the backend (its label and provenance) and the
+    strategy selected (None: the backend's)."""
 
     fdr: FdrClient
     health: RollingHealthWindow
     clock: Clock
     backend: FeatureBackend
     strategy: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "clock", SteadyClock.of(self.clock))
 
     @property
     def label(self) -> str:
@@ -77,6 +82,7 @@ class FrameRecorder:
         self._backbone_errors = 0
         self._drops: dict[int, CandidateDrop] = {}  # by input position
         self._capture: dict[str, int] = {}  # the frame's capture time, once its inputs passed
+        self._now_ns: int | None = None  # the frame's one reading of the clock (``now_ns``)
 
     def captured(self, captured_at_ns: int) -> None:
         """The frame's capture time, which its terminal records carry (``captured_at_ns``): how
@@ -89,13 +95,21 @@ class FrameRecorder:
         return self._frame_id
 
     # -- health and the FDR -------------------------------------------------------------
+    def now_ns(self) -> int:
+        """The frame's one reading of the matcher's clock, taken at its first use (the health
+        update, before any terminal record; the result's ``matched_at``) and always whole
+        nanoseconds >= 0 (``clocks.read_said``): a clock gone bad mid-run fails no frame."""
+        if self._now_ns is None:
+            self._now_ns = read_said(self._sinks.clock)
+        return self._now_ns
+
     def update_health(self, best_inlier_count: int, *, force_backbone_error: bool = False) -> None:
         """Step 9 (and its failure paths): the one health update of this frame."""
         if self._health_updated:
             return
         self._health_updated = True
         self._sinks.health.update(
-            self._sinks.clock.monotonic_ns(),
+            self.now_ns(),
             best_inlier_count=best_inlier_count,
             had_backbone_error=force_backbone_error or self._backbone_errors > 0,
         )

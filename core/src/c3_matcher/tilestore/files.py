@@ -2,17 +2,19 @@
 user can act on, found before SQLite is asked: SQLite says "unable to open database file" for a
 missing file, a directory and a permission problem alike, and for a file in WAL journal mode
 whose ``-shm`` cannot be made beside it (said once SQLite failed: :func:`wal_blocked`); such a
-file on read-only media is read as immutable (:func:`unchanging`)."""
+file on read-only media is read as immutable (:func:`unchanging`). Each is opened, by SQLite too,
+only when it is a regular file just before (:func:`~c3_matcher.regular_files.open_regular`): a
+FIFO put at its path, which SQLite's open would wait on forever, is refused."""
 
 from __future__ import annotations
 
 import errno
 import os
 import sqlite3
-import stat
 from pathlib import Path
 
 from c3_matcher.file_kinds import kind_of
+from c3_matcher.regular_files import SpecialFileError, open_regular
 from c3_matcher.tilestore.bounded import BoundedConnection, QueryTimeoutError
 from c3_matcher.tilestore.sidecar_file import sqlite_code
 
@@ -48,7 +50,9 @@ def open_failure(path: str | Path, kind: str) -> str | None:
     if special is not None:  # a FIFO or a device: opening it could block
         return f"is {special}, not {kind}"
     try:
-        os.close(os.open(p, os.O_RDONLY))
+        os.close(open_regular(p))  # one put at the path since is not waited on either
+    except SpecialFileError as exc:
+        return f"is {exc.kind}, not {kind}"
     except OSError as exc:
         return cannot_open(exc)
     return None
@@ -94,7 +98,9 @@ def connect_read_only(path: str | Path, *, timeout: float) -> BoundedConnection:
     short or rewritten in place while open (``truncate``, ``cp``) is an SQLite error at worst,
     where a mapped page past its new end would kill the process (SIGBUS). Its statements are
     bounded in :meth:`~c3_matcher.tilestore.bounded.BoundedConnection.within`.
-    Raises SQLite's error when the file cannot be opened."""
+    Raises SQLite's error when the file cannot be opened, and an OperationalError saying what
+    it is when it is no regular file (a FIFO, which SQLite's open would wait on forever)."""
+    _refuse_special(path)
     db = sqlite3.connect(
         read_only_uri(path),
         uri=True,
@@ -108,6 +114,17 @@ def connect_read_only(path: str | Path, *, timeout: float) -> BoundedConnection:
         db.close()
         raise
     return db
+
+
+def _refuse_special(path: str | Path) -> None:
+    """OperationalError (SQLite's words, then what it is) when ``path`` is no regular file now;
+    any other failure to open it is left to SQLite to say."""
+    try:
+        os.close(open_regular(path))
+    except SpecialFileError as exc:
+        raise sqlite3.OperationalError(f"unable to open database file: {path}: {exc}") from None
+    except OSError:
+        return
 
 
 def unchanging(path: Path) -> bool:
@@ -153,11 +170,11 @@ def _in_wal_mode(path: Path) -> bool:
     """Whether the SQLite file ``path``'s header says WAL journal mode (False when it is no
     regular file or cannot be read; a FIFO is not waited on)."""
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        fd = open_regular(path)
     except OSError:
         return False
     try:
-        header = os.read(fd, 20) if stat.S_ISREG(os.fstat(fd).st_mode) else b""
+        header = os.read(fd, 20)
     except OSError:
         return False
     finally:

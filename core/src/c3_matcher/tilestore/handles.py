@@ -16,6 +16,12 @@ Failures are the candidate's: a corrupt or undecodable stored tile, or a window 
 tile at all, raise from ``encoded()`` / ``decode()``, which the pipeline turns into that
 candidate's drop (drop-and-continue). Stored tiles missing at the edge of the coverage
 are nodata (0), which the matcher masks.
+
+Pixel limits: ``decode_within(max_pixels)`` (the matcher's ``[matcher] max_image_pixels``:
+:mod:`c3_matcher.tile_limit`) refuses a window above it, or one of stored tiles above it, before
+any tile is read, and decodes each stored tile under it; ``decode()`` under the default, 50 Mpx.
+Either way a stored tile whose header declares another size than 256 px square is refused
+before it is decoded.
 """
 
 from __future__ import annotations
@@ -29,7 +35,12 @@ from numpy.typing import NDArray
 
 from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.tiles import decode_image
+from c3_matcher.tiles import (
+    DEFAULT_MAX_IMAGE_PIXELS,
+    ImageDecodeError,
+    decode_image,
+    image_header_size,
+)
 from c3_matcher.tilestore.geo import MERCATOR_MAX_LAT, TILE_PX, lonlat_to_world_px
 from c3_matcher.tilestore.windows import covered_tiles, stored_tile_digest, window_digest
 
@@ -95,8 +106,13 @@ class StoredTileHandle:
         return self._blob
 
     def decode(self) -> NDArray[np.uint8]:
+        return self.decode_within(DEFAULT_MAX_IMAGE_PIXELS)
+
+    def decode_within(self, max_pixels: int) -> NDArray[np.uint8]:
+        """``decode()`` refusing a tile above ``max_pixels`` (width x height) before decoding."""
+        _refuse_above(TILE_PX, max_pixels, self._what())
         if self._pixels is None:
-            self._pixels = _tile_pixels(self.encoded(), self._what())
+            self._pixels = _tile_pixels(self.encoded(), self._what(), max_pixels)
         return self._pixels.copy()
 
     def stored_features(self, request: FeatureRequest) -> Features | None:
@@ -144,7 +160,14 @@ class MosaicTileHandle:
         return memoryview(self._png)
 
     def decode(self) -> NDArray[np.uint8]:
-        return self._mosaic().copy()
+        return self.decode_within(DEFAULT_MAX_IMAGE_PIXELS)
+
+    def decode_within(self, max_pixels: int) -> NDArray[np.uint8]:
+        """``decode()`` refusing a window above ``max_pixels`` (width x height), or one whose
+        stored tiles are, before any tile is read."""
+        _refuse_above(self._size, max_pixels, self._what())
+        _refuse_above(TILE_PX, max_pixels, f"{self._what()}: each of its stored tiles")
+        return self._mosaic(max_pixels).copy()
 
     def content_digest(self) -> str:
         """The window's size and :func:`~c3_matcher.tilestore.windows.window_digest` of the
@@ -178,11 +201,11 @@ class MosaicTileHandle:
             self._source, request, self._tile_id.zoom, self.origin_world_px, self._size
         )
 
-    def _mosaic(self) -> NDArray[np.uint8]:
+    def _mosaic(self, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS) -> NDArray[np.uint8]:
         if self._pixels is None:
-            x0, y0 = self.origin_world_px
+            size, zoom = (self._size, self._size), self._tile_id.zoom
             self._pixels = stitch(
-                self._source, self._tile_id.zoom, (x0, y0), (self._size, self._size), self._what()
+                self._source, zoom, self.origin_world_px, size, self._what(), max_pixels
             )
         return self._pixels
 
@@ -213,10 +236,12 @@ def stitch(
     origin: tuple[int, int],
     size: tuple[int, int],
     what: str,
+    max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS,
 ) -> NDArray[np.uint8]:
     """The (w, h) = ``size`` window of WORLD px whose top-left pixel index is ``origin`` at
     ``zoom``, uint8 RGB; missing tiles are 0 (nodata). Raises TileNotFoundError when no stored
-    tile overlaps the window, ImageDecodeError for an undecodable one."""
+    tile overlaps the window, ImageDecodeError for an undecodable one (or one above
+    ``max_pixels``: :func:`_tile_pixels`)."""
     x0, y0 = int(origin[0]), int(origin[1])
     w, h = int(size[0]), int(size[1])
     out = np.zeros((h, w, 3), dtype=np.uint8)
@@ -230,7 +255,7 @@ def stitch(
             if blob is None:
                 continue
             name = f"{source.name} tile {zoom}/{tx % n}/{ty}"
-            tile = _tile_pixels(blob, name)
+            tile = _tile_pixels(blob, name, max_pixels)
             found += 1
             ax, ay = tx * TILE_PX, ty * TILE_PX
             sx0, sy0 = max(x0, ax), max(y0, ay)
@@ -243,10 +268,30 @@ def stitch(
     return out
 
 
-def _tile_pixels(blob: memoryview, name: str) -> NDArray[np.uint8]:
-    """The stored tile ``blob`` (``name``) decoded, uint8 RGB; InvalidInputError unless it is
-    TILE_PX x TILE_PX (a store of other tiles would serve them labelled as TILE_PX px)."""
-    tile = decode_image(blob, name)
+def _refuse_above(side: int, max_pixels: int, what: str) -> None:
+    """ImageDecodeError naming ``what``, a ``side`` px square, when it is above ``max_pixels``."""
+    if side * side > max_pixels:
+        raise ImageDecodeError(
+            what,
+            f"{side}x{side} px exceeds the limit of {max_pixels} px ([matcher] "
+            "max_image_pixels); refused before decoding",
+        )
+
+
+def _tile_pixels(
+    blob: memoryview, name: str, max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS
+) -> NDArray[np.uint8]:
+    """The stored tile ``blob`` (``name``) decoded within ``max_pixels``, uint8 RGB;
+    InvalidInputError unless it is TILE_PX x TILE_PX (a store of other tiles would serve them
+    labelled as TILE_PX px), from its header before decoding where that says its size."""
+    declared = image_header_size(blob)
+    if declared is not None and declared != (TILE_PX, TILE_PX):
+        raise InvalidInputError(
+            name,
+            f"expected {TILE_PX}x{TILE_PX} px, got {declared[0]}x{declared[1]} (its header"
+            " says so: refused before decoding)",
+        )
+    tile = decode_image(blob, name, max_pixels)
     if tile.shape[:2] != (TILE_PX, TILE_PX):
         raise InvalidInputError(
             name, f"expected {TILE_PX}x{TILE_PX} px, got {tile.shape[1]}x{tile.shape[0]}"

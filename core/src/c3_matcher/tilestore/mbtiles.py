@@ -23,23 +23,23 @@ Reading opens the database read-only and never memory-maps it (``files.connect_r
 pages are ``read()`` into SQLite's cache, so a file emptied or cut short while open is an
 outage (below), never a SIGBUS. A ``tiles`` view may never end: the read at open ends within
 ``bounded.OPEN_S`` (refused), a tile's within ``READ_S`` (its error); a signal stops any.
-Each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way) and handles
-expose it as a ``memoryview`` without further copies. A database error while reading a tile (a
-corrupt page) is raised as that tile's error, never a crash of the caller, and the thread's
-connection is made afresh for its next read. Which tiles a range of columns and rows holds is
-one query of the tile index, no tile read (``stored_in``).
+Each tile blob reaches Python as one ``bytes`` (the sqlite3 module's only way; a tile_data of
+another type, TEXT or a number, is its tile's error) and handles expose it as a ``memoryview``.
+A database error while reading a tile (a corrupt page) is raised as that tile's error, never a
+crash of the caller, and the thread's connection is made afresh for its next read. Which tiles
+a range of columns and rows holds is one query of the tile index, no tile read (``stored_in``).
 
 Threads: each thread gets its own read-only connection (SQLite objects may not cross threads),
 so a store opened on one thread serves another; the connections of threads that have ended are
 closed when the next one is made, and all of them by ``close()``, after which every read raises
-``TileStoreUnusableError`` saying the store is closed. A store-wide failure (the
-database no longer answers at all: locked by another process, truncated or emptied in place,
-unreadable) is reported ONCE per outage as an ERROR log ``c3.tilestore.unusable`` naming the
-store (forwarded to the FDR as ``log.error``), then raised at once as each tile's
-``TileStoreUnusableError``; every ``retry_s`` seconds one read tries the store again (on fresh
-connections) and, when it answers, tiles are served again. A frame never waits on a lock for
-more than ``LOCK_WAIT_S`` (SQLite's busy timeout, long enough to ride through another
-process's commit).
+``TileStoreUnusableError`` saying the store is closed. A store-wide failure (a fresh connection
+reads neither its metadata nor a tile other than the one that failed: locked by another process,
+truncated or emptied in place, unreadable; one damaged row is its tile's error) is reported
+ONCE per outage as an ERROR log ``c3.tilestore.unusable`` naming the store (forwarded to the
+FDR as ``log.error``), then raised at once as each tile's ``TileStoreUnusableError``; every
+``retry_s`` seconds one read tries the store again (on fresh connections) and, when it answers,
+tiles are served again. A frame never waits on a lock for more than ``LOCK_WAIT_S`` (SQLite's
+busy timeout, long enough to ride through another process's commit).
 
 A map changed under a running store is followed: the path is looked at (``os.stat``, its
 ``mbtiles_file.FileIdentity``) at most once every ``check_s`` seconds (``CHECK_S``, 1 s: a
@@ -190,8 +190,7 @@ class MBTilesStore(TileStoreBase):
         said once (WARNING ``c3.tilestore.changed``). A closed store is left as it is."""
         if self._closed:
             return False  # (a fork's child may not wait on a lock a parent's thread held)
-        found = self._followed.look()
-        if found is None:
+        if (found := self._followed.look()) is None:
             return False
         self._retry_at = 0.0  # it answered: an outage is tried again at once
         from c3_matcher.logs import log_event
@@ -259,21 +258,19 @@ class MBTilesStore(TileStoreBase):
             )
         return verified_tile(found, what)
 
-    def _fetch(self, key: tuple[int, int, int]) -> tuple[bytes | None, str | None] | None:
+    def _fetch(self, key: tuple[int, int, int]) -> tuple[object, object] | None:
         """The (blob, sha256 or None) row of the XYZ tile ``key``, read with the query of the
         store file as last read (its rows counted as it counts them), on this thread's
         connection made since."""
         file, (zoom, x, y) = self._followed.current, key
         row = stored_row(zoom, y, file.rows_from_north)
         with (db := self._connection(file)).within(READ_S, "the read"):
-            found: tuple[bytes | None, str | None] | None = db.execute(
-                file.query, (zoom, x, row)
-            ).fetchone()
+            found: tuple[object, object] | None = db.execute(file.query, (zoom, x, row)).fetchone()
         return found
 
     def _fetch_again(
         self, key: tuple[int, int, int], exc: sqlite3.Error, what: str
-    ) -> tuple[bytes | None, str | None] | None:
+    ) -> tuple[object, object] | None:
         """After the read of ``key`` failed (``exc``): read it again when the file changed (the
         failed read was on the old one, or by its query: a digests table gone); else, or when
         that fails too, the tile's InvalidInputError, or the store's (:meth:`_check_store`)."""
@@ -282,14 +279,16 @@ class MBTilesStore(TileStoreBase):
                 return self._fetch(key)
             except sqlite3.Error as again:
                 exc = again
-        self._check_store(exc)
+        self._check_store(exc, key)
         self._forget_connection()
         raise InvalidInputError(what, f"read failed: {exc}") from exc
 
-    def _check_store(self, exc: BaseException) -> None:
-        """After a read error: if a fresh connection cannot read the store either, the store is
-        unusable: say so once (ERROR log, forwarded to the FDR) and fail every later tile fast."""
-        probe_exc = probe_failure(self.path, timeout=LOCK_WAIT_S)
+    def _check_store(self, exc: BaseException, key: tuple[int, int, int]) -> None:
+        """After tile ``key``'s read failed: if a fresh connection reads neither the store's
+        metadata nor another tile, it is unusable: said once (ERROR log, in the FDR), then every
+        later tile fails fast."""
+        failed = (*key[:2], stored_row(key[0], key[2], self._followed.current.rows_from_north))
+        probe_exc = probe_failure(self.path, timeout=LOCK_WAIT_S, failed=failed)
         if probe_exc is None:
             return  # the store answers: this was one tile's error
         reason = f"store unusable: {describe(exc)} (probe: {probe_exc})"

@@ -3,7 +3,7 @@ MBTilesStore`) reads it: its shape checked and what reading it once decides
 (:class:`StoreFile`: its metadata, whether its tiles carry sha256 digests, so which query reads
 a tile); which file that was (:class:`FileIdentity`) and when to look again whether the path
 names another file, or the file was rewritten (:class:`FollowedFile`); a tile's row checked
-against its digest (:func:`verified_tile`); whether the whole store still answers
+against its digest and its type (:func:`verified_tile`); whether the whole store still answers
 (:func:`probe_failure`)."""
 
 from __future__ import annotations
@@ -194,11 +194,16 @@ class FollowedFile:
             return found
 
 
-def verified_tile(found: tuple[bytes | None, str | None] | None, what: str) -> memoryview | None:
+_SQL_TYPES: Final = {str: "TEXT", int: "an INTEGER", float: "a REAL"}
+"""The SQL type of a value the sqlite3 module hands over, as a tile_data of it is said."""
+
+
+def verified_tile(found: tuple[object, object] | None, what: str) -> memoryview | None:
     """The blob of the tile row ``found`` (blob, sha256 or None) of the tile ``what``, checked
     against its sha256 when one is stored (TileDigestError when it fails); None for no row,
     or an empty row (NULL or 0 bytes, as other tools store a blank tile) without a sha256,
-    or 0 bytes whose sha256 is that of 0 bytes (it was blank when digested): no tile."""
+    or 0 bytes whose sha256 is that of 0 bytes (it was blank when digested): no tile. A
+    tile_data that is no BLOB (TEXT, a number) is InvalidInputError naming ``what``."""
     if found is None:
         return None
     blob, digest = found
@@ -206,6 +211,9 @@ def verified_tile(found: tuple[bytes | None, str | None] | None, what: str) -> m
         if digest is None:
             return None
         raise TileDigestError(what, "its data is NULL but a sha256 is stored: the tile is lost")
+    if not isinstance(blob, bytes):
+        kind = _SQL_TYPES.get(type(blob), type(blob).__name__)
+        raise InvalidInputError(what, f"its tile_data is {kind}, not a BLOB of encoded image bytes")
     if digest is not None and hashlib.sha256(blob).hexdigest() != digest:
         raise TileDigestError(
             what, f"sha256 mismatch (stored {str(digest)[:16]}...): the tile is corrupt"
@@ -213,17 +221,30 @@ def verified_tile(found: tuple[bytes | None, str | None] | None, what: str) -> m
     return memoryview(blob) if len(blob) else None
 
 
-def probe_failure(path: Path, *, timeout: float) -> sqlite3.Error | None:
+_OTHER_TILE: Final = (
+    "SELECT zoom_level, tile_column, tile_row FROM tiles"
+    " WHERE NOT (zoom_level=? AND tile_column=? AND tile_row=?) LIMIT 1"
+)
+"""The key of a tile other than a given one: the first of the spec's tile index where the store
+has it (which holds every key: no row of the tiles table is read to find it)."""
+
+
+def probe_failure(
+    path: Path, *, timeout: float, failed: tuple[int, int, int] | None = None
+) -> sqlite3.Error | None:
     """SQLite's error when a fresh connection cannot read the store file ``path`` (its
-    metadata, a tile, each within ``READ_S``), so the whole store is unusable; None when it
-    answers."""
+    metadata, then a tile other than the one whose read ``failed``, its stored (zoom, column,
+    row), each within ``READ_S``), so the whole store is unusable; None when it answers: a
+    failure only the failed tile's own row gives (a damaged record) stays that tile's."""
     try:
         probe = connect_read_only(path, timeout=timeout)
         try:
             with probe.within(READ_S, "reading its metadata"):
                 probe.execute("SELECT count(*) FROM metadata").fetchone()
             with probe.within(READ_S, "reading a tile"):
-                probe.execute("SELECT tile_data FROM tiles LIMIT 1").fetchone()
+                other = probe.execute(_OTHER_TILE, failed or (-1, -1, -1)).fetchone()
+                if other is not None:
+                    probe.execute(_PLAIN_QUERY, other).fetchone()
         finally:
             probe.close()
     except sqlite3.Error as exc:

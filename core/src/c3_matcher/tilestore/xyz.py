@@ -50,7 +50,8 @@ class XyzTileStore(TileStoreBase):
 
     def tile_bytes(self, zoom: int, x: int, y: int) -> memoryview | None:
         """The tile file's bytes (read-only view), or None when absent; an unreadable, empty or
-        shrinking file raises InvalidInputError naming it."""
+        shrinking file, or one turned into a FIFO since it was looked for (never waited on),
+        raises InvalidInputError naming it."""
         p = self.tile_path(zoom, x, y)
         return None if p is None else MmapTileHandle(p).encoded()
 
