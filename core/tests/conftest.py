@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import io
 import json
+import os
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -38,3 +40,13 @@ def logs(fdr: InMemoryFdr) -> Iterator[LogCapture]:
     handle = configure_logging(fdr, level="DEBUG", stream=stream)
     yield LogCapture(stream)
     handle.close()
+
+
+@pytest.fixture
+def clean_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> pytest.MonkeyPatch:
+    """No ``C3_MATCHER_`` variable of the caller's, and the FDR in ``tmp_path`` (the default
+    path would be shared by tests running side by side); returns ``monkeypatch``."""
+    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
+        monkeypatch.delenv(key)
+    monkeypatch.setenv("C3_MATCHER_FDR__PATH", str(tmp_path / "fdr.jsonl"))
+    return monkeypatch

@@ -8,7 +8,6 @@ its extractor engine's declared top-K)."""
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import pytest
@@ -20,13 +19,6 @@ from c3_matcher.errors import ConfigurationError
 from c3_matcher.testing.strategy_kit import compose_ready
 
 LIGHTERGLUE = json.dumps({"xfeat": {"matcher": "lighterglue"}})
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    return monkeypatch
 
 
 def _config(env: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], **values: str) -> int:

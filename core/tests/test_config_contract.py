@@ -9,7 +9,6 @@ log records on stderr, at the configured level, and in the flight data recorder.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -20,15 +19,6 @@ from c3_matcher.cli import main
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "data" / "demo"
 FLIGHT = REPO / "data" / "flights" / "naip_demo"
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> pytest.MonkeyPatch:
-    """No ``C3_MATCHER_`` variable of the caller's, and the FDR in ``tmp_path``."""
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    monkeypatch.setenv("C3_MATCHER_FDR__PATH", str(tmp_path / "fdr.jsonl"))
-    return monkeypatch
 
 
 def _config_json(capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
 from pathlib import Path
 
 import pytest
@@ -16,13 +15,6 @@ from c3_matcher.config import C3Settings, LoggingSettings, load_settings
 from c3_matcher.errors import ConfigurationError
 from c3_matcher.fdr import InMemoryFdr
 from c3_matcher.logs import configure_logging, log_event
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    return monkeypatch
 
 
 @pytest.mark.parametrize(

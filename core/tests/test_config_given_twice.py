@@ -4,7 +4,6 @@ setting it held."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
@@ -12,13 +11,6 @@ import pytest
 from c3_matcher.cli import main
 from c3_matcher.config_sources import split_config
 from c3_matcher.errors import ConfigurationError
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    return monkeypatch
 
 
 @pytest.fixture

@@ -5,7 +5,6 @@ printed so that it reads back as it was."""
 from __future__ import annotations
 
 import json
-import os
 import tomllib
 from pathlib import Path
 
@@ -14,13 +13,6 @@ import pytest
 from c3_matcher.config import load_settings
 from c3_matcher.config_sources import MAX_TOML_BYTES
 from c3_matcher.errors import ConfigurationError
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    return monkeypatch
 
 
 def _fields(exc: ConfigurationError) -> list[str]:

@@ -5,7 +5,6 @@ tolerance that it should be at most 90."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
@@ -17,13 +16,6 @@ from c3_matcher.errors import ConfigurationError
 
 SEED = "C3_MATCHER_MATCHER__RANSAC_SEED"
 TOLERANCE = "C3_MATCHER_MATCHER__PRIOR_ROTATION_TOL_DEG"
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    return monkeypatch
 
 
 def _refusal(toml: Path | None = None, **env: str) -> tuple[str, str]:

@@ -10,7 +10,6 @@ does not have, or a value in place of the file's, says nothing."""
 from __future__ import annotations
 
 import json
-import os
 import tomllib
 from pathlib import Path
 
@@ -24,13 +23,6 @@ from .conftest import LogCapture
 
 XFEAT = "C3_MATCHER_MATCHER__OPTIONS__XFEAT"
 LIGHTERGLUE = '[matcher]\nstrategy = "xfeat"\n[matcher.options.xfeat]\nmatcher = "lighterglue"\n'
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    return monkeypatch
 
 
 @pytest.fixture

@@ -8,7 +8,6 @@ default applies" for every strategy alike, and passed a provider list start-up t
 from __future__ import annotations
 
 import json
-import os
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -20,15 +19,6 @@ from c3_matcher.config import load_settings
 
 XFEAT = "C3_MATCHER_MATCHER__STRATEGY"
 IGNORED = "lightglue.filter_threshold set, but strategy"
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> pytest.MonkeyPatch:
-    """No ``C3_MATCHER_`` variable of the caller's, and the FDR in ``tmp_path``."""
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    monkeypatch.setenv("C3_MATCHER_FDR__PATH", str(tmp_path / "fdr.jsonl"))
-    return monkeypatch
 
 
 def _config(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[list[str], list[str]]:

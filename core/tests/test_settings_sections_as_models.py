@@ -6,7 +6,6 @@ field the caller set fell back to its default, silently."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -14,14 +13,6 @@ import pytest
 from pydantic import ValidationError
 
 from c3_matcher.config import C3Settings, EngineSettings, LightGlueSettings, MatcherSettings
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch) -> pytest.MonkeyPatch:
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    return monkeypatch
-
 
 ENGINES = {"providers": ("CPU",), "intra_op_threads": 2, "cpu_mem_arena": False}
 

@@ -8,7 +8,6 @@ and changed nothing, without a word: the README's demo match with
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -19,15 +18,6 @@ from c3_matcher.cli import main
 from .demo_match import DEMO_MATCH
 
 KIND = "c3.config.ignored"
-
-
-@pytest.fixture
-def clean_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> pytest.MonkeyPatch:
-    """No ``C3_MATCHER_`` variable of the caller's, and the FDR in ``tmp_path``."""
-    for key in [k for k in os.environ if k.upper().startswith("C3_MATCHER_")]:
-        monkeypatch.delenv(key)
-    monkeypatch.setenv("C3_MATCHER_FDR__PATH", str(tmp_path / "fdr.jsonl"))
-    return monkeypatch
 
 
 def _ignored(capsys: pytest.CaptureFixture[str], *extra: str) -> list[dict[str, Any]]:
