@@ -23,11 +23,11 @@ class SpecialFileError(OSError):
         self.kind = kind
 
 
-def open_regular(path: str | Path) -> int:
-    """A descriptor of ``path`` open read-only (blocking reads), when it is a regular file;
-    SpecialFileError when it is not, the OSError of ``open`` when it cannot be opened. The
-    caller closes it."""
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+def open_regular(path: str | Path, flags: int = os.O_RDONLY) -> int:
+    """A descriptor of ``path`` opened with ``flags`` (read-only by default; made 0o644 where
+    ``O_CREAT`` creates it; blocking I/O), when it is a regular file; SpecialFileError when it is
+    not, the OSError of ``open`` when it cannot be opened. The caller closes it."""
+    fd = os.open(path, flags | os.O_NONBLOCK, 0o644)
     try:
         kind = kind_of(os.fstat(fd).st_mode)
         if kind is not None:

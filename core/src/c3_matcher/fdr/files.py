@@ -22,7 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from c3_matcher.file_kinds import kind_of, special_kind
+from c3_matcher import regular_files
+from c3_matcher.file_kinds import special_kind
 from c3_matcher.json_text import loads_json
 
 SEGMENT_DIGITS = 6
@@ -264,18 +265,14 @@ def open_regular(path: Path, flags: int) -> int:
     never through a symbolic link at its name (``O_NOFOLLOW``) and only when it is a regular
     file (a FIFO is not waited on): else :class:`NotRegularFileError` naming it."""
     try:
-        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK, 0o644)
+        return regular_files.open_regular(path, flags | os.O_NOFOLLOW)
+    except regular_files.SpecialFileError as exc:
+        raise NotRegularFileError(errno.EINVAL, _not_regular(path, exc.kind)) from exc
     except OSError as exc:
         kind = "a symbolic link" if path.is_symlink() else special_kind(path)
         if kind is None:
             raise
         raise NotRegularFileError(exc.errno, _not_regular(path, kind)) from exc
-    kind = kind_of(os.fstat(fd).st_mode)
-    if kind is not None:
-        os.close(fd)
-        raise NotRegularFileError(errno.EINVAL, _not_regular(path, kind))
-    os.set_blocking(fd, True)
-    return fd
 
 
 def _not_regular(path: Path, kind: str) -> str:
