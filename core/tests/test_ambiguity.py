@@ -13,7 +13,8 @@ import pytest
 
 from c3_matcher.dto import TileId
 from c3_matcher.errors import AmbiguousMatchError, InsufficientInliersError
-from c3_matcher.testing import ScriptedCandidate, ScriptedRig
+from c3_matcher.stages.ambiguity import AGREE_PX
+from c3_matcher.testing import InMemoryFdr, ScriptedCandidate, ScriptedRig
 
 S = ScriptedCandidate
 
@@ -30,6 +31,39 @@ def _placed(rig: ScriptedRig, *ids: TileId) -> ScriptedRig:
 
 def _km_north(km: float) -> TileId:
     return TileId(18, 47.0 + km / 111.195, 8.5)
+
+
+@pytest.mark.parametrize(
+    "rival",
+    [
+        pytest.param(50, id="exactly-half"),
+        pytest.param(54, id="0.54-as-the-wrong-ALIKED-fixes-rivals"),
+    ],
+)
+def test_a_rival_elsewhere_from_exactly_half_the_inliers_gives_no_fix(fdr, logs, rival):
+    """Half the best's inliers is enough to refuse (49 is not: the weaker rival below), and
+    so is 0.54 of them, the least share a rival of a wrong fix reached on repetitive texture
+    (ALIKED; the module's evidence)."""
+    rig = _placed(ScriptedRig([S(100), S(rival)], fdr), _km_north(0), _km_north(1.0))
+    with pytest.raises(AmbiguousMatchError, match=f"candidate 1 .{rival} inliers, 0.{rival} of"):
+        rig.match()
+
+
+def test_the_agree_distance_is_where_placements_stop_agreeing(fdr, logs):
+    """A rival placing the frame just over :data:`AGREE_PX` px of the best tile's ground sample
+    distance away is refused; moved 0.4 m nearer, just under it, it agrees. (Each double's
+    inliers lie one px further down its tile than the one before: a rival 5.3 m north of the
+    best places the frame 5.0 m from it.)"""
+    rig = ScriptedRig([S(100), S(100)], fdr)
+    agree_m = AGREE_PX * rig.rerank.candidates[0].gsd_m_per_px
+    far = _placed(rig, _km_north(0), _km_north(0.0053))
+    with pytest.raises(AmbiguousMatchError):
+        far.match()
+    (record,) = fdr.of_kind("matcher.insufficient_inliers")
+    distance_m = record["ambiguous"]["distance_m"]
+    assert agree_m < distance_m < agree_m + 0.3 and distance_m - 0.4 < agree_m
+    near = _placed(ScriptedRig([S(100), S(100)], InMemoryFdr()), _km_north(0), _km_north(0.0049))
+    assert [c.inlier_count for c in near.match().per_candidate] == [100, 100]
 
 
 def test_a_rival_elsewhere_with_half_the_inliers_or_more_gives_no_fix(fdr, logs):

@@ -36,6 +36,18 @@ def test_mean_over_sixty_seconds_evicts_old_updates():
     assert window.snapshot().mean_inliers_60s == 0.0
 
 
+def test_an_update_exactly_sixty_seconds_old_is_out_of_the_window():
+    """The window is the last 60 s, its start excluded: an update 60 s old no longer counts,
+    one a nanosecond younger still does."""
+    clock = FakeClock()
+    window = RollingHealthWindow(clock, low_inlier_threshold=60)
+    window.update(clock.monotonic_ns(), 100, False)
+    clock.now_ns += 60 * 1_000_000_000 - 1
+    assert window.snapshot().mean_inliers_60s == 100.0
+    clock.now_ns += 1
+    assert window.snapshot().mean_inliers_60s == 0.0
+
+
 def test_update_count_and_validation():
     clock = FakeClock()
     window = RollingHealthWindow(clock, 60)

@@ -115,6 +115,18 @@ def test_ac5_all_below_threshold_raises_insufficient(fdr, logs):
     assert fdr.of_kind("matcher.frame_done") == []
 
 
+def test_a_best_with_exactly_the_threshold_of_inliers_gets_its_fix(fdr, logs):
+    """``min_inliers_threshold`` is the least a fix needs: 60 inliers pass it (59 do not:
+    the test above)."""
+    rig = ScriptedRig([S(60), S(10), S(30)], fdr)
+    assert rig.settings.min_inliers_threshold == 60
+    result = rig.match()
+    assert [c.inlier_count for c in result.per_candidate] == [60, 30, 10]
+    (record,) = fdr.of_kind("matcher.frame_done")
+    assert record["best_inlier_count"] == 60 and record["threshold"] == 60
+    assert fdr.of_kind("matcher.insufficient_inliers") == []
+
+
 def test_no_candidate_at_all_is_no_fix_not_a_refused_input(fdr, logs):
     """A re-ranker with no tile to propose (none near the estimate) hands over an empty
     re-rank: the frame ends as any frame without a fix does, which is the VIO fallback's cue."""
@@ -238,7 +250,9 @@ def test_the_frame_done_record_says_which_pixels_its_homography_maps(fdr, logs, 
     result = ScriptedRig([S(120, 1.1), S(80, 1.5)], fdr, attitude=attitude).match()
     (record,) = fdr.of_kind("matcher.frame_done")
     hom = np.asarray(record["best_homography"], dtype=np.float64)
-    assert np.array_equal(hom, result.diagnostics["homographies"][0])
+    best, other = result.diagnostics["homographies"]
+    assert not np.allclose(best, other), "the doubles give each candidate its own homography"
+    assert np.array_equal(hom, best)
     rect = np.asarray(record["query_rectification"], dtype=np.float64)
     assert rect.shape == (3, 3) and np.allclose(rect, np.eye(3)) == (attitude is None)
     composed = hom @ rect

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
+from c3_matcher.config import MatcherSettings
 from c3_matcher.dto import TileId
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.prior import GeometricPrior, PriorTolerances
@@ -62,6 +63,43 @@ def test_seeded_and_deterministic(real_correspondences):
     b = OpenCvRansacFilter(seed=3).filter(real_correspondences, 3.0)
     assert a.inlier_correspondences.tobytes() == b.inlier_correspondences.tobytes()
     assert a.per_candidate_residual_px == b.per_candidate_residual_px
+
+
+def test_the_configured_seed_is_the_one_opencv_draws_with(real_correspondences, monkeypatch):
+    """``[matcher] ransac_seed`` seeds OpenCV's generator: the USAC parameters of each call
+    carry the filter's seed, the configured one for the filter ``[matcher]`` asks for."""
+    states: list[int] = []
+    real_find = cv2.findHomography
+
+    def spy(src, dst, *args):
+        if args and isinstance(args[0], cv2.UsacParams):
+            states.append(args[0].randomGeneratorState)
+        return real_find(src, dst, *args)
+
+    monkeypatch.setattr(cv2, "findHomography", spy)
+    OpenCvRansacFilter.from_settings(MatcherSettings(ransac_seed=7)).filter(
+        real_correspondences, 3.0
+    )
+    OpenCvRansacFilter(seed=12345).filter(real_correspondences, 3.0)
+    assert states == [7, 12345]
+
+
+def test_the_seed_picks_among_unclear_inliers_and_gives_the_same_pick_again(
+    real_correspondences,
+):
+    """Where inliers are not clear cut (every tile point 1.5 px off, a third 1.5 px more,
+    against a 2 px threshold) other seeds may keep other inliers: the seed is what makes the
+    answer repeatable, and each seed gives its own answer again bit for bit."""
+    rows = noisy(real_correspondences)
+    rows[:, 2:4] += np.random.default_rng(5).normal(0.0, 1.5, (len(rows), 2)).astype(np.float32)
+    picks = {
+        seed: OpenCvRansacFilter(seed=seed).filter(rows, 2.0).inlier_correspondences.tobytes()
+        for seed in range(6)
+    }
+    assert len(set(picks.values())) > 1
+    for seed, pick in picks.items():
+        again = OpenCvRansacFilter(seed=seed).filter(rows, 2.0)
+        assert again.inlier_correspondences.tobytes() == pick
 
 
 def test_a_call_in_between_leaves_a_running_call_alone(real_correspondences, monkeypatch):
@@ -144,6 +182,18 @@ def test_refit_never_goes_below_the_floor_and_none_is_identity(real_corresponden
     assert refit(empty, 1.5) is empty
 
 
+def test_a_refit_keeping_exactly_the_floor_is_made(real_correspondences):
+    """The floor is the least a refit may keep: one keeping exactly that many inliers is made,
+    one that would keep one fewer than the floor is not."""
+    result = OpenCvRansacFilter().filter(noisy(real_correspondences), threshold_px=3.0)
+    residuals = homography_residuals(result.homography, result.inlier_correspondences)
+    kept = int((residuals <= 1.5).sum())
+    assert 60 <= kept < result.inlier_count
+    tight = refit(result, 1.5, floor=kept)
+    assert tight is not result and tight.inlier_count == kept
+    assert refit(result, 1.5, floor=kept + 1) is result
+
+
 def test_the_filter_applies_its_configured_refit(real_correspondences):
     corr = noisy(real_correspondences)
     plain = OpenCvRansacFilter().filter(corr, threshold_px=3.0)
@@ -154,6 +204,9 @@ def test_the_filter_applies_its_configured_refit(real_correspondences):
     assert got.inlier_count < plain.inlier_count
     with pytest.raises(InvalidInputError, match="refit_px"):
         OpenCvRansacFilter(refit_px=-1.0)
+    configured = MatcherSettings(refit_threshold_px=1.5, min_inliers_threshold=80)
+    asked = OpenCvRansacFilter.from_settings(configured)
+    assert (asked.refit_px, asked.refit_floor) == (1.5, 80)
 
 
 def on_a_line(noise_px: float) -> np.ndarray:
@@ -193,6 +246,26 @@ def test_a_refit_that_keeps_only_a_line_is_refused():
     assert not Verifier(OpenCvRansacFilter(), 3.0, None).verify(TILE, 0, rows).refused
     refitted = Verifier(OpenCvRansacFilter(refit_px=0.5, refit_floor=60), 3.0, None)
     assert refitted.verify(TILE, 0, rows).refused
+
+
+def _band(spread: float) -> np.ndarray:
+    """41 x 9 query points on a grid 400 px long whose :func:`spread_ratio` is ``spread``, and
+    their tile points, a pure (5, 7) shift of them."""
+    xs, ys = np.meshgrid(np.linspace(0.0, 400.0, 41), np.linspace(0.0, 1.0, 9))
+    grid = np.c_[xs.ravel(), ys.ravel()]
+    grid[:, 1] *= spread / spread_ratio(grid)
+    return np.c_[grid, grid + np.array([5.0, 7.0])].astype(np.float32)
+
+
+@pytest.mark.parametrize(("spread", "refused"), [(0.19, True), (0.21, False)])
+def test_the_spread_check_refuses_just_under_its_ratio_and_passes_just_over(spread, refused):
+    """:data:`MIN_SPREAD_RATIO` is where the check turns: inliers a little narrower than a
+    fifth of their length are refused without a prior, a little wider pass."""
+    rows = _band(spread)
+    assert spread_ratio(rows[:, 0:2]) == pytest.approx(spread, abs=1e-3)
+    verdict = Verifier(OpenCvRansacFilter(), 3.0, None).verify(TILE, 0, rows)
+    assert isinstance(verdict.check, SpreadCheck)
+    assert verdict.refused is refused and verdict.check.ok is not refused
 
 
 def test_with_a_prior_the_prior_decides():

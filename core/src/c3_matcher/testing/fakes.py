@@ -39,6 +39,12 @@ from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.strategy import PipelineHelpers, match_features, pipeline_matcher
+from c3_matcher.testing.fake_texture import (
+    FAKE_DESCRIPTOR_DIM,
+    equal_descriptor_pairs,
+    rgb_uint8,
+    texture_features,
+)
 from c3_matcher.tiles import BytesTileHandle
 
 __all__ = [
@@ -110,7 +116,7 @@ class FakeInferenceRuntime:
         self.calls.append(mark - 1)
         if 0 <= mark - 1 < len(self.script) and self.script[mark - 1].fail_extract:
             raise RuntimeError(f"scripted extractor failure on candidate {mark - 1}")
-        pixels = _rgb_uint8(image)
+        pixels = rgb_uint8(image)
         if np.mean(pixels[..., 0] != pixels[..., 1]) > 0.5:  # colour: a texture, not a mark
             return texture_features(pixels, feeds.get("mask"))
         n = 8
@@ -121,49 +127,6 @@ class FakeInferenceRuntime:
             "keypoint_scores": np.ones(n, np.float32),
             "descriptors": np.eye(n, FAKE_DESCRIPTOR_DIM, dtype=np.float32),
         }
-
-
-FAKE_DESCRIPTOR_DIM = 16
-"""Width of the fake extractor's descriptors (unit float32 vectors)."""
-
-
-def _rgb_uint8(image: NDArray[Any]) -> NDArray[np.uint8]:
-    """An extractor feed, uint8 (H, W, 3) or float32 (1, 3, H, W) in [0, 1], as uint8
-    (H, W, 3)."""
-    if image.ndim == 4:
-        image = image[0].transpose(1, 2, 0)
-    if image.dtype.kind == "f":
-        return np.rint(image * 255).astype(np.uint8)
-    return np.asarray(image, np.uint8)
-
-
-def texture_features(
-    pixels: NDArray[np.uint8], mask: NDArray[Any] | None = None
-) -> dict[str, NDArray[Any]]:
-    """The fake extractor on a block texture (``textured_probe``): a keypoint at the top-left
-    pixel of every block (its colour differs from the pixels left of and above it) where the
-    mask is valid, in raster order, described by the four colours around it as a unit vector,
-    so the same corner of a moved copy has the same descriptor."""
-    rgb = pixels.astype(np.float32)
-    corner = (pixels[1:, 1:] != pixels[1:, :-1]).any(-1) & (pixels[1:, 1:] != pixels[:-1, 1:]).any(
-        -1
-    )
-    ys, xs = np.nonzero(corner)
-    ys, xs = ys + 1, xs + 1
-    if mask is not None:
-        keep = np.asarray(mask).reshape(pixels.shape[:2])[ys, xs] > 0.5
-        ys, xs = ys[keep], xs[keep]
-    around = np.concatenate(
-        [rgb[ys, xs], rgb[ys - 1, xs - 1], rgb[ys - 1, xs], rgb[ys, xs - 1]], axis=1
-    )
-    desc = np.zeros((len(xs), FAKE_DESCRIPTOR_DIM), np.float32)
-    desc[:, : around.shape[1]] = around + 1.0
-    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
-    return {
-        "keypoints": np.stack([xs, ys], axis=1).astype(np.float32).reshape(-1, 2),
-        "keypoint_scores": np.ones(len(xs), np.float32),
-        "descriptors": desc,
-    }
 
 
 class FakeLightGlueRuntime:
@@ -183,18 +146,6 @@ class FakeLightGlueRuntime:
         if 0 <= mark < len(self.script) and self.script[mark].fail_match:
             raise RuntimeError(f"scripted LightGlue failure on candidate {mark}")
         return equal_descriptor_pairs(side0.descriptors, side1.descriptors)
-
-
-def equal_descriptor_pairs(desc0: NDArray[Any], desc1: NDArray[Any]) -> RawMatches:
-    """Pairs (i, j), confidence 1, of each row i of ``desc0`` with the first equal row j of
-    ``desc1``, in the order of i."""
-    first: dict[bytes, int] = {}
-    for j, row in enumerate(np.ascontiguousarray(desc1)):
-        first.setdefault(row.tobytes(), j)
-    rows = np.ascontiguousarray(desc0, dtype=np.asarray(desc1).dtype)
-    pairs = [(i, first[row.tobytes()]) for i, row in enumerate(rows) if row.tobytes() in first]
-    matches = np.array(pairs, np.int64).reshape(-1, 2)
-    return RawMatches(matches, np.ones(len(matches), np.float32))
 
 
 class ScriptedPairMatcher:
@@ -225,9 +176,21 @@ def _inlier_rows(n: int, first: tuple[float, float, float, float]) -> NDArray[np
     return rows
 
 
+def _shift(rows: NDArray[np.float32]) -> NDArray[np.float64] | None:
+    """The translation taking the query points of ``rows`` (all shifted alike) to their tile
+    points; None without rows."""
+    if not len(rows):
+        return None
+    homography = np.eye(3)
+    homography[0:2, 2] = rows[0, 2:4] - rows[0, 0:2]
+    return homography
+
+
 class FakeRansacFilter:
     """A RansacFilter double: returns the scripted inlier count and residual for the candidate
-    whose tile keypoints it sees (the tile mark is the y coordinate of the tile points)."""
+    whose tile keypoints it sees (the tile mark is the y coordinate of the tile points), and
+    the homography its inliers follow, a translation that differs per candidate (so a test
+    can tell which candidate's homography a record carries)."""
 
     def __init__(self, script: Sequence[ScriptedCandidate]) -> None:
         self.script = list(script)
@@ -242,7 +205,7 @@ class FakeRansacFilter:
             rows,
             s.outliers,
             float(s.residual) if s.inliers else 0.0,
-            np.eye(3) if s.inliers else None,
+            _shift(rows),
             np.ones(s.inliers + s.outliers, bool),
         )
 
