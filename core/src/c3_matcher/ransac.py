@@ -44,7 +44,7 @@ MIN_SPREAD_RATIO = 0.2
 """The least :func:`spread_ratio` a homography's inliers must have on both sides (query and
 tile) where no geometric prior checks it. A homography has 8 parameters; its two perspective
 terms (and the shear across a line) are pinned only by how far the points spread across their
-longest direction. Points in a band whose width is a fifth of its length or less (a road, a
+longest direction. Points in a band whose width is under a fifth of its length (a road, a
 field edge, texture along one line) leave them to noise: with a pure shift as the truth such a
 fit can move the far corners of the frame by tens of pixels while its residual stays below a
 pixel (it may as well come out right: nothing tells which). The ratio is unitless and
