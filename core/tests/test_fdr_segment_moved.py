@@ -78,11 +78,25 @@ def test_a_segment_removed_before_a_close_gives_no_seq_again(tmp_path):
     rec.record("a", {})
     rec.record("b", {})
     path.unlink()
-    rec.close()  # nothing written since: the next start still goes on from seq 3
+    rec.close()  # nothing written since: the close says it, and the next start goes on
     again = JsonlFdrRecorder(path, FakeClock())
     again.record("c", {})
     again.close()
-    assert _seq_kinds(path) == [(3, "c")]
+    assert _seq_kinds(path) == [(3, SEGMENT_REPLACED), (4, "c")]
+
+
+def test_a_segment_moved_before_a_close_that_cannot_say_it_gives_no_seq_again(tmp_path):
+    path = tmp_path / "fdr.jsonl"
+    rec = JsonlFdrRecorder(path, FakeClock())
+    rec.record("a", {})
+    path.unlink()
+    path.mkdir()  # the path taken: no segment can be made there at close
+    rec.close()
+    path.rmdir()
+    again = JsonlFdrRecorder(path, FakeClock())
+    again.record("b", {})
+    again.close()
+    assert _seq_kinds(path) == [(2, "b")]
 
 
 def test_the_recorders_own_rotations_are_no_replacement(tmp_path, warnings):

@@ -1,6 +1,7 @@
 """A flight-data log checked after the flight: every segment read in order, ``seq`` followed
-from record to record, each gap held against the ``fdr.records_dropped`` notes, and the lock
-file's note of records not yet in the log."""
+from record to record, each gap held against the recorder's notes (``fdr.records_dropped``:
+records it let go; ``fdr.segment_replaced``: a live segment another program removed or renamed,
+its records with it), and the lock file's note of records not yet in the log."""
 
 from __future__ import annotations
 
@@ -15,11 +16,12 @@ from typing import Any
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.fdr.files import live_segment, rotated_segments
+from c3_matcher.fdr.moved import SEGMENT_REPLACED
 from c3_matcher.fdr.pending import RECORDS_DROPPED, DroppedRecords, lock_path, read_lock
 from c3_matcher.fdr.records import FdrRecord, read_fdr
 from c3_matcher.file_kinds import special_kind
 
-__all__ = ["FdrCheck", "SeqRange", "check_fdr", "read_fdr_log"]
+__all__ = ["FdrCheck", "MovedSegment", "SeqRange", "check_fdr", "read_fdr_log"]
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
@@ -43,9 +45,34 @@ class SeqRange:
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
+class MovedSegment:
+    """A live segment another program removed or renamed under its recorder, as the recorder's
+    ``fdr.segment_replaced`` note says: the file ``segment`` named is ``moved_to`` now (None:
+    removed, or moved out of its folder) with the records up to ``last_seq``. ``missing``: the
+    seqs this log lacks because of it, the gap between records the note explains (None when it
+    lacks none between its records: the file went empty, or before the log's first record)."""
+
+    segment: str
+    moved_to: str | None
+    last_seq: int
+    missing: SeqRange | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        missing = self.missing
+        return {
+            "segment": self.segment,
+            "moved_to": self.moved_to,
+            "last_seq": self.last_seq,
+            "missing": dataclasses.asdict(missing) if missing else None,
+        }
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
 class FdrCheck:
     """What a flight-data log holds and whether it is whole. ``gaps``: seqs missing between
-    records that no ``fdr.records_dropped`` note names (``noted_gaps``: those one names);
+    records that no note explains (``noted_gaps``: those ``fdr.records_dropped`` notes name;
+    ``moved``: the live segments another program removed or renamed, each with the seqs this
+    log lacks because of it: not the recorder's damage, but not in this log either);
     ``went_back``: ``(previous, seq)`` wherever ``seq`` did not grow; ``wall_times``: the
     earliest and the latest record's wall time, ``wall_went_back`` how many times a record's
     wall time is before the one before it (a restart on a computer whose clock was not set: seq
@@ -66,6 +93,7 @@ class FdrCheck:
     unreadable: tuple[str, ...]
     not_in_log: DroppedRecords | None
     wall_went_back: int = 0
+    moved: tuple[MovedSegment, ...] = ()
 
     @property
     def records(self) -> int:
@@ -75,6 +103,13 @@ class FdrCheck:
     def intact(self) -> bool:
         """No line unreadable, no gap unexplained, ``seq`` always growing."""
         return not (self.gaps or self.went_back or self.unreadable)
+
+    @property
+    def moved_away(self) -> tuple[MovedSegment, ...]:
+        """The ``moved`` whose records this log lacks (between its records, or before the
+        first): another program has them, or removed them."""
+        first = self.seqs.first if self.seqs else 0
+        return tuple(m for m in self.moved if m.missing or m.last_seq < first)
 
     def to_json(self) -> dict[str, Any]:
         lost = self.not_in_log
@@ -93,6 +128,7 @@ class FdrCheck:
             "went_back": [list(pair) for pair in self.went_back],
             "unreadable": list(self.unreadable),
             "not_in_log": lost.payload() if lost else None,
+            "moved": [m.to_json() for m in self.moved],
         }
 
 
@@ -127,8 +163,7 @@ def check_fdr(path: Path) -> FdrCheck:
     kinds: Counter[str] = Counter()
     seqs: list[int] = []
     times: list[str] = []
-    noted: list[SeqRange] = []
-    let_go = 0
+    notes: list[FdrRecord] = []
     unreadable: list[str] = []
     for segment in segments:
         for record in _records(segment, unreadable):
@@ -136,9 +171,8 @@ def check_fdr(path: Path) -> FdrCheck:
             seqs.append(record["seq"])
             if isinstance(wall := record.get("wall_time"), str):
                 times.append(wall)
-            if record.get("kind") == RECORDS_DROPPED and (note := _noted(record.get("payload"))):
-                noted.append(note[0])
-                let_go += note[1]
+            if record.get("kind") in (RECORDS_DROPPED, SEGMENT_REPLACED):
+                notes.append(record)
     if unreadable and not seqs:
         raise InvalidInputError(
             "fdr",
@@ -146,22 +180,54 @@ def check_fdr(path: Path) -> FdrCheck:
             "not a flight-data log, or one damaged throughout",
         )
     gaps, went_back = _follow(seqs)
+    dropped = [d for r in notes if r["kind"] == RECORDS_DROPPED and (d := _noted(r.get("payload")))]
+    replaced = [
+        m for r in notes if r["kind"] == SEGMENT_REPLACED and (m := _moved(r.get("payload")))
+    ]
+    noted, unexplained, moved = _explain(gaps, tuple(d[0] for d in dropped), replaced)
     instants = _instants(times)
-    named = tuple(noted)
     return FdrCheck(
         path=path,
         segments=segments,
         kinds=dict(sorted(kinds.items())),
         seqs=SeqRange(seqs[0], seqs[-1]) if seqs else None,
         wall_times=_span(times, instants),
-        let_go=let_go,
-        noted_gaps=tuple(g for g in gaps if g.within(named)),
-        gaps=tuple(g for g in gaps if not g.within(named)),
+        let_go=sum(d[1] for d in dropped),
+        noted_gaps=noted,
+        gaps=unexplained,
         went_back=tuple(went_back),
         unreadable=tuple(unreadable),
         not_in_log=read_lock(lock_path(path))[1],
         wall_went_back=_went_back(instants),
+        moved=moved,
     )
+
+
+def _explain(
+    gaps: list[SeqRange], dropped: tuple[SeqRange, ...], replaced: list[MovedSegment]
+) -> tuple[tuple[SeqRange, ...], tuple[SeqRange, ...], tuple[MovedSegment, ...]]:
+    """Each gap held against the notes: one the ``dropped`` seqs cover is noted (records let
+    go); else one that a ``replaced`` note's ``last_seq`` lies in lacks, up to that seq, the
+    records that went with the file moved (its ``missing``; the seqs after it, if any, must be
+    covered by ``dropped``); any other gap is unexplained. Returns the noted gaps, the
+    unexplained ones and ``replaced`` with their ``missing`` seqs."""
+    noted: list[SeqRange] = []
+    unexplained: list[SeqRange] = []
+    missing: dict[int, SeqRange] = {}
+    lasts = sorted({m.last_seq for m in replaced})
+    for gap in gaps:
+        ends = [last for last in lasts if gap.first <= last <= gap.last]
+        went = SeqRange(gap.first, ends[-1]) if ends else None
+        if gap.within(dropped):
+            noted.append(gap)
+        elif went is None or not gap.within((*dropped, went)):
+            unexplained.append(gap)
+        else:
+            missing[went.last] = went
+            if gap.last > went.last:
+                noted.append(SeqRange(went.last + 1, gap.last))
+    found = [dataclasses.replace(m, missing=missing.get(m.last_seq)) for m in replaced]
+    return tuple(noted), tuple(unexplained), tuple(found)
 
 
 def _instants(times: list[str]) -> list[dt.datetime]:
@@ -214,6 +280,16 @@ def _noted(payload: Any) -> tuple[SeqRange, int] | None:
     first, last, count = (payload.get(k) for k in ("first_seq", "last_seq", "count"))
     if isinstance(first, int) and isinstance(last, int) and isinstance(count, int):
         return SeqRange(first, last), count
+    return None
+
+
+def _moved(payload: Any) -> MovedSegment | None:
+    """The live segment a ``fdr.segment_replaced`` note says went, and where to."""
+    if not isinstance(payload, dict):
+        return None
+    segment, moved_to, last = (payload.get(k) for k in ("segment", "moved_to", "last_seq"))
+    if isinstance(segment, str) and isinstance(moved_to, str | None) and type(last) is int:
+        return MovedSegment(segment, moved_to, last)
     return None
 
 

@@ -1,5 +1,6 @@
 """``c3-matcher fdr [PATH]``: what a flight-data log holds after a flight, and whether it is
-whole (exit 1 when a line is unreadable, a gap has no note or ``seq`` went back)."""
+whole (exit 1 when a line is unreadable, a gap has no note or ``seq`` went back; records a note
+says another program moved or removed with a live segment are named as not in the log, exit 0)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from c3_matcher.commands import EXIT_FAILURE, EXIT_OK
-from c3_matcher.fdr.check import FdrCheck, SeqRange, check_fdr
+from c3_matcher.fdr.check import FdrCheck, MovedSegment, SeqRange, check_fdr
 
 if TYPE_CHECKING:
     from c3_matcher.commands import CommandRegistry
@@ -22,8 +23,10 @@ _HELP = "check a flight-data log: records by kind, seq gaps and the notes that e
 _DESCRIPTION = (
     "Read every segment of a flight-data log (the live one and its rotated ones) and say what "
     "it holds: records by kind, seq range and wall times, records the recorder let go (each "
-    "named by a fdr.records_dropped note) and any damage: unreadable lines, seq gaps no note "
-    "explains, seq going back. Exit 0 when whole, 1 when damaged."
+    "named by a fdr.records_dropped note), records another program moved or removed with a live "
+    "segment (named by a fdr.segment_replaced note: not in this log, but no damage) and any "
+    "damage: unreadable lines, seq gaps no note explains, seq going back. Exit 0 when whole, 1 "
+    "when damaged."
 )
 
 
@@ -64,6 +67,7 @@ def _describe(check: FdrCheck) -> list[str]:
             f"  let go: {check.let_go} record(s), seqs {_seqs(check.noted_gaps)}, "
             "each named by a fdr.records_dropped note"
         )
+    lines += [_moved_away(m) for m in check.moved_away]
     if check.gaps:
         lines.append(f"  gaps no note explains: seqs {_seqs(check.gaps)}")
     if check.wall_went_back:
@@ -83,6 +87,21 @@ def _describe(check: FdrCheck) -> list[str]:
             "this path records them)"
         )
     return lines
+
+
+def _moved_away(moved: MovedSegment) -> str:
+    """Where the records went that a live segment removed or renamed took from this log."""
+    seqs = f"seqs {moved.missing}" if moved.missing else f"records up to seq {moved.last_seq}"
+    segment = f"the live segment {moved.segment}"
+    went = (
+        f"renamed {segment} to {moved.moved_to}"
+        if moved.moved_to
+        else f"removed {segment} (or moved it out of its folder)"
+    )
+    return (
+        f"  moved away: {seqs}, not in this log: another program {went} while its recorder "
+        "had it open (its fdr.segment_replaced note says so)"
+    )
 
 
 def _seqs(ranges: tuple[SeqRange, ...]) -> str:

@@ -94,8 +94,8 @@ class JsonlFdrRecorder:
     power cut during its first line, on a file system that had committed the size but not the
     data) is a torn tail, cut as one. ``record`` is thread-safe, and refused in a forked child.
     A live segment removed or renamed while open (``rm``, a ``logrotate`` ``mv``) is made anew
-    at the next record, ``seq`` going on, and said once (``moved``). ``recorded_at_ns`` is
-    always an ``int`` >= 0, whatever the clock gives (``clocks.SteadyClock``).
+    at the next record or at ``close``, ``seq`` going on, and said once (``moved``).
+    ``recorded_at_ns`` is always an ``int`` >= 0, whatever the clock gives (``SteadyClock``).
 
     ``fresh``: start a new log at ``path`` (a ground run's FDR, started anew with each run):
     only once the lock is held are the previous live segment, its rotated segments, ``.meta``
@@ -238,6 +238,8 @@ class JsonlFdrRecorder:
                     self._write_pending()
                 except FdrWriteError as exc:
                     lost = exc  # its failure already named the waiting records (noted)
+            if lost is None and self._lockfile.fd >= 0:
+                self._say_move()
             if self._fd >= 0:
                 if not still_there(self._fd, self._path):  # gone since: no seq is given again
                     keep_last_seq(self._meta_path, self._seq - 1)
@@ -248,6 +250,16 @@ class JsonlFdrRecorder:
             raise FdrWriteError(
                 f"{lost}: lost, the recorder is closed{self._lockfile.noted}"
             ) from lost
+
+    def _say_move(self) -> None:
+        """At close, a live segment removed or renamed since the last write is said as a write
+        says it (``_follow_path``): a ``SEGMENT_REPLACED`` record in a new segment at ``path``.
+        Should that fail (a full disk, the path taken), ``.meta`` keeps the last seq given."""
+        with contextlib.suppress(OSError, FdrWriteError):
+            if self._fd >= 0 and not still_there(self._fd, self._path):
+                self._follow_path()
+            if self._moved is not None:
+                self._write_pending()
 
     @contextlib.contextmanager
     def _locked(self) -> Iterator[None]:

@@ -1,12 +1,18 @@
 """The live segment removed or renamed under a running recorder (an ``rm``, a ``logrotate``-style
 ``mv``): records written on to the open file would go to a file nobody reads, or to none.
 
-Before each append the recorder compares the file it holds open with the one its path names
-(:func:`still_there`: an ``fstat`` and an ``lstat``, microseconds beside the ``fsync``); when
-they differ it reopens the path (:func:`reopen_live`), so that ``seq`` goes on in a new live
-segment, keeps its last seq in ``.meta`` (a later start never gives one again, even should the
-new segment go too), and says what happened once: a ``SEGMENT_REPLACED`` record in the new
-segment and a WARNING ``SEGMENT_REPLACED_WARNING`` (:class:`SegmentReplaced`).
+Before each append, and at close, the recorder compares the file it holds open with the one its
+path names (:func:`still_there`: an ``fstat`` and an ``lstat``, microseconds beside the
+``fsync``); when they differ it reopens the path (:func:`reopen_live`), so that ``seq`` goes on
+in a new live segment, keeps its last seq in ``.meta`` (a later start never gives one again,
+even should the new segment go too), and says what happened once: a ``SEGMENT_REPLACED`` record
+in the new segment (``c3-matcher fdr`` reads it: the seqs that went are no damage, but not in
+the log) and a WARNING ``SEGMENT_REPLACED_WARNING`` (:class:`SegmentReplaced`).
+
+A move while the recorder is idle, then a kill (no record, no close), is said by nothing: the
+next start cannot know how many records the file that went held, and gives their seqs again.
+Knowing it would take a write beside every record (the seq in ``.meta``), which the flight
+path does not pay.
 """
 
 from __future__ import annotations
