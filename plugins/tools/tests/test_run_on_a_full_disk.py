@@ -16,6 +16,7 @@ from typing import Any
 
 import pytest
 
+import c3_matcher_tools.replay
 import c3_matcher_tools.run.outputs
 import c3_matcher_tools.run.results_file
 from c3_matcher.cli import main
@@ -130,3 +131,25 @@ def test_a_replay_on_a_full_disk_says_so_in_its_json_report_and_run_json(
     assert report["frames_done"] == 2
     mark = json.loads((out / RUN_MARK).read_text())
     assert "running" not in mark and mark["failed"] == f"{out / 'results.jsonl'}: {full}"
+
+
+def test_a_replay_whose_disk_is_too_full_for_run_json_says_it_still_says_running(
+    small_flight: SmallFlight,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """No room left even to mark the run failed: ``run.json`` keeps ``running`` (what a killed
+    run leaves), and stderr says so rather than leaving it to be read as a kill."""
+    monkeypatch.setattr(c3_matcher_tools.run.outputs, "write_results", _no_room)
+
+    def unmarkable(directory: Path, failed: str | None = None) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(directory / RUN_MARK))
+
+    monkeypatch.setattr(c3_matcher_tools.replay, "mark_ended", unmarkable)
+    flight, out = small_flight("full_for_run_json"), tmp_path / "out"
+    args = ["replay", str(flight), "--strategy", "sift_magsac", "--out", str(out)]
+    assert main(args) == 2
+    said = capsys.readouterr().err
+    assert f"c3-matcher replay: {out / RUN_MARK} still says running: " in said, said
+    assert json.loads((out / RUN_MARK).read_text())["running"] is True

@@ -51,7 +51,6 @@ The command only: flying and scoring are the run layer's (:mod:`c3_matcher_tools
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import signal
 from pathlib import Path
@@ -231,8 +230,10 @@ def _write_and_say(
         write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
         mark_ended(out)  # its files are written: the run is no longer in progress
     except OSError as exc:  # the run ended: it says so, and what it wrote
-        with contextlib.suppress(OSError):  # a disk too full for run.json leaves it running
+        try:
             mark_ended(out, failed=f"{exc.filename or out}: {exc.strerror or exc}")
+        except OSError as unmarked:  # a disk too full for run.json too: it still says running
+            ctx.err(f"c3-matcher replay: {out / RUN_MARK} still says running: {unmarked}")
         _say(ctx, as_json, dataset, run, out, {**report, **_files_there(out)}, features, given)
         raise
     written.extend(out / name for name in RUN_FILES)
