@@ -4,12 +4,13 @@ setting it held."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
 from c3_matcher.cli import main
-from c3_matcher.config_sources import split_config
+from c3_matcher.config_argument import split_config
 from c3_matcher.errors import ConfigurationError
 
 
@@ -27,8 +28,18 @@ def files(tmp_path: Path) -> tuple[Path, Path]:
         ["--config", "{a}", "config", "--config", "{b}"],
         ["--config={a}", "config", "--config={b}"],
         ["config", "--config", "{a}", "--config={b}"],
+        ["--conf", "{a}", "--config", "{b}", "config"],
+        ["--c={a}", "config", "--config={b}"],
+        ["--confi", "{a}", "--co", "{b}", "config"],
     ],
-    ids=["before-and-after", "equals-forms", "both-after"],
+    ids=[
+        "before-and-after",
+        "equals-forms",
+        "both-after",
+        "cut-short",
+        "cut-short-equals",
+        "both-cut",
+    ],
 )
 def test_a_second_config_is_refused_naming_both_files(
     clean_env: pytest.MonkeyPatch,
@@ -62,3 +73,31 @@ def test_split_config_says_which_files_it_was_given() -> None:
         split_config(["--config", "a.toml", "match", "--config=b.toml"])
     ((field, reason),) = refused.value.problems
     assert field == "--config" and "'a.toml' and 'b.toml'" in reason
+
+
+def test_config_cut_short_before_the_command_is_read_as_argparse_read_it(
+    clean_env: pytest.MonkeyPatch, files: tuple[Path, Path], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Before the command's name, ``--conf FILE`` named the file through argparse's
+    abbreviations, past the check for a second one; it is still read, now by ``split_config``.
+    After the name it is the command's to read (none has such an option: refused there)."""
+    first, _ = files
+    for argv in (["--conf", str(first), "config"], [f"--c={first}", "config"]):
+        assert split_config(argv) == (["config"], first)
+        assert main([*argv, "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["matcher"]["min_inliers_threshold"] == 80
+    assert split_config(["config", "--conf", "x"]) == (["config", "--conf", "x"], None)
+    with pytest.raises(SystemExit) as stopped:
+        main(["config", "--conf", str(first)])
+    assert stopped.value.code == 2
+    assert "unrecognized arguments: --conf" in capsys.readouterr().err
+
+
+def test_config_without_a_file_is_refused_by_its_full_name(
+    clean_env: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for argv in (["--conf"], ["--config"]):
+        with pytest.raises(SystemExit) as stopped:
+            main(argv)
+        assert stopped.value.code == 2
+        assert "argument --config: expected one argument" in capsys.readouterr().err

@@ -160,3 +160,57 @@ def test_providers_this_machine_lacks_are_warned_as_start_up_resolves_them(
     assert line.endswith("a run here leaves it out and runs on CPUExecutionProvider"), line
     clean_env.setenv("C3_MATCHER_ENGINES__PROVIDERS", '["CPU"]')
     assert _config(capsys)[1] == []
+
+
+def test_an_option_the_chosen_matcher_refuses_is_not_shown(
+    clean_env: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """With ``matcher = "lighterglue"``, XFeat refuses ``min_cossim`` (the mnn matcher's
+    threshold): it was shown as ``# min_cossim = 0.82  # unset: xfeat's default``, a line
+    refused once uncommented. The option lines shown, uncommented, are taken."""
+    clean_env.setenv(XFEAT, "xfeat")
+    clean_env.setenv("C3_MATCHER_MATCHER__OPTIONS__XFEAT__MATCHER", "lighterglue")
+    lines, _ = _config(capsys)
+    at = lines.index("[matcher.options.xfeat]")
+    table = lines[at + 1 : lines.index("", at)]
+    assert table[0] == 'matcher = "lighterglue"'
+    assert not any("min_cossim" in line for line in table), table
+    shown = [line for line in table if "  # unset: " in line]
+    assert shown == ["# upscale = 1  # unset: xfeat's default"]
+    clean_env.delenv("C3_MATCHER_MATCHER__OPTIONS__XFEAT__MATCHER")
+    uncommented = {line: line[2:].split("  # ")[0] for line in shown}
+    saved = tmp_path / "c3.toml"
+    saved.write_text("\n".join(uncommented.get(line, line) for line in lines) + "\n")
+    assert _config_json(capsys, "--config", str(saved))["matcher"]["options"] == {
+        "xfeat": {"matcher": "lighterglue", "upscale": 1}
+    }
+
+
+@pytest.mark.parametrize("strategy", ["disk_lightglue", "sift_magsac"])
+def test_a_strategy_with_no_options_to_show_gets_no_options_table(
+    strategy: str, clean_env: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """An empty ``[matcher.options.<strategy>]`` read back is not the configuration shown (and a
+    flight install without that strategy refuses it): none is written."""
+    clean_env.setenv(XFEAT, strategy)
+    given = _config_json(capsys)
+    lines, _ = _config(capsys)
+    assert not any(line.startswith(f"[matcher.options.{strategy}]") for line in lines), lines
+    saved = tmp_path / "c3.toml"
+    saved.write_text("\n".join(lines) + "\n")
+    clean_env.delenv(XFEAT)
+    assert (
+        _config_json(capsys, "--config", str(saved))["matcher"]["options"]
+        == (given["matcher"]["options"])
+    )
+
+
+def test_a_refused_option_names_the_value_refused(
+    clean_env: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """As the core's own settings do: which value, not only which bound."""
+    toml = tmp_path / "c3.toml"
+    toml.write_text('[matcher]\nstrategy = "xfeat"\n[matcher.options.xfeat]\nupscale = 9\n')
+    assert main(["--config", str(toml), "config"]) == 2
+    said = capsys.readouterr().err
+    assert "matcher.options.xfeat.upscale: Input should be less than or equal to 4, got 9" in said

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE, CommandRegistry, UsageParser
 from c3_matcher.config import C3Settings, load_settings
-from c3_matcher.config_sources import split_config
+from c3_matcher.config_argument import CONFIG_FLAG, split_config
 from c3_matcher.context import CommandContext, Handler, result_stream
 from c3_matcher.errors import (
     C3Error,
@@ -169,9 +169,13 @@ def _register_builtin(commands: CommandRegistry) -> None:
 
 
 def _build_parser(host: PluginHost) -> argparse.ArgumentParser:
-    parser = UsageParser(prog="c3-matcher", description="C3 cross-domain matcher")
+    # No abbreviation here: ``--conf FILE`` would name a file behind split_config's back (it
+    # reads the abbreviations argparse took as --config, and refuses a second one)
+    parser = UsageParser(
+        prog="c3-matcher", description="C3 cross-domain matcher", allow_abbrev=False
+    )
     parser.add_argument(
-        "--config",
+        CONFIG_FLAG,
         type=Path,
         default=None,
         help="TOML configuration file (environment variables C3_MATCHER_* override it)",

@@ -22,6 +22,7 @@ from pydantic import BaseModel, ValidationError
 from c3_matcher import keypoint_budget as budgets
 from c3_matcher import protocols, unread_settings
 from c3_matcher.config import C3Settings, FdrSettings, with_strategy_defaults
+from c3_matcher.config_problems import validation_problems as said
 from c3_matcher.errors import (
     AirborneBootstrapError,
     C3Error,
@@ -387,14 +388,10 @@ def _strategy_options(config: C3Settings, name: str, model: type[BaseModel] | No
         return None
     try:
         return model.model_validate(raw)
-    except ValidationError as exc:
-        raise ConfigurationError(
-            "matcher.options",
-            [
-                (f"matcher.options.{name}.{'.'.join(str(p) for p in e['loc'])}", e["msg"])
-                for e in exc.errors()
-            ],
-        ) from None
+    except ValidationError as exc:  # each refusal naming the value refused, as the core's do
+        where = f"matcher.options.{name}"
+        problems = [(f"{where}.{k}" if k != "(root)" else where, why) for k, why in said(exc)]
+        raise ConfigurationError("matcher.options", problems) from None
     except Exception as exc:  # the plugin's validator failed (a KeyError...): not a traceback
         why = f"strategy {name!r}'s options model failed on it: {describe(exc)}"
         raise ConfigurationError("matcher.options", [(f"matcher.options.{name}", why)]) from exc

@@ -4,11 +4,13 @@ written.
 
 Shown (:func:`shown_settings`): for the configured strategy, where its plugin is installed, each
 setting left unset that it resolves itself (``[matcher] photometric``, ``refit_threshold_px``,
-``max_keypoints``; ``[lightglue] filter_threshold``, ``exit_matches`` where it matches with
-LightGlue) with the value it runs with, and its options model's defaults under
-``[matcher.options.<strategy>]``; each as a comment (:class:`~c3_matcher.toml_text.Unset`), so
-that the document read back is the same configuration, which another strategy resolves its own
-way. A strategy not installed here is said in a comment on ``[matcher]``.
+``max_keypoints``; ``[lightglue] filter_threshold``, ``exit_matches`` unless it is declared not
+to match with LightGlue) with the value it runs with, and its options model's defaults under
+``[matcher.options.<strategy>]`` that the options as given accept (XFeat's ``min_cossim`` is
+refused beside ``matcher = "lighterglue"``, so it is not shown there); each as a comment
+(:class:`~c3_matcher.toml_text.Unset`), so that the document read back is the same
+configuration, which another strategy resolves its own way. A strategy not installed here is
+said in a comment on ``[matcher]``.
 
 Warned (:func:`config_warnings`, on stderr; the exit status stays 0, a file may be written for
 another machine): ``[lightglue]`` values the strategy does not read (start-up's
@@ -20,6 +22,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
+
+from pydantic import ValidationError
 
 from c3_matcher.config import C3Settings, EngineSettings, with_strategy_defaults
 from c3_matcher.engines.providers import (
@@ -45,6 +49,10 @@ _MATCHER_OWN = ("photometric", "refit_threshold_px")
 _LIGHTGLUE_OWN = ("filter_threshold", "exit_matches")
 _NOT_SHOWN = "the values it gives the settings left unset are not shown"
 _NOT_READ = "it reads none of these settings"
+_NOT_DECLARED = (
+    "declares neither its pair matcher nor engines of its own: these apply where it matches "
+    "with LightGlue"
+)
 
 
 def shown_settings(settings: C3Settings, host: PluginHost) -> tuple[dict[str, Any], dict[str, str]]:
@@ -67,12 +75,16 @@ def shown_settings(settings: C3Settings, host: PluginHost) -> tuple[dict[str, An
     if budget is not None:
         kept = {"max_keypoints": budget}
         _fill(matcher, kept, ("max_keypoints",), f"the keypoints per image {name} keeps")
-    if reads_lightglue(options, engines):
+    reads = reads_lightglue(options, engines)
+    if reads is not False:  # it does, or it may
         _fill(data["lightglue"], resolved.lightglue.model_dump(mode="json"), _LIGHTGLUE_OWN, by)
-    else:
+    if reads is None:
+        notes["lightglue"] = f"strategy {name} {_NOT_DECLARED}"
+    elif not reads:
         notes["lightglue"] = f"strategy {name} does not match with LightGlue: {_NOT_READ}"
-    if options is not None:
-        matcher["options"][name] = _options_shown(matcher["options"].get(name, {}), options, by)
+    shown = {} if options is None else _options_shown(matcher["options"].get(name, {}), options, by)
+    if shown:  # no table for a strategy of no options: read back, an empty one is not the same
+        matcher["options"][name] = shown
     return data, notes
 
 
@@ -94,12 +106,26 @@ def _options(settings: C3Settings, spec: StrategySpec) -> BaseModel | None:
 
 def _options_shown(table: dict[str, Any], options: BaseModel, by: str) -> dict[str, Any]:
     """``table`` (the options given), then each option it leaves out as :class:`Unset` holding
-    the model's default (what the strategy runs with), in the model's order."""
+    the model's default (what the strategy runs with), in the model's order; only an option
+    the model accepts set to that default beside ``table`` (:func:`_accepted`): a line the
+    reader may uncomment, so one that would be refused (an option of a matcher not chosen)
+    is left out."""
     try:
         defaults = options.model_dump(mode="json", by_alias=True)
     except ValueError:  # a value without a JSON form (a third party's model): as given
         return table
-    return {**table, **{k: Unset(v, by) for k, v in defaults.items() if k not in table}}
+    model = type(options)
+    unset = {k: v for k, v in defaults.items() if k not in table and _accepted(model, table, k, v)}
+    return {**table, **{k: Unset(v, by) for k, v in unset.items()}}
+
+
+def _accepted(model: type[BaseModel], table: dict[str, Any], key: str, value: Any) -> bool:
+    """Whether ``model`` validates ``table`` with ``key`` set to ``value`` as well."""
+    try:
+        model.model_validate({**table, key: value})
+    except ValidationError:
+        return False
+    return True
 
 
 def config_warnings(settings: C3Settings, host: PluginHost) -> list[str]:

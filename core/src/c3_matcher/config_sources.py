@@ -43,7 +43,6 @@ __all__ = [
     "ReplacedValue",
     "SettingsSection",
     "read_toml",
-    "split_config",
     "unknown_env_keys",
     "unknown_key_reason",
     "without_env_values",
@@ -191,37 +190,6 @@ def read_toml(toml_path: Path, source: str) -> dict[str, Any]:
         raise ConfigurationError(
             source, [("--config", f"unreadable TOML: {NESTED_TOO_DEEP}")]
         ) from None
-
-
-def split_config(argv: Sequence[str]) -> tuple[list[str], Path | None]:
-    """Take ``--config FILE`` / ``--config=FILE`` out of ``argv`` wherever it is (before or
-    after the subcommand). A second one is refused (``ConfigurationError`` naming both files):
-    one file is read, and taking either would drop the other's settings unsaid. A ``--config``
-    without a value is left for the parser to refuse."""
-    rest: list[str] = []
-    configs: list[str] = []
-    items = list(argv)
-    i = 0
-    while i < len(items):
-        arg = items[i]
-        if arg == "--":
-            rest.extend(items[i:])
-            break
-        if arg == "--config" and i + 1 < len(items) and not items[i + 1].startswith("--"):
-            configs.append(items[i + 1])
-            i += 2
-            continue
-        if arg.startswith("--config="):
-            configs.append(arg.split("=", 1)[1])
-            i += 1
-            continue
-        rest.append(arg)
-        i += 1
-    if len(configs) > 1:
-        files = " and ".join(repr(c) for c in configs)
-        why = f"given {len(configs)} times ({files}), but one configuration file is taken"
-        raise ConfigurationError("command line", [("--config", f"{why}: merge them into one")])
-    return rest, Path(configs[0]) if configs else None
 
 
 def unknown_env_keys(

@@ -48,16 +48,19 @@ class PairMatcherOptions(Protocol):
     def matches_with_lightglue(self) -> bool: ...
 
 
-def reads_lightglue(options: object, engines: Sequence[EngineSpec]) -> bool:
+def reads_lightglue(options: object, engines: Sequence[EngineSpec]) -> bool | None:
     """Whether a strategy matches its pairs with LightGlue, so that ``[lightglue]`` settings
-    apply to it, as its plugin declares it: a LightGlue-family matcher engine among its
-    ``engines`` (a spec with a ``feature_type``) and, where its validated ``options`` choose the
-    pair matcher (``PairMatcherOptions``), that choice. The one answer the budget checks,
-    start-up's word on unread settings and a run's report all take."""
-    lightglue = any(spec.feature_type is not None for spec in engines)
+    apply to it, as its plugin declares it: where its validated ``options`` choose the pair
+    matcher (``PairMatcherOptions``), that choice; else whether its declared ``engines`` hold a
+    LightGlue-family matcher (a spec with a ``feature_type``). None where it declares neither
+    (a plugin that reuses another's engines, as the example DISK + LightGlue plugin does): not
+    known, and it may read them. The one answer the budget checks, start-up's word on
+    unread settings and a run's report all take."""
     if isinstance(options, PairMatcherOptions):
-        lightglue = lightglue and options.matches_with_lightglue()
-    return lightglue
+        return options.matches_with_lightglue()
+    if engines:
+        return any(spec.feature_type is not None for spec in engines)
+    return None
 
 
 def check_inliers_reachable(config: C3Settings, budget: int) -> None:
@@ -122,15 +125,14 @@ def check_declared_budget(
     config: C3Settings, options: object, engines: Sequence[EngineSpec], default: int
 ) -> None:
     """Start-up's budget checks without an engine (``c3-matcher config``): the inlier
-    threshold, and where the strategy matches with LightGlue (its plugin declares a matcher
-    engine and its options, where they choose, chose it) and ``[lightglue] mode`` may run
-    adaptive, the unmatchable-pair exit."""
+    threshold, and where the strategy is declared to match with LightGlue (``reads_lightglue``)
+    and ``[lightglue] mode`` may run adaptive, the unmatchable-pair exit."""
     budget = declared_budget(config, options, engines, default)
     if budget is None:
         return
     check_inliers_reachable(config, budget)
     exit_matches = config.lightglue.exit_matches or 0
-    lightglue = reads_lightglue(options, engines)
+    lightglue = reads_lightglue(options, engines) is True  # not known: not checked, as before
     if lightglue and config.lightglue.mode != "full" and exit_matches > 0:
         required = ("lightglue.exit_matches", exit_matches)
         check_exit_reachable(required, budget, config.matcher.strategy)

@@ -6,7 +6,9 @@ SIFT baseline read none of it. A value the user set there (a file, the environme
 for such a strategy would change nothing, silently: start-up logs it as one WARNING
 (``IGNORED_KIND``) and ``c3-matcher config`` says it on stderr. It is not refused: a site file
 tuned for DISK must still run XFeat. A value that applies unset too is not said (a file
-``c3-matcher config`` wrote holds ``mode = "auto"``), nor one the user left unset.
+``c3-matcher config`` wrote holds ``mode = "auto"``), nor one the user left unset, nor one of a
+strategy whose plugin declares neither its pair matcher nor engines of its own (one reusing
+another plugin's DISK and LightGlue reads them): only what is known unread is said.
 """
 
 from __future__ import annotations
@@ -40,10 +42,10 @@ def unread_lightglue(
 ) -> tuple[str, ...]:
     """The ``[lightglue]`` settings (dotted, in the table's order) the user set that a strategy
     of these validated ``options``, declared ``engines`` and own ``defaults`` leaves unread;
-    none for a strategy that matches with LightGlue. A value that would apply unset too (the
-    setting's default, or the strategy's own: settings its defaults already filled, as a
+    none unless it is declared not to match with LightGlue. A value that would apply unset too
+    (the setting's default, or the strategy's own: settings its defaults already filled, as a
     ground worker gets them) is not counted: leaving it out changes nothing either."""
-    if reads_lightglue(options, engines):
+    if reads_lightglue(options, engines) is not False:  # it does, or it may
         return ()
     given = config.lightglue.model_fields_set
     return tuple(
@@ -75,9 +77,10 @@ def say_unread(config: C3Settings, spec: StrategySpec, options: object, host: Pl
         log_event("WARNING", IGNORED_KIND, line, strategy=spec.name, settings=list(keys))
 
 
-def strategy_reads_lightglue(config: C3Settings, host: PluginHost, strategy: str) -> bool:
+def strategy_reads_lightglue(config: C3Settings, host: PluginHost, strategy: str) -> bool | None:
     """Whether ``strategy`` (an installed one) reads ``[lightglue]`` under ``config``'s options
-    table for it (a run's report records those settings only then)."""
+    table for it, None where its plugin does not say (``reads_lightglue``): a run's report
+    leaves those settings out only where it is known not to."""
     model = host.resolve(strategy).options_model
     table = config.matcher.options.get(strategy, {})
     options = None if model is None else model.model_validate(table)

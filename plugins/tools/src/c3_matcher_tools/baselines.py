@@ -132,7 +132,9 @@ def _in_mask(points: NDArray[np.float32], valid: NDArray[np.bool_]) -> NDArray[n
 
 class SiftOptions(BaseModel):
     """The baseline takes no options of its own; it declares its keypoint budget, so that
-    ``c3-matcher config`` checks the settings the budget makes unreachable as start-up does."""
+    ``c3-matcher config`` checks the settings the budget makes unreachable as start-up does,
+    and its pair matcher (``keypoint_budget.PairMatcherOptions``), so that ``[lightglue]``
+    values set for it are said unread: it declares no engines to tell it by."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -140,6 +142,10 @@ class SiftOptions(BaseModel):
         """``[matcher] max_keypoints``, else the LightGlue strategies' default keypoints
         (:data:`~c3_matcher.strategy.config.DEFAULT_MAX_KEYPOINTS`)."""
         return matcher_max_keypoints or DEFAULT_MAX_KEYPOINTS
+
+    def matches_with_lightglue(self) -> bool:
+        """Never: it matches by the ratio test and a mutual check (:meth:`SiftBackend.match`)."""
+        return False
 
 
 def _sift_backend(config: C3Settings, options: SiftOptions) -> SiftBackend:

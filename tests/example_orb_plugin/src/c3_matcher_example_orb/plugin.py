@@ -13,6 +13,9 @@ class Options(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     max_keypoints: int | None = Field(None, ge=64, le=20000)  # None: [matcher]'s, else 2000
 
+    def matches_with_lightglue(self) -> bool:  # its own matcher: [lightglue] set is warned unread
+        return False
+
 
 class OrbBackend:
     """ORB on the prepared image (uint8 RGB, masked); descriptors stay uint8 (32 bytes)."""

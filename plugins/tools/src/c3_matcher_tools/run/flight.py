@@ -372,7 +372,7 @@ def fly_prepared(
     started = time.perf_counter()
     prepared.start(out_dir)
     startup_s = prepared.startup_s + time.perf_counter() - started
-    reads = strategy_reads_lightglue(prepared.settings, plugin_host, prepared.strategy)
+    reads = strategy_reads_lightglue(prepared.settings, plugin_host, prepared.strategy) is not False
 
     def flight_run(outcomes: Sequence[FrameOutcome], planned: int | None = None) -> FlightRun:
         ran = strategy_settings(prepared.settings, prepared.strategy, plugin_host)
