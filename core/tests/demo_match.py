@@ -3,13 +3,23 @@ a child process of its own (for what a whole command run does: exit status, stdo
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
+import time
+import uuid
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
+
+import cv2
+
+from c3_matcher import Attitude, NavCameraFrame
 
 DEMO = Path(__file__).resolve().parents[2] / "data" / "demo"
+FLIGHT = DEMO.parents[1] / "data" / "flights" / "naip_demo"  # the shipped demo flight
+WINDOW = 448  # its candidates' store windows, px (the README's)
 DEMO_MATCH = [
     "match",
     "--query",
@@ -29,3 +39,18 @@ def run_match(*extra: str, argv: Sequence[str] = DEMO_MATCH) -> subprocess.Compl
     return subprocess.run(
         [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=env
     )
+
+
+def flight_frame(index: int = 0) -> tuple[NavCameraFrame, dict[str, Any]]:
+    """Frame ``index`` of the demo flight as the README's example makes it, and its record
+    (``frames.jsonl``: its candidates, truth)."""
+    record = json.loads((FLIGHT / "frames.jsonl").read_text().splitlines()[index])
+    image = cv2.cvtColor(cv2.imread(str(FLIGHT / record["image"])), cv2.COLOR_BGR2RGB)
+    frame = NavCameraFrame(
+        frame_id=uuid.UUID(record["frame_id"]),
+        image=image,
+        captured_at_ns=time.monotonic_ns(),
+        attitude=Attitude.from_degrees(*record["attitude_deg"]),
+        height_above_ground_m=record["height_m"],
+    )
+    return frame, record

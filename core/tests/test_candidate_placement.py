@@ -23,10 +23,8 @@ from c3_matcher.tiles import decode_image
 from c3_matcher.tilestore import MBTilesStore
 from c3_matcher.tilestore.geo import TILE_PX, lonlat_to_world_px, world_px_to_lonlat
 
-from .demo_match import DEMO, DEMO_MATCH, run_match
+from .demo_match import DEMO, DEMO_MATCH, FLIGHT, WINDOW, run_match
 
-FLIGHT = DEMO.parents[1] / "data" / "flights" / "naip_demo"
-WINDOW = 448
 OFF_GRID = (1 / 3, -0.4)  # WORLD px the id is moved off the true window's centre
 
 

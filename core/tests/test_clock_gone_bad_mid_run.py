@@ -10,20 +10,15 @@ own durable recorder."""
 
 from __future__ import annotations
 
-import json
-import time
-import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import pytest
 from loguru import logger
 
 from c3_matcher import (
-    Attitude,
     C3Settings,
     MatchResult,
     NavCameraFrame,
@@ -36,10 +31,8 @@ from c3_matcher import (
 from c3_matcher.fdr import check_fdr, read_fdr_log
 from c3_matcher.tilestore import MBTilesStore
 
-from .demo_match import DEMO
+from .demo_match import FLIGHT, WINDOW, flight_frame
 
-FLIGHT = DEMO.parents[1] / "data" / "flights" / "naip_demo"
-WINDOW = 448  # the README's candidate windows
 START_NS = 10**12
 
 
@@ -86,15 +79,7 @@ def unusable() -> Iterator[list[dict[str, Any]]]:
 
 def _frame_and_rerank(store: MBTilesStore) -> tuple[NavCameraFrame, RerankResult]:
     """Frame 0 of the demo flight and its re-rank, as the README's example makes them."""
-    record = json.loads((FLIGHT / "frames.jsonl").read_text().splitlines()[0])
-    image = cv2.cvtColor(cv2.imread(str(FLIGHT / record["image"])), cv2.COLOR_BGR2RGB)
-    frame = NavCameraFrame(
-        frame_id=uuid.UUID(record["frame_id"]),
-        image=image,
-        captured_at_ns=time.monotonic_ns(),
-        attitude=Attitude.from_degrees(*record["attitude_deg"]),
-        height_above_ground_m=record["height_m"],
-    )
+    frame, record = flight_frame()
     candidates = tuple(
         store.candidate(TileId(*c["tile_id"]), c["score"], size_px=WINDOW)
         for c in record["candidates"]

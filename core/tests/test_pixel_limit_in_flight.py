@@ -11,19 +11,14 @@ frame's tile files), composed by ``compose_root`` with the OpenCV strategy (no e
 from __future__ import annotations
 
 import json
-import time
-import uuid
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
 from c3_matcher import (
-    Attitude,
     C3Settings,
     InsufficientInliersError,
-    NavCameraFrame,
     RerankCandidate,
     RerankResult,
     TileId,
@@ -37,25 +32,9 @@ from c3_matcher.tiles import BytesTileHandle, ImageDecodeError, MmapTileHandle
 from c3_matcher.tilestore import MBTilesStore
 from c3_matcher.tilestore.base import tile_centre_id
 
-from .demo_match import DEMO, run_match
+from .demo_match import DEMO, FLIGHT, WINDOW, flight_frame, run_match
 
-FLIGHT = DEMO.parents[1] / "data" / "flights" / "naip_demo"
-WINDOW = 448  # the README's candidate windows
 DEMO_TILE = 512  # the demo frame's tile files, px square
-
-
-def _flight_frame() -> NavCameraFrame:
-    """Frame 0 of the demo flight, as the README's example makes it."""
-    record = json.loads((FLIGHT / "frames.jsonl").read_text().splitlines()[0])
-    image = cv2.cvtColor(cv2.imread(str(FLIGHT / record["image"])), cv2.COLOR_BGR2RGB)
-    frame = NavCameraFrame(
-        frame_id=uuid.UUID(record["frame_id"]),
-        image=image,
-        captured_at_ns=time.monotonic_ns(),
-        attitude=Attitude.from_degrees(*record["attitude_deg"]),
-        height_above_ground_m=record["height_m"],
-    )
-    return frame
 
 
 def _match(limit: int, candidates: list[RerankCandidate]) -> tuple[object, InMemoryFdr]:
@@ -65,7 +44,7 @@ def _match(limit: int, candidates: list[RerankCandidate]) -> tuple[object, InMem
     fdr = InMemoryFdr()
     helpers = {**build_default_helpers(settings), "c13_fdr": fdr}
     root = compose_root(settings, helpers, configure_logs=False)
-    frame, calibration = _flight_frame(), load_calibration(FLIGHT / "calibration.json")
+    frame, calibration = flight_frame()[0], load_calibration(FLIGHT / "calibration.json")
     try:
         rerank = RerankResult(frame.frame_id, tuple(candidates))
         try:
