@@ -81,7 +81,8 @@ def test_a_replay_on_a_full_disk_names_only_the_files_it_wrote(
 def test_an_eval_says_once_that_its_partial_results_stopped_taking_frames(
     small_flight: SmallFlight, tmp_path: Path, c3: C3
 ) -> None:
-    """The same partial results as replay's (the run layer's): eval says it too."""
+    """The same partial results as replay's (the run layer's): eval says it too, marks its run
+    failed and exits 2 (a full disk), as replay does."""
     flight, out = small_flight("full_disk_eval"), tmp_path / "out"
     limit = _limit_after_first_frame(c3, flight, tmp_path)
     args = ("eval", str(flight), "--strategy", "sift_magsac", "--samples", "0", "--out", str(out))
@@ -89,7 +90,9 @@ def test_an_eval_says_once_that_its_partial_results_stopped_taking_frames(
     kept = out / "sift_magsac" / PARTIAL
     assert len(_said_stopped(ran.stderr, kept, "File too large", 1)) == 1, ran.stderr
     _first_frame_only(kept)
-    assert "running" not in json.loads((out / RUN_MARK).read_text())
+    mark = json.loads((out / RUN_MARK).read_text())  # ended, saying which write was refused
+    assert "running" not in mark and "File too large" in mark["failed"], mark
+    assert ran.returncode == 2 and f"c3-matcher eval: {mark['failed']}" in ran.stderr
 
 
 class _FullDiskOs(SimpleNamespace):

@@ -106,6 +106,7 @@ from c3_matcher.atomic import write_text_atomically
 from c3_matcher.commands import (
     EXIT_FAILURE,
     EXIT_OK,
+    EXIT_USAGE,
     CommandRegistry,
     add_max_keypoints_option,
     bounded_int,
@@ -305,6 +306,7 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         ctx.err(no_report)
     summary: list[SummaryRow] = []
     reports: list[dict[str, Any]] = []
+    refused: dict[Path, str | None] = {}  # by directory: the write a full disk refused
     with exclusive_output_dir(*held, *outs), signals_noted() as noted:
         mark_output_dirs(EVAL_RUN, *outs, datasets=datasets)
         above = summary_above(outs[0], EVAL_RUN) if above else None  # read again, held
@@ -313,6 +315,8 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         _forget_earlier_reports(outs, names)  # every flight's, before the first runs
         for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
             rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
+            failures = (r for r in rows if isinstance(r, StrategyFailure))
+            refused[out] = next((r.unwritten for r in failures if r.unwritten), None)
             reports.append(report)
             summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
             if not report["complete"]:
@@ -325,7 +329,7 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         elif above is not None:  # this flight's rows in it are this run's
             ctx.err(f"c3-matcher eval: {refresh_summary(above, datasets[0].name, summary_rows)}")
         for out in outs:
-            mark_ended(out)
+            mark_ended(out, failed=refused.get(out))
     if args.json:
         document = _json_document(reports, summary_rows, several=root is not None)
         ctx.out(json.dumps(strict_json(document), indent=2))
@@ -337,7 +341,10 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     failed = [f"{s.strategy} on {s.flight}" for s in summary if s.figures is None]
     if failed:
         ctx.err(f"c3-matcher eval: failed to run: {', '.join(failed)}")
-        return EXIT_FAILURE
+        full = [why for why in refused.values() if why]  # a full disk: exit 2, said
+        for why in full:
+            ctx.err(f"c3-matcher eval: {why}")
+        return EXIT_USAGE if full else EXIT_FAILURE
     return EXIT_OK
 
 
@@ -468,7 +475,7 @@ def _eval_strategies(
         except FdrOpenError:  # another process writes this directory: leave it to that run
             raise
         except Exception as exc:  # a strategy that cannot start is a row, not the end
-            rows.append(StrategyFailure(name, describe(exc)))
+            rows.append(StrategyFailure.of(name, exc))
         except KeyboardInterrupt as stop:
             if not noted:
                 raise

@@ -5,11 +5,13 @@ values; ``to_json`` gives their ``eval.json`` and ``summary.json`` entries."""
 
 from __future__ import annotations
 
+import errno
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from c3_matcher.errors import describe
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run.acceptance import Acceptance, Headline
 from c3_matcher_tools.run.feature_sources import FDR_LOG, FeatureSources, read_feature_sources
@@ -98,16 +100,30 @@ class StrategyEval:
         }
 
 
+FULL_DISK = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+"""The errors of a write a full disk (or a file-size limit) refused."""
+
+
 @dataclass(frozen=True)
 class StrategyFailure:
     """A strategy that could not be evaluated (it failed to start or to run): a row of the
-    table, not the end of the evaluation."""
+    table, not the end of the evaluation. ``unwritten``: the file a full disk refused and why,
+    where that is what failed it (its run done, its files not all written); else None."""
 
     strategy: str
     error: str
+    unwritten: str | None = None
+
+    @classmethod
+    def of(cls, strategy: str, exc: Exception) -> StrategyFailure:
+        """The row of ``strategy``, which ``exc`` failed."""
+        if isinstance(exc, OSError) and exc.errno in FULL_DISK:
+            return cls(strategy, describe(exc), f"{exc.filename}: {exc.strerror}")
+        return cls(strategy, describe(exc))
 
     def to_json(self) -> dict[str, Any]:
-        return {"strategy": self.strategy, "error": self.error}
+        unwritten = {} if self.unwritten is None else {"unwritten": self.unwritten}
+        return {"strategy": self.strategy, "error": self.error, **unwritten}
 
 
 @dataclass(frozen=True)
