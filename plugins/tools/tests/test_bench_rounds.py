@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 
 from c3_matcher_tools import bench, bench_worker
-from c3_matcher_tools.bench_worker import BenchCase, round_order
+from c3_matcher_tools.bench_worker import SETTLE_LIMIT_S, BenchCase, round_order
 
 REPO = Path(__file__).resolve().parents[3]
 FLIGHT = REPO / "data" / "flights" / "naip_demo"
@@ -358,7 +358,8 @@ def test_bench_times_a_real_engine_round_by_round(
     for r in (new, cached):
         assert len(r["frame_ms_runs"]) == 2 and all(ms > 0 for ms in r["frame_ms_runs"])
         assert r["frame_ms"]["p50"] == pytest.approx(sum(r["frame_ms_runs"]) / 2)
-        assert r["settle_ms"]["p95"] < 1000.0 and r["peak_rss_mib"] > 50
+        # the wait for spinning threads stops at its limit (slack for a loaded machine)
+        assert 0 <= r["settle_ms"]["p95"] <= 2e3 * SETTLE_LIMIT_S and r["peak_rss_mib"] > 50
     (cache,) = report["comparisons"]
     assert cache["comparison"] == "cached vs new tiles" and cache["rounds"] == 2
     assert cache["speedup_paired"] == pytest.approx(paired_speedup(new, cached))

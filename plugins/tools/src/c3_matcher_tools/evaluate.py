@@ -104,9 +104,6 @@ from typing import Any
 
 from c3_matcher.atomic import write_text_atomically
 from c3_matcher.commands import (
-    EXIT_FAILURE,
-    EXIT_OK,
-    EXIT_USAGE,
     CommandRegistry,
     add_max_keypoints_option,
     bounded_int,
@@ -151,6 +148,7 @@ from c3_matcher_tools.run.evaluation import (
     StrategyStopped,
     SummaryRow,
     WritingStopped,
+    ended_status,
     strict_json,
     was_stopped,
     write_strategy_files,
@@ -315,8 +313,7 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         _forget_earlier_reports(outs, names)  # every flight's, before the first runs
         for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
             rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
-            failures = (r for r in rows if isinstance(r, StrategyFailure))
-            refused[out] = next((r.unwritten for r in failures if r.unwritten), None)
+            refused[out] = StrategyFailure.unwritten_of(rows)
             reports.append(report)
             summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
             if not report["complete"]:
@@ -338,14 +335,7 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     if not reports[-1]["complete"]:
         stopped = next(s for s in summary if s.stopped)
         return _said_stopped(ctx, noted[-1], stopped, outs[len(reports) - 1])
-    failed = [f"{s.strategy} on {s.flight}" for s in summary if s.figures is None]
-    if failed:
-        ctx.err(f"c3-matcher eval: failed to run: {', '.join(failed)}")
-        full = [why for why in refused.values() if why]  # a full disk: exit 2, said
-        for why in full:
-            ctx.err(f"c3-matcher eval: {why}")
-        return EXIT_USAGE if full else EXIT_FAILURE
-    return EXIT_OK
+    return ended_status(summary, refused.values(), lambda line: ctx.err(f"c3-matcher eval: {line}"))
 
 
 def _said_stopped(ctx: CommandContext, signum: int, last: SummaryRow, out: Path) -> int:

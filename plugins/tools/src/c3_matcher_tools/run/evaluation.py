@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import errno
 import math
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from c3_matcher.commands import EXIT_FAILURE, EXIT_OK, EXIT_USAGE
 from c3_matcher.errors import describe
 from c3_matcher_tools.dataset.format import FlightDataset
 from c3_matcher_tools.run.acceptance import Acceptance, Headline
@@ -31,6 +33,7 @@ __all__ = [
     "StrategyStopped",
     "SummaryRow",
     "WritingStopped",
+    "ended_status",
     "strict_json",
     "was_stopped",
     "write_strategy_files",
@@ -120,6 +123,12 @@ class StrategyFailure:
         if isinstance(exc, OSError) and exc.errno in FULL_DISK:
             return cls(strategy, describe(exc), f"{exc.filename}: {exc.strerror}")
         return cls(strategy, describe(exc))
+
+    @staticmethod
+    def unwritten_of(rows: Iterable[object]) -> str | None:
+        """The first write a full disk refused among ``rows``' failures; None: none."""
+        failures = (r for r in rows if isinstance(r, StrategyFailure))
+        return next((r.unwritten for r in failures if r.unwritten), None)
 
     def to_json(self) -> dict[str, Any]:
         unwritten = {} if self.unwritten is None else {"unwritten": self.unwritten}
@@ -287,3 +296,19 @@ def strict_json(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [strict_json(v) for v in value]
     return value
+
+
+def ended_status(
+    summary: Sequence[SummaryRow], refused: Iterable[str | None], say: Callable[[str], None]
+) -> int:
+    """The exit status of an evaluation that ran to its end, its failures ``say``-d: 0; 1
+    where a strategy failed to run on a flight; 2 where a full disk refused a strategy's files
+    (``refused``: each flight's refused write, or None), as for every command."""
+    failed = [f"{s.strategy} on {s.flight}" for s in summary if s.figures is None]
+    if not failed:
+        return EXIT_OK
+    say(f"failed to run: {', '.join(failed)}")
+    full = [why for why in refused if why]
+    for why in full:
+        say(why)
+    return EXIT_USAGE if full else EXIT_FAILURE
