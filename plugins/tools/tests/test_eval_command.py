@@ -17,7 +17,8 @@ import pytest
 from c3_matcher.fdr import JsonlFdrRecorder
 from c3_matcher.health import MonotonicClock
 from c3_matcher_tools.run import exclusive_output_dir
-from c3_matcher_tools.run.outputs import EVAL_RUN, RUN_MARK
+from c3_matcher_tools.run.outputs import EVAL_RUN
+from c3_matcher_tools.run.run_mark import RUN_MARK
 from c3_matcher_tools.testing.cli import run_cli
 
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py

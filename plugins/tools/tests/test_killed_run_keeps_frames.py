@@ -24,8 +24,8 @@ from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.run import FlightOptions, flight_report, fly, write_flight_outputs
 from c3_matcher_tools.run.feature_sources import FDR_LOG
 from c3_matcher_tools.run.forget import forget_strategies
-from c3_matcher_tools.run.outputs import RUN_MARK
 from c3_matcher_tools.run.records import FrameOutcome
+from c3_matcher_tools.run.run_mark import RUN_MARK
 from c3_matcher_tools.testing.cli import run_cli
 
 DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"

@@ -16,7 +16,8 @@ import pytest
 from c3_matcher.fdr import JsonlFdrRecorder, read_fdr
 from c3_matcher.health import MonotonicClock
 from c3_matcher_tools.run import exclusive_output_dir
-from c3_matcher_tools.run.outputs import REPLAY_RUN, RUN_MARK
+from c3_matcher_tools.run.outputs import REPLAY_RUN
+from c3_matcher_tools.run.run_mark import RUN_MARK
 
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
 C3 = Callable[..., subprocess.CompletedProcess[str]]

@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from c3_matcher.config_sources import ENV_PREFIX
-from c3_matcher_tools.run.outputs import RUN_MARK
+from c3_matcher_tools.run.run_mark import RUN_MARK
 
 DEMO = Path(__file__).resolve().parents[3] / "data" / "flights" / "naip_demo"
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py

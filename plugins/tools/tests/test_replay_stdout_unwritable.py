@@ -14,7 +14,7 @@ from typing import IO
 import pytest
 
 from c3_matcher.config_sources import ENV_PREFIX
-from c3_matcher_tools.run.outputs import RUN_MARK
+from c3_matcher_tools.run.run_mark import RUN_MARK
 
 from .conftest import C3, SmallFlight
 

@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from c3_matcher.cli import main
-from c3_matcher_tools.run.outputs import RUN_MARK
+from c3_matcher_tools.run.run_mark import RUN_MARK
 
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
 QUICK = ("--determinism-frames", "1", "--samples", "0")

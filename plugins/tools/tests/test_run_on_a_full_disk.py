@@ -16,11 +16,12 @@ from typing import Any
 
 import pytest
 
-import c3_matcher_tools.replay
+import c3_matcher_tools.evaluate
 import c3_matcher_tools.run.outputs
 import c3_matcher_tools.run.results_file
+import c3_matcher_tools.run.run_mark
 from c3_matcher.cli import main
-from c3_matcher_tools.run.outputs import RUN_MARK
+from c3_matcher_tools.run.run_mark import RUN_MARK
 
 from .conftest import C3, SmallFlight
 
@@ -149,10 +150,35 @@ def test_a_replay_whose_disk_is_too_full_for_run_json_says_it_still_says_running
     def unmarkable(directory: Path, failed: str | None = None) -> None:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(directory / RUN_MARK))
 
-    monkeypatch.setattr(c3_matcher_tools.replay, "mark_ended", unmarkable)
+    monkeypatch.setattr(c3_matcher_tools.run.run_mark, "mark_ended", unmarkable)
     flight, out = small_flight("full_for_run_json"), tmp_path / "out"
     args = ["replay", str(flight), "--strategy", "sift_magsac", "--out", str(out)]
     assert main(args) == 2
     said = capsys.readouterr().err
     assert f"c3-matcher replay: {out / RUN_MARK} still says running: " in said, said
     assert json.loads((out / RUN_MARK).read_text())["running"] is True
+
+
+def test_an_eval_whose_report_a_full_disk_refuses_marks_its_run_failed(
+    small_flight: SmallFlight,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The strategies ran, then ``eval.json`` could not be written: ``run.json`` says the run
+    ended, failed on that file, not that it is still running (what a killed run leaves)."""
+    real = c3_matcher_tools.evaluate.write_text_atomically
+
+    def no_room_for_the_report(path: Path, text: str) -> Path:
+        if path.name == "eval.json":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        return real(path, text)
+
+    monkeypatch.setattr(c3_matcher_tools.evaluate, "write_text_atomically", no_room_for_the_report)
+    flight, out = small_flight("full_for_eval_json"), tmp_path / "out"
+    args = ["eval", str(flight), "--strategy", "sift_magsac", "--samples", "0", "--out", str(out)]
+    assert main(args) == 2
+    full = f"{out / 'eval.json'}: {os.strerror(errno.ENOSPC)}"
+    assert full in capsys.readouterr().err
+    assert not (out / "eval.json").exists()
+    assert json.loads((out / RUN_MARK).read_text())["failed"] == full

@@ -19,7 +19,7 @@ import pytest
 from c3_matcher.fdr import JsonlFdrRecorder, read_fdr
 from c3_matcher.fdr.files import rotated_segments
 from c3_matcher.health import MonotonicClock
-from c3_matcher_tools.run.outputs import RUN_MARK
+from c3_matcher_tools.run.run_mark import RUN_MARK
 
 SmallFlight = Callable[..., Path]  # the fixtures of conftest.py
 C3 = Callable[..., subprocess.CompletedProcess[str]]

@@ -158,13 +158,13 @@ from c3_matcher_tools.run.forget import forget_earlier_strategies, forget_not_re
 from c3_matcher_tools.run.outputs import (
     EVAL_RUN,
     EVAL_SUMMARY,
-    mark_ended,
     mark_output_dirs,
     no_report_html,
-    refresh_summary,
     refuse_other_dataset,
     summary_above,
+    write_summary,
 )
+from c3_matcher_tools.run.run_mark import mark_ended, mark_failed
 
 __all__ = [
     "BARS",
@@ -302,29 +302,21 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
     say_import_faults(*datasets, say=ctx.err)
     if (no_report := no_report_html()) is not None:  # once a run, not once a strategy
         ctx.err(no_report)
-    summary: list[SummaryRow] = []
-    reports: list[dict[str, Any]] = []
-    refused: dict[Path, str | None] = {}  # by directory: the write a full disk refused
     with exclusive_output_dir(*held, *outs), signals_noted() as noted:
         mark_output_dirs(EVAL_RUN, *outs, datasets=datasets)
         above = summary_above(outs[0], EVAL_RUN) if above else None  # read again, held
         for summarised in held:  # written again as the run ends
             forget_previous_run(summarised, (EVAL_SUMMARY,))
         _forget_earlier_reports(outs, names)  # every flight's, before the first runs
-        for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
-            rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
-            refused[out] = StrategyFailure.unwritten_of(rows)
-            reports.append(report)
-            summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
-            if not report["complete"]:
-                summary.extend(_not_run(datasets[n + 1 :], names))
-                forget_not_reached(out, rows, report["not_run"], outs[n + 1 :], names)
-                break
-        summary_rows = strict_json([s.to_json() for s in summary])
-        if root is not None:
-            write_text_atomically(root / EVAL_SUMMARY, json.dumps(summary_rows, indent=2) + "\n")
-        elif above is not None:  # this flight's rows in it are this run's
-            ctx.err(f"c3-matcher eval: {refresh_summary(above, datasets[0].name, summary_rows)}")
+        try:
+            summary, reports, refused = _eval_datasets(args, ctx, datasets, outs, names, noted)
+            summary_rows = strict_json([s.to_json() for s in summary])
+            if (said := write_summary(summary_rows, root, above, datasets[0].name)) is not None:
+                ctx.err(f"c3-matcher eval: {said}")
+        except OSError as exc:  # a full disk: each run says it ended, failed, and why
+            for out in outs:
+                mark_failed(out, exc, lambda line: ctx.err(f"c3-matcher eval: {line}"))
+            raise
         for out in outs:
             mark_ended(out, failed=refused.get(out))
     if args.json:
@@ -336,6 +328,32 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         stopped = next(s for s in summary if s.stopped)
         return _said_stopped(ctx, noted[-1], stopped, outs[len(reports) - 1])
     return ended_status(summary, refused.values(), lambda line: ctx.err(f"c3-matcher eval: {line}"))
+
+
+def _eval_datasets(
+    args: argparse.Namespace,
+    ctx: CommandContext,
+    datasets: Sequence[FlightDataset],
+    outs: Sequence[Path],
+    names: list[str],
+    noted: Sequence[int],
+) -> tuple[list[SummaryRow], list[dict[str, Any]], dict[Path, str | None]]:
+    """Each of ``datasets`` through every strategy, into its directory of ``outs``, until a
+    stop: the summary's rows (those a stop came before, not run), each dataset's report, and
+    by directory the write a full disk refused (None: none)."""
+    summary: list[SummaryRow] = []
+    reports: list[dict[str, Any]] = []
+    refused: dict[Path, str | None] = {}
+    for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
+        rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
+        refused[out] = StrategyFailure.unwritten_of(rows)
+        reports.append(report)
+        summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
+        if not report["complete"]:
+            summary.extend(SummaryRow.not_run([d.name for d in datasets[n + 1 :]], names))
+            forget_not_reached(out, rows, report["not_run"], outs[n + 1 :], names)
+            break
+    return summary, reports, refused
 
 
 def _said_stopped(ctx: CommandContext, signum: int, last: SummaryRow, out: Path) -> int:
@@ -355,12 +373,6 @@ def _json_document(
     (even when a stop came before the second) ``{"flights": [each one's eval.json, in order],
     "summary": summary.json's rows}``."""
     return {"flights": list(reports), "summary": list(summary)} if several else reports[0]
-
-
-def _not_run(datasets: Sequence[FlightDataset], names: Sequence[str]) -> list[SummaryRow]:
-    """The summary's rows of the flights a stop came before: each strategy, not run."""
-    said = "not run: the evaluation was stopped before this flight"
-    return [SummaryRow(n, d.name, error=said, stopped=True) for d in datasets for n in names]
 
 
 def _strategies(args: argparse.Namespace, host: PluginHost) -> list[str]:

@@ -98,14 +98,12 @@ from c3_matcher_tools.run.feature_sources import (
 from c3_matcher_tools.run.outputs import (
     REPLAY_RUN,
     RUN_FILES,
-    RUN_MARK,
-    mark_ended,
     mark_output_dirs,
-    mark_stopped,
     refuse_other_dataset,
 )
 from c3_matcher_tools.run.records import FrameStatus
 from c3_matcher_tools.run.results_file import RESULTS_FILE, kept_frames, partial_results
+from c3_matcher_tools.run.run_mark import RUN_MARK, mark_ended, mark_failed, mark_stopped
 from c3_matcher_tools.run.scoring import (
     attitude_noise_words,
     dropped_lines,
@@ -230,10 +228,7 @@ def _write_and_say(
         write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
         mark_ended(out)  # its files are written: the run is no longer in progress
     except OSError as exc:  # the run ended: it says so, and what it wrote
-        try:
-            mark_ended(out, failed=f"{exc.filename or out}: {exc.strerror or exc}")
-        except OSError as unmarked:  # a disk too full for run.json too: it still says running
-            ctx.err(f"c3-matcher replay: {out / RUN_MARK} still says running: {unmarked}")
+        mark_failed(out, exc, lambda line: ctx.err(f"c3-matcher replay: {line}"))
         _say(ctx, as_json, dataset, run, out, {**report, **_files_there(out)}, features, given)
         raise
     written.extend(out / name for name in RUN_FILES)

@@ -267,6 +267,12 @@ class SummaryRow:
             tile_dropped=row.summary.tile_dropped,
         )
 
+    @classmethod
+    def not_run(cls, flights: Sequence[str], strategies: Sequence[str]) -> list[SummaryRow]:
+        """The rows of the ``flights`` a stop came before: each of ``strategies``, not run."""
+        said = "not run: the evaluation was stopped before this flight"
+        return [cls(n, flight, error=said, stopped=True) for flight in flights for n in strategies]
+
     def to_json(self) -> dict[str, Any]:
         where = {"strategy": self.strategy, "flight": self.flight}
         if self.figures is None:

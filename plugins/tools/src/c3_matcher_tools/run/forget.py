@@ -20,9 +20,9 @@ from c3_matcher_tools.run.outputs import (
     REPLAY_RUN,
     RUN_FILES,
     forget_previous_run,
-    run_json_file,
 )
 from c3_matcher_tools.run.results_file import RESULTS_FILE, partial_results
+from c3_matcher_tools.run.run_mark import run_json_file
 
 __all__ = ["forget_earlier_strategies", "forget_not_reached", "forget_strategies"]
 

@@ -26,11 +26,11 @@ from c3_matcher.atomic import (
     write_text_atomically,
 )
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.json_text import loads_json
 from c3_matcher_tools.dataset.format import FlightDataset, name_problem
 from c3_matcher_tools.run.records import FlightRun
 from c3_matcher_tools.run.report_html import no_report_html, write_html_report
 from c3_matcher_tools.run.results_file import RESULTS_FILE, write_results
+from c3_matcher_tools.run.run_mark import RUN_MARK, RunLayout, marked_by, run_json_file, run_mark
 from c3_matcher_tools.run.scoring import RunSummary, summarize
 
 __all__ = [
@@ -40,28 +40,23 @@ __all__ = [
     "REPLAY_OUT",
     "REPLAY_RUN",
     "RUN_FILES",
-    "RUN_MARK",
     "RunFiles",
-    "RunLayout",
     "SummaryAbove",
     "check_output_dirs",
     "exclusive_output_dir",
     "flight_report",
     "forget_previous_run",
-    "mark_ended",
     "mark_output_dirs",
-    "mark_stopped",
     "no_report_html",
     "output_dir_name",
     "refresh_summary",
     "refuse_foreign_output",
     "refuse_other_dataset",
-    "run_json_file",
-    "run_mark",
     "summary_above",
     "write_flight_outputs",
     "write_html_report",
     "write_results",
+    "write_summary",
 ]
 
 REPLAY_OUT = Path("out") / "replay"
@@ -69,42 +64,6 @@ REPLAY_OUT = Path("out") / "replay"
 directory."""
 EVAL_OUT = Path("out") / "eval"
 """Where ``eval`` writes without ``--out``: ``<this>/<dataset>`` below the working directory."""
-RUN_MARK = "run.json"
-"""The file ``replay`` and ``eval`` write first into each output directory they take, naming
-the command (``{"command": "c3-matcher replay"}``), the dataset's resolved path and replay's
-strategy, and ``"running": true`` until the run ends (:func:`mark_output_dirs`; ``"failed"``
-where its files could not all be written, :func:`mark_ended`): the directory is that command's
-output, which a later run of it replaces (:func:`check_output_dirs`)."""
-_LARGEST_REPORT = 1 << 26
-"""The most bytes read of a file to tell whether it is a run's mark or report (theirs are far
-smaller)."""
-
-
-@dataclass(frozen=True)
-class RunLayout:
-    """What ``c3-matcher <command>`` writes in an output directory, and how an earlier run of it
-    is known there: by its :data:`RUN_MARK`, or, in a directory without one (a run written
-    before runs were marked), by ``report``, a JSON object holding ``keys``. ``summary``: the
-    report of a run over several flights, written beside a directory per flight (None: the
-    command has no such run)."""
-
-    command: str
-    report: str
-    keys: frozenset[str]
-    summary: str | None = None
-
-    @property
-    def mark(self) -> dict[str, str]:
-        """What its :data:`RUN_MARK` holds."""
-        return {"command": f"c3-matcher {self.command}"}
-
-    def holds_run(self, directory: Path) -> bool:
-        """``directory`` holds an earlier run of the command: its mark, or, with no
-        :data:`RUN_MARK` at all, its report."""
-        if (directory / RUN_MARK).is_symlink() or (directory / RUN_MARK).exists():
-            return _marked_by(directory) == self.mark["command"]
-        report = run_json_file(directory / self.report)
-        return isinstance(report, dict) and self.keys <= report.keys()
 
 
 REPLAY_RUN = RunLayout("replay", "report.json", frozenset({"dataset", "strategy", "fdr", "log"}))
@@ -193,7 +152,7 @@ def refuse_foreign_output(directory: Path, layout: RunLayout, *, field: str = "-
     names = _names_or_refuse(directory, field)
     if not names or layout.holds_run(directory):
         return
-    whose = _marked_by(directory)
+    whose = marked_by(directory)
     if whose is not None:  # another command's
         why = f"its {RUN_MARK} says {whose} wrote it"
     elif layout.summary is not None and all(_of_root(directory / n, layout) for n in names):
@@ -292,6 +251,18 @@ def refresh_summary(above: SummaryAbove, flight: str, rows: Sequence[Mapping[str
     return f"{above.path}: {flight}'s rows replaced by this run's"
 
 
+def write_summary(
+    rows: list[Any], root: Path | None, above: SummaryAbove | None, flight: str
+) -> str | None:
+    """The summary's ``rows`` written: as :data:`EVAL_SUMMARY` in ``root`` (a run over several
+    flights), else into the summary ``above`` the one flight's folder (its ``flight``'s rows;
+    the line that says so returned), if there is one."""
+    if root is not None:
+        write_text_atomically(root / EVAL_SUMMARY, json.dumps(rows, indent=2) + "\n")
+        return None
+    return None if above is None else refresh_summary(above, flight, rows)
+
+
 def mark_output_dirs(
     layout: RunLayout,
     *directories: Path,
@@ -312,36 +283,13 @@ def mark_output_dirs(
         write_text_atomically(directory / RUN_MARK, json.dumps(mark) + "\n")
 
 
-def run_mark(
-    layout: RunLayout, dataset: FlightDataset | None, strategy: str | None = None
-) -> dict[str, Any]:
-    """What a run of ``layout`` over ``dataset`` with ``strategy`` marks its output directory
-    with (:data:`RUN_MARK`): the command, the dataset's resolved path and name, the strategy."""
-    where = (
-        {}
-        if dataset is None
-        else {"dataset": str(dataset.root.expanduser().resolve()), "name": dataset.name}
-    )
-    return {**layout.mark, **where, **({} if strategy is None else {"strategy": strategy})}
-
-
-def mark_ended(directory: Path, failed: str | None = None) -> None:
-    """``directory``'s :data:`RUN_MARK` rewritten without ``running``: the run ended, its
-    files written; or, with ``failed`` (why, as ``"failed"``), ended with some not written."""
-    mark = run_json_file(directory / RUN_MARK)
-    if isinstance(mark, dict) and "running" in mark:
-        ended = {k: v for k, v in mark.items() if k != "running"}
-        ended |= {} if failed is None else {"failed": failed}
-        write_text_atomically(directory / RUN_MARK, json.dumps(ended) + "\n")
-
-
 def refuse_other_dataset(directory: Path, dataset: FlightDataset, layout: RunLayout) -> None:
     """Refuse ``directory``, named after ``dataset``'s name (the default output directory),
     when its :data:`RUN_MARK` says it holds a run of another dataset of that name: replacing
     it would lose the other's results (one of another name, written there by ``--out``, is
     replaced). ``InvalidInputError`` naming ``--out`` and both datasets."""
     mark = run_json_file(directory / RUN_MARK)
-    if not isinstance(mark, dict) or _marked_by(directory) != layout.mark["command"]:
+    if not isinstance(mark, dict) or marked_by(directory) != layout.mark["command"]:
         return
     earlier, ours = mark.get("dataset"), str(dataset.root.expanduser().resolve())
     if mark.get("name") == dataset.name and isinstance(earlier, str) and earlier != ours:
@@ -351,24 +299,6 @@ def refuse_other_dataset(directory: Path, dataset: FlightDataset, layout: RunLay
             f"{dataset.name!r} than this one ({ours}): give --out to keep both, or remove "
             f"{directory} to replace it",
         )
-
-
-def mark_stopped(layout: RunLayout, directory: Path, run: FlightRun) -> Path:
-    """Mark ``directory`` as holding ``run``, stopped part-way: its :data:`RUN_MARK` says so
-    (``"complete": false``, the frames done and those it was to fly), written before the
-    run's results, so that no reader takes them for a whole run's."""
-    mark = run_json_file(directory / RUN_MARK)
-    kept = {k: v for k, v in mark.items() if k != "running"} if isinstance(mark, dict) else {}
-    return write_text_atomically(
-        directory / RUN_MARK, json.dumps({**layout.mark, **kept, **run.progress}) + "\n"
-    )
-
-
-def _marked_by(directory: Path) -> str | None:
-    """The command ``directory``'s :data:`RUN_MARK` names; None without one that names one."""
-    mark = run_json_file(directory / RUN_MARK)
-    command = mark.get("command") if isinstance(mark, dict) else None
-    return command if isinstance(command, str) else None
 
 
 def _names_or_refuse(directory: Path, field: str) -> list[str]:
@@ -396,17 +326,6 @@ def _some(names: Sequence[str], shown: int = 3) -> str:
     """The first ``shown`` of ``names``, and how many more."""
     more = len(names) - shown
     return ", ".join(names[:shown]) + (f" and {more} more" if more > 0 else "")
-
-
-def run_json_file(path: Path) -> Any:
-    """What the JSON file ``path`` of a run holds (its mark, report or summary); None when it is
-    no regular file, is larger than a run's mark or report can be, or cannot be read or parsed."""
-    try:
-        if not path.is_file() or path.stat().st_size > _LARGEST_REPORT:
-            return None
-        return loads_json(path.read_bytes())
-    except (OSError, ValueError):
-        return None
 
 
 RUN_FILES = (RESULTS_FILE, REPLAY_RUN.report, "flight.geojson", "report.html")
