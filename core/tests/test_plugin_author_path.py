@@ -12,6 +12,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+from pydantic import BaseModel
 
 from c3_matcher import plugins as c3
 from c3_matcher.errors import UnknownStrategyError
@@ -76,9 +77,9 @@ def test_an_options_validator_that_fails_is_a_configuration_error_naming_the_tab
     from pydantic import BaseModel, field_validator
 
     from c3_matcher.cli import _options_as_read
-    from c3_matcher.compose import check_options_tables
     from c3_matcher.config import C3Settings
     from c3_matcher.errors import ConfigurationError
+    from c3_matcher.strategy_options import check_options_tables
 
     class Opts(BaseModel):
         cross_check: bool = True
@@ -244,3 +245,31 @@ def test_a_strategy_that_cannot_start_is_named_with_its_plugin_at_start_up(
         _started(tmp_path, create)
     assert str(info.value).startswith("strategy 'mine' (distribution dist-mine) failed to start: ")
     assert said in str(info.value)
+
+
+class _BrokenChoice(BaseModel):
+    """Options whose declared pair-matcher choice fails when asked (a plugin's own bug)."""
+
+    def matches_with_lightglue(self) -> bool:
+        raise RuntimeError("options method broke")
+
+
+def test_an_options_method_that_fails_at_start_up_is_named_with_its_plugin(
+    tmp_path: Any,
+) -> None:
+    """Asked whether the strategy reads ``[lightglue]``, its options' method raised: the plugin's
+    own error came out bare, naming neither the strategy nor its distribution."""
+    from c3_matcher.compose import compose_root
+    from c3_matcher.config import C3Settings
+    from c3_matcher.errors import StrategyStartupError
+    from c3_matcher.testing import fake_helpers
+
+    spec = c3.StrategySpec("mine", _create, options_model=_BrokenChoice)
+    host = c3.PluginHost(RESEARCH, [_plugin("mine", lambda: [spec])])
+    settings = C3Settings(matcher={"strategy": "mine"}, fdr={"path": tmp_path / "fdr.jsonl"})
+    with pytest.raises(StrategyStartupError) as info:
+        compose_root(settings, fake_helpers(), plugin_host=host, configure_logs=False)
+    assert str(info.value) == (
+        "strategy 'mine' (distribution dist-mine) failed to start: "
+        "RuntimeError: options method broke"
+    )

@@ -93,8 +93,9 @@ def _cmd_config(args: argparse.Namespace, ctx: CommandContext) -> int:
     # Every options table, and the settings the strategy's keypoint budget cannot meet, are
     # checked as start-up checks them; what a run would not do as written is warned on stderr
     # (exit 0); the TOML shows, as comments, the values the strategy gives unset settings.
-    from c3_matcher.compose import check_options_tables, check_strategy_budget
+    from c3_matcher.compose import check_strategy_budget
     from c3_matcher.config_shown import config_warnings, shown_settings
+    from c3_matcher.strategy_options import check_options_tables
 
     settings, host = ctx.settings, ctx.plugin_host
     with contextlib.suppress(StrategyNotLinkedError):

@@ -17,19 +17,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ValidationError
-
 from c3_matcher import keypoint_budget as budgets
 from c3_matcher import protocols, unread_settings
 from c3_matcher.config import C3Settings, FdrSettings, with_strategy_defaults
-from c3_matcher.config_problems import validation_problems as said
 from c3_matcher.errors import (
     AirborneBootstrapError,
     C3Error,
-    ConfigurationError,
     StrategyNotLinkedError,
     StrategyStartupError,
-    UnknownStrategyError,
     describe,
 )
 from c3_matcher.fdr import JsonlFdrRecorder
@@ -56,6 +51,7 @@ from c3_matcher.protocols import (
 )
 from c3_matcher.ransac import OpenCvRansacFilter
 from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS, engine_startup_probe
+from c3_matcher.strategy_options import check_options_tables, strategy_options
 
 __all__ = [
     "AIRBORNE_REQUIRED_PRE_CONSTRUCTED_KEYS",
@@ -64,7 +60,6 @@ __all__ = [
     "build_default_helpers",
     "build_plugin_host",
     "check_inliers_reachable",
-    "check_options_tables",
     "check_strategy_budget",
     "compose_root",
     "open_recorder",
@@ -266,11 +261,14 @@ def _create_strategy(
     name = config.matcher.strategy
     spec = host.resolve(name)
     check_options_tables(config, host)
-    options = _strategy_options(config, name, spec.options_model)
-    unread_settings.say_unread(config, spec, options, host)  # what the user set, before defaults
+    options = strategy_options(config, name, spec.options_model)
+    plugin = host.strategy_plugin(name).distribution
+    try:  # what the user set, before defaults, that the strategy does not read
+        unread_settings.say_unread(config, spec, options, host)
+    except Exception as exc:  # its options' own method failed: the plugin's fault, named
+        raise StrategyStartupError(name, plugin, describe(exc)) from exc
     config = with_strategy_defaults(config, spec.defaults, name)
     health = RollingHealthWindow(clock, config.matcher.min_inliers_threshold)
-    plugin = host.strategy_plugin(name).distribution
     try:
         matcher = spec.factory(
             config=config,
@@ -321,7 +319,7 @@ def check_strategy_budget(settings: C3Settings, host: PluginHost) -> None:
     except StrategyNotLinkedError:
         return
     config = with_strategy_defaults(settings, spec.defaults, name)
-    options = _strategy_options(config, name, spec.options_model)
+    options = strategy_options(config, name, spec.options_model)
     engines = host.strategy_engine_specs(name)
     budgets.check_declared_budget(config, options, engines, DEFAULT_MAX_KEYPOINTS)
 
@@ -358,40 +356,3 @@ def _log_ready(config: C3Settings, host: PluginHost, provider: str) -> None:
         profile=host.profile.name,
         provider=provider,
     )
-
-
-def check_options_tables(config: C3Settings, host: PluginHost) -> None:
-    """Every ``[matcher.options.NAME]`` table checked, not only the selected strategy's: one
-    whose name no installed plugin and no build flag knows (a misspelling would otherwise leave
-    the strategy on its defaults, silently), and the values of each installed strategy's own
-    (``ConfigurationError`` naming the key). A strategy this build does not link is passed over:
-    its table does no harm here."""
-    for name in config.matcher.options:
-        try:
-            spec = host.resolve(name)
-        except StrategyNotLinkedError:
-            continue
-        except UnknownStrategyError as exc:
-            raise ConfigurationError(
-                "matcher.options",
-                [(f"matcher.options.{name}", f"options for no installed strategy: {exc}")],
-            ) from None
-        _strategy_options(config, name, spec.options_model)
-
-
-def _strategy_options(config: C3Settings, name: str, model: type[BaseModel] | None) -> Any:
-    raw = config.matcher.options.get(name, {})
-    if model is None:
-        if raw:
-            why = f"strategy {name!r} takes no options, got {sorted(raw)}"
-            raise ConfigurationError("matcher.options", [(f"matcher.options.{name}", why)])
-        return None
-    try:
-        return model.model_validate(raw)
-    except ValidationError as exc:  # each refusal naming the value refused, as the core's do
-        where = f"matcher.options.{name}"
-        problems = [(f"{where}.{k}" if k != "(root)" else where, why) for k, why in said(exc)]
-        raise ConfigurationError("matcher.options", problems) from None
-    except Exception as exc:  # the plugin's validator failed (a KeyError...): not a traceback
-        why = f"strategy {name!r}'s options model failed on it: {describe(exc)}"
-        raise ConfigurationError("matcher.options", [(f"matcher.options.{name}", why)]) from exc

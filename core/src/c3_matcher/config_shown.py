@@ -98,7 +98,7 @@ def _fill(table: dict[str, Any], applied: dict[str, Any], keys: Sequence[str], b
 
 def _options(settings: C3Settings, spec: StrategySpec) -> BaseModel | None:
     """The strategy's options as its model reads the configuration's table (None: it takes
-    none); the table was checked already (``compose.check_options_tables``)."""
+    none); the table was checked already (``strategy_options.check_options_tables``)."""
     if spec.options_model is None:
         return None
     return spec.options_model.model_validate(settings.matcher.options.get(spec.name, {}))
