@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import sys
 import threading
+from collections import deque
+from collections.abc import Callable, Iterator
 
 import pytest
 
+from c3_matcher.dto import MatcherHealth
 from c3_matcher.errors import InvalidInputError
-from c3_matcher.health import RollingHealthWindow
+from c3_matcher.health import HealthUpdate, RollingHealthWindow
 from c3_matcher.testing import FakeClock
 
 
@@ -92,3 +95,64 @@ def test_a_monitor_thread_may_read_health_while_frames_update_it():
         sys.setswitchinterval(interval)
     assert errors == []
     assert window.update_count == 60_000
+
+
+class _PausingUpdates(deque[HealthUpdate]):
+    """The window's updates, iterated with a pause after the first: ``pause()`` runs there, in
+    the reading thread, once (an update landing mid-read is then certain, not a matter of
+    thread timing)."""
+
+    def __init__(self, items: list[HealthUpdate], pause: Callable[[], None]) -> None:
+        super().__init__(items)
+        self._pause: Callable[[], None] | None = pause
+
+    def __iter__(self) -> Iterator[HealthUpdate]:
+        it = super().__iter__()
+        for i, item in enumerate(it):
+            yield item
+            if i == 0 and self._pause is not None:
+                pause, self._pause = self._pause, None
+                pause()
+
+
+def test_an_update_is_held_off_while_a_snapshot_reads_the_window():
+    """A monitor's ``snapshot()`` stopped halfway through reading the updates (an Event
+    handshake, no timing): the window's lock is held, so the frame's ``update`` from another
+    thread waits until the read is done; the snapshot is the window as it was before it. Read
+    without the lock, the update landed mid-read ("deque mutated during iteration")."""
+    clock = FakeClock()
+    window = RollingHealthWindow(clock, low_inlier_threshold=60)
+    paused, resume = threading.Event(), threading.Event()
+
+    def pause() -> None:
+        paused.set()
+        resume.wait()
+
+    before = [HealthUpdate(k, count, False) for k, count in enumerate((10, 20, 30, 40))]
+    window._updates = _PausingUpdates(before, pause)  # the read made to pause
+    clock.now_ns = 10
+    seen: list[MatcherHealth | Exception] = []
+
+    def monitor() -> None:
+        try:
+            seen.append(window.snapshot())
+        except Exception as exc:  # the failure under test
+            seen.append(exc)
+        finally:
+            paused.set()  # a read that never paused leaves no one waiting
+
+    reader = threading.Thread(target=monitor)
+    reader.start()
+    paused.wait()
+    held = window._lock.locked()  # whether the read holds it
+    frame = threading.Thread(target=window.update, args=(clock.now_ns, 500, False))
+    frame.start()  # held off by the lock, it lands once the read is done
+    if not held:  # nothing holds it off: it lands now, mid-read
+        frame.join()
+    resume.set()
+    reader.join()
+    frame.join()
+    assert held, "snapshot() read the updates without the window's lock"
+    assert len(seen) == 1 and isinstance(seen[0], MatcherHealth), seen
+    assert seen[0].mean_inliers_60s == pytest.approx(25.0)  # the four before the update
+    assert window.snapshot().mean_inliers_60s == pytest.approx(120.0)  # and then with it

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import re
 import shutil
+import statistics
 import subprocess
 from pathlib import Path
 
@@ -77,6 +79,15 @@ def test_results_are_georeferenced_with_errors_in_metres(replayed: Path) -> None
     # the demo frames are 2.6 m/px: a correct match puts the centre within a few metres
     assert max(r["position_error_m"] for r in correct) < 10.0
     assert report["position_error_m_p50"] < 5.0
+    # each error is the distance between the row's own estimate and truth, in metres
+    distances = []
+    for r in ok:
+        est = (r["est_lat"], r["est_lon"])
+        assert est == (r["result"]["centre_lat"], r["result"]["centre_lon"])
+        distances.append(_great_circle_m(*est, r["truth_lat"], r["truth_lon"]))
+        assert r["position_error_m"] == pytest.approx(distances[-1], abs=1e-6), r["index"]
+    assert min(distances) > 0.1  # metres to compare, not all 0
+    assert report["position_error_m_p50"] == pytest.approx(statistics.median(distances), abs=1e-6)
 
 
 def test_geojson_holds_truth_and_estimate(replayed: Path) -> None:
@@ -101,6 +112,15 @@ def test_geojson_holds_truth_and_estimate(replayed: Path) -> None:
     assert len(polygons) == len(rings)
     for f in polygons:  # the result's ring as it is: every output winds it the same way
         assert f["geometry"]["coordinates"] == [rings[f["properties"]["frame"]]]
+
+
+def _great_circle_m(lat_a: float, lon_a: float, lat_b: float, lon_b: float) -> float:
+    """Metres along the sphere of the mean Earth radius (IUGG, 6371008.8 m) between two
+    points (deg), by the haversine formula."""
+    pa, pb = math.radians(lat_a), math.radians(lat_b)
+    dp, dl = pb - pa, math.radians(lon_b - lon_a)
+    h = math.sin(dp / 2) ** 2 + math.cos(pa) * math.cos(pb) * math.sin(dl / 2) ** 2
+    return 2 * 6_371_008.8 * math.asin(math.sqrt(h))
 
 
 def _twice_area(ring: np.ndarray) -> float:
