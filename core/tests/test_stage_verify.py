@@ -100,7 +100,7 @@ def test_a_frame_has_a_prior_only_rectified_and_scaled_and_when_enabled():
 
 
 class PairBackend:
-    match_phase = "lightglue_match"
+    label, extract_phase, match_phase = "pair", "disk_forward", "lightglue_match"
 
     def __init__(self, fail: bool = False) -> None:
         self.fail = fail

@@ -48,6 +48,7 @@ from c3_matcher.fdr.forks import forked_from
 from c3_matcher.fdr.turns import FrameTurns
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import FDR_WRITE_FAILED, current_log_root, log_event, logging_as
+from c3_matcher.plugins.isolation import is_failure
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.prior import PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend, RansacFilter
@@ -55,7 +56,9 @@ from c3_matcher.stages.ambiguity import ambiguity
 from c3_matcher.stages.candidate_features import CandidateFeatures
 from c3_matcher.stages.candidate_features import feature_request as _feature_request
 from c3_matcher.stages.failure import CandidateStepError
+from c3_matcher.stages.frame_inputs import check_inputs, frame_id_of
 from c3_matcher.stages.outcomes import Dropped, FrameEvidence, Survivor
+from c3_matcher.stages.provenance import read_provenance
 from c3_matcher.stages.query import QUERY_ROTATIONS_DEG
 from c3_matcher.stages.ranking import best_inlier_count, ranked
 from c3_matcher.stages.recorder import FrameRecorder, RecorderSinks
@@ -167,6 +170,11 @@ class PipelineMatcher:
     def health_snapshot(self) -> MatcherHealth:
         return self._sinks.health.snapshot()
 
+    def provenance(self) -> dict[str, Any]:
+        """Its backend's provenance, read as the frame records read it: a failure to read it
+        is said as ``provenance_error`` (``stages.provenance``), never raised."""
+        return read_provenance(self.backend)
+
     # -- the contract -----------------------------------------------------------------------
     def match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
@@ -194,9 +202,9 @@ class PipelineMatcher:
     def _contract_match(
         self, frame: NavCameraFrame, rerank_result: RerankResult, calibration: CameraCalibration
     ) -> MatchResult:
-        recorder = FrameRecorder(self._sinks, _frame_id(frame, rerank_result, calibration))
+        recorder = FrameRecorder(self._sinks, frame_id_of(frame, rerank_result, calibration))
         try:
-            _check_inputs(frame, rerank_result, calibration)
+            check_inputs(frame, rerank_result, calibration)
         except InvalidInputError as exc:  # refused input still leaves its evidence in the FDR
             recorder.invalid_input(exc)
             raise
@@ -213,11 +221,15 @@ class PipelineMatcher:
                     FrameEvidence(0, dropped=0), 0, [], self.settings.min_inliers_threshold
                 )
             return self._match(frame, rerank_result, calibration, recorder)
-        except (MatcherBackboneError, InsufficientInliersError):
-            raise
-        except Exception as exc:  # a bug (an internal check included) must not take the
-            recorder.internal_error(exc)  # vehicle down: the contract's error instead
-            raise MatcherBackboneError("internal", None, exc) from exc
+        except BaseException as exc:
+            if isinstance(exc, MatcherBackboneError | InsufficientInliersError) and recorder.ended:
+                raise  # the frame's own, recorded (one a plugin raised is not: internal)
+            if not is_failure(exc):  # Ctrl-C, SIGTERM's, a closing generator: they go on,
+                recorder.interrupted(exc)  # the frame recorded first where that is safe
+                raise
+            recorder.internal_error(exc)  # a bug (an internal check included) or a plugin's
+            raise MatcherBackboneError("internal", None, exc) from exc  # SystemExit must not
+            # take the vehicle down: the contract's error instead
 
     # -- steps ------------------------------------------------------------------------------
     def _match(
@@ -268,8 +280,7 @@ class PipelineMatcher:
             candidates_dropped=evidence.dropped,
             diagnostics=diagnostics,
         )
-        recorder.update_health(best.inlier_count)  # step 9
-        recorder.frame_done(evidence, survivors, rectification, timings, threshold)  # step 10
+        recorder.frame_done(evidence, survivors, rectification, timings, threshold)  # steps 9-10
         return result
 
     def _scales(
@@ -293,7 +304,9 @@ class PipelineMatcher:
                 verification=self._verification,
                 timings=timings,
             )
-        except Exception as exc:
+        except BaseException as exc:  # a plugin's SystemExit too; Ctrl-C goes on
+            if not is_failure(exc):
+                raise
             recorder.query_failed(exc)
             raise MatcherBackboneError("query_extract", None, exc) from exc
 
@@ -368,31 +381,3 @@ class PipelineMatcher:
 def _close_failed(exc: Exception) -> None:
     """A sink close kept for the end of a frame failed (records it could not write)."""
     log_event("ERROR", FDR_WRITE_FAILED, f"closing after the frame: {exc}", error=describe(exc))
-
-
-def _frame_id(frame: object, rerank: object, calibration: object) -> Any:
-    """The frame a call's records are about: the re-rank's, or the nav frame's when valid
-    inputs carry a re-rank made for another frame."""
-    if (
-        isinstance(frame, NavCameraFrame)
-        and isinstance(rerank, RerankResult)
-        and isinstance(calibration, CameraCalibration)
-        and rerank.frame_id != frame.frame_id
-    ):
-        return frame.frame_id
-    return getattr(rerank, "frame_id", None)
-
-
-def _check_inputs(frame: object, rerank: object, calibration: object) -> None:
-    """Refuse wrong types (a caller's programming error). ``frame=None`` and a re-rank of
-    another frame are conditions of flight, answered with the contract's errors."""
-    if frame is not None and not isinstance(frame, NavCameraFrame):
-        raise InvalidInputError("frame", f"expected NavCameraFrame, got {type(frame).__name__}")
-    if not isinstance(rerank, RerankResult):
-        raise InvalidInputError(
-            "rerank_result", f"expected RerankResult, got {type(rerank).__name__}"
-        )
-    if not isinstance(calibration, CameraCalibration):
-        raise InvalidInputError(
-            "calibration", f"expected CameraCalibration, got {type(calibration).__name__}"
-        )

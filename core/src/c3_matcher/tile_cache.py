@@ -69,5 +69,10 @@ class TileFeatureCache:
         while len(self._entries) > self._capacity:
             self._entries.popitem(last=False)
 
+    def discard(self, key: tuple[TileId, str]) -> None:
+        """Drop ``key``'s entry, if there is one: features a frame refused, or could not match,
+        are extracted anew rather than served again."""
+        self._entries.pop(key, None)
+
     def __len__(self) -> int:
         return len(self._entries)

@@ -9,11 +9,13 @@ silently."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Final
 
-from c3_matcher.dto import RerankCandidate
+from c3_matcher.dto import RerankCandidate, TileId
 from c3_matcher.features import Features
+from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend, StoredFeaturesBackend, StoredFeaturesHandle
 from c3_matcher.stages.extract import checked_features, extract_checked
@@ -95,7 +97,7 @@ class CandidateFeatures:
             key = tile_cache_key(candidate.tile_id, handle) if self.cache.enabled else None
             cached = self.cache.get(key) if key is not None else None
         if cached is not None:
-            return TileFeatures("cached", cached.prepared, cached.features)
+            return self._tile("cached", cached.prepared, cached.features, key)
         with failing_as(TILE_DECODE_PHASE, "extracted"):
             with timed(timings, "decode"):
                 pixels = decode_within(handle, self.max_pixels, f"tile {candidate.tile_id}")
@@ -105,7 +107,16 @@ class CandidateFeatures:
             features = extract_checked(self._backend, image)
         if key is not None and _unchanged(candidate, key):
             self.cache.put(key, CachedTile(image, features))
-        return TileFeatures("extracted", image, features)
+        return self._tile("extracted", image, features, key)
+
+    def _tile(
+        self, source: str, image: PreparedImage, features: Features, key: tuple[TileId, str] | None
+    ) -> TileFeatures:
+        """A tile's features from ``source``; one the cache may hold under ``key`` leaves it
+        when a frame refuses or cannot match them (``TileFeatures.forget``)."""
+        if key is None:  # the cache is off
+            return TileFeatures(source, image, features)
+        return TileFeatures(source, image, features, functools.partial(self.cache.discard, key))
 
     def _stored(self, candidate: RerankCandidate, recorder: FrameRecorder) -> TileFeatures | None:
         """The candidate's precomputed map features, or None (extract): a handle without

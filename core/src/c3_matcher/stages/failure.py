@@ -7,6 +7,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from c3_matcher.errors import describe
+from c3_matcher.plugins.isolation import is_failure
 
 __all__ = ["CandidateStepError", "failing_as", "timed"]
 
@@ -17,9 +18,10 @@ class CandidateStepError(Exception):
     ``phase`` names the step (``tile_decode``, the backend's extract or match phase,
     ``ransac``); ``source`` is where the candidate's features came or were to come from
     (``none`` before that was known, else ``stored``, ``cached`` or ``extracted``); ``cause``
-    is the exception the step raised."""
+    is the exception the step raised (a ``SystemExit`` or another ``BaseException`` a plugin
+    raises too: ``failing_as``)."""
 
-    def __init__(self, phase: str, source: str, cause: Exception) -> None:
+    def __init__(self, phase: str, source: str, cause: BaseException) -> None:
         super().__init__(f"{phase}: {describe(cause)}")
         self.phase = phase
         self.source = source
@@ -29,10 +31,14 @@ class CandidateStepError(Exception):
 @contextmanager
 def failing_as(phase: str, source: str) -> Iterator[None]:
     """Run a step of a candidate: any exception it raises leaves as a ``CandidateStepError`` of
-    ``phase`` (features from ``source``)."""
+    ``phase`` (features from ``source``), a ``SystemExit`` or another ``BaseException`` of a
+    plugin's too (it fails the step, not the flight); Ctrl-C and a closing generator go on
+    (``plugins.isolation.is_failure``)."""
     try:
         yield
-    except Exception as exc:
+    except BaseException as exc:
+        if not is_failure(exc):
+            raise
         raise CandidateStepError(phase, source, exc) from exc
 
 

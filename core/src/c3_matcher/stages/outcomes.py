@@ -6,7 +6,7 @@ ORIGINAL frame px; tile points are the tile's px."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -31,11 +31,14 @@ __all__ = [
 @dataclass(frozen=True)
 class TileFeatures:
     """A candidate tile's prepared image and features, and where they came from: ``stored``
-    (a tile store's precomputed map features), ``cached`` (the tile cache) or ``extracted``."""
+    (a tile store's precomputed map features), ``cached`` (the tile cache) or ``extracted``.
+    ``forget`` drops them from the tile cache (nothing for features it does not hold): called
+    when they are refused or matching them fails, so the next frame extracts the tile anew."""
 
     source: str
     image: PreparedImage
     features: Features
+    forget: Callable[[], None] = field(default=lambda: None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)

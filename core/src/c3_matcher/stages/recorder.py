@@ -4,9 +4,11 @@ records.
 Terminal FDR record per ``match`` call, exactly one of: ``matcher.frame_done`` (success),
 ``matcher.insufficient_inliers`` (raised InsufficientInliersError), ``matcher.backbone_error``
 with ``phase="query_extract"`` (the query frame itself failed) or ``phase="internal"`` (a bug,
-answered with the contract's error), or ``matcher.invalid_input``. Per dropped candidate, one
-``matcher.backbone_error`` record with its ``tile_id`` and ``phase``. A recorder failure is
-logged, never fails the frame.
+answered with the contract's error), ``matcher.invalid_input``, or ``matcher.interrupted``
+(Ctrl-C stopped the frame; none when the stop cut a write short: ``stages.interrupts``). Per
+dropped candidate, one ``matcher.backbone_error`` record with its ``tile_id`` and ``phase``. A
+recorder failure is logged, never fails the frame; every payload is made before the frame's
+health update, so the health window counts only what the caller gets.
 
 The success and no-fix records name the strategy (``matcher_label``), carry the frame's stage
 timings (``timings_ms``; on a no-fix frame when its candidates were matched) and account for
@@ -18,19 +20,13 @@ FDR is the only account of a drop for zero inliers or on geometry (their log lin
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from c3_matcher.arrays import F64
 from c3_matcher.clocks import SteadyClock, read_said
 from c3_matcher.dto import CandidateMatchSet, RerankResult
-from c3_matcher.errors import (
-    AmbiguousMatchError,
-    InsufficientInliersError,
-    InvalidInputError,
-    describe,
-    refused_words,
-)
+from c3_matcher.errors import InsufficientInliersError, InvalidInputError, describe
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import (
     MATCHER_BACKBONE_ERROR,
@@ -42,8 +38,11 @@ from c3_matcher.logs import (
 )
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend
 from c3_matcher.stages.ambiguity import Ambiguity
-from c3_matcher.stages.frame_records import candidates_record
+from c3_matcher.stages.frame_records import TerminalRecord, candidates_record
+from c3_matcher.stages.interrupts import cut_a_write_short
+from c3_matcher.stages.no_fix import no_fix_error, no_fix_words
 from c3_matcher.stages.outcomes import CandidateDrop, FrameEvidence, GeometryRefusal, Survivor
+from c3_matcher.stages.provenance import ProvenanceFields
 from c3_matcher.tilestore.features import NoStoredSet
 
 __all__ = ["FrameRecorder", "RecorderSinks", "drop_reason"]
@@ -52,14 +51,16 @@ __all__ = ["FrameRecorder", "RecorderSinks", "drop_reason"]
 @dataclass(frozen=True)
 class RecorderSinks:
     """Where a matcher's frames are recorded: the FDR, the health window (read with the clock,
-    kept as a ``SteadyClock`` across frames), the backend (its label and provenance) and the
-    strategy selected (None: the backend's)."""
+    kept as a ``SteadyClock`` across frames), the backend (its label and provenance, read
+    through ``provenance``, which says a failure or a clash once per matcher) and the strategy
+    selected (None: the backend's)."""
 
     fdr: FdrClient
     health: RollingHealthWindow
     clock: Clock
     backend: FeatureBackend
     strategy: str | None = None
+    provenance: ProvenanceFields = field(default_factory=ProvenanceFields, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "clock", SteadyClock.of(self.clock))
@@ -81,8 +82,9 @@ class FrameRecorder:
         self._health_updated = False
         self._backbone_errors = 0
         self._drops: dict[int, CandidateDrop] = {}  # by input position
-        self._capture: dict[str, int] = {}  # the frame's capture time, once its inputs passed
+        self._capture: TerminalRecord = {}  # the frame's capture time, once its inputs passed
         self._now_ns: int | None = None  # the frame's one reading of the clock (``now_ns``)
+        self._ended = False  # its terminal record made (written, or tried)
 
     def captured(self, captured_at_ns: int) -> None:
         """The frame's capture time, which its terminal records carry (``captured_at_ns``): how
@@ -93,6 +95,22 @@ class FrameRecorder:
     def frame_id(self) -> Any:
         """The frame this call's records are about."""
         return self._frame_id
+
+    @property
+    def ended(self) -> bool:
+        """Whether the frame's terminal record was made (a contract error raised without one
+        is not the matcher's own)."""
+        return self._ended
+
+    def _terminal(self, kind: str, payload: Mapping[str, Any]) -> None:
+        """Write the frame's terminal record (one per frame, ``ended`` from its first try)."""
+        self._ended = True
+        self.record(kind, payload)
+
+    def _with_provenance(self, core: TerminalRecord) -> dict[str, Any]:
+        """``core`` and the backend's provenance, whose keys never replace the core's."""
+        sinks = self._sinks
+        return {**core, **sinks.provenance.of(sinks.backend, sinks.label, self.frame_id)}
 
     # -- health and the FDR -------------------------------------------------------------
     def now_ns(self) -> int:
@@ -256,10 +274,10 @@ class FrameRecorder:
         query matched unrectified in its ORIGINAL px; the inlier ``threshold`` it passed, as
         the no-fix record names the one it missed; the matcher's label; the frame's and each
         candidate's stage timings in input order; the kept candidates ranked and the dropped
-        ones, each by input position; provider, engines)."""
+        ones, each by input position; provider, engines). The frame's health update (its best
+        inlier count) comes once the record is made, before it is written."""
         best = ranked[0].match_set
-        self.record(
-            "matcher.frame_done",
+        payload = self._with_provenance(
             {
                 "frame_id": self.frame_id,
                 **self._capture,
@@ -274,9 +292,10 @@ class FrameRecorder:
                 "matcher_label": self._sinks.label,
                 "timings_ms": timings,
                 **candidates_record(evidence, ranked, self.drops),
-                **self._sinks.backend.provenance(),
-            },
+            }
         )
+        self.update_health(best.inlier_count)  # step 9
+        self._terminal("matcher.frame_done", payload)
 
     def insufficient(
         self,
@@ -296,28 +315,12 @@ class FrameRecorder:
         With ``ambiguity`` (step 7) the best had enough inliers but a rival places the frame
         elsewhere: :class:`~c3_matcher.errors.AmbiguousMatchError`, the record's ``ambiguous``."""
         label = self._sinks.label
-        stale = {} if stale_rerank_frame_id is None else {"stale_rerank": stale_rerank_frame_id}
-        timed = {} if timings is None else {"timings_ms": dict(timings)}
-        rival = {} if ambiguity is None else {"ambiguous": ambiguity.as_record()}
-        self.update_health(0)  # best_inlier_count=0
-        error = _no_fix_error(self.frame_id, evidence, best_count, threshold, label, ambiguity)
-        what, said = _no_fix_words(error, evidence, threshold, ambiguity)
-        log_event(
-            "ERROR",
-            "c3.matcher.insufficient_inliers",
-            f"C3 {what}; frame={self.frame_id}; backbone={label}; {said}"
-            + ("" if not stale else f"; re-rank is for frame {stale_rerank_frame_id}"),
-            frame_id=self.frame_id,
-            backbone=label,
-            best_inlier_count=best_count,
-            threshold=threshold,
-            candidates_input=evidence.candidates_input,
-            candidates_dropped=evidence.dropped,
-            **stale,
-            **rival,
-        )
-        self.record(
-            "matcher.insufficient_inliers",
+        stale: TerminalRecord = {}
+        if stale_rerank_frame_id is not None:
+            stale["stale_rerank"] = stale_rerank_frame_id
+        rival: TerminalRecord = {} if ambiguity is None else {"ambiguous": ambiguity.as_record()}
+        timed: TerminalRecord = {} if timings is None else {"timings_ms": dict(timings)}
+        payload = self._with_provenance(
             {
                 "frame_id": self.frame_id,
                 **self._capture,
@@ -330,9 +333,25 @@ class FrameRecorder:
                 **rival,
                 **timed,
                 **candidates_record(evidence, survivors, self.drops),
-                **self._sinks.backend.provenance(),
-            },
+            }
         )
+        self.update_health(0)  # best_inlier_count=0
+        error = no_fix_error(self.frame_id, evidence, best_count, threshold, label, ambiguity)
+        what, said = no_fix_words(error, evidence, threshold, ambiguity)
+        log_event(
+            "ERROR",
+            "c3.matcher.insufficient_inliers",
+            f"C3 {what}; frame={self.frame_id}; backbone={label}; {said}"
+            + ("" if not stale else f"; re-rank is for frame {stale_rerank_frame_id}"),
+            frame_id=self.frame_id,
+            backbone=label,
+            best_inlier_count=best_count,
+            threshold=threshold,
+            candidates_input=evidence.candidates_input,
+            candidates_dropped=evidence.dropped,
+            **{k: payload[k] for k in ("stale_rerank", "ambiguous") if k in payload},
+        )
+        self._terminal("matcher.insufficient_inliers", payload)
         return error
 
     def stale_rerank(self, rerank: RerankResult, threshold: int) -> InsufficientInliersError:
@@ -345,53 +364,37 @@ class FrameRecorder:
         evidence = FrameEvidence(unmatched, dropped=unmatched)
         return self.insufficient(evidence, 0, [], threshold, stale_rerank_frame_id=rerank.frame_id)
 
-    def query_failed(self, exc: Exception) -> None:
+    def query_failed(self, exc: BaseException) -> None:
         """The nav frame itself could not be decoded or extracted: health (0, backbone error)
         and a ``query_extract`` backbone-error record."""
         self.update_health(0, force_backbone_error=True)
+        self._ended = True
         self.backbone_error(None, "query_extract", exc)
 
     def invalid_input(self, exc: InvalidInputError) -> None:
         """Refused input still leaves its evidence in the FDR."""
         self.update_health(0)
-        self.record(
+        self._terminal(
             "matcher.invalid_input",
             {"frame_id": self.frame_id, "field": exc.field, "error": str(exc)},
         )
 
-    def internal_error(self, exc: Exception) -> None:
-        """A bug must not take the vehicle down: health, an ``internal`` backbone-error record."""
+    def internal_error(self, exc: BaseException) -> None:
+        """A bug (or a plugin's ``SystemExit``) must not take the vehicle down: health, an
+        ``internal`` backbone-error record."""
         self.update_health(0, force_backbone_error=True)
+        self._ended = True
         self.backbone_error(None, "internal", exc)
 
-
-def _no_fix_error(
-    frame_id: Any,
-    evidence: FrameEvidence,
-    best_count: int,
-    threshold: int,
-    label: str,
-    ambiguity: Ambiguity | None,
-) -> InsufficientInliersError:
-    """The error a frame without a fix raises: ambiguous, or short of inliers."""
-    facts = (frame_id, best_count, threshold, evidence.candidates_input, evidence.dropped)
-    if ambiguity is not None:
-        return AmbiguousMatchError(*facts, label, ambiguity=ambiguity.reason)
-    refused = tuple((r.inlier_count, r.reason) for r in evidence.refused)
-    return InsufficientInliersError(*facts, label, refused)
-
-
-def _no_fix_words(
-    error: InsufficientInliersError,
-    evidence: FrameEvidence,
-    threshold: int,
-    ambiguity: Ambiguity | None,
-) -> tuple[str, str]:
-    """What the no-fix ERROR line says happened, and its facts."""
-    if ambiguity is not None:
-        return "ambiguous match, no fix", ambiguity.reason
-    return (
-        "insufficient inliers on all candidates",
-        f"best={error.best_inlier_count} < {threshold}; {evidence.dropped} of "
-        f"{evidence.candidates_input} candidates dropped{refused_words(error.geometry_refused)}",
-    )
+    def interrupted(self, stop: BaseException) -> None:
+        """Ctrl-C (SIGTERM's ``KeyboardInterrupt``) or a closing generator stopped the frame,
+        which propagates: its health update (no fix) and a ``matcher.interrupted`` record,
+        unless its terminal record was made already or the stop cut a write short
+        (``stages.interrupts``: a record now would be glued to a torn line)."""
+        if self._ended or cut_a_write_short(stop, self._sinks.fdr):
+            return
+        self.update_health(0)
+        self._terminal(
+            "matcher.interrupted",
+            {"frame_id": self.frame_id, **self._capture, "error": describe(stop)},
+        )

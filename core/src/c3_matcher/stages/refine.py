@@ -18,6 +18,7 @@ from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
 from c3_matcher.stages.extract import extract_checked
 from c3_matcher.stages.failure import timed
+from c3_matcher.stages.matching import match_checked
 from c3_matcher.stages.outcomes import RefineRecord, Survivor
 from c3_matcher.stages.ranking import top
 from c3_matcher.stages.recorder import FrameRecorder
@@ -98,6 +99,6 @@ class RefinePass:
             return None
         image = self._pre.render_query(frame, calibration, refined)
         features = extract_checked(self._backend, image)
-        raw = self._backend.match(features, tile.features)
+        raw = match_checked(self._backend, features, tile.features)
         rows = correspondences(image, features, tile.image, tile.features, raw)
         return scale.verifier.verify(first.match_set.tile_id, first.rotation_deg, rows)

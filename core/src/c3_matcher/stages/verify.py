@@ -31,7 +31,8 @@ from c3_matcher.ransac import (
     homography_residuals,
     spread_ratio,
 )
-from c3_matcher.stages.failure import failing_as, timed
+from c3_matcher.stages.failure import CandidateStepError, failing_as, timed
+from c3_matcher.stages.matching import check_descriptors_fit, match_checked
 from c3_matcher.stages.outcomes import GeometryRefusal, TileFeatures
 from c3_matcher.stages.query import Query, QueryView
 
@@ -224,20 +225,40 @@ def best_turn(
     tile: TileFeatures,
     timings: dict[str, float],
 ) -> Verdict:
-    """The candidate matched against every query view (``match``, the backend's match phase)
-    and verified (``ransac``); the verdict of the best-ranked view (``Verdict.turn_rank``, the
-    first on a tie). Raises ``CandidateStepError`` naming the failed phase."""
+    """The candidate matched against every query view (:func:`_matched_rows`: the backend's
+    extract or match phase) and verified (``ransac``); the verdict of the best-ranked view
+    (``Verdict.turn_rank``, the first on a tie). Raises ``CandidateStepError`` naming the failed
+    phase."""
     chosen: Verdict | None = None
     for view in views:  # one view, or every turn (rotation search)
-        with failing_as(backend.match_phase, tile.source), timed(timings, "match"):
-            raw = backend.match(view.features, tile.features)
-            rows = correspondences(view.image, view.features, tile.image, tile.features, raw)
+        rows, raw_matches = _matched_rows(backend, view, tile, timings)
         with failing_as("ransac", tile.source), timed(timings, "ransac"):
-            verdict = verifier.verify(tile_id, view.rotation_deg, rows, len(raw))
+            verdict = verifier.verify(tile_id, view.rotation_deg, rows, raw_matches)
         if chosen is None or verdict.turn_rank() < chosen.turn_rank():  # first on ties
             chosen = verdict
     assert chosen is not None  # views is never empty
     return chosen
+
+
+def _matched_rows(
+    backend: FeatureBackend, view: QueryView, tile: TileFeatures, timings: dict[str, float]
+) -> tuple[F32, int]:
+    """The correspondence rows of ``view`` matched with ``tile`` and the count of raw matches.
+    Descriptors that do not fit the query's fail the backend's extract phase
+    (:func:`~c3_matcher.stages.matching.check_descriptors_fit`); a match that raises, returns
+    no ``RawMatches``, or pairs an index of no keypoint or one keypoint twice, its match phase
+    (``CandidateStepError``). Either way the tile leaves the tile cache (``tile.forget``): the
+    next frame extracts it anew, so a backend that recovers recovers its tiles too."""
+    try:
+        with failing_as(backend.extract_phase, tile.source):
+            check_descriptors_fit(view.features, tile.features, backend.label)
+        with failing_as(backend.match_phase, tile.source), timed(timings, "match"):
+            raw = match_checked(backend, view.features, tile.features)
+            rows = correspondences(view.image, view.features, tile.image, tile.features, raw)
+    except CandidateStepError:
+        tile.forget()
+        raise
+    return rows, len(raw)
 
 
 def candidate_verdict(

@@ -221,9 +221,10 @@ class PreparedMatcher:
     @property
     def provenance(self) -> dict[str, Any]:
         """Its feature backend's execution provider and engines, as its FDR records them (each
-        frame's record); empty for a matcher not on the shared per-frame loop."""
+        frame's record); ``provenance_error`` saying why where it could not be read (the run's
+        output is kept); empty for a matcher not on the shared per-frame loop."""
         matcher = self.matcher
-        return dict(matcher.backend.provenance()) if isinstance(matcher, PipelineMatcher) else {}
+        return matcher.provenance() if isinstance(matcher, PipelineMatcher) else {}
 
     @property
     def keypoint_budget(self) -> int | None:
