@@ -43,18 +43,24 @@ def test_candidates_sharing_a_gsd_share_one_query(fdr, logs):
     assert rig.query_extractions == 1
 
 
+@pytest.mark.parametrize(
+    "raised",
+    [InvalidInputError("tile_gsd_m", "would scale the frame too far"), SystemExit("gave up")],
+    ids=["bad-gsd", "a-plugins-SystemExit"],
+)
 def test_a_gsd_the_frame_cannot_be_prepared_at_drops_only_its_candidates(
-    fdr, logs, monkeypatch: pytest.MonkeyPatch
+    fdr, logs, monkeypatch: pytest.MonkeyPatch, raised: BaseException
 ):
     """Drop and continue: the candidate of a GSD the query fails at (a GSD mistyped in other
-    units, say) is dropped with phase ``query_extract``; the others are matched."""
+    units, say, or the backend's ``SystemExit`` at that scale) is dropped with phase
+    ``query_extract``; the others are matched."""
     from c3_matcher.stages import scales
 
     real = scales.prepare_query
 
     def fails_at_the_coarse_gsd(*args: Any, **kwargs: Any) -> Any:
         if args[4] > 1.5 * rig.rerank.candidates[0].ground_sample_distance_m():
-            raise InvalidInputError("tile_gsd_m", "would scale the frame too far")
+            raise raised
         return real(*args, **kwargs)
 
     monkeypatch.setattr(scales, "prepare_query", fails_at_the_coarse_gsd)

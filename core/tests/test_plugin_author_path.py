@@ -273,3 +273,32 @@ def test_an_options_method_that_fails_at_start_up_is_named_with_its_plugin(
         "strategy 'mine' (distribution dist-mine) failed to start: "
         "RuntimeError: options method broke"
     )
+
+
+class _NoProvenance(OpenCvBackend):
+    """A working AKAZE backend whose provenance cannot be read (a licence server down...)."""
+
+    def provenance(self) -> dict[str, Any]:
+        raise RuntimeError("provenance service down")
+
+
+def test_a_provenance_that_fails_at_start_up_does_not_stop_the_strategy(tmp_path: Any) -> None:
+    """Start-up reads the backend's provenance for the provider it logs: read as every frame's
+    record reads it, a failure there is the runtime's provider, not a bare error."""
+    from c3_matcher.compose import compose_root
+    from c3_matcher.config import C3Settings
+    from c3_matcher.testing import fake_helpers
+
+    def make(config: Any, options: Any) -> FeatureBackend:
+        return _NoProvenance(cv2.AKAZE_create(), cv2.NORM_HAMMING, "akaze_bf")
+
+    spec = c3.StrategySpec("mine", c3.backend_strategy_factory(make))
+    host = c3.PluginHost(RESEARCH, [_plugin("mine", lambda: [spec])])
+    settings = C3Settings(matcher={"strategy": "mine"}, fdr={"path": tmp_path / "fdr.jsonl"})
+    root = compose_root(settings, fake_helpers(), plugin_host=host, configure_logs=False)
+    try:
+        assert root.matcher.provenance() == {  # type: ignore[attr-defined]
+            "provenance_error": "provenance() raised RuntimeError: provenance service down"
+        }
+    finally:
+        root.close()

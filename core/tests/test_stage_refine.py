@@ -8,6 +8,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+import pytest
 
 from c3_matcher.dto import CandidateMatchSet, TileId
 from c3_matcher.preprocess import FramePreprocessor
@@ -35,11 +36,13 @@ class Reports:
     def __init__(self) -> None:
         self.failed: list[str] = []
 
-    def refine_failed(self, tile_id: Any, exc: Exception) -> None:
+    def refine_failed(self, tile_id: Any, exc: BaseException) -> None:
         self.failed.append(str(exc))
 
 
-def _setup(fail_extract: bool = False) -> tuple[FakeBackend, FramePreprocessor, Query]:
+def _setup(
+    fail_extract: bool = False, raised: BaseException | None = None
+) -> tuple[FakeBackend, FramePreprocessor, Query]:
     backend = FakeBackend(FakeInferenceRuntime(), FakeLightGlueRuntime())
     pre = FramePreprocessor(backend.input_rule)
     rerank = make_rerank(FRAME.frame_id, [ScriptedCandidate()])
@@ -48,7 +51,7 @@ def _setup(fail_extract: bool = False) -> tuple[FakeBackend, FramePreprocessor, 
     if fail_extract:
 
         def broken(image: Any) -> Any:
-            raise RuntimeError("extractor down")
+            raise raised or RuntimeError("extractor down")
 
         backend.extract = broken  # type: ignore[method-assign]
     return backend, pre, query
@@ -107,6 +110,19 @@ def test_a_failure_or_no_footprint_leaves_the_first_pass():
     away = np.array([[1.0, 0.0, 1e6], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     _, record, _ = _run(*_setup(), _first(working, pre, away))
     assert record.reason == NO_FOOTPRINT and record.inliers_after == 0
+
+
+def test_a_plugins_system_exit_leaves_the_first_pass_and_ctrl_c_goes_on():
+    """The pass is a plugin's step like any other: its ``SystemExit`` fails the pass, not the
+    frame; Ctrl-C stops the caller."""
+    working = FakeBackend(FakeInferenceRuntime(), FakeLightGlueRuntime())
+    backend, pre, query = _setup(fail_extract=True, raised=SystemExit("backend gave up"))
+    first = _first(working, pre, np.eye(3))
+    survivors, record, _ = _run(backend, pre, query, first)
+    assert survivors == [first] and record.reason == "SystemExit: backend gave up"
+    backend, pre, query = _setup(fail_extract=True, raised=KeyboardInterrupt())
+    with pytest.raises(KeyboardInterrupt):
+        _run(backend, pre, query, _first(working, pre, np.eye(3)))
 
 
 def test_without_a_homography_there_is_no_pass():

@@ -296,7 +296,7 @@ def _create_strategy(
             raise StrategyStartupError(name, plugin, str(exc)) from None
         check_inliers_reachable(config, matcher.backend)
         engine_startup_probe(matcher.backend)
-        provider = str(matcher.backend.provenance().get("provider", provider))
+        provider = str(matcher.provenance().get("provider", provider))  # never raises
     _log_ready(config, host, provider)
     return matcher, health
 

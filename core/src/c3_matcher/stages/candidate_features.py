@@ -21,6 +21,7 @@ from c3_matcher.protocols import FeatureBackend, StoredFeaturesBackend, StoredFe
 from c3_matcher.stages.extract import checked_features, extract_checked
 from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.outcomes import TileFeatures
+from c3_matcher.stages.provenance import read_provenance
 from c3_matcher.stages.recorder import FrameRecorder
 from c3_matcher.tile_cache import CachedTile, TileFeatureCache, tile_cache_key
 from c3_matcher.tile_limit import decode_within
@@ -44,7 +45,7 @@ def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureR
     sha, budget, rule = backend.extractor_sha256, backend.max_keypoints, backend.input_rule
     if not isinstance(sha, str) or not sha or not isinstance(budget, int) or budget < 1:
         return None
-    provider = str(backend.provenance().get("provider") or "")
+    provider = str(read_provenance(backend).get("provider") or "")  # it may fail: none
     return FeatureRequest(
         sha,
         rule.multiple,

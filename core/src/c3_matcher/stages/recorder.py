@@ -225,7 +225,7 @@ class FrameRecorder:
         """The candidates dropped so far, in input order."""
         return [self._drops[index] for index in sorted(self._drops)]
 
-    def refine_failed(self, tile_id: Any, exc: Exception) -> None:
+    def refine_failed(self, tile_id: Any, exc: BaseException) -> None:
         log_event(
             "WARNING",
             "c3.matcher.refine_failed",

@@ -13,6 +13,7 @@ from dataclasses import replace
 
 from c3_matcher.dto import CameraCalibration, NavCameraFrame, ranking_key
 from c3_matcher.errors import describe
+from c3_matcher.plugins.isolation import is_failure
 from c3_matcher.prepared import correspondences
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
@@ -58,7 +59,9 @@ class RefinePass:
         try:
             with timed(first.timings, "refine"):
                 verdict = self._second_pass(frame, calibration, scale, first)
-        except Exception as exc:  # the first pass stands; the failure is on record
+        except BaseException as exc:  # the first pass stands (a plugin's SystemExit too)
+            if not is_failure(exc):  # Ctrl-C goes on
+                raise
             recorder.refine_failed(first.match_set.tile_id, exc)
             return list(survivors), replace(record, reason=describe(exc))
         if verdict is None:

@@ -15,6 +15,7 @@ from types import MappingProxyType
 
 from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration, NavCameraFrame, RerankCandidate
+from c3_matcher.plugins.isolation import is_failure
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
 from c3_matcher.stages.outcomes import Survivor
@@ -40,7 +41,7 @@ class FrameScales:
     be prepared at (``failed``: input index -> the exception)."""
 
     scales: tuple[QueryScale, ...]
-    failed: Mapping[int, Exception] = field(default_factory=lambda: MappingProxyType({}))
+    failed: Mapping[int, BaseException] = field(default_factory=lambda: MappingProxyType({}))
 
     def of(self, index: int) -> QueryScale:
         """The query and verifier candidate ``index`` is matched against (not one failed)."""
@@ -79,7 +80,7 @@ def prepare_scales(
     ``verification``, with that query's prior) once per GSD of ``candidates``; raises the
     first GSD's exception when none could be prepared."""
     scales: list[QueryScale] = []
-    failed: dict[int, Exception] = {}
+    failed: dict[int, BaseException] = {}
     for group in gsd_groups(candidates):
         try:
             query = prepare_query(
@@ -91,7 +92,9 @@ def prepare_scales(
                 rotation_search=rotation_search,
                 timings=timings,
             )
-        except Exception as exc:
+        except BaseException as exc:  # that scale's candidates fail (a plugin's SystemExit too)
+            if not is_failure(exc):  # Ctrl-C goes on
+                raise
             failed |= dict.fromkeys(group.members, exc)
             continue
         scales.append(QueryScale(query, verification.verifier(query.image), group.members))
