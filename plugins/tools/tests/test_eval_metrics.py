@@ -10,6 +10,7 @@ import pytest
 
 from c3_matcher_tools.evaluate import WRONG_FIX_PX, is_wrong_fix, metrics
 from c3_matcher_tools.run import FrameOutcome, figure, summarize
+from c3_matcher_tools.run.acceptance import IT03_BAR_PX
 from c3_matcher_tools.run.records import FrameStatus
 from c3_matcher_tools.testing.outcomes import frame_outcome
 
@@ -19,6 +20,7 @@ from c3_matcher_tools.testing.outcomes import frame_outcome
     [
         (frame_outcome(0), False),
         (frame_outcome(0, correct=False, error_px=3.0), False),  # overlapping pick, right place
+        (frame_outcome(0, correct=False, error_px=9.5), False),  # just within the bound
         (frame_outcome(0, correct=False, error_px=WRONG_FIX_PX + 0.1), True),
         (
             frame_outcome(0, correct=False, error_px=math.nan),
@@ -32,6 +34,10 @@ def test_a_pick_is_wrong_when_its_inliers_miss_ground_truth(
     outcome: FrameOutcome, wrong: bool
 ) -> None:
     assert is_wrong_fix(outcome) is wrong
+
+
+def test_the_wrong_fix_bound_is_four_times_the_it03_bar() -> None:
+    assert WRONG_FIX_PX == 4 * IT03_BAR_PX == 10.0
 
 
 def test_metrics_count_wrong_fixes_and_right_fixes_on_another_tile_apart() -> None:
