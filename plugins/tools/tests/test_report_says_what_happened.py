@@ -188,8 +188,11 @@ def test_each_map_feature_says_its_verdict(demo: FlightDataset) -> None:
     assert said[("estimate", 7)] == "matched"
 
 
-def _settings_page(demo: FlightDataset, out: Path, engines: dict[str, Any]) -> str:
-    """report.html written as a run writes it, the run's provenance naming ``engines``."""
+def _settings_page(
+    demo: FlightDataset, out: Path, lightglue: dict[str, Any], ran: dict[str, Any] | None = None
+) -> str:
+    """report.html written as a run writes it: the ``[lightglue]`` settings the run read
+    (``lightglue_settings``, none where its strategy reads none) and its provenance ``ran``."""
     report = {
         "settings": {
             "min_inliers_threshold": 60,
@@ -199,8 +202,8 @@ def _settings_page(demo: FlightDataset, out: Path, engines: dict[str, Any]) -> s
             "options": {},
         },
         "keypoint_budget": 4096,
-        "lightglue_settings": {"mode": "auto", "depth_confidence": None},
-        "provenance": {"engines": engines},
+        "lightglue_settings": lightglue,
+        "provenance": {"engines": {"extractor": {}}} if ran is None else ran,
         "matcher_labels": [],
     }
     mp = pytest.MonkeyPatch()
@@ -211,30 +214,49 @@ def _settings_page(demo: FlightDataset, out: Path, engines: dict[str, Any]) -> s
     finally:
         mp.undo()
     text = (out / "report.html").read_text()
-    return text[text.index("<h3>") :]
+    return text[text.index("<h2>Settings and provenance</h2>") :]
+
+
+def _table(page: str) -> dict[str, str]:
+    return dict(re.findall(r"<tr><th>([^<]*)</th><td>([^<]*)</td></tr>", page))
 
 
 def test_the_settings_read_in_the_product_s_words(demo: FlightDataset, tmp_path: Path) -> None:
-    table = _settings_page(demo, tmp_path, {"extractor": {}})
-    rows = dict(re.findall(r"<tr><th>([^<]*)</th><td>([^<]*)</td></tr>", table))
+    table = _settings_page(demo, tmp_path, {})
+    rows = _table(table)
     assert rows["max_keypoints"] == "unset (strategy default: 4096)"
     assert rows["stored_features"] == "on" and rows["geometric_prior"] == "off"
     assert rows["options"] == "none"
     assert "None" not in rows.values() and "True" not in rows.values()
-    # XFeat with mutual nearest neighbours (as the SIFT baseline) runs no LightGlue
+    # XFeat with mutual nearest neighbours (as the SIFT baseline) reads no [lightglue] setting
     assert not any(k.startswith("lightglue.") for k in rows)
     assert "<h3>[matcher] settings</h3>" in table
 
 
-@pytest.mark.parametrize("role", ["lightglue", "lighterglue"])
-def test_a_strategy_that_runs_lightglue_shows_its_settings(
-    demo: FlightDataset, tmp_path: Path, role: str
+LIGHTGLUE_READ = {"mode": "auto", "depth_confidence": None}
+
+
+def test_a_strategy_that_reads_lightglue_shows_its_settings(
+    demo: FlightDataset, tmp_path: Path
 ) -> None:
-    table = _settings_page(demo, tmp_path, {"extractor": {}, role: {}})
-    rows = dict(re.findall(r"<tr><th>([^<]*)</th><td>([^<]*)</td></tr>", table))
+    table = _settings_page(demo, tmp_path, LIGHTGLUE_READ)
+    rows = _table(table)
     assert rows["lightglue.mode"] == "auto"
     assert rows["lightglue.depth_confidence"] == "unset (strategy default)"
     assert "<h3>[matcher] and [lightglue] settings</h3>" in table
+
+
+def test_a_provenance_that_could_not_be_read_is_said_and_hides_no_setting(
+    demo: FlightDataset, tmp_path: Path
+) -> None:
+    """The backend's provenance failed: the page says so (it showed "-" for the provider and
+    nothing else), and the [lightglue] settings the run read are still shown (they were taken
+    from the provenance's engines, which it no longer had)."""
+    why = "provenance() raised RuntimeError: provenance unavailable"
+    text = _settings_page(demo, tmp_path, LIGHTGLUE_READ, {"provenance_error": why})
+    rows = _table(text)
+    assert rows["provenance error"] == why
+    assert rows["lightglue.mode"] == "auto"
 
 
 def test_the_page_says_the_noise_put_on_the_attitudes(demo: FlightDataset, tmp_path: Path) -> None:

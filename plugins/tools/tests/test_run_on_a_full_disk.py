@@ -147,7 +147,7 @@ def test_a_replay_whose_disk_is_too_full_for_run_json_says_it_still_says_running
     run leaves), and stderr says so rather than leaving it to be read as a kill."""
     monkeypatch.setattr(c3_matcher_tools.run.outputs, "write_results", _no_room)
 
-    def unmarkable(directory: Path, failed: str | None = None) -> None:
+    def unmarkable(directory: Path, failed: str | None = None, **_: object) -> None:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(directory / RUN_MARK))
 
     monkeypatch.setattr(c3_matcher_tools.run.run_mark, "mark_ended", unmarkable)

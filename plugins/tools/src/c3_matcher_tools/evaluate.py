@@ -122,7 +122,8 @@ from c3_matcher_tools.dataset.format import FlightDataset, load_dataset
 from c3_matcher_tools.dataset.lock import reading_dataset
 from c3_matcher_tools.dataset.progress import ProgressBar
 from c3_matcher_tools.dataset.provenance import say_import_faults
-from c3_matcher_tools.eval_tables import print_flight_table, print_summary_table, say_dropped
+from c3_matcher_tools.eval_end import EvalRun
+from c3_matcher_tools.eval_tables import print_flight_table, say_dropped
 from c3_matcher_tools.features.command import given_settings
 from c3_matcher_tools.run import (
     EVAL_OUT,
@@ -148,7 +149,6 @@ from c3_matcher_tools.run.evaluation import (
     StrategyStopped,
     SummaryRow,
     WritingStopped,
-    ended_status,
     strict_json,
     was_stopped,
     write_strategy_files,
@@ -164,7 +164,7 @@ from c3_matcher_tools.run.outputs import (
     summary_above,
     write_summary,
 )
-from c3_matcher_tools.run.run_mark import mark_ended, mark_failed
+from c3_matcher_tools.run.run_mark import mark_each_ended
 
 __all__ = [
     "BARS",
@@ -308,26 +308,17 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         for summarised in held:  # written again as the run ends
             forget_previous_run(summarised, (EVAL_SUMMARY,))
         _forget_earlier_reports(outs, names)  # every flight's, before the first runs
+        run = EvalRun(several=root is not None)
         try:
-            summary, reports, refused = _eval_datasets(args, ctx, datasets, outs, names, noted)
-            summary_rows = strict_json([s.to_json() for s in summary])
-            if (said := write_summary(summary_rows, root, above, datasets[0].name)) is not None:
+            _eval_datasets(args, ctx, datasets, outs, names, noted, run)
+            rows = run.summary_rows()
+            if (said := write_summary(rows, root, above, datasets[0].name)) is not None:
                 ctx.err(f"c3-matcher eval: {said}")
-        except OSError as exc:  # a full disk: each run says it ended, failed, and why
-            for out in outs:
-                mark_failed(out, exc, lambda line: ctx.err(f"c3-matcher eval: {line}"))
+        except OSError as exc:  # a full disk (or the reader gone): each run marked as it ended
+            run.ended_by(exc, ctx, outs, names, as_json=args.json)
             raise
-        for out in outs:
-            mark_ended(out, failed=refused.get(out))
-    if args.json:
-        document = _json_document(reports, summary_rows, several=root is not None)
-        ctx.out(json.dumps(strict_json(document), indent=2))
-    else:
-        print_summary_table(ctx, summary)
-    if not reports[-1]["complete"]:
-        stopped = next(s for s in summary if s.stopped)
-        return _said_stopped(ctx, noted[-1], stopped, outs[len(reports) - 1])
-    return ended_status(summary, refused.values(), lambda line: ctx.err(f"c3-matcher eval: {line}"))
+        mark_each_ended(outs, EVAL_RUN, run.say(ctx), run.refused)
+    return run.finish(ctx, outs, noted, as_json=args.json)
 
 
 def _eval_datasets(
@@ -337,42 +328,20 @@ def _eval_datasets(
     outs: Sequence[Path],
     names: list[str],
     noted: Sequence[int],
-) -> tuple[list[SummaryRow], list[dict[str, Any]], dict[Path, str | None]]:
+    run: EvalRun,
+) -> None:
     """Each of ``datasets`` through every strategy, into its directory of ``outs``, until a
-    stop: the summary's rows (those a stop came before, not run), each dataset's report, and
-    by directory the write a full disk refused (None: none)."""
-    summary: list[SummaryRow] = []
-    reports: list[dict[str, Any]] = []
-    refused: dict[Path, str | None] = {}
+    stop, ``run`` saying what was done as it goes."""
     for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
+        run.started.append(out)
         rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)
-        refused[out] = StrategyFailure.unwritten_of(rows)
-        reports.append(report)
-        summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
+        run.refused[out] = StrategyFailure.unwritten_of(rows)
+        run.reports.append(report)
+        run.summary.extend(SummaryRow.of(dataset.name, r) for r in rows)
         if not report["complete"]:
-            summary.extend(SummaryRow.not_run([d.name for d in datasets[n + 1 :]], names))
+            run.summary.extend(SummaryRow.not_run([d.name for d in datasets[n + 1 :]], names))
             forget_not_reached(out, rows, report["not_run"], outs[n + 1 :], names)
             break
-    return summary, reports, refused
-
-
-def _said_stopped(ctx: CommandContext, signum: int, last: SummaryRow, out: Path) -> int:
-    """The line that says where Ctrl-C (130) or SIGTERM (143) stopped the evaluation."""
-    word = "terminated" if signum == signal.SIGTERM else "interrupted"
-    ctx.err(
-        f"c3-matcher: {word} during {last.strategy} on {last.flight}: {out / EVAL_RUN.report} "
-        "holds the strategies that finished and names those not run"
-    )
-    return 128 + signum
-
-
-def _json_document(
-    reports: Sequence[dict[str, Any]], summary: Sequence[dict[str, Any]], *, several: bool
-) -> dict[str, Any]:
-    """What ``--json`` prints, one document: the one dataset's ``eval.json``, or for several
-    (even when a stop came before the second) ``{"flights": [each one's eval.json, in order],
-    "summary": summary.json's rows}``."""
-    return {"flights": list(reports), "summary": list(summary)} if several else reports[0]
 
 
 def _strategies(args: argparse.Namespace, host: PluginHost) -> list[str]:

@@ -103,7 +103,13 @@ from c3_matcher_tools.run.outputs import (
 )
 from c3_matcher_tools.run.records import FrameStatus
 from c3_matcher_tools.run.results_file import RESULTS_FILE, kept_frames, partial_results
-from c3_matcher_tools.run.run_mark import RUN_MARK, mark_ended, mark_failed, mark_stopped
+from c3_matcher_tools.run.run_mark import (
+    RUN_MARK,
+    mark_ended,
+    mark_stopped,
+    refused_write,
+    say_ended,
+)
 from c3_matcher_tools.run.scoring import (
     attitude_noise_words,
     dropped_lines,
@@ -228,7 +234,7 @@ def _write_and_say(
         write_text_atomically(out / REPLAY_RUN.report, json.dumps(report, indent=2) + "\n")
         mark_ended(out)  # its files are written: the run is no longer in progress
     except OSError as exc:  # the run ended: it says so, and what it wrote
-        mark_failed(out, exc, lambda line: ctx.err(f"c3-matcher replay: {line}"))
+        say_ended(out, lambda line: ctx.err(f"c3-matcher replay: {line}"), refused_write(exc, out))
         _say(ctx, as_json, dataset, run, out, {**report, **_files_there(out)}, features, given)
         raise
     written.extend(out / name for name in RUN_FILES)

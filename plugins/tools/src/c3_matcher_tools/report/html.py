@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import html
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,18 +37,7 @@ from c3_matcher_tools.run.scoring import (
     summarize,
 )
 
-__all__ = ["LIGHTGLUE_ROLES", "runs_lightglue", "write_report"]
-
-LIGHTGLUE_ROLES = frozenset({"lightglue", "lighterglue"})
-"""The roles a LightGlue-family pair matcher's engine has in a run's provenance ``engines``
-(:class:`c3_matcher.strategy.pairs.LightGluePairMatcher`'s own, XFeat's LighterGlue)."""
-
-
-def runs_lightglue(provenance: Mapping[str, Any]) -> bool:
-    """Whether a run (its provenance) matched its pairs with a LightGlue-family engine, so
-    that its ``[lightglue]`` settings applied: not the SIFT baseline, nor XFeat with mutual
-    nearest neighbours."""
-    return bool(LIGHTGLUE_ROLES & set(provenance.get("engines") or {}))
+__all__ = ["write_report"]
 
 
 def _verdict(o: FrameOutcome) -> str:
@@ -278,8 +267,8 @@ class _Page:
 
     @property
     def settings_heading(self) -> str:
-        """The settings table's heading: ``[lightglue]`` among it only where the strategy ran
-        LightGlue (:func:`runs_lightglue`: the caller leaves the rows out otherwise)."""
+        """The settings table's heading: ``[lightglue]`` among it only where the strategy reads
+        those settings (the run's report leaves them out otherwise)."""
         lightglue = any(k.startswith("lightglue.") for k in self.settings)
         return "[matcher] and [lightglue] settings" if lightglue else "[matcher] settings"
 

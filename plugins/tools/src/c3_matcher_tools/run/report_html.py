@@ -45,12 +45,12 @@ def write_html_report(
         if say:
             print(why, file=sys.stderr)
         return None
-    from c3_matcher_tools.report.html import runs_lightglue, write_report
+    from c3_matcher_tools.report.html import write_report
 
     shown_apart = ("settings", "lightglue_settings", "provenance")
     summary = {k: v for k, v in report.items() if k not in shown_apart}
     ran = report.get("provenance") or {}  # FlightRun.provenance, as flight_report gives it
-    lightglue = (report.get("lightglue_settings") or {}) if runs_lightglue(ran) else {}
+    lightglue = report.get("lightglue_settings") or {}  # none where the strategy reads none
     settings = {**report["settings"], **{f"lightglue.{k}": v for k, v in lightglue.items()}}
     provenance = {
         "dataset": str(dataset.root),
@@ -62,6 +62,8 @@ def write_html_report(
         "engines": json.dumps(ran.get("engines", {})),
         "made by": json.dumps(dataset.meta.get("spec", dataset.meta.get("import", {}))),
     }
+    if "provenance_error" in ran:  # the backend's provenance could not be read: said so
+        provenance["provenance error"] = str(ran["provenance_error"])
     path = write_report(
         out / "report.html",
         dataset,

@@ -7,7 +7,8 @@ ended, failed or stopped part-way; and how a run's small JSON files are read bac
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -22,12 +23,14 @@ if TYPE_CHECKING:
 __all__ = [
     "RUN_MARK",
     "RunLayout",
+    "mark_each_ended",
     "mark_ended",
-    "mark_failed",
     "mark_stopped",
     "marked_by",
+    "refused_write",
     "run_json_file",
     "run_mark",
+    "say_ended",
 ]
 
 RUN_MARK = "run.json"
@@ -81,26 +84,61 @@ def run_mark(
     return {**layout.mark, **where, **({} if strategy is None else {"strategy": strategy})}
 
 
-def mark_ended(directory: Path, failed: str | None = None) -> None:
+def mark_ended(directory: Path, failed: str | None = None, *, complete: bool = True) -> None:
     """``directory``'s :data:`RUN_MARK` rewritten without ``running``: the run ended, its
-    files written; or, with ``failed`` (why, as ``"failed"``), ended with some not written."""
+    files written; or, with ``failed`` (why, as ``"failed"``), ended with some not written;
+    ``complete`` False, stopped before all of it ran there (``"complete": false``)."""
     mark = run_json_file(directory / RUN_MARK)
     if isinstance(mark, dict) and "running" in mark:
         ended = {k: v for k, v in mark.items() if k != "running"}
         ended |= {} if failed is None else {"failed": failed}
+        ended |= {} if complete else {"complete": False}
         write_text_atomically(directory / RUN_MARK, json.dumps(ended) + "\n")
 
 
-def mark_failed(directory: Path, refused: OSError, say: Callable[[str], None]) -> None:
-    """``directory``'s run marked ended, failed: ``refused``, the write a full disk refused,
-    named as the ``"failed"`` of its :data:`RUN_MARK`. A disk too full even for that leaves it
-    saying ``running`` (what a killed run leaves), and ``say``-s so rather than leave it to be
-    read as a kill."""
+def refused_write(refused: OSError, directory: Path) -> str:
+    """What a run's ``"failed"`` says of ``refused``, a write a full disk refused: its file
+    (else ``directory``) and why."""
+    return f"{refused.filename or directory}: {refused.strerror or refused}"
+
+
+def say_ended(
+    directory: Path, say: Callable[[str], None], failed: str | None = None, complete: bool = True
+) -> None:
+    """:func:`mark_ended`, where a disk too full even for that leaves the mark saying
+    ``running`` (what a killed run leaves): ``say``-s so rather than leave it to be read as a
+    kill."""
     try:
-        why = f"{refused.filename or directory}: {refused.strerror or refused}"
-        mark_ended(directory, failed=why)
+        mark_ended(directory, failed, complete=complete)
     except OSError as unmarked:
         say(f"{directory / RUN_MARK} still says running: {unmarked}")
+
+
+def mark_each_ended(
+    directories: Sequence[Path],
+    layout: RunLayout,
+    say: Callable[[str], None],
+    refused: Mapping[Path, str | None],
+    failure: OSError | None = None,
+) -> None:
+    """Each of a run's ``directories`` (one a flight) marked ended (:func:`say_ended`, each
+    apart): complete where its own ``layout.report`` was written and says so, not where the
+    run stopped in it or before it; failed where ``refused`` names a write a full disk refused
+    there, or where the ``failure`` that ended the run was a write of a file in it."""
+    for directory in directories:
+        report = run_json_file(directory / layout.report)
+        complete = isinstance(report, dict) and report.get("complete") is True
+        failed = refused.get(directory)
+        if failure is not None and _lies_in(failure.filename, directory):
+            failed = refused_write(failure, directory)
+        say_ended(directory, say, failed, complete)
+
+
+def _lies_in(filename: object, directory: Path) -> bool:
+    """Whether the file ``filename`` (an OSError's, None for none) lies below ``directory``."""
+    if not isinstance(filename, str | bytes):
+        return False
+    return Path(directory).absolute() in Path(os.fsdecode(filename)).absolute().parents
 
 
 def mark_stopped(layout: RunLayout, directory: Path, run: FlightRun) -> Path:
