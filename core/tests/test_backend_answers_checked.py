@@ -1,13 +1,15 @@
 """What a backend's ``extract`` and ``match`` return is checked before the core uses or caches
 it: an extraction with more keypoints than the backend's budget (its ``max_keypoints``, else
-the core's ceiling) is refused naming both; a tile whose descriptors differ from the query's in
-dtype or width fails the backend's extract phase naming both arrays and the backbone, before
-``match``; a match that returns anything but ``RawMatches`` is named so; a refused or unmatched
-tile leaves the tile cache. The kit's doubles, made to misbehave."""
+the core's ceiling) keeps its best by score, said once per matcher; a tile whose descriptors
+differ from the query's in dtype or width fails the backend's extract phase naming both arrays
+and the backbone, before ``match`` (an image without keypoints fits any); a match that returns
+anything but ``RawMatches`` is named so; a refused or unmatched tile leaves the tile cache. The
+kit's doubles, made to misbehave."""
 
 from __future__ import annotations
 
-import dataclasses
+import io
+import json
 import uuid
 from typing import Any
 
@@ -15,13 +17,20 @@ import numpy as np
 import pytest
 
 from c3_matcher.dto import TileId
-from c3_matcher.errors import InsufficientInliersError, InvalidInputError, MatcherBackboneError
+from c3_matcher.errors import InvalidInputError
 from c3_matcher.features import Features, RawMatches
+from c3_matcher.logs import configure_logging
 from c3_matcher.pipeline import PipelineSettings
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.stages.candidate_features import CandidateFeatures
-from c3_matcher.stages.extract import KEYPOINT_CEILING, extract_checked, extraction_budget
+from c3_matcher.stages.extract import (
+    KEYPOINT_CEILING,
+    KEYPOINTS_CUT,
+    cut_to_budget,
+    extract_checked,
+    extraction_budget,
+)
 from c3_matcher.stages.failure import CandidateStepError
 from c3_matcher.stages.matching import check_descriptors_fit
 from c3_matcher.stages.outcomes import TileFeatures
@@ -102,11 +111,16 @@ def test_descriptors_unlike_the_querys_are_refused_naming_both(width: int, dtype
     assert refused.value.reason.startswith(f"{said}float32 (backbone disk_lightglue)")
 
 
-def test_descriptors_of_one_dtype_and_width_fit_with_or_without_keypoints() -> None:
+def test_descriptors_of_one_dtype_and_width_fit_and_an_empty_side_fits_any() -> None:
+    """Nothing of an image without keypoints is compared: its descriptors fit whatever their
+    width and dtype ((0, 0), or an OpenCV detector's fixed (0, 61) against ORB's 32 bytes)."""
     check_descriptors_fit(_features(5, 8), _features(3, 8), "x")
     check_descriptors_fit(_features(5, 32, np.uint8), _features(0, 32, np.uint8), "x")
-    with pytest.raises(InvalidInputError):  # an empty tile still has its descriptors' width
-        check_descriptors_fit(_features(5, 32, np.uint8), _features(0, 0, np.float32), "x")
+    for empty in (_features(0, 0, np.float32), _features(0, 61, np.uint8), _features(0, 0)):
+        check_descriptors_fit(_features(5, 32, np.uint8), empty, "x")
+        check_descriptors_fit(empty, _features(5, 32, np.uint8), "x")
+    with pytest.raises(InvalidInputError):  # with keypoints, the width still counts
+        check_descriptors_fit(_features(5, 32, np.uint8), _features(1, 61, np.uint8), "x")
 
 
 def test_a_tile_unlike_the_query_fails_the_extract_phase_before_match_and_is_forgotten() -> None:
@@ -186,29 +200,44 @@ class Many(FakeBackend):
         return Features(xy.astype(np.float32), zeros, np.ones(self.n, np.float32), (w, h))
 
 
-def test_an_extraction_over_the_declared_budget_is_refused_naming_count_and_budget() -> None:
-    backend = _backend(Budgeted)
-    assert len(extract_checked(backend, _image(64))) == 8  # at the budget: taken
-    backend.max_keypoints = 7  # type: ignore[attr-defined]
-    with pytest.raises(InvalidInputError) as refused:
-        extract_checked(backend, _image(64))
-    assert refused.value.field == "features.keypoints"
-    assert refused.value.reason == (
-        "8 keypoints on the 64x64 px image, more than the 7 backbone fake_backend declares "
-        "(max_keypoints)"
-    )
+class Scored(Budgeted):
+    """A Budgeted whose 8 keypoints have the scores ``SCORES`` (ties included) and descriptors
+    that name each keypoint (its index)."""
+
+    def extract(self, image: PreparedImage) -> Features:
+        f = super().extract(image)
+        named = np.repeat(np.arange(len(f), dtype=np.float32)[:, None], 4, axis=1)
+        return Features(f.keypoints, named, SCORES[: len(f)], f.image_size)
 
 
-def test_a_backend_without_a_budget_is_held_to_the_core_ceiling() -> None:
+SCORES = np.array([0.5, 0.9, 0.1, 0.9, 0.3, 0.5, 0.7, 0.5], np.float32)
+
+
+@pytest.mark.parametrize(
+    ("budget", "kept"),
+    [(8, range(8)), (7, [0, 1, 3, 4, 5, 6, 7]), (5, [0, 1, 3, 5, 6]), (2, [1, 3]), (1, [1])],
+)
+def test_an_extraction_over_the_budget_keeps_its_best_by_score(budget: int, kept: Any) -> None:
+    """Descending score, a tie to the earlier keypoint (0.5 at 0, 5 and 7: 0 and 5 kept of
+    five), kept in the backend's order, each keypoint with its own descriptor and score."""
+    backend = _backend(Scored)
+    backend.max_keypoints = budget  # type: ignore[attr-defined]
+    whole = backend.extract(_image(64))
+    cut = extract_checked(backend, _image(64))
+    assert cut.descriptors[:, 0].tolist() == list(kept)
+    assert np.array_equal(cut.keypoints, whole.keypoints[list(kept)])
+    assert np.array_equal(cut.keypoint_scores, SCORES[list(kept)])
+    assert cut.image_size == whole.image_size
+    assert cut_to_budget(whole, budget).descriptors[:, 0].tolist() == list(kept)
+
+
+def test_a_backend_without_a_budget_is_cut_to_the_core_ceiling() -> None:
     backend = _backend(Many)
     assert len(extract_checked(backend, _image(256))) == KEYPOINT_CEILING
     backend.n = KEYPOINT_CEILING + 1  # type: ignore[attr-defined]
-    with pytest.raises(InvalidInputError) as refused:
-        extract_checked(backend, _image(256))
-    assert refused.value.reason.startswith(
-        f"{KEYPOINT_CEILING + 1} keypoints on the 256x256 px image, more than the core's "
-        f"ceiling of {KEYPOINT_CEILING} for a backbone that declares no keypoint budget"
-    )
+    cut = extract_checked(backend, _image(256))
+    assert len(cut) == KEYPOINT_CEILING  # all tied: the last one left out
+    assert np.array_equal(cut.keypoints, backend.extract(_image(256)).keypoints[:-1])
 
 
 @pytest.mark.parametrize("declared", [0, -5, True, "8", None, 8.0])
@@ -218,39 +247,32 @@ def test_a_declared_budget_that_is_no_positive_int_gives_the_ceiling(declared: A
     assert extraction_budget(backend)[0] == KEYPOINT_CEILING
 
 
-def test_over_budget_the_query_fails_its_frame_and_a_tile_drops_in_extract() -> None:
-    """In flight: a query over the budget is a backbone error of the frame's query extract; a
-    tile over it (the query within) drops that candidate in the backend's extract phase."""
-
-    class TilesOver(Budgeted):
-        def extract(self, image: PreparedImage) -> Features:
-            features = super().extract(image)
-            if image.calibration is not None:  # the query
-                return dataclasses.replace(
-                    features,
-                    keypoints=features.keypoints[:4].copy(),
-                    descriptors=features.descriptors[:4].copy(),
-                    keypoint_scores=features.keypoint_scores[:4].copy(),
-                )
-            return features
-
-    script = [ScriptedCandidate()]
+def test_over_budget_the_query_and_the_tiles_are_cut_and_said_once_per_matcher() -> None:
+    """In flight: a query and tiles over the budget are cut to it, not refused: the frames
+    find their fix, and one WARNING for the matcher (two frames, the query and every tile
+    over) names the backbone, the count and the budget; another matcher says it again."""
+    script = [ScriptedCandidate(), ScriptedCandidate(90)]
     frame, calibration = make_frame(uuid.UUID(int=3))
     rerank = make_rerank(frame.frame_id, script)
-    for cls, fails in ((Budgeted, MatcherBackboneError), (TilesOver, InsufficientInliersError)):
-        backend = cls(FakeInferenceRuntime(script), FakeLightGlueRuntime(script))
-        backend.max_keypoints = 5  # type: ignore[attr-defined]
-        fdr = InMemoryFdr()
-        matcher = scripted_pipeline(backend, FakeRansacFilter(script), fdr, PipelineSettings())
-        with pytest.raises(fails):
-            matcher.match(frame, rerank, calibration)
-        (record,) = fdr.of_kind("matcher.backbone_error")
-        phase = "query_extract" if cls is Budgeted else "disk_forward"
-        assert record["phase"] == phase
-        assert (
-            "8 keypoints on the" in record["error"]
-            and "more than the 5 backbone" in record["error"]
-        )
+    stream, fdr = io.StringIO(), InMemoryFdr()
+    handle = configure_logging(fdr, level="DEBUG", stream=stream)
+    try:
+        for _ in range(2):  # two matchers
+            backend = Budgeted(FakeInferenceRuntime(script), FakeLightGlueRuntime(script))
+            backend.max_keypoints = 5  # type: ignore[attr-defined]
+            matcher = scripted_pipeline(backend, FakeRansacFilter(script), fdr, PipelineSettings())
+            for _ in range(2):
+                assert matcher.match(frame, rerank, calibration).candidates_dropped == 0
+    finally:
+        handle.close()
+    records = [json.loads(line) for line in stream.getvalue().splitlines()]
+    cuts = [r for r in records if r["kind"] == KEYPOINTS_CUT]
+    assert [(r["level"], r["backbone"], r["keypoints"], r["budget"]) for r in cuts] == [
+        ("WARNING", "fake_backend", 8, 5)
+    ] * 2
+    said = "8 keypoints on a 64x64 px image, more than the 5 backbone fake_backend declares"
+    assert said in cuts[0]["message"]
+    assert fdr.of_kind("matcher.backbone_error") == []
 
 
 def test_the_refine_pass_names_a_match_that_returns_no_raw_matches() -> None:

@@ -35,7 +35,7 @@ class OpenCvBackend:
         self.label = label
         self._detector = detector
         self._bf = cv2.BFMatcher(norm, crossCheck=cross_check)
-        self._width = 61 if norm == cv2.NORM_HAMMING else 128
+        self._width = detector.descriptorSize()  # its empty answer as wide as the others
         self._dtype = np.uint8 if norm == cv2.NORM_HAMMING else np.float32
 
     def extract(self, image: PreparedImage) -> Features:
@@ -66,6 +66,11 @@ class TestAkazeBinaryContract(BackendContract):
 class TestSiftFloatContract(BackendContract):
     def make_backend(self) -> FeatureBackend:
         return OpenCvBackend(cv2.SIFT_create(500), cv2.NORM_L2, "sift_bf")
+
+
+class TestOrbContract(BackendContract):
+    def make_backend(self) -> FeatureBackend:
+        return OpenCvBackend(cv2.ORB_create(2000), cv2.NORM_HAMMING, "orb_bf")
 
 
 class RaisesOnBlank(OpenCvBackend):
@@ -130,6 +135,46 @@ def test_kit_fails_a_backend_that_breaks_the_contract(backend_class: type, check
     with pytest.raises((AssertionError, InvalidInputError, TypeError)):
         getattr(Broken(), check)()
     getattr(TestAkazeBinaryContract(), check)()  # the same check passes a correct backend
+
+
+class SiftOverBudget(OpenCvBackend):
+    """SIFT asked for 500 keypoints, declaring 500 its budget: OpenCV keeps the keypoints tied
+    with the 500th, so a textured image gives 501."""
+
+    max_keypoints = 500
+
+    def __init__(self) -> None:
+        super().__init__(cv2.SIFT_create(500), cv2.NORM_L2, "sift")
+
+
+class OrbEmptyUnsized(OpenCvBackend):
+    """ORB whose answer for an image without keypoints has descriptors (0, 0), not (0, 32)."""
+
+    def __init__(self) -> None:
+        super().__init__(cv2.ORB_create(2000), cv2.NORM_HAMMING, "orb")
+        self._width = 0
+
+
+def test_kit_names_what_flight_would_put_right_quietly() -> None:
+    """Flight cuts an extraction to its budget and matches an empty one with nothing; the kit
+    is stricter: a backend one keypoint over its ``max_keypoints``, or whose empty answer has
+    descriptors of another width, fails it, naming what to change."""
+
+    class Over(BackendContract):
+        def make_backend(self) -> FeatureBackend:
+            return SiftOverBudget()
+
+    class Unsized(BackendContract):
+        def make_backend(self) -> FeatureBackend:
+            return OrbEmptyUnsized()
+
+    with pytest.raises(AssertionError, match=r"501 keypoints on the kit's \d+x\d+ px image, more"):
+        Over().test_backend_keeps_to_its_keypoint_budget()
+    Over().test_backend_startup_probe_and_provenance()  # start-up passes it, as flight does
+    with pytest.raises(AssertionError, match=r"descriptors are \(0, 0\) uint8, a textured"):
+        Unsized().test_backend_blank_image_gives_no_error()
+    TestOrbContract().test_backend_blank_image_gives_no_error()  # (0, 32): it fits
+    TestOrbContract().test_backend_keeps_to_its_keypoint_budget()
 
 
 def test_features_keep_binary_descriptors_and_refuse_other_dtypes() -> None:

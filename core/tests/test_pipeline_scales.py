@@ -43,17 +43,46 @@ def test_candidates_sharing_a_gsd_share_one_query(fdr, logs):
     assert rig.query_extractions == 1
 
 
+class Abort(BaseException):
+    """A plugin's own ``BaseException``."""
+
+
 @pytest.mark.parametrize(
     "raised",
-    [InvalidInputError("tile_gsd_m", "would scale the frame too far"), SystemExit("gave up")],
-    ids=["bad-gsd", "a-plugins-SystemExit"],
+    [InvalidInputError("tile_gsd_m", "would scale the frame too far"), Abort("gave up")],
+    ids=["bad-gsd", "a-plugins-own-BaseException"],
 )
 def test_a_gsd_the_frame_cannot_be_prepared_at_drops_only_its_candidates(
     fdr, logs, monkeypatch: pytest.MonkeyPatch, raised: BaseException
 ):
     """Drop and continue: the candidate of a GSD the query fails at (a GSD mistyped in other
-    units, say, or the backend's ``SystemExit`` at that scale) is dropped with phase
+    units, say, or the backend's own ``BaseException`` at that scale) is dropped with phase
     ``query_extract``; the others are matched."""
+    rig = _failing_at_the_coarse_gsd(fdr, monkeypatch, raised)
+    result = rig.match()
+    assert result.diagnostics["input_index"] == [0, 2] and result.candidates_dropped == 1
+    (record,) = fdr.of_kind("matcher.backbone_error")
+    assert (record["phase"], record["candidate_index"]) == ("query_extract", 1)
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt(), SystemExit(143)], ids=["Ctrl-C", "sys.exit"])
+def test_a_stop_at_one_gsd_goes_on_to_the_caller(
+    fdr, logs, monkeypatch: pytest.MonkeyPatch, stop: BaseException
+):
+    """A stop (Ctrl-C, the host's ``sys.exit``) while the query is prepared at one GSD fails no
+    candidate: the frame's one health update and ``matcher.interrupted`` record, then the
+    stop reaches the caller."""
+    rig = _failing_at_the_coarse_gsd(fdr, monkeypatch, stop)
+    with pytest.raises(type(stop)):
+        rig.match()
+    assert [kind for kind, _ in fdr.records] == ["matcher.interrupted"]
+    assert rig.health.update_count == 1
+
+
+def _failing_at_the_coarse_gsd(
+    fdr: Any, monkeypatch: pytest.MonkeyPatch, raised: BaseException
+) -> ScriptedRig:
+    """A rig of candidates at two GSDs whose query raises ``raised`` at the coarse one."""
     from c3_matcher.stages import scales
 
     real = scales.prepare_query
@@ -66,10 +95,7 @@ def test_a_gsd_the_frame_cannot_be_prepared_at_drops_only_its_candidates(
     monkeypatch.setattr(scales, "prepare_query", fails_at_the_coarse_gsd)
     rig = ScriptedRig([S(120, 1.1), S(150, 1.0), S(80, 1.5)], fdr)
     _two_gsds(rig)
-    result = rig.match()
-    assert result.diagnostics["input_index"] == [0, 2] and result.candidates_dropped == 1
-    (record,) = fdr.of_kind("matcher.backbone_error")
-    assert (record["phase"], record["candidate_index"]) == ("query_extract", 1)
+    return rig
 
 
 def test_every_gsd_failing_is_the_query_failing(fdr, logs, monkeypatch: pytest.MonkeyPatch):

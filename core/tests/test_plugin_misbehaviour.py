@@ -1,8 +1,9 @@
 """A plugin that misbehaves in flight does not break the frame's contract: whatever its backend
-raises (``SystemExit`` and its own ``BaseException`` included) ends as the contract's error with
-the frame's terminal record and one health update; Ctrl-C still stops the caller, the frame
-recorded first unless the stop cut a write short; a ``provenance()`` that raises, returns no
-mapping or names the core's own record fields neither loses the frame nor changes its record."""
+raises (its own ``BaseException`` included) ends as the contract's error with the frame's
+terminal record and one health update; a stop (Ctrl-C, the host's ``sys.exit``) still reaches
+the caller after the frame's one health update and its record, none when the stop cut a write
+short; a ``provenance()`` that raises, returns no mapping or names the core's own record fields
+neither loses the frame nor changes its record."""
 
 from __future__ import annotations
 
@@ -77,7 +78,7 @@ def _terminal(fdr: InMemoryFdr) -> list[tuple[str, dict[str, Any]]]:
     ]
 
 
-@pytest.mark.parametrize("raised", [SystemExit("backend gave up"), Abort("plugin abort")])
+@pytest.mark.parametrize("raised", [RuntimeError("backend gave up"), Abort("plugin abort")])
 def test_a_base_exception_on_the_query_is_the_contract_error_with_its_record(fdr, logs, raised):
     rig = _rig(fdr, [S(120)], on_query=raised)
     with pytest.raises(MatcherBackboneError) as caught:
@@ -89,7 +90,7 @@ def test_a_base_exception_on_the_query_is_the_contract_error_with_its_record(fdr
     assert rig.health.update_count == 1 and rig.health.last_update.had_backbone_error
 
 
-@pytest.mark.parametrize("raised", [SystemExit("backend gave up"), Abort("plugin abort")])
+@pytest.mark.parametrize("raised", [RuntimeError("backend gave up"), Abort("plugin abort")])
 def test_a_base_exception_on_a_tile_drops_only_that_candidate(fdr, logs, raised):
     rig = _rig(fdr, [S(120), S(150)], on_tile={1: raised})
     result = rig.match()
@@ -104,8 +105,8 @@ def test_a_base_exception_on_a_tile_drops_only_that_candidate(fdr, logs, raised)
 
 @pytest.mark.parametrize(
     "raised",
-    [SystemExit(3), InsufficientInliersError("f", 0, 60, 1, 1, "x")],
-    ids=["SystemExit", "a contract error not the matcher's own"],
+    [Abort("plugin abort"), InsufficientInliersError("f", 0, 60, 1, 1, "x")],
+    ids=["a plugin's own BaseException", "a contract error not the matcher's own"],
 )
 def test_anything_else_raised_inside_the_matcher_is_an_internal_backbone_error(
     fdr, logs, monkeypatch, raised
@@ -124,35 +125,91 @@ def test_anything_else_raised_inside_the_matcher_is_an_internal_backbone_error(
     assert rig.health.update_count == 1
 
 
-def test_ctrl_c_goes_on_to_the_caller_with_the_frame_recorded_first(fdr, logs):
-    rig = _rig(fdr, [S(120), S(150)], on_tile={1: KeyboardInterrupt()})
-    with pytest.raises(KeyboardInterrupt):
+STOPS = [KeyboardInterrupt(), SystemExit(143)]  # Ctrl-C; the host's own sys.exit(143)
+STOP_IDS = ["Ctrl-C", "sys.exit"]
+
+
+def _raising(stop: BaseException, where: str) -> dict[str, Any]:
+    """The misbehaviour that raises ``stop`` in the step ``where`` names."""
+    if where == "query":
+        return {"on_query": stop}
+    if where == "a tile":
+        return {"on_tile": {1: stop}}
+    return {"provenance": lambda: (_ for _ in ()).throw(stop)}
+
+
+@pytest.mark.parametrize("stop", STOPS, ids=STOP_IDS)
+@pytest.mark.parametrize("where", ["query", "a tile", "provenance"])
+def test_a_stop_goes_on_to_the_caller_with_the_frame_recorded_first(fdr, logs, stop, where):
+    """A stop raised in any of a plugin's steps is no failure of that step (no candidate
+    dropped, no contract error): the frame's one health update and its ``matcher.interrupted``
+    record, then the stop itself reaches the caller."""
+    misbehaviour = _raising(stop, where)
+    rig = _rig(fdr, [S(120), S(150)], **misbehaviour)
+    with pytest.raises(type(stop)) as caught:
         rig.match()
+    assert caught.value is stop
     ((kind, record),) = _terminal(fdr)
     assert kind == "matcher.interrupted"
     assert record["frame_id"] == str(rig.frame.frame_id)
-    assert record["error"] == "KeyboardInterrupt: "
+    assert record["error"] == f"{type(stop).__name__}: {stop}"
     assert rig.health.update_count == 1 and rig.health.last_update.best_inlier_count == 0
     assert not fdr.of_kind("matcher.backbone_error")  # a stop is no backbone failure
 
 
+@pytest.mark.parametrize("stop", STOPS, ids=STOP_IDS)
+def test_a_stop_inside_the_matchers_own_code_goes_on(fdr, logs, monkeypatch, stop):
+    """The host's signal handler may run anywhere in the frame, in the core's own code too."""
+
+    def ranked(survivors: Any) -> Any:
+        raise stop
+
+    monkeypatch.setattr(c3_matcher.pipeline, "ranked", ranked)
+    rig = _rig(fdr, [S(120)])
+    with pytest.raises(type(stop)):
+        rig.match()
+    assert [kind for kind, _ in _terminal(fdr)] == ["matcher.interrupted"]
+    assert rig.health.update_count == 1
+
+
 class StoppedInWrite(InMemoryFdr):
-    """An FDR client (of the test's module, as an embedding's would be) that Ctrl-C stops
-    while it writes the frame's success record."""
+    """An FDR client (of the test's module, as an embedding's would be) that a stop ends while
+    it writes a record of ``kind``: after the line (the frame's last write) or before it."""
+
+    def __init__(self, kind: str, stop: BaseException, *, after: bool) -> None:
+        super().__init__()
+        self.kind, self.stop, self.after = kind, stop, after
 
     def record(self, kind: str, payload: Mapping[str, Any]) -> None:
+        if kind == self.kind and not self.after:
+            raise self.stop
         super().record(kind, payload)
-        if kind == "matcher.frame_done":
-            raise KeyboardInterrupt
+        if kind == self.kind:
+            raise self.stop
 
 
-def test_ctrl_c_that_cut_a_write_short_adds_no_record_after_it():
-    fdr = StoppedInWrite()
+@pytest.mark.parametrize("stop", STOPS, ids=STOP_IDS)
+def test_a_stop_that_cut_the_success_write_short_adds_no_record_after_it(stop):
+    fdr = StoppedInWrite("matcher.frame_done", stop, after=True)
     rig = _rig(fdr, [S(120)])
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(type(stop)):
         rig.match()
     assert [kind for kind, _ in _terminal(fdr)] == ["matcher.frame_done"]
     assert rig.health.update_count == 1
+
+
+@pytest.mark.parametrize("stop", STOPS, ids=STOP_IDS)
+def test_a_stop_that_cut_a_candidates_write_short_still_updates_health_once(stop):
+    """Ended inside a dropped candidate's record (not the frame's last write): no record after
+    the torn one, and the frame's health update all the same, since it writes no record."""
+    fdr = StoppedInWrite("matcher.backbone_error", stop, after=False)
+    rig = _rig(fdr, [S(120), S(150)], on_tile={1: RuntimeError("extractor down")})
+    with pytest.raises(type(stop)):
+        rig.match()
+    assert fdr.records == []  # nothing written after the write the stop cut short
+    assert rig.health.update_count == 1
+    assert rig.health.last_update.best_inlier_count == 0
+    assert rig.health.last_update.had_backbone_error  # the candidate's failure counted
 
 
 def _raises() -> Any:
@@ -164,9 +221,9 @@ def _raises() -> Any:
     [
         (_raises, "provenance() raised RuntimeError: provenance unavailable"),
         (lambda: ["opencv"], "provenance() returned list, not a mapping"),
-        (lambda: (_ for _ in ()).throw(SystemExit("no")), "provenance() raised SystemExit: no"),
+        (lambda: (_ for _ in ()).throw(Abort("no")), "provenance() raised Abort: no"),
     ],
-    ids=["raises", "not a mapping", "SystemExit"],
+    ids=["raises", "not a mapping", "its own BaseException"],
 )
 def test_a_provenance_that_cannot_be_read_loses_no_frame(fdr, logs, provenance, said):
     rig = _rig(fdr, [S(120)], provenance=provenance)

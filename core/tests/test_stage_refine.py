@@ -65,8 +65,10 @@ def _first(backend: FakeBackend, pre: FramePreprocessor, homography: Any) -> Sur
     return Survivor(match_set, 0, homography, 0, tile, timings={"match": 1.0})
 
 
-def _run(backend, pre, query, first, ransac=((90, 0.5),)) -> tuple[list[Survivor], Any, Reports]:
-    reports = Reports()
+def _run(
+    backend, pre, query, first, ransac=((90, 0.5),), reports=None
+) -> tuple[list[Survivor], Any, Reports]:
+    reports = reports or Reports()
     verifier = Verifier(SequenceRansacFilter(list(ransac)), 3.0, None)
     survivors, record = RefinePass(pre, backend).run(
         FRAME,
@@ -112,17 +114,25 @@ def test_a_failure_or_no_footprint_leaves_the_first_pass():
     assert record.reason == NO_FOOTPRINT and record.inliers_after == 0
 
 
-def test_a_plugins_system_exit_leaves_the_first_pass_and_ctrl_c_goes_on():
-    """The pass is a plugin's step like any other: its ``SystemExit`` fails the pass, not the
-    frame; Ctrl-C stops the caller."""
+class Abort(BaseException):
+    """A plugin's own ``BaseException``."""
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt(), SystemExit(143)], ids=["Ctrl-C", "sys.exit"])
+def test_a_plugins_own_base_exception_leaves_the_first_pass_and_a_stop_goes_on(stop):
+    """The pass is a plugin's step like any other: its own ``BaseException`` fails the pass,
+    not the frame; a stop (Ctrl-C, the host's ``sys.exit``) reaches the caller, no failure of
+    the pass said."""
     working = FakeBackend(FakeInferenceRuntime(), FakeLightGlueRuntime())
-    backend, pre, query = _setup(fail_extract=True, raised=SystemExit("backend gave up"))
+    backend, pre, query = _setup(fail_extract=True, raised=Abort("backend gave up"))
     first = _first(working, pre, np.eye(3))
     survivors, record, _ = _run(backend, pre, query, first)
-    assert survivors == [first] and record.reason == "SystemExit: backend gave up"
-    backend, pre, query = _setup(fail_extract=True, raised=KeyboardInterrupt())
-    with pytest.raises(KeyboardInterrupt):
-        _run(backend, pre, query, _first(working, pre, np.eye(3)))
+    assert survivors == [first] and record.reason == "Abort: backend gave up"
+    backend, pre, query = _setup(fail_extract=True, raised=stop)
+    reports = Reports()
+    with pytest.raises(type(stop)):
+        _run(backend, pre, query, _first(working, pre, np.eye(3)), reports=reports)
+    assert reports.failed == []
 
 
 def test_without_a_homography_there_is_no_pass():

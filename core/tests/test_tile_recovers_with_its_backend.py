@@ -8,6 +8,8 @@ on the demo frame and its real tiles, real RANSAC, the tile cache on."""
 from __future__ import annotations
 
 import dataclasses
+import io
+import json
 import re
 from pathlib import Path
 from typing import Any
@@ -20,9 +22,12 @@ from c3_matcher.demo import demo_inputs
 from c3_matcher.errors import InsufficientInliersError
 from c3_matcher.features import Features
 from c3_matcher.health import RollingHealthWindow
+from c3_matcher.logs import configure_logging
 from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.prepared import PreparedImage
+from c3_matcher.probe import engine_startup_probe
 from c3_matcher.ransac import OpenCvRansacFilter
+from c3_matcher.stages.extract import KEYPOINTS_CUT
 from c3_matcher.testing import FakeClock, InMemoryFdr
 
 from .test_contract_kit import OpenCvBackend
@@ -165,3 +170,75 @@ def test_a_raising_match_sends_its_tile_out_of_the_cache_too() -> None:
     again = matcher.match(frame, rerank, calibration)
     assert again.per_candidate[0].tile_id == rerank.candidates[TRUE].tile_id
     assert again.diagnostics["candidate_features"] == ["cached", "extracted", "cached"]
+
+
+def _logged(run: Any) -> tuple[list[dict[str, Any]], InMemoryFdr]:
+    """The JSON log records (DEBUG and up) of ``run(fdr)``, and the FDR it was given."""
+    stream, fdr = io.StringIO(), InMemoryFdr()
+    handle = configure_logging(fdr, level="DEBUG", stream=stream)
+    try:
+        run(fdr)
+    finally:
+        handle.close()
+    return [json.loads(line) for line in stream.getvalue().splitlines()], fdr
+
+
+class Sift500(OpenCvBackend):
+    """OpenCV SIFT asked for 500 keypoints, declaring 500 its budget, as the plugin guide has it:
+    on the demo's true tile SIFT keeps the keypoint tied with the 500th and gives 501."""
+
+    max_keypoints = 500
+
+    def __init__(self) -> None:
+        super().__init__(cv2.SIFT_create(500), cv2.NORM_L2, "sift")
+
+
+def test_a_backend_one_keypoint_over_its_budget_keeps_its_fix_said_once() -> None:
+    """The true tile's 501 SIFT keypoints are cut to the 500 of highest score, not refused: the
+    frame finds its fix there, as the start-up probe passed; one WARNING names the backbone,
+    the count and the budget, and the next frame (the tiles cached) says nothing more."""
+    frame, rerank, calibration = demo_inputs(DEMO)
+    backend = Sift500()
+    engine_startup_probe(backend)
+    results = []
+
+    def run(fdr: InMemoryFdr) -> None:
+        matcher = _matcher(backend, fdr)  # type: ignore[arg-type]
+        results.extend(matcher.match(frame, rerank, calibration) for _ in range(2))
+
+    records, fdr = _logged(run)
+    for result in results:
+        assert result.per_candidate[0].tile_id == rerank.candidates[TRUE].tile_id
+        assert result.per_candidate[0].inlier_count >= 60
+    (cut,) = [r for r in records if r["kind"] == KEYPOINTS_CUT]
+    assert (cut["level"], cut["backbone"], cut["budget"]) == ("WARNING", "sift", 500)
+    assert cut["keypoints"] > 500
+    assert fdr.of_kind("matcher.backbone_error") == []
+
+
+@pytest.mark.parametrize("width", [0, 61], ids=["(0, 0)", "(0, 61)"])
+def test_a_blank_tile_whose_empty_descriptors_have_another_width_is_no_error(width: int) -> None:
+    """The first candidate's tile blank (water, haze): ORB finds no keypoint there and the
+    backend answers descriptors (0, 0) or (0, 61) against the query's (K, 32). Nothing is
+    compared: a DEBUG zero-inlier drop, no backbone error, and the tile stays cached (the next
+    frame serves it from the cache)."""
+    frame, rerank, calibration = demo_inputs(DEMO)
+
+    def blank(features: Features) -> Features:
+        empty = np.zeros((0, 2), np.float32)
+        none = np.zeros((0, width), np.uint8)
+        return Features(empty, none, np.zeros(0, np.float32), features.image_size)
+
+    results = []
+
+    def run(fdr: InMemoryFdr) -> None:
+        matcher = _matcher(OnceWrong(extract_at=2, extracted=blank), fdr)
+        results.extend(matcher.match(frame, rerank, calibration) for _ in range(2))
+
+    records, fdr = _logged(run)
+    assert fdr.of_kind("matcher.backbone_error") == []
+    zero = [r for r in records if r["kind"] == "c3.matcher.zero_inliers"]
+    assert [r["level"] for r in zero if r["candidate_index"] == 0] == ["DEBUG", "DEBUG"]
+    for result in results:
+        assert result.per_candidate[0].tile_id == rerank.candidates[TRUE].tile_id
+    assert results[1].diagnostics["candidate_features"] == ["cached"] * 3

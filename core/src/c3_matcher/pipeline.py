@@ -48,15 +48,16 @@ from c3_matcher.fdr.forks import forked_from
 from c3_matcher.fdr.turns import FrameTurns
 from c3_matcher.health import RollingHealthWindow
 from c3_matcher.logs import FDR_WRITE_FAILED, current_log_root, log_event, logging_as
-from c3_matcher.plugins.isolation import is_failure
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.prior import PriorTolerances
 from c3_matcher.protocols import Clock, FdrClient, FeatureBackend, RansacFilter
 from c3_matcher.stages.ambiguity import ambiguity
 from c3_matcher.stages.candidate_features import CandidateFeatures
 from c3_matcher.stages.candidate_features import feature_request as _feature_request
+from c3_matcher.stages.extract import KeypointCutNotice
 from c3_matcher.stages.failure import CandidateStepError
 from c3_matcher.stages.frame_inputs import check_inputs, frame_id_of
+from c3_matcher.stages.interrupts import is_stop
 from c3_matcher.stages.outcomes import Dropped, FrameEvidence, Survivor
 from c3_matcher.stages.provenance import read_provenance
 from c3_matcher.stages.query import QUERY_ROTATIONS_DEG
@@ -140,10 +141,10 @@ class PipelineMatcher:
         )
         cache = TileFeatureCache(settings.tile_cache_size)
         request = _feature_request(backend, self._pre)
-        self._tiles = CandidateFeatures(
-            backend, self._pre, cache, request, settings.stored_features, settings.max_image_pixels
-        )
-        self._refine = RefinePass(self._pre, backend)
+        self._cut_notice = cut = KeypointCutNotice()  # extractions over the budget: said once
+        tiles = (cache, request, settings.stored_features, settings.max_image_pixels)
+        self._tiles = CandidateFeatures(backend, self._pre, *tiles, cut)
+        self._refine = RefinePass(self._pre, backend, cut)
         self._turns = FrameTurns(_close_failed)
         self._log_root = current_log_root()  # composed by a root: its frames log as its own
         self._pid = os.getpid()  # its recorder and log sinks are this process's alone
@@ -224,12 +225,11 @@ class PipelineMatcher:
         except BaseException as exc:
             if isinstance(exc, MatcherBackboneError | InsufficientInliersError) and recorder.ended:
                 raise  # the frame's own, recorded (one a plugin raised is not: internal)
-            if not is_failure(exc):  # Ctrl-C, SIGTERM's, a closing generator: they go on,
-                recorder.interrupted(exc)  # the frame recorded first where that is safe
+            if is_stop(exc):  # Ctrl-C, SIGTERM's, the host's sys.exit, a closing generator:
+                recorder.interrupted(exc)  # they go on, the frame recorded first where safe
                 raise
             recorder.internal_error(exc)  # a bug (an internal check included) or a plugin's
-            raise MatcherBackboneError("internal", None, exc) from exc  # SystemExit must not
-            # take the vehicle down: the contract's error instead
+            raise MatcherBackboneError("internal", None, exc) from exc  # own BaseException
 
     # -- steps ------------------------------------------------------------------------------
     def _match(
@@ -303,9 +303,10 @@ class PipelineMatcher:
                 rotation_search=self.settings.rotation_search,
                 verification=self._verification,
                 timings=timings,
+                cut_notice=self._cut_notice,
             )
-        except BaseException as exc:  # a plugin's SystemExit too; Ctrl-C goes on
-            if not is_failure(exc):
+        except BaseException as exc:  # a plugin's own BaseException too
+            if is_stop(exc):  # Ctrl-C, SystemExit: they go on
                 raise
             recorder.query_failed(exc)
             raise MatcherBackboneError("query_extract", None, exc) from exc

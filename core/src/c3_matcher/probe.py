@@ -28,7 +28,7 @@ from c3_matcher.errors import ConfigurationError, EngineError, describe
 from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.protocols import EarlyStopping, FeatureBackend
-from c3_matcher.stages.extract import checked_features
+from c3_matcher.stages.extract import extract_checked
 
 __all__ = [
     "BACKEND_MEMBERS",
@@ -132,8 +132,8 @@ def probe_pair(
 def engine_startup_probe(backend: FeatureBackend, size: int = PROBE_SIDE, block: int = 6) -> None:
     """Extract the probe pair (``probe_pair``), match it once and assert the outputs (the
     engine-output assertion that fires at start-up, not on the first frame): features inside
-    their image, pairs in (query, tile) order that follow the known offset, each query keypoint
-    once (``check_shifted_matches``).
+    their image (cut to the keypoint budget, as in flight), pairs in (query, tile) order that
+    follow the known offset, each query keypoint once (``check_shifted_matches``).
 
     The images are ``size`` px rounded by the backend's ``input_rule``, ``block`` px squares
     of random colour (seed 0); 6 px blocks do not line up with the 8x8 cells some detectors
@@ -170,10 +170,8 @@ def _probe_once(
     otherwise."""
     query_image, tile_image, shift = probe_pair(rule, side)
     try:
-        query = backend.extract(query_image)
-        _check_features(query, query_image.engine_size)
-        tile = backend.extract(tile_image)
-        _check_features(tile, tile_image.engine_size)
+        query = _extracted(backend, query_image)
+        tile = _extracted(backend, tile_image)
         matches = backend.match(query, tile)
         if isinstance(matches, RawMatches) and len(matches) == 0:
             stopped = _early_stop(backend)
@@ -216,11 +214,14 @@ def _early_stop(backend: FeatureBackend) -> tuple[str, str] | None:
     return None
 
 
-def _check_features(features: object, size: tuple[int, int]) -> None:
-    """The probe's features: a :class:`Features` with keypoints, all on the (w, h) px image
-    (:func:`~c3_matcher.stages.extract.checked_features`, as in flight)."""
-    if len(checked_features(features, size, "probe image")) == 0:
+def _extracted(backend: FeatureBackend, image: PreparedImage) -> Features:
+    """``backend``'s features of the probe ``image`` as flight takes them
+    (:func:`~c3_matcher.stages.extract.extract_checked`: on the image, cut to the backend's
+    keypoint budget), and some: ``ValueError`` when it found no keypoint."""
+    features = extract_checked(backend, image, name="probe image")
+    if len(features) == 0:
         raise ValueError("the extractor found no keypoint on the textured probe image")
+    return features
 
 
 def check_shifted_matches(

@@ -79,8 +79,9 @@ class ClosableMatcher(CrossDomainMatcher, Protocol):
 @runtime_checkable
 class FeatureBackend(Protocol):
     """A strategy's model I/O, the one thing a strategy adds to the per-frame pipeline.
-    Exceptions raised here become per-candidate drops (or, for the query frame, a
-    ``MatcherBackboneError``); they never escape ``match`` otherwise."""
+    Exceptions raised here (its own ``BaseException`` too) become per-candidate drops (or, for
+    the query frame, a ``MatcherBackboneError``); only a stop goes on to ``match``'s caller:
+    Ctrl-C, ``SystemExit`` (the host's own exit), a closing generator (``stages.interrupts``)."""
 
     @property
     def label(self) -> str:
@@ -115,7 +116,9 @@ class KeypointBudgetBackend(FeatureBackend, Protocol):
     """A ``FeatureBackend`` that declares its keypoint budget ``max_keypoints``: at most this
     many keypoints per image (the strategy's default where no setting names one, cut to its
     extractor engine's top-K). Start-up checks ``[matcher] min_inliers_threshold`` against it
-    and runs record it. Optional: a backend without one is not checked."""
+    and runs record it. An extraction over it keeps its best keypoints by score, said once per
+    matcher (the contract kit fails it). Optional: a backend without one is held to the core's
+    ceiling (``stages.extract.KEYPOINT_CEILING``) the same way."""
 
     @property
     def max_keypoints(self) -> int: ...

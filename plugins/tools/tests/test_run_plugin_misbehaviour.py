@@ -1,13 +1,18 @@
 """A run keeps its output when its strategy's backend misbehaves after start-up: a
 ``provenance()`` that raises loses no frame and no report (each frame's record and the run's
-provenance say ``provenance_error``), and a ``SystemExit`` from its ``extract`` on a frame is
-that frame's backbone error, the run going on. Real path: the shipped demo flight cut to two
-frames, the ``sift_magsac`` baseline composed as ``replay`` composes it, its FDR on disk."""
+provenance say ``provenance_error``), and its own ``BaseException`` from ``extract`` on a frame is
+that frame's backbone error, the run going on; the host's own ``sys.exit`` (its SIGTERM handler's)
+while a frame is matched is no plugin's failure: it reaches the host, the frame recorded first.
+Real path: the shipped demo flight cut to two frames, the ``sift_magsac`` baseline composed as
+``replay`` composes it, its FDR on disk."""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+import signal
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -24,14 +29,44 @@ from c3_matcher_tools.run.records import FlightRun, FrameStatus
 SmallFlight = Callable[..., Path]  # the fixture of conftest.py
 
 
-def _fly(flight: Path, out: Path, misbehave: Callable[[Any], None]) -> FlightRun:
+class Abort(BaseException):
+    """A plugin's own ``BaseException``."""
+
+
+def _fly(
+    flight: Path,
+    out: Path,
+    misbehave: Callable[[Any], None],
+    flown: list[PipelineMatcher] | None = None,
+) -> FlightRun:
     """The flight replayed with ``sift_magsac``, its backend made to ``misbehave`` once
-    composed."""
+    composed; the matcher appended to ``flown``."""
     host = build_plugin_host()
     with prepare_matcher(C3Settings(), "sift_magsac", plugin_host=host) as prepared:
         assert isinstance(prepared.matcher, PipelineMatcher)
+        if flown is not None:
+            flown.append(prepared.matcher)
         misbehave(prepared.matcher.backend)
         return fly_prepared(prepared, load_dataset(flight), out, plugin_host=host)
+
+
+def _failing_once(raise_it: Callable[[], None]) -> Callable[[Any], None]:
+    """The misbehaviour: the backend's first ``extract`` (the first frame's query) calls
+    ``raise_it`` instead of extracting."""
+
+    def misbehave(backend: Any) -> None:
+        real = backend.extract
+        calls: list[int] = []
+
+        def extract(image: Any) -> Any:
+            calls.append(1)
+            if len(calls) == 1:
+                raise_it()
+            return real(image)
+
+        backend.extract = extract
+
+    return misbehave
 
 
 def _frame_records(out: Path) -> list[dict[str, Any]]:
@@ -60,22 +95,13 @@ def test_a_provenance_that_raises_loses_no_frame_and_no_run_output(
     assert records[0]["payload"]["best_inlier_count"] >= 60
 
 
-def test_a_system_exit_from_extract_is_that_frames_backbone_error(
-    small_flight: SmallFlight, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+def test_a_plugins_own_base_exception_from_extract_is_that_frames_backbone_error(
+    small_flight: SmallFlight, tmp_path: Path
 ) -> None:
-    def gives_up(backend: Any) -> None:
-        real = backend.extract
-        calls: list[int] = []
+    def gives_up() -> None:
+        raise Abort("backend gave up")
 
-        def extract(image: Any) -> Any:
-            calls.append(1)
-            if len(calls) == 1:  # the first frame's query
-                raise SystemExit("backend gave up")
-            return real(image)
-
-        monkeypatch.setattr(backend, "extract", extract)
-
-    run = _fly(small_flight("sysexit"), tmp_path / "out", gives_up)
+    run = _fly(small_flight("abort"), tmp_path / "out", _failing_once(gives_up))
     statuses = [o.status for o in run.outcomes]
     assert statuses == [FrameStatus.BACKBONE_ERROR, FrameStatus.INSUFFICIENT]
     kinds = [(r["kind"], r["payload"].get("phase")) for r in _frame_records(tmp_path / "out")]
@@ -84,3 +110,41 @@ def test_a_system_exit_from_extract_is_that_frames_backbone_error(
         ("matcher.insufficient_inliers", None),
     ]
     assert run.provenance["provider"]  # the backend's own, read at the end
+
+
+@contextmanager
+def _sigterm_exits(status: int) -> Iterator[None]:
+    """SIGTERM handled as flight software handles it: ``sys.exit(status)`` in its handler."""
+
+    def on_term(signum: int, frame: object) -> None:
+        sys.exit(status)
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_the_hosts_sys_exit_during_a_frame_reaches_it_with_the_frame_recorded(
+    small_flight: SmallFlight, tmp_path: Path
+) -> None:
+    """SIGTERM lands while the backend extracts the first frame's query (raised there, so the
+    handler runs at that point): the run ends with the handler's ``SystemExit``, no candidate
+    dropped and no contract error for it; the frame has its ``matcher.interrupted`` record and
+    its one health update (no fix)."""
+    flown: list[PipelineMatcher] = []
+    with _sigterm_exits(143), pytest.raises(SystemExit) as caught:
+        _fly(
+            small_flight("sigterm"),
+            tmp_path / "out",
+            _failing_once(lambda: signal.raise_signal(signal.SIGTERM)),
+            flown,
+        )
+    assert caught.value.code == 143
+    (record,) = _frame_records(tmp_path / "out")
+    assert record["kind"] == "matcher.interrupted"
+    assert record["payload"]["error"] == "SystemExit: 143"
+    (matcher,) = flown
+    health = matcher.health_snapshot()  # one update, of no fix
+    assert (health.consecutive_low_inlier, health.mean_inliers_60s) == (1, 0.0)

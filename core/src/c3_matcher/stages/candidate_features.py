@@ -18,7 +18,7 @@ from c3_matcher.features import Features
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend, StoredFeaturesBackend, StoredFeaturesHandle
-from c3_matcher.stages.extract import checked_features, extract_checked
+from c3_matcher.stages.extract import KeypointCutNotice, checked_features, extract_checked
 from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.provenance import read_provenance
@@ -63,7 +63,8 @@ class CandidateFeatures:
     ``use_stored`` False (``[matcher] stored_features``): never the store's; True: the store's
     when it has them for ``request`` (None: this backend's tiles are always extracted); a
     sidecar without a set for ``request`` is said once for the matcher's life; a tile is decoded
-    within ``max_pixels`` (:func:`~c3_matcher.tile_limit.decode_within`). Single-threaded."""
+    within ``max_pixels`` (:func:`~c3_matcher.tile_limit.decode_within`); an extraction over
+    the keypoint budget is cut, said through ``cut_notice`` (the matcher's). Single-threaded."""
 
     def __init__(
         self,
@@ -73,6 +74,7 @@ class CandidateFeatures:
         request: FeatureRequest | None,
         use_stored: bool,
         max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS,
+        cut_notice: KeypointCutNotice | None = None,
     ) -> None:
         self._backend = backend
         self._pre = pre
@@ -80,6 +82,7 @@ class CandidateFeatures:
         self.request: Final = request
         self.use_stored: Final = bool(use_stored) and request is not None
         self.max_pixels: Final = max_pixels
+        self._cut_notice = cut_notice or KeypointCutNotice()
         self._unserved: set[tuple[Path, str]] = set()  # (sidecar, set id) said already
 
     def fetch(
@@ -105,7 +108,7 @@ class CandidateFeatures:
             with timed(timings, "preprocess"):
                 image = self._pre.prepare_tile(pixels)
         with failing_as(self._backend.extract_phase, "extracted"), timed(timings, "extract"):
-            features = extract_checked(self._backend, image)
+            features = extract_checked(self._backend, image, self._cut_notice)
         if key is not None and _unchanged(candidate, key):
             self.cache.put(key, CachedTile(image, features))
         return self._tile("extracted", image, features, key)

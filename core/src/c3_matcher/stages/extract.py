@@ -3,24 +3,33 @@ the refine pass, the start-up probe): a :class:`Features` whose keypoints lie on
 was given. A backend that returns anything else, or keypoints of another scale or another
 image, fails that extraction, naming what was wrong, as a NaN keypoint does: keypoints off the
 image would otherwise reach RANSAC as correspondences nowhere on either image, and a
-consistent mistake (a scale forgotten past some image size) gives a confident, wrong fix. In
-flight (the query, each tile, the refine pass) an extraction with more keypoints than the
-backend's budget (:func:`extraction_budget`) fails too: a million keypoints would take one
-frame tens of seconds and hundreds of MB."""
+consistent mistake (a scale forgotten past some image size) gives a confident, wrong fix.
+
+An extraction with more keypoints than the backend's budget (:func:`extraction_budget`) keeps
+the budget's best by score (:func:`cut_to_budget`), and a matcher says so once (a WARNING,
+:class:`KeypointCutNotice`), not every frame: OpenCV's detectors keep the keypoints tied with
+the N-th and so give N + 1, a true tile that must not be refused for it, and a million keypoints
+would take one frame tens of seconds and hundreds of MB to match."""
 
 from __future__ import annotations
+
+import threading
 
 import numpy as np
 
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.features import Features
+from c3_matcher.logs import log_event
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.protocols import FeatureBackend, KeypointBudgetBackend
 
 __all__ = [
+    "KEYPOINTS_CUT",
     "KEYPOINT_CEILING",
     "KEYPOINT_MARGIN_PX",
+    "KeypointCutNotice",
     "checked_features",
+    "cut_to_budget",
     "extract_checked",
     "extraction_budget",
 ]
@@ -35,6 +44,9 @@ KEYPOINT_CEILING = 32768
 (no ``max_keypoints``: ``KeypointBudgetBackend``): above every budget a setting asks
 (``[matcher] max_keypoints`` <= 8192; the example ORB plugin's option <= 20000), far below the
 counts that make one frame take seconds and hundreds of MB."""
+
+KEYPOINTS_CUT = "c3.matcher.keypoints_cut"
+"""The WARNING a matcher logs once when an extraction held more keypoints than its budget."""
 
 
 def checked_features(features: object, size: tuple[int, int], image: str = "image") -> Features:
@@ -62,7 +74,7 @@ def checked_features(features: object, size: tuple[int, int], image: str = "imag
 
 
 def extraction_budget(backend: FeatureBackend) -> tuple[int, str]:
-    """The most keypoints one extraction of ``backend`` may hold, and that limit in words: the
+    """The most keypoints one extraction of ``backend`` keeps, and that limit in words: the
     budget it declares (``max_keypoints``, a positive int), else :data:`KEYPOINT_CEILING`."""
     if isinstance(backend, KeypointBudgetBackend):
         declared = backend.max_keypoints
@@ -74,18 +86,64 @@ def extraction_budget(backend: FeatureBackend) -> tuple[int, str]:
     )
 
 
-def extract_checked(backend: FeatureBackend, image: PreparedImage) -> Features:
-    """``backend.extract(image)``, checked (:func:`checked_features`) on the engine image the
-    backend was given; ``InvalidInputError`` naming the count and the budget when it holds more
-    keypoints than :func:`extraction_budget` allows (refused, not cut: which keypoints to keep
-    is the backend's choice, and one over its own budget is broken)."""
-    features = backend.extract(image)
-    if isinstance(features, Features):
+def cut_to_budget(features: Features, budget: int) -> Features:
+    """``features`` when they hold at most ``budget`` keypoints, else their ``budget`` best by
+    score (descending; a tie goes to the earlier keypoint, so one answer always gives one cut),
+    in the backend's order, with their descriptors and scores."""
+    if len(features) <= budget:
+        return features
+    best = np.argsort(-features.keypoint_scores, kind="stable")[:budget]
+    keep = np.sort(best)
+    return Features(
+        features.keypoints[keep],
+        features.descriptors[keep],
+        features.keypoint_scores[keep],
+        features.image_size,
+    )
+
+
+class KeypointCutNotice:
+    """One matcher's word on its extractions cut to the budget: the first cut is said (a
+    :data:`KEYPOINTS_CUT` WARNING naming the backbone, the count and the budget), the later
+    ones are not: a backend over its budget is over it every frame."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._said = False
+
+    def say(self, backend: FeatureBackend, count: int, size: tuple[int, int]) -> None:
+        """Say, unless said already, that an extraction of ``backend`` on a ``size`` (w, h) px
+        image held ``count`` keypoints, more than its budget, and was cut to it."""
+        with self._lock:
+            said, self._said = self._said, True
+        if said:
+            return
         budget, limit = extraction_budget(backend)
-        if len(features) > budget:
-            w, h = image.engine_size
-            raise InvalidInputError(
-                "features.keypoints",
-                f"{len(features)} keypoints on the {w}x{h} px image, more than {limit}",
-            )
-    return checked_features(features, image.engine_size)
+        log_event(
+            "WARNING",
+            KEYPOINTS_CUT,
+            f"C3 keypoints cut; backbone={backend.label}; {count} keypoints on a "
+            f"{size[0]}x{size[1]} px image, more than {limit}: the {budget} of highest score "
+            "kept (said once per matcher; the extractor should keep to its budget)",
+            backbone=backend.label,
+            keypoints=count,
+            budget=budget,
+        )
+
+
+def extract_checked(
+    backend: FeatureBackend,
+    image: PreparedImage,
+    cut_notice: KeypointCutNotice | None = None,
+    name: str = "image",
+) -> Features:
+    """``backend.extract(image)``, checked (:func:`checked_features`) on the engine image the
+    backend was given (``name`` in an error) and cut to :func:`extraction_budget`
+    (:func:`cut_to_budget`); a cut is said through ``cut_notice`` (None: not said)."""
+    features = checked_features(backend.extract(image), image.engine_size, name)
+    budget, _ = extraction_budget(backend)
+    if len(features) <= budget:
+        return features
+    if cut_notice is not None:
+        cut_notice.say(backend, len(features), image.engine_size)
+    return cut_to_budget(features, budget)

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from c3_matcher.errors import describe
-from c3_matcher.plugins.isolation import is_failure
+from c3_matcher.stages.interrupts import is_stop
 
 __all__ = ["CandidateStepError", "failing_as", "timed"]
 
@@ -18,8 +18,7 @@ class CandidateStepError(Exception):
     ``phase`` names the step (``tile_decode``, the backend's extract or match phase,
     ``ransac``); ``source`` is where the candidate's features came or were to come from
     (``none`` before that was known, else ``stored``, ``cached`` or ``extracted``); ``cause``
-    is the exception the step raised (a ``SystemExit`` or another ``BaseException`` a plugin
-    raises too: ``failing_as``)."""
+    is the exception the step raised (a plugin's own ``BaseException`` too: ``failing_as``)."""
 
     def __init__(self, phase: str, source: str, cause: BaseException) -> None:
         super().__init__(f"{phase}: {describe(cause)}")
@@ -31,13 +30,13 @@ class CandidateStepError(Exception):
 @contextmanager
 def failing_as(phase: str, source: str) -> Iterator[None]:
     """Run a step of a candidate: any exception it raises leaves as a ``CandidateStepError`` of
-    ``phase`` (features from ``source``), a ``SystemExit`` or another ``BaseException`` of a
-    plugin's too (it fails the step, not the flight); Ctrl-C and a closing generator go on
-    (``plugins.isolation.is_failure``)."""
+    ``phase`` (features from ``source``), a plugin's own ``BaseException`` too (it fails the
+    step, not the flight); a stop (Ctrl-C, ``SystemExit``, a closing generator) goes on
+    (``stages.interrupts.is_stop``)."""
     try:
         yield
     except BaseException as exc:
-        if not is_failure(exc):
+        if is_stop(exc):
             raise
         raise CandidateStepError(phase, source, exc) from exc
 

@@ -3,7 +3,8 @@ matched: the query's and the tile's descriptors of one dtype and one width, and 
 :class:`RawMatches` back. Descriptors that differ (a tile extracted 16 bytes wide against the
 query's 32, float32 against uint8) are an extraction's fault, not the pair matcher's: they fail
 the candidate in the backend's extract phase, naming both, rather than deep in the matcher's
-library (an OpenCV assertion) or, silently, as distances between two unlike spaces."""
+library (an OpenCV assertion) or, silently, as distances between two unlike spaces. An image
+without a keypoint fits any other: nothing of it is compared."""
 
 from __future__ import annotations
 
@@ -21,8 +22,12 @@ __all__ = ["check_descriptors_fit", "match_checked"]
 def check_descriptors_fit(query: Features, tile: Features, backbone: str) -> None:
     """``InvalidInputError`` naming both descriptor arrays (shape, dtype) and ``backbone``
     unless ``query``'s and ``tile``'s descriptors share one dtype and one width: a pair matcher
-    compares them entry by entry, so any other pair is no match of these two images."""
+    compares them entry by entry, so any other pair is no match of these two images. Either
+    side without a keypoint passes, whatever its shape: nothing is compared (an OpenCV
+    detector's empty answer often has another width), and the pair has no match."""
     q, t = query.descriptors, tile.descriptors
+    if len(query) == 0 or len(tile) == 0:
+        return
     if q.dtype == t.dtype and q.shape[1] == t.shape[1]:
         return
     raise InvalidInputError(

@@ -20,9 +20,9 @@ from typing import Any
 from c3_matcher.errors import describe
 from c3_matcher.fdr.records import to_jsonable
 from c3_matcher.logs import log_event
-from c3_matcher.plugins.isolation import is_failure
 from c3_matcher.protocols import FeatureBackend
 from c3_matcher.stages.frame_records import TERMINAL_RECORD_FIELDS
+from c3_matcher.stages.interrupts import is_stop
 
 __all__ = [
     "PROVENANCE_RESERVED",
@@ -37,8 +37,8 @@ PROVENANCE_UNREADABLE = "c3.matcher.provenance_unreadable"  # WARNING: provenanc
 
 def read_provenance(backend: FeatureBackend) -> dict[str, Any]:
     """``backend.provenance()`` as JSON-native values under text keys, or
-    ``{"provenance_error": ...}`` saying why it could not be read (it raised, a ``SystemExit``
-    included, or returned no mapping); Ctrl-C still propagates."""
+    ``{"provenance_error": ...}`` saying why it could not be read (it raised, a plugin's own
+    ``BaseException`` included, or returned no mapping); a stop (Ctrl-C, ``SystemExit``) goes on."""
     fields, error = _read(backend)
     return {"provenance_error": error} if fields is None else fields
 
@@ -52,7 +52,7 @@ def _read(backend: FeatureBackend) -> tuple[dict[str, Any] | None, str]:
         read: dict[str, Any] = to_jsonable(dict(said))
         return read, ""
     except BaseException as exc:
-        if not is_failure(exc):
+        if is_stop(exc):
             raise
         return None, f"provenance() raised {describe(exc)}"
 

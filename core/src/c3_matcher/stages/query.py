@@ -28,7 +28,7 @@ from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
 from c3_matcher.query_geometry import QueryGeometry
-from c3_matcher.stages.extract import extract_checked
+from c3_matcher.stages.extract import KeypointCutNotice, extract_checked
 from c3_matcher.stages.failure import timed
 
 __all__ = [
@@ -104,11 +104,13 @@ def prepare_query(
     *,
     rotation_search: bool,
     timings: dict[str, float],
+    cut_notice: KeypointCutNotice | None = None,
 ) -> Query:
     """Undistort, rectify and scale the frame to ``gsd_m`` m/px, a :class:`GsdGroup`'s
     (``query_preprocess``), then extract it (``query_extract``); with ``rotation_search`` a
-    frame without attitude is extracted at every turn of ``QUERY_ROTATIONS_DEG``. Any
-    exception is a query failure."""
+    frame without attitude is extracted at every turn of ``QUERY_ROTATIONS_DEG``; an extraction
+    over the keypoint budget is cut, said through ``cut_notice``. Any exception is a query
+    failure."""
     with timed(timings, "query_preprocess"):
         geometry = pre.query_geometry(frame, calibration, gsd_m)
         image = pre.render_query(frame, calibration, geometry)
@@ -117,6 +119,7 @@ def prepare_query(
         images = [(deg, image.turned(deg)) for deg in turns]
     with timed(timings, "query_extract"):
         views = tuple(
-            QueryView(deg, turned, extract_checked(backend, turned)) for deg, turned in images
+            QueryView(deg, turned, extract_checked(backend, turned, cut_notice))
+            for deg, turned in images
         )
     return Query(geometry, image, views, search)

@@ -4,8 +4,8 @@ records.
 Terminal FDR record per ``match`` call, exactly one of: ``matcher.frame_done`` (success),
 ``matcher.insufficient_inliers`` (raised InsufficientInliersError), ``matcher.backbone_error``
 with ``phase="query_extract"`` (the query frame itself failed) or ``phase="internal"`` (a bug,
-answered with the contract's error), ``matcher.invalid_input``, or ``matcher.interrupted``
-(Ctrl-C stopped the frame; none when the stop cut a write short: ``stages.interrupts``). Per
+answered with the contract's error), ``matcher.invalid_input``, or ``matcher.interrupted`` (a
+stop, Ctrl-C or ``SystemExit``; none when it cut a write short: ``stages.interrupts``). Per
 dropped candidate, one ``matcher.backbone_error`` record with its ``tile_id`` and ``phase``. A
 recorder failure is logged, never fails the frame; every payload is made before the frame's
 health update, so the health window counts only what the caller gets.
@@ -380,20 +380,20 @@ class FrameRecorder:
         )
 
     def internal_error(self, exc: BaseException) -> None:
-        """A bug (or a plugin's ``SystemExit``) must not take the vehicle down: health, an
-        ``internal`` backbone-error record."""
+        """A bug (or a plugin's own ``BaseException``) must not take the vehicle down: health,
+        an ``internal`` backbone-error record."""
         self.update_health(0, force_backbone_error=True)
         self._ended = True
         self.backbone_error(None, "internal", exc)
 
     def interrupted(self, stop: BaseException) -> None:
-        """Ctrl-C (SIGTERM's ``KeyboardInterrupt``) or a closing generator stopped the frame,
-        which propagates: its health update (no fix) and a ``matcher.interrupted`` record,
-        unless its terminal record was made already or the stop cut a write short
-        (``stages.interrupts``: a record now would be glued to a torn line)."""
+        """A stop (``stages.interrupts``: Ctrl-C, ``SystemExit``) ended the frame and goes on:
+        its health update (no fix; it writes no record, so always) and a ``matcher.interrupted``
+        record, unless its terminal record was made already or the stop cut a write short (a
+        record now would be glued to a torn line)."""
+        self.update_health(0)
         if self._ended or cut_a_write_short(stop, self._sinks.fdr):
             return
-        self.update_health(0)
         self._terminal(
             "matcher.interrupted",
             {"frame_id": self.frame_id, **self._capture, "error": describe(stop)},

@@ -13,12 +13,12 @@ from dataclasses import replace
 
 from c3_matcher.dto import CameraCalibration, NavCameraFrame, ranking_key
 from c3_matcher.errors import describe
-from c3_matcher.plugins.isolation import is_failure
 from c3_matcher.prepared import correspondences
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
-from c3_matcher.stages.extract import extract_checked
+from c3_matcher.stages.extract import KeypointCutNotice, extract_checked
 from c3_matcher.stages.failure import timed
+from c3_matcher.stages.interrupts import is_stop
 from c3_matcher.stages.matching import match_checked
 from c3_matcher.stages.outcomes import RefineRecord, Survivor
 from c3_matcher.stages.ranking import top
@@ -32,12 +32,18 @@ NO_FOOTPRINT = "the first homography leaves no footprint on the tile"
 
 
 class RefinePass:
-    """The refine pass of one matcher: its preprocessor renders, its backend extracts and
-    matches."""
+    """The refine pass of one matcher: its preprocessor renders, its backend extracts (a cut
+    to the keypoint budget said through ``cut_notice``, the matcher's) and matches."""
 
-    def __init__(self, pre: FramePreprocessor, backend: FeatureBackend) -> None:
+    def __init__(
+        self,
+        pre: FramePreprocessor,
+        backend: FeatureBackend,
+        cut_notice: KeypointCutNotice | None = None,
+    ) -> None:
         self._pre = pre
         self._backend = backend
+        self._cut_notice = cut_notice or KeypointCutNotice()
 
     def run(
         self,
@@ -59,8 +65,8 @@ class RefinePass:
         try:
             with timed(first.timings, "refine"):
                 verdict = self._second_pass(frame, calibration, scale, first)
-        except BaseException as exc:  # the first pass stands (a plugin's SystemExit too)
-            if not is_failure(exc):  # Ctrl-C goes on
+        except BaseException as exc:  # the first pass stands (a plugin's own too)
+            if is_stop(exc):  # Ctrl-C, SystemExit: they go on
                 raise
             recorder.refine_failed(first.match_set.tile_id, exc)
             return list(survivors), replace(record, reason=describe(exc))
@@ -101,7 +107,7 @@ class RefinePass:
         if refined is None:
             return None
         image = self._pre.render_query(frame, calibration, refined)
-        features = extract_checked(self._backend, image)
+        features = extract_checked(self._backend, image, self._cut_notice)
         raw = match_checked(self._backend, features, tile.features)
         rows = correspondences(image, features, tile.image, tile.features, raw)
         return scale.verifier.verify(first.match_set.tile_id, first.rotation_deg, rows)

@@ -15,9 +15,10 @@ from types import MappingProxyType
 
 from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration, NavCameraFrame, RerankCandidate
-from c3_matcher.plugins.isolation import is_failure
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend
+from c3_matcher.stages.extract import KeypointCutNotice
+from c3_matcher.stages.interrupts import is_stop
 from c3_matcher.stages.outcomes import Survivor
 from c3_matcher.stages.query import Query, gsd_groups, prepare_query
 from c3_matcher.stages.verify import Verifier, VerifierSettings
@@ -75,6 +76,7 @@ def prepare_scales(
     rotation_search: bool,
     verification: VerifierSettings,
     timings: dict[str, float],
+    cut_notice: KeypointCutNotice | None = None,
 ) -> FrameScales:
     """The frame prepared, extracted (``prepare_query``) and given its verifier (from
     ``verification``, with that query's prior) once per GSD of ``candidates``; raises the
@@ -91,9 +93,10 @@ def prepare_scales(
                 group.gsd_m,
                 rotation_search=rotation_search,
                 timings=timings,
+                cut_notice=cut_notice,
             )
-        except BaseException as exc:  # that scale's candidates fail (a plugin's SystemExit too)
-            if not is_failure(exc):  # Ctrl-C goes on
+        except BaseException as exc:  # that scale's candidates fail (a plugin's own too)
+            if is_stop(exc):  # Ctrl-C, SystemExit: they go on
                 raise
             failed |= dict.fromkeys(group.members, exc)
             continue

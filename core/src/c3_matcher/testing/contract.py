@@ -47,7 +47,6 @@ import io
 import json
 import uuid
 from collections.abc import Iterator
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -73,6 +72,8 @@ from c3_matcher.probe import (
 )
 from c3_matcher.protocols import CrossDomainMatcher
 from c3_matcher.stages.extract import checked_features
+from c3_matcher.testing.backend_checks import assert_empty_fits, assert_within_budget
+from c3_matcher.testing.doubles import Doubles
 from c3_matcher.testing.fakes import (
     FakeClock,
     FakeInferenceRuntime,
@@ -89,25 +90,6 @@ __all__ = ["BackendContract", "Doubles", "MatcherContract", "ScriptedBackend"]
 
 S = ScriptedCandidate
 MIN_INLIERS = 60
-
-
-@dataclass
-class Doubles:
-    """The doubles a contract test hands to ``make_matcher``, and what it inspects after."""
-
-    script: list[ScriptedCandidate]
-    inference: FakeInferenceRuntime
-    lightglue: FakeLightGlueRuntime
-    ransac: FakeRansacFilter
-    fdr: InMemoryFdr
-    health: RollingHealthWindow
-    clock: FakeClock
-    log_stream: io.StringIO
-    backend: ScriptedBackend | None = None  # BackendContract: your backend under the script
-
-    def logs(self, kind: str) -> list[dict[str, Any]]:
-        lines = [json.loads(x) for x in self.log_stream.getvalue().splitlines() if x]
-        return [r for r in lines if r["kind"] == kind]
 
 
 class MatcherContract:
@@ -346,12 +328,25 @@ class BackendContract(MatcherContract):
         checked_features(features, (w, h))  # refused as in flight, naming them
 
     def test_backend_blank_image_gives_no_error(self) -> None:
+        """A blank image gives ``Features`` (none, or few), with descriptors of the textured
+        image's width and dtype, that ``match`` takes."""
         backend = self.make_backend()
         side = self._side(backend)
         blank = backend.extract(self._image(np.full((side, side, 3), 128, np.uint8)))
         assert isinstance(blank, Features)
-        raw = backend.match(blank, self._textured(backend))
+        textured = self._textured(backend)
+        raw = backend.match(blank, textured)
         assert isinstance(raw, RawMatches) and len(raw) <= len(blank)
+        assert_empty_fits(blank, textured)
+
+    def test_backend_keeps_to_its_keypoint_budget(self) -> None:
+        """At most ``max_keypoints`` keypoints (where declared, else the core's ceiling) on
+        each of the kit's images: the stand-in, the probe pair and the frame-sized image."""
+        backend = self.make_backend()
+        side, rule = self._side(backend), backend.input_rule
+        query, tile, _ = probe_pair(rule, self.frame_size)
+        frame_sized = probe_image(probe_side(rule, 640), probe_side(rule, 480))
+        assert_within_budget(backend, [probe_image(side, side), query, tile, frame_sized])
 
     def test_backend_self_match_finds_the_same_points(self) -> None:
         backend = self.make_backend()
