@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -12,6 +13,8 @@ from c3_matcher.dto import RerankResult
 from c3_matcher.errors import InvalidInputError, MatcherBackboneError
 from c3_matcher.testing import ScriptedCandidate as S
 from c3_matcher.testing import ScriptedRig
+
+from .host_exit import ctrl_c, host_exit, host_handler
 
 
 def _two_gsds(rig: ScriptedRig) -> None:
@@ -49,14 +52,19 @@ class Abort(BaseException):
 
 @pytest.mark.parametrize(
     "raised",
-    [InvalidInputError("tile_gsd_m", "would scale the frame too far"), Abort("gave up")],
-    ids=["bad-gsd", "a-plugins-own-BaseException"],
+    [
+        InvalidInputError("tile_gsd_m", "would scale the frame too far"),
+        Abort("gave up"),
+        SystemExit("plugin quit"),
+    ],
+    ids=["bad-gsd", "a-plugins-own-BaseException", "a-plugins-own-sys.exit"],
 )
 def test_a_gsd_the_frame_cannot_be_prepared_at_drops_only_its_candidates(
     fdr, logs, monkeypatch: pytest.MonkeyPatch, raised: BaseException
 ):
     """Drop and continue: the candidate of a GSD the query fails at (a GSD mistyped in other
-    units, say, or the backend's own ``BaseException`` at that scale) is dropped with phase
+    units, say, or the backend's own ``BaseException`` or ``sys.exit()`` at that scale) is
+    dropped with phase
     ``query_extract``; the others are matched."""
     rig = _failing_at_the_coarse_gsd(fdr, monkeypatch, raised)
     result = rig.match()
@@ -65,31 +73,38 @@ def test_a_gsd_the_frame_cannot_be_prepared_at_drops_only_its_candidates(
     assert (record["phase"], record["candidate_index"]) == ("query_extract", 1)
 
 
-@pytest.mark.parametrize("stop", [KeyboardInterrupt(), SystemExit(143)], ids=["Ctrl-C", "sys.exit"])
+@pytest.mark.parametrize(
+    ("stop", "stopped"),
+    [(ctrl_c, KeyboardInterrupt), (host_exit, SystemExit)],
+    ids=["Ctrl-C", "the-hosts-handlers-sys.exit"],
+)
 def test_a_stop_at_one_gsd_goes_on_to_the_caller(
-    fdr, logs, monkeypatch: pytest.MonkeyPatch, stop: BaseException
+    fdr, logs, monkeypatch: pytest.MonkeyPatch, stop: Any, stopped: type[BaseException]
 ):
-    """A stop (Ctrl-C, the host's ``sys.exit``) while the query is prepared at one GSD fails no
-    candidate: the frame's one health update and ``matcher.interrupted`` record, then the
-    stop reaches the caller."""
+    """A stop (Ctrl-C, the host's ``sys.exit`` from its signal handler) while the query is
+    prepared at one GSD fails no candidate: the frame's one health update and
+    ``matcher.interrupted`` record, then the stop reaches the caller."""
     rig = _failing_at_the_coarse_gsd(fdr, monkeypatch, stop)
-    with pytest.raises(type(stop)):
+    with host_handler(), pytest.raises(stopped):
         rig.match()
     assert [kind for kind, _ in fdr.records] == ["matcher.interrupted"]
     assert rig.health.update_count == 1
 
 
 def _failing_at_the_coarse_gsd(
-    fdr: Any, monkeypatch: pytest.MonkeyPatch, raised: BaseException
+    fdr: Any, monkeypatch: pytest.MonkeyPatch, raised: BaseException | Callable[[], object]
 ) -> ScriptedRig:
-    """A rig of candidates at two GSDs whose query raises ``raised`` at the coarse one."""
+    """A rig of candidates at two GSDs whose query raises ``raised`` (or what calling it
+    raises) at the coarse one."""
     from c3_matcher.stages import scales
 
     real = scales.prepare_query
 
     def fails_at_the_coarse_gsd(*args: Any, **kwargs: Any) -> Any:
         if args[4] > 1.5 * rig.rerank.candidates[0].ground_sample_distance_m():
-            raise raised
+            if isinstance(raised, BaseException):
+                raise raised
+            raised()
         return real(*args, **kwargs)
 
     monkeypatch.setattr(scales, "prepare_query", fails_at_the_coarse_gsd)

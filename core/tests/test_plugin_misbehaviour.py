@@ -1,13 +1,14 @@
 """A plugin that misbehaves in flight does not break the frame's contract: whatever its backend
-raises (its own ``BaseException`` included) ends as the contract's error with the frame's
-terminal record and one health update; a stop (Ctrl-C, the host's ``sys.exit``) still reaches
-the caller after the frame's one health update and its record, none when the stop cut a write
-short; a ``provenance()`` that raises, returns no mapping or names the core's own record fields
-neither loses the frame nor changes its record."""
+raises (its own ``BaseException`` and ``sys.exit()`` included) ends as the contract's error with
+the frame's terminal record and one health update; a stop (Ctrl-C, the host's ``sys.exit`` from
+its signal handler) still reaches the caller after the frame's one health update and its record,
+none when the stop cut a write short; a ``provenance()`` that raises, returns no mapping or names
+the core's own record fields neither loses the frame nor changes its record."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import sys
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import pytest
@@ -19,6 +20,8 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.stages.frame_records import TERMINAL_RECORD_FIELDS
 from c3_matcher.testing import FakeBackend, ScriptedCandidate, ScriptedRig
+
+from .host_exit import HOST_STATUS, ctrl_c, host_exit, host_handler
 
 S = ScriptedCandidate
 TERMINAL = (
@@ -33,6 +36,24 @@ class Abort(BaseException):
     """A plugin's own ``BaseException``."""
 
 
+Raise = BaseException | Callable[[], object]
+"""What a step raises: an exception, or what raises one when called (a stop, as it is raised)."""
+
+
+@pytest.fixture(autouse=True)
+def _the_hosts_handler() -> Iterator[None]:
+    """The host's signal handler that exits, installed for every test: a plugin's own
+    ``sys.exit`` is its failure even in a host that has one."""
+    with host_handler():
+        yield
+
+
+def _fire(raised: Raise) -> None:
+    if isinstance(raised, BaseException):
+        raise raised
+    raised()
+
+
 class Misbehaving:
     """The fake backend, but its ``extract`` raises ``on_query`` on the query frame and
     ``on_tile[i]`` on tile ``i``, and its ``provenance`` is ``provenance``."""
@@ -41,8 +62,8 @@ class Misbehaving:
         self,
         inner: FakeBackend,
         *,
-        on_query: BaseException | None = None,
-        on_tile: Mapping[int, BaseException] | None = None,
+        on_query: Raise | None = None,
+        on_tile: Mapping[int, Raise] | None = None,
         provenance: Callable[[], Any] | None = None,
     ) -> None:
         self.inner = inner
@@ -55,7 +76,7 @@ class Misbehaving:
         mark = int(image.image.max())  # tile i is i + 1, the query 255
         raised = self.on_query if image.calibration is not None else self.on_tile.get(mark - 1)
         if raised is not None:
-            raise raised
+            _fire(raised)
         return self.inner.extract(image)
 
     def match(self, query: Features, tile: Features) -> RawMatches:
@@ -78,7 +99,12 @@ def _terminal(fdr: InMemoryFdr) -> list[tuple[str, dict[str, Any]]]:
     ]
 
 
-@pytest.mark.parametrize("raised", [RuntimeError("backend gave up"), Abort("plugin abort")])
+OWN = [RuntimeError("backend gave up"), Abort("plugin abort"), SystemExit("plugin quit")]
+OWN_IDS = ["an exception", "a plugin's own BaseException", "a plugin's own sys.exit"]
+"""What a plugin raises of its own: its step's failure, its ``sys.exit()`` (no handler's) too."""
+
+
+@pytest.mark.parametrize("raised", OWN, ids=OWN_IDS)
 def test_a_base_exception_on_the_query_is_the_contract_error_with_its_record(fdr, logs, raised):
     rig = _rig(fdr, [S(120)], on_query=raised)
     with pytest.raises(MatcherBackboneError) as caught:
@@ -90,7 +116,7 @@ def test_a_base_exception_on_the_query_is_the_contract_error_with_its_record(fdr
     assert rig.health.update_count == 1 and rig.health.last_update.had_backbone_error
 
 
-@pytest.mark.parametrize("raised", [RuntimeError("backend gave up"), Abort("plugin abort")])
+@pytest.mark.parametrize("raised", OWN, ids=OWN_IDS)
 def test_a_base_exception_on_a_tile_drops_only_that_candidate(fdr, logs, raised):
     rig = _rig(fdr, [S(120), S(150)], on_tile={1: raised})
     result = rig.match()
@@ -105,8 +131,16 @@ def test_a_base_exception_on_a_tile_drops_only_that_candidate(fdr, logs, raised)
 
 @pytest.mark.parametrize(
     "raised",
-    [Abort("plugin abort"), InsufficientInliersError("f", 0, 60, 1, 1, "x")],
-    ids=["a plugin's own BaseException", "a contract error not the matcher's own"],
+    [
+        Abort("plugin abort"),
+        SystemExit("plugin quit"),
+        InsufficientInliersError("f", 0, 60, 1, 1, "x"),
+    ],
+    ids=[
+        "a plugin's own BaseException",
+        "a sys.exit no handler raised",
+        "a contract error not the matcher's own",
+    ],
 )
 def test_anything_else_raised_inside_the_matcher_is_an_internal_backbone_error(
     fdr, logs, monkeypatch, raised
@@ -125,48 +159,53 @@ def test_anything_else_raised_inside_the_matcher_is_an_internal_backbone_error(
     assert rig.health.update_count == 1
 
 
-STOPS = [KeyboardInterrupt(), SystemExit(143)]  # Ctrl-C; the host's own sys.exit(143)
-STOP_IDS = ["Ctrl-C", "sys.exit"]
+STOPS = [
+    pytest.param(ctrl_c, KeyboardInterrupt, id="Ctrl-C"),
+    pytest.param(host_exit, SystemExit, id="the host's handler's sys.exit"),
+]
 
 
-def _raising(stop: BaseException, where: str) -> dict[str, Any]:
+def _raising(stop: Callable[[], object], where: str) -> dict[str, Any]:
     """The misbehaviour that raises ``stop`` in the step ``where`` names."""
     if where == "query":
         return {"on_query": stop}
     if where == "a tile":
         return {"on_tile": {1: stop}}
-    return {"provenance": lambda: (_ for _ in ()).throw(stop)}
+    return {"provenance": stop}
 
 
-@pytest.mark.parametrize("stop", STOPS, ids=STOP_IDS)
+@pytest.mark.parametrize(("stop", "stopped"), STOPS)
 @pytest.mark.parametrize("where", ["query", "a tile", "provenance"])
-def test_a_stop_goes_on_to_the_caller_with_the_frame_recorded_first(fdr, logs, stop, where):
+def test_a_stop_goes_on_to_the_caller_with_the_frame_recorded_first(
+    fdr, logs, stop, stopped, where
+):
     """A stop raised in any of a plugin's steps is no failure of that step (no candidate
     dropped, no contract error): the frame's one health update and its ``matcher.interrupted``
     record, then the stop itself reaches the caller."""
     misbehaviour = _raising(stop, where)
     rig = _rig(fdr, [S(120), S(150)], **misbehaviour)
-    with pytest.raises(type(stop)) as caught:
+    with pytest.raises(stopped) as caught:
         rig.match()
-    assert caught.value is stop
+    if stopped is SystemExit:
+        assert caught.value.code == HOST_STATUS
     ((kind, record),) = _terminal(fdr)
     assert kind == "matcher.interrupted"
     assert record["frame_id"] == str(rig.frame.frame_id)
-    assert record["error"] == f"{type(stop).__name__}: {stop}"
+    assert record["error"] == f"{stopped.__name__}: {caught.value}"
     assert rig.health.update_count == 1 and rig.health.last_update.best_inlier_count == 0
     assert not fdr.of_kind("matcher.backbone_error")  # a stop is no backbone failure
 
 
-@pytest.mark.parametrize("stop", STOPS, ids=STOP_IDS)
-def test_a_stop_inside_the_matchers_own_code_goes_on(fdr, logs, monkeypatch, stop):
+@pytest.mark.parametrize(("stop", "stopped"), STOPS)
+def test_a_stop_inside_the_matchers_own_code_goes_on(fdr, logs, monkeypatch, stop, stopped):
     """The host's signal handler may run anywhere in the frame, in the core's own code too."""
 
     def ranked(survivors: Any) -> Any:
-        raise stop
+        return stop()
 
     monkeypatch.setattr(c3_matcher.pipeline, "ranked", ranked)
     rig = _rig(fdr, [S(120)])
-    with pytest.raises(type(stop)):
+    with pytest.raises(stopped):
         rig.match()
     assert [kind for kind, _ in _terminal(fdr)] == ["matcher.interrupted"]
     assert rig.health.update_count == 1
@@ -176,35 +215,35 @@ class StoppedInWrite(InMemoryFdr):
     """An FDR client (of the test's module, as an embedding's would be) that a stop ends while
     it writes a record of ``kind``: after the line (the frame's last write) or before it."""
 
-    def __init__(self, kind: str, stop: BaseException, *, after: bool) -> None:
+    def __init__(self, kind: str, stop: Callable[[], object], *, after: bool) -> None:
         super().__init__()
         self.kind, self.stop, self.after = kind, stop, after
 
     def record(self, kind: str, payload: Mapping[str, Any]) -> None:
         if kind == self.kind and not self.after:
-            raise self.stop
+            self.stop()
         super().record(kind, payload)
         if kind == self.kind:
-            raise self.stop
+            self.stop()
 
 
-@pytest.mark.parametrize("stop", STOPS, ids=STOP_IDS)
-def test_a_stop_that_cut_the_success_write_short_adds_no_record_after_it(stop):
+@pytest.mark.parametrize(("stop", "stopped"), STOPS)
+def test_a_stop_that_cut_the_success_write_short_adds_no_record_after_it(stop, stopped):
     fdr = StoppedInWrite("matcher.frame_done", stop, after=True)
     rig = _rig(fdr, [S(120)])
-    with pytest.raises(type(stop)):
+    with pytest.raises(stopped):
         rig.match()
     assert [kind for kind, _ in _terminal(fdr)] == ["matcher.frame_done"]
     assert rig.health.update_count == 1
 
 
-@pytest.mark.parametrize("stop", STOPS, ids=STOP_IDS)
-def test_a_stop_that_cut_a_candidates_write_short_still_updates_health_once(stop):
+@pytest.mark.parametrize(("stop", "stopped"), STOPS)
+def test_a_stop_that_cut_a_candidates_write_short_still_updates_health_once(stop, stopped):
     """Ended inside a dropped candidate's record (not the frame's last write): no record after
     the torn one, and the frame's health update all the same, since it writes no record."""
     fdr = StoppedInWrite("matcher.backbone_error", stop, after=False)
     rig = _rig(fdr, [S(120), S(150)], on_tile={1: RuntimeError("extractor down")})
-    with pytest.raises(type(stop)):
+    with pytest.raises(stopped):
         rig.match()
     assert fdr.records == []  # nothing written after the write the stop cut short
     assert rig.health.update_count == 1
@@ -222,8 +261,9 @@ def _raises() -> Any:
         (_raises, "provenance() raised RuntimeError: provenance unavailable"),
         (lambda: ["opencv"], "provenance() returned list, not a mapping"),
         (lambda: (_ for _ in ()).throw(Abort("no")), "provenance() raised Abort: no"),
+        (lambda: sys.exit("no"), "provenance() raised SystemExit: no"),
     ],
-    ids=["raises", "not a mapping", "its own BaseException"],
+    ids=["raises", "not a mapping", "its own BaseException", "its own sys.exit"],
 )
 def test_a_provenance_that_cannot_be_read_loses_no_frame(fdr, logs, provenance, said):
     rig = _rig(fdr, [S(120)], provenance=provenance)

@@ -27,6 +27,8 @@ from c3_matcher.testing import (
     make_rerank,
 )
 
+from .host_exit import ctrl_c, host_exit, host_handler
+
 FRAME, CALIBRATION = make_frame(uuid.UUID(int=5))
 
 
@@ -118,20 +120,35 @@ class Abort(BaseException):
     """A plugin's own ``BaseException``."""
 
 
-@pytest.mark.parametrize("stop", [KeyboardInterrupt(), SystemExit(143)], ids=["Ctrl-C", "sys.exit"])
-def test_a_plugins_own_base_exception_leaves_the_first_pass_and_a_stop_goes_on(stop):
+@pytest.mark.parametrize(
+    "raised", [Abort("backend gave up"), SystemExit("plugin quit")], ids=["own", "sys.exit"]
+)
+def test_a_plugins_own_base_exception_or_exit_leaves_the_first_pass(raised):
     """The pass is a plugin's step like any other: its own ``BaseException`` fails the pass,
-    not the frame; a stop (Ctrl-C, the host's ``sys.exit``) reaches the caller, no failure of
-    the pass said."""
+    not the frame, and so does its own ``sys.exit()`` (no signal handler's)."""
     working = FakeBackend(FakeInferenceRuntime(), FakeLightGlueRuntime())
-    backend, pre, query = _setup(fail_extract=True, raised=Abort("backend gave up"))
+    backend, pre, query = _setup(fail_extract=True, raised=raised)
     first = _first(working, pre, np.eye(3))
-    survivors, record, _ = _run(backend, pre, query, first)
-    assert survivors == [first] and record.reason == "Abort: backend gave up"
-    backend, pre, query = _setup(fail_extract=True, raised=stop)
+    survivors, record, reports = _run(backend, pre, query, first)
+    assert survivors == [first] and record.reason == f"{type(raised).__name__}: {raised}"
+    assert reports.failed == [str(raised)]
+
+
+@pytest.mark.parametrize(
+    ("stop", "stopped"),
+    [(ctrl_c, KeyboardInterrupt), (host_exit, SystemExit)],
+    ids=["Ctrl-C", "the host's handler's sys.exit"],
+)
+def test_a_stop_in_the_pass_goes_on(stop, stopped):
+    """A stop (Ctrl-C, the host's ``sys.exit`` from its signal handler) reaches the caller, no
+    failure of the pass said."""
+    working = FakeBackend(FakeInferenceRuntime(), FakeLightGlueRuntime())
+    backend, pre, query = _setup()
+    first = _first(working, pre, np.eye(3))
+    backend.extract = lambda image: stop()  # type: ignore[method-assign]
     reports = Reports()
-    with pytest.raises(type(stop)):
-        _run(backend, pre, query, _first(working, pre, np.eye(3)), reports=reports)
+    with host_handler(), pytest.raises(stopped):
+        _run(backend, pre, query, first, reports=reports)
     assert reports.failed == []
 
 

@@ -306,7 +306,7 @@ class PipelineMatcher:
                 cut_notice=self._cut_notice,
             )
         except BaseException as exc:  # a plugin's own BaseException too
-            if is_stop(exc):  # Ctrl-C, SystemExit: they go on
+            if is_stop(exc):  # Ctrl-C, a signal handler's exit: they go on
                 raise
             recorder.query_failed(exc)
             raise MatcherBackboneError("query_extract", None, exc) from exc

@@ -79,9 +79,10 @@ class ClosableMatcher(CrossDomainMatcher, Protocol):
 @runtime_checkable
 class FeatureBackend(Protocol):
     """A strategy's model I/O, the one thing a strategy adds to the per-frame pipeline.
-    Exceptions raised here (its own ``BaseException`` too) become per-candidate drops (or, for
-    the query frame, a ``MatcherBackboneError``); only a stop goes on to ``match``'s caller:
-    Ctrl-C, ``SystemExit`` (the host's own exit), a closing generator (``stages.interrupts``)."""
+    Exceptions raised here (its own ``BaseException`` and ``sys.exit()`` too) become
+    per-candidate drops (or, for the query frame, a ``MatcherBackboneError``); only a stop goes
+    on to ``match``'s caller: Ctrl-C, a ``SystemExit`` one of the host's signal handlers raised,
+    a closing generator (``stages.interrupts``)."""
 
     @property
     def label(self) -> str:

@@ -1,8 +1,9 @@
 """A run keeps its output when its strategy's backend misbehaves after start-up: a
 ``provenance()`` that raises loses no frame and no report (each frame's record and the run's
 provenance say ``provenance_error``), and its own ``BaseException`` from ``extract`` on a frame is
-that frame's backbone error, the run going on; the host's own ``sys.exit`` (its SIGTERM handler's)
-while a frame is matched is no plugin's failure: it reaches the host, the frame recorded first.
+that frame's backbone error, the run going on, and so is its own ``sys.exit()`` under ``replay``;
+the host's own ``sys.exit`` (its SIGTERM handler's) while a frame is matched is no plugin's
+failure: it reaches the host, the frame recorded first.
 Real path: the shipped demo flight cut to two frames, the ``sift_magsac`` baseline composed as
 ``replay`` composes it, its FDR on disk."""
 
@@ -18,13 +19,16 @@ from typing import Any
 
 import pytest
 
+from c3_matcher.cli import main
 from c3_matcher.compose import build_plugin_host
 from c3_matcher.config import C3Settings
 from c3_matcher.pipeline import PipelineMatcher
+from c3_matcher_tools.baselines import SiftBackend
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.run.flight import fly_prepared
 from c3_matcher_tools.run.matcher import prepare_matcher
 from c3_matcher_tools.run.records import FlightRun, FrameStatus
+from c3_matcher_tools.run.run_mark import RUN_MARK
 
 SmallFlight = Callable[..., Path]  # the fixture of conftest.py
 
@@ -110,6 +114,58 @@ def test_a_plugins_own_base_exception_from_extract_is_that_frames_backbone_error
         ("matcher.insufficient_inliers", None),
     ]
     assert run.provenance["provider"]  # the backend's own, read at the end
+
+
+def _replay_failing_once(
+    raise_it: Callable[[], None], out: Path, flight: Path, monkeypatch: pytest.MonkeyPatch
+) -> int:
+    """``c3-matcher replay`` of ``flight`` with ``sift_magsac``, its backend's first ``extract``
+    of a frame's query (the start-up probe's image has no calibration) calling ``raise_it``:
+    the command's exit status."""
+    real = SiftBackend.extract
+    queries: list[int] = []
+
+    def extract(self: SiftBackend, image: Any) -> Any:
+        if image.calibration is not None:
+            queries.append(1)
+            if len(queries) == 1:
+                raise_it()
+        return real(self, image)
+
+    with monkeypatch.context() as patched:
+        patched.setattr(SiftBackend, "extract", extract)
+        return main(["replay", str(flight), "--strategy", "sift_magsac", "--out", str(out)])
+
+
+def test_a_plugins_own_sys_exit_in_extract_is_that_frames_backbone_error_and_replay_goes_on(
+    small_flight: SmallFlight, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Under the command line a ``SystemExit`` during a frame is no signal handler's (SIGTERM
+    is a ``KeyboardInterrupt`` there): a plugin's own ``sys.exit()`` fails only that frame, as
+    any exception of its does; the replay scores both frames and ends, exit status and all, as
+    with any frame's backbone error."""
+    flight = small_flight("plugin_exit")
+
+    def gives_up() -> None:
+        raise RuntimeError("backend gave up")
+
+    def quits() -> None:
+        sys.exit(3)
+
+    ended = {
+        name: _replay_failing_once(raise_it, tmp_path / name, flight, monkeypatch)
+        for name, raise_it in (("error", gives_up), ("exit", quits))
+    }
+    assert ended["exit"] == ended["error"]
+    out = tmp_path / "exit"
+    kinds = [(r["kind"], r["payload"].get("phase")) for r in _frame_records(out)]
+    assert kinds == [
+        ("matcher.backbone_error", "query_extract"),
+        ("matcher.insufficient_inliers", None),
+    ]
+    assert _frame_records(out)[0]["payload"]["error"] == "SystemExit: 3"
+    assert "running" not in json.loads((out / RUN_MARK).read_text())
+    assert json.loads((out / "report.json").read_text())["frames_done"] == 2
 
 
 @contextmanager

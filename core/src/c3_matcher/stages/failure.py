@@ -31,7 +31,7 @@ class CandidateStepError(Exception):
 def failing_as(phase: str, source: str) -> Iterator[None]:
     """Run a step of a candidate: any exception it raises leaves as a ``CandidateStepError`` of
     ``phase`` (features from ``source``), a plugin's own ``BaseException`` too (it fails the
-    step, not the flight); a stop (Ctrl-C, ``SystemExit``, a closing generator) goes on
+    step, not the flight); a stop (Ctrl-C, a signal handler's exit, a closing generator) goes on
     (``stages.interrupts.is_stop``)."""
     try:
         yield

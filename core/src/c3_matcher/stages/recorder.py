@@ -5,7 +5,7 @@ Terminal FDR record per ``match`` call, exactly one of: ``matcher.frame_done`` (
 ``matcher.insufficient_inliers`` (raised InsufficientInliersError), ``matcher.backbone_error``
 with ``phase="query_extract"`` (the query frame itself failed) or ``phase="internal"`` (a bug,
 answered with the contract's error), ``matcher.invalid_input``, or ``matcher.interrupted`` (a
-stop, Ctrl-C or ``SystemExit``; none when it cut a write short: ``stages.interrupts``). Per
+stop, Ctrl-C or a signal handler's exit; none when it cut a write short: ``stages.interrupts``). Per
 dropped candidate, one ``matcher.backbone_error`` record with its ``tile_id`` and ``phase``. A
 recorder failure is logged, never fails the frame; every payload is made before the frame's
 health update, so the health window counts only what the caller gets.
@@ -387,7 +387,7 @@ class FrameRecorder:
         self.backbone_error(None, "internal", exc)
 
     def interrupted(self, stop: BaseException) -> None:
-        """A stop (``stages.interrupts``: Ctrl-C, ``SystemExit``) ended the frame and goes on:
+        """A stop (``stages.interrupts``: Ctrl-C, a handler's exit) ended the frame and goes on:
         its health update (no fix; it writes no record, so always) and a ``matcher.interrupted``
         record, unless its terminal record was made already or the stop cut a write short (a
         record now would be glued to a torn line)."""

@@ -66,7 +66,7 @@ class RefinePass:
             with timed(first.timings, "refine"):
                 verdict = self._second_pass(frame, calibration, scale, first)
         except BaseException as exc:  # the first pass stands (a plugin's own too)
-            if is_stop(exc):  # Ctrl-C, SystemExit: they go on
+            if is_stop(exc):  # Ctrl-C, a signal handler's exit: they go on
                 raise
             recorder.refine_failed(first.match_set.tile_id, exc)
             return list(survivors), replace(record, reason=describe(exc))

@@ -96,7 +96,7 @@ def prepare_scales(
                 cut_notice=cut_notice,
             )
         except BaseException as exc:  # that scale's candidates fail (a plugin's own too)
-            if is_stop(exc):  # Ctrl-C, SystemExit: they go on
+            if is_stop(exc):  # Ctrl-C, a signal handler's exit: they go on
                 raise
             failed |= dict.fromkeys(group.members, exc)
             continue
