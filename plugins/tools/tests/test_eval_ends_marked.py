@@ -64,7 +64,7 @@ def test_a_refused_report_fails_its_flight_alone_and_the_next_is_not_reached(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    args, out = _eval(small_flight, tmp_path)
+    args, out = _eval(small_flight, tmp_path, "--json")
     assert main(args) == 0  # an earlier eval: f2's results are there
     assert (out / "f2" / "sift_magsac" / "results.jsonl").is_file()
     capsys.readouterr()
@@ -75,7 +75,17 @@ def test_a_refused_report_fails_its_flight_alone_and_the_next_is_not_reached(
     f2 = _mark(out, "f2")
     assert f2["complete"] is False and "failed" not in f2 and "running" not in f2, f2
     assert not (out / "f2" / "sift_magsac").exists()  # no earlier run's results under its mark
-    assert failed in capsys.readouterr().err
+    said = capsys.readouterr()
+    assert failed in said.err
+    document = json.loads(said.out)  # what was done, said all the same: each flight named
+    assert document["flights"] == []
+    rows = {row["flight"]: row["stopped"] for row in document["summary"]}
+    assert (
+        rows["f1"] == f"ended by a write that failed as its files were written: see its {RUN_MARK}"
+    )
+    assert (
+        rows["f2"] == "not run: the evaluation was ended by a write that failed before this flight"
+    )
 
 
 def test_a_refused_summary_still_prints_what_was_done(
@@ -105,7 +115,7 @@ def test_a_run_json_that_cannot_be_written_is_said_and_the_other_flight_still_ma
 ) -> None:
     args, out = _eval(small_flight, tmp_path)
     _refusing(c3_matcher_tools.run.run_mark, monkeypatch, lambda p: p == out / "f1" / RUN_MARK)
-    assert main(args) == 0
+    assert main(args) == 2  # a full disk, as replay's
     assert f"c3-matcher eval: {out / 'f1' / RUN_MARK} still says running: " in (
         capsys.readouterr().err
     )
@@ -150,3 +160,35 @@ def test_a_stopped_eval_marks_its_run_not_complete(
     for flight in ("f1", "f2"):
         mark = _mark(out, flight)
         assert mark["complete"] is False and "running" not in mark, mark
+
+
+@pytest.mark.parametrize(
+    ("at", "complete"),
+    [("write_summary", True), ("eval_plots", False)],
+    ids=["as-the-summary-is-written", "as-the-first-flights-plots-are-drawn"],
+)
+def test_a_stop_as_the_files_are_written_marks_each_flight_as_it_was_left(
+    small_flight: SmallFlight,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    at: str,
+    complete: bool,
+) -> None:
+    """Ctrl-C outside a strategy's frames: each run.json ended (complete where its eval.json was
+    written whole, else not), never "running" as a killed run's; exit 130, said where."""
+    args, out = _eval(small_flight, tmp_path)
+    module: Any = c3_matcher_tools.evaluate
+    if at == "eval_plots":
+        import c3_matcher_tools.plots as module
+
+    def interrupted(*args: object, **kwargs: object) -> Any:
+        os.kill(os.getpid(), signal.SIGINT)
+        raise AssertionError("the signal did not stop the run")
+
+    monkeypatch.setattr(module, at, interrupted)
+    assert main(args) == 130
+    assert "c3-matcher: interrupted as its files were written" in capsys.readouterr().err
+    f1, f2 = _mark(out, "f1"), _mark(out, "f2")
+    assert "running" not in f1 and "running" not in f2
+    assert ("complete" not in f1) is complete and ("complete" not in f2) is complete

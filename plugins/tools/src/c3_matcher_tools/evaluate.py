@@ -164,7 +164,6 @@ from c3_matcher_tools.run.outputs import (
     summary_above,
     write_summary,
 )
-from c3_matcher_tools.run.run_mark import mark_each_ended
 
 __all__ = [
     "BARS",
@@ -308,30 +307,37 @@ def _eval(args: argparse.Namespace, ctx: CommandContext) -> int:
         for summarised in held:  # written again as the run ends
             forget_previous_run(summarised, (EVAL_SUMMARY,))
         _forget_earlier_reports(outs, names)  # every flight's, before the first runs
-        run = EvalRun(several=root is not None)
+        run = EvalRun([d.name for d in datasets], outs, names, several=root is not None)
+        failure: OSError | None = None
         try:
-            _eval_datasets(args, ctx, datasets, outs, names, noted, run)
+            _eval_datasets(args, ctx, datasets, noted, run)
             rows = run.summary_rows()
             if (said := write_summary(rows, root, above, datasets[0].name)) is not None:
                 ctx.err(f"c3-matcher eval: {said}")
-        except OSError as exc:  # a full disk (or the reader gone): each run marked as it ended
-            run.ended_by(exc, ctx, outs, names, as_json=args.json)
-            raise
-        mark_each_ended(outs, EVAL_RUN, run.say(ctx), run.refused)
-    return run.finish(ctx, outs, noted, as_json=args.json)
+        except KeyboardInterrupt:  # a stop outside a strategy's frames: its files were written
+            if not noted:
+                raise
+            run.stopped_by = noted[-1]
+        except OSError as exc:  # a full disk, or stdout's reader gone
+            failure = exc
+        unmarked = run.end(ctx, failure)
+    if failure is not None:
+        if not isinstance(failure, BrokenPipeError):  # what it did, said all the same
+            run.show(ctx, as_json=args.json)
+        raise failure
+    return run.finish(ctx, noted, unmarked, as_json=args.json)
 
 
 def _eval_datasets(
     args: argparse.Namespace,
     ctx: CommandContext,
     datasets: Sequence[FlightDataset],
-    outs: Sequence[Path],
-    names: list[str],
     noted: Sequence[int],
     run: EvalRun,
 ) -> None:
-    """Each of ``datasets`` through every strategy, into its directory of ``outs``, until a
-    stop, ``run`` saying what was done as it goes."""
+    """Each of ``datasets`` through every strategy, into its directory of ``run.outs``, until
+    a stop, ``run`` saying what was done as it goes."""
+    names, outs = list(run.strategies), run.outs
     for n, (dataset, out) in enumerate(zip(datasets, outs, strict=True)):
         run.started.append(out)
         rows, report = _eval_dataset(args, ctx, dataset, names, out, noted)

@@ -268,9 +268,14 @@ class SummaryRow:
         )
 
     @classmethod
-    def not_run(cls, flights: Sequence[str], strategies: Sequence[str]) -> list[SummaryRow]:
-        """The rows of the ``flights`` a stop came before: each of ``strategies``, not run."""
-        said = "not run: the evaluation was stopped before this flight"
+    def not_run(
+        cls,
+        flights: Sequence[str],
+        strategies: Sequence[str],
+        said: str = "not run: the evaluation was stopped before this flight",
+    ) -> list[SummaryRow]:
+        """The rows of the ``flights`` a stop (or a failure, as ``said``) came before: each of
+        ``strategies``, not run."""
         return [cls(n, flight, error=said, stopped=True) for flight in flights for n in strategies]
 
     def to_json(self) -> dict[str, Any]:

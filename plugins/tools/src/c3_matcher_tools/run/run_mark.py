@@ -104,14 +104,16 @@ def refused_write(refused: OSError, directory: Path) -> str:
 
 def say_ended(
     directory: Path, say: Callable[[str], None], failed: str | None = None, complete: bool = True
-) -> None:
-    """:func:`mark_ended`, where a disk too full even for that leaves the mark saying
-    ``running`` (what a killed run leaves): ``say``-s so rather than leave it to be read as a
+) -> bool:
+    """:func:`mark_ended`; False where a disk too full even for that leaves the mark saying
+    ``running`` (what a killed run leaves), ``say``-ing so rather than leave it to be read as a
     kill."""
     try:
         mark_ended(directory, failed, complete=complete)
     except OSError as unmarked:
         say(f"{directory / RUN_MARK} still says running: {unmarked}")
+        return False
+    return True
 
 
 def mark_each_ended(
@@ -120,18 +122,22 @@ def mark_each_ended(
     say: Callable[[str], None],
     refused: Mapping[Path, str | None],
     failure: OSError | None = None,
-) -> None:
+) -> list[Path]:
     """Each of a run's ``directories`` (one a flight) marked ended (:func:`say_ended`, each
     apart): complete where its own ``layout.report`` was written and says so, not where the
     run stopped in it or before it; failed where ``refused`` names a write a full disk refused
-    there, or where the ``failure`` that ended the run was a write of a file in it."""
+    there, or where the ``failure`` that ended the run was a write of a file in it. Those whose
+    mark could not be written, returned."""
+    unmarked: list[Path] = []
     for directory in directories:
         report = run_json_file(directory / layout.report)
         complete = isinstance(report, dict) and report.get("complete") is True
         failed = refused.get(directory)
         if failure is not None and _lies_in(failure.filename, directory):
             failed = refused_write(failure, directory)
-        say_ended(directory, say, failed, complete)
+        if not say_ended(directory, say, failed, complete):
+            unmarked.append(directory)
+    return unmarked
 
 
 def _lies_in(filename: object, directory: Path) -> bool:
