@@ -172,3 +172,18 @@ def test_an_empty_match_no_setting_explains_is_still_an_engine_fault():
     with pytest.raises(EngineError, match="gave no match"):
         engine_startup_probe(backend)  # type: ignore[arg-type]
     assert backend.sides == [128]  # not tried larger
+
+
+class ExitsOnExtract(Blind):
+    """A backend whose extractor calls ``sys.exit()`` (or a library it calls does)."""
+
+    def extract(self, image: Any) -> Features:
+        raise SystemExit("licence check failed")
+
+
+def test_a_plugins_sys_exit_in_the_probe_is_its_start_up_failure_not_the_processs_exit():
+    """Raised outside every signal handler, it is the plugin's failure, as in flight."""
+    with pytest.raises(EngineError) as failed:
+        engine_startup_probe(ExitsOnExtract({}))  # type: ignore[arg-type]
+    assert "start-up probe failed" in str(failed.value)
+    assert "SystemExit: licence check failed" in str(failed.value)

@@ -29,6 +29,7 @@ from c3_matcher.features import Features, RawMatches
 from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.protocols import EarlyStopping, FeatureBackend
 from c3_matcher.stages.extract import extract_checked
+from c3_matcher.stages.interrupts import is_stop
 
 __all__ = [
     "BACKEND_MEMBERS",
@@ -178,7 +179,9 @@ def _probe_once(
             if stopped is not None:
                 return stopped
         check_shifted_matches(query, tile, matches, shift)
-    except Exception as exc:
+    except BaseException as exc:  # a plugin's own sys.exit too: its failure, named
+        if is_stop(exc):  # Ctrl-C, a signal handler's exit: they go on
+            raise
         failed = (
             f"start-up probe failed ({_images(query_image, tile_image, shift)}): {describe(exc)}"
         )
