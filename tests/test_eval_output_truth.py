@@ -160,12 +160,20 @@ def test_summary_values_are_right_justified_under_their_headers() -> None:
 
 
 def test_json_for_one_dataset_is_its_eval_json() -> None:
-    from c3_matcher_tools.evaluate import _json_document
+    from types import SimpleNamespace
+
+    from c3_matcher_tools.eval_end import EvalRun
+    from c3_matcher_tools.run.evaluation import SummaryRow
 
     report = {"dataset": "d", "strategies": []}
-    assert _json_document([report], [{"strategy": "xfeat"}], several=False) is report
-    several = _json_document([report], [{"strategy": "xfeat"}], several=True)  # one stopped
-    assert several == {"flights": [report], "summary": [{"strategy": "xfeat"}]}
+    rows = SummaryRow.not_run(["e"], ["xfeat"])  # a stop came before the second flight
+    said: list[str] = []
+    ctx: Any = SimpleNamespace(out=said.append)
+    EvalRun(["d"], [], ["xfeat"], several=False, reports=[report]).show(ctx, as_json=True)
+    run = EvalRun(["d", "e"], [], ["xfeat"], several=True, summary=rows, reports=[report])
+    run.show(ctx, as_json=True)
+    assert json.loads(said[0]) == report
+    assert json.loads(said[1]) == {"flights": [report], "summary": [rows[0].to_json()]}
 
 
 @pytest.mark.slow
