@@ -82,7 +82,7 @@ class EvalRun:
             said = f"{why} as its files were written: see its {RUN_MARK}"
             writing = self.flights[len(self.reports) : len(self.reports) + 1]
             self.summary.extend(SummaryRow.not_run(writing, self.strategies, said))
-        reached = max(len(self.started), len(self.reports))
+        reached = len(self.started)  # every flight with a report was started first
         said = f"not run: the evaluation was {why} before this flight"
         self.summary.extend(SummaryRow.not_run(self.flights[reached:], self.strategies, said))
         for out in self.outs[len(self.started) :]:
