@@ -27,6 +27,7 @@ from c3_matcher.stages.candidate_features import CandidateFeatures
 from c3_matcher.stages.extract import (
     KEYPOINT_CEILING,
     KEYPOINTS_CUT,
+    Extraction,
     cut_to_budget,
     extract_checked,
     extraction_budget,
@@ -167,7 +168,7 @@ def test_a_raising_match_forgets_its_tile_and_a_failing_ransac_keeps_it() -> Non
 def test_a_forgotten_tile_leaves_the_cache_and_is_extracted_again() -> None:
     backend = _backend()
     pre = FramePreprocessor(backend.input_rule)
-    source = CandidateFeatures(backend, pre, TileFeatureCache(4), None, False)
+    source = CandidateFeatures(Extraction(backend), pre, TileFeatureCache(4), None, False)
     candidate = make_rerank(uuid.UUID(int=1), [ScriptedCandidate()]).candidates[0]
     first = source.fetch(candidate, None, {})  # type: ignore[arg-type]
     cached = source.fetch(candidate, None, {})  # type: ignore[arg-type]
@@ -178,7 +179,7 @@ def test_a_forgotten_tile_leaves_the_cache_and_is_extracted_again() -> None:
     assert again.source == "extracted"
     again.forget()
     again.forget()  # forgetting twice, or a tile the cache no longer holds, is no fault
-    off = CandidateFeatures(backend, pre, TileFeatureCache(0), None, False)
+    off = CandidateFeatures(Extraction(backend), pre, TileFeatureCache(0), None, False)
     off.fetch(candidate, None, {}).forget()  # type: ignore[arg-type]
 
 
@@ -287,3 +288,33 @@ def test_the_refine_pass_names_a_match_that_returns_no_raw_matches() -> None:
     said = "raw_matches: match returned NoneType, not RawMatches (backbone fake_backend)"
     assert survivors == [first] and record.reason == f"InvalidInputError: {said}"
     assert reports.failed == [said]
+
+
+class CountedBudget(FakeBackend):
+    """A FakeBackend that declares a budget of 5 and counts how often it is asked for it."""
+
+    asked = 0
+
+    @property
+    def max_keypoints(self) -> int:
+        self.asked += 1
+        return 5
+
+
+def test_a_matcher_reads_the_budget_once_when_composed_not_every_extraction() -> None:
+    """The budget is part of the backend's declared interface, fixed for its life: read when
+    the matcher is composed, then two frames (a query and two tiles each, every extraction over
+    the budget, so every one is cut) ask for it no more."""
+    script = [ScriptedCandidate(), ScriptedCandidate(90)]
+    frame, calibration = make_frame(uuid.UUID(int=4))
+    backend = CountedBudget(FakeInferenceRuntime(script), FakeLightGlueRuntime(script))
+    matcher = scripted_pipeline(
+        backend, FakeRansacFilter(script), InMemoryFdr(), PipelineSettings()
+    )
+    composed = backend.asked
+    assert composed >= 1
+    for _ in range(2):
+        result = matcher.match(frame, make_rerank(frame.frame_id, script), calibration)
+        assert result.candidates_dropped == 0
+    assert backend.asked == composed
+    assert len(Extraction(backend)(_image(64))) == 5  # the cut these frames made

@@ -14,6 +14,7 @@ from c3_matcher.features import Features
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import StoredFeaturesBackend
 from c3_matcher.stages.candidate_features import CandidateFeatures, feature_request
+from c3_matcher.stages.extract import Extraction
 from c3_matcher.stages.failure import CandidateStepError
 from c3_matcher.testing import (
     FakeBackend,
@@ -71,7 +72,7 @@ def _backend(cls: type[FakeBackend] = FakeBackend, script=()) -> FakeBackend:
 def _source(backend: FakeBackend, cache: int = 0, stored: bool = True) -> CandidateFeatures:
     pre = FramePreprocessor(backend.input_rule)
     request = feature_request(backend, pre)
-    return CandidateFeatures(backend, pre, TileFeatureCache(cache), request, stored)
+    return CandidateFeatures(Extraction(backend), pre, TileFeatureCache(cache), request, stored)
 
 
 def _candidate(script: list[ScriptedCandidate] | None = None) -> RerankCandidate:

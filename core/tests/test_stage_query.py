@@ -11,6 +11,7 @@ import pytest
 
 from c3_matcher.dto import Attitude, NavCameraFrame, RerankCandidate, TileId
 from c3_matcher.preprocess import FramePreprocessor
+from c3_matcher.stages.extract import Extraction
 from c3_matcher.stages.query import QUERY_ROTATIONS_DEG, GsdGroup, gsd_groups, prepare_query
 from c3_matcher.testing import (
     FakeBackend,
@@ -30,7 +31,7 @@ def _run(frame: NavCameraFrame, search: bool) -> tuple[object, dict[str, float],
     timings: dict[str, float] = {}
     query = prepare_query(
         FramePreprocessor(backend.input_rule),
-        backend,
+        Extraction(backend),
         frame,
         calibration,
         gsd_groups(rerank.candidates)[0].gsd_m,

@@ -12,6 +12,7 @@ import pytest
 
 from c3_matcher.dto import CandidateMatchSet, TileId
 from c3_matcher.preprocess import FramePreprocessor
+from c3_matcher.stages.extract import Extraction
 from c3_matcher.stages.outcomes import Survivor, TileFeatures
 from c3_matcher.stages.query import Query, gsd_groups, prepare_query
 from c3_matcher.stages.refine import NO_FOOTPRINT, RefinePass
@@ -49,7 +50,9 @@ def _setup(
     pre = FramePreprocessor(backend.input_rule)
     rerank = make_rerank(FRAME.frame_id, [ScriptedCandidate()])
     gsd = gsd_groups(rerank.candidates)[0].gsd_m
-    query = prepare_query(pre, backend, FRAME, CALIBRATION, gsd, rotation_search=False, timings={})
+    query = prepare_query(
+        pre, Extraction(backend), FRAME, CALIBRATION, gsd, rotation_search=False, timings={}
+    )
     if fail_extract:
 
         def broken(image: Any) -> Any:
@@ -72,7 +75,7 @@ def _run(
 ) -> tuple[list[Survivor], Any, Reports]:
     reports = reports or Reports()
     verifier = Verifier(SequenceRansacFilter(list(ransac)), 3.0, None)
-    survivors, record = RefinePass(pre, backend).run(
+    survivors, record = RefinePass(pre, Extraction(backend)).run(
         FRAME,
         CALIBRATION,
         FrameScales((QueryScale(query, verifier, (0,)),)),
@@ -167,7 +170,7 @@ def test_the_pass_uses_the_query_and_verifier_the_best_was_matched_against():
     other = Verifier(SequenceRansacFilter([(80, 1.0)]), 3.0, None)  # would rank no better
     own = Verifier(SequenceRansacFilter([(90, 0.5)]), 3.0, None)
     scales = FrameScales((QueryScale(query, other, (0,)), QueryScale(query, own, (1,))))
-    survivors, record = RefinePass(pre, backend).run(
+    survivors, record = RefinePass(pre, Extraction(backend)).run(
         FRAME,
         CALIBRATION,
         scales,

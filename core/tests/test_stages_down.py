@@ -25,6 +25,7 @@ from c3_matcher.pipeline import PipelineMatcher, PipelineSettings
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.prior import PriorTolerances
 from c3_matcher.ransac import OpenCvRansacFilter
+from c3_matcher.stages.extract import Extraction
 from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.scales import prepare_scales
 from c3_matcher.stages.verify import VerifierSettings, best_turn, candidate_verdict
@@ -98,7 +99,7 @@ def test_a_candidate_verdict_comes_back_in_original_frame_px() -> None:
     verification = VerifierSettings(OpenCvRansacFilter(), 3.0, True, PriorTolerances())
     scales = prepare_scales(
         pre,
-        backend,
+        Extraction(backend),
         frame,
         calibration,
         rerank.candidates,
@@ -127,7 +128,7 @@ def test_the_scales_build_each_verifier_from_the_settings_alone() -> None:
     off = VerifierSettings(OpenCvRansacFilter(), 2.5, False, PriorTolerances())
     scales = prepare_scales(
         FramePreprocessor(backend.input_rule),
-        backend,
+        Extraction(backend),
         frame,
         calibration,
         rerank.candidates,

@@ -54,7 +54,7 @@ from c3_matcher.protocols import Clock, FdrClient, FeatureBackend, RansacFilter
 from c3_matcher.stages.ambiguity import ambiguity
 from c3_matcher.stages.candidate_features import CandidateFeatures
 from c3_matcher.stages.candidate_features import feature_request as _feature_request
-from c3_matcher.stages.extract import KeypointCutNotice
+from c3_matcher.stages.extract import Extraction
 from c3_matcher.stages.failure import CandidateStepError
 from c3_matcher.stages.frame_inputs import check_inputs, frame_id_of
 from c3_matcher.stages.interrupts import is_stop
@@ -141,10 +141,10 @@ class PipelineMatcher:
         )
         cache = TileFeatureCache(settings.tile_cache_size)
         request = _feature_request(backend, self._pre)
-        self._cut_notice = cut = KeypointCutNotice()  # extractions over the budget: said once
+        self._extraction = extraction = Extraction(backend)  # its budget read, a cut said once
         tiles = (cache, request, settings.stored_features, settings.max_image_pixels)
-        self._tiles = CandidateFeatures(backend, self._pre, *tiles, cut)
-        self._refine = RefinePass(self._pre, backend, cut)
+        self._tiles = CandidateFeatures(extraction, self._pre, *tiles)
+        self._refine = RefinePass(self._pre, extraction)
         self._turns = FrameTurns(_close_failed)
         self._log_root = current_log_root()  # composed by a root: its frames log as its own
         self._pid = os.getpid()  # its recorder and log sinks are this process's alone
@@ -296,14 +296,13 @@ class PipelineMatcher:
         try:
             return prepare_scales(
                 self._pre,
-                self.backend,
+                self._extraction,
                 frame,
                 calibration,
                 candidates,
                 rotation_search=self.settings.rotation_search,
                 verification=self._verification,
                 timings=timings,
-                cut_notice=self._cut_notice,
             )
         except BaseException as exc:  # a plugin's own BaseException too
             if is_stop(exc):  # Ctrl-C, a signal handler's exit: they go on

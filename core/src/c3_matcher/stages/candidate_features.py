@@ -18,7 +18,7 @@ from c3_matcher.features import Features
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend, StoredFeaturesBackend, StoredFeaturesHandle
-from c3_matcher.stages.extract import KeypointCutNotice, checked_features, extract_checked
+from c3_matcher.stages.extract import Extraction, checked_features
 from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.provenance import read_provenance
@@ -63,26 +63,24 @@ class CandidateFeatures:
     ``use_stored`` False (``[matcher] stored_features``): never the store's; True: the store's
     when it has them for ``request`` (None: this backend's tiles are always extracted); a
     sidecar without a set for ``request`` is said once for the matcher's life; a tile is decoded
-    within ``max_pixels`` (:func:`~c3_matcher.tile_limit.decode_within`); an extraction over
-    the keypoint budget is cut, said through ``cut_notice`` (the matcher's). Single-threaded."""
+    within ``max_pixels`` (:func:`~c3_matcher.tile_limit.decode_within`) and extracted by
+    ``extraction`` (the matcher's: checked, cut to the keypoint budget). Single-threaded."""
 
     def __init__(
         self,
-        backend: FeatureBackend,
+        extraction: Extraction,
         pre: FramePreprocessor,
         cache: TileFeatureCache,
         request: FeatureRequest | None,
         use_stored: bool,
         max_pixels: int = DEFAULT_MAX_IMAGE_PIXELS,
-        cut_notice: KeypointCutNotice | None = None,
     ) -> None:
-        self._backend = backend
+        self._extraction = extraction
         self._pre = pre
         self.cache: Final = cache
         self.request: Final = request
         self.use_stored: Final = bool(use_stored) and request is not None
         self.max_pixels: Final = max_pixels
-        self._cut_notice = cut_notice or KeypointCutNotice()
         self._unserved: set[tuple[Path, str]] = set()  # (sidecar, set id) said already
 
     def fetch(
@@ -107,8 +105,9 @@ class CandidateFeatures:
                 pixels = decode_within(handle, self.max_pixels, f"tile {candidate.tile_id}")
             with timed(timings, "preprocess"):
                 image = self._pre.prepare_tile(pixels)
-        with failing_as(self._backend.extract_phase, "extracted"), timed(timings, "extract"):
-            features = extract_checked(self._backend, image, self._cut_notice)
+        phase = self._extraction.backend.extract_phase
+        with failing_as(phase, "extracted"), timed(timings, "extract"):
+            features = self._extraction(image)
         if key is not None and _unchanged(candidate, key):
             self.cache.put(key, CachedTile(image, features))
         return self._tile("extracted", image, features, key)

@@ -7,13 +7,14 @@ consistent mistake (a scale forgotten past some image size) gives a confident, w
 
 An extraction with more keypoints than the backend's budget (:func:`extraction_budget`) keeps
 the budget's best by score (:func:`cut_to_budget`), and a matcher says so once (a WARNING,
-:class:`KeypointCutNotice`), not every frame: OpenCV's detectors keep the keypoints tied with
+:class:`Extraction`), not every frame: OpenCV's detectors keep the keypoints tied with
 the N-th and so give N + 1, a true tile that must not be refused for it, and a million keypoints
 would take one frame tens of seconds and hundreds of MB to match."""
 
 from __future__ import annotations
 
 import threading
+from typing import Final
 
 import numpy as np
 
@@ -27,7 +28,7 @@ __all__ = [
     "KEYPOINTS_CUT",
     "KEYPOINT_CEILING",
     "KEYPOINT_MARGIN_PX",
-    "KeypointCutNotice",
+    "Extraction",
     "checked_features",
     "cut_to_budget",
     "extract_checked",
@@ -102,48 +103,48 @@ def cut_to_budget(features: Features, budget: int) -> Features:
     )
 
 
-class KeypointCutNotice:
-    """One matcher's word on its extractions cut to the budget: the first cut is said (a
-    :data:`KEYPOINTS_CUT` WARNING naming the backbone, the count and the budget), the later
-    ones are not: a backend over its budget is over it every frame."""
+class Extraction:
+    """One matcher's extractions from ``backend``: each answer checked (:func:`checked_features`,
+    on the engine image it was given) and cut to the budget (:func:`cut_to_budget`), read once
+    here, at composition (:func:`extraction_budget`: a backend's budget is part of its declared
+    interface, fixed for its life). The first cut is said (a :data:`KEYPOINTS_CUT` WARNING
+    naming the backbone, the count and the budget) unless ``say_cuts`` is False, the later ones
+    are not: a backend over its budget is over it every frame. Thread-safe."""
 
-    def __init__(self) -> None:
+    def __init__(self, backend: FeatureBackend, *, say_cuts: bool = True) -> None:
+        self.backend: Final = backend
+        self.budget, self._limit = extraction_budget(backend)
         self._lock = threading.Lock()
-        self._said = False
+        self._say = say_cuts
 
-    def say(self, backend: FeatureBackend, count: int, size: tuple[int, int]) -> None:
-        """Say, unless said already, that an extraction of ``backend`` on a ``size`` (w, h) px
-        image held ``count`` keypoints, more than its budget, and was cut to it."""
+    def __call__(self, image: PreparedImage, name: str = "image") -> Features:
+        """``backend.extract(image)``, checked (``name`` in an error) and cut to the budget."""
+        features = checked_features(self.backend.extract(image), image.engine_size, name)
+        if len(features) <= self.budget:
+            return features
+        self._said_cut(len(features), image.engine_size)
+        return cut_to_budget(features, self.budget)
+
+    def _said_cut(self, count: int, size: tuple[int, int]) -> None:
+        """Say, unless said already, that an extraction on a ``size`` (w, h) px image held
+        ``count`` keypoints, more than the budget, and was cut to it."""
         with self._lock:
-            said, self._said = self._said, True
-        if said:
+            say, self._say = self._say, False
+        if not say:
             return
-        budget, limit = extraction_budget(backend)
         log_event(
             "WARNING",
             KEYPOINTS_CUT,
-            f"C3 keypoints cut; backbone={backend.label}; {count} keypoints on a "
-            f"{size[0]}x{size[1]} px image, more than {limit}: the {budget} of highest score "
-            "kept (said once per matcher; the extractor should keep to its budget)",
-            backbone=backend.label,
+            f"C3 keypoints cut; backbone={self.backend.label}; {count} keypoints on a "
+            f"{size[0]}x{size[1]} px image, more than {self._limit}: the {self.budget} of "
+            "highest score kept (said once per matcher; the extractor should keep to its budget)",
+            backbone=self.backend.label,
             keypoints=count,
-            budget=budget,
+            budget=self.budget,
         )
 
 
-def extract_checked(
-    backend: FeatureBackend,
-    image: PreparedImage,
-    cut_notice: KeypointCutNotice | None = None,
-    name: str = "image",
-) -> Features:
-    """``backend.extract(image)``, checked (:func:`checked_features`) on the engine image the
-    backend was given (``name`` in an error) and cut to :func:`extraction_budget`
-    (:func:`cut_to_budget`); a cut is said through ``cut_notice`` (None: not said)."""
-    features = checked_features(backend.extract(image), image.engine_size, name)
-    budget, _ = extraction_budget(backend)
-    if len(features) <= budget:
-        return features
-    if cut_notice is not None:
-        cut_notice.say(backend, len(features), image.engine_size)
-    return cut_to_budget(features, budget)
+def extract_checked(backend: FeatureBackend, image: PreparedImage, name: str = "image") -> Features:
+    """One extraction as flight takes it (:class:`Extraction`), the cut not said: for one-off
+    extractions (the start-up probe's, a tile store's precomputed features)."""
+    return Extraction(backend, say_cuts=False)(image, name)

@@ -26,9 +26,8 @@ from c3_matcher.dto import CameraCalibration, NavCameraFrame, RerankCandidate
 from c3_matcher.features import Features
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
-from c3_matcher.protocols import FeatureBackend
 from c3_matcher.query_geometry import QueryGeometry
-from c3_matcher.stages.extract import KeypointCutNotice, extract_checked
+from c3_matcher.stages.extract import Extraction
 from c3_matcher.stages.failure import timed
 
 __all__ = [
@@ -97,19 +96,18 @@ def gsd_groups(candidates: Sequence[RerankCandidate]) -> tuple[GsdGroup, ...]:
 
 def prepare_query(
     pre: FramePreprocessor,
-    backend: FeatureBackend,
+    extraction: Extraction,
     frame: NavCameraFrame,
     calibration: CameraCalibration,
     gsd_m: float,
     *,
     rotation_search: bool,
     timings: dict[str, float],
-    cut_notice: KeypointCutNotice | None = None,
 ) -> Query:
     """Undistort, rectify and scale the frame to ``gsd_m`` m/px, a :class:`GsdGroup`'s
     (``query_preprocess``), then extract it (``query_extract``); with ``rotation_search`` a
     frame without attitude is extracted at every turn of ``QUERY_ROTATIONS_DEG``; an extraction
-    over the keypoint budget is cut, said through ``cut_notice``. Any exception is a query
+    over the keypoint budget is cut (``extraction``, the matcher's). Any exception is a query
     failure."""
     with timed(timings, "query_preprocess"):
         geometry = pre.query_geometry(frame, calibration, gsd_m)
@@ -118,8 +116,5 @@ def prepare_query(
         turns = QUERY_ROTATIONS_DEG if search else (0,)
         images = [(deg, image.turned(deg)) for deg in turns]
     with timed(timings, "query_extract"):
-        views = tuple(
-            QueryView(deg, turned, extract_checked(backend, turned, cut_notice))
-            for deg, turned in images
-        )
+        views = tuple(QueryView(deg, turned, extraction(turned)) for deg, turned in images)
     return Query(geometry, image, views, search)

@@ -15,8 +15,7 @@ from c3_matcher.dto import CameraCalibration, NavCameraFrame, ranking_key
 from c3_matcher.errors import describe
 from c3_matcher.prepared import correspondences
 from c3_matcher.preprocess import FramePreprocessor
-from c3_matcher.protocols import FeatureBackend
-from c3_matcher.stages.extract import KeypointCutNotice, extract_checked
+from c3_matcher.stages.extract import Extraction
 from c3_matcher.stages.failure import timed
 from c3_matcher.stages.interrupts import is_stop
 from c3_matcher.stages.matching import match_checked
@@ -32,18 +31,12 @@ NO_FOOTPRINT = "the first homography leaves no footprint on the tile"
 
 
 class RefinePass:
-    """The refine pass of one matcher: its preprocessor renders, its backend extracts (a cut
-    to the keypoint budget said through ``cut_notice``, the matcher's) and matches."""
+    """The refine pass of one matcher: its preprocessor renders, its ``extraction`` (the
+    matcher's) extracts and its backend matches."""
 
-    def __init__(
-        self,
-        pre: FramePreprocessor,
-        backend: FeatureBackend,
-        cut_notice: KeypointCutNotice | None = None,
-    ) -> None:
+    def __init__(self, pre: FramePreprocessor, extraction: Extraction) -> None:
         self._pre = pre
-        self._backend = backend
-        self._cut_notice = cut_notice or KeypointCutNotice()
+        self._extraction = extraction
 
     def run(
         self,
@@ -107,7 +100,7 @@ class RefinePass:
         if refined is None:
             return None
         image = self._pre.render_query(frame, calibration, refined)
-        features = extract_checked(self._backend, image, self._cut_notice)
-        raw = match_checked(self._backend, features, tile.features)
+        features = self._extraction(image)
+        raw = match_checked(self._extraction.backend, features, tile.features)
         rows = correspondences(image, features, tile.image, tile.features, raw)
         return scale.verifier.verify(first.match_set.tile_id, first.rotation_deg, rows)

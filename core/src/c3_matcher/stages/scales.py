@@ -16,8 +16,7 @@ from types import MappingProxyType
 from c3_matcher.arrays import F64
 from c3_matcher.dto import CameraCalibration, NavCameraFrame, RerankCandidate
 from c3_matcher.preprocess import FramePreprocessor
-from c3_matcher.protocols import FeatureBackend
-from c3_matcher.stages.extract import KeypointCutNotice
+from c3_matcher.stages.extract import Extraction
 from c3_matcher.stages.interrupts import is_stop
 from c3_matcher.stages.outcomes import Survivor
 from c3_matcher.stages.query import Query, gsd_groups, prepare_query
@@ -68,7 +67,7 @@ class FrameScales:
 
 def prepare_scales(
     pre: FramePreprocessor,
-    backend: FeatureBackend,
+    extraction: Extraction,
     frame: NavCameraFrame,
     calibration: CameraCalibration,
     candidates: Sequence[RerankCandidate],
@@ -76,7 +75,6 @@ def prepare_scales(
     rotation_search: bool,
     verification: VerifierSettings,
     timings: dict[str, float],
-    cut_notice: KeypointCutNotice | None = None,
 ) -> FrameScales:
     """The frame prepared, extracted (``prepare_query``) and given its verifier (from
     ``verification``, with that query's prior) once per GSD of ``candidates``; raises the
@@ -87,13 +85,12 @@ def prepare_scales(
         try:
             query = prepare_query(
                 pre,
-                backend,
+                extraction,
                 frame,
                 calibration,
                 group.gsd_m,
                 rotation_search=rotation_search,
                 timings=timings,
-                cut_notice=cut_notice,
             )
         except BaseException as exc:  # that scale's candidates fail (a plugin's own too)
             if is_stop(exc):  # Ctrl-C, a signal handler's exit: they go on
