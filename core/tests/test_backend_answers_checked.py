@@ -318,3 +318,31 @@ def test_a_matcher_reads_the_budget_once_when_composed_not_every_extraction() ->
         assert result.candidates_dropped == 0
     assert backend.asked == composed
     assert len(Extraction(backend)(_image(64))) == 5  # the cut these frames made
+
+
+@pytest.mark.parametrize("declared", [None, 0, True])
+def test_a_budget_that_is_no_positive_int_composes_and_runs_at_the_ceiling(
+    declared: Any, tmp_path: Any
+) -> None:
+    """One reading of a backend's budget everywhere: a ``max_keypoints`` that is no positive
+    int is no budget, at start-up's inlier check (it was a bare TypeError for None, a refusal
+    for 0) as in flight (the core's ceiling) and for a store's precomputed features (none)."""
+    from c3_matcher.compose import compose_root
+    from c3_matcher.config import C3Settings
+    from c3_matcher.stages.candidate_features import feature_request
+    from c3_matcher.testing import fake_helpers, one_strategy_host, pipeline_strategy
+
+    class Odd(FakeBackend):
+        max_keypoints: Any = declared
+        extractor_sha256 = "ab" * 32
+
+    host = one_strategy_host("odd", pipeline_strategy(Odd))
+    settings = C3Settings(matcher={"strategy": "odd"}, fdr={"path": tmp_path / "fdr.jsonl"})
+    helpers = fake_helpers([ScriptedCandidate(100)])
+    root = compose_root(settings, helpers, plugin_host=host, configure_logs=False)
+    try:
+        backend = root.matcher.backend  # type: ignore[attr-defined]
+        assert extraction_budget(backend)[0] == KEYPOINT_CEILING
+        assert feature_request(backend, FramePreprocessor(backend.input_rule)) is None
+    finally:
+        root.close()

@@ -310,6 +310,7 @@ def test_provenance_never_replaces_the_cores_own_fields(fdr, logs):
     (warning,) = logs.of_kind("c3.matcher.provenance_reserved")  # said once
     assert warning["keys"] == sorted(set(hostile) - {"provider"})
     assert "Misbehaving" in warning["message"] and "fake_backend" in warning["strategy"]
+    assert rig.pipeline.provenance() == {"provider": "opencv"}  # as its records carry it
 
 
 def test_every_field_a_terminal_record_writes_is_declared_the_cores(fdr):

@@ -187,3 +187,19 @@ def test_a_plugins_sys_exit_in_the_probe_is_its_start_up_failure_not_the_process
         engine_startup_probe(ExitsOnExtract({}))  # type: ignore[arg-type]
     assert "start-up probe failed" in str(failed.value)
     assert "SystemExit: licence check failed" in str(failed.value)
+
+
+class ExitsOnProvenance(ExitsOnExtract):
+    """A failing backend whose ``provenance()`` calls ``sys.exit()`` too."""
+
+    def provenance(self) -> dict[str, Any]:
+        raise SystemExit("licence server gone")
+
+
+def test_a_plugins_sys_exit_reading_its_provenance_after_a_failed_probe_is_contained():
+    """The probe reads the provenance to advise on its failure as flight reads it: the plugin's
+    exit there is no exit of the process; the advice is the engines' (it cannot tell)."""
+    with pytest.raises(EngineError) as failed:
+        engine_startup_probe(ExitsOnProvenance({}))  # type: ignore[arg-type]
+    assert "SystemExit: licence check failed" in str(failed.value)
+    assert "runs no engine" not in str(failed.value)

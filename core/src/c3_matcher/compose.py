@@ -47,9 +47,9 @@ from c3_matcher.protocols import (
     CrossDomainMatcher,
     FdrClient,
     FeatureBackend,
-    KeypointBudgetBackend,
 )
 from c3_matcher.ransac import OpenCvRansacFilter
+from c3_matcher.stages.extract import declared_budget
 from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS, engine_startup_probe
 from c3_matcher.strategy_options import check_options_tables, strategy_options
 
@@ -303,10 +303,11 @@ def _create_strategy(
 
 def check_inliers_reachable(config: C3Settings, backend: FeatureBackend) -> None:
     """``keypoint_budget.check_inliers_reachable`` against the keypoints per image the backend
-    keeps (its ``max_keypoints``, after any cut to its extractor engine's top-K); a backend
-    without one is not checked."""
-    if isinstance(backend, KeypointBudgetBackend):
-        budgets.check_inliers_reachable(config, backend.max_keypoints)
+    keeps (:func:`~c3_matcher.stages.extract.declared_budget`: its ``max_keypoints``, after any
+    cut to its extractor engine's top-K); a backend that declares none is not checked."""
+    budget = declared_budget(backend)
+    if budget is not None:
+        budgets.check_inliers_reachable(config, budget)
 
 
 def check_strategy_budget(settings: C3Settings, host: PluginHost) -> None:

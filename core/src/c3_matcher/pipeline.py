@@ -124,8 +124,6 @@ class PipelineMatcher:
         health_window: RollingHealthWindow,
         clock: Clock,
         settings: PipelineSettings,
-        *,
-        preprocessor: FramePreprocessor | None = None,
     ) -> None:
         self.backend: Final = backend
         self._verification = VerifierSettings(
@@ -136,9 +134,7 @@ class PipelineMatcher:
         )
         self._sinks = RecorderSinks(fdr_client, health_window, clock, backend)
         self.settings: Final = settings
-        self._pre = preprocessor or FramePreprocessor(
-            backend.input_rule, photometric=settings.photometric
-        )
+        self._pre = FramePreprocessor(backend.input_rule, photometric=settings.photometric)
         cache = TileFeatureCache(settings.tile_cache_size)
         request = _feature_request(backend, self._pre)
         self._extraction = extraction = Extraction(backend)  # its budget read, a cut said once

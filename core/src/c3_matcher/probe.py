@@ -30,9 +30,11 @@ from c3_matcher.prepared import InputRule, PreparedImage
 from c3_matcher.protocols import EarlyStopping, FeatureBackend
 from c3_matcher.stages.extract import extract_checked
 from c3_matcher.stages.interrupts import is_stop
+from c3_matcher.stages.provenance import read_provenance
 
 __all__ = [
     "BACKEND_MEMBERS",
+    "PROBE_BLOCK_PX",
     "PROBE_GROWTH",
     "PROBE_SIDE",
     "check_members",
@@ -53,8 +55,11 @@ MIN_SHIFT: Final = 16
 ON_OFFSET_PX: Final = 2.0
 """px: a pair follows the known offset when its tile point is this close to where it should be."""
 PROBE_GROWTH: Final = (1, 2, 4)
-"""The probe's sizes, in multiples of its ``size``, tried in turn while the backend says a setting
-stopped the pair early (``early_stop``); a larger one is never tried otherwise."""
+"""The probe's sizes, in multiples of :data:`PROBE_SIDE`, tried in turn while the backend says a
+setting stopped the pair early (``early_stop``); a larger one is never tried otherwise."""
+PROBE_BLOCK_PX: Final = 6
+"""The probe texture's squares (px): 6 px do not line up with the 8x8 cells some detectors
+(XFeat) score, so every cell sees texture."""
 _FIELD_CELLS: Final = 512  # the texture field: 512 x 512 blocks (3072 px at 6 px), then repeated
 
 
@@ -66,13 +71,14 @@ def _field() -> NDArray[np.uint8]:
     return field
 
 
-def textured_probe(width: int, height: int, block: int = 6, *, x0: int = 0) -> NDArray[np.uint8]:
-    """A deterministic textured RGB image (height, width, 3) uint8: ``block`` px squares of
-    random colour (seed 0), the start-up probe's and the contract kit's stand-in image.
+def textured_probe(width: int, height: int, *, x0: int = 0) -> NDArray[np.uint8]:
+    """A deterministic textured RGB image (height, width, 3) uint8: :data:`PROBE_BLOCK_PX` px
+    squares of random colour (seed 0), the start-up probe's and the contract kit's stand-in.
 
     Every image is a window on one texture: ``x0`` moves the window right, so the pixel
     (x, y) of ``textured_probe(w, h, x0=s)`` is the pixel (x + s, y) of ``textured_probe(w + s,
     h)``."""
+    block = PROBE_BLOCK_PX
     cx0, cx1 = x0 // block, -(-(x0 + width) // block)
     cy1 = -(-height // block)
     field = _field()
@@ -103,11 +109,11 @@ def probe_shift(rule: InputRule | None, side: int) -> int:
     return shift if 2 * shift <= side else 0
 
 
-def probe_image(width: int, height: int, x0: int = 0, block: int = 6) -> PreparedImage:
+def probe_image(width: int, height: int, x0: int = 0) -> PreparedImage:
     """A :class:`PreparedImage` of the probe texture (``textured_probe``, its window moved
     ``x0`` px right), every pixel valid."""
     return PreparedImage(
-        image=textured_probe(width, height, block, x0=x0),
+        image=textured_probe(width, height, x0=x0),
         valid=np.ones((height, width), bool),
         working_from_engine=np.eye(3),
         working_size=(width, height),
@@ -115,7 +121,7 @@ def probe_image(width: int, height: int, x0: int = 0, block: int = 6) -> Prepare
 
 
 def probe_pair(
-    rule: InputRule | None, at_least: int = PROBE_SIDE, block: int = 6
+    rule: InputRule | None, at_least: int = PROBE_SIDE
 ) -> tuple[PreparedImage, PreparedImage, int]:
     """(query, tile, shift): the ``probe_side`` px square query is the texture from x =
     ``shift``; the tile, from x = 0, is ``shift`` px wider, so the query point (x, y) is the
@@ -126,25 +132,24 @@ def probe_pair(
     query_width, tile_width = side, side + shift
     if rule is not None and tile_width > rule.max_long_side:
         query_width, tile_width = side - shift, side
-    query = probe_image(query_width, side, shift, block)
-    return query, probe_image(tile_width, side, 0, block), shift
+    query = probe_image(query_width, side, shift)
+    return query, probe_image(tile_width, side, 0), shift
 
 
-def engine_startup_probe(backend: FeatureBackend, size: int = PROBE_SIDE, block: int = 6) -> None:
+def engine_startup_probe(backend: FeatureBackend) -> None:
     """Extract the probe pair (``probe_pair``), match it once and assert the outputs (the
     engine-output assertion that fires at start-up, not on the first frame): features inside
     their image (cut to the keypoint budget, as in flight), pairs in (query, tile) order that
     follow the known offset, each query keypoint once (``check_shifted_matches``).
 
-    The images are ``size`` px rounded by the backend's ``input_rule``, ``block`` px squares
-    of random colour (seed 0); 6 px blocks do not line up with the 8x8 cells some detectors
-    (XFeat) score, so every cell sees texture. A pair a setting of the backend stops early
+    The images are :data:`PROBE_SIDE` px rounded by the backend's ``input_rule``, squares of
+    random colour (:func:`textured_probe`). A pair a setting of the backend stops early
     (``early_stop``) is tried again larger (``PROBE_GROWTH``); ``ConfigurationError`` naming the
     setting when it stops the largest too: it would stop every pair of real images."""
     rule = backend.input_rule
     stopped: tuple[str, str] | None = None
-    for side in dict.fromkeys(probe_side(rule, size * grow) for grow in PROBE_GROWTH):
-        stopped = _probe_once(backend, rule, side, block)
+    for side in dict.fromkeys(probe_side(rule, PROBE_SIDE * grow) for grow in PROBE_GROWTH):
+        stopped = _probe_once(backend, rule, side)
         if stopped is None:
             return
     assert stopped is not None
@@ -164,7 +169,7 @@ def engine_startup_probe(backend: FeatureBackend, size: int = PROBE_SIDE, block:
 
 
 def _probe_once(
-    backend: FeatureBackend, rule: InputRule | None, side: int, block: int
+    backend: FeatureBackend, rule: InputRule | None, side: int
 ) -> tuple[str, str] | None:
     """One probe on the ``side`` px pair: None when it passes, ``(setting, why)`` when a
     setting of the backend stopped its match early (``early_stop``); ``EngineError``
@@ -265,10 +270,7 @@ def check_shifted_matches(
 def _runs_engines(backend: FeatureBackend) -> bool:
     """Whether the backend names engines in its provenance (then ``engines build`` is the fix
     for a failing probe); a backend whose provenance cannot be read is taken to run them."""
-    try:
-        return bool(backend.provenance().get("engines", True))
-    except Exception:
-        return True
+    return bool(read_provenance(backend).get("engines", True))
 
 
 BACKEND_MEMBERS: Final = (

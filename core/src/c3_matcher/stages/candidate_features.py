@@ -18,8 +18,9 @@ from c3_matcher.features import Features
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend, StoredFeaturesBackend, StoredFeaturesHandle
-from c3_matcher.stages.extract import Extraction, checked_features
+from c3_matcher.stages.extract import Extraction, checked_features, declared_budget
 from c3_matcher.stages.failure import failing_as, timed
+from c3_matcher.stages.interrupts import is_stop
 from c3_matcher.stages.outcomes import TileFeatures
 from c3_matcher.stages.provenance import read_provenance
 from c3_matcher.stages.recorder import FrameRecorder
@@ -42,8 +43,8 @@ def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureR
     names no extractor engine or keeps no keypoint (its tiles are then always extracted)."""
     if not isinstance(backend, StoredFeaturesBackend):
         return None
-    sha, budget, rule = backend.extractor_sha256, backend.max_keypoints, backend.input_rule
-    if not isinstance(sha, str) or not sha or not isinstance(budget, int) or budget < 1:
+    sha, budget, rule = backend.extractor_sha256, declared_budget(backend), backend.input_rule
+    if not isinstance(sha, str) or not sha or budget is None:
         return None
     provider = str(read_provenance(backend).get("provider") or "")  # it may fail: none
     return FeatureRequest(
@@ -127,8 +128,7 @@ class CandidateFeatures:
         failure here never drops the candidate: it falls back to extraction; the store raises
         once per outage (locked sidecar) or corrupt row, so the WARNING (and its FDR record)
         comes once, not every frame."""
-        if self.request is None:
-            return None
+        assert self.request is not None  # use_stored: a request was made
         try:
             features = _served(candidate, self.request)
             if isinstance(features, NoStoredSet):
@@ -138,7 +138,9 @@ class CandidateFeatures:
             geometry = self._pre.tile_geometry(*features.image_size)
             if geometry is not None:  # held to the rule an extraction is held to
                 checked_features(features, geometry.engine_size, "stored window")
-        except Exception as exc:
+        except BaseException as exc:  # a plugin's own BaseException too: still extracted
+            if is_stop(exc):  # Ctrl-C, a signal handler's exit: they go on
+                raise
             recorder.stored_features_failed(candidate.tile_id, exc)
             return None
         return None if geometry is None else TileFeatures("stored", geometry, features)
@@ -169,5 +171,7 @@ def _unchanged(candidate: RerankCandidate, key: tuple[object, str]) -> bool:
     under the old bytes' key; a handle that fails now is simply not cached)."""
     try:
         return tile_cache_key(candidate.tile_id, candidate.tile_pixels_handle) == key
-    except Exception:  # any handle's failure: the features were had, only caching is skipped
+    except BaseException as exc:  # any handle's failure: the features were had, not cached
+        if is_stop(exc):  # Ctrl-C, a signal handler's exit: they go on
+            raise
         return False

@@ -31,6 +31,7 @@ __all__ = [
     "Extraction",
     "checked_features",
     "cut_to_budget",
+    "declared_budget",
     "extract_checked",
     "extraction_budget",
 ]
@@ -74,13 +75,25 @@ def checked_features(features: object, size: tuple[int, int], image: str = "imag
     return features
 
 
+def declared_budget(backend: FeatureBackend) -> int | None:
+    """The keypoints per image ``backend`` declares it keeps (``max_keypoints``,
+    :class:`KeypointBudgetBackend`), or None where it declares none or no positive int: the one
+    reading of a backend's budget, for its extractions, the start-up check that its inlier
+    threshold is reachable and the tile store's precomputed features."""
+    if not isinstance(backend, KeypointBudgetBackend):
+        return None
+    declared = backend.max_keypoints
+    if isinstance(declared, int) and not isinstance(declared, bool) and declared >= 1:
+        return declared
+    return None
+
+
 def extraction_budget(backend: FeatureBackend) -> tuple[int, str]:
     """The most keypoints one extraction of ``backend`` keeps, and that limit in words: the
-    budget it declares (``max_keypoints``, a positive int), else :data:`KEYPOINT_CEILING`."""
-    if isinstance(backend, KeypointBudgetBackend):
-        declared = backend.max_keypoints
-        if isinstance(declared, int) and not isinstance(declared, bool) and declared >= 1:
-            return declared, f"the {declared} backbone {backend.label} declares (max_keypoints)"
+    budget it declares (:func:`declared_budget`), else :data:`KEYPOINT_CEILING`."""
+    declared = declared_budget(backend)
+    if declared is not None:
+        return declared, f"the {declared} backbone {backend.label} declares (max_keypoints)"
     return KEYPOINT_CEILING, (
         f"the core's ceiling of {KEYPOINT_CEILING} for a backbone that declares no keypoint "
         f"budget ({backend.label} declares no max_keypoints)"

@@ -36,11 +36,17 @@ PROVENANCE_UNREADABLE = "c3.matcher.provenance_unreadable"  # WARNING: provenanc
 
 
 def read_provenance(backend: FeatureBackend) -> dict[str, Any]:
-    """``backend.provenance()`` as JSON-native values under text keys, or
+    """``backend.provenance()`` as the frame records carry it, not said: JSON-native values
+    under text keys, the core's own fields left out (``TERMINAL_RECORD_FIELDS``), or
     ``{"provenance_error": ...}`` saying why it could not be read (it raised, a plugin's own
     ``BaseException`` included, or returned no mapping); a stop (Ctrl-C, ``SystemExit``) goes on."""
     fields, error = _read(backend)
-    return {"provenance_error": error} if fields is None else fields
+    return {"provenance_error": error} if fields is None else _unreserved(fields)
+
+
+def _unreserved(fields: Mapping[str, Any]) -> dict[str, Any]:
+    """``fields`` without the keys the frame records write themselves."""
+    return {k: v for k, v in fields.items() if k not in TERMINAL_RECORD_FIELDS}
 
 
 def _read(backend: FeatureBackend) -> tuple[dict[str, Any] | None, str]:
@@ -76,7 +82,7 @@ class ProvenanceFields:
         reserved = sorted(fields.keys() & TERMINAL_RECORD_FIELDS)
         if reserved:
             self._say_reserved(backend, strategy, reserved)
-        return {k: v for k, v in fields.items() if k not in TERMINAL_RECORD_FIELDS}
+        return _unreserved(fields)
 
     def _say_unreadable(self, strategy: str, frame_id: Any, error: str) -> None:
         with self._lock:

@@ -166,7 +166,7 @@ class FrameRecorder:
         self.record("matcher.backbone_error", dict(fields))
         self._dropped(MATCHER_BACKBONE_ERROR, fields)
 
-    def stored_features_failed(self, tile_id: Any, exc: Exception) -> None:
+    def stored_features_failed(self, tile_id: Any, exc: BaseException) -> None:
         log_event(
             "WARNING",
             "c3.matcher.stored_features_failed",
