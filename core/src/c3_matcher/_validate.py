@@ -81,9 +81,9 @@ def array(
     dtype: Any,
     ndim: int | None = None,
     shape: tuple[int | None, ...] | None = None,
-    finite: bool = True,
 ) -> NDArray[Any]:
-    """Check an ndarray's dtype and shape (``None`` in ``shape`` means any size) exactly."""
+    """Check an ndarray's dtype and shape (``None`` in ``shape`` means any size) exactly, and
+    that a float array holds no NaN or infinite value."""
     if not isinstance(value, np.ndarray):
         raise InvalidInputError(field, f"expected numpy.ndarray, got {type(value).__name__}")
     require(
@@ -99,7 +99,7 @@ def array(
         require(ok, field, f"expected shape {want_text}, got {value.shape}")
     elif ndim is not None:
         require(value.ndim == ndim, field, f"expected {ndim} dimensions, got {value.shape}")
-    if finite and value.dtype.kind == "f":
+    if value.dtype.kind == "f":
         require(bool(np.isfinite(value).all()), field, "contains NaN or infinite values")
     return value
 

@@ -149,17 +149,16 @@ def config_warnings(settings: C3Settings, host: PluginHost) -> list[str]:
     return lines
 
 
-def provider_warning(engines: EngineSettings, installed: Sequence[str] | None = None) -> str | None:
-    """The configured execution providers that ``installed`` (default: this machine's
-    onnxruntime, as start-up asks it) lacks, and what start-up does then: leaves them out
-    (``resolve_providers``), or refuses when none is left; None when every one is installed
-    or none is configured (the default chain takes what is installed)."""
+def provider_warning(engines: EngineSettings) -> str | None:
+    """The configured execution providers that this machine's onnxruntime (asked as start-up
+    asks it) lacks, and what start-up does then: leaves them out (``resolve_providers``), or
+    refuses when none is left; None when every one is installed or none is configured (the
+    default chain takes what is installed)."""
     if engines.providers is None:
         return None
-    if installed is None:
-        import onnxruntime as ort
+    import onnxruntime as ort
 
-        installed = [str(p) for p in ort.get_available_providers()]
+    installed = [str(p) for p in ort.get_available_providers()]
     missing = providers_not_installed(engines.providers, installed)
     if not missing:
         return None

@@ -82,13 +82,13 @@ def _toml_value(value: Any, key: str = "value") -> str:
     raise InvalidInputError(key, f"a {type(value).__name__} {_NO_TOML}")
 
 
-def to_toml(data: dict[str, Any], notes: Mapping[str, str] | None = None, prefix: str = "") -> str:
+def to_toml(data: dict[str, Any], notes: Mapping[str, str] | None = None) -> str:
     """``data`` (JSON-able: tables of scalars, lists and tables) as a TOML document that
     ``load_settings`` reads back; ``notes`` (by dotted key) become comment lines above their
     key or table; a ``None`` value (unset: the default applies) and an :class:`Unset` are
     written as comments. Keys TOML does not allow bare are quoted; ``InvalidInputError`` names
     a value TOML cannot express (a null inside a list)."""
-    return _toml_table(data, notes or {}, prefix, ())
+    return _toml_table(data, notes or {}, "", ())
 
 
 def _toml_table(

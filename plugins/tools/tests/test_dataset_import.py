@@ -16,7 +16,7 @@ import pytest
 from c3_matcher.errors import InvalidInputError
 from c3_matcher.georef import haversine_m
 from c3_matcher_tools.dataset.format import load_dataset
-from c3_matcher_tools.dataset.importer import ImportSpec, import_flight
+from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
 from c3_matcher_tools.dataset.sources.options import ProposalOptions
 from c3_matcher_tools.testing.cli import run_cli
 
@@ -53,8 +53,8 @@ def _spec(images: Path, csv: Path, **kw: object) -> ImportSpec:
 def test_import_builds_truth_free_dataset(tmp_path: Path) -> None:
     images, csv = _recorded(tmp_path)
     out = tmp_path / "flight"
-    summary = import_flight(_spec(images, csv, candidates=4, uncertainty_m=80.0), out)
-    assert summary["frames"] == 6 and summary["zoom"] == 15
+    summary = import_csv_flight(_spec(images, csv, candidates=4, uncertainty_m=80.0), out)
+    assert summary.frames == 6 and summary.zoom == 15
     d = load_dataset(out)
     assert d.meta["format"] == "c3-flight/1" and d.candidate_size_px == 512
     assert not any(f.has_truth for f in d.frames)
@@ -67,10 +67,10 @@ def test_import_builds_truth_free_dataset(tmp_path: Path) -> None:
             rerank = d.rerank(f, store)
             assert rerank.candidates[0].tile_pixels_handle.decode().shape == (512, 512, 3)
     # deterministic: the same inputs give the same candidates and frame ids
-    again = import_flight(
+    again = import_csv_flight(
         _spec(images, csv, candidates=4, uncertainty_m=80.0), tmp_path / "b", name="flight"
     )
-    assert again["frames"] == 6
+    assert again.frames == 6
     assert (out / "frames.jsonl").read_text() == (tmp_path / "b" / "frames.jsonl").read_text()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp dir left
 
@@ -107,7 +107,7 @@ def test_import_checks_inputs_before_writing(tmp_path: Path, mutate, needle: str
     mutate(csv, images)
     out = tmp_path / "flight"
     with pytest.raises(InvalidInputError, match=needle):
-        import_flight(_spec(images, csv), out)
+        import_csv_flight(_spec(images, csv), out)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["images", "telemetry.csv"]
 
 
@@ -116,10 +116,10 @@ def test_import_refuses_existing_out_and_bad_zoom(tmp_path: Path) -> None:
     (tmp_path / "taken").mkdir()
     (tmp_path / "taken" / "keep.txt").write_text("x")
     with pytest.raises(InvalidInputError, match="already exists"):
-        import_flight(_spec(images, csv), tmp_path / "taken")
+        import_csv_flight(_spec(images, csv), tmp_path / "taken")
     assert (tmp_path / "taken" / "keep.txt").read_text() == "x"
     with pytest.raises(InvalidInputError, match="--zoom"):
-        import_flight(_spec(images, csv, zoom=3), tmp_path / "z")
+        import_csv_flight(_spec(images, csv, zoom=3), tmp_path / "z")
     assert not (tmp_path / "z").exists()
 
 

@@ -21,7 +21,7 @@ from c3_matcher.errors import InvalidInputError
 from c3_matcher_tools.dataset.format import load_dataset
 from c3_matcher_tools.dataset.importer import ImportSpec, import_csv_flight
 from c3_matcher_tools.dataset.sources.options import ProposalOptions
-from c3_matcher_tools.dataset.telemetry import read_telemetry
+from c3_matcher_tools.dataset.telemetry import read_telemetry_table
 from c3_matcher_tools.testing.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[3]
@@ -87,7 +87,7 @@ def test_a_field_beyond_the_csv_limit_is_refused_naming_its_line(tmp_path: Path)
     with pytest.raises(
         InvalidInputError, match=r"t\.csv: line 3: unreadable record \(field larger"
     ):
-        read_telemetry(_csv(tmp_path / "t.csv", rows))
+        read_telemetry_table(_csv(tmp_path / "t.csv", rows))
 
 
 def test_a_line_break_in_an_image_name_is_refused_and_later_lines_keep_their_numbers(
@@ -99,7 +99,7 @@ def test_a_line_break_in_an_image_name_is_refused_and_later_lines_keep_their_num
     rows[1] = rows[1].replace("IMG_1.jpg", '"IMG\n_1.jpg"')
     rows[2] = rows[2].rsplit(",", 4)[0] + ",abc,0,0,0"  # its height
     with pytest.raises(InvalidInputError) as info:
-        read_telemetry(_csv(tmp_path / "t.csv", rows))
+        read_telemetry_table(_csv(tmp_path / "t.csv", rows))
     said = str(info.value)
     assert "line 3: image 'IMG\\n_1.jpg' holds a line break" in said
     assert "line 5: altitude_m 'abc' is not a number" in said

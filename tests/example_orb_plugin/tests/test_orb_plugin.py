@@ -15,6 +15,7 @@ import numpy as np
 from c3_matcher.config import C3Settings
 from c3_matcher.dto import TileId
 from c3_matcher.fdr import InMemoryFdr
+from c3_matcher.health import RollingHealthWindow
 from c3_matcher.pipeline import FeatureBackend
 from c3_matcher.plugins import PluginHost
 from c3_matcher.plugins.manager import PluginSource
@@ -89,3 +90,24 @@ def test_real_demo_frame_through_the_plugin_host() -> None:
     assert best.inlier_count >= 200 and best.per_candidate_residual_px < 2.0  # 1043, 0.82 px
     assert result.matcher_label == "example_orb"
     assert isinstance(root.fdr, InMemoryFdr) and root.fdr.of_kind("matcher.frame_done")
+
+
+def test_create_with_the_kit_fixtures(c3_fake_clock: FakeClock, c3_fdr: InMemoryFdr) -> None:
+    """The strategy's ``create`` over the fixtures the core's pytest plugin gives every plugin's
+    tests: the frame is stamped on the fake clock and recorded in the in-memory FDR, and the
+    health window forgets it once that clock has moved a minute on."""
+    settings = C3Settings(matcher={"strategy": "example_orb"})
+    health = RollingHealthWindow(c3_fake_clock, settings.matcher.min_inliers_threshold)
+    matcher = PLUGIN.create(
+        settings,
+        ransac_filter=OpenCvRansacFilter(),
+        fdr_client=c3_fdr,
+        health_window=health,
+        clock=c3_fake_clock,
+    )
+    result = matcher.match(*demo_inputs(DEMO))
+    assert result.matched_at == c3_fake_clock.now_ns
+    assert len(c3_fdr.of_kind("matcher.frame_done")) == 1
+    assert health.snapshot().mean_inliers_60s > 0
+    c3_fake_clock.advance(61)
+    assert health.snapshot().mean_inliers_60s == 0.0

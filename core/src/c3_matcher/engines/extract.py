@@ -11,8 +11,6 @@ padding.
 
 from __future__ import annotations
 
-from typing import Any, Protocol
-
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -21,10 +19,6 @@ from c3_matcher.features import Features
 from c3_matcher.protocols import InferenceRuntime, ManifestRuntime
 
 __all__ = ["enlarged", "from_enlarged", "image_to_feeds", "run_extractor", "select_keypoints"]
-
-
-class _HasManifest(Protocol):
-    def manifest(self, engine_id: str) -> Any: ...
 
 
 def image_to_feeds(

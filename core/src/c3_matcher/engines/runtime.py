@@ -77,7 +77,6 @@ __all__ = [
     "PROVIDER_ALIASES",
     "PROVIDER_CHAIN",
     "PROVIDER_NOT_INSTALLED",
-    "SESSION_OPTIONS_NOTE",
     "OnnxInferenceRuntime",
     "ProviderSettings",
     "SessionSettings",
@@ -85,11 +84,6 @@ __all__ = [
     "resolve_providers",
     "select_providers",
 ]
-
-SESSION_OPTIONS_NOTE = (
-    "memory pattern off, CPU arena per [engines] cpu_mem_arena (default on), ORT_ENABLE_ALL, "
-    "sequential, deterministic"
-)
 
 _ORT_TO_NUMPY = {
     "tensor(float)": "float32",

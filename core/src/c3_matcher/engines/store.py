@@ -303,13 +303,13 @@ def _rebuild(path: Path) -> str | None:
     return _build_only(name.model, name.variant)
 
 
-def intact_engine(path: Path, *, check_hash: bool = True) -> EngineManifest:
-    """``check_engine_file`` of ``path``; an engine file that cannot be read (no read
-    permission, an I/O error) is ``EngineIntegrityError`` too (``"cannot open (permission
-    denied)"``): it cannot be shown to be the file its manifest describes, and is never passed
-    over for another engine."""
+def intact_engine(path: Path) -> EngineManifest:
+    """``check_engine_file`` of ``path``, its sha256 included; an engine file that cannot be
+    read (no read permission, an I/O error) is ``EngineIntegrityError`` too (``"cannot open
+    (permission denied)"``): it cannot be shown to be the file its manifest describes, and is
+    never passed over for another engine."""
     try:
-        return check_engine_file(path, check_hash=check_hash)
+        return check_engine_file(path)
     except OSError as exc:
         raise unreadable_engine(path, exc) from exc
 

@@ -60,7 +60,7 @@ def c3_matcher_register_commands(commands: CommandRegistry) -> None:
 
     ``commands.add(name, help=...)`` returns a new command's argparse parser (add arguments and
     ``set_defaults(handler=run)``, ``run(args, context) -> exit status``, ``context`` a
-    ``c3_matcher.commands.CommandContext``: settings, plugin host, output streams);
+    ``c3_matcher.context.CommandContext``: settings, plugin host, output streams);
     ``commands.group(name)`` returns the registry of a command group (``engines``) to add
     subcommands to. The core's flight commands come first; ground tooling adds its own here.
     """

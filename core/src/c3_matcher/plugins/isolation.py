@@ -4,8 +4,9 @@
 caller: wrappers, argument selection and result order as in a full call); ``CommandRecorder``
 hands a plugin the command registry while noting the commands it adds, so that those of a plugin
 whose ``c3_matcher_register_commands`` failed half-way refuse with the reason instead of running
-half-registered code. ``FAILURES`` is what a plugin's failure is caught as: any exception,
-``SystemExit`` included (a module calling ``sys.exit`` as it is imported), but not Ctrl-C.
+half-registered code. ``is_failure`` says which exceptions count as a plugin's failure: any,
+``SystemExit`` included (a module calling ``sys.exit`` as it is imported), but not Ctrl-C or
+SIGTERM (``KeyboardInterrupt``) nor a closing generator.
 """
 
 from __future__ import annotations

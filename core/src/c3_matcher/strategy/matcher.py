@@ -63,7 +63,6 @@ class ExtractorMatcher(PipelineMatcher):
         *,
         pair_matcher: PairMatcher | None = None,
     ) -> None:
-        self._runtime = runtime
         self._lightglue_runtime = lightglue_runtime
         self.config: Final = config
         pairs = pair_matcher if pair_matcher is not None else config.pair_matcher(lightglue_runtime)

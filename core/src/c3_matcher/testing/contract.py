@@ -273,12 +273,10 @@ class BackendContract(MatcherContract):
             health=doubles.health,
         )
 
-    def _image(
-        self, pixels: NDArray[np.uint8], valid: NDArray[np.bool_] | None = None
-    ) -> PreparedImage:
+    def _image(self, pixels: NDArray[np.uint8]) -> PreparedImage:
+        """``pixels`` as a prepared image, every pixel valid."""
         h, w = pixels.shape[:2]
-        mask = np.ones((h, w), bool) if valid is None else valid
-        return PreparedImage(pixels, mask, np.eye(3), (w, h))
+        return PreparedImage(pixels, np.ones((h, w), bool), np.eye(3), (w, h))
 
     def _side(self, backend: FeatureBackend) -> int:
         """The stand-in's side: ``frame_size`` rounded by the backend's input rule."""

@@ -14,9 +14,11 @@ from c3_matcher.testing.fakes import FakeClock
 
 @pytest.fixture
 def c3_fake_clock() -> FakeClock:
+    """A monotonic clock that moves only when the test calls ``advance(seconds)``."""
     return FakeClock()
 
 
 @pytest.fixture
 def c3_fdr() -> InMemoryFdr:
+    """An FDR that keeps its records in memory: ``of_kind(kind)`` lists those of a kind."""
     return InMemoryFdr()

@@ -82,7 +82,6 @@ from c3_matcher_tools.engines.export.lightglue_steps import lightglue_exporters
 from c3_matcher_tools.engines.export.reference import PyTorchReference, load_upstream_lightglue
 
 __all__ = [
-    "ALIKED_INPUT_MULTIPLE",
     "AlikedForExport",
     "AlikedLightGlueReference",
     "aliked_features_fn",
@@ -94,9 +93,6 @@ __all__ = [
     "export_lightglue_aliked_steps",
     "load_aliked_reference",
 ]
-
-ALIKED_INPUT_MULTIPLE = ALIKED_SIZE_MULTIPLE
-"""H and W of an ALIKED input must be multiples of this (``engines.ALIKED_SIZE_MULTIPLE``)."""
 
 
 def load_aliked_reference(weights_path: Path, model_name: str, top_k: int) -> Any:

@@ -76,10 +76,6 @@ class AlikedLightGlueConfig(ExtractorLightGlueConfig):
 class AlikedLightGlueMatcher(ExtractorMatcher):
     """ALIKED + LightGlue ``CrossDomainMatcher``. Single-threaded."""
 
-    @property
-    def aliked_engine_id(self) -> str:
-        return self.extractor_engine_id
-
 
 create = strategy_factory(
     AlikedLightGlueMatcher, AlikedLightGlueConfig.from_c3_settings, AlikedLightGlueOptions

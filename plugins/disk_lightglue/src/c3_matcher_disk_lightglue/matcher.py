@@ -49,10 +49,6 @@ class DiskLightGlueMatcher(ExtractorMatcher):
     """The production-default ``CrossDomainMatcher`` (specified constructor, the core's per-frame
     pipeline). Single-threaded."""
 
-    @property
-    def disk_engine_id(self) -> str:
-        return self.extractor_engine_id
-
 
 create = strategy_factory(
     DiskLightGlueMatcher,

@@ -371,6 +371,7 @@ def _match_pictures(
                     title=f"{r.strategy} frame {frame.index}: {o.best_inliers} inliers, "
                     f"{'true tile' if o.correct else 'wrong tile'}, err {o.mean_error_px:.2f}px",
                     height=480,
+                    calibration=dataset.calibration,  # the inliers are in ORIGINAL px
                 )
                 written.append(str(path))
     return written

@@ -143,10 +143,6 @@ class XFeatMatcher(ExtractorMatcher):
     """The XFeat ``CrossDomainMatcher`` (the core's ``ExtractorMatcher``). Single-threaded.
     ``pair_matcher=`` replaces the configured one (tests)."""
 
-    @property
-    def xfeat_engine_id(self) -> str:
-        return self.extractor_engine_id
-
 
 create = strategy_factory(XFeatMatcher, XFeatConfig.from_c3_settings, XFeatOptions)
 """Strategy factory (``compose_root``): resolve the engines the chosen matcher needs, load them

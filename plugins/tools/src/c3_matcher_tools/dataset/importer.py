@@ -47,7 +47,7 @@ from c3_matcher_tools.dataset.telemetry import (
 )
 from c3_matcher_tools.dataset.writing import copy_file, write_dataset
 
-__all__ = ["ImportSpec", "import_csv_flight", "import_flight", "refuse_special_inputs"]
+__all__ = ["ImportSpec", "import_csv_flight", "refuse_special_inputs"]
 
 
 @dataclass(frozen=True)
@@ -114,14 +114,6 @@ def _pair_images(
         (r.image, f"line {r.line}: no such image") for r in sorted(missing, key=lambda r: r.line)
     ]
     return kept, skipped
-
-
-def import_flight(
-    spec: ImportSpec, out: Path, *, name: str | None = None, force: bool = False
-) -> dict[str, Any]:
-    """:func:`import_csv_flight`'s report as JSON (``dataset``, ``frames``, ``zoom``,
-    ``skipped``, ...)."""
-    return import_csv_flight(spec, out, name=name, force=force).to_json()
 
 
 def import_csv_flight(

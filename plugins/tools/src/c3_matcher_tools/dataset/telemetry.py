@@ -58,7 +58,6 @@ __all__ = [
     "HEIGHT_COLUMNS",
     "Telemetry",
     "TelemetryRow",
-    "read_telemetry",
     "read_telemetry_table",
     "refuse_lines",
 ]
@@ -234,23 +233,6 @@ def _height(
     return agl, None
 
 
-def read_telemetry(
-    path: Path,
-    *,
-    ground_elevation_m: float | None = None,
-    dem: Path | None = None,
-    images_dir: Path | None = None,
-) -> list[TelemetryRow]:
-    """Read and check a telemetry CSV (see the module docstring), sorted by time; raises
-    InvalidInputError naming the CSV line of every refused value. With ``images_dir``, each
-    image name is placed in it (:func:`~c3_matcher_tools.dataset.image_names.place_images`):
-    the rows name their images as paths relative to it, none twice."""
-    table = read_telemetry_table(
-        path, ground_elevation_m=ground_elevation_m, dem=dem, images_dir=images_dir
-    )
-    return list(table.rows)
-
-
 def read_telemetry_table(
     path: Path,
     *,
@@ -258,7 +240,11 @@ def read_telemetry_table(
     dem: Path | None = None,
     images_dir: Path | None = None,
 ) -> Telemetry:
-    """:func:`read_telemetry` with how the heights above ground were obtained."""
+    """Read and check a telemetry CSV (see the module docstring): its rows sorted by time, with
+    how the heights above ground were obtained; raises InvalidInputError naming the CSV line of
+    every refused value. With ``images_dir``, each image name is placed in it
+    (:func:`~c3_matcher_tools.dataset.image_names.place_images`): the rows name their images as
+    paths relative to it, none twice."""
     path = Path(path)
     records = _records(path)
     header = _header(records, path)

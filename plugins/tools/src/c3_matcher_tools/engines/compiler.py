@@ -483,9 +483,9 @@ def ensure_engines(
     specs: Sequence[EngineSpec],
     directory: Path,
     *,
-    imagery: Sequence[Path] | None = None,
     log: Callable[[str], None] | None = None,
 ) -> dict[tuple[str, str], Path]:
-    """Build what is missing, reuse what is valid; ``{(model, variant): engine path}``."""
-    outcomes = build_engines(specs, directory, imagery=imagery, log=log)
+    """Build what is missing (verified on the packaged real orthophoto), reuse what is valid;
+    ``{(model, variant): engine path}``."""
+    outcomes = build_engines(specs, directory, log=log)
     return {(o.spec.model, o.spec.variant): o.path for o in outcomes}

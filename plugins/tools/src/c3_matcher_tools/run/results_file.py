@@ -38,8 +38,6 @@ PARTIAL_SUFFIX = ".partial"
 
 KeepFrame = Callable[[FrameOutcome], None]
 """What is called with each frame's outcome as it is flown (:func:`appending_results`)."""
-Say = Callable[[str], None]
-"""Where a line for stderr goes (:func:`appending_results`)."""
 
 
 def partial_results(path: Path) -> Path:
@@ -68,21 +66,21 @@ def write_results(path: Path, outcomes: Sequence[FrameOutcome]) -> Path:
 
 
 @contextlib.contextmanager
-def appending_results(path: Path, say: Say | None = None) -> Iterator[KeepFrame]:
+def appending_results(path: Path) -> Iterator[KeepFrame]:
     """A :data:`KeepFrame` that appends each outcome's line to the partial file of the results
     ``path`` (:func:`partial_results`, started afresh: an earlier one, or a link there, is
     removed, never followed) and flushes it to disk (``fsync``: a few milliseconds, beside a
     frame's hundreds). A write that fails (a full disk) is cut back to the last whole line
-    and the file left as it is from then on, said once through ``say`` (None: on stderr),
-    with why and how many frames it keeps: the run goes on, its results written as it ends.
-    The file is closed, not removed, when the block ends (:func:`write_results` removes it)."""
+    and the file left as it is from then on, said once on stderr, with why and how many frames
+    it keeps: the run goes on, its results written as it ends. The file is closed, not
+    removed, when the block ends (:func:`write_results` removes it)."""
     partial = partial_results(path)
     partial.unlink(missing_ok=True)
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND | os.O_NOFOLLOW | os.O_CLOEXEC
     fd = os.open(partial, flags, 0o666)
     try:
         fsync_dir(path.parent)
-        yield _appender(fd, _stopped_line(path), say or _say_on_stderr)
+        yield _appender(fd, _stopped_line(path))
     finally:
         os.close(fd)
 
@@ -100,9 +98,9 @@ def kept_frames(path: Path) -> int | None:
     return lines
 
 
-def _appender(fd: int, stopped: Callable[[int, OSError], str], say: Say) -> KeepFrame:
+def _appender(fd: int, stopped: Callable[[int, OSError], str]) -> KeepFrame:
     """Each outcome's line appended to ``fd`` and synced; after a failed write, nothing more,
-    and the line ``stopped`` makes of the frames kept and the error said once."""
+    and the line ``stopped`` makes of the frames kept and the error said once on stderr."""
     whole, lines = 0, 0  # bytes and lines written whole
     failed = False
 
@@ -120,7 +118,7 @@ def _appender(fd: int, stopped: Callable[[int, OSError], str], say: Say) -> Keep
             with contextlib.suppress(OSError):
                 os.ftruncate(fd, whole)
             failed = True
-            say(stopped(lines, exc))
+            _say_on_stderr(stopped(lines, exc))
             return
         whole, lines = whole + len(data), lines + 1
 

@@ -196,7 +196,6 @@ class RenderedFrame:
         captured_at_ns: int = 0,
         *,
         with_attitude: bool = True,
-        with_height: bool = True,
     ) -> NavCameraFrame:
         """The :class:`NavCameraFrame` a matcher would receive for this render."""
         return NavCameraFrame(
@@ -204,7 +203,7 @@ class RenderedFrame:
             image=self.image,
             captured_at_ns=captured_at_ns,
             attitude=self.attitude if with_attitude else None,
-            height_above_ground_m=self.height_m if with_height else None,
+            height_above_ground_m=self.height_m,
         )
 
     def tile_around(
@@ -228,13 +227,12 @@ class RenderedFrame:
 
 class NavCameraRenderer:
     """Renders frames through one calibration; computes the exact undistorted ray of every
-    ORIGINAL pixel once (the costly part, ~0.3 s for 1000x750) and reuses it per frame.
-    ``antialias``: area-downscale the orthophoto first when the frame's nadir GSD is >= 1.5x
-    the orthophoto's."""
+    ORIGINAL pixel once (the costly part, ~0.3 s for 1000x750) and reuses it per frame. The
+    orthophoto is area-downscaled first when the frame's nadir GSD is >= 1.5x the
+    orthophoto's (anti-aliasing)."""
 
-    def __init__(self, calibration: CameraCalibration, *, antialias: bool = True) -> None:
+    def __init__(self, calibration: CameraCalibration) -> None:
         self.calibration = calibration
-        self.antialias = antialias
         self._rays: tuple[F64, F64] | None = None
 
     def pixel_rays(self) -> tuple[F64, F64]:
@@ -315,7 +313,7 @@ class NavCameraRenderer:
         scale = np.ones(2)
         k = self.calibration.K
         ratio = (height_m / math.sqrt(k[0, 0] * k[1, 1])) / gsd_m
-        if self.antialias and ratio >= 1.5:
+        if ratio >= 1.5:
             src, src_scale = area_downscale(src, ratio)
             scale = np.array(src_scale)
         return src, offset, scale
@@ -374,14 +372,13 @@ def render_nav_frame(
     *,
     photometric: PhotometricShift | None = None,
     seed: int | np.random.Generator = 0,
-    antialias: bool = True,
 ) -> RenderedFrame:
     """Render the nav-camera frame of a flat ground textured by ``ortho`` (uint8 RGB or grey,
     north-up, ``gsd_m`` m/px) seen from ``height_m`` m above ORTHO px ``nadir_px`` with
     ``attitude``, through ``calibration`` (lens distortion included), then apply
     ``photometric`` with a generator seeded by ``seed`` (an int or a Generator, advanced).
     Deterministic for a given seed. For many frames, reuse one :class:`NavCameraRenderer`."""
-    return NavCameraRenderer(calibration, antialias=antialias).render(
+    return NavCameraRenderer(calibration).render(
         ortho, gsd_m, nadir_px, height_m, attitude, photometric=photometric, seed=seed
     )
 

@@ -192,11 +192,6 @@ class MBTilesWriter:
             raise InvalidInputError("mbtiles", f"{self._path}: the writer is closed")
         return self._db
 
-    @property
-    def temporary_path(self) -> Path:
-        """Where the store is written until :meth:`close` renames it."""
-        return self._tmp
-
     def put_tile(self, zoom: int, x: int, y: int, data: bytes) -> None:
         """Store XYZ tile (zoom, x, y) (converted to a TMS row) and its sha256."""
         row = (1 << zoom) - 1 - y

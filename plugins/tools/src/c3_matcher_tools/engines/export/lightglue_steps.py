@@ -178,20 +178,18 @@ def export_lightglue_steps(
     *,
     features_fn: FeaturesFn,
     feature_type: str,
-    reference: Any = None,
     keypoint_counts: tuple[int, ...] = (1024, 2048),
 ) -> ExportReport:
-    """Export the steps graph of ``reference`` (kornia ``LightGlue``, any depth/width settings:
-    they are overridden by the spec's ``depth_confidence`` / ``width_confidence`` options for
-    the check; ``None``: ``load_lightglue_reference`` of the request's weights with the spec's
-    ``input_dim``) and verify it against upstream's adaptive forward on ``features_fn``'s real
-    features (see the module docstring). The plugin that declares a steps engine names a
-    one-line exporter calling this with its features."""
+    """Export the steps graph of kornia ``LightGlue`` (``load_lightglue_reference`` of the
+    request's weights with the spec's ``input_dim``; its depth/width settings are overridden by
+    the spec's ``depth_confidence`` / ``width_confidence`` options for the check) and verify it
+    against upstream's adaptive forward on ``features_fn``'s real features (see the module
+    docstring). The plugin that declares a steps engine names a one-line exporter calling this
+    with its features."""
     spec = request.spec
-    if reference is None:
-        reference = load_lightglue_reference(
-            request.weights_path, input_dim=int(spec.option("input_dim"))
-        )
+    reference = load_lightglue_reference(
+        request.weights_path, input_dim=int(spec.option("input_dim"))
+    )
     depth = float(spec.option("depth_confidence"))
     width = float(spec.option("width_confidence"))
     n_layers = int(reference.conf.n_layers)
