@@ -99,10 +99,10 @@ class Faulty:
     [
         ("outside", "5 keypoint(s) outside the 128x128 px probe image"),
         ("tuple", "match returned tuple, not RawMatches"),
-        ("index", "match gave tile indices outside the"),
-        ("twice", "match paired one query keypoint more than once"),
-        ("tile_twice", "match paired one tile keypoint more than once"),
-        ("swapped", "match gave query indices outside the"),
+        ("index", "the matcher's output pairs tile keypoint 1000000, but the tile has"),
+        ("twice", "(each query keypoint may be in one pair at most)"),
+        ("tile_twice", "(each tile keypoint may be in one pair at most)"),
+        ("swapped", "the matcher's output pairs query keypoint"),
         ("ignores_tile", "pairs join a query point (x, y) to the tile point (x + 16, y)"),
     ],
 )

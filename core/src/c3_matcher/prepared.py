@@ -33,6 +33,7 @@ __all__ = [
     "MAX_UPSCALE",
     "InputRule",
     "PreparedImage",
+    "check_pairs",
     "correspondences",
     "engine_to_working",
     "rotation_from_turned",
@@ -226,19 +227,31 @@ def correspondences(
     raw: RawMatches,
 ) -> NDArray[np.float32]:
     """(M, 4) float32 rows (x_query, y_query, x_tile, y_tile) of ``raw`` matches in WORKING px
-    (rectified query, full-resolution tile); (0, 4) without a match. ``ValueError`` naming the
-    index when a match points at no keypoint (a backend's -1 for "unmatched" would otherwise
-    pair the last keypoint) or pairs one query keypoint, or one tile keypoint, more than once
-    (each pair would count as an inlier of its own)."""
+    (rectified query, full-resolution tile); (0, 4) without a match; ``ValueError`` where the
+    pairs are no pairs of these keypoints (:func:`check_pairs`)."""
     if len(raw) == 0:
         return np.zeros((0, 4), dtype=np.float32)
-    for column, (side, features) in enumerate((("query", query), ("tile", tile))):
+    check_pairs(raw, len(query), len(tile))
+    q = query_image.to_working(query.keypoints[raw.matches[:, 0]].astype(np.float64))
+    t = tile_image.to_working(tile.keypoints[raw.matches[:, 1]].astype(np.float64))
+    return np.hstack([q, t]).astype(np.float32)
+
+
+def check_pairs(raw: RawMatches, query_count: int, tile_count: int) -> None:
+    """``ValueError`` naming the index when a match of a query of ``query_count`` keypoints with
+    a tile of ``tile_count`` points at no keypoint (a backend's -1 for "unmatched" would
+    otherwise pair the last keypoint) or pairs one query keypoint, or one tile keypoint, more
+    than once (each pair would count as an inlier of its own): the one check of a backend's
+    pairs, in flight and in the start-up probe."""
+    if len(raw) == 0:
+        return
+    for column, (side, count) in enumerate((("query", query_count), ("tile", tile_count))):
         index = raw.matches[:, column]
-        outside = index[(index < 0) | (index >= len(features))]
+        outside = index[(index < 0) | (index >= count)]
         if outside.size:
             raise ValueError(
                 f"the matcher's output pairs {side} keypoint {int(outside[0])}, but the {side} "
-                f"has {len(features)} keypoints (indices 0..{len(features) - 1})"
+                f"has {count} keypoints (indices 0..{count - 1})"
             )
     for column, side in enumerate(("query", "tile")):
         uses = np.bincount(raw.matches[:, column], minlength=1)
@@ -248,6 +261,3 @@ def correspondences(
                 f"the matcher's output pairs {side} keypoint {twice} {int(uses[twice])} times "
                 f"(each {side} keypoint may be in one pair at most)"
             )
-    q = query_image.to_working(query.keypoints[raw.matches[:, 0]].astype(np.float64))
-    t = tile_image.to_working(tile.keypoints[raw.matches[:, 1]].astype(np.float64))
-    return np.hstack([q, t]).astype(np.float32)

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from c3_matcher.errors import ConfigurationError, EngineError, describe
 from c3_matcher.features import Features, RawMatches
-from c3_matcher.prepared import InputRule, PreparedImage
+from c3_matcher.prepared import InputRule, PreparedImage, check_pairs
 from c3_matcher.protocols import EarlyStopping, FeatureBackend
 from c3_matcher.stages.extract import extract_checked
 from c3_matcher.stages.interrupts import is_stop
@@ -236,10 +236,10 @@ def check_shifted_matches(
     query: Features, tile: Features, matches: object, shift: int, min_on_offset: float = 0.5
 ) -> None:
     """``ValueError`` unless ``matches`` are the matches of ``query`` with ``tile``, whose
-    texture holds the query's ``shift`` px to the right: :class:`RawMatches`, some, indices
-    into each side's own keypoints, each keypoint of either side in one pair at most (a pair
-    given twice would count twice as an inlier), and at least ``min_on_offset`` of them pairing
-    a query point (x, y) with a tile point within ``ON_OFFSET_PX`` of (x + shift, y)."""
+    texture holds the query's ``shift`` px to the right: :class:`RawMatches`, some, pairs of
+    their keypoints as flight checks them (:func:`~c3_matcher.prepared.check_pairs`), and at
+    least ``min_on_offset`` of them pairing a query point (x, y) with a tile point within
+    ``ON_OFFSET_PX`` of (x + shift, y)."""
     if not isinstance(matches, RawMatches):
         raise TypeError(f"match returned {type(matches).__name__}, not RawMatches")
     if len(matches) == 0:
@@ -247,15 +247,8 @@ def check_shifted_matches(
             "matching the probe image with a view that holds it gave no match (an engine "
             "fault, or a setting that stops every pair early)"
         )
+    check_pairs(matches, len(query), len(tile))
     q, t = matches.matches[:, 0], matches.matches[:, 1]
-    for side, index, features in (("query", q, query), ("tile", t, tile)):
-        if not bool(((index >= 0) & (index < len(features))).all()):
-            raise ValueError(
-                f"match gave {side} indices outside the {len(features)} {side} keypoints"
-            )
-    for side, index in (("query", q), ("tile", t)):
-        if np.unique(index).size != index.size:
-            raise ValueError(f"match paired one {side} keypoint more than once")
     expected = query.keypoints[q] + np.array([shift, 0], np.float32)
     on = float(np.mean(np.linalg.norm(tile.keypoints[t] - expected, axis=1) <= ON_OFFSET_PX))
     if on < min_on_offset:
