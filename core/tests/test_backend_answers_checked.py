@@ -25,9 +25,11 @@ from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.stages.candidate_features import CandidateFeatures
 from c3_matcher.stages.extract import (
+    KEYPOINT_BUDGET_UNREAD,
     KEYPOINT_CEILING,
     KEYPOINTS_CUT,
     Extraction,
+    backend_budget,
     cut_to_budget,
     extract_checked,
     extraction_budget,
@@ -246,6 +248,14 @@ def test_a_declared_budget_that_is_no_positive_int_gives_the_ceiling(declared: A
     backend = _backend(Budgeted)
     backend.max_keypoints = declared  # type: ignore[attr-defined]
     assert extraction_budget(backend)[0] == KEYPOINT_CEILING
+    assert backend_budget(backend) is None
+
+
+@pytest.mark.parametrize("declared", [np.int64(8), np.int32(8), np.uint16(8)])
+def test_a_budget_of_any_integer_type_is_read(declared: Any) -> None:
+    backend = _backend(Budgeted)
+    backend.max_keypoints = declared  # type: ignore[attr-defined]
+    assert backend_budget(backend) == extraction_budget(backend)[0] == 8
 
 
 def test_over_budget_the_query_and_the_tiles_are_cut_and_said_once_per_matcher() -> None:
@@ -320,13 +330,14 @@ def test_a_matcher_reads_the_budget_once_when_composed_not_every_extraction() ->
     assert len(Extraction(backend)(_image(64))) == 5  # the cut these frames made
 
 
-@pytest.mark.parametrize("declared", [None, 0, True])
+@pytest.mark.parametrize("declared", [None, 0, True, 2048.0])
 def test_a_budget_that_is_no_positive_int_composes_and_runs_at_the_ceiling(
-    declared: Any, tmp_path: Any
+    declared: Any, tmp_path: Any, logs: Any
 ) -> None:
     """One reading of a backend's budget everywhere: a ``max_keypoints`` that is no positive
-    int is no budget, at start-up's inlier check (it was a bare TypeError for None, a refusal
-    for 0) as in flight (the core's ceiling) and for a store's precomputed features (none)."""
+    integer is no budget, at start-up's inlier check (it was a bare TypeError for None, a
+    refusal for 0) as in flight (the core's ceiling, said once at start-up) and for a store's
+    precomputed features (none)."""
     from c3_matcher.compose import compose_root
     from c3_matcher.config import C3Settings
     from c3_matcher.stages.candidate_features import feature_request
@@ -342,7 +353,19 @@ def test_a_budget_that_is_no_positive_int_composes_and_runs_at_the_ceiling(
     root = compose_root(settings, helpers, plugin_host=host, configure_logs=False)
     try:
         backend = root.matcher.backend  # type: ignore[attr-defined]
-        assert extraction_budget(backend)[0] == KEYPOINT_CEILING
+        assert root.matcher._extraction.budget == KEYPOINT_CEILING  # type: ignore[attr-defined]
         assert feature_request(backend, FramePreprocessor(backend.input_rule)) is None
     finally:
         root.close()
+    if declared is None:  # declares none: the ceiling, as without max_keypoints, unsaid
+        assert logs.of_kind(KEYPOINT_BUDGET_UNREAD) == []
+        return
+    (said,) = logs.of_kind(KEYPOINT_BUDGET_UNREAD)
+    assert said["level"] == "WARNING" and said["declared"] == repr(declared)
+    assert f"max_keypoints={declared!r} is no positive integer" in said["message"]
+
+
+def test_a_matcher_over_a_positive_budget_says_nothing_of_it(logs: Any) -> None:
+    Extraction(_backend(Budgeted))
+    Extraction(_backend(FakeBackend))  # none declared: the ceiling, as documented
+    assert logs.of_kind(KEYPOINT_BUDGET_UNREAD) == []

@@ -49,7 +49,7 @@ from c3_matcher.protocols import (
     FeatureBackend,
 )
 from c3_matcher.ransac import OpenCvRansacFilter
-from c3_matcher.stages.extract import declared_budget
+from c3_matcher.stages.extract import backend_budget
 from c3_matcher.strategy import DEFAULT_MAX_KEYPOINTS, engine_startup_probe
 from c3_matcher.strategy_options import check_options_tables, strategy_options
 
@@ -303,9 +303,9 @@ def _create_strategy(
 
 def check_inliers_reachable(config: C3Settings, backend: FeatureBackend) -> None:
     """``keypoint_budget.check_inliers_reachable`` against the keypoints per image the backend
-    keeps (:func:`~c3_matcher.stages.extract.declared_budget`: its ``max_keypoints``, after any
+    keeps (:func:`~c3_matcher.stages.extract.backend_budget`: its ``max_keypoints``, after any
     cut to its extractor engine's top-K); a backend that declares none is not checked."""
-    budget = declared_budget(backend)
+    budget = backend_budget(backend)
     if budget is not None:
         budgets.check_inliers_reachable(config, budget)
 

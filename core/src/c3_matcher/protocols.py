@@ -116,7 +116,8 @@ class FeatureBackend(Protocol):
 class KeypointBudgetBackend(FeatureBackend, Protocol):
     """A ``FeatureBackend`` that declares its keypoint budget ``max_keypoints``: at most this
     many keypoints per image (the strategy's default where no setting names one, cut to its
-    extractor engine's top-K). Start-up checks ``[matcher] min_inliers_threshold`` against it
+    extractor engine's top-K), a positive integer read once when the matcher is composed and
+    fixed for the backend's life. Start-up checks ``[matcher] min_inliers_threshold`` against it
     and runs record it. An extraction over it keeps its best keypoints by score, said once per
     matcher (the contract kit fails it). Optional: a backend without one is held to the core's
     ceiling (``stages.extract.KEYPOINT_CEILING``) the same way."""

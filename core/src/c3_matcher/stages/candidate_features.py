@@ -18,7 +18,7 @@ from c3_matcher.features import Features
 from c3_matcher.prepared import PreparedImage
 from c3_matcher.preprocess import FramePreprocessor
 from c3_matcher.protocols import FeatureBackend, StoredFeaturesBackend, StoredFeaturesHandle
-from c3_matcher.stages.extract import Extraction, checked_features, declared_budget
+from c3_matcher.stages.extract import Extraction, backend_budget, checked_features
 from c3_matcher.stages.failure import failing_as, timed
 from c3_matcher.stages.interrupts import is_stop
 from c3_matcher.stages.outcomes import TileFeatures
@@ -43,7 +43,7 @@ def feature_request(backend: FeatureBackend, pre: FramePreprocessor) -> FeatureR
     names no extractor engine or keeps no keypoint (its tiles are then always extracted)."""
     if not isinstance(backend, StoredFeaturesBackend):
         return None
-    sha, budget, rule = backend.extractor_sha256, declared_budget(backend), backend.input_rule
+    sha, budget, rule = backend.extractor_sha256, backend_budget(backend), backend.input_rule
     if not isinstance(sha, str) or not sha or budget is None:
         return None
     provider = str(read_provenance(backend).get("provider") or "")  # it may fail: none

@@ -13,6 +13,7 @@ would take one frame tens of seconds and hundreds of MB to match."""
 
 from __future__ import annotations
 
+import operator
 import threading
 from typing import Final
 
@@ -26,12 +27,13 @@ from c3_matcher.protocols import FeatureBackend, KeypointBudgetBackend
 
 __all__ = [
     "KEYPOINTS_CUT",
+    "KEYPOINT_BUDGET_UNREAD",
     "KEYPOINT_CEILING",
     "KEYPOINT_MARGIN_PX",
     "Extraction",
+    "backend_budget",
     "checked_features",
     "cut_to_budget",
-    "declared_budget",
     "extract_checked",
     "extraction_budget",
 ]
@@ -49,6 +51,9 @@ counts that make one frame take seconds and hundreds of MB."""
 
 KEYPOINTS_CUT = "c3.matcher.keypoints_cut"
 """The WARNING a matcher logs once when an extraction held more keypoints than its budget."""
+KEYPOINT_BUDGET_UNREAD = "c3.matcher.keypoint_budget_unread"
+"""The WARNING a matcher logs when it is composed over a backend whose ``max_keypoints`` is no
+positive integer (0, None, a float): its extractions are held to the core's ceiling instead."""
 
 
 def checked_features(features: object, size: tuple[int, int], image: str = "image") -> Features:
@@ -75,23 +80,36 @@ def checked_features(features: object, size: tuple[int, int], image: str = "imag
     return features
 
 
-def declared_budget(backend: FeatureBackend) -> int | None:
+def backend_budget(backend: FeatureBackend) -> int | None:
     """The keypoints per image ``backend`` declares it keeps (``max_keypoints``,
-    :class:`KeypointBudgetBackend`), or None where it declares none or no positive int: the one
-    reading of a backend's budget, for its extractions, the start-up check that its inlier
-    threshold is reachable and the tile store's precomputed features."""
-    if not isinstance(backend, KeypointBudgetBackend):
+    :class:`KeypointBudgetBackend`: a positive integer, a NumPy one too), or None where it
+    declares none or no positive integer: the one reading of a backend's budget, for its
+    extractions, the start-up check that its inlier threshold is reachable, the tile store's
+    precomputed features and the ground tools' reports."""
+    return _positive(_declared(backend))
+
+
+def _declared(backend: FeatureBackend) -> object:
+    """``backend``'s ``max_keypoints`` as it is, None where it declares none (no
+    ``max_keypoints``, or None)."""
+    return backend.max_keypoints if isinstance(backend, KeypointBudgetBackend) else None
+
+
+def _positive(value: object) -> int | None:
+    """``value`` as a positive int (any integer type but bool), else None."""
+    if isinstance(value, bool):
         return None
-    declared = backend.max_keypoints
-    if isinstance(declared, int) and not isinstance(declared, bool) and declared >= 1:
-        return declared
-    return None
+    try:
+        number = operator.index(value)  # type: ignore[arg-type]
+    except TypeError:
+        return None
+    return number if number >= 1 else None
 
 
 def extraction_budget(backend: FeatureBackend) -> tuple[int, str]:
     """The most keypoints one extraction of ``backend`` keeps, and that limit in words: the
-    budget it declares (:func:`declared_budget`), else :data:`KEYPOINT_CEILING`."""
-    declared = declared_budget(backend)
+    budget it declares (:func:`backend_budget`), else :data:`KEYPOINT_CEILING`."""
+    declared = backend_budget(backend)
     if declared is not None:
         return declared, f"the {declared} backbone {backend.label} declares (max_keypoints)"
     return KEYPOINT_CEILING, (
@@ -122,13 +140,25 @@ class Extraction:
     here, at composition (:func:`extraction_budget`: a backend's budget is part of its declared
     interface, fixed for its life). The first cut is said (a :data:`KEYPOINTS_CUT` WARNING
     naming the backbone, the count and the budget) unless ``say_cuts`` is False, the later ones
-    are not: a backend over its budget is over it every frame. Thread-safe."""
+    are not: a backend over its budget is over it every frame; so is, once, a ``max_keypoints``
+    that is no positive integer (:data:`KEYPOINT_BUDGET_UNREAD`). Thread-safe."""
 
     def __init__(self, backend: FeatureBackend, *, say_cuts: bool = True) -> None:
         self.backend: Final = backend
-        self.budget, self._limit = extraction_budget(backend)
+        budget, self._limit = extraction_budget(backend)
+        self.budget: Final = budget
         self._lock = threading.Lock()
         self._say = say_cuts
+        declared = _declared(backend)
+        if say_cuts and declared is not None and _positive(declared) is None:
+            log_event(
+                "WARNING",
+                KEYPOINT_BUDGET_UNREAD,
+                f"C3 keypoint budget unread; backbone={backend.label}; max_keypoints="
+                f"{declared!r} is no positive integer: its extractions are held to {self._limit}",
+                backbone=backend.label,
+                declared=repr(declared),
+            )
 
     def __call__(self, image: PreparedImage, name: str = "image") -> Features:
         """``backend.extract(image)``, checked (``name`` in an error) and cut to the budget."""

@@ -22,7 +22,7 @@ from c3_matcher.logs import LoggingHandle
 from c3_matcher.pipeline import FeatureBackend, PipelineMatcher
 from c3_matcher.plugins.manager import PluginHost
 from c3_matcher.protocols import Clock, CrossDomainMatcher, FdrClient
-from c3_matcher.stages.extract import declared_budget
+from c3_matcher.stages.extract import backend_budget
 from c3_matcher_tools.run.outputs import forget_previous_run
 
 __all__ = [
@@ -233,7 +233,7 @@ class PreparedMatcher:
         no setting names one, cut to its extractor engine's top-K (None: it declares none)."""
         matcher = self.matcher
         backend = matcher.backend if isinstance(matcher, PipelineMatcher) else None
-        return None if backend is None else declared_budget(backend)
+        return None if backend is None else backend_budget(backend)
 
     @property
     def log_lines_lost(self) -> int:
