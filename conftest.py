@@ -7,11 +7,19 @@ the real engine compiler (``c3-matcher engines build``'s code path) and cached w
 checkout); valid engines are reused, so only a fresh clone pays the build (about two minutes
 on two cores). Nothing is skipped: a test that needs engines gets them built. ``read_image``
 and ``gorinchem``: real imagery from ``data/imagery``.
+
+Every test runs in an environment of its own (``_own_environment``, autouse): no
+``C3_MATCHER_*`` variable of the caller's (the environment outranks the settings a test gives,
+so one set in the developer's shell would silently replace them; ``engine_dir`` reads the
+engine directory's once, before), and the user data directory (``XDG_DATA_HOME``: the default
+FDR) in the test's own temporary directory, so no test writes the user's flight-data record, nor
+waits on another process writing it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -25,6 +33,19 @@ from c3_matcher.engines.naming import EngineName
 from c3_matcher.engines.spec import TensorSpec, file_sha256
 
 REPO = Path(__file__).resolve().parent
+CALLER_ENVIRONMENT = {k: v for k, v in os.environ.items() if k.upper().startswith("C3_MATCHER_")}
+"""The ``C3_MATCHER_*`` variables the suite was started with, read once at its start."""
+
+
+@pytest.fixture(autouse=True)
+def _own_environment(
+    monkeypatch: pytest.MonkeyPatch, tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    """No caller's ``C3_MATCHER_*`` variable, and the default FDR under a temporary
+    ``XDG_DATA_HOME`` (a child process started by the test inherits both)."""
+    for key in CALLER_ENVIRONMENT:
+        monkeypatch.delenv(key, raising=False)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path_factory.mktemp("user-data")))
 
 
 @pytest.fixture(scope="session")
@@ -33,7 +54,10 @@ def engine_dir() -> Path:
     from c3_matcher.config import load_settings
     from c3_matcher_tools.engines.compiler import ensure_engines
 
-    directory = load_settings().engines.directory
+    with pytest.MonkeyPatch.context() as caller:  # the engine directory the caller set
+        for key, value in CALLER_ENVIRONMENT.items():
+            caller.setenv(key, value)
+        directory = load_settings().engines.directory
     specs = build_plugin_host().engine_specs()
     assert specs, "no installed plugin declares an engine: run scripts/setup"
     ensure_engines(specs, directory, log=lambda line: print(line, file=sys.stderr))

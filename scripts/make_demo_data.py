@@ -11,9 +11,9 @@ own georeference (its GeoTIFF grid and CRS), at the web-mercator zoom nearest th
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
-import sys
 from pathlib import Path
 
 import cv2
@@ -112,4 +112,8 @@ def main(out: Path = OUT) -> None:
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]) if len(sys.argv) > 1 else OUT)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("out_dir", nargs="?", type=Path, default=OUT, help=f"default {OUT}")
+    main(parser.parse_args().out_dir)

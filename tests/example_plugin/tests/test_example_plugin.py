@@ -56,12 +56,14 @@ def _composed(engine_dir: Path, spec: c3.StrategySpec) -> Any:
     directory), its strategy selected."""
     from c3_matcher.compose import compose_root
     from c3_matcher.plugins.manager import PluginSource
+    from c3_matcher.testing import InMemoryFdr
     from c3_matcher.testing.hosts import RESEARCH_PROFILE, fake_helpers
 
     module = types.SimpleNamespace(c3_matcher_strategies=c3.hookimpl(lambda: [spec]))
     host = c3.PluginHost(RESEARCH_PROFILE, [PluginSource("x", "x-dist", "0.1", module=module)])
     settings = c3.C3Settings(engines={"directory": engine_dir}, matcher={"strategy": spec.name})
-    return compose_root(settings, fake_helpers(), plugin_host=host, configure_logs=False)
+    helpers = {**fake_helpers(), "c13_fdr": InMemoryFdr()}  # not the user's default FDR
+    return compose_root(settings, helpers, plugin_host=host, configure_logs=False)
 
 
 def test_a_strategy_s_own_defaults_reach_the_loop_it_runs(engine_dir, monkeypatch) -> None:
