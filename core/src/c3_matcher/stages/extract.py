@@ -109,7 +109,11 @@ def _positive(value: object) -> int | None:
 def extraction_budget(backend: FeatureBackend) -> tuple[int, str]:
     """The most keypoints one extraction of ``backend`` keeps, and that limit in words: the
     budget it declares (:func:`backend_budget`), else :data:`KEYPOINT_CEILING`."""
-    declared = backend_budget(backend)
+    return _budget_in_words(backend, backend_budget(backend))
+
+
+def _budget_in_words(backend: FeatureBackend, declared: int | None) -> tuple[int, str]:
+    """``extraction_budget`` of ``backend`` whose budget read is ``declared``."""
     if declared is not None:
         return declared, f"the {declared} backbone {backend.label} declares (max_keypoints)"
     return KEYPOINT_CEILING, (
@@ -145,12 +149,13 @@ class Extraction:
 
     def __init__(self, backend: FeatureBackend, *, say_cuts: bool = True) -> None:
         self.backend: Final = backend
-        budget, self._limit = extraction_budget(backend)
+        declared = _declared(backend)  # read once: a backend's budget is fixed for its life
+        positive = _positive(declared)
+        budget, self._limit = _budget_in_words(backend, positive)
         self.budget: Final = budget
         self._lock = threading.Lock()
         self._say = say_cuts
-        declared = _declared(backend)
-        if say_cuts and declared is not None and _positive(declared) is None:
+        if say_cuts and declared is not None and positive is None:
             log_event(
                 "WARNING",
                 KEYPOINT_BUDGET_UNREAD,
